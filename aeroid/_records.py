@@ -1,0 +1,49 @@
+"""Small helpers shared by the frozen result records."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def frozen_array(values: ArrayLike) -> NDArray[np.float64]:
+    """A read-only float64 copy."""
+    out = np.array(values, dtype=np.float64, copy=True)
+    out.setflags(write=False)
+    return out
+
+
+def frozen_mapping(values: Mapping[str, Any] | Iterable[tuple[str, Any]]) -> Mapping[str, Any]:
+    """A read-only dict; float-like values become Python floats, arrays become read-only."""
+    out: dict[str, Any] = {}
+    for k, v in dict(values).items():
+        if isinstance(v, np.ndarray) and v.ndim > 0:
+            out[str(k)] = frozen_array(v)
+        elif isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
+            out[str(k)] = float(v)
+        else:
+            out[str(k)] = v
+    return MappingProxyType(out)
+
+
+def fmt(value: float, digits: int = 4) -> str:
+    """Compact significant-digit formatting used in every summary table."""
+    if value is None or not np.isfinite(value):
+        return "—" if value is None else str(value)
+    return f"{value:.{digits}g}"
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A GitHub-flavoured Markdown table with padded columns."""
+    body = [[str(c) for c in r] for r in rows]
+    head = [str(h) for h in header]
+    widths = [max(len(head[j]), *(len(r[j]) for r in body)) if body else len(head[j]) for j in range(len(head))]
+    def line(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)) + " |"
+    out = [line(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    out.extend(line(r) for r in body)
+    return "\n".join(out)

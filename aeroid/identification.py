@@ -1,0 +1,161 @@
+"""Parameter identification: the `IdentificationResult` record and `identify`."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+
+__all__ = ["IdentificationResult"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class IdentificationResult:
+    """Estimated parameters with their uncertainty and fit diagnostics.
+
+    Attributes
+    ----------
+    parameters : mapping of str to float
+        The estimated parameters (names in `parameter_names`).
+    stderr : mapping of str to float
+        Standard errors shown to users; see `error_bars` for which kind.
+    covariance : ndarray, shape (n_p, n_p)
+        Parameter covariance matching `stderr`, in `parameter_names` order.
+    parameter_names : tuple of str
+    fixed : mapping of str to float
+        Model parameters held at given values (not estimated).
+    covariance_white : ndarray, shape (n_p, n_p)
+        Classical Cramér–Rao covariance that assumes white residuals.
+    error_bars : str
+        ``"colored"`` when `covariance` is corrected for residual
+        autocorrelation, ``"white"`` when it is the classical one.
+    identifiable : bool
+        False when the data cannot separate some parameters.
+    unidentifiable : tuple of tuple of str
+        The parameter combinations the data cannot separate.
+    success : bool
+        True when the optimiser converged.
+    message : str
+    n_iterations : int
+    cost : float
+        Final value of the minimised objective.
+    method : str
+        ``"output_error"`` or ``"filter_error"``.
+    output_names : tuple of str
+        Outputs that entered the fit.
+    noise_covariance : ndarray, shape (n_y, n_y)
+        Measurement-noise covariance used (estimated from residuals unless given).
+    initial_states : tuple of mapping
+        Initial state per manoeuvre (estimated or fixed).
+    biases : tuple of mapping
+        Per manoeuvre, the estimated output biases (empty when not estimated).
+    extra_stderr : mapping of str to float
+        Standard errors of estimated initial states and biases, keyed
+        ``"x0[i].state"`` and ``"bias[i].output"``.
+    residuals : tuple of ndarray
+        Per manoeuvre, measured minus model outputs, shape (n_t, n_y).
+    sigma2 : float or None
+        Filter error only: mean normalised innovation variance (≈ 1 when the
+        noise specification is consistent with the data).
+    process_noise : mapping of str to float
+        Filter error only: process-noise intensities used or estimated.
+    model_name : str
+    """
+
+    parameters: Mapping[str, float]
+    stderr: Mapping[str, float]
+    covariance: FloatArray
+    parameter_names: tuple[str, ...]
+    fixed: Mapping[str, float]
+    covariance_white: FloatArray
+    error_bars: str
+    identifiable: bool
+    unidentifiable: tuple[tuple[str, ...], ...]
+    success: bool
+    message: str
+    n_iterations: int
+    cost: float
+    method: str
+    output_names: tuple[str, ...]
+    noise_covariance: FloatArray
+    initial_states: tuple[Mapping[str, float], ...] = ()
+    biases: tuple[Mapping[str, float], ...] = ()
+    extra_stderr: Mapping[str, float] = field(default_factory=dict)
+    residuals: tuple[FloatArray, ...] = ()
+    sigma2: float | None = None
+    process_noise: Mapping[str, float] = field(default_factory=dict)
+    model_name: str = ""
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "parameters", frozen_mapping(self.parameters))
+        set_(self, "stderr", frozen_mapping(self.stderr))
+        set_(self, "fixed", frozen_mapping(self.fixed))
+        set_(self, "extra_stderr", frozen_mapping(self.extra_stderr))
+        set_(self, "process_noise", frozen_mapping(self.process_noise))
+        set_(self, "covariance", frozen_array(self.covariance))
+        set_(self, "covariance_white", frozen_array(self.covariance_white))
+        set_(self, "noise_covariance", frozen_array(self.noise_covariance))
+        set_(self, "parameter_names", tuple(self.parameter_names))
+        set_(self, "output_names", tuple(self.output_names))
+        set_(self, "unidentifiable", tuple(tuple(c) for c in self.unidentifiable))
+        set_(self, "initial_states", tuple(frozen_mapping(m) for m in self.initial_states))
+        set_(self, "biases", tuple(frozen_mapping(m) for m in self.biases))
+        set_(self, "residuals", tuple(frozen_array(r) for r in self.residuals))
+
+    @property
+    def correlation(self) -> FloatArray:
+        """Parameter correlation matrix derived from `covariance`."""
+        d = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = self.covariance / np.outer(d, d)
+        c[~np.isfinite(c)] = 0.0
+        np.fill_diagonal(c, 1.0)
+        c.setflags(write=False)
+        return c
+
+    @property
+    def stderr_white(self) -> Mapping[str, float]:
+        """Classical (white-residual) standard errors."""
+        d = np.sqrt(np.clip(np.diag(self.covariance_white), 0.0, None))
+        return MappingProxyType({n: float(s) for n, s in zip(self.parameter_names, d, strict=True)})
+
+    @property
+    def all_parameters(self) -> Mapping[str, float]:
+        """Fixed and estimated parameters together (a full model parameter set)."""
+        merged: dict[str, Any] = dict(self.fixed)
+        merged.update(self.parameters)
+        return MappingProxyType(merged)
+
+    def summary(self) -> str:
+        """Markdown table of estimates, standard errors and relative errors."""
+        rows = []
+        for n in self.parameter_names:
+            est = self.parameters[n]
+            se = self.stderr[n]
+            rel = f"{100 * se / abs(est):.1f}%" if est != 0 and np.isfinite(se) else "—"
+            rows.append((n, fmt(est), fmt(se), rel))
+        table = markdown_table(("parameter", "estimate", "std. error", "rel. error"), rows)
+        notes = []
+        kind = (
+            "corrected for coloured residuals"
+            if self.error_bars == "colored"
+            else "classical (white residuals)"
+        )
+        notes.append(f"Standard errors: {kind}; method: {self.method.replace('_', ' ')}.")
+        if self.sigma2 is not None:
+            notes.append(f"Normalised innovation variance sigma2 = {self.sigma2:.3g}.")
+        if not self.success:
+            notes.append(f"**Not converged:** {self.message}")
+        if not self.identifiable:
+            combos = "; ".join(" + ".join(c) for c in self.unidentifiable) or "see covariance"
+            notes.append(f"**Not identifiable:** the data cannot separate {combos}.")
+        return table + "\n\n" + "\n".join(notes)

@@ -1,0 +1,613 @@
+"""ODE vehicle models: `Model`, its simulation results, and the simulator protocol."""
+
+from __future__ import annotations
+
+import inspect
+import keyword
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import _integrate
+from .data import FlightData, _readonly
+from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
+
+__all__ = [
+    "BatchSimulation",
+    "Model",
+    "SimulationResult",
+    "SimulatorModel",
+    "resolve_parameters",
+]
+
+FloatArray = NDArray[np.float64]
+Dynamics = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
+
+
+def _names(value: Sequence[str] | str, what: str) -> tuple[str, ...]:
+    if isinstance(value, str):
+        value = [value]
+    try:
+        names = tuple(value)
+    except TypeError:
+        raise ModelDefinitionError(f"{what}: expected a sequence of names, got {value!r}") from None
+    for n in names:
+        if not isinstance(n, str) or not n:
+            raise ModelDefinitionError(f"{what}: every name must be a non-empty string, got {n!r}")
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ModelDefinitionError(f"{what}: duplicate names {dupes}")
+    return names
+
+
+def resolve_parameters(
+    model: Any,
+    parameters: Any,
+    *,
+    error: type[AeroidError] = ModelDefinitionError,
+) -> dict[str, float]:
+    """Merge a parameter dict (or any result with ``.parameters``) onto the model's nominal values.
+
+    Unknown names raise `error` naming them; values must be finite numbers.
+    Extra entries a result may carry (such as ``sigma_<output>`` noise
+    parameters of an inference result) are ignored when they are not model
+    parameters.
+    """
+    nominal = dict(model.parameters)
+    if parameters is None:
+        return {k: float(v) for k, v in nominal.items()}
+    from_result = not isinstance(parameters, Mapping) and hasattr(parameters, "parameters")
+    values = parameters.parameters if from_result else parameters
+    if not isinstance(values, Mapping):
+        raise error(
+            f"parameters: expected a dict of name -> value or a result with .parameters, "
+            f"got {type(parameters).__name__}"
+        )
+    out = {k: float(v) for k, v in nominal.items()}
+    for name, value in values.items():
+        if name not in nominal:
+            if from_result:
+                continue
+            raise error(
+                f"parameter {name!r} is not a parameter of model {model.name!r}; "
+                f"its parameters are {sorted(nominal)}"
+            )
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise error(f"parameter {name!r}: expected a number, got {value!r}") from None
+        if not np.isfinite(v):
+            raise error(f"parameter {name!r}: value {v!r} is not finite")
+        out[name] = v
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationResult:
+    """A simulated trajectory on the requested time grid.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n_t,)
+    states : ndarray, shape (n_t, n_states)
+        Empty second axis for black-box simulators that expose no states.
+    outputs : ndarray, shape (n_t, n_outputs)
+    controls : ndarray, shape (n_t, n_controls)
+        The control history that drove the simulation.
+    """
+
+    time: FloatArray
+    states: FloatArray
+    outputs: FloatArray
+    controls: FloatArray
+    state_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    control_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        for name in ("time", "states", "outputs", "controls"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+
+    def state(self, name: str) -> FloatArray:
+        """History of one state."""
+        if name not in self.state_names:
+            raise ChannelError(f"state {name!r} not simulated; states: {list(self.state_names)}")
+        return self.states[:, self.state_names.index(name)]
+
+    def output(self, name: str) -> FloatArray:
+        """History of one output."""
+        if name not in self.output_names:
+            raise ChannelError(f"output {name!r} not simulated; outputs: {list(self.output_names)}")
+        return self.outputs[:, self.output_names.index(name)]
+
+    def to_flight_data(
+        self,
+        *,
+        noise: Mapping[str, float] | None = None,
+        seed: int | None = None,
+        include_states: bool = False,
+        units: Mapping[str, str] | None = None,
+    ) -> FlightData:
+        """Package the trajectory as `FlightData` (controls plus outputs).
+
+        Parameters
+        ----------
+        noise : mapping of str to float, optional
+            Standard deviation of white Gaussian noise added to named outputs.
+        seed : int, optional
+            Seed of the noise generator (required when `noise` is given).
+        include_states : bool
+            Also include states that are not outputs.
+        units : mapping of str to str, optional
+        """
+        channels: dict[str, FloatArray] = {}
+        for j, n in enumerate(self.control_names):
+            channels[n] = self.controls[:, j]
+        if include_states:
+            for j, n in enumerate(self.state_names):
+                channels[n] = self.states[:, j]
+        for j, n in enumerate(self.output_names):
+            channels[n] = self.outputs[:, j]
+        if noise:
+            if seed is None:
+                raise SimulationError("to_flight_data: noise needs a seed for reproducibility")
+            rng = np.random.default_rng(seed)
+            for n in self.output_names:  # fixed order keeps the stream reproducible
+                if n in noise:
+                    channels[n] = channels[n] + float(noise[n]) * rng.standard_normal(self.time.size)
+            unknown = sorted(set(noise) - set(self.output_names))
+            if unknown:
+                raise ChannelError(f"noise given for unknown outputs {unknown}")
+        return FlightData(self.time, channels, dict(units or {}))
+
+
+@dataclass(frozen=True, eq=False)
+class BatchSimulation:
+    """Trajectories of a batch of parameter vectors.
+
+    ``states`` (batch, n_t, n_states), ``outputs`` (batch, n_t, n_outputs),
+    ``ok`` marks members that integrated to the end with finite values, and
+    ``fail_time`` gives the first non-finite time of the others (NaN if ok).
+    """
+
+    time: FloatArray
+    states: FloatArray
+    outputs: FloatArray
+    ok: NDArray[np.bool_]
+    fail_time: FloatArray
+
+
+@runtime_checkable
+class SimulatorModel(Protocol):
+    """What AeroID needs from an external, stepped simulator (JSBSim, RocketPy, ...).
+
+    Such a model has named controls, outputs and nominal parameters, and can
+    simulate onto a given time grid; it has no continuous dynamics callable,
+    so Kalman filtering and JAX paths do not apply to it.
+    """
+
+    name: str
+    controls: tuple[str, ...]
+    outputs: tuple[str, ...]
+    parameters: Mapping[str, float]
+
+    def simulate(
+        self,
+        time: ArrayLike,
+        controls: Any = None,
+        x0: Any = None,
+        parameters: Any = None,
+        **options: Any,
+    ) -> SimulationResult: ...
+
+    def simulate_data(
+        self, data: FlightData, *, x0: Any = None, parameters: Any = None, **options: Any
+    ) -> SimulationResult: ...
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A continuous-time vehicle model ``x' = f(t, x, u, p)``, ``y = h(t, x, u, p)``.
+
+    Parameters
+    ----------
+    states : sequence of str
+        State names, in the order of the state vector.
+    controls : sequence of str
+        Control (input) names, in the order of the control vector.
+    parameters : mapping of str to float
+        Named physical parameters with their nominal values.
+    dynamics : callable
+        ``dynamics(t, x, u, p) -> x_dot`` with ``p`` a dict of parameters.
+        Written with numpy broadcasting it is evaluated on whole batches of
+        parameter vectors at once (``x`` of shape (n_states, batch)).
+    outputs : sequence of str, optional
+        Output names; default: the states.
+    measurement : callable, optional
+        ``measurement(t, x, u, p) -> y``; default: the states named in `outputs`.
+    name : str
+        A label used in messages, reports and fingerprints.
+    version : str, optional
+        A label the pipeline folds into the model's fingerprint; change it to
+        invalidate cached results when behaviour changes without a source change.
+
+    Raises
+    ------
+    ModelDefinitionError
+        Bad names, or dynamics/measurement that fail or return the wrong shape
+        when probed at the nominal parameters.
+    """
+
+    states: tuple[str, ...]
+    controls: tuple[str, ...]
+    parameters: Mapping[str, float]
+    dynamics: Dynamics
+    outputs: tuple[str, ...] | None = None
+    measurement: Dynamics | None = None
+    name: str = "model"
+    version: str | None = None
+    _dynamics_batch: _integrate.BatchFunction = field(init=False, repr=False, compare=False)
+    _measurement_batch: _integrate.BatchFunction | None = field(
+        init=False, repr=False, compare=False
+    )
+    _maybe_lti: bool = field(init=False, repr=False, compare=False, default=True)
+
+    def __post_init__(self) -> None:
+        states = _names(self.states, "states")
+        controls = _names(self.controls, "controls")
+        if not states:
+            raise ModelDefinitionError("states: a model needs at least one state")
+        if not isinstance(self.parameters, Mapping):
+            raise ModelDefinitionError("parameters: expected a dict of name -> nominal value")
+        params: dict[str, float] = {}
+        for k, v in self.parameters.items():
+            if not isinstance(k, str) or not k.isidentifier() or keyword.iskeyword(k):
+                raise ModelDefinitionError(
+                    f"parameter name {k!r} must be a valid identifier (it becomes a dict key "
+                    "and a column name)"
+                )
+            try:
+                params[k] = float(v)
+            except (TypeError, ValueError):
+                raise ModelDefinitionError(f"parameter {k!r}: nominal value {v!r} is not a number") from None
+            if not np.isfinite(params[k]):
+                raise ModelDefinitionError(f"parameter {k!r}: nominal value {v!r} is not finite")
+        if not callable(self.dynamics):
+            raise ModelDefinitionError("dynamics: expected a callable f(t, x, u, p)")
+        if self.measurement is not None and not callable(self.measurement):
+            raise ModelDefinitionError("measurement: expected a callable h(t, x, u, p)")
+        outputs = states if self.outputs is None else _names(self.outputs, "outputs")
+        if not outputs:
+            raise ModelDefinitionError("outputs: a model needs at least one output")
+        if self.measurement is None:
+            missing = [o for o in outputs if o not in states]
+            if missing:
+                raise ModelDefinitionError(
+                    f"outputs {missing} are not states; give a measurement function "
+                    "h(t, x, u, p) to compute them"
+                )
+        clash = sorted(set(controls) & (set(states) | set(outputs)))
+        if clash:
+            raise ModelDefinitionError(f"names {clash} are used both as controls and states/outputs")
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelDefinitionError(f"name: expected a non-empty string, got {self.name!r}")
+        object.__setattr__(self, "states", states)
+        object.__setattr__(self, "controls", controls)
+        object.__setattr__(self, "outputs", outputs)
+        object.__setattr__(self, "parameters", MappingProxyType(params))
+        names = tuple(params)
+        object.__setattr__(
+            self, "_dynamics_batch", _integrate.BatchFunction(self.dynamics, len(states), names)
+        )
+        object.__setattr__(
+            self,
+            "_measurement_batch",
+            None
+            if self.measurement is None
+            else _integrate.BatchFunction(self.measurement, len(outputs), names),
+        )
+        object.__setattr__(self, "_maybe_lti", True)
+        self._probe()
+
+    def _probe(self) -> None:
+        x = np.zeros(self.n_states)
+        u = np.zeros(self.n_controls)
+        p = dict(self.parameters)
+        for role, fun, n in (
+            ("dynamics", self.dynamics, self.n_states),
+            ("measurement", self.measurement, self.n_outputs),
+        ):
+            if fun is None:
+                continue
+            try:
+                with warnings.catch_warnings(), np.errstate(all="ignore"):
+                    warnings.simplefilter("ignore")
+                    val = np.asarray(fun(0.0, x, u, p), dtype=np.float64)
+            except KeyError as exc:
+                raise ModelDefinitionError(
+                    f"{role} of model {self.name!r} asked for parameter {exc.args[0]!r}, which "
+                    f"is not among its parameters {sorted(p)}"
+                ) from None
+            except IndexError as exc:
+                raise ModelDefinitionError(
+                    f"{role} of model {self.name!r} indexed past the state/control vector "
+                    f"({self.n_states} states, {self.n_controls} controls): {exc}"
+                ) from None
+            except Exception as exc:
+                raise ModelDefinitionError(
+                    f"{role} of model {self.name!r} failed when probed at the nominal parameters "
+                    f"with zero state and control: {type(exc).__name__}: {exc}"
+                ) from None
+            if val.size != n:
+                raise ModelDefinitionError(
+                    f"{role} of model {self.name!r} returned {val.size} values "
+                    f"(shape {val.shape}); expected {n}"
+                )
+
+    # -- structure ------------------------------------------------------------
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Parameter names in declaration order."""
+        return tuple(self.parameters)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Output names (the states when no measurement is given)."""
+        assert self.outputs is not None  # set in __post_init__
+        return self.outputs
+
+    @property
+    def n_states(self) -> int:
+        return len(self.states)
+
+    @property
+    def n_controls(self) -> int:
+        return len(self.controls)
+
+    @property
+    def n_outputs(self) -> int:
+        return len(self.output_names)
+
+    @property
+    def dynamics_source(self) -> str:
+        """Source text of the dynamics and measurement functions (for fingerprints)."""
+        parts = []
+        for fun in (self.dynamics, self.measurement):
+            if fun is None:
+                parts.append("")
+                continue
+            try:
+                parts.append(inspect.getsource(fun))
+            except (OSError, TypeError):
+                parts.append(getattr(fun, "__qualname__", repr(type(fun))))
+        return "\n".join(parts)
+
+    # -- argument normalisation ---------------------------------------------------
+    def control_array(self, time: FloatArray, controls: Any) -> FloatArray:
+        """Normalise controls to shape (batch, n_t, n_controls)."""
+        n_t = time.size
+        if controls is None:
+            return np.zeros((1, n_t, self.n_controls))
+        if isinstance(controls, FlightData):
+            controls.require(self.controls, role="control")
+            return controls.array(list(self.controls))[None, :, :].astype(np.float64)
+        if isinstance(controls, Mapping):
+            missing = [c for c in self.controls if c not in controls]
+            if missing:
+                raise ChannelError(
+                    f"control {missing[0]!r} not given; controls given: {sorted(controls)}"
+                )
+            cols = [np.asarray(controls[c], dtype=np.float64) for c in self.controls]
+            for c, col in zip(self.controls, cols, strict=True):
+                if col.shape != (n_t,):
+                    raise SimulationError(
+                        f"control {c!r}: expected {n_t} samples, got shape {col.shape}"
+                    )
+            arr = np.stack(cols, axis=1) if cols else np.zeros((n_t, 0))
+            return arr[None]
+        arr = np.asarray(controls, dtype=np.float64)
+        if arr.ndim == 1 and self.n_controls == 1:
+            arr = arr[:, None]
+        if arr.ndim == 2:
+            arr = arr[None]
+        if arr.ndim != 3 or arr.shape[1:] != (n_t, self.n_controls):
+            raise SimulationError(
+                f"controls: expected shape ({n_t}, {self.n_controls}) or "
+                f"(batch, {n_t}, {self.n_controls}), got {np.shape(controls)}"
+            )
+        if not np.all(np.isfinite(arr)):
+            raise SimulationError("controls: contain NaN or infinite values")
+        return arr
+
+    def initial_state(self, x0: Any, batch: int = 1) -> FloatArray:
+        """Normalise an initial state to shape (batch, n_states)."""
+        if x0 is None:
+            return np.zeros((batch, self.n_states))
+        if isinstance(x0, Mapping):
+            unknown = sorted(set(x0) - set(self.states))
+            if unknown:
+                raise SimulationError(f"x0: unknown states {unknown}; states: {list(self.states)}")
+            arr = np.array([[float(x0.get(s, 0.0)) for s in self.states]])
+        else:
+            arr = np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        if arr.shape[1] != self.n_states or arr.shape[0] not in (1, batch):
+            raise SimulationError(
+                f"x0: expected {self.n_states} values (states {list(self.states)}), "
+                f"got shape {np.shape(x0)}"
+            )
+        if not np.all(np.isfinite(arr)):
+            raise SimulationError("x0: contains NaN or infinite values")
+        return np.broadcast_to(arr, (batch, self.n_states)).copy()
+
+    # -- simulation -------------------------------------------------------------------
+    def _outputs(self, time: FloatArray, states: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]) -> FloatArray:
+        batch, n_t, _ = states.shape
+        if self._measurement_batch is None:
+            idx = [self.states.index(o) for o in self.output_names]
+            return states[:, :, idx]
+        # Evaluate h on every (member, sample) at once: flatten batch x time.
+        X = states.reshape(batch * n_t, self.n_states).T
+        U = np.broadcast_to(u, (batch, n_t, self.n_controls)).reshape(batch * n_t, -1).T
+        T = np.tile(time, batch)
+        P = {k: np.repeat(v, n_t) for k, v in p.items()}
+        h = self._measurement_batch
+        with np.errstate(all="ignore"):
+            try:
+                Y = h(T, X, U, P)
+                if Y.shape != (self.n_outputs, batch * n_t):
+                    raise ValueError
+            except Exception:
+                Y = h._loop(T, X, U, P)
+        return np.ascontiguousarray(Y.T.reshape(batch, n_t, self.n_outputs))
+
+    def simulate_batch(
+        self,
+        time: ArrayLike,
+        controls: Any,
+        x0: Any,
+        parameters: Mapping[str, ArrayLike],
+        *,
+        method: str = "auto",
+        substeps: int | None = None,
+        rtol: float = 1e-9,
+        atol: float = 1e-12,
+    ) -> BatchSimulation:
+        """Integrate many parameter vectors in one pass.
+
+        Parameters
+        ----------
+        time : array_like, shape (n_t,)
+        controls : array_like or mapping or None
+            Shared (n_t, n_controls) or per member (batch, n_t, n_controls).
+        x0 : array_like or mapping or None
+            Shared (n_states,) or per member (batch, n_states).
+        parameters : mapping of str to array_like
+            Each entry a scalar or a (batch,) array; missing parameters take
+            their nominal values.
+        method : str
+            ``"auto"`` (exact for linear time-invariant dynamics, else RK4),
+            ``"exact"``, ``"rk4"``, or a `scipy.integrate.solve_ivp` method.
+        substeps : int, optional
+            RK4 steps per sample interval (default: from the dynamics' stiffness).
+
+        Returns
+        -------
+        BatchSimulation
+            Members that diverge are marked in ``ok``; nothing is raised for them.
+        """
+        t = _check_time(time)
+        unknown = sorted(set(parameters) - set(self.parameters))
+        if unknown:
+            raise SimulationError(f"parameters {unknown} are not parameters of model {self.name!r}")
+        sizes = {np.size(v) for v in parameters.values() if np.ndim(v) > 0}
+        u = self.control_array(t, controls)
+        x0_arr = None if x0 is None or isinstance(x0, Mapping) else np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        sizes |= {u.shape[0]} if u.shape[0] > 1 else set()
+        sizes |= {x0_arr.shape[0]} if x0_arr is not None and x0_arr.shape[0] > 1 else set()
+        if len(sizes) > 1:
+            raise SimulationError(f"batch sizes disagree between parameters, controls and x0: {sorted(sizes)}")
+        batch = sizes.pop() if sizes else 1
+        p = {
+            k: np.broadcast_to(np.asarray(parameters.get(k, v), dtype=np.float64), (batch,)).copy()
+            for k, v in self.parameters.items()
+        }
+        X0 = self.initial_state(x0, batch)
+        U = np.broadcast_to(u, (batch, t.size, self.n_controls))
+        traj = _integrate.integrate(
+            self, t, X0, U, p, method=method, substeps=substeps, rtol=rtol, atol=atol
+        )
+        outputs = self._outputs(t, traj.states, U, p)
+        ok = traj.ok & np.all(np.isfinite(outputs), axis=(1, 2))
+        return BatchSimulation(t, traj.states, outputs, ok, traj.fail_time)
+
+    def simulate(
+        self,
+        time: ArrayLike,
+        controls: Any = None,
+        x0: Any = None,
+        parameters: Any = None,
+        *,
+        method: str = "RK45",
+        substeps: int | None = None,
+        rtol: float = 1e-9,
+        atol: float = 1e-12,
+    ) -> SimulationResult:
+        """Simulate the model with outputs exactly on `time`.
+
+        Parameters
+        ----------
+        time : array_like, shape (n_t,)
+            Strictly increasing sample times.
+        controls : array_like, mapping or FlightData, optional
+            Control samples (interpolated piecewise-linearly); default zero.
+        x0 : array_like or mapping, optional
+            Initial state; default zero.
+        parameters : mapping or result, optional
+            Parameter values (merged onto the nominal ones) or a result with
+            ``.parameters``.
+        method : str
+            A `scipy.integrate.solve_ivp` method (default ``"RK45"``, with
+            steps no longer than the sample spacing), ``"rk4"``, ``"exact"``
+            or ``"auto"``.
+        substeps : int, optional
+            RK4 steps per sample interval.
+        rtol, atol : float
+            Tolerances of the adaptive methods.
+
+        Returns
+        -------
+        SimulationResult
+
+        Raises
+        ------
+        SimulationError
+            If the solution diverges or the solver fails; the message names the time.
+        """
+        p = resolve_parameters(self, parameters, error=SimulationError)
+        res = self.simulate_batch(
+            time, controls, x0, p, method=method, substeps=substeps, rtol=rtol, atol=atol
+        )
+        if not res.ok[0]:
+            raise SimulationError(
+                f"simulation of model {self.name!r} failed (non-finite or solver failure) "
+                f"at t = {res.fail_time[0]:.6g} s"
+            )
+        u = self.control_array(res.time, controls)[0]
+        return SimulationResult(
+            res.time, res.states[0], res.outputs[0], u, self.states, self.output_names, self.controls
+        )
+
+    def simulate_data(
+        self,
+        data: FlightData,
+        *,
+        x0: Any = None,
+        parameters: Any = None,
+        **options: Any,
+    ) -> SimulationResult:
+        """Simulate on a flight record's time grid with its measured controls.
+
+        The initial state defaults to the measured value of each state that
+        the data carries (zero for the others).
+        """
+        data.require(self.controls, role="control")
+        if x0 is None:
+            x0 = {s: float(data.channels[s][0]) for s in self.states if s in data}
+        return self.simulate(data.time, data, x0, parameters, **options)
+
+
+def _check_time(time: ArrayLike) -> FloatArray:
+    t = np.asarray(time, dtype=np.float64)
+    if t.ndim != 1 or t.size < 2:
+        raise SimulationError(f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise SimulationError("time: contains NaN or infinite values")
+    if np.any(np.diff(t) <= 0):
+        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise SimulationError(f"time: not strictly increasing at index {bad}")
+    return t
