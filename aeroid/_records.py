@@ -41,9 +41,14 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     """A GitHub-flavoured Markdown table with padded columns."""
     body = [[str(c) for c in r] for r in rows]
     head = [str(h) for h in header]
-    widths = [max(len(head[j]), *(len(r[j]) for r in body)) if body else len(head[j]) for j in range(len(head))]
+    widths = [
+        max(len(head[j]), *(len(r[j]) for r in body)) if body else len(head[j])
+        for j in range(len(head))
+    ]
+
     def line(cells: Sequence[str]) -> str:
         return "| " + " | ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)) + " |"
+
     out = [line(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
     out.extend(line(r) for r in body)
     return "\n".join(out)

@@ -63,8 +63,11 @@ def _first_order_dynamics(t: Any, x: Any, u: Any, p: Any) -> Any:
 def first_order(K: float = 2.0, tau: float = 0.5) -> Model:
     """First-order lag ``tau y' = K u - y`` (state and output ``y``, control ``u``)."""
     return Model(
-        states=["y"], controls=["u"], parameters={"K": K, "tau": tau},
-        dynamics=_first_order_dynamics, name="first_order",
+        states=["y"],
+        controls=["u"],
+        parameters={"K": K, "tau": tau},
+        dynamics=_first_order_dynamics,
+        name="first_order",
     )
 
 
@@ -109,7 +112,7 @@ def short_period_flight(
     same variance. ``noise={}`` gives noise-free data.
     """
     model = short_period(parameters or SHORT_PERIOD_TRUTH)
-    n = int(round(duration * sample_rate)) + 1
+    n = round(duration * sample_rate) + 1
     t = np.arange(n) / sample_rate
     u = doublet(t) if elevator is None else np.asarray(elevator, dtype=np.float64)
     sim = model.simulate(t, u, method="exact")

@@ -180,9 +180,11 @@ class FlightData:
             self.metadata,
         )
 
-    def with_channels(self, channels: Mapping[str, ArrayLike], units: Mapping[str, str] | None = None) -> FlightData:
+    def with_channels(
+        self, channels: Mapping[str, ArrayLike], units: Mapping[str, str] | None = None
+    ) -> FlightData:
         """Return a copy with channels added or replaced."""
-        merged: dict[str, ArrayLike] = dict(self.channels)
+        merged: dict[str, Any] = dict(self.channels)
         merged.update(channels)
         new_units = dict(self.units)
         new_units.update(units or {})
@@ -269,7 +271,9 @@ def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
     try:
         import pyarrow.parquet as pq
     except ImportError:  # pragma: no cover - pyarrow is a dependency
-        raise DataFormatError(f"{path}: reading Parquet needs pyarrow (pip install pyarrow)") from None
+        raise DataFormatError(
+            f"{path}: reading Parquet needs pyarrow (pip install pyarrow)"
+        ) from None
     try:
         table = pq.read_table(path)
     except Exception as exc:  # pyarrow raises many types for corrupt files
@@ -363,7 +367,9 @@ def load_flight_test(
     elif suffix == ".mat":
         header, columns = _read_mat(p)
     else:
-        raise DataFormatError(f"{p}: unknown file type {suffix!r} (expected .csv, .parquet or .mat)")
+        raise DataFormatError(
+            f"{p}: unknown file type {suffix!r} (expected .csv, .parquet or .mat)"
+        )
     tname = _pick_time_column(header, time_column, p)
     if channels is None:
         mapping = {h: h for h in header if h != tname}
@@ -375,7 +381,7 @@ def load_flight_test(
         if col not in columns:
             raise ChannelError(f"{p}: column {col!r} not found; columns: {list(header)}")
     time = columns[tname]
-    chans: dict[str, FloatArray] = {}
+    chans: dict[str, Any] = {}
     for col, name in mapping.items():
         if columns[col].shape != time.shape:
             raise DataFormatError(

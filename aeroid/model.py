@@ -8,7 +8,7 @@ import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -159,7 +159,9 @@ class SimulationResult:
             rng = np.random.default_rng(seed)
             for n in self.output_names:  # fixed order keeps the stream reproducible
                 if n in noise:
-                    channels[n] = channels[n] + float(noise[n]) * rng.standard_normal(self.time.size)
+                    channels[n] = channels[n] + float(noise[n]) * rng.standard_normal(
+                        self.time.size
+                    )
             unknown = sorted(set(noise) - set(self.output_names))
             if unknown:
                 raise ChannelError(f"noise given for unknown outputs {unknown}")
@@ -243,11 +245,11 @@ class Model:
         when probed at the nominal parameters.
     """
 
-    states: tuple[str, ...]
-    controls: tuple[str, ...]
+    states: Sequence[str]
+    controls: Sequence[str]
     parameters: Mapping[str, float]
     dynamics: Dynamics
-    outputs: tuple[str, ...] | None = None
+    outputs: Sequence[str] | None = None
     measurement: Dynamics | None = None
     name: str = "model"
     version: str | None = None
@@ -274,7 +276,9 @@ class Model:
             try:
                 params[k] = float(v)
             except (TypeError, ValueError):
-                raise ModelDefinitionError(f"parameter {k!r}: nominal value {v!r} is not a number") from None
+                raise ModelDefinitionError(
+                    f"parameter {k!r}: nominal value {v!r} is not a number"
+                ) from None
             if not np.isfinite(params[k]):
                 raise ModelDefinitionError(f"parameter {k!r}: nominal value {v!r} is not finite")
         if not callable(self.dynamics):
@@ -293,7 +297,9 @@ class Model:
                 )
         clash = sorted(set(controls) & (set(states) | set(outputs)))
         if clash:
-            raise ModelDefinitionError(f"names {clash} are used both as controls and states/outputs")
+            raise ModelDefinitionError(
+                f"names {clash} are used both as controls and states/outputs"
+            )
         if not isinstance(self.name, str) or not self.name:
             raise ModelDefinitionError(f"name: expected a non-empty string, got {self.name!r}")
         object.__setattr__(self, "states", states)
@@ -358,8 +364,7 @@ class Model:
     @property
     def output_names(self) -> tuple[str, ...]:
         """Output names (the states when no measurement is given)."""
-        assert self.outputs is not None  # set in __post_init__
-        return self.outputs
+        return tuple(self.outputs or ())
 
     @property
     def n_states(self) -> int:
@@ -445,7 +450,9 @@ class Model:
         return np.broadcast_to(arr, (batch, self.n_states)).copy()
 
     # -- simulation -------------------------------------------------------------------
-    def _outputs(self, time: FloatArray, states: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]) -> FloatArray:
+    def _outputs(
+        self, time: FloatArray, states: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
+    ) -> FloatArray:
         batch, n_t, _ = states.shape
         if self._measurement_batch is None:
             idx = [self.states.index(o) for o in self.output_names]
@@ -506,11 +513,17 @@ class Model:
             raise SimulationError(f"parameters {unknown} are not parameters of model {self.name!r}")
         sizes = {np.size(v) for v in parameters.values() if np.ndim(v) > 0}
         u = self.control_array(t, controls)
-        x0_arr = None if x0 is None or isinstance(x0, Mapping) else np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        x0_arr = (
+            None
+            if x0 is None or isinstance(x0, Mapping)
+            else np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        )
         sizes |= {u.shape[0]} if u.shape[0] > 1 else set()
         sizes |= {x0_arr.shape[0]} if x0_arr is not None and x0_arr.shape[0] > 1 else set()
         if len(sizes) > 1:
-            raise SimulationError(f"batch sizes disagree between parameters, controls and x0: {sorted(sizes)}")
+            raise SimulationError(
+                f"batch sizes disagree between parameters, controls and x0: {sorted(sizes)}"
+            )
         batch = sizes.pop() if sizes else 1
         p = {
             k: np.broadcast_to(np.asarray(parameters.get(k, v), dtype=np.float64), (batch,)).copy()
@@ -579,7 +592,13 @@ class Model:
             )
         u = self.control_array(res.time, controls)[0]
         return SimulationResult(
-            res.time, res.states[0], res.outputs[0], u, self.states, self.output_names, self.controls
+            res.time,
+            res.states[0],
+            res.outputs[0],
+            u,
+            tuple(self.states),
+            self.output_names,
+            tuple(self.controls),
         )
 
     def simulate_data(
@@ -604,7 +623,9 @@ class Model:
 def _check_time(time: ArrayLike) -> FloatArray:
     t = np.asarray(time, dtype=np.float64)
     if t.ndim != 1 or t.size < 2:
-        raise SimulationError(f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}")
+        raise SimulationError(
+            f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}"
+        )
     if not np.all(np.isfinite(t)):
         raise SimulationError("time: contains NaN or infinite values")
     if np.any(np.diff(t) <= 0):

@@ -1,0 +1,140 @@
+"""FlightData and load_flight_test: immutability, validation and file formats."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import scipy.io
+
+import aeroid
+from aeroid import ChannelError, DataFormatError, FlightData, load_flight_test
+
+
+def _data() -> FlightData:
+    t = np.linspace(0.0, 1.0, 11)
+    return FlightData(t, {"alpha": np.sin(t), "q": np.cos(t)}, {"alpha": "rad"})
+
+
+def test_arrays_are_read_only_copies():
+    t = np.linspace(0.0, 1.0, 5)
+    a = np.arange(5.0)
+    d = FlightData(t, {"a": a})
+    # Trap 12d: the caller's arrays stay writable and are not aliased.
+    a[0] = 99.0
+    t[0] = -1.0
+    assert d["a"][0] == 0.0 and d.time[0] == 0.0
+    assert a.flags.writeable and t.flags.writeable
+    with pytest.raises(ValueError):
+        d["a"][0] = 1.0
+    with pytest.raises(ValueError):
+        d.time[0] = 1.0
+    with pytest.raises(TypeError):
+        d.channels["b"] = a  # type: ignore[index]
+    assert d["a"].dtype == np.float64
+
+
+def test_access_array_window():
+    d = _data()
+    assert d.array(["q", "alpha"]).shape == (11, 2)
+    np.testing.assert_array_equal(d.array(["q", "alpha"])[:, 1], d["alpha"])
+    w = d.window(0.2, 0.5)
+    np.testing.assert_allclose(w.time, [0.2, 0.3, 0.4, 0.5])
+    assert w.units["alpha"] == "rad"
+    assert "alpha" in d and d.n_samples == 11 and d.is_uniform
+    assert d.sample_rate == pytest.approx(10.0)
+    assert "| alpha |" in d.summary()
+
+
+def test_missing_channel_names_it_and_lists_present():
+    d = _data()
+    with pytest.raises(ChannelError) as err:
+        d["beta"]
+    msg = str(err.value)
+    assert "'beta'" in msg and "alpha" in msg and "q" in msg
+    assert isinstance(err.value, aeroid.AeroidError)
+
+
+@pytest.mark.parametrize(
+    ("time", "channels", "fragment"),
+    [
+        ([0.0, 1.0, 1.0, 2.0], {"a": [0, 1, 2, 3]}, "index 2"),
+        ([0.0, 2.0, 1.0], {"a": [0, 1, 2]}, "index 2"),
+        ([0.0, np.nan, 2.0], {"a": [0, 1, 2]}, "time: non-finite value at index 1"),
+        ([0.0, 1.0, 2.0], {"a": [0, np.inf, 2]}, "channel 'a': non-finite value at index 1"),
+        ([0.0, 1.0, 2.0], {"a": [0, 1]}, "channel 'a': length"),
+        ([0.0], {"a": [0]}, "at least 2"),
+    ],
+)
+def test_bad_data_raises_dataformaterror(time, channels, fragment):
+    with pytest.raises(DataFormatError, match=fragment.replace("(", r"\(")):
+        FlightData(time, channels)
+
+
+def test_csv_roundtrip_keeps_headers_verbatim(tmp_path):
+    path = tmp_path / "f.csv"
+    path.write_text("time,Alpha (deg),q\n0,1.5,2\n0.1,1.6,2.1\n0.2,1.7,2.2\n")
+    d = load_flight_test(path)
+    # Trap 12c: headers are channel names verbatim.
+    assert d.names == ("Alpha (deg)", "q")
+    np.testing.assert_allclose(d["Alpha (deg)"], [1.5, 1.6, 1.7])
+    renamed = load_flight_test(path, channels={"Alpha (deg)": "alpha"}, units={"alpha": "deg"})
+    assert renamed.names == ("alpha",) and renamed.units["alpha"] == "deg"
+
+
+@pytest.mark.parametrize(
+    ("body", "fragment"),
+    [
+        ("0,1\n0.1,\n0.2,3\n", "row 3, column 'a': blank cell"),
+        ("0,1\n0.1,abc\n0.2,3\n", "row 3, column 'a': non-numeric"),
+        ("0,1\n0.1,nan\n0.2,3\n", "row 3, column 'a': non-finite"),
+        ("0,1\n0.1,2,5\n0.2,3\n", "row 3 has 3 cells"),
+        ("0,1\n0.1,2\n0.1,3\n", "not strictly increasing"),
+    ],
+)
+def test_malformed_csv_names_row_and_column(tmp_path, body, fragment):
+    # Trap 12c: a blank or non-numeric cell is an error, never a silent NaN or -1.
+    path = tmp_path / "bad.csv"
+    path.write_text("time,a\n" + body)
+    with pytest.raises(DataFormatError) as err:
+        load_flight_test(path)
+    assert fragment in str(err.value) and "bad.csv" in str(err.value)
+
+
+def test_loader_errors(tmp_path):
+    with pytest.raises(DataFormatError, match="no such file"):
+        load_flight_test(tmp_path / "missing.csv")
+    p = tmp_path / "x.xyz"
+    p.write_text("1")
+    with pytest.raises(DataFormatError, match="unknown file type"):
+        load_flight_test(p)
+    c = tmp_path / "c.csv"
+    c.write_text("clock,a\n0,1\n1,2\n")
+    with pytest.raises(ChannelError, match="no time column"):
+        load_flight_test(c)
+    assert load_flight_test(c, time_column="clock").names == ("a",)
+    with pytest.raises(ChannelError, match="'b' not found"):
+        load_flight_test(c, time_column="clock", channels=["b"])
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"not parquet at all")
+    with pytest.raises(DataFormatError, match=r"bad\.parquet"):
+        load_flight_test(bad)
+
+
+def test_parquet_and_mat(tmp_path):
+    t = np.linspace(0, 1, 6)
+    pq.write_table(pa.table({"time": t, "alpha": t**2}), tmp_path / "f.parquet")
+    d = load_flight_test(tmp_path / "f.parquet")
+    np.testing.assert_allclose(d["alpha"], t**2)
+    nulls = pa.table({"time": t, "alpha": pa.array([0.0, None, 1, 2, 3, 4])})
+    pq.write_table(nulls, tmp_path / "n.parquet")
+    with pytest.raises(DataFormatError, match=r"row 1, column .alpha.: null"):
+        load_flight_test(tmp_path / "n.parquet")
+    scipy.io.savemat(tmp_path / "f.mat", {"t": t, "q": np.cos(t), "label": "flight 1"})
+    m = load_flight_test(tmp_path / "f.mat")
+    assert m.names == ("q",)
+    np.testing.assert_allclose(m["q"], np.cos(t))
+    (tmp_path / "broken.mat").write_bytes(b"garbage")
+    with pytest.raises(DataFormatError, match=r"broken\.mat"):
+        load_flight_test(tmp_path / "broken.mat")

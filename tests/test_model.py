@@ -1,0 +1,192 @@
+"""Model definition, simulation accuracy and batching."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import aeroid
+from aeroid import ChannelError, Model, ModelDefinitionError, SimulationError, catalog
+
+
+def decay(t, x, u, p):
+    return -p["k"] * x
+
+
+def decay_model(k: float = 0.7) -> Model:
+    return Model(states=["x"], controls=[], parameters={"k": k}, dynamics=decay, name="decay")
+
+
+T = np.linspace(0.0, 5.0, 251)
+
+
+@pytest.mark.parametrize("method", ["RK45", "DOP853", "rk4", "exact", "auto", "LSODA"])
+def test_exponential_decay_closed_form(method):
+    sim = decay_model().simulate(T, None, [2.0], method=method)
+    np.testing.assert_allclose(sim.state("x"), 2.0 * np.exp(-0.7 * T), atol=1e-6, rtol=0)
+    assert sim.time is not T and np.array_equal(sim.time, T)
+
+
+def test_outputs_land_exactly_on_irregular_grid():
+    t = np.sort(np.random.default_rng(3).uniform(0, 4, 60))
+    sim = decay_model(1.3).simulate(t, None, [1.0])
+    np.testing.assert_array_equal(sim.time, t)
+    np.testing.assert_allclose(sim.state("x"), np.exp(-1.3 * (t - t[0])), atol=1e-6)
+
+
+@pytest.mark.parametrize("start", [5.0, 30.0])
+@pytest.mark.parametrize("method", ["RK45", "rk4", "auto", "LSODA"])
+def test_late_input_from_rest_is_not_stepped_over(start, method):
+    # Trap 12a: from x0 = 0 the state is zero until the input arrives; an adaptive
+    # solver must not take a step so long that it misses a short late doublet.
+    model = catalog.first_order(K=2.0, tau=0.3)
+    dt = 0.01
+    t = np.arange(0.0, start + 3.0, dt)
+    u = catalog.doublet(t, start=start, width=0.2, amplitude=1.0)
+    sim = model.simulate(t, u, [0.0], method=method)
+    # Reference: piecewise-linear input integrated exactly.
+    ref = model.simulate(t, u, [0.0], method="exact").state("y")
+    assert np.max(np.abs(ref)) > 0.4  # the doublet really moves the state
+    np.testing.assert_allclose(sim.state("y"), ref, atol=2e-4)
+    k_on = round(start / dt)
+    assert np.max(np.abs(sim.state("y")[:k_on])) < 1e-9  # at rest until the input arrives
+
+
+def test_exact_discretisation_matches_closed_form_ramp():
+    # tau y' = K u - y with u = r t (ramp): y = K r (t - tau (1 - e^{-t/tau}))
+    model = catalog.first_order(K=1.5, tau=0.4)
+    t = np.linspace(0, 3, 31)
+    sim = model.simulate(t, 0.2 * t, [0.0], method="exact")
+    expected = 1.5 * 0.2 * (t - 0.4 * (1 - np.exp(-t / 0.4)))
+    np.testing.assert_allclose(sim.state("y"), expected, rtol=1e-10, atol=1e-13)
+
+
+def test_batch_matches_single_runs_and_flags_divergence():
+    model = catalog.short_period()
+    t = np.arange(0, 5.0, 0.02)
+    u = catalog.doublet(t)
+    mq = np.array([-1.5, -2.5, 400.0])  # the last makes the system violently unstable
+    batch = model.simulate_batch(t, u, None, {"M_q": mq}, method="rk4", substeps=2)
+    assert batch.outputs.shape == (3, t.size, 2)
+    for i in range(2):
+        single = model.simulate(t, u, None, {"M_q": mq[i]}, method="rk4", substeps=2)
+        np.testing.assert_allclose(batch.outputs[i], single.outputs, rtol=1e-12, atol=1e-15)
+    # M_q = 400 grows like e^{400 t}: overflows within 5 s, flagged not raised
+    assert batch.ok.tolist() == [True, True, False]
+    assert 0 < batch.fail_time[2] < 5.0
+
+
+def test_non_broadcasting_dynamics_fall_back_to_loop():
+    def scalar_only(t, x, u, p):
+        # math.* only works on scalars, so this cannot broadcast over a batch
+        return [-p["k"] * x[0] + math.sin(float(u[0]))]
+
+    m = Model(states=["x"], controls=["u"], parameters={"k": 1.0}, dynamics=scalar_only)
+    t = np.linspace(0, 1, 21)
+    b = m.simulate_batch(t, np.zeros(21), [1.0], {"k": np.array([1.0, 2.0])}, method="rk4")
+    assert m._dynamics_batch.broadcasts is False
+    np.testing.assert_allclose(b.outputs[:, -1, 0], np.exp(-np.array([1.0, 2.0])), rtol=1e-6)
+
+
+def test_nonlinear_model_uses_rk4_and_matches_solve_ivp():
+    def pendulum(t, x, u, p):
+        return np.array([x[1], -p["g"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])
+
+    m = Model(["th", "w"], ["u"], {"g": 9.81, "c": 0.3}, pendulum)
+    t = np.linspace(0, 4, 201)
+    u = 0.5 * np.sin(2 * t)
+    auto = m.simulate(t, u, [1.0, 0.0], method="auto")
+    assert m._maybe_lti is False
+    ref = m.simulate(t, u, [1.0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14)
+    # automatic substeps keep h*rho <= 0.05 at the start: RK4 global error ~1e-6 over 200 steps
+    np.testing.assert_allclose(auto.states, ref.states, atol=1e-5)
+    fine = m.simulate(t, u, [1.0, 0.0], method="rk4", substeps=8)
+    np.testing.assert_allclose(fine.states, ref.states, atol=1e-9)
+    with pytest.raises(SimulationError, match="exact"):
+        m.simulate(t, u, [1.0, 0.0], method="exact")
+
+
+def test_measurement_function_and_outputs():
+    def h(t, x, u, p):
+        return np.array([x[0] + p["b"], 2.0 * x[1] + 0.0 * x[0]])
+
+    m = Model(
+        ["alpha", "q"],
+        ["elevator"],
+        {**catalog.SHORT_PERIOD_TRUTH, "b": 0.1},
+        catalog.short_period().dynamics,
+        outputs=["alpha_m", "q2"],
+        measurement=h,
+    )
+    t = np.linspace(0, 2, 101)
+    sim = m.simulate(t, catalog.doublet(t, start=0.2, width=0.3), None)
+    np.testing.assert_allclose(sim.output("alpha_m"), sim.state("alpha") + 0.1, rtol=1e-12)
+    np.testing.assert_allclose(sim.output("q2"), 2 * sim.state("q"), rtol=1e-12)
+    with pytest.raises(ChannelError, match="outputs"):
+        sim.output("nope")
+
+
+def test_simulate_data_uses_measured_controls_and_initial_state(sp_clean):
+    model = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
+    sim = model.simulate_data(sp_clean)
+    np.testing.assert_allclose(sim.outputs, sp_clean.array(["alpha", "q"]), rtol=0, atol=1e-7)
+    with pytest.raises(ChannelError, match="control 'elevator'"):
+        model.simulate_data(aeroid.FlightData(sp_clean.time, {"alpha": sp_clean["alpha"]}))
+
+
+def test_synthetic_data_is_seeded():
+    a = catalog.short_period_flight(seed=4)
+    b = catalog.short_period_flight(seed=4)
+    c = catalog.short_period_flight(seed=5)
+    assert np.array_equal(a["alpha"], b["alpha"]) and not np.array_equal(a["alpha"], c["alpha"])
+    sim = catalog.short_period().simulate(a.time, a["elevator"])
+    d1 = sim.to_flight_data(noise={"q": 0.1}, seed=1)
+    assert np.array_equal(d1["q"], sim.to_flight_data(noise={"q": 0.1}, seed=1)["q"])
+    with pytest.raises(SimulationError, match="seed"):
+        sim.to_flight_data(noise={"q": 0.1})
+
+
+def test_divergence_names_the_time():
+    m = decay_model(-50.0)  # grows like e^{50 t}: overflows near t = 14 s
+    with pytest.raises(SimulationError, match=r"at t = \d"):
+        m.simulate(np.linspace(0, 30, 301), None, [1.0], method="rk4")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"states": ["a", "a"]}, "duplicate"),
+        ({"states": []}, "at least one state"),
+        ({"parameters": {"not valid": 1.0}}, "valid identifier"),
+        ({"parameters": {"k": float("nan")}}, "not finite"),
+        ({"parameters": {}}, "asked for parameter 'k'"),
+        ({"dynamics": lambda t, x, u, p: [1.0, 2.0]}, "returned 2 values"),
+        ({"dynamics": lambda t, x, u, p: x[5]}, "indexed past"),
+        ({"dynamics": 3}, "callable"),
+        ({"outputs": ["y"]}, "not states"),
+        ({"controls": ["x"]}, "both as controls and states"),
+    ],
+)
+def test_model_definition_errors(kwargs, fragment):
+    base = {"states": ["x"], "controls": [], "parameters": {"k": 1.0}, "dynamics": decay}
+    base.update(kwargs)
+    with pytest.raises(ModelDefinitionError, match=fragment):
+        Model(**base)
+
+
+def test_model_is_frozen_and_argument_errors():
+    m = decay_model()
+    with pytest.raises(AttributeError):
+        m.name = "other"  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        m.parameters["k"] = 3.0  # type: ignore[index]
+    with pytest.raises(SimulationError, match="not strictly increasing"):
+        m.simulate([0.0, 1.0, 0.5], None, [1.0])
+    with pytest.raises(SimulationError, match="unknown"):
+        m.simulate(T, None, [1.0], method="euler")
+    with pytest.raises(SimulationError, match="x0"):
+        m.simulate(T, None, [1.0, 2.0])
+    with pytest.raises(SimulationError, match="'kk' is not a parameter"):
+        m.simulate(T, None, [1.0], {"kk": 2.0})
