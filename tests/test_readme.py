@@ -1,0 +1,54 @@
+"""The README's Python blocks run verbatim, in order, in one namespace."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from aeroid import catalog
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def _blocks() -> list[str]:
+    return re.findall(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), flags=re.S)
+
+
+def test_readme_has_the_two_commands():
+    text = README.read_text(encoding="utf-8")
+    assert 'python3 -m pip install -e ".[all,test]" && aeroid run configs/demo.yaml' in text
+    assert 'python3 -m pip install -e ".[all,test]" && python3 -m pytest' in text
+    ci = (README.parent / ".ci" / "run").read_text(encoding="utf-8")
+    assert 'pip install -q -e ".[all,test]"' in ci and "pytest" in ci
+
+
+def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
+    blocks = _blocks()
+    assert len(blocks) >= 2
+    # The flight file the README loads: the truth case, written as a CSV.
+    data = catalog.short_period_flight(seed=42)
+    lines = ["time,alpha,q,elevator"]
+    for i, t in enumerate(data.time):
+        lines.append(f"{t!r},{data['alpha'][i]!r},{data['q'][i]!r},{data['elevator'][i]!r}")
+    (tmp_path / "flight_042.csv").write_text("\n".join(lines) + "\n")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, object] = {"__name__": "readme"}
+    for block in blocks:
+        exec(compile(block, str(README), "exec"), namespace)  # noqa: S102
+    result = namespace["result"]
+    truth = catalog.SHORT_PERIOD_TRUTH
+    for name, value in truth.items():
+        est = result.parameters[name]  # type: ignore[attr-defined]
+        se = result.stderr[name]  # type: ignore[attr-defined]
+        assert abs(est - value) < 3 * se + 1e-12, name
+    out = capsys.readouterr().out
+    assert "| parameter" in out
+    mc = namespace["mc"]
+    assert mc.percentiles["P2.5"] < 3.0 < mc.percentiles["P97.5"]  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("block", range(len(_blocks())))
+def test_readme_blocks_are_formatted(block):
+    assert "\t" not in _blocks()[block]
