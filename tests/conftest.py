@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import os
 
-import matplotlib
-import pytest
+# Small matrices run far faster single-threaded on a 2-core machine; this must be
+# set before numpy loads its BLAS.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import matplotlib  # noqa: E402
+import pytest  # noqa: E402
 
 matplotlib.use("Agg")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from aeroid import catalog  # noqa: E402
 

@@ -1,0 +1,1249 @@
+"""State estimation: extended and unscented Kalman filters with RTS smoothing.
+
+The model is continuous (``x' = f(t, x, u, p) + w``, ``w`` white with power
+spectral density ``Q``) and the measurements discrete (``y_k = h(t_k, x_k, u_k, p)
++ v_k``, ``v_k`` white with covariance ``R``). Between samples the state is
+propagated with the model itself (RK4 substeps, controls piecewise-linear as
+in every simulation) and the covariance with the exact discretisation of the
+local linearisation: ``Phi = expm(A dt)`` and ``Qd = int Phi Q Phi' ds`` (Van
+Loan's matrix exponential), so a linear filter reproduces the discrete
+Riccati recursion of the sampled system exactly.
+
+For dynamics and measurements that are affine in state and control and
+independent of time, everything is discretised once per parameter vector and
+the Kalman recursion runs on constant matrices, batched over parameter
+vectors (which is what the filter-error method's finite differences need).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.stats
+from numpy.typing import NDArray
+
+from . import _integrate
+from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .data import FlightData
+from .errors import AeroidError, ChannelError, FilterError
+from .model import Model, resolve_parameters
+
+__all__ = ["FilterResult", "filter_states"]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+METHODS = ("ekf", "ukf")
+_JITTER_TRIES = 8
+_MAX_DT_GROUPS = 64
+
+
+# -----------------------------------------------------------------------------------
+# result record
+# -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class FilterResult:
+    """Kalman-filter (and smoother) estimates on a flight record's time grid.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n_t,)
+    state_names, output_names : tuple of str
+        States of the model; outputs whose measurements the filter used.
+    method : str
+        ``"ekf"`` or ``"ukf"``.
+    filtered_states : ndarray, shape (n_t, n_states)
+        Estimates using the measurements up to each sample.
+    filtered_covariance : ndarray, shape (n_t, n_states, n_states)
+    smoothed_states : ndarray, shape (n_t, n_states) or None
+        Rauch–Tung–Striebel estimates using the whole record (None when
+        smoothing was switched off).
+    smoothed_covariance : ndarray, shape (n_t, n_states, n_states) or None
+    innovations : ndarray, shape (n_t, n_outputs)
+        Measured minus predicted outputs. The first sample initialises the
+        filter (see `filter_states`), so its row is the mismatch of the initial
+        state and is left out of `log_likelihood` and the statistics.
+    innovation_covariance : ndarray, shape (n_t, n_outputs, n_outputs)
+    log_likelihood : float
+        Gaussian log-likelihood of the innovations from the second sample on
+        (the prediction-error decomposition); compare noise models with it.
+    process_noise : ndarray, shape (n_states, n_states)
+        Continuous power spectral density used (state² per second).
+    measurement_noise : ndarray, shape (n_outputs, n_outputs)
+        Measurement-noise covariance used.
+    parameters : mapping of str to float
+        Model parameters the filter ran with.
+    n_jitter : int
+        How many covariance factorisations needed diagonal jitter to succeed.
+    model_name : str
+    """
+
+    time: FloatArray
+    state_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    method: str
+    filtered_states: FloatArray
+    filtered_covariance: FloatArray
+    smoothed_states: FloatArray | None
+    smoothed_covariance: FloatArray | None
+    innovations: FloatArray
+    innovation_covariance: FloatArray
+    log_likelihood: float
+    process_noise: FloatArray
+    measurement_noise: FloatArray
+    parameters: Mapping[str, float]
+    n_jitter: int = 0
+    model_name: str = ""
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name in (
+            "time",
+            "filtered_states",
+            "filtered_covariance",
+            "innovations",
+            "innovation_covariance",
+            "process_noise",
+            "measurement_noise",
+        ):
+            set_(self, name, frozen_array(getattr(self, name)))
+        for name in ("smoothed_states", "smoothed_covariance"):
+            if getattr(self, name) is not None:
+                set_(self, name, frozen_array(getattr(self, name)))
+        set_(self, "parameters", frozen_mapping(self.parameters))
+        set_(self, "state_names", tuple(self.state_names))
+        set_(self, "output_names", tuple(self.output_names))
+        set_(self, "log_likelihood", float(self.log_likelihood))
+
+    # -- accessors -----------------------------------------------------------------
+    def _state_index(self, name: str) -> int:
+        if name not in self.state_names:
+            raise ChannelError(
+                f"state {name!r} is not a model state; states: {list(self.state_names)}"
+            )
+        return self.state_names.index(name)
+
+    def _output_index(self, name: str) -> int:
+        if name not in self.output_names:
+            raise ChannelError(
+                f"output {name!r} was not filtered; filtered outputs: {list(self.output_names)}"
+            )
+        return self.output_names.index(name)
+
+    @property
+    def smoothed(self) -> bool:
+        """True when the RTS smoother ran."""
+        return self.smoothed_states is not None
+
+    def state(self, name: str) -> FloatArray:
+        """Filtered estimate of one state (measurements up to each sample)."""
+        return self.filtered_states[:, self._state_index(name)]
+
+    def smoothed_state(self, name: str) -> FloatArray:
+        """RTS-smoothed estimate of one state (the whole record).
+
+        Raises
+        ------
+        FilterError
+            If the filter ran with ``smooth=False``.
+        """
+        j = self._state_index(name)
+        if self.smoothed_states is None:
+            raise FilterError(
+                "smoothed_state: the filter ran with smooth=False; rerun with smooth=True"
+            )
+        return self.smoothed_states[:, j]
+
+    def state_std(self, name: str) -> FloatArray:
+        """Standard deviation of a state estimate.
+
+        That of the smoothed estimate when smoothing ran (the default),
+        otherwise that of the filtered estimate.
+        """
+        j = self._state_index(name)
+        cov = (
+            self.smoothed_covariance
+            if self.smoothed_covariance is not None
+            else self.filtered_covariance
+        )
+        out = np.sqrt(np.clip(cov[:, j, j], 0.0, None))
+        out.setflags(write=False)
+        return out
+
+    def innovation(self, name: str) -> FloatArray:
+        """Innovation (measured minus predicted) of one output."""
+        return self.innovations[:, self._output_index(name)]
+
+    def normalized_innovation(self, name: str) -> FloatArray:
+        """Innovation of one output divided by its predicted standard deviation.
+
+        Unit variance and white when the model and the noise specification
+        are consistent with the data.
+        """
+        j = self._output_index(name)
+        out = self.innovations[:, j] / np.sqrt(self.innovation_covariance[:, j, j])
+        out.setflags(write=False)
+        return out
+
+    @property
+    def normalized_innovation_variance(self) -> float:
+        """Mean of ``nu' S^-1 nu / n_outputs`` over the record (about 1 when consistent)."""
+        return _sigma2(self.innovations[None, 1:], self.innovation_covariance[None, 1:])
+
+    def summary(self) -> str:
+        """Markdown section: likelihood, innovation statistics per output, state uncertainty."""
+        lags = int(min(20, max(1, (self.time.size - 1) // 5)))
+        rows = []
+        for name in self.output_names:
+            nu = self.innovation(name)[1:]
+            z = self.normalized_innovation(name)[1:]
+            q, p = _ljung_box(z, lags)
+            rows.append(
+                (
+                    name,
+                    fmt(float(np.mean(nu))),
+                    fmt(float(np.sqrt(np.mean(nu**2)))),
+                    fmt(float(np.mean(z**2)), 3),
+                    fmt(q, 3),
+                    fmt(p, 3),
+                )
+            )
+        table = markdown_table(
+            (
+                "output",
+                "innovation mean",
+                "innovation RMS",
+                "norm. variance",
+                f"Ljung–Box Q({lags})",
+                "p-value",
+            ),
+            rows,
+        )
+        which = "smoothed" if self.smoothed else "filtered"
+        cov = (
+            self.smoothed_covariance
+            if self.smoothed_covariance is not None
+            else self.filtered_covariance
+        )
+        srows = []
+        for j, name in enumerate(self.state_names):
+            sd = np.sqrt(np.clip(cov[:, j, j], 0.0, None))
+            srows.append((name, fmt(float(np.median(sd))), fmt(float(np.max(sd)))))
+        stable = markdown_table(("state", f"median {which} std", "max std"), srows)
+        head = (
+            f"**State estimation** ({self.method.upper()}"
+            f"{' + RTS smoother' if self.smoothed else ''}), model `{self.model_name}`, "
+            f"{self.time.size} samples; log-likelihood {self.log_likelihood:.6g}; "
+            f"normalised innovation variance {self.normalized_innovation_variance:.3g} "
+            "(about 1 when the noise specification fits the data)."
+        )
+        notes = []
+        if self.n_jitter:
+            notes.append(f"{self.n_jitter} covariance factorisation(s) needed diagonal jitter.")
+        return "\n\n".join([head, table, stable, *notes])
+
+
+def _ljung_box(z: FloatArray, lags: int) -> tuple[float, float]:
+    n = z.size
+    if n <= lags + 1:
+        return float("nan"), float("nan")
+    zc = z - z.mean()
+    denom = float(np.dot(zc, zc))
+    if denom <= 0:
+        return float("nan"), float("nan")
+    r = np.array([np.dot(zc[: n - k], zc[k:]) / denom for k in range(1, lags + 1)])
+    q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1))))
+    return q, float(scipy.stats.chi2.sf(q, lags))
+
+
+# -----------------------------------------------------------------------------------
+# problem set-up (shared with the filter-error method)
+# -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """One record's filtering problem, normalised (internal)."""
+
+    model: Model
+    time: FloatArray
+    U: FloatArray  # (n_t, n_u)
+    Y: FloatArray  # (n_t, n_y)
+    out_idx: tuple[int, ...]  # used outputs among the model's outputs
+    output_names: tuple[str, ...]
+    x0: FloatArray  # (n_x,)
+    P0: FloatArray  # (n_x, n_x)
+    substeps: int | None
+    method: str
+    ukf: tuple[float, float, float]
+
+
+def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
+    if isinstance(model, Model):
+        return model
+    kind = type(model).__name__
+    raise error(
+        f"{what} needs a Model with a continuous dynamics callable f(t, x, u, p); got {kind}, "
+        "which has none (a stepped simulator such as JSBSim or RocketPy cannot be linearised "
+        "between samples). Use output-error identification (identify(method='output_error')) "
+        "for such models, or wrap the dynamics in aeroid.Model."
+    )
+
+
+def noise_matrix(
+    value: Any,
+    names: Sequence[str],
+    what: str,
+    error: type[AeroidError],
+    *,
+    require_all: bool,
+    positive: bool,
+) -> FloatArray:
+    """A noise specification (dict by name, 1-D variances or a matrix) as a square matrix."""
+    n = len(names)
+    if value is None:
+        if require_all:
+            raise error(f"{what}: required; give a dict of name -> value for {list(names)}")
+        return np.zeros((n, n))
+    if isinstance(value, Mapping):
+        unknown = sorted(set(value) - set(names))
+        if unknown:
+            raise error(f"{what}: unknown names {unknown}; expected names among {list(names)}")
+        missing = [k for k in names if k not in value]
+        if require_all and missing:
+            raise error(f"{what}: no value for {missing}; give one for each of {list(names)}")
+        diag = np.zeros(n)
+        for i, k in enumerate(names):
+            if k in value:
+                try:
+                    diag[i] = float(value[k])
+                except (TypeError, ValueError):
+                    raise error(f"{what}[{k!r}]: expected a number, got {value[k]!r}") from None
+        mat = np.diag(diag)
+    else:
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise error(
+                f"{what}: expected a dict, a 1-D array or a matrix, got {value!r}"
+            ) from None
+        if arr.ndim == 0 and n == 1:
+            arr = arr.reshape(1)
+        if arr.shape == (n,):
+            mat = np.diag(arr)
+        elif arr.shape == (n, n):
+            mat = 0.5 * (arr + arr.T)
+        else:
+            raise error(
+                f"{what}: expected {n} values or a {n}x{n} matrix (order {list(names)}), "
+                f"got shape {arr.shape}"
+            )
+    if not np.all(np.isfinite(mat)):
+        raise error(f"{what}: contains NaN or infinite values")
+    eig = np.linalg.eigvalsh(mat) if n else np.zeros(0)
+    scale = float(np.max(np.abs(eig))) if n else 0.0
+    if n and eig.min() < -1e-12 * max(scale, 1e-300):
+        raise error(
+            f"{what}: must be non-negative (positive semi-definite); got {np.diag(mat).tolist()}"
+        )
+    if positive and n and eig.min() <= 0:
+        raise error(
+            f"{what}: every variance must be positive (a measurement needs some noise); "
+            f"got {np.diag(mat).tolist()}"
+        )
+    return mat
+
+
+def _x0_vector(model: Model, data: FlightData, x0: Any, error: type[AeroidError]) -> FloatArray:
+    measured = {s: float(data.channels[s][0]) for s in model.states if s in data}
+    if x0 is None:
+        return np.array([measured.get(s, 0.0) for s in model.states])
+    if isinstance(x0, Mapping):
+        unknown = sorted(set(x0) - set(model.states))
+        if unknown:
+            raise error(f"x0: unknown states {unknown}; states: {list(model.states)}")
+        vals = {**measured, **{k: float(v) for k, v in x0.items()}}
+        out = np.array([vals.get(s, 0.0) for s in model.states])
+    else:
+        out = np.asarray(x0, dtype=np.float64).reshape(-1)
+        if out.shape != (model.n_states,):
+            raise error(
+                f"x0: expected {model.n_states} values (states {list(model.states)}), got shape "
+                f"{np.shape(x0)}"
+            )
+    if not np.all(np.isfinite(out)):
+        raise error("x0: contains NaN or infinite values")
+    return out
+
+
+def _default_P0(model: Model, out_names: Sequence[str], R: FloatArray) -> FloatArray:
+    # A directly measured state starts with the uncertainty of one measurement;
+    # the others with unit variance (override with P0 when units make that poor).
+    diag = np.ones(model.n_states)
+    direct = model._measurement_batch is None
+    for i, s in enumerate(model.states):
+        if direct and s in out_names:
+            j = list(out_names).index(s)
+            diag[i] = R[j, j]
+    return np.diag(diag)
+
+
+def build_problem(
+    model: Any,
+    data: Any,
+    *,
+    outputs: Sequence[str] | None,
+    measurement_noise: Any,
+    x0: Any,
+    P0: Any,
+    substeps: int | None,
+    method: str,
+    ukf: tuple[float, float, float],
+    error: type[AeroidError],
+    require_R: bool = True,
+) -> tuple[_Problem, FloatArray]:
+    """Validate the common arguments; returns the problem and the measurement-noise matrix."""
+    what = "filter_states" if error is FilterError else "filter-error identification"
+    m = _require_model(model, error, what)
+    if not isinstance(data, FlightData):
+        raise error(f"data: expected a FlightData record, got {type(data).__name__}")
+    if method not in METHODS:
+        raise error(f"method {method!r} is unknown; choose one of {list(METHODS)}")
+    if outputs is None:
+        out_names = m.output_names
+    else:
+        out_names = tuple([outputs] if isinstance(outputs, str) else outputs)
+        bad = [o for o in out_names if o not in m.output_names]
+        if bad or not out_names:
+            raise error(
+                f"outputs: {bad or 'none'} not among the model's outputs {list(m.output_names)}"
+            )
+    data.require(m.controls, role="control")
+    data.require(out_names, role="output")
+    R = noise_matrix(
+        measurement_noise,
+        out_names,
+        "measurement_noise",
+        error,
+        require_all=require_R,
+        positive=require_R,
+    )
+    alpha, beta, kappa = ukf
+    if not (np.isfinite(alpha) and alpha > 0) or not np.isfinite(beta) or not np.isfinite(kappa):
+        raise error(f"ukf_alpha must be positive and ukf_beta, ukf_kappa finite; got {ukf}")
+    if method == "ukf" and m.n_states + kappa <= 0:
+        raise error(f"ukf_kappa: n_states + kappa must be positive, got {m.n_states} + {kappa}")
+    if substeps is not None and (int(substeps) != substeps or substeps < 1):
+        raise error(f"substeps: expected a positive integer, got {substeps!r}")
+    xv = _x0_vector(m, data, x0, error)
+    if P0 is None:
+        P0m = _default_P0(m, out_names, R)
+    else:
+        P0m = noise_matrix(P0, m.states, "P0", error, require_all=False, positive=False)
+    out_idx = tuple(m.output_names.index(o) for o in out_names)
+    U = data.array(list(m.controls)) if m.n_controls else np.zeros((data.time.size, 0))
+    Y = data.array(list(out_names))
+    prob = _Problem(
+        m,
+        np.asarray(data.time, dtype=np.float64),
+        np.ascontiguousarray(U, dtype=np.float64),
+        np.ascontiguousarray(Y, dtype=np.float64),
+        out_idx,
+        out_names,
+        xv,
+        P0m,
+        None if substeps is None else int(substeps),
+        method,
+        (float(alpha), float(beta), float(kappa)),
+    )
+    return prob, R
+
+
+# -----------------------------------------------------------------------------------
+# discretisation
+# -----------------------------------------------------------------------------------
+
+
+def _dt_groups(time: FloatArray) -> tuple[FloatArray, IntArray] | None:
+    dts = np.diff(time)
+    ratio = np.round(dts / dts[0], 9)
+    uniq, inverse = np.unique(ratio, return_inverse=True)
+    if uniq.size > _MAX_DT_GROUPS:
+        return None
+    return uniq * dts[0], inverse.astype(np.int64)
+
+
+def _van_loan(A: FloatArray, Qc: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
+    """Phi = expm(A h) and Qd = int_0^h expm(A s) Qc expm(A s)' ds, batched over the first axis."""
+    B, n, _ = A.shape
+    M = np.zeros((B, 2 * n, 2 * n))
+    M[:, :n, :n] = -A
+    M[:, :n, n:] = Qc
+    M[:, n:, n:] = np.transpose(A, (0, 2, 1))
+    E = scipy.linalg.expm(M * h)
+    Phi = np.ascontiguousarray(np.transpose(E[:, n:, n:], (0, 2, 1)))
+    Qd = Phi @ E[:, :n, n:]
+    return Phi, 0.5 * (Qd + np.transpose(Qd, (0, 2, 1)))
+
+
+def _affine_measurement(
+    h: _integrate.BatchFunction,
+    t: float,
+    n_x: int,
+    n_u: int,
+    p: Mapping[str, FloatArray],
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """(H, D, c) per member if h is affine in x and u and time-invariant, else None."""
+    batch = next(iter(p.values())).shape[0] if p else 1
+    n_y = h.n_out
+    n_probe = 1 + n_x + n_u + 2
+    xs = np.zeros((n_probe, n_x))
+    us = np.zeros((n_probe, n_u))
+    xs[1 : 1 + n_x] = np.eye(n_x)
+    us[1 + n_x : 1 + n_x + n_u] = np.eye(n_u)
+    xs[-2:] = rng.standard_normal((2, n_x)) * np.array([[1.0], [10.0]])
+    us[-2:] = rng.standard_normal((2, n_u)) * np.array([[1.0], [10.0]])
+    ts = np.full(n_probe, t)
+    ts[-1] = t + 1.2345
+    X = np.repeat(xs, batch, axis=0).T
+    U = np.repeat(us, batch, axis=0).T
+    T = np.repeat(ts, batch)
+    P = {k: np.tile(v, n_probe) for k, v in p.items()}
+    with np.errstate(all="ignore"):
+        try:
+            vals = np.asarray(h(T, X, U, P), dtype=np.float64)
+        except Exception:
+            return None
+    if vals.shape != (n_y, n_probe * batch) or not np.all(np.isfinite(vals)):
+        return None
+    vals = vals.reshape(n_y, n_probe, batch)
+    c = vals[:, 0, :]
+    H = vals[:, 1 : 1 + n_x, :] - c[:, None, :]
+    D = vals[:, 1 + n_x : 1 + n_x + n_u, :] - c[:, None, :]
+    for j in (n_probe - 2, n_probe - 1):
+        pred = c + np.einsum("ijb,j->ib", H, xs[j]) + np.einsum("ijb,j->ib", D, us[j])
+        scale = (
+            np.abs(c)
+            + np.einsum("ijb,j->ib", np.abs(H), np.abs(xs[j]))
+            + np.einsum("ijb,j->ib", np.abs(D), np.abs(us[j]))
+        )
+        if not np.all(np.abs(vals[:, j, :] - pred) <= 1e-9 * scale + 1e-12):
+            return None
+    return np.transpose(H, (2, 0, 1)).copy(), np.transpose(D, (2, 0, 1)).copy(), c.T.copy()
+
+
+@dataclass
+class _Linear:
+    """Exact discretisation of an LTI model for a batch of parameter vectors."""
+
+    Phi: FloatArray  # (B, g, n, n) per time-step group
+    Qd: FloatArray  # (B, g, n, n)
+    F: FloatArray  # (B, n_t-1, n) input forcing per interval
+    idx: IntArray  # (n_t-1,) group of each interval
+    H: FloatArray | None  # (B, n_y, n) when the measurement is affine
+    d: FloatArray | None  # (B, n_t, n_y) measurement offset
+
+
+def _linearise_model(
+    prob: _Problem, params: Mapping[str, FloatArray], Qc: FloatArray, B: int
+) -> _Linear | None:
+    m = prob.model
+    if not m._maybe_lti:
+        return None
+    groups = _dt_groups(prob.time)
+    if groups is None:
+        return None
+    n, nu = m.n_states, m.n_controls
+    rng = np.random.default_rng(0)
+    mats = _integrate.affine_matrices(m._dynamics_batch, float(prob.time[0]), n, nu, params, rng)
+    if mats is None:
+        return None
+    A = np.broadcast_to(mats[0], (B, n, n))
+    Bm = np.broadcast_to(mats[1], (B, n, nu))
+    c = np.broadcast_to(mats[2], (B, n))
+    hs, idx = groups
+    n_aug = n + 2 * nu + 1
+    Maug = np.zeros((B, n_aug, n_aug))
+    Maug[:, :n, :n] = A
+    Maug[:, :n, n : n + nu] = Bm
+    Maug[:, n : n + nu, n + nu : n + 2 * nu] = np.eye(nu)
+    Maug[:, :n, -1] = c
+    Phis, Qds = [], []
+    U = prob.U
+    dU = U[1:] - U[:-1]
+    F = np.empty((B, prob.time.size - 1, n))
+    for g, h in enumerate(hs):
+        E = scipy.linalg.expm(Maug * h)
+        Gw = E[:, :n, n : n + nu]
+        Gv = E[:, :n, n + nu : n + 2 * nu] / h
+        gc = E[:, :n, -1]
+        sel = idx == g
+        F[:, sel] = (
+            np.einsum("bij,kj->bki", Gw, U[:-1][sel])
+            + np.einsum("bij,kj->bki", Gv, dU[sel])
+            + gc[:, None, :]
+        )
+        Phi, Qd = _van_loan(np.ascontiguousarray(A), Qc, float(h))
+        Phis.append(Phi)
+        Qds.append(Qd)
+    H = d = None
+    if m._measurement_batch is None:
+        sel_idx = [m.states.index(m.output_names[i]) for i in prob.out_idx]
+        H = np.zeros((B, len(sel_idx), n))
+        H[:, np.arange(len(sel_idx)), sel_idx] = 1.0
+        d = np.zeros((B, prob.time.size, len(sel_idx)))
+    else:
+        aff = _affine_measurement(m._measurement_batch, float(prob.time[0]), n, nu, params, rng)
+        if aff is not None:
+            oi = list(prob.out_idx)
+            H = np.ascontiguousarray(np.broadcast_to(aff[0], (B, m.n_outputs, n))[:, oi])
+            D = np.broadcast_to(aff[1], (B, m.n_outputs, nu))[:, oi]
+            cc = np.broadcast_to(aff[2], (B, m.n_outputs))[:, oi]
+            d = np.einsum("bij,kj->bki", D, U) + cc[:, None, :]
+    return _Linear(np.stack(Phis, axis=1), np.stack(Qds, axis=1), F, idx, H, d)
+
+
+# -----------------------------------------------------------------------------------
+# the filter passes (batched over parameter vectors)
+# -----------------------------------------------------------------------------------
+
+
+@dataclass
+class _Pass:
+    """Forward pass of a batch of filters (internal)."""
+
+    xf: FloatArray  # (B, n_t, n)
+    Pf: FloatArray  # (B, n_t, n, n)
+    xp: FloatArray  # (B, n_t, n); row 0 = x0
+    Pp: FloatArray  # (B, n_t, n, n)
+    C: FloatArray  # (B, n_t, n, n): cov(x_{k-1}, x_k | k-1), row 0 unused
+    nu: FloatArray  # (B, n_t, n_y)
+    S: FloatArray  # (B, n_t, n_y, n_y)
+    ok: NDArray[np.bool_]
+    fail: IntArray  # first failing sample (-1 if ok)
+    n_jitter: int
+    message: str = ""
+
+
+class _Failure(Exception):
+    def __init__(self, k: int, what: str) -> None:
+        super().__init__(k, what)
+        self.k = k
+        self.what = what
+
+
+def _chol(M: FloatArray, k: int, what: str, stats: list[int]) -> FloatArray:
+    """Batched Cholesky factor, retrying failing members with growing diagonal jitter."""
+    try:
+        return np.asarray(np.linalg.cholesky(M), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        pass
+    out = np.empty_like(M)
+    n = M.shape[-1]
+    for b in range(M.shape[0]):
+        Mb = 0.5 * (M[b] + M[b].T)
+        if not np.all(np.isfinite(Mb)):
+            raise _Failure(k, what)
+        try:
+            out[b] = np.linalg.cholesky(Mb)
+            continue
+        except np.linalg.LinAlgError:
+            pass
+        scale = max(float(np.trace(Mb)) / max(n, 1), 1e-300)
+        for j in range(_JITTER_TRIES):
+            try:
+                out[b] = np.linalg.cholesky(Mb + np.eye(n) * scale * 1e-12 * 10.0**j)
+                stats[0] += 1
+                break
+            except np.linalg.LinAlgError:
+                continue
+        else:
+            raise _Failure(k, what)
+    return out
+
+
+def _sym(P: FloatArray) -> FloatArray:
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def _affine_scan(
+    M: FloatArray, c: FloatArray, x0: FloatArray, *, quadratic: bool = False
+) -> FloatArray:
+    """All iterates of ``x_k = M_k x_{k-1} + c_k`` (or ``X_k = M_k X_{k-1} M_k' + c_k``).
+
+    M (B, K, n, n), c (B, K, n) or (B, K, n, n), x0 (B, n) or (B, n, n); returns
+    the K iterates. A prefix scan (log2 K vectorised compositions) replaces the
+    Python loop over samples.
+    """
+    M = M.copy()
+    c = c.copy()
+    K = M.shape[1]
+    s = 1
+    while s < K:
+        Mk = M[:, s:]
+        if quadratic:
+            c[:, s:] = Mk @ c[:, :-s] @ np.swapaxes(Mk, 2, 3) + c[:, s:]
+        else:
+            c[:, s:] = (Mk @ c[:, :-s, :, None])[..., 0] + c[:, s:]
+        M[:, s:] = Mk @ M[:, :-s]
+        s *= 2
+    if quadratic:
+        out: FloatArray = M @ x0[:, None] @ np.swapaxes(M, 2, 3) + c
+        return out
+    return np.asarray((M @ x0[:, None, :, None])[..., 0] + c, dtype=np.float64)
+
+
+def _lti_kf(lin: _Linear, Y: FloatArray, R: FloatArray, x0: FloatArray, P0: FloatArray) -> _Pass:
+    """Kalman filter on constant matrices, batched; no per-step factorisation.
+
+    The covariance recursion does not depend on the data, so it runs first
+    (and stops once it has converged: the gain is then constant); the state
+    recursion, linear given the gains, is then solved for all samples at once.
+    The innovation covariances are checked afterwards in one vectorised
+    Cholesky; the caller falls back to the careful pass if that fails.
+    """
+    assert lin.H is not None and lin.d is not None
+    B, _, n, _ = lin.Phi.shape
+    n_t, n_y = Y.shape
+    H, d, F = lin.H, lin.d, lin.F
+    Ht = np.ascontiguousarray(H.transpose(0, 2, 1))
+    PhiT = np.ascontiguousarray(np.swapaxes(lin.Phi, 2, 3))
+    eye = np.eye(n)
+    Pf = np.empty((B, n_t, n, n))
+    Pp = np.empty((B, n_t, n, n))
+    S = np.empty((B, n_t, n_y, n_y))
+    Kg = np.empty((B, n_t, n, n_y))
+    P = P0.copy()
+    Pf[:, 0], Pp[:, 0] = P, P
+    S[:, 0] = H @ P @ Ht + R
+    Kg[:, 0] = 0.0
+    single = lin.Phi.shape[1] == 1
+    Phi, PT, Qd = lin.Phi[:, 0], PhiT[:, 0], lin.Qd[:, 0]
+    Rt = R
+    prev = P
+    with np.errstate(all="ignore"):
+        for k in range(1, n_t):
+            if not single:
+                g = lin.idx[k - 1]
+                Phi, PT, Qd = lin.Phi[:, g], PhiT[:, g], lin.Qd[:, g]
+            Ppk = Phi @ P @ PT + Qd
+            PHt = Ppk @ Ht
+            Sk = H @ PHt + Rt
+            K = np.swapaxes(np.linalg.solve(Sk, PHt.transpose(0, 2, 1)), 1, 2)
+            IKH = eye - K @ H
+            P = IKH @ Ppk @ IKH.transpose(0, 2, 1) + K @ Rt @ K.transpose(0, 2, 1)
+            P = 0.5 * (P + P.transpose(0, 2, 1))
+            Pp[:, k], Pf[:, k], S[:, k], Kg[:, k] = Ppk, P, Sk, K
+            if single and k % 4 == 0:
+                # Converged (to well below rounding of any later use): the gain
+                # is constant for the rest of the record.
+                if np.max(np.abs(Ppk - prev)) <= 1e-13 * float(np.max(np.abs(Ppk))):
+                    Pp[:, k + 1 :] = Ppk[:, None]
+                    Pf[:, k + 1 :] = P[:, None]
+                    S[:, k + 1 :] = Sk[:, None]
+                    Kg[:, k + 1 :] = K[:, None]
+                    break
+                prev = Ppk
+        # state recursion: x_k = (I - K_k H)(Phi_k x_{k-1} + F_k) + K_k z_k
+        z = Y[None] - d  # (B, n_t, n_y)
+        Phis = lin.Phi[:, lin.idx]  # (B, n_t-1, n, n)
+        IKHs = eye - Kg[:, 1:] @ H[:, None]
+        M = IKHs @ Phis
+        c = (IKHs @ F[..., None])[..., 0] + (Kg[:, 1:] @ z[:, 1:, :, None])[..., 0]
+        xs = _affine_scan(M, c, x0)
+        xf = np.concatenate([x0[:, None], xs], axis=1)
+        xp = np.empty_like(xf)
+        xp[:, 0] = x0
+        xp[:, 1:] = (Phis @ xf[:, :-1, :, None])[..., 0] + F
+        nu = z - (H[:, None] @ xp[..., None])[..., 0]
+        C = np.empty_like(Pp)
+        C[:, 1:] = Pf[:, :-1] @ np.swapaxes(Phis, 2, 3)
+        C[:, 0] = 0.0
+    bad = ~np.all(np.isfinite(xf), axis=(1, 2)) | ~np.all(np.isfinite(Pf), axis=(1, 2, 3))
+    fail = np.full(B, -1, dtype=np.int64)
+    for b in np.flatnonzero(bad):
+        fin = np.all(np.isfinite(xf[b]), axis=1) & np.all(np.isfinite(Pf[b]), axis=(1, 2))
+        fail[b] = int(np.argmin(fin))
+    return _Pass(xf, Pf, xp, Pp, C, nu, S, ~bad, fail, 0)
+
+
+class _Propagator:
+    """Moves points (and linearises) between consecutive samples, batched (internal)."""
+
+    def __init__(
+        self,
+        prob: _Problem,
+        params: Mapping[str, FloatArray],
+        Qc: FloatArray,
+        B: int,
+        lin: _Linear | None,
+    ) -> None:
+        self.prob = prob
+        self.params = params
+        self.Qc = Qc
+        self.B = B
+        self.lin = lin
+        m = prob.model
+        self.f = m._dynamics_batch
+        self.n = m.n_states
+        self.nu_ = m.n_controls
+        if lin is None:
+            if prob.substeps is not None:
+                self.m = prob.substeps
+            else:
+                p0 = {k: v[:1] for k, v in params.items()}
+                X0 = prob.x0[:, None]
+                self.m = _integrate.auto_substeps(self.f, prob.time, X0, prob.U[None], p0)
+            self.nodes = _integrate.control_nodes(prob.U[None], self.m)[
+                ..., 0
+            ]  # (n_t-1, 2m+1, n_u)
+        self._rep: dict[int, dict[str, FloatArray]] = {}
+
+    def _p(self, r: int) -> dict[str, FloatArray]:
+        if r not in self._rep:
+            self._rep[r] = {k: np.repeat(v, r) for k, v in self.params.items()}
+        return self._rep[r]
+
+    def _u(self, u: FloatArray, cols: int) -> FloatArray:
+        return np.broadcast_to(u[:, None], (self.nu_, cols))
+
+    def points(self, k: int, X: FloatArray) -> FloatArray:
+        """Propagate points X (B, r, n) from sample k to k+1."""
+        B, r, n = X.shape
+        if self.lin is not None:
+            g = self.lin.idx[k]
+            return np.einsum("bij,brj->bri", self.lin.Phi[:, g], X) + self.lin.F[:, k][:, None, :]
+        t = self.prob.time
+        M = B * r
+        x = np.ascontiguousarray(X.reshape(M, n).T)
+        p = self._p(r)
+        h = (float(t[k + 1]) - float(t[k])) / self.m
+        hh = 0.5 * h
+        nk = self.nodes[k]
+        f = self.f
+        with np.errstate(all="ignore"):
+            for j in range(self.m):
+                ta = float(t[k]) + j * h
+                um = self._u(nk[2 * j + 1], M)
+                k1 = f(ta, x, self._u(nk[2 * j], M), p)
+                k2 = f(ta + hh, x + hh * k1, um, p)
+                k3 = f(ta + hh, x + hh * k2, um, p)
+                k4 = f(ta + h, x + h * k3, self._u(nk[2 * j + 2], M), p)
+                x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        return np.ascontiguousarray(x.T.reshape(B, r, n))
+
+    def linear(self, k: int, x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Transition matrix and discrete process noise over interval k at the point x."""
+        if self.lin is not None:
+            g = self.lin.idx[k]
+            return self.lin.Phi[:, g], self.lin.Qd[:, g]
+        n, B = self.n, self.B
+        step = _fd_step(x, P)  # (B, n)
+        pts = np.concatenate(
+            [
+                x[:, None, :] + np.eye(n)[None] * step[:, :, None],
+                x[:, None, :] - np.eye(n)[None] * step[:, :, None],
+            ],
+            axis=1,
+        )  # (B, 2n, n)
+        cols = np.ascontiguousarray(pts.reshape(B * 2 * n, n).T)
+        t = float(self.prob.time[k])
+        with np.errstate(all="ignore"):
+            vals = self.f(t, cols, self._u(self.prob.U[k], B * 2 * n), self._p(2 * n))
+        vals = np.asarray(vals, dtype=np.float64).T.reshape(B, 2 * n, n)
+        A = np.swapaxes((vals[:, :n] - vals[:, n:]) / (2 * step[:, :, None]), 1, 2)
+        h = float(self.prob.time[k + 1] - self.prob.time[k])
+        if not np.all(np.isfinite(A)):
+            raise _Failure(k, "the dynamics Jacobian is not finite")
+        return _van_loan(A, self.Qc, h)
+
+
+def _fd_step(x: FloatArray, P: FloatArray) -> FloatArray:
+    sd = np.sqrt(np.clip(np.diagonal(P, axis1=1, axis2=2), 0.0, None))
+    return np.maximum(1e-3 * sd, 1e-7 * np.maximum(np.abs(x), 1e-2))
+
+
+class _Measurer:
+    """Predicted measurements and their linearisation, batched (internal)."""
+
+    def __init__(
+        self, prob: _Problem, params: Mapping[str, FloatArray], B: int, lin: _Linear | None
+    ) -> None:
+        self.prob = prob
+        m = prob.model
+        self.h = m._measurement_batch
+        self.B = B
+        self.n = m.n_states
+        self.params = params
+        self.oi = list(prob.out_idx)
+        self.H: FloatArray | None = None
+        self.d: FloatArray | None = None
+        if lin is not None and lin.H is not None:
+            self.H, self.d = lin.H, lin.d
+        elif self.h is None:
+            sel = [m.states.index(m.output_names[i]) for i in prob.out_idx]
+            self.H = np.zeros((B, len(sel), self.n))
+            self.H[:, np.arange(len(sel)), sel] = 1.0
+            self.d = np.zeros((B, prob.time.size, len(sel)))
+        self._rep: dict[int, dict[str, FloatArray]] = {}
+
+    def points(self, k: int, X: FloatArray) -> FloatArray:
+        """Outputs at points X (B, r, n) at sample k: (B, r, n_y)."""
+        if self.H is not None:
+            assert self.d is not None
+            return np.einsum("bij,brj->bri", self.H, X) + self.d[:, k][:, None, :]
+        assert self.h is not None
+        B, r, n = X.shape
+        if r not in self._rep:
+            self._rep[r] = {kk: np.repeat(v, r) for kk, v in self.params.items()}
+        cols = np.ascontiguousarray(X.reshape(B * r, n).T)
+        u = np.broadcast_to(self.prob.U[k][:, None], (self.prob.U.shape[1], B * r))
+        with np.errstate(all="ignore"):
+            vals = np.asarray(
+                self.h(float(self.prob.time[k]), cols, u, self._rep[r]), dtype=np.float64
+            )
+        return vals[self.oi].T.reshape(B, r, len(self.oi))
+
+    def linear(self, k: int, x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Predicted outputs (B, n_y) and the Jacobian H (B, n_y, n) at x."""
+        if self.H is not None:
+            assert self.d is not None
+            return np.einsum("bij,bj->bi", self.H, x) + self.d[:, k], self.H
+        n = self.n
+        step = _fd_step(x, P)
+        e = np.eye(n)[None] * step[:, :, None]
+        pts = np.concatenate([x[:, None, :], x[:, None, :] + e, x[:, None, :] - e], axis=1)
+        vals = self.points(k, pts)  # (B, 2n+1, n_y)
+        Hm = np.swapaxes((vals[:, 1 : n + 1] - vals[:, n + 1 :]) / (2 * step[:, :, None]), 1, 2)
+        if not np.all(np.isfinite(Hm)):
+            raise _Failure(k, "the measurement Jacobian is not finite")
+        return vals[:, 0], Hm
+
+
+def _sigma(x: FloatArray, P: FloatArray, lam: float, k: int, stats: list[int]) -> FloatArray:
+    """Scaled sigma points (B, 2n+1, n)."""
+    n = x.shape[1]
+    L = _chol((n + lam) * P, k, "the state covariance is not positive definite", stats)
+    Lc = np.swapaxes(L, 1, 2)  # rows = columns of L
+    return np.concatenate([x[:, None, :], x[:, None, :] + Lc, x[:, None, :] - Lc], axis=1)
+
+
+def _general(
+    prob: _Problem,
+    params: Mapping[str, FloatArray],
+    Qc: FloatArray,
+    R: FloatArray,
+    x0: FloatArray,
+    P0: FloatArray,
+    lin: _Linear | None,
+    method: str,
+) -> _Pass:
+    """EKF or UKF with per-step factorisations and jitter (any model), batched."""
+    B, n = x0.shape
+    n_t, n_y = prob.Y.shape
+    Y = prob.Y
+    prop = _Propagator(prob, params, Qc, B, lin)
+    meas = _Measurer(prob, params, B, lin)
+    stats = [0]
+    xf = np.full((B, n_t, n), np.nan)
+    Pf = np.full((B, n_t, n, n), np.nan)
+    xp = np.full((B, n_t, n), np.nan)
+    Pp = np.full((B, n_t, n, n), np.nan)
+    C = np.zeros((B, n_t, n, n))
+    nu = np.full((B, n_t, n_y), np.nan)
+    S = np.full((B, n_t, n_y, n_y), np.nan)
+    alpha, beta, kappa = prob.ukf
+    lam = alpha**2 * (n + kappa) - n
+    wm = np.full(2 * n + 1, 0.5 / (n + lam))
+    wc = wm.copy()
+    wm[0] = lam / (n + lam)
+    wc[0] = wm[0] + 1.0 - alpha**2 + beta
+    eye = np.eye(n)
+    x, P = x0.copy(), P0.copy()
+    xf[:, 0], Pf[:, 0], xp[:, 0], Pp[:, 0] = x, P, x, P
+    ok = np.ones(B, dtype=bool)
+    fail = np.full(B, -1, dtype=np.int64)
+    k = 0
+    try:
+        yh, H0 = meas.linear(0, x, P)
+        nu[:, 0] = Y[0] - yh
+        S[:, 0] = H0 @ P @ np.swapaxes(H0, 1, 2) + R
+        H: FloatArray | None
+        with np.errstate(all="ignore"):
+            for k in range(1, n_t):
+                if method == "ekf":
+                    xpk = prop.points(k - 1, x[:, None, :])[:, 0]
+                    Phi, Qd = prop.linear(k - 1, x, P)
+                    Ppk = _sym(Phi @ P @ np.swapaxes(Phi, 1, 2) + Qd)
+                    Ck = P @ np.swapaxes(Phi, 1, 2)
+                    yh, H = meas.linear(k, xpk, Ppk)
+                    PHt = Ppk @ np.swapaxes(H, 1, 2)
+                    Sk = _sym(H @ PHt + R)
+                else:
+                    X = _sigma(x, P, lam, k - 1, stats)
+                    Xn = prop.points(k - 1, X)
+                    _, Qd = prop.linear(k - 1, x, P)
+                    xpk = Xn[:, 0] + np.einsum("r,bri->bi", wm[1:], Xn[:, 1:] - Xn[:, :1])
+                    dX = X - x[:, None, :]
+                    dY = Xn - xpk[:, None, :]
+                    Ppk = _sym(np.einsum("r,bri,brj->bij", wc, dY, dY) + Qd)
+                    Ck = np.einsum("r,bri,brj->bij", wc, dX, dY)
+                    Z = _sigma(xpk, Ppk, lam, k, stats)
+                    Yz = meas.points(k, Z)
+                    yh = Yz[:, 0] + np.einsum("r,bri->bi", wm[1:], Yz[:, 1:] - Yz[:, :1])
+                    dZ = Z - xpk[:, None, :]
+                    dYz = Yz - yh[:, None, :]
+                    PHt = np.einsum("r,bri,brj->bij", wc, dZ, dYz)
+                    Sk = _sym(np.einsum("r,bri,brj->bij", wc, dYz, dYz) + R)
+                    H = None
+                if not (np.all(np.isfinite(xpk)) and np.all(np.isfinite(Ppk))):
+                    raise _Failure(k, "the predicted state or covariance is not finite")
+                L = _chol(Sk, k, "the innovation covariance is not positive definite", stats)
+                Kt = (
+                    scipy.linalg.cho_solve((L[0], True), np.swapaxes(PHt, 1, 2)[0])
+                    if B == 1
+                    else None
+                )
+                if Kt is None:
+                    Kt = np.linalg.solve(Sk, np.swapaxes(PHt, 1, 2))
+                    K = np.swapaxes(Kt, 1, 2)
+                else:
+                    K = Kt.T[None]
+                v = Y[k] - yh
+                x = xpk + np.einsum("bij,bj->bi", K, v)
+                if H is not None:
+                    IKH = eye - K @ H
+                    P = IKH @ Ppk @ np.swapaxes(IKH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)
+                else:
+                    P = Ppk - K @ Sk @ np.swapaxes(K, 1, 2)
+                P = _sym(P)
+                if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+                    raise _Failure(k, "the updated state or covariance is not finite")
+                xp[:, k], Pp[:, k], C[:, k] = xpk, Ppk, Ck
+                xf[:, k], Pf[:, k], nu[:, k], S[:, k] = x, P, v, Sk
+    except _Failure as exc:
+        ok[:] = False
+        fail[:] = exc.k
+        return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, stats[0], exc.what)
+    return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, stats[0])
+
+
+def _rts(run: _Pass) -> tuple[FloatArray, FloatArray]:
+    """Rauch–Tung–Striebel smoother from a forward pass, vectorised over time.
+
+    With the gains G_k = C_{k+1} Pp_{k+1}^-1 known, both backward recursions
+    are affine and are solved by prefix scans.
+    """
+    xf, Pf, xp, Pp, C = run.xf, run.Pf, run.xp, run.Pp, run.C
+    rhs = np.swapaxes(C[:, 1:], 2, 3)  # (B, n_t-1, n, n)
+    try:
+        G = np.swapaxes(np.linalg.solve(Pp[:, 1:], rhs), 2, 3)
+    except np.linalg.LinAlgError:
+        G = np.swapaxes(np.linalg.pinv(Pp[:, 1:], hermitian=True) @ rhs, 2, 3)
+    # reversed time: xs_k = G_k xs_{k+1} + (xf_k - G_k xp_{k+1})
+    Gr = G[:, ::-1]
+    cx = xf[:, -2::-1] - (Gr @ xp[:, :0:-1, :, None])[..., 0]
+    cP = Pf[:, -2::-1] - Gr @ Pp[:, :0:-1] @ np.swapaxes(Gr, 2, 3)
+    xs = _affine_scan(Gr, cx, xf[:, -1])[:, ::-1]
+    Ps = _affine_scan(Gr, _sym(cP), Pf[:, -1], quadratic=True)[:, ::-1]
+    xs = np.concatenate([xs, xf[:, -1:]], axis=1)
+    Ps = np.concatenate([Ps, Pf[:, -1:]], axis=1)
+    return xs, _sym(Ps)
+
+
+def run_filter(
+    prob: _Problem,
+    params: Mapping[str, FloatArray],
+    Qc: FloatArray,
+    R: FloatArray,
+    x0: FloatArray,
+    P0: FloatArray,
+    *,
+    method: str | None = None,
+    linear: bool | None = None,
+) -> _Pass:
+    """Forward filter pass for a batch of B members (internal entry point).
+
+    params: name -> (B,); Qc (B, n, n); R (B, n_y, n_y); x0 (B, n); P0 (B, n, n).
+    ``linear=False`` forces the general path (RK4 + local linearisation).
+    """
+    method = method or prob.method
+    B = x0.shape[0]
+    lin = None if linear is False else _linearise_model(prob, params, Qc, B)
+    if linear is True and lin is None:
+        raise FilterError(f"model {prob.model.name!r} is not linear time-invariant")
+    if lin is not None and lin.H is not None and method == "ekf":
+        run = _lti_kf(lin, prob.Y, R, x0, P0)
+        if np.all(run.ok):
+            try:
+                np.linalg.cholesky(run.S)
+                return run
+            except np.linalg.LinAlgError:
+                pass
+        # fall through to the careful pass, which factorises and jitters per step
+    return _general(prob, params, Qc, R, x0, P0, lin, method)
+
+
+def innovation_loglik(nu: FloatArray, S: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Per member: (sum of nu' S^-1 nu, sum of log det S) over the given samples."""
+    L = np.linalg.cholesky(S)  # (B, K, m, m)
+    z = np.linalg.solve(L, nu[..., None])[..., 0]
+    quad = np.sum(z**2, axis=(1, 2))
+    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=2, axis2=3)), axis=(1, 2))
+    return quad, logdet
+
+
+def _sigma2(nu: FloatArray, S: FloatArray) -> float:
+    quad, _ = innovation_loglik(nu, S)
+    return float(np.sum(quad) / (nu.shape[1] * nu.shape[2] * nu.shape[0]))
+
+
+# -----------------------------------------------------------------------------------
+# public entry point
+# -----------------------------------------------------------------------------------
+
+
+def filter_states(
+    model: Any,
+    data: FlightData,
+    parameters: Any = None,
+    *,
+    process_noise: Any,
+    measurement_noise: Any,
+    method: str = "ekf",
+    smooth: bool = True,
+    x0: Any = None,
+    P0: Any = None,
+    outputs: Sequence[str] | None = None,
+    ukf_alpha: float = 1e-3,
+    ukf_beta: float = 2.0,
+    ukf_kappa: float = 0.0,
+    substeps: int | None = None,
+) -> FilterResult:
+    """Estimate the states of a flight record with a Kalman filter and smoother.
+
+    Parameters
+    ----------
+    model : Model
+        A model with a continuous dynamics callable (stepped simulators are
+        rejected).
+    data : FlightData
+        Must carry the model's controls and the filtered outputs.
+    parameters : mapping or result, optional
+        Parameter values (merged onto the nominal ones) or a result with
+        ``.parameters`` such as an `IdentificationResult`.
+    process_noise : mapping, array_like or None
+        Continuous power spectral density of the process noise on each state
+        (state² per second): a dict by state name (missing states get none),
+        a 1-D array of intensities, or an (n_states, n_states) matrix.
+    measurement_noise : mapping or array_like
+        Measurement-noise variances, one per filtered output: a dict by output
+        name, a 1-D array, or a covariance matrix.
+    method : {"ekf", "ukf"}
+        Extended Kalman filter (Joseph-form updates) or unscented Kalman
+        filter with scaled sigma points.
+    smooth : bool
+        Also run the Rauch–Tung–Striebel smoother.
+    x0 : mapping or array_like, optional
+        State estimate at the first sample. Default: the first measured value
+        of each state the data carries, zero for the others (a dict fills in
+        only the states it names).
+    P0 : mapping or array_like, optional
+        Covariance of `x0` (a dict or 1-D array of variances, or a matrix).
+        Default: the measurement variance for a directly measured state, 1 for
+        the others.
+    outputs : sequence of str, optional
+        Outputs whose measurements the filter uses (default: all model outputs).
+    ukf_alpha, ukf_beta, ukf_kappa : float
+        Spread, prior-knowledge and secondary scaling of the sigma points.
+    substeps : int, optional
+        RK4 steps per sample interval for nonlinear dynamics (default from the
+        dynamics' stiffness).
+
+    Returns
+    -------
+    FilterResult
+
+    Notes
+    -----
+    The filter starts from ``(x0, P0)`` as the estimate at the first sample and
+    processes the measurements from the second sample on, so the default
+    ``x0`` (taken from the first measurement) is not counted twice. The state
+    is propagated between samples with the model's own dynamics and the
+    covariance with the exact discretisation of the local linearisation (Van
+    Loan), so for a linear model the filter equals the discrete-time Kalman
+    filter of the sampled system.
+
+    Raises
+    ------
+    FilterError
+        A model without a dynamics callable, bad noise specifications or
+        options, or a covariance that stays indefinite despite jitter (the
+        message names the sample).
+    ChannelError
+        The data lacks a control or output channel.
+    """
+    prob, R = build_problem(
+        model,
+        data,
+        outputs=outputs,
+        measurement_noise=measurement_noise,
+        x0=x0,
+        P0=P0,
+        substeps=substeps,
+        method=method,
+        ukf=(ukf_alpha, ukf_beta, ukf_kappa),
+        error=FilterError,
+    )
+    m = prob.model
+    Qc = noise_matrix(
+        process_noise, m.states, "process_noise", FilterError, require_all=False, positive=False
+    )
+    p = resolve_parameters(m, parameters, error=FilterError)
+    params = {k: np.array([v]) for k, v in p.items()}
+    run = run_filter(prob, params, Qc[None], R[None], prob.x0[None], prob.P0[None])
+    if not run.ok[0]:
+        k = int(run.fail[0])
+        why = run.message or "the estimate became non-finite"
+        raise FilterError(
+            f"filter_states: {why} at sample {k} (t = {prob.time[k]:.6g} s) even with diagonal "
+            "jitter; check the noise levels, the initial state and the parameters"
+        )
+    xs = Ps = None
+    if smooth:
+        xs_b, Ps_b = _rts(run)
+        xs, Ps = xs_b[0], Ps_b[0]
+        if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(Ps))):
+            bad = int(np.argmin(np.all(np.isfinite(xs), axis=1)))
+            raise FilterError(f"filter_states: the RTS smoother diverged near sample {bad}")
+    nu, S = run.nu[0], run.S[0]
+    quad, logdet = innovation_loglik(nu[None, 1:], S[None, 1:])
+    loglik = -0.5 * float(
+        quad[0] + logdet[0] + (nu.shape[0] - 1) * nu.shape[1] * math.log(2 * math.pi)
+    )
+    return FilterResult(
+        time=prob.time,
+        state_names=tuple(m.states),
+        output_names=prob.output_names,
+        method=method,
+        filtered_states=run.xf[0],
+        filtered_covariance=run.Pf[0],
+        smoothed_states=xs,
+        smoothed_covariance=Ps,
+        innovations=nu,
+        innovation_covariance=S,
+        log_likelihood=loglik,
+        process_noise=Qc,
+        measurement_noise=R,
+        parameters=p,
+        n_jitter=run.n_jitter,
+        model_name=m.name,
+    )

@@ -1,0 +1,87 @@
+"""Benchmark: one `filter_states` pass and the spec's filter-error fit on the truth case.
+
+Run as ``python tests/benchmarks/bench_filter.py``. Prints the median of 5 runs
+and the ratio to the issue's targets (competitor: 0.24 s and 6.4 s).
+"""
+
+from __future__ import annotations
+
+import os
+
+# Small matrices: a multi-threaded BLAS only adds contention (set before numpy loads).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import statistics  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from typing import Any  # noqa: E402
+
+import aeroid  # noqa: E402
+from aeroid import catalog  # noqa: E402
+
+PROCESS = {"alpha": 1e-8, "q": 1e-8}
+MEASUREMENT = {"alpha": 0.005**2, "q": 0.01**2}
+NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
+
+
+def _median(fun: Callable[[], Any], repeats: int = 5) -> tuple[float, Any]:
+    fun()  # warm-up (LTI detection, imports)
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fun()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def _filter_error(model: aeroid.Model, data: aeroid.FlightData) -> Any:
+    if hasattr(aeroid, "identify"):
+        return aeroid.identify(
+            model,
+            data,
+            NAMES,
+            method="filter_error",
+            process_noise=PROCESS,
+            measurement_noise=MEASUREMENT,
+        )
+    from aeroid._filter_error import identify_filter_error
+
+    return identify_filter_error(
+        model,
+        [data],
+        NAMES,
+        dict(model.parameters),
+        process_noise=PROCESS,
+        measurement_noise=MEASUREMENT,
+    )
+
+
+def main() -> None:
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=0)
+    truth = dict(catalog.SHORT_PERIOD_TRUTH)
+    rows = []
+    t, res = _median(
+        lambda: aeroid.filter_states(
+            model, data, truth, process_noise=PROCESS, measurement_noise=MEASUREMENT
+        )
+    )
+    rows.append(("filter_states (EKF + RTS), 10 s at 50 Hz", t, 0.05, 0.24))
+    t_ukf, _ = _median(
+        lambda: aeroid.filter_states(
+            model, data, truth, process_noise=PROCESS, measurement_noise=MEASUREMENT, method="ukf"
+        )
+    )
+    rows.append(("filter_states (UKF + RTS)", t_ukf, float("nan"), float("nan")))
+    t_fe, fit = _median(lambda: _filter_error(model, data))
+    rows.append(("identify(method='filter_error')", t_fe, 0.6, 6.4))
+    print(f"{'case':45s} {'median s':>10s} {'target s':>9s} {'t/target':>9s} {'competitor/t':>13s}")
+    for name, tm, target, comp in rows:
+        print(f"{name:45s} {tm:10.4f} {target:9.3g} {tm / target:9.2f} {comp / tm:13.1f}")
+    print(f"filter-error fit: {fit.n_iterations} iterations, sigma2 = {fit.sigma2:.3f}")
+    print(f"log-likelihood of the filter pass: {res.log_likelihood:.6g}")
+
+
+if __name__ == "__main__":
+    main()

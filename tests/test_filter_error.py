@@ -1,0 +1,182 @@
+"""Filter-error identification: seeded recovery of known truths, with and without turbulence."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import ClassVar
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+import aeroid
+from aeroid import FlightData, IdentificationError, catalog
+from aeroid._filter_error import identify_filter_error
+
+NOISE = {"alpha": 0.005**2, "q": 0.01**2}
+NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
+TRUTH = catalog.SHORT_PERIOD_TRUTH
+
+
+def _fe(model, datas, **kw):
+    args = dict(
+        outputs=None,
+        process_noise=None,
+        measurement_noise=None,
+        filter_options=None,
+        estimate_process_noise=False,
+        x0=None,
+        max_iterations=50,
+        tolerance=1e-6,
+    )
+    args.update(kw)
+    return identify_filter_error(model, datas, NAMES, dict(model.parameters), **args)
+
+
+def _turbulent_flight(seed: int, s_q: float, duration: float = 10.0) -> FlightData:
+    """Truth-case flight with white process noise (PSD s_q) on q, sampled exactly
+    (superposition of the noise-free response and the discretised stochastic part)."""
+    clean = catalog.short_period_flight(noise={}, duration=duration)
+    t = clean.time
+    A = np.array([[TRUTH["Z_alpha"], 1.0], [TRUTH["M_alpha"], TRUTH["M_q"]]])
+    M = np.zeros((4, 4))
+    M[:2, :2] = -A
+    M[:2, 2:] = np.diag([0.0, s_q])
+    M[2:, 2:] = A.T
+    E = scipy.linalg.expm(M * (t[1] - t[0]))
+    phi = E[2:, 2:].T
+    qd = phi @ E[:2, 2:]
+    lq = np.linalg.cholesky(0.5 * (qd + qd.T))
+    rng = np.random.default_rng(seed)
+    w = rng.standard_normal((t.size, 2)) @ lq.T
+    xs = np.zeros((t.size, 2))
+    for k in range(1, t.size):
+        xs[k] = phi @ xs[k - 1] + w[k]
+    y = np.column_stack([clean["alpha"], clean["q"]]) + xs
+    y = y + rng.standard_normal((t.size, 2)) * np.array([0.005, 0.01])
+    return FlightData(t, {"elevator": clean["elevator"], "alpha": y[:, 0], "q": y[:, 1]})
+
+
+def test_truth_case_recovered_with_unit_sigma2(sp_model, sp_noisy):
+    res = _fe(
+        sp_model, [sp_noisy], process_noise={"alpha": 1e-8, "q": 1e-8}, measurement_noise=NOISE
+    )
+    assert res.success and res.method == "filter_error" and res.error_bars == "white"
+    for n in NAMES:
+        assert res.parameters[n] == pytest.approx(TRUTH[n], rel=0.05)
+        assert abs(res.parameters[n] - TRUTH[n]) < 3 * res.stderr[n]
+    # sigma2 = mean of chi2_2 / 2 over n = 500 samples: standard deviation sqrt(1/n)
+    n = sp_noisy.time.size - 1
+    assert abs(res.sigma2 - 1) < 4 * math.sqrt(1 / n)
+    np.testing.assert_array_equal(res.covariance, res.covariance_white)
+    assert res.residuals[0].shape == (sp_noisy.time.size, 2)
+    assert res.noise_covariance == pytest.approx(np.diag([0.005**2, 0.01**2]))
+    assert dict(res.process_noise) == {"alpha": 1e-8, "q": 1e-8}
+    assert res.initial_states[0]["alpha"] == sp_noisy["alpha"][0]
+    assert res.fixed == {} and res.identifiable and res.model_name == "short_period"
+    assert res.covariance.shape == (4, 4) and np.all(np.linalg.eigvalsh(res.covariance) > 0)
+    assert "filter error" in res.summary() and "sigma2" in res.summary()
+
+
+def test_fixed_parameters_and_noise_estimated_from_innovations(sp_model, sp_noisy):
+    names = ["M_q", "M_delta"]
+    res = identify_filter_error(
+        sp_model,
+        [sp_noisy],
+        names,
+        {**TRUTH, "M_q": -1.5, "M_delta": -6.0},
+        outputs=None,
+        process_noise=None,
+        measurement_noise=None,
+        filter_options=None,
+        estimate_process_noise=False,
+        x0=None,
+        max_iterations=50,
+        tolerance=1e-8,
+    )
+    assert res.parameter_names == tuple(names)
+    assert res.fixed == {"Z_alpha": TRUTH["Z_alpha"], "M_alpha": TRUTH["M_alpha"]}
+    for n in names:
+        assert abs(res.parameters[n] - TRUTH[n]) < 3 * res.stderr[n]
+    # ML variances: relative standard error sqrt(2/n) with n = 500
+    var = np.diag(res.noise_covariance)
+    assert var == pytest.approx([0.005**2, 0.01**2], rel=4 * math.sqrt(2 / 500))
+    assert res.sigma2 == pytest.approx(1.0, abs=1e-3)  # ML noise makes it 1 by construction
+    assert set(res.extra_stderr) == {"measurement_noise.alpha", "measurement_noise.q"}
+
+
+def test_several_manoeuvres_share_the_parameters(sp_model):
+    datas = [catalog.short_period_flight(seed=s) for s in (10, 11)]
+    one = _fe(sp_model, datas[:1], process_noise={"q": 1e-8}, measurement_noise=NOISE)
+    two = _fe(sp_model, datas, process_noise={"q": 1e-8}, measurement_noise=NOISE)
+    assert len(two.residuals) == 2 and len(two.initial_states) == 2
+    ratio = np.array([two.stderr[n] / one.stderr[n] for n in NAMES])
+    assert np.all((ratio > 0.6) & (ratio < 0.8))  # twice the data: about 1/sqrt(2)
+
+
+def test_ukf_option_matches_ekf_on_a_linear_model(sp_model, sp_noisy):
+    kw = dict(process_noise={"q": 1e-4}, measurement_noise=NOISE)
+    a = _fe(sp_model, [sp_noisy], **kw)
+    # alpha = 1 keeps the sigma-point weights O(1); the default alpha = 1e-3 weights
+    # of order 1e6 amplify rounding in the finite-difference derivatives (rel ~1e-6).
+    b = _fe(sp_model, [sp_noisy], filter_options={"method": "ukf", "ukf_alpha": 1.0}, **kw)
+    c = _fe(sp_model, [sp_noisy], filter_options={"method": "ukf"}, **kw)
+    for n in NAMES:
+        assert b.parameters[n] == pytest.approx(a.parameters[n], rel=1e-6)
+        assert b.stderr[n] == pytest.approx(a.stderr[n], rel=1e-6)
+        assert c.parameters[n] == pytest.approx(a.parameters[n], rel=1e-4)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_turbulence_biases_output_error_but_not_filter_error(sp_model, seed):
+    s_q = 3e-3  # PSD of the turbulence on q (rad^2/s^3)
+    data = _turbulent_flight(seed, s_q)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", aeroid.IdentifiabilityWarning)
+        if hasattr(aeroid, "identify"):
+            oe = aeroid.identify(sp_model, data, NAMES)
+            oe_se = oe.stderr_white
+        else:  # output error as the filter with neither process noise nor initial uncertainty
+            oe = _fe(sp_model, [data], filter_options={"P0": np.zeros((2, 2))})
+            oe_se = oe.stderr
+    fe = _fe(sp_model, [data], process_noise={"q": s_q}, measurement_noise=NOISE)
+    z_oe = max(abs(oe.parameters[n] - TRUTH[n]) / oe_se[n] for n in NAMES)
+    z_fe = max(abs(fe.parameters[n] - TRUTH[n]) / fe.stderr[n] for n in NAMES)
+    assert z_oe > 3.0  # output error: off by more than 3 of its (white-residual) error bars
+    assert z_fe < 3.0  # filter error: truth within 3 error bars for every parameter
+    assert abs(fe.sigma2 - 1) < 4 * math.sqrt(1 / 500)
+
+
+def test_process_noise_intensity_estimated(sp_model):
+    s_q = 3e-3
+    data = _turbulent_flight(5, s_q)
+    res = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=["q"])
+    q_hat, q_se = res.process_noise["q"], res.extra_stderr["process_noise.q"]
+    assert abs(q_hat - s_q) < 3 * q_se and q_se < 0.3 * s_q
+    assert res.process_noise["alpha"] == 0.0
+    for n in NAMES:
+        assert abs(res.parameters[n] - TRUTH[n]) < 3 * res.stderr[n]
+
+
+def test_errors(sp_model, sp_noisy):
+    class Stepped:
+        name = "box"
+        controls = ("elevator",)
+        outputs = ("q",)
+        parameters: ClassVar[dict[str, float]] = {"k": 1.0}
+
+    with pytest.raises(IdentificationError, match="continuous dynamics"):
+        _fe(Stepped(), [sp_noisy])
+    with pytest.raises(IdentificationError, match=r"valid options are \['method'"):
+        _fe(sp_model, [sp_noisy], filter_options={"smoother": True})
+    with pytest.raises(IdentificationError, match="not parameters"):
+        identify_filter_error(sp_model, [sp_noisy], ["k"], None)
+    with pytest.raises(IdentificationError, match="one initial state per manoeuvre"):
+        _fe(sp_model, [sp_noisy], x0=[{}, {}])
+    with pytest.raises(IdentificationError, match="not states"):
+        _fe(sp_model, [sp_noisy], estimate_process_noise=["beta"])
+    with pytest.raises(IdentificationError, match="method"):
+        _fe(sp_model, [sp_noisy], filter_options={"method": "pf"})
+    with pytest.raises(IdentificationError, match="measurement_noise"):
+        _fe(sp_model, [sp_noisy], measurement_noise={"alpha": 1e-4})

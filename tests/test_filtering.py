@@ -1,0 +1,429 @@
+"""Kalman filtering and RTS smoothing, pinned to closed forms and seeded truths."""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+import aeroid
+from aeroid import FilterError, FlightData, Model, catalog
+from aeroid.filtering import FilterResult, _chol, _Failure, build_problem, filter_states, run_filter
+
+NOISE = {"alpha": 0.005**2, "q": 0.01**2}
+
+
+def _scalar_model(a: float) -> Model:
+    return Model(
+        states=["x"], controls=[], parameters={"a": a}, dynamics=lambda t, x, u, p: p["a"] * x
+    )
+
+
+def _scalar_riccati(a: float, q: float, r: float, dt: float) -> tuple[float, float]:
+    """Steady-state prior and posterior variance of x' = a x + w (PSD q), y_k = x_k + v_k (var r).
+
+    Exact discretisation: phi = e^{a dt}, Qd = q (e^{2 a dt} - 1) / (2 a). The prior
+    variance solves M = phi^2 M r / (M + r) + Qd, i.e.
+    M^2 + M (r (1 - phi^2) - Qd) - Qd r = 0 (positive root); posterior = M r / (M + r).
+    """
+    phi = math.exp(a * dt)
+    qd = q * (math.exp(2 * a * dt) - 1) / (2 * a)
+    b = r * (1 - phi**2) - qd
+    prior = 0.5 * (-b + math.sqrt(b * b + 4 * qd * r))
+    return prior, prior * r / (prior + r)
+
+
+def _turbulent_flight(
+    seed: int, s_q: float, duration: float = 10.0
+) -> tuple[FlightData, np.ndarray]:
+    """Truth-case flight with white process noise (PSD s_q) on q, sampled exactly.
+
+    The system is linear, so the response is the noise-free simulation plus the
+    exactly discretised stochastic part (x_k = Phi x_{k-1} + w_k, w_k ~ N(0, Qd)).
+    """
+    truth = catalog.SHORT_PERIOD_TRUTH
+    clean = catalog.short_period_flight(noise={}, duration=duration)
+    t = clean.time
+    A = np.array([[truth["Z_alpha"], 1.0], [truth["M_alpha"], truth["M_q"]]])
+    M = np.zeros((4, 4))
+    M[:2, :2] = -A
+    M[:2, 2:] = np.diag([0.0, s_q])
+    M[2:, 2:] = A.T
+    E = scipy.linalg.expm(M * (t[1] - t[0]))
+    phi = E[2:, 2:].T
+    qd = phi @ E[:2, 2:]
+    lq = np.linalg.cholesky(0.5 * (qd + qd.T))
+    rng = np.random.default_rng(seed)
+    w = rng.standard_normal((t.size, 2)) @ lq.T
+    xs = np.zeros((t.size, 2))
+    for k in range(1, t.size):
+        xs[k] = phi @ xs[k - 1] + w[k]
+    x = np.column_stack([clean["alpha"], clean["q"]]) + xs
+    y = x + rng.standard_normal((t.size, 2)) * np.array([0.005, 0.01])
+    data = FlightData(t, {"elevator": clean["elevator"], "alpha": y[:, 0], "q": y[:, 1]})
+    return data, x
+
+
+# -- closed forms -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("linear", [None, False])
+def test_ekf_steady_state_equals_scalar_riccati(linear):
+    a, q, r, dt = -1.5, 0.04, 0.01, 0.02
+    model = _scalar_model(a)
+    t = np.arange(401) * dt
+    y = np.random.default_rng(1).standard_normal(t.size) * 0.1  # covariances ignore the data
+    data = FlightData(t, {"x": y})
+    prior, post = _scalar_riccati(a, q, r, dt)
+    if linear is None:  # public path (exact discretisation, constant matrices)
+        res = filter_states(
+            model, data, process_noise={"x": q}, measurement_noise={"x": r}, smooth=False
+        )
+        P, S = res.filtered_covariance[-1, 0, 0], res.innovation_covariance[-1, 0, 0]
+    else:  # general path: RK4 state propagation, Van Loan on the local Jacobian
+        prob, R = build_problem(
+            model,
+            data,
+            outputs=None,
+            measurement_noise={"x": r},
+            x0=None,
+            P0=None,
+            substeps=None,
+            method="ekf",
+            ukf=(1e-3, 2.0, 0.0),
+            error=FilterError,
+        )
+        run = run_filter(
+            prob,
+            {"a": np.array([a])},
+            np.array([[[q]]]),
+            R[None],
+            prob.x0[None],
+            prob.P0[None],
+            linear=False,
+        )
+        P, S = run.Pf[0, -1, 0, 0], run.S[0, -1, 0, 0]
+    assert P == pytest.approx(post, rel=1e-3)
+    assert S == pytest.approx(prior + r, rel=1e-3)
+
+
+def test_without_process_noise_the_filter_is_recursive_least_squares():
+    # x' = 0: the state is a constant observed n times; its variance after n
+    # measurements (prior P0) is 1 / (1/P0 + n/r).
+    model = _scalar_model(0.0)
+    t = np.arange(51) * 0.1
+    data = FlightData(t, {"x": np.ones(t.size)})
+    res = filter_states(
+        model, data, process_noise=None, measurement_noise=[0.04], P0=[1.0], smooth=True
+    )
+    n = np.arange(t.size)
+    assert res.filtered_covariance[:, 0, 0] == pytest.approx(1 / (1 / 1.0 + n / 0.04), rel=1e-9)
+    # smoothing a constant: every sample gets the information of the whole record
+    assert res.state_std("x") ** 2 == pytest.approx(np.full(t.size, 1 / (1 + 50 / 0.04)), rel=1e-9)
+
+
+def test_ukf_equals_ekf_on_a_linear_system(sp_noisy, sp_truth):
+    kw = dict(process_noise={"alpha": 1e-4, "q": 1e-3}, measurement_noise=NOISE)
+    ekf = filter_states(catalog.short_period(), sp_noisy, sp_truth, method="ekf", **kw)
+    ukf = filter_states(catalog.short_period(), sp_noisy, sp_truth, method="ukf", **kw)
+    for name in (
+        "filtered_states",
+        "filtered_covariance",
+        "smoothed_states",
+        "smoothed_covariance",
+        "innovations",
+        "innovation_covariance",
+    ):
+        a, b = getattr(ekf, name), getattr(ukf, name)
+        assert np.max(np.abs(a - b)) <= 1e-6 * np.max(np.abs(a)), name
+    assert ukf.log_likelihood == pytest.approx(ekf.log_likelihood, rel=1e-6)
+
+
+def test_general_path_matches_exact_linear_path(sp_noisy, sp_truth):
+    """RK4 + local linearisation (used for nonlinear models) agrees with the exact LTI filter."""
+    prob, R = build_problem(
+        catalog.short_period(),
+        sp_noisy,
+        outputs=None,
+        measurement_noise=NOISE,
+        x0=None,
+        P0=None,
+        substeps=None,
+        method="ekf",
+        ukf=(1e-3, 2.0, 0.0),
+        error=FilterError,
+    )
+    p = {k: np.array([v]) for k, v in sp_truth.items()}
+    Qc = np.diag([1e-4, 1e-3])[None]
+    ref = run_filter(prob, p, Qc, R[None], prob.x0[None], prob.P0[None])
+    for method in ("ekf", "ukf"):
+        run = run_filter(
+            prob, p, Qc, R[None], prob.x0[None], prob.P0[None], method=method, linear=False
+        )
+        assert np.max(np.abs(run.xf - ref.xf)) <= 1e-6 * np.max(np.abs(ref.xf))
+        assert np.max(np.abs(run.Pf - ref.Pf)) <= 1e-6 * np.max(np.abs(ref.Pf))
+
+
+# -- statistics of a correctly specified filter --------------------------------------------------
+
+
+def test_innovations_are_white_with_unit_variance(sp_truth):
+    s_q = 3e-3
+    data, x = _turbulent_flight(seed=3, s_q=s_q, duration=40.0)
+    res = filter_states(
+        catalog.short_period(), data, sp_truth, process_noise={"q": s_q}, measurement_noise=NOISE
+    )
+    n = data.time.size - 1
+    for name in ("alpha", "q"):
+        z = res.normalized_innovation(name)[1:]
+        # mean of z^2 has standard deviation sqrt(2/n) for white unit-variance z
+        assert abs(np.mean(z**2) - 1) < 4 * math.sqrt(2 / n)
+        # sample autocorrelations of white noise have standard deviation 1/sqrt(n)
+        zc = z - z.mean()
+        r = np.array([zc[:-k] @ zc[k:] for k in range(1, 21)]) / (zc @ zc)
+        assert np.max(np.abs(r)) < 4 / math.sqrt(n)
+    assert abs(res.normalized_innovation_variance - 1) < 4 * math.sqrt(1 / n)
+    # the smoother beats the filter, and its 2-sigma band covers about 95 %
+    for j, name in enumerate(("alpha", "q")):
+        err_f = res.state(name) - x[:, j]
+        err_s = res.smoothed_state(name) - x[:, j]
+        assert np.sqrt(np.mean(err_s**2)) < np.sqrt(np.mean(err_f**2))
+        assert np.all(res.state_std(name) <= np.sqrt(res.filtered_covariance[:, j, j]) * (1 + 1e-9))
+        cover = np.mean(np.abs(err_s) < 2 * res.state_std(name))
+        assert 0.85 < cover < 1.0  # errors are strongly correlated in time: loose band
+
+
+def test_log_likelihood_prefers_the_true_noise_level(sp_truth):
+    data, _ = _turbulent_flight(seed=4, s_q=3e-3, duration=20.0)
+    ll = {
+        s: filter_states(
+            catalog.short_period(),
+            data,
+            sp_truth,
+            process_noise={"q": s},
+            measurement_noise=NOISE,
+            smooth=False,
+        ).log_likelihood
+        for s in (3e-4, 3e-3, 3e-2)
+    }
+    assert ll[3e-3] > ll[3e-4] and ll[3e-3] > ll[3e-2]
+
+
+# -- nonlinear models ---------------------------------------------------------------------
+
+
+def _pendulum(broadcast: bool = True) -> Model:
+    def f(t, x, u, p):
+        return np.array([x[1], -p["w2"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])
+
+    def f_loop(t, x, u, p):  # written for one point only: exercises the loop fallback
+        return [float(x[1]), -p["w2"] * math.sin(float(x[0])) - p["c"] * float(x[1]) + float(u[0])]
+
+    def h(t, x, u, p):
+        return np.array([np.sin(x[0])])
+
+    return Model(
+        states=["th", "om"],
+        controls=["tau"],
+        parameters={"w2": 4.0, "c": 0.3},
+        dynamics=f if broadcast else f_loop,
+        outputs=["s"],
+        measurement=h,
+        name="pendulum",
+    )
+
+
+def _pendulum_data(seed: int = 0) -> tuple[FlightData, np.ndarray]:
+    model = _pendulum()
+    t = np.arange(301) * 0.02
+    u = np.zeros(t.size)
+    sim = model.simulate(t, u, x0=[0.8, 0.0])
+    rng = np.random.default_rng(seed)
+    y = sim.output("s") + 0.02 * rng.standard_normal(t.size)
+    return FlightData(t, {"tau": u, "s": y}), sim.states
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_nonlinear_model_with_measurement_function(method):
+    data, x = _pendulum_data()
+    res = filter_states(
+        _pendulum(),
+        data,
+        process_noise={"om": 1e-4},
+        measurement_noise={"s": 0.02**2},
+        method=method,
+        x0={"th": 0.7, "om": 0.0},
+        P0=[0.05, 0.05],
+    )
+    err = res.smoothed_state("th") - x[:, 0]
+    assert np.sqrt(np.mean(err[50:] ** 2)) < 0.01  # well below the 0.02 sensor noise
+    z = res.normalized_innovation("s")[1:]
+    assert abs(np.mean(z**2) - 1) < 4 * math.sqrt(2 / z.size) + 0.1  # linearisation error allowance
+
+
+def test_non_broadcasting_dynamics_give_the_same_estimates():
+    data, _ = _pendulum_data()
+    kw = dict(
+        process_noise={"om": 1e-4},
+        measurement_noise={"s": 0.02**2},
+        x0=[0.7, 0.0],
+        P0=[0.05, 0.05],
+        smooth=False,
+        substeps=2,
+    )
+    a = filter_states(_pendulum(True), data, **kw)
+    b = filter_states(_pendulum(False), data, **kw)
+    np.testing.assert_allclose(a.filtered_states, b.filtered_states, rtol=1e-10, atol=1e-12)
+
+
+# -- the record -----------------------------------------------------------------------------
+
+
+def test_result_record(sp_noisy, sp_truth):
+    res = filter_states(
+        catalog.short_period(),
+        sp_noisy,
+        sp_truth,
+        process_noise=[1e-8, 1e-8],
+        measurement_noise=np.diag([0.005**2, 0.01**2]),
+    )
+    assert isinstance(res, FilterResult)
+    assert aeroid.filter_states is filter_states and aeroid.FilterResult is FilterResult
+    assert res.state("alpha").shape == res.time.shape
+    assert np.all(np.isfinite(res.normalized_innovation("q")))
+    for arr in (
+        res.filtered_states,
+        res.smoothed_states,
+        res.innovations,
+        res.state("q"),
+        res.state_std("q"),
+    ):
+        with pytest.raises(ValueError):
+            arr[0] = 1.0
+    with pytest.raises(TypeError):
+        res.parameters["M_q"] = 0.0  # type: ignore[index]
+    # storable: only plain values, strings, mappings and arrays
+    for name, value in vars(res).items():
+        assert isinstance(value, (str, int, float, tuple, np.ndarray, type(None))) or hasattr(
+            value, "items"
+        ), name
+    text = res.summary()
+    assert "| output" in text and "log-likelihood" in text and "Ljung" in text
+    assert res.parameters["M_q"] == sp_truth["M_q"]
+    # smoothing off: state_std is the filtered one and smoothed_state refuses
+    res2 = filter_states(
+        catalog.short_period(),
+        sp_noisy,
+        sp_truth,
+        process_noise=[1e-8, 1e-8],
+        measurement_noise=NOISE,
+        smooth=False,
+    )
+    np.testing.assert_allclose(res2.state_std("alpha") ** 2, res2.filtered_covariance[:, 0, 0])
+    with pytest.raises(FilterError, match="smooth=False"):
+        res2.smoothed_state("alpha")
+    with pytest.raises(aeroid.ChannelError, match="not a model state"):
+        res2.state("beta")
+
+
+def test_parameters_from_a_result_object(sp_noisy, sp_truth):
+    class Fit:
+        parameters: ClassVar[dict[str, float]] = dict(sp_truth)
+
+    a = filter_states(
+        catalog.short_period(), sp_noisy, Fit(), process_noise=None, measurement_noise=NOISE
+    )
+    b = filter_states(
+        catalog.short_period(), sp_noisy, sp_truth, process_noise=None, measurement_noise=NOISE
+    )
+    assert a.log_likelihood == b.log_likelihood
+
+
+def test_outputs_subset(sp_noisy, sp_truth):
+    res = filter_states(
+        catalog.short_period(),
+        sp_noisy,
+        sp_truth,
+        process_noise=None,
+        measurement_noise={"q": 0.01**2},
+        outputs=["q"],
+    )
+    assert res.output_names == ("q",)
+    assert res.innovations.shape == (sp_noisy.time.size, 1)
+
+
+# -- errors ----------------------------------------------------------------------------------
+
+
+class _Stepped:
+    """A SimulatorModel look-alike (no dynamics callable)."""
+
+    name = "box"
+    controls = ("elevator",)
+    outputs = ("q",)
+    parameters: ClassVar[dict[str, float]] = {"k": 1.0}
+
+    def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+        raise NotImplementedError
+
+    def simulate_data(self, data, *, x0=None, parameters=None, **options):
+        raise NotImplementedError
+
+
+def test_errors(sp_noisy):
+    model = catalog.short_period()
+    kw = dict(process_noise=None, measurement_noise=NOISE)
+    with pytest.raises(FilterError, match="continuous dynamics"):
+        filter_states(_Stepped(), sp_noisy, **kw)
+    with pytest.raises(FilterError, match="method"):
+        filter_states(model, sp_noisy, method="pf", **kw)
+    with pytest.raises(FilterError, match=r"measurement_noise.*q"):
+        filter_states(model, sp_noisy, process_noise=None, measurement_noise={"alpha": 1e-4})
+    with pytest.raises(FilterError, match="positive"):
+        filter_states(
+            model, sp_noisy, process_noise=None, measurement_noise={"alpha": 1e-4, "q": 0.0}
+        )
+    with pytest.raises(FilterError, match=r"process_noise.*unknown"):
+        filter_states(model, sp_noisy, process_noise={"beta": 1.0}, measurement_noise=NOISE)
+    with pytest.raises(FilterError, match="non-negative"):
+        filter_states(model, sp_noisy, process_noise={"q": -1.0}, measurement_noise=NOISE)
+    with pytest.raises(FilterError, match="2 values"):
+        filter_states(model, sp_noisy, process_noise=[1.0, 2.0, 3.0], measurement_noise=NOISE)
+    with pytest.raises(FilterError, match="x0"):
+        filter_states(model, sp_noisy, x0=[0.0], **kw)
+    with pytest.raises(FilterError, match="parameter"):
+        filter_states(model, sp_noisy, {"nope": 1.0}, **kw)
+    with pytest.raises(FilterError, match="outputs"):
+        filter_states(model, sp_noisy, outputs=["beta"], **kw)
+    with pytest.raises(FilterError, match="ukf_alpha"):
+        filter_states(model, sp_noisy, method="ukf", ukf_alpha=0.0, **kw)
+    with pytest.raises(aeroid.ChannelError, match="elevator"):
+        filter_states(
+            model, FlightData(sp_noisy.time, {"alpha": sp_noisy["alpha"], "q": sp_noisy["q"]}), **kw
+        )
+
+
+def test_divergence_names_the_sample():
+    blow = Model(
+        states=["x"],
+        controls=[],
+        parameters={},
+        dynamics=lambda t, x, u, p: x * (1.0 if np.all(np.asarray(t) < 0.5) else np.inf),
+    )
+    t = np.arange(51) * 0.02
+    data = FlightData(t, {"x": np.ones(t.size)})
+    with pytest.raises(FilterError, match=r"sample 25 \(t = 0.5 s\)"):
+        filter_states(blow, data, process_noise=[1.0], measurement_noise=[1.0], substeps=1)
+
+
+def test_cholesky_jitter_then_failure():
+    stats = [0]
+    nearly = np.array([[[1.0, 1.0], [1.0, 1.0 - 1e-15]]])  # indefinite by rounding
+    L = _chol(nearly, 7, "test", stats)
+    assert stats[0] == 1 and np.allclose(L @ L.transpose(0, 2, 1), nearly, atol=1e-9)
+    with pytest.raises(_Failure) as info:
+        _chol(np.array([[[1.0, 0.0], [0.0, -1.0]]]), 7, "test", stats)
+    assert info.value.k == 7
