@@ -1,0 +1,267 @@
+"""The ``aeroid`` command: run, inspect and check campaign pipelines.
+
+Imports stay lazy so that an unchanged rerun costs only key computation and
+cache checks: Dask is imported only when something has to be computed.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+__all__ = ["main"]
+
+
+def _fail(message: str, code: int = 2) -> None:
+    click.echo(f"error: {message}", err=True)
+    sys.exit(code)
+
+
+def _open_store(config: str | None, store: str | None) -> Any:
+    from .errors import AeroidError
+    from .pipeline.config import load_config
+    from .pipeline.store import ResultStore
+
+    if config and store:
+        _fail("give --config or --store, not both")
+    try:
+        if store:
+            return ResultStore(store, create=False)
+        if config:
+            from .pipeline.definition import resolve_pipeline
+
+            cfg = load_config(config)
+            resolve_pipeline(cfg.pipeline, cfg.base_dir)  # registers the pipeline's record types
+            return ResultStore(cfg.store_path, create=False)
+    except AeroidError as exc:
+        _fail(str(exc))
+    _fail("give the store: --config CONFIG or --store PATH")
+    raise AssertionError  # unreachable
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    from ._records import markdown_table
+
+    return markdown_table(header, rows)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="aeroid", prog_name="aeroid")
+def main() -> None:
+    """AeroID campaign pipeline: content-keyed stages in a Zarr store, run by Dask."""
+
+
+@main.command()
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option(
+    "--store", type=click.Path(file_okay=False), help="Result store (overrides the config)."
+)
+@click.option("--scheduler", metavar="ADDRESS", help="tcp://HOST:PORT of a dask scheduler.")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=0),
+    help="Worker processes of the embedded cluster (0: run in this process).",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no tables.")
+def run(
+    config: str,
+    store: str | None,
+    scheduler: str | None,
+    workers: int | None,
+    as_json: bool,
+    quiet: bool,
+) -> None:
+    """Compute every missing result of the campaign in CONFIG and write its report."""
+    from .errors import AeroidError
+    from .pipeline.runner import run as run_campaign
+
+    try:
+        summary = run_campaign(
+            config,
+            store=store,
+            scheduler=scheduler,
+            workers=workers,
+            progress=not quiet and not as_json,
+        )
+    except AeroidError as exc:
+        _fail(str(exc))
+        return
+    doc = summary.to_json()
+    if as_json:
+        click.echo(json.dumps(doc, indent=2))
+    else:
+        if not quiet and summary.rows:
+            click.echo(_table(summary.columns, summary.rows))
+            click.echo("")
+        failed = [t for t in doc["tasks"] if t["status"] == "failed"]
+        first_errors = [t for t in failed if not str(t["error"]).startswith("upstream ")]
+        for t in first_errors:
+            where = f"{t['stage']} {t['flight']}" if t["flight"] else t["stage"]
+            click.echo(f"FAILED {where} ({t['key'][:12]}): {t['error']}")
+        click.echo(
+            f"{doc['computed']} computed, {doc['cached']} cached, {doc['failed']} failed "
+            f"in {summary.seconds['total']:.1f} s"
+        )
+        if doc["report"]:
+            click.echo(f"report: {doc['report']}")
+    sys.exit(1 if doc["failed"] else 0)
+
+
+@main.command()
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option(
+    "--store", type=click.Path(file_okay=False), help="Result store (overrides the config)."
+)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
+def status(config: str, store: str | None, as_json: bool) -> None:
+    """Which tasks of CONFIG are stored and which are missing (computes nothing)."""
+    from .errors import AeroidError
+    from .pipeline.config import load_config
+    from .pipeline.runner import plan
+    from .pipeline.store import ResultStore
+
+    try:
+        cfg = load_config(config, store=str(Path(store).resolve()) if store else None)
+        the_plan = plan(cfg)
+        st = (
+            ResultStore(cfg.store_path, create=False)
+            if (cfg.store_path / "aeroid-store.json").is_file()
+            else None
+        )
+    except AeroidError as exc:
+        _fail(str(exc))
+        return
+    tasks: list[dict[str, str]] = []
+    for t in the_plan.tasks:
+        stored = st is not None and st.exists(t.stage, t.key)
+        tasks.append(
+            {
+                "stage": t.step,
+                "flight": t.flight or "",
+                "key": t.key,
+                "status": "stored" if stored else "missing",
+            }
+        )
+    n_stored = sum(t["status"] == "stored" for t in tasks)
+    doc: dict[str, Any] = {
+        "stored": n_stored,
+        "missing": len(tasks) - n_stored,
+        "store": str(cfg.store_path),
+        "tasks": tasks,
+    }
+    if as_json:
+        doc["tasks"] = [{**row, "flight": row["flight"] or None} for row in tasks]
+        click.echo(json.dumps(doc, indent=2))
+        return
+    rows = [[t["stage"], t["flight"] or "(campaign)", t["key"][:12], t["status"]] for t in tasks]
+    click.echo(_table(["stage", "flight", "key", "status"], rows))
+    click.echo(f"\n{doc['stored']} stored, {doc['missing']} missing in {cfg.store_path}")
+
+
+def _store_options(f: Any) -> Any:
+    f = click.option("--store", type=click.Path(file_okay=False), help="The result store.")(f)
+    f = click.option(
+        "--config", type=click.Path(dir_okay=False), help="A config naming the store."
+    )(f)
+    return f
+
+
+@main.command()
+@click.argument("key")
+@_store_options
+def show(key: str, config: str | None, store: str | None) -> None:
+    """A stored result's summary and provenance."""
+    from .errors import AeroidError
+
+    st = _open_store(config, store)
+    try:
+        entry = st.find(key)
+        meta = st.metadata(entry.key, entry.stage)
+        record = st.load(entry.key, entry.stage)
+    except AeroidError as exc:
+        _fail(str(exc), 1)
+        return
+    prov = meta.get("provenance", {})
+    task = prov.get("task", {})
+    click.echo(f"key:     {entry.key}")
+    click.echo(f"stage:   {entry.stage} ({meta['record_type']})")
+    if task.get("flight"):
+        click.echo(f"flight:  {task['flight']}")
+    click.echo("")
+    summary = getattr(record, "summary", None)
+    click.echo(summary() if callable(summary) else repr(record))
+    click.echo("\n## Provenance\n")
+    doc = meta["task"]
+    click.echo(f"- stage version: {doc.get('stage_version')}")
+    click.echo(f"- options: {json.dumps(doc.get('options'), sort_keys=True)}")
+    for role, up in (doc.get("upstream") or {}).items():
+        ups = up if isinstance(up, list) else [up]
+        click.echo(f"- upstream {role}: {', '.join(str(u)[:19] for u in ups)}")
+    if doc.get("model"):
+        click.echo(f"- model: {doc['model'].get('name')} (version {doc['model'].get('version')})")
+    if doc.get("seed"):
+        click.echo(f"- seed: {json.dumps(doc['seed'])}")
+    if task.get("source"):
+        click.echo(f"- source: {json.dumps(task['source'], sort_keys=True)}")
+    if prov.get("seconds"):
+        click.echo(f"- compute time: {prov['seconds'].get('compute', 0.0):.3f} s")
+    if prov.get("finished"):
+        click.echo(f"- finished: {prov['finished']} on {prov.get('host', '?')}")
+    if prov.get("versions"):
+        click.echo("- versions: " + ", ".join(f"{k} {v}" for k, v in prov["versions"].items()))
+
+
+@main.command()
+@click.argument("key")
+@_store_options
+def rerun(key: str, config: str | None, store: str | None) -> None:
+    """Recompute a stored result from its recorded inputs and compare bit for bit."""
+    from .errors import AeroidError
+    from .pipeline.runner import rerun as rerun_entry
+
+    st = _open_store(config, store)
+    try:
+        identical, lines = rerun_entry(st, key)
+    except AeroidError as exc:
+        _fail(str(exc), 1)
+        return
+    for line in lines:
+        click.echo(line)
+    sys.exit(0 if identical else 1)
+
+
+@main.command()
+@_store_options
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
+def verify(config: str | None, store: str | None, as_json: bool) -> None:
+    """Check every entry's digests; list corrupt entries (exit 1 if any)."""
+    st = _open_store(config, store)
+    n = sum(1 for _ in st.entries())
+    bad = st.verify_all()
+    if as_json:
+        click.echo(json.dumps({"entries": n, "corrupt": bad}, indent=2))
+    else:
+        for key, problem in bad.items():
+            click.echo(f"CORRUPT {key}: {problem}")
+        click.echo(f"{n} entries checked, {len(bad)} corrupt")
+    sys.exit(1 if bad else 0)
+
+
+@main.command()
+@_store_options
+def gc(config: str | None, store: str | None) -> None:
+    """Remove temporaries left by crashed runs."""
+    st = _open_store(config, store)
+    removed = st.gc()
+    for path in removed:
+        click.echo(f"removed {path}")
+    click.echo(f"{len(removed)} temporaries removed")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,48 @@
+"""The campaign pipeline: content-keyed stages, a Zarr result store, Dask execution.
+
+Use it from Python the way the ``aeroid`` command does::
+
+    from aeroid import pipeline
+
+    summary = pipeline.run("configs/demo.yaml")          # compute what is missing
+    store = pipeline.open_store(".aeroid-store")
+    for entry in store.entries("identify"):
+        result = store.load(entry.key, entry.stage)      # an IdentificationResult
+
+Numerical modules never import this package.
+"""
+
+from .codec import register_record
+from .config import CampaignConfig, load_config
+from .definition import Pipeline, Step, resolve_pipeline
+from .keys import model_fingerprint, task_key
+from .runner import Plan, RunSummary, Task, execute_task, plan, resolve_model, run
+from .stages import STAGES, CampaignReport, FlightReport, Stage, StageContext, register_stage
+from .store import Entry, ResultStore, open_store
+
+__all__ = [
+    "STAGES",
+    "CampaignConfig",
+    "CampaignReport",
+    "Entry",
+    "FlightReport",
+    "Pipeline",
+    "Plan",
+    "ResultStore",
+    "RunSummary",
+    "Stage",
+    "StageContext",
+    "Step",
+    "Task",
+    "execute_task",
+    "load_config",
+    "model_fingerprint",
+    "open_store",
+    "plan",
+    "register_record",
+    "register_stage",
+    "resolve_model",
+    "resolve_pipeline",
+    "run",
+    "task_key",
+]

@@ -1,0 +1,169 @@
+"""Result records <-> arrays + JSON, generically over dataclass fields (never pickle).
+
+A frozen result dataclass is encoded field by field into a JSON tree whose
+numeric arrays are replaced by references into a flat ``{name: ndarray}``
+table. Supported values: ``None``, ``bool``, ``int``, ``float`` (non-finite
+too), ``str``, numpy scalars and arrays, tuples/lists, mappings with string
+keys, and nested dataclasses. The record type is written as
+``module:qualname`` and resolved on decode only from an explicit registry or
+from dataclasses defined inside the ``aeroid`` package itself, so decoding
+never imports arbitrary code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+import re
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ..errors import StoreError
+
+__all__ = ["UnknownRecordType", "decode", "encode", "record_type_name", "register_record"]
+
+_REGISTRY: dict[str, type] = {}
+_SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+
+
+class UnknownRecordType(StoreError):
+    """A stored record's type is not available here (not registered, or not in this version)."""
+
+
+def record_type_name(cls: type) -> str:
+    """The name a record type is stored under: ``module:qualname``."""
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def register_record(cls: type) -> type:
+    """Allow a dataclass defined outside `aeroid` to be stored and read back (a decorator)."""
+    if not dataclasses.is_dataclass(cls) or not isinstance(cls, type):
+        raise StoreError(f"register_record: {cls!r} is not a dataclass type")
+    _REGISTRY[record_type_name(cls)] = cls
+    return cls
+
+
+def _resolve(name: str) -> type:
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    module, _, qualname = name.partition(":")
+    top = module.split(".")[0]
+    if top != "aeroid" or not qualname or not re.fullmatch(r"[A-Za-z0-9_.]+", module + qualname):
+        raise UnknownRecordType(
+            f"record type {name!r} is not registered; only aeroid's own result types and "
+            "types passed to aeroid.pipeline.register_record can be read"
+        )
+    try:
+        obj: Any = importlib.import_module(module)
+        for part in qualname.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError):
+        raise UnknownRecordType(
+            f"record type {name!r} does not exist in this aeroid version"
+        ) from None
+    if not (isinstance(obj, type) and dataclasses.is_dataclass(obj)):
+        raise StoreError(f"record type {name!r} is not a dataclass")
+    return obj
+
+
+class _Encoder:
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def _array_name(self, path: str) -> str:
+        base = _SAFE.sub("_", path).strip("._") or "array"
+        if base.startswith("__"):
+            base = "a" + base
+        name, i = base, 1
+        while name in self.arrays:
+            i += 1
+            name = f"{base}.{i}"
+        return name
+
+    def value(self, v: Any, path: str) -> Any:
+        if v is None or isinstance(v, (bool, str)):
+            return v
+        if isinstance(v, np.bool_):
+            return bool(v)
+        if isinstance(v, (int, np.integer)):
+            return int(v)
+        if isinstance(v, (float, np.floating)):
+            f = float(v)
+            if math.isfinite(f):
+                return f
+            return {"__float__": "nan" if math.isnan(f) else ("inf" if f > 0 else "-inf")}
+        if isinstance(v, np.ndarray):
+            if v.dtype.kind in "US":
+                return {"__strings__": v.tolist(), "shape": list(v.shape)}
+            if v.dtype.kind not in "biufc":
+                raise StoreError(f"{path}: cannot store an array of dtype {v.dtype}")
+            name = self._array_name(path)
+            self.arrays[name] = np.ascontiguousarray(v)
+            return {"__array__": name}
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return self.record(v, path)
+        if isinstance(v, Mapping):
+            items = []
+            for k, item in v.items():
+                if not isinstance(k, str):
+                    raise StoreError(f"{path}: mapping keys must be strings, got {k!r}")
+                items.append([k, self.value(item, f"{path}.{k}")])
+            return {"__map__": items}
+        if isinstance(v, (tuple, list)):
+            return [self.value(item, f"{path}.{i}") for i, item in enumerate(v)]
+        raise StoreError(
+            f"{path}: a value of type {type(v).__name__} cannot be stored (no pickle); "
+            "results may hold numbers, strings, arrays, tuples, mappings and nested records"
+        )
+
+    def record(self, obj: Any, path: str) -> dict[str, Any]:
+        fields = {}
+        for f in dataclasses.fields(obj):
+            if not f.init:
+                continue
+            fields[f.name] = self.value(
+                getattr(obj, f.name), f"{path}.{f.name}" if path else f.name
+            )
+        return {"__record__": record_type_name(type(obj)), "fields": fields}
+
+
+def encode(obj: Any) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Encode a result record into (JSON tree, arrays by name)."""
+    if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
+        raise StoreError(f"only dataclass records can be stored, got {type(obj).__name__}")
+    enc = _Encoder()
+    tree = enc.record(obj, "")
+    return tree, enc.arrays
+
+
+def decode(tree: Any, arrays: Mapping[str, np.ndarray]) -> Any:
+    """Rebuild a record from `encode`'s output (its constructor re-freezes arrays)."""
+    return _decode(tree, arrays)
+
+
+def _decode(v: Any, arrays: Mapping[str, np.ndarray]) -> Any:
+    if isinstance(v, list):
+        return tuple(_decode(x, arrays) for x in v)
+    if not isinstance(v, dict):
+        return v
+    if "__array__" in v:
+        arr = np.array(arrays[v["__array__"]], copy=True)
+        arr.setflags(write=False)
+        return arr
+    if "__float__" in v:
+        return float(v["__float__"])
+    if "__strings__" in v:
+        return np.array(v["__strings__"], dtype=str).reshape(v["shape"])
+    if "__map__" in v:
+        return {k: _decode(x, arrays) for k, x in v["__map__"]}
+    if "__record__" in v:
+        cls = _resolve(v["__record__"])
+        kwargs = {k: _decode(x, arrays) for k, x in v["fields"].items()}
+        try:
+            return cls(**kwargs)
+        except Exception as exc:
+            raise StoreError(f"cannot rebuild {v['__record__']} from stored fields: {exc}") from exc
+    raise StoreError(f"unrecognised stored value {v!r}")

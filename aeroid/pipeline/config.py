@@ -1,0 +1,305 @@
+"""Campaign configuration: YAML validated by pydantic models (unknown keys are errors).
+
+A config names the model, the flights, the pipeline, per-stage options and
+where results are stored. Every error raises `ConfigError` naming the file,
+the key path (``stages.identify.max_iterations``) and what was expected.
+Relative paths are relative to the config file.
+"""
+
+from __future__ import annotations
+
+import glob
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    field_validator,
+)
+
+from ..errors import ConfigError
+
+__all__ = [
+    "CampaignConfig",
+    "FileFlights",
+    "Options",
+    "SimulatedFlights",
+    "format_validation_error",
+    "load_config",
+]
+
+
+class Options(BaseModel):
+    """Base of every options model: frozen, unknown keys forbidden."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def library_kwargs(self, *, exclude: Sequence[str] = ()) -> dict[str, Any]:
+        """Options given (not None) as keyword arguments for the library function."""
+        out = self.model_dump(mode="python", exclude_none=True, exclude=set(exclude))
+        return out
+
+
+class FileFlights(Options):
+    """Flight files: a path or glob (CSV, Parquet, .mat) plus loader options."""
+
+    path: str
+    time_column: str | None = None
+    channels: list[str] | dict[str, str] | None = None
+    units: dict[str, str] | None = None
+
+
+class SimulatedFlights(Options):
+    """Flights flown by the library's truth model at a range of flight conditions."""
+
+    generator: Literal["short_period_campaign"] = "short_period_campaign"
+    n_flights: int = Field(12, ge=1, le=10000)
+    seed: int = 0
+    airspeed: tuple[float, float] = (60.0, 120.0)
+    duration: float = Field(10.0, gt=0)
+    sample_rate: float = Field(50.0, gt=0)
+    noise: dict[str, float] | None = None
+    colored: float = Field(0.0, ge=0.0, lt=1.0)
+
+
+class SimulatedSource(Options):
+    simulated: SimulatedFlights
+
+
+def _flight_kind(value: Any) -> str:
+    if isinstance(value, str):
+        return "glob"
+    if isinstance(value, Mapping) and "simulated" in value:
+        return "simulated"
+    if isinstance(value, (FileFlights, SimulatedSource)):
+        return "simulated" if isinstance(value, SimulatedSource) else "file"
+    return "file"
+
+
+FlightSpec = Annotated[
+    Annotated[str, Tag("glob")]
+    | Annotated[FileFlights, Tag("file")]
+    | Annotated[SimulatedSource, Tag("simulated")],
+    Discriminator(_flight_kind),
+]
+
+
+class CampaignConfig(Options):
+    """The top level of a campaign config file."""
+
+    name: str | None = None
+    model: str = Field(..., min_length=1)
+    pipeline: str = "campaign"
+    seed: int = 0
+    flights: list[FlightSpec] = Field(..., min_length=1)
+    stages: dict[str, dict[str, Any] | None] = Field(default_factory=dict)
+    store: str = ".aeroid-store"
+    report: str | None = None
+    scheduler: str | None = None
+    workers: int | None = Field(None, ge=0)
+
+    # where the file lives (set by load_config; not a config key)
+    source: str = Field("<config>", exclude=True)
+    base_dir: str = Field(".", exclude=True)
+
+    @field_validator("scheduler")
+    @classmethod
+    def _check_scheduler(cls, v: str | None) -> str | None:
+        if v is not None and "://" not in v:
+            raise ValueError("expected a scheduler address such as tcp://127.0.0.1:8786")
+        return v
+
+    @property
+    def campaign_name(self) -> str:
+        return self.name or Path(self.source).stem
+
+    def resolve(self, path: str) -> Path:
+        """A path from the config, made absolute relative to the config file."""
+        p = Path(path).expanduser()
+        return p if p.is_absolute() else (Path(self.base_dir) / p).resolve()
+
+    @property
+    def store_path(self) -> Path:
+        return self.resolve(self.store)
+
+    @property
+    def report_path(self) -> Path:
+        if self.report:
+            return self.resolve(self.report)
+        return self.store_path / "reports" / f"{self.campaign_name}.md"
+
+    def expand_files(self) -> list[tuple[int, Path, FileFlights]]:
+        """Every flight file named by a path or glob: (entry index, path, loader options).
+
+        Files are sorted within an entry; a file named twice is kept once.
+        """
+        out: list[tuple[int, Path, FileFlights]] = []
+        seen: set[Path] = set()
+        for i, item in enumerate(self.flights):
+            if isinstance(item, SimulatedSource):
+                continue
+            spec = FileFlights(path=item) if isinstance(item, str) else item
+            pattern = str(self.resolve(spec.path))
+            if glob.has_magic(pattern):
+                matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+                if not matches:
+                    raise ConfigError(
+                        f"{self.source}: flights[{i}]: the pattern {spec.path!r} matches no file"
+                    )
+            else:
+                matches = [Path(pattern)]
+            for m in matches:
+                if m not in seen:
+                    seen.add(m)
+                    out.append((i, m, spec))
+        return out
+
+
+def _loc(loc: Sequence[Any]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _is_tag(loc: Sequence[Any], i: int) -> bool:
+    """True when loc[i] is a union tag pydantic inserted (it follows a list index)."""
+    return (i > 0 and isinstance(loc[i - 1], int)) or loc[i] in ("str", "int", "float")
+
+
+def _allowed_keys(model: type[BaseModel], loc: Sequence[Any]) -> list[str] | None:
+    """Keys allowed at the parent of `loc` (best effort, for friendlier messages)."""
+    current: Any = model
+    for part in loc[:-1]:
+        is_model = isinstance(current, type) and issubclass(current, BaseModel)
+        if isinstance(part, str) and not (is_model and part in current.model_fields):
+            member = _union_member(current, part)
+            if member is not None:
+                current = member
+                continue
+        if is_model:
+            field = current.model_fields.get(str(part))
+            if field is None:
+                # a union member name inserted by pydantic (e.g. 'FileFlights')
+                cand = _union_member(current, str(part))
+                if cand is None:
+                    return None
+                current = cand
+                continue
+            current = field.annotation
+        current = _strip(current, part)
+        if current is None:
+            return None
+    if isinstance(current, type) and issubclass(current, BaseModel):
+        return sorted(k for k, f in current.model_fields.items() if not f.exclude)
+    return None
+
+
+def _union_member(model: Any, name: str) -> Any:
+    tags = {"file": FileFlights, "simulated": SimulatedSource, "glob": None}
+    if name in tags:
+        return tags[name]
+    for cls in (FileFlights, SimulatedSource, SimulatedFlights):
+        if cls.__name__ == name:
+            return cls
+    return None
+
+
+def _strip(tp: Any, part: Any) -> Any:
+    import typing
+
+    args = typing.get_args(tp)
+    origin = typing.get_origin(tp)
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return tp
+    if origin in (list, tuple, dict) and args:
+        return args[-1]
+    if args:  # a union: pick the BaseModel member if there is one
+        models = [a for a in args if isinstance(a, type) and issubclass(a, BaseModel)]
+        if isinstance(part, str):
+            for m in models:
+                if m.__name__ == part:
+                    return m
+        return models[0] if len(models) == 1 else tp
+    return tp
+
+
+def format_validation_error(
+    exc: ValidationError, source: str, model: type[BaseModel], prefix: Sequence[Any] = ()
+) -> str:
+    """One line per problem: ``file: key.path: what was expected``."""
+    lines = []
+    for err in exc.errors():
+        # pydantic adds union tags and member types to locations; users never wrote them
+        skip = {"glob", "file", "simulated", "str", "int", "float", "dict[str,str]", "list[str]"}
+        loc = [
+            p
+            for i, p in enumerate(err["loc"])
+            if not (
+                isinstance(p, str) and (p[:1].isupper() or (p in skip and _is_tag(err["loc"], i)))
+            )
+        ]
+        path = _loc([*prefix, *loc])
+        if err["type"] == "extra_forbidden":
+            allowed = _allowed_keys(model, err["loc"])
+            hint = f"; allowed keys: {', '.join(allowed)}" if allowed else ""
+            msg = f"unknown key{hint}"
+        elif err["type"] == "missing":
+            msg = "required key is missing"
+        else:
+            msg = f"{err['msg']} (got {err.get('input')!r})"
+        line = f"{source}: {path}: {msg}"
+        if line not in lines:
+            lines.append(line)
+    return "\n".join(lines)
+
+
+def validate_options(
+    model: type[Options], values: Mapping[str, Any] | None, *, source: str, where: str
+) -> Options:
+    """Validate one stage's options, with errors located at `where`."""
+    try:
+        return model.model_validate(dict(values or {}))
+    except ValidationError as exc:
+        raise ConfigError(
+            format_validation_error(exc, source, model, prefix=where.split("."))
+        ) from None
+
+
+def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
+    """Read and validate a campaign YAML file; `overrides` replace top-level keys."""
+    import yaml
+
+    p = Path(path)
+    source = str(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read the config file ({exc.strerror})") from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        raise ConfigError(f"{source}: {where}not valid YAML ({exc})") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: expected a mapping of keys at the top level")
+    for key in ("source", "base_dir"):
+        if key in raw:
+            raise ConfigError(f"{source}: {key}: unknown key")
+    raw.update({k: v for k, v in overrides.items() if v is not None})
+    raw["source"] = source
+    raw["base_dir"] = str(p.resolve().parent)
+    try:
+        return CampaignConfig.model_validate(raw)
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, source, CampaignConfig)) from None

@@ -1,0 +1,150 @@
+"""Content keys: canonical JSON, SHA-256, model fingerprints and array digests.
+
+A task's key is the SHA-256 of a canonical JSON document describing
+everything that determines its result (stage, stage version, options,
+upstream keys, model fingerprint, seed specification). Canonical means:
+keys sorted, no whitespace, tuples as lists, non-finite floats spelled out,
+so the same inputs give the same bytes on every machine and Python version.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import PipelineError
+
+__all__ = [
+    "array_digest",
+    "canonical_json",
+    "file_digest",
+    "model_fingerprint",
+    "sha256_hex",
+    "stable_int",
+    "task_key",
+    "to_jsonable",
+]
+
+
+def to_jsonable(value: Any, *, where: str = "value") -> Any:
+    """Normalise a value to plain JSON types (deterministically; never a silent fallback)."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)) and not isinstance(value, np.bool_):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        if math.isfinite(v):
+            return v
+        return {"__float__": "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")}
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise PipelineError(f"{where}: mapping keys must be strings, got {k!r}")
+            out[k] = to_jsonable(v, where=f"{where}.{k}")
+        return out
+    if isinstance(value, (list, tuple)):
+        return [to_jsonable(v, where=f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, np.ndarray):
+        return {"__array_digest__": array_digest(value)}
+    raise PipelineError(
+        f"{where}: cannot hash a value of type {type(value).__name__} deterministically"
+    )
+
+
+def canonical_json(document: Any) -> bytes:
+    """Canonical UTF-8 JSON bytes of `document` (sorted keys, compact separators)."""
+    return json.dumps(
+        to_jsonable(document),
+        sort_keys=True,
+        separators=(",", ":"),
+        ensure_ascii=False,
+        allow_nan=False,
+    ).encode("utf-8")
+
+
+def sha256_hex(data: bytes) -> str:
+    """Hex SHA-256 of some bytes."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def array_digest(array: Any) -> str:
+    """SHA-256 of an array's dtype, shape and C-contiguous bytes."""
+    arr = np.ascontiguousarray(np.asarray(array))
+    h = hashlib.sha256()
+    h.update(arr.dtype.str.encode())
+    h.update(repr(tuple(int(s) for s in arr.shape)).encode())
+    h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+def file_digest(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (its name and modification time do not enter)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def stable_int(key: str, bits: int = 63) -> int:
+    """A stable non-negative integer from a hex key (used in `SeedSequence` spawn keys)."""
+    return int(key[:16], 16) & ((1 << bits) - 1)
+
+
+def model_fingerprint(model: Any) -> dict[str, Any]:
+    """What identifies a model's behaviour: structure, nominal values, source and version.
+
+    Works for `aeroid.Model` and for stepped simulators (`SimulatorModel`),
+    whose fingerprint uses the adapter's class and any configuration it exposes.
+    """
+    fp: dict[str, Any] = {
+        "name": str(getattr(model, "name", type(model).__name__)),
+        "controls": list(getattr(model, "controls", ())),
+        "outputs": list(getattr(model, "output_names", getattr(model, "outputs", ())) or ()),
+        "parameters": {k: float(v) for k, v in dict(model.parameters).items()},
+        "version": getattr(model, "version", None),
+    }
+    if hasattr(model, "states") and hasattr(model, "dynamics_source"):
+        fp["states"] = list(model.states)
+        fp["source"] = model.dynamics_source
+    else:
+        cls = type(model)
+        fp["states"] = []
+        fp["source"] = f"{cls.__module__}:{cls.__qualname__}"
+        config = getattr(model, "fingerprint_config", None)
+        if config is not None:
+            fp["config"] = to_jsonable(config() if callable(config) else config)
+    return fp
+
+
+def task_key(
+    *,
+    record_type: str,
+    stage: str,
+    stage_version: str,
+    options: Mapping[str, Any],
+    upstream: Mapping[str, str],
+    model: Mapping[str, Any] | None,
+    seed: Any,
+) -> tuple[str, dict[str, Any]]:
+    """The key of a task and the document it hashes."""
+    doc = {
+        "record_type": record_type,
+        "stage": stage,
+        "stage_version": stage_version,
+        "options": dict(options),
+        "upstream": dict(upstream),
+        "model": None if model is None else dict(model),
+        "seed": seed,
+    }
+    return sha256_hex(canonical_json(doc)), doc

@@ -1,0 +1,859 @@
+"""Planning and running a campaign: keys first, cache hits pruned, the rest on Dask.
+
+`plan` turns a config into tasks whose keys are computed from keys only
+(file digests, options, model fingerprint, seeds), before anything runs.
+`run` prunes the tasks already in the store and, only if something is
+left, starts Dask (an embedded `LocalCluster` of single-threaded worker
+processes, or the scheduler given) and runs the rest, named by their keys.
+A failing task is reported with its error and never committed; its
+dependants fail with a pointer to it; other flights carry on.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import platform
+import sys
+import time
+import traceback
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import AeroidError, ConfigError, PipelineError
+from .config import CampaignConfig, SimulatedSource, load_config, validate_options
+from .definition import Pipeline, load_pipeline, resolve_pipeline
+from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
+from .stages import STAGES, StageContext, resolve_callable
+from .store import ResultStore
+
+__all__ = [
+    "Plan",
+    "RunSummary",
+    "Task",
+    "execute_part",
+    "execute_task",
+    "plan",
+    "rerun",
+    "resolve_model",
+    "run",
+]
+
+_BLAS_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "VECLIB_MAXIMUM_THREADS": "1",
+    "NUMEXPR_NUM_THREADS": "1",
+}
+
+BUILTIN_MODELS = ("short_period", "first_order")
+
+
+@dataclass(frozen=True)
+class Task:
+    """One node of the task graph (plain data, so it travels to workers)."""
+
+    key: str
+    step: str
+    stage: str
+    flight: str | None
+    options: dict[str, Any]
+    upstream: dict[str, Any]  # role -> key (per flight) or list of keys (campaign)
+    upstream_stages: dict[str, str]  # role -> stage name of the upstream step
+    document: dict[str, Any]
+    model_ref: dict[str, Any] | None = None
+    seed: dict[str, Any] | None = None
+    source: dict[str, Any] | None = None
+    pipeline_ref: dict[str, Any] | None = None
+    flights: tuple[str, ...] = ()
+
+    @property
+    def upstream_keys(self) -> list[str]:
+        out: list[str] = []
+        for v in self.upstream.values():
+            out += list(v) if isinstance(v, list) else [v]
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "key": self.key,
+            "step": self.step,
+            "stage": self.stage,
+            "flight": self.flight,
+            "options": self.options,
+            "upstream": self.upstream,
+            "upstream_stages": self.upstream_stages,
+            "model_ref": self.model_ref,
+            "seed": self.seed,
+            "source": self.source,
+            "pipeline_ref": self.pipeline_ref,
+            "flights": list(self.flights),
+        }
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any], document: Mapping[str, Any]) -> Task:
+        return cls(
+            key=doc["key"],
+            step=doc["step"],
+            stage=doc["stage"],
+            flight=doc["flight"],
+            options=dict(doc["options"]),
+            upstream=dict(doc["upstream"]),
+            upstream_stages=dict(doc["upstream_stages"]),
+            document=dict(document),
+            model_ref=doc.get("model_ref"),
+            seed=doc.get("seed"),
+            source=doc.get("source"),
+            pipeline_ref=doc.get("pipeline_ref"),
+            flights=tuple(doc.get("flights", ())),
+        )
+
+
+@dataclass
+class Plan:
+    """Every task of a campaign, in dependency order."""
+
+    config: CampaignConfig
+    pipeline: Pipeline
+    tasks: list[Task]
+    flights: list[str]
+
+    @property
+    def report_task(self) -> Task | None:
+        last = [t for t in self.tasks if t.flight is None]
+        return last[-1] if last else None
+
+
+# -- models -----------------------------------------------------------------------------
+
+_MODEL_CACHE: dict[tuple[str, str | None], Any] = {}
+
+
+def resolve_model(spec: str, base_dir: str | None = None) -> Any:
+    """A model from a built-in name or ``package.module:attribute`` (Model or factory)."""
+    from ..model import Model, SimulatorModel
+
+    cache_key = (spec, base_dir)
+    if cache_key in _MODEL_CACHE:
+        return _MODEL_CACHE[cache_key]
+    if ":" in spec:
+        if base_dir and base_dir not in sys.path:
+            sys.path.insert(0, base_dir)
+        try:
+            obj = resolve_callable(spec, what="model")
+        except PipelineError as exc:
+            raise ConfigError(str(exc)) from None
+    elif spec in BUILTIN_MODELS:
+        from .. import catalog
+
+        obj = getattr(catalog, spec)
+    else:
+        raise ConfigError(
+            f"model {spec!r}: expected a built-in model ({', '.join(BUILTIN_MODELS)}) "
+            "or 'package.module:attribute'"
+        )
+    if not isinstance(obj, (Model, SimulatorModel)) and callable(obj):
+        try:
+            obj = obj()
+        except AeroidError:
+            raise
+        except Exception as exc:
+            raise ConfigError(
+                f"model {spec!r}: calling it failed: {type(exc).__name__}: {exc}"
+            ) from None
+    if not isinstance(obj, (Model, SimulatorModel)):
+        raise ConfigError(
+            f"model {spec!r}: expected a Model (or a function returning one), got {type(obj).__name__}"
+        )
+    _MODEL_CACHE[cache_key] = obj
+    return obj
+
+
+# -- planning -----------------------------------------------------------------------------
+
+
+def _flight_sources(config: CampaignConfig) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """(flight name, source, loader options) for every flight, in config order."""
+    from .synthetic import flight_spec
+
+    files = config.expand_files()
+    stems = [p.stem for _, p, _ in files]
+    out: list[tuple[str, dict[str, Any], dict[str, Any]]] = []
+    for i, item in enumerate(config.flights):
+        if isinstance(item, SimulatedSource):
+            spec = item.simulated.model_dump(mode="json")
+            width = len(str(spec["n_flights"] - 1))
+            for j in range(spec["n_flights"]):
+                fs = flight_spec(spec, j)
+                digest = sha256_hex(canonical_json(fs))
+                source = {"kind": "simulated", "spec": fs, "sha256": digest}
+                out.append((f"sim-{j:0{width}d}", source, {}))
+            continue
+        for _, path, loader in (f for f in files if f[0] == i):
+            opts = loader.model_dump(mode="json", exclude={"path"})
+            name = path.stem
+            if stems.count(path.stem) > 1:
+                base = Path(config.base_dir)
+                name = str(path.relative_to(base)) if path.is_relative_to(base) else str(path)
+            try:
+                digest = file_digest(path)
+            except OSError as exc:
+                # unreadable now: the load task fails and says why; nothing is cached
+                digest = "unreadable:" + sha256_hex(f"{path}:{exc}".encode())
+            out.append((name, {"kind": "file", "path": str(path), "sha256": digest}, opts))
+    return out
+
+
+def plan(
+    config: CampaignConfig | str | Path,
+    *,
+    pipeline: Pipeline | None = None,
+) -> Plan:
+    """Compute every task and its key from the config alone (nothing runs)."""
+    if not isinstance(config, CampaignConfig):
+        config = load_config(config)
+    pipe_ref: dict[str, Any] | None
+    if pipeline is None:
+        pipeline, pipe_ref = resolve_pipeline(config.pipeline, config.base_dir)
+    else:
+        pipe_ref = None
+    known = {s.name for s in pipeline.steps}
+    for name in config.stages:
+        if name not in known:
+            raise ConfigError(
+                f"{config.source}: stages.{name}: unknown stage; pipeline {pipeline.name!r} has "
+                f"{', '.join(s.name for s in pipeline.steps)}"
+            )
+    steps = pipeline.enabled(config.stages)
+    enabled = {s.name for s in steps}
+    options = {
+        s.name: validate_options(
+            STAGES[s.stage_name].options,
+            config.stages.get(s.name),
+            source=config.source,
+            where=f"stages.{s.name}",
+        )
+        for s in steps
+    }
+    model = resolve_model(config.model, config.base_dir)
+    fingerprint = model_fingerprint(model)
+    model_ref = {"spec": config.model, "base_dir": config.base_dir}
+    step_stage = {s.name: s.stage_name for s in steps}
+
+    tasks: list[Task] = []
+    flights: list[str] = []
+    per_flight_keys: dict[str, dict[str, str]] = {}
+    for name, source, loader_opts in _flight_sources(config):
+        base = name
+        k = 2
+        while name in per_flight_keys:
+            name, k = f"{base}#{k}", k + 1
+        flights.append(name)
+        keys: dict[str, str] = {}
+        flight_id: int | None = None
+        for step in (s for s in steps if s in pipeline.flight_steps):
+            stage = STAGES[step.stage_name]
+            opts = options[step.name].model_dump(mode="json")
+            upstream: dict[str, Any] = {}
+            if step.stage_name == "load":
+                if source["kind"] == "file":
+                    opts = {**opts, **{k: v for k, v in loader_opts.items() if v is not None}}
+                    upstream = {"file": "sha256:" + source["sha256"]}
+                else:
+                    opts = {**opts, "simulated": source["spec"]}
+                    upstream = {"simulated": "sha256:" + source["sha256"]}
+            for role, up in step.inputs.items():
+                if up in enabled:
+                    upstream[role] = keys[up]
+            seed = None
+            if stage.seeded:
+                assert flight_id is not None
+                seed = {"seed": config.seed, "spawn_key": [flight_id]}
+            key, doc = task_key(
+                record_type=stage.record_type,
+                stage=stage.name,
+                stage_version=stage.version,
+                options=opts,
+                upstream=upstream,
+                model=fingerprint if stage.uses_model else None,
+                seed=seed,
+            )
+            if step.stage_name == "load":
+                flight_id = stable_int(key)
+            keys[step.name] = key
+            tasks.append(
+                Task(
+                    key=key,
+                    step=step.name,
+                    stage=stage.name,
+                    flight=name,
+                    # the options exactly as keyed (mappings in sorted order), so a rerun
+                    # from the stored document sees the same order as the first run
+                    options=json.loads(canonical_json(opts)),
+                    upstream={r: v for r, v in upstream.items() if r in step.inputs},
+                    upstream_stages={
+                        r: step_stage[u] for r, u in step.inputs.items() if u in enabled
+                    },
+                    document=doc,
+                    model_ref=model_ref if stage.uses_model else None,
+                    seed=seed,
+                    source=source if step.stage_name == "load" else None,
+                    pipeline_ref=pipe_ref,
+                )
+            )
+        per_flight_keys[name] = keys
+    for step in (s for s in steps if s in pipeline.campaign_steps):
+        stage = STAGES[step.stage_name]
+        opts = options[step.name].model_dump(mode="json")
+        upstream = {
+            role: [per_flight_keys[f][up] for f in flights]
+            for role, up in step.inputs.items()
+            if up in enabled
+        }
+        key, doc = task_key(
+            record_type=stage.record_type,
+            stage=stage.name,
+            stage_version=stage.version,
+            options={**opts, "flights": flights},
+            upstream=upstream,
+            model=fingerprint if stage.uses_model else None,
+            seed=None,
+        )
+        tasks.append(
+            Task(
+                key=key,
+                step=step.name,
+                stage=stage.name,
+                flight=None,
+                options=json.loads(canonical_json(opts)),
+                upstream=upstream,
+                upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in enabled},
+                document=doc,
+                model_ref=model_ref if stage.uses_model else None,
+                pipeline_ref=pipe_ref,
+                flights=tuple(flights),
+            )
+        )
+    return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
+
+
+# -- executing one task (on a worker) -------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=1)
+def _versions() -> dict[str, str]:
+    import importlib.metadata as md
+
+    out = {"python": platform.python_version()}
+    for pkg in ("aeroid", "numpy", "scipy", "zarr", "dask", "distributed", "pydantic"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            pass
+    return out
+
+
+def _context(
+    task: Task,
+    store_root: str,
+    upstream_status: tuple[Mapping[str, Any], ...],
+    read_root: str | None,
+) -> tuple[Any, StageContext, ResultStore, dict[str, str]]:
+    """Load a task's inputs (digests checked) and build its stage context."""
+    failed = {s["key"]: s for s in upstream_status if s.get("status") == "failed"}
+    if task.pipeline_ref is not None:
+        load_pipeline(task.pipeline_ref)  # registers any stages the pipeline defines
+    stage = STAGES.get(task.stage)
+    if stage is None:
+        raise PipelineError(f"unknown stage {task.stage!r}")
+    store = ResultStore(store_root)
+    reader = store if read_root is None else ResultStore(read_root, create=False)
+    inputs: dict[str, Any] = {}
+    failures: dict[str, str] = {}
+    for role, ref in task.upstream.items():
+        up_stage = task.upstream_stages[role]
+        if isinstance(ref, list):
+            values: list[Any] = []
+            for flight, k in zip(task.flights, ref, strict=True):
+                if k in failed:
+                    values.append(None)
+                    failures.setdefault(flight, _failure_text(failed[k]))
+                else:
+                    values.append(reader.load(k, up_stage))
+            inputs[role] = values
+        else:
+            if ref in failed:
+                raise PipelineError(f"upstream {failed[ref]['step']} failed")
+            inputs[role] = reader.load(ref, up_stage)
+    if stage.library is not None:
+        import aeroid
+
+        if not hasattr(aeroid, stage.library):
+            raise PipelineError(f"aeroid.{stage.library} is not available in this version")
+    model = None
+    if task.model_ref is not None:
+        model = resolve_model(task.model_ref["spec"], task.model_ref.get("base_dir"))
+    seed = None
+    if task.seed is not None:
+        seed = np.random.SeedSequence(task.seed["seed"], spawn_key=tuple(task.seed["spawn_key"]))
+    ctx = StageContext(
+        options=_options(task),
+        inputs=inputs,
+        model=model,
+        seed=seed,
+        flight=task.flight,
+        source=task.source,
+        failures=failures,
+        flights=task.flights,
+    )
+    return stage, ctx, store, failures
+
+
+def _options(task: Task) -> Any:
+    stage = STAGES[task.stage]
+    return stage.options.model_validate(
+        {k: v for k, v in task.options.items() if k in stage.options.model_fields}
+    )
+
+
+def n_parts(task: Task) -> int:
+    """How many parallel parts a task splits into (1: it runs whole)."""
+    stage = STAGES.get(task.stage)
+    if stage is None or stage.parts is None or stage.run_part is None or stage.combine is None:
+        return 1
+    try:
+        return max(1, int(stage.parts(_options(task))))
+    except Exception:
+        return 1  # the task itself will report the problem
+
+
+def execute_part(
+    task: Task,
+    store_root: str,
+    index: int,
+    *upstream_status: Mapping[str, Any],
+    read_root: str | None = None,
+) -> dict[str, Any]:
+    """Compute part `index` of a split task (not stored; its task combines the parts)."""
+    out: dict[str, Any] = {"key": task.key, "part": index}
+    try:
+        stage, ctx, _, _ = _context(task, store_root, upstream_status, read_root)
+        t1 = time.perf_counter()
+        out.update(status="ok", value=stage.run_part(ctx, index))
+        out["compute_seconds"] = time.perf_counter() - t1
+    except Exception as exc:
+        out.update(status="failed", error=_error_text(exc))
+    return out
+
+
+def execute_task(
+    task: Task,
+    store_root: str,
+    *upstream_status: Mapping[str, Any],
+    read_root: str | None = None,
+) -> dict[str, Any]:
+    """Run one task and commit its result; never raises (a failure is returned).
+
+    `upstream_status` holds the statuses of upstream tasks run in this
+    session and, for a split task, the results of its parts.
+    """
+    t0 = time.perf_counter()
+    status: dict[str, Any] = {"key": task.key, "step": task.step, "flight": task.flight}
+    parts = sorted((s for s in upstream_status if "part" in s), key=lambda s: s["part"])
+    upstream = tuple(s for s in upstream_status if "part" not in s)
+    try:
+        stage, ctx, store, failures = _context(task, store_root, upstream, read_root)
+        t1 = time.perf_counter()
+        if parts:
+            bad = [p for p in parts if p["status"] != "ok"]
+            if bad:
+                raise PipelineError(f"part {bad[0]['part']} failed: {bad[0].get('error')}")
+            record = stage.combine(ctx, [p["value"] for p in parts])
+            part_seconds = sum(float(p.get("compute_seconds", 0.0)) for p in parts)
+        else:
+            record = stage.run(ctx)
+            part_seconds = 0.0
+        t2 = time.perf_counter()
+        provenance = {
+            "task": task.to_json(),
+            "versions": dict(_versions()),
+            "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "host": platform.node(),
+        }
+        if failures:
+            # a report over failed flights is written out but never cached
+            status.update(status="computed", cached=False, failures=failures)
+        else:
+            store.commit(task.stage, task.key, record, task=task.document, provenance=provenance)
+            status.update(status="computed", cached=True)
+        status["compute_seconds"] = t2 - t1 + part_seconds
+        if task.flight is None and hasattr(record, "markdown"):
+            status["markdown"] = record.markdown
+            status["rows"] = [list(r) for r in getattr(record, "rows", ())]
+            status["columns"] = list(getattr(record, "columns", ()))
+    except Exception as exc:
+        status.update(status="failed", error=_error_text(exc))
+        if not isinstance(exc, AeroidError):
+            status["traceback"] = traceback.format_exc(limit=6)
+    status["seconds"] = time.perf_counter() - t0
+    return status
+
+
+def _error_text(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text if isinstance(exc, AeroidError) else f"{type(exc).__name__}: {text}"
+
+
+def _failure_text(status: Mapping[str, Any]) -> str:
+    return f"{status['step']}: {status.get('error', 'failed')}"
+
+
+# -- running a plan ------------------------------------------------------------------------
+
+
+@dataclass
+class RunSummary:
+    """What a run did: per-task status, counts, the report."""
+
+    plan: Plan
+    statuses: dict[str, dict[str, Any]]
+    report_path: Path | None
+    columns: list[str] = field(default_factory=list)
+    rows: list[list[str]] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def count(self, status: str) -> int:
+        return sum(1 for t in self.plan.tasks if self.statuses[t.key]["status"] == status)
+
+    @property
+    def failed(self) -> int:
+        return self.count("failed")
+
+    def task_rows(self) -> list[dict[str, Any]]:
+        out = []
+        for t in self.plan.tasks:
+            s = self.statuses[t.key]
+            out.append(
+                {
+                    "stage": t.step,
+                    "flight": t.flight,
+                    "key": t.key,
+                    "status": s["status"],
+                    "error": s.get("error"),
+                }
+            )
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "computed": self.count("computed"),
+            "cached": self.count("cached"),
+            "failed": self.failed,
+            "report": None if self.report_path is None else str(self.report_path),
+            "report_html": None,
+            "tasks": self.task_rows(),
+        }
+
+
+def _workers_default() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _run_dask(
+    tasks: list[Task],
+    store_root: str,
+    *,
+    scheduler: str | None,
+    workers: int | None,
+    on_done: Callable[[dict[str, Any]], None],
+) -> dict[str, dict[str, Any]]:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="30s")
+        except (OSError, TimeoutError) as exc:
+            raise PipelineError(f"cannot reach the dask scheduler {scheduler}: {exc}") from None
+    else:
+        n = workers or _workers_default()
+        n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            env=dict(_BLAS_ENV),
+            silence_logs=40,
+        )
+        client = Client(cluster)
+    results: dict[str, dict[str, Any]] = {}
+    try:
+        futures: dict[str, Any] = {}
+        owner: dict[Any, str] = {}
+        for t in tasks:
+            if t.key in futures:
+                continue
+            deps = [futures[k] for k in dict.fromkeys(t.upstream_keys) if k in futures]
+            n = n_parts(t)
+            if n > 1:  # parts run in parallel; the task combines and commits them
+                deps = deps + [
+                    client.submit(
+                        execute_part,
+                        t,
+                        store_root,
+                        i,
+                        *deps,
+                        key=f"{t.step}-{t.key}-part{i}",
+                        pure=False,
+                        retries=0,
+                    )
+                    for i in range(n)
+                ]
+            fut = client.submit(
+                execute_task,
+                t,
+                store_root,
+                *deps,
+                key=f"{t.step}-{t.key}",
+                pure=False,
+                retries=0,
+            )
+            futures[t.key] = fut
+            owner[fut] = t.key
+        for fut in as_completed(list(futures.values())):
+            key = owner[fut]
+            try:
+                status = fut.result()
+            except Exception as exc:  # a worker died under the task
+                t = next(x for x in tasks if x.key == key)
+                status = {
+                    "key": key,
+                    "step": t.step,
+                    "flight": t.flight,
+                    "status": "failed",
+                    "error": _error_text(exc),
+                }
+            results[key] = status
+            on_done(status)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return results
+
+
+def _run_local(
+    tasks: list[Task], store_root: str, on_done: Callable[[dict[str, Any]], None]
+) -> dict[str, dict[str, Any]]:
+    results: dict[str, dict[str, Any]] = {}
+    for t in tasks:
+        if t.key in results:
+            continue
+        ups = [results[k] for k in dict.fromkeys(t.upstream_keys) if k in results]
+        n = n_parts(t)
+        if n > 1:
+            ups = ups + [execute_part(t, store_root, i, *ups) for i in range(n)]
+        results[t.key] = execute_task(t, store_root, *ups)
+        on_done(results[t.key])
+    return results
+
+
+def run(
+    config: CampaignConfig | str | Path,
+    *,
+    store: str | Path | None = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = False,
+    pipeline: Pipeline | None = None,
+) -> RunSummary:
+    """Compute every missing result of a campaign and write its report.
+
+    Parameters
+    ----------
+    config : CampaignConfig or path
+    store : path, optional
+        Overrides the config's store.
+    scheduler : str, optional
+        ``tcp://host:port`` of a running dask scheduler (the store must be
+        reachable by its workers); default: an embedded local cluster.
+    workers : int, optional
+        Worker processes of the embedded cluster (default: one per core);
+        0 runs every task in this process without Dask.
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
+    """
+    t0 = time.perf_counter()
+    if not isinstance(config, CampaignConfig):
+        config = load_config(config)
+    updates: dict[str, Any] = {}
+    if store is not None:
+        updates["store"] = str(Path(store).resolve())
+    if scheduler is not None:
+        updates["scheduler"] = scheduler
+    if workers is not None:
+        updates["workers"] = workers
+    if updates:
+        config = config.model_copy(update=updates)
+    the_plan = plan(config, pipeline=pipeline)
+    t_plan = time.perf_counter()
+    result_store = ResultStore(config.store_path)
+    statuses: dict[str, dict[str, Any]] = {}
+    todo: list[Task] = []
+    for t in the_plan.tasks:
+        if t.key in statuses:
+            continue
+        if result_store.exists(t.stage, t.key):
+            statuses[t.key] = {"key": t.key, "step": t.step, "flight": t.flight, "status": "cached"}
+        else:
+            todo.append(t)
+    t_check = time.perf_counter()
+    if todo:
+        bar = None
+        if progress and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(todo), desc="aeroid", unit="task", file=sys.stderr)
+
+        def on_done(status: Mapping[str, Any]) -> None:
+            if bar is not None:
+                bar.update(1)
+
+        try:
+            if config.workers == 0 and not config.scheduler:
+                done = _run_local(todo, str(result_store.root), on_done)
+            else:
+                done = _run_dask(
+                    todo,
+                    str(result_store.root),
+                    scheduler=config.scheduler,
+                    workers=config.workers,
+                    on_done=on_done,
+                )
+        finally:
+            if bar is not None:
+                bar.close()
+        statuses.update(done)
+    t_run = time.perf_counter()
+    report_path, columns, rows = _write_report(the_plan, result_store, statuses)
+    summary = RunSummary(
+        plan=the_plan,
+        statuses=statuses,
+        report_path=report_path,
+        columns=columns,
+        rows=rows,
+        seconds={
+            "plan": t_plan - t0,
+            "cache_check": t_check - t_plan,
+            "run": t_run - t_check,
+            "total": time.perf_counter() - t0,
+            "compute": sum(float(s.get("compute_seconds", 0.0)) for s in statuses.values()),
+        },
+    )
+    return summary
+
+
+def _write_report(
+    the_plan: Plan, store: ResultStore, statuses: dict[str, dict[str, Any]]
+) -> tuple[Path | None, list[str], list[list[str]]]:
+    task = the_plan.report_task
+    if task is None:
+        return None, [], []
+    status = statuses[task.key]
+    if status["status"] == "failed":
+        return None, [], []
+    if "markdown" in status:
+        text, columns, rows = status["markdown"], status["columns"], status["rows"]
+    else:
+        try:
+            record = store.load(task.key, task.stage)
+        except AeroidError as exc:
+            statuses[task.key].update(status="failed", error=str(exc))
+            return None, [], []
+        text = getattr(record, "markdown", str(record))
+        columns = list(getattr(record, "columns", ()))
+        rows = [list(r) for r in getattr(record, "rows", ())]
+    path = the_plan.config.report_path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.is_file() or path.read_text(encoding="utf-8") != text:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    return path, columns, rows
+
+
+# -- rerun ---------------------------------------------------------------------------------
+
+
+def rerun(store: ResultStore, key: str) -> tuple[bool, list[str]]:
+    """Recompute a stored result from its recorded inputs into a scratch store and compare.
+
+    Returns (bit-identical, lines to show). Upstream results are read from
+    `store` (digests checked); the scratch store is removed afterwards.
+    """
+    import shutil
+    import tempfile
+
+    entry = store.find(key)
+    problem = store.verify(entry.key, entry.stage)
+    if problem is not None:
+        raise PipelineError(problem)
+    meta = store.metadata(entry.key, entry.stage)
+    recorded = meta.get("provenance", {}).get("task")
+    if not recorded:
+        raise PipelineError(f"entry {entry.key[:12]} records no task to recompute")
+    task = Task.from_json(recorded, meta["task"])
+    lines = [f"recomputing {task.step} {task.flight or '(campaign)'} {entry.key[:12]}"]
+    if task.model_ref is not None:
+        model = resolve_model(task.model_ref["spec"], task.model_ref.get("base_dir"))
+        current = json.loads(canonical_json(model_fingerprint(model)))
+        if current != meta["task"].get("model"):
+            lines.append("note: the model's fingerprint differs from the recorded one")
+    scratch = Path(tempfile.mkdtemp(prefix="aeroid-rerun-"))
+    try:
+        status = execute_task(task, str(scratch / "store"), read_root=str(store.root))
+        if status["status"] == "failed":
+            lines.append(f"recomputation failed: {status.get('error')}")
+            return False, lines
+        fresh = ResultStore(scratch / "store", create=False)
+        if not fresh.exists(task.stage, task.key):
+            lines.append("recomputation produced no stored result (failed upstream flights)")
+            return False, lines
+        new_meta = fresh.metadata(task.key, task.stage)
+        old_arrays = store.load_arrays(entry.key, entry.stage)
+        new_arrays = fresh.load_arrays(task.key, task.stage)
+        worst: tuple[float, str] = (0.0, "")
+        identical = True
+        for name in sorted(set(old_arrays) | set(new_arrays)):
+            a, b = old_arrays.get(name), new_arrays.get(name)
+            if a is None or b is None or a.shape != b.shape or a.dtype != b.dtype:
+                identical = False
+                lines.append(f"array {name!r}: present or shaped differently")
+                continue
+            if a.tobytes() != b.tobytes():
+                identical = False
+                with np.errstate(all="ignore"):
+                    diff = float(np.nanmax(np.abs(a.astype(complex) - b.astype(complex))))
+                if not worst[1] or diff > worst[0]:
+                    worst = (diff, name)
+        if meta["record"] != new_meta["record"]:
+            identical = False
+            lines.append("the record's non-array fields differ")
+        if identical:
+            lines.append(f"bit-identical ({len(old_arrays)} arrays)")
+        elif worst[1]:
+            lines.append(f"largest difference: {worst[0]:.6g} in array {worst[1]!r}")
+        return identical, lines
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)

@@ -1,0 +1,436 @@
+"""The result store: one immutable Zarr v3 group per task result.
+
+Layout under the store root::
+
+    aeroid-store.json                 marker with the layout version
+    <stage>/<key[:2]>/<key>/          one Zarr group per result (arrays + JSON attributes)
+    .tmp/<key>.<host>.<pid>.<nonce>/  results being written (removed by `gc` after a crash)
+
+A result is written completely under ``.tmp`` and then renamed into place,
+so a reader sees either nothing or a whole entry. If the target already
+exists another run committed the same key first and the copy is discarded
+(an entry is never overwritten). Every array's SHA-256 and a digest of the
+JSON content are stored in the group's attributes and checked on every
+read; an altered entry raises `StoreError` and is never returned.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import time
+import uuid
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import StoreError
+from . import codec
+from .keys import array_digest, canonical_json, sha256_hex
+
+__all__ = ["Entry", "ResultStore", "open_store"]
+
+FORMAT = 1
+_MARKER = "aeroid-store.json"
+_TMP = ".tmp"
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A committed result: its key, stage and location."""
+
+    key: str
+    stage: str
+    path: Path
+
+
+# -- a minimal Zarr v3 writer/reader for what the store holds ------------------------
+# Entries are plain Zarr v3 (any zarr-python reads them): one uncompressed chunk
+# per array with the little-endian ``bytes`` codec. Writing and reading those
+# files directly costs well under a millisecond per array, against several for
+# zarr-python's general machinery; entries written otherwise are read by zarr.
+
+_DTYPES = {
+    "b": "bool",
+    "i1": "int8",
+    "i2": "int16",
+    "i4": "int32",
+    "i8": "int64",
+    "u1": "uint8",
+    "u2": "uint16",
+    "u4": "uint32",
+    "u8": "uint64",
+    "f4": "float32",
+    "f8": "float64",
+    "c8": "complex64",
+    "c16": "complex128",
+}
+_NUMPY = {v: ("?" if k == "b" else "<" + k) for k, v in _DTYPES.items()}
+
+
+def _zarr_dtype(arr: np.ndarray) -> str:
+    code = "b" if arr.dtype.kind == "b" else f"{arr.dtype.kind}{arr.dtype.itemsize}"
+    if code not in _DTYPES:
+        raise StoreError(f"arrays of dtype {arr.dtype} cannot be stored")
+    return _DTYPES[code]
+
+
+def _write_json(path: Path, doc: Mapping[str, Any]) -> None:
+    path.write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+
+
+def _write_array(path: Path, arr: np.ndarray) -> None:
+    dtype = _zarr_dtype(arr)
+    fill: Any = False if dtype == "bool" else (0 if dtype[0] in "iu" else 0.0)
+    if dtype.startswith("complex"):
+        fill = [0.0, 0.0]
+    chunk = [max(1, int(n)) for n in arr.shape]
+    path.mkdir()
+    _write_json(
+        path / "zarr.json",
+        {
+            "zarr_format": 3,
+            "node_type": "array",
+            "shape": [int(n) for n in arr.shape],
+            "data_type": dtype,
+            "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": chunk}},
+            "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
+            "fill_value": fill,
+            "codecs": [{"name": "bytes", "configuration": {"endian": "little"}}],
+            "attributes": {},
+            "storage_transformers": [],
+        },
+    )
+    if arr.size == 0:
+        return  # an empty array has no chunk
+    chunk_dir = path / "c"
+    parts = ["0"] * arr.ndim
+    target = chunk_dir.joinpath(*parts) if parts else chunk_dir
+    if parts:
+        target.parent.mkdir(parents=True)
+    data = np.ascontiguousarray(arr, dtype=_NUMPY[dtype])
+    target.write_bytes(data.tobytes())
+
+
+def _read_array(path: Path) -> np.ndarray | None:
+    """Read an array written by `_write_array`; None when it was written otherwise."""
+    meta = json.loads((path / "zarr.json").read_text(encoding="utf-8"))
+    dtype = _NUMPY.get(meta.get("data_type"))
+    shape = tuple(int(n) for n in meta["shape"])
+    layout_ok = (
+        meta.get("codecs") == [{"name": "bytes", "configuration": {"endian": "little"}}]
+        and meta.get("chunk_grid", {}).get("configuration", {}).get("chunk_shape")
+        == [max(1, n) for n in shape]
+        and meta.get("chunk_key_encoding", {}).get("configuration", {}).get("separator") == "/"
+        and dtype is not None
+    )
+    if not layout_ok:
+        return None
+    if 0 in shape:
+        return np.zeros(shape, dtype=dtype)
+    target = (path / "c").joinpath(*(["0"] * len(shape))) if shape else path / "c"
+    raw = target.read_bytes()
+    arr = np.frombuffer(raw, dtype=dtype)
+    if arr.size != int(np.prod(shape)):
+        raise StoreError(f"chunk {target} holds {arr.size} values, expected {int(np.prod(shape))}")
+    return arr.reshape(shape).astype(np.dtype(dtype).newbyteorder("="))
+
+
+def _content_digest(meta: Mapping[str, Any]) -> str:
+    body = {k: meta[k] for k in ("key", "stage", "record", "task", "digests")}
+    return sha256_hex(canonical_json(body))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class ResultStore:
+    """A directory of immutable, content-keyed results.
+
+    Parameters
+    ----------
+    root : str or Path
+        The store directory (created when `create` is true). It must be on a
+        filesystem every worker can reach when running on a cluster.
+    create : bool
+        Create the store if it does not exist; otherwise raise `StoreError`.
+    """
+
+    def __init__(self, root: str | Path, *, create: bool = True) -> None:
+        text = str(root)
+        if "://" in text and not text.startswith("file://"):
+            raise StoreError(
+                f"store {text!r}: only local or shared-filesystem paths are supported "
+                "(atomic commits need a rename)"
+            )
+        self.root = Path(text.removeprefix("file://")).expanduser()
+        marker = self.root / _MARKER
+        if marker.is_file():
+            try:
+                info = json.loads(marker.read_text())
+            except (OSError, ValueError) as exc:
+                raise StoreError(f"store {self.root}: unreadable marker {marker} ({exc})") from None
+            if info.get("format") != FORMAT:
+                raise StoreError(
+                    f"store {self.root}: layout version {info.get('format')!r}, "
+                    f"this aeroid reads version {FORMAT}"
+                )
+        elif create:
+            if self.root.exists() and any(self.root.iterdir()):
+                raise StoreError(
+                    f"store {self.root}: the directory exists, is not empty and is not an "
+                    "aeroid store"
+                )
+            self.root.mkdir(parents=True, exist_ok=True)
+            tmp = self.root / f".{_MARKER}.{uuid.uuid4().hex}"
+            tmp.write_text(json.dumps({"format": FORMAT, "kind": "aeroid result store"}))
+            os.replace(tmp, marker)
+        else:
+            raise StoreError(f"store {self.root}: not an aeroid store (no {_MARKER})")
+
+    def __repr__(self) -> str:
+        return f"ResultStore({str(self.root)!r})"
+
+    # -- locations -------------------------------------------------------------
+    def path_for(self, stage: str, key: str) -> Path:
+        """Where the result of `key` in `stage` lives (whether or not it exists)."""
+        return self.root / stage / key[:2] / key
+
+    def exists(self, stage: str, key: str) -> bool:
+        """True when `key` is committed (commits are atomic, so existence means complete)."""
+        return self.path_for(stage, key).is_dir()
+
+    def entries(self, stage: str | None = None) -> Iterator[Entry]:
+        """Every committed entry, optionally of one stage."""
+        if not self.root.is_dir():
+            return
+        stages = (
+            [stage]
+            if stage
+            else sorted(
+                p.name for p in self.root.iterdir() if p.is_dir() and not p.name.startswith(".")
+            )
+        )
+        for s in stages:
+            base = self.root / s
+            if not base.is_dir():
+                continue
+            for prefix in sorted(base.iterdir()):
+                if not prefix.is_dir():
+                    continue
+                for entry in sorted(prefix.iterdir()):
+                    if entry.is_dir():
+                        yield Entry(entry.name, s, entry)
+
+    def find(self, key: str) -> Entry:
+        """The entry whose key is `key` or starts with it (at least 6 hex digits)."""
+        key = key.strip().lower()
+        if len(key) < 6 or any(c not in "0123456789abcdef" for c in key):
+            raise StoreError(f"key {key!r}: expected at least 6 hexadecimal digits")
+        hits = []
+        for stage_dir in sorted(self.root.iterdir()) if self.root.is_dir() else []:
+            if not stage_dir.is_dir() or stage_dir.name.startswith("."):
+                continue
+            prefix = stage_dir / key[:2]
+            if prefix.is_dir():
+                hits += [Entry(p.name, stage_dir.name, p) for p in prefix.glob(f"{key}*")]
+        if not hits:
+            raise StoreError(f"key {key}: no such entry in store {self.root}")
+        if len(hits) > 1:
+            raise StoreError(f"key {key}: ambiguous, matches {[h.key[:12] for h in hits]}")
+        return hits[0]
+
+    # -- writing ---------------------------------------------------------------
+    def commit(
+        self,
+        stage: str,
+        key: str,
+        record: Any,
+        *,
+        task: Mapping[str, Any],
+        provenance: Mapping[str, Any] | None = None,
+    ) -> bool:
+        """Write `record` as the result of `key`; False when it was already committed."""
+        final = self.path_for(stage, key)
+        if final.is_dir():
+            return False
+        tree, arrays = codec.encode(record)
+        meta: dict[str, Any] = {
+            "format": FORMAT,
+            "key": key,
+            "stage": stage,
+            "record_type": tree["__record__"],
+            "record": tree,
+            "task": dict(task),
+            "digests": {name: array_digest(a) for name, a in arrays.items()},
+            "provenance": dict(provenance or {}),
+        }
+        meta["content_digest"] = _content_digest(meta)
+        meta = json.loads(canonical_json(meta))  # plain JSON types only
+        tmp_root = self.root / _TMP
+        tmp_root.mkdir(parents=True, exist_ok=True)
+        tmp = tmp_root / f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        try:
+            tmp.mkdir()
+            for name, arr in arrays.items():
+                _write_array(tmp / name, arr)
+            # the group's metadata is written last: a complete group, then the rename
+            _write_json(
+                tmp / "zarr.json",
+                {
+                    "zarr_format": 3,
+                    "node_type": "group",
+                    "attributes": {"aeroid": meta},
+                },
+            )
+            final.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.rename(tmp, final)
+            except OSError:
+                if final.is_dir():  # another run committed the same key first
+                    shutil.rmtree(tmp, ignore_errors=True)
+                    return False
+                raise
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return True
+
+    # -- reading ---------------------------------------------------------------
+    def _entry(self, key: str, stage: str | None) -> Entry:
+        if stage is not None:
+            path = self.path_for(stage, key)
+            if not path.is_dir():
+                raise StoreError(f"{stage} result {key[:12]} is not in store {self.root}")
+            return Entry(key, stage, path)
+        return self.find(key)
+
+    def metadata(self, key: str, stage: str | None = None) -> dict[str, Any]:
+        """The entry's JSON attributes (record tree, task document, provenance, digests)."""
+        entry = self._entry(key, stage)
+        try:
+            doc = json.loads((entry.path / "zarr.json").read_text(encoding="utf-8"))
+            meta = doc["attributes"]["aeroid"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise StoreError(
+                f"entry {entry.key[:12]} ({entry.stage}) is corrupt: unreadable metadata ({exc})"
+            ) from None
+        if not isinstance(meta, dict):
+            raise StoreError(f"entry {entry.key[:12]} ({entry.stage}) is corrupt: bad metadata")
+        return meta
+
+    def _read_verified(self, entry: Entry) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        meta = self.metadata(entry.key, entry.stage)
+        where = f"entry {entry.key[:12]} ({entry.stage}) in {self.root}"
+        try:
+            if _content_digest(meta) != meta.get("content_digest"):
+                raise StoreError(f"{where} is corrupt: its attributes were altered")
+            if sha256_hex(canonical_json(meta["task"])) != entry.key:
+                raise StoreError(f"{where} is corrupt: its task document does not hash to its key")
+            arrays: dict[str, np.ndarray] = {}
+            for name, digest in meta["digests"].items():
+                if "/" in name or name.startswith("."):
+                    raise StoreError(f"{where} is corrupt: bad array name {name!r}")
+                got = _read_array(entry.path / name)
+                if got is None:  # written by another Zarr writer: let zarr-python read it
+                    import zarr
+
+                    node: Any = zarr.open_array(store=str(entry.path / name), mode="r")
+                    got = np.asarray(node[...])
+                arr = got
+                if array_digest(arr) != digest:
+                    raise StoreError(
+                        f"{where} is corrupt: array {name!r} does not match its digest"
+                    )
+                arrays[name] = arr
+        except StoreError:
+            raise
+        except Exception as exc:  # zarr/json/codec errors on damaged bytes
+            raise StoreError(f"{where} is corrupt: {type(exc).__name__}: {exc}") from None
+        return meta, arrays
+
+    def load(self, key: str, stage: str | None = None) -> Any:
+        """The stored result as its record type, after checking every digest."""
+        entry = self._entry(key, stage)
+        meta, arrays = self._read_verified(entry)
+        return codec.decode(meta["record"], arrays)
+
+    def load_arrays(self, key: str, stage: str | None = None) -> dict[str, np.ndarray]:
+        """The entry's arrays by name (digests checked)."""
+        return self._read_verified(self._entry(key, stage))[1]
+
+    def verify(self, key: str, stage: str | None = None) -> str | None:
+        """None when the entry is intact, else what is wrong with it."""
+        try:
+            entry = self._entry(key, stage)
+            meta, arrays = self._read_verified(entry)
+        except StoreError as exc:
+            return str(exc)
+        try:
+            codec.decode(meta["record"], arrays)
+        except codec.UnknownRecordType:
+            pass  # intact bytes of a type defined by a pipeline not imported here
+        except StoreError as exc:
+            return str(exc)
+        return None
+
+    def verify_all(self) -> dict[str, str]:
+        """Problems by key for every entry that fails its checks."""
+        bad = {}
+        for entry in self.entries():
+            problem = self.verify(entry.key, entry.stage)
+            if problem is not None:
+                bad[entry.key] = f"{entry.stage}: {problem}"
+        return bad
+
+    # -- housekeeping ----------------------------------------------------------
+    def temporaries(self) -> list[Path]:
+        """Partial writes left under ``.tmp``."""
+        tmp = self.root / _TMP
+        return sorted(tmp.iterdir()) if tmp.is_dir() else []
+
+    def gc(self, *, max_age: float = 3600.0) -> list[Path]:
+        """Remove temporaries of crashed runs; return what was removed.
+
+        A temporary of a process still running on this host is kept; one from
+        another host is removed once older than `max_age` seconds.
+        """
+        removed = []
+        host = socket.gethostname()
+        now = time.time()
+        for path in self.temporaries():
+            parts = path.name.split(".")
+            alive = False
+            if len(parts) >= 4:
+                t_host, t_pid = ".".join(parts[1:-2]), parts[-2]
+                if t_host == host and t_pid.isdigit():
+                    alive = _pid_alive(int(t_pid)) and int(t_pid) != os.getpid()
+                else:
+                    try:
+                        alive = now - path.stat().st_mtime < max_age
+                    except OSError:
+                        alive = False
+            if not alive:
+                if path.is_dir():
+                    shutil.rmtree(path, ignore_errors=True)
+                else:
+                    path.unlink(missing_ok=True)
+                removed.append(path)
+        return removed
+
+
+def open_store(root: str | Path, *, create: bool = False) -> ResultStore:
+    """Open a result store (by default an existing one)."""
+    return ResultStore(root, create=create)

@@ -1,0 +1,135 @@
+"""Pipeline benchmarks (run by hand): ``python tests/benchmarks/bench_pipeline.py``.
+
+Figures (issue 5):
+  1. a 24-flight campaign load -> identify -> validate -> propagate -> report,
+     cold, with 2 worker processes vs 1 (target: >= 1.7x faster);
+  2. keys, store and scheduling overhead of a cold run (target: <= 10 %),
+     as (wall time - time inside the library calls / workers) / wall time;
+  3. an unchanged rerun of the demo, end to end as a user types it
+     (``aeroid run configs/demo.yaml``; target: <= 3 s).
+Each figure is the median of --repeats runs. While the library's identify /
+validate / propagate / report are not available, a CPU-bound stand-in stage
+replaces them (reported as such).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+from pathlib import Path
+
+import aeroid
+from aeroid.pipeline import run
+
+ROOT = Path(__file__).resolve().parents[2]
+CHAIN = all(hasattr(aeroid, f) for f in ("identify", "validate", "propagate", "report"))
+
+STAND_IN = textwrap.dedent(
+    """
+    from dataclasses import dataclass
+    import numpy as np
+    from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
+    from aeroid.pipeline.config import Options
+
+    @register_record
+    @dataclass(frozen=True, eq=False)
+    class Fit:
+        theta: np.ndarray
+
+    class FitOptions(Options):
+        iterations: int = 6000
+
+    def run_fit(ctx):  # about as much CPU as an output-error fit of one flight
+        d = ctx.inputs["data"]
+        x = d.array(list(d.names))
+        theta = np.zeros(x.shape[1])
+        for _ in range(ctx.options.iterations):
+            theta = np.linalg.lstsq(x, x[:, 1] + 1e-3 * theta[1], rcond=None)[0]
+        return Fit(theta)
+
+    register_stage(Stage("fit", "1", FitOptions, "bench_stand_in:Fit", run_fit, uses_model=False))
+    pipeline = Pipeline("bench", flight_steps=(Step("load"), Step("fit", inputs={"data": "load"})),
+                        campaign_steps=(Step("campaign_report", inputs={"data": "load"}),))
+    """
+)
+
+
+def campaign(tmp: Path, n: int) -> Path:
+    cfg = tmp / "bench.yaml"
+    if CHAIN:
+        cfg.write_text(
+            f"model: short_period\nflights: [{{simulated: {{n_flights: {n}, seed: 3}}}}]\n"
+            "stages:\n  identify: {parameters: [Z_alpha, M_alpha, M_q, M_delta]}\n"
+            "  validate: {}\n  propagate: {metric: natural_frequency, n_samples: 2000}\n"
+        )
+    else:
+        (tmp / "bench_stand_in.py").write_text(STAND_IN)
+        cfg.write_text(
+            "model: short_period\npipeline: bench_stand_in:pipeline\n"
+            f"flights: [{{simulated: {{n_flights: {n}, seed: 3}}}}]\nstages: {{fit: {{}}}}\n"
+        )
+    return cfg
+
+
+def cold(cfg: Path, workers: int, tag: str) -> tuple[float, float]:
+    store = Path(tempfile.mkdtemp(prefix=f"bench-{tag}-")) / "store"
+    t0 = time.perf_counter()
+    s = run(cfg, store=store, workers=workers)
+    wall = time.perf_counter() - t0
+    if s.failed:
+        raise SystemExit(f"benchmark run failed: {s.to_json()['tasks']}")
+    return wall, s.seconds["compute"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--flights", type=int, default=24)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
+    cfg = campaign(tmp, args.flights)
+    what = "load->identify->validate->propagate->report" if CHAIN else "STAND-IN load->fit->report"
+    print(f"{args.flights}-flight campaign, {what}, {args.repeats} repeats")
+
+    w1 = [cold(cfg, 1, "w1") for _ in range(args.repeats)]
+    w2 = [cold(cfg, 2, "w2") for _ in range(args.repeats)]
+    w0 = [cold(cfg, 0, "w0") for _ in range(args.repeats)]
+    t1 = statistics.median(w for w, _ in w1)
+    t2 = statistics.median(w for w, _ in w2)
+    t0 = statistics.median(w for w, _ in w0)
+    c0 = statistics.median(c for _, c in w0)
+    c1 = statistics.median(c for _, c in w1)
+    print(f"cold, 1 worker process : {t1:7.2f} s (library time {c1:.2f} s)")
+    print(f"cold, 2 worker processes: {t2:7.2f} s")
+    print(f"speed-up 2 vs 1         : {t1 / t2:7.2f} x   (target >= 1.7)")
+    print(f"cold, in-process        : {t0:7.2f} s (library time {c0:.2f} s)")
+    print(f"overhead keys+store, in-process   : {100 * (t0 - c0) / t0:5.1f} %  (target <= 10)")
+    print(f"overhead keys+store+dask, 1 worker: {100 * (t1 - c1) / t1:5.1f} %")
+
+    demo = ROOT / "configs" / "demo.yaml"
+    store = tmp / "demo-store"
+    first = subprocess.run(
+        ["aeroid", "run", str(demo), "--store", str(store), "--quiet"],
+        capture_output=True,
+        text=True,
+    )
+    print(f"demo cold run: exit {first.returncode}; {first.stdout.strip().splitlines()[-2:]}")
+    times = []
+    for _ in range(args.repeats):
+        t = time.perf_counter()
+        subprocess.run(
+            ["aeroid", "run", str(demo), "--store", str(store), "--quiet"],
+            capture_output=True,
+            text=True,
+        )
+        times.append(time.perf_counter() - t)
+    print(f"unchanged demo rerun    : {statistics.median(times):7.2f} s   (target <= 3)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,296 @@
+"""The ``aeroid`` command driven as a user would: run, rerun, change, kill, corrupt, break.
+
+The campaign uses a small user-defined pipeline (load -> a seeded "stats"
+stage -> campaign report) written next to the config, exactly as a user
+would define one, so these tests exercise the engine independently of the
+numerical stages.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aeroid.catalog import short_period_flight
+from aeroid.cli import main
+
+USER_PIPELINE = textwrap.dedent(
+    '''
+    """A user pipeline: per flight, bootstrap means of every channel."""
+    import time
+    from dataclasses import dataclass
+
+    import numpy as np
+
+    from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
+    from aeroid.pipeline.config import Options
+
+
+    @register_record
+    @dataclass(frozen=True, eq=False)
+    class ChannelStats:
+        names: tuple
+        mean: np.ndarray
+        boot: np.ndarray
+
+        def summary(self):
+            return "stats of " + ", ".join(self.names)
+
+
+    class StatsOptions(Options):
+        n_boot: int = 50
+        sleep: float = 0.0
+
+
+    def run_stats(ctx):
+        data = ctx.inputs["data"]
+        rng = np.random.default_rng(ctx.seed_int())
+        x = data.array(list(data.names))
+        idx = rng.integers(0, x.shape[0], size=(ctx.options.n_boot, x.shape[0]))
+        time.sleep(ctx.options.sleep)
+        return ChannelStats(tuple(data.names), x.mean(axis=0), x[idx].mean(axis=1))
+
+
+    register_stage(Stage("stats", "1", StatsOptions, "user_pipeline:ChannelStats", run_stats,
+                         uses_model=False, seeded=True))
+
+    pipeline = Pipeline(
+        "user",
+        flight_steps=(Step("load"), Step("stats", inputs={"data": "load"})),
+        campaign_steps=(Step("campaign_report", inputs={"data": "load"}),),
+    )
+    '''
+)
+
+
+def write_flight(path: Path, seed: int) -> None:
+    d = short_period_flight(seed=seed)
+    rows = np.column_stack([d.time, *(d[n] for n in d.names)])
+    body = "\n".join(",".join(repr(float(v)) for v in r) for r in rows)
+    path.write_text(",".join(["time", *d.names]) + "\n" + body + "\n")
+
+
+def make_campaign(tmp: Path, n: int = 4, stats: str = "{n_boot: 50}") -> Path:
+    (tmp / "flights").mkdir(exist_ok=True)
+    for i in range(n):
+        write_flight(tmp / "flights" / f"f{i:02d}.csv", i)
+    (tmp / "user_pipeline.py").write_text(USER_PIPELINE)
+    cfg = tmp / "campaign.yaml"
+    cfg.write_text(
+        "model: short_period\npipeline: user_pipeline:pipeline\nseed: 11\n"
+        f"flights: ['flights/*.csv']\nstore: store\nstages:\n  stats: {stats}\n"
+    )
+    return cfg
+
+
+def invoke(*args: str) -> tuple[int, str, str]:
+    result = CliRunner().invoke(main, list(args))
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+def run_json(cfg: Path, *extra: str) -> tuple[int, dict]:
+    code, out, _ = invoke("run", str(cfg), "--json", "--workers", "0", *extra)
+    return code, json.loads(out)
+
+
+def by_status(doc: dict) -> dict[str, list[tuple[str, str]]]:
+    out: dict[str, list[tuple[str, str]]] = {}
+    for t in doc["tasks"]:
+        out.setdefault(t["status"], []).append((t["stage"], t["flight"]))
+    return out
+
+
+def test_fresh_run_then_unchanged_rerun_computes_nothing(tmp_path):
+    cfg = make_campaign(tmp_path)
+    code, doc = run_json(cfg)
+    assert code == 0
+    assert (doc["computed"], doc["cached"], doc["failed"]) == (9, 0, 0)
+    assert set(doc) == {"computed", "cached", "failed", "report", "report_html", "tasks"}
+    assert set(doc["tasks"][0]) == {"stage", "flight", "key", "status", "error"}
+    report = Path(doc["report"])
+    assert report.is_file() and "f03" in report.read_text()
+    code, doc2 = run_json(cfg)
+    assert code == 0 and (doc2["computed"], doc2["cached"]) == (0, 9)
+    assert [t["key"] for t in doc2["tasks"]] == [t["key"] for t in doc["tasks"]]
+    # human output: per-flight table, counts, report location
+    code, out, _ = invoke("run", str(cfg), "--workers", "0")
+    assert code == 0 and "| f00" in out and "0 computed, 9 cached, 0 failed" in out
+    assert f"report: {report}" in out
+
+
+def test_changed_flight_recomputes_exactly_its_chain_and_the_report(tmp_path):
+    cfg = make_campaign(tmp_path)
+    run_json(cfg)
+    write_flight(tmp_path / "flights" / "f02.csv", 99)
+    code, doc = run_json(cfg)
+    assert code == 0
+    assert sorted(by_status(doc)["computed"], key=str) == sorted(
+        [("load", "f02"), ("stats", "f02"), ("campaign_report", None)], key=str
+    )
+    # a changed stage option recomputes that stage everywhere and nothing else (this
+    # pipeline's report reads only the loads)
+    cfg.write_text(cfg.read_text().replace("n_boot: 50", "n_boot: 60"))
+    code, doc = run_json(cfg)
+    computed = by_status(doc)["computed"]
+    assert {s for s, _ in computed} == {"stats"} and len(computed) == 4
+
+
+def test_bad_flight_file_is_reported_and_others_succeed(tmp_path):
+    cfg = make_campaign(tmp_path)
+    bad = tmp_path / "flights" / "f01.csv"
+    lines = bad.read_text().splitlines()
+    lines[5] = lines[5].replace(lines[5].split(",")[2], "oops", 1)
+    bad.write_text("\n".join(lines))
+    code, doc = run_json(cfg)
+    assert code == 1
+    failed = {
+        (t["stage"], t["flight"]): t["error"] for t in doc["tasks"] if t["status"] == "failed"
+    }
+    assert set(failed) == {("load", "f01"), ("stats", "f01")}
+    assert "f01.csv" in failed[("load", "f01")] and "oops" in failed[("load", "f01")]
+    assert "upstream load failed" in failed[("stats", "f01")]
+    assert doc["computed"] == 7  # three flights x 2 + the report
+    text = Path(doc["report"]).read_text()
+    assert "1 failed" in text and "f01" in text
+    # failures are never cached: the report over a failed flight is not stored either
+    code, st_out, _ = invoke("status", str(cfg), "--json")
+    st = json.loads(st_out)
+    assert st["missing"] == 3 and st["stored"] == 6
+    code, out, _ = invoke("run", str(cfg), "--workers", "0")
+    assert code == 1 and "FAILED load f01" in out
+
+
+def test_bad_config_names_file_and_key_path(tmp_path):
+    cfg = make_campaign(tmp_path)
+    cfg.write_text(cfg.read_text() + "stores: elsewhere\n")
+    code, out, err = invoke("run", str(cfg))
+    assert code == 2 and out == ""
+    assert f"{cfg}: stores: unknown key" in err
+    cfg.write_text(
+        cfg.read_text().replace("stores: elsewhere\n", "").replace("n_boot: 50", "n_bot: 5")
+    )
+    code, _, err = invoke("run", str(cfg))
+    assert code == 2 and "stages.stats.n_bot: unknown key; allowed keys: n_boot, sleep" in err
+
+
+def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
+    cfg = make_campaign(tmp_path, n=2)
+    _, doc = run_json(cfg)
+    stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
+    entry = tmp_path / "store" / "stats" / stats["key"][:2] / stats["key"]
+    chunk = next(p for p in (entry / "boot").rglob("*") if p.is_file() and p.name != "zarr.json")
+    raw = bytearray(chunk.read_bytes())
+    raw[len(raw) // 2] ^= 0x01
+    chunk.write_bytes(bytes(raw))
+    code, out, _ = invoke("verify", "--config", str(cfg))
+    assert code == 1 and f"CORRUPT {stats['key']}" in out and "1 corrupt" in out
+    code, _, err = invoke("show", stats["key"][:10], "--store", str(tmp_path / "store"))
+    assert code == 1 and "corrupt" in err
+    code, _, err = invoke("rerun", stats["key"], "--store", str(tmp_path / "store"))
+    assert code == 1 and "corrupt" in err
+
+
+def test_show_status_rerun_and_gc(tmp_path):
+    cfg = make_campaign(tmp_path, n=2)
+    code, out, _ = invoke("status", str(cfg))
+    assert code == 0 and "0 stored, 5 missing" in out
+    _, doc = run_json(cfg)
+    code, out, _ = invoke("status", str(cfg), "--json")
+    assert json.loads(out)["missing"] == 0
+    stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
+    code, out, _ = invoke("show", stats["key"][:12], "--config", str(cfg))
+    assert code == 0 and "stats of elevator" in out and "spawn_key" in out and "numpy" in out
+    code, out, _ = invoke("rerun", stats["key"], "--config", str(cfg))
+    assert code == 0 and "bit-identical" in out
+    # gc removes a temporary a crashed run left behind
+    tmp = tmp_path / "store" / ".tmp" / f"{'c' * 64}.{os.uname().nodename}.999999999.00000000"
+    tmp.mkdir(parents=True)
+    code, out, _ = invoke("gc", "--store", str(tmp_path / "store"))
+    assert code == 0 and "1 temporaries removed" in out and not tmp.exists()
+    code, _, err = invoke("verify")
+    assert code == 2 and "--config" in err
+
+
+def test_rerun_reports_the_largest_difference(tmp_path):
+    cfg = make_campaign(tmp_path, n=1)
+    _, doc = run_json(cfg)
+    stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
+    # the user changes the stage's code without bumping its version
+    src = tmp_path / "user_pipeline.py"
+    src.write_text(
+        src.read_text().replace("x.mean(axis=0), x[idx]", "x.mean(axis=0) + 1e-3, x[idx]")
+    )
+    for mod in [m for m in sys.modules if m == "user_pipeline"]:
+        del sys.modules[mod]
+    code, out, _ = invoke("rerun", stats["key"], "--config", str(cfg))
+    sys.modules.pop("user_pipeline", None)
+    assert code == 1 and "largest difference: 0.001" in out
+
+
+def _cli(*args: str, **kw):
+    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
+    return subprocess.run([*exe, *args], capture_output=True, text=True, timeout=120, **kw)
+
+
+@pytest.mark.slow
+def test_killed_run_leaves_a_store_that_verifies_and_the_next_run_completes(tmp_path):
+    cfg = make_campaign(tmp_path, n=12, stats="{n_boot: 50, sleep: 0.15}")
+    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
+    proc = subprocess.Popen(
+        [*exe, "run", str(cfg), "--workers", "0", "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    store = tmp_path / "store"
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < 3:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    done_before = len(list((store / "stats").glob("*/*")))
+    assert 3 <= done_before < 12
+    res = _cli("verify", "--store", str(store))
+    assert res.returncode == 0, res.stdout + res.stderr
+    res = _cli("run", str(cfg), "--workers", "0", "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert (
+        doc["failed"] == 0
+        and doc["cached"] >= done_before
+        and doc["computed"] + doc["cached"] == 25
+    )
+    assert _cli("verify", "--store", str(store)).returncode == 0
+    _cli("gc", "--store", str(store))
+    assert not any((store / ".tmp").iterdir()) if (store / ".tmp").exists() else True
+
+
+@pytest.mark.slow
+def test_console_script_on_the_embedded_cluster(tmp_path):
+    cfg = make_campaign(tmp_path, n=3)
+    res = subprocess.run(
+        ["aeroid", "run", str(cfg), "--workers", "2", "--json"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["computed"] == 7 and res.stderr.strip() == ""  # no progress bar off a terminal
+    t0 = time.perf_counter()
+    res = subprocess.run(
+        ["aeroid", "run", str(cfg), "--json"], capture_output=True, text=True, timeout=120
+    )
+    assert json.loads(res.stdout)["cached"] == 7
+    assert time.perf_counter() - t0 < 10  # no cluster is started when nothing is to compute

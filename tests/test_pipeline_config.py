@@ -1,0 +1,124 @@
+"""Campaign configs: validation errors name the file, key path and expectation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from aeroid.errors import ConfigError
+from aeroid.model import Model
+from aeroid.pipeline import load_config, plan, resolve_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _write(tmp: Path, text: str, name: str = "camp.yaml") -> Path:
+    p = tmp / name
+    p.write_text(text)
+    return p
+
+
+def test_minimal_config_and_relative_paths(tmp_path):
+    cfg = load_config(_write(tmp_path, "model: short_period\nflights: ['data/*.csv']\n"))
+    assert cfg.store_path == tmp_path / ".aeroid-store"
+    assert cfg.report_path == tmp_path / ".aeroid-store" / "reports" / "camp.md"
+    assert cfg.campaign_name == "camp"
+    assert cfg.resolve("data/x.csv") == tmp_path / "data" / "x.csv"
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            "model: short_period\nflights: [a.csv]\nstorre: x\n",
+            r"camp.yaml: storre: unknown key; allowed keys: .*store",
+        ),
+        (
+            "model: short_period\nflights: [{path: a.csv, tim_column: t}]\n",
+            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: channels, path, time_column, units",
+        ),
+        (
+            "model: short_period\nflights: [{simulated: {n_flights: 0}}]\n",
+            r"camp.yaml: flights\[0\].simulated.n_flights: Input should be greater than or equal to 1",
+        ),
+        ("flights: [a.csv]\n", r"camp.yaml: model: required key is missing"),
+        (
+            "model: short_period\nflights: [a.csv]\nworkers: many\n",
+            r"camp.yaml: workers: .*integer",
+        ),
+        (
+            "model: short_period\nflights: [a.csv]\nscheduler: localhost\n",
+            r"camp.yaml: scheduler: .*tcp://",
+        ),
+        ("- just\n- a list\n", r"camp.yaml: expected a mapping"),
+        ("model: [unclosed\n", r"camp.yaml: line 2.*not valid YAML"),
+    ],
+)
+def test_errors_name_file_key_path_and_expectation(tmp_path, text, expected):
+    with pytest.raises(ConfigError, match=expected):
+        load_config(_write(tmp_path, text))
+
+
+def test_stage_options_are_validated_with_their_key_path(tmp_path):
+    p = _write(
+        tmp_path,
+        "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n"
+        "stages:\n  identify:\n    max_iterations: 10\n    metod: lm\n",
+    )
+    with pytest.raises(
+        ConfigError,
+        match=r"camp.yaml: stages.identify.metod: unknown key; allowed keys: .*max_iterations",
+    ):
+        plan(p)
+    p = _write(
+        tmp_path,
+        "model: short_period\nflights: [{simulated: {n_flights: 2}}]\nstages: {identfy: {}}\n",
+    )
+    with pytest.raises(
+        ConfigError, match=r"stages.identfy: unknown stage; pipeline 'campaign' has load, identify"
+    ):
+        plan(p)
+    p = _write(
+        tmp_path,
+        "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n"
+        "stages: {validate: {confidence: 2}}\n",
+    )
+    with pytest.raises(
+        ConfigError, match=r"stages.validate.confidence: Input should be less than 1"
+    ):
+        plan(p)
+
+
+def test_missing_flights_and_patterns_are_reported(tmp_path):
+    p = _write(tmp_path, "model: short_period\nflights: ['nothing/*.csv']\n")
+    with pytest.raises(
+        ConfigError, match=r"flights\[0\]: the pattern 'nothing/\*.csv' matches no file"
+    ):
+        plan(p)
+
+
+def test_models_by_builtin_name_and_import_path(tmp_path):
+    assert resolve_model("short_period").name == "short_period"
+    (tmp_path / "my_vehicle.py").write_text(
+        "import numpy as np\nfrom aeroid import Model\n"
+        "def build():\n"
+        "    return Model(['y'], ['u'], {'k': 1.0}, lambda t, x, u, p: np.array([-p['k'] * x[0] + u[0]]), name='lag')\n"
+        "MODEL = build()\nNOT_A_MODEL = 3\n"
+    )
+    m = resolve_model("my_vehicle:build", str(tmp_path))
+    assert isinstance(m, Model) and m.name == "lag"
+    assert resolve_model("my_vehicle:MODEL", str(tmp_path)).name == "lag"
+    with pytest.raises(ConfigError, match="expected a Model"):
+        resolve_model("my_vehicle:NOT_A_MODEL", str(tmp_path))
+    with pytest.raises(ConfigError, match="has no attribute"):
+        resolve_model("my_vehicle:nothing", str(tmp_path))
+    with pytest.raises(ConfigError, match="built-in model"):
+        resolve_model("concorde")
+
+
+def test_the_demo_config_is_valid_and_plans_every_stage():
+    the_plan = plan(ROOT / "configs" / "demo.yaml")
+    steps = {t.step for t in the_plan.tasks}
+    assert {"load", "identify", "validate", "propagate", "report", "campaign_report"} <= steps
+    assert len(the_plan.flights) >= 12
