@@ -1,0 +1,274 @@
+"""Optimal experiment design."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+import aeroid
+from aeroid import ChannelError, FlightData, IdentificationError, Model, catalog
+from aeroid.design import ExperimentDesign, design_experiment
+from aeroid.maneuvers import Chirp, Doublet, Multisine
+
+TRUTH = dict(catalog.SHORT_PERIOD_TRUTH)
+NOISE = {"alpha": 0.005, "q": 0.01}
+FAST = {"maxiter": 4, "popsize": 3}
+
+
+def spec_multisine() -> Multisine:
+    return Multisine("elevator", frequencies=(0.2, 0.5, 1.0, 1.5), amplitude=(0.0, 0.05))
+
+
+@pytest.fixture(scope="module")
+def spec_design() -> ExperimentDesign:
+    """The spec's example design (8 s at 25 Hz, maxiter 4, popsize 3)."""
+    return design_experiment(
+        catalog.short_period(),
+        spec_multisine(),
+        ["M_q", "M_delta"],
+        values=TRUTH,
+        noise=NOISE,
+        duration=8.0,
+        sample_rate=25.0,
+        seed=0,
+        optimizer_options=FAST,
+    )
+
+
+def test_spec_example_record(spec_design):
+    d = spec_design
+    assert isinstance(d, ExperimentDesign)
+    assert d.time.shape == (201,) and d.controls.shape == (201, 1)
+    assert set(d.design) == set(spec_multisine().variable_names)
+    assert d.criterion_value <= d.initial_criterion_value
+    for n in ("M_q", "M_delta"):
+        assert d.predicted_stderr[n] <= d.initial_stderr[n] * (1 + 1e-9)
+    assert re.fullmatch(
+        r"designed multisine on 'elevator': dominant energy [\d.]+(-[\d.]+)? Hz, peak amplitude "
+        r"0\.05; predicted stderr improves [\d.]+x over the initial design for M_(q|delta)",
+        d.recommendation,
+    ), d.recommendation
+    flight = d.to_flight_data()
+    np.testing.assert_array_equal(flight["elevator"], d.control("elevator"))
+    text = d.summary()
+    assert "Recommendation" in text and "M_delta" in text and "D-optimal" in text
+    with pytest.raises(ValueError):
+        d.controls[0, 0] = 1.0
+
+
+def test_amplitude_pinned_to_bound_for_linear_dynamics(spec_design):
+    # Information grows with amplitude² for linear dynamics: the optimum uses the limit.
+    assert np.max(np.abs(spec_design.controls)) == pytest.approx(0.05, rel=1e-2)
+    d = design_experiment(
+        catalog.short_period(),
+        Doublet("elevator", amplitude=(0.01, 0.05), width=(0.5, 2.0), start=1.0),
+        ["Z_alpha", "M_alpha", "M_q", "M_delta"],
+        values=TRUTH,
+        noise=NOISE,
+        duration=8.0,
+        sample_rate=25.0,
+        seed=1,
+        optimizer_options=FAST,
+    )
+    assert d.design["amplitude"] == pytest.approx(0.05, rel=1e-2)
+
+
+def test_amplitude_pinned_to_bound_for_near_linear_dynamics():
+    # a mild cubic pitch stiffness (≈1 % of M_alpha at 0.05 rad): still monotone information
+    def dynamics(t, x, u, p):
+        alpha, q = x[0], x[1]
+        return np.array(
+            [
+                p["Z_alpha"] * alpha + q,
+                p["M_alpha"] * alpha - 20.0 * alpha**3 + p["M_q"] * q + p["M_delta"] * u[0],
+            ]
+        )
+
+    model = Model(states=["alpha", "q"], controls=["elevator"], parameters=TRUTH, dynamics=dynamics)
+    d = design_experiment(
+        model,
+        Doublet("elevator", amplitude=(0.01, 0.05), width=1.0),
+        ["M_q", "M_delta"],
+        noise=NOISE,
+        duration=6.0,
+        sample_rate=25.0,
+        seed=0,
+        optimizer_options=FAST,
+    )
+    assert d.design["amplitude"] == pytest.approx(0.05, rel=1e-2)
+
+
+def _fit(model: Model, data: FlightData, names: list[str]) -> np.ndarray:
+    identify = getattr(aeroid, "identify", None)
+    if identify is not None:
+        res = identify(model, data, names)
+        return np.array([res.parameters[n] for n in names])
+    import scipy.optimize
+
+    u = data["elevator"]
+    y = data.array(["alpha", "q"]) / np.array([NOISE["alpha"], NOISE["q"]])
+
+    def resid(theta):
+        p = dict(zip(names, theta, strict=True))
+        sim = model.simulate(data.time, u, [0.0, 0.0], p, method="exact")
+        return (sim.outputs / np.array([NOISE["alpha"], NOISE["q"]]) - y).ravel()
+
+    return scipy.optimize.least_squares(resid, [model.parameters[n] for n in names]).x
+
+
+def test_predicted_stderr_matches_fitting_the_flown_design(spec_design):
+    # Fly the design 30 times with seeded noise and fit: the spread of the estimates
+    # is the achieved stderr. With 30 fits the sample std is known to ~13 %
+    # (1/sqrt(2*29)); rel 0.5 leaves room for the residual non-linearity of the fit.
+    model = catalog.short_period(TRUTH)
+    sim = model.simulate(spec_design.time, spec_design.controls, [0.0, 0.0], method="exact")
+    names = ["M_q", "M_delta"]
+    est = []
+    for seed in range(30):
+        data = sim.to_flight_data(noise=NOISE, seed=seed)
+        est.append(_fit(model, data, names))
+    spread = np.std(np.array(est), axis=0, ddof=1)
+    predicted = [spec_design.predicted_stderr[n] for n in names]
+    np.testing.assert_allclose(spread, predicted, rtol=0.5)
+
+
+def test_same_seed_same_design():
+    kw = {
+        "values": TRUTH,
+        "noise": NOISE,
+        "duration": 6.0,
+        "sample_rate": 25.0,
+        "optimizer_options": FAST,
+    }
+    a = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], seed=7, **kw)
+    b = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], seed=7, **kw)
+    np.testing.assert_array_equal(a.controls, b.controls)
+    assert dict(a.design) == dict(b.design)
+
+
+def test_each_generation_is_one_batched_simulation(monkeypatch):
+    sizes = []
+    original = Model.simulate_batch
+
+    def counting(self, time, controls, x0, parameters, **kw):
+        sizes.append(max(np.size(v) for v in parameters.values()))
+        return original(self, time, controls, x0, parameters, **kw)
+
+    monkeypatch.setattr(Model, "simulate_batch", counting)
+    d = design_experiment(
+        catalog.short_period(),
+        spec_multisine(),
+        ["M_q", "M_delta"],
+        values=TRUTH,
+        noise=NOISE,
+        duration=4.0,
+        sample_rate=25.0,
+        seed=0,
+        optimizer_options={**FAST, "polish": False},
+    )
+    # initial design, then the population (3 x 4 = 12 candidates) every generation,
+    # then the final comparison: each candidate carries 2 x 2 difference columns
+    assert sizes[0] == 4
+    assert sizes[1:-1] == [12 * 4] * (d.n_generations + 1)
+    assert sizes[-1] == 2 * 4
+    assert d.n_simulations == sum(sizes)
+
+
+def test_a_optimal_and_chirp():
+    d = design_experiment(
+        catalog.short_period(),
+        Chirp("elevator", f0=(0.1, 0.5), f1=(1.0, 3.0), amplitude=(0.0, 0.05)),
+        ["Z_alpha", "M_alpha", "M_q", "M_delta"],
+        criterion="A",
+        values=TRUTH,
+        noise=NOISE,
+        duration=6.0,
+        sample_rate=25.0,
+        seed=0,
+        optimizer_options=FAST,
+    )
+    assert d.criterion == "A"
+    assert d.criterion_value <= d.initial_criterion_value
+    # A criterion = sum of relative Cramér–Rao variances
+    rel = sum((d.predicted_stderr[n] / abs(TRUTH[n])) ** 2 for n in d.parameter_names)
+    assert d.criterion_value == pytest.approx(rel, rel=1e-6)
+    assert d.design["amplitude"] == pytest.approx(0.05, rel=1e-2)
+
+
+def test_simulator_model_design_loops():
+    class Box:
+        def __init__(self):
+            self._m = catalog.short_period(TRUTH)
+            self.name = "box"
+            self.controls = ("elevator",)
+            self.outputs = ("alpha", "q")
+            self.parameters = dict(TRUTH)
+
+        def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+            return self._m.simulate(time, controls, x0, parameters, method="exact")
+
+        def simulate_data(self, data, *, x0=None, parameters=None, **options):
+            return self.simulate(data.time, data, x0, parameters)
+
+    d = design_experiment(
+        Box(),
+        Doublet("elevator", amplitude=(0.01, 0.05), width=1.0),
+        ["M_delta"],
+        noise=NOISE,
+        duration=4.0,
+        sample_rate=25.0,
+        seed=0,
+        optimizer_options={"maxiter": 2, "popsize": 3},
+    )
+    assert d.design["amplitude"] == pytest.approx(0.05, rel=1e-2)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"optimizer_options": {"max_iter": 3}}, IdentificationError, "maxiter"),
+        ({"optimizer_options": {"popsize": 0}}, IdentificationError, "popsize"),
+        ({"criterion": "E"}, IdentificationError, "criterion"),
+        ({"noise": {"nz": 0.1}}, IdentificationError, "nz"),
+        ({"duration": -1.0}, IdentificationError, "duration"),
+        ({"parameters": ["M_x"]}, IdentificationError, "M_x"),
+        ({"maneuver": Doublet("rudder", amplitude=(0.0, 0.1))}, ChannelError, "rudder"),
+        (
+            {"maneuver": Doublet("elevator", amplitude=0.05, width=1.0)},
+            IdentificationError,
+            "no design variables",
+        ),
+        ({"maneuver": "doublet"}, IdentificationError, "ManeuverFamily"),
+    ],
+)
+def test_bad_arguments_raise(kwargs, error, match):
+    args = {
+        "maneuver": spec_multisine(),
+        "parameters": ["M_q"],
+        "noise": NOISE,
+        "duration": 4.0,
+        "sample_rate": 25.0,
+        "optimizer_options": FAST,
+        **kwargs,
+    }
+    maneuver = args.pop("maneuver")
+    parameters = args.pop("parameters")
+    with pytest.raises(error, match=match):
+        design_experiment(catalog.short_period(), maneuver, parameters, **args)
+
+
+def test_progress_bar_does_not_change_the_design(capsys):
+    kw = {
+        "values": TRUTH,
+        "noise": NOISE,
+        "duration": 4.0,
+        "sample_rate": 25.0,
+        "seed": 3,
+        "optimizer_options": FAST,
+    }
+    a = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], progress=True, **kw)
+    b = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], **kw)
+    np.testing.assert_array_equal(a.controls, b.controls)
+    assert "design_experiment" in capsys.readouterr().err
