@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
@@ -11,8 +11,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .data import FlightData
+from .errors import IdentificationError
 
-__all__ = ["IdentificationResult"]
+__all__ = ["IdentificationResult", "identify"]
 
 FloatArray = NDArray[np.float64]
 
@@ -36,7 +38,8 @@ class IdentificationResult:
         Classical Cramér–Rao covariance that assumes white residuals.
     error_bars : str
         ``"colored"`` when `covariance` is corrected for residual
-        autocorrelation, ``"white"`` when it is the classical one.
+        autocorrelation, ``"white"`` when it is the classical one (asked for,
+        or because the residuals were found white).
     identifiable : bool
         False when the data cannot separate some parameters.
     unidentifiable : tuple of tuple of str
@@ -159,3 +162,315 @@ class IdentificationResult:
             combos = "; ".join(" + ".join(c) for c in self.unidentifiable) or "see covariance"
             notes.append(f"**Not identifiable:** the data cannot separate {combos}.")
         return table + "\n\n" + "\n".join(notes)
+
+
+_METHODS = ("output_error", "filter_error")
+_GRADIENTS = ("fd", "jax")
+_ERROR_BARS = ("colored", "white")
+
+
+def _as_list(data: Any) -> list[FlightData]:
+    if isinstance(data, FlightData):
+        return [data]
+    if isinstance(data, (list, tuple)) and data and all(isinstance(d, FlightData) for d in data):
+        return list(data)
+    raise IdentificationError(
+        f"data: expected FlightData or a non-empty list of FlightData, got {type(data).__name__}"
+    )
+
+
+def _names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str, float]]:
+    nominal = dict(model.parameters)
+    if isinstance(parameters, str):
+        parameters = [parameters]
+    if isinstance(parameters, Mapping):
+        names = list(parameters)
+        initial = {}
+        for n, v in parameters.items():
+            try:
+                initial[n] = float(v)
+            except (TypeError, ValueError):
+                raise IdentificationError(
+                    f"parameters: initial guess of {n!r} is not a number: {v!r}"
+                ) from None
+    else:
+        try:
+            names = [str(n) for n in parameters]
+        except TypeError:
+            raise IdentificationError(
+                "parameters: expected a list of names to estimate or a dict name -> initial guess"
+            ) from None
+        initial = {}
+    if not names:
+        raise IdentificationError("parameters: name at least one parameter to estimate")
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise IdentificationError(f"parameters: listed twice: {dupes}")
+    for n in names:
+        if n not in nominal:
+            raise IdentificationError(
+                f"parameter {n!r} is not a parameter of model {model.name!r}; "
+                f"its parameters are {sorted(nominal)}"
+            )
+        initial.setdefault(n, float(nominal[n]))
+        if not np.isfinite(initial[n]):
+            raise IdentificationError(f"parameters: initial guess of {n!r} is not finite")
+    return names, initial
+
+
+def _select(option: Any, available: Sequence[str], what: str) -> list[str]:
+    if option is False or option is None:
+        return []
+    if option is True:
+        return list(available)
+    chosen = [option] if isinstance(option, str) else list(option)
+    for c in chosen:
+        if c not in available:
+            raise IdentificationError(f"{what}: {c!r} is not one of {list(available)}")
+    return chosen
+
+
+def identify(
+    model: Any,
+    data: FlightData | Sequence[FlightData],
+    parameters: Sequence[str] | Mapping[str, float],
+    *,
+    method: str = "output_error",
+    gradient: str = "fd",
+    outputs: Sequence[str] | None = None,
+    x0: Any = None,
+    estimate_x0: bool | Sequence[str] = False,
+    estimate_bias: bool | Sequence[str] = False,
+    weights: Mapping[str, float] | Any = None,
+    error_bars: str = "colored",
+    max_iterations: int = 50,
+    tolerance: float = 1e-8,
+    simulate_options: Mapping[str, Any] | None = None,
+    process_noise: Mapping[str, float] | Any = None,
+    measurement_noise: Mapping[str, float] | Any = None,
+    filter_options: Mapping[str, Any] | None = None,
+    estimate_process_noise: bool | Sequence[str] = False,
+) -> IdentificationResult:
+    """Estimate model parameters from flight data.
+
+    Parameters
+    ----------
+    model : Model or SimulatorModel
+        The vehicle model. Stepped simulators work with output error and
+        finite differences only.
+    data : FlightData or sequence of FlightData
+        One manoeuvre, or several fitted together with shared parameters and
+        their own initial states and biases.
+    parameters : sequence of str or mapping of str to float
+        Names to estimate (starting from the model's nominal values) or a dict
+        of name to initial guess. The others stay at their nominal values.
+    method : {"output_error", "filter_error"}
+        Maximum-likelihood output error, or filter error (fits on whitened
+        Kalman-filter innovations; needs `process_noise`).
+    gradient : {"fd", "jax"}
+        Finite-difference sensitivities (batched) or exact JAX Jacobians.
+    outputs : sequence of str, optional
+        Model outputs to fit; default every model output present in the data.
+    x0 : mapping, array or list of them, optional
+        Initial state (per manoeuvre when a list); default the measured states
+        at the first sample and zero for unmeasured ones.
+    estimate_x0 : bool or sequence of str
+        Estimate the initial value of these states (all when True), per manoeuvre.
+    estimate_bias : bool or sequence of str
+        Estimate a constant measurement bias on these outputs, per manoeuvre.
+    weights : mapping of str to float or ndarray, optional
+        Fixed output weights (inverse noise variances) or a diagonal noise
+        covariance. Default: the noise covariance is estimated from the
+        residuals at every iteration (maximum likelihood).
+    error_bars : {"colored", "white"}
+        Standard errors corrected for coloured residuals from their
+        autocorrelation (default), or the classical Cramér–Rao values.
+    max_iterations : int
+        Gauss–Newton iteration limit; hitting it returns a result flagged
+        ``success=False`` with a warning.
+    tolerance : float
+        Convergence threshold on the relative parameter step.
+    simulate_options : mapping, optional
+        Integrator options (``method``, ``substeps``, ``rtol``, ``atol``).
+    process_noise, measurement_noise, filter_options, estimate_process_noise
+        Filter-error settings: continuous process-noise PSD per state,
+        measurement-noise variances per output, filter options, and whether
+        to estimate the process-noise intensities.
+
+    Returns
+    -------
+    IdentificationResult
+
+    Raises
+    ------
+    IdentificationError
+        Bad arguments, incompatible options, or a model that cannot be
+        simulated at the initial guess.
+    ChannelError
+        A control or output the fit needs is missing from the data.
+
+    Warns
+    -----
+    IdentifiabilityWarning
+        When the data cannot separate some parameters (the result is flagged).
+    UserWarning
+        When the iteration limit is reached.
+    """
+    from .model import SimulatorModel
+
+    if method not in _METHODS:
+        raise IdentificationError(f"method {method!r} is unknown; choose one of {list(_METHODS)}")
+    if gradient not in _GRADIENTS:
+        raise IdentificationError(
+            f"gradient {gradient!r} is unknown; choose one of {list(_GRADIENTS)}"
+        )
+    if error_bars not in _ERROR_BARS:
+        raise IdentificationError(
+            f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
+        )
+    if int(max_iterations) < 1:
+        raise IdentificationError(f"max_iterations must be at least 1, got {max_iterations!r}")
+    if not (tolerance > 0):
+        raise IdentificationError(f"tolerance must be positive, got {tolerance!r}")
+    datas = _as_list(data)
+    names, initial = _names_and_initial(model, parameters)
+    is_simulator = not hasattr(model, "simulate_batch") and isinstance(model, SimulatorModel)
+    model_outputs = list(model.outputs)
+    if outputs is None:
+        fit_outputs = [o for o in model_outputs if all(o in d for d in datas)]
+        if not fit_outputs:
+            datas[0].require(model_outputs[:1], role="output")
+    else:
+        fit_outputs = _select(list(outputs), model_outputs, "outputs")
+        if not fit_outputs:
+            raise IdentificationError("outputs: name at least one output to fit")
+    for d in datas:
+        d.require(model.controls, role="control")
+        d.require(fit_outputs, role="output")
+    states = list(getattr(model, "states", ()))
+    # Initial states per manoeuvre.
+    if isinstance(x0, (list, tuple)) and len(x0) == len(datas) and len(datas) > 1:
+        x0_list = list(x0)
+    else:
+        x0_list = [x0] * len(datas)
+    x0_dicts: list[dict[str, float]] = []
+    for d, xi in zip(datas, x0_list, strict=True):
+        if xi is None:
+            x0_dicts.append({s: float(d.channels[s][0]) for s in states if s in d})
+        elif isinstance(xi, Mapping):
+            unknown = sorted(set(xi) - set(states))
+            if unknown:
+                raise IdentificationError(f"x0: unknown states {unknown}; states: {states}")
+            x0_dicts.append({s: float(v) for s, v in xi.items()})
+        else:
+            arr = np.asarray(xi, dtype=np.float64).ravel()
+            if arr.size != len(states):
+                raise IdentificationError(
+                    f"x0: expected {len(states)} values for states {states}, got {arr.size}"
+                )
+            x0_dicts.append(dict(zip(states, arr.tolist(), strict=True)))
+    if method == "filter_error":
+        if weights is not None:
+            raise IdentificationError(
+                "weights do not apply to filter error; give measurement_noise (variances) instead"
+            )
+        if simulate_options:
+            raise IdentificationError(
+                "simulate_options do not apply to filter error; pass integrator settings in "
+                "filter_options (e.g. {'substeps': 4})"
+            )
+        if is_simulator or not hasattr(model, "dynamics"):
+            raise IdentificationError(
+                "filter error needs a continuous dynamics callable; a stepped simulator "
+                "works with method='output_error'"
+            )
+        if gradient == "jax":
+            raise IdentificationError("gradient='jax' is available for output error only")
+        if process_noise is None and not estimate_process_noise:
+            raise IdentificationError(
+                "filter error needs process_noise (continuous PSD per state) or "
+                "estimate_process_noise=True"
+            )
+        from ._filter_error import identify_filter_error
+
+        return identify_filter_error(
+            model,
+            datas,
+            names,
+            initial,
+            outputs=fit_outputs,
+            process_noise=process_noise,
+            measurement_noise=measurement_noise,
+            filter_options=filter_options,
+            estimate_process_noise=estimate_process_noise,
+            x0=x0_dicts if x0 is not None else None,
+            max_iterations=int(max_iterations),
+            tolerance=float(tolerance),
+        )
+    if (
+        process_noise is not None
+        or measurement_noise is not None
+        or filter_options
+        or estimate_process_noise
+    ):
+        raise IdentificationError(
+            "process_noise, measurement_noise, filter_options and estimate_process_noise "
+            "apply to method='filter_error' only"
+        )
+    if gradient == "jax" and (is_simulator or not hasattr(model, "dynamics")):
+        raise IdentificationError(
+            "gradient='jax' needs a continuous dynamics callable written with jax.numpy; "
+            "use gradient='fd' for a stepped simulator"
+        )
+    opts = dict(simulate_options or {})
+    from ._output_error import SIMULATE_OPTIONS, fit_output_error
+
+    unknown_opts = sorted(set(opts) - set(SIMULATE_OPTIONS))
+    if unknown_opts:
+        raise IdentificationError(
+            f"simulate_options: unknown keys {unknown_opts}; valid keys are {list(SIMULATE_OPTIONS)}"
+        )
+    if not is_simulator:
+        opts.setdefault("method", "auto")
+    sel_x0 = _select(estimate_x0, states, "estimate_x0")
+    if sel_x0 and (is_simulator or gradient == "jax"):
+        raise IdentificationError("estimate_x0 needs a Model and gradient='fd'")
+    sel_bias = _select(estimate_bias, fit_outputs, "estimate_bias")
+    w_arr = None
+    if weights is not None:
+        if isinstance(weights, Mapping):
+            unknown = sorted(set(weights) - set(fit_outputs))
+            if unknown:
+                raise IdentificationError(
+                    f"weights: unknown outputs {unknown}; fitted outputs: {fit_outputs}"
+                )
+            w = np.array([float(weights.get(o, 1.0)) for o in fit_outputs])
+            if np.any(w <= 0) or not np.all(np.isfinite(w)):
+                raise IdentificationError("weights: every weight must be positive and finite")
+            w_arr = 1.0 / w
+        else:
+            r = np.asarray(weights, dtype=np.float64)
+            if r.shape != (len(fit_outputs), len(fit_outputs)):
+                raise IdentificationError(
+                    f"weights: expected a mapping or a ({len(fit_outputs)}, {len(fit_outputs)}) "
+                    f"noise covariance, got shape {r.shape}"
+                )
+            w_arr = np.diag(r).copy()
+            if np.any(w_arr <= 0):
+                raise IdentificationError("weights: noise covariance diagonal must be positive")
+    return fit_output_error(
+        model,
+        datas,
+        names,
+        initial,
+        outputs=fit_outputs,
+        x0=x0_dicts,
+        estimate_x0=sel_x0,
+        estimate_bias=sel_bias,
+        weights=w_arr,
+        error_bars=error_bars,
+        max_iterations=int(max_iterations),
+        tolerance=float(tolerance),
+        simulate_options=opts,
+        gradient=gradient,
+    )

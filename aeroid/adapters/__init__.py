@@ -1,0 +1,114 @@
+"""Adapters that bring external simulators into AeroID (optional extras).
+
+* `aeroid.adapters.jsbsim`: `JsbsimModel` (property-mapped JSBSim aircraft)
+  and `load_jsbsim_output` (JSBSim CSV logs as `FlightData`).
+* `aeroid.adapters.rocketpy`: `RocketpyModel` (rocket flights built from
+  parameters by a user callback) and `rocketpy_flight_data`.
+* `aeroid.adapters.aerosandbox`: `aerosandbox_model`, a longitudinal 3-DOF
+  `aeroid.Model` from tabulated AeroBuildup aerodynamics.
+
+Each module imports its simulator only when it is used; a missing simulator
+raises `AdapterError` naming the extra to install.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Iterable, Mapping, Sequence
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..data import FlightData
+from ..errors import AdapterError, ChannelError, SimulationError
+
+__all__: list[str] = []
+
+FloatArray = NDArray[np.float64]
+
+# Keyword options of Model.simulate that generic callers (identify, validate, ...)
+# may pass to any model; a stepped simulator integrates with its own scheme and
+# accepts them without effect.
+INTEGRATOR_OPTIONS = ("method", "substeps", "rtol", "atol")
+
+
+def require(module: str, extra: str) -> ModuleType:
+    """Import an optional simulator or raise `AdapterError` naming the extra."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise AdapterError(
+            f"this adapter needs the {module!r} package, which is not installed "
+            f'({exc}): pip install "aeroid[{extra}]"'
+        ) from None
+
+
+def check_options(options: Mapping[str, Any], allowed: Iterable[str], where: str) -> None:
+    """Raise `AdapterError` for keyword options outside `allowed`, listing the valid ones."""
+    valid = tuple(allowed)
+    unknown = sorted(set(options) - set(valid))
+    if unknown:
+        raise AdapterError(f"{where}: unknown options {unknown}; valid options are {list(valid)}")
+
+
+def time_grid(time: Any) -> FloatArray:
+    """A finite, strictly increasing 1-D time grid of at least two samples."""
+    try:
+        t = np.asarray(time, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SimulationError(
+            f"time: expected an array of numbers, got {type(time).__name__}"
+        ) from None
+    if t.ndim != 1 or t.size < 2:
+        raise SimulationError(
+            f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}"
+        )
+    if not np.all(np.isfinite(t)):
+        raise SimulationError("time: contains NaN or infinite values")
+    if np.any(np.diff(t) <= 0):
+        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise SimulationError(f"time: not strictly increasing at index {bad}")
+    return t
+
+
+def control_matrix(time: FloatArray, controls: Any, names: Sequence[str]) -> FloatArray:
+    """Controls as an (n_t, n_u) array from None, a mapping, FlightData or an array."""
+    n_t, n_u = time.size, len(names)
+    if controls is None:
+        return np.zeros((n_t, n_u))
+    if isinstance(controls, FlightData):
+        controls.require(names, role="control")
+        if controls.n_samples != n_t:
+            raise SimulationError(
+                f"controls: flight data has {controls.n_samples} samples, time has {n_t}"
+            )
+        return np.array(controls.array(list(names)), dtype=np.float64).reshape(n_t, n_u)
+    if isinstance(controls, Mapping):
+        missing = [c for c in names if c not in controls]
+        if missing:
+            raise ChannelError(
+                f"control {missing[0]!r} not given; controls given: {sorted(controls)}"
+            )
+        cols = []
+        for c in names:
+            col = np.asarray(controls[c], dtype=np.float64)
+            if col.shape != (n_t,):
+                raise SimulationError(
+                    f"control {c!r}: expected {n_t} samples, got shape {col.shape}"
+                )
+            cols.append(col)
+        arr = np.stack(cols, axis=1) if cols else np.zeros((n_t, 0))
+    else:
+        arr = np.asarray(controls, dtype=np.float64)
+        if arr.ndim == 1 and n_u == 1:
+            arr = arr[:, None]
+        if arr.shape != (n_t, n_u):
+            raise SimulationError(
+                f"controls: expected shape ({n_t}, {n_u}) for controls {list(names)}, "
+                f"got {np.shape(controls)}"
+            )
+    if not np.all(np.isfinite(arr)):
+        raise SimulationError("controls: contain NaN or infinite values")
+    return arr

@@ -1,0 +1,231 @@
+"""The JAX backend: compiled RK4 rollout, exact Jacobians, vmapped batches."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from types import MappingProxyType
+
+import numpy as np
+import pytest
+
+import aeroid
+from aeroid import catalog
+
+jnp = pytest.importorskip("jax.numpy")
+
+from aeroid import _jax  # noqa: E402
+from aeroid.jax_backend import simulate_rk4  # noqa: E402
+
+
+def _sp_jax(t, x, u, p):
+    alpha, q = x[0], x[1]
+    return jnp.array(
+        [
+            p["Z_alpha"] * alpha + q,
+            p["M_alpha"] * alpha + p["M_q"] * q + p["M_delta"] * u[0],
+        ]
+    )
+
+
+def _sp_model(params=None):
+    return aeroid.Model(
+        ["alpha", "q"], ["elevator"], dict(params or catalog.SHORT_PERIOD_TRUTH), _sp_jax
+    )
+
+
+def _pendulum_model(xp=jnp):
+    """Nonlinear, time-varying, with a measurement function (exercises every path).
+
+    ``xp=np`` gives the numpy twin used as the fast solve_ivp reference.
+    """
+
+    def f(t, x, u, p):
+        th, w = x[0], x[1]
+        return xp.array([w, -p["g_l"] * xp.sin(th) - p["c"] * w + u[0] * xp.cos(0.5 * t)])
+
+    def h(t, x, u, p):
+        return xp.array([xp.sin(x[0]), x[1] ** 2 + p["c"]])
+
+    return aeroid.Model(
+        ["theta", "omega"],
+        ["torque"],
+        {"g_l": 9.0, "c": 0.3},
+        f,
+        outputs=["s", "w2"],
+        measurement=h,
+        name="pendulum",
+    )
+
+
+def _decay_model(k=0.7):
+    return aeroid.Model(["x"], ["u"], {"k": k}, lambda t, x, u, p: -p["k"] * x, name="decay")
+
+
+def test_simulate_rk4_matches_solve_ivp_linear(sp_clean):
+    model = _sp_model()
+    fast = simulate_rk4(model, sp_clean.time, sp_clean, [0.0, 0.0], substeps=8)
+    # the numpy twin (same equations) keeps the tight solve_ivp reference quick
+    ref = catalog.short_period(catalog.SHORT_PERIOD_TRUTH).simulate(
+        sp_clean.time, sp_clean, [0.0, 0.0], method="RK45", rtol=1e-12, atol=1e-14
+    )
+    assert fast.state_names == ("alpha", "q")
+    np.testing.assert_allclose(fast.states, ref.states, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(fast.outputs, ref.outputs, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(fast.controls[:, 0], sp_clean["elevator"])
+
+
+def test_simulate_rk4_matches_solve_ivp_nonlinear_with_measurement():
+    model = _pendulum_model()
+    t = np.linspace(0.0, 4.0, 201)
+    u = 0.5 * np.sin(1.3 * t)
+    x0 = {"theta": 1.0, "omega": 0.0}
+    p = {"c": 0.25}
+    fast = simulate_rk4(model, t, u, x0, p, substeps=16)
+    ref = _pendulum_model(np).simulate(t, u, x0, p, method="RK45", rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(fast.states, ref.states, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(fast.outputs, ref.outputs, rtol=0, atol=1e-7)
+    assert fast.output_names == ("s", "w2")
+
+
+def test_simulate_rk4_equals_numpy_rk4_same_substeps(sp_clean):
+    """Same scheme, same nodes: the compiled rollout and the numpy RK4 agree to rounding."""
+    model = _sp_model()
+    fast = simulate_rk4(model, sp_clean.time, sp_clean, [0.01, 0.0], substeps=3)
+    ref = model.simulate(sp_clean.time, sp_clean, [0.01, 0.0], method="rk4", substeps=3)
+    np.testing.assert_allclose(fast.states, ref.states, rtol=0, atol=1e-13)
+
+
+def test_jacobian_matches_analytic_sensitivity_of_decay():
+    # x' = -k x, x(0) = x0  =>  x = x0 e^{-kt},  dx/dk = -t x0 e^{-kt}
+    k, x0 = 0.7, 2.0
+    t = np.linspace(0.0, 5.0, 101)
+    y, J = _jax.outputs_and_jacobian(
+        _decay_model(k), t, np.zeros((t.size, 1)), np.array([x0]), {"k": k}, ["k"], substeps=4
+    )
+    assert y.shape == (101, 1) and J.shape == (101, 1, 1)
+    exact = -t * x0 * np.exp(-k * t)
+    np.testing.assert_allclose(y[:, 0], x0 * np.exp(-k * t), rtol=1e-6)
+    np.testing.assert_allclose(J[1:, 0, 0], exact[1:], rtol=1e-6)
+    assert J[0, 0, 0] == 0.0
+
+
+def test_jacobian_agrees_with_central_differences(sp_clean):
+    model = _sp_model()
+    p = dict(catalog.SHORT_PERIOD_TRUTH)
+    u = sp_clean.array(["elevator"])
+    names = ["M_delta", "Z_alpha"]  # a subset, in a non-declaration order
+    y, J = _jax.outputs_and_jacobian(model, sp_clean.time, u, np.zeros(2), p, names, substeps=2)
+    for j, n in enumerate(names):
+        h = 1e-6 * abs(p[n])
+        hi = _jax.batch_outputs(
+            model, sp_clean.time, u, np.zeros(2), {n: [p[n] + h, p[n] - h]}, substeps=2
+        )
+        fd = (hi[0] - hi[1]) / (2 * h)
+        np.testing.assert_allclose(J[:, :, j], fd, rtol=0, atol=1e-6 * np.abs(fd).max())
+    base = simulate_rk4(model, sp_clean.time, u, np.zeros(2), p, substeps=2)
+    np.testing.assert_array_equal(y, base.outputs)
+
+
+def test_batch_outputs_matches_single_rollouts():
+    model = _pendulum_model()
+    t = np.linspace(0.0, 2.0, 51)
+    u = np.cos(t)[:, None]
+    gl = np.array([8.0, 9.0, 10.0])
+    ys = _jax.batch_outputs(model, t, u, np.array([0.3, 0.0]), {"g_l": gl}, substeps=4)
+    assert ys.shape == (3, 51, 2)
+    arr = _jax.batch_outputs(
+        model, t, u, np.array([0.3, 0.0]), np.column_stack([gl, np.full(3, 0.3)]), substeps=4
+    )
+    np.testing.assert_array_equal(ys, arr)
+    for b, g in enumerate(gl):
+        one = simulate_rk4(model, t, u, [0.3, 0.0], {"g_l": g}, substeps=4)
+        np.testing.assert_allclose(ys[b], one.outputs, rtol=0, atol=1e-14)
+
+
+def test_compiled_functions_are_cached_per_model_and_substeps(sp_clean):
+    model = _sp_model()
+    simulate_rk4(model, sp_clean.time, sp_clean, substeps=2)
+    fn = _jax._CACHE[model][("rollout", 2)]
+    simulate_rk4(model, sp_clean.time, sp_clean, None, {"M_q": -3.0}, substeps=2)
+    assert _jax._CACHE[model][("rollout", 2)] is fn
+    assert fn._cache_size() == 1  # same grid shape: no retrace
+
+
+def test_auto_substeps_follow_stiffness():
+    fast = aeroid.Model(["x"], [], {"k": 401.0}, lambda t, x, u, p: -p["k"] * x, name="stiff")
+    t = np.linspace(0.0, 0.1, 11)  # h = 0.01, h*k = 4.01 -> h*k/0.05 = 80.2 -> 81 substeps
+    y, _ = _jax.outputs_and_jacobian(
+        fast, t, np.zeros((11, 0)), np.array([1.0]), {"k": 401.0}, ["k"]
+    )
+    np.testing.assert_allclose(y[:, 0], np.exp(-401.0 * t), rtol=1e-6, atol=1e-12)
+    assert _jax._CACHE[fast][("substeps", 11, 0.01)] == 81
+
+
+def test_divergence_raises_simulation_error():
+    model = _decay_model()
+    with pytest.raises(aeroid.SimulationError, match="non-finite at t ="):
+        simulate_rk4(model, np.linspace(0, 100, 101), None, [1.0], {"k": -300.0}, substeps=1)
+
+
+def test_numpy_only_dynamics_are_rejected_clearly(sp_clean):
+    model = catalog.short_period()  # builds its derivative with np.array
+    with pytest.raises(aeroid.AdapterError, match=r"jax\.numpy"):
+        simulate_rk4(model, sp_clean.time, sp_clean)
+
+
+def test_simulator_models_are_rejected():
+    class Stepped:
+        name = "blackbox"
+        controls = ("u",)
+        outputs = ("y",)
+        parameters = MappingProxyType({"a": 1.0})
+
+        def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+            raise NotImplementedError
+
+        def simulate_data(self, data, *, x0=None, parameters=None, **options):
+            raise NotImplementedError
+
+    assert isinstance(Stepped(), aeroid.SimulatorModel)
+    with pytest.raises(aeroid.AdapterError, match="continuous dynamics callable"):
+        simulate_rk4(Stepped(), [0.0, 1.0])
+    with pytest.raises(aeroid.AdapterError, match="blackbox"):
+        _jax.outputs_and_jacobian(Stepped(), [0.0, 1.0], np.zeros((2, 1)), np.zeros(0), {}, ["a"])
+    with pytest.raises(aeroid.AdapterError, match="stepped simulator"):
+        _jax.batch_outputs(Stepped(), [0.0, 1.0], np.zeros((2, 1)), np.zeros(0), {"a": [1.0]})
+
+
+def test_bad_arguments_raise_named_errors():
+    model = _decay_model()
+    t = np.linspace(0, 1, 5)
+    with pytest.raises(aeroid.AdapterError, match="substeps"):
+        simulate_rk4(model, t, None, [1.0], substeps=0)
+    with pytest.raises(aeroid.AdapterError, match="'nope'"):
+        _jax.outputs_and_jacobian(model, t, np.zeros((5, 1)), np.ones(1), {"k": 1.0}, ["nope"])
+    with pytest.raises(aeroid.AdapterError, match=r"\(B, 1\)"):
+        _jax.batch_outputs(model, t, np.zeros((5, 1)), np.ones(1), np.ones(3))
+    with pytest.raises(aeroid.AdapterError, match="differ in length"):
+        _jax.batch_outputs(
+            _pendulum_model(), t, np.zeros((5, 1)), np.ones(2), {"g_l": [1, 2], "c": [1, 2, 3]}
+        )
+    with pytest.raises(aeroid.SimulationError, match="'zzz'"):
+        simulate_rk4(model, t, None, [1.0], {"zzz": 1.0})
+    with pytest.raises(aeroid.SimulationError, match="time"):
+        simulate_rk4(model, [0.0, 0.0, 1.0], None, [1.0])
+
+
+def test_missing_jax_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "jax", None)
+    with pytest.raises(aeroid.AdapterError, match=r'pip install "aeroid\[jax\]"'):
+        _jax.require_jax()
+
+
+def test_importing_aeroid_does_not_import_jax():
+    code = (
+        "import sys, aeroid; aeroid.simulate_rk4; "
+        "bad = [m for m in ('jax', 'jsbsim', 'rocketpy', 'aerosandbox') if m in sys.modules]; "
+        "print(bad); sys.exit(1 if bad else 0)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
