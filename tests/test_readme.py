@@ -21,7 +21,7 @@ def test_readme_has_the_two_commands():
     assert 'python3 -m pip install -e ".[all,test]" && aeroid run configs/demo.yaml' in text
     assert 'python3 -m pip install -e ".[all,test]" && python3 -m pytest' in text
     ci = (README.parent / ".ci" / "run").read_text(encoding="utf-8")
-    assert "python3 -m pip install -e \".[all,test]\" && python3 -m pytest" in ci
+    assert 'python3 -m pip install -e ".[all,test]" && python3 -m pytest' in ci
 
 
 def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
@@ -31,7 +31,8 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
     data = catalog.short_period_flight(seed=42)
     lines = ["time,alpha,q,elevator"]
     for i, t in enumerate(data.time):
-        lines.append(f"{t!r},{data['alpha'][i]!r},{data['q'][i]!r},{data['elevator'][i]!r}")
+        row = (t, data["alpha"][i], data["q"][i], data["elevator"][i])
+        lines.append(",".join(repr(float(v)) for v in row))
     (tmp_path / "flight_042.csv").write_text("\n".join(lines) + "\n")
     monkeypatch.chdir(tmp_path)
     namespace: dict[str, object] = {"__name__": "readme"}

@@ -1,0 +1,162 @@
+"""The Markdown engineering report that ties a chain of results together."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from .errors import AeroidError
+
+__all__ = ["report", "report_sections"]
+
+
+def _identification_notes(result: Any) -> list[str]:
+    notes = []
+    if not getattr(result, "success", True):
+        notes.append("The fit did not converge; treat the estimates as provisional.")
+    if not getattr(result, "identifiable", True):
+        notes.append("Some parameter combinations are not identifiable from this manoeuvre.")
+    if getattr(result, "error_bars", "") == "colored":
+        notes.append(
+            "Residuals are coloured, so the standard errors are corrected for their "
+            "autocorrelation (the classical bounds would be too small)."
+        )
+    corr = getattr(result, "correlation", None)
+    names = list(getattr(result, "parameter_names", ()))
+    if corr is not None and len(names) > 1:
+        worst = max(
+            (
+                (abs(float(corr[i][j])), names[i], names[j])
+                for i in range(len(names))
+                for j in range(i)
+            ),
+            default=None,
+        )
+        if worst and worst[0] > 0.9:
+            notes.append(
+                f"{worst[1]} and {worst[2]} are strongly correlated (|r| = {worst[0]:.2f})."
+            )
+    return notes
+
+
+def _validation_notes(validation: Any) -> list[str]:
+    notes = []
+    for name, m in validation.metrics.items():
+        line = f"{name}: fit {m.fit:.1f} %"
+        if not m.white:
+            line += "; residuals are not white (unmodelled dynamics or coloured noise)"
+        if m.input_correlated:
+            line += "; residuals correlate with the input (model structure may be incomplete)"
+        lo, hi = m.bias_ci
+        if lo > 0 or hi < 0:
+            line += "; significant bias"
+        notes.append(line + ".")
+    return notes
+
+
+def report_sections(
+    validation: Any = None,
+    identification: Any = None,
+    propagation: Any = None,
+    *,
+    experiment: Any = None,
+    inference: Any = None,
+    frequency: Any = None,
+    filtering: Any = None,
+    sensitivity: Any = None,
+) -> list[tuple[str, str]]:
+    """The report as a list of (heading, Markdown body) sections, in report order."""
+    sections: list[tuple[str, str]] = []
+
+    def add(heading: str, result: Any, notes: list[str] | None = None) -> None:
+        if result is None:
+            return
+        if not hasattr(result, "summary"):
+            raise AeroidError(
+                f"report: {heading.lower()} result has no summary(): {type(result).__name__}"
+            )
+        body = result.summary()
+        if notes:
+            body += "\n\n" + "\n".join(f"- {n}" for n in notes)
+        sections.append((heading, body))
+
+    add(
+        "Identification",
+        identification,
+        _identification_notes(identification) if identification else None,
+    )
+    add("Validation", validation, _validation_notes(validation) if validation else None)
+    add("State estimation", filtering)
+    add("Sensitivities", sensitivity)
+    add("Frequency response", frequency)
+    add("Bayesian inference", inference)
+    add("Uncertainty propagation", propagation)
+    add("Experiment design", experiment)
+    return sections
+
+
+def report(
+    validation: Any = None,
+    identification: Any = None,
+    propagation: Any = None,
+    *,
+    experiment: Any = None,
+    inference: Any = None,
+    frequency: Any = None,
+    filtering: Any = None,
+    sensitivity: Any = None,
+    title: str = "AeroID engineering report",
+    path: str | os.PathLike[str] | None = None,
+    date: str | None = None,
+) -> str:
+    """Render the Markdown engineering report.
+
+    Parameters
+    ----------
+    validation, identification, propagation : results, optional
+    experiment, inference, frequency, filtering, sensitivity : results, optional
+        Each result given becomes a section built from its ``summary()``, with
+        short interpretation notes where they apply.
+    title : str
+    path : path-like, optional
+        Also write the report there (atomically: a temporary file renamed into place).
+    date : str, optional
+        A date line; none by default, so identical inputs give identical bytes.
+
+    Returns
+    -------
+    str
+        The Markdown text.
+    """
+    sections = report_sections(
+        validation,
+        identification,
+        propagation,
+        experiment=experiment,
+        inference=inference,
+        frequency=frequency,
+        filtering=filtering,
+        sensitivity=sensitivity,
+    )
+    lines = [f"# {title}", ""]
+    if date is not None:
+        lines += [f"Date: {date}", ""]
+    if not sections:
+        lines += ["No results were given.", ""]
+    for heading, body in sections:
+        lines += [f"## {heading}", "", body.rstrip(), ""]
+    text = "\n".join(lines)
+    if path is not None:
+        target = Path(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".report-", dir=target.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+            os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    return text

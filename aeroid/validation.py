@@ -1,0 +1,270 @@
+"""Model validation: residual statistics of a simulation against measurements."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+import scipy.stats
+from numpy.typing import NDArray
+
+from ._records import fmt, frozen_array, markdown_table
+from .data import FlightData
+from .errors import IdentificationError
+from .model import resolve_parameters
+
+__all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
+
+FloatArray = NDArray[np.float64]
+
+
+def _autocorrelation(x: FloatArray, max_lag: int) -> FloatArray:
+    """Sample autocorrelation r_k = sum (x_t - m)(x_{t+k} - m) / sum (x_t - m)^2, k = 0..max_lag."""
+    xc = x - x.mean()
+    den = float(xc @ xc)
+    if den <= 0:
+        return np.zeros(max_lag + 1)
+    return np.array([float(xc[: x.size - k] @ xc[k:]) / den for k in range(max_lag + 1)])
+
+
+def ljung_box(x: FloatArray, lags: int) -> tuple[float, float]:
+    """Ljung–Box statistic Q = N(N+2) sum_k r_k^2/(N-k) and its chi-square(lags) p-value."""
+    x = np.asarray(x, dtype=np.float64)
+    n = x.size
+    lags = int(min(lags, n - 1))
+    r = _autocorrelation(x, lags)
+    k = np.arange(1, lags + 1)
+    q = float(n * (n + 2) * np.sum(r[1:] ** 2 / (n - k)))
+    return q, float(scipy.stats.chi2.sf(q, lags))
+
+
+@dataclass(frozen=True, eq=False)
+class OutputMetrics:
+    """Residual statistics of one output.
+
+    Attributes
+    ----------
+    rmse : float
+        Root-mean-square residual (measured minus model).
+    bias : float
+        Mean residual.
+    bias_ci : tuple of float
+        Confidence interval of the bias, widened for residual autocorrelation
+        through an effective sample size.
+    fit : float
+        Normalised fit in percent, ``100 (1 - |e| / |y - mean(y)|)``.
+    ljung_box_q, ljung_box_p : float
+        Ljung–Box statistic and p-value over `whiteness_lags` lags.
+    white : bool
+        True when whiteness is not rejected at the 5 % level.
+    input_correlation : mapping of str to float
+        Per control, the largest absolute normalised residual–input
+        cross-correlation over lags ±`whiteness_lags`.
+    input_correlation_bound : float
+        The 95 % significance bound 1.96/sqrt(N).
+    input_correlated : bool
+        True when any control's cross-correlation exceeds the bound.
+    effective_samples : float
+    """
+
+    rmse: float
+    bias: float
+    bias_ci: tuple[float, float]
+    fit: float
+    ljung_box_q: float
+    ljung_box_p: float
+    white: bool
+    input_correlation: Mapping[str, float]
+    input_correlation_bound: float
+    input_correlated: bool
+    effective_samples: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "input_correlation", MappingProxyType(dict(self.input_correlation))
+        )
+        object.__setattr__(self, "bias_ci", (float(self.bias_ci[0]), float(self.bias_ci[1])))
+
+
+@dataclass(frozen=True, eq=False)
+class ValidationResult:
+    """Per-output residual statistics of a model against one flight record.
+
+    Attributes
+    ----------
+    metrics : mapping of str to OutputMetrics
+    time : ndarray, shape (n_t,)
+    measured, simulated, residuals : ndarray, shape (n_t, n_y)
+    output_names : tuple of str
+    confidence : float
+    whiteness_lags : int
+    """
+
+    metrics: Mapping[str, OutputMetrics]
+    time: FloatArray
+    measured: FloatArray
+    simulated: FloatArray
+    residuals: FloatArray
+    output_names: tuple[str, ...]
+    confidence: float
+    whiteness_lags: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "metrics", MappingProxyType(dict(self.metrics)))
+        for name in ("time", "measured", "simulated", "residuals"):
+            object.__setattr__(self, name, frozen_array(getattr(self, name)))
+        object.__setattr__(self, "output_names", tuple(self.output_names))
+
+    def residual(self, name: str) -> FloatArray:
+        """Residual history of one output."""
+        return self.residuals[:, self.output_names.index(name)]
+
+    def summary(self) -> str:
+        """Markdown table of the per-output statistics."""
+        pct = f"{100 * self.confidence:g} %"
+        rows = []
+        for n in self.output_names:
+            m = self.metrics[n]
+            corr = max(m.input_correlation.values(), default=0.0)
+            rows.append(
+                (
+                    n,
+                    fmt(m.rmse),
+                    f"{fmt(m.bias)} [{fmt(m.bias_ci[0])}, {fmt(m.bias_ci[1])}]",
+                    f"{m.fit:.1f}",
+                    f"{'yes' if m.white else 'no'} (p={m.ljung_box_p:.3g})",
+                    f"{fmt(corr, 3)}{' (!)' if m.input_correlated else ''}",
+                )
+            )
+        return markdown_table(
+            ("output", "RMSE", f"bias [{pct} CI]", "fit %", "white residuals", "max |xcorr u|"),
+            rows,
+        )
+
+
+def _effective_samples(e: FloatArray) -> float:
+    """N / tau with tau = (1 + r1) / (1 - r1) from the lag-one autocorrelation."""
+    n = e.size
+    r1 = float(np.clip(_autocorrelation(e, 1)[1], -0.99, 0.99))
+    tau = max((1.0 + r1) / (1.0 - r1), 1.0)
+    return max(n / tau, 2.0)
+
+
+def _max_crosscorrelation(e: FloatArray, u: FloatArray, lags: int) -> float:
+    ec = e - e.mean()
+    uc = u - u.mean()
+    den = float(np.sqrt((ec @ ec) * (uc @ uc)))
+    if den <= 0:
+        return 0.0
+    n = e.size
+    best = 0.0
+    for k in range(-lags, lags + 1):
+        c = float(ec[: n - k] @ uc[k:]) if k >= 0 else float(ec[-k:] @ uc[: n + k])
+        best = max(best, abs(c) / den)
+    return best
+
+
+def validate(
+    model: Any,
+    data: FlightData,
+    parameters: Any = None,
+    *,
+    outputs: Sequence[str] | None = None,
+    x0: Any = None,
+    confidence: float = 0.95,
+    whiteness_lags: int = 20,
+    simulate_options: Mapping[str, Any] | None = None,
+) -> ValidationResult:
+    """Compare the model's simulation with measured outputs.
+
+    Parameters
+    ----------
+    model : Model or SimulatorModel
+    data : FlightData
+        Must carry the model's controls and the outputs to check.
+    parameters : mapping or result, optional
+        Parameter values, or an identification/inference result; an
+        identification result's estimated initial state and output biases
+        (first manoeuvre) are applied as well.
+    outputs : sequence of str, optional
+        Outputs to check; default every model output present in the data.
+    x0 : mapping or array, optional
+        Initial state; default the result's, else the measured states at t0.
+    confidence : float
+        Confidence level of the bias interval.
+    whiteness_lags : int
+        Lags of the Ljung–Box test and of the residual–input correlation.
+    simulate_options : mapping, optional
+        Passed to the simulation (e.g. ``{"method": "rk4"}``).
+
+    Returns
+    -------
+    ValidationResult
+    """
+    if not 0.0 < confidence < 1.0:
+        raise IdentificationError(f"confidence must lie in (0, 1), got {confidence!r}")
+    if int(whiteness_lags) < 1:
+        raise IdentificationError(
+            f"whiteness_lags must be a positive integer, got {whiteness_lags!r}"
+        )
+    p = resolve_parameters(model, parameters, error=IdentificationError)
+    names = list(model.outputs)
+    chosen = [o for o in names if o in data] if outputs is None else list(outputs)
+    for o in chosen:
+        if o not in names:
+            raise IdentificationError(f"outputs: {o!r} is not an output of model {model.name!r}")
+    if not chosen:
+        data.require(names[:1], role="output")
+    data.require(chosen, role="output")
+    biases: Mapping[str, float] = {}
+    if x0 is None and getattr(parameters, "initial_states", None):
+        x0 = dict(parameters.initial_states[0])
+    if getattr(parameters, "biases", None):
+        biases = parameters.biases[0]
+    opts = dict(simulate_options or {})
+    sim = model.simulate_data(data, x0=x0, parameters=p, **opts)
+    idx = [names.index(o) for o in chosen]
+    y_model = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
+    y_meas = data.array(chosen)
+    resid = y_meas - y_model
+    n = data.n_samples
+    lags = int(min(whiteness_lags, n - 2))
+    bound = 1.96 / np.sqrt(n)
+    z = float(scipy.stats.norm.ppf(0.5 + confidence / 2))
+    metrics: dict[str, OutputMetrics] = {}
+    for j, o in enumerate(chosen):
+        e = resid[:, j]
+        y = y_meas[:, j]
+        bias = float(e.mean())
+        n_eff = _effective_samples(e)
+        half = z * float(e.std(ddof=1)) / np.sqrt(n_eff)
+        spread = float(np.linalg.norm(y - y.mean()))
+        fit = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else float("nan")
+        q, pval = ljung_box(e, lags)
+        xc = {c: _max_crosscorrelation(e, data[c], lags) for c in model.controls}
+        metrics[o] = OutputMetrics(
+            rmse=float(np.sqrt(np.mean(e**2))),
+            bias=bias,
+            bias_ci=(bias - half, bias + half),
+            fit=fit,
+            ljung_box_q=q,
+            ljung_box_p=pval,
+            white=bool(pval >= 0.05),
+            input_correlation=xc,
+            input_correlation_bound=float(bound),
+            input_correlated=bool(any(v > bound for v in xc.values())),
+            effective_samples=n_eff,
+        )
+    return ValidationResult(
+        metrics=metrics,
+        time=data.time,
+        measured=y_meas,
+        simulated=y_model,
+        residuals=resid,
+        output_names=tuple(chosen),
+        confidence=float(confidence),
+        whiteness_lags=lags,
+    )
