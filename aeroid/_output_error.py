@@ -299,8 +299,8 @@ def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, 
         null[j] = True
     for k in np.flatnonzero(evals < _IDENTIFIABILITY_RCOND * top):
         vec = evecs[:, k]
-        if np.all(np.abs(vec[zero]) > 0.9):
-            continue
+        if float(np.sum(vec[zero] ** 2)) > 0.81:
+            continue  # the direction of a parameter already listed as insensitive
         members = np.flatnonzero(np.abs(vec) > 0.1 * np.max(np.abs(vec)))
         members = [j for j in members if not zero[j]]
         if members:

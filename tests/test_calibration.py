@@ -1,0 +1,45 @@
+"""Calibration of the error bars over many seeded flights (slow).
+
+With 200 seeds the empirical coverage of a 95 % interval has a binomial
+standard deviation of sqrt(0.95 * 0.05 / 200) = 1.5 %; the issue's bands
+(93–97 % for white noise, >= 90 % for AR(1) noise) are about ±1.3 standard
+deviations around the nominal rate, and we test each parameter against them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeroid import catalog, identify
+
+NAMES = list(catalog.SHORT_PERIOD_TRUTH)
+TRUTH = np.array(list(catalog.SHORT_PERIOD_TRUTH.values()))
+
+
+def _coverage(colored: float) -> tuple[np.ndarray, np.ndarray]:
+    model = catalog.short_period()
+    hits = np.zeros(len(NAMES))
+    hits_white = np.zeros(len(NAMES))
+    for seed in range(200):
+        r = identify(model, catalog.short_period_flight(seed=seed, colored=colored), NAMES)
+        est = np.array([r.parameters[n] for n in NAMES])
+        se = np.array([r.stderr[n] for n in NAMES])
+        se_w = np.array([r.stderr_white[n] for n in NAMES])
+        hits += np.abs(est - TRUTH) <= 1.96 * se
+        hits_white += np.abs(est - TRUTH) <= 1.96 * se_w
+    return hits / 200, hits_white / 200
+
+
+@pytest.mark.slow
+def test_white_noise_coverage_is_nominal():
+    cover, _ = _coverage(0.0)
+    assert np.all((cover >= 0.93) & (cover <= 0.97)), cover
+
+
+@pytest.mark.slow
+def test_colored_noise_coverage_holds_where_classical_bounds_fail():
+    cover, cover_white = _coverage(0.9)
+    assert np.all(cover >= 0.90), cover
+    # The classical white-residual bounds are far too small here.
+    assert np.all(cover_white < 0.6), cover_white

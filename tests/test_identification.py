@@ -1,0 +1,267 @@
+"""Output-error identification: truth recovery, traps, options and error paths."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import aeroid
+from aeroid import (
+    ChannelError,
+    FlightData,
+    IdentifiabilityWarning,
+    IdentificationError,
+    Model,
+    catalog,
+    identify,
+)
+
+NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
+TRUTH = catalog.SHORT_PERIOD_TRUTH
+
+
+def test_noise_free_recovery(sp_model, sp_clean):
+    r = identify(sp_model, sp_clean, NAMES)
+    assert r.success and r.identifiable and r.method == "output_error"
+    for n in NAMES:
+        assert r.parameters[n] == pytest.approx(TRUTH[n], rel=1e-4)
+
+
+def test_noisy_recovery_within_3_sigma_and_5_percent(sp_model, sp_noisy):
+    r = identify(sp_model, sp_noisy, NAMES)
+    for n in NAMES:
+        assert abs(r.parameters[n] - TRUTH[n]) < 3 * r.stderr[n]
+        assert r.parameters[n] == pytest.approx(TRUTH[n], rel=0.05)
+    # the noise covariance is estimated from the residuals (maximum likelihood)
+    np.testing.assert_allclose(np.sqrt(np.diag(r.noise_covariance)), [0.005, 0.01], rtol=0.1)
+    assert r.covariance.shape == (4, 4) and not r.covariance.flags.writeable
+    np.testing.assert_allclose(np.diag(r.correlation), 1.0)
+    assert "| Z_alpha" in r.summary() and "Standard errors" in r.summary()
+
+
+def _scaled_model():
+    def dyn(t, x, u, p):
+        alpha, q = x[0], x[1]
+        return np.array(
+            [
+                p["Z_alpha"] * alpha + q,
+                p["M_alpha"] * alpha + p["M_q"] * q + 1000.0 * p["M_delta_k"] * u[0],
+            ]
+        )
+
+    guess = dict(catalog.SHORT_PERIOD_GUESS)
+    guess["M_delta_k"] = guess.pop("M_delta") / 1000.0
+    return Model(["alpha", "q"], ["elevator"], guess, dyn)
+
+
+def test_reparameterisation_by_1000_changes_nothing(sp_model, sp_noisy):
+    base = identify(sp_model, sp_noisy, NAMES)
+    scaled = identify(_scaled_model(), sp_noisy, ["Z_alpha", "M_alpha", "M_q", "M_delta_k"])
+    for n in ["Z_alpha", "M_alpha", "M_q"]:
+        assert scaled.parameters[n] == pytest.approx(base.parameters[n], rel=1e-4)
+        assert scaled.stderr[n] == pytest.approx(base.stderr[n], rel=1e-4)
+    assert 1000 * scaled.parameters["M_delta_k"] == pytest.approx(
+        base.parameters["M_delta"], rel=1e-4
+    )
+    assert 1000 * scaled.stderr["M_delta_k"] == pytest.approx(base.stderr["M_delta"], rel=1e-4)
+
+
+def test_parameter_starting_at_zero_is_estimated():
+    # Trap 12b: a pitching-moment offset M_0 whose guess is exactly 0.0.
+    def dyn(t, x, u, p):
+        alpha, q = x[0], x[1]
+        return np.array(
+            [
+                p["Z_alpha"] * alpha + q,
+                p["M_alpha"] * alpha + p["M_q"] * q + p["M_delta"] * u[0] + p["M_0"],
+            ]
+        )
+
+    truth = {**TRUTH, "M_0": 0.02}
+    m_true = Model(["alpha", "q"], ["elevator"], truth, dyn)
+    t = np.arange(0, 10.0001, 0.02)
+    u = catalog.doublet(t)
+    data = m_true.simulate(t, u, method="exact").to_flight_data()
+    guess = Model(["alpha", "q"], ["elevator"], {**catalog.SHORT_PERIOD_GUESS, "M_0": 0.0}, dyn)
+    r = identify(guess, data, [*NAMES, "M_0"])
+    assert r.success
+    assert r.parameters["M_0"] == pytest.approx(0.02, rel=1e-4)
+
+
+def test_iteration_limit_flags_instead_of_raising(sp_model, sp_noisy):
+    # Trap 12e: the partial fit is returned, flagged, with a warning.
+    with pytest.warns(UserWarning, match="iteration limit"):
+        r = identify(sp_model, sp_noisy, NAMES, max_iterations=1)
+    assert r.success is False and r.n_iterations == 1
+    assert "Not converged" in r.summary()
+
+
+def test_unidentifiable_sum_warns_and_flags(sp_noisy):
+    def dyn(t, x, u, p):
+        alpha, q = x[0], x[1]
+        return np.array(
+            [
+                p["Z_alpha"] * alpha + q,
+                (p["Ma1"] + p["Ma2"]) * alpha + p["M_q"] * q + p["M_delta"] * u[0],
+            ]
+        )
+
+    m = Model(
+        ["alpha", "q"], ["elevator"], {**catalog.SHORT_PERIOD_GUESS, "Ma1": -2.0, "Ma2": -2.0}, dyn
+    )
+    with pytest.warns(IdentifiabilityWarning, match="Ma1 \\+ Ma2"):
+        r = identify(m, sp_noisy, ["Z_alpha", "Ma1", "Ma2", "M_q", "M_delta"])
+    assert r.identifiable is False
+    assert ("Ma1", "Ma2") in r.unidentifiable
+    assert np.isinf(r.stderr["Ma1"]) and np.isfinite(r.stderr["M_q"])
+    assert "Not identifiable" in r.summary()
+
+
+def test_initial_state_and_bias_estimation():
+    model = catalog.short_period(TRUTH)
+    t = np.arange(0, 8.0001, 0.02)
+    u = catalog.doublet(t)
+    sim = model.simulate(t, u, {"alpha": 0.03, "q": -0.02}, method="exact")
+    data = FlightData(t, {"elevator": u, "alpha": sim.output("alpha") + 0.01, "q": sim.output("q")})
+    r = identify(
+        catalog.short_period(),
+        data,
+        NAMES,
+        x0={"alpha": 0.0, "q": 0.0},
+        estimate_x0=True,
+        estimate_bias=["alpha"],
+    )
+    assert r.initial_states[0]["alpha"] == pytest.approx(0.03, rel=1e-4)
+    assert r.initial_states[0]["q"] == pytest.approx(-0.02, rel=1e-4)
+    assert r.biases[0]["alpha"] == pytest.approx(0.01, rel=1e-4)
+    for n in NAMES:
+        assert r.parameters[n] == pytest.approx(TRUTH[n], rel=1e-4)
+    assert set(r.extra_stderr) == {"x0[0].alpha", "x0[0].q", "bias[0].alpha"}
+
+
+def test_several_manoeuvres_share_parameters():
+    model = catalog.short_period(TRUTH)
+    datas = []
+    for i, (start, amp, x0q) in enumerate([(1.0, 0.05, 0.0), (0.5, -0.03, 0.05)]):
+        t = np.arange(0, 6.0001, 0.02)
+        u = catalog.doublet(t, start=start, amplitude=amp)
+        sim = model.simulate(t, u, {"alpha": 0.0, "q": x0q}, method="exact")
+        noisy = sim.to_flight_data(noise={"alpha": 0.005, "q": 0.01}, seed=10 + i)
+        datas.append(noisy.with_channels({"q": noisy["q"] + 0.02 * i}))
+    r = identify(catalog.short_period(), datas, NAMES, estimate_x0=["q"], estimate_bias=["q"])
+    assert len(r.initial_states) == 2 and len(r.biases) == 2
+    for n in NAMES:
+        assert abs(r.parameters[n] - TRUTH[n]) < 3 * r.stderr[n]
+    assert abs(r.biases[1]["q"] - r.biases[0]["q"] - 0.02) < 3 * np.hypot(
+        r.extra_stderr["bias[0].q"], r.extra_stderr["bias[1].q"]
+    )
+
+
+def test_fixed_weights_and_white_error_bars(sp_model, sp_noisy):
+    free = identify(sp_model, sp_noisy, NAMES)
+    w = identify(sp_model, sp_noisy, NAMES, weights={"alpha": 1 / 0.005**2, "q": 1 / 0.01**2})
+    for n in NAMES:
+        assert w.parameters[n] == pytest.approx(free.parameters[n], rel=0.02)
+    white = identify(sp_model, sp_noisy, NAMES, error_bars="white")
+    assert white.error_bars == "white"
+    np.testing.assert_allclose(white.covariance, white.covariance_white)
+
+
+def test_colored_residuals_widen_the_bars(sp_model):
+    data = catalog.short_period_flight(seed=3, colored=0.9)
+    r = identify(sp_model, data, NAMES)
+    assert r.error_bars == "colored"
+    for n in NAMES:
+        assert r.stderr[n] > 1.5 * r.stderr_white[n]
+
+
+def test_crb_matches_monte_carlo_scatter(sp_model):
+    # The classical bound against the scatter of 40 seeded fits: with 40 samples the
+    # sample standard deviation is within about ±2.5 * (1/sqrt(80)) = ±28 % at 99 %.
+    est = []
+    for s in range(40):
+        est.append(
+            list(
+                identify(
+                    sp_model, catalog.short_period_flight(seed=100 + s), NAMES
+                ).parameters.values()
+            )
+        )
+    r = identify(sp_model, catalog.short_period_flight(seed=99), NAMES, error_bars="white")
+    np.testing.assert_allclose(np.std(est, axis=0, ddof=1), list(r.stderr.values()), rtol=0.3)
+
+
+def test_simulator_model_is_fitted_by_looping():
+    class Stepped:
+        """A stand-in black box around the truth model (no simulate_batch)."""
+
+        name = "stepped"
+        controls = ("elevator",)
+        outputs = ("alpha", "q")
+
+        def __init__(self):
+            self._m = catalog.short_period({**TRUTH, "M_alpha": -4.0, "M_delta": -6.0})
+            self.parameters = dict(self._m.parameters)
+
+        def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+            return self._m.simulate(time, controls, x0, parameters, method="exact")
+
+        def simulate_data(self, data, *, x0=None, parameters=None, **options):
+            return self._m.simulate_data(data, x0=x0, parameters=parameters, method="exact")
+
+    sim = Stepped()
+    assert isinstance(sim, aeroid.SimulatorModel)
+    r = identify(sim, catalog.short_period_flight(noise={}), ["M_alpha", "M_delta"])
+    assert r.parameters["M_alpha"] == pytest.approx(-6.0, rel=1e-3)
+    with pytest.raises(IdentificationError, match="continuous dynamics"):
+        identify(
+            sim,
+            catalog.short_period_flight(noise={}),
+            ["M_alpha"],
+            method="filter_error",
+            process_noise={"q": 1e-4},
+        )
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "fragment"),
+    [
+        ({"parameters": ["M_beta"]}, IdentificationError, "'M_beta' is not a parameter"),
+        ({"parameters": []}, IdentificationError, "at least one"),
+        ({"parameters": {"M_q": float("nan")}}, IdentificationError, "not finite"),
+        ({"method": "equation_error"}, IdentificationError, "unknown"),
+        ({"gradient": "magic"}, IdentificationError, "unknown"),
+        ({"error_bars": "pink"}, IdentificationError, "unknown"),
+        ({"outputs": ["beta"]}, IdentificationError, "'beta' is not one of"),
+        ({"simulate_options": {"step": 1}}, IdentificationError, "unknown keys"),
+        (
+            {"method": "filter_error", "weights": {"q": 1.0}},
+            IdentificationError,
+            "measurement_noise",
+        ),
+        ({"process_noise": {"q": 1.0}}, IdentificationError, "filter_error' only"),
+        ({"weights": {"q": -1.0}}, IdentificationError, "positive"),
+        ({"estimate_x0": ["theta"]}, IdentificationError, "'theta' is not one of"),
+    ],
+)
+def test_argument_errors(sp_model, sp_noisy, kwargs, error, fragment):
+    kw = {"parameters": NAMES, **kwargs}
+    params = kw.pop("parameters")
+    with pytest.raises(error, match=fragment):
+        identify(sp_model, sp_noisy, params, **kw)
+
+
+def test_missing_channel_names_it(sp_model, sp_noisy):
+    data = FlightData(sp_noisy.time, {"alpha": sp_noisy["alpha"], "q": sp_noisy["q"]})
+    with pytest.raises(ChannelError, match="control 'elevator'"):
+        identify(sp_model, data, NAMES)
+
+
+def test_diverging_start_is_an_identification_error(sp_noisy):
+    m = catalog.short_period({**catalog.SHORT_PERIOD_GUESS, "M_q": 400.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(IdentificationError, match="cannot be simulated at the initial"):
+            identify(m, sp_noisy, NAMES, simulate_options={"method": "rk4"})
