@@ -1,0 +1,194 @@
+"""Ensemble sampler and diagnostics: Gaussian target moments, AR(1) autocorrelation times,
+R-hat, rejection of invalid proposals, seeding and exact resumption."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aeroid import (
+    ChainState,
+    InferenceError,
+    autocorrelation_time,
+    effective_sample_size,
+    ensemble_sampler,
+    split_r_hat,
+)
+
+MU = np.array([1.0, -2.0])
+COV = np.array([[1.0, 1.6], [1.6, 4.0]])  # correlation 0.8
+PREC = np.linalg.inv(COV)
+
+
+def gauss(theta: np.ndarray) -> np.ndarray:
+    d = theta - MU
+    return -0.5 * np.einsum("bi,ij,bj->b", d, PREC, d)
+
+
+def ar1(phi: float, n: int, m: int, seed: int) -> np.ndarray:
+    """m independent stationary AR(1) chains of length n (unit innovation variance)."""
+    rng = np.random.default_rng(seed)
+    e = rng.standard_normal((n, m))
+    x = np.empty((n, m))
+    x[0] = e[0] / math.sqrt(1.0 - phi**2)
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    return x
+
+
+def test_correlated_gaussian_moments() -> None:
+    start = MU + 0.1 * np.random.default_rng(1).standard_normal((32, 2))
+    run = ensemble_sampler(gauss, start, 3000, seed=0, burn_in=500)
+    s = run.chain.reshape(-1, 2)
+    # ESS is ~2000 here, so moment errors are ~2-5 %; the spec's tolerance is rel 0.15
+    np.testing.assert_allclose(s.mean(axis=0), MU, rtol=0.15)
+    np.testing.assert_allclose(np.cov(s.T), COV, rtol=0.15)
+    assert 0.3 < run.acceptance_fraction.mean() < 0.9
+    assert run.chain.shape == (2500, 32, 2)
+    assert run.log_prob.shape == (2500, 32)
+    np.testing.assert_allclose(run.log_prob, gauss(s).reshape(2500, 32))
+
+
+@pytest.mark.parametrize("phi", [0.5, 0.9])
+def test_autocorrelation_time_of_ar1(phi: float) -> None:
+    # 32 chains x 4000 steps: the Sokal estimator's relative sd is about
+    # sqrt(2 (2M + 1) / N) with M ~ 5 tau, N = 128,000 draws: < 5 %, against rel 0.2
+    x = ar1(phi, 4000, 32, seed=int(phi * 10))
+    tau = (1 + phi) / (1 - phi)
+    assert autocorrelation_time(x) == pytest.approx(tau, rel=0.2)
+    ess = effective_sample_size(x)
+    assert ess == pytest.approx(x.size / autocorrelation_time(x), rel=1e-12)
+    # the (n_steps, n_chains, n_dim) form returns one value per dimension
+    both = np.stack([x, ar1(0.0, 4000, 32, seed=3)], axis=2)
+    taus = autocorrelation_time(both)
+    assert taus.shape == (2,)
+    assert taus[0] == pytest.approx(tau, rel=0.2)
+    assert taus[1] == pytest.approx(1.0, rel=0.2)
+
+
+def test_autocorrelation_time_single_chain_and_constant() -> None:
+    x = ar1(0.8, 40_000, 1, seed=5)[:, 0]
+    assert autocorrelation_time(x) == pytest.approx(9.0, rel=0.2)
+    assert autocorrelation_time(np.ones((50, 4))) == math.inf
+    assert effective_sample_size(np.ones((50, 4))) == 0.0
+
+
+def test_split_r_hat() -> None:
+    rng = np.random.default_rng(2)
+    same = rng.standard_normal((2000, 8))
+    # iid chains: R-hat - 1 is O(1/n)
+    assert split_r_hat(same) == pytest.approx(1.0, abs=0.005)
+    shifted = same + np.arange(8)[None, :]
+    assert split_r_hat(shifted) > 1.5
+    # a trend within chains is caught by the split
+    trend = same + np.linspace(0.0, 5.0, 2000)[:, None]
+    assert split_r_hat(trend) > 1.2
+    per_dim = split_r_hat(np.stack([same, shifted], axis=2))
+    assert per_dim.shape == (2,)
+    assert per_dim[0] < 1.01 < per_dim[1]
+    # closed form for two constant halves: W = 0, so R-hat is infinite
+    assert split_r_hat(np.repeat([[0.0], [1.0]], 4, axis=0)) == math.inf
+
+
+def test_invalid_log_prob_is_rejection_never_a_crash() -> None:
+    # half-plane support; NaN and +inf outside count as rejections
+    def lp(theta: np.ndarray) -> np.ndarray:
+        out = gauss(theta)
+        out[theta[:, 0] < 0.5] = np.nan
+        out[theta[:, 0] > 3.0] = np.inf
+        return out
+
+    start = MU + 0.05 * np.random.default_rng(3).standard_normal((16, 2))
+    run = ensemble_sampler(lp, start, 400, seed=1)
+    s = run.chain.reshape(-1, 2)
+    assert np.all(np.isfinite(s))
+    assert np.all((s[:, 0] >= 0.5) & (s[:, 0] <= 3.0))
+    assert np.all(np.isfinite(run.log_prob))
+
+
+def test_start_with_some_impossible_walkers_recovers() -> None:
+    def lp(theta: np.ndarray) -> np.ndarray:
+        return np.where(theta[:, 0] > 0, gauss(theta), -np.inf)
+
+    start = MU + 0.1 * np.random.default_rng(4).standard_normal((16, 2))
+    start[:3, 0] = -1.0  # three walkers start where the density is zero
+    run = ensemble_sampler(lp, start, 300, seed=2)
+    assert np.all(np.isfinite(run.state.log_prob))
+
+
+def test_seeded_and_resumable() -> None:
+    start = MU + 0.1 * np.random.default_rng(5).standard_normal((8, 2))
+    a = ensemble_sampler(gauss, start, 120, seed=11, burn_in=20)
+    b = ensemble_sampler(gauss, start, 120, seed=11, burn_in=20)
+    np.testing.assert_array_equal(a.chain, b.chain)
+    c = ensemble_sampler(gauss, start, 120, seed=12, burn_in=20)
+    assert not np.array_equal(a.chain, c.chain)
+    # 50 + 70 steps from the stored state = one run of 120 steps, bit for bit
+    first = ensemble_sampler(gauss, start, 50, seed=11, burn_in=20)
+    st = first.state
+    stored = ChainState(
+        np.array(st.positions), np.array(st.log_prob), st.step, st.entropy, list(st.spawn_key)
+    )
+    second = ensemble_sampler(gauss, stored, 70)
+    np.testing.assert_array_equal(np.concatenate([first.chain, second.chain]), a.chain)
+    np.testing.assert_array_equal(second.state.positions, a.state.positions)
+    assert second.state.step == 120
+    # a seed given with a state starts a fresh stream from that state
+    fresh = ensemble_sampler(gauss, stored, 70, seed=99)
+    assert not np.array_equal(fresh.chain, second.chain)
+
+
+def test_thinning_and_burn_in() -> None:
+    start = MU + 0.1 * np.random.default_rng(6).standard_normal((8, 2))
+    full = ensemble_sampler(gauss, start, 100, seed=3)
+    thinned = ensemble_sampler(gauss, start, 100, seed=3, burn_in=10, thin=7)
+    assert thinned.chain.shape[0] == (100 - 10) // 7
+    np.testing.assert_array_equal(thinned.chain, full.chain[10 + 6 :: 7][: thinned.chain.shape[0]])
+    assert thinned.accepted.sum() == full.accepted.sum()
+
+
+def test_one_vectorised_call_per_half_ensemble() -> None:
+    calls: list[int] = []
+
+    def lp(theta: np.ndarray) -> np.ndarray:
+        calls.append(theta.shape[0])
+        return gauss(theta)
+
+    start = MU + 0.1 * np.random.default_rng(7).standard_normal((12, 2))
+    ensemble_sampler(lp, start, 25, seed=0)
+    assert calls == [6] * (2 + 2 * 25)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"n_steps": 0}, "n_steps"),
+        ({"n_steps": 10, "burn_in": 10}, "burn_in"),
+        ({"n_steps": 10, "thin": 0}, "thin"),
+        ({"n_steps": 10, "stretch": 1.0}, "stretch"),
+        ({"n_steps": 10, "seed": -1}, "seed"),
+    ],
+)
+def test_bad_arguments(kwargs: dict, match: str) -> None:
+    start = MU + 0.1 * np.random.default_rng(8).standard_normal((8, 2))
+    with pytest.raises(InferenceError, match=match):
+        ensemble_sampler(gauss, start, **kwargs)
+
+
+def test_bad_ensembles_and_log_prob() -> None:
+    with pytest.raises(InferenceError, match="n_walkers"):
+        ensemble_sampler(gauss, np.zeros((3, 2)), 10)  # too few and odd
+    with pytest.raises(InferenceError, match="n_walkers"):
+        ensemble_sampler(gauss, np.zeros((7, 2)), 10)
+    with pytest.raises(InferenceError, match="shape"):
+        ensemble_sampler(gauss, np.zeros(8), 10)
+    with pytest.raises(InferenceError, match="finite log-probability"):
+        ensemble_sampler(lambda t: np.full(t.shape[0], -np.inf), np.ones((8, 2)), 10)
+    with pytest.raises(InferenceError, match="log_prob returned shape"):
+        ensemble_sampler(lambda t: np.zeros((t.shape[0], 2)), np.ones((8, 2)), 10)
+    with pytest.raises(InferenceError, match="shape"):
+        autocorrelation_time(np.zeros((2, 2, 2, 2)))
+    with pytest.raises(InferenceError, match="NaN"):
+        split_r_hat(np.full((10, 2), np.nan))
