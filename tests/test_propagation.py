@@ -1,0 +1,98 @@
+"""propagate: Gaussian closed forms, failure counting, posterior rows, seeding."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aeroid import IdentificationResult, propagate
+from aeroid.propagation import PropagationError, draw_parameters
+
+
+def _result(mean=(1.0, 2.0), cov=((0.04, 0.01), (0.01, 0.09))):
+    cov = np.asarray(cov)
+    return IdentificationResult(
+        parameters=dict(zip(("a", "b"), mean, strict=True)),
+        stderr={"a": math.sqrt(cov[0, 0]), "b": math.sqrt(cov[1, 1])},
+        covariance=cov,
+        parameter_names=("a", "b"),
+        fixed={"c": 10.0},
+        covariance_white=cov,
+        error_bars="white",
+        identifiable=True,
+        unidentifiable=(),
+        success=True,
+        message="",
+        n_iterations=1,
+        cost=0.0,
+        method="output_error",
+        output_names=("y",),
+        noise_covariance=np.eye(1),
+    )
+
+
+def test_linear_metric_matches_gaussian_closed_form():
+    # f = 2a - b + c: mean 2 - 2 + 10 = 10, var 4*0.04 + 0.09 - 4*0.01 = 0.21.
+    # With 20000 draws the sample mean has sd sqrt(0.21/20000) = 0.0032 and the
+    # sample sd a relative sd of 1/sqrt(40000) = 0.5 %.
+    res = propagate(_result(), lambda p: 2 * p["a"] - p["b"] + p["c"], n_samples=20000, seed=1)
+    assert res.mean == pytest.approx(10.0, abs=0.015)
+    assert res.std == pytest.approx(math.sqrt(0.21), rel=0.03)
+    assert res.percentiles["P2.5"] == pytest.approx(10 - 1.96 * math.sqrt(0.21), abs=0.03)
+    assert res.n_failed == 0 and res.source == "covariance"
+    assert "| mean" in res.summary()
+
+
+def test_failures_are_counted_not_fatal():
+    def metric(p):
+        if p["a"] > 1.0:
+            raise ValueError("outside envelope")
+        return p["a"]
+
+    res = propagate(_result(), metric, n_samples=2000, seed=3)
+    assert 800 < res.n_failed < 1200  # P(a > 1) = 1/2
+    assert res.samples.size == 2000 - res.n_failed and np.all(res.samples <= 1.0)
+    with pytest.raises(PropagationError, match="failed for all"):
+        propagate(_result(), lambda p: float("nan"), n_samples=10, seed=0)
+
+
+def test_same_seed_same_bits_and_batching_independent():
+    r = _result()
+    a = propagate(r, lambda p: p["a"] * p["b"], n_samples=700, seed=11)
+    b = propagate(r, lambda p: p["a"] * p["b"], n_samples=700, seed=11)
+    assert np.array_equal(a.samples, b.samples)
+    whole = draw_parameters(r, 700, 11)
+    parts = np.vstack(
+        [draw_parameters(r, 300, 11, start=0), draw_parameters(r, 400, 11, start=300)]
+    )
+    assert np.array_equal(whole, parts)
+
+
+class _Posterior:
+    parameter_names = ("a", "b")
+    fixed = {"c": 1.0}
+
+    def __init__(self):
+        rng = np.random.default_rng(5)
+        self.samples = np.column_stack([rng.gamma(2.0, size=300), rng.uniform(size=300)])
+
+
+def test_posterior_rows_are_resampled_exactly():
+    post = _Posterior()
+    draws = draw_parameters(post, 1000, 4)
+    rows = {tuple(r) for r in post.samples}
+    assert all(tuple(r) in rows for r in draws)
+    res = propagate(post, lambda p: p["a"] + p["c"], n_samples=1000, seed=4)
+    assert res.source == "posterior"
+    np.testing.assert_array_equal(res.samples, draws[:, 0] + 1.0)
+
+
+def test_bad_arguments():
+    with pytest.raises(PropagationError, match="n_samples"):
+        propagate(_result(), lambda p: 1.0, n_samples=0)
+    with pytest.raises(PropagationError, match="percentiles"):
+        propagate(_result(), lambda p: 1.0, percentiles=(120,), seed=0)
+    with pytest.raises(PropagationError, match="identification result"):
+        propagate(object(), lambda p: 1.0, seed=0)

@@ -1,0 +1,42 @@
+"""report: sections, interpretation and byte-for-byte determinism."""
+
+from __future__ import annotations
+
+import math
+
+from aeroid import catalog, identify, propagate, report, validate
+
+
+def _chain():
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=0)
+    r = identify(model, data, list(catalog.SHORT_PERIOD_TRUTH))
+    v = validate(model, data, r)
+    mc = propagate(
+        r, lambda p: math.sqrt(p["M_q"] * p["Z_alpha"] - p["M_alpha"]), n_samples=500, seed=0
+    )
+    return v, r, mc
+
+
+def test_report_is_deterministic_and_complete(tmp_path):
+    v, r, mc = _chain()
+    a = report(v, r, mc, title="Flight 7")
+    b = report(*_chain(), title="Flight 7")
+    assert a == b  # trap 12f: no wall-clock date unless asked for
+    for heading in (
+        "# Flight 7",
+        "## Identification",
+        "## Validation",
+        "## Uncertainty propagation",
+    ):
+        assert heading in a
+    assert "fit" in a and "Date:" not in a
+    assert "Date: 2026-01-01" in report(v, r, mc, date="2026-01-01")
+    path = tmp_path / "sub" / "report.md"
+    text = report(v, r, mc, path=path)
+    assert path.read_text(encoding="utf-8") == text
+    assert [p.name for p in path.parent.iterdir()] == ["report.md"]  # no temporaries left
+
+
+def test_empty_report_says_so():
+    assert "No results" in report()

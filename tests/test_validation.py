@@ -1,0 +1,82 @@
+"""validate: Ljung–Box against its closed form, bias intervals, fit, input correlation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from aeroid import FlightData, IdentificationError, catalog, identify, validate
+from aeroid.validation import ljung_box
+
+
+def test_ljung_box_closed_form():
+    x = np.array([1.0, -1.0, 1.0, -1.0])
+    # mean 0, r1 = -3/4, r2 = 2/4: Q = N(N+2)(r1^2/(N-1) + r2^2/(N-2))
+    q, p = ljung_box(x, 2)
+    expected = 4 * 6 * (0.75**2 / 3 + 0.5**2 / 2)
+    assert q == pytest.approx(expected, rel=1e-12)
+    assert p == pytest.approx(scipy.stats.chi2.sf(expected, 2), rel=1e-12)
+
+
+def test_exact_model_fits_100_percent(sp_clean):
+    v = validate(catalog.short_period(catalog.SHORT_PERIOD_TRUTH), sp_clean, None)
+    for m in v.metrics.values():
+        assert m.fit == pytest.approx(100.0, abs=1e-4) and m.rmse < 1e-8
+    assert "| alpha" in v.summary()
+
+
+def test_whiteness_false_alarm_rate_is_nominal():
+    # White residuals: Ljung–Box rejects at 5 %. Over 200 series the rejection count
+    # is Binomial(200, 0.05): mean 10, sd 3.1; accept 2..22 (about ±2.6 sd).
+    rng = np.random.default_rng(0)
+    rejections = sum(ljung_box(rng.standard_normal(500), 20)[1] < 0.05 for _ in range(200))
+    assert 2 <= rejections <= 22
+    ar = np.zeros(500)
+    e = rng.standard_normal(500)
+    for k in range(1, 500):
+        ar[k] = 0.8 * ar[k - 1] + e[k]
+    assert ljung_box(ar, 20)[1] < 1e-6
+
+
+def test_bias_interval_coverage_with_coloured_residuals():
+    # Residual = constant bias + AR(1) noise; the interval uses an effective sample
+    # size, so it should cover the bias in ~95 % of 200 seeds (binomial sd 1.5 %).
+    model = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
+    clean = catalog.short_period_flight(noise={})
+    hits = 0
+    for s in range(200):
+        noisy = catalog.short_period_flight(seed=s, colored=0.7)
+        d = noisy.with_channels({"q": noisy["q"] + 0.003})
+        lo, hi = validate(model, d, None).metrics["q"].bias_ci
+        hits += lo <= 0.003 <= hi
+    assert 0.90 <= hits / 200 <= 0.99
+    del clean
+
+
+def test_wrong_model_shows_input_correlation_and_colour(sp_noisy):
+    wrong = catalog.short_period({**catalog.SHORT_PERIOD_TRUTH, "M_delta": -5.0})
+    v = validate(wrong, sp_noisy, None)
+    assert v.metrics["q"].input_correlated and not v.metrics["q"].white
+    right = validate(catalog.short_period(catalog.SHORT_PERIOD_TRUTH), sp_noisy, None)
+    assert not right.metrics["q"].input_correlated
+
+
+def test_accepts_identification_result_with_biases(sp_model):
+    noisy = catalog.short_period_flight(seed=2)
+    d = noisy.with_channels({"alpha": noisy["alpha"] + 0.02})
+    r = identify(sp_model, d, list(catalog.SHORT_PERIOD_TRUTH), estimate_bias=["alpha"])
+    v = validate(sp_model, d, r)
+    assert abs(v.metrics["alpha"].bias) < 1e-3
+    assert v.residuals.shape == (d.n_samples, 2) and not v.residuals.flags.writeable
+
+
+def test_argument_errors(sp_model, sp_noisy):
+    with pytest.raises(IdentificationError, match="confidence"):
+        validate(sp_model, sp_noisy, None, confidence=1.5)
+    with pytest.raises(IdentificationError, match="not a parameter"):
+        validate(sp_model, sp_noisy, {"nope": 1.0})
+    with pytest.raises(IdentificationError, match="'beta' is not an output"):
+        validate(sp_model, sp_noisy, None, outputs=["beta"])
+    with pytest.raises(Exception, match="control 'elevator'"):
+        validate(sp_model, FlightData(sp_noisy.time, {"q": sp_noisy["q"]}), None)
