@@ -5,6 +5,7 @@ The public API is re-exported here; see the README for a tour.
 
 from ._version import __version__
 from .data import FlightData, load_flight_test
+from .design import ExperimentDesign, design_experiment
 from .errors import (
     AdapterError,
     AeroidError,
@@ -21,14 +22,10 @@ from .errors import (
     StoreError,
 )
 from .filtering import FilterResult, filter_states
-from .identification import IdentificationResult, identify
-from .jax_backend import simulate_rk4
-from .propagation import PropagationResult, propagate
-from .reporting import report
-from .validation import OutputMetrics, ValidationResult, validate
-from .model import BatchSimulation, Model, SimulationResult, SimulatorModel
-from .design import ExperimentDesign, design_experiment
 from .frequency import ChannelFrequencyResponse, FrequencyResponseResult, frequency_response
+from .identification import IdentificationResult, identify
+from .inference import EnsembleRun, InferenceResult, combine_ensembles, infer, infer_ensemble
+from .jax_backend import simulate_rk4
 from .maneuvers import (
     Chirp,
     Doublet,
@@ -37,9 +34,10 @@ from .maneuvers import (
     OrthogonalMultisine,
     orthogonal_multisine,
 )
-from .sensitivity import SensitivityResult, sensitivities
-from .inference import EnsembleRun, InferenceResult, combine_ensembles, infer, infer_ensemble
+from .model import BatchSimulation, Model, SimulationResult, SimulatorModel
 from .priors import HalfNormal, LogUniform, Normal, Prior, Uniform
+from .propagation import PropagationResult, propagate
+from .reporting import report
 from .sampler import (
     ChainState,
     SamplerRun,
@@ -48,66 +46,68 @@ from .sampler import (
     ensemble_sampler,
     split_r_hat,
 )
+from .sensitivity import SensitivityResult, sensitivities
+from .validation import OutputMetrics, ValidationResult, validate
 
 __all__ = [
-    "ChannelFrequencyResponse",
-    "Chirp",
-    "Doublet",
-    "ExperimentDesign",
-    "FrequencyResponseResult",
-    "ManeuverFamily",
-    "Multisine",
-    "OrthogonalMultisine",
-    "SensitivityResult",
-    "design_experiment",
-    "frequency_response",
-    "orthogonal_multisine",
-    "sensitivities",
-    "ChainState",
-    "EnsembleRun",
-    "HalfNormal",
-    "InferenceResult",
-    "LogUniform",
-    "Normal",
-    "Prior",
-    "SamplerRun",
-    "Uniform",
-    "autocorrelation_time",
-    "combine_ensembles",
-    "effective_sample_size",
-    "ensemble_sampler",
-    "infer",
-    "infer_ensemble",
-    "split_r_hat",
     "AdapterError",
     "AeroidError",
     "BatchSimulation",
+    "ChainState",
     "ChannelError",
+    "ChannelFrequencyResponse",
+    "Chirp",
     "ConfigError",
     "DataFormatError",
+    "Doublet",
+    "EnsembleRun",
+    "ExperimentDesign",
     "FilterError",
     "FilterResult",
     "FlightData",
+    "FrequencyResponseResult",
+    "HalfNormal",
     "IdentifiabilityWarning",
     "IdentificationError",
     "IdentificationResult",
     "InferenceError",
+    "InferenceResult",
+    "LogUniform",
+    "ManeuverFamily",
     "Model",
     "ModelDefinitionError",
+    "Multisine",
+    "Normal",
+    "OrthogonalMultisine",
+    "OutputMetrics",
     "PipelineError",
+    "Prior",
+    "PropagationResult",
+    "SamplerRun",
+    "SensitivityResult",
     "SimulationError",
     "SimulationResult",
     "SimulatorModel",
     "StoreError",
-    "OutputMetrics",
-    "PropagationResult",
+    "Uniform",
     "ValidationResult",
     "__version__",
+    "autocorrelation_time",
+    "combine_ensembles",
+    "design_experiment",
+    "effective_sample_size",
+    "ensemble_sampler",
+    "filter_states",
+    "frequency_response",
+    "identify",
+    "infer",
+    "infer_ensemble",
+    "load_flight_test",
+    "orthogonal_multisine",
     "propagate",
     "report",
-    "validate",
-    "filter_states",
-    "identify",
-    "load_flight_test",
+    "sensitivities",
     "simulate_rk4",
+    "split_r_hat",
+    "validate",
 ]

@@ -294,15 +294,15 @@ def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, 
     top = max(float(evals[-1]), 1e-300)
     combos: list[tuple[str, ...]] = []
     null = np.zeros(m.shape[0], dtype=bool)
-    for j in np.flatnonzero(zero):
+    for j in np.flatnonzero(zero).tolist():
         combos.append((names[j],))
         null[j] = True
     for k in np.flatnonzero(evals < _IDENTIFIABILITY_RCOND * top):
         vec = evecs[:, k]
         if float(np.sum(vec[zero] ** 2)) > 0.81:
             continue  # the direction of a parameter already listed as insensitive
-        members = np.flatnonzero(np.abs(vec) > 0.1 * np.max(np.abs(vec)))
-        members = [j for j in members if not zero[j]]
+        big = np.flatnonzero(np.abs(vec) > 0.1 * np.max(np.abs(vec))).tolist()
+        members = [j for j in big if not zero[j]]
         if members:
             combos.append(tuple(names[j] for j in members))
             null[members] = True
@@ -375,13 +375,14 @@ def fit_output_error(
     def steps_for(th: FloatArray) -> FloatArray:
         return 1e-6 * np.maximum(np.abs(th), typ)
 
-    residuals, jacobians, ok = problem.evaluate(theta, steps_for(theta))
-    if not ok or jacobians is None:
+    residuals, first_jac, ok = problem.evaluate(theta, steps_for(theta))
+    if not ok or first_jac is None:
         raise IdentificationError(
             f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
             f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}; "
             "check the initial guesses and the model"
         )
+    jacobians: list[FloatArray] = first_jac
     fixed_r = None if weights is None else np.asarray(weights, dtype=np.float64)
     cost = _ml_cost(residuals, fixed_r, floor)
     success = False
@@ -392,13 +393,13 @@ def fit_output_error(
         r = fixed_r if fixed_r is not None else _noise_variances(residuals, floor)
         info = _information(jacobians, r)
         grad = _gradient(jacobians, residuals, r)
-        d = np.sqrt(np.clip(np.diag(info), 1e-300, None))
-        a = info / np.outer(d, d)
-        b = grad / d
+        dn = np.sqrt(np.clip(np.diag(info), 1e-300, None))
+        a = info / np.outer(dn, dn)
+        b = grad / dn
         accepted = False
         for _attempt in range(12):
             try:
-                step = np.linalg.lstsq(a + lam * np.eye(a.shape[0]), b, rcond=1e-12)[0] / d
+                step = np.linalg.lstsq(a + lam * np.eye(a.shape[0]), b, rcond=1e-12)[0] / dn
             except np.linalg.LinAlgError:
                 step = np.zeros_like(theta)
             # Gauss–Newton minimises sum v'R^-1 v, so the step *adds* the solution
@@ -417,6 +418,7 @@ def fit_output_error(
             break
         rel_step = float(np.max(np.abs(step) / np.maximum(np.abs(theta), typ)))
         dcost = cost - t_cost
+        assert t_jac is not None  # accepted trials always carry their Jacobian
         theta, residuals, jacobians, cost = trial, t_res, t_jac, t_cost
         lam = lam / 10.0 if lam > 1e-6 else 0.0
         if rel_step < tolerance or dcost < tolerance * max(1.0, abs(cost)) * 1e-3:
@@ -428,10 +430,12 @@ def fit_output_error(
     combos, null = _combinations(info, names_all)
     identifiable = not combos
     try:
-        m_inv = np.linalg.pinv(info, rcond=1e-13, hermitian=True)
+        m_inv: FloatArray = np.asarray(
+            np.linalg.pinv(info, rcond=1e-13, hermitian=True), dtype=np.float64
+        )
     except np.linalg.LinAlgError:
         m_inv = np.full_like(info, np.nan)
-    cov_white = m_inv.copy()
+    cov_white: FloatArray = m_inv.copy()
     shown = error_bars
     tau = max(_bandwidth(v)[1] for v in residuals)
     if error_bars == "colored" and tau <= _WHITE_TAU:

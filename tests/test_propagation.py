@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 
 import numpy as np
 import pytest
@@ -72,7 +73,7 @@ def test_same_seed_same_bits_and_batching_independent():
 
 class _Posterior:
     parameter_names = ("a", "b")
-    fixed = {"c": 1.0}
+    fixed = MappingProxyType({"c": 1.0})
 
     def __init__(self):
         rng = np.random.default_rng(5)

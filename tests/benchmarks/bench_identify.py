@@ -39,7 +39,9 @@ def main() -> None:
     t = np.arange(0, 60.0001, 0.02)
     u = catalog.multisine(t, np.linspace(0.1, 4.0, 60), 0.005)
     cases["60 s multisine (60 sines, 0.1-4 Hz)"] = (
-        catalog.short_period_flight(duration=60.0, elevator=u, seed=1), 4.0, 128.0,
+        catalog.short_period_flight(duration=60.0, elevator=u, seed=1),
+        4.0,
+        128.0,
     )
     identify(model, cases[next(iter(cases))][0], NAMES)  # warm-up
     for label, (data, target, competitor) in cases.items():
