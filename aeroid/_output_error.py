@@ -372,8 +372,12 @@ def fit_output_error(
     for i, m in enumerate(mans):
         names_all += [f"bias[{i}].{outputs[k]}" for k in m.bias_free]
 
+    # Stepped simulators integrate to a tolerance of their own (often ~1e-9), so
+    # their differences need steps near the square root of it.
+    rel = 1e-6 if hasattr(model, "simulate_batch") else 1e-4
+
     def steps_for(th: FloatArray) -> FloatArray:
-        return 1e-6 * np.maximum(np.abs(th), typ)
+        return rel * np.maximum(np.abs(th), typ)
 
     residuals, first_jac, ok = problem.evaluate(theta, steps_for(theta))
     if not ok or first_jac is None:
