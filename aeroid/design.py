@@ -160,6 +160,12 @@ class ExperimentDesign:
             metadata={"maneuver": self.maneuver, "criterion": self.criterion},
         )
 
+    def plot(self, **kwargs: Any) -> Any:
+        """The designed manoeuvre and predicted precision. Returns a matplotlib Figure."""
+        from .plotting import plot_design
+
+        return plot_design(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown section: design variables, predicted precision and the recommendation."""
         var_rows = [

@@ -197,6 +197,12 @@ class FilterResult:
         """Mean of ``nu' S^-1 nu / n_outputs`` over the record (about 1 when consistent)."""
         return _sigma2(self.innovations[None, 1:], self.innovation_covariance[None, 1:])
 
+    def plot(self, **kwargs: Any) -> Any:
+        """States with ±1σ bands. Returns a matplotlib Figure."""
+        from .plotting import plot_filter
+
+        return plot_filter(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown section: likelihood, innovation statistics per output, state uncertainty."""
         lags = int(min(20, max(1, (self.time.size - 1) // 5)))

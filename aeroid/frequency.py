@@ -159,6 +159,12 @@ class FrequencyResponseResult:
         vals = [c.mismatch for c in self.channels if np.isfinite(c.mismatch)]
         return float(max(vals)) if vals else float("nan")
 
+    def plot(self, **kwargs: Any) -> Any:
+        """Empirical vs model Bode plot with coherence. Returns a matplotlib Figure."""
+        from .plotting import plot_frequency_response
+
+        return plot_frequency_response(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown section: per-channel coherent band and coherence-weighted mismatch."""
         rows = []

@@ -138,6 +138,12 @@ class IdentificationResult:
         merged.update(self.parameters)
         return MappingProxyType(merged)
 
+    def plot(self, **kwargs: Any) -> Any:
+        """Residual histories and estimates with 95 % error bars. Returns a matplotlib Figure."""
+        from .plotting import plot_identification
+
+        return plot_identification(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown table of estimates, standard errors and relative errors."""
         rows = []

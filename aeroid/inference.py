@@ -255,6 +255,18 @@ class InferenceResult:
             )
         return self.samples[:, self.parameter_names.index(name)]
 
+    def plot(self, **kwargs: Any) -> Any:
+        """Corner plot of the posterior. Returns a matplotlib Figure."""
+        from .plotting import plot_posterior
+
+        return plot_posterior(self, **kwargs)
+
+    def plot_traces(self) -> Any:
+        """Sample traces per parameter. Returns a matplotlib Figure."""
+        from .plotting import plot_traces
+
+        return plot_traces(self)
+
     def summary(self) -> str:
         """Markdown: posterior means, standard deviations, 95 % intervals, R-hat and ESS."""
         rows = []

@@ -60,6 +60,12 @@ class PropagationResult:
         object.__setattr__(self, "percentiles", MappingProxyType(dict(self.percentiles)))
         object.__setattr__(self, "samples", frozen_array(self.samples))
 
+    def plot(self, **kwargs: Any) -> Any:
+        """Histogram of the propagated metric. Returns a matplotlib Figure."""
+        from .plotting import plot_propagation
+
+        return plot_propagation(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown table of the metric's statistics."""
         rows = [("mean", fmt(self.mean)), ("std", fmt(self.std))]

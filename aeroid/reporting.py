@@ -9,7 +9,7 @@ from typing import Any
 
 from .errors import AeroidError
 
-__all__ = ["report", "report_sections"]
+__all__ = ["report", "report_figures", "report_sections"]
 
 
 def _identification_notes(result: Any) -> list[str]:
@@ -97,6 +97,37 @@ def report_sections(
     return sections
 
 
+def report_figures(
+    validation: Any = None,
+    identification: Any = None,
+    propagation: Any = None,
+    *,
+    experiment: Any = None,
+    inference: Any = None,
+    frequency: Any = None,
+    filtering: Any = None,
+    sensitivity: Any = None,
+) -> dict[str, Any]:
+    """Figures of the given results, keyed by a file-name-safe label."""
+    figs: dict[str, Any] = {}
+    named = {
+        "time_histories": validation,
+        "identification": identification,
+        "bode": frequency,
+        "filter_states": filtering,
+        "sensitivities": sensitivity,
+        "posterior": inference,
+        "propagation": propagation,
+        "design": experiment,
+    }
+    for label, result in named.items():
+        if result is not None and hasattr(result, "plot"):
+            figs[label] = result.plot()
+    if inference is not None and hasattr(inference, "plot_traces"):
+        figs["posterior_traces"] = inference.plot_traces()
+    return figs
+
+
 def report(
     validation: Any = None,
     identification: Any = None,
@@ -110,6 +141,7 @@ def report(
     title: str = "AeroID engineering report",
     path: str | os.PathLike[str] | None = None,
     date: str | None = None,
+    figures: bool = True,
 ) -> str:
     """Render the Markdown engineering report.
 
@@ -121,9 +153,14 @@ def report(
         short interpretation notes where they apply.
     title : str
     path : path-like, optional
-        Also write the report there (atomically: a temporary file renamed into place).
+        Also write the report there (atomically: a temporary file renamed into
+        place). With `figures`, every result's plot is written as a PNG into
+        ``<stem>_figures/`` beside it, and a self-contained HTML twin
+        (``<stem>.html``, images embedded) is written too.
     date : str, optional
         A date line; none by default, so identical inputs give identical bytes.
+    figures : bool
+        Write figures and the HTML version when `path` is given.
 
     Returns
     -------
@@ -148,6 +185,21 @@ def report(
     for heading, body in sections:
         lines += [f"## {heading}", "", body.rstrip(), ""]
     text = "\n".join(lines)
+    if path is not None and figures:
+        from ._html import write_report_bundle
+
+        figs = report_figures(
+            validation,
+            identification,
+            propagation,
+            experiment=experiment,
+            inference=inference,
+            frequency=frequency,
+            filtering=filtering,
+            sensitivity=sensitivity,
+        )
+        md_path, _ = write_report_bundle(text, figs, path)
+        return md_path.read_text(encoding="utf-8")
     if path is not None:
         target = Path(path)
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -370,6 +370,12 @@ class SensitivityResult:
         c.setflags(write=False)
         return c
 
+    def plot(self, **kwargs: Any) -> Any:
+        """Scaled sensitivity histories. Returns a matplotlib Figure."""
+        from .plotting import plot_sensitivities
+
+        return plot_sensitivities(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown section: sensitivity norms, Cramér–Rao bounds and identifiability."""
         rows = []

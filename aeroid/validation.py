@@ -123,6 +123,12 @@ class ValidationResult:
         """Residual history of one output."""
         return self.residuals[:, self.output_names.index(name)]
 
+    def plot(self, **kwargs: Any) -> Any:
+        """Measured vs model time histories with residuals. Returns a matplotlib Figure."""
+        from .plotting import plot_time_histories
+
+        return plot_time_histories(self, **kwargs)
+
     def summary(self) -> str:
         """Markdown table of the per-output statistics."""
         pct = f"{100 * self.confidence:g} %"

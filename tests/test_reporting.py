@@ -33,9 +33,25 @@ def test_report_is_deterministic_and_complete(tmp_path):
     assert "fit" in a and "Date:" not in a
     assert "Date: 2026-01-01" in report(v, r, mc, date="2026-01-01")
     path = tmp_path / "sub" / "report.md"
-    text = report(v, r, mc, path=path)
-    assert path.read_text(encoding="utf-8") == text
+    text = report(v, r, mc, title="Flight 7", path=path, figures=False)
+    assert path.read_text(encoding="utf-8") == text == a
     assert [p.name for p in path.parent.iterdir()] == ["report.md"]  # no temporaries left
+
+
+def test_report_with_figures_writes_pngs_and_self_contained_html(tmp_path):
+    v, r, mc = _chain()
+    first = tmp_path / "one" / "flight.md"
+    second = tmp_path / "two" / "flight.md"
+    text = report(v, r, mc, path=first)
+    report(*_chain(), path=second)
+    pngs = sorted(p.name for p in (first.parent / "flight_figures").iterdir())
+    assert pngs == ["identification.png", "propagation.png", "time_histories.png"]
+    assert "![time_histories](flight_figures/time_histories.png)" in text
+    html = first.with_suffix(".html").read_text(encoding="utf-8")
+    assert html.count('src="data:image/png;base64,') == 3 and "<table>" in html
+    # identical inputs give identical bytes, images included
+    assert first.with_suffix(".html").read_bytes() == second.with_suffix(".html").read_bytes()
+    assert not [p for p in first.parent.iterdir() if p.name.startswith(".tmp")]
 
 
 def test_empty_report_says_so():

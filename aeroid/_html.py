@@ -1,0 +1,146 @@
+"""Self-contained HTML reports: our Markdown subset to HTML, figures embedded."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import os
+import re
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+
+from matplotlib.figure import Figure
+
+_STYLE = """
+body { font-family: -apple-system, Segoe UI, Helvetica, Arial, sans-serif; max-width: 1100px;
+       margin: 2em auto; padding: 0 1em; color: #222; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: left; }
+th { background: #f0f0f0; }
+img { max-width: 100%; display: block; margin: 0.5em 0 1.5em 0; }
+code { background: #f4f4f4; padding: 0 3px; }
+h1 { border-bottom: 2px solid #333; } h2 { border-bottom: 1px solid #aaa; margin-top: 1.6em; }
+"""
+
+
+def figure_png(fig: Figure, *, dpi: int = 90) -> bytes:
+    """PNG bytes of a figure, with fixed metadata so identical figures give identical bytes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def _inline(text: str) -> str:
+    out = html.escape(text, quote=False)
+    out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
+    out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
+    return out
+
+
+def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -> str:
+    """Convert the Markdown our reports produce (headings, paragraphs, lists, tables,
+    images) into HTML; ``![alt](name)`` whose name is in `images` is embedded as base64."""
+    images = images or {}
+    lines = markdown.splitlines()
+    out: list[str] = []
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        stripped = line.strip()
+        if not stripped:
+            i += 1
+            continue
+        heading = re.match(r"^(#{1,6})\s+(.*)$", stripped)
+        image = re.match(r"^!\[(.*?)\]\((.*?)\)$", stripped)
+        if heading:
+            level = len(heading.group(1))
+            out.append(f"<h{level}>{_inline(heading.group(2))}</h{level}>")
+            i += 1
+        elif image:
+            alt, src = image.group(1), image.group(2)
+            if src in images:
+                data = base64.b64encode(images[src]).decode("ascii")
+                src_attr = f"data:image/png;base64,{data}"
+            else:
+                src_attr = html.escape(src)
+            out.append(f'<img alt="{html.escape(alt)}" src="{src_attr}">')
+            i += 1
+        elif stripped.startswith("|"):
+            rows = []
+            while i < len(lines) and lines[i].strip().startswith("|"):
+                rows.append(lines[i].strip())
+                i += 1
+            cells = [[c.strip() for c in r.strip("|").split("|")] for r in rows]
+            body = [r for r in cells if not all(re.fullmatch(r":?-+:?", c) for c in r if c)]
+            table = ["<table>"]
+            for k, row in enumerate(body):
+                tag = "th" if k == 0 else "td"
+                table.append(
+                    "<tr>" + "".join(f"<{tag}>{_inline(c)}</{tag}>" for c in row) + "</tr>"
+                )
+            table.append("</table>")
+            out.append("\n".join(table))
+        elif stripped.startswith(("- ", "* ")):
+            items = []
+            while i < len(lines) and lines[i].strip().startswith(("- ", "* ")):
+                items.append(f"<li>{_inline(lines[i].strip()[2:])}</li>")
+                i += 1
+            out.append("<ul>" + "".join(items) + "</ul>")
+        else:
+            para = []
+            while (
+                i < len(lines)
+                and lines[i].strip()
+                and not re.match(r"^(#|\||!\[|- |\* )", lines[i].strip())
+            ):
+                para.append(lines[i].strip())
+                i += 1
+            out.append(f"<p>{_inline(' '.join(para))}</p>")
+    title = next(
+        (re.sub(r"^#+\s*", "", ln) for ln in lines if ln.startswith("# ")), "AeroID report"
+    )
+    return (
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f"<title>{html.escape(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
+        + "\n".join(out)
+        + "\n</body>\n</html>\n"
+    )
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_report_bundle(
+    markdown: str, figures: Mapping[str, Figure], path: str | os.PathLike[str]
+) -> tuple[Path, Path]:
+    """Write ``path`` (Markdown, figures as PNG files beside it) and a self-contained
+    HTML twin (``path`` with suffix ``.html``, images embedded).
+
+    Figures are referenced at the end of the Markdown under "Figures" unless the
+    text already references them. Returns (markdown path, html path).
+    """
+    md_path = Path(path)
+    fig_dir = md_path.parent / f"{md_path.stem}_figures"
+    pngs = {f"{md_path.stem}_figures/{name}.png": figure_png(fig) for name, fig in figures.items()}
+    text = markdown.rstrip() + "\n"
+    missing = [k for k in pngs if k not in text]
+    if missing:
+        text += "\n## Figures\n\n" + "\n\n".join(f"![{Path(k).stem}]({k})" for k in missing) + "\n"
+    for rel, data in pngs.items():
+        _atomic_write(md_path.parent / rel, data)
+    del fig_dir
+    _atomic_write(md_path, text.encode("utf-8"))
+    html_path = md_path.with_suffix(".html")
+    _atomic_write(html_path, markdown_to_html(text, pngs).encode("utf-8"))
+    return md_path, html_path

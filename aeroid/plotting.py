@@ -1,0 +1,260 @@
+"""Figures for every result type (matplotlib, no GUI: figures are built directly).
+
+Each function returns a `matplotlib.figure.Figure`; the result classes expose
+them as ``.plot()``. Nothing here touches pyplot's global state, so it works
+headless and leaves a user's chosen backend alone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+__all__ = [
+    "plot_campaign_trend",
+    "plot_design",
+    "plot_filter",
+    "plot_frequency_response",
+    "plot_identification",
+    "plot_posterior",
+    "plot_propagation",
+    "plot_sensitivities",
+    "plot_time_histories",
+    "plot_traces",
+]
+
+
+def _figure(
+    rows: int, cols: int = 1, *, width: float = 8.0, height: float = 2.4
+) -> tuple[Figure, Any]:
+    fig = Figure(figsize=(width, max(height * rows, 2.5)), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False)
+    return fig, axes
+
+
+def plot_time_histories(validation: Any) -> Figure:
+    """Measured vs model time histories, with a residual panel under each output."""
+    names = list(validation.output_names)
+    fig, axes = _figure(2 * len(names), height=1.9)
+    t = validation.time
+    for j, name in enumerate(names):
+        ax = axes[2 * j, 0]
+        ax.plot(t, validation.measured[:, j], color="0.55", lw=1.0, label="measured")
+        ax.plot(t, validation.simulated[:, j], color="C0", lw=1.4, label="model")
+        m = validation.metrics[name]
+        ax.set_ylabel(name)
+        ax.set_title(f"{name}: fit {m.fit:.1f} %, RMSE {m.rmse:.3g}", fontsize=9, loc="left")
+        ax.legend(loc="upper right", fontsize=8)
+        rax = axes[2 * j + 1, 0]
+        rax.plot(t, validation.residuals[:, j], color="C3", lw=0.9)
+        rax.axhline(0.0, color="k", lw=0.6)
+        rax.set_ylabel(f"{name} residual")
+    axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+def plot_frequency_response(freq: Any) -> Figure:
+    """Empirical vs model Bode plot per channel, with coherence."""
+    chans = list(freq.channels)
+    fig, axes = _figure(3, len(chans), width=4.2 * len(chans), height=2.3)
+    for c, ch in enumerate(chans):
+        f = ch.frequency
+        ok = ch.coherent
+        mag, pha = axes[0, c], axes[1, c]
+        mag.loglog(f, ch.magnitude, color="0.6", lw=0.8, label="empirical")
+        mag.loglog(f[ok], ch.magnitude[ok], "o", color="C1", ms=3, label="coherent")
+        mag.loglog(f, ch.model_magnitude, color="C0", lw=1.4, label="model")
+        mag.set_title(
+            f"{ch.input_name} → {ch.output_name} (mismatch {ch.mismatch:.2g})", fontsize=9
+        )
+        mag.legend(fontsize=7)
+        pha.semilogx(f, np.degrees(ch.phase), color="0.6", lw=0.8)
+        pha.semilogx(f, np.degrees(ch.model_phase), color="C0", lw=1.4)
+        pha.set_ylabel("phase [deg]")
+        coh = axes[2, c]
+        coh.semilogx(f, ch.coherence, color="C2")
+        coh.axhline(freq.coherence_threshold, color="k", ls="--", lw=0.7)
+        coh.set_ylim(0, 1.05)
+        coh.set_ylabel("coherence")
+        coh.set_xlabel("frequency [Hz]")
+    axes[0, 0].set_ylabel("magnitude")
+    return fig
+
+
+def plot_filter(result: Any) -> Figure:
+    """Filtered (and smoothed) states with ±1σ bands."""
+    names = list(result.state_names)
+    fig, axes = _figure(len(names))
+    t = result.time
+    smoothed = result.smoothed_states is not None
+    states = result.smoothed_states if smoothed else result.filtered_states
+    cov = result.smoothed_covariance if smoothed else result.filtered_covariance
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        sd = np.sqrt(np.clip(cov[:, j, j], 0, None))
+        ax.fill_between(t, states[:, j] - sd, states[:, j] + sd, color="C0", alpha=0.25, lw=0)
+        ax.plot(t, result.filtered_states[:, j], color="0.5", lw=0.8, label="filtered")
+        if smoothed:
+            ax.plot(t, states[:, j], color="C0", lw=1.3, label="smoothed ±1σ")
+        ax.set_ylabel(name)
+        ax.legend(fontsize=8, loc="upper right")
+    axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+def plot_posterior(inference: Any, *, max_parameters: int = 6) -> Figure:
+    """Corner plot: marginal histograms and pairwise scatter of the posterior."""
+    names = list(inference.parameter_names)[:max_parameters]
+    s = inference.samples[:, : len(names)]
+    n = len(names)
+    fig, axes = _figure(n, n, width=1.9 * n + 1, height=1.9)
+    step = max(1, s.shape[0] // 3000)
+    for i in range(n):
+        for j in range(n):
+            ax = axes[i, j]
+            if j > i:
+                ax.set_axis_off()
+                continue
+            if i == j:
+                ax.hist(s[:, i], bins=40, color="C0", alpha=0.8)
+            else:
+                ax.plot(s[::step, j], s[::step, i], ".", ms=1, color="C0", alpha=0.4)
+            if i == n - 1:
+                ax.set_xlabel(names[j], fontsize=8)
+            if j == 0 and i > 0:
+                ax.set_ylabel(names[i], fontsize=8)
+            ax.tick_params(labelsize=6)
+    return fig
+
+
+def plot_traces(inference: Any) -> Figure:
+    """Sample traces per parameter (the kept, thinned chain in sampling order)."""
+    names = list(inference.parameter_names)
+    fig, axes = _figure(len(names), height=1.4)
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        ax.plot(inference.samples[:, j], lw=0.3, color="C0")
+        ax.set_ylabel(name, fontsize=8)
+    axes[-1, 0].set_xlabel("sample")
+    return fig
+
+
+def plot_sensitivities(sens: Any) -> Figure:
+    """Output sensitivity histories dy/dθ scaled by each parameter's value."""
+    outs = list(sens.output_names)
+    fig, axes = _figure(len(outs))
+    for k, out in enumerate(outs):
+        ax = axes[k, 0]
+        for p in sens.parameter_names:
+            scale = abs(float(sens.values.get(p, 1.0))) or 1.0
+            ax.plot(sens.time, scale * sens.sensitivity(out, p), lw=1.1, label=p)
+        ax.set_ylabel(f"θ·∂{out}/∂θ")
+        ax.legend(fontsize=7, ncol=3)
+    axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+def plot_design(design: Any) -> Figure:
+    """The designed manoeuvre and the predicted parameter precision."""
+    fig, axes = _figure(2)
+    ax = axes[0, 0]
+    for j, c in enumerate(design.control_names):
+        ax.plot(design.time, design.controls[:, j], lw=1.2, label=c)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("control")
+    ax.legend(fontsize=8)
+    ax.set_title(design.maneuver, fontsize=9, loc="left")
+    bx = axes[1, 0]
+    names = list(design.parameter_names)
+    x = np.arange(len(names))
+    bx.bar(
+        x - 0.2, [design.initial_stderr[n] for n in names], 0.4, label="initial design", color="0.6"
+    )
+    bx.bar(x + 0.2, [design.predicted_stderr[n] for n in names], 0.4, label="optimised", color="C0")
+    bx.set_xticks(x, names)
+    bx.set_ylabel("predicted std. error")
+    bx.legend(fontsize=8)
+    return fig
+
+
+def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
+    """Histogram of the propagated metric with its percentiles."""
+    fig, axes = _figure(1, height=3.0)
+    ax = axes[0, 0]
+    ax.hist(prop.samples, bins=50, color="C0", alpha=0.8)
+    for k, v in prop.percentiles.items():
+        ax.axvline(v, color="k", ls="--", lw=0.8)
+        ax.text(v, ax.get_ylim()[1] * 0.95, k, fontsize=7, ha="center")
+    ax.set_xlabel(label)
+    ax.set_ylabel("draws")
+    return fig
+
+
+def plot_campaign_trend(
+    records: Sequence[Mapping[str, Any]],
+    *,
+    condition: str | None = None,
+) -> Figure:
+    """Each parameter's estimate ±1.96σ across flights.
+
+    Parameters
+    ----------
+    records : sequence of mapping
+        One per flight: ``{"flight": label, "parameters": {...}, "stderr": {...},
+        "metadata": {...}}``.
+    condition : str, optional
+        Metadata key to plot against (airspeed, Mach, dynamic pressure...);
+        default the first of those present, else the flight index.
+    """
+    ok = [r for r in records if r.get("parameters")]
+    names = list(ok[0]["parameters"]) if ok else []
+    if condition is None and ok:
+        meta = ok[0].get("metadata", {})
+        for key in ("airspeed", "mach", "Mach", "dynamic_pressure", "qbar"):
+            if key in meta:
+                condition = key
+                break
+    fig, axes = _figure(max(len(names), 1), height=2.0)
+    if condition is not None:
+        x = np.array([float(r.get("metadata", {}).get(condition, np.nan)) for r in ok])
+        xlabel = condition.replace("_", " ")
+    else:
+        x = np.arange(len(ok), dtype=float)
+        xlabel = "flight"
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        y = np.array([r["parameters"][name] for r in ok])
+        e = np.array([1.96 * r["stderr"].get(name, np.nan) for r in ok])
+        ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=3, color="C0")
+        ax.set_ylabel(name)
+    if names:
+        axes[-1, 0].set_xlabel(xlabel)
+        if condition is None:
+            axes[-1, 0].set_xticks(
+                x, [str(r.get("flight", i)) for i, r in enumerate(ok)], rotation=45
+            )
+    return fig
+
+
+def plot_identification(result: Any) -> Figure:
+    """Residual histories of the fit and the estimates with 95 % error bars."""
+    names = list(result.parameter_names)
+    outs = list(result.output_names)
+    fig, axes = _figure(len(outs) + 1, height=2.0)
+    for k, out in enumerate(outs):
+        ax = axes[k, 0]
+        for i, r in enumerate(result.residuals):
+            ax.plot(r[:, k], lw=0.8, label=f"manoeuvre {i}" if len(result.residuals) > 1 else None)
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_ylabel(f"{out} residual")
+        ax.set_xlabel("sample")
+    ax = axes[-1, 0]
+    est = np.array([result.parameters[n] for n in names])
+    err = np.array([1.96 * result.stderr[n] for n in names])
+    ax.errorbar(np.arange(len(names)), est, yerr=err, fmt="o", capsize=4)
+    ax.set_xticks(np.arange(len(names)), names)
+    ax.set_ylabel("estimate ±1.96σ")
+    return fig
