@@ -147,7 +147,7 @@ class ValidationResult:
                 )
             )
         return markdown_table(
-            ("output", "RMSE", f"bias [{pct} CI]", "fit %", "white residuals", "max |xcorr u|"),
+            ("output", "RMSE", f"bias [{pct} CI]", "fit %", "white residuals", "max xcorr(e, u)"),
             rows,
         )
 

@@ -557,7 +557,11 @@ class RunSummary:
             "cached": self.count("cached"),
             "failed": self.failed,
             "report": None if self.report_path is None else str(self.report_path),
-            "report_html": None,
+            "report_html": (
+                None
+                if self.report_path is None or not html_report_path(self.report_path).is_file()
+                else str(html_report_path(self.report_path))
+            ),
             "tasks": self.task_rows(),
         }
 
@@ -790,7 +794,92 @@ def _write_report(
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
+    _write_html_report(the_plan, store, statuses, text, task.key, path)
     return path, columns, rows
+
+
+def html_report_path(markdown_path: Path) -> Path:
+    """Where the HTML twin of a campaign report lives."""
+    return markdown_path.with_suffix(".html")
+
+
+def _write_html_report(
+    the_plan: Plan,
+    store: ResultStore,
+    statuses: dict[str, dict[str, Any]],
+    text: str,
+    report_key: str,
+    path: Path,
+) -> None:
+    """The self-contained HTML campaign report: the Markdown plus figures.
+
+    Detailed figures (time histories with residuals, fit residuals, Bode,
+    posterior, propagation, design) for the first flight that has them, and
+    the cross-flight trend of every estimate. Rebuilt only when the campaign
+    report's key changes, so an unchanged rerun stays cheap.
+    """
+    from .._html import figure_png, markdown_to_html
+    from ..plotting import plot_campaign_trend
+
+    target = html_report_path(path)
+    marker = f"<!-- aeroid campaign report {report_key} -->"
+    if target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace"):
+        return
+
+    def stored(task: Task) -> Any:
+        if statuses.get(task.key, {}).get("status") == "failed":
+            return None
+        try:
+            return store.load(task.key, task.stage)
+        except AeroidError:
+            return None
+
+    by_flight: dict[str, dict[str, Any]] = {}
+    for t in the_plan.tasks:
+        if t.flight is not None:
+            by_flight.setdefault(t.flight, {})[t.step] = t
+    figures: dict[str, Any] = {}
+    records = []
+    detailed = False
+    for flight, steps in by_flight.items():
+        ident = stored(steps["identify"]) if "identify" in steps else None
+        data = stored(steps["load"]) if "load" in steps else None
+        if ident is not None:
+            records.append(
+                {
+                    "flight": flight,
+                    "parameters": dict(ident.parameters),
+                    "stderr": dict(ident.stderr),
+                    "metadata": dict(getattr(data, "metadata", {}) or {}),
+                }
+            )
+        if detailed or ident is None:
+            continue
+        detailed = True
+        for step, label in (
+            ("validate", "time_histories"),
+            ("identify", "fit_residuals"),
+            ("frequency", "bode"),
+            ("infer", "posterior"),
+            ("propagate", "propagation"),
+            ("design", "design"),
+            ("filter", "filter_states"),
+        ):
+            result = stored(steps[step]) if step in steps else None
+            if result is not None and hasattr(result, "plot"):
+                figures[f"{flight}: {label.replace('_', ' ')}"] = result.plot()
+    if records:
+        figures["campaign: estimates across flights"] = plot_campaign_trend(records)
+    images = {f"fig{i}": figure_png(fig) for i, fig in enumerate(figures.values())}
+    body = (
+        text.rstrip()
+        + "\n\n## Figures\n\n"
+        + "\n\n".join(f"### {name}\n\n![{name}](fig{i})" for i, name in enumerate(figures))
+    )
+    html_text = markdown_to_html(body, images).replace("<body>", "<body>\n" + marker, 1)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    tmp.write_text(html_text, encoding="utf-8")
+    os.replace(tmp, target)
 
 
 # -- rerun ---------------------------------------------------------------------------------
