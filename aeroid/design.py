@@ -523,11 +523,9 @@ def design_experiment(
             f"{dict(zip(var_names, x_init.tolist(), strict=True))}"
         )
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+    from ._progress import progress_bar
 
-        bar = tqdm(total=int(opts["maxiter"]), desc="design_experiment", unit="gen")
+    bar = progress_bar(int(opts["maxiter"]), desc="design_experiment", enabled=progress, unit="gen")
 
     generations = 0
 

@@ -133,6 +133,7 @@ def propagate(
     n_samples: int = 1000,
     percentiles: Sequence[float] = (2.5, 50.0, 97.5),
     seed: int | None = None,
+    progress: bool = False,
 ) -> PropagationResult:
     """Push parameter uncertainty through a metric by Monte Carlo.
 
@@ -151,6 +152,8 @@ def propagate(
     seed : int, optional
         Seed of the draws; the same seed gives the same result. With None a
         fresh seed is drawn and recorded in the result.
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
 
     Returns
     -------
@@ -170,7 +173,12 @@ def propagate(
     names, _, cov, fixed = _source(result)
     draws = draw_parameters(result, int(n_samples), seed)
     values = np.full(draws.shape[0], np.nan)
+    from ._progress import progress_bar
+
+    bar = progress_bar(draws.shape[0], desc="propagate", enabled=progress, unit="draw")
     for i, row in enumerate(draws):
+        if bar is not None:
+            bar.update(1)
         p = dict(fixed)
         p.update(zip(names, row.tolist(), strict=True))
         try:
@@ -178,6 +186,8 @@ def propagate(
             values[i] = float(v)  # a non-scalar raises and counts as a failure
         except Exception:  # a metric failing for some draws is expected, not fatal
             continue
+    if bar is not None:
+        bar.close()
     ok = np.isfinite(values)
     if not np.any(ok):
         raise PropagationError(f"the metric failed for all {n_samples} draws")

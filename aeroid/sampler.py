@@ -344,11 +344,9 @@ def ensemble_sampler(
 
 
 def _progress(total: int) -> Any:
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # progress is cosmetic
-        return None
-    return tqdm(total=total, desc="ensemble sampler", unit="step")
+    from ._progress import progress_bar
+
+    return progress_bar(total, desc="ensemble sampler", unit="step")
 
 
 # -- diagnostics ----------------------------------------------------------------------------
