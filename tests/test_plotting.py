@@ -1,0 +1,109 @@
+"""Every result draws itself: .plot() returns a figure with the expected panels."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import pytest
+from matplotlib.figure import Figure
+
+import aeroid
+from aeroid import catalog
+from aeroid.plotting import plot_campaign_trend
+
+NAMES = list(catalog.SHORT_PERIOD_TRUTH)
+
+
+@pytest.fixture(scope="module")
+def chain():
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=0)
+    r = aeroid.identify(model, data, NAMES)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = {
+            "identification": r,
+            "validation": aeroid.validate(model, data, r),
+            "propagation": aeroid.propagate(
+                r,
+                lambda p: math.sqrt(p["M_q"] * p["Z_alpha"] - p["M_alpha"]),
+                n_samples=300,
+                seed=0,
+            ),
+            "filtering": aeroid.filter_states(
+                model,
+                data,
+                r,
+                process_noise={"alpha": 1e-8, "q": 1e-8},
+                measurement_noise={"alpha": 0.005**2, "q": 0.01**2},
+            ),
+            "sensitivity": aeroid.sensitivities(
+                model, data, values=r, noise={"alpha": 0.005, "q": 0.01}
+            ),
+            "frequency": aeroid.frequency_response(model, data, r),
+            "inference": aeroid.infer(
+                model,
+                data.window(0, 4),
+                {n: aeroid.Normal(v, 5.0) for n, v in r.parameters.items()},
+                noise={"alpha": 0.005, "q": 0.01},
+                initial=r,
+                n_walkers=16,
+                n_steps=60,
+                seed=0,
+            ),
+            "design": aeroid.design_experiment(
+                model,
+                aeroid.Multisine("elevator", frequencies=(0.2, 0.5, 1.0), amplitude=(0.0, 0.05)),
+                ["M_q", "M_delta"],
+                values=r,
+                noise={"alpha": 0.005, "q": 0.01},
+                duration=4.0,
+                sample_rate=25.0,
+                seed=0,
+                optimizer_options={"maxiter": 2, "popsize": 3},
+            ),
+        }
+    return out
+
+
+@pytest.mark.parametrize(
+    ("name", "n_axes"),
+    [
+        ("identification", 3),  # two residual panels + estimates
+        ("validation", 4),  # alpha, alpha residual, q, q residual
+        ("propagation", 1),
+        ("filtering", 2),
+        ("sensitivity", 2),
+        ("frequency", 6),  # magnitude, phase, coherence for two channels
+        ("inference", 16),  # 4 x 4 corner grid
+        ("design", 2),
+    ],
+)
+def test_each_result_plots_itself(chain, name, n_axes):
+    fig = chain[name].plot()
+    assert isinstance(fig, Figure)
+    assert len(fig.axes) == n_axes
+    assert any(ax.lines or ax.patches or ax.collections for ax in fig.axes)
+
+
+def test_traces_and_campaign_trend(chain):
+    assert len(chain["inference"].plot_traces().axes) == 4
+    r = chain["identification"]
+    records = [
+        {
+            "flight": f"f{i}",
+            "parameters": dict(r.parameters),
+            "stderr": dict(r.stderr),
+            "metadata": {"airspeed": 60.0 + 10 * i},
+        }
+        for i in range(3)
+    ]
+    fig = plot_campaign_trend(records)
+    assert len(fig.axes) == 4 and fig.axes[-1].get_xlabel() == "airspeed"
+    assert (
+        plot_campaign_trend([{k: v for k, v in rec.items() if k != "metadata"} for rec in records])
+        .axes[-1]
+        .get_xlabel()
+        == "flight"
+    )
