@@ -260,10 +260,13 @@ def affine_matrices(
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Return (A, B, c) per batch member if f is affine in x and u and time-invariant.
 
-    The matrices come from unit perturbations; the affine form is then checked
-    at random points and another time, and ``None`` means "not affine".
+    Works for any batched function of (t, x, u, p): the dynamics (A is
+    n_x by n_x) or a measurement (A is n_y by n_x). The matrices come from
+    unit perturbations; the affine form is then checked at random points and
+    another time, and ``None`` means "not affine".
     """
     batch = next(iter(p.values())).shape[0] if p else 1
+    n_out = f.n_out
     n_probe = 1 + n_x + n_u + 2
     xs = np.zeros((n_probe, n_x))
     us = np.zeros((n_probe, n_u))
@@ -280,14 +283,16 @@ def affine_matrices(
     P = {k: np.tile(v, n_probe) for k, v in p.items()}
     with np.errstate(all="ignore"):
         try:
-            vals = f(T, X, U, P)
+            vals = np.asarray(f(T, X, U, P), dtype=np.float64)
         except Exception:
             return None
-    vals = vals.reshape(n_x, n_probe, batch)
+    if vals.shape != (n_out, n_probe * batch):
+        return None
+    vals = vals.reshape(n_out, n_probe, batch)
     if not np.all(np.isfinite(vals)):
         return None
     c = vals[:, 0, :]  # (n_x, B)
-    A = vals[:, 1 : 1 + n_x, :] - c[:, None, :]  # (n_x, n_x, B)
+    A = vals[:, 1 : 1 + n_x, :] - c[:, None, :]  # (n_out, n_x, B)
     Bm = vals[:, 1 + n_x : 1 + n_x + n_u, :] - c[:, None, :]
     for j in (n_probe - 2, n_probe - 1):
         pred = c + np.einsum("ijb,j->ib", A, xs[j]) + np.einsum("ijb,j->ib", Bm, us[j])

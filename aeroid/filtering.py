@@ -508,42 +508,7 @@ def _affine_measurement(
     rng: np.random.Generator,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """(H, D, c) per member if h is affine in x and u and time-invariant, else None."""
-    batch = next(iter(p.values())).shape[0] if p else 1
-    n_y = h.n_out
-    n_probe = 1 + n_x + n_u + 2
-    xs = np.zeros((n_probe, n_x))
-    us = np.zeros((n_probe, n_u))
-    xs[1 : 1 + n_x] = np.eye(n_x)
-    us[1 + n_x : 1 + n_x + n_u] = np.eye(n_u)
-    xs[-2:] = rng.standard_normal((2, n_x)) * np.array([[1.0], [10.0]])
-    us[-2:] = rng.standard_normal((2, n_u)) * np.array([[1.0], [10.0]])
-    ts = np.full(n_probe, t)
-    ts[-1] = t + 1.2345
-    X = np.repeat(xs, batch, axis=0).T
-    U = np.repeat(us, batch, axis=0).T
-    T = np.repeat(ts, batch)
-    P = {k: np.tile(v, n_probe) for k, v in p.items()}
-    with np.errstate(all="ignore"):
-        try:
-            vals = np.asarray(h(T, X, U, P), dtype=np.float64)
-        except Exception:
-            return None
-    if vals.shape != (n_y, n_probe * batch) or not np.all(np.isfinite(vals)):
-        return None
-    vals = vals.reshape(n_y, n_probe, batch)
-    c = vals[:, 0, :]
-    H = vals[:, 1 : 1 + n_x, :] - c[:, None, :]
-    D = vals[:, 1 + n_x : 1 + n_x + n_u, :] - c[:, None, :]
-    for j in (n_probe - 2, n_probe - 1):
-        pred = c + np.einsum("ijb,j->ib", H, xs[j]) + np.einsum("ijb,j->ib", D, us[j])
-        scale = (
-            np.abs(c)
-            + np.einsum("ijb,j->ib", np.abs(H), np.abs(xs[j]))
-            + np.einsum("ijb,j->ib", np.abs(D), np.abs(us[j]))
-        )
-        if not np.all(np.abs(vals[:, j, :] - pred) <= 1e-9 * scale + 1e-12):
-            return None
-    return np.transpose(H, (2, 0, 1)).copy(), np.transpose(D, (2, 0, 1)).copy(), c.T.copy()
+    return _integrate.affine_matrices(h, t, n_x, n_u, p, rng)
 
 
 @dataclass

@@ -261,35 +261,13 @@ def _affine_measurement(
         for i, o in enumerate(model.output_names):
             c[i, list(model.states).index(o)] = 1.0
         return c, np.zeros((model.n_outputs, n_u))
-    h = model._measurement_batch
-    rng = np.random.default_rng(0)
-    n_probe = 1 + n_x + n_u + 2
-    xs = np.zeros((n_probe, n_x))
-    us = np.zeros((n_probe, n_u))
-    xs[1 : 1 + n_x] = np.eye(n_x)
-    us[1 + n_x : 1 + n_x + n_u] = np.eye(n_u)
-    xs[-2:] = rng.standard_normal((2, n_x)) * np.array([[1.0], [10.0]])
-    us[-2:] = rng.standard_normal((2, n_u)) * np.array([[1.0], [10.0]])
-    ts = np.full(n_probe, t)
-    ts[-1] = t + 1.2345
-    pp = {k: np.repeat(v[:1], n_probe) for k, v in p.items()}
-    try:
-        with np.errstate(all="ignore"):
-            vals = h(ts, xs.T.copy(), us.T.copy(), pp)
-    except Exception:
+    p1 = {k: np.asarray(v[:1], dtype=np.float64) for k, v in p.items()}
+    mats = _integrate.affine_matrices(
+        model._measurement_batch, t, n_x, n_u, p1, np.random.default_rng(0)
+    )
+    if mats is None:
         return None
-    vals = np.asarray(vals, dtype=np.float64).reshape(model.n_outputs, n_probe)
-    if not np.all(np.isfinite(vals)):
-        return None
-    c0 = vals[:, 0]
-    cm = vals[:, 1 : 1 + n_x] - c0[:, None]
-    dm = vals[:, 1 + n_x : 1 + n_x + n_u] - c0[:, None]
-    for j in (n_probe - 2, n_probe - 1):
-        pred = c0 + cm @ xs[j] + dm @ us[j]
-        scale = np.abs(c0) + np.abs(cm) @ np.abs(xs[j]) + np.abs(dm) @ np.abs(us[j])
-        if not np.all(np.abs(vals[:, j] - pred) <= 1e-9 * scale + 1e-12):
-            return None
-    return cm, dm
+    return mats[0][0], mats[1][0]
 
 
 def _exact_response(
