@@ -179,9 +179,9 @@ def _compiled(model: Model, kind: str, substeps: int) -> Callable[..., Any]:
 def _grid(
     model: Model, time: Any, controls: Any, x0: Any
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    from .model import _check_time
+    from .model import check_time
 
-    t = _check_time(time)
+    t = check_time(time)
     u = model.control_array(t, controls)
     if u.shape[0] != 1:
         raise AdapterError(

@@ -507,7 +507,7 @@ class Model:
         BatchSimulation
             Members that diverge are marked in ``ok``; nothing is raised for them.
         """
-        t = _check_time(time)
+        t = check_time(time)
         unknown = sorted(set(parameters) - set(self.parameters))
         if unknown:
             raise SimulationError(f"parameters {unknown} are not parameters of model {self.name!r}")
@@ -620,8 +620,14 @@ class Model:
         return self.simulate(data.time, data, x0, parameters, **options)
 
 
-def _check_time(time: ArrayLike) -> FloatArray:
-    t = np.asarray(time, dtype=np.float64)
+def check_time(time: Any) -> FloatArray:
+    """A finite, strictly increasing 1-D time grid of at least two samples."""
+    try:
+        t = np.asarray(time, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SimulationError(
+            f"time: expected an array of numbers, got {type(time).__name__}"
+        ) from None
     if t.ndim != 1 or t.size < 2:
         raise SimulationError(
             f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}"

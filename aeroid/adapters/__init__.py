@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from ..data import FlightData
 from ..errors import AdapterError, ChannelError, SimulationError
+from ..model import check_time
 
 __all__: list[str] = []
 
@@ -55,22 +56,7 @@ def check_options(options: Mapping[str, Any], allowed: Iterable[str], where: str
 
 def time_grid(time: Any) -> FloatArray:
     """A finite, strictly increasing 1-D time grid of at least two samples."""
-    try:
-        t = np.asarray(time, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SimulationError(
-            f"time: expected an array of numbers, got {type(time).__name__}"
-        ) from None
-    if t.ndim != 1 or t.size < 2:
-        raise SimulationError(
-            f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}"
-        )
-    if not np.all(np.isfinite(t)):
-        raise SimulationError("time: contains NaN or infinite values")
-    if np.any(np.diff(t) <= 0):
-        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise SimulationError(f"time: not strictly increasing at index {bad}")
-    return t
+    return check_time(time)
 
 
 def control_matrix(time: FloatArray, controls: Any, names: Sequence[str]) -> FloatArray:
