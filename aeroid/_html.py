@@ -131,7 +131,6 @@ def write_report_bundle(
     text already references them. Returns (markdown path, html path).
     """
     md_path = Path(path)
-    fig_dir = md_path.parent / f"{md_path.stem}_figures"
     pngs = {f"{md_path.stem}_figures/{name}.png": figure_png(fig) for name, fig in figures.items()}
     text = markdown.rstrip() + "\n"
     missing = [k for k in pngs if k not in text]
@@ -139,7 +138,6 @@ def write_report_bundle(
         text += "\n## Figures\n\n" + "\n\n".join(f"![{Path(k).stem}]({k})" for k in missing) + "\n"
     for rel, data in pngs.items():
         _atomic_write(md_path.parent / rel, data)
-    del fig_dir
     _atomic_write(md_path, text.encode("utf-8"))
     html_path = md_path.with_suffix(".html")
     _atomic_write(html_path, markdown_to_html(text, pngs).encode("utf-8"))

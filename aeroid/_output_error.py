@@ -22,7 +22,6 @@ from numpy.typing import NDArray
 from .data import FlightData
 from .errors import IdentifiabilityWarning, IdentificationError
 from .identification import IdentificationResult
-from .model import Model
 
 FloatArray = NDArray[np.float64]
 
@@ -509,7 +508,3 @@ def fit_output_error(
         residuals=tuple(residuals),
         model_name=str(getattr(model, "name", "")),
     )
-
-
-def is_batchable(model: Any) -> bool:
-    return isinstance(model, Model)

@@ -43,7 +43,6 @@ def test_bias_interval_coverage_with_coloured_residuals():
     # Residual = constant bias + AR(1) noise; the interval uses an effective sample
     # size, so it should cover the bias in ~95 % of 200 seeds (binomial sd 1.5 %).
     model = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
-    clean = catalog.short_period_flight(noise={})
     hits = 0
     for s in range(200):
         noisy = catalog.short_period_flight(seed=s, colored=0.7)
@@ -51,7 +50,6 @@ def test_bias_interval_coverage_with_coloured_residuals():
         lo, hi = validate(model, d, None).metrics["q"].bias_ci
         hits += lo <= 0.003 <= hi
     assert 0.90 <= hits / 200 <= 0.99
-    del clean
 
 
 def test_wrong_model_shows_input_correlation_and_colour(sp_noisy):
