@@ -54,6 +54,11 @@ pipeline = Pipeline(
                 "validation": "validate",
                 "propagation": "propagate",
                 "reports": "report",
+                # for the detailed figures of the report
+                "filtering": "filter",
+                "inference": "infer",
+                "experiment": "design",
+                "frequency": "frequency",
             },
         ),
     ),

@@ -188,7 +188,7 @@ def _committed(tmp_path):
 
 def test_altered_array_bytes_are_detected_on_read_and_by_verify(tmp_path):
     store, key = _committed(tmp_path)
-    chunk = store.path_for("identify", key) / "covariance" / "c" / "0" / "0"
+    chunk = store.path_for("identify", key) / "covariance" / "0.0"
     raw = bytearray(chunk.read_bytes())
     raw[-1] ^= 0xFF
     chunk.write_bytes(bytes(raw))

@@ -18,10 +18,11 @@ import platform
 import sys
 import time
 import traceback
-from collections.abc import Callable, Mapping
+import uuid
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -30,12 +31,13 @@ from .config import CampaignConfig, SimulatedSource, load_config, validate_optio
 from .definition import Pipeline, load_pipeline, resolve_pipeline
 from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
 from .stages import STAGES, StageContext, resolve_callable
-from .store import ResultStore
+from .store import ResultStore, record_cache
 
 __all__ = [
     "Plan",
     "RunSummary",
     "Task",
+    "execute_chain",
     "execute_part",
     "execute_task",
     "plan",
@@ -379,14 +381,14 @@ def _context(
     for role, ref in task.upstream.items():
         up_stage = task.upstream_stages[role]
         if isinstance(ref, list):
-            values: list[Any] = []
+            keys: list[str | None] = []
             for flight, k in zip(task.flights, ref, strict=True):
                 if k in failed:
-                    values.append(None)
+                    keys.append(None)
                     failures.setdefault(flight, _failure_text(failed[k]))
                 else:
-                    values.append(reader.load(k, up_stage))
-            inputs[role] = values
+                    keys.append(k)
+            inputs[role] = _LazyRecords(reader, up_stage, keys)
         else:
             if ref in failed:
                 raise PipelineError(f"upstream {failed[ref]['step']} failed")
@@ -415,6 +417,44 @@ def _context(
     return stage, ctx, store, failures
 
 
+class _LazyRecords(Sequence[Any]):
+    """Campaign-level inputs: one record per flight (None where it failed), read on access.
+
+    A part that draws one flight's figure reads only that flight's results.
+    """
+
+    def __init__(self, reader: ResultStore, stage: str, keys: list[str | None]) -> None:
+        self._reader, self._stage, self._keys = reader, stage, keys
+        self._loaded: dict[int, Any] = {}
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    @overload
+    def __getitem__(self, index: int) -> Any: ...
+    @overload
+    def __getitem__(self, index: slice) -> list[Any]: ...
+    def __getitem__(self, index: int | slice) -> Any:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        i = range(len(self._keys))[index]  # IndexError past the end ends iteration
+        if i not in self._loaded:
+            k = self._keys[i]
+            self._loaded[i] = None if k is None else self._reader.load(k, self._stage)
+        return self._loaded[i]
+
+
+def _flatten(statuses: tuple[Any, ...]) -> tuple[Mapping[str, Any], ...]:
+    """Statuses passed in by upstream futures: single statuses or lists (chains)."""
+    out: list[Mapping[str, Any]] = []
+    for s in statuses:
+        if isinstance(s, Mapping):
+            out.append(s)
+        else:
+            out.extend(s)
+    return tuple(out)
+
+
 def _options(task: Task) -> Any:
     stage = STAGES[task.stage]
     return stage.options.model_validate(
@@ -428,7 +468,7 @@ def n_parts(task: Task) -> int:
     if stage is None or stage.parts is None or stage.run_part is None or stage.combine is None:
         return 1
     try:
-        return max(1, int(stage.parts(_options(task))))
+        return max(1, int(stage.parts(_options(task), frozenset(task.upstream))))
     except Exception:
         return 1  # the task itself will report the problem
 
@@ -437,13 +477,15 @@ def execute_part(
     task: Task,
     store_root: str,
     index: int,
-    *upstream_status: Mapping[str, Any],
+    *upstream_status: Any,
     read_root: str | None = None,
+    scope: str | None = None,
 ) -> dict[str, Any]:
     """Compute part `index` of a split task (not stored; its task combines the parts)."""
+    record_cache(scope)
     out: dict[str, Any] = {"key": task.key, "part": index}
     try:
-        stage, ctx, _, _ = _context(task, store_root, upstream_status, read_root)
+        stage, ctx, _, _ = _context(task, store_root, _flatten(upstream_status), read_root)
         t1 = time.perf_counter()
         out.update(status="ok", value=stage.run_part(ctx, index))
         out["compute_seconds"] = time.perf_counter() - t1
@@ -455,18 +497,23 @@ def execute_part(
 def execute_task(
     task: Task,
     store_root: str,
-    *upstream_status: Mapping[str, Any],
+    *upstream_status: Any,
     read_root: str | None = None,
+    scope: str | None = None,
 ) -> dict[str, Any]:
     """Run one task and commit its result; never raises (a failure is returned).
 
     `upstream_status` holds the statuses of upstream tasks run in this
-    session and, for a split task, the results of its parts.
+    session (single statuses or lists of them) and, for a split task, the
+    results of its parts. Records are cached in this process for the run
+    `scope` (see `record_cache`).
     """
+    record_cache(scope)
     t0 = time.perf_counter()
     status: dict[str, Any] = {"key": task.key, "step": task.step, "flight": task.flight}
-    parts = sorted((s for s in upstream_status if "part" in s), key=lambda s: s["part"])
-    upstream = tuple(s for s in upstream_status if "part" not in s)
+    flat = _flatten(upstream_status)
+    parts = sorted((s for s in flat if "part" in s), key=lambda s: s["part"])
+    upstream = tuple(s for s in flat if "part" not in s)
     try:
         stage, ctx, store, failures = _context(task, store_root, upstream, read_root)
         t1 = time.perf_counter()
@@ -498,12 +545,37 @@ def execute_task(
             status["markdown"] = record.markdown
             status["rows"] = [list(r) for r in getattr(record, "rows", ())]
             status["columns"] = list(getattr(record, "columns", ()))
+            if not status["cached"] and hasattr(record, "figure_bytes"):
+                status["figures"] = record.figure_bytes()
     except Exception as exc:
         status.update(status="failed", error=_error_text(exc))
         if not isinstance(exc, AeroidError):
             status["traceback"] = traceback.format_exc(limit=6)
     status["seconds"] = time.perf_counter() - t0
     return status
+
+
+def execute_chain(
+    tasks: list[Task],
+    store_root: str,
+    parts: list[Mapping[str, Any]],
+    *upstream_status: Any,
+    scope: str | None = None,
+) -> list[dict[str, Any]]:
+    """Run consecutive tasks of one flight in this process, in order; their statuses.
+
+    One Dask task per chain keeps the scheduler's per-task cost off the
+    flight's steps; every step is still keyed, committed and reported on its
+    own. `parts` are the results of the first task's parts, if it is split.
+    """
+    known: dict[str, Mapping[str, Any]] = {s["key"]: s for s in _flatten(upstream_status)}
+    out: list[dict[str, Any]] = []
+    for i, t in enumerate(tasks):
+        ups = [known[k] for k in dict.fromkeys(t.upstream_keys) if k in known]
+        status = execute_task(t, store_root, *ups, *(parts if i == 0 else ()), scope=scope)
+        known[t.key] = status
+        out.append(status)
+    return out
 
 
 def _error_text(exc: BaseException) -> str:
@@ -573,6 +645,62 @@ def _workers_default() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _start_method() -> str:
+    """How the embedded cluster starts its worker processes.
+
+    ``fork`` on Linux: a worker then starts in a few milliseconds with
+    everything this process has imported, instead of a second or more to
+    import numpy, scipy and aeroid afresh, which would dominate a campaign's
+    run. ``spawn`` elsewhere, when JAX is loaded (it must not be forked), or
+    as set by ``DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD``.
+    """
+    chosen = os.environ.get("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD")
+    if chosen:
+        return chosen
+    if sys.platform.startswith("linux") and "jax" not in sys.modules:
+        return "fork"
+    return "spawn"
+
+
+def _pin_blas() -> None:
+    """One BLAS/OpenMP thread per worker process (the env vars only reach spawned ones)."""
+    os.environ.update(_BLAS_ENV)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - a dependency; spawned workers honour the env
+        return
+    threadpool_limits(limits=1)
+
+
+def _preloads(task: Task) -> tuple[str, ...]:
+    stage = STAGES.get(task.stage)
+    return () if stage is None else stage.preload
+
+
+def _segments(tasks: list[Task]) -> list[tuple[list[Task], Task | None]]:
+    """Split tasks (plan order) into chains of one flight's consecutive steps.
+
+    A split task (it has parts) starts a new chain, whose parts run first;
+    campaign tasks are chains of their own. Returns (chain, split task or None).
+    """
+    out: list[tuple[list[Task], Task | None]] = []
+    current: list[Task] = []
+    split: Task | None = None
+    flight: object = object()
+    for t in tasks:
+        n = n_parts(t)
+        if current and (t.flight != flight or t.flight is None or n > 1):
+            out.append((current, split))
+            current, split = [], None
+        if n > 1:
+            split = t
+        current.append(t)
+        flight = t.flight
+    if current:
+        out.append((current, split))
+    return out
+
+
 def _run_dask(
     tasks: list[Task],
     store_root: str,
@@ -580,7 +708,9 @@ def _run_dask(
     scheduler: str | None,
     workers: int | None,
     on_done: Callable[[dict[str, Any]], None],
+    scope: str,
 ) -> dict[str, dict[str, Any]]:
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -592,64 +722,85 @@ def _run_dask(
     else:
         n = workers or _workers_default()
         n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
-        cluster = LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            env=dict(_BLAS_ENV),
-            silence_logs=40,
-        )
+        method = _start_method()
+        if method == "fork":
+            import importlib
+
+            for module in dict.fromkeys(m for t in tasks for m in _preloads(t)):
+                importlib.import_module(module)
+        with dask.config.set({"distributed.worker.multiprocessing-method": method}):
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                env=dict(_BLAS_ENV),
+                silence_logs=40,
+            )
         client = Client(cluster)
+        client.run(_pin_blas)
     results: dict[str, dict[str, Any]] = {}
     try:
-        futures: dict[str, Any] = {}
-        owner: dict[Any, str] = {}
-        for t in tasks:
-            if t.key in futures:
+        owner: dict[str, Any] = {}  # task key -> future of the chain that runs it
+        chains: dict[Any, list[Task]] = {}
+        for chain, split in _segments(tasks):
+            chain = [t for t in chain if t.key not in owner]  # same content in two flights
+            if not chain:
                 continue
-            deps = [futures[k] for k in dict.fromkeys(t.upstream_keys) if k in futures]
-            n = n_parts(t)
-            if n > 1:  # parts run in parallel; the task combines and commits them
-                deps = deps + [
+            own = {t.key for t in chain}
+            deps = list(
+                dict.fromkeys(
+                    owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
+                )
+            )
+            parts: list[Any] = []
+            if split is not None and chain[0] is split:
+                parts = [
                     client.submit(
                         execute_part,
-                        t,
+                        split,
                         store_root,
                         i,
                         *deps,
-                        key=f"{t.step}-{t.key}-part{i}",
+                        scope=scope,
+                        key=f"{split.step}-{split.key}-part{i}",
                         pure=False,
                         retries=0,
                     )
-                    for i in range(n)
+                    for i in range(n_parts(split))
                 ]
+            head = chain[0]
             fut = client.submit(
-                execute_task,
-                t,
+                execute_chain,
+                chain,
                 store_root,
+                parts,
                 *deps,
-                key=f"{t.step}-{t.key}",
+                scope=scope,
+                key=f"{head.flight or 'campaign'}-{head.step}-{head.key}",
                 pure=False,
                 retries=0,
             )
-            futures[t.key] = fut
-            owner[fut] = t.key
-        for fut in as_completed(list(futures.values())):
-            key = owner[fut]
+            for t in chain:
+                owner[t.key] = fut
+            chains[fut] = chain
+        for fut in as_completed(list(chains)):
             try:
-                status = fut.result()
-            except Exception as exc:  # a worker died under the task
-                t = next(x for x in tasks if x.key == key)
-                status = {
-                    "key": key,
-                    "step": t.step,
-                    "flight": t.flight,
-                    "status": "failed",
-                    "error": _error_text(exc),
-                }
-            results[key] = status
-            on_done(status)
+                statuses = fut.result()
+            except Exception as exc:  # a worker died under the chain
+                statuses = [
+                    {
+                        "key": t.key,
+                        "step": t.step,
+                        "flight": t.flight,
+                        "status": "failed",
+                        "error": _error_text(exc),
+                    }
+                    for t in chains[fut]
+                ]
+            for status in statuses:
+                results[status["key"]] = status
+                on_done(status)
     finally:
         client.close()
         if cluster is not None:
@@ -658,18 +809,21 @@ def _run_dask(
 
 
 def _run_local(
-    tasks: list[Task], store_root: str, on_done: Callable[[dict[str, Any]], None]
+    tasks: list[Task], store_root: str, on_done: Callable[[dict[str, Any]], None], scope: str
 ) -> dict[str, dict[str, Any]]:
     results: dict[str, dict[str, Any]] = {}
-    for t in tasks:
-        if t.key in results:
-            continue
-        ups = [results[k] for k in dict.fromkeys(t.upstream_keys) if k in results]
-        n = n_parts(t)
-        if n > 1:
-            ups = ups + [execute_part(t, store_root, i, *ups) for i in range(n)]
-        results[t.key] = execute_task(t, store_root, *ups)
-        on_done(results[t.key])
+    try:
+        for t in tasks:
+            if t.key in results:
+                continue
+            ups = [results[k] for k in dict.fromkeys(t.upstream_keys) if k in results]
+            n = n_parts(t)
+            if n > 1:
+                ups = ups + [execute_part(t, store_root, i, *ups, scope=scope) for i in range(n)]
+            results[t.key] = execute_task(t, store_root, *ups, scope=scope)
+            on_done(results[t.key])
+    finally:
+        record_cache(None)
     return results
 
 
@@ -735,8 +889,9 @@ def run(
                 bar.update(1)
 
         try:
+            scope = uuid.uuid4().hex
             if config.workers == 0 and not config.scheduler:
-                done = _run_local(todo, str(result_store.root), on_done)
+                done = _run_local(todo, str(result_store.root), on_done, scope)
             else:
                 done = _run_dask(
                     todo,
@@ -744,6 +899,7 @@ def run(
                     scheduler=config.scheduler,
                     workers=config.workers,
                     on_done=on_done,
+                    scope=scope,
                 )
         finally:
             if bar is not None:
@@ -777,6 +933,7 @@ def _write_report(
     status = statuses[task.key]
     if status["status"] == "failed":
         return None, [], []
+    record = None
     if "markdown" in status:
         text, columns, rows = status["markdown"], status["columns"], status["rows"]
     else:
@@ -791,11 +948,29 @@ def _write_report(
     path = the_plan.config.report_path
     path.parent.mkdir(parents=True, exist_ok=True)
     if not path.is_file() or path.read_text(encoding="utf-8") != text:
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    _write_html_report(the_plan, store, statuses, text, task.key, path)
+        _replace_text(path, text)
+    target = html_report_path(path)
+    marker = f"<!-- aeroid campaign report {task.key} -->"
+    # rebuilt only when the campaign report's key changes (an unchanged rerun stays cheap)
+    if not (target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace")):
+        if "figures" in status:
+            figures = dict(status["figures"])
+        else:
+            if record is None:
+                try:
+                    record = store.load(task.key, task.stage)
+                except AeroidError:
+                    record = None
+            draw = getattr(record, "figure_bytes", None)
+            figures = draw() if draw is not None else {}
+        _replace_text(target, _html_report(text, figures, marker))
     return path, columns, rows
+
+
+def _replace_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
 
 
 def html_report_path(markdown_path: Path) -> Path:
@@ -803,83 +978,17 @@ def html_report_path(markdown_path: Path) -> Path:
     return markdown_path.with_suffix(".html")
 
 
-def _write_html_report(
-    the_plan: Plan,
-    store: ResultStore,
-    statuses: dict[str, dict[str, Any]],
-    text: str,
-    report_key: str,
-    path: Path,
-) -> None:
-    """The self-contained HTML campaign report: the Markdown plus figures.
+def _html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
+    """The self-contained HTML campaign report: the Markdown plus the report's figures."""
+    from .._html import markdown_to_html
 
-    Detailed figures (time histories with residuals, fit residuals, Bode,
-    posterior, propagation, design) for the first flight that has them, and
-    the cross-flight trend of every estimate. Rebuilt only when the campaign
-    report's key changes, so an unchanged rerun stays cheap.
-    """
-    from .._html import figure_png, markdown_to_html
-    from ..plotting import plot_campaign_trend
-
-    target = html_report_path(path)
-    marker = f"<!-- aeroid campaign report {report_key} -->"
-    if target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace"):
-        return
-
-    def stored(task: Task) -> Any:
-        if statuses.get(task.key, {}).get("status") == "failed":
-            return None
-        try:
-            return store.load(task.key, task.stage)
-        except AeroidError:
-            return None
-
-    by_flight: dict[str, dict[str, Any]] = {}
-    for t in the_plan.tasks:
-        if t.flight is not None:
-            by_flight.setdefault(t.flight, {})[t.step] = t
-    figures: dict[str, Any] = {}
-    records = []
-    detailed = False
-    for flight, steps in by_flight.items():
-        ident = stored(steps["identify"]) if "identify" in steps else None
-        data = stored(steps["load"]) if "load" in steps else None
-        if ident is not None:
-            records.append(
-                {
-                    "flight": flight,
-                    "parameters": dict(ident.parameters),
-                    "stderr": dict(ident.stderr),
-                    "metadata": dict(getattr(data, "metadata", {}) or {}),
-                }
-            )
-        if detailed or ident is None:
-            continue
-        detailed = True
-        for step, label in (
-            ("validate", "time_histories"),
-            ("identify", "fit_residuals"),
-            ("frequency", "bode"),
-            ("infer", "posterior"),
-            ("propagate", "propagation"),
-            ("design", "design"),
-            ("filter", "filter_states"),
-        ):
-            result = stored(steps[step]) if step in steps else None
-            if result is not None and hasattr(result, "plot"):
-                figures[f"{flight}: {label.replace('_', ' ')}"] = result.plot()
-    if records:
-        figures["campaign: estimates across flights"] = plot_campaign_trend(records)
-    images = {f"fig{i}": figure_png(fig) for i, fig in enumerate(figures.values())}
-    body = (
-        text.rstrip()
-        + "\n\n## Figures\n\n"
-        + "\n\n".join(f"### {name}\n\n![{name}](fig{i})" for i, name in enumerate(figures))
-    )
-    html_text = markdown_to_html(body, images).replace("<body>", "<body>\n" + marker, 1)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    tmp.write_text(html_text, encoding="utf-8")
-    os.replace(tmp, target)
+    body = text.rstrip()
+    if figures:
+        body += "\n\n## Figures\n\n" + "\n\n".join(
+            f"### {name}\n\n![{name}](fig{i})" for i, name in enumerate(figures)
+        )
+    images = {f"fig{i}": png for i, png in enumerate(figures.values())}
+    return markdown_to_html(body, images).replace("<body>", "<body>\n" + marker, 1)
 
 
 # -- rerun ---------------------------------------------------------------------------------

@@ -46,7 +46,12 @@ class FlightReport:
 
 @dataclass(frozen=True, eq=False)
 class CampaignReport:
-    """The campaign report: a per-flight table, failures, and each flight's report."""
+    """The campaign report: a per-flight table, failures, each flight's report and figures.
+
+    `figures` holds PNG images (bytes as ``uint8`` arrays) titled by
+    `figure_titles`: the trend of every estimate across flights and the
+    detailed figures of the first flight that was identified.
+    """
 
     title: str
     markdown: str
@@ -54,6 +59,23 @@ class CampaignReport:
     columns: tuple[str, ...]
     rows: tuple[tuple[str, ...], ...]
     failures: Mapping[str, str] = field(default_factory=dict)
+    figure_titles: tuple[str, ...] = ()
+    figures: tuple[np.ndarray, ...] = ()
+
+    def __post_init__(self) -> None:
+        pngs = []
+        for png in self.figures:
+            arr = np.frombuffer(png, dtype=np.uint8) if isinstance(png, bytes) else png
+            arr = np.array(arr, dtype=np.uint8, copy=True)
+            arr.setflags(write=False)
+            pngs.append(arr)
+        if len(pngs) != len(self.figure_titles):
+            raise PipelineError("CampaignReport: one title per figure expected")
+        object.__setattr__(self, "figures", tuple(pngs))
+
+    def figure_bytes(self) -> dict[str, bytes]:
+        """The PNG images by title."""
+        return {t: f.tobytes() for t, f in zip(self.figure_titles, self.figures, strict=True)}
 
     def summary(self) -> str:
         return self.markdown
@@ -115,11 +137,15 @@ class Stage:
     per_flight : bool
         False for campaign-level stages whose inputs are lists over flights.
     parts : callable, optional
-        ``parts(options) -> n``: the task splits into `n` independent parts
+        ``parts(options, roles) -> n`` (`roles`: the task's input roles):
+        the task splits into `n` independent parts
         (MCMC ensembles, Monte Carlo batches) that run in parallel, each with
         its own random stream; ``run_part(ctx, i)`` computes part `i` and
         ``combine(ctx, parts)`` the stored record. Results equal the unsplit
         computation whatever runs which part.
+    preload : tuple of str
+        Modules the stage imports lazily and slowly (plotting): imported once
+        before worker processes are forked, instead of in every worker.
     """
 
     name: str
@@ -131,9 +157,10 @@ class Stage:
     seeded: bool = False
     library: str | None = None
     per_flight: bool = True
-    parts: Callable[[Any], int] | None = None
+    parts: Callable[[Any, frozenset[str]], int] | None = None
     run_part: Callable[[StageContext, int], Any] | None = None
     combine: Callable[[StageContext, list[Any]], Any] | None = None
+    preload: tuple[str, ...] = ()
 
 
 STAGES: dict[str, Stage] = {}
@@ -376,7 +403,7 @@ def _run_infer(ctx: StageContext) -> Any:
     return fn(ctx.model, ctx.inputs["data"], **kw)
 
 
-def _infer_parts(options: Any) -> int:
+def _infer_parts(options: Any, roles: frozenset[str]) -> int:
     import aeroid.inference as inference
 
     if not hasattr(inference, "infer_ensemble"):
@@ -507,6 +534,7 @@ class CampaignReportOptions(Options):
 
     title: str | None = None
     include_flight_reports: bool = True
+    figures: bool = True
 
 
 def _fit_whiteness(validation: Any) -> tuple[str, str]:
@@ -533,6 +561,85 @@ def _condition(data: Any) -> str:
         if key in meta:
             parts.append(f"{key.replace('_', ' ')} {float(meta[key]):.4g} {unit}")
     return ", ".join(parts) or str(meta.get("source", "—"))
+
+
+# The figures of the campaign report, each drawn by its own part of the task (so
+# they are rendered in parallel): the cross-flight trend, then one figure per
+# per-flight result of the first flight that was identified.
+_DETAIL_FIGURES = (
+    ("validation", "time histories"),
+    ("identification", "fit residuals"),
+    ("frequency", "bode"),
+    ("inference", "posterior"),
+    ("propagation", "propagation"),
+    ("experiment", "design"),
+    ("filtering", "filter states"),
+)
+
+
+def _detail_roles(roles: Any) -> list[tuple[str, str]]:
+    return [(role, label) for role, label in _DETAIL_FIGURES if role in roles]
+
+
+def _campaign_parts(options: Any, roles: frozenset[str]) -> int:
+    # one part per figure that can be drawn; 1 (no parts) without figures
+    if not options.figures or "identification" not in roles:
+        return 1
+    return 1 + len(_detail_roles(roles))
+
+
+def _first_identified(ctx: StageContext) -> int | None:
+    for i, r in enumerate(ctx.inputs.get("identification", ())):
+        if r is not None:
+            return i
+    return None
+
+
+def _run_campaign_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
+    """Part `index` of the campaign report: one figure as (title, PNG bytes), or None."""
+    from .._html import figure_png
+    from ..plotting import plot_campaign_trend
+
+    if index == 0:
+        data = ctx.inputs.get("data", [None] * len(ctx.flights))
+        records = [
+            {
+                "flight": f,
+                "parameters": dict(r.parameters),
+                "stderr": dict(r.stderr),
+                "metadata": dict(getattr(d, "metadata", {}) or {}),
+            }
+            for f, r, d in zip(
+                ctx.flights, ctx.inputs.get("identification", ()), data, strict=False
+            )
+            if r is not None
+        ]
+        if not records:
+            return None
+        return "campaign: estimates across flights", figure_png(plot_campaign_trend(records))
+    role, label = _detail_roles(ctx.inputs)[index - 1]
+    first = _first_identified(ctx)
+    if first is None:
+        return None
+    result = ctx.inputs[role][first]
+    if result is None or not hasattr(result, "plot"):
+        return None
+    return f"{ctx.flights[first]}: {label}", figure_png(result.plot())
+
+
+def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
+    report = _run_campaign_report(ctx)
+    drawn = [p for p in parts if p is not None]
+    return CampaignReport(
+        title=report.title,
+        markdown=report.markdown,
+        flights=report.flights,
+        columns=report.columns,
+        rows=report.rows,
+        failures=report.failures,
+        figure_titles=tuple(t for t, _ in drawn),
+        figures=tuple(np.frombuffer(png, dtype=np.uint8) for _, png in drawn),
+    )
 
 
 def _run_campaign_report(ctx: StageContext) -> CampaignReport:
@@ -678,12 +785,16 @@ for _stage in (
     ),
     Stage(
         "campaign_report",
-        "1",
+        "2",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign_report,
         uses_model=False,
         per_flight=False,
+        parts=_campaign_parts,
+        run_part=_run_campaign_figure,
+        combine=_combine_campaign,
+        preload=("aeroid.plotting", "aeroid._html"),
     ),
 ):
     register_stage(_stage)

@@ -20,8 +20,10 @@ import json
 import os
 import shutil
 import socket
+import threading
 import time
 import uuid
+from collections import OrderedDict
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,9 +33,9 @@ import numpy as np
 
 from ..errors import StoreError
 from . import codec
-from .keys import array_digest, canonical_json, sha256_hex
+from .keys import array_digest, canonical_json, sha256_hex, to_jsonable
 
-__all__ = ["Entry", "ResultStore", "open_store"]
+__all__ = ["Entry", "ResultStore", "open_store", "record_cache"]
 
 FORMAT = 1
 _MARKER = "aeroid-store.json"
@@ -81,7 +83,8 @@ def _zarr_dtype(arr: np.ndarray) -> str:
 
 
 def _write_json(path: Path, doc: Mapping[str, Any]) -> None:
-    path.write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+    # compact: json's C encoder is only used without indentation
+    path.write_text(json.dumps(doc, separators=(",", ":"), allow_nan=False), encoding="utf-8")
 
 
 def _write_array(path: Path, arr: np.ndarray) -> None:
@@ -99,7 +102,8 @@ def _write_array(path: Path, arr: np.ndarray) -> None:
             "shape": [int(n) for n in arr.shape],
             "data_type": dtype,
             "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": chunk}},
-            "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
+            # "v2" keys ("0.0") put the single chunk beside zarr.json: no chunk directories
+            "chunk_key_encoding": {"name": "v2", "configuration": {"separator": "."}},
             "fill_value": fill,
             "codecs": [{"name": "bytes", "configuration": {"endian": "little"}}],
             "attributes": {},
@@ -108,13 +112,25 @@ def _write_array(path: Path, arr: np.ndarray) -> None:
     )
     if arr.size == 0:
         return  # an empty array has no chunk
-    chunk_dir = path / "c"
-    parts = ["0"] * arr.ndim
-    target = chunk_dir.joinpath(*parts) if parts else chunk_dir
-    if parts:
-        target.parent.mkdir(parents=True)
+    target = path / _chunk_name(arr.ndim)
     data = np.ascontiguousarray(arr, dtype=_NUMPY[dtype])
     target.write_bytes(data.tobytes())
+
+
+def _chunk_name(ndim: int) -> str:
+    return ".".join(["0"] * ndim) or "0"
+
+
+def _chunk_path(path: Path, ndim: int, encoding: Any) -> Path | None:
+    """Where the single chunk of an array lives, for the key encodings this store writes."""
+    if not isinstance(encoding, dict):
+        return None
+    sep = (encoding.get("configuration") or {}).get("separator")
+    if encoding.get("name") == "v2" and sep == ".":
+        return path / _chunk_name(ndim)
+    if encoding.get("name") == "default" and sep == "/":  # entries of earlier versions
+        return (path / "c").joinpath(*(["0"] * ndim))
+    return None
 
 
 def _read_array(path: Path) -> np.ndarray | None:
@@ -126,14 +142,13 @@ def _read_array(path: Path) -> np.ndarray | None:
         meta.get("codecs") == [{"name": "bytes", "configuration": {"endian": "little"}}]
         and meta.get("chunk_grid", {}).get("configuration", {}).get("chunk_shape")
         == [max(1, n) for n in shape]
-        and meta.get("chunk_key_encoding", {}).get("configuration", {}).get("separator") == "/"
         and dtype is not None
     )
-    if not layout_ok:
+    target = _chunk_path(path, len(shape), meta.get("chunk_key_encoding"))
+    if not layout_ok or target is None:
         return None
     if 0 in shape:
         return np.zeros(shape, dtype=dtype)
-    target = (path / "c").joinpath(*(["0"] * len(shape))) if shape else path / "c"
     raw = target.read_bytes()
     arr = np.frombuffer(raw, dtype=dtype)
     if arr.size != int(np.prod(shape)):
@@ -141,9 +156,69 @@ def _read_array(path: Path) -> np.ndarray | None:
     return arr.reshape(shape).astype(np.dtype(dtype).newbyteorder("="))
 
 
+_DIGESTED = ("key", "stage", "record", "task", "digests")
+
+
 def _content_digest(meta: Mapping[str, Any]) -> str:
-    body = {k: meta[k] for k in ("key", "stage", "record", "task", "digests")}
-    return sha256_hex(canonical_json(body))
+    return sha256_hex(canonical_json({k: meta[k] for k in _DIGESTED}))
+
+
+def _plain_digest(meta: Mapping[str, Any]) -> str:
+    """`_content_digest` of a document already made of plain JSON types (no second pass)."""
+    body = {k: meta[k] for k in _DIGESTED}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return sha256_hex(text.encode("utf-8"))
+
+
+# -- a run-scoped cache of records -------------------------------------------------
+# Within one run, a record committed or read (digests checked) by this process is
+# handed to later tasks of the same run without reading it back: entries are
+# immutable, so the copy in memory is what a verified read would return. A new
+# scope (the next run) starts empty, so every run verifies what it reads at least
+# once; outside a scope nothing is cached.
+
+_CACHE_BYTES = 256 * 2**20
+
+
+class _RecordCache:
+    def __init__(self) -> None:
+        self.scope: str | None = None
+        self.items: OrderedDict[tuple[str, str, str], tuple[Any, int]] = OrderedDict()
+        self.nbytes = 0
+        self.lock = threading.Lock()
+
+    def enter(self, scope: str | None) -> None:
+        with self.lock:
+            if scope != self.scope:
+                self.items.clear()
+                self.nbytes = 0
+                self.scope = scope
+
+    def get(self, ident: tuple[str, str, str]) -> Any:
+        with self.lock:
+            if self.scope is None or ident not in self.items:
+                return None
+            self.items.move_to_end(ident)
+            return self.items[ident][0]
+
+    def put(self, ident: tuple[str, str, str], record: Any, nbytes: int) -> None:
+        with self.lock:
+            if self.scope is None or nbytes > _CACHE_BYTES or ident in self.items:
+                return
+            self.items[ident] = (record, nbytes)
+            self.nbytes += nbytes
+            while self.nbytes > _CACHE_BYTES:
+                _, (_, n) = self.items.popitem(last=False)
+                self.nbytes -= n
+
+
+_CACHE = _RecordCache()
+_CHECKED: set[str] = set()  # store roots whose marker this process has read
+
+
+def record_cache(scope: str | None) -> None:
+    """Cache records in this process for the run `scope` (None: stop caching, forget all)."""
+    _CACHE.enter(scope)
 
 
 def _pid_alive(pid: int) -> bool:
@@ -176,7 +251,10 @@ class ResultStore:
                 "(atomic commits need a rename)"
             )
         self.root = Path(text.removeprefix("file://")).expanduser()
+        self._root_id = os.path.abspath(self.root)
         marker = self.root / _MARKER
+        if self._root_id in _CHECKED and marker.is_file():
+            return  # this process has read this store's marker already
         if marker.is_file():
             try:
                 info = json.loads(marker.read_text())
@@ -199,6 +277,7 @@ class ResultStore:
             os.replace(tmp, marker)
         else:
             raise StoreError(f"store {self.root}: not an aeroid store (no {_MARKER})")
+        _CHECKED.add(self._root_id)
 
     def __repr__(self) -> str:
         return f"ResultStore({str(self.root)!r})"
@@ -277,8 +356,8 @@ class ResultStore:
             "digests": {name: array_digest(a) for name, a in arrays.items()},
             "provenance": dict(provenance or {}),
         }
-        meta["content_digest"] = _content_digest(meta)
-        meta = json.loads(canonical_json(meta))  # plain JSON types only
+        meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
+        meta["content_digest"] = _plain_digest(meta)
         tmp_root = self.root / _TMP
         tmp_root.mkdir(parents=True, exist_ok=True)
         tmp = tmp_root / f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
@@ -306,6 +385,10 @@ class ResultStore:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+        if _CACHE.scope is not None:
+            # what a verified read of the new entry returns (the tree went through JSON)
+            nbytes = sum(a.nbytes for a in arrays.values())
+            _CACHE.put(self._ident(stage, key), codec.decode(meta["record"], arrays), nbytes)
         return True
 
     # -- reading ---------------------------------------------------------------
@@ -361,11 +444,22 @@ class ResultStore:
             raise StoreError(f"{where} is corrupt: {type(exc).__name__}: {exc}") from None
         return meta, arrays
 
+    def _ident(self, stage: str, key: str) -> tuple[str, str, str]:
+        return (self._root_id, stage, key)
+
     def load(self, key: str, stage: str | None = None) -> Any:
         """The stored result as its record type, after checking every digest."""
+        if stage is not None:
+            hit = _CACHE.get(self._ident(stage, key))
+            if hit is not None:
+                return hit
         entry = self._entry(key, stage)
         meta, arrays = self._read_verified(entry)
-        return codec.decode(meta["record"], arrays)
+        record = codec.decode(meta["record"], arrays)
+        if _CACHE.scope is not None:
+            nbytes = sum(a.nbytes for a in arrays.values())
+            _CACHE.put(self._ident(entry.stage, entry.key), record, nbytes)
+        return record
 
     def load_arrays(self, key: str, stage: str | None = None) -> dict[str, np.ndarray]:
         """The entry's arrays by name (digests checked)."""

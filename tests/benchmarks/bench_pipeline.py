@@ -89,16 +89,19 @@ def cold(cfg: Path, workers: int, tag: str) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--flights", type=int, default=24)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
     cfg = campaign(tmp, args.flights)
     what = "load->identify->validate->propagate->report" if CHAIN else "STAND-IN load->fit->report"
     print(f"{args.flights}-flight campaign, {what}, {args.repeats} repeats")
 
-    w1 = [cold(cfg, 1, "w1") for _ in range(args.repeats)]
-    w2 = [cold(cfg, 2, "w2") for _ in range(args.repeats)]
-    w0 = [cold(cfg, 0, "w0") for _ in range(args.repeats)]
+    cold(cfg, 0, "warm-up")  # imports and caches of this process, paid once
+    w1, w2, w0 = [], [], []
+    for _ in range(args.repeats):  # interleaved, so drifts in machine load hit all three
+        w1.append(cold(cfg, 1, "w1"))
+        w2.append(cold(cfg, 2, "w2"))
+        w0.append(cold(cfg, 0, "w0"))
     t1 = statistics.median(w for w, _ in w1)
     t2 = statistics.median(w for w, _ in w2)
     t0 = statistics.median(w for w, _ in w0)
