@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
 import os
 import platform
 import sys
@@ -677,6 +678,27 @@ def _preloads(task: Task) -> tuple[str, ...]:
     return () if stage is None else stage.preload
 
 
+def _part_deps(task: Task, index: int, deps: list[Any], owner: Mapping[str, Any]) -> list[Any]:
+    """The futures part `index` of a split task waits for (see `Stage.part_flights`)."""
+    stage = STAGES.get(task.stage)
+    if stage is None or stage.part_flights is None or task.flight is not None:
+        return deps
+    try:
+        flights = stage.part_flights(_options(task), frozenset(task.upstream), index)
+    except Exception:
+        return deps  # the part itself will report the problem
+    if flights is None:
+        return deps
+    keys = [
+        ref[j]
+        for ref in task.upstream.values()
+        if isinstance(ref, list)
+        for j in flights
+        if 0 <= j < len(ref)
+    ]
+    return list(dict.fromkeys(owner[k] for k in keys if k in owner))
+
+
 def _segments(tasks: list[Task]) -> list[tuple[list[Task], Task | None]]:
     """Split tasks (plan order) into chains of one flight's consecutive steps.
 
@@ -735,7 +757,7 @@ def _run_dask(
                 processes=True,
                 dashboard_address=None,
                 env=dict(_BLAS_ENV),
-                silence_logs=40,
+                silence_logs=logging.CRITICAL,  # failures are reported per task
             )
         client = Client(cluster)
         client.run(_pin_blas)
@@ -761,11 +783,13 @@ def _run_dask(
                         split,
                         store_root,
                         i,
-                        *deps,
+                        *_part_deps(split, i, deps, owner),
                         scope=scope,
                         key=f"{split.step}-{split.key}-part{i}",
                         pure=False,
                         retries=0,
+                        # a part waiting on a few flights runs as soon as they are done
+                        priority=1,
                     )
                     for i in range(n_parts(split))
                 ]

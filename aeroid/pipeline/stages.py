@@ -143,6 +143,10 @@ class Stage:
         its own random stream; ``run_part(ctx, i)`` computes part `i` and
         ``combine(ctx, parts)`` the stored record. Results equal the unsplit
         computation whatever runs which part.
+    part_flights : callable, optional
+        ``part_flights(options, roles, i)``: for a campaign-level split task,
+        the flights (indices) part `i` reads; it then waits only for those
+        flights. None (or the callable returning None): every flight.
     preload : tuple of str
         Modules the stage imports lazily and slowly (plotting): imported once
         before worker processes are forked, instead of in every worker.
@@ -161,6 +165,7 @@ class Stage:
     run_part: Callable[[StageContext, int], Any] | None = None
     combine: Callable[[StageContext, list[Any]], Any] | None = None
     preload: tuple[str, ...] = ()
+    part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
 
 
 STAGES: dict[str, Stage] = {}
@@ -595,8 +600,31 @@ def _first_identified(ctx: StageContext) -> int | None:
     return None
 
 
-def _run_campaign_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
-    """Part `index` of the campaign report: one figure as (title, PNG bytes), or None."""
+def _campaign_part_flights(
+    options: Any, roles: frozenset[str], index: int
+) -> tuple[int, ...] | None:
+    # the detailed figures read the first flight only, so they can be drawn as soon as
+    # that flight is done, while the others are still running; the trend reads all
+    return None if index == 0 else (0,)
+
+
+def _detail_figure(ctx: StageContext, index: int, flight: int) -> tuple[str, bytes] | None:
+    from .._html import figure_png
+
+    role, label = _detail_roles(ctx.inputs)[index - 1]
+    result = ctx.inputs[role][flight]
+    if result is None or not hasattr(result, "plot"):
+        return None
+    return f"{ctx.flights[flight]}: {label}", figure_png(result.plot())
+
+
+def _run_campaign_figure(ctx: StageContext, index: int) -> Any:
+    """Part `index` of the campaign report: one figure as (title, PNG bytes), or None.
+
+    A detailed figure part reads the first flight only; if that flight was not
+    identified it returns its index, and `_combine_campaign` draws the figure
+    for the first flight that was.
+    """
     from .._html import figure_png
     from ..plotting import plot_campaign_trend
 
@@ -617,19 +645,22 @@ def _run_campaign_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | N
         if not records:
             return None
         return "campaign: estimates across flights", figure_png(plot_campaign_trend(records))
-    role, label = _detail_roles(ctx.inputs)[index - 1]
-    first = _first_identified(ctx)
-    if first is None:
+    if not ctx.flights:
         return None
-    result = ctx.inputs[role][first]
-    if result is None or not hasattr(result, "plot"):
-        return None
-    return f"{ctx.flights[first]}: {label}", figure_png(result.plot())
+    if ctx.inputs["identification"][0] is None:
+        return index
+    return _detail_figure(ctx, index, 0)
 
 
 def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
     report = _run_campaign_report(ctx)
-    drawn = [p for p in parts if p is not None]
+    drawn = []
+    for part in parts:
+        if isinstance(part, int):  # the first flight failed: draw for the first identified
+            first = _first_identified(ctx)
+            part = None if first is None else _detail_figure(ctx, part, first)
+        if part is not None:
+            drawn.append(part)
     return CampaignReport(
         title=report.title,
         markdown=report.markdown,
@@ -794,6 +825,7 @@ for _stage in (
         parts=_campaign_parts,
         run_part=_run_campaign_figure,
         combine=_combine_campaign,
+        part_flights=_campaign_part_flights,
         preload=("aeroid.plotting", "aeroid._html"),
     ),
 ):

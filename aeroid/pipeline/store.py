@@ -82,20 +82,32 @@ def _zarr_dtype(arr: np.ndarray) -> str:
     return _DTYPES[code]
 
 
-def _write_json(path: Path, doc: Mapping[str, Any]) -> None:
+def _write_file(path: str, data: bytes) -> None:
+    # os-level calls: a commit writes a few files per array, and pathlib's and
+    # io's layers cost more than the system calls themselves
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view) :]
+    finally:
+        os.close(fd)
+
+
+def _write_json(path: str, doc: Mapping[str, Any]) -> None:
     # compact: json's C encoder is only used without indentation
-    path.write_text(json.dumps(doc, separators=(",", ":"), allow_nan=False), encoding="utf-8")
+    _write_file(path, json.dumps(doc, separators=(",", ":"), allow_nan=False).encode("utf-8"))
 
 
-def _write_array(path: Path, arr: np.ndarray) -> None:
+def _write_array(path: str, arr: np.ndarray) -> None:
     dtype = _zarr_dtype(arr)
     fill: Any = False if dtype == "bool" else (0 if dtype[0] in "iu" else 0.0)
     if dtype.startswith("complex"):
         fill = [0.0, 0.0]
     chunk = [max(1, int(n)) for n in arr.shape]
-    path.mkdir()
+    os.mkdir(path)
     _write_json(
-        path / "zarr.json",
+        os.path.join(path, "zarr.json"),
         {
             "zarr_format": 3,
             "node_type": "array",
@@ -112,9 +124,8 @@ def _write_array(path: Path, arr: np.ndarray) -> None:
     )
     if arr.size == 0:
         return  # an empty array has no chunk
-    target = path / _chunk_name(arr.ndim)
     data = np.ascontiguousarray(arr, dtype=_NUMPY[dtype])
-    target.write_bytes(data.tobytes())
+    _write_file(os.path.join(path, _chunk_name(arr.ndim)), data.tobytes())
 
 
 def _chunk_name(ndim: int) -> str:
@@ -364,10 +375,10 @@ class ResultStore:
         try:
             tmp.mkdir()
             for name, arr in arrays.items():
-                _write_array(tmp / name, arr)
+                _write_array(os.path.join(tmp, name), arr)
             # the group's metadata is written last: a complete group, then the rename
             _write_json(
-                tmp / "zarr.json",
+                os.path.join(tmp, "zarr.json"),
                 {
                     "zarr_format": 3,
                     "node_type": "group",

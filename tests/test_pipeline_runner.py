@@ -1,0 +1,161 @@
+"""The runner's execution plumbing: chains, start method, record cache, report figures."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeroid.errors import StoreError
+from aeroid.pipeline import ResultStore, open_store, run
+from aeroid.pipeline import runner as runner_mod
+from aeroid.pipeline.keys import canonical_json, sha256_hex
+from aeroid.pipeline.runner import _segments, _start_method, n_parts, plan
+from aeroid.pipeline.stages import CampaignReport
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _config(tmp: Path, n: int = 3, extra: str = "") -> Path:
+    cfg = tmp / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nseed: 5\nstore: store\nreport: out/report.md\n"
+        f"flights: [{{simulated: {{n_flights: {n}, seed: 1, duration: 6.0}}}}]\n"
+        "stages:\n  identify: {parameters: [Z_alpha, M_alpha, M_q, M_delta]}\n"
+        "  validate: {}\n  propagate: {metric: natural_frequency, n_samples: 200}\n" + extra
+    )
+    return cfg
+
+
+def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
+    cfg = _config(tmp_path)
+    p = plan(cfg)
+    report = p.report_task
+    assert report is not None
+    # trend + one figure per per-flight result the report receives
+    assert n_parts(report) == 1 + 3  # validation, identification, propagation
+    s = run(cfg, workers=0)
+    assert s.failed == 0
+    rec = open_store(tmp_path / "store").load(report.key, "campaign_report")
+    assert isinstance(rec, CampaignReport)
+    assert rec.figure_titles == (
+        "campaign: estimates across flights",
+        "sim-0: time histories",
+        "sim-0: fit residuals",
+        "sim-0: propagation",
+    )
+    for png in rec.figures:
+        assert png.dtype == np.uint8 and not png.flags.writeable
+        assert png[:8].tobytes() == PNG
+    html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
+    assert html.count("data:image/png;base64,") == 4
+    assert f"aeroid campaign report {report.key}" in html
+
+
+def test_figures_off_gives_an_unsplit_report_without_figures(tmp_path):
+    cfg = _config(tmp_path, extra="  campaign_report: {figures: false}\n")
+    p = plan(cfg)
+    assert p.report_task is not None and n_parts(p.report_task) == 1
+    run(cfg, workers=0)
+    rec = open_store(tmp_path / "store").load(p.report_task.key, "campaign_report")
+    assert rec.figures == () and rec.figure_titles == ()
+    assert "data:image/png" not in (tmp_path / "out" / "report.html").read_text()
+
+
+def test_chains_group_each_flights_consecutive_steps(tmp_path):
+    cfg = _config(
+        tmp_path,
+        extra="  infer:\n    n_walkers: 8\n    n_steps: 20\n    n_ensembles: 2\n"
+        "    priors: {M_q: {normal: [-2.0, 2.0]}}\n",
+    )
+    p = plan(cfg)
+    chains = _segments(p.tasks)
+    # per flight: [load, identify, validate, propagate] then [infer (split), report]
+    flights = [c for c, _ in chains if c[0].flight is not None]
+    assert [[t.step for t in c] for c in flights[:2]] == [
+        ["load", "identify", "validate", "propagate"],
+        ["infer", "report"],
+    ]
+    assert all(split is c[0] for c, split in chains if split is not None)
+    assert [t.step for t in chains[-1][0]] == ["campaign_report"]
+    assert sum(len(c) for c, _ in chains) == len(p.tasks)
+
+
+def test_worker_start_method(monkeypatch):
+    monkeypatch.delenv("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD", raising=False)
+    monkeypatch.delitem(sys.modules, "jax", raising=False)
+    expected = "fork" if sys.platform.startswith("linux") else "spawn"
+    assert _start_method() == expected
+    monkeypatch.setitem(sys.modules, "jax", object())
+    assert _start_method() == "spawn"  # JAX must not be forked
+    monkeypatch.setenv("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD", "forkserver")
+    assert _start_method() == "forkserver"
+
+
+def test_an_entry_altered_between_runs_is_caught_by_the_next_run(tmp_path):
+    """Records are cached within a run only: the next run in the same process reads again."""
+    cfg = _config(tmp_path, n=2)
+    assert run(cfg, workers=0).failed == 0
+    p = plan(cfg)
+    ident = next(t for t in p.tasks if t.step == "identify")
+    store = ResultStore(tmp_path / "store")
+    chunk = next(
+        f
+        for f in store.path_for("identify", ident.key).rglob("*")
+        if f.is_file() and f.name != "zarr.json"
+    )
+    raw = bytearray(chunk.read_bytes())
+    raw[-1] ^= 0xFF
+    chunk.write_bytes(bytes(raw))
+    # a changed validate option recomputes validate, which reads the altered identify entry
+    cfg.write_text(cfg.read_text().replace("  validate: {}", "  validate: {confidence: 0.9}"))
+    s = run(cfg, workers=0)
+    bad = [v for v in s.statuses.values() if v["status"] == "failed"]
+    assert any(v["step"] == "validate" and "corrupt" in v["error"] for v in bad)
+
+
+def test_the_record_cache_is_scoped(tmp_path):
+    store = ResultStore(tmp_path / "s")
+    task = {"k": 1}
+    key = sha256_hex(canonical_json(task))
+    rec = CampaignReport("t", "text", ("a",), ("flight",), (("a",),))
+    runner_mod.record_cache("run-1")
+    try:
+        store.commit("campaign_report", key, rec, task=task)
+        cached = store.load(key, "campaign_report")
+        assert store.load(key, "campaign_report") is cached  # served from memory
+        shutil.rmtree(store.path_for("campaign_report", key))
+        assert store.load(key, "campaign_report") is cached  # this run committed it
+        runner_mod.record_cache("run-2")
+        with pytest.raises(StoreError, match="not in store"):
+            store.load(key, "campaign_report")
+    finally:
+        runner_mod.record_cache(None)
+
+
+def test_entries_in_the_earlier_chunk_layout_still_read(tmp_path):
+    """Entries written with Zarr's default chunk keys (``c/0/0``) by earlier versions."""
+    store = ResultStore(tmp_path / "s")
+    task = {"k": 2}
+    key = sha256_hex(canonical_json(task))
+    rec = CampaignReport(
+        "t", "x", ("a",), ("flight",), (("a",),), figure_titles=("f",), figures=(b"abc",)
+    )
+    store.commit("campaign_report", key, rec, task=task)
+    entry = store.path_for("campaign_report", key)
+    for meta_path in entry.glob("*/zarr.json"):
+        meta = json.loads(meta_path.read_text())
+        ndim = len(meta["shape"])
+        old = meta_path.parent / (".".join(["0"] * ndim) or "0")
+        new = meta_path.parent.joinpath("c", *(["0"] * ndim))
+        new.parent.mkdir(parents=True, exist_ok=True)
+        old.rename(new)
+        meta["chunk_key_encoding"] = {"name": "default", "configuration": {"separator": "/"}}
+        meta_path.write_text(json.dumps(meta))
+    back = open_store(tmp_path / "s").load(key, "campaign_report")
+    assert back.figure_bytes() == {"f": b"abc"}
+    assert open_store(tmp_path / "s").verify_all() == {}
