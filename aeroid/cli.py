@@ -43,6 +43,9 @@ def _open_store(config: str | None, store: str | None) -> Any:
     raise AssertionError  # unreachable
 
 
+_MAX_WARNINGS = 10
+
+
 def _table(header: list[str], rows: list[list[str]]) -> str:
     from ._records import markdown_table
 
@@ -98,6 +101,15 @@ def run(
         if not quiet and summary.rows:
             click.echo(_table(summary.columns, summary.rows))
             click.echo("")
+        caught = summary.warnings()
+        for task, text in caught[:_MAX_WARNINGS]:
+            where = f"{task.step} {task.flight}" if task.flight else task.step
+            click.echo(f"WARNING {where} ({task.key[:12]}): {text}")
+        if len(caught) > _MAX_WARNINGS:
+            click.echo(
+                f"... {len(caught) - _MAX_WARNINGS} more warnings "
+                "(`aeroid show KEY` lists a result's warnings)"
+            )
         failed = [t for t in doc["tasks"] if t["status"] == "failed"]
         first_errors = [t for t in failed if not str(t["error"]).startswith("upstream ")]
         for t in first_errors:
@@ -214,6 +226,8 @@ def show(key: str, config: str | None, store: str | None) -> None:
         click.echo(f"- finished: {prov['finished']} on {prov.get('host', '?')}")
     if prov.get("versions"):
         click.echo("- versions: " + ", ".join(f"{k} {v}" for k, v in prov["versions"].items()))
+    for text in prov.get("warnings", ()):
+        click.echo(f"- warning: {text}")
 
 
 @main.command()

@@ -50,6 +50,7 @@ USER_PIPELINE = textwrap.dedent(
     class StatsOptions(Options):
         n_boot: int = 50
         sleep: float = 0.0
+        warn: bool = False
 
 
     def run_stats(ctx):
@@ -58,6 +59,9 @@ USER_PIPELINE = textwrap.dedent(
         x = data.array(list(data.names))
         idx = rng.integers(0, x.shape[0], size=(ctx.options.n_boot, x.shape[0]))
         time.sleep(ctx.options.sleep)
+        if ctx.options.warn:
+            import warnings
+            warnings.warn(f"only {ctx.options.n_boot} bootstrap samples")
         return ChannelStats(tuple(data.names), x.mean(axis=0), x[idx].mean(axis=1))
 
 
@@ -277,8 +281,22 @@ def test_killed_run_leaves_a_store_that_verifies_and_the_next_run_completes(tmp_
 
 
 @pytest.mark.slow
+def test_warnings_are_kept_with_their_task_and_shown(tmp_path):
+    cfg = make_campaign(tmp_path, n=2, stats="{n_boot: 40, warn: true}")
+    code, out, err = invoke("run", str(cfg), "--workers", "0")
+    assert code == 0
+    lines = [line for line in out.splitlines() if line.startswith("WARNING stats")]
+    assert len(lines) == 2 and all("UserWarning: only 40 bootstrap samples" in x for x in lines)
+    key = lines[0].split("(")[1].split(")")[0]
+    code, out, _ = invoke("show", key, "--config", str(cfg))
+    assert code == 0 and "- warning: UserWarning: only 40 bootstrap samples" in out
+    code, out, _ = invoke("run", str(cfg), "--workers", "0")
+    assert code == 0 and "WARNING" not in out  # cached results are not re-announced
+
+
 def test_console_script_on_the_embedded_cluster(tmp_path):
-    cfg = make_campaign(tmp_path, n=3)
+    # the stage warns: the warning goes with the task, not onto a worker's stderr
+    cfg = make_campaign(tmp_path, n=3, stats="{n_boot: 50, warn: true}")
     res = subprocess.run(
         ["aeroid", "run", str(cfg), "--workers", "2", "--json"],
         capture_output=True,

@@ -20,6 +20,7 @@ import sys
 import time
 import traceback
 import uuid
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -488,7 +489,10 @@ def execute_part(
     try:
         stage, ctx, _, _ = _context(task, store_root, _flatten(upstream_status), read_root)
         t1 = time.perf_counter()
-        out.update(status="ok", value=stage.run_part(ctx, index))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            value = stage.run_part(ctx, index)
+        out.update(status="ok", value=value, warnings=_warning_texts(caught))
         out["compute_seconds"] = time.perf_counter() - t1
     except Exception as exc:
         out.update(status="failed", error=_error_text(exc))
@@ -518,22 +522,30 @@ def execute_task(
     try:
         stage, ctx, store, failures = _context(task, store_root, upstream, read_root)
         t1 = time.perf_counter()
-        if parts:
-            bad = [p for p in parts if p["status"] != "ok"]
-            if bad:
-                raise PipelineError(f"part {bad[0]['part']} failed: {bad[0].get('error')}")
-            record = stage.combine(ctx, [p["value"] for p in parts])
-            part_seconds = sum(float(p.get("compute_seconds", 0.0)) for p in parts)
-        else:
-            record = stage.run(ctx)
-            part_seconds = 0.0
+        with warnings.catch_warnings(record=True) as caught:
+            # the library's warnings (an unconverged chain, poor coherence) belong to the
+            # task: kept with its status and provenance instead of on a worker's stderr
+            warnings.simplefilter("always")
+            if parts:
+                bad = [p for p in parts if p["status"] != "ok"]
+                if bad:
+                    raise PipelineError(f"part {bad[0]['part']} failed: {bad[0].get('error')}")
+                record = stage.combine(ctx, [p["value"] for p in parts])
+                part_seconds = sum(float(p.get("compute_seconds", 0.0)) for p in parts)
+            else:
+                record = stage.run(ctx)
+                part_seconds = 0.0
         t2 = time.perf_counter()
+        found = [w for p in parts for w in p.get("warnings", ())] + _warning_texts(caught)
+        if found:
+            status["warnings"] = list(dict.fromkeys(found))
         provenance = {
             "task": task.to_json(),
             "versions": dict(_versions()),
             "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
             "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "host": platform.node(),
+            "warnings": status.get("warnings", []),
         }
         if failures:
             # a report over failed flights is written out but never cached
@@ -579,6 +591,11 @@ def execute_chain(
     return out
 
 
+def _warning_texts(caught: list[warnings.WarningMessage]) -> list[str]:
+    texts = (f"{w.category.__name__}: {w.message}" for w in caught)
+    return list(dict.fromkeys(texts))
+
+
 def _error_text(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text if isinstance(exc, AeroidError) else f"{type(exc).__name__}: {text}"
@@ -622,6 +639,14 @@ class RunSummary:
                     "error": s.get("error"),
                 }
             )
+        return out
+
+    def warnings(self) -> list[tuple[Task, str]]:
+        """Warnings raised by the tasks computed in this run, task by task."""
+        out = []
+        for t in self.plan.tasks:
+            for w in self.statuses[t.key].get("warnings", ()):
+                out.append((t, w))
         return out
 
     def to_json(self) -> dict[str, Any]:

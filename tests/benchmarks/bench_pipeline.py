@@ -127,6 +127,7 @@ def main() -> None:
     cold(cfg, 0, "warm-up")  # imports and caches of this process, paid once
     w1, w2, w0, ceil = [], [], [], []
     with multiprocessing.get_context("spawn").Pool(2) as pool:
+        ceiling(pool, 100_000)  # starts the pool's processes
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit all
             ceil.append(ceiling(pool))
             w1.append(cold(cfg, 1, "w1"))
