@@ -140,14 +140,18 @@ def main() -> None:
     c1 = statistics.median(c for _, c in w1)
     print(f"cold, 1 worker process : {t1:7.2f} s (library time {c1:.2f} s)")
     print(f"cold, 2 worker processes: {t2:7.2f} s")
+    # each repeat runs 1 and 2 workers back to back: the median of the paired ratios is
+    # the headline (the ratio of the medians is shown too)
     speedups = [a / b for (a, _), (b, _) in zip(w1, w2, strict=True)]
-    print(f"speed-up 2 vs 1         : {t1 / t2:7.2f} x   (target >= 1.7)")
+    speedup = statistics.median(speedups)
+    print(f"speed-up 2 vs 1         : {speedup:7.2f} x   (target >= 1.7)")
     print(f"  per repeat            : {', '.join(f'{x:.2f}' for x in speedups)}")
+    print(f"  ratio of the medians  : {t1 / t2:7.2f} x")
     print(
         f"machine ceiling 2 vs 1  : {statistics.median(ceil):7.2f} x   "
         f"(per repeat {', '.join(f'{x:.2f}' for x in ceil)})"
     )
-    print(f"speed-up / ceiling      : {t1 / t2 / statistics.median(ceil):7.2f}")
+    print(f"speed-up / ceiling      : {speedup / statistics.median(ceil):7.2f}")
     print(f"cold, in-process        : {t0:7.2f} s (library time {c0:.2f} s)")
     print(f"overhead keys+store, in-process   : {100 * (t0 - c0) / t0:5.1f} %  (target <= 10)")
     print(f"overhead keys+store+dask, 1 worker: {100 * (t1 - c1) / t1:5.1f} %")
