@@ -159,3 +159,27 @@ def test_entries_in_the_earlier_chunk_layout_still_read(tmp_path):
     back = open_store(tmp_path / "s").load(key, "campaign_report")
     assert back.figure_bytes() == {"f": b"abc"}
     assert open_store(tmp_path / "s").verify_all() == {}
+
+
+def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
+    """The first flight fails: its figure parts defer, and the report draws flight f01's."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_cli import write_flight
+
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    (flights / "f00.csv").write_text("time,elevator\n0.0,0.0\n0.1,0.0\n")  # no outputs
+    for i in (1, 2):
+        write_flight(flights / f"f{i:02d}.csv", i)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nseed: 5\nstore: store\nreport: out/report.md\n"
+        "flights: ['flights/*.csv']\n"
+        "stages:\n  identify: {parameters: [M_alpha, M_q, M_delta]}\n  validate: {}\n"
+    )
+    s = run(cfg, workers=0)
+    assert s.failed > 0  # f00's chain; the report is written, never cached
+    html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
+    assert "f01: time histories" in html and "f01: fit residuals" in html
+    assert "f00: time histories" not in html
+    assert html.count("data:image/png;base64,") == 3

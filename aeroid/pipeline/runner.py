@@ -11,6 +11,7 @@ dependants fail with a pointer to it; other flights carry on.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import logging
@@ -994,10 +995,12 @@ def _write_report(
         text = getattr(record, "markdown", str(record))
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
+    from .._html import _atomic_write  # matplotlib: only when there is a report to write
+
     path = the_plan.config.report_path
     path.parent.mkdir(parents=True, exist_ok=True)
     if not path.is_file() or path.read_text(encoding="utf-8") != text:
-        _replace_text(path, text)
+        _atomic_write(path, text.encode("utf-8"))
     target = html_report_path(path)
     marker = f"<!-- aeroid campaign report {task.key} -->"
     # rebuilt only when the campaign report's key changes (an unchanged rerun stays cheap)
@@ -1006,20 +1009,12 @@ def _write_report(
             figures = dict(status["figures"])
         else:
             if record is None:
-                try:
+                with contextlib.suppress(AeroidError):
                     record = store.load(task.key, task.stage)
-                except AeroidError:
-                    record = None
             draw = getattr(record, "figure_bytes", None)
             figures = draw() if draw is not None else {}
-        _replace_text(target, _html_report(text, figures, marker))
+        _atomic_write(target, _html_report(text, figures, marker).encode("utf-8"))
     return path, columns, rows
-
-
-def _replace_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def html_report_path(markdown_path: Path) -> Path:

@@ -8,6 +8,7 @@ one `register_stage` call; pipelines (``pipelines/``) wire stages together.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -661,15 +662,10 @@ def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
             part = None if first is None else _detail_figure(ctx, part, first)
         if part is not None:
             drawn.append(part)
-    return CampaignReport(
-        title=report.title,
-        markdown=report.markdown,
-        flights=report.flights,
-        columns=report.columns,
-        rows=report.rows,
-        failures=report.failures,
+    return dataclasses.replace(
+        report,
         figure_titles=tuple(t for t, _ in drawn),
-        figures=tuple(np.frombuffer(png, dtype=np.uint8) for _, png in drawn),
+        figures=tuple(png for _, png in drawn),
     )
 
 
