@@ -6,6 +6,7 @@ import math
 import warnings
 
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 import aeroid
@@ -76,7 +77,7 @@ def chain():
         ("filtering", 2),
         ("sensitivity", 2),
         ("frequency", 6),  # magnitude, phase, coherence for two channels
-        ("inference", 16),  # 4 x 4 corner grid
+        ("inference", 10),  # lower triangle of a 4 x 4 corner grid
         ("design", 2),
     ],
 )
@@ -85,10 +86,30 @@ def test_each_result_plots_itself(chain, name, n_axes):
     assert isinstance(fig, Figure)
     assert len(fig.axes) == n_axes
     assert any(ax.lines or ax.patches or ax.collections for ax in fig.axes)
+    _assert_laid_out(fig)
+
+
+def _assert_laid_out(fig: Figure) -> None:
+    # the margins are fixed, not computed: every panel with its tick labels, axis
+    # labels and title must lie inside the figure and clear of the other panels
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    boxes = [ax.get_tightbbox(renderer) for ax in fig.axes]
+    width, height = fig.bbox.width, fig.bbox.height
+    for ax, b in zip(fig.axes, boxes, strict=True):
+        label = ax.get_ylabel() or ax.get_title(loc="left") or ax.get_title()
+        assert b.x0 >= 0 and b.y0 >= 0, label
+        assert b.x1 <= width and b.y1 <= height, label
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1 :]:
+            overlap_w = min(a.x1, b.x1) - max(a.x0, b.x0)
+            overlap_h = min(a.y1, b.y1) - max(a.y0, b.y0)
+            assert overlap_w <= 0 or overlap_h <= 0
 
 
 def test_traces_and_campaign_trend(chain):
-    assert len(chain["inference"].plot_traces().axes) == 4
+    traces = chain["inference"].plot_traces()
+    assert len(traces.axes) == 4
+    _assert_laid_out(traces)
     r = chain["identification"]
     records = [
         {
@@ -101,9 +122,13 @@ def test_traces_and_campaign_trend(chain):
     ]
     fig = plot_campaign_trend(records)
     assert len(fig.axes) == 4 and fig.axes[-1].get_xlabel() == "airspeed"
-    assert (
-        plot_campaign_trend([{k: v for k, v in rec.items() if k != "metadata"} for rec in records])
-        .axes[-1]
-        .get_xlabel()
-        == "flight"
+    _assert_laid_out(fig)
+    by_name = plot_campaign_trend(
+        [
+            {k: v for k, v in rec.items() if k != "metadata"}
+            | {"flight": f"FT-2026-11-{i:02d}-run4"}
+            for i, rec in enumerate(records)
+        ]
     )
+    assert by_name.axes[-1].get_xlabel() == "flight"
+    _assert_laid_out(by_name)
