@@ -36,8 +36,8 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     p = plan(cfg)
     report = p.report_task
     assert report is not None
-    # trend + one figure per per-flight result the report receives
-    assert n_parts(report) == 1 + 3  # validation, identification, propagation
+    # trend, text, and one figure per per-flight result the report receives
+    assert n_parts(report) == 2 + 3  # validation, identification, propagation
     s = run(cfg, workers=0)
     assert s.failed == 0
     rec = open_store(tmp_path / "store").load(report.key, "campaign_report")
@@ -54,6 +54,14 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     assert html.count("data:image/png;base64,") == 4
     assert f"aeroid campaign report {report.key}" in html
+    # the text written by its own part is the text of the unsplit report
+    plain_dir = tmp_path / "plain"
+    plain_dir.mkdir()
+    plain = _config(plain_dir, extra="  campaign_report: {figures: false}\n")
+    run(plain, workers=0)
+    key = plan(plain).report_task.key
+    unsplit = open_store(plain_dir / "store").load(key, "campaign_report")
+    assert unsplit.markdown == rec.markdown and unsplit.rows == rec.rows
 
 
 def test_figures_off_gives_an_unsplit_report_without_figures(tmp_path):
@@ -183,3 +191,24 @@ def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
     assert "f01: time histories" in html and "f01: fit residuals" in html
     assert "f00: time histories" not in html
     assert html.count("data:image/png;base64,") == 3
+
+
+def test_an_unchanged_rerun_draws_nothing_and_does_not_import_matplotlib(tmp_path):
+    # matplotlib costs about a second to import: a rerun that only checks the store
+    # must not pay it (the report's figures are stored with the campaign report)
+    import subprocess
+
+    cfg = _config(tmp_path, n=2)
+    run(cfg, workers=0)
+    code = (
+        "import sys\n"
+        "from aeroid.pipeline import run\n"
+        f"s = run({str(cfg)!r})\n"
+        "print(s.count('computed'), s.count('cached'), 'matplotlib' in sys.modules)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path
+    )
+    computed, cached, imported = out.stdout.split()
+    assert computed == "0" and int(cached) > 0
+    assert imported == "False"

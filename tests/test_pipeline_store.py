@@ -156,6 +156,38 @@ def test_commit_is_never_an_overwrite(tmp_path):
     assert store.temporaries() == []
 
 
+def test_task_and_provenance_not_in_plain_json_types_are_normalised(tmp_path):
+    # a planned task's document is plain JSON already; one given by hand may hold
+    # NumPy scalars, tuples and non-finite floats, and must store and verify the same
+    store = ResultStore(tmp_path / "s")
+    task = {"n": np.int64(3), "x": np.float64(0.5), "bad": float("inf"), "t": (1, 2)}
+    key = sha256_hex(canonical_json(task))
+    rep = CampaignReport("t", "text", ("a",), ("flight",), (("a",),))
+    assert store.commit(
+        "campaign_report", key, rep, task=task, provenance={"s": np.float32(1.5), "v": float("nan")}
+    )
+    meta = store.metadata(key)
+    assert meta["task"] == {"n": 3, "x": 0.5, "bad": {"__float__": "inf"}, "t": [1, 2]}
+    assert meta["provenance"] == {"s": 1.5, "v": {"__float__": "nan"}}
+    assert store.verify(key) is None
+    assert store.load(key).markdown == "text"
+
+
+def test_a_commit_remakes_folders_removed_under_it(tmp_path):
+    import shutil
+
+    store = ResultStore(tmp_path / "s")
+    for i in range(3):
+        task = {"i": i}
+        key = sha256_hex(canonical_json(task))
+        rep = CampaignReport("t", f"text {i}", ("a",), ("flight",), (("a",),))
+        assert store.commit("campaign_report", key, rep, task=task)
+        assert store.load(key).markdown == f"text {i}"
+        # e.g. a user clearing the temporaries or a stage's results between two runs
+        shutil.rmtree(store.root / (".tmp" if i == 0 else "campaign_report"))
+    assert store.temporaries() == []
+
+
 def test_concurrent_commits_of_one_key_leave_one_intact_entry(tmp_path):
     store = ResultStore(tmp_path / "s")
     task = {"y": 2}

@@ -138,13 +138,17 @@ def task_key(
     seed: Any,
 ) -> tuple[str, dict[str, Any]]:
     """The key of a task and the document it hashes."""
-    doc = {
-        "record_type": record_type,
-        "stage": stage,
-        "stage_version": stage_version,
-        "options": dict(options),
-        "upstream": dict(upstream),
-        "model": None if model is None else dict(model),
-        "seed": seed,
-    }
+    doc = to_jsonable(
+        {
+            "record_type": record_type,
+            "stage": stage,
+            "stage_version": stage_version,
+            "options": dict(options),
+            "upstream": dict(upstream),
+            "model": None if model is None else dict(model),
+            "seed": seed,
+        },
+        where=f"{stage} task",
+    )
+    # the document in plain JSON types, as it is stored and read back
     return sha256_hex(canonical_json(doc)), doc

@@ -995,7 +995,7 @@ def _write_report(
         text = getattr(record, "markdown", str(record))
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
-    from .._html import _atomic_write  # matplotlib: only when there is a report to write
+    from .._html import _atomic_write
 
     path = the_plan.config.report_path
     path.parent.mkdir(parents=True, exist_ok=True)

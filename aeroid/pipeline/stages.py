@@ -569,9 +569,10 @@ def _condition(data: Any) -> str:
     return ", ".join(parts) or str(meta.get("source", "—"))
 
 
-# The figures of the campaign report, each drawn by its own part of the task (so
-# they are rendered in parallel): the cross-flight trend, then one figure per
-# per-flight result of the first flight that was identified.
+# The campaign report is split into parts that run in parallel: part 0 draws the
+# cross-flight trend, part 1 writes the tables and text (both need every flight),
+# and each further part draws one detailed figure of the first flight that was
+# identified, as soon as that flight is done.
 _DETAIL_FIGURES = (
     ("validation", "time histories"),
     ("identification", "fit residuals"),
@@ -581,6 +582,7 @@ _DETAIL_FIGURES = (
     ("experiment", "design"),
     ("filtering", "filter states"),
 )
+_TREND, _TEXT, _FIRST_DETAIL = 0, 1, 2
 
 
 def _detail_roles(roles: Any) -> list[tuple[str, str]]:
@@ -588,10 +590,10 @@ def _detail_roles(roles: Any) -> list[tuple[str, str]]:
 
 
 def _campaign_parts(options: Any, roles: frozenset[str]) -> int:
-    # one part per figure that can be drawn; 1 (no parts) without figures
+    # 1 (not split) without figures
     if not options.figures or "identification" not in roles:
         return 1
-    return 1 + len(_detail_roles(roles))
+    return _FIRST_DETAIL + len(_detail_roles(roles))
 
 
 def _first_identified(ctx: StageContext) -> int | None:
@@ -604,32 +606,35 @@ def _first_identified(ctx: StageContext) -> int | None:
 def _campaign_part_flights(
     options: Any, roles: frozenset[str], index: int
 ) -> tuple[int, ...] | None:
-    # the detailed figures read the first flight only, so they can be drawn as soon as
-    # that flight is done, while the others are still running; the trend reads all
-    return None if index == 0 else (0,)
+    # the detailed figures read the first flight only; the trend and the text read all
+    return None if index < _FIRST_DETAIL else (0,)
 
 
 def _detail_figure(ctx: StageContext, index: int, flight: int) -> tuple[str, bytes] | None:
     from .._html import figure_png
 
-    role, label = _detail_roles(ctx.inputs)[index - 1]
+    role, label = _detail_roles(ctx.inputs)[index - _FIRST_DETAIL]
     result = ctx.inputs[role][flight]
     if result is None or not hasattr(result, "plot"):
         return None
     return f"{ctx.flights[flight]}: {label}", figure_png(result.plot())
 
 
-def _run_campaign_figure(ctx: StageContext, index: int) -> Any:
-    """Part `index` of the campaign report: one figure as (title, PNG bytes), or None.
+def _run_campaign_part(ctx: StageContext, index: int) -> Any:
+    """Part `index` of the campaign report.
 
-    A detailed figure part reads the first flight only; if that flight was not
-    identified it returns its index, and `_combine_campaign` draws the figure
-    for the first flight that was.
+    The trend and the detailed figures return (title, PNG bytes) or None; the
+    text part returns the `CampaignReport` without figures. A detailed figure
+    part reads the first flight only; if that flight was not identified it
+    returns its index, and `_combine_campaign` draws the figure for the first
+    flight that was.
     """
     from .._html import figure_png
     from ..plotting import plot_campaign_trend
 
-    if index == 0:
+    if index == _TEXT:
+        return _run_campaign_report(ctx)
+    if index == _TREND:
         data = ctx.inputs.get("data", [None] * len(ctx.flights))
         records = [
             {
@@ -654,9 +659,13 @@ def _run_campaign_figure(ctx: StageContext, index: int) -> Any:
 
 
 def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
-    report = _run_campaign_report(ctx)
+    report = next((p for p in parts if isinstance(p, CampaignReport)), None)
+    if report is None:
+        report = _run_campaign_report(ctx)
     drawn = []
     for part in parts:
+        if isinstance(part, CampaignReport):
+            continue
         if isinstance(part, int):  # the first flight failed: draw for the first identified
             first = _first_identified(ctx)
             part = None if first is None else _detail_figure(ctx, part, first)
@@ -819,7 +828,7 @@ for _stage in (
         uses_model=False,
         per_flight=False,
         parts=_campaign_parts,
-        run_part=_run_campaign_figure,
+        run_part=_run_campaign_part,
         combine=_combine_campaign,
         part_flights=_campaign_part_flights,
         preload=("aeroid.plotting", "aeroid._html"),

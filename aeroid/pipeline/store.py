@@ -175,10 +175,25 @@ def _content_digest(meta: Mapping[str, Any]) -> str:
 
 
 def _plain_digest(meta: Mapping[str, Any]) -> str:
-    """`_content_digest` of a document already made of plain JSON types (no second pass)."""
+    """`_content_digest` of a document already made of plain JSON types (no second pass).
+
+    Raises TypeError or ValueError when it is not (a NumPy scalar, a non-finite
+    float), so a caller can normalise with `to_jsonable` and try again.
+    """
     body = {k: meta[k] for k in _DIGESTED}
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    text = json.dumps(
+        body, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    )
     return sha256_hex(text.encode("utf-8"))
+
+
+_DIRS: set[str] = set()  # directories this process has made (a commit makes few new ones)
+
+
+def _makedirs(path: str) -> None:
+    if path not in _DIRS:
+        os.makedirs(path, exist_ok=True)
+        _DIRS.add(path)
 
 
 # -- a run-scoped cache of records -------------------------------------------------
@@ -353,8 +368,8 @@ class ResultStore:
         provenance: Mapping[str, Any] | None = None,
     ) -> bool:
         """Write `record` as the result of `key`; False when it was already committed."""
-        final = self.path_for(stage, key)
-        if final.is_dir():
+        final = os.path.join(self._root_id, stage, key[:2], key)
+        if os.path.isdir(final):
             return False
         tree, arrays = codec.encode(record)
         meta: dict[str, Any] = {
@@ -367,13 +382,25 @@ class ResultStore:
             "digests": {name: array_digest(a) for name, a in arrays.items()},
             "provenance": dict(provenance or {}),
         }
-        meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
-        meta["content_digest"] = _plain_digest(meta)
-        tmp_root = self.root / _TMP
-        tmp_root.mkdir(parents=True, exist_ok=True)
-        tmp = tmp_root / f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
         try:
-            tmp.mkdir()
+            # the encoded record and a planned task's document are plain JSON already
+            digest = _plain_digest(meta)
+            json.dumps(meta["provenance"], allow_nan=False)  # small; not in the digest
+        except (TypeError, ValueError):
+            meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
+            digest = _plain_digest(meta)
+        meta["content_digest"] = digest
+        tmp_root = os.path.join(self._root_id, _TMP)
+        tmp = os.path.join(
+            tmp_root, f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        )
+        try:
+            try:
+                os.mkdir(tmp)
+            except FileNotFoundError:  # a new store, or `gc` removed the folder
+                _DIRS.discard(tmp_root)
+                _makedirs(tmp_root)
+                os.mkdir(tmp)
             for name, arr in arrays.items():
                 _write_array(os.path.join(tmp, name), arr)
             # the group's metadata is written last: a complete group, then the rename
@@ -385,11 +412,15 @@ class ResultStore:
                     "attributes": {"aeroid": meta},
                 },
             )
-            final.parent.mkdir(parents=True, exist_ok=True)
+            _makedirs(os.path.dirname(final))
             try:
                 os.rename(tmp, final)
+            except FileNotFoundError:  # the stage's folder was removed under us
+                _DIRS.discard(os.path.dirname(final))
+                _makedirs(os.path.dirname(final))
+                os.rename(tmp, final)
             except OSError:
-                if final.is_dir():  # another run committed the same key first
+                if os.path.isdir(final):  # another run committed the same key first
                     shutil.rmtree(tmp, ignore_errors=True)
                     return False
                 raise
