@@ -212,3 +212,52 @@ def test_an_unchanged_rerun_draws_nothing_and_does_not_import_matplotlib(tmp_pat
     computed, cached, imported = out.stdout.split()
     assert computed == "0" and int(cached) > 0
     assert imported == "False"
+
+
+BLAS_PROBE = """
+from dataclasses import dataclass
+from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
+from aeroid.pipeline.config import Options
+
+
+@register_record
+@dataclass(frozen=True, eq=False)
+class BlasThreads:
+    threads: int
+
+
+class ProbeOptions(Options):
+    pass
+
+
+def probe(ctx):
+    from threadpoolctl import threadpool_info
+
+    blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    return BlasThreads(max(blas, default=-1))
+
+
+register_stage(Stage("blas_probe", "1", ProbeOptions, "blas_probe_mod:BlasThreads", probe,
+                     uses_model=False))
+pipeline = Pipeline("probe", flight_steps=(Step("load"), Step("blas_probe")), campaign_steps=())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers on Linux")
+def test_embedded_workers_run_blas_on_one_thread(tmp_path, monkeypatch):
+    (tmp_path / "blas_probe_mod.py").write_text(BLAS_PROBE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nstore: store\npipeline: blas_probe_mod:pipeline\n"
+        "flights: [{simulated: {n_flights: 2, seed: 1, duration: 2.0}}]\n"
+        "stages: {blas_probe: {}}\n"
+    )
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=2):  # what forked workers would inherit, unpinned
+        s = run(cfg, workers=2)
+    assert s.failed == 0
+    store = open_store(tmp_path / "store")
+    threads = [store.load(t.key, t.stage).threads for t in s.plan.tasks if t.step == "blas_probe"]
+    assert threads == [1, 1]

@@ -483,8 +483,11 @@ def execute_part(
     *upstream_status: Any,
     read_root: str | None = None,
     scope: str | None = None,
+    pin_blas: bool = False,
 ) -> dict[str, Any]:
     """Compute part `index` of a split task (not stored; its task combines the parts)."""
+    if pin_blas:
+        _pin_blas()
     record_cache(scope)
     out: dict[str, Any] = {"key": task.key, "part": index}
     try:
@@ -575,13 +578,17 @@ def execute_chain(
     parts: list[Mapping[str, Any]],
     *upstream_status: Any,
     scope: str | None = None,
+    pin_blas: bool = False,
 ) -> list[dict[str, Any]]:
     """Run consecutive tasks of one flight in this process, in order; their statuses.
 
     One Dask task per chain keeps the scheduler's per-task cost off the
     flight's steps; every step is still keyed, committed and reported on its
     own. `parts` are the results of the first task's parts, if it is split.
+    `pin_blas` limits BLAS to one thread first (embedded cluster workers).
     """
+    if pin_blas:
+        _pin_blas()
     known: dict[str, Mapping[str, Any]] = {s["key"]: s for s in _flatten(upstream_status)}
     out: list[dict[str, Any]] = []
     for i, t in enumerate(tasks):
@@ -689,8 +696,19 @@ def _start_method() -> str:
     return "spawn"
 
 
+_PINNED = False
+
+
 def _pin_blas() -> None:
-    """One BLAS/OpenMP thread per worker process (the env vars only reach spawned ones)."""
+    """One BLAS/OpenMP thread in this worker process (the env vars only reach spawned ones).
+
+    Called by the first task an embedded cluster's worker runs, which saves a
+    round trip to every worker before the first task can start.
+    """
+    global _PINNED
+    if _PINNED:
+        return
+    _PINNED = True
     os.environ.update(_BLAS_ENV)
     try:
         from threadpoolctl import threadpool_limits
@@ -786,7 +804,6 @@ def _run_dask(
                 silence_logs=logging.CRITICAL,  # failures are reported per task
             )
         client = Client(cluster)
-        client.run(_pin_blas)
     results: dict[str, dict[str, Any]] = {}
     try:
         owner: dict[str, Any] = {}  # task key -> future of the chain that runs it
@@ -811,6 +828,7 @@ def _run_dask(
                         i,
                         *_part_deps(split, i, deps, owner),
                         scope=scope,
+                        pin_blas=cluster is not None,
                         key=f"{split.step}-{split.key}-part{i}",
                         pure=False,
                         retries=0,
@@ -827,6 +845,7 @@ def _run_dask(
                 parts,
                 *deps,
                 scope=scope,
+                pin_blas=cluster is not None,
                 key=f"{head.flight or 'campaign'}-{head.step}-{head.key}",
                 pure=False,
                 retries=0,
