@@ -222,8 +222,9 @@ from aeroid.pipeline.config import Options
 
 @register_record
 @dataclass(frozen=True, eq=False)
-class BlasThreads:
+class WorkerState:
     threads: int
+    frozen: int
 
 
 class ProbeOptions(Options):
@@ -231,22 +232,29 @@ class ProbeOptions(Options):
 
 
 def probe(ctx):
+    import gc
+
     from threadpoolctl import threadpool_info
 
     blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-    return BlasThreads(max(blas, default=-1))
+    return WorkerState(max(blas, default=-1), gc.get_freeze_count())
 
 
-register_stage(Stage("blas_probe", "1", ProbeOptions, "blas_probe_mod:BlasThreads", probe,
+register_stage(Stage("blas_probe", "1", ProbeOptions, "blas_probe_mod:WorkerState", probe,
                      uses_model=False))
 pipeline = Pipeline("probe", flight_steps=(Step("load"), Step("blas_probe")), campaign_steps=())
 """
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers on Linux")
-def test_embedded_workers_run_blas_on_one_thread(tmp_path, monkeypatch):
+def test_forked_workers_run_blas_on_one_thread_and_leave_shared_objects_alone(
+    tmp_path, monkeypatch
+):
+    import gc
+
     (tmp_path / "blas_probe_mod.py").write_text(BLAS_PROBE)
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delenv("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD", raising=False)
     cfg = tmp_path / "c.yaml"
     cfg.write_text(
         "model: short_period\nstore: store\npipeline: blas_probe_mod:pipeline\n"
@@ -255,9 +263,43 @@ def test_embedded_workers_run_blas_on_one_thread(tmp_path, monkeypatch):
     )
     from threadpoolctl import threadpool_limits
 
+    assert gc.get_freeze_count() == 0
     with threadpool_limits(limits=2):  # what forked workers would inherit, unpinned
         s = run(cfg, workers=2)
     assert s.failed == 0
+    # the objects the workers share with this process are frozen in the workers only
+    assert gc.get_freeze_count() == 0
     store = open_store(tmp_path / "store")
-    threads = [store.load(t.key, t.stage).threads for t in s.plan.tasks if t.step == "blas_probe"]
-    assert threads == [1, 1]
+    states = [store.load(t.key, t.stage) for t in s.plan.tasks if t.step == "blas_probe"]
+    assert [w.threads for w in states] == [1, 1]
+    if _start_method() == "fork":
+        assert all(w.frozen > 10_000 for w in states)
+    else:  # spawned workers (JAX loaded by an earlier test) share nothing
+        assert all(w.frozen == 0 for w in states)
+
+
+def test_a_run_freezes_older_objects_only_while_it_runs(tmp_path, monkeypatch):
+    import gc
+
+    (tmp_path / "blas_probe_mod.py").write_text(BLAS_PROBE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nstore: store\npipeline: blas_probe_mod:pipeline\n"
+        "flights: [{simulated: {n_flights: 1, seed: 1, duration: 2.0}}]\n"
+        "stages: {blas_probe: {}}\n"
+    )
+    s = run(cfg, workers=0)
+    assert gc.get_freeze_count() == 0
+    (task,) = [t for t in s.plan.tasks if t.step == "blas_probe"]
+    assert open_store(tmp_path / "store").load(task.key, task.stage).frozen > 10_000
+    # objects the caller froze stay frozen
+    gc.freeze()
+    try:
+        before = gc.get_freeze_count()
+        shutil.rmtree(tmp_path / "store")
+        run(cfg, workers=0)
+        # (a few frozen objects may be freed by reference counting meanwhile)
+        assert gc.get_freeze_count() > before - 1000
+    finally:
+        gc.unfreeze()
