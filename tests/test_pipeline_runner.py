@@ -225,6 +225,7 @@ from aeroid.pipeline.config import Options
 class WorkerState:
     threads: int
     frozen: int
+    profiled: bool
 
 
 class ProbeOptions(Options):
@@ -234,10 +235,12 @@ class ProbeOptions(Options):
 def probe(ctx):
     import gc
 
+    import dask
     from threadpoolctl import threadpool_info
 
     blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-    return WorkerState(max(blas, default=-1), gc.get_freeze_count())
+    profiled = bool(dask.config.get("distributed.worker.profile.enabled"))
+    return WorkerState(max(blas, default=-1), gc.get_freeze_count(), profiled)
 
 
 register_stage(Stage("blas_probe", "1", ProbeOptions, "blas_probe_mod:WorkerState", probe,
@@ -247,7 +250,7 @@ pipeline = Pipeline("probe", flight_steps=(Step("load"), Step("blas_probe")), ca
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers on Linux")
-def test_forked_workers_run_blas_on_one_thread_and_leave_shared_objects_alone(
+def test_embedded_workers_run_blas_on_one_thread_unprofiled_leaving_shared_objects_alone(
     tmp_path, monkeypatch
 ):
     import gc
@@ -272,6 +275,7 @@ def test_forked_workers_run_blas_on_one_thread_and_leave_shared_objects_alone(
     store = open_store(tmp_path / "store")
     states = [store.load(t.key, t.stage) for t in s.plan.tasks if t.step == "blas_probe"]
     assert [w.threads for w in states] == [1, 1]
+    assert [w.profiled for w in states] == [False, False]  # no dashboard to show it
     if _start_method() == "fork":
         assert all(w.frozen > 10_000 for w in states)
     else:  # spawned workers (JAX loaded by an earlier test) share nothing
