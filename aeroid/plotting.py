@@ -60,9 +60,11 @@ def _grid(
     return fig, grid
 
 
-def _figure(rows: int, cols: int = 1, **layout: float) -> tuple[Figure, Any]:
+def _figure(
+    rows: int, cols: int = 1, *, sharex: bool = False, **layout: float
+) -> tuple[Figure, Any]:
     fig, grid = _grid(rows, cols, **layout)
-    return fig, grid.subplots(squeeze=False)
+    return fig, grid.subplots(squeeze=False, sharex=sharex)
 
 
 def _hist(ax: Any, x: np.ndarray, bins: int) -> None:
@@ -259,7 +261,8 @@ def plot_campaign_trend(
     labels = [str(r.get("flight", i)) for i, r in enumerate(ok)]
     # flight names are written at 45 degrees under the last panel: room for the longest
     bottom = 0.55 if condition is not None else 0.45 + 0.065 * max(map(len, labels), default=0)
-    fig, axes = _figure(max(len(names), 1), height=2.0, bottom=bottom)
+    # one x axis for every panel: tick labels under the last one only
+    fig, axes = _figure(max(len(names), 1), height=1.8, bottom=bottom, hgap=0.15, sharex=True)
     if condition is not None:
         x = np.array([float(r.get("metadata", {}).get(condition, np.nan)) for r in ok])
         xlabel = condition.replace("_", " ")
