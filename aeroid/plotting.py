@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
 
 __all__ = [
     "plot_campaign_trend",
@@ -61,7 +62,7 @@ def _grid(
 
 
 def _figure(
-    rows: int, cols: int = 1, *, sharex: bool = False, **layout: float
+    rows: int, cols: int = 1, *, sharex: bool | str = False, **layout: float
 ) -> tuple[Figure, Any]:
     fig, grid = _grid(rows, cols, **layout)
     return fig, grid.subplots(squeeze=False, sharex=sharex)
@@ -98,10 +99,24 @@ def plot_time_histories(validation: Any) -> Figure:
     return fig
 
 
+def _log_label(value: float, _pos: object) -> str:
+    # log axes read as plain numbers at 1, 2 and 5 of each decade (0.2, 0.5, 1, 2 Hz)
+    # instead of a power of ten on every minor tick
+    if not np.isfinite(value) or value <= 0:
+        return ""
+    mantissa = value / 10.0 ** np.floor(np.log10(value) + 1e-9)
+    return f"{value:g}" if any(abs(mantissa - m) < 1e-6 for m in (1, 2, 5)) else ""
+
+
+_LOG_LABELS = FuncFormatter(_log_label)
+
+
 def plot_frequency_response(freq: Any) -> Figure:
     """Empirical vs model Bode plot per channel, with coherence."""
     chans = list(freq.channels)
-    fig, axes = _figure(3, len(chans), width=4.2 * len(chans), height=2.3, right=0.45)
+    fig, axes = _figure(
+        3, len(chans), width=4.2 * len(chans), height=2.1, right=0.3, hgap=0.3, sharex="col"
+    )
     for c, ch in enumerate(chans):
         f = ch.frequency
         ok = ch.coherent
@@ -122,6 +137,9 @@ def plot_frequency_response(freq: Any) -> Figure:
         coh.set_ylim(0, 1.05)
         coh.set_ylabel("coherence")
         coh.set_xlabel("frequency [Hz]")
+        for axis in (coh.xaxis, mag.yaxis):
+            axis.set_major_formatter(_LOG_LABELS)
+            axis.set_minor_formatter(_LOG_LABELS)
     axes[0, 0].set_ylabel("magnitude")
     return fig
 

@@ -132,3 +132,24 @@ def test_traces_and_campaign_trend(chain):
     )
     assert by_name.axes[-1].get_xlabel() == "flight"
     _assert_laid_out(by_name)
+
+
+def test_log_axes_read_as_plain_numbers_at_one_two_and_five():
+    from aeroid.plotting import _log_label
+
+    labels = {
+        v: _log_label(v, None) for v in (0.02, 0.03, 0.2, 0.5, 0.7, 1.0, 2.0, 3.0, 50.0, 100.0)
+    }
+    assert labels == {
+        0.02: "0.02",
+        0.03: "",
+        0.2: "0.2",
+        0.5: "0.5",
+        0.7: "",
+        1.0: "1",
+        2.0: "2",
+        3.0: "",
+        50.0: "50",
+        100.0: "100",
+    }
+    assert _log_label(0.0, None) == "" and _log_label(float("nan"), None) == ""
