@@ -821,7 +821,7 @@ for _stage in (
     ),
     Stage(
         "campaign_report",
-        "2",
+        "3",  # 3: figures drawn with fixed margins (other bytes for the same inputs)
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign_report,
