@@ -63,12 +63,13 @@ def to_jsonable(value: Any, *, where: str = "value") -> Any:
 
 def canonical_json(document: Any) -> bytes:
     """Canonical UTF-8 JSON bytes of `document` (sorted keys, compact separators)."""
+    return _canonical_plain(to_jsonable(document))
+
+
+def _canonical_plain(plain: Any) -> bytes:
+    # `canonical_json` of a document already made of plain JSON types
     return json.dumps(
-        to_jsonable(document),
-        sort_keys=True,
-        separators=(",", ":"),
-        ensure_ascii=False,
-        allow_nan=False,
+        plain, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
     ).encode("utf-8")
 
 
@@ -151,4 +152,4 @@ def task_key(
         where=f"{stage} task",
     )
     # the document in plain JSON types, as it is stored and read back
-    return sha256_hex(canonical_json(doc)), doc
+    return sha256_hex(_canonical_plain(doc)), doc

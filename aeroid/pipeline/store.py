@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import StoreError
 from . import codec
-from .keys import array_digest, canonical_json, sha256_hex, to_jsonable
+from .keys import _canonical_plain, array_digest, canonical_json, sha256_hex, to_jsonable
 
 __all__ = ["Entry", "ResultStore", "open_store", "record_cache"]
 
@@ -180,11 +180,7 @@ def _plain_digest(meta: Mapping[str, Any]) -> str:
     Raises TypeError or ValueError when it is not (a NumPy scalar, a non-finite
     float), so a caller can normalise with `to_jsonable` and try again.
     """
-    body = {k: meta[k] for k in _DIGESTED}
-    text = json.dumps(
-        body, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
-    )
-    return sha256_hex(text.encode("utf-8"))
+    return sha256_hex(_canonical_plain({k: meta[k] for k in _DIGESTED}))
 
 
 _DIRS: set[str] = set()  # directories this process has made (a commit makes few new ones)
