@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import textwrap
 from pathlib import Path
@@ -161,3 +163,21 @@ def test_simulated_flight_keys_do_not_depend_on_campaign_size(tmp_path):
         return [t.key for t in p.tasks if t.flight]
 
     assert keys(3)[:2] == keys(2)
+
+
+def test_task_key_is_the_sha256_of_the_documented_canonical_json():
+    # Keys are what make last year's store reusable: this pins the derivation to its
+    # definition (SHA-256 of sorted, compact JSON) and to a literal value, so any
+    # change to it shows up here instead of as a silent recompute of every campaign.
+    doc = {
+        "model": {"name": "m"},
+        "options": {"a": 1, "b": [1, 2]},
+        "record_type": "r",
+        "seed": {"seed": 0, "spawn_key": [1]},
+        "stage": "identify",
+        "stage_version": "1",
+        "upstream": {"data": "k1"},
+    }
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
+    assert _key() == hashlib.sha256(text.encode("utf-8")).hexdigest()
+    assert _key() == "b63e75456bdc33c165987d225bd37ff4dec392a2920c8f689cccf2b26b53aeaf"
