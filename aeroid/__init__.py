@@ -3,9 +3,12 @@
 The public API is re-exported here; see the README for a tour.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from ._version import __version__
-from .data import FlightData, load_flight_test
-from .design import ExperimentDesign, design_experiment
 from .errors import (
     AdapterError,
     AeroidError,
@@ -21,33 +24,104 @@ from .errors import (
     SimulationError,
     StoreError,
 )
-from .filtering import FilterResult, filter_states
-from .frequency import ChannelFrequencyResponse, FrequencyResponseResult, frequency_response
-from .identification import IdentificationResult, identify
-from .inference import EnsembleRun, InferenceResult, combine_ensembles, infer, infer_ensemble
-from .jax_backend import simulate_rk4
-from .maneuvers import (
-    Chirp,
-    Doublet,
-    ManeuverFamily,
-    Multisine,
-    OrthogonalMultisine,
-    orthogonal_multisine,
-)
-from .model import BatchSimulation, Model, SimulationResult, SimulatorModel
-from .priors import HalfNormal, LogUniform, Normal, Prior, Uniform
-from .propagation import PropagationResult, propagate
-from .reporting import report
-from .sampler import (
-    ChainState,
-    SamplerRun,
-    autocorrelation_time,
-    effective_sample_size,
-    ensemble_sampler,
-    split_r_hat,
-)
-from .sensitivity import SensitivityResult, sensitivities
-from .validation import OutputMetrics, ValidationResult, validate
+
+if TYPE_CHECKING:
+    from .data import FlightData, load_flight_test
+    from .design import ExperimentDesign, design_experiment
+    from .filtering import FilterResult, filter_states
+    from .frequency import ChannelFrequencyResponse, FrequencyResponseResult, frequency_response
+    from .identification import IdentificationResult, identify
+    from .inference import EnsembleRun, InferenceResult, combine_ensembles, infer, infer_ensemble
+    from .jax_backend import simulate_rk4
+    from .maneuvers import (
+        Chirp,
+        Doublet,
+        ManeuverFamily,
+        Multisine,
+        OrthogonalMultisine,
+        orthogonal_multisine,
+    )
+    from .model import BatchSimulation, Model, SimulationResult, SimulatorModel
+    from .priors import HalfNormal, LogUniform, Normal, Prior, Uniform
+    from .propagation import PropagationResult, propagate
+    from .reporting import report
+    from .sampler import (
+        ChainState,
+        SamplerRun,
+        autocorrelation_time,
+        effective_sample_size,
+        ensemble_sampler,
+        split_r_hat,
+    )
+    from .sensitivity import SensitivityResult, sensitivities
+    from .validation import OutputMetrics, ValidationResult, validate
+
+# The rest of the public API is imported on first use: `import aeroid` (and with it
+# the `aeroid` command, the pipeline and every worker it spawns) then pays only
+# for the modules it touches, not for all of SciPy.
+_LAZY = {
+    "FlightData": ".data",
+    "load_flight_test": ".data",
+    "ExperimentDesign": ".design",
+    "design_experiment": ".design",
+    "FilterResult": ".filtering",
+    "filter_states": ".filtering",
+    "ChannelFrequencyResponse": ".frequency",
+    "FrequencyResponseResult": ".frequency",
+    "frequency_response": ".frequency",
+    "IdentificationResult": ".identification",
+    "identify": ".identification",
+    "EnsembleRun": ".inference",
+    "InferenceResult": ".inference",
+    "combine_ensembles": ".inference",
+    "infer": ".inference",
+    "infer_ensemble": ".inference",
+    "simulate_rk4": ".jax_backend",
+    "Chirp": ".maneuvers",
+    "Doublet": ".maneuvers",
+    "ManeuverFamily": ".maneuvers",
+    "Multisine": ".maneuvers",
+    "OrthogonalMultisine": ".maneuvers",
+    "orthogonal_multisine": ".maneuvers",
+    "BatchSimulation": ".model",
+    "Model": ".model",
+    "SimulationResult": ".model",
+    "SimulatorModel": ".model",
+    "HalfNormal": ".priors",
+    "LogUniform": ".priors",
+    "Normal": ".priors",
+    "Prior": ".priors",
+    "Uniform": ".priors",
+    "PropagationResult": ".propagation",
+    "propagate": ".propagation",
+    "report": ".reporting",
+    "ChainState": ".sampler",
+    "SamplerRun": ".sampler",
+    "autocorrelation_time": ".sampler",
+    "effective_sample_size": ".sampler",
+    "ensemble_sampler": ".sampler",
+    "split_r_hat": ".sampler",
+    "SensitivityResult": ".sensitivity",
+    "sensitivities": ".sensitivity",
+    "OutputMetrics": ".validation",
+    "ValidationResult": ".validation",
+    "validate": ".validation",
+}
+
+
+if not TYPE_CHECKING:  # type checkers see the imports above, and no catch-all
+
+    def __getattr__(name: str) -> Any:
+        module = _LAZY.get(name)
+        if module is None:
+            raise AttributeError(f"module 'aeroid' has no attribute {name!r}")
+        value = getattr(importlib.import_module(module, __name__), name)
+        globals()[name] = value
+        return value
+
+    def __dir__() -> list[str]:
+        return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "AdapterError",

@@ -687,8 +687,8 @@ def _freeze_objects(freeze: bool) -> None:
     left as they are.
     """
     global _FROZEN_BY_RUN
-    if freeze and gc.get_freeze_count() == 0:
-        gc.freeze()
+    if freeze and (_FROZEN_BY_RUN or gc.get_freeze_count() == 0):
+        gc.freeze()  # called again after more imports, it adds the new objects
         _FROZEN_BY_RUN = True
     elif not freeze and _FROZEN_BY_RUN:
         gc.unfreeze()
@@ -740,9 +740,21 @@ def _pin_blas() -> None:
     threadpool_limits(limits=1)
 
 
-def _preloads(task: Task) -> tuple[str, ...]:
-    stage = STAGES.get(task.stage)
-    return () if stage is None else stage.preload
+def _preload(tasks: list[Task]) -> None:
+    """Import what the tasks' stages use before the workers fork, so they share it.
+
+    `aeroid` imports its modules on first use; imported here once, the forked
+    workers start with them (and their objects frozen, see `_freeze_objects`).
+    """
+    import importlib
+
+    import aeroid
+
+    stages = [STAGES[t.stage] for t in tasks if t.stage in STAGES]
+    for name in dict.fromkeys(s.library for s in stages if s.library):
+        getattr(aeroid, name, None)
+    for module in dict.fromkeys(m for s in stages for m in s.preload):
+        importlib.import_module(module)
 
 
 def _part_deps(task: Task, index: int, deps: list[Any], owner: Mapping[str, Any]) -> list[Any]:
@@ -813,10 +825,8 @@ def _run_dask(
         n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
         method = _start_method()
         if method == "fork":
-            import importlib
-
-            for module in dict.fromkeys(m for t in tasks for m in _preloads(t)):
-                importlib.import_module(module)
+            _preload(tasks)
+            _freeze_objects(True)
         try:
             with dask.config.set(
                 {

@@ -1,0 +1,45 @@
+"""The package's surface: every public name resolves, and importing it stays light."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+import aeroid
+
+
+def test_every_public_name_resolves_and_is_listed():
+    for name in aeroid.__all__:
+        assert getattr(aeroid, name) is not None, name
+    assert set(aeroid.__all__) <= set(dir(aeroid))
+    with pytest.raises(AttributeError, match="no attribute 'identfy'"):
+        aeroid.identfy  # noqa: B018
+
+
+def test_public_names_are_the_objects_of_their_modules():
+    from aeroid.identification import identify
+    from aeroid.model import Model
+
+    assert aeroid.identify is identify and aeroid.Model is Model
+    from aeroid import FlightData, validate  # from-imports go through the same path
+
+    assert FlightData.__module__ == "aeroid.data" and validate.__module__ == "aeroid.validation"
+
+
+def test_importing_aeroid_leaves_the_heavy_modules_for_later():
+    # the `aeroid` command and every spawned worker import the package; SciPy's
+    # optimisers and statistics are loaded when a function that needs them is used
+    code = (
+        "import sys, aeroid\n"
+        "heavy = [m for m in ('scipy.optimize', 'scipy.stats', 'matplotlib', 'jax') "
+        "if m in sys.modules]\n"
+        "print(heavy)\n"
+        "aeroid.design_experiment\n"
+        "print('scipy.optimize' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    first, second = out.stdout.split("\n")[:2]
+    assert first == "[]"
+    assert second == "True"
