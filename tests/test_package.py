@@ -43,3 +43,21 @@ def test_importing_aeroid_leaves_the_heavy_modules_for_later():
     first, second = out.stdout.split("\n")[:2]
     assert first == "[]"
     assert second == "True"
+
+
+def test_lazy_names_match_what_type_checkers_see():
+    # the names imported for type checkers and the lazy table must list the same
+    # objects from the same modules, and all of them must be public
+    import ast
+    from pathlib import Path
+
+    tree = ast.parse(Path(aeroid.__file__).read_text(encoding="utf-8"))
+    checked = {}
+    for node in tree.body:
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            for imp in node.body:
+                assert isinstance(imp, ast.ImportFrom)
+                for alias in imp.names:
+                    checked[alias.name] = "." + str(imp.module)
+    assert checked == aeroid._LAZY
+    assert set(aeroid._LAZY) <= set(aeroid.__all__)
