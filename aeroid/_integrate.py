@@ -22,8 +22,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.integrate
-import scipy.linalg
 from numpy.typing import NDArray
 
 from .errors import SimulationError
@@ -37,6 +35,12 @@ UserFunction = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 METHODS = ("auto", "exact", "rk4", *SOLVE_IVP_METHODS)
 _MAX_AUTO_SUBSTEPS = 256
+
+
+def import_solvers() -> None:
+    """Load SciPy's integrators and `expm` now (they are otherwise imported on first use)."""
+    import scipy.integrate
+    import scipy.linalg  # noqa: F401
 
 
 class BatchFunction:
@@ -212,6 +216,8 @@ def solve_ivp_batch(
     atol: float,
 ) -> RawTrajectory:
     """The whole batch as one stacked ODE through `scipy.integrate.solve_ivp`."""
+    import scipy.integrate  # on first use: half a second that a rerun or `aeroid status` skips
+
     n_x, batch = x0.shape
     n_u = u.shape[2]
     max_step = float(np.min(np.diff(time)))
@@ -319,6 +325,8 @@ def exact_lti(
     c: FloatArray,
 ) -> RawTrajectory | None:
     """Exact solution for piecewise-linear inputs; None when the grid has too many step sizes."""
+    import scipy.linalg
+
     batch, n_x, _ = A.shape
     n_u = Bm.shape[2]
     dts = np.diff(time)

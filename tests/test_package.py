@@ -61,3 +61,21 @@ def test_lazy_names_match_what_type_checkers_see():
                     checked[alias.name] = "." + str(imp.module)
     assert checked == aeroid._LAZY
     assert set(aeroid._LAZY) <= set(aeroid.__all__)
+
+
+def test_planning_a_campaign_loads_no_solver():
+    # what an unchanged rerun, `aeroid status` and `aeroid verify` do before any task
+    from pathlib import Path
+
+    demo = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
+    code = (
+        "import sys\n"
+        "from aeroid.pipeline import plan\n"
+        f"p = plan({str(demo)!r})\n"
+        "print(len(p.tasks), [m for m in ('scipy.integrate', 'scipy.optimize', 'scipy.stats', "
+        "'matplotlib') if m in sys.modules])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    n, loaded = out.stdout.split(" ", 1)
+    assert int(n) > 100
+    assert loaded.strip() == "[]"

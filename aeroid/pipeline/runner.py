@@ -753,6 +753,10 @@ def _preload(tasks: list[Task]) -> None:
     stages = [STAGES[t.stage] for t in tasks if t.stage in STAGES]
     for name in dict.fromkeys(s.library for s in stages if s.library):
         getattr(aeroid, name, None)
+    if any(s.uses_model for s in stages):
+        from .._integrate import import_solvers
+
+        import_solvers()
     for module in dict.fromkeys(m for s in stages for m in s.preload):
         importlib.import_module(module)
 
