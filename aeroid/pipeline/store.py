@@ -183,13 +183,22 @@ def _plain_digest(meta: Mapping[str, Any]) -> str:
     return sha256_hex(_canonical_plain({k: meta[k] for k in _DIGESTED}))
 
 
-_DIRS: set[str] = set()  # directories this process has made (a commit makes few new ones)
+def _mkdir(path: str) -> None:
+    """`os.mkdir(path)`, making its parent folders only when they are missing."""
+    try:
+        os.mkdir(path)
+    except FileNotFoundError:  # a new store, or `gc` or a user removed the folder
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        os.mkdir(path)
 
 
-def _makedirs(path: str) -> None:
-    if path not in _DIRS:
-        os.makedirs(path, exist_ok=True)
-        _DIRS.add(path)
+def _rename_into(tmp: str, final: str) -> None:
+    """`os.rename(tmp, final)`, making the folder of `final` only when it is missing."""
+    try:
+        os.rename(tmp, final)
+    except FileNotFoundError:  # the first entry under this key prefix
+        os.makedirs(os.path.dirname(final), exist_ok=True)
+        os.rename(tmp, final)
 
 
 # -- a run-scoped cache of records -------------------------------------------------
@@ -386,17 +395,13 @@ class ResultStore:
             meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
             digest = _plain_digest(meta)
         meta["content_digest"] = digest
-        tmp_root = os.path.join(self._root_id, _TMP)
         tmp = os.path.join(
-            tmp_root, f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+            self._root_id,
+            _TMP,
+            f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}",
         )
         try:
-            try:
-                os.mkdir(tmp)
-            except FileNotFoundError:  # a new store, or `gc` removed the folder
-                _DIRS.discard(tmp_root)
-                _makedirs(tmp_root)
-                os.mkdir(tmp)
+            _mkdir(tmp)
             for name, arr in arrays.items():
                 _write_array(os.path.join(tmp, name), arr)
             # the group's metadata is written last: a complete group, then the rename
@@ -408,13 +413,8 @@ class ResultStore:
                     "attributes": {"aeroid": meta},
                 },
             )
-            _makedirs(os.path.dirname(final))
             try:
-                os.rename(tmp, final)
-            except FileNotFoundError:  # the stage's folder was removed under us
-                _DIRS.discard(os.path.dirname(final))
-                _makedirs(os.path.dirname(final))
-                os.rename(tmp, final)
+                _rename_into(tmp, final)
             except OSError:
                 if os.path.isdir(final):  # another run committed the same key first
                     shutil.rmtree(tmp, ignore_errors=True)
