@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 from typing import Any
 
 import click
@@ -36,7 +35,7 @@ def _open_store(config: str | None, store: str | None) -> Any:
 
             cfg = load_config(config)
             resolve_pipeline(cfg.pipeline, cfg.base_dir)  # registers the pipeline's record types
-            return ResultStore(cfg.store_path, create=False)
+            return ResultStore(cfg.store_location, create=False)
     except AeroidError as exc:
         _fail(str(exc))
     _fail("give the store: --config CONFIG or --store PATH")
@@ -134,17 +133,14 @@ def status(config: str, store: str | None, as_json: bool) -> None:
     """Which tasks of CONFIG are stored and which are missing (computes nothing)."""
     from .errors import AeroidError
     from .pipeline.config import load_config
-    from .pipeline.runner import plan
-    from .pipeline.store import ResultStore
+    from .pipeline.runner import plan, store_argument
+    from .pipeline.store import ResultStore, is_store
 
     try:
-        cfg = load_config(config, store=str(Path(store).resolve()) if store else None)
+        cfg = load_config(config, store=store_argument(store) if store else None)
         the_plan = plan(cfg)
-        st = (
-            ResultStore(cfg.store_path, create=False)
-            if (cfg.store_path / "aeroid-store.json").is_file()
-            else None
-        )
+        location = cfg.store_location
+        st = ResultStore(location, create=False) if is_store(location) else None
     except AeroidError as exc:
         _fail(str(exc))
         return
@@ -163,7 +159,7 @@ def status(config: str, store: str | None, as_json: bool) -> None:
     doc: dict[str, Any] = {
         "stored": n_stored,
         "missing": len(tasks) - n_stored,
-        "store": str(cfg.store_path),
+        "store": cfg.store_location,
         "tasks": tasks,
     }
     if as_json:
@@ -172,7 +168,7 @@ def status(config: str, store: str | None, as_json: bool) -> None:
         return
     rows = [[t["stage"], t["flight"] or "(campaign)", t["key"][:12], t["status"]] for t in tasks]
     click.echo(_table(["stage", "flight", "key", "status"], rows))
-    click.echo(f"\n{doc['stored']} stored, {doc['missing']} missing in {cfg.store_path}")
+    click.echo(f"\n{doc['stored']} stored, {doc['missing']} missing in {cfg.store_location}")
 
 
 def _store_options(f: Any) -> Any:

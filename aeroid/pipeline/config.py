@@ -125,14 +125,32 @@ class CampaignConfig(Options):
         return p if p.is_absolute() else (Path(self.base_dir) / p).resolve()
 
     @property
+    def store_is_url(self) -> bool:
+        """True when the store is an object-store URL (``s3://...``) rather than a folder."""
+        return "://" in self.store and not self.store.startswith("file://")
+
+    @property
+    def store_location(self) -> str:
+        """The store as `ResultStore` takes it: an absolute folder, or the URL as given."""
+        if self.store_is_url:
+            return self.store
+        return str(self.resolve(self.store.removeprefix("file://")))
+
+    @property
     def store_path(self) -> Path:
-        return self.resolve(self.store)
+        """The store's folder (a local or shared-filesystem store only)."""
+        if self.store_is_url:
+            raise ConfigError(f"{self.source}: store: {self.store} is a URL, not a folder")
+        return Path(self.store_location)
 
     @property
     def report_path(self) -> Path:
+        """The campaign report: as configured, else in the store's folder (for an
+        object store, in ``reports/`` beside the config file)."""
         if self.report:
             return self.resolve(self.report)
-        return self.store_path / "reports" / f"{self.campaign_name}.md"
+        folder = self.resolve("reports") if self.store_is_url else self.store_path / "reports"
+        return folder / f"{self.campaign_name}.md"
 
     def expand_files(self) -> list[tuple[int, Path, FileFlights]]:
         """Every flight file named by a path or glob: (entry index, path, loader options).

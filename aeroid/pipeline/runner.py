@@ -975,7 +975,7 @@ def run(
         config = load_config(config)
     updates: dict[str, Any] = {}
     if store is not None:
-        updates["store"] = str(Path(store).resolve())
+        updates["store"] = store_argument(store)
     if scheduler is not None:
         updates["scheduler"] = scheduler
     if workers is not None:
@@ -984,7 +984,7 @@ def run(
         config = config.model_copy(update=updates)
     the_plan = plan(config, pipeline=pipeline)
     t_plan = time.perf_counter()
-    result_store = ResultStore(config.store_path)
+    result_store = ResultStore(config.store_location)
     statuses: dict[str, dict[str, Any]] = {}
     todo: list[Task] = []
     for t in the_plan.tasks:
@@ -1042,6 +1042,14 @@ def run(
         },
     )
     return summary
+
+
+def store_argument(store: str | Path) -> str:
+    """A store given on the command line or to `run`: a URL as is, a folder made absolute."""
+    text = str(store)
+    if "://" in text and not text.startswith("file://"):
+        return text
+    return str(Path(text.removeprefix("file://")).expanduser().resolve())
 
 
 def _write_report(

@@ -12,6 +12,11 @@ exists another run committed the same key first and the copy is discarded
 (an entry is never overwritten). Every array's SHA-256 and a digest of the
 JSON content are stored in the group's attributes and checked on every
 read; an altered entry raises `StoreError` and is never returned.
+
+A store may also live at a URL that fsspec understands (``s3://``,
+``gs://``, ``az://``, ...; the backend's package must be installed). Object
+stores cannot rename, so there the group's metadata, written last in one
+object, is what commits an entry (see `_ObjectStore`).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import threading
 import time
 import uuid
 from collections import OrderedDict
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +40,7 @@ from ..errors import StoreError
 from . import codec
 from .keys import _canonical_plain, array_digest, canonical_json, sha256_hex, to_jsonable
 
-__all__ = ["Entry", "ResultStore", "open_store", "record_cache"]
+__all__ = ["Entry", "ResultStore", "is_store", "open_store", "record_cache"]
 
 FORMAT = 1
 _MARKER = "aeroid-store.json"
@@ -44,11 +49,11 @@ _TMP = ".tmp"
 
 @dataclass(frozen=True)
 class Entry:
-    """A committed result: its key, stage and location."""
+    """A committed result: its key, stage and location (a folder, or a URL in an object store)."""
 
     key: str
     stage: str
-    path: Path
+    path: Path | str
 
 
 # -- a minimal Zarr v3 writer/reader for what the store holds ------------------------
@@ -94,20 +99,14 @@ def _write_file(path: str, data: bytes) -> None:
         os.close(fd)
 
 
-def _write_json(path: str, doc: Mapping[str, Any]) -> None:
-    # compact: json's C encoder is only used without indentation
-    _write_file(path, json.dumps(doc, separators=(",", ":"), allow_nan=False).encode("utf-8"))
-
-
-def _write_array(path: str, arr: np.ndarray) -> None:
+def _array_files(arr: np.ndarray) -> list[tuple[str, bytes]]:
+    """The files of an array as Zarr v3 (name within the array's folder, bytes)."""
     dtype = _zarr_dtype(arr)
     fill: Any = False if dtype == "bool" else (0 if dtype[0] in "iu" else 0.0)
     if dtype.startswith("complex"):
         fill = [0.0, 0.0]
     chunk = [max(1, int(n)) for n in arr.shape]
-    os.mkdir(path)
-    _write_json(
-        os.path.join(path, "zarr.json"),
+    meta = json.dumps(
         {
             "zarr_format": 3,
             "node_type": "array",
@@ -121,32 +120,45 @@ def _write_array(path: str, arr: np.ndarray) -> None:
             "attributes": {},
             "storage_transformers": [],
         },
-    )
+        separators=(",", ":"),
+    ).encode("utf-8")
     if arr.size == 0:
-        return  # an empty array has no chunk
+        return [("zarr.json", meta)]  # an empty array has no chunk
     data = np.ascontiguousarray(arr, dtype=_NUMPY[dtype])
-    _write_file(os.path.join(path, _chunk_name(arr.ndim)), data.tobytes())
+    return [("zarr.json", meta), (_chunk_name(arr.ndim), data.tobytes())]
+
+
+def _write_array(path: str, arr: np.ndarray) -> None:
+    os.mkdir(path)
+    for name, data in _array_files(arr):
+        _write_file(os.path.join(path, name), data)
 
 
 def _chunk_name(ndim: int) -> str:
     return ".".join(["0"] * ndim) or "0"
 
 
-def _chunk_path(path: Path, ndim: int, encoding: Any) -> Path | None:
+def _chunk_path(path: str, ndim: int, encoding: Any) -> str | None:
     """Where the single chunk of an array lives, for the key encodings this store writes."""
     if not isinstance(encoding, dict):
         return None
     sep = (encoding.get("configuration") or {}).get("separator")
     if encoding.get("name") == "v2" and sep == ".":
-        return path / _chunk_name(ndim)
+        return f"{path}/{_chunk_name(ndim)}"
     if encoding.get("name") == "default" and sep == "/":  # entries of earlier versions
-        return (path / "c").joinpath(*(["0"] * ndim))
+        return "/".join([path, "c", *(["0"] * ndim)])
     return None
 
 
-def _read_array(path: Path) -> np.ndarray | None:
-    """Read an array written by `_write_array`; None when it was written otherwise."""
-    meta = json.loads((path / "zarr.json").read_text(encoding="utf-8"))
+def _read_local(path: str) -> bytes:
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def _read_array(path: str, read: Callable[[str], bytes] = _read_local) -> np.ndarray | None:
+    """Read an array written by `_write_array` (files read by `read`); None when it was
+    written otherwise."""
+    meta = json.loads(read(f"{path}/zarr.json").decode("utf-8"))
     dtype = _NUMPY.get(meta.get("data_type"))
     shape = tuple(int(n) for n in meta["shape"])
     layout_ok = (
@@ -160,7 +172,7 @@ def _read_array(path: Path) -> np.ndarray | None:
         return None
     if 0 in shape:
         return np.zeros(shape, dtype=dtype)
-    raw = target.read_bytes()
+    raw = read(target)
     arr = np.frombuffer(raw, dtype=dtype)
     if arr.size != int(np.prod(shape)):
         raise StoreError(f"chunk {target} holds {arr.size} values, expected {int(np.prod(shape))}")
@@ -181,6 +193,36 @@ def _plain_digest(meta: Mapping[str, Any]) -> str:
     float), so a caller can normalise with `to_jsonable` and try again.
     """
     return sha256_hex(_canonical_plain({k: meta[k] for k in _DIGESTED}))
+
+
+def _entry_document(
+    stage: str,
+    key: str,
+    record: Any,
+    task: Mapping[str, Any],
+    provenance: Mapping[str, Any] | None,
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """An entry's attributes (digests included) and its arrays."""
+    tree, arrays = codec.encode(record)
+    meta: dict[str, Any] = {
+        "format": FORMAT,
+        "key": key,
+        "stage": stage,
+        "record_type": tree["__record__"],
+        "record": tree,
+        "task": dict(task),
+        "digests": {name: array_digest(a) for name, a in arrays.items()},
+        "provenance": dict(provenance or {}),
+    }
+    try:
+        # the encoded record and a planned task's document are plain JSON already
+        digest = _plain_digest(meta)
+        json.dumps(meta["provenance"], allow_nan=False)  # small; not in the digest
+    except (TypeError, ValueError):
+        meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
+        digest = _plain_digest(meta)
+    meta["content_digest"] = digest
+    return meta, arrays
 
 
 def _mkdir(path: str) -> None:
@@ -268,22 +310,27 @@ class ResultStore:
     Parameters
     ----------
     root : str or Path
-        The store directory (created when `create` is true). It must be on a
-        filesystem every worker can reach when running on a cluster.
+        The store directory, or the URL of a store in an object store
+        (``s3://bucket/campaign``; anything fsspec understands), created when
+        `create` is true. On a cluster every worker must reach it: a shared
+        filesystem or an object store.
     create : bool
         Create the store if it does not exist; otherwise raise `StoreError`.
     """
 
+    root: Path | str
+    """The store's folder, or its URL in an object store."""
+
+    def __new__(cls, root: str | Path, *, create: bool = True) -> ResultStore:
+        if cls is ResultStore and _is_url(str(root)):
+            return super().__new__(_ObjectStore)
+        return super().__new__(cls)
+
     def __init__(self, root: str | Path, *, create: bool = True) -> None:
-        text = str(root)
-        if "://" in text and not text.startswith("file://"):
-            raise StoreError(
-                f"store {text!r}: only local or shared-filesystem paths are supported "
-                "(atomic commits need a rename)"
-            )
-        self.root = Path(text.removeprefix("file://")).expanduser()
-        self._root_id = os.path.abspath(self.root)
-        marker = self.root / _MARKER
+        self._dir = Path(str(root).removeprefix("file://")).expanduser()
+        self.root = self._dir
+        self._root_id = os.path.abspath(self._dir)
+        marker = self._dir / _MARKER
         if self._root_id in _CHECKED and marker.is_file():
             return  # this process has read this store's marker already
         if marker.is_file():
@@ -297,13 +344,13 @@ class ResultStore:
                     f"this aeroid reads version {FORMAT}"
                 )
         elif create:
-            if self.root.exists() and any(self.root.iterdir()):
+            if self._dir.exists() and any(self._dir.iterdir()):
                 raise StoreError(
                     f"store {self.root}: the directory exists, is not empty and is not an "
                     "aeroid store"
                 )
-            self.root.mkdir(parents=True, exist_ok=True)
-            tmp = self.root / f".{_MARKER}.{uuid.uuid4().hex}"
+            self._dir.mkdir(parents=True, exist_ok=True)
+            tmp = self._dir / f".{_MARKER}.{uuid.uuid4().hex}"
             tmp.write_text(json.dumps({"format": FORMAT, "kind": "aeroid result store"}))
             os.replace(tmp, marker)
         else:
@@ -314,27 +361,30 @@ class ResultStore:
         return f"ResultStore({str(self.root)!r})"
 
     # -- locations -------------------------------------------------------------
-    def path_for(self, stage: str, key: str) -> Path:
+    def path_for(self, stage: str, key: str) -> Path | str:
         """Where the result of `key` in `stage` lives (whether or not it exists)."""
-        return self.root / stage / key[:2] / key
+        return self._dir / stage / key[:2] / key
 
     def exists(self, stage: str, key: str) -> bool:
         """True when `key` is committed (commits are atomic, so existence means complete)."""
-        return self.path_for(stage, key).is_dir()
+        return os.path.isdir(os.path.join(self._root_id, stage, key[:2], key))
+
+    def _read(self, path: str) -> bytes:
+        return _read_local(path)
 
     def entries(self, stage: str | None = None) -> Iterator[Entry]:
         """Every committed entry, optionally of one stage."""
-        if not self.root.is_dir():
+        if not self._dir.is_dir():
             return
         stages = (
             [stage]
             if stage
             else sorted(
-                p.name for p in self.root.iterdir() if p.is_dir() and not p.name.startswith(".")
+                p.name for p in self._dir.iterdir() if p.is_dir() and not p.name.startswith(".")
             )
         )
         for s in stages:
-            base = self.root / s
+            base = self._dir / s
             if not base.is_dir():
                 continue
             for prefix in sorted(base.iterdir()):
@@ -350,7 +400,7 @@ class ResultStore:
         if len(key) < 6 or any(c not in "0123456789abcdef" for c in key):
             raise StoreError(f"key {key!r}: expected at least 6 hexadecimal digits")
         hits = []
-        for stage_dir in sorted(self.root.iterdir()) if self.root.is_dir() else []:
+        for stage_dir in sorted(self._dir.iterdir()) if self._dir.is_dir() else []:
             if not stage_dir.is_dir() or stage_dir.name.startswith("."):
                 continue
             prefix = stage_dir / key[:2]
@@ -373,28 +423,27 @@ class ResultStore:
         provenance: Mapping[str, Any] | None = None,
     ) -> bool:
         """Write `record` as the result of `key`; False when it was already committed."""
-        final = os.path.join(self._root_id, stage, key[:2], key)
-        if os.path.isdir(final):
+        if self.exists(stage, key):
             return False
-        tree, arrays = codec.encode(record)
-        meta: dict[str, Any] = {
-            "format": FORMAT,
-            "key": key,
-            "stage": stage,
-            "record_type": tree["__record__"],
-            "record": tree,
-            "task": dict(task),
-            "digests": {name: array_digest(a) for name, a in arrays.items()},
-            "provenance": dict(provenance or {}),
-        }
-        try:
-            # the encoded record and a planned task's document are plain JSON already
-            digest = _plain_digest(meta)
-            json.dumps(meta["provenance"], allow_nan=False)  # small; not in the digest
-        except (TypeError, ValueError):
-            meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
-            digest = _plain_digest(meta)
-        meta["content_digest"] = digest
+        meta, arrays = _entry_document(stage, key, record, task, provenance)
+        group = json.dumps(
+            {"zarr_format": 3, "node_type": "group", "attributes": {"aeroid": meta}},
+            separators=(",", ":"),
+            allow_nan=False,
+        ).encode("utf-8")
+        if not self._publish(stage, key, arrays, group):
+            return False
+        if _CACHE.scope is not None:
+            # what a verified read of the new entry returns (the tree went through JSON)
+            nbytes = sum(a.nbytes for a in arrays.values())
+            _CACHE.put(self._ident(stage, key), codec.decode(meta["record"], arrays), nbytes)
+        return True
+
+    def _publish(
+        self, stage: str, key: str, arrays: Mapping[str, np.ndarray], group: bytes
+    ) -> bool:
+        """Write the entry's files under a temporary name, then rename it into place."""
+        final = os.path.join(self._root_id, stage, key[:2], key)
         tmp = os.path.join(
             self._root_id,
             _TMP,
@@ -405,14 +454,7 @@ class ResultStore:
             for name, arr in arrays.items():
                 _write_array(os.path.join(tmp, name), arr)
             # the group's metadata is written last: a complete group, then the rename
-            _write_json(
-                os.path.join(tmp, "zarr.json"),
-                {
-                    "zarr_format": 3,
-                    "node_type": "group",
-                    "attributes": {"aeroid": meta},
-                },
-            )
+            _write_file(os.path.join(tmp, "zarr.json"), group)
             try:
                 _rename_into(tmp, final)
             except OSError:
@@ -423,26 +465,21 @@ class ResultStore:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
-        if _CACHE.scope is not None:
-            # what a verified read of the new entry returns (the tree went through JSON)
-            nbytes = sum(a.nbytes for a in arrays.values())
-            _CACHE.put(self._ident(stage, key), codec.decode(meta["record"], arrays), nbytes)
         return True
 
     # -- reading ---------------------------------------------------------------
     def _entry(self, key: str, stage: str | None) -> Entry:
         if stage is not None:
-            path = self.path_for(stage, key)
-            if not path.is_dir():
+            if not self.exists(stage, key):
                 raise StoreError(f"{stage} result {key[:12]} is not in store {self.root}")
-            return Entry(key, stage, path)
+            return Entry(key, stage, self.path_for(stage, key))
         return self.find(key)
 
     def metadata(self, key: str, stage: str | None = None) -> dict[str, Any]:
         """The entry's JSON attributes (record tree, task document, provenance, digests)."""
         entry = self._entry(key, stage)
         try:
-            doc = json.loads((entry.path / "zarr.json").read_text(encoding="utf-8"))
+            doc = json.loads(self._read(f"{entry.path}/zarr.json").decode("utf-8"))
             meta = doc["attributes"]["aeroid"]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise StoreError(
@@ -464,11 +501,11 @@ class ResultStore:
             for name, digest in meta["digests"].items():
                 if "/" in name or name.startswith("."):
                     raise StoreError(f"{where} is corrupt: bad array name {name!r}")
-                got = _read_array(entry.path / name)
+                got = _read_array(f"{entry.path}/{name}", self._read)
                 if got is None:  # written by another Zarr writer: let zarr-python read it
                     import zarr
 
-                    node: Any = zarr.open_array(store=str(entry.path / name), mode="r")
+                    node: Any = zarr.open_array(store=f"{entry.path}/{name}", mode="r")
                     got = np.asarray(node[...])
                 arr = got
                 if array_digest(arr) != digest:
@@ -528,21 +565,22 @@ class ResultStore:
         return bad
 
     # -- housekeeping ----------------------------------------------------------
-    def temporaries(self) -> list[Path]:
+    def temporaries(self) -> list[Path | str]:
         """Partial writes left under ``.tmp``."""
-        tmp = self.root / _TMP
-        return sorted(tmp.iterdir()) if tmp.is_dir() else []
+        tmp = self._dir / _TMP
+        return list(sorted(tmp.iterdir())) if tmp.is_dir() else []
 
-    def gc(self, *, max_age: float = 3600.0) -> list[Path]:
+    def gc(self, *, max_age: float = 3600.0) -> list[Path | str]:
         """Remove temporaries of crashed runs; return what was removed.
 
         A temporary of a process still running on this host is kept; one from
         another host is removed once older than `max_age` seconds.
         """
-        removed = []
+        removed: list[Path | str] = []
         host = socket.gethostname()
         now = time.time()
         for path in self.temporaries():
+            assert isinstance(path, Path)
             parts = path.name.split(".")
             alive = False
             if len(parts) >= 4:
@@ -561,6 +599,176 @@ class ResultStore:
                     path.unlink(missing_ok=True)
                 removed.append(path)
         return removed
+
+
+def _is_url(text: str) -> bool:
+    return "://" in text and not text.startswith("file://")
+
+
+class _ObjectStore(ResultStore):
+    """A store at a URL that fsspec understands (``s3://``, ``gs://``, ``az://``, ``memory://`` ...).
+
+    Object stores have no atomic rename, so a commit writes the entry's arrays
+    straight under its prefix and the group's ``zarr.json`` last, in one PUT:
+    an entry exists once that object does. A run killed before it leaves
+    arrays that no reader sees, which the next run rewrites and `gc` removes.
+    Two runs that commit the same key at once write the same arrays (results
+    are deterministic); were they to differ, the digests say so on every read.
+    """
+
+    def __init__(self, root: str | Path, *, create: bool = True) -> None:
+        text = str(root).rstrip("/")
+        try:
+            import fsspec
+
+            fs, base = fsspec.core.url_to_fs(text)
+        except (ImportError, ValueError) as exc:  # unknown protocol, backend not installed
+            raise StoreError(f"store {text!r}: {exc}") from None
+        self.root = self._url_root = text
+        self._root_id = text
+        self._fs = fs
+        self._base = str(base).rstrip("/")
+        self._dir = Path(self._base)  # not a local folder: every file goes through `_fs`
+        if text in _CHECKED:
+            return
+        marker = f"{self._base}/{_MARKER}"
+        try:
+            raw: bytes | None = fs.cat_file(marker)
+        except FileNotFoundError:
+            raw = None
+        except Exception as exc:
+            raise StoreError(f"store {text}: cannot read {_MARKER} ({exc})") from None
+        if raw is not None:
+            try:
+                info = json.loads(raw)
+            except ValueError as exc:
+                raise StoreError(f"store {text}: unreadable marker {_MARKER} ({exc})") from None
+            if not isinstance(info, dict) or info.get("format") != FORMAT:
+                got = info.get("format") if isinstance(info, dict) else info
+                raise StoreError(
+                    f"store {text}: layout version {got!r}, this aeroid reads version {FORMAT}"
+                )
+        elif create:
+            if fs.exists(self._base) and fs.ls(self._base, detail=False):
+                raise StoreError(
+                    f"store {text}: the location exists, is not empty and is not an aeroid store"
+                )
+            doc = {"format": FORMAT, "kind": "aeroid result store"}
+            self._put({marker: json.dumps(doc).encode("utf-8")})
+        else:
+            raise StoreError(f"store {text}: not an aeroid store (no {_MARKER})")
+        _CHECKED.add(text)
+
+    def _path(self, location: str) -> str:
+        """The filesystem path of a URL under this store."""
+        if location.startswith(self._url_root):
+            return self._base + location[len(self._url_root) :]
+        return str(self._fs._strip_protocol(location))
+
+    def _url(self, path: str) -> str:
+        return self._url_root + path[len(self._base) :]
+
+    def path_for(self, stage: str, key: str) -> Path | str:
+        return f"{self._url_root}/{stage}/{key[:2]}/{key}"
+
+    def exists(self, stage: str, key: str) -> bool:
+        return bool(self._fs.exists(f"{self._base}/{stage}/{key[:2]}/{key}/zarr.json"))
+
+    def _read(self, path: str) -> bytes:
+        return bytes(self._fs.cat_file(self._path(path)))
+
+    def _groups(self, stage: str, key: str) -> list[Entry]:
+        pattern = f"{self._base}/{stage}/{key[:2] if len(key) >= 2 else '*'}/{key}*/zarr.json"
+        out = []
+        for found in sorted(self._fs.glob(pattern)):
+            folder = str(found).rsplit("/", 1)[0]
+            st, _, name = folder[len(self._base) + 1 :].split("/")
+            if not st.startswith("."):
+                out.append(Entry(name, st, self._url(folder)))
+        return out
+
+    def entries(self, stage: str | None = None) -> Iterator[Entry]:
+        yield from self._groups(stage or "*", "")
+
+    def find(self, key: str) -> Entry:
+        key = key.strip().lower()
+        if len(key) < 6 or any(c not in "0123456789abcdef" for c in key):
+            raise StoreError(f"key {key!r}: expected at least 6 hexadecimal digits")
+        hits = self._groups("*", key)
+        if not hits:
+            raise StoreError(f"key {key}: no such entry in store {self.root}")
+        if len(hits) > 1:
+            raise StoreError(f"key {key}: ambiguous, matches {[h.key[:12] for h in hits]}")
+        return hits[0]
+
+    def _publish(
+        self, stage: str, key: str, arrays: Mapping[str, np.ndarray], group: bytes
+    ) -> bool:
+        final = f"{self._base}/{stage}/{key[:2]}/{key}"
+        files = {
+            f"{final}/{name}/{file}": data
+            for name, arr in arrays.items()
+            for file, data in _array_files(arr)
+        }
+        if files:
+            self._put(files)
+        self._put({f"{final}/zarr.json": group})  # the commit: one object, written last
+        return True
+
+    def _put(self, files: dict[str, bytes]) -> None:
+        """Write files (concurrently, where the backend can)."""
+        try:
+            self._fs.pipe(files)
+        except FileNotFoundError:
+            # a filesystem with real folders (``local://``, ``sftp://``): make them once
+            for folder in sorted({f.rsplit("/", 1)[0] for f in files}):
+                self._fs.makedirs(folder, exist_ok=True)
+            self._fs.pipe(files)
+
+    def temporaries(self) -> list[Path | str]:
+        """Entries begun by a commit that has not ended: arrays without the group's metadata."""
+        folders: dict[str, bool] = {}
+        for found in self._fs.find(self._base):
+            rel = str(found)[len(self._base) + 1 :].split("/")
+            if len(rel) < 4 or rel[0].startswith("."):
+                continue
+            folder = "/".join(rel[:3])
+            done = len(rel) == 4 and rel[3] == "zarr.json"
+            folders[folder] = folders.get(folder, False) or done
+        return [self._url(f"{self._base}/{f}") for f, done in sorted(folders.items()) if not done]
+
+    def gc(self, *, max_age: float = 3600.0) -> list[Path | str]:
+        """Remove entries begun more than `max_age` seconds ago and never committed.
+
+        Object stores record no writer process, so age is the only sign that
+        a commit has ended; an entry whose files have no age is kept.
+        """
+        removed: list[Path | str] = []
+        now = time.time()
+        for url in self.temporaries():
+            folder = self._path(str(url))
+            try:
+                newest = max(self._fs.modified(f).timestamp() for f in self._fs.find(folder))
+            except (NotImplementedError, OSError, ValueError):
+                continue
+            if now - newest >= max_age:
+                self._fs.rm(folder, recursive=True)
+                removed.append(url)
+        return removed
+
+
+def is_store(root: str | Path) -> bool:
+    """True when `root` (a folder or URL) holds an aeroid store."""
+    text = str(root)
+    if not _is_url(text):
+        return (Path(text.removeprefix("file://")).expanduser() / _MARKER).is_file()
+    try:
+        import fsspec
+
+        fs, base = fsspec.core.url_to_fs(text.rstrip("/"))
+        return bool(fs.exists(f"{str(base).rstrip('/')}/{_MARKER}"))
+    except (ImportError, ValueError) as exc:
+        raise StoreError(f"store {text!r}: {exc}") from None
 
 
 def open_store(root: str | Path, *, create: bool = False) -> ResultStore:

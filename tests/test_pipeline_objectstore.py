@@ -1,0 +1,167 @@
+"""Stores at a URL (object stores through fsspec): commits without a rename, integrity, gc.
+
+``memory://`` stands in for an object store (no folders, no rename, no
+shared process); ``local://`` goes through the same object-store code on a
+local disk, so worker processes of an embedded cluster can share it.
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from pathlib import Path
+
+import fsspec
+import numpy as np
+import pytest
+from test_cli import invoke, make_campaign
+from test_pipeline_store import _ident
+
+from aeroid.errors import StoreError
+from aeroid.pipeline import ResultStore, open_store, run
+from aeroid.pipeline.keys import canonical_json, sha256_hex
+from aeroid.pipeline.stages import CampaignReport
+from aeroid.pipeline.store import is_store
+
+
+def _url() -> str:
+    return f"memory://aeroid-test-{uuid.uuid4().hex[:12]}/store"
+
+
+def _commit(store: ResultStore, n: int = 0) -> str:
+    task = {"n": n}
+    key = sha256_hex(canonical_json(task))
+    assert store.commit("identify", key, _ident(), task=task) is True
+    return key
+
+
+def test_a_url_store_round_trips_and_never_overwrites():
+    url = _url()
+    assert not is_store(url)
+    with pytest.raises(StoreError, match="not an aeroid store"):
+        open_store(url)
+    store = ResultStore(url)
+    assert is_store(url) and type(open_store(url)) is type(store)
+    key = _commit(store)
+    assert store.exists("identify", key)
+    back = store.load(key, "identify")
+    assert back.summary() == _ident().summary()
+    np.testing.assert_array_equal(back.covariance, _ident().covariance)
+    assert back.covariance.flags.writeable is False
+    task = {"n": 0}
+    other = CampaignReport("t", "other", ("a",), ("flight",), (("a",),))
+    assert store.commit("identify", key, other, task=task) is False
+    assert store.load(key).parameters == _ident().parameters
+    # listed and found like the entries of a folder store
+    assert [(e.key, e.stage) for e in store.entries()] == [(key, "identify")]
+    assert store.find(key[:8]).path == f"{url}/identify/{key[:2]}/{key}"
+    assert store.verify_all() == {} and store.temporaries() == []
+
+
+def test_zarr_python_reads_url_entries():
+    import zarr
+
+    url = _url()
+    store = ResultStore(url)
+    key = _commit(store)
+    group = zarr.open_group(store=str(store.path_for("identify", key)), mode="r", zarr_format=3)
+    assert group.attrs["aeroid"]["key"] == key
+    np.testing.assert_array_equal(group["covariance"][...], _ident().covariance)
+
+
+def test_altered_bytes_in_a_url_store_are_detected():
+    url = _url()
+    store = ResultStore(url)
+    key = _commit(store)
+    fs, base = fsspec.core.url_to_fs(url)
+    chunk = f"{base}/identify/{key[:2]}/{key}/covariance/0.0"
+    raw = bytearray(fs.cat_file(chunk))
+    raw[0] ^= 0xFF
+    fs.pipe_file(chunk, bytes(raw))
+    with pytest.raises(StoreError, match="does not match its digest"):
+        store.load(key, "identify")
+    assert key in store.verify_all()
+
+
+def test_an_interrupted_commit_is_invisible_and_gc_removes_it(monkeypatch):
+    url = _url()
+    store = ResultStore(url)
+    put = store._put  # type: ignore[attr-defined]
+
+    def crash_before_the_group(files):
+        if any(f.endswith(f"{key}/zarr.json") for f in files):
+            raise KeyboardInterrupt  # the run is killed between the arrays and the commit
+        put(files)
+
+    task = {"n": 7}
+    key = sha256_hex(canonical_json(task))
+    monkeypatch.setattr(store, "_put", crash_before_the_group)
+    with pytest.raises(KeyboardInterrupt):
+        store.commit("identify", key, _ident(), task=task)
+    monkeypatch.undo()
+    assert not store.exists("identify", key)
+    assert list(store.entries()) == []
+    with pytest.raises(StoreError, match="not in store"):
+        store.load(key, "identify")
+    assert store.temporaries() == [f"{url}/identify/{key[:2]}/{key}"]
+    assert store.gc() == []  # it might be a commit still running: kept for an hour
+    assert store.gc(max_age=0) == [f"{url}/identify/{key[:2]}/{key}"]
+    assert store.temporaries() == []
+    # the next run commits it afresh
+    assert store.commit("identify", key, _ident(), task=task) is True
+    assert store.verify(key) is None
+
+
+def test_unknown_or_uninstalled_backends_name_the_store():
+    with pytest.raises(StoreError, match=r"nosuch://b/s.*Protocol not known"):
+        ResultStore("nosuch://b/s")
+
+
+def test_the_aeroid_command_on_a_url_store(tmp_path):
+    cfg = make_campaign(tmp_path, n=2)
+    url = _url()
+    code, out, _ = invoke("run", str(cfg), "--store", url, "--json", "--workers", "0")
+    doc = json.loads(out)
+    assert code == 0 and (doc["computed"], doc["failed"]) == (5, 0)
+    # an object store holds results only; the report goes beside the config
+    assert Path(doc["report"]) == tmp_path / "reports" / "campaign.md"
+    code, out, _ = invoke("run", str(cfg), "--store", url, "--json", "--workers", "0")
+    assert code == 0 and json.loads(out)["cached"] == 5
+    code, out, _ = invoke("status", str(cfg), "--store", url, "--json")
+    assert json.loads(out)["missing"] == 0 and json.loads(out)["store"] == url
+    stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
+    code, out, _ = invoke("show", stats["key"][:12], "--store", url)
+    assert code == 0 and "stats of elevator" in out
+    code, out, _ = invoke("rerun", stats["key"], "--store", url)
+    assert code == 0 and "bit-identical" in out
+    code, out, _ = invoke("verify", "--store", url)
+    assert code == 0 and "5 entries checked, 0 corrupt" in out
+    fs, base = fsspec.core.url_to_fs(url)
+    key = stats["key"]
+    fs.pipe_file(f"{base}/stats/{key[:2]}/{key}/zarr.json", b"{ not json")
+    code, out, _ = invoke("verify", "--store", url)
+    assert code == 1 and f"CORRUPT {key}" in out
+
+
+def _arrays(store: ResultStore) -> dict[str, dict[str, bytes]]:
+    return {
+        e.key: {n: a.tobytes() for n, a in store.load_arrays(e.key, e.stage).items()}
+        for e in store.entries()
+    }
+
+
+def test_embedded_cluster_workers_share_a_url_store(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nflights: [{simulated: {n_flights: 2, seed: 5}}]\n"
+        "stages:\n  identify: {parameters: [M_alpha, M_q]}\n  validate: {}\n"
+        "  propagate: {metric: natural_frequency, n_samples: 200}\n"
+        "  campaign_report: {figures: false}\n"
+    )
+    folder = run(cfg, store=tmp_path / "folder", workers=0)
+    url = f"local://{tmp_path}/objects"
+    shared = run(cfg, store=url, workers=2)
+    assert folder.failed == 0 and shared.failed == 0
+    assert shared.count("computed") == folder.count("computed")
+    same = _arrays(open_store(tmp_path / "folder"))
+    assert _arrays(open_store(url)) == same and len(same) == shared.count("computed")
