@@ -316,6 +316,53 @@ def affine_matrices(
     )
 
 
+def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> FloatArray:
+    """States x_1..x_T of x_{k+1} = phi x_k + forcing_k, batched: phi (B, n, n), x0 (B, n),
+    forcing (B, T, n).
+
+    A step-by-step loop costs a few microseconds of Python per sample, more
+    than the arithmetic. In blocks of L ~ sqrt(T) samples the loop runs about
+    2 sqrt(T) times: once over the position in a block (every block at once,
+    each from a zero state), once over the blocks (their start states, with
+    phi^L), and the two combine as x_{kL+i} = phi^i x_{kL} + (block response).
+    The sums are the same, in a different order: the states agree with the
+    step-by-step loop to rounding (a few ulp).
+    """
+    batch, n_t, n_x = forcing.shape
+    phi_t = np.ascontiguousarray(np.transpose(phi, (0, 2, 1)))
+    if n_t < 64:  # too short to gain
+        out = np.empty((batch, n_t, n_x))
+        x = x0
+        for k in range(n_t):
+            x = np.matmul(x[:, None, :], phi_t)[:, 0, :] + forcing[:, k]
+            out[:, k] = x
+        return out
+    size = int(np.ceil(np.sqrt(n_t)))
+    n_blk = -(-n_t // size)
+    f = np.zeros((batch, n_blk * size, n_x))
+    f[:, :n_t] = forcing
+    f = f.reshape(batch, n_blk, size, n_x)
+    # response[:, k, i]: block k's state after i + 1 steps from a zero start
+    response = np.empty((batch, n_blk, size, n_x))
+    g = f[:, :, 0]
+    response[:, :, 0] = g
+    for i in range(1, size):
+        g = np.matmul(g, phi_t) + f[:, :, i]
+        response[:, :, i] = g
+    powers_t = np.empty((batch, size, n_x, n_x))  # (phi^(i+1))^T
+    powers_t[:, 0] = phi_t
+    for i in range(1, size):
+        powers_t[:, i] = np.matmul(powers_t[:, i - 1], phi_t)
+    starts = np.empty((batch, n_blk, n_x))
+    x = x0
+    for k in range(n_blk):
+        starts[:, k] = x
+        x = np.matmul(x[:, None, :], powers_t[:, -1])[:, 0, :] + response[:, k, -1]
+    free = np.matmul(starts[:, None, :, :], powers_t)  # (B, size, n_blk, n_x)
+    states = np.transpose(free, (0, 2, 1, 3)) + response
+    return states.reshape(batch, n_blk * size, n_x)[:, :n_t]
+
+
 def exact_lti(
     time: FloatArray,
     x0: FloatArray,
@@ -359,11 +406,8 @@ def exact_lti(
             + np.einsum("bij,bkj->bki", Gv, du)
             + gc[:, None, :]
         )
-        phi_t = np.ascontiguousarray(np.transpose(phis[0], (0, 2, 1)))
         with np.errstate(all="ignore"):
-            for k in range(time.size - 1):
-                x = np.matmul(x[:, None, :], phi_t)[:, 0, :] + forcing[:, k]
-                states[:, k + 1] = x
+            states[:, 1:] = _linear_recursion(phis[0], x, forcing)
     else:
         with np.errstate(all="ignore"):
             for k in range(time.size - 1):
