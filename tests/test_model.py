@@ -190,3 +190,29 @@ def test_model_is_frozen_and_argument_errors():
         m.simulate(T, None, [1.0, 2.0])
     with pytest.raises(SimulationError, match="'kk' is not a parameter"):
         m.simulate(T, None, [1.0], {"kk": 2.0})
+
+
+@pytest.mark.parametrize("n_t", [1, 2, 63, 64, 65, 500, 2049])
+@pytest.mark.parametrize("growth", [-2.0, 0.5])
+def test_blocked_linear_recursion_matches_the_step_by_step_loop(n_t, growth):
+    # x_{k+1} = phi x_k + f_k, run in blocks of ~sqrt(T) samples: the same sums in
+    # another order, so equal to rounding, for decaying and for growing systems
+    import scipy.linalg
+
+    from aeroid._integrate import _linear_recursion
+
+    rng = np.random.default_rng(n_t)
+    batch, n_x = 3, 3
+    a = rng.normal(size=(batch, n_x, n_x)) + growth * np.eye(n_x)
+    phi = np.stack([scipy.linalg.expm(m * 0.01) for m in a])
+    x0 = rng.normal(size=(batch, n_x))
+    forcing = rng.normal(size=(batch, n_t, n_x))
+    expected = np.empty_like(forcing)
+    x = x0
+    for k in range(n_t):
+        x = np.einsum("bij,bj->bi", phi, x) + forcing[:, k]
+        expected[:, k] = x
+    got = _linear_recursion(phi, x0, forcing)
+    assert got.shape == expected.shape
+    scale = np.max(np.abs(expected), axis=(1, 2), keepdims=True)
+    assert np.max(np.abs(got - expected) / scale) < 1e-13
