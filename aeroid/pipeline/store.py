@@ -399,6 +399,14 @@ class ResultStore:
         key = key.strip().lower()
         if len(key) < 6 or any(c not in "0123456789abcdef" for c in key):
             raise StoreError(f"key {key!r}: expected at least 6 hexadecimal digits")
+        hits = self._starting_with(key)
+        if not hits:
+            raise StoreError(f"key {key}: no such entry in store {self.root}")
+        if len(hits) > 1:
+            raise StoreError(f"key {key}: ambiguous, matches {[h.key[:12] for h in hits]}")
+        return hits[0]
+
+    def _starting_with(self, key: str) -> list[Entry]:
         hits = []
         for stage_dir in sorted(self._dir.iterdir()) if self._dir.is_dir() else []:
             if not stage_dir.is_dir() or stage_dir.name.startswith("."):
@@ -406,11 +414,7 @@ class ResultStore:
             prefix = stage_dir / key[:2]
             if prefix.is_dir():
                 hits += [Entry(p.name, stage_dir.name, p) for p in prefix.glob(f"{key}*")]
-        if not hits:
-            raise StoreError(f"key {key}: no such entry in store {self.root}")
-        if len(hits) > 1:
-            raise StoreError(f"key {key}: ambiguous, matches {[h.key[:12] for h in hits]}")
-        return hits[0]
+        return hits
 
     # -- writing ---------------------------------------------------------------
     def commit(
@@ -690,16 +694,8 @@ class _ObjectStore(ResultStore):
     def entries(self, stage: str | None = None) -> Iterator[Entry]:
         yield from self._groups(stage or "*", "")
 
-    def find(self, key: str) -> Entry:
-        key = key.strip().lower()
-        if len(key) < 6 or any(c not in "0123456789abcdef" for c in key):
-            raise StoreError(f"key {key!r}: expected at least 6 hexadecimal digits")
-        hits = self._groups("*", key)
-        if not hits:
-            raise StoreError(f"key {key}: no such entry in store {self.root}")
-        if len(hits) > 1:
-            raise StoreError(f"key {key}: ambiguous, matches {[h.key[:12] for h in hits]}")
-        return hits[0]
+    def _starting_with(self, key: str) -> list[Entry]:
+        return self._groups("*", key)
 
     def _publish(
         self, stage: str, key: str, arrays: Mapping[str, np.ndarray], group: bytes

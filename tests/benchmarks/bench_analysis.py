@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
-import time
 from collections.abc import Callable
 
 # Small matrices everywhere: BLAS threads only add contention on a shared machine.
@@ -18,6 +16,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from _timing import median_time
 
 import aeroid
 from aeroid import catalog
@@ -66,16 +65,6 @@ CASES = [
 ]
 
 
-def median_time(fn: Callable[[], object], repeat: int) -> float:
-    fn()  # warm-up: imports, broadcasting detection
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeat", type=int, default=7)
@@ -84,7 +73,7 @@ def main() -> None:
         f"{'case':40s} {'median':>10s} {'target':>8s} {'/target':>8s} {'speed-up vs competitor':>24s}"
     )
     for name, factory, target, competitor in CASES:
-        t = median_time(factory(), args.repeat)
+        t = median_time(factory(), args.repeat, warm_up=True)
         print(f"{name:40s} {t:9.4f}s {target:7.2f}s {t / target:8.2f} {competitor / t:23.1f}x")
 
 

@@ -12,10 +12,9 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import statistics  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
 from typing import Any  # noqa: E402
+
+from _timing import timed  # noqa: E402
 
 import aeroid  # noqa: E402
 from aeroid import catalog  # noqa: E402
@@ -23,16 +22,6 @@ from aeroid import catalog  # noqa: E402
 PROCESS = {"alpha": 1e-8, "q": 1e-8}
 MEASUREMENT = {"alpha": 0.005**2, "q": 0.01**2}
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
-
-
-def _median(fun: Callable[[], Any], repeats: int = 5) -> tuple[float, Any]:
-    fun()  # warm-up (LTI detection, imports)
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fun()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def _filter_error(model: aeroid.Model, data: aeroid.FlightData) -> Any:
@@ -62,19 +51,23 @@ def main() -> None:
     data = catalog.short_period_flight(seed=0)
     truth = dict(catalog.SHORT_PERIOD_TRUTH)
     rows = []
-    t, res = _median(
+    t, res = timed(
         lambda: aeroid.filter_states(
             model, data, truth, process_noise=PROCESS, measurement_noise=MEASUREMENT
-        )
+        ),
+        5,
+        warm_up=True,
     )
     rows.append(("filter_states (EKF + RTS), 10 s at 50 Hz", t, 0.05, 0.24))
-    t_ukf, _ = _median(
+    t_ukf, _ = timed(
         lambda: aeroid.filter_states(
             model, data, truth, process_noise=PROCESS, measurement_noise=MEASUREMENT, method="ukf"
-        )
+        ),
+        5,
+        warm_up=True,
     )
     rows.append(("filter_states (UKF + RTS)", t_ukf, float("nan"), float("nan")))
-    t_fe, fit = _median(lambda: _filter_error(model, data))
+    t_fe, fit = timed(lambda: _filter_error(model, data), 5, warm_up=True)
     rows.append(("identify(method='filter_error')", t_fe, 0.6, 6.4))
     print(f"{'case':45s} {'median s':>10s} {'target s':>9s} {'t/target':>9s} {'competitor/t':>13s}")
     for name, tm, target, comp in rows:

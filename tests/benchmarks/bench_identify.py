@@ -11,23 +11,13 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import statistics  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from _timing import timed  # noqa: E402
 
 from aeroid import catalog, identify  # noqa: E402
 
 NAMES = list(catalog.SHORT_PERIOD_TRUTH)
-
-
-def _time(fn, repeats=7):
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def main() -> None:
@@ -45,7 +35,7 @@ def main() -> None:
     )
     identify(model, cases[next(iter(cases))][0], NAMES)  # warm-up
     for label, (data, target, competitor) in cases.items():
-        med, r = _time(lambda data=data: identify(model, data, NAMES))
+        med, r = timed(lambda data=data: identify(model, data, NAMES))
         worst = max(abs(r.parameters[n] / truth[n] - 1) for n in NAMES)
         within = all(abs(r.parameters[n] - truth[n]) < 3 * r.stderr[n] for n in NAMES)
         print(

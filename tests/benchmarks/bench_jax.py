@@ -12,13 +12,12 @@ Times (medians over repeats, after compilation):
 
 from __future__ import annotations
 
-import statistics
 import time
-from collections.abc import Callable
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
+from _timing import median_time
 
 import aeroid
 from aeroid import _jax, catalog
@@ -40,15 +39,6 @@ def jax_model() -> aeroid.Model:
     return aeroid.Model(
         ["alpha", "q"], ["elevator"], dict(catalog.SHORT_PERIOD_GUESS), _sp_jax, name="sp_jax"
     )
-
-
-def median_time(fn: Callable[[], Any], repeats: int = 7) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def row(label: str, seconds: float, jax_seconds: float | None = None) -> None:

@@ -17,12 +17,11 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import functools  # noqa: E402
-import statistics  # noqa: E402
-import time  # noqa: E402
 import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
+from _timing import median_time  # noqa: E402
 
 import aeroid  # noqa: E402
 from aeroid import _integrate, catalog  # noqa: E402
@@ -38,15 +37,6 @@ def _step_by_step(phi: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.nd
     return out
 
 
-def _median(fn, repeats: int = 15) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def main() -> None:
     rng = np.random.default_rng(0)
     a = np.array([[-0.8, 1.0], [-4.0, -1.5]])
@@ -60,8 +50,8 @@ def main() -> None:
             new = _integrate._linear_recursion(phi, x0, forcing)
             diff = float(np.max(np.abs(ref - new)) / np.max(np.abs(ref)))
             args = (phi, x0, forcing)
-            t_ref = _median(functools.partial(_step_by_step, *args), 5 if n_t > 5000 else 15)
-            t_new = _median(functools.partial(_integrate._linear_recursion, *args))
+            t_ref = median_time(functools.partial(_step_by_step, *args), 5 if n_t > 5000 else 15)
+            t_new = median_time(functools.partial(_integrate._linear_recursion, *args))
             print(
                 f"  {n_t:6d} x {batch:2d}: {1e3 * t_ref:8.2f} ms / {1e3 * t_new:7.2f} ms"
                 f" = {t_ref / t_new:5.1f}x   {diff:.1e}"
@@ -76,10 +66,10 @@ def main() -> None:
     for label, recursion in (("step-by-step", _step_by_step), ("blocked", original)):
         _integrate._linear_recursion = recursion  # type: ignore[assignment]
         try:
-            t_fit = _median(lambda: aeroid.identify(model, data, names), 9)
+            t_fit = median_time(lambda: aeroid.identify(model, data, names), 9)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # a short chain: unconverged on purpose
-                t_mc = _median(
+                t_mc = median_time(
                     lambda: aeroid.infer(
                         model, data, priors, initial=fit, n_walkers=12, n_steps=200, seed=1
                     ),
