@@ -145,8 +145,9 @@ def status(config: str, store: str | None, as_json: bool) -> None:
         _fail(str(exc))
         return
     tasks: list[dict[str, str]] = []
+    in_store = set() if st is None else st.stored((t.stage, t.key) for t in the_plan.tasks)
     for t in the_plan.tasks:
-        stored = st is not None and st.exists(t.stage, t.key)
+        stored = (t.stage, t.key) in in_store
         tasks.append(
             {
                 "stage": t.step,

@@ -165,3 +165,18 @@ def test_embedded_cluster_workers_share_a_url_store(tmp_path):
     assert shared.count("computed") == folder.count("computed")
     same = _arrays(open_store(tmp_path / "folder"))
     assert _arrays(open_store(url)) == same and len(same) == shared.count("computed")
+
+
+def test_which_tasks_are_stored_takes_one_listing_per_stage_not_a_request_per_key(monkeypatch):
+    store = ResultStore(_url())
+    keys = [_commit(store, n) for n in range(3)]
+    missing = sha256_hex(canonical_json({"n": "missing"}))
+    asked = [("identify", k) for k in keys] + [("identify", missing), ("load", keys[0])]
+    expected = {("identify", k) for k in keys}
+    assert {a for a in asked if store.exists(*a)} == expected
+
+    def no_requests_per_key(*args, **kwargs):
+        raise AssertionError("a request per key")
+
+    monkeypatch.setattr(store._fs, "exists", no_requests_per_key)  # type: ignore[attr-defined]
+    assert store.stored(asked) == expected

@@ -987,10 +987,11 @@ def run(
     result_store = ResultStore(config.store_location)
     statuses: dict[str, dict[str, Any]] = {}
     todo: list[Task] = []
+    stored = result_store.stored((t.stage, t.key) for t in the_plan.tasks)
     for t in the_plan.tasks:
         if t.key in statuses:
             continue
-        if result_store.exists(t.stage, t.key):
+        if (t.stage, t.key) in stored:
             statuses[t.key] = {"key": t.key, "step": t.step, "flight": t.flight, "status": "cached"}
         else:
             todo.append(t)

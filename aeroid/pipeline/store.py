@@ -29,7 +29,7 @@ import threading
 import time
 import uuid
 from collections import OrderedDict
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -369,6 +369,10 @@ class ResultStore:
         """True when `key` is committed (commits are atomic, so existence means complete)."""
         return os.path.isdir(os.path.join(self._root_id, stage, key[:2], key))
 
+    def stored(self, tasks: Iterable[tuple[str, str]]) -> set[tuple[str, str]]:
+        """The (stage, key) pairs among `tasks` that are committed."""
+        return {(stage, key) for stage, key in tasks if self.exists(stage, key)}
+
     def _read(self, path: str) -> bytes:
         return _read_local(path)
 
@@ -677,6 +681,14 @@ class _ObjectStore(ResultStore):
 
     def exists(self, stage: str, key: str) -> bool:
         return bool(self._fs.exists(f"{self._base}/{stage}/{key[:2]}/{key}/zarr.json"))
+
+    def stored(self, tasks: Iterable[tuple[str, str]]) -> set[tuple[str, str]]:
+        # one listing per stage instead of a request per key
+        wanted = set(tasks)
+        found = set()
+        for stage in {stage for stage, _ in wanted}:
+            found |= {(e.stage, e.key) for e in self._groups(stage, "")}
+        return wanted & found
 
     def _read(self, path: str) -> bytes:
         return bytes(self._fs.cat_file(self._path(path)))
