@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 __all__ = [
     "plot_campaign_trend",
@@ -171,21 +171,33 @@ def plot_posterior(inference: Any, *, max_parameters: int = 6) -> Figure:
     s = inference.samples[:, : len(names)]
     n = len(names)
     fig, grid = _grid(
-        n, n, width=1.9 * n + 1, height=1.9, left=0.8, top=0.2, bottom=0.5, hgap=0.3, wgap=0.5
+        n, n, width=1.7 * n + 1, height=1.7, left=0.8, top=0.2, bottom=0.5, hgap=0.12, wgap=0.12
     )
     step = max(1, s.shape[0] // 3000)
+    # A panel shares its x axis with its column and its y axis with its row, so
+    # only the bottom row and the left column carry tick labels; three or four
+    # ticks an axis keep the small panels legible (and each tick is costly to draw).
+    column: dict[int, Any] = {}
+    row: dict[int, Any] = {}
     for i in range(n):
         for j in range(i + 1):  # the lower triangle only
-            ax = fig.add_subplot(grid[i, j])
+            ax = fig.add_subplot(
+                grid[i, j], sharex=column.get(j), sharey=None if i == j else row.get(i)
+            )
+            column.setdefault(j, ax)
             if i == j:
                 _hist(ax, s[:, i], 40)
+                ax.set_yticks([])
             else:
+                row.setdefault(i, ax)
                 ax.plot(s[::step, j], s[::step, i], ".", ms=1, color="C0", alpha=0.4)
+                ax.yaxis.set_major_locator(MaxNLocator(3))
+            ax.xaxis.set_major_locator(MaxNLocator(3))
+            ax.tick_params(labelsize=6, labelbottom=i == n - 1, labelleft=j == 0 and i > 0)
             if i == n - 1:
                 ax.set_xlabel(names[j], fontsize=8)
             if j == 0 and i > 0:
                 ax.set_ylabel(names[i], fontsize=8)
-            ax.tick_params(labelsize=6)
     return fig
 
 

@@ -821,7 +821,7 @@ for _stage in (
     ),
     Stage(
         "campaign_report",
-        "3",  # 3: figures drawn with fixed margins (other bytes for the same inputs)
+        "4",  # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes)
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign_report,
