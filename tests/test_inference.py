@@ -3,6 +3,7 @@ failing simulations, storability, error paths; slow: interval coverage over 100 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from typing import Any
@@ -65,7 +66,8 @@ def quiet_infer(*args: Any, **kwargs: Any) -> InferenceResult:
         return infer(*args, **kwargs)
 
 
-def test_conjugate_normal_normal_posterior() -> None:
+@pytest.mark.parametrize("move", ["stretch", "de"])
+def test_conjugate_normal_normal_posterior(move: str) -> None:
     data = ramp_data()
     mean, sd = conjugate(data, 0.5, 0.4, SIGMA)
     # the prior and the data both matter here: prior sd 0.4, data-only sd 0.15
@@ -80,7 +82,9 @@ def test_conjugate_normal_normal_posterior() -> None:
         burn_in=100,
         seed=0,
         simulate_options={"method": "rk4"},  # exact here (constant rate), and cheap
+        move=move,
     )
+    assert res.move == move
     # 76,800 draws with tau ~ 25 steps (the stretch move in 1-D): ESS > 2,000, so the Monte
     # Carlo error of the mean is < 0.3 % and of the sd < 1.6 %: the spec's rel 0.05 is > 3 sd
     assert res.effective_sample_size["k"] > 2000
@@ -206,6 +210,14 @@ def test_seeded_resumable_and_ensembles() -> None:
     assert "2 ensembles" in two.summary()
     more = quiet_infer(model, data, priors, n_steps=30, initial=two, noise={"y": SIGMA})
     assert more.n_ensembles == 2 and more.chain[1].step == 130
+    # the differential-evolution move: seeded the same way, named in the summary
+    de = quiet_infer(model, data, priors, n_steps=100, burn_in=20, move="de", **kw)
+    assert de.move == "de" and "differential-evolution move" in de.summary()
+    np.testing.assert_array_equal(
+        de.samples,
+        quiet_infer(model, data, priors, n_steps=100, burn_in=20, move="de", **kw).samples,
+    )
+    assert not np.array_equal(de.samples, a.samples)
 
 
 def test_not_converged_warns() -> None:
@@ -242,6 +254,11 @@ def test_convergence_rule_on_known_chains() -> None:
         combine_ensembles([run(iid), run(iid)])
     with pytest.raises(InferenceError, match="differ"):
         combine_ensembles([run(iid), run(iid[:, :4], 1)])
+    # ensembles sampled with different moves are not one problem's ensembles
+    de = run(iid, 1)
+    de = dataclasses.replace(de, sampler=dataclasses.replace(de.sampler, move="de"))
+    with pytest.raises(InferenceError, match="move"):
+        combine_ensembles([run(iid), de])
 
 
 def test_initial_from_identification_result() -> None:

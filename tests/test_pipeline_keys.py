@@ -181,3 +181,31 @@ def test_task_key_is_the_sha256_of_the_documented_canonical_json():
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
     assert _key() == hashlib.sha256(text.encode("utf-8")).hexdigest()
     assert _key() == "b63e75456bdc33c165987d225bd37ff4dec392a2920c8f689cccf2b26b53aeaf"
+
+
+def test_an_option_added_later_enters_keys_only_once_set(tmp_path):
+    # `infer: {move: ...}` came after infer keys were first stored: unset, it is left out
+    # of the key document, so the keys of campaigns that do not use it stay the same
+    from aeroid.pipeline.stages import InferOptions
+
+    priors = {"M_q": {"normal": [-2.0, 2.0]}}
+    doc = InferOptions(priors=priors).key_document()
+    assert "move" not in doc and doc["stretch"] is None  # options from the start stay in
+    assert InferOptions(priors=priors, move="de").key_document() == {**doc, "move": "de"}
+
+    def keys(infer: str) -> dict[tuple[str, str | None], str]:
+        cfg = tmp_path / "c.yaml"
+        cfg.write_text(
+            "model: short_period\nflights: [{simulated: {n_flights: 1}}]\n"
+            "stages:\n  identify: {parameters: [M_q]}\n"
+            f"  infer: {{priors: {{M_q: {{normal: [-2.0, 2.0]}}}}{infer}}}\n"
+        )
+        return {(t.step, t.flight): t.key for t in plan(cfg).tasks}
+
+    unset, stretch, de = keys(""), keys(", move: stretch"), keys(", move: de")
+    changed = {k for k in unset if unset[k] != de[k]}
+    assert {step for step, _ in changed} == {"infer", "report", "campaign_report"}  # downstream
+    assert ("infer", "sim-0") in changed and unset[("identify", "sim-0")] == de[
+        ("identify", "sim-0")
+    ]
+    assert stretch[("infer", "sim-0")] not in (unset[("infer", "sim-0")], de[("infer", "sim-0")])

@@ -38,9 +38,11 @@ def ar1(phi: float, n: int, m: int, seed: int) -> np.ndarray:
     return x
 
 
-def test_correlated_gaussian_moments() -> None:
+@pytest.mark.parametrize("move", ["stretch", "de"])
+def test_correlated_gaussian_moments(move: str) -> None:
     start = MU + 0.1 * np.random.default_rng(1).standard_normal((32, 2))
-    run = ensemble_sampler(gauss, start, 3000, seed=0, burn_in=500)
+    run = ensemble_sampler(gauss, start, 3000, seed=0, burn_in=500, move=move)
+    assert run.move == move
     s = run.chain.reshape(-1, 2)
     # ESS is ~2000 here, so moment errors are ~2-5 %; the spec's tolerance is rel 0.15
     np.testing.assert_allclose(s.mean(axis=0), MU, rtol=0.15)
@@ -118,26 +120,52 @@ def test_start_with_some_impossible_walkers_recovers() -> None:
     assert np.all(np.isfinite(run.state.log_prob))
 
 
-def test_seeded_and_resumable() -> None:
+@pytest.mark.parametrize("move", ["stretch", "de"])
+def test_seeded_and_resumable(move: str) -> None:
     start = MU + 0.1 * np.random.default_rng(5).standard_normal((8, 2))
-    a = ensemble_sampler(gauss, start, 120, seed=11, burn_in=20)
-    b = ensemble_sampler(gauss, start, 120, seed=11, burn_in=20)
+    a = ensemble_sampler(gauss, start, 120, seed=11, burn_in=20, move=move)
+    b = ensemble_sampler(gauss, start, 120, seed=11, burn_in=20, move=move)
     np.testing.assert_array_equal(a.chain, b.chain)
-    c = ensemble_sampler(gauss, start, 120, seed=12, burn_in=20)
+    c = ensemble_sampler(gauss, start, 120, seed=12, burn_in=20, move=move)
     assert not np.array_equal(a.chain, c.chain)
     # 50 + 70 steps from the stored state = one run of 120 steps, bit for bit
-    first = ensemble_sampler(gauss, start, 50, seed=11, burn_in=20)
+    first = ensemble_sampler(gauss, start, 50, seed=11, burn_in=20, move=move)
     st = first.state
     stored = ChainState(
         np.array(st.positions), np.array(st.log_prob), st.step, st.entropy, list(st.spawn_key)
     )
-    second = ensemble_sampler(gauss, stored, 70)
+    second = ensemble_sampler(gauss, stored, 70, move=move)
     np.testing.assert_array_equal(np.concatenate([first.chain, second.chain]), a.chain)
     np.testing.assert_array_equal(second.state.positions, a.state.positions)
     assert second.state.step == 120
     # a seed given with a state starts a fresh stream from that state
-    fresh = ensemble_sampler(gauss, stored, 70, seed=99)
+    fresh = ensemble_sampler(gauss, stored, 70, seed=99, move=move)
     assert not np.array_equal(fresh.chain, second.chain)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_differential_evolution_mixes_faster_on_a_correlated_gaussian(seed: int) -> None:
+    # six correlated parameters with scales over four decades: the case of aerodynamic
+    # derivatives and noise levels. Both moves are affine invariant; DE's autocorrelation
+    # time is several times shorter (3.1-5.1x over eight seeds; asserted > 2x).
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.standard_normal((6, 6)))
+    scale = np.diag(np.logspace(-3, 1, 6))
+    cov = scale @ q @ np.diag([1.0, 0.5, 0.2, 0.1, 0.05, 0.02]) @ q.T @ scale
+    prec = np.linalg.inv(cov)
+
+    def lp(theta: np.ndarray) -> np.ndarray:
+        return -0.5 * np.einsum("bi,ij,bj->b", theta, prec, theta)
+
+    start = rng.multivariate_normal(np.zeros(6), cov, size=16)
+    taus = {}
+    for move in ("stretch", "de"):
+        run = ensemble_sampler(lp, start, 4000, seed=seed, burn_in=1000, move=move)
+        taus[move] = float(np.max(autocorrelation_time(run.chain)))
+        s = run.chain.reshape(-1, 6)
+        # both sample the target: variances within 25 % (ESS >= ~1000 for either move)
+        np.testing.assert_allclose(np.var(s, axis=0), np.diag(cov), rtol=0.25)
+    assert taus["de"] < taus["stretch"] / 2
 
 
 def test_thinning_and_burn_in() -> None:
@@ -168,6 +196,7 @@ def test_one_vectorised_call_per_half_ensemble() -> None:
         ({"n_steps": 10, "burn_in": 10}, "burn_in"),
         ({"n_steps": 10, "thin": 0}, "thin"),
         ({"n_steps": 10, "stretch": 1.0}, "stretch"),
+        ({"n_steps": 10, "move": "walk"}, "move"),
         ({"n_steps": 10, "seed": -1}, "seed"),
     ],
 )

@@ -11,7 +11,7 @@ from __future__ import annotations
 import glob
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
@@ -39,6 +39,15 @@ class Options(BaseModel):
     """Base of every options model: frozen, unknown keys forbidden."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    #: Options added after the stage's keys were first computed: left out of the
+    #: key while unset, so adding one does not recompute every stored result.
+    added_later: ClassVar[frozenset[str]] = frozenset()
+
+    def key_document(self) -> dict[str, Any]:
+        """The options as they enter a task's key (plain JSON)."""
+        doc = self.model_dump(mode="json")
+        return {k: v for k, v in doc.items() if not (v is None and k in self.added_later)}
 
     def library_kwargs(self, *, exclude: Sequence[str] = ()) -> dict[str, Any]:
         """Options given (not None) as keyword arguments for the library function."""

@@ -265,7 +265,7 @@ def plan(
         flight_id: int | None = None
         for step in (s for s in steps if s in pipeline.flight_steps):
             stage = STAGES[step.stage_name]
-            opts = options[step.name].model_dump(mode="json")
+            opts = options[step.name].key_document()
             upstream: dict[str, Any] = {}
             if step.stage_name == "load":
                 if source["kind"] == "file":
@@ -316,7 +316,7 @@ def plan(
         per_flight_keys[name] = keys
     for step in (s for s in steps if s in pipeline.campaign_steps):
         stage = STAGES[step.stage_name]
-        opts = options[step.name].model_dump(mode="json")
+        opts = options[step.name].key_document()
         upstream = {
             role: [per_flight_keys[f][up] for f in flights]
             for role, up in step.inputs.items()
@@ -844,7 +844,10 @@ def _run_dask(
                     n_workers=n,
                     threads_per_worker=1,
                     processes=True,
-                    dashboard_address=None,
+                    # no dashboard; the scheduler's HTTP server still starts, so give it a
+                    # free loopback port rather than 8787, which a user's own cluster may hold
+                    dashboard_address="127.0.0.1:0",
+                    scheduler_kwargs={"dashboard": False},
                     env=dict(_BLAS_ENV),
                     silence_logs=logging.CRITICAL,  # failures are reported per task
                 )

@@ -12,7 +12,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -386,6 +386,9 @@ class InferOptions(Options):
     burn_in: int | None = Field(None, ge=0)
     thin: int | None = Field(None, ge=1)
     stretch: float | None = Field(None, gt=1)
+    move: Literal["stretch", "de"] | None = None
+
+    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
     outputs: list[str] | None = None
     backend: str | None = None
     initial: bool = True
