@@ -136,7 +136,9 @@ class CampaignConfig(Options):
     @property
     def store_is_url(self) -> bool:
         """True when the store is an object-store URL (``s3://...``) rather than a folder."""
-        return "://" in self.store and not self.store.startswith("file://")
+        from .store import is_url
+
+        return is_url(self.store)
 
     @property
     def store_location(self) -> str:

@@ -35,7 +35,7 @@ from .config import CampaignConfig, SimulatedSource, load_config, validate_optio
 from .definition import Pipeline, load_pipeline, resolve_pipeline
 from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
 from .stages import STAGES, StageContext, resolve_callable
-from .store import ResultStore, record_cache
+from .store import ResultStore, is_url, record_cache
 
 __all__ = [
     "Plan",
@@ -1051,7 +1051,7 @@ def run(
 def store_argument(store: str | Path) -> str:
     """A store given on the command line or to `run`: a URL as is, a folder made absolute."""
     text = str(store)
-    if "://" in text and not text.startswith("file://"):
+    if is_url(text):
         return text
     return str(Path(text.removeprefix("file://")).expanduser().resolve())
 

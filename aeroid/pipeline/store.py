@@ -40,7 +40,7 @@ from ..errors import StoreError
 from . import codec
 from .keys import _canonical_plain, array_digest, canonical_json, sha256_hex, to_jsonable
 
-__all__ = ["Entry", "ResultStore", "is_store", "open_store", "record_cache"]
+__all__ = ["Entry", "ResultStore", "is_store", "is_url", "open_store", "record_cache"]
 
 FORMAT = 1
 _MARKER = "aeroid-store.json"
@@ -322,7 +322,7 @@ class ResultStore:
     """The store's folder, or its URL in an object store."""
 
     def __new__(cls, root: str | Path, *, create: bool = True) -> ResultStore:
-        if cls is ResultStore and _is_url(str(root)):
+        if cls is ResultStore and is_url(str(root)):
             return super().__new__(_ObjectStore)
         return super().__new__(cls)
 
@@ -609,7 +609,9 @@ class ResultStore:
         return removed
 
 
-def _is_url(text: str) -> bool:
+def is_url(location: str | Path) -> bool:
+    """True when a store location is a URL for fsspec (``s3://...``), not a folder."""
+    text = str(location)
     return "://" in text and not text.startswith("file://")
 
 
@@ -635,8 +637,7 @@ class _ObjectStore(ResultStore):
         self.root = self._url_root = text
         self._root_id = text
         self._fs = fs
-        self._base = str(base).rstrip("/")
-        self._dir = Path(self._base)  # not a local folder: every file goes through `_fs`
+        self._base = str(base).rstrip("/")  # every file goes through `_fs`: no `_dir`
         if text in _CHECKED:
             return
         marker = f"{self._base}/{_MARKER}"
@@ -768,7 +769,7 @@ class _ObjectStore(ResultStore):
 def is_store(root: str | Path) -> bool:
     """True when `root` (a folder or URL) holds an aeroid store."""
     text = str(root)
-    if not _is_url(text):
+    if not is_url(text):
         return (Path(text.removeprefix("file://")).expanduser() / _MARKER).is_file()
     try:
         import fsspec
