@@ -330,14 +330,20 @@ def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> F
     """
     batch, n_t, n_x = forcing.shape
     phi_t = np.ascontiguousarray(np.transpose(phi, (0, 2, 1)))
-    if n_t < 64:  # too short to gain
+    size = int(np.ceil(np.sqrt(n_t)))
+    powers_t = np.empty((batch, size, n_x, n_x))  # (phi^(i+1))^T
+    powers_t[:, 0] = phi_t
+    for i in range(1, size):
+        powers_t[:, i] = np.matmul(powers_t[:, i - 1], phi_t)
+    if n_t < 64 or not np.all(np.isfinite(powers_t[:, -1])):
+        # too short to gain; or so unstable that phi^L overflows, where inf * 0 would
+        # fail a state the plain loop computes
         out = np.empty((batch, n_t, n_x))
         x = x0
         for k in range(n_t):
             x = np.matmul(x[:, None, :], phi_t)[:, 0, :] + forcing[:, k]
             out[:, k] = x
         return out
-    size = int(np.ceil(np.sqrt(n_t)))
     n_blk = -(-n_t // size)
     f = np.zeros((batch, n_blk * size, n_x))
     f[:, :n_t] = forcing
@@ -349,10 +355,6 @@ def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> F
     for i in range(1, size):
         g = np.matmul(g, phi_t) + f[:, :, i]
         response[:, :, i] = g
-    powers_t = np.empty((batch, size, n_x, n_x))  # (phi^(i+1))^T
-    powers_t[:, 0] = phi_t
-    for i in range(1, size):
-        powers_t[:, i] = np.matmul(powers_t[:, i - 1], phi_t)
     starts = np.empty((batch, n_blk, n_x))
     x = x0
     for k in range(n_blk):

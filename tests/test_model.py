@@ -216,3 +216,15 @@ def test_blocked_linear_recursion_matches_the_step_by_step_loop(n_t, growth):
     assert got.shape == expected.shape
     scale = np.max(np.abs(expected), axis=(1, 2), keepdims=True)
     assert np.max(np.abs(got - expected) / scale) < 1e-13
+
+
+def test_blocked_linear_recursion_of_an_overflowing_system_matches_the_loop():
+    # phi^L overflows: the blocks would turn 0 * inf into NaN where the loop has zeros
+    from aeroid._integrate import _linear_recursion
+
+    phi = np.array([[[1e40]]])
+    forcing = np.zeros((1, 100, 1))
+    forcing[0, -1, 0] = 2.0
+    with np.errstate(over="ignore"):
+        got = _linear_recursion(phi, np.zeros((1, 1)), forcing)
+    np.testing.assert_array_equal(got[0, :, 0], np.r_[np.zeros(99), 2.0])
