@@ -331,13 +331,15 @@ def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> F
     batch, n_t, n_x = forcing.shape
     phi_t = np.ascontiguousarray(np.transpose(phi, (0, 2, 1)))
     size = int(np.ceil(np.sqrt(n_t)))
-    powers_t = np.empty((batch, size, n_x, n_x))  # (phi^(i+1))^T
-    powers_t[:, 0] = phi_t
-    for i in range(1, size):
-        powers_t[:, i] = np.matmul(powers_t[:, i - 1], phi_t)
-    if n_t < 64 or not np.all(np.isfinite(powers_t[:, -1])):
-        # too short to gain; or so unstable that phi^L overflows, where inf * 0 would
-        # fail a state the plain loop computes
+    powers_t: FloatArray | None = None
+    if n_t >= 64:  # shorter records gain nothing
+        powers_t = np.empty((batch, size, n_x, n_x))  # (phi^(i+1))^T
+        powers_t[:, 0] = phi_t
+        for i in range(1, size):
+            powers_t[:, i] = np.matmul(powers_t[:, i - 1], phi_t)
+    if powers_t is None or not np.all(np.isfinite(powers_t[:, -1])):
+        # the plain loop; also when phi^L overflows, where inf * 0 in the blocks would
+        # fail states the loop computes
         out = np.empty((batch, n_t, n_x))
         x = x0
         for k in range(n_t):

@@ -294,6 +294,22 @@ def record_cache(scope: str | None) -> None:
     _CACHE.enter(scope)
 
 
+_MARKER_DOC = json.dumps({"format": FORMAT, "kind": "aeroid result store"}).encode("utf-8")
+
+
+def _check_marker(raw: bytes, store: Path | str) -> None:
+    """Raise unless `raw` is a store marker of the layout version this aeroid reads."""
+    try:
+        info = json.loads(raw)
+    except ValueError as exc:
+        raise StoreError(f"store {store}: unreadable marker {_MARKER} ({exc})") from None
+    got = info.get("format") if isinstance(info, dict) else info
+    if got != FORMAT:
+        raise StoreError(
+            f"store {store}: layout version {got!r}, this aeroid reads version {FORMAT}"
+        )
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -335,14 +351,10 @@ class ResultStore:
             return  # this process has read this store's marker already
         if marker.is_file():
             try:
-                info = json.loads(marker.read_text())
-            except (OSError, ValueError) as exc:
+                raw = marker.read_bytes()
+            except OSError as exc:
                 raise StoreError(f"store {self.root}: unreadable marker {marker} ({exc})") from None
-            if info.get("format") != FORMAT:
-                raise StoreError(
-                    f"store {self.root}: layout version {info.get('format')!r}, "
-                    f"this aeroid reads version {FORMAT}"
-                )
+            _check_marker(raw, self.root)
         elif create:
             if self._dir.exists() and any(self._dir.iterdir()):
                 raise StoreError(
@@ -351,7 +363,7 @@ class ResultStore:
                 )
             self._dir.mkdir(parents=True, exist_ok=True)
             tmp = self._dir / f".{_MARKER}.{uuid.uuid4().hex}"
-            tmp.write_text(json.dumps({"format": FORMAT, "kind": "aeroid result store"}))
+            tmp.write_bytes(_MARKER_DOC)
             os.replace(tmp, marker)
         else:
             raise StoreError(f"store {self.root}: not an aeroid store (no {_MARKER})")
@@ -575,8 +587,11 @@ class ResultStore:
     # -- housekeeping ----------------------------------------------------------
     def temporaries(self) -> list[Path | str]:
         """Partial writes left under ``.tmp``."""
+        return list(self._partial_writes())
+
+    def _partial_writes(self) -> list[Path]:
         tmp = self._dir / _TMP
-        return list(sorted(tmp.iterdir())) if tmp.is_dir() else []
+        return sorted(tmp.iterdir()) if tmp.is_dir() else []
 
     def gc(self, *, max_age: float = 3600.0) -> list[Path | str]:
         """Remove temporaries of crashed runs; return what was removed.
@@ -587,8 +602,7 @@ class ResultStore:
         removed: list[Path | str] = []
         host = socket.gethostname()
         now = time.time()
-        for path in self.temporaries():
-            assert isinstance(path, Path)
+        for path in self._partial_writes():
             parts = path.name.split(".")
             alive = False
             if len(parts) >= 4:
@@ -648,31 +662,21 @@ class _ObjectStore(ResultStore):
         except Exception as exc:
             raise StoreError(f"store {text}: cannot read {_MARKER} ({exc})") from None
         if raw is not None:
-            try:
-                info = json.loads(raw)
-            except ValueError as exc:
-                raise StoreError(f"store {text}: unreadable marker {_MARKER} ({exc})") from None
-            if not isinstance(info, dict) or info.get("format") != FORMAT:
-                got = info.get("format") if isinstance(info, dict) else info
-                raise StoreError(
-                    f"store {text}: layout version {got!r}, this aeroid reads version {FORMAT}"
-                )
+            _check_marker(raw, text)
         elif create:
             if fs.exists(self._base) and fs.ls(self._base, detail=False):
                 raise StoreError(
                     f"store {text}: the location exists, is not empty and is not an aeroid store"
                 )
-            doc = {"format": FORMAT, "kind": "aeroid result store"}
-            self._put({marker: json.dumps(doc).encode("utf-8")})
+            self._put({marker: _MARKER_DOC})
         else:
             raise StoreError(f"store {text}: not an aeroid store (no {_MARKER})")
         _CHECKED.add(text)
 
     def _path(self, location: str) -> str:
-        """The filesystem path of a URL under this store."""
-        if location.startswith(self._url_root):
-            return self._base + location[len(self._url_root) :]
-        return str(self._fs._strip_protocol(location))
+        """The filesystem path of a URL under this store (entry locations and
+        temporaries are built from its root)."""
+        return self._base + location[len(self._url_root) :]
 
     def _url(self, path: str) -> str:
         return self._url_root + path[len(self._base) :]
