@@ -25,6 +25,7 @@ from click.testing import CliRunner
 
 from aeroid.catalog import short_period_flight
 from aeroid.cli import main
+from aeroid.pipeline import open_store
 
 USER_PIPELINE = textwrap.dedent(
     '''
@@ -280,6 +281,43 @@ def test_killed_run_leaves_a_store_that_verifies_and_the_next_run_completes(tmp_
     assert _cli("verify", "--store", str(store)).returncode == 0
     _cli("gc", "--store", str(store))
     assert not any((store / ".tmp").iterdir()) if (store / ".tmp").exists() else True
+
+
+@pytest.mark.slow
+def test_two_runs_at_once_on_one_store_leave_it_intact(tmp_path):
+    # the runs overlap (each computes most tasks: 13 + 10..12 seen), so they race to
+    # commit the same keys: one commit wins, the other finds the entry and moves on
+    cfg = make_campaign(tmp_path, n=6, stats="{n_boot: 50, sleep: 0.1}")
+    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
+    procs = [
+        subprocess.Popen(
+            [*exe, "run", str(cfg), "--workers", "0", "--json"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(2)
+    ]
+    docs = []
+    for proc in procs:
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+        docs.append(json.loads(out))
+    assert all(d["failed"] == 0 and d["computed"] + d["cached"] == 13 for d in docs)
+    store = tmp_path / "store"
+    assert _cli("verify", "--store", str(store)).returncode == 0
+    assert len(list((store / "stats").glob("*/*"))) == 6
+    assert not any((store / ".tmp").glob("*"))
+    code, doc = run_json(cfg)
+    assert code == 0 and doc["computed"] == 0 and doc["cached"] == 13
+    # the entries are those of one run alone
+    code, alone = run_json(cfg, "--store", str(tmp_path / "alone"))
+    assert code == 0 and alone["computed"] == 13
+    shared, single = open_store(store), open_store(tmp_path / "alone")
+    for t in alone["tasks"]:
+        x, y = shared.load_arrays(t["key"]), single.load_arrays(t["key"])
+        assert x.keys() == y.keys()
+        assert all(x[k].tobytes() == y[k].tobytes() for k in x)
 
 
 @pytest.mark.slow
