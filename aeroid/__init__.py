@@ -43,7 +43,13 @@ if TYPE_CHECKING:
     )
     from .model import BatchSimulation, Model, SimulationResult, SimulatorModel
     from .priors import HalfNormal, LogUniform, Normal, Prior, Uniform
-    from .propagation import PropagationResult, propagate
+    from .propagation import (
+        PropagationBatch,
+        PropagationResult,
+        combine_batches,
+        propagate,
+        propagate_batch,
+    )
     from .reporting import report
     from .sampler import (
         ChainState,
@@ -92,8 +98,11 @@ _LAZY = {
     "Normal": ".priors",
     "Prior": ".priors",
     "Uniform": ".priors",
+    "PropagationBatch": ".propagation",
     "PropagationResult": ".propagation",
+    "combine_batches": ".propagation",
     "propagate": ".propagation",
+    "propagate_batch": ".propagation",
     "report": ".reporting",
     "ChainState": ".sampler",
     "SamplerRun": ".sampler",
@@ -156,6 +165,7 @@ __all__ = [
     "OutputMetrics",
     "PipelineError",
     "Prior",
+    "PropagationBatch",
     "PropagationResult",
     "SamplerRun",
     "SensitivityResult",
@@ -167,6 +177,7 @@ __all__ = [
     "ValidationResult",
     "__version__",
     "autocorrelation_time",
+    "combine_batches",
     "combine_ensembles",
     "design_experiment",
     "effective_sample_size",
@@ -179,6 +190,7 @@ __all__ = [
     "load_flight_test",
     "orthogonal_multisine",
     "propagate",
+    "propagate_batch",
     "report",
     "sensitivities",
     "simulate_rk4",

@@ -13,7 +13,15 @@ from numpy.typing import NDArray
 from ._records import fmt, frozen_array, markdown_table
 from .errors import AeroidError
 
-__all__ = ["BLOCK_SIZE", "PropagationResult", "draw_parameters", "propagate"]
+__all__ = [
+    "BLOCK_SIZE",
+    "PropagationBatch",
+    "PropagationResult",
+    "combine_batches",
+    "draw_parameters",
+    "propagate",
+    "propagate_batch",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -126,6 +134,192 @@ def draw_parameters(result: Any, n_samples: int, seed: int | None, start: int = 
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class PropagationBatch:
+    """The metric at draws ``start .. start + len(values)`` of one seed's stream.
+
+    Batches of one seed computed anywhere (other processes, other machines)
+    combine with `combine_batches` into exactly the result of `propagate`.
+
+    Attributes
+    ----------
+    start : int
+        Index of the batch's first draw in the stream.
+    values : ndarray
+        Metric value of each draw; NaN where the metric raised or returned a
+        non-finite value.
+    seed : int
+    source : str
+        ``"covariance"`` or ``"posterior"``, as in `PropagationResult`.
+    """
+
+    start: int
+    values: FloatArray
+    seed: int
+    source: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", int(self.start))
+        object.__setattr__(self, "values", frozen_array(self.values))
+
+    @property
+    def stop(self) -> int:
+        """Index one past the batch's last draw."""
+        return self.start + int(self.values.shape[0])
+
+    def summary(self) -> str:
+        """One line: which draws, how many failed."""
+        failed = int(np.sum(~np.isfinite(self.values)))
+        return (
+            f"draws {self.start}-{self.stop} of seed {self.seed} ({self.source}), {failed} failed"
+        )
+
+
+def _count(value: Any, name: str, lo: int) -> int:
+    """`value` as an int >= `lo` (integral floats such as 2e3 accepted)."""
+    try:
+        n = int(value)
+        ok = not isinstance(value, bool) and n == value and n >= lo
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        what = "a positive" if lo == 1 else "a non-negative"
+        raise PropagationError(f"{name} must be {what} integer, got {value!r}")
+    return n
+
+
+def _check_seed(seed: Any) -> int:
+    if seed is None:
+        return int(np.random.SeedSequence().generate_state(1)[0])
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise PropagationError(f"seed must be a non-negative integer or None, got {seed!r}")
+    return int(seed)
+
+
+def propagate_batch(
+    result: Any,
+    func: Callable[[dict[str, float]], float],
+    *,
+    start: int,
+    n_samples: int,
+    seed: int,
+    progress: bool = False,
+) -> PropagationBatch:
+    """Evaluate a metric at one batch of the draws that `propagate` makes.
+
+    Parameters
+    ----------
+    result : IdentificationResult or InferenceResult
+        As in `propagate`.
+    func : callable
+        ``func(parameters: dict) -> float``.
+    start : int
+        Index of the batch's first draw in the stream of `seed`.
+    n_samples : int
+        Draws in the batch (0 allowed).
+    seed : int
+        Seed of the whole stream, shared by every batch of one propagation.
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
+
+    Returns
+    -------
+    PropagationBatch
+    """
+    start = _count(start, "start", 0)
+    n_samples = _count(n_samples, "n_samples", 0)
+    if not callable(func):
+        raise PropagationError("func must be callable: func(parameters: dict) -> float")
+    seed = _check_seed(seed)
+    names, _, cov, fixed = _source(result)
+    draws = draw_parameters(result, n_samples, seed, start)
+    values = np.full(draws.shape[0], np.nan)
+    from ._progress import progress_bar
+
+    bar = progress_bar(draws.shape[0], desc="propagate", enabled=progress, unit="draw")
+    for i, row in enumerate(draws):
+        if bar is not None:
+            bar.update(1)
+        p = dict(fixed)
+        p.update(zip(names, row.tolist(), strict=True))
+        try:
+            v = float(func(p))  # a non-scalar raises and counts as a failure
+        except Exception:  # a metric failing for some draws is expected, not fatal
+            continue
+        if np.isfinite(v):
+            values[i] = v
+    if bar is not None:
+        bar.close()
+    return PropagationBatch(
+        start=start,
+        values=values,
+        seed=seed,
+        source="covariance" if cov is not None else "posterior",
+    )
+
+
+def _percentiles(percentiles: Sequence[float]) -> list[float]:
+    pcts = [float(p) for p in percentiles]
+    if any(not 0.0 <= p <= 100.0 for p in pcts):
+        raise PropagationError(f"percentiles must lie in [0, 100], got {list(percentiles)}")
+    return pcts
+
+
+def combine_batches(
+    batches: Sequence[PropagationBatch],
+    *,
+    percentiles: Sequence[float] = (2.5, 50.0, 97.5),
+) -> PropagationResult:
+    """Pool batches covering draws ``0 .. n`` of one seed into a `PropagationResult`.
+
+    The result is the one `propagate` returns for ``n_samples=n`` and that
+    seed, bit for bit, whatever the batches' sizes and order.
+
+    Parameters
+    ----------
+    batches : sequence of PropagationBatch
+        Together exactly the draws ``0 .. n``, each once, in any order.
+    percentiles : sequence of float
+        Percentiles to report (``"P2.5"`` etc.).
+    """
+    pcts = _percentiles(percentiles)
+    if not batches:
+        raise PropagationError("combine_batches needs at least one batch")
+    first = batches[0]
+    for b in batches:
+        if b.seed != first.seed or b.source != first.source:
+            raise PropagationError(
+                "batches of different propagations cannot be combined "
+                f"(seed {first.seed} from the {first.source}, seed {b.seed} from the {b.source})"
+            )
+    # an empty batch covers no draws, wherever it starts
+    ordered = sorted((b for b in batches if b.values.size), key=lambda b: b.start)
+    if not ordered:
+        raise PropagationError("the batches hold no draws")
+    at = 0
+    for b in ordered:
+        if b.start != at:
+            what = "overlap" if b.start < at else "leave a gap"
+            raise PropagationError(f"batches {what} at draw {min(at, b.start)}")
+        at = b.stop
+    values = np.concatenate([b.values for b in ordered])
+    n_samples = int(values.shape[0])
+    ok = np.isfinite(values)
+    if not np.any(ok):
+        raise PropagationError(f"the metric failed for all {n_samples} draws")
+    good = values[ok]
+    return PropagationResult(
+        mean=float(good.mean()),
+        std=float(good.std(ddof=1)) if good.size > 1 else 0.0,
+        percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
+        samples=good,
+        n_samples=n_samples,
+        n_failed=int((~ok).sum()),
+        seed=first.seed,
+        source=first.source,
+    )
+
+
 def propagate(
     result: Any,
     func: Callable[[dict[str, float]], float],
@@ -160,45 +354,15 @@ def propagate(
     PropagationResult
         Draws where `func` raises or returns a non-finite value are counted in
         ``n_failed``; they do not stop the run.
-    """
-    if int(n_samples) < 1:
-        raise PropagationError(f"n_samples must be a positive integer, got {n_samples!r}")
-    if not callable(func):
-        raise PropagationError("func must be callable: func(parameters: dict) -> float")
-    pcts = [float(p) for p in percentiles]
-    if any(not 0.0 <= p <= 100.0 for p in pcts):
-        raise PropagationError(f"percentiles must lie in [0, 100], got {list(percentiles)}")
-    if seed is None:
-        seed = int(np.random.SeedSequence().generate_state(1)[0])
-    names, _, cov, fixed = _source(result)
-    draws = draw_parameters(result, int(n_samples), seed)
-    values = np.full(draws.shape[0], np.nan)
-    from ._progress import progress_bar
 
-    bar = progress_bar(draws.shape[0], desc="propagate", enabled=progress, unit="draw")
-    for i, row in enumerate(draws):
-        if bar is not None:
-            bar.update(1)
-        p = dict(fixed)
-        p.update(zip(names, row.tolist(), strict=True))
-        try:
-            v = func(p)
-            values[i] = float(v)  # a non-scalar raises and counts as a failure
-        except Exception:  # a metric failing for some draws is expected, not fatal
-            continue
-    if bar is not None:
-        bar.close()
-    ok = np.isfinite(values)
-    if not np.any(ok):
-        raise PropagationError(f"the metric failed for all {n_samples} draws")
-    good = values[ok]
-    return PropagationResult(
-        mean=float(good.mean()),
-        std=float(good.std(ddof=1)) if good.size > 1 else 0.0,
-        percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
-        samples=good,
-        n_samples=int(n_samples),
-        n_failed=int((~ok).sum()),
-        seed=seed,
-        source="covariance" if cov is not None else "posterior",
+    See Also
+    --------
+    propagate_batch, combine_batches : the same draws split into batches that
+        run anywhere (the pipeline's ``propagate: {n_batches: k}``).
+    """
+    n = _count(n_samples, "n_samples", 1)
+    pcts = _percentiles(percentiles)
+    batch = propagate_batch(
+        result, func, start=0, n_samples=n, seed=_check_seed(seed), progress=progress
     )
+    return combine_batches([batch], percentiles=pcts)

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from types import MappingProxyType
 
 import numpy as np
 import pytest
 
-from aeroid import IdentificationResult, propagate
-from aeroid.propagation import PropagationError, draw_parameters
+from aeroid import IdentificationResult, combine_batches, propagate, propagate_batch
+from aeroid.propagation import BLOCK_SIZE, PropagationError, draw_parameters
 
 
 def _result(mean=(1.0, 2.0), cov=((0.04, 0.01), (0.01, 0.09))):
@@ -97,3 +98,69 @@ def test_bad_arguments():
         propagate(_result(), lambda p: 1.0, percentiles=(120,), seed=0)
     with pytest.raises(PropagationError, match="identification result"):
         propagate(object(), lambda p: 1.0, seed=0)
+
+
+def _same(a, b):
+    assert a.samples.tobytes() == b.samples.tobytes()
+    assert (a.mean, a.std, a.n_samples, a.n_failed, a.seed, a.source) == (
+        b.mean,
+        b.std,
+        b.n_samples,
+        b.n_failed,
+        b.seed,
+        b.source,
+    )
+    assert dict(a.percentiles) == dict(b.percentiles)
+
+
+@pytest.mark.parametrize("source", [_result(), _Posterior()], ids=["covariance", "posterior"])
+def test_batches_anywhere_combine_into_exactly_the_one_call_result(source):
+    def metric(p):  # fails on part of the draws, so failures are pooled across batches too
+        if p["a"] > 1.4:
+            raise ValueError("outside envelope")
+        return p["a"] * p["b"] + p["c"]
+
+    n, seed = 1500, 21
+    whole = propagate(source, metric, n_samples=n, seed=seed, percentiles=(5, 50, 95))
+    assert whole.n_failed > 0
+    # cuts inside blocks, on a block boundary, and an empty batch; given out of order
+    for cuts in ([0, 700, n], [0, 1, BLOCK_SIZE, 2 * BLOCK_SIZE + 7, 1100, 1100, n]):
+        batches = [
+            propagate_batch(source, metric, start=a, n_samples=b - a, seed=seed)
+            for a, b in itertools.pairwise(cuts)
+        ]
+        assert sum(b.values.size for b in batches) == n
+        _same(combine_batches(batches[::-1], percentiles=(5, 50, 95)), whole)
+    assert (
+        "draws 0-700 of seed 21"
+        in propagate_batch(source, metric, start=0, n_samples=700, seed=seed).summary()
+    )
+
+
+def test_combining_refuses_gaps_overlaps_and_other_propagations():
+    r = _result()
+
+    def batch(start, n, seed=3):
+        return propagate_batch(r, lambda p: p["a"], start=start, n_samples=n, seed=seed)
+
+    with pytest.raises(PropagationError, match="gap at draw 0"):
+        combine_batches([batch(10, 5)])
+    with pytest.raises(PropagationError, match="gap at draw 10"):
+        combine_batches([batch(0, 10), batch(20, 5)])
+    with pytest.raises(PropagationError, match="overlap at draw 5"):
+        combine_batches([batch(0, 10), batch(5, 10)])
+    with pytest.raises(PropagationError, match="different propagations"):
+        combine_batches([batch(0, 10), batch(10, 10, seed=4)])
+    with pytest.raises(PropagationError, match="at least one batch"):
+        combine_batches([])
+    with pytest.raises(PropagationError, match="no draws"):
+        combine_batches([batch(0, 0), batch(7, 0)])
+    with pytest.raises(PropagationError, match="start"):
+        batch(-1, 5)
+    with pytest.raises(PropagationError, match="seed"):
+        batch(0, 5, seed=-2)
+    with pytest.raises(PropagationError, match="failed for all 10"):
+        combine_batches([propagate_batch(r, lambda p: float("inf"), start=0, n_samples=10, seed=1)])
+    assert propagate(r, lambda p: p["a"], n_samples=2e3, seed=1).n_samples == 2000
+    with pytest.raises(PropagationError, match="n_samples"):
+        propagate(r, lambda p: p["a"], n_samples=2.5, seed=1)
