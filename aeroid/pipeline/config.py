@@ -43,11 +43,24 @@ class Options(BaseModel):
     #: Options added after the stage's keys were first computed: left out of the
     #: key while unset, so adding one does not recompute every stored result.
     added_later: ClassVar[frozenset[str]] = frozenset()
+    #: Options that change how a result is computed, never the result (how many
+    #: parallel parts): kept out of the key, so changing one recomputes nothing.
+    execution_only: ClassVar[frozenset[str]] = frozenset()
 
     def key_document(self) -> dict[str, Any]:
         """The options as they enter a task's key (plain JSON)."""
         doc = self.model_dump(mode="json")
-        return {k: v for k, v in doc.items() if not (v is None and k in self.added_later)}
+        return {
+            k: v
+            for k, v in doc.items()
+            if k not in self.execution_only and not (v is None and k in self.added_later)
+        }
+
+    def task_document(self) -> dict[str, Any]:
+        """The options a task runs with: `key_document` plus the execution-only ones set."""
+        doc = self.model_dump(mode="json")
+        extra = {k: doc[k] for k in self.execution_only if doc.get(k) is not None}
+        return {**self.key_document(), **extra}
 
     def library_kwargs(self, *, exclude: Sequence[str] = ()) -> dict[str, Any]:
         """Options given (not None) as keyword arguments for the library function."""

@@ -266,6 +266,7 @@ def plan(
         for step in (s for s in steps if s in pipeline.flight_steps):
             stage = STAGES[step.stage_name]
             opts = options[step.name].key_document()
+            how = options[step.name].task_document()  # with execution-only options
             upstream: dict[str, Any] = {}
             if step.stage_name == "load":
                 if source["kind"] == "file":
@@ -301,7 +302,7 @@ def plan(
                     flight=name,
                     # the options exactly as keyed (mappings in sorted order), so a rerun
                     # from the stored document sees the same order as the first run
-                    options=json.loads(canonical_json(opts)),
+                    options=json.loads(canonical_json({**how, **opts})),
                     upstream={r: v for r, v in upstream.items() if r in step.inputs},
                     upstream_stages={
                         r: step_stage[u] for r, u in step.inputs.items() if u in enabled
@@ -317,6 +318,7 @@ def plan(
     for step in (s for s in steps if s in pipeline.campaign_steps):
         stage = STAGES[step.stage_name]
         opts = options[step.name].key_document()
+        how = options[step.name].task_document()
         upstream = {
             role: [per_flight_keys[f][up] for f in flights]
             for role, up in step.inputs.items()
@@ -337,7 +339,7 @@ def plan(
                 step=step.name,
                 stage=stage.name,
                 flight=None,
-                options=json.loads(canonical_json(opts)),
+                options=json.loads(canonical_json({**how, **opts})),
                 upstream=upstream,
                 upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in enabled},
                 document=doc,

@@ -9,6 +9,7 @@ one `register_stage` call; pipelines (``pipelines/``) wire stages together.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -316,11 +317,15 @@ METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
 
 
 class PropagateOptions(Options):
-    """`aeroid.propagate` keywords; ``metric`` is a built-in name or ``pkg.mod:function``."""
+    """`aeroid.propagate` keywords; ``metric`` is a built-in name or ``pkg.mod:function``;
+    ``n_batches`` splits the draws into batches run in parallel (same result)."""
 
     metric: str = "natural_frequency"
     n_samples: int | None = Field(None, ge=1)
     percentiles: list[float] | None = None
+    n_batches: int | None = Field(None, ge=1)
+
+    execution_only: ClassVar[frozenset[str]] = frozenset({"n_batches"})
 
 
 def _metric(name: str) -> Callable[[Mapping[str, float]], float]:
@@ -338,8 +343,36 @@ def _metric(name: str) -> Callable[[Mapping[str, float]], float]:
 
 def _run_propagate(ctx: StageContext) -> Any:
     fn = _library("propagate")
-    kw = _kwargs(ctx.options, "metric")
+    kw = _kwargs(ctx.options, "metric", "n_batches")
     return fn(ctx.inputs["result"], _metric(ctx.options.metric), seed=ctx.seed_int(0), **kw)
+
+
+def _n_draws(options: Any) -> int:
+    if options.n_samples is not None:
+        return int(options.n_samples)
+    return int(inspect.signature(_library("propagate")).parameters["n_samples"].default)
+
+
+def _propagate_parts(options: Any, roles: frozenset[str]) -> int:
+    return min(int(options.n_batches or 1), _n_draws(options))
+
+
+def _run_propagate_part(ctx: StageContext, index: int) -> Any:
+    from ..propagation import propagate_batch
+
+    n, k = _n_draws(ctx.options), _propagate_parts(ctx.options, frozenset(ctx.inputs))
+    start, stop = index * n // k, (index + 1) * n // k
+    metric = _metric(ctx.options.metric)
+    result = ctx.inputs["result"]
+    return propagate_batch(
+        result, metric, start=start, n_samples=stop - start, seed=ctx.seed_int(0)
+    )
+
+
+def _combine_propagate(ctx: StageContext, parts: list[Any]) -> Any:
+    from ..propagation import combine_batches
+
+    return combine_batches(parts, **_kwargs(ctx.options, "metric", "n_batches", "n_samples"))
 
 
 # -- infer ------------------------------------------------------------------------------
@@ -775,6 +808,9 @@ for _stage in (
         uses_model=False,
         seeded=True,
         library="propagate",
+        parts=_propagate_parts,
+        run_part=_run_propagate_part,
+        combine=_combine_propagate,
     ),
     Stage(
         "infer",
