@@ -7,6 +7,7 @@ import json
 import math
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -209,3 +210,31 @@ def test_an_option_added_later_enters_keys_only_once_set(tmp_path):
         ("identify", "sim-0")
     ]
     assert stretch[("infer", "sim-0")] not in (unset[("infer", "sim-0")], de[("infer", "sim-0")])
+
+
+def test_an_execution_only_option_travels_with_the_task_but_not_in_its_key(tmp_path):
+    # `propagate: {n_batches: k}` changes how the draws are split over tasks, not the
+    # result: keys are those without it, and each task still runs with it
+    from aeroid.pipeline.runner import n_parts
+    from aeroid.pipeline.stages import PropagateOptions
+
+    assert "n_batches" not in PropagateOptions(n_batches=3).key_document()
+    assert PropagateOptions(n_batches=3).task_document()["n_batches"] == 3
+    assert "n_batches" not in PropagateOptions().task_document()
+
+    def tasks(propagate: str) -> dict[str, Any]:
+        cfg = tmp_path / "c.yaml"
+        cfg.write_text(
+            "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n"
+            "stages:\n  identify: {parameters: [M_q]}\n"
+            f"  propagate: {{n_samples: 10{propagate}}}\n"
+        )
+        return {f"{t.step} {t.flight}": t for t in plan(cfg).tasks}
+
+    plain, split, many = tasks(""), tasks(", n_batches: 4"), tasks(", n_batches: 40")
+    assert {k: t.key for k, t in plain.items()} == {k: t.key for k, t in split.items()}
+    assert {k: t.document for k, t in plain.items()} == {k: t.document for k, t in split.items()}
+    assert split["propagate sim-0"].options["n_batches"] == 4
+    assert "n_batches" not in plain["propagate sim-0"].options
+    assert n_parts(plain["propagate sim-0"]) == 1 and n_parts(split["propagate sim-0"]) == 4
+    assert n_parts(many["propagate sim-1"]) == 10  # never more batches than draws
