@@ -207,7 +207,8 @@ def show(key: str, config: str | None, store: str | None) -> None:
     click.echo("\n## Provenance\n")
     doc = meta["task"]
     click.echo(f"- stage version: {doc.get('stage_version')}")
-    click.echo(f"- options: {json.dumps(doc.get('options'), sort_keys=True)}")
+    opts = doc.get("options") or {}
+    click.echo(f"- options: {json.dumps(opts, sort_keys=True)}")
     for role, up in (doc.get("upstream") or {}).items():
         ups = up if isinstance(up, list) else [up]
         click.echo(f"- upstream {role}: {', '.join(str(u)[:19] for u in ups)}")
@@ -218,7 +219,13 @@ def show(key: str, config: str | None, store: str | None) -> None:
     if task.get("source"):
         click.echo(f"- source: {json.dumps(task['source'], sort_keys=True)}")
     if prov.get("seconds"):
-        click.echo(f"- compute time: {prov['seconds'].get('compute', 0.0):.3f} s")
+        line = f"- compute time: {prov['seconds'].get('compute', 0.0):.3f} s"
+        if int(prov["seconds"].get("parts") or 0) > 1:
+            line += f" in {prov['seconds']['parts']} parallel parts"
+        click.echo(line)
+    run_options = {k: v for k, v in (task.get("options") or {}).items() if k not in opts}
+    if run_options:  # execution-only options: how it ran, not in the key
+        click.echo(f"- run with: {json.dumps(run_options, sort_keys=True)}")
     if prov.get("finished"):
         click.echo(f"- finished: {prov['finished']} on {prov.get('host', '?')}")
     if prov.get("versions"):

@@ -25,7 +25,7 @@ import aeroid
 from aeroid.pipeline import open_store, run
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_cli import make_campaign
+from test_cli import invoke, make_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 HAS_CHAIN = all(hasattr(aeroid, f) for f in ("identify", "validate", "propagate", "report"))
@@ -265,6 +265,8 @@ def test_monte_carlo_batches_in_parallel_equal_the_unsplit_run(tmp_path):
     # and rerunning a stored result (recorded with its batch count) is bit-identical
     identical, lines = rerun(open_store(tmp_path / "split"), tasks[0].key)
     assert identical, lines
+    code, out, _ = invoke("show", tasks[0].key, "--store", str(tmp_path / "split"))
+    assert code == 0 and "in 3 parallel parts" in out and '- run with: {"n_batches": 3}' in out
     # changing it recomputes nothing
     again = run(config("split", ", n_batches: 5"), workers=0)
     assert again.to_json()["computed"] == 0
