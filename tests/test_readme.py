@@ -48,6 +48,12 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
     assert "| parameter" in out
     mc = namespace["mc"]
     assert mc.percentiles["P2.5"] < 3.0 < mc.percentiles["P97.5"]  # type: ignore[attr-defined]
+    # the pipeline block: every planned key computed and stored, read back as results
+    summary, plan, store = namespace["summary"], namespace["plan"], namespace["store"]
+    assert summary.failed == 0 and summary.count("computed") == len(plan.tasks)  # type: ignore[attr-defined]
+    assert all(store.exists(t.stage, t.key) for t in plan.tasks)  # type: ignore[attr-defined]
+    fits = [store.load(e.key) for e in store.entries("identify")]  # type: ignore[attr-defined]
+    assert len(fits) == 3 and all(type(f).__name__ == "IdentificationResult" for f in fits)
 
 
 @pytest.mark.parametrize("block", range(len(_blocks())))
