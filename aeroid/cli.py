@@ -256,17 +256,30 @@ def rerun(key: str, config: str | None, store: str | None) -> None:
 @main.command()
 @_store_options
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
-def verify(config: str | None, store: str | None, as_json: bool) -> None:
+@click.option(
+    "--remove",
+    is_flag=True,
+    help="Remove the corrupt entries, so that the next run recomputes them.",
+)
+def verify(config: str | None, store: str | None, as_json: bool, remove: bool) -> None:
     """Check every entry's digests; list corrupt entries (exit 1 if any)."""
     st = _open_store(config, store)
     n = sum(1 for _ in st.entries())
     bad = st.verify_all()
+    removed = [key for key in bad if remove and st.remove(st.find(key).stage, key)]
     if as_json:
-        click.echo(json.dumps({"entries": n, "corrupt": bad}, indent=2))
+        doc: dict[str, object] = {"entries": n, "corrupt": bad}
+        if remove:
+            doc["removed"] = removed
+        click.echo(json.dumps(doc, indent=2))
     else:
         for key, problem in bad.items():
             click.echo(f"CORRUPT {key}: {problem}")
         click.echo(f"{n} entries checked, {len(bad)} corrupt")
+        if remove:
+            click.echo(f"{len(removed)} removed: the next run recomputes them")
+        elif bad:
+            click.echo("`aeroid verify --remove` removes them; the next run recomputes them")
     sys.exit(1 if bad else 0)
 
 

@@ -198,15 +198,25 @@ def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
     stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
     entry = tmp_path / "store" / "stats" / stats["key"][:2] / stats["key"]
     chunk = next(p for p in (entry / "boot").rglob("*") if p.is_file() and p.name != "zarr.json")
-    raw = bytearray(chunk.read_bytes())
+    original = chunk.read_bytes()
+    raw = bytearray(original)
     raw[len(raw) // 2] ^= 0x01
     chunk.write_bytes(bytes(raw))
     code, out, _ = invoke("verify", "--config", str(cfg))
     assert code == 1 and f"CORRUPT {stats['key']}" in out and "1 corrupt" in out
+    assert "verify --remove" in out  # the way out is named
     code, _, err = invoke("show", stats["key"][:10], "--store", str(tmp_path / "store"))
     assert code == 1 and "corrupt" in err
     code, _, err = invoke("rerun", stats["key"], "--store", str(tmp_path / "store"))
     assert code == 1 and "corrupt" in err
+    # removed, the next run recomputes exactly that entry, with the original bytes
+    code, out, _ = invoke("verify", "--config", str(cfg), "--remove", "--json")
+    assert code == 1 and json.loads(out)["removed"] == [stats["key"]]
+    assert not entry.exists()
+    assert invoke("verify", "--config", str(cfg))[0] == 0
+    _, doc = run_json(cfg)
+    assert by_status(doc)["computed"] == [("stats", stats["flight"])] and doc["failed"] == 0
+    assert chunk.read_bytes() == original
 
 
 def test_show_status_rerun_and_gc(tmp_path):

@@ -81,6 +81,10 @@ def test_altered_bytes_in_a_url_store_are_detected():
     with pytest.raises(StoreError, match="does not match its digest"):
         store.load(key, "identify")
     assert key in store.verify_all()
+    assert store.remove("identify", key) is True
+    assert not store.exists("identify", key) and list(store.entries()) == []
+    assert store.temporaries() == [] and not fs.find(f"{base}/identify")
+    assert store.remove("identify", key) is False
 
 
 def test_an_interrupted_commit_is_invisible_and_gc_removes_it(monkeypatch):

@@ -227,6 +227,12 @@ def test_altered_array_bytes_are_detected_on_read_and_by_verify(tmp_path):
     with pytest.raises(StoreError, match="corrupt"):
         store.load(key)
     assert key in store.verify_all()
+    # removed, it is gone whole (nothing left in the temporaries) and can be committed again
+    assert store.remove("identify", key) is True
+    assert not store.exists("identify", key) and list(store.entries()) == []
+    assert store.temporaries() == [] and store.remove("identify", key) is False
+    assert store.commit("identify", key, _ident(), task={"z": 3}) is True
+    assert store.verify_all() == {}
 
 
 def test_altered_attributes_are_detected(tmp_path):

@@ -21,6 +21,7 @@ object, is what commits an entry (see `_ObjectStore`).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -464,11 +465,7 @@ class ResultStore:
     ) -> bool:
         """Write the entry's files under a temporary name, then rename it into place."""
         final = os.path.join(self._root_id, stage, key[:2], key)
-        tmp = os.path.join(
-            self._root_id,
-            _TMP,
-            f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}",
-        )
+        tmp = self._temporary(key)
         try:
             _mkdir(tmp)
             for name, arr in arrays.items():
@@ -485,6 +482,27 @@ class ResultStore:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+        return True
+
+    def _temporary(self, key: str) -> str:
+        # host and pid in the name let `gc` keep the temporaries of live processes
+        name = f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        return os.path.join(self._root_id, _TMP, name)
+
+    def remove(self, stage: str, key: str) -> bool:
+        """Take an entry out of the store; False when there is none.
+
+        For corrupt entries (`verify`): once removed, the next run recomputes
+        them. The entry disappears at once, by a rename into the temporaries,
+        and its files are deleted after.
+        """
+        final = os.path.join(self._root_id, stage, key[:2], key)
+        tmp = self._temporary(key)
+        try:
+            _rename_into(final, tmp)
+        except FileNotFoundError:
+            return False
+        shutil.rmtree(tmp, ignore_errors=True)  # what is left, `gc` collects
         return True
 
     # -- reading ---------------------------------------------------------------
@@ -726,6 +744,17 @@ class _ObjectStore(ResultStore):
         if files:
             self._put(files)
         self._put({f"{final}/zarr.json": group})  # the commit: one object, written last
+        return True
+
+    def remove(self, stage: str, key: str) -> bool:
+        # the entry is gone once its group metadata is, as it appeared with it
+        final = f"{self._base}/{stage}/{key[:2]}/{key}"
+        try:
+            self._fs.rm_file(f"{final}/zarr.json")
+        except FileNotFoundError:
+            return False
+        with contextlib.suppress(FileNotFoundError):
+            self._fs.rm(final, recursive=True)
         return True
 
     def _put(self, files: dict[str, bytes]) -> None:
