@@ -114,6 +114,11 @@ def run(
         for t in first_errors:
             where = f"{t['stage']} {t['flight']}" if t["flight"] else t["stage"]
             click.echo(f"FAILED {where} ({t['key'][:12]}): {t['error']}")
+        if any(" is corrupt: " in str(t["error"]) for t in failed):
+            click.echo(
+                "corrupt entries in the store: `aeroid verify --remove` removes them "
+                "and the next run recomputes them"
+            )
         click.echo(
             f"{doc['computed']} computed, {doc['cached']} cached, {doc['failed']} failed "
             f"in {summary.seconds['total']:.1f} s"

@@ -219,6 +219,30 @@ def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
     assert chunk.read_bytes() == original
 
 
+def test_a_run_reading_a_corrupt_entry_fails_that_flight_and_names_the_way_out(tmp_path):
+    cfg = make_campaign(tmp_path, n=2)
+    _, doc = run_json(cfg)
+    load = next(t for t in doc["tasks"] if t["stage"] == "load")
+    entry = tmp_path / "store" / "load" / load["key"][:2] / load["key"]
+    chunk = next(p for p in (entry / "time").rglob("*") if p.is_file() and p.name != "zarr.json")
+    raw = bytearray(chunk.read_bytes())
+    raw[3] ^= 0x10
+    chunk.write_bytes(bytes(raw))
+    # a changed stats option recomputes stats, which reads both flights' load entries
+    cfg.write_text(cfg.read_text().replace("n_boot: 50", "n_boot: 60"))
+    code, out, _ = invoke("run", str(cfg), "--workers", "0")
+    assert code == 1
+    assert f"FAILED stats {load['flight']}" in out and "is corrupt" in out
+    assert "1 failed" in out and "`aeroid verify --remove` removes them" in out
+    assert invoke("verify", "--config", str(cfg), "--remove")[0] == 1
+    code, doc = run_json(cfg)
+    assert code == 0 and doc["failed"] == 0
+    assert sorted(by_status(doc)["computed"]) == [
+        ("load", load["flight"]),
+        ("stats", load["flight"]),
+    ]
+
+
 def test_show_status_rerun_and_gc(tmp_path):
     cfg = make_campaign(tmp_path, n=2)
     code, out, _ = invoke("status", str(cfg))
