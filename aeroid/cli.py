@@ -93,6 +93,15 @@ def run(
     except AeroidError as exc:
         _fail(str(exc))
         return
+    except KeyboardInterrupt:
+        # every result committed before the interrupt is kept, intact; nothing half-written
+        # is visible (partial writes stay under .tmp for `aeroid gc`)
+        click.echo(
+            "interrupted: the results stored so far are kept; run the same command again "
+            "to compute only what is missing",
+            err=True,
+        )
+        sys.exit(130)
     doc = summary.to_json()
     if as_json:
         click.echo(json.dumps(doc, indent=2))

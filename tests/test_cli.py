@@ -355,6 +355,36 @@ def test_two_runs_at_once_on_one_store_leave_it_intact(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("workers", ["0", "1"])
+def test_ctrl_c_stops_a_run_cleanly_and_the_next_run_goes_on(tmp_path, workers):
+    cfg = make_campaign(tmp_path, n=12, stats="{n_boot: 50, sleep: 0.15}")
+    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
+    proc = subprocess.Popen(
+        [*exe, "run", str(cfg), "--workers", workers, "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # as in a terminal: SIGINT raises KeyboardInterrupt (a test runner may ignore it)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    store = tmp_path / "store"
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < 2:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted: the results stored so far are kept" in err and "Traceback" not in err
+    done = len(list((store / "stats").glob("*/*")))
+    assert 2 <= done < 12
+    assert _cli("verify", "--store", str(store)).returncode == 0
+    res = _cli("run", str(cfg), "--workers", "0", "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["failed"] == 0 and doc["cached"] >= done and doc["computed"] + doc["cached"] == 25
+
+
+@pytest.mark.slow
 def test_warnings_are_kept_with_their_task_and_shown(tmp_path):
     cfg = make_campaign(tmp_path, n=2, stats="{n_boot: 40, warn: true}")
     code, out, err = invoke("run", str(cfg), "--workers", "0")
