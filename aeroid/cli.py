@@ -249,22 +249,54 @@ def show(key: str, config: str | None, store: str | None) -> None:
 
 
 @main.command()
-@click.argument("key")
+@click.argument("key", required=False)
 @_store_options
-def rerun(key: str, config: str | None, store: str | None) -> None:
-    """Recompute a stored result from its recorded inputs and compare bit for bit."""
+@click.option("--all", "every", is_flag=True, help="Recompute every entry of the store.")
+@click.option("--stage", help="With --all: only the entries of this stage.")
+def rerun(
+    key: str | None, config: str | None, store: str | None, every: bool, stage: str | None
+) -> None:
+    """Recompute a stored result (or --all) from its recorded inputs and compare bit for bit."""
     from .errors import AeroidError
     from .pipeline.runner import rerun as rerun_entry
 
+    if (key is None) == (not every):
+        _fail("give a KEY or --all (not both)")
+    if stage is not None and not every:
+        _fail("--stage goes with --all")
     st = _open_store(config, store)
-    try:
-        identical, lines = rerun_entry(st, key)
-    except AeroidError as exc:
-        _fail(str(exc), 1)
-        return
-    for line in lines:
-        click.echo(line)
-    sys.exit(0 if identical else 1)
+    if key is not None:
+        try:
+            identical, lines = rerun_entry(st, key)
+        except AeroidError as exc:
+            _fail(str(exc), 1)
+            return
+        for line in lines:
+            click.echo(line)
+        sys.exit(0 if identical else 1)
+    from ._progress import progress_bar
+
+    entries = sorted(st.entries(stage), key=lambda e: (e.stage, e.key))
+    if stage is not None and not entries:
+        _fail(f"no {stage} entries in store {st.root}")
+    bar = progress_bar(len(entries), desc="rerun", enabled=True, unit="entry")
+    same = 0
+    for entry in entries:
+        try:
+            identical, lines = rerun_entry(st, entry.key)
+        except AeroidError as exc:
+            identical, lines = False, ["", str(exc)]
+        if bar is not None:
+            bar.update(1)
+        same += identical
+        click.echo(f"{'bit-identical' if identical else 'DIFFERS'} {entry.stage} {entry.key}")
+        if not identical:
+            for line in lines[1:]:
+                click.echo(f"    {line}")
+    if bar is not None:
+        bar.close()
+    click.echo(f"{same} of {len(entries)} entries bit-identical")
+    sys.exit(0 if same == len(entries) else 1)
 
 
 @main.command()

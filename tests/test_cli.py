@@ -268,6 +268,9 @@ def test_rerun_reports_the_largest_difference(tmp_path):
     cfg = make_campaign(tmp_path, n=1)
     _, doc = run_json(cfg)
     stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
+    code, out, _ = invoke("rerun", "--all", "--config", str(cfg))
+    assert code == 0 and "3 of 3 entries bit-identical" in out
+    assert f"bit-identical stats {stats['key']}" in out
     # the user changes the stage's code without bumping its version
     src = tmp_path / "user_pipeline.py"
     src.write_text(
@@ -276,8 +279,13 @@ def test_rerun_reports_the_largest_difference(tmp_path):
     for mod in [m for m in sys.modules if m == "user_pipeline"]:
         del sys.modules[mod]
     code, out, _ = invoke("rerun", stats["key"], "--config", str(cfg))
-    sys.modules.pop("user_pipeline", None)
     assert code == 1 and "largest difference: 0.001" in out
+    code, out, _ = invoke("rerun", "--all", "--stage", "stats", "--config", str(cfg))
+    sys.modules.pop("user_pipeline", None)
+    assert code == 1 and f"DIFFERS stats {stats['key']}" in out
+    assert "largest difference: 0.001" in out and "0 of 1 entries bit-identical" in out
+    assert invoke("rerun", "--config", str(cfg))[0] == 2  # neither a key nor --all
+    assert invoke("rerun", "--all", "--stage", "nosuch", "--config", str(cfg))[0] == 2
 
 
 def _cli(*args: str, **kw):

@@ -714,6 +714,15 @@ def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
     )
 
 
+def _run_campaign(ctx: StageContext) -> CampaignReport:
+    # unsplit (a rerun, a pipeline run without Dask parts): the parts one after the
+    # other, so the record is the one the parallel parts give
+    n = _campaign_parts(ctx.options, frozenset(ctx.inputs))
+    if n == 1:
+        return _run_campaign_report(ctx)
+    return _combine_campaign(ctx, [_run_campaign_part(ctx, i) for i in range(n)])
+
+
 def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     from .._records import markdown_table
 
@@ -863,7 +872,7 @@ for _stage in (
         "4",  # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes)
         CampaignReportOptions,
         "CampaignReport",
-        _run_campaign_report,
+        _run_campaign,
         uses_model=False,
         per_flight=False,
         parts=_campaign_parts,
