@@ -192,16 +192,22 @@ def test_bad_config_names_file_and_key_path(tmp_path):
     assert code == 2 and "stages.stats.n_bot: unknown key; allowed keys: n_boot, sleep" in err
 
 
-def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
-    cfg = make_campaign(tmp_path, n=2)
-    _, doc = run_json(cfg)
-    stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
-    entry = tmp_path / "store" / "stats" / stats["key"][:2] / stats["key"]
-    chunk = next(p for p in (entry / "boot").rglob("*") if p.is_file() and p.name != "zarr.json")
+def _flip_a_bit(store: Path, task: dict, array: str) -> tuple[Path, Path, bytes]:
+    """Alter one bit of a stored array's chunk: (entry folder, chunk file, original bytes)."""
+    entry = store / task["stage"] / task["key"][:2] / task["key"]
+    chunk = next(p for p in (entry / array).rglob("*") if p.is_file() and p.name != "zarr.json")
     original = chunk.read_bytes()
     raw = bytearray(original)
     raw[len(raw) // 2] ^= 0x01
     chunk.write_bytes(bytes(raw))
+    return entry, chunk, original
+
+
+def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
+    cfg = make_campaign(tmp_path, n=2)
+    _, doc = run_json(cfg)
+    stats = next(t for t in doc["tasks"] if t["stage"] == "stats")
+    entry, chunk, original = _flip_a_bit(tmp_path / "store", stats, "boot")
     code, out, _ = invoke("verify", "--config", str(cfg))
     assert code == 1 and f"CORRUPT {stats['key']}" in out and "1 corrupt" in out
     assert "verify --remove" in out  # the way out is named
@@ -223,11 +229,7 @@ def test_a_run_reading_a_corrupt_entry_fails_that_flight_and_names_the_way_out(t
     cfg = make_campaign(tmp_path, n=2)
     _, doc = run_json(cfg)
     load = next(t for t in doc["tasks"] if t["stage"] == "load")
-    entry = tmp_path / "store" / "load" / load["key"][:2] / load["key"]
-    chunk = next(p for p in (entry / "time").rglob("*") if p.is_file() and p.name != "zarr.json")
-    raw = bytearray(chunk.read_bytes())
-    raw[3] ^= 0x10
-    chunk.write_bytes(bytes(raw))
+    _flip_a_bit(tmp_path / "store", load, "time")
     # a changed stats option recomputes stats, which reads both flights' load entries
     cfg.write_text(cfg.read_text().replace("n_boot: 50", "n_boot: 60"))
     code, out, _ = invoke("run", str(cfg), "--workers", "0")
