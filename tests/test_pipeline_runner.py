@@ -307,3 +307,43 @@ def test_a_run_freezes_older_objects_only_while_it_runs(tmp_path, monkeypatch):
         assert gc.get_freeze_count() > before - 1000
     finally:
         gc.unfreeze()
+
+
+def test_flights_from_csv_parquet_and_mat_files_give_the_same_numbers(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import scipy.io
+
+    from aeroid.catalog import short_period_flight
+
+    d = short_period_flight(seed=3)
+    columns = {"time": d.time, **{n: d[n] for n in d.names}}
+    folder = tmp_path / "flights"
+    folder.mkdir()
+    rows = np.column_stack(list(columns.values()))
+    (folder / "a.csv").write_text(
+        ",".join(columns) + "\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows)
+    )
+    pq.write_table(pa.table(columns), folder / "b.parquet")
+    scipy.io.savemat(folder / "c.mat", columns)
+    cfg = tmp_path / "files.yaml"
+    cfg.write_text(
+        "model: short_period\nstore: store\n"
+        "flights: ['flights/*.csv', 'flights/*.parquet', 'flights/*.mat']\n"
+        "stages:\n  identify: {parameters: [Z_alpha, M_alpha, M_q, M_delta]}\n  validate: {}\n"
+    )
+    s = run(cfg, workers=0)
+    assert s.failed == 0, s.to_json()
+    assert len(s.plan.flights) == 3
+    store = open_store(tmp_path / "store")
+    by_step: dict[str, list[str]] = {}
+    for t in s.plan.tasks:
+        by_step.setdefault(t.step, []).append(t.key)
+    # three files, three load keys (a load key hashes the file's bytes) ...
+    assert len(set(by_step["load"])) == 3
+    loaded = [store.load_arrays(k) for k in by_step["load"]]
+    for other in loaded[1:]:  # ... holding the same numbers
+        assert other.keys() == loaded[0].keys()
+        assert all(other[n].tobytes() == loaded[0][n].tobytes() for n in other)
+    fits = [store.load(k) for k in by_step["identify"]]
+    assert all(dict(f.parameters) == dict(fits[0].parameters) for f in fits)
