@@ -211,6 +211,20 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
     return options.library_kwargs(exclude=exclude)
 
 
+def _fitted_x0(ctx: StageContext, role: str, kw: dict[str, Any]) -> dict[str, Any]:
+    """Start the flight's simulation from the initial state its fit used.
+
+    The library's own default is the first measured sample, noise and all;
+    when `identify` estimated the initial state, a later stage that started
+    from that sample would put the model off the trajectory the fit found
+    and colour its residuals. Without estimation the two are the same values.
+    """
+    states = getattr(ctx.inputs.get(role), "initial_states", None)
+    if states and kw.get("x0") is None:
+        kw["x0"] = dict(states[0])
+    return kw
+
+
 # -- load ---------------------------------------------------------------------------
 
 
@@ -282,7 +296,8 @@ class FilterOptions(Options):
 
 def _run_filter(ctx: StageContext) -> Any:
     fn = _library("filter_states")
-    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options))
+    kw = _fitted_x0(ctx, "parameters", _kwargs(ctx.options))
+    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
 
 
 class ValidateOptions(Options):
@@ -432,6 +447,7 @@ def _infer_kwargs(ctx: StageContext) -> dict[str, Any]:
     if ctx.options.initial and "initial" in ctx.inputs:
         kw["initial"] = ctx.inputs["initial"]
     kw["parameters"] = {name: spec.build(name) for name, spec in ctx.options.priors.items()}
+    _fitted_x0(ctx, "initial", kw)
     # ensemble e draws from SeedSequence(seed, spawn_key=(flight, 1, e))
     kw["seed"] = ctx.seed_sequence(1)
     return kw
@@ -524,7 +540,8 @@ class FrequencyOptions(Options):
 
 def _run_frequency(ctx: StageContext) -> Any:
     fn = _library("frequency_response")
-    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options))
+    kw = _fitted_x0(ctx, "parameters", _kwargs(ctx.options))
+    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
 
 
 class SensitivityOptions(Options):
@@ -541,6 +558,7 @@ def _run_sensitivities(ctx: StageContext) -> Any:
     kw = _kwargs(ctx.options, "parameters")
     if "values" in ctx.inputs:
         kw["values"] = ctx.inputs["values"]
+    _fitted_x0(ctx, "values", kw)
     return fn(ctx.model, ctx.inputs["data"], ctx.options.parameters, **kw)
 
 
@@ -799,7 +817,8 @@ for _stage in (
         _run_identify,
         library="identify",
     ),
-    Stage("filter", "1", FilterOptions, "FilterResult", _run_filter, library="filter_states"),
+    # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state
+    Stage("filter", "2", FilterOptions, "FilterResult", _run_filter, library="filter_states"),
     Stage(
         "validate",
         "1",
@@ -823,7 +842,7 @@ for _stage in (
     ),
     Stage(
         "infer",
-        "1",
+        "2",
         InferOptions,
         "InferenceResult",
         _run_infer,
@@ -844,7 +863,7 @@ for _stage in (
     ),
     Stage(
         "frequency",
-        "1",
+        "2",
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
@@ -852,7 +871,7 @@ for _stage in (
     ),
     Stage(
         "sensitivities",
-        "1",
+        "2",
         SensitivityOptions,
         "SensitivityResult",
         _run_sensitivities,
