@@ -55,6 +55,14 @@ def _validation_notes(validation: Any) -> list[str]:
     return notes
 
 
+def _without_heading(body: str) -> str:
+    # a summary that opens with its own heading would repeat the section's heading
+    lines = body.lstrip("\n").split("\n")
+    if lines and lines[0].startswith("#"):
+        return "\n".join(lines[1:]).lstrip("\n")
+    return body
+
+
 def report_sections(
     validation: Any = None,
     identification: Any = None,
@@ -76,7 +84,7 @@ def report_sections(
             raise AeroidError(
                 f"report: {heading.lower()} result has no summary(): {type(result).__name__}"
             )
-        body = result.summary()
+        body = _without_heading(result.summary())
         if notes:
             body += "\n\n" + "\n".join(f"- {n}" for n in notes)
         sections.append((heading, body))

@@ -56,3 +56,21 @@ def test_report_with_figures_writes_pngs_and_self_contained_html(tmp_path):
 
 def test_empty_report_says_so():
     assert "No results" in report()
+
+
+def test_each_section_heading_appears_once():
+    # frequency, sensitivity and design summaries open with their own heading; in the
+    # report the section gives it, so none appears twice
+    from aeroid import frequency_response, sensitivities
+
+    v, r, mc = _chain()
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=0)
+    freq = frequency_response(model, data, r, frequency_range=(0.2, 3.0), min_coherent=1)
+    sens = sensitivities(model, data, ["M_q"], values=r, noise={"alpha": 0.005, "q": 0.01})
+    assert freq.summary().startswith("## ")  # standalone, a summary keeps its heading
+    text = report(v, r, mc, frequency=freq, sensitivity=sens)
+    headings = [line for line in text.splitlines() if line.startswith("#")]
+    assert len(headings) == len(set(headings))
+    assert "## Frequency response" in headings and "## Sensitivities" in headings
+    assert not any("Sensitivity analysis" in h for h in headings)

@@ -879,7 +879,7 @@ for _stage in (
     ),
     Stage(
         "report",
-        "1",
+        "2",  # 2: a section's summary no longer repeats the section heading
         ReportOptions,
         "FlightReport",
         _run_report,
