@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from types import MappingProxyType
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,6 +16,33 @@ def frozen_array(values: ArrayLike) -> NDArray[np.float64]:
     return out
 
 
+class ReadOnlyDict(dict[str, Any]):
+    """A plain `dict` that refuses changes.
+
+    Parameter sets cross every user boundary as dicts (``json.dumps``,
+    ``isinstance(p, dict)`` and ``**p`` work); inside a frozen result they
+    must not change, so the mutating methods raise. ``dict(p)`` or
+    ``p.copy()`` gives an ordinary, mutable copy.
+    """
+
+    __slots__ = ()
+
+    def _refuse(self, *args: Any, **kwargs: Any) -> NoReturn:
+        raise TypeError("this mapping belongs to a frozen record; change a copy: dict(...)")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _refuse
+    __ior__ = _refuse
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (dict(self),))
+
+    def __copy__(self) -> ReadOnlyDict:
+        return self
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> ReadOnlyDict:
+        return self  # immutable, and its values are floats, strings or read-only arrays
+
+
 def frozen_mapping(values: Mapping[str, Any] | Iterable[tuple[str, Any]]) -> Mapping[str, Any]:
     """A read-only dict; float-like values become Python floats, arrays become read-only."""
     out: dict[str, Any] = {}
@@ -27,7 +53,7 @@ def frozen_mapping(values: Mapping[str, Any] | Iterable[tuple[str, Any]]) -> Map
             out[str(k)] = float(v)
         else:
             out[str(k)] = v
-    return MappingProxyType(out)
+    return ReadOnlyDict(out)
 
 
 def fmt(value: float, digits: int = 4) -> str:

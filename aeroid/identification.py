@@ -4,13 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from .data import FlightData
 from .errors import IdentificationError
 
@@ -129,14 +128,14 @@ class IdentificationResult:
     def stderr_white(self) -> Mapping[str, float]:
         """Classical (white-residual) standard errors."""
         d = np.sqrt(np.clip(np.diag(self.covariance_white), 0.0, None))
-        return MappingProxyType({n: float(s) for n, s in zip(self.parameter_names, d, strict=True)})
+        return ReadOnlyDict({n: float(s) for n, s in zip(self.parameter_names, d, strict=True)})
 
     @property
     def all_parameters(self) -> Mapping[str, float]:
         """Fixed and estimated parameters together (a full model parameter set)."""
         merged: dict[str, Any] = dict(self.fixed)
         merged.update(self.parameters)
-        return MappingProxyType(merged)
+        return ReadOnlyDict(merged)
 
     def plot(self, **kwargs: Any) -> Any:
         """Residual histories and estimates with 95 % error bars. Returns a matplotlib Figure."""

@@ -7,13 +7,13 @@ import keyword
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
+from ._records import ReadOnlyDict
 from .data import FlightData, _readonly
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
@@ -305,7 +305,7 @@ class Model:
         object.__setattr__(self, "states", states)
         object.__setattr__(self, "controls", controls)
         object.__setattr__(self, "outputs", outputs)
-        object.__setattr__(self, "parameters", MappingProxyType(params))
+        object.__setattr__(self, "parameters", ReadOnlyDict(params))
         names = tuple(params)
         object.__setattr__(
             self, "_dynamics_batch", _integrate.BatchFunction(self.dynamics, len(states), names)

@@ -265,3 +265,28 @@ def test_diverging_start_is_an_identification_error(sp_noisy):
         warnings.simplefilter("ignore")
         with pytest.raises(IdentificationError, match="cannot be simulated at the initial"):
             identify(m, sp_noisy, NAMES, simulate_options={"method": "rk4"})
+
+
+def test_parameter_sets_are_plain_read_only_dicts(sp_model, sp_noisy):
+    # the convention: plain dict[str, float] at every user boundary, immutable inside records
+    import copy
+    import json
+    import pickle
+
+    r = identify(sp_model, sp_noisy, ["M_q", "M_alpha"])
+    for p in (r.parameters, r.stderr, r.stderr_white, r.all_parameters, sp_model.parameters):
+        assert isinstance(p, dict)
+        assert json.loads(json.dumps(p)) == p
+        assert pickle.loads(pickle.dumps(p)) == p and copy.deepcopy(p) == p
+        for change in (
+            lambda p: p.__setitem__("M_q", 0.0),
+            lambda p: p.update(M_q=0.0),
+            lambda p: p.pop("M_q"),
+            lambda p: p.clear(),
+        ):
+            with pytest.raises(TypeError, match="frozen"):
+                change(p)
+        mine = dict(p)  # a copy is an ordinary dict
+        mine["M_q"] = 0.0
+    assert r.parameters["M_q"] != 0.0
+    assert {**r.parameters, "M_q": 1.0}["M_q"] == 1.0

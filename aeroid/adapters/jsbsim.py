@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._records import ReadOnlyDict
 from ..data import FlightData
 from ..errors import AdapterError, DataFormatError, SimulationError
 from ..model import SimulationResult, resolve_parameters
@@ -153,7 +154,7 @@ class JsbsimModel:
             params[str(key)] = _number(nominal, f"parameter {key!r}: nominal value")
         if not outputs:
             raise AdapterError("outputs: give at least one {name: property} to sample")
-        self.parameters: Mapping[str, float] = MappingProxyType(params)
+        self.parameters: Mapping[str, float] = ReadOnlyDict(params)
         self.parameter_properties: Mapping[str, str] = MappingProxyType(pprops)
         self.control_properties: Mapping[str, str] = MappingProxyType(
             {str(k): _prop_name(v, f"control {k!r}") for k, v in dict(controls or {}).items()}

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._records import ReadOnlyDict
 from ..data import FlightData
 from ..errors import AdapterError, SimulationError
 from ..model import SimulationResult, resolve_parameters
@@ -159,7 +160,7 @@ class RocketpyModel:
         if not isinstance(name, str) or not name:
             raise AdapterError(f"name: expected a non-empty string, got {name!r}")
         self.builder = builder
-        self.parameters: Mapping[str, float] = MappingProxyType(params)
+        self.parameters: Mapping[str, float] = ReadOnlyDict(params)
         self.output_specs: Mapping[str, OutputSpec] = MappingProxyType(dict(outputs))
         self.flight_options: Mapping[str, Any] = MappingProxyType(dict(flight_options or {}))
         self.name = name
