@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
-from ._records import ReadOnlyDict
+from ._records import ReadOnlyDict, fmt, markdown_table
 from .data import FlightData, _readonly
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
@@ -124,6 +124,24 @@ class SimulationResult:
         if name not in self.output_names:
             raise ChannelError(f"output {name!r} not simulated; outputs: {list(self.output_names)}")
         return self.outputs[:, self.output_names.index(name)]
+
+    def summary(self) -> str:
+        """A Markdown table of every simulated channel: its range and final value."""
+        t = self.time
+        head = f"{t.size} samples over {t[-1] - t[0]:.6g} s (t = {t[0]:.6g} to {t[-1]:.6g} s)"
+        rows = []
+        for kind, names, values in (
+            ("state", self.state_names, self.states),
+            ("output", self.output_names, self.outputs),
+            ("control", self.control_names, self.controls),
+        ):
+            for j, name in enumerate(names):
+                if kind == "output" and name in self.state_names:
+                    continue  # an output that is a state is listed once, as the state
+                v = values[:, j]
+                rows.append((name, kind, fmt(v.min()), fmt(v.max()), fmt(v[-1])))
+        table = markdown_table(("channel", "kind", "min", "max", "final"), rows)
+        return f"{head}\n\n{table}"
 
     def to_flight_data(
         self,

@@ -228,3 +228,18 @@ def test_blocked_linear_recursion_of_an_overflowing_system_matches_the_loop():
     with np.errstate(over="ignore"):
         got = _linear_recursion(phi, np.zeros((1, 1)), forcing)
     np.testing.assert_array_equal(got[0, :, 0], np.r_[np.zeros(99), 2.0])
+
+
+def test_simulation_summary_lists_each_channel_once_with_its_range():
+    # x' = -k x from x0 = 2: falls monotonically from 2 to 2 e^{-kT}
+    model = Model(["x"], ["u"], {"k": 0.7}, lambda t, x, u, p: -p["k"] * x)
+    t = np.linspace(0.0, 3.0, 301)
+    text = model.simulate(t, np.zeros_like(t), {"x": 2.0}, method="exact").summary()
+    assert text.startswith("301 samples over 3 s")
+    rows = [r for r in text.splitlines() if r.startswith("| x ") or r.startswith("| u ")]
+    assert len(rows) == 2  # the output x is the state x: listed once
+    x_row = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert x_row[1] == "state"
+    assert float(x_row[2]) == pytest.approx(2.0 * math.exp(-0.7 * 3.0), rel=1e-3)
+    assert float(x_row[3]) == pytest.approx(2.0, rel=1e-3)
+    assert float(x_row[4]) == pytest.approx(2.0 * math.exp(-0.7 * 3.0), rel=1e-3)
