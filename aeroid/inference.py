@@ -66,6 +66,7 @@ NOISE_LO = 1e-6
 NOISE_HI = 10.0
 # Starting balls: fraction of the identification stderr, of the prior scale, of a noise level.
 _BALL_STDERR = 0.5
+_DEFAULT_MOVE = "de"
 _BALL_PRIOR = 0.01
 _BALL_NOISE = 0.05
 _SIM_OPTIONS = ("method", "substeps", "rtol", "atol")
@@ -294,7 +295,7 @@ class InferenceResult:
         notes = [
             f"Posterior from {self.samples.shape[0]} draws: {ens}{self.n_walkers} walkers, "
             f"{self.n_steps} steps ({self.burn_in} burn-in, thin {self.thin}"
-            f"{'; differential-evolution move' if self.move == 'de' else ''}); "
+            f"; {'differential-evolution' if self.move == 'de' else 'stretch'} move); "
             f"acceptance fraction {self.acceptance_fraction:.2f}; "
             f"longest autocorrelation time {_max_finite(self.autocorrelation_time)} steps.",
         ]
@@ -760,11 +761,14 @@ def _run(
     root: np.random.SeedSequence | None,
     ensemble: int,
     progress: bool,
-    move: str = "stretch",
+    move: str | None = None,
 ) -> EnsembleRun:
     n_steps = _check_count("n_steps", n_steps, 1)
     thin = _check_count("thin", thin, 1)
     resume = isinstance(initial, InferenceResult)
+    if move is None:
+        # a continued chain keeps its move, so that it equals one longer run
+        move = initial.move if resume else _DEFAULT_MOVE
     if burn_in is None:
         burn_in = 0 if resume else n_steps // 4
     burn_in = _check_count("burn_in", burn_in, 0)
@@ -869,7 +873,7 @@ def infer_ensemble(
     backend: str = "numpy",
     simulate_options: Mapping[str, Any] | None = None,
     progress: bool = False,
-    move: str = "stretch",
+    move: str | None = None,
 ) -> EnsembleRun:
     """Run ensemble number `ensemble` of an `infer` call (for parallel execution).
 
@@ -930,7 +934,7 @@ def infer(
     simulate_options: Mapping[str, Any] | None = None,
     n_ensembles: int = 1,
     progress: bool = False,
-    move: str = "stretch",
+    move: str | None = None,
 ) -> InferenceResult:
     """Sample the posterior of model parameters (and sensor noise) given a flight record.
 
@@ -979,7 +983,7 @@ def infer(
     thin : int
         Keep every `thin`-th step after burn-in.
     stretch : float
-        Stretch-move scale ``a`` (> 1).
+        Stretch-move scale ``a`` (> 1), for ``move="stretch"``.
     seed : int or SeedSequence, optional
         Same seed, same samples, bit for bit.
     backend : {"numpy", "jax"}
@@ -993,10 +997,14 @@ def infer(
         Independent ensembles, pooled; R-hat is then also computed across them.
     progress : bool
         Show a progress bar (tqdm).
-    move : {"stretch", "de"}
-        The ensemble move: Goodman & Weare's stretch, or differential
-        evolution (ter Braak 2006), whose autocorrelation time is several
-        times shorter on near-Gaussian posteriors (`aeroid.sampler`).
+    move : {"de", "stretch"}, optional
+        The ensemble move: differential evolution (ter Braak 2006; the
+        default), or Goodman & Weare's affine-invariant stretch. On the
+        near-Gaussian, correlated posteriors of a few aerodynamic derivatives
+        and noise levels, differential evolution's autocorrelation time is
+        several times shorter (`aeroid.sampler`), so 2000 steps converge where
+        the stretch move needs several times more. A continued chain
+        (``initial=`` an `InferenceResult`) keeps the move it was sampled with.
 
     Returns
     -------

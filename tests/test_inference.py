@@ -23,6 +23,7 @@ from aeroid import (
     Uniform,
     catalog,
     combine_ensembles,
+    identify,
     infer,
     infer_ensemble,
 )
@@ -210,14 +211,22 @@ def test_seeded_resumable_and_ensembles() -> None:
     assert "2 ensembles" in two.summary()
     more = quiet_infer(model, data, priors, n_steps=30, initial=two, noise={"y": SIGMA})
     assert more.n_ensembles == 2 and more.chain[1].step == 130
-    # the differential-evolution move: seeded the same way, named in the summary
+    # differential evolution is the default move; the stretch move is seeded the same
+    # way, named in the summary, and a continued stretch chain stays one
+    assert a.move == "de" and "differential-evolution move" in a.summary()
     de = quiet_infer(model, data, priors, n_steps=100, burn_in=20, move="de", **kw)
-    assert de.move == "de" and "differential-evolution move" in de.summary()
+    np.testing.assert_array_equal(de.samples, a.samples)
+    st = quiet_infer(model, data, priors, n_steps=100, burn_in=20, move="stretch", **kw)
+    assert st.move == "stretch" and "stretch move" in st.summary()
     np.testing.assert_array_equal(
-        de.samples,
-        quiet_infer(model, data, priors, n_steps=100, burn_in=20, move="de", **kw).samples,
+        st.samples,
+        quiet_infer(model, data, priors, n_steps=100, burn_in=20, move="stretch", **kw).samples,
     )
-    assert not np.array_equal(de.samples, a.samples)
+    assert not np.array_equal(st.samples, a.samples)
+    st_first = quiet_infer(model, data, priors, n_steps=60, burn_in=20, move="stretch", **kw)
+    st_more = quiet_infer(model, data, priors, n_steps=40, initial=st_first, noise={"y": SIGMA})
+    assert st_more.move == "stretch"
+    np.testing.assert_array_equal(np.concatenate([st_first.samples, st_more.samples]), st.samples)
 
 
 def test_not_converged_warns() -> None:
@@ -537,3 +546,26 @@ def test_credible_interval_coverage_over_100_flights() -> None:
     per_parameter = covered.mean(axis=0)
     assert np.all(per_parameter >= 0.90), per_parameter
     assert covered.mean() >= 0.92, covered.mean()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_documented_workflow_converges_with_the_defaults(seed: int) -> None:
+    # four derivatives and two noise levels from a 10 s doublet, walkers started at the
+    # least-squares fit, 2000 steps: every split-R-hat below 1.05 and no warning
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=42)
+    priors = {
+        "Z_alpha": Normal(-1.0, 1.0),
+        "M_alpha": Normal(-4.0, 4.0),
+        "M_q": Normal(-2.0, 2.0),
+        "M_delta": Normal(-6.0, 6.0),
+    }
+    fit = identify(model, data, list(priors))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        post = infer(model, data, priors, initial=fit, n_steps=2000, seed=seed)
+    assert post.converged and post.move == "de"
+    assert max(post.r_hat.values()) < 1.05
+    for name in priors:  # the posterior agrees with the fit it started from
+        assert post.parameters[name] == pytest.approx(fit.parameters[name], abs=fit.stderr[name])
