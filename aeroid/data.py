@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -203,6 +204,20 @@ class FlightData:
                 f"| {name} | {self.units.get(name, '')} | {v.min():.4g} | {v.max():.4g} | {v.mean():.4g} |"
             )
         return "\n".join(lines)
+
+
+def fingerprint(data: FlightData) -> str:
+    """SHA-256 of a record's time grid and channels (names and values).
+
+    An identification result keeps the fingerprints of the records it was
+    fitted to, so a later function given the result and one of those records
+    can start where the fit did (see `aeroid.model.fitted_start`).
+    """
+    h = hashlib.sha256(np.ascontiguousarray(data.time, dtype="<f8").tobytes())
+    for name in sorted(data.channels):
+        h.update(name.encode("utf-8") + b"\0")
+        h.update(np.ascontiguousarray(data.channels[name], dtype="<f8").tobytes())
+    return h.hexdigest()
 
 
 # -- loading ----------------------------------------------------------------------

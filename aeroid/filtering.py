@@ -31,7 +31,7 @@ from . import _integrate
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .data import FlightData
 from .errors import AeroidError, ChannelError, FilterError
-from .model import Model, resolve_parameters
+from .model import Model, fitted_start, resolve_parameters
 
 __all__ = ["FilterResult", "filter_states"]
 
@@ -1124,9 +1124,10 @@ def filter_states(
     smooth : bool
         Also run the Rauch–Tung–Striebel smoother.
     x0 : mapping or array_like, optional
-        State estimate at the first sample. Default: the first measured value
-        of each state the data carries, zero for the others (a dict fills in
-        only the states it names).
+        State estimate at the first sample. Default: the initial state an
+        identification result given as `parameters` used for this record,
+        else the first measured value of each state the data carries, zero
+        for the others (a dict fills in only the states it names).
     P0 : mapping or array_like, optional
         Covariance of `x0` (a dict or 1-D array of variances, or a matrix).
         Default: the measurement variance for a directly measured state, 1 for
@@ -1162,6 +1163,8 @@ def filter_states(
     ChannelError
         The data lacks a control or output channel.
     """
+    if x0 is None:
+        x0 = fitted_start(parameters, data)[0]
     prob, R = build_problem(
         model,
         data,

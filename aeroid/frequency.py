@@ -31,7 +31,7 @@ from . import _integrate
 from ._records import fmt, frozen_array, markdown_table
 from .data import FlightData
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
-from .model import Model, SimulatorModel, resolve_parameters
+from .model import Model, SimulatorModel, fitted_start, resolve_parameters
 
 __all__ = ["ChannelFrequencyResponse", "FrequencyResponseResult", "frequency_response"]
 
@@ -345,7 +345,9 @@ def frequency_response(
     coherence_threshold : float
         γ² at or above which a frequency counts as coherent.
     x0 : array_like or mapping, optional
-        Initial state of a simulated model response (default: measured states).
+        Initial state of a simulated model response (default: the state an
+        identification result given as `parameters` used for this record, else
+        the measured states).
     model_response : {"simulated", "exact"}
         ``"simulated"``: the same Welch estimate from the model's outputs
         simulated on the measured inputs (any model). ``"exact"``: the
@@ -393,6 +395,8 @@ def frequency_response(
             f"coherence_threshold: expected a number in [0, 1], got {coherence_threshold!r}"
         )
     values = resolve_parameters(model, parameters, error=IdentificationError)
+    if x0 is None:
+        x0 = fitted_start(parameters, data)[0]
     controls = tuple(model.controls)
     model_outputs = model.output_names if isinstance(model, Model) else tuple(model.outputs)
     ins = (

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData
+from .data import FlightData, fingerprint
 from .errors import IdentificationError
 
 __all__ = ["IdentificationResult", "identify"]
@@ -70,6 +70,12 @@ class IdentificationResult:
     process_noise : mapping of str to float
         Filter error only: process-noise intensities used or estimated.
     model_name : str
+    data_fingerprints : tuple of str
+        Per manoeuvre, a SHA-256 of the record fitted (time and channels):
+        `validate`, `filter_states`, `frequency_response`, `sensitivities`
+        and `infer`, given this result and one of those records, start from
+        the state the fit used for it; other records start from their own
+        measured state.
     """
 
     parameters: Mapping[str, float]
@@ -95,9 +101,11 @@ class IdentificationResult:
     sigma2: float | None = None
     process_noise: Mapping[str, float] = field(default_factory=dict)
     model_name: str = ""
+    data_fingerprints: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        set_(self, "data_fingerprints", tuple(str(f) for f in self.data_fingerprints))
         set_(self, "parameters", frozen_mapping(self.parameters))
         set_(self, "stderr", frozen_mapping(self.stderr))
         set_(self, "fixed", frozen_mapping(self.fixed))
@@ -398,7 +406,7 @@ def identify(
             )
         from ._filter_error import identify_filter_error
 
-        return identify_filter_error(
+        fitted = identify_filter_error(
             model,
             datas,
             names,
@@ -412,6 +420,7 @@ def identify(
             max_iterations=int(max_iterations),
             tolerance=float(tolerance),
         )
+        return replace(fitted, data_fingerprints=tuple(fingerprint(d) for d in datas))
     if (
         process_noise is not None
         or measurement_noise is not None
@@ -463,7 +472,7 @@ def identify(
             w_arr = np.diag(r).copy()
             if np.any(w_arr <= 0):
                 raise IdentificationError("weights: noise covariance diagonal must be positive")
-    return fit_output_error(
+    fitted = fit_output_error(
         model,
         datas,
         names,
@@ -479,3 +488,4 @@ def identify(
         simulate_options=opts,
         gradient=gradient,
     )
+    return replace(fitted, data_fingerprints=tuple(fingerprint(d) for d in datas))

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .data import FlightData
 from .errors import InferenceError
-from .model import Model, SimulatorModel
+from .model import Model, SimulatorModel, fitted_start
 from .priors import LogUniform, Prior
 from .sampler import (
     INIT_TAG,
@@ -889,6 +889,8 @@ def infer_ensemble(
     EnsembleRun
     """
     ensemble = _check_count("ensemble", ensemble, 0)
+    if x0 is None and not isinstance(initial, InferenceResult):
+        x0 = fitted_start(initial, data)[0]
     post = _Posterior(
         model,
         data,
@@ -961,7 +963,10 @@ def infer(
         Measurement-noise standard deviations of outputs; those outputs get
         no ``sigma_<output>`` parameter.
     x0 : array_like or dict, optional
-        Initial state (default: the measured states at the first sample).
+        Initial state (default: the state an identification result given as
+        `initial` used for this record, else the measured states at the first
+        sample). A chain continued from an `InferenceResult` needs the `x0`
+        it was sampled with.
     initial : dict, identification result or InferenceResult, optional
         Where the walkers start. A dict of values: a ball of 1 % of each
         prior's standard deviation around them (5 % for noise levels). An
@@ -1044,6 +1049,8 @@ def infer(
                 f"n_ensembles: the stored result holds {len(initial.chain)} ensemble(s), "
                 f"got {n_ensembles}"
             )
+    if x0 is None and not isinstance(initial, InferenceResult):
+        x0 = fitted_start(initial, data)[0]
     post = _Posterior(
         model,
         data,

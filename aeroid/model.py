@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
 from ._records import ReadOnlyDict, fmt, markdown_table
-from .data import FlightData, _readonly
+from .data import FlightData, _readonly, fingerprint
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
 __all__ = [
@@ -85,6 +85,32 @@ def resolve_parameters(
             raise error(f"parameter {name!r}: value {v!r} is not finite")
         out[name] = v
     return out
+
+
+def fitted_start(result: Any, data: FlightData) -> tuple[dict[str, float] | None, dict[str, float]]:
+    """The initial state and output biases a fit used for `data`, if it was fitted to `data`.
+
+    An identification result holds one initial state (measured, given or
+    estimated) and one set of output biases per manoeuvre. Simulating one of
+    those records again, a function should start where the fit did; any
+    other record (cross-validation on another manoeuvre) starts from its own
+    measured state, without the fit's biases. Returns ``(None, {})`` then.
+    Results stored before records were fingerprinted apply their first
+    manoeuvre's values, as they always did.
+    """
+    states = getattr(result, "initial_states", None)
+    if not states:
+        return None, {}
+    fitted = tuple(getattr(result, "data_fingerprints", ()) or ())
+    if fitted:
+        mark = fingerprint(data)
+        if mark not in fitted:
+            return None, {}
+        i = fitted.index(mark)
+    else:
+        i = 0
+    biases = tuple(getattr(result, "biases", ()) or ())
+    return dict(states[i]), (dict(biases[i]) if i < len(biases) else {})
 
 
 @dataclass(frozen=True, eq=False)

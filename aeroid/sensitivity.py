@@ -29,7 +29,7 @@ from .errors import (
     IdentificationError,
     SimulationError,
 )
-from .model import Model, SimulatorModel, resolve_parameters
+from .model import Model, SimulatorModel, fitted_start, resolve_parameters
 
 __all__ = ["SensitivityResult", "sensitivities"]
 
@@ -447,7 +447,9 @@ def sensitivities(
     outputs : sequence of str, optional
         Outputs to use (default: those named in `noise`, else all model outputs).
     x0 : array_like or mapping, optional
-        Initial state; default: the measured states at the first sample.
+        Initial state; default: the state an identification result given as
+        `values` used for this record, else the measured states at the first
+        sample.
     relative_step : float
         Central-difference step relative to ``max(|θ|, 1)``.
     simulate_options : mapping, optional
@@ -477,6 +479,8 @@ def sensitivities(
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
     names = _parameter_list(model, parameters)
     vals = resolve_parameters(model, values, error=IdentificationError)
+    if x0 is None:
+        x0 = fitted_start(values, data)[0]
     try:
         rel = float(relative_step)
     except (TypeError, ValueError):

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from ._records import fmt, frozen_array, markdown_table
 from .data import FlightData
 from .errors import IdentificationError
-from .model import resolve_parameters
+from .model import fitted_start, resolve_parameters
 
 __all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
 
@@ -193,13 +193,14 @@ def validate(
     data : FlightData
         Must carry the model's controls and the outputs to check.
     parameters : mapping or result, optional
-        Parameter values, or an identification/inference result; an
-        identification result's estimated initial state and output biases
-        (first manoeuvre) are applied as well.
+        Parameter values, or an identification/inference result. When `data`
+        is a record the identification result was fitted to, the initial
+        state and output biases the fit used for it are applied as well.
     outputs : sequence of str, optional
         Outputs to check; default every model output present in the data.
     x0 : mapping or array, optional
-        Initial state; default the result's, else the measured states at t0.
+        Initial state; default the fit's for this record (see `parameters`),
+        else the measured states at t0.
     confidence : float
         Confidence level of the bias interval.
     whiteness_lags : int
@@ -227,11 +228,9 @@ def validate(
     if not chosen:
         data.require(names[:1], role="output")
     data.require(chosen, role="output")
-    biases: Mapping[str, float] = {}
-    if x0 is None and getattr(parameters, "initial_states", None):
-        x0 = dict(parameters.initial_states[0])
-    if getattr(parameters, "biases", None):
-        biases = parameters.biases[0]
+    fitted_x0, biases = fitted_start(parameters, data)
+    if x0 is None:
+        x0 = fitted_x0
     opts = dict(simulate_options or {})
     if hasattr(model, "simulate_batch"):
         opts.setdefault("method", "auto")  # the integrator identify uses by default

@@ -290,3 +290,54 @@ def test_parameter_sets_are_plain_read_only_dicts(sp_model, sp_noisy):
         mine["M_q"] = 0.0
     assert r.parameters["M_q"] != 0.0
     assert {**r.parameters, "M_q": 1.0}["M_q"] == 1.0
+
+
+def test_functions_given_a_fit_start_its_records_where_it_did(sp_model):
+    # filter_states, frequency_response, sensitivities and infer take the fit's initial
+    # state for a record it was fitted to, and the record's own start for any other
+    from aeroid import catalog
+    from aeroid.data import fingerprint
+
+    fitted = catalog.short_period_flight(seed=1)
+    other = catalog.short_period_flight(seed=2)
+    names = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
+    fit = identify(sp_model, fitted, names, estimate_x0=True)
+    assert fit.data_fingerprints == (fingerprint(fitted),)
+    x0 = dict(fit.initial_states[0])
+    noise = {
+        "process_noise": {"alpha": 1e-8, "q": 1e-8},
+        "measurement_noise": {"alpha": 2.5e-5, "q": 1e-4},
+    }
+    sd = {"alpha": 0.005, "q": 0.01}
+
+    def runs(data, **start):
+        return (
+            aeroid.filter_states(sp_model, data, fit, **noise, **start).smoothed_states,
+            aeroid.frequency_response(sp_model, data, fit, min_coherent=1, **start)
+            .channels[0]
+            .model_magnitude,
+            aeroid.sensitivities(
+                sp_model, data, names, values=fit, noise=sd, **start
+            ).fisher_information,
+            aeroid.infer(
+                sp_model,
+                data,
+                {"M_q": aeroid.Normal(-2.0, 2.0)},
+                noise=sd,
+                initial=fit,
+                n_walkers=8,
+                n_steps=20,
+                seed=3,
+                **start,
+            ).log_prob,
+        )
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # short chains, few coherent frequencies
+        for got, want in zip(runs(fitted), runs(fitted, x0=x0), strict=True):
+            np.testing.assert_array_equal(got, want)
+        first = {s: float(fitted[s][0]) for s in ("alpha", "q")}
+        assert not np.array_equal(runs(fitted)[0], runs(fitted, x0=first)[0])
+        mine = {s: float(other[s][0]) for s in ("alpha", "q")}
+        for got, want in zip(runs(other), runs(other, x0=mine), strict=True):
+            np.testing.assert_array_equal(got, want)

@@ -349,56 +349,53 @@ def test_flights_from_csv_parquet_and_mat_files_give_the_same_numbers(tmp_path):
     assert all(dict(f.parameters) == dict(fits[0].parameters) for f in fits)
 
 
-def test_stages_after_the_fit_start_from_its_initial_state(tmp_path, monkeypatch):
-    """With `estimate_x0`, filter, infer, frequency and sensitivities simulate the flight
-    from the state the fit estimated, not from its first (noisy) samples."""
+def test_stages_after_the_fit_start_from_its_initial_state(tmp_path):
+    """With `estimate_x0`, filter, frequency and sensitivities simulate the flight from the
+    state the fit estimated (the library takes it from the fit), not from the first
+    noisy samples."""
     import aeroid
+    from aeroid import catalog
 
-    seen: dict[str, object] = {}
-    for name in ("filter_states", "infer", "frequency_response", "sensitivities"):
-        original = getattr(aeroid, name)
-
-        def spy(*args, _name=name, _original=original, **kwargs):
-            seen[_name] = kwargs.get("x0")
-            return _original(*args, **kwargs)
-
-        monkeypatch.setattr(aeroid, name, spy)
+    filter_noise = {
+        "process_noise": {"alpha": 1.0e-8, "q": 1.0e-8},
+        "measurement_noise": {"alpha": 2.5e-5, "q": 1.0e-4},
+    }
     extra = (
         "  filter: {process_noise: {alpha: 1.0e-8, q: 1.0e-8},"
         " measurement_noise: {alpha: 2.5e-5, q: 1.0e-4}}\n"
-        "  infer:\n    priors: {M_q: {normal: [-2.0, 2.0]}}\n    n_walkers: 8\n    n_steps: 30\n"
         "  frequency: {frequency_range: [0.2, 3.0]}\n"
         "  sensitivities: {noise: {alpha: 0.005, q: 0.01}}\n"
     )
     cfg = _config(tmp_path, n=1, extra=extra)
     cfg.write_text(cfg.read_text().replace("M_delta]}", "M_delta], estimate_x0: true}"))
     p = plan(cfg)
-    s = run(cfg, workers=0)
-    assert s.failed == 0
+    assert run(cfg, workers=0).failed == 0
     store = open_store(tmp_path / "store")
     by_step = {t.step: store.load(t.key, t.stage) for t in p.tasks if t.flight is not None}
     data, fit = by_step["load"], by_step["identify"]
     x0 = dict(fit.initial_states[0])
-    assert all(abs(x0[c] - float(data[c][0])) > 1e-6 for c in ("alpha", "q"))  # estimated
-    assert seen == dict.fromkeys(
-        ("filter_states", "infer", "frequency_response", "sensitivities"), x0
-    )
-    # and it matters: from the first samples the filter gives other states
-    filter_noise = {
-        "process_noise": {"alpha": 1.0e-8, "q": 1.0e-8},
-        "measurement_noise": {"alpha": 2.5e-5, "q": 1.0e-4},
-    }
-    from aeroid import catalog
-
+    first = {c: float(data[c][0]) for c in ("alpha", "q")}
+    assert all(abs(x0[c] - first[c]) > 1e-6 for c in first)  # estimated
     model = catalog.short_period()
-    np.testing.assert_array_equal(
-        by_step["filter"].smoothed_states,
-        aeroid.filter_states(model, data, fit, x0=x0, **filter_noise).smoothed_states,
-    )
-    assert not np.array_equal(
-        by_step["filter"].smoothed_states,
-        aeroid.filter_states(model, data, fit, **filter_noise).smoothed_states,
-    )
+    for start, same in ((x0, True), (first, False)):
+        filt = aeroid.filter_states(model, data, fit, x0=start, **filter_noise)
+        freq = aeroid.frequency_response(
+            model, data, fit, frequency_range=(0.2, 3.0), x0=start, min_coherent=1
+        )
+        sens = aeroid.sensitivities(
+            model,
+            data,
+            None,
+            values=fit,
+            noise={"alpha": 0.005, "q": 0.01},
+            x0=start,
+        )
+        pairs = (
+            (by_step["filter"].smoothed_states, filt.smoothed_states),
+            (by_step["frequency"].channels[0].model_magnitude, freq.channels[0].model_magnitude),
+            (by_step["sensitivities"].fisher_information, sens.fisher_information),
+        )
+        assert all(np.array_equal(a, b) for a, b in pairs) is same
 
 
 def test_stages_after_a_fit_with_measured_initial_state_are_unchanged(tmp_path):

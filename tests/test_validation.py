@@ -98,3 +98,48 @@ def test_a_correct_model_fitted_with_its_initial_state_is_white_at_the_nominal_r
             white[estimate] += all(m.white for m in v.metrics.values())
     assert white[True] / n >= 0.9025 - 3 * np.sqrt(0.9025 * 0.0975 / n)
     assert white[False] < white[True]
+
+
+def _flight_from(x0: dict[str, float], seed: int) -> FlightData:
+    # the truth model flown from a non-zero initial state, with the usual sensor noise
+    model = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
+    t = np.arange(501) / 50.0
+    u = catalog.doublet(t)
+    sim = model.simulate(t, u, x0, method="exact")
+    rng = np.random.default_rng(seed)
+    return FlightData(
+        t,
+        {
+            "elevator": u,
+            "alpha": sim.output("alpha") + 0.005 * rng.standard_normal(t.size),
+            "q": sim.output("q") + 0.01 * rng.standard_normal(t.size),
+        },
+    )
+
+
+def test_validation_starts_where_the_fit_did_on_its_own_record_only():
+    model = catalog.short_period()
+    names = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
+    fitted = catalog.short_period_flight(seed=1)
+    fit = identify(model, fitted, names, estimate_x0=True, estimate_bias=True)
+    x0, bias = dict(fit.initial_states[0]), dict(fit.biases[0])
+    own = validate(model, fitted, fit)
+    np.testing.assert_array_equal(
+        own.simulated[0], [x0["alpha"] + bias["alpha"], x0["q"] + bias["q"]]
+    )
+    # another manoeuvre, flown from alpha = 0.05 rad: predicted from its own measured start,
+    # without the biases estimated for the fitted record
+    other = _flight_from({"alpha": 0.05, "q": 0.0}, seed=2)
+    v = validate(model, other, fit)
+    np.testing.assert_array_equal(v.simulated[0], other.array(["alpha", "q"])[0])
+    assert v.metrics["alpha"].rmse < 1.5 * 0.005 and v.metrics["q"].rmse < 1.5 * 0.01
+    # started where the fit started its own record, the prediction misses by the offset
+    wrong = validate(model, other, fit, x0=x0)
+    assert wrong.metrics["alpha"].rmse > 1.5 * v.metrics["alpha"].rmse
+    assert v.metrics["alpha"].white and not wrong.metrics["alpha"].white
+    # a result stored before records were fingerprinted applies its first manoeuvre's values
+    import dataclasses
+
+    old = dataclasses.replace(fit, data_fingerprints=())
+    shifted = wrong.simulated + np.array([bias["alpha"], bias["q"]])
+    np.testing.assert_array_equal(validate(model, other, old).simulated, shifted)

@@ -211,20 +211,6 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
     return options.library_kwargs(exclude=exclude)
 
 
-def _fitted_x0(ctx: StageContext, role: str, kw: dict[str, Any]) -> dict[str, Any]:
-    """Start the flight's simulation from the initial state its fit used.
-
-    The library's own default is the first measured sample, noise and all;
-    when `identify` estimated the initial state, a later stage that started
-    from that sample would put the model off the trajectory the fit found
-    and colour its residuals. Without estimation the two are the same values.
-    """
-    states = getattr(ctx.inputs.get(role), "initial_states", None)
-    if states and kw.get("x0") is None:
-        kw["x0"] = dict(states[0])
-    return kw
-
-
 # -- load ---------------------------------------------------------------------------
 
 
@@ -296,8 +282,7 @@ class FilterOptions(Options):
 
 def _run_filter(ctx: StageContext) -> Any:
     fn = _library("filter_states")
-    kw = _fitted_x0(ctx, "parameters", _kwargs(ctx.options))
-    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
+    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options))
 
 
 class ValidateOptions(Options):
@@ -447,7 +432,6 @@ def _infer_kwargs(ctx: StageContext) -> dict[str, Any]:
     if ctx.options.initial and "initial" in ctx.inputs:
         kw["initial"] = ctx.inputs["initial"]
     kw["parameters"] = {name: spec.build(name) for name, spec in ctx.options.priors.items()}
-    _fitted_x0(ctx, "initial", kw)
     # ensemble e draws from SeedSequence(seed, spawn_key=(flight, 1, e))
     kw["seed"] = ctx.seed_sequence(1)
     return kw
@@ -540,8 +524,7 @@ class FrequencyOptions(Options):
 
 def _run_frequency(ctx: StageContext) -> Any:
     fn = _library("frequency_response")
-    kw = _fitted_x0(ctx, "parameters", _kwargs(ctx.options))
-    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
+    return fn(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options))
 
 
 class SensitivityOptions(Options):
@@ -558,7 +541,6 @@ def _run_sensitivities(ctx: StageContext) -> Any:
     kw = _kwargs(ctx.options, "parameters")
     if "values" in ctx.inputs:
         kw["values"] = ctx.inputs["values"]
-    _fitted_x0(ctx, "values", kw)
     return fn(ctx.model, ctx.inputs["data"], ctx.options.parameters, **kw)
 
 
@@ -811,13 +793,14 @@ for _stage in (
     ),
     Stage(
         "identify",
-        "1",
+        "2",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
         library="identify",
     ),
-    # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state
+    # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state;
+    # identify 2: results name the records they were fitted to
     Stage("filter", "2", FilterOptions, "FilterResult", _run_filter, library="filter_states"),
     Stage(
         "validate",
