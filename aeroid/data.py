@@ -206,6 +206,11 @@ class FlightData:
         return "\n".join(lines)
 
 
+def measured_start(data: FlightData, states: Iterable[str]) -> dict[str, float]:
+    """The first sample of each of `states` that the record measures (the default initial state)."""
+    return {s: float(data.channels[s][0]) for s in states if s in data}
+
+
 def fingerprint(data: FlightData) -> str:
     """SHA-256 of a record's time grid and channels (names and values).
 

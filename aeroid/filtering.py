@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from . import _integrate
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData
+from .data import FlightData, measured_start
 from .errors import AeroidError, ChannelError, FilterError
 from .model import Model, fitted_start, resolve_parameters
 
@@ -368,7 +368,7 @@ def noise_matrix(
 
 
 def _x0_vector(model: Model, data: FlightData, x0: Any, error: type[AeroidError]) -> FloatArray:
-    measured = {s: float(data.channels[s][0]) for s in model.states if s in data}
+    measured = measured_start(data, model.states)
     if x0 is None:
         return np.array([measured.get(s, 0.0) for s in model.states])
     if isinstance(x0, Mapping):

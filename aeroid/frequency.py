@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from . import _integrate
 from ._records import fmt, frozen_array, markdown_table
-from .data import FlightData
+from .data import FlightData, measured_start
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from .model import Model, SimulatorModel, fitted_start, resolve_parameters
 
@@ -531,7 +531,7 @@ def _simulated_outputs(
 ) -> FloatArray:
     if isinstance(model, Model):
         if x0 is None:
-            x0 = {s: float(data.channels[s][0]) for s in model.states if s in data}
+            x0 = measured_start(data, model.states)
         sim = model.simulate_batch(data.time, data, x0, values, method="auto")
         if not sim.ok[0]:
             raise SimulationError(

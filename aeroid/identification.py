@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData, fingerprint
+from .data import FlightData, fingerprint, measured_start
 from .errors import IdentificationError
 
 __all__ = ["IdentificationResult", "identify"]
@@ -369,7 +369,7 @@ def identify(
     x0_dicts: list[dict[str, float]] = []
     for d, xi in zip(datas, x0_list, strict=True):
         if xi is None:
-            x0_dicts.append({s: float(d.channels[s][0]) for s in states if s in d})
+            x0_dicts.append(measured_start(d, states))
         elif isinstance(xi, Mapping):
             unknown = sorted(set(xi) - set(states))
             if unknown:

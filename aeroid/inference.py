@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData
+from .data import FlightData, measured_start
 from .errors import InferenceError
 from .model import Model, SimulatorModel, fitted_start
 from .priors import LogUniform, Prior
@@ -448,7 +448,7 @@ class _Posterior:
             data.require(model.controls, role="control")
             self.controls = model.control_array(self.time, data)[0]
             if x0 is None:
-                x0 = {s: float(data.channels[s][0]) for s in model.states if s in data}
+                x0 = measured_start(data, model.states)
             self.x0 = model.initial_state(x0, 1)[0]
             if backend == "numpy":
                 opts.setdefault("method", "auto")

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
 from ._records import ReadOnlyDict, fmt, markdown_table
-from .data import FlightData, _readonly, fingerprint
+from .data import FlightData, _readonly, fingerprint, measured_start
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
 __all__ = [
@@ -660,7 +660,7 @@ class Model:
         """
         data.require(self.controls, role="control")
         if x0 is None:
-            x0 = {s: float(data.channels[s][0]) for s in self.states if s in data}
+            x0 = measured_start(data, self.states)
         return self.simulate(data.time, data, x0, parameters, **options)
 
 

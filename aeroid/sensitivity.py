@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData
+from .data import FlightData, measured_start
 from .errors import (
     ChannelError,
     IdentifiabilityWarning,
@@ -524,7 +524,7 @@ def sensitivities(
     data.require(controls, role="control")
     u = data.array(list(controls))[None] if controls else np.zeros((1, data.n_samples, 0))
     if x0 is None and isinstance(model, Model):
-        x0 = {s: float(data.channels[s][0]) for s in model.states if s in data}
+        x0 = measured_start(data, model.states)
     theta = np.array([vals[n] for n in names])
     steps = _fd_steps(theta, rel)
     y0, sens, ok = _fd_sensitivities(
