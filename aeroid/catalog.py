@@ -16,6 +16,7 @@ __all__ = [
     "SHORT_PERIOD_TRUTH",
     "doublet",
     "first_order",
+    "frequency_sweep",
     "multisine",
     "short_period",
     "short_period_flight",
@@ -92,6 +93,28 @@ def multisine(
     phases = -np.pi * k * (k - 1) / f.size
     t = np.asarray(time, dtype=np.float64)
     return amplitude * np.sin(2 * np.pi * f[None, :] * t[:, None] + phases[None, :]).sum(axis=1)
+
+
+def frequency_sweep(
+    time: NDArray[np.float64],
+    *,
+    start: float,
+    f0: float,
+    f1: float,
+    amplitude: float,
+) -> NDArray[np.float64]:
+    """A linear frequency sweep from `f0` to `f1` Hz between `start` and the end of `time`.
+
+    ``amplitude * sin(2π (f0 τ + (f1 - f0) τ² / 2T))`` with ``τ = t - start``
+    over the ``T`` seconds left; zero before `start`.
+    """
+    t = np.asarray(time, dtype=np.float64)
+    span = float(t[-1]) - start
+    if not span > 0:
+        raise ValueError(f"frequency_sweep: start {start} s is not before the end {t[-1]} s")
+    tau = np.clip(t - start, 0.0, None)
+    phase = 2.0 * np.pi * (f0 * tau + (f1 - f0) * tau**2 / (2.0 * span))
+    return np.where(t >= start, amplitude * np.sin(phase), 0.0)
 
 
 def short_period_flight(

@@ -88,6 +88,9 @@ class SimulatedFlights(Options):
     sample_rate: float = Field(50.0, gt=0)
     noise: dict[str, float] | None = None
     colored: float = Field(0.0, ge=0.0, lt=1.0)
+    # "doublet_sweep": the doublet, then from 4 s a 0.2-3 Hz frequency sweep of the same
+    # amplitude to the end of the record (for frequency-domain checks)
+    maneuver: Literal["doublet", "doublet_sweep"] = "doublet"
 
 
 class SimulatedSource(Options):

@@ -6,7 +6,10 @@ with flight condition as in the usual quasi-steady model: ``Z_alpha`` and
 ``M_q`` with airspeed, ``M_alpha`` and ``M_delta`` with dynamic pressure
 (reference: the library's truth values at 90 m/s). Each flight's noise
 stream is ``SeedSequence(seed, spawn_key=(i,))``, so flights do not depend
-on how many others are generated.
+on how many others are generated. The elevator flies a ±0.05 rad doublet
+from 1 s (``maneuver: doublet``), or that doublet and then, from 4 s to the
+end, a 0.2-3 Hz linear sweep of the same amplitude (``doublet_sweep``), which
+gives the frequency-domain checks coherent data across the band.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ __all__ = ["GENERATOR_VERSION", "flight_spec", "fly"]
 GENERATOR_VERSION = "1"
 _V_REF = 90.0
 _RHO = 1.0  # kg/m^3, about 2 km altitude
+_SWEEP_START = 4.0  # s: after the doublet (1-3 s) has settled
 
 
 def _truth(airspeed: float) -> dict[str, float]:
@@ -47,7 +51,7 @@ def flight_spec(spec: Mapping[str, Any], index: int) -> dict[str, Any]:
     n = int(spec["n_flights"])
     v = lo if n == 1 else lo + (hi - lo) * index / (n - 1)
     noise = spec.get("noise")
-    return {
+    out: dict[str, Any] = {
         "generator": str(spec.get("generator", "short_period_campaign")),
         "generator_version": GENERATOR_VERSION,
         "index": int(index),
@@ -58,11 +62,15 @@ def flight_spec(spec: Mapping[str, Any], index: int) -> dict[str, Any]:
         "noise": None if noise is None else {k: float(x) for k, x in dict(noise).items()},
         "colored": float(spec.get("colored", 0.0)),
     }
+    maneuver = str(spec.get("maneuver", "doublet"))
+    if maneuver != "doublet":  # named only when not the original doublet: its keys stay
+        out["maneuver"] = maneuver
+    return out
 
 
 def fly(flight: Mapping[str, Any]) -> FlightData:
     """Fly one simulated flight from its `flight_spec` (noise seeded per flight index)."""
-    from ..catalog import short_period_flight
+    from ..catalog import doublet, frequency_sweep, short_period_flight
 
     if flight.get("generator_version") != GENERATOR_VERSION:
         raise ValueError(
@@ -74,13 +82,26 @@ def fly(flight: Mapping[str, Any]) -> FlightData:
     ss = np.random.SeedSequence(int(flight["seed"]), spawn_key=(int(flight["index"]),))
     seed = int(ss.generate_state(1, dtype=np.uint64)[0])
     noise = flight.get("noise")
+    duration, rate = float(flight["duration"]), float(flight["sample_rate"])
+    elevator = None
+    maneuver = flight.get("maneuver", "doublet")
+    if maneuver == "doublet_sweep":
+        t = np.arange(round(duration * rate) + 1) / rate
+        elevator = np.where(
+            t < _SWEEP_START,
+            doublet(t),
+            frequency_sweep(t, start=_SWEEP_START, f0=0.2, f1=3.0, amplitude=0.05),
+        )
+    elif maneuver != "doublet":
+        raise ValueError(f"simulated flight manoeuvre {maneuver!r} is not known")
     data = short_period_flight(
         parameters=truth,
-        duration=float(flight["duration"]),
-        sample_rate=float(flight["sample_rate"]),
+        duration=duration,
+        sample_rate=rate,
         noise=None if noise is None else dict(noise),
         seed=seed,
         colored=float(flight["colored"]),
+        elevator=elevator,
     )
     meta = {
         "source": f"simulated {flight['generator']} #{flight['index']}",
