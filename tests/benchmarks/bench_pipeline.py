@@ -13,7 +13,9 @@ one process and once in each of two processes at the same time, and the
 campaign's own library calls (fly, identify, validate, propagate, report for
 every flight; no keys, store, Dask or figures) run in one process vs split
 over two. On a shared or virtual machine two "cores" often give well under
-2x; the pipeline's speed-up is reported against both. While the library's identify /
+2x; the pipeline's speed-up is reported against both. A 2-worker run is also
+timed from inside: what runs before the first flight starts and after the
+last one ends cannot be shared, which bounds the speed-up (Amdahl). While the library's identify /
 validate / propagate / report are not available, a CPU-bound stand-in stage
 replaces them (reported as such).
 """
@@ -29,6 +31,7 @@ import tempfile
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import aeroid
 from aeroid.pipeline import run
@@ -92,6 +95,37 @@ def cold(cfg: Path, workers: int, tag: str) -> tuple[float, float]:
     if s.failed:
         raise SystemExit(f"benchmark run failed: {s.to_json()['tasks']}")
     return wall, s.seconds["compute"]
+
+
+def serial_time(cfg: Path, workers: int = 2) -> tuple[float, float, float]:
+    """One cold run with `workers` processes: (wall, before the first flight starts, after
+    the last flight ends), from wall-clock stamps the chains take in the workers.
+
+    Only what runs between the first flight's start and the last flight's end can be
+    shared by the workers; the rest (starting the cluster, the campaign figures that need
+    every flight, closing) bounds the speed-up as in Amdahl's law.
+    """
+    from aeroid.pipeline import runner
+
+    original = runner.execute_chain
+
+    def stamped(tasks: list[Any], *args: Any, **kwargs: Any) -> list[dict[str, Any]]:
+        start = time.time()
+        out = original(tasks, *args, **kwargs)
+        out[0]["bench_span"] = (start, time.time(), tasks[0].flight is not None)
+        return out
+
+    runner.execute_chain = stamped  # forked or pickled by value, the workers run it too
+    try:
+        store = Path(tempfile.mkdtemp(prefix="bench-serial-")) / "store"
+        t0 = time.time()
+        summary = run(cfg, store=store, workers=workers)
+        t1 = time.time()
+    finally:
+        runner.execute_chain = original
+    spans = [s["bench_span"] for s in summary.statuses.values() if "bench_span" in s]
+    flights = [(a, b) for a, b, per_flight in spans if per_flight]
+    return t1 - t0, min(a for a, _ in flights) - t0, t1 - max(b for _, b in flights)
 
 
 def _burn(n: int) -> float:
@@ -223,6 +257,15 @@ def main() -> None:
             f"(per repeat {', '.join(f'{x:.2f}' for x in lib)})"
         )
         print(f"speed-up / library ceiling: {speedup / statistics.median(lib):5.2f}")
+    if CHAIN:
+        parts = [serial_time(cfg) for _ in range(3)]
+        wall, head, tail = (statistics.median(x) for x in zip(*parts, strict=True))
+        bound = t1 / (head + tail + (t1 - head - tail) / 2)
+        print(
+            f"serial, 2 workers       : {head + tail:7.2f} s of {wall:.2f} s "
+            f"(before the first flight {head:.2f} s, after the last {tail:.2f} s)"
+        )
+        print(f"  bound on 2 vs 1       : {bound:7.2f} x   (the rest of the 1-worker run halved)")
     print(f"cold, in-process        : {t0:7.2f} s (library time {c0:.2f} s)")
     print(f"overhead keys+store, in-process   : {100 * (t0 - c0) / t0:5.1f} %  (target <= 10)")
     print(f"overhead keys+store+dask, 1 worker: {100 * (t1 - c1) / t1:5.1f} %")
