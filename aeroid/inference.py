@@ -891,7 +891,7 @@ def infer_ensemble(
     EnsembleRun
     """
     ensemble = _check_count("ensemble", ensemble, 0)
-    if x0 is None and not isinstance(initial, InferenceResult):
+    if x0 is None:  # None unless `initial` is a fit of this record
         x0 = fitted_start(initial, data)[0]
     post = _Posterior(
         model,
@@ -1051,7 +1051,7 @@ def infer(
                 f"n_ensembles: the stored result holds {len(initial.chain)} ensemble(s), "
                 f"got {n_ensembles}"
             )
-    if x0 is None and not isinstance(initial, InferenceResult):
+    if x0 is None:  # None unless `initial` is a fit of this record
         x0 = fitted_start(initial, data)[0]
     post = _Posterior(
         model,
