@@ -69,9 +69,12 @@ STAND_IN = textwrap.dedent(
 )
 
 
-def campaign(tmp: Path, n: int, duration: float = 10.0) -> Path:
+def campaign(tmp: Path, n: int, duration: float = 20.0, maneuver: str = "doublet_sweep") -> Path:
     cfg = tmp / "bench.yaml"
-    flights = f"flights: [{{simulated: {{n_flights: {n}, seed: 3, duration: {duration}}}}}]\n"
+    flights = (
+        f"flights: [{{simulated: {{n_flights: {n}, seed: 3, duration: {duration}, "
+        f"maneuver: {maneuver}}}}}]\n"
+    )
     if CHAIN:
         cfg.write_text(
             f"model: short_period\n{flights}"
@@ -150,14 +153,16 @@ def ceiling(pool: multiprocessing.pool.Pool, n: int = 6_000_000) -> float:
     return serial / (time.perf_counter() - t)
 
 
-def _library_flights(indices: list[int], duration: float = 10.0) -> float:
+def _library_flights(
+    indices: list[int], duration: float = 20.0, maneuver: str = "doublet_sweep"
+) -> float:
     """The campaign's per-flight library calls, as the pipeline's stages make them."""
     from aeroid import catalog
     from aeroid.pipeline.stages import natural_frequency
     from aeroid.pipeline.synthetic import flight_spec, fly
 
     model = catalog.short_period()
-    spec = {"n_flights": 24, "seed": 3, "duration": duration}
+    spec = {"n_flights": 24, "seed": 3, "duration": duration, "maneuver": maneuver}
     t = time.perf_counter()
     for i in indices:
         data = fly(flight_spec(spec, i))
@@ -168,13 +173,18 @@ def _library_flights(indices: list[int], duration: float = 10.0) -> float:
     return time.perf_counter() - t
 
 
-def library_ceiling(pool: multiprocessing.pool.Pool, n: int, duration: float) -> float:
+def library_ceiling(
+    pool: multiprocessing.pool.Pool, n: int, duration: float, maneuver: str
+) -> float:
     """The library work of `n` flights in one process vs split over two at once."""
     t = time.perf_counter()
-    pool.apply(_library_flights, (list(range(n)), duration))
+    pool.apply(_library_flights, (list(range(n)), duration, maneuver))
     serial = time.perf_counter() - t
     t = time.perf_counter()
-    halves = [(list(range(0, n, 2)), duration), (list(range(1, n, 2)), duration)]
+    halves = [
+        (list(range(0, n, 2)), duration, maneuver),
+        (list(range(1, n, 2)), duration, maneuver),
+    ]
     pool.starmap(_library_flights, halves, chunksize=1)
     return serial / (time.perf_counter() - t)
 
@@ -200,8 +210,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--flights", type=int, default=24)
     ap.add_argument("--repeats", type=int, default=5)
-    # 10 s doublets at 50 Hz, as in the demo; real flight-test records are often longer
-    ap.add_argument("--duration", type=float, default=10.0, help="record length, s")
+    # the demo's flights: 20 s at 50 Hz, a doublet and then a 0.2-3 Hz sweep
+    ap.add_argument("--duration", type=float, default=20.0, help="record length, s")
+    ap.add_argument("--maneuver", choices=("doublet", "doublet_sweep"), default="doublet_sweep")
     ap.add_argument("--no-demo", action="store_true", help="skip the demo rerun figure")
     ap.add_argument(
         "--demo-cold",
@@ -210,10 +221,10 @@ def main() -> None:
     )
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
-    cfg = campaign(tmp, args.flights, args.duration)
+    cfg = campaign(tmp, args.flights, args.duration, args.maneuver)
     what = "load->identify->validate->propagate->report" if CHAIN else "STAND-IN load->fit->report"
     print(
-        f"{args.flights}-flight campaign of {args.duration:g} s records, {what}, "
+        f"{args.flights}-flight campaign of {args.duration:g} s {args.maneuver} records, {what}, "
         f"{args.repeats} repeats"
     )
 
@@ -228,7 +239,7 @@ def main() -> None:
         for _ in range(args.repeats):  # interleaved, so drifts in machine load hit all
             ceil.append(ceiling(pool))
             if CHAIN:
-                lib.append(library_ceiling(pool, args.flights, args.duration))
+                lib.append(library_ceiling(pool, args.flights, args.duration, args.maneuver))
             w1.append(cold(cfg, 1, "w1"))
             w2.append(cold(cfg, 2, "w2"))
             w0.append(cold(cfg, 0, "w0"))
