@@ -388,6 +388,17 @@ def fit_output_error(
     jacobians: list[FloatArray] = first_jac
     fixed_r = None if weights is None else np.asarray(weights, dtype=np.float64)
     cost = _ml_cost(residuals, fixed_r, floor)
+    if not np.isfinite(cost):
+        # Squares of values near 1e155 and beyond overflow float64: no step can be judged.
+        with np.errstate(over="ignore", invalid="ignore"):
+            mean_sq = np.mean(np.concatenate(residuals, axis=0) ** 2, axis=0)
+        overflow = [o for o, v in zip(outputs, mean_sq, strict=True) if not np.isfinite(v)]
+        peak = float(np.max(np.abs(all_meas)))
+        raise IdentificationError(
+            f"the fit cost is not finite at the initial parameters (cost {cost}): the "
+            f"squared residuals of outputs {overflow or outputs} overflow (measured values up "
+            f"to {peak:.3g}); check the data's units and scale"
+        )
     success = False
     message = f"iteration limit ({max_iterations}) reached before convergence"
     lam = 0.0

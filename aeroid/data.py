@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import math
+import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,49 @@ def _first_bad(values: FloatArray) -> int:
     return int(np.flatnonzero(~np.isfinite(values))[0])
 
 
+def plain(value: Any) -> str:
+    """`value` for an error message: numpy scalars as plain numbers (0.45, not np.float64(0.45))."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return repr(value)
+
+
+def _seconds(values: NDArray[Any]) -> FloatArray:
+    """Datetimes as float seconds since the first sample, durations as float seconds.
+
+    Epoch nanoseconds (about 1.7e18) lose sub-microsecond resolution in
+    float64, so datetimes count from the first sample; a duration already
+    counts from a reference the user chose and is kept. NaT becomes NaN, which
+    the finite checks then report by index.
+    """
+    if values.dtype.kind == "M" and values.size:
+        values = values - values[0]
+    return np.asarray(values / np.timedelta64(1, "s"), dtype=np.float64)
+
+
+def _numeric(values: Any, what: str, failure: str) -> FloatArray:
+    """`values` as a read-only float64 copy, or a `DataFormatError` naming `what`.
+
+    Complex samples are refused: casting them would silently drop the
+    imaginary part. Datetimes and durations become seconds (see `_seconds`).
+    """
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{what}: {failure} ({exc})") from None
+    if arr.dtype.kind == "c":
+        raise DataFormatError(
+            f"{what}: complex values are not supported; pass the real part or the "
+            "magnitude explicitly (np.real, np.abs)"
+        )
+    if arr.dtype.kind in "mM":
+        arr = _seconds(arr)
+    try:
+        return _readonly(arr)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{what}: {failure} ({exc})") from None
+
+
 @dataclass(frozen=True, eq=False)
 class FlightData:
     """An immutable, name-indexed set of time series sampled on one time axis.
@@ -39,9 +83,11 @@ class FlightData:
     Parameters
     ----------
     time : array_like
-        Sample times in seconds, finite and strictly increasing.
+        Sample times in seconds, finite and strictly increasing. Datetimes
+        (``datetime64``) become seconds since the first sample, durations
+        (``timedelta64``) seconds.
     channels : mapping of str to array_like
-        Channel name to samples, each the same length as `time`.
+        Channel name to real samples, each the same length as `time`.
     units : mapping of str to str, optional
         Unit label per channel (informational; AeroID is unit-agnostic).
     metadata : mapping of str to Any, optional
@@ -51,7 +97,8 @@ class FlightData:
     ------
     DataFormatError
         If time is not strictly increasing and finite, a channel has a different
-        length, or a channel holds NaN or infinite values.
+        length, holds NaN, infinite or complex values, or `units` or `metadata`
+        is not a mapping.
     """
 
     time: FloatArray
@@ -60,10 +107,7 @@ class FlightData:
     metadata: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        try:
-            time = _readonly(self.time)
-        except (TypeError, ValueError) as exc:
-            raise DataFormatError(f"time: cannot convert to float array ({exc})") from None
+        time = _numeric(self.time, "time", "cannot convert to float array")
         if time.ndim != 1 or time.size < 2:
             raise DataFormatError(
                 f"time: expected a 1-D array of at least 2 samples, got shape {time.shape}"
@@ -75,7 +119,7 @@ class FlightData:
             bad = int(np.flatnonzero(steps <= 0)[0]) + 1
             raise DataFormatError(
                 f"time: not strictly increasing at index {bad} "
-                f"(t[{bad - 1}]={time[bad - 1]!r}, t[{bad}]={time[bad]!r})"
+                f"(t[{bad - 1}]={plain(time[bad - 1])}, t[{bad}]={plain(time[bad])})"
             )
         if not isinstance(self.channels, Mapping):
             raise DataFormatError("channels: expected a mapping of channel name to samples")
@@ -83,10 +127,7 @@ class FlightData:
         for name, values in self.channels.items():
             if not isinstance(name, str) or not name:
                 raise DataFormatError(f"channel name {name!r}: expected a non-empty string")
-            try:
-                arr = _readonly(values)
-            except (TypeError, ValueError) as exc:
-                raise DataFormatError(f"channel {name!r}: not numeric ({exc})") from None
+            arr = _numeric(values, f"channel {name!r}", "not numeric")
             if arr.shape != time.shape:
                 raise DataFormatError(
                     f"channel {name!r}: length {arr.shape} does not match time {time.shape}"
@@ -96,14 +137,20 @@ class FlightData:
                     f"channel {name!r}: non-finite value at index {_first_bad(arr)}"
                 )
             chans[name] = arr
-        units = {str(k): str(v) for k, v in dict(self.units).items()}
+        # None reads as "none given", as for the other optional arguments.
+        for label, value in (("units", self.units), ("metadata", self.metadata)):
+            if value is not None and not isinstance(value, Mapping):
+                raise DataFormatError(
+                    f"{label}: expected a mapping (dict), got {type(value).__name__}"
+                )
+        units = {str(k): str(v) for k, v in dict(self.units or {}).items()}
         unknown = sorted(set(units) - set(chans))
         if unknown:
             raise DataFormatError(f"units given for unknown channels {unknown}")
         object.__setattr__(self, "time", time)
         object.__setattr__(self, "channels", MappingProxyType(chans))
         object.__setattr__(self, "units", MappingProxyType(units))
-        object.__setattr__(self, "metadata", MappingProxyType(dict(self.metadata)))
+        object.__setattr__(self, "metadata", MappingProxyType(dict(self.metadata or {})))
 
     # -- access -----------------------------------------------------------------
     @property
@@ -168,7 +215,7 @@ class FlightData:
     def window(self, t0: float, t1: float) -> FlightData:
         """Return the samples with ``t0 <= time <= t1`` as new flight data."""
         if not t1 > t0:
-            raise DataFormatError(f"window: need t1 > t0, got t0={t0!r}, t1={t1!r}")
+            raise DataFormatError(f"window: need t1 > t0, got t0={plain(t0)}, t1={plain(t1)}")
         mask = (self.time >= t0) & (self.time <= t1)
         if int(mask.sum()) < 2:
             raise DataFormatError(
@@ -298,6 +345,8 @@ def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
         table = pq.read_table(path)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
+    import pyarrow as pa
+
     columns: dict[str, FloatArray] = {}
     for name in table.column_names:
         col = table.column(name)
@@ -305,13 +354,22 @@ def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
             first = int(np.flatnonzero(np.asarray(col.is_null()))[0])
             raise DataFormatError(f"{path}: row {first}, column {name!r}: null value")
         try:
-            columns[name] = np.asarray(col.to_numpy(), dtype=np.float64)
-        except (TypeError, ValueError):
+            if pa.types.is_time(col.type):
+                # time of day: its integer count in the type's unit, as a duration
+                ticks = col.cast(pa.int64() if pa.types.is_time64(col.type) else pa.int32())
+                raw = np.asarray(ticks.to_numpy()).astype(f"timedelta64[{col.type.unit}]")
+            else:
+                raw = np.asarray(col.to_numpy())
+            if raw.dtype.kind in "mM":  # timestamps, dates and durations in seconds
+                columns[name] = _seconds(raw)
+            else:
+                columns[name] = np.asarray(raw, dtype=np.float64)
+        except (TypeError, ValueError, pa.ArrowException):
             raise DataFormatError(f"{path}: column {name!r} is not numeric ({col.type})") from None
     return list(table.column_names), columns
 
 
-def _read_mat(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
+def _read_mat(path: Path) -> tuple[list[str], dict[str, NDArray[Any]]]:
     import scipy.io
 
     try:
@@ -320,20 +378,23 @@ def _read_mat(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
         raise DataFormatError(
             f"{path}: not a readable MATLAB file ({exc}); v7.3 (HDF5) files are not supported"
         ) from None
-    columns: dict[str, FloatArray] = {}
+    columns: dict[str, NDArray[Any]] = {}
     for name, value in raw.items():
         if name.startswith("__"):
             continue
         arr = np.asarray(value)
-        if arr.dtype.kind not in "fiub":
+        if arr.dtype.kind not in "fiubc":
             continue  # structs, strings and cell arrays are not channels
+        # Complex vectors stay complex so that load_flight_test can refuse them by
+        # name if they are asked for (casting would drop the imaginary part).
+        dtype = np.complex128 if arr.dtype.kind == "c" else np.float64
         if arr.ndim == 1 and arr.size >= 2:
-            columns[name] = arr.astype(np.float64)
+            columns[name] = arr.astype(dtype)
         elif arr.ndim == 2 and min(arr.shape) > 1:
             # A matrix of channels: one column each, named name_0, name_1, ...
             mat = arr if arr.shape[0] >= arr.shape[1] else arr.T
             for j in range(mat.shape[1]):
-                columns[f"{name}_{j}"] = mat[:, j].astype(np.float64)
+                columns[f"{name}_{j}"] = mat[:, j].astype(dtype)
     if not columns:
         raise DataFormatError(f"{path}: no numeric vectors found")
     return list(columns), columns
@@ -360,7 +421,8 @@ def load_flight_test(
         Column holding time in seconds. Default: the first of ``time``, ``t``,
         ``Time`` ... that is present.
     channels : sequence of str or mapping of str to str, optional
-        Columns to keep. A mapping renames ``{column: channel_name}``.
+        Columns to keep. A mapping renames ``{column: channel_name}``; two
+        columns renamed to the same channel name are an error.
         Default: every column but time.
     units : mapping of str to str, optional
         Unit label per (renamed) channel.
@@ -372,14 +434,32 @@ def load_flight_test(
     Raises
     ------
     DataFormatError
-        Unreadable or malformed file, naming the file and the row or column.
+        A path that is not an existing file, an unreadable or malformed file
+        (naming the file and the row or column), a complex-valued column, or
+        two columns renamed to one channel name.
     ChannelError
         A requested column (or the time column) is missing.
+
+    Notes
+    -----
+    A Parquet timestamp or date column becomes seconds since its first
+    sample; a duration or time-of-day column becomes seconds.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataFormatError(
+            f"path: expected a file path (str or Path), got {type(path).__name__}"
+        )
     p = Path(path)
-    if not p.is_file():
+    if os.fspath(path) == "":
+        raise DataFormatError("path: empty file name")
+    if p.is_dir():
+        raise DataFormatError(f"{p}: is a directory, not a data file")
+    if not p.exists():
         raise DataFormatError(f"{p}: no such file")
+    if not p.is_file():
+        raise DataFormatError(f"{p}: not a regular file")
     suffix = p.suffix.lower()
+    columns: Mapping[str, NDArray[Any]]
     if suffix in (".csv", ".txt", ".dat"):
         header, columns = _read_csv(p)
     elif suffix in (".parquet", ".pq"):
@@ -395,11 +475,29 @@ def load_flight_test(
         mapping = {h: h for h in header if h != tname}
     elif isinstance(channels, Mapping):
         mapping = {str(k): str(v) for k, v in channels.items()}
+        # Keeping one of two columns renamed alike would silently drop the other.
+        sources: dict[str, list[str]] = {}
+        for col, name in mapping.items():
+            sources.setdefault(name, []).append(col)
+        clash = {name: cols for name, cols in sources.items() if len(cols) > 1}
+        if clash:
+            name, cols = next(iter(clash.items()))
+            raise DataFormatError(
+                f"{p}: channels: columns {cols} are all renamed to {name!r}; "
+                "give each column its own channel name"
+            )
     else:
-        mapping = {str(c): str(c) for c in channels}
+        names = [channels] if isinstance(channels, str) else channels
+        mapping = {str(c): str(c) for c in names}
     for col in mapping:
         if col not in columns:
             raise ChannelError(f"{p}: column {col!r} not found; columns: {list(header)}")
+    for col in (tname, *mapping):
+        if columns[col].dtype.kind == "c":
+            raise DataFormatError(
+                f"{p}: column {col!r} holds complex values, which are not supported; "
+                "store the real part or the magnitude"
+            )
     time = columns[tname]
     chans: dict[str, Any] = {}
     for col, name in mapping.items():

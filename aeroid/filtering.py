@@ -29,9 +29,9 @@ from numpy.typing import NDArray
 
 from . import _integrate
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData, measured_start
+from .data import FlightData, measured_start, plain
 from .errors import AeroidError, ChannelError, FilterError
-from .model import Model, fitted_start, resolve_parameters
+from .model import Model, SimulatorModel, fitted_start, resolve_parameters
 
 __all__ = ["FilterResult", "filter_states"]
 
@@ -295,12 +295,34 @@ def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
     if isinstance(model, Model):
         return model
     kind = type(model).__name__
+    if not isinstance(model, SimulatorModel):
+        raise error(
+            f"model: {what} needs an aeroid.Model with a continuous dynamics callable "
+            f"f(t, x, u, p), got {kind}"
+        )
     raise error(
         f"{what} needs a Model with a continuous dynamics callable f(t, x, u, p); got {kind}, "
         "which has none (a stepped simulator such as JSBSim or RocketPy cannot be linearised "
         "between samples). Use output-error identification (identify(method='output_error')) "
         "for such models, or wrap the dynamics in aeroid.Model."
     )
+
+
+def _check_symmetric(
+    arr: FloatArray, names: Sequence[str], what: str, error: type[AeroidError]
+) -> None:
+    """Refuse a matrix whose asymmetry is beyond rounding (relative to its largest entry)."""
+    with np.errstate(invalid="ignore"):
+        asym = np.abs(arr - arr.T)
+    if not np.all(np.isfinite(asym)):
+        return  # NaN and infinity are reported by the caller's finiteness check
+    scale = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if float(np.max(asym, initial=0.0)) > 1e-10 * scale:
+        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
+        raise error(
+            f"{what}: the matrix must be symmetric, but [{i}, {j}] = {plain(arr[i, j])} and "
+            f"[{j}, {i}] = {plain(arr[j, i])} (order {list(names)})"
+        )
 
 
 def noise_matrix(
@@ -331,21 +353,24 @@ def noise_matrix(
                 try:
                     diag[i] = float(value[k])
                 except (TypeError, ValueError):
-                    raise error(f"{what}[{k!r}]: expected a number, got {value[k]!r}") from None
+                    raise error(
+                        f"{what}[{k!r}]: expected a number, got {plain(value[k])}"
+                    ) from None
         mat = np.diag(diag)
     else:
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
             raise error(
-                f"{what}: expected a dict, a 1-D array or a matrix, got {value!r}"
+                f"{what}: expected a dict, a 1-D array or a matrix, got {plain(value)}"
             ) from None
         if arr.ndim == 0 and n == 1:
             arr = arr.reshape(1)
         if arr.shape == (n,):
             mat = np.diag(arr)
         elif arr.shape == (n, n):
-            mat = 0.5 * (arr + arr.T)
+            _check_symmetric(arr, names, what, error)
+            mat = 0.5 * (arr + arr.T)  # removes rounding-level asymmetry only
         else:
             raise error(
                 f"{what}: expected {n} values or a {n}x{n} matrix (order {list(names)}), "
@@ -356,9 +381,11 @@ def noise_matrix(
     eig = np.linalg.eigvalsh(mat) if n else np.zeros(0)
     scale = float(np.max(np.abs(eig))) if n else 0.0
     if n and eig.min() < -1e-12 * max(scale, 1e-300):
-        raise error(
-            f"{what}: must be non-negative (positive semi-definite); got {np.diag(mat).tolist()}"
-        )
+        if np.any(np.diag(mat) < 0):
+            got = f"got {np.diag(mat).tolist()}"
+        else:
+            got = f"its smallest eigenvalue is {float(eig.min()):.6g} (order {list(names)})"
+        raise error(f"{what}: must be non-negative (positive semi-definite); {got}")
     if positive and n and eig.min() <= 0:
         raise error(
             f"{what}: every variance must be positive (a measurement needs some noise); "
@@ -447,7 +474,7 @@ def build_problem(
     if method == "ukf" and m.n_states + kappa <= 0:
         raise error(f"ukf_kappa: n_states + kappa must be positive, got {m.n_states} + {kappa}")
     if substeps is not None and (int(substeps) != substeps or substeps < 1):
-        raise error(f"substeps: expected a positive integer, got {substeps!r}")
+        raise error(f"substeps: expected a positive integer, got {plain(substeps)}")
     xv = _x0_vector(m, data, x0, error)
     if P0 is None:
         P0m = _default_P0(m, out_names, R)
@@ -1114,10 +1141,11 @@ def filter_states(
     process_noise : mapping, array_like or None
         Continuous power spectral density of the process noise on each state
         (state² per second): a dict by state name (missing states get none),
-        a 1-D array of intensities, or an (n_states, n_states) matrix.
+        a 1-D array of intensities, or a symmetric positive semi-definite
+        (n_states, n_states) matrix.
     measurement_noise : mapping or array_like
         Measurement-noise variances, one per filtered output: a dict by output
-        name, a 1-D array, or a covariance matrix.
+        name, a 1-D array, or a symmetric positive definite covariance matrix.
     method : {"ekf", "ukf"}
         Extended Kalman filter (Joseph-form updates) or unscented Kalman
         filter with scaled sigma points.

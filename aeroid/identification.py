@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -10,8 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData, fingerprint, measured_start
-from .errors import IdentificationError
+from .data import FlightData, fingerprint, measured_start, plain
+from .errors import AeroidError, IdentificationError
 
 __all__ = ["IdentificationResult", "identify"]
 
@@ -204,7 +205,7 @@ def _names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str
                 initial[n] = float(v)
             except (TypeError, ValueError):
                 raise IdentificationError(
-                    f"parameters: initial guess of {n!r} is not a number: {v!r}"
+                    f"parameters: initial guess of {n!r} is not a number: {plain(v)}"
                 ) from None
     else:
         try:
@@ -231,16 +232,121 @@ def _names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str
     return names, initial
 
 
-def _select(option: Any, available: Sequence[str], what: str) -> list[str]:
+def _select(option: Any, available: Sequence[str], what: str, *, strict: bool = True) -> list[str]:
     if option is False or option is None:
         return []
     if option is True:
         return list(available)
-    chosen = [option] if isinstance(option, str) else list(option)
+    try:
+        chosen = [option] if isinstance(option, str) else list(option)
+    except TypeError:
+        raise IdentificationError(
+            f"{what}: expected True, False or a list of names, got {plain(option)}"
+        ) from None
     for c in chosen:
-        if c not in available:
+        if c not in available and strict:
             raise IdentificationError(f"{what}: {c!r} is not one of {list(available)}")
-    return chosen
+    return [c for c in chosen if c in available]
+
+
+def _positive_int(value: Any, name: str, error: type[AeroidError]) -> int:
+    """`value` as an int >= 1 (integral floats such as 50.0 accepted), else `error`."""
+    try:
+        n = int(value)
+        ok = not isinstance(value, bool) and n == value and n >= 1
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise error(f"{name} must be a positive integer, got {plain(value)}")
+    return n
+
+
+def _x0_values(xi: Any, states: list[str]) -> dict[str, float]:
+    """One manoeuvre's given initial state (mapping or array) by state name."""
+    if isinstance(xi, Mapping):
+        unknown = sorted(set(xi) - set(states))
+        if unknown:
+            raise IdentificationError(f"x0: unknown states {unknown}; states: {states}")
+        out = {}
+        for s, v in xi.items():
+            try:
+                out[s] = float(v)
+            except (TypeError, ValueError):
+                raise IdentificationError(f"x0[{s!r}]: expected a number, got {plain(v)}") from None
+    else:
+        try:
+            arr = np.asarray(xi, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise IdentificationError(
+                f"x0: expected a mapping of state -> value or {len(states)} numbers for "
+                f"states {states}, got {plain(xi)}"
+            ) from None
+        if arr.size != len(states):
+            raise IdentificationError(
+                f"x0: expected {len(states)} values for states {states}, got {arr.size}"
+            )
+        out = dict(zip(states, arr.tolist(), strict=True))
+    bad = [s for s, v in out.items() if not np.isfinite(v)]
+    if bad:
+        raise IdentificationError(f"x0: the initial value of {bad} is not finite")
+    return out
+
+
+def _weight_variances(weights: Any, outputs: list[str]) -> FloatArray:
+    """Fixed noise variances per fitted output from `weights` (see `identify`)."""
+    n = len(outputs)
+    if isinstance(weights, Mapping):
+        unknown = sorted(set(weights) - set(outputs))
+        if unknown:
+            raise IdentificationError(
+                f"weights: unknown outputs {unknown}; fitted outputs: {outputs}"
+            )
+        w = np.empty(n)
+        for k, o in enumerate(outputs):
+            try:
+                w[k] = float(weights.get(o, 1.0))
+            except (TypeError, ValueError):
+                raise IdentificationError(
+                    f"weights[{o!r}]: expected a number, got {plain(weights[o])}"
+                ) from None
+        if np.any(w <= 0) or not np.all(np.isfinite(w)):
+            raise IdentificationError("weights: every weight must be positive and finite")
+        return 1.0 / w
+    r: FloatArray | None
+    try:
+        r = np.asarray(weights, dtype=np.float64)
+    except (TypeError, ValueError):
+        r = None
+    if r is None or r.shape != (n, n):
+        shape = f"shape {r.shape}" if r is not None else plain(weights)
+        raise IdentificationError(
+            f"weights: expected a mapping of output -> weight or a ({n}, {n}) noise "
+            f"covariance, got {shape}"
+        )
+    if not np.all(np.isfinite(r)):
+        raise IdentificationError("weights: the noise covariance holds NaN or infinite values")
+    scale = float(np.max(np.abs(r)))
+    asym = np.abs(r - r.T)
+    if float(np.max(asym)) > 1e-10 * scale:
+        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
+        raise IdentificationError(
+            f"weights: the noise covariance must be symmetric, but [{i}, {j}] = "
+            f"{plain(r[i, j])} and [{j}, {i}] = {plain(r[j, i])} (order {outputs})"
+        )
+    low = float(np.linalg.eigvalsh(0.5 * (r + r.T))[0])
+    if not low > 1e-12 * scale:
+        # A zero variance would be an infinite weight: the fit needs positive definite.
+        raise IdentificationError(
+            f"weights: the noise covariance must be positive definite; its smallest "
+            f"eigenvalue is {low:.6g} (order {outputs})"
+        )
+    if np.any(r != np.diag(np.diag(r))):
+        # Only variances enter the fit; dropping correlations silently would mislead.
+        raise IdentificationError(
+            "weights: correlated measurement noise is not supported; give a diagonal noise "
+            f"covariance (order {outputs}) or a mapping of output -> weight"
+        )
+    return np.diag(r).copy()
 
 
 def identify(
@@ -292,15 +398,16 @@ def identify(
     estimate_bias : bool or sequence of str
         Estimate a constant measurement bias on these outputs, per manoeuvre.
     weights : mapping of str to float or ndarray, optional
-        Fixed output weights (inverse noise variances) or a diagonal noise
-        covariance. Default: the noise covariance is estimated from the
+        Fixed output weights (inverse noise variances, positive) or a diagonal,
+        positive definite noise covariance (correlated noise is refused, not
+        dropped). Default: the noise covariance is estimated from the
         residuals at every iteration (maximum likelihood).
     error_bars : {"colored", "white"}
         Standard errors corrected for coloured residuals from their
         autocorrelation (default), or the classical Cramér–Rao values.
     max_iterations : int
-        Gauss–Newton iteration limit; hitting it returns a result flagged
-        ``success=False`` with a warning.
+        Gauss–Newton iteration limit (a positive integer); hitting it returns
+        a result flagged ``success=False`` with a warning.
     tolerance : float
         Convergence threshold on the relative parameter step.
     simulate_options : mapping, optional
@@ -317,8 +424,10 @@ def identify(
     Raises
     ------
     IdentificationError
-        Bad arguments, incompatible options, or a model that cannot be
-        simulated at the initial guess.
+        Bad arguments, incompatible options, no more measurements (samples
+        times outputs, over all records) than unknowns (parameters, estimated
+        initial states, biases and noise intensities), or a model that cannot
+        be simulated, or a cost that is not finite, at the initial guess.
     ChannelError
         A control or output the fit needs is missing from the data.
 
@@ -327,10 +436,12 @@ def identify(
     IdentifiabilityWarning
         When the data cannot separate some parameters (the result is flagged).
     UserWarning
-        When the iteration limit is reached.
+        When the iteration limit is reached, or the fit ends with a non-finite
+        cost or estimates; the result is flagged ``success=False``.
     """
-    from .model import SimulatorModel
+    from .model import SimulatorModel, require_model
 
+    require_model(model, IdentificationError)
     if method not in _METHODS:
         raise IdentificationError(f"method {method!r} is unknown; choose one of {list(_METHODS)}")
     if gradient not in _GRADIENTS:
@@ -341,10 +452,13 @@ def identify(
         raise IdentificationError(
             f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
         )
-    if int(max_iterations) < 1:
-        raise IdentificationError(f"max_iterations must be at least 1, got {max_iterations!r}")
-    if not (tolerance > 0):
-        raise IdentificationError(f"tolerance must be positive, got {tolerance!r}")
+    max_iterations = _positive_int(max_iterations, "max_iterations", IdentificationError)
+    try:
+        tol = float(tolerance)
+    except (TypeError, ValueError):
+        tol = float("nan")
+    if not (tol > 0):
+        raise IdentificationError(f"tolerance must be positive, got {plain(tolerance)}")
     datas = _as_list(data)
     names, initial = _names_and_initial(model, parameters)
     is_simulator = not hasattr(model, "simulate_batch") and isinstance(model, SimulatorModel)
@@ -370,18 +484,8 @@ def identify(
     for d, xi in zip(datas, x0_list, strict=True):
         if xi is None:
             x0_dicts.append(measured_start(d, states))
-        elif isinstance(xi, Mapping):
-            unknown = sorted(set(xi) - set(states))
-            if unknown:
-                raise IdentificationError(f"x0: unknown states {unknown}; states: {states}")
-            x0_dicts.append({s: float(v) for s, v in xi.items()})
         else:
-            arr = np.asarray(xi, dtype=np.float64).ravel()
-            if arr.size != len(states):
-                raise IdentificationError(
-                    f"x0: expected {len(states)} values for states {states}, got {arr.size}"
-                )
-            x0_dicts.append(dict(zip(states, arr.tolist(), strict=True)))
+            x0_dicts.append(_x0_values(xi, states))
     if method == "filter_error":
         if weights is not None:
             raise IdentificationError(
@@ -404,6 +508,19 @@ def identify(
                 "filter error needs process_noise (continuous PSD per state) or "
                 "estimate_process_noise=True"
             )
+        # Unknown names are reported by the filter-error code; count the valid ones.
+        noise_states = _select(
+            estimate_process_noise, states, "estimate_process_noise", strict=False
+        )
+        _check_data_count(
+            datas,
+            fit_outputs,
+            {
+                "parameters": len(names),
+                "process-noise intensities": len(noise_states),
+                "measurement-noise variances": len(fit_outputs) if measurement_noise is None else 0,
+            },
+        )
         from ._filter_error import identify_filter_error
 
         fitted = identify_filter_error(
@@ -417,10 +534,10 @@ def identify(
             filter_options=filter_options,
             estimate_process_noise=estimate_process_noise,
             x0=x0_dicts if x0 is not None else None,
-            max_iterations=int(max_iterations),
-            tolerance=float(tolerance),
+            max_iterations=max_iterations,
+            tolerance=tol,
         )
-        return replace(fitted, data_fingerprints=tuple(fingerprint(d) for d in datas))
+        return _finish(fitted, datas)
     if (
         process_noise is not None
         or measurement_noise is not None
@@ -450,28 +567,16 @@ def identify(
     if sel_x0 and (is_simulator or gradient == "jax"):
         raise IdentificationError("estimate_x0 needs a Model and gradient='fd'")
     sel_bias = _select(estimate_bias, fit_outputs, "estimate_bias")
-    w_arr = None
-    if weights is not None:
-        if isinstance(weights, Mapping):
-            unknown = sorted(set(weights) - set(fit_outputs))
-            if unknown:
-                raise IdentificationError(
-                    f"weights: unknown outputs {unknown}; fitted outputs: {fit_outputs}"
-                )
-            w = np.array([float(weights.get(o, 1.0)) for o in fit_outputs])
-            if np.any(w <= 0) or not np.all(np.isfinite(w)):
-                raise IdentificationError("weights: every weight must be positive and finite")
-            w_arr = 1.0 / w
-        else:
-            r = np.asarray(weights, dtype=np.float64)
-            if r.shape != (len(fit_outputs), len(fit_outputs)):
-                raise IdentificationError(
-                    f"weights: expected a mapping or a ({len(fit_outputs)}, {len(fit_outputs)}) "
-                    f"noise covariance, got shape {r.shape}"
-                )
-            w_arr = np.diag(r).copy()
-            if np.any(w_arr <= 0):
-                raise IdentificationError("weights: noise covariance diagonal must be positive")
+    w_arr = None if weights is None else _weight_variances(weights, fit_outputs)
+    _check_data_count(
+        datas,
+        fit_outputs,
+        {
+            "parameters": len(names),
+            "initial states": len(sel_x0) * len(datas),
+            "biases": len(sel_bias) * len(datas),
+        },
+    )
     fitted = fit_output_error(
         model,
         datas,
@@ -483,9 +588,43 @@ def identify(
         estimate_bias=sel_bias,
         weights=w_arr,
         error_bars=error_bars,
-        max_iterations=int(max_iterations),
-        tolerance=float(tolerance),
+        max_iterations=max_iterations,
+        tolerance=tol,
         simulate_options=opts,
         gradient=gradient,
     )
+    return _finish(fitted, datas)
+
+
+def _check_data_count(
+    datas: list[FlightData], outputs: list[str], unknowns: dict[str, int]
+) -> None:
+    """Refuse a fit with no more measurements than unknowns (it would fit the noise exactly)."""
+    n_samples = sum(d.n_samples for d in datas)
+    n_meas = n_samples * len(outputs)
+    n_unknown = sum(unknowns.values())
+    if n_meas <= n_unknown:
+        parts = " + ".join(f"{what} {n}" for what, n in unknowns.items() if n)
+        raise IdentificationError(
+            f"data: too few measurements to identify {n_unknown} unknowns ({parts}): "
+            f"{n_samples} samples x {len(outputs)} outputs = {n_meas}; need more "
+            "measurements than unknowns (a longer record, more outputs or fewer parameters)"
+        )
+
+
+def _finish(fitted: IdentificationResult, datas: list[FlightData]) -> IdentificationResult:
+    """Stamp the records' fingerprints; a fit that ended non-finite has not succeeded."""
+    estimates = [fitted.cost, *fitted.parameters.values()]
+    for group in (*fitted.initial_states, *fitted.biases):
+        estimates.extend(group.values())
+    bad = not np.all(np.isfinite(estimates))
+    if bad and fitted.success:
+        message = (
+            f"the fit ended with a non-finite cost or estimates (cost {fitted.cost:.6g}); "
+            "check the data's scale and units"
+        )
+        warnings.warn(
+            f"identify: {message}; the result is flagged success=False", UserWarning, stacklevel=3
+        )
+        fitted = replace(fitted, success=False, message=message)
     return replace(fitted, data_fingerprints=tuple(fingerprint(d) for d in datas))

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
 from ._records import ReadOnlyDict, fmt, markdown_table
-from .data import FlightData, _readonly, fingerprint, measured_start
+from .data import FlightData, _readonly, fingerprint, measured_start, plain
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
 __all__ = [
@@ -35,7 +35,9 @@ def _names(value: Sequence[str] | str, what: str) -> tuple[str, ...]:
     try:
         names = tuple(value)
     except TypeError:
-        raise ModelDefinitionError(f"{what}: expected a sequence of names, got {value!r}") from None
+        raise ModelDefinitionError(
+            f"{what}: expected a sequence of names, got {plain(value)}"
+        ) from None
     for n in names:
         if not isinstance(n, str) or not n:
             raise ModelDefinitionError(f"{what}: every name must be a non-empty string, got {n!r}")
@@ -80,7 +82,7 @@ def resolve_parameters(
         try:
             v = float(value)
         except (TypeError, ValueError):
-            raise error(f"parameter {name!r}: expected a number, got {value!r}") from None
+            raise error(f"parameter {name!r}: expected a number, got {plain(value)}") from None
         if not np.isfinite(v):
             raise error(f"parameter {name!r}: value {v!r} is not finite")
         out[name] = v
@@ -321,10 +323,12 @@ class Model:
                 params[k] = float(v)
             except (TypeError, ValueError):
                 raise ModelDefinitionError(
-                    f"parameter {k!r}: nominal value {v!r} is not a number"
+                    f"parameter {k!r}: nominal value {plain(v)} is not a number"
                 ) from None
             if not np.isfinite(params[k]):
-                raise ModelDefinitionError(f"parameter {k!r}: nominal value {v!r} is not finite")
+                raise ModelDefinitionError(
+                    f"parameter {k!r}: nominal value {plain(v)} is not finite"
+                )
         if not callable(self.dynamics):
             raise ModelDefinitionError("dynamics: expected a callable f(t, x, u, p)")
         if self.measurement is not None and not callable(self.measurement):
@@ -662,6 +666,14 @@ class Model:
         if x0 is None:
             x0 = measured_start(data, self.states)
         return self.simulate(data.time, data, x0, parameters, **options)
+
+
+def require_model(model: Any, error: type[AeroidError]) -> None:
+    """Raise `error` unless `model` is a `Model` or has the `SimulatorModel` interface."""
+    if not isinstance(model, (Model, SimulatorModel)):
+        raise error(
+            f"model: expected an aeroid.Model or a SimulatorModel, got {type(model).__name__}"
+        )
 
 
 def check_time(time: Any) -> FloatArray:

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
+from .data import plain
 from .errors import AeroidError
 
 __all__ = [
@@ -184,7 +185,7 @@ def _count(value: Any, name: str, lo: int) -> int:
         ok = False
     if not ok:
         what = "a positive" if lo == 1 else "a non-negative"
-        raise PropagationError(f"{name} must be {what} integer, got {value!r}")
+        raise PropagationError(f"{name} must be {what} integer, got {plain(value)}")
     return n
 
 
@@ -192,7 +193,7 @@ def _check_seed(seed: Any) -> int:
     if seed is None:
         return int(np.random.SeedSequence().generate_state(1)[0])
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise PropagationError(f"seed must be a non-negative integer or None, got {seed!r}")
+        raise PropagationError(f"seed must be a non-negative integer or None, got {plain(seed)}")
     return int(seed)
 
 
@@ -259,9 +260,20 @@ def propagate_batch(
 
 
 def _percentiles(percentiles: Sequence[float]) -> list[float]:
-    pcts = [float(p) for p in percentiles]
+    # A string is iterable: "50" would read as the percentiles 5 and 0.
+    if isinstance(percentiles, (str, bytes)):
+        raise PropagationError(
+            f"percentiles must be a list of numbers in [0, 100], got the string {percentiles!r}"
+        )
+    try:
+        pcts = [float(p) for p in percentiles]
+    except (TypeError, ValueError):
+        raise PropagationError(
+            f"percentiles must be a list of numbers in [0, 100], got {plain(percentiles)}"
+        ) from None
     if any(not 0.0 <= p <= 100.0 for p in pcts):
-        raise PropagationError(f"percentiles must lie in [0, 100], got {list(percentiles)}")
+        shown = ", ".join(f"{p:g}" for p in pcts)
+        raise PropagationError(f"percentiles must lie in [0, 100], got [{shown}]")
     return pcts
 
 

@@ -12,9 +12,10 @@ import scipy.stats
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
-from .data import FlightData
+from .data import FlightData, plain
 from .errors import IdentificationError
-from .model import fitted_start, resolve_parameters
+from .identification import _positive_int
+from .model import fitted_start, require_model, resolve_parameters
 
 __all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
 
@@ -182,7 +183,7 @@ def validate(
     outputs: Sequence[str] | None = None,
     x0: Any = None,
     confidence: float = 0.95,
-    whiteness_lags: int = 20,
+    whiteness_lags: int | None = None,
     simulate_options: Mapping[str, Any] | None = None,
 ) -> ValidationResult:
     """Compare the model's simulation with measured outputs.
@@ -203,8 +204,10 @@ def validate(
         else the measured states at t0.
     confidence : float
         Confidence level of the bias interval.
-    whiteness_lags : int
-        Lags of the Ljung–Box test and of the residual–input correlation.
+    whiteness_lags : int, optional
+        Lags of the Ljung–Box test and of the residual–input correlation,
+        fewer than the record's samples (at most N - 2 are used). Default 20,
+        or N - 2 for a shorter record.
     simulate_options : mapping, optional
         Passed to the simulation; default ``{"method": "auto"}`` for a `Model`,
         the integrator `identify` uses.
@@ -212,13 +215,32 @@ def validate(
     Returns
     -------
     ValidationResult
+
+    Raises
+    ------
+    IdentificationError
+        Bad arguments, such as `whiteness_lags` not below the number of samples.
+    ChannelError
+        A control or output is missing from the data.
     """
-    if not 0.0 < confidence < 1.0:
-        raise IdentificationError(f"confidence must lie in (0, 1), got {confidence!r}")
-    if int(whiteness_lags) < 1:
-        raise IdentificationError(
-            f"whiteness_lags must be a positive integer, got {whiteness_lags!r}"
-        )
+    require_model(model, IdentificationError)
+    if not isinstance(data, FlightData):
+        raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
+    try:
+        level = float(confidence)
+    except (TypeError, ValueError):
+        level = float("nan")
+    if not 0.0 < level < 1.0:
+        raise IdentificationError(f"confidence must lie in (0, 1), got {plain(confidence)}")
+    n = data.n_samples
+    if whiteness_lags is None:
+        whiteness_lags = 20
+    else:
+        whiteness_lags = _positive_int(whiteness_lags, "whiteness_lags", IdentificationError)
+        if whiteness_lags >= n:
+            raise IdentificationError(
+                f"whiteness_lags must be fewer than the record's {n} samples, got {whiteness_lags}"
+            )
     p = resolve_parameters(model, parameters, error=IdentificationError)
     names = list(model.outputs)
     chosen = [o for o in names if o in data] if outputs is None else list(outputs)
@@ -239,12 +261,11 @@ def validate(
     y_model = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
     y_meas = data.array(chosen)
     resid = y_meas - y_model
-    n = data.n_samples
     lags = int(min(whiteness_lags, n - 2))
     # The maximum over 2L+1 lags is tested, so the 5 % level is split across them
     # (Bonferroni); a per-lag 1.96/sqrt(N) would flag a correct model most of the time.
     bound = float(scipy.stats.norm.ppf(1 - 0.025 / (2 * lags + 1))) / np.sqrt(n)
-    z = float(scipy.stats.norm.ppf(0.5 + confidence / 2))
+    z = float(scipy.stats.norm.ppf(0.5 + level / 2))
     metrics: dict[str, OutputMetrics] = {}
     for j, o in enumerate(chosen):
         e = resid[:, j]
@@ -276,6 +297,6 @@ def validate(
         simulated=y_model,
         residuals=resid,
         output_names=tuple(chosen),
-        confidence=float(confidence),
+        confidence=level,
         whiteness_lags=lags,
     )

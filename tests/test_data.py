@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -138,3 +140,91 @@ def test_parquet_and_mat(tmp_path):
     (tmp_path / "broken.mat").write_bytes(b"garbage")
     with pytest.raises(DataFormatError, match=r"broken\.mat"):
         load_flight_test(tmp_path / "broken.mat")
+
+
+def test_time_axis_error_prints_plain_numbers():
+    with pytest.raises(DataFormatError, match=r"index 2 \(t\[1\]=0\.45, t\[2\]=0\.45\)$"):
+        FlightData(np.array([0.0, 0.45, 0.45]), {"a": [0.0, 1.0, 2.0]})
+    with pytest.raises(DataFormatError, match=r"got t0=3\.0, t1=1\.0$"):
+        _data().window(np.float64(3.0), np.float64(1.0))
+
+
+def test_complex_channel_is_refused_not_truncated():
+    t = np.linspace(0.0, 1.0, 5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way to the error
+        with pytest.raises(DataFormatError, match="channel 'alpha': complex values"):
+            FlightData(t, {"alpha": t + 1j, "q": t})
+        with pytest.raises(DataFormatError, match="time: complex values"):
+            FlightData(t + 0j, {"q": t})
+
+
+def test_complex_mat_variable_is_refused_by_name(tmp_path):
+    t = np.linspace(0.0, 1.0, 6)
+    scipy.io.savemat(tmp_path / "c.mat", {"t": t, "alpha": t + 1j * t, "q": np.cos(t)})
+    with pytest.raises(DataFormatError, match=r"c\.mat: column 'alpha' holds complex values"):
+        load_flight_test(tmp_path / "c.mat")
+    # a complex variable nobody asked for is no obstacle
+    assert load_flight_test(tmp_path / "c.mat", channels=["q"]).names == ("q",)
+
+
+@pytest.mark.parametrize("what", ["units", "metadata"])
+@pytest.mark.parametrize("value", [5, ["rad"]])
+def test_units_and_metadata_must_be_mappings(what, value):
+    t = np.linspace(0.0, 1.0, 3)
+    with pytest.raises(DataFormatError, match=f"{what}: expected a mapping"):
+        FlightData(t, {"a": t}, **{what: value})
+
+
+def test_units_and_metadata_may_be_none():
+    t = np.linspace(0.0, 1.0, 3)
+    d = FlightData(t, {"a": t}, None, None)
+    assert dict(d.units) == {} and dict(d.metadata) == {}
+
+
+def test_loader_path_errors_name_the_path(tmp_path):
+    with pytest.raises(DataFormatError, match="path: expected a file path"):
+        load_flight_test(None)  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match=r"path: expected a file path .* got int"):
+        load_flight_test(5)  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match=f"{tmp_path.name}: is a directory"):
+        load_flight_test(tmp_path)
+    (tmp_path / "d.csv").mkdir()
+    with pytest.raises(DataFormatError, match=r"d\.csv: is a directory"):
+        load_flight_test(tmp_path / "d.csv")
+    with pytest.raises(DataFormatError, match=r"missing\.csv: no such file"):
+        load_flight_test(str(tmp_path / "missing.csv"))
+
+
+def test_two_columns_renamed_alike_are_refused(tmp_path):
+    path = tmp_path / "f.csv"
+    path.write_text("time,alpha,q\n0,1,2\n0.1,1.1,2.1\n")
+    with pytest.raises(DataFormatError, match=r"columns \['alpha', 'q'\] are all renamed to 'x'"):
+        load_flight_test(path, channels={"alpha": "x", "q": "x"})
+    # a single name is one column, not its letters
+    assert load_flight_test(path, channels="alpha").names == ("alpha",)
+
+
+def test_parquet_time_types_become_seconds(tmp_path):
+    ns = np.array([0, 50_000_000, 100_000_000], dtype=np.int64)
+    epoch = 1_700_000_000 * 10**9  # a real date: seconds count from the first sample
+    columns = {
+        "stamp": pa.array(ns + epoch, pa.timestamp("ns")),
+        "stamp_utc": pa.array(ns + epoch, pa.timestamp("ns", tz="UTC")),
+        "elapsed": pa.array([2000, 2050, 2100], pa.duration("ms")),
+        "clock": pa.array([3_600_000_000, 3_600_050_000, 3_600_100_000], pa.time64("us")),
+    }
+    for name, col in columns.items():
+        pq.write_table(pa.table({name: col, "alpha": [1.0, 2.0, 3.0]}), tmp_path / "f.parquet")
+        d = load_flight_test(tmp_path / "f.parquet", time_column=name)
+        expected = {"elapsed": [2.0, 2.05, 2.1], "clock": [3600.0, 3600.05, 3600.1]}
+        np.testing.assert_allclose(d.time, expected.get(name, [0.0, 0.05, 0.1]), rtol=1e-12)
+        assert d.names == ("alpha",)
+
+
+def test_datetime_time_axis_becomes_seconds_since_first_sample():
+    t = np.array(["2024-05-01T12:00:00", "2024-05-01T12:00:01"], dtype="datetime64[ns]")
+    d = FlightData(t, {"a": [0.0, 1.0]})
+    np.testing.assert_array_equal(d.time, [0.0, 1.0])
+    d = FlightData(np.array([10, 20], dtype="timedelta64[ms]"), {"a": [0.0, 1.0]})
+    np.testing.assert_array_equal(d.time, [0.01, 0.02])

@@ -427,3 +427,29 @@ def test_cholesky_jitter_then_failure():
     with pytest.raises(_Failure) as info:
         _chol(np.array([[[1.0, 0.0], [0.0, -1.0]]]), 7, "test", stats)
     assert info.value.k == 7
+
+
+def test_noise_matrices_must_be_symmetric_positive_semidefinite(sp_noisy):
+    model = catalog.short_period()
+    with pytest.raises(
+        FilterError, match=r"process_noise: the matrix must be symmetric, but \[0, 1\] = 2"
+    ):
+        filter_states(model, sp_noisy, process_noise=[[1, 2], [0, 1]], measurement_noise=NOISE)
+    with pytest.raises(
+        FilterError, match=r"process_noise: must be non-negative .* smallest eigenvalue is -1"
+    ):
+        filter_states(model, sp_noisy, process_noise=[[1, 2], [2, 1]], measurement_noise=NOISE)
+    with pytest.raises(FilterError, match=r"measurement_noise: the matrix must be symmetric"):
+        filter_states(
+            model, sp_noisy, process_noise=None, measurement_noise=[[1e-4, 1e-5], [0.0, 1e-4]]
+        )
+    # asymmetry at rounding level, relative to the matrix's scale, is no error
+    q = np.array([[1e-8, 3e-9], [3e-9 * (1 + 1e-14), 2e-8]])
+    res = filter_states(model, sp_noisy, process_noise=q, measurement_noise=NOISE, smooth=False)
+    np.testing.assert_array_equal(res.process_noise, 0.5 * (q + q.T))
+
+
+@pytest.mark.parametrize("model", [None, "short_period"])
+def test_a_model_is_required(sp_noisy, model):
+    with pytest.raises(FilterError, match=r"model: .*continuous dynamics.* got (NoneType|str)"):
+        filter_states(model, sp_noisy, process_noise=None, measurement_noise=NOISE)

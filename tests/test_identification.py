@@ -341,3 +341,85 @@ def test_functions_given_a_fit_start_its_records_where_it_did(sp_model):
         mine = {s: float(other[s][0]) for s in ("alpha", "q")}
         for got, want in zip(runs(other), runs(other, x0=mine), strict=True):
             np.testing.assert_array_equal(got, want)
+
+
+def _first(data, n):
+    return FlightData(data.time[:n], {k: v[:n] for k, v in data.channels.items()})
+
+
+def test_fewer_measurements_than_unknowns_is_refused(sp_model, sp_noisy):
+    # 2 samples x 2 outputs cannot determine 4 parameters (the fit used to "succeed")
+    with pytest.raises(
+        IdentificationError, match=r"4 unknowns \(parameters 4\): 2 samples x 2 outputs = 4"
+    ):
+        identify(sp_model, _first(sp_noisy, 2), NAMES)
+    with pytest.raises(
+        IdentificationError, match=r"6 unknowns \(parameters 4 \+ biases 2\): 3 samples"
+    ):
+        identify(sp_model, _first(sp_noisy, 3), NAMES, estimate_bias=True)
+    # two records of two samples: enough for 4 parameters, not with their initial states
+    with pytest.raises(IdentificationError, match=r"initial states 4\): 4 samples x 2"):
+        identify(sp_model, [_first(sp_noisy, 2)] * 2, NAMES, estimate_x0=True)
+    with pytest.raises(
+        IdentificationError,
+        match=r"parameters 1 \+ process-noise intensities 2 \+ measurement-noise variances 2",
+    ):
+        identify(
+            sp_model,
+            _first(sp_noisy, 2),
+            ["M_q"],
+            method="filter_error",
+            estimate_process_noise=True,
+        )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert identify(sp_model, _first(sp_noisy, 3), NAMES).parameter_names == tuple(NAMES)
+
+
+def test_overflowing_data_is_an_error_not_a_success(sp_model, sp_noisy):
+    huge = FlightData(sp_noisy.time, {k: v * 0 + 1e300 for k, v in sp_noisy.channels.items()})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numpy's own overflow warnings
+        with pytest.raises(IdentificationError, match=r"not finite .* outputs \['alpha', 'q'\]"):
+            identify(sp_model, huge, NAMES)
+
+
+def test_a_non_finite_end_of_fit_is_flagged(sp_model, sp_noisy):
+    from dataclasses import replace
+
+    from aeroid.identification import _finish
+
+    fit = identify(sp_model, sp_noisy, NAMES)
+    broken = replace(fit, parameters={**fit.parameters, "M_q": float("nan")})
+    with pytest.warns(UserWarning, match="non-finite"):
+        out = _finish(broken, [sp_noisy])
+    assert not out.success and "non-finite" in out.message
+    assert _finish(fit, [sp_noisy]).success
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"weights": "x"}, r"weights: expected a mapping .* got 'x'"),
+        ({"weights": {"alpha": "x"}}, r"weights\['alpha'\]: expected a number, got 'x'"),
+        ({"weights": [[1.0, 2.0], [2.0, 1.0]]}, r"positive definite; .* eigenvalue is -1"),
+        ({"weights": [[1.0, 2.0], [0.0, 1.0]]}, r"symmetric, but \[0, 1\] = 2\.0"),
+        ({"weights": [[1.0, 0.1], [0.1, 1.0]]}, "correlated measurement noise"),
+        ({"x0": "abc"}, r"x0: expected a mapping .* got 'abc'"),
+        ({"x0": {"alpha": "abc"}}, r"x0\['alpha'\]: expected a number"),
+        ({"x0": {"alpha": float("nan")}}, r"x0: the initial value of \['alpha'\] is not finite"),
+        ({"max_iterations": 2.5}, r"max_iterations must be a positive integer, got 2\.5$"),
+        ({"max_iterations": "5"}, "max_iterations must be a positive integer"),
+        ({"tolerance": "x"}, "tolerance must be positive"),
+        ({"estimate_bias": 3}, "estimate_bias: expected True, False or a list"),
+    ],
+)
+def test_wrong_argument_types_name_the_argument(sp_model, sp_noisy, kwargs, fragment):
+    with pytest.raises(IdentificationError, match=fragment):
+        identify(sp_model, sp_noisy, NAMES, **kwargs)
+
+
+@pytest.mark.parametrize("model", [None, "short_period", {"parameters": {}}])
+def test_a_model_is_required(sp_noisy, model):
+    with pytest.raises(IdentificationError, match=r"model: expected an aeroid\.Model"):
+        identify(model, sp_noisy, NAMES)

@@ -164,3 +164,27 @@ def test_combining_refuses_gaps_overlaps_and_other_propagations():
     assert propagate(r, lambda p: p["a"], n_samples=2e3, seed=1).n_samples == 2000
     with pytest.raises(PropagationError, match="n_samples"):
         propagate(r, lambda p: p["a"], n_samples=2.5, seed=1)
+
+
+@pytest.mark.parametrize(
+    ("percentiles", "fragment"),
+    [
+        ("50", r"got the string '50'"),
+        (50, "list of numbers in \\[0, 100\\], got 50"),
+        (["a"], "list of numbers"),
+        ([150], r"lie in \[0, 100\], got \[150\]"),
+        ([-1.0, 50.0], r"got \[-1, 50\]"),
+    ],
+)
+def test_percentiles_must_be_numbers_in_0_100(percentiles, fragment):
+    with pytest.raises(PropagationError, match=fragment):
+        propagate(_result(), lambda p: 1.0, n_samples=10, percentiles=percentiles, seed=0)
+    with pytest.raises(PropagationError, match=fragment):
+        combine_batches([], percentiles=percentiles)
+
+
+def test_messages_print_numpy_numbers_plainly():
+    with pytest.raises(PropagationError, match=r"got 2\.5$"):
+        propagate(_result(), lambda p: 1.0, n_samples=np.float64(2.5), seed=0)
+    with pytest.raises(PropagationError, match=r"got -1$"):
+        propagate(_result(), lambda p: 1.0, n_samples=10, seed=np.int64(-1))

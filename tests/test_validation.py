@@ -143,3 +143,27 @@ def test_validation_starts_where_the_fit_did_on_its_own_record_only():
     old = dataclasses.replace(fit, data_fingerprints=())
     shifted = wrong.simulated + np.array([bias["alpha"], bias["q"]])
     np.testing.assert_array_equal(validate(model, other, old).simulated, shifted)
+
+
+def test_whiteness_lags_must_be_an_integer_below_the_sample_count(sp_model):
+    data = catalog.short_period_flight(duration=5.0, sample_rate=20.0, seed=0)  # 101 samples
+    with pytest.raises(
+        IdentificationError,
+        match="whiteness_lags must be fewer than the record's 101 samples, got 10000",
+    ):
+        validate(sp_model, data, None, whiteness_lags=10000)
+    with pytest.raises(
+        IdentificationError, match=r"whiteness_lags must be a positive integer, got 2\.5"
+    ):
+        validate(sp_model, data, None, whiteness_lags=2.5)
+    assert validate(sp_model, data, None, whiteness_lags=100).whiteness_lags == 99
+    # the default adapts to a short record instead of failing on it
+    short = FlightData(data.time[:12], {k: v[:12] for k, v in data.channels.items()})
+    assert validate(sp_model, short, None).whiteness_lags == 10
+    assert validate(sp_model, data, None).whiteness_lags == 20
+
+
+@pytest.mark.parametrize("model", [None, "short_period"])
+def test_a_model_is_required(sp_noisy, model):
+    with pytest.raises(IdentificationError, match=r"model: expected an aeroid\.Model"):
+        validate(model, sp_noisy, None)
