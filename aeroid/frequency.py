@@ -14,6 +14,13 @@ mismatch measures the model, not the estimator. For linear time-invariant
 models ``model_response="exact"`` gives ``C (jωI - A)^-1 B + D`` from the
 model's own matrices instead; `FrequencyResponseResult.model_response`
 records which was used.
+
+A frequency counts in the comparison ("coherent") only where the data show a
+response to the input: its coherence beats both the requested threshold and
+the level noise alone would reach by chance with the record's number of
+averages, and the input's spectral density there is at least a twentieth of
+its peak. The mismatch is the coherence-weighted mean relative error over
+those frequencies.
 """
 
 from __future__ import annotations
@@ -42,6 +49,22 @@ _MODEL_RESPONSES = ("simulated", "exact")
 # An input whose spectral density is 60 dB below its own peak does not excite the
 # system at that frequency: coherence there reflects leakage and transients only.
 _EXCITATION_FLOOR = 1e-6
+# A frequency counts only if (a) its coherence beats chance: with n_d independent
+# averages, noise alone reaches γ² = c with probability about (1 - c)^(n_d - 1). With
+# the six averages of a 10 s record at 50 Hz noise passes 0.6 at 1.2 % of frequencies,
+# somewhere in half of all 63-frequency channels, and on the standard doublet flight
+# such frequencies gave the true model a mismatch of 2.4, 2.5 and 0.9 (seeds 0-2).
+# So the threshold is raised until noise passes it anywhere in a channel with at
+# most this chance:
+_FALSE_COHERENCE_LEVEL = 0.01
+# and (b) the input drives it: from a few averages the coherence also reads a weak
+# response high (the same flight, seed 0: the doublet's third side lobe at 3.5 Hz,
+# 17 dB below the input's peak, beats chance and is off by 1.4), while the measured
+# input's spectrum shows where it puts its energy. A twentieth of the peak (13 dB
+# down) spans a sweep's or multisine's band and a doublet's main lobe and first side
+# lobe (10.6 dB down) and drops its second (15.1 dB down). Each rule misses what the
+# other catches: (a) that side lobe, (b) noise where the input is strong.
+_EXCITED_FRACTION = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,7 +86,9 @@ class ChannelFrequencyResponse:
     model_magnitude, model_phase : ndarray, shape (n_f,)
         The model's gain and wrapped phase at the same frequencies.
     coherent : ndarray of bool, shape (n_f,)
-        Frequencies with γ² at or above the threshold.
+        Frequencies that count: γ² at or above the result's
+        ``coherence_threshold`` and the input's spectral density at least a
+        twentieth of its peak.
     mismatch : float
         Coherence-weighted mean relative error ``Σ γ² |Ĥ − H| / |H| / Σ γ²``
         over the coherent frequencies (NaN when none is coherent).
@@ -125,12 +150,17 @@ class FrequencyResponseResult:
     nperseg : int
         Welch segment length (samples); resolution ``sample_rate / nperseg``.
     coherence_threshold : float
+        The γ² a frequency needed: the requested threshold, raised where
+        needed to the level that noise alone exceeds at any of a channel's
+        frequencies with 1 % chance given `n_averages`.
     frequency_range : tuple of float
         The analysed band (Hz).
     model_response : str
         ``"simulated"`` (Welch estimate from the model's outputs simulated on
         the measured inputs) or ``"exact"`` (analytic, linear time-invariant model).
     model_name : str
+    n_averages : float
+        Independent averages equivalent to the overlapping Welch segments.
     """
 
     channels: tuple[ChannelFrequencyResponse, ...]
@@ -142,6 +172,7 @@ class FrequencyResponseResult:
     frequency_range: tuple[float, float]
     model_response: str
     model_name: str = ""
+    n_averages: float = float("nan")
 
     def channel(self, input: str, output: str) -> ChannelFrequencyResponse:
         """The response from control `input` to output `output`."""
@@ -196,7 +227,10 @@ class FrequencyResponseResult:
                 f"Welch estimate, {self.nperseg}-sample segments "
                 f"({fmt(self.sample_rate / self.nperseg, 3)} Hz resolution) over "
                 f"{fmt(lo, 3)}–{fmt(hi, 3)} Hz; coherent means γ² ≥ "
-                f"{fmt(self.coherence_threshold, 3)}. Model response: {how}. Mismatch is the "
+                f"{fmt(self.coherence_threshold, 3)} (at least the requested threshold and "
+                f"above chance for {fmt(self.n_averages, 3)} independent averages) with the "
+                f"input's spectral density at least 1/{round(1 / _EXCITED_FRACTION)} of its "
+                f"peak. Model response: {how}. Mismatch is the "
                 "coherence-weighted mean relative error of the transfer function.",
             ]
         )
@@ -221,13 +255,19 @@ def _spectral_matrix(signals: FloatArray, fs: float, nperseg: int) -> tuple[Floa
 
 def _empirical(
     inputs: FloatArray, outputs: FloatArray, fs: float, nperseg: int
-) -> tuple[FloatArray, ComplexArray, FloatArray]:
-    """Frequencies, H (n_f, n_u, n_y) and (partial) coherence (n_f, n_u, n_y)."""
+) -> tuple[FloatArray, ComplexArray, FloatArray, FloatArray]:
+    """Frequencies, H (n_f, n_u, n_y), (partial) coherence (n_f, n_u, n_y) and excitation.
+
+    The excitation (n_f, n_u) is each input's spectral density relative to its peak.
+    """
     n_u = inputs.shape[0]
     f, s = _spectral_matrix(np.vstack([inputs, outputs]), fs, nperseg)
     suu = s[:, :n_u, :n_u]
     puu = np.real(np.diagonal(suu, axis1=1, axis2=2))  # (n_f, n_u)
-    excited = puu >= _EXCITATION_FLOOR * np.max(puu, axis=0, initial=0.0)
+    peak = np.max(puu, axis=0, initial=0.0)
+    with np.errstate(all="ignore"):
+        excitation = np.where(peak > 0, puu / peak, 0.0)
+    excited = puu >= _EXCITATION_FLOOR * peak
     suy = s[:, :n_u, n_u:]
     syy = np.real(np.diagonal(s[:, n_u:, n_u:], axis1=1, axis2=2))  # (n_f, n_y)
     with np.errstate(all="ignore"):
@@ -247,8 +287,8 @@ def _empirical(
                 gyy = np.real(g[:, n_u, n_u])
                 coh[:, :, k] = np.abs(giy) ** 2 / (gii * gyy[:, None])
     coh = np.clip(np.nan_to_num(coh, nan=0.0, posinf=0.0, neginf=0.0), 0.0, 1.0)
-    coh = np.where(excited[:, :, None] & (np.max(puu, axis=0) > 0)[None, :, None], coh, 0.0)
-    return f, h, coh
+    coh = np.where(excited[:, :, None] & (peak > 0)[None, :, None], coh, 0.0)
+    return f, h, coh, excitation
 
 
 def _affine_measurement(
@@ -300,6 +340,45 @@ def _exact_response(
     return np.transpose(h, (0, 2, 1))
 
 
+def _independent_averages(n: int, nperseg: int) -> float:
+    """Independent averages equivalent to the overlapping Welch segments of a record.
+
+    K Hann segments overlapping by half average like
+    ``K / (1 + 2 Σ_j (1 - j/K) ρ_j²)`` independent ones, ``ρ_j`` the window's
+    overlap correlation at a shift of j segments (Welch 1967): 5.7 for the six
+    segments of a 10 s record at 50 Hz.
+    """
+    step = nperseg - nperseg // 2
+    k = (n - nperseg) // step + 1
+    w = scipy.signal.get_window("hann", nperseg)
+    shifts = np.arange(1, k) * step
+    shifts = shifts[shifts < nperseg]
+    rho = np.array([np.dot(w[: nperseg - d], w[d:]) for d in shifts]) / np.dot(w, w)
+    lag = np.arange(1, shifts.size + 1)
+    return float(k / (1.0 + 2.0 * np.sum((1.0 - lag / k) * rho**2)))
+
+
+def _chance_coherence(n_averages: float, n_inputs: int, n_frequencies: int) -> float:
+    """γ² that noise alone exceeds at any of `n_frequencies` with probability 1 %.
+
+    With zero true coherence the estimate from ``n_d`` averages exceeds ``c``
+    with probability ``(1 - c)^(n_d - 1)``, and a partial coherence given
+    ``n_u - 1`` other inputs with ``(1 - c)^(n_d - n_u)`` (Carter, Knapp &
+    Nuttall 1973; Bendat & Piersol, Random Data, ch. 9); a Bonferroni split of
+    the level over the frequencies keeps the chance for the whole channel. The
+    Welch estimate's tail lies between those for the segment count and for
+    `n_averages` (its overlap discount), so the level errs on the safe side.
+    Returns 1 when there are too few averages for any coherence to beat chance,
+    0 when there is no frequency to guard.
+    """
+    dof = n_averages - n_inputs
+    if n_frequencies < 1:
+        return 0.0
+    if dof <= 0.0:
+        return 1.0
+    return float(1.0 - (_FALSE_COHERENCE_LEVEL / n_frequencies) ** (1.0 / dof))
+
+
 def _default_nperseg(n: int) -> int:
     # About 20 averages (12 segments with 50 % overlap) keep the random error of |H|
     # near 3 % where γ² = 0.95 (Bendat & Piersol: sqrt(1 - γ²) / (|γ| sqrt(2 n_d)));
@@ -343,7 +422,11 @@ def frequency_response(
         Band in Hz to analyse (default: from the second non-zero bin, above
         the window's leakage from DC, to Nyquist).
     coherence_threshold : float
-        γ² at or above which a frequency counts as coherent.
+        γ² at or above which a frequency counts as coherent. Raised, when
+        the record gives few averages, to the level that noise alone exceeds
+        at any of a channel's frequencies with 1 % chance (the result's
+        ``coherence_threshold`` is the one applied). A frequency counts only
+        where the input's spectral density is also at least 1/20 of its peak.
     x0 : array_like or mapping, optional
         Initial state of a simulated model response (default: the state an
         identification result given as `parameters` used for this record, else
@@ -452,10 +535,15 @@ def frequency_response(
 
     u = data.array(ins).T
     y_meas = data.array(outs).T
-    f, h_emp, coh = _empirical(u, y_meas, fs, seg)
+    f, h_emp, coh, excitation = _empirical(u, y_meas, fs, seg)
     keep = (f > 0) & (f >= band[0]) & (f <= band[1])
     f = f[keep]
-    h_emp, coh = h_emp[keep], coh[keep]
+    h_emp, coh, excitation = h_emp[keep], coh[keep], excitation[keep]
+    # which frequencies count: see _FALSE_COHERENCE_LEVEL and _EXCITED_FRACTION
+    n_avg = _independent_averages(n, seg)
+    thr_used = max(thr, _chance_coherence(n_avg, len(ins), f.size))
+    # with no more averages than inputs the coherence is 1 whatever the data
+    resolvable = n_avg > len(ins)
 
     h_model: ComplexArray | None = None
     how = "simulated"
@@ -474,7 +562,7 @@ def frequency_response(
             )
         y_sim = _simulated_outputs(model, data, values, x0)
         idx_y = [model_outputs.index(o) for o in outs]
-        _, h_sim, _ = _empirical(u, y_sim[:, idx_y].T, fs, seg)
+        _, h_sim, _, _ = _empirical(u, y_sim[:, idx_y].T, fs, seg)
         h_model = h_sim[keep]
 
     chans = []
@@ -482,7 +570,7 @@ def frequency_response(
     for i, inp in enumerate(ins):
         for k, out in enumerate(outs):
             he, hm, g = h_emp[:, i, k], h_model[:, i, k], coh[:, i, k]
-            mask = g >= thr
+            mask = (g >= thr_used) & (excitation[:, i] >= _EXCITED_FRACTION) & resolvable
             with np.errstate(all="ignore"):
                 rel = np.abs(he - hm) / np.abs(hm)
             good = mask & np.isfinite(rel)
@@ -507,7 +595,9 @@ def frequency_response(
             )
     if few:
         warnings.warn(
-            f"frequency_response: too few coherent frequencies (γ² ≥ {thr:g}) in "
+            f"frequency_response: too few coherent frequencies (γ² ≥ {thr_used:.3g} with "
+            f"{n_avg:.3g} independent averages, input within "
+            f"{10 * np.log10(1 / _EXCITED_FRACTION):.0f} dB of its peak) in "
             f"{band[0]:.3g}–{band[1]:.3g} Hz for {', '.join(few)}; the input does not excite "
             "these channels enough to judge the model there",
             UserWarning,
@@ -519,10 +609,11 @@ def frequency_response(
         output_names=tuple(outs),
         sample_rate=float(fs),
         nperseg=seg,
-        coherence_threshold=thr,
+        coherence_threshold=thr_used,
         frequency_range=(float(band[0]), float(band[1])),
         model_response=how,
         model_name=str(model.name),
+        n_averages=n_avg,
     )
 
 
