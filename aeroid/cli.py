@@ -282,14 +282,16 @@ def rerun(
     bar = progress_bar(len(entries), desc="rerun", enabled=True, unit="entry")
     same = 0
     for entry in entries:
+        label = None
         try:
             identical, lines = rerun_entry(st, entry.key)
-        except AeroidError as exc:
-            identical, lines = False, ["", str(exc)]
+        except AeroidError as exc:  # not recomputed: nothing to compare
+            identical, lines, label = False, ["", str(exc)], "FAILED"
         if bar is not None:
             bar.update(1)
         same += identical
-        click.echo(f"{'bit-identical' if identical else 'DIFFERS'} {entry.stage} {entry.key}")
+        label = label or ("bit-identical" if identical else "DIFFERS")
+        click.echo(f"{label} {entry.stage} {entry.key}")
         if not identical:
             for line in lines[1:]:
                 click.echo(f"    {line}")

@@ -13,6 +13,7 @@ __all__ = [
     "IdentificationError",
     "InferenceError",
     "ModelDefinitionError",
+    "OutputError",
     "PipelineError",
     "SimulationError",
     "StoreError",
@@ -56,6 +57,10 @@ class InferenceError(AeroidError, RuntimeError):
 
 class AdapterError(AeroidError, RuntimeError):
     """An external simulator adapter is unavailable or misconfigured."""
+
+
+class OutputError(AeroidError, OSError):
+    """A report or other output file cannot be written where it was asked for."""
 
 
 class PipelineError(AeroidError, RuntimeError):

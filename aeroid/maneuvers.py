@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
-import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from ._records import fmt, frozen_array, markdown_table
@@ -632,6 +631,8 @@ def orthogonal_multisine(
         ups = np.flatnonzero((uf[:-1] < 0) & (uf[1:] >= 0))
         i0 = int(ups[0]) if ups.size else int(np.argmin(np.abs(uf)))
         if ups.size:
+            import scipy.optimize  # here: building a manoeuvre (planning) needs no solver
+
             tau = scipy.optimize.brentq(
                 lambda s: float(u_of(s)[0]), fine[i0], fine[i0 + 1], xtol=1e-14
             )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -179,3 +180,91 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
     assert result["doublet_sweep"][0] <= 3 < result["doublet"][0]
     assert result["doublet_sweep"][1] < result["doublet"][1]
     assert result["doublet_sweep"][2] < 0.05
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        # NaN and infinity are refused where they are written, not at run time
+        (
+            "stages:\n  identify: {weights: {alpha: 1.0, q: .nan}}\n",
+            r"camp.yaml: stages.identify.weights.q: Input should be a finite number",
+        ),
+        (
+            "stages:\n  identify: {simulate_options: {rtol: [1.0, .inf]}}\n",
+            r"camp.yaml: stages.identify.simulate_options: must be a finite number "
+            r"\(at rtol\[1\]: inf\)",
+        ),
+        (
+            "stages:\n  infer: {priors: {M_q: {normal: [.nan, 1.0]}}}\n",
+            r"camp.yaml: stages.infer.priors.M_q.normal\[0\]: Input should be a finite number",
+        ),
+        # required keywords of the library function are required options
+        ("stages:\n  filter: {}\n", r"stages.filter.process_noise: required key is missing"),
+        # a manoeuvre its options cannot make
+        (
+            "stages:\n  design: {maneuver: {type: doublet, control: elevator, options: {}}}\n",
+            r"stages.design.maneuver: options do not make a doublet: .*amplitude",
+        ),
+        (
+            "stages:\n  design: {maneuver: {type: multisine, control: elevator, "
+            "options: {bogus: 1}}}\n",
+            r"stages.design.maneuver: options do not make a multisine: .*bogus",
+        ),
+    ],
+)
+def test_stage_options_that_cannot_run_are_refused_when_planning(tmp_path, text, expected):
+    cfg = _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n" + text)
+    with pytest.raises(ConfigError, match=expected):
+        plan(cfg)
+
+
+@pytest.mark.parametrize(
+    ("spec", "expected"),
+    [
+        ("airspeed: [120, -60]", r"simulated.airspeed\[1\]: Input should be greater than 0"),
+        ("airspeed: [.nan, 100]", r"simulated.airspeed\[0\]: Input should be a finite number"),
+        ("duration: .inf", r"simulated.duration: Input should be a finite number"),
+        ("duration: 1.0e+9", r"simulated: duration x sample_rate gives 5e\+10 samples"),
+        ("noise: {beta: 0.01}", r"simulated.noise.beta: Input should be 'alpha' or 'q'"),
+        ("noise: {alpha: -1}", r"simulated.noise.alpha: Input should be greater than or equal"),
+        ("seed: -5", r"simulated.seed: Input should be greater than or equal to 0"),
+    ],
+)
+def test_simulated_flights_refuse_absurd_conditions(tmp_path, spec, expected):
+    text = f"model: short_period\nflights: [{{simulated: {{n_flights: 2, {spec}}}}}]\n"
+    with pytest.raises(ConfigError, match=r"camp.yaml: flights\[0\]\." + expected):
+        load_config(_write(tmp_path, text))
+
+
+def test_yaml_errors_are_one_line_and_a_key_given_twice_is_refused(tmp_path):
+    with pytest.raises(ConfigError) as bad:
+        load_config(_write(tmp_path, "model: short_period\nflights: [a.csv\n"))
+    assert "\n" not in str(bad.value) and "line 3" in str(bad.value)
+    twice = "model: short_period\nflights: [a.csv]\nmodel: first_order\n"
+    with pytest.raises(ConfigError, match=r"line 3, column 1: .*the key 'model' is given twice"):
+        load_config(_write(tmp_path, twice))
+    nested = "model: short_period\nflights: [{simulated: {seed: 1, seed: 2}}]\n"
+    with pytest.raises(ConfigError, match=r"the key 'seed' is given twice"):
+        load_config(_write(tmp_path, nested))
+    with pytest.raises(ConfigError, match=r"seed: Input should be greater than or equal to 0"):
+        load_config(_write(tmp_path, "model: short_period\nflights: [a.csv]\nseed: -1\n"))
+
+
+def test_the_same_flight_listed_twice_is_refused(tmp_path):
+    twice = (
+        "model: short_period\nflights: [{simulated: {n_flights: 2}}, {simulated: {n_flights: 2}}]\n"
+    )
+    with pytest.raises(ConfigError, match=r"'sim-0#2' is the same simulated flight as 'sim-0'"):
+        plan(_write(tmp_path, twice))
+    # two simulated campaigns that differ are two sets of flights
+    other = twice.replace("{n_flights: 2}}]", "{n_flights: 2, seed: 4}}]")
+    assert len(plan(_write(tmp_path, other)).flights) == 4
+    (tmp_path / "a.csv").write_text("time,alpha,q,elevator\n0,0,0,0\n0.1,0,0,0\n")
+    (tmp_path / "sub").mkdir()
+    shutil.copy(tmp_path / "a.csv", tmp_path / "sub" / "copy.csv")
+    files = "model: short_period\nflights: [a.csv, 'sub/*.csv']\n"
+    with pytest.raises(
+        ConfigError, match=r"'copy' \(.*copy.csv\) has the same contents and loader options as 'a'"
+    ):
+        plan(_write(tmp_path, files))

@@ -418,3 +418,97 @@ def test_stages_after_a_fit_with_measured_initial_state_are_unchanged(tmp_path):
     plain = aeroid.frequency_response(catalog.short_period(), data, fit, frequency_range=(0.2, 3.0))
     for got, want in zip(by_step["frequency"].channels, plain.channels, strict=True):
         np.testing.assert_array_equal(got.model_magnitude, want.model_magnitude)
+
+
+def test_a_store_or_report_that_cannot_be_written_is_refused_before_anything_runs(tmp_path):
+    from aeroid.errors import ConfigError
+
+    cfg = _config(tmp_path, n=2)
+    (tmp_path / "afile").write_text("not a folder")
+    with pytest.raises(StoreError, match=r"store .*afile: is a file, not a folder"):
+        run(cfg, store=tmp_path / "afile", workers=0)
+    with pytest.raises(StoreError, match=r"store .*afile/below: cannot create it"):
+        run(cfg, store=tmp_path / "afile" / "below", workers=0)
+    text = cfg.read_text()
+    cfg.write_text(text.replace("report: out/report.md", "report: afile/report.md"))
+    with pytest.raises(ConfigError, match=r"c.yaml: report: cannot make .*afile"):
+        run(cfg, workers=0)
+    (tmp_path / "folder").mkdir()
+    cfg.write_text(text.replace("report: out/report.md", "report: folder"))
+    with pytest.raises(ConfigError, match=r"c.yaml: report: .*folder is a folder"):
+        run(cfg, workers=0)
+    assert not list((tmp_path / "store").glob("*/*"))  # nothing computed
+
+
+def test_a_missing_flight_file_or_a_folder_fails_that_flight_only(tmp_path):
+    from aeroid.catalog import short_period_flight
+
+    d = short_period_flight(seed=1, duration=4.0)
+    rows = np.column_stack([d.time, *(d[n] for n in d.names)])
+    np.savetxt(
+        tmp_path / "ok.csv", rows, delimiter=",", header=",".join(["time", *d.names]), comments=""
+    )
+    (tmp_path / "adir").mkdir()
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nstore: store\nflights: [ok.csv, gone.csv, adir]\n")
+    s = run(cfg, workers=0)
+    errors = {st["flight"]: st.get("error") for st in s.statuses.values() if st["step"] == "load"}
+    assert errors["ok"] is None
+    assert errors["gone"].endswith("gone.csv: no such file")
+    assert errors["adir"].endswith("adir: is a folder, not a flight file")
+    assert s.report_path is not None and s.report_path.is_file()
+
+
+CRASHING_MODEL = """
+import os
+
+import numpy as np
+
+import aeroid
+from aeroid.catalog import short_period
+
+
+def _dynamics(t, x, u, p):
+    if np.max(np.abs(u)) > 1.0:  # a crash in native code, as far as the worker can tell
+        os._exit(3)
+    return np.array([p["Z_alpha"] * x[0] + x[1], p["M_alpha"] * x[0] + p["M_q"] * x[1] + p["M_delta"] * u[0]])
+
+
+base = short_period()
+model = aeroid.Model(states=["alpha", "q"], controls=["elevator"], parameters=dict(base.parameters),
+                     dynamics=_dynamics, name="crashing")
+"""
+
+
+def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path):
+    from aeroid.catalog import short_period_flight
+
+    (tmp_path / "crashing_model.py").write_text(CRASHING_MODEL)
+    for name, scale in (("good", 1.0), ("wild", 100.0)):
+        d = short_period_flight(seed=1, duration=4.0)
+        cols = [d.time, *(d[n] * (scale if n == "elevator" else 1.0) for n in d.names)]
+        np.savetxt(
+            tmp_path / f"{name}.csv",
+            np.column_stack(cols),
+            delimiter=",",
+            header=",".join(["time", *d.names]),
+            comments="",
+        )
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: crashing_model:model\nstore: store\nflights: [good.csv, wild.csv]\n"
+        "stages:\n  identify: {parameters: [M_q, M_delta]}\n  validate: {}\n"
+    )
+    s = run(cfg, workers=2)
+    by = {(st["step"], st["flight"]): st for st in s.statuses.values()}
+    assert by[("load", "wild")]["status"] == "computed"  # stored before the worker died
+    assert by[("identify", "wild")]["status"] == "failed"
+    assert "the worker process died while running identify" in by[("identify", "wild")]["error"]
+    assert by[("validate", "wild")]["error"] == "not run: the worker died at identify"
+    # Dask may also kill a task queued on the dying worker: it fails the same way, and what
+    # finished stays stored. The campaign report is written whatever died.
+    report = next(st for st in s.statuses.values() if st["step"] == "campaign_report")
+    assert report["status"] == "computed" and s.report_path.is_file()
+    assert "wild" in s.report_path.read_text()
+    store = open_store(tmp_path / "store")
+    assert store.verify_all() == {} and store.temporaries() == []

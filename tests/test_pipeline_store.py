@@ -235,6 +235,18 @@ def test_altered_array_bytes_are_detected_on_read_and_by_verify(tmp_path):
     assert store.verify_all() == {}
 
 
+def test_a_truncated_chunk_is_reported_as_a_corrupt_entry(tmp_path):
+    store, key = _committed(tmp_path)
+    chunk = store.path_for("identify", key) / "covariance" / "0.0"
+    chunk.write_bytes(chunk.read_bytes()[:-8])
+    # the words the command looks for to suggest `aeroid verify --remove`
+    with pytest.raises(
+        StoreError, match=r"\(identify\) in .* is corrupt: chunk .* holds 3 values, expected 4"
+    ):
+        store.load(key)
+    assert " is corrupt: " in store.verify(key)
+
+
 def test_altered_attributes_are_detected(tmp_path):
     store, key = _committed(tmp_path)
     meta_path = store.path_for("identify", key) / "zarr.json"

@@ -9,6 +9,7 @@ Relative paths are relative to the config file.
 from __future__ import annotations
 
 import glob
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -20,7 +21,9 @@ from pydantic import (
     Field,
     Tag,
     ValidationError,
+    ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from ..errors import ConfigError
@@ -36,9 +39,11 @@ __all__ = [
 
 
 class Options(BaseModel):
-    """Base of every options model: frozen, unknown keys forbidden."""
+    """Base of every options model: frozen, unknown keys forbidden, numbers finite."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and infinity are refused where a float is declared, and (below) anywhere
+    # inside free-form options: no config option means "not a number"
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     #: Options added after the stage's keys were first computed: left out of the
     #: key while unset, so adding one does not recompute every stored result.
@@ -46,6 +51,18 @@ class Options(BaseModel):
     #: Options that change how a result is computed, never the result (how many
     #: parallel parts): kept out of the key, so changing one recomputes nothing.
     execution_only: ClassVar[frozenset[str]] = frozenset()
+    #: Free-form fields validated by another model later (with better key paths).
+    checked_later: ClassVar[frozenset[str]] = frozenset()
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _finite(cls, value: Any, info: ValidationInfo) -> Any:
+        if info.field_name in cls.checked_later:
+            return value
+        where = _non_finite(value)
+        if where is not None:
+            raise ValueError(f"must be a finite number{where}")
+        return value
 
     def key_document(self) -> dict[str, Any]:
         """The options as they enter a task's key (plain JSON)."""
@@ -68,6 +85,23 @@ class Options(BaseModel):
         return out
 
 
+def _non_finite(value: Any, path: str = "") -> str | None:
+    """Where in a plain value (mappings, lists, numbers) a NaN or infinity sits, else None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return f" (at {path.lstrip('.')}: {value})" if path else f" (got {value})"
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            found = _non_finite(v, f"{path}.{k}")
+            if found is not None:
+                return found
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            found = _non_finite(v, f"{path}[{i}]")
+            if found is not None:
+                return found
+    return None
+
+
 class FileFlights(Options):
     """Flight files: a path or glob (CSV, Parquet, .mat) plus loader options."""
 
@@ -82,15 +116,30 @@ class SimulatedFlights(Options):
 
     generator: Literal["short_period_campaign"] = "short_period_campaign"
     n_flights: int = Field(12, ge=1, le=10000)
-    seed: int = 0
-    airspeed: tuple[float, float] = (60.0, 120.0)
+    seed: int = Field(0, ge=0)
+    # m/s, first and last flight (either order); the derivatives scale with airspeed
+    airspeed: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]] = (60.0, 120.0)
     duration: float = Field(10.0, gt=0)
     sample_rate: float = Field(50.0, gt=0)
-    noise: dict[str, float] | None = None
+    # sensor noise standard deviations of the truth model's outputs
+    noise: dict[Literal["alpha", "q"], Annotated[float, Field(ge=0)]] | None = None
     colored: float = Field(0.0, ge=0.0, lt=1.0)
     # "doublet_sweep": the doublet, then from 4 s a 0.2-3 Hz frequency sweep of the same
     # amplitude to the end of the record (for frequency-domain checks)
     maneuver: Literal["doublet", "doublet_sweep"] = "doublet"
+
+    @model_validator(mode="after")
+    def _record_length(self) -> SimulatedFlights:
+        samples = self.duration * self.sample_rate
+        if samples < 10 or samples > _MAX_SAMPLES:
+            raise ValueError(
+                f"duration x sample_rate gives {samples:.4g} samples per flight; "
+                f"expected 10 to {_MAX_SAMPLES:.0e}"
+            )
+        return self
+
+
+_MAX_SAMPLES = 1e7  # a simulated record longer than this is a typo, not a flight
 
 
 class SimulatedSource(Options):
@@ -121,13 +170,16 @@ class CampaignConfig(Options):
     name: str | None = None
     model: str = Field(..., min_length=1)
     pipeline: str = "campaign"
-    seed: int = 0
+    seed: int = Field(0, ge=0)
     flights: list[FlightSpec] = Field(..., min_length=1)
     stages: dict[str, dict[str, Any] | None] = Field(default_factory=dict)
     store: str = ".aeroid-store"
     report: str | None = None
     scheduler: str | None = None
     workers: int | None = Field(None, ge=0)
+
+    # each stage's options are validated by the stage's own model when a plan is made
+    checked_later: ClassVar[frozenset[str]] = frozenset({"stages"})
 
     # where the file lives (set by load_config; not a config key)
     source: str = Field("<config>", exclude=True)
@@ -209,6 +261,8 @@ class CampaignConfig(Options):
 def _loc(loc: Sequence[Any]) -> str:
     out = ""
     for part in loc:
+        if part == "[key]":  # pydantic's marker for an error in a mapping's key
+            continue
         if isinstance(part, int):
             out += f"[{part}]"
         else:
@@ -278,6 +332,18 @@ def _strip(tp: Any, part: Any) -> Any:
     return tp
 
 
+def _model_names() -> set[str]:
+    """Names of the options models (pydantic puts a union member's name in error paths;
+    a capitalised key such as a parameter name M_q is the user's and stays)."""
+    names: set[str] = set()
+    todo: list[type] = [Options]
+    while todo:
+        cls = todo.pop()
+        names.add(cls.__name__)
+        todo.extend(cls.__subclasses__())
+    return names
+
+
 def format_validation_error(
     exc: ValidationError, source: str, model: type[BaseModel], prefix: Sequence[Any] = ()
 ) -> str:
@@ -290,7 +356,8 @@ def format_validation_error(
             p
             for i, p in enumerate(err["loc"])
             if not (
-                isinstance(p, str) and (p[:1].isupper() or (p in skip and _is_tag(err["loc"], i)))
+                isinstance(p, str)
+                and (p in _model_names() or (p in skip and _is_tag(err["loc"], i)))
             )
         ]
         path = _loc([*prefix, *loc])
@@ -301,7 +368,7 @@ def format_validation_error(
         elif err["type"] == "missing":
             msg = "required key is missing"
         else:
-            msg = f"{err['msg']} (got {err.get('input')!r})"
+            msg = f"{err['msg'].removeprefix('Value error, ')} (got {err.get('input')!r})"
         line = f"{source}: {path}: {msg}"
         if line not in lines:
             lines.append(line)
@@ -320,10 +387,32 @@ def validate_options(
         ) from None
 
 
+def _unique_key_loader() -> type:
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """YAML's safe loader, refusing a key given twice in one mapping (the last
+        would otherwise win without a word)."""
+
+        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+            seen: set[Any] = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"the key {key!r} is given twice", key_node.start_mark
+                    )
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
+
+
 def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
     """Read and validate a campaign YAML file; `overrides` replace top-level keys."""
     import yaml
 
+    _UniqueKeyLoader = _unique_key_loader()
     p = Path(path)
     source = str(path)
     try:
@@ -331,11 +420,14 @@ def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
     except OSError as exc:
         raise ConfigError(f"{source}: cannot read the config file ({exc.strerror})") from None
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        raise ConfigError(f"{source}: {where}not valid YAML ({exc})") from None
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(
+            f"{source}: {where}not valid YAML ({' '.join(problem.split())})"
+        ) from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{source}: expected a mapping of keys at the top level")
     for key in ("source", "base_dir"):

@@ -255,6 +255,7 @@ def plan(
     tasks: list[Task] = []
     flights: list[str] = []
     per_flight_keys: dict[str, dict[str, str]] = {}
+    loaded: dict[str, str] = {}  # load key -> the flight that has it
     for name, source, loader_opts in _flight_sources(config):
         base = name
         k = 2
@@ -293,6 +294,18 @@ def plan(
             )
             if step.stage_name == "load":
                 flight_id = stable_int(key)
+                if key in loaded:
+                    # the same data twice would be fitted twice and listed twice
+                    what = (
+                        f"({source['path']}) has the same contents and loader options as"
+                        if source["kind"] == "file"
+                        else "is the same simulated flight as"
+                    )
+                    raise ConfigError(
+                        f"{config.source}: flights: {name!r} {what} {loaded[key]!r}; "
+                        "list each flight once"
+                    )
+                loaded[key] = name
             keys[step.name] = key
             tasks.append(
                 Task(
@@ -861,17 +874,12 @@ def _run_dask(
     results: dict[str, dict[str, Any]] = {}
     try:
         owner: dict[str, Any] = {}  # task key -> future of the chain that runs it
-        chains: dict[Any, list[Task]] = {}
-        for chain, split in _segments(tasks):
-            chain = [t for t in chain if t.key not in owner]  # same content in two flights
-            if not chain:
-                continue
-            own = {t.key for t in chain}
-            deps = list(
-                dict.fromkeys(
-                    owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
-                )
-            )
+        # future -> (its chain, the split task or None, the futures it waits for)
+        submitted: dict[Any, tuple[list[Task], Task | None, list[Any]]] = {}
+        # a future whose worker died -> its tasks' statuses, given to what waited for it
+        stand_in: dict[Any, list[dict[str, Any]]] = {}
+
+        def submit(chain: list[Task], split: Task | None, deps: list[Any]) -> Any:
             parts: list[Any] = []
             if split is not None and chain[0] is split:
                 parts = [
@@ -880,10 +888,10 @@ def _run_dask(
                         split,
                         store_root,
                         i,
-                        *_part_deps(split, i, deps, owner),
+                        *(stand_in.get(d, d) for d in _part_deps(split, i, deps, owner)),
                         scope=scope,
                         pin_blas=cluster is not None,
-                        key=f"{split.step}-{split.key}-part{i}",
+                        key=f"{split.step}-{split.key}-part{i}-{uuid.uuid4().hex[:8]}",
                         pure=False,
                         retries=0,
                         # a part waiting on a few flights runs as soon as they are done
@@ -897,30 +905,55 @@ def _run_dask(
                 chain,
                 store_root,
                 parts,
-                *deps,
+                *(stand_in.get(d, d) for d in deps),
                 scope=scope,
                 pin_blas=cluster is not None,
-                key=f"{head.flight or 'campaign'}-{head.step}-{head.key}",
+                key=f"{head.flight or 'campaign'}-{head.step}-{head.key}-{uuid.uuid4().hex[:8]}",
                 pure=False,
                 retries=0,
             )
             for t in chain:
                 owner[t.key] = fut
-            chains[fut] = chain
-        for fut in as_completed(list(chains)):
+            submitted[fut] = (chain, split, deps)
+            return fut
+
+        for chain, split in _segments(tasks):
+            chain = [t for t in chain if t.key not in owner]  # same content in two flights
+            if not chain:
+                continue
+            own = {t.key for t in chain}
+            deps = list(
+                dict.fromkeys(
+                    owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
+                )
+            )
+            submit(chain, split, deps)
+        done = as_completed(list(submitted))
+        replaced: dict[Any, Any] = {}  # erred only because what it waited for died -> rerun
+
+        def settle(fut: Any) -> None:
+            """An erred chain: its worker died (its statuses go to `stand_in`), or one it
+            waited for did (it never ran: submitted again, given the dead one's statuses)."""
+            if fut in stand_in or fut in replaced:
+                return
+            chain, split, deps = submitted[fut]
+            for d in deps:
+                if d.status == "error":
+                    settle(d)
+            if any(d in stand_in or d in replaced for d in deps):
+                replaced[fut] = submit(chain, split, [replaced.get(d, d) for d in deps])
+                done.add(replaced[fut])
+            else:
+                stand_in[fut] = _dead_chain(chain, store_root, fut.exception())
+
+        for fut in done:
             try:
                 statuses = fut.result()
-            except Exception as exc:  # a worker died under the chain
-                statuses = [
-                    {
-                        "key": t.key,
-                        "step": t.step,
-                        "flight": t.flight,
-                        "status": "failed",
-                        "error": _error_text(exc),
-                    }
-                    for t in chains[fut]
-                ]
+            except Exception:  # a worker died under the chain, or under one it waited for
+                settle(fut)
+                if fut in replaced:
+                    continue
+                statuses = stand_in[fut]
             for status in statuses:
                 results[status["key"]] = status
                 on_done(status)
@@ -929,6 +962,37 @@ def _run_dask(
         if cluster is not None:
             cluster.close()
     return results
+
+
+def _dead_chain(
+    chain: list[Task], store_root: str, exc: BaseException | None
+) -> list[dict[str, Any]]:
+    """Statuses of a chain whose worker process died: computed up to the task that was
+    running (its results are in the store), failed from there on."""
+    stored = ResultStore(store_root).stored((t.stage, t.key) for t in chain)
+    if exc is None or type(exc).__name__ == "KilledWorker":
+        # Dask cannot tell which of the tasks on a worker killed it
+        why = (
+            "a crash in native code, out of memory or an exit call, in this task or in one "
+            "queued beside it; rerun to recompute what is missing"
+        )
+    else:
+        why = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+    out: list[dict[str, Any]] = []
+    dead: Task | None = None
+    for t in chain:
+        status: dict[str, Any] = {"key": t.key, "step": t.step, "flight": t.flight}
+        if dead is None and (t.stage, t.key) in stored:
+            status.update(status="computed", cached=True)
+        elif dead is None:
+            dead = t
+            status.update(
+                status="failed", error=f"the worker process died while running {t.step} ({why})"
+            )
+        else:
+            status.update(status="failed", error=f"not run: the worker died at {dead.step}")
+        out.append(status)
+    return out
 
 
 def _run_local(
@@ -990,6 +1054,8 @@ def run(
     the_plan = plan(config, pipeline=pipeline)
     t_plan = time.perf_counter()
     result_store = ResultStore(config.store_location)
+    if the_plan.report_task is not None:
+        _check_report_path(config)
     statuses: dict[str, dict[str, Any]] = {}
     todo: list[Task] = []
     stored = result_store.stored((t.stage, t.key) for t in the_plan.tasks)
@@ -1056,6 +1122,20 @@ def store_argument(store: str | Path) -> str:
     if is_url(text):
         return text
     return str(Path(text.removeprefix("file://")).expanduser().resolve())
+
+
+def _check_report_path(config: CampaignConfig) -> None:
+    """Refuse, before anything runs, a report path that cannot be written."""
+    path = config.report_path
+    where = f"{config.source}: report" if config.report else f"store {config.store}"
+    if path.is_dir():
+        raise ConfigError(f"{where}: {path} is a folder; name a .md file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot make {path.parent} ({exc.strerror or exc})") from None
+    if not os.access(path.parent, os.W_OK):
+        raise ConfigError(f"{where}: {path.parent} is not writable")
 
 
 def _write_report(
@@ -1125,8 +1205,9 @@ def _html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
 def rerun(store: ResultStore, key: str) -> tuple[bool, list[str]]:
     """Recompute a stored result from its recorded inputs into a scratch store and compare.
 
-    Returns (bit-identical, lines to show). Upstream results are read from
-    `store` (digests checked); the scratch store is removed afterwards.
+    Returns (bit-identical, lines to show); raises `PipelineError` when the
+    result cannot be recomputed. Upstream results are read from `store`
+    (digests checked); the scratch store is removed afterwards.
     """
     import shutil
     import tempfile
@@ -1149,13 +1230,12 @@ def rerun(store: ResultStore, key: str) -> tuple[bool, list[str]]:
     scratch = Path(tempfile.mkdtemp(prefix="aeroid-rerun-"))
     try:
         status = execute_task(task, str(scratch / "store"), read_root=str(store.root))
+        what = f"recomputing {task.step} {task.flight or '(campaign)'} {entry.key[:12]}"
         if status["status"] == "failed":
-            lines.append(f"recomputation failed: {status.get('error')}")
-            return False, lines
+            raise PipelineError(f"{what} failed: {status.get('error')}")
         fresh = ResultStore(scratch / "store", create=False)
         if not fresh.exists(task.stage, task.key):
-            lines.append("recomputation produced no stored result (failed upstream flights)")
-            return False, lines
+            raise PipelineError(f"{what} stored nothing (an upstream flight failed)")
         new_meta = fresh.metadata(task.key, task.stage)
         old_arrays = store.load_arrays(entry.key, entry.stage)
         new_arrays = fresh.load_arrays(task.key, task.stage)

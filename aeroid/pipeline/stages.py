@@ -13,12 +13,13 @@ import inspect
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from ..errors import PipelineError
+from ..errors import AeroidError, DataFormatError, PipelineError
 from .config import Options
 
 __all__ = [
@@ -233,7 +234,13 @@ def _run_load(ctx: StageContext) -> Any:
 
         return fly(src["spec"])
     path = src["path"]
-    before = file_digest(path)
+    if not Path(path).is_file():
+        why = "is a folder, not a flight file" if Path(path).is_dir() else "no such file"
+        raise DataFormatError(f"{path}: {why}")
+    try:
+        before = file_digest(path)
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     if before != src.get("sha256"):
         raise PipelineError(f"{path}: the file changed since the run was planned")
     opts = _kwargs(ctx.options)
@@ -272,10 +279,10 @@ def _run_identify(ctx: StageContext) -> Any:
 
 
 class FilterOptions(Options):
-    """`aeroid.filter_states` keywords."""
+    """`aeroid.filter_states` keywords (both noise levels are required, as there)."""
 
-    process_noise: dict[str, float] | None = None
-    measurement_noise: dict[str, float] | None = None
+    process_noise: dict[str, float]
+    measurement_noise: dict[str, float]
     method: str | None = None
     smooth: bool | None = None
 
@@ -474,6 +481,15 @@ class ManeuverSpec(Options):
     type: Literal["multisine", "doublet", "chirp"]
     control: str
     options: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _builds(self) -> ManeuverSpec:
+        # a missing or unknown constructor argument is a config error, found before any run
+        try:
+            self.build()
+        except (TypeError, AeroidError) as exc:
+            raise ValueError(f"options do not make a {self.type}: {exc}") from None
+        return self
 
     def build(self) -> Any:
         import aeroid
@@ -846,7 +862,7 @@ for _stage in (
     ),
     Stage(
         "frequency",
-        "2",
+        "3",  # 3: only frequencies whose coherence beats chance and that the input excites
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,

@@ -357,15 +357,22 @@ class ResultStore:
                 raise StoreError(f"store {self.root}: unreadable marker {marker} ({exc})") from None
             _check_marker(raw, self.root)
         elif create:
+            if self._dir.exists() and not self._dir.is_dir():
+                raise StoreError(f"store {self.root}: is a file, not a folder")
             if self._dir.exists() and any(self._dir.iterdir()):
                 raise StoreError(
                     f"store {self.root}: the directory exists, is not empty and is not an "
                     "aeroid store"
                 )
-            self._dir.mkdir(parents=True, exist_ok=True)
-            tmp = self._dir / f".{_MARKER}.{uuid.uuid4().hex}"
-            tmp.write_bytes(_MARKER_DOC)
-            os.replace(tmp, marker)
+            try:
+                self._dir.mkdir(parents=True, exist_ok=True)
+                tmp = self._dir / f".{_MARKER}.{uuid.uuid4().hex}"
+                tmp.write_bytes(_MARKER_DOC)
+                os.replace(tmp, marker)
+            except OSError as exc:
+                raise StoreError(
+                    f"store {self.root}: cannot create it ({exc.strerror or exc})"
+                ) from None
         else:
             raise StoreError(f"store {self.root}: not an aeroid store (no {_MARKER})")
         _CHECKED.add(self._root_id)
@@ -551,8 +558,10 @@ class ResultStore:
                         f"{where} is corrupt: array {name!r} does not match its digest"
                     )
                 arrays[name] = arr
-        except StoreError:
-            raise
+        except StoreError as exc:
+            if " is corrupt: " in str(exc):
+                raise
+            raise StoreError(f"{where} is corrupt: {exc}") from None
         except Exception as exc:  # zarr/json/codec errors on damaged bytes
             raise StoreError(f"{where} is corrupt: {type(exc).__name__}: {exc}") from None
         return meta, arrays
