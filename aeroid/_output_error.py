@@ -77,8 +77,10 @@ def _simulate_members(
     x0: FloatArray,
     out_idx: list[int],
     options: Mapping[str, Any],
+    errors: list[str] | None = None,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """Outputs (B, n_t, n_y) and ok mask for a batch of parameter/x0 members."""
+    """Outputs (B, n_t, n_y) and ok mask for a batch of parameter/x0 members; what a
+    stepped simulator raised is appended to `errors`."""
     if hasattr(model, "simulate_batch"):
         sim = model.simulate_batch(man.time, man.controls, x0, params, **options)
         return sim.outputs[:, :, out_idx], sim.ok
@@ -91,7 +93,9 @@ def _simulate_members(
         p = {k: float(v[b]) for k, v in params.items()}
         try:
             res = model.simulate(man.time, ctrl, None, p, **options)
-        except Exception:  # a failed member is a rejected point, not a crash
+        except Exception as exc:  # a failed member is a rejected point, not a crash
+            if errors is not None:
+                errors.append(f"{type(exc).__name__}: {exc}")
             continue
         y = np.asarray(res.outputs)[:, out_idx]
         if np.all(np.isfinite(y)):
@@ -118,6 +122,7 @@ class _Problem:
         self.fixed = dict(fixed)
         self.options = dict(options)
         self.gradient = gradient
+        self.errors: list[str] = []  # what a stepped simulator raised, for messages
 
     def unpack(self, theta: FloatArray, i: int) -> tuple[FloatArray, FloatArray]:
         m = self.mans[i]
@@ -175,7 +180,9 @@ class _Problem:
                             P[lay.names[j]][b] += sign * h
                         else:
                             X0[b, m.x0_free[j - sx.start]] += sign * h
-            outs, ok = _simulate_members(self.model, m, P, X0, self.out_idx, self.options)
+            outs, ok = _simulate_members(
+                self.model, m, P, X0, self.out_idx, self.options, self.errors
+            )
             if not ok[0]:
                 return [], None, False
             v = m.measured - outs[0] - bias
@@ -380,9 +387,10 @@ def fit_output_error(
 
     residuals, first_jac, ok = problem.evaluate(theta, steps_for(theta))
     if not ok or first_jac is None:
+        raised = f" (its simulate raised {problem.errors[0]})" if problem.errors else ""
         raise IdentificationError(
             f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
-            f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}; "
+            f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}{raised}; "
             "check the initial guesses and the model"
         )
     jacobians: list[FloatArray] = first_jac

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import keyword
+import sys
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -237,6 +238,10 @@ class SimulatorModel(Protocol):
     Such a model has named controls, outputs and nominal parameters, and can
     simulate onto a given time grid; it has no continuous dynamics callable,
     so Kalman filtering and JAX paths do not apply to it.
+
+    ``simulate`` receives `controls` as a mapping of control name to a 1-D
+    array on `time`, and `parameters` as a mapping of name to value; it
+    returns a `SimulationResult` whose outputs follow `outputs`.
     """
 
     name: str
@@ -256,6 +261,19 @@ class SimulatorModel(Protocol):
     def simulate_data(
         self, data: FlightData, *, x0: Any = None, parameters: Any = None, **options: Any
     ) -> SimulationResult: ...
+
+
+def _jax_64_bit() -> None:
+    """Switch on JAX's 64-bit floats when JAX is loaded (dynamics may use jax.numpy).
+
+    With JAX's default 32-bit floats, dynamics written with jax.numpy would
+    compute in float32 in every numpy path until a JAX path switched 64-bit on,
+    so results would depend on which ran first. Nothing is imported here.
+    """
+    jax = sys.modules.get("jax")
+    config = getattr(jax, "config", None)
+    if config is not None and not config.read("jax_enable_x64"):
+        config.update("jax_enable_x64", True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,6 +324,7 @@ class Model:
     _maybe_lti: bool = field(init=False, repr=False, compare=False, default=True)
 
     def __post_init__(self) -> None:
+        _jax_64_bit()
         states = _names(self.states, "states")
         controls = _names(self.controls, "controls")
         if not states:

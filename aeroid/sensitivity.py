@@ -418,7 +418,7 @@ class SensitivityResult:
 def sensitivities(
     model: Model | SimulatorModel,
     data: FlightData,
-    parameters: Sequence[str] | str | None = None,
+    parameters: Sequence[str] | str | Mapping[str, float] | Any | None = None,
     *,
     values: Any = None,
     noise: Mapping[str, float] | None = None,
@@ -435,8 +435,10 @@ def sensitivities(
     data : FlightData
         Supplies the time grid and the control histories; measured outputs
         (when present) are used only to estimate the noise when `noise` is None.
-    parameters : sequence of str, optional
-        Parameters to analyse (default: all model parameters).
+    parameters : sequence of str, mapping or result, optional
+        Parameters to analyse (default: all model parameters). A mapping of
+        values or a result (as `validate` takes them) analyses its parameters
+        at its values.
     values : mapping or result, optional
         Parameter values to linearise at, merged onto the nominal ones; a
         result with ``.parameters`` (identification or inference) works too.
@@ -477,6 +479,18 @@ def sensitivities(
     _check_model(model)
     if not isinstance(data, FlightData):
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
+    if isinstance(parameters, Mapping) or hasattr(parameters, "parameters"):
+        # parameter values given where names go (as validate takes them): analyse those
+        # parameters at those values
+        if values is not None:
+            raise IdentificationError(
+                "parameters: give parameter values either as `parameters` or as `values`, not both"
+            )
+        values = parameters
+        given: Any = getattr(parameters, "parameter_names", None) or getattr(
+            parameters, "parameters", parameters
+        )
+        parameters = [str(n) for n in given]
     names = _parameter_list(model, parameters)
     vals = resolve_parameters(model, values, error=IdentificationError)
     if x0 is None:

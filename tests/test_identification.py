@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from types import MappingProxyType
 
 import numpy as np
 import pytest
@@ -423,3 +424,23 @@ def test_wrong_argument_types_name_the_argument(sp_model, sp_noisy, kwargs, frag
 def test_a_model_is_required(sp_noisy, model):
     with pytest.raises(IdentificationError, match=r"model: expected an aeroid\.Model"):
         identify(model, sp_noisy, NAMES)
+
+
+def test_a_stepped_simulator_that_raises_at_the_start_is_named_with_its_error():
+    class Duck:  # written to take an array of controls; it is given a mapping
+        name = "duck"
+        controls = ("elevator",)
+        outputs = ("alpha", "q")
+        parameters = MappingProxyType({"M_q": -1.5})
+
+        def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+            return np.asarray(controls, dtype=float) * 2.0
+
+        def simulate_data(self, data, *, x0=None, parameters=None, **options):
+            return self.simulate(data.time, data.array(["elevator"]), x0, parameters)
+
+    data = catalog.short_period_flight(seed=0, duration=2.0)
+    with pytest.raises(
+        IdentificationError, match=r"'duck' cannot .* \(its simulate raised TypeError"
+    ):
+        aeroid.identify(Duck(), data, ["M_q"])

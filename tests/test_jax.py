@@ -229,3 +229,26 @@ def test_importing_aeroid_does_not_import_jax():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_dynamics_written_with_jax_numpy_run_in_float64_whatever_ran_first():
+    # a fresh process: JAX starts with 32-bit floats; building the Model switches 64-bit on,
+    # so the numpy paths give the same numbers before and after any JAX path has run
+    code = """
+import jax, jax.numpy as jnp, numpy as np
+import aeroid
+from aeroid import catalog
+assert not jax.config.read("jax_enable_x64")
+def f(t, x, u, p):
+    return jnp.array([p["Z_alpha"] * x[0] + x[1], p["M_alpha"] * x[0] + p["M_q"] * x[1] + p["M_delta"] * u[0]])
+ref = catalog.short_period()
+m = aeroid.Model(states=["alpha", "q"], controls=["elevator"], parameters=dict(ref.parameters), dynamics=f)
+assert jax.config.read("jax_enable_x64")
+data = catalog.short_period_flight(seed=0, duration=4.0)
+a = m.simulate(data.time, data.array(["elevator"]), method="RK45", rtol=1e-10, atol=1e-12)
+b = ref.simulate(data.time, data.array(["elevator"]), method="RK45", rtol=1e-10, atol=1e-12)
+print(float(np.max(np.abs(a.outputs - b.outputs))))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    # float32 dynamics differ by ~6e-10 here (alpha ~1e-2 times float32's 1e-7)
+    assert float(out.stdout.strip().splitlines()[-1]) < 1e-13

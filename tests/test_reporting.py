@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import math
+import os
+import stat
 
-from aeroid import catalog, identify, propagate, report, validate
+import pytest
+
+from aeroid import OutputError, catalog, identify, propagate, report, validate
 
 
 def _chain():
@@ -52,6 +56,19 @@ def test_report_with_figures_writes_pngs_and_self_contained_html(tmp_path):
     # identical inputs give identical bytes, images included
     assert first.with_suffix(".html").read_bytes() == second.with_suffix(".html").read_bytes()
     assert not [p for p in first.parent.iterdir() if p.name.startswith(".tmp")]
+    # written with the permissions any new file gets here, not private ones
+    mask = os.umask(0)
+    os.umask(mask)
+    for p in (first, first.with_suffix(".html"), first.parent / "flight_figures" / pngs[0]):
+        assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~mask
+
+
+def test_a_report_path_that_cannot_be_written_is_an_output_error(tmp_path):
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(OutputError, match=r"cannot write .*afile/r.md"):
+        report(*_chain(), path=tmp_path / "afile" / "r.md", figures=False)
+    with pytest.raises(OutputError, match=r"cannot write .*: it is a directory"):
+        report(*_chain(), path=tmp_path, figures=False)
 
 
 def test_empty_report_says_so():

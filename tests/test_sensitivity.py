@@ -245,3 +245,17 @@ def test_missing_control_and_bad_lookup(sp_noisy, sp_truth):
         res.sensitivity("theta", "M_q")
     with pytest.raises(IdentificationError, match="M_x"):
         res.sensitivity("q", "M_x")
+
+
+def test_parameter_values_given_where_names_go_are_used_as_the_values():
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=3)
+    fit = aeroid.identify(model, data, ["M_q", "M_delta"])
+    by_values = aeroid.sensitivities(model, data, ["M_q", "M_delta"], values=fit)
+    for given in (fit, dict(fit.parameters)):
+        s = aeroid.sensitivities(model, data, given)
+        assert list(s.parameter_names) == ["M_q", "M_delta"]
+        assert s.values == by_values.values and s.values["M_q"] == fit.parameters["M_q"]
+        np.testing.assert_allclose(s.fisher_information, by_values.fisher_information, rtol=1e-12)
+    with pytest.raises(IdentificationError, match="either as `parameters` or as `values`"):
+        aeroid.sensitivities(model, data, dict(fit.parameters), values=fit)
