@@ -40,6 +40,18 @@ def plain(value: Any) -> str:
     return repr(value)
 
 
+def positive_int(value: Any, name: str, error: type[Exception]) -> int:
+    """`value` as an int >= 1 (integral floats such as 50.0 accepted), else `error`."""
+    try:
+        n = int(value)
+        ok = not isinstance(value, bool) and n == value and n >= 1
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise error(f"{name} must be a positive integer, got {plain(value)}")
+    return n
+
+
 def _seconds(values: NDArray[Any]) -> FloatArray:
     """Datetimes as float seconds since the first sample, durations as float seconds.
 

@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData, fingerprint, measured_start, plain
-from .errors import AeroidError, IdentificationError
+from .data import FlightData, fingerprint, measured_start, plain, positive_int
+from .errors import IdentificationError
 
 __all__ = ["IdentificationResult", "identify"]
 
@@ -249,18 +249,6 @@ def _select(option: Any, available: Sequence[str], what: str, *, strict: bool = 
     return [c for c in chosen if c in available]
 
 
-def _positive_int(value: Any, name: str, error: type[AeroidError]) -> int:
-    """`value` as an int >= 1 (integral floats such as 50.0 accepted), else `error`."""
-    try:
-        n = int(value)
-        ok = not isinstance(value, bool) and n == value and n >= 1
-    except (TypeError, ValueError, OverflowError):
-        ok = False
-    if not ok:
-        raise error(f"{name} must be a positive integer, got {plain(value)}")
-    return n
-
-
 def _x0_values(xi: Any, states: list[str]) -> dict[str, float]:
     """One manoeuvre's given initial state (mapping or array) by state name."""
     if isinstance(xi, Mapping):
@@ -452,7 +440,7 @@ def identify(
         raise IdentificationError(
             f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
         )
-    max_iterations = _positive_int(max_iterations, "max_iterations", IdentificationError)
+    max_iterations = positive_int(max_iterations, "max_iterations", IdentificationError)
     try:
         tol = float(tolerance)
     except (TypeError, ValueError):

@@ -12,9 +12,8 @@ import scipy.stats
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
-from .data import FlightData, plain
+from .data import FlightData, plain, positive_int
 from .errors import IdentificationError
-from .identification import _positive_int
 from .model import fitted_start, require_model, resolve_parameters
 
 __all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
@@ -236,7 +235,7 @@ def validate(
     if whiteness_lags is None:
         whiteness_lags = 20
     else:
-        whiteness_lags = _positive_int(whiteness_lags, "whiteness_lags", IdentificationError)
+        whiteness_lags = positive_int(whiteness_lags, "whiteness_lags", IdentificationError)
         if whiteness_lags >= n:
             raise IdentificationError(
                 f"whiteness_lags must be fewer than the record's {n} samples, got {whiteness_lags}"

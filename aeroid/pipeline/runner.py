@@ -918,7 +918,8 @@ def _run_dask(
             return fut
 
         for chain, split in _segments(tasks):
-            chain = [t for t in chain if t.key not in owner]  # same content in two flights
+            # identical steps of a pipeline share a key: run once (plans refuse identical flights)
+            chain = [t for t in chain if t.key not in owner]
             if not chain:
                 continue
             own = {t.key for t in chain}
@@ -970,7 +971,9 @@ def _dead_chain(
     """Statuses of a chain whose worker process died: computed up to the task that was
     running (its results are in the store), failed from there on."""
     stored = ResultStore(store_root).stored((t.stage, t.key) for t in chain)
-    if exc is None or type(exc).__name__ == "KilledWorker":
+    from dask.distributed import KilledWorker
+
+    if exc is None or isinstance(exc, KilledWorker):
         # Dask cannot tell which of the tasks on a worker killed it
         why = (
             "a crash in native code, out of memory or an exit call, in this task or in one "
