@@ -3,8 +3,9 @@
 `plan` turns a config into tasks whose keys are computed from keys only
 (file digests, options, model fingerprint, seeds), before anything runs.
 `run` prunes the tasks already in the store and, only if something is
-left, starts Dask (an embedded `LocalCluster` of single-threaded worker
-processes, or the scheduler given) and runs the rest, named by their keys.
+left, runs the rest on Dask, named by their keys: by default Dask's local
+scheduler over a pool of single-threaded worker processes, or the
+`dask.distributed` scheduler given.
 A failing task is reported with its error and never committed; its
 dependants fail with a pointer to it; other flights carry on.
 """
@@ -15,7 +16,6 @@ import contextlib
 import functools
 import gc
 import json
-import logging
 import os
 import platform
 import sys
@@ -578,7 +578,7 @@ def execute_task(
             status["markdown"] = record.markdown
             status["rows"] = [list(r) for r in getattr(record, "rows", ())]
             status["columns"] = list(getattr(record, "columns", ()))
-            if not status["cached"] and hasattr(record, "figure_bytes"):
+            if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
                 status["figures"] = record.figure_bytes()
     except Exception as exc:
         status.update(status="failed", error=_error_text(exc))
@@ -595,13 +595,15 @@ def execute_chain(
     *upstream_status: Any,
     scope: str | None = None,
     pin_blas: bool = False,
+    open_fonts: bool = False,
 ) -> list[dict[str, Any]]:
     """Run consecutive tasks of one flight in this process, in order; their statuses.
 
     One Dask task per chain keeps the scheduler's per-task cost off the
     flight's steps; every step is still keyed, committed and reported on its
     own. `parts` are the results of the first task's parts, if it is split.
-    `pin_blas` limits BLAS to one thread first (embedded cluster workers).
+    `pin_blas` limits BLAS to one thread first; `open_fonts` readies this
+    process for the campaign's figures after (see `_open_fonts`).
     """
     if pin_blas:
         _pin_blas()
@@ -612,6 +614,8 @@ def execute_chain(
         status = execute_task(t, store_root, *ups, *(parts if i == 0 else ()), scope=scope)
         known[t.key] = status
         out.append(status)
+    if open_fonts:
+        _open_fonts()
     return out
 
 
@@ -724,9 +728,9 @@ def _start_method() -> str:
     everything this process has imported, instead of a second or more to
     import numpy, scipy and aeroid afresh, which would dominate a campaign's
     run. ``spawn`` elsewhere, when JAX is loaded (it must not be forked), or
-    as set by ``DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD``.
+    as set by ``AEROID_START_METHOD``.
     """
-    chosen = os.environ.get("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD")
+    chosen = os.environ.get("AEROID_START_METHOD")
     if chosen:
         return chosen
     if sys.platform.startswith("linux") and "jax" not in sys.modules:
@@ -740,8 +744,8 @@ _PINNED = False
 def _pin_blas() -> None:
     """One BLAS/OpenMP thread in this worker process (the env vars only reach spawned ones).
 
-    Called by the first task an embedded cluster's worker runs, which saves a
-    round trip to every worker before the first task can start.
+    The embedded cluster's workers call it as they start; a task given
+    ``pin_blas`` calls it too.
     """
     global _PINNED
     if _PINNED:
@@ -821,56 +825,221 @@ def _segments(tasks: list[Task]) -> list[tuple[list[Task], Task | None]]:
     return out
 
 
-def _run_dask(
+@dataclass
+class _Node:
+    """One Dask task of a run: a chain of one flight's steps, or one part of a split task."""
+
+    name: str
+    call: Callable[..., Any]  # execute_chain or execute_part, with its fixed arguments bound
+    deps: list[str]  # the nodes whose results it takes, in order
+    chain: list[Task] | None = None  # None for a part
+    parts: list[str] = field(default_factory=list)  # a chain's parts, run before it
+    part: tuple[Task, int] | None = None
+
+
+def _nodes(tasks: list[Task], store_root: str, scope: str) -> list[_Node]:
+    """The graph the embedded cluster runs, built as `_run_dask` submits to a scheduler:
+    one node per chain (`_segments`), one per part of a split task."""
+    draws = any("aeroid.plotting" in STAGES[t.stage].preload for t in tasks if t.stage in STAGES)
+    owner: dict[str, str] = {}  # task key -> name of the chain that runs it
+    nodes: list[_Node] = []
+    for chain, split in _segments(tasks):
+        # identical steps of a pipeline share a key: run once (plans refuse identical flights)
+        chain = [t for t in chain if t.key not in owner]
+        if not chain:
+            continue
+        own = {t.key for t in chain}
+        deps = list(
+            dict.fromkeys(
+                owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
+            )
+        )
+        head = chain[0]
+        name = f"{head.flight or 'campaign'}-{head.step}-{head.key}"
+        parts: list[str] = []
+        if split is not None and head is split:
+            for i in range(n_parts(split)):
+                part: Callable[..., Any] = functools.partial(
+                    execute_part, split, store_root, i, scope=scope
+                )
+                pdeps = _part_deps(split, i, deps, owner)
+                nodes.append(_Node(f"{name}-part{i}", part, pdeps, part=(split, i)))
+                parts.append(nodes[-1].name)
+        run_chain: Callable[..., Any] = functools.partial(
+            execute_chain,
+            chain,
+            store_root,
+            scope=scope,
+            open_fonts=draws and head.flight is not None,
+        )
+        nodes.append(_Node(name, run_chain, deps, chain=chain, parts=parts))
+        for t in chain:
+            owner[t.key] = name
+    return nodes
+
+
+_FONTS_OPEN = False
+
+
+def _open_fonts() -> None:
+    """Open matplotlib's fonts in this worker process (matplotlib drops them at fork).
+
+    A worker of a run that draws figures does it after its first flight, in
+    parallel with the other workers, so that it is not done by the campaign's
+    trend figure, which runs alone after the last flight.
+    """
+    global _FONTS_OPEN
+    if _FONTS_OPEN:
+        return
+    _FONTS_OPEN = True
+    import io
+
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(1.0, 1.0))
+    fig.add_subplot().set_title("0")
+    fig.savefig(io.BytesIO(), format="png", dpi=10)
+
+
+def _process_pool(n: int) -> Any:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(
+        n, mp_context=multiprocessing.get_context(_start_method()), initializer=_pin_blas
+    )
+
+
+def _run_processes(
     tasks: list[Task],
     store_root: str,
     *,
-    scheduler: str | None,
     workers: int | None,
     on_done: Callable[[dict[str, Any]], None],
     scope: str,
 ) -> dict[str, dict[str, Any]]:
-    import dask
-    from dask.distributed import Client, LocalCluster, as_completed
+    """The embedded cluster: Dask's local scheduler over a pool of worker processes.
 
-    cluster = None
-    if scheduler:
+    A pool costs a few milliseconds to start and to stop where a
+    `dask.distributed` cluster costs a few hundred, and it hands tasks out one
+    per idle worker, so each task runs the moment it is handed out. When a
+    worker process dies (a crash in native code, out of memory), every task
+    then running fails with it: each is run again alone in a fresh process,
+    so only the one that kills its worker again is reported failed, and the
+    rest of the graph goes on in a fresh pool.
+    """
+    from concurrent.futures.process import BrokenProcessPool
+
+    import cloudpickle
+    from dask.callbacks import Callback
+    from dask.core import quote
+    from dask.local import get_async
+    from dask.multiprocessing import pack_exception
+
+    nodes = {node.name: node for node in _nodes(tasks, store_root, scope)}
+    n = workers or _workers_default()
+    n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
+    if _start_method() == "fork":
+        _preload(tasks)
+        _freeze_objects(True)
+    done: dict[str, Any] = {}  # node name -> its result
+    running: set[str] = set()
+    results: dict[str, dict[str, Any]] = {}
+
+    def finished(name: str, value: Any) -> None:
+        running.discard(name)
+        done[name] = value
+        if nodes[name].chain is not None:
+            for status in value:
+                results[status["key"]] = status
+                on_done(status)
+
+    def track(key: str, *_: Any) -> None:
+        if key not in done:  # not a result of an earlier attempt, given as data
+            running.add(key)
+
+    def record(key: str, value: Any, *_: Any) -> None:
+        if key not in done:
+            finished(key, value)
+
+    def attempt(names: list[str], n_workers: int) -> None:
+        dsk: dict[str, Any] = {}
+        for name in names:
+            node = nodes[name]
+            for dep in [*node.deps, *node.parts]:
+                if dep in done:
+                    dsk[dep] = quote(done[dep])
+            if node.chain is not None:
+                dsk[name] = (node.call, list(node.parts), *node.deps)
+            else:
+                dsk[name] = (node.call, *node.deps)
+        pool = _process_pool(n_workers)
         try:
-            client = Client(scheduler, timeout="30s")
-        except (OSError, TimeoutError) as exc:
-            raise PipelineError(f"cannot reach the dask scheduler {scheduler}: {exc}") from None
-    else:
-        n = workers or _workers_default()
-        n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
-        method = _start_method()
-        if method == "fork":
-            _preload(tasks)
-            _freeze_objects(True)
-        try:
-            with dask.config.set(
-                {
-                    "distributed.worker.multiprocessing-method": method,
-                    # the statistical profiler samples each task's stack every 10 ms for
-                    # a dashboard this cluster does not have; it slows tasks by ~15 %
-                    "distributed.worker.profile.enabled": False,
-                }
-            ):
-                cluster = LocalCluster(
-                    n_workers=n,
-                    threads_per_worker=1,
-                    processes=True,
-                    # no dashboard; the scheduler's HTTP server still starts, so give it a
-                    # free loopback port rather than 8787, which a user's own cluster may hold
-                    dashboard_address="127.0.0.1:0",
-                    scheduler_kwargs={"dashboard": False},
-                    env=dict(_BLAS_ENV),
-                    silence_logs=logging.CRITICAL,  # failures are reported per task
+            with Callback(pretask=track, posttask=record):
+                get_async(
+                    pool.submit,
+                    n_workers,
+                    dsk,
+                    names,
+                    chunksize=1,
+                    # as Dask's process scheduler does: a pipeline's own functions travel
+                    # by value, and a worker's error comes back with its traceback
+                    dumps=cloudpickle.dumps,
+                    loads=cloudpickle.loads,
+                    pack_exception=pack_exception,
                 )
-            client = Client(cluster)
-        except BaseException:
-            if cluster is not None:
-                cluster.close()
-            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    broke = False
+    while len(done) < len(nodes):
+        try:
+            attempt([name for name in nodes if name not in done], n)
+        except BrokenProcessPool:
+            broke = True
+            for name in sorted(running):
+                running.discard(name)
+                try:
+                    attempt([name], 1)
+                except BrokenProcessPool:
+                    finished(name, _dead_node(nodes[name], store_root))
+    if broke:
+        # the pool stops every worker when one dies: their half-written entries are
+        # temporaries of dead processes, which `gc` removes
+        ResultStore(store_root).gc()
+    return results
+
+
+def _dead_node(node: _Node, store_root: str) -> Any:
+    """What a node whose worker process died returns: a failed part, or the chain's statuses."""
+    why = f"{_DIED}: it killed its worker again when run alone"
+    if node.chain is not None:
+        return _dead_chain(node.chain, store_root, why)
+    assert node.part is not None
+    task, index = node.part
+    return {
+        "key": task.key,
+        "part": index,
+        "status": "failed",
+        "error": f"the worker process died ({why})",
+    }
+
+
+def _run_dask(
+    tasks: list[Task],
+    store_root: str,
+    scheduler: str,
+    *,
+    on_done: Callable[[dict[str, Any]], None],
+    scope: str,
+) -> dict[str, dict[str, Any]]:
+    """Run the tasks on the `dask.distributed` scheduler at `scheduler`."""
+    from dask.distributed import Client, as_completed
+
+    try:
+        client = Client(scheduler, timeout="30s")
+    except (OSError, TimeoutError) as exc:
+        raise PipelineError(f"cannot reach the dask scheduler {scheduler}: {exc}") from None
     results: dict[str, dict[str, Any]] = {}
     try:
         owner: dict[str, Any] = {}  # task key -> future of the chain that runs it
@@ -890,7 +1059,7 @@ def _run_dask(
                         i,
                         *(stand_in.get(d, d) for d in _part_deps(split, i, deps, owner)),
                         scope=scope,
-                        pin_blas=cluster is not None,
+                        pin_blas=False,
                         key=f"{split.step}-{split.key}-part{i}-{uuid.uuid4().hex[:8]}",
                         pure=False,
                         retries=0,
@@ -907,7 +1076,7 @@ def _run_dask(
                 parts,
                 *(stand_in.get(d, d) for d in deps),
                 scope=scope,
-                pin_blas=cluster is not None,
+                pin_blas=False,
                 key=f"{head.flight or 'campaign'}-{head.step}-{head.key}-{uuid.uuid4().hex[:8]}",
                 pure=False,
                 retries=0,
@@ -945,7 +1114,7 @@ def _run_dask(
                 replaced[fut] = submit(chain, split, [replaced.get(d, d) for d in deps])
                 done.add(replaced[fut])
             else:
-                stand_in[fut] = _dead_chain(chain, store_root, fut.exception())
+                stand_in[fut] = _dead_chain(chain, store_root, _death(fut.exception()))
 
         for fut in done:
             try:
@@ -960,27 +1129,28 @@ def _run_dask(
                 on_done(status)
     finally:
         client.close()
-        if cluster is not None:
-            cluster.close()
     return results
 
 
-def _dead_chain(
-    chain: list[Task], store_root: str, exc: BaseException | None
-) -> list[dict[str, Any]]:
-    """Statuses of a chain whose worker process died: computed up to the task that was
-    running (its results are in the store), failed from there on."""
-    stored = ResultStore(store_root).stored((t.stage, t.key) for t in chain)
+_DIED = "a crash in native code, out of memory or an exit call"
+
+
+def _death(exc: BaseException | None) -> str:
+    """Why a chain on a `dask.distributed` worker did not finish."""
     from dask.distributed import KilledWorker
 
     if exc is None or isinstance(exc, KilledWorker):
         # Dask cannot tell which of the tasks on a worker killed it
-        why = (
-            "a crash in native code, out of memory or an exit call, in this task or in one "
-            "queued beside it; rerun to recompute what is missing"
+        return (
+            f"{_DIED}, in this task or in one queued beside it; rerun to recompute what is missing"
         )
-    else:
-        why = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+    return f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+
+
+def _dead_chain(chain: list[Task], store_root: str, why: str) -> list[dict[str, Any]]:
+    """Statuses of a chain whose worker process died (`why`): computed up to the task that
+    was running (its results are in the store), failed from there on."""
+    stored = ResultStore(store_root).stored((t.stage, t.key) for t in chain)
     out: list[dict[str, Any]] = []
     dead: Task | None = None
     for t in chain:
@@ -1084,13 +1254,16 @@ def run(
         try:
             scope = uuid.uuid4().hex
             _freeze_objects(True)
-            if config.workers == 0 and not config.scheduler:
+            if config.scheduler:
+                done = _run_dask(
+                    todo, str(result_store.root), config.scheduler, on_done=on_done, scope=scope
+                )
+            elif config.workers == 0:
                 done = _run_local(todo, str(result_store.root), on_done, scope)
             else:
-                done = _run_dask(
+                done = _run_processes(
                     todo,
                     str(result_store.root),
-                    scheduler=config.scheduler,
                     workers=config.workers,
                     on_done=on_done,
                     scope=scope,

@@ -131,6 +131,12 @@ def serial_time(cfg: Path, workers: int = 2) -> tuple[float, float, float]:
     return t1 - t0, min(a for a, _ in flights) - t0, t1 - max(b for _, b in flights)
 
 
+def _one_blas_thread() -> None:
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1)
+
+
 def _burn(n: int) -> float:
     t = time.perf_counter()
     x = 0
@@ -228,11 +234,13 @@ def main() -> None:
         f"{args.repeats} repeats"
     )
 
-    # imports and caches of this process (dask.distributed included), paid once
+    # imports and caches of this process, paid once
     cold(cfg, 0, "warm-up")
     cold(cfg, 1, "warm-up")
     w1, w2, w0, ceil, lib = [], [], [], [], []
-    with multiprocessing.get_context("spawn").Pool(2) as pool:
+    # one BLAS thread per process, as in the pipeline's workers: two processes with a
+    # BLAS thread per core each oversubscribe the machine and measure that instead
+    with multiprocessing.get_context("spawn").Pool(2, initializer=_one_blas_thread) as pool:
         ceiling(pool, 100_000)  # starts the pool's processes
         if CHAIN:
             pool.map(_library_flights, [[0], [1]], chunksize=1)  # and their imports
