@@ -901,12 +901,45 @@ def _open_fonts() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=10)
 
 
+def _start_worker(parent: int) -> None:
+    """What each worker of the embedded cluster does as it starts: BLAS on one thread,
+    and an exit as soon as the run that started it is gone.
+
+    A pool's workers would otherwise outlive a run killed with SIGKILL, waiting
+    for work forever. (What a worker was writing is left as a temporary, which
+    the next run ignores and `gc` removes.)
+    """
+    _pin_blas()
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        with contextlib.suppress(OSError, AttributeError):
+            pr_set_pdeathsig = 1
+            ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
+            if os.getppid() == parent:
+                return  # the kernel stops this process with its parent
+    if os.getppid() != parent:
+        os._exit(1)
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="aeroid-parent-watch", daemon=True).start()
+
+
 def _process_pool(n: int) -> Any:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     return ProcessPoolExecutor(
-        n, mp_context=multiprocessing.get_context(_start_method()), initializer=_pin_blas
+        n,
+        mp_context=multiprocessing.get_context(_start_method()),
+        initializer=_start_worker,
+        initargs=(os.getpid(),),
     )
 
 
