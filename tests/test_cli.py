@@ -296,43 +296,40 @@ def _cli(*args: str, **kw):
     return subprocess.run([*exe, *args], capture_output=True, text=True, timeout=120, **kw)
 
 
+def _run_until_stored(cfg: Path, store: Path, n: int, *, workers: int) -> subprocess.Popen:
+    """`aeroid run` in the background, returned once `n` stats results are stored."""
+    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
+    proc = subprocess.Popen(
+        [*exe, "run", str(cfg), "--workers", str(workers), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < n:
+        time.sleep(0.05)
+    return proc
+
+
 @pytest.mark.slow
 def test_the_workers_of_a_killed_run_stop_with_it(tmp_path):
     import psutil
 
     cfg = make_campaign(tmp_path, n=12, stats="{n_boot: 50, sleep: 0.3}")
-    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
-    proc = subprocess.Popen(
-        [*exe, "run", str(cfg), "--workers", "2", "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
-    store = tmp_path / "store"
-    deadline = time.time() + 60
-    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < 2:
-        time.sleep(0.05)
+    proc = _run_until_stored(cfg, tmp_path / "store", 2, workers=2)
     workers = psutil.Process(proc.pid).children(recursive=True)
     assert len(workers) == 2
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     _, alive = psutil.wait_procs(workers, timeout=20)
     assert alive == []
-    assert _cli("verify", "--store", str(store)).returncode == 0
+    assert _cli("verify", "--store", str(tmp_path / "store")).returncode == 0
 
 
 @pytest.mark.slow
 def test_killed_run_leaves_a_store_that_verifies_and_the_next_run_completes(tmp_path):
     cfg = make_campaign(tmp_path, n=12, stats="{n_boot: 50, sleep: 0.15}")
-    exe = [sys.executable, "-c", "from aeroid.cli import main; main()"]
-    proc = subprocess.Popen(
-        [*exe, "run", str(cfg), "--workers", "0", "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
     store = tmp_path / "store"
-    deadline = time.time() + 60
-    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < 3:
-        time.sleep(0.05)
+    proc = _run_until_stored(cfg, store, 3, workers=0)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     done_before = len(list((store / "stats").glob("*/*")))

@@ -23,7 +23,7 @@ import time
 import traceback
 import uuid
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, overload
@@ -825,6 +825,25 @@ def _segments(tasks: list[Task]) -> list[tuple[list[Task], Task | None]]:
     return out
 
 
+def _chains(
+    tasks: list[Task], owner: Mapping[str, Any]
+) -> Iterator[tuple[list[Task], Task | None, list[Any]]]:
+    """The chains of `_segments`, each with what it waits for: the owners of its upstream
+    tasks in `owner` (task key -> what runs it), which the caller fills as it goes."""
+    for chain, split in _segments(tasks):
+        # identical steps of a pipeline share a key: run once (plans refuse identical flights)
+        chain = [t for t in chain if t.key not in owner]
+        if not chain:
+            continue
+        own = {t.key for t in chain}
+        deps = list(
+            dict.fromkeys(
+                owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
+            )
+        )
+        yield chain, split, deps
+
+
 @dataclass
 class _Node:
     """One Dask task of a run: a chain of one flight's steps, or one part of a split task."""
@@ -843,17 +862,7 @@ def _nodes(tasks: list[Task], store_root: str, scope: str) -> list[_Node]:
     draws = any("aeroid.plotting" in STAGES[t.stage].preload for t in tasks if t.stage in STAGES)
     owner: dict[str, str] = {}  # task key -> name of the chain that runs it
     nodes: list[_Node] = []
-    for chain, split in _segments(tasks):
-        # identical steps of a pipeline share a key: run once (plans refuse identical flights)
-        chain = [t for t in chain if t.key not in owner]
-        if not chain:
-            continue
-        own = {t.key for t in chain}
-        deps = list(
-            dict.fromkeys(
-                owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
-            )
-        )
+    for chain, split, deps in _chains(tasks, owner):
         head = chain[0]
         name = f"{head.flight or 'campaign'}-{head.step}-{head.key}"
         parts: list[str] = []
@@ -1119,17 +1128,7 @@ def _run_dask(
             submitted[fut] = (chain, split, deps)
             return fut
 
-        for chain, split in _segments(tasks):
-            # identical steps of a pipeline share a key: run once (plans refuse identical flights)
-            chain = [t for t in chain if t.key not in owner]
-            if not chain:
-                continue
-            own = {t.key for t in chain}
-            deps = list(
-                dict.fromkeys(
-                    owner[k] for t in chain for k in t.upstream_keys if k in owner and k not in own
-                )
-            )
+        for chain, split, deps in _chains(tasks, owner):
             submit(chain, split, deps)
         done = as_completed(list(submitted))
         replaced: dict[Any, Any] = {}  # erred only because what it waited for died -> rerun
