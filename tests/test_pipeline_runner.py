@@ -536,3 +536,24 @@ def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path
     assert "wild" in s.report_path.read_text()
     store = open_store(tmp_path / "store")
     assert store.verify_all() == {} and store.temporaries() == []
+
+
+_execute_chain = runner_mod.execute_chain
+
+
+def _chain_that_fails_outside_its_tasks(tasks, *args, **kwargs):
+    if tasks[0].flight == "sim-1":
+        raise RuntimeError("lost in transit")
+    return _execute_chain(tasks, *args, **kwargs)
+
+
+def test_an_error_outside_a_chains_tasks_fails_that_flight_only(tmp_path, monkeypatch):
+    monkeypatch.setattr(runner_mod, "execute_chain", _chain_that_fails_outside_its_tasks)
+    s = run(_config(tmp_path), workers=2)
+    bad = [st for st in s.statuses.values() if st["flight"] == "sim-1"]
+    assert bad and all(st["status"] == "failed" for st in bad)
+    assert bad[0]["error"] == "the worker failed while running load (RuntimeError: lost in transit)"
+    assert bad[1]["error"] == "not run: the worker failed at load"
+    good = [st for st in s.statuses.values() if st["flight"] not in ("sim-1", None)]
+    assert good and all(st["status"] == "computed" for st in good)
+    assert s.report_path is not None and s.report_path.is_file()

@@ -1037,14 +1037,15 @@ def _run_processes(
     while len(done) < len(nodes):
         try:
             attempt([name for name in nodes if name not in done], n)
-        except BrokenProcessPool:
-            broke = True
+        except Exception as exc:  # a worker died, or an error escaped a task (not pickled...)
+            broke = broke or isinstance(exc, BrokenProcessPool)
             for name in sorted(running):
                 running.discard(name)
                 try:
                     attempt([name], 1)
-                except BrokenProcessPool:
-                    finished(name, _dead_node(nodes[name], store_root))
+                except Exception as again:
+                    broke = broke or isinstance(again, BrokenProcessPool)
+                    finished(name, _dead_node(nodes[name], store_root, again))
     if broke:
         # the pool stops every worker when one dies: their half-written entries are
         # temporaries of dead processes, which `gc` removes
@@ -1052,19 +1053,19 @@ def _run_processes(
     return results
 
 
-def _dead_node(node: _Node, store_root: str) -> Any:
-    """What a node whose worker process died returns: a failed part, or the chain's statuses."""
-    why = f"{_DIED}: it killed its worker again when run alone"
+def _dead_node(node: _Node, store_root: str, exc: BaseException) -> Any:
+    """What a node that failed when run alone returns (`exc`: its worker died, or an error
+    escaped its tasks): a failed part, or the chain's statuses."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    died = isinstance(exc, BrokenProcessPool)
+    why = f"{_DIED}: it killed its worker again when run alone" if died else _error_text(exc)
     if node.chain is not None:
-        return _dead_chain(node.chain, store_root, why)
+        return _dead_chain(node.chain, store_root, why, died=died)
     assert node.part is not None
     task, index = node.part
-    return {
-        "key": task.key,
-        "part": index,
-        "status": "failed",
-        "error": f"the worker process died ({why})",
-    }
+    what = "the worker process died" if died else "the worker failed"
+    return {"key": task.key, "part": index, "status": "failed", "error": f"{what} ({why})"}
 
 
 def _run_dask(
@@ -1146,7 +1147,8 @@ def _run_dask(
                 replaced[fut] = submit(chain, split, [replaced.get(d, d) for d in deps])
                 done.add(replaced[fut])
             else:
-                stand_in[fut] = _dead_chain(chain, store_root, _death(fut.exception()))
+                why, died = _death(fut.exception())
+                stand_in[fut] = _dead_chain(chain, store_root, why, died=died)
 
         for fut in done:
             try:
@@ -1167,21 +1169,26 @@ def _run_dask(
 _DIED = "a crash in native code, out of memory or an exit call"
 
 
-def _death(exc: BaseException | None) -> str:
-    """Why a chain on a `dask.distributed` worker did not finish."""
+def _death(exc: BaseException | None) -> tuple[str, bool]:
+    """Why a chain on a `dask.distributed` worker did not finish, and whether its worker died."""
     from dask.distributed import KilledWorker
 
     if exc is None or isinstance(exc, KilledWorker):
         # Dask cannot tell which of the tasks on a worker killed it
-        return (
+        why = (
             f"{_DIED}, in this task or in one queued beside it; rerun to recompute what is missing"
         )
-    return f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+        return why, True
+    return _error_text(exc).splitlines()[0][:300], False
 
 
-def _dead_chain(chain: list[Task], store_root: str, why: str) -> list[dict[str, Any]]:
-    """Statuses of a chain whose worker process died (`why`): computed up to the task that
-    was running (its results are in the store), failed from there on."""
+def _dead_chain(
+    chain: list[Task], store_root: str, why: str, *, died: bool = True
+) -> list[dict[str, Any]]:
+    """Statuses of a chain whose worker process died, or failed outside its tasks (`why`):
+    computed up to the task that was running (its results are in the store), failed from
+    there on."""
+    what = "the worker process died" if died else "the worker failed"
     stored = ResultStore(store_root).stored((t.stage, t.key) for t in chain)
     out: list[dict[str, Any]] = []
     dead: Task | None = None
@@ -1191,11 +1198,12 @@ def _dead_chain(chain: list[Task], store_root: str, why: str) -> list[dict[str, 
             status.update(status="computed", cached=True)
         elif dead is None:
             dead = t
-            status.update(
-                status="failed", error=f"the worker process died while running {t.step} ({why})"
-            )
+            status.update(status="failed", error=f"{what} while running {t.step} ({why})")
         else:
-            status.update(status="failed", error=f"not run: the worker died at {dead.step}")
+            status.update(
+                status="failed",
+                error=f"not run: the worker {'died' if died else 'failed'} at {dead.step}",
+            )
         out.append(status)
     return out
 
