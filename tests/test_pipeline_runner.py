@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeroid.errors import StoreError
+from aeroid.errors import PipelineError, StoreError
 from aeroid.pipeline import ResultStore, open_store, run
 from aeroid.pipeline import runner as runner_mod
 from aeroid.pipeline.keys import canonical_json, sha256_hex
@@ -557,3 +557,12 @@ def test_an_error_outside_a_chains_tasks_fails_that_flight_only(tmp_path, monkey
     good = [st for st in s.statuses.values() if st["flight"] not in ("sim-1", None)]
     assert good and all(st["status"] == "computed" for st in good)
     assert s.report_path is not None and s.report_path.is_file()
+
+
+def test_a_pool_that_will_not_start_is_reported_not_retried_forever(tmp_path, monkeypatch):
+    def no_pool(n):
+        raise OSError("Too many open files")
+
+    monkeypatch.setattr(runner_mod, "_process_pool", no_pool)
+    with pytest.raises(PipelineError, match="could not run: OSError: Too many open files"):
+        run(_config(tmp_path), workers=2)

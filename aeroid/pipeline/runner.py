@@ -1035,9 +1035,14 @@ def _run_processes(
 
     broke = False
     while len(done) < len(nodes):
+        before = len(done)
         try:
             attempt([name for name in nodes if name not in done], n)
         except Exception as exc:  # a worker died, or an error escaped a task (not pickled...)
+            if not running and len(done) == before:  # no task to blame: nothing would change
+                raise PipelineError(
+                    f"the local worker processes could not run: {_error_text(exc)}"
+                ) from exc
             broke = broke or isinstance(exc, BrokenProcessPool)
             for name in sorted(running):
                 running.discard(name)
