@@ -859,6 +859,7 @@ class _Node:
 def _nodes(tasks: list[Task], store_root: str, scope: str) -> list[_Node]:
     """The graph the embedded cluster runs, built as `_run_dask` submits to a scheduler:
     one node per chain (`_segments`), one per part of a split task."""
+    # stages that draw preload the plotting module
     draws = any("aeroid.plotting" in STAGES[t.stage].preload for t in tasks if t.stage in STAGES)
     owner: dict[str, str] = {}  # task key -> name of the chain that runs it
     nodes: list[_Node] = []
@@ -973,7 +974,6 @@ def _run_processes(
     from concurrent.futures.process import BrokenProcessPool
 
     import cloudpickle
-    from dask.callbacks import Callback
     from dask.core import quote
     from dask.local import get_async
     from dask.multiprocessing import pack_exception
@@ -1017,19 +1017,20 @@ def _run_processes(
                 dsk[name] = (node.call, *node.deps)
         pool = _process_pool(n_workers)
         try:
-            with Callback(pretask=track, posttask=record):
-                get_async(
-                    pool.submit,
-                    n_workers,
-                    dsk,
-                    names,
-                    chunksize=1,
-                    # as Dask's process scheduler does: a pipeline's own functions travel
-                    # by value, and a worker's error comes back with its traceback
-                    dumps=cloudpickle.dumps,
-                    loads=cloudpickle.loads,
-                    pack_exception=pack_exception,
-                )
+            get_async(
+                pool.submit,
+                n_workers,
+                dsk,
+                names,
+                chunksize=1,
+                # given here, not registered globally: no other computation sees them
+                callbacks=[(None, None, track, record, None)],
+                # as Dask's process scheduler does: a pipeline's own functions travel
+                # by value, and a worker's error comes back with its traceback
+                dumps=cloudpickle.dumps,
+                loads=cloudpickle.loads,
+                pack_exception=pack_exception,
+            )
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
