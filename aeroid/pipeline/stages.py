@@ -814,6 +814,8 @@ for _stage in (
         "IdentificationResult",
         _run_identify,
         library="identify",
+        # imported by `identify` when it runs: once before the workers fork, not in each
+        preload=("aeroid._output_error", "aeroid._filter_error"),
     ),
     # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state;
     # identify 2: results name the records they were fitted to
@@ -835,6 +837,7 @@ for _stage in (
         uses_model=False,
         seeded=True,
         library="propagate",
+        preload=("aeroid._progress",),
         parts=_propagate_parts,
         run_part=_run_propagate_part,
         combine=_combine_propagate,
@@ -847,6 +850,7 @@ for _stage in (
         _run_infer,
         seeded=True,
         library="infer",
+        preload=("aeroid._progress",),
         parts=_infer_parts,
         run_part=_run_infer_part,
         combine=_combine_infer,
@@ -859,6 +863,7 @@ for _stage in (
         _run_design,
         seeded=True,
         library="design_experiment",
+        preload=("aeroid._progress",),
     ),
     Stage(
         "frequency",
