@@ -501,11 +501,8 @@ def execute_part(
     *upstream_status: Any,
     read_root: str | None = None,
     scope: str | None = None,
-    pin_blas: bool = False,
 ) -> dict[str, Any]:
     """Compute part `index` of a split task (not stored; its task combines the parts)."""
-    if pin_blas:
-        _pin_blas()
     record_cache(scope)
     out: dict[str, Any] = {"key": task.key, "part": index}
     try:
@@ -596,7 +593,6 @@ def execute_chain(
     parts: list[Mapping[str, Any]],
     *upstream_status: Any,
     scope: str | None = None,
-    pin_blas: bool = False,
     open_fonts: bool = False,
 ) -> list[dict[str, Any]]:
     """Run consecutive tasks of one flight in this process, in order; their statuses.
@@ -604,11 +600,9 @@ def execute_chain(
     One Dask task per chain keeps the scheduler's per-task cost off the
     flight's steps; every step is still keyed, committed and reported on its
     own. `parts` are the results of the first task's parts, if it is split.
-    `pin_blas` limits BLAS to one thread first; `open_fonts` readies this
-    process for the campaign's figures after (see `_open_fonts`).
+    `open_fonts` readies this process for the campaign's figures after (see
+    `_open_fonts`).
     """
-    if pin_blas:
-        _pin_blas()
     known: dict[str, Mapping[str, Any]] = {s["key"]: s for s in _flatten(upstream_status)}
     out: list[dict[str, Any]] = []
     for i, t in enumerate(tasks):
@@ -746,8 +740,7 @@ _PINNED = False
 def _pin_blas() -> None:
     """One BLAS/OpenMP thread in this worker process (the env vars only reach spawned ones).
 
-    The embedded cluster's workers call it as they start; a task given
-    ``pin_blas`` calls it too.
+    The embedded cluster's workers call it as they start.
     """
     global _PINNED
     if _PINNED:
@@ -1110,7 +1103,6 @@ def _run_dask(
                         i,
                         *(stand_in.get(d, d) for d in _part_deps(split, i, deps, owner)),
                         scope=scope,
-                        pin_blas=False,
                         key=f"{split.step}-{split.key}-part{i}-{uuid.uuid4().hex[:8]}",
                         pure=False,
                         retries=0,
@@ -1127,7 +1119,6 @@ def _run_dask(
                 parts,
                 *(stand_in.get(d, d) for d in deps),
                 scope=scope,
-                pin_blas=False,
                 key=f"{head.flight or 'campaign'}-{head.step}-{head.key}-{uuid.uuid4().hex[:8]}",
                 pure=False,
                 retries=0,
