@@ -227,6 +227,7 @@ class WorkerState:
     threads: int
     frozen: int
     pid: int
+    os_threads: int
 
 
 class ProbeOptions(Options):
@@ -239,8 +240,10 @@ def probe(ctx):
 
     from threadpoolctl import threadpool_info
 
+    # counted before threadpoolctl looks: the threads this worker started on its own
+    tasks = len(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else -1
     blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-    return WorkerState(max(blas, default=-1), gc.get_freeze_count(), os.getpid())
+    return WorkerState(max(blas, default=-1), gc.get_freeze_count(), os.getpid(), tasks)
 
 
 register_stage(Stage("blas_probe", "1", ProbeOptions, "blas_probe_mod:WorkerState", probe,
@@ -264,11 +267,13 @@ def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_obje
         "flights: [{simulated: {n_flights: 2, seed: 1, duration: 2.0}}]\n"
         "stages: {blas_probe: {}}\n"
     )
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_info, threadpool_limits
 
     assert gc.get_freeze_count() == 0
     with threadpool_limits(limits=2):  # what forked workers would inherit, unpinned
         s = run(cfg, workers=2)
+        # the run pins this process's BLAS while it forks, and gives its limits back
+        assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"} == {2}
     assert s.failed == 0
     # the objects the workers share with this process are frozen in the workers only
     assert gc.get_freeze_count() == 0
@@ -278,6 +283,9 @@ def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_obje
     assert all(w.pid != os.getpid() for w in states)
     if _start_method() == "fork":
         assert all(w.frozen > 10_000 for w in states)
+        # no BLAS threads: a forked worker that sets its own count starts them (each
+        # spinning for about 0.1 s of CPU)
+        assert [w.os_threads for w in states] == [1, 1]
     else:  # spawned workers (JAX loaded by an earlier test) share nothing
         assert all(w.frozen == 0 for w in states)
 

@@ -738,9 +738,13 @@ _PINNED = False
 
 
 def _pin_blas() -> None:
-    """One BLAS/OpenMP thread in this worker process (the env vars only reach spawned ones).
+    """One BLAS/OpenMP thread in this spawned worker process (the env vars reach only
+    libraries not yet loaded, and numpy is loaded as the worker unpickles its work).
 
-    The embedded cluster's workers call it as they start.
+    Not for forked workers: after a fork OpenBLAS has no threads, and setting its
+    thread count starts them, each spinning for about 0.1 s of CPU before it sleeps.
+    Two forked workers on two cores lost a third of their first flight to that.
+    They inherit the count from `_blas_pinned` instead.
     """
     global _PINNED
     if _PINNED:
@@ -752,6 +756,26 @@ def _pin_blas() -> None:
     except ImportError:  # pragma: no cover - a dependency; spawned workers honour the env
         return
     threadpool_limits(limits=1)
+
+
+@contextlib.contextmanager
+def _blas_pinned(fork: bool) -> Iterator[None]:
+    """One BLAS/OpenMP thread in this process while it forks workers, which inherit it.
+
+    Its previous limits come back when the run ends; this process does no
+    numerical work meanwhile (a thread of the caller's that does runs on one
+    BLAS thread until then).
+    """
+    if not fork:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    limiter = threadpool_limits(limits=1)
+    try:
+        yield
+    finally:
+        limiter.restore_original_limits()
 
 
 def _preload(tasks: list[Task]) -> None:
@@ -906,15 +930,18 @@ def _open_fonts() -> None:
     fig.savefig(io.BytesIO(), format="png", dpi=10)
 
 
-def _start_worker(parent: int) -> None:
-    """What each worker of the embedded cluster does as it starts: BLAS on one thread,
-    and an exit as soon as the run that started it is gone.
+def _start_worker(parent: int, forked: bool) -> None:
+    """What each worker of the embedded cluster does as it starts: BLAS on one thread
+    (inherited when `forked`), and an exit as soon as the run that started it is gone.
 
     A pool's workers would otherwise outlive a run killed with SIGKILL, waiting
     for work forever. (What a worker was writing is left as a temporary, which
     the next run ignores and `gc` removes.)
     """
-    _pin_blas()
+    if forked:
+        os.environ.update(_BLAS_ENV)  # for any process the worker starts
+    else:
+        _pin_blas()
     if sys.platform.startswith("linux"):
         import ctypes
         import signal
@@ -940,11 +967,12 @@ def _process_pool(n: int) -> Any:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
+    method = _start_method()
     return ProcessPoolExecutor(
         n,
-        mp_context=multiprocessing.get_context(_start_method()),
+        mp_context=multiprocessing.get_context(method),
         initializer=_start_worker,
-        initargs=(os.getpid(),),
+        initargs=(os.getpid(), method == "fork"),
     )
 
 
@@ -976,7 +1004,8 @@ def _run_processes(
     nodes = {node.name: node for node in _nodes(tasks, store_root, scope)}
     n = workers or _workers_default()
     n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
-    if _start_method() == "fork":
+    fork = _start_method() == "fork"
+    if fork:
         _preload(tasks)
         _freeze_objects(True)
     done: dict[str, Any] = {}  # node name -> its result
@@ -1014,7 +1043,10 @@ def _run_processes(
         try:
             get_async(
                 pool.submit,
-                n_workers,
+                # one node more than workers: the next one waits in the pool's queue, so a
+                # worker starts it the moment it is free, not after a round trip through
+                # this process (about 2 ms a node)
+                n_workers + 1,
                 dsk,
                 names,
                 chunksize=1,
@@ -1030,23 +1062,24 @@ def _run_processes(
             pool.shutdown(wait=True, cancel_futures=True)
 
     broke = False
-    while len(done) < len(nodes):
-        before = len(done)
-        try:
-            attempt([name for name in nodes if name not in done], n)
-        except Exception as exc:  # a worker died, or an error escaped a task (not pickled...)
-            if not running and len(done) == before:  # no task to blame: nothing would change
-                raise PipelineError(
-                    f"the local worker processes could not run: {_error_text(exc)}"
-                ) from exc
-            broke = broke or isinstance(exc, BrokenProcessPool)
-            for name in sorted(running):
-                running.discard(name)
-                try:
-                    attempt([name], 1)
-                except Exception as again:
-                    broke = broke or isinstance(again, BrokenProcessPool)
-                    finished(name, _dead_node(nodes[name], store_root, again))
+    with _blas_pinned(fork):
+        while len(done) < len(nodes):
+            before = len(done)
+            try:
+                attempt([name for name in nodes if name not in done], n)
+            except Exception as exc:  # a worker died, or an error escaped a task (unpickled)
+                if not running and len(done) == before:  # no task to blame: none would change
+                    raise PipelineError(
+                        f"the local worker processes could not run: {_error_text(exc)}"
+                    ) from exc
+                broke = broke or isinstance(exc, BrokenProcessPool)
+                for name in sorted(running):
+                    running.discard(name)
+                    try:
+                        attempt([name], 1)
+                    except Exception as again:
+                        broke = broke or isinstance(again, BrokenProcessPool)
+                        finished(name, _dead_node(nodes[name], store_root, again))
     if broke:
         # the pool stops every worker when one dies: their half-written entries are
         # temporaries of dead processes, which `gc` removes
