@@ -268,6 +268,7 @@ def plot_campaign_trend(
     records: Sequence[Mapping[str, Any]],
     *,
     condition: str | None = None,
+    parameters: Sequence[str] | None = None,
 ) -> Figure:
     """Each parameter's estimate ±1.96σ across flights.
 
@@ -279,9 +280,21 @@ def plot_campaign_trend(
     condition : str, optional
         Metadata key to plot against (airspeed, Mach, dynamic pressure...);
         default the first of those present, else the flight index.
+    parameters : sequence of str, optional
+        The parameters to draw, a panel each, in this order; default those of
+        the first flight.
     """
     ok = [r for r in records if r.get("parameters")]
     names = list(ok[0]["parameters"]) if ok else []
+    if parameters is not None:
+        missing = [n for n in parameters if not any(n in r["parameters"] for r in ok)]
+        if missing:
+            from .errors import IdentificationError
+
+            raise IdentificationError(
+                f"parameters: no flight has an estimate of {', '.join(missing)}; estimated: {names}"
+            )
+        names = list(parameters)
     if condition is None and ok:
         meta = ok[0].get("metadata", {})
         for key in ("airspeed", "mach", "Mach", "dynamic_pressure", "qbar"):
@@ -301,7 +314,7 @@ def plot_campaign_trend(
         xlabel = "flight"
     for j, name in enumerate(names):
         ax = axes[j, 0]
-        y = np.array([r["parameters"][name] for r in ok])
+        y = np.array([r["parameters"].get(name, np.nan) for r in ok])
         e = np.array([1.96 * r["stderr"].get(name, np.nan) for r in ok])
         ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=3, color="C0")
         ax.set_ylabel(name)

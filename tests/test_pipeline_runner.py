@@ -6,6 +6,7 @@ import json
 import os
 import shutil
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -37,14 +38,15 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     p = plan(cfg)
     report = p.report_task
     assert report is not None
-    # trend, text, and one figure per per-flight result the report receives
-    assert n_parts(report) == 2 + 3  # validation, identification, propagation
+    # the trend in two halves, text, and one figure per per-flight result it receives
+    assert n_parts(report) == 3 + 3  # validation, identification, propagation
     s = run(cfg, workers=0)
     assert s.failed == 0
     rec = open_store(tmp_path / "store").load(report.key, "campaign_report")
     assert isinstance(rec, CampaignReport)
     assert rec.figure_titles == (
-        "campaign: estimates across flights",
+        "campaign: estimates across flights (Z_alpha, M_alpha)",
+        "campaign: estimates across flights (M_q, M_delta)",
         "sim-0: time histories",
         "sim-0: fit residuals",
         "sim-0: propagation",
@@ -53,7 +55,7 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
         assert png.dtype == np.uint8 and not png.flags.writeable
         assert png[:8].tobytes() == PNG
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
-    assert html.count("data:image/png;base64,") == 4
+    assert html.count("data:image/png;base64,") == 5
     assert f"aeroid campaign report {report.key}" in html
     # the text written by its own part is the text of the unsplit report
     plain_dir = tmp_path / "plain"
@@ -191,7 +193,8 @@ def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     assert "f01: time histories" in html and "f01: fit residuals" in html
     assert "f00: time histories" not in html
-    assert html.count("data:image/png;base64,") == 3
+    assert html.count("data:image/png;base64,") == 4  # and the trend's two halves
+    assert "(M_alpha, M_q)" in html and "(M_delta)" in html
 
 
 def test_an_unchanged_rerun_draws_nothing_and_does_not_import_matplotlib(tmp_path):
@@ -574,3 +577,28 @@ def test_a_pool_that_will_not_start_is_reported_not_retried_forever(tmp_path, mo
     monkeypatch.setattr(runner_mod, "_process_pool", no_pool)
     with pytest.raises(PipelineError, match="could not run: OSError: Too many open files"):
         run(_config(tmp_path), workers=2)
+
+
+def _chain_that_notes_its_start(tasks, *args, **kwargs):
+    started = time.time()
+    out = _execute_chain(tasks, *args, **kwargs)
+    out[0]["started"] = started
+    return out
+
+
+def test_the_embedded_cluster_starts_the_flights_in_order_the_first_first(
+    tmp_path, monkeypatch
+):
+    # the report's detailed figures wait on the first flight only: started first, they
+    # are drawn while the other flights run, not alone after the last one (Dask's own
+    # order for nodes that wait on nothing follows string hashes, new in each process)
+    monkeypatch.setattr(runner_mod, "execute_chain", _chain_that_notes_its_start)
+    s = run(_config(tmp_path, n=8, extra="  campaign_report: {figures: false}\n"), workers=2)
+    assert s.failed == 0
+    heads = [st for st in s.statuses.values() if "started" in st and st["flight"]]
+    order = [st["flight"] for st in sorted(heads, key=lambda st: st["started"])]
+    assert len(order) == 8
+    # two workers start two flights at a time (which of the two stamps its start first
+    # is a race), then each the next when it is free
+    assert set(order[:2]) == {"sim-0", "sim-1"}
+    assert all(abs(order.index(f"sim-{i}") - i) <= 1 for i in range(8)), order

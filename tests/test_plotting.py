@@ -11,6 +11,7 @@ from matplotlib.figure import Figure
 
 import aeroid
 from aeroid import catalog
+from aeroid.errors import IdentificationError
 from aeroid.plotting import plot_campaign_trend
 
 NAMES = list(catalog.SHORT_PERIOD_TRUTH)
@@ -132,6 +133,13 @@ def test_traces_and_campaign_trend(chain):
     )
     assert by_name.axes[-1].get_xlabel() == "flight"
     _assert_laid_out(by_name)
+    # a subset, in the order asked; a flight without an estimate leaves a gap
+    records[1] = records[1] | {"parameters": {"M_q": r.parameters["M_q"]}}
+    some = plot_campaign_trend(records, parameters=["M_delta", "M_q"])
+    assert [ax.get_ylabel() for ax in some.axes] == ["M_delta", "M_q"]
+    _assert_laid_out(some)
+    with pytest.raises(IdentificationError, match="no flight has an estimate of X_u"):
+        plot_campaign_trend(records, parameters=["M_q", "X_u"])
 
 
 def test_log_axes_read_as_plain_numbers_at_one_two_and_five():

@@ -621,10 +621,12 @@ def _condition(data: Any) -> str:
     return ", ".join(parts) or str(meta.get("source", "—"))
 
 
-# The campaign report is split into parts that run in parallel: part 0 draws the
-# cross-flight trend, part 1 writes the tables and text (both need every flight),
-# and each further part draws one detailed figure of the first flight that was
-# identified, as soon as that flight is done.
+# The campaign report is split into parts that run in parallel: parts 0 and 1 draw
+# the cross-flight trend of the first and the second half of the parameters, part 2
+# writes the tables and text (these three need every flight, so they run after the
+# last one: as two figures the trend is drawn by two workers at once), and each
+# further part draws one detailed figure of the first flight that was identified,
+# as soon as that flight is done.
 _DETAIL_FIGURES = (
     ("validation", "time histories"),
     ("identification", "fit residuals"),
@@ -634,7 +636,7 @@ _DETAIL_FIGURES = (
     ("experiment", "design"),
     ("filtering", "filter states"),
 )
-_TREND, _TEXT, _FIRST_DETAIL = 0, 1, 2
+_TRENDS, _TEXT, _FIRST_DETAIL = (0, 1), 2, 3
 
 
 def _detail_roles(roles: Any) -> list[tuple[str, str]]:
@@ -686,7 +688,7 @@ def _run_campaign_part(ctx: StageContext, index: int) -> Any:
 
     if index == _TEXT:
         return _run_campaign_report(ctx)
-    if index == _TREND:
+    if index in _TRENDS:
         data = ctx.inputs.get("data", [None] * len(ctx.flights))
         records = [
             {
@@ -700,9 +702,13 @@ def _run_campaign_part(ctx: StageContext, index: int) -> Any:
             )
             if r is not None
         ]
-        if not records:
+        names = list(dict.fromkeys(n for r in records for n in r["parameters"]))
+        half = -(-len(names) // len(_TRENDS))
+        names = names[index * half : (index + 1) * half]
+        if not names:
             return None
-        return "campaign: estimates across flights", figure_png(plot_campaign_trend(records))
+        fig = plot_campaign_trend(records, parameters=names)
+        return f"campaign: estimates across flights ({', '.join(names)})", figure_png(fig)
     if not ctx.flights:
         return None
     if ctx.inputs["identification"][0] is None:
@@ -892,7 +898,9 @@ for _stage in (
     ),
     Stage(
         "campaign_report",
-        "4",  # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes)
+        # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes);
+        # 5: the trend across flights as two figures, drawn in parallel
+        "5",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,
