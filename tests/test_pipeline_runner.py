@@ -586,9 +586,7 @@ def _chain_that_notes_its_start(tasks, *args, **kwargs):
     return out
 
 
-def test_the_embedded_cluster_starts_the_flights_in_order_the_first_first(
-    tmp_path, monkeypatch
-):
+def test_the_embedded_cluster_starts_the_flights_in_order_the_first_first(tmp_path, monkeypatch):
     # the report's detailed figures wait on the first flight only: started first, they
     # are drawn while the other flights run, not alone after the last one (Dask's own
     # order for nodes that wait on nothing follows string hashes, new in each process)
