@@ -35,10 +35,17 @@ def figure_png(fig: Figure, *, dpi: int = 90) -> bytes:
     return buf.getvalue()
 
 
+_STRONG = re.compile(r"\*\*(.+?)\*\*")
+_CODE = re.compile(r"`([^`]+)`")
+
+
 def _inline(text: str) -> str:
     out = html.escape(text, quote=False)
-    out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
-    out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
+    # most cells of a campaign's tables have neither: skip the two searches
+    if "**" in out:
+        out = _STRONG.sub(r"<strong>\1</strong>", out)
+    if "`" in out:
+        out = _CODE.sub(r"<code>\1</code>", out)
     return out
 
 

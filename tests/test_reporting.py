@@ -91,3 +91,24 @@ def test_each_section_heading_appears_once():
     assert len(headings) == len(set(headings))
     assert "## Frequency response" in headings and "## Sensitivities" in headings
     assert not any("Sensitivity analysis" in h for h in headings)
+
+
+def test_markdown_to_html_covers_what_the_reports_write():
+    from aeroid._html import markdown_to_html
+
+    png = b"\x89PNG\r\n\x1a\nfake"
+    text = (
+        "# Campaign <A>\n\nA **bold** word and `c<1>` code,\nwrapped.\n\n"
+        "| flight | **M_q** |\n|---|:--:|\n| `sim-0` | -2 ± 0.1 |\n\n"
+        "- one **item**\n- two\n\n![trend](fig0)\n![missing](other.png)\n"
+    )
+    html = markdown_to_html(text, {"fig0": png})
+    assert "<title>Campaign &lt;A&gt;</title>" in html
+    assert "<h1>Campaign &lt;A&gt;</h1>" in html
+    assert "<p>A <strong>bold</strong> word and <code>c&lt;1&gt;</code> code, wrapped.</p>" in html
+    assert "<tr><th>flight</th><th><strong>M_q</strong></th></tr>" in html
+    assert "<tr><td><code>sim-0</code></td><td>-2 ± 0.1</td></tr>" in html
+    assert "---" not in html  # the alignment row is not a row
+    assert "<ul><li>one <strong>item</strong></li><li>two</li></ul>" in html
+    assert '<img alt="trend" src="data:image/png;base64,iVBORw0KGgpmYWtl">' in html
+    assert '<img alt="missing" src="other.png">' in html
