@@ -250,11 +250,21 @@ def test_a_truncated_chunk_is_reported_as_a_corrupt_entry(tmp_path):
 def test_altered_attributes_are_detected(tmp_path):
     store, key = _committed(tmp_path)
     meta_path = store.path_for("identify", key) / "zarr.json"
-    doc = json.loads(meta_path.read_text())
+    original = meta_path.read_text()
+    doc = json.loads(original)
     doc["attributes"]["aeroid"]["record"]["fields"]["message"] = "tampered"
     meta_path.write_text(json.dumps(doc))
     with pytest.raises(StoreError, match="altered"):
         store.load(key, "identify")
+    # a value this store never writes (JSON's NaN, infinity), in the record or the task
+    for where in ("record", "task"):
+        doc = json.loads(original)
+        doc["attributes"]["aeroid"][where]["extra"] = float("nan")
+        meta_path.write_text(json.dumps(doc))
+        with pytest.raises(StoreError, match="is corrupt"):
+            store.load(key, "identify")
+    meta_path.write_text(original)
+    store.load(key, "identify")  # the original reads
     meta_path.write_text("{ not json")
     assert "unreadable" in store.verify(key, "identify")
 
