@@ -105,19 +105,21 @@ def run(
     doc = summary.to_json()
     if as_json:
         click.echo(json.dumps(doc, indent=2))
-    else:
-        if not quiet and summary.rows:
-            click.echo(_table(summary.columns, summary.rows))
-            click.echo("")
-        caught = summary.warnings()
-        for task, text in caught[:_MAX_WARNINGS]:
-            where = f"{task.step} {task.flight}" if task.flight else task.step
-            click.echo(f"WARNING {where} ({task.key[:12]}): {text}")
-        if len(caught) > _MAX_WARNINGS:
-            click.echo(
-                f"... {len(caught) - _MAX_WARNINGS} more warnings "
-                "(`aeroid show KEY` lists a result's warnings)"
-            )
+    elif not quiet and summary.rows:
+        click.echo(_table(summary.columns, summary.rows))
+        click.echo("")
+    # with --json, stdout holds the document alone: the warnings go to stderr
+    caught = summary.warnings()
+    for task, text in caught[:_MAX_WARNINGS]:
+        where = f"{task.step} {task.flight}" if task.flight else task.step
+        click.echo(f"WARNING {where} ({task.key[:12]}): {text}", err=as_json)
+    if len(caught) > _MAX_WARNINGS:
+        click.echo(
+            f"... {len(caught) - _MAX_WARNINGS} more warnings "
+            "(`aeroid show KEY` lists a result's warnings)",
+            err=as_json,
+        )
+    if not as_json:
         failed = [t for t in doc["tasks"] if t["status"] == "failed"]
         first_errors = [t for t in failed if not str(t["error"]).startswith("upstream ")]
         for t in first_errors:

@@ -429,6 +429,14 @@ def test_warnings_are_kept_with_their_task_and_shown(tmp_path):
     assert code == 0 and "- warning: UserWarning: only 40 bootstrap samples" in out
     code, out, _ = invoke("run", str(cfg), "--workers", "0")
     assert code == 0 and "WARNING" not in out  # cached results are not re-announced
+    # with --json they go to stderr: stdout is the document alone
+    other = tmp_path / "json"
+    other.mkdir()
+    cfg = make_campaign(other, n=2, stats="{n_boot: 40, warn: true}")
+    code, out, err = invoke("run", str(cfg), "--workers", "0", "--json")
+    assert code == 0 and json.loads(out)["computed"] > 0
+    warned = [x for x in err.splitlines() if x.startswith("WARNING stats")]
+    assert len(warned) == 2 and all("only 40 bootstrap samples" in x for x in warned)
 
 
 def test_console_script_on_the_embedded_cluster(tmp_path):
@@ -450,7 +458,12 @@ def test_console_script_on_the_embedded_cluster(tmp_path):
         holder.close()
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    assert doc["computed"] == 7 and res.stderr.strip() == ""  # no progress bar off a terminal
+    assert doc["computed"] == 7
+    # on stderr the tasks' warnings, announced by the command; nothing from the workers,
+    # no progress bar off a terminal
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 3, res.stderr
+    assert all(x.startswith("WARNING stats f0") and "only 50 bootstrap" in x for x in lines)
     t0 = time.perf_counter()
     res = subprocess.run(
         ["aeroid", "run", str(cfg), "--json"], capture_output=True, text=True, timeout=120
