@@ -195,6 +195,23 @@ def library_ceiling(
     return serial / (time.perf_counter() - t)
 
 
+def fs_probe(n: int = 200) -> tuple[float, float]:
+    """Microseconds to create a folder and to create (and close) a small file where the
+    benchmark's stores live: a commit makes about ten of these per result (a folder and
+    two files per array, the group's file, a rename), so on a slow or busy disk they,
+    not the pipeline's Python, set the store's share of a cold run."""
+    root = Path(tempfile.mkdtemp(prefix="bench-fs-"))
+    t = time.perf_counter()
+    for i in range(n):
+        (root / f"d{i}").mkdir()
+    folder = (time.perf_counter() - t) / n
+    t = time.perf_counter()
+    for i in range(n):
+        (root / f"d{i}" / "zarr.json").write_bytes(b"{}")
+    file = (time.perf_counter() - t) / n
+    return 1e6 * folder, 1e6 * file
+
+
 def demo_cold() -> None:
     """The main job's cold run: keys+store overhead in-process, and 2 vs 1 workers.
 
@@ -238,6 +255,7 @@ def main() -> None:
     cold(cfg, 0, "warm-up")
     cold(cfg, 1, "warm-up")
     w1, w2, w0, ceil, lib = [], [], [], [], []
+    fs: list[tuple[float, float]] = []
     # one BLAS thread per process, as in the pipeline's workers: two processes with a
     # BLAS thread per core each oversubscribe the machine and measure that instead
     with multiprocessing.get_context("spawn").Pool(2, initializer=_one_blas_thread) as pool:
@@ -251,6 +269,7 @@ def main() -> None:
             w1.append(cold(cfg, 1, "w1"))
             w2.append(cold(cfg, 2, "w2"))
             w0.append(cold(cfg, 0, "w0"))
+            fs.append(fs_probe())
     t1 = statistics.median(w for w, _ in w1)
     t2 = statistics.median(w for w, _ in w2)
     t0 = statistics.median(w for w, _ in w0)
@@ -288,6 +307,11 @@ def main() -> None:
     print(f"cold, in-process        : {t0:7.2f} s (library time {c0:.2f} s)")
     print(f"overhead keys+store, in-process   : {100 * (t0 - c0) / t0:5.1f} %  (target <= 10)")
     print(f"overhead keys+store+dask, 1 worker: {100 * (t1 - c1) / t1:5.1f} %")
+    folder, file = (statistics.median(x) for x in zip(*fs, strict=True))
+    print(
+        f"file system: a folder {folder:.0f} us, a file {file:.0f} us (per repeat, files: "
+        f"{', '.join(f'{f:.0f}' for _, f in fs)})"
+    )
     if args.demo_cold:
         demo_cold()
     if args.no_demo:
