@@ -293,6 +293,35 @@ def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_obje
         assert all(w.frozen == 0 for w in states)
 
 
+@pytest.mark.slow
+def test_spawned_workers_pin_their_own_blas_and_store_the_same_bytes(tmp_path, monkeypatch):
+    (tmp_path / "blas_probe_mod.py").write_text(BLAS_PROBE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    stores = {}
+    for method in ("spawn", "fork"):
+        if method == "fork" and not sys.platform.startswith("linux"):
+            continue
+        monkeypatch.setenv("AEROID_START_METHOD", method)
+        cfg = tmp_path / f"{method}.yaml"
+        cfg.write_text(
+            f"model: short_period\nstore: {method}-store\npipeline: blas_probe_mod:pipeline\n"
+            "flights: [{simulated: {n_flights: 2, seed: 1, duration: 2.0}}]\n"
+            "stages: {blas_probe: {}}\n"
+        )
+        s = run(cfg, workers=2)
+        assert s.failed == 0
+        store = open_store(tmp_path / f"{method}-store")
+        probes = [store.load(t.key, t.stage) for t in s.plan.tasks if t.step == "blas_probe"]
+        assert [w.threads for w in probes] == [1, 1]
+        assert all(w.pid != os.getpid() for w in probes)
+        if method == "spawn":  # started afresh: nothing shared with this process
+            assert all(w.frozen == 0 for w in probes)
+        loads = {t.key: t.stage for t in s.plan.tasks if t.step == "load"}
+        stores[method] = {k: store.metadata(k, st)["digests"] for k, st in loads.items()}
+    if len(stores) == 2:
+        assert stores["spawn"] == stores["fork"]
+
+
 def test_a_run_freezes_older_objects_only_while_it_runs(tmp_path, monkeypatch):
     import gc
 
