@@ -96,6 +96,20 @@ def test_chains_group_each_flights_consecutive_steps(tmp_path):
     assert sum(len(c) for c, _ in chains) == len(p.tasks)
 
 
+def test_workers_ready_matplotlib_only_when_some_may_draw_first_at_the_end(tmp_path):
+    p = plan(_config(tmp_path))
+    # the report's detailed figures of the first flight: validation, fit, propagation
+    assert runner_mod._early_parts(p.tasks) == 3
+
+    def primed(workers: int) -> set[bool]:
+        nodes = runner_mod._nodes(p.tasks, str(tmp_path / "store"), "s", workers)
+        return {n.call.keywords["open_fonts"] for n in nodes if n.chain and n.chain[0].flight}
+
+    # each of up to three workers draws one of them while the flights run
+    assert primed(1) == primed(3) == {False}
+    assert primed(4) == {True}
+
+
 def test_worker_start_method(monkeypatch):
     monkeypatch.delenv("AEROID_START_METHOD", raising=False)
     monkeypatch.delitem(sys.modules, "jax", raising=False)
