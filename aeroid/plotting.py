@@ -14,6 +14,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, MaxNLocator
 
+from .errors import IdentificationError
+
 __all__ = [
     "plot_campaign_trend",
     "plot_design",
@@ -282,17 +284,21 @@ def plot_campaign_trend(
         default the first of those present, else the flight index.
     parameters : sequence of str, optional
         The parameters to draw, a panel each, in this order; default those of
-        the first flight.
+        the first flight. A flight without an estimate of one leaves a gap.
+
+    Raises
+    ------
+    IdentificationError
+        A parameter in `parameters` that no flight estimated.
     """
     ok = [r for r in records if r.get("parameters")]
     names = list(ok[0]["parameters"]) if ok else []
     if parameters is not None:
-        missing = [n for n in parameters if not any(n in r["parameters"] for r in ok)]
+        known = list(dict.fromkeys(n for r in ok for n in r["parameters"]))
+        missing = [n for n in parameters if n not in known]
         if missing:
-            from .errors import IdentificationError
-
             raise IdentificationError(
-                f"parameters: no flight has an estimate of {', '.join(missing)}; estimated: {names}"
+                f"parameters: no flight has an estimate of {', '.join(missing)}; estimated: {known}"
             )
         names = list(parameters)
     if condition is None and ok:
