@@ -40,16 +40,36 @@ def plain(value: Any) -> str:
     return repr(value)
 
 
-def positive_int(value: Any, name: str, error: type[Exception]) -> int:
-    """`value` as an int >= 1 (integral floats such as 50.0 accepted), else `error`."""
+def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 1) -> int:
+    """`value` as an int >= `least` (1 or 0; integral floats such as 2e3 accepted), else
+    `error`."""
     try:
         n = int(value)
-        ok = not isinstance(value, bool) and n == value and n >= 1
+        ok = not isinstance(value, bool) and n == value and n >= least
     except (TypeError, ValueError, OverflowError):
         ok = False
     if not ok:
-        raise error(f"{name} must be a positive integer, got {plain(value)}")
+        what = "a positive" if least == 1 else "a non-negative"
+        raise error(f"{name} must be {what} integer, got {plain(value)}")
     return n
+
+
+def check_symmetric(
+    arr: FloatArray, names: Sequence[str], what: str, error: type[Exception]
+) -> None:
+    """Refuse a square matrix whose asymmetry is beyond rounding (relative to its largest
+    entry), naming the entry; NaN and infinity are left to the caller's finiteness check."""
+    with np.errstate(invalid="ignore"):
+        asym = np.abs(arr - arr.T)
+    if not np.all(np.isfinite(asym)):
+        return
+    scale = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if float(np.max(asym, initial=0.0)) > 1e-10 * scale:
+        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
+        raise error(
+            f"{what}: the matrix must be symmetric, but [{i}, {j}] = {plain(arr[i, j])} and "
+            f"[{j}, {i}] = {plain(arr[j, i])} (order {list(names)})"
+        )
 
 
 def _seconds(values: NDArray[Any]) -> FloatArray:

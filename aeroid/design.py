@@ -26,10 +26,9 @@ from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .data import FlightData
 from .errors import ChannelError, IdentificationError, SimulationError
 from .maneuvers import ManeuverFamily
-from .model import Model, SimulatorModel, resolve_parameters
+from .model import Model, SimulatorModel, require_model, resolve_parameters
 from .sensitivity import (
     _analyse_fisher,
-    _check_model,
     _check_simulate_options,
     _control_names,
     _crb,
@@ -439,7 +438,7 @@ def design_experiment(
     SimulationError
         The model fails to simulate the initial design.
     """
-    _check_model(model)
+    require_model(model, IdentificationError)
     if not isinstance(maneuver, ManeuverFamily):
         raise IdentificationError(
             "maneuver: expected a ManeuverFamily (Doublet, Multisine, Chirp or an object with "

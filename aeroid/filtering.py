@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from . import _integrate
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData, measured_start, plain
+from .data import FlightData, check_symmetric, measured_start, plain
 from .errors import AeroidError, ChannelError, FilterError
 from .model import Model, SimulatorModel, fitted_start, resolve_parameters
 
@@ -308,23 +308,6 @@ def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
     )
 
 
-def _check_symmetric(
-    arr: FloatArray, names: Sequence[str], what: str, error: type[AeroidError]
-) -> None:
-    """Refuse a matrix whose asymmetry is beyond rounding (relative to its largest entry)."""
-    with np.errstate(invalid="ignore"):
-        asym = np.abs(arr - arr.T)
-    if not np.all(np.isfinite(asym)):
-        return  # NaN and infinity are reported by the caller's finiteness check
-    scale = float(np.max(np.abs(arr))) if arr.size else 0.0
-    if float(np.max(asym, initial=0.0)) > 1e-10 * scale:
-        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
-        raise error(
-            f"{what}: the matrix must be symmetric, but [{i}, {j}] = {plain(arr[i, j])} and "
-            f"[{j}, {i}] = {plain(arr[j, i])} (order {list(names)})"
-        )
-
-
 def noise_matrix(
     value: Any,
     names: Sequence[str],
@@ -369,7 +352,7 @@ def noise_matrix(
         if arr.shape == (n,):
             mat = np.diag(arr)
         elif arr.shape == (n, n):
-            _check_symmetric(arr, names, what, error)
+            check_symmetric(arr, names, what, error)
             mat = 0.5 * (arr + arr.T)  # removes rounding-level asymmetry only
         else:
             raise error(

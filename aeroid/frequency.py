@@ -38,7 +38,7 @@ from . import _integrate
 from ._records import fmt, frozen_array, markdown_table
 from .data import FlightData, measured_start
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
-from .model import Model, SimulatorModel, fitted_start, resolve_parameters
+from .model import Model, SimulatorModel, fitted_start, require_model, resolve_parameters
 
 __all__ = ["ChannelFrequencyResponse", "FrequencyResponseResult", "frequency_response"]
 
@@ -456,10 +456,7 @@ def frequency_response(
     UserWarning
         When a channel has too few coherent frequencies to judge the model.
     """
-    if not isinstance(model, Model) and not isinstance(model, SimulatorModel):
-        raise IdentificationError(
-            f"model: expected an aeroid.Model or a SimulatorModel, got {type(model).__name__}"
-        )
+    require_model(model, IdentificationError)
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
     if not data.is_uniform:

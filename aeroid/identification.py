@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
-from .data import FlightData, fingerprint, measured_start, plain, positive_int
+from .data import FlightData, check_symmetric, fingerprint, measured_start, plain, whole_number
 from .errors import IdentificationError
 
 __all__ = ["IdentificationResult", "identify"]
@@ -313,14 +313,8 @@ def _weight_variances(weights: Any, outputs: list[str]) -> FloatArray:
         )
     if not np.all(np.isfinite(r)):
         raise IdentificationError("weights: the noise covariance holds NaN or infinite values")
+    check_symmetric(r, outputs, "weights", IdentificationError)
     scale = float(np.max(np.abs(r)))
-    asym = np.abs(r - r.T)
-    if float(np.max(asym)) > 1e-10 * scale:
-        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
-        raise IdentificationError(
-            f"weights: the noise covariance must be symmetric, but [{i}, {j}] = "
-            f"{plain(r[i, j])} and [{j}, {i}] = {plain(r[j, i])} (order {outputs})"
-        )
     low = float(np.linalg.eigvalsh(0.5 * (r + r.T))[0])
     if not low > 1e-12 * scale:
         # A zero variance would be an infinite weight: the fit needs positive definite.
@@ -440,7 +434,7 @@ def identify(
         raise IdentificationError(
             f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
         )
-    max_iterations = positive_int(max_iterations, "max_iterations", IdentificationError)
+    max_iterations = whole_number(max_iterations, "max_iterations", IdentificationError)
     try:
         tol = float(tolerance)
     except (TypeError, ValueError):

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .data import FlightData, measured_start
 from .errors import InferenceError
-from .model import Model, SimulatorModel, fitted_start
+from .model import Model, fitted_start, require_model
 from .priors import LogUniform, Prior
 from .sampler import (
     INIT_TAG,
@@ -345,14 +345,8 @@ class _Posterior:
     ) -> None:
         if not isinstance(data, FlightData):
             raise InferenceError(f"data: expected aeroid.FlightData, got {type(data).__name__}")
-        if isinstance(model, Model):
-            self.batched = True
-        elif isinstance(model, SimulatorModel):
-            self.batched = False
-        else:
-            raise InferenceError(
-                f"model: expected an aeroid.Model or a SimulatorModel, got {type(model).__name__}"
-            )
+        require_model(model, InferenceError)
+        self.batched = isinstance(model, Model)
         if backend not in _BACKENDS:
             raise InferenceError(f"backend: expected one of {list(_BACKENDS)}, got {backend!r}")
         if backend == "jax" and not self.batched:

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
-from .data import plain
+from .data import plain, whole_number
 from .errors import AeroidError
 
 __all__ = [
@@ -176,19 +176,6 @@ class PropagationBatch:
         )
 
 
-def _count(value: Any, name: str, lo: int) -> int:
-    """`value` as an int >= `lo` (integral floats such as 2e3 accepted)."""
-    try:
-        n = int(value)
-        ok = not isinstance(value, bool) and n == value and n >= lo
-    except (TypeError, ValueError, OverflowError):
-        ok = False
-    if not ok:
-        what = "a positive" if lo == 1 else "a non-negative"
-        raise PropagationError(f"{name} must be {what} integer, got {plain(value)}")
-    return n
-
-
 def _check_seed(seed: Any) -> int:
     if seed is None:
         return int(np.random.SeedSequence().generate_state(1)[0])
@@ -227,8 +214,8 @@ def propagate_batch(
     -------
     PropagationBatch
     """
-    start = _count(start, "start", 0)
-    n_samples = _count(n_samples, "n_samples", 0)
+    start = whole_number(start, "start", PropagationError, least=0)
+    n_samples = whole_number(n_samples, "n_samples", PropagationError, least=0)
     if not callable(func):
         raise PropagationError("func must be callable: func(parameters: dict) -> float")
     seed = _check_seed(seed)
@@ -372,7 +359,7 @@ def propagate(
     propagate_batch, combine_batches : the same draws split into batches that
         run anywhere (the pipeline's ``propagate: {n_batches: k}``).
     """
-    n = _count(n_samples, "n_samples", 1)
+    n = whole_number(n_samples, "n_samples", PropagationError)
     pcts = _percentiles(percentiles)
     batch = propagate_batch(
         result, func, start=0, n_samples=n, seed=_check_seed(seed), progress=progress

@@ -29,7 +29,7 @@ from .errors import (
     IdentificationError,
     SimulationError,
 )
-from .model import Model, SimulatorModel, fitted_start, resolve_parameters
+from .model import Model, SimulatorModel, fitted_start, require_model, resolve_parameters
 
 __all__ = ["SensitivityResult", "sensitivities"]
 
@@ -53,13 +53,6 @@ def _output_names(model: Any) -> tuple[str, ...]:
 
 def _control_names(model: Any) -> tuple[str, ...]:
     return tuple(model.controls)
-
-
-def _check_model(model: Any) -> None:
-    if not isinstance(model, Model) and not isinstance(model, SimulatorModel):
-        raise IdentificationError(
-            f"model: expected an aeroid.Model or a SimulatorModel, got {type(model).__name__}"
-        )
 
 
 def _check_simulate_options(options: Mapping[str, Any] | None, model: Any) -> dict[str, Any]:
@@ -476,7 +469,7 @@ def sensitivities(
     IdentifiabilityWarning
         When the trajectory cannot separate some parameters (named).
     """
-    _check_model(model)
+    require_model(model, IdentificationError)
     if not isinstance(data, FlightData):
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
     if isinstance(parameters, Mapping) or hasattr(parameters, "parameters"):

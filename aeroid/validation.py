@@ -12,7 +12,7 @@ import scipy.stats
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
-from .data import FlightData, plain, positive_int
+from .data import FlightData, plain, whole_number
 from .errors import IdentificationError
 from .model import fitted_start, require_model, resolve_parameters
 
@@ -235,7 +235,7 @@ def validate(
     if whiteness_lags is None:
         whiteness_lags = 20
     else:
-        whiteness_lags = positive_int(whiteness_lags, "whiteness_lags", IdentificationError)
+        whiteness_lags = whole_number(whiteness_lags, "whiteness_lags", IdentificationError)
         if whiteness_lags >= n:
             raise IdentificationError(
                 f"whiteness_lags must be fewer than the record's {n} samples, got {whiteness_lags}"

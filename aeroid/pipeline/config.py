@@ -8,6 +8,7 @@ Relative paths are relative to the config file.
 
 from __future__ import annotations
 
+import functools
 import glob
 import math
 from collections.abc import Mapping, Sequence
@@ -349,16 +350,14 @@ def format_validation_error(
 ) -> str:
     """One line per problem: ``file: key.path: what was expected``."""
     lines = []
+    # pydantic adds union tags and member types to locations; users never wrote them
+    skip = {"glob", "file", "simulated", "str", "int", "float", "dict[str,str]", "list[str]"}
+    models = _model_names()
     for err in exc.errors():
-        # pydantic adds union tags and member types to locations; users never wrote them
-        skip = {"glob", "file", "simulated", "str", "int", "float", "dict[str,str]", "list[str]"}
         loc = [
             p
             for i, p in enumerate(err["loc"])
-            if not (
-                isinstance(p, str)
-                and (p in _model_names() or (p in skip and _is_tag(err["loc"], i)))
-            )
+            if not (isinstance(p, str) and (p in models or (p in skip and _is_tag(err["loc"], i))))
         ]
         path = _loc([*prefix, *loc])
         if err["type"] == "extra_forbidden":
@@ -387,6 +386,7 @@ def validate_options(
         ) from None
 
 
+@functools.lru_cache(maxsize=1)
 def _unique_key_loader() -> type:
     import yaml
 
