@@ -67,6 +67,46 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     assert unsplit.markdown == rec.markdown and unsplit.rows == rec.rows
 
 
+def test_the_campaign_report_takes_briefs_not_entries_and_makes_the_same_record(
+    tmp_path, monkeypatch
+):
+    """Each flight's task hands the campaign report what it uses of its result; the
+    report then reads only the first flight's entries (its detailed figures), and the
+    record is the one made from the store: by a rerun, or with some flights cached."""
+    cfg = _config(tmp_path, n=3)
+    read: list[tuple[str, int]] = []
+    getitem = runner_mod._LazyRecords.__getitem__
+
+    def spy(self, index):
+        read.append((self._stage, index))
+        return getitem(self, index)
+
+    monkeypatch.setattr(runner_mod._LazyRecords, "__getitem__", spy)
+    s = run(cfg, workers=0)
+    assert s.failed == 0
+    assert read and {i for _, i in read} == {0}
+    by_step = {}
+    for st in s.statuses.values():
+        by_step.setdefault(st["step"], []).append(sorted(st.get("briefs", {})))
+    assert by_step["load"] == [["campaign_report/data"]] * 3
+    assert by_step["identify"] == [["campaign_report/identification"]] * 3
+    assert by_step["report"] == [["campaign_report/reports"]] * 3
+    store = open_store(tmp_path / "store")
+    key = plan(cfg).report_task.key
+    digest = store.metadata(key)["content_digest"]
+    # made from the stored entries alone: the same bits
+    same, _ = runner_mod.rerun(store, key)
+    assert same
+    # one flight's report recomputed, the other flights' results cached
+    flight_report = next(st["key"] for st in s.statuses.values() if st["step"] == "report")
+    assert store.remove("campaign_report", key) and store.remove("report", flight_report)
+    read.clear()
+    again = run(cfg, workers=0)
+    assert again.count("computed") == 2 and again.failed == 0
+    assert {i for _, i in read} == {0, 1, 2}
+    assert open_store(tmp_path / "store").metadata(key)["content_digest"] == digest
+
+
 def test_figures_off_gives_an_unsplit_report_without_figures(tmp_path):
     cfg = _config(tmp_path, extra="  campaign_report: {figures: false}\n")
     p = plan(cfg)

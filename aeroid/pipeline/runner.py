@@ -24,7 +24,7 @@ import traceback
 import uuid
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, overload
 
@@ -78,6 +78,9 @@ class Task:
     source: dict[str, Any] | None = None
     pipeline_ref: dict[str, Any] | None = None
     flights: tuple[str, ...] = ()
+    # (campaign stage, role) of each brief of this task's result a campaign task takes
+    # (`Stage.brief`); not part of the key or of the stored task
+    briefs: tuple[tuple[str, str], ...] = ()
 
     @property
     def upstream_keys(self) -> list[str]:
@@ -361,7 +364,24 @@ def plan(
                 flights=tuple(flights),
             )
         )
-    return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
+    return Plan(config=config, pipeline=pipeline, tasks=_with_briefs(tasks), flights=flights)
+
+
+def _with_briefs(tasks: list[Task]) -> list[Task]:
+    """`tasks` with each per-flight task told which briefs campaign tasks take of it."""
+    wanted: dict[str, list[tuple[str, str]]] = {}
+    for t in tasks:
+        stage = STAGES[t.stage]
+        if t.flight is not None or stage.brief is None:
+            continue
+        for role, ref in t.upstream.items():
+            if isinstance(ref, list):
+                for k in ref:
+                    wanted.setdefault(k, []).append((t.stage, role))
+    return [
+        replace(t, briefs=tuple(dict.fromkeys(wanted[t.key]))) if t.key in wanted else t
+        for t in tasks
+    ]
 
 
 # -- executing one task (on a worker) -------------------------------------------------------
@@ -399,16 +419,21 @@ def _context(
     reader = store if read_root is None else ResultStore(read_root, create=False)
     inputs: dict[str, Any] = {}
     failures: dict[str, str] = {}
+    briefs: dict[str, dict[int, Any]] = {}
+    given = {s["key"]: s["briefs"] for s in upstream_status if "briefs" in s}
     for role, ref in task.upstream.items():
         up_stage = task.upstream_stages[role]
         if isinstance(ref, list):
             keys: list[str | None] = []
-            for flight, k in zip(task.flights, ref, strict=True):
+            name = f"{task.stage}/{role}"
+            for i, (flight, k) in enumerate(zip(task.flights, ref, strict=True)):
                 if k in failed:
                     keys.append(None)
                     failures.setdefault(flight, _failure_text(failed[k]))
                 else:
                     keys.append(k)
+                    if k in given and name in given[k]:
+                        briefs.setdefault(role, {})[i] = given[k][name]
             inputs[role] = _LazyRecords(reader, up_stage, keys)
         else:
             if ref in failed:
@@ -434,6 +459,8 @@ def _context(
         source=task.source,
         failures=failures,
         flights=task.flights,
+        briefs=briefs,
+        summarize=stage.brief,
     )
     return stage, ctx, store, failures
 
@@ -572,6 +599,8 @@ def execute_task(
         else:
             store.commit(task.stage, task.key, record, task=task.document, provenance=provenance)
             status.update(status="computed", cached=True)
+            if task.briefs:
+                status["briefs"] = _briefs(task, store)
         status["compute_seconds"] = t2 - t1 + part_seconds
         if task.flight is None and hasattr(record, "markdown"):
             status["markdown"] = record.markdown
@@ -585,6 +614,24 @@ def execute_task(
             status["traceback"] = traceback.format_exc(limit=6)
     status["seconds"] = time.perf_counter() - t0
     return status
+
+
+def _briefs(task: Task, store: ResultStore) -> dict[str, Any]:
+    """The briefs campaign tasks take of `task`'s committed result (`Stage.brief`).
+
+    They are made from the record as a read of the entry returns it (from this
+    run's cache: no read), so they equal what the campaign task would make from
+    the store. One that cannot be made is left out: the campaign task then makes
+    it itself and reports the problem.
+    """
+    out: dict[str, Any] = {}
+    with contextlib.suppress(Exception):
+        record = store.load(task.key, task.stage)
+        for consumer, role in task.briefs:
+            make = STAGES[consumer].brief
+            if make is not None:
+                out[f"{consumer}/{role}"] = make(role, record)
+    return out
 
 
 def execute_chain(

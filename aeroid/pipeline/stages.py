@@ -99,6 +99,21 @@ class StageContext:
     source: Mapping[str, Any] | None = None
     failures: Mapping[str, str] = field(default_factory=dict)
     flights: tuple[str, ...] = ()
+    # role -> {flight index: brief} handed over by the flights' tasks (see `Stage.brief`)
+    briefs: Mapping[str, Mapping[int, Any]] = field(default_factory=dict)
+    summarize: Callable[[str, Any], Any] | None = None
+
+    def brief(self, role: str, index: int) -> Any:
+        """The brief of flight `index`'s `role` input (see `Stage.brief`): the one its task
+        handed over, else made from the record (read on access); None where the flight
+        failed or the role is not an input."""
+        given = self.briefs.get(role)
+        if given is not None and index in given:
+            return given[index]
+        if role not in self.inputs or self.summarize is None:
+            return None
+        record = self.inputs[role][index]
+        return None if record is None else self.summarize(role, record)
 
     def seed_sequence(self, *extra: int) -> np.random.SeedSequence:
         """This task's `SeedSequence`, or its child with `extra` appended to the spawn key."""
@@ -153,6 +168,14 @@ class Stage:
     preload : tuple of str
         Modules the stage imports lazily and slowly (plotting): imported once
         before worker processes are forked, instead of in every worker.
+    brief : callable, optional
+        ``brief(role, record) -> value``: for a campaign-level stage, the small
+        part of one flight's `role` input it needs (a few numbers and strings;
+        picklable). The flight's task makes it as it commits the record, while
+        the record is in memory, and hands it over with its status, so the
+        campaign task reads no entry for it; ``ctx.brief(role, i)`` returns it,
+        or makes it from the stored record when no task handed it over (a
+        cached flight, a rerun). Either way it is the same value.
     """
 
     name: str
@@ -169,6 +192,7 @@ class Stage:
     combine: Callable[[StageContext, list[Any]], Any] | None = None
     preload: tuple[str, ...] = ()
     part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
+    brief: Callable[[str, Any], Any] | None = None
 
 
 STAGES: dict[str, Stage] = {}
@@ -612,13 +636,35 @@ def _fit_whiteness(validation: Any) -> tuple[str, str]:
     return (", ".join(fits) or "—"), (", ".join(white) or "—")
 
 
-def _condition(data: Any) -> str:
-    meta = getattr(data, "metadata", {}) or {}
+def _condition(meta: Mapping[str, Any]) -> str:
     parts = []
     for key, unit in (("airspeed", "m/s"), ("dynamic_pressure", "Pa")):
         if key in meta:
             parts.append(f"{key.replace('_', ' ')} {float(meta[key]):.4g} {unit}")
     return ", ".join(parts) or str(meta.get("source", "—"))
+
+
+def _campaign_brief(role: str, record: Any) -> Any:
+    """What the campaign report uses of one flight's `role` input (see `Stage.brief`)."""
+    if role == "data":
+        return dict(getattr(record, "metadata", {}) or {})
+    if role == "identification":
+        return {
+            "names": list(getattr(record, "parameter_names", ())),
+            "parameters": dict(record.parameters),
+            "stderr": dict(record.stderr),
+            "success": bool(getattr(record, "success", True)),
+        }
+    if role == "validation":
+        return _fit_whiteness(record)
+    if role == "propagation":
+        if getattr(record, "mean", None) is None:
+            return "—"
+        mean, std = float(np.ravel(record.mean)[0]), float(np.ravel(record.std)[0])
+        return f"{mean:.4g} ± {std:.2g}"
+    if role == "reports":
+        return record.markdown
+    return None  # the detailed figures' inputs: read whole, for the first flight only
 
 
 # The campaign report is split into parts that run in parallel: parts 0 and 1 draw
@@ -689,19 +735,19 @@ def _run_campaign_part(ctx: StageContext, index: int) -> Any:
     if index == _TEXT:
         return _run_campaign_report(ctx)
     if index in _TRENDS:
-        data = ctx.inputs.get("data", [None] * len(ctx.flights))
-        records = [
-            {
-                "flight": f,
-                "parameters": dict(r.parameters),
-                "stderr": dict(r.stderr),
-                "metadata": dict(getattr(d, "metadata", {}) or {}),
-            }
-            for f, r, d in zip(
-                ctx.flights, ctx.inputs.get("identification", ()), data, strict=False
-            )
-            if r is not None
-        ]
+        records = []
+        for i, f in enumerate(ctx.flights):
+            r = ctx.brief("identification", i)
+            if r is not None:
+                meta = ctx.brief("data", i)
+                records.append(
+                    {
+                        "flight": f,
+                        "parameters": r["parameters"],
+                        "stderr": r["stderr"],
+                        "metadata": {} if meta is None else meta,
+                    }
+                )
         names = list(dict.fromkeys(n for r in records for n in r["parameters"]))
         half = -(-len(names) // len(_TRENDS))
         names = names[index * half : (index + 1) * half]
@@ -749,34 +795,30 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     from .._records import markdown_table
 
     flights = ctx.flights
-    data = dict(zip(flights, ctx.inputs.get("data", ()), strict=False))
-    ident = dict(zip(flights, ctx.inputs.get("identification", ()), strict=False))
-    valid = dict(zip(flights, ctx.inputs.get("validation", ()), strict=False))
-    prop = dict(zip(flights, ctx.inputs.get("propagation", ()), strict=False))
-    reports = dict(zip(flights, ctx.inputs.get("reports", ()), strict=False))
+    ident = [ctx.brief("identification", i) for i in range(len(flights))]
     names: list[str] = []
-    for r in ident.values():
-        for n in getattr(r, "parameter_names", ()):
+    for r in ident:
+        for n in r["names"] if r is not None else ():
             if n not in names:
                 names.append(n)
     columns = ("flight", "condition", *names, "fit", "whiteness", "metric", "status")
     rows = []
-    for f in flights:
-        r, v, d, pr = ident.get(f), valid.get(f), data.get(f), prop.get(f)
+    for i, f in enumerate(flights):
+        r, v, meta = ident[i], ctx.brief("validation", i), ctx.brief("data", i)
         est = []
         for n in names:
-            if r is not None and n in r.parameters:
-                est.append(f"{r.parameters[n]:.4g} ± {r.stderr[n]:.2g}")
+            if r is not None and n in r["parameters"]:
+                est.append(f"{r['parameters'][n]:.4g} ± {r['stderr'][n]:.2g}")
             else:
                 est.append("—")
-        fit, white = _fit_whiteness(v) if v is not None else ("—", "—")
-        metric = "—"
-        if pr is not None and getattr(pr, "mean", None) is not None:
-            metric = f"{float(np.ravel(pr.mean)[0]):.4g} ± {float(np.ravel(pr.std)[0]):.2g}"
+        fit, white = ("—", "—") if v is None else v
+        metric = ctx.brief("propagation", i) or "—"
         status = ctx.failures.get(f, "ok")
-        if status == "ok" and r is not None and not getattr(r, "success", True):
+        if status == "ok" and r is not None and not r["success"]:
             status = "not converged"
-        rows.append((f, _condition(d) if d is not None else "—", *est, fit, white, metric, status))
+        rows.append(
+            (f, "—" if meta is None else _condition(meta), *est, fit, white, metric, status)
+        )
     title = ctx.options.title or "Campaign report"
     parts = [f"# {title}", "", f"{len(flights)} flights, {len(ctx.failures)} failed.", ""]
     parts.append(markdown_table(columns, rows))
@@ -784,10 +826,9 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         parts += ["", "## Failures", ""]
         parts += [f"- **{f}**: {err}" for f, err in ctx.failures.items()]
     if ctx.options.include_flight_reports:
-        for f in flights:
-            rep = reports.get(f)
-            if rep is not None:
-                text = rep.markdown
+        for i in range(len(flights)):
+            text = ctx.brief("reports", i)
+            if text is not None:
                 # demote the per-flight headings under the campaign's
                 text = "\n".join(
                     "#" + line if line.startswith("#") else line for line in text.splitlines()
@@ -911,6 +952,7 @@ for _stage in (
         combine=_combine_campaign,
         part_flights=_campaign_part_flights,
         preload=("aeroid.plotting", "aeroid._html"),
+        brief=_campaign_brief,
     ),
 ):
     register_stage(_stage)
