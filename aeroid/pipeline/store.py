@@ -22,6 +22,7 @@ object, is what commits an entry (see `_ObjectStore`).
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import shutil
@@ -103,15 +104,25 @@ def _write_file(path: str, data: bytes) -> None:
 def _array_files(arr: np.ndarray) -> list[tuple[str, bytes]]:
     """The files of an array as Zarr v3 (name within the array's folder, bytes)."""
     dtype = _zarr_dtype(arr)
+    meta = _array_meta(dtype, tuple(int(n) for n in arr.shape))
+    if arr.size == 0:
+        return [("zarr.json", meta)]  # an empty array has no chunk
+    data = np.ascontiguousarray(arr, dtype=_NUMPY[dtype])
+    return [("zarr.json", meta), (_chunk_name(arr.ndim), data.tobytes())]
+
+
+@functools.lru_cache(maxsize=256)
+def _array_meta(dtype: str, shape: tuple[int, ...]) -> bytes:
+    # a campaign stores the same few shapes over and over
     fill: Any = False if dtype == "bool" else (0 if dtype[0] in "iu" else 0.0)
     if dtype.startswith("complex"):
         fill = [0.0, 0.0]
-    chunk = [max(1, int(n)) for n in arr.shape]
-    meta = json.dumps(
+    chunk = [max(1, n) for n in shape]
+    return json.dumps(
         {
             "zarr_format": 3,
             "node_type": "array",
-            "shape": [int(n) for n in arr.shape],
+            "shape": list(shape),
             "data_type": dtype,
             "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": chunk}},
             # "v2" keys ("0.0") put the single chunk beside zarr.json: no chunk directories
@@ -123,10 +134,6 @@ def _array_files(arr: np.ndarray) -> list[tuple[str, bytes]]:
         },
         separators=(",", ":"),
     ).encode("utf-8")
-    if arr.size == 0:
-        return [("zarr.json", meta)]  # an empty array has no chunk
-    data = np.ascontiguousarray(arr, dtype=_NUMPY[dtype])
-    return [("zarr.json", meta), (_chunk_name(arr.ndim), data.tobytes())]
 
 
 def _write_array(path: str, arr: np.ndarray) -> None:
@@ -232,12 +239,26 @@ def _entry_document(
     try:
         # the encoded record and a planned task's document are plain JSON already
         digest = _plain_digest(meta)
-        json.dumps(meta["provenance"], allow_nan=False)  # small; not in the digest
     except (TypeError, ValueError):
         meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
         digest = _plain_digest(meta)
     meta["content_digest"] = digest
     return meta, arrays
+
+
+def _group_bytes(meta: dict[str, Any], stage: str) -> bytes:
+    """The group's ``zarr.json`` holding an entry's attributes."""
+
+    def dump() -> bytes:
+        doc = {"zarr_format": 3, "node_type": "group", "attributes": {"aeroid": meta}}
+        return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode("utf-8")
+
+    try:
+        return dump()
+    except (TypeError, ValueError):
+        # the provenance (not in the digest) held what JSON cannot (a NumPy scalar, NaN)
+        meta["provenance"] = to_jsonable(meta["provenance"], where=f"{stage} result")
+        return dump()
 
 
 def _mkdir(path: str) -> None:
@@ -468,11 +489,7 @@ class ResultStore:
         if self.exists(stage, key):
             return False
         meta, arrays = _entry_document(stage, key, record, task, provenance)
-        group = json.dumps(
-            {"zarr_format": 3, "node_type": "group", "attributes": {"aeroid": meta}},
-            separators=(",", ":"),
-            allow_nan=False,
-        ).encode("utf-8")
+        group = _group_bytes(meta, stage)
         if not self._publish(stage, key, arrays, group):
             return False
         if _CACHE.scope is not None:
