@@ -34,7 +34,49 @@ __all__ = [
 
 def to_jsonable(value: Any, *, where: str = "value") -> Any:
     """Normalise a value to plain JSON types (deterministically; never a silent fallback)."""
-    if value is None or isinstance(value, (bool, str)):
+    try:
+        return _jsonable(value)
+    except _NotJsonable as exc:
+        raise PipelineError(f"{where}{exc.path}: {exc.message}") from None
+
+
+class _NotJsonable(Exception):
+    # the path inside the value is built as the error unwinds: none is formatted
+    # for the thousands of values a plan normalises without one
+    def __init__(self, message: str) -> None:
+        self.message, self.path = message, ""
+
+
+def _jsonable(value: Any) -> Any:
+    kind = type(value)
+    # the plain types first, by exact type: a plan normalises thousands of them
+    if kind is str or kind is bool or value is None:
+        return value
+    if kind is int:
+        return value
+    if kind is float and math.isfinite(value):
+        return value
+    if kind is dict or isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _NotJsonable(f"mapping keys must be strings, got {k!r}")
+            try:
+                out[k] = _jsonable(v)
+            except _NotJsonable as exc:
+                exc.path = f".{k}{exc.path}"
+                raise
+        return out
+    if kind is list or kind is tuple or isinstance(value, (list, tuple)):
+        items = []
+        for i, v in enumerate(value):
+            try:
+                items.append(_jsonable(v))
+            except _NotJsonable as exc:
+                exc.path = f"[{i}]{exc.path}"
+                raise
+        return items
+    if isinstance(value, (bool, str)):
         return value
     if isinstance(value, (int, np.integer)) and not isinstance(value, np.bool_):
         return int(value)
@@ -45,20 +87,9 @@ def to_jsonable(value: Any, *, where: str = "value") -> Any:
         if math.isfinite(v):
             return v
         return {"__float__": "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")}
-    if isinstance(value, Mapping):
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise PipelineError(f"{where}: mapping keys must be strings, got {k!r}")
-            out[k] = to_jsonable(v, where=f"{where}.{k}")
-        return out
-    if isinstance(value, (list, tuple)):
-        return [to_jsonable(v, where=f"{where}[{i}]") for i, v in enumerate(value)]
     if isinstance(value, np.ndarray):
         return {"__array_digest__": array_digest(value)}
-    raise PipelineError(
-        f"{where}: cannot hash a value of type {type(value).__name__} deterministically"
-    )
+    raise _NotJsonable(f"cannot hash a value of type {type(value).__name__} deterministically")
 
 
 def canonical_json(document: Any) -> bytes:

@@ -24,7 +24,7 @@ import traceback
 import uuid
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, overload
 
@@ -254,6 +254,17 @@ def plan(
     fingerprint = model_fingerprint(model)
     model_ref = {"spec": config.model, "base_dir": config.base_dir}
     step_stage = {s.name: s.stage_name for s in steps}
+    # the same for every flight: (options as keyed, options as run)
+    documents = {
+        s.name: (options[s.name].key_document(), options[s.name].task_document()) for s in steps
+    }
+    # the options a task runs with, exactly as keyed (mappings in sorted order), so a
+    # rerun from the stored document sees the same order as the first run; a load
+    # task's add its file's loader options
+    run_options = {
+        name: json.loads(canonical_json({**how, **opts})) for name, (opts, how) in documents.items()
+    }
+    briefs = _briefs_wanted(pipeline, enabled)
 
     tasks: list[Task] = []
     flights: list[str] = []
@@ -269,8 +280,8 @@ def plan(
         flight_id: int | None = None
         for step in (s for s in steps if s in pipeline.flight_steps):
             stage = STAGES[step.stage_name]
-            opts = options[step.name].key_document()
-            how = options[step.name].task_document()  # with execution-only options
+            opts, how = documents[step.name]  # `how`: with the execution-only options
+            run_opts = run_options[step.name]
             upstream: dict[str, Any] = {}
             if step.stage_name == "load":
                 if source["kind"] == "file":
@@ -279,6 +290,7 @@ def plan(
                 else:
                     opts = {**opts, "simulated": source["spec"]}
                     upstream = {"simulated": "sha256:" + source["sha256"]}
+                run_opts = json.loads(canonical_json({**how, **opts}))
             for role, up in step.inputs.items():
                 if up in enabled:
                     upstream[role] = keys[up]
@@ -316,9 +328,7 @@ def plan(
                     step=step.name,
                     stage=stage.name,
                     flight=name,
-                    # the options exactly as keyed (mappings in sorted order), so a rerun
-                    # from the stored document sees the same order as the first run
-                    options=json.loads(canonical_json({**how, **opts})),
+                    options=run_opts,
                     upstream={r: v for r, v in upstream.items() if r in step.inputs},
                     upstream_stages={
                         r: step_stage[u] for r, u in step.inputs.items() if u in enabled
@@ -328,13 +338,13 @@ def plan(
                     seed=seed,
                     source=source if step.stage_name == "load" else None,
                     pipeline_ref=pipe_ref,
+                    briefs=briefs.get(step.name, ()),
                 )
             )
         per_flight_keys[name] = keys
     for step in (s for s in steps if s in pipeline.campaign_steps):
         stage = STAGES[step.stage_name]
-        opts = options[step.name].key_document()
-        how = options[step.name].task_document()
+        opts, how = documents[step.name]
         upstream = {
             role: [per_flight_keys[f][up] for f in flights]
             for role, up in step.inputs.items()
@@ -364,24 +374,20 @@ def plan(
                 flights=tuple(flights),
             )
         )
-    return Plan(config=config, pipeline=pipeline, tasks=_with_briefs(tasks), flights=flights)
+    return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
 
 
-def _with_briefs(tasks: list[Task]) -> list[Task]:
-    """`tasks` with each per-flight task told which briefs campaign tasks take of it."""
+def _briefs_wanted(pipeline: Pipeline, enabled: set[str]) -> dict[str, tuple[tuple[str, str], ...]]:
+    """Per-flight step -> the (campaign stage, role) briefs campaign steps take of its
+    results (`Stage.brief`)."""
     wanted: dict[str, list[tuple[str, str]]] = {}
-    for t in tasks:
-        stage = STAGES[t.stage]
-        if t.flight is not None or stage.brief is None:
+    for step in pipeline.campaign_steps:
+        if step.name not in enabled or STAGES[step.stage_name].brief is None:
             continue
-        for role, ref in t.upstream.items():
-            if isinstance(ref, list):
-                for k in ref:
-                    wanted.setdefault(k, []).append((t.stage, role))
-    return [
-        replace(t, briefs=tuple(dict.fromkeys(wanted[t.key]))) if t.key in wanted else t
-        for t in tasks
-    ]
+        for role, up in step.inputs.items():
+            if up in enabled:
+                wanted.setdefault(up, []).append((step.stage_name, role))
+    return {up: tuple(dict.fromkeys(pairs)) for up, pairs in wanted.items()}
 
 
 # -- executing one task (on a worker) -------------------------------------------------------
