@@ -1145,7 +1145,10 @@ def _run_processes(
                 pack_exception=pack_exception,
             )
         finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+            # every node has returned: the workers exit (tearing down a forked process
+            # takes 5-10 ms) while this process writes the report; the pool's own
+            # thread reaps them
+            pool.shutdown(wait=False, cancel_futures=True)
 
     broke = False
     with _blas_pinned(fork):
