@@ -35,7 +35,7 @@ from .config import CampaignConfig, SimulatedSource, load_config, validate_optio
 from .definition import Pipeline, load_pipeline, resolve_pipeline
 from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
 from .stages import STAGES, StageContext, resolve_callable
-from .store import ResultStore, is_url, record_cache
+from .store import ResultStore, is_url, record_cache, run_store
 
 __all__ = [
     "Plan",
@@ -421,7 +421,7 @@ def _context(
     stage = STAGES.get(task.stage)
     if stage is None:
         raise PipelineError(f"unknown stage {task.stage!r}")
-    store = ResultStore(store_root)
+    store = run_store(store_root)
     reader = store if read_root is None else ResultStore(read_root, create=False)
     inputs: dict[str, Any] = {}
     failures: dict[str, str] = {}

@@ -34,7 +34,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -261,6 +261,11 @@ def _group_bytes(meta: dict[str, Any], stage: str) -> bytes:
         return dump()
 
 
+@functools.lru_cache(maxsize=1)
+def _hostname() -> str:
+    return socket.gethostname()
+
+
 def _mkdir(path: str) -> None:
     """`os.mkdir(path)`, making its parent folders only when they are missing."""
     try:
@@ -295,11 +300,13 @@ class _RecordCache:
         self.items: OrderedDict[tuple[str, str, str], tuple[Any, int]] = OrderedDict()
         self.nbytes = 0
         self.lock = threading.Lock()
+        self.stores: dict[str, ResultStore] = {}  # opened in this scope, by root
 
     def enter(self, scope: str | None) -> None:
         with self.lock:
             if scope != self.scope:
                 self.items.clear()
+                self.stores.clear()
                 self.nbytes = 0
                 self.scope = scope
 
@@ -328,6 +335,19 @@ _CHECKED: set[str] = set()  # store roots whose marker this process has read
 def record_cache(scope: str | None) -> None:
     """Cache records in this process for the run `scope` (None: stop caching, forget all)."""
     _CACHE.enter(scope)
+
+
+def run_store(root: str) -> ResultStore:
+    """The store at `root`, opened once per run scope in this process (each task of a run
+    would otherwise look for its marker again)."""
+    with _CACHE.lock:
+        store = _CACHE.stores.get(root) if _CACHE.scope is not None else None
+    if store is None:
+        store = ResultStore(root)
+        with _CACHE.lock:
+            if _CACHE.scope is not None:
+                _CACHE.stores[root] = store
+    return store
 
 
 _MARKER_DOC = json.dumps({"format": FORMAT, "kind": "aeroid result store"}).encode("utf-8")
@@ -372,6 +392,7 @@ class ResultStore:
 
     root: Path | str
     """The store's folder, or its URL in an object store."""
+    _look_first: ClassVar[bool] = False
 
     def __new__(cls, root: str | Path, *, create: bool = True) -> ResultStore:
         if cls is ResultStore and is_url(str(root)):
@@ -426,7 +447,15 @@ class ResultStore:
 
     def stored(self, tasks: Iterable[tuple[str, str]]) -> set[tuple[str, str]]:
         """The (stage, key) pairs among `tasks` that are committed."""
-        return {(stage, key) for stage, key in tasks if self.exists(stage, key)}
+        # a stage with no folder yet (a new store, a new stage) has none: one look for all
+        has_stage: dict[str, bool] = {}
+        out = set()
+        for stage, key in tasks:
+            if stage not in has_stage:
+                has_stage[stage] = os.path.isdir(os.path.join(self._root_id, stage))
+            if has_stage[stage] and self.exists(stage, key):
+                out.add((stage, key))
+        return out
 
     def _read(self, path: str) -> bytes:
         return _read_local(path)
@@ -486,7 +515,8 @@ class ResultStore:
         provenance: Mapping[str, Any] | None = None,
     ) -> bool:
         """Write `record` as the result of `key`; False when it was already committed."""
-        if self.exists(stage, key):
+        # on a file system the final rename refuses an existing entry: no look first
+        if self._look_first and self.exists(stage, key):
             return False
         meta, arrays = _entry_document(stage, key, record, task, provenance)
         group = _group_bytes(meta, stage)
@@ -524,7 +554,7 @@ class ResultStore:
 
     def _temporary(self, key: str) -> str:
         # host and pid in the name let `gc` keep the temporaries of live processes
-        name = f"{key}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+        name = f"{key}.{_hostname()}.{os.getpid()}.{os.urandom(4).hex()}"
         return os.path.join(self._root_id, _TMP, name)
 
     def remove(self, stage: str, key: str) -> bool:
@@ -658,7 +688,7 @@ class ResultStore:
         another host is removed once older than `max_age` seconds.
         """
         removed: list[Path | str] = []
-        host = socket.gethostname()
+        host = _hostname()
         now = time.time()
         for path in self._partial_writes():
             parts = path.name.split(".")
@@ -697,6 +727,8 @@ class _ObjectStore(ResultStore):
     Two runs that commit the same key at once write the same arrays (results
     are deterministic); were they to differ, the digests say so on every read.
     """
+
+    _look_first = True  # a PUT overwrites: never write under a committed key
 
     def __init__(self, root: str | Path, *, create: bool = True) -> None:
         text = str(root).rstrip("/")
