@@ -208,23 +208,15 @@ def _content_digest(meta: Mapping[str, Any]) -> str:
     return sha256_hex(_read_back_json({k: meta[k] for k in _DIGESTED}))
 
 
-def _plain_digest(meta: Mapping[str, Any]) -> str:
-    """`_content_digest` of a document already made of plain JSON types (no second pass).
-
-    Raises TypeError or ValueError when it is not (a NumPy scalar, a non-finite
-    float), so a caller can normalise with `to_jsonable` and try again.
-    """
-    return sha256_hex(_canonical_plain({k: meta[k] for k in _DIGESTED}))
-
-
 def _entry_document(
     stage: str,
     key: str,
     record: Any,
     task: Mapping[str, Any],
     provenance: Mapping[str, Any] | None,
-) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """An entry's attributes (digests included) and its arrays."""
+) -> tuple[dict[str, Any], dict[str, np.ndarray], bytes]:
+    """An entry's attributes (digests included), its arrays, and the canonical JSON of
+    the attributes its content digest covers."""
     tree, arrays = codec.encode(record)
     meta: dict[str, Any] = {
         "format": FORMAT,
@@ -238,27 +230,43 @@ def _entry_document(
     }
     try:
         # the encoded record and a planned task's document are plain JSON already
-        digest = _plain_digest(meta)
+        digested = _canonical_plain({k: meta[k] for k in _DIGESTED})
     except (TypeError, ValueError):
         meta = to_jsonable(meta, where=f"{stage} result")  # plain JSON types only
-        digest = _plain_digest(meta)
-    meta["content_digest"] = digest
-    return meta, arrays
+        digested = _canonical_plain({k: meta[k] for k in _DIGESTED})
+    meta["content_digest"] = sha256_hex(digested)
+    return meta, arrays, digested
 
 
-def _group_bytes(meta: dict[str, Any], stage: str) -> bytes:
-    """The group's ``zarr.json`` holding an entry's attributes."""
+def _group_bytes(meta: dict[str, Any], digested: bytes, stage: str) -> bytes:
+    """The group's ``zarr.json`` holding an entry's attributes.
 
-    def dump() -> bytes:
-        doc = {"zarr_format": 3, "node_type": "group", "attributes": {"aeroid": meta}}
-        return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    The digested attributes go in as the canonical bytes already made for the
+    digest (serialising them again cost as much); the rest follows them.
+    """
+
+    def dump(value: Any) -> bytes:
+        text = json.dumps(value, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
+        return text.encode("utf-8")
 
     try:
-        return dump()
+        provenance = dump(meta["provenance"])
     except (TypeError, ValueError):
         # the provenance (not in the digest) held what JSON cannot (a NumPy scalar, NaN)
         meta["provenance"] = to_jsonable(meta["provenance"], where=f"{stage} result")
-        return dump()
+        provenance = dump(meta["provenance"])
+    rest = {k: meta[k] for k in ("format", "record_type", "content_digest")}
+    return b"".join(
+        (
+            b'{"zarr_format":3,"node_type":"group","attributes":{"aeroid":',
+            digested[:-1],  # the digested mapping, open for the rest
+            b',"provenance":',
+            provenance,
+            b",",
+            dump(rest)[1:],  # closes the mapping
+            b"}}",
+        )
+    )
 
 
 @functools.lru_cache(maxsize=1)
@@ -518,8 +526,8 @@ class ResultStore:
         # on a file system the final rename refuses an existing entry: no look first
         if self._look_first and self.exists(stage, key):
             return False
-        meta, arrays = _entry_document(stage, key, record, task, provenance)
-        group = _group_bytes(meta, stage)
+        meta, arrays, digested = _entry_document(stage, key, record, task, provenance)
+        group = _group_bytes(meta, digested, stage)
         if not self._publish(stage, key, arrays, group):
             return False
         if _CACHE.scope is not None:
