@@ -37,6 +37,13 @@ def figure_png(fig: Figure, *, dpi: int = 90) -> bytes:
 
 _STRONG = re.compile(r"\*\*(.+?)\*\*")
 _CODE = re.compile(r"`([^`]+)`")
+# compiled once: a campaign report runs them on every line and table cell, and
+# `re.match(text, ...)` looks each up in a cache that other libraries churn
+_HEADING = re.compile(r"^(#{1,6})\s+(.*)$")
+_IMAGE = re.compile(r"^!\[(.*?)\]\((.*?)\)$")
+_RULE_CELL = re.compile(r":?-+:?")
+_BLOCK_START = re.compile(r"^(#|\||!\[|- |\* )")
+_TITLE_MARKS = re.compile(r"^#+\s*")
 
 
 def _inline(text: str) -> str:
@@ -62,8 +69,8 @@ def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -
         if not stripped:
             i += 1
             continue
-        heading = re.match(r"^(#{1,6})\s+(.*)$", stripped)
-        image = re.match(r"^!\[(.*?)\]\((.*?)\)$", stripped)
+        heading = _HEADING.match(stripped)
+        image = _IMAGE.match(stripped)
         if heading:
             level = len(heading.group(1))
             out.append(f"<h{level}>{_inline(heading.group(2))}</h{level}>")
@@ -83,7 +90,7 @@ def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -
                 rows.append(lines[i].strip())
                 i += 1
             cells = [[c.strip() for c in r.strip("|").split("|")] for r in rows]
-            body = [r for r in cells if not all(re.fullmatch(r":?-+:?", c) for c in r if c)]
+            body = [r for r in cells if not all(_RULE_CELL.fullmatch(c) for c in r if c)]
             table = ["<table>"]
             for k, row in enumerate(body):
                 tag = "th" if k == 0 else "td"
@@ -100,17 +107,11 @@ def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -
             out.append("<ul>" + "".join(items) + "</ul>")
         else:
             para = []
-            while (
-                i < len(lines)
-                and lines[i].strip()
-                and not re.match(r"^(#|\||!\[|- |\* )", lines[i].strip())
-            ):
+            while i < len(lines) and lines[i].strip() and not _BLOCK_START.match(lines[i].strip()):
                 para.append(lines[i].strip())
                 i += 1
             out.append(f"<p>{_inline(' '.join(para))}</p>")
-    title = next(
-        (re.sub(r"^#+\s*", "", ln) for ln in lines if ln.startswith("# ")), "AeroID report"
-    )
+    title = next((_TITLE_MARKS.sub("", ln) for ln in lines if ln.startswith("# ")), "AeroID report")
     return (
         '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
         f"<title>{html.escape(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
