@@ -259,8 +259,8 @@ def plan(
         s.name: (options[s.name].key_document(), options[s.name].task_document()) for s in steps
     }
     # the options a task runs with, exactly as keyed (mappings in sorted order), so a
-    # rerun from the stored document sees the same order as the first run; a load
-    # task's add its file's loader options
+    # rerun from the stored document sees the same order as the first run (a load
+    # task's are made per flight: they add its file's loader options)
     run_options = {
         name: json.loads(canonical_json({**how, **opts})) for name, (opts, how) in documents.items()
     }
@@ -344,7 +344,7 @@ def plan(
         per_flight_keys[name] = keys
     for step in (s for s in steps if s in pipeline.campaign_steps):
         stage = STAGES[step.stage_name]
-        opts, how = documents[step.name]
+        opts = documents[step.name][0]
         upstream = {
             role: [per_flight_keys[f][up] for f in flights]
             for role, up in step.inputs.items()
@@ -365,7 +365,7 @@ def plan(
                 step=step.name,
                 stage=stage.name,
                 flight=None,
-                options=json.loads(canonical_json({**how, **opts})),
+                options=run_options[step.name],
                 upstream=upstream,
                 upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in enabled},
                 document=doc,
@@ -628,15 +628,17 @@ def _briefs(task: Task, store: ResultStore) -> dict[str, Any]:
     They are made from the record as a read of the entry returns it (from this
     run's cache: no read), so they equal what the campaign task would make from
     the store. One that cannot be made is left out: the campaign task then makes
-    it itself and reports the problem.
+    it itself and reports the problem. So is a None brief (a role the stage reads
+    whole), which would only travel for nothing.
     """
     out: dict[str, Any] = {}
     with contextlib.suppress(Exception):
         record = store.load(task.key, task.stage)
         for consumer, role in task.briefs:
             make = STAGES[consumer].brief
-            if make is not None:
-                out[f"{consumer}/{role}"] = make(role, record)
+            value = None if make is None else make(role, record)
+            if value is not None:
+                out[f"{consumer}/{role}"] = value
     return out
 
 
