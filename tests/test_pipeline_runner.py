@@ -683,3 +683,17 @@ def test_the_embedded_cluster_starts_the_flights_in_order_the_first_first(tmp_pa
     # of them stamps its start first is a race, so a flight may be a place or two off)
     assert set(order[:2]) == {"sim-0", "sim-1"}
     assert all(abs(order.index(f"sim-{i}") - i) <= 2 for i in range(8)), order
+
+
+def test_a_run_on_worker_processes_leaves_no_thread_or_process_behind(tmp_path):
+    # the pool is shut down while the report is written; the run returns only once its
+    # workers and the pool's own thread have stopped (a thread outliving the run raced
+    # Python's exit and printed an ignored traceback on the command's stderr)
+    import multiprocessing
+    import threading
+
+    before = set(threading.enumerate())
+    s = run(_config(tmp_path, n=2), workers=2)
+    assert s.failed == 0 and s.count("computed") > 0
+    assert [t for t in threading.enumerate() if t not in before] == []
+    assert multiprocessing.active_children() == []

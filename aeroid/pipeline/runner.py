@@ -19,6 +19,7 @@ import json
 import os
 import platform
 import sys
+import threading
 import time
 import traceback
 import uuid
@@ -1029,7 +1030,6 @@ def _start_worker(parent: int, forked: bool) -> None:
                 return  # the kernel stops this process with its parent
     if os.getppid() != parent:
         os._exit(1)
-    import threading
 
     def watch() -> None:
         while os.getppid() == parent:
@@ -1050,6 +1050,33 @@ def _process_pool(n: int) -> Any:
         initializer=_start_worker,
         initargs=(os.getpid(), method == "fork"),
     )
+
+
+_CLOSING: list[threading.Thread] = []
+
+
+def _close_later(pool: Any) -> None:
+    """Shut `pool` down in a thread: its workers exit (tearing down a forked process
+    takes 5-10 ms) while this process writes the report. `_closed_pools` waits for it.
+
+    Not `shutdown(wait=False)`: the pool's thread then outlives the run, and at
+    interpreter exit Python 3.11 may wake it through a pipe it is closing (an
+    ignored "Bad file descriptor" traceback on stderr).
+    """
+    closer = threading.Thread(
+        target=pool.shutdown,
+        kwargs={"wait": True, "cancel_futures": True},
+        name="aeroid-pool-close",
+        daemon=True,
+    )
+    closer.start()
+    _CLOSING.append(closer)
+
+
+def _closed_pools() -> None:
+    """Wait until the pools this process shut down have stopped their workers."""
+    while _CLOSING:
+        _CLOSING.pop().join()
 
 
 def _run_processes(
@@ -1147,10 +1174,7 @@ def _run_processes(
                 pack_exception=pack_exception,
             )
         finally:
-            # every node has returned: the workers exit (tearing down a forked process
-            # takes 5-10 ms) while this process writes the report; the pool's own
-            # thread reaps them
-            pool.shutdown(wait=False, cancel_futures=True)
+            _close_later(pool)
 
     broke = False
     with _blas_pinned(fork):
@@ -1450,12 +1474,18 @@ def _run(
                     on_done=on_done,
                     scope=scope,
                 )
+        except BaseException:
+            _closed_pools()
+            raise
         finally:
             if bar is not None:
                 bar.close()
         statuses.update(done)
     t_run = time.perf_counter()
-    report_path, columns, rows = _write_report(the_plan, result_store, statuses)
+    try:
+        report_path, columns, rows = _write_report(the_plan, result_store, statuses)
+    finally:
+        _closed_pools()
     summary = RunSummary(
         plan=the_plan,
         statuses=statuses,
