@@ -49,6 +49,16 @@ def register_record(cls: type) -> type:
 def _resolve(name: str) -> type:
     if name in _REGISTRY:
         return _REGISTRY[name]
+    cls = _RESOLVED.get(name)
+    if cls is None:
+        cls = _RESOLVED[name] = _resolve_own(name)
+    return cls
+
+
+_RESOLVED: dict[str, type] = {}  # aeroid's own record types, by stored name
+
+
+def _resolve_own(name: str) -> type:
     module, _, qualname = name.partition(":")
     top = module.split(".")[0]
     if top != "aeroid" or not qualname or not re.fullmatch(r"[A-Za-z0-9_.]+", module + qualname):
@@ -69,6 +79,17 @@ def _resolve(name: str) -> type:
     return obj
 
 
+def _init_fields(cls: type) -> tuple[str, ...]:
+    """The names of a record type's constructor fields, looked up once per type."""
+    names = _FIELDS.get(cls)
+    if names is None:
+        names = _FIELDS[cls] = tuple(f.name for f in dataclasses.fields(cls) if f.init)
+    return names
+
+
+_FIELDS: dict[type, tuple[str, ...]] = {}
+
+
 class _Encoder:
     def __init__(self) -> None:
         self.arrays: dict[str, np.ndarray] = {}
@@ -84,6 +105,17 @@ class _Encoder:
         return name
 
     def value(self, v: Any, path: str) -> Any:
+        # the plain types a record holds most, by exact type first (a float subclass
+        # such as np.float64 takes the general path below)
+        t = type(v)
+        if t is float:
+            if math.isfinite(v):
+                return v
+        elif t is str or t is bool or t is int or v is None:
+            return v
+        return self._value(v, path)
+
+    def _value(self, v: Any, path: str) -> Any:
         if v is None or isinstance(v, (bool, str)):
             return v
         if isinstance(v, np.bool_):
@@ -120,13 +152,10 @@ class _Encoder:
         )
 
     def record(self, obj: Any, path: str) -> dict[str, Any]:
-        fields = {}
-        for f in dataclasses.fields(obj):
-            if not f.init:
-                continue
-            fields[f.name] = self.value(
-                getattr(obj, f.name), f"{path}.{f.name}" if path else f.name
-            )
+        prefix = f"{path}." if path else ""
+        fields = {
+            name: self.value(getattr(obj, name), prefix + name) for name in _init_fields(type(obj))
+        }
         return {"__record__": record_type_name(type(obj)), "fields": fields}
 
 
@@ -145,9 +174,11 @@ def decode(tree: Any, arrays: Mapping[str, np.ndarray]) -> Any:
 
 
 def _decode(v: Any, arrays: Mapping[str, np.ndarray]) -> Any:
-    if isinstance(v, list):
-        return tuple(_decode(x, arrays) for x in v)
-    if not isinstance(v, dict):
+    # a tree is JSON as parsed (or as `encode` made it): exact lists and dicts
+    t = type(v)
+    if t is list:
+        return tuple([_decode(x, arrays) for x in v])
+    if t is not dict:
         return v
     if "__array__" in v:
         arr = np.array(arrays[v["__array__"]], copy=True)

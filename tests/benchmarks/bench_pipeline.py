@@ -25,6 +25,8 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import multiprocessing.pool
+import os
+import shutil
 import statistics
 import subprocess
 import tempfile
@@ -90,8 +92,14 @@ def campaign(tmp: Path, n: int, duration: float = 20.0, maneuver: str = "doublet
     return cfg
 
 
-def cold(cfg: Path, workers: int, tag: str) -> tuple[float, float]:
-    store = Path(tempfile.mkdtemp(prefix=f"bench-{tag}-")) / "store"
+# a memory file system where the machine has one: the same run with the store there
+# tells the pipeline's own overhead from the disk's (file creation on a busy or
+# journal-less ext4 costs 20-300 us, on tmpfs 4-10 us)
+SHM = Path("/dev/shm") if Path("/dev/shm").is_dir() and os.access("/dev/shm", os.W_OK) else None
+
+
+def cold(cfg: Path, workers: int, tag: str, base: Path | None = None) -> tuple[float, float]:
+    store = Path(tempfile.mkdtemp(prefix=f"bench-{tag}-", dir=base)) / "store"
     t0 = time.perf_counter()
     s = run(cfg, store=store, workers=workers)
     wall = time.perf_counter() - t0
@@ -254,7 +262,7 @@ def main() -> None:
     # imports and caches of this process, paid once
     cold(cfg, 0, "warm-up")
     cold(cfg, 1, "warm-up")
-    w1, w2, w0, ceil, lib = [], [], [], [], []
+    w1, w2, w0, m0, ceil, lib = [], [], [], [], [], []
     fs: list[tuple[float, float]] = []
     # one BLAS thread per process, as in the pipeline's workers: two processes with a
     # BLAS thread per core each oversubscribe the machine and measure that instead
@@ -269,6 +277,8 @@ def main() -> None:
             w1.append(cold(cfg, 1, "w1"))
             w2.append(cold(cfg, 2, "w2"))
             w0.append(cold(cfg, 0, "w0"))
+            if SHM is not None:
+                m0.append(cold(cfg, 0, "w0-shm", SHM))
             fs.append(fs_probe())
     t1 = statistics.median(w for w, _ in w1)
     t2 = statistics.median(w for w, _ in w2)
@@ -307,6 +317,11 @@ def main() -> None:
     print(f"cold, in-process        : {t0:7.2f} s (library time {c0:.2f} s)")
     print(f"overhead keys+store, in-process   : {100 * (t0 - c0) / t0:5.1f} %  (target <= 10)")
     print(f"overhead keys+store+dask, 1 worker: {100 * (t1 - c1) / t1:5.1f} %")
+    if m0 and SHM is not None:
+        tm, cm = (statistics.median(x) for x in zip(*m0, strict=True))
+        print(f"overhead keys+store, in-process, store on tmpfs: {100 * (tm - cm) / tm:5.1f} %")
+        for leftover in SHM.glob("bench-w0-shm-*"):  # memory, not disk: not left behind
+            shutil.rmtree(leftover, ignore_errors=True)
     folder, file = (statistics.median(x) for x in zip(*fs, strict=True))
     print(
         f"file system: a folder {folder:.0f} us, a file {file:.0f} us (per repeat, files: "
