@@ -1053,16 +1053,25 @@ def _process_pool(n: int) -> Any:
 
 
 _CLOSING: list[threading.Thread] = []
+_JOINED_AT_EXIT: list[bool] = []  # [True] once `_closed_pools` runs before Python's exit
 
 
 def _close_later(pool: Any) -> None:
-    """Shut `pool` down in a thread: its workers exit (tearing down a forked process
-    takes 5-10 ms) while this process writes the report. `_closed_pools` waits for it.
+    """Shut `pool` down in a thread: its workers exit (a forked process takes 5-15 ms
+    to tear down) while this process writes the report and returns.
 
-    Not `shutdown(wait=False)`: the pool's thread then outlives the run, and at
-    interpreter exit Python 3.11 may wake it through a pipe it is closing (an
-    ignored "Bad file descriptor" traceback on stderr).
+    Not `shutdown(wait=False)`: at interpreter exit Python 3.11 wakes a pool's
+    thread that may be closing its pipe (an ignored "Bad file descriptor"
+    traceback on stderr). The closing threads are joined before that exit hook
+    runs (threading's exit hooks run in reverse order of registration, and
+    `concurrent.futures.process` registered its own on import); where that
+    hook is not available, the run joins them itself.
     """
+    if not _JOINED_AT_EXIT:
+        register = getattr(threading, "_register_atexit", None)
+        if register is not None:
+            register(_closed_pools)
+            _JOINED_AT_EXIT.append(True)
     closer = threading.Thread(
         target=pool.shutdown,
         kwargs={"wait": True, "cancel_futures": True},
@@ -1070,6 +1079,7 @@ def _close_later(pool: Any) -> None:
         daemon=True,
     )
     closer.start()
+    _CLOSING[:] = [t for t in _CLOSING if t.is_alive()]
     _CLOSING.append(closer)
 
 
@@ -1474,9 +1484,6 @@ def _run(
                     on_done=on_done,
                     scope=scope,
                 )
-        except BaseException:
-            _closed_pools()
-            raise
         finally:
             if bar is not None:
                 bar.close()
@@ -1485,7 +1492,8 @@ def _run(
     try:
         report_path, columns, rows = _write_report(the_plan, result_store, statuses)
     finally:
-        _closed_pools()
+        if not _JOINED_AT_EXIT:
+            _closed_pools()
     summary = RunSummary(
         plan=the_plan,
         statuses=statuses,
