@@ -37,6 +37,7 @@ from typing import Any
 
 import aeroid
 from aeroid.pipeline import run
+from aeroid.pipeline.runner import _closed_pools as closed_pools
 
 ROOT = Path(__file__).resolve().parents[2]
 CHAIN = all(hasattr(aeroid, f) for f in ("identify", "validate", "propagate", "report"))
@@ -98,11 +99,21 @@ def campaign(tmp: Path, n: int, duration: float = 20.0, maneuver: str = "doublet
 SHM = Path("/dev/shm") if Path("/dev/shm").is_dir() and os.access("/dev/shm", os.W_OK) else None
 
 
+def settle() -> None:
+    """Let a run's aftermath pass before the next one is timed, as it has for a fresh
+    `aeroid run`: the pool's workers exit after the run returns (the command waits for
+    them after printing its results), and OpenBLAS's threads, started again when the run
+    gives this process its BLAS threads back, spin for about 0.1 s before they sleep."""
+    closed_pools()
+    time.sleep(0.2)
+
+
 def cold(cfg: Path, workers: int, tag: str, base: Path | None = None) -> tuple[float, float]:
     store = Path(tempfile.mkdtemp(prefix=f"bench-{tag}-", dir=base)) / "store"
     t0 = time.perf_counter()
     s = run(cfg, store=store, workers=workers)
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0  # the results are stored and the report written
+    settle()
     if s.failed:
         raise SystemExit(f"benchmark run failed: {s.to_json()['tasks']}")
     return wall, s.seconds["compute"]
@@ -134,6 +145,7 @@ def serial_time(cfg: Path, workers: int = 2) -> tuple[float, float, float]:
         t1 = time.time()
     finally:
         runner.execute_chain = original
+    settle()
     spans = [s["bench_span"] for s in summary.statuses.values() if "bench_span" in s]
     flights = [(a, b) for a, b, per_flight in spans if per_flight]
     return t1 - t0, min(a for a, _ in flights) - t0, t1 - max(b for _, b in flights)
