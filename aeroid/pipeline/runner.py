@@ -1053,7 +1053,7 @@ def _process_pool(n: int) -> Any:
 
 
 _CLOSING: list[threading.Thread] = []
-_JOINED_AT_EXIT: list[bool] = []  # [True] once `_closed_pools` runs before Python's exit
+_JOINED_AT_EXIT = False  # True once `_closed_pools` is registered to run before Python's exit
 
 
 def _close_later(pool: Any) -> None:
@@ -1067,11 +1067,12 @@ def _close_later(pool: Any) -> None:
     `concurrent.futures.process` registered its own on import); where that
     hook is not available, the run joins them itself.
     """
+    global _JOINED_AT_EXIT
     if not _JOINED_AT_EXIT:
         register = getattr(threading, "_register_atexit", None)
         if register is not None:
             register(_closed_pools)
-            _JOINED_AT_EXIT.append(True)
+            _JOINED_AT_EXIT = True
     closer = threading.Thread(
         target=pool.shutdown,
         kwargs={"wait": True, "cancel_futures": True},
