@@ -259,11 +259,11 @@ def plan(
     documents = {
         s.name: (options[s.name].key_document(), options[s.name].task_document()) for s in steps
     }
-    # the options a task runs with, exactly as keyed (mappings in sorted order), so a
-    # rerun from the stored document sees the same order as the first run (a load
-    # task's are made per flight: they add its file's loader options)
+    # a load task's run options are made per flight: they add its file's loader options
     run_options = {
-        name: json.loads(canonical_json({**how, **opts})) for name, (opts, how) in documents.items()
+        name: _run_options(opts, how)
+        for name, (opts, how) in documents.items()
+        if step_stage[name] != "load"
     }
     briefs = _briefs_wanted(pipeline, enabled)
 
@@ -282,7 +282,6 @@ def plan(
         for step in (s for s in steps if s in pipeline.flight_steps):
             stage = STAGES[step.stage_name]
             opts, how = documents[step.name]  # `how`: with the execution-only options
-            run_opts = run_options[step.name]
             upstream: dict[str, Any] = {}
             if step.stage_name == "load":
                 if source["kind"] == "file":
@@ -291,7 +290,9 @@ def plan(
                 else:
                     opts = {**opts, "simulated": source["spec"]}
                     upstream = {"simulated": "sha256:" + source["sha256"]}
-                run_opts = json.loads(canonical_json({**how, **opts}))
+                run_opts = _run_options(opts, how)
+            else:
+                run_opts = run_options[step.name]
             for role, up in step.inputs.items():
                 if up in enabled:
                     upstream[role] = keys[up]
@@ -376,6 +377,13 @@ def plan(
             )
         )
     return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
+
+
+def _run_options(opts: Mapping[str, Any], how: Mapping[str, Any]) -> dict[str, Any]:
+    """The options a task runs with, exactly as keyed (mappings in sorted order), so a
+    rerun from the stored document sees the same order as the first run."""
+    result: dict[str, Any] = json.loads(canonical_json({**how, **opts}))
+    return result
 
 
 def _briefs_wanted(pipeline: Pipeline, enabled: set[str]) -> dict[str, tuple[tuple[str, str], ...]]:
