@@ -13,11 +13,13 @@ one process and once in each of two processes at the same time, and the
 campaign's own library calls (fly, identify, validate, propagate, report for
 every flight; no keys, store, Dask or figures) run in one process vs split
 over two. On a shared or virtual machine two "cores" often give well under
-2x; the pipeline's speed-up is reported against both. A 2-worker run is also
-timed from inside: what runs before the first flight starts and after the
-last one ends cannot be shared, which bounds the speed-up (Amdahl). While the library's identify /
-validate / propagate / report are not available, a CPU-bound stand-in stage
-replaces them (reported as such).
+2x; the pipeline's speed-up is reported against both. Runs with 1 and 2
+workers are also timed from inside the workers, which splits the speed-up into
+the machine's part (the same nodes take longer on two processes at once) and
+the pipeline's (the share of the workers' time they are busy: not while the
+cluster starts, nor while they wait on the last flight or on the report).
+While the library's identify / validate / propagate / report are not
+available, a CPU-bound stand-in stage replaces them (reported as such).
 """
 
 from __future__ import annotations
@@ -119,36 +121,57 @@ def cold(cfg: Path, workers: int, tag: str, base: Path | None = None) -> tuple[f
     return wall, s.seconds["compute"]
 
 
-def serial_time(cfg: Path, workers: int = 2) -> tuple[float, float, float]:
-    """One cold run with `workers` processes: (wall, before the first flight starts, after
-    the last flight ends), from wall-clock stamps the chains take in the workers.
+def worker_time(cfg: Path, workers: int) -> tuple[float, float, float, float, float]:
+    """One cold run with `workers` processes, timed from inside the workers: (wall, worker
+    time busy in the pipeline's nodes, and idle before a worker's first node, between
+    nodes, after its last node), summed over the workers, from wall-clock stamps each
+    node takes where it runs.
 
-    Only what runs between the first flight's start and the last flight's end can be
-    shared by the workers; the rest (starting the cluster, the campaign figures that need
-    every flight, closing) bounds the speed-up as in Amdahl's law.
+    Busy and idle add up to `workers` x wall. Idle time is what the pipeline could
+    still win with more workers (starting the cluster, waiting on the last flight or
+    on the report); busy time that grows from 1 worker to 2 is the machine's: two
+    processes at once run slower than one alone (the ceilings above).
     """
     from aeroid.pipeline import runner
 
-    original = runner.execute_chain
+    log = Path(tempfile.mkdtemp(prefix="bench-spans-")) / "spans"
 
-    def stamped(tasks: list[Any], *args: Any, **kwargs: Any) -> list[dict[str, Any]]:
-        start = time.time()
-        out = original(tasks, *args, **kwargs)
-        out[0]["bench_span"] = (start, time.time(), tasks[0].flight is not None)
-        return out
+    def stamped(call: Any) -> Any:
+        def node(*args: Any, **kwargs: Any) -> Any:
+            start = time.time()
+            try:
+                return call(*args, **kwargs)
+            finally:
+                # one short line appended at once: the workers' lines do not mix
+                with open(log, "a") as fh:
+                    fh.write(f"{os.getpid()} {start!r} {time.time()!r}\n")
 
-    runner.execute_chain = stamped  # forked or pickled by value, the workers run it too
+        return node
+
+    chain, part = runner.execute_chain, runner.execute_part
+    # bound into the run's nodes as it plans them; forked or pickled by value, the
+    # workers run the stamped ones
+    runner.execute_chain, runner.execute_part = stamped(chain), stamped(part)
     try:
-        store = Path(tempfile.mkdtemp(prefix="bench-serial-")) / "store"
+        store = log.parent / "store"
         t0 = time.time()
-        summary = run(cfg, store=store, workers=workers)
+        run(cfg, store=store, workers=workers)
         t1 = time.time()
     finally:
-        runner.execute_chain = original
+        runner.execute_chain, runner.execute_part = chain, part
     settle()
-    spans = [s["bench_span"] for s in summary.statuses.values() if "bench_span" in s]
-    flights = [(a, b) for a, b, per_flight in spans if per_flight]
-    return t1 - t0, min(a for a, _ in flights) - t0, t1 - max(b for _, b in flights)
+    spans: dict[int, list[tuple[float, float]]] = {}
+    for line in log.read_text().splitlines():
+        pid, a, b = line.split()
+        spans.setdefault(int(pid), []).append((float(a), float(b)))
+    shutil.rmtree(log.parent, ignore_errors=True)
+    busy = sum(b - a for s in spans.values() for a, b in s)
+    before = sum(min(a for a, _ in s) - t0 for s in spans.values())
+    after = sum(t1 - max(b for _, b in s) for s in spans.values())
+    # a worker that never ran a node (more workers than nodes) idled throughout
+    before += (workers - len(spans)) * (t1 - t0)
+    between = workers * (t1 - t0) - busy - before - after
+    return t1 - t0, busy, before, between, after
 
 
 def _one_blas_thread() -> None:
@@ -276,6 +299,7 @@ def main() -> None:
     cold(cfg, 1, "warm-up")
     w1, w2, w0, m0, ceil, lib = [], [], [], [], [], []
     fs: list[tuple[float, float]] = []
+    inside: dict[int, list[tuple[float, ...]]] = {1: [], 2: []}  # timed from the workers
     # one BLAS thread per process, as in the pipeline's workers: two processes with a
     # BLAS thread per core each oversubscribe the machine and measure that instead
     with multiprocessing.get_context("spawn").Pool(2, initializer=_one_blas_thread) as pool:
@@ -292,6 +316,8 @@ def main() -> None:
             if SHM is not None:
                 m0.append(cold(cfg, 0, "w0-shm", SHM))
             fs.append(fs_probe())
+            for n in inside:
+                inside[n].append(worker_time(cfg, n))
     t1 = statistics.median(w for w, _ in w1)
     t2 = statistics.median(w for w, _ in w2)
     t0 = statistics.median(w for w, _ in w0)
@@ -317,15 +343,22 @@ def main() -> None:
             f"(per repeat {', '.join(f'{x:.2f}' for x in lib)})"
         )
         print(f"speed-up / library ceiling: {speedup / statistics.median(lib):5.2f}")
-    if CHAIN:
-        parts = [serial_time(cfg) for _ in range(3)]
-        wall, head, tail = (statistics.median(x) for x in zip(*parts, strict=True))
-        bound = t1 / (head + tail + (t1 - head - tail) / 2)
+    med = {n: [statistics.median(x) for x in zip(*r, strict=True)] for n, r in inside.items()}
+    for n, (wall, busy, before, between, after) in med.items():
         print(
-            f"serial, 2 workers       : {head + tail:7.2f} s of {wall:.2f} s "
-            f"(before the first flight {head:.2f} s, after the last {tail:.2f} s)"
+            f"worker time, {n} worker{'s' if n > 1 else ' '}: busy {busy:.2f} s of "
+            f"{n} x {wall:.2f} s; idle {before:.2f} s before a worker's first node, "
+            f"{between:.2f} s between nodes, {after:.2f} s after its last"
         )
-        print(f"  bound on 2 vs 1       : {bound:7.2f} x   (the rest of the 1-worker run halved)")
+    # w_n = busy_n / (n u_n), u_n the share of n x w_n the workers were busy, so
+    # 2 vs 1 = 2 x (busy_1 / busy_2) x (u_2 / u_1): the machine's part, then the pipeline's
+    (wall1, busy1, *_), (wall2, busy2, *_) = med[1], med[2]
+    u1, u2 = busy1 / wall1, busy2 / (2 * wall2)
+    print(
+        f"  2 vs 1 in these runs  : {wall1 / wall2:7.2f} x = 2 x {busy1 / busy2:.2f} (the same "
+        f"work busy {busy2 / busy1:.2f} x as long on two processes at once) x {u2 / u1:.2f} "
+        f"(workers busy {100 * u2:.0f} % of a 2-worker run, {100 * u1:.0f} % of a 1-worker run)"
+    )
     print(f"cold, in-process        : {t0:7.2f} s (library time {c0:.2f} s)")
     print(f"overhead keys+store, in-process   : {100 * (t0 - c0) / t0:5.1f} %  (target <= 10)")
     print(f"overhead keys+store+dask, 1 worker: {100 * (t1 - c1) / t1:5.1f} %")
