@@ -136,6 +136,7 @@ def worker_time(cfg: Path, workers: int) -> tuple[float, float, float, float, fl
     """
     from aeroid.pipeline import runner
 
+    # left in place, as `cold` leaves its stores
     log = Path(tempfile.mkdtemp(prefix="bench-spans-")) / "spans"
 
     def stamped(call: Any) -> Any:
@@ -157,16 +158,17 @@ def worker_time(cfg: Path, workers: int) -> tuple[float, float, float, float, fl
     try:
         store = log.parent / "store"
         t0 = time.time()
-        run(cfg, store=store, workers=workers)
+        summary = run(cfg, store=store, workers=workers)
         t1 = time.time()
     finally:
         runner.execute_chain, runner.execute_part = chain, part
     settle()
+    if summary.failed:
+        raise SystemExit(f"benchmark run failed: {summary.to_json()['tasks']}")
     spans: dict[int, list[tuple[float, float]]] = {}
     for line in log.read_text().splitlines():
         pid, a, b = line.split()
         spans.setdefault(int(pid), []).append((float(a), float(b)))
-    shutil.rmtree(log.parent, ignore_errors=True)
     busy = sum(b - a for s in spans.values() for a, b in s)
     before = sum(min(a for a, _ in s) - t0 for s in spans.values())
     after = sum(t1 - max(b for _, b in s) for s in spans.values())
