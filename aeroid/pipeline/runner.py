@@ -1073,7 +1073,7 @@ def _close_later(pool: Any) -> None:
     traceback on stderr). The closing threads are joined before that exit hook
     runs (threading's exit hooks run in reverse order of registration, and
     `concurrent.futures.process` registered its own on import); where that
-    hook is not available, the run joins them itself.
+    hook is not available, `run` joins them itself as it returns or raises.
     """
     global _JOINED_AT_EXIT
     if not _JOINED_AT_EXIT:
@@ -1426,6 +1426,8 @@ def run(
     try:
         return _run(config, t0, store, scheduler, workers, progress, pipeline)
     finally:
+        if not _JOINED_AT_EXIT:  # no exit hook to join the pools' closing: join it here
+            _closed_pools()
         _freeze_objects(False)
 
 
@@ -1498,11 +1500,7 @@ def _run(
                 bar.close()
         statuses.update(done)
     t_run = time.perf_counter()
-    try:
-        report_path, columns, rows = _write_report(the_plan, result_store, statuses)
-    finally:
-        if not _JOINED_AT_EXIT:
-            _closed_pools()
+    report_path, columns, rows = _write_report(the_plan, result_store, statuses)
     summary = RunSummary(
         plan=the_plan,
         statuses=statuses,
