@@ -192,6 +192,20 @@ def test_bad_config_names_file_and_key_path(tmp_path):
     assert code == 2 and "stages.stats.n_bot: unknown key; allowed keys: n_boot, sleep" in err
 
 
+def test_a_scheduler_nobody_listens_at_is_reported_at_once(tmp_path):
+    cfg = make_campaign(tmp_path)
+    with socket.socket() as s:  # a port that was free a moment ago: refused
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t = time.monotonic()
+    code, out, err = invoke("run", str(cfg), "--scheduler", f"tcp://127.0.0.1:{port}")
+    # Dask's client alone would retry the refused port for its 30 s timeout
+    assert time.monotonic() - t < 10
+    assert code == 2 and out == ""
+    assert f"cannot reach the dask scheduler tcp://127.0.0.1:{port}" in err
+    assert not list((tmp_path / "store").glob("load/*/*"))  # nothing half-written
+
+
 def _flip_a_bit(store: Path, task: dict, array: str) -> tuple[Path, Path, bytes]:
     """Alter one bit of a stored array's chunk: (entry folder, chunk file, original bytes)."""
     entry = store / task["stage"] / task["key"][:2] / task["key"]

@@ -18,6 +18,7 @@ import gc
 import json
 import os
 import platform
+import socket
 import sys
 import threading
 import time
@@ -1236,6 +1237,35 @@ def _dead_node(node: _Node, store_root: str, exc: BaseException) -> Any:
     return {"key": task.key, "part": index, "status": "failed", "error": f"{what} ({why})"}
 
 
+def _probe_scheduler(address: str) -> None:
+    """Fail at once when nothing listens at a ``tcp://`` scheduler address.
+
+    Dask's client retries a refused connection until its timeout (30 s here),
+    which is right for a scheduler still starting but leaves a mistyped port
+    silent for half a minute; a refused or unresolvable address is reported
+    now. A scheduler that accepts the connection is left to Dask.
+    """
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address)
+    if parts.scheme != "tcp":
+        return
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:  # a port out of range: Dask names the problem
+        return
+    if host is None or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=5.0).close()
+    except (ConnectionRefusedError, socket.gaierror) as exc:
+        raise PipelineError(
+            f"cannot reach the dask scheduler {address}: {exc.strerror or exc}"
+        ) from None
+    except OSError:  # a slow or filtered network: let the client try for its timeout
+        return
+
+
 def _run_dask(
     tasks: list[Task],
     store_root: str,
@@ -1247,6 +1277,7 @@ def _run_dask(
     """Run the tasks on the `dask.distributed` scheduler at `scheduler`."""
     from dask.distributed import Client, as_completed
 
+    _probe_scheduler(scheduler)
     try:
         client = Client(scheduler, timeout="30s")
     except (OSError, TimeoutError) as exc:
