@@ -112,18 +112,18 @@ def settle() -> None:
     time.sleep(0.2)
 
 
-def cold(cfg: Path, workers: int, tag: str, base: Path | None = None) -> tuple[float, float]:
+def cold(cfg: Path, workers: int, tag: str, base: Path) -> tuple[float, float]:
     store = Path(tempfile.mkdtemp(prefix=f"bench-{tag}-", dir=base)) / "store"
     t0 = time.perf_counter()
     s = run(cfg, store=store, workers=workers)
     wall = time.perf_counter() - t0  # the results are stored and the report written
     settle()
     if s.failed:
-        raise SystemExit(f"benchmark run failed: {s.to_json()['tasks']}")
+        raise SystemExit(f"benchmark run failed (store {store}): {s.to_json()['tasks']}")
     return wall, s.seconds["compute"]
 
 
-def worker_time(cfg: Path, workers: int) -> tuple[float, float, float, float, float]:
+def worker_time(cfg: Path, workers: int, base: Path) -> tuple[float, float, float, float, float]:
     """One cold run with `workers` processes, timed from inside the workers: (wall, worker
     time busy in the pipeline's nodes, and idle before a worker's first node, between
     nodes, after its last node), summed over the workers, from wall-clock stamps each
@@ -136,8 +136,7 @@ def worker_time(cfg: Path, workers: int) -> tuple[float, float, float, float, fl
     """
     from aeroid.pipeline import runner
 
-    # left in place, as `cold` leaves its stores
-    log = Path(tempfile.mkdtemp(prefix="bench-spans-")) / "spans"
+    log = Path(tempfile.mkdtemp(prefix="bench-spans-", dir=base)) / "spans"
 
     def stamped(call: Any) -> Any:
         def node(*args: Any, **kwargs: Any) -> Any:
@@ -164,7 +163,7 @@ def worker_time(cfg: Path, workers: int) -> tuple[float, float, float, float, fl
         runner.execute_chain, runner.execute_part = chain, part
     settle()
     if summary.failed:
-        raise SystemExit(f"benchmark run failed: {summary.to_json()['tasks']}")
+        raise SystemExit(f"benchmark run failed (store {store}): {summary.to_json()['tasks']}")
     spans: dict[int, list[tuple[float, float]]] = {}
     for line in log.read_text().splitlines():
         pid, a, b = line.split()
@@ -242,12 +241,12 @@ def library_ceiling(
     return serial / (time.perf_counter() - t)
 
 
-def fs_probe(n: int = 200) -> tuple[float, float]:
+def fs_probe(base: Path, n: int = 200) -> tuple[float, float]:
     """Microseconds to create a folder and to create (and close) a small file where the
     benchmark's stores live: a commit makes about ten of these per result (a folder and
     two files per array, the group's file, a rename), so on a slow or busy disk they,
     not the pipeline's Python, set the store's share of a cold run."""
-    root = Path(tempfile.mkdtemp(prefix="bench-fs-"))
+    root = Path(tempfile.mkdtemp(prefix="bench-fs-", dir=base))
     t = time.perf_counter()
     for i in range(n):
         (root / f"d{i}").mkdir()
@@ -259,16 +258,16 @@ def fs_probe(n: int = 200) -> tuple[float, float]:
     return 1e6 * folder, 1e6 * file
 
 
-def demo_cold() -> None:
+def demo_cold(base: Path) -> None:
     """The main job's cold run: keys+store overhead in-process, and 2 vs 1 workers.
 
     Its flights carry long MCMC tasks, so fixed costs (starting the cluster, the
     serial end of the report) weigh far less than in the short campaign above.
     """
     demo = ROOT / "configs" / "demo.yaml"
-    d0 = cold(demo, 0, "demo-w0")
-    d1 = cold(demo, 1, "demo-w1")
-    d2 = cold(demo, 2, "demo-w2")
+    d0 = cold(demo, 0, "demo-w0", base)
+    d1 = cold(demo, 1, "demo-w1", base)
+    d2 = cold(demo, 2, "demo-w2", base)
     print(f"demo cold, in-process   : {d0[0]:7.2f} s (library time {d0[1]:.2f} s)")
     print(f"  overhead keys+store   : {100 * (d0[0] - d0[1]) / d0[0]:7.2f} %  (target <= 10)")
     print(f"demo cold, 1 worker     : {d1[0]:7.2f} s")
@@ -299,7 +298,14 @@ def main() -> None:
         help="also run the demo cold in-process, with 1 and with 2 workers (about 4 min)",
     )
     args = ap.parse_args()
+    # every store and probe of the benchmark lives here; removed once it has measured
+    # (a failed run stops it first and leaves them for a look)
     tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
+    measure(args, tmp)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def measure(args: argparse.Namespace, tmp: Path) -> None:
     cfg = campaign(tmp, args.flights, args.duration, args.maneuver)
     what = "load->identify->validate->propagate->report" if CHAIN else "STAND-IN load->fit->report"
     print(
@@ -308,8 +314,8 @@ def main() -> None:
     )
 
     # imports and caches of this process, paid once
-    cold(cfg, 0, "warm-up")
-    cold(cfg, 1, "warm-up")
+    cold(cfg, 0, "warm-up", tmp)
+    cold(cfg, 1, "warm-up", tmp)
     w1, w2, w0, m0, ceil, lib = [], [], [], [], [], []
     fs: list[tuple[float, float]] = []
     inside: dict[int, list[tuple[float, ...]]] = {1: [], 2: []}  # timed from the workers
@@ -323,16 +329,16 @@ def main() -> None:
             ceil.append(ceiling(pool))
             if CHAIN:
                 lib.append(library_ceiling(pool, args.flights, args.duration, args.maneuver))
-            w1.append(cold(cfg, 1, "w1"))
-            w2.append(cold(cfg, 2, "w2"))
-            w0.append(cold(cfg, 0, "w0"))
+            w1.append(cold(cfg, 1, "w1", tmp))
+            w2.append(cold(cfg, 2, "w2", tmp))
+            w0.append(cold(cfg, 0, "w0", tmp))
             if SHM is not None:
                 m0.append(cold(cfg, 0, "w0-shm", SHM))
-            fs.append(fs_probe())
+            fs.append(fs_probe(tmp))
     # after the timed repeats, which run as they did before this diagnostic existed
     for _ in range(max(3, args.repeats // 3)):
         for n in inside:
-            inside[n].append(worker_time(cfg, n))
+            inside[n].append(worker_time(cfg, n, tmp))
     t1 = statistics.median(w for w, _ in w1)
     t2 = statistics.median(w for w, _ in w2)
     t0 = statistics.median(w for w, _ in w0)
@@ -387,7 +393,7 @@ def main() -> None:
         f"{', '.join(f'{f:.0f}' for _, f in fs)})"
     )
     if args.demo_cold:
-        demo_cold()
+        demo_cold(tmp)
     if args.no_demo:
         return
 
