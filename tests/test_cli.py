@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from test_pipeline_store import flip_a_bit, member_bytes
 
 from aeroid.catalog import short_period_flight
 from aeroid.cli import main
@@ -203,18 +204,14 @@ def test_a_scheduler_nobody_listens_at_is_reported_at_once(tmp_path):
     assert time.monotonic() - t < 10
     assert code == 2 and out == ""
     assert f"cannot reach the dask scheduler tcp://127.0.0.1:{port}" in err
-    assert not list((tmp_path / "store").glob("load/*/*"))  # nothing half-written
+    assert not list((tmp_path / "store").glob("load/*"))  # nothing half-written
 
 
-def _flip_a_bit(store: Path, task: dict, array: str) -> tuple[Path, Path, bytes]:
-    """Alter one bit of a stored array's chunk: (entry folder, chunk file, original bytes)."""
-    entry = store / task["stage"] / task["key"][:2] / task["key"]
-    chunk = next(p for p in (entry / array).rglob("*") if p.is_file() and p.name != "zarr.json")
-    original = chunk.read_bytes()
-    raw = bytearray(original)
-    raw[len(raw) // 2] ^= 0x01
-    chunk.write_bytes(bytes(raw))
-    return entry, chunk, original
+def _flip_a_bit(store: Path, task: dict, array: str) -> tuple[Path, str, bytes]:
+    """Alter one bit of a stored array's chunk: (entry file, chunk member, original bytes)."""
+    entry = store / task["stage"] / f"{task['key']}.zarr.zip"
+    member, original = flip_a_bit(entry, f"{array}/")
+    return entry, member, original
 
 
 def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
@@ -236,7 +233,7 @@ def test_corrupted_entry_is_detected_by_verify_and_on_read(tmp_path):
     assert invoke("verify", "--config", str(cfg))[0] == 0
     _, doc = run_json(cfg)
     assert by_status(doc)["computed"] == [("stats", stats["flight"])] and doc["failed"] == 0
-    assert chunk.read_bytes() == original
+    assert member_bytes(entry, chunk) == original
 
 
 def test_a_run_reading_a_corrupt_entry_fails_that_flight_and_names_the_way_out(tmp_path):
@@ -273,7 +270,8 @@ def test_show_status_rerun_and_gc(tmp_path):
     assert code == 0 and "bit-identical" in out
     # gc removes a temporary a crashed run left behind
     tmp = tmp_path / "store" / ".tmp" / f"{'c' * 64}.{os.uname().nodename}.999999999.00000000"
-    tmp.mkdir(parents=True)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    tmp.write_bytes(b"PK\x03\x04")  # the start of a zip, cut short
     code, out, _ = invoke("gc", "--store", str(tmp_path / "store"))
     assert code == 0 and "1 temporaries removed" in out and not tmp.exists()
     code, _, err = invoke("verify")
@@ -319,7 +317,7 @@ def _run_until_stored(cfg: Path, store: Path, n: int, *, workers: int) -> subpro
         stderr=subprocess.PIPE,
     )
     deadline = time.time() + 60
-    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < n:
+    while time.time() < deadline and len(list((store / "stats").glob("*.zarr.zip"))) < n:
         time.sleep(0.05)
     return proc
 
@@ -346,7 +344,7 @@ def test_killed_run_leaves_a_store_that_verifies_and_the_next_run_completes(tmp_
     proc = _run_until_stored(cfg, store, 3, workers=0)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
-    done_before = len(list((store / "stats").glob("*/*")))
+    done_before = len(list((store / "stats").glob("*.zarr.zip")))
     assert 3 <= done_before < 12
     res = _cli("verify", "--store", str(store))
     assert res.returncode == 0, res.stdout + res.stderr
@@ -386,7 +384,7 @@ def test_two_runs_at_once_on_one_store_leave_it_intact(tmp_path):
     assert all(d["failed"] == 0 and d["computed"] + d["cached"] == 13 for d in docs)
     store = tmp_path / "store"
     assert _cli("verify", "--store", str(store)).returncode == 0
-    assert len(list((store / "stats").glob("*/*"))) == 6
+    assert len(list((store / "stats").glob("*.zarr.zip"))) == 6
     assert not any((store / ".tmp").glob("*"))
     code, doc = run_json(cfg)
     assert code == 0 and doc["computed"] == 0 and doc["cached"] == 13
@@ -416,13 +414,13 @@ def test_ctrl_c_stops_a_run_cleanly_and_the_next_run_goes_on(tmp_path, workers):
     )
     store = tmp_path / "store"
     deadline = time.time() + 60
-    while time.time() < deadline and len(list((store / "stats").glob("*/*"))) < 2:
+    while time.time() < deadline and len(list((store / "stats").glob("*.zarr.zip"))) < 2:
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert "interrupted: the results stored so far are kept" in err and "Traceback" not in err
-    done = len(list((store / "stats").glob("*/*")))
+    done = len(list((store / "stats").glob("*.zarr.zip")))
     assert 2 <= done < 12
     assert _cli("verify", "--store", str(store)).returncode == 0
     res = _cli("run", str(cfg), "--workers", "0", "--json")

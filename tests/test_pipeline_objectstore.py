@@ -1,4 +1,4 @@
-"""Stores at a URL (object stores through fsspec): commits without a rename, integrity, gc.
+"""Stores at a URL (object stores through fsspec): an entry per object, integrity.
 
 ``memory://`` stands in for an object store (no folders, no rename, no
 shared process); ``local://`` goes through the same object-store code on a
@@ -15,7 +15,7 @@ import fsspec
 import numpy as np
 import pytest
 from test_cli import invoke, make_campaign
-from test_pipeline_store import _ident
+from test_pipeline_store import _ident, flip_in_place, rezip
 
 from aeroid.errors import StoreError
 from aeroid.pipeline import ResultStore, open_store, run
@@ -54,17 +54,21 @@ def test_a_url_store_round_trips_and_never_overwrites():
     assert store.load(key).parameters == _ident().parameters
     # listed and found like the entries of a folder store
     assert [(e.key, e.stage) for e in store.entries()] == [(key, "identify")]
-    assert store.find(key[:8]).path == f"{url}/identify/{key[:2]}/{key}"
+    assert store.find(key[:8]).path == f"{url}/identify/{key}.zarr.zip"
     assert store.verify_all() == {} and store.temporaries() == []
 
 
-def test_zarr_python_reads_url_entries():
+def test_zarr_python_reads_url_entries(tmp_path):
     import zarr
 
     url = _url()
     store = ResultStore(url)
     key = _commit(store)
-    group = zarr.open_group(store=str(store.path_for("identify", key)), mode="r", zarr_format=3)
+    fs, base = fsspec.core.url_to_fs(url)
+    fetched = tmp_path / "entry.zarr.zip"  # an object, fetched as it is
+    fetched.write_bytes(fs.cat_file(f"{base}/identify/{key}.zarr.zip"))
+    zipped = zarr.storage.ZipStore(fetched, mode="r")
+    group = zarr.open_group(store=zipped, mode="r", zarr_format=3)
     assert group.attrs["aeroid"]["key"] == key
     np.testing.assert_array_equal(group["covariance"][...], _ident().covariance)
 
@@ -74,10 +78,12 @@ def test_altered_bytes_in_a_url_store_are_detected():
     store = ResultStore(url)
     key = _commit(store)
     fs, base = fsspec.core.url_to_fs(url)
-    chunk = f"{base}/identify/{key[:2]}/{key}/covariance/0.0"
-    raw = bytearray(fs.cat_file(chunk))
-    raw[0] ^= 0xFF
-    fs.pipe_file(chunk, bytes(raw))
+    obj = f"{base}/identify/{key}.zarr.zip"
+    good = fs.cat_file(obj)
+    fs.pipe_file(obj, flip_in_place(good, "covariance/")[0])
+    with pytest.raises(StoreError, match=r"is corrupt: .*CRC"):
+        store.load(key, "identify")
+    fs.pipe_file(obj, rezip(good, "covariance/0.0", lambda b: bytes([b[0] ^ 0xFF]) + b[1:])[0])
     with pytest.raises(StoreError, match="does not match its digest"):
         store.load(key, "identify")
     assert key in store.verify_all()
@@ -87,33 +93,37 @@ def test_altered_bytes_in_a_url_store_are_detected():
     assert store.remove("identify", key) is False
 
 
-def test_an_interrupted_commit_is_invisible_and_gc_removes_it(monkeypatch):
+def test_a_commit_is_one_object_so_an_interrupted_one_leaves_nothing(monkeypatch):
     url = _url()
     store = ResultStore(url)
-    put = store._put  # type: ignore[attr-defined]
-
-    def crash_before_the_group(files):
-        if any(f.endswith(f"{key}/zarr.json") for f in files):
-            raise KeyboardInterrupt  # the run is killed between the arrays and the commit
-        put(files)
-
+    fs, base = fsspec.core.url_to_fs(url)
     task = {"n": 7}
     key = sha256_hex(canonical_json(task))
-    monkeypatch.setattr(store, "_put", crash_before_the_group)
-    with pytest.raises(KeyboardInterrupt):
-        store.commit("identify", key, _ident(), task=task)
-    monkeypatch.undo()
-    assert not store.exists("identify", key)
-    assert list(store.entries()) == []
-    with pytest.raises(StoreError, match="not in store"):
-        store.load(key, "identify")
-    assert store.temporaries() == [f"{url}/identify/{key[:2]}/{key}"]
-    assert store.gc() == []  # it might be a commit still running: kept for an hour
-    assert store.gc(max_age=0) == [f"{url}/identify/{key[:2]}/{key}"]
-    assert store.temporaries() == []
-    # the next run commits it afresh
+    put = store._put  # type: ignore[attr-defined]
+    puts = []
+    monkeypatch.setattr(store, "_put", lambda files: (puts.append(list(files)), put(files)))
     assert store.commit("identify", key, _ident(), task=task) is True
-    assert store.verify(key) is None
+    assert puts == [[f"{base}/identify/{key}.zarr.zip"]]  # the whole entry in one PUT
+
+    def killed(files):
+        raise KeyboardInterrupt  # the run is killed while its PUT is on the wire
+
+    other = {"n": 8}
+    other_key = sha256_hex(canonical_json(other))
+    monkeypatch.setattr(store, "_put", killed)
+    with pytest.raises(KeyboardInterrupt):
+        store.commit("identify", other_key, _ident(), task=other)
+    monkeypatch.undo()
+    assert not store.exists("identify", other_key)
+    assert [e.key for e in store.entries()] == [key]
+    assert store.temporaries() == [] and store.gc(max_age=0) == []
+    # a backend that is a file system may keep a file cut short: reported, removable
+    obj = f"{base}/identify/{other_key}.zarr.zip"
+    fs.pipe_file(obj, fs.cat_file(f"{base}/identify/{key}.zarr.zip")[:500])
+    assert "is corrupt" in store.verify_all()[other_key]
+    assert store.remove("identify", other_key) is True
+    assert store.commit("identify", other_key, _ident(), task=other) is True
+    assert store.verify_all() == {}
 
 
 def test_unknown_or_uninstalled_backends_name_the_store():
@@ -142,7 +152,8 @@ def test_the_aeroid_command_on_a_url_store(tmp_path):
     assert code == 0 and "5 entries checked, 0 corrupt" in out
     fs, base = fsspec.core.url_to_fs(url)
     key = stats["key"]
-    fs.pipe_file(f"{base}/stats/{key[:2]}/{key}/zarr.json", b"{ not json")
+    obj = f"{base}/stats/{key}.zarr.zip"
+    fs.pipe_file(obj, rezip(fs.cat_file(obj), "zarr.json", lambda _: b"{ not json")[0])
     code, out, _ = invoke("verify", "--store", url)
     assert code == 1 and f"CORRUPT {key}" in out
 

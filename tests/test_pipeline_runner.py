@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -12,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_pipeline_store import flip_a_bit
 
 from aeroid.errors import PipelineError, StoreError
 from aeroid.pipeline import ResultStore, open_store, run
@@ -169,14 +169,7 @@ def test_an_entry_altered_between_runs_is_caught_by_the_next_run(tmp_path):
     p = plan(cfg)
     ident = next(t for t in p.tasks if t.step == "identify")
     store = ResultStore(tmp_path / "store")
-    chunk = next(
-        f
-        for f in store.path_for("identify", ident.key).rglob("*")
-        if f.is_file() and f.name != "zarr.json"
-    )
-    raw = bytearray(chunk.read_bytes())
-    raw[-1] ^= 0xFF
-    chunk.write_bytes(bytes(raw))
+    flip_a_bit(store.path_for("identify", ident.key))
     # a changed validate option recomputes validate, which reads the altered identify entry
     cfg.write_text(cfg.read_text().replace("  validate: {}", "  validate: {confidence: 0.9}"))
     s = run(cfg, workers=0)
@@ -194,37 +187,13 @@ def test_the_record_cache_is_scoped(tmp_path):
         store.commit("campaign_report", key, rec, task=task)
         cached = store.load(key, "campaign_report")
         assert store.load(key, "campaign_report") is cached  # served from memory
-        shutil.rmtree(store.path_for("campaign_report", key))
+        store.path_for("campaign_report", key).unlink()
         assert store.load(key, "campaign_report") is cached  # this run committed it
         runner_mod.record_cache("run-2")
         with pytest.raises(StoreError, match="not in store"):
             store.load(key, "campaign_report")
     finally:
         runner_mod.record_cache(None)
-
-
-def test_entries_in_the_earlier_chunk_layout_still_read(tmp_path):
-    """Entries written with Zarr's default chunk keys (``c/0/0``) by earlier versions."""
-    store = ResultStore(tmp_path / "s")
-    task = {"k": 2}
-    key = sha256_hex(canonical_json(task))
-    rec = CampaignReport(
-        "t", "x", ("a",), ("flight",), (("a",),), figure_titles=("f",), figures=(b"abc",)
-    )
-    store.commit("campaign_report", key, rec, task=task)
-    entry = store.path_for("campaign_report", key)
-    for meta_path in entry.glob("*/zarr.json"):
-        meta = json.loads(meta_path.read_text())
-        ndim = len(meta["shape"])
-        old = meta_path.parent / (".".join(["0"] * ndim) or "0")
-        new = meta_path.parent.joinpath("c", *(["0"] * ndim))
-        new.parent.mkdir(parents=True, exist_ok=True)
-        old.rename(new)
-        meta["chunk_key_encoding"] = {"name": "default", "configuration": {"separator": "/"}}
-        meta_path.write_text(json.dumps(meta))
-    back = open_store(tmp_path / "s").load(key, "campaign_report")
-    assert back.figure_bytes() == {"f": b"abc"}
-    assert open_store(tmp_path / "s").verify_all() == {}
 
 
 def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
+import struct
 import threading
-from collections.abc import Mapping
+import zipfile
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +22,59 @@ from aeroid.pipeline import ResultStore, open_store, register_record
 from aeroid.pipeline.codec import decode, encode
 from aeroid.pipeline.keys import canonical_json, sha256_hex
 from aeroid.pipeline.stages import CampaignReport
+
+# -- altering entries as a failing disk or a careless hand would --------------------
+
+
+def rezip(raw: bytes, member: str, change: Callable[[bytes], bytes]) -> tuple[bytes, bytes]:
+    """An entry's zip with one member's bytes changed, still a valid zip: (new zip, old bytes)."""
+    with zipfile.ZipFile(io.BytesIO(raw)) as z:
+        members = {i.filename: z.read(i) for i in z.infolist()}
+    original = members[member]
+    members[member] = change(original)
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    return out.getvalue(), original
+
+
+def flip_in_place(raw: bytes, prefix: str) -> tuple[bytes, str, bytes]:
+    """An entry's zip with one bit flipped in the stored bytes of the first chunk whose
+    member name starts with `prefix`: (new zip, member, its original bytes)."""
+    with zipfile.ZipFile(io.BytesIO(raw)) as z:
+        info = next(
+            i
+            for i in z.infolist()
+            if i.filename.startswith(prefix) and not i.filename.endswith("zarr.json")
+        )
+        original = z.read(info)
+    name_len, extra_len = struct.unpack(
+        "<HH", raw[info.header_offset + 26 : info.header_offset + 30]
+    )
+    at = info.header_offset + 30 + name_len + extra_len + info.file_size // 2
+    out = bytearray(raw)
+    out[at] ^= 0x01
+    return bytes(out), info.filename, original
+
+
+def rewrite_member(entry: Path, member: str, change: Callable[[bytes], bytes]) -> bytes:
+    """Change one member of the entry file `entry`; returns its original bytes."""
+    raw, original = rezip(entry.read_bytes(), member, change)
+    entry.write_bytes(raw)
+    return original
+
+
+def flip_a_bit(entry: Path, prefix: str = "") -> tuple[str, bytes]:
+    """Flip a bit of a chunk in the entry file `entry`: (member, its original bytes)."""
+    raw, member, original = flip_in_place(entry.read_bytes(), prefix)
+    entry.write_bytes(raw)
+    return member, original
+
+
+def member_bytes(entry: Path, member: str) -> bytes:
+    with zipfile.ZipFile(entry) as z:
+        return z.read(member)
 
 
 @register_record
@@ -144,16 +201,43 @@ def test_store_round_trips_library_records(tmp_path):
     assert back.summary() == _ident().summary()
 
 
-def test_commit_is_never_an_overwrite(tmp_path):
+@pytest.mark.parametrize("system", ["renameat2", "refused", "link", "no links"])
+def test_every_way_of_committing_never_overwrites(tmp_path, monkeypatch, system):
+    """A commit never replaces an entry, by Linux's no-replace rename; on a file system
+    refusing it (NFS) or with a C library without it, by a hard link; on a file system
+    without hard links either, by a look and then a rename."""
+    import ctypes
+    import errno
+
+    from aeroid.pipeline import store as store_mod
+
+    def refused(*args: object) -> int:
+        ctypes.set_errno(errno.EINVAL)
+        return -1
+
+    def no_links(src: object, dst: object) -> None:
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(store_mod, "_NOREPLACE_UNSUPPORTED", set())
+    if system == "refused":
+        monkeypatch.setattr(store_mod, "_renameat2", lambda: refused)
+    elif system != "renameat2":
+        monkeypatch.setattr(store_mod, "_renameat2", lambda: None)
+    if system == "no links":
+        monkeypatch.setattr(os, "link", no_links)
     store = ResultStore(tmp_path / "s")
-    task = {"x": 1}
-    key = sha256_hex(canonical_json(task))
-    rep = CampaignReport("t", "first", ("a",), ("flight",), (("a",),))
-    assert store.commit("campaign_report", key, rep, task=task) is True
-    other = CampaignReport("t", "second", ("a",), ("flight",), (("a",),))
-    assert store.commit("campaign_report", key, other, task=task) is False
-    assert store.load(key).markdown == "first"
-    assert store.temporaries() == []
+    for n in range(2):  # the stage's first entry makes its folder; the second finds it
+        task = {"x": n}
+        key = sha256_hex(canonical_json(task))
+        rep = CampaignReport("t", "first", ("a",), ("flight",), (("a",),))
+        assert store.commit("campaign_report", key, rep, task=task) is True
+        other = CampaignReport("t", "second", ("a",), ("flight",), (("a",),))
+        assert store.commit("campaign_report", key, other, task=task) is False
+        assert store.load(key).markdown == "first"
+    assert store.temporaries() == [] and store.verify_all() == {}
+    assert os.stat(store.path_for("campaign_report", key)).st_nlink == 1
+    if system == "refused":  # asked once, then known for this file system
+        assert len(store_mod._NOREPLACE_UNSUPPORTED) == 1
 
 
 def test_task_and_provenance_not_in_plain_json_types_are_normalised(tmp_path):
@@ -220,11 +304,16 @@ def _committed(tmp_path):
 
 def test_altered_array_bytes_are_detected_on_read_and_by_verify(tmp_path):
     store, key = _committed(tmp_path)
-    chunk = store.path_for("identify", key) / "covariance" / "0.0"
-    raw = bytearray(chunk.read_bytes())
-    raw[-1] ^= 0xFF
-    chunk.write_bytes(bytes(raw))
-    with pytest.raises(StoreError, match="corrupt"):
+    entry = store.path_for("identify", key)
+    good = entry.read_bytes()
+    # a bit flipped on disk: the zip's own checksum of the member catches it
+    flip_a_bit(entry, "covariance/")
+    with pytest.raises(StoreError, match=r"\(identify\) in .* is corrupt: .*CRC"):
+        store.load(key)
+    # bytes changed and the zip made whole again: the array's SHA-256 catches it
+    entry.write_bytes(good)
+    rewrite_member(entry, "covariance/0.0", lambda b: b[:-1] + bytes([b[-1] ^ 0xFF]))
+    with pytest.raises(StoreError, match="array 'covariance' does not match its digest"):
         store.load(key)
     assert key in store.verify_all()
     # removed, it is gone whole (nothing left in the temporaries) and can be committed again
@@ -237,8 +326,7 @@ def test_altered_array_bytes_are_detected_on_read_and_by_verify(tmp_path):
 
 def test_a_truncated_chunk_is_reported_as_a_corrupt_entry(tmp_path):
     store, key = _committed(tmp_path)
-    chunk = store.path_for("identify", key) / "covariance" / "0.0"
-    chunk.write_bytes(chunk.read_bytes()[:-8])
+    rewrite_member(store.path_for("identify", key), "covariance/0.0", lambda b: b[:-8])
     # the words the command looks for to suggest `aeroid verify --remove`
     with pytest.raises(
         StoreError, match=r"\(identify\) in .* is corrupt: chunk .* holds 3 values, expected 4"
@@ -249,24 +337,38 @@ def test_a_truncated_chunk_is_reported_as_a_corrupt_entry(tmp_path):
 
 def test_altered_attributes_are_detected(tmp_path):
     store, key = _committed(tmp_path)
-    meta_path = store.path_for("identify", key) / "zarr.json"
-    original = meta_path.read_text()
+    entry = store.path_for("identify", key)
+    original = member_bytes(entry, "zarr.json").decode()
+
+    def write(text: str) -> None:
+        rewrite_member(entry, "zarr.json", lambda _: text.encode())
+
     doc = json.loads(original)
     doc["attributes"]["aeroid"]["record"]["fields"]["message"] = "tampered"
-    meta_path.write_text(json.dumps(doc))
+    write(json.dumps(doc))
     with pytest.raises(StoreError, match="altered"):
         store.load(key, "identify")
     # a value this store never writes (JSON's NaN, infinity), in the record or the task
     for where in ("record", "task"):
         doc = json.loads(original)
         doc["attributes"]["aeroid"][where]["extra"] = float("nan")
-        meta_path.write_text(json.dumps(doc))
+        write(json.dumps(doc))
         with pytest.raises(StoreError, match="is corrupt"):
             store.load(key, "identify")
-    meta_path.write_text(original)
+    write(original)
     store.load(key, "identify")  # the original reads
-    meta_path.write_text("{ not json")
+    write("{ not json")
     assert "unreadable" in store.verify(key, "identify")
+    # not a zip at all (a file cut short by a failing disk)
+    entry.write_bytes(entry.read_bytes()[:100])
+    assert "is corrupt: unreadable" in store.verify(key, "identify")
+
+
+def test_a_store_of_the_earlier_folder_layout_is_refused_with_the_way_out(tmp_path):
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "aeroid-store.json").write_text('{"format": 1}')
+    with pytest.raises(StoreError, match=r"layout version 1 .*run the campaign into a new store"):
+        open_store(tmp_path / "old")
 
 
 def test_reading_never_imports_unregistered_code():
@@ -327,7 +429,10 @@ def test_entries_are_plain_zarr_v3_that_zarr_python_reads(tmp_path):
     task = {"w": 1}
     key = sha256_hex(canonical_json(task))
     store.commit("everything", key, _everything(), task=task)
-    group = zarr.open_group(store=str(store.path_for("everything", key)), mode="r", zarr_format=3)
+    entry = store.path_for("everything", key)
+    assert entry.name == f"{key}.zarr.zip" and entry.parent.name == "everything"
+    zipped = zarr.storage.ZipStore(entry, mode="r")
+    group = zarr.open_group(store=zipped, mode="r", zarr_format=3)
     meta = group.attrs["aeroid"]
     assert meta["key"] == key and meta["record_type"].endswith(":Everything")
     ours = store.load_arrays(key)
@@ -336,3 +441,33 @@ def test_entries_are_plain_zarr_v3_that_zarr_python_reads(tmp_path):
         theirs = group[name][...]
         assert theirs.dtype == arr.dtype and theirs.shape == arr.shape
         assert np.asarray(theirs).tobytes() == arr.tobytes()
+
+
+def test_an_entry_is_a_valid_zip_whichever_writer_made_it(tmp_path, monkeypatch):
+    """The store's own zip writer and zipfile's (used past 2 GiB, for Zip64) make entries
+    that zipfile reads member for member, checksums included, and that load the same."""
+    from aeroid.pipeline import store as store_mod
+
+    record = Everything(
+        **{**_everything().__dict__, "arrays": {"x": np.arange(3.0), "é": np.eye(2)}}
+    )
+    task = {"w": 2}
+    key = sha256_hex(canonical_json(task))
+    contents = []
+    for limit in (store_mod._ZIP32_LIMIT, 0):
+        monkeypatch.setattr(store_mod, "_ZIP32_LIMIT", limit)
+        store = ResultStore(tmp_path / f"s{limit}")
+        store.commit("everything", key, record, task=task)
+        entry = store.path_for("everything", key)
+        with zipfile.ZipFile(entry) as z:
+            assert z.testzip() is None  # every member's CRC-32 checks
+            infos = z.infolist()
+            assert all(i.compress_type == zipfile.ZIP_STORED for i in infos)
+            assert all(i.date_time == (1980, 1, 1, 0, 0, 0) for i in infos)
+            assert infos[-1].filename == "zarr.json"  # the group's metadata last
+            contents.append({i.filename: z.read(i) for i in infos if i.filename != "zarr.json"})
+        _same(store.load(key), record)
+    assert contents[0] == contents[1] and "inners.1.values/0" in contents[0]
+    # a name beyond ASCII is marked UTF-8, as zipfile expects
+    with zipfile.ZipFile(io.BytesIO(store_mod._stored_zip([("α/0", b"x"), ("b", b"")]))) as z:
+        assert z.testzip() is None and z.namelist() == ["α/0", "b"] and z.read("α/0") == b"x"

@@ -2,34 +2,48 @@
 
 Layout under the store root::
 
-    aeroid-store.json                 marker with the layout version
-    <stage>/<key[:2]>/<key>/          one Zarr group per result (arrays + JSON attributes)
-    .tmp/<key>.<host>.<pid>.<nonce>/  results being written (removed by `gc` after a crash)
+    aeroid-store.json                marker with the layout version
+    <stage>/<key>.zarr.zip           one result: a zipped Zarr v3 group (arrays + JSON attributes)
+    .tmp/<key>.<host>.<pid>.<nonce>  results being written (removed by `gc` after a crash)
 
-A result is written completely under ``.tmp`` and then renamed into place,
-so a reader sees either nothing or a whole entry. If the target already
-exists another run committed the same key first and the copy is discarded
-(an entry is never overwritten). Every array's SHA-256 and a digest of the
-JSON content are stored in the group's attributes and checked on every
-read; an altered entry raises `StoreError` and is never returned.
+Each entry is a Zarr v3 hierarchy in one uncompressed zip file, the form
+zarr-python opens with ``zarr.storage.ZipStore``: its root group holds the
+JSON attributes and one array per set of numbers. One file per result rather
+than a folder per result and two files per array: a campaign's cold run
+creates a tenth of the files, and on a disk whose file creation is slow that
+was most of what the store cost.
+
+A result is written completely under ``.tmp`` and then linked into place, a
+rename that refuses an existing name, so a reader sees either nothing or a
+whole entry. If the name exists another run committed the same key first and
+the copy is discarded (an entry is never overwritten). Every array's SHA-256
+and a digest of the JSON content are stored in the group's attributes and
+checked on every read; an altered entry raises `StoreError` and is never
+returned.
 
 A store may also live at a URL that fsspec understands (``s3://``,
-``gs://``, ``az://``, ...; the backend's package must be installed). Object
-stores cannot rename, so there the group's metadata, written last in one
-object, is what commits an entry (see `_ObjectStore`).
+``gs://``, ``az://``, ...; the backend's package must be installed). There an
+entry is one object written in one PUT, which object stores make visible whole
+or not at all (see `_ObjectStore`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
 import functools
+import io
 import json
 import os
 import shutil
 import socket
+import struct
 import threading
 import time
 import uuid
+import zipfile
+import zlib
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -44,14 +58,15 @@ from .keys import _canonical_plain, array_digest, canonical_json, sha256_hex, to
 
 __all__ = ["Entry", "ResultStore", "is_store", "is_url", "open_store", "record_cache"]
 
-FORMAT = 1
+FORMAT = 2  # 1: a folder per entry under <stage>/<key[:2]>/
 _MARKER = "aeroid-store.json"
 _TMP = ".tmp"
+_SUFFIX = ".zarr.zip"
 
 
 @dataclass(frozen=True)
 class Entry:
-    """A committed result: its key, stage and location (a folder, or a URL in an object store)."""
+    """A committed result: its key, stage and location (a zip file, or a URL in an object store)."""
 
     key: str
     stage: str
@@ -59,10 +74,11 @@ class Entry:
 
 
 # -- a minimal Zarr v3 writer/reader for what the store holds ------------------------
-# Entries are plain Zarr v3 (any zarr-python reads them): one uncompressed chunk
-# per array with the little-endian ``bytes`` codec. Writing and reading those
-# files directly costs well under a millisecond per array, against several for
-# zarr-python's general machinery; entries written otherwise are read by zarr.
+# Entries are plain Zarr v3 (zarr-python reads them through its ZipStore): one
+# uncompressed chunk per array with the little-endian ``bytes`` codec, beside the
+# array's ``zarr.json`` in the zip. Writing and reading those members directly
+# costs well under a millisecond per array, against several for zarr-python's
+# general machinery.
 
 _DTYPES = {
     "b": "bool",
@@ -80,6 +96,10 @@ _DTYPES = {
     "c16": "complex128",
 }
 _NUMPY = {v: ("?" if k == "b" else "<" + k) for k, v in _DTYPES.items()}
+_BYTES_CODEC = [{"name": "bytes", "configuration": {"endian": "little"}}]
+# "v2" keys ("0.0") put an array's single chunk beside its zarr.json
+_CHUNK_KEYS = {"name": "v2", "configuration": {"separator": "."}}
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 def _zarr_dtype(arr: np.ndarray) -> str:
@@ -89,20 +109,8 @@ def _zarr_dtype(arr: np.ndarray) -> str:
     return _DTYPES[code]
 
 
-def _write_file(path: str, data: bytes) -> None:
-    # os-level calls: a commit writes a few files per array, and pathlib's and
-    # io's layers cost more than the system calls themselves
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-    try:
-        view = memoryview(data)
-        while view:
-            view = view[os.write(fd, view) :]
-    finally:
-        os.close(fd)
-
-
 def _array_files(arr: np.ndarray) -> list[tuple[str, bytes]]:
-    """The files of an array as Zarr v3 (name within the array's folder, bytes)."""
+    """The members of an array as Zarr v3 (name within the array's node, bytes)."""
     dtype = _zarr_dtype(arr)
     meta = _array_meta(dtype, tuple(int(n) for n in arr.shape))
     if arr.size == 0:
@@ -125,10 +133,9 @@ def _array_meta(dtype: str, shape: tuple[int, ...]) -> bytes:
             "shape": list(shape),
             "data_type": dtype,
             "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": chunk}},
-            # "v2" keys ("0.0") put the single chunk beside zarr.json: no chunk directories
-            "chunk_key_encoding": {"name": "v2", "configuration": {"separator": "."}},
+            "chunk_key_encoding": _CHUNK_KEYS,
             "fill_value": fill,
-            "codecs": [{"name": "bytes", "configuration": {"endian": "little"}}],
+            "codecs": _BYTES_CODEC,
             "attributes": {},
             "storage_transformers": [],
         },
@@ -136,52 +143,77 @@ def _array_meta(dtype: str, shape: tuple[int, ...]) -> bytes:
     ).encode("utf-8")
 
 
-def _write_array(path: str, arr: np.ndarray) -> None:
-    os.mkdir(path)
-    for name, data in _array_files(arr):
-        _write_file(os.path.join(path, name), data)
-
-
 def _chunk_name(ndim: int) -> str:
     return ".".join(["0"] * ndim) or "0"
 
 
-def _chunk_path(path: str, ndim: int, encoding: Any) -> str | None:
-    """Where the single chunk of an array lives, for the key encodings this store writes."""
-    if not isinstance(encoding, dict):
-        return None
-    sep = (encoding.get("configuration") or {}).get("separator")
-    if encoding.get("name") == "v2" and sep == ".":
-        return f"{path}/{_chunk_name(ndim)}"
-    if encoding.get("name") == "default" and sep == "/":  # entries of earlier versions
-        return "/".join([path, "c", *(["0"] * ndim)])
-    return None
+def _entry_zip(arrays: Mapping[str, np.ndarray], group: bytes) -> bytes:
+    """An entry's zip: every array, then the group's metadata."""
+    members = [
+        (f"{name}/{file}", data) for name, arr in arrays.items() for file, data in _array_files(arr)
+    ]
+    members.append(("zarr.json", group))
+    if len(members) < 0xFFFF and sum(len(data) for _, data in members) < _ZIP32_LIMIT:
+        return _stored_zip(members)
+    out = io.BytesIO()  # past the limits of the plain zip format: zipfile writes Zip64
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        for name, data in members:
+            info = zipfile.ZipInfo(name, _ZIP_TIME)
+            info.external_attr = 0o644 << 16
+            z.writestr(info, data)
+    return out.getvalue()
 
 
-def _read_local(path: str) -> bytes:
-    with open(path, "rb") as f:
-        return f.read()
+# An uncompressed zip (APPNOTE 6.3: local headers and data, central directory, end
+# record), written directly: zipfile's writer costs about 10 us a member, a third of
+# a commit, for what is a few struct.pack calls. zipfile reads what this writes.
+_ZIP32_LIMIT = 2**31
+_LOCAL = struct.Struct("<IHHHHHIIIHH")
+_CENTRAL = struct.Struct("<IHHHHHHIIIHHHHHII")
+_END = struct.Struct("<IHHHHIIH")
+_DOS_DATE = (1 << 5) | 1  # 1980-01-01, time 00:00: members carry no clock
 
 
-def _read_array(path: str, read: Callable[[str], bytes] = _read_local) -> np.ndarray | None:
-    """Read an array written by `_write_array` (files read by `read`); None when it was
-    written otherwise."""
-    meta = json.loads(read(f"{path}/zarr.json").decode("utf-8"))
+def _stored_zip(members: list[tuple[str, bytes]]) -> bytes:
+    parts: list[bytes] = []
+    central: list[bytes] = []
+    offset = 0
+    for name, data in members:
+        raw = name.encode("utf-8")
+        flags = 0 if raw.isascii() else 0x800  # bit 11: the name is UTF-8
+        crc, size = zlib.crc32(data), len(data)
+        fields = (flags, 0, 0, _DOS_DATE, crc, size, size, len(raw))  # stored, no clock
+        head = _LOCAL.pack(0x04034B50, 20, *fields, 0)
+        # made by Unix (3) zip 2.0, so the external attributes are its file mode
+        central.append(
+            _CENTRAL.pack(0x02014B50, 0x0314, 20, *fields, 0, 0, 0, 0, 0o644 << 16, offset)
+        )
+        central.append(raw)
+        parts += (head, raw, data)
+        offset += len(head) + len(raw) + size
+    directory = b"".join(central)
+    n = len(members)
+    end = _END.pack(0x06054B50, 0, 0, n, n, len(directory), offset, 0)
+    return b"".join((*parts, directory, end))
+
+
+def _read_array(name: str, read: Callable[[str], bytes]) -> np.ndarray:
+    """Read the array `name` of an entry whose members `read` returns."""
+    meta = json.loads(read(f"{name}/zarr.json").decode("utf-8"))
     dtype = _NUMPY.get(meta.get("data_type"))
     shape = tuple(int(n) for n in meta["shape"])
-    layout_ok = (
-        meta.get("codecs") == [{"name": "bytes", "configuration": {"endian": "little"}}]
-        and meta.get("chunk_grid", {}).get("configuration", {}).get("chunk_shape")
-        == [max(1, n) for n in shape]
-        and dtype is not None
-    )
-    target = _chunk_path(path, len(shape), meta.get("chunk_key_encoding"))
-    if not layout_ok or target is None:
-        return None
+    if (
+        dtype is None
+        or meta.get("codecs") != _BYTES_CODEC
+        or meta.get("chunk_key_encoding") != _CHUNK_KEYS
+        or meta.get("chunk_grid", {}).get("configuration", {}).get("chunk_shape")
+        != [max(1, n) for n in shape]
+    ):
+        raise StoreError(f"array {name!r} is not in this store's layout")
     if 0 in shape:
         return np.zeros(shape, dtype=dtype)
-    raw = read(target)
-    arr = np.frombuffer(raw, dtype=dtype)
+    target = f"{name}/{_chunk_name(len(shape))}"
+    arr = np.frombuffer(read(target), dtype=dtype)
     if arr.size != int(np.prod(shape)):
         raise StoreError(f"chunk {target} holds {arr.size} values, expected {int(np.prod(shape))}")
     return arr.reshape(shape).astype(np.dtype(dtype).newbyteorder("="))
@@ -274,22 +306,79 @@ def _hostname() -> str:
     return socket.gethostname()
 
 
-def _mkdir(path: str) -> None:
-    """`os.mkdir(path)`, making its parent folders only when they are missing."""
-    try:
-        os.mkdir(path)
-    except FileNotFoundError:  # a new store, or `gc` or a user removed the folder
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        os.mkdir(path)
+def _move_into(tmp: str, final: str) -> bool:
+    """Move the written file `tmp` to `final`; False, and `tmp` left, when `final` exists.
 
-
-def _rename_into(tmp: str, final: str) -> None:
-    """`os.rename(tmp, final)`, making the folder of `final` only when it is missing."""
+    A plain rename would replace an existing entry: this one refuses (Linux's
+    ``RENAME_NOREPLACE``, or elsewhere a hard link and then removing `tmp`).
+    The folder of `final` is made only when it is missing.
+    """
     try:
-        os.rename(tmp, final)
-    except FileNotFoundError:  # the first entry under this key prefix
+        return _place(tmp, final)
+    except FileNotFoundError:  # the stage's first entry, or a user removed its folder
         os.makedirs(os.path.dirname(final), exist_ok=True)
+        return _place(tmp, final)
+
+
+def _place(tmp: str, final: str) -> bool:
+    moved = _rename_noreplace(tmp, final)
+    if moved is not None:
+        return moved
+    try:
+        os.link(tmp, final)
+    except FileExistsError:
+        return False
+    except OSError as exc:
+        if exc.errno not in _NO_LINKS:
+            raise
+        # a file system without hard links: a rename after a look, which two
+        # commits of one key at the same instant could both pass (their
+        # results are the same; the digests would tell if they were not)
+        if os.path.exists(final):
+            return False
         os.rename(tmp, final)
+    else:
+        os.unlink(tmp)
+    return True
+
+
+@functools.lru_cache(maxsize=1)
+def _renameat2() -> Any:
+    """Linux's renameat2, or None where the C library has none (macOS, musl before 1.2.5)."""
+    try:
+        func = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    func.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    func.restype = ctypes.c_int
+    return func
+
+
+_AT_FDCWD, _RENAME_NOREPLACE = -100, 1
+_NOREPLACE_UNSUPPORTED: set[int] = set()  # st_dev of file systems that refused the flag
+
+
+def _rename_noreplace(tmp: str, final: str) -> bool | None:
+    """Rename `tmp` to `final` unless `final` exists, in one system call: True when
+    renamed, False when `final` exists, None where the system cannot (then a hard link
+    does the same in two calls)."""
+    func = _renameat2()
+    if func is None:
+        return None
+    if _NOREPLACE_UNSUPPORTED and os.stat(tmp).st_dev in _NOREPLACE_UNSUPPORTED:
+        return None
+    if func(_AT_FDCWD, os.fsencode(tmp), _AT_FDCWD, os.fsencode(final), _RENAME_NOREPLACE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err == errno.EEXIST:
+        return False
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+        _NOREPLACE_UNSUPPORTED.add(os.stat(tmp).st_dev)  # NFS, FUSE, old kernels
+        return None
+    raise OSError(err, os.strerror(err), final)
+
+
+_NO_LINKS = {errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK, errno.EXDEV}
 
 
 # -- a run-scoped cache of records -------------------------------------------------
@@ -368,6 +457,12 @@ def _check_marker(raw: bytes, store: Path | str) -> None:
     except ValueError as exc:
         raise StoreError(f"store {store}: unreadable marker {_MARKER} ({exc})") from None
     got = info.get("format") if isinstance(info, dict) else info
+    if got == 1:
+        raise StoreError(
+            f"store {store}: layout version 1 (a folder per entry, as aeroid wrote before "
+            f"zipped entries); this aeroid reads version {FORMAT}: run the campaign into a "
+            "new store (the keys are the same)"
+        )
     if got != FORMAT:
         raise StoreError(
             f"store {store}: layout version {got!r}, this aeroid reads version {FORMAT}"
@@ -447,11 +542,11 @@ class ResultStore:
     # -- locations -------------------------------------------------------------
     def path_for(self, stage: str, key: str) -> Path | str:
         """Where the result of `key` in `stage` lives (whether or not it exists)."""
-        return self._dir / stage / key[:2] / key
+        return self._dir / stage / f"{key}{_SUFFIX}"
 
     def exists(self, stage: str, key: str) -> bool:
         """True when `key` is committed (commits are atomic, so existence means complete)."""
-        return os.path.isdir(os.path.join(self._root_id, stage, key[:2], key))
+        return os.path.exists(os.path.join(self._root_id, stage, key + _SUFFIX))
 
     def stored(self, tasks: Iterable[tuple[str, str]]) -> set[tuple[str, str]]:
         """The (stage, key) pairs among `tasks` that are committed."""
@@ -465,8 +560,8 @@ class ResultStore:
                 out.add((stage, key))
         return out
 
-    def _read(self, path: str) -> bytes:
-        return _read_local(path)
+    def _open_zip(self, entry: Entry) -> zipfile.ZipFile:
+        return zipfile.ZipFile(entry.path)
 
     def entries(self, stage: str | None = None) -> Iterator[Entry]:
         """Every committed entry, optionally of one stage."""
@@ -481,14 +576,16 @@ class ResultStore:
         )
         for s in stages:
             base = self._dir / s
-            if not base.is_dir():
-                continue
-            for prefix in sorted(base.iterdir()):
-                if not prefix.is_dir():
-                    continue
-                for entry in sorted(prefix.iterdir()):
-                    if entry.is_dir():
-                        yield Entry(entry.name, s, entry)
+            if base.is_dir():
+                yield from self._in_stage(base, "")
+
+    @staticmethod
+    def _in_stage(base: Path, key: str) -> Iterator[Entry]:
+        """The entries in the stage folder `base` whose keys start with `key`."""
+        for path in sorted(base.glob(f"{key}*{_SUFFIX}")):
+            name = path.name.removesuffix(_SUFFIX)
+            if len(name) == 64 and path.is_file():
+                yield Entry(name, base.name, path)
 
     def find(self, key: str) -> Entry:
         """The entry whose key is `key` or starts with it (at least 6 hex digits)."""
@@ -503,13 +600,10 @@ class ResultStore:
         return hits[0]
 
     def _starting_with(self, key: str) -> list[Entry]:
-        hits = []
+        hits: list[Entry] = []
         for stage_dir in sorted(self._dir.iterdir()) if self._dir.is_dir() else []:
-            if not stage_dir.is_dir() or stage_dir.name.startswith("."):
-                continue
-            prefix = stage_dir / key[:2]
-            if prefix.is_dir():
-                hits += [Entry(p.name, stage_dir.name, p) for p in prefix.glob(f"{key}*")]
+            if stage_dir.is_dir() and not stage_dir.name.startswith("."):
+                hits += self._in_stage(stage_dir, key)
         return hits
 
     # -- writing ---------------------------------------------------------------
@@ -539,26 +633,28 @@ class ResultStore:
     def _publish(
         self, stage: str, key: str, arrays: Mapping[str, np.ndarray], group: bytes
     ) -> bool:
-        """Write the entry's files under a temporary name, then rename it into place."""
-        final = os.path.join(self._root_id, stage, key[:2], key)
+        """Write the entry's zip under a temporary name, then move it into place."""
         tmp = self._temporary(key)
         try:
-            _mkdir(tmp)
-            for name, arr in arrays.items():
-                _write_array(os.path.join(tmp, name), arr)
-            # the group's metadata is written last: a complete group, then the rename
-            _write_file(os.path.join(tmp, "zarr.json"), group)
             try:
-                _rename_into(tmp, final)
-            except OSError:
-                if os.path.isdir(final):  # another run committed the same key first
-                    shutil.rmtree(tmp, ignore_errors=True)
-                    return False
-                raise
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileNotFoundError:  # a new store, or `gc` or a user removed the folder
+                os.makedirs(os.path.dirname(tmp), exist_ok=True)
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            try:
+                view = memoryview(_entry_zip(arrays, group))
+                while view:
+                    view = view[os.write(fd, view) :]
+            finally:
+                os.close(fd)
+            if _move_into(tmp, os.path.join(self._root_id, stage, key + _SUFFIX)):
+                return True
         except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
             raise
-        return True
+        os.unlink(tmp)  # another run committed the same key first
+        return False
 
     def _temporary(self, key: str) -> str:
         # host and pid in the name let `gc` keep the temporaries of live processes
@@ -569,16 +665,12 @@ class ResultStore:
         """Take an entry out of the store; False when there is none.
 
         For corrupt entries (`verify`): once removed, the next run recomputes
-        them. The entry disappears at once, by a rename into the temporaries,
-        and its files are deleted after.
+        them. The entry is one file, so it disappears at once and whole.
         """
-        final = os.path.join(self._root_id, stage, key[:2], key)
-        tmp = self._temporary(key)
         try:
-            _rename_into(final, tmp)
+            os.unlink(os.path.join(self._root_id, stage, key + _SUFFIX))
         except FileNotFoundError:
             return False
-        shutil.rmtree(tmp, ignore_errors=True)  # what is left, `gc` collects
         return True
 
     # -- reading ---------------------------------------------------------------
@@ -589,13 +681,35 @@ class ResultStore:
             return Entry(key, stage, self.path_for(stage, key))
         return self.find(key)
 
+    @contextlib.contextmanager
+    def _members(self, entry: Entry) -> Iterator[Callable[[str], bytes]]:
+        """The entry's zip, opened: yields a function reading a member's bytes."""
+        try:
+            archive = self._open_zip(entry)
+        except FileNotFoundError:
+            raise StoreError(
+                f"{entry.stage} result {entry.key[:12]} is not in store {self.root}"
+            ) from None
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            raise StoreError(
+                f"entry {entry.key[:12]} ({entry.stage}) in {self.root} is corrupt: "
+                f"unreadable ({exc})"
+            ) from None
+        with archive:
+            yield archive.read
+
     def metadata(self, key: str, stage: str | None = None) -> dict[str, Any]:
         """The entry's JSON attributes (record tree, task document, provenance, digests)."""
         entry = self._entry(key, stage)
+        with self._members(entry) as read:
+            return self._metadata(entry, read)
+
+    @staticmethod
+    def _metadata(entry: Entry, read: Callable[[str], bytes]) -> dict[str, Any]:
         try:
-            doc = json.loads(self._read(f"{entry.path}/zarr.json").decode("utf-8"))
+            doc = json.loads(read("zarr.json").decode("utf-8"))
             meta = doc["attributes"]["aeroid"]
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
             raise StoreError(
                 f"entry {entry.key[:12]} ({entry.stage}) is corrupt: unreadable metadata ({exc})"
             ) from None
@@ -604,7 +718,13 @@ class ResultStore:
         return meta
 
     def _read_verified(self, entry: Entry) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-        meta = self.metadata(entry.key, entry.stage)
+        with self._members(entry) as read:
+            return self._verified(entry, read)
+
+    def _verified(
+        self, entry: Entry, read: Callable[[str], bytes]
+    ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        meta = self._metadata(entry, read)
         where = f"entry {entry.key[:12]} ({entry.stage}) in {self.root}"
         try:
             if _content_digest(meta) != meta.get("content_digest"):
@@ -615,13 +735,7 @@ class ResultStore:
             for name, digest in meta["digests"].items():
                 if "/" in name or name.startswith("."):
                     raise StoreError(f"{where} is corrupt: bad array name {name!r}")
-                got = _read_array(f"{entry.path}/{name}", self._read)
-                if got is None:  # written by another Zarr writer: let zarr-python read it
-                    import zarr
-
-                    node: Any = zarr.open_array(store=f"{entry.path}/{name}", mode="r")
-                    got = np.asarray(node[...])
-                arr = got
+                arr = _read_array(name, read)
                 if array_digest(arr) != digest:
                     raise StoreError(
                         f"{where} is corrupt: array {name!r} does not match its digest"
@@ -631,7 +745,7 @@ class ResultStore:
             if " is corrupt: " in str(exc):
                 raise
             raise StoreError(f"{where} is corrupt: {exc}") from None
-        except Exception as exc:  # zarr/json/codec errors on damaged bytes
+        except Exception as exc:  # zip/json/codec errors on damaged bytes
             raise StoreError(f"{where} is corrupt: {type(exc).__name__}: {exc}") from None
         return meta, arrays
 
@@ -728,12 +842,14 @@ def is_url(location: str | Path) -> bool:
 class _ObjectStore(ResultStore):
     """A store at a URL that fsspec understands (``s3://``, ``gs://``, ``az://``, ``memory://`` ...).
 
-    Object stores have no atomic rename, so a commit writes the entry's arrays
-    straight under its prefix and the group's ``zarr.json`` last, in one PUT:
-    an entry exists once that object does. A run killed before it leaves
-    arrays that no reader sees, which the next run rewrites and `gc` removes.
-    Two runs that commit the same key at once write the same arrays (results
-    are deterministic); were they to differ, the digests say so on every read.
+    Object stores have no rename, and need none: an entry is one object,
+    written in one PUT, and an object store shows an object whole or not at
+    all. So there are no temporaries. Two runs that commit the same key at once
+    write the same result (results are deterministic); were they to differ,
+    the digests say so on every read. A backend that is a file system reached
+    through fsspec (``local://``, ``sftp://``) may leave a partial file when a
+    run is killed mid-write: the next read reports it corrupt, as `verify`
+    does, and ``verify --remove`` takes it out.
     """
 
     _look_first = True  # a PUT overwrites: never write under a committed key
@@ -780,65 +896,52 @@ class _ObjectStore(ResultStore):
         return self._url_root + path[len(self._base) :]
 
     def path_for(self, stage: str, key: str) -> Path | str:
-        return f"{self._url_root}/{stage}/{key[:2]}/{key}"
+        return f"{self._url_root}/{stage}/{key}{_SUFFIX}"
 
     def exists(self, stage: str, key: str) -> bool:
-        return bool(self._fs.exists(f"{self._base}/{stage}/{key[:2]}/{key}/zarr.json"))
+        return bool(self._fs.exists(f"{self._base}/{stage}/{key}{_SUFFIX}"))
 
     def stored(self, tasks: Iterable[tuple[str, str]]) -> set[tuple[str, str]]:
         # one listing per stage instead of a request per key
         wanted = set(tasks)
         found = set()
         for stage in {stage for stage, _ in wanted}:
-            found |= {(e.stage, e.key) for e in self._groups(stage, "")}
+            found |= {(e.stage, e.key) for e in self._objects(stage, "")}
         return wanted & found
 
-    def _read(self, path: str) -> bytes:
-        return bytes(self._fs.cat_file(self._path(path)))
+    def _open_zip(self, entry: Entry) -> zipfile.ZipFile:
+        return zipfile.ZipFile(io.BytesIO(self._fs.cat_file(self._path(str(entry.path)))))
 
-    def _groups(self, stage: str, key: str) -> list[Entry]:
-        pattern = f"{self._base}/{stage}/{key[:2] if len(key) >= 2 else '*'}/{key}*/zarr.json"
+    def _objects(self, stage: str, key: str) -> list[Entry]:
         out = []
-        for found in sorted(self._fs.glob(pattern)):
-            folder = str(found).rsplit("/", 1)[0]
-            st, _, name = folder[len(self._base) + 1 :].split("/")
-            if not st.startswith("."):
-                out.append(Entry(name, st, self._url(folder)))
+        for found in sorted(self._fs.glob(f"{self._base}/{stage}/{key}*{_SUFFIX}")):
+            st, _, name = str(found)[len(self._base) + 1 :].rpartition("/")
+            name = name.removesuffix(_SUFFIX)
+            if "/" not in st and not st.startswith(".") and len(name) == 64:
+                out.append(Entry(name, st, self._url(str(found))))
         return out
 
     def entries(self, stage: str | None = None) -> Iterator[Entry]:
-        yield from self._groups(stage or "*", "")
+        yield from self._objects(stage or "*", "")
 
     def _starting_with(self, key: str) -> list[Entry]:
-        return self._groups("*", key)
+        return self._objects("*", key)
 
     def _publish(
         self, stage: str, key: str, arrays: Mapping[str, np.ndarray], group: bytes
     ) -> bool:
-        final = f"{self._base}/{stage}/{key[:2]}/{key}"
-        files = {
-            f"{final}/{name}/{file}": data
-            for name, arr in arrays.items()
-            for file, data in _array_files(arr)
-        }
-        if files:
-            self._put(files)
-        self._put({f"{final}/zarr.json": group})  # the commit: one object, written last
+        self._put({f"{self._base}/{stage}/{key}{_SUFFIX}": _entry_zip(arrays, group)})  # the commit
         return True
 
     def remove(self, stage: str, key: str) -> bool:
-        # the entry is gone once its group metadata is, as it appeared with it
-        final = f"{self._base}/{stage}/{key[:2]}/{key}"
         try:
-            self._fs.rm_file(f"{final}/zarr.json")
+            self._fs.rm_file(f"{self._base}/{stage}/{key}{_SUFFIX}")
         except FileNotFoundError:
             return False
-        with contextlib.suppress(FileNotFoundError):
-            self._fs.rm(final, recursive=True)
         return True
 
     def _put(self, files: dict[str, bytes]) -> None:
-        """Write files (concurrently, where the backend can)."""
+        """Write objects (concurrently, where the backend can)."""
         try:
             self._fs.pipe(files)
         except FileNotFoundError:
@@ -848,35 +951,12 @@ class _ObjectStore(ResultStore):
             self._fs.pipe(files)
 
     def temporaries(self) -> list[Path | str]:
-        """Entries begun by a commit that has not ended: arrays without the group's metadata."""
-        folders: dict[str, bool] = {}
-        for found in self._fs.find(self._base):
-            rel = str(found)[len(self._base) + 1 :].split("/")
-            if len(rel) < 4 or rel[0].startswith("."):
-                continue
-            folder = "/".join(rel[:3])
-            done = len(rel) == 4 and rel[3] == "zarr.json"
-            folders[folder] = folders.get(folder, False) or done
-        return [self._url(f"{self._base}/{f}") for f, done in sorted(folders.items()) if not done]
+        """None: an entry is written in one PUT, so no commit leaves a part behind."""
+        return []
 
     def gc(self, *, max_age: float = 3600.0) -> list[Path | str]:
-        """Remove entries begun more than `max_age` seconds ago and never committed.
-
-        Object stores record no writer process, so age is the only sign that
-        a commit has ended; an entry whose files have no age is kept.
-        """
-        removed: list[Path | str] = []
-        now = time.time()
-        for url in self.temporaries():
-            folder = self._path(str(url))
-            try:
-                newest = max(self._fs.modified(f).timestamp() for f in self._fs.find(folder))
-            except (NotImplementedError, OSError, ValueError):
-                continue
-            if now - newest >= max_age:
-                self._fs.rm(folder, recursive=True)
-                removed.append(url)
-        return removed
+        """Nothing to remove (see `temporaries`)."""
+        return []
 
 
 def is_store(root: str | Path) -> bool:

@@ -107,8 +107,13 @@ def settle() -> None:
     """Let a run's aftermath pass before the next one is timed, as it has for a fresh
     `aeroid run`: the pool's workers exit after the run returns (the command waits for
     them after printing its results), and OpenBLAS's threads, started again when the run
-    gives this process its BLAS threads back, spin for about 0.1 s before they sleep."""
+    gives this process its BLAS threads back, spin for about 0.1 s before they sleep.
+    The run's files are flushed to disk: otherwise the disk writes back one run's store
+    (a few MB) while the next run creates its files, which on this VM's ext4 slowed file
+    creation from about 25 us to 200-400 us, so runs early in a repeat were timed on a
+    quiet disk and later ones on a busy one."""
     closed_pools()
+    os.sync()
     time.sleep(0.2)
 
 
