@@ -13,8 +13,8 @@ than a folder per result and two files per array: a campaign's cold run
 creates a tenth of the files, and on a disk whose file creation is slow that
 was most of what the store cost.
 
-A result is written completely under ``.tmp`` and then linked into place, a
-rename that refuses an existing name, so a reader sees either nothing or a
+A result is written completely under ``.tmp`` and then moved into place by
+a rename that refuses an existing name, so a reader sees either nothing or a
 whole entry. If the name exists another run committed the same key first and
 the copy is discarded (an entry is never overwritten). Every array's SHA-256
 and a digest of the JSON content are stored in the group's attributes and
