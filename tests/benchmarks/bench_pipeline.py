@@ -248,9 +248,9 @@ def library_ceiling(
 
 def fs_probe(base: Path, n: int = 200) -> tuple[float, float]:
     """Microseconds to create a folder and to create (and close) a small file where the
-    benchmark's stores live: a commit makes about ten of these per result (a folder and
-    two files per array, the group's file, a rename), so on a slow or busy disk they,
-    not the pipeline's Python, set the store's share of a cold run."""
+    benchmark's stores live: a commit creates one file per result and renames it, so on a
+    slow or busy disk these, not the pipeline's Python, set much of the store's share of
+    a cold run."""
     root = Path(tempfile.mkdtemp(prefix="bench-fs-", dir=base))
     t = time.perf_counter()
     for i in range(n):
