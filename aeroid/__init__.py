@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from .propagation import (
         PropagationBatch,
         PropagationResult,
+        VectorPropagationResult,
         combine_batches,
         propagate,
         propagate_batch,
@@ -101,6 +102,7 @@ _LAZY = {
     "Uniform": ".priors",
     "PropagationBatch": ".propagation",
     "PropagationResult": ".propagation",
+    "VectorPropagationResult": ".propagation",
     "combine_batches": ".propagation",
     "propagate": ".propagation",
     "propagate_batch": ".propagation",
@@ -177,6 +179,7 @@ __all__ = [
     "StoreError",
     "Uniform",
     "ValidationResult",
+    "VectorPropagationResult",
     "__version__",
     "autocorrelation_time",
     "combine_batches",

@@ -241,6 +241,33 @@ def _unidentifiable(fisher: FloatArray, labels: list[str]) -> list[tuple[str, ..
     return combos
 
 
+def _bounded_delta(
+    fisher: FloatArray, g: FloatArray, lam: float, z: FloatArray, lo: FloatArray, hi: FloatArray
+) -> FloatArray:
+    """The damped scoring step, with quantities at a bound whose step would leave
+    the box held (zero step) and the step re-solved without them."""
+    n = z.size
+    free = np.ones(n, dtype=bool)
+    at_lo = z <= lo
+    at_hi = z >= hi
+    delta = np.zeros(n)
+    for _ in range(n + 1):
+        delta = np.zeros(n)
+        idx = np.flatnonzero(free)
+        if idx.size:
+            F = fisher[np.ix_(idx, idx)]
+            D = np.diag(np.maximum(np.diag(F), 1e-300))
+            try:
+                delta[idx] = np.linalg.solve(F + lam * D, -g[idx])
+            except np.linalg.LinAlgError:
+                delta[idx] = -np.linalg.lstsq(F + lam * D, g[idx], rcond=None)[0]
+        out = free & ((at_lo & (delta < 0)) | (at_hi & (delta > 0)))
+        if not np.any(out):
+            break
+        free &= ~out
+    return delta
+
+
 def identify_filter_error(
     model: Any,
     datas: Sequence[FlightData],
@@ -255,6 +282,7 @@ def identify_filter_error(
     x0: Sequence[Mapping[str, float] | None] | None = None,
     max_iterations: int = 50,
     tolerance: float = 1e-6,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> IdentificationResult:
     """Maximum-likelihood parameter estimation on Kalman-filter innovations.
 
@@ -293,6 +321,12 @@ def identify_filter_error(
     tolerance : float
         Convergence threshold on the relative parameter step and the relative
         cost decrease.
+    bounds : mapping of str to (float, float), optional
+        Lower and upper bounds (±inf for an open side) on estimated
+        parameters. Steps are projected: a quantity at a bound whose step
+        would leave the box is held there and the step re-solved without it.
+        Parameters that end at a bound are listed in ``active_bounds``, with
+        standard error 0 and the others' covariance conditional on the bound.
 
     Returns
     -------
@@ -419,6 +453,19 @@ def identify_filter_error(
     hi = np.full(z.size, np.inf)
     lo[n_p:] = z[n_p:] - 30.0
     hi[n_p:] = z[n_p:] + 30.0
+    box = {} if bounds is None else {str(k): (float(a), float(b)) for k, (a, b) in bounds.items()}
+    for name, (a, b) in box.items():
+        if name not in names:
+            raise IdentificationError(
+                f"bounds: {name!r} is not among the estimated parameters {list(names)}"
+            )
+        j = names.index(name)
+        if not (a < b and a <= z[j] <= b):
+            raise IdentificationError(
+                f"bounds[{name!r}]: need lower < upper and the initial value {z[j]:.6g} "
+                f"inside, got ({a:.6g}, {b:.6g})"
+            )
+        lo[j], hi[j] = a, b
 
     f, g, fisher, quad, per = _derivatives(obj, z, layout)
     if not np.isfinite(f):
@@ -433,11 +480,7 @@ def identify_filter_error(
     for it in range(1, int(max_iterations) + 1):
         accepted = False
         while lam < 1e16:
-            D = np.diag(np.maximum(np.diag(fisher), 1e-300))
-            try:
-                delta = np.linalg.solve(fisher + lam * D, -g)
-            except np.linalg.LinAlgError:
-                delta = -np.linalg.lstsq(fisher + lam * D, g, rcond=None)[0]
+            delta = _bounded_delta(fisher, g, lam, z, lo, hi)
             zt = np.clip(z + delta, lo, hi)
             ft, gt, Ft, qt, pt = _derivatives(obj, zt, layout)
             if np.isfinite(ft) and ft <= f:
@@ -470,6 +513,10 @@ def identify_filter_error(
     # held fixed for the covariance: they are nuisance parameters.
     free = np.ones(z.size, dtype=bool)
     free[n_p:] = (z[n_p:] > lo[n_p:] + 1e-6) & (z[n_p:] < hi[n_p:] - 1e-6)
+    # Parameters at a bound are held there: error bars conditional on the bound.
+    held = np.zeros(z.size, dtype=bool)
+    held[:n_p] = (z[:n_p] <= lo[:n_p]) | (z[:n_p] >= hi[:n_p])
+    free &= ~held
     while True:
         idx = np.flatnonzero(free)
         combos = _unidentifiable(fisher[np.ix_(idx, idx)], [labels[i] for i in idx])
@@ -486,13 +533,15 @@ def identify_filter_error(
             "filter-error identification: the data cannot separate "
             + "; ".join(" + ".join(c) for c in combos),
             IdentifiabilityWarning,
-            stacklevel=3,
+            stacklevel=4,  # identify_filter_error, identify, its BLAS wrapper, the caller
         )
         cov_sub = np.linalg.pinv(sub, hermitian=True)
     else:
         cov_sub = np.linalg.inv(sub)
     cov_full = np.full((z.size, z.size), np.nan)
     cov_full[np.ix_(idx, idx)] = 0.5 * (cov_sub + cov_sub.T)
+    cov_full[held, :] = 0.0
+    cov_full[:, held] = 0.0
     cov = cov_full[:n_p, :n_p]
     se = np.sqrt(np.clip(np.diag(cov_full), 0.0, None))
     params_hat = {n: float(z[j]) for j, n in enumerate(names)}
@@ -529,4 +578,8 @@ def identify_filter_error(
         sigma2=sigma2,
         process_noise={s: float(Qc_hat[0, i, i]) for i, s in enumerate(m.states)},
         model_name=m.name,
+        bounds={n: box[n] for n in names if n in box},
+        active_bounds={
+            n: ("lower" if z[j] <= lo[j] else "upper") for j, n in enumerate(names) if held[j]
+        },
     )

@@ -6,7 +6,9 @@ vectors (and, optionally, of control histories) is integrated in one pass.
 
 * ``"exact"``: for dynamics affine in state and control and independent of
   time, the zero-order-hold-free exact discretisation for piecewise-linear
-  inputs (a matrix exponential per grid step size).
+  inputs (a matrix exponential per grid step size). ``"auto"`` takes it only
+  when `lti_form` shows that form at every sample time of the record, or
+  when the model declares itself linear (``Model(..., linear=True)``).
 * ``"rk4"``: classical Runge-Kutta with ``substeps`` steps per grid interval;
   no step ever straddles a control breakpoint.
 * any `scipy.integrate.solve_ivp` method name, integrating the stacked batch
@@ -24,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import SimulationError
+from .errors import AeroidError, ModelDefinitionError, SimulationError
 
 if TYPE_CHECKING:
     from .model import Model
@@ -35,6 +37,11 @@ UserFunction = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 METHODS = ("auto", "exact", "rk4", *SOLVE_IVP_METHODS)
 _MAX_AUTO_SUBSTEPS = 256
+# RK4 evaluates the stages at a sample interval's ends this fraction of the interval
+# inside it: one-sided limits, so a forcing that switches at a sample time (a burnout
+# at t = 2 s, even with 2 s stored a few ulp off) acts on the correct side of it.
+# For a smooth dependence on time it moves the states by about 1e-10 h T |df/dt|.
+_INSIDE = 1e-9
 
 
 def import_solvers() -> None:
@@ -43,23 +50,63 @@ def import_solvers() -> None:
     import scipy.linalg  # noqa: F401
 
 
+def _same(a: FloatArray, b: FloatArray) -> bool:
+    """a equals b to 1e-10 relative, NaN matching NaN (a cheap `np.allclose`)."""
+    with np.errstate(invalid="ignore"):
+        close = (a == b) | (np.abs(a - b) <= 1e-10 * np.abs(b)) | (np.isnan(a) & np.isnan(b))
+    return bool(np.all(close))
+
+
 class BatchFunction:
     """Evaluate a user function ``f(t, x, u, p)`` on a batch of points.
 
     The user's function is called once with arrays of shape (n, batch) when it
     broadcasts (checked once, against member-by-member calls), and in a loop
-    otherwise.
+    otherwise. A call that raises, or returns the wrong number of values, is
+    reported naming the function's `role`, the model and the time.
     """
 
-    def __init__(self, fun: UserFunction, n_out: int, parameter_names: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        fun: UserFunction,
+        n_out: int,
+        parameter_names: tuple[str, ...],
+        *,
+        role: str = "dynamics",
+        model_name: str = "model",
+    ) -> None:
         self.fun = fun
         self.n_out = n_out
         self.parameter_names = parameter_names
+        self.role = role
+        self.model_name = model_name
         self.broadcasts: bool | None = None
+        # False once a call with one time per point (an array t) has failed or
+        # disagreed with calls at one time each
+        self.time_broadcasts: bool | None = None
+        self._times_checked: tuple[float, ...] = ()  # (n, times) of the last agreement
+        # time grids on which `lti_form` has checked every member at every sample
+        self.lti_grids: dict[tuple[int, int], None] = {}
+
+    def _where(self) -> str:
+        return f"the {self.role} of model {self.model_name!r}"
 
     def _single(self, t: float, x: FloatArray, u: FloatArray, p: Mapping[str, float]) -> FloatArray:
-        out = np.asarray(self.fun(t, x, u, p), dtype=np.float64)
-        return out.reshape(self.n_out) if out.size == self.n_out else out
+        try:
+            raw = self.fun(t, x, u, p)
+            out = np.asarray(raw, dtype=np.float64)
+        except AeroidError:
+            raise
+        except Exception as exc:
+            raise SimulationError(
+                f"{self._where()} raised {type(exc).__name__} at t = {t:.6g} s: {exc}"
+            ) from exc
+        if out.size != self.n_out:
+            raise ModelDefinitionError(
+                f"{self._where()} returned {out.size} values (shape {out.shape}) at "
+                f"t = {t:.6g} s; expected {self.n_out}"
+            )
+        return out.reshape(self.n_out)
 
     def _loop(
         self, t: Any, x: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
@@ -94,8 +141,61 @@ class BatchFunction:
         if self.broadcasts is None:
             self.detect(float(np.ravel(t)[0]), x, u, p)
         if self.broadcasts:
-            return np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+            try:
+                out = np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+                if out.shape == (self.n_out, x.shape[1]):
+                    return out
+            except Exception:  # evaluated point by point below, which names the culprit
+                pass
+            if np.ndim(t) == 0:
+                # broadcast at the first time but not at this one: a branch on t
+                self.broadcasts = False
         return self._loop(t, x, u, p)
+
+    def at_times(
+        self, t: FloatArray, x: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
+    ) -> FloatArray:
+        """Evaluate at points with a time each: t (N,), x (n_x, N), u (n_u, N), p name -> (N,).
+
+        One call with an array ``t`` when that gives what calls at one time each
+        give, else one call per distinct time, or a loop over the points for a
+        function that does not broadcast at all. The array call is checked
+        against calls at four of its times (the last among them) whenever those
+        times change: a function that reads one element of an array ``t`` would
+        otherwise hide a change in time.
+        """
+        n = t.size
+        if self.broadcasts is None and n >= 2:
+            k = min(n, 8)
+            self.detect(float(t[0]), x[:, :k], u[:, :k], {a: v[:k] for a, v in p.items()})
+        if not self.broadcasts:
+            return self._loop(t, x, u, p)
+        if self.time_broadcasts is not False:
+            try:
+                with np.errstate(all="ignore"):
+                    out = np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+                good = out.shape == (self.n_out, n)
+            except Exception:  # an array t it cannot take: one time per call below
+                good = False
+            key = (n, *(float(t[i]) for i in (n - 1, n // 2, n // 4, (3 * n) // 4)))
+            if good and key != self._times_checked:
+                for tk in sorted(set(key[1:])):
+                    sel = np.flatnonzero(t == tk)
+                    ref = self(tk, x[:, sel], u[:, sel], {a: v[sel] for a, v in p.items()})
+                    if not _same(out[:, sel], ref):
+                        good = False
+                        break
+                if good:
+                    self._times_checked = key
+            if good:
+                return out
+            self.time_broadcasts = False
+        times, inverse = np.unique(t, return_inverse=True)
+        out = np.empty((self.n_out, n))
+        for j, tk in enumerate(times.tolist()):
+            sel = np.flatnonzero(inverse == j)
+            out[:, sel] = self(tk, x[:, sel], u[:, sel], {a: v[sel] for a, v in p.items()})
+        return out
 
 
 @dataclass(frozen=True)
@@ -185,16 +285,18 @@ def rk4(
     with np.errstate(all="ignore"):
         for k in range(n_t - 1):
             t0 = float(time[k])
-            h = (float(time[k + 1]) - t0) / m
+            t1 = float(time[k + 1])
+            h = (t1 - t0) / m
             hh = 0.5 * h
+            inside = _INSIDE * (t1 - t0)
             nk = nodes[k]
             for j in range(m):
                 ta = t0 + j * h
                 um = nk[2 * j + 1]
-                k1 = f(ta, x, nk[2 * j], p)
+                k1 = f(t0 + inside if j == 0 else ta, x, nk[2 * j], p)
                 k2 = f(ta + hh, x + hh * k1, um, p)
                 k3 = f(ta + hh, x + hh * k2, um, p)
-                k4 = f(ta + h, x + h * k3, nk[2 * j + 2], p)
+                k4 = f(t1 - inside if j == m - 1 else ta + h, x + h * k3, nk[2 * j + 2], p)
                 x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
             out[k + 1] = x
             if k % 64 == 63 and not np.any(np.isfinite(x)):
@@ -240,6 +342,8 @@ def solve_ivp_batch(
                 atol=atol,
                 max_step=max_step,
             )
+        except AeroidError:  # the user's function raised or misbehaved: say so
+            raise
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             sol = None
     states = np.full((batch, time.size, n_x), np.nan)
@@ -256,64 +360,160 @@ def solve_ivp_batch(
 # -- exact discretisation for linear time-invariant dynamics ----------------------------
 
 
-def affine_matrices(
+@dataclass(frozen=True)
+class _Layout:
+    """The points `lti_form` evaluates, for one time grid, batch size and check kind.
+
+    Columns: the unit perturbations at ``time[0]`` (probe-major, member-minor),
+    then the checks: every member at every sample time (member-major,
+    time-minor), or one member per sample time in turn and each member once
+    more at the last sample.
+    """
+
+    t: FloatArray  # (N,) time of each point
+    member: NDArray[np.intp]  # (N,) batch member of each point
+    z: FloatArray  # (n_x + n_u + 1, N): x, u and a row of ones
+    z_max: float  # largest |x| or |u| among the checks
+    n_head: int  # columns of unit perturbations
+
+
+_LAYOUTS: dict[tuple[Any, ...], _Layout] = {}
+
+
+def _layout(
+    time: FloatArray, grid: tuple[int, int], n_x: int, n_u: int, batch: int, kind: str
+) -> _Layout:
+    key = (grid, n_x, n_u, batch, kind)
+    if key in _LAYOUTS:
+        return _LAYOUTS[key]
+    if len(_LAYOUTS) >= 16:
+        _LAYOUTS.pop(next(iter(_LAYOUTS)))
+    n_t = time.size
+    n_in = n_x + n_u
+    n_probe = 1 + n_in
+    n_head = n_probe * batch
+    head_member = np.tile(np.arange(batch), n_probe)
+    if kind == "probe":
+        tail_t, tail_member = np.empty(0), np.empty(0, dtype=np.intp)
+    elif kind == "all":
+        tail_t, tail_member = np.tile(time, batch), np.repeat(np.arange(batch), n_t)
+    else:  # "turns"
+        tail_t = np.concatenate([time, np.full(batch, time[-1])])
+        tail_member = np.concatenate([np.arange(n_t) % batch, np.arange(batch)])
+    n_check = tail_t.size
+    z = np.ones((n_in + 1, n_head + n_check))
+    z[:n_in, :batch] = 0.0
+    z[:n_in, batch:n_head] = np.repeat(np.eye(n_in), batch, axis=1)
+    rng = np.random.default_rng(0)
+    scale = np.where(np.arange(n_check) % 2 == 0, 1.0, 10.0)
+    z[:n_in, n_head:] = rng.standard_normal((n_in, n_check)) * scale
+    t = np.concatenate([np.full(n_head, float(time[0])), tail_t])
+    member = np.concatenate([head_member, tail_member]).astype(np.intp)
+    for arr in (t, member, z):
+        arr.flags.writeable = False
+    z_max = float(np.max(np.abs(z[:n_in, n_head:]), initial=1.0))
+    out = _LAYOUTS[key] = _Layout(t, member, z, z_max, n_head)
+    return out
+
+
+def lti_form(
     f: BatchFunction,
-    t: float,
+    time: FloatArray,
     n_x: int,
     n_u: int,
     p: Mapping[str, FloatArray],
-    rng: np.random.Generator,
-) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """Return (A, B, c) per batch member if f is affine in x and u and time-invariant.
+    *,
+    trusted: bool = False,
+) -> tuple[tuple[FloatArray, FloatArray, FloatArray] | None, bool]:
+    """``((A, B, c), False)`` when ``f(t, x, u) = A x + B u + c`` on all of `time`, per member.
 
-    Works for any batched function of (t, x, u, p): the dynamics (A is
-    n_x by n_x) or a measurement (A is n_y by n_x). The matrices come from
-    unit perturbations; the affine form is then checked at random points and
-    another time, and ``None`` means "not affine".
+    Works for any batched function of (t, x, u, p): the dynamics (A is n_x by
+    n_x) or a measurement (A is n_y by n_x). A, B and c come from unit
+    perturbations at ``time[0]``, one batch member per parameter vector of
+    `p`. Unless the form is `trusted` (declared by the model and verified when
+    it was built), it is checked, in the same batched call, at a pseudo-random
+    state and control at every sample time for every member: a forcing that
+    switches off, a scheduled gain or a nonlinear term shows up as a mismatch.
+    A parameter vector can make a nonlinear term vanish, so every member is
+    checked, not only the first. Once the function has passed that on a time
+    grid, later calls on the same grid (an identification's iterations) check
+    one point per sample time, the members taking turns, and each member once
+    more at the last sample: every sample time and every member still, at a
+    fraction of the cost. A function that does not broadcast is evaluated
+    point by point, so it always gets that lighter check.
+
+    Returns ``(None, True)`` when the function is shown not to have that form
+    (callers may remember it), and ``(None, False)`` when it could not be
+    evaluated (an exception or a non-finite value): the integrator then meets
+    the failure where it happens and reports it.
     """
     batch = next(iter(p.values())).shape[0] if p else 1
     n_out = f.n_out
-    n_probe = 1 + n_x + n_u + 2
-    xs = np.zeros((n_probe, n_x))
-    us = np.zeros((n_probe, n_u))
-    xs[1 : 1 + n_x] = np.eye(n_x)
-    us[1 + n_x : 1 + n_x + n_u] = np.eye(n_u)
-    xs[-2:] = rng.standard_normal((2, n_x)) * np.array([[1.0], [10.0]])
-    us[-2:] = rng.standard_normal((2, n_u)) * np.array([[1.0], [10.0]])
-    ts = np.full(n_probe, t)
-    ts[-1] = t + 1.2345
-    # batch layout: probe-major, member-minor
-    X = np.repeat(xs, batch, axis=0).T
-    U = np.repeat(us, batch, axis=0).T
-    T = np.repeat(ts, batch)
-    P = {k: np.tile(v, n_probe) for k, v in p.items()}
-    with np.errstate(all="ignore"):
-        try:
-            vals = np.asarray(f(T, X, U, P), dtype=np.float64)
-        except Exception:
-            return None
-    if vals.shape != (n_out, n_probe * batch):
-        return None
-    vals = vals.reshape(n_out, n_probe, batch)
+    n_in = n_x + n_u
+    grid = (time.size, hash(time.tobytes()))
+    if trusted:
+        kind = "probe"
+    else:
+        if f.broadcasts is None:  # decide first: it sets how many points to check
+            probe = _layout(time, grid, n_x, n_u, batch, "probe")
+            try:
+                with np.errstate(all="ignore"):
+                    f.detect(
+                        float(time[0]),
+                        probe.z[:n_x],
+                        probe.z[n_x:n_in],
+                        {k: v[probe.member] for k, v in p.items()},
+                    )
+            except Exception:  # the integrator reports it, at the time it happens
+                return None, False
+        kind = "all" if f.broadcasts and grid not in f.lti_grids else "turns"
+    lay = _layout(time, grid, n_x, n_u, batch, kind)
+    z = lay.z
+    P = {k: v[lay.member] for k, v in p.items()}
+    try:
+        with np.errstate(all="ignore"):
+            if trusted:
+                got = f(float(time[0]), z[:n_x], z[n_x:n_in], P)
+            else:
+                got = f.at_times(lay.t, z[:n_x], z[n_x:n_in], P)
+    except Exception:  # the integrator reports it, at the time it happens
+        return None, False
+    vals = got[:, : lay.n_head].reshape(n_out, 1 + n_in, batch)
     if not np.all(np.isfinite(vals)):
-        return None
-    c = vals[:, 0, :]  # (n_x, B)
-    A = vals[:, 1 : 1 + n_x, :] - c[:, None, :]  # (n_out, n_x, B)
-    Bm = vals[:, 1 + n_x : 1 + n_x + n_u, :] - c[:, None, :]
-    for j in (n_probe - 2, n_probe - 1):
-        pred = c + np.einsum("ijb,j->ib", A, xs[j]) + np.einsum("ijb,j->ib", Bm, us[j])
-        scale = (
-            np.abs(c)
-            + np.einsum("ijb,j->ib", np.abs(A), np.abs(xs[j]))
-            + np.einsum("ijb,j->ib", np.abs(Bm), np.abs(us[j]))
-        )
-        if not np.all(np.abs(vals[:, j, :] - pred) <= 1e-9 * scale + 1e-12):
-            return None
-    return (
-        np.transpose(A, (2, 0, 1)).copy(),
-        np.transpose(Bm, (2, 0, 1)).copy(),
-        c.T.copy(),
+        return None, False
+    c = vals[:, 0, :]  # (n_out, B)
+    M = np.empty((batch, n_out, n_in + 1))  # [A, B, c] per member
+    M[:, :, :n_in] = np.transpose(vals[:, 1:, :] - c[:, None, :], (2, 0, 1))
+    M[:, :, n_in] = c.T
+    mats = (
+        np.ascontiguousarray(M[:, :, :n_x]),
+        np.ascontiguousarray(M[:, :, n_x:n_in]),
+        np.ascontiguousarray(c.T),
     )
+    if trusted:
+        return mats, False
+    # |f - (A x + B u + c)| against the size of the terms, bounded by max|z| sum_k |M_ik|
+    tol = 1e-9 * lay.z_max * np.sum(np.abs(M), axis=2)  # (B, n_out)
+    zc = z[:, lay.n_head :]
+    fc = got[:, lay.n_head :]
+    if kind == "all":
+        n_t = time.size
+        zb = np.transpose(zc.reshape(n_in + 1, batch, n_t), (1, 0, 2))  # (B, n_in + 1, n_t)
+        miss = M @ zb  # in place from here: these arrays are large
+        np.subtract(np.transpose(fc.reshape(n_out, batch, n_t), (1, 0, 2)), miss, out=miss)
+        ok = bool(np.all(np.abs(miss, out=miss) <= tol[:, :, None]))
+    else:
+        member = lay.member[lay.n_head :]
+        # every member's prediction at every point (one small matmul), then each point's own
+        pred = (M @ zc)[member, :, np.arange(member.size)]  # (N, n_out)
+        ok = bool(np.all(np.abs(fc.T - pred) <= tol[member]))
+    if ok:
+        if kind == "all":
+            if len(f.lti_grids) >= 16:
+                f.lti_grids.pop(next(iter(f.lti_grids)))
+            f.lti_grids[grid] = None
+        return mats, False
+    return None, bool(np.all(np.isfinite(fc)))
 
 
 def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> FloatArray:
@@ -376,7 +576,7 @@ def exact_lti(
     c: FloatArray,
 ) -> RawTrajectory | None:
     """Exact solution for piecewise-linear inputs; None when the grid has too many step sizes."""
-    import scipy.linalg
+    from ._linalg import expm  # plain numpy: importing scipy.linalg costs more than the solve
 
     batch, n_x, _ = A.shape
     n_u = Bm.shape[2]
@@ -394,7 +594,7 @@ def exact_lti(
     gam = []
     for r in uniq:
         h = float(r * dts[0])
-        E = scipy.linalg.expm(M * h)  # (B, n_aug, n_aug)
+        E = expm(M * h)  # (B, n_aug, n_aug)
         phis.append(E[:, :n_x, :n_x])
         gam.append(
             (E[:, :n_x, n_x : n_x + n_u], E[:, :n_x, n_x + n_u : n_x + 2 * n_u] / h, E[:, :n_x, -1])
@@ -453,20 +653,20 @@ def integrate(
     if f.broadcasts is None and X0.shape[1] >= 2:
         f.detect(float(time[0]), X0, np.ascontiguousarray(u[:, 0, :].T), p)
     if method in ("auto", "exact") and model._maybe_lti:
-        mats = affine_matrices(
-            f, float(time[0]), model.n_states, model.n_controls, p, np.random.default_rng(0)
+        mats, not_lti = lti_form(
+            f, time, model.n_states, model.n_controls, p, trusted=model.linear is True
         )
         if mats is not None:
             traj = exact_lti(time, x0.T, u, *mats)
             if traj is not None:
                 return traj
-        elif method == "auto":
-            # Not affine: remember, so later calls skip the probe.
+        elif not_lti and method == "auto":
+            # Shown not to be LTI: remember, so later calls skip the check.
             object.__setattr__(model, "_maybe_lti", False)
         if method == "exact":
             raise SimulationError(
                 f"method='exact' needs dynamics affine in state and control and independent "
-                f"of time; model {model.name!r} is not"
+                f"of time over the record; model {model.name!r} is not"
             )
     elif method == "exact":
         raise SimulationError(
@@ -474,5 +674,10 @@ def integrate(
         )
     if method in ("auto", "rk4"):
         m = substeps if substeps is not None else auto_substeps(f, time, X0, u, p)
+        from ._compiled import rk4_hook  # the same RK4, compiled once it pays
+
+        compiled = rk4_hook(model, time, X0, u, p, int(m))
+        if compiled is not None:
+            return compiled
         return rk4(f, time, X0, u, p, int(m))
     return solve_ivp_batch(f, time, X0, u, p, method, rtol, atol)

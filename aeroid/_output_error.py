@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .data import FlightData
-from .errors import IdentifiabilityWarning, IdentificationError
+from .errors import IdentifiabilityWarning, IdentificationError, SimulationError
 from .identification import IdentificationResult
 
 FloatArray = NDArray[np.float64]
@@ -83,6 +83,8 @@ def _simulate_members(
     stepped simulator raised is appended to `errors`."""
     if hasattr(model, "simulate_batch"):
         sim = model.simulate_batch(man.time, man.controls, x0, params, **options)
+        if errors is not None and not sim.ok[0] and sim.failure[0]:
+            errors.append(sim.failure[0])
         return sim.outputs[:, :, out_idx], sim.ok
     # A stepped simulator: one run per member.
     batch = x0.shape[0]
@@ -102,6 +104,11 @@ def _simulate_members(
             outs[b] = y
             ok[b] = True
     return outs, ok
+
+
+class _StartFailure(SimulationError, IdentificationError):
+    """The model gives non-finite values at the initial parameters: a `SimulationError`
+    like every such failure, and the `IdentificationError` that identify raises for a bad start."""
 
 
 class _Problem:
@@ -148,13 +155,53 @@ class _Problem:
             sx = lay.x0_slices[i]
             # simulated columns: model parameters and this manoeuvre's initial states
             cols = list(range(lay.n_p)) + list(range(sx.start, sx.stop))
+            # gradient="auto": exact forward-mode sensitivities of the compiled RK4 when
+            # the model compiles and integrates by RK4 (decided at the first call).
+            route = getattr(self, "_compiled_route", None)
+            if steps is not None and self.gradient == "auto" and route is not False:
+                from . import _compiled
+
+                p = dict(self.fixed)
+                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
+                sens = _compiled.output_sensitivities(
+                    self.model,
+                    m.time,
+                    m.controls,
+                    x0,
+                    p,
+                    lay.names,
+                    m.x0_free,
+                    self.options,
+                    probe=route is None,
+                )
+                if sens is None:
+                    self._compiled_route = False
+                elif np.all(np.isfinite(sens[0])) and np.all(np.isfinite(sens[1])):
+                    # (a diverging point falls through to the numpy path, which reports it)
+                    y_all, jac_all = sens
+                    y = y_all[:, self.out_idx]
+                    self._compiled_route = True
+                    v = m.measured - y - bias
+                    jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
+                    jac[:, :, cols] = -jac_all[:, self.out_idx, :]
+                    residuals.append(v)
+                    self._bias_columns(jac, i)
+                    assert jacobians is not None
+                    jacobians.append(jac)
+                    continue
             if steps is not None and self.gradient == "jax":
                 from . import _jax
 
                 p = dict(self.fixed)
                 p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
                 y, jac_p = _jax.outputs_and_jacobian(
-                    self.model, m.time, m.controls, x0, p, lay.names
+                    self.model,
+                    m.time,
+                    m.controls,
+                    x0,
+                    p,
+                    lay.names,
+                    substeps=self.options.get("substeps"),
                 )
                 y = np.asarray(y)[:, self.out_idx]
                 jac_p = np.asarray(jac_p)[:, self.out_idx, :]
@@ -236,56 +283,393 @@ def _gradient(
     return g
 
 
-def _bandwidth(v: FloatArray) -> tuple[int, float]:
-    """Lag window and correlation time for the coloured-residual correction.
+# The AR(1) coefficient is kept inside the unit circle only by numerical resolution:
+# a residual indistinguishable from a random walk gets enormous, not capped, error bars.
+_PHI_LIMIT = 1.0 - 1e-6
+# Search range of log(white variance / AR innovation variance) in the noise model.
+_LOG_RATIO = (-14.0, 10.0)
+# Initial Nelder–Mead simplex around a start, in (atanh phi, log ratio).
+_SIMPLEX = np.array([[0.0, 0.0], [0.5, 0.0], [0.0, 2.0]])
 
-    The correlation time comes from the lag-one autocorrelation through the
-    AR(1) relation tau = (1 + rho) / (1 - rho), a far steadier statistic than a
-    windowed sum; the window spans five correlation times.
+
+def _bandwidth(v: FloatArray) -> tuple[int, float]:
+    """Lag window and correlation time of residuals `v` (n_t, n_y).
+
+    The correlation time is the largest AR(1) value ``(1 + rho)/(1 - rho)`` over
+    the outputs whose lag-one autocorrelation is significant (above 3/sqrt(N));
+    1 when none is, which `fit_output_error` reads as white residuals. The
+    window is Andrews' (1991) AR(1) plug-in bandwidth for the Bartlett kernel,
+    ``1.1447 (alpha N)^(1/3)`` with ``alpha = mean 4 rho^2 / (1 - rho^2)^2`` over
+    the standardised outputs.
     """
     n = v.shape[0]
-    tau_max = 1.0
-    for k in range(v.shape[1]):
-        x = v[:, k]
-        c0 = float(x @ x)
-        if c0 <= 0:
+    c0 = np.einsum("tk,tk->k", v, v)
+    c1 = np.einsum("tk,tk->k", v[:-1], v[1:])
+    live = c0 > 0
+    if n < 3 or not np.any(live):
+        return 0, 1.0
+    rho = np.clip(c1[live] / c0[live], -_PHI_LIMIT, _PHI_LIMIT)
+    significant = rho > 3.0 / np.sqrt(n)
+    tau = float(np.max((1.0 + rho) / (1.0 - rho), initial=1.0, where=significant))
+    alpha = float(np.mean(4.0 * rho**2 / (1.0 - rho**2) ** 2))
+    lags = int(np.floor(1.1447 * (alpha * n) ** (1.0 / 3.0)))
+    return min(lags, n - 1), tau
+
+
+def _ar1_criterion(
+    b: float,
+    s_mom: FloatArray,
+    d_mom: FloatArray,
+    e_mom: FloatArray,
+    dof: int,
+    n_man: int,
+    rank: int,
+) -> float:
+    """REML criterion of a pure AR(1) at ``phi = tanh(b)`` from moments (see `_noise_model`)."""
+    p = float(np.tanh(b))
+    mat = (1.0 - p) ** 2 * s_mom + p * d_mom + p * (1.0 - p) * e_mom
+    try:
+        chol = np.linalg.cholesky(mat)
+    except np.linalg.LinAlgError:
+        return float(np.inf)
+    diag = np.diag(chol)
+    rss = max(float(diag[-1]) ** 2, 1e-300)
+    return float(dof * np.log(rss) - n_man * np.log1p(-p * p) + 2.0 * np.sum(np.log(diag[:rank])))
+
+
+def _arw_prepare(z: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Column-major copies of ``z`` and of ``D z``, with which
+    ``L'L z = (1 - phi)^2 z + phi D z + phi (1 - phi) z_ends`` for every phi: D
+    the negative second difference inside, the first differences at the two
+    ends (no cancellation near the unit root, no copies per trial)."""
+    zf = np.asfortranarray(z)
+    dz = np.empty_like(zf)
+    dz[1:-1] = 2.0 * z[1:-1] - z[:-2] - z[2:]
+    dz[0] = z[0] - z[1]
+    dz[-1] = z[-1] - z[-2]
+    return zf, dz
+
+
+def _arw_criterion(
+    x: FloatArray, zs: list[tuple[FloatArray, FloatArray]], dof: int, rank: int
+) -> tuple[float, float]:
+    """REML criterion of AR(1) + white noise at ``(atanh phi, log ratio)`` and the
+    generalised-least-squares residual sum (innovation-variance units); `zs`
+    from `_arw_prepare`, one per manoeuvre."""
+    from scipy.linalg.lapack import dpttrf, dpttrs
+
+    b_max = float(np.arctanh(_PHI_LIMIT))
+    phi = float(np.tanh(np.clip(x[0], -b_max, b_max)))
+    ratio = float(np.exp(np.clip(x[1], *_LOG_RATIO)))
+    mat = np.zeros((zs[0][0].shape[1],) * 2)
+    logdet = 0.0
+    for zf, dz in zs:
+        n = zf.shape[0]
+        # (S + ratio I)^-1 = (I + ratio L'L)^-1 L'L with S^-1 = L'L; I + ratio L'L is
+        # tridiagonal, so each trial costs O(N)
+        diag = np.full(n, 1.0 + ratio * (1.0 + phi * phi))
+        diag[0] = diag[-1] = 1.0 + ratio
+        d_fac, e_fac, info = dpttrf(diag, np.full(n - 1, -ratio * phi))
+        if info != 0:
+            return float(np.inf), 0.0
+        rhs = (1.0 - phi) ** 2 * zf
+        rhs += phi * dz
+        rhs[0] += phi * (1.0 - phi) * zf[0]
+        rhs[-1] += phi * (1.0 - phi) * zf[-1]
+        u, info = dpttrs(d_fac, e_fac, rhs, overwrite_b=1)
+        mat += zf.T @ u
+        logdet += float(np.sum(np.log(d_fac))) - float(np.log1p(-phi * phi))
+    try:
+        chol = np.linalg.cholesky(0.5 * (mat + mat.T))
+    except np.linalg.LinAlgError:
+        return float(np.inf), 0.0
+    diag_c = np.diag(chol)
+    rss = max(float(diag_c[-1]) ** 2, 1e-300)
+    return float(dof * np.log(rss) + logdet + 2.0 * np.sum(np.log(diag_c[:rank]))), rss
+
+
+def _noise_model(
+    jacobians: list[FloatArray], residuals: list[FloatArray]
+) -> tuple[FloatArray, FloatArray, FloatArray, list[tuple[FloatArray, FloatArray, FloatArray]]]:
+    """Per-output noise model ``e = s + w``: s an AR(1) (coefficient phi,
+    innovation variance qa), w white (variance qw), fitted by restricted ML.
+
+    For output k the residual is ``v_k = e_k - X_k d`` whatever the joint fit
+    did, with ``X_k`` the output's sensitivity columns, so the error contrasts
+    orthogonal to span(X_k) have a likelihood that depends on the noise alone
+    (REML): the part of the noise the fit absorbed is accounted for exactly,
+    where the sample autocorrelation of the residuals is biased low by
+    O(tau/N) of ``1 - phi`` (Cheang & Reinsel 2000 on REML for AR errors).
+    ``-2 log L_R = (N - r) log RSS + log det S + log det X'S^-1 X`` with the
+    variance profiled out and RSS the generalised-least-squares residual sum.
+    The white part matters: sensor noise under a slow disturbance makes a
+    pure AR(1) fit trade the low-frequency shape for the high-frequency floor
+    and underestimate the correlation time severalfold. A pure AR(1) fit from
+    moments (``Z'L'LZ = (1 - phi)^2 S + phi D + phi (1 - phi) E`` of
+    ``Z = [X, v]``, D and E the moments of the differences and of the end
+    samples) starts a Nelder–Mead search over (atanh phi, log qw/qa).
+    Manoeuvres share the model.
+
+    Also returns, per output, the estimated covariance of (atanh phi, log
+    qw/qa) from the curvature of the REML criterion, the two steps used, and
+    the noise model (phi, qa, qw) at those steps either side of the estimate:
+    what `_colored_covariance` needs to carry the noise model's own
+    uncertainty into the error bars.
+    """
+    from scipy.optimize import minimize, minimize_scalar
+
+    n_y = residuals[0].shape[1]
+    n_tot = sum(v.shape[0] for v in residuals)
+    n_man = len(residuals)
+    b_max = float(np.arctanh(_PHI_LIMIT))
+    phi = np.zeros(n_y)
+    qa = np.zeros(n_y)
+    qw = np.zeros(n_y)
+    spread: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+    for k in range(n_y):
+        spread.append((np.zeros((2, 2)), np.ones(2), np.zeros((4, 3))))
+        gram = sum(jac[:, k, :].T @ jac[:, k, :] for jac in jacobians)
+        evals, evecs = np.linalg.eigh(gram)
+        keep = evals > 1e-10 * max(float(evals[-1]), 0.0)
+        # an orthonormal basis of span(X_k): the same REML, well conditioned
+        basis = evecs[:, keep] / np.sqrt(evals[keep])
+        rank = basis.shape[1]
+        vv = sum(float(v[:, k] @ v[:, k]) for v in residuals)
+        if vv <= 0.0 or n_tot - rank < 3 or min(v.shape[0] for v in residuals) < 3:
+            qa[k] = vv / max(n_tot - rank, 1)
             continue
-        rho = min(float(x[:-1] @ x[1:]) / c0, 0.99)
-        if rho > 3.0 / np.sqrt(n):  # significant correlation only
-            tau_max = max(tau_max, (1.0 + rho) / (1.0 - rho))
-    lags = int(np.ceil(5.0 * tau_max)) if tau_max > 1.0 else 0
-    return int(min(lags, n // 3)), tau_max
+        size = rank + 1
+        zs: list[tuple[FloatArray, FloatArray]] = []
+        s_mom = np.zeros((size, size))
+        d_mom = np.zeros((size, size))
+        e_mom = np.zeros((size, size))
+        for jac, v in zip(jacobians, residuals, strict=True):
+            z = np.empty((v.shape[0], size))
+            z[:, :rank] = jac[:, k, :] @ basis
+            z[:, rank] = v[:, k] / np.sqrt(vv)
+            zs.append(_arw_prepare(z))
+            dz = np.diff(z, axis=0)
+            s_mom += z.T @ z
+            d_mom += dz.T @ dz
+            e_mom += np.outer(z[0], z[0]) + np.outer(z[-1], z[-1])
+        moments = (s_mom, d_mom, e_mom, n_tot - rank, n_man, rank)
+        grid = np.linspace(-b_max, b_max, 57)
+        vals = np.array([_ar1_criterion(float(g), *moments) for g in grid])
+        i = int(np.argmin(vals))
+        res = minimize_scalar(
+            lambda b, mom=moments: _ar1_criterion(float(b), *mom),
+            bounds=(grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]),
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
+        b0 = float(res.x) if float(res.fun) <= vals[i] else float(grid[i])
+        best_x = np.array([b0, _LOG_RATIO[0]])
+        best_f = _arw_criterion(best_x, zs, n_tot - rank, rank)[0]
+        # The white floor pulls a pure AR(1) fit towards zero; the search also starts
+        # from the moment solution ``phi = c2/c1``, ``qw = c0 - c1/phi`` of the lags.
+        c = [sum(float(v[: v.shape[0] - j, k] @ v[j:, k]) for v in residuals) for j in range(3)]
+        starts = [(b0, -4.0)]
+        if c[1] > 0 and 0 < c[2] < c[1]:
+            phi_m = c[2] / c[1]
+            white = c[0] - c[1] / phi_m
+            innov = c[1] / phi_m * (1 - phi_m**2)
+            if white > 0 and innov > 0:
+                starts.append((float(np.arctanh(phi_m)), float(np.log(white / innov))))
+        for start in starts:
+            fit = minimize(
+                lambda x, z_=zs, r_=rank: _arw_criterion(x, z_, n_tot - r_, r_)[0],
+                np.array(start),
+                method="Nelder-Mead",
+                options={
+                    "xatol": 5e-3,
+                    "fatol": 1e-3,
+                    "maxfev": 100,
+                    "initial_simplex": np.add(start, _SIMPLEX),
+                },
+            )
+            if float(fit.fun) < best_f:
+                best_x, best_f = np.asarray(fit.x, dtype=np.float64), float(fit.fun)
+
+        def model_at(
+            x: FloatArray,
+            z_: list[tuple[FloatArray, FloatArray]] = zs,
+            r_: int = rank,
+            vv_: float = vv,
+        ) -> FloatArray:
+            rss = _arw_criterion(x, z_, n_tot - r_, r_)[1]
+            q_a = rss * vv_ / (n_tot - r_)
+            p = float(np.tanh(np.clip(x[0], -b_max, b_max)))
+            return np.array([p, q_a, q_a * float(np.exp(np.clip(x[1], *_LOG_RATIO)))])
+
+        phi[k], qa[k], qw[k] = model_at(best_x)
+        # curvature of -2 log L_R by central differences: Cov(x) = 2 H^-1
+        steps = np.array([0.05, 0.25])
+        hess = np.zeros((2, 2))
+        for i in range(2):
+            for j in range(2):
+                acc = 0.0
+                for si, sj, sign in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
+                    x = best_x.copy()
+                    x[i] += si * steps[i]
+                    x[j] += sj * steps[j]
+                    acc += sign * _arw_criterion(x, zs, n_tot - rank, rank)[0]
+                hess[i, j] = acc / (4.0 * steps[i] * steps[j])
+        ev, vec = np.linalg.eigh(0.5 * (hess + hess.T))
+        # a flat direction (the white part absent) carries no information and,
+        # the error bars being flat along it too, no spread either
+        inv = np.where(ev > 1e-8 * max(float(ev[-1]), 1e-300), 1.0 / np.where(ev > 0, ev, 1.0), 0.0)
+        points = np.array(
+            [
+                model_at(best_x + sign * steps[i] * np.eye(2)[i])
+                for i in range(2)
+                for sign in (1, -1)
+            ]
+        )
+        spread[k] = (2.0 * (vec * inv) @ vec.T, steps, points)
+    return phi, qa, qw, spread
+
+
+def _recolour(w: FloatArray, phi: FloatArray) -> FloatArray:
+    """``G = L^-T W`` per output, so that ``W' S W = G' G`` for the AR(1) correlation S.
+
+    Backwards ``g(t) = w(t) + phi g(t + 1)``, then ``g(0) /= sqrt(1 - phi^2)``.
+    """
+    from scipy.signal import lfilter
+
+    g = np.empty_like(w)
+    for k in range(w.shape[1]):
+        g[::-1, k, :] = lfilter([1.0], [1.0, -phi[k]], w[::-1, k, :], axis=0)
+        g[0, k, :] /= np.sqrt((1.0 - phi[k]) * (1.0 + phi[k]))
+    return g
+
+
+def _cross_covariances(
+    residuals: list[FloatArray], phi: FloatArray, qa: FloatArray, qw: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Cross-output covariances of the AR innovations and of the white parts.
+
+    After whitening each output by its own phi, ``eps = a + w_t - phi w_(t-1)``
+    has lag-0 covariance ``Qa + Qw (1 + phi_k phi_l)`` and lag-one covariances
+    ``-phi_l Qw`` and ``-phi_k Qw``: this gives the correlations, which are
+    projected onto valid (positive semidefinite) ones and scaled to the REML
+    variances on the diagonal.
+    """
+    eps = [_ar1_filter_columns(v, phi) for v in residuals]
+    n_tot = sum(e.shape[0] for e in eps)
+    g0 = sum(e.T @ e for e in eps) / n_tot
+    g1 = sum(e[:-1].T @ e[1:] for e in eps) / n_tot
+    s = phi[:, None] + phi[None, :]
+    ok_s = np.abs(s) > 1e-3
+    w_emp = np.where(ok_s, -(g1 + g1.T) / np.where(ok_s, s, 1.0), 0.0)
+    a_emp = g0 - w_emp * (1.0 + np.outer(phi, phi))
+    out = []
+    for emp, var in ((a_emp, qa), (w_emp, qw)):
+        d = np.sqrt(np.clip(np.diag(emp), 0.0, None))
+        both = np.outer(d > 0, d > 0)
+        dd = np.where(d > 0, d, 1.0)
+        corr = np.where(both, np.clip(emp / np.outer(dd, dd), -1.0, 1.0), 0.0)
+        np.fill_diagonal(corr, 1.0)
+        ev, vec = np.linalg.eigh(corr)
+        corr = (vec * np.clip(ev, 0.0, None)) @ vec.T
+        dn = np.sqrt(np.clip(np.diag(corr), 1e-300, None))
+        sd = np.sqrt(var)
+        out.append(corr / np.outer(dn, dn) * np.outer(sd, sd))
+    return out[0], out[1]
+
+
+def _ar1_filter_columns(v: FloatArray, phi: FloatArray) -> FloatArray:
+    """Prais–Winsten whitening of each column of `v` by its own coefficient."""
+    e = np.empty_like(v)
+    e[0] = np.sqrt((1.0 - phi) * (1.0 + phi)) * v[0]
+    e[1:] = (1.0 - phi) * v[1:] + phi * np.diff(v, axis=0)
+    return e
 
 
 def _colored_covariance(
     jacobians: list[FloatArray], residuals: list[FloatArray], r: FloatArray, m_inv: FloatArray
 ) -> FloatArray:
-    """Morelli's covariance for coloured residuals.
+    """Covariance for coloured residuals: ``M^-1 [J' R^-1 Sigma R^-1 J] M^-1``.
 
-    ``M^-1 [sum_ij J_i' R^-1 Rvv(i-j) R^-1 J_j] M^-1`` where ``Rvv`` is the
-    residual auto- and cross-correlation estimated from the whole record and
-    the double sum runs over lags up to a few correlation times.
+    Morelli's correction (Klein & Morelli ch. 6; SIDPAC's colores) puts the
+    full-record sample autocorrelation of the residuals in ``Sigma``. With
+    strongly coloured residuals that fails where it matters: the fit absorbs
+    the noise lying in the span of the sensitivities, which for slow noise is
+    much of its power at the frequencies the parameters are fitted at, so the
+    residual correlation is biased low there (the plain outer-product
+    sandwich is identically zero, ``J'R^-1 v = 0``, and the full-record
+    correlation acts as a Bartlett window as long as the record, which in
+    expectation keeps about a third of a bias's variance: fixed-b theory,
+    Kiefer & Vogelsang 2005); lag windows
+    (Bartlett/Parzen with Andrews' plug-in bandwidth) trade that absorption
+    bias against truncation bias and cannot win both when N/tau is close to
+    the number of parameters; and a degrees-of-freedom factor only rescales
+    whatever bias is left, blowing up as N/tau approaches that number.
+
+    Here ``Sigma`` is a parametric model of each output's noise, an AR(1)
+    disturbance plus white sensor noise, fitted by restricted maximum
+    likelihood (`_noise_model`), which accounts exactly for the dimensions
+    the fit removed and needs no window; the cross-output correlations come
+    from the whitened residuals (`_cross_covariances`). The sandwich is then
+    exact for that model: ``J'R^-1 Sigma R^-1 J = G' Qa G + W' Qw W`` with
+    ``W = R^-1 J`` and ``G = L^-T W`` (`_recolour`), O(N n_y p^2) with no loop
+    over lags. Nothing is capped or floored. Spectra far from that shape (a
+    narrow resonance in the residuals) are outside the model.
+
+    The noise model is estimated from N/tau correlation times, so each
+    variance is itself uncertain; the delta method through the REML
+    curvature gives its variance and Satterthwaite's degrees of freedom
+    ``nu = 2 V^2 / Var(V)``, and the standard errors are scaled by
+    ``t_nu(0.975) / 1.96`` so that ``1.96 se`` is the t interval. The factor
+    tends to 1 as N/tau grows and stays finite as N/tau falls.
     """
+    from scipy.special import stdtrit
+
+    phi, qa, qw, spread = _noise_model(jacobians, residuals)
+    cov = _model_sandwich(jacobians, residuals, r, m_inv, phi, qa, qw)
+    # The noise model is itself estimated (from some N/tau correlation times), so
+    # each variance is uncertain; its delta-method variance gives Satterthwaite
+    # degrees of freedom nu and the error bars take the t quantile's width,
+    # 1.96 se -> t_nu se: a correction that tends to 1 as N/tau grows and stays
+    # finite as it falls.
+    var = np.diag(cov)
+    var_var = np.zeros_like(var)
+    for k, (cov_x, steps, points) in enumerate(spread):
+        grad = np.zeros((2, var.size))
+        for i in range(2):
+            diags = []
+            for point in points[2 * i : 2 * i + 2]:
+                model = [phi.copy(), qa.copy(), qw.copy()]
+                for arr, value in zip(model, point, strict=True):
+                    arr[k] = value
+                diags.append(np.diag(_model_sandwich(jacobians, residuals, r, m_inv, *model)))
+            grad[i] = (diags[0] - diags[1]) / (2.0 * steps[i])
+        var_var += np.einsum("ij,ik,kj->j", grad, cov_x, grad)
+    ok = (var > 0) & (var_var > 0)
+    nu = np.where(ok, 2.0 * var**2 / np.where(ok, var_var, 1.0), np.inf)
+    factor = np.where(np.isfinite(nu), stdtrit(np.where(np.isfinite(nu), nu, 1.0), 0.975), 1.96)
+    factor = np.asarray(factor, dtype=np.float64) / 1.96
+    return np.asarray(cov * np.outer(factor, factor), dtype=np.float64)
+
+
+def _model_sandwich(
+    jacobians: list[FloatArray],
+    residuals: list[FloatArray],
+    r: FloatArray,
+    m_inv: FloatArray,
+    phi: FloatArray,
+    qa: FloatArray,
+    qw: FloatArray,
+) -> FloatArray:
+    """``M^-1 [G' Qa G + W' Qw W] M^-1`` for the noise model (phi, qa, qw)."""
+    cov_a, cov_w = _cross_covariances(residuals, phi, qa, qw)
     n_par = m_inv.shape[0]
     middle = np.zeros((n_par, n_par))
-    for jac, v in zip(jacobians, residuals, strict=True):
-        n = v.shape[0]
-        lags, tau = _bandwidth(v)
-        # Fitted residuals are orthogonal to the sensitivities, which hides part of
-        # the noise; with N/tau effectively independent samples the usual N/(N-p)
-        # degrees-of-freedom correction becomes N_eff/(N_eff - p).
-        n_eff = n / max(tau, 1.0)
-        dof = n_eff / max(n_eff - n_par, 0.5 * n_eff)
-        w = jac / r[None, :, None]  # (n_t, n_y, n_par)
-        # No mean removal: for coloured noise the sample mean is itself a slow
-        # error component, and subtracting it would bias every lag low.
-        vc = v
-        for lag in range(lags + 1):
-            # r_kl(lag) = E[v_k(t) v_l(t+lag)], C_kl(lag) = sum_t w_k(t) w_l(t+lag)'
-            rv = vc[: n - lag].T @ vc[lag:] / n  # (n_y, n_y)
-            c = dof * np.einsum("tkp,tlq,kl->pq", w[: n - lag], w[lag:], rv)
-            middle += c if lag == 0 else c + c.T
-    return m_inv @ middle @ m_inv
+    for jac in jacobians:
+        w = jac / r[None, :, None]
+        g = _recolour(w, phi)
+        middle += g.reshape(-1, n_par).T @ np.matmul(cov_a, g).reshape(-1, n_par)
+        middle += w.reshape(-1, n_par).T @ np.matmul(cov_w, w).reshape(-1, n_par)
+    return np.asarray(m_inv @ (0.5 * (middle + middle.T)) @ m_inv, dtype=np.float64)
 
 
 def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, ...]], FloatArray]:
@@ -315,6 +699,47 @@ def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, 
     return combos, null
 
 
+def _projected_step(
+    a: FloatArray,
+    b: FloatArray,
+    dn: FloatArray,
+    lam: float,
+    theta: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """One bounded Gauss–Newton step: (the step taken, the trial point) with
+    ``trial = theta - step`` inside the box.
+
+    `a` and `b` are the scaled normal equations (scales `dn`). Parameters at a
+    bound whose step would leave the box are held and the step re-solved
+    without them until none would; what remains is projected onto the box.
+    """
+    n = theta.size
+    free = np.ones(n, dtype=bool)
+    at_lower = theta <= lower
+    at_upper = theta >= upper
+    step = np.zeros(n)
+    for _ in range(n + 1):
+        step = np.zeros(n)
+        idx = np.flatnonzero(free)
+        if idx.size:
+            sub = a if idx.size == n else a[np.ix_(idx, idx)]
+            try:
+                sol = np.linalg.lstsq(sub + lam * np.eye(idx.size), b[idx], rcond=1e-12)[0]
+                step[idx] = sol / dn[idx]
+            except np.linalg.LinAlgError:
+                pass
+        # theta moves by -step: outward is a positive step at a lower bound
+        out = free & ((at_lower & (step > 0)) | (at_upper & (step < 0)))
+        if not np.any(out):
+            break
+        free &= ~out
+    trial = np.clip(theta - step, lower, upper)
+    clipped = trial != theta - step
+    return np.where(clipped, theta - trial, step), trial
+
+
 def fit_output_error(
     model: Any,
     datas: list[FlightData],
@@ -331,8 +756,18 @@ def fit_output_error(
     tolerance: float,
     simulate_options: Mapping[str, Any],
     gradient: str,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> IdentificationResult:
-    """Run the estimation; arguments are already validated by `identify`."""
+    """Run the estimation; arguments are already validated by `identify`.
+
+    With `bounds` (name -> (lower, upper), ±inf for an open side) the
+    Gauss–Newton steps are projected: a parameter at a bound whose step would
+    leave the box is held there and dropped from that step's normal equations
+    (the active set, as in Jategaonkar's bounded Gauss–Newton), and the rest of
+    the step is clipped into the box, so every iterate is feasible. Parameters
+    that end at a bound are reported in ``active_bounds``; the covariance is
+    computed with them held fixed (their rows and columns zero).
+    """
     all_out = list(model.outputs)
     out_idx = [all_out.index(o) for o in outputs]
     states = list(getattr(model, "states", ()))
@@ -367,6 +802,12 @@ def fit_output_error(
     theta[:n_p] = [initial[n] for n in names]
     for i, m in enumerate(mans):
         theta[x0_slices[i]] = m.x0[m.x0_free]
+    box = dict(bounds or {})
+    lower = np.full(pos, -np.inf)
+    upper = np.full(pos, np.inf)
+    for jb, n in enumerate(names):
+        lower[jb], upper[jb] = box.get(n, (-np.inf, np.inf))
+    theta = np.clip(theta, lower, upper)  # identify checked the start; this is a no-op there
     fixed = {k: float(v) for k, v in model.parameters.items() if k not in names}
     problem = _Problem(model, mans, layout, out_idx, fixed, simulate_options, gradient)
     typ = _typical_scales(layout, theta, mans, state_out)
@@ -387,6 +828,12 @@ def fit_output_error(
 
     residuals, first_jac, ok = problem.evaluate(theta, steps_for(theta))
     if not ok or first_jac is None:
+        if problem.errors and hasattr(model, "simulate_batch"):
+            raise _StartFailure(
+                f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
+                f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}: "
+                f"{problem.errors[0]}; check the initial guesses and the model"
+            )
         raised = f" (its simulate raised {problem.errors[0]})" if problem.errors else ""
         raise IdentificationError(
             f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
@@ -410,6 +857,7 @@ def fit_output_error(
     success = False
     message = f"iteration limit ({max_iterations}) reached before convergence"
     lam = 0.0
+    bounded = bool(np.any(np.isfinite(lower)) or np.any(np.isfinite(upper)))
     iteration = 0
     for iteration in range(1, max_iterations + 1):
         r = fixed_r if fixed_r is not None else _noise_variances(residuals, floor)
@@ -420,13 +868,16 @@ def fit_output_error(
         b = grad / dn
         accepted = False
         for _attempt in range(12):
-            try:
-                step = np.linalg.lstsq(a + lam * np.eye(a.shape[0]), b, rcond=1e-12)[0] / dn
-            except np.linalg.LinAlgError:
-                step = np.zeros_like(theta)
-            # Gauss–Newton minimises sum v'R^-1 v, so the step *adds* the solution
-            # of M step = -J'R^-1 v with J the residual Jacobian (J = -dy/dtheta).
-            trial = theta - step
+            if bounded:
+                step, trial = _projected_step(a, b, dn, lam, theta, lower, upper)
+            else:
+                try:
+                    step = np.linalg.lstsq(a + lam * np.eye(a.shape[0]), b, rcond=1e-12)[0] / dn
+                except np.linalg.LinAlgError:
+                    step = np.zeros_like(theta)
+                # Gauss–Newton minimises sum v'R^-1 v, so the step *adds* the solution
+                # of M step = -J'R^-1 v with J the residual Jacobian (J = -dy/dtheta).
+                trial = theta - step
             t_res, t_jac, t_ok = problem.evaluate(trial, steps_for(trial))
             if t_ok and t_jac is not None:
                 t_cost = _ml_cost(t_res, fixed_r, floor)
@@ -449,7 +900,15 @@ def fit_output_error(
             break
     r = fixed_r if fixed_r is not None else _noise_variances(residuals, floor)
     info = _information(jacobians, r)
-    combos, null = _combinations(info, names_all)
+    held = np.zeros(layout.n_total, dtype=bool)
+    held[:n_p] = (theta[:n_p] <= lower[:n_p]) | (theta[:n_p] >= upper[:n_p])
+    keep = np.flatnonzero(~held)
+    if np.any(held):
+        # Error bars conditional on the active bounds: the held parameters leave the
+        # information matrix (and the coloured-residual sandwich) as if fixed.
+        jacobians = [jac[:, :, keep] for jac in jacobians]
+        info = info[np.ix_(keep, keep)]
+    combos, null = _combinations(info, [names_all[j] for j in keep])
     identifiable = not combos
     try:
         m_inv: FloatArray = np.asarray(
@@ -474,6 +933,14 @@ def fit_output_error(
             cov[:, bad] = cov_white[:, bad]
     else:
         cov = cov_white
+    if np.any(held):  # back to every unknown: zero rows and columns for the held ones
+        cov_full = np.zeros((layout.n_total, layout.n_total))
+        cov_full[np.ix_(keep, keep)] = cov
+        white_full = np.zeros_like(cov_full)
+        white_full[np.ix_(keep, keep)] = cov_white
+        null_full = np.zeros(layout.n_total, dtype=bool)
+        null_full[keep] = null
+        cov, cov_white, null = cov_full, white_full, null_full
     if not identifiable:
         for j in np.flatnonzero(null):
             cov[j, :] = np.nan
@@ -487,13 +954,13 @@ def fit_output_error(
             f"the data cannot separate these parameter combinations: {text}; their "
             "standard errors are reported as infinite",
             IdentifiabilityWarning,
-            stacklevel=3,
+            stacklevel=4,  # fit_output_error, identify, its BLAS wrapper, the caller
         )
     if not success:
         warnings.warn(
             f"identify: {message}; the result is flagged success=False",
             UserWarning,
-            stacklevel=3,
+            stacklevel=4,  # fit_output_error, identify, its BLAS wrapper, the caller
         )
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     se[~np.isfinite(np.diag(cov))] = np.inf
@@ -526,4 +993,10 @@ def fit_output_error(
         extra_stderr=extra,
         residuals=tuple(residuals),
         model_name=str(getattr(model, "name", "")),
+        bounds={n: box[n] for n in names if n in box},
+        active_bounds={
+            n: ("lower" if theta[j] <= lower[j] else "upper")
+            for j, n in enumerate(names)
+            if held[j]
+        },
     )

@@ -14,6 +14,7 @@ call with per-member controls.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -23,13 +24,21 @@ import scipy.optimize
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData
-from .errors import ChannelError, IdentificationError, SimulationError
+from .errors import (
+    AeroidError,
+    ChannelError,
+    IdentifiabilityWarning,
+    IdentificationError,
+    SimulationError,
+)
 from .maneuvers import ManeuverFamily
 from .model import Model, SimulatorModel, require_model, resolve_parameters
 from .sensitivity import (
     _analyse_fisher,
     _check_simulate_options,
+    _combo_text,
     _control_names,
     _crb,
     _fd_sensitivities,
@@ -239,6 +248,7 @@ class _Evaluator:
         self.n_u = len(all_controls)
         self.n_candidates = 0
         self.n_simulations = 0
+        self.errors: list[str] = []  # what failed in a simulation, for the messages
 
     def controls(self, variables: FloatArray) -> FloatArray:
         """(S, n_t, n_u) control histories of candidate designs (S, n_v)."""
@@ -272,6 +282,7 @@ class _Evaluator:
             self.steps,
             self.options,
             nominal=False,
+            errors=self.errors,
         )
         self.n_candidates += variables.shape[0]
         self.n_simulations += variables.shape[0] * 2 * len(self.names)
@@ -365,6 +376,7 @@ def _polish(
     return x, f
 
 
+@small_blas
 def design_experiment(
     model: Model | SimulatorModel,
     maneuver: ManeuverFamily,
@@ -437,6 +449,14 @@ def design_experiment(
         The family drives a control the model does not have.
     SimulationError
         The model fails to simulate the initial design.
+
+    Warns
+    -----
+    IdentifiabilityWarning
+        When even the best design cannot identify every parameter: the
+        message names the parameter combinations the manoeuvre cannot
+        separate, their predicted standard errors are infinite and the
+        result has ``success=False``.
     """
     require_model(model, IdentificationError)
     if not isinstance(maneuver, ManeuverFamily):
@@ -517,9 +537,10 @@ def design_experiment(
     )
     _, ok_init = evaluate.fisher(x_init[None, :])
     if not ok_init[0]:
+        why = f": {evaluate.errors[-1]}" if evaluate.errors else ""
         raise SimulationError(
             f"design_experiment: model {model.name!r} fails to simulate the initial design "
-            f"{dict(zip(var_names, x_init.tolist(), strict=True))}"
+            f"{dict(zip(var_names, x_init.tolist(), strict=True))}{why}"
         )
 
     from ._progress import progress_bar
@@ -558,7 +579,7 @@ def design_experiment(
             vectorized=True,
         )
     except (ValueError, TypeError) as exc:
-        if isinstance(exc, IdentificationError):
+        if isinstance(exc, AeroidError):  # ours (a bad design, a model that misbehaves)
             raise
         raise IdentificationError(f"optimizer_options: rejected by the optimiser: {exc}") from None
     finally:
@@ -577,18 +598,30 @@ def design_experiment(
     fis, ok = evaluate.fisher(np.vstack([x_best, x_init]))
     crit = evaluate.criterion_of(fis, ok)
     crit = np.where(crit >= _PENALTY, np.inf, crit)
-    cov, _, _ = _analyse_fisher(fis[0], names)
+    cov, combos, _ = _analyse_fisher(fis[0], names)
     cov0, _, _ = _analyse_fisher(fis[1], names)
     se = dict(zip(names, _crb(cov).tolist(), strict=True))
     se0 = dict(zip(names, _crb(cov0).tolist(), strict=True))
     description = maneuver.describe(x_best, time)
     u = evaluate.controls(x_best[None, :])[0]
-    success = bool(np.isfinite(crit[0]))
+    success = bool(np.isfinite(crit[0])) and not combos
     message = (
         "Optimiser finished: " + str(res.message)
         if success
         else "No design in the bounds identifies all parameters."
     )
+    if combos or not success:
+        # Degeneracy is loud: a design that cannot identify a parameter is flagged
+        # (success=False) and named, not returned as if it were merely imprecise.
+        what = _combo_text(combos) if combos else ", ".join(n for n in names if not se[n] < np.inf)
+        message += f" The best design found cannot separate {what or 'the parameters'}."
+        warnings.warn(
+            f"design_experiment: no design of {description} within the "
+            f"bounds can separate {what or 'the parameters'}; their predicted standard "
+            "errors are infinite and the design is flagged success=False",
+            IdentifiabilityWarning,
+            stacklevel=CALLER_STACKLEVEL,
+        )
     return ExperimentDesign(
         design=dict(zip(var_names, x_best.tolist(), strict=True)),
         initial_design=dict(zip(var_names, np.asarray(x_init_c).tolist(), strict=True)),

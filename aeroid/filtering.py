@@ -23,14 +23,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg
-import scipy.stats
 from numpy.typing import NDArray
 
-from . import _integrate
+from . import _integrate, _linalg
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._stats import chi2_sf
+from ._threads import small_blas
 from .data import FlightData, check_symmetric, measured_start, plain
-from .errors import AeroidError, ChannelError, FilterError
+from .errors import AeroidError, ChannelError, FilterError, SimulationError
 from .model import Model, SimulatorModel, fitted_start, resolve_parameters
 
 __all__ = ["FilterResult", "filter_states"]
@@ -266,7 +266,7 @@ def _ljung_box(z: FloatArray, lags: int) -> tuple[float, float]:
         return float("nan"), float("nan")
     r = np.array([np.dot(zc[: n - k], zc[k:]) / denom for k in range(1, lags + 1)])
     q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1))))
-    return q, float(scipy.stats.chi2.sf(q, lags))
+    return q, chi2_sf(q, lags)
 
 
 # -----------------------------------------------------------------------------------
@@ -503,22 +503,10 @@ def _van_loan(A: FloatArray, Qc: FloatArray, h: float) -> tuple[FloatArray, Floa
     M[:, :n, :n] = -A
     M[:, :n, n:] = Qc
     M[:, n:, n:] = np.transpose(A, (0, 2, 1))
-    E = scipy.linalg.expm(M * h)
+    E = _linalg.expm(M * h)
     Phi = np.ascontiguousarray(np.transpose(E[:, n:, n:], (0, 2, 1)))
     Qd = Phi @ E[:, :n, n:]
     return Phi, 0.5 * (Qd + np.transpose(Qd, (0, 2, 1)))
-
-
-def _affine_measurement(
-    h: _integrate.BatchFunction,
-    t: float,
-    n_x: int,
-    n_u: int,
-    p: Mapping[str, FloatArray],
-    rng: np.random.Generator,
-) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """(H, D, c) per member if h is affine in x and u and time-invariant, else None."""
-    return _integrate.affine_matrices(h, t, n_x, n_u, p, rng)
 
 
 @dataclass
@@ -543,8 +531,8 @@ def _linearise_model(
     if groups is None:
         return None
     n, nu = m.n_states, m.n_controls
-    rng = np.random.default_rng(0)
-    mats = _integrate.affine_matrices(m._dynamics_batch, float(prob.time[0]), n, nu, params, rng)
+    trusted = m.linear is True
+    mats, _ = _integrate.lti_form(m._dynamics_batch, prob.time, n, nu, params, trusted=trusted)
     if mats is None:
         return None
     A = np.broadcast_to(mats[0], (B, n, n))
@@ -562,7 +550,7 @@ def _linearise_model(
     dU = U[1:] - U[:-1]
     F = np.empty((B, prob.time.size - 1, n))
     for g, h in enumerate(hs):
-        E = scipy.linalg.expm(Maug * h)
+        E = _linalg.expm(Maug * h)
         Gw = E[:, :n, n : n + nu]
         Gv = E[:, :n, n + nu : n + 2 * nu] / h
         gc = E[:, :n, -1]
@@ -582,7 +570,9 @@ def _linearise_model(
         H[:, np.arange(len(sel_idx)), sel_idx] = 1.0
         d = np.zeros((B, prob.time.size, len(sel_idx)))
     else:
-        aff = _affine_measurement(m._measurement_batch, float(prob.time[0]), n, nu, params, rng)
+        aff, _ = _integrate.lti_form(
+            m._measurement_batch, prob.time, n, nu, params, trusted=trusted
+        )
         if aff is not None:
             oi = list(prob.out_idx)
             H = np.ascontiguousarray(np.broadcast_to(aff[0], (B, m.n_outputs, n))[:, oi])
@@ -612,13 +602,23 @@ class _Pass:
     fail: IntArray  # first failing sample (-1 if ok)
     n_jitter: int
     message: str = ""
+    simulation: bool = False  # the model itself gave a non-finite value (finite inputs)
+
+
+class _ModelFailure(SimulationError, FilterError):
+    """The model itself gave non-finite values during filtering.
+
+    A `SimulationError` like every such failure, and a `FilterError` as
+    `filter_states` has always raised for a diverging estimate.
+    """
 
 
 class _Failure(Exception):
-    def __init__(self, k: int, what: str) -> None:
+    def __init__(self, k: int, what: str, simulation: bool = False) -> None:
         super().__init__(k, what)
         self.k = k
         self.what = what
+        self.simulation = simulation
 
 
 def _chol(M: FloatArray, k: int, what: str, stats: list[int]) -> FloatArray:
@@ -661,78 +661,202 @@ def _affine_scan(
     """All iterates of ``x_k = M_k x_{k-1} + c_k`` (or ``X_k = M_k X_{k-1} M_k' + c_k``).
 
     M (B, K, n, n), c (B, K, n) or (B, K, n, n), x0 (B, n) or (B, n, n); returns
-    the K iterates. A prefix scan (log2 K vectorised compositions) replaces the
-    Python loop over samples.
+    the K iterates. A step-by-step loop costs microseconds of Python per sample,
+    more than the arithmetic; in blocks of L ~ sqrt(K) samples the loop runs
+    about 2 sqrt(K) times: once over the position in a block (every block at
+    once, from a zero start, with the products of the M's), once over the
+    blocks (their start values), and the two combine. The same sums in another
+    order: the iterates agree with the loop to rounding.
     """
-    M = M.copy()
-    c = c.copy()
-    K = M.shape[1]
-    s = 1
-    while s < K:
-        Mk = M[:, s:]
+    B, K, n, _ = M.shape
+    if K == 0:
+        return np.asarray(c.copy(), dtype=np.float64)
+    L = max(1, math.ceil(math.sqrt(K)))
+    nb = -(-K // L)
+    pad = nb * L - K
+    if pad:
+        M = np.concatenate([M, np.broadcast_to(np.eye(n), (B, pad, n, n))], axis=1)
+        c = np.concatenate([c, np.zeros((B, pad, *c.shape[2:]))], axis=1)
+    Mb = M.reshape(B, nb, L, n, n)
+    cb = c.reshape(B, nb, L, *c.shape[2:])
+    T = np.empty_like(Mb)  # T[:, b, i] = M_{bL+i} ... M_{bL}: block b's transfer so far
+    r = np.empty_like(cb)  # block b's iterate i from a zero start
+    T[:, :, 0] = Mb[:, :, 0]
+    r[:, :, 0] = cb[:, :, 0]
+    for i in range(1, L):
+        Mi = Mb[:, :, i]
+        T[:, :, i] = Mi @ T[:, :, i - 1]
         if quadratic:
-            c[:, s:] = Mk @ c[:, :-s] @ np.swapaxes(Mk, 2, 3) + c[:, s:]
+            r[:, :, i] = Mi @ r[:, :, i - 1] @ np.swapaxes(Mi, 2, 3) + cb[:, :, i]
         else:
-            c[:, s:] = (Mk @ c[:, :-s, :, None])[..., 0] + c[:, s:]
-        M[:, s:] = Mk @ M[:, :-s]
-        s *= 2
+            r[:, :, i] = (Mi @ r[:, :, i - 1, :, None])[..., 0] + cb[:, :, i]
+    starts = np.empty((B, nb, *x0.shape[1:]))
+    x = x0
+    for b in range(nb):
+        starts[:, b] = x
+        Tb = T[:, b, -1]
+        if quadratic:
+            x = Tb @ x @ np.swapaxes(Tb, 1, 2) + r[:, b, -1]
+        else:
+            x = (Tb @ x[..., None])[..., 0] + r[:, b, -1]
     if quadratic:
-        out: FloatArray = M @ x0[:, None] @ np.swapaxes(M, 2, 3) + c
-        return out
-    return np.asarray((M @ x0[:, None, :, None])[..., 0] + c, dtype=np.float64)
+        out = T @ starts[:, :, None] @ np.swapaxes(T, 3, 4) + r
+    else:
+        out = (T @ starts[:, :, None, :, None])[..., 0] + r
+    return np.asarray(out.reshape(B, nb * L, *c.shape[2:])[:, :K], dtype=np.float64)
+
+
+# relative accuracy (per entry, scaled by the standard deviations) the block Riccati
+# solution must show in its one-step residual before it replaces the step loop
+_RICCATI_TOL = 1e-12
+
+
+def _riccati_blocks(
+    Phi: FloatArray,
+    Qd: FloatArray,
+    H: FloatArray,
+    R: FloatArray,
+    P1: FloatArray,
+    K: int,
+    L: int,
+) -> FloatArray:
+    """Predicted covariances Pp_1..Pp_K of a time-invariant filter, (B, K, n, n).
+
+    The Riccati map P -> Phi (P - P H' (H P H' + R)^-1 H P) Phi' + Qd is the
+    Möbius transformation of the symplectic matrix Psi: with [X; Y] = Psi^j [P; I],
+    the j-th iterate is X Y^-1. So instead of K dependent steps the covariance
+    at the start of each block of about sqrt(K) samples is found by one
+    application of Psi^L, and every sample inside the blocks by one batched
+    solve. Raises LinAlgError when Phi, R or a block is singular; the caller
+    checks the residual.
+    """
+    B, n, _ = Phi.shape
+    PiT = np.swapaxes(np.linalg.inv(Phi), 1, 2)  # Phi^-T
+    G = np.swapaxes(H, 1, 2) @ np.linalg.solve(R, H)  # H' R^-1 H
+    psi = np.empty((B, 2 * n, 2 * n))
+    psi[:, :n, :n] = Phi + Qd @ PiT @ G
+    psi[:, :n, n:] = Qd @ PiT
+    psi[:, n:, :n] = PiT @ G
+    psi[:, n:, n:] = PiT
+    L = max(1, min(K, L))
+    pw = np.empty((B, L, 2 * n, 2 * n))  # pw[:, i] = Psi^(i+1)
+    pw[:, 0] = psi
+    for i in range(1, L):
+        pw[:, i] = psi @ pw[:, i - 1]
+    nb = -(-K // L)
+    anchors = np.empty((B, nb, n, n))
+    top = pw[:, L - 1]
+    P = P1
+    done = nb
+    for b in range(nb):
+        anchors[:, b] = P
+        if b + 1 < nb:
+            Z = top[:, :, :n] @ P + top[:, :, n:]
+            Pn = np.swapaxes(
+                np.linalg.solve(np.swapaxes(Z[:, n:], 1, 2), np.swapaxes(Z[:, :n], 1, 2)), 1, 2
+            )
+            Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+            sd = np.sqrt(np.abs(np.diagonal(Pn, axis1=1, axis2=2)))
+            if np.all(np.abs(Pn - P) <= 1e-14 * sd[:, :, None] * sd[:, None, :]):
+                # steady state: the rest of the record is this covariance
+                done = b + 1
+                break
+            P = Pn
+    # Z[:, b, i] = Psi^(i+1) [anchor_b; I]: the covariance at sample 1 + b L + i + 1
+    Z = pw[:, None, :, :, :n] @ anchors[:, :done, None] + pw[:, None, :, :, n:]
+    Pall = np.swapaxes(
+        np.linalg.solve(np.swapaxes(Z[..., n:, :], -1, -2), np.swapaxes(Z[..., :n, :], -1, -2)),
+        -1,
+        -2,
+    ).reshape(B, done * L, n, n)
+    out = np.empty((B, K, n, n))
+    out[:, 0] = P1
+    m = min(K - 1, done * L)
+    out[:, 1 : m + 1] = Pall[:, :m]
+    out[:, m + 1 :] = Pall[:, m - 1 : m] if m else P1[:, None]
+    return 0.5 * (out + np.swapaxes(out, 2, 3))
+
+
+def _kf_update(
+    Ppk: FloatArray, H: FloatArray, R: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Innovation covariance, gain and Joseph-form update for stacks of predictions.
+
+    Ppk (..., n, n), H and R broadcastable against it; returns (S, K, P).
+    """
+    Ht = np.swapaxes(H, -1, -2)
+    PHt = Ppk @ Ht
+    Sk = H @ PHt + R
+    K = np.swapaxes(np.linalg.solve(Sk, np.swapaxes(PHt, -1, -2)), -1, -2)
+    IKH = np.eye(Ppk.shape[-1]) - K @ H
+    P = IKH @ Ppk @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    return Sk, K, 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def _riccati_fast(
+    lin: _Linear, R: FloatArray, P0: FloatArray, n_t: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """(Pp, Pf, S, Kg) over the record by blocks, or None where that is not exact.
+
+    Verified: the filtered covariances, stepped once, must give the next
+    predicted ones to `_RICCATI_TOL`; as the Riccati map of a detectable
+    filter contracts, the sequence then equals the step-by-step one to about
+    that accuracy.
+    """
+    if lin.Phi.shape[1] != 1 or n_t < 3:
+        return None
+    assert lin.H is not None
+    Phi, Qd, H = lin.Phi[:, 0], lin.Qd[:, 0], lin.H
+    PhiT = np.swapaxes(Phi, 1, 2)
+    B, n, _ = Phi.shape
+    P1 = Phi @ P0 @ PhiT + Qd
+    P1 = 0.5 * (P1 + np.swapaxes(P1, 1, 2))
+    K = n_t - 1
+    first = min(32, math.ceil(math.sqrt(K)))
+    # Psi^L is ill-conditioned when the filter forgets fast: then shorter blocks
+    for L in sorted({first, min(first, 8), min(first, 3)}, reverse=True):
+        try:
+            Pp_rest = _riccati_blocks(Phi, Qd, H, R, P1, K, L)
+            if not np.all(np.isfinite(Pp_rest)):
+                continue
+            Pp = np.empty((B, n_t, n, n))
+            Pp[:, 0] = P0
+            Pp[:, 1:] = Pp_rest
+            S, Kg, Pf = _kf_update(Pp, H[:, None], R[:, None])
+        except np.linalg.LinAlgError:
+            continue
+        Pf[:, 0] = P0
+        Kg[:, 0] = 0.0
+        step = Phi[:, None] @ Pf[:, 1:-1] @ PhiT[:, None] + Qd[:, None]
+        sd = np.sqrt(np.abs(np.diagonal(Pp[:, 2:], axis1=2, axis2=3)))
+        scale = sd[..., :, None] * sd[..., None, :]
+        if np.all(np.abs(step - Pp[:, 2:]) <= _RICCATI_TOL * scale):
+            return Pp, Pf, S, Kg
+    return None
 
 
 def _lti_kf(lin: _Linear, Y: FloatArray, R: FloatArray, x0: FloatArray, P0: FloatArray) -> _Pass:
     """Kalman filter on constant matrices, batched; no per-step factorisation.
 
-    The covariance recursion does not depend on the data, so it runs first
-    (and stops once it has converged: the gain is then constant); the state
-    recursion, linear given the gains, is then solved for all samples at once.
-    The innovation covariances are checked afterwards in one vectorised
-    Cholesky; the caller falls back to the careful pass if that fails.
+    The covariance recursion does not depend on the data, so it runs first:
+    by blocks of the Riccati map's Möbius form where that is verified exact
+    (`_riccati_fast`), otherwise step by step until it has converged (the
+    gain is then constant). The state recursion, linear given the gains, is
+    then solved for all samples at once. The innovation covariances are
+    checked afterwards in one vectorised Cholesky; the caller falls back to
+    the careful pass if that fails.
     """
     assert lin.H is not None and lin.d is not None
     B, _, n, _ = lin.Phi.shape
-    n_t, n_y = Y.shape
+    n_t = Y.shape[0]
     H, d, F = lin.H, lin.d, lin.F
-    Ht = np.ascontiguousarray(H.transpose(0, 2, 1))
-    PhiT = np.ascontiguousarray(np.swapaxes(lin.Phi, 2, 3))
     eye = np.eye(n)
-    Pf = np.empty((B, n_t, n, n))
-    Pp = np.empty((B, n_t, n, n))
-    S = np.empty((B, n_t, n_y, n_y))
-    Kg = np.empty((B, n_t, n, n_y))
-    P = P0.copy()
-    Pf[:, 0], Pp[:, 0] = P, P
-    S[:, 0] = H @ P @ Ht + R
-    Kg[:, 0] = 0.0
-    single = lin.Phi.shape[1] == 1
-    Phi, PT, Qd = lin.Phi[:, 0], PhiT[:, 0], lin.Qd[:, 0]
-    Rt = R
-    prev = P
     with np.errstate(all="ignore"):
-        for k in range(1, n_t):
-            if not single:
-                g = lin.idx[k - 1]
-                Phi, PT, Qd = lin.Phi[:, g], PhiT[:, g], lin.Qd[:, g]
-            Ppk = Phi @ P @ PT + Qd
-            PHt = Ppk @ Ht
-            Sk = H @ PHt + Rt
-            K = np.swapaxes(np.linalg.solve(Sk, PHt.transpose(0, 2, 1)), 1, 2)
-            IKH = eye - K @ H
-            P = IKH @ Ppk @ IKH.transpose(0, 2, 1) + K @ Rt @ K.transpose(0, 2, 1)
-            P = 0.5 * (P + P.transpose(0, 2, 1))
-            Pp[:, k], Pf[:, k], S[:, k], Kg[:, k] = Ppk, P, Sk, K
-            if single and k % 4 == 0:
-                # Converged (to well below rounding of any later use): the gain
-                # is constant for the rest of the record.
-                if np.max(np.abs(Ppk - prev)) <= 1e-13 * float(np.max(np.abs(Ppk))):
-                    Pp[:, k + 1 :] = Ppk[:, None]
-                    Pf[:, k + 1 :] = P[:, None]
-                    S[:, k + 1 :] = Sk[:, None]
-                    Kg[:, k + 1 :] = K[:, None]
-                    break
-                prev = Ppk
+        fast = _riccati_fast(lin, R, P0, n_t)
+        if fast is not None:
+            Pp, Pf, S, Kg = fast
+        else:
+            Pp, Pf, S, Kg = _riccati_steps(lin, R, P0, n_t)
         # state recursion: x_k = (I - K_k H)(Phi_k x_{k-1} + F_k) + K_k z_k
         z = Y[None] - d  # (B, n_t, n_y)
         Phis = lin.Phi[:, lin.idx]  # (B, n_t-1, n, n)
@@ -754,6 +878,54 @@ def _lti_kf(lin: _Linear, Y: FloatArray, R: FloatArray, x0: FloatArray, P0: Floa
         fin = np.all(np.isfinite(xf[b]), axis=1) & np.all(np.isfinite(Pf[b]), axis=(1, 2))
         fail[b] = int(np.argmin(fin))
     return _Pass(xf, Pf, xp, Pp, C, nu, S, ~bad, fail, 0)
+
+
+def _riccati_steps(
+    lin: _Linear, R: FloatArray, P0: FloatArray, n_t: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """(Pp, Pf, S, Kg) step by step, stopping once the gain has converged."""
+    assert lin.H is not None
+    B, _, n, _ = lin.Phi.shape
+    H = lin.H
+    n_y = H.shape[1]
+    Ht = np.ascontiguousarray(H.transpose(0, 2, 1))
+    PhiT = np.ascontiguousarray(np.swapaxes(lin.Phi, 2, 3))
+    eye = np.eye(n)
+    Pf = np.empty((B, n_t, n, n))
+    Pp = np.empty((B, n_t, n, n))
+    S = np.empty((B, n_t, n_y, n_y))
+    Kg = np.empty((B, n_t, n, n_y))
+    P = P0.copy()
+    Pf[:, 0], Pp[:, 0] = P, P
+    S[:, 0] = H @ P @ Ht + R
+    Kg[:, 0] = 0.0
+    single = lin.Phi.shape[1] == 1
+    Phi, PT, Qd = lin.Phi[:, 0], PhiT[:, 0], lin.Qd[:, 0]
+    Rt = R
+    prev = P
+    for k in range(1, n_t):
+        if not single:
+            g = lin.idx[k - 1]
+            Phi, PT, Qd = lin.Phi[:, g], PhiT[:, g], lin.Qd[:, g]
+        Ppk = Phi @ P @ PT + Qd
+        PHt = Ppk @ Ht
+        Sk = H @ PHt + Rt
+        K = np.swapaxes(np.linalg.solve(Sk, PHt.transpose(0, 2, 1)), 1, 2)
+        IKH = eye - K @ H
+        P = IKH @ Ppk @ IKH.transpose(0, 2, 1) + K @ Rt @ K.transpose(0, 2, 1)
+        P = 0.5 * (P + P.transpose(0, 2, 1))
+        Pp[:, k], Pf[:, k], S[:, k], Kg[:, k] = Ppk, P, Sk, K
+        if single and k % 4 == 0:
+            # Converged (to well below rounding of any later use): the gain
+            # is constant for the rest of the record.
+            if np.max(np.abs(Ppk - prev)) <= 1e-13 * float(np.max(np.abs(Ppk))):
+                Pp[:, k + 1 :] = Ppk[:, None]
+                Pf[:, k + 1 :] = P[:, None]
+                S[:, k + 1 :] = Sk[:, None]
+                Kg[:, k + 1 :] = K[:, None]
+                break
+            prev = Ppk
+    return Pp, Pf, S, Kg
 
 
 class _Propagator:
@@ -787,6 +959,25 @@ class _Propagator:
                 ..., 0
             ]  # (n_t-1, 2m+1, n_u)
         self._rep: dict[int, dict[str, FloatArray]] = {}
+        # the same RK4 over one interval, compiled, when the dynamics translate to JAX
+        self._cp = None
+        self._pmat: FloatArray | None = None
+        if lin is None:
+            from . import _compiled
+
+            # a point propagation and a difference Jacobian per interval, each RK4
+            work = 8 * self.m * (prob.time.size - 1)
+            if _compiled.worth_compiling(m, work):
+                self._cp = _compiled.interval_propagator(
+                    m,
+                    prob.time,
+                    prob.U,
+                    prob.x0,
+                    {k: float(v[0]) for k, v in params.items()},
+                    self.m,
+                )
+            if self._cp is not None:
+                self._pmat = _compiled._pmatrix(m, params, B)
 
     def _p(self, r: int) -> dict[str, FloatArray]:
         if r not in self._rep:
@@ -804,22 +995,50 @@ class _Propagator:
             return np.einsum("bij,brj->bri", self.lin.Phi[:, g], X) + self.lin.F[:, k][:, None, :]
         t = self.prob.time
         M = B * r
+        t0, t1 = float(t[k]), float(t[k + 1])
+        if self._cp is not None:
+            assert self._pmat is not None
+            pm = self._pmat if r == 1 else np.repeat(self._pmat, r, axis=0)
+            x = self._cp(k, np.ascontiguousarray(X.reshape(M, n)), pm).T
+        else:
+            x = self._rk4(k, X)
+        if not np.all(np.isfinite(x)) and np.all(np.isfinite(X)):
+            m = self.prob.model
+            bad = int(np.argmax(~np.all(np.isfinite(x), axis=1)))
+            raise _Failure(
+                k + 1,
+                f"the dynamics of model {m.name!r} gave a non-finite state {m.states[bad]!r} "
+                f"between sample {k} (t = {t0:.6g} s) and sample {k + 1} (t = {t1:.6g} s)",
+                simulation=True,
+            )
+        return np.ascontiguousarray(x.T.reshape(B, r, n))
+
+    def _rk4(self, k: int, X: FloatArray) -> FloatArray:
+        """Numpy RK4 of points X (B, r, n) over interval k; columns (n, B r)."""
+        B, r, n = X.shape
+        t = self.prob.time
+        M = B * r
         x = np.ascontiguousarray(X.reshape(M, n).T)
         p = self._p(r)
-        h = (float(t[k + 1]) - float(t[k])) / self.m
+        t0, t1 = float(t[k]), float(t[k + 1])
+        h = (t1 - t0) / self.m
         hh = 0.5 * h
+        inside = _integrate._INSIDE * (t1 - t0)  # one-sided ends, as in _integrate.rk4
         nk = self.nodes[k]
         f = self.f
+        last = self.m - 1
         with np.errstate(all="ignore"):
             for j in range(self.m):
-                ta = float(t[k]) + j * h
+                ta = t0 + j * h
                 um = self._u(nk[2 * j + 1], M)
-                k1 = f(ta, x, self._u(nk[2 * j], M), p)
+                k1 = f(t0 + inside if j == 0 else ta, x, self._u(nk[2 * j], M), p)
                 k2 = f(ta + hh, x + hh * k1, um, p)
                 k3 = f(ta + hh, x + hh * k2, um, p)
-                k4 = f(ta + h, x + h * k3, self._u(nk[2 * j + 2], M), p)
+                tb = t1 - inside if j == last else ta + h
+                k4 = f(tb, x + h * k3, self._u(nk[2 * j + 2], M), p)
                 x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-        return np.ascontiguousarray(x.T.reshape(B, r, n))
+        out: FloatArray = x
+        return out
 
     def linear(self, k: int, x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Transition matrix and discrete process noise over interval k at the point x."""
@@ -887,11 +1106,20 @@ class _Measurer:
             self._rep[r] = {kk: np.repeat(v, r) for kk, v in self.params.items()}
         cols = np.ascontiguousarray(X.reshape(B * r, n).T)
         u = np.broadcast_to(self.prob.U[k][:, None], (self.prob.U.shape[1], B * r))
+        tk = float(self.prob.time[k])
         with np.errstate(all="ignore"):
-            vals = np.asarray(
-                self.h(float(self.prob.time[k]), cols, u, self._rep[r]), dtype=np.float64
+            vals = np.asarray(self.h(tk, cols, u, self._rep[r]), dtype=np.float64)
+        sel = vals[self.oi]
+        if not np.all(np.isfinite(sel)) and np.all(np.isfinite(cols)):
+            m = self.prob.model
+            bad = self.oi[int(np.argmax(~np.all(np.isfinite(sel), axis=1)))]
+            raise _Failure(
+                k,
+                f"the measurement of model {m.name!r} gave a non-finite output "
+                f"{m.output_names[bad]!r} at sample {k} (t = {tk:.6g} s)",
+                simulation=True,
             )
-        return vals[self.oi].T.reshape(B, r, len(self.oi))
+        return sel.T.reshape(B, r, len(self.oi))
 
     def linear(self, k: int, x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Predicted outputs (B, n_y) and the Jacobian H (B, n_y, n) at x."""
@@ -932,6 +1160,15 @@ def _general(
     n_t, n_y = prob.Y.shape
     Y = prob.Y
     prop = _Propagator(prob, params, Qc, B, lin)
+    if method == "ekf" and prop._cp is not None:
+        from ._ekf_compiled import ekf_pass
+
+        arrays = ekf_pass(
+            prob.model, prob.time, prob.U, prob.Y, prob.out_idx, params, Qc, R, x0, P0, prop.m
+        )
+        if arrays is not None:
+            ok_all = np.ones(B, dtype=bool)
+            return _Pass(*arrays, ok_all, np.full(B, -1, dtype=np.int64), 0)
     meas = _Measurer(prob, params, B, lin)
     stats = [0]
     xf = np.full((B, n_t, n), np.nan)
@@ -988,16 +1225,10 @@ def _general(
                 if not (np.all(np.isfinite(xpk)) and np.all(np.isfinite(Ppk))):
                     raise _Failure(k, "the predicted state or covariance is not finite")
                 L = _chol(Sk, k, "the innovation covariance is not positive definite", stats)
-                Kt = (
-                    scipy.linalg.cho_solve((L[0], True), np.swapaxes(PHt, 1, 2)[0])
-                    if B == 1
-                    else None
-                )
-                if Kt is None:
-                    Kt = np.linalg.solve(Sk, np.swapaxes(PHt, 1, 2))
-                    K = np.swapaxes(Kt, 1, 2)
-                else:
-                    K = Kt.T[None]
+                # S = L L' (L possibly jittered): K' = L'^-1 L^-1 (P H')'
+                Lt = np.swapaxes(L, 1, 2)
+                Kt = np.linalg.solve(Lt, np.linalg.solve(L, np.swapaxes(PHt, 1, 2)))
+                K = np.swapaxes(Kt, 1, 2)
                 v = Y[k] - yh
                 x = xpk + np.einsum("bij,bj->bi", K, v)
                 if H is not None:
@@ -1013,7 +1244,7 @@ def _general(
     except _Failure as exc:
         ok[:] = False
         fail[:] = exc.k
-        return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, stats[0], exc.what)
+        return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, stats[0], exc.what, exc.simulation)
     return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, stats[0])
 
 
@@ -1092,6 +1323,7 @@ def _sigma2(nu: FloatArray, S: FloatArray) -> float:
 # -----------------------------------------------------------------------------------
 
 
+@small_blas
 def filter_states(
     model: Any,
     data: FlightData,
@@ -1173,6 +1405,10 @@ def filter_states(
         message names the sample).
     ChannelError
         The data lacks a control or output channel.
+    SimulationError
+        The model's dynamics or measurement gave a non-finite value (the
+        message names the state or output and the samples); it is also a
+        `FilterError`.
     """
     if x0 is None:
         x0 = fitted_start(parameters, data)[0]
@@ -1197,6 +1433,8 @@ def filter_states(
     run = run_filter(prob, params, Qc[None], R[None], prob.x0[None], prob.P0[None])
     if not run.ok[0]:
         k = int(run.fail[0])
+        if run.simulation:
+            raise _ModelFailure(f"filter_states: {run.message}")
         why = run.message or "the estimate became non-finite"
         raise FilterError(
             f"filter_states: {why} at sample {k} (t = {prob.time[k]:.6g} s) even with diagonal "

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
+from ._threads import small_blas
 from .data import FlightData, check_symmetric, fingerprint, measured_start, plain, whole_number
 from .errors import IdentificationError
 
@@ -59,10 +60,12 @@ class IdentificationResult:
     initial_states : tuple of mapping
         Initial state per manoeuvre (estimated or fixed).
     biases : tuple of mapping
-        Per manoeuvre, the estimated output biases (empty when not estimated).
+        Per manoeuvre, the estimated biases (empty when not estimated): output
+        biases keyed by the output's name, state-equation biases (constants
+        added to a state's derivative) keyed ``"state.<name>"``.
     extra_stderr : mapping of str to float
         Standard errors of estimated initial states and biases, keyed
-        ``"x0[i].state"`` and ``"bias[i].output"``.
+        ``"x0[i].state"``, ``"bias[i].output"`` and ``"bias[i].state.<name>"``.
     residuals : tuple of ndarray
         Per manoeuvre, measured minus model outputs, shape (n_t, n_y).
     sigma2 : float or None
@@ -77,6 +80,16 @@ class IdentificationResult:
         and `infer`, given this result and one of those records, start from
         the state the fit used for it; other records start from their own
         measured state.
+    bounds : mapping of str to tuple of float
+        The bounds the fit used, ``name -> (lower, upper)`` with ``-inf`` /
+        ``inf`` for a side left open (empty when none were given).
+    active_bounds : mapping of str to str
+        Parameters that ended at a bound, ``name -> "lower"`` or ``"upper"``.
+        Their standard error is reported as 0 and their row and column of
+        `covariance` (and `covariance_white`) are zero: the error bars are
+        conditional on the bound, i.e. the other parameters' covariance is
+        that of a fit with these parameters held fixed at their bounds (the
+        information matrix without their rows and columns).
     """
 
     parameters: Mapping[str, float]
@@ -103,10 +116,22 @@ class IdentificationResult:
     process_noise: Mapping[str, float] = field(default_factory=dict)
     model_name: str = ""
     data_fingerprints: tuple[str, ...] = ()
+    bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    active_bounds: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "data_fingerprints", tuple(str(f) for f in self.data_fingerprints))
+        set_(
+            self,
+            "bounds",
+            ReadOnlyDict({str(k): (float(lo), float(hi)) for k, (lo, hi) in self.bounds.items()}),
+        )
+        set_(
+            self,
+            "active_bounds",
+            ReadOnlyDict({str(k): str(v) for k, v in self.active_bounds.items()}),
+        )
         set_(self, "parameters", frozen_mapping(self.parameters))
         set_(self, "stderr", frozen_mapping(self.stderr))
         set_(self, "fixed", frozen_mapping(self.fixed))
@@ -158,10 +183,27 @@ class IdentificationResult:
         for n in self.parameter_names:
             est = self.parameters[n]
             se = self.stderr[n]
-            rel = f"{100 * se / abs(est):.1f}%" if est != 0 and np.isfinite(se) else "—"
-            rows.append((n, fmt(est), fmt(se), rel))
-        table = markdown_table(("parameter", "estimate", "std. error", "rel. error"), rows)
+            at = self.active_bounds.get(n)
+            rel = f"{100 * se / abs(est):.1f}%" if est != 0 and np.isfinite(se) and not at else "—"
+            row = [n, fmt(est), fmt(se), rel]
+            if self.bounds:
+                if n in self.bounds:
+                    lo, hi = self.bounds[n]
+                    row.append(f"[{fmt(lo)}, {fmt(hi)}]" + (f" **at {at}**" if at else ""))
+                else:
+                    row.append("—")
+            rows.append(tuple(row))
+        header: tuple[str, ...] = ("parameter", "estimate", "std. error", "rel. error")
+        if self.bounds:
+            header = (*header, "bounds")
+        table = markdown_table(header, rows)
         notes = []
+        if self.active_bounds:
+            held = ", ".join(f"{n} ({side})" for n, side in self.active_bounds.items())
+            notes.append(
+                f"At a bound: {held}; held there, so its standard error is shown as 0 and "
+                "the others' are conditional on the bound."
+            )
         kind = (
             "corrected for coloured residuals"
             if self.error_bars == "colored"
@@ -179,7 +221,7 @@ class IdentificationResult:
 
 
 _METHODS = ("output_error", "filter_error")
-_GRADIENTS = ("fd", "jax")
+_GRADIENTS = ("auto", "fd", "jax")
 _ERROR_BARS = ("colored", "white")
 
 
@@ -331,17 +373,18 @@ def _weight_variances(weights: Any, outputs: list[str]) -> FloatArray:
     return np.diag(r).copy()
 
 
+@small_blas
 def identify(
     model: Any,
     data: FlightData | Sequence[FlightData],
     parameters: Sequence[str] | Mapping[str, float],
     *,
     method: str = "output_error",
-    gradient: str = "fd",
+    gradient: str = "auto",
     outputs: Sequence[str] | None = None,
     x0: Any = None,
     estimate_x0: bool | Sequence[str] = False,
-    estimate_bias: bool | Sequence[str] = False,
+    estimate_bias: bool | Sequence[str] | Mapping[str, Any] = False,
     weights: Mapping[str, float] | Any = None,
     error_bars: str = "colored",
     max_iterations: int = 50,
@@ -351,6 +394,7 @@ def identify(
     measurement_noise: Mapping[str, float] | Any = None,
     filter_options: Mapping[str, Any] | None = None,
     estimate_process_noise: bool | Sequence[str] = False,
+    bounds: Mapping[str, Any] | None = None,
 ) -> IdentificationResult:
     """Estimate model parameters from flight data.
 
@@ -364,21 +408,43 @@ def identify(
         their own initial states and biases.
     parameters : sequence of str or mapping of str to float
         Names to estimate (starting from the model's nominal values) or a dict
-        of name to initial guess. The others stay at their nominal values.
+        of name to initial guess. Every model parameter not named here is held
+        fixed at its nominal value (``model.parameters``) and reported in
+        ``result.fixed``; to fix a parameter at another value, build the model
+        with that nominal value.
     method : {"output_error", "filter_error"}
         Maximum-likelihood output error, or filter error (fits on whitened
         Kalman-filter innovations; needs `process_noise`).
-    gradient : {"fd", "jax"}
-        Finite-difference sensitivities (batched) or exact JAX Jacobians.
+    gradient : {"auto", "fd", "jax"}
+        ``"auto"``: exact forward-mode sensitivities of a compiled RK4 when the
+        model's numpy-written functions compile with JAX (nonlinear models),
+        else finite differences. ``"fd"``: finite-difference sensitivities
+        (batched). ``"jax"``: exact JAX Jacobians of functions written with
+        jax.numpy.
     outputs : sequence of str, optional
         Model outputs to fit; default every model output present in the data.
     x0 : mapping, array or list of them, optional
-        Initial state (per manoeuvre when a list); default the measured states
-        at the first sample and zero for unmeasured ones.
+        Initial state: a mapping of state to value or a vector of ``n_states``
+        numbers, used for every manoeuvre; or a list (or 2-D array) of one
+        such initial state per manoeuvre (``None`` entries for "measured").
+        A flat list of numbers is always read as one state vector shared by
+        every manoeuvre, even when its length also equals the number of
+        manoeuvres (``x0=[p0, r0]`` for two manoeuvres of a two-state model
+        is one state); only for a one-state model does a flat list of one
+        number per manoeuvre give each manoeuvre its own. Default: the
+        measured states at the first sample and zero for unmeasured ones.
     estimate_x0 : bool or sequence of str
         Estimate the initial value of these states (all when True), per manoeuvre.
-    estimate_bias : bool or sequence of str
-        Estimate a constant measurement bias on these outputs, per manoeuvre.
+    estimate_bias : bool, sequence of str or mapping of str to str
+        Estimate constant biases, per manoeuvre. True or a list of names:
+        measurement biases on those outputs (all fitted outputs when True).
+        A mapping ``name -> "output"`` or ``"state"`` (or a list of both)
+        chooses per name: ``"state"`` adds an estimated constant to that
+        state's derivative (``x_dot = f(t, x, u, p) + b``), as lateral models
+        use for unmodelled trims. State biases need a `Model` (not
+        ``gradient="jax"``); they are reported in ``result.biases[i]`` under
+        ``"state.<name>"`` and in `extra_stderr` as ``"bias[i].state.<name>"``.
+        `validate` and the other functions replay the model without them.
     weights : mapping of str to float or ndarray, optional
         Fixed output weights (inverse noise variances, positive) or a diagonal,
         positive definite noise covariance (correlated noise is refused, not
@@ -394,10 +460,25 @@ def identify(
         Convergence threshold on the relative parameter step.
     simulate_options : mapping, optional
         Integrator options (``method``, ``substeps``, ``rtol``, ``atol``).
+        With ``gradient="jax"`` (a fixed-step RK4 rollout) only ``substeps``
+        applies (RK4 steps per sample interval; default chosen from the
+        dynamics' stiffness); the others are refused.
     process_noise, measurement_noise, filter_options, estimate_process_noise
         Filter-error settings: continuous process-noise PSD per state,
         measurement-noise variances per output, filter options, and whether
         to estimate the process-noise intensities.
+    bounds : mapping of str to (float or None, float or None), optional
+        Lower and upper bounds on estimated parameters, ``None`` (or
+        ``-inf``/``inf``) for an open side, e.g. ``{"M_q": (None, 0.0)}``.
+        The fit is a bounded Gauss–Newton (output error) or
+        Levenberg–Marquardt (filter error): a parameter at a bound whose step
+        would leave the box is held there and dropped from that step's normal
+        equations (the active set), and steps are projected onto the box, so
+        every iterate satisfies the bounds. A parameter that ends at a bound
+        is listed in ``result.active_bounds``; its standard error is reported
+        as 0 and the other parameters' covariance is conditional on the bound
+        (computed with it held fixed). The initial value of a bounded
+        parameter must lie inside its bounds (a bound itself is allowed).
 
     Returns
     -------
@@ -406,7 +487,10 @@ def identify(
     Raises
     ------
     IdentificationError
-        Bad arguments, incompatible options, no more measurements (samples
+        Bad arguments (among them bounds on a name that is not an estimated
+        parameter, a lower bound not below the upper one, a NaN bound, or an
+        initial value outside its bounds), incompatible options, no more
+        measurements (samples
         times outputs, over all records) than unknowns (parameters, estimated
         initial states, biases and noise intensities), or a model that cannot
         be simulated, or a cost that is not finite, at the initial guess.
@@ -457,11 +541,8 @@ def identify(
         d.require(model.controls, role="control")
         d.require(fit_outputs, role="output")
     states = list(getattr(model, "states", ()))
-    # Initial states per manoeuvre.
-    if isinstance(x0, (list, tuple)) and len(x0) == len(datas) and len(datas) > 1:
-        x0_list = list(x0)
-    else:
-        x0_list = [x0] * len(datas)
+    box = _check_bounds(bounds, model, names, initial)
+    x0_list = _x0_per_manoeuvre(x0, len(datas), states)
     x0_dicts: list[dict[str, float]] = []
     for d, xi in zip(datas, x0_list, strict=True):
         if xi is None:
@@ -485,6 +566,11 @@ def identify(
             )
         if gradient == "jax":
             raise IdentificationError("gradient='jax' is available for output error only")
+        if estimate_x0 or estimate_bias:
+            raise IdentificationError(
+                "estimate_x0 and estimate_bias apply to method='output_error' only; the "
+                "filter-error method corrects the states through its Kalman filter"
+            )
         if process_noise is None and not estimate_process_noise:
             raise IdentificationError(
                 "filter error needs process_noise (continuous PSD per state) or "
@@ -518,6 +604,7 @@ def identify(
             x0=x0_dicts if x0 is not None else None,
             max_iterations=max_iterations,
             tolerance=tol,
+            bounds=box,
         )
         return _finish(fitted, datas)
     if (
@@ -535,6 +622,10 @@ def identify(
             "gradient='jax' needs a continuous dynamics callable written with jax.numpy; "
             "use gradient='fd' for a stepped simulator"
         )
+    if simulate_options is not None and not isinstance(simulate_options, Mapping):
+        raise IdentificationError(
+            f"simulate_options: expected a dict, got {type(simulate_options).__name__}"
+        )
     opts = dict(simulate_options or {})
     from ._output_error import SIMULATE_OPTIONS, fit_output_error
 
@@ -543,12 +634,31 @@ def identify(
         raise IdentificationError(
             f"simulate_options: unknown keys {unknown_opts}; valid keys are {list(SIMULATE_OPTIONS)}"
         )
-    if not is_simulator:
+    if gradient == "jax":
+        # The JAX path is one fixed-step RK4 rollout: only its substep count applies.
+        refused = sorted(set(opts) - {"substeps"})
+        if refused:
+            raise IdentificationError(
+                f"simulate_options {refused} do not apply to gradient='jax', whose simulation "
+                "is a fixed-step RK4 rollout; only 'substeps' does (or use gradient='fd')"
+            )
+        if opts.get("substeps") is None:
+            opts.pop("substeps", None)
+        else:
+            opts["substeps"] = whole_number(
+                opts["substeps"], "simulate_options['substeps']", IdentificationError
+            )
+    elif not is_simulator:
         opts.setdefault("method", "auto")
     sel_x0 = _select(estimate_x0, states, "estimate_x0")
     if sel_x0 and (is_simulator or gradient == "jax"):
         raise IdentificationError("estimate_x0 needs a Model and gradient='fd'")
-    sel_bias = _select(estimate_bias, fit_outputs, "estimate_bias")
+    sel_bias, state_bias = _bias_choice(estimate_bias, fit_outputs, states)
+    if state_bias and (is_simulator or not hasattr(model, "dynamics") or gradient == "jax"):
+        raise IdentificationError(
+            f"estimate_bias: biases on the state equations {state_bias} need a Model (a "
+            "dynamics callable), and gradient='auto' or 'fd'"
+        )
     w_arr = None if weights is None else _weight_variances(weights, fit_outputs)
     _check_data_count(
         datas,
@@ -556,17 +666,18 @@ def identify(
         {
             "parameters": len(names),
             "initial states": len(sel_x0) * len(datas),
-            "biases": len(sel_bias) * len(datas),
+            "biases": (len(sel_bias) + len(state_bias)) * len(datas),
         },
     )
+    fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
     fitted = fit_output_error(
-        model,
+        fit_model,
         datas,
         names,
         initial,
         outputs=fit_outputs,
         x0=x0_dicts,
-        estimate_x0=sel_x0,
+        estimate_x0=sel_x0 + bias_states,
         estimate_bias=sel_bias,
         weights=w_arr,
         error_bars=error_bars,
@@ -574,8 +685,241 @@ def identify(
         tolerance=tol,
         simulate_options=opts,
         gradient=gradient,
+        bounds=box,
     )
+    if state_bias:
+        fitted = _state_biases_out(fitted, bias_states, state_bias)
     return _finish(fitted, datas)
+
+
+_STATE_BIAS_PREFIX = "bias."
+
+
+def _bias_choice(option: Any, outputs: list[str], states: list[str]) -> tuple[list[str], list[str]]:
+    """(output biases, state-equation biases) from `estimate_bias` (see `identify`)."""
+    if not isinstance(option, Mapping):
+        return _select(option, outputs, "estimate_bias"), []
+    on_outputs: list[str] = []
+    on_states: list[str] = []
+    for name, kind in option.items():
+        if isinstance(kind, str):
+            kinds = [kind]
+        else:
+            try:
+                kinds = list(kind)
+            except TypeError:
+                kinds = [kind]
+        for k in kinds:
+            if k == "output":
+                if name not in outputs:
+                    raise IdentificationError(
+                        f"estimate_bias: {name!r} is not a fitted output; fitted outputs: {outputs}"
+                    )
+                if name not in on_outputs:
+                    on_outputs.append(name)
+            elif k == "state":
+                if name not in states:
+                    raise IdentificationError(
+                        f"estimate_bias: {name!r} is not a state of the model; states: {states}"
+                    )
+                if name not in on_states:
+                    on_states.append(name)
+            else:
+                raise IdentificationError(
+                    f"estimate_bias[{name!r}]: expected 'output' or 'state', got {plain(k)}"
+                )
+    return on_outputs, on_states
+
+
+def _with_state_biases(model: Any, biased: list[str]) -> tuple[Any, list[str]]:
+    """The model with one constant state per biased state equation: ``b' = 0`` and
+    ``x_k' = f_k + b``.
+
+    The biases are then the initial values of those states, estimated per
+    manoeuvre by the initial-state machinery (each manoeuvre's simulations
+    carry only its own bias columns).
+    """
+    import dataclasses
+
+    from .model import Model
+
+    states = list(model.states)
+    n = len(states)
+    taken = set(states) | set(model.controls) | set(model.output_names)
+    extra: list[str] = []
+    for s in biased:
+        name = _STATE_BIAS_PREFIX + s
+        while name in taken:
+            name = "_" + name
+        taken.add(name)
+        extra.append(name)
+    f = model.dynamics
+    h = model.measurement
+
+    # Functional form (no in-place update) so that a compiled path can trace it.
+    select = np.zeros((n, len(biased)))
+    select[[states.index(s) for s in biased], np.arange(len(biased))] = 1.0
+
+    def dynamics(t: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
+        xd = np.reshape(np.asarray(f(t, x[:n], u, p), dtype=np.float64), (n, *np.shape(x)[1:]))
+        b = x[n:]
+        return np.concatenate([xd + select @ b, np.zeros_like(b)], axis=0)
+
+    def measurement(t: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
+        assert h is not None
+        return h(t, x[:n], u, p)
+
+    kwargs: dict[str, Any] = {}
+    init_fields = {fl.name for fl in dataclasses.fields(Model) if fl.init}
+    for key in ("version", "linear"):  # carried over where this version has them
+        if key in init_fields and hasattr(model, key):
+            kwargs[key] = getattr(model, key)
+    wrapped = Model(
+        states=[*states, *extra],
+        controls=list(model.controls),
+        parameters=dict(model.parameters),
+        dynamics=dynamics,
+        outputs=list(model.output_names),
+        measurement=None if h is None else measurement,
+        name=model.name,
+        **kwargs,
+    )
+    return wrapped, extra
+
+
+def _state_biases_out(
+    fitted: IdentificationResult, extra: list[str], biased: list[str]
+) -> IdentificationResult:
+    """Report the bias states of `_with_state_biases` as state-equation biases."""
+    initial = []
+    biases = []
+    for xs, bs in zip(fitted.initial_states, fitted.biases, strict=True):
+        xs = dict(xs)
+        bs = dict(bs)
+        for name, s in zip(extra, biased, strict=True):
+            bs[f"state.{s}"] = xs.pop(name)
+        initial.append(xs)
+        biases.append(bs)
+    rename = {}
+    for i in range(len(fitted.initial_states)):
+        for name, s in zip(extra, biased, strict=True):
+            rename[f"x0[{i}].{name}"] = f"bias[{i}].state.{s}"
+    moved = {rename[k]: v for k, v in fitted.extra_stderr.items() if k in rename}
+    kept = {k: v for k, v in fitted.extra_stderr.items() if k not in rename}
+    return replace(
+        fitted,
+        initial_states=tuple(initial),
+        biases=tuple(biases),
+        extra_stderr={**kept, **moved},
+    )
+
+
+def _bound_value(value: Any, name: str, side: str, default: float) -> float:
+    if value is None:
+        return default
+    if isinstance(value, bool):
+        v = float("nan")
+    else:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = float("nan")
+    if np.isnan(v):
+        raise IdentificationError(
+            f"bounds[{name!r}]: the {side} bound must be a number, None or ±inf, got {plain(value)}"
+        )
+    return v
+
+
+def _check_bounds(
+    bounds: Any, model: Any, names: list[str], initial: Mapping[str, float]
+) -> dict[str, tuple[float, float]]:
+    """Validated bounds ``name -> (lower, upper)`` with ±inf for open sides (see `identify`)."""
+    if bounds is None:
+        return {}
+    if not isinstance(bounds, Mapping):
+        raise IdentificationError(
+            "bounds: expected a dict of parameter name -> (lower, upper), with None for an "
+            f"open side, got {type(bounds).__name__}"
+        )
+    box: dict[str, tuple[float, float]] = {}
+    for name, pair in bounds.items():
+        if name not in model.parameters:
+            raise IdentificationError(
+                f"bounds: {name!r} is not a parameter of model {model.name!r}; its parameters "
+                f"are {sorted(model.parameters)}"
+            )
+        if name not in names:
+            raise IdentificationError(
+                f"bounds: {name!r} is not estimated (it stays fixed at its nominal value "
+                f"{float(model.parameters[name]):.6g}); add it to the parameters to estimate or "
+                "drop its bounds"
+            )
+        items: list[Any] | None
+        if isinstance(pair, (str, bytes, Mapping)):
+            items = None
+        else:
+            try:
+                items = list(pair)
+            except TypeError:
+                items = None
+        if items is None or len(items) != 2:
+            raise IdentificationError(
+                f"bounds[{name!r}]: expected (lower, upper) with None for an open side, "
+                f"got {plain(pair)}"
+            )
+        lo = _bound_value(items[0], name, "lower", -np.inf)
+        hi = _bound_value(items[1], name, "upper", np.inf)
+        if not lo < hi or lo == np.inf or hi == -np.inf:
+            raise IdentificationError(
+                f"bounds[{name!r}]: the lower bound {lo:.6g} must be below the upper bound {hi:.6g}"
+            )
+        start = float(initial[name])
+        if not lo <= start <= hi:
+            raise IdentificationError(
+                f"bounds[{name!r}]: the initial value {start:.6g} lies outside [{lo:.6g}, "
+                f"{hi:.6g}]; give an initial guess inside the bounds "
+                f"(parameters={{{name!r}: ...}})"
+            )
+        box[name] = (lo, hi)
+    return box
+
+
+def _is_state_entry(entry: Any) -> bool:
+    """True for what can only be one manoeuvre's whole initial state (not a number)."""
+    return entry is None or isinstance(entry, Mapping) or np.ndim(entry) >= 1
+
+
+def _x0_per_manoeuvre(x0: Any, n_man: int, states: list[str]) -> list[Any]:
+    """One initial-state specification per manoeuvre from `x0` (see `identify`)."""
+    if isinstance(x0, np.ndarray) and x0.ndim == 2 and x0.shape[0] == n_man:
+        return list(x0)
+    if isinstance(x0, np.ndarray) and x0.ndim == 1:
+        x0 = x0.tolist()
+    if not isinstance(x0, (list, tuple)) or not x0:
+        return [x0] * n_man
+    entries = list(x0)
+    if all(_is_state_entry(e) for e in entries):
+        if len(entries) == n_man:
+            return entries
+        if all(isinstance(e, Mapping) or e is None for e in entries):
+            raise IdentificationError(
+                f"x0: got a list of {len(entries)} initial states for {n_man} manoeuvre(s); "
+                "give one per manoeuvre, or one mapping or state vector for all"
+            )
+        return [x0] * n_man
+    if any(_is_state_entry(e) for e in entries):
+        return [x0] * n_man  # a mixture: reported as a bad state vector below
+    # A flat list of numbers: one state vector shared by every manoeuvre.
+    if len(entries) == len(states):
+        return [x0] * n_man
+    if len(states) == 1 and len(entries) == n_man:
+        return [[e] for e in entries]
+    per = f", or a list of {n_man} initial states (one per manoeuvre)" if n_man > 1 else ""
+    raise IdentificationError(
+        f"x0: got {len(entries)} numbers; expected {len(states)} values for states {states} "
+        f"(read as one initial state for every manoeuvre){per}"
+    )
 
 
 def _check_data_count(
@@ -606,7 +950,9 @@ def _finish(fitted: IdentificationResult, datas: list[FlightData]) -> Identifica
             "check the data's scale and units"
         )
         warnings.warn(
-            f"identify: {message}; the result is flagged success=False", UserWarning, stacklevel=3
+            f"identify: {message}; the result is flagged success=False",
+            UserWarning,
+            stacklevel=4,  # _finish, identify, its BLAS wrapper, the caller
         )
         fitted = replace(fitted, success=False, message=message)
     return replace(fitted, data_fingerprints=tuple(fingerprint(d) for d in datas))

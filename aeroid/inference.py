@@ -33,8 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._threads import small_blas
 from .data import FlightData, measured_start
-from .errors import InferenceError
+from .errors import InferenceError, SimulationError
 from .model import Model, fitted_start, require_model
 from .priors import LogUniform, Prior
 from .sampler import (
@@ -328,6 +329,14 @@ def _max_finite(values: Mapping[str, float]) -> str:
 # -- the problem ------------------------------------------------------------------------------
 
 
+class _StartFailure(SimulationError, InferenceError):
+    """The model gives non-finite values at the starting point of the walkers.
+
+    A `SimulationError` like every such failure, and an `InferenceError` as
+    `infer` raised before for a start where every simulation failed.
+    """
+
+
 class _Posterior:
     """Log-posterior of a batch of parameter vectors for one model and record."""
 
@@ -572,6 +581,23 @@ class _Posterior:
         return np.where(np.isfinite(lp), lp, -np.inf)
 
     # -- starting points --------------------------------------------------------------------
+    def require_simulates(self, center: FloatArray) -> None:
+        """Raise `SimulationError` (naming the state or output and the time) when the
+        model gives non-finite values at the starting point; a walker elsewhere that
+        fails is only a rejected point."""
+        if not self.batched:
+            return
+        values = {n: np.array([center[i]]) for n, i in self.model_cols}
+        res = self.model.simulate_batch(
+            self.time, self.controls, self.x0, values, **{"method": "auto", **self.options}
+        )
+        if not res.ok[0]:
+            start = {n: float(center[i]) for n, i in self.model_cols}
+            raise _StartFailure(
+                f"infer: model {self.model.name!r} cannot be simulated at the starting point "
+                f"{start}: {res.failure[0]}"
+            )
+
     def residual_rms(self, values: Mapping[str, float]) -> FloatArray:
         """RMS residual per output at one parameter set (NaN where the simulation fails)."""
         params = {n: np.array([values[n]]) for n, _ in self.model_cols}
@@ -786,6 +812,7 @@ def _run(
         entropy, key = _identity(ss)
         post._jax_batch = nw // 2  # every batch the sampler scores has this size
         center, sqrt_cov = post.start_ball(initial)
+        post.require_simulates(center)
         x, lp = post.draw_start(_stream(entropy, key, INIT_TAG), nw, center, sqrt_cov)
         if not np.any(np.isfinite(lp)):
             cause = f"; last simulation error: {post.last_error}" if post.last_error else ""
@@ -913,6 +940,7 @@ def infer_ensemble(
     )
 
 
+@small_blas
 def infer(
     model: Any,
     data: FlightData,
@@ -1074,7 +1102,7 @@ def infer(
         )
         for e in range(n_ensembles)
     ]
-    return _combine(runs, stacklevel=3)
+    return _combine(runs, stacklevel=4)  # _combine, infer, its BLAS wrapper, the caller
 
 
 def combine_ensembles(runs: Sequence[EnsembleRun], *, warn: bool = True) -> InferenceResult:

@@ -38,7 +38,8 @@ def simulate_rk4(
     time : array_like, shape (n_t,)
         Strictly increasing sample times; the states land exactly on them.
     controls : array_like, mapping or FlightData, optional
-        Control samples, shape (n_t, n_controls); default zero.
+        Control samples, shape (n_t, n_controls); required when the model has
+        controls (a missing control raises `ChannelError`).
     x0 : array_like or mapping, optional
         Initial state; default zero.
     parameters : mapping or result, optional

@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
 from ._records import ReadOnlyDict, fmt, markdown_table
+from ._threads import small_blas
 from .data import FlightData, _readonly, fingerprint, measured_start, plain
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
@@ -220,8 +221,10 @@ class BatchSimulation:
     """Trajectories of a batch of parameter vectors.
 
     ``states`` (batch, n_t, n_states), ``outputs`` (batch, n_t, n_outputs),
-    ``ok`` marks members that integrated to the end with finite values, and
-    ``fail_time`` gives the first non-finite time of the others (NaN if ok).
+    ``ok`` marks members that integrated to the end with finite values,
+    ``fail_time`` gives the first non-finite time of the others (NaN if ok)
+    and ``failure`` says, per member, which state or output failed and when
+    (empty if ok).
     """
 
     time: FloatArray
@@ -229,6 +232,7 @@ class BatchSimulation:
     outputs: FloatArray
     ok: NDArray[np.bool_]
     fail_time: FloatArray
+    failure: tuple[str, ...] = ()
 
 
 @runtime_checkable
@@ -301,12 +305,30 @@ class Model:
     version : str, optional
         A label the pipeline folds into the model's fingerprint; change it to
         invalidate cached results when behaviour changes without a source change.
+    linear : bool, optional
+        Whether the model is linear time-invariant: dynamics (and measurement,
+        when given) affine in state and control, ``A x + B u + c``, with
+        coefficients that depend on the parameters but not on time.
+        ``None`` (default): find out. The exact matrix-exponential solution
+        is then used only when that form is shown, for every parameter vector
+        of a batch, at every sample time of the record; anything else (a
+        forcing that switches off, a scheduled gain, a nonlinear term) is
+        integrated numerically. ``True``: declare it; the form is verified once
+        here, at the nominal parameters and near them, and then trusted, which
+        skips the per-record check. ``False``: always integrate numerically.
 
     Raises
     ------
     ModelDefinitionError
-        Bad names, or dynamics/measurement that fail or return the wrong shape
-        when probed at the nominal parameters.
+        Bad names, dynamics/measurement that fail or return the wrong shape
+        when probed at the nominal parameters, or ``linear=True`` for a model
+        that is not linear time-invariant.
+
+    Notes
+    -----
+    A dynamics or measurement function that raises, or returns the wrong
+    number of values, during a simulation is reported as a `SimulationError`
+    (`ModelDefinitionError` for the wrong shape) naming the model and the time.
     """
 
     states: Sequence[str]
@@ -317,6 +339,7 @@ class Model:
     measurement: Dynamics | None = None
     name: str = "model"
     version: str | None = None
+    linear: bool | None = None
     _dynamics_batch: _integrate.BatchFunction = field(init=False, repr=False, compare=False)
     _measurement_batch: _integrate.BatchFunction | None = field(
         init=False, repr=False, compare=False
@@ -374,18 +397,66 @@ class Model:
         object.__setattr__(self, "outputs", outputs)
         object.__setattr__(self, "parameters", ReadOnlyDict(params))
         names = tuple(params)
+        if self.linear is not None and not isinstance(self.linear, (bool, np.bool_)):
+            raise ModelDefinitionError(
+                f"linear: expected True, False or None, got {plain(self.linear)}"
+            )
+        object.__setattr__(self, "linear", None if self.linear is None else bool(self.linear))
         object.__setattr__(
-            self, "_dynamics_batch", _integrate.BatchFunction(self.dynamics, len(states), names)
+            self,
+            "_dynamics_batch",
+            _integrate.BatchFunction(
+                self.dynamics, len(states), names, role="dynamics", model_name=self.name
+            ),
         )
         object.__setattr__(
             self,
             "_measurement_batch",
             None
             if self.measurement is None
-            else _integrate.BatchFunction(self.measurement, len(outputs), names),
+            else _integrate.BatchFunction(
+                self.measurement, len(outputs), names, role="measurement", model_name=self.name
+            ),
         )
-        object.__setattr__(self, "_maybe_lti", True)
+        object.__setattr__(self, "_maybe_lti", self.linear is not False)
         self._probe()
+        if self.linear:
+            self._verify_linear()
+
+    def _verify_linear(self) -> None:
+        """Check a declared-linear model once: affine, time-invariant, near the nominal values.
+
+        A parameter can make a nonlinear term vanish at its nominal value (a
+        zero coefficient), so the form is also checked a little away from it.
+        """
+        nominal = np.array(list(self.parameters.values()), dtype=np.float64)
+        rng = np.random.default_rng(0)
+        near = nominal * (1.0 + 0.1 * rng.uniform(-1.0, 1.0, (2, nominal.size)))
+        near = near + np.where(nominal == 0.0, 0.1, 0.0) * rng.uniform(0.5, 1.0, near.shape)
+        # times up to 1000 s: a switch, a schedule or a t-term shows within them
+        times = np.array([0.0, 0.3, 1.1, 2.6, 5.3, 12.7, 31.4, 97.0, 310.0, 1000.0])
+        for role, fun in (
+            ("dynamics", self._dynamics_batch),
+            ("measurement", self._measurement_batch),
+        ):
+            if fun is None:
+                continue
+            for rows, must_evaluate in ((nominal[None], True), (near, False)):
+                p = {k: rows[:, j].copy() for j, k in enumerate(self.parameters)}
+                mats, not_lti = _integrate.lti_form(fun, times, self.n_states, self.n_controls, p)
+                if not_lti:
+                    where = "at" if must_evaluate else "near"
+                    raise ModelDefinitionError(
+                        f"model {self.name!r} is declared linear=True, but its {role} is not "
+                        f"affine in state and control with time-invariant coefficients {where} "
+                        "the nominal parameters; leave linear unset to let AeroID find out"
+                    )
+                if mats is None and must_evaluate:
+                    raise ModelDefinitionError(
+                        f"model {self.name!r} is declared linear=True, but its {role} could not "
+                        "be evaluated (an exception or a non-finite value) at the states, "
+                        "controls and times used to verify it"
+                    )
 
     def _probe(self) -> None:
         x = np.zeros(self.n_states)
@@ -464,7 +535,13 @@ class Model:
         """Normalise controls to shape (batch, n_t, n_controls)."""
         n_t = time.size
         if controls is None:
-            return np.zeros((1, n_t, self.n_controls))
+            if self.n_controls:
+                # Zeros in place of a forgotten input would simulate a different flight.
+                raise ChannelError(
+                    f"model {self.name!r}: controls {list(self.controls)} not given "
+                    "(controls=None); pass them as an array, a mapping or FlightData"
+                )
+            return np.zeros((1, n_t, 0))
         if isinstance(controls, FlightData):
             controls.require(self.controls, role="control")
             return controls.array(list(self.controls))[None, :, :].astype(np.float64)
@@ -529,16 +606,33 @@ class Model:
         U = np.broadcast_to(u, (batch, n_t, self.n_controls)).reshape(batch * n_t, -1).T
         T = np.tile(time, batch)
         P = {k: np.repeat(v, n_t) for k, v in p.items()}
-        h = self._measurement_batch
         with np.errstate(all="ignore"):
-            try:
-                Y = h(T, X, U, P)
-                if Y.shape != (self.n_outputs, batch * n_t):
-                    raise ValueError
-            except Exception:
-                Y = h._loop(T, X, U, P)
+            Y = self._measurement_batch.at_times(
+                T, np.ascontiguousarray(X), np.ascontiguousarray(U), P
+            )
         return np.ascontiguousarray(Y.T.reshape(batch, n_t, self.n_outputs))
 
+    def _failure(
+        self, time: FloatArray, states: FloatArray, outputs: FloatArray, solver_time: float
+    ) -> tuple[float, str]:
+        """When and where one member's simulation failed: states (n_t, n_x), outputs (n_t, n_y)."""
+        bad_x = ~np.isfinite(states)
+        bad_y = ~np.isfinite(outputs)
+        kx = int(np.argmax(bad_x.any(axis=1))) if bad_x.any() else time.size
+        ky = int(np.argmax(bad_y.any(axis=1))) if bad_y.any() else time.size
+        if kx < time.size and kx <= ky:
+            j = int(np.argmax(bad_x[kx]))
+            return float(time[kx]), (
+                f"state {self.states[j]!r} is not finite at t = {time[kx]:.6g} s"
+            )
+        if ky < time.size:
+            j = int(np.argmax(bad_y[ky]))
+            return float(time[ky]), (
+                f"output {self.output_names[j]!r} is not finite at t = {time[ky]:.6g} s"
+            )
+        return solver_time, f"the solver failed at t = {solver_time:.6g} s"
+
+    @small_blas
     def simulate_batch(
         self,
         time: ArrayLike,
@@ -564,8 +658,10 @@ class Model:
             Each entry a scalar or a (batch,) array; missing parameters take
             their nominal values.
         method : str
-            ``"auto"`` (exact for linear time-invariant dynamics, else RK4),
-            ``"exact"``, ``"rk4"``, or a `scipy.integrate.solve_ivp` method.
+            ``"auto"`` (exact for dynamics shown linear time-invariant at
+            every sample time of `time`, for every member, or declared so with
+            ``linear=True``; else RK4), ``"exact"``, ``"rk4"``, or a
+            `scipy.integrate.solve_ivp` method.
         substeps : int, optional
             RK4 steps per sample interval (default: from the dynamics' stiffness).
 
@@ -603,8 +699,15 @@ class Model:
         )
         outputs = self._outputs(t, traj.states, U, p)
         ok = traj.ok & np.all(np.isfinite(outputs), axis=(1, 2))
-        return BatchSimulation(t, traj.states, outputs, ok, traj.fail_time)
+        fail_time = np.array(traj.fail_time, dtype=np.float64)
+        failure = [""] * batch
+        for b in np.flatnonzero(~ok).tolist():
+            fail_time[b], failure[b] = self._failure(
+                t, traj.states[b], outputs[b], float(traj.fail_time[b])
+            )
+        return BatchSimulation(t, traj.states, outputs, ok, fail_time, tuple(failure))
 
+    @small_blas
     def simulate(
         self,
         time: ArrayLike,
@@ -624,7 +727,8 @@ class Model:
         time : array_like, shape (n_t,)
             Strictly increasing sample times.
         controls : array_like, mapping or FlightData, optional
-            Control samples (interpolated piecewise-linearly); default zero.
+            Control samples (interpolated piecewise-linearly); required when the
+            model has controls: a missing control raises `ChannelError`.
         x0 : array_like or mapping, optional
             Initial state; default zero.
         parameters : mapping or result, optional
@@ -653,10 +757,7 @@ class Model:
             time, controls, x0, p, method=method, substeps=substeps, rtol=rtol, atol=atol
         )
         if not res.ok[0]:
-            raise SimulationError(
-                f"simulation of model {self.name!r} failed (non-finite or solver failure) "
-                f"at t = {res.fail_time[0]:.6g} s"
-            )
+            raise SimulationError(f"simulation of model {self.name!r} failed: {res.failure[0]}")
         u = self.control_array(res.time, controls)[0]
         return SimulationResult(
             res.time,

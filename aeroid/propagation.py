@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
+from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import plain, whole_number
 from .errors import AeroidError
 
@@ -18,6 +20,7 @@ __all__ = [
     "BLOCK_SIZE",
     "PropagationBatch",
     "PropagationResult",
+    "VectorPropagationResult",
     "combine_batches",
     "draw_parameters",
     "propagate",
@@ -25,6 +28,9 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+#: More failed draws than this fraction of all draws are reported by a warning.
+FAILURE_WARNING_FRACTION = 0.01
 
 #: Draws are generated in blocks of this size, block b from
 #: ``SeedSequence(seed, spawn_key=(b,))``, so the samples do not depend on how
@@ -83,6 +89,76 @@ class PropagationResult:
         note = f"{self.n_samples - self.n_failed} of {self.n_samples} draws ({self.source})"
         if self.n_failed:
             note += f"; {self.n_failed} failed and are excluded"
+        return text + "\n\n" + note + "."
+
+
+@dataclass(frozen=True, eq=False)
+class VectorPropagationResult:
+    """Distribution of a metric with several values: one `PropagationResult` per component.
+
+    A metric returning a sequence or 1-D array gives components named
+    ``"<metric>[0]"``, ``"<metric>[1]"``... (``<metric>`` is the function's
+    name, ``metric`` for a lambda); one returning a mapping gives its keys.
+    ``result["name"]`` is that component's `PropagationResult`.
+
+    Attributes
+    ----------
+    components : mapping of str to PropagationResult
+        In the metric's order. A component's ``n_failed`` counts the draws
+        where the metric raised or that component was not finite.
+    values : ndarray, shape (n_samples, n_components)
+        Every draw's values, NaN where the draw failed (for the joint
+        distribution of the components).
+    n_samples : int
+        Draws attempted.
+    n_failed : int
+        Draws where the metric raised, returned another shape, or returned a
+        non-finite value in any component.
+    seed : int or None
+    source : str
+        ``"covariance"`` or ``"posterior"``, as in `PropagationResult`.
+    """
+
+    components: Mapping[str, PropagationResult]
+    values: FloatArray
+    n_samples: int
+    n_failed: int
+    seed: int | None
+    source: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "components", MappingProxyType(dict(self.components)))
+        object.__setattr__(self, "values", frozen_array(self.values))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Component names, in the metric's order."""
+        return tuple(self.components)
+
+    def __getitem__(self, name: str) -> PropagationResult:
+        try:
+            return self.components[name]
+        except KeyError:
+            raise PropagationError(
+                f"no component {name!r}; components: {list(self.components)}"
+            ) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.components
+
+    def summary(self) -> str:
+        """Markdown table: one row per component."""
+        first = next(iter(self.components.values()))
+        keys = list(first.percentiles)
+        rows = [
+            (name, fmt(r.mean), fmt(r.std), *(fmt(r.percentiles[k]) for k in keys))
+            for name, r in self.components.items()
+        ]
+        text = markdown_table(("component", "mean", "std", *keys), rows)
+        good = self.n_samples - self.n_failed
+        note = f"{good} of {self.n_samples} draws complete ({self.source})"
+        if self.n_failed:
+            note += f"; {self.n_failed} failed in some component and are excluded there"
         return text + "\n\n" + note + "."
 
 
@@ -146,22 +222,31 @@ class PropagationBatch:
     ----------
     start : int
         Index of the batch's first draw in the stream.
-    values : ndarray
+    values : ndarray, shape (n,) or (n, n_components)
         Metric value of each draw; NaN where the metric raised or returned a
-        non-finite value.
+        non-finite value. Two-dimensional for a metric with several values
+        (see `VectorPropagationResult`).
     seed : int
     source : str
         ``"covariance"`` or ``"posterior"``, as in `PropagationResult`.
+    names : tuple of str
+        Component names of a metric with several values; empty for a scalar
+        metric (or when no draw of the batch succeeded).
+    first_error : str
+        What the metric raised or returned at the batch's first failed draw.
     """
 
     start: int
     values: FloatArray
     seed: int
     source: str
+    names: tuple[str, ...] = ()
+    first_error: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", int(self.start))
         object.__setattr__(self, "values", frozen_array(self.values))
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
 
     @property
     def stop(self) -> int:
@@ -170,7 +255,7 @@ class PropagationBatch:
 
     def summary(self) -> str:
         """One line: which draws, how many failed."""
-        failed = int(np.sum(~np.isfinite(self.values)))
+        failed = int(np.sum(~_complete(self.values)))
         return (
             f"draws {self.start}-{self.stop} of seed {self.seed} ({self.source}), {failed} failed"
         )
@@ -184,9 +269,55 @@ def _check_seed(seed: Any) -> int:
     return int(seed)
 
 
+def _metric_name(func: Any) -> str:
+    name = getattr(func, "__name__", "")
+    return name if isinstance(name, str) and name.isidentifier() else "metric"
+
+
+class _Shape:
+    """What the metric returns, learnt from its first successful draw."""
+
+    def __init__(self, func: Any) -> None:
+        self.func_name = _metric_name(func)
+        self.names: tuple[str, ...] | None = None  # None: not yet known; (): a scalar
+
+    def convert(self, out: Any) -> float | FloatArray:
+        """The draw's value(s), or ValueError naming what does not fit."""
+        if type(out) is float:  # the common case, first
+            got: tuple[str, ...] = ()
+            value: float | FloatArray = out
+        elif isinstance(out, Mapping):
+            got = tuple(out)
+            if not got or not all(isinstance(k, str) for k in got):
+                raise ValueError(f"a mapping needs string keys, got {list(out)!r}")
+            value = np.array([float(out[k]) for k in got])
+        else:
+            arr = np.asarray(out, dtype=np.float64)
+            if arr.ndim == 0:
+                got, value = (), float(arr)
+            elif arr.ndim == 1 and arr.size:
+                got = tuple(f"{self.func_name}[{i}]" for i in range(arr.size))
+                value = arr
+            else:
+                raise ValueError(f"expected a number or a 1-D sequence, got shape {arr.shape}")
+        if self.names is None:
+            self.names = got
+        elif got != self.names:
+            raise ValueError(
+                f"returned {list(got) or 'a number'} after {list(self.names) or 'a number'}"
+            )
+        return value
+
+
+def _complete(values: FloatArray) -> NDArray[np.bool_]:
+    """Draws whose every value is finite."""
+    ok = np.isfinite(values)
+    return ok if ok.ndim == 1 else np.all(ok, axis=1)
+
+
 def propagate_batch(
     result: Any,
-    func: Callable[[dict[str, float]], float],
+    func: Callable[[dict[str, float]], Any],
     *,
     start: int,
     n_samples: int,
@@ -200,7 +331,8 @@ def propagate_batch(
     result : IdentificationResult or InferenceResult
         As in `propagate`.
     func : callable
-        ``func(parameters: dict) -> float``.
+        ``func(parameters: dict) -> float``, or a sequence or mapping of
+        floats (see `propagate`).
     start : int
         Index of the batch's first draw in the stream of `seed`.
     n_samples : int
@@ -221,28 +353,42 @@ def propagate_batch(
     seed = _check_seed(seed)
     names, _, cov, fixed = _source(result)
     draws = draw_parameters(result, n_samples, seed, start)
-    values = np.full(draws.shape[0], np.nan)
+    n = draws.shape[0]
+    values = np.full(n, np.nan)
+    shape = _Shape(func)
+    first_error = ""
     from ._progress import progress_bar
 
-    bar = progress_bar(draws.shape[0], desc="propagate", enabled=progress, unit="draw")
-    for i, row in enumerate(draws):
+    bar = progress_bar(n, desc="propagate", enabled=progress, unit="draw")
+    for i, row in enumerate(draws.tolist()):
         if bar is not None:
             bar.update(1)
         p = dict(fixed)
-        p.update(zip(names, row.tolist(), strict=True))
+        p.update(zip(names, row, strict=True))
         try:
-            v = float(func(p))  # a non-scalar raises and counts as a failure
-        except Exception:  # a metric failing for some draws is expected, not fatal
+            v = shape.convert(func(p))
+        except Exception as exc:  # a metric failing for some draws is expected, not fatal
+            if not first_error:
+                first_error = f"draw {start + i}: {type(exc).__name__}: {exc}"
             continue
-        if np.isfinite(v):
-            values[i] = v
+        if values.ndim == 1 and shape.names:  # the first vector: widen the failures so far
+            values = np.full((n, len(shape.names)), np.nan)
+        values[i] = v
     if bar is not None:
         bar.close()
+    bad = ~np.isfinite(values)
+    if np.any(bad):
+        values[bad] = np.nan  # infinities count as failures, as NaN does
+        if not first_error:
+            first = int(np.flatnonzero(~_complete(values))[0])
+            first_error = f"draw {start + first}: a non-finite value"
     return PropagationBatch(
         start=start,
         values=values,
         seed=seed,
         source="covariance" if cov is not None else "posterior",
+        names=shape.names or (),
+        first_error=first_error,
     )
 
 
@@ -264,24 +410,47 @@ def _percentiles(percentiles: Sequence[float]) -> list[float]:
     return pcts
 
 
-def combine_batches(
-    batches: Sequence[PropagationBatch],
-    *,
-    percentiles: Sequence[float] = (2.5, 50.0, 97.5),
+def _shape_of(batches: Sequence[PropagationBatch]) -> tuple[str, ...]:
+    """Component names shared by the batches (() for a scalar metric), else an error."""
+    vector = {b.names for b in batches if b.values.ndim == 2}
+    if len(vector) > 1:
+        raise PropagationError(
+            "batches of different metrics cannot be combined "
+            f"(components {' and '.join(str(list(v)) for v in sorted(vector))})"
+        )
+    if not vector:
+        return ()
+    names = vector.pop()
+    for b in batches:
+        # a 1-D batch beside vector ones is one whose every draw failed
+        if b.values.ndim == 1 and np.any(np.isfinite(b.values)):
+            raise PropagationError(
+                f"batches of different metrics cannot be combined (a scalar metric and "
+                f"components {list(names)})"
+            )
+    return names
+
+
+def _statistics(
+    values: FloatArray, pcts: list[float], n_samples: int, seed: int | None, source: str
 ) -> PropagationResult:
-    """Pool batches covering draws ``0 .. n`` of one seed into a `PropagationResult`.
+    ok = np.isfinite(values)
+    good = values[ok]
+    return PropagationResult(
+        mean=float(good.mean()),
+        std=float(good.std(ddof=1)) if good.size > 1 else 0.0,
+        percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
+        samples=good,
+        n_samples=n_samples,
+        n_failed=int((~ok).sum()),
+        seed=seed,
+        source=source,
+    )
 
-    The result is the one `propagate` returns for ``n_samples=n`` and that
-    seed, bit for bit, whatever the batches' sizes and order.
 
-    Parameters
-    ----------
-    batches : sequence of PropagationBatch
-        Together exactly the draws ``0 .. n``, each once, in any order.
-    percentiles : sequence of float
-        Percentiles to report (``"P2.5"`` etc.).
-    """
-    pcts = _percentiles(percentiles)
+def _combine(
+    batches: Sequence[PropagationBatch], pcts: list[float], stacklevel: int
+) -> PropagationResult | VectorPropagationResult:
     if not batches:
         raise PropagationError("combine_batches needs at least one batch")
     first = batches[0]
@@ -292,7 +461,7 @@ def combine_batches(
                 f"(seed {first.seed} from the {first.source}, seed {b.seed} from the {b.source})"
             )
     # an empty batch covers no draws, wherever it starts
-    ordered = sorted((b for b in batches if b.values.size), key=lambda b: b.start)
+    ordered = sorted((b for b in batches if b.values.shape[0]), key=lambda b: b.start)
     if not ordered:
         raise PropagationError("the batches hold no draws")
     at = 0
@@ -301,33 +470,108 @@ def combine_batches(
             what = "overlap" if b.start < at else "leave a gap"
             raise PropagationError(f"batches {what} at draw {min(at, b.start)}")
         at = b.stop
-    values = np.concatenate([b.values for b in ordered])
+    names = _shape_of(ordered)
+    parts = [
+        np.full((b.values.shape[0], len(names)), np.nan)
+        if names and b.values.ndim == 1
+        else np.asarray(b.values)
+        for b in ordered
+    ]
+    values = np.concatenate(parts)
     n_samples = int(values.shape[0])
-    ok = np.isfinite(values)
-    if not np.any(ok):
-        raise PropagationError(f"the metric failed for all {n_samples} draws")
-    good = values[ok]
-    return PropagationResult(
-        mean=float(good.mean()),
-        std=float(good.std(ddof=1)) if good.size > 1 else 0.0,
-        percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
-        samples=good,
+    complete = _complete(values)
+    n_failed = int((~complete).sum())
+    first_error = next((b.first_error for b in ordered if b.first_error), "")
+    because = f" (first failure: {first_error})" if first_error else ""
+    if not np.any(np.isfinite(values)):
+        raise PropagationError(f"the metric failed for all {n_samples} draws{because}")
+    empty = [name for j, name in enumerate(names) if not np.any(np.isfinite(values[:, j]))]
+    if empty:
+        raise PropagationError(
+            f"the metric's component(s) {empty} failed for all {n_samples} draws{because}"
+        )
+    if n_failed > FAILURE_WARNING_FRACTION * n_samples:
+        warnings.warn(
+            f"propagate: the metric failed for {n_failed} of {n_samples} draws "
+            f"({100.0 * n_failed / n_samples:.3g} %), excluded from the statistics{because}",
+            UserWarning,
+            stacklevel=stacklevel + 1,
+        )
+    if not names:
+        return _statistics(values, pcts, n_samples, first.seed, first.source)
+    return VectorPropagationResult(
+        components={
+            name: _statistics(values[:, j], pcts, n_samples, first.seed, first.source)
+            for j, name in enumerate(names)
+        },
+        values=values,
         n_samples=n_samples,
-        n_failed=int((~ok).sum()),
+        n_failed=n_failed,
         seed=first.seed,
         source=first.source,
     )
 
 
+def combine_batches(
+    batches: Sequence[PropagationBatch],
+    *,
+    percentiles: Sequence[float] = (2.5, 50.0, 97.5),
+) -> PropagationResult | VectorPropagationResult:
+    """Pool batches covering draws ``0 .. n`` of one seed into a `PropagationResult`.
+
+    The result is the one `propagate` returns for ``n_samples=n`` and that
+    seed, bit for bit, whatever the batches' sizes and order (a
+    `VectorPropagationResult` for a metric with several values).
+
+    Parameters
+    ----------
+    batches : sequence of PropagationBatch
+        Together exactly the draws ``0 .. n``, each once, in any order.
+    percentiles : sequence of float
+        Percentiles to report (``"P2.5"`` etc.).
+
+    Warns
+    -----
+    UserWarning
+        When more than 1 % of the draws failed.
+    """
+    return _combine(batches, _percentiles(percentiles), stacklevel=2)
+
+
+@overload
 def propagate(
     result: Any,
     func: Callable[[dict[str, float]], float],
+    *,
+    n_samples: int = ...,
+    percentiles: Sequence[float] = ...,
+    seed: int | None = ...,
+    progress: bool = ...,
+) -> PropagationResult: ...
+
+
+@overload
+def propagate(
+    result: Any,
+    func: Callable[[dict[str, float]], Mapping[str, float] | Sequence[float] | FloatArray],
+    *,
+    n_samples: int = ...,
+    percentiles: Sequence[float] = ...,
+    seed: int | None = ...,
+    progress: bool = ...,
+) -> VectorPropagationResult: ...
+
+
+@small_blas
+def propagate(
+    result: Any,
+    func: Callable[[dict[str, float]], Any],
     *,
     n_samples: int = 1000,
     percentiles: Sequence[float] = (2.5, 50.0, 97.5),
     seed: int | None = None,
     progress: bool = False,
-) -> PropagationResult:
+) -> PropagationResult | VectorPropagationResult:
     """Push parameter uncertainty through a metric by Monte Carlo.
 
     Parameters
@@ -338,6 +582,9 @@ def propagate(
         bounds and correlations of the posterior are kept.
     func : callable
         ``func(parameters: dict) -> float``; gets fixed and drawn parameters.
+        A metric with several values returns a sequence (or 1-D array) of
+        floats, whose components are named ``"<func name>[i]"``, or a mapping
+        of names to floats.
     n_samples : int
         Number of draws.
     percentiles : sequence of float
@@ -350,9 +597,23 @@ def propagate(
 
     Returns
     -------
-    PropagationResult
-        Draws where `func` raises or returns a non-finite value are counted in
-        ``n_failed``; they do not stop the run.
+    PropagationResult or VectorPropagationResult
+        A `PropagationResult` for a scalar metric; for one with several
+        values a `VectorPropagationResult`, a `PropagationResult` per
+        component. Draws where `func` raises or returns a non-finite value
+        are counted in ``n_failed``; they do not stop the run.
+
+    Raises
+    ------
+    PropagationError
+        Bad arguments, or the metric failed for every draw (the message
+        quotes the first failure).
+
+    Warns
+    -----
+    UserWarning
+        When the metric failed for more than 1 % of the draws (the message
+        gives the count and the first failure).
 
     See Also
     --------
@@ -364,4 +625,4 @@ def propagate(
     batch = propagate_batch(
         result, func, start=0, n_samples=n, seed=_check_seed(seed), progress=progress
     )
-    return combine_batches([batch], percentiles=pcts)
+    return _combine([batch], pcts, stacklevel=CALLER_STACKLEVEL)

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._threads import small_blas
 from .data import FlightData, measured_start
 from .errors import (
     ChannelError,
@@ -111,12 +112,19 @@ def _simulate_members(
     x0: Any,
     params: Mapping[str, FloatArray],
     options: Mapping[str, Any],
+    errors: list[str] | None = None,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """Outputs (B, n_t, n_y) and success flags of a batch; controls (B or 1, n_t, n_u)."""
+    """Outputs (B, n_t, n_y) and success flags of a batch; controls (B or 1, n_t, n_u).
+
+    What failed (the first failing member's state or output and time, or what a
+    stepped simulator raised) is appended to `errors`.
+    """
     batch = max(int(np.size(v)) for v in params.values()) if params else controls.shape[0]
     if isinstance(model, Model):
         opts = {"method": "auto", **options}
         sim = model.simulate_batch(time, controls, x0, params, **opts)
+        if errors is not None and not np.all(sim.ok):
+            errors.append(sim.failure[int(np.argmin(sim.ok))])
         return sim.outputs, sim.ok
     # Black-box simulator: one member at a time.
     names = _control_names(model)
@@ -129,7 +137,9 @@ def _simulate_members(
         pb = {k: float(np.broadcast_to(v, (batch,))[b]) for k, v in params.items()}
         try:
             res = model.simulate(time, cdict, x0, pb, **options)
-        except SimulationError:
+        except SimulationError as exc:
+            if errors is not None:
+                errors.append(str(exc))
             continue
         y = np.asarray(res.outputs, dtype=np.float64)
         if y.shape == out.shape[1:] and np.all(np.isfinite(y)):
@@ -149,6 +159,7 @@ def _fd_sensitivities(
     options: Mapping[str, Any],
     *,
     nominal: bool,
+    errors: list[str] | None = None,
 ) -> tuple[FloatArray | None, FloatArray, NDArray[np.bool_]]:
     """Central-difference sensitivities of one or many control histories in ONE batch.
 
@@ -168,7 +179,7 @@ def _fd_sensitivities(
         col[:, 2 * j + 1] -= steps[j]
     # a single history is shared by all members; several are repeated per member
     u = np.repeat(controls, per, axis=0) if n_s > 1 else controls
-    y, ok = _simulate_members(model, time, u, x0, params, options)
+    y, ok = _simulate_members(model, time, u, x0, params, options, errors)
     y = y.reshape(n_s, per, time.size, -1)
     ok_c = np.asarray(ok.reshape(n_s, per).all(axis=1), dtype=bool)
     pm = y[:, : 2 * n_p].reshape(n_s, n_p, 2, time.size, -1)
@@ -408,6 +419,7 @@ class SensitivityResult:
 # -- the public function --------------------------------------------------------------------
 
 
+@small_blas
 def sensitivities(
     model: Model | SimulatorModel,
     data: FlightData,
@@ -534,13 +546,15 @@ def sensitivities(
         x0 = measured_start(data, model.states)
     theta = np.array([vals[n] for n in names])
     steps = _fd_steps(theta, rel)
+    errors: list[str] = []
     y0, sens, ok = _fd_sensitivities(
-        model, data.time, u, x0, vals, names, steps, options, nominal=True
+        model, data.time, u, x0, vals, names, steps, options, nominal=True, errors=errors
     )
     if not ok[0]:
+        why = f": {errors[0]}" if errors else ""
         raise SimulationError(
             f"sensitivities: model {model.name!r} failed to simulate at (or within a "
-            f"relative {rel:g} step of) the parameter values {vals}"
+            f"relative {rel:g} step of) the parameter values {vals}{why}"
         )
     assert y0 is not None  # requested above
     idx = [all_outputs.index(o) for o in outs]
@@ -559,7 +573,7 @@ def sensitivities(
             f"sensitivities: the trajectory cannot separate {_combo_text(combos)}; "
             "their Cramér–Rao bounds are reported as infinite",
             IdentifiabilityWarning,
-            stacklevel=2,
+            stacklevel=3,  # sensitivities, its BLAS wrapper (aeroid._threads), the caller
         )
     is_model = isinstance(model, Model)
     method = (
@@ -611,7 +625,7 @@ def _estimate_noise(
             "(not measured, or residuals are zero); using unit noise for all outputs — "
             "pass noise={output: sigma} for meaningful Cramér–Rao bounds",
             UserWarning,
-            stacklevel=3,
+            stacklevel=4,  # here, sensitivities, its BLAS wrapper, the caller
         )
         return np.ones(len(outputs)), "unit"
     return sigma, "residuals"

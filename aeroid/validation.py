@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-import scipy.stats
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
+from ._stats import chi2_sf, norm_ppf
+from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, plain, whole_number
 from .errors import IdentificationError
 from .model import fitted_start, require_model, resolve_parameters
@@ -38,7 +40,7 @@ def ljung_box(x: FloatArray, lags: int) -> tuple[float, float]:
     r = _autocorrelation(x, lags)
     k = np.arange(1, lags + 1)
     q = float(n * (n + 2) * np.sum(r[1:] ** 2 / (n - k)))
-    return q, float(scipy.stats.chi2.sf(q, lags))
+    return q, chi2_sf(q, lags)
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,6 +176,7 @@ def _max_crosscorrelation(e: FloatArray, u: FloatArray, lags: int) -> float:
     return best
 
 
+@small_blas
 def validate(
     model: Any,
     data: FlightData,
@@ -204,9 +207,9 @@ def validate(
     confidence : float
         Confidence level of the bias interval.
     whiteness_lags : int, optional
-        Lags of the Ljung–Box test and of the residual–input correlation,
-        fewer than the record's samples (at most N - 2 are used). Default 20,
-        or N - 2 for a shorter record.
+        Lags of the Ljung–Box test and of the residual–input correlation.
+        At most N - 2 are used: more are clamped to N - 2 with a warning that
+        names both. Default 20, or N - 2 for a shorter record.
     simulate_options : mapping, optional
         Passed to the simulation; default ``{"method": "auto"}`` for a `Model`,
         the integrator `identify` uses.
@@ -218,7 +221,7 @@ def validate(
     Raises
     ------
     IdentificationError
-        Bad arguments, such as `whiteness_lags` not below the number of samples.
+        Bad arguments, such as a `whiteness_lags` that is not a positive integer.
     ChannelError
         A control or output is missing from the data.
     """
@@ -236,9 +239,12 @@ def validate(
         whiteness_lags = 20
     else:
         whiteness_lags = whole_number(whiteness_lags, "whiteness_lags", IdentificationError)
-        if whiteness_lags >= n:
-            raise IdentificationError(
-                f"whiteness_lags must be fewer than the record's {n} samples, got {whiteness_lags}"
+        if whiteness_lags > n - 2:
+            warnings.warn(
+                f"validate: whiteness_lags={whiteness_lags} is beyond the record's {n} "
+                f"samples; using {max(n - 2, 0)} lags",
+                UserWarning,
+                stacklevel=CALLER_STACKLEVEL,
             )
     p = resolve_parameters(model, parameters, error=IdentificationError)
     names = list(model.outputs)
@@ -263,8 +269,8 @@ def validate(
     lags = int(min(whiteness_lags, n - 2))
     # The maximum over 2L+1 lags is tested, so the 5 % level is split across them
     # (Bonferroni); a per-lag 1.96/sqrt(N) would flag a correct model most of the time.
-    bound = float(scipy.stats.norm.ppf(1 - 0.025 / (2 * lags + 1))) / np.sqrt(n)
-    z = float(scipy.stats.norm.ppf(0.5 + level / 2))
+    bound = norm_ppf(1 - 0.025 / (2 * lags + 1)) / np.sqrt(n)
+    z = norm_ppf(0.5 + level / 2)
     metrics: dict[str, OutputMetrics] = {}
     for j, o in enumerate(chosen):
         e = resid[:, j]

@@ -273,3 +273,51 @@ def test_progress_bar_does_not_change_the_design(capsys):
     np.testing.assert_array_equal(a.controls, b.controls)
     # stderr is not a terminal under pytest, so the bar stays silent
     assert "design_experiment" not in capsys.readouterr().err
+
+
+def test_a_design_that_cannot_identify_a_parameter_warns_and_is_flagged():
+    # K and g enter only as their product K*g, and d not at all: no manoeuvre
+    # separates K from g or tells anything about d, whatever the optimiser does.
+    model = Model(
+        states=["y"],
+        controls=["u"],
+        parameters={"K": 2.0, "g": 1.5, "tau": 0.5, "d": 1.0},
+        dynamics=lambda t, x, u, p: np.array([(p["K"] * p["g"] * u[0] - x[0]) / p["tau"]]),
+        name="product_lag",
+    )
+    with pytest.warns(aeroid.IdentifiabilityWarning) as rec:
+        design = design_experiment(
+            model,
+            Doublet("u", amplitude=(0.1, 1.0)),
+            ["K", "g", "tau", "d"],
+            noise={"y": 0.01},
+            duration=4.0,
+            sample_rate=20.0,
+            seed=1,
+            optimizer_options={"maxiter": 2, "popsize": 2},
+        )
+    text = str(rec[0].message)
+    assert "K + g" in text and "d (no sensitivity)" in text and "tau" not in text
+    assert design.success is False and "cannot separate" in design.message
+    for name in ("K", "g", "d"):
+        assert design.predicted_stderr[name] == np.inf
+    # tau is identifiable on its own: its bound stays finite
+    assert np.isfinite(design.predicted_stderr["tau"])
+
+
+def test_an_identifying_design_gives_no_identifiability_warning():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", aeroid.IdentifiabilityWarning)
+        design = design_experiment(
+            catalog.first_order(),
+            Doublet("u", amplitude=(0.1, 1.0)),
+            ["K", "tau"],
+            noise={"y": 0.01},
+            duration=4.0,
+            sample_rate=20.0,
+            seed=1,
+            optimizer_options={"maxiter": 2, "popsize": 2},
+        )
+    assert design.success is True

@@ -453,3 +453,163 @@ def test_noise_matrices_must_be_symmetric_positive_semidefinite(sp_noisy):
 def test_a_model_is_required(sp_noisy, model):
     with pytest.raises(FilterError, match=r"model: .*continuous dynamics.* got (NoneType|str)"):
         filter_states(model, sp_noisy, process_noise=None, measurement_noise=NOISE)
+
+
+# -- fast linear filter and compiled propagation (issue 28) ---------------------------------
+
+
+def _fast_and_stepped(monkeypatch, *args, **kwargs):
+    """filter_states through the block Riccati solution and through the step loop."""
+    import aeroid.filtering as filtering
+
+    used = []
+    fast = filtering._riccati_fast
+
+    def spy(*a):
+        out = fast(*a)
+        used.append(out is not None)
+        return out
+
+    monkeypatch.setattr(filtering, "_riccati_fast", spy)
+    a = filter_states(*args, **kwargs)
+    monkeypatch.setattr(filtering, "_riccati_fast", lambda *a: None)
+    b = filter_states(*args, **kwargs)
+    return a, b, used
+
+
+@pytest.mark.parametrize(
+    "q, r",
+    [(1e-8, 1.0), (1e-8, 1e-4), (3e-3, 1.0), (1.0, 1e-2), (1e-12, 1e-8), (30.0, 1.0)],
+)
+def test_block_riccati_filter_equals_the_step_loop(monkeypatch, sp_noisy, sp_truth, q, r):
+    # slowly converging (tiny process noise: hundreds of samples of transient) and fast
+    # converging gains both take the block path and give the step loop's results
+    a, b, used = _fast_and_stepped(
+        monkeypatch,
+        catalog.short_period(),
+        sp_noisy,
+        sp_truth,
+        process_noise={"alpha": q, "q": q},
+        measurement_noise={"alpha": r * 0.005**2, "q": r * 0.01**2},
+    )
+    assert used == [True]
+    for name in (
+        "filtered_states",
+        "filtered_covariance",
+        "smoothed_states",
+        "smoothed_covariance",
+        "innovations",
+        "innovation_covariance",
+    ):
+        x, y = getattr(a, name), getattr(b, name)
+        scale = np.max(np.abs(y), axis=0)
+        assert np.all(np.abs(x - y) <= 1e-10 * scale), name
+    assert a.log_likelihood == pytest.approx(b.log_likelihood, rel=1e-12)
+
+
+def test_block_riccati_reaches_the_scalar_steady_state(monkeypatch):
+    a_, q, r, dt = -0.7, 0.3, 0.05, 0.01
+    t = np.arange(2001) * dt
+    data = FlightData(t, {"x": np.random.default_rng(2).standard_normal(t.size) * math.sqrt(r)})
+    a, b, used = _fast_and_stepped(
+        monkeypatch,
+        _scalar_model(a_),
+        data,
+        process_noise={"x": q},
+        measurement_noise={"x": r},
+        x0=[0.0],
+        P0=[1.0],
+    )
+    assert used == [True]
+    prior, post = _scalar_riccati(a_, q, r, dt)
+    assert a.filtered_covariance[-1, 0, 0] == pytest.approx(post, rel=1e-12)
+    assert a.innovation_covariance[-1, 0, 0] == pytest.approx(prior + r, rel=1e-12)
+    np.testing.assert_allclose(a.filtered_states, b.filtered_states, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.smoothed_covariance, b.smoothed_covariance, rtol=1e-10)
+
+
+@pytest.mark.parametrize("K", [1, 2, 5, 16, 17, 101])
+@pytest.mark.parametrize("quadratic", [False, True])
+def test_affine_scan_equals_the_loop(K, quadratic):
+    from aeroid.filtering import _affine_scan
+
+    rng = np.random.default_rng(K)
+    B, n = 2, 3
+    M = rng.standard_normal((B, K, n, n)) / 2.0
+    c = rng.standard_normal((B, K, n, n) if quadratic else (B, K, n))
+    x0 = rng.standard_normal((B, n, n) if quadratic else (B, n))
+    got = _affine_scan(M, c, x0, quadratic=quadratic)
+    x = x0
+    for k in range(K):
+        if quadratic:
+            x = M[:, k] @ x @ np.swapaxes(M[:, k], 1, 2) + c[:, k]
+        else:
+            x = np.einsum("bij,bj->bi", M[:, k], x) + c[:, k]
+        np.testing.assert_allclose(got[:, k], x, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_compiled_propagation_equals_numpy(monkeypatch, method):
+    from aeroid import _compiled
+
+    if not _compiled.available(
+        _pendulum(),
+        np.arange(3) * 0.02,
+        np.array([0.7, 0.0]),
+        np.zeros((3, 1)),
+        np.array([4.0, 0.3]),
+    ):
+        pytest.skip("JAX is not available")
+    data, _ = _pendulum_data()
+    kw = dict(
+        process_noise={"om": 1e-4},
+        measurement_noise={"s": 0.02**2},
+        method=method,
+        x0=[0.7, 0.0],
+        P0=[0.05, 0.05],
+    )
+    from aeroid import _ekf_compiled
+
+    used = []
+    whole = _ekf_compiled.ekf_pass
+
+    def spy(*args):
+        out = whole(*args)
+        used.append(out is not None)
+        return out
+
+    monkeypatch.setattr(_ekf_compiled, "ekf_pass", spy)
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)  # compile at the first pass
+    a = filter_states(_pendulum(), data, **kw)
+    # the EKF runs as one compiled scan; the UKF moves its sigma points compiled
+    assert used == ([True] if method == "ekf" else [])
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    b = filter_states(_pendulum(), data, **kw)
+    for name in ("filtered_states", "filtered_covariance", "smoothed_states", "innovations"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.all(np.abs(x - y) <= 1e-8 * np.max(np.abs(y), axis=0)), name
+    assert a.log_likelihood == pytest.approx(b.log_likelihood, rel=1e-10)
+
+
+def test_a_one_off_nonlinear_pass_does_not_wait_for_a_compiler(monkeypatch):
+    # Compilation pays only once a model has spent about a compilation's worth of
+    # numpy passes; a single filter pass stays on numpy.
+    pytest.importorskip("jax")
+    data, _ = _pendulum_data()
+    kw = dict(process_noise={"om": 1e-4}, measurement_noise={"s": 0.02**2}, x0=[0.7, 0.0])
+    from aeroid import _compiled, _ekf_compiled
+
+    used = []
+    whole = _ekf_compiled.ekf_pass
+
+    def spy(*args):
+        used.append(True)
+        return whole(*args)
+
+    monkeypatch.setattr(_ekf_compiled, "ekf_pass", spy)
+    model = _pendulum()
+    filter_states(model, data, **kw)
+    assert used == []
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    filter_states(model, data, **kw)
+    assert used == [True]

@@ -165,7 +165,9 @@ def test_auto_substeps_follow_stiffness():
 def test_divergence_raises_simulation_error():
     model = _decay_model()
     with pytest.raises(aeroid.SimulationError, match="non-finite at t ="):
-        simulate_rk4(model, np.linspace(0, 100, 101), None, [1.0], {"k": -300.0}, substeps=1)
+        simulate_rk4(
+            model, np.linspace(0, 100, 101), np.zeros((101, 1)), [1.0], {"k": -300.0}, substeps=1
+        )
 
 
 def test_numpy_only_dynamics_are_rejected_clearly(sp_clean):
@@ -200,7 +202,7 @@ def test_bad_arguments_raise_named_errors():
     model = _decay_model()
     t = np.linspace(0, 1, 5)
     with pytest.raises(aeroid.AdapterError, match="substeps"):
-        simulate_rk4(model, t, None, [1.0], substeps=0)
+        simulate_rk4(model, t, np.zeros((5, 1)), [1.0], substeps=0)
     with pytest.raises(aeroid.AdapterError, match="'nope'"):
         _jax.outputs_and_jacobian(model, t, np.zeros((5, 1)), np.ones(1), {"k": 1.0}, ["nope"])
     with pytest.raises(aeroid.AdapterError, match=r"\(B, 1\)"):
@@ -210,9 +212,9 @@ def test_bad_arguments_raise_named_errors():
             _pendulum_model(), t, np.zeros((5, 1)), np.ones(2), {"g_l": [1, 2], "c": [1, 2, 3]}
         )
     with pytest.raises(aeroid.SimulationError, match="'zzz'"):
-        simulate_rk4(model, t, None, [1.0], {"zzz": 1.0})
+        simulate_rk4(model, t, np.zeros((5, 1)), [1.0], {"zzz": 1.0})
     with pytest.raises(aeroid.SimulationError, match="time"):
-        simulate_rk4(model, [0.0, 0.0, 1.0], None, [1.0])
+        simulate_rk4(model, [0.0, 0.0, 1.0], np.zeros((3, 1)), [1.0])
 
 
 def test_missing_jax_names_the_extra(monkeypatch):

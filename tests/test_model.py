@@ -243,3 +243,22 @@ def test_simulation_summary_lists_each_channel_once_with_its_range():
     assert float(x_row[2]) == pytest.approx(2.0 * math.exp(-0.7 * 3.0), rel=1e-3)
     assert float(x_row[3]) == pytest.approx(2.0, rel=1e-3)
     assert float(x_row[4]) == pytest.approx(2.0 * math.exp(-0.7 * 3.0), rel=1e-3)
+
+
+def test_missing_controls_raise_instead_of_simulating_zeros():
+    # x' = -x + u from 0 with u = 1: x = 1 - e^{-t}; zeros would silently give x = 0
+    model = Model(["x"], ["u"], {}, lambda t, x, u, p: -x + u[0], name="lag")
+    t = np.linspace(0.0, 2.0, 21)
+    with pytest.raises(ChannelError, match=r"model 'lag': controls \['u'\] not given"):
+        model.simulate(t, None, [0.0])
+    with pytest.raises(ChannelError, match=r"controls \['u'\] not given"):
+        model.simulate_batch(t, None, [0.0], {})
+    with pytest.raises(ChannelError, match=r"controls \['u'\] not given"):
+        model.simulate(t)
+    sim = model.simulate(t, np.ones_like(t), [0.0], method="exact")
+    np.testing.assert_allclose(sim.state("x"), 1.0 - np.exp(-t), rtol=1e-9, atol=1e-12)
+    # a model with no controls needs none: None stays the way to say so
+    free = Model(["x"], [], {"k": 0.5}, lambda t, x, u, p: -p["k"] * x, name="decay")
+    decay = free.simulate(t, None, [2.0], method="exact")
+    np.testing.assert_allclose(decay.state("x"), 2.0 * np.exp(-0.5 * t), rtol=1e-9)
+    assert decay.controls.shape == (t.size, 0)

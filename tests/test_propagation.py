@@ -53,7 +53,8 @@ def test_failures_are_counted_not_fatal():
             raise ValueError("outside envelope")
         return p["a"]
 
-    res = propagate(_result(), metric, n_samples=2000, seed=3)
+    with pytest.warns(UserWarning, match=r"failed for \d+ of 2000 draws .*outside envelope"):
+        res = propagate(_result(), metric, n_samples=2000, seed=3)
     assert 800 < res.n_failed < 1200  # P(a > 1) = 1/2
     assert res.samples.size == 2000 - res.n_failed and np.all(res.samples <= 1.0)
     with pytest.raises(PropagationError, match="failed for all"):
@@ -113,6 +114,7 @@ def _same(a, b):
     assert dict(a.percentiles) == dict(b.percentiles)
 
 
+@pytest.mark.filterwarnings("ignore:propagate. the metric failed")
 @pytest.mark.parametrize("source", [_result(), _Posterior()], ids=["covariance", "posterior"])
 def test_batches_anywhere_combine_into_exactly_the_one_call_result(source):
     def metric(p):  # fails on part of the draws, so failures are pooled across batches too
@@ -188,3 +190,120 @@ def test_messages_print_numpy_numbers_plainly():
         propagate(_result(), lambda p: 1.0, n_samples=np.float64(2.5), seed=0)
     with pytest.raises(PropagationError, match=r"got -1$"):
         propagate(_result(), lambda p: 1.0, n_samples=10, seed=np.int64(-1))
+
+
+def test_vector_metric_gives_one_result_per_component_equal_to_the_scalar_runs():
+    import warnings
+
+    from aeroid import VectorPropagationResult
+
+    r = _result()
+
+    def linear(p):
+        return 2 * p["a"] - p["b"] + p["c"]
+
+    def product(p):
+        return p["a"] * p["b"]
+
+    def both(p):
+        return [linear(p), product(p)]
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no draw fails: no warning
+        vec = propagate(r, both, n_samples=3000, seed=7, percentiles=(5, 95))
+    assert isinstance(vec, VectorPropagationResult)
+    assert vec.names == ("both[0]", "both[1]") and vec.n_failed == 0
+    for name, scalar in (("both[0]", linear), ("both[1]", product)):
+        _same(vec[name], propagate(r, scalar, n_samples=3000, seed=7, percentiles=(5, 95)))
+    # the linear component against its closed form (as in the scalar test above):
+    # mean 10, sd sqrt(0.21); 3000 draws: sd of the mean 0.0084, of the sd 1.3 %
+    assert vec["both[0]"].mean == pytest.approx(10.0, abs=0.034)
+    assert vec["both[0]"].std == pytest.approx(math.sqrt(0.21), rel=0.052)
+    assert vec.values.shape == (3000, 2)
+    np.testing.assert_array_equal(vec.values[:, 1], vec["both[1]"].samples)
+    assert "| both[1]" in vec.summary() and "P95" in vec.summary()
+    with pytest.raises(PropagationError, match=r"no component 'x'; components: \['both\[0\]'"):
+        vec["x"]
+    # an array works the same; a lambda's components are called metric[i]
+    arr = propagate(r, lambda p: np.array([p["a"], p["b"]]), n_samples=50, seed=7)
+    assert arr.names == ("metric[0]", "metric[1]")
+
+
+def test_mapping_metric_components_are_named_by_its_keys_and_combine_across_batches():
+    r = _result()
+
+    def metric(p):  # "ratio" fails (inf) on some draws, "sum" never
+        return {
+            "sum": p["a"] + p["b"],
+            "ratio": p["a"] / (p["b"] - 2.0) if p["b"] > 2.0 else np.inf,
+        }
+
+    with pytest.warns(UserWarning, match=r"failed for \d+ of 1000 draws.*non-finite"):
+        whole = propagate(r, metric, n_samples=1000, seed=9)
+    assert whole.names == ("sum", "ratio")
+    assert whole["sum"].n_failed == 0
+    # b ~ N(2, 0.3): about half the draws have b <= 2; sd of the count 16
+    assert 420 < whole["ratio"].n_failed < 580 and whole.n_failed == whole["ratio"].n_failed
+    assert np.all(np.isfinite(whole["ratio"].samples))
+    batches = [
+        propagate_batch(r, metric, start=a, n_samples=b - a, seed=9)
+        for a, b in ((0, 300), (300, 300), (300, 1000))
+    ]
+    assert batches[0].names == ("sum", "ratio") and batches[1].names == ()
+    with pytest.warns(UserWarning, match="failed for"):
+        pooled = combine_batches(batches[::-1])
+    for name in whole.names:
+        _same(pooled[name], whole[name])
+    np.testing.assert_array_equal(pooled.values, whole.values)
+    # a batch of another metric, or of a scalar metric, is refused
+    other = propagate_batch(r, lambda p: [p["a"]], start=1000, n_samples=10, seed=9)
+    with pytest.raises(PropagationError, match="different metrics"):
+        combine_batches([*batches, other])
+    scalar = propagate_batch(r, lambda p: p["a"], start=1000, n_samples=10, seed=9)
+    with pytest.raises(PropagationError, match="different metrics"):
+        combine_batches([*batches, scalar])
+
+
+def test_failures_warn_only_beyond_one_percent_and_name_the_first_failure():
+    import warnings
+
+    r = _result()
+    n, seed = 1000, 5
+    a = np.sort(draw_parameters(r, n, seed)[:, 0])
+
+    def failing(k):
+        cut = a[n - k]  # exactly k draws have a >= cut
+
+        def metric(p):
+            if p["a"] >= cut:
+                raise ValueError(f"a = {p['a']:.3f} outside envelope")
+            return p["a"]
+
+        return metric
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert propagate(r, failing(10), n_samples=n, seed=seed).n_failed == 10  # 1 %: quiet
+    with pytest.warns(UserWarning, match=r"failed for 11 of 1000 draws \(1\.1 %\)") as rec:
+        assert propagate(r, failing(11), n_samples=n, seed=seed).n_failed == 11
+    assert "ValueError: a = " in str(rec[0].message)
+    # a metric that never works says why
+    with pytest.raises(
+        PropagationError, match=r"failed for all 20 draws \(first failure: draw 0: "
+    ):
+        propagate(r, lambda p: [[p["a"]]], n_samples=20, seed=0)
+    with pytest.raises(PropagationError, match=r"component\(s\) \['bad'\] failed for all 20"):
+        propagate(r, lambda p: {"good": p["a"], "bad": float("nan")}, n_samples=20, seed=0)
+
+
+def test_a_metric_that_changes_its_shape_fails_those_draws():
+    r = _result()
+
+    def metric(p):
+        return [p["a"], p["b"]] if p["a"] < 1.2 else p["a"]
+
+    with pytest.warns(UserWarning, match=r"returned a number after \['metric\[0\]'"):
+        res = propagate(r, metric, n_samples=500, seed=2)
+    # P(a >= 1.2) = P(z >= 1) = 0.159 with sd 0.016 of the fraction over 500 draws
+    assert 0.11 < res.n_failed / 500 < 0.21
+    assert np.all(res["metric[0]"].samples < 1.2)

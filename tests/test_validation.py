@@ -145,18 +145,16 @@ def test_validation_starts_where_the_fit_did_on_its_own_record_only():
     np.testing.assert_array_equal(validate(model, other, old).simulated, shifted)
 
 
-def test_whiteness_lags_must_be_an_integer_below_the_sample_count(sp_model):
+def test_whiteness_lags_must_be_an_integer_and_is_clamped_to_the_record(sp_model):
     data = catalog.short_period_flight(duration=5.0, sample_rate=20.0, seed=0)  # 101 samples
-    with pytest.raises(
-        IdentificationError,
-        match="whiteness_lags must be fewer than the record's 101 samples, got 10000",
-    ):
-        validate(sp_model, data, None, whiteness_lags=10000)
+    with pytest.warns(UserWarning, match=r"whiteness_lags=10000 is beyond .* 101 .*using 99 lags"):
+        assert validate(sp_model, data, None, whiteness_lags=10000).whiteness_lags == 99
     with pytest.raises(
         IdentificationError, match=r"whiteness_lags must be a positive integer, got 2\.5"
     ):
         validate(sp_model, data, None, whiteness_lags=2.5)
-    assert validate(sp_model, data, None, whiteness_lags=100).whiteness_lags == 99
+    with pytest.warns(UserWarning, match=r"whiteness_lags=100 is beyond .*using 99 lags"):
+        assert validate(sp_model, data, None, whiteness_lags=100).whiteness_lags == 99
     # the default adapts to a short record instead of failing on it
     short = FlightData(data.time[:12], {k: v[:12] for k, v in data.channels.items()})
     assert validate(sp_model, short, None).whiteness_lags == 10
@@ -167,3 +165,28 @@ def test_whiteness_lags_must_be_an_integer_below_the_sample_count(sp_model):
 def test_a_model_is_required(sp_noisy, model):
     with pytest.raises(IdentificationError, match=r"model: expected an aeroid\.Model"):
         validate(model, sp_noisy, None)
+
+
+def test_whiteness_lags_beyond_the_record_are_clamped_loudly_and_match_the_largest_allowed(
+    sp_model,
+):
+    import warnings
+
+    data = catalog.short_period_flight(duration=2.0, sample_rate=20.0, seed=3)  # 41 samples
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the largest allowed lag count is taken silently
+        exact = validate(sp_model, data, None, whiteness_lags=39)
+    with pytest.warns(UserWarning, match=r"whiteness_lags=500 is beyond the record's 41 samples"):
+        clamped = validate(sp_model, data, None, whiteness_lags=500)
+    assert clamped.whiteness_lags == exact.whiteness_lags == 39
+    for name, m in clamped.metrics.items():
+        assert m.ljung_box_q == exact.metrics[name].ljung_box_q
+        assert m.ljung_box_p == exact.metrics[name].ljung_box_p
+
+
+def test_ljung_box_p_value_matches_scipy_for_odd_and_even_lags():
+    rng = np.random.default_rng(11)
+    x = rng.standard_normal(300)
+    for lags in (1, 2, 7, 20, 51):
+        q, p = ljung_box(x, lags)
+        assert p == pytest.approx(scipy.stats.chi2.sf(q, lags), rel=1e-12)

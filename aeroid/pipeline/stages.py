@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from ..errors import AeroidError, DataFormatError, PipelineError
 from .config import Options
@@ -294,6 +294,20 @@ class IdentifyOptions(Options):
     process_noise: dict[str, float] | None = None
     measurement_noise: dict[str, float] | None = None
     simulate_options: dict[str, Any] | None = None
+    # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
+    bounds: dict[str, tuple[float | None, float | None]] | None = None
+
+    added_later: ClassVar[frozenset[str]] = frozenset({"bounds"})
+
+    @field_validator("bounds", mode="after")
+    @classmethod
+    def _check_bounds(cls, value: Any) -> Any:
+        for name, (lower, upper) in (value or {}).items():
+            if lower is not None and upper is not None and not lower < upper:
+                raise ValueError(
+                    f"{name}: the lower bound {lower} must be below the upper bound {upper}"
+                )
+        return value
 
 
 def _run_identify(ctx: StageContext) -> Any:

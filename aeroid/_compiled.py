@@ -1,0 +1,557 @@
+"""Compiled simulation of numpy-written models (JAX through the array-API namespace).
+
+A dynamics or measurement function written with plain numpy in the README's
+style (``np.array([...])``, ``np.sin``, ``x[0]``, ``alpha, q = x``) is traced
+by JAX by calling a copy of it whose module globals (and closure cells) bind
+the numpy module to `jax.numpy` instead. The translated function is checked
+once per model against the numpy one at random points near the data (agreement
+to 1e-12 relative); a function that cannot be traced (a Python ``if`` on a
+state, ``float(x[0])``, SciPy calls) or that disagrees keeps the numpy path,
+and that decision is remembered per model.
+
+What is compiled:
+
+* a batched (vmapped) fixed-step RK4 rollout that reproduces
+  `aeroid._integrate.rk4` step for step (same substeps, same controls linear
+  between samples and evaluated at the RK4 nodes), used by `_integrate.integrate`
+  through `rk4_hook` once a model has spent more numpy RK4 work than a
+  compilation costs;
+* outputs and their exact forward-mode sensitivities with respect to chosen
+  parameters and initial states (`output_sensitivities`), used by output error;
+* one sample interval of the RK4 propagation of a batch of points and its
+  state Jacobian (`interval_propagator`), for the nonlinear filters.
+
+JAX is imported on first use, never by ``import aeroid``, with 64-bit floats
+switched on. Compiled functions are cached per model (weakly held); the
+substep count is a run-time argument (one compilation serves every count the
+stiffness rule picks) and `jax.jit` caches the shapes, with batches padded to
+a power of two so that few shapes occur.
+"""
+
+from __future__ import annotations
+
+import types
+import warnings
+import weakref
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._integrate import _INSIDE, RawTrajectory, _first_failure
+from .model import Model
+
+__all__ = [
+    "available",
+    "interval_propagator",
+    "output_sensitivities",
+    "rk4_hook",
+    "rk4_states",
+]
+
+FloatArray = NDArray[np.float64]
+
+# Tests switch this off to force the numpy path.
+ENABLED = True
+# Numpy RK4 work (dynamics calls, each on a whole batch) a model may spend before the
+# integrator hook compiles it: a compilation costs about as much as this many calls.
+COMPILE_AFTER_CALLS = 20_000
+_VERIFY_RTOL = 1e-12
+_VERIFY_POINTS = 8
+
+_CACHE: weakref.WeakKeyDictionary[Model, dict[Any, Any]] = weakref.WeakKeyDictionary()
+
+
+def _entry(model: Model) -> dict[Any, Any]:
+    entry = _CACHE.get(model)
+    if entry is None:
+        entry = {"numpy_calls": 0}
+        _CACHE[model] = entry
+    return entry
+
+
+def _import_jax() -> tuple[Any, Any] | None:
+    """``(jax, jax.numpy)`` with 64-bit floats on, or None when JAX cannot be imported."""
+    try:
+        import jax
+        import jax.numpy as jnp
+    except ImportError:
+        return None
+    if not jax.config.read("jax_enable_x64"):
+        jax.config.update("jax_enable_x64", True)
+    return jax, jnp
+
+
+# -- translation of a numpy function to jax.numpy ----------------------------------------
+
+
+def _swap(value: Any, jnp: Any, seen: dict[int, Any], depth: int) -> Any:
+    if value is np:
+        return jnp
+    if isinstance(value, types.FunctionType) and depth < 4:
+        return _translate(value, jnp, seen, depth + 1)
+    return value
+
+
+def _translate(fun: Any, jnp: Any, seen: dict[int, Any] | None = None, depth: int = 0) -> Any:
+    """A copy of `fun` that sees `jax.numpy` wherever it saw the numpy module.
+
+    Module globals, closure cells and defaults are rebound; helper functions
+    reached through them are translated the same way (a few levels deep).
+    Anything that is not a plain Python function is returned unchanged.
+    """
+    if not isinstance(fun, types.FunctionType):
+        return fun
+    seen = {} if seen is None else seen
+    if id(fun) in seen:
+        return seen[id(fun)]
+    glb: dict[str, Any] = dict(fun.__globals__)
+    new = types.FunctionType(fun.__code__, glb, fun.__name__, None, fun.__closure__)
+    seen[id(fun)] = new  # before recursing: recursive helpers end here
+    names = set(fun.__code__.co_names)
+    for name in names & set(glb):
+        glb[name] = _swap(glb[name], jnp, seen, depth)
+    closure = None
+    if fun.__closure__ is not None:
+        cells = []
+        for cell in fun.__closure__:
+            try:
+                contents = cell.cell_contents
+            except ValueError:  # an empty cell: keep it
+                cells.append(cell)
+                continue
+            cells.append(types.CellType(_swap(contents, jnp, seen, depth)))
+        closure = tuple(cells)
+    defaults = (
+        None
+        if fun.__defaults__ is None
+        else tuple(_swap(d, jnp, seen, depth) for d in fun.__defaults__)
+    )
+    final = types.FunctionType(fun.__code__, glb, fun.__name__, defaults, closure)
+    final.__kwdefaults__ = fun.__kwdefaults__
+    seen[id(fun)] = final
+    # Recursive references resolved to the placeholder: point them at the final copy.
+    for name in names & set(glb):
+        if glb[name] is new:
+            glb[name] = final
+    return final
+
+
+def _single(fun: Any, n_out: int, names: tuple[str, ...], jnp: Any) -> Callable[..., Any]:
+    """``g(t, x, u, pvec) -> (n_out,)`` calling the translated user function on one point."""
+
+    def g(t: Any, x: Any, u: Any, pvec: Any) -> Any:
+        p = {n: pvec[i] for i, n in enumerate(names)}
+        return jnp.reshape(jnp.asarray(fun(t, x, u, p), dtype=jnp.float64), (n_out,))
+
+    return g
+
+
+def _reference(
+    fun: Any,
+    n_out: int,
+    names: tuple[str, ...],
+    t: FloatArray,
+    X: FloatArray,
+    U: FloatArray,
+    P: FloatArray,
+) -> FloatArray | None:
+    """The numpy function point by point (its meaning, whatever it does with arrays)."""
+    out = np.empty((t.size, n_out))
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        for i in range(t.size):
+            p = {n: float(P[i, j]) for j, n in enumerate(names)}
+            try:
+                val = np.asarray(fun(float(t[i]), X[i].copy(), U[i].copy(), p), dtype=np.float64)
+            except Exception:
+                return None
+            if val.size != n_out:
+                return None
+            out[i] = val.reshape(n_out)
+    return out
+
+
+def _verified(
+    model: Model,
+    role: str,
+    time: FloatArray,
+    x_ref: FloatArray,
+    u: FloatArray,
+    pvec: FloatArray,
+) -> Callable[..., Any] | None:
+    """The single-point jax version of the model's `role` function, or None (numpy only).
+
+    Decided once per model: traced and compared with the numpy function at
+    random points spread around `x_ref` (n_x,), the controls `u` (n_t, n_u)
+    and the parameters `pvec` (n_p,).
+    """
+    entry = _entry(model)
+    key = ("fn", role)
+    if key in entry:
+        return entry[key]
+    entry[key] = None
+    mods = _import_jax()
+    if mods is None:
+        return None
+    jax, jnp = mods
+    fun = model.dynamics if role == "dynamics" else model.measurement
+    if fun is None:
+        return None
+    n_out = model.n_states if role == "dynamics" else model.n_outputs
+    names = model.parameter_names
+    g = _single(_translate(fun, jnp), n_out, names, jnp)
+    rng = np.random.default_rng(20240611)
+    k = _VERIFY_POINTS
+    n_t = time.size
+    rows = rng.integers(0, n_t, size=k)
+    t = time[rows] + rng.uniform(0.0, 1.0, size=k) * (time[-1] - time[0]) / max(n_t - 1, 1)
+    X = x_ref[None, :] * (1.0 + 0.05 * rng.standard_normal((k, x_ref.size)))
+    X = X + 0.05 * rng.standard_normal((k, x_ref.size))
+    U = u[rows] if u.shape[1] else np.zeros((k, 0))
+    P = pvec[None, :] * (1.0 + 0.01 * rng.standard_normal((k, pvec.size)))
+    ref = _reference(fun, n_out, names, t, X, U, P)
+    if ref is None:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            got = np.asarray(jax.jit(jax.vmap(g))(t, X, U, P), dtype=np.float64)
+    except Exception:  # a function JAX cannot trace keeps the numpy path
+        return None
+    if got.shape != ref.shape:
+        return None
+    same_nan = np.isnan(got) == np.isnan(ref)
+    fin = np.isfinite(ref) & np.isfinite(got)
+    scale = np.max(np.where(fin, np.abs(ref), 0.0), axis=0, keepdims=True)
+    close = np.abs(got - ref) <= _VERIFY_RTOL * (np.abs(ref) + scale) + 1e-300
+    agree = np.where(fin, close, same_nan & ((got == ref) | np.isnan(ref)))
+    if not np.all(agree):
+        return None
+    entry[key] = g
+    return g
+
+
+def available(
+    model: Any,
+    time: FloatArray,
+    x_ref: FloatArray,
+    u: FloatArray,
+    pvec: FloatArray,
+    *,
+    measurement: bool = True,
+) -> bool:
+    """Whether the model's dynamics (and measurement, if asked) compile and agree."""
+    if not ENABLED or not isinstance(model, Model):
+        return False
+    if _verified(model, "dynamics", time, x_ref, u, pvec) is None:
+        return False
+    if measurement and model.measurement is not None:
+        return _verified(model, "measurement", time, x_ref, u, pvec) is not None
+    return True
+
+
+# -- the RK4 rollout ------------------------------------------------------------------------
+
+
+def _interval(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
+    """One grid interval of RK4 with `m` substeps, as `_integrate.rk4` computes it.
+
+    `m` is an argument (a traced integer), so one compilation serves every
+    substep count that the stiffness rule picks as the parameters move.
+    """
+
+    def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
+        mf = m.astype(x.dtype)
+        h = (t1 - t0) / mf
+        hh = 0.5 * h
+        du = u1 - u0
+        inside = _INSIDE * (t1 - t0)
+
+        def sub(j: Any, x: Any) -> Any:
+            jf = j.astype(x.dtype)
+            ta = t0 + jf * h
+            # one-sided ends of the interval, as `_integrate.rk4` evaluates them
+            t_first = jax.numpy.where(j == 0, t0 + inside, ta)
+            t_last = jax.numpy.where(j == m - 1, t1 - inside, ta + h)
+            # (2j)/(2m) etc.: the same correctly rounded fractions as numpy's node grid
+            ua = u0 + ((2.0 * jf) / (2.0 * mf)) * du
+            um = u0 + ((2.0 * jf + 1.0) / (2.0 * mf)) * du
+            ub = u0 + ((2.0 * jf + 2.0) / (2.0 * mf)) * du
+            k1 = f(t_first, x, ua, pvec)
+            k2 = f(ta + hh, x + hh * k1, um, pvec)
+            k3 = f(ta + hh, x + hh * k2, um, pvec)
+            k4 = f(t_last, x + h * k3, ub, pvec)
+            return x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+
+        return jax.lax.fori_loop(0, m, sub, x)
+
+    return step
+
+
+def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
+    """``(time, u (n_t, n_u), x0 (n_x,), pvec, m) -> states (n_t, n_x)``."""
+    step = _interval(f, jax)
+
+    def roll(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> Any:
+        def body(x: Any, inp: Any) -> tuple[Any, Any]:
+            t0, t1, u0, u1 = inp
+            x = step(x, t0, t1, u0, u1, pvec, m)
+            return x, x
+
+        _, xs = jax.lax.scan(body, x0, (time[:-1], time[1:], u[:-1], u[1:]))
+        return jnp.concatenate([x0[None, :], xs], axis=0)
+
+    return roll
+
+
+def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
+    entry = _entry(model)
+    key = (kind, extra)
+    fn = entry.get(key)
+    if fn is not None:
+        return fn
+    mods = _import_jax()
+    assert mods is not None
+    jax, jnp = mods
+    f = entry[("fn", "dynamics")]
+    roll = _rollout(f, jax, jnp)
+    if kind == "states":
+        shared_u = bool(extra)
+        fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
+    elif kind == "sensitivities":
+        h = entry.get(("fn", "measurement"))
+        out_idx = (
+            np.array([model.states.index(o) for o in model.output_names]) if h is None else None
+        )
+
+        def outs(
+            theta: Any, pbase: Any, pidx: Any, xbase: Any, xidx: Any, time: Any, u: Any, m: Any
+        ) -> Any:
+            n_p = pidx.shape[0]
+            pvec = pbase.at[pidx].set(theta[:n_p])
+            x0 = xbase.at[xidx].set(theta[n_p:])
+            states = roll(time, u, x0, pvec, m)
+            if h is None:
+                y = states[:, out_idx]
+            else:
+                y = jax.vmap(h, in_axes=(0, 0, 0, None))(time, states, u, pvec)
+            return y, y
+
+        jac = jax.jacfwd(outs, argnums=0, has_aux=True)
+
+        def both(*args: Any) -> Any:
+            J, y = jac(*args)
+            return y, J
+
+        fn = jax.jit(both)
+    elif kind == "interval":
+        step = _interval(f, jax)
+        axes = (0, None, None, None, None, 0, None)
+        pts = jax.vmap(step, in_axes=axes)
+        lin = jax.vmap(jax.jacfwd(step, argnums=0), in_axes=axes)
+        fn = (jax.jit(pts), jax.jit(lin))
+    else:  # pragma: no cover - internal
+        raise ValueError(kind)
+    entry[key] = fn
+    return fn
+
+
+def _pmatrix(model: Model, p: Mapping[str, Any], batch: int) -> FloatArray:
+    if not model.parameters:  # a model without parameters: rows of nothing
+        return np.zeros((batch, 0))
+    return np.ascontiguousarray(
+        np.stack(
+            [
+                np.broadcast_to(np.asarray(p.get(n, v), dtype=np.float64), (batch,))
+                for n, v in model.parameters.items()
+            ],
+            axis=1,
+        )
+    )
+
+
+def rk4_states(
+    model: Model,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    substeps: int,
+) -> RawTrajectory | None:
+    """The compiled RK4 of a batch: x0 (n_x, B), u (B, n_t, n_u), p name -> (B,).
+
+    None when the model's dynamics do not compile (the numpy RK4 then runs).
+    """
+    if not ENABLED or time.size < 2:
+        return None
+    batch = x0.shape[1]
+    P = _pmatrix(model, p, batch)
+    if _verified(model, "dynamics", time, x0[:, 0], u[0], P[0]) is None:
+        return None
+    shared = batch == 1 or u.strides[0] == 0 or bool(np.all(u == u[:1]))
+    fn = _compiled(model, "states", shared)
+    # Batches padded to a power of two (copies of the last member): every batch size
+    # would otherwise cost a compilation of its own.
+    padded = 1 << (batch - 1).bit_length()
+    rows = np.minimum(np.arange(padded), batch - 1)
+    uu = np.ascontiguousarray(u[0] if shared else u[rows])
+    X = np.ascontiguousarray(x0.T[rows])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        states = np.asarray(fn(time, uu, X, P[rows], np.int32(substeps)), dtype=np.float64)
+    states = states[:batch]
+    ok, fail_time = _first_failure(states, time)
+    return RawTrajectory(states, ok, fail_time)
+
+
+def worth_compiling(model: Model, calls: int) -> bool:
+    """Whether compiling `model` pays now, about to spend `calls` more dynamics calls.
+
+    A model compiles once its numpy work (counted here while it does not) reaches
+    about what a compilation costs, so one-off simulations and filter passes
+    never wait for a compiler; once compiled it always is.
+    """
+    entry = _entry(model)
+    if entry.get("compiled_once"):
+        return True
+    if entry["numpy_calls"] + calls <= COMPILE_AFTER_CALLS:
+        entry["numpy_calls"] += calls
+        return False
+    return True
+
+
+def rk4_hook(
+    model: Model,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    substeps: int,
+) -> RawTrajectory | None:
+    """`_integrate.integrate`'s RK4 branch: the compiled RK4 once it pays, else None.
+
+    Records the substep count on the model (`output_sensitivities` reads it)
+    and counts the numpy work spent, so that a model integrated once or twice
+    never waits for a compilation.
+    """
+    if not ENABLED or not isinstance(model, Model):
+        return None
+    entry = _entry(model)
+    entry["last_substeps"] = int(substeps)
+    if entry.get(("fn", "dynamics"), True) is None:
+        return None  # decided: numpy only
+    if not worth_compiling(model, 4 * int(substeps) * (time.size - 1)):
+        return None
+    traj = rk4_states(model, time, x0, u, p, substeps)
+    if traj is not None:
+        entry["compiled_once"] = True
+    return traj
+
+
+# -- output-error sensitivities ----------------------------------------------------------
+
+
+def output_sensitivities(
+    model: Any,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    params: Mapping[str, float],
+    names: Sequence[str],
+    x0_free: Sequence[int],
+    options: Mapping[str, Any],
+    *,
+    probe: bool = True,
+) -> tuple[FloatArray, FloatArray] | None:
+    """Outputs (n_t, n_y) and their exact Jacobian (n_t, n_y, len(names) + len(x0_free)).
+
+    The columns are the model parameters `names`, then the initial states
+    `x0_free`; `params` holds every model parameter. The Jacobian is the
+    forward-mode derivative of the same RK4 rollout that `simulate_batch`
+    runs, with the same substeps. None when it does not apply: JAX missing,
+    functions that do not compile, or an integration other than RK4 (the
+    exact path of linear time-invariant models, solve_ivp). With `probe`, one
+    plain simulation first asks the integrator which path it takes (the
+    caller remembers the answer and passes ``probe=False`` afterwards).
+    Outputs of a diverging simulation come back non-finite.
+    """
+    if not ENABLED or not isinstance(model, Model):
+        return None
+    if options.get("method", "auto") not in ("auto", "rk4"):
+        return None
+    pvec = _pmatrix(model, params, 1)[0]
+    x0 = np.asarray(x0, dtype=np.float64)
+    substeps = options.get("substeps")
+    p1 = {k: np.array([v]) for k, v in zip(model.parameter_names, pvec, strict=True)}
+    if probe:
+        # The integrator decides between the exact linear path and RK4; it tells through
+        # the hook. Two samples suffice: a model it integrates on them is not linear
+        # time-invariant on the whole record either.
+        entry = _entry(model)
+        entry.pop("last_substeps", None)
+        model.simulate_batch(time[:2], controls[:2], x0, p1, **options)
+        if entry.pop("last_substeps", None) is None:
+            return None
+    if substeps is not None:
+        m = int(substeps)
+    else:
+        from ._integrate import auto_substeps
+
+        m = auto_substeps(
+            model._dynamics_batch, time, x0[:, None].copy(), np.asarray(controls)[None], p1
+        )
+    if not available(model, time, x0, controls, pvec):
+        return None
+    pidx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
+    xidx = np.asarray(list(x0_free), dtype=np.int64)
+    theta = np.concatenate([pvec[pidx], x0[xidx]])
+    fn = _compiled(model, "sensitivities")
+    u = np.asarray(controls, dtype=np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        y, J = fn(theta, pvec, pidx, x0, xidx, time, u, np.int32(m))
+    return np.asarray(y, dtype=np.float64), np.asarray(J, dtype=np.float64)
+
+
+# -- filters: one sample interval ---------------------------------------------------------------
+
+
+def interval_propagator(
+    model: Any,
+    time: FloatArray,
+    controls: FloatArray,
+    x_ref: FloatArray,
+    params: Mapping[str, float],
+    substeps: int,
+) -> Callable[..., Any] | None:
+    """Compiled RK4 propagation over one sample interval, for the nonlinear filters.
+
+    Returns ``propagate(k, X, P, jacobian=False)`` moving points ``X`` (M, n_x)
+    with parameter rows ``P`` (M, n_p) (model parameter order) from sample k
+    to k+1 of `time` with `controls` (n_t, n_u), exactly as
+    `_integrate.rk4` would with `substeps`; with ``jacobian=True`` it returns
+    ``(X_next, Phi)`` with ``Phi`` (M, n_x, n_x) the exact state-transition
+    Jacobian of the step. None when the dynamics do not compile.
+    """
+    if not ENABLED or not isinstance(model, Model):
+        return None
+    pvec = _pmatrix(model, params, 1)[0]
+    if _verified(model, "dynamics", time, x_ref, controls, pvec) is None:
+        return None
+    pts, lin = _compiled(model, "interval")
+    m = np.int32(substeps)
+    t = np.asarray(time, dtype=np.float64)
+    u = np.asarray(controls, dtype=np.float64)
+
+    def propagate(k: int, X: FloatArray, P: FloatArray, jacobian: bool = False) -> Any:
+        args = (X, t[k], t[k + 1], u[k], u[k + 1], P, m)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            nxt = np.asarray(pts(*args), dtype=np.float64)
+            if not jacobian:
+                return nxt
+            return nxt, np.asarray(lin(*args), dtype=np.float64)
+
+    return propagate

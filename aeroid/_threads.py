@@ -1,0 +1,170 @@
+"""One BLAS thread while the library runs its small-matrix loops.
+
+The numerical entry points multiply and factorise matrices of a handful of
+rows thousands of times. A multi-threaded BLAS gains nothing there and, on a
+machine whose other cores are busy, loses a great deal: every small call
+waits for a worker thread to be scheduled. A caller's environment (default
+OpenBLAS threads, no ``OPENBLAS_NUM_THREADS``) must not decide the library's
+speed, so each public call runs under `small_blas`:
+
+* the first (outermost) public call in the process limits every loaded BLAS
+  to one thread and the last one to return gives the caller's settings back;
+  nested public calls (``identify`` simulating through ``Model.simulate``)
+  and calls from other threads meanwhile change nothing;
+* libraries that already run one thread (a pinned pipeline worker, a caller
+  who set ``OPENBLAS_NUM_THREADS=1``) are left alone, so nothing is set or
+  restored at all there;
+* the `threadpoolctl` controller is built once, on the first call, as
+  building it scans every loaded shared library; it is built again only when
+  modules have been imported since (a BLAS loaded later, such as SciPy's own
+  OpenBLAS, is then found).
+
+BLAS limits are per process, not per thread: while a public call runs, a
+caller's other threads also see one BLAS thread. (OpenBLAS 0.3.31 ignores a
+thread count set from another thread once the main thread has set one, so a
+public call made from a worker thread may run with the caller's count.)
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+import threading
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any, ParamSpec, TypeVar
+
+__all__ = ["CALLER_STACKLEVEL", "blas_threads", "small_blas"]
+
+# `small_blas` wraps a public function in one more frame: a warning issued in
+# the function's body points at its caller with this stacklevel (one more per
+# helper in between).
+CALLER_STACKLEVEL = 3
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+class _State(threading.local):
+    depth = 0  # public calls open in this thread
+
+
+_local = _State()
+_lock = threading.Lock()
+_active = 0  # threads inside a public call, all threads together
+_saved: list[tuple[Any, int]] = []  # (library controller, caller's thread count)
+_controllers: list[Any] | None = None  # BLAS controllers of the last scan
+_scanned_at = -1  # len(sys.modules) at the last scan
+
+
+def _blas_controllers() -> list[Any]:
+    """The loaded BLAS libraries' controllers, rescanned after new imports."""
+    global _controllers, _scanned_at
+    n_modules = len(sys.modules)
+    if _controllers is None or n_modules != _scanned_at:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - a dependency; without it BLAS is the caller's
+            _controllers, _scanned_at = [], n_modules
+            return _controllers
+        found = ThreadpoolController().select(user_api="blas").lib_controllers
+        _controllers, _scanned_at = list(found), n_modules
+    return _controllers
+
+
+def _limit() -> None:
+    for lib in _blas_controllers():
+        n = int(lib.num_threads)
+        if n != 1:
+            _saved.append((lib, n))
+            lib.set_num_threads(1)
+
+
+def _restore() -> None:
+    while _saved:
+        lib, n = _saved.pop()
+        lib.set_num_threads(n)
+
+
+def _enter() -> None:
+    global _active
+    depth = _local.depth
+    _local.depth = depth + 1
+    if depth:
+        return
+    with _lock:
+        if _active == 0:
+            try:
+                _limit()
+            except Exception:  # a library that refuses: run with the caller's settings
+                _restore()
+        _active += 1
+
+
+def _exit() -> None:
+    global _active
+    depth = _local.depth - 1
+    _local.depth = depth
+    if depth:
+        return
+    with _lock:
+        _active -= 1
+        if _active == 0:
+            _restore()
+
+
+def _after_fork_in_child() -> None:
+    # The child has only the forking thread: calls open in other threads are
+    # gone (their one-thread limits stay, harmless in a child, and are not
+    # restored, which would start OpenBLAS's threads), and the forking thread
+    # closes its own open calls as usual.
+    global _lock, _active
+    _lock = threading.Lock()
+    if _local.depth:
+        _active = 1
+    else:
+        _active = 0
+        _saved.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+class _SmallBlas:
+    """Decorator and context manager: one BLAS thread for the duration of a call.
+
+    ``@small_blas`` on a public function, ``with small_blas:`` around a block.
+    Re-entrant; the caller's limits come back when the outermost call returns.
+    """
+
+    def __call__(self, func: Callable[_P, _R]) -> Callable[_P, _R]:
+        @functools.wraps(func)
+        def limited(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+            _enter()
+            try:
+                return func(*args, **kwargs)
+            finally:
+                _exit()
+
+        return limited
+
+    def __enter__(self) -> None:
+        _enter()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        _exit()
+
+
+small_blas = _SmallBlas()
+
+
+def blas_threads() -> dict[str, int]:
+    """Thread count of each loaded BLAS library, by file path (for tests and checks)."""
+    return {str(lib.filepath): int(lib.num_threads) for lib in _blas_controllers()}

@@ -1,0 +1,302 @@
+"""Compiled simulation of numpy-written nonlinear models (aeroid._compiled).
+
+The compiled RK4 must reproduce the numpy RK4 (states, outputs), its
+forward-mode sensitivities must match finite differences of the numpy path,
+and `identify` must give the same estimates and standard errors either way.
+Models JAX cannot trace, and a missing JAX, fall back to numpy.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+import pytest
+
+import aeroid
+from aeroid import _compiled
+
+pytest.importorskip("jax")
+
+RHO, S, CBAR, MASS, IYY, G = 1.225, 16.2, 1.5, 1100.0, 1800.0, 9.81
+TRUTH = {
+    "CD0": 0.03,
+    "CD_alpha": 0.25,
+    "CL0": 0.25,
+    "CL_alpha": 4.8,
+    "CL_q": 7.0,
+    "CL_de": 0.4,
+    "Cm0": 0.02,
+    "Cm_alpha": -0.7,
+    "Cm_q": -12.0,
+    "Cm_de": -1.1,
+}
+OUTPUTS = ["V", "alpha", "theta", "q", "qdot", "ax", "az"]
+X0 = np.array([40.0, 0.06, 0.06, 0.0])
+FIT = ["CD0", "CL_alpha", "CL_de", "Cm0", "Cm_alpha", "Cm_q", "Cm_de"]
+
+
+def _coefficients(x: Any, u: Any, p: Any) -> Any:
+    V, alpha, _theta, q = x
+    qbar = 0.5 * RHO * V**2
+    qh = q * CBAR / (2.0 * V)
+    CD = p["CD0"] + p["CD_alpha"] * alpha
+    CL = p["CL0"] + p["CL_alpha"] * alpha + p["CL_q"] * qh + p["CL_de"] * u[0]
+    Cm = p["Cm0"] + p["Cm_alpha"] * alpha + p["Cm_q"] * qh + p["Cm_de"] * u[0]
+    return qbar, CD, CL, Cm
+
+
+def _dynamics(t: Any, x: Any, u: Any, p: Any) -> Any:
+    V, alpha, theta, q = x
+    qbar, CD, CL, Cm = _coefficients(x, u, p)
+    thrust = u[1]
+    v_dot = (thrust * np.cos(alpha) - qbar * S * CD) / MASS - G * np.sin(theta - alpha)
+    a_dot = q + (-thrust * np.sin(alpha) - qbar * S * CL) / (MASS * V)
+    a_dot = a_dot + G * np.cos(theta - alpha) / V
+    return np.array([v_dot, a_dot, q, qbar * S * CBAR * Cm / IYY])
+
+
+def _measurement(t: Any, x: Any, u: Any, p: Any) -> Any:
+    V, alpha, theta, q = x
+    qbar, CD, CL, Cm = _coefficients(x, u, p)
+    ax = (qbar * S * (CL * np.sin(alpha) - CD * np.cos(alpha)) + u[1]) / MASS
+    az = qbar * S * (-CL * np.cos(alpha) - CD * np.sin(alpha)) / MASS
+    return np.array([V, alpha, theta, q, qbar * S * CBAR * Cm / IYY, ax, az])
+
+
+def _untraceable(t: Any, x: Any, u: Any, p: Any) -> Any:
+    # a Python branch on the state: fine for numpy batches, untraceable by JAX
+    if np.any(np.abs(x[1]) > 1e3):
+        raise ValueError("angle of attack out of range")
+    return _dynamics(t, x, u, p)
+
+
+def _longitudinal(dynamics: Any = _dynamics, name: str = "lon") -> aeroid.Model:
+    return aeroid.Model(
+        ["V", "alpha", "theta", "q"],
+        ["de", "thrust"],
+        dict(TRUTH),
+        dynamics,
+        outputs=OUTPUTS,
+        measurement=_measurement,
+        name=name,
+    )
+
+
+def _controls(t: np.ndarray) -> np.ndarray:
+    de = -0.05 + 0.02 * np.sign(np.sin(2 * np.pi * t / 3.0)) * ((t > 1.0) & (t < 13.0))
+    thrust = 2200.0 + 300.0 * ((t > 14.0) & (t < 17.0))
+    return np.stack([de, thrust], axis=1)
+
+
+def _flight(model: aeroid.Model, seed: int) -> aeroid.FlightData:
+    t = np.arange(201) * 0.1
+    u = _controls(t)
+    sim = model.simulate(t, {"de": u[:, 0], "thrust": u[:, 1]}, X0, method="rk4", substeps=8)
+    rng = np.random.default_rng(seed)
+    sigma = np.array([0.2, 0.002, 0.002, 0.003, 0.01, 0.05, 0.1])
+    bias = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.1, -0.2])
+    y = sim.outputs + rng.standard_normal(sim.outputs.shape) * sigma + bias
+    channels = {n: y[:, j] for j, n in enumerate(OUTPUTS)}
+    channels.update(de=u[:, 0], thrust=u[:, 1])
+    return aeroid.FlightData(time=t, channels=channels)
+
+
+@pytest.fixture(scope="module")
+def lon() -> aeroid.Model:
+    return _longitudinal()
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    scale = np.max(np.abs(b), axis=tuple(range(b.ndim - 1)), keepdims=True) + 1e-300
+    return float(np.max(np.abs(a - b) / scale))
+
+
+def test_translated_rk4_matches_numpy_rk4(lon: aeroid.Model, monkeypatch: Any) -> None:
+    t = np.arange(201) * 0.1
+    u = _controls(t)
+    params = {"Cm_q": np.array([-12.0, -10.0, -14.0]), "CL_alpha": np.array([4.8, 5.0, 4.5])}
+    x0 = X0[None, :] + np.array([[0.0], [1.0], [-2.0]])
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    fast = lon.simulate_batch(t, u, x0, params, method="rk4", substeps=3)
+    assert _compiled._CACHE[lon][("fn", "dynamics")] is not None  # it compiled
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    slow = lon.simulate_batch(t, u, x0, params, method="rk4", substeps=3)
+    assert fast.ok.all() and slow.ok.all()
+    assert _rel(fast.states, slow.states) < 1e-12
+    assert _rel(fast.outputs, slow.outputs) < 1e-12
+    # and both converge to the adaptive solution (the step really is RK4 with 3 substeps)
+    ref = lon.simulate(t, u, X0, {"Cm_q": -12.0, "CL_alpha": 4.8})
+    assert _rel(fast.states[0], ref.states) < 1e-5
+
+
+def test_sensitivities_match_finite_differences(lon: aeroid.Model, monkeypatch: Any) -> None:
+    t = np.arange(201) * 0.1
+    u = _controls(t)
+    p = dict(TRUTH)
+    opts = {"method": "auto", "substeps": 2}
+    got = _compiled.output_sensitivities(lon, t, u, X0, p, FIT, [0, 1], opts)
+    assert got is not None
+    y, jac = got
+    assert jac.shape == (201, 7, len(FIT) + 2)
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    base = lon.simulate_batch(t, u, X0, {k: np.array([v]) for k, v in p.items()}, **opts)
+    assert _rel(y, base.outputs[0]) < 1e-12
+    # Richardson-extrapolated central differences of the numpy path: error O(h^4)
+    cols = [*FIT, "x0.V", "x0.alpha"]
+    for c, name in enumerate(cols):
+        if name not in ("CD0", "Cm_q", "Cm_de", "x0.alpha"):
+            continue  # a few columns keep the test short
+        value = p[name] if c < len(FIT) else X0[c - len(FIT)]
+        h = 1e-3 * max(abs(value), 0.1)
+
+        def sim(delta: float, name: str = name, c: int = c) -> np.ndarray:
+            pp = {k: np.array([v]) for k, v in p.items()}
+            x = X0.copy()
+            if c < len(FIT):
+                pp[name] = pp[name] + delta
+            else:
+                x[c - len(FIT)] += delta
+            return np.asarray(lon.simulate_batch(t, u, x, pp, **opts).outputs[0])
+
+        d1 = (sim(h) - sim(-h)) / (2 * h)
+        d2 = (sim(h / 2) - sim(-h / 2)) / h
+        fd = (4 * d2 - d1) / 3
+        assert _rel(jac[:, :, c], fd) < 1e-8, name
+
+
+def _fit(model: aeroid.Model, data: aeroid.FlightData, gradient: str) -> Any:
+    guess = {k: 1.15 * TRUTH[k] for k in FIT}
+    return aeroid.identify(
+        model,
+        data,
+        guess,
+        estimate_bias=["ax", "az"],
+        estimate_x0=["V", "alpha"],
+        gradient=gradient,
+        tolerance=1e-12,
+    )
+
+
+@pytest.mark.slow
+def test_identify_compiled_equals_numpy(lon: aeroid.Model, monkeypatch: Any) -> None:
+    data = _flight(lon, seed=3)
+    fast = _fit(lon, data, "auto")
+    assert getattr(fast, "success", True)
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    slow = _fit(_longitudinal(name="lon_numpy"), data, "fd")
+    # Near the optimum the cost changes by (step/stderr)^2: a Gauss-Newton stop can place
+    # the estimate only to about 1e-6 of a standard error, whatever the Jacobian.
+    for k in FIT:
+        assert abs(fast.parameters[k] - slow.parameters[k]) < 1e-5 * slow.stderr[k], k
+        assert fast.parameters[k] == pytest.approx(slow.parameters[k], rel=1e-7), k
+        # the numpy path's finite-difference Jacobian is itself good to about 1e-8
+        assert fast.stderr[k] == pytest.approx(slow.stderr[k], rel=1e-6), k
+        # and the seeded truth is recovered
+        assert abs(fast.parameters[k] - TRUTH[k]) < 4.0 * fast.stderr[k], k
+    for k, v in fast.extra_stderr.items():
+        assert v == pytest.approx(slow.extra_stderr[k], rel=1e-6), k
+    assert abs(fast.biases[0]["ax"] - slow.biases[0]["ax"]) < 1e-5 * slow.extra_stderr["bias[0].ax"]
+
+
+def test_untraceable_model_falls_back(monkeypatch: Any) -> None:
+    model = _longitudinal(_untraceable, name="untraceable")
+    t = np.arange(201) * 0.1
+    u = _controls(t)
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    fast = model.simulate_batch(t, u, X0, {}, method="rk4", substeps=2)
+    assert _compiled._CACHE[model][("fn", "dynamics")] is None  # decided: numpy
+    assert _compiled.output_sensitivities(model, t, u, X0, TRUTH, FIT, [], {}) is None
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    slow = model.simulate_batch(t, u, X0, {}, method="rk4", substeps=2)
+    np.testing.assert_allclose(fast.states, slow.states, rtol=1e-13)  # both numpy
+
+
+@pytest.mark.slow
+def test_untraceable_model_identify_recovers_truth(monkeypatch: Any) -> None:
+    model = _longitudinal(_untraceable, name="untraceable_fit")
+    data = _flight(model, seed=5)
+    guess = {k: 1.1 * TRUTH[k] for k in FIT[:4]}
+    res = aeroid.identify(
+        model, data, guess, estimate_bias=["ax", "az"], estimate_x0=True, gradient="auto"
+    )
+    assert _compiled._CACHE[model][("fn", "dynamics")] is None
+    for k in FIT[:4]:
+        assert abs(res.parameters[k] - TRUTH[k]) < 4.0 * res.stderr[k], k
+
+
+def test_non_finite_dynamics_still_name_the_time(monkeypatch: Any) -> None:
+    def blows_up(t: Any, x: Any, u: Any, p: Any) -> Any:
+        return np.array([np.where(t > 2.0, np.nan, -p["k"] * x[0])])
+
+    model = aeroid.Model(["v"], [], {"k": 0.5}, blows_up, name="blows_up")
+    t = np.linspace(0.0, 5.0, 51)
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    fast = model.simulate_batch(t, None, [1.0], {}, method="rk4", substeps=2)
+    assert _compiled._CACHE[model][("fn", "dynamics")] is not None
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    slow = model.simulate_batch(t, None, [1.0], {}, method="rk4", substeps=2)
+    assert not fast.ok[0] and not slow.ok[0]
+    assert fast.fail_time[0] == slow.fail_time[0] == pytest.approx(2.1)  # first NaN sample
+    monkeypatch.setattr(_compiled, "ENABLED", True)
+    with pytest.raises(aeroid.SimulationError, match=r"2\.1"):
+        model.simulate(t, None, [1.0], method="rk4", substeps=2)
+
+
+def test_without_jax_numpy_path(monkeypatch: Any) -> None:
+    monkeypatch.setitem(sys.modules, "jax", None)
+    monkeypatch.setitem(sys.modules, "jax.numpy", None)
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    model = _longitudinal(name="no_jax")
+    t = np.arange(101) * 0.1
+    u = _controls(t)
+    res = model.simulate_batch(t, u, X0, {}, method="rk4", substeps=2)
+    assert res.ok[0]
+    assert _compiled._CACHE[model][("fn", "dynamics")] is None
+    assert _compiled.output_sensitivities(model, t, u, X0, TRUTH, FIT, [], {}) is None
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    ref = model.simulate_batch(t, u, X0, {}, method="rk4", substeps=2)
+    np.testing.assert_allclose(res.states, ref.states, rtol=1e-13)  # both numpy
+
+
+def test_interval_propagator_matches_rk4_and_its_jacobian(lon: aeroid.Model) -> None:
+    t = np.arange(21) * 0.1
+    u = _controls(t)
+    prop = _compiled.interval_propagator(lon, t, u, X0, dict(TRUTH), 4)
+    assert prop is not None
+    rng = np.random.default_rng(1)
+    pts = X0[None, :] + 0.01 * rng.standard_normal((5, 4))
+    pmat = np.tile(np.array(list(TRUTH.values())), (5, 1))
+    nxt, phi = prop(3, pts, pmat, jacobian=True)
+    for b in range(5):
+        ref = lon.simulate_batch(t[3:5], u[3:5], pts[b], {}, method="rk4", substeps=4).states[0, 1]
+        np.testing.assert_allclose(nxt[b], ref, rtol=1e-13)
+        for j in range(4):
+            h = 1e-6 * max(abs(pts[b, j]), 1.0)
+            e = np.zeros(4)
+            e[j] = h
+            up = prop(3, (pts[b] + e)[None], pmat[:1])[0]
+            dn = prop(3, (pts[b] - e)[None], pmat[:1])[0]
+            np.testing.assert_allclose(phi[b, :, j], (up - dn) / (2 * h), rtol=1e-6, atol=1e-9)
+
+
+def test_switch_at_a_sample_time_agrees_with_numpy(monkeypatch: Any) -> None:
+    # A burnout written with np.where traces; both paths must see the switch one-sided
+    # at the sample time where it happens, as the numpy RK4 does.
+    def burn(t: Any, x: Any, u: Any, p: Any) -> Any:
+        thrust = np.where(t < 2.0, p["T"], 0.0)
+        return np.array([thrust - p["k"] * x[0] * np.abs(x[0])])
+
+    model = aeroid.Model(["v"], [], {"T": 5.0, "k": 0.1}, burn, name="burnout")
+    t = np.arange(81) * 0.05  # t = 2 s is a sample
+    params = {"k": np.array([0.1, 0.12])}
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    fast = model.simulate_batch(t, None, [0.0], params, method="rk4", substeps=2)
+    assert _compiled._CACHE[model][("fn", "dynamics")] is not None  # it compiled
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    slow = model.simulate_batch(t, None, [0.0], params, method="rk4", substeps=2)
+    assert _rel(fast.states, slow.states) < 1e-12
+    # and the step is taken on the right side: coasting after t = 2 s
+    ref = model.simulate(t, None, [0.0], {"k": 0.1}, method="RK45")
+    assert _rel(fast.states[0], ref.states) < 1e-5

@@ -1,0 +1,76 @@
+"""The numpy matrix exponential, pinned to closed forms and to SciPy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from aeroid._linalg import expm
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 8, 13])
+def test_expm_equals_scipy_on_random_matrices(n):
+    rng = np.random.default_rng(n)
+    # the norms the discretisations meet (A h of a few units at most), batched
+    for scale in (1e-9, 1e-3, 0.1, 0.5, 1.0):
+        A = rng.standard_normal((6, n, n)) * scale / math.sqrt(n)
+        E = expm(A)
+        assert E.shape == A.shape
+        for b in range(A.shape[0]):
+            assert _rel(E[b], scipy.linalg.expm(A[b])) < 1e-13
+
+
+@pytest.mark.parametrize("stiffness", [1e2, 1e4, 1e6])
+def test_expm_equals_scipy_and_the_eigen_form_on_stiff_matrices(stiffness):
+    rng = np.random.default_rng(7)
+    n = 6
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    lam = -np.logspace(0, math.log10(stiffness), n)
+    # the fastest mode over the step from 0.5 to 50 (exp's own condition number grows with
+    # the norm, so past that no algorithm is accurate to 1e-13)
+    for h in (0.5 / stiffness, 5.0 / stiffness, 50.0 / stiffness):
+        A = (Q * lam) @ Q.T * h
+        exact = (Q * np.exp(lam * h)) @ Q.T  # symmetric: expm(Q D Q') = Q e^D Q'
+        E = expm(A)
+        assert _rel(E, exact) < 1e-13
+        assert _rel(E, scipy.linalg.expm(A)) < 1e-13
+
+
+def test_expm_closed_forms():
+    # rotation: exp([[0, -w], [w, 0]]) = [[cos w, -sin w], [sin w, cos w]], also for large w
+    ws = (0.3, 4.0, 60.0, 1e-5)
+    batch = expm(np.array([[[0.0, -w], [w, 0.0]] for w in ws]))  # members scaled differently
+    for w, E in zip(ws, batch, strict=True):
+        np.testing.assert_allclose(
+            E, [[math.cos(w), -math.sin(w)], [math.sin(w), math.cos(w)]], rtol=0, atol=2e-13
+        )
+    # Jordan block: exp([[a, 1], [0, a]]) = e^a [[1, 1], [0, 1]]
+    for a in (-30.0, -1.0, 2.0):
+        E = expm(np.array([[a, 1.0], [0.0, a]]))
+        np.testing.assert_allclose(E, math.exp(a) * np.array([[1.0, 1.0], [0.0, 1.0]]), rtol=1e-13)
+    # nilpotent: exp(N) = I + N + N^2/2
+    N = np.array([[0.0, 2.0, 3.0], [0.0, 0.0, 5.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(expm(N), np.eye(3) + N + N @ N / 2, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(
+        expm(np.zeros((2, 3, 3))), np.broadcast_to(np.eye(3), (2, 3, 3)), rtol=1e-15, atol=0
+    )
+
+
+def test_expm_non_finite_member_is_nan_alone():
+    A = np.zeros((3, 2, 2))
+    A[0] = [[0.0, 1.0], [-1.0, 0.0]]
+    A[1, 0, 0] = np.nan
+    A[2] = [[-2.0, 0.0], [0.0, 1.0]]
+    E = expm(A)
+    assert np.all(np.isnan(E[1]))
+    np.testing.assert_allclose(E[0], scipy.linalg.expm(A[0]), rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(E[2], np.diag([math.exp(-2.0), math.e]), rtol=1e-14)
+    with pytest.raises(ValueError, match="square"):
+        expm(np.zeros((2, 3)))
