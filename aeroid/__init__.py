@@ -27,6 +27,9 @@ from .errors import (
 )
 
 if TYPE_CHECKING:
+    from .aircraft import AircraftConstants
+    from .coefficients import coefficients_from_data
+    from .compatibility import CompatibilityResult, check_compatibility
     from .data import FlightData, load_flight_test
     from .design import ExperimentDesign, design_experiment
     from .filtering import FilterResult, filter_states
@@ -52,6 +55,15 @@ if TYPE_CHECKING:
         propagate,
         propagate_batch,
     )
+    from .regression import (
+        RegressionResult,
+        StepwiseResult,
+        StepwiseStep,
+        candidate_pool,
+        equation_error,
+        spline_terms,
+        stepwise_regression,
+    )
     from .reporting import report
     from .sampler import (
         ChainState,
@@ -62,14 +74,19 @@ if TYPE_CHECKING:
         split_r_hat,
     )
     from .sensitivity import SensitivityResult, sensitivities
+    from .smoothing import differentiate, optimal_cutoff, smooth
     from .validation import OutputMetrics, ValidationResult, validate
 
 # The rest of the public API is imported on first use: `import aeroid` (and with it
 # the `aeroid` command, the pipeline and every worker it spawns) then pays only
 # for the modules it touches, not for all of SciPy.
 _LAZY = {
+    "AircraftConstants": ".aircraft",
     "FlightData": ".data",
     "load_flight_test": ".data",
+    "coefficients_from_data": ".coefficients",
+    "CompatibilityResult": ".compatibility",
+    "check_compatibility": ".compatibility",
     "ExperimentDesign": ".design",
     "design_experiment": ".design",
     "FilterResult": ".filtering",
@@ -106,6 +123,13 @@ _LAZY = {
     "combine_batches": ".propagation",
     "propagate": ".propagation",
     "propagate_batch": ".propagation",
+    "RegressionResult": ".regression",
+    "StepwiseResult": ".regression",
+    "StepwiseStep": ".regression",
+    "candidate_pool": ".regression",
+    "equation_error": ".regression",
+    "spline_terms": ".regression",
+    "stepwise_regression": ".regression",
     "report": ".reporting",
     "ChainState": ".sampler",
     "SamplerRun": ".sampler",
@@ -115,6 +139,9 @@ _LAZY = {
     "split_r_hat": ".sampler",
     "SensitivityResult": ".sensitivity",
     "sensitivities": ".sensitivity",
+    "differentiate": ".smoothing",
+    "optimal_cutoff": ".smoothing",
+    "smooth": ".smoothing",
     "OutputMetrics": ".validation",
     "ValidationResult": ".validation",
     "validate": ".validation",
@@ -138,11 +165,13 @@ if not TYPE_CHECKING:  # type checkers see the imports above, and no catch-all
 __all__ = [
     "AdapterError",
     "AeroidError",
+    "AircraftConstants",
     "BatchSimulation",
     "ChainState",
     "ChannelError",
     "ChannelFrequencyResponse",
     "Chirp",
+    "CompatibilityResult",
     "ConfigError",
     "DataFormatError",
     "Doublet",
@@ -171,34 +200,46 @@ __all__ = [
     "Prior",
     "PropagationBatch",
     "PropagationResult",
+    "RegressionResult",
     "SamplerRun",
     "SensitivityResult",
     "SimulationError",
     "SimulationResult",
     "SimulatorModel",
+    "StepwiseResult",
+    "StepwiseStep",
     "StoreError",
     "Uniform",
     "ValidationResult",
     "VectorPropagationResult",
     "__version__",
     "autocorrelation_time",
+    "candidate_pool",
+    "check_compatibility",
+    "coefficients_from_data",
     "combine_batches",
     "combine_ensembles",
     "design_experiment",
+    "differentiate",
     "effective_sample_size",
     "ensemble_sampler",
+    "equation_error",
     "filter_states",
     "frequency_response",
     "identify",
     "infer",
     "infer_ensemble",
     "load_flight_test",
+    "optimal_cutoff",
     "orthogonal_multisine",
     "propagate",
     "propagate_batch",
     "report",
     "sensitivities",
     "simulate_rk4",
+    "smooth",
+    "spline_terms",
     "split_r_hat",
+    "stepwise_regression",
     "validate",
 ]

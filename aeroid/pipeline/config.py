@@ -169,7 +169,9 @@ class CampaignConfig(Options):
     """The top level of a campaign config file."""
 
     name: str | None = None
-    model: str = Field(..., min_length=1)
+    # a built-in name, "package.module:attribute", or an aeroid.aircraft model as a
+    # mapping ({aircraft: longitudinal, constants: {...}, terms: {...}, ...})
+    model: Annotated[str, Field(min_length=1)] | dict[str, Any] = Field(...)
     pipeline: str = "campaign"
     seed: int = Field(0, ge=0)
     flights: list[FlightSpec] = Field(..., min_length=1)

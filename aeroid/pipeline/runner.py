@@ -146,10 +146,22 @@ class Plan:
 _MODEL_CACHE: dict[tuple[str, str | None], Any] = {}
 
 
-def resolve_model(spec: str, base_dir: str | None = None) -> Any:
-    """A model from a built-in name or ``package.module:attribute`` (Model or factory)."""
+def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) -> Any:
+    """A model from a built-in name, ``package.module:attribute`` (Model or factory),
+    or a mapping that defines an `aeroid.aircraft` model (see `model_from_config`)."""
     from ..model import Model, SimulatorModel
 
+    if isinstance(spec, Mapping):
+        text = canonical_json(dict(spec)).decode()
+        if (text, None) not in _MODEL_CACHE:
+            from ..aircraft import model_from_config
+            from ..errors import ModelDefinitionError
+
+            try:
+                _MODEL_CACHE[(text, None)] = model_from_config(spec)
+            except ModelDefinitionError as exc:
+                raise ConfigError(f"model: {exc}") from None
+        return _MODEL_CACHE[(text, None)]
     cache_key = (spec, base_dir)
     if cache_key in _MODEL_CACHE:
         return _MODEL_CACHE[cache_key]

@@ -1,0 +1,1037 @@
+"""Data compatibility analysis: flight-path reconstruction and sensor-error estimation.
+
+The measured body-axis rates and specific forces drive the rigid-body
+kinematics (Klein & Morelli ch. 10, Jategaonkar ch. 10)::
+
+    u' = r v - q w - g sin(theta) + ax
+    v' = p w - r u + g cos(theta) sin(phi) + ay
+    w' = q u - p v + g cos(theta) cos(phi) + az
+    phi'   = p + tan(theta) (q sin(phi) + r cos(phi))
+    theta' = q cos(phi) - r sin(phi)
+    psi'   = (q sin(phi) + r cos(phi)) / cos(theta)
+    h'     = u sin(theta) - v sin(phi) cos(theta) - w cos(phi) cos(theta)
+
+with ``u, v, w`` the body-axis velocity over the ground and ``h`` the altitude
+(positive up). The reconstructed airspeed, angles of attack and sideslip
+(air-relative, after removing a constant wind given in north-east-down
+axes), Euler angles, altitude and, where measured (GPS), north and east ground
+speed are compared with the measured ones, and the
+sensor errors that make the two agree are estimated by output error: an
+`aeroid.Model` of the kinematics and the sensors is fitted with
+`aeroid.identify`, the initial velocities and attitudes estimated with it.
+
+Sensor model (every parameter is zero unless given or estimated):
+
+* rate gyros and accelerometers, ``x_m = (1 + k_x) x + b_x`` for ``x`` in
+  ``p, q, r, ax, ay, az``;
+* air data, attitude, altitude and ground speed,
+  ``y_m(t) = (1 + k_y) y(t - tau_y) + b_y`` for ``y`` in
+  ``V, alpha, beta, phi, theta, psi, h, vn, ve``: a scale-factor error,
+  an offset and a time shift (positive when the channel lags the inertial
+  sensors, which are the time reference);
+* wind ``w_n, w_e, w_d``: a constant wind (m/s, north-east-down) or zero.
+  A constant wind obeys the same kinematics as the air velocity, so air data
+  alone cannot tell it from the initial velocity: the horizontal wind needs
+  the ground speed ``vn, ve``, the vertical one the altitude.
+
+Time shifts. A shift enters the measurement equation to first order,
+``y(t - tau) ~ y(t) - tau y'(t)`` with ``y'`` from the kinematics, so each
+``tau_y`` is an ordinary parameter of the fit with an ordinary error bar.
+The neglected second-order term would bias the scale factors slightly, so
+after a fit the measured channel is shifted by the estimate (a fraction of a
+sample, by a Fourier phase ramp on a uniform grid, which keeps white noise
+white, else by linear interpolation) and the fit repeated from there, until
+the remaining shift is below a twentieth of a sample, where the neglected term
+is under a twelfth of the (already small) first-order one even at the Nyquist
+frequency. The total shift is the sum; its error bar is that of the last fit.
+The first and last samples of a shifted channel are extrapolated (to first
+order), as any shift of a finite record must.
+
+Error bars. Output error treats the inputs as exact; the share of the
+gyro and accelerometer noise, which the kinematics integrate into wandering
+attitude and velocity errors, is added by Monte Carlo (see
+`check_compatibility`, Notes).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._threads import small_blas
+from .data import FlightData, plain, whole_number
+from .errors import ChannelError, DataFormatError, IdentificationError
+from .identification import IdentificationResult
+
+__all__ = [
+    "DEFAULT_ESTIMATE",
+    "INPUT_CHANNELS",
+    "OUTPUT_CHANNELS",
+    "SENSOR_PARAMETERS",
+    "CompatibilityResult",
+    "check_compatibility",
+]
+
+FloatArray = NDArray[np.float64]
+
+INPUT_CHANNELS = ("p", "q", "r", "ax", "ay", "az")
+"""The inputs: body-axis rates (rad/s) and specific forces (m/s^2)."""
+OUTPUT_CHANNELS = ("V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve")
+"""The outputs: airspeed (m/s), angles (rad), altitude (m), north and east ground speed (m/s)."""
+STATES = ("u", "v", "w", "phi", "theta", "psi", "h")
+_REQUIRED_OUTPUTS = ("V", "alpha", "phi", "theta")
+_WIND = ("w_n", "w_e", "w_d")
+SENSOR_PARAMETERS = (
+    *(f"b_{c}" for c in INPUT_CHANNELS),
+    *(f"k_{c}" for c in INPUT_CHANNELS),
+    *(f"b_{c}" for c in OUTPUT_CHANNELS),
+    *(f"k_{c}" for c in OUTPUT_CHANNELS),
+    *(f"tau_{c}" for c in OUTPUT_CHANNELS),
+    *_WIND,
+)
+"""Every parameter `check_compatibility` can estimate or hold at a given value."""
+DEFAULT_ESTIMATE = (
+    *(f"b_{c}" for c in INPUT_CHANNELS),
+    "b_V",
+    "b_alpha",
+    "b_beta",
+    "k_alpha",
+)
+"""Estimated when `estimate` is not given (those of absent channels dropped)."""
+_UNITS = {
+    "p": "rad/s",
+    "q": "rad/s",
+    "r": "rad/s",
+    "ax": "m/s^2",
+    "ay": "m/s^2",
+    "az": "m/s^2",
+    "V": "m/s",
+    "alpha": "rad",
+    "beta": "rad",
+    "phi": "rad",
+    "theta": "rad",
+    "psi": "rad",
+    "h": "m",
+    "vn": "m/s",
+    "ve": "m/s",
+}
+# Largest plausible magnitude of each angle in radians: beyond it the data are in degrees.
+_ANGLE_LIMITS = {"alpha": math.pi / 2, "beta": math.pi / 2, "phi": math.pi, "theta": math.pi / 2}
+_MAX_PASSES = 6
+
+
+# -- the model: numpy broadcasting, module-level np calls, no branches on values --------
+
+
+def _rates(c: Any, p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
+    """Rates and specific forces with the gyro and accelerometer errors removed."""
+    pm, qm, rm, axm, aym, azm = c
+    return (
+        (pm - p["b_p"]) / (1.0 + p["k_p"]),
+        (qm - p["b_q"]) / (1.0 + p["k_q"]),
+        (rm - p["b_r"]) / (1.0 + p["k_r"]),
+        (axm - p["b_ax"]) / (1.0 + p["k_ax"]),
+        (aym - p["b_ay"]) / (1.0 + p["k_ay"]),
+        (azm - p["b_az"]) / (1.0 + p["k_az"]),
+    )
+
+
+def _kinematics(t: Any, x: Any, c: Any, p: Any) -> Any:
+    """Rigid-body translational and rotational kinematics (states `STATES`)."""
+    uu, vv, ww, phi, theta, _psi, _h = x
+    P, Q, R, AX, AY, AZ = _rates(c, p)
+    g = p["g"]
+    sphi = np.sin(phi)
+    cphi = np.cos(phi)
+    sth = np.sin(theta)
+    cth = np.cos(theta)
+    turn = Q * sphi + R * cphi
+    return np.stack(
+        [
+            R * vv - Q * ww - g * sth + AX,
+            P * ww - R * uu + g * cth * sphi + AY,
+            Q * uu - P * vv + g * cth * cphi + AZ,
+            P + sth / cth * turn,
+            Q * cphi - R * sphi,
+            turn / cth,
+            uu * sth - (vv * sphi + ww * cphi) * cth,
+        ]
+    )
+
+
+def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
+    """What the air-data, attitude and altitude sensors read (outputs `OUTPUT_CHANNELS`)."""
+    uu, vv, ww, phi, theta, psi, h = x
+    P, Q, R, AX, AY, AZ = _rates(c, p)
+    du, dv, dw, dphi, dtheta, dpsi, dh = _kinematics(t, x, c, p)
+    sphi = np.sin(phi)
+    cphi = np.cos(phi)
+    sth = np.sin(theta)
+    cth = np.cos(theta)
+    spsi = np.sin(psi)
+    cpsi = np.cos(psi)
+    # the wind (north-east-down) in body axes
+    along = cpsi * p["w_n"] + spsi * p["w_e"]
+    across = cpsi * p["w_e"] - spsi * p["w_n"]
+    wx = cth * along - sth * p["w_d"]
+    wy = sphi * sth * along + cphi * across + sphi * cth * p["w_d"]
+    wz = cphi * sth * along - sphi * across + cphi * cth * p["w_d"]
+    ua = uu - wx
+    va = vv - wy
+    wa = ww - wz
+    # an earth-fixed wind turns in body axes: d(w_b)/dt = -omega x w_b
+    dua = du + Q * wz - R * wy
+    dva = dv + R * wx - P * wz
+    dwa = dw + P * wy - Q * wx
+    plane = ua * ua + wa * wa
+    V = np.sqrt(plane + va * va)
+    dV = (ua * dua + va * dva + wa * dwa) / V
+    alpha = np.arctan2(wa, ua)
+    dalpha = (ua * dwa - wa * dua) / plane
+    beta = np.arcsin(va / V)
+    dbeta = (dva * V - va * dV) / (V * np.sqrt(plane))
+    # ground velocity north and east: the body-to-earth rotation of (u, v, w); its rate
+    # is the same rotation of the specific force (gravity acts along "down" only)
+    n_x = cth * cpsi
+    n_y = sphi * sth * cpsi - cphi * spsi
+    n_z = cphi * sth * cpsi + sphi * spsi
+    e_x = cth * spsi
+    e_y = sphi * sth * spsi + cphi * cpsi
+    e_z = cphi * sth * spsi - sphi * cpsi
+    vn = n_x * uu + n_y * vv + n_z * ww
+    ve = e_x * uu + e_y * vv + e_z * ww
+    dvn = n_x * AX + n_y * AY + n_z * AZ
+    dve = e_x * AX + e_y * AY + e_z * AZ
+    return np.stack(
+        [
+            (1.0 + p["k_V"]) * (V - p["tau_V"] * dV) + p["b_V"],
+            (1.0 + p["k_alpha"]) * (alpha - p["tau_alpha"] * dalpha) + p["b_alpha"],
+            (1.0 + p["k_beta"]) * (beta - p["tau_beta"] * dbeta) + p["b_beta"],
+            (1.0 + p["k_phi"]) * (phi - p["tau_phi"] * dphi) + p["b_phi"],
+            (1.0 + p["k_theta"]) * (theta - p["tau_theta"] * dtheta) + p["b_theta"],
+            (1.0 + p["k_psi"]) * (psi - p["tau_psi"] * dpsi) + p["b_psi"],
+            (1.0 + p["k_h"]) * (h - p["tau_h"] * dh) + p["b_h"],
+            (1.0 + p["k_vn"]) * (vn - p["tau_vn"] * dvn) + p["b_vn"],
+            (1.0 + p["k_ve"]) * (ve - p["tau_ve"] * dve) + p["b_ve"],
+        ]
+    )
+
+
+@functools.lru_cache(maxsize=8)
+def _model(nominal: tuple[tuple[str, float], ...]) -> Any:
+    """The kinematics-and-sensors `Model` with these nominal values.
+
+    Cached so that repeated analyses with the same fixed values reuse one
+    model (and whatever the simulation machinery learnt about it).
+    """
+    from .model import Model
+
+    return Model(
+        states=list(STATES),
+        controls=list(INPUT_CHANNELS),
+        parameters=dict(nominal),
+        dynamics=_kinematics,
+        outputs=list(OUTPUT_CHANNELS),
+        measurement=_sensors,
+        name="flight_path_reconstruction",
+    )
+
+
+def _zero_sensor_errors(values: Mapping[str, float]) -> dict[str, float]:
+    """The same parameters with every output error zeroed: the outputs are then the truth."""
+    out = dict(values)
+    for c in OUTPUT_CHANNELS:
+        out[f"b_{c}"] = out[f"k_{c}"] = out[f"tau_{c}"] = 0.0
+    return out
+
+
+# -- the result ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class CompatibilityResult:
+    """Sensor errors, corrected data and the reconstructed flight path.
+
+    Attributes
+    ----------
+    corrected : FlightData
+        The input record with the estimated (and given) sensor errors
+        removed, under the user's channel names: rates and specific forces
+        ``(x_m - b_x) / (1 + k_x)``, outputs ``(y_m(t + tau_y) - b_y) / (1 + k_y)``
+        (shifted band-limited on a uniform grid, else linearly interpolated).
+        Other channels are passed through.
+    parameters : mapping of str to float
+        The estimated sensor parameters (see `SENSOR_PARAMETERS`).
+    stderr : mapping of str to float
+        Their standard errors: those of the output-error fit (see
+        `error_bars`) with the share of the input noise added (see
+        `check_compatibility`, Notes).
+    covariance : ndarray, shape (n_p, n_p)
+        Covariance of the estimates, in `parameter_names` order (the same two
+        parts).
+    parameter_names : tuple of str
+    fixed : mapping of str to float
+        Every other sensor parameter, at its given value (zero unless given).
+    initial_states : mapping of str to float
+        Estimated initial state: body-axis ground velocity ``u, v, w`` (m/s),
+        ``phi, theta, psi`` (rad) and ``h`` (m).
+    initial_state_stderr : mapping of str to float
+        Standard errors of the estimated initial states.
+    time : ndarray, shape (n_t,)
+    output_names : tuple of str
+        The fitted outputs (names of `OUTPUT_CHANNELS`).
+    channels : mapping of str to str
+        Data channel used for each input and fitted output.
+    measured : ndarray, shape (n_t, n_y)
+        The fitted outputs as recorded.
+    reconstructed : ndarray, shape (n_t, n_y)
+        What the sensors should have read: the kinematic reconstruction with
+        the estimated scale factors, offsets and time shifts applied.
+    states : ndarray, shape (n_t, 7)
+        The reconstructed kinematic states `state_names`.
+    true_outputs : ndarray, shape (n_t, 9)
+        The reconstructed airspeed, angles and altitude free of sensor errors,
+        every one of `OUTPUT_CHANNELS` (also those not measured).
+    state_names : tuple of str
+    error_bars : str
+        ``"colored"`` or ``"white"``, as in `IdentificationResult`.
+    identifiable : bool
+    unidentifiable : tuple of tuple of str
+        Parameter combinations the data cannot separate.
+    success : bool
+    message : str
+    n_passes : int
+        Output-error fits run (more than one when time shifts are estimated).
+    gravity : float
+    input_noise : mapping of str to float
+        Noise standard deviation of each input used for the error bars.
+    """
+
+    corrected: FlightData
+    parameters: Mapping[str, float]
+    stderr: Mapping[str, float]
+    covariance: FloatArray
+    parameter_names: tuple[str, ...]
+    fixed: Mapping[str, float]
+    initial_states: Mapping[str, float]
+    initial_state_stderr: Mapping[str, float]
+    time: FloatArray
+    output_names: tuple[str, ...]
+    channels: Mapping[str, str]
+    measured: FloatArray
+    reconstructed: FloatArray
+    states: FloatArray
+    true_outputs: FloatArray
+    state_names: tuple[str, ...]
+    error_bars: str
+    identifiable: bool
+    unidentifiable: tuple[tuple[str, ...], ...]
+    success: bool
+    message: str
+    n_passes: int
+    gravity: float
+    input_noise: Mapping[str, float]
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name in (
+            "parameters",
+            "stderr",
+            "fixed",
+            "initial_states",
+            "initial_state_stderr",
+            "input_noise",
+        ):
+            set_(self, name, frozen_mapping(getattr(self, name)))
+        set_(self, "channels", frozen_mapping(self.channels))
+        for name in ("covariance", "time", "measured", "reconstructed", "states", "true_outputs"):
+            set_(self, name, frozen_array(getattr(self, name)))
+        set_(self, "parameter_names", tuple(self.parameter_names))
+        set_(self, "output_names", tuple(self.output_names))
+        set_(self, "state_names", tuple(self.state_names))
+        set_(self, "unidentifiable", tuple(tuple(c) for c in self.unidentifiable))
+
+    @property
+    def residuals(self) -> FloatArray:
+        """Measured minus reconstructed sensor readings, shape (n_t, n_y)."""
+        out = np.asarray(self.measured - self.reconstructed)
+        out.setflags(write=False)
+        return out
+
+    @property
+    def correlation(self) -> FloatArray:
+        """Correlation matrix of the estimates."""
+        return _correlation_of(self)
+
+    @property
+    def all_parameters(self) -> Mapping[str, float]:
+        """Estimated and fixed sensor parameters together."""
+        merged = dict(self.fixed)
+        merged.update(self.parameters)
+        return frozen_mapping(merged)
+
+    def channel(self, name: str) -> tuple[FloatArray, FloatArray]:
+        """``(measured, reconstructed)`` history of one fitted output."""
+        if name not in self.output_names:
+            raise ChannelError(
+                f"output {name!r} was not fitted; fitted outputs: {list(self.output_names)}"
+            )
+        j = self.output_names.index(name)
+        return self.measured[:, j], self.reconstructed[:, j]
+
+    def summary(self) -> str:
+        """Markdown tables: sensor errors with standard errors, initial state, fit per channel."""
+        rows = []
+        for n in self.parameter_names:
+            unit = _parameter_unit(n)
+            rows.append((n, fmt(self.parameters[n]), fmt(self.stderr[n]), unit))
+        given = [(n, fmt(v), "given", _parameter_unit(n)) for n, v in self.fixed.items() if v]
+        table = markdown_table(("parameter", "estimate", "std. error", "unit"), rows + given)
+        x0_rows = [
+            (s, fmt(v), fmt(self.initial_state_stderr.get(s, float("nan"))))
+            for s, v in self.initial_states.items()
+        ]
+        x0_table = markdown_table(("initial state", "value", "std. error"), x0_rows)
+        fit_rows = []
+        res = self.residuals
+        for j, n in enumerate(self.output_names):
+            fit_rows.append(
+                (
+                    n,
+                    self.channels.get(n, n),
+                    fmt(float(np.sqrt(np.mean(res[:, j] ** 2)))),
+                    fmt(float(np.mean(res[:, j]))),
+                    _UNITS[n],
+                )
+            )
+        fit_table = markdown_table(("output", "channel", "RMS residual", "mean", "unit"), fit_rows)
+        kind = (
+            "corrected for coloured residuals"
+            if self.error_bars == "colored"
+            else "classical (white residuals)"
+        )
+        notes = [
+            f"Data compatibility over {self.time.size} samples: {self.n_passes} output-error "
+            f"pass(es); standard errors {kind}."
+        ]
+        if not self.success:
+            notes.append(f"**Not converged:** {self.message}")
+        if not self.identifiable:
+            combos = "; ".join(" + ".join(c) for c in self.unidentifiable) or "see covariance"
+            notes.append(f"**Not identifiable:** the data cannot separate {combos}.")
+        return "\n\n".join([table, x0_table, fit_table, "\n".join(notes)])
+
+    def plot(self) -> Any:
+        """Measured vs reconstructed channels with residuals. Returns a matplotlib Figure."""
+        return _plot(self)
+
+
+# `IdentificationResult.correlation` reads nothing but ``covariance``: one computation serves both.
+_correlation_of: Callable[[Any], FloatArray] = vars(IdentificationResult)["correlation"].fget
+
+
+def _parameter_unit(name: str) -> str:
+    if name in _WIND:
+        return "m/s"
+    kind, _, channel = name.partition("_")
+    if kind == "k":
+        return "-"
+    if kind == "tau":
+        return "s"
+    return _UNITS.get(channel, "")
+
+
+def _plot(result: CompatibilityResult) -> Any:
+    from .plotting import _figure  # matplotlib on first use only
+
+    names = list(result.output_names)
+    fig, axes = _figure(2 * len(names), height=1.8, hgap=0.5)
+    t = result.time
+    res = result.residuals
+    for j, name in enumerate(names):
+        ax = axes[2 * j, 0]
+        ax.plot(t, result.measured[:, j], color="0.55", lw=1.0, label="measured")
+        ax.plot(t, result.reconstructed[:, j], color="C0", lw=1.3, label="reconstructed")
+        ax.set_ylabel(f"{name} [{_UNITS[name]}]")
+        rms = float(np.sqrt(np.mean(res[:, j] ** 2)))
+        ax.set_title(f"{name}: RMS residual {rms:.3g} {_UNITS[name]}", fontsize=9, loc="left")
+        ax.legend(loc="upper right", fontsize=8)
+        rax = axes[2 * j + 1, 0]
+        rax.plot(t, res[:, j], color="C3", lw=0.9)
+        rax.axhline(0.0, color="k", lw=0.6)
+        rax.set_ylabel(f"{name} residual")
+    axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+# -- argument checks ---------------------------------------------------------------------
+
+
+def _channel_map(data: FlightData, channels: Mapping[str, str | None] | None) -> dict[str, str]:
+    """Canonical name -> data channel, for the channels present."""
+    mapping: dict[str, str | None] = {c: c for c in (*INPUT_CHANNELS, *OUTPUT_CHANNELS)}
+    if channels is not None:
+        if not isinstance(channels, Mapping):
+            raise IdentificationError(
+                f"channels: expected a mapping of quantity -> channel name, got {plain(channels)}"
+            )
+        for key, value in channels.items():
+            if key not in mapping:
+                raise IdentificationError(
+                    f"channels: {key!r} is not a quantity of the analysis; quantities: "
+                    f"{list(mapping)}"
+                )
+            if value is not None and not isinstance(value, str):
+                raise IdentificationError(
+                    f"channels[{key!r}]: expected a channel name or None, got {plain(value)}"
+                )
+            mapping[key] = value
+    present: dict[str, str] = {}
+    for key, name in mapping.items():
+        required = key in INPUT_CHANNELS or key in _REQUIRED_OUTPUTS
+        if name is None:
+            if required:
+                raise ChannelError(f"channels[{key!r}]: {key} is required and cannot be None")
+            continue
+        if name in data:
+            present[key] = name
+        elif required or (channels is not None and key in channels):
+            role = "input" if key in INPUT_CHANNELS else "output"
+            raise ChannelError(
+                f"{role} {key!r} (channel {name!r}) not found in flight data; channels present: "
+                f"{sorted(data.names)}; map it with channels={{{key!r}: 'name'}}"
+            )
+    for key, name in present.items():
+        values = data.channels[name]
+        if not np.all(np.isfinite(values)):
+            bad = int(np.flatnonzero(~np.isfinite(values))[0])
+            raise DataFormatError(f"channel {name!r} ({key}): non-finite value at index {bad}")
+        limit = _ANGLE_LIMITS.get(key)
+        if limit is not None and float(np.max(np.abs(values))) > limit:
+            raise DataFormatError(
+                f"channel {name!r} ({key}): values up to {float(np.max(np.abs(values))):.4g} "
+                f"exceed {limit:.4g}; angles must be in radians"
+            )
+    v = data.channels[present["V"]]
+    if not float(np.min(v)) > 0.0:
+        raise DataFormatError(
+            f"channel {present['V']!r} (V): airspeed must be positive, minimum {float(np.min(v)):.4g}"
+        )
+    return present
+
+
+def _parameter_values(
+    estimate: Sequence[str] | Mapping[str, float] | None,
+    fixed: Mapping[str, float] | None,
+    present: Mapping[str, str],
+) -> tuple[list[str], dict[str, float]]:
+    """The names to estimate and every parameter's start (or fixed) value."""
+    values = {n: 0.0 for n in SENSOR_PARAMETERS}
+    if estimate is None:
+        names = [n for n in DEFAULT_ESTIMATE if n.partition("_")[2] in present]
+    elif isinstance(estimate, str):
+        names = [estimate]
+    elif isinstance(estimate, Mapping):
+        names = list(estimate)
+    else:
+        try:
+            names = list(estimate)
+        except TypeError:
+            raise IdentificationError(
+                f"estimate: expected a list of parameter names or a mapping name -> start "
+                f"value, got {plain(estimate)}"
+            ) from None
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise IdentificationError(f"estimate: listed twice: {dupes}")
+    for n in names:
+        if n not in values:
+            raise IdentificationError(
+                f"estimate: {n!r} is not a sensor parameter; choose from {list(SENSOR_PARAMETERS)}"
+            )
+        channel = n.partition("_")[2]
+        if n not in _WIND and channel not in present:
+            raise ChannelError(
+                f"estimate: {n!r} belongs to channel {channel!r}, which the data lack"
+            )
+    if not names:
+        raise IdentificationError("estimate: name at least one sensor parameter to estimate")
+    if fixed is not None and not isinstance(fixed, Mapping):
+        raise IdentificationError(f"fixed: expected a mapping name -> value, got {plain(fixed)}")
+    given: dict[str, Any] = dict(fixed or {})
+    both = sorted(set(given) & set(names))
+    if both:
+        raise IdentificationError(f"parameters {both} are both estimated and fixed")
+    starts: dict[str, Any] = dict(estimate) if isinstance(estimate, Mapping) else {}
+    for label, source in (("fixed", given), ("estimate", starts)):
+        for n, v in source.items():
+            if n not in values:
+                raise IdentificationError(
+                    f"{label}: {n!r} is not a sensor parameter; choose from "
+                    f"{list(SENSOR_PARAMETERS)}"
+                )
+            try:
+                value = float(v)
+            except (TypeError, ValueError):
+                raise IdentificationError(
+                    f"{label}[{n!r}]: expected a number, got {plain(v)}"
+                ) from None
+            if not math.isfinite(value):
+                raise IdentificationError(f"{label}[{n!r}]: value {value!r} is not finite")
+            if n.startswith("k_") and not value > -1.0:
+                raise IdentificationError(
+                    f"{label}[{n!r}]: a scale-factor error must exceed -1, got {value!r}"
+                )
+            values[n] = value
+    return names, values
+
+
+# -- the analysis ------------------------------------------------------------------------
+
+
+def _shift(t: FloatArray, y: FloatArray, tau: float) -> FloatArray:
+    """``y(t + tau)``: band-limited on a uniform grid, else linear interpolation.
+
+    Linear interpolation by a fraction of a sample averages neighbouring noise
+    samples: less noise variance, correlated from sample to sample, and error
+    bars that believe the channel became more precise. On a uniform grid the
+    shift is a phase ramp in the Fourier domain instead (an all-pass that keeps
+    white noise white, of the same variance), applied to the record less the
+    line through its end points, continued by its point reflection about each
+    end, so that the periodic extension and its slope are continuous; beyond
+    the ends the shift then extrapolates to first order.
+    """
+    if tau == 0.0:
+        return y.copy()
+    steps = np.diff(t)
+    if y.size < 4 or float(np.ptp(steps)) > 1e-6 * float(np.mean(steps)):
+        return np.asarray(np.interp(t + tau, t, y), dtype=np.float64)
+    n = y.size
+    slope = (y[-1] - y[0]) / (t[-1] - t[0])
+    rest = y - (y[0] + slope * (t - t[0]))
+    odd = np.concatenate([rest, -rest[-2:0:-1]])  # period 2 (n - 1), zero at both ends
+    m = odd.size
+    freq = np.fft.rfftfreq(m, float(np.mean(steps)))
+    shifted = np.fft.irfft(np.fft.rfft(odd) * np.exp(2j * np.pi * freq * tau), m)[:n]
+    return np.asarray(shifted + y[0] + slope * (t + tau - t[0]), dtype=np.float64)
+
+
+def _substeps(time: FloatArray, rates: FloatArray) -> int:
+    # Keep h * omega <= 0.05, where an RK4 step's error on a rotation is ~1e-9 of it.
+    h = float(np.max(np.diff(time)))
+    omega = float(np.max(np.abs(rates)))
+    return int(min(max(1, math.ceil(h * omega / 0.05)), 64))
+
+
+def _input_noise(
+    inputs: Mapping[str, FloatArray], given: Mapping[str, float] | None
+) -> dict[str, float]:
+    """Noise standard deviation per input: given, or from the fourth differences."""
+    if given is not None and not isinstance(given, Mapping):
+        raise IdentificationError(
+            f"input_noise: expected a mapping input -> standard deviation, got {plain(given)}"
+        )
+    given = dict(given or {})
+    unknown = sorted(set(given) - set(INPUT_CHANNELS))
+    if unknown:
+        raise IdentificationError(
+            f"input_noise: {unknown} are not inputs; inputs: {list(INPUT_CHANNELS)}"
+        )
+    out = {}
+    for c in INPUT_CHANNELS:
+        if c in given:
+            try:
+                value = float(given[c])
+            except (TypeError, ValueError):
+                value = float("nan")
+            if not (math.isfinite(value) and value >= 0):
+                raise IdentificationError(
+                    f"input_noise[{c!r}]: expected a standard deviation >= 0, got {plain(given[c])}"
+                )
+            out[c] = value
+            continue
+        x = inputs[c]
+        if x.size < 6:
+            out[c] = 0.0
+            continue
+        # White noise of variance s^2 gives fourth differences of variance 70 s^2,
+        # while a smooth signal sampled well above its bandwidth leaves almost none.
+        d4 = x[4:] - 4.0 * x[3:-1] + 6.0 * x[2:-2] - 4.0 * x[1:-3] + x[:-4]
+        mad = float(np.median(np.abs(d4 - np.median(d4))))
+        out[c] = 1.482602218505602 * mad / math.sqrt(70.0)
+    return out
+
+
+def _input_noise_covariance(
+    model: Any,
+    t: FloatArray,
+    controls: FloatArray,
+    fit: Any,
+    names: list[str],
+    free_x0: list[str],
+    out_idx: list[int],
+    sigma: Mapping[str, float],
+    *,
+    n_draws: int,
+    seed: int,
+    substeps: int,
+) -> FloatArray:
+    """Covariance of the estimates that white input noise causes (see `check_compatibility`)."""
+    n_p = len(names)
+    scale = np.array([sigma[c] for c in INPUT_CHANNELS])
+    if not np.any(scale > 0):
+        return np.zeros((n_p, n_p))
+    theta = np.array([fit.parameters[n] for n in names])
+    x0 = np.array([fit.initial_states[0][s] for s in STATES])
+    cols = n_p + len(free_x0)
+    # One batch: the fitted point, a forward difference in every estimated parameter and
+    # initial state (accurate to about the step, a millionth: ample for an error bar),
+    # then the draws of input noise.
+    steps = np.empty(cols)
+    steps[:n_p] = 1e-6 * np.maximum(np.abs(theta), 1e-3)
+    x_idx = [STATES.index(s) for s in free_x0]
+    steps[n_p:] = 1e-6 * np.maximum(np.abs(x0[x_idx]), 1.0)
+    batch = 1 + cols + n_draws
+    P = {n: np.full(batch, theta[j]) for j, n in enumerate(names)}
+    X0 = np.repeat(x0[None, :], batch, axis=0)
+    for j in range(cols):
+        if j < n_p:
+            P[names[j]][1 + j] += steps[j]
+        else:
+            X0[1 + j, x_idx[j - n_p]] += steps[j]
+    rng = np.random.default_rng(seed)
+    U = np.repeat(controls[None], batch, axis=0)
+    U[1 + cols :] += rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
+    sim = model.simulate_batch(t, U, X0, P, method="rk4", substeps=substeps)
+    if not np.all(sim.ok):
+        return np.zeros((n_p, n_p))
+    weight = 1.0 / np.sqrt(np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None))
+    y = sim.outputs[:, :, out_idx] * weight[None, None, :]
+    jw = ((y[1 : 1 + cols] - y[:1]) / steps[:, None, None]).reshape(cols, -1)
+    dy = y[1 + cols :] - y[:1]
+    info = jw @ jw.T
+    shifts = np.linalg.lstsq(info, jw @ dy.reshape(n_draws, -1).T, rcond=1e-12)[0]
+    cov = shifts @ shifts.T / n_draws
+    return np.asarray(cov[:n_p, :n_p], dtype=np.float64)
+
+
+@small_blas
+def check_compatibility(
+    data: FlightData,
+    *,
+    channels: Mapping[str, str | None] | None = None,
+    estimate: Sequence[str] | Mapping[str, float] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | None = None,
+    gravity: float = 9.80665,
+    error_bars: str = "colored",
+    max_iterations: int = 50,
+    tolerance: float = 1e-6,
+    max_passes: int = 4,
+    input_noise: Mapping[str, float] | None = None,
+    n_draws: int = 40,
+    seed: int = 0,
+) -> CompatibilityResult:
+    """Reconstruct the flight path from the inertial sensors and estimate the sensor errors.
+
+    Parameters
+    ----------
+    data : FlightData
+        One record with body-axis rates ``p, q, r`` (rad/s), specific forces
+        ``ax, ay, az`` (m/s^2, at the centre of gravity), airspeed ``V``
+        (m/s), angles ``alpha, beta, phi, theta, psi`` (rad), altitude ``h``
+        (m) and ground speed north and east ``vn, ve`` (m/s). ``beta``,
+        ``psi``, ``h``, ``vn`` and ``ve`` are optional: whichever the record
+        lacks is not fitted. A heading that wraps at ±pi is unwrapped.
+    channels : mapping of str to str or None, optional
+        Data channel of each quantity where it is not named as above
+        (``{"alpha": "aoa"}``); None marks an optional output as absent.
+    estimate : sequence of str or mapping of str to float, optional
+        Sensor parameters to estimate (names in `SENSOR_PARAMETERS`), or a
+        mapping name -> start value. Default `DEFAULT_ESTIMATE`: gyro and
+        accelerometer biases, offsets of ``V``, ``alpha``, ``beta`` and the
+        scale-factor error of ``alpha``. Time shifts are ``tau_<output>``,
+        wind ``w_n, w_e, w_d``.
+    fixed : mapping of str to float, optional
+        Known values of parameters not estimated (a calibrated scale factor,
+        a known wind); every other parameter is zero.
+    x0 : mapping of str to float, optional
+        Start values of the initial state (``u, v, w, phi, theta, psi, h``);
+        default from the first sample of the measured channels.
+    gravity : float
+        Acceleration of gravity in m/s^2.
+    error_bars : {"colored", "white"}
+        As in `identify`.
+    max_iterations : int
+        Gauss-Newton iteration limit of each output-error pass.
+    tolerance : float
+        Convergence threshold on the relative parameter step, as in
+        `identify` (whose default is tighter: here a step of a millionth
+        moves no estimate by a noticeable fraction of its error bar).
+    max_passes : int
+        Output-error passes at most when time shifts are estimated (each
+        pass re-shifts the channels by the estimated shifts).
+    input_noise : mapping of str to float, optional
+        Noise standard deviation of the inputs (``p, q, r, ax, ay, az``),
+        for the error bars (see Notes); default estimated from each input's
+        fourth differences. Zero leaves an input out of the correction.
+    n_draws : int
+        Monte Carlo draws of input noise for that correction.
+    seed : int
+        Seed of those draws.
+
+    Notes
+    -----
+    Output error treats the inputs as exact, but gyro and accelerometer
+    noise is integrated by the kinematics into slowly wandering attitude and
+    velocity errors, which the classical error bars (and, when that wander
+    is small next to the output noise, the coloured-residual correction) do
+    not see: the gyro-bias error bars would be too small. Their share is
+    added here: `n_draws` records of white input noise at the level of the
+    data are simulated through the fitted kinematics, and the scatter of
+    the linearised estimates they cause, ``(J' W J)^-1 J' W dy``, is added
+    to the covariance of the fit. The result is conservative where the
+    coloured-residual correction already caught part of the same effect.
+
+    Returns
+    -------
+    CompatibilityResult
+
+    Raises
+    ------
+    ChannelError
+        A required channel (the six inputs, ``V``, ``alpha``, ``phi``,
+        ``theta``) is missing, or a parameter to estimate belongs to an
+        absent channel.
+    DataFormatError
+        A channel holds non-finite values, an angle exceeds its range in
+        radians, or the airspeed is not positive.
+    IdentificationError
+        Unknown parameter names, bad values or options.
+
+    Warns
+    -----
+    IdentifiabilityWarning
+        When the data cannot separate some of the estimated parameters (for
+        instance a horizontal wind without ground-speed channels, or the
+        air-data offsets from a wind on a straight leg).
+    """
+    from .identification import identify
+
+    if not isinstance(data, FlightData):
+        raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
+    present = _channel_map(data, channels)
+    names, values = _parameter_values(estimate, fixed, present)
+    try:
+        g = float(gravity)
+    except (TypeError, ValueError):
+        g = float("nan")
+    if not (math.isfinite(g) and g > 0):
+        raise IdentificationError(f"gravity must be a positive number, got {plain(gravity)}")
+    max_passes = whole_number(max_passes, "max_passes", IdentificationError)
+    n_draws = whole_number(n_draws, "n_draws", IdentificationError, least=2)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise IdentificationError(f"seed: expected an integer, got {plain(seed)}")
+    max_passes = min(max_passes, _MAX_PASSES)
+    t = data.time
+    outputs = [o for o in OUTPUT_CHANNELS if o in present]
+    measured = {o: np.array(data.channels[present[o]], dtype=np.float64) for o in outputs}
+    if "psi" in measured:
+        measured["psi"] = np.unwrap(measured["psi"])
+    inputs = {c: np.asarray(data.channels[present[c]], dtype=np.float64) for c in INPUT_CHANNELS}
+    substeps = _substeps(t, np.stack([inputs[c] for c in ("p", "q", "r")]))
+    sigma_in = _input_noise(inputs, input_noise)
+    start = _start_state(measured, values, x0)
+    # the heading is seen by its own channel or through the ground speed
+    seen = {"psi": "psi" in measured or "vn" in measured or "ve" in measured, "h": "h" in measured}
+    free_x0 = ["u", "v", "w", "phi", "theta"] + [s for s in ("psi", "h") if seen[s]]
+    shifted_names = [n for n in names if n.startswith("tau_")]
+    applied = {n: 0.0 for n in shifted_names}
+    current = dict(values)
+    passes = 0
+    fit: Any = None
+    model = _model((("g", g), *sorted(values.items())))
+    while True:
+        passes += 1
+        channels_now = {c: inputs[c] for c in INPUT_CHANNELS}
+        for o in outputs:
+            channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
+        record = FlightData(t, channels_now)
+        guess = {n: current[n] - applied.get(n, 0.0) for n in names}
+        fit = identify(
+            model,
+            record,
+            guess,
+            outputs=outputs,
+            x0=start,
+            estimate_x0=free_x0,
+            error_bars=error_bars,
+            max_iterations=max_iterations,
+            tolerance=tolerance,
+            simulate_options={"method": "rk4", "substeps": substeps},
+        )
+        current.update({n: fit.parameters[n] + applied.get(n, 0.0) for n in names})
+        start = dict(fit.initial_states[0])
+        if not shifted_names or passes >= max_passes or not fit.success:
+            break
+        # Another pass only while the remaining shift is worth a re-interpolation: the
+        # first-order term neglects (omega tau)^2 / 2, and below a twentieth of a sample
+        # that is under a twelfth of the first-order term even at the Nyquist frequency.
+        step = max(abs(fit.parameters[n]) for n in shifted_names)
+        if step < 0.05 * float(np.min(np.diff(t))):
+            break
+        applied = {n: current[n] for n in shifted_names}
+    extra = _input_noise_covariance(
+        model,
+        t,
+        np.column_stack([inputs[c] for c in INPUT_CHANNELS]),
+        fit,
+        names,
+        free_x0,
+        [OUTPUT_CHANNELS.index(o) for o in outputs],
+        sigma_in,
+        n_draws=n_draws,
+        seed=int(seed),
+        substeps=substeps,
+    )
+    return _result(
+        model,
+        data,
+        present,
+        outputs,
+        measured,
+        inputs,
+        names,
+        current,
+        fit,
+        extra,
+        sigma_in,
+        passes,
+        g,
+        substeps,
+    )
+
+
+def _start_state(
+    measured: Mapping[str, FloatArray],
+    values: Mapping[str, float],
+    x0: Mapping[str, float] | None,
+) -> dict[str, float]:
+    """Initial state from the first samples with the start sensor errors removed."""
+
+    def first(o: str) -> float:
+        if o not in measured:
+            return 0.0
+        return (float(measured[o][0]) - values[f"b_{o}"]) / (1.0 + values[f"k_{o}"])
+
+    V, alpha, beta = first("V"), first("alpha"), first("beta")
+    phi, theta, psi = first("phi"), first("theta"), first("psi")
+    # ground velocity = air velocity + the start wind, in body axes
+    sphi, cphi, sth, cth = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+    spsi, cpsi = math.sin(psi), math.cos(psi)
+    along = cpsi * values["w_n"] + spsi * values["w_e"]
+    across = cpsi * values["w_e"] - spsi * values["w_n"]
+    wx = cth * along - sth * values["w_d"]
+    wy = sphi * sth * along + cphi * across + sphi * cth * values["w_d"]
+    wz = cphi * sth * along - sphi * across + cphi * cth * values["w_d"]
+    state = {
+        "u": V * math.cos(alpha) * math.cos(beta) + wx,
+        "v": V * math.sin(beta) + wy,
+        "w": V * math.sin(alpha) * math.cos(beta) + wz,
+        "phi": phi,
+        "theta": theta,
+        "psi": psi,
+        "h": first("h"),
+    }
+    if x0 is not None:
+        if not isinstance(x0, Mapping):
+            raise IdentificationError(f"x0: expected a mapping state -> value, got {plain(x0)}")
+        for s, v in x0.items():
+            if s not in state:
+                raise IdentificationError(f"x0: unknown state {s!r}; states: {list(STATES)}")
+            try:
+                state[s] = float(v)
+            except (TypeError, ValueError):
+                raise IdentificationError(f"x0[{s!r}]: expected a number, got {plain(v)}") from None
+            if not math.isfinite(state[s]):
+                raise IdentificationError(f"x0[{s!r}]: value {state[s]!r} is not finite")
+    return state
+
+
+def _result(
+    model: Any,
+    data: FlightData,
+    present: Mapping[str, str],
+    outputs: list[str],
+    measured: Mapping[str, FloatArray],
+    inputs: Mapping[str, FloatArray],
+    names: list[str],
+    values: Mapping[str, float],
+    fit: Any,
+    extra: FloatArray,
+    sigma_in: Mapping[str, float],
+    passes: int,
+    g: float,
+    substeps: int,
+) -> CompatibilityResult:
+    t = data.time
+    x0 = dict(fit.initial_states[0])
+    # the fitted model itself (and whatever was compiled for it), free of output errors
+    controls = np.column_stack([inputs[c] for c in INPUT_CHANNELS])
+    sim = model.simulate(
+        t, controls, x0, _zero_sensor_errors(values), method="rk4", substeps=substeps
+    )
+    true_out = np.asarray(sim.outputs)
+    reconstructed = np.empty((t.size, len(outputs)))
+    raw = np.empty((t.size, len(outputs)))
+    corrected: dict[str, FloatArray] = {}
+    for j, o in enumerate(outputs):
+        k = OUTPUT_CHANNELS.index(o)
+        b, s, tau = values[f"b_{o}"], values[f"k_{o}"], values[f"tau_{o}"]
+        reconstructed[:, j] = (1.0 + s) * _shift(t, true_out[:, k], -tau) + b
+        raw[:, j] = data.channels[present[o]]
+        fixed_y = (_shift(t, measured[o], tau) - b) / (1.0 + s)
+        if o == "psi":  # back on the record's own branch of the heading
+            fixed_y = fixed_y + (raw[:, j] - measured[o])
+            reconstructed[:, j] = reconstructed[:, j] + (raw[:, j] - measured[o])
+        corrected[present[o]] = fixed_y
+    for c in INPUT_CHANNELS:
+        corrected[present[c]] = (inputs[c] - values[f"b_{c}"]) / (1.0 + values[f"k_{c}"])
+    cov = np.asarray(fit.covariance) + extra
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    se[~np.isfinite(np.diag(cov))] = np.inf
+    stderr = {n: float(se[j]) for j, n in enumerate(names)}
+    x0_se = {s: float(v) for k, v in fit.extra_stderr.items() for s in [k.partition(".")[2]]}
+    return CompatibilityResult(
+        corrected=data.with_channels(corrected),
+        parameters={n: float(values[n]) for n in names},
+        stderr=stderr,
+        covariance=cov,
+        parameter_names=tuple(names),
+        fixed={n: float(v) for n, v in values.items() if n not in names},
+        initial_states=x0,
+        initial_state_stderr=x0_se,
+        time=t,
+        output_names=tuple(outputs),
+        channels={k: present[k] for k in (*INPUT_CHANNELS, *outputs)},
+        measured=raw,
+        reconstructed=reconstructed,
+        states=np.asarray(sim.states),
+        true_outputs=true_out,
+        state_names=STATES,
+        error_bars=fit.error_bars,
+        identifiable=fit.identifiable,
+        unidentifiable=fit.unidentifiable,
+        success=fit.success,
+        message=fit.message,
+        n_passes=passes,
+        gravity=g,
+        input_noise=sigma_in,
+    )

@@ -1,0 +1,1169 @@
+"""Equation-error and stepwise regression (Klein & Morelli, ch. 5 and 7).
+
+Equation error fits a measured force or moment coefficient (or a state
+derivative) ``z`` as a linear combination of regressors ``X`` by ordinary
+least squares, ``θ = (X'X)^-1 X'z``. Regressors and the response are channels
+of flight data, arrays, or simple expressions of channels:
+
+* a channel name: ``"alpha"``;
+* products, quotients and integer or real powers of channels and numbers,
+  without parentheses: ``"alpha*q"``, ``"alpha^2"`` (or ``"alpha**2"``),
+  ``"q/V"``, ``"0.5*q*de"``.
+
+A column of ones (named ``"const"``) is added by default. Modelling residuals
+of equation error are rarely white, and the classical ``s² (X'X)^-1``
+understates the error bars then; by default they use Morelli's correction
+for coloured residuals, ``(X'X)^-1 [Σ_ij x_i R(i−j) x_j'] (X'X)^-1`` with the
+residual autocorrelation ``R`` summed over lags up to five correlation times
+(the correlation time from the lag-one autocorrelation, ``τ = (1+ρ)/(1−ρ)``;
+no lags at all when ρ is not significant, which gives back the classical
+formula), scaled by ``N_eff / (N_eff − p)`` with ``N_eff = N/τ`` for the
+degrees of freedom the fit absorbs and by ``N / (N − 2L − 1)`` for the
+autocovariance that removing the fit (the mean above all) takes from each of
+the ``2L + 1`` lags in the window.
+
+Fit statistics follow Klein & Morelli: ``R² = 1 − SSE/SST`` (SST about the
+mean when there is a constant term), the F statistic of the regression
+``F = [(SST − SSE)/k] / [SSE/(N − p)]`` with ``k`` the regressors other
+than the constant, and the predicted squared error
+``PSE = SSE/N + σ²_max p/N``, ``σ²_max = Σ (z − z̄)²/N``.
+
+With ``domain="frequency"`` the regression runs on the finite Fourier
+transforms of the response and regressors at chosen frequencies
+(``X̃(f) = Δt Σ x(t) e^{−j2πft}``, a direct sum whose kernels, for evenly
+spaced frequencies, follow the chirp-z transform's geometric recurrence),
+and the parameters are the real
+solution of the complex least squares, ``θ = Re(X̃*X̃)^-1 Re(X̃*Z̃)`` (Fourier
+transform regression, Klein & Morelli ch. 7). Only the chosen band enters,
+so high-frequency noise outside it drops out. A constant offset does not
+vanish from the transform of a finite record at ``f > 0`` (``∫_0^T e^{−jωt}dt``
+is zero only at multiples of ``1/T``), so the constant term stays in the
+model unless the data are perturbations about trim (it is left out by itself
+where it has no content: at multiples of ``1/(NΔt)``). Transformed residuals
+at distinct frequencies are nearly independent, and the error bars use the
+classical formula with the residual variance ``Σ|Ṽ|²/(2M − p)`` per real
+component.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._threads import small_blas
+from .data import FlightData
+from .errors import ChannelError, DataFormatError, IdentificationError
+
+__all__ = [
+    "RegressionResult",
+    "StepwiseResult",
+    "StepwiseStep",
+    "candidate_pool",
+    "equation_error",
+    "spline_terms",
+    "stepwise_regression",
+]
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+_CONST = "const"
+_DOMAINS = ("time", "frequency")
+_ERROR_BARS = ("colored", "white")
+# A regressor whose part independent of the earlier ones is below this fraction of its
+# own norm is a linear combination of them to working precision.
+_COLLINEAR = 1e-9
+# Below this 1 - R^2 of a regressor on the others (condition number of the scaled
+# Gram matrix above ~1e10) the normal equations lose digits; QR is used instead.
+_WELL_POSED = 1e-8
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+
+
+# -- input resolution ----------------------------------------------------------------------
+
+
+def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatArray:
+    """Value of a channel name or a product/quotient/power expression of channels."""
+    if expr in lookup:
+        return np.asarray(lookup[expr], dtype=np.float64)
+    if repr(expr) not in role:
+        role = f"{role} {expr!r}"
+    text = expr.replace("**", "^").replace(" ", "")
+    if not text:
+        raise DataFormatError(f"{role}: empty expression")
+    parts = re.split(r"([*/])", text)
+    out = np.ones(n)
+    op = "*"
+    for k, part in enumerate(parts):
+        if k % 2 == 1:
+            op = part
+            continue
+        base, _, power = part.partition("^")
+        if not base:
+            raise DataFormatError(f"{role}: cannot parse {part!r}")
+        if _NUMBER.match(base):
+            value: Any = float(base)
+        elif base in lookup:
+            value = np.asarray(lookup[base], dtype=np.float64)
+        else:
+            raise ChannelError(
+                f"{role}: channel {base!r} not found; channels present: {sorted(lookup)}"
+            )
+        if power:
+            if not _NUMBER.match(power):
+                raise DataFormatError(f"{role}: power {power!r} is not a number")
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                value = np.power(value, float(power))
+        # overflow and division by zero are reported below, by name, not as warnings
+        with np.errstate(all="ignore"):
+            out = out * value if op == "*" else out / value
+    if not np.all(np.isfinite(out)):
+        raise DataFormatError(
+            f"{role}: non-finite value (division by zero, or a negative number to a fractional power?)"
+        )
+    return out
+
+
+def _column(lookup: Mapping[str, Any], value: Any, n: int, role: str) -> FloatArray:
+    if isinstance(value, str):
+        return _evaluate(lookup, value, n, role)
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataFormatError(f"{role}: expected a name, an expression or samples") from None
+    if arr.shape != (n,):
+        raise DataFormatError(f"{role}: expected {n} samples, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise DataFormatError(
+            f"{role}: non-finite value at sample {int(np.argmin(np.isfinite(arr)))}"
+        )
+    return arr
+
+
+def _resolve(
+    data: Any, response: Any, regressors: Any, what: str
+) -> tuple[FloatArray, FloatArray, list[str], str, FloatArray | None]:
+    """Response, regressor matrix, regressor names, response name and time axis."""
+    time: FloatArray | None = None
+    if isinstance(data, FlightData):
+        lookup: Mapping[str, Any] = data.channels
+        n = data.n_samples
+        time = np.asarray(data.time)
+    elif isinstance(data, Mapping):
+        try:
+            lookup = {str(k): np.asarray(v, dtype=np.float64) for k, v in data.items()}
+        except (TypeError, ValueError):
+            raise DataFormatError("data: every entry of the mapping must be numeric") from None
+        lengths = {v.shape for v in lookup.values()}
+        if len(lengths) > 1 or any(len(s) != 1 for s in lengths):
+            raise DataFormatError(
+                "data: every entry of the mapping must be a 1-D array of one length"
+            )
+        n = next(iter(lengths))[0] if lengths else np.asarray(response).shape[0]
+    else:
+        try:
+            mat = np.asarray(data, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise DataFormatError(
+                f"data: expected FlightData, a mapping of arrays or a regressor matrix, "
+                f"got {type(data).__name__}"
+            ) from None
+        if mat.ndim != 2:
+            raise DataFormatError(
+                f"data: a regressor matrix must be 2-D (samples, regressors), got shape {mat.shape}"
+            )
+        if not np.all(np.isfinite(mat)):
+            raise DataFormatError("data: the regressor matrix holds non-finite values")
+        n, p = mat.shape
+        if regressors is None:
+            names = [f"x{j + 1}" for j in range(p)]
+        elif isinstance(regressors, str) or len(regressors) != p:
+            raise DataFormatError(
+                f"regressors: with a regressor matrix give {p} names, got {regressors!r}"
+            )
+        else:
+            names = [str(r) for r in regressors]
+        z = _column({}, response, n, "response") if not isinstance(response, str) else None
+        if z is None:
+            raise DataFormatError("response: with a regressor matrix give the response samples")
+        return z, mat, names, "z", None
+    if isinstance(response, str):
+        zname = response
+        z = _evaluate(lookup, response, n, "response")
+    else:
+        zname = "z"
+        z = _column(lookup, response, n, "response")
+    if regressors is None:
+        role = "candidates" if what.startswith("stepwise") else "regressors"
+        raise DataFormatError(f"{role}: required for {what} on flight data or a mapping")
+    if isinstance(regressors, str):
+        regressors = [regressors]
+    if isinstance(regressors, Mapping):
+        items = [(str(k), v) for k, v in regressors.items()]
+    else:
+        items = []
+        for r in regressors:
+            if not isinstance(r, str):
+                raise DataFormatError(
+                    "regressors: give names/expressions, or a mapping of name to samples"
+                )
+            items.append((r, r))
+    cols = [_column(lookup, v, n, f"regressor {k!r}") for k, v in items]
+    mat = np.column_stack(cols) if cols else np.zeros((n, 0))
+    return z, mat, [k for k, _ in items], zname, time
+
+
+def _check_names(names: Sequence[str]) -> None:
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise DataFormatError(f"regressors: the name {name!r} appears twice")
+        seen.add(name)
+
+
+def _step_of(time: FloatArray | None, dt: float | None) -> float | None:
+    if time is not None:
+        steps = np.diff(time)
+        if np.ptp(steps) > 1e-6 * float(np.mean(steps)):
+            return None
+        step = float(np.mean(steps))
+        if dt is not None and not np.isclose(dt, step, rtol=1e-6):
+            raise DataFormatError(f"dt: {dt!r} contradicts the data's sample interval {step:.6g} s")
+        return step
+    if dt is None:
+        return None
+    if not (np.isfinite(dt) and dt > 0):
+        raise DataFormatError(f"dt: expected a positive number of seconds, got {dt!r}")
+    return float(dt)
+
+
+# -- least squares core ----------------------------------------------------------------------
+
+
+def _collinear(names: Sequence[str], j: int) -> IdentificationError:
+    return IdentificationError(
+        f"regressor {names[j]!r} is zero or a linear combination of "
+        f"{list(names[:j]) or 'nothing'}; drop it or the regressors it repeats"
+    )
+
+
+def _qr_solve(x: FloatArray, z: FloatArray, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
+    """Least-squares parameters and (X'X)^-1 by Householder QR; refuses collinear columns."""
+    q, r = np.linalg.qr(x)
+    norms = np.linalg.norm(x, axis=0)
+    diag = np.abs(np.diag(r))
+    for j in range(x.shape[1]):
+        if not diag[j] > _COLLINEAR * norms[j] or norms[j] == 0:
+            raise _collinear(names, j)
+    # R is only p x p: a plain inverse is cheaper here than LAPACK's triangular solver
+    r_inv = np.linalg.inv(r)
+    theta = r_inv @ (q.T @ z)
+    return theta, r_inv @ r_inv.T
+
+
+def _ls_solve(
+    x: FloatArray, z: FloatArray, names: Sequence[str]
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Least-squares parameters, (X'X)^-1 and X'X.
+
+    Normal equations on the column-scaled Gram matrix with one step of iterative
+    refinement: forming X'X costs a fraction of a QR factorisation of the tall
+    matrix, and the refinement step brings the estimate to QR accuracy while the
+    scaled matrix is well conditioned. Near-collinear columns go to QR.
+    """
+    gram = x.T @ x
+    d = np.sqrt(np.diag(gram))
+    for j in np.flatnonzero(~(d > 0)).tolist():
+        raise _collinear(names, j)
+    scaled = gram / np.outer(d, d)
+    try:
+        chol = np.linalg.cholesky(scaled)
+    except np.linalg.LinAlgError:
+        return (*_qr_solve(x, z, names), gram)
+    # the squared pivot is 1 - R^2 of a column on the ones before it
+    if float(np.min(np.diag(chol))) ** 2 < _WELL_POSED:
+        return (*_qr_solve(x, z, names), gram)
+    l_inv = np.linalg.inv(chol)
+    xtx_inv = (l_inv.T @ l_inv) / np.outer(d, d)
+    theta = xtx_inv @ (x.T @ z)
+    theta = theta + xtx_inv @ (x.T @ (z - x @ theta))
+    return theta, xtx_inv, gram
+
+
+def _autocovariance(v: FloatArray, lags: int) -> FloatArray:
+    n = v.shape[0]
+    if lags <= 32:
+        return np.array([float(v[: n - k] @ v[k:]) for k in range(lags + 1)]) / n
+    size = _fast_length(n + lags)  # enough padding that lags up to `lags` do not wrap
+    spec = np.fft.rfft(v, size)
+    return np.fft.irfft(spec.real**2 + spec.imag**2, size)[: lags + 1] / n
+
+
+def _correlation_time(v: FloatArray) -> tuple[int, float]:
+    """Lag window and AR(1) correlation time of the residuals (1 and 0 when white)."""
+    n = v.shape[0]
+    c0 = float(v @ v)
+    if c0 <= 0 or n < 4:
+        return 0, 1.0
+    rho = min(float(v[:-1] @ v[1:]) / c0, 0.99)
+    if rho <= 3.0 / np.sqrt(n):  # not significantly coloured
+        return 0, 1.0
+    tau = (1.0 + rho) / (1.0 - rho)
+    return int(min(np.ceil(5.0 * tau), n // 3)), tau
+
+
+def _fast_length(target: int) -> int:
+    """The smallest 2^a 3^b 5^c at or above `target` (a quick FFT length)."""
+    best = 1 << max(int(target - 1).bit_length(), 0)
+    five = 1
+    while five < best:
+        three = five
+        while three < best:
+            size = three
+            while size < target:
+                size *= 2
+            best = min(best, size)
+            three *= 3
+        five *= 5
+    return best
+
+
+def _colored_covariance(
+    x: FloatArray, v: FloatArray, xtx_inv: FloatArray, gram: FloatArray
+) -> FloatArray:
+    """``(X'X)^-1 [Σ_ij x_i R(i−j) x_j'] (X'X)^-1`` over a lag window, dof-corrected."""
+    n, p = x.shape
+    lags, tau = _correlation_time(v)
+    r = _autocovariance(v, lags)
+    if lags == 0:
+        middle = r[0] * gram
+    else:
+        # Σ_ij x_i R(i-j) x_j' = X' (R * X) by Parseval: (1/N) Σ_f X̂(f)^H R̂(f) X̂(f), the
+        # transforms zero-padded past n + L so that the circular lags do not wrap
+        size = _fast_length(n + lags)
+        kernel = np.zeros(size)
+        kernel[: lags + 1] = r
+        kernel[size - lags :] = r[:0:-1]
+        spectrum = np.fft.rfft(kernel).real  # symmetric kernel: real spectrum
+        weight = np.full(spectrum.shape[0], 2.0)  # rfft keeps half of the spectrum
+        weight[0] = 1.0
+        if size % 2 == 0:
+            weight[-1] = 1.0
+        xf = np.fft.rfft(np.ascontiguousarray(x.T), size, axis=1)  # (p, frequencies)
+        # Re(X̂^H W X̂) = Xr' W Xr + Xi' W Xi, as real products (far faster than complex ones)
+        xr, xi = np.ascontiguousarray(xf.real), np.ascontiguousarray(xf.imag)
+        gain = weight * spectrum / size
+        middle = (xr * gain) @ xr.T + (xi * gain) @ xi.T
+        middle = 0.5 * (middle + middle.T)
+    # Degrees of freedom: the fit absorbs p of the N_eff = N/tau effectively independent
+    # samples; and the autocovariances of residuals orthogonal to the constant are low
+    # by about the variance of the mean at every lag, so the window sum of 2L+1 lags
+    # misses a fraction (2L+1)/N of the long-run variance.
+    n_eff = n / tau
+    dof = n_eff / (n_eff - p) if n_eff > 2 * p else 2.0
+    if lags > 0:
+        dof /= 1.0 - (2 * lags + 1) / n
+    return dof * (xtx_inv @ middle @ xtx_inv)
+
+
+def _fourier_transform(x: FloatArray, dt: float, frequencies: FloatArray) -> ComplexArray:
+    """``Δt Σ_t x(t) e^{-j 2π f t}`` at the given frequencies, by direct sum.
+
+    For evenly spaced frequencies the kernels form the chirp-z transform's
+    geometric sequence, so each row is the previous one times a fixed phasor
+    instead of a fresh complex exponential.
+    """
+    m, n = frequencies.shape[0], x.shape[0]
+    k = np.arange(n, dtype=np.float64) * dt
+    steps = np.diff(frequencies)
+    if m >= 2 and np.ptp(steps) <= 1e-9 * max(abs(float(steps[0])), 1e-300):
+        kern = np.empty((m, n), dtype=np.complex128)
+        kern[0] = np.exp(-2j * np.pi * float(frequencies[0]) * k)
+        ratio = np.exp(-2j * np.pi * float(steps[0]) * k)
+        for i in range(1, m):
+            np.multiply(kern[i - 1], ratio, out=kern[i])
+    else:
+        kern = np.exp(-2j * np.pi * np.outer(frequencies, k))
+    # one real product with the cosine and sine rows stacked (contiguous): a complex or
+    # strided product costs several times as much
+    rows = np.empty((2 * m, n))
+    rows[:m] = kern.real
+    rows[m:] = kern.imag
+    out = rows @ x
+    return np.asarray(dt * (out[:m] + 1j * out[m:]), dtype=np.complex128)
+
+
+# -- result records ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class RegressionResult:
+    """Equation-error (least-squares) estimates with fit statistics.
+
+    Attributes
+    ----------
+    parameters, stderr : mapping of str to float
+        Estimates and their standard errors (coloured-residual corrected
+        unless ``error_bars == "white"``), by regressor name.
+    covariance : ndarray, shape (p, p)
+        Parameter covariance in the order of `parameter_names`.
+    covariance_white : ndarray, shape (p, p)
+        The classical ``s² (X'X)^-1``.
+    parameter_names : tuple of str
+    response_name : str
+    r_squared, f_statistic, pse : float
+        Coefficient of determination, F statistic of the regression and
+        predicted squared error (module notes).
+    fit_error : float
+        Residual standard deviation ``s = sqrt(SSE / (N − p))`` (per real
+        component in the frequency domain).
+    response, fitted, residuals : ndarray
+        Measured response, model prediction and their difference; complex
+        Fourier transforms in the frequency domain.
+    time : ndarray
+        Sample times (sample index when none were given); in the frequency
+        domain, `frequencies` holds the abscissa instead.
+    frequencies : ndarray
+        Frequencies in Hz of a frequency-domain fit (empty otherwise).
+    domain : {"time", "frequency"}
+    error_bars : {"colored", "white"}
+    n_samples : int
+        Samples (time) or frequencies (frequency domain) in the fit.
+    """
+
+    parameters: Mapping[str, float]
+    stderr: Mapping[str, float]
+    covariance: FloatArray
+    covariance_white: FloatArray
+    parameter_names: tuple[str, ...]
+    response_name: str
+    r_squared: float
+    f_statistic: float
+    pse: float
+    fit_error: float
+    response: NDArray[Any]
+    fitted: NDArray[Any]
+    residuals: NDArray[Any]
+    time: FloatArray
+    frequencies: FloatArray = field(default_factory=lambda: frozen_array(np.zeros(0)))
+    domain: str = "time"
+    error_bars: str = "colored"
+    n_samples: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
+        object.__setattr__(self, "stderr", frozen_mapping(self.stderr))
+        for name in ("covariance", "covariance_white", "time", "frequencies"):
+            object.__setattr__(self, name, frozen_array(getattr(self, name)))
+        for name in ("response", "fitted", "residuals"):
+            arr = np.array(getattr(self, name), copy=True)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "parameter_names", tuple(self.parameter_names))
+
+    def summary(self) -> str:
+        """A Markdown table of the estimates and the fit statistics."""
+        rows = []
+        for name in self.parameter_names:
+            est, se = self.parameters[name], self.stderr[name]
+            t = abs(est) / se if se > 0 else np.inf
+            rows.append([name, fmt(est), fmt(se), fmt(t, 3)])
+        head = (
+            f"Equation error ({self.domain} domain) for {self.response_name}: "
+            f"{self.n_samples} {'samples' if self.domain == 'time' else 'frequencies'}, "
+            f"{len(self.parameter_names)} parameters, {self.error_bars} error bars\n\n"
+        )
+        stats = (
+            f"\n\nR² = {fmt(self.r_squared)}, F = {fmt(self.f_statistic)}, "
+            f"PSE = {fmt(self.pse)}, s = {fmt(self.fit_error)}"
+        )
+        return head + markdown_table(["parameter", "estimate", "std error", "|t|"], rows) + stats
+
+    def plot(self) -> Any:
+        """Measured and fitted response, residuals, and estimates with 95 % error bars."""
+        from .plotting import _figure
+
+        fig, axes = _figure(3, height=2.2)
+        if self.domain == "time":
+            x, label = self.time, "time (s)"
+            meas, fit, res = self.response, self.fitted, self.residuals
+        else:
+            x, label = self.frequencies, "frequency (Hz)"
+            meas, fit, res = np.abs(self.response), np.abs(self.fitted), np.abs(self.residuals)
+        ax = axes[0, 0]
+        ax.plot(x, meas, lw=0.9, label="measured")
+        ax.plot(x, fit, lw=0.9, ls="--", label="fit")
+        ax.set_ylabel(self.response_name if self.domain == "time" else f"|{self.response_name}|")
+        ax.legend(loc="best", fontsize="small")
+        ax = axes[1, 0]
+        ax.plot(x, res, lw=0.8, color="C2")
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_ylabel("residual" if self.domain == "time" else "|residual|")
+        ax.set_xlabel(label)
+        ax = axes[2, 0]
+        names = list(self.parameter_names)
+        est = np.array([self.parameters[n] for n in names])
+        err = np.array([1.96 * self.stderr[n] for n in names])
+        ax.errorbar(np.arange(len(names)), est, yerr=err, fmt="o", capsize=4)
+        ax.set_xticks(np.arange(len(names)), names)
+        ax.set_ylabel("estimate ±1.96σ")
+        return fig
+
+
+def _fit(
+    z: FloatArray,
+    x: FloatArray,
+    names: list[str],
+    zname: str,
+    time: FloatArray,
+    *,
+    has_const: bool,
+    error_bars: str,
+) -> RegressionResult:
+    n, p = x.shape
+    if n <= p:
+        raise IdentificationError(f"equation error: {n} samples cannot fit {p} parameters")
+    theta, xtx_inv, gram = _ls_solve(x, z, names)
+    fitted = x @ theta
+    v = z - fitted
+    sse = float(v @ v)
+    zc = z - z.mean()
+    s_dev = float(zc @ zc)
+    sst = s_dev if has_const else float(z @ z)
+    s2 = sse / (n - p)
+    cov_white = s2 * xtx_inv
+    cov = _colored_covariance(x, v, xtx_inv, gram) if error_bars == "colored" else cov_white.copy()
+    bad = ~(np.diag(cov) > 0)
+    if error_bars == "colored" and np.any(bad):
+        # a lag-window estimate can go non-positive: keep the classical bars there
+        cov[bad, :] = cov_white[bad, :]
+        cov[:, bad] = cov_white[:, bad]
+    r2, f_stat = _r2_f(sse, sst, n, p, p - 1 if has_const else p)
+    pse = sse / n + (s_dev / n) * p / n
+    return _result(
+        theta,
+        cov,
+        names,
+        s2,
+        covariance_white=cov_white,
+        response_name=zname,
+        r_squared=r2,
+        f_statistic=f_stat,
+        pse=pse,
+        response=z,
+        fitted=fitted,
+        residuals=v,
+        time=time,
+        domain="time",
+        error_bars=error_bars,
+        n_samples=n,
+    )
+
+
+def _result(
+    theta: FloatArray, cov: FloatArray, names: Sequence[str], s2: float, **fields: Any
+) -> RegressionResult:
+    """The result record: estimates and standard errors by name, ``s`` from ``s2``."""
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return RegressionResult(
+        parameters={k: float(theta[j]) for j, k in enumerate(names)},
+        stderr={k: float(se[j]) for j, k in enumerate(names)},
+        covariance=cov,
+        parameter_names=tuple(names),
+        fit_error=float(np.sqrt(s2)),
+        **fields,
+    )
+
+
+def _r2_f(sse: float, sst: float, n: int, p: int, k: int) -> tuple[float, float]:
+    r2 = 1.0 - sse / sst if sst > 0 else float("nan")
+    if k <= 0 or sst <= 0:
+        return r2, float("nan")
+    if sse <= 0:
+        return r2, float("inf")
+    return r2, ((sst - sse) / k) / (sse / (n - p))
+
+
+@small_blas
+def equation_error(
+    data: FlightData | Mapping[str, ArrayLike] | ArrayLike,
+    response: str | ArrayLike,
+    regressors: Sequence[str] | Mapping[str, Any] | None = None,
+    *,
+    intercept: bool = True,
+    error_bars: str = "colored",
+    domain: str = "time",
+    frequencies: ArrayLike | None = None,
+    dt: float | None = None,
+) -> RegressionResult:
+    """Equation-error (ordinary least-squares) estimation of a linear model.
+
+    Parameters
+    ----------
+    data : FlightData, mapping of str to array_like, or array_like (n, p)
+        Where response and regressors come from; or the regressor matrix
+        itself (then `response` is the samples and `regressors` the optional
+        column names, default ``x1 .. xp``).
+    response : str or array_like
+        The modelled quantity ``z``: a channel name or expression, or samples.
+    regressors : sequence of str, or mapping of str to str or array_like
+        Channel names or expressions (module notes), or name to expression or
+        samples. Not needed with a regressor matrix.
+    intercept : bool
+        Add a constant term ``const`` (its transform in the frequency domain).
+        Without it, an offset in the data leaks into the other estimates in
+        both domains.
+    error_bars : {"colored", "white"}
+        Coloured-residual corrected (default) or classical error bars; the
+        frequency domain always uses the classical formula.
+    domain : {"time", "frequency"}
+        Ordinary least squares on the samples, or Fourier transform
+        regression at `frequencies`.
+    frequencies : array_like, optional
+        Frequencies in Hz for ``domain="frequency"`` (required there).
+    dt : float, optional
+        Sample interval in s for array input in the frequency domain (flight
+        data carry their own).
+
+    Returns
+    -------
+    RegressionResult
+
+    Raises
+    ------
+    DataFormatError
+        Malformed data, expression or option; mismatched lengths; duplicate
+        names; non-uniform sampling in the frequency domain.
+    ChannelError
+        A named channel is missing.
+    IdentificationError
+        Too few samples, or a regressor that is zero or a linear combination
+        of the others.
+    """
+    if domain not in _DOMAINS:
+        raise DataFormatError(f"domain: expected one of {_DOMAINS}, got {domain!r}")
+    if error_bars not in _ERROR_BARS:
+        raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
+    z, x, names, zname, time = _resolve(data, response, regressors, "equation error")
+    use_const = bool(intercept)
+    if use_const:
+        names = [_CONST, *names]
+        x = np.column_stack([np.ones(x.shape[0]), x])
+    _check_names(names)
+    if x.shape[1] == 0:
+        raise DataFormatError("regressors: none given and no constant term")
+    if domain == "time":
+        t = time if time is not None else np.arange(z.shape[0], dtype=np.float64) * (dt or 1.0)
+        return _fit(z, x, names, zname, t, has_const=use_const, error_bars=error_bars)
+    return _frequency_fit(z, x, names, zname, time, dt, frequencies, has_const=use_const)
+
+
+def _frequency_fit(
+    z: FloatArray,
+    x: FloatArray,
+    names: list[str],
+    zname: str,
+    time: FloatArray | None,
+    dt: float | None,
+    frequencies: ArrayLike | None,
+    *,
+    has_const: bool,
+) -> RegressionResult:
+    step = _step_of(time, dt)
+    if step is None:
+        raise DataFormatError(
+            "frequency domain: needs uniformly sampled data (flight data with a uniform "
+            "time grid, or dt= for arrays)"
+        )
+    if frequencies is None:
+        raise DataFormatError("frequencies: required for domain='frequency' (Hz)")
+    freq = np.atleast_1d(np.asarray(frequencies, dtype=np.float64))
+    nyquist = 0.5 / step
+    if (
+        freq.ndim != 1
+        or not np.all(np.isfinite(freq))
+        or np.any(freq < 0)
+        or np.any(freq > nyquist)
+    ):
+        raise DataFormatError(
+            f"frequencies: expected a 1-D array of frequencies in [0, {nyquist:.6g}] Hz"
+        )
+    m, p = freq.shape[0], x.shape[1]
+    if 2 * m <= p:
+        raise IdentificationError(
+            f"frequency domain: {m} frequencies cannot fit {p} real parameters"
+        )
+    both = _fourier_transform(np.column_stack([z, x]), step, freq)
+    zt, xt = both[:, 0], both[:, 1:]
+    # A column with (next to) no content at these frequencies cannot be estimated; the
+    # constant has none at multiples of 1/(N dt), and is then left out silently.
+    content = np.sqrt(np.sum(xt.real**2 + xt.imag**2, axis=0))
+    scale = step * np.sqrt(m) * np.linalg.norm(x, axis=0)
+    empty = ~(content > 1e-9 * scale)
+    if has_const and empty[0]:
+        names, x, xt, empty = names[1:], x[:, 1:], xt[:, 1:], empty[1:]
+        p -= 1
+    for j in np.flatnonzero(empty).tolist():
+        raise IdentificationError(
+            f"regressor {names[j]!r} has no content at the chosen frequencies; drop it"
+        )
+    if p == 0:
+        raise DataFormatError("regressors: none left to estimate at these frequencies")
+    # complex least squares with real parameters = real least squares on stacked parts
+    xs = np.concatenate([xt.real, xt.imag])
+    zs = np.concatenate([zt.real, zt.imag])
+    theta, xtx_inv = _qr_solve(xs, zs, names)
+    fitted = xt @ theta
+    v = zt - fitted
+    sse = float(np.sum(v.real**2 + v.imag**2))
+    szz = float(np.sum(zt.real**2 + zt.imag**2))
+    s2 = sse / (2 * m - p)
+    cov = s2 * xtx_inv
+    r2, f_stat = _r2_f(sse, szz, 2 * m, p, p)
+    pse = sse / m + (szz / m) * p / m
+    return _result(
+        theta,
+        cov,
+        names,
+        s2,
+        covariance_white=cov,
+        response_name=zname,
+        r_squared=r2,
+        f_statistic=f_stat,
+        pse=pse,
+        response=zt,
+        fitted=fitted,
+        residuals=v,
+        time=time if time is not None else np.arange(z.shape[0], dtype=np.float64) * step,
+        frequencies=freq,
+        domain="frequency",
+        error_bars="white",
+        n_samples=m,
+    )
+
+
+# -- candidate pools -------------------------------------------------------------------------
+
+
+def spline_terms(
+    x: ArrayLike, knots: Sequence[float], *, name: str = "alpha", degree: int = 1
+) -> dict[str, FloatArray]:
+    """Truncated-power spline columns ``max(x − k, 0)^degree`` for each knot.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        The variable (typically the angle of attack).
+    knots : sequence of float
+        Knot positions in the units of `x`.
+    name : str
+        Name of the variable in the column names, ``"(alpha-0.1)+"`` or
+        ``"(alpha-0.1)+^2"``.
+    degree : int
+        Power of the truncated term (1: a change of slope at the knot).
+
+    Returns
+    -------
+    dict of str to ndarray
+    """
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim != 1 or not np.all(np.isfinite(arr)):
+        raise DataFormatError(f"spline_terms: {name} must be a finite 1-D array")
+    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
+        raise DataFormatError(f"degree: expected a positive integer, got {degree!r}")
+    out: dict[str, FloatArray] = {}
+    for k in knots:
+        knot = float(k)
+        label = f"({name}-{knot:g})+" if knot >= 0 else f"({name}+{-knot:g})+"
+        if degree > 1:
+            label += f"^{degree}"
+        out[label] = np.maximum(arr - knot, 0.0) ** degree
+    return out
+
+
+def candidate_pool(
+    data: FlightData | Mapping[str, ArrayLike],
+    variables: Sequence[str],
+    *,
+    squares: bool = True,
+    products: bool = True,
+    cubes: bool = False,
+    splines: Mapping[str, Sequence[float]] | None = None,
+) -> dict[str, FloatArray]:
+    """Candidate regressors for `stepwise_regression` built from a few variables.
+
+    Parameters
+    ----------
+    data : FlightData or mapping of str to array_like
+        Where the variables come from.
+    variables : sequence of str
+        Channel names or expressions (e.g. ``"alpha"``, ``"q*cbar/V"`` is not
+        allowed — put scaled rates in the mapping or data first).
+    squares, products, cubes : bool
+        Add ``v^2`` for each variable, ``v*w`` for each pair, ``v^3``.
+    splines : mapping of str to sequence of float, optional
+        Knots of first-degree splines per variable, ``{"alpha": [0.1, 0.2]}``.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Name to column, in the order: linear terms, squares, products, cubes,
+        splines. Names are expressions `equation_error` also understands
+        (except the splines).
+    """
+    if isinstance(variables, str):
+        variables = [variables]
+    lookup: Mapping[str, Any] = data.channels if isinstance(data, FlightData) else data
+    if not isinstance(lookup, Mapping):
+        raise DataFormatError("data: expected FlightData or a mapping of name to samples")
+    if not variables:
+        raise DataFormatError("variables: give at least one variable")
+    first = np.asarray(lookup[variables[0]]) if variables[0] in lookup else None
+    n = first.shape[0] if first is not None else len(next(iter(lookup.values())))
+    cols = {v: _evaluate(lookup, v, n, "variable") for v in variables}
+    out: dict[str, FloatArray] = dict(cols)
+    if squares:
+        out.update({f"{v}^2": cols[v] ** 2 for v in variables})
+    if products:
+        for i, a in enumerate(variables):
+            for b in variables[i + 1 :]:
+                out[f"{a}*{b}"] = cols[a] * cols[b]
+    if cubes:
+        out.update({f"{v}^3": cols[v] ** 3 for v in variables})
+    for v, knots in dict(splines or {}).items():
+        if v not in cols:
+            cols[v] = _evaluate(lookup, v, n, "spline variable")
+        out.update(spline_terms(cols[v], knots, name=v))
+    return out
+
+
+# -- stepwise regression ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StepwiseStep:
+    """One step of stepwise regression.
+
+    Attributes
+    ----------
+    step : int
+        0 for the starting model, then 1, 2, ...
+    action : {"start", "enter", "remove"}
+    term : str
+        The term entered or removed (empty at the start).
+    f_value : float
+        Its partial F statistic (F-to-enter or F-to-remove; NaN at the start).
+    r_squared, pse : float
+        Of the model after the step.
+    n_terms : int
+        Parameters in the model after the step, the constant included.
+    """
+
+    step: int
+    action: str
+    term: str
+    f_value: float
+    r_squared: float
+    pse: float
+    n_terms: int
+
+
+@dataclass(frozen=True, eq=False)
+class StepwiseResult:
+    """Model structure chosen by stepwise regression, and its least-squares fit.
+
+    Attributes
+    ----------
+    selected : tuple of str
+        The candidate terms in the final model (forced terms and the constant
+        excluded), in order of entry.
+    forced : tuple of str
+        Terms kept in every model.
+    candidates : tuple of str
+        The whole pool.
+    steps : tuple of StepwiseStep
+        Each step taken, starting model first.
+    regression : RegressionResult
+        Equation-error fit of the final model (constant, forced and selected
+        terms) on the original, not orthogonalised, regressors.
+    f_in, f_out : float
+    orthogonalized : bool
+    """
+
+    selected: tuple[str, ...]
+    forced: tuple[str, ...]
+    candidates: tuple[str, ...]
+    steps: tuple[StepwiseStep, ...]
+    regression: RegressionResult
+    f_in: float
+    f_out: float
+    orthogonalized: bool
+
+    @property
+    def parameters(self) -> Mapping[str, float]:
+        """Estimates of the final model (see `regression`)."""
+        return self.regression.parameters
+
+    @property
+    def stderr(self) -> Mapping[str, float]:
+        """Standard errors of the final model (see `regression`)."""
+        return self.regression.stderr
+
+    def summary(self) -> str:
+        """A Markdown table of the steps followed by the final fit."""
+        rows = [
+            [
+                s.step,
+                s.action,
+                s.term or "—",
+                "—" if not np.isfinite(s.f_value) else fmt(s.f_value),
+                fmt(s.r_squared),
+                fmt(s.pse),
+                s.n_terms,
+            ]
+            for s in self.steps
+        ]
+        head = (
+            f"Stepwise regression of {self.regression.response_name} over "
+            f"{len(self.candidates)} candidates (F_in = {fmt(self.f_in)}, "
+            f"F_out = {fmt(self.f_out)}"
+            f"{', orthogonalised' if self.orthogonalized else ''}): "
+            f"selected {', '.join(self.selected) or 'nothing'}\n\n"
+        )
+        table = markdown_table(["step", "action", "term", "F", "R²", "PSE", "terms"], rows)
+        return head + table + "\n\n" + self.regression.summary()
+
+    def plot(self) -> Any:
+        """R² and predicted squared error after each step, and the final fit's estimates."""
+        from .plotting import _figure
+
+        fig, axes = _figure(3, height=2.2)
+        k = np.array([s.step for s in self.steps])
+        axes[0, 0].plot(k, [s.r_squared for s in self.steps], "o-")
+        axes[0, 0].set_ylabel("R²")
+        axes[1, 0].plot(k, [s.pse for s in self.steps], "o-", color="C1")
+        axes[1, 0].set_ylabel("PSE")
+        axes[1, 0].set_xlabel("step")
+        names = list(self.regression.parameter_names)
+        est = np.array([self.regression.parameters[n] for n in names])
+        err = np.array([1.96 * self.regression.stderr[n] for n in names])
+        axes[2, 0].errorbar(np.arange(len(names)), est, yerr=err, fmt="o", capsize=4)
+        axes[2, 0].set_xticks(np.arange(len(names)), names)
+        axes[2, 0].set_ylabel("estimate ±1.96σ")
+        return fig
+
+
+def _gram_stats(
+    gram: FloatArray, szz: float, model: list[int]
+) -> tuple[float, FloatArray | None, FloatArray | None]:
+    """SSE of a model from the cross-products, its parameters and (X'X)^-1 block."""
+    if not model:
+        return szz, None, None
+    g = gram[np.ix_(model, model)]
+    b = gram[model, -1]
+    try:
+        ginv = np.linalg.inv(g)
+    except np.linalg.LinAlgError:
+        return szz, None, None
+    theta = np.asarray(ginv @ b, dtype=np.float64)
+    return max(szz - float(b @ theta), 0.0), theta, np.asarray(ginv, dtype=np.float64)
+
+
+@small_blas
+def stepwise_regression(
+    data: FlightData | Mapping[str, ArrayLike] | ArrayLike,
+    response: str | ArrayLike,
+    candidates: Sequence[str] | Mapping[str, Any] | None = None,
+    *,
+    forced: Sequence[str] = (),
+    intercept: bool = True,
+    f_in: float = 4.0,
+    f_out: float = 4.0,
+    orthogonalize: bool = False,
+    error_bars: str = "colored",
+    max_steps: int | None = None,
+) -> StepwiseResult:
+    """Choose model terms from a candidate pool by stepwise regression.
+
+    Klein & Morelli's procedure (ch. 5): starting from the constant and the
+    `forced` terms, each step enters the candidate with the largest partial F
+    statistic ``F = ΔSSE / s²`` if it exceeds `f_in` and lowers the predicted
+    squared error, then removes, one at a time, model terms whose partial F
+    has fallen below `f_out`. It stops when no term enters or leaves (or a
+    model would repeat). The final model is fitted by `equation_error`.
+
+    Parameters
+    ----------
+    data, response
+        As for `equation_error`.
+    candidates : sequence of str, or mapping of str to str or array_like
+        The pool: names or expressions, or name to samples (see
+        `candidate_pool` and `spline_terms`). With a regressor matrix as
+        `data`, the optional column names.
+    forced : sequence of str
+        Candidate names kept in every model.
+    intercept : bool
+        Include a constant term in every model.
+    f_in, f_out : float
+        F-to-enter and F-to-remove (textbook defaults 4); need
+        ``f_out <= f_in``.
+    orthogonalize : bool
+        Select on orthogonal functions instead: the candidates, in pool order
+        after the constant and forced terms, are orthogonalised by
+        Gram–Schmidt, so each carries only what the candidates before it do
+        not explain; correlated terms (``alpha``, ``alpha^2`` ...) then compete
+        for the variance in a fixed order (Morelli's orthogonal modelling).
+        The selected candidates are fitted on their original regressors.
+    error_bars : {"colored", "white"}
+        For the final fit, as in `equation_error`.
+    max_steps : int, optional
+        Cap on entries plus removals (default four times the pool size).
+
+    Returns
+    -------
+    StepwiseResult
+
+    Raises
+    ------
+    DataFormatError
+        Bad data, names or options (unknown forced term, f_out > f_in ...).
+    ChannelError
+        A named channel is missing.
+    IdentificationError
+        Too few samples for the pool.
+    """
+    f_in, f_out = float(f_in), float(f_out)
+    if not (np.isfinite(f_in) and np.isfinite(f_out) and 0 <= f_out <= f_in):
+        raise DataFormatError(f"f_in, f_out: need 0 <= f_out <= f_in, got {f_in}, {f_out}")
+    if error_bars not in _ERROR_BARS:
+        raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
+    z, x, names, zname, time = _resolve(data, response, candidates, "stepwise regression")
+    _check_names([*names, _CONST] if intercept else names)
+    forced_list = [str(f) for f in ([forced] if isinstance(forced, str) else forced)]
+    for f in forced_list:
+        if f not in names:
+            raise DataFormatError(f"forced: {f!r} is not one of the candidates {names}")
+    n, c = x.shape
+    if c == 0:
+        raise DataFormatError("candidates: the pool is empty")
+    limit = 4 * c if max_steps is None else int(max_steps)
+    # Work on centred columns when there is a constant: the constant then drops out of
+    # the cross-products, and the partial F statistics are those of the full model.
+    xw = x - x.mean(axis=0) if intercept else x.copy()
+    zw = z - z.mean() if intercept else z
+    if orthogonalize:
+        order = [names.index(f) for f in forced_list] + [
+            j for j in range(c) if names[j] not in forced_list
+        ]
+        q, r = np.linalg.qr(xw[:, order])
+        ortho = q * np.diag(r)[None, :]
+        xw = np.empty_like(ortho)
+        xw[:, order] = ortho
+    scale = np.linalg.norm(xw, axis=0)
+    usable = scale > _COLLINEAR * np.maximum(np.linalg.norm(x, axis=0), 1e-300)
+    xs = xw / np.where(usable, scale, 1.0)
+    aug = np.column_stack([xs, zw])
+    gram = aug.T @ aug
+    szz = float(gram[-1, -1])
+    s_dev = float(np.sum((z - z.mean()) ** 2))
+    base = 1 if intercept else 0
+
+    def stats(model: list[int]) -> tuple[float, float, float]:
+        sse = _gram_stats(gram, szz, model)[0]
+        p = len(model) + base
+        return sse, 1.0 - sse / szz if szz > 0 else float("nan"), sse / n + s_dev / n * p / n
+
+    model = [names.index(f) for f in forced_list]
+    sse, r2, pse = stats(model)
+    steps = [StepwiseStep(0, "start", "", float("nan"), r2, pse, len(model) + base)]
+    seen = {frozenset(model)}
+    while len(steps) - 1 < limit:
+        changed = False
+        # forward: the candidate with the largest reduction of SSE, from the parts of
+        # the candidates and the response the model does not explain
+        p_new = len(model) + base + 1
+        free = [j for j in range(c) if j not in model and usable[j]]
+        if n - p_new > 0 and free and sse > 0:
+            cross = gram[np.ix_(free, free)].diagonal().copy()
+            resp = gram[free, -1].copy()
+            if model:
+                _, theta, ginv = _gram_stats(gram, szz, model)
+                if theta is None or ginv is None:
+                    break
+                block = gram[np.ix_(model, free)]
+                cross -= np.sum(block * (ginv @ block), axis=0)
+                resp -= block.T @ theta
+            ok = cross > _WELL_POSED  # the columns are scaled to unit norm
+            drop = np.where(ok, resp**2 / np.where(ok, cross, 1.0), -1.0)
+            k = int(np.argmax(drop))
+            if drop[k] > 0:
+                best, best_sse = free[k], max(sse - float(drop[k]), 0.0)
+                new_pse = best_sse / n + s_dev / n * p_new / n
+                f_val = (
+                    (sse - best_sse) / (best_sse / (n - p_new)) if best_sse > 0 else float("inf")
+                )
+                key = frozenset([*model, best])
+                if f_val > f_in and new_pse < pse and key not in seen:
+                    model.append(best)
+                    seen.add(key)
+                    sse, r2, pse = stats(model)
+                    steps.append(
+                        StepwiseStep(len(steps), "enter", names[best], f_val, r2, pse, p_new)
+                    )
+                    changed = True
+        # backward: remove the weakest term while its F-to-remove is below f_out
+        while len(steps) - 1 < limit:
+            removable = [j for j in model if names[j] not in forced_list]
+            if not removable or sse <= 0:
+                break
+            _, theta, ginv = _gram_stats(gram, szz, model)
+            if theta is None or ginv is None:
+                break
+            s2 = sse / (n - len(model) - base)
+            f_rem = {
+                j: float(theta[k] ** 2 / ginv[k, k]) / s2
+                for k, j in enumerate(model)
+                if j in removable
+            }
+            worst = min(f_rem, key=lambda j: f_rem[j])
+            key = frozenset(m for m in model if m != worst)
+            if f_rem[worst] >= f_out or key in seen:
+                break
+            model.remove(worst)
+            seen.add(key)
+            sse, r2, pse = stats(model)
+            steps.append(
+                StepwiseStep(
+                    len(steps), "remove", names[worst], f_rem[worst], r2, pse, len(model) + base
+                )
+            )
+            changed = True
+        if not changed:
+            break
+    selected = [names[j] for j in model if names[j] not in forced_list]
+    keep = [names.index(f) for f in forced_list] + [j for j in model if names[j] not in forced_list]
+    fnames = [names[j] for j in keep]
+    xf = x[:, keep]
+    if intercept:
+        fnames = [_CONST, *fnames]
+        xf = np.column_stack([np.ones(n), xf])
+    if not fnames:
+        raise IdentificationError("stepwise regression: no term selected and no constant term")
+    t = time if time is not None else np.arange(n, dtype=np.float64)
+    regression = _fit(z, xf, fnames, zname, t, has_const=intercept, error_bars=error_bars)
+    return StepwiseResult(
+        selected=tuple(selected),
+        forced=tuple(forced_list),
+        candidates=tuple(names),
+        steps=tuple(steps),
+        regression=regression,
+        f_in=f_in,
+        f_out=f_out,
+        orthogonalized=bool(orthogonalize),
+    )

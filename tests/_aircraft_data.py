@@ -1,0 +1,40 @@
+"""A Navion-like light aircraft shared by the aircraft-model tests and benchmark.
+
+Nelson's data in SI units: mass, inertias and reference geometry (`BASE`, the
+`AircraftConstants` fields without product of inertia, density or sensor
+positions) and non-dimensional derivatives (`LONG`, `LAT`).
+"""
+
+from __future__ import annotations
+
+BASE = dict(mass=1247.0, Ixx=1421.0, Iyy=4067.0, Izz=4786.0, S=17.09, b=10.18, cbar=1.74)
+LONG = {
+    "CD_0": 0.03,
+    "CD_alpha": 0.3,
+    "CD_delta_e": 0.02,
+    "CL_0": 0.25,
+    "CL_alpha": 4.44,
+    "CL_q": 3.8,
+    "CL_delta_e": 0.355,
+    "Cm_0": 0.05,
+    "Cm_alpha": -0.683,
+    "Cm_q": -9.96,
+    "Cm_delta_e": -0.923,
+}
+LAT = {
+    "CY_beta": -0.564,
+    "CY_p": -0.05,
+    "CY_r": 0.2,
+    "CY_delta_a": 0.0,
+    "CY_delta_r": 0.157,
+    "Cl_beta": -0.074,
+    "Cl_p": -0.410,
+    "Cl_r": 0.107,
+    "Cl_delta_a": -0.134,
+    "Cl_delta_r": 0.0107,
+    "Cn_beta": 0.071,
+    "Cn_p": -0.0575,
+    "Cn_r": -0.125,
+    "Cn_delta_a": -0.0035,
+    "Cn_delta_r": -0.072,
+}

@@ -1,0 +1,119 @@
+"""Force and moment coefficients from measured motion against closed-form forces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeroid import ChannelError, DataFormatError, FlightData
+from aeroid.aircraft import AircraftConstants
+from aeroid.coefficients import coefficients_from_data
+
+DT = 0.01
+T = np.arange(0.0, 8.0 + DT / 2, DT)
+AC = AircraftConstants(
+    mass=1200.0, Ixx=1400.0, Iyy=1800.0, Izz=2900.0, Ixz=90.0, S=16.2, b=10.9, cbar=1.5, rho=1.1
+)
+
+
+def _truth(lever: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[dict, dict]:
+    """Motion whose coefficients are known functions of time, and those coefficients."""
+    # rates are sine series over the record: the Fourier smoother differentiates them exactly
+    w = 2 * np.pi / T[-1]
+    V = 50.0 + 2.0 * np.sin(w * T)
+    alpha = 0.08 + 0.03 * np.sin(2 * w * T)
+    p, pd = 0.2 * np.sin(3 * w * T), 0.2 * 3 * w * np.cos(3 * w * T)
+    q, qd = 0.1 * np.sin(2 * w * T), 0.1 * 2 * w * np.cos(2 * w * T)
+    r, rd = 0.05 * np.sin(w * T), 0.05 * w * np.cos(w * T)
+    qs = 0.5 * AC.rho * V**2 * AC.S
+    thrust = 1500.0 + 100.0 * np.cos(w * T)
+    fx, fy, fz = -800 + 200 * np.sin(w * T), 300 * np.cos(2 * w * T), -11000 + 900 * np.sin(w * T)
+    # forces -> specific forces at the CG, plus what an offset accelerometer also senses
+    acc = np.column_stack([(fx + thrust) / AC.mass, fy / AC.mass, fz / AC.mass])
+    om, omd, arm = np.column_stack([p, q, r]), np.column_stack([pd, qd, rd]), np.array(lever)
+    acc = acc + np.cross(omd, arm) + np.cross(om, np.cross(om, arm))
+    # moments from Euler's equations with the product of inertia Ixz
+    roll = AC.Ixx * pd - AC.Ixz * (rd + p * q) + (AC.Izz - AC.Iyy) * q * r
+    pitch = AC.Iyy * qd + (AC.Ixx - AC.Izz) * p * r + AC.Ixz * (p**2 - r**2)
+    yaw = AC.Izz * rd - AC.Ixz * (pd - q * r) + (AC.Iyy - AC.Ixx) * p * q
+    cx, cz = fx / qs, fz / qs
+    truth = {
+        "CX": cx,
+        "CY": fy / qs,
+        "CZ": cz,
+        "CL": -cz * np.cos(alpha) + cx * np.sin(alpha),
+        "CD": -cx * np.cos(alpha) - cz * np.sin(alpha),
+        "Cl": roll / (qs * AC.b),
+        "Cm": pitch / (qs * AC.cbar),
+        "Cn": yaw / (qs * AC.b),
+    }
+    chans = {"V": V, "alpha": alpha, "p": p, "q": q, "r": r, "T": thrust}
+    chans.update(ax=acc[:, 0], ay=acc[:, 1], az=acc[:, 2], p_dot=pd, q_dot=qd, r_dot=rd)
+    return chans, truth
+
+
+def test_coefficients_match_closed_form() -> None:
+    chans, truth = _truth()
+    out = coefficients_from_data(FlightData(T, chans), AC, thrust="T")
+    for name, value in truth.items():
+        np.testing.assert_allclose(out[name], value, rtol=1e-12, atol=1e-14, err_msg=name)
+    np.testing.assert_allclose(out["qbar"], 0.5 * 1.1 * chans["V"] ** 2, rtol=1e-14)
+
+
+def test_accelerometer_offset_and_derived_rates() -> None:
+    chans, truth = _truth(lever=(0.8, -0.1, 0.3))
+    for k in ("p_dot", "q_dot", "r_dot"):
+        del chans[k]
+    ac = AircraftConstants(
+        mass=AC.mass,
+        Ixx=AC.Ixx,
+        Iyy=AC.Iyy,
+        Izz=AC.Izz,
+        Ixz=AC.Ixz,
+        S=AC.S,
+        b=AC.b,
+        cbar=AC.cbar,
+        rho=AC.rho,
+        accel_position=(0.8, -0.1, 0.3),
+    )
+    out = coefficients_from_data(FlightData(T, chans), ac, thrust="T")
+    assert {"p_dot", "q_dot", "r_dot"} <= set(out.names)
+    for name, value in truth.items():
+        scale = np.max(np.abs(value))
+        # the smoothed angular accelerations are exact here up to round-off
+        np.testing.assert_allclose(out[name], value, rtol=0, atol=1e-7 * scale, err_msg=name)
+    # ignoring the offset leaves a lever-arm error of the size of omega^2 r / g
+    plain = coefficients_from_data(FlightData(T, chans), AC, thrust="T")
+    assert np.max(np.abs(plain["CX"] - truth["CX"])) > 1e-3
+
+
+def test_units_in_g_renamed_channels_and_subset() -> None:
+    chans, truth = _truth()
+    renamed = {("airspeed" if k == "V" else k): v for k, v in chans.items()}
+    for k in ("ax", "ay", "az"):
+        renamed[k] = chans[k] / AC.g
+    out = coefficients_from_data(
+        FlightData(T, renamed),
+        AC,
+        thrust=chans["T"],
+        accel_in_g=True,
+        channels={"V": "airspeed"},
+        outputs=["CZ", "Cm"],
+    )
+    np.testing.assert_allclose(out["CZ"], truth["CZ"], rtol=1e-12)
+    np.testing.assert_allclose(out["Cm"], truth["Cm"], rtol=1e-12, atol=1e-15)
+    assert "CX" not in out and "Cl" not in out
+
+
+def test_bad_input() -> None:
+    chans, _ = _truth()
+    data = FlightData(T, {k: v for k, v in chans.items() if k != "q"})
+    with pytest.raises(ChannelError, match="'q'"):
+        coefficients_from_data(data, AC, outputs=["Cm"])
+    with pytest.raises(DataFormatError, match="unknown coefficient"):
+        coefficients_from_data(FlightData(T, chans), AC, outputs=["CQ"])
+    with pytest.raises(DataFormatError, match="AircraftConstants"):
+        coefficients_from_data(FlightData(T, chans), {"mass": 1.0})  # type: ignore[arg-type]
+    bad = dict(chans, V=np.zeros(T.size))
+    with pytest.raises(DataFormatError, match="airspeed"):
+        coefficients_from_data(FlightData(T, bad), AC)

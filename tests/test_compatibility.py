@@ -1,0 +1,354 @@
+"""Data compatibility: seeded recovery of injected sensor errors on a simulated flight."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from _compat_flight import BIASES, NOISE, G, simulated_flight, truth
+from matplotlib.figure import Figure
+
+import aeroid
+from aeroid import compatibility as compat
+from aeroid.compatibility import DEFAULT_ESTIMATE, SENSOR_PARAMETERS, check_compatibility
+from aeroid.errors import ChannelError, DataFormatError, IdentificationError
+
+DURATION, RATE = 12.0, 25.0
+INJECTED = {**BIASES, "k_alpha": 0.08, "tau_alpha": 0.05}
+ESTIMATE = [*DEFAULT_ESTIMATE, "tau_alpha"]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _numpy_simulation():
+    # The compiled simulation path is checked once, in its own test; here the
+    # numpy path keeps the fits free of compilation time.
+    try:
+        from aeroid import _compiled
+    except ImportError:
+        yield
+        return
+    before = _compiled.ENABLED
+    _compiled.ENABLED = False
+    yield
+    _compiled.ENABLED = before
+
+
+@pytest.fixture(scope="module")
+def injected():
+    data = simulated_flight(DURATION, RATE, errors=INJECTED, seed=3)
+    return data, check_compatibility(data, estimate=ESTIMATE)
+
+
+@pytest.fixture(scope="module")
+def clean():
+    data = simulated_flight(DURATION, RATE, seed=4)
+    return data, check_compatibility(data, estimate=ESTIMATE)
+
+
+def test_recovers_injected_biases_scale_factor_and_time_shift(injected):
+    _, r = injected
+    assert r.success and r.identifiable
+    assert r.n_passes >= 2  # the time shift re-interpolates the channel
+    assert set(r.parameter_names) == set(INJECTED)
+    for name, value in INJECTED.items():
+        assert abs(r.parameters[name] - value) < 3 * r.stderr[name], name
+        # and the error bars are error bars, not a blanket: each well below the value
+        assert r.stderr[name] < 0.2 * abs(value), name
+
+
+def test_corrected_data_match_the_truth_within_noise(injected):
+    data, r = injected
+    true = truth(data.time)
+    for c in ("p", "q", "r", "ax", "ay", "az", "V", "alpha", "beta"):
+        err = r.corrected[c] - true[c]
+        raw = data[c] - true[c]
+        # the raw channels are off by many noise levels, the corrected ones by one
+        assert np.sqrt(np.mean(err**2)) < 1.2 * NOISE[c], c
+        assert np.sqrt(np.mean(raw**2)) > 2.5 * NOISE[c] or c in ("phi", "theta"), c
+    for c in compat.INPUT_CHANNELS:  # the noise level behind the error bars
+        assert abs(r.input_noise[c] / NOISE[c] - 1) < 0.2, c
+    # the reconstruction explains the measurements down to their noise
+    rms = np.sqrt(np.mean(r.residuals**2, axis=0))
+    for j, o in enumerate(r.output_names):
+        assert rms[j] < 1.15 * NOISE[o], o
+
+
+def test_clean_data_are_left_unchanged(clean):
+    data, r = clean
+    assert r.success
+    for name in r.parameter_names:
+        assert abs(r.parameters[name]) < 3 * r.stderr[name], name
+    for c in data.names:
+        change = np.sqrt(np.mean((r.corrected[c] - data[c]) ** 2))
+        assert change < 0.3 * NOISE[c], c
+
+
+# Noisy gyros and accelerometers: their noise, integrated by the kinematics, then
+# dominates the gyro-bias uncertainty.
+NOISY_INPUTS = {**NOISE, "p": 2e-3, "q": 2e-3, "r": 2e-3, "ax": 0.05, "ay": 0.05, "az": 0.05}
+UNSHIFTED = {k: v for k, v in INJECTED.items() if k != "tau_alpha"}
+
+
+def test_estimates_within_three_sigma_over_seeds():
+    # Three seeds with noisy inputs, 30 estimates in all: none beyond 3.5 sigma and at
+    # most two beyond 2.5 sigma (0.37 expected for unit-normal z-scores).
+    z = []
+    for seed in (11, 12, 13):
+        data = simulated_flight(10.0, 25.0, errors=UNSHIFTED, noise=NOISY_INPUTS, seed=seed)
+        r = check_compatibility(data)
+        z += [(r.parameters[n] - INJECTED[n]) / r.stderr[n] for n in r.parameter_names]
+    z = np.abs(np.array(z))
+    assert z.size == 30
+    assert np.all(z < 3.5) and np.sum(z > 2.5) <= 2, z
+
+
+def test_input_noise_share_makes_the_gyro_error_bars_cover():
+    # Output error alone treats the inputs as exact: its gyro-bias error bars are
+    # several times too small (this seed: b_r off by 13 of them).
+    data = simulated_flight(10.0, 25.0, errors=UNSHIFTED, noise=NOISY_INPUTS, seed=1)
+    full = check_compatibility(data)
+    bare = check_compatibility(data, input_noise=dict.fromkeys(compat.INPUT_CHANNELS, 0.0))
+    names = full.parameter_names
+    assert full.parameters == bare.parameters  # only the error bars differ
+    z_bare = [abs(bare.parameters[n] - INJECTED[n]) / bare.stderr[n] for n in names]
+    z_full = [abs(full.parameters[n] - INJECTED[n]) / full.stderr[n] for n in names]
+    assert max(z_bare) > 5.0 and max(z_full) < 3.0, (z_bare, z_full)
+    for n in ("b_p", "b_q", "b_r"):
+        assert full.stderr[n] > 3.0 * bare.stderr[n], n
+
+
+def test_input_noise_estimate_from_fourth_differences():
+    data = simulated_flight(20.0, 50.0, seed=5)
+    sigma = compat._input_noise({c: data[c] for c in compat.INPUT_CHANNELS}, None)
+    for c, s in sigma.items():
+        # 1000 samples: the robust scale estimate is good to a few per cent
+        assert abs(s / NOISE[c] - 1) < 0.12, c
+
+
+def test_absent_optional_channels_are_not_fitted():
+    full = simulated_flight(10.0, 25.0, errors=UNSHIFTED, seed=6)
+    data = aeroid.FlightData(full.time, {c: full[c] for c in full.names if c not in ("beta", "h")})
+    r = check_compatibility(data)
+    assert r.output_names == ("V", "alpha", "phi", "theta", "psi")
+    assert "b_beta" not in r.parameter_names  # dropped from the defaults
+    for n in r.parameter_names:
+        assert abs(r.parameters[n] - INJECTED[n]) < 3 * r.stderr[n], n
+    with pytest.raises(ChannelError, match="beta"):
+        check_compatibility(data, estimate=["b_p", "b_beta"])
+
+
+def test_renamed_channels_and_a_known_fixed_error():
+    full = simulated_flight(10.0, 25.0, errors={"b_V": 2.0, "b_q": 0.002}, seed=7)
+    chans = {("aoa" if c == "alpha" else c): full[c] for c in full.names}
+    data = aeroid.FlightData(full.time, chans)
+    r = check_compatibility(
+        data, channels={"alpha": "aoa", "h": None}, estimate=["b_q"], fixed={"b_V": 2.0}
+    )
+    assert r.channels["alpha"] == "aoa" and "h" not in r.output_names
+    assert abs(r.parameters["b_q"] - 0.002) < 3 * r.stderr["b_q"]
+    assert r.fixed["b_V"] == 2.0
+    assert np.allclose(r.corrected["V"], data["V"] - 2.0)
+    assert "aoa" in r.corrected and "alpha" not in r.corrected
+
+
+@pytest.mark.filterwarnings("ignore:identify.*:UserWarning")  # the blind fit may not converge
+def test_wind_needs_ground_speed_and_is_recovered_with_it():
+    wind = (6.0, -4.0, 0.5)
+    errors = {"b_p": 0.003, "b_V": 1.0, "b_alpha": 0.02}
+    names = ["b_p", "b_q", "b_r", "b_V", "b_alpha", "b_beta", "w_n", "w_e", "w_d"]
+    truth_values = {**dict.fromkeys(names, 0.0), **errors, "w_n": 6.0, "w_e": -4.0, "w_d": 0.5}
+    data = simulated_flight(12.0, 25.0, errors=errors, wind=wind, gps=True, seed=14)
+    r = check_compatibility(data, estimate=names)
+    assert r.identifiable and r.output_names[-2:] == ("vn", "ve")
+    for n in names:
+        assert abs(r.parameters[n] - truth_values[n]) < 3 * r.stderr[n], n
+    # a constant wind moves the air velocity as the kinematics move the ground velocity:
+    # without ground speed only its vertical part (through the altitude) is seen
+    air_only = aeroid.FlightData(
+        data.time, {c: data[c] for c in data.names if c[0] != "v"} | {"V": data["V"]}
+    )
+    with pytest.warns(aeroid.IdentifiabilityWarning, match="w_n"):
+        blind = check_compatibility(
+            air_only, estimate=["b_p", "w_n", "w_e", "w_d"], max_iterations=5
+        )
+    assert not blind.identifiable
+
+
+def test_summary_and_plot(clean):
+    _, r = clean
+    text = r.summary()
+    for name in (*r.parameter_names, "u", "theta", "RMS residual"):
+        assert name in text
+    fig = r.plot()
+    assert isinstance(fig, Figure)
+    assert len(fig.axes) == 2 * len(r.output_names)
+    measured, recon = r.channel("V")
+    assert measured.shape == recon.shape == r.time.shape
+    with pytest.raises(ChannelError):
+        r.channel("nope")
+    with pytest.raises((TypeError, ValueError)):
+        r.parameters["b_p"] = 1.0  # frozen record
+    with pytest.raises(ValueError):
+        r.measured[0, 0] = 1.0
+
+
+# -- the model itself ------------------------------------------------------------------
+
+
+def _params(batch: int, **values: float) -> dict[str, np.ndarray]:
+    p = {n: np.zeros(batch) for n in SENSOR_PARAMETERS}
+    p["g"] = np.full(batch, G)
+    for k, v in values.items():
+        p[k] = np.full(batch, v)
+    return p
+
+
+def test_kinematics_match_the_closed_form_flight():
+    t = np.linspace(0.0, 10.0, 7)
+    tr = truth(t)
+    a, b, V = tr["alpha"], tr["beta"], tr["V"]
+    x = np.stack(
+        [
+            V * np.cos(a) * np.cos(b),
+            V * np.sin(b),
+            V * np.sin(a) * np.cos(b),
+            tr["phi"],
+            tr["theta"],
+            tr["psi"],
+            np.zeros_like(t),
+        ]
+    )
+    c = np.stack([tr[k] for k in compat.INPUT_CHANNELS])
+    p = _params(t.size)
+    xd = compat._kinematics(t, x, c, p)
+    eps = 1e-6
+    ahead = truth(t + eps)
+    behind = truth(t - eps)
+    for j, k in ((3, "phi"), (4, "theta"), (5, "psi")):
+        assert np.allclose(xd[j], (ahead[k] - behind[k]) / (2 * eps), atol=1e-7)
+    assert np.allclose(xd[6], tr["hdot"], atol=1e-10)
+    y = compat._sensors(t, x, c, p)
+    for j, k in enumerate(("V", "alpha", "beta", "phi", "theta", "psi")):
+        assert np.allclose(y[j], tr[k], atol=1e-12)
+    # a time shift is the first-order term of y(t - tau)
+    tau = 1e-4
+    shifted = compat._sensors(t, x, c, _params(t.size, tau_alpha=tau, tau_beta=tau, tau_V=tau))
+    back = truth(t - tau)
+    for j, k in enumerate(("V", "alpha", "beta")):
+        assert np.allclose(shifted[j], back[k], rtol=0, atol=1e-8 * max(1.0, abs(tr[k]).max()))
+
+
+def test_wind_enters_the_air_data_as_in_earth_axes():
+    # level, wings level, heading east, flying at 50 m/s over ground into a 10 m/s east wind
+    # with 2 m/s of updraft: 40 m/s airspeed and a small positive alpha
+    x = np.array([[50.0], [0.0], [0.0], [0.0], [0.0], [np.pi / 2], [100.0]])
+    c = np.zeros((6, 1))
+    y = compat._sensors(0.0, x, c, _params(1, w_e=10.0, w_d=-2.0))
+    assert np.allclose(y[0], np.hypot(40.0, 2.0))
+    assert np.allclose(y[1], np.arctan2(2.0, 40.0))
+    assert np.allclose(y[2], 0.0, atol=1e-15)
+
+
+def test_model_broadcasts_over_a_batch():
+    rng = np.random.default_rng(0)
+    batch = 5
+    x = np.array([45.0, 1.0, 3.0, 0.1, 0.05, 0.2, 1500.0])[:, None] + 0.1 * rng.standard_normal(
+        (7, batch)
+    )
+    c = 0.1 * rng.standard_normal((6, batch))
+    p = _params(batch)
+    for n in SENSOR_PARAMETERS:
+        p[n] = 1e-2 * rng.standard_normal(batch)
+    for fun in (compat._kinematics, compat._sensors):
+        whole = fun(0.0, x, c, p)
+        for b in range(batch):
+            one = fun(0.0, x[:, b], c[:, b], {k: float(v[b]) for k, v in p.items()})
+            assert np.allclose(whole[:, b], one, rtol=1e-14, atol=0)
+
+
+@pytest.mark.slow
+def test_compiled_simulation_agrees_with_numpy():
+    _compiled = pytest.importorskip("aeroid._compiled")
+    data = simulated_flight(8.0, 25.0, errors=UNSHIFTED, seed=8)
+    names = ["b_p", "b_q", "b_az", "b_alpha"]
+    plain = check_compatibility(data, estimate=names)
+    _compiled.ENABLED = True
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # a failed compilation must not pass unseen
+            fast = check_compatibility(data, estimate=names)
+    finally:
+        _compiled.ENABLED = False
+    for n in names:
+        assert abs(fast.parameters[n] - plain.parameters[n]) < 1e-3 * plain.stderr[n], n
+
+
+# -- bad input -------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small():
+    return simulated_flight(2.0, 10.0, seed=9)
+
+
+def test_missing_required_channel_is_named(small):
+    data = aeroid.FlightData(small.time, {c: small[c] for c in small.names if c != "q"})
+    with pytest.raises(ChannelError, match="'q'"):
+        check_compatibility(data)
+    with pytest.raises(ChannelError, match="'gyro_x'"):
+        check_compatibility(small, channels={"p": "gyro_x"})
+    with pytest.raises(ChannelError, match="theta"):
+        check_compatibility(small, channels={"theta": None})
+
+
+def test_bad_values_are_named(small):
+    degrees = small.with_channels({"alpha": np.degrees(small["alpha"]) + 5.0})
+    with pytest.raises(DataFormatError, match=r"'alpha'.*radians"):
+        check_compatibility(degrees)
+    stopped = small.with_channels({"V": np.zeros(small.n_samples)})
+    with pytest.raises(DataFormatError, match="'V'"):
+        check_compatibility(stopped)
+    with pytest.raises(DataFormatError, match="FlightData"):
+        check_compatibility({"p": [0.0]})  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match="'beta'"):
+        aeroid.FlightData(small.time, {"beta": np.full(small.n_samples, np.nan)})
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"estimate": ["b_x"]}, "b_x"),
+        ({"estimate": ["b_p", "b_p"]}, "twice"),
+        ({"estimate": []}, "at least one"),
+        ({"estimate": ["b_p"], "fixed": {"b_p": 0.1}}, "both"),
+        ({"fixed": {"k_beta": -1.5}}, "exceed -1"),
+        ({"fixed": {"w_n": float("nan")}}, "finite"),
+        ({"channels": {"rudder": "r"}}, "rudder"),
+        ({"gravity": -9.8}, "gravity"),
+        ({"x0": {"speed": 1.0}}, "speed"),
+        ({"input_noise": {"p": -1.0}}, "input_noise"),
+        ({"seed": 1.5}, "seed"),
+    ],
+)
+def test_bad_options_are_named(small, kwargs, match):
+    with pytest.raises(IdentificationError, match=match):
+        check_compatibility(small, **kwargs)
+
+
+def test_public_names():
+    assert aeroid.check_compatibility is check_compatibility
+    assert aeroid.CompatibilityResult is compat.CompatibilityResult
+
+
+def test_correlation_is_the_normalised_covariance(injected):
+    _, r = injected
+    sd = np.array([r.stderr[n] for n in r.parameter_names])
+    assert np.allclose(r.correlation, r.covariance / np.outer(sd, sd), rtol=1e-12, atol=0)
+    assert np.array_equal(np.diag(r.correlation), np.ones(sd.size))
+    assert not r.correlation.flags.writeable
+
+
+def test_check_compatibility_limits_blas_threads():
+    # wrapped by `small_blas`, as every numerical entry point of the library
+    assert hasattr(check_compatibility, "__wrapped__")

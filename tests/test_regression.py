@@ -1,0 +1,404 @@
+"""Equation-error and stepwise regression against closed forms and seeded truths."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.signal
+
+from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError
+from aeroid.regression import (
+    RegressionResult,
+    candidate_pool,
+    equation_error,
+    spline_terms,
+    stepwise_regression,
+)
+
+THETA = np.array([0.5, -1.0, 2.0])  # const, a, b
+
+
+def _design(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Two smooth, correlated regressors (AR(1) with correlation times 9 and 19 samples)."""
+    x1 = scipy.signal.lfilter([0.2], [1, -0.8], rng.standard_normal(n)) * 3
+    x2 = scipy.signal.lfilter([0.1], [1, -0.9], rng.standard_normal(n)) * 3 + 0.3 * x1
+    return np.column_stack([x1, x2])
+
+
+def _ar1(rng: np.random.Generator, n: int, phi: float, sigma: float) -> np.ndarray:
+    return scipy.signal.lfilter([np.sqrt(1 - phi**2)], [1, -phi], rng.standard_normal(n)) * sigma
+
+
+# -- equation error ------------------------------------------------------------------------
+
+
+def test_matches_closed_form_least_squares() -> None:
+    rng = np.random.default_rng(0)
+    x = _design(rng, 500)
+    z = THETA[0] + x @ THETA[1:] + 0.1 * rng.standard_normal(500)
+    res = equation_error(x, z, ["a", "b"], error_bars="white")
+    full = np.column_stack([np.ones(500), x])
+    theta, *_ = np.linalg.lstsq(full, z, rcond=None)
+    est = np.array([res.parameters[k] for k in ("const", "a", "b")])
+    np.testing.assert_allclose(est, theta, rtol=1e-12, atol=1e-12)
+    v = z - full @ theta
+    s2 = v @ v / (500 - 3)
+    cov = s2 * np.linalg.inv(full.T @ full)
+    np.testing.assert_allclose(res.covariance, cov, rtol=1e-10)
+    np.testing.assert_allclose(res.covariance_white, cov, rtol=1e-10)
+    np.testing.assert_allclose(res.residuals, v, atol=1e-12)
+    sst = np.sum((z - z.mean()) ** 2)
+    assert res.r_squared == pytest.approx(1 - (v @ v) / sst, rel=1e-12)
+    assert res.f_statistic == pytest.approx((sst - v @ v) / 2 / s2, rel=1e-10)
+    # Klein & Morelli's predicted squared error: SSE/N + sigma_max^2 p / N
+    assert res.pse == pytest.approx((v @ v) / 500 + sst / 500 * 3 / 500, rel=1e-12)
+    assert res.fit_error == pytest.approx(np.sqrt(s2), rel=1e-12)
+
+
+def test_noise_free_data_recover_the_truth_exactly() -> None:
+    rng = np.random.default_rng(1)
+    x = _design(rng, 300)
+    z = THETA[0] + x @ THETA[1:]
+    res = equation_error({"a": x[:, 0], "b": x[:, 1], "Cm": z}, "Cm", ["a", "b"])
+    np.testing.assert_allclose(list(res.parameters.values()), THETA, rtol=1e-12, atol=1e-12)
+    assert res.response_name == "Cm"
+    assert res.r_squared == pytest.approx(1.0, abs=1e-12)
+
+
+def test_unbiased_with_noise_free_regressors() -> None:
+    x = _design(np.random.default_rng(2), 400)
+    full = np.column_stack([np.ones(400), x])
+    rng = np.random.default_rng(3)
+    est = np.array(
+        [
+            list(
+                equation_error(x, full @ THETA + 0.2 * rng.standard_normal(400)).parameters.values()
+            )
+            for _ in range(200)
+        ]
+    )
+    sd = 0.2 * np.sqrt(np.diag(np.linalg.inv(full.T @ full)))
+    # the mean of 200 estimates lies within 4 standard errors of the mean
+    assert np.all(np.abs(est.mean(axis=0) - THETA) < 4 * sd / np.sqrt(200))
+    # and their scatter is the classical sigma^2 (X'X)^-1 (chi-square, 199 dof: +-20 %)
+    np.testing.assert_allclose(est.std(axis=0, ddof=1), sd, rtol=0.2)
+
+
+def _coverage(phi: float, n: int = 1000, seeds: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """Per-parameter coverage of the corrected and of the classical 95 % intervals."""
+    hits = np.zeros((seeds, 3), dtype=bool)
+    hits_white = np.zeros((seeds, 3), dtype=bool)
+    for seed in range(seeds):
+        rng = np.random.default_rng(1000 + seed)
+        x = _design(rng, n)
+        z = THETA[0] + x @ THETA[1:] + _ar1(rng, n, phi, 0.1)
+        res = equation_error(x, z)
+        est = np.array(list(res.parameters.values()))
+        hits[seed] = np.abs(est - THETA) < 1.96 * np.array(list(res.stderr.values()))
+        white = 1.96 * np.sqrt(np.diag(res.covariance_white))
+        hits_white[seed] = np.abs(est - THETA) < white
+    return hits.mean(axis=0), hits_white.mean(axis=0)
+
+
+def test_error_bars_cover_with_white_residuals() -> None:
+    cover, cover_white = _coverage(0.0)
+    # 600 intervals: the pooled coverage has a binomial SD of 0.9 %
+    assert 0.93 <= cover.mean() <= 0.97, cover
+    assert np.all(cover >= 0.90), cover
+    np.testing.assert_allclose(cover, cover_white, atol=0.01)  # nothing to correct
+
+
+def test_error_bars_cover_with_ar1_residuals() -> None:
+    cover, cover_white = _coverage(0.9)
+    assert cover.mean() >= 0.90, cover
+    assert np.all(cover >= 0.86), cover
+    # the classical bars, blind to the colour, are far too narrow here
+    assert cover_white.mean() < 0.6, cover_white
+
+
+def test_colored_covariance_is_morellis_double_sum() -> None:
+    # (X'X)^-1 [sum_ij x_i R(i-j) x_j'] (X'X)^-1 over |i-j| <= L, written out directly
+    from aeroid.regression import _autocovariance, _colored_covariance, _correlation_time
+
+    rng = np.random.default_rng(9)
+    n = 301
+    x = np.column_stack([np.ones(n), _design(rng, n)])
+    v = _ar1(rng, n, 0.8, 1.0)
+    lags, tau = _correlation_time(v)
+    assert lags == int(np.ceil(5 * tau)) and lags > 32  # the FFT path
+    r = np.array([v[: n - k] @ v[k:] / n for k in range(lags + 1)])
+    np.testing.assert_allclose(_autocovariance(v, lags), r, rtol=1e-10, atol=1e-14)
+    middle = np.zeros((3, 3))
+    for i in range(n):
+        for j in range(max(0, i - lags), min(n, i + lags + 1)):
+            middle += np.outer(x[i], x[j]) * r[abs(i - j)]
+    inv = np.linalg.inv(x.T @ x)
+    n_eff = n / tau
+    dof = n_eff / (n_eff - 3) / (1 - (2 * lags + 1) / n)
+    got = _colored_covariance(x, v, inv, x.T @ x)
+    np.testing.assert_allclose(got, dof * inv @ middle @ inv, rtol=1e-10)
+
+
+def test_expressions_and_flight_data() -> None:
+    t = np.arange(200) * 0.02
+    rng = np.random.default_rng(4)
+    alpha, q, v = rng.normal(0.1, 0.02, 200), rng.normal(0, 0.1, 200), rng.normal(50, 1, 200)
+    cm = 0.01 - 0.5 * alpha + 2.0 * alpha**2 - 3.0 * q / v + 0.7 * alpha * q
+    data = FlightData(t, {"alpha": alpha, "q": q, "V": v, "Cm": cm})
+    res = equation_error(data, "Cm", ["alpha", "alpha^2", "q/V", "alpha*q"])
+    np.testing.assert_allclose(
+        [res.parameters[k] for k in ("const", "alpha", "alpha^2", "q/V", "alpha*q")],
+        [0.01, -0.5, 2.0, -3.0, 0.7],
+        rtol=1e-9,
+        atol=1e-11,
+    )
+    same = equation_error(
+        data, "Cm", {"a": "alpha", "a2": "alpha**2", "qv": q / v, "aq": "alpha*q"}
+    )
+    assert same.parameters["a2"] == pytest.approx(2.0, rel=1e-9)
+    np.testing.assert_array_equal(res.time, t)
+    scaled = equation_error(data, "2*Cm", ["alpha"], intercept=False)
+    assert scaled.parameter_names == ("alpha",)
+
+
+def test_state_derivative_from_smoothed_data() -> None:
+    # alpha_dot = Z_alpha alpha + q on the noise-free truth case: differentiate, regress
+    from aeroid import catalog
+    from aeroid.smoothing import differentiate
+
+    data = differentiate(catalog.short_period_flight(noise={}), "alpha")
+    res = equation_error(data, "alpha_dot", ["alpha", "q"], intercept=False)
+    assert res.parameters["alpha"] == pytest.approx(catalog.SHORT_PERIOD_TRUTH["Z_alpha"], abs=1e-4)
+    assert res.parameters["q"] == pytest.approx(1.0, abs=1e-4)
+
+
+def test_frequency_domain_agrees_with_time_domain_noise_free() -> None:
+    rng = np.random.default_rng(5)
+    n, dt = 1500, 0.02
+    x = _design(rng, n) + 0.4  # offsets leak into f > 0: the constant term takes them
+    z = THETA[0] + x @ THETA[1:]
+    t_dom = equation_error(x, z, ["a", "b"])
+    freq = np.arange(0.1, 2.0, 0.04)  # evenly spaced: chirp-z transform
+    f_dom = equation_error(x, z, ["a", "b"], domain="frequency", frequencies=freq, dt=dt)
+    uneven = np.sort(rng.uniform(0.1, 2.0, 30))  # direct sum
+    f_dir = equation_error(x, z, ["a", "b"], domain="frequency", frequencies=uneven, dt=dt)
+    for res in (f_dom, f_dir):
+        np.testing.assert_allclose(
+            list(res.parameters.values()), list(t_dom.parameters.values()), rtol=1e-9, atol=1e-10
+        )
+        assert res.domain == "frequency" and res.error_bars == "white"
+    assert f_dom.residuals.dtype == np.complex128 and f_dom.n_samples == freq.size
+    # the transform itself: chirp-z equals the direct sum
+    direct = dt * np.exp(-2j * np.pi * np.outer(freq, np.arange(n) * dt)) @ z
+    np.testing.assert_allclose(f_dom.response, direct, rtol=1e-9, atol=1e-12)
+
+
+def test_frequency_domain_constant_without_content() -> None:
+    # at multiples of 1/(N dt) a constant's transform vanishes: it is left out
+    rng = np.random.default_rng(8)
+    x = rng.standard_normal((500, 2))
+    z = 3.0 + x @ THETA[1:]
+    res = equation_error(x, z, domain="frequency", frequencies=np.arange(0.1, 3.0, 0.1), dt=0.02)
+    assert res.parameter_names == ("x1", "x2")
+    np.testing.assert_allclose(list(res.parameters.values()), THETA[1:], rtol=1e-9)
+    with pytest.raises(IdentificationError, match="'c'"):
+        equation_error(
+            np.column_stack([x, np.ones(500)]),
+            z,
+            ["a", "b", "c"],
+            intercept=False,
+            domain="frequency",
+            frequencies=np.arange(0.1, 3.0, 0.1),
+            dt=0.02,
+        )
+
+
+def test_frequency_domain_error_bars_cover() -> None:
+    freq = np.arange(0.1, 3.0, 0.05)
+    hits = []
+    for seed in range(60):
+        rng = np.random.default_rng(2000 + seed)
+        x = _design(rng, 1000)
+        z = THETA[0] + x @ THETA[1:] + 0.1 * rng.standard_normal(1000)
+        res = equation_error(x, z, domain="frequency", frequencies=freq, dt=0.02)
+        # these frequencies are multiples of 1/(N dt): the constant drops out
+        assert res.parameter_names == ("x1", "x2")
+        est = np.array(list(res.parameters.values()))
+        hits.append(np.abs(est - THETA[1:]) < 1.96 * np.array(list(res.stderr.values())))
+    # 120 intervals: binomial SD 2 %; residual variance counted per real component
+    assert 0.90 <= np.mean(hits) <= 0.99
+
+
+def test_result_record() -> None:
+    rng = np.random.default_rng(6)
+    x = _design(rng, 200)
+    res = equation_error(x, x @ THETA[1:] + 0.1 * rng.standard_normal(200), ["a", "b"])
+    assert isinstance(res, RegressionResult)
+    with pytest.raises(ValueError):
+        res.residuals[0] = 1.0
+    with pytest.raises(TypeError):
+        res.parameters["a"] = 0.0  # type: ignore[index]
+    text = res.summary()
+    assert "| a " in text and "R²" in text and "PSE" in text
+    fig = res.plot()
+    assert len(fig.axes) == 3
+
+
+def test_bad_input() -> None:
+    rng = np.random.default_rng(7)
+    x = _design(rng, 100)
+    z = x[:, 0]
+    with pytest.raises(IdentificationError, match="'c'"):
+        equation_error(np.column_stack([x, x[:, 0] + x[:, 1]]), z, ["a", "b", "c"])
+    with pytest.raises(IdentificationError, match="'z0'"):
+        equation_error(np.column_stack([x, np.zeros(100)]), z, ["a", "b", "z0"])
+    with pytest.raises(DataFormatError, match="twice"):
+        equation_error(x, z, ["a", "a"])
+    with pytest.raises(DataFormatError, match="2 names"):
+        equation_error(x, z, ["a"])
+    data = FlightData(np.arange(100) * 0.1, {"a": x[:, 0], "z": z})
+    with pytest.raises(ChannelError, match="'nope'"):
+        equation_error(data, "z", ["a*nope"])
+    with pytest.raises(DataFormatError, match=r"'a\^0.5'.*non-finite"):
+        equation_error(data, "z", ["a^0.5"])  # negative samples
+    with pytest.raises(DataFormatError, match="power"):
+        equation_error(data, "z", ["a^b"])
+    with pytest.raises(DataFormatError, match="frequencies"):
+        equation_error(data, "z", ["a"], domain="frequency")
+    with pytest.raises(DataFormatError, match="domain"):
+        equation_error(data, "z", ["a"], domain="laplace")
+    with pytest.raises(DataFormatError, match="dt"):
+        equation_error(x, z, domain="frequency", frequencies=[0.1, 0.2, 0.3])
+    with pytest.raises(DataFormatError, match="samples"):
+        equation_error(data, z[:50], ["a"])
+    with pytest.raises(IdentificationError, match="samples"):
+        equation_error(x[:2], z[:2])
+
+
+# -- stepwise regression ---------------------------------------------------------------------
+
+N_SEEDS, N_SAMPLES, DT = 100, 1000, 0.02
+TRUE_CM = {"alpha": -0.6, "qhat": -9.0, "de": -1.1}
+
+
+def _flights() -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """A short-period manoeuvre per seed (rows), simulated exactly (zero-order hold)."""
+    rng = np.random.default_rng(11)
+    t = np.arange(N_SAMPLES) * DT
+    de = np.zeros((N_SEEDS, N_SAMPLES))
+    for a, b, v in [(1, 4, 0.03), (4, 6, -0.03), (6, 7, 0.03), (7, 8, -0.03), (11, 14, -0.02)]:
+        de[:, (t >= a) & (t < b)] = v
+    de += np.repeat(rng.normal(0, 0.005, (N_SEEDS, N_SAMPLES // 25)), 25, axis=1)
+    a_mat = np.array([[-1.2, 1.0], [-8.0, -2.5]])
+    b_vec = np.array([-0.1, -12.0])
+    big = scipy.linalg.expm(np.block([[a_mat, b_vec[:, None]], [np.zeros((1, 3))]]) * DT)
+    phi, gam = big[:2, :2], big[:2, 2]
+    x = np.zeros((N_SEEDS, 2))
+    states = np.empty((N_SEEDS, N_SAMPLES, 2))
+    for k in range(N_SAMPLES):
+        states[:, k] = x
+        x = x @ phi.T + de[:, k : k + 1] * gam
+    alpha = states[..., 0] + 0.08  # trim angle of attack
+    qhat = states[..., 1] * 1.5 / (2 * 40.0)
+    phase = rng.uniform(0, 2 * np.pi, (N_SEEDS, 3))
+    lat = {
+        "beta": 0.01 * np.sin(2 * np.pi * 0.3 * t + phase[:, :1]),
+        "phat": 0.01 * np.sin(2 * np.pi * 0.5 * t + phase[:, 1:2]),
+        "rhat": 0.005 * np.sin(2 * np.pi * 0.2 * t + phase[:, 2:]),
+        "da": np.repeat(rng.normal(0, 0.01, (N_SEEDS, N_SAMPLES // 50)), 50, axis=1),
+        "dr": np.repeat(rng.normal(0, 0.01, (N_SEEDS, N_SAMPLES // 50)), 50, axis=1),
+    }
+    cm = 0.02 + TRUE_CM["alpha"] * alpha + TRUE_CM["qhat"] * qhat + TRUE_CM["de"] * de
+    cm = cm + 0.004 * rng.standard_normal(cm.shape)
+    return {"alpha": alpha, "qhat": qhat, "de": de, **lat}, cm
+
+
+def _pool(sig: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
+    one = {k: v[i] for k, v in sig.items()}
+    pool = candidate_pool(one, ["alpha", "qhat", "de"])  # 3 linear, 3 squares, 3 products
+    pool.update(spline_terms(one["alpha"], [0.06, 0.1]))
+    pool.update({k: one[k] for k in ("beta", "phat", "rhat", "da", "dr")})
+    pool["alpha*beta"] = one["alpha"] * one["beta"]
+    pool["alpha^3"] = one["alpha"] ** 3
+    pool["alpha^2*de"] = one["alpha"] ** 2 * one["de"]
+    pool["de^3"] = one["de"] ** 3
+    return pool
+
+
+def test_stepwise_finds_the_true_terms() -> None:
+    sig, cm = _flights()
+    found, kept = 0, {}
+    for i in range(N_SEEDS):
+        pool = _pool(sig, i)
+        assert len(pool) == 20
+        res = stepwise_regression(pool, cm[i], pool)
+        found += set(TRUE_CM) <= set(res.selected)
+        for term in res.selected:
+            kept[term] = kept.get(term, 0) + 1
+        if i == 0:
+            for k, v in TRUE_CM.items():
+                assert abs(res.parameters[k] - v) < 4 * res.stderr[k]
+    assert found >= 95
+    spurious = {k: c for k, c in kept.items() if k not in TRUE_CM}
+    assert all(c <= 10 for c in spurious.values()), spurious
+
+
+def test_stepwise_steps_and_orthogonal_option() -> None:
+    sig, cm = _flights()
+    pool = _pool(sig, 0)
+    res = stepwise_regression(pool, cm[0], pool)
+    assert res.steps[0].action == "start" and res.steps[0].n_terms == 1
+    entered = [s.term for s in res.steps if s.action == "enter"]
+    assert set(TRUE_CM) <= set(entered)
+    pses = [s.pse for s in res.steps]
+    assert all(b < a for a, b in itertools.pairwise(pses))  # each entry helps
+    assert all(s.f_value > 4 for s in res.steps[1:] if s.action == "enter")
+    assert res.regression.parameter_names[0] == "const"
+    assert "| enter" in res.summary()
+    assert len(res.plot().axes) == 3
+    ortho = stepwise_regression(pool, cm[0], pool, orthogonalize=True)
+    assert set(TRUE_CM) <= set(ortho.selected) and ortho.orthogonalized
+    forced = stepwise_regression(pool, cm[0], pool, forced=["dr"])
+    assert "dr" in forced.regression.parameter_names and "dr" not in forced.selected
+
+
+def test_stepwise_removes_a_term_made_redundant() -> None:
+    # x3 explains z on its own until x1 and x2, which make it up, are both in
+    rng = np.random.default_rng(12)
+    x1, x2 = rng.standard_normal(500), rng.standard_normal(500)
+    x3 = x1 + x2 + 0.5 * rng.standard_normal(500)
+    z = x1 + x2 + 0.05 * rng.standard_normal(500)
+    res = stepwise_regression({"x1": x1, "x2": x2, "x3": x3}, z, {"x1": x1, "x2": x2, "x3": x3})
+    actions = [(s.action, s.term) for s in res.steps]
+    assert ("enter", "x3") in actions and ("remove", "x3") in actions
+    assert set(res.selected) == {"x1", "x2"}
+    removal = next(s for s in res.steps if s.action == "remove")
+    assert removal.f_value < 4
+
+
+def test_candidate_helpers() -> None:
+    a = np.array([0.0, 0.05, 0.1, 0.2])
+    s = spline_terms(a, [0.1], name="alpha")
+    np.testing.assert_allclose(s["(alpha-0.1)+"], [0, 0, 0, 0.1], atol=1e-15)
+    s2 = spline_terms(a, [0.05], degree=2)
+    np.testing.assert_allclose(s2["(alpha-0.05)+^2"], [0, 0, 0.05**2, 0.15**2])
+    pool = candidate_pool({"a": a, "b": 2 * a}, ["a", "b"], cubes=True, splines={"a": [0.1]})
+    assert list(pool) == ["a", "b", "a^2", "b^2", "a*b", "a^3", "b^3", "(a-0.1)+"]
+    np.testing.assert_allclose(pool["a*b"], 2 * a**2)
+
+
+def test_stepwise_bad_input() -> None:
+    x = {"a": np.arange(10.0), "b": np.arange(10.0) ** 2}
+    with pytest.raises(DataFormatError, match="f_out"):
+        stepwise_regression(x, np.ones(10), x, f_in=2, f_out=4)
+    with pytest.raises(DataFormatError, match="forced"):
+        stepwise_regression(x, np.ones(10), x, forced=["c"])
+
+
+def test_public_entry_points_limit_blas_threads():
+    # wrapped by `small_blas`, as every numerical entry point of the library
+    for fn in (equation_error, stepwise_regression):
+        assert hasattr(fn, "__wrapped__"), fn.__name__
