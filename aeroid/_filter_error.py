@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._output_error import held_at_bounds
 from .data import FlightData
 from .errors import IdentifiabilityWarning, IdentificationError
 from .filtering import (
@@ -246,26 +247,18 @@ def _bounded_delta(
 ) -> FloatArray:
     """The damped scoring step, with quantities at a bound whose step would leave
     the box held (zero step) and the step re-solved without them."""
-    n = z.size
-    free = np.ones(n, dtype=bool)
-    at_lo = z <= lo
-    at_hi = z >= hi
-    delta = np.zeros(n)
-    for _ in range(n + 1):
-        delta = np.zeros(n)
-        idx = np.flatnonzero(free)
-        if idx.size:
-            F = fisher[np.ix_(idx, idx)]
-            D = np.diag(np.maximum(np.diag(F), 1e-300))
-            try:
-                delta[idx] = np.linalg.solve(F + lam * D, -g[idx])
-            except np.linalg.LinAlgError:
-                delta[idx] = -np.linalg.lstsq(F + lam * D, g[idx], rcond=None)[0]
-        out = free & ((at_lo & (delta < 0)) | (at_hi & (delta > 0)))
-        if not np.any(out):
-            break
-        free &= ~out
-    return delta
+
+    def solve(idx: NDArray[np.intp]) -> FloatArray:
+        F = fisher[np.ix_(idx, idx)]
+        D = np.diag(np.maximum(np.diag(F), 1e-300))
+        try:
+            return np.asarray(np.linalg.solve(F + lam * D, -g[idx]), dtype=np.float64)
+        except np.linalg.LinAlgError:
+            return np.asarray(
+                -np.linalg.lstsq(F + lam * D, g[idx], rcond=None)[0], dtype=np.float64
+            )
+
+    return held_at_bounds(solve, z <= lo, z >= hi)
 
 
 def identify_filter_error(

@@ -12,7 +12,7 @@ finite-difference columns.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -699,6 +699,33 @@ def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, 
     return combos, null
 
 
+def held_at_bounds(
+    solve: Callable[[NDArray[np.intp]], FloatArray],
+    at_lower: NDArray[np.bool_],
+    at_upper: NDArray[np.bool_],
+) -> FloatArray:
+    """A step (the change of each unknown) with the unknowns held that sit at a bound
+    and would leave the box: the active set of bounded Gauss–Newton and scoring.
+
+    ``solve(idx)`` returns the change of the free unknowns `idx`; an unknown at a
+    bound whose change points outward is held (zero change) and the rest solved
+    again, until none points outward.
+    """
+    n = at_lower.size
+    free = np.ones(n, dtype=bool)
+    change = np.zeros(n)
+    for _ in range(n + 1):
+        change = np.zeros(n)
+        idx = np.flatnonzero(free)
+        if idx.size:
+            change[idx] = solve(idx)
+        out = free & ((at_lower & (change < 0)) | (at_upper & (change > 0)))
+        if not np.any(out):
+            break
+        free &= ~out
+    return change
+
+
 def _projected_step(
     a: FloatArray,
     b: FloatArray,
@@ -711,30 +738,19 @@ def _projected_step(
     """One bounded Gauss–Newton step: (the step taken, the trial point) with
     ``trial = theta - step`` inside the box.
 
-    `a` and `b` are the scaled normal equations (scales `dn`). Parameters at a
-    bound whose step would leave the box are held and the step re-solved
-    without them until none would; what remains is projected onto the box.
+    `a` and `b` are the scaled normal equations (scales `dn`); the active set
+    is `held_at_bounds`'s, and what remains is projected onto the box.
     """
-    n = theta.size
-    free = np.ones(n, dtype=bool)
-    at_lower = theta <= lower
-    at_upper = theta >= upper
-    step = np.zeros(n)
-    for _ in range(n + 1):
-        step = np.zeros(n)
-        idx = np.flatnonzero(free)
-        if idx.size:
-            sub = a if idx.size == n else a[np.ix_(idx, idx)]
-            try:
-                sol = np.linalg.lstsq(sub + lam * np.eye(idx.size), b[idx], rcond=1e-12)[0]
-                step[idx] = sol / dn[idx]
-            except np.linalg.LinAlgError:
-                pass
-        # theta moves by -step: outward is a positive step at a lower bound
-        out = free & ((at_lower & (step > 0)) | (at_upper & (step < 0)))
-        if not np.any(out):
-            break
-        free &= ~out
+
+    def solve(idx: NDArray[np.intp]) -> FloatArray:
+        sub = a if idx.size == theta.size else a[np.ix_(idx, idx)]
+        try:
+            sol = np.linalg.lstsq(sub + lam * np.eye(idx.size), b[idx], rcond=1e-12)[0]
+        except np.linalg.LinAlgError:
+            return np.zeros(idx.size)
+        return -sol / dn[idx]  # theta moves by -step
+
+    step = -held_at_bounds(solve, theta <= lower, theta >= upper)
     trial = np.clip(theta - step, lower, upper)
     clipped = trial != theta - step
     return np.where(clipped, theta - trial, step), trial
