@@ -238,3 +238,18 @@ def test_an_execution_only_option_travels_with_the_task_but_not_in_its_key(tmp_p
     assert "n_batches" not in plain["propagate sim-0"].options
     assert n_parts(plain["propagate sim-0"]) == 1 and n_parts(split["propagate sim-0"]) == 4
     assert n_parts(many["propagate sim-1"]) == 10  # never more batches than draws
+
+
+def test_a_declared_integration_path_is_part_of_the_model_fingerprint():
+    from aeroid import Model
+    from aeroid.pipeline.keys import model_fingerprint
+
+    def decay(t, x, u, p):
+        return -p["k"] * x
+
+    plain = model_fingerprint(Model(["x"], [], {"k": 1.0}, decay))
+    assert "linear" not in plain  # keys of models that declare nothing are unchanged
+    integrated = model_fingerprint(Model(["x"], [], {"k": 1.0}, decay, linear=False))
+    exact = model_fingerprint(Model(["x"], [], {"k": 1.0}, decay, linear=True))
+    assert integrated["linear"] is False and exact["linear"] is True
+    assert len({json.dumps(fp, sort_keys=True) for fp in (plain, integrated, exact)}) == 3

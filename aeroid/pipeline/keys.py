@@ -149,6 +149,10 @@ def model_fingerprint(model: Any) -> dict[str, Any]:
     if hasattr(model, "states") and hasattr(model, "dynamics_source"):
         fp["states"] = list(model.states)
         fp["source"] = model.dynamics_source
+        # a declared integration path changes the numbers; undeclared keeps old keys
+        linear = getattr(model, "linear", None)
+        if linear is not None:
+            fp["linear"] = bool(linear)
     else:
         cls = type(model)
         fp["states"] = []
