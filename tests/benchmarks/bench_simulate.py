@@ -11,20 +11,15 @@ Run: python tests/benchmarks/bench_simulate.py
 
 from __future__ import annotations
 
-import os
+import functools
+import warnings
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+import numpy as np
+import scipy.linalg
+from _timing import median_time
 
-import functools  # noqa: E402
-import warnings  # noqa: E402
-
-import numpy as np  # noqa: E402
-import scipy.linalg  # noqa: E402
-from _timing import median_time  # noqa: E402
-
-import aeroid  # noqa: E402
-from aeroid import _integrate, catalog  # noqa: E402
+import aeroid
+from aeroid import _integrate, catalog
 
 
 def _step_by_step(phi: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndarray:
