@@ -1,0 +1,467 @@
+"""Flight tests flown by JSBSim's Cessna 172 (``c172x``), recorded as a flight-test engineer would.
+
+`fly_c172x` trims the aircraft at a flight condition with JSBSim's own
+trim, flies a 3-2-1-1 on the elevator followed by aileron and rudder
+doublets, with light seeded turbulence and seeded sensor noise, and returns
+the record in SI units and stability-axis quantities (``V``, ``alpha``,
+``beta``, body rates, Euler angles, specific forces at the centre of
+gravity, surface positions, thrust). `write_flight` writes it as a CSV flight
+file in the usual format; `write_campaign` writes a whole set of conditions.
+
+`effective_derivatives` measures the non-dimensional stability and control
+derivatives that JSBSim itself flies at a trim, by small central
+perturbations of JSBSim's state and controls (not of any AeroID model), so
+that identified derivatives can be checked against the simulator's physics.
+
+`c172x_constants` reads the mass, inertias and reference geometry from the
+loaded aircraft and converts them to SI, as `aeroid.aircraft.AircraftConstants`.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..data import FlightData
+from ..errors import AdapterError, SimulationError
+from . import require
+
+__all__ = [
+    "C172X_CHANNELS",
+    "FlightCondition",
+    "c172x_constants",
+    "effective_derivatives",
+    "fly_c172x",
+    "write_campaign",
+    "write_flight",
+]
+
+FloatArray = NDArray[np.float64]
+
+_FT = 0.3048
+_LBF = 4.4482216152605
+_SLUG = 14.593902937206
+_SLUGFT2 = _SLUG * _FT * _FT
+_PITCH_GAIN = 1.0  # normalised elevator per rad of pitch attitude
+_PITCH_DAMPING = 0.3  # normalised elevator per rad/s of pitch rate
+_ROLL_GAIN = 0.5  # normalised aileron per rad of bank
+_ROLL_DAMPING = 0.2  # normalised aileron per rad/s of roll rate
+
+# Channel, unit, sensor noise standard deviation (SI): typical of a light-aircraft
+# flight-test instrumentation package (vanes, a MEMS IMU, an air-data computer).
+C172X_CHANNELS: tuple[tuple[str, str, float], ...] = (
+    ("V", "m/s", 0.1),
+    ("alpha", "rad", 0.002),
+    ("beta", "rad", 0.002),
+    ("p", "rad/s", 0.002),
+    ("q", "rad/s", 0.002),
+    ("r", "rad/s", 0.002),
+    ("phi", "rad", 0.002),
+    ("theta", "rad", 0.002),
+    ("ax", "m/s2", 0.03),
+    ("ay", "m/s2", 0.03),
+    ("az", "m/s2", 0.03),
+    ("delta_e", "rad", 0.0),
+    ("delta_a", "rad", 0.0),
+    ("delta_r", "rad", 0.0),
+    ("thrust", "N", 0.0),
+)
+
+
+@dataclass(frozen=True)
+class FlightCondition:
+    """A trim condition: true airspeed (m/s) and altitude above sea level (m)."""
+
+    airspeed: float
+    altitude: float
+
+    def __post_init__(self) -> None:
+        if not (20.0 <= float(self.airspeed) <= 70.0):
+            raise AdapterError(
+                f"c172x airspeed {self.airspeed!r} m/s: expected 20-70 m/s (its flight envelope)"
+            )
+        if not (0.0 <= float(self.altitude) <= 4000.0):
+            raise AdapterError(f"c172x altitude {self.altitude!r} m: expected 0-4000 m")
+
+
+def _jsbsim() -> Any:
+    return require("jsbsim", "jsbsim")
+
+
+_AIRCRAFT: list[Any] = []
+
+
+def _aircraft() -> Any:
+    """The adapter's sanitised c172x (no ``<output>`` elements: the stock file declares a
+    CSV log beside the package and sockets), kept for the process's life."""
+    if not _AIRCRAFT:
+        from .jsbsim import JsbsimModel
+
+        _AIRCRAFT.append(JsbsimModel("c172x", outputs={"V": "velocities/vt-fps"}))
+    return _AIRCRAFT[0]
+
+
+def _executive(condition: FlightCondition, *, dt: float = 1 / 120) -> Any:
+    """A fresh ``FGFDMExec`` with the c172x trimmed in wings-level flight at `condition`."""
+    fdm = _aircraft().executive()
+    fdm.set_dt(dt)
+    fdm["ic/h-sl-ft"] = condition.altitude / _FT
+    fdm["ic/vt-fps"] = condition.airspeed / _FT
+    fdm["ic/gamma-deg"] = 0.0
+    fdm["ic/psi-true-deg"] = 0.0
+    fdm.run_ic()
+    fdm["propulsion/set-running"] = -1
+    fdm["fcs/mixture-cmd-norm"] = 0.87
+    try:
+        fdm["simulation/do_simple_trim"] = 1
+    except Exception as exc:  # JSBSim raises its own TrimFailureException
+        raise SimulationError(
+            f"jsbsim: the c172x does not trim at {condition.airspeed:g} m/s, "
+            f"{condition.altitude:g} m ({exc})"
+        ) from None
+    return fdm
+
+
+def _doublet(t: FloatArray, start: float, width: float, amplitude: float) -> FloatArray:
+    return amplitude * (
+        ((t >= start) & (t < start + width)).astype(float)
+        - ((t >= start + width) & (t < start + 2 * width)).astype(float)
+    )
+
+
+def _three_two_one_one(t: FloatArray, start: float, unit: float, amplitude: float) -> FloatArray:
+    signs = (1.0, -1.0, 1.0, -1.0)
+    widths = (3.0, 2.0, 1.0, 1.0)
+    out = np.zeros_like(t)
+    edge = start
+    for sign, width in zip(signs, widths, strict=True):
+        out[(t >= edge) & (t < edge + width * unit)] = sign * amplitude
+        edge += width * unit
+    return out
+
+
+def _inputs(t: FloatArray) -> dict[str, FloatArray]:
+    """Normalised stick and pedal commands: a 3-2-1-1 on the elevator from 1 s, an
+    aileron doublet from 9 s and a rudder doublet from 14 s (each mode settles
+    before the next input)."""
+    return {
+        "fcs/elevator-cmd-norm": _three_two_one_one(t, 1.0, 0.4, 0.2),
+        "fcs/aileron-cmd-norm": _doublet(t, 9.0, 1.0, 0.1),
+        "fcs/rudder-cmd-norm": _doublet(t, 14.0, 1.0, 0.15),
+    }
+
+
+def _record(fdm: Any) -> list[float]:
+    mass = float(fdm["inertia/weight-lbs"]) / 32.174049
+    fx = float(fdm["forces/fbx-aero-lbs"]) + float(fdm["forces/fbx-prop-lbs"])
+    fy = float(fdm["forces/fby-aero-lbs"]) + float(fdm["forces/fby-prop-lbs"])
+    fz = float(fdm["forces/fbz-aero-lbs"]) + float(fdm["forces/fbz-prop-lbs"])
+    return [
+        float(fdm["velocities/vt-fps"]) * _FT,
+        float(fdm["aero/alpha-rad"]),
+        float(fdm["aero/beta-rad"]),
+        float(fdm["velocities/p-rad_sec"]),
+        float(fdm["velocities/q-rad_sec"]),
+        float(fdm["velocities/r-rad_sec"]),
+        float(fdm["attitude/phi-rad"]),
+        float(fdm["attitude/theta-rad"]),
+        fx / mass * _FT,
+        fy / mass * _FT,
+        fz / mass * _FT,
+        float(fdm["fcs/elevator-pos-rad"]),
+        float(fdm["fcs/effective-aileron-pos"]),
+        float(fdm["fcs/rudder-pos-rad"]),
+        float(fdm["propulsion/engine/thrust-lbs"]) * _LBF,
+    ]
+
+
+def _gusts(t: FloatArray, airspeed: float, sigma: float, seed: int) -> FloatArray:
+    """Lateral and vertical gust velocities (m/s) with first-order (Dryden-like) spectra:
+    standard deviation `sigma`, scale length 533 m (MIL-F-8785C above 2000 ft), seeded.
+    Our own generator rather than JSBSim's, so that the seed fixes the record."""
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(2,)))
+    out = np.zeros((2, t.size))
+    if sigma <= 0.0 or t.size < 2:
+        return out
+    dt = float(t[1] - t[0])
+    a = math.exp(-airspeed * dt / 533.0)
+    drive = rng.standard_normal((2, t.size)) * sigma * math.sqrt(1.0 - a * a)
+    out[:, 0] = rng.standard_normal(2) * sigma
+    for k in range(1, t.size):
+        out[:, k] = a * out[:, k - 1] + drive[:, k]
+    return out
+
+
+def fly_c172x(
+    condition: FlightCondition,
+    *,
+    duration: float = 20.0,
+    sample_rate: float = 50.0,
+    turbulence: float = 0.3,
+    noise: bool = True,
+    seed: int = 0,
+) -> FlightData:
+    """Fly one flight-test record with JSBSim's c172x.
+
+    Parameters
+    ----------
+    condition : FlightCondition
+        Trim airspeed and altitude.
+    duration : float
+        Record length, s (at least 18 s: the three inputs end at 16 s).
+    sample_rate : float
+        Recording rate, Hz (10-400); JSBSim steps at a whole multiple of it.
+    turbulence : float
+        Standard deviation of the lateral and vertical gusts, m/s (0: calm air).
+    noise : bool
+        Add seeded white sensor noise with the standard deviations of `C172X_CHANNELS`.
+    seed : int
+        Seeds the gusts and the sensor noise: the same seed flies the same record.
+
+    Returns
+    -------
+    FlightData
+        Channels of `C172X_CHANNELS` with their units; metadata holds the
+        condition, the trim and the seed.
+
+    Raises
+    ------
+    AdapterError
+        JSBSim missing, a condition outside the envelope, or a sample rate
+        outside 10-400 Hz.
+    SimulationError
+        The trim fails or the flight diverges.
+    """
+    if duration < 18.0:
+        raise AdapterError(f"duration {duration!r} s: the c172x test inputs need at least 18 s")
+    if not 10.0 <= float(sample_rate) <= 400.0:
+        raise AdapterError(f"sample_rate {sample_rate!r} Hz: expected 10-400 Hz")
+    # JSBSim steps at a whole multiple of the recording rate, at least its usual 120 Hz.
+    every = math.ceil(120.0 / float(sample_rate) - 1e-9)
+    step = 1.0 / (every * float(sample_rate))
+    fdm = _executive(condition, dt=step)
+    n = round(duration * sample_rate) + 1
+    t = np.arange(n) / float(sample_rate)
+    fine: FloatArray = np.arange((n - 1) * every + 1, dtype=np.float64) * step
+    commands = _inputs(fine)
+    gusts = _gusts(fine, float(condition.airspeed), float(turbulence), seed)
+    trim = {
+        "alpha": float(fdm["aero/alpha-rad"]),
+        "theta": float(fdm["attitude/theta-rad"]),
+        "delta_e": float(fdm["fcs/elevator-pos-rad"]),
+        "throttle": float(fdm["fcs/throttle-cmd-norm"]),
+    }
+    theta_trim = trim["theta"]
+    # The trim's own stick and pedal positions: the inputs and the pilot act about them.
+    held = {prop: float(fdm[prop]) for prop in commands}
+    rows = np.empty((n, len(C172X_CHANNELS)))
+    for k in range(fine.size):
+        if k % every == 0:
+            rows[k // every] = _record(fdm)
+        fdm["fcs/rudder-cmd-norm"] = held["fcs/rudder-cmd-norm"] + float(
+            commands["fcs/rudder-cmd-norm"][k]
+        )
+        fdm["atmosphere/gust-east-fps"] = gusts[0, k] / _FT
+        fdm["atmosphere/gust-down-fps"] = gusts[1, k] / _FT
+        # The pilot holds the pitch attitude and the wings level around the inputs (the
+        # c172x's phugoid is lightly damped and its spiral mode diverges slowly); the
+        # recorded surfaces include the corrections.
+        fdm["fcs/elevator-cmd-norm"] = (
+            held["fcs/elevator-cmd-norm"]
+            + float(commands["fcs/elevator-cmd-norm"][k])
+            + (
+                _PITCH_GAIN * (float(fdm["attitude/theta-rad"]) - theta_trim)
+                + _PITCH_DAMPING * float(fdm["velocities/q-rad_sec"])
+            )
+        )
+        fdm["fcs/aileron-cmd-norm"] = (
+            held["fcs/aileron-cmd-norm"]
+            + float(commands["fcs/aileron-cmd-norm"][k])
+            - (
+                _ROLL_GAIN * float(fdm["attitude/phi-rad"])
+                + _ROLL_DAMPING * float(fdm["velocities/p-rad_sec"])
+            )
+        )
+        if k + 1 < fine.size and not fdm.run():
+            raise SimulationError(f"jsbsim c172x stopped at t = {fine[k]:.3f} s")
+    if not np.all(np.isfinite(rows)):
+        raise SimulationError("jsbsim c172x: the flight diverged (non-finite values)")
+    if noise:
+        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(1,)))
+        sigma = np.array([c[2] for c in C172X_CHANNELS])
+        rows = rows + rng.standard_normal(rows.shape) * sigma
+    channels = {name: rows[:, i] for i, (name, _, _) in enumerate(C172X_CHANNELS)}
+    units = {name: unit for name, unit, _ in C172X_CHANNELS}
+    meta = {
+        "source": f"jsbsim c172x {condition.airspeed:g} m/s {condition.altitude:g} m",
+        "airspeed": float(condition.airspeed),
+        "altitude": float(condition.altitude),
+        "trim": trim,
+        "seed": int(seed),
+    }
+    return FlightData(t, channels, units, meta)
+
+
+def write_flight(data: FlightData, path: str | os.PathLike[str]) -> Path:
+    """Write a flight as CSV: a ``time`` column then every channel, 9 significant digits."""
+    out = Path(path)
+    names = list(data.names)
+    with out.open("w", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(["time", *names])
+        columns = [data.time, *(data[n] for n in names)]
+        for row in zip(*columns, strict=True):
+            writer.writerow([f"{v:.9g}" for v in row])
+    return out
+
+
+def write_campaign(
+    folder: str | os.PathLike[str],
+    conditions: Sequence[FlightCondition],
+    *,
+    seed: int = 0,
+    **options: Any,
+) -> list[Path]:
+    """Fly every condition (flight ``i`` seeded by ``SeedSequence(seed, spawn_key=(i,))``)
+    and write ``flight_XX.csv`` files into `folder`; returns their paths."""
+    root = Path(folder)
+    root.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, cond in enumerate(conditions):
+        ss = np.random.SeedSequence(int(seed), spawn_key=(i,))
+        flight_seed = int(ss.generate_state(1)[0])
+        data = fly_c172x(cond, seed=flight_seed, **options)
+        paths.append(write_flight(data, root / f"flight_{i + 1:02d}.csv"))
+    return paths
+
+
+def c172x_constants(altitude: float) -> Any:
+    """The c172x's mass, inertias and reference geometry in SI, with the ISA density at `altitude`."""
+    from ..aircraft import AircraftConstants
+
+    fdm = _executive(FlightCondition(50.0, float(altitude)))
+    return AircraftConstants(
+        mass=float(fdm["inertia/mass-slugs"]) * _SLUG,
+        Ixx=float(fdm["inertia/ixx-slugs_ft2"]) * _SLUGFT2,
+        Iyy=float(fdm["inertia/iyy-slugs_ft2"]) * _SLUGFT2,
+        Izz=float(fdm["inertia/izz-slugs_ft2"]) * _SLUGFT2,
+        Ixz=float(fdm["inertia/ixz-slugs_ft2"]) * _SLUGFT2,
+        S=float(fdm["metrics/Sw-sqft"]) * _FT**2,
+        b=float(fdm["metrics/bw-ft"]) * _FT,
+        cbar=float(fdm["metrics/cbarw-ft"]) * _FT,
+        rho=float(fdm["atmosphere/rho-slugs_ft3"]) * _SLUG / _FT**3,
+    )
+
+
+def _coefficients(fdm: Any) -> dict[str, float]:
+    """Non-dimensional aerodynamic coefficients at JSBSim's current state: lift and drag
+    in stability axes, side force and the three moments (about the centre of gravity)
+    in body axes."""
+    qs = float(fdm["aero/qbar-psf"]) * float(fdm["metrics/Sw-sqft"])
+    b = float(fdm["metrics/bw-ft"])
+    c = float(fdm["metrics/cbarw-ft"])
+    return {
+        "CL": float(fdm["forces/fwz-aero-lbs"]) / qs,
+        "CD": float(fdm["forces/fwx-aero-lbs"]) / qs,
+        "CY": float(fdm["forces/fby-aero-lbs"]) / qs,
+        "Cl": float(fdm["moments/l-aero-lbsft"]) / (qs * b),
+        "Cm": float(fdm["moments/m-aero-lbsft"]) / (qs * c),
+        "Cn": float(fdm["moments/n-aero-lbsft"]) / (qs * b),
+    }
+
+
+def effective_derivatives(condition: FlightCondition) -> dict[str, float]:
+    """The stability and control derivatives JSBSim's c172x flies at a trim.
+
+    Central differences of JSBSim's own aerodynamic forces and moments (about
+    the centre of gravity) under small perturbations of its state (α, β, p,
+    q, r, re-initialised at the trim airspeed and attitude) and of its control
+    surfaces (each actuator moved and settled, then the state reset to the
+    trim). Rates are non-dimensional (``q c̄/2V``, ``p b/2V``, ``r b/2V``);
+    surfaces in rad. Lift is in stability axes; side force and moments in body
+    axes. Each perturbation keeps the α̇ that JSBSim's own state equations
+    give it (``α̇ ≈ q`` for a pitch-rate perturbation, ``Z_alpha Δα`` for an
+    angle-of-attack one), so the ``α̇`` terms are lumped in as an
+    identification without an ``α̇`` term lumps them: ``Cm_q`` is the damping
+    sum ``Cm_q + Cm_alpha_dot``.
+
+    Returns
+    -------
+    dict of str to float
+        ``CL_alpha, CD_alpha, Cm_alpha, CL_q, Cm_q, CL_delta_e, Cm_delta_e,
+        CY_beta, Cl_beta, Cn_beta, Cl_p, Cn_p, Cl_r, Cn_r, CY_delta_r, Cl_delta_a,
+        Cn_delta_a, Cl_delta_r, Cn_delta_r``.
+    """
+    fdm = _executive(condition)
+    alpha0 = float(fdm["aero/alpha-rad"])
+    theta0 = float(fdm["attitude/theta-rad"])
+    vt = float(fdm["velocities/vt-fps"])
+    b = float(fdm["metrics/bw-ft"])
+    c = float(fdm["metrics/cbarw-ft"])
+
+    def at(
+        *, alpha: float = alpha0, beta: float = 0.0, p: float = 0.0, q: float = 0.0, r: float = 0.0
+    ) -> dict[str, float]:
+        for prop, value in (
+            ("ic/vt-fps", vt),
+            ("ic/alpha-rad", alpha),
+            ("ic/beta-rad", beta),
+            ("ic/theta-rad", theta0),
+            ("ic/phi-rad", 0.0),
+            ("ic/p-rad_sec", p),
+            ("ic/q-rad_sec", q),
+            ("ic/r-rad_sec", r),
+        ):
+            fdm[prop] = value
+        fdm.run_ic()
+        return _coefficients(fdm)
+
+    def slope(plus: dict[str, float], minus: dict[str, float], step: float) -> dict[str, float]:
+        return {k: (plus[k] - minus[k]) / (2.0 * step) for k in plus}
+
+    da, dr = 0.01, 0.02  # rad, rad/s: small against the trim, large against round-off
+    out: dict[str, float] = {}
+    s = slope(at(alpha=alpha0 + da), at(alpha=alpha0 - da), da)
+    out.update(CL_alpha=s["CL"], CD_alpha=s["CD"], Cm_alpha=s["Cm"])
+    s = slope(at(q=dr), at(q=-dr), dr * c / (2.0 * vt))
+    out.update(CL_q=s["CL"], Cm_q=s["Cm"])
+    s = slope(at(beta=da), at(beta=-da), da)
+    out.update(CY_beta=s["CY"], Cl_beta=s["Cl"], Cn_beta=s["Cn"])
+    s = slope(at(p=dr), at(p=-dr), dr * b / (2.0 * vt))
+    out.update(Cl_p=s["Cl"], Cn_p=s["Cn"])
+    s = slope(at(r=dr), at(r=-dr), dr * b / (2.0 * vt))
+    out.update(Cl_r=s["Cl"], Cn_r=s["Cn"])
+    for command, position, names in (
+        ("fcs/elevator-cmd-norm", "fcs/elevator-pos-rad", {"CL": "CL_delta_e", "Cm": "Cm_delta_e"}),
+        (
+            "fcs/aileron-cmd-norm",
+            "fcs/effective-aileron-pos",
+            {"Cl": "Cl_delta_a", "Cn": "Cn_delta_a"},
+        ),
+        (
+            "fcs/rudder-cmd-norm",
+            "fcs/rudder-pos-rad",
+            {"CY": "CY_delta_r", "Cl": "Cl_delta_r", "Cn": "Cn_delta_r"},
+        ),
+    ):
+        ends = []
+        for sign in (1.0, -1.0):
+            # Past the actuators' hysteresis; settled, then the state put back at the trim.
+            fdm.resume_integration()
+            fdm[command] = 0.2 * sign
+            for _ in range(120):
+                fdm.run()
+            ends.append((at(), float(fdm[position])))
+        (plus, up), (minus, down) = ends
+        fdm[command] = 0.0
+        for key, name in names.items():
+            out[name] = (plus[key] - minus[key]) / (up - down)
+    return out

@@ -1,0 +1,129 @@
+"""JSBSim-flown flight tests: determinism, the demo's flight files, and the physics check
+(identified derivatives against the derivatives JSBSim itself flies)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import aeroid
+from aeroid import aircraft
+
+pytest.importorskip("jsbsim")
+
+from aeroid.adapters.jsbsim_flights import (
+    FlightCondition,
+    c172x_constants,
+    effective_derivatives,
+    fly_c172x,
+    write_campaign,
+    write_flight,
+)
+from aeroid.errors import AdapterError
+
+DEMO = Path(__file__).resolve().parents[1] / "configs" / "c172x"
+
+
+def test_same_seed_flies_the_same_record_and_another_seed_does_not():
+    cond = FlightCondition(50.0, 1000.0)
+    a = fly_c172x(cond, seed=3, duration=18.0)
+    b = fly_c172x(cond, seed=3, duration=18.0)
+    c = fly_c172x(cond, seed=4, duration=18.0)
+    for name in a.names:
+        np.testing.assert_array_equal(a[name], b[name])
+    assert not np.array_equal(a["q"], c["q"])
+    assert a.units["alpha"] == "rad" and a.units["V"] == "m/s"
+
+
+def test_calm_noise_free_flight_holds_its_trim_before_the_inputs():
+    d = fly_c172x(FlightCondition(55.0, 500.0), turbulence=0.0, noise=False, duration=18.0)
+    before = d.window(0.0, 0.9)
+    assert np.ptp(before["V"]) < 1e-3 and np.ptp(before["q"]) < 1e-4
+    assert abs(before["V"][0] - 55.0) < 0.05
+
+
+def test_bad_conditions_and_rates_are_refused():
+    with pytest.raises(AdapterError, match="airspeed"):
+        FlightCondition(150.0, 1000.0)
+    with pytest.raises(AdapterError, match="sample_rate"):
+        fly_c172x(FlightCondition(50.0, 1000.0), sample_rate=1000.0)
+
+
+def test_committed_demo_flights_are_reproduced_bit_for_bit(tmp_path):
+    # configs/c172x holds the demo's flight files: write_campaign with the demo's
+    # conditions and seed writes the same bytes (the first flight is checked).
+    first = write_campaign(tmp_path, [FlightCondition(45.0, 500.0)], seed=2026)[0]
+    assert first.read_bytes() == (DEMO / "flight_01.csv").read_bytes()
+
+
+def test_flight_file_round_trip(tmp_path):
+    d = fly_c172x(FlightCondition(50.0, 1000.0), seed=1, duration=18.0)
+    path = write_flight(d, tmp_path / "f.csv")
+    back = aeroid.load_flight_test(path)
+    for name in d.names:
+        np.testing.assert_allclose(back[name], d[name], rtol=1e-8, atol=1e-12)
+
+
+def test_effective_derivatives_reproduce_the_constant_terms_of_the_aircraft_file():
+    # The c172x file gives roll damping and aileron power as constants (Clp = -0.47,
+    # Clda = 0.23 per rad of the effective aileron): central differences of JSBSim's
+    # moments must return them.
+    eff = effective_derivatives(FlightCondition(50.0, 1000.0))
+    assert eff["Cl_p"] == pytest.approx(-0.47, rel=0.01)
+    assert eff["Cl_delta_a"] == pytest.approx(0.23, rel=0.02)
+    assert eff["CL_delta_e"] == pytest.approx(0.347, rel=0.05)
+
+
+def _identify(model, data, start):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return aeroid.identify(model, data, start, estimate_x0=True)
+
+
+@pytest.mark.slow
+def test_identified_derivatives_match_what_jsbsim_flies():
+    cond = FlightCondition(50.0, 1000.0)
+    data = fly_c172x(cond, seed=1)
+    eff = effective_derivatives(cond)
+    const = c172x_constants(cond.altitude)
+
+    lon_data = data.window(0.0, 8.0)
+    lon = aircraft.longitudinal(
+        const,
+        V0=cond.airspeed,
+        terms={
+            "CD": ["0", "alpha"],
+            "CL": ["0", "alpha", "q", "delta_e"],
+            "Cm": ["0", "alpha", "q", "delta_e"],
+        },
+        outputs=["V", "alpha", "theta", "q", "ax", "az"],
+    )
+    start = dict.fromkeys(lon.parameters, 0.0)
+    start.update(CL_0=0.25, CL_alpha=5.0, CD_0=0.03, Cm_alpha=-0.5, Cm_q=-10.0, Cm_delta_e=-1.0)
+    lon_fit = _identify(lon, lon_data, start)
+
+    lat_data = data.window(8.0, 20.0)
+    lat = aircraft.lateral(
+        const,
+        V0=float(np.mean(lat_data["V"])),
+        alpha0=float(np.mean(lat_data["alpha"])),
+        theta0=float(np.mean(lat_data["theta"])),
+        terms={
+            "CY": ["0", "beta", "delta_r"],
+            "Cl": ["0", "beta", "p", "r", "delta_a", "delta_r"],
+            "Cn": ["0", "beta", "p", "r", "delta_a", "delta_r"],
+        },
+        outputs=["beta", "p", "r", "phi", "ay"],
+    )
+    start = dict.fromkeys(lat.parameters, 0.0)
+    start.update(CY_beta=-0.3, Cl_beta=-0.05, Cl_p=-0.4, Cl_delta_a=0.2, Cn_beta=0.05, Cn_r=-0.1)
+    lat_fit = _identify(lat, lat_data, start)
+
+    found = {**lon_fit.parameters, **lat_fit.parameters}
+    for name in ("Cm_alpha", "Cm_delta_e", "CL_alpha", "Cl_p", "Cn_r", "Cn_beta", "Cl_delta_a"):
+        assert found[name] == pytest.approx(eff[name], rel=0.10), name
+    # the pitch damping sum (Cm_q with the alpha-dot term lumped in)
+    assert found["Cm_q"] == pytest.approx(eff["Cm_q"], rel=0.20)
