@@ -48,6 +48,7 @@ __all__ = [
     "AircraftModel",
     "Linearization",
     "TrimResult",
+    "decoupled",
     "isa_density",
     "lateral",
     "lateral_linear",
@@ -2005,6 +2006,109 @@ def linearize(
 
 # -- models from a configuration --------------------------------------------------------------------
 
+# -- longitudinal and lateral-directional together -------------------------------------------
+
+
+def _decoupled_function(
+    parts: tuple[Callable[[Any, Any, Any, Any], Any], Callable[[Any, Any, Any, Any], Any]],
+    n_states: int,
+    controls: tuple[list[int], list[int]],
+) -> Callable[[Any, Any, Any, Any], Any]:
+    longitudinal_f, lateral_f = parts
+    lon_u, lat_u = controls
+
+    def decoupled_equations(t: Any, x: Any, u: Any, p: Any) -> Any:
+        # The two sets of equations share no state: stacked, they are one model.
+        first = longitudinal_f(t, x[:n_states], u[lon_u], p)
+        second = lateral_f(t, x[n_states:], u[lat_u], p)
+        return np.concatenate([first, second])
+
+    return decoupled_equations
+
+
+def decoupled(
+    longitudinal: AircraftModel,
+    lateral: AircraftModel,
+    *,
+    name: str = "decoupled",
+    version: str | None = None,
+) -> AircraftModel:
+    """A longitudinal and a lateral-directional model flown as one (motion without coupling).
+
+    For small perturbations about wings-level flight the two sets of equations
+    share no state (Klein & Morelli ch. 3; Jategaonkar ch. 3), so one
+    identification of the stacked model gives the same estimates as two
+    separate ones (each output keeps its own noise variance) while a
+    campaign handles one model per flight. States, outputs and parameters
+    are the longitudinal model's then the lateral model's; controls are the
+    union in that order (a control both use is one input).
+
+    Parameters
+    ----------
+    longitudinal : AircraftModel
+        From `longitudinal` or `longitudinal_linear`.
+    lateral : AircraftModel
+        From `lateral` or `lateral_linear`.
+    name, version : str
+        As for `aeroid.Model`; the parts' versions are folded into the version.
+
+    Returns
+    -------
+    AircraftModel
+        Of kind ``"decoupled"``; its reference is the parts' references (the
+        lateral model's where both name a value).
+
+    Raises
+    ------
+    ModelDefinitionError
+        A part of the wrong kind, or a state, output or parameter name both
+        parts use.
+    """
+    if not isinstance(longitudinal, AircraftModel) or not longitudinal.kind.startswith(
+        "longitudinal"
+    ):
+        raise ModelDefinitionError(
+            "decoupled: 'longitudinal' must be a longitudinal aircraft model"
+        )
+    if not isinstance(lateral, AircraftModel) or not lateral.kind.startswith("lateral"):
+        raise ModelDefinitionError("decoupled: 'lateral' must be a lateral aircraft model")
+    for what in ("states", "output_names", "parameters"):
+        shared = sorted(set(getattr(longitudinal, what)) & set(getattr(lateral, what)))
+        if shared:
+            raise ModelDefinitionError(f"decoupled: both parts have the {what} {shared}")
+    controls = list(longitudinal.controls) + [
+        c for c in lateral.controls if c not in longitudinal.controls
+    ]
+    index = (
+        [controls.index(c) for c in longitudinal.controls],
+        [controls.index(c) for c in lateral.controls],
+    )
+    n = len(longitudinal.states)
+    measurement_parts = (longitudinal.measurement, lateral.measurement)
+    if measurement_parts[0] is None or measurement_parts[1] is None:
+        raise ModelDefinitionError("decoupled: both parts must have a measurement function")
+    linear = True if longitudinal.linear and lateral.linear else None
+    return AircraftModel(
+        states=[*longitudinal.states, *lateral.states],
+        controls=controls,
+        parameters={**longitudinal.parameters, **lateral.parameters},
+        dynamics=_decoupled_function((longitudinal.dynamics, lateral.dynamics), n, index),
+        measurement=_decoupled_function(measurement_parts, n, index),  # type: ignore[arg-type]
+        outputs=[*longitudinal.output_names, *lateral.output_names],
+        name=name,
+        version=_content_version(version, "decoupled", longitudinal.version, lateral.version),
+        linear=linear,
+        constants=longitudinal.constants or lateral.constants,
+        kind="decoupled",
+        reference={**longitudinal.reference, **lateral.reference},
+        surfaces=tuple(c for c in controls if c in (*longitudinal.surfaces, *lateral.surfaces)),
+        equations="longitudinal part:\n"
+        + longitudinal.equations
+        + "\n\nlateral-directional part:\n"
+        + lateral.equations,
+    )
+
+
 _FACTORIES: dict[str, Callable[..., AircraftModel]] = {
     "longitudinal": longitudinal,
     "lateral": lateral,
@@ -2049,8 +2153,19 @@ def model_from_config(spec: Mapping[str, Any]) -> AircraftModel:
         raise ModelDefinitionError(f"aircraft model: expected a mapping, got {spec!r}")
     options = dict(spec)
     kind = options.pop("aircraft", None)
+    if kind == "decoupled":
+        unknown = sorted(set(options) - {"longitudinal", "lateral", "name", "version"})
+        if unknown or "longitudinal" not in options or "lateral" not in options:
+            raise ModelDefinitionError(
+                "aircraft model 'decoupled': expected the keys 'longitudinal' and 'lateral' "
+                f"(each an aircraft model mapping), and optionally 'name', 'version'; got {sorted(options)}"
+            )
+        parts = {k: model_from_config(options.pop(k)) for k in ("longitudinal", "lateral")}
+        return decoupled(parts["longitudinal"], parts["lateral"], **options)
     if kind not in _FACTORIES:
-        raise ModelDefinitionError(f"aircraft: expected one of {sorted(_FACTORIES)}, got {kind!r}")
+        raise ModelDefinitionError(
+            f"aircraft: expected one of {sorted([*_FACTORIES, 'decoupled'])}, got {kind!r}"
+        )
     factory = _FACTORIES[kind]
     allowed = [
         n
