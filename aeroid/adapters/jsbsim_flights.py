@@ -149,13 +149,14 @@ def _three_two_one_one(t: FloatArray, start: float, unit: float, amplitude: floa
 
 
 def _inputs(t: FloatArray) -> dict[str, FloatArray]:
-    """Normalised stick and pedal commands: a 3-2-1-1 on the elevator from 1 s, an
-    aileron doublet from 9 s and a rudder doublet from 14 s (each mode settles
-    before the next input)."""
+    """Normalised stick and pedal commands: an aileron doublet from 1 s, a rudder
+    doublet from 5 s, then a 3-2-1-1 on the elevator from 10 s. The lateral
+    inputs come first, while the airspeed is still the trim's (the elevator's
+    excursion leaves the speed off trim for the slow phugoid)."""
     return {
-        "fcs/elevator-cmd-norm": _three_two_one_one(t, 1.0, 0.4, 0.2),
-        "fcs/aileron-cmd-norm": _doublet(t, 9.0, 1.0, 0.1),
-        "fcs/rudder-cmd-norm": _doublet(t, 14.0, 1.0, 0.15),
+        "fcs/aileron-cmd-norm": _doublet(t, 1.0, 1.0, 0.15),
+        "fcs/rudder-cmd-norm": _doublet(t, 5.0, 1.0, 0.25),
+        "fcs/elevator-cmd-norm": _three_two_one_one(t, 10.0, 0.4, 0.12),
     }
 
 
@@ -205,7 +206,7 @@ def fly_c172x(
     *,
     duration: float = 20.0,
     sample_rate: float = 50.0,
-    turbulence: float = 0.3,
+    turbulence: float = 0.2,
     noise: bool = True,
     seed: int = 0,
 ) -> FlightData:
@@ -216,7 +217,7 @@ def fly_c172x(
     condition : FlightCondition
         Trim airspeed and altitude.
     duration : float
-        Record length, s (at least 18 s: the three inputs end at 16 s).
+        Record length, s (at least 18 s: the three inputs end at 12.8 s).
     sample_rate : float
         Recording rate, Hz (10-400); JSBSim steps at a whole multiple of it.
     turbulence : float
@@ -344,7 +345,8 @@ def write_campaign(
 
 
 def c172x_constants(altitude: float) -> Any:
-    """The c172x's mass, inertias and reference geometry in SI, with the ISA density at `altitude`."""
+    """The c172x's mass, inertias, reference geometry and thrust-line offset in SI, with
+    JSBSim's (ISA) density at `altitude`."""
     from ..aircraft import AircraftConstants
 
     fdm = _executive(FlightCondition(50.0, float(altitude)))
@@ -358,13 +360,19 @@ def c172x_constants(altitude: float) -> Any:
         b=float(fdm["metrics/bw-ft"]) * _FT,
         cbar=float(fdm["metrics/cbarw-ft"]) * _FT,
         rho=float(fdm["atmosphere/rho-slugs_ft3"]) * _SLUG / _FT**3,
+        # The propeller's pitching moment per unit thrust at the trim: the thrust line's
+        # effective offset below the centre of gravity.
+        thrust_offset=float(fdm["moments/m-prop-lbsft"])
+        / float(fdm["propulsion/engine/thrust-lbs"])
+        * _FT,
     )
 
 
 def _coefficients(fdm: Any) -> dict[str, float]:
-    """Non-dimensional aerodynamic coefficients at JSBSim's current state: lift and drag
-    in stability axes, side force and the three moments (about the centre of gravity)
-    in body axes."""
+    """Non-dimensional coefficients at JSBSim's current state: aerodynamic lift and drag
+    in stability axes and side force in body axes; the three moments about the centre
+    of gravity in body axes, aerodynamic and propeller together (the moments the
+    aircraft's motion, and so an identification, responds to)."""
     qs = float(fdm["aero/qbar-psf"]) * float(fdm["metrics/Sw-sqft"])
     b = float(fdm["metrics/bw-ft"])
     c = float(fdm["metrics/cbarw-ft"])
@@ -372,9 +380,9 @@ def _coefficients(fdm: Any) -> dict[str, float]:
         "CL": float(fdm["forces/fwz-aero-lbs"]) / qs,
         "CD": float(fdm["forces/fwx-aero-lbs"]) / qs,
         "CY": float(fdm["forces/fby-aero-lbs"]) / qs,
-        "Cl": float(fdm["moments/l-aero-lbsft"]) / (qs * b),
-        "Cm": float(fdm["moments/m-aero-lbsft"]) / (qs * c),
-        "Cn": float(fdm["moments/n-aero-lbsft"]) / (qs * b),
+        "Cl": float(fdm["moments/l-total-lbsft"]) / (qs * b),
+        "Cm": float(fdm["moments/m-total-lbsft"]) / (qs * c),
+        "Cn": float(fdm["moments/n-total-lbsft"]) / (qs * b),
     }
 
 
