@@ -27,16 +27,35 @@ from .errors import (
 )
 
 if TYPE_CHECKING:
+    from ._logtypes import FlightLog, LogChannel, LogEvent
     from .aircraft import AircraftConstants
+    from .channel_map import ChannelMap, ChannelSpec, apply_channel_map, flight_windows, load_mapped
     from .coefficients import coefficients_from_data
     from .compatibility import CompatibilityResult, check_compatibility
     from .data import FlightData, load_flight_test
     from .design import ExperimentDesign, design_experiment
     from .filtering import FilterResult, filter_states
     from .frequency import ChannelFrequencyResponse, FrequencyResponseResult, frequency_response
+    from .frequency_domain import FrequencyDomainResult, identify_frequency_domain
+    from .frequency_id import (
+        CompositeResponse,
+        ResponseChannel,
+        TransferFunctionFit,
+        composite_response,
+        fit_transfer_function,
+    )
+    from .handling_qualities import (
+        BandwidthResult,
+        EquivalentSystemFit,
+        Margins,
+        bandwidth,
+        equivalent_system,
+        stability_margins,
+    )
     from .identification import IdentificationResult, identify
     from .inference import EnsembleRun, InferenceResult, combine_ensembles, infer, infer_ensemble
     from .jax_backend import simulate_rk4
+    from .logs import ChannelListing, list_channels, read_log
     from .maneuvers import (
         Chirp,
         Doublet,
@@ -55,6 +74,7 @@ if TYPE_CHECKING:
         propagate,
         propagate_batch,
     )
+    from .quality import ChannelQuality, DataQualityReport, check_data_quality
     from .regression import (
         RegressionResult,
         StepwiseResult,
@@ -65,6 +85,7 @@ if TYPE_CHECKING:
         stepwise_regression,
     )
     from .reporting import report
+    from .resampling import resample
     from .sampler import (
         ChainState,
         SamplerRun,
@@ -73,6 +94,7 @@ if TYPE_CHECKING:
         ensemble_sampler,
         split_r_hat,
     )
+    from .segmentation import ManeuverWindow, SegmentationResult, segment
     from .sensitivity import SensitivityResult, sensitivities
     from .smoothing import differentiate, optimal_cutoff, smooth
     from .validation import OutputMetrics, ValidationResult, validate
@@ -82,8 +104,22 @@ if TYPE_CHECKING:
 # for the modules it touches, not for all of SciPy.
 _LAZY = {
     "AircraftConstants": ".aircraft",
+    "ChannelMap": ".channel_map",
+    "ChannelSpec": ".channel_map",
+    "apply_channel_map": ".channel_map",
+    "flight_windows": ".channel_map",
+    "load_mapped": ".channel_map",
     "FlightData": ".data",
     "load_flight_test": ".data",
+    "FlightLog": "._logtypes",
+    "LogChannel": "._logtypes",
+    "LogEvent": "._logtypes",
+    "ChannelListing": ".logs",
+    "list_channels": ".logs",
+    "read_log": ".logs",
+    "ChannelQuality": ".quality",
+    "DataQualityReport": ".quality",
+    "check_data_quality": ".quality",
     "coefficients_from_data": ".coefficients",
     "CompatibilityResult": ".compatibility",
     "check_compatibility": ".compatibility",
@@ -94,6 +130,19 @@ _LAZY = {
     "ChannelFrequencyResponse": ".frequency",
     "FrequencyResponseResult": ".frequency",
     "frequency_response": ".frequency",
+    "FrequencyDomainResult": ".frequency_domain",
+    "identify_frequency_domain": ".frequency_domain",
+    "CompositeResponse": ".frequency_id",
+    "ResponseChannel": ".frequency_id",
+    "TransferFunctionFit": ".frequency_id",
+    "composite_response": ".frequency_id",
+    "fit_transfer_function": ".frequency_id",
+    "BandwidthResult": ".handling_qualities",
+    "EquivalentSystemFit": ".handling_qualities",
+    "Margins": ".handling_qualities",
+    "bandwidth": ".handling_qualities",
+    "equivalent_system": ".handling_qualities",
+    "stability_margins": ".handling_qualities",
     "IdentificationResult": ".identification",
     "identify": ".identification",
     "EnsembleRun": ".inference",
@@ -131,12 +180,16 @@ _LAZY = {
     "spline_terms": ".regression",
     "stepwise_regression": ".regression",
     "report": ".reporting",
+    "resample": ".resampling",
     "ChainState": ".sampler",
     "SamplerRun": ".sampler",
     "autocorrelation_time": ".sampler",
     "effective_sample_size": ".sampler",
     "ensemble_sampler": ".sampler",
     "split_r_hat": ".sampler",
+    "ManeuverWindow": ".segmentation",
+    "SegmentationResult": ".segmentation",
+    "segment": ".segmentation",
     "SensitivityResult": ".sensitivity",
     "sensitivities": ".sensitivity",
     "differentiate": ".smoothing",
@@ -166,20 +219,30 @@ __all__ = [
     "AdapterError",
     "AeroidError",
     "AircraftConstants",
+    "BandwidthResult",
     "BatchSimulation",
     "ChainState",
     "ChannelError",
     "ChannelFrequencyResponse",
+    "ChannelListing",
+    "ChannelMap",
+    "ChannelQuality",
+    "ChannelSpec",
     "Chirp",
     "CompatibilityResult",
+    "CompositeResponse",
     "ConfigError",
     "DataFormatError",
+    "DataQualityReport",
     "Doublet",
     "EnsembleRun",
+    "EquivalentSystemFit",
     "ExperimentDesign",
     "FilterError",
     "FilterResult",
     "FlightData",
+    "FlightLog",
+    "FrequencyDomainResult",
     "FrequencyResponseResult",
     "HalfNormal",
     "IdentifiabilityWarning",
@@ -187,8 +250,12 @@ __all__ = [
     "IdentificationResult",
     "InferenceError",
     "InferenceResult",
+    "LogChannel",
+    "LogEvent",
     "LogUniform",
     "ManeuverFamily",
+    "ManeuverWindow",
+    "Margins",
     "Model",
     "ModelDefinitionError",
     "Multisine",
@@ -201,7 +268,9 @@ __all__ = [
     "PropagationBatch",
     "PropagationResult",
     "RegressionResult",
+    "ResponseChannel",
     "SamplerRun",
+    "SegmentationResult",
     "SensitivityResult",
     "SimulationError",
     "SimulationResult",
@@ -209,37 +278,52 @@ __all__ = [
     "StepwiseResult",
     "StepwiseStep",
     "StoreError",
+    "TransferFunctionFit",
     "Uniform",
     "ValidationResult",
     "VectorPropagationResult",
     "__version__",
+    "apply_channel_map",
     "autocorrelation_time",
+    "bandwidth",
     "candidate_pool",
     "check_compatibility",
+    "check_data_quality",
     "coefficients_from_data",
     "combine_batches",
     "combine_ensembles",
+    "composite_response",
     "design_experiment",
     "differentiate",
     "effective_sample_size",
     "ensemble_sampler",
     "equation_error",
+    "equivalent_system",
     "filter_states",
+    "fit_transfer_function",
+    "flight_windows",
     "frequency_response",
     "identify",
+    "identify_frequency_domain",
     "infer",
     "infer_ensemble",
+    "list_channels",
     "load_flight_test",
+    "load_mapped",
     "optimal_cutoff",
     "orthogonal_multisine",
     "propagate",
     "propagate_batch",
+    "read_log",
     "report",
+    "resample",
+    "segment",
     "sensitivities",
     "simulate_rk4",
     "smooth",
     "spline_terms",
     "split_r_hat",
+    "stability_margins",
     "stepwise_regression",
     "validate",
 ]

@@ -53,6 +53,18 @@ class _Layout:
     x0_slices: list[slice]
     bias_slices: list[slice]
     n_total: int
+    # Input time delays (s) sit right after the model parameters, at n_p + i: one
+    # per delayed control (its column in the controls array).
+    delayed: tuple[int, ...] = ()
+
+    @property
+    def n_d(self) -> int:
+        return len(self.delayed)
+
+
+def delay_parameter(control: str) -> str:
+    """The name under which the time delay of `control` is reported."""
+    return f"tau_{control}"
 
 
 def _typical_scales(
@@ -70,6 +82,22 @@ def _typical_scales(
     return typ
 
 
+def shifted_controls(
+    time: FloatArray,
+    controls: FloatArray,
+    columns: Sequence[int],
+    delays: Sequence[float] | FloatArray,
+) -> FloatArray:
+    """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds:
+    ``u(t - tau)`` interpolated piecewise-linearly between the samples (the
+    simulation contract) and held at the first and last samples outside them."""
+    out = np.array(controls, dtype=np.float64, copy=True)
+    for j, tau in zip(columns, np.asarray(delays, dtype=np.float64).tolist(), strict=True):
+        if tau != 0.0:
+            out[:, j] = np.interp(time - tau, time, controls[:, j])
+    return out
+
+
 def _simulate_members(
     model: Any,
     man: _Manoeuvre,
@@ -78,11 +106,14 @@ def _simulate_members(
     out_idx: list[int],
     options: Mapping[str, Any],
     errors: list[str] | None = None,
+    controls: FloatArray | None = None,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Outputs (B, n_t, n_y) and ok mask for a batch of parameter/x0 members; what a
-    stepped simulator raised is appended to `errors`."""
+    stepped simulator raised is appended to `errors`. `controls` (n_t, n_u) or per
+    member (B, n_t, n_u) replaces the manoeuvre's measured controls."""
+    u_all = man.controls if controls is None else controls
     if hasattr(model, "simulate_batch"):
-        sim = model.simulate_batch(man.time, man.controls, x0, params, **options)
+        sim = model.simulate_batch(man.time, u_all, x0, params, **options)
         if errors is not None and not sim.ok[0] and sim.failure[0]:
             errors.append(sim.failure[0])
         return sim.outputs[:, :, out_idx], sim.ok
@@ -90,8 +121,9 @@ def _simulate_members(
     batch = x0.shape[0]
     outs = np.full((batch, man.time.size, len(out_idx)), np.nan)
     ok = np.zeros(batch, dtype=bool)
-    ctrl = {c: man.controls[:, j] for j, c in enumerate(model.controls)}
     for b in range(batch):
+        u_b = u_all[b] if u_all.ndim == 3 else u_all
+        ctrl = {c: u_b[:, j] for j, c in enumerate(model.controls)}
         p = {k: float(v[b]) for k, v in params.items()}
         try:
             res = model.simulate(man.time, ctrl, None, p, **options)
@@ -153,6 +185,8 @@ class _Problem:
         for i, m in enumerate(self.mans):
             x0, bias = self.unpack(theta, i)
             sx = lay.x0_slices[i]
+            delays = theta[lay.n_p : lay.n_p + lay.n_d]
+            u_now = shifted_controls(m.time, m.controls, lay.delayed, delays)
             # simulated columns: model parameters and this manoeuvre's initial states
             cols = list(range(lay.n_p)) + list(range(sx.start, sx.stop))
             # gradient="auto": exact forward-mode sensitivities of the compiled RK4 when
@@ -166,7 +200,7 @@ class _Problem:
                 sens = _compiled.output_sensitivities(
                     self.model,
                     m.time,
-                    m.controls,
+                    u_now,
                     x0,
                     p,
                     lay.names,
@@ -184,6 +218,8 @@ class _Problem:
                     v = m.measured - y - bias
                     jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
                     jac[:, :, cols] = -jac_all[:, self.out_idx, :]
+                    if not self._delay_columns(jac, theta, steps, i, x0):
+                        return [], None, False
                     residuals.append(v)
                     self._bias_columns(jac, i)
                     assert jacobians is not None
@@ -197,7 +233,7 @@ class _Problem:
                 y, jac_p = _jax.outputs_and_jacobian(
                     self.model,
                     m.time,
-                    m.controls,
+                    u_now,
                     x0,
                     p,
                     lay.names,
@@ -210,6 +246,8 @@ class _Problem:
                 v = m.measured - y - bias
                 jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
                 jac[:, :, : lay.n_p] = -jac_p
+                if not self._delay_columns(jac, theta, steps, i, x0):
+                    return [], None, False
                 residuals.append(v)
                 self._bias_columns(jac, i)
                 assert jacobians is not None
@@ -228,7 +266,7 @@ class _Problem:
                         else:
                             X0[b, m.x0_free[j - sx.start]] += sign * h
             outs, ok = _simulate_members(
-                self.model, m, P, X0, self.out_idx, self.options, self.errors
+                self.model, m, P, X0, self.out_idx, self.options, self.errors, u_now
             )
             if not ok[0]:
                 return [], None, False
@@ -240,10 +278,41 @@ class _Problem:
                 jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
                 for c, j in enumerate(cols):
                     jac[:, :, j] = -(outs[1 + 2 * c] - outs[2 + 2 * c]) / (2 * steps[j])
+                if not self._delay_columns(jac, theta, steps, i, x0):
+                    return [], None, False
                 self._bias_columns(jac, i)
                 assert jacobians is not None
                 jacobians.append(jac)
         return residuals, jacobians, True
+
+    def _delay_columns(
+        self, jac: FloatArray, theta: FloatArray, steps: FloatArray, i: int, x0: FloatArray
+    ) -> bool:
+        """Fill the time-delay columns of manoeuvre i's Jacobian by central differences
+        of the delayed controls (``-du/dt dy/du``, exact within a sample interval,
+        where the interpolated control is linear in the delay); False when a member
+        fails."""
+        lay = self.layout
+        if not lay.n_d:
+            return True
+        m = self.mans[i]
+        base = theta[lay.n_p : lay.n_p + lay.n_d]
+        batch = 2 * lay.n_d
+        U = np.empty((batch, *m.controls.shape))
+        for c in range(lay.n_d):
+            for sign, b in ((1.0, 2 * c), (-1.0, 2 * c + 1)):
+                d = base.copy()
+                d[c] += sign * steps[lay.n_p + c]
+                U[b] = shifted_controls(m.time, m.controls, lay.delayed, d)
+        P = {n: np.full(batch, theta[j]) for j, n in enumerate(lay.names)}
+        X0 = np.repeat(x0[None, :], batch, axis=0)
+        outs, ok = _simulate_members(self.model, m, P, X0, self.out_idx, self.options, None, U)
+        if not np.all(ok):
+            return False
+        for c in range(lay.n_d):
+            h = steps[lay.n_p + c]
+            jac[:, :, lay.n_p + c] = -(outs[2 * c] - outs[2 * c + 1]) / (2 * h)
+        return True
 
     def _bias_columns(self, jac: FloatArray, i: int) -> None:
         sb = self.layout.bias_slices[i]
@@ -337,48 +406,161 @@ def _ar1_criterion(
     return float(dof * np.log(rss) - n_man * np.log1p(-p * p) + 2.0 * np.sum(np.log(diag[:rank])))
 
 
-def _arw_prepare(z: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Column-major copies of ``z`` and of ``D z``, with which
-    ``L'L z = (1 - phi)^2 z + phi D z + phi (1 - phi) z_ends`` for every phi: D
-    the negative second difference inside, the first differences at the two
-    ends (no cancellation near the unit root, no copies per trial)."""
-    zf = np.asfortranarray(z)
-    dz = np.empty_like(zf)
-    dz[1:-1] = 2.0 * z[1:-1] - z[:-2] - z[2:]
-    dz[0] = z[0] - z[1]
-    dz[-1] = z[-1] - z[-2]
-    return zf, dz
+# Chebyshev nodes per spectral bin, and the ratio of a bin's distance from the nearer
+# end of the spectrum [0, 4] at its far and near sides (see `_arw_prepare`).
+_CHEB = 17
+_BIN_RATIO = 2.0
+_CHUNK = 4096
 
 
-def _arw_criterion(
-    x: FloatArray, zs: list[tuple[FloatArray, FloatArray]], dof: int, rank: int
-) -> tuple[float, float]:
+@dataclass
+class _Spectral:
+    """One manoeuvre's REML design ``Z`` in the eigenbasis of the AR(1) precision."""
+
+    n: int
+    nodes: FloatArray  # (n_nodes,) eigenvalues of the Neumann Laplacian
+    table: FloatArray  # (n_nodes, n_tri + 2 q + 4 + 1) interpolated moments
+    z_ends: FloatArray  # (2, q): the first and last rows of Z
+    q: int
+    upper: tuple[NDArray[np.intp], NDArray[np.intp]]  # np.triu_indices(q)
+
+
+def _arw_prepare(z: FloatArray) -> _Spectral:
+    """Moments of ``z`` (n, q) that give ``Z' (S + ratio I)^-1 Z`` for every AR(1) +
+    white noise model in O(q^2) work per model, independent of n.
+
+    The AR(1) precision (unit innovations) is ``L'L = (1 - phi)^2 I + phi D +
+    phi (1 - phi) E`` with D the Neumann Laplacian (the negative second
+    difference inside, first differences at the ends), which the orthonormal
+    DCT-II diagonalises exactly (eigenvalues ``lam_j = 4 sin^2(pi j / 2n)``),
+    and E the two end samples (rank 2, handled by Woodbury). Every quantity
+    the criterion needs is then a sum over j of a rational function of lam_j
+    (or its logarithm) times fixed per-j terms (``zh_j zh_j'``, ``zh_j f_j'``,
+    ``f_j f_j'``, 1; zh the transformed Z, f the transformed end vectors). Those
+    functions have their only singularity off [0, 4] (at lam < 0 for phi > 0,
+    lam > 4 for phi < 0); on bins whose distance from the nearer end of [0, 4]
+    grows by at most a factor 2 across the bin, polynomial interpolation at 17
+    Chebyshev points converges to rounding (the pole is at least 3 half-widths
+    from the bin's centre), so each bin's sum is that of its interpolant,
+    ``sum_m w(x_m) [sum_j l_m(lam_j) a_j]`` with the bracket precomputed.
+    Bins with no more samples than nodes keep their samples.
+    """
+    from scipy.fft import dct
+
+    n, q = z.shape
+    zh = dct(z, type=2, norm="ortho", axis=0)
+    unit = np.zeros((n, 2))
+    unit[0, 0] = 1.0
+    unit[-1, 1] = 1.0
+    fh = dct(unit, type=2, norm="ortho", axis=0)
+    lam = 4.0 * np.sin(0.5 * np.pi * np.arange(n) / n) ** 2
+    iu, ju = np.triu_indices(q)
+    n_tri = iu.size
+
+    def rows(first: int, stop: int) -> FloatArray:
+        """The per-j terms of samples first..stop-1 (formed a chunk at a time: the
+        whole table would hold q^2/2 numbers per sample)."""
+        m = stop - first
+        a, f = zh[first:stop], fh[first:stop]
+        out = np.empty((m, n_tri + 2 * q + 5))
+        out[:, :n_tri] = a[:, iu] * a[:, ju]
+        out[:, n_tri : n_tri + 2 * q] = (a[:, :, None] * f[:, None, :]).reshape(m, 2 * q)
+        out[:, n_tri + 2 * q : -1] = (f[:, :, None] * f[:, None, :]).reshape(m, 4)
+        out[:, -1] = 1.0
+        return out
+
+    dist = np.minimum(lam, 4.0 - lam)
+    side = lam > 2.0
+    with np.errstate(divide="ignore"):
+        level = np.where(dist > 0, np.floor(np.log(2.0 / dist) / np.log(_BIN_RATIO)), -1.0)
+    key = np.where(dist > 0, 2.0 * level + side, -1.0)
+    nodes: list[FloatArray] = []
+    table: list[FloatArray] = []
+    k = np.arange(_CHEB)
+    cheb = np.cos((2 * k + 1) * np.pi / (2 * _CHEB))
+    bary = (-1.0) ** k * np.sin((2 * k + 1) * np.pi / (2 * _CHEB))
+    # lam increases with j, so every bin is a run of consecutive j
+    cuts = np.flatnonzero(np.diff(key)) + 1
+    for first, stop in zip([0, *cuts.tolist()], [*cuts.tolist(), n], strict=True):
+        if stop - first <= _CHEB:
+            nodes.append(lam[first:stop])
+            table.append(rows(first, stop))
+            continue
+        lo, hi = float(lam[first]), float(lam[stop - 1])
+        x = 0.5 * (lo + hi) + 0.5 * (hi - lo) * cheb
+        acc = np.zeros((_CHEB, n_tri + 2 * q + 5))
+        for c0 in range(first, stop, _CHUNK):
+            c1 = min(c0 + _CHUNK, stop)
+            diff = lam[c0:c1, None] - x[None, :]
+            exact = diff == 0.0
+            diff[exact] = 1.0
+            basis = bary / diff
+            hit = np.any(exact, axis=1)
+            basis[hit] = exact[hit].astype(np.float64)  # a sample on a node takes its value
+            basis /= basis.sum(axis=1, keepdims=True)
+            acc += basis.T @ rows(c0, c1)
+        nodes.append(x)
+        table.append(acc)
+    return _Spectral(
+        n=n,
+        nodes=np.concatenate(nodes),
+        table=np.concatenate(table, axis=0),
+        z_ends=np.ascontiguousarray(z[[0, -1]]),
+        q=q,
+        upper=(iu, ju),
+    )
+
+
+def _arw_criterion(x: FloatArray, zs: list[_Spectral], dof: int, rank: int) -> tuple[float, float]:
     """REML criterion of AR(1) + white noise at ``(atanh phi, log ratio)`` and the
     generalised-least-squares residual sum (innovation-variance units); `zs`
-    from `_arw_prepare`, one per manoeuvre."""
-    from scipy.linalg.lapack import dpttrf, dpttrs
+    from `_arw_prepare`, one per manoeuvre.
 
+    ``Z'(S + ratio I)^-1 Z = Z'(I + ratio L'L)^-1 L'L Z`` with ``S^-1 = L'L``;
+    in the DCT basis of `_arw_prepare`, with ``c = (1 - phi)^2 + phi lam``,
+    ``b = 1 + ratio c``, ``g = phi (1 - phi)`` and ``K = I + ratio g F'B^-1 F``
+    (2 x 2), Woodbury gives ``Zh'(c/b)Zh + (Zh'F/b) K^-1 (g F'Z - ratio g
+    F'(c/b)Zh)`` and ``log det(I + ratio L'L) = sum log b + log det K``.
+    """
     b_max = float(np.arctanh(_PHI_LIMIT))
     phi = float(np.tanh(np.clip(x[0], -b_max, b_max)))
     ratio = float(np.exp(np.clip(x[1], *_LOG_RATIO)))
-    mat = np.zeros((zs[0][0].shape[1],) * 2)
+    q = zs[0].q
+    iu, ju = zs[0].upper
+    n_tri = iu.size
+    g = phi * (1.0 - phi)
+    mat = np.zeros((q, q))
     logdet = 0.0
-    for zf, dz in zs:
-        n = zf.shape[0]
-        # (S + ratio I)^-1 = (I + ratio L'L)^-1 L'L with S^-1 = L'L; I + ratio L'L is
-        # tridiagonal, so each trial costs O(N)
-        diag = np.full(n, 1.0 + ratio * (1.0 + phi * phi))
-        diag[0] = diag[-1] = 1.0 + ratio
-        d_fac, e_fac, info = dpttrf(diag, np.full(n - 1, -ratio * phi))
-        if info != 0:
+    for sp in zs:
+        weights = np.empty((3, sp.nodes.size))
+        c = np.multiply(sp.nodes, phi, out=weights[0])
+        c += (1.0 - phi) ** 2
+        bb = np.multiply(c, ratio, out=weights[2])
+        bb += 1.0
+        if not bb.min() > 0:
             return float(np.inf), 0.0
-        rhs = (1.0 - phi) ** 2 * zf
-        rhs += phi * dz
-        rhs[0] += phi * (1.0 - phi) * zf[0]
-        rhs[-1] += phi * (1.0 - phi) * zf[-1]
-        u, info = dpttrs(d_fac, e_fac, rhs, overwrite_b=1)
-        mat += zf.T @ u
-        logdet += float(np.sum(np.log(d_fac))) - float(np.log1p(-phi * phi))
+        np.divide(1.0, bb, out=weights[1])
+        c *= weights[1]  # c / b
+        np.log(bb, out=bb)
+        sums = weights @ sp.table  # (3, columns)
+        tri = sums[0, :n_tri]
+        s1 = np.empty((q, q))
+        s1[iu, ju] = tri
+        s1[ju, iu] = tri
+        x_cb = sums[0, n_tri : n_tri + 2 * q].reshape(q, 2)
+        x_b = sums[1, n_tri : n_tri + 2 * q].reshape(q, 2)
+        f00, f01, f10, f11 = (ratio * g * sums[1, n_tri + 2 * q : n_tri + 2 * q + 4]).tolist()
+        # K = I + ratio g F'B^-1 F (2 x 2), positive definite with B
+        k00, k01, k10, k11 = 1.0 + f00, f01, f10, 1.0 + f11
+        det_k = k00 * k11 - k01 * k10
+        if not det_k > 0:
+            return float(np.inf), 0.0
+        rhs = g * sp.z_ends - ratio * g * x_cb.T  # (2, q)
+        corr = np.empty_like(rhs)
+        corr[0] = (k11 * rhs[0] - k01 * rhs[1]) / det_k
+        corr[1] = (k00 * rhs[1] - k10 * rhs[0]) / det_k
+        mat += s1 + x_b @ corr
+        logdet += float(sums[2, -1]) + float(np.log(det_k)) - float(np.log1p(-phi * phi))
     try:
         chol = np.linalg.cholesky(0.5 * (mat + mat.T))
     except np.linalg.LinAlgError:
@@ -439,7 +621,7 @@ def _noise_model(
             qa[k] = vv / max(n_tot - rank, 1)
             continue
         size = rank + 1
-        zs: list[tuple[FloatArray, FloatArray]] = []
+        zs: list[_Spectral] = []
         s_mom = np.zeros((size, size))
         d_mom = np.zeros((size, size))
         e_mom = np.zeros((size, size))
@@ -492,7 +674,7 @@ def _noise_model(
 
         def model_at(
             x: FloatArray,
-            z_: list[tuple[FloatArray, FloatArray]] = zs,
+            z_: list[_Spectral] = zs,
             r_: int = rank,
             vv_: float = vv,
         ) -> FloatArray:
@@ -625,7 +807,8 @@ def _colored_covariance(
     from scipy.special import stdtrit
 
     phi, qa, qw, spread = _noise_model(jacobians, residuals)
-    cov = _model_sandwich(jacobians, residuals, r, m_inv, phi, qa, qw)
+    sandwich = _Sandwich(jacobians, r, m_inv, phi)
+    cov = sandwich.covariance(residuals, phi, qa, qw)
     # The noise model is itself estimated (from some N/tau correlation times), so
     # each variance is uncertain; its delta-method variance gives Satterthwaite
     # degrees of freedom nu and the error bars take the t quantile's width,
@@ -641,7 +824,7 @@ def _colored_covariance(
                 model = [phi.copy(), qa.copy(), qw.copy()]
                 for arr, value in zip(model, point, strict=True):
                     arr[k] = value
-                diags.append(np.diag(_model_sandwich(jacobians, residuals, r, m_inv, *model)))
+                diags.append(np.diag(sandwich.covariance(residuals, *model)))
             grad[i] = (diags[0] - diags[1]) / (2.0 * steps[i])
         var_var += np.einsum("ij,ik,kj->j", grad, cov_x, grad)
     ok = (var > 0) & (var_var > 0)
@@ -651,25 +834,64 @@ def _colored_covariance(
     return np.asarray(cov * np.outer(factor, factor), dtype=np.float64)
 
 
-def _model_sandwich(
-    jacobians: list[FloatArray],
-    residuals: list[FloatArray],
-    r: FloatArray,
-    m_inv: FloatArray,
-    phi: FloatArray,
-    qa: FloatArray,
-    qw: FloatArray,
-) -> FloatArray:
-    """``M^-1 [G' Qa G + W' Qw W] M^-1`` for the noise model (phi, qa, qw)."""
-    cov_a, cov_w = _cross_covariances(residuals, phi, qa, qw)
-    n_par = m_inv.shape[0]
-    middle = np.zeros((n_par, n_par))
-    for jac in jacobians:
-        w = jac / r[None, :, None]
-        g = _recolour(w, phi)
-        middle += g.reshape(-1, n_par).T @ np.matmul(cov_a, g).reshape(-1, n_par)
-        middle += w.reshape(-1, n_par).T @ np.matmul(cov_w, w).reshape(-1, n_par)
-    return np.asarray(m_inv @ (0.5 * (middle + middle.T)) @ m_inv, dtype=np.float64)
+class _Sandwich:
+    """``M^-1 [G' Qa G + W' Qw W] M^-1`` for noise models (phi, qa, qw) near one
+    estimate, from per-output-pair blocks.
+
+    ``G' Qa G = sum_kl Qa[k, l] G_k' G_l`` with ``G_k`` output k's recoloured
+    weighted sensitivities (`_recolour`), likewise for W; the blocks
+    ``W_k' W_l`` and ``G_k' G_l`` are formed once, and a model that moves one
+    output's phi (the Satterthwaite differences of `_colored_covariance`)
+    recomputes only that output's row of blocks.
+    """
+
+    def __init__(
+        self, jacobians: list[FloatArray], r: FloatArray, m_inv: FloatArray, phi: FloatArray
+    ) -> None:
+        self.m_inv = m_inv
+        self.phi = phi.copy()
+        self.ws = [jac / r[None, :, None] for jac in jacobians]
+        self.gs = [_recolour(w, phi) for w in self.ws]
+        self.bw = self._blocks(self.ws)
+        self.bg = self._blocks(self.gs)
+
+    @staticmethod
+    def _blocks(arrays: list[FloatArray]) -> FloatArray:
+        n_y, n_par = arrays[0].shape[1:]
+        total = np.zeros((n_y * n_par, n_y * n_par))
+        for a in arrays:
+            flat = a.reshape(a.shape[0], n_y * n_par)
+            total += flat.T @ flat
+        return total.reshape(n_y, n_par, n_y, n_par)
+
+    def _g_blocks(self, phi: FloatArray) -> FloatArray:
+        moved = np.flatnonzero(phi != self.phi).tolist()
+        if not moved:
+            return self.bg
+        blocks = self.bg.copy()
+        n_y, n_par = self.gs[0].shape[1:]
+        gs = []
+        for w, g in zip(self.ws, self.gs, strict=True):
+            g = g.copy()
+            g[:, moved, :] = _recolour(w[:, moved, :], phi[moved])
+            gs.append(g)
+        for k in moved:
+            row = np.zeros((n_par, n_y * n_par))
+            for g in gs:
+                row += g[:, k, :].T @ g.reshape(g.shape[0], n_y * n_par)
+            row3 = row.reshape(n_par, n_y, n_par)
+            blocks[k] = row3
+            blocks[:, :, k, :] = row3.transpose(1, 2, 0)
+        return blocks
+
+    def covariance(
+        self, residuals: list[FloatArray], phi: FloatArray, qa: FloatArray, qw: FloatArray
+    ) -> FloatArray:
+        cov_a, cov_w = _cross_covariances(residuals, phi, qa, qw)
+        middle = np.einsum("kl,kalb->ab", cov_a, self._g_blocks(phi))
+        middle += np.einsum("kl,kalb->ab", cov_w, self.bw)
+        m_inv = self.m_inv
+        return np.asarray(m_inv @ (0.5 * (middle + middle.T)) @ m_inv, dtype=np.float64)
 
 
 def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, ...]], FloatArray]:
@@ -773,8 +995,15 @@ def fit_output_error(
     simulate_options: Mapping[str, Any],
     gradient: str,
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    delays: Mapping[str, float] | None = None,
 ) -> IdentificationResult:
     """Run the estimation; arguments are already validated by `identify`.
+
+    `delays` (control name -> start value in s) adds one pure time delay per
+    named control to the unknowns: the control is simulated as ``u(t - tau)``
+    (`shifted_controls`), so every simulation path, the LTI and compiled ones
+    included, stays valid, and its sensitivity is a central difference in
+    tau. The delays are reported as parameters ``tau_<control>``.
 
     With `bounds` (name -> (lower, upper), ±inf for an open side) the
     Gauss–Newton steps are projected: a parameter at a bound whose step would
@@ -805,7 +1034,11 @@ def fit_output_error(
             )
         )
     n_p = len(names)
-    pos = n_p
+    delay_controls = list(delays or {})
+    n_d = len(delay_controls)
+    controls = list(model.controls)
+    delayed = tuple(controls.index(c) for c in delay_controls)
+    pos = n_p + n_d
     x0_slices, bias_slices = [], []
     for m in mans:
         x0_slices.append(slice(pos, pos + len(m.x0_free)))
@@ -813,9 +1046,10 @@ def fit_output_error(
     for m in mans:
         bias_slices.append(slice(pos, pos + len(m.bias_free)))
         pos += len(m.bias_free)
-    layout = _Layout(names, n_p, x0_slices, bias_slices, pos)
+    layout = _Layout(names, n_p, x0_slices, bias_slices, pos, delayed)
     theta = np.zeros(pos)
     theta[:n_p] = [initial[n] for n in names]
+    theta[n_p : n_p + n_d] = [float((delays or {})[c]) for c in delay_controls]
     for i, m in enumerate(mans):
         theta[x0_slices[i]] = m.x0[m.x0_free]
     box = dict(bounds or {})
@@ -827,9 +1061,13 @@ def fit_output_error(
     fixed = {k: float(v) for k, v in model.parameters.items() if k not in names}
     problem = _Problem(model, mans, layout, out_idx, fixed, simulate_options, gradient)
     typ = _typical_scales(layout, theta, mans, state_out)
+    if n_d:
+        # a delay's natural scale is the sample interval
+        typ[n_p : n_p + n_d] = min(float(np.min(np.diff(m.time))) for m in mans)
     all_meas = np.concatenate([m.measured for m in mans], axis=0)
     floor = 1e-14 * np.maximum(np.mean(all_meas**2, axis=0), 1e-300)
-    names_all = list(names)
+    delay_names = [delay_parameter(c) for c in delay_controls]
+    names_all = list(names) + delay_names
     for i, m in enumerate(mans):
         names_all += [f"x0[{i}].{states[s]}" for s in m.x0_free]
     for i, m in enumerate(mans):
@@ -986,14 +1224,15 @@ def fit_output_error(
         xi, bi = problem.unpack(theta, i)
         x0_out.append({s: float(xi[j]) for j, s in enumerate(states)})
         bias_out.append({outputs[k]: float(bi[k]) for k in m.bias_free})
-    extra = {names_all[j]: float(se[j]) for j in range(n_p, layout.n_total)}
+    n_e = n_p + n_d  # model parameters, then time delays
+    extra = {names_all[j]: float(se[j]) for j in range(n_e, layout.n_total)}
     return IdentificationResult(
-        parameters={n: float(theta[j]) for j, n in enumerate(names)},
-        stderr={n: float(se[j]) for j, n in enumerate(names)},
-        covariance=cov[:n_p, :n_p],
-        parameter_names=tuple(names),
+        parameters={n: float(theta[j]) for j, n in enumerate(names_all[:n_e])},
+        stderr={n: float(se[j]) for j, n in enumerate(names_all[:n_e])},
+        covariance=cov[:n_e, :n_e],
+        parameter_names=tuple(names_all[:n_e]),
         fixed=fixed,
-        covariance_white=cov_white[:n_p, :n_p],
+        covariance_white=cov_white[:n_e, :n_e],
         error_bars=shown,
         identifiable=identifiable,
         unidentifiable=tuple(combos),
@@ -1015,4 +1254,5 @@ def fit_output_error(
             for j, n in enumerate(names)
             if held[j]
         },
+        time_delays={c: float(theta[n_p + i]) for i, c in enumerate(delay_controls)},
     )

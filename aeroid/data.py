@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import math
 import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -91,6 +90,8 @@ def _numeric(values: Any, what: str, failure: str) -> FloatArray:
     Complex samples are refused: casting them would silently drop the
     imaginary part. Datetimes and durations become seconds (see `_seconds`).
     """
+    if type(values) is _Owned:
+        return _adopt(values)
     try:
         arr = np.asarray(values)
     except (TypeError, ValueError) as exc:
@@ -323,47 +324,200 @@ def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Pat
     )
 
 
-def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
+class _Owned(np.ndarray):
+    """A float64 array a loader built and hands over: `FlightData` keeps it without a copy.
+
+    Only the loaders below create one, and they drop their own reference, so
+    no caller can alias the record's arrays.
+    """
+
+
+def _adopt(values: _Owned) -> FloatArray:
+    values.setflags(write=False)  # with the base read-only, the view cannot be made writable
+    out = values.view(np.ndarray)
+    out.setflags(write=False)
+    return out
+
+
+def _csv_header(path: Path) -> tuple[list[str], int, int]:
+    """The header, the byte offset of the first data line, and the header's line number.
+
+    Comment lines (``#`` first) and blank lines before the header are skipped,
+    as flight-test exports often carry them.
+    """
+    offset = 0
+    line_no = 0
+    with open(path, "rb") as f:
+        for raw in f:
+            line_no += 1
+            start = offset
+            offset += len(raw)
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise DataFormatError(f"{path}: not a UTF-8 text file ({exc})") from None
+            if start == 0:
+                text = text.removeprefix("\ufeff")
+            if not text.strip() or text.lstrip().startswith("#"):
+                continue
+            header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]))]
+            return header, offset, line_no
+    raise DataFormatError(f"{path}: empty file")
+
+
+_NUMBER = r"^\s*[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan))\s*$"
+
+
+def _csv_cell_error(path: Path, header: list[str], offset: int, exc: Exception) -> DataFormatError:
+    """Name the row and column of the cell pyarrow refused (only ever on the error path)."""
+    import pyarrow as pa
+
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise DataFormatError(f"{path}: not a UTF-8 text file ({exc})") from None
-    rows = list(csv.reader(text.splitlines()))
-    # Skip comment lines commonly found at the top of flight-test exports.
-    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
-    if not rows:
-        raise DataFormatError(f"{path}: empty file")
-    header = [h.strip() for h in rows[0]]
+        return _locate_csv_error(path, header, offset, exc)
+    except (OSError, pa.ArrowException) as again:
+        return DataFormatError(f"{path}: not a readable CSV file ({exc}; {again})")
+
+
+def _locate_csv_error(
+    path: Path, header: list[str], offset: int, exc: Exception
+) -> DataFormatError:
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.csv as pacsv
+
+    # A row with the wrong number of cells (comment lines aside): the parser reports
+    # its line number.
+    bad_rows: list[Any] = []
+
+    def keep(row: Any) -> str:
+        if not row.text.lstrip().startswith("#"):
+            bad_rows.append(row)
+        return "skip"
+
+    def read(**convert: Any) -> Any:
+        with pa.OSFile(str(path)) as f:
+            f.seek(offset)
+            return pacsv.read_csv(
+                f,
+                read_options=pacsv.ReadOptions(column_names=header, use_threads=False),
+                parse_options=pacsv.ParseOptions(invalid_row_handler=keep),
+                convert_options=pacsv.ConvertOptions(**convert),
+                memory_pool=pa.system_memory_pool(),
+            )
+
+    read(
+        column_types=dict.fromkeys(header, pa.string()),
+        include_columns=header[:1],
+    )
+    if bad_rows:
+        row = bad_rows[0]
+        return DataFormatError(
+            f"{path}: row {row.number + 1} has {row.actual_columns} cells, "
+            f"header has {row.expected_columns}"
+        )
+    # Otherwise one column holds a cell that is not a number: find it as text.
+    for name in header:
+        try:
+            read(column_types={name: pa.float64()}, include_columns=[name], null_values=[""])
+            continue
+        except pa.ArrowInvalid:
+            pass
+        cells = read(
+            column_types={name: pa.string()}, include_columns=[name], strings_can_be_null=False
+        ).column(0)
+        numeric = pc.match_substring_regex(cells, _NUMBER)
+        bad = np.flatnonzero(~np.asarray(numeric.to_numpy(zero_copy_only=False), dtype=bool))
+        if bad.size:
+            i = int(bad[0])
+            cell = str(cells[i].as_py()).strip()
+            what = "blank" if not cell else f"non-numeric ({cell!r})"
+            return DataFormatError(f"{path}: row {i + 2}, column {name!r}: {what} cell")
+    return DataFormatError(f"{path}: not a readable CSV file ({exc})")
+
+
+def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
+    """Parse with pyarrow (multi-threaded, straight to float64); locate bad cells only on failure.
+
+    Row numbers in messages count the header as row 1.
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    header, offset, _ = _csv_header(path)
     if any(not h for h in header):
         raise DataFormatError(f"{path}: empty column name at column {header.index('') + 1}")
     dupes = sorted({h for h in header if header.count(h) > 1})
     if dupes:
         raise DataFormatError(f"{path}: duplicate column names {dupes}")
-    body = rows[1:]
-    if len(body) < 2:
+    if offset >= path.stat().st_size:
         raise DataFormatError(f"{path}: fewer than 2 data rows")
-    values = np.empty((len(body), len(header)))
-    for i, row in enumerate(body):
-        line = i + 2  # 1-based, header is line 1 (comments excluded)
-        if len(row) != len(header):
-            raise DataFormatError(
-                f"{path}: row {line} has {len(row)} cells, header has {len(header)}"
+
+    def read(parse: Any = None) -> Any:
+        with pa.OSFile(str(path)) as f:
+            f.seek(offset)
+            # The system allocator hands freed column buffers back to the OS at once,
+            # which keeps the peak near one copy of the data.
+            return pacsv.read_csv(
+                f,
+                read_options=pacsv.ReadOptions(column_names=header, use_threads=True),
+                parse_options=parse or pacsv.ParseOptions(),
+                convert_options=pacsv.ConvertOptions(
+                    column_types=dict.fromkeys(header, pa.float64()),
+                    null_values=[""],
+                    strings_can_be_null=False,
+                ),
+                memory_pool=pa.system_memory_pool(),
             )
-        for j, cell in enumerate(row):
-            cell = cell.strip()
+
+    comments: list[int] = []
+
+    def skip_comment(row: Any) -> str:
+        if not row.text.lstrip().startswith("#"):
+            return "error"
+        comments.append(1)
+        return "skip"
+
+    try:
+        try:
+            table = read()
+        except pa.ArrowInvalid as exc:
+            # Comment lines among the data: read again without them (rare, so only
+            # on the error path); anything else is located and reported.
             try:
-                value = float(cell)
-            except ValueError:
-                what = "blank" if not cell else f"non-numeric ({cell!r})"
-                raise DataFormatError(
-                    f"{path}: row {line}, column {header[j]!r}: {what} cell"
-                ) from None
-            if not math.isfinite(value):
-                raise DataFormatError(
-                    f"{path}: row {line}, column {header[j]!r}: non-finite value {cell!r}"
-                )
-            values[i, j] = value
-    return header, {h: values[:, j] for j, h in enumerate(header)}
+                table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
+            except pa.ArrowInvalid:
+                table = None
+            if table is None or not comments:
+                raise _csv_cell_error(path, header, offset, exc) from None
+    except (OSError, pa.ArrowException) as exc:
+        raise DataFormatError(f"{path}: not a readable CSV file ({exc})") from None
+    n = table.num_rows
+    if n < 2:
+        raise DataFormatError(f"{path}: fewer than 2 data rows")
+    pending = {name: table.column(name) for name in header}
+    del table
+    columns: dict[str, FloatArray] = {}
+    for name in header:
+        chunked = pending.pop(name)
+        if chunked.null_count:
+            first = int(np.flatnonzero(np.asarray(chunked.is_null()))[0])
+            raise DataFormatError(f"{path}: row {first + 2}, column {name!r}: blank cell")
+        out = _Owned((n,), dtype=np.float64)  # owns its memory, so adopting it freezes it
+        at = 0
+        for chunk in chunked.chunks:
+            size = len(chunk)
+            out[at : at + size] = chunk.to_numpy(zero_copy_only=True)
+            at += size
+        del chunked  # frees this column's Arrow buffers before the next is copied
+        bad = ~np.isfinite(out)
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            raise DataFormatError(
+                f"{path}: row {first + 2}, column {name!r}: non-finite value "
+                f"{str(float(out[first]))!r}"
+            )
+        columns[name] = out
+    return header, columns
 
 
 def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
@@ -408,7 +562,8 @@ def _read_mat(path: Path) -> tuple[list[str], dict[str, NDArray[Any]]]:
         raw = scipy.io.loadmat(path, squeeze_me=True)
     except Exception as exc:  # scipy raises ValueError/TypeError/NotImplementedError
         raise DataFormatError(
-            f"{path}: not a readable MATLAB file ({exc}); v7.3 (HDF5) files are not supported"
+            f"{path}: not a readable MATLAB file ({exc}); MATLAB v7.3 (HDF5) files are "
+            "read as logs (see aeroid.read_log)"
         ) from None
     columns: dict[str, NDArray[Any]] = {}
     for name, value in raw.items():
@@ -438,8 +593,10 @@ def load_flight_test(
     time_column: str | None = None,
     channels: Sequence[str] | Mapping[str, str] | None = None,
     units: Mapping[str, str] | None = None,
+    sample_rate: float | None = None,
+    max_gap: float | None = None,
 ) -> FlightData:
-    """Load a flight-test record from CSV, Parquet or MATLAB ``.mat``.
+    """Load a flight-test record from a table (CSV, Parquet, MATLAB) or a flight log.
 
     Column headers are kept verbatim as channel names, so they match the
     model's state, control and output names.
@@ -447,17 +604,30 @@ def load_flight_test(
     Parameters
     ----------
     path : str or Path
-        File to read; the format follows the suffix (``.csv``/``.txt``,
-        ``.parquet``/``.pq``, ``.mat``).
+        File to read. Tables: ``.csv``/``.txt``, ``.parquet``/``.pq``,
+        ``.mat`` (v5). Flight logs (see `aeroid.read_log`): PX4 ``.ulg``,
+        ArduPilot ``.bin``/``.log``, HDF5 ``.h5``, MATLAB v7.3 ``.mat``; a
+        log is recognised by its first bytes as well as its suffix.
     time_column : str, optional
         Column holding time in seconds. Default: the first of ``time``, ``t``,
-        ``Time`` ... that is present.
+        ``Time`` ... that is present. For HDF5 and MATLAB v7.3, the name of
+        the time dataset.
     channels : sequence of str or mapping of str to str, optional
-        Columns to keep. A mapping renames ``{column: channel_name}``; two
-        columns renamed to the same channel name are an error.
-        Default: every column but time.
+        Columns (log channels) to keep. A mapping renames them:
+        ``{column: channel_name}`` for a table; for a log either
+        ``{channel_name: log_channel}`` or ``{log_channel: channel_name}``
+        (whichever side names the log's channels). Two columns renamed to the
+        same channel name are an error. Default: every column but time
+        (every channel of the log).
     units : mapping of str to str, optional
-        Unit label per (renamed) channel.
+        Unit label per (renamed) channel; for a log, over the units it states.
+    sample_rate : float, optional
+        Logs only: resample the channels, each on its own stamps, onto one
+        uniform grid at this rate (Hz) with `aeroid.resampling.resample`.
+        Without it, the channels must share their time stamps.
+    max_gap : float, optional
+        Logs only, with `sample_rate`: longest gap in a channel's stamps (s)
+        to interpolate across; passed to the resampler.
 
     Returns
     -------
@@ -475,7 +645,10 @@ def load_flight_test(
     Notes
     -----
     A Parquet timestamp or date column becomes seconds since its first
-    sample; a duration or time-of-day column becomes seconds.
+    sample; a duration or time-of-day column becomes seconds. A CSV file is
+    parsed by pyarrow; comment (``#``) and blank lines before the header are
+    skipped, and a bad cell is reported by row (the header is row 1) and
+    column.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise DataFormatError(
@@ -490,6 +663,24 @@ def load_flight_test(
         raise DataFormatError(f"{p}: no such file")
     if not p.is_file():
         raise DataFormatError(f"{p}: not a regular file")
+    from .logs import sniff_format
+
+    log_format = sniff_format(p)
+    if log_format is not None:
+        return _load_log(
+            p,
+            log_format,
+            time_column=time_column,
+            channels=channels,
+            units=units,
+            sample_rate=sample_rate,
+            max_gap=max_gap,
+        )
+    if sample_rate is not None or max_gap is not None:
+        raise DataFormatError(
+            f"{p}: sample_rate and max_gap apply to flight logs; this is a table "
+            "already on one time axis"
+        )
     suffix = p.suffix.lower()
     columns: Mapping[str, NDArray[Any]]
     if suffix in (".csv", ".txt", ".dat"):
@@ -544,3 +735,98 @@ def load_flight_test(
         )
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
+
+
+def _log_mapping(
+    log: Any, channels: Sequence[str] | Mapping[str, str] | None, path: Path
+) -> dict[str, str]:
+    """``{channel_name: log_channel}`` from what the caller passed."""
+    from .logs import find_channels
+
+    if channels is None:
+        return {c: c for c in log.channels}
+    if isinstance(channels, str):
+        channels = [channels]
+    if not isinstance(channels, Mapping):
+        names = [str(c) for c in channels]
+        find_channels(log, names, path)
+        return {c: c for c in names}
+    pairs = {str(k): str(v) for k, v in channels.items()}
+    keys_in = all(k in log.channels for k in pairs)
+    values_in = all(v in log.channels for v in pairs.values())
+    if values_in or not keys_in:
+        find_channels(log, pairs.values(), path)
+        return pairs
+    # {log_channel: name}, as for tables: refuse two log channels given one name
+    sources: dict[str, list[str]] = {}
+    for col, name in pairs.items():
+        sources.setdefault(name, []).append(col)
+    clash = {name: cols for name, cols in sources.items() if len(cols) > 1}
+    if clash:
+        name, cols = next(iter(clash.items()))
+        raise DataFormatError(
+            f"{path}: channels: log channels {cols} are all renamed to {name!r}; "
+            "give each its own channel name"
+        )
+    return {name: col for col, name in pairs.items()}
+
+
+def _load_log(
+    p: Path,
+    log_format: str,
+    *,
+    time_column: str | None,
+    channels: Sequence[str] | Mapping[str, str] | None,
+    units: Mapping[str, str] | None,
+    sample_rate: float | None,
+    max_gap: float | None,
+) -> FlightData:
+    """`load_flight_test` for a flight log: read it, pick channels, put them on one grid."""
+    from .logs import read_log
+
+    log = read_log(p, format=log_format, time_column=time_column)
+    mapping = _log_mapping(log, channels, p)
+    if not mapping:
+        raise DataFormatError(f"{p}: channels: none selected")
+    metadata = {"source": p.name, "format": str(log.metadata.get("format", log_format))}
+    if sample_rate is None:
+        if max_gap is not None:
+            raise DataFormatError(f"{p}: max_gap applies only with sample_rate")
+        first = next(iter(mapping.values()))
+        time = log.channels[first].time
+        for source in mapping.values():
+            other = log.channels[source].time
+            if other.shape != time.shape or not np.array_equal(other, time):
+                raise DataFormatError(
+                    f"{p}: log channels {first!r} ({log.channels[first].rate:.4g} Hz) and "
+                    f"{source!r} ({log.channels[source].rate:.4g} Hz) are on different time "
+                    "stamps; pass sample_rate=... to resample them onto one grid"
+                )
+        log_units = {n: log.channels[c].unit for n, c in mapping.items() if log.channels[c].unit}
+        try:
+            return FlightData(
+                time,
+                {n: log.channels[c].values for n, c in mapping.items()},
+                {**log_units, **dict(units or {})},
+                metadata,
+            )
+        except DataFormatError as exc:
+            raise DataFormatError(f"{p}: {exc}") from None
+    try:
+        from .resampling import resample
+    except ImportError:  # pragma: no cover - the module ships with aeroid
+        raise DataFormatError(
+            f"{p}: resampling a log needs aeroid.resampling, which is unavailable"
+        ) from None
+    try:
+        data = resample(log, mapping, rate=sample_rate, max_gap=max_gap)
+    except DataFormatError as exc:
+        raise DataFormatError(f"{p}: {exc}") from None
+    extra = dict(units or {})
+    unknown = sorted(set(extra) - set(data.channels))
+    if unknown:
+        raise DataFormatError(f"{p}: units given for unknown channels {unknown}")
+    log_units = {n: log.channels[c].unit for n, c in mapping.items() if log.channels[c].unit}
+    merged = {**log_units, **dict(data.units), **extra}
+    merged = {n: u for n, u in merged.items() if n in data.channels}
+    return FlightData(data.time, dict(data.channels), merged, {**dict(data.metadata), **metadata})

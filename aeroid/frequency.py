@@ -35,10 +35,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.signal
 from numpy.typing import NDArray
 
 from . import _integrate
+from ._czt import hann
 from ._records import fmt, frozen_array, markdown_table
 from ._threads import small_blas
 from .data import FlightData, measured_start
@@ -261,17 +261,26 @@ class FrequencyResponseResult:
 
 
 def _spectral_matrix(signals: FloatArray, fs: float, nperseg: int) -> tuple[FloatArray, Any]:
-    """All cross-spectra of the rows of `signals` (n, n_t): S[a, b] = E[conj(Z_a) Z_b]."""
-    f, s = scipy.signal.csd(
-        signals[:, None, :],
-        signals[None, :, :],
-        fs=fs,
-        nperseg=nperseg,
-        window="hann",
-        detrend="constant",
-        axis=-1,
-    )
-    return f, np.moveaxis(s, -1, 0)  # (n_f, n, n)
+    """All cross-spectra of the rows of `signals` (n, n_t): S[a, b] = E[conj(Z_a) Z_b].
+
+    Welch's one-sided cross-spectral density as ``scipy.signal.csd`` computes it
+    with ``window="hann"`` (periodic), half-overlapping segments, ``detrend="constant"``
+    and density scaling; in numpy, with every segment transformed once rather than
+    once per pair, and without importing `scipy.signal`.
+    """
+    n_t = signals.shape[-1]
+    step = nperseg - nperseg // 2
+    k = (n_t - nperseg) // step + 1
+    win = hann(nperseg)
+    starts = np.arange(k) * step
+    segs = signals[:, starts[:, None] + np.arange(nperseg)[None, :]]  # (n, k, nperseg)
+    segs = (segs - segs.mean(axis=-1, keepdims=True)) * win
+    z = np.fft.rfft(segs, axis=-1)  # (n, k, n_f)
+    s = np.einsum("akf,bkf->fab", np.conj(z), z) / (k * fs * float(np.dot(win, win)))
+    # one-sided: double all but the zero frequency (and Nyquist for even lengths)
+    s[1 : None if nperseg % 2 else -1] *= 2.0
+    freqs = np.asarray(np.fft.rfftfreq(nperseg, 1.0 / fs), dtype=np.float64)
+    return freqs, s  # (n_f,), (n_f, n, n)
 
 
 def _empirical(
@@ -392,7 +401,7 @@ def _independent_averages(n: int, nperseg: int) -> float:
     """
     step = nperseg - nperseg // 2
     k = (n - nperseg) // step + 1
-    w = scipy.signal.get_window("hann", nperseg)
+    w = hann(nperseg)
     shifts = np.arange(1, k) * step
     shifts = shifts[shifts < nperseg]
     rho = np.array([np.dot(w[: nperseg - d], w[d:]) for d in shifts]) / np.dot(w, w)

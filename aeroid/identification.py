@@ -90,6 +90,11 @@ class IdentificationResult:
         conditional on the bound, i.e. the other parameters' covariance is
         that of a fit with these parameters held fixed at their bounds (the
         information matrix without their rows and columns).
+    time_delays : mapping of str to float
+        Estimated pure time delay (s) per delayed control (``time_delays=`` of
+        `identify`); each is also a parameter ``"tau_<control>"`` in
+        `parameters`, `stderr` and `covariance` (not in `all_parameters`,
+        which holds model parameters only).
     """
 
     parameters: Mapping[str, float]
@@ -118,9 +123,11 @@ class IdentificationResult:
     data_fingerprints: tuple[str, ...] = ()
     bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     active_bounds: Mapping[str, str] = field(default_factory=dict)
+    time_delays: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        set_(self, "time_delays", frozen_mapping(self.time_delays))
         set_(self, "data_fingerprints", tuple(str(f) for f in self.data_fingerprints))
         set_(
             self,
@@ -168,7 +175,8 @@ class IdentificationResult:
     def all_parameters(self) -> Mapping[str, float]:
         """Fixed and estimated parameters together (a full model parameter set)."""
         merged: dict[str, Any] = dict(self.fixed)
-        merged.update(self.parameters)
+        delays = {f"tau_{c}" for c in self.time_delays}
+        merged.update({k: v for k, v in self.parameters.items() if k not in delays})
         return ReadOnlyDict(merged)
 
     def plot(self, **kwargs: Any) -> Any:
@@ -210,6 +218,9 @@ class IdentificationResult:
             else "classical (white residuals)"
         )
         notes.append(f"Standard errors: {kind}; method: {self.method.replace('_', ' ')}.")
+        if self.time_delays:
+            which = ", ".join(f"tau_{c} of {c}" for c in self.time_delays)
+            notes.append(f"Time delays (s), the controls entering as u(t - tau): {which}.")
         if self.sigma2 is not None:
             notes.append(f"Normalised innovation variance sigma2 = {self.sigma2:.3g}.")
         if not self.success:
@@ -221,6 +232,7 @@ class IdentificationResult:
 
 
 _METHODS = ("output_error", "filter_error")
+_STARTS = ("given", "equation_error")
 _GRADIENTS = ("auto", "fd", "jax")
 _ERROR_BARS = ("colored", "white")
 
@@ -395,6 +407,8 @@ def identify(
     filter_options: Mapping[str, Any] | None = None,
     estimate_process_noise: bool | Sequence[str] = False,
     bounds: Mapping[str, Any] | None = None,
+    time_delays: str | Sequence[str] | Mapping[str, float] | None = None,
+    start: str = "given",
 ) -> IdentificationResult:
     """Estimate model parameters from flight data.
 
@@ -479,6 +493,26 @@ def identify(
         as 0 and the other parameters' covariance is conditional on the bound
         (computed with it held fixed). The initial value of a bounded
         parameter must lie inside its bounds (a bound itself is allowed).
+    time_delays : str, sequence of str or mapping of str to float, optional
+        Controls whose pure time delay to estimate (output error only), or a
+        dict of control name to start value in s (default start 0). The
+        control enters the model as ``u(t - tau)``, interpolated
+        piecewise-linearly between samples, so a delay may be a fraction of a
+        sample. Each delay is reported as parameter ``"tau_<control>"`` in
+        `parameters`, `stderr`, `covariance` and `summary`, and in
+        ``result.time_delays``; it is shared by every manoeuvre.
+    start : {"given", "equation_error"}
+        ``"given"``: start from `parameters`. ``"equation_error"``: first
+        regress each state equation on the measured states and controls
+        (Klein & Morelli's equation error): the response is the smoothed
+        derivative of each measured state (a channel ``<state>_dot`` when the
+        data carry one, else `aeroid.smoothing.differentiate` of the state on
+        a uniform grid; all states must be measured), the regressors the
+        columns ``df/dp`` of the dynamics, and the least-squares estimates
+        start the output-error fit. Needs dynamics linear in the estimated
+        parameters (checked; an error names those that are not). Parameters
+        that do not enter the state equations, or that the regression cannot
+        separate, keep their given start.
 
     Returns
     -------
@@ -527,6 +561,9 @@ def identify(
         raise IdentificationError(f"tolerance must be positive, got {plain(tolerance)}")
     datas = _as_list(data)
     names, initial = _names_and_initial(model, parameters)
+    if start not in _STARTS:
+        raise IdentificationError(f"start {start!r} is unknown; choose one of {list(_STARTS)}")
+    delays = _time_delays(time_delays, model)
     is_simulator = not hasattr(model, "simulate_batch") and isinstance(model, SimulatorModel)
     model_outputs = list(model.outputs)
     if outputs is None:
@@ -549,6 +586,13 @@ def identify(
             x0_dicts.append(measured_start(d, states))
         else:
             x0_dicts.append(_x0_values(xi, states))
+    if method == "filter_error" and delays:
+        raise IdentificationError(
+            "time_delays apply to method='output_error' only; estimate the delays by output "
+            "error and build the filter-error model on the delayed controls"
+        )
+    if start == "equation_error":
+        initial = _equation_error_start(model, datas, names, initial, delays, box)
     if method == "filter_error":
         if weights is not None:
             raise IdentificationError(
@@ -665,6 +709,7 @@ def identify(
         fit_outputs,
         {
             "parameters": len(names),
+            "time delays": len(delays),
             "initial states": len(sel_x0) * len(datas),
             "biases": (len(sel_bias) + len(state_bias)) * len(datas),
         },
@@ -686,6 +731,7 @@ def identify(
         simulate_options=opts,
         gradient=gradient,
         bounds=box,
+        delays=delays,
     )
     if state_bias:
         fitted = _state_biases_out(fitted, bias_states, state_bias)
@@ -693,6 +739,171 @@ def identify(
 
 
 _STATE_BIAS_PREFIX = "bias."
+
+
+def _time_delays(option: Any, model: Any) -> dict[str, float]:
+    """Control name -> start value (s) of each delay to estimate (see `identify`)."""
+    if option is None or option is False:
+        return {}
+    if isinstance(option, str):
+        option = [option]
+    if isinstance(option, Mapping):
+        items = list(option.items())
+    else:
+        try:
+            items = [(c, 0.0) for c in option]
+        except TypeError:
+            raise IdentificationError(
+                "time_delays: expected a control name, a list of them or a dict of control "
+                f"name -> start value in s, got {plain(option)}"
+            ) from None
+    controls = list(model.controls)
+    out: dict[str, float] = {}
+    for name, value in items:
+        if name not in controls:
+            raise IdentificationError(
+                f"time_delays: {name!r} is not a control of model "
+                f"{getattr(model, 'name', '')!r}; its controls are {controls}"
+            )
+        if f"tau_{name}" in model.parameters:
+            raise IdentificationError(
+                f"time_delays: the delay of {name!r} would be reported as 'tau_{name}', "
+                "which is already a model parameter; rename that parameter"
+            )
+        if isinstance(value, bool):
+            v = float("nan")
+        else:
+            try:
+                v = float(value)
+            except (TypeError, ValueError):
+                v = float("nan")
+        if not np.isfinite(v):
+            raise IdentificationError(
+                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
+                f"got {plain(value)}"
+            )
+        out[str(name)] = v
+    return out
+
+
+def _equation_error_start(
+    model: Any,
+    datas: list[FlightData],
+    names: list[str],
+    initial: Mapping[str, float],
+    delays: Mapping[str, float],
+    box: Mapping[str, tuple[float, float]],
+) -> dict[str, float]:
+    """Start values from an equation-error regression of the state equations (see
+    `identify`, ``start="equation_error"``)."""
+    from ._output_error import shifted_controls
+    from .errors import ChannelError
+    from .smoothing import differentiate
+
+    if not hasattr(model, "dynamics") or not hasattr(model, "_dynamics_batch"):
+        raise IdentificationError(
+            "start='equation_error' regresses the state equations, so it needs a Model with a "
+            "dynamics callable (not a stepped simulator)"
+        )
+    states = list(model.states)
+    controls = list(model.controls)
+    for i, d in enumerate(datas):
+        missing = [s for s in states if s not in d]
+        if missing:
+            raise ChannelError(
+                f"start='equation_error' needs every state measured; states {missing} are not "
+                f"channels of data[{i}] (channels: {sorted(d.channels)})"
+            )
+    n_x, n_p = len(states), len(names)
+    base = {k: float(v) for k, v in model.parameters.items()}
+    base.update({n: float(initial[n]) for n in names})
+    scale = np.array([max(abs(base[n]), 1.0) for n in names])
+    # Members: the start, one unit step (in `scale`) per parameter, a step back per
+    # parameter and one joint step; a model linear in the parameters reproduces the
+    # last n_p + 1 from the first n_p + 1.
+    coef = np.zeros((2 * n_p + 2, n_p))
+    coef[1 : n_p + 1] = np.eye(n_p)
+    coef[n_p + 1 : 2 * n_p + 1] = -np.eye(n_p)
+    coef[-1] = np.linspace(-0.7, 1.3, n_p) if n_p > 1 else 0.6
+    members = coef.shape[0]
+    rows: list[FloatArray] = []
+    cols: list[FloatArray] = []
+    for i, d in enumerate(datas):
+        n_t = d.n_samples
+        x = d.array(states)
+        u = d.array(controls) if controls else np.zeros((n_t, 0))
+        if delays:
+            u = shifted_controls(
+                d.time, u, [controls.index(c) for c in delays], list(delays.values())
+            )
+        given = [s for s in states if f"{s}_dot" in d]
+        xdot = np.empty((n_t, n_x))
+        if len(given) < n_x:
+            dt = float(np.mean(np.diff(d.time)))
+            xdot[:] = np.asarray(differentiate(x, dt=dt), dtype=np.float64).reshape(n_t, n_x)
+        for s in given:  # measured derivatives (e.g. angular accelerations) win
+            xdot[:, states.index(s)] = d[f"{s}_dot"]
+        P = {k: np.full(members * n_t, v) for k, v in base.items()}
+        for j, n in enumerate(names):
+            P[n] = np.repeat(base[n] + coef[:, j] * scale[j], n_t)
+        T = np.tile(d.time, members)
+        X = np.ascontiguousarray(np.tile(x.T, members))
+        U = np.ascontiguousarray(np.tile(u.T, members))
+        try:
+            with np.errstate(all="ignore"):
+                F = model._dynamics_batch.at_times(T, X, U, P)
+        except Exception as exc:
+            raise IdentificationError(
+                f"start='equation_error': the dynamics of model {model.name!r} failed on the "
+                f"measured states of data[{i}]: {type(exc).__name__}: {exc}"
+            ) from None
+        F = np.asarray(F, dtype=np.float64).reshape(n_x, members, n_t)
+        f0 = F[:, 0]
+        c = F[:, 1 : n_p + 1] - f0[:, None]  # (n_x, n_p, n_t): df/dp times the scale
+        pred_back = f0[:, None] - c
+        pred_joint = f0 + np.einsum("j,kjt->kt", coef[-1], c)
+        size = max(float(np.max(np.abs(F))) if np.all(np.isfinite(F)) else np.inf, 1e-300)
+        tol = 1e-7 * size
+        with np.errstate(all="ignore"):
+            off_back = np.max(np.abs(F[:, n_p + 1 : 2 * n_p + 1] - pred_back), axis=(0, 2))
+            off_joint = float(np.max(np.abs(F[:, -1] - pred_joint)))
+        bad = [n for n, e in zip(names, off_back, strict=True) if not e <= tol]
+        if bad or not off_joint <= tol:
+            which = f"parameters {bad}" if bad else f"the parameters {names} jointly"
+            raise IdentificationError(
+                f"start='equation_error' needs dynamics linear in the estimated parameters; "
+                f"the dynamics of model {model.name!r} are not linear in {which}; give start "
+                "values instead (start='given')"
+            )
+        z = xdot.T - f0  # (n_x, n_t)
+        for k in range(n_x):
+            rows.append(z[k])
+            cols.append(c[k].T)
+    # Equations in their own units: each weighted by its response's spread, so no
+    # state's units dominate the stacked regression.
+    weights = [1.0 / max(float(np.std(r)), 1e-300) for r in rows]
+    a = np.concatenate([w * cc for w, cc in zip(weights, cols, strict=True)], axis=0)
+    b = np.concatenate([w * r for w, r in zip(weights, rows, strict=True)])
+    norms = np.linalg.norm(a, axis=0)
+    live = np.flatnonzero(norms > 1e-12 * max(float(np.max(norms, initial=0.0)), 1e-300))
+    out = dict(initial)
+    if not live.size:
+        return out
+    from scipy.linalg import qr
+
+    an = a[:, live] / norms[live]
+    _q, r_mat, piv = qr(an, mode="economic", pivoting=True)
+    diag = np.abs(np.diag(r_mat))
+    # columns the regression separates from the ones before them (pivoted QR)
+    keep = live[np.sort(piv[diag > 1e-6 * diag[0]])]
+    sol = np.linalg.lstsq(a[:, keep], b, rcond=None)[0]
+    for j, step in zip(keep.tolist(), sol.tolist(), strict=True):
+        n = names[j]
+        value = base[n] + step * scale[j]
+        if np.isfinite(value):
+            lo, hi = box.get(n, (-np.inf, np.inf))
+            out[n] = float(np.clip(value, lo, hi))
+    return out
 
 
 def _bias_choice(option: Any, outputs: list[str], states: list[str]) -> tuple[list[str], list[str]]:

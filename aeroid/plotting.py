@@ -70,6 +70,13 @@ def _figure(
     return fig, grid.subplots(squeeze=False, sharex=sharex)
 
 
+def _label(name: str, units: Mapping[str, str] | None, *, what: str = "") -> str:
+    """An axis label: the quantity, then its unit in brackets where one is known."""
+    unit = (units or {}).get(name, "")
+    text = f"{name} {what}".strip()
+    return f"{text} [{unit}]" if unit else text
+
+
 def _hist(ax: Any, x: np.ndarray, bins: int) -> None:
     # one filled step artist instead of a patch per bin: the same picture, drawn faster
     x = np.asarray(x, dtype=float)
@@ -80,23 +87,42 @@ def _hist(ax: Any, x: np.ndarray, bins: int) -> None:
     ax.stairs(counts, edges, fill=True, color="C0", alpha=0.8)
 
 
-def plot_time_histories(validation: Any) -> Figure:
-    """Measured vs model time histories, with a residual panel under each output."""
+def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = None) -> Figure:
+    """Measured vs model time histories, residuals with their ±2σ band, and the inputs.
+
+    SIDPAC's layout: each output over its residual, the control inputs that
+    drove the manoeuvre in the panels underneath. Units come from the
+    validation (its flight data) unless `units` gives them.
+    """
     names = list(validation.output_names)
-    fig, axes = _figure(2 * len(names), height=1.9, hgap=0.5)
+    unit_of = {**dict(getattr(validation, "units", {}) or {}), **dict(units or {})}
+    controls = getattr(validation, "controls", None)
+    control_names = list(getattr(validation, "control_names", ()) or ())
+    n_inputs = len(control_names) if controls is not None else 0
+    fig, axes = _figure(2 * len(names) + n_inputs, height=1.9, hgap=0.5, sharex=True)
     t = validation.time
     for j, name in enumerate(names):
         ax = axes[2 * j, 0]
         ax.plot(t, validation.measured[:, j], color="0.55", lw=1.0, label="measured")
         ax.plot(t, validation.simulated[:, j], color="C0", lw=1.4, label="model")
         m = validation.metrics[name]
-        ax.set_ylabel(name)
+        ax.set_ylabel(_label(name, unit_of))
         ax.set_title(f"{name}: fit {m.fit:.1f} %, RMSE {m.rmse:.3g}", fontsize=9, loc="left")
         ax.legend(loc="upper right", fontsize=8)
         rax = axes[2 * j + 1, 0]
-        rax.plot(t, validation.residuals[:, j], color="C3", lw=0.9)
+        e = validation.residuals[:, j]
+        band = 2.0 * float(np.std(e))
+        rax.fill_between(t, -band, band, color="C3", alpha=0.15, lw=0, label="±2σ")
+        rax.plot(t, e, color="C3", lw=0.9)
         rax.axhline(0.0, color="k", lw=0.6)
-        rax.set_ylabel(f"{name} residual")
+        rax.set_ylabel(_label(name, unit_of, what="residual"))
+        rax.legend(loc="upper right", fontsize=7)
+    for k, name in enumerate(control_names[:n_inputs]):
+        ax = axes[2 * len(names) + k, 0]
+        assert controls is not None
+        ax.plot(t, controls[:, k], color="C2", lw=1.2)
+        ax.set_ylabel(_label(name, unit_of))
+        ax.set_title(f"input {name}", fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
@@ -113,9 +139,21 @@ def _log_label(value: float, _pos: object) -> str:
 _LOG_LABELS = FuncFormatter(_log_label)
 
 
-def plot_frequency_response(freq: Any) -> Figure:
-    """Empirical vs model Bode plot per channel, with coherence."""
+def _ratio_unit(output: str, input: str, units: Mapping[str, str]) -> str:
+    uo, ui = units.get(output, ""), units.get(input, "")
+    if not uo and not ui:
+        return ""
+    return f" [dB of {uo or '1'} per {ui or '1'}]"
+
+
+def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None) -> Figure:
+    """Bode plot per channel, magnitude in dB and phase in degrees, with coherence.
+
+    Empirical points (coherent ones marked) under the model's curve; the
+    magnitude axis names the ratio's units when `units` gives them.
+    """
     chans = list(freq.channels)
+    unit_of = dict(units or {})
     fig, axes = _figure(
         3, len(chans), width=4.2 * len(chans), height=2.1, right=0.3, hgap=0.3, sharex="col"
     )
@@ -123,58 +161,82 @@ def plot_frequency_response(freq: Any) -> Figure:
         f = ch.frequency
         ok = ch.coherent
         mag, pha = axes[0, c], axes[1, c]
-        mag.loglog(f, ch.magnitude, color="0.6", lw=0.8, label="empirical")
-        mag.loglog(f[ok], ch.magnitude[ok], "o", color="C1", ms=3, label="coherent")
-        mag.loglog(f, ch.model_magnitude, color="C0", lw=1.4, label="model")
+        db = 20.0 * np.log10(np.maximum(np.asarray(ch.magnitude, dtype=float), 1e-300))
+        model_db = 20.0 * np.log10(np.maximum(np.asarray(ch.model_magnitude, dtype=float), 1e-300))
+        mag.semilogx(f, db, color="0.6", lw=0.8, label="empirical")
+        mag.semilogx(f[ok], db[ok], "o", color="C1", ms=3, label="coherent")
+        mag.semilogx(f, model_db, color="C0", lw=1.4, label="model")
         mag.set_title(
-            f"{ch.input_name} → {ch.output_name} (mismatch {ch.mismatch:.2g})", fontsize=9
+            f"{ch.output_name} / {ch.input_name} (mismatch {ch.mismatch:.2g})", fontsize=9
+        )
+        mag.set_ylabel(
+            "magnitude" + (_ratio_unit(ch.output_name, ch.input_name, unit_of) or " [dB]")
         )
         mag.legend(fontsize=7)
         pha.semilogx(f, np.degrees(ch.phase), color="0.6", lw=0.8)
+        pha.semilogx(f[ok], np.degrees(ch.phase)[ok], "o", color="C1", ms=3)
         pha.semilogx(f, np.degrees(ch.model_phase), color="C0", lw=1.4)
         pha.set_ylabel("phase [deg]")
         coh = axes[2, c]
         coh.semilogx(f, ch.coherence, color="C2")
         coh.axhline(freq.coherence_threshold, color="k", ls="--", lw=0.7)
         coh.set_ylim(0, 1.05)
-        coh.set_ylabel("coherence")
+        coh.set_ylabel("coherence [-]")
         coh.set_xlabel("frequency [Hz]")
-        for axis in (coh.xaxis, mag.yaxis):
-            axis.set_major_formatter(_LOG_LABELS)
-            axis.set_minor_formatter(_LOG_LABELS)
-    axes[0, 0].set_ylabel("magnitude")
+        coh.xaxis.set_major_formatter(_LOG_LABELS)
+        coh.xaxis.set_minor_formatter(_LOG_LABELS)
     return fig
 
 
-def plot_filter(result: Any) -> Figure:
-    """Filtered (and smoothed) states with ±1σ bands."""
+def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | None = None) -> Figure:
+    """Filtered (and smoothed) states with ±2σ bands, over the measurements of `data`.
+
+    A state that the flight data records under its own name is drawn as measured points.
+    """
     names = list(result.state_names)
-    fig, axes = _figure(len(names))
+    unit_of = {**dict(getattr(data, "units", {}) or {}), **dict(units or {})}
+    fig, axes = _figure(len(names), sharex=True)
     t = result.time
     smoothed = result.smoothed_states is not None
     states = result.smoothed_states if smoothed else result.filtered_states
     cov = result.smoothed_covariance if smoothed else result.filtered_covariance
+    label = "smoothed" if smoothed else "filtered"
     for j, name in enumerate(names):
         ax = axes[j, 0]
-        sd = np.sqrt(np.clip(cov[:, j, j], 0, None))
-        ax.fill_between(t, states[:, j] - sd, states[:, j] + sd, color="C0", alpha=0.25, lw=0)
-        ax.plot(t, result.filtered_states[:, j], color="0.5", lw=0.8, label="filtered")
+        if data is not None and name in data and len(data[name]) == len(t):
+            ax.plot(t, data[name], ".", color="0.55", ms=2, label="measured")
+        sd = 2.0 * np.sqrt(np.clip(cov[:, j, j], 0, None))
+        ax.fill_between(
+            t, states[:, j] - sd, states[:, j] + sd, color="C0", alpha=0.35, lw=0, label="±2σ"
+        )
         if smoothed:
-            ax.plot(t, states[:, j], color="C0", lw=1.3, label="smoothed ±1σ")
-        ax.set_ylabel(name)
-        ax.legend(fontsize=8, loc="upper right")
+            ax.plot(t, result.filtered_states[:, j], color="C1", lw=0.8, label="filtered")
+        ax.plot(t, states[:, j], color="C0", lw=1.3, label=label)
+        ax.set_ylabel(_label(name, unit_of))
+        ax.legend(fontsize=8, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
 
-def plot_posterior(inference: Any, *, max_parameters: int = 6) -> Figure:
-    """Corner plot: marginal histograms and pairwise scatter of the posterior."""
+def plot_posterior(
+    inference: Any,
+    *,
+    max_parameters: int = 6,
+    marker: Mapping[str, float] | None = None,
+    units: Mapping[str, str] | None = None,
+) -> Figure:
+    """Corner plot: marginal histograms and pairwise scatter of the posterior.
+
+    `marker` (for instance the output-error estimates) is drawn as lines on
+    the marginals and a cross on the pairs.
+    """
     names = list(inference.parameter_names)[:max_parameters]
     s = inference.samples[:, : len(names)]
     n = len(names)
     fig, grid = _grid(
-        n, n, width=1.7 * n + 1, height=1.7, left=0.8, top=0.2, bottom=0.5, hgap=0.12, wgap=0.12
+        n, n, width=2.0 * n + 1, height=2.0, left=1.0, top=0.3, bottom=0.75, hgap=0.12, wgap=0.12
     )
+    mark = dict(marker or {})
     step = max(1, s.shape[0] // 3000)
     # A panel shares its x axis with its column and its y axis with its row, so
     # only the bottom row and the left column carry tick labels; three or four
@@ -190,16 +252,22 @@ def plot_posterior(inference: Any, *, max_parameters: int = 6) -> Figure:
             if i == j:
                 _hist(ax, s[:, i], 40)
                 ax.set_yticks([])
+                if names[i] in mark:
+                    ax.axvline(mark[names[i]], color="C3", lw=1.2)
             else:
                 row.setdefault(i, ax)
                 ax.plot(s[::step, j], s[::step, i], ".", ms=1, color="C0", alpha=0.4)
+                if names[i] in mark and names[j] in mark:
+                    ax.plot(mark[names[j]], mark[names[i]], "x", color="C3", ms=8, mew=2)
                 ax.yaxis.set_major_locator(MaxNLocator(3))
             ax.xaxis.set_major_locator(MaxNLocator(3))
-            ax.tick_params(labelsize=6, labelbottom=i == n - 1, labelleft=j == 0 and i > 0)
+            ax.tick_params(labelsize=8, labelbottom=i == n - 1, labelleft=j == 0 and i > 0)
             if i == n - 1:
-                ax.set_xlabel(names[j], fontsize=8)
+                ax.set_xlabel(_label(names[j], units), fontsize=10)
             if j == 0 and i > 0:
-                ax.set_ylabel(names[i], fontsize=8)
+                ax.set_ylabel(_label(names[i], units), fontsize=10)
+    if mark:
+        fig.suptitle("posterior samples; red: the output-error estimate", fontsize=10)
     return fig
 
 
@@ -254,7 +322,8 @@ def plot_design(design: Any) -> Figure:
 
 
 def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
-    """Histogram of the propagated metric with its percentiles."""
+    """Histogram of the propagated metric with its percentiles (`label`: the quantity and
+    its unit, e.g. ``"natural frequency [rad/s]"``)."""
     fig, axes = _figure(1, height=3.0)
     ax = axes[0, 0]
     _hist(ax, prop.samples, 50)
@@ -266,13 +335,18 @@ def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
     return fig
 
 
+# Units of the flight-condition keys the campaign records carry.
+_CONDITION_UNITS = {"airspeed": "m/s", "dynamic_pressure": "Pa", "qbar": "Pa", "altitude": "m"}
+
+
 def plot_campaign_trend(
     records: Sequence[Mapping[str, Any]],
     *,
     condition: str | None = None,
     parameters: Sequence[str] | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> Figure:
-    """Each parameter's estimate ±1.96σ across flights.
+    """Each parameter's estimate with its 95 % bar (±1.96σ) across flights.
 
     Parameters
     ----------
@@ -285,6 +359,8 @@ def plot_campaign_trend(
     parameters : sequence of str, optional
         The parameters to draw, a panel each, in this order; default those of
         the first flight. A flight without an estimate of one leaves a gap.
+    units : mapping of str to str, optional
+        Units of the parameters and of the condition, for the axis labels.
 
     Raises
     ------
@@ -311,10 +387,13 @@ def plot_campaign_trend(
     # flight names are written at 45 degrees under the last panel: room for the longest
     bottom = 0.55 if condition is not None else 0.45 + 0.065 * max(map(len, labels), default=0)
     # one x axis for every panel: tick labels under the last one only
-    fig, axes = _figure(max(len(names), 1), height=1.8, bottom=bottom, hgap=0.15, sharex=True)
+    fig, axes = _figure(
+        max(len(names), 1), height=1.8, bottom=bottom, top=0.5, hgap=0.15, sharex=True
+    )
     if condition is not None:
         x = np.array([float(r.get("metadata", {}).get(condition, np.nan)) for r in ok])
-        xlabel = condition.replace("_", " ")
+        unit_of = {condition: _CONDITION_UNITS.get(condition, ""), **dict(units or {})}
+        xlabel = _label(condition, unit_of).replace("_", " ")
     else:
         x = np.arange(len(ok), dtype=float)
         xlabel = "flight"
@@ -323,30 +402,47 @@ def plot_campaign_trend(
         y = np.array([r["parameters"].get(name, np.nan) for r in ok])
         e = np.array([1.96 * r["stderr"].get(name, np.nan) for r in ok])
         ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=3, color="C0")
-        ax.set_ylabel(name)
+        ax.set_ylabel(_label(name, units), fontsize=8)
     if names:
+        fig.suptitle(
+            "estimates across flights, bars: 95 % (±1.96σ)"
+            + (f" against {xlabel}" if condition is not None else ""),
+            fontsize=10,
+        )
         axes[-1, 0].set_xlabel(xlabel)
         if condition is None:
             axes[-1, 0].set_xticks(x, labels, rotation=45, ha="right", rotation_mode="anchor")
     return fig
 
 
-def plot_identification(result: Any) -> Figure:
-    """Residual histories of the fit and the estimates with 95 % error bars."""
+def plot_identification(result: Any, *, units: Mapping[str, str] | None = None) -> Figure:
+    """Residual histories of the fit, then each estimate with its 95 % bar in a panel of its own.
+
+    One panel per parameter keeps each error bar visible whatever the
+    magnitudes of the others.
+    """
     names = list(result.parameter_names)
     outs = list(result.output_names)
-    fig, axes = _figure(len(outs) + 1, height=2.0)
+    cols = 4
+    rows = -(-len(names) // cols) if names else 0
+    fig, grid = _grid(max(len(outs) + rows, 1), cols, height=1.9, hgap=0.8, wgap=0.9)
     for k, out in enumerate(outs):
-        ax = axes[k, 0]
+        ax = fig.add_subplot(grid[k, :])
         for i, r in enumerate(result.residuals):
             ax.plot(r[:, k], lw=0.8, label=f"manoeuvre {i}" if len(result.residuals) > 1 else None)
         ax.axhline(0.0, color="k", lw=0.6)
-        ax.set_ylabel(f"{out} residual")
-        ax.set_xlabel("sample")
-    ax = axes[-1, 0]
-    est = np.array([result.parameters[n] for n in names])
-    err = np.array([1.96 * result.stderr[n] for n in names])
-    ax.errorbar(np.arange(len(names)), est, yerr=err, fmt="o", capsize=4)
-    ax.set_xticks(np.arange(len(names)), names)
-    ax.set_ylabel("estimate ±1.96σ")
+        ax.set_ylabel(_label(out, units, what="residual"), fontsize=8)
+        ax.set_xlabel("sample [-]")
+    for i, name in enumerate(names):
+        ax = fig.add_subplot(grid[len(outs) + i // cols, i % cols])
+        value, err = result.parameters[name], 1.96 * result.stderr[name]
+        ax.errorbar([0.0], [value], yerr=[err], fmt="o", capsize=5, color="C0")
+        ax.axhline(0.0, color="0.7", lw=0.6)
+        ax.set_xticks([])
+        ax.set_title(name, fontsize=9)
+        ax.set_ylabel(
+            _label(name, units, what="±1.96σ") if (units or {}).get(name) else "estimate ±1.96σ",
+            fontsize=7,
+        )
+        ax.tick_params(labelsize=7)
     return fig

@@ -74,6 +74,7 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 _CONST = "const"
+_DELAY = "tau_"
 _DOMAINS = ("time", "frequency")
 _ERROR_BARS = ("colored", "white")
 # A regressor whose part independent of the earlier ones is below this fraction of its
@@ -435,6 +436,9 @@ class RegressionResult:
     error_bars : {"colored", "white"}
     n_samples : int
         Samples (time) or frequencies (frequency domain) in the fit.
+    time_delays : mapping of str to float
+        Estimated time delay (s) per delayed channel (``time_delays=`` of
+        `equation_error`), also among the parameters as ``"tau_<channel>"``.
     """
 
     parameters: Mapping[str, float]
@@ -455,8 +459,10 @@ class RegressionResult:
     domain: str = "time"
     error_bars: str = "colored"
     n_samples: int = 0
+    time_delays: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "time_delays", frozen_mapping(self.time_delays))
         object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
         object.__setattr__(self, "stderr", frozen_mapping(self.stderr))
         for name in ("covariance", "covariance_white", "time", "frequencies"):
@@ -525,10 +531,15 @@ def _fit(
     *,
     has_const: bool,
     error_bars: str,
+    delays: tuple[list[str], FloatArray, FloatArray] | None = None,
 ) -> RegressionResult:
+    """Least squares of `z` on `x`; `delays` (names, estimates, columns d(X theta)/d tau
+    per delay) adds estimated time delays, whose covariance comes with the
+    coefficients' from the Gauss–Newton curvature ``J'J``, ``J = [X, columns]``."""
     n, p = x.shape
-    if n <= p:
-        raise IdentificationError(f"equation error: {n} samples cannot fit {p} parameters")
+    n_d = 0 if delays is None else len(delays[0])
+    if n <= p + n_d:
+        raise IdentificationError(f"equation error: {n} samples cannot fit {p + n_d} parameters")
     theta, xtx_inv, gram = _ls_solve(x, z, names)
     fitted = x @ theta
     v = z - fitted
@@ -536,6 +547,25 @@ def _fit(
     zc = z - z.mean()
     s_dev = float(zc @ zc)
     sst = s_dev if has_const else float(z @ z)
+    if delays is not None:
+        x = np.column_stack([x, delays[2]])
+        names = [*names, *delays[0]]
+        theta = np.concatenate([theta, delays[1]])
+        p = x.shape[1]
+        gram = x.T @ x
+        d = np.sqrt(np.diag(gram))
+        for j in np.flatnonzero(~(d > 0)).tolist():
+            raise IdentificationError(
+                f"equation error: the regressors do not change with time delay {names[j]!r}; "
+                "is its channel constant, or in no regressor?"
+            )
+        try:
+            xtx_inv = np.linalg.inv(gram / np.outer(d, d)) / np.outer(d, d)
+        except np.linalg.LinAlgError:
+            raise IdentificationError(
+                f"equation error: the time delays {list(delays[0])} cannot be separated from "
+                "the coefficients"
+            ) from None
     s2 = sse / (n - p)
     cov_white = s2 * xtx_inv
     cov = _colored_covariance(x, v, xtx_inv, gram) if error_bars == "colored" else cov_white.copy()
@@ -563,6 +593,9 @@ def _fit(
         domain="time",
         error_bars=error_bars,
         n_samples=n,
+        time_delays={}
+        if delays is None
+        else {k[len(_DELAY) :]: float(t) for k, t in zip(delays[0], delays[1], strict=True)},
     )
 
 
@@ -601,6 +634,7 @@ def equation_error(
     domain: str = "time",
     frequencies: ArrayLike | None = None,
     dt: float | None = None,
+    time_delays: str | Sequence[str] | Mapping[str, float] | None = None,
 ) -> RegressionResult:
     """Equation-error (ordinary least-squares) estimation of a linear model.
 
@@ -628,8 +662,20 @@ def equation_error(
     frequencies : array_like, optional
         Frequencies in Hz for ``domain="frequency"`` (required there).
     dt : float, optional
-        Sample interval in s for array input in the frequency domain (flight
-        data carry their own).
+        Sample interval in s for array input in the frequency domain, or with
+        `time_delays` on a mapping (flight data carry their own).
+    time_delays : str, sequence of str or mapping of str to float, optional
+        Channels (controls, typically) whose pure time delay to estimate, or
+        a dict of channel to start value in s. Every regressor built from a
+        delayed channel uses ``c(t - tau)``, interpolated linearly between
+        samples (held at the record's ends), so a delay may be a fraction of a
+        sample. Each delay is found by a one-dimensional search of the
+        residual sum of squares with the coefficients profiled out (a grid in
+        quarter samples from 4 samples before the start to 20 after it, then
+        Brent's method), and its standard error comes with the coefficients'
+        from the Gauss–Newton curvature of the fit. The delays are reported
+        as ``"tau_<channel>"`` in `parameters` and `stderr`, and in
+        ``time_delays``. Time domain only.
 
     Returns
     -------
@@ -658,10 +704,162 @@ def equation_error(
     _check_names(names)
     if x.shape[1] == 0:
         raise DataFormatError("regressors: none given and no constant term")
+    if time_delays is not None and time_delays is not False:
+        if domain != "time":
+            raise DataFormatError("time_delays: estimated in the time domain only")
+        return _delayed_fit(
+            data,
+            z,
+            response,
+            regressors,
+            names,
+            zname,
+            time,
+            dt,
+            time_delays,
+            has_const=use_const,
+            error_bars=error_bars,
+        )
     if domain == "time":
         t = time if time is not None else np.arange(z.shape[0], dtype=np.float64) * (dt or 1.0)
         return _fit(z, x, names, zname, t, has_const=use_const, error_bars=error_bars)
     return _frequency_fit(z, x, names, zname, time, dt, frequencies, has_const=use_const)
+
+
+def _delay_starts(option: Any, lookup: Mapping[str, Any]) -> dict[str, float]:
+    """Channel -> start value (s) of each delay to estimate."""
+    if isinstance(option, str):
+        option = [option]
+    if isinstance(option, Mapping):
+        items = list(option.items())
+    else:
+        try:
+            items = [(c, 0.0) for c in option]
+        except TypeError:
+            raise DataFormatError(
+                "time_delays: expected a channel name, a list of them or a dict of channel -> "
+                f"start value in s, got {option!r}"
+            ) from None
+    out: dict[str, float] = {}
+    for name, value in items:
+        if not isinstance(name, str) or name not in lookup:
+            raise ChannelError(
+                f"time_delays: channel {name!r} not found; channels present: {sorted(lookup)}"
+            )
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if isinstance(value, bool) or not np.isfinite(v):
+            raise DataFormatError(
+                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
+                f"got {value!r}"
+            )
+        out[name] = v
+    if not out:
+        raise DataFormatError("time_delays: name at least one channel")
+    return out
+
+
+def _delayed_fit(
+    data: Any,
+    z: FloatArray,
+    response: Any,
+    regressors: Any,
+    names: list[str],
+    zname: str,
+    time: FloatArray | None,
+    dt: float | None,
+    option: Any,
+    *,
+    has_const: bool,
+    error_bars: str,
+) -> RegressionResult:
+    """Equation error with estimated time delays of some channels (see `equation_error`)."""
+    from scipy.optimize import minimize_scalar
+
+    if isinstance(data, FlightData):
+        lookup: dict[str, Any] = dict(data.channels)
+    elif isinstance(data, Mapping):
+        lookup = {str(k): np.asarray(v, dtype=np.float64) for k, v in data.items()}
+    else:
+        raise DataFormatError(
+            "time_delays: need flight data or a mapping of channels (the delayed channels "
+            "are shifted before the regressors are formed), not a regressor matrix"
+        )
+    n = z.shape[0]
+    if time is None:
+        if dt is None:
+            raise DataFormatError("time_delays: give dt= (s) with a mapping of channels")
+        step = _step_of(None, dt)
+        assert step is not None
+        time = np.arange(n, dtype=np.float64) * step
+    else:
+        step = float(np.min(np.diff(time)))
+    starts = _delay_starts(option, lookup)
+    delayed = list(starts)
+    for c in delayed:
+        if f"{_DELAY}{c}" in names:
+            raise DataFormatError(f"regressors: the name {_DELAY}{c!r} is taken by a delay")
+    original = {c: np.asarray(lookup[c], dtype=np.float64) for c in delayed}
+    const = [np.ones(n)] if has_const else []
+
+    def design(taus: FloatArray) -> FloatArray:
+        shifted = dict(lookup)
+        for c, tau in zip(delayed, taus, strict=True):
+            shifted[c] = np.interp(time - tau, time, original[c])
+        x = _resolve(shifted, z, regressors, "equation error")[1]
+        return np.column_stack([*const, x])
+
+    def sse(taus: FloatArray) -> float:
+        x = design(taus)
+        sol = np.linalg.lstsq(x, z, rcond=None)[0]
+        v = z - x @ sol
+        return float(v @ v)
+
+    taus = np.array([starts[c] for c in delayed])
+    for _sweep in range(3 if len(delayed) > 1 else 1):
+        before = taus.copy()
+        for i in range(len(delayed)):
+            grid = starts[delayed[i]] + step * np.arange(-4.0, 20.25, 0.25)
+
+            def at(tau: float, i: int = i) -> float:
+                trial = taus.copy()
+                trial[i] = tau
+                return sse(trial)
+
+            values = np.array([at(float(g)) for g in grid])
+            k = int(np.argmin(values))
+            res = minimize_scalar(
+                at,
+                bounds=(float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])),
+                method="bounded",
+                options={"xatol": 1e-6 * step},
+            )
+            taus[i] = float(res.x) if float(res.fun) <= values[k] else float(grid[k])
+        if np.all(np.abs(taus - before) < 1e-4 * step):
+            break
+    x = design(taus)
+    theta = _ls_solve(x, z, names)[0]
+    # d(X theta)/d tau by central differences: exact inside a sample interval, where
+    # the interpolated channel is linear in the delay
+    h = 1e-3 * step
+    columns = np.empty((n, len(delayed)))
+    for i in range(len(delayed)):
+        up, down = taus.copy(), taus.copy()
+        up[i] += h
+        down[i] -= h
+        columns[:, i] = (design(up) - design(down)) @ theta / (2.0 * h)
+    return _fit(
+        z,
+        x,
+        names,
+        zname,
+        time,
+        has_const=has_const,
+        error_bars=error_bars,
+        delays=([f"{_DELAY}{c}" for c in delayed], taus, columns),
+    )
 
 
 def _frequency_fit(

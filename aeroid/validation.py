@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
@@ -104,6 +104,11 @@ class ValidationResult:
     output_names : tuple of str
     confidence : float
     whiteness_lags : int
+    control_names : tuple of str
+        The model's controls, as flown (for plots: the inputs under the outputs).
+    controls : ndarray, shape (n_t, n_u), or None
+    units : mapping of str to str
+        Units of the outputs and controls, from the flight data.
     """
 
     metrics: Mapping[str, OutputMetrics]
@@ -114,12 +119,21 @@ class ValidationResult:
     output_names: tuple[str, ...]
     confidence: float
     whiteness_lags: int
+    control_names: tuple[str, ...] = ()
+    controls: FloatArray | None = None
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "metrics", MappingProxyType(dict(self.metrics)))
         for name in ("time", "measured", "simulated", "residuals"):
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
         object.__setattr__(self, "output_names", tuple(self.output_names))
+        object.__setattr__(self, "control_names", tuple(self.control_names))
+        if self.controls is not None:
+            object.__setattr__(self, "controls", frozen_array(self.controls))
+        object.__setattr__(
+            self, "units", MappingProxyType({str(k): str(v) for k, v in dict(self.units).items()})
+        )
 
     def residual(self, name: str) -> FloatArray:
         """Residual history of one output."""
@@ -304,4 +318,7 @@ def validate(
         output_names=tuple(chosen),
         confidence=level,
         whiteness_lags=lags,
+        control_names=tuple(model.controls),
+        controls=data.array(list(model.controls)) if model.controls else None,
+        units={k: v for k, v in data.units.items() if k in chosen or k in model.controls},
     )

@@ -228,3 +228,81 @@ def test_datetime_time_axis_becomes_seconds_since_first_sample():
     np.testing.assert_array_equal(d.time, [0.0, 1.0])
     d = FlightData(np.array([10, 20], dtype="timedelta64[ms]"), {"a": [0.0, 1.0]})
     np.testing.assert_array_equal(d.time, [0.01, 0.02])
+
+
+def test_csv_comments_bom_spaces_quotes_and_crlf(tmp_path):
+    path = tmp_path / "export.csv"
+    body = '# exported by the FTI\n\n# units: s, deg\n"time", Alpha (deg) ,q\r\n0, 1.5,"2"\r\n0.1,1.6 ,2.1\r\n'
+    path.write_bytes(b"\xef\xbb\xbf" + body.encode())
+    d = load_flight_test(path)
+    assert d.names == ("Alpha (deg)", "q")
+    np.testing.assert_array_equal(d.time, [0.0, 0.1])
+    np.testing.assert_array_equal(d["Alpha (deg)"], [1.5, 1.6])
+    np.testing.assert_array_equal(d["q"], [2.0, 2.1])
+
+
+def test_csv_values_are_exact_read_only_and_owned(tmp_path):
+    # 60k rows span several pyarrow blocks: the columns are stitched from chunks
+    rng = np.random.default_rng(0)
+    t = np.arange(60_000) * 0.01
+    x = rng.standard_normal(t.size)
+    path = tmp_path / "big.csv"
+    with open(path, "w") as f:
+        f.write("time,x\n")
+        f.writelines(f"{a!r},{b!r}\n" for a, b in zip(t.tolist(), x.tolist(), strict=True))
+    d = load_flight_test(path)
+    np.testing.assert_array_equal(d.time, t)  # repr round-trips doubles exactly
+    np.testing.assert_array_equal(d["x"], x)
+    for arr in (d.time, d["x"]):
+        assert not arr.flags.writeable and type(arr) is np.ndarray
+        with pytest.raises(ValueError):
+            arr.setflags(write=True)  # a view: the record's owner cannot be reached
+
+
+@pytest.mark.parametrize(
+    ("row", "cell", "fragment"),
+    [
+        (45_000, "", "row 45002, column 'x': blank cell"),
+        (51_234, "1.2.3", "row 51236, column 'x': non-numeric ('1.2.3') cell"),
+        (30_000, "inf", "row 30002, column 'x': non-finite value 'inf'"),
+        (59_999, "4,5", "row 60001 has 3 cells, header has 2"),
+    ],
+)
+def test_csv_bad_cell_deep_in_a_large_file_is_located(tmp_path, row, cell, fragment):
+    lines = [f"{0.01 * i!r},{i % 7}.25" for i in range(60_000)]
+    lines[row] = f"{0.01 * row!r},{cell}"
+    path = tmp_path / "deep.csv"
+    path.write_text("time,x\n" + "\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError) as err:
+        load_flight_test(path)
+    assert fragment in str(err.value) and "deep.csv" in str(err.value)
+
+
+def test_csv_header_only_or_empty(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("# nothing but a comment\n\n")
+    with pytest.raises(DataFormatError, match=r"empty\.csv: empty file"):
+        load_flight_test(empty)
+    one = tmp_path / "one.csv"
+    one.write_text("time,a\n0,1\n")
+    with pytest.raises(DataFormatError, match="fewer than 2 data rows"):
+        load_flight_test(one)
+    with pytest.raises(DataFormatError, match="sample_rate and max_gap apply to flight logs"):
+        load_flight_test(one, sample_rate=10.0)
+
+
+def test_csv_comment_lines_among_the_data_are_skipped(tmp_path):
+    path = tmp_path / "notes.csv"
+    path.write_text("time,a\n0,1\n# gear up\n0.1,2\n\n0.2,3\n# end of run\n")
+    d = load_flight_test(path)
+    np.testing.assert_array_equal(d["a"], [1.0, 2.0, 3.0])
+    # rows are counted without the comment lines, as before
+    path.write_text("time,a\n0,1\n# gear up\n0.1,x\n0.2,3\n")
+    with pytest.raises(DataFormatError, match=r"row 3, column 'a': non-numeric \('x'\)"):
+        load_flight_test(path)
+    path.write_text("time,a\n0,1\n# gear up\n0.1,2,9\n0.2,3\n")
+    with pytest.raises(DataFormatError, match=r"notes\.csv: row \d has 3 cells, header has 2"):
+        load_flight_test(path)
+    path.write_text("time,a\n")
+    with pytest.raises(DataFormatError, match=r"notes\.csv: fewer than 2 data rows"):
+        load_flight_test(path)

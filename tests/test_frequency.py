@@ -447,3 +447,25 @@ def test_the_lowest_bins_of_a_requested_band_count_only_when_resolved():
     # the simulated model response shares the estimator's bias: its bins still count
     sim = _quiet_response(model, data, None, frequency_range=(0.2, 3.0))
     assert sim.channel("elevator", "q").coherent[0]
+
+
+@pytest.mark.parametrize(("n_t", "nperseg"), [(1501, 256), (1000, 255), (64, 64), (100, 8)])
+def test_spectral_matrix_matches_scipy_csd(n_t: int, nperseg: int) -> None:
+    """The numpy Welch cross-spectra equal `scipy.signal.csd` with the defaults used."""
+    from aeroid.frequency import _spectral_matrix
+
+    x = np.random.default_rng(n_t).standard_normal((4, n_t)) + 3.0
+    f0, s0 = scipy.signal.csd(
+        x[:, None, :],
+        x[None, :, :],
+        fs=50.0,
+        nperseg=nperseg,
+        window="hann",
+        detrend="constant",
+        axis=-1,
+    )
+    f1, s1 = _spectral_matrix(x, 50.0, nperseg)
+    assert np.array_equal(f0, f1)
+    s0 = np.moveaxis(s0, -1, 0)
+    assert s1.shape == s0.shape
+    assert np.abs(s1 - s0).max() <= 1e-12 * np.abs(s0).max()

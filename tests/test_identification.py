@@ -444,3 +444,33 @@ def test_a_stepped_simulator_that_raises_at_the_start_is_named_with_its_error():
         IdentificationError, match=r"'duck' cannot .* \(its simulate raised TypeError"
     ):
         aeroid.identify(Duck(), data, ["M_q"])
+
+
+@pytest.mark.parametrize(
+    ("phi", "log_ratio"), [(0.999, -14.0), (0.95, 0.3), (0.3, 10.0), (-0.98, -2.0), (0.0, 1.0)]
+)
+def test_spectral_reml_criterion_matches_the_dense_formula(phi, log_ratio):
+    # N large enough that the spectral bins are interpolated (not kept sample by sample):
+    # (N - r) log RSS + log det S + log det X'S^-1 X for S = AR(1) + white, dense
+    from scipy.linalg import toeplitz
+
+    from aeroid._output_error import _arw_criterion, _arw_prepare
+
+    rng = np.random.default_rng(2)
+    n, rank = 700, 3
+    z = rng.standard_normal((n, rank + 1))
+    z[:, 0] = np.cumsum(z[:, 0]) / 10.0  # slow content, where phi near 1 matters
+    ratio = np.exp(log_ratio)
+    s = toeplitz(phi ** np.arange(n)) / (1.0 - phi**2) + ratio * np.eye(n)
+    chol = np.linalg.cholesky(z.T @ np.linalg.solve(s, z))
+    dense = (
+        (n - rank) * np.log(chol[-1, -1] ** 2)
+        + np.linalg.slogdet(s)[1]
+        + 2.0 * np.sum(np.log(np.diag(chol)[:rank]))
+    )
+    prepared = _arw_prepare(z)
+    assert prepared.nodes.size < n / 2  # interpolated, not sample by sample
+    x = np.array([np.arctanh(phi), log_ratio])
+    value, rss = _arw_criterion(x, [prepared], n - rank, rank)
+    assert value == pytest.approx(dense, rel=1e-9, abs=1e-8)
+    assert rss == pytest.approx(chol[-1, -1] ** 2, rel=1e-8)

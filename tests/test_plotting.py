@@ -72,8 +72,8 @@ def chain():
 @pytest.mark.parametrize(
     ("name", "n_axes"),
     [
-        ("identification", 3),  # two residual panels + estimates
-        ("validation", 4),  # alpha, alpha residual, q, q residual
+        ("identification", 6),  # two residual panels + a panel per estimate (4)
+        ("validation", 5),  # alpha, alpha residual, q, q residual, elevator input
         ("propagation", 1),
         ("filtering", 2),
         ("sensitivity", 2),
@@ -122,7 +122,7 @@ def test_traces_and_campaign_trend(chain):
         for i in range(3)
     ]
     fig = plot_campaign_trend(records)
-    assert len(fig.axes) == 4 and fig.axes[-1].get_xlabel() == "airspeed"
+    assert len(fig.axes) == 4 and fig.axes[-1].get_xlabel() == "airspeed [m/s]"
     _assert_laid_out(fig)
     by_name = plot_campaign_trend(
         [

@@ -28,6 +28,7 @@ from scipy.signal import butter, lfilter
 
 import aeroid
 from aeroid._output_error import _colored_covariance
+from aeroid._threads import small_blas
 
 FS = 50.0
 N_A, N_B = 8, 6
@@ -151,19 +152,23 @@ def run(seeds: int, duration: float) -> None:
     )
 
 
-def time_correction(n: int, n_y: int, n_par: int) -> None:
+def time_correction(n: int, n_y: int, n_par: int, *, as_in_identify: bool = False) -> None:
+    """Time `_colored_covariance` alone; `as_in_identify` runs it under `small_blas`,
+    the one-BLAS-thread setting `identify` (which calls it) runs in."""
     rng = np.random.default_rng(0)
     jac = rng.standard_normal((n, n_y, n_par))
     v = lfilter([1.0], [1.0, -0.99], rng.standard_normal((n, n_y)), axis=0)
     r = np.mean(v**2, axis=0)
     wj = jac / np.sqrt(r)[None, :, None]
     m_inv = np.linalg.inv(np.einsum("tkp,tkq->pq", wj, wj))
+    fn = small_blas(_colored_covariance) if as_in_identify else _colored_covariance
     t0 = time.perf_counter()
-    _colored_covariance([jac], [v], r, m_inv)
+    fn([jac], [v], r, m_inv)
     first = time.perf_counter() - t0
-    warm = median_time(lambda: _colored_covariance([jac], [v], r, m_inv), repeats=5)
+    warm = median_time(lambda: fn([jac], [v], r, m_inv), repeats=5)
+    how = " (under small_blas, as in identify)" if as_in_identify else ""
     print(
-        f"_colored_covariance, N = {n}, {n_y} outputs, {n_par} parameters: "
+        f"_colored_covariance, N = {n}, {n_y} outputs, {n_par} parameters{how}: "
         f"first {first:.3f} s, warm {warm:.3f} s (median of 5)"
     )
 
@@ -179,6 +184,10 @@ def main() -> None:
     run(args.seeds, args.duration)
     time_correction(2_000, 2, 16)
     time_correction(20_000, 4, 18)
+    # long records with many outputs (issue 28): the spectral REML and the blocked sandwich
+    for n in (5_000, 20_000):
+        time_correction(n, 7, 20)
+        time_correction(n, 7, 20, as_in_identify=True)
     if args.large:
         time_correction(100_000, 10, 30)
 

@@ -1,0 +1,537 @@
+"""Handling-qualities metrics from frequency responses: LOES, bandwidth, phase delay, margins.
+
+Low-order equivalent systems (MIL-STD-1797A; Hodgkinson, "Aircraft Handling
+Qualities") fit the standard forms with `fit_transfer_function` and its CIFER
+(Hodgkinson) mismatch cost ``J = (20/n) Σ W_γ [ΔdB² + 0.01745 Δφ²]`` over the
+0.1–10 rad/s band:
+
+* ``"short_period"``: ``q/δ = K (s + 1/T_θ2) e^{−τs} / (s² + 2ζω s + ω²)``;
+* ``"roll"``: ``p/δ = K e^{−τs} / (s + 1/T_R)``;
+* ``"dutch_roll"``: ``β/δ = K e^{−τs} / (s² + 2ζ_d ω_d s + ω_d²)`` (the roll and
+  spiral modes left out).
+
+Bandwidth and phase delay follow ADS-33E / MIL-STD-1797A for an attitude
+response: ``ω_BW,phase`` where the phase is −135° (45° phase margin),
+``ω_BW,gain`` where the gain is 6 dB above its value at ``ω_180`` (the frequency
+of −180° phase), the bandwidth the smaller of the two (the phase bandwidth
+when the phase never reaches −180°), and the phase delay
+``τ_p = −(φ(2ω_180) + 180°) / (57.3 · 2ω_180)``. A rate response (``kind="rate"``)
+is integrated first (divided by jω).
+
+The published Level 1/2/3 boundaries in the (ω_BW, τ_p) plane are not built in:
+`BandwidthResult.plot` draws whatever boundaries the caller gives (as
+polygons), so the figure shows the criterion the user cites and nothing
+invented. The same holds for the MIL-STD-1797A LOES mismatch (maximum
+unnoticeable added dynamics) envelopes: the digitised boundaries and envelope
+transfer functions found in circulation are marked unchecked by their own
+authors, and the standard's figures could not be consulted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._records import fmt, frozen_mapping, markdown_table
+from ._threads import small_blas
+from .errors import IdentificationError
+from .frequency_id import (
+    CompositeResponse,
+    ResponseChannel,
+    TransferFunctionFit,
+    _band,
+    _resolve_response,
+    _unwrapped_phase,
+    fit_transfer_function,
+)
+
+__all__ = [
+    "BandwidthResult",
+    "EquivalentSystemFit",
+    "Margins",
+    "bandwidth",
+    "equivalent_system",
+    "stability_margins",
+]
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+# MIL-STD-1797A evaluates equivalent systems over 0.1-10 rad/s.
+_LOES_BAND = (0.1, 10.0)
+# kind: (numerator order, denominator order)
+_LOES_FORMS = {"short_period": (1, 2), "roll": (0, 1), "dutch_roll": (0, 2)}
+# Tischler's guideline for a transfer-function fit: J <= 100 acceptable.
+_MISMATCH_GUIDELINE = 100.0
+_DENSE = np.geomspace(1e-3, 1e3, 6001)
+
+
+# -- responses: measured points or an analytic transfer function ------------------------
+
+
+class _Response:
+    """Frequency response as a function of ω: analytic (refinable) or tabulated."""
+
+    def __init__(self, response_or_tf: Any, input: str | None, output: str | None) -> None:
+        self.analytic: Callable[[FloatArray], ComplexArray] | None = None
+        if isinstance(response_or_tf, (CompositeResponse, ResponseChannel)):
+            ch = _resolve_response(response_or_tf, input, output, "response_or_tf")
+            self.omega = ch.frequency
+            self.values = ch.response
+        else:
+            self.analytic = _as_function(response_or_tf)
+            self.omega = _DENSE
+            self.values = self.analytic(_DENSE)
+        if self.omega.size < 2:
+            raise IdentificationError("response_or_tf: need at least two frequencies")
+
+    def scaled(self, factor: Callable[[FloatArray], ComplexArray]) -> _Response:
+        out = object.__new__(_Response)
+        base = self.analytic
+        out.analytic = None if base is None else (lambda w: base(w) * factor(w))
+        out.omega = self.omega
+        out.values = self.values * factor(self.omega)
+        return out
+
+    def phase(self) -> FloatArray:
+        return _unwrapped_phase(self.values)
+
+    def crossing(self, level: FloatArray, target: float) -> float:
+        """First ω where `level` (on self.omega) falls through `target`; NaN if never."""
+        below = np.flatnonzero((level[:-1] > target) & (level[1:] <= target))
+        if below.size == 0:
+            return float("nan")
+        i = int(below[0])
+        w0, w1 = float(self.omega[i]), float(self.omega[i + 1])
+        y0, y1 = float(level[i]) - target, float(level[i + 1]) - target
+        guess = float(np.exp(np.log(w0) + (np.log(w1) - np.log(w0)) * y0 / (y0 - y1)))
+        if self.analytic is None:
+            return guess
+        # refine on the continuous phase/gain: the branch is fixed by the tabulated value
+        ref = float(level[i])
+        kind = self._kind
+
+        def f(w: float) -> float:
+            h = self.analytic(np.array([w]))[0]  # type: ignore[misc]
+            if kind == "phase":
+                v = np.degrees(np.angle(h))
+                v += 360.0 * np.round((ref - v) / 360.0)
+            else:
+                v = 20.0 * np.log10(abs(h))
+            return float(v - target)
+
+        import scipy.optimize  # only an analytic response is refined
+
+        try:
+            return float(scipy.optimize.brentq(f, w0, w1, xtol=1e-14, rtol=1e-12))
+        except ValueError:
+            return guess
+
+    _kind = "phase"
+
+    def phase_crossing(self, target: float) -> float:
+        self._kind = "phase"
+        return self.crossing(self.phase(), target)
+
+    def gain_crossing(self, target_db: float) -> float:
+        self._kind = "gain"
+        with np.errstate(divide="ignore"):
+            return self.crossing(20.0 * np.log10(np.abs(self.values)), target_db)
+
+    def at(self, w: float) -> complex:
+        if self.analytic is not None:
+            return complex(self.analytic(np.array([w]))[0])
+        if not self.omega[0] <= w <= self.omega[-1]:
+            return complex("nan")
+        lw = np.log(self.omega)
+        mag = np.interp(np.log(w), lw, np.log(np.abs(self.values)))
+        ph = np.interp(np.log(w), lw, np.radians(self.phase()))
+        return complex(np.exp(mag + 1j * ph))
+
+    def phase_at(self, w: float) -> float:
+        """Unwrapped phase (deg) at w on the branch of the tabulated phase."""
+        if not np.isfinite(w):
+            return float("nan")
+        ph = self.phase()
+        if self.analytic is None:
+            if not self.omega[0] <= w <= self.omega[-1]:
+                return float("nan")
+            return float(np.interp(np.log(w), np.log(self.omega), ph))
+        v = float(np.degrees(np.angle(self.at(w))))
+        ref = float(np.interp(np.log(w), np.log(self.omega), ph))
+        return v + 360.0 * float(np.round((ref - v) / 360.0))
+
+
+def _integrate(w: FloatArray) -> ComplexArray:
+    return np.asarray(1.0 / (1j * np.asarray(w, dtype=np.float64)), dtype=np.complex128)
+
+
+def _as_function(tf: Any) -> Callable[[FloatArray], ComplexArray]:
+    if hasattr(tf, "evaluate") and callable(tf.evaluate):
+        return lambda w: np.asarray(tf.evaluate(w), dtype=np.complex128)
+    if isinstance(tf, tuple) and len(tf) in (2, 3):
+        try:
+            num = np.atleast_1d(np.asarray(tf[0], dtype=np.float64))
+            den = np.atleast_1d(np.asarray(tf[1], dtype=np.float64))
+            tau = float(tf[2]) if len(tf) == 3 else 0.0
+        except (TypeError, ValueError):
+            num = den = np.zeros(0)
+            tau = 0.0
+        if num.size and den.size and np.any(den != 0) and np.isfinite(tau):
+
+            def h(w: FloatArray) -> ComplexArray:
+                s = 1j * np.asarray(w, dtype=np.float64)
+                with np.errstate(all="ignore"):
+                    return np.asarray(np.polyval(num, s) / np.polyval(den, s) * np.exp(-tau * s))
+
+            return h
+    raise IdentificationError(
+        "response_or_tf: expected a CompositeResponse, ResponseChannel, a fit with "
+        "evaluate(ω), or (numerator, denominator[, delay]) coefficient arrays (highest power "
+        f"first), got {type(tf).__name__}"
+    )
+
+
+# -- bandwidth -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class BandwidthResult:
+    """Bandwidth and phase delay of an attitude response (ADS-33E, MIL-STD-1797A).
+
+    Attributes
+    ----------
+    bandwidth : float
+        min(gain, phase bandwidth) in rad/s (the phase bandwidth when ω_180
+        does not exist).
+    bandwidth_gain, bandwidth_phase : float
+        rad/s (NaN where undefined).
+    omega_180 : float
+        First frequency of −180° phase, rad/s (NaN when never reached).
+    phase_delay : float
+        τ_p in seconds (NaN when ω_180 or 2ω_180 lies outside the response).
+    kind : str
+    """
+
+    bandwidth: float
+    bandwidth_gain: float
+    bandwidth_phase: float
+    omega_180: float
+    phase_delay: float
+    kind: str = "attitude"
+
+    def summary(self) -> str:
+        """Markdown table of the metrics."""
+        rows = [
+            ("bandwidth ω_BW [rad/s]", fmt(self.bandwidth)),
+            ("gain bandwidth (6 dB margin) [rad/s]", fmt(self.bandwidth_gain)),
+            ("phase bandwidth (45° margin) [rad/s]", fmt(self.bandwidth_phase)),
+            ("ω_180 [rad/s]", fmt(self.omega_180)),
+            ("phase delay τ_p [s]", fmt(self.phase_delay)),
+        ]
+        return "\n".join(
+            [
+                "## Bandwidth and phase delay",
+                "",
+                markdown_table(("metric", "value"), rows),
+                "",
+                f"Response kind: {self.kind} (ADS-33E / MIL-STD-1797A definitions).",
+            ]
+        )
+
+    def plot(
+        self,
+        *,
+        boundaries: Mapping[str, Sequence[tuple[float, float]]] | None = None,
+        source: str = "",
+    ) -> Any:
+        """The point (ω_BW, τ_p) against Level boundaries. Returns a matplotlib Figure.
+
+        Parameters
+        ----------
+        boundaries : mapping of str to sequence of (ω_BW, τ_p), optional
+            Region polygons by label (for example ``"Level 1"``), vertices in
+            rad/s and s, copied from the criterion you cite; none are built in.
+        source : str
+            The criterion's citation, printed under the plot.
+        """
+        from .plotting import _figure
+
+        fig, axes = _figure(1, height=4.0)
+        ax = axes[0, 0]
+        for i, (label, poly) in enumerate((boundaries or {}).items()):
+            pts = np.asarray(poly, dtype=np.float64)
+            if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 3:
+                raise IdentificationError(
+                    f"boundaries[{label!r}]: expected three or more (ω_BW, τ_p) vertices"
+                )
+            ax.fill(pts[:, 0], pts[:, 1], alpha=0.15, color=f"C{i}", label=label)
+            ax.plot(np.r_[pts[:, 0], pts[0, 0]], np.r_[pts[:, 1], pts[0, 1]], color=f"C{i}", lw=1)
+        ax.plot([self.bandwidth], [self.phase_delay], "k*", ms=12, label="this response")
+        ax.set_xlabel("bandwidth ω_BW [rad/s]")
+        ax.set_ylabel("phase delay τ_p [s]")
+        ax.set_xlim(left=0.0)
+        ax.set_ylim(bottom=0.0)
+        ax.legend(fontsize=8)
+        if source:
+            ax.set_title(source, fontsize=8, loc="left")
+        return fig
+
+
+@small_blas
+def bandwidth(
+    response_or_tf: Any,
+    *,
+    kind: str = "attitude",
+    input: str | None = None,
+    output: str | None = None,
+) -> BandwidthResult:
+    """Bandwidth (gain and phase) and phase delay of an attitude response.
+
+    Parameters
+    ----------
+    response_or_tf : CompositeResponse, ResponseChannel, fit or (num, den[, delay])
+        The response: measured, a fitted transfer function, or polynomial
+        coefficients (highest power first) with an optional delay in seconds.
+    kind : {"attitude", "rate"}
+        ``"rate"``: the response is an angular rate; it is integrated (÷ jω).
+    input, output : str, optional
+        The pair, for a composite response with several.
+
+    Returns
+    -------
+    BandwidthResult
+
+    Raises
+    ------
+    IdentificationError
+        Unknown kind or response type, or a response whose phase never reaches −135°.
+    """
+    if kind not in ("attitude", "rate"):
+        raise IdentificationError(f"kind: expected 'attitude' or 'rate', got {kind!r}")
+    resp = _Response(response_or_tf, input, output)
+    if kind == "rate":
+        resp = resp.scaled(_integrate)
+    w_phase = resp.phase_crossing(-135.0)
+    if not np.isfinite(w_phase):
+        raise IdentificationError(
+            "bandwidth: the phase never reaches -135 deg over the response's frequencies "
+            f"({resp.omega[0]:.3g}-{resp.omega[-1]:.3g} rad/s)"
+        )
+    w180 = resp.phase_crossing(-180.0)
+    if np.isfinite(w180):
+        gain180 = 20.0 * np.log10(abs(resp.at(w180)))
+        w_gain = resp.gain_crossing(gain180 + 6.0)
+        phase2 = resp.phase_at(2.0 * w180)
+        tau_p = -(phase2 + 180.0) / (np.degrees(1.0) * 2.0 * w180)
+    else:
+        w_gain = tau_p = float("nan")
+    bw = float(np.nanmin([w_gain, w_phase])) if np.isfinite(w_gain) else w_phase
+    return BandwidthResult(bw, float(w_gain), float(w_phase), float(w180), float(tau_p), kind)
+
+
+# -- margins --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Margins:
+    """Gain and phase margins of a loop transfer function.
+
+    Attributes
+    ----------
+    gain_margin : float
+        dB, ``−20 log10 |L(jω_180)|`` (inf when the phase never reaches −180°).
+    phase_crossover : float
+        ω_180 in rad/s.
+    phase_margin : float
+        Degrees, ``180 + ∠L(jω_c)`` (inf when |L| never falls through 1).
+    gain_crossover : float
+        ω_c in rad/s.
+    delay_margin : float
+        Extra delay the loop tolerates, ``PM / ω_c`` in seconds.
+    """
+
+    gain_margin: float
+    phase_crossover: float
+    phase_margin: float
+    gain_crossover: float
+    delay_margin: float
+
+    def summary(self) -> str:
+        """Markdown table of the margins."""
+        rows = [
+            ("gain margin [dB]", fmt(self.gain_margin)),
+            ("phase crossover ω_180 [rad/s]", fmt(self.phase_crossover)),
+            ("phase margin [deg]", fmt(self.phase_margin)),
+            ("gain crossover ω_c [rad/s]", fmt(self.gain_crossover)),
+            ("delay margin [s]", fmt(self.delay_margin)),
+        ]
+        return "\n".join(["## Stability margins", "", markdown_table(("margin", "value"), rows)])
+
+
+@small_blas
+def stability_margins(
+    loop_response_or_tf: Any, *, input: str | None = None, output: str | None = None
+) -> Margins:
+    """Gain and phase margins of a (broken-loop) response.
+
+    Parameters
+    ----------
+    loop_response_or_tf : CompositeResponse, ResponseChannel, fit or (num, den[, delay])
+        The loop transfer function L(jω).
+    input, output : str, optional
+        The pair, for a composite response with several.
+
+    Returns
+    -------
+    Margins
+    """
+    resp = _Response(loop_response_or_tf, input, output)
+    w180 = resp.phase_crossing(-180.0)
+    gm = -20.0 * np.log10(abs(resp.at(w180))) if np.isfinite(w180) else float("inf")
+    wc = resp.gain_crossing(0.0)
+    if np.isfinite(wc):
+        pm = 180.0 + resp.phase_at(wc)
+        dm = np.radians(pm) / wc
+    else:
+        pm = dm = float("inf")
+    return Margins(float(gm), float(w180), float(pm), float(wc), float(dm))
+
+
+# -- equivalent systems -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class EquivalentSystemFit:
+    """A low-order equivalent system fitted to a response.
+
+    Attributes
+    ----------
+    kind : str
+    parameters : mapping of str to float
+        ``short_period``: K, 1/T_theta2, zeta, omega, tau; ``roll``: K, 1/T_R,
+        tau; ``dutch_roll``: K, zeta, omega, tau (rad/s, s).
+    mismatch : float
+        The Hodgkinson/CIFER mismatch J over the band.
+    fit : TransferFunctionFit
+        The underlying transfer-function fit (its polynomial parameters and bounds).
+    """
+
+    kind: str
+    parameters: Mapping[str, float]
+    mismatch: float
+    fit: TransferFunctionFit
+    frequency_range: tuple[float, float] = field(default=_LOES_BAND)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
+
+    def evaluate(self, frequency: ArrayLike) -> ComplexArray:
+        """The equivalent system's response at ω (rad/s)."""
+        return self.fit.evaluate(frequency)
+
+    def summary(self) -> str:
+        """Markdown table of the equivalent-system parameters and the mismatch."""
+        rows = [(k, fmt(v)) for k, v in self.parameters.items()]
+        verdict = "within" if self.mismatch <= _MISMATCH_GUIDELINE else "beyond"
+        lo, hi = self.frequency_range
+        return "\n".join(
+            [
+                f"## Low-order equivalent system ({self.kind})",
+                "",
+                markdown_table(("parameter", "value"), rows),
+                "",
+                f"Mismatch J = {fmt(self.mismatch, 4)} over {fmt(lo, 3)}–{fmt(hi, 3)} rad/s "
+                f"({verdict} the J ≤ {_MISMATCH_GUIDELINE:.0f} guideline).",
+            ]
+        )
+
+    def plot(self) -> Any:
+        """The equivalent system over the response. Returns a matplotlib Figure."""
+        return self.fit.plot()
+
+
+def _exact_channel(tf: Any, band: tuple[float, float]) -> ResponseChannel:
+    h = _as_function(tf)
+    w = np.geomspace(band[0], band[1], 100)
+    return ResponseChannel("input", "output", w, h(w), coherence=np.ones(w.size))
+
+
+@small_blas
+def equivalent_system(
+    response: Any,
+    *,
+    kind: str = "short_period",
+    frequency_range: tuple[float, float] = _LOES_BAND,
+    delay: bool = True,
+    input: str | None = None,
+    output: str | None = None,
+    start: Mapping[str, float] | None = None,
+) -> EquivalentSystemFit:
+    """Fit a MIL-STD-1797A low-order equivalent system.
+
+    Parameters
+    ----------
+    response : CompositeResponse, ResponseChannel, fit or (num, den[, delay])
+        The measured response, or a high-order system's transfer function
+        (evaluated at 100 log-spaced frequencies over the band).
+    kind : {"short_period", "roll", "dutch_roll"}
+        The standard form (see the module notes).
+    frequency_range : (float, float)
+        Band in rad/s (MIL-STD-1797A: 0.1–10).
+    delay : bool
+        Fit the equivalent time delay.
+    input, output : str, optional
+        The pair, for a composite response with several.
+    start : mapping, optional
+        Start values of the polynomial parameters (see `fit_transfer_function`).
+
+    Returns
+    -------
+    EquivalentSystemFit
+    """
+    if kind not in _LOES_FORMS:
+        raise IdentificationError(f"kind: expected one of {sorted(_LOES_FORMS)}, got {kind!r}")
+    lo, hi = _band(frequency_range)
+    if not lo > 0.0:
+        raise IdentificationError(
+            f"frequency_range: expected 0 < low < high, got {frequency_range!r}"
+        )
+    if isinstance(response, (CompositeResponse, ResponseChannel)):
+        ch = _resolve_response(response, input, output, "response")
+    else:
+        ch = _exact_channel(response, (lo, hi))
+    m, n = _LOES_FORMS[kind]
+    fit = fit_transfer_function(
+        ch,
+        numerator_order=m,
+        denominator_order=n,
+        delay=delay,
+        frequency_range=frequency_range,
+        start=start,
+    )
+    p = fit.parameters
+    tau = float(p.get("tau", 0.0))
+    if kind == "short_period":
+        k = p["b1"]
+        out = {
+            "K": k,
+            "1/T_theta2": p["b0"] / k if k != 0 else float("nan"),
+            "zeta": p["a1"] / (2.0 * np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
+            "omega": float(np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
+            "tau": tau,
+        }
+    elif kind == "roll":
+        out = {"K": p["b0"], "1/T_R": p["a0"], "tau": tau}
+    else:
+        out = {
+            "K": p["b0"],
+            "zeta": p["a1"] / (2.0 * np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
+            "omega": float(np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
+            "tau": tau,
+        }
+    return EquivalentSystemFit(kind, out, fit.cost, fit, (lo, hi))

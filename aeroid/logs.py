@@ -1,0 +1,840 @@
+"""Autopilot flight logs: PX4 ULog, ArduPilot DataFlash, HDF5 and MATLAB v7.3 readers.
+
+Each reader returns a `FlightLog`: every signal on its own time stamps, in
+seconds on the log's own clock (time since boot for PX4 and ArduPilot), with
+the events the log records. The readers rest on the field's own libraries,
+installed with ``pip install "aeroid[logs]"``: pyulog (ULog), pymavlink
+(DataFlash) and h5py (HDF5, MATLAB v7.3).
+
+Channel names
+-------------
+* ULog: ``topic.field`` (``vehicle_angular_velocity.xyz[1]``). A topic logged
+  in several instances (``multi_id`` 1, 2, ...) gets the instance after an
+  underscore, as PX4's own ``ulog2csv`` names its files:
+  ``sensor_accel_1.x``; instance 0 keeps the plain topic name. Should another
+  topic already be called ``sensor_accel_1``, the instance is written
+  ``sensor_accel#1`` instead.
+* DataFlash: ``MSG.Field`` (``IMU.GyrY``). A message with an instance field
+  (several IMUs in one message type) keeps the plain name for instance 0 and
+  puts the instance in brackets otherwise: ``IMU[1].GyrY``.
+* HDF5: the dataset path joined by dots (``flight.q``). A 2-D dataset of
+  several channels gives ``name[j]`` (HDF5) or ``name_j`` (MATLAB, as the
+  MATLAB v5 loader names matrix columns).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._logtypes import FlightLog, LogChannel, LogEvent
+from .errors import DataFormatError
+
+__all__ = ["ChannelListing", "list_channels", "read_log"]
+
+FloatArray = NDArray[np.float64]
+
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+DATAFLASH_MAGIC = b"\xa3\x95"
+
+FORMATS = ("ulog", "dataflash", "dataflash-text", "hdf5")
+_ALIASES = {
+    "ulg": "ulog",
+    "px4": "ulog",
+    "bin": "dataflash",
+    "ardupilot": "dataflash",
+    "log": "dataflash-text",
+    "h5": "hdf5",
+    "hdf": "hdf5",
+    "mat": "hdf5",
+    "matlab": "hdf5",
+}
+_SUFFIXES = {
+    ".ulg": "ulog",
+    ".bin": "dataflash",
+    ".log": "dataflash-text",
+    ".h5": "hdf5",
+    ".hdf5": "hdf5",
+    ".hdf": "hdf5",
+    ".he5": "hdf5",
+}
+_LIBRARY = {
+    "ulog": "pyulog",
+    "dataflash": "pymavlink",
+    "dataflash-text": "pymavlink",
+    "hdf5": "h5py",
+}
+
+
+def _missing(library: str, path: Path) -> DataFormatError:
+    return DataFormatError(
+        f"{path}: reading this log needs {library}, which is not installed: "
+        'pip install "aeroid[logs]"'
+    )
+
+
+# -- format detection ---------------------------------------------------------------
+
+
+def _hdf5_offset(head: bytes) -> int | None:
+    """Where the HDF5 signature sits: at 0, or after a user block (512, 1024, ... bytes;
+    MATLAB v7.3 files carry a 512-byte text header there)."""
+    at = 0
+    while at + len(HDF5_MAGIC) <= len(head):
+        if head[at : at + len(HDF5_MAGIC)] == HDF5_MAGIC:
+            return at
+        at = 512 if at == 0 else 2 * at
+    return None
+
+
+def sniff_format(path: Path) -> str | None:
+    """The log format of `path` from its first bytes, then its suffix; None for other files.
+
+    Magic bytes win over the suffix, so a ``.bin`` that is really a ULog is read
+    as a ULog. A ``.mat`` file is a log only when it is MATLAB v7.3 (HDF5).
+    """
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    if _hdf5_offset(head) is not None:
+        return "hdf5"
+    if head.startswith(DATAFLASH_MAGIC):
+        return "dataflash"
+    if head.lstrip().startswith(b"FMT,"):
+        return "dataflash-text"
+    return _SUFFIXES.get(path.suffix.lower())
+
+
+def _check_magic(path: Path, fmt: str) -> None:
+    """Refuse a file whose first bytes contradict the format it was read as."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    expected = {
+        "ulog": (head.startswith(ULOG_MAGIC), "the ULog magic bytes 'ULog\\x01\\x12\\x35'"),
+        "hdf5": (_hdf5_offset(head) is not None, "the HDF5 signature"),
+        "dataflash": (head.startswith(DATAFLASH_MAGIC), "the DataFlash header 0xA3 0x95"),
+        "dataflash-text": (b"FMT," in head, "an 'FMT,' line"),
+    }
+    ok, what = expected[fmt]
+    if not ok:
+        size = path.stat().st_size
+        raise DataFormatError(
+            f"{path}: not a {fmt} file: it does not start with {what} "
+            f"({size} bytes; truncated, or another format?)"
+        )
+
+
+def _resolve_format(path: Path, format: str | None) -> str:
+    if format is None:
+        fmt = sniff_format(path)
+        if fmt is None:
+            raise DataFormatError(
+                f"{path}: unknown log format (suffix {path.suffix!r}, first bytes "
+                f"not those of a ULog, DataFlash or HDF5 file); expected one of {list(FORMATS)}"
+            )
+    else:
+        if not isinstance(format, str):
+            raise DataFormatError(f"format: expected a string, got {type(format).__name__}")
+        fmt = _ALIASES.get(format.lower(), format.lower())
+        if fmt not in FORMATS:
+            raise DataFormatError(
+                f"format: unknown log format {format!r}; expected {list(FORMATS)}"
+            )
+    _check_magic(path, fmt)
+    return fmt
+
+
+def _existing(path: str | Path) -> Path:
+    import os
+
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataFormatError(
+            f"path: expected a file path (str or Path), got {type(path).__name__}"
+        )
+    p = Path(path)
+    if os.fspath(path) == "":
+        raise DataFormatError("path: empty file name")
+    if p.is_dir():
+        raise DataFormatError(f"{p}: is a directory, not a log file")
+    if not p.exists():
+        raise DataFormatError(f"{p}: no such file")
+    if not p.is_file():
+        raise DataFormatError(f"{p}: not a regular file")
+    return p
+
+
+# -- PX4 ULog -----------------------------------------------------------------------
+
+# Units of PX4 fields, stated only where PX4's message definitions fix them.
+_PX4_UNITS: tuple[tuple[str, str], ...] = (
+    (r"sensor_combined\.gyro_rad\[\d\]", "rad/s"),  # before the generic "_rad"
+    (r"vehicle_imu\.delta_angle\[\d\]", "rad"),
+    (r"vehicle_imu\.delta_velocity\[\d\]", "m/s"),
+    (r"vehicle_angular_velocity\.xyz\[\d\]", "rad/s"),
+    (r"vehicle_angular_acceleration\.xyz\[\d\]", "rad/s^2"),
+    (r"sensor_gyro\.[xyz]", "rad/s"),
+    (r"sensor_accel\.[xyz]", "m/s^2"),
+    (r"vehicle_rates_setpoint\.(roll|pitch|yaw)", "rad/s"),
+    (r"vehicle_attitude_setpoint\.(roll|pitch|yaw)_body", "rad"),
+    (r"vehicle_local_position\.[xyz]", "m"),
+    (r"vehicle_local_position\.v[xyz]", "m/s"),
+    (r"vehicle_local_position\.a[xyz]", "m/s^2"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_rad_s(\[\d+\])?", "rad/s"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_rad(\[\d+\])?", "rad"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_m_s2(\[\d+\])?", "m/s^2"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_m_s(\[\d+\])?", "m/s"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_pa(\[\d+\])?", "Pa"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_(celsius|celcius)(\[\d+\])?", "degC"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_ga(\[\d+\])?", "gauss"),
+    (r"[a-z0-9_]+\.voltage[a-z0-9_]*_v(\[\d+\])?", "V"),
+    (r"[a-z0-9_]+\.current[a-z0-9_]*_a(\[\d+\])?", "A"),
+    (r"[a-z0-9_]+\.[a-z0-9_]*_(meter|m)(\[\d+\])?", "m"),
+)
+_PX4_UNIT_RULES = tuple((re.compile(p), u) for p, u in _PX4_UNITS)
+
+# vehicle_status.nav_state values (PX4 msg/vehicle_status.msg).
+_PX4_NAV_STATES = {
+    0: "MANUAL",
+    1: "ALTCTL",
+    2: "POSCTL",
+    3: "AUTO_MISSION",
+    4: "AUTO_LOITER",
+    5: "AUTO_RTL",
+    8: "AUTO_LANDENGFAIL",
+    10: "ACRO",
+    12: "DESCEND",
+    13: "TERMINATION",
+    14: "OFFBOARD",
+    15: "STAB",
+    17: "AUTO_TAKEOFF",
+    18: "AUTO_LAND",
+    19: "AUTO_FOLLOW_TARGET",
+    20: "AUTO_PRECLAND",
+    21: "ORBIT",
+    22: "AUTO_VTOL_TAKEOFF",
+}
+
+
+def _px4_unit(topic: str, field: str) -> str:
+    key = f"{topic}.{field}"
+    for rule, unit in _PX4_UNIT_RULES:
+        if rule.fullmatch(key):
+            return unit
+    return ""
+
+
+def _transitions(time: FloatArray, values: NDArray[Any]) -> list[tuple[float, Any]]:
+    """(time, value) at the first sample and wherever the value changes."""
+    if values.size == 0:
+        return []
+    change = np.flatnonzero(values[1:] != values[:-1]) + 1
+    idx = np.concatenate([[0], change])
+    return [(float(time[i]), values[i].item()) for i in idx]
+
+
+def _read_ulog(path: Path) -> FlightLog:
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise _missing("pyulog", path) from None
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said):
+            ulog = ULog(str(path))
+    except Exception as exc:  # pyulog raises many types for a corrupt file
+        raise DataFormatError(f"{path}: not a readable ULog file ({exc})") from None
+    if not ulog.data_list:
+        raise DataFormatError(
+            f"{path}: the ULog holds no data messages (truncated or corrupt?)"
+            + (f"; pyulog says: {said.getvalue().strip()}" if said.getvalue().strip() else "")
+        )
+    topics = {d.name for d in ulog.data_list}
+    channels: dict[str, LogChannel] = {}
+    events: list[LogEvent] = []
+    for d in ulog.data_list:
+        topic = d.name
+        if d.multi_id:
+            topic = f"{d.name}_{d.multi_id}"
+            if topic in topics:  # a real topic already has that name
+                topic = f"{d.name}#{d.multi_id}"
+        stamps = np.asarray(d.data["timestamp"])
+        time = stamps.astype(np.float64) / 1e6
+        for field, raw in d.data.items():
+            if field == "timestamp" or np.asarray(raw).dtype.kind not in "fiub":
+                continue
+            name = f"{topic}.{field}"
+            channels[name] = LogChannel(name, time, raw, _px4_unit(d.name, field))
+        if d.name == "vehicle_status" and "nav_state" in d.data:
+            for t, state in _transitions(time, np.asarray(d.data["nav_state"])):
+                label = _PX4_NAV_STATES.get(int(state), "UNKNOWN")
+                events.append(LogEvent(t, "mode", f"{label} (nav_state {int(state)})"))
+        if d.name == "vehicle_control_mode":
+            for field, raw in d.data.items():
+                if "sysid" in field:
+                    for t, on in _transitions(time, np.asarray(raw)):
+                        events.append(LogEvent(t, "sysid", f"{field}={int(on)}"))
+    for m in ulog.logged_messages:
+        events.append(LogEvent(m.timestamp / 1e6, "message", f"[{m.log_level_str()}] {m.message}"))
+    for drop in ulog.dropouts:
+        events.append(LogEvent(drop.timestamp / 1e6, "dropout", f"{drop.duration} ms lost"))
+    info = {k: v for k, v in ulog.msg_info_dict.items() if isinstance(v, (str, int, float))}
+    metadata: dict[str, Any] = {"source": path.name, "format": "ulog", "info": info}
+    if said.getvalue().strip():
+        metadata["warnings"] = said.getvalue().strip()
+    return FlightLog(channels, tuple(events), metadata)
+
+
+# -- ArduPilot DataFlash --------------------------------------------------------------
+
+# struct codes of pymavlink's DFFormat.msg_struct as numpy dtypes (little-endian)
+_STRUCT_DTYPE = {
+    "b": "i1",
+    "B": "u1",
+    "h": "<i2",
+    "H": "<u2",
+    "i": "<i4",
+    "I": "<u4",
+    "q": "<i8",
+    "Q": "<u8",
+    "f": "<f4",
+    "d": "<f8",
+    "e": "<f2",
+}
+_NOT_CHANNELS = {"FMT", "FMTU", "UNIT", "MULT"}
+
+
+def _df_dtype(fmt: Any) -> np.dtype[Any]:
+    """A numpy record dtype for one DataFlash message body (strings kept as bytes)."""
+    fields = []
+    codes = re.findall(r"(\d*)([a-zA-Z?])", fmt.msg_struct.lstrip("<"))
+    for column, (count, code) in zip(fmt.columns, codes, strict=False):
+        if code == "s":
+            fields.append((column, f"S{int(count)}"))
+        else:
+            fields.append((column, _STRUCT_DTYPE[code]))
+    return np.dtype(fields)
+
+
+def _df_time(fmt: Any, values: Mapping[str, NDArray[Any]]) -> FloatArray | None:
+    if "TimeUS" in values:
+        return np.asarray(values["TimeUS"], dtype=np.float64) / 1e6
+    if "TimeMS" in values:
+        return np.asarray(values["TimeMS"], dtype=np.float64) / 1e3
+    return None
+
+
+def _df_unit(fmt: Any, column: str) -> str:
+    try:
+        return str(fmt.get_unit(column) or "")
+    except (AttributeError, IndexError, TypeError):
+        return ""
+
+
+def _df_channels(
+    fmt: Any, values: Mapping[str, NDArray[Any]], channels: dict[str, LogChannel]
+) -> bool:
+    """Add the numeric columns of one message type; False when it has no time stamp."""
+    time = _df_time(fmt, values)
+    if time is None:
+        return False
+    numeric = [
+        c for c in fmt.columns if c not in ("TimeUS", "TimeMS") and values[c].dtype.kind in "fiub"
+    ]
+    inst = fmt.instance_field
+    groups: list[tuple[str, NDArray[np.bool_] | None]] = [(fmt.name, None)]
+    if inst is not None and inst in values and values[inst].dtype.kind in "fiub":
+        ids = np.asarray(values[inst])
+        groups = [
+            (fmt.name if int(i) == 0 else f"{fmt.name}[{int(i)}]", ids == i) for i in np.unique(ids)
+        ]
+    for prefix, mask in groups:
+        t = time if mask is None else time[mask]
+        for c in numeric:
+            v = values[c] if mask is None else values[c][mask]
+            name = f"{prefix}.{c}"
+            channels[name] = LogChannel(name, t, v, _df_unit(fmt, c))
+    return True
+
+
+def _df_events(reader: Any) -> list[LogEvent]:
+    """MODE changes, text messages (MSG) and event codes (EV) of a DataFlash log."""
+    events: list[LogEvent] = []
+    reader.rewind()
+    while True:
+        m = reader.recv_match(type=["MODE", "MSG", "EV", "ERR"])
+        if m is None:
+            break
+        kind = m.get_type()
+        stamp = getattr(m, "TimeUS", None)
+        t = stamp / 1e6 if stamp is not None else float(getattr(m, "TimeMS", 0)) * 1e-3
+        if kind == "MODE":
+            number = getattr(m, "ModeNum", getattr(m, "Mode", ""))
+            events.append(LogEvent(t, "mode", f"{reader.flightmode} (mode {number})"))
+        elif kind == "MSG":
+            events.append(LogEvent(t, "message", str(getattr(m, "Message", ""))))
+        elif kind == "EV":
+            events.append(LogEvent(t, "event", f"EV {getattr(m, 'Id', '')}"))
+        else:
+            events.append(
+                LogEvent(
+                    t,
+                    "error",
+                    f"ERR subsystem {getattr(m, 'Subsys', '')} code {getattr(m, 'ECode', '')}",
+                )
+            )
+    return events
+
+
+def _read_dataflash(path: Path, *, text: bool) -> FlightLog:
+    try:
+        from pymavlink import DFReader
+    except ImportError:
+        raise _missing("pymavlink", path) from None
+    base = DFReader.DFReader_text if text else DFReader.DFReader_binary
+
+    class Reader(base):  # type: ignore[misc, valid-type]
+        def init_clock(self) -> None:
+            # Times come from each message's TimeUS; pymavlink's search for a GPS
+            # clock would parse every message in Python when the log has no GPS.
+            self._rewind(keep_messages=True)
+            self.clock = DFReader.DFReaderClock_usec()
+
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        try:
+            reader = Reader(str(path), zero_time_base=True)
+        except Exception as exc:  # pymavlink raises many types for a corrupt file
+            raise DataFormatError(f"{path}: not a readable DataFlash log ({exc})") from None
+        try:
+            channels: dict[str, LogChannel] = {}
+            untimed: list[str] = []
+            collected = _df_collect_text(reader) if text else _df_collect_binary(reader)
+            # Units are final only once every FMTU message has been read.
+            for fmt, values in collected:
+                if not _df_channels(fmt, values, channels):
+                    untimed.append(fmt.name)
+            events = _df_events(reader)
+            params = {str(k): float(v) for k, v in reader.params.items()}
+        finally:
+            with contextlib.suppress(Exception):
+                reader.close()
+    if not channels:
+        raise DataFormatError(
+            f"{path}: the DataFlash log holds no time-stamped messages (truncated or corrupt?)"
+        )
+    metadata: dict[str, Any] = {
+        "source": path.name,
+        "format": "dataflash-text" if text else "dataflash",
+        "parameters": params,
+    }
+    if untimed:
+        metadata["untimed_messages"] = sorted(set(untimed))
+    if said.getvalue().strip():
+        metadata["warnings"] = said.getvalue().strip()
+    return FlightLog(channels, tuple(events), metadata)
+
+
+def _df_collect_binary(reader: Any) -> list[tuple[Any, dict[str, NDArray[Any]]]]:
+    """Decode each message type in bulk from the byte offsets pymavlink indexed."""
+    out = []
+    data = np.frombuffer(reader.data_map, dtype=np.uint8)
+    try:
+        for mtype, offsets in enumerate(reader.offsets):
+            fmt = reader.formats.get(mtype)
+            if fmt is None or not offsets or fmt.name in _NOT_CHANNELS:
+                continue
+            dtype = _df_dtype(fmt)
+            body = dtype.itemsize
+            offs = np.asarray(offsets, dtype=np.int64) + 3
+            offs = offs[offs + body <= data.size]  # a message cut off at the end of the file
+            rows = np.empty((offs.size, body), dtype=np.uint8)
+            span = np.arange(body)
+            step = max(1, (1 << 22) // max(body, 1))  # about 4 MB of bytes per gather
+            for start in range(0, offs.size, step):
+                chunk = offs[start : start + step]
+                rows[start : start + chunk.size] = data[chunk[:, None] + span]
+            records = rows.view(dtype).ravel()
+            values: dict[str, NDArray[Any]] = {}
+            for i, column in enumerate(fmt.columns):
+                col = records[column]
+                mult = fmt.msg_mults[i]
+                if col.dtype.kind in "fiu":
+                    col = col.astype(np.float64)
+                    if mult is not None:
+                        # as pymavlink does: divide by 1/mult for accuracy (1e-7 is inexact)
+                        col = col / (1.0 / mult) if 0.0 < mult < 1.0 else col * mult
+                values[column] = col
+            out.append((fmt, values))
+    finally:
+        del data
+    return out
+
+
+def _df_collect_text(reader: Any) -> list[tuple[Any, dict[str, NDArray[Any]]]]:
+    """Read every line of a text DataFlash log through pymavlink, per message type."""
+    rows: dict[str, list[list[Any]]] = {}
+    formats: dict[str, Any] = {}
+    reader.rewind()
+    while True:
+        m = reader.recv_msg()
+        if m is None:
+            break
+        name = m.get_type()
+        if name in _NOT_CHANNELS:
+            continue
+        formats[name] = m.fmt
+        rows.setdefault(name, []).append([getattr(m, c) for c in m.fmt.columns])
+    out = []
+    for name, table in rows.items():
+        fmt = reader.formats.get(name, formats[name])
+        values: dict[str, NDArray[Any]] = {}
+        for i, column in enumerate(fmt.columns):
+            cells = [r[i] if i < len(r) else None for r in table]
+            if all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in cells):
+                values[column] = np.asarray(cells, dtype=np.float64)
+            else:
+                values[column] = np.asarray([str(c) for c in cells])
+        out.append((fmt, values))
+    return out
+
+
+# -- HDF5 and MATLAB v7.3 -----------------------------------------------------------
+
+_TIME_NAMES = ("time", "t", "timestamp", "Time", "TIME", "time_s", "timestamp_s")
+_TIME_SCALE = {
+    "": 1.0,
+    "s": 1.0,
+    "sec": 1.0,
+    "second": 1.0,
+    "seconds": 1.0,
+    "ms": 1e-3,
+    "msec": 1e-3,
+    "milliseconds": 1e-3,
+    "us": 1e-6,
+    "µs": 1e-6,
+    "usec": 1e-6,
+    "microseconds": 1e-6,
+    "ns": 1e-9,
+    "nanoseconds": 1e-9,
+}
+_MATLAB_NON_NUMERIC = {"char", "cell", "function_handle", "string", "datetime", "table"}
+
+
+def _text_attr(obj: Any, *names: str) -> str:
+    for name in names:
+        if name in obj.attrs:
+            value = obj.attrs[name]
+            if isinstance(value, np.ndarray):
+                value = value.ravel()[0] if value.size else ""
+            if isinstance(value, (bytes, np.bytes_)):
+                return bytes(value).decode("utf-8", "replace").strip()
+            return str(value).strip()
+    return ""
+
+
+def _read_hdf5(path: Path, time_column: str | None = None) -> FlightLog:
+    try:
+        import h5py
+    except ImportError:
+        raise _missing("h5py", path) from None
+    try:
+        f = h5py.File(path, "r")
+    except Exception as exc:  # h5py raises OSError and others for a corrupt file
+        raise DataFormatError(f"{path}: not a readable HDF5 file ({exc})") from None
+    with f:
+        matlab = f.userblock_size > 0 and _is_matlab_header(path)
+        datasets: dict[str, Any] = {}
+        groups: dict[str, Any] = {"": f}
+
+        def visit(name: str, obj: Any) -> None:
+            if any(part.startswith("#") for part in name.split("/")):
+                return  # MATLAB's hidden reference groups
+            if isinstance(obj, h5py.Dataset):
+                datasets[name] = obj
+            else:
+                groups[name] = obj
+
+        try:
+            f.visititems(visit)
+        except Exception as exc:
+            raise DataFormatError(f"{path}: not a readable HDF5 file ({exc})") from None
+        # MATLAB's layout without its text header (a copied or rewritten file)
+        matlab = matlab or any("MATLAB_class" in ds.attrs for ds in datasets.values())
+        names = (time_column,) if time_column is not None else _TIME_NAMES
+        times: dict[str, tuple[str, FloatArray]] = {}
+        for group in groups:
+            for candidate in names:
+                key = f"{group}/{candidate}" if group else candidate
+                if key in datasets:
+                    times[group] = (key, _hdf5_time(path, datasets[key], matlab))
+                    break
+        if not times:
+            raise DataFormatError(
+                f"{path}: no time dataset found (looked for {list(names)} in every group); "
+                "pass time_column=... naming it"
+            )
+        channels: dict[str, LogChannel] = {}
+        skipped: dict[str, str] = {}
+        time_keys = {key for key, _ in times.values()}
+        for key, ds in datasets.items():
+            if key in time_keys:
+                continue
+            reason = _hdf5_channels(key, ds, times, matlab, channels)
+            if reason:
+                skipped[key.replace("/", ".")] = reason
+    if not channels:
+        raise DataFormatError(
+            f"{path}: no numeric dataset matches a time dataset in length"
+            + (f" (skipped: {skipped})" if skipped else "")
+        )
+    metadata: dict[str, Any] = {"source": path.name, "format": "matlab" if matlab else "hdf5"}
+    if skipped:
+        metadata["skipped"] = skipped
+    return FlightLog(channels, (), metadata)
+
+
+def _is_matlab_header(path: Path) -> bool:
+    with open(path, "rb") as f:
+        return f.read(10) == b"MATLAB 7.3"
+
+
+def _hdf5_array(ds: Any, matlab: bool) -> NDArray[Any]:
+    arr = np.asarray(ds[()])
+    # MATLAB writes column-major arrays, which HDF5 sees transposed.
+    return arr.T if matlab and arr.ndim == 2 else arr
+
+
+def _hdf5_time(path: Path, ds: Any, matlab: bool) -> FloatArray:
+    arr = _hdf5_array(ds, matlab)
+    if arr.dtype.kind not in "fiu" or arr.size < 2 or arr.size != max(arr.shape, default=0):
+        raise DataFormatError(
+            f"{path}: time dataset {ds.name!r} must be a numeric vector, got shape {arr.shape} "
+            f"of {arr.dtype}"
+        )
+    unit = _text_attr(ds, "units", "unit")
+    scale = _TIME_SCALE.get(unit.lower() if unit != "µs" else unit)
+    if scale is None:
+        raise DataFormatError(
+            f"{path}: time dataset {ds.name!r} has unit {unit!r}; expected one of "
+            f"{sorted(k for k in _TIME_SCALE if k)}"
+        )
+    return arr.ravel().astype(np.float64) * scale
+
+
+def _hdf5_channels(
+    key: str,
+    ds: Any,
+    times: Mapping[str, tuple[str, FloatArray]],
+    matlab: bool,
+    channels: dict[str, LogChannel],
+) -> str:
+    """Add the channels of one dataset; the reason it holds none, or ''."""
+    cls = _text_attr(ds, "MATLAB_class")
+    if cls in _MATLAB_NON_NUMERIC or "MATLAB_empty" in ds.attrs:
+        return f"MATLAB class {cls or 'empty'}"
+    if ds.dtype.kind not in "fiub":
+        return f"not numeric ({ds.dtype})"
+    if ds.ndim > 2:
+        return f"{ds.ndim}-D"
+    group = key.rpartition("/")[0]
+    while group not in times:  # the nearest enclosing group with a time dataset
+        if not group:
+            return "no time dataset in its group or above"
+        group = group.rpartition("/")[0]
+    time = times[group][1]
+    arr = _hdf5_array(ds, matlab)
+    name = key.replace("/", ".")
+    unit = _text_attr(ds, "units", "unit")
+    n = time.size
+    if arr.ndim == 1 or (arr.ndim == 2 and 1 in arr.shape):
+        if arr.size != n:
+            return f"{arr.size} samples, its time has {n}"
+        channels[name] = LogChannel(name, time, arr.ravel(), unit)
+        return ""
+    if arr.shape[0] != n:
+        if arr.shape[1] != n:
+            return f"shape {arr.shape}, its time has {n} samples"
+        arr = arr.T
+    for j in range(arr.shape[1]):
+        label = f"{name}_{j}" if matlab else f"{name}[{j}]"
+        channels[label] = LogChannel(label, time, arr[:, j], unit)
+    return ""
+
+
+# -- public API -----------------------------------------------------------------------
+
+
+def read_log(
+    path: str | Path, *, format: str | None = None, time_column: str | None = None
+) -> FlightLog:
+    """Read an autopilot or HDF5 flight log with every channel at its own rate.
+
+    Parameters
+    ----------
+    path : str or Path
+        PX4 ULog (``.ulg``), ArduPilot DataFlash (``.bin`` binary, ``.log``
+        text), HDF5 (``.h5``, ``.hdf5``) or MATLAB v7.3 (``.mat``) file.
+    format : str, optional
+        One of ``"ulog"``, ``"dataflash"``, ``"dataflash-text"``, ``"hdf5"``.
+        Default: from the file's first bytes, then its suffix.
+    time_column : str, optional
+        HDF5 only: the name of the time dataset in each group. Default: the
+        first of ``time``, ``t``, ``timestamp`` ... present; a ``units``
+        attribute of ``ms``, ``us`` or ``ns`` is converted to seconds.
+
+    Returns
+    -------
+    FlightLog
+        Channels (see the module notes for their names) with times in
+        seconds, the log's units where it states them (PX4 units where PX4's
+        message definitions fix them), and events: flight-mode changes,
+        text messages, dropouts.
+
+    Raises
+    ------
+    DataFormatError
+        A missing or unreadable file, an unknown format, first bytes that
+        contradict the format, a log without data, or the reading library
+        not installed (``pip install "aeroid[logs]"``).
+    """
+    p = _existing(path)
+    fmt = _resolve_format(p, format)
+    if fmt != "hdf5" and time_column is not None:
+        raise DataFormatError(
+            f"{p}: time_column applies to HDF5 files only; a {fmt} log stamps each message"
+        )
+    readers: dict[str, Callable[[], FlightLog]] = {
+        "ulog": lambda: _read_ulog(p),
+        "dataflash": lambda: _read_dataflash(p, text=False),
+        "dataflash-text": lambda: _read_dataflash(p, text=True),
+        "hdf5": lambda: _read_hdf5(p, time_column),
+    }
+    return readers[fmt]()
+
+
+@dataclass(frozen=True)
+class ChannelListing:
+    """What a log holds: each channel's name, rate, unit and sample count.
+
+    Attributes
+    ----------
+    source : str
+        File name.
+    format : str
+        Log format read.
+    names : tuple of str
+        Channel names, as `read_log` and `load_flight_test` take them.
+    rates : ndarray
+        Median sample rate of each channel, Hz (0 for a single sample).
+    units : tuple of str
+        Unit each channel states, ``""`` when none.
+    counts : ndarray
+        Samples per channel.
+    """
+
+    source: str
+    format: str
+    names: tuple[str, ...]
+    rates: FloatArray
+    units: tuple[str, ...]
+    counts: NDArray[np.int64]
+
+    def __post_init__(self) -> None:
+        for label, dtype in (("rates", np.float64), ("counts", np.int64)):
+            arr = np.array(getattr(self, label), dtype=dtype)
+            arr.setflags(write=False)
+            object.__setattr__(self, label, arr)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.names
+
+    def rate(self, name: str) -> float:
+        """Median sample rate of channel `name`, Hz."""
+        return float(self.rates[self._index(name)])
+
+    def _index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise DataFormatError(f"{self.source}: the log has no channel {name!r}") from None
+
+    def summary(self) -> str:
+        """A Markdown table of the channels."""
+        lines = [
+            f"{len(self.names)} channels in {self.source} ({self.format})",
+            "",
+            "| channel | rate (Hz) | samples | unit |",
+            "|---------|-----------|---------|------|",
+        ]
+        for name, rate, count, unit in zip(
+            self.names, self.rates, self.counts, self.units, strict=True
+        ):
+            lines.append(f"| {name} | {rate:.4g} | {int(count)} | {unit} |")
+        return "\n".join(lines)
+
+
+def listing(log: FlightLog) -> ChannelListing:
+    """The `ChannelListing` of a log already read."""
+    chans = list(log.channels.values())
+    return ChannelListing(
+        source=str(log.metadata.get("source", "")),
+        format=str(log.metadata.get("format", "")),
+        names=tuple(c.name for c in chans),
+        rates=np.array([c.rate for c in chans], dtype=np.float64),
+        units=tuple(c.unit for c in chans),
+        counts=np.array([c.time.size for c in chans], dtype=np.int64),
+    )
+
+
+def list_channels(
+    path: str | Path, *, format: str | None = None, time_column: str | None = None
+) -> ChannelListing:
+    """List the channels of a flight log: names, sample rates, units, sample counts.
+
+    Parameters
+    ----------
+    path : str or Path
+        A log `read_log` reads.
+    format, time_column : str, optional
+        As for `read_log`.
+
+    Returns
+    -------
+    ChannelListing
+        With a Markdown ``summary()``.
+
+    Raises
+    ------
+    DataFormatError
+        As `read_log`.
+    """
+    return listing(read_log(path, format=format, time_column=time_column))
+
+
+def find_channels(log: FlightLog, wanted: Iterable[str], path: Path | str) -> None:
+    """Raise `ChannelError` naming the first of `wanted` the log lacks, with near names."""
+    import difflib
+
+    from .errors import ChannelError
+
+    for name in wanted:
+        if name not in log.channels:
+            near = difflib.get_close_matches(name, list(log.channels), n=5, cutoff=0.6)
+            hint = f"; close names: {near}" if near else ""
+            raise ChannelError(
+                f"{path}: channel {name!r} not found in the log ({len(log.channels)} "
+                f"channels; aeroid.list_channels lists them){hint}"
+            )

@@ -1,0 +1,374 @@
+"""Composite frequency responses and transfer-function fits against known systems."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal
+import scipy.stats
+
+from aeroid import (
+    ChannelError,
+    CompositeResponse,
+    DataFormatError,
+    FlightData,
+    IdentificationError,
+    composite_response,
+    fit_transfer_function,
+)
+from aeroid._czt import fourier
+
+WN, ZETA, GAIN, TAU = 4.0, 0.5, 2.0, 0.05
+
+
+def log_sweep(t: np.ndarray, w0: float, w1: float) -> np.ndarray:
+    """Exponential sweep from w0 to w1 rad/s over the record."""
+    span = t[-1]
+    return np.sin(w0 * span / np.log(w1 / w0) * (np.exp(np.log(w1 / w0) * t / span) - 1.0))
+
+
+def discrete_response(b, a, omega, fs, delay_samples=0):
+    """Exact response of the simulated discrete filter at ω (rad/s)."""
+    z = np.exp(1j * omega / fs)
+    return np.polyval(b, z) / np.polyval(a, z) * z ** (-len(a) + len(b)) * z ** (-delay_samples)
+
+
+def second_order(fs):
+    return scipy.signal.bilinear([GAIN * WN**2], [1.0, 2 * ZETA * WN, WN**2], fs)
+
+
+# -- chirp-z Fourier transform ---------------------------------------------------------------
+
+
+def test_fourier_matches_direct_sum_on_even_and_uneven_grids():
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((300, 2))
+    dt = 0.02
+    t = np.arange(300) * dt
+    for f in (np.linspace(0.1, 12.0, 37), np.geomspace(0.1, 12.0, 37)):
+        ref = dt * np.exp(-2j * np.pi * np.outer(f, t)) @ x
+        np.testing.assert_allclose(fourier(x, dt, f), ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fourier(x[:, 0], dt, f), ref[:, 0], rtol=0, atol=1e-12)
+
+
+def test_end_correction_converges_at_second_order():
+    # ∫_0^1 e^{-2t} e^{-jωt} dt = (1 - e^{-(2+jω)}) / (2 + jω)
+    f = np.array([0.3, 1.1])
+    s = 2.0 + 2j * np.pi * f
+    exact = (1.0 - np.exp(-s)) / s
+    errs = {}
+    for corr in (False, True):
+        errs[corr] = []
+        for n in (101, 201):
+            dt = 1.0 / (n - 1)
+            x = np.exp(-2.0 * np.arange(n) * dt)
+            errs[corr].append(np.max(np.abs(fourier(x, dt, f, end_correction=corr) - exact)))
+    assert errs[False][0] / errs[False][1] == pytest.approx(2.0, rel=0.05)  # Euler: O(Δt)
+    assert errs[True][0] / errs[True][1] == pytest.approx(4.0, rel=0.05)  # trapezoid: O(Δt²)
+
+
+def test_fourier_rejects_bad_input():
+    with pytest.raises(DataFormatError, match="dt"):
+        fourier(np.ones(10), 0.0, [1.0])
+    with pytest.raises(DataFormatError, match="non-finite"):
+        fourier(np.array([1.0, np.nan]), 0.1, [1.0])
+
+
+# -- composite response ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def clean_sweep():
+    """180 s exponential sweep 0.3-20 rad/s at 50 Hz through the second-order system."""
+    fs = 50.0
+    t = np.arange(int(180 * fs) + 1) / fs
+    u = log_sweep(t, 0.3, 20.0)
+    b, a = second_order(fs)
+    y = scipy.signal.lfilter(b, a, u)
+    return FlightData(t, {"u": u, "y": y}), (b, a), fs
+
+
+def test_composite_recovers_noise_free_transfer_function(clean_sweep):
+    data, (b, a), fs = clean_sweep
+    res = composite_response(data, "u", "y", windows=(60, 30, 15), frequency_range=(0.6, 8.0))
+    ch = res.channel("u", "y")
+    good = ch.coherence > 0.9
+    assert good.sum() >= 90
+    truth = discrete_response(b, a, ch.frequency, fs)
+    ratio = ch.response[good] / truth[good]
+    assert np.max(np.abs(np.abs(ratio) - 1.0)) < 0.01
+    assert np.max(np.abs(np.degrees(np.angle(ratio)))) < 1.0
+    # magnitude in dB, unwrapped phase in degrees, on the same truth
+    np.testing.assert_allclose(ch.magnitude[good], 20 * np.log10(np.abs(truth[good])), atol=0.087)
+    assert np.all(np.diff(ch.phase) < 5.0) and ch.phase[-1] < -90.0
+    assert isinstance(res, CompositeResponse) and len(res.n_averages) == 3
+    assert "Composite frequency response" in res.summary()
+
+
+def test_two_correlated_inputs_are_conditioned():
+    fs = 50.0
+    t = np.arange(int(180 * fs) + 1) / fs
+    half = t.size // 2
+    sweep = log_sweep(t[:half], 0.3, 20.0)
+    # one axis swept after the other; the second input also follows the first (a crossfeed)
+    u1 = np.concatenate([sweep, np.zeros(t.size - half)])
+    u2 = 0.6 * u1 + np.concatenate([np.zeros(t.size - half), sweep])
+    b1, a1 = second_order(fs)
+    b2, a2 = scipy.signal.bilinear([3.0], [1.0, 1.5], fs)
+    y = scipy.signal.lfilter(b1, a1, u1) + scipy.signal.lfilter(b2, a2, u2)
+    data = FlightData(t, {"u1": u1, "u2": u2, "y": y})
+    res = composite_response(data, ["u1", "u2"], "y", windows=(30, 15), frequency_range=(0.8, 6.0))
+    for name, (b, a) in (("u1", (b1, a1)), ("u2", (b2, a2))):
+        ch = res.channel(name, "y")
+        good = ch.coherence > 0.9
+        assert good.sum() >= 60
+        ratio = ch.response[good] / discrete_response(b, a, ch.frequency[good], fs)
+        assert np.max(np.abs(np.abs(ratio) - 1.0)) < 0.02
+        assert np.max(np.abs(np.degrees(np.angle(ratio)))) < 2.0
+    # the inputs explain the output: multiple coherence near one
+    assert np.median(res.multiple_coherence["y"]) > 0.99
+    # without conditioning the correlated input biases the single-input estimate
+    single = composite_response(data, "u1", "y", windows=(30, 15), frequency_range=(0.8, 6.0))
+    h1 = discrete_response(b1, a1, single.frequency, fs)
+    assert np.median(np.abs(single.channels[0].response / h1 - 1.0)) > 0.1
+
+
+def test_random_error_predicts_the_scatter():
+    """εr from the coherence matches the spread of |Ĥ| over noise seeds (within 15 %)."""
+    fs = 50.0
+    t = np.arange(int(60 * fs) + 1) / fs
+    u = log_sweep(t, 0.3, 20.0)
+    om = np.arange(1.0, 8.0, 2 * 2 * np.pi / 15)
+    mags, errs = [], []
+    for seed in range(120):
+        y = u + 0.5 * np.random.default_rng(seed).standard_normal(t.size)
+        ch = composite_response(
+            FlightData(t, {"u": u, "y": y}), "u", "y", windows=(15,), frequencies=om
+        ).channels[0]
+        mags.append(np.abs(ch.response))
+        errs.append(ch.random_error)
+    actual = np.std(mags, axis=0)
+    predicted = np.sqrt(np.mean(np.square(errs), axis=0))
+    # 120 seeds: the sample std is within ±13 % (2σ) of the truth
+    np.testing.assert_allclose(np.mean(actual / predicted), 1.0, atol=0.1)
+    assert np.all(np.abs(actual / predicted - 1.0) < 0.3)
+
+
+def test_composite_errors_name_the_problem(clean_sweep):
+    data, _, _ = clean_sweep
+    with pytest.raises(ChannelError, match="nope"):
+        composite_response(data, "nope", "y")
+    with pytest.raises(DataFormatError, match="window"):
+        composite_response(data, "u", "y", windows=(1000.0,))
+    with pytest.raises(IdentificationError, match="overlap"):
+        composite_response(data, "u", "y", overlap=1.2)
+    with pytest.raises(IdentificationError, match="frequencies"):
+        composite_response(data, "u", "y", frequencies=[0.0, 1.0])
+    with pytest.raises(ChannelError, match="both"):
+        composite_response(data, "u", "u")
+
+
+# -- transfer-function fit --------------------------------------------------------------------
+
+
+def noisy_sweep(seed: int, noise: float = 0.5):
+    """120 s sweep at 100 Hz through the delayed second-order system, output noise."""
+    fs = 100.0
+    t = np.arange(int(120 * fs) + 1) / fs
+    u = log_sweep(t, 0.3, 25.0)
+    b, a = second_order(fs)
+    y = scipy.signal.lfilter(b, a, u)
+    y = np.concatenate([np.zeros(5), y[:-5]])  # 0.05 s delay
+    y = y + noise * np.random.default_rng(seed).standard_normal(t.size)
+    return FlightData(t, {"u": u, "y": y})
+
+
+TRUTH = {"b0": GAIN * WN**2, "a0": WN**2, "a1": 2 * ZETA * WN, "tau": TAU}
+# Frequencies two resolution cells of the 20 s window apart: about independent errors.
+FIT_FREQS = np.arange(1.0, 9.0, 2 * 2 * np.pi / 20)
+
+
+def test_fit_recovers_second_order_with_delay_within_3_sigma():
+    for seed in range(3):
+        res = composite_response(noisy_sweep(seed), "u", "y", windows=(20,), frequencies=FIT_FREQS)
+        for weighting in ("cifer", "random_error"):
+            fit = fit_transfer_function(
+                res, numerator_order=0, denominator_order=2, weighting=weighting
+            )
+            for k, v in TRUTH.items():
+                se = fit.standard_errors[k]
+                assert abs(fit.parameters[k] - v) < 3 * se
+            if weighting == "random_error":
+                assert abs(fit.parameters["tau"] - TAU) < 3 * fit.standard_errors["tau"]
+    assert set(fit.parameters) == {"b0", "a0", "a1", "tau"}
+    poles = np.sort_complex(fit.poles)
+    exact = np.sort_complex(np.roots([1.0, 2 * ZETA * WN, WN**2]))
+    np.testing.assert_allclose(poles, exact, rtol=0.1)
+    np.testing.assert_allclose(fit.evaluate([2.0]), fit.transfer_function([2j]))
+    assert "Transfer-function fit" in fit.summary()
+
+
+def test_fit_is_exact_on_an_exact_response():
+    w = np.geomspace(0.3, 20.0, 60)
+    s = 1j * w
+    h = (2.0 * s + 3.0) / (s**3 + 4.0 * s**2 + 9.0 * s + 5.0) * np.exp(-0.08 * s)
+    from aeroid import ResponseChannel
+
+    ch = ResponseChannel("x", "y", w, h, coherence=np.ones(w.size))
+    fit = fit_transfer_function(ch, numerator_order=1, denominator_order=3)
+    expect = {"b0": 3.0, "b1": 2.0, "a0": 5.0, "a1": 9.0, "a2": 4.0, "tau": 0.08}
+    for k, v in expect.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=1e-6)
+    assert fit.cost < 1e-10
+    fit0 = fit_transfer_function(ch, numerator_order=1, denominator_order=3, delay=False)
+    assert "tau" not in fit0.parameters and fit0.cost > 1.0
+
+
+def test_fit_rejects_bad_options():
+    w = np.geomspace(0.3, 20.0, 10)
+    from aeroid import ResponseChannel
+
+    ch = ResponseChannel("x", "y", w, 1.0 / (1j * w + 1.0), coherence=np.ones(w.size))
+    with pytest.raises(IdentificationError, match="numerator_order"):
+        fit_transfer_function(ch, numerator_order=3, denominator_order=2)
+    with pytest.raises(IdentificationError, match="weighting"):
+        fit_transfer_function(ch, numerator_order=0, denominator_order=1, weighting="x")
+    with pytest.raises(IdentificationError, match="cannot fit"):
+        fit_transfer_function(
+            ch, numerator_order=0, denominator_order=1, frequency_range=(0.3, 0.35)
+        )
+    with pytest.raises(IdentificationError, match="unknown"):
+        fit_transfer_function(ch, numerator_order=0, denominator_order=1, start={"zz": 1.0})
+    with pytest.raises(IdentificationError, match="min_coherence"):
+        fit_transfer_function(ch, numerator_order=0, denominator_order=1, min_coherence=2.0)
+
+
+def test_fit_straight_from_flight_data_needs_the_pair():
+    data = noisy_sweep(0, noise=0.05)
+    with pytest.raises(ChannelError, match="input= and output="):
+        fit_transfer_function(data, numerator_order=0, denominator_order=2)
+    fit = fit_transfer_function(
+        data,
+        numerator_order=0,
+        denominator_order=2,
+        input="u",
+        output="y",
+        frequency_range=(1.0, 10.0),
+    )
+    for k, v in TRUTH.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=0.05)
+    assert fit.input_name == "u" and fit.output_name == "y"
+
+
+@pytest.mark.slow
+def test_random_error_standard_errors_cover_over_200_seeds():
+    """95 % t-intervals from weighting="random_error" cover the truth 93-97 % of the time.
+
+    Pooled over the 4 parameters and 200 seeds (800 intervals): the binomial
+    standard error of a 95 % coverage is 0.8 %, and 93-97 % is ±2.6 of it.
+    """
+    inside = []
+    for seed in range(200):
+        res = composite_response(noisy_sweep(seed), "u", "y", windows=(20,), frequencies=FIT_FREQS)
+        fit = fit_transfer_function(
+            res, numerator_order=0, denominator_order=2, weighting="random_error"
+        )
+        q = scipy.stats.t.ppf(0.975, 2 * fit.frequency.size - len(fit.parameters))
+        inside.extend(
+            abs(fit.parameters[k] - v) <= q * fit.standard_errors[k] for k, v in TRUTH.items()
+        )
+    coverage = float(np.mean(inside))
+    assert 0.93 <= coverage <= 0.97, coverage
+
+
+def test_plots_have_labelled_axes(clean_sweep):
+    data, _, _ = clean_sweep
+    res = composite_response(data, "u", "y", windows=(60,), frequency_range=(0.6, 8.0))
+    fig = res.plot()
+    labels = {ax.get_ylabel() for ax in fig.axes} | {ax.get_xlabel() for ax in fig.axes}
+    assert {"magnitude [dB]", "phase [deg]", "frequency [rad/s]"} <= labels
+    fit = fit_transfer_function(res, numerator_order=0, denominator_order=2, delay=False)
+    assert len(fit.plot().axes) == 3
+
+
+# -- numpy replacements for scipy.signal on the first-call path --------------------------------
+
+
+@pytest.mark.parametrize(("n", "m"), [(1, 5), (2, 3), (50, 400), (1501, 1501), (6001, 100)])
+def test_chirp_z_matches_scipy_and_the_direct_sum(n: int, m: int) -> None:
+    from aeroid._czt import _chirp_z
+
+    rng = np.random.default_rng(n + m)
+    x = rng.standard_normal((n, 3))
+    dt, f0, df = 0.01, 0.05, 0.37
+    ref = scipy.signal.czt(
+        x, m=m, w=np.exp(-2j * np.pi * df * dt), a=np.exp(2j * np.pi * f0 * dt), axis=0
+    )
+    direct = np.exp(-2j * np.pi * np.outer(f0 + df * np.arange(m), np.arange(n) * dt)) @ x
+    got = _chirp_z(x, m, f0, df, dt)
+    scale = np.abs(direct).max()
+    assert np.abs(got - direct).max() <= 1e-10 * scale
+    assert np.abs(got - ref).max() <= 1e-10 * scale
+
+
+def test_fast_length_is_the_smallest_five_smooth_number() -> None:
+    from aeroid._czt import _fast_length
+
+    def smooth(k: int) -> bool:
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        return k == 1
+
+    for n in (1, 2, 7, 11, 97, 1000, 1025, 6001, 12345):
+        got = _fast_length(n)
+        assert got >= n and smooth(got)
+        assert not any(smooth(k) for k in range(n, got))
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 10, 101, 1000])
+def test_hann_is_scipys_periodic_window(n: int) -> None:
+    from aeroid._czt import hann
+
+    assert np.array_equal(hann(n), scipy.signal.get_window("hann", n) if n else np.ones(0))
+
+
+def test_frequency_paths_do_not_import_scipy_signal() -> None:
+    """A fresh process runs the frequency-domain entry points without `scipy.signal`."""
+    import subprocess
+    import sys
+
+    code = """
+import sys
+import numpy as np
+import aeroid
+from aeroid.aircraft import lateral_linear
+fs = 100.0
+t = np.arange(3001) / fs
+u = np.sin(0.3 * 30.0 / np.log(80.0) * (np.exp(np.log(80.0) * t / 30.0) - 1.0))
+y = np.zeros_like(u)
+for i in range(1, u.size):
+    y[i] = 0.9 * y[i - 1] + 0.1 * u[i - 1]
+data = aeroid.FlightData(t, {"u": u, "y": y})
+aeroid.composite_response(data, "u", "y", windows=(10.0, 5.0))
+t4 = np.arange(0, 10, 1 / 400)
+aeroid.resample({"x": (t4, np.sin(t4))}, ["x"], rate=50)
+truth = dict(Y_beta=-0.15, Y_delta_r=0.03, L_beta=-8.0, L_p=-2.5, L_r=0.8, L_delta_a=12.0,
+             L_delta_r=1.0, N_beta=3.5, N_p=-0.1, N_r=-0.4, N_delta_a=-0.3, N_delta_r=-2.5)
+model = lateral_linear(V0=60.0, parameters=truth)
+tt = np.arange(0.0, 20.0, 0.02)
+sim = model.simulate(tt, {"delta_a": np.sin(2.0 * tt) * np.sin(np.pi * tt / 20) ** 2,
+                          "delta_r": np.sin(3.1 * tt) * np.sin(np.pi * tt / 20) ** 2},
+                     method="exact")
+fd = sim.to_flight_data()
+import warnings
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    aeroid.frequency_response(model, fd, truth)
+    aeroid.identify_frequency_domain(model, fd, truth, method="output_error")
+print(sorted(m for m in sys.modules if m.startswith("scipy.signal")))
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
+    )
+    assert done.stdout.strip().splitlines()[-1] == "[]"

@@ -1,0 +1,177 @@
+"""Input time delays: output error (`identify(time_delays=...)`) and equation error.
+
+Truth: controls delayed by 0.07 s (3.5 samples at 50 Hz) before simulation,
+recovered within 3 standard errors; records without a delay give estimates
+within 3 standard errors of 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeroid import FlightData, IdentificationError, catalog, equation_error, identify
+from aeroid._output_error import shifted_controls
+from aeroid.aircraft import lateral_linear
+from aeroid.errors import ChannelError, DataFormatError
+
+NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
+DELAY = 0.07
+LATERAL = {
+    "Y_beta": -0.15,
+    "Y_delta_r": 0.03,
+    "L_beta": -4.0,
+    "L_p": -2.5,
+    "L_r": 0.8,
+    "L_delta_a": 12.0,
+    "L_delta_r": 0.5,
+    "N_beta": 3.0,
+    "N_p": -0.1,
+    "N_r": -0.6,
+    "N_delta_a": -0.4,
+    "N_delta_r": -3.0,
+}
+STATES = ["beta", "p", "r", "phi"]
+
+
+def _short_period(tau: float, seed: int) -> FlightData:
+    """The truth-case record flown with the elevator delayed by `tau`; the record
+    carries the undelayed elevator."""
+    t = np.arange(501) / 50.0
+    u = catalog.doublet(t)
+    late = shifted_controls(t, u[:, None], [0], [tau])[:, 0]
+    d = catalog.short_period_flight(elevator=late, seed=seed)
+    return FlightData(d.time, {**d.channels, "elevator": u}, {})
+
+
+def _lateral(tau: float, seed: int) -> tuple[object, FlightData]:
+    """Linear lateral model with the aileron delayed by `tau` (multisine aileron,
+    rudder doublet), states and a noisy roll acceleration measured."""
+    model = lateral_linear(V0=60.0, parameters=LATERAL, outputs=[*STATES, "p_dot"])
+    t = np.arange(751) / 50.0
+    da = catalog.multisine(t, [0.2, 0.5, 0.9, 1.4, 2.1], 0.02)
+    dr = catalog.doublet(t, start=4.0, width=1.0, amplitude=0.06)
+    u = np.column_stack([da, dr])
+    sim = model.simulate(t, shifted_controls(t, u, [0], [tau]), method="exact")
+    rng = np.random.default_rng(seed)
+    noise = {"beta": 0.002, "p": 0.005, "r": 0.003, "phi": 0.003, "p_dot": 0.05}
+    channels = {"delta_a": da, "delta_r": dr}
+    for name, sd in noise.items():
+        channels[name] = sim.output(name) + sd * rng.standard_normal(t.size)
+    return model, FlightData(t, channels, {})
+
+
+def test_shifted_controls_is_linear_interpolation_of_the_delayed_signal():
+    t = np.arange(6) * 0.5
+    u = np.column_stack([np.arange(6.0) ** 2, np.ones(6)])
+    out = shifted_controls(t, u, [0], [0.2])
+    # u(t - 0.2) between samples: 40 % of the way back to the previous sample
+    np.testing.assert_allclose(out[1:, 0], u[1:, 0] - 0.4 * np.diff(u[:, 0]))
+    assert out[0, 0] == u[0, 0]  # held before the record
+    np.testing.assert_array_equal(out[:, 1], u[:, 1])
+
+
+@pytest.mark.parametrize("tau", [DELAY, 0.0])
+def test_output_error_recovers_delay_short_period(tau):
+    r = identify(catalog.short_period(), _short_period(tau, 1), NAMES, time_delays=["elevator"])
+    est, se = r.parameters["tau_elevator"], r.stderr["tau_elevator"]
+    assert r.success and 0 < se < 0.02
+    assert abs(est - tau) < 3 * se
+    assert r.time_delays == {"elevator": pytest.approx(est)}
+    assert r.parameter_names[-1] == "tau_elevator" and r.covariance.shape == (5, 5)
+    assert "tau_elevator" not in r.all_parameters
+    assert "| tau_elevator" in r.summary() and "Time delays" in r.summary()
+
+
+@pytest.mark.parametrize("tau", [DELAY, 0.0])
+def test_output_error_recovers_delay_lateral(tau):
+    model, data = _lateral(tau, 2)
+    r = identify(
+        model, data, list(LATERAL), outputs=STATES, x0=np.zeros(4), time_delays={"delta_a": 0.02}
+    )
+    est, se = r.parameters["tau_delta_a"], r.stderr["tau_delta_a"]
+    assert r.success and 0 < se < 0.01
+    assert abs(est - tau) < 3 * se
+    for name, value in LATERAL.items():
+        assert abs(r.parameters[name] - value) < 4 * r.stderr[name]
+
+
+def test_output_error_delay_gradients_agree():
+    # the compiled forward-mode route and finite differences give the same fit
+    data = _short_period(DELAY, 3)
+    a = identify(catalog.short_period(), data, NAMES, time_delays="elevator", gradient="auto")
+    b = identify(catalog.short_period(), data, NAMES, time_delays="elevator", gradient="fd")
+    assert a.parameters["tau_elevator"] == pytest.approx(b.parameters["tau_elevator"], rel=1e-5)
+    assert a.stderr["tau_elevator"] == pytest.approx(b.stderr["tau_elevator"], rel=1e-3)
+
+
+def test_output_error_without_the_delay_is_biased():
+    # the delay matters: ignoring it moves M_q by many standard errors
+    data = _short_period(DELAY, 1)
+    plain = identify(catalog.short_period(), data, NAMES)
+    truth = catalog.SHORT_PERIOD_TRUTH["M_q"]
+    assert abs(plain.parameters["M_q"] - truth) > 3 * plain.stderr["M_q"]
+
+
+@pytest.mark.parametrize("tau", [DELAY, 0.0])
+def test_equation_error_recovers_delay(tau):
+    _, data = _lateral(tau, 4)
+    r = equation_error(
+        data, "p_dot", ["beta", "p", "r", "delta_a", "delta_r"], time_delays="delta_a"
+    )
+    est, se = r.parameters["tau_delta_a"], r.stderr["tau_delta_a"]
+    assert 0 < se < 0.01 and abs(est - tau) < 3 * se
+    assert abs(r.parameters["delta_a"] - LATERAL["L_delta_a"]) < 3 * r.stderr["delta_a"]
+    assert r.time_delays == {"delta_a": pytest.approx(est)}
+    assert r.covariance.shape == (7, 7) and "| tau_delta_a" in r.summary()
+
+
+def test_equation_error_delay_short_period_measured_acceleration():
+    # q_dot measured (noisy) from the delayed elevator: the delay of 3.5 samples is found
+    t = np.arange(501) / 50.0
+    u = catalog.multisine(t, [0.3, 0.7, 1.2, 1.9], 0.02)
+    late = shifted_controls(t, u[:, None], [0], [DELAY])[:, 0]
+    model = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
+    sim = model.simulate(t, late, method="exact")
+    p = catalog.SHORT_PERIOD_TRUTH
+    q_dot = p["M_alpha"] * sim.state("alpha") + p["M_q"] * sim.state("q") + p["M_delta"] * late
+    rng = np.random.default_rng(5)
+    data = {
+        "alpha": sim.state("alpha") + 1e-4 * rng.standard_normal(t.size),
+        "q": sim.state("q") + 1e-4 * rng.standard_normal(t.size),
+        "elevator": u,
+        "q_dot": q_dot + 0.02 * rng.standard_normal(t.size),
+    }
+    r = equation_error(
+        data, "q_dot", ["alpha", "q", "elevator"], time_delays={"elevator": 0.0}, dt=0.02
+    )
+    assert abs(r.parameters["tau_elevator"] - DELAY) < 3 * r.stderr["tau_elevator"]
+    assert r.stderr["tau_elevator"] < 0.005
+
+
+def test_time_delay_errors():
+    model = catalog.short_period()
+    data = _short_period(0.0, 0)
+    with pytest.raises(IdentificationError, match="not a control"):
+        identify(model, data, NAMES, time_delays=["aileron"])
+    with pytest.raises(IdentificationError, match="finite number"):
+        identify(model, data, NAMES, time_delays={"elevator": float("nan")})
+    with pytest.raises(IdentificationError, match=r"output_error.? only"):
+        identify(
+            model,
+            data,
+            NAMES,
+            method="filter_error",
+            process_noise={"q": 1e-4},
+            time_delays="elevator",
+        )
+    with pytest.raises(ChannelError, match="aileron"):
+        equation_error(data, "q", ["alpha", "elevator"], time_delays="aileron")
+    with pytest.raises(DataFormatError, match="time domain"):
+        equation_error(
+            data, "q", ["alpha"], time_delays="elevator", domain="frequency", frequencies=[0.5]
+        )
+    with pytest.raises(DataFormatError, match="dt="):
+        equation_error(dict(data.channels), "q", ["alpha", "elevator"], time_delays="elevator")
+    with pytest.raises(IdentificationError, match="do not change"):
+        equation_error(data, "q", ["alpha"], time_delays="elevator")
