@@ -34,7 +34,9 @@ def _open_store(config: str | None, store: str | None) -> Any:
             from .pipeline.definition import resolve_pipeline
 
             cfg = load_config(config)
-            resolve_pipeline(cfg.pipeline, cfg.base_dir)  # registers the pipeline's record types
+            # registers the pipeline's record types
+            allowed = bool(getattr(cfg, "allow_imports", False))
+            resolve_pipeline(cfg.pipeline, cfg.base_dir, allow_imports=allowed)
             return ResultStore(cfg.store_location, create=False)
     except AeroidError as exc:
         _fail(str(exc))
@@ -70,6 +72,11 @@ def main() -> None:
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no tables.")
+@click.option(
+    "--allow-imports",
+    is_flag=True,
+    help="Allow 'module:attribute' models and metrics (they import and run that code).",
+)
 def run(
     config: str,
     store: str | None,
@@ -77,6 +84,7 @@ def run(
     workers: int | None,
     as_json: bool,
     quiet: bool,
+    allow_imports: bool,
 ) -> None:
     """Compute every missing result of the campaign in CONFIG and write its report."""
     from .errors import AeroidError
@@ -89,6 +97,7 @@ def run(
             scheduler=scheduler,
             workers=workers,
             progress=not quiet and not as_json,
+            allow_imports=allow_imports,
         )
     except AeroidError as exc:
         _fail(str(exc))
@@ -136,7 +145,9 @@ def run(
         )
         if doc["report"]:
             click.echo(f"report: {doc['report']}")
-    sys.exit(1 if doc["failed"] else 0)
+    if summary.report_error:
+        click.echo(f"error: {summary.report_error}", err=True)
+    sys.exit(1 if doc["failed"] or summary.report_error else 0)
 
 
 @main.command()
@@ -145,16 +156,21 @@ def run(
     "--store", type=click.Path(file_okay=False), help="Result store (overrides the config)."
 )
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
-def status(config: str, store: str | None, as_json: bool) -> None:
+@click.option(
+    "--allow-imports",
+    is_flag=True,
+    help="Allow 'module:attribute' models and metrics (they import and run that code).",
+)
+def status(config: str, store: str | None, as_json: bool, allow_imports: bool) -> None:
     """Which tasks of CONFIG are stored and which are missing (computes nothing)."""
     from .errors import AeroidError
     from .pipeline.config import load_config
-    from .pipeline.runner import plan, store_argument
+    from .pipeline.planning import plan, store_argument
     from .pipeline.store import ResultStore, is_store
 
     try:
         cfg = load_config(config, store=store_argument(store) if store else None)
-        the_plan = plan(cfg)
+        the_plan = plan(cfg, allow_imports=allow_imports)
         location = cfg.store_location
         st = ResultStore(location, create=False) if is_store(location) else None
     except AeroidError as exc:
@@ -255,17 +271,31 @@ def show(key: str, config: str | None, store: str | None) -> None:
 @_store_options
 @click.option("--all", "every", is_flag=True, help="Recompute every entry of the store.")
 @click.option("--stage", help="With --all: only the entries of this stage.")
+@click.option(
+    "--scheduler", metavar="ADDRESS", help="With --all: tcp://HOST:PORT of a dask scheduler."
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=0),
+    help="With --all: worker processes (default: one per core; 0: in this process).",
+)
 def rerun(
-    key: str | None, config: str | None, store: str | None, every: bool, stage: str | None
+    key: str | None,
+    config: str | None,
+    store: str | None,
+    every: bool,
+    stage: str | None,
+    scheduler: str | None,
+    workers: int | None,
 ) -> None:
     """Recompute a stored result (or --all) from its recorded inputs and compare bit for bit."""
     from .errors import AeroidError
-    from .pipeline.runner import rerun as rerun_entry
+    from .pipeline.rerun import rerun as rerun_entry
 
     if (key is None) == (not every):
         _fail("give a KEY or --all (not both)")
-    if stage is not None and not every:
-        _fail("--stage goes with --all")
+    if (stage is not None or scheduler is not None or workers is not None) and not every:
+        _fail("--stage, --scheduler and --workers go with --all")
     st = _open_store(config, store)
     if key is not None:
         try:
@@ -277,30 +307,38 @@ def rerun(
             click.echo(line)
         sys.exit(0 if identical else 1)
     from ._progress import progress_bar
+    from .pipeline.executors import executor_for
+    from .pipeline.rerun import RerunResult, rerun_all
 
-    entries = sorted(st.entries(stage), key=lambda e: (e.stage, e.key))
-    if stage is not None and not entries:
+    n = sum(1 for _ in st.entries(stage))
+    if stage is not None and not n:
         _fail(f"no {stage} entries in store {st.root}")
-    bar = progress_bar(len(entries), desc="rerun", enabled=True, unit="entry")
-    same = 0
-    for entry in entries:
-        label = None
-        try:
-            identical, lines = rerun_entry(st, entry.key)
-        except AeroidError as exc:  # not recomputed: nothing to compare
-            identical, lines, label = False, ["", str(exc)], "FAILED"
+    bar = progress_bar(n, desc="rerun", enabled=True, unit="entry")
+
+    def done(result: RerunResult) -> None:
         if bar is not None:
             bar.update(1)
-        same += identical
-        label = label or ("bit-identical" if identical else "DIFFERS")
-        click.echo(f"{label} {entry.stage} {entry.key}")
-        if not identical:
-            for line in lines[1:]:
+
+    try:
+        results = rerun_all(
+            st, stage=stage, executor=executor_for(scheduler, workers), on_done=done
+        )
+    except AeroidError as exc:
+        _fail(str(exc), 1)
+        return
+    finally:
+        if bar is not None:
+            bar.close()
+    same = 0
+    for r in results:
+        same += r.identical
+        label = "FAILED" if r.failed else ("bit-identical" if r.identical else "DIFFERS")
+        click.echo(f"{label} {r.entry.stage} {r.entry.key}")
+        if not r.identical:
+            for line in r.lines[1:]:
                 click.echo(f"    {line}")
-    if bar is not None:
-        bar.close()
-    click.echo(f"{same} of {len(entries)} entries bit-identical")
-    sys.exit(0 if same == len(entries) else 1)
+    click.echo(f"{same} of {len(results)} entries bit-identical")
+    sys.exit(0 if same == len(results) else 1)
 
 
 @main.command()

@@ -211,7 +211,7 @@ def test_parallel_mcmc_ensembles_equal_the_unsplit_run(tmp_path):
     cfg.write_text(
         "model: short_period\npipeline: inf_pipeline:pipeline\nseed: 4\nstore: store\n"
         "flights: [{simulated: {n_flights: 1, seed: 2}}]\n"
-        "stages:\n  infer:\n    priors:\n      Z_alpha: {normal: [-1.0, 1.0]}\n"
+        "stages:\n  infer:\n    parameters:\n      Z_alpha: {normal: [-1.0, 1.0]}\n"
         "      M_alpha: {normal: [-5.0, 5.0]}\n      M_q: {normal: [-2.0, 2.0]}\n"
         "      M_delta: {normal: [-7.0, 7.0]}\n"
         "    noise: {alpha: 0.005, q: 0.01}\n    n_walkers: 10\n    n_steps: 40\n"

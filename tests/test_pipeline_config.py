@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
+import signal
+from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from aeroid.errors import ConfigError
@@ -37,7 +42,7 @@ def test_minimal_config_and_relative_paths(tmp_path):
         ),
         (
             "model: short_period\nflights: [{path: a.csv, tim_column: t}]\n",
-            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: channels, path, time_column, units",
+            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: channels, max_gap, path, sample_rate, segments, time_column, units, window",
         ),
         (
             "model: short_period\nflights: [{simulated: {n_flights: 0}}]\n",
@@ -268,3 +273,282 @@ def test_the_same_flight_listed_twice_is_refused(tmp_path):
         ConfigError, match=r"'copy' \(.*copy.csv\) has the same contents and loader options as 'a'"
     ):
         plan(_write(tmp_path, files))
+
+
+# -- hostile files: refused with the file named, never a traceback or a hang ----------------
+
+
+@contextlib.contextmanager
+def _deadline(seconds: float) -> Iterator[None]:
+    """Fail (rather than hang the suite) when the body runs longer than `seconds`."""
+
+    def expired(signum: int, frame: object) -> None:
+        raise TimeoutError(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+_VALID = "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n"
+
+
+def _alias_bomb(depth: int) -> str:
+    """Nine aliases of the level below per level: 9**(depth + 1) values from a few lines."""
+    lines = ["    a: &a [x, x, x, x, x, x, x, x, x]"]
+    for i in range(depth):
+        prev, cur = chr(97 + i), chr(98 + i)
+        lines.append(f"    {cur}: &{cur} [" + ", ".join([f"*{prev}"] * 9) + "]")
+    return _VALID + "stages:\n  identify:\n    simulate_options:\n" + "\n".join(lines) + "\n"
+
+
+def test_a_yaml_alias_bomb_is_refused_at_its_first_anchor(tmp_path):
+    with _deadline(5.0), pytest.raises(ConfigError) as err:
+        load_config(_write(tmp_path, _alias_bomb(7)))
+    assert str(err.value) == (
+        f"{tmp_path / 'camp.yaml'}: line 6, column 8: YAML anchors and aliases (&name, *name) "
+        "are not accepted in a campaign config; write the values out"
+    )
+    # a merge key is an alias too
+    merged = _VALID + "base: &base {n: 1}\nstages: {identify: {<<: *base}}\n"
+    with pytest.raises(ConfigError, match=r"line 3, column 7: YAML anchors and aliases"):
+        load_config(_write(tmp_path, merged))
+
+
+def test_a_binary_config_is_refused(tmp_path):
+    p = tmp_path / "camp.yaml"
+    p.write_bytes(bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8)))
+    with pytest.raises(ConfigError, match=r"camp.yaml: not UTF-8 text .*; is it a binary file\?"):
+        load_config(p)
+    p.write_bytes(_VALID.encode() + b"\x00\x01\x02")  # valid UTF-8, but NUL bytes
+    with pytest.raises(ConfigError, match=r"camp.yaml: not UTF-8 text \(a NUL byte at line 3\)"):
+        load_config(p)
+
+
+@pytest.mark.parametrize("codec", ["utf-16", "utf-16-le", "utf-16-be"])
+def test_a_utf16_config_is_refused_naming_the_encoding(tmp_path, codec):
+    p = tmp_path / "camp.yaml"
+    p.write_bytes(_VALID.encode(codec))
+    with pytest.raises(
+        ConfigError, match=r"camp.yaml: not UTF-8 text .*it looks like UTF-16: save it as UTF-8"
+    ):
+        load_config(p)
+    # UTF-8 with a byte-order mark is UTF-8
+    p.write_bytes(_VALID.encode("utf-8-sig"))
+    assert load_config(p).model == "short_period"
+
+
+def test_a_5000_deep_list_is_refused(tmp_path):
+    deep = _VALID + "name: " + "[" * 5000 + "]" * 5000 + "\n"
+    with (
+        _deadline(20.0),
+        pytest.raises(
+            ConfigError, match=r"camp.yaml: line 3, column 106: nested deeper than 100 levels"
+        ),
+    ):
+        load_config(_write(tmp_path, deep))
+    # block style likewise; 100 levels are read
+    block = _VALID + "x:\n" + "".join("  " * i + "-\n" for i in range(1, 120))
+    with pytest.raises(ConfigError, match=r"line 103, .*nested deeper than 100 levels"):
+        load_config(_write(tmp_path, block))
+    ok = _VALID + "stages: {identify: {simulate_options: {x: " + "[" * 96 + "]" * 96 + "}}}\n"
+    assert load_config(_write(tmp_path, ok)).stages["identify"] is not None
+
+
+def test_a_config_that_is_a_directory_or_a_special_file_is_refused(tmp_path):
+    (tmp_path / "dir.yaml").mkdir()
+    with pytest.raises(ConfigError, match=r"dir.yaml: is a directory, not a config file"):
+        load_config(tmp_path / "dir.yaml")
+    os.mkfifo(tmp_path / "pipe.yaml")  # reading it would wait for a writer forever
+    with (
+        _deadline(5.0),
+        pytest.raises(ConfigError, match=r"pipe.yaml: is a FIFO \(named pipe\), not a config file"),
+    ):
+        load_config(tmp_path / "pipe.yaml")
+    with _deadline(5.0), pytest.raises(ConfigError, match=r"^/dev/zero: is a device"):
+        load_config("/dev/zero")
+    with pytest.raises(ConfigError, match=r"nothing.yaml: cannot read the config file \(No such"):
+        load_config(tmp_path / "nothing.yaml")
+
+
+def test_a_huge_config_or_one_holding_data_is_refused(tmp_path):
+    big = _VALID + "# " + "x" * (300 * 1024) + "\n"
+    with pytest.raises(
+        ConfigError, match=r"camp.yaml: \d+ bytes; a config file is at most 256 KiB"
+    ):
+        load_config(_write(tmp_path, big))
+    values = _VALID + "name: [" + "0, " * 6000 + "]\n"
+    with _deadline(20.0), pytest.raises(ConfigError, match=r"line 3, .*more than 5000 values"):
+        load_config(_write(tmp_path, values))
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("name: 2024-13-45\n", r"line 3, column 7: cannot read the value \(month must be in"),
+        ("seed: " + "9" * 5000 + "\n", r"line 3, column 7: cannot read the value \(Exceeds"),
+        ("? [a, b]\n: 1\n", r"line 3, column 3: a key must be a single value"),
+        ("name: !!python/object:os.system {}\n", r"line 3, column 7: not valid YAML"),
+    ],
+)
+def test_values_yaml_cannot_build_are_refused_at_their_line(tmp_path, text, expected):
+    with pytest.raises(ConfigError, match=r"camp.yaml: " + expected):
+        load_config(_write(tmp_path, _VALID + text))
+
+
+def test_imports_are_off_unless_the_config_allows_them(tmp_path):
+    assert load_config(_write(tmp_path, _VALID)).allow_imports is False
+    assert load_config(_write(tmp_path, _VALID + "allow_imports: true\n")).allow_imports is True
+    with pytest.raises(ConfigError, match=r"allow_imports: Input should be a valid boolean"):
+        load_config(_write(tmp_path, _VALID + "allow_imports: maybe\n"))
+
+
+# -- flight logs: channel maps, windows, segmentation -------------------------------------
+
+
+def _csv_flight(path: Path) -> Path:
+    t = np.arange(0.0, 2.0, 0.1)
+    rows = "\n".join(f"{ti:.1f},{0.01 * i},{0.02 * i},0.0" for i, ti in enumerate(t))
+    path.write_text("time,alpha,q,elevator\n" + rows + "\n")
+    return path
+
+
+def test_log_options_left_unset_change_no_flight_options_or_keys(tmp_path):
+    from aeroid.pipeline.config import FileFlights
+
+    _csv_flight(tmp_path / "f1.csv")
+    text = "model: short_period\nflights:\n  - {path: f1.csv, channels: {alpha: alpha, q: q, elevator: elevator}}\n"
+    cfg = load_config(_write(tmp_path, text))
+    assert FileFlights(path="x.csv").loader_options() == {}
+    load = next(t for t in plan(cfg).tasks if t.step == "load")
+    # the options a file flight contributes are the ones it sets, as before the log options
+    added = {"sample_rate", "max_gap", "window", "segments"}
+    assert not added & set(load.options) and not added & set(load.document["options"])
+    # the key is the one computed from the options that existed before
+    from aeroid.pipeline.keys import task_key
+    from aeroid.pipeline.stages import STAGES
+
+    stage = STAGES["load"]
+    old_options = {
+        "time_column": None,
+        "units": None,
+        "channels": {"alpha": "alpha", "q": "q", "elevator": "elevator"},
+    }
+    key, _ = task_key(
+        record_type=stage.record_type,
+        stage=stage.name,
+        stage_version=stage.version,
+        options=old_options,
+        upstream=load.document["upstream"],
+        model=None,
+        seed=None,
+    )
+    assert load.key == key
+
+
+@pytest.mark.parametrize(
+    ("flight", "expected"),
+    [
+        ("{path: a.ulg, window: [25.0, 23.0]}", r"flights\[0\]\.window: .*inverted"),
+        ("{path: a.ulg, sample_rate: 0}", r"flights\[0\]\.sample_rate: .*greater than 0"),
+        ("{path: a.ulg, max_gap: -1}", r"flights\[0\]\.max_gap: .*greater than 0"),
+        (
+            "{path: a.ulg, window: [1, 2], segments: {inputs: [u]}}",
+            r"flights\[0\]: .*window or segments, not both",
+        ),
+        ("{path: a.ulg, segments: {margin: 1}}", r"flights\[0\]\.segments: .*one of inputs"),
+        (
+            "{path: a.ulg, window: {mode: 1, events: [a, b]}}",
+            r"flights\[0\]\.window: .*one of mode",
+        ),
+        ("{path: a.ulg, channels: {p: {channel: x, sign: 2}}}", r"flights\[0\]\.channels\.p\.sign"),
+        (
+            "{path: a.ulg, channels: {p: {chanel: x}}}",
+            r"flights\[0\]\.channels\.p\.chanel: unknown key",
+        ),
+        ("{path: a.ulg, segments: {inputs: [u], thresold: 3}}", r"segments\.thresold: unknown key"),
+    ],
+)
+def test_log_options_are_validated_with_their_key_path(tmp_path, flight, expected):
+    with pytest.raises(ConfigError, match=expected):
+        load_config(_write(tmp_path, f"model: first_order\nflights:\n  - {flight}\n"))
+
+
+def test_one_file_with_two_windows_is_two_flights(tmp_path):
+    _csv_flight(tmp_path / "f1.csv")
+    text = (
+        "model: short_period\nflights:\n"
+        "  - {path: f1.csv, window: [0.0, 1.0]}\n"
+        "  - {path: f1.csv, window: [1.0, 1.9]}\n"
+        "  - {path: f1.csv, window: [1.0, 1.9]}\n"  # the same flight again: kept once
+    )
+    cfg = load_config(_write(tmp_path, text))
+    files = cfg.expand_files()
+    assert [spec.window for _, _, spec in files] == [(0.0, 1.0), (1.0, 1.9)]
+
+
+def test_the_px4_roll_config_plans_and_its_load_options_load_through_the_channel_map():
+    pytest.importorskip("pyulog")
+    from aeroid.channel_map import load_mapped
+
+    cfg = load_config(ROOT / "configs" / "px4_roll.yaml")
+    p = plan(cfg)
+    assert [t.step for t in p.tasks] == [
+        "load",
+        "identify",
+        "validate",
+        "report",
+        "campaign_report",
+    ]
+    (flight,) = [spec for _, _, spec in cfg.expand_files()]
+    opts = flight.loader_options()
+    assert opts == {
+        "channels": {
+            "y": {"channel": "vehicle_angular_velocity.xyz[0]", "unit": "rad/s"},
+            "u": {"channel": "actuator_controls_0.control[0]"},
+        },
+        "sample_rate": 100.0,
+        "window": [23.4, 25.0],
+    }
+    # the call the load stage makes (plain JSON options, as a task carries them)
+    data = load_mapped(cfg.resolve(flight.path), **opts)
+    assert data.names == ("y", "u") and data.n_samples == 161
+    assert data.metadata["window"]["t0"] == 23.4
+    model = resolve_model(cfg.model, cfg.base_dir)
+    assert set(model.states) == {"y"} and set(model.controls) == {"u"}
+
+
+def test_segments_of_a_config_give_the_windows_each_flight_is_made_of(tmp_path):
+    pytest.importorskip("pyulog")
+    from aeroid.channel_map import flight_windows, load_mapped
+
+    log = ROOT / "tests" / "data" / "px4" / "sample_log_small.ulg"
+    text = f"""model: first_order
+flights:
+  - path: {log}
+    channels:
+      y: {{channel: "vehicle_angular_velocity.xyz[0]", unit: rad/s}}
+      u: {{channel: "actuator_controls_0.control[0]"}}
+    sample_rate: 100
+    segments: {{inputs: [u], margin: 0.2, min_duration: 0.1, trim_window: 2.0, energy_window: 0.2}}
+"""
+    cfg = load_config(_write(tmp_path, text))
+    (flight,) = [spec for _, _, spec in cfg.expand_files()]
+    assert "segments" not in flight.loader_options()
+    # the plan-time call, then one load per window (the options of each window's flight)
+    windows = flight_windows(
+        cfg.resolve(flight.path),
+        flight.segments,
+        channels=flight.channels,
+        time_column=flight.time_column,
+    )
+    assert len(windows) == 2
+    for t0, t1 in windows:
+        data = load_mapped(
+            cfg.resolve(flight.path), **{**flight.loader_options(), "window": [t0, t1]}
+        )
+        assert data.time[0] == pytest.approx(t0) and data.names == ("y", "u")

@@ -8,6 +8,7 @@ local disk, so worker processes of an embedded cluster can share it.
 from __future__ import annotations
 
 import json
+import os
 import uuid
 from pathlib import Path
 
@@ -41,7 +42,8 @@ def test_a_url_store_round_trips_and_never_overwrites():
     with pytest.raises(StoreError, match="not an aeroid store"):
         open_store(url)
     store = ResultStore(url)
-    assert is_store(url) and type(open_store(url)) is type(store)
+    assert is_store(url) and type(open_store(url)) is type(store) is ResultStore
+    assert store.location.kind == "fsspec" and store.location.protocol == "memory"
     key = _commit(store)
     assert store.exists("identify", key)
     back = store.load(key, "identify")
@@ -99,9 +101,11 @@ def test_a_commit_is_one_object_so_an_interrupted_one_leaves_nothing(monkeypatch
     fs, base = fsspec.core.url_to_fs(url)
     task = {"n": 7}
     key = sha256_hex(canonical_json(task))
-    put = store._put  # type: ignore[attr-defined]
+    put = store._backend._put  # type: ignore[attr-defined]
     puts = []
-    monkeypatch.setattr(store, "_put", lambda files: (puts.append(list(files)), put(files)))
+    monkeypatch.setattr(
+        store._backend, "_put", lambda files: (puts.append(list(files)), put(files))
+    )
     assert store.commit("identify", key, _ident(), task=task) is True
     assert puts == [[f"{base}/identify/{key}.zarr.zip"]]  # the whole entry in one PUT
 
@@ -110,7 +114,7 @@ def test_a_commit_is_one_object_so_an_interrupted_one_leaves_nothing(monkeypatch
 
     other = {"n": 8}
     other_key = sha256_hex(canonical_json(other))
-    monkeypatch.setattr(store, "_put", killed)
+    monkeypatch.setattr(store._backend, "_put", killed)
     with pytest.raises(KeyboardInterrupt):
         store.commit("identify", other_key, _ident(), task=other)
     monkeypatch.undo()
@@ -193,5 +197,112 @@ def test_which_tasks_are_stored_takes_one_listing_per_stage_not_a_request_per_ke
     def no_requests_per_key(*args, **kwargs):
         raise AssertionError("a request per key")
 
-    monkeypatch.setattr(store._fs, "exists", no_requests_per_key)  # type: ignore[attr-defined]
+    monkeypatch.setattr(store._backend._fs, "exists", no_requests_per_key)  # type: ignore[attr-defined]
     assert store.stored(asked) == expected
+
+
+# -- a real S3 server: moto's, over HTTP, reached by s3fs ------------------------------
+
+
+@pytest.fixture(scope="module")
+def s3_endpoint():
+    """The URL of an S3-compatible server running in this process (moto's server mode)."""
+    pytest.importorskip("s3fs")
+    server_mod = pytest.importorskip("moto.server")
+    server = server_mod.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    yield f"http://{host}:{port}"
+    server.stop()
+
+
+_CREDENTIALS = {
+    "AWS_ACCESS_KEY_ID": "testing",
+    "AWS_SECRET_ACCESS_KEY": "testing",
+    "AWS_DEFAULT_REGION": "us-east-1",
+}
+
+
+@pytest.fixture
+def s3_url(s3_endpoint, monkeypatch):
+    """A fresh bucket on the server; stores reach it through fsspec's configuration, as
+    ``FSSPEC_S3_ENDPOINT_URL`` in the environment sets it."""
+    import fsspec.config
+    import s3fs
+
+    for name, value in _CREDENTIALS.items():
+        monkeypatch.setenv(name, value)
+    monkeypatch.setitem(fsspec.config.conf, "s3", {"endpoint_url": s3_endpoint})
+    bucket = f"aeroid-{uuid.uuid4().hex[:12]}"
+    s3fs.S3FileSystem(endpoint_url=s3_endpoint).mkdir(bucket)
+    return f"s3://{bucket}/store"
+
+
+@pytest.mark.slow
+def test_an_s3_store_round_trips_detects_damage_and_never_overwrites(s3_url):
+    assert not is_store(s3_url)
+    store = ResultStore(s3_url)
+    key = _commit(store)
+    assert is_store(s3_url) and store.exists("identify", key)
+    assert store.load(key, "identify").summary() == _ident().summary()
+    other = CampaignReport("t", "other", ("a",), ("flight",), (("a",),))
+    assert store.commit("identify", key, other, task={"n": 0}) is False
+    assert [(e.key, e.stage) for e in store.entries()] == [(key, "identify")]
+    assert store.find(key[:8]).path == f"{s3_url}/identify/{key}.zarr.zip"
+    assert store.check_entry("identify", key) is True and store.verify_all() == {}
+    fs, base = fsspec.core.url_to_fs(s3_url)
+    obj = f"{base}/identify/{key}.zarr.zip"
+    fs.pipe_file(obj, flip_in_place(fs.cat_file(obj), "covariance/")[0])
+    assert store.check_entry("identify", key) is False
+    assert "CRC" in store.verify_all()[key]
+    assert store.remove("identify", key) is True and list(store.entries()) == []
+
+
+@pytest.mark.slow
+def test_claims_on_an_s3_store_are_put_if_absent(s3_url):
+    store = ResultStore(s3_url)
+    key = sha256_hex(canonical_json({"n": 0}))
+    claim = store.claim("identify", key)
+    assert claim is not None and store.claim("identify", key) is None
+    assert store.wait_for("identify", key, timeout=0.05) is False
+    # a run on another host that crashed holding the claim: its lease has run out
+    fs, base = fsspec.core.url_to_fs(s3_url)
+    crashed = {"pid": 1, "host": "elsewhere", "expires": 0.0, "lease": 60.0, "token": "t"}
+    fs.pipe_file(f"{base}/identify/{key}.claim", json.dumps(crashed).encode())
+    taken = store.claim("identify", key)
+    assert taken is not None and claim.renew() is False
+    _commit(store)
+    assert store.wait_for("identify", key, timeout=5.0) is True
+    taken.release()
+    assert not fs.exists(f"{base}/identify/{key}.claim")
+
+
+@pytest.mark.slow
+def test_the_aeroid_command_on_an_s3_store(tmp_path, s3_url):
+    cfg = make_campaign(tmp_path, n=2)
+    code, out, _ = invoke("run", str(cfg), "--store", s3_url, "--json", "--workers", "0")
+    doc = json.loads(out)
+    assert code == 0 and (doc["computed"], doc["failed"]) == (5, 0)
+    code, out, _ = invoke("run", str(cfg), "--store", s3_url, "--json", "--workers", "0")
+    assert code == 0 and json.loads(out)["cached"] == 5
+    code, out, _ = invoke("verify", "--store", s3_url)
+    assert code == 0 and "5 entries checked, 0 corrupt" in out
+
+
+@pytest.mark.slow
+def test_a_fresh_process_finds_the_s3_endpoint_in_the_environment(s3_endpoint, s3_url):
+    import subprocess
+    import sys
+
+    store = ResultStore(s3_url)
+    key = _commit(store)
+    env = {**os.environ, **_CREDENTIALS, "FSSPEC_S3_ENDPOINT_URL": s3_endpoint}
+    code = (
+        "import sys; from aeroid.pipeline import open_store; "
+        "s = open_store(sys.argv[1]); print([e.key for e in s.entries()], s.verify_all())"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, s3_url], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f"[{key!r}] {{}}"

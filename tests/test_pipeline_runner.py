@@ -15,10 +15,15 @@ from test_pipeline_store import flip_a_bit
 
 from aeroid.errors import PipelineError, StoreError
 from aeroid.pipeline import ResultStore, open_store, run
+from aeroid.pipeline import _process as process_mod
+from aeroid.pipeline import execution as execution_mod
 from aeroid.pipeline import runner as runner_mod
+from aeroid.pipeline._process import start_method as _start_method
+from aeroid.pipeline.graph import segments as _segments
 from aeroid.pipeline.keys import canonical_json, sha256_hex
-from aeroid.pipeline.runner import _segments, _start_method, n_parts, plan
+from aeroid.pipeline.runner import n_parts, plan
 from aeroid.pipeline.stages import CampaignReport
+from aeroid.pipeline.store import record_cache
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -76,13 +81,13 @@ def test_the_campaign_report_takes_briefs_not_entries_and_makes_the_same_record(
     record is the one made from the store: by a rerun, or with some flights cached."""
     cfg = _config(tmp_path, n=3)
     read: list[tuple[str, int]] = []
-    getitem = runner_mod._LazyRecords.__getitem__
+    getitem = execution_mod._LazyRecords.__getitem__
 
     def spy(self, index):
         read.append((self._stage, index))
         return getitem(self, index)
 
-    monkeypatch.setattr(runner_mod._LazyRecords, "__getitem__", spy)
+    monkeypatch.setattr(execution_mod._LazyRecords, "__getitem__", spy)
     s = run(cfg, workers=0)
     assert s.failed == 0
     assert read and {i for _, i in read} == {0}
@@ -122,7 +127,7 @@ def test_chains_group_each_flights_consecutive_steps(tmp_path):
     cfg = _config(
         tmp_path,
         extra="  infer:\n    n_walkers: 8\n    n_steps: 20\n    n_ensembles: 2\n"
-        "    priors: {M_q: {normal: [-2.0, 2.0]}}\n",
+        "    parameters: {M_q: {normal: [-2.0, 2.0]}}\n",
     )
     p = plan(cfg)
     chains = _segments(p.tasks)
@@ -135,20 +140,6 @@ def test_chains_group_each_flights_consecutive_steps(tmp_path):
     assert all(split is c[0] for c, split in chains if split is not None)
     assert [t.step for t in chains[-1][0]] == ["campaign_report"]
     assert sum(len(c) for c, _ in chains) == len(p.tasks)
-
-
-def test_workers_ready_matplotlib_only_when_some_may_draw_first_at_the_end(tmp_path):
-    p = plan(_config(tmp_path))
-    # the report's detailed figures of the first flight: validation, fit, propagation
-    assert runner_mod._early_parts(p.tasks) == 3
-
-    def primed(workers: int) -> set[bool]:
-        nodes = runner_mod._nodes(p.tasks, str(tmp_path / "store"), "s", workers)
-        return {n.call.keywords["open_fonts"] for n in nodes if n.chain and n.chain[0].flight}
-
-    # each of up to three workers draws one of them while the flights run
-    assert primed(1) == primed(3) == {False}
-    assert primed(4) == {True}
 
 
 def test_worker_start_method(monkeypatch):
@@ -182,18 +173,18 @@ def test_the_record_cache_is_scoped(tmp_path):
     task = {"k": 1}
     key = sha256_hex(canonical_json(task))
     rec = CampaignReport("t", "text", ("a",), ("flight",), (("a",),))
-    runner_mod.record_cache("run-1")
+    record_cache("run-1")
     try:
         store.commit("campaign_report", key, rec, task=task)
         cached = store.load(key, "campaign_report")
         assert store.load(key, "campaign_report") is cached  # served from memory
         store.path_for("campaign_report", key).unlink()
         assert store.load(key, "campaign_report") is cached  # this run committed it
-        runner_mod.record_cache("run-2")
+        record_cache("run-2")
         with pytest.raises(StoreError, match="not in store"):
             store.load(key, "campaign_report")
     finally:
-        runner_mod.record_cache(None)
+        record_cache(None)
 
 
 def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
@@ -203,7 +194,8 @@ def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
 
     flights = tmp_path / "flights"
     flights.mkdir()
-    (flights / "f00.csv").write_text("time,elevator\n0.0,0.0\n0.1,0.0\n")  # no outputs
+    # right header (the pre-flight checks read headers only), unreadable data
+    (flights / "f00.csv").write_text("time,alpha,q,elevator\n0.0,x,0,0\n0.1,y,0,0\n")
     for i in (1, 2):
         write_flight(flights / f"f{i:02d}.csv", i)
     cfg = tmp_path / "c.yaml"
@@ -310,9 +302,9 @@ def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_obje
     assert all(w.pid != os.getpid() for w in states)
     if _start_method() == "fork":
         assert all(w.frozen > 10_000 for w in states)
-        # no BLAS threads: a forked worker that sets its own count starts them (each
-        # spinning for about 0.1 s of CPU)
-        assert [w.os_threads for w in states] == [1, 1]
+        # no BLAS threads (a forked worker that sets its own count starts them, each
+        # spinning for a while): the main thread and the one that watches the parent
+        assert [w.os_threads for w in states] == [2, 2]
     else:  # spawned workers (JAX loaded by an earlier test) share nothing
         assert all(w.frozen == 0 for w in states)
 
@@ -508,8 +500,9 @@ def test_a_store_or_report_that_cannot_be_written_is_refused_before_anything_run
     assert not list((tmp_path / "store").glob("*/*"))  # nothing computed
 
 
-def test_a_missing_flight_file_or_a_folder_fails_that_flight_only(tmp_path):
+def test_a_missing_flight_file_or_a_folder_is_refused_before_anything_runs(tmp_path):
     from aeroid.catalog import short_period_flight
+    from aeroid.errors import ConfigError
 
     d = short_period_flight(seed=1, duration=4.0)
     rows = np.column_stack([d.time, *(d[n] for n in d.names)])
@@ -519,12 +512,10 @@ def test_a_missing_flight_file_or_a_folder_fails_that_flight_only(tmp_path):
     (tmp_path / "adir").mkdir()
     cfg = tmp_path / "c.yaml"
     cfg.write_text("model: short_period\nstore: store\nflights: [ok.csv, gone.csv, adir]\n")
-    s = run(cfg, workers=0)
-    errors = {st["flight"]: st.get("error") for st in s.statuses.values() if st["step"] == "load"}
-    assert errors["ok"] is None
-    assert errors["gone"].endswith("gone.csv: no such file")
-    assert errors["adir"].endswith("adir: is a folder, not a flight file")
-    assert s.report_path is not None and s.report_path.is_file()
+    # the pre-flight checks list both, before any flight runs
+    with pytest.raises(ConfigError, match=r"(?s)flights\[1\]: no such file: .*gone.csv.*adir"):
+        run(cfg, workers=0)
+    assert not list((tmp_path / "store").glob("*/*"))
 
 
 CRASHING_MODEL = """
@@ -573,7 +564,7 @@ def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path
         "stages:\n  identify: {parameters: [M_q, M_delta]}\n  validate: {}\n"
     )
     if scheduler == "embedded":
-        s = run(cfg, workers=2)
+        s = run(cfg, workers=2, allow_imports=True)
     else:
         import logging
 
@@ -588,7 +579,7 @@ def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path
             dashboard_address=None,
             silence_logs=logging.CRITICAL,
         ) as cluster:
-            s = run(cfg, scheduler=cluster.scheduler_address)
+            s = run(cfg, scheduler=cluster.scheduler_address, allow_imports=True)
     by = {(st["step"], st["flight"]): st for st in s.statuses.values()}
     assert by[("load", "wild")]["status"] == "computed"  # stored before the worker died
     assert by[("identify", "wild")]["status"] == "failed"
@@ -606,7 +597,7 @@ def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path
     assert store.verify_all() == {} and store.temporaries() == []
 
 
-_execute_chain = runner_mod.execute_chain
+_execute_chain = execution_mod.execute_chain
 
 
 def _chain_that_fails_outside_its_tasks(tasks, *args, **kwargs):
@@ -616,7 +607,7 @@ def _chain_that_fails_outside_its_tasks(tasks, *args, **kwargs):
 
 
 def test_an_error_outside_a_chains_tasks_fails_that_flight_only(tmp_path, monkeypatch):
-    monkeypatch.setattr(runner_mod, "execute_chain", _chain_that_fails_outside_its_tasks)
+    monkeypatch.setattr(execution_mod, "execute_chain", _chain_that_fails_outside_its_tasks)
     s = run(_config(tmp_path), workers=2)
     bad = [st for st in s.statuses.values() if st["flight"] == "sim-1"]
     assert bad and all(st["status"] == "failed" for st in bad)
@@ -631,7 +622,7 @@ def test_a_pool_that_will_not_start_is_reported_not_retried_forever(tmp_path, mo
     def no_pool(n):
         raise OSError("Too many open files")
 
-    monkeypatch.setattr(runner_mod, "_process_pool", no_pool)
+    monkeypatch.setattr(process_mod, "process_pool", no_pool)
     with pytest.raises(PipelineError, match="could not run: OSError: Too many open files"):
         run(_config(tmp_path), workers=2)
 
@@ -639,7 +630,7 @@ def test_a_pool_that_will_not_start_is_reported_not_retried_forever(tmp_path, mo
 def _chain_that_notes_its_start(tasks, *args, **kwargs):
     started = time.time()
     out = _execute_chain(tasks, *args, **kwargs)
-    out[0]["started"] = started
+    out[0] = out[0].replace(warnings=(f"started {started!r}",))
     return out
 
 
@@ -647,11 +638,11 @@ def test_the_embedded_cluster_starts_the_flights_in_order_the_first_first(tmp_pa
     # the report's detailed figures wait on the first flight only: started first, they
     # are drawn while the other flights run, not alone after the last one (Dask's own
     # order for nodes that wait on nothing follows string hashes, new in each process)
-    monkeypatch.setattr(runner_mod, "execute_chain", _chain_that_notes_its_start)
+    monkeypatch.setattr(execution_mod, "execute_chain", _chain_that_notes_its_start)
     s = run(_config(tmp_path, n=8, extra="  campaign_report: {figures: false}\n"), workers=2)
     assert s.failed == 0
-    heads = [st for st in s.statuses.values() if "started" in st and st["flight"]]
-    order = [st["flight"] for st in sorted(heads, key=lambda st: st["started"])]
+    heads = [st for st in s.statuses.values() if st.warnings and st.flight]
+    order = [st.flight for st in sorted(heads, key=lambda st: float(st.warnings[0].split()[1]))]
     assert len(order) == 8
     # two workers start two flights at a time, then each the next when it is free (which
     # of them stamps its start first is a race, so a flight may be a place or two off)
@@ -660,23 +651,15 @@ def test_the_embedded_cluster_starts_the_flights_in_order_the_first_first(tmp_pa
 
 
 def test_a_run_on_worker_processes_leaves_no_thread_or_process_behind(tmp_path):
-    # the pool shuts down while the report is written and after the run returns; its
-    # closing is joined before Python's own exit hook for process pools runs (a pool
-    # thread still closing raced that hook on 3.11 and printed an ignored traceback)
+    # the pool is shut down before the run returns: nothing of it outlives the run
     import multiprocessing
     import threading
 
     before = set(threading.enumerate())
     s = run(_config(tmp_path, n=2), workers=2)
     assert s.failed == 0 and s.count("computed") > 0
-    runner_mod._closed_pools()
     assert [t for t in threading.enumerate() if t not in before] == []
     assert multiprocessing.active_children() == []
-    hooks = getattr(threading, "_threading_atexits", None)
-    if hooks is not None:  # registered after concurrent.futures' hook: runs before it
-        names = [getattr(h, "func", h) for h in hooks]
-        cf = next(i for i, f in enumerate(names) if f.__name__ == "_python_exit")
-        assert runner_mod._closed_pools in names[cf + 1 :]
 
 
 def test_a_script_that_exits_right_after_a_run_leaves_stderr_clean(tmp_path):

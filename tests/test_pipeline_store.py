@@ -215,7 +215,7 @@ def test_every_way_of_committing_never_overwrites(tmp_path, monkeypatch, system)
         ctypes.set_errno(errno.EINVAL)
         return -1
 
-    def no_links(src: object, dst: object) -> None:
+    def no_links(*args: object, **kwargs: object) -> None:
         raise OSError(errno.EPERM, "Operation not permitted")
 
     monkeypatch.setattr(store_mod, "_NOREPLACE_UNSUPPORTED", set())
@@ -471,3 +471,54 @@ def test_an_entry_is_a_valid_zip_whichever_writer_made_it(tmp_path, monkeypatch)
     # a name beyond ASCII is marked UTF-8, as zipfile expects
     with zipfile.ZipFile(io.BytesIO(store_mod._stored_zip([("α/0", b"x"), ("b", b"")]))) as z:
         assert z.testzip() is None and z.namelist() == ["α/0", "b"] and z.read("α/0") == b"x"
+
+
+def test_record_types_are_stored_under_stable_names_and_old_names_still_read(tmp_path, monkeypatch):
+    from aeroid.pipeline import codec
+
+    store = ResultStore(tmp_path / "s")
+    tree, _ = encode(_ident())
+    assert tree["__record__"] == "IdentificationResult"  # no module: moving one breaks nothing
+    assert encode(CampaignReport("t", "m", (), (), ()))[0]["__record__"] == "CampaignReport"
+    # entries written before stable names carry module:qualname; and a class that has
+    # since moved to another module is found by its public name
+    for old in ("aeroid.identification:IdentificationResult", "aeroid.gone:IdentificationResult"):
+        task = {"old": old}
+        key = sha256_hex(canonical_json(task))
+        monkeypatch.setitem(codec._NAMES, IdentificationResult, old)
+        assert store.commit("identify", key, _ident(), task=task)
+        monkeypatch.undo()
+        assert store.metadata(key)["record_type"] == old
+        assert store.verify(key) is None
+        assert store.load(key).summary() == _ident().summary()
+    tree["__record__"] = "NoSuchResult"
+    with pytest.raises(codec.UnknownRecordType, match="exports no such type"):
+        decode(tree, encode(_ident())[1])
+    tree["__record__"] = "aeroid.gone:NoSuchResult"
+    with pytest.raises(codec.UnknownRecordType, match="does not exist in this aeroid version"):
+        decode(tree, encode(_ident())[1])
+
+
+def test_registered_types_may_take_a_stable_name(monkeypatch):
+    from aeroid.pipeline import codec
+
+    monkeypatch.setattr(codec, "_REGISTRY", dict(codec._REGISTRY))
+    monkeypatch.setattr(codec, "_NAMES", dict(codec._NAMES))
+
+    @register_record(name="Thing")
+    @dataclass(frozen=True)
+    class Thing:
+        x: np.ndarray
+
+    tree, arrays = encode(Thing(np.arange(2.0)))
+    assert tree["__record__"] == "Thing"
+    assert decode(tree, arrays).x.tolist() == [0.0, 1.0]
+    tree["__record__"] = f"{Thing.__module__}:{Thing.__qualname__}"  # its qualified name too
+    assert type(decode(tree, arrays)) is Thing
+
+    @dataclass(frozen=True)
+    class Other:
+        y: int
+
+    with pytest.raises(StoreError, match="'Thing' is taken"):
+        register_record(Other, name="Thing")

@@ -19,9 +19,13 @@ def _blocks() -> list[str]:
 def test_readme_has_the_two_commands():
     text = README.read_text(encoding="utf-8")
     assert 'python3 -m pip install -e ".[all,test]" && aeroid run configs/demo.yaml' in text
-    assert 'python3 -m pip install -e ".[all,test]" && python3 -m pytest' in text
     ci = (README.parent / ".ci" / "run").read_text(encoding="utf-8")
-    assert 'python3 -m pip install -e ".[all,test]" && python3 -m pytest' in ci
+    # the README's test command is what CI runs: lint and types before the tests
+    (command,) = [line for line in ci.splitlines() if line.startswith("python3 -m pip install")]
+    assert command.startswith('python3 -m pip install -e ".[all,test]" && ')
+    assert "ruff check aeroid tests" in command and "&& mypy &&" in command
+    assert command.endswith("&& python3 -m pytest")
+    assert command in text
 
 
 def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):

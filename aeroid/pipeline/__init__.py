@@ -15,15 +15,18 @@ Numerical modules never import this package.
 from .codec import register_record
 from .config import CampaignConfig, load_config
 from .definition import Pipeline, Step, resolve_pipeline
+from .execution import TaskStatus, execute_task
 from .keys import model_fingerprint, task_key
-from .runner import Plan, RunSummary, Task, execute_task, plan, resolve_model, run
+from .planning import Plan, Task, plan, resolve_model
+from .runner import RunSummary, run
 from .stages import STAGES, CampaignReport, FlightReport, Stage, StageContext, register_stage
-from .store import Entry, ResultStore, open_store
+from .store import Claim, Entry, ResultStore, StoreLocation, open_store
 
 __all__ = [
     "STAGES",
     "CampaignConfig",
     "CampaignReport",
+    "Claim",
     "Entry",
     "FlightReport",
     "Pipeline",
@@ -33,7 +36,9 @@ __all__ = [
     "Stage",
     "StageContext",
     "Step",
+    "StoreLocation",
     "Task",
+    "TaskStatus",
     "execute_task",
     "load_config",
     "model_fingerprint",

@@ -4,15 +4,21 @@ A frozen result dataclass is encoded field by field into a JSON tree whose
 numeric arrays are replaced by references into a flat ``{name: ndarray}``
 table. Supported values: ``None``, ``bool``, ``int``, ``float`` (non-finite
 too), ``str``, numpy scalars and arrays, tuples/lists, mappings with string
-keys, and nested dataclasses. The record type is written as
-``module:qualname`` and resolved on decode only from an explicit registry or
-from dataclasses defined inside the ``aeroid`` package itself, so decoding
-never imports arbitrary code.
+keys, and nested dataclasses. The record type is written under a stable
+name, so that moving a class to another module never makes stores unreadable:
+aeroid's public record types by their class name (``"IdentificationResult"``,
+the name ``aeroid`` or ``aeroid.pipeline`` exports them under), a type given
+to `register_record` by the name it was registered with (``module:qualname``
+unless one is given). Names are resolved on decode only from the registry,
+aeroid's public names, or dataclasses defined inside the ``aeroid`` package
+itself (the ``module:qualname`` names of stores written before stable names),
+so decoding never imports arbitrary code.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import math
 import re
@@ -33,17 +39,64 @@ class UnknownRecordType(StoreError):
     """A stored record's type is not available here (not registered, or not in this version)."""
 
 
-def record_type_name(cls: type) -> str:
-    """The name a record type is stored under: ``module:qualname``."""
+def _qualified(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
-def register_record(cls: type) -> type:
-    """Allow a dataclass defined outside `aeroid` to be stored and read back (a decorator)."""
+def record_type_name(cls: type) -> str:
+    """The stable name a record type is stored under.
+
+    Its registered name; else, for aeroid's public record types, the name
+    ``aeroid`` or ``aeroid.pipeline`` exports it under; else ``module:qualname``.
+    """
+    name = _NAMES.get(cls)
+    if name is None:
+        public = _public_types().get(cls.__qualname__)
+        name = _NAMES[cls] = cls.__qualname__ if public is cls else _qualified(cls)
+    return name
+
+
+_NAMES: dict[type, str] = {}  # stored name by type, worked out once per type
+
+
+def register_record(cls: type | None = None, *, name: str | None = None) -> Any:
+    """Allow a dataclass defined outside `aeroid` to be stored and read back (a decorator).
+
+    Parameters
+    ----------
+    cls : type
+        The dataclass.
+    name : str, optional
+        The stable name it is stored under (default ``module:qualname``): give
+        one so that moving the class to another module keeps stores readable.
+        Its ``module:qualname`` is accepted on reading as well.
+    """
+    if cls is None:
+        return lambda c: register_record(c, name=name)
     if not dataclasses.is_dataclass(cls) or not isinstance(cls, type):
         raise StoreError(f"register_record: {cls!r} is not a dataclass type")
-    _REGISTRY[record_type_name(cls)] = cls
+    stable = name or _qualified(cls)
+    held = _REGISTRY.get(stable)
+    if held is not None and _qualified(held) != _qualified(cls):
+        raise StoreError(f"register_record: the name {stable!r} is taken by {_qualified(held)}")
+    _REGISTRY[stable] = _REGISTRY[_qualified(cls)] = cls
+    _NAMES[cls] = stable
     return cls
+
+
+@functools.cache
+def _public_types() -> dict[str, type]:
+    """aeroid's public dataclasses by the names its packages export them under."""
+    import aeroid
+    import aeroid.pipeline
+
+    found: dict[str, type] = {}
+    for package in (aeroid, aeroid.pipeline):
+        for attr in getattr(package, "__all__", ()):
+            obj = getattr(package, attr, None)
+            if isinstance(obj, type) and dataclasses.is_dataclass(obj) and attr == obj.__qualname__:
+                found.setdefault(attr, obj)
+    return found
 
 
 def _resolve(name: str) -> type:
@@ -60,8 +113,17 @@ _RESOLVED: dict[str, type] = {}  # aeroid's own record types, by stored name
 
 def _resolve_own(name: str) -> type:
     module, _, qualname = name.partition(":")
+    if not qualname:  # a stable name
+        public = _public_types().get(name)
+        if public is None:
+            raise UnknownRecordType(
+                f"record type {name!r} is not registered and aeroid exports no such type; "
+                "only aeroid's own result types and types passed to "
+                "aeroid.pipeline.register_record can be read"
+            )
+        return public
     top = module.split(".")[0]
-    if top != "aeroid" or not qualname or not re.fullmatch(r"[A-Za-z0-9_.]+", module + qualname):
+    if top != "aeroid" or not re.fullmatch(r"[A-Za-z0-9_.]+", module + qualname):
         raise UnknownRecordType(
             f"record type {name!r} is not registered; only aeroid's own result types and "
             "types passed to aeroid.pipeline.register_record can be read"
@@ -71,9 +133,13 @@ def _resolve_own(name: str) -> type:
         for part in qualname.split("."):
             obj = getattr(obj, part)
     except (ImportError, AttributeError):
-        raise UnknownRecordType(
-            f"record type {name!r} does not exist in this aeroid version"
-        ) from None
+        # written before stable names, by a version where the class lived elsewhere
+        moved = _public_types().get(qualname)
+        if moved is None:
+            raise UnknownRecordType(
+                f"record type {name!r} does not exist in this aeroid version"
+            ) from None
+        return moved
     if not (isinstance(obj, type) and dataclasses.is_dataclass(obj)):
         raise StoreError(f"record type {name!r} is not a dataclass")
     return obj

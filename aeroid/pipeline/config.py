@@ -8,9 +8,12 @@ Relative paths are relative to the config file.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import glob
 import math
+import os
+import stat
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -31,9 +34,12 @@ from ..errors import ConfigError
 
 __all__ = [
     "CampaignConfig",
+    "ChannelEntry",
     "FileFlights",
     "Options",
+    "SegmentSpec",
     "SimulatedFlights",
+    "WindowSpec",
     "format_validation_error",
     "load_config",
 ]
@@ -103,13 +109,134 @@ def _non_finite(value: Any, path: str = "") -> str | None:
     return None
 
 
+class ChannelEntry(Options):
+    """One model channel of a channel map: ``sign * scale * unit factor * raw + offset``."""
+
+    channel: str = Field(..., min_length=1)
+    # the channel's unit in the file, converted to SI (aeroid.channel_map.UNIT_CONVERSIONS;
+    # an unknown one is reported by the pre-flight checks with the others)
+    unit: str | None = None
+    scale: float | None = None
+    offset: float | None = None
+    sign: Literal[-1, 1] | None = None
+
+
+class WindowSpec(Options):
+    """A window found in the log: while a flight mode holds, or between two events."""
+
+    # a value of the log's mode events, or [channel or event kind, value]
+    mode: str | int | float | tuple[str, str | int | float] | None = None
+    events: tuple[str | list[str], str | list[str]] | None = None
+    # which window, when the mode or events give several
+    index: int | None = None
+
+    @model_validator(mode="after")
+    def _one_way(self) -> WindowSpec:
+        if (self.mode is None) == (self.events is None):
+            raise ValueError("give one of mode: ... and events: [start, end]")
+        return self
+
+
+class SegmentSpec(Options):
+    """Automatic segmentation (`aeroid.segment`): each window becomes a flight."""
+
+    inputs: list[Annotated[str, Field(min_length=1)]] | None = Field(None, min_length=1)
+    # a value of the log's mode events, or [channel or event kind, value]
+    mode: str | int | float | tuple[str, str | int | float] | None = None
+    events: tuple[str | list[str], str | list[str]] | None = None
+    margin: (
+        Annotated[float, Field(ge=0)]
+        | tuple[Annotated[float, Field(ge=0)], Annotated[float, Field(ge=0)]]
+        | None
+    ) = None
+    threshold: float | None = Field(None, gt=0)
+    min_duration: float | None = Field(None, ge=0)
+    merge_gap: float | None = Field(None, ge=0)
+    trim_window: float | None = Field(None, gt=0)
+    energy_window: float | None = Field(None, gt=0)
+    # noise standard deviation of the inputs (all, or per input), in their units
+    noise_floor: Annotated[float, Field(gt=0)] | dict[str, Annotated[float, Field(gt=0)]] | None = (
+        None
+    )
+
+    @model_validator(mode="after")
+    def _one_way(self) -> SegmentSpec:
+        ways = [w for w in ("inputs", "mode", "events") if getattr(self, w) is not None]
+        if len(ways) != 1:
+            raise ValueError("give one of inputs: [...], mode: ... and events: [start, end]")
+        return self
+
+
+def _tagged(member: str, mapping: str) -> Any:
+    """A union discriminator: `mapping` for a mapping (or an options model), else `member`."""
+
+    def pick(value: Any) -> str:
+        return mapping if isinstance(value, (Mapping, Options)) else member
+
+    return Discriminator(pick)
+
+
+# union tags that name a form of a value, never a key the user wrote (left out of messages)
+_UNION_TAGS = frozenset({"<names>", "<map>", "<name>", "<times>"})
+
+# a log or table channel, or a full entry (unit conversion, scale, offset, sign)
+ChannelValue = Annotated[
+    Annotated[str, Tag("<name>")] | Annotated[ChannelEntry, Tag("ChannelEntry")],
+    _tagged("<name>", "ChannelEntry"),
+]
+
+
 class FileFlights(Options):
-    """Flight files: a path or glob (CSV, Parquet, .mat) plus loader options."""
+    """Flight files: a path or glob (CSV, Parquet, .mat, flight logs) plus loader options.
+
+    The options added for logs (``sample_rate``, ``max_gap``, ``window``,
+    ``segments``, mapped ``channels``) are left out of a flight's options
+    while unset, so the keys of configs without them do not change.
+    """
 
     path: str
     time_column: str | None = None
-    channels: list[str] | dict[str, str] | None = None
+    # a list of channels, {model_name: channel} (for a table {column: name}), or
+    # {model_name: {channel: ..., unit: deg/s, scale: ..., offset: ..., sign: -1}}
+    channels: (
+        Annotated[
+            Annotated[list[str], Tag("<names>")] | Annotated[dict[str, ChannelValue], Tag("<map>")],
+            _tagged("<names>", "<map>"),
+        ]
+        | None
+    ) = None
     units: dict[str, str] | None = None
+    sample_rate: Annotated[float, Field(gt=0)] | None = None
+    max_gap: Annotated[float, Field(gt=0)] | None = None
+    # [t0, t1] seconds in the log's time, or {mode: ...} / {events: [start, end]}
+    window: (
+        Annotated[
+            Annotated[tuple[float, float], Tag("<times>")]
+            | Annotated[WindowSpec, Tag("WindowSpec")],
+            _tagged("<times>", "WindowSpec"),
+        ]
+        | None
+    ) = None
+    # each manoeuvre window found becomes a flight of its own
+    segments: SegmentSpec | None = None
+
+    @field_validator("window", mode="after")
+    @classmethod
+    def _ordered(cls, value: Any) -> Any:
+        if isinstance(value, tuple) and not value[1] > value[0]:
+            raise ValueError(f"the window [{value[0]}, {value[1]}] is inverted; need t0 < t1")
+        return value
+
+    @model_validator(mode="after")
+    def _window_or_segments(self) -> FileFlights:
+        if self.window is not None and self.segments is not None:
+            raise ValueError("give window or segments, not both")
+        return self
+
+    def loader_options(self) -> dict[str, Any]:
+        """The options as `aeroid.channel_map.load_mapped` takes them (plain JSON, unset
+        ones left out, at every depth)."""
+        return self.model_dump(mode="json", exclude={"path", "segments"}, exclude_none=True)
 
 
 class SimulatedFlights(Options):
@@ -180,6 +307,9 @@ class CampaignConfig(Options):
     report: str | None = None
     scheduler: str | None = None
     workers: int | None = Field(None, ge=0)
+    # ``package.module:attribute`` models, metrics and generators (and pipelines from
+    # installed modules) import and run code the config names: refused unless it opts in
+    allow_imports: bool = False
 
     # each stage's options are validated by the stage's own model when a plan is made
     checked_later: ClassVar[frozenset[str]] = frozenset({"stages"})
@@ -237,10 +367,12 @@ class CampaignConfig(Options):
     def expand_files(self) -> list[tuple[int, Path, FileFlights]]:
         """Every flight file named by a path or glob: (entry index, path, loader options).
 
-        Files are sorted within an entry; a file named twice is kept once.
+        Files are sorted within an entry; a file named twice with the same loader
+        options is kept once (with other options, such as another window, it is
+        another flight).
         """
         out: list[tuple[int, Path, FileFlights]] = []
-        seen: set[Path] = set()
+        seen: set[tuple[Path, str]] = set()
         for i, item in enumerate(self.flights):
             if isinstance(item, SimulatedSource):
                 continue
@@ -254,9 +386,10 @@ class CampaignConfig(Options):
                     )
             else:
                 matches = [Path(pattern)]
+            options = repr(sorted(spec.loader_options().items()))
             for m in matches:
-                if m not in seen:
-                    seen.add(m)
+                if (m, options) not in seen:
+                    seen.add((m, options))
                     out.append((i, m, spec))
         return out
 
@@ -310,7 +443,14 @@ def _union_member(model: Any, name: str) -> Any:
     tags = {"file": FileFlights, "simulated": SimulatedSource, "glob": None}
     if name in tags:
         return tags[name]
-    for cls in (FileFlights, SimulatedSource, SimulatedFlights):
+    for cls in (
+        FileFlights,
+        SimulatedSource,
+        SimulatedFlights,
+        ChannelEntry,
+        WindowSpec,
+        SegmentSpec,
+    ):
         if cls.__name__ == name:
             return cls
     return None
@@ -348,9 +488,17 @@ def _model_names() -> set[str]:
 
 
 def format_validation_error(
-    exc: ValidationError, source: str, model: type[BaseModel], prefix: Sequence[Any] = ()
+    exc: ValidationError,
+    source: str,
+    model: type[BaseModel],
+    prefix: Sequence[Any] = (),
+    written: Mapping[str, str] | None = None,
 ) -> str:
-    """One line per problem: ``file: key.path: what was expected``."""
+    """One line per problem: ``file: key.path: what was expected``.
+
+    `written` maps a top-level field to the key the config wrote for it (an
+    old name the model accepts), so the key path is the one in the file.
+    """
     lines = []
     # pydantic adds union tags and member types to locations; users never wrote them
     skip = {"glob", "file", "simulated", "str", "int", "float", "dict[str,str]", "list[str]"}
@@ -359,8 +507,13 @@ def format_validation_error(
         loc = [
             p
             for i, p in enumerate(err["loc"])
-            if not (isinstance(p, str) and (p in models or (p in skip and _is_tag(err["loc"], i))))
+            if not (
+                isinstance(p, str)
+                and (p in models or p in _UNION_TAGS or (p in skip and _is_tag(err["loc"], i)))
+            )
         ]
+        if loc and written and loc[0] in written:
+            loc[0] = written[str(loc[0])]
         path = _loc([*prefix, *loc])
         if err["type"] == "extra_forbidden":
             allowed = _allowed_keys(model, err["loc"])
@@ -369,60 +522,211 @@ def format_validation_error(
         elif err["type"] == "missing":
             msg = "required key is missing"
         else:
-            msg = f"{err['msg'].removeprefix('Value error, ')} (got {err.get('input')!r})"
+            msg = f"{err['msg'].removeprefix('Value error, ')} (got {_brief(err.get('input'))})"
+            msg += _suggestion(err)
         line = f"{source}: {path}: {msg}"
         if line not in lines:
             lines.append(line)
     return "\n".join(lines)
 
 
+def _brief(value: Any, limit: int = 120) -> str:
+    """A value's repr, cut short (a message must stay readable whatever was written)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 4] + " ..."
+
+
+def _suggestion(err: Mapping[str, Any]) -> str:
+    """'; did you mean ...?' for a literal choice written with a typo."""
+    expected = (err.get("ctx") or {}).get("expected")
+    given = err.get("input")
+    if err.get("type") != "literal_error" or not isinstance(given, str) or not expected:
+        return ""
+    choices = [c.strip().strip("'") for c in str(expected).replace(" or ", ",").split(",")]
+    close = difflib.get_close_matches(given, [c for c in choices if c], n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def validate_options(
     model: type[Options], values: Mapping[str, Any] | None, *, source: str, where: str
 ) -> Options:
-    """Validate one stage's options, with errors located at `where`."""
+    """Validate one stage's options, with errors located at `where` (under the keys as
+    written: an old name the model still accepts, its ``renamed``, stays)."""
+    given = dict(values or {})
+    renamed: Mapping[str, str] = getattr(model, "renamed", None) or {}
+    written = {new: old for old, new in renamed.items() if old in given}
     try:
-        return model.model_validate(dict(values or {}))
+        return model.model_validate(given)
     except ValidationError as exc:
         raise ConfigError(
-            format_validation_error(exc, source, model, prefix=where.split("."))
+            format_validation_error(exc, source, model, prefix=where.split("."), written=written)
         ) from None
 
 
+# A campaign config is a page or two of YAML (the demo: 3 KB, 150 values): limits far
+# above any real one, far below what would tie up a process (PyYAML, pure Python,
+# reads some ten thousand values a second)
+_MAX_CONFIG_BYTES = 256 * 1024
+_MAX_DEPTH = 100
+_MAX_NODES = 5_000
+
+
 @functools.lru_cache(maxsize=1)
-def _unique_key_loader() -> type:
+def _config_loader() -> tuple[type, type[Exception]]:
+    """The YAML loader for configs and the error it raises for a refused construct."""
     import yaml
 
+    class Refused(yaml.YAMLError):
+        """A construct a campaign config may not use, at a place in the file."""
+
+        def __init__(self, message: str, mark: Any) -> None:
+            super().__init__(message)
+            self.message = message
+            self.mark = mark
+
     class Loader(yaml.SafeLoader):
-        """YAML's safe loader, refusing a key given twice in one mapping (the last
-        would otherwise win without a word)."""
+        """YAML's safe loader for configs: a key given twice in one mapping (the last
+        would otherwise win without a word), anchors and aliases (an alias chain
+        expands exponentially: a few lines can hold a billion values) and nesting
+        deeper than `_MAX_DEPTH` are refused, each at its line."""
+
+        _depth = 0
+        _nodes = 0
+
+        def compose_node(self, parent: Any, index: Any) -> Any:
+            event = self.peek_event()
+            if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
+                raise Refused(
+                    "YAML anchors and aliases (&name, *name) are not accepted in a campaign "
+                    "config; write the values out",
+                    event.start_mark,
+                )
+            self._nodes += 1
+            if self._nodes > _MAX_NODES:
+                raise Refused(
+                    f"more than {_MAX_NODES} values; a campaign config names its data "
+                    "files, it does not hold the data",
+                    event.start_mark,
+                )
+            self._depth += 1
+            try:
+                if self._depth > _MAX_DEPTH:
+                    raise Refused(
+                        f"nested deeper than {_MAX_DEPTH} levels; a campaign config is "
+                        "never this deep",
+                        event.start_mark,
+                    )
+                return super().compose_node(parent, index)
+            finally:
+                self._depth -= 1
+
+        def construct_object(self, node: Any, deep: bool = False) -> Any:
+            try:
+                return super().construct_object(node, deep=deep)
+            except (ValueError, OverflowError, TypeError) as exc:
+                # an impossible date (2024-13-45), an integer of 5,000 digits, ...
+                raise Refused(f"cannot read the value ({exc})", node.start_mark) from None
 
         def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
             seen: set[Any] = set()
             for key_node, _ in node.value:
                 key = self.construct_object(key_node, deep=deep)
-                if key in seen:
+                try:
+                    repeated = key in seen
+                except TypeError:
+                    raise Refused(
+                        "a key must be a single value, not a list or mapping",
+                        key_node.start_mark,
+                    ) from None
+                if repeated:
                     raise yaml.constructor.ConstructorError(
                         None, None, f"the key {key!r} is given twice", key_node.start_mark
                     )
                 seen.add(key)
             return super().construct_mapping(node, deep=deep)
 
-    return Loader
+    return Loader, Refused
+
+
+def _read_config_text(path: Path, source: str) -> str:
+    """The config file's text: a regular file of at most `_MAX_CONFIG_BYTES`, UTF-8."""
+    # stat first and open without blocking: a FIFO or a device must never be read
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read the config file ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{source}: is {_file_kind(st.st_mode)}, not a config file")
+    if st.st_size > _MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{source}: {st.st_size} bytes; a config file is at most "
+            f"{_MAX_CONFIG_BYTES // 1024} KiB (is it the right file?)"
+        )
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read the config file ({exc.strerror})") from None
+    try:
+        with os.fdopen(fd, "rb") as fh:
+            # the file may have been replaced since the stat: check what was opened
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise ConfigError(f"{source}: is not a regular file, not a config file")
+            data = fh.read(_MAX_CONFIG_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read the config file ({exc.strerror})") from None
+    if len(data) > _MAX_CONFIG_BYTES:
+        raise ConfigError(f"{source}: a config file is at most {_MAX_CONFIG_BYTES // 1024} KiB")
+    return _decode_config(data, source)
+
+
+def _decode_config(data: bytes, source: str) -> str:
+    hint = ""
+    # UTF-16 (with a byte-order mark, or ASCII text with every other byte zero)
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")) or (
+        len(data) > 1 and (data[0] == 0) != (data[1] == 0)
+    ):
+        hint = "; it looks like UTF-16: save it as UTF-8"
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{source}: not UTF-8 text (undecodable byte at line {line}){hint or '; is it a binary file?'}"
+        ) from None
+    if "\x00" in text:
+        line = text[: text.index("\x00")].count("\n") + 1
+        raise ConfigError(
+            f"{source}: not UTF-8 text (a NUL byte at line {line}){hint or '; is it a binary file?'}"
+        )
+    return text
+
+
+def _file_kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a directory"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
 
 
 def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
     """Read and validate a campaign YAML file; `overrides` replace top-level keys."""
     import yaml
 
-    _UniqueKeyLoader = _unique_key_loader()
+    loader, refused = _config_loader()
     p = Path(path)
     source = str(path)
+    text = _read_config_text(p, source)
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read the config file ({exc.strerror})") from None
-    try:
-        raw = yaml.load(text, Loader=_UniqueKeyLoader)
+        raw = yaml.load(text, Loader=loader)
+    except refused as exc:
+        mark = exc.mark  # type: ignore[attr-defined]
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        raise ConfigError(f"{source}: {where}{exc.message}") from None  # type: ignore[attr-defined]
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -430,6 +734,8 @@ def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
         raise ConfigError(
             f"{source}: {where}not valid YAML ({' '.join(problem.split())})"
         ) from None
+    except RecursionError:  # the depth limit stops nesting first; this is a backstop
+        raise ConfigError(f"{source}: nested too deeply to read") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{source}: expected a mapping of keys at the top level")
     for key in ("source", "base_dir"):

@@ -11,13 +11,13 @@ input whose upstream step does not run is left out.
 from __future__ import annotations
 
 import importlib
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ._code import load_file, module_file, user_module_name
 from .stages import STAGES
 
 __all__ = ["Pipeline", "Step", "resolve_pipeline"]
@@ -88,44 +88,73 @@ class Pipeline:
         return [s for s in self.steps if not s.optional or s.name in configured]
 
 
-def _candidate_dirs(base_dir: str | None) -> list[Path]:
-    dirs: list[Path] = []
-    if base_dir:
-        here = Path(base_dir).resolve()
-        dirs += [here, *here.parents]
-    dirs.append(Path(__file__).resolve().parents[2])  # a source checkout of aeroid
-    return dirs
+def _pipeline_file(spec: str, base_dir: str | None) -> Path | None:
+    """``<name>.py`` in the config's folder or its ``pipelines/``, else in aeroid's own
+    ``pipelines/``; never in any other folder."""
+    if not spec.isidentifier():
+        return None
+    dirs = [Path(base_dir) / "pipelines", Path(base_dir)] if base_dir else []
+    dirs.append(_PACKAGE_PIPELINES)
+    for d in dirs:
+        if (d / f"{spec}.py").is_file():
+            return (d / f"{spec}.py").resolve()
+    return None
 
 
-def resolve_pipeline(spec: str, base_dir: str | None = None) -> tuple[Pipeline, dict[str, Any]]:
-    """Find a pipeline by name (``pipelines/<name>.py``) or import path ``pkg.mod:attr``.
+# the standard pipelines, installed beside the `aeroid` package
+_PACKAGE_PIPELINES = Path(__file__).resolve().parents[2] / "pipelines"
 
-    Returns the pipeline and a reference (module and search directory) that
-    worker processes use to import the same definition.
+
+def resolve_pipeline(
+    spec: str, base_dir: str | None = None, *, allow_imports: bool = False
+) -> tuple[Pipeline, dict[str, Any]]:
+    """Find a pipeline by name (``pipelines/<name>.py``) or as ``module:attribute``.
+
+    A name is looked up in the config's folder (`base_dir`) and its
+    ``pipelines/``, then in aeroid's own ``pipelines/``; ``module:attribute``
+    in the config's folder, else among installed modules, which only
+    `allow_imports` permits. Files are run by path: no folder is added to
+    `sys.path`. Returns the pipeline and a reference that worker processes use
+    to load the same definition.
     """
+    ref: dict[str, Any]
     if ":" in spec:
         module, _, attr = spec.partition(":")
-        search = str(Path(base_dir).resolve()) if base_dir else None
+        path = module_file(module, base_dir)
+        if path is None and not allow_imports:
+            raise ConfigError(
+                f"pipeline {spec!r}: no {module.replace('.', '/')}.py beside the config; "
+                "importing an installed module runs its code: allow it with "
+                "`allow_imports: true` in the config or `--allow-imports`"
+            )
+        ref = {"module": module, "attr": attr}
+        if path is not None:
+            ref["file"] = str(path)
     else:
-        module, attr, search = f"pipelines.{spec}", "pipeline", None
-        for d in _candidate_dirs(base_dir):
-            if (d / "pipelines" / f"{spec}.py").is_file():
-                search = str(d)
-                break
-    ref = {"module": module, "attr": attr, "path": search}
+        path = _pipeline_file(spec, base_dir)
+        if path is None:
+            raise ConfigError(
+                f"pipeline {spec!r}: no pipelines/{spec}.py in {base_dir or 'the config folder'} "
+                f"or in {_PACKAGE_PIPELINES}"
+            )
+        ref = {"module": f"pipelines.{spec}", "attr": "pipeline", "file": str(path)}
     return load_pipeline(ref, spec=spec), ref
 
 
 def load_pipeline(ref: Mapping[str, Any], *, spec: str | None = None) -> Pipeline:
-    """Import a pipeline from a reference made by `resolve_pipeline`."""
-    path = ref.get("path")
-    if path and path not in sys.path:
-        sys.path.insert(0, path)
+    """Load a pipeline from a reference made by `resolve_pipeline` (by file path when it
+    names a file; references stored by earlier versions name a search folder)."""
     what = spec or f"{ref['module']}:{ref['attr']}"
+    file = ref.get("file")
+    if file is None and ref.get("path"):  # stored by an earlier version
+        file = module_file(ref["module"], ref["path"])
     try:
-        mod = importlib.import_module(ref["module"])
-    except ImportError as exc:
-        raise ConfigError(f"pipeline {what!r}: cannot import {ref['module']!r} ({exc})") from None
+        if file is not None:
+            mod = load_file(Path(file), user_module_name(ref["module"]))
+        else:
+            mod = importlib.import_module(ref["module"])
+    except (ImportError, OSError) as exc:
+        raise ConfigError(f"pipeline {what!r}: cannot load {ref['module']!r} ({exc})") from None
     obj = getattr(mod, ref["attr"], None)
     if not isinstance(obj, Pipeline):
         raise ConfigError(f"pipeline {what!r}: {ref['module']}.{ref['attr']} is not a Pipeline")

@@ -41,7 +41,6 @@ from typing import Any
 
 import aeroid
 from aeroid.pipeline import run
-from aeroid.pipeline.runner import _closed_pools as closed_pools
 
 ROOT = Path(__file__).resolve().parents[2]
 CHAIN = all(hasattr(aeroid, f) for f in ("identify", "validate", "propagate", "report"))
@@ -105,14 +104,12 @@ SHM = Path("/dev/shm") if Path("/dev/shm").is_dir() and os.access("/dev/shm", os
 
 def settle() -> None:
     """Let a run's aftermath pass before the next one is timed, as it has for a fresh
-    `aeroid run`: the pool's workers exit after the run returns (the command waits for
-    them after printing its results), and OpenBLAS's threads, started again when the run
+    `aeroid run`: OpenBLAS's threads, started again when the run
     gives this process its BLAS threads back, spin for about 0.1 s before they sleep.
     The run's files are flushed to disk: otherwise the disk writes back one run's store
     (a few MB) while the next run creates its files, which on this VM's ext4 slowed file
     creation from about 25 us to 200-400 us, so runs early in a repeat were timed on a
     quiet disk and later ones on a busy one."""
-    closed_pools()
     os.sync()
     time.sleep(0.2)
 
@@ -139,7 +136,7 @@ def worker_time(cfg: Path, workers: int, base: Path) -> tuple[float, float, floa
     on the report); busy time that grows from 1 worker to 2 is the machine's: two
     processes at once run slower than one alone (the ceilings above).
     """
-    from aeroid.pipeline import runner
+    from aeroid.pipeline import execution as runner
 
     log = Path(tempfile.mkdtemp(prefix="bench-spans-", dir=base)) / "spans"
 

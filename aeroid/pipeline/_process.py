@@ -1,0 +1,144 @@
+"""The worker processes of the embedded cluster, and what a run does to its own process.
+
+Each piece is here for the reason given with it:
+
+- workers are forked on Linux: a spawned worker imports numpy, scipy and
+  aeroid afresh before its first task;
+- one BLAS thread per worker: two workers each running a multi-threaded BLAS
+  on two cores fight over them;
+- the objects that exist before a run are left out of garbage collection
+  while it runs (`FrozenHeap`);
+- a worker exits when the process that started it is gone, instead of
+  waiting for work forever after its run was killed with SIGKILL.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import importlib
+import os
+import sys
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+__all__: list[str] = []
+
+_BLAS_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "VECLIB_MAXIMUM_THREADS": "1",
+    "NUMEXPR_NUM_THREADS": "1",
+}
+
+
+def workers_default() -> int:
+    """One worker per core this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def start_method() -> str:
+    """How the embedded cluster starts its worker processes.
+
+    ``fork`` on Linux: a worker then starts with everything this process has
+    imported, instead of importing numpy, scipy and aeroid afresh, which
+    would dominate a small campaign's run. ``spawn`` elsewhere, when JAX is
+    loaded (it must not be forked), or as set by ``AEROID_START_METHOD``.
+    """
+    chosen = os.environ.get("AEROID_START_METHOD")
+    if chosen:
+        return chosen
+    if sys.platform.startswith("linux") and "jax" not in sys.modules:
+        return "fork"
+    return "spawn"
+
+
+class FrozenHeap:
+    """Leaves the objects that exist before a run out of garbage collection while it runs.
+
+    Imports leave well over 100 000 long-lived objects that a run never
+    frees, and every full collection walks them all. In forked workers the
+    walk is worse: it writes to, and so copies, every page they share with
+    this process. Frozen before the workers fork, they stay frozen there.
+    Objects someone else froze are left as they are.
+    """
+
+    def __init__(self) -> None:
+        self._ours = gc.get_freeze_count() == 0
+
+    def add(self) -> None:
+        """Freeze what exists now (called again, it adds the objects made since)."""
+        if self._ours:
+            gc.freeze()
+
+    def release(self) -> None:
+        if self._ours:
+            gc.unfreeze()
+
+
+@contextlib.contextmanager
+def blas_pinned(fork: bool) -> Iterator[None]:
+    """One BLAS/OpenMP thread in this process while it forks workers, which inherit it.
+
+    Not set in the forked workers themselves: after a fork OpenBLAS has no
+    threads, and setting its thread count starts them, each spinning before
+    it sleeps. The previous limits come back when the block ends.
+    """
+    if not fork:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    limiter = threadpool_limits(limits=1)
+    try:
+        yield
+    finally:
+        limiter.restore_original_limits()
+
+
+def preload(modules: Iterable[str]) -> None:
+    """Import `modules` before the workers fork, so they share them instead of each
+    importing them on first use."""
+    for module in dict.fromkeys(modules):
+        with contextlib.suppress(ImportError):
+            importlib.import_module(module)
+
+
+def _start_worker(parent: int, forked: bool) -> None:
+    """What each worker process does as it starts: BLAS on one thread, and an exit as
+    soon as the run that started it is gone."""
+    os.environ.update(_BLAS_ENV)  # for libraries not loaded yet, and processes it starts
+    if not forked:
+        # spawned: numpy is loaded as the worker unpickles its work, after the env
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+    if os.getppid() != parent:
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="aeroid-parent-watch", daemon=True).start()
+
+
+def process_pool(n: int) -> Any:
+    """A pool of `n` worker processes (see `start_method`)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    method = start_method()
+    return ProcessPoolExecutor(
+        n,
+        mp_context=multiprocessing.get_context(method),
+        initializer=_start_worker,
+        initargs=(os.getpid(), method == "fork"),
+    )

@@ -1,0 +1,568 @@
+"""The stages that wrap aeroid's library functions: stored inputs -> one call -> a record.
+
+Each stage imports the function it calls from its module (inside the stage,
+so that planning an unchanged campaign imports no numerics), and its options
+model holds that function's keywords: `tests/test_engine_parts.py` checks
+every field against the function's signature, except those named in
+``engine_only`` (what the engine itself uses, such as a metric's name or how
+many parallel parts to run).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+from pydantic import AliasChoices, Field, field_validator, model_validator
+
+from ..errors import AeroidError, DataFormatError, PipelineError
+from .config import Options
+from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
+
+__all__ = [
+    "METRICS",
+    "DesignOptions",
+    "FilterOptions",
+    "FrequencyOptions",
+    "IdentifyOptions",
+    "InferOptions",
+    "LoadOptions",
+    "PropagateOptions",
+    "ReportOptions",
+    "SensitivityOptions",
+    "ValidateOptions",
+    "damping_ratio",
+    "natural_frequency",
+]
+
+
+def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
+    return options.library_kwargs(exclude=exclude)
+
+
+# -- load ---------------------------------------------------------------------------
+
+
+class LoadOptions(Options):
+    """`aeroid.load_flight_test` keywords (files) or the simulated-flight spec."""
+
+    library: ClassVar[str] = "aeroid.data:load_flight_test"
+
+    time_column: str | None = None
+    channels: list[str] | dict[str, str] | None = None
+    units: dict[str, str] | None = None
+
+
+def _run_load(ctx: StageContext) -> Any:
+    from ..data import load_flight_test
+    from .keys import file_digest
+
+    src = dict(ctx.source or {})
+    if src.get("kind") == "simulated":
+        from .synthetic import fly
+
+        return fly(src["spec"])
+    path = src["path"]
+    if not Path(path).is_file():
+        why = "is a folder, not a flight file" if Path(path).is_dir() else "no such file"
+        raise DataFormatError(f"{path}: {why}")
+    try:
+        before = file_digest(path)
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    if before != src.get("sha256"):
+        raise PipelineError(f"{path}: the file changed since the run was planned")
+    opts = _kwargs(ctx.options)
+    data = load_flight_test(path, **opts)
+    if file_digest(path) != before:
+        raise PipelineError(f"{path}: the file changed while it was being read")
+    return data
+
+
+# -- identify / filter / validate ----------------------------------------------------
+
+
+class IdentifyOptions(Options):
+    """`aeroid.identify` keywords (``parameters``: names to estimate; default all)."""
+
+    parameters: list[str] | None = None
+    method: str | None = None
+    outputs: list[str] | None = None
+    x0: dict[str, float] | None = None
+    # true, or the names of the states to estimate
+    estimate_x0: bool | list[str] | None = None
+    estimate_bias: bool | list[str] | dict[str, Any] | None = None
+    weights: dict[str, float] | None = None
+    error_bars: str | None = None
+    max_iterations: int | None = Field(None, ge=1)
+    tolerance: float | None = Field(None, gt=0)
+    gradient: str | None = None
+    process_noise: dict[str, float] | None = None
+    measurement_noise: dict[str, float] | None = None
+    simulate_options: dict[str, Any] | None = None
+    # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
+    bounds: dict[str, tuple[float | None, float | None]] | None = None
+    filter_options: dict[str, Any] | None = None
+    estimate_process_noise: bool | list[str] | None = None
+    time_delays: str | list[str] | dict[str, float] | None = None
+    start: str | None = None
+
+    library: ClassVar[str] = "aeroid.identification:identify"
+    # unset, they leave the keys of results stored before they existed unchanged
+    added_later: ClassVar[frozenset[str]] = frozenset(
+        {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start"}
+    )
+
+    @field_validator("bounds", mode="after")
+    @classmethod
+    def _check_bounds(cls, value: Any) -> Any:
+        for name, (lower, upper) in (value or {}).items():
+            if lower is not None and upper is not None and not lower < upper:
+                raise ValueError(
+                    f"{name}: the lower bound {lower} must be below the upper bound {upper}"
+                )
+        return value
+
+
+def _run_identify(ctx: StageContext) -> Any:
+    from ..identification import identify
+
+    names = ctx.options.parameters or list(ctx.model.parameter_names)
+    return identify(ctx.model, ctx.inputs["data"], names, **_kwargs(ctx.options, "parameters"))
+
+
+class FilterOptions(Options):
+    """`aeroid.filter_states` keywords (both noise levels are required, as there)."""
+
+    process_noise: dict[str, float]
+    measurement_noise: dict[str, float]
+    method: str | None = None
+    smooth: bool | None = None
+
+    library: ClassVar[str] = "aeroid.filtering:filter_states"
+
+
+def _run_filter(ctx: StageContext) -> Any:
+    from ..filtering import filter_states
+
+    return filter_states(
+        ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
+    )
+
+
+class ValidateOptions(Options):
+    """`aeroid.validate` keywords."""
+
+    confidence: float | None = Field(None, gt=0, lt=1)
+    whiteness_lags: int | None = Field(None, ge=1)
+
+    library: ClassVar[str] = "aeroid.validation:validate"
+
+
+def _run_validate(ctx: StageContext) -> Any:
+    from ..validation import validate
+
+    return validate(
+        ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
+    )
+
+
+# -- propagate ------------------------------------------------------------------------
+
+
+def natural_frequency(p: Mapping[str, float]) -> float:
+    """Short-period undamped natural frequency sqrt(M_q Z_alpha - M_alpha), rad/s."""
+    return math.sqrt(p["M_q"] * p["Z_alpha"] - p["M_alpha"])
+
+
+def damping_ratio(p: Mapping[str, float]) -> float:
+    """Short-period damping ratio -(Z_alpha + M_q) / (2 omega_n)."""
+    return -(p["Z_alpha"] + p["M_q"]) / (2.0 * natural_frequency(p))
+
+
+METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
+    "natural_frequency": natural_frequency,
+    "damping_ratio": damping_ratio,
+}
+
+
+class PropagateOptions(Options):
+    """`aeroid.propagate` keywords; ``metric`` is a built-in name or ``pkg.mod:function``;
+    ``n_batches`` splits the draws into batches run in parallel (same result)."""
+
+    metric: str = "natural_frequency"
+    n_samples: int | None = Field(None, ge=1)
+    percentiles: list[float] | None = None
+    n_batches: int | None = Field(None, ge=1)
+
+    execution_only: ClassVar[frozenset[str]] = frozenset({"n_batches"})
+    library: ClassVar[str] = "aeroid.propagation:propagate"
+    engine_only: ClassVar[frozenset[str]] = frozenset({"metric", "n_batches"})
+    # names of code to import (``module:function``): only with the user's consent
+    code_fields: ClassVar[frozenset[str]] = frozenset({"metric"})
+
+
+def _metric(name: str) -> Callable[[Mapping[str, float]], float]:
+    if name in METRICS:
+        return METRICS[name]
+    if ":" not in name:
+        raise PipelineError(
+            f"propagate metric {name!r}: expected one of {sorted(METRICS)} or 'package.module:function'"
+        )
+    fn = resolve_callable(name, what="propagate metric")
+    if not callable(fn):
+        raise PipelineError(f"propagate metric {name!r} is not callable")
+    return fn
+
+
+def _run_propagate(ctx: StageContext) -> Any:
+    from ..propagation import propagate
+
+    kw = _kwargs(ctx.options, "metric", "n_batches")
+    return propagate(ctx.inputs["result"], _metric(ctx.options.metric), seed=ctx.seed_int(0), **kw)
+
+
+def _n_draws(options: Any) -> int:
+    if options.n_samples is not None:
+        return int(options.n_samples)
+    from ..propagation import propagate
+
+    return int(inspect.signature(propagate).parameters["n_samples"].default)
+
+
+def _propagate_parts(options: Any, roles: frozenset[str]) -> int:
+    return min(int(options.n_batches or 1), _n_draws(options))
+
+
+def _run_propagate_part(ctx: StageContext, index: int) -> Any:
+    from ..propagation import propagate_batch
+
+    n, k = _n_draws(ctx.options), _propagate_parts(ctx.options, frozenset(ctx.inputs))
+    start, stop = index * n // k, (index + 1) * n // k
+    metric = _metric(ctx.options.metric)
+    result = ctx.inputs["result"]
+    return propagate_batch(
+        result, metric, start=start, n_samples=stop - start, seed=ctx.seed_int(0)
+    )
+
+
+def _combine_propagate(ctx: StageContext, parts: list[Any]) -> Any:
+    from ..propagation import combine_batches
+
+    return combine_batches(parts, **_kwargs(ctx.options, "metric", "n_batches", "n_samples"))
+
+
+# -- infer ------------------------------------------------------------------------------
+
+
+class PriorSpec(Options):
+    """One prior: exactly one of normal [mu, sigma], uniform [lo, hi], log_uniform [lo, hi],
+    half_normal sigma."""
+
+    normal: tuple[float, float] | None = None
+    uniform: tuple[float, float] | None = None
+    log_uniform: tuple[float, float] | None = None
+    half_normal: float | None = None
+
+    def build(self, name: str) -> Any:
+        from ..priors import HalfNormal, LogUniform, Normal, Uniform
+
+        given = self.model_dump(exclude_none=True)
+        if len(given) != 1:
+            raise PipelineError(
+                f"prior of {name!r}: give exactly one of normal, uniform, log_uniform, half_normal"
+            )
+        kind, args = next(iter(given.items()))
+        cls: Any = {
+            "normal": Normal,
+            "uniform": Uniform,
+            "log_uniform": LogUniform,
+            "half_normal": HalfNormal,
+        }[kind]
+        return cls(*args) if isinstance(args, (tuple, list)) else cls(args)
+
+
+class InferOptions(Options):
+    """`aeroid.infer` keywords: ``parameters``, the prior of each parameter by name (once
+    called ``priors``, still accepted); ``initial``: start at the fit."""
+
+    parameters: dict[str, PriorSpec] = Field(validation_alias=AliasChoices("parameters", "priors"))
+    noise: dict[str, float] | None = None
+    n_walkers: int | None = Field(None, ge=2)
+    n_steps: int | None = Field(None, ge=1)
+    n_ensembles: int | None = Field(None, ge=1)
+    burn_in: int | None = Field(None, ge=0)
+    thin: int | None = Field(None, ge=1)
+    stretch: float | None = Field(None, gt=1)
+    move: Literal["stretch", "de"] | None = None
+
+    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
+    outputs: list[str] | None = None
+    backend: str | None = None
+    initial: bool = True
+
+    library: ClassVar[str] = "aeroid.inference:infer"
+    # `initial` here says whether to start at the fit (the library takes the fit itself)
+    engine_only: ClassVar[frozenset[str]] = frozenset({"initial"})
+    # old name -> name: accepted in configs (with a warning) and in stored tasks
+    renamed: ClassVar[dict[str, str]] = {"priors": "parameters"}
+
+    def key_document(self) -> dict[str, Any]:
+        # keyed under the old name: results stored before the rename keep their keys
+        doc = super().key_document()
+        return {("priors" if k == "parameters" else k): v for k, v in doc.items()}
+
+
+def _infer_kwargs(ctx: StageContext) -> dict[str, Any]:
+    kw = _kwargs(ctx.options, "parameters", "initial", "n_ensembles")
+    if ctx.options.initial and "initial" in ctx.inputs:
+        kw["initial"] = ctx.inputs["initial"]
+    kw["parameters"] = {name: spec.build(name) for name, spec in ctx.options.parameters.items()}
+    # ensemble e draws from SeedSequence(seed, spawn_key=(flight, 1, e))
+    kw["seed"] = ctx.seed_sequence(1)
+    return kw
+
+
+def _run_infer(ctx: StageContext) -> Any:
+    from ..inference import infer
+
+    kw = _infer_kwargs(ctx)
+    if ctx.options.n_ensembles is not None:
+        kw["n_ensembles"] = ctx.options.n_ensembles
+    return infer(ctx.model, ctx.inputs["data"], **kw)
+
+
+def _infer_parts(options: Any, roles: frozenset[str]) -> int:
+    return int(options.n_ensembles or 1)
+
+
+def _run_infer_part(ctx: StageContext, ensemble: int) -> Any:
+    from ..inference import infer_ensemble
+
+    return infer_ensemble(ctx.model, ctx.inputs["data"], ensemble=ensemble, **_infer_kwargs(ctx))
+
+
+def _combine_infer(ctx: StageContext, parts: list[Any]) -> Any:
+    from ..inference import combine_ensembles
+
+    return combine_ensembles(parts)
+
+
+# -- design -------------------------------------------------------------------------------
+
+
+class ManeuverSpec(Options):
+    """A built-in manoeuvre family: ``type`` and its constructor arguments."""
+
+    type: Literal["multisine", "doublet", "chirp"]
+    control: str
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _builds(self) -> ManeuverSpec:
+        # a missing or unknown constructor argument is a config error, found before any run
+        try:
+            self.build()
+        except (TypeError, AeroidError) as exc:
+            raise ValueError(f"options do not make a {self.type}: {exc}") from None
+        return self
+
+    def build(self) -> Any:
+        from ..maneuvers import Chirp, Doublet, Multisine
+
+        families: dict[str, Any] = {"multisine": Multisine, "doublet": Doublet, "chirp": Chirp}
+        cls = families[self.type]
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in self.options.items()}
+        return cls(self.control, **kw)
+
+
+class DesignOptions(Options):
+    """`aeroid.design_experiment` keywords (designed at the identified values)."""
+
+    maneuver: ManeuverSpec
+    parameters: list[str] | None = None
+    criterion: str | None = None
+    noise: dict[str, float] | None = None
+    duration: float | None = Field(None, gt=0)
+    sample_rate: float | None = Field(None, gt=0)
+    optimizer_options: dict[str, Any] | None = None
+
+    library: ClassVar[str] = "aeroid.design:design_experiment"
+
+
+def _run_design(ctx: StageContext) -> Any:
+    from ..design import design_experiment
+
+    names = ctx.options.parameters or list(ctx.model.parameter_names)
+    kw = _kwargs(ctx.options, "maneuver", "parameters")
+    if "values" in ctx.inputs:
+        kw["values"] = ctx.inputs["values"]
+    return design_experiment(
+        ctx.model, ctx.options.maneuver.build(), names, seed=ctx.seed_int(2), **kw
+    )
+
+
+# -- frequency response and sensitivities --------------------------------------------------------
+
+
+class FrequencyOptions(Options):
+    """`aeroid.frequency_response` keywords."""
+
+    inputs: list[str] | None = None
+    outputs: list[str] | None = None
+    nperseg: int | None = Field(None, ge=8)
+    frequency_range: tuple[float, float] | None = None
+    coherence_threshold: float | None = Field(None, ge=0, le=1)
+    model_response: str | None = None
+    min_coherent: int | None = Field(None, ge=1)
+
+    library: ClassVar[str] = "aeroid.frequency:frequency_response"
+
+
+def _run_frequency(ctx: StageContext) -> Any:
+    from ..frequency import frequency_response
+
+    return frequency_response(
+        ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
+    )
+
+
+class SensitivityOptions(Options):
+    """`aeroid.sensitivities` keywords (evaluated at the identified values when wired so)."""
+
+    parameters: list[str] | None = None
+    noise: dict[str, float] | None = None
+    outputs: list[str] | None = None
+    relative_step: float | None = Field(None, gt=0)
+
+    library: ClassVar[str] = "aeroid.sensitivity:sensitivities"
+
+
+def _run_sensitivities(ctx: StageContext) -> Any:
+    from ..sensitivity import sensitivities
+
+    kw = _kwargs(ctx.options, "parameters")
+    if "values" in ctx.inputs:
+        kw["values"] = ctx.inputs["values"]
+    return sensitivities(ctx.model, ctx.inputs["data"], ctx.options.parameters, **kw)
+
+
+# -- reports ---------------------------------------------------------------------------------
+
+
+class ReportOptions(Options):
+    """`aeroid.report` keywords for each flight's report."""
+
+    title: str | None = None
+
+    library: ClassVar[str] = "aeroid.reporting:report"
+
+
+def _run_report(ctx: StageContext) -> FlightReport:
+    from ..reporting import report
+
+    title = ctx.options.title or f"Flight {ctx.flight}"
+    extra = {
+        k: ctx.inputs[k]
+        for k in ("experiment", "inference", "frequency", "filtering")
+        if k in ctx.inputs
+    }
+    text = report(
+        ctx.inputs.get("validation"),
+        ctx.inputs.get("identification"),
+        ctx.inputs.get("propagation"),
+        title=title,
+        **extra,
+    )
+    return FlightReport(title=title, markdown=str(text))
+
+
+for _stage in (
+    Stage(
+        "load",
+        "1",
+        LoadOptions,
+        "FlightData",
+        _run_load,
+        uses_model=False,
+    ),
+    Stage(
+        "identify",
+        "2",
+        IdentifyOptions,
+        "IdentificationResult",
+        _run_identify,
+        # imported by `identify` when it runs: once before the workers fork, not in each
+        preload=("aeroid._output_error", "aeroid._filter_error"),
+    ),
+    # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state;
+    # identify 2: results name the records they were fitted to
+    Stage("filter", "2", FilterOptions, "FilterResult", _run_filter),
+    Stage(
+        "validate",
+        "1",
+        ValidateOptions,
+        "ValidationResult",
+        _run_validate,
+    ),
+    Stage(
+        "propagate",
+        "1",
+        PropagateOptions,
+        "PropagationResult",
+        _run_propagate,
+        uses_model=False,
+        seeded=True,
+        preload=("aeroid._progress",),
+        parts=_propagate_parts,
+        run_part=_run_propagate_part,
+        combine=_combine_propagate,
+    ),
+    Stage(
+        "infer",
+        "2",
+        InferOptions,
+        "InferenceResult",
+        _run_infer,
+        seeded=True,
+        preload=("aeroid._progress",),
+        parts=_infer_parts,
+        run_part=_run_infer_part,
+        combine=_combine_infer,
+    ),
+    Stage(
+        "design",
+        "1",
+        DesignOptions,
+        "ExperimentDesign",
+        _run_design,
+        seeded=True,
+        preload=("aeroid._progress",),
+    ),
+    Stage(
+        "frequency",
+        "3",  # 3: only frequencies whose coherence beats chance and that the input excites
+        FrequencyOptions,
+        "FrequencyResponseResult",
+        _run_frequency,
+    ),
+    Stage(
+        "sensitivities",
+        "2",
+        SensitivityOptions,
+        "SensitivityResult",
+        _run_sensitivities,
+    ),
+    Stage(
+        "report",
+        "2",  # 2: a section's summary no longer repeats the section heading
+        ReportOptions,
+        "FlightReport",
+        _run_report,
+        uses_model=False,
+    ),
+):
+    register_stage(_stage)

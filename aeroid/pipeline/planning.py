@@ -1,0 +1,451 @@
+"""Planning a campaign: every task and its key, computed from the config alone.
+
+`plan` turns a config into tasks whose keys are computed from keys only
+(file digests, options, model fingerprint, seeds), before anything runs;
+`resolve_model` finds the vehicle model a config names.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import AeroidError, ConfigError
+from . import _code
+from .checks import check_campaign
+from .config import CampaignConfig, SimulatedSource, load_config, validate_options
+from .definition import Pipeline, resolve_pipeline
+from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
+from .stages import STAGES
+from .store import is_url
+
+__all__ = ["BUILTIN_MODELS", "Plan", "Task", "plan", "resolve_model", "store_argument"]
+
+BUILTIN_MODELS = ("short_period", "first_order")
+
+
+@dataclass(frozen=True)
+class Task:
+    """One node of the task graph (plain data, so it travels to workers)."""
+
+    key: str
+    step: str
+    stage: str
+    flight: str | None
+    options: dict[str, Any]
+    upstream: dict[str, Any]  # role -> key (per flight) or list of keys (campaign)
+    upstream_stages: dict[str, str]  # role -> stage name of the upstream step
+    document: dict[str, Any]
+    model_ref: dict[str, Any] | None = None
+    seed: dict[str, Any] | None = None
+    source: dict[str, Any] | None = None
+    pipeline_ref: dict[str, Any] | None = None
+    flights: tuple[str, ...] = ()
+    # (campaign stage, role) of each brief of this task's result a campaign task takes
+    # (`Stage.brief`); not part of the key or of the stored task
+    briefs: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def upstream_keys(self) -> list[str]:
+        out: list[str] = []
+        for v in self.upstream.values():
+            out += list(v) if isinstance(v, list) else [v]
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "key": self.key,
+            "step": self.step,
+            "stage": self.stage,
+            "flight": self.flight,
+            "options": self.options,
+            "upstream": self.upstream,
+            "upstream_stages": self.upstream_stages,
+            "model_ref": self.model_ref,
+            "seed": self.seed,
+            "source": self.source,
+            "pipeline_ref": self.pipeline_ref,
+            "flights": list(self.flights),
+        }
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any], document: Mapping[str, Any]) -> Task:
+        return cls(
+            key=doc["key"],
+            step=doc["step"],
+            stage=doc["stage"],
+            flight=doc["flight"],
+            options=dict(doc["options"]),
+            upstream=dict(doc["upstream"]),
+            upstream_stages=dict(doc["upstream_stages"]),
+            document=dict(document),
+            model_ref=doc.get("model_ref"),
+            seed=doc.get("seed"),
+            source=doc.get("source"),
+            pipeline_ref=doc.get("pipeline_ref"),
+            flights=tuple(doc.get("flights", ())),
+        )
+
+
+@dataclass
+class Plan:
+    """Every task of a campaign, in dependency order."""
+
+    config: CampaignConfig
+    pipeline: Pipeline
+    tasks: list[Task]
+    flights: list[str]
+
+    @property
+    def report_task(self) -> Task | None:
+        last = [t for t in self.tasks if t.flight is None]
+        return last[-1] if last else None
+
+
+# -- models -----------------------------------------------------------------------------
+
+
+def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) -> Any:
+    """A model from a built-in name, ``module:attribute`` (a Model or a factory; the
+    module's file in `base_dir`, else an installed module), or a mapping that defines
+    an `aeroid.aircraft` model (see `model_from_config`). Resolved once per process."""
+    if isinstance(spec, Mapping):
+        return _model_from_mapping(canonical_json(dict(spec)).decode())
+    return _named_model(spec, base_dir)
+
+
+@functools.lru_cache(maxsize=32)
+def _model_from_mapping(text: str) -> Any:
+    from ..aircraft import model_from_config
+    from ..errors import ModelDefinitionError
+
+    try:
+        return model_from_config(json.loads(text))
+    except ModelDefinitionError as exc:
+        raise ConfigError(f"model: {exc}") from None
+
+
+@functools.lru_cache(maxsize=32)
+def _named_model(spec: str, base_dir: str | None) -> Any:
+    from ..model import Model, SimulatorModel
+
+    if ":" in spec:
+        obj = _code.resolve(spec, base_dir, what="model")
+    elif spec in BUILTIN_MODELS:
+        from .. import catalog
+
+        obj = getattr(catalog, spec)
+    else:
+        raise ConfigError(
+            f"model {spec!r}: expected a built-in model ({', '.join(BUILTIN_MODELS)}) "
+            "or 'package.module:attribute'"
+        )
+    if not isinstance(obj, (Model, SimulatorModel)) and callable(obj):
+        try:
+            obj = obj()
+        except AeroidError:
+            raise
+        except Exception as exc:
+            raise ConfigError(
+                f"model {spec!r}: calling it failed: {type(exc).__name__}: {exc}"
+            ) from None
+    if not isinstance(obj, (Model, SimulatorModel)):
+        raise ConfigError(
+            f"model {spec!r}: expected a Model (or a function returning one), got {type(obj).__name__}"
+        )
+    return obj
+
+
+_IMPORTS_REFUSED = (
+    "runs Python code from {what}: allow it with `allow_imports: true` in the config "
+    "or `--allow-imports` on the command line"
+)
+
+
+def _check_model_import(config: CampaignConfig, allowed: bool) -> None:
+    """Refuse a ``module:attribute`` model unless allowed: it imports and runs code."""
+    if not allowed and isinstance(config.model, str) and ":" in config.model:
+        module = config.model.partition(":")[0]
+        where = _code.module_file(module, config.base_dir) or f"the installed module {module!r}"
+        raise ConfigError(
+            f"{config.source}: model: {config.model!r} " + _IMPORTS_REFUSED.format(what=where)
+        )
+
+
+def _check_imports(config: CampaignConfig, options: Mapping[str, Any], allowed: bool) -> None:
+    """Refuse the ``module:attribute`` names of stage options (metrics) unless allowed:
+    each imports and runs code the config names."""
+    if allowed:
+        return
+    for step, opts in options.items():
+        for name in getattr(type(opts), "code_fields", ()):
+            value = getattr(opts, name, None)
+            if isinstance(value, str) and ":" in value:
+                what = f"the module {value.partition(':')[0]!r}"
+                raise ConfigError(
+                    f"{config.source}: stages.{step}.{name}: {value!r} "
+                    + _IMPORTS_REFUSED.format(what=what)
+                )
+
+
+def _warn_old_names(config: CampaignConfig, steps: list[Any]) -> None:
+    for step in steps:
+        renamed = getattr(STAGES[step.stage_name].options, "renamed", {})
+        for old in set(config.stages.get(step.name) or {}) & set(renamed):
+            warnings.warn(
+                f"{config.source}: stages.{step.name}.{old} is the old name of "
+                f"{renamed[old]} (the library's keyword); write {renamed[old]}",
+                FutureWarning,
+                stacklevel=3,
+            )
+
+
+# -- planning -----------------------------------------------------------------------------
+
+
+def _flight_sources(config: CampaignConfig) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """(flight name, source, loader options) for every flight, in config order."""
+    from .synthetic import flight_spec
+
+    files = config.expand_files()
+    stems = [p.stem for _, p, _ in files]
+    out: list[tuple[str, dict[str, Any], dict[str, Any]]] = []
+    for i, item in enumerate(config.flights):
+        if isinstance(item, SimulatedSource):
+            spec = item.simulated.model_dump(mode="json")
+            width = len(str(spec["n_flights"] - 1))
+            for j in range(spec["n_flights"]):
+                fs = flight_spec(spec, j)
+                digest = sha256_hex(canonical_json(fs))
+                source = {"kind": "simulated", "spec": fs, "sha256": digest}
+                out.append((f"sim-{j:0{width}d}", source, {}))
+            continue
+        for _, path, loader in (f for f in files if f[0] == i):
+            opts = loader.model_dump(mode="json", exclude={"path"})
+            name = path.stem
+            if stems.count(path.stem) > 1:
+                base = Path(config.base_dir)
+                name = str(path.relative_to(base)) if path.is_relative_to(base) else str(path)
+            try:
+                digest = file_digest(path)
+            except OSError as exc:
+                # unreadable now: the load task fails and says why; nothing is cached
+                digest = "unreadable:" + sha256_hex(f"{path}:{exc}".encode())
+            out.append((name, {"kind": "file", "path": str(path), "sha256": digest}, opts))
+    return out
+
+
+def plan(
+    config: CampaignConfig | str | Path,
+    *,
+    pipeline: Pipeline | None = None,
+    allow_imports: bool = False,
+) -> Plan:
+    """Compute every task and its key from the config alone (nothing runs).
+
+    ``module:attribute`` models and metrics import and run code: refused with a
+    `ConfigError` unless `allow_imports` or the config's ``allow_imports: true``.
+    """
+    if not isinstance(config, CampaignConfig):
+        config = load_config(config)
+    allowed = allow_imports or config.allow_imports
+    pipe_ref: dict[str, Any] | None
+    if pipeline is None:
+        pipeline, pipe_ref = resolve_pipeline(
+            config.pipeline, config.base_dir, allow_imports=allowed
+        )
+    else:
+        pipe_ref = None
+    _check_model_import(config, allowed)
+    model = resolve_model(config.model, config.base_dir)
+    # every mistake the config shows (names, files, channels), listed in one error
+    check_campaign(config, model, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+    known = {s.name for s in pipeline.steps}
+    for name in config.stages:
+        if name not in known:
+            raise ConfigError(
+                f"{config.source}: stages.{name}: unknown stage; pipeline {pipeline.name!r} has "
+                f"{', '.join(s.name for s in pipeline.steps)}"
+            )
+    steps = pipeline.enabled(config.stages)
+    enabled = {s.name for s in steps}
+    options = {
+        s.name: validate_options(
+            STAGES[s.stage_name].options,
+            config.stages.get(s.name),
+            source=config.source,
+            where=f"stages.{s.name}",
+        )
+        for s in steps
+    }
+    _warn_old_names(config, steps)
+    _check_imports(config, options, allowed)
+    fingerprint = model_fingerprint(model)
+    model_ref = {"spec": config.model, "base_dir": config.base_dir}
+    step_stage = {s.name: s.stage_name for s in steps}
+    # the same for every flight: (options as keyed, options as run)
+    documents = {
+        s.name: (options[s.name].key_document(), options[s.name].task_document()) for s in steps
+    }
+    # a load task's run options are made per flight: they add its file's loader options
+    run_options = {
+        name: _run_options(opts, how)
+        for name, (opts, how) in documents.items()
+        if step_stage[name] != "load"
+    }
+    briefs = _briefs_wanted(pipeline, enabled)
+
+    tasks: list[Task] = []
+    flights: list[str] = []
+    per_flight_keys: dict[str, dict[str, str]] = {}
+    loaded: dict[str, str] = {}  # load key -> the flight that has it
+    for name, source, loader_opts in _flight_sources(config):
+        base = name
+        k = 2
+        while name in per_flight_keys:
+            name, k = f"{base}#{k}", k + 1
+        flights.append(name)
+        keys: dict[str, str] = {}
+        flight_id: int | None = None
+        for step in (s for s in steps if s in pipeline.flight_steps):
+            stage = STAGES[step.stage_name]
+            opts, how = documents[step.name]  # `how`: with the execution-only options
+            upstream: dict[str, Any] = {}
+            if step.stage_name == "load":
+                if source["kind"] == "file":
+                    opts = {**opts, **{k: v for k, v in loader_opts.items() if v is not None}}
+                    upstream = {"file": "sha256:" + source["sha256"]}
+                else:
+                    opts = {**opts, "simulated": source["spec"]}
+                    upstream = {"simulated": "sha256:" + source["sha256"]}
+                run_opts = _run_options(opts, how)
+            else:
+                run_opts = run_options[step.name]
+            for role, up in step.inputs.items():
+                if up in enabled:
+                    upstream[role] = keys[up]
+            seed = None
+            if stage.seeded:
+                assert flight_id is not None
+                seed = {"seed": config.seed, "spawn_key": [flight_id]}
+            key, doc = task_key(
+                record_type=stage.record_type,
+                stage=stage.name,
+                stage_version=stage.version,
+                options=opts,
+                upstream=upstream,
+                model=fingerprint if stage.uses_model else None,
+                seed=seed,
+            )
+            if step.stage_name == "load":
+                flight_id = stable_int(key)
+                if key in loaded:
+                    # the same data twice would be fitted twice and listed twice
+                    what = (
+                        f"({source['path']}) has the same contents and loader options as"
+                        if source["kind"] == "file"
+                        else "is the same simulated flight as"
+                    )
+                    raise ConfigError(
+                        f"{config.source}: flights: {name!r} {what} {loaded[key]!r}; "
+                        "list each flight once"
+                    )
+                loaded[key] = name
+            keys[step.name] = key
+            tasks.append(
+                Task(
+                    key=key,
+                    step=step.name,
+                    stage=stage.name,
+                    flight=name,
+                    options=run_opts,
+                    upstream={r: v for r, v in upstream.items() if r in step.inputs},
+                    upstream_stages={
+                        r: step_stage[u] for r, u in step.inputs.items() if u in enabled
+                    },
+                    document=doc,
+                    model_ref=model_ref if stage.uses_model else None,
+                    seed=seed,
+                    source=source if step.stage_name == "load" else None,
+                    pipeline_ref=pipe_ref,
+                    briefs=briefs.get(step.name, ()),
+                )
+            )
+        per_flight_keys[name] = keys
+    for step in (s for s in steps if s in pipeline.campaign_steps):
+        stage = STAGES[step.stage_name]
+        opts = documents[step.name][0]
+        upstream = {
+            role: [per_flight_keys[f][up] for f in flights]
+            for role, up in step.inputs.items()
+            if up in enabled
+        }
+        key, doc = task_key(
+            record_type=stage.record_type,
+            stage=stage.name,
+            stage_version=stage.version,
+            options={**opts, "flights": flights},
+            upstream=upstream,
+            model=fingerprint if stage.uses_model else None,
+            seed=None,
+        )
+        tasks.append(
+            Task(
+                key=key,
+                step=step.name,
+                stage=stage.name,
+                flight=None,
+                options=run_options[step.name],
+                upstream=upstream,
+                upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in enabled},
+                document=doc,
+                model_ref=model_ref if stage.uses_model else None,
+                pipeline_ref=pipe_ref,
+                flights=tuple(flights),
+            )
+        )
+    return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
+
+
+def _run_options(opts: Mapping[str, Any], how: Mapping[str, Any]) -> dict[str, Any]:
+    """The options a task runs with, exactly as keyed (mappings in sorted order), so a
+    rerun from the stored document sees the same order as the first run."""
+    result: dict[str, Any] = json.loads(canonical_json({**how, **opts}))
+    return result
+
+
+def _briefs_wanted(pipeline: Pipeline, enabled: set[str]) -> dict[str, tuple[tuple[str, str], ...]]:
+    """Per-flight step -> the (campaign stage, role) briefs campaign steps take of its
+    results (`Stage.brief`)."""
+    wanted: dict[str, list[tuple[str, str]]] = {}
+    for step in pipeline.campaign_steps:
+        if step.name not in enabled or STAGES[step.stage_name].brief is None:
+            continue
+        for role, up in step.inputs.items():
+            if up in enabled:
+                wanted.setdefault(up, []).append((step.stage_name, role))
+    return {up: tuple(dict.fromkeys(pairs)) for up, pairs in wanted.items()}
+
+
+def store_argument(store: str | Path) -> str:
+    """A store given on the command line or to `run`: a URL as is, a folder made absolute."""
+    text = str(store)
+    if is_url(text):
+        return text
+    return str(Path(text.removeprefix("file://")).expanduser().resolve())
+
+
+def campaign_inputs(the_plan: Plan) -> list[Path]:
+    """The files a campaign reads: its config, pipeline file and flight files."""
+    out = [Path(the_plan.config.source)] if Path(the_plan.config.source).is_file() else []
+    for t in the_plan.tasks:
+        if t.source is not None and t.source.get("kind") == "file":
+            out.append(Path(t.source["path"]))
+        if t.pipeline_ref is not None and t.pipeline_ref.get("file"):
+            out.append(Path(t.pipeline_ref["file"]))
+    return list(dict.fromkeys(out))

@@ -1,0 +1,259 @@
+"""The campaign engine's parts: stage options that follow the library, configs that import
+nothing by surprise, reports that overwrite nothing of the user's, rerun on executors."""
+
+from __future__ import annotations
+
+import errno
+import importlib
+import inspect
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from aeroid.cli import main
+from aeroid.errors import ConfigError
+from aeroid.pipeline import STAGES, TaskStatus, open_store, plan, run
+from aeroid.pipeline.executors import InProcess, LocalProcesses
+from aeroid.pipeline.rerun import rerun_all
+
+ROOT = Path(__file__).resolve().parents[1]
+ENGINE = ROOT / "aeroid" / "pipeline"
+# stages whose work is the engine's own: no library function behind them
+ENGINE_STAGES = {"campaign_report"}
+
+
+def _config(tmp: Path, extra: str = "", head: str = "", n: int = 2) -> Path:
+    cfg = tmp / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nseed: 5\nstore: store\nreport: out/report.md\n"
+        + head
+        + f"flights: [{{simulated: {{n_flights: {n}, seed: 1, duration: 4.0}}}}]\n"
+        "stages:\n  identify: {parameters: [M_q, M_delta]}\n  validate: {}\n"
+        "  campaign_report: {figures: false}\n" + extra
+    )
+    return cfg
+
+
+# -- stage options follow the library's signatures ------------------------------------------
+
+
+def _library_function(spec: str):
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+@pytest.mark.parametrize("name", sorted(STAGES))
+def test_every_stage_option_is_a_keyword_of_its_library_function(name):
+    options = STAGES[name].options
+    spec = getattr(options, "library", None)
+    if name in ENGINE_STAGES:
+        assert spec is None
+        return
+    assert spec, f"{name}: its options name no library function"
+    fn = _library_function(spec)
+    params = inspect.signature(fn).parameters
+    engine_only = getattr(options, "engine_only", frozenset())
+    assert engine_only <= set(options.model_fields), engine_only
+    for field_name, info in options.model_fields.items():
+        if field_name in engine_only:
+            continue
+        assert field_name in params, f"{name}.{field_name} is not a keyword of {spec}"
+        param = params[field_name]
+        if info.is_required():
+            # required here only where the library requires it too, or takes it positionally
+            assert param.default is inspect.Parameter.empty or param.kind in (
+                inspect.Parameter.POSITIONAL_OR_KEYWORD,
+            ), f"{name}.{field_name}"
+        else:
+            # None stands for the library's own default
+            assert info.default is None or info.default == param.default, (
+                f"{name}.{field_name}: default {info.default!r}, library {param.default!r}"
+            )
+
+
+def test_identify_options_take_what_the_library_takes():
+    opts = STAGES["identify"].options
+    assert opts.model_validate({"estimate_x0": ["alpha"]}).estimate_x0 == ["alpha"]
+    assert opts.model_validate({"estimate_x0": True}).estimate_x0 is True
+    for name in ("estimate_process_noise", "filter_options"):
+        assert name in opts.model_fields
+    # unset, the new options leave keys of results stored before them unchanged
+    assert "filter_options" not in opts.model_validate({}).key_document()
+
+
+def test_infer_takes_parameters_and_priors_as_its_old_name_with_the_same_key(tmp_path):
+    old = _config(tmp_path, "  infer: {priors: {M_q: {normal: [-2.0, 2.0]}}, n_steps: 5}\n")
+    with pytest.warns(FutureWarning, match=r"stages.infer.priors is the old name of parameters"):
+        before = plan(old)
+    new_dir = tmp_path / "new"
+    new_dir.mkdir()
+    new = _config(new_dir, "  infer: {parameters: {M_q: {normal: [-2.0, 2.0]}}, n_steps: 5}\n")
+    after = plan(new)
+    assert [t.key for t in before.tasks] == [t.key for t in after.tasks]
+
+
+def test_stages_call_the_library_by_import_not_by_name():
+    for path in (ENGINE / "library_stages.py", ENGINE / "campaign_report.py"):
+        text = path.read_text(encoding="utf-8")
+        assert "getattr(aeroid" not in text and "import aeroid\n" not in text, path
+
+
+def test_engine_modules_are_small():
+    sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in ENGINE.glob("*.py")}
+    assert sizes["runner.py"] <= 400
+    own = ("planning", "execution", "executors", "graph", "campaign_report", "rerun", "stages")
+    assert all(sizes[f"{m}.py"] <= 600 for m in own), sizes
+
+
+def test_a_task_status_is_frozen_and_reads_as_the_mapping_it_replaced():
+    s = TaskStatus("k", "identify", "f1", "failed", error="boom")
+    assert s["status"] == "failed" and s.get("error") == "boom" and s.get("markdown") is None
+    assert s.get("warnings", ["none"]) == ["none"]
+    with pytest.raises(KeyError):
+        s["nothing"]
+    with pytest.raises(AttributeError):
+        s.status = "ok"  # type: ignore[misc]
+
+
+# -- configs import nothing by surprise -------------------------------------------------------
+
+MARKER_CODE = "from pathlib import Path\nPath({marker!r}).write_text('imported')\n"
+
+
+def test_a_pipeline_in_a_parent_folder_is_not_imported(tmp_path):
+    marker = tmp_path / "ran"
+    (tmp_path / "pipelines").mkdir()
+    (tmp_path / "pipelines" / "campaign.py").write_text(MARKER_CODE.format(marker=str(marker)))
+    below = tmp_path / "project"
+    below.mkdir()
+    p = plan(_config(below))
+    assert not marker.exists()
+    assert Path(p.tasks[0].pipeline_ref["file"]) == ROOT / "pipelines" / "campaign.py"
+    assert str(tmp_path) not in sys.path and str(below) not in sys.path
+
+
+def test_a_pipeline_beside_the_config_is_loaded_by_path(tmp_path):
+    (tmp_path / "pipelines").mkdir()
+    source = (ROOT / "pipelines" / "campaign.py").read_text(encoding="utf-8")
+    (tmp_path / "pipelines" / "mine.py").write_text(source.replace('"campaign"', '"mine"'))
+    p = plan(_config(tmp_path, head="pipeline: mine\n"))
+    assert p.pipeline.name == "mine"
+    assert str(tmp_path) not in sys.path and str(tmp_path / "pipelines") not in sys.path
+
+
+MODEL_CODE = "from aeroid import catalog\n\ndef build():\n    return catalog.short_period()\n"
+
+
+def test_a_module_model_runs_code_and_needs_the_users_consent(tmp_path):
+    (tmp_path / "vehicle.py").write_text(MODEL_CODE)
+    cfg = _config(tmp_path, head="")
+    cfg.write_text(cfg.read_text().replace("model: short_period", "model: vehicle:build"))
+    with pytest.raises(ConfigError, match=r"model: 'vehicle:build' runs Python code .*--allow"):
+        plan(cfg)
+    assert plan(cfg, allow_imports=True).tasks
+    metric = _config(tmp_path, "  propagate: {metric: 'os.path:getsize'}\n")
+    with pytest.raises(ConfigError, match=r"stages.propagate.metric: 'os.path:getsize' runs"):
+        plan(metric)
+
+
+def test_the_command_line_refuses_a_module_model_unless_allowed(tmp_path):
+    (tmp_path / "vehicle.py").write_text(MODEL_CODE)
+    cfg = _config(tmp_path, n=1)
+    cfg.write_text(cfg.read_text().replace("model: short_period", "model: vehicle:build"))
+    refused = CliRunner().invoke(main, ["status", str(cfg)])
+    assert refused.exit_code == 2 and "--allow-imports" in refused.output
+    allowed = CliRunner().invoke(main, ["status", str(cfg), "--allow-imports"])
+    assert allowed.exit_code == 0, allowed.output
+
+
+@pytest.mark.slow
+def test_a_dask_module_beside_the_config_does_not_replace_dask(tmp_path):
+    marker = tmp_path / "ran"
+    (tmp_path / "dask.py").write_text(MARKER_CODE.format(marker=str(marker)))
+    (tmp_path / "vehicle.py").write_text(MODEL_CODE)
+    cfg = _config(tmp_path, n=1)
+    cfg.write_text(cfg.read_text().replace("model: short_period", "model: vehicle:build"))
+    script = (
+        "import sys\nfrom aeroid.pipeline import plan\n"
+        f"plan({str(cfg)!r}, allow_imports=True)\n"
+        "import dask, dask.local\nprint(dask.__file__)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, env=env
+    )
+    assert out.returncode == 0, out.stderr
+    assert not marker.exists() and str(tmp_path) not in out.stdout
+
+
+# -- reports overwrite nothing of the user's ----------------------------------------------------
+
+
+def test_report_paths_that_would_overwrite_inputs_or_each_other_are_refused(tmp_path):
+    cfg = _config(tmp_path)
+    text = cfg.read_text()
+    cfg.write_text(text.replace("report: out/report.md", "report: out/report.html"))
+    with pytest.raises(ConfigError, match=r"report: report.html: name the Markdown report"):
+        run(cfg, workers=0)
+    cfg.write_text(text.replace("report: out/report.md", "report: c.yaml"))
+    with pytest.raises(ConfigError, match=r"c.yaml is an input of the campaign"):
+        run(cfg, workers=0)
+    cfg.write_text(text.replace("report: out/report.md\n", "name: ../elsewhere\n"))
+    with pytest.raises(ConfigError, match=r"name: '../elsewhere' names the report file"):
+        run(cfg, workers=0)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "report.md").write_text("# my own notes\n")
+    cfg.write_text(text)
+    with pytest.raises(ConfigError, match=r"report.md exists and was not written by aeroid"):
+        run(cfg, workers=0)
+    assert (tmp_path / "out" / "report.md").read_text() == "# my own notes\n"
+    assert not list((tmp_path / "store").glob("*/*"))  # nothing computed
+
+
+def test_a_report_written_by_a_run_is_rewritten_by_the_next(tmp_path):
+    cfg = _config(tmp_path, n=1)
+    first = run(cfg, workers=0)
+    assert first.report_path is not None and first.failed == 0
+    cfg.write_text(cfg.read_text().replace("  validate: {}", "  validate: {confidence: 0.9}"))
+    again = run(cfg, workers=0)
+    assert again.report_path == first.report_path and again.count("computed") > 0
+
+
+def test_a_full_disk_names_the_report_and_still_prints_the_table(tmp_path, monkeypatch):
+    from aeroid import _html
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(_html, "_atomic_write", full)
+    cfg = _config(tmp_path, n=1)
+    result = CliRunner().invoke(main, ["run", str(cfg), "--workers", "0", "--json"])
+    assert result.exit_code == 1
+    doc = json.loads(result.stdout)
+    assert doc["failed"] == 0 and doc["report"] is None
+    assert "report.md" in doc["report_error"] and "No space left" in doc["report_error"]
+    table = CliRunner().invoke(main, ["run", str(cfg), "--workers", "0"])
+    assert table.exit_code == 1 and "| flight" in table.stdout
+    assert "error: cannot write the report" in table.stderr and "report.md" in table.stderr
+
+
+# -- rerun --all on the executors of a run ------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_rerun_all_on_worker_processes_finds_every_entry_bit_identical(tmp_path):
+    cfg = _config(tmp_path, "  propagate: {n_samples: 200, n_batches: 2}\n")
+    assert run(cfg, workers=0).failed == 0
+    store = open_store(tmp_path / "store")
+    n = sum(1 for _ in store.entries())
+    seen: list[str] = []
+    local = rerun_all(store, executor=LocalProcesses(2), on_done=lambda r: seen.append(r.entry.key))
+    assert len(local) == len(seen) == n
+    assert all(r.identical and not r.failed for r in local), [r.lines for r in local]
+    one = rerun_all(store, stage="identify", executor=InProcess())
+    assert len(one) == 2 and all(r.identical for r in one)
