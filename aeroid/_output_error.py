@@ -829,6 +829,11 @@ def _colored_covariance(
         var_var += np.einsum("ij,ik,kj->j", grad, cov_x, grad)
     ok = (var > 0) & (var_var > 0)
     nu = np.where(ok, 2.0 * var**2 / np.where(ok, var_var, 1.0), np.inf)
+    # Below one degree of freedom the t quantile grows without bound (a noise model
+    # fitted to less than one correlation time, or to an output the fit leaves
+    # almost noise-free); one degree of freedom is the widest interval that still
+    # has a finite meaning.
+    nu = np.maximum(nu, 1.0)
     factor = np.where(np.isfinite(nu), stdtrit(np.where(np.isfinite(nu), nu, 1.0), 0.975), 1.96)
     factor = np.asarray(factor, dtype=np.float64) / 1.96
     return np.asarray(cov * np.outer(factor, factor), dtype=np.float64)

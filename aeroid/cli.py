@@ -139,9 +139,11 @@ def run(
                 "corrupt entries in the store: `aeroid verify --remove` removes them "
                 "and the next run recomputes them"
             )
+        elsewhere = doc["by_another_run"]
+        by_another = f"{elsewhere} computed by another run, " if elsewhere else ""
         click.echo(
-            f"{doc['computed']} computed, {doc['cached']} cached, {doc['failed']} failed "
-            f"in {summary.seconds['total']:.1f} s"
+            f"{doc['computed']} computed, {doc['cached']} cached, {by_another}"
+            f"{doc['failed']} failed in {summary.seconds['total']:.1f} s"
         )
         if doc["report"]:
             click.echo(f"report: {doc['report']}")
@@ -351,10 +353,16 @@ def rerun(
 )
 def verify(config: str | None, store: str | None, as_json: bool, remove: bool) -> None:
     """Check every entry's digests; list corrupt entries (exit 1 if any)."""
+    from .errors import AeroidError
+
     st = _open_store(config, store)
-    n = sum(1 for _ in st.entries())
-    bad = st.verify_all()
-    removed = [key for key in bad if remove and st.remove(st.find(key).stage, key)]
+    try:
+        n = sum(1 for _ in st.entries())
+        bad = st.verify_all()
+        removed = [key for key in bad if remove and st.remove(st.find(key).stage, key)]
+    except AeroidError as exc:  # a linked folder in the store, a read-only store
+        _fail(str(exc), 1)
+        return
     if as_json:
         doc: dict[str, object] = {"entries": n, "corrupt": bad}
         if remove:
@@ -375,8 +383,14 @@ def verify(config: str | None, store: str | None, as_json: bool, remove: bool) -
 @_store_options
 def gc(config: str | None, store: str | None) -> None:
     """Remove temporaries left by crashed runs."""
+    from .errors import AeroidError
+
     st = _open_store(config, store)
-    removed = st.gc()
+    try:
+        removed = st.gc()
+    except AeroidError as exc:  # a linked folder in the store, a read-only store
+        _fail(str(exc), 1)
+        return
     for path in removed:
         click.echo(f"removed {path}")
     click.echo(f"{len(removed)} temporaries removed")

@@ -64,6 +64,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _compiled
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, plain, whole_number
@@ -669,6 +670,49 @@ def _input_noise(
     return out
 
 
+def _difference_response(
+    model: Any,
+    t: FloatArray,
+    controls: FloatArray,
+    noise: FloatArray,
+    theta: FloatArray,
+    x0: FloatArray,
+    names: list[str],
+    x_idx: list[int],
+    out_idx: list[int],
+    weight: FloatArray,
+    substeps: int,
+) -> tuple[FloatArray, FloatArray | None]:
+    """Weighted output sensitivities by forward differences and the draws' output changes.
+
+    One simulated batch: the fitted point, a forward difference in every estimated
+    parameter and initial state (accurate to about the step, a millionth: ample for an
+    error bar), then the draws of input noise. None for the changes when a member fails.
+    """
+    n_p = len(names)
+    n_draws = noise.shape[0]
+    cols = n_p + len(x_idx)
+    steps = np.empty(cols)
+    steps[:n_p] = 1e-6 * np.maximum(np.abs(theta), 1e-3)
+    steps[n_p:] = 1e-6 * np.maximum(np.abs(x0[x_idx]), 1.0)
+    batch = 1 + cols + n_draws
+    P = {n: np.full(batch, theta[j]) for j, n in enumerate(names)}
+    X0 = np.repeat(x0[None, :], batch, axis=0)
+    for j in range(cols):
+        if j < n_p:
+            P[names[j]][1 + j] += steps[j]
+        else:
+            X0[1 + j, x_idx[j - n_p]] += steps[j]
+    U = np.repeat(controls[None], batch, axis=0)
+    U[1 + cols :] += noise
+    sim = model.simulate_batch(t, U, X0, P, method="rk4", substeps=substeps)
+    if not np.all(sim.ok):
+        return np.zeros((cols, 0)), None
+    y = np.asarray(sim.outputs)[:, :, out_idx] * weight[None, None, :]
+    jw = ((y[1 : 1 + cols] - y[:1]) / steps[:, None, None]).reshape(cols, -1)
+    return jw, y[1 + cols :] - y[:1]
+
+
 def _input_noise_covariance(
     model: Any,
     t: FloatArray,
@@ -690,32 +734,35 @@ def _input_noise_covariance(
         return np.zeros((n_p, n_p))
     theta = np.array([fit.parameters[n] for n in names])
     x0 = np.array([fit.initial_states[0][s] for s in STATES])
-    cols = n_p + len(free_x0)
-    # One batch: the fitted point, a forward difference in every estimated parameter and
-    # initial state (accurate to about the step, a millionth: ample for an error bar),
-    # then the draws of input noise.
-    steps = np.empty(cols)
-    steps[:n_p] = 1e-6 * np.maximum(np.abs(theta), 1e-3)
     x_idx = [STATES.index(s) for s in free_x0]
-    steps[n_p:] = 1e-6 * np.maximum(np.abs(x0[x_idx]), 1.0)
-    batch = 1 + cols + n_draws
-    P = {n: np.full(batch, theta[j]) for j, n in enumerate(names)}
-    X0 = np.repeat(x0[None, :], batch, axis=0)
-    for j in range(cols):
-        if j < n_p:
-            P[names[j]][1 + j] += steps[j]
-        else:
-            X0[1 + j, x_idx[j - n_p]] += steps[j]
-    rng = np.random.default_rng(seed)
-    U = np.repeat(controls[None], batch, axis=0)
-    U[1 + cols :] += rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
-    sim = model.simulate_batch(t, U, X0, P, method="rk4", substeps=substeps)
-    if not np.all(sim.ok):
-        return np.zeros((n_p, n_p))
     weight = 1.0 / np.sqrt(np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None))
-    y = sim.outputs[:, :, out_idx] * weight[None, None, :]
-    jw = ((y[1 : 1 + cols] - y[:1]) / steps[:, None, None]).reshape(cols, -1)
-    dy = y[1 + cols :] - y[:1]
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
+    # Compiled: the exact output sensitivities at the fitted point, then one batch of the
+    # fitted point and the draws of input noise.
+    params = dict(model.parameters)
+    params.update(zip(names, theta.tolist(), strict=True))
+    options = {"method": "rk4", "substeps": substeps}
+    sens = _compiled.output_sensitivities(
+        model, t, controls, x0, params, names, x_idx, options, probe=False
+    )
+    if sens is not None:
+        U = np.concatenate([controls[None], controls[None] + noise], axis=0)
+        X0 = np.repeat(x0[None, :], 1 + n_draws, axis=0)
+        outs = _compiled.batch_outputs(model, t, U, X0, params, substeps)
+        if outs is None or not (np.all(np.isfinite(outs)) and np.all(np.isfinite(sens[1]))):
+            return np.zeros((n_p, n_p))
+        y = outs[:, :, out_idx] * weight[None, None, :]
+        jac = sens[1][:, out_idx, :] * weight[None, :, None]  # (n_t, n_y, cols)
+        jw = np.ascontiguousarray(np.moveaxis(jac, 2, 0)).reshape(jac.shape[2], -1)
+        dy = y[1:] - y[:1]
+    else:
+        jw, dy_or_none = _difference_response(
+            model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
+        )
+        if dy_or_none is None:
+            return np.zeros((n_p, n_p))
+        dy = dy_or_none
     info = jw @ jw.T
     shifts = np.linalg.lstsq(info, jw @ dy.reshape(n_draws, -1).T, rcond=1e-12)[0]
     cov = shifts @ shifts.T / n_draws

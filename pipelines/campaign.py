@@ -2,6 +2,10 @@
 
 Per flight::
 
+    load -> compatibility (optional; sensor errors removed, the flight path reconstructed:
+                           identify, validate, regress, frequency_id and
+                           frequency_identify then use its corrected data)
+         -> regress   (optional; equation-error / stepwise regression, reported)
     load -> identify -> filter    (optional)
                      -> validate
                      -> propagate (optional; a metric of the identified parameters)
@@ -10,6 +14,10 @@ Per flight::
                      -> frequency (optional; empirical vs model transfer functions)
                      -> sensitivities (optional; Fisher information, Cramér-Rao bounds)
                      -> report    (the flight's engineering report)
+    load -> frequency_id (optional; composite frequency responses, several windows)
+                -> transfer_function  (optional; a fitted transfer function)
+                -> handling_qualities (optional; bandwidth, equivalent system, margins)
+         -> frequency_identify (optional; frequency-domain output/equation error)
 
 then one campaign report over every flight. Each ``Step`` runs a stage from
 `aeroid.pipeline.stages` and maps the stage's input roles to earlier steps;
@@ -24,14 +32,30 @@ pipeline = Pipeline(
     name="campaign",
     flight_steps=(
         Step("load"),
-        Step("identify", inputs={"data": "load"}),
+        # data compatibility (flight-path reconstruction): when it runs, `corrected` makes
+        # the steps that read it (identify, validate, regress, frequency_id,
+        # frequency_identify) use its data instead of the loaded data
+        Step("compatibility", inputs={"data": "load"}, optional=True),
+        Step("regress", inputs={"data": "load", "corrected": "compatibility"}, optional=True),
+        Step("identify", inputs={"data": "load", "corrected": "compatibility"}),
         Step("filter", inputs={"data": "load", "parameters": "identify"}, optional=True),
-        Step("validate", inputs={"data": "load", "parameters": "identify"}),
+        Step(
+            "validate",
+            inputs={"data": "load", "corrected": "compatibility", "parameters": "identify"},
+        ),
         Step("propagate", inputs={"result": "identify"}, optional=True),
         Step("infer", inputs={"data": "load", "initial": "identify"}, optional=True),
         Step("design", inputs={"values": "identify"}, optional=True),
         Step("frequency", inputs={"data": "load", "parameters": "identify"}, optional=True),
         Step("sensitivities", inputs={"data": "load", "values": "identify"}, optional=True),
+        Step("frequency_id", inputs={"data": "load", "corrected": "compatibility"}, optional=True),
+        Step("transfer_function", inputs={"response": "frequency_id"}, optional=True),
+        Step(
+            "frequency_identify",
+            inputs={"data": "load", "corrected": "compatibility"},
+            optional=True,
+        ),
+        Step("handling_qualities", inputs={"response": "frequency_id"}, optional=True),
         Step(
             "report",
             inputs={
@@ -42,6 +66,12 @@ pipeline = Pipeline(
                 "inference": "infer",
                 "experiment": "design",
                 "frequency": "frequency",
+                "compatibility": "compatibility",
+                "regression": "regress",
+                "composite_response": "frequency_id",
+                "transfer_function": "transfer_function",
+                "frequency_domain": "frequency_identify",
+                "handling_qualities": "handling_qualities",
             },
         ),
     ),

@@ -282,6 +282,8 @@ def test_compiled_simulation_agrees_with_numpy():
         _compiled.ENABLED = False
     for n in names:
         assert abs(fast.parameters[n] - plain.parameters[n]) < 1e-3 * plain.stderr[n], n
+        # the input-noise share: exact sensitivities there, forward differences here
+        assert abs(fast.stderr[n] - plain.stderr[n]) < 1e-4 * plain.stderr[n], n
 
 
 # -- bad input -------------------------------------------------------------------------

@@ -106,8 +106,9 @@ def test_stages_call_the_library_by_import_not_by_name():
 def test_engine_modules_are_small():
     sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in ENGINE.glob("*.py")}
     assert sizes["runner.py"] <= 400
-    own = ("planning", "execution", "executors", "graph", "campaign_report", "rerun", "stages")
-    assert all(sizes[f"{m}.py"] <= 600 for m in own), sizes
+    # every module of the engine, the store's and the checks' pieces included
+    assert len(sizes) >= 25, sizes
+    assert {name: n for name, n in sizes.items() if n > 600} == {}
 
 
 def test_a_task_status_is_frozen_and_reads_as_the_mapping_it_replaced():

@@ -67,7 +67,7 @@ def test_planning_a_campaign_loads_no_solver():
     # what an unchanged rerun, `aeroid status` and `aeroid verify` do before any task
     from pathlib import Path
 
-    demo = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
+    demo = Path(__file__).resolve().parents[1] / "configs" / "short_period.yaml"
     code = (
         "import sys\n"
         "from aeroid.pipeline import plan\n"

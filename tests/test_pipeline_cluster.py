@@ -124,13 +124,13 @@ def _user_campaign(tmp: Path) -> Path:
 
 
 def _demo_campaign(tmp: Path) -> Path:
-    text = (ROOT / "configs" / "demo.yaml").read_text()
+    text = (ROOT / "configs" / "short_period.yaml").read_text()
     cfg = tmp / "demo.yaml"
     # same campaign, fewer flights; the store and report are given per run
     text = text.replace("n_flights: 12", "n_flights: 4").replace(
         "store: ../aeroid-store", "store: store"
     )
-    text = text.replace("report: ../reports/demo.md", "")
+    text = text.replace("report: ../reports/short_period.md   # the campaign report", "")
     # a short chain (unconverged, and warned about) keeps the test quick
     text = text.replace("n_steps: 2400", "n_steps: 200")
     for stage in ("infer", "design", "filter"):

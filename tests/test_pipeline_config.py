@@ -42,7 +42,7 @@ def test_minimal_config_and_relative_paths(tmp_path):
         ),
         (
             "model: short_period\nflights: [{path: a.csv, tim_column: t}]\n",
-            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: channels, max_gap, path, sample_rate, segments, time_column, units, window",
+            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: channels, condition, max_gap, model, path, sample_rate, segments, time_column, units, window",
         ),
         (
             "model: short_period\nflights: [{simulated: {n_flights: 0}}]\n",
@@ -82,7 +82,8 @@ def test_stage_options_are_validated_with_their_key_path(tmp_path):
         "model: short_period\nflights: [{simulated: {n_flights: 2}}]\nstages: {identfy: {}}\n",
     )
     with pytest.raises(
-        ConfigError, match=r"stages.identfy: unknown stage; pipeline 'campaign' has load, identify"
+        ConfigError,
+        match=r"stages.identfy: unknown stage; pipeline 'campaign' has load, .*identify",
     ):
         plan(p)
     p = _write(
@@ -124,10 +125,20 @@ def test_models_by_builtin_name_and_import_path(tmp_path):
 
 
 def test_the_demo_config_is_valid_and_plans_every_stage():
-    the_plan = plan(ROOT / "configs" / "demo.yaml")
+    the_plan = plan(ROOT / "configs" / "short_period.yaml")
     steps = {t.step for t in the_plan.tasks}
     assert {"load", "identify", "validate", "propagate", "report", "campaign_report"} <= steps
     assert len(the_plan.flights) >= 12
+
+
+def test_the_jsbsim_demo_plans_each_flight_with_its_own_trim_model():
+    the_plan = plan(ROOT / "configs" / "demo.yaml")
+    assert len(the_plan.flights) == 6
+    identify = [t for t in the_plan.tasks if t.step == "identify"]
+    # each flight is fitted with the model at its own trim: six model fingerprints
+    assert len({repr(t.document["model"]) for t in identify}) == 6
+    steps = {t.step for t in the_plan.tasks}
+    assert {"load", "identify", "filter", "validate", "propagate", "report"} <= steps
 
 
 def test_simulated_flights_fly_a_doublet_or_a_doublet_and_a_sweep():

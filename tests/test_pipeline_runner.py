@@ -44,24 +44,22 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     p = plan(cfg)
     report = p.report_task
     assert report is not None
-    # the trend in two halves, text, and one figure per per-flight result it receives
-    assert n_parts(report) == 3 + 3  # validation, identification, propagation
+    # the trend in two halves, text, and eight parts drawing every eighth flight's figures
+    assert n_parts(report) == 3 + 8
     s = run(cfg, workers=0)
     assert s.failed == 0
     rec = open_store(tmp_path / "store").load(report.key, "campaign_report")
     assert isinstance(rec, CampaignReport)
     assert rec.figure_titles == (
-        "campaign: estimates across flights (Z_alpha, M_alpha)",
-        "campaign: estimates across flights (M_q, M_delta)",
-        "sim-0: time histories",
-        "sim-0: fit residuals",
-        "sim-0: propagation",
+        "campaign_trend_0.png",
+        "campaign_trend_1.png",
+        *(f"sim-{i}_{f}.png" for i in range(3) for f in ("time_histories", "identification")),
     )
     for png in rec.figures:
         assert png.dtype == np.uint8 and not png.flags.writeable
         assert png[:8].tobytes() == PNG
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
-    assert html.count("data:image/png;base64,") == 5
+    assert html.count("data:image/png;base64,") == 2 + 3 * 2
     assert f"aeroid campaign report {report.key}" in html
     # the text written by its own part is the text of the unsplit report
     plain_dir = tmp_path / "plain"
@@ -70,15 +68,23 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     run(plain, workers=0)
     key = plan(plain).report_task.key
     unsplit = open_store(plain_dir / "store").load(key, "campaign_report")
-    assert unsplit.markdown == rec.markdown and unsplit.rows == rec.rows
+
+    def text(markdown: str) -> list[str]:  # without the figures' links
+        return [
+            ln
+            for ln in markdown.splitlines()
+            if ln and not ln.startswith("![") and ln != "### Figures"
+        ]
+
+    assert text(unsplit.markdown) == text(rec.markdown) and unsplit.rows == rec.rows
 
 
 def test_the_campaign_report_takes_briefs_not_entries_and_makes_the_same_record(
     tmp_path, monkeypatch
 ):
     """Each flight's task hands the campaign report what it uses of its result; the
-    report then reads only the first flight's entries (its detailed figures), and the
-    record is the one made from the store: by a rerun, or with some flights cached."""
+    report then reads entries only to draw each flight's figures, and the record is
+    the one made from the store: by a rerun, or with some flights cached."""
     cfg = _config(tmp_path, n=3)
     read: list[tuple[str, int]] = []
     getitem = execution_mod._LazyRecords.__getitem__
@@ -90,7 +96,8 @@ def test_the_campaign_report_takes_briefs_not_entries_and_makes_the_same_record(
     monkeypatch.setattr(execution_mod._LazyRecords, "__getitem__", spy)
     s = run(cfg, workers=0)
     assert s.failed == 0
-    assert read and {i for _, i in read} == {0}
+    assert read and {i for _, i in read} == {0, 1, 2}
+    assert {st for st, _ in read} <= {"load", "identify", "validate"}  # the figures' inputs
     by_step = {}
     for st in s.statuses.values():
         by_step.setdefault(st["step"], []).append(sorted(st.get("briefs", {})))
@@ -207,10 +214,11 @@ def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
     s = run(cfg, workers=0)
     assert s.failed > 0  # f00's chain; the report is written, never cached
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
-    assert "f01: time histories" in html and "f01: fit residuals" in html
-    assert "f00: time histories" not in html
-    assert html.count("data:image/png;base64,") == 4  # and the trend's two halves
-    assert "(M_alpha, M_q)" in html and "(M_delta)" in html
+    assert "f01: measured and model outputs" in html and "f01: residuals" in html
+    assert "f02: measured and model outputs" in html
+    assert "f00: measured and model outputs" not in html
+    assert html.count("data:image/png;base64,") == 2 + 2 * 2  # and the trend's two halves
+    assert "estimates across flights (1)" in html and "estimates across flights (2)" in html
 
 
 def test_an_unchanged_rerun_draws_nothing_and_does_not_import_matplotlib(tmp_path):
@@ -303,8 +311,9 @@ def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_obje
     if _start_method() == "fork":
         assert all(w.frozen > 10_000 for w in states)
         # no BLAS threads (a forked worker that sets its own count starts them, each
-        # spinning for a while): the main thread and the one that watches the parent
-        assert [w.os_threads for w in states] == [2, 2]
+        # spinning for a while): the main thread, the one that watches the parent and
+        # the one that renews the task's claim on the store while it computes
+        assert [w.os_threads for w in states] == [3, 3]
     else:  # spawned workers (JAX loaded by an earlier test) share nothing
         assert all(w.frozen == 0 for w in states)
 
@@ -588,6 +597,7 @@ def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path
     if scheduler == "embedded":
         # the other flight, stopped with the pool, was run again alone and is intact (Dask's
         # own cluster may kill a task queued beside the crash: it fails the same way)
+        # (what its first worker committed before the pool stopped: computed by this run)
         assert all(st["status"] == "computed" for (_, f), st in by.items() if f == "good")
     # the campaign report is written whatever died
     report = next(st for st in s.statuses.values() if st["step"] == "campaign_report")

@@ -209,7 +209,7 @@ def test_every_way_of_committing_never_overwrites(tmp_path, monkeypatch, system)
     import ctypes
     import errno
 
-    from aeroid.pipeline import store as store_mod
+    from aeroid.pipeline import _store_paths as store_mod
 
     def refused(*args: object) -> int:
         ctypes.set_errno(errno.EINVAL)
@@ -446,7 +446,7 @@ def test_entries_are_plain_zarr_v3_that_zarr_python_reads(tmp_path):
 def test_an_entry_is_a_valid_zip_whichever_writer_made_it(tmp_path, monkeypatch):
     """The store's own zip writer and zipfile's (used past 2 GiB, for Zip64) make entries
     that zipfile reads member for member, checksums included, and that load the same."""
-    from aeroid.pipeline import store as store_mod
+    from aeroid.pipeline import _zipentry as store_mod
 
     record = Everything(
         **{**_everything().__dict__, "arrays": {"x": np.arange(3.0), "é": np.eye(2)}}

@@ -302,9 +302,10 @@ def test_a_yaml_alias_bomb_is_refused_fast(tmp_path):
 # -- whole campaigns ---------------------------------------------------------------------------
 
 
-def test_the_demo_config_passes():
-    preflight(ROOT / "configs" / "demo.yaml")
-    cfg = load_config(ROOT / "configs" / "demo.yaml")
+@pytest.mark.parametrize("name", ["demo.yaml", "short_period.yaml"])
+def test_the_demo_configs_pass(name):
+    preflight(ROOT / "configs" / name)
+    cfg = load_config(ROOT / "configs" / name)
     pipeline, _ = resolve_pipeline(cfg.pipeline, cfg.base_dir)
     check_campaign(cfg, resolve_model(cfg.model), pipeline, base_dir=cfg.base_dir)
     preflight(cfg, pipeline=pipeline)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -37,33 +38,46 @@ class CampaignReportOptions(Options):
     figures: bool = True
 
 
-def _fit_whiteness(validation: Any) -> tuple[str, str]:
+def _fit_whiteness(validation: Any) -> tuple[str, str, tuple[str, ...]]:
     metrics = getattr(validation, "metrics", None)
     if not isinstance(metrics, Mapping) or not metrics:
-        return "—", "—"
-    fits, white = [], []
+        return "—", "—", ()
+    fits, white, coloured = [], [], []
     for name, m in metrics.items():
         fit = getattr(m, "fit", None)
         if fit is not None:
-            fits.append(f"{name} {float(fit):.1f}%")
+            fits.append(f"{name} {float(fit):.1f} %")
         w = getattr(m, "white", getattr(m, "is_white", None))
         if w is None and getattr(m, "whiteness_pvalue", None) is not None:
             w = float(m.whiteness_pvalue) > 0.05
         if w is not None:
             white.append(f"{name} {'white' if w else 'coloured'}")
-    return (", ".join(fits) or "—"), (", ".join(white) or "—")
+            if not w:
+                coloured.append(str(name))
+    return (", ".join(fits) or "—"), (", ".join(white) or "—"), tuple(coloured)
+
+
+_CONDITIONS = (("airspeed", "m/s"), ("dynamic_pressure", "Pa"))
 
 
 def _condition(meta: Mapping[str, Any]) -> str:
     parts = []
-    for key, unit in (("airspeed", "m/s"), ("dynamic_pressure", "Pa")):
+    for key, unit in _CONDITIONS:
         if key in meta:
             parts.append(f"{key.replace('_', ' ')} {float(meta[key]):.4g} {unit}")
     return ", ".join(parts) or str(meta.get("source", "—"))
 
 
+# units of the metrics `propagate` computes by name
+_METRIC_UNITS = {"natural_frequency": "rad/s", "damping_ratio": "-", "time_constant": "s"}
+
+
 def _campaign_brief(role: str, record: Any) -> Any:
-    """What the campaign report uses of one flight's `role` input (see `Stage.brief`)."""
+    """What the campaign report uses of one flight's `role` input (see `Stage.brief`).
+
+    The status flags come from the records themselves, so a cached rerun shows
+    the same flags as the run that computed them.
+    """
     if role == "data":
         return dict(getattr(record, "metadata", {}) or {})
     if role == "identification":
@@ -72,6 +86,9 @@ def _campaign_brief(role: str, record: Any) -> Any:
             "parameters": dict(record.parameters),
             "stderr": dict(record.stderr),
             "success": bool(getattr(record, "success", True)),
+            "active_bounds": dict(getattr(record, "active_bounds", {}) or {}),
+            "unidentifiable": [list(c) for c in getattr(record, "unidentifiable", ())],
+            "identifiable": bool(getattr(record, "identifiable", True)),
         }
     if role == "validation":
         return _fit_whiteness(record)
@@ -79,125 +96,214 @@ def _campaign_brief(role: str, record: Any) -> Any:
         if getattr(record, "mean", None) is None:
             return "—"
         mean, std = float(np.ravel(record.mean)[0]), float(np.ravel(record.std)[0])
-        return f"{mean:.4g} ± {std:.2g}"
+        label = str(getattr(record, "source", "") or "").rsplit(":", 1)[-1]
+        unit = _METRIC_UNITS.get(label, "")
+        text = f"{mean:.4g} ± {std:.2g}" + (f" {unit}" if unit else "")
+        return f"{label} {text}" if label in _METRIC_UNITS else text
+    if role == "inference":
+        return {"converged": bool(getattr(record, "converged", True))}
     if role == "reports":
         return record.markdown
-    return None  # the detailed figures' inputs: read whole, for the first flight only
+    return None  # the figures' inputs: read whole by the figure parts
 
+
+_LEGEND = (
+    "Status: **ok** every check passed; **failed** a stage raised (see Failures); "
+    "**not converged** the optimiser stopped short; **bound X** estimate X ended at a bound; "
+    "**not identifiable** the data cannot separate some parameters; "
+    "**coloured Y** residuals of output Y are not white; "
+    "**posterior not converged** the MCMC chains are too short."
+)
+
+
+def _status(failure: str | None, ident: Any, valid: Any, infer: Any) -> str:
+    if failure is not None:
+        return "failed"
+    flags = []
+    if ident is not None:
+        if not ident["success"]:
+            flags.append("not converged")
+        flags += [f"bound {n}" for n in ident.get("active_bounds", {})]
+        if not ident.get("identifiable", True):
+            flags.append("not identifiable")
+    if valid is not None:
+        flags += [f"coloured {n}" for n in valid[2]]
+    if infer is not None and not infer["converged"]:
+        flags.append("posterior not converged")
+    return "; ".join(flags) or "ok"
+
+
+# The figures of each flight, drawn from its records: (role, file label, title).
+_FLIGHT_FIGURES = (
+    ("validation", "time_histories", "measured and model outputs, inputs underneath"),
+    ("identification", "identification", "residuals and estimates (95 % bars)"),
+    ("filtering", "filter_states", "filtered states and measurements"),
+    ("frequency", "bode", "Bode plot and coherence"),
+    ("inference", "posterior", "posterior (output-error fit marked)"),
+)
 
 # The campaign report is split into parts that run in parallel: parts 0 and 1 draw
 # the cross-flight trend of the first and the second half of the parameters, part 2
-# writes the tables and text (these three need every flight, so they run after the
-# last one: as two figures the trend is drawn by two workers at once), and each
-# further part draws one detailed figure of the first flight that was identified,
-# as soon as that flight is done.
-_DETAIL_FIGURES = (
-    ("validation", "time histories"),
-    ("identification", "fit residuals"),
-    ("frequency", "bode"),
-    ("inference", "posterior"),
-    ("propagation", "propagation"),
-    ("experiment", "design"),
-    ("filtering", "filter states"),
-)
-_TRENDS, _TEXT, _FIRST_DETAIL = (0, 1), 2, 3
-
-
-def _detail_roles(roles: Any) -> list[tuple[str, str]]:
-    return [(role, label) for role, label in _DETAIL_FIGURES if role in roles]
+# writes the tables and text (these three need every flight), and each of the
+# `_FIGURE_PARTS` further parts draws the figures of every `_FIGURE_PARTS`-th flight as
+# soon as those flights are done, so the figures overlap the flights still running.
+_TRENDS, _TEXT, _FIRST_FIGURES = (0, 1), 2, 3
+_FIGURE_PARTS = 8
+_MAX_FLIGHTS = 1 << 16
 
 
 def _campaign_parts(options: Any, roles: frozenset[str]) -> int:
     # 1 (not split) without figures
     if not options.figures or "identification" not in roles:
         return 1
-    return _FIRST_DETAIL + len(_detail_roles(roles))
-
-
-def _first_identified(ctx: StageContext) -> int | None:
-    for i, r in enumerate(ctx.inputs.get("identification", ())):
-        if r is not None:
-            return i
-    return None
+    return _FIRST_FIGURES + _FIGURE_PARTS
 
 
 def _campaign_part_flights(
     options: Any, roles: frozenset[str], index: int
 ) -> tuple[int, ...] | None:
-    # the detailed figures read the first flight only; the trend and the text read all
-    return None if index < _FIRST_DETAIL else (0,)
+    # the trend and the text read all flights; a figure part every _FIGURE_PARTS-th
+    if index < _FIRST_FIGURES:
+        return None
+    return tuple(range(index - _FIRST_FIGURES, _MAX_FLIGHTS, _FIGURE_PARTS))
 
 
-def _detail_figure(ctx: StageContext, index: int, flight: int) -> tuple[str, bytes] | None:
+def _figure_key(flight: str, label: str) -> str:
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in flight)
+    return f"{safe}_{label}.png"
+
+
+def _flight_units(records: Mapping[str, Any]) -> dict[str, str]:
+    """Units of one flight's channels (its data and validation) and its parameters."""
+    from ..plotting import _parameter_units
+
+    units: dict[str, str] = {}
+    for role in ("data", "validation"):
+        rec = records.get(role)
+        units.update({k: v for k, v in (getattr(rec, "units", {}) or {}).items() if v})
+    names = [
+        n
+        for role in ("identification", "inference")
+        for n in getattr(records.get(role), "parameter_names", ())
+    ]
+    units.update(_parameter_units(names))
+    # an output's noise standard deviation (inference's sigma_<output>) has its unit
+    units.update({n: units[n[6:]] for n in names if n.startswith("sigma_") and n[6:] in units})
+    return units
+
+
+def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
+    """The figures of one flight, from its records by role: (label, matplotlib Figure).
+
+    Every figure labels its axes with the units of the flight's channels and of
+    the model's parameters.
+    """
+    units = _flight_units(records)
+    out = []
+    for role, label, _ in _FLIGHT_FIGURES:
+        rec = records.get(role)
+        if rec is None or not hasattr(rec, "plot"):
+            continue
+        kw: dict[str, Any] = {"units": units}
+        if role == "filtering":
+            kw["data"] = records.get("data")
+        if role == "inference" and records.get("identification") is not None:
+            kw["marker"] = dict(records["identification"].parameters)
+        out.append((label, rec.plot(**kw)))
+    return out
+
+
+def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
+    """The figures of flight `flight`: (file name, PNG bytes)."""
+    import matplotlib.pyplot as plt
+
     from .._html import figure_png
 
-    role, label = _detail_roles(ctx.inputs)[index - _FIRST_DETAIL]
-    result = ctx.inputs[role][flight]
-    if result is None or not hasattr(result, "plot"):
+    records = {
+        role: ctx.inputs[role][flight]
+        for role in ("data", "identification", *(r for r, _, _ in _FLIGHT_FIGURES))
+        if role in ctx.inputs
+    }
+    out = []
+    for label, fig in flight_figures(records):
+        out.append((_figure_key(ctx.flights[flight], label), figure_png(fig, dpi=72, colors=32)))
+        plt.close(fig)
+    return out
+
+
+def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
+    import matplotlib.pyplot as plt
+
+    from .._html import figure_png
+    from ..plotting import _parameter_units, plot_campaign_trend
+
+    records = []
+    for i, f in enumerate(ctx.flights):
+        r = ctx.brief("identification", i)
+        if r is not None:
+            meta = ctx.brief("data", i)
+            records.append(
+                {
+                    "flight": f,
+                    "parameters": r["parameters"],
+                    "stderr": r["stderr"],
+                    "metadata": {} if meta is None else meta,
+                }
+            )
+    names = list(dict.fromkeys(n for r in records for n in r["parameters"]))
+    half = -(-len(names) // len(_TRENDS))
+    names = names[index * half : (index + 1) * half]
+    if not names:
         return None
-    return f"{ctx.flights[flight]}: {label}", figure_png(result.plot())
+    fig = plot_campaign_trend(records, parameters=names, units=_parameter_units(names))
+    png = figure_png(fig, colors=64)
+    plt.close(fig)
+    return f"campaign_trend_{index}.png", png
 
 
 def _run_campaign_part(ctx: StageContext, index: int) -> Any:
     """Part `index` of the campaign report.
 
-    The trend and the detailed figures return (title, PNG bytes) or None; the
-    text part returns the `CampaignReport` without figures. A detailed figure
-    part reads the first flight only; if that flight was not identified it
-    returns its index, and `_combine_campaign` draws the figure for the first
-    flight that was.
+    A trend part returns (file name, PNG bytes) or None; the text part the
+    `CampaignReport` without figures; a figure part a list of (file name, PNG
+    bytes) of its flights.
     """
-    from .._html import figure_png
-    from ..plotting import plot_campaign_trend
-
     if index == _TEXT:
         return _run_campaign_report(ctx)
     if index in _TRENDS:
-        records = []
-        for i, f in enumerate(ctx.flights):
-            r = ctx.brief("identification", i)
-            if r is not None:
-                meta = ctx.brief("data", i)
-                records.append(
-                    {
-                        "flight": f,
-                        "parameters": r["parameters"],
-                        "stderr": r["stderr"],
-                        "metadata": {} if meta is None else meta,
-                    }
-                )
-        names = list(dict.fromkeys(n for r in records for n in r["parameters"]))
-        half = -(-len(names) // len(_TRENDS))
-        names = names[index * half : (index + 1) * half]
-        if not names:
-            return None
-        fig = plot_campaign_trend(records, parameters=names)
-        return f"campaign: estimates across flights ({', '.join(names)})", figure_png(fig)
-    if not ctx.flights:
-        return None
-    if ctx.inputs["identification"][0] is None:
-        return index
-    return _detail_figure(ctx, index, 0)
+        return _trend_figure(ctx, index)
+    drawn: list[tuple[str, bytes]] = []
+    for i in range(index - _FIRST_FIGURES, len(ctx.flights), _FIGURE_PARTS):
+        drawn += _flight_figures(ctx, i)
+    return drawn
 
 
 def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
     report = next((p for p in parts if isinstance(p, CampaignReport)), None)
     if report is None:
         report = _run_campaign_report(ctx)
-    drawn = []
+    drawn: dict[str, bytes] = {}
     for part in parts:
-        if isinstance(part, CampaignReport):
-            continue
-        if isinstance(part, int):  # the first flight failed: draw for the first identified
-            first = _first_identified(ctx)
-            part = None if first is None else _detail_figure(ctx, part, first)
-        if part is not None:
-            drawn.append(part)
+        if isinstance(part, tuple):
+            drawn[part[0]] = part[1]
+        elif isinstance(part, list):
+            drawn.update(part)
+    # the text links every figure a flight could have: drop those not drawn
+    lines = [
+        ln
+        for ln in report.markdown.splitlines()
+        if not (m := _FIGURE_LINK.match(ln.strip())) or m.group(1) in drawn
+    ]
     return dataclasses.replace(
         report,
-        figure_titles=tuple(t for t, _ in drawn),
-        figures=tuple(png for _, png in drawn),
+        markdown="\n".join(lines) + "\n",
+        figure_titles=tuple(drawn),
+        figures=tuple(np.frombuffer(png, dtype=np.uint8) for png in drawn.values()),
     )
+
+
+_FIGURE_DIR = "figures"
+_FIGURE_LINK = re.compile(r"^!\[[^\]]*\]\(" + _FIGURE_DIR + r"/([^)]+)\)$")
 
 
 def _run_campaign(ctx: StageContext) -> CampaignReport:
@@ -205,12 +311,19 @@ def _run_campaign(ctx: StageContext) -> CampaignReport:
     # other, so the record is the one the parallel parts give
     n = _campaign_parts(ctx.options, frozenset(ctx.inputs))
     if n == 1:
-        return _run_campaign_report(ctx)
+        return _combine_campaign(ctx, [_run_campaign_report(ctx)])
     return _combine_campaign(ctx, [_run_campaign_part(ctx, i) for i in range(n)])
 
 
+def _anchor(flight: str) -> str:
+    return "flight-" + "".join(c if c.isalnum() or c in "-_." else "_" for c in flight)
+
+
 def _run_campaign_report(ctx: StageContext) -> CampaignReport:
+    import html
+
     from .._records import markdown_table
+    from ..plotting import _parameter_units
 
     flights = ctx.flights
     ident = [ctx.brief("identification", i) for i in range(len(flights))]
@@ -219,8 +332,18 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         for n in r["names"] if r is not None else ():
             if n not in names:
                 names.append(n)
-    columns = ("flight", "condition", *names, "fit", "whiteness", "metric", "status")
+    punits = _parameter_units(names)
+    columns = (
+        "flight",
+        "condition",
+        *(f"{n} [{punits[n]}]" if n in punits else n for n in names),
+        "fit",
+        "whiteness",
+        "metric (mean ± std)",
+        "status",
+    )
     rows = []
+    statuses = []
     for i, f in enumerate(flights):
         r, v, meta = ident[i], ctx.brief("validation", i), ctx.brief("data", i)
         est = []
@@ -229,29 +352,53 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 est.append(f"{r['parameters'][n]:.4g} ± {r['stderr'][n]:.2g}")
             else:
                 est.append("—")
-        fit, white = ("—", "—") if v is None else v
+        fit, white = ("—", "—") if v is None else v[:2]
         metric = ctx.brief("propagation", i) or "—"
-        status = ctx.failures.get(f, "ok")
-        if status == "ok" and r is not None and not r["success"]:
-            status = "not converged"
+        status = _status(ctx.failures.get(f), r, v, ctx.brief("inference", i))
+        statuses.append(status)
         rows.append(
             (f, "—" if meta is None else _condition(meta), *est, fit, white, metric, status)
         )
     title = ctx.options.title or "Campaign report"
-    parts = [f"# {title}", "", f"{len(flights)} flights, {len(ctx.failures)} failed.", ""]
-    parts.append(markdown_table(columns, rows))
+    parts = [f"# {title}", ""]
+    n_flagged = sum(s not in ("ok", "failed") for s in statuses)
+    parts += [
+        f"{len(flights)} flights, {len(ctx.failures)} failed, {n_flagged} with warnings.",
+        "",
+        "## Campaign",
+        "",
+        "Each estimate against the flight condition, with its 95 % confidence bar "
+        "(±1.96 standard errors).",
+        "",
+    ]
+    if ctx.options.figures and names:
+        for k in _TRENDS:
+            parts += [
+                f"![estimates across flights ({k + 1})]({_FIGURE_DIR}/campaign_trend_{k}.png)"
+            ]
+            parts.append("")
+    parts += [markdown_table(columns, rows), "", _LEGEND, ""]
     if ctx.failures:
-        parts += ["", "## Failures", ""]
+        parts += ["## Failures", ""]
         parts += [f"- **{f}**: {err}" for f, err in ctx.failures.items()]
-    if ctx.options.include_flight_reports:
-        for i in range(len(flights)):
-            text = ctx.brief("reports", i)
-            if text is not None:
-                # demote the per-flight headings under the campaign's
-                text = "\n".join(
-                    "#" + line if line.startswith("#") else line for line in text.splitlines()
-                )
-                parts += ["", text]
+        parts.append("")
+    parts += ["## Flights", ""]
+    parts += [f"- [{f}](#{_anchor(f)}): {s}" for f, s in zip(flights, statuses, strict=True)]
+    for i, f in enumerate(flights):
+        parts += ["", f'<details id="{_anchor(f)}">']
+        parts.append(f"<summary>{html.escape(f)}: {html.escape(statuses[i])}</summary>")
+        parts.append("")
+        text = ctx.brief("reports", i) if ctx.options.include_flight_reports else None
+        if text is not None:
+            # demote the per-flight headings under the campaign's
+            parts += ["#" + ln if ln.startswith("#") else ln for ln in text.splitlines()]
+        elif f in ctx.failures:
+            parts.append(f"Failed: {ctx.failures[f]}")
+        if ctx.options.figures and f not in ctx.failures:
+            parts += ["", "### Figures", ""]
+            for _, label, caption in _FLIGHT_FIGURES:
+                parts += [f"![{f}: {caption}]({_FIGURE_DIR}/{_figure_key(f, label)})", ""]
+        parts.append("</details>")
     return CampaignReport(
         title=title,
         markdown="\n".join(parts) + "\n",
@@ -266,8 +413,9 @@ register_stage(
     Stage(
         "campaign_report",
         # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes);
-        # 5: the trend across flights as two figures, drawn in parallel
-        "5",
+        # 5: the trend across flights as two figures, drawn in parallel; 6: figures of
+        # every flight beside its tables, status flags from every stage, units
+        "6",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,
@@ -388,17 +536,17 @@ def write_report(
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
     path = the_plan.config.report_path
+    folder = f"{path.stem}_figures"
+    # the Markdown links its figures, written beside it
+    text = text.replace(f"]({_FIGURE_DIR}/", f"]({folder}/")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         marked = text.rstrip("\n") + "\n\n" + _MD_MARKER + "\n"
-        if not path.is_file() or path.read_text(encoding="utf-8") != marked:
-            _write(path, marked.encode("utf-8"))
         target = html_report_path(path)
         marker = f"{_HTML_MARKER} {task.key} -->"
         # rebuilt only when the campaign report's key changes (an unchanged rerun stays cheap)
-        if not (
-            target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace")
-        ):
+        fresh = target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace")
+        if not fresh:
             if status.figures is not None:
                 figures = dict(status.figures)
             else:
@@ -407,7 +555,14 @@ def write_report(
                         record = store.load(task.key, task.stage)
                 draw = getattr(record, "figure_bytes", None)
                 figures = draw() if draw is not None else {}
-            _write(target, html_report(text, figures, marker).encode("utf-8"))
+            named = {f"{folder}/{k}": png for k, png in figures.items()}
+            for rel, png in named.items():
+                _write(path.parent / rel, png)
+            if not path.is_file() or path.read_text(encoding="utf-8") != marked:
+                _write(path, marked.encode("utf-8"))
+            _write(target, html_report(text, named, marker).encode("utf-8"))
+        elif not path.is_file() or path.read_text(encoding="utf-8") != marked:
+            _write(path, marked.encode("utf-8"))
     except ReportWriteError as exc:
         return None, columns, rows, str(exc)
     except OSError as exc:
@@ -416,13 +571,14 @@ def write_report(
 
 
 def html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
-    """The self-contained HTML campaign report: the Markdown plus the report's figures."""
+    """The self-contained HTML campaign report: the Markdown with its figures embedded
+    where it links them (any figure it does not link is appended under "Figures")."""
     from .._html import markdown_to_html
 
     body = text.rstrip()
-    if figures:
+    unlinked = [name for name in figures if f"]({name})" not in body]
+    if unlinked:
         body += "\n\n## Figures\n\n" + "\n\n".join(
-            f"### {name}\n\n![{name}](fig{i})" for i, name in enumerate(figures)
+            f"### {name}\n\n![{name}]({name})" for name in unlinked
         )
-    images = {f"fig{i}": png for i, png in enumerate(figures.values())}
-    return markdown_to_html(body, images).replace("<body>", "<body>\n" + marker, 1)
+    return markdown_to_html(body, figures).replace("<body>", "<body>\n" + marker, 1)

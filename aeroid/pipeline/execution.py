@@ -25,17 +25,26 @@ from ..errors import AeroidError, PipelineError
 from .definition import load_pipeline
 from .planning import Task, resolve_model
 from .stages import STAGES, StageContext
-from .store import ResultStore, record_cache, run_store
+from .store import Claim, ResultStore, record_cache, run_store
 
-__all__ = ["PartResult", "TaskStatus", "execute_chain", "execute_part", "execute_task", "n_parts"]
+__all__ = [
+    "BY_ANOTHER_RUN",
+    "PartResult",
+    "TaskStatus",
+    "execute_chain",
+    "execute_part",
+    "execute_task",
+    "n_parts",
+]
 
 
 @dataclass(frozen=True)
 class TaskStatus:
     """What happened to one task in a run.
 
-    `status` is ``"computed"``, ``"cached"`` (stored before the run) or
-    ``"failed"`` (with `error`). `cached` says whether a computed result was
+    `status` is ``"computed"``, ``"cached"`` (stored before the run),
+    ``"by_another_run"`` (computed meanwhile by another run sharing the
+    store, which this one waited for) or ``"failed"`` (with `error`). `cached` says whether a computed result was
     committed to the store (a report over failed flights is not; `failures`
     names them). The campaign report's task also carries its text and table
     (`markdown`, `columns`, `rows`) and figures, so the run writes the report
@@ -78,6 +87,9 @@ class TaskStatus:
 
 
 _FIELDS = frozenset(f.name for f in dataclasses.fields(TaskStatus))
+
+# the status of a task another run sharing the store computed while this one waited
+BY_ANOTHER_RUN = "by_another_run"
 
 
 @dataclass(frozen=True)
@@ -274,53 +286,113 @@ def execute_task(
     upstream = tuple(s for s in flat if isinstance(s, TaskStatus))
     out: dict[str, Any] = {}
     try:
-        stage, ctx, store, failures = _context(task, store_root, upstream, read_root)
-        t1 = time.perf_counter()
-        with warnings.catch_warnings(record=True) as caught:
-            # the library's warnings (an unconverged chain, poor coherence) belong to the
-            # task: kept with its status and provenance instead of on a worker's stderr
-            warnings.simplefilter("always")
-            if parts:
-                bad = [p for p in parts if p.status != "ok"]
-                if bad:
-                    raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
-                record = stage.combine(ctx, [p.value for p in parts])
-                part_seconds = sum(p.compute_seconds for p in parts)
-            else:
-                record = stage.run(ctx)
-                part_seconds = 0.0
-        t2 = time.perf_counter()
-        found = [*(w for p in parts for w in p.warnings), *_warning_texts(caught)]
-        out["warnings"] = tuple(dict.fromkeys(found))
-        provenance = {
-            "task": task.to_json(),
-            "versions": _versions(),
-            "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
-            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            "host": platform.node(),
-            "warnings": list(out["warnings"]),
-        }
-        if failures:
-            # a report over failed flights is written out but never cached
-            out.update(status="computed", cached=False, failures=failures)
+        store = run_store(store_root)
+        claim = _claimed(store, task, scope)
+        if isinstance(claim, str):
+            # cached, computed by another run meanwhile, or by this one's earlier attempt
+            out.update(status=claim, cached=claim == "computed")
         else:
-            store.commit(task.stage, task.key, record, task=task.document, provenance=provenance)
-            out.update(status="computed", cached=True)
-            if task.briefs:
-                out["briefs"] = _briefs(task, store)
-        out["compute_seconds"] = t2 - t1 + part_seconds
-        if task.flight is None and hasattr(record, "markdown"):
-            out["markdown"] = record.markdown
-            out["rows"] = tuple(tuple(r) for r in getattr(record, "rows", ()))
-            out["columns"] = tuple(getattr(record, "columns", ()))
-            if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
-                out["figures"] = record.figure_bytes()
+            with claim:
+                _compute(task, store_root, upstream, parts, read_root, store, out, scope)
     except Exception as exc:
         out.update(status="failed", error=error_text(exc))
         if not isinstance(exc, AeroidError):
             out["traceback"] = traceback.format_exc(limit=6)
     out["seconds"] = time.perf_counter() - t0
     return TaskStatus(task.key, task.step, task.flight, **out)
+
+
+# how long one wait for another run's entry lasts before its claim is looked at afresh
+_WAIT_SECONDS = 60.0
+
+
+def _claimed(store: ResultStore, task: Task, scope: str | None) -> Claim | str:
+    """Claim `task` for this run, or say why there is nothing to compute.
+
+    Runs sharing a store compute each key once: where another live run holds
+    the claim, this one waits for its entry (``"by_another_run"``); where the
+    other run failed or died, the claim is taken here. An entry found right
+    after claiming was committed by a run that finished meanwhile (``"cached"``),
+    or by this run (`scope`) before an executor ran the task again after its
+    worker died (``"computed"``).
+    """
+    while True:
+        claim = store.claim(task.stage, task.key)
+        if claim is None:
+            if store.wait_for(task.stage, task.key, timeout=_WAIT_SECONDS):
+                return BY_ANOTHER_RUN
+            continue  # the other run gave up, or is slow: claim again (or wait again)
+        if store.exists(task.stage, task.key):
+            claim.release()
+            return "computed" if scope is not None and _run_of(store, task) == scope else "cached"
+        return claim
+
+
+def _run_of(store: ResultStore, task: Task) -> str | None:
+    """The run (its `scope`) that committed `task`'s entry, where the entry says."""
+    try:
+        run = store.metadata(task.key, task.stage).get("provenance", {}).get("run")
+    except AeroidError:
+        return None
+    return run if isinstance(run, str) else None
+
+
+def _compute(
+    task: Task,
+    store_root: str,
+    upstream: tuple[TaskStatus, ...],
+    parts: list[PartResult],
+    read_root: str | None,
+    store: ResultStore,
+    out: dict[str, Any],
+    scope: str | None,
+) -> None:
+    """Compute `task` (or combine its `parts`) and commit it; what happened into `out`."""
+    stage, ctx, _, failures = _context(task, store_root, upstream, read_root)
+    t1 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        # the library's warnings (an unconverged chain, poor coherence) belong to the
+        # task: kept with its status and provenance instead of on a worker's stderr
+        warnings.simplefilter("always")
+        if parts:
+            bad = [p for p in parts if p.status != "ok"]
+            if bad:
+                raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
+            record = stage.combine(ctx, [p.value for p in parts])
+            part_seconds = sum(p.compute_seconds for p in parts)
+        else:
+            record = stage.run(ctx)
+            part_seconds = 0.0
+    t2 = time.perf_counter()
+    found = [*(w for p in parts for w in p.warnings), *_warning_texts(caught)]
+    out["warnings"] = tuple(dict.fromkeys(found))
+    provenance = {
+        "task": task.to_json(),
+        "versions": _versions(),
+        "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
+        "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "host": platform.node(),
+        "warnings": list(out["warnings"]),
+    }
+    if scope is not None:
+        provenance["run"] = scope  # tells this run's entries from others' (`_claimed`)
+    if failures:
+        # a report over failed flights is written out but never cached
+        out.update(status="computed", cached=False, failures=failures)
+    elif store.commit(task.stage, task.key, record, task=task.document, provenance=provenance):
+        out.update(status="computed", cached=True)
+        if task.briefs:
+            out["briefs"] = _briefs(task, store)
+    else:
+        # committed by another run between our claim and commit (its claim went stale)
+        out.update(status=BY_ANOTHER_RUN, cached=True)
+    out["compute_seconds"] = t2 - t1 + part_seconds
+    if task.flight is None and hasattr(record, "markdown"):
+        out["markdown"] = record.markdown
+        out["rows"] = tuple(tuple(r) for r in getattr(record, "rows", ()))
+        out["columns"] = tuple(getattr(record, "columns", ()))
+        if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
+            out["figures"] = record.figure_bytes()
 
 
 def _briefs(task: Task, store: ResultStore) -> dict[str, Any]:

@@ -47,24 +47,46 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
 
 
 class LoadOptions(Options):
-    """`aeroid.load_flight_test` keywords (files) or the simulated-flight spec."""
+    """`aeroid.channel_map.load_mapped` keywords (files) or the simulated-flight spec;
+    ``condition``: the flight condition the planner passes on into the data's metadata."""
 
-    library: ClassVar[str] = "aeroid.data:load_flight_test"
+    library: ClassVar[str] = "aeroid.channel_map:load_mapped"
 
     time_column: str | None = None
-    channels: list[str] | dict[str, str] | None = None
+    channels: list[str] | dict[str, str | dict[str, Any]] | None = None
     units: dict[str, str] | None = None
+    sample_rate: float | None = Field(None, gt=0)
+    max_gap: float | None = Field(None, gt=0)
+    window: list[float] | dict[str, Any] | None = None
+    condition: dict[str, float] | None = None
+
+    engine_only: ClassVar[frozenset[str]] = frozenset({"condition"})
+    # unset, they leave the keys of flights loaded before they existed unchanged
+    added_later: ClassVar[frozenset[str]] = frozenset(
+        {"sample_rate", "max_gap", "window", "condition"}
+    )
+
+
+def _with_condition(data: Any, condition: Mapping[str, float] | None) -> Any:
+    """The record with the flight condition merged into its (read-only) metadata."""
+    if not condition:
+        return data
+    from ..data import FlightData
+
+    meta = {**dict(data.metadata), **{k: float(v) for k, v in condition.items()}}
+    return FlightData(data.time, data.channels, units=data.units, metadata=meta)
 
 
 def _run_load(ctx: StageContext) -> Any:
-    from ..data import load_flight_test
+    from ..channel_map import load_mapped
     from .keys import file_digest
 
     src = dict(ctx.source or {})
+    condition = ctx.options.condition
     if src.get("kind") == "simulated":
         from .synthetic import fly
 
-        return fly(src["spec"])
+        return _with_condition(fly(src["spec"]), condition)
     path = src["path"]
     if not Path(path).is_file():
         why = "is a folder, not a flight file" if Path(path).is_dir() else "no such file"
@@ -75,11 +97,10 @@ def _run_load(ctx: StageContext) -> Any:
         raise DataFormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     if before != src.get("sha256"):
         raise PipelineError(f"{path}: the file changed since the run was planned")
-    opts = _kwargs(ctx.options)
-    data = load_flight_test(path, **opts)
+    data = load_mapped(path, **_kwargs(ctx.options, "condition"))
     if file_digest(path) != before:
         raise PipelineError(f"{path}: the file changed while it was being read")
-    return data
+    return _with_condition(data, condition)
 
 
 # -- identify / filter / validate ----------------------------------------------------
@@ -127,11 +148,18 @@ class IdentifyOptions(Options):
         return value
 
 
+def flight_data(ctx: StageContext) -> Any:
+    """The flight's data: corrected by the compatibility check where that ran (an input
+    role ``corrected``), else as loaded."""
+    checked = ctx.inputs.get("corrected")
+    return ctx.inputs["data"] if checked is None else checked.corrected
+
+
 def _run_identify(ctx: StageContext) -> Any:
     from ..identification import identify
 
     names = ctx.options.parameters or list(ctx.model.parameter_names)
-    return identify(ctx.model, ctx.inputs["data"], names, **_kwargs(ctx.options, "parameters"))
+    return identify(ctx.model, flight_data(ctx), names, **_kwargs(ctx.options, "parameters"))
 
 
 class FilterOptions(Options):
@@ -166,7 +194,7 @@ def _run_validate(ctx: StageContext) -> Any:
     from ..validation import validate
 
     return validate(
-        ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
+        ctx.model, flight_data(ctx), ctx.inputs.get("parameters"), **_kwargs(ctx.options)
     )
 
 
@@ -477,7 +505,11 @@ def _run_report(ctx: StageContext) -> FlightReport:
         title=title,
         **extra,
     )
-    return FlightReport(title=title, markdown=str(text))
+    from .analysis_stages import report_sections
+
+    more = report_sections(ctx.inputs)
+    text = f"{str(text).rstrip()}\n\n{more}" if more else str(text)
+    return FlightReport(title=title, markdown=text)
 
 
 for _stage in (

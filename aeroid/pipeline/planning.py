@@ -18,11 +18,11 @@ from typing import Any
 from ..errors import AeroidError, ConfigError
 from . import _code
 from .checks import check_campaign
-from .config import CampaignConfig, SimulatedSource, load_config, validate_options
+from .config import CampaignConfig, FileFlights, SimulatedSource, load_config, validate_options
 from .definition import Pipeline, resolve_pipeline
 from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
 from .stages import STAGES
-from .store import is_url
+from .store import parse
 
 __all__ = ["BUILTIN_MODELS", "Plan", "Task", "plan", "resolve_model", "store_argument"]
 
@@ -208,13 +208,65 @@ def _warn_old_names(config: CampaignConfig, steps: list[Any]) -> None:
 # -- planning -----------------------------------------------------------------------------
 
 
-def _flight_sources(config: CampaignConfig) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
-    """(flight name, source, loader options) for every flight, in config order."""
+@dataclass(frozen=True)
+class _Flight:
+    """One flight as planned: its name, source, loader options and own model, if any."""
+
+    name: str
+    source: dict[str, Any]
+    loader: dict[str, Any]
+    model: dict[str, Any] | None = None  # the campaign's model with the entry's changes
+
+
+def _merged(base: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    """`base` with `changes` deep-merged into it (mappings merge, anything else replaces)."""
+    out = dict(base)
+    for k, v in changes.items():
+        old = out.get(k)
+        out[k] = _merged(old, v) if isinstance(old, Mapping) and isinstance(v, Mapping) else v
+    return out
+
+
+def _flight_model(config: CampaignConfig, i: int, spec: FileFlights) -> dict[str, Any] | None:
+    """The model of file entry `i`: None for the campaign's, else its changes merged in."""
+    if spec.model is None:
+        return None
+    if not isinstance(config.model, Mapping):
+        raise ConfigError(
+            f"{config.source}: flights[{i}].model: changes a model mapping, but the "
+            f"campaign's model is {config.model!r}; give the model as an aeroid.aircraft "
+            "mapping (aircraft: ...) to give flights their own"
+        )
+    return _merged(config.model, spec.model)
+
+
+def _windows(config: CampaignConfig, i: int, path: Path, spec: FileFlights) -> list[list[float]]:
+    """The manoeuvre windows `spec.segments` finds in `path`, each a flight's window."""
+    from ..channel_map import flight_windows
+
+    assert spec.segments is not None
+    segments = spec.segments.model_dump(mode="json", exclude_none=True)
+    try:
+        found = flight_windows(
+            path,
+            segments,
+            channels=spec.loader_options().get("channels"),
+            time_column=spec.time_column,
+        )
+    except AeroidError as exc:
+        raise ConfigError(f"{config.source}: flights[{i}].segments ({path}): {exc}") from None
+    if not found:
+        raise ConfigError(f"{config.source}: flights[{i}].segments: no manoeuvre found in {path}")
+    return [[float(t0), float(t1)] for t0, t1 in found]
+
+
+def _flight_sources(config: CampaignConfig) -> list[_Flight]:
+    """Every flight, in config order (a file's segments: one flight per window)."""
     from .synthetic import flight_spec
 
     files = config.expand_files()
     stems = [p.stem for _, p, _ in files]
-    out: list[tuple[str, dict[str, Any], dict[str, Any]]] = []
+    out: list[_Flight] = []
     for i, item in enumerate(config.flights):
         if isinstance(item, SimulatedSource):
             spec = item.simulated.model_dump(mode="json")
@@ -223,10 +275,14 @@ def _flight_sources(config: CampaignConfig) -> list[tuple[str, dict[str, Any], d
                 fs = flight_spec(spec, j)
                 digest = sha256_hex(canonical_json(fs))
                 source = {"kind": "simulated", "spec": fs, "sha256": digest}
-                out.append((f"sim-{j:0{width}d}", source, {}))
+                out.append(_Flight(f"sim-{j:0{width}d}", source, {}))
             continue
         for _, path, loader in (f for f in files if f[0] == i):
-            opts = loader.model_dump(mode="json", exclude={"path"})
+            opts = loader.loader_options()
+            if loader.condition is not None:
+                # engine-only: the load stage merges it into the flight's metadata
+                opts["condition"] = dict(loader.condition)
+            model = _flight_model(config, i, loader)
             name = path.stem
             if stems.count(path.stem) > 1:
                 base = Path(config.base_dir)
@@ -236,8 +292,45 @@ def _flight_sources(config: CampaignConfig) -> list[tuple[str, dict[str, Any], d
             except OSError as exc:
                 # unreadable now: the load task fails and says why; nothing is cached
                 digest = "unreadable:" + sha256_hex(f"{path}:{exc}".encode())
-            out.append((name, {"kind": "file", "path": str(path), "sha256": digest}, opts))
+            source = {"kind": "file", "path": str(path), "sha256": digest}
+            if loader.segments is None:
+                out.append(_Flight(name, source, opts, model))
+                continue
+            windows = _windows(config, i, path, loader)
+            width = len(str(len(windows)))
+            for k, window in enumerate(windows, 1):
+                seg_opts = {**opts, "window": window}
+                out.append(_Flight(f"{name}-seg{k:0{width}d}", source, seg_opts, model))
     return out
+
+
+def _check_flight_models(
+    config: CampaignConfig, model: Any, pipeline: Pipeline, allowed: bool
+) -> None:
+    """The pre-flight checks, once per distinct model: each flight against its own."""
+    groups: dict[str, tuple[dict[str, Any] | None, list[Any]]] = {}
+    for i, item in enumerate(config.flights):
+        spec = item if isinstance(item, FileFlights) else None
+        own = None if spec is None else _flight_model(config, i, spec)
+        text = "" if own is None else canonical_json(own).decode()
+        groups.setdefault(text, (own, []))[1].append(item)
+    if set(groups) == {""}:
+        check_campaign(config, model, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+        return
+    for own, items in groups.values():
+        sub = config.model_copy(
+            update={"flights": items}
+            if own is None
+            else {
+                "flights": items,
+                "model": own,
+            }
+        )
+        checked = model if own is None else resolve_model(own, config.base_dir)
+        check_campaign(sub, checked, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+    if "" not in groups:  # the campaign-level steps keep the campaign's model
+        sub = config.model_copy(update={"flights": []})
+        check_campaign(sub, model, pipeline, base_dir=config.base_dir, allow_imports=allowed)
 
 
 def plan(
@@ -264,7 +357,7 @@ def plan(
     _check_model_import(config, allowed)
     model = resolve_model(config.model, config.base_dir)
     # every mistake the config shows (names, files, channels), listed in one error
-    check_campaign(config, model, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+    _check_flight_models(config, model, pipeline, allowed)
     known = {s.name for s in pipeline.steps}
     for name in config.stages:
         if name not in known:
@@ -304,7 +397,19 @@ def plan(
     flights: list[str] = []
     per_flight_keys: dict[str, dict[str, str]] = {}
     loaded: dict[str, str] = {}  # load key -> the flight that has it
-    for name, source, loader_opts in _flight_sources(config):
+    own_models: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}  # JSON -> fingerprint, ref
+    for flight in _flight_sources(config):
+        name, source, loader_opts = flight.name, flight.source, flight.loader
+        flight_fingerprint, flight_model_ref = fingerprint, model_ref
+        if flight.model is not None:
+            text = canonical_json(flight.model).decode()
+            if text not in own_models:
+                own = resolve_model(flight.model, config.base_dir)
+                own_models[text] = (
+                    model_fingerprint(own),
+                    {"spec": flight.model, "base_dir": config.base_dir},
+                )
+            flight_fingerprint, flight_model_ref = own_models[text]
         base = name
         k = 2
         while name in per_flight_keys:
@@ -339,7 +444,7 @@ def plan(
                 stage_version=stage.version,
                 options=opts,
                 upstream=upstream,
-                model=fingerprint if stage.uses_model else None,
+                model=flight_fingerprint if stage.uses_model else None,
                 seed=seed,
             )
             if step.stage_name == "load":
@@ -369,7 +474,7 @@ def plan(
                         r: step_stage[u] for r, u in step.inputs.items() if u in enabled
                     },
                     document=doc,
-                    model_ref=model_ref if stage.uses_model else None,
+                    model_ref=flight_model_ref if stage.uses_model else None,
                     seed=seed,
                     source=source if step.stage_name == "load" else None,
                     pipeline_ref=pipe_ref,
@@ -434,10 +539,8 @@ def _briefs_wanted(pipeline: Pipeline, enabled: set[str]) -> dict[str, tuple[tup
 
 def store_argument(store: str | Path) -> str:
     """A store given on the command line or to `run`: a URL as is, a folder made absolute."""
-    text = str(store)
-    if is_url(text):
-        return text
-    return str(Path(text.removeprefix("file://")).expanduser().resolve())
+    location = parse(store)
+    return location.root if location.is_url else str(Path(location.root).resolve())
 
 
 def campaign_inputs(the_plan: Plan) -> list[Path]:

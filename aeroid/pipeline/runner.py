@@ -23,7 +23,14 @@ from . import _process
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
 from .definition import Pipeline
-from .execution import TaskStatus, execute_chain, execute_part, execute_task, n_parts
+from .execution import (
+    BY_ANOTHER_RUN,
+    TaskStatus,
+    execute_chain,
+    execute_part,
+    execute_task,
+    n_parts,
+)
 from .executors import executor_for
 from .planning import Plan, Task, campaign_inputs, plan, resolve_model, store_argument
 from .rerun import rerun
@@ -93,6 +100,7 @@ class RunSummary:
         doc: dict[str, Any] = {
             "computed": self.count("computed"),
             "cached": self.count("cached"),
+            BY_ANOTHER_RUN: self.count(BY_ANOTHER_RUN),
             "failed": self.failed,
             "report": None if self.report_path is None else str(self.report_path),
             "report_html": str(html) if html is not None and html.is_file() else None,
@@ -179,7 +187,7 @@ def _run(
         if t.key in statuses:
             continue
         if (t.stage, t.key) in stored:
-            statuses[t.key] = TaskStatus(t.key, t.step, t.flight, "cached")
+            statuses[t.key] = _cache_hit(result_store, t)
         else:
             todo.append(t)
     t_check = time.perf_counter()
@@ -203,6 +211,15 @@ def _run(
             "compute": sum(s.compute_seconds for s in statuses.values()),
         },
     )
+
+
+def _cache_hit(result_store: ResultStore, task: Task) -> TaskStatus:
+    """A stored task's status: cached only where its entry's bytes pass their CRC-32."""
+    if result_store.check_entry(task.stage, task.key):
+        return TaskStatus(task.key, task.step, task.flight, "cached")
+    where = result_store.path_for(task.stage, task.key)
+    error = f"{task.stage} entry {where} is corrupt: its bytes fail their checksum"
+    return TaskStatus(task.key, task.step, task.flight, "failed", error=error)
 
 
 def _compute(

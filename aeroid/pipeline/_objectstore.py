@@ -1,0 +1,184 @@
+"""A store in an object store, through fsspec: an entry is one object in one PUT."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+
+from ..errors import StoreError
+from ._backend import (
+    _CHECKED,
+    _MARKER,
+    _MARKER_DOC,
+    _SUFFIX,
+    StoreLocation,
+    _Archive,
+    _check_marker,
+    _os_error,
+)
+from ._zipentry import (
+    Entry,
+)
+
+
+class _ObjectBackend:
+    """A store at a URL that fsspec understands (``s3://``, ``gs://``, ``az://``, ``memory://`` ...).
+
+    Object stores have no rename, and need none: an entry is one object,
+    written in one PUT, and an object store shows an object whole or not at
+    all. So there are no temporaries. Two runs that commit the same key at once
+    write the same result (results are deterministic); were they to differ,
+    the digests say so on every read. A backend that is a file system reached
+    through fsspec (``local://``, ``sftp://``) may leave a partial file when a
+    run is killed mid-write: the next read reports it corrupt, as `verify`
+    does, and ``verify --remove`` takes it out. Claims are written with the
+    backend's put-if-absent where it has one (S3's ``If-None-Match``) and read
+    back, so two runs rarely both win one; were they to, each computes the
+    same result and the second commit is refused.
+    """
+
+    look_first = True  # a PUT overwrites: never write under a committed key
+
+    def __init__(self, location: StoreLocation, *, create: bool) -> None:
+        text = location.root
+        try:
+            import fsspec
+
+            fs, base = fsspec.core.url_to_fs(text)
+        except (ImportError, ValueError) as exc:  # unknown protocol, backend not installed
+            raise StoreError(f"store {text!r}: {exc}") from None
+        self.root: Path | str = text
+        self.ident = text
+        self._fs = fs
+        self._base = str(base).rstrip("/")
+        if text in _CHECKED:
+            return
+        marker = f"{self._base}/{_MARKER}"
+        try:
+            raw: bytes | None = fs.cat_file(marker)
+        except FileNotFoundError:
+            raw = None
+        except Exception as exc:
+            raise StoreError(f"store {text}: cannot read {_MARKER} ({exc})") from None
+        if raw is not None:
+            _check_marker(raw, text)
+        elif create:
+            try:
+                if fs.exists(self._base) and fs.ls(self._base, detail=False):
+                    raise StoreError(
+                        f"store {text}: the location exists, is not empty and is not an aeroid "
+                        "store"
+                    )
+                self._put({marker: _MARKER_DOC})
+            except StoreError:
+                raise
+            except Exception as exc:
+                raise StoreError(f"store {text}: cannot create it ({exc})") from None
+        else:
+            raise StoreError(f"store {text}: not an aeroid store (no {_MARKER})")
+        _CHECKED.add(text)
+
+    def _object(self, stage: str, name: str) -> str:
+        return f"{self._base}/{stage}/{name}"
+
+    def _url(self, path: str) -> str:
+        return str(self.root) + path[len(self._base) :]
+
+    def path_for(self, stage: str, key: str) -> str:
+        return f"{self.root}/{stage}/{key}{_SUFFIX}"
+
+    def exists(self, stage: str, key: str) -> bool:
+        return bool(self._fs.exists(self._object(stage, key + _SUFFIX)))
+
+    def stored(self, tasks: set[tuple[str, str]]) -> set[tuple[str, str]]:
+        # one listing per stage instead of a request per key
+        found = set()
+        for stage in {stage for stage, _ in tasks}:
+            found |= {(e.stage, e.key) for e in self.listing(stage, "")}
+        return tasks & found
+
+    @contextlib.contextmanager
+    def open_entry(self, stage: str, key: str) -> Iterator[_Archive]:
+        raw = self._fs.cat_file(self._object(stage, key + _SUFFIX))
+        with zipfile.ZipFile(io.BytesIO(raw)) as archive:
+            yield _Archive(archive, len(raw), self.path_for(stage, key))
+
+    def listing(self, stage: str | None, prefix: str) -> list[Entry]:
+        out = []
+        pattern = f"{self._base}/{stage or '*'}/{prefix}*{_SUFFIX}"
+        for found in sorted(self._fs.glob(pattern)):
+            st, _, name = str(found)[len(self._base) + 1 :].rpartition("/")
+            name = name.removesuffix(_SUFFIX)
+            if "/" not in st and not st.startswith(".") and len(name) == 64:
+                out.append(Entry(name, st, self._url(str(found))))
+        return out
+
+    def publish(self, stage: str, key: str, data: bytes) -> bool:
+        self._put({self._object(stage, key + _SUFFIX): data})  # the commit
+        return True
+
+    def remove(self, stage: str, key: str) -> bool:
+        try:
+            self._fs.rm_file(self._object(stage, key + _SUFFIX))
+        except FileNotFoundError:
+            return False
+        except OSError as exc:
+            raise _os_error("remove", self.path_for(stage, key), exc) from None
+        return True
+
+    def _put(self, files: dict[str, bytes]) -> None:
+        """Write objects (concurrently, where the backend can)."""
+        try:
+            self._fs.pipe(files)
+        except FileNotFoundError:
+            # a filesystem with real folders (``local://``, ``sftp://``): make them once
+            for folder in sorted({f.rsplit("/", 1)[0] for f in files}):
+                self._fs.makedirs(folder, exist_ok=True)
+            self._fs.pipe(files)
+
+    def temporaries(self) -> list[Path | str]:
+        return []  # an entry is written in one PUT: no commit leaves a part behind
+
+    def gc(self, max_age: float) -> list[Path | str]:
+        return []
+
+    def create(self, stage: str, name: str, data: bytes) -> bool:
+        path = self._object(stage, name)
+        try:
+            self._fs.pipe_file(path, data, mode="create")
+        except FileExistsError:
+            return False
+        except FileNotFoundError:
+            self._fs.makedirs(path.rsplit("/", 1)[0], exist_ok=True)
+            return self.create(stage, name, data)
+        except OSError as exc:
+            raise _os_error("write", f"{self.root}/{stage}/{name}", exc) from None
+        # where put-if-absent is only a look and a PUT, the last writer won: read back
+        return self._fs.cat_file(path) == data
+
+    def read_small(self, stage: str, name: str) -> tuple[bytes, float] | None:
+        try:
+            raw = self._fs.cat_file(self._object(stage, name))
+        except FileNotFoundError:
+            return None
+        return raw, 0.0  # object ages are not compared across clocks: the lease decides
+
+    def overwrite(self, stage: str, name: str, data: bytes) -> None:
+        self._fs.pipe_file(self._object(stage, name), data)
+
+    def take_over(self, stage: str, name: str, old: bytes, new: bytes) -> bool:
+        path = self._object(stage, name)
+        try:
+            if self._fs.cat_file(path) != old:
+                return False
+        except FileNotFoundError:
+            return self.create(stage, name, new)
+        self._fs.pipe_file(path, new)
+        return self._fs.cat_file(path) == new
+
+    def delete(self, stage: str, name: str) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self._fs.rm_file(self._object(stage, name))

@@ -1,0 +1,306 @@
+"""Stages of the analyses around the fit: data compatibility, regression, frequency-domain
+identification and handling qualities (one library function per stage, as in
+`library_stages`, whose conventions these follow)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+from pydantic import Field, model_validator
+
+from ..errors import PipelineError
+from .codec import register_record
+from .config import Options
+from .library_stages import flight_data
+from .stages import Stage, StageContext, register_stage
+
+__all__ = [
+    "CompatibilityOptions",
+    "FrequencyIdOptions",
+    "FrequencyIdentifyOptions",
+    "HandlingQualities",
+    "HandlingQualitiesOptions",
+    "RegressOptions",
+    "TransferFunctionOptions",
+]
+
+
+def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
+    return options.library_kwargs(exclude=exclude)
+
+
+# -- compatibility ---------------------------------------------------------------------------
+
+
+class CompatibilityOptions(Options):
+    """`aeroid.check_compatibility` keywords (the seed is the campaign's)."""
+
+    channels: dict[str, str | None] | None = None
+    estimate: list[str] | dict[str, float] | None = None
+    fixed: dict[str, float] | None = None
+    x0: dict[str, float] | None = None
+    gravity: float | None = Field(None, gt=0)
+    error_bars: Literal["colored", "white"] | None = None
+    max_iterations: int | None = Field(None, ge=1)
+    tolerance: float | None = Field(None, gt=0)
+    max_passes: int | None = Field(None, ge=1)
+    input_noise: dict[str, float] | None = None
+    n_draws: int | None = Field(None, ge=1)
+
+    library: ClassVar[str] = "aeroid.compatibility:check_compatibility"
+
+
+def _run_compatibility(ctx: StageContext) -> Any:
+    from ..compatibility import check_compatibility
+
+    return check_compatibility(ctx.inputs["data"], seed=ctx.seed_int(3), **_kwargs(ctx.options))
+
+
+# -- regression ------------------------------------------------------------------------------
+
+_STEPWISE_ONLY = ("forced", "f_in", "f_out", "orthogonalize", "max_steps")
+
+
+class RegressOptions(Options):
+    """`aeroid.stepwise_regression` keywords; ``method: equation_error`` fits the
+    ``candidates`` as given (`aeroid.equation_error`'s regressors) instead."""
+
+    response: str
+    candidates: list[str] | dict[str, str] | None = None
+    method: Literal["stepwise", "equation_error"] = "stepwise"
+    forced: list[str] | None = None
+    intercept: bool | None = None
+    f_in: float | None = Field(None, gt=0)
+    f_out: float | None = Field(None, gt=0)
+    orthogonalize: bool | None = None
+    error_bars: Literal["colored", "white"] | None = None
+    max_steps: int | None = Field(None, ge=1)
+
+    library: ClassVar[str] = "aeroid.regression:stepwise_regression"
+    engine_only: ClassVar[frozenset[str]] = frozenset({"method"})
+
+    @model_validator(mode="after")
+    def _stepwise_only(self) -> RegressOptions:
+        given = [n for n in _STEPWISE_ONLY if getattr(self, n) is not None]
+        if self.method == "equation_error" and given:
+            raise ValueError(f"{', '.join(given)}: only for method stepwise")
+        return self
+
+
+def _run_regress(ctx: StageContext) -> Any:
+    from ..regression import equation_error, stepwise_regression
+
+    opts = ctx.options
+    kw = _kwargs(opts, "response", "candidates", "method")
+    if opts.method == "equation_error":
+        return equation_error(flight_data(ctx), opts.response, opts.candidates, **kw)
+    return stepwise_regression(flight_data(ctx), opts.response, opts.candidates, **kw)
+
+
+# -- frequency-domain identification -----------------------------------------------------------
+
+
+class FrequencyIdOptions(Options):
+    """`aeroid.composite_response` keywords (frequencies and ranges in rad/s, windows in s)."""
+
+    inputs: list[str]
+    outputs: list[str]
+    frequencies: list[float] | None = None
+    windows: list[float] | None = None
+    overlap: float | None = Field(None, ge=0, le=0.95)
+    frequency_range: tuple[float, float] | None = None
+
+    library: ClassVar[str] = "aeroid.frequency_id:composite_response"
+
+
+def _run_frequency_id(ctx: StageContext) -> Any:
+    from ..frequency_id import composite_response
+
+    opts = ctx.options
+    kw = _kwargs(opts, "inputs", "outputs")
+    return composite_response(flight_data(ctx), opts.inputs, opts.outputs, **kw)
+
+
+class TransferFunctionOptions(Options):
+    """`aeroid.fit_transfer_function` keywords, fitted to the frequency_id response."""
+
+    numerator_order: int = Field(ge=0)
+    denominator_order: int = Field(ge=1)
+    delay: bool | None = None
+    frequency_range: tuple[float, float] | None = None
+    input: str | None = None
+    output: str | None = None
+    start: dict[str, float] | None = None
+    weighting: str | None = None
+    min_coherence: float | None = Field(None, ge=0, le=1)
+
+    library: ClassVar[str] = "aeroid.frequency_id:fit_transfer_function"
+
+
+def _run_transfer_function(ctx: StageContext) -> Any:
+    from ..frequency_id import fit_transfer_function
+
+    return fit_transfer_function(ctx.inputs["response"], **_kwargs(ctx.options))
+
+
+class FrequencyIdentifyOptions(Options):
+    """`aeroid.identify_frequency_domain` keywords (``parameters``: names to estimate;
+    default all; ``frequencies`` in rad/s)."""
+
+    parameters: list[str] | None = None
+    frequencies: list[float] | None = None
+    method: Literal["output_error", "equation_error"] | None = None
+    outputs: list[str] | None = None
+    boundary: str | None = None
+    error_bars: Literal["colored", "white"] | None = None
+    noise: dict[str, float] | None = None
+    reference: dict[str, float] | None = None
+    max_iterations: int | None = Field(None, ge=1)
+    tolerance: float | None = Field(None, gt=0)
+
+    library: ClassVar[str] = "aeroid.frequency_domain:identify_frequency_domain"
+
+
+def _run_frequency_identify(ctx: StageContext) -> Any:
+    from ..frequency_domain import identify_frequency_domain
+
+    names = ctx.options.parameters or list(ctx.model.parameter_names)
+    kw = _kwargs(ctx.options, "parameters")
+    return identify_frequency_domain(ctx.model, flight_data(ctx), names, **kw)
+
+
+# -- handling qualities -------------------------------------------------------------------------
+
+
+@register_record(name="HandlingQualities")
+@dataclass(frozen=True, eq=False)
+class HandlingQualities:
+    """Handling-qualities metrics of one measured response (those configured; else None)."""
+
+    bandwidth: Any = None
+    equivalent_system: Any = None
+    margins: Any = None
+
+    def summary(self) -> str:
+        # each part's summary carries its own heading
+        parts = (self.bandwidth, self.equivalent_system, self.margins)
+        return "\n\n".join(p.summary() for p in parts if p is not None)
+
+
+class EquivalentSystemSpec(Options):
+    """`aeroid.equivalent_system` keywords (the pair is the handling_qualities stage's)."""
+
+    kind: Literal["short_period", "roll", "dutch_roll"] | None = None
+    frequency_range: tuple[float, float] | None = None
+    delay: bool | None = None
+    start: dict[str, float] | None = None
+
+
+class HandlingQualitiesOptions(Options):
+    """`aeroid.bandwidth` keywords (``kind``: attitude or rate) for the response pair
+    ``input`` -> ``output``; ``equivalent_system``: `aeroid.equivalent_system` keywords
+    to fit a low-order equivalent system too; ``margins``: the pair is a broken-loop
+    response, so report `aeroid.stability_margins` too. ``bandwidth: false`` skips it."""
+
+    kind: Literal["attitude", "rate"] | None = None
+    input: str | None = None
+    output: str | None = None
+    bandwidth: bool = True
+    equivalent_system: EquivalentSystemSpec | None = None
+    margins: bool = False
+
+    library: ClassVar[str] = "aeroid.handling_qualities:bandwidth"
+    engine_only: ClassVar[frozenset[str]] = frozenset({"bandwidth", "equivalent_system", "margins"})
+
+    @model_validator(mode="after")
+    def _something(self) -> HandlingQualitiesOptions:
+        if not self.bandwidth and self.equivalent_system is None and not self.margins:
+            raise ValueError("bandwidth, equivalent_system and margins are all off")
+        return self
+
+
+def _run_handling_qualities(ctx: StageContext) -> HandlingQualities:
+    from ..handling_qualities import bandwidth, equivalent_system, stability_margins
+
+    opts = ctx.options
+    response = ctx.inputs.get("response")
+    if response is None:
+        raise PipelineError("handling_qualities needs the frequency_id stage's response")
+    pair: Mapping[str, Any] = {"input": opts.input, "output": opts.output}
+    bw = eq = margins = None
+    if opts.bandwidth:
+        bw = bandwidth(response, **_kwargs(opts, "bandwidth", "equivalent_system", "margins"))
+    if opts.equivalent_system is not None:
+        eq = equivalent_system(response, **pair, **_kwargs(opts.equivalent_system))
+    if opts.margins:
+        margins = stability_margins(response, **pair)
+    return HandlingQualities(bandwidth=bw, equivalent_system=eq, margins=margins)
+
+
+# report role -> the section heading a flight's report gives that result
+REPORT_SECTIONS: dict[str, str] = {
+    "compatibility": "Data compatibility",
+    "regression": "Regression",
+    "composite_response": "Frequency responses",
+    "transfer_function": "Transfer-function fit",
+    "frequency_domain": "Frequency-domain identification",
+    "handling_qualities": "Handling qualities",
+}
+
+
+def report_sections(inputs: Mapping[str, Any]) -> str:
+    """The Markdown sections of the analyses given (by report role), in report order."""
+    parts = [
+        f"## {heading}\n\n{inputs[role].summary().rstrip()}\n"
+        for role, heading in REPORT_SECTIONS.items()
+        if inputs.get(role) is not None
+    ]
+    return "\n".join(parts)
+
+
+for _stage in (
+    Stage(
+        "compatibility",
+        "1",
+        CompatibilityOptions,
+        "CompatibilityResult",
+        _run_compatibility,
+        uses_model=False,
+        seeded=True,
+    ),
+    Stage("regress", "1", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
+    Stage(
+        "frequency_id",
+        "1",
+        FrequencyIdOptions,
+        "CompositeResponse",
+        _run_frequency_id,
+        uses_model=False,
+    ),
+    Stage(
+        "transfer_function",
+        "1",
+        TransferFunctionOptions,
+        "TransferFunctionFit",
+        _run_transfer_function,
+        uses_model=False,
+    ),
+    Stage(
+        "frequency_identify",
+        "1",
+        FrequencyIdentifyOptions,
+        "FrequencyDomainResult",
+        _run_frequency_identify,
+    ),
+    Stage(
+        "handling_qualities",
+        "1",
+        HandlingQualitiesOptions,
+        "HandlingQualities",
+        _run_handling_qualities,
+        uses_model=False,
+    ),
+):
+    register_stage(_stage)
