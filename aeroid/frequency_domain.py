@@ -68,7 +68,7 @@ from ._records import frozen_array
 from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, fingerprint, measured_start, plain, whole_number
 from .errors import IdentifiabilityWarning, IdentificationError
-from .identification import IdentificationResult
+from .identification import IdentificationResult, _names_and_initial
 
 __all__ = ["FrequencyDomainResult", "identify_frequency_domain"]
 
@@ -351,45 +351,6 @@ class _StateSpace:
 
 
 # -- argument checks -------------------------------------------------------------------------
-
-
-def _estimated(model: Any, parameters: Any) -> tuple[list[str], dict[str, float]]:
-    nominal = dict(model.parameters)
-    if isinstance(parameters, str):
-        parameters = [parameters]
-    if isinstance(parameters, Mapping):
-        names = [str(n) for n in parameters]
-        initial = {}
-        for n, v in parameters.items():
-            try:
-                initial[str(n)] = float(v)
-            except (TypeError, ValueError):
-                raise IdentificationError(
-                    f"parameters: initial guess of {n!r} is not a number: {plain(v)}"
-                ) from None
-    else:
-        try:
-            names = [str(n) for n in parameters]
-        except TypeError:
-            raise IdentificationError(
-                "parameters: expected a list of names to estimate or a dict name -> initial guess"
-            ) from None
-        initial = {}
-    if not names:
-        raise IdentificationError("parameters: name at least one parameter to estimate")
-    dupes = sorted({n for n in names if names.count(n) > 1})
-    if dupes:
-        raise IdentificationError(f"parameters: listed twice: {dupes}")
-    for n in names:
-        if n not in nominal:
-            raise IdentificationError(
-                f"parameter {n!r} is not a parameter of model {model.name!r}; "
-                f"its parameters are {sorted(nominal)}"
-            )
-        initial.setdefault(n, float(nominal[n]))
-        if not np.isfinite(initial[n]):
-            raise IdentificationError(f"parameters: initial guess of {n!r} is not finite")
-    return names, initial
 
 
 def _frequency_grid(frequencies: Any, dt: float, duration: float) -> FloatArray:
@@ -901,7 +862,8 @@ def identify_frequency_domain(
         tol = float("nan")
     if not tol > 0:
         raise IdentificationError(f"tolerance must be positive, got {plain(tolerance)}")
-    names, initial = _estimated(model, parameters)
+    # the same contract as time-domain identify: names, or a dict of initial guesses
+    names, initial = _names_and_initial(model, parameters)
     if data.n_samples < 4 or not data.is_uniform:
         raise IdentificationError(
             "data: frequency-domain identification needs a uniformly sampled record of at "
