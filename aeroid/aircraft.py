@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _units
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .errors import ModelDefinitionError, SimulationError
@@ -336,6 +337,49 @@ def _expansion_text(coefficient: str, expansion: _Expansion) -> str:
     return f"{coefficient} = " + " + ".join(parts)
 
 
+# units of the regressors of the non-dimensional coefficient expansions: angles in
+# rad, V as V/V0 - 1 and the rates as p b/(2V), q c̄/(2V), r b/(2V) (dimensionless)
+_COEFFICIENT_REGRESSOR_UNITS: Mapping[str, _units.Unit] = {
+    "alpha": _units.RADIAN,
+    "beta": _units.RADIAN,
+    "V": _units.ONE,
+    "p": _units.ONE,
+    "q": _units.ONE,
+    "r": _units.ONE,
+    "thrust": _units.NEWTON,
+}
+_RATE: _units.Unit = {"rad": 1, "s": -1}
+# and of the linear models' perturbation states (m/s, rad, rad/s)
+_LINEAR_REGRESSOR_UNITS: Mapping[str, _units.Unit] = {
+    "V": _units.METRE_PER_SECOND,
+    "alpha": _units.RADIAN,
+    "beta": _units.RADIAN,
+    "p": _RATE,
+    "q": _RATE,
+    "r": _RATE,
+    "thrust": _units.NEWTON,
+}
+
+
+def _expansion_units(
+    expansions: Mapping[str, _Expansion],
+    equations: Mapping[str, _units.Unit] | None,
+    *,
+    linear: bool,
+) -> dict[str, str]:
+    """Each term's parameter unit: its equation's unit (dimensionless coefficients when
+    `equations` is None) over its regressors' (a surface deflection in rad)."""
+    regs = _LINEAR_REGRESSOR_UNITS if linear else _COEFFICIENT_REGRESSOR_UNITS
+    out = {}
+    for coefficient, expansion in expansions.items():
+        lhs = _units.ONE if equations is None else equations[coefficient]
+        for name, factors in expansion:
+            out[name] = _units.ratio(
+                lhs, [regs.get(f, _units.RADIAN) for f in factors], keep_radians=not linear
+            )
+    return out
+
+
 def _parameter_values(
     expansions: Mapping[str, _Expansion], parameters: Mapping[str, float] | None
 ) -> dict[str, float]:
@@ -424,6 +468,12 @@ class AircraftModel(Model):
         The control-surface inputs, in control order.
     equations : str
         The equations of motion and outputs as printed by `summary`.
+    parameter_units : mapping of str to str
+        Each parameter's unit, from its equation's and regressors' units:
+        dimensional derivatives without the radian (``M_alpha``: 1/s²,
+        ``X_0``: m/s²), coefficient derivatives per radian (``CL_alpha``:
+        1/rad), ``-`` for a dimensionless one. Reports and plots label
+        estimates with them.
     """
 
     constants: AircraftConstants | None = None
@@ -431,11 +481,14 @@ class AircraftModel(Model):
     reference: Mapping[str, float] = field(default_factory=dict)
     surfaces: tuple[str, ...] = ()
     equations: str = ""
+    parameter_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         super().__post_init__()
         ref = ReadOnlyDict({str(k): float(v) for k, v in self.reference.items()})
         object.__setattr__(self, "reference", ref)
+        units = ReadOnlyDict({str(k): str(v) for k, v in self.parameter_units.items()})
+        object.__setattr__(self, "parameter_units", units)
         object.__setattr__(self, "surfaces", tuple(self.surfaces))
 
     def summary(self) -> str:
@@ -709,6 +762,7 @@ def longitudinal(
         reference={"V0": V0},
         surfaces=surf,
         equations=equations,
+        parameter_units=_expansion_units(expansions, None, linear=False),
     )
 
 
@@ -895,6 +949,7 @@ def lateral(
         reference={"V0": V0, "alpha0": alpha0, "theta0": theta0},
         surfaces=surf,
         equations=equations,
+        parameter_units=_expansion_units(expansions, None, linear=False),
     )
 
 
@@ -1241,6 +1296,7 @@ def six_dof(
         reference={"V0": V0},
         surfaces=surf,
         equations=equations,
+        parameter_units=_expansion_units(expansions, None, linear=False),
     )
 
 
@@ -1387,6 +1443,15 @@ def longitudinal_linear(
         reference={"V0": V0, "gamma0": gamma0},
         surfaces=surf,
         equations=equations,
+        parameter_units=_expansion_units(
+            expansions,
+            {
+                "X": _units.METRE_PER_SECOND_SQUARED,
+                "Z": _units.PER_SECOND,
+                "M": _units.PER_SECOND_SQUARED,
+            },
+            linear=True,
+        ),
     )
 
 
@@ -1541,6 +1606,15 @@ def lateral_linear(
         reference={"V0": V0, "alpha0": alpha0, "theta0": theta0},
         surfaces=surf,
         equations=equations,
+        parameter_units=_expansion_units(
+            expansions,
+            {
+                "Y": _units.PER_SECOND,
+                "L": _units.PER_SECOND_SQUARED,
+                "N": _units.PER_SECOND_SQUARED,
+            },
+            linear=True,
+        ),
     )
 
 
@@ -2106,6 +2180,7 @@ def decoupled(
         + longitudinal.equations
         + "\n\nlateral-directional part:\n"
         + lateral.equations,
+        parameter_units={**longitudinal.parameter_units, **lateral.parameter_units},
     )
 
 

@@ -436,6 +436,49 @@ def _check_inside(t0: float, t1: float, lo: float, hi: float, where: str) -> Non
         )
 
 
+_QUALITY_LIMITS = ("jitter_limit", "dropout_factor", "saturation_run", "alias_band", "alias_limit")
+
+
+def _quality_limits(quality: bool | Mapping[str, float]) -> dict[str, float] | None:
+    """The limits of `check_data_quality` that `quality` asks for (None: no check)."""
+    if quality is False or quality is None:
+        return None
+    if quality is True:
+        return {}
+    if not isinstance(quality, Mapping):
+        raise DataFormatError(
+            f"quality: expected true, false or a mapping of limits, got {plain(quality)}"
+        )
+    unknown = sorted(set(quality) - set(_QUALITY_LIMITS))
+    if unknown:
+        raise DataFormatError(
+            f"quality: unknown limit(s) {unknown}; known: {list(_QUALITY_LIMITS)}"
+        )
+    return dict(quality)
+
+
+def _quality(
+    data: FlightData | FlightLog,
+    sources: Sequence[str] | None,
+    bounds: tuple[float | None, float | None] | None,
+    quality: bool | Mapping[str, float],
+) -> Any:
+    """The data-quality report of `sources` (all: None) as read, inside `bounds`."""
+    from ._logtypes import LogChannel
+    from .quality import check_data_quality
+
+    limits: dict[str, Any] = _quality_limits(quality) or {}
+    if isinstance(data, FlightLog) and bounds is not None and bounds[0] is not None:
+        t0, t1 = float(bounds[0]), float(bounds[1])  # type: ignore[arg-type]
+        cut = {}
+        for name in sources or list(data.channels):
+            c = data.channels[name]
+            keep = (c.time >= t0) & (c.time <= t1)
+            cut[name] = LogChannel(name, c.time[keep], c.values[keep], c.unit)
+        data = FlightLog(cut, data.events, data.metadata)
+    return check_data_quality(data, channels=sources, **limits)
+
+
 def load_mapped(
     path: str | Path,
     channels: Any = None,
@@ -445,6 +488,7 @@ def load_mapped(
     window: Any = None,
     time_column: str | None = None,
     units: Mapping[str, str] | None = None,
+    quality: bool | Mapping[str, float] = False,
 ) -> FlightData:
     """Load a flight file through a channel map, cut to a manoeuvre window.
 
@@ -470,13 +514,18 @@ def load_mapped(
         As for `load_flight_test`.
     units : mapping of str to str, optional
         Unit labels per model name, over those the map gives.
+    quality : bool or mapping of str to float, optional
+        Check the channels read as they arrive (a log's on their own stamps,
+        before resampling; inside the window) with `aeroid.check_data_quality`,
+        with its default limits (True) or those given (``{"jitter_limit":
+        0.05}``), and keep the report in ``metadata["quality"]``.
 
     Returns
     -------
     FlightData
         The model channels with ``metadata["channel_map"]`` and, with a
         window, ``metadata["window"] = {"t0", "t1", "way", ...}``. With a
-        plain mapping (or none) and no window, exactly what
+        plain mapping (or none), no window and no quality check, exactly what
         `load_flight_test` returns.
 
     Raises
@@ -491,18 +540,31 @@ def load_mapped(
     from .logs import read_log, sniff_format
 
     p = Path(path)
-    if window is None and (
-        channels is None
-        or _plain_pairs(channels) is not None
-        or (isinstance(channels, Sequence) and all(isinstance(m, str) for m in channels))
+    limits = _quality_limits(quality)
+    # a log's quality is checked on its own stamps, before load_flight_test resamples it
+    raw_log = limits is not None and p.is_file() and sniff_format(p) is not None
+    if (
+        window is None
+        and not raw_log
+        and (
+            channels is None
+            or _plain_pairs(channels) is not None
+            or (isinstance(channels, Sequence) and all(isinstance(m, str) for m in channels))
+        )
     ):
-        return load_flight_test(
+        data = load_flight_test(
             p,
             time_column=time_column,
             channels=channels,
             units=units,
             sample_rate=sample_rate,
             max_gap=max_gap,
+        )
+        if limits is None:
+            return data
+        report = _quality(data, None, None, limits)
+        return FlightData(
+            data.time, dict(data.channels), dict(data.units), {**data.metadata, "quality": report}
         )
     if isinstance(window, (tuple, list)):
         _window_pair(window)  # an inverted window is refused before the file is read
@@ -518,6 +580,7 @@ def load_mapped(
             t0, t1, record = resolve_window(data, window)
             _check_inside(t0, t1, float(data.time[0]), float(data.time[-1]), p.name)
             data = data.window(t0, t1)
+        report = None if limits is None else _quality(data, cmap.sources, None, limits)
     else:
         log = read_log(p, format=fmt, time_column=time_column)
         cmap = _map_for(channels, list(log.channels), table=False)
@@ -530,11 +593,14 @@ def load_mapped(
             t0, t1, record = resolve_window(log, window)
             _check_inside(t0, t1, *_spans(log, cmap.sources), p.name)
             bounds = (t0, t1)
+        report = None if limits is None else _quality(log, cmap.sources, bounds, limits)
         data = _log_record(p, log, cmap.sources, sample_rate, max_gap, bounds)
     out = apply_channel_map(data, cmap)
     meta = dict(out.metadata)
     if record is not None:
         meta["window"] = record
+    if report is not None:
+        meta["quality"] = report
     return FlightData(out.time, dict(out.channels), {**dict(out.units), **dict(units or {})}, meta)
 
 

@@ -121,7 +121,9 @@ def run(
     caught = summary.warnings()
     for task, text in caught[:_MAX_WARNINGS]:
         where = f"{task.step} {task.flight}" if task.flight else task.step
-        click.echo(f"WARNING {where} ({task.key[:12]}): {text}", err=as_json)
+        # a cached result's warnings were stored with it when it was computed
+        how = ", cached" if summary.statuses[task.key].status == "cached" else ""
+        click.echo(f"WARNING {where} ({task.key[:12]}{how}): {text}", err=as_json)
     if len(caught) > _MAX_WARNINGS:
         click.echo(
             f"... {len(caught) - _MAX_WARNINGS} more warnings "

@@ -50,7 +50,7 @@ __all__ = ["ChannelFrequencyResponse", "FrequencyResponseResult", "frequency_res
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
-_MODEL_RESPONSES = ("simulated", "exact")
+_MODEL_RESPONSES = ("simulated", "exact", "auto")
 # An input whose spectral density is 60 dB below its own peak does not excite the
 # system at that frequency: coherence there reflects leakage and transients only.
 _EXCITATION_FLOOR = 1e-6
@@ -483,13 +483,15 @@ def frequency_response(
         Initial state of a simulated model response (default: the state an
         identification result given as `parameters` used for this record, else
         the measured states).
-    model_response : {"simulated", "exact"}
+    model_response : {"simulated", "exact", "auto"}
         ``"simulated"``: the same Welch estimate from the model's outputs
         simulated on the measured inputs (any model), which shares the
         estimator's bias. ``"exact"``: the analytic response of a linear
         time-invariant `Model`; then a frequency also counts only where the
         window resolves the response (see the module notes), so a counted
         estimate is within about 5 % of the truth on noise-free data.
+        ``"auto"``: exact where the model is linear time-invariant over the
+        record, else simulated (the campaign pipeline's default).
     min_coherent : int
         Warn when a channel has fewer coherent frequencies than this.
 
@@ -600,7 +602,7 @@ def frequency_response(
 
     h_model: ComplexArray | None = None
     how = "simulated"
-    if model_response == "exact" and isinstance(model, Model):
+    if model_response in ("exact", "auto") and isinstance(model, Model):
         full = _exact_response(model, values, data.time, f)
         if full is not None:
             idx_u = [controls.index(i) for i in ins]

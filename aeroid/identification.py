@@ -95,6 +95,9 @@ class IdentificationResult:
         `identify`); each is also a parameter ``"tau_<control>"`` in
         `parameters`, `stderr` and `covariance` (not in `all_parameters`,
         which holds model parameters only).
+    parameter_units : mapping of str to str
+        Units of the estimated parameters where the model declares them (the
+        `aeroid.aircraft` models do; ``tau_<control>`` is in s), for labels.
     """
 
     parameters: Mapping[str, float]
@@ -124,10 +127,16 @@ class IdentificationResult:
     bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     active_bounds: Mapping[str, str] = field(default_factory=dict)
     time_delays: Mapping[str, float] = field(default_factory=dict)
+    parameter_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "time_delays", frozen_mapping(self.time_delays))
+        set_(
+            self,
+            "parameter_units",
+            ReadOnlyDict({str(k): str(v) for k, v in self.parameter_units.items()}),
+        )
         set_(self, "data_fingerprints", tuple(str(f) for f in self.data_fingerprints))
         set_(
             self,
@@ -650,7 +659,7 @@ def identify(
             tolerance=tol,
             bounds=box,
         )
-        return _finish(fitted, datas)
+        return _finish(fitted, datas, model)
     if (
         process_noise is not None
         or measurement_noise is not None
@@ -735,7 +744,7 @@ def identify(
     )
     if state_bias:
         fitted = _state_biases_out(fitted, bias_states, state_bias)
-    return _finish(fitted, datas)
+    return _finish(fitted, datas, model)
 
 
 _STATE_BIAS_PREFIX = "bias."
@@ -1149,8 +1158,11 @@ def _check_data_count(
         )
 
 
-def _finish(fitted: IdentificationResult, datas: list[FlightData]) -> IdentificationResult:
-    """Stamp the records' fingerprints; a fit that ended non-finite has not succeeded."""
+def _finish(
+    fitted: IdentificationResult, datas: list[FlightData], model: Any
+) -> IdentificationResult:
+    """Stamp the records' fingerprints and the parameters' units; a fit that ended
+    non-finite has not succeeded."""
     estimates = [fitted.cost, *fitted.parameters.values()]
     for group in (*fitted.initial_states, *fitted.biases):
         estimates.extend(group.values())
@@ -1166,4 +1178,14 @@ def _finish(fitted: IdentificationResult, datas: list[FlightData]) -> Identifica
             stacklevel=4,  # _finish, identify, its BLAS wrapper, the caller
         )
         fitted = replace(fitted, success=False, message=message)
-    return replace(fitted, data_fingerprints=tuple(fingerprint(d) for d in datas))
+    declared = dict(getattr(model, "parameter_units", None) or {})
+    units = {
+        n: "s" if n.startswith("tau_") and n not in declared else declared[n]
+        for n in fitted.parameter_names
+        if n in declared or n[4:] in fitted.time_delays
+    }
+    return replace(
+        fitted,
+        data_fingerprints=tuple(fingerprint(d) for d in datas),
+        parameter_units=units,
+    )

@@ -86,8 +86,18 @@ _ANGLES = ("alpha", "beta", "delta", "de", "da", "dr", "elevator", "aileron", "r
 _RATES = ("q", "p", "r", "alphadot", "alpha_dot")
 
 
-def _parameter_units(names: Sequence[str]) -> dict[str, str]:
-    """Units of the model parameters in `names` that follow the derivative naming."""
+def _parameter_units(
+    names: Sequence[str], declared: Mapping[str, str] | None = None
+) -> dict[str, str]:
+    """Units of the model parameters in `names`: those `declared` (a model's or a
+    result's `parameter_units`), else guessed where the name follows the short-period
+    derivative naming."""
+    out = _named_units(names)
+    out.update({n: u for n, u in (declared or {}).items() if n in names})
+    return out
+
+
+def _named_units(names: Sequence[str]) -> dict[str, str]:
     out: dict[str, str] = {}
     for name in names:
         head, _, var = name.partition("_")
@@ -454,6 +464,7 @@ def plot_identification(result: Any, *, units: Mapping[str, str] | None = None) 
     """
     names = list(result.parameter_names)
     outs = list(result.output_names)
+    units = {**dict(getattr(result, "parameter_units", {}) or {}), **dict(units or {})}
     cols = 4
     rows = -(-len(names) // cols) if names else 0
     fig, grid = _grid(max(len(outs) + rows, 1), cols, height=1.9, hgap=0.8, wgap=0.9)

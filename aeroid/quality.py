@@ -27,7 +27,8 @@ FLAGS = {
     "duplicate_stamps": "time stamps repeated",
     "non_increasing_stamps": "time stamps that go backwards",
     "dropouts": "gaps longer than dropout_factor x the median step",
-    "saturation": "runs of saturation_run or more samples at the channel's min or max",
+    "saturation": "runs of saturation_run or more samples at the channel's min or max "
+    "(and more of them than held runs elsewhere)",
     "constant": "the channel never changes",
     "aliasing": "share of the spectrum in the top alias_band of the band above alias_limit",
 }
@@ -58,7 +59,11 @@ class ChannelQuality:
         Longest step, s.
     saturation : float
         Fraction of samples in runs of at least ``saturation_run``
-        consecutive samples at the channel's minimum or maximum.
+        consecutive samples at the channel's minimum or maximum. The
+        ``saturation`` flag is raised when these outnumber the samples held
+        in such runs at other values: a stepped input (a doublet from trim) or
+        a slow sensor repeated on a fast grid sits in runs everywhere, so its
+        plateaus at the extremes are its shape rather than clipping.
     alias_fraction : float
         Share of the power spectral density (mean removed) in the top
         ``alias_band`` of the band below the Nyquist frequency (NaN with fewer
@@ -175,6 +180,17 @@ def _runs_at(mask: NDArray[np.bool_], least: int) -> int:
     return int(lengths[lengths >= least].sum())
 
 
+def _held_runs(values: FloatArray, least: int) -> int:
+    """Samples in runs of `least` or more consecutive equal values (any value)."""
+    if values.size < 2:
+        return 0
+    same = values[1:] == values[:-1]
+    # a run of k equal samples is k - 1 equal neighbours
+    edges = np.diff(np.concatenate([[0], same.astype(np.int8), [0]]))
+    lengths = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1) + 1
+    return int(lengths[lengths >= least].sum())
+
+
 def _alias_fraction(values: FloatArray, band: float) -> float:
     """Share of the spectrum (mean removed) in the top `band` of the band below Nyquist.
 
@@ -250,7 +266,10 @@ def _check_channel(
         lo, hi = float(finite.min()), float(finite.max())
         held = _runs_at(values == lo, saturation_run) + _runs_at(values == hi, saturation_run)
         saturation = held / n
-        if held:
+        # A signal held in runs away from its extremes too (a stepped or doublet input,
+        # a slow sensor repeated on a fast grid) has plateaus as its shape: its
+        # plateaus at the extremes are not evidence of clipping.
+        if held and held > _held_runs(values, saturation_run) - held:
             flags.append("saturation")
         if finite.size == n:
             alias = _alias_fraction(values, alias_band)

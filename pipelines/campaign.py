@@ -59,6 +59,7 @@ pipeline = Pipeline(
         Step(
             "report",
             inputs={
+                "data": "load",
                 "validation": "validate",
                 "identification": "identify",
                 "propagation": "propagate",
@@ -89,6 +90,7 @@ pipeline = Pipeline(
                 "inference": "infer",
                 "experiment": "design",
                 "frequency": "frequency",
+                "handling_qualities": "handling_qualities",
             },
         ),
     ),

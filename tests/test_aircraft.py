@@ -735,3 +735,53 @@ def test_decoupled_model_stacks_the_two_sets_of_equations_exactly():
         model_from_config({"aircraft": "decoupled", "lateral": spec["lateral"]})
     with pytest.raises(ModelDefinitionError, match="lateral"):
         decoupled(lon, lon)
+
+
+# -- parameter units ----------------------------------------------------------------------
+
+
+def test_parameter_units_follow_from_the_equations_and_regressors():
+    lon = longitudinal_linear(
+        V0=V0,
+        terms={"X": ["0", "V", "alpha", "q"], "Z": ["V", "q"], "M": ["V", "alpha", "q", "delta_e"]},
+    )
+    u = lon.parameter_units
+    # V dot in m/s2, alpha dot in 1/s (rad/s), q dot in 1/s2, over m/s, rad and rad/s
+    assert (u["X_0"], u["X_V"], u["X_alpha"], u["X_q"]) == ("m/s²", "1/s", "m/s²", "m/s")
+    assert (u["Z_V"], u["Z_q"]) == ("1/m", "-")
+    assert (u["M_V"], u["M_alpha"], u["M_q"], u["M_delta_e"]) == ("1/(m s)", "1/s²", "1/s", "1/s²")
+    lat = lateral_linear(V0=V0)
+    assert lat.parameter_units["Y_beta"] == "1/s" and lat.parameter_units["L_p"] == "1/s"
+    assert lat.parameter_units["N_delta_r"] == "1/s²"
+    # non-dimensional coefficients: per radian for angles, plain for the scaled rates
+    cl = longitudinal(
+        CONSTANTS,
+        V0=V0,
+        parameters=LONG,
+        terms={"CL": ["0", "alpha", "q", "delta_e", "alpha*alpha"]},
+    )
+    assert cl.parameter_units["CL_0"] == "-" and cl.parameter_units["CL_q"] == "-"
+    assert cl.parameter_units["CL_alpha"] == "1/rad"
+    assert cl.parameter_units["CL_alpha_alpha"] == "1/rad²"
+    assert cl.parameter_units["Cm_delta_e"] == "1/rad"
+    assert set(cl.parameter_units) == set(cl.parameters)
+    both = aeroid.aircraft.decoupled(lon, lat)
+    assert dict(both.parameter_units) == {**u, **lat.parameter_units}
+
+
+def test_an_identification_result_carries_the_models_units():
+    model = longitudinal_linear(
+        V0=V0, parameters={"M_alpha": -5.0, "M_q": -2.0, "M_delta_e": -8.0, "Z_alpha": -1.0}
+    )
+    t = np.arange(0.0, 10.0, 0.02)
+    de = np.where((t > 1) & (t < 2), 0.02, 0.0) - np.where((t > 2) & (t < 3), 0.02, 0.0)
+    sim = model.simulate(t, de[:, None], np.zeros(4))
+    data = aeroid.FlightData(t, {**{s: sim.state(s) for s in model.states}, "delta_e": de})
+    fit = aeroid.identify(model, data, ["M_alpha", "M_q"])
+    assert dict(fit.parameter_units) == {"M_alpha": "1/s²", "M_q": "1/s"}
+    fig = fit.plot()
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert any("[1/s²]" in lab for lab in labels) and any("[1/s]" in lab for lab in labels)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

@@ -291,3 +291,43 @@ def test_synthetic_log_windows_and_seeded_recovery_of_the_roll_derivatives(synth
     for name, value in truth.items():
         # 4 standard errors, plus 0.5 % for the resampler's filtering of the gyro
         assert abs(fit.parameters[name] - value) < 4 * fit.stderr[name] + 5e-3 * abs(value)
+
+
+def test_quality_is_checked_on_the_logs_own_stamps_inside_the_window(synthetic_log):
+    plain_load = load_mapped(synthetic_log, SYNTH_MAP, sample_rate=100.0, window=[8.0, 15.0])
+    assert "quality" not in plain_load.metadata
+    data = load_mapped(
+        synthetic_log, SYNTH_MAP, sample_rate=100.0, window=[8.0, 15.0], quality=True
+    )
+    np.testing.assert_array_equal(data["p"], plain_load["p"])
+    q = data.metadata["quality"]
+    assert list(q.channels) == ["imu.p", "rc.aileron"]  # the log's names, as read
+    # 7 s of the 400 Hz gyro and the 100 Hz stick, not the 100 Hz grid they land on
+    assert q["imu.p"].n_samples in (2800, 2801) and q["imu.p"].rate == pytest.approx(400.0)
+    assert q["rc.aileron"].n_samples in (700, 701) and q["rc.aileron"].rate == pytest.approx(100)
+    assert q.ok
+    # limits are passed through; an unknown one is named before the file is read
+    strict = load_mapped(
+        synthetic_log, SYNTH_MAP, sample_rate=100.0, window=[8.0, 15.0], quality={"jitter_limit": 0}
+    )
+    assert strict.metadata["quality"].thresholds["jitter_limit"] == 0.0
+    with pytest.raises(DataFormatError, match=r"unknown limit.*'jitter'"):
+        load_mapped(Path("no-such-file.h5"), SYNTH_MAP, quality={"jitter": 0.1})
+
+
+def test_quality_of_a_table_flags_a_dropout_by_its_column(tmp_path):
+    t = np.arange(0.0, 20.0, 0.01)
+    t = np.delete(t, np.s_[800:850])  # half a second missing
+    path = tmp_path / "gappy.csv"
+    np.savetxt(
+        path,
+        np.column_stack([t, np.sin(t), np.cos(t)]),
+        delimiter=",",
+        header="time,q,de",
+        comments="",
+    )
+    data = load_mapped(path, {"q": "q", "de": "elevator"}, quality=True)
+    q = data.metadata["quality"]
+    assert set(q.channels) == {"q", "elevator"}
+    assert q["q"].dropouts == 1 and q["q"].longest_gap == pytest.approx(0.51)
+    assert "dropouts" in q["q"].flags

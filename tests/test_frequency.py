@@ -174,7 +174,13 @@ def test_exact_response_needs_a_linear_model(sp_noisy):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # a 10 s doublet excites alpha little
         res = frequency_response(model, sp_noisy)  # simulated works for any model
+        auto = frequency_response(model, sp_noisy, model_response="auto")
+        linear = frequency_response(catalog.short_period(), sp_noisy, model_response="auto")
     assert res.model_response == "simulated"
+    # auto: exact where the model is linear time-invariant, simulated where it is not
+    assert auto.model_response == "simulated"
+    assert auto.channel("elevator", "q").mismatch == res.channel("elevator", "q").mismatch
+    assert linear.model_response == "exact"
 
 
 # -- which frequencies count ----------------------------------------------------------------

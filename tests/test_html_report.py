@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from aeroid._html import markdown_to_html
-from aeroid.pipeline.campaign_report import _LEGEND, _status
+from aeroid.pipeline.flight_status import LEGEND, flight_status
 from aeroid.plotting import _parameter_units
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,7 +87,7 @@ def test_status_names_every_flag_and_the_legend_explains_each():
         "active_bounds": {"M_q": "upper"},
         "identifiable": False,
     }
-    status = _status(None, ident, ("—", "—", ("q",)), {"converged": False})
+    status = flight_status(None, ident, ("—", "—", ("q",)), {"converged": False})
     flags = status.split("; ")
     assert flags == [
         "not converged",
@@ -97,10 +97,17 @@ def test_status_names_every_flag_and_the_legend_explains_each():
         "posterior not converged",
     ]
     for word in ("not converged", "bound", "not identifiable", "coloured", "posterior"):
-        assert word in _LEGEND
+        assert word in LEGEND
     clean = {"success": True, "active_bounds": {}, "identifiable": True}
-    assert _status(None, clean, ("—", "—", ()), {"converged": True}) == "ok"
-    assert _status("boom", clean, None, None) == "failed"
+    assert flight_status(None, clean, ("—", "—", ()), {"converged": True}) == "ok"
+    assert flight_status("boom", clean, None, None) == "failed"
+    # the data-quality flags of the channels as read: one channel named, several counted
+    meta = {"quality_flags": {"q": ["jitter"], "alpha": ["jitter", "dropouts"]}}
+    assert flight_status(None, clean, None, None, meta).split("; ") == [
+        "data jitter (2 channels)",
+        "data dropouts alpha",
+    ]
+    assert "**data F C**" in LEGEND
 
 
 def test_markdown_folds_sections_and_links_anchors():

@@ -95,6 +95,12 @@ def test_new_stages_run_store_and_read_back_what_the_library_computes(tmp_path):
     ):
         assert f"\n## {heading}\n" in markdown, heading
     assert "## Data compatibility" not in markdown
+    # the campaign report sets each flight's equivalent system against its condition
+    campaign = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    table = campaign.split("### Handling qualities", 1)[1]
+    assert "| omega [rad/s] |" in table and "| zeta [-] |" in table
+    omega = hq.equivalent_system.parameters["omega"]
+    assert f"{omega:.4g}" in table.split("\n\n")[2]
     # none of the new steps feeds identify without compatibility: its input is as loaded
     identify = next(t for t in p.tasks if t.step == "identify")
     assert set(identify.upstream) == {"data"}
@@ -244,6 +250,21 @@ def test_px4_roll_campaign_runs_end_to_end_through_the_channel_map(tmp_path):
         window=[23.4, 25.0],
     )
     np.testing.assert_array_equal(data.channels["y"], direct.channels["y"])
+    # the log's channels are checked as they arrive: on their own ~400 Hz stamps,
+    # inside the window, under the log's names; the flight's report shows it first
+    quality = data.metadata["quality"]
+    assert set(quality.channels) == {
+        "vehicle_angular_velocity.xyz[0]",
+        "actuator_controls_0.control[0]",
+    }
+    gyro = quality["vehicle_angular_velocity.xyz[0]"]
+    assert 350 < gyro.rate < 450 and gyro.n_samples > 1.5 * data.n_samples
+    assert gyro.dropouts == 0  # the 0.16 s gap at 20.3 s lies outside the window
+    text = rec["report"].markdown
+    assert text.index("Data quality") < text.index("Identification")
+    campaign = (tmp_path / "out" / "px4_roll.md").read_text()
+    for flag in quality.flags["vehicle_angular_velocity.xyz[0]"]:
+        assert f"data {flag}" in campaign
     fit = rec["identify"]
     assert fit.parameters["tau"] > 0  # roll damping L_p = -1/tau is negative
     assert (tmp_path / "out" / "px4_roll.md").is_file()
@@ -273,4 +294,5 @@ def test_load_merges_the_flight_condition_into_the_metadata():
         "time_column",
         "channels",
         "units",
+        "quality",
     }

@@ -448,6 +448,7 @@ def test_log_options_left_unset_change_no_flight_options_or_keys(tmp_path):
         "time_column": None,
         "units": None,
         "channels": {"alpha": "alpha", "q": "q", "elevator": "elevator"},
+        "quality": None,  # load 2: the data-quality check, on unless set false
     }
     key, _ = task_key(
         record_type=stage.record_type,

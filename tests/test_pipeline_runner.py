@@ -428,7 +428,8 @@ def test_stages_after_the_fit_start_from_its_initial_state(tmp_path):
     extra = (
         "  filter: {process_noise: {alpha: 1.0e-8, q: 1.0e-8},"
         " measurement_noise: {alpha: 2.5e-5, q: 1.0e-4}}\n"
-        "  frequency: {frequency_range: [0.2, 3.0]}\n"
+        # simulated: the exact response (the stage's default here) has no initial state
+        "  frequency: {frequency_range: [0.2, 3.0], model_response: simulated}\n"
         "  sensitivities: {noise: {alpha: 0.005, q: 0.01}}\n"
     )
     cfg = _config(tmp_path, n=1, extra=extra)
@@ -483,8 +484,10 @@ def test_stages_after_a_fit_with_measured_initial_state_are_unchanged(tmp_path):
     assert dict(fit.initial_states[0]) == {c: float(data[c][0]) for c in ("alpha", "q")}
     with pytest.warns(UserWarning, match="too few coherent"):  # as the stage warned
         plain = aeroid.frequency_response(
-            catalog.short_period(), data, fit, frequency_range=(0.2, 3.0)
+            catalog.short_period(), data, fit, frequency_range=(0.2, 3.0), model_response="auto"
         )
+    # the stage's default: the linear model's exact transfer function
+    assert by_step["frequency"].model_response == plain.model_response == "exact"
     for got, want in zip(by_step["frequency"].channels, plain.channels, strict=True):
         np.testing.assert_array_equal(got.model_magnitude, want.model_magnitude)
 

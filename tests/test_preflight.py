@@ -102,6 +102,14 @@ def _refused(cfg: Path, pattern: str) -> str:
             "frequency: {inputs: [aileron]}",
             r"stages.frequency.inputs: 'aileron' is not a control .*its controls: elevator",
         ),
+        (
+            "frequency_identify: {parameters: [M_qq]}",
+            r"stages.frequency_identify.parameters: 'M_qq' is not a parameter .*'M_q'\?",
+        ),
+        (
+            "frequency_identify: {outputs: [qq]}",
+            r"stages.frequency_identify.outputs: 'qq' is not an output .*did you mean 'q'\?",
+        ),
     ],
 )
 def test_a_name_the_model_lacks_is_named_with_a_suggestion(tmp_path, stages, expected):

@@ -160,3 +160,15 @@ def test_bad_input_is_refused_clearly():
         check_data_quality(data, saturation_run=2.5)
     one = _log(a=(np.array([1.0]), np.array([2.0])))
     assert check_data_quality(one)["a"].flags == ("too_few_samples",)
+
+
+def test_a_doublet_from_trim_is_not_saturation_but_a_clipped_one_is():
+    t = np.arange(N) / FS
+    # trim, then a doublet of +-1 for 2 s each, then trim: plateaus everywhere
+    doublet = np.where((t >= 5) & (t < 7), 1.0, 0.0) - np.where((t >= 7) & (t < 9), 1.0, 0.0)
+    c = check_data_quality(FlightData(t, {"elevator": 0.1 + doublet}))["elevator"]
+    assert c.saturation == pytest.approx(400 / N)  # the share at the extremes is reported
+    assert "saturation" not in c.flags
+    # a smooth input clipped at its limits has no plateau elsewhere: flagged
+    raw = 1.5 * np.sin(2 * np.pi * 0.5 * t) + 0.01 * np.random.default_rng(1).standard_normal(N)
+    assert "saturation" in check_data_quality(FlightData(t, {"x": raw.clip(-1, 1)}))["x"].flags

@@ -31,7 +31,9 @@ _MATLAB_NUMERIC = frozenset(
     }
 )
 # stages whose library function reads the flight's controls and outputs
-_READS_DATA = frozenset({"identify", "filter", "validate", "infer", "frequency", "sensitivities"})
+_READS_DATA = frozenset(
+    {"identify", "filter", "validate", "infer", "frequency", "sensitivities", "frequency_identify"}
+)
 
 # (stage, option) -> which of the model's names the option's entries are
 # ("parameter", "state", "output", "control"; "output or state" for either)
@@ -60,6 +62,9 @@ _NAMED: dict[tuple[str, str], str] = {
     ("sensitivities", "parameters"): "parameter",
     ("sensitivities", "noise"): "output",
     ("sensitivities", "outputs"): "output",
+    ("frequency_identify", "parameters"): "parameter",
+    ("frequency_identify", "outputs"): "output",
+    ("frequency_identify", "noise"): "output",
 }
 
 

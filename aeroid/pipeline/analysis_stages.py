@@ -239,6 +239,58 @@ def _run_handling_qualities(ctx: StageContext) -> HandlingQualities:
     return HandlingQualities(bandwidth=bw, equivalent_system=eq, margins=margins)
 
 
+# what the campaign table shows of each flight's handling qualities: (label, unit)
+_HQ_UNITS = {
+    "bandwidth": "rad/s",
+    "phase delay": "s",
+    "gain margin": "dB",
+    "phase margin": "deg",
+    "mismatch": "-",
+    "omega": "rad/s",
+    "zeta": "-",
+    "1/T_theta2": "1/s",
+    "1/T_R": "1/s",
+    "tau": "s",
+}
+
+
+def hq_brief(record: Any) -> dict[str, float]:
+    """The scalar handling-qualities metrics of one flight, by label."""
+    out: dict[str, float] = {}
+    bw, eq, margins = record.bandwidth, record.equivalent_system, record.margins
+    if bw is not None:
+        out.update({"bandwidth": bw.bandwidth, "phase delay": bw.phase_delay})
+    if eq is not None:
+        out.update({n: float(v) for n, v in eq.parameters.items() if n != "K"})
+        out["mismatch"] = float(eq.mismatch)
+    if margins is not None:
+        out.update({"gain margin": margins.gain_margin, "phase margin": margins.phase_margin})
+    return {k: float(v) for k, v in out.items()}
+
+
+def hq_table(flights: list[str], conditions: list[str], briefs: list[Any]) -> list[str]:
+    """The handling qualities of every flight against its condition (none: no lines)."""
+    labels = list(dict.fromkeys(k for b in briefs if b for k in b))
+    if not labels:
+        return []
+    from .._records import markdown_table
+
+    columns = ("flight", "condition", *(f"{k} [{_HQ_UNITS.get(k, '-')}]" for k in labels))
+    rows = [
+        (f, c, *(f"{b[k]:.4g}" if b and k in b else "—" for k in labels))
+        for f, c, b in zip(flights, conditions, briefs, strict=True)
+    ]
+    return [
+        "### Handling qualities",
+        "",
+        "Bandwidth and phase delay of the measured response, the low-order equivalent "
+        "system fitted to it and its mismatch, and the loop's margins, per flight condition.",
+        "",
+        markdown_table(columns, rows),
+        "",
+    ]
+
+
 # report role -> the section heading a flight's report gives that result
 REPORT_SECTIONS: dict[str, str] = {
     "compatibility": "Data compatibility",
@@ -248,6 +300,12 @@ REPORT_SECTIONS: dict[str, str] = {
     "frequency_domain": "Frequency-domain identification",
     "handling_qualities": "Handling qualities",
 }
+
+
+def quality_section(inputs: Mapping[str, Any]) -> str:
+    """The data-quality checks of the loaded data (role ``data``), when it has them."""
+    quality = getattr(inputs.get("data"), "metadata", {}).get("quality")
+    return "" if quality is None else f"## Data quality\n\n{quality.summary().rstrip()}\n"
 
 
 def report_sections(inputs: Mapping[str, Any]) -> str:

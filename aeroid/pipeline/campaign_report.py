@@ -19,7 +19,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import AeroidError, ConfigError
+from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
+from .flight_status import LEGEND, flight_status
 from .stages import CampaignReport, Stage, StageContext, register_stage
 
 if TYPE_CHECKING:
@@ -79,7 +81,11 @@ def _campaign_brief(role: str, record: Any) -> Any:
     the same flags as the run that computed them.
     """
     if role == "data":
-        return dict(getattr(record, "metadata", {}) or {})
+        meta = dict(getattr(record, "metadata", {}) or {})
+        quality = meta.pop("quality", None)
+        if quality is not None:
+            meta["quality_flags"] = {n: list(f) for n, f in quality.flags.items() if f}
+        return meta
     if role == "identification":
         return {
             "names": list(getattr(record, "parameter_names", ())),
@@ -89,6 +95,7 @@ def _campaign_brief(role: str, record: Any) -> Any:
             "active_bounds": dict(getattr(record, "active_bounds", {}) or {}),
             "unidentifiable": [list(c) for c in getattr(record, "unidentifiable", ())],
             "identifiable": bool(getattr(record, "identifiable", True)),
+            "units": dict(getattr(record, "parameter_units", {}) or {}),
         }
     if role == "validation":
         return _fit_whiteness(record)
@@ -104,33 +111,9 @@ def _campaign_brief(role: str, record: Any) -> Any:
         return {"converged": bool(getattr(record, "converged", True))}
     if role == "reports":
         return record.markdown
+    if role == "handling_qualities":
+        return hq_brief(record)
     return None  # the figures' inputs: read whole by the figure parts
-
-
-_LEGEND = (
-    "Status: **ok** every check passed; **failed** a stage raised (see Failures); "
-    "**not converged** the optimiser stopped short; **bound X** estimate X ended at a bound; "
-    "**not identifiable** the data cannot separate some parameters; "
-    "**coloured Y** residuals of output Y are not white; "
-    "**posterior not converged** the MCMC chains are too short."
-)
-
-
-def _status(failure: str | None, ident: Any, valid: Any, infer: Any) -> str:
-    if failure is not None:
-        return "failed"
-    flags = []
-    if ident is not None:
-        if not ident["success"]:
-            flags.append("not converged")
-        flags += [f"bound {n}" for n in ident.get("active_bounds", {})]
-        if not ident.get("identifiable", True):
-            flags.append("not identifiable")
-    if valid is not None:
-        flags += [f"coloured {n}" for n in valid[2]]
-    if infer is not None and not infer["converged"]:
-        flags.append("posterior not converged")
-    return "; ".join(flags) or "ok"
 
 
 # The figures of each flight, drawn from its records: (role, file label, title).
@@ -186,7 +169,8 @@ def _flight_units(records: Mapping[str, Any]) -> dict[str, str]:
         for role in ("identification", "inference")
         for n in getattr(records.get(role), "parameter_names", ())
     ]
-    units.update(_parameter_units(names))
+    declared = getattr(records.get("identification"), "parameter_units", None)
+    units.update(_parameter_units(names, declared))
     # an output's noise standard deviation (inference's sigma_<output>) has its unit
     units.update({n: units[n[6:]] for n in names if n.startswith("sigma_") and n[6:] in units})
     return units
@@ -231,6 +215,12 @@ def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
     return out
 
 
+def _declared(ctx: StageContext, flight: int) -> Mapping[str, str]:
+    """The parameter units one flight's identification declares (none when it failed)."""
+    brief = ctx.brief("identification", flight)
+    return {} if brief is None else brief.get("units", {})
+
+
 def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     import matplotlib.pyplot as plt
 
@@ -255,7 +245,8 @@ def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     names = names[index * half : (index + 1) * half]
     if not names:
         return None
-    fig = plot_campaign_trend(records, parameters=names, units=_parameter_units(names))
+    declared = {k: v for i in range(len(ctx.flights)) for k, v in _declared(ctx, i).items()}
+    fig = plot_campaign_trend(records, parameters=names, units=_parameter_units(names, declared))
     png = figure_png(fig, colors=64)
     plt.close(fig)
     return f"campaign_trend_{index}.png", png
@@ -332,7 +323,8 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         for n in r["names"] if r is not None else ():
             if n not in names:
                 names.append(n)
-    punits = _parameter_units(names)
+    declared = {k: v for r in ident if r is not None for k, v in r.get("units", {}).items()}
+    punits = _parameter_units(names, declared)
     columns = (
         "flight",
         "condition",
@@ -354,7 +346,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 est.append("—")
         fit, white = ("—", "—") if v is None else v[:2]
         metric = ctx.brief("propagation", i) or "—"
-        status = _status(ctx.failures.get(f), r, v, ctx.brief("inference", i))
+        status = flight_status(ctx.failures.get(f), r, v, ctx.brief("inference", i), meta)
         statuses.append(status)
         rows.append(
             (f, "—" if meta is None else _condition(meta), *est, fit, white, metric, status)
@@ -377,7 +369,12 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 f"![estimates across flights ({k + 1})]({_FIGURE_DIR}/campaign_trend_{k}.png)"
             ]
             parts.append("")
-    parts += [markdown_table(columns, rows), "", _LEGEND, ""]
+    parts += [markdown_table(columns, rows), "", LEGEND, ""]
+    parts += hq_table(
+        list(flights),
+        [r[1] for r in rows],
+        [ctx.brief("handling_qualities", i) for i in range(len(flights))],
+    )
     if ctx.failures:
         parts += ["## Failures", ""]
         parts += [f"- **{f}**: {err}" for f, err in ctx.failures.items()]
@@ -414,8 +411,9 @@ register_stage(
         "campaign_report",
         # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes);
         # 5: the trend across flights as two figures, drawn in parallel; 6: figures of
-        # every flight beside its tables, status flags from every stage, units
-        "6",
+        # every flight beside its tables, status flags from every stage, units;
+        # 7: data-quality flags in the status, handling qualities across flights
+        "7",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

@@ -13,13 +13,13 @@ from __future__ import annotations
 import inspect
 import math
 from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from pydantic import AliasChoices, Field, field_validator, model_validator
 
-from ..errors import AeroidError, DataFormatError, PipelineError
+from ..errors import AeroidError, PipelineError
 from .config import Options
+from .load_stage import LoadOptions
 from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
 
 __all__ = [
@@ -41,66 +41,6 @@ __all__ = [
 
 def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
     return options.library_kwargs(exclude=exclude)
-
-
-# -- load ---------------------------------------------------------------------------
-
-
-class LoadOptions(Options):
-    """`aeroid.channel_map.load_mapped` keywords (files) or the simulated-flight spec;
-    ``condition``: the flight condition the planner passes on into the data's metadata."""
-
-    library: ClassVar[str] = "aeroid.channel_map:load_mapped"
-
-    time_column: str | None = None
-    channels: list[str] | dict[str, str | dict[str, Any]] | None = None
-    units: dict[str, str] | None = None
-    sample_rate: float | None = Field(None, gt=0)
-    max_gap: float | None = Field(None, gt=0)
-    window: list[float] | dict[str, Any] | None = None
-    condition: dict[str, float] | None = None
-
-    engine_only: ClassVar[frozenset[str]] = frozenset({"condition"})
-    # unset, they leave the keys of flights loaded before they existed unchanged
-    added_later: ClassVar[frozenset[str]] = frozenset(
-        {"sample_rate", "max_gap", "window", "condition"}
-    )
-
-
-def _with_condition(data: Any, condition: Mapping[str, float] | None) -> Any:
-    """The record with the flight condition merged into its (read-only) metadata."""
-    if not condition:
-        return data
-    from ..data import FlightData
-
-    meta = {**dict(data.metadata), **{k: float(v) for k, v in condition.items()}}
-    return FlightData(data.time, data.channels, units=data.units, metadata=meta)
-
-
-def _run_load(ctx: StageContext) -> Any:
-    from ..channel_map import load_mapped
-    from .keys import file_digest
-
-    src = dict(ctx.source or {})
-    condition = ctx.options.condition
-    if src.get("kind") == "simulated":
-        from .synthetic import fly
-
-        return _with_condition(fly(src["spec"]), condition)
-    path = src["path"]
-    if not Path(path).is_file():
-        why = "is a folder, not a flight file" if Path(path).is_dir() else "no such file"
-        raise DataFormatError(f"{path}: {why}")
-    try:
-        before = file_digest(path)
-    except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    if before != src.get("sha256"):
-        raise PipelineError(f"{path}: the file changed since the run was planned")
-    data = load_mapped(path, **_kwargs(ctx.options, "condition"))
-    if file_digest(path) != before:
-        raise PipelineError(f"{path}: the file changed while it was being read")
-    return _with_condition(data, condition)
 
 
 # -- identify / filter / validate ----------------------------------------------------
@@ -453,9 +393,10 @@ class FrequencyOptions(Options):
 def _run_frequency(ctx: StageContext) -> Any:
     from ..frequency import frequency_response
 
-    return frequency_response(
-        ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
-    )
+    kw = _kwargs(ctx.options)
+    # the model's own transfer function where it has one, a smooth curve under the points
+    kw.setdefault("model_response", "auto")
+    return frequency_response(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
 
 
 class SensitivityOptions(Options):
@@ -505,25 +446,24 @@ def _run_report(ctx: StageContext) -> FlightReport:
         title=title,
         **extra,
     )
-    from .analysis_stages import report_sections
+    from .analysis_stages import quality_section, report_sections
 
+    text = str(text)
+    quality = quality_section(ctx.inputs)
+    if quality:
+        # what arrived comes first: after the title, before the results drawn from it
+        head, sep, rest = text.partition("\n\n")
+        text = f"{head}\n\n{quality}\n{rest}" if sep else f"{text.rstrip()}\n\n{quality}"
     more = report_sections(ctx.inputs)
-    text = f"{str(text).rstrip()}\n\n{more}" if more else str(text)
+    text = f"{text.rstrip()}\n\n{more}" if more else text
     return FlightReport(title=title, markdown=text)
 
 
 for _stage in (
     Stage(
-        "load",
-        "1",
-        LoadOptions,
-        "FlightData",
-        _run_load,
-        uses_model=False,
-    ),
-    Stage(
         "identify",
-        "2",
+        # 3: results carry the model's parameter units
+        "3",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
@@ -576,7 +516,9 @@ for _stage in (
     ),
     Stage(
         "frequency",
-        "3",  # 3: only frequencies whose coherence beats chance and that the input excites
+        # 3: only frequencies whose coherence beats chance and that the input excites;
+        # 4: the model's exact response by default where it is linear time-invariant
+        "4",
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
@@ -590,7 +532,9 @@ for _stage in (
     ),
     Stage(
         "report",
-        "2",  # 2: a section's summary no longer repeats the section heading
+        # 2: a section's summary no longer repeats the section heading; 3: the loaded
+        # data's quality checks (role data)
+        "3",
         ReportOptions,
         "FlightReport",
         _run_report,

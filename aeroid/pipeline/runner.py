@@ -214,9 +214,11 @@ def _run(
 
 
 def _cache_hit(result_store: ResultStore, task: Task) -> TaskStatus:
-    """A stored task's status: cached only where its entry's bytes pass their CRC-32."""
-    if result_store.check_entry(task.stage, task.key):
-        return TaskStatus(task.key, task.step, task.flight, "cached")
+    """A stored task's status: cached only where its entry's bytes pass their CRC-32;
+    with the warnings the computation raised, stored beside its result."""
+    found = result_store.cached_warnings(task.stage, task.key)
+    if found is not None:
+        return TaskStatus(task.key, task.step, task.flight, "cached", warnings=found)
     where = result_store.path_for(task.stage, task.key)
     error = f"{task.stage} entry {where} is corrupt: its bytes fail their checksum"
     return TaskStatus(task.key, task.step, task.flight, "failed", error=error)

@@ -421,17 +421,36 @@ class ResultStore:
         damaged, linked or crafted entry (compressed or oversized members).
         Like the digests it catches accidents, not deliberate edits.
         """
+        return self._checked_attributes(stage, key) is not None
+
+    def cached_warnings(self, stage: str, key: str) -> tuple[str, ...] | None:
+        """The warnings stored with a sound entry (as `check_entry`, in the same read),
+        or None where `check_entry` is False: a cached rerun shows them again."""
+        raw = self._checked_attributes(stage, key)
+        if raw is None:
+            return None
+        try:
+            found = json.loads(raw)["attributes"]["aeroid"]["provenance"].get("warnings", ())
+        except (ValueError, KeyError, TypeError, AttributeError):
+            return ()
+        return tuple(str(w) for w in found) if isinstance(found, list) else ()
+
+    def _checked_attributes(self, stage: str, key: str) -> bytes | None:
+        """The root ``zarr.json`` of an entry whose members all pass their CRC-32, else None."""
+        root = b""
         try:
             with self._backend.open_entry(
                 _check_name(stage, "stage"), _check_name(key, "key")
             ) as a:
-                for info in _checked_members(a.zip, a.size).values():
+                for name, info in _checked_members(a.zip, a.size).items():
                     with a.zip.open(info) as member:
+                        if name == "zarr.json":
+                            root = member.read()
                         while member.read(1 << 20):
                             pass  # zipfile compares the CRC-32 at the end of the member
         except (StoreError, OSError, ValueError, EOFError, MemoryError, zipfile.BadZipFile):
-            return False
-        return True
+            return None
+        return root
 
     def _ident(self, stage: str, key: str) -> tuple[str, str, str]:
         return (self._root_id, stage, key)

@@ -1,0 +1,109 @@
+"""The load stage: a flight file (through its channel map and window) or a simulated
+flight, checked as it arrives, into the `FlightData` every later stage reads."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+from pydantic import Field
+
+from ..errors import DataFormatError, PipelineError
+from .config import Options
+from .stages import Stage, StageContext, register_stage
+
+__all__ = ["LoadOptions", "QualityLimits"]
+
+
+class QualityLimits(Options):
+    """Limits of `aeroid.check_data_quality` (its keywords)."""
+
+    jitter_limit: float = Field(0.1, ge=0)
+    dropout_factor: float = Field(3.0, ge=1)
+    saturation_run: int = Field(5, ge=2)
+    alias_band: float = Field(0.1, gt=0, lt=1)
+    alias_limit: float = Field(0.2, ge=0, le=1)
+
+
+class LoadOptions(Options):
+    """`aeroid.channel_map.load_mapped` keywords (files) or the simulated-flight spec;
+    ``condition``: the flight condition the planner passes on into the data's metadata."""
+
+    library: ClassVar[str] = "aeroid.channel_map:load_mapped"
+
+    time_column: str | None = None
+    channels: list[str] | dict[str, str | dict[str, Any]] | None = None
+    units: dict[str, str] | None = None
+    sample_rate: float | None = Field(None, gt=0)
+    max_gap: float | None = Field(None, gt=0)
+    window: list[float] | dict[str, Any] | None = None
+    # the data-quality check of the channels as read (`aeroid.check_data_quality`):
+    # unset or true (default limits), false, or limits such as {jitter_limit: 0.05}
+    quality: bool | QualityLimits | None = None
+    condition: dict[str, float] | None = None
+
+    engine_only: ClassVar[frozenset[str]] = frozenset({"condition"})
+    # unset, they leave the keys of flights loaded before they existed unchanged
+    added_later: ClassVar[frozenset[str]] = frozenset(
+        {"sample_rate", "max_gap", "window", "condition"}
+    )
+
+
+def _with_condition(data: Any, condition: Mapping[str, float] | None) -> Any:
+    """The record with the flight condition merged into its (read-only) metadata."""
+    if not condition:
+        return data
+    from ..data import FlightData
+
+    meta = {**dict(data.metadata), **{k: float(v) for k, v in condition.items()}}
+    return FlightData(data.time, data.channels, units=data.units, metadata=meta)
+
+
+def _run_load(ctx: StageContext) -> Any:
+    from ..channel_map import load_mapped
+    from .keys import file_digest
+
+    src = dict(ctx.source or {})
+    condition = ctx.options.condition
+    if src.get("kind") == "simulated":
+        from ..data import FlightData
+        from ..quality import check_data_quality
+        from .synthetic import fly
+
+        data = fly(src["spec"])
+        quality = True if ctx.options.quality is None else ctx.options.quality
+        if quality:
+            limits = {} if quality is True else quality.model_dump()
+            meta = {**data.metadata, "quality": check_data_quality(data, **limits)}
+            data = FlightData(data.time, dict(data.channels), dict(data.units), meta)
+        return _with_condition(data, condition)
+    path = src["path"]
+    if not Path(path).is_file():
+        why = "is a folder, not a flight file" if Path(path).is_dir() else "no such file"
+        raise DataFormatError(f"{path}: {why}")
+    try:
+        before = file_digest(path)
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    if before != src.get("sha256"):
+        raise PipelineError(f"{path}: the file changed since the run was planned")
+    kw = ctx.options.library_kwargs(exclude=("condition",))
+    kw.setdefault("quality", True)  # every flight checked as it arrives unless told not to
+    data = load_mapped(path, **kw)
+    if file_digest(path) != before:
+        raise PipelineError(f"{path}: the file changed while it was being read")
+    return _with_condition(data, condition)
+
+
+register_stage(
+    Stage(
+        "load",
+        # 2: the data-quality report of the channels as read, in metadata["quality"]
+        "2",
+        LoadOptions,
+        "FlightData",
+        _run_load,
+        uses_model=False,
+    )
+)
