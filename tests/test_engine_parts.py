@@ -258,3 +258,20 @@ def test_rerun_all_on_worker_processes_finds_every_entry_bit_identical(tmp_path)
     assert all(r.identical and not r.failed for r in local), [r.lines for r in local]
     one = rerun_all(store, stage="identify", executor=InProcess())
     assert len(one) == 2 and all(r.identical for r in one)
+
+
+def test_a_report_only_rerun_draws_its_figure_parts_on_every_worker(tmp_path):
+    from aeroid.pipeline.executors import pool_size
+    from aeroid.pipeline.runner import n_parts
+
+    cfg = _config(tmp_path, n=3)
+    cfg.write_text(cfg.read_text().replace("figures: false", "figures: true"))
+    p = plan(cfg)
+    report = p.report_task
+    assert report is not None and n_parts(report) > 2  # the figures split into parts
+    # the report alone (every flight cached) still gets every worker
+    assert pool_size([report], 4) == 4
+    # one flight's chain of whole tasks: no more workers than tasks
+    load = next(t for t in p.tasks if t.step == "load")
+    assert pool_size([load], 4) == 1
+    assert pool_size(p.tasks, 2) == 2

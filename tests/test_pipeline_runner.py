@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -252,7 +251,6 @@ from aeroid.pipeline.config import Options
 @dataclass(frozen=True, eq=False)
 class WorkerState:
     threads: int
-    frozen: int
     pid: int
     os_threads: int
 
@@ -262,7 +260,6 @@ class ProbeOptions(Options):
 
 
 def probe(ctx):
-    import gc
     import os
 
     from threadpoolctl import threadpool_info
@@ -270,7 +267,7 @@ def probe(ctx):
     # counted before threadpoolctl looks: the threads this worker started on its own
     tasks = len(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else -1
     blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-    return WorkerState(max(blas, default=-1), gc.get_freeze_count(), os.getpid(), tasks)
+    return WorkerState(max(blas, default=-1), os.getpid(), tasks)
 
 
 register_stage(Stage("blas_probe", "1", ProbeOptions, "blas_probe_mod:WorkerState", probe,
@@ -280,11 +277,7 @@ pipeline = Pipeline("probe", flight_steps=(Step("load"), Step("blas_probe")), ca
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers on Linux")
-def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_objects(
-    tmp_path, monkeypatch
-):
-    import gc
-
+def test_embedded_workers_are_processes_with_one_blas_thread(tmp_path, monkeypatch):
     (tmp_path / "blas_probe_mod.py").write_text(BLAS_PROBE)
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.delenv("AEROID_START_METHOD", raising=False)
@@ -296,26 +289,20 @@ def test_embedded_workers_are_processes_with_one_blas_thread_sharing_frozen_obje
     )
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    assert gc.get_freeze_count() == 0
     with threadpool_limits(limits=2):  # what forked workers would inherit, unpinned
         s = run(cfg, workers=2)
         # the run pins this process's BLAS while it forks, and gives its limits back
         assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"} == {2}
     assert s.failed == 0
-    # the objects the workers share with this process are frozen in the workers only
-    assert gc.get_freeze_count() == 0
     store = open_store(tmp_path / "store")
     states = [store.load(t.key, t.stage) for t in s.plan.tasks if t.step == "blas_probe"]
     assert [w.threads for w in states] == [1, 1]
     assert all(w.pid != os.getpid() for w in states)
     if _start_method() == "fork":
-        assert all(w.frozen > 10_000 for w in states)
         # no BLAS threads (a forked worker that sets its own count starts them, each
         # spinning for a while): the main thread, the one that watches the parent and
         # the one that renews the task's claim on the store while it computes
         assert [w.os_threads for w in states] == [3, 3]
-    else:  # spawned workers (JAX loaded by an earlier test) share nothing
-        assert all(w.frozen == 0 for w in states)
 
 
 @pytest.mark.slow
@@ -339,39 +326,10 @@ def test_spawned_workers_pin_their_own_blas_and_store_the_same_bytes(tmp_path, m
         probes = [store.load(t.key, t.stage) for t in s.plan.tasks if t.step == "blas_probe"]
         assert [w.threads for w in probes] == [1, 1]
         assert all(w.pid != os.getpid() for w in probes)
-        if method == "spawn":  # started afresh: nothing shared with this process
-            assert all(w.frozen == 0 for w in probes)
         loads = {t.key: t.stage for t in s.plan.tasks if t.step == "load"}
         stores[method] = {k: store.metadata(k, st)["digests"] for k, st in loads.items()}
     if len(stores) == 2:
         assert stores["spawn"] == stores["fork"]
-
-
-def test_a_run_freezes_older_objects_only_while_it_runs(tmp_path, monkeypatch):
-    import gc
-
-    (tmp_path / "blas_probe_mod.py").write_text(BLAS_PROBE)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    cfg = tmp_path / "c.yaml"
-    cfg.write_text(
-        "model: short_period\nstore: store\npipeline: blas_probe_mod:pipeline\n"
-        "flights: [{simulated: {n_flights: 1, seed: 1, duration: 2.0}}]\n"
-        "stages: {blas_probe: {}}\n"
-    )
-    s = run(cfg, workers=0)
-    assert gc.get_freeze_count() == 0
-    (task,) = [t for t in s.plan.tasks if t.step == "blas_probe"]
-    assert open_store(tmp_path / "store").load(task.key, task.stage).frozen > 10_000
-    # objects the caller froze stay frozen
-    gc.freeze()
-    try:
-        before = gc.get_freeze_count()
-        shutil.rmtree(tmp_path / "store")
-        run(cfg, workers=0)
-        # (a few frozen objects may be freed by reference counting meanwhile)
-        assert gc.get_freeze_count() > before - 1000
-    finally:
-        gc.unfreeze()
 
 
 def test_flights_from_csv_parquet_and_mat_files_give_the_same_numbers(tmp_path):

@@ -6,8 +6,6 @@ Each piece is here for the reason given with it:
   aeroid afresh before its first task;
 - one BLAS thread per worker: two workers each running a multi-threaded BLAS
   on two cores fight over them;
-- the objects that exist before a run are left out of garbage collection
-  while it runs (`FrozenHeap`);
 - a worker exits when the process that started it is gone, instead of
   waiting for work forever after its run was killed with SIGKILL.
 """
@@ -15,13 +13,11 @@ Each piece is here for the reason given with it:
 from __future__ import annotations
 
 import contextlib
-import gc
-import importlib
 import os
 import sys
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 __all__: list[str] = []
@@ -59,29 +55,6 @@ def start_method() -> str:
     return "spawn"
 
 
-class FrozenHeap:
-    """Leaves the objects that exist before a run out of garbage collection while it runs.
-
-    Imports leave well over 100 000 long-lived objects that a run never
-    frees, and every full collection walks them all. In forked workers the
-    walk is worse: it writes to, and so copies, every page they share with
-    this process. Frozen before the workers fork, they stay frozen there.
-    Objects someone else froze are left as they are.
-    """
-
-    def __init__(self) -> None:
-        self._ours = gc.get_freeze_count() == 0
-
-    def add(self) -> None:
-        """Freeze what exists now (called again, it adds the objects made since)."""
-        if self._ours:
-            gc.freeze()
-
-    def release(self) -> None:
-        if self._ours:
-            gc.unfreeze()
-
-
 @contextlib.contextmanager
 def blas_pinned(fork: bool) -> Iterator[None]:
     """One BLAS/OpenMP thread in this process while it forks workers, which inherit it.
@@ -100,14 +73,6 @@ def blas_pinned(fork: bool) -> Iterator[None]:
         yield
     finally:
         limiter.restore_original_limits()
-
-
-def preload(modules: Iterable[str]) -> None:
-    """Import `modules` before the workers fork, so they share them instead of each
-    importing them on first use."""
-    for module in dict.fromkeys(modules):
-        with contextlib.suppress(ImportError):
-            importlib.import_module(module)
 
 
 def _start_worker(parent: int, forked: bool) -> None:

@@ -423,7 +423,6 @@ register_stage(
         run_part=_run_campaign_part,
         combine=_combine_campaign,
         part_flights=_campaign_part_flights,
-        preload=("aeroid.plotting", "aeroid._html"),
         brief=_campaign_brief,
     )
 )

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 from ..errors import PipelineError
 from . import _process, execution
 from .execution import PartResult, TaskStatus, error_text, n_parts
-from .graph import Node, chains, nodes, part_deps, preloaded_modules
+from .graph import Node, chains, nodes, part_deps
 from .planning import Task
 from .store import ResultStore, record_cache
 
@@ -43,16 +43,14 @@ class Executor(Protocol):
     ) -> list[TaskStatus]: ...
 
 
-def executor_for(
-    scheduler: str | None, workers: int | None, heap: _process.FrozenHeap | None = None
-) -> Executor:
+def executor_for(scheduler: str | None, workers: int | None) -> Executor:
     """The executor a config or command asks for: a scheduler address, 0 workers (this
     process), or a pool of local worker processes (default: one per core)."""
     if scheduler:
         return DaskCluster(scheduler)
     if workers == 0:
         return InProcess()
-    return LocalProcesses(workers, heap)
+    return LocalProcesses(workers)
 
 
 class InProcess:
@@ -92,6 +90,13 @@ class InProcess:
         return list(results.values())
 
 
+def pool_size(tasks: list[Task], workers: int) -> int:
+    """Worker processes for `tasks`: no more than their pieces of work (each task, or
+    each part of a split one), so that a report-only rerun still draws its figure
+    parts in parallel while a one-flight run starts no idle workers."""
+    return max(1, min(workers, sum(n_parts(t) for t in tasks)))
+
+
 class LocalProcesses:
     """The embedded cluster: Dask's local scheduler over a pool of worker processes.
 
@@ -104,9 +109,8 @@ class LocalProcesses:
     rest of the graph goes on in a fresh pool.
     """
 
-    def __init__(self, workers: int | None = None, heap: _process.FrozenHeap | None = None) -> None:
+    def __init__(self, workers: int | None = None) -> None:
         self.workers = workers
-        self.heap = heap  # the run's frozen objects, to add what is imported before forking
 
     def run(
         self,
@@ -124,14 +128,9 @@ class LocalProcesses:
         from dask.local import get_async
         from dask.multiprocessing import pack_exception
 
-        n = self.workers or _process.workers_default()
-        n = max(1, min(n, sum(1 for t in tasks if t.flight is not None) or 1))
+        n = pool_size(tasks, self.workers or _process.workers_default())
         graph = {node.name: node for node in nodes(tasks, store_root, scope, read_root)}
         fork = _process.start_method() == "fork"
-        if fork:
-            _process.preload(preloaded_modules(tasks))
-            if self.heap is not None:
-                self.heap.add()
         done: dict[str, Any] = {}  # node name -> its result
         running: set[str] = set()
         results: dict[str, TaskStatus] = {}

@@ -18,7 +18,7 @@ from .execution import n_parts, options_of
 from .planning import Task
 from .stages import STAGES
 
-__all__ = ["Node", "chains", "nodes", "part_deps", "preloaded_modules", "segments"]
+__all__ = ["Node", "chains", "nodes", "part_deps", "segments"]
 
 
 def part_deps(task: Task, index: int, deps: list[Any], owner: Mapping[str, Any]) -> list[Any]:
@@ -123,18 +123,3 @@ def nodes(
         for t in chain:
             owner[t.key] = name
     return out
-
-
-def preloaded_modules(tasks: list[Task]) -> list[str]:
-    """The modules the tasks' stages import when they run (their library function's, and
-    those they name in `Stage.preload`), to import once before workers fork."""
-    stages = [STAGES[t.stage] for t in tasks if t.stage in STAGES]
-    out: list[str] = []
-    for s in stages:
-        library = s.library or getattr(s.options, "library", None)
-        if library and ":" in library:
-            out.append(library.partition(":")[0])
-        out += list(s.preload)
-        if s.uses_model:  # the model's integrators, imported on first use
-            out += ["scipy.integrate", "scipy.linalg"]
-    return list(dict.fromkeys(out))

@@ -467,8 +467,6 @@ for _stage in (
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
-        # imported by `identify` when it runs: once before the workers fork, not in each
-        preload=("aeroid._output_error", "aeroid._filter_error"),
     ),
     # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state;
     # identify 2: results name the records they were fitted to
@@ -488,7 +486,6 @@ for _stage in (
         _run_propagate,
         uses_model=False,
         seeded=True,
-        preload=("aeroid._progress",),
         parts=_propagate_parts,
         run_part=_run_propagate_part,
         combine=_combine_propagate,
@@ -500,7 +497,6 @@ for _stage in (
         "InferenceResult",
         _run_infer,
         seeded=True,
-        preload=("aeroid._progress",),
         parts=_infer_parts,
         run_part=_run_infer_part,
         combine=_combine_infer,
@@ -512,7 +508,6 @@ for _stage in (
         "ExperimentDesign",
         _run_design,
         seeded=True,
-        preload=("aeroid._progress",),
     ),
     Stage(
         "frequency",

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from . import _process
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
 from .definition import Pipeline
@@ -143,14 +142,7 @@ def run(
         code (as the config's ``allow_imports: true`` does).
     """
     t0 = time.perf_counter()
-    # a full collection walks every object; left out of it, those that exist before the
-    # run cost nothing while it runs (planning and the report included)
-    heap = _process.FrozenHeap()
-    heap.add()
-    try:
-        return _run(config, t0, store, scheduler, workers, progress, pipeline, allow_imports, heap)
-    finally:
-        heap.release()
+    return _run(config, t0, store, scheduler, workers, progress, pipeline, allow_imports)
 
 
 def _run(
@@ -162,7 +154,6 @@ def _run(
     progress: bool,
     pipeline: Pipeline | None,
     allow_imports: bool,
-    heap: _process.FrozenHeap,
 ) -> RunSummary:
     if not isinstance(config, CampaignConfig):
         config = load_config(config)
@@ -191,8 +182,7 @@ def _run(
         else:
             todo.append(t)
     t_check = time.perf_counter()
-    heap.add()  # and the objects planning made
-    for status in _compute(todo, config, result_store, progress, heap):
+    for status in _compute(todo, config, result_store, progress):
         statuses[status.key] = status
     t_run = time.perf_counter()
     report_path, columns, rows, report_error = write_report(the_plan, result_store, statuses)
@@ -229,7 +219,6 @@ def _compute(
     config: CampaignConfig,
     result_store: ResultStore,
     progress: bool,
-    heap: _process.FrozenHeap,
 ) -> list[TaskStatus]:
     """Run the tasks not yet stored on the executor the config asks for."""
     if not todo:
@@ -243,7 +232,7 @@ def _compute(
         (lambda s: None) if bar is None else (lambda s: bar.update(1))
     )
     try:
-        executor = executor_for(config.scheduler, config.workers, heap)
+        executor = executor_for(config.scheduler, config.workers)
         return executor.run(todo, str(result_store.root), scope=uuid.uuid4().hex, on_done=on_done)
     finally:
         if bar is not None:

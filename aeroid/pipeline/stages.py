@@ -148,8 +148,8 @@ class Stage:
     seeded : bool
         The task gets ``SeedSequence(seed, spawn_key=(flight,))``.
     library : str or None
-        The library function wrapped, as ``module:function`` (its module is
-        imported before worker processes fork).
+        The library function wrapped, as ``module:function`` (imported when
+        the stage runs).
     per_flight : bool
         False for campaign-level stages whose inputs are lists over flights.
     parts : callable, optional
@@ -163,9 +163,6 @@ class Stage:
         ``part_flights(options, roles, i)``: for a campaign-level split task,
         the flights (indices) part `i` reads; it then waits only for those
         flights. None (or the callable returning None): every flight.
-    preload : tuple of str
-        Modules the stage imports lazily and slowly (plotting): imported once
-        before worker processes are forked, instead of in every worker.
     brief : callable, optional
         ``brief(role, record) -> value``: for a campaign-level stage, the small
         part of one flight's `role` input it needs (a few numbers and strings;
@@ -188,7 +185,6 @@ class Stage:
     parts: Callable[[Any, frozenset[str]], int] | None = None
     run_part: Callable[[StageContext, int], Any] | None = None
     combine: Callable[[StageContext, list[Any]], Any] | None = None
-    preload: tuple[str, ...] = ()
     part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
     brief: Callable[[str, Any], Any] | None = None
 
