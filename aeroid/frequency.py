@@ -176,7 +176,9 @@ class FrequencyResponseResult:
         The analysed band (Hz).
     model_response : str
         ``"simulated"`` (Welch estimate from the model's outputs simulated on
-        the measured inputs) or ``"exact"`` (analytic, linear time-invariant model).
+        the measured inputs), ``"exact"`` (analytic, linear time-invariant model)
+        or ``"linearised"`` (analytic, the model linearised at the record's first
+        sample).
     model_name : str
     n_averages : float
         Independent averages equivalent to the overlapping Welch segments.
@@ -231,13 +233,15 @@ class FrequencyResponseResult:
         table = markdown_table(
             ("input", "output", "coherent freqs", "coherent band", "mean γ²", "mismatch"), rows
         )
-        how = (
-            "exact (linear time-invariant model); a frequency counts only where the "
-            f"window resolves the estimate (at most {100 * _RESOLVED_STEP:.0f} % change to "
-            "either neighbour, input not leaked from a neighbour)"
-            if self.model_response == "exact"
-            else "Welch estimate from the simulated outputs"
+        resolved = (
+            "; a frequency counts only where the window resolves the estimate (at most "
+            f"{100 * _RESOLVED_STEP:.0f} % change to either neighbour, input not leaked "
+            "from a neighbour)"
         )
+        how = {
+            "exact": "exact (linear time-invariant model)" + resolved,
+            "linearised": "the model linearised at the record's first sample" + resolved,
+        }.get(self.model_response, "Welch estimate from the simulated outputs")
         lo, hi = self.frequency_range
         return "\n".join(
             [
@@ -391,6 +395,72 @@ def _exact_response(
     return np.transpose(h, (0, 2, 1))
 
 
+def _linearised_response(
+    model: Model,
+    values: Mapping[str, float],
+    t0: float,
+    x_ref: FloatArray,
+    u_ref: FloatArray,
+    freqs: FloatArray,
+) -> ComplexArray | None:
+    """H(j 2π f), shape (n_f, n_u, n_y), of the model linearised at (`x_ref`, `u_ref`).
+
+    Central differences of the dynamics and the measurement about the
+    reference (the record's first sample: its trim, for a manoeuvre flown from
+    trim), all in one batched call each. None where a function cannot be
+    evaluated there or gives non-finite values.
+    """
+    n_x, n_u = model.n_states, model.n_controls
+    z = np.concatenate([x_ref, u_ref]).astype(np.float64)
+    n = z.size
+    h = 1e-6 * np.maximum(1.0, np.abs(z))
+    Z = np.repeat(z[:, None], 2 * n, axis=1)
+    cols = np.arange(n)
+    Z[cols, 2 * cols] += h
+    Z[cols, 2 * cols + 1] -= h
+    P = {k: np.full(2 * n, float(v)) for k, v in values.items()}
+
+    def jacobian(f: Any) -> FloatArray | None:
+        try:
+            with np.errstate(all="ignore"):
+                F = np.asarray(f(float(t0), Z[:n_x], Z[n_x:], P), dtype=np.float64)
+        except Exception:  # a function that cannot be evaluated there: simulated instead
+            return None
+        if not np.all(np.isfinite(F)):
+            return None
+        return (F[:, 0::2] - F[:, 1::2]) / (2.0 * h)
+
+    J = jacobian(model._dynamics_batch)
+    if J is None:
+        return None
+    a, b = J[:, :n_x], J[:, n_x:]
+    if model._measurement_batch is None:
+        c = np.zeros((model.n_outputs, n_x))
+        for i, o in enumerate(model.output_names):
+            c[i, list(model.states).index(o)] = 1.0
+        d = np.zeros((model.n_outputs, n_u))
+    else:
+        Jm = jacobian(model._measurement_batch)
+        if Jm is None:
+            return None
+        c, d = Jm[:, :n_x], Jm[:, n_x:]
+    s = 2j * np.pi * freqs
+    m = s[:, None, None] * np.eye(n_x)[None] - a[None]
+    with np.errstate(all="ignore"):
+        x = np.linalg.solve(m, np.broadcast_to(b, (freqs.size, *b.shape)).astype(complex))
+    return np.transpose(c[None] @ x + d[None], (0, 2, 1))
+
+
+def _reference_state(model: Model, data: FlightData, x0: Any) -> FloatArray:
+    """The state a response is linearised about: `x0` (a mapping or a vector), else the
+    record's first sample of each measured state (0 for the others)."""
+    if x0 is None:
+        x0 = measured_start(data, model.states)
+    if isinstance(x0, Mapping):
+        return np.array([float(x0.get(s, 0.0)) for s in model.states])
+    return np.asarray(x0, dtype=np.float64).reshape(-1)[: model.n_states]
+
+
 def _independent_averages(n: int, nperseg: int) -> float:
     """Independent averages equivalent to the overlapping Welch segments of a record.
 
@@ -491,7 +561,11 @@ def frequency_response(
         window resolves the response (see the module notes), so a counted
         estimate is within about 5 % of the truth on noise-free data.
         ``"auto"``: exact where the model is linear time-invariant over the
-        record, else simulated (the campaign pipeline's default).
+        record; else the transfer function of the model linearised by central
+        differences at the record's first sample (its trim, for a manoeuvre
+        flown from trim: the initial state `x0` and the first controls),
+        recorded as ``"linearised"``; simulated where neither can be evaluated
+        (the campaign pipeline's default).
     min_coherent : int
         Warn when a channel has fewer coherent frequencies than this.
 
@@ -604,11 +678,18 @@ def frequency_response(
     how = "simulated"
     if model_response in ("exact", "auto") and isinstance(model, Model):
         full = _exact_response(model, values, data.time, f)
+        how = "exact"
+        if full is None and model_response == "auto":
+            u_ref = data.array(list(controls))[:, 0]
+            x_ref = _reference_state(model, data, x0)
+            full = _linearised_response(model, values, data.time[0], x_ref, u_ref, f)
+            how = "linearised"
         if full is not None:
             idx_u = [controls.index(i) for i in ins]
             idx_y = [model_outputs.index(o) for o in outs]
             h_model = full[:, idx_u][:, :, idx_y]
-            how = "exact"
+        else:
+            how = "simulated"
     if h_model is None:
         if model_response == "exact":
             raise IdentificationError(
@@ -626,7 +707,7 @@ def frequency_response(
         for k, out in enumerate(outs):
             he, hm, g = h_emp[:, i, k], h_model[:, i, k], coh[:, i, k]
             mask = (g >= thr_used) & (excitation[:, i] >= _EXCITED_FRACTION) & resolvable
-            if how == "exact":  # see _RESOLVED_STEP
+            if how != "simulated":  # see _RESOLVED_STEP
                 mask &= resolved[:, i, k]
             with np.errstate(all="ignore"):
                 rel = np.abs(he - hm) / np.abs(hm)

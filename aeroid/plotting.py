@@ -206,7 +206,8 @@ def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None
         model_db = 20.0 * np.log10(np.maximum(np.asarray(ch.model_magnitude, dtype=float), 1e-300))
         mag.semilogx(f, db, color="0.6", lw=0.8, label="empirical")
         mag.semilogx(f[ok], db[ok], "o", color="C1", ms=3, label="coherent")
-        mag.semilogx(f, model_db, color="C0", lw=1.4, label="model")
+        how = getattr(freq, "model_response", "")
+        mag.semilogx(f, model_db, color="C0", lw=1.4, label=f"model ({how})" if how else "model")
         mag.set_title(
             f"{ch.output_name} / {ch.input_name} (mismatch {ch.mismatch:.2g})", fontsize=9
         )

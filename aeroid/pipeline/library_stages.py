@@ -512,8 +512,9 @@ for _stage in (
     Stage(
         "frequency",
         # 3: only frequencies whose coherence beats chance and that the input excites;
-        # 4: the model's exact response by default where it is linear time-invariant
-        "4",
+        # 4: the model's exact response by default where it is linear time-invariant;
+        # 5: else the transfer function of the model linearised at the record's start
+        "5",
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
