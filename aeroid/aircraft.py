@@ -468,6 +468,11 @@ class AircraftModel(Model):
         The control-surface inputs, in control order.
     equations : str
         The equations of motion and outputs as printed by `summary`.
+    channel_units : mapping of str to str
+        The unit of each state, control and output (``V`` m/s, ``alpha`` rad,
+        ``q`` rad/s, ``q_dot`` rad/s², ``ax`` m/s² or g, surfaces rad,
+        ``thrust`` N): what plots and tables label a record's channels with
+        where the record itself gives no unit.
     parameter_units : mapping of str to str
         Each parameter's unit, from its equation's and regressors' units:
         dimensional derivatives without the radian (``M_alpha``: 1/s²,
@@ -482,6 +487,7 @@ class AircraftModel(Model):
     surfaces: tuple[str, ...] = ()
     equations: str = ""
     parameter_units: Mapping[str, str] = field(default_factory=dict)
+    channel_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -489,6 +495,8 @@ class AircraftModel(Model):
         object.__setattr__(self, "reference", ref)
         units = ReadOnlyDict({str(k): str(v) for k, v in self.parameter_units.items()})
         object.__setattr__(self, "parameter_units", units)
+        chans = ReadOnlyDict({str(k): str(v) for k, v in self.channel_units.items()})
+        object.__setattr__(self, "channel_units", chans)
         object.__setattr__(self, "surfaces", tuple(self.surfaces))
 
     def summary(self) -> str:
@@ -517,12 +525,38 @@ class AircraftModel(Model):
         return "\n".join(lines)
 
 
+# units of the channels the aircraft models name (surfaces, not listed, are in rad)
+_CHANNEL_UNITS = {
+    "V": "m/s",
+    "u": "m/s",
+    "v": "m/s",
+    "w": "m/s",
+    "p": "rad/s",
+    "q": "rad/s",
+    "r": "rad/s",
+    "p_dot": "rad/s²",
+    "q_dot": "rad/s²",
+    "r_dot": "rad/s²",
+    "h": "m",
+    "x": "m",
+    "y": "m",
+    "z": "m",
+    "thrust": "N",
+}
+
+
+def _channel_units(names: Sequence[str], accel_units: str) -> dict[str, str]:
+    accel = "g" if accel_units == "g" else "m/s²"
+    return {n: accel if n in ("ax", "ay", "az") else _CHANNEL_UNITS.get(n, "rad") for n in names}
+
+
 def _aircraft_model(
     kind: str,
     function: Callable[..., Callable[[Any, Any, Any, Any], Any]],
     args: tuple[Any, ...],
     *,
     version: str | None,
+    accel_units: str = "m/s2",
     **fields: Any,
 ) -> AircraftModel:
     """The model whose dynamics and measurement are ``function(*args, role)``.
@@ -530,11 +564,13 @@ def _aircraft_model(
     `args` (constants, reference condition, terms, options) are also folded
     into the version, as the function source is the same for every such model.
     """
+    names = [*fields["states"], *fields["controls"], *fields["outputs"]]
     return AircraftModel(
         dynamics=function(*args, "dynamics"),
         measurement=function(*args, "measurement"),
         version=_content_version(version, kind, *args),
         kind=kind,
+        channel_units=_channel_units(names, accel_units),
         **fields,
     )
 
@@ -758,6 +794,7 @@ def longitudinal(
         outputs=outs,
         name=name,
         version=version,
+        accel_units=accel_units,
         constants=c,
         reference={"V0": V0},
         surfaces=surf,
@@ -945,6 +982,7 @@ def lateral(
         outputs=outs,
         name=name,
         version=version,
+        accel_units=accel_units,
         constants=c,
         reference={"V0": V0, "alpha0": alpha0, "theta0": theta0},
         surfaces=surf,
@@ -1292,6 +1330,7 @@ def six_dof(
         outputs=outs,
         name=name,
         version=version,
+        accel_units=accel_units,
         constants=c,
         reference={"V0": V0},
         surfaces=surf,
@@ -2181,6 +2220,7 @@ def decoupled(
         + "\n\nlateral-directional part:\n"
         + lateral.equations,
         parameter_units={**longitudinal.parameter_units, **lateral.parameter_units},
+        channel_units={**longitudinal.channel_units, **lateral.channel_units},
     )
 
 

@@ -108,7 +108,8 @@ class ValidationResult:
         The model's controls, as flown (for plots: the inputs under the outputs).
     controls : ndarray, shape (n_t, n_u), or None
     units : mapping of str to str
-        Units of the outputs and controls, from the flight data.
+        Units of the outputs and controls: the flight data's, else those the
+        model declares (``channel_units`` of the `aeroid.aircraft` models).
     """
 
     metrics: Mapping[str, OutputMetrics]
@@ -320,5 +321,10 @@ def validate(
         whiteness_lags=lags,
         control_names=tuple(model.controls),
         controls=data.array(list(model.controls)) if model.controls else None,
-        units={k: v for k, v in data.units.items() if k in chosen or k in model.controls},
+        # the record's own units, else those the model declares (the aircraft models)
+        units={
+            k: v
+            for k, v in {**dict(getattr(model, "channel_units", {}) or {}), **data.units}.items()
+            if k in chosen or k in model.controls
+        },
     )

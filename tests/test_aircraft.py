@@ -785,3 +785,26 @@ def test_an_identification_result_carries_the_models_units():
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_channel_units_label_a_record_that_gives_none():
+    lon = longitudinal(CONSTANTS, V0=V0, parameters=LONG, accel_units="g")
+    u = lon.channel_units
+    assert (u["V"], u["alpha"], u["q"], u["q_dot"], u["az"], u["delta_e"]) == (
+        "m/s",
+        "rad",
+        "rad/s",
+        "rad/s²",
+        "g",
+        "rad",
+    )
+    lin = longitudinal_linear(V0=V0, parameters={"M_alpha": -5.0, "M_q": -2.0, "M_delta_e": -8.0})
+    t = np.arange(0.0, 4.0, 0.02)
+    de = np.where((t > 1) & (t < 2), 0.02, 0.0)
+    sim = lin.simulate(t, de[:, None], np.zeros(4))
+    plain = aeroid.FlightData(t, {**{s: sim.state(s) for s in lin.states}, "delta_e": de})
+    v = aeroid.validate(lin, plain, dict(lin.parameters))
+    assert v.units["q"] == "rad/s" and v.units["V"] == "m/s" and v.units["delta_e"] == "rad"
+    # a unit the record states wins
+    given = aeroid.FlightData(plain.time, dict(plain.channels), units={"q": "deg/s"})
+    assert aeroid.validate(lin, given, dict(lin.parameters)).units["q"] == "deg/s"

@@ -473,7 +473,7 @@ for _stage in (
     Stage("filter", "2", FilterOptions, "FilterResult", _run_filter),
     Stage(
         "validate",
-        "1",
+        "2",  # 2: units the model declares where the record gives none
         ValidateOptions,
         "ValidationResult",
         _run_validate,
