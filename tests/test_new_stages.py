@@ -4,7 +4,6 @@ map: each runs in a campaign, stores its record and reads it back as the library
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -232,7 +231,6 @@ def _px4_config(tmp_path: Path) -> Path:
 
 
 def test_px4_roll_campaign_runs_end_to_end_through_the_channel_map(tmp_path):
-    start = time.perf_counter()
     cfg = _px4_config(tmp_path)
     rec, _ = _records(tmp_path, cfg.read_text())
     data = rec["load"]
@@ -268,7 +266,6 @@ def test_px4_roll_campaign_runs_end_to_end_through_the_channel_map(tmp_path):
     fit = rec["identify"]
     assert fit.parameters["tau"] > 0  # roll damping L_p = -1/tau is negative
     assert (tmp_path / "out" / "px4_roll.md").is_file()
-    assert time.perf_counter() - start < 60
 
 
 def test_load_merges_the_flight_condition_into_the_metadata():
