@@ -94,6 +94,11 @@ def test_new_stages_run_store_and_read_back_what_the_library_computes(tmp_path):
     ):
         assert f"\n## {heading}\n" in markdown, heading
     assert "## Data compatibility" not in markdown
+    # the loaded data's checks come first: one line for a clean record, the table otherwise
+    quality = data.metadata["quality"]
+    assert markdown.index("## Data quality") < markdown.index("## Regression")
+    assert ("no flags on 3 channels" in markdown) == quality.ok
+    assert ("| channel | samples |" in markdown) == (not quality.ok)
     # the campaign report sets each flight's equivalent system against its condition
     campaign = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     table = campaign.split("### Handling qualities", 1)[1]

@@ -305,7 +305,17 @@ REPORT_SECTIONS: dict[str, str] = {
 def quality_section(inputs: Mapping[str, Any]) -> str:
     """The data-quality checks of the loaded data (role ``data``), when it has them."""
     quality = getattr(inputs.get("data"), "metadata", {}).get("quality")
-    return "" if quality is None else f"## Data quality\n\n{quality.summary().rstrip()}\n"
+    if quality is None:
+        return ""
+    if quality.ok:  # a clean record's table says nothing its one line does not
+        source = f" of {quality.source}" if quality.source else ""
+        text = (
+            f"Data quality{source}: no flags on {len(quality.channels)} channels (time "
+            "stamps, jitter, dropouts, saturation and aliasing checked)."
+        )
+    else:
+        text = quality.summary().rstrip()
+    return f"## Data quality\n\n{text}\n"
 
 
 def report_sections(inputs: Mapping[str, Any]) -> str:
