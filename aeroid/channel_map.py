@@ -461,13 +461,13 @@ def _quality(
     data: FlightData | FlightLog,
     sources: Sequence[str] | None,
     bounds: tuple[float | None, float | None] | None,
-    quality: bool | Mapping[str, float],
+    limits: Mapping[str, Any],
 ) -> Any:
-    """The data-quality report of `sources` (all: None) as read, inside `bounds`."""
+    """The data-quality report of `sources` (all: None) as read, inside `bounds`, with
+    the limits `_quality_limits` checked."""
     from ._logtypes import LogChannel
     from .quality import check_data_quality
 
-    limits: dict[str, Any] = _quality_limits(quality) or {}
     if isinstance(data, FlightLog) and bounds is not None and bounds[0] is not None:
         t0, t1 = float(bounds[0]), float(bounds[1])  # type: ignore[arg-type]
         cut = {}

@@ -348,10 +348,7 @@ def _affine_measurement(
     """(C, D) if the model's outputs are affine in state and control over `time`, else None."""
     n_x, n_u = model.n_states, model.n_controls
     if model._measurement_batch is None:
-        c = np.zeros((model.n_outputs, n_x))
-        for i, o in enumerate(model.output_names):
-            c[i, list(model.states).index(o)] = 1.0
-        return c, np.zeros((model.n_outputs, n_u))
+        return _state_outputs(model)
     p1 = {k: np.asarray(v[:1], dtype=np.float64) for k, v in p.items()}
     mats, _ = _integrate.lti_form(
         model._measurement_batch, time, n_x, n_u, p1, trusted=model.linear is True
@@ -385,10 +382,23 @@ def _exact_response(
     cd = _affine_measurement(model, p, time)
     if cd is None:
         return None
-    a, b = mats[0][0], mats[1][0]
-    c, d = cd
+    return _transfer(mats[0][0], mats[1][0], *cd, freqs)
+
+
+def _state_outputs(model: Model) -> tuple[FloatArray, FloatArray]:
+    """(C, D) of a model without a measurement function: its outputs are states."""
+    c = np.zeros((model.n_outputs, model.n_states))
+    for i, o in enumerate(model.output_names):
+        c[i, list(model.states).index(o)] = 1.0
+    return c, np.zeros((model.n_outputs, model.n_controls))
+
+
+def _transfer(
+    a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, freqs: FloatArray
+) -> ComplexArray:
+    """``C (j 2π f I - A)^-1 B + D`` at each of `freqs`, shape (n_f, n_u, n_y)."""
     s = 2j * np.pi * freqs
-    m = s[:, None, None] * np.eye(model.n_states)[None] - a[None]
+    m = s[:, None, None] * np.eye(a.shape[0])[None] - a[None]
     with np.errstate(all="ignore"):
         x = np.linalg.solve(m, np.broadcast_to(b, (freqs.size, *b.shape)).astype(complex))
     h = c[None] @ x + d[None]  # (n_f, n_y, n_u)
@@ -410,7 +420,7 @@ def _linearised_response(
     trim), all in one batched call each. None where a function cannot be
     evaluated there or gives non-finite values.
     """
-    n_x, n_u = model.n_states, model.n_controls
+    n_x = model.n_states
     z = np.concatenate([x_ref, u_ref]).astype(np.float64)
     n = z.size
     h = 1e-6 * np.maximum(1.0, np.abs(z))
@@ -433,22 +443,14 @@ def _linearised_response(
     J = jacobian(model._dynamics_batch)
     if J is None:
         return None
-    a, b = J[:, :n_x], J[:, n_x:]
     if model._measurement_batch is None:
-        c = np.zeros((model.n_outputs, n_x))
-        for i, o in enumerate(model.output_names):
-            c[i, list(model.states).index(o)] = 1.0
-        d = np.zeros((model.n_outputs, n_u))
+        c, d = _state_outputs(model)
     else:
         Jm = jacobian(model._measurement_batch)
         if Jm is None:
             return None
         c, d = Jm[:, :n_x], Jm[:, n_x:]
-    s = 2j * np.pi * freqs
-    m = s[:, None, None] * np.eye(n_x)[None] - a[None]
-    with np.errstate(all="ignore"):
-        x = np.linalg.solve(m, np.broadcast_to(b, (freqs.size, *b.shape)).astype(complex))
-    return np.transpose(c[None] @ x + d[None], (0, 2, 1))
+    return _transfer(J[:, :n_x], J[:, n_x:], c, d, freqs)
 
 
 def _reference_state(model: Model, data: FlightData, x0: Any) -> FloatArray:

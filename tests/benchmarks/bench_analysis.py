@@ -8,12 +8,7 @@ and the competitor's time on the same cases.
 from __future__ import annotations
 
 import argparse
-import os
 from collections.abc import Callable
-
-# Small matrices everywhere: BLAS threads only add contention on a shared machine.
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 from _timing import median_time
