@@ -263,6 +263,7 @@ _REGRESSOR_TEXT = {
     "p": "p b/(2V)",
     "q": "q c̄/(2V)",
     "r": "r b/(2V)",
+    "alpha_dot": "α̇ c̄/(2V)",
 }
 
 
@@ -346,6 +347,7 @@ _COEFFICIENT_REGRESSOR_UNITS: Mapping[str, _units.Unit] = {
     "p": _units.ONE,
     "q": _units.ONE,
     "r": _units.ONE,
+    "alpha_dot": _units.ONE,
     "thrust": _units.NEWTON,
 }
 _RATE: _units.Unit = {"rad": 1, "s": -1}
@@ -605,7 +607,11 @@ def _longitudinal_function(
     xa, _, za = c.accel_position
     xv, _, zv = c.alpha_vane_position
     inv_V0 = 1.0 / V0
-    cd, cl, cm = expansions["CD"], expansions["CL"], expansions["Cm"]
+    cd, cm = expansions["CD"], expansions["Cm"]
+    # CL's alpha-dot terms make the alpha equation implicit (linear in alpha-dot):
+    # split them off and solve for alpha-dot before the other coefficients use it.
+    cl = tuple(e for e in expansions["CL"] if e[1] != ("alpha_dot",))
+    cl_alpha_dot = [n for n, f in expansions["CL"] if f == ("alpha_dot",)]
     n_surf = len(surfaces)
     dynamics = role == "dynamics"
 
@@ -617,12 +623,18 @@ def _longitudinal_function(
             reg[surfaces[i]] = u[i]
         T = u[n_surf] if thrust else 0.0 * V
         qbar_S = half_rho_S * V * V
-        CD = _expand(cd, reg, p)
-        CL = _expand(cl, reg, p)
-        Cm = _expand(cm, reg, p)
         gamma = theta - alpha
-        V_dot = (T * np.cos(alpha + sigma) - qbar_S * CD) / m - g * np.sin(gamma)
+        CL = _expand(cl, reg, p)
         alpha_dot = q + (g * np.cos(gamma) - (qbar_S * CL + T * np.sin(alpha + sigma)) / m) / V
+        if cl_alpha_dot:
+            # CL = CL' + CL_alpha_dot α̇ c̄/(2V) in the α equation, solved for α̇
+            k = p[cl_alpha_dot[0]] * half_cbar / V
+            alpha_dot = alpha_dot / (1.0 + qbar_S * k / (m * V))
+            CL = CL + k * alpha_dot
+        reg["alpha_dot"] = alpha_dot * half_cbar / V
+        CD = _expand(cd, reg, p)
+        Cm = _expand(cm, reg, p)
+        V_dot = (T * np.cos(alpha + sigma) - qbar_S * CD) / m - g * np.sin(gamma)
         q_dot = (qbar_S * cbar * Cm + T * d) / Iyy
         if dynamics:
             rates = [V_dot, alpha_dot, q, q_dot]
@@ -648,6 +660,17 @@ def _longitudinal_function(
         return np.stack(np.broadcast_arrays(*[values[k] for k in outputs]))
 
     return longitudinal_equations
+
+
+def _alpha_dot_alone(expansions: Mapping[str, _Expansion]) -> None:
+    """The α̇ regressor enters linearly (so the α equation stays solvable): never in a product."""
+    for coefficient, expansion in expansions.items():
+        for name, factors in expansion:
+            if "alpha_dot" in factors and len(factors) > 1:
+                raise ModelDefinitionError(
+                    f"terms[{coefficient!r}]: {name!r} multiplies alpha_dot by another "
+                    "regressor; alpha_dot may only enter alone"
+                )
 
 
 def _check_speed(V0: Any) -> float:
@@ -714,6 +737,17 @@ def longitudinal(
     ``"0"``; the parameters are named ``CL_alpha``, ``Cm_q``, ``CD_0``,
     ``CL_alpha_delta_e``.
 
+    The regressor ``alpha_dot`` (``α̇ c̄ / 2V``, alone, never in a product)
+    adds the unsteady terms ``CL_alpha_dot``, ``Cm_alpha_dot``,
+    ``CD_alpha_dot``. α̇ is the model's own: with ``CL_alpha_dot`` the α
+    equation is linear in α̇ and is solved for it, ``α̇ (1 + q̄ S CL_alpha_dot
+    c̄ / (2 m V²)) = q + [g cos(θ - α) - (q̄ S CL' + T sin(α + σT)) / m] / V``
+    with ``CL'`` the rest of CL (Klein & Morelli ch. 3). Without an
+    ``alpha_dot`` term the α̇ effects are lumped into the α, q and surface
+    terms, and ``Cm_q`` is the damping sum ``Cm_q + Cm_alpha_dot``; α̇ and q
+    move almost together in a short-period response, so the two are told apart
+    only by rich inputs and little turbulence.
+
     Outputs (any of): ``V``, ``alpha`` (at the α vane:
     ``atan2(V sin α - q xα, V cos α + q zα)``), ``theta``, ``q``, ``q_dot``,
     ``ax``, ``az`` (accelerometer specific force in body axes, with
@@ -755,10 +789,11 @@ def longitudinal(
     """
     c = _check_constants(constants)
     V0 = _check_speed(V0)
-    surf = _surfaces(surfaces, ("alpha", "V", "q", "thrust"))
+    surf = _surfaces(surfaces, ("alpha", "V", "q", "alpha_dot", "thrust"))
     expansions = _parse_expansions(
-        terms, _LONG_DEFAULT_TERMS, ("alpha", "V", "q", *surf), "longitudinal"
+        terms, _LONG_DEFAULT_TERMS, ("alpha", "V", "q", "alpha_dot", *surf), "longitudinal"
     )
+    _alpha_dot_alone(expansions)
     values = _parameter_values(expansions, parameters)
     allowed = [o for o in _LONG_OUTPUTS if with_altitude or o != "h"]
     outs = _outputs(outputs, _LONG_DEFAULT_OUTPUTS, allowed)
@@ -774,6 +809,11 @@ def longitudinal(
             "  θ̇ = q",
             "  q̇ = (q̄ S c̄ Cm + T dT)/Iyy",
             *(["  ḣ = V sin(θ - α)"] if with_altitude else []),
+            *(
+                ["  α̇ enters as α̇ c̄/(2V); a CL_alpha_dot term is solved for in the α equation"]
+                if any("alpha_dot" in f for e in expansions.values() for _, f in e)
+                else []
+            ),
             f"  σT = {c.thrust_angle:.6g} rad, dT = {c.thrust_offset:.6g} m"
             + ("" if thrust else " (no thrust input: T = 0)"),
             *(f"  {_expansion_text(k, e)}" for k, e in expansions.items()),

@@ -563,6 +563,76 @@ def test_longitudinal_coefficients_are_recovered_from_noisy_data(monkeypatch):
         assert res.stderr[k] < 0.05 * abs(v)
 
 
+ALPHA_DOT_TERMS = {
+    "CD": ("0", "alpha", "delta_e"),
+    "CL": ("0", "alpha", "q", "alpha_dot", "delta_e"),
+    "Cm": ("0", "alpha", "q", "alpha_dot", "delta_e"),
+}
+
+
+def alpha_dot_model(**kw: object) -> AircraftModel:
+    values = {**LONG, "CL_alpha_dot": 1.7, "Cm_alpha_dot": -4.4}
+    return longitudinal(CONSTANTS, V0=V0, terms=ALPHA_DOT_TERMS, parameters=values, **kw)
+
+
+def test_alpha_dot_terms_solve_the_implicit_alpha_equation():
+    # alpha-dot appears on both sides once CL has an alpha-dot term; the model's alpha-dot
+    # must satisfy the equation it is in, and q-dot must use that same alpha-dot
+    m = alpha_dot_model(outputs=("az", "q_dot"))
+    rng = np.random.default_rng(11)
+    X = np.array([V0, 0.05, 0.04, 0.0])[:, None] + rng.normal(
+        0, [[2], [0.05], [0.05], [0.2]], (4, 8)
+    )
+    U = np.vstack([rng.normal(0.0, 0.05, 8), rng.uniform(500, 2000, 8)])
+    P = dict(m.parameters)
+    V, alpha, theta, q = X
+    de, T = U
+    xdot = m.dynamics(0.0, X, U, P)
+    ad = xdot[1]
+    qbar_S = 0.5 * 1.225 * V**2 * CONSTANTS.S
+    hat = ad * CONSTANTS.cbar / (2 * V)
+    CL = P["CL_0"] + P["CL_alpha"] * alpha + P["CL_q"] * q * CONSTANTS.cbar / (2 * V)
+    CL = CL + P["CL_alpha_dot"] * hat + P["CL_delta_e"] * de
+    rhs = q + (G * np.cos(theta - alpha) - (qbar_S * CL + T * np.sin(alpha)) / CONSTANTS.mass) / V
+    np.testing.assert_allclose(ad, rhs, rtol=1e-13, atol=1e-15)
+    Cm = P["Cm_0"] + P["Cm_alpha"] * alpha + P["Cm_q"] * q * CONSTANTS.cbar / (2 * V)
+    Cm = Cm + P["Cm_alpha_dot"] * hat + P["Cm_delta_e"] * de
+    np.testing.assert_allclose(xdot[3], qbar_S * CONSTANTS.cbar * Cm / CONSTANTS.Iyy, rtol=1e-13)
+    np.testing.assert_allclose(m.measurement(0.0, X, U, P)[1], xdot[3], rtol=1e-13)
+    # without the alpha-dot terms the model is the lumped one, value for value
+    zero = {**P, "CL_alpha_dot": 0.0, "Cm_alpha_dot": 0.0}
+    np.testing.assert_allclose(m.dynamics(0.0, X, U, zero), long_model().dynamics(0.0, X, U, LONG))
+    assert "Cm_alpha_dot α̇ c̄/(2V)" in m.summary() and m.parameter_units["Cm_alpha_dot"] == "-"
+
+
+def test_alpha_dot_only_enters_alone_and_only_where_it_exists():
+    with pytest.raises(ModelDefinitionError, match="alpha_dot may only enter alone"):
+        longitudinal(CONSTANTS, V0=V0, terms={"Cm": ["alpha*alpha_dot"]})
+    with pytest.raises(ModelDefinitionError, match="alpha_dot"):
+        lateral(CONSTANTS, V0=V0, alpha0=0.0, theta0=0.0, terms={"Cn": ["alpha_dot"]})
+
+
+def test_alpha_dot_and_pitch_damping_are_separated_by_a_rich_noise_free_input(monkeypatch):
+    # alpha-dot and q nearly move together; with two input frequencies and no noise the
+    # fit still tells Cm_q from Cm_alpha_dot (and CL_q from CL_alpha_dot: truth unchanged)
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    m = alpha_dot_model(outputs=("V", "alpha", "theta", "q", "az"))
+    tr = trim(m)
+    t = np.arange(0.0, 12.0 + 1e-9, 0.02)
+    de = (
+        tr.controls["delta_e"]
+        + 0.02 * np.sin(2.0 * t) * (t < 6)
+        + 0.02 * np.sign(np.sin(5.0 * t)) * (t >= 6)
+    )
+    U = np.column_stack([de, np.full(t.size, tr.controls["thrust"])])
+    data = m.simulate(t, U, tr.x0, method="rk4").to_flight_data()
+    names = ("CL_alpha", "Cm_alpha", "Cm_q", "Cm_alpha_dot", "Cm_delta_e")
+    guess = {k: 0.7 * m.parameters[k] for k in names}
+    res = aeroid.identify(m, data, guess, x0=tr.x0)
+    for k in names:
+        assert res.parameters[k] == pytest.approx(m.parameters[k], rel=1e-4), k
+
+
 def _rebound(fun, jnp):
     """`fun` with the module's numpy replaced by `jnp` (what array-API compilation does)."""
     glb = dict(fun.__globals__, np=jnp)
@@ -578,6 +648,7 @@ def test_model_functions_trace_under_jax_numpy():
     models = [
         six_model(constants(accel_position=(0.3, 0.1, 0.2), alpha_vane_position=(2, 0, 0))),
         long_model(with_altitude=True, outputs=("V", "alpha", "q_dot", "ax", "az", "h", "gamma")),
+        alpha_dot_model(outputs=("V", "alpha", "q_dot", "ax", "az")),
         lateral(CONSTANTS, V0=V0, alpha0=0.05, theta0=0.05, parameters=LAT, with_heading=True),
         longitudinal_linear(V0=V0, gamma0=0.1, parameters={"M_alpha": -5.0, "X_V": -0.1}),
         lateral_linear(V0=V0, parameters={"L_p": -8.0, "N_beta": 4.0}),

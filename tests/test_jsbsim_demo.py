@@ -77,6 +77,23 @@ def test_effective_derivatives_reproduce_the_constant_terms_of_the_aircraft_file
     assert eff["CL_delta_e"] == pytest.approx(0.347, rel=0.05)
 
 
+def test_separate_alpha_dot_terms_are_the_aircraft_files_constants():
+    # taken apart, the alpha-dot terms are c172x.xml's CLadot = 1.7 and Cmadot = -5.2, the
+    # rate terms its CLq = 3.9 and CLDe = 0.347; lumped, a pitch-rate perturbation carries
+    # alpha-dot ~ q with it, so Cm_q is the damping sum
+    cond = FlightCondition(50.0, 1000.0)
+    sep = effective_derivatives(cond, alpha_dot="separate")
+    lumped = effective_derivatives(cond)
+    assert sep["CL_alpha_dot"] == pytest.approx(1.7, rel=1e-3)
+    assert sep["Cm_alpha_dot"] == pytest.approx(-5.2, rel=1e-3)
+    assert sep["CL_q"] == pytest.approx(3.9, rel=1e-3)
+    assert sep["CL_delta_e"] == pytest.approx(0.347, rel=1e-3)
+    assert lumped["Cm_q"] == pytest.approx(sep["Cm_q"] + sep["Cm_alpha_dot"], rel=0.02)
+    assert sep["Cl_p"] == pytest.approx(lumped["Cl_p"], rel=1e-9)
+    with pytest.raises(AdapterError, match="alpha_dot"):
+        effective_derivatives(cond, alpha_dot="both")
+
+
 def _identify(model, data, start):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -386,7 +386,9 @@ def _coefficients(fdm: Any) -> dict[str, float]:
     }
 
 
-def effective_derivatives(condition: FlightCondition) -> dict[str, float]:
+def effective_derivatives(
+    condition: FlightCondition, *, alpha_dot: str = "lumped"
+) -> dict[str, float]:
     """The stability and control derivatives JSBSim's c172x flies at a trim.
 
     Central differences of JSBSim's own aerodynamic forces and moments (about
@@ -401,13 +403,29 @@ def effective_derivatives(condition: FlightCondition) -> dict[str, float]:
     identification without an ``α̇`` term lumps them: ``Cm_q`` is the damping
     sum ``Cm_q + Cm_alpha_dot``.
 
+    With ``alpha_dot="separate"`` the c172x's own α̇ terms (its ``CLadot``
+    lift and ``Cmadot`` moment) are taken out of every perturbation and
+    returned on their own as ``CL_alpha_dot`` and ``Cm_alpha_dot`` (per unit
+    ``α̇ c̄/2V``): the derivatives a model with an ``alpha_dot`` term
+    (`aeroid.aircraft.longitudinal`) identifies. The α̇ lift's arm about the
+    centre of gravity stays in, a part in a thousand of ``Cm_alpha``.
+
+    Parameters
+    ----------
+    condition : FlightCondition
+    alpha_dot : {"lumped", "separate"}
+
     Returns
     -------
     dict of str to float
         ``CL_alpha, CD_alpha, Cm_alpha, CL_q, Cm_q, CL_delta_e, Cm_delta_e,
         CY_beta, Cl_beta, Cn_beta, Cl_p, Cn_p, Cl_r, Cn_r, CY_delta_r, Cl_delta_a,
-        Cn_delta_a, Cl_delta_r, Cn_delta_r``.
+        Cn_delta_a, Cl_delta_r, Cn_delta_r``, and with ``"separate"`` also
+        ``CL_alpha_dot, Cm_alpha_dot``.
     """
+    if alpha_dot not in ("lumped", "separate"):
+        raise AdapterError(f"alpha_dot: expected 'lumped' or 'separate', got {alpha_dot!r}")
+    separate = alpha_dot == "separate"
     fdm = _executive(condition)
     alpha0 = float(fdm["aero/alpha-rad"])
     theta0 = float(fdm["attitude/theta-rad"])
@@ -430,15 +448,35 @@ def effective_derivatives(condition: FlightCondition) -> dict[str, float]:
         ):
             fdm[prop] = value
         fdm.run_ic()
-        return _coefficients(fdm)
+        out = _coefficients(fdm)
+        if separate:
+            qs = float(fdm["aero/qbar-psf"]) * float(fdm["metrics/Sw-sqft"])
+            lift = float(fdm["aero/coefficient/CLadot"]) / qs
+            moment = float(fdm["aero/coefficient/Cmadot"]) / (qs * c)
+            out.update(
+                CL=out["CL"] - lift,
+                Cm=out["Cm"] - moment,
+                CL_ad=lift,
+                Cm_ad=moment,
+                ad=float(fdm["aero/alphadot-rad_sec"]) * c / (2.0 * vt),
+            )
+        return out
 
     def slope(plus: dict[str, float], minus: dict[str, float], step: float) -> dict[str, float]:
         return {k: (plus[k] - minus[k]) / (2.0 * step) for k in plus}
 
     da, dr = 0.01, 0.02  # rad, rad/s: small against the trim, large against round-off
     out: dict[str, float] = {}
-    s = slope(at(alpha=alpha0 + da), at(alpha=alpha0 - da), da)
+    plus, minus = at(alpha=alpha0 + da), at(alpha=alpha0 - da)
+    s = slope(plus, minus, da)
     out.update(CL_alpha=s["CL"], CD_alpha=s["CD"], Cm_alpha=s["Cm"])
+    if separate:
+        # the alpha-dot terms over the alpha-dot the alpha perturbation brings
+        change = plus["ad"] - minus["ad"]
+        out.update(
+            CL_alpha_dot=(plus["CL_ad"] - minus["CL_ad"]) / change,
+            Cm_alpha_dot=(plus["Cm_ad"] - minus["Cm_ad"]) / change,
+        )
     s = slope(at(q=dr), at(q=-dr), dr * c / (2.0 * vt))
     out.update(CL_q=s["CL"], Cm_q=s["Cm"])
     s = slope(at(beta=da), at(beta=-da), da)
