@@ -17,7 +17,6 @@ and 64-bit floats are switched on then.
 
 from __future__ import annotations
 
-import math
 import weakref
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._integrate import substeps_for
 from .errors import AdapterError
 from .model import Model
 
@@ -32,7 +32,6 @@ __all__ = ["batch_outputs", "outputs_and_jacobian", "require_jax", "rollout"]
 
 FloatArray = NDArray[np.float64]
 
-_MAX_AUTO_SUBSTEPS = 256
 # One entry per model (weakly held): compiled functions and chosen substeps.
 _CACHE: weakref.WeakKeyDictionary[Model, dict[Any, Any]] = weakref.WeakKeyDictionary()
 
@@ -207,7 +206,7 @@ def _pvec(model: Model, params: Mapping[str, float]) -> FloatArray:
 def _auto_substeps(
     model: Model, t: FloatArray, u: FloatArray, x0: FloatArray, pv: FloatArray
 ) -> int:
-    """Substeps so that h·ρ(∂f/∂x) <= 0.05 (the rule of the numpy RK4), cached per grid."""
+    """Substeps by the numpy RK4's rule (`_integrate.substeps_for`), cached per grid."""
     h = float(np.max(np.diff(t)))
     entry = _entry(model)
     key = ("substeps", t.size, round(h, 12))
@@ -224,10 +223,11 @@ def _auto_substeps(
 
     try:
         A = np.asarray(jax.jacfwd(rhs)(jnp.asarray(x0)), dtype=np.float64)
-        rho = float(np.max(np.abs(np.linalg.eigvals(A)))) if np.all(np.isfinite(A)) else 0.0
     except Exception as exc:
         raise _trace_error(model, exc) from None
-    m = int(min(max(1, math.ceil(h * rho / 0.05)), _MAX_AUTO_SUBSTEPS))
+    lam = np.linalg.eigvals(A) if np.all(np.isfinite(A)) else np.zeros(0)
+    lam = np.asarray(lam, dtype=np.complex128)
+    m = substeps_for(lam, h, float(t[-1] - t[0]))
     entry[key] = m
     return m
 
