@@ -139,6 +139,161 @@ def _translate(fun: Any, jnp: Any, seen: dict[int, Any] | None = None, depth: in
     return final
 
 
+# -- closure constants as arguments ------------------------------------------------------
+#
+# Models built by one factory (an aircraft model per flight condition, a user's
+# function closing over numbers) differ only in the numbers their functions close
+# over. Those numbers are lifted out of the closures and passed at run time, after
+# the model parameters in the parameter vector (`_pmatrix`), so that one compilation
+# serves every model of the same structure: the same code, the same non-numeric
+# closure contents (term lists, flags, counts), the same names.
+
+_SHARED: dict[Any, dict[Any, Any]] = {}
+_SHARED_LIMIT = 64
+_NUMBER = (float, np.floating)
+
+
+class _Slot:
+    """Where a lifted number goes: its index among the model's constants."""
+
+    __slots__ = ("index",)
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+
+
+def _frozen(value: Any) -> Any:
+    """A hashable stand-in for a closure's non-numeric contents; raises TypeError when
+    there is none (the model then compiles on its own)."""
+    if value is None or isinstance(value, (bool, int, str, bytes, np.integer, np.bool_)):
+        return (type(value).__name__, value)
+    if isinstance(value, (tuple, list)):
+        return (type(value).__name__, tuple(_frozen(v) for v in value))
+    if isinstance(value, Mapping):
+        return ("map", tuple((_frozen(k), _frozen(v)) for k, v in value.items()))
+    if value is np or isinstance(value, types.ModuleType):
+        return ("module", value.__name__)
+    raise TypeError(type(value).__name__)
+
+
+class _Template:
+    """A function whose closure holds `_Slot`s (and templates) in place of numbers."""
+
+    __slots__ = ("cells", "fun")
+
+    def __init__(self, fun: Any, cells: tuple[Any, ...]) -> None:
+        self.fun = fun
+        self.cells = cells
+
+    def bind(self, values: Any) -> Any:
+        """The plain function, its numbers taken from `values` (traced at run time)."""
+        closure = []
+        for cell in self.cells:
+            if isinstance(cell, _Slot):
+                closure.append(types.CellType(values[cell.index]))
+            elif isinstance(cell, _Template):
+                closure.append(types.CellType(cell.bind(values)))
+            else:
+                closure.append(types.CellType(cell))
+        fun = self.fun
+        return types.FunctionType(
+            fun.__code__, fun.__globals__, fun.__name__, None, tuple(closure) or None
+        )
+
+
+def _lift(fun: Any, consts: list[float], depth: int = 0) -> tuple[Any, _Template]:
+    """``(key, template)`` of a plain function: numbers in its closure (and in the
+    closures of functions it closes over) become `_Slot`s appended to `consts`.
+    TypeError when something in it has no value-based key."""
+    if not isinstance(fun, types.FunctionType) or depth > 4:
+        raise TypeError("not a plain function")
+    if fun.__defaults__ or fun.__kwdefaults__:
+        raise TypeError("defaults")
+    cells: list[Any] = []
+    keys: list[Any] = []
+    for cell in fun.__closure__ or ():
+        try:
+            value = cell.cell_contents
+        except ValueError:
+            raise TypeError("empty cell") from None
+        if isinstance(value, _NUMBER) and not isinstance(value, bool):
+            cells.append(_Slot(len(consts)))
+            consts.append(float(value))
+            keys.append("number")
+        elif isinstance(value, types.FunctionType):
+            key, template = _lift(value, consts, depth + 1)
+            cells.append(template)
+            keys.append(key)
+        else:
+            cells.append(value)
+            keys.append(_frozen(value))
+    return (fun.__code__, id(fun.__globals__), tuple(keys)), _Template(fun, tuple(cells))
+
+
+def _structure(model: Model) -> dict[str, Any]:
+    """The model's lifted form, once: its shared-compilation key (None when its functions
+    do not lift) and its constants, appended to every parameter vector."""
+    entry = _entry(model)
+    lifted = entry.get("lifted")
+    if lifted is not None:
+        return lifted
+    consts: list[float] = []
+    try:
+        dyn = _lift(model.dynamics, consts)
+        meas = None if model.measurement is None else _lift(model.measurement, consts)
+        key: Any = (
+            dyn[0],
+            None if meas is None else meas[0],
+            tuple(model.states),
+            tuple(model.controls),
+            tuple(model.parameter_names),
+            tuple(model.output_names),
+        )
+        hash(key)
+    except TypeError:
+        key, dyn, meas, consts = None, None, None, []
+    lifted = {
+        "key": key,
+        "templates": {"dynamics": dyn and dyn[1], "measurement": meas and meas[1]},
+        "consts": np.asarray(consts, dtype=np.float64),
+    }
+    entry["lifted"] = lifted
+    return lifted
+
+
+def _shared_cache(key: Any) -> dict[Any, Any]:
+    cache = _SHARED.get(key)
+    if cache is None:
+        if len(_SHARED) >= _SHARED_LIMIT:  # oldest first: a long session of new structures
+            _SHARED.pop(next(iter(_SHARED)))
+        cache = _SHARED[key] = {}
+    return cache
+
+
+def _shared(model: Model) -> dict[Any, Any]:
+    """The cache of compiled functions of every model of this one's structure (its own
+    cache when its functions did not lift)."""
+    entry = _entry(model)
+    if not entry.get("lifted_ok"):
+        return entry
+    return _shared_cache(entry["lifted"]["key"])
+
+
+def _single_lifted(
+    template: _Template, n_out: int, names: tuple[str, ...], jnp: Any
+) -> Callable[..., Any]:
+    """As `_single`, the closure's numbers read from the parameter vector after the
+    model parameters."""
+    n_p = len(names)
+
+    def g(t: Any, x: Any, u: Any, pvec: Any) -> Any:
+        fun = _translate(template.bind(pvec[n_p:]), jnp)
+        p = {n: pvec[i] for i, n in enumerate(names)}
+        return jnp.reshape(jnp.asarray(fun(t, x, u, p), dtype=jnp.float64), (n_out,))
+
+    return g
+
+
 def _single(fun: Any, n_out: int, names: tuple[str, ...], jnp: Any) -> Callable[..., Any]:
     """``g(t, x, u, pvec) -> (n_out,)`` calling the translated user function on one point."""
 
@@ -186,7 +341,9 @@ def _verified(
 
     Decided once per model: traced and compared with the numpy function at
     random points spread around `x_ref` (n_x,), the controls `u` (n_t, n_u)
-    and the parameters `pvec` (n_p,).
+    and the parameters `pvec` (model parameters first, as `_pmatrix` builds
+    it). The version with the closure's numbers lifted out (shared by every
+    model of the same structure) is tried first, then the plain translation.
     """
     entry = _entry(model)
     key = ("fn", role)
@@ -202,7 +359,7 @@ def _verified(
         return None
     n_out = model.n_states if role == "dynamics" else model.n_outputs
     names = model.parameter_names
-    g = _single(_translate(fun, jnp), n_out, names, jnp)
+    n_p = len(names)
     rng = np.random.default_rng(20240611)
     k = _VERIFY_POINTS
     n_t = time.size
@@ -211,27 +368,60 @@ def _verified(
     X = x_ref[None, :] * (1.0 + 0.05 * rng.standard_normal((k, x_ref.size)))
     X = X + 0.05 * rng.standard_normal((k, x_ref.size))
     U = u[rows] if u.shape[1] else np.zeros((k, 0))
-    P = pvec[None, :] * (1.0 + 0.01 * rng.standard_normal((k, pvec.size)))
+    P = pvec[None, :n_p] * (1.0 + 0.01 * rng.standard_normal((k, n_p)))
     ref = _reference(fun, n_out, names, t, X, U, P)
     if ref is None:
         return None
+    lifted = _structure(model)
+    for lift in (True, False) if lifted["key"] is not None else (False,):
+        if lift:
+            cache = _shared_cache(lifted["key"])
+            g = cache.get(key)
+            if g is None:
+                g = cache[key] = _single_lifted(lifted["templates"][role], n_out, names, jnp)
+                cache[("check", role)] = jax.jit(jax.vmap(g))
+            check = cache[("check", role)]
+            args = np.concatenate(
+                [P, np.broadcast_to(lifted["consts"], (k, lifted["consts"].size))], axis=1
+            )
+        else:
+            g = _single(_translate(fun, jnp), n_out, names, jnp)
+            check = jax.jit(jax.vmap(g))
+            args = P
+        if _agrees(check, t, X, U, args, ref):
+            entry[("lifted", role)] = lift
+            # shared compilations once every function the model has took the lifted form
+            entry["lifted_ok"] = entry.get(("lifted", "dynamics"), False) and (
+                model.measurement is None or entry.get(("lifted", "measurement"), True)
+            )
+            entry[key] = g
+            return g
+    return None
+
+
+def _agrees(
+    check: Callable[..., Any],
+    t: FloatArray,
+    X: FloatArray,
+    U: FloatArray,
+    P: FloatArray,
+    ref: FloatArray,
+) -> bool:
+    """Whether the compiled single-point function agrees with the numpy reference."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            got = np.asarray(jax.jit(jax.vmap(g))(t, X, U, P), dtype=np.float64)
+            got = np.asarray(check(t, X, U, P), dtype=np.float64)
     except Exception:  # a function JAX cannot trace keeps the numpy path
-        return None
+        return False
     if got.shape != ref.shape:
-        return None
+        return False
     same_nan = np.isnan(got) == np.isnan(ref)
     fin = np.isfinite(ref) & np.isfinite(got)
     scale = np.max(np.where(fin, np.abs(ref), 0.0), axis=0, keepdims=True)
     close = np.abs(got - ref) <= _VERIFY_RTOL * (np.abs(ref) + scale) + 1e-300
     agree = np.where(fin, close, same_nan & ((got == ref) | np.isnan(ref)))
-    if not np.all(agree):
-        return None
-    entry[key] = g
-    return g
+    return bool(np.all(agree))
 
 
 def available(
@@ -309,8 +499,9 @@ def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
 
 def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
     entry = _entry(model)
+    cache = _shared(model)
     key = (kind, extra)
-    fn = entry.get(key)
+    fn = cache.get(key)
     if fn is not None:
         return fn
     mods = _import_jax()
@@ -368,22 +559,21 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         fn = (jax.jit(pts), jax.jit(lin))
     else:  # pragma: no cover - internal
         raise ValueError(kind)
-    entry[key] = fn
+    cache[key] = fn
     return fn
 
 
 def _pmatrix(model: Model, p: Mapping[str, Any], batch: int) -> FloatArray:
-    if not model.parameters:  # a model without parameters: rows of nothing
+    """Rows of the model parameters (model order), then the model's lifted constants."""
+    consts = _structure(model)["consts"]
+    columns = [
+        np.broadcast_to(np.asarray(p.get(n, v), dtype=np.float64), (batch,))
+        for n, v in model.parameters.items()
+    ]
+    columns += [np.full(batch, c) for c in consts]
+    if not columns:  # a model without parameters: rows of nothing
         return np.zeros((batch, 0))
-    return np.ascontiguousarray(
-        np.stack(
-            [
-                np.broadcast_to(np.asarray(p.get(n, v), dtype=np.float64), (batch,))
-                for n, v in model.parameters.items()
-            ],
-            axis=1,
-        )
-    )
+    return np.ascontiguousarray(np.stack(columns, axis=1))
 
 
 def rk4_states(
@@ -536,7 +726,8 @@ def output_sensitivities(
     pvec = _pmatrix(model, params, 1)[0]
     x0 = np.asarray(x0, dtype=np.float64)
     substeps = options.get("substeps")
-    p1 = {k: np.array([v]) for k, v in zip(model.parameter_names, pvec, strict=True)}
+    # pvec carries the lifted constants after the parameters
+    p1 = {k: np.array([v]) for k, v in zip(model.parameter_names, pvec, strict=False)}
     if probe:
         # The integrator decides between the exact linear path and RK4; it tells through
         # the hook. Two samples suffice: a model it integrates on them is not linear

@@ -145,12 +145,12 @@ def ekf_pass(
     if mods is None:
         return None
     jax, jnp = mods
-    entry = _compiled._entry(model)
+    cache = _compiled._shared(model)
     key = ("ekf_pass", tuple(out_idx))
-    fn = entry.get(key)
+    fn = cache.get(key)
     if fn is None:
         fn = _build(model, tuple(out_idx), jax, jnp)
-        entry[key] = fn
+        cache[key] = fn
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:

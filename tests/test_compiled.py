@@ -328,3 +328,68 @@ def test_probe_compiles_no_rollout(monkeypatch: Any) -> None:
     got = _compiled.output_sensitivities(model, t, _controls(t), X0, TRUTH, FIT, [], {})
     assert got is not None
     assert not any(isinstance(k, tuple) and k[0] == "states" for k in _compiled._CACHE[model])
+
+
+def _decay_factory(rate: float, gain: float, flag: bool = False) -> aeroid.Model:
+    """Models that differ only in the numbers their functions close over (and a flag)."""
+
+    def dyn(t: Any, x: Any, u: Any, p: Any) -> Any:
+        push = -gain if flag else gain
+        return np.array([-p["k"] * rate * x[0] ** 3 + push * u[0]])
+
+    def meas(t: Any, x: Any, u: Any, p: Any) -> Any:
+        return np.array([gain * x[0] + p["b"]])
+
+    return aeroid.Model(["x"], ["u"], {"k": 1.0, "b": 0.0}, dyn, ["y"], meas)
+
+
+def test_models_of_one_structure_share_a_compilation_and_keep_their_numbers(
+    monkeypatch: Any,
+) -> None:
+    # two models from one factory: one compiled function, each model's own constants
+    t = np.arange(101) * 0.05
+    u = np.sin(t)[:, None]
+    opts = {"method": "rk4", "substeps": 2}
+    results = {}
+    models = {
+        "a": _decay_factory(0.5, 2.0),
+        "b": _decay_factory(1.5, 0.5),
+        "flipped": _decay_factory(0.5, 2.0, flag=True),
+    }
+    for name, m in models.items():
+        results[name] = _compiled.output_sensitivities(
+            m, t, u, np.array([1.0]), {"k": 0.8, "b": 0.1}, ["k", "b"], [0], opts
+        )
+    assert _compiled._shared(models["a"]) is _compiled._shared(models["b"])
+    assert _compiled._shared(models["a"]) is not _compiled._shared(models["flipped"])
+    assert _compiled._shared(models["a"])[("sensitivities", None)] is not None
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    for name, m in models.items():
+        got = results[name]
+        assert got is not None
+        ref = m.simulate_batch(t, u, [1.0], {"k": np.array([0.8]), "b": np.array([0.1])}, **opts)
+        assert _rel(got[0], ref.outputs[0]) < 1e-12, name
+        assert np.allclose(got[1][:, 0, 1], 1.0)  # dy/db
+
+
+def test_a_number_used_in_python_control_flow_keeps_the_model_compiling(
+    monkeypatch: Any,
+) -> None:
+    # a closed-over number that a Python `if` reads cannot be lifted: the plain
+    # translation (the number baked in) still compiles the model
+    limit = 0.5
+
+    def dyn(t: Any, x: Any, u: Any, p: Any) -> Any:
+        k = p["k"] * 2.0 if limit > 1.0 else p["k"]
+        return np.array([-k * x[0] ** 3 + u[0]])
+
+    m = aeroid.Model(["x"], ["u"], {"k": 1.0}, dyn)
+    t = np.arange(51) * 0.1
+    u = np.cos(t)[:, None]
+    got = _compiled.output_sensitivities(m, t, u, np.array([0.2]), {"k": 0.7}, ["k"], [], {})
+    assert got is not None
+    entry = _compiled._CACHE[m]
+    assert entry[("lifted", "dynamics")] is False and entry[("fn", "dynamics")] is not None
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    ref = m.simulate_batch(t, u, [0.2], {"k": np.array([0.7])}, method="rk4")
+    assert _rel(got[0], ref.outputs[0]) < 1e-12
