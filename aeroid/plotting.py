@@ -77,47 +77,6 @@ def _label(name: str, units: Mapping[str, str] | None, *, what: str = "") -> str
     return f"{text} [{unit}]" if unit else text
 
 
-# Stability and control derivatives of the built-in aircraft and short-period models,
-# by the equation (force or moment) and the variable they multiply. Moment derivatives
-# (M, L, N) are angular accelerations: 1/s^2 per rad of an angle or control, 1/s per
-# rad/s of a rate; force derivatives (Z, Y, X) in the alpha/beta equations are 1/s per
-# rad and dimensionless per rad/s. Coefficients C* are dimensionless.
-_ANGLES = ("alpha", "beta", "delta", "de", "da", "dr", "elevator", "aileron", "rudder")
-_RATES = ("q", "p", "r", "alphadot", "alpha_dot")
-
-
-def _parameter_units(
-    names: Sequence[str], declared: Mapping[str, str] | None = None
-) -> dict[str, str]:
-    """Units of the model parameters in `names`: those `declared` (a model's or a
-    result's `parameter_units`), else guessed where the name follows the short-period
-    derivative naming."""
-    out = _named_units(names)
-    out.update({n: u for n, u in (declared or {}).items() if n in names})
-    return out
-
-
-def _named_units(names: Sequence[str]) -> dict[str, str]:
-    out: dict[str, str] = {}
-    for name in names:
-        head, _, var = name.partition("_")
-        if name.startswith("tau_"):
-            out[name] = "s"
-        elif head.startswith("C") and len(head) > 1:
-            out[name] = "-"
-        elif head in ("M", "L", "N") and var:
-            if var in _RATES:
-                out[name] = "1/s"
-            elif var.startswith(_ANGLES):
-                out[name] = "1/s²"
-        elif head in ("Z", "Y", "X") and var:
-            if var in _RATES:
-                out[name] = "-"
-            elif var.startswith(_ANGLES):
-                out[name] = "1/s"
-    return out
-
-
 def _hist(ax: Any, x: np.ndarray, bins: int) -> None:
     # one filled step artist instead of a patch per bin: the same picture, drawn faster
     x = np.asarray(x, dtype=float)

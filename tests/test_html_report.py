@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from aeroid._html import markdown_to_html
+from aeroid._units import parameter_units
 from aeroid.pipeline.flight_status import LEGEND, flight_status
-from aeroid.plotting import _parameter_units
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -64,7 +64,7 @@ window.addEventListener("load", () => {
 
 
 def test_parameter_units_of_the_derivative_names():
-    units = _parameter_units(
+    units = parameter_units(
         ["M_alpha", "M_q", "M_delta", "Z_alpha", "Z_q", "L_p", "N_r", "Y_beta", "CL_alpha"]
     )
     assert units == {
@@ -78,7 +78,7 @@ def test_parameter_units_of_the_derivative_names():
         "Y_beta": "1/s",
         "CL_alpha": "-",
     }
-    assert _parameter_units(["tau_elevator", "gain"]) == {"tau_elevator": "s"}
+    assert parameter_units(["tau_elevator", "gain"]) == {"tau_elevator": "s"}
 
 
 def test_status_names_every_flag_and_the_legend_explains_each():

@@ -158,7 +158,7 @@ def _figure_key(flight: str, label: str) -> str:
 
 def _flight_units(records: Mapping[str, Any]) -> dict[str, str]:
     """Units of one flight's channels (its data and validation) and its parameters."""
-    from ..plotting import _parameter_units
+    from .._units import parameter_units
 
     units: dict[str, str] = {}
     for role in ("data", "validation"):
@@ -170,7 +170,7 @@ def _flight_units(records: Mapping[str, Any]) -> dict[str, str]:
         for n in getattr(records.get(role), "parameter_names", ())
     ]
     declared = getattr(records.get("identification"), "parameter_units", None)
-    units.update(_parameter_units(names, declared))
+    units.update(parameter_units(names, declared))
     # an output's noise standard deviation (inference's sigma_<output>) has its unit
     units.update({n: units[n[6:]] for n in names if n.startswith("sigma_") and n[6:] in units})
     return units
@@ -225,7 +225,8 @@ def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     import matplotlib.pyplot as plt
 
     from .._html import figure_png
-    from ..plotting import _parameter_units, plot_campaign_trend
+    from .._units import parameter_units
+    from ..plotting import plot_campaign_trend
 
     records = []
     for i, f in enumerate(ctx.flights):
@@ -246,7 +247,7 @@ def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     if not names:
         return None
     declared = {k: v for i in range(len(ctx.flights)) for k, v in _declared(ctx, i).items()}
-    fig = plot_campaign_trend(records, parameters=names, units=_parameter_units(names, declared))
+    fig = plot_campaign_trend(records, parameters=names, units=parameter_units(names, declared))
     png = figure_png(fig, colors=64)
     plt.close(fig)
     return f"campaign_trend_{index}.png", png
@@ -314,7 +315,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     import html
 
     from .._records import markdown_table
-    from ..plotting import _parameter_units
+    from .._units import parameter_units
 
     flights = ctx.flights
     ident = [ctx.brief("identification", i) for i in range(len(flights))]
@@ -324,7 +325,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
             if n not in names:
                 names.append(n)
     declared = {k: v for r in ident if r is not None for k, v in r.get("units", {}).items()}
-    punits = _parameter_units(names, declared)
+    punits = parameter_units(names, declared)
     columns = (
         "flight",
         "condition",
