@@ -22,6 +22,7 @@ from .errors import (
     ModelDefinitionError,
     OutputError,
     PipelineError,
+    ResidualDriftWarning,
     SimulationError,
     StoreError,
 )
@@ -268,6 +269,7 @@ __all__ = [
     "PropagationBatch",
     "PropagationResult",
     "RegressionResult",
+    "ResidualDriftWarning",
     "ResponseChannel",
     "SamplerRun",
     "SegmentationResult",

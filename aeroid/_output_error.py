@@ -20,7 +20,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .data import FlightData
-from .errors import IdentifiabilityWarning, IdentificationError, SimulationError
+from .errors import (
+    IdentifiabilityWarning,
+    IdentificationError,
+    ResidualDriftWarning,
+    SimulationError,
+)
 from .identification import IdentificationResult
 
 FloatArray = NDArray[np.float64]
@@ -767,10 +772,50 @@ def _ar1_filter_columns(v: FloatArray, phi: FloatArray) -> FloatArray:
     return e
 
 
+# A residual whose AR(1) correlation time exceeds the record, a widening beyond which
+# an unabsorbed drift is worth a word.
+_DRIFT_WIDENING = 10.0
+
+
+def _warn_unabsorbed_drift(
+    phi: FloatArray,
+    mans: list[_Manoeuvre],
+    outputs: list[str],
+    cov: FloatArray,
+    cov_white: FloatArray,
+) -> None:
+    """Warn when an output's residual drifts like a random walk over the record with no
+    bias estimated on it: its unknown offset then widens the coloured error bars, which
+    an output bias (`estimate_bias`) would absorb."""
+    n_t = sum(m.time.size for m in mans)
+    with np.errstate(divide="ignore"):
+        tau = np.where(phi > 0, -1.0 / np.log(np.clip(phi, 1e-300, None)), 0.0)
+    biased = {k for m in mans for k in m.bias_free}
+    drifting = [outputs[k] for k in range(phi.size) if tau[k] > n_t and k not in biased]
+    if not drifting:
+        return
+    white = np.diag(cov_white)
+    ok = white > 0
+    widening = float(np.sqrt(np.max(np.diag(cov)[ok] / white[ok]))) if np.any(ok) else 0.0
+    if widening > _DRIFT_WIDENING:
+        warnings.warn(
+            ResidualDriftWarning(
+                f"identify: the residuals of {drifting} drift like a random walk over the "
+                "record and no bias is estimated on them; the unknown offset widens the "
+                f"coloured error bars up to {widening:.0f}x the white ones "
+                f"(estimate_bias={drifting} absorbs it)",
+                tuple(drifting),
+                widening,
+            ),
+            stacklevel=5,  # here, fit_output_error, identify, its BLAS wrapper, the caller
+        )
+
+
 def _colored_covariance(
     jacobians: list[FloatArray], residuals: list[FloatArray], r: FloatArray, m_inv: FloatArray
-) -> FloatArray:
-    """Covariance for coloured residuals: ``M^-1 [J' R^-1 Sigma R^-1 J] M^-1``.
+) -> tuple[FloatArray, FloatArray]:
+    """Covariance for coloured residuals: ``M^-1 [J' R^-1 Sigma R^-1 J] M^-1``, and each
+    output's AR(1) coefficient.
 
     Morelli's correction (Klein & Morelli ch. 6; SIDPAC's colores) puts the
     full-record sample autocorrelation of the residuals in ``Sigma``. With
@@ -836,7 +881,7 @@ def _colored_covariance(
     nu = np.maximum(nu, 1.0)
     factor = np.where(np.isfinite(nu), stdtrit(np.where(np.isfinite(nu), nu, 1.0), 0.975), 1.96)
     factor = np.asarray(factor, dtype=np.float64) / 1.96
-    return np.asarray(cov * np.outer(factor, factor), dtype=np.float64)
+    return np.asarray(cov * np.outer(factor, factor), dtype=np.float64), phi
 
 
 class _Sandwich:
@@ -1183,7 +1228,8 @@ def fit_output_error(
         # one, and a lag-window estimate would only add noise to it.
         shown = "white"
     if shown == "colored":
-        cov_col = _colored_covariance(jacobians, residuals, r, m_inv)
+        cov_col, phi = _colored_covariance(jacobians, residuals, r, m_inv)
+        _warn_unabsorbed_drift(phi, mans, outputs, cov_col, cov_white)
         cov = cov_col
         dc = np.diag(cov_col)
         bad = ~(dc > 0)

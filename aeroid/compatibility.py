@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -68,7 +69,7 @@ from . import _compiled
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, plain, whole_number
-from .errors import ChannelError, DataFormatError, IdentificationError
+from .errors import ChannelError, DataFormatError, IdentificationError, ResidualDriftWarning
 from .identification import IdentificationResult
 
 __all__ = [
@@ -912,18 +913,21 @@ def check_compatibility(
             channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
         record = FlightData(t, channels_now)
         guess = {n: current[n] - applied.get(n, 0.0) for n in names}
-        fit = identify(
-            model,
-            record,
-            guess,
-            outputs=outputs,
-            x0=start,
-            estimate_x0=free_x0,
-            error_bars=error_bars,
-            max_iterations=max_iterations,
-            tolerance=tolerance,
-            simulate_options={"method": "rk4", "substeps": substeps},
-        )
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fit = identify(
+                model,
+                record,
+                guess,
+                outputs=outputs,
+                x0=start,
+                estimate_x0=free_x0,
+                error_bars=error_bars,
+                max_iterations=max_iterations,
+                tolerance=tolerance,
+                simulate_options={"method": "rk4", "substeps": substeps},
+            )
+        _rewarn(caught, names)
         current.update({n: fit.parameters[n] + applied.get(n, 0.0) for n in names})
         start = dict(fit.initial_states[0])
         if not shifted_names or passes >= max_passes or not fit.success:
@@ -964,6 +968,28 @@ def check_compatibility(
         g,
         substeps,
     )
+
+
+def _rewarn(caught: list[warnings.WarningMessage], names: list[str]) -> None:
+    """The fit's warnings again, from here; an output drift is told in this function's
+    terms (an offset to estimate, not an output bias of `identify`)."""
+    for w in caught:
+        drift = w.message
+        if not isinstance(drift, ResidualDriftWarning):
+            warnings.warn(w.message, w.category, stacklevel=4)
+            continue
+        offsets = [f"b_{o}" for o in drift.outputs if f"b_{o}" not in names]
+        warnings.warn(
+            ResidualDriftWarning(
+                f"check_compatibility: the residuals of {list(drift.outputs)} drift like a "
+                "random walk over the record; their unknown offsets widen the error bars up "
+                f"to {drift.widening:.0f}x the white ones"
+                + (f" (estimate={offsets} absorbs them)" if offsets else ""),
+                drift.outputs,
+                drift.widening,
+            ),
+            stacklevel=4,  # here, check_compatibility, its BLAS wrapper, the caller
+        )
 
 
 def _start_state(

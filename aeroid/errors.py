@@ -77,3 +77,21 @@ class StoreError(PipelineError):
 
 class IdentifiabilityWarning(UserWarning):
     """The data cannot separate some parameters; the result is flagged."""
+
+
+class ResidualDriftWarning(UserWarning):
+    """Residuals of some outputs drift like a random walk over the record with no bias
+    estimated on them, which widens the coloured error bars.
+
+    Attributes
+    ----------
+    outputs : tuple of str
+        The drifting outputs.
+    widening : float
+        The largest ratio of a coloured to a white standard error.
+    """
+
+    def __init__(self, message: str, outputs: tuple[str, ...] = (), widening: float = 0.0):
+        super().__init__(message)
+        self.outputs = tuple(outputs)
+        self.widening = float(widening)

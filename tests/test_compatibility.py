@@ -277,6 +277,8 @@ def test_compiled_simulation_agrees_with_numpy():
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # a failed compilation must not pass unseen
+            # the errors left unestimated drift the residuals: said, and not the point here
+            warnings.simplefilter("ignore", aeroid.ResidualDriftWarning)
             fast = check_compatibility(data, estimate=names)
     finally:
         _compiled.ENABLED = False
@@ -354,3 +356,14 @@ def test_correlation_is_the_normalised_covariance(injected):
 def test_check_compatibility_limits_blas_threads():
     # wrapped by `small_blas`, as every numerical entry point of the library
     assert hasattr(check_compatibility, "__wrapped__")
+
+
+def test_a_drifting_unestimated_offset_is_named_in_this_functions_terms():
+    # alpha carries an offset that is not estimated: its residual drifts, and the warning
+    # names the offset to estimate rather than identify's output bias
+    data = simulated_flight(8.0, 25.0, errors=UNSHIFTED, seed=8)
+    with pytest.warns(aeroid.ResidualDriftWarning, match="check_compatibility") as caught:
+        check_compatibility(data, estimate=["b_p", "b_q", "b_az"])
+    drift = [w.message for w in caught if isinstance(w.message, aeroid.ResidualDriftWarning)]
+    assert drift and "b_alpha" in str(drift[0]) and "estimate_bias" not in str(drift[0])
+    assert caught[0].filename == __file__
