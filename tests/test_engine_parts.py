@@ -275,3 +275,40 @@ def test_a_report_only_rerun_draws_its_figure_parts_on_every_worker(tmp_path):
     load = next(t for t in p.tasks if t.step == "load")
     assert pool_size([load], 4) == 1
     assert pool_size(p.tasks, 2) == 2
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
+def test_a_forking_run_imports_its_stages_libraries_before_the_workers_fork(tmp_path):
+    # the run's own process computes nothing, so it imports the libraries only to share
+    # their pages with the forked workers
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "name: c\nmodel: short_period\npipeline: campaign\nseed: 1\nstore: store\n"
+        "report: out/c.md\nflights:\n  - simulated: {generator: short_period_campaign, "
+        "n_flights: 3, seed: 3, maneuver: doublet, duration: 4.0, sample_rate: 20.0}\n"
+        "stages:\n  identify: {parameters: [M_alpha, M_q]}\n  validate: {}\n"
+        "  campaign_report: {figures: false, include_flight_reports: false}\n",
+        encoding="utf-8",
+    )
+    code = (
+        "import sys\n"
+        "from aeroid.pipeline import _process, run\n"
+        "if {off}:\n"
+        "    _process.share_imports = lambda libraries: None\n"
+        f"run({str(cfg)!r}, workers=2)\n"
+        "print(sorted(m for m in ('aeroid.identification', 'aeroid.validation', "
+        "'scipy.stats') if m in sys.modules))\n"
+    )
+    seen = {}
+    for off in (True, False):
+        out = subprocess.run(
+            [sys.executable, "-c", code.format(off=off)],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=tmp_path,
+        )
+        seen[off] = out.stdout.strip().splitlines()[-1]
+        (tmp_path / "store").rename(tmp_path / f"store_{off}")
+    assert seen[True] == "[]"  # without it, the workers import them, each on its own
+    assert seen[False] == "['aeroid.identification', 'aeroid.validation', 'scipy.stats']"

@@ -19,6 +19,7 @@ from . import _process, execution
 from .execution import PartResult, TaskStatus, error_text, n_parts
 from .graph import Node, chains, nodes, part_deps
 from .planning import Task
+from .stages import STAGES
 from .store import ResultStore, record_cache
 
 __all__ = ["DaskCluster", "Executor", "InProcess", "LocalProcesses", "executor_for"]
@@ -131,6 +132,9 @@ class LocalProcesses:
         n = pool_size(tasks, self.workers or _process.workers_default())
         graph = {node.name: node for node in nodes(tasks, store_root, scope, read_root)}
         fork = _process.start_method() == "fork"
+        if fork and n > 1:
+            stages = {t.stage for t in tasks} & set(STAGES)
+            _process.share_imports([getattr(STAGES[s].options, "library", "") for s in stages])
         done: dict[str, Any] = {}  # node name -> its result
         running: set[str] = set()
         results: dict[str, TaskStatus] = {}
