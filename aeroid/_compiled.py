@@ -149,7 +149,7 @@ def _translate(fun: Any, jnp: Any, seen: dict[int, Any] | None = None, depth: in
 # closure contents (term lists, flags, counts), the same names.
 
 _SHARED: dict[Any, dict[Any, Any]] = {}
-_SHARED_LIMIT = 64
+_SHARED_LIMIT = 16  # structures kept compiled (each holds its XLA executables)
 _NUMBER = (float, np.floating)
 
 
