@@ -279,25 +279,16 @@ def _shared(model: Model) -> dict[Any, Any]:
     return _shared_cache(entry["lifted"]["key"])
 
 
-def _single_lifted(
-    template: _Template, n_out: int, names: tuple[str, ...], jnp: Any
+def _single(
+    bind: Callable[[Any], Any], n_out: int, names: tuple[str, ...], jnp: Any
 ) -> Callable[..., Any]:
-    """As `_single`, the closure's numbers read from the parameter vector after the
-    model parameters."""
+    """``g(t, x, u, pvec) -> (n_out,)`` calling the translated user function on one
+    point; ``bind(constants)`` gives that function for the lifted constants that follow
+    the model parameters in `pvec` (a plain translation ignores them)."""
     n_p = len(names)
 
     def g(t: Any, x: Any, u: Any, pvec: Any) -> Any:
-        fun = _translate(template.bind(pvec[n_p:]), jnp)
-        p = {n: pvec[i] for i, n in enumerate(names)}
-        return jnp.reshape(jnp.asarray(fun(t, x, u, p), dtype=jnp.float64), (n_out,))
-
-    return g
-
-
-def _single(fun: Any, n_out: int, names: tuple[str, ...], jnp: Any) -> Callable[..., Any]:
-    """``g(t, x, u, pvec) -> (n_out,)`` calling the translated user function on one point."""
-
-    def g(t: Any, x: Any, u: Any, pvec: Any) -> Any:
+        fun = bind(pvec[n_p:])
         p = {n: pvec[i] for i, n in enumerate(names)}
         return jnp.reshape(jnp.asarray(fun(t, x, u, p), dtype=jnp.float64), (n_out,))
 
@@ -378,14 +369,24 @@ def _verified(
             cache = _shared_cache(lifted["key"])
             g = cache.get(key)
             if g is None:
-                g = cache[key] = _single_lifted(lifted["templates"][role], n_out, names, jnp)
+                template: _Template = lifted["templates"][role]
+
+                def bound(consts: Any, template: _Template = template) -> Any:
+                    return _translate(template.bind(consts), jnp)
+
+                g = cache[key] = _single(bound, n_out, names, jnp)
                 cache[("check", role)] = jax.jit(jax.vmap(g))
             check = cache[("check", role)]
             args = np.concatenate(
                 [P, np.broadcast_to(lifted["consts"], (k, lifted["consts"].size))], axis=1
             )
         else:
-            g = _single(_translate(fun, jnp), n_out, names, jnp)
+            plain = _translate(fun, jnp)
+
+            def baked(consts: Any, plain: Any = plain) -> Any:
+                return plain  # the numbers stay in the closure
+
+            g = _single(baked, n_out, names, jnp)
             check = jax.jit(jax.vmap(g))
             args = P
         if _agrees(check, t, X, U, args, ref):

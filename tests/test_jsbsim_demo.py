@@ -94,14 +94,11 @@ def test_separate_alpha_dot_terms_are_the_aircraft_files_constants():
         effective_derivatives(cond, alpha_dot="both")
 
 
-def test_an_unabsorbed_accelerometer_drift_is_named_and_a_bias_absorbs_it():
-    # flight_05's ax residual drifts like a random walk over the 10 s window (drag and
-    # propeller physics the model leaves out): without an ax bias its unknown offset
-    # widens the coloured error bars a thousandfold, and identify says so
-    data = aeroid.load_flight_test(DEMO / "flight_05.csv").window(9.5, 20.0)
+def _longitudinal(constants, V0):
+    """The stability-axis model the physics check fits, and its start values."""
     lon = aircraft.longitudinal(
-        c172x_constants(1500.0),
-        V0=45.0,
+        constants,
+        V0=V0,
         terms={
             "CD": ["0", "alpha"],
             "CL": ["0", "alpha", "q", "delta_e"],
@@ -111,6 +108,15 @@ def test_an_unabsorbed_accelerometer_drift_is_named_and_a_bias_absorbs_it():
     )
     start = dict.fromkeys(lon.parameters, 0.0)
     start.update(CL_0=0.25, CL_alpha=5.0, CD_0=0.03, Cm_alpha=-0.5, Cm_q=-10.0, Cm_delta_e=-1.0)
+    return lon, start
+
+
+def test_an_unabsorbed_accelerometer_drift_is_named_and_a_bias_absorbs_it():
+    # flight_05's ax residual drifts like a random walk over the 10 s window (drag and
+    # propeller physics the model leaves out): without an ax bias its unknown offset
+    # widens the coloured error bars a thousandfold, and identify says so
+    data = aeroid.load_flight_test(DEMO / "flight_05.csv").window(9.5, 20.0)
+    lon, start = _longitudinal(c172x_constants(1500.0), 45.0)
     with pytest.warns(aeroid.ResidualDriftWarning, match="drift like a random walk") as caught:
         wide = aeroid.identify(lon, data, start, estimate_x0=True)
     assert caught[0].filename == __file__ and caught[0].message.outputs == ("ax",)
@@ -136,18 +142,7 @@ def test_identified_derivatives_match_what_jsbsim_flies():
     const = c172x_constants(cond.altitude)
 
     lon_data = data.window(9.5, 20.0)
-    lon = aircraft.longitudinal(
-        const,
-        V0=cond.airspeed,
-        terms={
-            "CD": ["0", "alpha"],
-            "CL": ["0", "alpha", "q", "delta_e"],
-            "Cm": ["0", "alpha", "q", "delta_e"],
-        },
-        outputs=["V", "alpha", "theta", "q", "ax", "az"],
-    )
-    start = dict.fromkeys(lon.parameters, 0.0)
-    start.update(CL_0=0.25, CL_alpha=5.0, CD_0=0.03, Cm_alpha=-0.5, Cm_q=-10.0, Cm_delta_e=-1.0)
+    lon, start = _longitudinal(const, cond.airspeed)
     lon_fit = _identify(lon, lon_data, start)
 
     lat_data = data.window(0.0, 10.0)

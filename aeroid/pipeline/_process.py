@@ -21,7 +21,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 __all__: list[str] = []
@@ -103,7 +103,7 @@ def _start_worker(parent: int, forked: bool) -> None:
 _SHARED_IMPORTS = ("scipy.linalg", "scipy.optimize", "scipy.stats", "scipy.signal")
 
 
-def share_imports(libraries: Iterator[str] | list[str]) -> None:
+def share_imports(libraries: Iterable[str | None]) -> None:
     """Import the stages' library modules (``module:function`` names) and the shared
     scientific modules in this process before it forks its workers."""
     import importlib

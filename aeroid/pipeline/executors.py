@@ -134,7 +134,9 @@ class LocalProcesses:
         fork = _process.start_method() == "fork"
         if fork and n > 1:
             stages = {t.stage for t in tasks} & set(STAGES)
-            _process.share_imports([getattr(STAGES[s].options, "library", "") for s in stages])
+            _process.share_imports(
+                STAGES[s].library or getattr(STAGES[s].options, "library", None) for s in stages
+            )
         done: dict[str, Any] = {}  # node name -> its result
         running: set[str] = set()
         results: dict[str, TaskStatus] = {}

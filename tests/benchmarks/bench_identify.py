@@ -6,16 +6,10 @@ at equal or better accuracy. Run: python tests/benchmarks/bench_identify.py
 
 from __future__ import annotations
 
-import os
+import numpy as np
+from _timing import timed
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-
-import numpy as np  # noqa: E402
-from _timing import timed  # noqa: E402
-
-from aeroid import catalog, identify  # noqa: E402
+from aeroid import catalog, identify
 
 NAMES = list(catalog.SHORT_PERIOD_TRUTH)
 
