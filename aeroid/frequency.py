@@ -19,11 +19,11 @@ A frequency counts in the comparison ("coherent") only where the data show a
 response to the input: its coherence beats both the requested threshold and
 the level noise alone would reach by chance with the record's number of
 averages, and the input's spectral density there is at least a twentieth of
-its peak. Compared with the exact response of a linear model, a frequency
-must also be resolved by the window: the estimate changes by at most 15 % to
-either neighbouring frequency and the input's power there is not mostly
-leakage from a neighbour, so that on noise-free data a counted frequency is
-within about 5 % of the true transfer function. The mismatch is the
+its peak. A frequency must also be resolved by the window, whatever the
+model's response: the estimate changes by at most 15 % to either neighbouring
+frequency and the input's power there is not mostly leakage from a neighbour,
+so that on noise-free data a counted frequency is within about 5 % of the true
+transfer function. The mismatch is the
 coherence-weighted mean relative error over those frequencies.
 """
 
@@ -70,14 +70,18 @@ _FALSE_COHERENCE_LEVEL = 0.01
 # lobe (10.6 dB down) and drops its second (15.1 dB down). Each rule misses what the
 # other catches: (a) that side lobe, (b) noise where the input is strong.
 _EXCITED_FRACTION = 0.05
-# With model_response="exact" the estimate is compared with the true transfer function,
-# so the estimator's own bias counts too (with "simulated" the model's estimate shares
-# it). Welch's Hann estimate at a bin is about the response averaged over that bin and
-# its two neighbours with power weights 2/3, 1/6, 1/6: a resolution bias near
-# (H[k-1] - 2 H[k] + H[k+1]) / 6. A frequency counts there only (c) where the estimate
-# changes by at most this fraction to either neighbour, which bounds that bias by
-# (0.15 + 0.15) / 6 = 5 % (on a noise-free 60 s multisine at the default segments the
-# short-period bins counted before were up to 22 % off, near the 0.48 Hz mode) ...
+# The estimate is reported as the data's transfer function, so a frequency counts only
+# where the estimator's own bias is small, whatever the model's response (a simulated
+# one shares the bias and would hide it: on a noise-free 10 s doublet the two counted
+# bins were 9 % and 63 % off the true response). Welch's Hann estimate at a bin is
+# about the response averaged over that bin and its two neighbours with power weights
+# 2/3, 1/6, 1/6: a resolution bias near (H[k-1] - 2 H[k] + H[k+1]) / 6. A frequency
+# counts only (c) where the model's response (exact, linearised, or its own Welch
+# estimate when simulated: noise-free in every case, so noise cannot hide a resolved
+# bin) changes by at most this fraction to either neighbour, which bounds that bias by
+# (0.15 + 0.15) / 6 = 5 % for a right model (on a noise-free 60 s multisine at the
+# default segments the short-period bins counted before were up to 22 % off, near the
+# 0.48 Hz mode) ...
 _RESOLVED_STEP = 0.15
 # ... and (d) where the input's own power is at least this fraction of a neighbour's:
 # one bin from a spectral line (a multisine's, or the last line of its band) the Hann
@@ -233,15 +237,15 @@ class FrequencyResponseResult:
         table = markdown_table(
             ("input", "output", "coherent freqs", "coherent band", "mean γ²", "mismatch"), rows
         )
-        resolved = (
+        how = {
+            "exact": "exact (linear time-invariant model)",
+            "linearised": "the model linearised at the record's first sample",
+        }.get(self.model_response, "Welch estimate from the simulated outputs")
+        how += (
             "; a frequency counts only where the window resolves the estimate (at most "
             f"{100 * _RESOLVED_STEP:.0f} % change to either neighbour, input not leaked "
             "from a neighbour)"
         )
-        how = {
-            "exact": "exact (linear time-invariant model)" + resolved,
-            "linearised": "the model linearised at the record's first sample" + resolved,
-        }.get(self.model_response, "Welch estimate from the simulated outputs")
         lo, hi = self.frequency_range
         return "\n".join(
             [
@@ -328,7 +332,7 @@ def _empirical(
 def _resolved(h: ComplexArray, excitation: FloatArray) -> NDArray[np.bool_]:
     """Bins (n_f, n_u, n_y) that the window resolves: rules (c) and (d) above.
 
-    `h` and `excitation` on the full Welch grid, so a band's edge bins are judged
+    `h` (the model's response) and `excitation` on the full Welch grid, so a band's edge bins are judged
     against both neighbours; the grid's first and last bins never count.
     """
     ok = np.zeros(h.shape, dtype=bool)
@@ -542,6 +546,7 @@ def frequency_response(
     nperseg : int, optional
         Welch segment length in samples (default: a twelfth of the record,
         about 20 averages with the 50 % overlap, but at least 128 samples).
+        Longer segments resolve more frequencies, with fewer averages.
     frequency_range : (float, float), optional
         Band in Hz to analyse (default: from the second non-zero bin, above
         the window's leakage from DC, to Nyquist).
@@ -559,9 +564,9 @@ def frequency_response(
         ``"simulated"``: the same Welch estimate from the model's outputs
         simulated on the measured inputs (any model), which shares the
         estimator's bias. ``"exact"``: the analytic response of a linear
-        time-invariant `Model`; then a frequency also counts only where the
-        window resolves the response (see the module notes), so a counted
-        estimate is within about 5 % of the truth on noise-free data.
+        time-invariant `Model`. In every mode a frequency also counts only
+        where the window resolves the response (see the module notes), so a
+        counted estimate is within about 5 % of the truth on noise-free data.
         ``"auto"``: exact where the model is linear time-invariant over the
         record; else the transfer function of the model linearised by central
         differences at the record's first sample (its trim, for a manoeuvre
@@ -666,16 +671,15 @@ def frequency_response(
     u = data.array(ins).T
     y_meas = data.array(outs).T
     f, h_emp, coh, excitation = _empirical(u, y_meas, fs, seg)
-    resolved = _resolved(h_emp, excitation)
     keep = (f > 0) & (f >= band[0]) & (f <= band[1])
-    f = f[keep]
-    h_emp, coh, excitation, resolved = h_emp[keep], coh[keep], excitation[keep], resolved[keep]
     # which frequencies count: see _FALSE_COHERENCE_LEVEL and _EXCITED_FRACTION
     n_avg = _independent_averages(n, seg)
-    thr_used = max(thr, _chance_coherence(n_avg, len(ins), f.size))
+    thr_used = max(thr, _chance_coherence(n_avg, len(ins), int(keep.sum())))
     # with no more averages than inputs the coherence is 1 whatever the data
     resolvable = n_avg > len(ins)
 
+    # the model's response on the whole Welch grid: the window's resolution is judged
+    # on it (noise-free), a band's edge bins against both neighbours
     h_model: ComplexArray | None = None
     how = "simulated"
     if model_response in ("exact", "auto") and isinstance(model, Model):
@@ -700,8 +704,10 @@ def frequency_response(
             )
         y_sim = _simulated_outputs(model, data, values, x0)
         idx_y = [model_outputs.index(o) for o in outs]
-        _, h_sim, _, _ = _empirical(u, y_sim[:, idx_y].T, fs, seg)
-        h_model = h_sim[keep]
+        _, h_model, _, _ = _empirical(u, y_sim[:, idx_y].T, fs, seg)
+    resolved = _resolved(h_model, excitation)
+    f, h_emp, h_model, coh = f[keep], h_emp[keep], h_model[keep], coh[keep]
+    excitation, resolved = excitation[keep], resolved[keep]
 
     chans = []
     few = []
@@ -709,8 +715,7 @@ def frequency_response(
         for k, out in enumerate(outs):
             he, hm, g = h_emp[:, i, k], h_model[:, i, k], coh[:, i, k]
             mask = (g >= thr_used) & (excitation[:, i] >= _EXCITED_FRACTION) & resolvable
-            if how != "simulated":  # see _RESOLVED_STEP
-                mask &= resolved[:, i, k]
+            mask &= resolved[:, i, k]  # see _RESOLVED_STEP
             with np.errstate(all="ignore"):
                 rel = np.abs(he - hm) / np.abs(hm)
             good = mask & np.isfinite(rel)
