@@ -20,6 +20,7 @@ from aeroid.pipeline.keys import (
     array_digest,
     canonical_json,
     model_fingerprint,
+    sha256_hex,
     stable_int,
     task_key,
 )
@@ -182,6 +183,31 @@ def test_task_key_is_the_sha256_of_the_documented_canonical_json():
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"))
     assert _key() == hashlib.sha256(text.encode("utf-8")).hexdigest()
     assert _key() == "b63e75456bdc33c165987d225bd37ff4dec392a2920c8f689cccf2b26b53aeaf"
+
+
+def test_a_plans_memo_gives_the_same_keys_and_documents():
+    # `plan` passes one memo for all its tasks: the options and the model are then
+    # serialised once; the key stays the canonical JSON of the whole document
+    model = {"name": "mødel", "parameters": {"a": float("nan"), "b": 2.5}, "src": 'x = "\u2028"'}
+    options = {"z": [1, {"y": None}], "a": np.float64(-0.0), "é": True}
+    memo: dict[int, tuple[object, object, bytes]] = {}
+    for upstream in ({"data": "k1"}, {"data": "k2", "b": "é"}):
+        fields = dict(
+            record_type="r",
+            stage="s",
+            stage_version="2",
+            options=options,
+            upstream=upstream,
+            model=model,
+            seed={"seed": 0, "spawn_key": [3]},
+        )
+        plain = task_key(**fields)
+        memoised = task_key(**fields, memo=memo)
+        assert memoised == plain
+        assert plain[0] == sha256_hex(canonical_json(plain[1]))
+    assert len(memo) == 2
+    with pytest.raises(PipelineError, match=r"s task\.options\.bad: cannot hash"):
+        task_key(**{**fields, "options": {"bad": object()}}, memo=memo)
 
 
 def test_an_option_added_later_enters_keys_only_once_set(tmp_path):

@@ -104,6 +104,9 @@ def _canonical_plain(plain: Any) -> bytes:
     ).encode("utf-8")
 
 
+_json_string = json.encoder.encode_basestring  # json.dumps's own, with ensure_ascii=False
+
+
 def sha256_hex(data: bytes) -> str:
     """Hex SHA-256 of some bytes."""
     return hashlib.sha256(data).hexdigest()
@@ -172,19 +175,48 @@ def task_key(
     upstream: Mapping[str, str],
     model: Mapping[str, Any] | None,
     seed: Any,
+    memo: dict[int, tuple[Any, Any, bytes]] | None = None,
 ) -> tuple[str, dict[str, Any]]:
-    """The key of a task and the document it hashes."""
-    doc = to_jsonable(
-        {
-            "record_type": record_type,
-            "stage": stage,
-            "stage_version": stage_version,
-            "options": dict(options),
-            "upstream": dict(upstream),
-            "model": None if model is None else dict(model),
-            "seed": seed,
-        },
-        where=f"{stage} task",
-    )
+    """The key of a task and the document it hashes.
+
+    With `memo` (a dict the caller keeps for a whole plan), the options and the
+    model fingerprint are normalised and serialised once per object, not once per
+    task: a plan passes the same objects for every flight. The memo holds each
+    object, so its id cannot be reused while the memo lives. The key is the same
+    either way: the canonical document is assembled from its fields' canonical
+    texts in sorted order, as `canonical_json` writes it whole.
+    """
+    fields = {
+        "model": None if model is None else model,
+        "options": options,
+        "record_type": record_type,
+        "seed": seed,
+        "stage": stage,
+        "stage_version": stage_version,
+        "upstream": upstream,
+    }
+    doc: dict[str, Any] = {}
+    pieces = []
+    for name, value in fields.items():  # already in sorted order
+        shared = memo is not None and name in ("model", "options") and value is not None
+        hit = memo.get(id(value)) if shared and memo is not None else None
+        if hit is not None:
+            plain, text = hit[1], hit[2]
+        else:
+            try:
+                plain = _jsonable(value)
+            except _NotJsonable as exc:
+                raise PipelineError(f"{stage} task.{name}{exc.path}: {exc.message}") from None
+            # the scalar fields written as json.dumps writes them, without its set-up
+            if type(plain) is str:
+                text = _json_string(plain).encode("utf-8")
+            elif plain is None:
+                text = b"null"
+            else:
+                text = _canonical_plain(plain)
+            if shared and memo is not None:
+                memo[id(value)] = (value, plain, text)
+        doc[name] = plain
+        pieces.append(b'"' + name.encode() + b'":' + text)
     # the document in plain JSON types, as it is stored and read back
-    return sha256_hex(_canonical_plain(doc)), doc
+    return sha256_hex(b"{" + b",".join(pieces) + b"}"), doc

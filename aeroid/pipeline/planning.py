@@ -392,6 +392,7 @@ def plan(
         if step_stage[name] != "load"
     }
     briefs = _briefs_wanted(pipeline, enabled)
+    memo: dict[int, Any] = {}  # task_key's: every flight shares the options and the model
 
     tasks: list[Task] = []
     flights: list[str] = []
@@ -446,6 +447,7 @@ def plan(
                 upstream=upstream,
                 model=flight_fingerprint if stage.uses_model else None,
                 seed=seed,
+                memo=memo,
             )
             if step.stage_name == "load":
                 flight_id = stable_int(key)

@@ -9,7 +9,10 @@ Fresh processes, the default environment, the default workers (one per core):
   of its workers) and the peak of the whole process tree's resident memory,
   sampled every 0.1 s (an upper bound: pages the forked workers share with
   the run are counted in each);
-- ``aeroid status CONFIG`` on the finished store, median of ``--repeats``;
+- ``aeroid status CONFIG`` on the finished store, median of ``--repeats`` (and,
+  where the environment sets ``PYTHONDONTWRITEBYTECODE``, again without it:
+  then every process compiles the package's sources, which a default
+  environment does once);
 - an unchanged rerun.
 
 Targets: cold <= 45 s, <= 300 MB, status <= 1 s.
@@ -67,12 +70,15 @@ def _tree_rss(root: psutil.Process) -> int:
     return total
 
 
-def _command(args: list[str], cwd: Path) -> tuple[float, int, str]:
+def _command(
+    args: list[str], cwd: Path, env: dict[str, str] | None = None
+) -> tuple[float, int, str]:
     """Wall time, sampled peak tree RSS and stdout of one CLI command in a fresh process."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "aeroid.cli", *args],
         cwd=cwd,
+        env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -125,6 +131,15 @@ def main() -> None:
             f"status: median {statistics.median(times):.2f} s of {args.repeats} "
             f"(min {min(times):.2f}, max {max(times):.2f}; target <= 1 s)"
         )
+        if os.environ.get("PYTHONDONTWRITEBYTECODE"):
+            # This environment never caches bytecode, so every process compiles the
+            # package's sources; a user's default environment caches it once.
+            cached = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+            times = [_command(["status", str(cfg)], work, cached)[0] for _ in range(args.repeats)]
+            print(
+                f"status, bytecode cached (PYTHONDONTWRITEBYTECODE unset): median "
+                f"{statistics.median(times[1:] or times):.2f} s (the first call writes it)"
+            )
         rerun, _, out = _command(["run", str(cfg), "--quiet", "--json"], work)
         print(f"unchanged rerun: {rerun:.1f} s ({json.loads(out)['computed']} computed)")
     finally:
