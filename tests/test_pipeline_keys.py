@@ -190,7 +190,7 @@ def test_a_plans_memo_gives_the_same_keys_and_documents():
     # serialised once; the key stays the canonical JSON of the whole document
     model = {"name": "mødel", "parameters": {"a": float("nan"), "b": 2.5}, "src": 'x = "\u2028"'}
     options = {"z": [1, {"y": None}], "a": np.float64(-0.0), "é": True}
-    memo: dict[int, tuple[object, object, bytes]] = {}
+    memo: dict[int, tuple[object, bytes]] = {}
     for upstream in ({"data": "k1"}, {"data": "k2", "b": "é"}):
         fields = dict(
             record_type="r",
@@ -204,6 +204,7 @@ def test_a_plans_memo_gives_the_same_keys_and_documents():
         plain = task_key(**fields)
         memoised = task_key(**fields, memo=memo)
         assert memoised == plain
+        assert memoised[1]["model"] is not plain[1]["model"]  # each document its own
         assert plain[0] == sha256_hex(canonical_json(plain[1]))
     assert len(memo) == 2
     with pytest.raises(PipelineError, match=r"s task\.options\.bad: cannot hash"):

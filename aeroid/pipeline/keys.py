@@ -175,19 +175,22 @@ def task_key(
     upstream: Mapping[str, str],
     model: Mapping[str, Any] | None,
     seed: Any,
-    memo: dict[int, tuple[Any, Any, bytes]] | None = None,
+    memo: dict[int, tuple[Any, bytes]] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     """The key of a task and the document it hashes.
 
     With `memo` (a dict the caller keeps for a whole plan), the options and the
     model fingerprint are normalised and serialised once per object, not once per
     task: a plan passes the same objects for every flight. The memo holds each
-    object, so its id cannot be reused while the memo lives. The key is the same
-    either way: the canonical document is assembled from its fields' canonical
-    texts in sorted order, as `canonical_json` writes it whole.
+    object, so its id cannot be reused while the memo lives. Each document still
+    gets its own objects, parsed back from that text: documents that shared them
+    made the forked workers of a large campaign grow markedly (see
+    ``tests/benchmarks/bench_campaign_1000.py``). The key
+    is the same either way: the canonical document is assembled from its fields'
+    canonical texts in sorted order, as `canonical_json` writes it whole.
     """
     fields = {
-        "model": None if model is None else model,
+        "model": model,
         "options": options,
         "record_type": record_type,
         "seed": seed,
@@ -201,7 +204,8 @@ def task_key(
         shared = memo is not None and name in ("model", "options") and value is not None
         hit = memo.get(id(value)) if shared and memo is not None else None
         if hit is not None:
-            plain, text = hit[1], hit[2]
+            text = hit[1]
+            doc[name] = json.loads(text)
         else:
             try:
                 plain = _jsonable(value)
@@ -215,8 +219,8 @@ def task_key(
             else:
                 text = _canonical_plain(plain)
             if shared and memo is not None:
-                memo[id(value)] = (value, plain, text)
-        doc[name] = plain
+                memo[id(value)] = (value, text)
+            doc[name] = plain
         pieces.append(b'"' + name.encode() + b'":' + text)
     # the document in plain JSON types, as it is stored and read back
     return sha256_hex(b"{" + b",".join(pieces) + b"}"), doc

@@ -447,7 +447,8 @@ def plan(
                 upstream=upstream,
                 model=flight_fingerprint if stage.uses_model else None,
                 seed=seed,
-                memo=memo,
+                # a load task's options are its own: no use memoising them
+                memo=None if step.stage_name == "load" else memo,
             )
             if step.stage_name == "load":
                 flight_id = stable_int(key)
