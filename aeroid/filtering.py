@@ -31,7 +31,7 @@ from ._stats import chi2_sf
 from ._threads import small_blas
 from .data import FlightData, check_symmetric, measured_start, plain
 from .errors import AeroidError, ChannelError, FilterError, SimulationError
-from .model import Model, SimulatorModel, fitted_start, resolve_parameters
+from .model import Model, SimulatorModel, delayed_controls, fitted_start, resolve_parameters
 
 __all__ = ["FilterResult", "filter_states"]
 
@@ -1370,7 +1370,8 @@ def filter_states(
         State estimate at the first sample. Default: the initial state an
         identification result given as `parameters` used for this record,
         else the first measured value of each state the data carries, zero
-        for the others (a dict fills in only the states it names).
+        for the others (a dict fills in only the states it names). A result's
+        estimated time delays delay its controls, as in `validate`.
     P0 : mapping or array_like, optional
         Covariance of `x0` (a dict or 1-D array of variances, or a matrix).
         Default: the measurement variance for a directly measured state, 1 for
@@ -1412,6 +1413,7 @@ def filter_states(
     """
     if x0 is None:
         x0 = fitted_start(parameters, data)[0]
+    data = delayed_controls(parameters, data)  # a fit's estimated time delays
     prob, R = build_problem(
         model,
         data,

@@ -43,7 +43,14 @@ from ._records import fmt, frozen_array, markdown_table
 from ._threads import small_blas
 from .data import FlightData, measured_start
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
-from .model import Model, SimulatorModel, fitted_start, require_model, resolve_parameters
+from .model import (
+    Model,
+    SimulatorModel,
+    delayed_controls,
+    fitted_start,
+    require_model,
+    resolve_parameters,
+)
 
 __all__ = ["ChannelFrequencyResponse", "FrequencyResponseResult", "frequency_response"]
 
@@ -559,7 +566,9 @@ def frequency_response(
     x0 : array_like or mapping, optional
         Initial state of a simulated model response (default: the state an
         identification result given as `parameters` used for this record, else
-        the measured states).
+        the measured states). An identification result's estimated time delays
+        enter the model's response: simulated on the delayed controls, or as
+        ``exp(-j ω τ)`` on the exact and linearised ones.
     model_response : {"simulated", "exact", "auto"}
         ``"simulated"``: the same Welch estimate from the model's outputs
         simulated on the measured inputs (any model), which shares the
@@ -694,6 +703,10 @@ def frequency_response(
             idx_u = [controls.index(i) for i in ins]
             idx_y = [model_outputs.index(o) for o in outs]
             h_model = full[:, idx_u][:, :, idx_y]
+            # a fit's estimated time delays: u(t - tau) is e^(-j omega tau) U
+            delays = dict(getattr(parameters, "time_delays", None) or {})
+            lag = np.array([float(delays.get(i, 0.0)) for i in ins])
+            h_model = h_model * np.exp(-2j * np.pi * f[:, None, None] * lag[None, :, None])
         else:
             how = "simulated"
     if h_model is None:
@@ -702,7 +715,7 @@ def frequency_response(
                 f"model_response='exact' needs a linear time-invariant aeroid.Model; "
                 f"{model.name!r} is not (use 'simulated')"
             )
-        y_sim = _simulated_outputs(model, data, values, x0)
+        y_sim = _simulated_outputs(model, delayed_controls(parameters, data), values, x0)
         idx_y = [model_outputs.index(o) for o in outs]
         _, h_model, _, _ = _empirical(u, y_sim[:, idx_y].T, fs, seg)
     resolved = _resolved(h_model, excitation)

@@ -117,6 +117,27 @@ def fitted_start(result: Any, data: FlightData) -> tuple[dict[str, float] | None
     return dict(states[i]), (dict(biases[i]) if i < len(biases) else {})
 
 
+def delayed_controls(result: Any, data: FlightData) -> FlightData:
+    """`data` with the controls an identification delayed shifted by their delays.
+
+    A result whose fit estimated pure time delays (``result.time_delays``,
+    control -> seconds) describes a vehicle whose controls act as
+    ``u(t - tau)``: its model is simulated on the controls delayed the same
+    way, interpolated piecewise-linearly as `identify` does, and held at the
+    first sample before it. Unlike the initial state and the output biases, a
+    delay belongs to the vehicle, so it applies on any record. Other values
+    of `result` (a mapping, None) leave `data` as it is.
+    """
+    delays = dict(getattr(result, "time_delays", None) or {})
+    t = data.time
+    shifted = {
+        c: np.interp(t - float(tau), t, data.channels[c])
+        for c, tau in delays.items()
+        if c in data and float(tau) != 0.0
+    }
+    return data.with_channels(shifted) if shifted else data
+
+
 @dataclass(frozen=True, eq=False)
 class SimulationResult:
     """A simulated trajectory on the requested time grid.

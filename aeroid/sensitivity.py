@@ -30,7 +30,14 @@ from .errors import (
     IdentificationError,
     SimulationError,
 )
-from .model import Model, SimulatorModel, fitted_start, require_model, resolve_parameters
+from .model import (
+    Model,
+    SimulatorModel,
+    delayed_controls,
+    fitted_start,
+    require_model,
+    resolve_parameters,
+)
 
 __all__ = ["SensitivityResult", "sensitivities"]
 
@@ -446,7 +453,9 @@ def sensitivities(
         at its values.
     values : mapping or result, optional
         Parameter values to linearise at, merged onto the nominal ones; a
-        result with ``.parameters`` (identification or inference) works too.
+        result with ``.parameters`` (identification or inference) works too,
+        and an identification result's estimated time delays delay its
+        controls, as in `validate`.
     noise : mapping of str to float, optional
         Measurement-noise standard deviation per output. Default: estimated
         from measured minus simulated outputs, or unit noise (with a warning)
@@ -500,6 +509,7 @@ def sensitivities(
     vals = resolve_parameters(model, values, error=IdentificationError)
     if x0 is None:
         x0 = fitted_start(values, data)[0]
+    data = delayed_controls(values, data)  # a fit's estimated time delays
     try:
         rel = float(relative_step)
     except (TypeError, ValueError):

@@ -16,7 +16,7 @@ from ._stats import chi2_sf, norm_ppf
 from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, plain, whole_number
 from .errors import IdentificationError
-from .model import fitted_start, require_model, resolve_parameters
+from .model import delayed_controls, fitted_start, require_model, resolve_parameters
 
 __all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
 
@@ -213,7 +213,9 @@ def validate(
     parameters : mapping or result, optional
         Parameter values, or an identification/inference result. When `data`
         is a record the identification result was fitted to, the initial
-        state and output biases the fit used for it are applied as well.
+        state and output biases the fit used for it are applied as well. A
+        fit's estimated time delays (``result.time_delays``) apply on any
+        record: the model is simulated on the delayed controls.
     outputs : sequence of str, optional
         Outputs to check; default every model output present in the data.
     x0 : mapping or array, optional
@@ -273,10 +275,12 @@ def validate(
     fitted_x0, biases = fitted_start(parameters, data)
     if x0 is None:
         x0 = fitted_x0
+    # the controls as the fitted model takes them (a fit's estimated time delays)
+    flown = delayed_controls(parameters, data)
     opts = dict(simulate_options or {})
     if hasattr(model, "simulate_batch"):
         opts.setdefault("method", "auto")  # the integrator identify uses by default
-    sim = model.simulate_data(data, x0=x0, parameters=p, **opts)
+    sim = model.simulate_data(flown, x0=x0, parameters=p, **opts)
     idx = [names.index(o) for o in chosen]
     y_model = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
     y_meas = data.array(chosen)
@@ -296,7 +300,7 @@ def validate(
         spread = float(np.linalg.norm(y - y.mean()))
         fit = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else float("nan")
         q, pval = ljung_box(e, lags)
-        xc = {c: _max_crosscorrelation(e, data[c], lags) for c in model.controls}
+        xc = {c: _max_crosscorrelation(e, flown[c], lags) for c in model.controls}
         metrics[o] = OutputMetrics(
             rmse=float(np.sqrt(np.mean(e**2))),
             bias=bias,

@@ -175,3 +175,71 @@ def test_time_delay_errors():
         equation_error(dict(data.channels), "q", ["alpha", "elevator"], time_delays="elevator")
     with pytest.raises(IdentificationError, match="do not change"):
         equation_error(data, "q", ["alpha"], time_delays="elevator")
+
+
+def test_a_fits_delay_reaches_validate_filter_sensitivities_and_frequency_response():
+    # The lateral model with a 0.07 s aileron delay: functions given the fit simulate
+    # its model on the delayed aileron, on the fitted record and on another one. Noise-
+    # free, the truth with the true delay reproduces the outputs to integration error.
+    import dataclasses
+
+    import aeroid
+
+    model, noisy = _lateral(DELAY, 2)
+    fit = identify(
+        model, noisy, list(LATERAL), outputs=STATES, x0=np.zeros(4), time_delays="delta_a"
+    )
+    assert abs(fit.time_delays["delta_a"] - DELAY) < 3 * fit.stderr["tau_delta_a"]
+    v = aeroid.validate(model, noisy, fit, outputs=STATES)
+    plain = aeroid.validate(model, noisy, fit.all_parameters, outputs=STATES, x0=np.zeros(4))
+    for s, sd in zip(STATES, (0.002, 0.005, 0.003, 0.003), strict=True):
+        assert v.metrics[s].rmse < 1.3 * sd  # the noise, nothing more
+    assert plain.metrics["p"].rmse > 3 * v.metrics["p"].rmse  # without the delay: a misfit
+
+    # the truth with the true delay, on a noise-free record it was not fitted to
+    t = noisy.time
+    u = np.column_stack([noisy["delta_a"], noisy["delta_r"]])
+    sim = model.simulate(t, shifted_controls(t, u, [0], [DELAY]), method="exact")
+    clean = FlightData(
+        t, {"delta_a": u[:, 0], "delta_r": u[:, 1]} | {s: sim.output(s).copy() for s in STATES}
+    )
+    truth = dataclasses.replace(
+        fit,
+        parameters={**LATERAL, "tau_delta_a": DELAY},
+        time_delays={"delta_a": DELAY},
+        data_fingerprints=(),
+    )
+    assert truth.time_delays == {"delta_a": DELAY}
+    v = aeroid.validate(model, clean, truth, outputs=STATES, x0=np.zeros(4))
+    assert max(v.metrics[s].rmse for s in STATES) < 1e-6
+
+    filtered = aeroid.filter_states(
+        model,
+        clean,
+        truth,
+        outputs=STATES,
+        x0=np.zeros(4),
+        measurement_noise={s: 1e-3 for s in STATES},
+        process_noise={s: 0.0 for s in STATES},
+    )
+    np.testing.assert_allclose(filtered.filtered_states, sim.states, atol=1e-6)
+    assert np.abs(filtered.innovations).max() < 1e-6
+
+    kw = {"x0": np.zeros(4), "outputs": STATES, "noise": dict.fromkeys(STATES, 0.003)}
+    names = ["L_p", "L_delta_a"]
+    sens = aeroid.sensitivities(model, clean, names, values=truth, **kw)
+    bare = aeroid.sensitivities(model, clean, names, values=dict(LATERAL), **kw)
+    late = clean.with_channels({"delta_a": shifted_controls(t, u, [0], [DELAY])[:, 0]})
+    delayed = aeroid.sensitivities(model, late, names, values=dict(LATERAL), **kw)
+    np.testing.assert_allclose(sens.fisher_information, delayed.fisher_information, rtol=1e-9)
+    assert not np.allclose(sens.fisher_information, bare.fisher_information, rtol=1e-3)
+
+    kw = {"model_response": "exact", "outputs": ["p"], "inputs": ["delta_a"]}
+    with pytest.warns(UserWarning, match="too few coherent"):  # 15 s: few resolved bins
+        h = aeroid.frequency_response(model, clean, truth, **kw).channel("delta_a", "p")
+    with pytest.warns(UserWarning, match="too few coherent"):
+        bare_h = aeroid.frequency_response(model, clean, dict(LATERAL), **kw)
+    phase = np.angle(np.exp(1j * (h.model_phase - bare_h.channel("delta_a", "p").model_phase)))
+    np.testing.assert_allclose(
+        phase, np.angle(np.exp(-2j * np.pi * h.frequency * DELAY)), atol=1e-9
+    )
