@@ -403,6 +403,35 @@ def test_gc_removes_temporaries_of_dead_processes_only(tmp_path):
     assert alive.exists() and not dead.exists()
 
 
+def test_two_runs_creating_one_store_at_once_both_open_it(tmp_path, monkeypatch):
+    # A second run finds the first one's marker being written (its temporary file), or
+    # already written with the first folders beside it: neither is a foreign folder.
+    from aeroid.pipeline import _store_paths
+
+    busy = tmp_path / "a"
+    busy.mkdir()
+    (busy / ".aeroid-store.json.0123abcd").write_bytes(b"{")
+    ResultStore(busy)
+    assert (busy / "aeroid-store.json").is_file()
+
+    made = tmp_path / "b"
+    ResultStore(made)
+    (made / "identify").mkdir()
+    real = os.path.isfile
+    seen: list[str] = []
+
+    def late(path: str) -> bool:  # the marker appears just after this run first looked
+        if str(path).endswith("aeroid-store.json") and not seen:
+            seen.append(path)
+            return False
+        return real(path)
+
+    monkeypatch.setattr(_store_paths.os.path, "isfile", late)
+    _store_paths._CHECKED.clear()
+    ResultStore(made)
+    assert seen
+
+
 def test_open_store_refuses_non_stores(tmp_path):
     with pytest.raises(StoreError, match="not an aeroid store"):
         open_store(tmp_path)

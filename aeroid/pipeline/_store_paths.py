@@ -160,7 +160,13 @@ class _LocalBackend:
         elif create:
             if folder.exists() and not folder.is_dir():
                 raise StoreError(f"store {shown}: is a file, not a folder")
-            if folder.exists() and any(folder.iterdir()):
+            # another run may be creating the same store: its marker's temporary file,
+            # or by now its marker and first folders, are what the folder holds
+            busy = f".{_MARKER}."
+            if folder.exists() and any(not p.name.startswith(busy) for p in folder.iterdir()):
+                if os.path.isfile(marker):
+                    self._open_marker(marker, create=False)
+                    return
                 raise StoreError(
                     f"store {shown}: the directory exists, is not empty and is not an aeroid store"
                 )
