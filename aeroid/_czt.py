@@ -32,7 +32,7 @@ ComplexArray = NDArray[np.complex128]
 _CHUNK = 2_000_000
 
 
-def _fast_length(n: int) -> int:
+def fast_length(n: int) -> int:
     """The smallest 2^a 3^b 5^c >= n: transform lengths `numpy.fft` does fastest."""
     best = 1 << max(0, (n - 1).bit_length())
     p5 = 1
@@ -76,7 +76,7 @@ def _chirp_z(x: NDArray[np.float64], m: int, f0: float, df: float, dt: float) ->
     pre = np.exp(-1j * (2.0 * np.pi * f0 * dt * i + half * i * i))
     lags = np.arange(-(n - 1), m, dtype=np.float64)
     kern = np.exp(1j * half * lags * lags)
-    size = _fast_length(n + m - 1)
+    size = fast_length(n + m - 1)
     spec = np.fft.fft(x * pre[:, None], size, axis=0)
     spec *= np.fft.fft(kern, size)[:, None]
     conv = np.fft.ifft(spec, axis=0)[n - 1 : n - 1 + m]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import os
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -51,6 +51,49 @@ def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 
         what = "a positive" if least == 1 else "a non-negative"
         raise error(f"{name} must be {what} integer, got {plain(value)}")
     return n
+
+
+def delay_starts(
+    option: Any,
+    known: Sequence[str],
+    *,
+    what: str,
+    error: type[Exception],
+    unknown: Callable[[str], Exception],
+) -> dict[str, float]:
+    """The ``time_delays=`` option read as name -> start value in seconds.
+
+    A name, a sequence of names (each starting at 0 s) or a mapping name ->
+    start; every name one of `known` (else ``unknown(name)`` is raised), every
+    start a finite number (bools refused), else `error` names the entry.
+    """
+    if isinstance(option, str):
+        option = [option]
+    if isinstance(option, Mapping):
+        items = list(option.items())
+    else:
+        try:
+            items = [(c, 0.0) for c in option]
+        except TypeError:
+            raise error(
+                f"time_delays: expected a {what} name, a list of them or a dict of {what} "
+                f"name -> start value in s, got {plain(option)}"
+            ) from None
+    out: dict[str, float] = {}
+    for name, value in items:
+        if not isinstance(name, str) or name not in known:
+            raise unknown(name)
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if isinstance(value, bool) or not np.isfinite(v):
+            raise error(
+                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
+                f"got {plain(value)}"
+            )
+        out[name] = v
+    return out
 
 
 def check_symmetric(

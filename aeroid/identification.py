@@ -12,7 +12,15 @@ from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData, check_symmetric, fingerprint, measured_start, plain, whole_number
+from .data import (
+    FlightData,
+    check_symmetric,
+    delay_starts,
+    fingerprint,
+    measured_start,
+    plain,
+    whole_number,
+)
 from .errors import IdentificationError
 
 __all__ = ["IdentificationResult", "identify"]
@@ -754,44 +762,21 @@ def _time_delays(option: Any, model: Any) -> dict[str, float]:
     """Control name -> start value (s) of each delay to estimate (see `identify`)."""
     if option is None or option is False:
         return {}
-    if isinstance(option, str):
-        option = [option]
-    if isinstance(option, Mapping):
-        items = list(option.items())
-    else:
-        try:
-            items = [(c, 0.0) for c in option]
-        except TypeError:
-            raise IdentificationError(
-                "time_delays: expected a control name, a list of them or a dict of control "
-                f"name -> start value in s, got {plain(option)}"
-            ) from None
     controls = list(model.controls)
-    out: dict[str, float] = {}
-    for name, value in items:
-        if name not in controls:
-            raise IdentificationError(
-                f"time_delays: {name!r} is not a control of model "
-                f"{getattr(model, 'name', '')!r}; its controls are {controls}"
-            )
+
+    def unknown(name: str) -> IdentificationError:
+        return IdentificationError(
+            f"time_delays: {name!r} is not a control of model "
+            f"{getattr(model, 'name', '')!r}; its controls are {controls}"
+        )
+
+    out = delay_starts(option, controls, what="control", error=IdentificationError, unknown=unknown)
+    for name in out:
         if f"tau_{name}" in model.parameters:
             raise IdentificationError(
                 f"time_delays: the delay of {name!r} would be reported as 'tau_{name}', "
                 "which is already a model parameter; rename that parameter"
             )
-        if isinstance(value, bool):
-            v = float("nan")
-        else:
-            try:
-                v = float(value)
-            except (TypeError, ValueError):
-                v = float("nan")
-        if not np.isfinite(v):
-            raise IdentificationError(
-                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
-                f"got {plain(value)}"
-            )
-        out[str(name)] = v
     return out
 
 

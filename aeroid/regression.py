@@ -55,9 +55,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._czt import fast_length
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData
+from .data import FlightData, delay_starts
 from .errors import ChannelError, DataFormatError, IdentificationError
 
 __all__ = [
@@ -301,7 +302,7 @@ def _autocovariance(v: FloatArray, lags: int) -> FloatArray:
     n = v.shape[0]
     if lags <= 32:
         return np.array([float(v[: n - k] @ v[k:]) for k in range(lags + 1)]) / n
-    size = _fast_length(n + lags)  # enough padding that lags up to `lags` do not wrap
+    size = fast_length(n + lags)  # enough padding that lags up to `lags` do not wrap
     spec = np.fft.rfft(v, size)
     return np.fft.irfft(spec.real**2 + spec.imag**2, size)[: lags + 1] / n
 
@@ -319,22 +320,6 @@ def _correlation_time(v: FloatArray) -> tuple[int, float]:
     return int(min(np.ceil(5.0 * tau), n // 3)), tau
 
 
-def _fast_length(target: int) -> int:
-    """The smallest 2^a 3^b 5^c at or above `target` (a quick FFT length)."""
-    best = 1 << max(int(target - 1).bit_length(), 0)
-    five = 1
-    while five < best:
-        three = five
-        while three < best:
-            size = three
-            while size < target:
-                size *= 2
-            best = min(best, size)
-            three *= 3
-        five *= 5
-    return best
-
-
 def _colored_covariance(
     x: FloatArray, v: FloatArray, xtx_inv: FloatArray, gram: FloatArray
 ) -> FloatArray:
@@ -347,7 +332,7 @@ def _colored_covariance(
     else:
         # Σ_ij x_i R(i-j) x_j' = X' (R * X) by Parseval: (1/N) Σ_f X̂(f)^H R̂(f) X̂(f), the
         # transforms zero-padded past n + L so that the circular lags do not wrap
-        size = _fast_length(n + lags)
+        size = fast_length(n + lags)
         kernel = np.zeros(size)
         kernel[: lags + 1] = r
         kernel[size - lags :] = r[:0:-1]
@@ -728,34 +713,13 @@ def equation_error(
 
 def _delay_starts(option: Any, lookup: Mapping[str, Any]) -> dict[str, float]:
     """Channel -> start value (s) of each delay to estimate."""
-    if isinstance(option, str):
-        option = [option]
-    if isinstance(option, Mapping):
-        items = list(option.items())
-    else:
-        try:
-            items = [(c, 0.0) for c in option]
-        except TypeError:
-            raise DataFormatError(
-                "time_delays: expected a channel name, a list of them or a dict of channel -> "
-                f"start value in s, got {option!r}"
-            ) from None
-    out: dict[str, float] = {}
-    for name, value in items:
-        if not isinstance(name, str) or name not in lookup:
-            raise ChannelError(
-                f"time_delays: channel {name!r} not found; channels present: {sorted(lookup)}"
-            )
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            v = float("nan")
-        if isinstance(value, bool) or not np.isfinite(v):
-            raise DataFormatError(
-                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
-                f"got {value!r}"
-            )
-        out[name] = v
+
+    def unknown(name: str) -> ChannelError:
+        return ChannelError(
+            f"time_delays: channel {name!r} not found; channels present: {sorted(lookup)}"
+        )
+
+    out = delay_starts(option, list(lookup), what="channel", error=DataFormatError, unknown=unknown)
     if not out:
         raise DataFormatError("time_delays: name at least one channel")
     return out

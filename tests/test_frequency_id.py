@@ -312,7 +312,7 @@ def test_chirp_z_matches_scipy_and_the_direct_sum(n: int, m: int) -> None:
 
 
 def test_fast_length_is_the_smallest_five_smooth_number() -> None:
-    from aeroid._czt import _fast_length
+    from aeroid._czt import fast_length
 
     def smooth(k: int) -> bool:
         for p in (2, 3, 5):
@@ -321,7 +321,7 @@ def test_fast_length_is_the_smallest_five_smooth_number() -> None:
         return k == 1
 
     for n in (1, 2, 7, 11, 97, 1000, 1025, 6001, 12345):
-        got = _fast_length(n)
+        got = fast_length(n)
         assert got >= n and smooth(got)
         assert not any(smooth(k) for k in range(n, got))
 
