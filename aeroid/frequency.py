@@ -724,11 +724,12 @@ def frequency_response(
 
     chans = []
     few = []
+    unresolved = 0  # coherent, excited frequencies of the few channels the window blurs
     for i, inp in enumerate(ins):
         for k, out in enumerate(outs):
             he, hm, g = h_emp[:, i, k], h_model[:, i, k], coh[:, i, k]
-            mask = (g >= thr_used) & (excitation[:, i] >= _EXCITED_FRACTION) & resolvable
-            mask &= resolved[:, i, k]  # see _RESOLVED_STEP
+            responding = (g >= thr_used) & (excitation[:, i] >= _EXCITED_FRACTION) & resolvable
+            mask = responding & resolved[:, i, k]  # see _RESOLVED_STEP
             with np.errstate(all="ignore"):
                 rel = np.abs(he - hm) / np.abs(hm)
             good = mask & np.isfinite(rel)
@@ -736,6 +737,7 @@ def frequency_response(
             n_coh = int(mask.sum())
             if n_coh < min_coherent:
                 few.append(f"{inp}->{out} ({n_coh})")
+                unresolved += int(responding.sum()) - n_coh
             chans.append(
                 ChannelFrequencyResponse(
                     input_name=inp,
@@ -756,8 +758,13 @@ def frequency_response(
             f"frequency_response: too few coherent frequencies (γ² ≥ {thr_used:.3g} with "
             f"{n_avg:.3g} independent averages, input within "
             f"{10 * np.log10(1 / _EXCITED_FRACTION):.0f} dB of its peak) in "
-            f"{band[0]:.3g}–{band[1]:.3g} Hz for {', '.join(few)}; the input does not excite "
-            "these channels enough to judge the model there",
+            f"{band[0]:.3g}–{band[1]:.3g} Hz for {', '.join(few)}; "
+            + (
+                f"{unresolved} more respond but are not resolved by {seg}-sample segments "
+                "(longer segments, `nperseg`, resolve lower and sharper responses)"
+                if unresolved
+                else "the input does not excite these channels enough to judge the model there"
+            ),
             UserWarning,
             stacklevel=3,  # frequency_response, its BLAS wrapper (aeroid._threads), the caller
         )

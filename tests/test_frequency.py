@@ -249,7 +249,7 @@ def test_a_short_doublet_resolves_no_frequency_and_says_so():
     model = catalog.short_period(TRUTH)
     for seed in range(3):
         data = catalog.short_period_flight(seed=seed)
-        with pytest.warns(UserWarning, match="too few coherent"):
+        with pytest.warns(UserWarning, match="not resolved by 128-sample segments"):
             ch = frequency_response(model, data, TRUTH).channel("elevator", "q")
         assert ch.n_coherent == 0 and np.isnan(ch.mismatch)
         old = ch.coherence >= 0.6
