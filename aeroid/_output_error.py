@@ -783,10 +783,12 @@ def _warn_unabsorbed_drift(
     outputs: list[str],
     cov: FloatArray,
     cov_white: FloatArray,
+    names: list[str],
 ) -> None:
     """Warn when an output's residual drifts like a random walk over the record with no
-    bias estimated on it: its unknown offset then widens the coloured error bars, which
-    an output bias (`estimate_bias`) would absorb."""
+    bias estimated on it: the coloured error bars then widen, most on the parameter
+    named. A constant offset an output bias (`estimate_bias`) absorbs; a wandering one
+    (turbulence, unmodelled slow dynamics) is process noise, which filter error models."""
     n_t = sum(m.time.size for m in mans)
     with np.errstate(divide="ignore"):
         tau = np.where(phi > 0, -1.0 / np.log(np.clip(phi, 1e-300, None)), 0.0)
@@ -795,15 +797,20 @@ def _warn_unabsorbed_drift(
     if not drifting:
         return
     white = np.diag(cov_white)
-    ok = white > 0
-    widening = float(np.sqrt(np.max(np.diag(cov)[ok] / white[ok]))) if np.any(ok) else 0.0
+    ok = np.flatnonzero(white > 0)
+    if ok.size == 0:
+        return
+    ratio = np.diag(cov)[ok] / white[ok]
+    worst = int(ok[np.argmax(ratio)])
+    widening = float(np.sqrt(np.max(ratio)))
     if widening > _DRIFT_WIDENING:
         warnings.warn(
             ResidualDriftWarning(
                 f"identify: the residuals of {drifting} drift like a random walk over the "
-                "record and no bias is estimated on them; the unknown offset widens the "
-                f"coloured error bars up to {widening:.0f}x the white ones "
-                f"(estimate_bias={drifting} absorbs it)",
+                "record and no bias is estimated on them; the coloured error bars widen up "
+                f"to {widening:.0f}x the white ones (on {names[worst]}). A constant offset "
+                f"is absorbed by estimate_bias={drifting}; a wandering one (turbulence, "
+                "unmodelled slow dynamics) is process noise: method='filter_error'",
                 tuple(drifting),
                 widening,
             ),
@@ -1229,7 +1236,7 @@ def fit_output_error(
         shown = "white"
     if shown == "colored":
         cov_col, phi = _colored_covariance(jacobians, residuals, r, m_inv)
-        _warn_unabsorbed_drift(phi, mans, outputs, cov_col, cov_white)
+        _warn_unabsorbed_drift(phi, mans, outputs, cov_col, cov_white, [names_all[j] for j in keep])
         cov = cov_col
         dc = np.diag(cov_col)
         bad = ~(dc > 0)

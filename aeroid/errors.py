@@ -83,6 +83,10 @@ class ResidualDriftWarning(UserWarning):
     """Residuals of some outputs drift like a random walk over the record with no bias
     estimated on them, which widens the coloured error bars.
 
+    The message names the parameter that widens most. An output bias absorbs a
+    constant offset; turbulence or unmodelled slow dynamics (a wandering offset)
+    want process noise, that is filter error.
+
     Attributes
     ----------
     outputs : tuple of str

@@ -120,6 +120,11 @@ def test_an_unabsorbed_accelerometer_drift_is_named_and_a_bias_absorbs_it():
     with pytest.warns(aeroid.ResidualDriftWarning, match="drift like a random walk") as caught:
         wide = aeroid.identify(lon, data, start, estimate_x0=True)
     assert caught[0].filename == __file__ and caught[0].message.outputs == ("ax",)
+    # it names the parameter that widens most, and both remedies
+    said = str(caught[0].message)
+    worst = said.split("(on ")[1].split(")")[0]
+    assert worst in wide.parameter_names or worst.startswith("x0[")
+    assert "estimate_bias=['ax']" in said and "method='filter_error'" in said
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
         fit = aeroid.identify(lon, data, start, estimate_x0=True, estimate_bias=["ax", "az"])
