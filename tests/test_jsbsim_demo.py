@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _c172x_model import longitudinal
 
 import aeroid
 from aeroid import aircraft
@@ -96,16 +97,7 @@ def test_separate_alpha_dot_terms_are_the_aircraft_files_constants():
 
 def _longitudinal(constants, V0):
     """The stability-axis model the physics check fits, and its start values."""
-    lon = aircraft.longitudinal(
-        constants,
-        V0=V0,
-        terms={
-            "CD": ["0", "alpha"],
-            "CL": ["0", "alpha", "q", "delta_e"],
-            "Cm": ["0", "alpha", "q", "delta_e"],
-        },
-        outputs=["V", "alpha", "theta", "q", "ax", "az"],
-    )
+    lon = longitudinal(constants, V0)
     start = dict.fromkeys(lon.parameters, 0.0)
     start.update(CL_0=0.25, CL_alpha=5.0, CD_0=0.03, Cm_alpha=-0.5, Cm_q=-10.0, Cm_delta_e=-1.0)
     return lon, start

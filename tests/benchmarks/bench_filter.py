@@ -6,18 +6,12 @@ and the ratio to the issue's targets (competitor: 0.24 s and 6.4 s).
 
 from __future__ import annotations
 
-import os
+from typing import Any
 
-# Small matrices: a multi-threaded BLAS only adds contention (set before numpy loads).
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from _timing import timed
 
-from typing import Any  # noqa: E402
-
-from _timing import timed  # noqa: E402
-
-import aeroid  # noqa: E402
-from aeroid import catalog  # noqa: E402
+import aeroid
+from aeroid import catalog
 
 PROCESS = {"alpha": 1e-8, "q": 1e-8}
 MEASUREMENT = {"alpha": 0.005**2, "q": 0.01**2}
