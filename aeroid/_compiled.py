@@ -16,8 +16,10 @@ What is compiled:
   between samples and evaluated at the RK4 nodes), used by `_integrate.integrate`
   through `rk4_hook` once a model has spent more numpy RK4 work than a
   compilation costs;
-* outputs and their exact forward-mode sensitivities with respect to chosen
-  parameters and initial states (`output_sensitivities`), used by output error;
+* outputs and their exact sensitivities with respect to chosen parameters and
+  initial states (`output_sensitivities`), used by output error, and the
+  first-order output response to control changes (`input_responses`), used
+  by the data-compatibility error bars;
 * one sample interval of the RK4 propagation of a batch of points and its
   state Jacobian (`interval_propagator`), for the nonlinear filters.
 
@@ -45,6 +47,7 @@ from .model import Model
 __all__ = [
     "available",
     "batch_outputs",
+    "input_responses",
     "interval_propagator",
     "output_sensitivities",
     "rk4_hook",
@@ -62,6 +65,10 @@ _VERIFY_RTOL = 1e-12
 _VERIFY_POINTS = 8
 
 _CACHE: weakref.WeakKeyDictionary[Model, dict[Any, Any]] = weakref.WeakKeyDictionary()
+# The last sensitivities computed: a fit's final evaluation is asked for again by the
+# error-bar computations that follow it. Kept only while small.
+_LAST_SENSITIVITIES: list[Any] = []
+_KEEP_BYTES = 64 * 2**20
 
 
 def _entry(model: Model) -> dict[Any, Any]:
@@ -292,7 +299,44 @@ def _single(
         p = {n: pvec[i] for i, n in enumerate(names)}
         return jnp.reshape(jnp.asarray(fun(t, x, u, p), dtype=jnp.float64), (n_out,))
 
+    g.bind = bind  # type: ignore[attr-defined]  # for `_dynamic_parameters`
     return g
+
+
+def _dynamic_parameters(model: Model, time: FloatArray, x: FloatArray, u: FloatArray) -> Any:
+    """Positions (in model parameter order) of the parameters the dynamics read.
+
+    Read off the traced dynamics: a parameter that no operation takes in
+    cannot move the states, so its sensitivity needs no propagation through
+    the rollout (a sensor offset or scale factor of the measurement). Every
+    parameter counts as read when the trace cannot tell.
+    """
+    entry = _entry(model)
+    got = entry.get("dynamic_parameters")
+    if got is not None:
+        return got
+    names = model.parameter_names
+    every = np.arange(len(names))
+    got = every
+    mods = _import_jax()
+    if mods is not None:
+        jax, _ = mods
+        try:
+            fun = entry[("fn", "dynamics")].bind(_structure(model)["consts"])
+
+            def probe(t: Any, x: Any, u: Any, *ps: Any) -> Any:
+                return fun(t, x, u, dict(zip(names, ps, strict=True)))
+
+            jaxpr = jax.make_jaxpr(probe)(float(time[0]), x, u[0], *np.zeros(len(names))).jaxpr
+            read = {id(v) for eqn in jaxpr.eqns for v in eqn.invars}
+            read |= {id(v) for v in jaxpr.outvars}
+            got = np.array(
+                [i for i, v in enumerate(jaxpr.invars[3:]) if id(v) in read], dtype=np.int64
+            )
+        except Exception:  # untraceable here: differentiate by every parameter
+            got = every
+    entry["dynamic_parameters"] = got
+    return got
 
 
 def _reference(
@@ -498,6 +542,129 @@ def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
     return roll
 
 
+def _tangent_linear(
+    f: Callable[..., Any], h: Callable[..., Any] | None, model: Model, jax: Any, jnp: Any
+) -> Callable[..., Any]:
+    """``(theta, pbase, pidx, xbase, xidx, time, u, m) -> (y, J, states, phi, hx)``.
+
+    Outputs and their Jacobian with respect to ``theta`` (the parameters at
+    `pidx`, then the initial states at `xidx`), with the pieces
+    `input_responses` reuses: the states, each interval's state-transition
+    Jacobian ``phi`` and the measurement's state Jacobian ``hx`` per sample.
+
+    Forward mode through the rollout would carry every tangent through every
+    step of a sequential loop of small operations. Here the one sequential
+    part is a matrix recursion: the Jacobians of each sample interval's RK4
+    step are computed for all intervals at once along the primal trajectory,
+    then ``S[k+1] = phi[k] S[k] + G[k]`` chains them (the same chain rule in
+    another order: equal to rounding).
+    """
+    step = _interval(f, jax)
+    roll = _rollout(f, jax, jnp)
+    out_idx = np.array([model.states.index(o) for o in model.output_names]) if h is None else None
+
+    def tl(
+        theta: Any,
+        pbase: Any,
+        pidx: Any,
+        dpos: Any,
+        xbase: Any,
+        xidx: Any,
+        time: Any,
+        u: Any,
+        m: Any,
+    ) -> tuple[Any, Any, Any, Any, Any]:
+        n_p = pidx.shape[0]
+        n_d = dpos.shape[0]  # the parameters (at these positions of theta) the dynamics read
+        n_x = xbase.shape[0]
+        th = theta[:n_p]
+        x0 = xbase.at[xidx].set(theta[n_p:])
+        pvec = pbase.at[pidx].set(th)
+        xs = roll(time, u, x0, pvec, m)
+        pd = pidx[dpos]
+
+        def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
+            def g(x: Any, thd: Any) -> Any:
+                return step(x, t0, t1, u0, u1, pvec.at[pd].set(thd), m)
+
+            return jax.jacfwd(g, argnums=(0, 1))(x, th[dpos])
+
+        phi, gp = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
+        forcing = jnp.concatenate([gp, jnp.zeros((phi.shape[0], n_x, xidx.shape[0]))], axis=2)
+        s0 = jnp.concatenate([jnp.zeros((n_x, n_d)), jnp.eye(n_x)[:, xidx]], axis=1)
+
+        def chain(s: Any, k: Any) -> tuple[Any, Any]:
+            s = k[0] @ s + k[1]
+            return s, s
+
+        _, rest = jax.lax.scan(chain, s0, (phi, forcing))
+        sx = jnp.concatenate([s0[None], rest], axis=0)  # (n_t, n_x, n_d + n_x0)
+
+        def columns(chained: Any) -> Any:
+            # the chained columns in theta's order: dynamic parameters, then initial states
+            J = jnp.zeros((*chained.shape[:2], theta.shape[0]))
+            return J.at[:, :, dpos].set(chained[:, :, :n_d]).at[:, :, n_p:].set(chained[:, :, n_d:])
+
+        if h is None:
+            pick = jnp.eye(n_x)[out_idx]
+            hx = jnp.broadcast_to(pick, (time.shape[0], *pick.shape))
+            return xs[:, out_idx], columns(sx[:, out_idx, :]), xs, phi, hx
+
+        def meas(t: Any, x: Any, uk: Any) -> Any:
+            def g(x: Any, th: Any) -> Any:
+                y = h(t, x, uk, pbase.at[pidx].set(th))
+                return y, y
+
+            (hx, hp), y = jax.jacfwd(g, argnums=(0, 1), has_aux=True)(x, th)
+            return y, hx, hp
+
+        y, hx, hp = jax.vmap(meas)(time, xs, u)
+        J = columns(jnp.einsum("kyx,kxc->kyc", hx, sx)).at[:, :, :n_p].add(hp)
+        return y, J, xs, phi, hx
+
+    return tl
+
+
+def _input_response(
+    f: Callable[..., Any], h: Callable[..., Any] | None, jax: Any, jnp: Any
+) -> Callable[..., Any]:
+    """``(states, phi, hx, time, u, pvec, m, du) -> dy``: the first-order output
+    changes (n_dir, n_t, n_y) that control changes `du` (n_dir, n_t, n_u) cause,
+    along the trajectory whose pieces `_tangent_linear` returned."""
+    step = _interval(f, jax)
+
+    def response(xs: Any, phi: Any, hx: Any, time: Any, u: Any, pvec: Any, m: Any, du: Any) -> Any:
+        def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
+            def g(u0: Any, u1: Any) -> Any:
+                return step(x, t0, t1, u0, u1, pvec, m)
+
+            return jax.jacfwd(g, argnums=(0, 1))(u0, u1)
+
+        b0, b1 = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
+        # a change of the control at sample k enters the intervals on either side of it
+        forcing = jnp.einsum("kxu,dku->kxd", b0, du[:, :-1]) + jnp.einsum(
+            "kxu,dku->kxd", b1, du[:, 1:]
+        )
+        s0 = jnp.zeros((xs.shape[1], du.shape[0]))
+
+        def chain(s: Any, k: Any) -> tuple[Any, Any]:
+            s = k[0] @ s + k[1]
+            return s, s
+
+        _, rest = jax.lax.scan(chain, s0, (phi, forcing))
+        dy = jnp.einsum("kyx,kxd->dky", hx, jnp.concatenate([s0[None], rest], axis=0))
+        if h is None:
+            return dy
+
+        def meas(t: Any, x: Any, uk: Any) -> Any:
+            return jax.jacfwd(lambda uk: h(t, x, uk, pvec))(uk)
+
+        hu = jax.vmap(meas)(time, xs, u)
+        return dy + jnp.einsum("kyu,dku->dky", hu, du)
+
+    return response
+
+
 def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
     entry = _entry(model)
     cache = _shared(model)
@@ -514,31 +681,9 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         shared_u = bool(extra)
         fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
     elif kind == "sensitivities":
-        h = entry.get(("fn", "measurement"))
-        out_idx = (
-            np.array([model.states.index(o) for o in model.output_names]) if h is None else None
-        )
-
-        def outs(
-            theta: Any, pbase: Any, pidx: Any, xbase: Any, xidx: Any, time: Any, u: Any, m: Any
-        ) -> Any:
-            n_p = pidx.shape[0]
-            pvec = pbase.at[pidx].set(theta[:n_p])
-            x0 = xbase.at[xidx].set(theta[n_p:])
-            states = roll(time, u, x0, pvec, m)
-            if h is None:
-                y = states[:, out_idx]
-            else:
-                y = jax.vmap(h, in_axes=(0, 0, 0, None))(time, states, u, pvec)
-            return y, y
-
-        jac = jax.jacfwd(outs, argnums=0, has_aux=True)
-
-        def both(*args: Any) -> Any:
-            J, y = jac(*args)
-            return y, J
-
-        fn = jax.jit(both)
+        fn = jax.jit(_tangent_linear(f, entry.get(("fn", "measurement")), model, jax, jnp))
+    elif kind == "input_response":
+        fn = jax.jit(_input_response(f, entry.get(("fn", "measurement")), jax, jnp))
     elif kind == "outputs":
         h = entry.get(("fn", "measurement"))
         out_idx = (
@@ -712,8 +857,8 @@ def output_sensitivities(
 
     The columns are the model parameters `names`, then the initial states
     `x0_free`; `params` holds every model parameter. The Jacobian is the
-    forward-mode derivative of the same RK4 rollout that `simulate_batch`
-    runs, with the same substeps. None when it does not apply: JAX missing,
+    exact derivative (by the chain rule, see `_tangent_linear`) of the same
+    RK4 rollout that `simulate_batch` runs, with the same substeps. None when it does not apply: JAX missing,
     functions that do not compile, or an integration other than RK4 (the
     exact path of linear time-invariant models, solve_ivp). With `probe`, one
     plain simulation first asks the integrator which path it takes (the
@@ -752,15 +897,80 @@ def output_sensitivities(
         )
     if not available(model, time, x0, controls, pvec):
         return None
+    got = _sensitivities(model, time, controls, x0, pvec, names, x0_free, m)
+    return got[0], got[1]
+
+
+def input_responses(
+    model: Any,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    params: Mapping[str, float],
+    names: Sequence[str],
+    x0_free: Sequence[int],
+    substeps: int,
+    directions: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """`output_sensitivities` by RK4 with `substeps`, and the output changes (n_dir,
+    n_t, n_y) that the control changes `directions` (n_dir, n_t, n_u) cause, to
+    first order. None when the model does not compile."""
+    if not ENABLED or not isinstance(model, Model) or time.size < 2:
+        return None
+    pvec = _pmatrix(model, params, 1)[0]
+    x0 = np.asarray(x0, dtype=np.float64)
+    if not available(model, time, x0, controls, pvec):
+        return None
+    y, J, xs, phi, hx = _sensitivities(model, time, controls, x0, pvec, names, x0_free, substeps)
+    u = np.asarray(controls, dtype=np.float64)
+    fn = _compiled(model, "input_response")
+    du = np.asarray(directions, dtype=np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dy = fn(xs, phi, hx, time, u, pvec, np.int32(substeps), du)
+    return y, J, np.asarray(dy, dtype=np.float64)
+
+
+def _sensitivities(
+    model: Model,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    pvec: FloatArray,
+    names: Sequence[str],
+    x0_free: Sequence[int],
+    substeps: int,
+) -> tuple[FloatArray, ...]:
     pidx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
     xidx = np.asarray(list(x0_free), dtype=np.int64)
     theta = np.concatenate([pvec[pidx], x0[xidx]])
-    fn = _compiled(model, "sensitivities")
     u = np.asarray(controls, dtype=np.float64)
+    dynamic = _dynamic_parameters(model, time, x0, u)
+    dpos = np.flatnonzero(np.isin(pidx, dynamic)).astype(np.int64)
+    key = (pvec.tobytes(), x0.tobytes(), tuple(names), tuple(x0_free), int(substeps))
+    last = _LAST_SENSITIVITIES
+    if (
+        last
+        and last[0]() is model
+        and last[1] == key
+        and _same(last[2], time)
+        and _same(last[3], u)
+    ):
+        return last[4]  # the same point again (an error-bar pass after a fit)
+    fn = _compiled(model, "sensitivities")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        y, J = fn(theta, pvec, pidx, x0, xidx, time, u, np.int32(m))
-    return np.asarray(y, dtype=np.float64), np.asarray(J, dtype=np.float64)
+        got = fn(theta, pvec, pidx, dpos, x0, xidx, time, u, np.int32(substeps))
+    out = tuple(np.asarray(a, dtype=np.float64) for a in got)
+    for a in out:  # shared with the next caller at the same point: nobody writes to them
+        a.flags.writeable = False
+    keep = out[1].nbytes <= _KEEP_BYTES
+    _LAST_SENSITIVITIES[:] = [weakref.ref(model), key, time, u, out] if keep else []
+    return out
+
+
+def _same(a: FloatArray, b: FloatArray) -> bool:
+    return a is b or (a.shape == b.shape and bool(np.array_equal(a, b)))
 
 
 # -- filters: one sample interval ---------------------------------------------------------------

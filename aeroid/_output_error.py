@@ -194,7 +194,7 @@ class _Problem:
             u_now = shifted_controls(m.time, m.controls, lay.delayed, delays)
             # simulated columns: model parameters and this manoeuvre's initial states
             cols = list(range(lay.n_p)) + list(range(sx.start, sx.stop))
-            # gradient="auto": exact forward-mode sensitivities of the compiled RK4 when
+            # gradient="auto": the exact sensitivities of the compiled RK4 when
             # the model compiles and integrates by RK4 (decided at the first call).
             route = getattr(self, "_compiled_route", None)
             if steps is not None and self.gradient == "auto" and route is not False:
@@ -221,8 +221,12 @@ class _Problem:
                     y = y_all[:, self.out_idx]
                     self._compiled_route = True
                     v = m.measured - y - bias
-                    jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
-                    jac[:, :, cols] = -jac_all[:, self.out_idx, :]
+                    picked = jac_all[:, self.out_idx, :]
+                    if len(cols) == lay.n_total:  # one manoeuvre, no delays or biases
+                        jac = np.negative(picked, out=picked)
+                    else:
+                        jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
+                        jac[:, :, cols] = -picked
                     if not self._delay_columns(jac, theta, steps, i, x0):
                         return [], None, False
                     residuals.append(v)
@@ -323,6 +327,22 @@ class _Problem:
         sb = self.layout.bias_slices[i]
         for j, k in zip(range(sb.start, sb.stop), self.mans[i].bias_free, strict=True):
             jac[:, k, j] = -1.0
+
+
+def _negligible(
+    step: FloatArray,
+    grad: FloatArray,
+    theta: FloatArray,
+    typ: FloatArray,
+    cost: float,
+    tolerance: float,
+) -> bool:
+    """Whether a Gauss–Newton step would meet the convergence test once taken: a
+    relative step below `tolerance`, or a predicted cost decrease (half the gradient
+    along the step, exact for the quadratic model) below the decrease test's bound."""
+    rel = float(np.max(np.abs(step) / np.maximum(np.abs(theta), typ)))
+    predicted = 0.5 * float(grad @ step)
+    return rel < tolerance or predicted < tolerance * max(1.0, abs(cost)) * 1e-3
 
 
 def _noise_variances(residuals: list[FloatArray], floor: FloatArray) -> FloatArray:
@@ -1178,6 +1198,7 @@ def fit_output_error(
         a = info / np.outer(dn, dn)
         b = grad / dn
         accepted = False
+        stopped_early = False
         for _attempt in range(12):
             if bounded:
                 step, trial = _projected_step(a, b, dn, lam, theta, lower, upper)
@@ -1189,6 +1210,15 @@ def fit_output_error(
                 # Gauss–Newton minimises sum v'R^-1 v, so the step *adds* the solution
                 # of M step = -J'R^-1 v with J the residual Jacobian (J = -dy/dtheta).
                 trial = theta - step
+            if (
+                _attempt == 0
+                and lam == 0.0
+                and _negligible(step, grad, theta, typ, cost, tolerance)
+            ):
+                # The Gauss–Newton model says the next step changes nothing that the
+                # convergence test would see: stop here rather than simulate it.
+                stopped_early = True
+                break
             t_res, t_jac, t_ok = problem.evaluate(trial, steps_for(trial))
             if t_ok and t_jac is not None:
                 t_cost = _ml_cost(t_res, fixed_r, floor)
@@ -1196,6 +1226,11 @@ def fit_output_error(
                     accepted = True
                     break
             lam = max(lam * 10.0, 1e-4)
+        if stopped_early:
+            success = True
+            iteration -= 1
+            message = f"converged after {iteration} iterations"
+            break
         if not accepted:
             success = True
             message = "converged (no further decrease possible)"

@@ -739,24 +739,19 @@ def _input_noise_covariance(
     weight = 1.0 / np.sqrt(np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None))
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
-    # Compiled: the exact output sensitivities at the fitted point, then one batch of the
-    # fitted point and the draws of input noise.
+    # Compiled: the exact output sensitivities at the fitted point and, to first order,
+    # the output changes of the draws (their linear response: the same estimate shifts
+    # (J' W J)^-1 J' W dy, whose nonlinear part is of second order in the input noise).
     params = dict(model.parameters)
     params.update(zip(names, theta.tolist(), strict=True))
-    options = {"method": "rk4", "substeps": substeps}
-    sens = _compiled.output_sensitivities(
-        model, t, controls, x0, params, names, x_idx, options, probe=False
-    )
-    if sens is not None:
-        U = np.concatenate([controls[None], controls[None] + noise], axis=0)
-        X0 = np.repeat(x0[None, :], 1 + n_draws, axis=0)
-        outs = _compiled.batch_outputs(model, t, U, X0, params, substeps)
-        if outs is None or not (np.all(np.isfinite(outs)) and np.all(np.isfinite(sens[1]))):
+    got = _compiled.input_responses(model, t, controls, x0, params, names, x_idx, substeps, noise)
+    if got is not None:
+        _, sens, change = got
+        if not (np.all(np.isfinite(sens)) and np.all(np.isfinite(change))):
             return np.zeros((n_p, n_p))
-        y = outs[:, :, out_idx] * weight[None, None, :]
-        jac = sens[1][:, out_idx, :] * weight[None, :, None]  # (n_t, n_y, cols)
+        jac = sens[:, out_idx, :] * weight[None, :, None]  # (n_t, n_y, cols)
         jw = np.ascontiguousarray(np.moveaxis(jac, 2, 0)).reshape(jac.shape[2], -1)
-        dy = y[1:] - y[:1]
+        dy = change[:, :, out_idx] * weight[None, None, :]
     else:
         jw, dy_or_none = _difference_response(
             model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps

@@ -393,3 +393,101 @@ def test_a_number_used_in_python_control_flow_keeps_the_model_compiling(
     monkeypatch.setattr(_compiled, "ENABLED", False)
     ref = m.simulate_batch(t, u, [0.2], {"k": np.array([0.7])}, method="rk4")
     assert _rel(got[0], ref.outputs[0]) < 1e-12
+
+
+def _sensor_model() -> aeroid.Model:
+    # A pendulum read through a sensor with a scale factor and an offset; its
+    # damping switches above a rate the test never reaches (read inside np.where).
+    def dyn(t: Any, x: Any, u: Any, p: Any) -> Any:
+        angle, rate = x
+        damping = np.where(np.abs(rate) > 50.0, p["c_hi"], p["c"])
+        return np.array([rate, -p["w2"] * np.sin(angle) - damping * rate + u[0]])
+
+    def meas(t: Any, x: Any, u: Any, p: Any) -> Any:
+        return np.array([(1.0 + p["k"]) * x[0] + p["b"], x[1] + 0.1 * u[0]])
+
+    params = {"w2": 4.0, "c": 0.3, "c_hi": 0.9, "k": 0.05, "b": 0.02}
+    return aeroid.Model(["angle", "rate"], ["u"], params, dyn, ["angle_m", "rate_m"], meas)
+
+
+def _numpy_outputs(m: aeroid.Model, t: Any, u: Any, x0: Any, p: Any) -> np.ndarray:
+    before = _compiled.ENABLED
+    _compiled.ENABLED = False
+    try:
+        sim = m.simulate_batch(t, u, x0, {k: np.array([v]) for k, v in p.items()}, method="rk4")
+    finally:
+        _compiled.ENABLED = before
+    return np.asarray(sim.outputs[0])
+
+
+def test_parameters_only_the_measurement_reads_match_finite_differences() -> None:
+    m = _sensor_model()
+    t = np.arange(301) * 0.02
+    u = (0.5 * np.sin(3.0 * t) + 0.2 * (t > 2.0))[:, None]
+    x0 = np.array([0.3, 0.0])
+    p = dict(m.parameters)
+    names = ["w2", "c", "c_hi", "k", "b"]
+    got = _compiled.output_sensitivities(m, t, u, x0, p, names, [0], {"method": "rk4"})
+    assert got is not None
+    # the sensor's scale factor and offset are not propagated through the states; the
+    # switched damping is (read by the dynamics, even where it does not act)
+    dynamic = _compiled._dynamic_parameters(m, t, x0, u)
+    assert [m.parameter_names[i] for i in dynamic] == ["w2", "c", "c_hi"]
+    y, jac = got
+    assert _rel(y, _numpy_outputs(m, t, u, x0, p)) < 1e-12
+    for c, name in enumerate([*names, "x0.angle"]):
+        h = 1e-5 * max(abs(p.get(name, x0[0])), 0.1)
+
+        def sim(delta: float, name: str = name) -> np.ndarray:
+            pp, xx = dict(p), x0.copy()
+            if name in pp:
+                pp[name] += delta
+            else:
+                xx[0] += delta
+            return _numpy_outputs(m, t, u, xx, pp)
+
+        fd = (sim(h) - sim(-h)) / (2 * h)
+        if name == "c_hi":
+            assert np.all(jac[:, :, c] == 0.0) and np.all(fd == 0.0)
+            continue
+        assert _rel(jac[:, :, c], fd) < 1e-6, name
+    # the arrays handed out are shared with a caller at the same point: read-only
+    assert not jac.flags.writeable
+
+
+def test_input_responses_are_the_first_order_output_change() -> None:
+    m = _sensor_model()
+    t = np.arange(201) * 0.02
+    u = (0.5 * np.sin(3.0 * t))[:, None]
+    x0 = np.array([0.3, 0.1])
+    p = dict(m.parameters)
+    rng = np.random.default_rng(0)
+    directions = rng.standard_normal((3, t.size, 1))
+    got = _compiled.input_responses(m, t, u, x0, p, ["w2"], [0, 1], 1, directions)
+    assert got is not None
+    _, jac, dy = got
+    assert dy.shape == (3, t.size, 2)
+    same = _compiled.output_sensitivities(m, t, u, x0, p, ["w2"], [0, 1], {"substeps": 1})
+    assert same is not None and np.array_equal(jac, same[1])
+    eps = 1e-5
+    for d in range(3):
+        plus = _numpy_outputs(m, t, u + eps * directions[d], x0, p)
+        minus = _numpy_outputs(m, t, u - eps * directions[d], x0, p)
+        assert _rel(dy[d], (plus - minus) / (2 * eps)) < 1e-6, d
+    # the rate output reads the control directly: its response starts at sample 0
+    assert np.isclose(dy[0, 0, 1], 0.1 * directions[0, 0, 0])
+
+
+def test_output_error_stops_when_the_next_step_would_change_nothing() -> None:
+    # An offset alone is linear in the outputs: one Gauss-Newton step lands on the
+    # optimum, and the fit stops there without simulating a further, empty step.
+    m = _sensor_model()
+    t = np.arange(401) * 0.02
+    u = (0.5 * np.sin(3.0 * t))[:, None]
+    truth = {**m.parameters, "b": 0.2}
+    y = _numpy_outputs(m, t, u, np.array([0.3, 0.0]), truth)
+    y = y + 0.01 * np.random.default_rng(1).standard_normal(y.shape)
+    data = aeroid.FlightData(t, {"u": u[:, 0], "angle_m": y[:, 0], "rate_m": y[:, 1]})
+    fit = aeroid.identify(m, data, {"b": 0.0}, x0={"angle": 0.3, "rate": 0.0})
+    assert fit.success and fit.n_iterations == 1
+    assert abs(fit.parameters["b"] - 0.2) < 3 * fit.stderr["b"]
