@@ -491,39 +491,82 @@ def available(
 # -- the RK4 rollout ------------------------------------------------------------------------
 
 
+def _substep(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
+    """Substep `j` of `m` of one grid interval of RK4, as `_integrate.rk4` computes it."""
+
+    def sub(j: Any, x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
+        mf = m.astype(x.dtype)
+        h = (t1 - t0) / mf
+        hh = 0.5 * h
+        du = u1 - u0
+        inside = _INSIDE * (t1 - t0)
+        jf = j.astype(x.dtype)
+        ta = t0 + jf * h
+        # one-sided ends of the interval, as `_integrate.rk4` evaluates them
+        t_first = jax.numpy.where(j == 0, t0 + inside, ta)
+        t_last = jax.numpy.where(j == m - 1, t1 - inside, ta + h)
+        # (2j)/(2m) etc.: the same correctly rounded fractions as numpy's node grid
+        ua = u0 + ((2.0 * jf) / (2.0 * mf)) * du
+        um = u0 + ((2.0 * jf + 1.0) / (2.0 * mf)) * du
+        ub = u0 + ((2.0 * jf + 2.0) / (2.0 * mf)) * du
+        k1 = f(t_first, x, ua, pvec)
+        k2 = f(ta + hh, x + hh * k1, um, pvec)
+        k3 = f(ta + hh, x + hh * k2, um, pvec)
+        k4 = f(t_last, x + h * k3, ub, pvec)
+        return x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+
+    return sub
+
+
 def _interval(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
     """One grid interval of RK4 with `m` substeps, as `_integrate.rk4` computes it.
 
     `m` is an argument (a traced integer), so one compilation serves every
     substep count that the stiffness rule picks as the parameters move.
     """
+    sub = _substep(f, jax)
 
     def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
-        mf = m.astype(x.dtype)
-        h = (t1 - t0) / mf
-        hh = 0.5 * h
-        du = u1 - u0
-        inside = _INSIDE * (t1 - t0)
+        def body(j: Any, x: Any) -> Any:
+            return sub(j, x, t0, t1, u0, u1, pvec, m)
 
-        def sub(j: Any, x: Any) -> Any:
-            jf = j.astype(x.dtype)
-            ta = t0 + jf * h
-            # one-sided ends of the interval, as `_integrate.rk4` evaluates them
-            t_first = jax.numpy.where(j == 0, t0 + inside, ta)
-            t_last = jax.numpy.where(j == m - 1, t1 - inside, ta + h)
-            # (2j)/(2m) etc.: the same correctly rounded fractions as numpy's node grid
-            ua = u0 + ((2.0 * jf) / (2.0 * mf)) * du
-            um = u0 + ((2.0 * jf + 1.0) / (2.0 * mf)) * du
-            ub = u0 + ((2.0 * jf + 2.0) / (2.0 * mf)) * du
-            k1 = f(t_first, x, ua, pvec)
-            k2 = f(ta + hh, x + hh * k1, um, pvec)
-            k3 = f(ta + hh, x + hh * k2, um, pvec)
-            k4 = f(t_last, x + h * k3, ub, pvec)
-            return x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-
-        return jax.lax.fori_loop(0, m, sub, x)
+        return jax.lax.fori_loop(0, m, body, x)
 
     return step
+
+
+def _interval_jacobian(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
+    """``(x, t0, t1, z, place, m) -> (phi, gz)``: the Jacobians of one grid interval's
+    RK4 step by its start state and by `z`, where ``place(z)`` gives the
+    ``(pvec, u0, u1)`` the step uses.
+
+    Substep by substep, each differentiated on its own and the Jacobians chained
+    in the loop: differentiating through the loop would trace the model many
+    times over (the fixed points that JAX's forward mode and batching of a
+    loop iterate), and tracing dominates the compilation of a large model.
+    """
+    sub = _substep(f, jax)
+
+    def jacobian(
+        x: Any, t0: Any, t1: Any, z: Any, place: Callable[[Any], Any], m: Any
+    ) -> tuple[Any, Any]:
+        def body(j: Any, carry: tuple[Any, Any, Any]) -> tuple[Any, Any, Any]:
+            xj, phi, gz = carry
+
+            def one(xj: Any, z: Any) -> tuple[Any, Any]:
+                pvec, u0, u1 = place(z)
+                xn = sub(j, xj, t0, t1, u0, u1, pvec, m)
+                return xn, xn
+
+            (jx, jz), xn = jax.jacfwd(one, argnums=(0, 1), has_aux=True)(xj, z)
+            return xn, jx @ phi, jx @ gz + jz
+
+        n_x = x.shape[0]
+        start = (x, jnp.eye(n_x, dtype=x.dtype), jnp.zeros((n_x, z.shape[0]), dtype=x.dtype))
+        _, phi, gz = jax.lax.fori_loop(0, m, body, start)
+        return phi, gz
+
+    return jacobian
 
 
 def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
@@ -559,7 +602,7 @@ def _tangent_linear(
     then ``S[k+1] = phi[k] S[k] + G[k]`` chains them (the same chain rule in
     another order: equal to rounding).
     """
-    step = _interval(f, jax)
+    interval_jacobian = _interval_jacobian(f, jax, jnp)
     roll = _rollout(f, jax, jnp)
     out_idx = np.array([model.states.index(o) for o in model.output_names]) if h is None else None
 
@@ -584,10 +627,10 @@ def _tangent_linear(
         pd = pidx[dpos]
 
         def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
-            def g(x: Any, thd: Any) -> Any:
-                return step(x, t0, t1, u0, u1, pvec.at[pd].set(thd), m)
+            def place(thd: Any) -> tuple[Any, Any, Any]:
+                return pvec.at[pd].set(thd), u0, u1
 
-            return jax.jacfwd(g, argnums=(0, 1))(x, th[dpos])
+            return interval_jacobian(x, t0, t1, th[dpos], place, m)
 
         phi, gp = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
         forcing = jnp.concatenate([gp, jnp.zeros((phi.shape[0], n_x, xidx.shape[0]))], axis=2)
@@ -631,16 +674,19 @@ def _input_response(
     """``(states, phi, hx, time, u, pvec, m, du) -> dy``: the first-order output
     changes (n_dir, n_t, n_y) that control changes `du` (n_dir, n_t, n_u) cause,
     along the trajectory whose pieces `_tangent_linear` returned."""
-    step = _interval(f, jax)
+    interval_jacobian = _interval_jacobian(f, jax, jnp)
 
     def response(xs: Any, phi: Any, hx: Any, time: Any, u: Any, pvec: Any, m: Any, du: Any) -> Any:
+        n_u = u.shape[1]
+
         def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
-            def g(u0: Any, u1: Any) -> Any:
-                return step(x, t0, t1, u0, u1, pvec, m)
+            def place(z: Any) -> tuple[Any, Any, Any]:
+                return pvec, z[:n_u], z[n_u:]
 
-            return jax.jacfwd(g, argnums=(0, 1))(u0, u1)
+            return interval_jacobian(x, t0, t1, jnp.concatenate([u0, u1]), place, m)[1]
 
-        b0, b1 = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
+        b = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
+        b0, b1 = b[:, :, :n_u], b[:, :, n_u:]
         # a change of the control at sample k enters the intervals on either side of it
         forcing = jnp.einsum("kxu,dku->kxd", b0, du[:, :-1]) + jnp.einsum(
             "kxu,dku->kxd", b1, du[:, 1:]
