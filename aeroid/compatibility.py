@@ -838,9 +838,10 @@ def check_compatibility(
     is small next to the output noise, the coloured-residual correction) do
     not see: the gyro-bias error bars would be too small. Their share is
     added here: `n_draws` records of white input noise at the level of the
-    data are simulated through the fitted kinematics, and the scatter of
-    the linearised estimates they cause, ``(J' W J)^-1 J' W dy``, is added
-    to the covariance of the fit. The result is conservative where the
+    data are propagated through the fitted kinematics (to first order where
+    the model compiles, by simulation otherwise: the two differ at second
+    order in the noise), and the scatter of the linearised estimates they
+    cause, ``(J' W J)^-1 J' W dy``, is added to the covariance of the fit. The result is conservative where the
     coloured-residual correction already caught part of the same effect.
 
     Returns

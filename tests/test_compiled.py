@@ -1,7 +1,7 @@
 """Compiled simulation of numpy-written nonlinear models (aeroid._compiled).
 
 The compiled RK4 must reproduce the numpy RK4 (states, outputs), its
-forward-mode sensitivities must match finite differences of the numpy path,
+sensitivities must match finite differences of the numpy path,
 and `identify` must give the same estimates and standard errors either way.
 Models JAX cannot trace, and a missing JAX, fall back to numpy.
 """
