@@ -18,8 +18,8 @@ What is compiled:
   compilation costs;
 * outputs and their exact sensitivities with respect to chosen parameters and
   initial states (`output_sensitivities`), used by output error, and the
-  first-order output response to control changes (`input_responses`), used
-  by the data-compatibility error bars;
+  first-order effect of white control noise on a fit's gradient
+  (`input_noise_scatter`), used by the data-compatibility error bars;
 * one sample interval of the RK4 propagation of a batch of points and its
   state Jacobian (`interval_propagator`), for the nonlinear filters.
 
@@ -47,7 +47,7 @@ from .model import Model
 __all__ = [
     "available",
     "batch_outputs",
-    "input_responses",
+    "input_noise_scatter",
     "interval_propagator",
     "output_sensitivities",
     "rk4_hook",
@@ -592,7 +592,7 @@ def _tangent_linear(
 
     Outputs and their Jacobian with respect to ``theta`` (the parameters at
     `pidx`, then the initial states at `xidx`), with the pieces
-    `input_responses` reuses: the states, each interval's state-transition
+    `input_noise_scatter` reuses: the states, each interval's state-transition
     Jacobian ``phi`` and the measurement's state Jacobian ``hx`` per sample.
 
     Forward mode through the rollout would carry every tangent through every
@@ -668,15 +668,24 @@ def _tangent_linear(
     return tl
 
 
-def _input_response(
+def _input_noise_scatter(
     f: Callable[..., Any], h: Callable[..., Any] | None, jax: Any, jnp: Any
 ) -> Callable[..., Any]:
-    """``(states, phi, hx, time, u, pvec, m, du) -> dy``: the first-order output
-    changes (n_dir, n_t, n_y) that control changes `du` (n_dir, n_t, n_u) cause,
-    along the trajectory whose pieces `_tangent_linear` returned."""
+    """``(states, phi, hx, time, u, pvec, m, c, sigma) -> Q``: the covariance of
+    ``sum_k c[k]' dy[k]`` when the controls carry white noise of standard
+    deviations `sigma` (n_u,) at every sample, dy being the outputs' first-order
+    response; ``c`` (n_t, n_y, cols) weights each sample's outputs (a fit's
+    ``R^-1 dy/dtheta``), so that Q is the scatter of the Gauss–Newton gradient.
+
+    By the adjoint of the tangent-linear recursion of `_tangent_linear`: one
+    backward pass ``lam[k] = hx[k]' c[k] + phi[k]' lam[k+1]`` gives every
+    sample's control its effect on the weighted sum, exactly, with no draws.
+    """
     interval_jacobian = _interval_jacobian(f, jax, jnp)
 
-    def response(xs: Any, phi: Any, hx: Any, time: Any, u: Any, pvec: Any, m: Any, du: Any) -> Any:
+    def scatter(
+        xs: Any, phi: Any, hx: Any, time: Any, u: Any, pvec: Any, m: Any, c: Any, sigma: Any
+    ) -> Any:
         n_u = u.shape[1]
 
         def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
@@ -686,29 +695,31 @@ def _input_response(
             return interval_jacobian(x, t0, t1, jnp.concatenate([u0, u1]), place, m)[1]
 
         b = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
-        b0, b1 = b[:, :, :n_u], b[:, :, n_u:]
-        # a change of the control at sample k enters the intervals on either side of it
-        forcing = jnp.einsum("kxu,dku->kxd", b0, du[:, :-1]) + jnp.einsum(
-            "kxu,dku->kxd", b1, du[:, 1:]
-        )
-        s0 = jnp.zeros((xs.shape[1], du.shape[0]))
+        # products of small matrices per sample, as broadcast sums (one fused loop each)
+        g = jnp.sum(hx[:, :, :, None] * c[:, :, None, :], axis=1)  # (n_t, n_x, cols)
 
-        def chain(s: Any, k: Any) -> tuple[Any, Any]:
-            s = k[0] @ s + k[1]
-            return s, s
+        def back(lam: Any, k: Any) -> tuple[Any, Any]:
+            lam = k[1] + k[0].T @ lam
+            return lam, lam
 
-        _, rest = jax.lax.scan(chain, s0, (phi, forcing))
-        dy = jnp.einsum("kyx,kxd->dky", hx, jnp.concatenate([s0[None], rest], axis=0))
-        if h is None:
-            return dy
+        _, lams = jax.lax.scan(back, g[-1], (phi, g[:-1]), reverse=True)
+        after = jnp.concatenate([lams[1:], g[-1:]], axis=0)  # lam[k + 1] for each interval k
+        # a control sample enters the interval it starts and the one it ends
+        z0 = jnp.sum(b[:, :, :n_u, None] * after[:, :, None, :], axis=1)
+        z1 = jnp.sum(b[:, :, n_u:, None] * after[:, :, None, :], axis=1)
+        zero = jnp.zeros_like(z0[:1])
+        z = jnp.concatenate([z0, zero], axis=0) + jnp.concatenate([zero, z1], axis=0)
+        if h is not None:
 
-        def meas(t: Any, x: Any, uk: Any) -> Any:
-            return jax.jacfwd(lambda uk: h(t, x, uk, pvec))(uk)
+            def meas(t: Any, x: Any, uk: Any) -> Any:
+                return jax.jacfwd(lambda uk: h(t, x, uk, pvec))(uk)
 
-        hu = jax.vmap(meas)(time, xs, u)
-        return dy + jnp.einsum("kyu,dku->dky", hu, du)
+            hu = jax.vmap(meas)(time, xs, u)
+            z = z + jnp.sum(hu[:, :, :, None] * c[:, :, None, :], axis=1)
+        flat = (z * sigma[None, :, None]).reshape(-1, c.shape[2])
+        return flat.T @ flat
 
-    return response
+    return scatter
 
 
 def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
@@ -728,8 +739,8 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
     elif kind == "sensitivities":
         fn = jax.jit(_tangent_linear(f, entry.get(("fn", "measurement")), model, jax, jnp))
-    elif kind == "input_response":
-        fn = jax.jit(_input_response(f, entry.get(("fn", "measurement")), jax, jnp))
+    elif kind == "input_noise":
+        fn = jax.jit(_input_noise_scatter(f, entry.get(("fn", "measurement")), jax, jnp))
     elif kind == "outputs":
         h = entry.get(("fn", "measurement"))
         out_idx = (
@@ -947,7 +958,7 @@ def output_sensitivities(
     return got[0], got[1]
 
 
-def input_responses(
+def input_noise_scatter(
     model: Any,
     time: FloatArray,
     controls: FloatArray,
@@ -956,11 +967,14 @@ def input_responses(
     names: Sequence[str],
     x0_free: Sequence[int],
     substeps: int,
-    directions: FloatArray,
+    inverse_variances: FloatArray,
+    sigma: FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """`output_sensitivities` by RK4 with `substeps`, and the output changes (n_dir,
-    n_t, n_y) that the control changes `directions` (n_dir, n_t, n_u) cause, to
-    first order. None when the model does not compile."""
+    """Outputs, their Jacobian (as `output_sensitivities`, RK4 with `substeps`) and
+    the covariance of the Gauss–Newton gradient ``sum_k J[k]' R^-1 dy[k]`` that white
+    control noise of standard deviations `sigma` (n_u,) causes to first order; R^-1
+    is ``diag(inverse_variances)`` over the model outputs (zero for those not fitted).
+    None when the model does not compile."""
     if not ENABLED or not isinstance(model, Model) or time.size < 2:
         return None
     pvec = _pmatrix(model, params, 1)[0]
@@ -968,13 +982,18 @@ def input_responses(
     if not available(model, time, x0, controls, pvec):
         return None
     y, J, xs, phi, hx = _sensitivities(model, time, controls, x0, pvec, names, x0_free, substeps)
+    cols = J.shape[2]
+    # columns padded to a multiple of eight: another set of estimated parameters seldom
+    # costs another compilation
+    weighted = np.zeros((*J.shape[:2], -(-cols // 8) * 8))
+    weighted[:, :, :cols] = J * np.asarray(inverse_variances, dtype=np.float64)[None, :, None]
+    fn = _compiled(model, "input_noise")
     u = np.asarray(controls, dtype=np.float64)
-    fn = _compiled(model, "input_response")
-    du = np.asarray(directions, dtype=np.float64)
+    s = np.asarray(sigma, dtype=np.float64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        dy = fn(xs, phi, hx, time, u, pvec, np.int32(substeps), du)
-    return y, J, np.asarray(dy, dtype=np.float64)
+        scatter = fn(xs, phi, hx, time, u, pvec, np.int32(substeps), weighted, s)
+    return y, J, np.asarray(scatter, dtype=np.float64)[:cols, :cols]
 
 
 def _sensitivities(

@@ -736,32 +736,38 @@ def _input_noise_covariance(
     theta = np.array([fit.parameters[n] for n in names])
     x0 = np.array([fit.initial_states[0][s] for s in STATES])
     x_idx = [STATES.index(s) for s in free_x0]
-    weight = 1.0 / np.sqrt(np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None))
-    rng = np.random.default_rng(seed)
-    noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
-    # Compiled: the exact output sensitivities at the fitted point and, to first order,
-    # the output changes of the draws (their linear response: the same estimate shifts
-    # (J' W J)^-1 J' W dy, whose nonlinear part is of second order in the input noise).
+    variance = np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None)
+    # Compiled: exact to first order, by the adjoint of the linearised kinematics.
     params = dict(model.parameters)
     params.update(zip(names, theta.tolist(), strict=True))
-    got = _compiled.input_responses(model, t, controls, x0, params, names, x_idx, substeps, noise)
+    inverse = np.zeros(len(OUTPUT_CHANNELS))
+    inverse[out_idx] = 1.0 / variance
+    got = _compiled.input_noise_scatter(
+        model, t, controls, x0, params, names, x_idx, substeps, inverse, scale
+    )
     if got is not None:
-        _, sens, change = got
-        if not (np.all(np.isfinite(sens)) and np.all(np.isfinite(change))):
+        _, sens, scatter = got
+        if not (np.all(np.isfinite(sens)) and np.all(np.isfinite(scatter))):
             return np.zeros((n_p, n_p))
-        jac = sens[:, out_idx, :] * weight[None, :, None]  # (n_t, n_y, cols)
-        jw = np.ascontiguousarray(np.moveaxis(jac, 2, 0)).reshape(jac.shape[2], -1)
-        dy = change[:, :, out_idx] * weight[None, None, :]
+        jac = sens[:, out_idx, :] / np.sqrt(variance)[None, :, None]
+        flat = jac.reshape(-1, jac.shape[2])
+        info = flat.T @ flat
     else:
-        jw, dy_or_none = _difference_response(
+        # Without the compiled path: the scatter of `n_draws` simulated draws.
+        weight = 1.0 / np.sqrt(variance)
+        rng = np.random.default_rng(seed)
+        noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
+        jw, dy = _difference_response(
             model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
         )
-        if dy_or_none is None:
+        if dy is None:
             return np.zeros((n_p, n_p))
-        dy = dy_or_none
-    info = jw @ jw.T
-    shifts = np.linalg.lstsq(info, jw @ dy.reshape(n_draws, -1).T, rcond=1e-12)[0]
-    cov = shifts @ shifts.T / n_draws
+        info = jw @ jw.T
+        gradients = jw @ dy.reshape(n_draws, -1).T
+        scatter = gradients @ gradients.T / n_draws
+    # the estimate shifts (J' W J)^-1 J' W dy: their covariance
+    half = np.linalg.lstsq(info, scatter, rcond=1e-12)[0]
+    cov = np.linalg.lstsq(info, half.T, rcond=1e-12)[0]
     return np.asarray(cov[:n_p, :n_p], dtype=np.float64)
 
 
@@ -826,7 +832,8 @@ def check_compatibility(
         for the error bars (see Notes); default estimated from each input's
         fourth differences. Zero leaves an input out of the correction.
     n_draws : int
-        Monte Carlo draws of input noise for that correction.
+        Monte Carlo draws of input noise for that correction, where the
+        kinematics do not compile (without JAX); compiled, it is exact.
     seed : int
         Seed of those draws.
 
@@ -837,11 +844,12 @@ def check_compatibility(
     velocity errors, which the classical error bars (and, when that wander
     is small next to the output noise, the coloured-residual correction) do
     not see: the gyro-bias error bars would be too small. Their share is
-    added here: `n_draws` records of white input noise at the level of the
-    data are propagated through the fitted kinematics (to first order where
-    the model compiles, by simulation otherwise: the two differ at second
-    order in the noise), and the scatter of the linearised estimates they
-    cause, ``(J' W J)^-1 J' W dy``, is added to the covariance of the fit. The result is conservative where the
+    added here: the covariance of the linearised estimate shifts
+    ``(J' W J)^-1 J' W dy`` that white input noise at the level of the data
+    causes through the fitted kinematics is added to the covariance of the
+    fit. With JAX it is computed exactly to first order (the adjoint of the
+    linearised kinematics carries every sample's noise to the estimates);
+    without, it is the scatter of `n_draws` simulated records of such noise. The result is conservative where the
     coloured-residual correction already caught part of the same effect.
 
     Returns

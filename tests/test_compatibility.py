@@ -272,7 +272,8 @@ def test_compiled_simulation_agrees_with_numpy():
     _compiled = pytest.importorskip("aeroid._compiled")
     data = simulated_flight(8.0, 25.0, errors=UNSHIFTED, seed=8)
     names = ["b_p", "b_q", "b_az", "b_alpha"]
-    plain = check_compatibility(data, estimate=names)
+    # many draws: the numpy path's Monte Carlo input-noise share, good to a few per cent
+    plain = check_compatibility(data, estimate=names, n_draws=1000)
     _compiled.ENABLED = True
     try:
         with warnings.catch_warnings():
@@ -284,8 +285,10 @@ def test_compiled_simulation_agrees_with_numpy():
         _compiled.ENABLED = False
     for n in names:
         assert abs(fast.parameters[n] - plain.parameters[n]) < 1e-3 * plain.stderr[n], n
-        # the input-noise share: exact sensitivities there, forward differences here
-        assert abs(fast.stderr[n] - plain.stderr[n]) < 1e-4 * plain.stderr[n], n
+        # The input-noise share: exact to first order there, 1000 simulated draws here.
+        # It is two thirds of b_p's variance on this record, its estimate scatters by
+        # sqrt(2/1000) = 4.5 %, so b_p's error bar by 1.5 %: 6 % is four sigma.
+        assert abs(fast.stderr[n] - plain.stderr[n]) < 0.06 * plain.stderr[n], n
 
 
 # -- bad input -------------------------------------------------------------------------

@@ -455,27 +455,30 @@ def test_parameters_only_the_measurement_reads_match_finite_differences() -> Non
     assert not jac.flags.writeable
 
 
-def test_input_responses_are_the_first_order_output_change() -> None:
+def test_input_noise_scatter_is_the_exact_linear_covariance() -> None:
+    # The adjoint pass against the definition: build the outputs' response to every
+    # control sample by central differences of the numpy simulation, G[k, j], then
+    # Q = Z' diag(sigma^2) Z with Z[j] = sum_k G[k, j]' R^-1 J[k].
     m = _sensor_model()
-    t = np.arange(201) * 0.02
+    t = np.arange(41) * 0.05
     u = (0.5 * np.sin(3.0 * t))[:, None]
     x0 = np.array([0.3, 0.1])
     p = dict(m.parameters)
-    rng = np.random.default_rng(0)
-    directions = rng.standard_normal((3, t.size, 1))
-    got = _compiled.input_responses(m, t, u, x0, p, ["w2"], [0, 1], 1, directions)
+    names = ["w2", "c", "b"]
+    inverse = np.array([1.0 / 0.01**2, 1.0 / 0.02**2])
+    sigma = np.array([0.05])
+    got = _compiled.input_noise_scatter(m, t, u, x0, p, names, [0], 1, inverse, sigma)
     assert got is not None
-    _, jac, dy = got
-    assert dy.shape == (3, t.size, 2)
-    same = _compiled.output_sensitivities(m, t, u, x0, p, ["w2"], [0, 1], {"substeps": 1})
-    assert same is not None and np.array_equal(jac, same[1])
-    eps = 1e-5
-    for d in range(3):
-        plus = _numpy_outputs(m, t, u + eps * directions[d], x0, p)
-        minus = _numpy_outputs(m, t, u - eps * directions[d], x0, p)
-        assert _rel(dy[d], (plus - minus) / (2 * eps)) < 1e-6, d
-    # the rate output reads the control directly: its response starts at sample 0
-    assert np.isclose(dy[0, 0, 1], 0.1 * directions[0, 0, 0])
+    _, jac, scatter = got
+    eps = 1e-6
+    z = np.zeros((t.size, jac.shape[2]))
+    for j in range(t.size):
+        du = np.zeros_like(u)
+        du[j, 0] = eps
+        g = (_numpy_outputs(m, t, u + du, x0, p) - _numpy_outputs(m, t, u - du, x0, p)) / (2 * eps)
+        z[j] = np.einsum("ky,y,kyc->c", g, inverse, jac)
+    expected = (z * sigma[0]).T @ (z * sigma[0])
+    assert np.allclose(scatter, expected, rtol=1e-7, atol=1e-9 * np.max(np.abs(expected)))
 
 
 def test_output_error_stops_when_the_next_step_would_change_nothing() -> None:
