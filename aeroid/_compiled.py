@@ -46,7 +46,6 @@ from .model import Model
 
 __all__ = [
     "available",
-    "batch_outputs",
     "input_noise_scatter",
     "interval_propagator",
     "output_sensitivities",
@@ -741,19 +740,6 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         fn = jax.jit(_tangent_linear(f, entry.get(("fn", "measurement")), model, jax, jnp))
     elif kind == "input_noise":
         fn = jax.jit(_input_noise_scatter(f, entry.get(("fn", "measurement")), jax, jnp))
-    elif kind == "outputs":
-        h = entry.get(("fn", "measurement"))
-        out_idx = (
-            np.array([model.states.index(o) for o in model.output_names]) if h is None else None
-        )
-
-        def member(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> Any:
-            states = roll(time, u, x0, pvec, m)
-            if h is None:
-                return states[:, out_idx]
-            return jax.vmap(h, in_axes=(0, 0, 0, None))(time, states, u, pvec)
-
-        fn = jax.jit(jax.vmap(member, in_axes=(None, 0, 0, 0, None)))
     elif kind == "interval":
         step = _interval(f, jax)
         axes = (0, None, None, None, None, 0, None)
@@ -857,42 +843,6 @@ def rk4_hook(
     if traj is not None:
         entry["compiled_once"] = True
     return traj
-
-
-def batch_outputs(
-    model: Any,
-    time: FloatArray,
-    controls: FloatArray,
-    x0: FloatArray,
-    params: Mapping[str, Any],
-    substeps: int,
-) -> FloatArray | None:
-    """Outputs (B, n_t, n_y) of a batch simulated by the compiled RK4, in one call.
-
-    `controls` (B, n_t, n_u), `x0` (B, n_x), `params` name -> value or (B,)
-    values (missing names take the model's values). The same RK4 as
-    ``simulate_batch(..., method="rk4", substeps=substeps)`` and the same
-    measurement, without the per-member parameter arrays that the numpy
-    measurement needs for every sample. None when the model does not compile;
-    a diverging member comes back non-finite.
-    """
-    if not ENABLED or not isinstance(model, Model) or time.size < 2:
-        return None
-    x0 = np.asarray(x0, dtype=np.float64)
-    u = np.asarray(controls, dtype=np.float64)
-    batch = x0.shape[0]
-    P = _pmatrix(model, params, batch)
-    if not available(model, time, x0[0], u[0], P[0]):
-        return None
-    fn = _compiled(model, "outputs")
-    # Padded to a multiple of eight: few shapes, without doubling the work of a batch
-    # just past a power of two.
-    padded = -(-batch // 8) * 8
-    rows = np.minimum(np.arange(padded), batch - 1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        y = fn(time, u[rows], x0[rows], P[rows], np.int32(substeps))
-    return np.asarray(y, dtype=np.float64)[:batch]
 
 
 # -- output-error sensitivities ----------------------------------------------------------

@@ -302,23 +302,6 @@ def test_switch_at_a_sample_time_agrees_with_numpy(monkeypatch: Any) -> None:
     assert _rel(fast.states[0], ref.states) < 1e-5
 
 
-def test_batch_outputs_match_numpy_members(lon: aeroid.Model, monkeypatch: Any) -> None:
-    # Members with their own controls, initial states and parameter values, in one call.
-    t = np.arange(101) * 0.1
-    rng = np.random.default_rng(3)
-    u = _controls(t)[None] + np.array([0.002, 20.0]) * rng.standard_normal((3, 101, 2))
-    x0 = X0[None, :] * (1.0 + 0.01 * rng.standard_normal((3, 4)))
-    params = {"Cm_q": np.array([-12.0, -11.0, -13.0]), "CL_alpha": 4.9}
-    got = _compiled.batch_outputs(lon, t, u, x0, params, 3)
-    assert got is not None and got.shape == (3, 101, 7)
-    monkeypatch.setattr(_compiled, "ENABLED", False)
-    for b in range(3):
-        pb = {"Cm_q": np.array([params["Cm_q"][b]]), "CL_alpha": np.array([4.9])}
-        ref = lon.simulate_batch(t, u[b], x0[b], pb, method="rk4", substeps=3).outputs[0]
-        assert _rel(got[b], ref) < 1e-12, b
-    assert _compiled.batch_outputs(lon, t, u, x0, params, 3) is None  # switched off
-
-
 def test_probe_compiles_no_rollout(monkeypatch: Any) -> None:
     # The probe only asks which path the integrator takes: even a model past the
     # compilation threshold compiles no rollout for its two-sample record.
