@@ -549,21 +549,23 @@ def _interval_jacobian(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..
     def jacobian(
         x: Any, t0: Any, t1: Any, z: Any, place: Callable[[Any], Any], m: Any
     ) -> tuple[Any, Any]:
-        def body(j: Any, carry: tuple[Any, Any, Any]) -> tuple[Any, Any, Any]:
-            xj, phi, gz = carry
-
+        def substep(j: Any, xj: Any) -> tuple[Any, Any, Any]:
             def one(xj: Any, z: Any) -> tuple[Any, Any]:
                 pvec, u0, u1 = place(z)
                 xn = sub(j, xj, t0, t1, u0, u1, pvec, m)
                 return xn, xn
 
             (jx, jz), xn = jax.jacfwd(one, argnums=(0, 1), has_aux=True)(xj, z)
+            return xn, jx, jz
+
+        def body(j: Any, carry: tuple[Any, Any, Any]) -> tuple[Any, Any, Any]:
+            xj, phi, gz = carry
+            xn, jx, jz = substep(j, xj)
             return xn, jx @ phi, jx @ gz + jz
 
-        n_x = x.shape[0]
-        start = (x, jnp.eye(n_x, dtype=x.dtype), jnp.zeros((n_x, z.shape[0]), dtype=x.dtype))
-        _, phi, gz = jax.lax.fori_loop(0, m, body, start)
-        return phi, gz
+        # the first substep outside the loop: one substep (the usual case) multiplies
+        # no Jacobians
+        return jax.lax.fori_loop(1, m, body, substep(jnp.int32(0), x))[1:]
 
     return jacobian
 
