@@ -589,10 +589,11 @@ def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
 def _tangent_linear(
     f: Callable[..., Any], h: Callable[..., Any] | None, model: Model, jax: Any, jnp: Any
 ) -> Callable[..., Any]:
-    """``(theta, pbase, pidx, xbase, xidx, time, u, m) -> (y, J, states, phi, hx)``.
+    """``(theta, pbase, pidx, dpos, xbase, xidx, time, u, m) -> (y, J, states, phi, hx)``.
 
     Outputs and their Jacobian with respect to ``theta`` (the parameters at
-    `pidx`, then the initial states at `xidx`), with the pieces
+    `pidx`, then the initial states at `xidx`; ``dpos`` marks the parameters
+    the dynamics read, `_dynamic_parameters`), with the pieces
     `input_noise_scatter` reuses: the states, each interval's state-transition
     Jacobian ``phi`` and the measurement's state Jacobian ``hx`` per sample.
 
@@ -744,9 +745,14 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         fn = jax.jit(_input_noise_scatter(f, entry.get(("fn", "measurement")), jax, jnp))
     elif kind == "interval":
         step = _interval(f, jax)
+        jacobian = _interval_jacobian(f, jax, jnp)
+
+        def state_jacobian(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
+            return jacobian(x, t0, t1, jnp.zeros(0), lambda _: (pvec, u0, u1), m)[0]
+
         axes = (0, None, None, None, None, 0, None)
         pts = jax.vmap(step, in_axes=axes)
-        lin = jax.vmap(jax.jacfwd(step, argnums=0), in_axes=axes)
+        lin = jax.vmap(state_jacobian, in_axes=axes)
         fn = (jax.jit(pts), jax.jit(lin))
     else:  # pragma: no cover - internal
         raise ValueError(kind)
@@ -867,9 +873,10 @@ def output_sensitivities(
     The columns are the model parameters `names`, then the initial states
     `x0_free`; `params` holds every model parameter. The Jacobian is the
     exact derivative (by the chain rule, see `_tangent_linear`) of the same
-    RK4 rollout that `simulate_batch` runs, with the same substeps. None when it does not apply: JAX missing,
-    functions that do not compile, or an integration other than RK4 (the
-    exact path of linear time-invariant models, solve_ivp). With `probe`, one
+    RK4 rollout that `simulate_batch` runs, with the same substeps. None when
+    it does not apply: JAX missing, functions that do not compile, or an
+    integration other than RK4 (the exact path of linear time-invariant
+    models, solve_ivp). With `probe`, one
     plain simulation first asks the integrator which path it takes (the
     caller remembers the answer and passes ``probe=False`` afterwards).
     Outputs of a diverging simulation come back non-finite.

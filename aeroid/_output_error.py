@@ -329,20 +329,13 @@ class _Problem:
             jac[:, k, j] = -1.0
 
 
-def _negligible(
-    step: FloatArray,
-    grad: FloatArray,
-    theta: FloatArray,
-    typ: FloatArray,
-    cost: float,
-    tolerance: float,
-) -> bool:
-    """Whether a Gauss–Newton step would meet the convergence test once taken: a
-    relative step below `tolerance`, or a predicted cost decrease (half the gradient
-    along the step, exact for the quadratic model) below the decrease test's bound."""
-    rel = float(np.max(np.abs(step) / np.maximum(np.abs(theta), typ)))
-    predicted = 0.5 * float(grad @ step)
-    return rel < tolerance or predicted < tolerance * max(1.0, abs(cost)) * 1e-3
+def _relative_step(step: FloatArray, theta: FloatArray, typ: FloatArray) -> float:
+    return float(np.max(np.abs(step) / np.maximum(np.abs(theta), typ)))
+
+
+def _converged(rel_step: float, decrease: float, cost: float, tolerance: float) -> bool:
+    """The convergence test: a relative parameter step or a cost decrease this small."""
+    return rel_step < tolerance or decrease < tolerance * max(1.0, abs(cost)) * 1e-3
 
 
 def _noise_variances(residuals: list[FloatArray], floor: FloatArray) -> FloatArray:
@@ -1213,10 +1206,13 @@ def fit_output_error(
             if (
                 _attempt == 0
                 and lam == 0.0
-                and _negligible(step, grad, theta, typ, cost, tolerance)
+                # the decrease the quadratic model predicts: half the gradient along the step
+                and _converged(
+                    _relative_step(step, theta, typ), 0.5 * float(grad @ step), cost, tolerance
+                )
             ):
-                # The Gauss–Newton model says the next step changes nothing that the
-                # convergence test would see: stop here rather than simulate it.
+                # The next step would already pass the convergence test: stop here
+                # rather than simulate it.
                 stopped_early = True
                 break
             t_res, t_jac, t_ok = problem.evaluate(trial, steps_for(trial))
@@ -1235,12 +1231,12 @@ def fit_output_error(
             success = True
             message = "converged (no further decrease possible)"
             break
-        rel_step = float(np.max(np.abs(step) / np.maximum(np.abs(theta), typ)))
+        rel_step = _relative_step(step, theta, typ)
         dcost = cost - t_cost
         assert t_jac is not None  # accepted trials always carry their Jacobian
         theta, residuals, jacobians, cost = trial, t_res, t_jac, t_cost
         lam = lam / 10.0 if lam > 1e-6 else 0.0
-        if rel_step < tolerance or dcost < tolerance * max(1.0, abs(cost)) * 1e-3:
+        if _converged(rel_step, dcost, cost, tolerance):
             success = True
             message = f"converged after {iteration} iterations"
             break
