@@ -580,7 +580,10 @@ def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
             x = step(x, t0, t1, u0, u1, pvec, m)
             return x, x
 
-        _, xs = jax.lax.scan(body, x0, (time[:-1], time[1:], u[:-1], u[1:]))
+        # two intervals per loop iteration: the loop's own overhead is a large share of
+        # each small step (measured in tests/benchmarks/bench_compatibility.py)
+        inputs = (time[:-1], time[1:], u[:-1], u[1:])
+        _, xs = jax.lax.scan(body, x0, inputs, unroll=2)
         return jnp.concatenate([x0[None, :], xs], axis=0)
 
     return roll
