@@ -191,7 +191,8 @@ def test_a_plans_memo_gives_the_same_keys_and_documents():
     model = {"name": "mødel", "parameters": {"a": float("nan"), "b": 2.5}, "src": 'x = "\u2028"'}
     options = {"z": [1, {"y": None}], "a": np.float64(-0.0), "é": True}
     memo: dict[int, tuple[object, bytes]] = {}
-    for upstream in ({"data": "k1"}, {"data": "k2", "b": "é"}):
+    odd = {'q"uote': "back\\slash\n\u2028\x01", "data": "k3"}  # escapes as json.dumps writes them
+    for upstream in ({"data": "k1"}, {"data": "k2", "b": "é"}, odd):
         fields = dict(
             record_type="r",
             stage="s",

@@ -180,8 +180,7 @@ class LocalProcesses:
                     dsk[name] = (node.call, list(node.parts), *node.deps)
                 else:
                     dsk[name] = (node.call, *node.deps)
-            pool = _process.process_pool(n_workers)
-            try:
+            with _process.process_pool(n_workers) as pool:
                 get_async(
                     pool.submit,
                     # one node more than workers: the next one waits in the pool's queue, so a
@@ -199,8 +198,6 @@ class LocalProcesses:
                     loads=cloudpickle.loads,
                     pack_exception=pack_exception,
                 )
-            finally:
-                pool.shutdown(wait=True, cancel_futures=True)
 
         broke = False
         with _process.blas_pinned(fork):

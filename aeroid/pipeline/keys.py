@@ -24,6 +24,7 @@ __all__ = [
     "array_digest",
     "canonical_json",
     "file_digest",
+    "keyed_text",
     "model_fingerprint",
     "sha256_hex",
     "stable_int",
@@ -177,17 +178,47 @@ def task_key(
     seed: Any,
     memo: dict[int, tuple[Any, bytes]] | None = None,
 ) -> tuple[str, dict[str, Any]]:
-    """The key of a task and the document it hashes.
+    """The key of a task and the document it hashes (plain JSON types).
+
+    See `keyed_text`, which this parses the document back from.
+    """
+    key, text = keyed_text(
+        record_type=record_type,
+        stage=stage,
+        stage_version=stage_version,
+        options=options,
+        upstream=upstream,
+        model=model,
+        seed=seed,
+        memo=memo,
+    )
+    document: dict[str, Any] = json.loads(text)
+    return key, document
+
+
+def keyed_text(
+    *,
+    record_type: str,
+    stage: str,
+    stage_version: str,
+    options: Mapping[str, Any],
+    upstream: Mapping[str, str],
+    model: Mapping[str, Any] | None,
+    seed: Any,
+    memo: dict[int, tuple[Any, bytes]] | None = None,
+) -> tuple[str, bytes]:
+    """The key of a task and the canonical text of the document it hashes.
 
     With `memo` (a dict the caller keeps for a whole plan), the options and the
     model fingerprint are normalised and serialised once per object, not once per
     task: a plan passes the same objects for every flight. The memo holds each
-    object, so its id cannot be reused while the memo lives. Each document still
-    gets its own objects, parsed back from that text: documents that shared them
-    made the forked workers of a large campaign grow markedly (see
-    ``tests/benchmarks/bench_campaign_1000.py``). The key
-    is the same either way: the canonical document is assembled from its fields'
-    canonical texts in sorted order, as `canonical_json` writes it whole.
+    object, so its id cannot be reused while the memo lives. The text is the
+    same either way: the canonical document is assembled from its fields'
+    canonical texts in sorted order, as `canonical_json` writes it whole. A plan
+    keeps the text, not a parsed document: parsed documents, one per task, made
+    the forked workers of a large campaign grow markedly (see
+    ``tests/benchmarks/bench_campaign_1000.py``), and only a task that runs
+    needs its document.
     """
     fields = {
         "model": model,
@@ -198,29 +229,36 @@ def task_key(
         "stage_version": stage_version,
         "upstream": upstream,
     }
-    doc: dict[str, Any] = {}
     pieces = []
     for name, value in fields.items():  # already in sorted order
         shared = memo is not None and name in ("model", "options") and value is not None
         hit = memo.get(id(value)) if shared and memo is not None else None
         if hit is not None:
             text = hit[1]
-            doc[name] = json.loads(text)
         else:
-            try:
-                plain = _jsonable(value)
-            except _NotJsonable as exc:
-                raise PipelineError(f"{stage} task.{name}{exc.path}: {exc.message}") from None
-            # the scalar fields written as json.dumps writes them, without its set-up
-            if type(plain) is str:
-                text = _json_string(plain).encode("utf-8")
-            elif plain is None:
-                text = b"null"
-            else:
-                text = _canonical_plain(plain)
+            flat = _flat_text(value)
+            if flat is None:
+                try:
+                    plain = _jsonable(value)
+                except _NotJsonable as exc:
+                    raise PipelineError(f"{stage} task.{name}{exc.path}: {exc.message}") from None
+                flat = b"null" if plain is None else _canonical_plain(plain)
+            text = flat
             if shared and memo is not None:
                 memo[id(value)] = (value, text)
-            doc[name] = plain
         pieces.append(b'"' + name.encode() + b'":' + text)
-    # the document in plain JSON types, as it is stored and read back
-    return sha256_hex(b"{" + b",".join(pieces) + b"}"), doc
+    canonical = b"{" + b",".join(pieces) + b"}"
+    return sha256_hex(canonical), canonical
+
+
+def _flat_text(value: Any) -> bytes | None:
+    """Canonical text of a string, or of a mapping of strings to strings (a task's
+    upstream keys), written as `json.dumps` writes them; None for anything else."""
+    if type(value) is str:
+        return _json_string(value).encode("utf-8")
+    if type(value) is not dict or not all(
+        type(k) is str and type(v) is str for k, v in value.items()
+    ):
+        return None
+    items = ",".join(f"{_json_string(k)}:{_json_string(v)}" for k, v in sorted(value.items()))
+    return ("{" + items + "}").encode("utf-8")

@@ -20,7 +20,7 @@ from . import _code
 from .checks import check_campaign
 from .config import CampaignConfig, FileFlights, SimulatedSource, load_config, validate_options
 from .definition import Pipeline, resolve_pipeline
-from .keys import canonical_json, file_digest, model_fingerprint, sha256_hex, stable_int, task_key
+from .keys import canonical_json, file_digest, keyed_text, model_fingerprint, sha256_hex, stable_int
 from .stages import STAGES
 from .store import parse
 
@@ -40,7 +40,7 @@ class Task:
     options: dict[str, Any]
     upstream: dict[str, Any]  # role -> key (per flight) or list of keys (campaign)
     upstream_stages: dict[str, str]  # role -> stage name of the upstream step
-    document: dict[str, Any]
+    canonical: bytes  # the canonical text of the document the key hashes
     model_ref: dict[str, Any] | None = None
     seed: dict[str, Any] | None = None
     source: dict[str, Any] | None = None
@@ -49,6 +49,12 @@ class Task:
     # (campaign stage, role) of each brief of this task's result a campaign task takes
     # (`Stage.brief`); not part of the key or of the stored task
     briefs: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def document(self) -> dict[str, Any]:
+        """The document the key hashes, in plain JSON types (parsed on each access)."""
+        document: dict[str, Any] = json.loads(self.canonical)
+        return document
 
     @property
     def upstream_keys(self) -> list[str]:
@@ -83,7 +89,7 @@ class Task:
             options=dict(doc["options"]),
             upstream=dict(doc["upstream"]),
             upstream_stages=dict(doc["upstream_stages"]),
-            document=dict(document),
+            canonical=canonical_json(document),
             model_ref=doc.get("model_ref"),
             seed=doc.get("seed"),
             source=doc.get("source"),
@@ -392,7 +398,8 @@ def plan(
         if step_stage[name] != "load"
     }
     briefs = _briefs_wanted(pipeline, enabled)
-    memo: dict[int, Any] = {}  # task_key's: every flight shares the options and the model
+    memo: dict[int, Any] = {}  # keyed_text's: every flight shares the options and the model
+    flight_steps = [s for s in steps if s in pipeline.flight_steps]
 
     tasks: list[Task] = []
     flights: list[str] = []
@@ -418,7 +425,7 @@ def plan(
         flights.append(name)
         keys: dict[str, str] = {}
         flight_id: int | None = None
-        for step in (s for s in steps if s in pipeline.flight_steps):
+        for step in flight_steps:
             stage = STAGES[step.stage_name]
             opts, how = documents[step.name]  # `how`: with the execution-only options
             upstream: dict[str, Any] = {}
@@ -439,7 +446,7 @@ def plan(
             if stage.seeded:
                 assert flight_id is not None
                 seed = {"seed": config.seed, "spawn_key": [flight_id]}
-            key, doc = task_key(
+            key, canonical = keyed_text(
                 record_type=stage.record_type,
                 stage=stage.name,
                 stage_version=stage.version,
@@ -476,7 +483,7 @@ def plan(
                     upstream_stages={
                         r: step_stage[u] for r, u in step.inputs.items() if u in enabled
                     },
-                    document=doc,
+                    canonical=canonical,
                     model_ref=flight_model_ref if stage.uses_model else None,
                     seed=seed,
                     source=source if step.stage_name == "load" else None,
@@ -493,7 +500,7 @@ def plan(
             for role, up in step.inputs.items()
             if up in enabled
         }
-        key, doc = task_key(
+        key, canonical = keyed_text(
             record_type=stage.record_type,
             stage=stage.name,
             stage_version=stage.version,
@@ -511,7 +518,7 @@ def plan(
                 options=run_options[step.name],
                 upstream=upstream,
                 upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in enabled},
-                document=doc,
+                canonical=canonical,
                 model_ref=model_ref if stage.uses_model else None,
                 pipeline_ref=pipe_ref,
                 flights=tuple(flights),
