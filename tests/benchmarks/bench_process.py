@@ -13,11 +13,15 @@ out at a time:
 
 Prints, per variant, the median wall time over ``--repeats`` runs and its
 ratio to the shipped run's median (above 1.05: the piece is worth keeping).
-Two more pieces were measured here and removed: a garbage-collector freeze of
-the objects that exist before a run (without it the demo ran 0.99x as long,
-on a 2-core VM and on 2 cores of a 16-core machine) and importing the stages'
-modules once before the workers fork (without it 0.94x over 5 runs on the VM:
-the workers' own imports overlap, the parent's did not).
+Two more pieces were measured here for time: a garbage-collector freeze of the
+objects that exist before the workers fork (without it the demo ran 0.99x as
+long, on a 2-core VM and on 2 cores of a 16-core machine) and importing the
+stages' modules once before the workers fork (without it 0.94x over 5 runs on
+the VM: the workers' own imports overlap, the parent's did not). Both are kept
+for memory, which ``bench_campaign_1000.py`` measures: forked workers share the
+imported modules' pages, and the freeze keeps their garbage collector from
+copying the planner's (the 1,000-flight process tree peaked near 330 MB without
+it, 300 MB with it).
 Usage: ``python tests/benchmarks/bench_process.py [--repeats N] [--config PATH]``.
 """
 
