@@ -123,7 +123,9 @@ def process_pool(n: int) -> Iterator[Any]:
 
     method = start_method()
     fork = method == "fork"
-    if fork:
+    # (a caller that froze objects itself keeps them frozen: nothing here undoes it)
+    freeze = fork and gc.get_freeze_count() == 0
+    if freeze:
         # Forked workers inherit this process's objects page by page, shared until
         # written; their cyclic garbage collector writes into the header of every
         # inherited container it examines, which would copy the planner's pages into
@@ -139,5 +141,5 @@ def process_pool(n: int) -> Iterator[Any]:
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-        if fork:
+        if freeze:
             gc.unfreeze()
