@@ -590,20 +590,24 @@ def test_an_error_outside_a_chains_tasks_fails_that_flight_only(tmp_path, monkey
     assert s.report_path is not None and s.report_path.is_file()
 
 
-@pytest.mark.skipif(_start_method() != "fork", reason="the freeze guards forked workers")
-def test_a_forking_run_leaves_the_garbage_collector_as_it_found_it(tmp_path):
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forked workers on Linux")
+def test_a_forking_pool_leaves_the_garbage_collector_as_it_found_it(monkeypatch):
     # the pool freezes this process's objects while it lives (so forked workers do not
-    # copy the planner's pages), and unfreezes them after; a caller's own freeze stays
-    for sub in ("a", "b"):
-        (tmp_path / sub).mkdir()
+    # copy the planner's pages), and unfreezes them after; a caller's own freeze stays.
+    # (The suite loads JAX, where a run would spawn: the pool is made to fork here, and
+    # its worker runs nothing but os.getpid.)
+    monkeypatch.setenv("AEROID_START_METHOD", "fork")
     assert gc.get_freeze_count() == 0
-    run(_config(tmp_path / "a"), workers=2)
+    with process_mod.process_pool(1) as pool:
+        assert gc.get_freeze_count() > 0
+        assert pool.submit(os.getpid).result() != os.getpid()
     assert gc.get_freeze_count() == 0
     gc.freeze()
     try:
         mine = gc.get_freeze_count()
-        run(_config(tmp_path / "b"), workers=2)
-        # (frozen objects the run let go of are freed as usual: the count may drop a little)
+        with process_mod.process_pool(1) as pool:
+            pool.submit(os.getpid).result()
+        # (frozen objects let go of meanwhile are freed as usual: the count may drop a little)
         assert gc.get_freeze_count() > mine // 2 > 0
     finally:
         gc.unfreeze()
