@@ -167,31 +167,12 @@ def model_fingerprint(model: Any) -> dict[str, Any]:
     return fp
 
 
-def task_key(
-    *,
-    record_type: str,
-    stage: str,
-    stage_version: str,
-    options: Mapping[str, Any],
-    upstream: Mapping[str, str],
-    model: Mapping[str, Any] | None,
-    seed: Any,
-    memo: dict[int, tuple[Any, bytes]] | None = None,
-) -> tuple[str, dict[str, Any]]:
-    """The key of a task and the document it hashes (plain JSON types).
+def task_key(**fields: Any) -> tuple[str, dict[str, Any]]:
+    """The key of a task and the document it hashes, in plain JSON types.
 
-    See `keyed_text`, which this parses the document back from.
+    Takes the keyword arguments of `keyed_text` and parses its text back.
     """
-    key, text = keyed_text(
-        record_type=record_type,
-        stage=stage,
-        stage_version=stage_version,
-        options=options,
-        upstream=upstream,
-        model=model,
-        seed=seed,
-        memo=memo,
-    )
+    key, text = keyed_text(**fields)
     document: dict[str, Any] = json.loads(text)
     return key, document
 
