@@ -26,6 +26,15 @@ from aeroid.adapters.jsbsim_flights import (
 from aeroid.errors import AdapterError
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "c172x"
+# the demo's flight conditions, in the order of configs/demo.yaml's flight files
+DEMO_CONDITIONS = [
+    FlightCondition(45.0, 500.0),
+    FlightCondition(55.0, 500.0),
+    FlightCondition(50.0, 1000.0),
+    FlightCondition(60.0, 1000.0),
+    FlightCondition(45.0, 1500.0),
+    FlightCondition(55.0, 1500.0),
+]
 
 
 def test_same_seed_flies_the_same_record_and_another_seed_does_not():
@@ -56,7 +65,7 @@ def test_bad_conditions_and_rates_are_refused():
 def test_committed_demo_flights_are_reproduced_bit_for_bit(tmp_path):
     # configs/c172x holds the demo's flight files: write_campaign with the demo's
     # conditions and seed writes the same bytes (the first flight is checked).
-    first = write_campaign(tmp_path, [FlightCondition(45.0, 500.0)], seed=2026)[0]
+    first = write_campaign(tmp_path, DEMO_CONDITIONS[:1], seed=2026)[0]
     assert first.read_bytes() == (DEMO / "flight_01.csv").read_bytes()
 
 
@@ -104,22 +113,25 @@ def _longitudinal(constants, V0):
 
 
 def test_an_unabsorbed_accelerometer_drift_is_named_and_a_bias_absorbs_it():
-    # flight_05's ax residual drifts like a random walk over the 10 s window (drag and
-    # propeller physics the model leaves out): without an ax bias its unknown offset
-    # widens the coloured error bars a thousandfold, and identify says so
-    data = aeroid.load_flight_test(DEMO / "flight_05.csv").window(9.5, 20.0)
-    lon, start = _longitudinal(c172x_constants(1500.0), 45.0)
+    # flight_04's ax residual drifts like a random walk over the 10 s window (drag and
+    # propeller physics the model leaves out; theta's wanders too, in the phugoid the
+    # pitch release lets start): without an ax bias its unknown offset widens the
+    # coloured error bars a hundredfold, and identify says so
+    data = aeroid.load_flight_test(DEMO / "flight_04.csv").window(9.5, 20.0)
+    lon, start = _longitudinal(c172x_constants(1000.0), 60.0)
     with pytest.warns(aeroid.ResidualDriftWarning, match="drift like a random walk") as caught:
         wide = aeroid.identify(lon, data, start, estimate_x0=True)
-    assert caught[0].filename == __file__ and caught[0].message.outputs == ("ax",)
+    assert caught[0].filename == __file__ and "ax" in caught[0].message.outputs
     # it names the parameter that widens most, and both remedies
     said = str(caught[0].message)
     worst = said.split("(on ")[1].split(")")[0]
     assert worst in wide.parameter_names or worst.startswith("x0[")
-    assert "estimate_bias=['ax']" in said and "method='filter_error'" in said
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", UserWarning)
+    assert "estimate_bias=[" in said and "'ax'" in said and "method='filter_error'" in said
+    with warnings.catch_warnings(record=True) as after:
+        warnings.simplefilter("always")
         fit = aeroid.identify(lon, data, start, estimate_x0=True, estimate_bias=["ax", "az"])
+    still = [w.message for w in after if isinstance(w.message, aeroid.ResidualDriftWarning)]
+    assert all("ax" not in w.outputs for w in still)
     white = np.sqrt(np.diag(fit.covariance_white))[fit.parameter_names.index("Cm_alpha")]
     assert wide.stderr["Cm_alpha"] > 30 * fit.stderr["Cm_alpha"]
     assert fit.stderr["Cm_alpha"] < 10 * white
@@ -132,9 +144,14 @@ def _identify(model, data, start):
 
 
 @pytest.mark.slow
-def test_identified_derivatives_match_what_jsbsim_flies():
-    cond = FlightCondition(50.0, 1000.0)
-    data = fly_c172x(cond, seed=1)
+@pytest.mark.parametrize("index", range(len(DEMO_CONDITIONS)))
+def test_identified_derivatives_match_what_jsbsim_flies(index):
+    # the README's table: each committed demo flight (flown by write_campaign, checked
+    # bit for bit above), its longitudinal and lateral-directional models fitted by
+    # output error, against the derivatives JSBSim flies at that trim
+    cond = DEMO_CONDITIONS[index]
+    data = aeroid.load_flight_test(DEMO / f"flight_{index + 1:02d}.csv")
+    assert data.window(0.0, 0.5)["V"].mean() == pytest.approx(cond.airspeed, abs=0.3)
     eff = effective_derivatives(cond)
     const = c172x_constants(cond.altitude)
 
@@ -163,4 +180,18 @@ def test_identified_derivatives_match_what_jsbsim_flies():
     for name in ("Cm_alpha", "Cm_delta_e", "CL_alpha", "Cl_p", "Cn_r", "Cn_beta", "Cl_delta_a"):
         assert found[name] == pytest.approx(eff[name], rel=0.10), name
     # the pitch damping sum (Cm_q with the alpha-dot term lumped in)
+    assert found["Cm_q"] == pytest.approx(eff["Cm_q"], rel=0.20)
+
+
+@pytest.mark.slow
+def test_a_freshly_flown_record_gives_the_same_derivatives_within_their_scatter():
+    # another seed's gusts and noise: the turbulence the output-error model leaves out
+    # moves Cm_alpha by a few per cent from seed to seed (up to 11 % over seven seeds)
+    cond = FlightCondition(50.0, 1000.0)
+    data = fly_c172x(cond, seed=7).window(9.5, 20.0)
+    eff = effective_derivatives(cond)
+    lon, start = _longitudinal(c172x_constants(cond.altitude), cond.airspeed)
+    found = _identify(lon, data, start).parameters
+    for name in ("Cm_alpha", "Cm_delta_e", "CL_alpha"):
+        assert found[name] == pytest.approx(eff[name], rel=0.15), name
     assert found["Cm_q"] == pytest.approx(eff["Cm_q"], rel=0.20)

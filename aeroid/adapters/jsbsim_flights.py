@@ -1,8 +1,10 @@
 """Flight tests flown by JSBSim's Cessna 172 (``c172x``), recorded as a flight-test engineer would.
 
 `fly_c172x` trims the aircraft at a flight condition with JSBSim's own
-trim, flies a 3-2-1-1 on the elevator followed by aileron and rudder
-doublets, with light seeded turbulence and seeded sensor noise, and returns
+trim, flies aileron and rudder doublets and then a 3-2-1-1 on the elevator
+(a simulated pilot holds the wings level, and the pitch attitude except
+during the elevator input and its free response), with light seeded
+turbulence and seeded sensor noise, and returns
 the record in SI units and stability-axis quantities (``V``, ``alpha``,
 ``beta``, body rates, Euler angles, specific forces at the centre of
 gravity, surface positions, thrust). `write_flight` writes it as a CSV flight
@@ -54,6 +56,13 @@ _PITCH_GAIN = 1.0  # normalised elevator per rad of pitch attitude
 _PITCH_DAMPING = 0.3  # normalised elevator per rad/s of pitch rate
 _ROLL_GAIN = 0.5  # normalised aileron per rad of bank
 _ROLL_DAMPING = 0.2  # normalised aileron per rad/s of roll rate
+_ELEVATOR_START = 10.0  # s, the 3-2-1-1's first edge
+_ELEVATOR_UNIT = 0.5  # s, its shortest pulse
+# The pilot lets go of the pitch attitude while the elevator input runs and for
+# 2.5 s of free response after it (Klein & Morelli: a feedback correction during
+# the manoeuvre correlates the elevator with the states and blurs the pitch
+# derivatives), then holds it again.
+_PITCH_RELEASED = (_ELEVATOR_START, _ELEVATOR_START + 7 * _ELEVATOR_UNIT + 2.5)
 
 # Channel, unit, sensor noise standard deviation (SI): typical of a light-aircraft
 # flight-test instrumentation package (vanes, a MEMS IMU, an air-data computer).
@@ -150,13 +159,13 @@ def _three_two_one_one(t: FloatArray, start: float, unit: float, amplitude: floa
 
 def _inputs(t: FloatArray) -> dict[str, FloatArray]:
     """Normalised stick and pedal commands: an aileron doublet from 1 s, a rudder
-    doublet from 5 s, then a 3-2-1-1 on the elevator from 10 s. The lateral
+    doublet from 5 s, then a 3-2-1-1 on the elevator from 10 s (0.5 s unit). The lateral
     inputs come first, while the airspeed is still the trim's (the elevator's
     excursion leaves the speed off trim for the slow phugoid)."""
     return {
         "fcs/aileron-cmd-norm": _doublet(t, 1.0, 1.0, 0.15),
         "fcs/rudder-cmd-norm": _doublet(t, 5.0, 1.0, 0.25),
-        "fcs/elevator-cmd-norm": _three_two_one_one(t, 10.0, 0.4, 0.12),
+        "fcs/elevator-cmd-norm": _three_two_one_one(t, _ELEVATOR_START, _ELEVATOR_UNIT, 0.12),
     }
 
 
@@ -217,7 +226,7 @@ def fly_c172x(
     condition : FlightCondition
         Trim airspeed and altitude.
     duration : float
-        Record length, s (at least 18 s: the three inputs end at 12.8 s).
+        Record length, s (at least 18 s: the elevator input ends at 13.5 s and the pilot takes the pitch attitude back at 16 s).
     sample_rate : float
         Recording rate, Hz (10-400); JSBSim steps at a whole multiple of it.
     turbulence : float
@@ -273,12 +282,14 @@ def fly_c172x(
         fdm["atmosphere/gust-east-fps"] = gusts[0, k] / _FT
         fdm["atmosphere/gust-down-fps"] = gusts[1, k] / _FT
         # The pilot holds the pitch attitude and the wings level around the inputs (the
-        # c172x's phugoid is lightly damped and its spiral mode diverges slowly); the
-        # recorded surfaces include the corrections.
+        # c172x's phugoid is lightly damped and its spiral mode diverges slowly), except
+        # in pitch during the elevator input; the recorded surfaces include the corrections.
+        pitch_held = not _PITCH_RELEASED[0] <= fine[k] < _PITCH_RELEASED[1]
         fdm["fcs/elevator-cmd-norm"] = (
             held["fcs/elevator-cmd-norm"]
             + float(commands["fcs/elevator-cmd-norm"][k])
-            + (
+            + pitch_held
+            * (
                 _PITCH_GAIN * (float(fdm["attitude/theta-rad"]) - theta_trim)
                 + _PITCH_DAMPING * float(fdm["velocities/q-rad_sec"])
             )
