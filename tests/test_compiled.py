@@ -438,6 +438,34 @@ def test_parameters_only_the_measurement_reads_match_finite_differences() -> Non
     assert not jac.flags.writeable
 
 
+def test_a_simulation_at_the_last_sensitivity_point_reuses_its_states() -> None:
+    # a fit's result is simulated at the estimate its last sensitivity pass rolled out:
+    # the states come from that pass, also when only the sensor's parameters differ
+    m = _sensor_model()
+    t = np.arange(301) * 0.02
+    u = (0.5 * np.sin(3.0 * t) + 0.2 * (t > 2.0))[:, None]
+    x0 = np.array([0.3, 0.0])
+    p = dict(m.parameters)
+    got = _compiled.output_sensitivities(m, t, u, x0, p, ["w2", "k"], [0], {"method": "rk4"})
+    assert got is not None
+    rolled = _compiled._LAST_SENSITIVITIES[4][2]
+
+    def states(pp: dict[str, float], xx: np.ndarray = x0) -> np.ndarray:
+        P = {k: np.array([v]) for k, v in pp.items()}
+        traj = _compiled.rk4_states(m, t, xx[:, None].copy(), u[None], P, 1)
+        assert traj is not None and bool(traj.ok[0])
+        return np.asarray(traj.states[0])
+
+    assert np.shares_memory(states({**p, "k": 0.0, "b": 1.0}), rolled)
+    for moved, xx in (({**p, "w2": 4.5}, x0), (p, np.array([0.2, 0.0]))):
+        other = states(moved, xx)
+        assert not np.shares_memory(other, rolled)
+        assert np.max(np.abs(other - rolled)) > 1e-3
+    # a recomputed rollout agrees with the reused one
+    _compiled._LAST_SENSITIVITIES.clear()
+    assert _rel(states(p), rolled) < 1e-12
+
+
 def test_input_noise_scatter_is_the_exact_linear_covariance() -> None:
     # The adjoint pass against the definition: build the outputs' response to every
     # control sample by central differences of the numpy simulation, G[k, j], then
