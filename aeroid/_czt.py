@@ -4,8 +4,10 @@
 approximation of ``∫_0^T x(t) e^{-j 2π f t} dt``; Klein & Morelli, ch. 7).
 Evenly spaced frequencies lie on a circular arc of the z-plane, where the
 chirp-z transform (Rabiner, Schafer & Rader 1969) gives all of them in
-O((N + M) log(N + M)) operations at any resolution, not only the FFT bins;
-other frequency sets are summed directly, one matrix product for all signals.
+O((N + M) log(N + M)) operations at any resolution, not only the FFT bins.
+Fewer frequencies than about 16 log2(N + M), or unevenly spaced ones, are
+summed directly, in blocks of about sqrt(N) samples: real matrix products
+with views of the signals, and no (M, N) kernel in memory.
 The chirp-z transform is Bluestein's (1970) convolution with `numpy.fft`, so
 that no call imports `scipy.signal`, the slowest SciPy module to import.
 
@@ -28,8 +30,13 @@ __all__ = ["fourier", "hann"]
 
 ComplexArray = NDArray[np.complex128]
 
-# The direct sum builds an (M, N) kernel; above this many elements the work is split.
-_CHUNK = 2_000_000
+# Evenly spaced frequencies go to the chirp-z transform from this many per log2 of the
+# transform length: below it the block sum does less work (and rounds less).
+_CZT_FROM = 16
+# The direct sum's blocks hold (M, N / B) sums per signal; above this many elements the
+# frequencies are split, which keeps the temporaries small enough for the allocator to
+# reuse them rather than map fresh pages on every call.
+_CHUNK = 1 << 16
 
 
 def fast_length(n: int) -> int:
@@ -105,6 +112,40 @@ def _kernel(freq: NDArray[np.float64], n: int, dt: float) -> ComplexArray:
     return np.asarray(kern[:, :n], dtype=np.complex128)
 
 
+def _block_sum(x: NDArray[np.float64], freq: NDArray[np.float64], dt: float) -> ComplexArray:
+    """``Σ_i x_i e^{-j 2π f i Δt}`` (m, c) for the columns of `x` (n, c), any frequencies.
+
+    The record is cut into blocks of B ≈ sqrt(n) samples. Sample i of block b has
+    the kernel ``e^{-j 2π f i Δt}`` of the first block turned by ``e^{-j 2π f b B Δt}``,
+    so real products of the first block's cosine and sine rows (m, B) with each
+    block (a view of `x`) sum within the blocks, and one turn per block and
+    frequency sums the blocks. No (m, n) kernel and no copy of the record is
+    made: fresh memory of that size costs more in page faults than the sums.
+    """
+    n, c = x.shape
+    block = max(1, int(np.sqrt(n)))
+    full = n // block
+    blocks = x[: full * block].reshape(full, block, c)
+    tail = x[full * block :]
+    out = np.empty((freq.size, c), dtype=np.complex128)
+    rows = max(1, _CHUNK // max(full * c, 1))
+    for s in range(0, freq.size, rows):
+        w = -2.0 * np.pi * freq[s : s + rows, None] * dt
+        angle = w * np.arange(block)[None, :]
+        wc = np.matmul(np.cos(angle), blocks)  # (blocks, m, c): the sums within blocks
+        ws = np.matmul(np.sin(angle), blocks)
+        turn = w * block * np.arange(full)[None, :]
+        tc, ts = np.cos(turn), np.sin(turn)
+        re = np.einsum("mb,bmc->mc", tc, wc) - np.einsum("mb,bmc->mc", ts, ws)
+        im = np.einsum("mb,bmc->mc", tc, ws) + np.einsum("mb,bmc->mc", ts, wc)
+        if tail.shape[0]:
+            last = w * (full * block + np.arange(tail.shape[0]))[None, :]
+            re += np.cos(last) @ tail
+            im += np.sin(last) @ tail
+        out[s : s + rows] = re + 1j * im
+    return out
+
+
 def fourier(
     signals: ArrayLike,
     dt: float,
@@ -121,8 +162,8 @@ def fourier(
     dt : float
         Sample interval in seconds.
     frequencies_hz : array_like, shape (m,)
-        Frequencies in Hz (any order, any spacing). Evenly spaced ones (three
-        or more) are computed by the chirp-z transform.
+        Frequencies in Hz (any order, any spacing). Many evenly spaced ones
+        are computed by the chirp-z transform, the others by a direct sum.
     end_correction : bool
         Trapezoidal end correction (half weight on the first and last samples).
 
@@ -153,18 +194,11 @@ def fourier(
     n, m = x.shape[0], freq.size
     if m == 0:
         out = np.zeros((0, x.shape[1]), dtype=np.complex128)
-    elif _evenly_spaced(freq):
+    elif _evenly_spaced(freq) and m > _CZT_FROM * np.log2(n + m):
         df = (float(freq[-1]) - float(freq[0])) / (m - 1)
         out = _chirp_z(x, m, float(freq[0]), df, step)
     else:
-        out = np.empty((m, x.shape[1]), dtype=np.complex128)
-        rows = max(1, _CHUNK // max(n, 1))
-        for s in range(0, m, rows):
-            kern = _kernel(freq[s : s + rows], n, step)
-            # real products with the cosine and sine rows: cheaper than a complex one
-            out[s : s + rows] = np.ascontiguousarray(kern.real) @ x + 1j * (
-                np.ascontiguousarray(kern.imag) @ x
-            )
+        out = _block_sum(x, freq, step)
     out = np.asarray(out, dtype=np.complex128) * step
     if end_correction and n >= 2:
         last = np.exp(-2j * np.pi * freq * (n - 1) * step)[:, None]

@@ -30,9 +30,8 @@ than the constant, and the predicted squared error
 
 With ``domain="frequency"`` the regression runs on the finite Fourier
 transforms of the response and regressors at chosen frequencies
-(``X̃(f) = Δt Σ x(t) e^{−j2πft}``, a direct sum whose kernels, for evenly
-spaced frequencies, follow the chirp-z transform's geometric recurrence),
-and the parameters are the real
+(``X̃(f) = Δt Σ x(t) e^{−j2πft}``, by the chirp-z transform or a direct sum,
+whichever does less work: `aeroid._czt.fourier`), and the parameters are the real
 solution of the complex least squares, ``θ = Re(X̃*X̃)^-1 Re(X̃*Z̃)`` (Fourier
 transform regression, Klein & Morelli ch. 7). Only the chosen band enters,
 so high-frequency noise outside it drops out. A constant offset does not
@@ -55,7 +54,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._czt import fast_length
+from ._czt import fast_length, fourier
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, delay_starts
@@ -84,6 +83,8 @@ _COLLINEAR = 1e-9
 # Below this 1 - R^2 of a regressor on the others (condition number of the scaled
 # Gram matrix above ~1e10) the normal equations lose digits; QR is used instead.
 _WELL_POSED = 1e-8
+# Frequencies per product in the coloured-residual covariance (a slice stays in cache).
+_SLICE = 512
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
@@ -320,6 +321,23 @@ def _correlation_time(v: FloatArray) -> tuple[int, float]:
     return int(min(np.ceil(5.0 * tau), n // 3)), tau
 
 
+def _wrapped_pairs(x: FloatArray, r: FloatArray, size: int) -> FloatArray:
+    """What a circle of `size` samples adds to ``Σ_ij x_i R(i−j) x_j'`` for lags ``< len(r)``.
+
+    On the circle, the last K = L − (size − n) samples lie within L of the first K:
+    tail sample i and head sample t (t <= i) are joined at lag ``L − i + t``.
+    """
+    n, lags = x.shape[0], r.shape[0] - 1
+    k = lags - (size - n)
+    if k <= 0:
+        return np.zeros((x.shape[1], x.shape[1]))
+    i = np.arange(k)
+    lag = np.minimum(lags - i[:, None] + i[None, :], lags)  # beyond L where t > i: masked
+    joined = np.where(i[None, :] <= i[:, None], r[lag], 0.0)
+    wrap = x[n - k :].T @ joined @ x[:k]
+    return np.asarray(wrap + wrap.T)
+
+
 def _colored_covariance(
     x: FloatArray, v: FloatArray, xtx_inv: FloatArray, gram: FloatArray
 ) -> FloatArray:
@@ -330,9 +348,11 @@ def _colored_covariance(
     if lags == 0:
         middle = r[0] * gram
     else:
-        # Σ_ij x_i R(i-j) x_j' = X' (R * X) by Parseval: (1/N) Σ_f X̂(f)^H R̂(f) X̂(f), the
-        # transforms zero-padded past n + L so that the circular lags do not wrap
-        size = fast_length(n + lags)
+        # Σ_ij x_i R(i-j) x_j' = X' (R * X) by Parseval: (1/N) Σ_f X̂(f)^H R̂(f) X̂(f) over
+        # a circle of N >= n samples, the record's own length when the FFT is fast there
+        # (zero padding costs numpy a slow path); the pairs the circle joins across the
+        # ends are subtracted after
+        size = fast_length(n)
         kernel = np.zeros(size)
         kernel[: lags + 1] = r
         kernel[size - lags :] = r[:0:-1]
@@ -341,11 +361,18 @@ def _colored_covariance(
         weight[0] = 1.0
         if size % 2 == 0:
             weight[-1] = 1.0
-        xf = np.fft.rfft(np.ascontiguousarray(x.T), size, axis=1)  # (p, frequencies)
-        # Re(X̂^H W X̂) = Xr' W Xr + Xi' W Xi, as real products (far faster than complex ones)
-        xr, xi = np.ascontiguousarray(xf.real), np.ascontiguousarray(xf.imag)
         gain = weight * spectrum / size
-        middle = (xr * gain) @ xr.T + (xi * gain) @ xi.T
+        # Re(X̂^H W X̂) = Xr' W Xr + Xi' W Xi as real products (far faster than complex
+        # ones) on the transform's own memory, viewed as interleaved real and imaginary
+        # columns, a slice of frequencies at a time: each full-size temporary is fresh
+        # memory that costs page faults on every call
+        xf = np.fft.rfft(x, None if size == n else size, axis=0).view(np.float64)
+        both = np.zeros((2 * p, 2 * p))  # over (frequencies, 2p): re, im interleaved
+        for f0 in range(0, xf.shape[0], _SLICE):
+            part = xf[f0 : f0 + _SLICE]
+            both += part.T @ (part * gain[f0 : f0 + _SLICE, None])
+        middle = both[0::2, 0::2] + both[1::2, 1::2]
+        middle -= _wrapped_pairs(x, r, size)
         middle = 0.5 * (middle + middle.T)
     # Degrees of freedom: the fit absorbs p of the N_eff = N/tau effectively independent
     # samples; and the autocovariances of residuals orthogonal to the constant are low
@@ -356,33 +383,6 @@ def _colored_covariance(
     if lags > 0:
         dof /= 1.0 - (2 * lags + 1) / n
     return dof * (xtx_inv @ middle @ xtx_inv)
-
-
-def _fourier_transform(x: FloatArray, dt: float, frequencies: FloatArray) -> ComplexArray:
-    """``Δt Σ_t x(t) e^{-j 2π f t}`` at the given frequencies, by direct sum.
-
-    For evenly spaced frequencies the kernels form the chirp-z transform's
-    geometric sequence, so each row is the previous one times a fixed phasor
-    instead of a fresh complex exponential.
-    """
-    m, n = frequencies.shape[0], x.shape[0]
-    k = np.arange(n, dtype=np.float64) * dt
-    steps = np.diff(frequencies)
-    if m >= 2 and np.ptp(steps) <= 1e-9 * max(abs(float(steps[0])), 1e-300):
-        kern = np.empty((m, n), dtype=np.complex128)
-        kern[0] = np.exp(-2j * np.pi * float(frequencies[0]) * k)
-        ratio = np.exp(-2j * np.pi * float(steps[0]) * k)
-        for i in range(1, m):
-            np.multiply(kern[i - 1], ratio, out=kern[i])
-    else:
-        kern = np.exp(-2j * np.pi * np.outer(frequencies, k))
-    # one real product with the cosine and sine rows stacked (contiguous): a complex or
-    # strided product costs several times as much
-    rows = np.empty((2 * m, n))
-    rows[:m] = kern.real
-    rows[m:] = kern.imag
-    out = rows @ x
-    return np.asarray(dt * (out[:m] + 1j * out[m:]), dtype=np.complex128)
 
 
 # -- result records ----------------------------------------------------------------------------
@@ -861,12 +861,11 @@ def _frequency_fit(
         raise IdentificationError(
             f"frequency domain: {m} frequencies cannot fit {p} real parameters"
         )
-    both = _fourier_transform(np.column_stack([z, x]), step, freq)
-    zt, xt = both[:, 0], both[:, 1:]
+    zt, xt = fourier(z, step, freq), fourier(x, step, freq)
     # A column with (next to) no content at these frequencies cannot be estimated; the
     # constant has none at multiples of 1/(N dt), and is then left out silently.
     content = np.sqrt(np.sum(xt.real**2 + xt.imag**2, axis=0))
-    scale = step * np.sqrt(m) * np.linalg.norm(x, axis=0)
+    scale = step * np.sqrt(m) * np.sqrt(np.einsum("ij,ij->j", x, x))  # no n x p temporary
     empty = ~(content > 1e-9 * scale)
     if has_const and empty[0]:
         names, x, xt, empty = names[1:], x[:, 1:], xt[:, 1:], empty[1:]

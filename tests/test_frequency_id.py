@@ -40,15 +40,24 @@ def second_order(fs):
 # -- chirp-z Fourier transform ---------------------------------------------------------------
 
 
-def test_fourier_matches_direct_sum_on_even_and_uneven_grids():
+@pytest.mark.parametrize("chunk", [2_000_000, 50])
+def test_fourier_matches_direct_sum_on_even_and_uneven_grids(
+    chunk: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import aeroid._czt as czt
+
+    monkeypatch.setattr(czt, "_CHUNK", chunk)  # 50: the block sum in chunks of frequencies
     rng = np.random.default_rng(1)
     x = rng.standard_normal((300, 2))
     dt = 0.02
     t = np.arange(300) * dt
-    for f in (np.linspace(0.1, 12.0, 37), np.geomspace(0.1, 12.0, 37)):
+    # few evenly spaced frequencies (block sum), many (chirp-z), uneven ones (block sum)
+    grids = (np.linspace(0.1, 12.0, 37), np.linspace(0.1, 24.0, 400), np.geomspace(0.1, 12.0, 37))
+    for f in grids:
         ref = dt * np.exp(-2j * np.pi * np.outer(f, t)) @ x
         np.testing.assert_allclose(fourier(x, dt, f), ref, rtol=0, atol=1e-12)
         np.testing.assert_allclose(fourier(x[:, 0], dt, f), ref[:, 0], rtol=0, atol=1e-12)
+    assert 400 > czt._CZT_FROM * np.log2(700) > 37  # the grids take both paths
 
 
 def test_end_correction_converges_at_second_order():

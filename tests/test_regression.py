@@ -119,16 +119,25 @@ def test_error_bars_cover_with_ar1_residuals() -> None:
     assert cover_white.mean() < 0.6, cover_white
 
 
-def test_colored_covariance_is_morellis_double_sum() -> None:
+@pytest.mark.parametrize(
+    ("n", "phi"),
+    [
+        (301, 0.8),  # transforms over 320 samples: the last 11 joined to the first
+        (300, 0.8),  # over the record's own 300: every lag joins the ends
+        (257, 0.4),  # over 270, more than the lag window: nothing joined
+    ],
+)
+def test_colored_covariance_is_morellis_double_sum(n: int, phi: float) -> None:
     # (X'X)^-1 [sum_ij x_i R(i-j) x_j'] (X'X)^-1 over |i-j| <= L, written out directly
+    from aeroid._czt import fast_length
     from aeroid.regression import _autocovariance, _colored_covariance, _correlation_time
 
     rng = np.random.default_rng(9)
-    n = 301
     x = np.column_stack([np.ones(n), _design(rng, n)])
-    v = _ar1(rng, n, 0.8, 1.0)
+    v = _ar1(rng, n, phi, 1.0)
     lags, tau = _correlation_time(v)
-    assert lags == int(np.ceil(5 * tau)) and lags > 32  # the FFT path
+    assert lags == int(np.ceil(5 * tau)) and lags > 0
+    assert (fast_length(n) - n < lags) == (phi > 0.5)
     r = np.array([v[: n - k] @ v[k:] / n for k in range(lags + 1)])
     np.testing.assert_allclose(_autocovariance(v, lags), r, rtol=1e-10, atol=1e-14)
     middle = np.zeros((3, 3))
