@@ -366,7 +366,8 @@ def _colored_covariance(
         # ones) on the transform's own memory, viewed as interleaved real and imaginary
         # columns, a slice of frequencies at a time: each full-size temporary is fresh
         # memory that costs page faults on every call
-        xf = np.fft.rfft(x, None if size == n else size, axis=0).view(np.float64)
+        xf = np.fft.rfft(x, None if size == n else size, axis=0)
+        xf = np.ascontiguousarray(xf).view(np.float64)  # (a copy only for a strided x)
         both = np.zeros((2 * p, 2 * p))  # over (frequencies, 2p): re, im interleaved
         for f0 in range(0, xf.shape[0], _SLICE):
             part = xf[f0 : f0 + _SLICE]

@@ -149,6 +149,9 @@ def test_colored_covariance_is_morellis_double_sum(n: int, phi: float) -> None:
     dof = n_eff / (n_eff - 3) / (1 - (2 * lags + 1) / n)
     got = _colored_covariance(x, v, inv, x.T @ x)
     np.testing.assert_allclose(got, dof * inv @ middle @ inv, rtol=1e-10)
+    # regressors stored column by column (a strided transform) give the same
+    strided = _colored_covariance(np.asfortranarray(x), v, inv, x.T @ x)
+    np.testing.assert_allclose(strided, got, rtol=1e-12)
 
 
 def test_expressions_and_flight_data() -> None:
