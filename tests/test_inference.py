@@ -150,7 +150,7 @@ def test_estimated_noise_matches_truth() -> None:
     )
     assert res.parameter_names == ("M_q", "M_delta", "sigma_alpha", "sigma_q")
     assert res.fixed == {"Z_alpha": -0.8, "M_alpha": -4.0}
-    assert res.n_walkers == 16
+    assert res.n_walkers == 32  # the default for four parameters
     # with Z_alpha and M_alpha held at wrong values the fit is poor: the estimated noise
     # absorbs the model error, so it exceeds the true sensor noise
     assert res.parameters["sigma_q"] > 0.01
@@ -549,10 +549,11 @@ def test_credible_interval_coverage_over_100_flights() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, 1, 2, 4])
 def test_the_documented_workflow_converges_with_the_defaults(seed: int) -> None:
     # four derivatives and two noise levels from a 10 s doublet, walkers started at the
-    # least-squares fit, 2000 steps: every split-R-hat below 1.05 and no warning
+    # least-squares fit, 2000 steps: every split-R-hat below 1.05 and no warning (with
+    # 16 walkers, seeds 0, 2 and 4 ran short of 50 autocorrelation times)
     model = catalog.short_period()
     data = catalog.short_period_flight(seed=42)
     priors = {
