@@ -144,7 +144,8 @@ def test_rocket_rk45_reference_is_the_closed_form(rocket_clean):
     v_on = a / k * (1 - np.exp(-k * t_on))
     off = np.maximum(T_ROCKET - T_BURN, 0.0)
     v = (v_on + G / k) * np.exp(-k * off) - G / k
-    np.testing.assert_allclose(rocket_clean["v"], v, atol=1e-6)
+    # burnout at a sample time: RK45 restarts there and sees each side's thrust
+    np.testing.assert_allclose(rocket_clean["v"], v, atol=1e-9)
 
 
 def test_rocket_validate_reproduces_rk45(rocket_clean):
