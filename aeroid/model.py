@@ -756,9 +756,10 @@ class Model:
             Parameter values (merged onto the nominal ones) or a result with
             ``.parameters``.
         method : str
-            A `scipy.integrate.solve_ivp` method (default ``"RK45"``, with
-            steps no longer than the sample spacing), ``"rk4"``, ``"exact"``
-            or ``"auto"``.
+            A `scipy.integrate.solve_ivp` method (default ``"RK45"``; the
+            explicit pairs restart at every sample, where the controls kink,
+            the implicit ones take steps no longer than the sample spacing),
+            ``"rk4"``, ``"exact"`` or ``"auto"``.
         substeps : int, optional
             RK4 steps per sample interval.
         rtol, atol : float
