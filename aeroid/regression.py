@@ -20,7 +20,13 @@ no lags at all when ρ is not significant, which gives back the classical
 formula), scaled by ``N_eff / (N_eff − p)`` with ``N_eff = N/τ`` for the
 degrees of freedom the fit absorbs and by ``N / (N − 2L − 1)`` for the
 autocovariance that removing the fit (the mean above all) takes from each of
-the ``2L + 1`` lags in the window.
+the ``2L + 1`` lags in the window. Summing every lag of the biased
+autocorrelation instead (as SIDPAC's ``r_colores`` does) gives nearly the same
+bars on the slopes, but least-squares residuals sum to zero, so the sum over
+all lags nearly cancels along the constant: on 200 simulated records its
+bars on the constant came out about half as wide and covered 66–73 % of the
+truths where 95 % was asked (``tests/test_regression.py`` pins the window's
+coverage).
 
 Fit statistics follow Klein & Morelli: ``R² = 1 − SSE/SST`` (SST about the
 mean when there is a constant term), the F statistic of the regression
