@@ -690,6 +690,15 @@ def equation_error(
         raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
     z, x, names, zname, time = _resolve(data, response, regressors, "equation error")
     use_const = bool(intercept)
+    if use_const and x.shape[0]:
+        # a column of ones built by hand, as SIDPAC's regressor matrices carry (a zero
+        # column is left to the solver, which refuses it as such)
+        for j in np.flatnonzero((np.ptp(x, axis=0) == 0) & (x[0] != 0)).tolist():
+            raise IdentificationError(
+                f"regressor {names[j]!r} is constant and repeats the constant term "
+                f"{_CONST!r} that intercept=True adds; drop it, or pass intercept=False "
+                "to fit your own constant column"
+            )
     if use_const:
         names = [_CONST, *names]
         x = np.column_stack([np.ones(x.shape[0]), x])

@@ -119,6 +119,16 @@ def test_error_bars_cover_with_ar1_residuals() -> None:
     assert cover_white.mean() < 0.6, cover_white
 
 
+def test_a_hand_built_constant_column_is_named_with_the_remedy() -> None:
+    rng = np.random.default_rng(2)
+    x = np.column_stack([np.ones(200), _design(rng, 200)])  # SIDPAC style: ones included
+    z = x @ THETA + 0.01 * rng.standard_normal(200)
+    with pytest.raises(IdentificationError, match=r"'x1' is constant .*intercept=False"):
+        equation_error(x, z)
+    own = equation_error(x, z, intercept=False)
+    np.testing.assert_allclose(list(own.parameters.values()), THETA, atol=0.01)
+
+
 @pytest.mark.parametrize(
     ("n", "phi"),
     [
