@@ -87,7 +87,9 @@ def test_unbiased_with_noise_free_regressors() -> None:
     np.testing.assert_allclose(est.std(axis=0, ddof=1), sd, rtol=0.2)
 
 
-def _coverage(phi: float, n: int = 1000, seeds: int = 200) -> tuple[np.ndarray, np.ndarray]:
+def _coverage(
+    phi: float, n: int = 1000, seeds: int = 200, error_bars: str = "colored"
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-parameter coverage of the corrected and of the classical 95 % intervals."""
     hits = np.zeros((seeds, 3), dtype=bool)
     hits_white = np.zeros((seeds, 3), dtype=bool)
@@ -95,7 +97,7 @@ def _coverage(phi: float, n: int = 1000, seeds: int = 200) -> tuple[np.ndarray, 
         rng = np.random.default_rng(1000 + seed)
         x = _design(rng, n)
         z = THETA[0] + x @ THETA[1:] + _ar1(rng, n, phi, 0.1)
-        res = equation_error(x, z)
+        res = equation_error(x, z, error_bars=error_bars)
         est = np.array(list(res.parameters.values()))
         hits[seed] = np.abs(est - THETA) < 1.96 * np.array(list(res.stderr.values()))
         white = 1.96 * np.sqrt(np.diag(res.covariance_white))
@@ -117,6 +119,33 @@ def test_error_bars_cover_with_ar1_residuals() -> None:
     assert np.all(cover >= 0.86), cover
     # the classical bars, blind to the colour, are far too narrow here
     assert cover_white.mean() < 0.6, cover_white
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.9])
+def test_output_errors_correction_covers_white_and_ar1_residuals(phi: float) -> None:
+    # error_bars="reml": output error's AR(1) + white REML sandwich; the Satterthwaite
+    # widening leans conservative, so up to 98 % (2 binomial SDs above 96 %) is allowed
+    cover, _ = _coverage(phi, error_bars="reml")
+    assert 0.93 <= cover.mean() <= 0.98, cover
+    assert np.all(cover >= 0.90), cover
+
+
+def test_reml_error_bars_are_output_errors_own() -> None:
+    # the same sandwich identify applies to its residuals, for one output and unit weights
+    from aeroid._output_error import _colored_covariance as output_error_covariance
+
+    rng = np.random.default_rng(5)
+    x = _design(rng, 800)
+    z = THETA[0] + x @ THETA[1:] + _ar1(rng, 800, 0.8, 0.1)
+    res = equation_error(x, z, error_bars="reml")
+    assert res.error_bars == "reml"
+    xc = np.column_stack([np.ones(800), x])
+    inv = np.linalg.inv(xc.T @ xc)
+    want, _ = output_error_covariance(
+        [xc[:, None, :]], [np.asarray(res.residuals)[:, None]], np.ones(1), inv
+    )
+    np.testing.assert_allclose(res.covariance, want, rtol=1e-9)
+    assert np.all(np.diag(res.covariance) > np.diag(res.covariance_white))  # coloured: wider
 
 
 def test_a_hand_built_constant_column_is_named_with_the_remedy() -> None:
