@@ -98,8 +98,8 @@ _COLLINEAR = 1e-9
 # Below this 1 - R^2 of a regressor on the others (condition number of the scaled
 # Gram matrix above ~1e10) the normal equations lose digits; QR is used instead.
 _WELL_POSED = 1e-8
-# Frequencies per product in the coloured-residual covariance (a slice stays in cache).
-_SLICE = 512
+# Regressors convolved at a time in the coloured-residual covariance.
+_COLUMNS = 4
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
@@ -372,31 +372,21 @@ def _colored_covariance(
     if lags == 0:
         middle = r[0] * gram
     else:
-        # Σ_ij x_i R(i-j) x_j' = X' (R * X) by Parseval: (1/N) Σ_f X̂(f)^H R̂(f) X̂(f) over
-        # a circle of N >= n samples, the record's own length when the FFT is fast there
-        # (zero padding costs numpy a slow path); the pairs the circle joins across the
-        # ends are subtracted after
+        # Σ_ij x_i R(i-j) x_j' = X' (R * X), the convolution by FFT over a circle of N >= n
+        # samples (the record's own length when the FFT is fast there: zero padding costs
+        # numpy a slow path), the pairs the circle joins across the ends subtracted after.
+        # A few columns at a time: a transform of every column at once is fresh memory as
+        # large as X, which costs page faults on every call.
         size = fast_length(n)
         kernel = np.zeros(size)
         kernel[: lags + 1] = r
         kernel[size - lags :] = r[:0:-1]
-        spectrum = np.fft.rfft(kernel).real  # symmetric kernel: real spectrum
-        weight = np.full(spectrum.shape[0], 2.0)  # rfft keeps half of the spectrum
-        weight[0] = 1.0
-        if size % 2 == 0:
-            weight[-1] = 1.0
-        gain = weight * spectrum / size
-        # Re(X̂^H W X̂) = Xr' W Xr + Xi' W Xi as real products (far faster than complex
-        # ones) on the transform's own memory, viewed as interleaved real and imaginary
-        # columns, a slice of frequencies at a time: each full-size temporary is fresh
-        # memory that costs page faults on every call
-        xf = np.fft.rfft(x, None if size == n else size, axis=0)
-        xf = np.ascontiguousarray(xf).view(np.float64)  # (a copy only for a strided x)
-        both = np.zeros((2 * p, 2 * p))  # over (frequencies, 2p): re, im interleaved
-        for f0 in range(0, xf.shape[0], _SLICE):
-            part = xf[f0 : f0 + _SLICE]
-            both += part.T @ (part * gain[f0 : f0 + _SLICE, None])
-        middle = both[0::2, 0::2] + both[1::2, 1::2]
+        gain = np.fft.rfft(kernel).real  # symmetric kernel: real spectrum
+        middle = np.empty((p, p))
+        for c0 in range(0, p, _COLUMNS):
+            block = np.fft.rfft(x[:, c0 : c0 + _COLUMNS], size, axis=0)
+            block *= gain[:, None]
+            middle[:, c0 : c0 + _COLUMNS] = x.T @ np.fft.irfft(block, size, axis=0)[:n]
         middle -= _wrapped_pairs(x, r, size)
         middle = 0.5 * (middle + middle.T)
     # Degrees of freedom: the fit absorbs p of the N_eff = N/tau effectively independent
