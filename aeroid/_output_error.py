@@ -428,7 +428,7 @@ def _ar1_criterion(
 # end of the spectrum [0, 4] at its far and near sides (see `_arw_prepare`).
 _CHEB = 17
 _BIN_RATIO = 2.0
-_CHUNK = 4096
+_CHUNK = 1024
 
 
 @dataclass
@@ -466,26 +466,38 @@ def _arw_prepare(z: FloatArray) -> _Spectral:
     from scipy.fft import dct
 
     n, q = z.shape
-    zh = dct(z, type=2, norm="ortho", axis=0)
-    unit = np.zeros((n, 2))
+    # transformed along rows of z', so that every per-sample product below is a
+    # contiguous run of samples
+    zh = dct(z.T, type=2, norm="ortho", axis=1)  # (q, n)
+    unit = np.zeros((2, n))
     unit[0, 0] = 1.0
-    unit[-1, 1] = 1.0
-    fh = dct(unit, type=2, norm="ortho", axis=0)
+    unit[1, -1] = 1.0
+    fh = dct(unit, type=2, norm="ortho", axis=1)
     lam = 4.0 * np.sin(0.5 * np.pi * np.arange(n) / n) ** 2
     iu, ju = np.triu_indices(q)
     n_tri = iu.size
+    width = n_tri + 2 * q + 5
+    scratch = np.empty((width, min(n, _CHUNK)))
 
     def rows(first: int, stop: int) -> FloatArray:
-        """The per-j terms of samples first..stop-1 (formed a chunk at a time: the
-        whole table would hold q^2/2 numbers per sample)."""
+        """The per-j terms of samples first..stop-1, as (samples, terms), in `scratch`
+        (the whole table would hold q^2/2 numbers per sample, and fresh memory that
+        size costs page faults)."""
         m = stop - first
-        a, f = zh[first:stop], fh[first:stop]
-        out = np.empty((m, n_tri + 2 * q + 5))
-        out[:, :n_tri] = a[:, iu] * a[:, ju]
-        out[:, n_tri : n_tri + 2 * q] = (a[:, :, None] * f[:, None, :]).reshape(m, 2 * q)
-        out[:, n_tri + 2 * q : -1] = (f[:, :, None] * f[:, None, :]).reshape(m, 4)
-        out[:, -1] = 1.0
-        return out
+        a, f = zh[:, first:stop], fh[:, first:stop]
+        out = scratch[:, :m]
+        col = 0
+        for i in range(q):  # the triangle in np.triu_indices order, row by row
+            np.multiply(a[i], a[i:], out=out[col : col + q - i])
+            col += q - i
+        for i in range(q):
+            np.multiply(a[i], f, out=out[col : col + 2])
+            col += 2
+        for i in range(2):
+            np.multiply(f[i], f, out=out[col : col + 2])
+            col += 2
+        out[-1] = 1.0
+        return out.T
 
     dist = np.minimum(lam, 4.0 - lam)
     side = lam > 2.0
@@ -502,11 +514,11 @@ def _arw_prepare(z: FloatArray) -> _Spectral:
     for first, stop in zip([0, *cuts.tolist()], [*cuts.tolist(), n], strict=True):
         if stop - first <= _CHEB:
             nodes.append(lam[first:stop])
-            table.append(rows(first, stop))
+            table.append(rows(first, stop).copy())
             continue
         lo, hi = float(lam[first]), float(lam[stop - 1])
         x = 0.5 * (lo + hi) + 0.5 * (hi - lo) * cheb
-        acc = np.zeros((_CHEB, n_tri + 2 * q + 5))
+        acc = np.zeros((_CHEB, width))
         for c0 in range(first, stop, _CHUNK):
             c1 = min(c0 + _CHUNK, stop)
             diff = lam[c0:c1, None] - x[None, :]
