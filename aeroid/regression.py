@@ -34,7 +34,7 @@ white noise fitted by restricted maximum likelihood, which accounts for the
 regressors the fit absorbed without any window, the sandwich is exact for that
 model, and the noise model's own uncertainty widens the interval through a
 Satterthwaite t-quantile. It covers as well or better (95–97 % on the tests'
-records, white or AR(1) with φ = 0.9) at about twenty times the window's cost,
+records, white or AR(1) with φ = 0.9) at an order of magnitude more work,
 so the window stays the default of this fast first step.
 
 Fit statistics follow Klein & Morelli: ``R² = 1 − SSE/SST`` (SST about the
@@ -663,8 +663,8 @@ def equation_error(
         notes), classical, or corrected as output error corrects its own:
         each residual modelled as AR(1) plus white noise fitted by restricted
         maximum likelihood, with the noise model's own uncertainty widening
-        the bars (``"reml"``; about twenty times the work of the window). The
-        frequency domain always uses the classical formula.
+        the bars (``"reml"``; an order of magnitude more work than the
+        window). The frequency domain always uses the classical formula.
     domain : {"time", "frequency"}
         Ordinary least squares on the samples, or Fourier transform
         regression at `frequencies`.
