@@ -885,7 +885,7 @@ def _colored_covariance(
 
     phi, qa, qw, spread = _noise_model(jacobians, residuals)
     sandwich = _Sandwich(jacobians, r, m_inv, phi)
-    cov = sandwich.covariance(residuals, phi, qa, qw)
+    cov = sandwich.covariance(residuals, qa, qw)
     # The noise model is itself estimated (from some N/tau correlation times), so
     # each variance is uncertain; its delta-method variance gives Satterthwaite
     # degrees of freedom nu and the error bars take the t quantile's width,
@@ -901,7 +901,7 @@ def _colored_covariance(
                 model = [phi.copy(), qa.copy(), qw.copy()]
                 for arr, value in zip(model, point, strict=True):
                     arr[k] = value
-                diags.append(np.diag(sandwich.covariance(residuals, *model)))
+                diags.append(sandwich.variances(residuals, *model))
             grad[i] = (diags[0] - diags[1]) / (2.0 * steps[i])
         var_var += np.einsum("ij,ik,kj->j", grad, cov_x, grad)
     ok = (var > 0) & (var_var > 0)
@@ -917,63 +917,73 @@ def _colored_covariance(
 
 
 class _Sandwich:
-    """``M^-1 [G' Qa G + W' Qw W] M^-1`` for noise models (phi, qa, qw) near one
-    estimate, from per-output-pair blocks.
+    """``M^-1 [G' Qa G + W' Qw W] M^-1`` for noise models (phi, qa, qw) near one estimate.
 
-    ``G' Qa G = sum_kl Qa[k, l] G_k' G_l`` with ``G_k`` output k's recoloured
-    weighted sensitivities (`_recolour`), likewise for W; the blocks
-    ``W_k' W_l`` and ``G_k' G_l`` are formed once, and a model that moves one
-    output's phi (the Satterthwaite differences of `_colored_covariance`)
-    recomputes only that output's row of blocks.
+    With ``V_k = W_k M^-1``, output k's weighted sensitivities carried through
+    ``M^-1``, and ``H_k = L_k^-T V_k`` recoloured by its phi (`_recolour` acts on
+    time alone, so it commutes with ``M^-1``), the covariance is ``sum_kl Qa_kl
+    H_k'H_l + Qw_kl V_k'V_l``: formed in full once, at the estimate. The
+    Satterthwaite differences of `_colored_covariance` need only its diagonal,
+    ``sum_kl Qa_kl sum_t H_k * H_l + ...`` from per-pair column sums, where a
+    model that moves one output's phi changes that output's row of pairs:
+    O(N n_y p) work per model instead of O(N n_y p^2).
     """
 
     def __init__(
         self, jacobians: list[FloatArray], r: FloatArray, m_inv: FloatArray, phi: FloatArray
     ) -> None:
-        self.m_inv = m_inv
         self.phi = phi.copy()
-        self.ws = [jac / r[None, :, None] for jac in jacobians]
-        self.gs = [_recolour(w, phi) for w in self.ws]
-        self.bw = self._blocks(self.ws)
-        self.bg = self._blocks(self.gs)
+        self.vs = [np.matmul(jac / r[None, :, None], m_inv) for jac in jacobians]
+        self.hs = [_recolour(v, phi) for v in self.vs]
+        self.dv = _pair_sums(self.vs)
+        self.dh = _pair_sums(self.hs)
 
-    @staticmethod
-    def _blocks(arrays: list[FloatArray]) -> FloatArray:
-        n_y, n_par = arrays[0].shape[1:]
-        total = np.zeros((n_y * n_par, n_y * n_par))
-        for a in arrays:
-            flat = a.reshape(a.shape[0], n_y * n_par)
-            total += flat.T @ flat
-        return total.reshape(n_y, n_par, n_y, n_par)
+    def covariance(self, residuals: list[FloatArray], qa: FloatArray, qw: FloatArray) -> FloatArray:
+        """The full covariance at the estimate's phi."""
+        cov_a, cov_w = _cross_covariances(residuals, self.phi, qa, qw)
+        n_y, n_par = self.vs[0].shape[1:]
+        total = np.zeros((n_par, n_par))
+        for arrays, q in ((self.hs, cov_a), (self.vs, cov_w)):
+            for a in arrays:
+                mixed = np.tensordot(q, a, axes=([1], [1]))  # (n_y, n_t, p): sum_l q_kl A_l
+                for k in range(n_y):
+                    total += a[:, k, :].T @ mixed[k]
+        return np.asarray(0.5 * (total + total.T), dtype=np.float64)
 
-    def _g_blocks(self, phi: FloatArray) -> FloatArray:
-        moved = np.flatnonzero(phi != self.phi).tolist()
-        if not moved:
-            return self.bg
-        blocks = self.bg.copy()
-        n_y, n_par = self.gs[0].shape[1:]
-        gs = []
-        for w, g in zip(self.ws, self.gs, strict=True):
-            g = g.copy()
-            g[:, moved, :] = _recolour(w[:, moved, :], phi[moved])
-            gs.append(g)
-        for k in moved:
-            row = np.zeros((n_par, n_y * n_par))
-            for g in gs:
-                row += g[:, k, :].T @ g.reshape(g.shape[0], n_y * n_par)
-            row3 = row.reshape(n_par, n_y, n_par)
-            blocks[k] = row3
-            blocks[:, :, k, :] = row3.transpose(1, 2, 0)
-        return blocks
-
-    def covariance(
+    def variances(
         self, residuals: list[FloatArray], phi: FloatArray, qa: FloatArray, qw: FloatArray
     ) -> FloatArray:
+        """The covariance's diagonal for a model near the estimate."""
         cov_a, cov_w = _cross_covariances(residuals, phi, qa, qw)
-        middle = np.einsum("kl,kalb->ab", cov_a, self._g_blocks(phi))
-        middle += np.einsum("kl,kalb->ab", cov_w, self.bw)
-        m_inv = self.m_inv
-        return np.asarray(m_inv @ (0.5 * (middle + middle.T)) @ m_inv, dtype=np.float64)
+        moved = np.flatnonzero(phi != self.phi).tolist()
+        dh = self.dh
+        if moved:
+            dh = dh.copy()
+            rows = {k: np.zeros(dh.shape[1:]) for k in moved}
+            for v, h in zip(self.vs, self.hs, strict=True):
+                new = {k: _recolour(v[:, k : k + 1, :], phi[k : k + 1])[:, 0, :] for k in moved}
+                for k, hk in new.items():
+                    row = np.einsum("ta,tla->la", hk, h)
+                    for j, hj in new.items():  # moved partners take their new columns
+                        row[j] = np.einsum("ta,ta->a", hk, hj)
+                    rows[k] += row
+            for k, row in rows.items():
+                dh[k] = row
+                dh[:, k] = row
+        return np.asarray(
+            np.einsum("kl,kla->a", cov_a, dh) + np.einsum("kl,kla->a", cov_w, self.dv),
+            dtype=np.float64,
+        )
+
+
+def _pair_sums(arrays: list[FloatArray]) -> FloatArray:
+    """``D[k, l, :] = sum_t a[t, k, :] * a[t, l, :]`` summed over `arrays` (n_t, n_y, p)."""
+    n_y, n_par = arrays[0].shape[1:]
+    total = np.zeros((n_par, n_y, n_y))
+    for a in arrays:
+        at = np.ascontiguousarray(a.transpose(2, 0, 1))  # (p, n_t, n_y): a product per parameter
+        total += np.matmul(at.transpose(0, 2, 1), at)
+    return np.ascontiguousarray(total.transpose(1, 2, 0))
 
 
 def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, ...]], FloatArray]:
