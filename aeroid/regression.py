@@ -108,10 +108,14 @@ _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatArray:
     """Value of a channel name or a product/quotient/power expression of channels."""
-    if expr in lookup:
-        return np.asarray(lookup[expr], dtype=np.float64)
     if repr(expr) not in role:
         role = f"{role} {expr!r}"
+    if expr in lookup:
+        value = np.asarray(lookup[expr], dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(value))
+        if bad.size:
+            raise DataFormatError(f"{role}: non-finite value at sample {int(bad[0])}")
+        return value
     text = expr.replace("**", "^").replace(" ", "")
     if not text:
         raise DataFormatError(f"{role}: empty expression")

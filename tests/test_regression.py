@@ -327,6 +327,13 @@ def test_bad_input() -> None:
         equation_error(data, z[:50], ["a"])
     with pytest.raises(IdentificationError, match="samples"):
         equation_error(x[:2], z[:2])
+    # a channel of a mapping with a gap in it, named directly (not only in expressions)
+    gappy = {"a": np.where(np.arange(100) == 7, np.nan, x[:, 0]), "b": x[:, 1], "z": z}
+    for fit in (equation_error, stepwise_regression):
+        with pytest.raises(DataFormatError, match="regressor 'a': non-finite value at sample 7"):
+            fit(gappy, "z", ["a", "b"])
+    with pytest.raises(DataFormatError, match="response 'a': non-finite value at sample 7"):
+        equation_error(gappy, "a", ["b"])
 
 
 # -- stepwise regression ---------------------------------------------------------------------
