@@ -111,11 +111,11 @@ def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatA
     if repr(expr) not in role:
         role = f"{role} {expr!r}"
     if expr in lookup:
-        value = np.asarray(lookup[expr], dtype=np.float64)
-        bad = np.flatnonzero(~np.isfinite(value))
+        column = np.asarray(lookup[expr], dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(column))
         if bad.size:
             raise DataFormatError(f"{role}: non-finite value at sample {int(bad[0])}")
-        return value
+        return column
     text = expr.replace("**", "^").replace(" ", "")
     if not text:
         raise DataFormatError(f"{role}: empty expression")
