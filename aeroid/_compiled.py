@@ -79,15 +79,15 @@ def _entry(model: Model) -> dict[Any, Any]:
 
 
 def _import_jax() -> tuple[Any, Any] | None:
-    """``(jax, jax.numpy)`` with 64-bit floats on, or None when JAX cannot be imported."""
+    """``(jax, jax.numpy)`` as `aeroid._jax.require_jax` sets it up, or None when JAX
+    cannot be imported."""
+    from ._jax import require_jax
+    from .errors import AdapterError
+
     try:
-        import jax
-        import jax.numpy as jnp
-    except ImportError:
+        return require_jax()
+    except AdapterError:
         return None
-    if not jax.config.read("jax_enable_x64"):
-        jax.config.update("jax_enable_x64", True)
-    return jax, jnp
 
 
 # -- translation of a numpy function to jax.numpy ----------------------------------------

@@ -17,8 +17,12 @@ and 64-bit floats are switched on then.
 
 from __future__ import annotations
 
+import hashlib
+import os
+import platform
 import weakref
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,6 +40,13 @@ FloatArray = NDArray[np.float64]
 _CACHE: weakref.WeakKeyDictionary[Model, dict[Any, Any]] = weakref.WeakKeyDictionary()
 
 
+# Where compiled programs are kept between processes: a path, or "off".
+CACHE_ENV = "AEROID_JAX_CACHE"
+# Bound on that cache's size on disk; JAX drops the least recently used programs beyond.
+_CACHE_BYTES = 1 << 30
+_CONFIGURED = False
+
+
 def require_jax() -> tuple[Any, Any]:
     """Import JAX with 64-bit floats enabled; return ``(jax, jax.numpy)``."""
     try:
@@ -45,9 +56,72 @@ def require_jax() -> tuple[Any, Any]:
         raise AdapterError(
             'the JAX backend needs jax, which is not installed: pip install "aeroid[jax]"'
         ) from None
+    global _CONFIGURED
+    if not _CONFIGURED:
+        _CONFIGURED = True
+        _persistent_cache(jax)
     if not jax.config.read("jax_enable_x64"):
         jax.config.update("jax_enable_x64", True)
     return jax, jnp
+
+
+def _persistent_cache(jax: Any) -> None:
+    """Keep XLA's compiled programs on disk (JAX's persistent compilation cache), so a
+    fresh process reuses them instead of compiling for seconds at its first fit.
+
+    Left alone when the user configured a cache of their own (``JAX_COMPILATION_CACHE_DIR``
+    or ``jax.config``) or set ``AEROID_JAX_CACHE=off``; ``AEROID_JAX_CACHE=<path>`` picks
+    the folder. The default is a per-user folder under the user's cache directory, one
+    per CPU kind, since XLA refuses programs compiled for other CPU features. A
+    compiled program is code JAX runs, so a folder that other users may write to is
+    never used.
+    """
+    if getattr(jax.config, "jax_compilation_cache_dir", None):
+        return
+    choice = os.environ.get(CACHE_ENV, "").strip()
+    if choice.lower() in {"off", "0", "false", "no", "none"}:
+        return
+    path = Path(choice).expanduser() if choice else _default_cache_dir()
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        info = path.stat()
+    except OSError:
+        return
+    if info.st_mode & 0o022 or (hasattr(os, "getuid") and info.st_uid != os.getuid()):
+        return
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    # JAX bounds the cache only with filelock installed, and without it drops the cache
+    # altogether when a bound is set
+    if getattr(jax.config, "jax_compilation_cache_max_size", 0) == -1 and _has_filelock():
+        jax.config.update("jax_compilation_cache_max_size", _CACHE_BYTES)
+
+
+def _has_filelock() -> bool:
+    try:
+        import filelock  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _default_cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or os.environ.get("LOCALAPPDATA")
+    root = Path(base) if base else Path.home() / ".cache"
+    cpu = platform.machine() + platform.processor()
+    found: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:  # the first processor's model and feature flags
+                key = line.partition(":")[0].strip()
+                if key in ("model name", "flags"):
+                    found.setdefault(key, line)
+                if len(found) == 2:
+                    break
+    except OSError:
+        pass
+    cpu += "".join(found.values())
+    kind = hashlib.sha256(cpu.encode()).hexdigest()[:12]
+    return root / "aeroid" / f"jax-{kind}"
 
 
 def _check_model(model: Any) -> Model:

@@ -257,3 +257,97 @@ print(float(np.max(np.abs(a.outputs - b.outputs))))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     # float32 dynamics differ by ~6e-10 here (alpha ~1e-2 times float32's 1e-7)
     assert float(out.stdout.strip().splitlines()[-1]) < 1e-13
+
+
+class _Config:
+    """The two settings `_jax._persistent_cache` reads, as jax.config holds them."""
+
+    def __init__(self, cache_dir: str | None = None) -> None:
+        self.jax_compilation_cache_dir = cache_dir
+        self.jax_compilation_cache_max_size = -1
+
+    def update(self, name: str, value: object) -> None:
+        setattr(self, name, value)
+
+
+def _fake_jax(cache_dir: str | None = None):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(config=_Config(cache_dir))
+
+
+def test_persistent_cache_policy(tmp_path, monkeypatch):
+    import os
+
+    chosen = tmp_path / "mine"
+    monkeypatch.setenv(_jax.CACHE_ENV, str(chosen))
+    fake = _fake_jax()
+    _jax._persistent_cache(fake)
+    assert fake.config.jax_compilation_cache_dir == str(chosen)
+    assert chosen.is_dir() and (chosen.stat().st_mode & 0o777) == 0o700
+    # the user's own JAX setting wins
+    fake = _fake_jax("/somewhere/else")
+    _jax._persistent_cache(fake)
+    assert fake.config.jax_compilation_cache_dir == "/somewhere/else"
+    # switched off
+    monkeypatch.setenv(_jax.CACHE_ENV, "off")
+    fake = _fake_jax()
+    _jax._persistent_cache(fake)
+    assert fake.config.jax_compilation_cache_dir is None
+    # a folder others may write to holds code JAX would run: refused
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    monkeypatch.setenv(_jax.CACHE_ENV, str(shared))
+    fake = _fake_jax()
+    _jax._persistent_cache(fake)
+    assert fake.config.jax_compilation_cache_dir is None
+    # the default: per user, per CPU kind, under the cache home
+    monkeypatch.delenv(_jax.CACHE_ENV)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "home"))
+    fake = _fake_jax()
+    _jax._persistent_cache(fake)
+    folder = fake.config.jax_compilation_cache_dir
+    assert folder is not None and folder.startswith(str(tmp_path / "home" / "aeroid" / "jax-"))
+
+
+def test_compiled_programs_are_reused_by_a_fresh_process(tmp_path):
+    import os
+
+    folder = tmp_path / "jax"
+    # every program is stored, however quick its compilation (the default keeps those
+    # over a second, which depends on the machine)
+    env = {
+        **os.environ,
+        _jax.CACHE_ENV: str(folder),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+    }
+    code = """
+import jax
+import numpy as np
+import aeroid
+from aeroid import _compiled
+_compiled.COMPILE_AFTER_CALLS = 0  # compile at once
+def pendulum(t, x, u, p):  # written with numpy, as users do
+    return np.array([x[1], -p["k"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])
+model = aeroid.Model(["theta", "omega"], ["torque"], {"k": 4.0, "c": 0.3}, pendulum)
+t = np.arange(101) * 0.02
+model.simulate_batch(t, np.sin(t)[:, None], np.array([[0.1, 0.0]]), {"k": np.array([4.0])},
+                     method="rk4")
+assert _compiled._CACHE[model][("fn", "dynamics")] is not None
+print(jax.config.jax_compilation_cache_dir)
+"""
+
+    def programs() -> dict[str, int]:
+        return {p.name: p.stat().st_mtime_ns for p in folder.glob("*-cache")}
+
+    first = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
+    assert first.stdout.strip().splitlines()[-1] == str(folder)
+    stored = programs()
+    assert stored
+    subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
+    assert programs() == stored  # read back: not compiled and written again
