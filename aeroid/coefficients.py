@@ -7,13 +7,15 @@ Identification*, ch. 3 and 5). With the dynamic pressure ``q̄ = ½ ρ V²`` and
 the specific forces ``a_x, a_y, a_z`` at the centre of gravity (what body-axis
 accelerometers measure, gravity excluded)::
 
-    CX = (m a_x − T) / (q̄ S)      CY = m a_y / (q̄ S)      CZ = m a_z / (q̄ S)
+    CX = (m a_x − T cos σ) / (q̄ S)   CY = m a_y / (q̄ S)   CZ = (m a_z + T sin σ) / (q̄ S)
     CL = −CZ cos α + CX sin α     CD = −CX cos α − CZ sin α
     Cl = [Ixx ṗ − Ixz (ṙ + p q) + (Izz − Iyy) q r] / (q̄ S b)
-    Cm = [Iyy q̇ + (Ixx − Izz) p r + Ixz (p² − r²)] / (q̄ S c̄)
+    Cm = [Iyy q̇ + (Ixx − Izz) p r + Ixz (p² − r²) − T d] / (q̄ S c̄)
     Cn = [Izz ṙ − Ixz (ṗ − q r) + (Iyy − Ixx) p q] / (q̄ S b)
 
-where T is the thrust along the body x axis. Accelerometers away from the
+where T is the thrust, along a line tilted up by σ from the body x axis and
+passing d below the centre of gravity (`AircraftConstants.thrust_angle` and
+`thrust_offset`, the convention of `aeroid.aircraft`'s models). Accelerometers away from the
 centre of gravity also sense ``ω̇ × r + ω × (ω × r)``, which is removed using
 `AircraftConstants.accel_position`. Angular accelerations are taken from the
 data when present (``p_dot``, ``q_dot``, ``r_dot``) and otherwise computed
@@ -98,8 +100,10 @@ def coefficients_from_data(
         Channel names for the roles above where they differ from the
         defaults, e.g. ``{"V": "airspeed", "ax": "nx"}``.
     thrust : float, str or array_like
-        Thrust along the body x axis in N: a constant, a channel name or
-        samples. Default 0 (glider, or thrust included in CX).
+        Thrust in N along the constants' thrust line (`thrust_angle`,
+        `thrust_offset`; the body x axis through the centre of gravity by
+        default): a constant, a channel name or samples. Default 0 (glider,
+        or thrust included in the coefficients).
     accel_in_g : bool
         The specific-force channels are in units of g (``constants.g``).
     method : {"fourier", "local"}
@@ -178,6 +182,7 @@ def coefficients_from_data(
         )
 
     m = constants.mass
+    thrust_samples: FloatArray | None = None
     if need_forces:
         scale = constants.g if accel_in_g else 1.0
         acc = np.zeros((data.n_samples, 3))
@@ -189,7 +194,10 @@ def coefficients_from_data(
             # specific force at r = at CG + ω̇ × r + ω × (ω × r)
             acc = acc - np.cross(omega_dot, lever) - np.cross(omega, np.cross(omega, lever))
         force = m * acc
-        force[:, 0] -= _series(data, thrust, "thrust")
+        if thrust_samples is None:
+            thrust_samples = _series(data, thrust, "thrust")
+        force[:, 0] -= thrust_samples * np.cos(constants.thrust_angle)
+        force[:, 2] += thrust_samples * np.sin(constants.thrust_angle)
         coef = force / qs[:, None]
         block = dict(zip(("CX", "CY", "CZ"), coef.T, strict=True))
         if "CL" in wanted or "CD" in wanted:
@@ -204,9 +212,14 @@ def coefficients_from_data(
         p, q, r = omega.T
         pd, qd, rd = omega_dot.T
         ac = constants
+        pitching: Any = 0.0  # the thrust's own pitching moment, T d
+        if "Cm" in wanted and ac.thrust_offset != 0:
+            if thrust_samples is None:
+                thrust_samples = _series(data, thrust, "thrust")
+            pitching = thrust_samples * ac.thrust_offset
         moments = {
             "Cl": (ac.Ixx * pd - ac.Ixz * (rd + p * q) + (ac.Izz - ac.Iyy) * q * r) / (qs * ac.b),
-            "Cm": (ac.Iyy * qd + (ac.Ixx - ac.Izz) * p * r + ac.Ixz * (p**2 - r**2))
+            "Cm": (ac.Iyy * qd + (ac.Ixx - ac.Izz) * p * r + ac.Ixz * (p**2 - r**2) - pitching)
             / (qs * ac.cbar),
             "Cn": (ac.Izz * rd - ac.Ixz * (pd - q * r) + (ac.Iyy - ac.Ixx) * p * q) / (qs * ac.b),
         }

@@ -16,7 +16,9 @@ AC = AircraftConstants(
 )
 
 
-def _truth(lever: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[dict, dict]:
+def _truth(
+    lever: tuple[float, float, float] = (0.0, 0.0, 0.0), ac: AircraftConstants = AC
+) -> tuple[dict, dict]:
     """Motion whose coefficients are known functions of time, and those coefficients."""
     # rates are sine series over the record: the Fourier smoother differentiates them exactly
     w = 2 * np.pi / T[-1]
@@ -29,12 +31,15 @@ def _truth(lever: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[dict, d
     thrust = 1500.0 + 100.0 * np.cos(w * T)
     fx, fy, fz = -800 + 200 * np.sin(w * T), 300 * np.cos(2 * w * T), -11000 + 900 * np.sin(w * T)
     # forces -> specific forces at the CG, plus what an offset accelerometer also senses
-    acc = np.column_stack([(fx + thrust) / AC.mass, fy / AC.mass, fz / AC.mass])
+    # the thrust line tilted up by sigma and passing d below the CG
+    sigma, d = ac.thrust_angle, ac.thrust_offset
+    tx, tz = thrust * np.cos(sigma), -thrust * np.sin(sigma)
+    acc = np.column_stack([(fx + tx) / AC.mass, fy / AC.mass, (fz + tz) / AC.mass])
     om, omd, arm = np.column_stack([p, q, r]), np.column_stack([pd, qd, rd]), np.array(lever)
     acc = acc + np.cross(omd, arm) + np.cross(om, np.cross(om, arm))
     # moments from Euler's equations with the product of inertia Ixz
     roll = AC.Ixx * pd - AC.Ixz * (rd + p * q) + (AC.Izz - AC.Iyy) * q * r
-    pitch = AC.Iyy * qd + (AC.Ixx - AC.Izz) * p * r + AC.Ixz * (p**2 - r**2)
+    pitch = AC.Iyy * qd + (AC.Ixx - AC.Izz) * p * r + AC.Ixz * (p**2 - r**2) - thrust * d
     yaw = AC.Izz * rd - AC.Ixz * (pd - q * r) + (AC.Iyy - AC.Ixx) * p * q
     cx, cz = fx / qs, fz / qs
     truth = {
@@ -58,6 +63,21 @@ def test_coefficients_match_closed_form() -> None:
     for name, value in truth.items():
         np.testing.assert_allclose(out[name], value, rtol=1e-12, atol=1e-14, err_msg=name)
     np.testing.assert_allclose(out["qbar"], 0.5 * 1.1 * chans["V"] ** 2, rtol=1e-14)
+
+
+def test_a_tilted_offset_thrust_line_is_removed() -> None:
+    ac = AircraftConstants(
+        mass=AC.mass, Ixx=AC.Ixx, Iyy=AC.Iyy, Izz=AC.Izz, Ixz=AC.Ixz, S=AC.S, b=AC.b,
+        cbar=AC.cbar, rho=AC.rho, thrust_angle=0.05, thrust_offset=0.3,
+    )  # fmt: skip
+    chans, truth = _truth(ac=ac)
+    out = coefficients_from_data(FlightData(T, chans), ac, thrust="T")
+    for name, value in truth.items():
+        np.testing.assert_allclose(out[name], value, rtol=1e-12, atol=1e-14, err_msg=name)
+    # the line matters: taken along the x axis through the CG, CZ and Cm are off
+    plain = coefficients_from_data(FlightData(T, chans), AC, thrust="T")
+    assert np.max(np.abs(plain["Cm"] - truth["Cm"])) > 1e-3
+    assert np.max(np.abs(plain["CZ"] - truth["CZ"])) > 1e-3
 
 
 def test_accelerometer_offset_and_derived_rates() -> None:
