@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from ._threads import small_blas
 from .aircraft import AircraftConstants
-from .data import FlightData
+from .data import FlightData, real_array
 from .errors import ChannelError, DataFormatError
 from .smoothing import differentiate
 
@@ -59,12 +59,14 @@ def _series(data: FlightData, value: Any, what: str) -> FloatArray:
     if isinstance(value, str):
         data.require([value], role=what)
         return np.asarray(data.channels[value], dtype=np.float64)
+    expected = f"{what}: expected a channel name, a number or {data.n_samples} samples"
+    if value is None:
+        raise DataFormatError(f"{expected}, got None")
+    arr = real_array(value, what)
     try:
-        arr = np.broadcast_to(np.asarray(value, dtype=np.float64), data.time.shape)
-    except (TypeError, ValueError):
-        raise DataFormatError(
-            f"{what}: expected a channel name, a number or {data.n_samples} samples, got {value!r}"
-        ) from None
+        arr = np.broadcast_to(arr, data.time.shape)
+    except ValueError:
+        raise DataFormatError(f"{expected}, got {value!r}") from None
     if not np.all(np.isfinite(arr)):
         raise DataFormatError(f"{what}: non-finite value")
     return np.array(arr)
@@ -130,6 +132,11 @@ def coefficients_from_data(
             f"constants: expected AircraftConstants, got {type(constants).__name__}"
         )
     names = {role: role for role in _ROLES}
+    if channels is not None and not isinstance(channels, Mapping):
+        raise DataFormatError(
+            f"channels: expected a mapping of role to channel name, e.g. {{'V': 'airspeed'}}, "
+            f"got {channels!r}"
+        )
     for role, name in dict(channels or {}).items():
         if role not in _ROLES:
             raise DataFormatError(f"channels: unknown role {role!r}; roles are {list(_ROLES)}")
@@ -142,6 +149,10 @@ def coefficients_from_data(
                 f"(channels present: {sorted(data.names)})"
             )
     else:
+        if isinstance(outputs, str):
+            outputs = [outputs]
+        if not isinstance(outputs, Sequence):
+            raise DataFormatError(f"outputs: expected coefficient names, got {outputs!r}")
         wanted = [str(c) for c in outputs]
         for c in wanted:
             if c not in _NEEDS:

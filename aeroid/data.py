@@ -40,17 +40,51 @@ def plain(value: Any) -> str:
 
 
 def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 1) -> int:
-    """`value` as an int >= `least` (1 or 0; integral floats such as 2e3 accepted), else
-    `error`."""
+    """`value` as an int >= `least` (integral floats such as 2e3 accepted), else `error`."""
     try:
         n = int(value)
-        ok = not isinstance(value, bool) and n == value and n >= least
+        ok = not isinstance(value, (bool, str)) and n == value and n >= least
     except (TypeError, ValueError, OverflowError):
         ok = False
     if not ok:
-        what = "a positive" if least == 1 else "a non-negative"
-        raise error(f"{name} must be {what} integer, got {plain(value)}")
+        what = {1: "a positive integer", 0: "a non-negative integer"}.get(
+            least, f"an integer of at least {least}"
+        )
+        raise error(f"{name} must be {what}, got {plain(value)}")
     return n
+
+
+def positive_number(value: Any, name: str, unit: str = "") -> float:
+    """`value` as a finite float > 0, else a `DataFormatError` naming `name` (`unit`, such
+    as ``" of seconds"``, completes "a positive number")."""
+    try:
+        x = float(value)
+        ok = not isinstance(value, (bool, str)) and bool(np.isfinite(x)) and x > 0
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise DataFormatError(f"{name}: expected a positive number{unit}, got {plain(value)}")
+    return x
+
+
+def real_array(values: Any, what: str) -> FloatArray:
+    """`values` as a float64 array (not copied when it is one), or a `DataFormatError`
+    naming `what`: not numeric, or complex (a cast would drop the imaginary part)."""
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{what}: not numeric ({exc})") from None
+    if arr.dtype.kind == "c":
+        raise DataFormatError(
+            f"{what}: complex values are not supported; pass the real part or the "
+            "magnitude explicitly (np.real, np.abs)"
+        )
+    if arr.dtype.kind not in "biuf":
+        try:
+            arr = arr.astype(np.float64)
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{what}: not numeric ({exc})") from None
+    return np.asarray(arr, dtype=np.float64)
 
 
 def delay_starts(
@@ -139,13 +173,10 @@ def _numeric(values: Any, what: str, failure: str) -> FloatArray:
         arr = np.asarray(values)
     except (TypeError, ValueError) as exc:
         raise DataFormatError(f"{what}: {failure} ({exc})") from None
-    if arr.dtype.kind == "c":
-        raise DataFormatError(
-            f"{what}: complex values are not supported; pass the real part or the "
-            "magnitude explicitly (np.real, np.abs)"
-        )
     if arr.dtype.kind in "mM":
         arr = _seconds(arr)
+    elif arr.dtype.kind == "c":
+        real_array(arr, what)  # raises, with the remedy
     try:
         return _readonly(arr)
     except (TypeError, ValueError) as exc:

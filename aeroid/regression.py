@@ -72,7 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._czt import fast_length, fourier
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData, delay_starts
+from .data import FlightData, delay_starts, positive_number, real_array, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError
 
 __all__ = [
@@ -155,10 +155,7 @@ def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatA
 def _column(lookup: Mapping[str, Any], value: Any, n: int, role: str) -> FloatArray:
     if isinstance(value, str):
         return _evaluate(lookup, value, n, role)
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise DataFormatError(f"{role}: expected a name, an expression or samples") from None
+    arr = real_array(value, role)
     if arr.shape != (n,):
         raise DataFormatError(f"{role}: expected {n} samples, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -166,6 +163,24 @@ def _column(lookup: Mapping[str, Any], value: Any, n: int, role: str) -> FloatAr
             f"{role}: non-finite value at sample {int(np.argmin(np.isfinite(arr)))}"
         )
     return arr
+
+
+def _mapping_columns(data: Mapping[Any, Any]) -> tuple[dict[str, FloatArray], int]:
+    """A mapping's entries as named 1-D float arrays of one length, and that length."""
+    lookup = {str(k): real_array(v, f"data[{str(k)!r}]") for k, v in data.items()}
+    if not lookup:
+        raise DataFormatError("data: the mapping holds no channels")
+    first, n = None, -1
+    for name, col in lookup.items():
+        if col.ndim != 1:
+            raise DataFormatError(f"data[{name!r}]: expected a 1-D array, got shape {col.shape}")
+        if first is None:
+            first, n = name, col.shape[0]
+        elif col.shape[0] != n:
+            raise DataFormatError(
+                f"data[{name!r}]: {col.shape[0]} samples where data[{first!r}] has {n}"
+            )
+    return lookup, n
 
 
 def _resolve(
@@ -178,24 +193,13 @@ def _resolve(
         n = data.n_samples
         time = np.asarray(data.time)
     elif isinstance(data, Mapping):
-        try:
-            lookup = {str(k): np.asarray(v, dtype=np.float64) for k, v in data.items()}
-        except (TypeError, ValueError):
-            raise DataFormatError("data: every entry of the mapping must be numeric") from None
-        lengths = {v.shape for v in lookup.values()}
-        if len(lengths) > 1 or any(len(s) != 1 for s in lengths):
-            raise DataFormatError(
-                "data: every entry of the mapping must be a 1-D array of one length"
-            )
-        n = next(iter(lengths))[0] if lengths else np.asarray(response).shape[0]
+        lookup, n = _mapping_columns(data)
     else:
-        try:
-            mat = np.asarray(data, dtype=np.float64)
-        except (TypeError, ValueError):
+        if isinstance(data, (str, bytes)):
             raise DataFormatError(
-                f"data: expected FlightData, a mapping of arrays or a regressor matrix, "
-                f"got {type(data).__name__}"
-            ) from None
+                "data: expected FlightData, a mapping of arrays or a regressor matrix, got str"
+            )
+        mat = real_array(data, "data (a regressor matrix)")
         if mat.ndim != 2:
             raise DataFormatError(
                 f"data: a regressor matrix must be 2-D (samples, regressors), got shape {mat.shape}"
@@ -226,6 +230,12 @@ def _resolve(
         raise DataFormatError(f"{role}: required for {what} on flight data or a mapping")
     if isinstance(regressors, str):
         regressors = [regressors]
+    if not isinstance(regressors, (Mapping, Sequence)):
+        role = "candidates" if what.startswith("stepwise") else "regressors"
+        raise DataFormatError(
+            f"{role}: expected names or expressions, or a mapping of name to samples, "
+            f"got {type(regressors).__name__}"
+        )
     if isinstance(regressors, Mapping):
         items = [(str(k), v) for k, v in regressors.items()]
     else:
@@ -249,20 +259,26 @@ def _check_names(names: Sequence[str]) -> None:
         seen.add(name)
 
 
+def _check_flag(value: Any, name: str) -> None:
+    """Refuse a non-boolean switch: ``intercept="no"`` would read as True."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise DataFormatError(f"{name}: expected True or False, got {value!r}")
+
+
 def _step_of(time: FloatArray | None, dt: float | None) -> float | None:
     if time is not None:
         steps = np.diff(time)
         if np.ptp(steps) > 1e-6 * float(np.mean(steps)):
             return None
         step = float(np.mean(steps))
-        if dt is not None and not np.isclose(dt, step, rtol=1e-6):
+        if dt is not None and not np.isclose(
+            positive_number(dt, "dt", " of seconds"), step, rtol=1e-6
+        ):
             raise DataFormatError(f"dt: {dt!r} contradicts the data's sample interval {step:.6g} s")
         return step
     if dt is None:
         return None
-    if not (np.isfinite(dt) and dt > 0):
-        raise DataFormatError(f"dt: expected a positive number of seconds, got {dt!r}")
-    return float(dt)
+    return positive_number(dt, "dt", " of seconds")
 
 
 # -- least squares core ----------------------------------------------------------------------
@@ -299,8 +315,13 @@ def _ls_solve(
     matrix, and the refinement step brings the estimate to QR accuracy while the
     scaled matrix is well conditioned. Near-collinear columns go to QR.
     """
-    gram = x.T @ x
+    with np.errstate(over="ignore", invalid="ignore"):  # reported below, by name
+        gram = x.T @ x
     d = np.sqrt(np.diag(gram))
+    for j in np.flatnonzero(~np.isfinite(d)).tolist():
+        raise DataFormatError(
+            f"regressor {names[j]!r}: its sum of squares overflows; rescale it (units?)"
+        )
     for j in np.flatnonzero(~(d > 0)).tolist():
         raise _collinear(names, j)
     scaled = gram / np.outer(d, d)
@@ -544,6 +565,10 @@ def _fit(
     n_d = 0 if delays is None else len(delays[0])
     if n <= p + n_d:
         raise IdentificationError(f"equation error: {n} samples cannot fit {p + n_d} parameters")
+    with np.errstate(over="ignore"):
+        zz = float(z @ z)
+    if not np.isfinite(zz):
+        raise DataFormatError(f"response {zname!r}: its sum of squares overflows; rescale it")
     theta, xtx_inv, gram = _ls_solve(x, z, names)
     fitted = x @ theta
     v = z - fitted
@@ -710,6 +735,7 @@ def equation_error(
     if error_bars not in _ERROR_BARS:
         raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
     z, x, names, zname, time = _resolve(data, response, regressors, "equation error")
+    _check_flag(intercept, "intercept")
     use_const = bool(intercept)
     if use_const and x.shape[0]:
         # a column of ones built by hand, as SIDPAC's regressor matrices carry (a zero
@@ -744,7 +770,8 @@ def equation_error(
             error_bars=error_bars,
         )
     if domain == "time":
-        t = time if time is not None else np.arange(z.shape[0], dtype=np.float64) * (dt or 1.0)
+        step = _step_of(time, dt)  # a dt given must be positive and agree with the data
+        t = time if time is not None else np.arange(z.shape[0], dtype=np.float64) * (step or 1.0)
         return _fit(z, x, names, zname, t, has_const=use_const, error_bars=error_bars)
     return _frequency_fit(z, x, names, zname, time, dt, frequencies, has_const=use_const)
 
@@ -883,7 +910,7 @@ def _frequency_fit(
         )
     if frequencies is None:
         raise DataFormatError("frequencies: required for domain='frequency' (Hz)")
-    freq = np.atleast_1d(np.asarray(frequencies, dtype=np.float64))
+    freq = np.atleast_1d(real_array(frequencies, "frequencies"))
     nyquist = 0.5 / step
     if (
         freq.ndim != 1
@@ -971,18 +998,32 @@ def spline_terms(
     -------
     dict of str to ndarray
     """
-    arr = np.asarray(x, dtype=np.float64)
+    arr = real_array(x, f"spline_terms: {name}")
     if arr.ndim != 1 or not np.all(np.isfinite(arr)):
         raise DataFormatError(f"spline_terms: {name} must be a finite 1-D array")
     if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
         raise DataFormatError(f"degree: expected a positive integer, got {degree!r}")
+    if isinstance(knots, (str, bytes)) or not isinstance(knots, Sequence | np.ndarray):
+        raise DataFormatError(f"knots of {name}: expected a sequence of numbers, got {knots!r}")
     out: dict[str, FloatArray] = {}
     for k in knots:
-        knot = float(k)
+        try:
+            knot = float(k)
+            ok = not isinstance(k, (bool, str)) and bool(np.isfinite(knot))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise DataFormatError(f"knots of {name}: expected finite numbers, got {k!r}")
         label = f"({name}-{knot:g})+" if knot >= 0 else f"({name}+{-knot:g})+"
         if degree > 1:
             label += f"^{degree}"
-        out[label] = np.maximum(arr - knot, 0.0) ** degree
+        if label in out:  # the same knot to the label's precision: the same column
+            raise DataFormatError(f"knots of {name}: {knot:g} is given twice")
+        with np.errstate(over="ignore"):
+            column = np.maximum(arr - knot, 0.0) ** degree
+        if not np.all(np.isfinite(column)):
+            raise DataFormatError(f"spline {label}: overflows (degree {degree} too high?)")
+        out[label] = column
     return out
 
 
@@ -1018,13 +1059,21 @@ def candidate_pool(
     """
     if isinstance(variables, str):
         variables = [variables]
-    lookup: Mapping[str, Any] = data.channels if isinstance(data, FlightData) else data
-    if not isinstance(lookup, Mapping):
-        raise DataFormatError("data: expected FlightData or a mapping of name to samples")
+    if not isinstance(variables, Sequence) or not all(isinstance(v, str) for v in variables):
+        raise DataFormatError(
+            f"variables: expected channel names or expressions, got {variables!r}"
+        )
     if not variables:
         raise DataFormatError("variables: give at least one variable")
-    first = np.asarray(lookup[variables[0]]) if variables[0] in lookup else None
-    n = first.shape[0] if first is not None else len(next(iter(lookup.values())))
+    if isinstance(data, FlightData):
+        lookup: Mapping[str, Any] = data.channels
+        n = data.n_samples
+    elif isinstance(data, Mapping):
+        lookup, n = _mapping_columns(data)
+    else:
+        raise DataFormatError("data: expected FlightData or a mapping of name to samples")
+    if splines is not None and not isinstance(splines, Mapping):
+        raise DataFormatError(f"splines: expected a mapping of variable to knots, got {splines!r}")
     cols = {v: _evaluate(lookup, v, n, "variable") for v in variables}
     out: dict[str, FloatArray] = dict(cols)
     if squares:
@@ -1237,21 +1286,35 @@ def stepwise_regression(
     IdentificationError
         Too few samples for the pool.
     """
-    f_in, f_out = float(f_in), float(f_out)
-    if not (np.isfinite(f_in) and np.isfinite(f_out) and 0 <= f_out <= f_in):
-        raise DataFormatError(f"f_in, f_out: need 0 <= f_out <= f_in, got {f_in}, {f_out}")
+    try:
+        f_in, f_out = float(f_in), float(f_out)
+        ordered = bool(np.isfinite(f_in) and np.isfinite(f_out) and 0 <= f_out <= f_in)
+    except (TypeError, ValueError):
+        ordered = False
+    if not ordered:
+        raise DataFormatError(
+            f"f_in, f_out: need numbers 0 <= f_out <= f_in, got {f_in!r}, {f_out!r}"
+        )
+    _check_flag(intercept, "intercept")
+    _check_flag(orthogonalize, "orthogonalize")
     if error_bars not in _ERROR_BARS:
         raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
     z, x, names, zname, time = _resolve(data, response, candidates, "stepwise regression")
     _check_names([*names, _CONST] if intercept else names)
-    forced_list = [str(f) for f in ([forced] if isinstance(forced, str) else forced)]
+    if isinstance(forced, str):
+        forced = [forced]
+    if not isinstance(forced, Sequence) or not all(isinstance(f, str) for f in forced):
+        raise DataFormatError(f"forced: expected candidate names, got {forced!r}")
+    forced_list = list(forced)
     for f in forced_list:
         if f not in names:
             raise DataFormatError(f"forced: {f!r} is not one of the candidates {names}")
+        if forced_list.count(f) > 1:
+            raise DataFormatError(f"forced: {f!r} is listed twice")
     n, c = x.shape
     if c == 0:
         raise DataFormatError("candidates: the pool is empty")
-    limit = 4 * c if max_steps is None else int(max_steps)
+    limit = 4 * c if max_steps is None else whole_number(max_steps, "max_steps", DataFormatError)
     # Work on centred columns when there is a constant: the constant then drops out of
     # the cross-products, and the partial F statistics are those of the full model.
     xw = x - x.mean(axis=0) if intercept else x.copy()

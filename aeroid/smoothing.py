@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._threads import small_blas
-from .data import FlightData
+from .data import FlightData, positive_number, real_array, whole_number
 from .errors import DataFormatError
 
 __all__ = ["differentiate", "optimal_cutoff", "smooth"]
@@ -52,10 +52,7 @@ _CHI2_1_MEDIAN = 0.454936423119572
 
 
 def _as_columns(x: ArrayLike, what: str) -> tuple[FloatArray, bool]:
-    try:
-        arr = np.array(x, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise DataFormatError(f"{what}: not a numeric array ({exc})") from None
+    arr = np.array(real_array(x, what))  # a copy: the caller's array is never written
     if arr.ndim not in (1, 2):
         raise DataFormatError(f"{what}: expected a 1-D or 2-D array, got shape {arr.shape}")
     one = arr.ndim == 1
@@ -76,18 +73,14 @@ def _step(dt: float | None, data: FlightData | None) -> float:
                 "resample the record first"
             )
         step = float(np.mean(np.diff(data.time)))
-        if dt is not None and not np.isclose(dt, step, rtol=1e-6):
+        if dt is not None and not np.isclose(
+            positive_number(dt, "dt", " of seconds"), step, rtol=1e-6
+        ):
             raise DataFormatError(f"dt: {dt!r} contradicts the data's sample interval {step:.6g} s")
         return step
     if dt is None:
         raise DataFormatError("dt: the sample interval in seconds is required for array input")
-    try:
-        step = float(dt)
-    except (TypeError, ValueError):
-        raise DataFormatError(f"dt: expected a positive number of seconds, got {dt!r}") from None
-    if not (np.isfinite(step) and step > 0):
-        raise DataFormatError(f"dt: expected a positive number of seconds, got {dt!r}")
-    return step
+    return positive_number(dt, "dt", " of seconds")
 
 
 def _check_options(method: str, order: int, polyorder: int) -> None:
@@ -181,7 +174,15 @@ def _local(
     col: FloatArray, dt: float, order: int, window: int | None, polyorder: int
 ) -> FloatArray:
     n = col.shape[0]
-    w = _local_window(col, dt, order, polyorder) if window is None else int(window)
+    if polyorder >= n:
+        raise DataFormatError(
+            f"polyorder: a polynomial of degree {polyorder} needs a window of more than "
+            f"{polyorder} samples; the record has {n}"
+        )
+    if window is None:
+        w = _local_window(col, dt, order, polyorder)
+    else:
+        w = whole_number(window, "window", DataFormatError)
     if w % 2 == 0 or w <= polyorder or w > n:
         raise DataFormatError(
             f"window: expected an odd number of samples above polyorder={polyorder} "
@@ -206,8 +207,8 @@ def _apply(
     polyorder: int,
 ) -> FloatArray:
     cols, one = _as_columns(x, what)
-    if cutoff is not None and not (np.isfinite(cutoff) and cutoff > 0):
-        raise DataFormatError(f"cutoff: expected a positive frequency in Hz, got {cutoff!r}")
+    if cutoff is not None:
+        cutoff = positive_number(cutoff, "cutoff", " (a frequency in Hz)")
     out = np.empty_like(cols)
     for j in range(cols.shape[1]):
         if method == "fourier":
@@ -242,6 +243,13 @@ def _process(
     names = _channel_list(x, channels)
     if not names:
         return x
+    if tail:  # derivatives are added: never over a channel the record has
+        for n in names:
+            if n + tail in x:
+                raise DataFormatError(
+                    f"suffix: the derivative of {n!r} would replace the channel {n + tail!r} "
+                    "the record already has; choose another suffix"
+                )
     out = _apply(x.array(names), "channels", step, order, method, cutoff, window, polyorder)
     values = {n + tail: out[:, j] for j, n in enumerate(names)}
     if order == 0:
@@ -251,15 +259,14 @@ def _process(
 
 
 def _channel_list(data: FlightData, channels: str | Sequence[str] | None) -> list[str]:
-    names = (
-        list(data.names)
-        if channels is None
-        else [channels]
-        if isinstance(channels, str)
-        else list(channels)
-    )
-    data.require(names)
-    return names
+    if channels is None:
+        return list(data.names)
+    if isinstance(channels, str):
+        channels = [channels]
+    if not isinstance(channels, Sequence) or not all(isinstance(c, str) for c in channels):
+        raise DataFormatError(f"channels: expected channel names, got {channels!r}")
+    data.require(channels)
+    return list(channels)
 
 
 @small_blas
@@ -442,5 +449,7 @@ def differentiate(
     if order == 0:
         raise DataFormatError("order: expected 1 or 2 (derivative order), got 0; use smooth()")
     _check_options(method, order, polyorder)
+    if suffix is not None and (not isinstance(suffix, str) or not suffix):
+        raise DataFormatError(f"suffix: expected a non-empty string, got {suffix!r}")
     tail = suffix if suffix is not None else ("_dot" if order == 1 else "_ddot")
     return _process(x, channels, dt, order, method, cutoff, window, polyorder, tail)

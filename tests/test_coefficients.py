@@ -137,3 +137,14 @@ def test_bad_input() -> None:
     bad = dict(chans, V=np.zeros(T.size))
     with pytest.raises(DataFormatError, match="airspeed"):
         coefficients_from_data(FlightData(T, bad), AC)
+    full = FlightData(T, chans)
+    with pytest.raises(DataFormatError, match="outputs: expected coefficient names"):
+        coefficients_from_data(full, AC, outputs=5)  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match="channels: expected a mapping"):
+        coefficients_from_data(full, AC, channels=["V"])  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match=r"thrust: .* got None"):
+        coefficients_from_data(full, AC, thrust=None)
+    with pytest.raises(DataFormatError, match="thrust: complex"):
+        coefficients_from_data(full, AC, thrust=chans["T"] + 1j)
+    # one name is one coefficient, not its letters
+    assert "CL" in coefficients_from_data(full, AC, outputs="CL", thrust="T")

@@ -327,6 +327,31 @@ def test_bad_input() -> None:
         equation_error(data, z[:50], ["a"])
     with pytest.raises(IdentificationError, match="samples"):
         equation_error(x[:2], z[:2])
+    # complex samples would lose their imaginary part in a cast
+    with pytest.raises(DataFormatError, match="complex"):
+        equation_error(x + 1j, z)
+    with pytest.raises(DataFormatError, match="response: complex"):
+        equation_error(x, z + 1j)
+    with pytest.raises(DataFormatError, match=r"data\['a'\]: complex"):
+        equation_error({"a": x[:, 0] + 1j, "z": z}, "z", ["a"])
+    with pytest.raises(DataFormatError, match=r"data\['b'\]: 99 samples where data\['a'\] has 100"):
+        equation_error({"a": x[:, 0], "b": x[:99, 1], "z": z}, "z", ["a"])
+    with pytest.raises(DataFormatError, match="no channels"):
+        equation_error({}, "z", ["a"])
+    with pytest.raises(DataFormatError, match="regressors: expected names"):
+        equation_error(data, "z", 5)  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match="dt: expected a positive number"):
+        equation_error({"a": x[:, 0], "z": z}, "z", ["a"], dt=-5.0)
+    with pytest.raises(DataFormatError, match="dt: expected a positive number"):
+        equation_error(x, z, domain="frequency", frequencies=[0.1, 0.2, 0.3], dt="0.02")
+    with pytest.raises(DataFormatError, match=r"dt: 5\.0 contradicts"):
+        equation_error(data, "z", ["a"], dt=5.0)
+    with pytest.raises(DataFormatError, match="frequencies: not numeric"):
+        equation_error(data, "z", ["a"], domain="frequency", frequencies="abc")
+    with pytest.raises(DataFormatError, match="intercept: expected True or False"):
+        equation_error(x, z, intercept="no")  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match="regressor 'a': its sum of squares overflows"):
+        equation_error({"a": x[:, 0] * 1e200, "b": x[:, 1], "z": z}, "z", ["a", "b"])
     # a channel of a mapping with a gap in it, named directly (not only in expressions)
     gappy = {"a": np.where(np.arange(100) == 7, np.nan, x[:, 0]), "b": x[:, 1], "z": z}
     for fit in (equation_error, stepwise_regression):
@@ -454,6 +479,42 @@ def test_stepwise_bad_input() -> None:
         stepwise_regression(x, np.ones(10), x, f_in=2, f_out=4)
     with pytest.raises(DataFormatError, match="forced"):
         stepwise_regression(x, np.ones(10), x, forced=["c"])
+    z = np.random.default_rng(0).standard_normal(10)
+    for options, match in [
+        ({"f_in": "a"}, "f_in, f_out: need numbers"),
+        ({"f_in": None}, "f_in, f_out: need numbers"),
+        ({"max_steps": 0}, "max_steps must be a positive integer, got 0"),
+        ({"max_steps": 1.7}, "max_steps must be a positive integer, got 1.7"),
+        ({"max_steps": "a"}, "max_steps"),
+        ({"forced": 5}, "forced: expected candidate names"),
+        ({"forced": ["a", "a"]}, "forced: 'a' is listed twice"),
+        ({"orthogonalize": "no"}, "orthogonalize: expected True or False"),
+    ]:
+        with pytest.raises(DataFormatError, match=match):
+            stepwise_regression(x, z, x, **options)
+
+
+def test_candidate_pool_and_splines_bad_input() -> None:
+    alpha = np.linspace(-0.1, 0.3, 50)
+    data = {"alpha": alpha, "q": np.cos(alpha)}
+    for call, match in [
+        (lambda: spline_terms(alpha, [np.nan]), "knots of alpha: expected finite numbers"),
+        (lambda: spline_terms(alpha, [-np.inf]), "knots of alpha: expected finite numbers"),
+        (lambda: spline_terms(alpha, ["a"]), "knots of alpha"),
+        (lambda: spline_terms(alpha, 0.1), "knots of alpha: expected a sequence"),
+        (lambda: spline_terms(alpha, [0.05, 0.05]), "0.05 is given twice"),
+        (lambda: spline_terms(alpha + 1j, [0.1]), "complex"),
+        (lambda: spline_terms(alpha * 1e3, [0.1], degree=1000), "overflows"),
+        (lambda: candidate_pool(data, 5), "variables: expected channel names"),
+        (lambda: candidate_pool(data, [1, 2]), "variables: expected channel names"),
+        (lambda: candidate_pool({}, ["alpha"]), "no channels"),
+        (lambda: candidate_pool({**data, "q": data["q"][:-5]}, ["alpha", "q"]), r"data\['q'\]"),
+        (lambda: candidate_pool({**data, "q": "hello"}, ["alpha", "q"]), r"data\['q'\]"),
+        (lambda: candidate_pool(data, ["alpha"], splines={"alpha": [np.nan]}), "knots of alpha"),
+        (lambda: candidate_pool(data, ["alpha"], splines=5), "splines: expected a mapping"),
+    ]:
+        with pytest.raises(DataFormatError, match=match):
+            call()
 
 
 def test_public_entry_points_limit_blas_threads():

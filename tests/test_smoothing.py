@@ -135,6 +135,31 @@ def test_bad_input() -> None:
         differentiate(FlightData(T, {"q": x}), "nope")
 
 
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda x, fd: smooth(x + 5j, dt=DT), "x: complex values"),
+        (lambda x, fd: differentiate(np.c_[x, x + 1j], dt=DT), "complex values"),
+        (lambda x, fd: smooth(x, dt="0.02"), "dt: expected a positive number"),
+        (lambda x, fd: smooth(fd, dt="a"), "dt: expected a positive number"),
+        (lambda x, fd: smooth(x, dt=DT, cutoff="a"), "cutoff: expected a positive number"),
+        (lambda x, fd: smooth(x, dt=DT, method="local", window="a"), "window"),
+        (lambda x, fd: smooth(x[:20], dt=DT, method="local", polyorder=30), "polyorder: .* 20"),
+        (lambda x, fd: smooth(fd, 5), "channels: expected channel names"),
+        (lambda x, fd: differentiate(fd, "q", suffix=5), "suffix: expected a non-empty string"),
+        (lambda x, fd: differentiate(fd, "q", suffix=""), "suffix"),
+        # the derivative would overwrite a channel the record has (measured, or another)
+        (lambda x, fd: differentiate(fd, "q"), "'q_dot'"),
+        (lambda x, fd: differentiate(fd, "al", suffix="pha"), "'alpha'"),
+    ],
+)
+def test_bad_options_name_the_culprit(call, match) -> None:
+    x, dx, _ = _band_limited()
+    fd = FlightData(T, {"q": x, "q_dot": dx, "al": x, "alpha": x})
+    with pytest.raises(DataFormatError, match=match):
+        call(x, fd)
+
+
 def test_public_entry_points_limit_blas_threads():
     # wrapped by `small_blas`, as every numerical entry point of the library
     for fn in (smooth, differentiate, optimal_cutoff):
