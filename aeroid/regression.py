@@ -134,8 +134,13 @@ def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatA
         elif base in lookup:
             value = np.asarray(lookup[base], dtype=np.float64)
         else:
+            hint = (
+                f"; {_CONST!r} is the constant term, added by intercept=True"
+                if base == _CONST
+                else ""
+            )
             raise ChannelError(
-                f"{role}: channel {base!r} not found; channels present: {sorted(lookup)}"
+                f"{role}: channel {base!r} not found; channels present: {sorted(lookup)}{hint}"
             )
         if power:
             if not _NUMBER.match(power):

@@ -313,6 +313,8 @@ def test_bad_input() -> None:
     data = FlightData(np.arange(100) * 0.1, {"a": x[:, 0], "z": z})
     with pytest.raises(ChannelError, match="'nope'"):
         equation_error(data, "z", ["a*nope"])
+    with pytest.raises(ChannelError, match="constant term, added by intercept=True"):
+        equation_error(data, "z", ["a", "const"])
     with pytest.raises(DataFormatError, match=r"'a\^0.5'.*non-finite"):
         equation_error(data, "z", ["a^0.5"])  # negative samples
     with pytest.raises(DataFormatError, match="power"):
