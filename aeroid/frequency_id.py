@@ -61,7 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._czt import _evenly_spaced, _kernel, fourier, hann
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData
+from .data import FlightData, _numeric, plain
 from .errors import ChannelError, DataFormatError, IdentificationError
 
 __all__ = [
@@ -87,6 +87,8 @@ _INSENSITIVITY_LIMIT = 10.0
 _MIN_RANDOM_ERROR = 1e-9
 # Reweighting passes of the random-error fit (weights from the previous pass's model).
 _PASSES = 3
+# Smallest eigenvalue of the inputs' coherence matrix taken as singular.
+_DEPENDENT = 1e-10
 
 
 def _frozen_complex(values: ArrayLike) -> ComplexArray:
@@ -118,6 +120,16 @@ class ResponseChannel:
         γ² (partial coherence given the other inputs when there are several).
     random_error : ndarray
         Normalised random error ``εr`` of |H| (and of the phase, in radians).
+
+    Raises
+    ------
+    DataFormatError
+        A name that is not a string; frequencies that are not a non-empty 1-D
+        array of finite, positive, strictly increasing values; a response
+        that is not finite or not one value per frequency; a coherence
+        outside [0, 1] or a negative random error, or either given with
+        another length (leave them out, or pass None, when unknown: they are
+        then NaN).
     """
 
     input_name: str
@@ -130,16 +142,56 @@ class ResponseChannel:
     random_error: FloatArray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
-        h = _frozen_complex(self.response)
-        object.__setattr__(self, "frequency", frozen_array(self.frequency))
+        for label in ("input_name", "output_name"):
+            if not isinstance(getattr(self, label), str):
+                raise DataFormatError(
+                    f"ResponseChannel: {label}: expected a channel name (str), got "
+                    f"{getattr(self, label)!r}"
+                )
+        what = f"ResponseChannel {self.input_name!r} -> {self.output_name!r}"
+        omega = _frequency_axis(self.frequency, f"{what}: frequency")
+        try:
+            h = _frozen_complex(self.response)
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{what}: response: not numeric ({exc})") from None
+        if h.shape != omega.shape:
+            raise DataFormatError(
+                f"{what}: response has shape {h.shape}, frequency {omega.shape}; "
+                "expected one value per frequency"
+            )
+        bad = np.flatnonzero(~np.isfinite(h))
+        if bad.size:
+            i = int(bad[0])
+            raise DataFormatError(
+                f"{what}: response: non-finite value {plain(h[i])} at index {i} "
+                f"({omega[i]:.6g} rad/s)"
+            )
+        object.__setattr__(self, "frequency", omega)
         object.__setattr__(self, "response", h)
         with np.errstate(divide="ignore"):
             object.__setattr__(self, "magnitude", frozen_array(20.0 * np.log10(np.abs(h))))
         object.__setattr__(self, "phase", frozen_array(_unwrapped_phase(h)))
         for name in ("coherence", "random_error"):
-            vals = np.asarray(getattr(self, name), dtype=np.float64)
-            if vals.shape != h.shape:
-                vals = np.full(h.shape, np.nan)
+            given = getattr(self, name)
+            if given is None or np.size(given) == 0:
+                vals = np.full(h.shape, np.nan)  # not known
+            else:
+                vals = _numeric(given, f"{what}: {name}", "not numeric")
+                if vals.shape != h.shape:
+                    raise DataFormatError(
+                        f"{what}: {name} has shape {vals.shape}, frequency {h.shape}; "
+                        "expected one value per frequency"
+                    )
+                # a random error may be NaN (unknown) or infinite (no coherence)
+                with np.errstate(invalid="ignore"):
+                    wrong = ~((vals >= 0.0) & (vals <= 1.0)) if name == "coherence" else vals < 0.0
+                if wrong.any():
+                    i = int(np.flatnonzero(wrong)[0])
+                    want = "in [0, 1]" if name == "coherence" else "non-negative or NaN"
+                    raise DataFormatError(
+                        f"{what}: {name}: expected values {want}, got {plain(vals[i])} at "
+                        f"index {i} ({omega[i]:.6g} rad/s)"
+                    )
             object.__setattr__(self, name, frozen_array(vals))
 
     @property
@@ -152,6 +204,32 @@ class ResponseChannel:
     def plot(self) -> Any:
         """Bode plot (dB, deg) with a coherence panel. Returns a matplotlib Figure."""
         return _bode([self], [])
+
+
+def _frequency_axis(values: Any, what: str) -> FloatArray:
+    """`values` as a read-only 1-D array of finite, positive, strictly increasing rad/s."""
+    omega = _numeric(values, what, "not numeric")
+    if omega.ndim != 1 or omega.size == 0:
+        raise DataFormatError(
+            f"{what}: expected a non-empty 1-D array in rad/s, got shape {omega.shape}"
+        )
+    bad = np.flatnonzero(~np.isfinite(omega))
+    if bad.size:
+        raise DataFormatError(f"{what}: non-finite value at index {int(bad[0])}")
+    bad = np.flatnonzero(omega <= 0.0)
+    if bad.size:
+        i = int(bad[0])
+        raise DataFormatError(
+            f"{what}: expected positive frequencies in rad/s, got {plain(omega[i])} at index {i}"
+        )
+    bad = np.flatnonzero(np.diff(omega) <= 0.0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise DataFormatError(
+            f"{what}: not strictly increasing at index {i} ({plain(omega[i - 1])} then "
+            f"{plain(omega[i])} rad/s)"
+        )
+    return omega
 
 
 def _unwrapped_phase(h: ComplexArray) -> FloatArray:
@@ -403,7 +481,10 @@ def _random_error(coh: FloatArray, n_d: FloatArray | float, n_u: int) -> FloatAr
 
 
 def _names(value: str | Sequence[str], what: str) -> list[str]:
-    names = [value] if isinstance(value, str) else list(value)
+    try:
+        names = [value] if isinstance(value, str) else list(value)
+    except TypeError:
+        raise ChannelError(f"{what}: expected one or more channel names, got {value!r}") from None
     if not names or not all(isinstance(v, str) for v in names):
         raise ChannelError(f"{what}: expected one or more channel names, got {value!r}")
     if len(set(names)) != len(names):
@@ -450,12 +531,15 @@ def composite_response(
     Raises
     ------
     DataFormatError
-        Non-uniform time grid, or a window longer than the record or shorter
-        than 8 samples.
+        Non-uniform time grid, or a window that is not finite, longer than the
+        record or shorter than 8 samples.
     ChannelError
-        A channel is missing or repeated.
+        A channel is missing or repeated, or `inputs`/`outputs` are not names.
     IdentificationError
-        Bad overlap, frequencies or range.
+        Bad overlap, windows, frequencies (not numbers, repeated, outside
+        (0, Nyquist]) or range; a constant input (no excitation); inputs that
+        are linearly dependent (their cross-spectral matrix singular at every
+        frequency).
     """
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
@@ -483,15 +567,20 @@ def composite_response(
         wins = [data.duration / d for d in (2.0, 4.0, 8.0)]
     else:
         try:
-            wins = [float(w) for w in np.atleast_1d(np.asarray(windows, dtype=np.float64))]
+            arr = np.atleast_1d(np.asarray(windows, dtype=np.float64))
         except (TypeError, ValueError):
+            arr = np.zeros((0, 0))  # refused below
+        if arr.ndim != 1 or arr.size == 0:
             raise IdentificationError(
-                f"windows: expected lengths in seconds, got {windows!r}"
-            ) from None
+                f"windows: expected one or more lengths in seconds, got {windows!r}"
+            )
+        wins = [float(w) for w in arr]
     segs = []
     for w in wins:
+        if not np.isfinite(w):
+            raise DataFormatError(f"windows: a window length must be finite, got {w!r} s")
         seg = round(w * fs)
-        if not np.isfinite(w) or seg < 8 or seg > n:
+        if seg < 8 or seg > n:
             raise DataFormatError(
                 f"windows: a {w!r} s window holds {seg} samples; it needs 8 to the record's {n}"
             )
@@ -508,7 +597,12 @@ def composite_response(
             )
         omega = np.geomspace(lo, hi, 100)
     else:
-        omega = np.sort(np.atleast_1d(np.asarray(frequencies, dtype=np.float64)))
+        given = np.asarray(frequencies)
+        if given.dtype.kind not in "iuf":
+            raise IdentificationError(
+                f"frequencies: expected numbers in rad/s, got {plain(frequencies)}"
+            )
+        omega = np.sort(np.atleast_1d(given.astype(np.float64)))
         if frequency_range is not None:
             lo, hi = _band(frequency_range)
             omega = omega[(omega >= lo) & (omega <= hi)]
@@ -518,6 +612,20 @@ def composite_response(
             raise IdentificationError(
                 f"frequencies: expected values in (0, {nyquist:.6g}] rad/s (Nyquist), got "
                 f"{omega[0]:.6g}–{omega[-1]:.6g}"
+            )
+        repeated = np.flatnonzero(np.diff(omega) == 0.0)
+        if repeated.size:
+            raise IdentificationError(
+                f"frequencies: {omega[repeated[0]]:.6g} rad/s is given more than once; "
+                "give each frequency once"
+            )
+    for name in ins:
+        samples = data.channels[name]
+        # after the segments' means are removed a constant input is zero: nothing to divide by
+        if np.ptp(samples) <= 1e-12 * float(np.max(np.abs(samples))):
+            raise IdentificationError(
+                f"input {name!r} is constant ({plain(samples[0])}) and carries no excitation; "
+                "a frequency response needs an input that varies"
             )
     n_u, n_y = len(ins), len(outs)
     signals = np.column_stack([data.array(ins), data.array(outs)])
@@ -555,6 +663,8 @@ def composite_response(
         rel = np.where(mag2 > 0, wts[:, :, None, None] / mag2, wts[:, :, None, None])
         gc = np.sum(rel * gall, axis=0) / np.sum(rel, axis=0)
     gc = np.nan_to_num(gc)
+    if n_u > 1:
+        _refuse_dependent_inputs(gc[:, :n_u, :n_u], ins)
     wn = wts / np.sum(wts, axis=0)
     nd_c = np.sum(wn * np.array(n_avg), axis=0)
     h, coh, mult = _condition(gc, n_u)
@@ -577,6 +687,29 @@ def composite_response(
         fs,
         {o: mult[:, j] for j, o in enumerate(outs)},
     )
+
+
+def _refuse_dependent_inputs(gxx: ComplexArray, names: Sequence[str]) -> None:
+    """Refuse inputs whose cross-spectral matrix is singular at every frequency.
+
+    Then one input is a combination (or a filtered copy) of the others and no
+    conditioning can tell their responses apart: ``Gxx⁻¹`` does not exist and a
+    pseudo-inverse would split the response between them arbitrarily.
+    """
+    d = np.sqrt(np.real(np.diagonal(gxx, axis1=1, axis2=2)))
+    with np.errstate(all="ignore"):
+        r = np.nan_to_num(gxx / (d[:, :, None] * d[:, None, :]))
+    lam, vec = np.linalg.eigh(r)
+    # exactly dependent inputs reach 1e-16 (rounding); a noise-free filtered copy 1e-3
+    if np.all(lam[:, 0] <= _DEPENDENT):
+        share = np.mean(np.abs(vec[:, :, 0]) ** 2, axis=0)
+        involved = [n for n, v in zip(names, share, strict=True) if v > 0.01]
+        raise IdentificationError(
+            f"inputs {involved} are linearly dependent: their cross-spectral matrix is "
+            "singular at every frequency (one is a multiple, combination or filtered copy "
+            "of the others, or the windows hold too few segments to separate them), so "
+            "their responses cannot be told apart; drop one of them"
+        )
 
 
 def _band(frequency_range: Any) -> tuple[float, float]:
@@ -893,8 +1026,9 @@ def fit_transfer_function(
     Raises
     ------
     IdentificationError
-        Bad orders, weighting or start values; too few coherent frequencies for
-        the parameters; the fit diverges.
+        Bad orders, weighting or start values (unknown names, values that are
+        not finite numbers); too few coherent frequencies for the parameters;
+        the fit diverges.
     ChannelError
         The requested pair is not in the response.
     """
@@ -1068,5 +1202,16 @@ def _start(
             )
         best = best.copy()
         for k, v in start.items():
-            best[st.names.index(k)] = float(v)
+            best[st.names.index(k)] = _start_value(k, v)
     return np.asarray(best, dtype=np.float64)
+
+
+def _start_value(name: str, value: Any) -> float:
+    """A start value as a finite float, else an error naming the parameter."""
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        out = float("nan")
+    if isinstance(value, bool) or not np.isfinite(out):
+        raise IdentificationError(f"start[{name!r}]: expected a finite number, got {plain(value)}")
+    return out

@@ -49,6 +49,8 @@ _SAME_RATE = 1.01
 GAP_STEPS = 5.0
 # Stamps closer to uniform than this (relative to the step) are taken as uniform.
 _UNIFORM_RTOL = 1e-6
+# Most grid samples one call may make (0.8 GB per channel): a rate beyond that is a slip.
+MAX_SAMPLES = 100_000_000
 # Extra raw samples kept around the needed range for a cubic: a spline's end
 # conditions fade by about 0.27 per sample.
 _SPLINE_PAD = 24
@@ -125,6 +127,12 @@ def clean_source(name: str, raw: Any) -> Source:
         raise DataFormatError(
             f"channel {name!r}: expected a LogChannel or a (time, values[, unit]) pair, "
             f"got {type(raw).__name__}"
+        )
+    if np.iscomplexobj(time_in) or np.iscomplexobj(values_in):
+        # casting would silently drop the imaginary part
+        raise DataFormatError(
+            f"channel {name!r}: complex values are not supported; pass the real part or "
+            "the magnitude explicitly (np.real, np.abs)"
         )
     try:
         time = np.array(time_in, dtype=np.float64)
@@ -511,7 +519,8 @@ def resample(
         NaN values (naming the channel and time), a gap longer than
         `max_gap` (naming the channel, the gap's start and length), channels
         whose time ranges do not overlap, a `t0`/`t1` outside them, fewer than
-        two grid points, or a bad option.
+        two grid points, more than `MAX_SAMPLES` (1e8) grid points (naming
+        `rate` and the count), a complex-valued channel, or a bad option.
 
     Notes
     -----
@@ -571,7 +580,16 @@ def resample(
         span_end = t1
     if not span_end > span_start:
         raise DataFormatError(f"need t1 > t0, got t0={span_start:.6g} s, t1={span_end:.6g} s")
-    n = int(np.floor((span_end - span_start) * rate + 1e-9)) + 1
+    count = (span_end - span_start) * rate  # checked before the grid is allocated
+    if not count < MAX_SAMPLES:
+        fastest = max(1.0 / s.step for s in sources.values())
+        raise DataFormatError(
+            f"rate: {rate:g} Hz over the {span_end - span_start:.6g} s window makes "
+            f"{count:.4g} samples per channel, more than the {MAX_SAMPLES:.0e} allowed "
+            f"(the fastest chosen channel is logged at {fastest:.4g} Hz); choose a lower "
+            "rate or a shorter window with t0/t1"
+        )
+    n = int(np.floor(count + 1e-9)) + 1
     if n < 2:
         raise DataFormatError(
             f"the window [{span_start:.6g}, {span_end:.6g}] s holds fewer than 2 samples at "

@@ -200,23 +200,27 @@ class SegmentationResult:
 # -- options ---------------------------------------------------------------------
 
 
-def _nonnegative(value: Any, what: str) -> float:
+def _nonnegative(value: Any, what: str, unit: str = "of seconds") -> float:
+    """`value` as a finite float >= 0; `unit` completes "expected a non-negative number"."""
     try:
         out = float(value)
         ok = not isinstance(value, bool) and math.isfinite(out) and out >= 0
     except (TypeError, ValueError):
         ok = False
     if not ok:
-        raise DataFormatError(
-            f"{what}: expected a non-negative number of seconds, got {plain(value)}"
-        )
+        raise DataFormatError(f"{what}: expected a non-negative number {unit}, got {plain(value)}")
     return out
 
 
-def _positive(value: Any, what: str) -> float:
-    out = _nonnegative(value, what)
-    if out <= 0:
-        raise DataFormatError(f"{what}: expected a positive number, got {plain(value)}")
+def _positive(value: Any, what: str, unit: str = "of seconds") -> float:
+    """`value` as a finite float > 0; `unit` completes "expected a positive number"."""
+    try:
+        out = float(value)
+        ok = not isinstance(value, bool) and math.isfinite(out) and out > 0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise DataFormatError(f"{what}: expected a positive number {unit}, got {plain(value)}")
     return out
 
 
@@ -438,8 +442,19 @@ def _excitation(
             f"input {src.name!r}: {time.size} samples are too few to tell excitation from noise"
         )
     k = max(round(_BLOCK_S / step), 1)
-    width_blocks = _odd(trim_window / (k * step))
-    m = _odd(energy_window / step)
+    nb = -(-time.size // k)
+    # A running median (edges held) wider than twice the blocks gives what 2 nb + 1 gives:
+    # capping it keeps a long trim_window from allocating a filter the size of the window.
+    width_blocks = _odd(min(trim_window / (k * step), 2 * nb + 1))
+    # Quiet samples lie an energy window clear of any flag: 2 m + 1 samples must fit.
+    reach = energy_window / step
+    m = _odd(reach) if reach < time.size else time.size
+    if 2 * m + 1 > time.size:
+        raise DataFormatError(
+            f"energy_window: {energy_window:.6g} s is too long for input {src.name!r} "
+            f"({time[-1] - time[0]:.6g} s, {time.size} samples); telling quiet trim from "
+            "excitation takes two energy windows, so it must be under half the record"
+        )
     kernel = np.ones(2 * m + 1)
 
     def flags(trim: FloatArray) -> tuple[FloatArray, FloatArray, float, NDArray[np.bool_]]:
@@ -609,21 +624,26 @@ def segment(
         if chosen
         else "excitation"
     )
-    if way == "excitation" and not inputs:
+    try:
+        names = [] if inputs is None else [inputs] if isinstance(inputs, str) else list(inputs)
+    except TypeError:
+        raise DataFormatError(f"inputs: expected channel names, got {plain(inputs)}") from None
+    if way == "excitation" and not names:
         raise DataFormatError(
             "segment: give inputs=[...] (channels whose excitation marks manoeuvres), "
             "windows=[(t0, t1), ...], events=(start, end) or mode=..."
         )
-    if isinstance(inputs, str):
-        inputs = [inputs]
-    names = list(inputs or [])
     for name in names:
+        if not isinstance(name, str) or not name:
+            raise DataFormatError(
+                f"inputs: expected channel names, got {plain(name)} in {inputs!r}"
+            )
         if name not in sources:
             raise missing_channel(name, list(sources), role="input")
     cleaned = {name: clean_source(name, sources[name]) for name in names}
     extent = _extent(data_or_log, sources, log_events)
     before_after = _margin(margin)
-    threshold = _positive(threshold, "threshold")
+    threshold = _positive(threshold, "threshold", "(a multiple of the noise floor)")
     min_duration = _nonnegative(min_duration, "min_duration")
     gap = sum(before_after) if merge_gap is None else _nonnegative(merge_gap, "merge_gap")
     trim_window = _positive(trim_window, "trim_window")
@@ -687,7 +707,7 @@ def segment(
     for name, src in cleaned.items():
         floor = noise_floor.get(name) if isinstance(noise_floor, Mapping) else noise_floor
         if floor is not None:
-            floor = _positive(floor, f"noise_floor for {name!r}")
+            floor = _positive(floor, f"noise_floor for {name!r}", "in the input's units")
         found_here, trace = _excitation(
             src,
             threshold=threshold,
@@ -709,7 +729,16 @@ def _extent(
         return float(data_or_log.time[0]), float(data_or_log.time[-1])
     lo, hi = math.inf, -math.inf
     for name, raw in sources.items():
-        time = raw.time if hasattr(raw, "time") else raw[0]
+        if hasattr(raw, "time"):
+            time = raw.time
+        elif isinstance(raw, (tuple, list)) and len(raw) in (2, 3):
+            time = raw[0]
+        else:
+            # as clean_source words it, for a channel segmentation does not look at
+            raise DataFormatError(
+                f"channel {name!r}: expected a LogChannel or a (time, values[, unit]) pair, "
+                f"got {type(raw).__name__}"
+            )
         try:
             arr = np.asarray(time, dtype=np.float64)
         except (TypeError, ValueError):

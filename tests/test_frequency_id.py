@@ -177,6 +177,67 @@ def test_composite_errors_name_the_problem(clean_sweep):
         composite_response(data, "u", "u")
 
 
+def test_composite_refuses_bad_windows_frequencies_and_names(clean_sweep):
+    data, _, _ = clean_sweep
+    with pytest.raises(ChannelError, match="inputs: expected one or more channel names, got 5"):
+        composite_response(data, 5, "y")
+    with pytest.raises(DataFormatError, match="windows: a window length must be finite, got nan"):
+        composite_response(data, "u", "y", windows=[np.nan])
+    with pytest.raises(IdentificationError, match="windows: expected one or more lengths"):
+        composite_response(data, "u", "y", windows=[])
+    with pytest.raises(IdentificationError, match="frequencies: expected numbers in rad/s"):
+        composite_response(data, "u", "y", frequencies="abc")
+    with pytest.raises(IdentificationError, match="frequencies: 1 rad/s is given more than once"):
+        composite_response(data, "u", "y", frequencies=[1.0, 1.0, 2.0])
+
+
+@pytest.mark.parametrize("level", [0.0, 1.5])
+def test_composite_refuses_an_input_without_excitation(clean_sweep, level):
+    data, _, _ = clean_sweep
+    flat = data.with_channels({"u": np.full(data.n_samples, level)})
+    with pytest.raises(IdentificationError, match=r"input 'u' is constant .*no excitation"):
+        composite_response(flat, "u", "y")
+
+
+def test_composite_refuses_linearly_dependent_inputs(clean_sweep):
+    data, _, _ = clean_sweep
+    twin = data.with_channels({"u2": 2.0 * data["u"] + 0.3})
+    with pytest.raises(IdentificationError, match=r"inputs \['u', 'u2'\] are linearly dependent"):
+        composite_response(twin, ["u", "u2"], "y")
+    # a third, independent input: the dependent pair is still named, and only it
+    noise = np.random.default_rng(0).standard_normal(data.n_samples)
+    three = twin.with_channels({"w": noise})
+    with pytest.raises(IdentificationError, match=r"\['u', 'u2'\] are linearly"):
+        composite_response(three, ["u", "w", "u2"], "y")
+
+
+def test_response_channel_validates_what_it_is_given():
+    from aeroid import ResponseChannel
+
+    w = np.geomspace(0.3, 20.0, 10)
+    h = 1.0 / (1j * w + 1.0)
+    ok = ResponseChannel("x", "y", w, h, coherence=np.ones(w.size), random_error=None)
+    assert np.all(np.isnan(ok.random_error)) and ok.coherence.shape == (10,)
+    bad_h = h.copy()
+    bad_h[4] = np.nan
+    cases = [
+        ({"response": bad_h}, r"'x' -> 'y': response: non-finite value .* at index 4"),
+        ({"frequency": -w}, "frequency: expected positive frequencies"),
+        ({"frequency": w[::-1]}, "frequency: not strictly increasing at index 1"),
+        ({"frequency": w[:5]}, r"response has shape \(10,\), frequency \(5,\)"),
+        ({"coherence": [0.9]}, r"coherence has shape \(1,\), frequency \(10,\)"),
+        ({"coherence": np.full(10, 1.5)}, r"coherence: expected values in \[0, 1\], got 1.5"),
+        ({"random_error": np.full(10, -0.1)}, "random_error: expected values non-negative"),
+        ({"frequency": np.full((2, 5), 1.0)}, "frequency: expected a non-empty 1-D array"),
+        ({"input_name": 1}, "input_name: expected a channel name"),
+    ]
+    for change, message in cases:
+        kwargs = {"input_name": "x", "output_name": "y", "frequency": w, "response": h}
+        kwargs.update(change)
+        with pytest.raises(DataFormatError, match=message):
+            ResponseChannel(**kwargs)
+
+
 # -- transfer-function fit --------------------------------------------------------------------
 
 
@@ -250,6 +311,9 @@ def test_fit_rejects_bad_options():
         fit_transfer_function(ch, numerator_order=0, denominator_order=1, start={"zz": 1.0})
     with pytest.raises(IdentificationError, match="min_coherence"):
         fit_transfer_function(ch, numerator_order=0, denominator_order=1, min_coherence=2.0)
+    for value in (np.nan, "x", True):
+        with pytest.raises(IdentificationError, match=r"start\['a0'\]: expected a finite number"):
+            fit_transfer_function(ch, numerator_order=0, denominator_order=1, start={"a0": value})
 
 
 def test_fit_straight_from_flight_data_needs_the_pair():

@@ -287,6 +287,16 @@ def test_bad_channels_and_logs_are_named():
         resample({"a": t}, ["a"], rate=10)
     with pytest.raises(DataFormatError, match="at least 2 distinct time stamps"):
         resample({"a": ([1.0, 1.0], [2.0, 3.0])}, ["a"], rate=10)
+    with pytest.raises(DataFormatError, match="channel 'a': complex values are not supported"):
+        resample({"a": (t, t + 1j)}, ["a"], rate=10)
+
+
+def test_a_rate_beyond_any_sane_grid_is_refused_before_allocating():
+    t = np.arange(0, 20, 0.01)
+    with pytest.raises(DataFormatError, match=r"rate: 1e\+09 Hz .* makes 1.999e\+10 samples per"):
+        resample({"a": (t, np.sin(t))}, ["a"], rate=1e9)
+    with pytest.raises(DataFormatError, match=r"rate: 1e\+300 Hz"):
+        resample({"a": (t, np.sin(t))}, ["a"], rate=1e300)
 
 
 # -- numpy FIR design and convolution against scipy.signal ---------------------------------------

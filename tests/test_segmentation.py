@@ -225,6 +225,29 @@ def test_errors_name_what_is_wrong():
         segment(log, mode="SYSID").settings["threshold"] = 1.0
 
 
+def test_window_lengths_and_inputs_are_checked_before_any_work():
+    t = np.arange(0, 120, 0.02)
+    de = 1e-3 * np.random.default_rng(0).standard_normal(t.size)
+    de[(t > 30) & (t < 35)] += 0.1
+    data = FlightData(t, {"de": de})
+    for width in (70.0, 200.0, 1e9):
+        with pytest.raises(DataFormatError, match=r"energy_window: .* too long for input 'de'"):
+            segment(data, inputs=["de"], energy_window=width)
+    # a trim median longer than the record is the whole record's median: same windows
+    base = segment(data, inputs=["de"])
+    for width in (1000.0, 1e9):
+        long = segment(data, inputs=["de"], trim_window=width)
+        np.testing.assert_array_equal(_edges(long), _edges(base))
+    with pytest.raises(DataFormatError, match="inputs: expected channel names, got 5"):
+        segment(data, inputs=5)
+    with pytest.raises(DataFormatError, match="channel 'x': expected a LogChannel"):
+        segment({"de": (t, de), "x": 5}, inputs=["de"])
+    with pytest.raises(DataFormatError, match=r"threshold: .*multiple of the noise floor.*'a'"):
+        segment(data, inputs=["de"], threshold="a")
+    with pytest.raises(DataFormatError, match=r"noise_floor for 'de': .*input's units.*'a'"):
+        segment(data, inputs=["de"], noise_floor="a")
+
+
 def test_summary_and_plot():
     data, _ = manoeuvre_record(3)
     result = segment(data, inputs=INPUTS)
