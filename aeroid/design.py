@@ -47,6 +47,7 @@ from .sensitivity import (
     _noise_vector,
     _output_names,
     _parameter_list,
+    _relative_step,
 )
 
 __all__ = ["ExperimentDesign", "design_experiment"]
@@ -54,6 +55,10 @@ __all__ = ["ExperimentDesign", "design_experiment"]
 FloatArray = NDArray[np.float64]
 
 _CRITERIA = ("D", "A")
+# Most samples of a design's time grid, and most values one batched simulation of the
+# optimiser's population may hold (2 GiB of float64).
+_MAX_SAMPLES = 10**7
+_MAX_BATCH_VALUES = 2**28
 _OPTIMIZER_DEFAULTS: dict[str, Any] = {
     "maxiter": 30,
     "popsize": 10,
@@ -329,6 +334,14 @@ def _check_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
             f"{sorted(_OPTIMIZER_DEFAULTS)}"
         )
     merged.update(options)
+    if not isinstance(merged["polish"], (bool, np.bool_)):  # a truthy "no" would polish
+        raise IdentificationError(
+            f"optimizer_options['polish']: expected True or False, got {merged['polish']!r}"
+        )
+    for key in ("tol", "atol", "recombination"):
+        v = merged[key]
+        if isinstance(v, (bool, np.bool_, str, bytes)):  # float() would read "0.01" as 0.01
+            raise IdentificationError(f"optimizer_options[{key!r}]: expected a number, got {v!r}")
     for key in ("maxiter", "popsize"):
         v = merged[key]
         if (
@@ -476,6 +489,9 @@ def design_experiment(
     options = _check_simulate_options(simulate_options, model)
     opts = _check_options(optimizer_options)
     try:
+        # float() would read "5" as 5.0 and True as 1.0
+        if any(isinstance(v, (bool, np.bool_, str, bytes)) for v in (duration, sample_rate)):
+            raise TypeError
         dur, fs = float(duration), float(sample_rate)
     except (TypeError, ValueError):
         raise IdentificationError(
@@ -488,6 +504,17 @@ def design_experiment(
     n_t = round(dur * fs) + 1
     if n_t < 3:
         raise IdentificationError(f"duration * sample_rate gives {n_t} samples; need at least 3")
+    if n_t > _MAX_SAMPLES:  # every candidate is simulated on this grid, all at once
+        raise IdentificationError(
+            f"duration * sample_rate gives {n_t} samples; at most {_MAX_SAMPLES} are supported"
+        )
+    rel = _relative_step(relative_step)
+    if not isinstance(progress, (bool, np.bool_)):  # a truthy "no" would show the bar
+        raise IdentificationError(f"progress: expected True or False, got {progress!r}")
+    if seed is not None and (
+        isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+    ):
+        raise IdentificationError(f"seed: expected a non-negative integer or None, got {seed!r}")
     time = np.arange(n_t) / fs
     all_outputs = _output_names(model)
     if noise is None:
@@ -528,12 +555,21 @@ def design_experiment(
             f"maneuver: {len(var_names)} variable names for {bounds.shape[0]} bounds, or a "
             f"bound with low >= high: {bounds.tolist()}"
         )
+    # differential evolution scores its whole population in one batched simulation
+    members = int(opts["popsize"]) * len(var_names) * (2 * len(names) + 1)
+    width = len(all_outputs) + (model.n_states if isinstance(model, Model) else 0)
+    if members * n_t * max(width, 1) > _MAX_BATCH_VALUES:
+        raise IdentificationError(
+            f"duration * sample_rate: {n_t} samples for {members} simulations at once "
+            f"(popsize {opts['popsize']}) would not fit in memory; use fewer samples or a "
+            "smaller optimizer_options['popsize']"
+        )
     if isinstance(model, Model) and x0 is not None:
         x0 = model.initial_state(x0, 1)[0]
     x_init = np.clip(np.asarray(maneuver.initial(), dtype=np.float64), bounds[:, 0], bounds[:, 1])
 
     evaluate = _Evaluator(
-        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, relative_step
+        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel
     )
     _, ok_init = evaluate.fisher(x_init[None, :])
     if not ok_init[0]:

@@ -29,9 +29,17 @@ from . import _integrate, _linalg
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._stats import chi2_sf
 from ._threads import small_blas
-from .data import FlightData, check_symmetric, measured_start, plain
+from .data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
 from .errors import AeroidError, ChannelError, FilterError, SimulationError
-from .model import Model, SimulatorModel, delayed_controls, fitted_start, resolve_parameters
+from .model import (
+    MAX_SUBSTEPS,
+    Model,
+    SimulatorModel,
+    delayed_controls,
+    fitted_start,
+    real_number,
+    resolve_parameters,
+)
 
 __all__ = ["FilterResult", "filter_states"]
 
@@ -333,14 +341,11 @@ def noise_matrix(
         diag = np.zeros(n)
         for i, k in enumerate(names):
             if k in value:
-                try:
-                    diag[i] = float(value[k])
-                except (TypeError, ValueError):
-                    raise error(
-                        f"{what}[{k!r}]: expected a number, got {plain(value[k])}"
-                    ) from None
+                diag[i] = real_number(value[k], f"{what}[{k!r}]", error)
         mat = np.diag(diag)
     else:
+        if np.iscomplexobj(value):  # a cast would drop the imaginary part
+            raise error(f"{what}: complex values are not supported, got {plain(value)}")
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
@@ -385,10 +390,14 @@ def _x0_vector(model: Model, data: FlightData, x0: Any, error: type[AeroidError]
         unknown = sorted(set(x0) - set(model.states))
         if unknown:
             raise error(f"x0: unknown states {unknown}; states: {list(model.states)}")
-        vals = {**measured, **{k: float(v) for k, v in x0.items()}}
+        given = {k: real_number(v, f"x0[{k!r}]", error) for k, v in x0.items()}
+        vals = {**measured, **given}
         out = np.array([vals.get(s, 0.0) for s in model.states])
     else:
-        out = np.asarray(x0, dtype=np.float64).reshape(-1)
+        try:
+            out = real_array(x0, "x0").reshape(-1)
+        except AeroidError as exc:
+            raise error(str(exc)) from None
         if out.shape != (model.n_states,):
             raise error(
                 f"x0: expected {model.n_states} values (states {list(model.states)}), got shape "
@@ -451,13 +460,19 @@ def build_problem(
         require_all=require_R,
         positive=require_R,
     )
-    alpha, beta, kappa = ukf
-    if not (np.isfinite(alpha) and alpha > 0) or not np.isfinite(beta) or not np.isfinite(kappa):
+    alpha, beta, kappa = (
+        real_number(v, k, error, finite=True)
+        for k, v in zip(("ukf_alpha", "ukf_beta", "ukf_kappa"), ukf, strict=True)
+    )
+    if not alpha > 0:
         raise error(f"ukf_alpha must be positive and ukf_beta, ukf_kappa finite; got {ukf}")
     if method == "ukf" and m.n_states + kappa <= 0:
         raise error(f"ukf_kappa: n_states + kappa must be positive, got {m.n_states} + {kappa}")
-    if substeps is not None and (int(substeps) != substeps or substeps < 1):
-        raise error(f"substeps: expected a positive integer, got {plain(substeps)}")
+    if substeps is not None:
+        # a bool would be read as 1; a huge count would exhaust memory (as in `simulate`)
+        substeps = whole_number(substeps, "substeps", error)
+        if substeps > MAX_SUBSTEPS:
+            raise error(f"substeps: expected at most {MAX_SUBSTEPS}, got {substeps}")
     xv = _x0_vector(m, data, x0, error)
     if P0 is None:
         P0m = _default_P0(m, out_names, R)
@@ -1401,8 +1416,10 @@ def filter_states(
     Raises
     ------
     FilterError
-        A model without a dynamics callable, bad noise specifications or
-        options, or a covariance that stays indefinite despite jitter (the
+        A model without a dynamics callable, `data` not a `FlightData`, bad
+        noise specifications or options (such as a `smooth` that is not a
+        bool, a non-numeric `ukf_alpha` or `x0`, or `substeps` not a positive
+        integer of at most `aeroid.model.MAX_SUBSTEPS`), or a covariance that stays indefinite despite jitter (the
         message names the sample).
     ChannelError
         The data lacks a control or output channel.
@@ -1411,6 +1428,10 @@ def filter_states(
         message names the state or output and the samples); it is also a
         `FilterError`.
     """
+    if not isinstance(data, FlightData):  # before the fit's start and delays read it
+        raise FilterError(f"data: expected a FlightData record, got {type(data).__name__}")
+    if not isinstance(smooth, (bool, np.bool_)):  # a truthy "no" would smooth
+        raise FilterError(f"smooth: expected True or False, got {plain(smooth)}")
     if x0 is None:
         x0 = fitted_start(parameters, data)[0]
     data = delayed_controls(parameters, data)  # a fit's estimated time delays

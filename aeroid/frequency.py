@@ -41,7 +41,7 @@ from . import _integrate
 from ._czt import hann
 from ._records import fmt, frozen_array, markdown_table
 from ._threads import small_blas
-from .data import FlightData, measured_start
+from .data import FlightData, measured_start, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from .model import (
     Model,
@@ -596,7 +596,9 @@ def frequency_response(
     ChannelError
         An input or output is missing from the data or the model.
     IdentificationError
-        Bad options (threshold, range, segment length, model_response).
+        Bad options (threshold, range, segment length, model_response,
+        min_coherent), text or a bool where a number is expected, or a
+        frequency range that holds no analysis frequency.
 
     Warns
     -----
@@ -616,7 +618,13 @@ def frequency_response(
         raise IdentificationError(
             f"model_response: expected one of {list(_MODEL_RESPONSES)}, got {model_response!r}"
         )
-    thr = float(coherence_threshold)
+    try:
+        # float() would read "0.5" as 0.5 and True as 1.0
+        if isinstance(coherence_threshold, (bool, np.bool_, str, bytes)):
+            raise TypeError
+        thr = float(coherence_threshold)
+    except (TypeError, ValueError):
+        thr = float("nan")
     if not 0.0 <= thr <= 1.0:
         raise IdentificationError(
             f"coherence_threshold: expected a number in [0, 1], got {coherence_threshold!r}"
@@ -647,25 +655,36 @@ def frequency_response(
     else:
         outs = [outputs] if isinstance(outputs, str) else list(outputs)
         bad = [o for o in outs if o not in model_outputs]
-        if bad:
+        if bad or not outs:  # no output would give an empty result
             raise ChannelError(
-                f"outputs: {bad} are not outputs of model {model.name!r}; "
+                f"outputs: {bad or outs} are not outputs of model {model.name!r}; "
                 f"outputs: {list(model_outputs)}"
             )
     data.require(controls, role="control")
     data.require(outs, role="output")
     n = data.n_samples
-    seg = _default_nperseg(n) if nperseg is None else int(nperseg)
-    if nperseg is not None and (int(nperseg) != nperseg or not 8 <= seg <= n):
+    try:
+        seg = _default_nperseg(n) if nperseg is None else int(nperseg)
+        ok = nperseg is None or (
+            not isinstance(nperseg, (bool, np.bool_)) and seg == nperseg and 8 <= seg <= n
+        )
+    except (TypeError, ValueError, OverflowError):  # NaN, infinity, text
+        ok = False
+    if not ok:
         raise IdentificationError(
             f"nperseg: expected an integer between 8 and the record length {n}, got {nperseg!r}"
         )
+    min_coherent = whole_number(min_coherent, "min_coherent", IdentificationError, least=0)
     fs = data.sample_rate
     if frequency_range is None:
         # the Hann main lobe spans two bins: the first bin is mostly leakage from DC
         band = (2.0 * fs / seg, fs / 2.0)
     else:
         try:
+            if isinstance(frequency_range, (str, bytes)) or any(
+                isinstance(v, (bool, np.bool_, str, bytes)) for v in frequency_range
+            ):  # float() would read "0.1" as 0.1
+                raise TypeError
             lo, hi = (float(v) for v in frequency_range)
         except (TypeError, ValueError):
             raise IdentificationError(
@@ -681,6 +700,11 @@ def frequency_response(
     y_meas = data.array(outs).T
     f, h_emp, coh, excitation = _empirical(u, y_meas, fs, seg)
     keep = (f > 0) & (f >= band[0]) & (f <= band[1])
+    if not keep.any():  # every channel would be empty
+        raise IdentificationError(
+            f"frequency_range: {frequency_range!r} Hz holds none of the analysis frequencies "
+            f"({f[1]:.4g} to {f[-1]:.4g} Hz for nperseg={seg} at {fs:.6g} Hz)"
+        )
     # which frequencies count: see _FALSE_COHERENCE_LEVEL and _EXCITED_FRACTION
     n_avg = _independent_averages(n, seg)
     thr_used = max(thr, _chance_coherence(n_avg, len(ins), int(keep.sum())))

@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._records import fmt, frozen_mapping, markdown_table
 from ._threads import small_blas
+from .data import plain
 from .errors import IdentificationError
 from .frequency_id import (
     CompositeResponse,
@@ -177,10 +178,19 @@ def _as_function(tf: Any) -> Callable[[FloatArray], ComplexArray]:
         try:
             num = np.atleast_1d(np.asarray(tf[0], dtype=np.float64))
             den = np.atleast_1d(np.asarray(tf[1], dtype=np.float64))
+            if len(tf) == 3 and isinstance(tf[2], (bool, np.bool_, str, bytes)):
+                raise TypeError  # float() would read "0.05" as 0.05 and True as 1 s
             tau = float(tf[2]) if len(tf) == 3 else 0.0
         except (TypeError, ValueError):
             num = den = np.zeros(0)
             tau = 0.0
+        # NaN coefficients would surface as a phase that never crosses, or NaN margins
+        for what, arr, given in (("numerator", num, tf[0]), ("denominator", den, tf[1])):
+            if arr.ndim != 1 or not np.all(np.isfinite(arr)):
+                raise IdentificationError(
+                    f"response_or_tf: the {what} must be a 1-D sequence of finite "
+                    f"coefficients (highest power first), got {plain(given)}"
+                )
         if num.size and den.size and np.any(den != 0) and np.isfinite(tau):
 
             def h(w: FloatArray) -> ComplexArray:
@@ -455,6 +465,14 @@ class EquivalentSystemFit:
         return self.fit.plot()
 
 
+def _items(value: Any) -> list[Any]:
+    """The entries of `value`, or none when it is not iterable (`_band` then says so)."""
+    try:
+        return list(value)
+    except TypeError:
+        return []
+
+
 def _exact_channel(tf: Any, band: tuple[float, float]) -> ResponseChannel:
     h = _as_function(tf)
     w = np.geomspace(band[0], band[1], 100)
@@ -493,9 +511,30 @@ def equivalent_system(
     Returns
     -------
     EquivalentSystemFit
+
+    Raises
+    ------
+    IdentificationError
+        Unknown kind, a `delay` that is not a bool, a bad frequency range,
+        text among the start values, or a response that cannot be fitted.
     """
     if kind not in _LOES_FORMS:
         raise IdentificationError(f"kind: expected one of {sorted(_LOES_FORMS)}, got {kind!r}")
+    if not isinstance(delay, (bool, np.bool_)):  # a truthy "no" would fit a delay
+        raise IdentificationError(f"delay: expected True or False, got {plain(delay)}")
+    # float() would read "0.1" as 0.1 and "1" as a start value
+    if isinstance(frequency_range, (str, bytes)) or any(
+        isinstance(v, (bool, np.bool_, str, bytes)) for v in _items(frequency_range)
+    ):
+        raise IdentificationError(
+            f"frequency_range: expected (low, high) in rad/s, got {frequency_range!r}"
+        )
+    if isinstance(start, Mapping):
+        for name, value in start.items():
+            if isinstance(value, (str, bytes)):
+                raise IdentificationError(
+                    f"start[{name!r}]: expected a finite number, got {plain(value)}"
+                )
     lo, hi = _band(frequency_range)
     if not lo > 0.0:
         raise IdentificationError(

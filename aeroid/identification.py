@@ -273,6 +273,9 @@ def _names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str
         initial = {}
         for n, v in parameters.items():
             try:
+                # float() would read True as 1.0 and "2" as 2.0
+                if isinstance(v, (bool, np.bool_, str, bytes)):
+                    raise TypeError
                 initial[n] = float(v)
             except (TypeError, ValueError):
                 raise IdentificationError(
@@ -556,7 +559,7 @@ def identify(
         When the iteration limit is reached, or the fit ends with a non-finite
         cost or estimates; the result is flagged ``success=False``.
     """
-    from .model import SimulatorModel, require_model
+    from .model import MAX_SUBSTEPS, SimulatorModel, check_simulate_options, require_model
 
     require_model(model, IdentificationError)
     if method not in _METHODS:
@@ -571,11 +574,14 @@ def identify(
         )
     max_iterations = whole_number(max_iterations, "max_iterations", IdentificationError)
     try:
+        # a bool or text is no tolerance; an infinite one would stop at the initial guess
+        if isinstance(tolerance, (bool, np.bool_, str, bytes)):
+            raise TypeError
         tol = float(tolerance)
     except (TypeError, ValueError):
         tol = float("nan")
-    if not (tol > 0):
-        raise IdentificationError(f"tolerance must be positive, got {plain(tolerance)}")
+    if not (tol > 0 and np.isfinite(tol)):
+        raise IdentificationError(f"tolerance must be positive and finite, got {plain(tolerance)}")
     datas = _as_list(data)
     names, initial = _names_and_initial(model, parameters)
     if start not in _STARTS:
@@ -588,7 +594,9 @@ def identify(
         if not fit_outputs:
             datas[0].require(model_outputs[:1], role="output")
     else:
-        fit_outputs = _select(list(outputs), model_outputs, "outputs")
+        # one name, not its letters
+        chosen = [outputs] if isinstance(outputs, str) else list(outputs)
+        fit_outputs = _select(chosen, model_outputs, "outputs")
         if not fit_outputs:
             raise IdentificationError("outputs: name at least one output to fit")
     for d in datas:
@@ -709,8 +717,15 @@ def identify(
             opts["substeps"] = whole_number(
                 opts["substeps"], "simulate_options['substeps']", IdentificationError
             )
+            if opts["substeps"] > MAX_SUBSTEPS:  # the rollout would not fit in memory
+                raise IdentificationError(
+                    f"simulate_options['substeps'] must be at most {MAX_SUBSTEPS}, "
+                    f"got {opts['substeps']}"
+                )
     elif not is_simulator:
         opts.setdefault("method", "auto")
+        # here, not deep in the first simulation, and naming the option
+        check_simulate_options(opts, model, IdentificationError)
     sel_x0 = _select(estimate_x0, states, "estimate_x0")
     if sel_x0 and (is_simulator or gradient == "jax"):
         raise IdentificationError("estimate_x0 needs a Model and gradient='fd'")

@@ -36,7 +36,7 @@ from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, measured_start
 from .errors import InferenceError, SimulationError
-from .model import Model, fitted_start, require_model
+from .model import Model, check_integrator, check_simulate_options, fitted_start, require_model
 from .priors import LogUniform, Prior
 from .sampler import (
     INIT_TAG,
@@ -77,6 +77,8 @@ _DEFAULT_MOVE = "de"
 # documented 2000 steps converged for half the seeds; 16 a half gives 18-24.
 _MIN_WALKERS = 32
 _SIM_OPTIONS = ("method", "substeps", "rtol", "atol")
+# Most float64 values one chain or one batched simulation may hold (2 GiB).
+_MAX_VALUES = 2**28
 _JAX_OPTIONS = ("substeps",)
 _BACKENDS = ("numpy", "jax")
 
@@ -445,6 +447,10 @@ class _Posterior:
         self.const = 0.5 * self.n_t * len(outs) * math.log(2.0 * math.pi)
 
         # simulation set-up
+        if simulate_options is not None and not isinstance(simulate_options, Mapping):
+            raise InferenceError(
+                f"simulate_options: expected a dict, got {type(simulate_options).__name__}"
+            )
         opts = dict(simulate_options or {})
         if self.batched:
             allowed = _JAX_OPTIONS if backend == "jax" else _SIM_OPTIONS
@@ -461,6 +467,17 @@ class _Posterior:
             self.x0 = model.initial_state(x0, 1)[0]
             if backend == "numpy":
                 opts.setdefault("method", "auto")
+                # here, naming the option: in the likelihood a bad one is a rejected member
+                check_simulate_options(opts, model, InferenceError)
+            elif opts.get("substeps") is not None:
+                check_integrator(
+                    "rk4",
+                    opts["substeps"],
+                    1e-9,
+                    1e-12,
+                    error=InferenceError,
+                    prefix="simulate_options",
+                )
         else:
             self.x0 = x0
         self.options = opts
@@ -482,6 +499,9 @@ class _Posterior:
                     f"noise: {k!r} is not an output in the likelihood; outputs: {list(outs)}"
                 )
             try:
+                # float() would read True as 1.0 and "0.01" as 0.01
+                if isinstance(v, (bool, np.bool_, str, bytes)):
+                    raise TypeError
                 s = float(v)
             except (TypeError, ValueError):
                 raise InferenceError(
@@ -629,6 +649,9 @@ class _Posterior:
                         f"initial: {k!r} is not an inferred parameter; inferred: {list(names)}"
                     )
                 try:
+                    # float() would read True as 1.0 and "2" as 2.0
+                    if isinstance(v, (bool, np.bool_, str, bytes)):
+                        raise TypeError
                     given[k] = float(v)
                 except (TypeError, ValueError):
                     raise InferenceError(f"initial[{k!r}]: expected a number, got {v!r}") from None
@@ -770,6 +793,18 @@ def _check_count(name: str, value: Any, lo: int) -> int:
     return int(value)
 
 
+def _check_chain_size(n_steps: int, burn_in: int, thin: int, walkers: int, n_dim: int) -> None:
+    """Refuse a chain whose stored draws (and log-probabilities) would not fit in memory,
+    before any sampling: the sampler allocates them all up front."""
+    n_kept = (n_steps - burn_in) // thin
+    values = n_kept * walkers * (n_dim + 1)
+    if values > _MAX_VALUES:
+        raise InferenceError(
+            f"n_steps: keeping {n_kept} steps of {walkers} walkers ({values} values, at most "
+            f"{_MAX_VALUES}) would not fit in memory; use fewer n_steps or a larger thin"
+        )
+
+
 def _ensemble_seed(root: np.random.SeedSequence, ensemble: int) -> np.random.SeedSequence:
     entropy, key = _identity(root)
     return np.random.SeedSequence(entropy, spawn_key=(*key, int(ensemble)))
@@ -807,11 +842,20 @@ def _run(
     start: FloatArray | ChainState
     if resume:
         state = _resume_state(post, initial, ensemble, n_walkers)
+        _check_chain_size(n_steps, burn_in, thin, state.positions.shape[0], post.n_dim)
         start = state
         seed = None if root is None else _ensemble_seed(root, ensemble)
     else:
         default = max(2 * post.n_dim + 2, _MIN_WALKERS)
         nw = check_walkers(default if n_walkers is None else n_walkers, post.n_dim)
+        # each half-ensemble is one batched simulation of every output at every sample
+        batch_values = nw * post.n_t * max(len(post.output_names), 1)
+        if batch_values > _MAX_VALUES:
+            raise InferenceError(
+                f"n_walkers: {nw} walkers would simulate {batch_values} output values at "
+                f"once (at most {_MAX_VALUES}); use fewer walkers"
+            )
+        _check_chain_size(n_steps, burn_in, thin, nw, post.n_dim)
         ss = _ensemble_seed(root if root is not None else seed_sequence(None), ensemble)
         entropy, key = _identity(ss)
         post._jax_batch = nw // 2  # every batch the sampler scores has this size
@@ -1046,7 +1090,9 @@ def infer(
     Raises
     ------
     InferenceError
-        Bad priors, names, noise or options; no walker with a finite
+        Bad priors, names, noise or options (among them text or a bool where
+        a number or a bool is expected, invalid `simulate_options`); a chain
+        or a walker batch too large to hold in memory; no walker with a finite
         posterior density at the start; ``backend="jax"`` with a simulator.
     ChannelError
         An output or control channel is missing from `data`.
@@ -1069,6 +1115,11 @@ def infer(
     multiple of `thin`. With a seed given, the continuation draws a fresh stream.
     """
     n_ensembles = _check_count("n_ensembles", n_ensembles, 1)
+    # text read as a number, or a truthy "no" read as True, would pass unnoticed
+    if isinstance(stretch, (bool, np.bool_, str, bytes)):
+        raise InferenceError(f"stretch: expected a finite number > 1, got {stretch!r}")
+    if not isinstance(progress, (bool, np.bool_)):
+        raise InferenceError(f"progress: expected True or False, got {progress!r}")
     if isinstance(initial, InferenceResult) and len(initial.chain) != n_ensembles:
         if n_ensembles == 1:
             n_ensembles = len(initial.chain)

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _integrate
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._threads import small_blas
-from .data import FlightData, _readonly, fingerprint, measured_start, plain
+from .data import FlightData, _readonly, fingerprint, measured_start, plain, real_array
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
 __all__ = [
@@ -24,11 +24,99 @@ __all__ = [
     "Model",
     "SimulationResult",
     "SimulatorModel",
+    "check_integrator",
+    "check_simulate_options",
+    "real_number",
     "resolve_parameters",
 ]
 
 FloatArray = NDArray[np.float64]
 Dynamics = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
+
+# RK4 holds the controls at every node of every interval, (n_t - 1) x (2 m + 1) values
+# per control: a substep count far beyond any stiffness (the automatic choice stops at
+# 256) would only exhaust memory.
+MAX_SUBSTEPS = 10_000
+# ... and with the batch, at most this many node values (1 GiB of float64).
+_MAX_NODE_VALUES = 2**27
+SIMULATE_OPTION_KEYS = ("method", "substeps", "rtol", "atol")
+
+
+def check_integrator(
+    method: Any,
+    substeps: Any,
+    rtol: Any,
+    atol: Any,
+    *,
+    error: type[AeroidError] = SimulationError,
+    prefix: str = "",
+) -> None:
+    """Refuse integrator settings `Model.simulate` cannot honour, naming the setting.
+
+    `prefix` qualifies the names (``"simulate_options"`` gives
+    ``simulate_options['rtol']``). A NaN tolerance would hang the adaptive
+    solvers and a non-positive one is silently raised to rounding by SciPy;
+    a bool substep count would be read as 1.
+    """
+
+    def name(key: str) -> str:
+        return f"{prefix}[{key!r}]" if prefix else key
+
+    if not isinstance(method, str) or method not in _integrate.METHODS:
+        raise error(
+            f"{name('method')}: unknown method {plain(method)}; choose one of "
+            f"{list(_integrate.METHODS)}"
+        )
+    if substeps is not None:
+        ok = not isinstance(substeps, (bool, np.bool_, str, bytes))
+        try:
+            ok = ok and int(substeps) == substeps and 1 <= substeps <= MAX_SUBSTEPS
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise error(
+                f"{name('substeps')} must be a positive integer of at most {MAX_SUBSTEPS} "
+                f"(RK4 steps per sample interval), got {plain(substeps)}"
+            )
+    for key, value, least in (("rtol", rtol, "positive"), ("atol", atol, "non-negative")):
+        try:
+            v = float(value)
+            ok = not isinstance(value, (bool, np.bool_, str, bytes)) and bool(np.isfinite(v))
+            ok = ok and (v > 0 if least == "positive" else v >= 0)
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise error(f"{name(key)}: expected a finite {least} number, got {plain(value)}")
+
+
+def check_simulate_options(
+    options: Any, model: Any, error: type[AeroidError], *, name: str = "simulate_options"
+) -> dict[str, Any]:
+    """`options` (a mapping or None) as a dict, its keys and values checked for a `Model`.
+
+    Unknown keys and bad values raise `error` naming them; defaults fill in
+    only for the check, so the returned dict holds what the caller gave.
+    Options for another simulator are passed on unchecked.
+    """
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise error(f"{name}: expected a dict, got {type(options).__name__}")
+    if isinstance(model, Model):
+        unknown = sorted(str(k) for k in options if k not in SIMULATE_OPTION_KEYS)
+        if unknown:
+            raise error(
+                f"{name}: unknown keys {unknown}; valid keys are {list(SIMULATE_OPTION_KEYS)}"
+            )
+        check_integrator(
+            options.get("method", "auto"),
+            options.get("substeps"),
+            options.get("rtol", 1e-9),
+            options.get("atol", 1e-12),
+            error=error,
+            prefix=name,
+        )
+    return dict(options)
 
 
 def _names(value: Sequence[str] | str, what: str) -> tuple[str, ...]:
@@ -82,6 +170,9 @@ def resolve_parameters(
                 f"its parameters are {sorted(nominal)}"
             )
         try:
+            # float() would read True as 1.0 and "2" as 2.0
+            if isinstance(value, (bool, np.bool_, str, bytes)):
+                raise TypeError
             v = float(value)
         except (TypeError, ValueError):
             raise error(f"parameter {name!r}: expected a number, got {plain(value)}") from None
@@ -572,15 +663,17 @@ class Model:
                 raise ChannelError(
                     f"control {missing[0]!r} not given; controls given: {sorted(controls)}"
                 )
-            cols = [np.asarray(controls[c], dtype=np.float64) for c in self.controls]
+            cols = [_real(controls[c], f"control {c!r}") for c in self.controls]
             for c, col in zip(self.controls, cols, strict=True):
                 if col.shape != (n_t,):
                     raise SimulationError(
                         f"control {c!r}: expected {n_t} samples, got shape {col.shape}"
                     )
+                if not np.all(np.isfinite(col)):
+                    raise SimulationError(f"control {c!r}: contains NaN or infinite values")
             arr = np.stack(cols, axis=1) if cols else np.zeros((n_t, 0))
             return arr[None]
-        arr = np.asarray(controls, dtype=np.float64)
+        arr = _real(controls, "controls")
         if arr.ndim == 1 and self.n_controls == 1:
             arr = arr[:, None]
         if arr.ndim == 2:
@@ -602,9 +695,9 @@ class Model:
             unknown = sorted(set(x0) - set(self.states))
             if unknown:
                 raise SimulationError(f"x0: unknown states {unknown}; states: {list(self.states)}")
-            arr = np.array([[float(x0.get(s, 0.0)) for s in self.states]])
+            arr = np.array([[real_number(x0.get(s, 0.0), f"x0[{s!r}]") for s in self.states]])
         else:
-            arr = np.atleast_2d(np.asarray(x0, dtype=np.float64))
+            arr = np.atleast_2d(_real(x0, "x0"))
         if arr.shape[1] != self.n_states or arr.shape[0] not in (1, batch):
             raise SimulationError(
                 f"x0: expected {self.n_states} values (states {list(self.states)}), "
@@ -690,18 +783,20 @@ class Model:
         -------
         BatchSimulation
             Members that diverge are marked in ``ok``; nothing is raised for them.
+
+        Raises
+        ------
+        SimulationError
+            If an argument is malformed (see `simulate`).
         """
         t = check_time(time)
+        check_integrator(method, substeps, rtol, atol)
         unknown = sorted(set(parameters) - set(self.parameters))
         if unknown:
             raise SimulationError(f"parameters {unknown} are not parameters of model {self.name!r}")
         sizes = {np.size(v) for v in parameters.values() if np.ndim(v) > 0}
         u = self.control_array(t, controls)
-        x0_arr = (
-            None
-            if x0 is None or isinstance(x0, Mapping)
-            else np.atleast_2d(np.asarray(x0, dtype=np.float64))
-        )
+        x0_arr = None if x0 is None or isinstance(x0, Mapping) else np.atleast_2d(_real(x0, "x0"))
         sizes |= {u.shape[0]} if u.shape[0] > 1 else set()
         sizes |= {x0_arr.shape[0]} if x0_arr is not None and x0_arr.shape[0] > 1 else set()
         if len(sizes) > 1:
@@ -715,6 +810,13 @@ class Model:
         }
         X0 = self.initial_state(x0, batch)
         U = np.broadcast_to(u, (batch, t.size, self.n_controls))
+        if substeps is not None and method in ("auto", "rk4"):
+            nodes = (t.size - 1) * (2 * int(substeps) + 1) * max(self.n_controls, 1) * batch
+            if nodes > _MAX_NODE_VALUES:
+                raise SimulationError(
+                    f"substeps={int(substeps)}: RK4 would hold {nodes} control values "
+                    f"({t.size} samples, batch {batch}); use fewer substeps or a finer time grid"
+                )
         traj = _integrate.integrate(
             self, t, X0, U, p, method=method, substeps=substeps, rtol=rtol, atol=atol
         )
@@ -772,7 +874,11 @@ class Model:
         Raises
         ------
         SimulationError
-            If the solution diverges or the solver fails; the message names the time.
+            If the solution diverges or the solver fails (the message names the
+            time), or an argument is malformed: time not a finite increasing
+            grid, controls or x0 of the wrong shape, not finite, complex or
+            text, an unknown method, substeps not a positive integer (at most
+            `MAX_SUBSTEPS`), rtol not positive or atol negative.
         """
         p = resolve_parameters(self, parameters, error=SimulationError)
         res = self.simulate_batch(
@@ -803,11 +909,46 @@ class Model:
 
         The initial state defaults to the measured value of each state that
         the data carries (zero for the others).
+
+        Raises
+        ------
+        SimulationError
+            If `data` is not a `FlightData`, or as `simulate` does.
+        ChannelError
+            If a control is missing from `data`.
         """
+        if not isinstance(data, FlightData):
+            raise SimulationError(f"data: expected a FlightData, got {type(data).__name__}")
         data.require(self.controls, role="control")
         if x0 is None:
             x0 = measured_start(data, self.states)
         return self.simulate(data.time, data, x0, parameters, **options)
+
+
+def _real(values: Any, what: str) -> FloatArray:
+    """`values` as float64 (as ``np.asarray(values, dtype=float)``), or a `SimulationError`
+    naming `what`: text, or complex numbers whose imaginary part a cast would drop."""
+    try:
+        return real_array(values, what)
+    except AeroidError as exc:
+        raise SimulationError(str(exc)) from None
+
+
+def real_number(
+    value: Any, what: str, error: type[AeroidError] = SimulationError, *, finite: bool = False
+) -> float:
+    """`value` as a float, or `error` naming `what`: bools and text are refused (float()
+    would read True as 1.0 and "2" as 2.0), so is a complex number, and with `finite`
+    NaN and infinity."""
+    try:
+        if isinstance(value, (bool, np.bool_, str, bytes)):
+            raise TypeError
+        v = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise error(f"{what}: expected a number, got {plain(value)}") from None
+    if finite and not np.isfinite(v):
+        raise error(f"{what}: expected a finite number, got {plain(value)}")
+    return v
 
 
 def require_model(model: Any, error: type[AeroidError]) -> None:
@@ -820,6 +961,8 @@ def require_model(model: Any, error: type[AeroidError]) -> None:
 
 def check_time(time: Any) -> FloatArray:
     """A finite, strictly increasing 1-D time grid of at least two samples."""
+    if np.iscomplexobj(time):  # a cast would drop the imaginary part
+        raise SimulationError("time: complex values are not supported")
     try:
         t = np.asarray(time, dtype=np.float64)
     except (TypeError, ValueError):

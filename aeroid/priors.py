@@ -30,6 +30,9 @@ class InvalidPriorError(InferenceError, ValueError):
 
 def _number(cls: str, name: str, value: Any) -> float:
     try:
+        # float() would read True as 1.0 and "2" as 2.0
+        if isinstance(value, (bool, np.bool_, str, bytes)):
+            raise TypeError
         v = float(value)
     except (TypeError, ValueError):
         raise InvalidPriorError(f"{cls}: {name} must be a number, got {value!r}") from None

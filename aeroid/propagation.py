@@ -36,6 +36,8 @@ FAILURE_WARNING_FRACTION = 0.01
 #: ``SeedSequence(seed, spawn_key=(b,))``, so the samples do not depend on how
 #: a caller (such as the pipeline) splits the work into batches.
 BLOCK_SIZE = 256
+# Most float64 values the draws or the metric's values of one batch may hold (1 GiB).
+_MAX_VALUES = 2**27
 
 
 class PropagationError(AeroidError, ValueError):
@@ -292,6 +294,8 @@ class _Shape:
                 raise ValueError(f"a mapping needs string keys, got {list(out)!r}")
             value = np.array([float(out[k]) for k in got])
         else:
+            if np.iscomplexobj(out):  # a cast would drop the imaginary part
+                raise ValueError("complex values are not supported")
             arr = np.asarray(out, dtype=np.float64)
             if arr.ndim == 0:
                 got, value = (), float(arr)
@@ -345,13 +349,26 @@ def propagate_batch(
     Returns
     -------
     PropagationBatch
+
+    Raises
+    ------
+    PropagationError
+        Bad arguments (among them a `progress` that is not a bool), or more
+        draws than fit in memory.
     """
     start = whole_number(start, "start", PropagationError, least=0)
     n_samples = whole_number(n_samples, "n_samples", PropagationError, least=0)
     if not callable(func):
         raise PropagationError("func must be callable: func(parameters: dict) -> float")
+    if not isinstance(progress, (bool, np.bool_)):  # a truthy "no" would show the bar
+        raise PropagationError(f"progress must be True or False, got {plain(progress)}")
     seed = _check_seed(seed)
     names, _, cov, fixed = _source(result)
+    if n_samples * max(len(names), 1) > _MAX_VALUES:  # all draws are made up front
+        raise PropagationError(
+            f"n_samples={n_samples}: {n_samples} draws of {len(names)} parameters would not "
+            f"fit in memory (at most {_MAX_VALUES} values); split them with propagate_batch"
+        )
     draws = draw_parameters(result, n_samples, seed, start)
     n = draws.shape[0]
     values = np.full(n, np.nan)
@@ -372,6 +389,11 @@ def propagate_batch(
                 first_error = f"draw {start + i}: {type(exc).__name__}: {exc}"
             continue
         if values.ndim == 1 and shape.names:  # the first vector: widen the failures so far
+            if n * len(shape.names) > _MAX_VALUES:
+                raise PropagationError(
+                    f"n_samples={n}: {n} draws of a metric with {len(shape.names)} values "
+                    f"would not fit in memory (at most {_MAX_VALUES} values)"
+                )
             values = np.full((n, len(shape.names)), np.nan)
         values[i] = v
     if bar is not None:
@@ -404,6 +426,8 @@ def _percentiles(percentiles: Sequence[float]) -> list[float]:
         raise PropagationError(
             f"percentiles must be a list of numbers in [0, 100], got {plain(percentiles)}"
         ) from None
+    if not pcts:  # a result without any percentile would be silently incomplete
+        raise PropagationError("percentiles must name at least one percentile in [0, 100]")
     if any(not 0.0 <= p <= 100.0 for p in pcts):
         shown = ", ".join(f"{p:g}" for p in pcts)
         raise PropagationError(f"percentiles must lie in [0, 100], got [{shown}]")
@@ -606,8 +630,9 @@ def propagate(
     Raises
     ------
     PropagationError
-        Bad arguments, or the metric failed for every draw (the message
-        quotes the first failure).
+        Bad arguments (an empty `percentiles`, a `progress` that is not a
+        bool, more draws than fit in memory), or the metric failed for every
+        draw (the message quotes the first failure).
 
     Warns
     -----

@@ -33,6 +33,7 @@ from .errors import (
 from .model import (
     Model,
     SimulatorModel,
+    check_simulate_options,
     delayed_controls,
     fitted_start,
     require_model,
@@ -47,7 +48,6 @@ FloatArray = NDArray[np.float64]
 # combination counts as not identifiable: its standard error would be more than
 # 1e4 times what the parameters' individual sensitivities suggest.
 _NULL_TOLERANCE = 1e-8
-_SIMULATE_OPTIONS = ("method", "substeps", "rtol", "atol")
 
 
 # -- shared numerics (also used by experiment design) ---------------------------------
@@ -64,19 +64,21 @@ def _control_names(model: Any) -> tuple[str, ...]:
 
 
 def _check_simulate_options(options: Mapping[str, Any] | None, model: Any) -> dict[str, Any]:
-    if options is None:
-        return {}
-    if not isinstance(options, Mapping):
-        raise IdentificationError(
-            f"simulate_options: expected a dict, got {type(options).__name__}"
-        )
-    if isinstance(model, Model):
-        unknown = sorted(set(options) - set(_SIMULATE_OPTIONS))
-        if unknown:
-            raise IdentificationError(
-                f"simulate_options: unknown keys {unknown}; valid keys are {list(_SIMULATE_OPTIONS)}"
-            )
-    return dict(options)
+    # keys and values (a negative rtol, a bool substeps) for a Model; others pass unchecked
+    return check_simulate_options(options, model, IdentificationError)
+
+
+def _relative_step(value: Any) -> float:
+    """The finite-difference step, a number in (0, 0.1) (text and bools refused)."""
+    try:
+        if isinstance(value, (bool, np.bool_, str, bytes)):  # float() would read "1e-6"
+            raise TypeError
+        rel = float(value)
+    except (TypeError, ValueError):
+        rel = float("nan")
+    if not (np.isfinite(rel) and 0 < rel < 0.1):
+        raise IdentificationError(f"relative_step: expected a number in (0, 0.1), got {value!r}")
+    return rel
 
 
 def _parameter_list(model: Any, parameters: Any, what: str = "parameters") -> list[str]:
@@ -257,6 +259,9 @@ def _noise_vector(
                 f"{what}: no standard deviation for output {o!r}; given for {sorted(noise)}"
             )
         try:
+            # float() would read True as 1.0 and "0.01" as 0.01
+            if isinstance(noise[o], (bool, np.bool_, str, bytes)):
+                raise TypeError
             s = float(noise[o])
         except (TypeError, ValueError):
             raise IdentificationError(
@@ -479,7 +484,9 @@ def sensitivities(
     Raises
     ------
     IdentificationError
-        Unknown parameters, bad noise specification or step.
+        Unknown parameters, bad noise specification or step (text or a bool
+        where a number is expected), an empty `outputs`, unknown or invalid
+        `simulate_options`.
     ChannelError
         A control (or requested output) is missing.
     SimulationError
@@ -510,18 +517,15 @@ def sensitivities(
     if x0 is None:
         x0 = fitted_start(values, data)[0]
     data = delayed_controls(values, data)  # a fit's estimated time delays
-    try:
-        rel = float(relative_step)
-    except (TypeError, ValueError):
-        rel = float("nan")
-    if not (np.isfinite(rel) and 0 < rel < 0.1):
-        raise IdentificationError(
-            f"relative_step: expected a number in (0, 0.1), got {relative_step!r}"
-        )
+    rel = _relative_step(relative_step)
     options = _check_simulate_options(simulate_options, model)
     all_outputs = _output_names(model)
     if outputs is not None:
         outs = [outputs] if isinstance(outputs, str) else list(outputs)
+        if not outs:  # an empty analysis would pass for one
+            raise IdentificationError(
+                f"outputs: name at least one output; outputs: {list(all_outputs)}"
+            )
         unknown = [o for o in outs if o not in all_outputs]
         if unknown:
             raise ChannelError(

@@ -16,7 +16,13 @@ from ._stats import chi2_sf, norm_ppf
 from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, plain, whole_number
 from .errors import IdentificationError
-from .model import delayed_controls, fitted_start, require_model, resolve_parameters
+from .model import (
+    check_simulate_options,
+    delayed_controls,
+    fitted_start,
+    require_model,
+    resolve_parameters,
+)
 
 __all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
 
@@ -238,7 +244,9 @@ def validate(
     Raises
     ------
     IdentificationError
-        Bad arguments, such as a `whiteness_lags` that is not a positive integer.
+        Bad arguments, such as a `whiteness_lags` that is not a positive integer,
+        an empty `outputs`, unknown or invalid `simulate_options`, or a record
+        of fewer than 3 samples.
     ChannelError
         A control or output is missing from the data.
     """
@@ -246,12 +254,16 @@ def validate(
     if not isinstance(data, FlightData):
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
     try:
-        level = float(confidence)
+        # float() would read "0.9" as 0.9
+        level = float("nan") if isinstance(confidence, (str, bytes)) else float(confidence)
     except (TypeError, ValueError):
         level = float("nan")
     if not 0.0 < level < 1.0:
         raise IdentificationError(f"confidence must lie in (0, 1), got {plain(confidence)}")
     n = data.n_samples
+    if n < 3:  # the Ljung–Box test needs one lag of N - 2: its p-value would be NaN
+        raise IdentificationError(f"data: validation needs at least 3 samples, got {n}")
+    opts = check_simulate_options(simulate_options, model, IdentificationError)
     if whiteness_lags is None:
         whiteness_lags = 20
     else:
@@ -265,10 +277,14 @@ def validate(
             )
     p = resolve_parameters(model, parameters, error=IdentificationError)
     names = list(model.outputs)
+    if isinstance(outputs, str):  # one name, not its letters
+        outputs = [outputs]
     chosen = [o for o in names if o in data] if outputs is None else list(outputs)
     for o in chosen:
         if o not in names:
             raise IdentificationError(f"outputs: {o!r} is not an output of model {model.name!r}")
+    if outputs is not None and not chosen:  # an empty result would pass for a check
+        raise IdentificationError("outputs: name at least one output to check")
     if not chosen:
         data.require(names[:1], role="output")
     data.require(chosen, role="output")
@@ -277,7 +293,6 @@ def validate(
         x0 = fitted_x0
     # the controls as the fitted model takes them (a fit's estimated time delays)
     flown = delayed_controls(parameters, data)
-    opts = dict(simulate_options or {})
     if hasattr(model, "simulate_batch"):
         opts.setdefault("method", "auto")  # the integrator identify uses by default
     sim = model.simulate_data(flown, x0=x0, parameters=p, **opts)

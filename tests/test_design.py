@@ -321,3 +321,38 @@ def test_an_identifying_design_gives_no_identifiability_warning():
             optimizer_options={"maxiter": 2, "popsize": 2},
         )
     assert design.success is True
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"duration": "8"}, "duration and sample_rate"),
+        ({"sample_rate": True}, "duration and sample_rate"),
+        ({"duration": 1e12}, "samples"),
+        ({"relative_step": "1e-6"}, "relative_step"),
+        ({"relative_step": 0.0}, "relative_step"),
+        ({"progress": "no"}, "progress"),
+        ({"seed": "a"}, "seed"),
+        ({"noise": {"alpha": "0.005", "q": 0.01}}, r"noise\['alpha'\]"),
+        ({"optimizer_options": {"polish": "no"}}, r"optimizer_options\['polish'\]"),
+        ({"optimizer_options": {"tol": "0.01"}}, r"optimizer_options\['tol'\]"),
+        ({"simulate_options": {"method": "RK45", "rtol": -1.0}}, r"simulate_options\['rtol'\]"),
+        (
+            {
+                "duration": 2000.0,
+                "sample_rate": 1000.0,
+                "optimizer_options": {"maxiter": 1, "popsize": 50},
+            },
+            "popsize",
+        ),
+    ],
+)
+def test_bad_arguments_name_the_culprit(kwargs, culprit):
+    options = {"noise": NOISE, "duration": 8.0, "sample_rate": 25.0, "seed": 0}
+    options["optimizer_options"] = FAST
+    options.update(kwargs)  # `optimizer_options` in kwargs replaces FAST
+    with pytest.raises(IdentificationError, match=culprit):
+        design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], **options)

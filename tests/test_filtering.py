@@ -613,3 +613,40 @@ def test_a_one_off_nonlinear_pass_does_not_wait_for_a_compiler(monkeypatch):
     monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
     filter_states(model, data, **kw)
     assert used == [True]
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+_NOISE = {
+    "process_noise": {"alpha": 1e-4, "q": 1e-4},
+    "measurement_noise": {"alpha": 0.005**2, "q": 0.01**2},
+}
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"smooth": "no"}, "smooth"),
+        ({"smooth": 0}, "smooth"),
+        ({"x0": "a"}, "x0"),
+        ({"x0": [1j, 0.0]}, "x0"),
+        ({"x0": {"alpha": "a"}}, r"x0\['alpha'\]"),
+        ({"method": "ukf", "ukf_alpha": "1"}, "ukf_alpha"),
+        ({"method": "ukf", "ukf_beta": True}, "ukf_beta"),
+        ({"substeps": True}, "substeps"),
+        ({"substeps": float("nan")}, "substeps"),
+        ({"substeps": 10**9}, "substeps"),
+        ({"process_noise": {"alpha": True}}, r"process_noise\['alpha'\]"),
+        ({"measurement_noise": {"alpha": "1", "q": 1.0}}, r"measurement_noise\['alpha'\]"),
+        ({"process_noise": np.array([1j, 1.0])}, "process_noise: complex"),
+    ],
+)
+def test_filter_states_refuses_bad_arguments(kwargs, culprit):
+    kwargs = {**_NOISE, **kwargs}
+    with pytest.raises(FilterError, match=culprit):
+        filter_states(catalog.short_period(), catalog.short_period_flight(seed=0), **kwargs)
+
+
+def test_filter_states_refuses_non_flight_data():
+    with pytest.raises(FilterError, match="data: expected a FlightData"):
+        filter_states(catalog.short_period(), {"alpha": [0.0]}, **_NOISE)

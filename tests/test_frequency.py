@@ -507,3 +507,22 @@ def test_spectral_matrix_matches_scipy_csd(n_t: int, nperseg: int) -> None:
     s0 = np.moveaxis(s0, -1, 0)
     assert s1.shape == s0.shape
     assert np.abs(s1 - s0).max() <= 1e-12 * np.abs(s0).max()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"coherence_threshold": "0.5"}, IdentificationError, "coherence_threshold"),
+        ({"coherence_threshold": True}, IdentificationError, "coherence_threshold"),
+        ({"coherence_threshold": [0.5]}, IdentificationError, "coherence_threshold"),
+        ({"frequency_range": ("0.1", "2")}, IdentificationError, "frequency_range"),
+        ({"frequency_range": (100.0, 200.0)}, IdentificationError, "frequency_range"),
+        ({"min_coherent": "3"}, IdentificationError, "min_coherent"),
+        ({"min_coherent": True}, IdentificationError, "min_coherent"),
+        ({"nperseg": float("nan")}, IdentificationError, "nperseg"),
+        ({"outputs": []}, ChannelError, "outputs"),
+    ],
+)
+def test_bad_option_values_name_the_culprit(sp_noisy, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        frequency_response(catalog.short_period(), sp_noisy, **kwargs)

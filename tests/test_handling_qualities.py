@@ -132,3 +132,37 @@ def test_bandwidth_plot_draws_given_boundaries():
     assert ax.get_xlabel() == "bandwidth ω_BW [rad/s]" and ax.get_ylabel() == "phase delay τ_p [s]"
     with pytest.raises(IdentificationError, match="vertices"):
         res.plot(boundaries={"bad": [(1, 1)]})
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("tf", "culprit"),
+    [
+        (([np.nan], [1.0, 3.0, 2.0, 0.0]), "numerator"),
+        (([10.0], [np.inf, 3.0, 2.0, 0.0]), "denominator"),
+        (([[10.0]], [1.0, 3.0, 2.0, 0.0]), "numerator"),
+        (([10.0], [1.0, 3.0, 2.0, 0.0], "0.1"), "response_or_tf"),
+        (([10.0], [1.0, 3.0, 2.0, 0.0], True), "response_or_tf"),
+    ],
+)
+def test_margins_refuse_bad_coefficients(tf, culprit):
+    with pytest.raises(IdentificationError, match=culprit):
+        stability_margins(tf)
+    with pytest.raises(IdentificationError, match=culprit):
+        bandwidth(tf)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"delay": "no"}, "delay"),
+        ({"delay": 0}, "delay"),
+        ({"frequency_range": ("0.1", "10")}, "frequency_range"),
+        ({"start": {"b1": "1"}}, r"start\['b1'\]"),
+    ],
+)
+def test_equivalent_system_refuses_bad_options(kwargs, culprit):
+    with pytest.raises(IdentificationError, match=culprit):
+        equivalent_system(([4.0, 2.0], [1.0, 2.0, 4.0], 0.02), **kwargs)

@@ -474,3 +474,36 @@ def test_spectral_reml_criterion_matches_the_dense_formula(phi, log_ratio):
     value, rss = _arw_criterion(x, [prepared], n - rank, rank)
     assert value == pytest.approx(dense, rel=1e-9, abs=1e-8)
     assert rss == pytest.approx(chol[-1, -1] ** 2, rel=1e-8)
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"parameters": {"M_q": True}}, "initial guess of 'M_q'"),
+        ({"parameters": {"M_q": "-2"}}, "initial guess of 'M_q'"),
+        ({"tolerance": "1e-3"}, "tolerance"),
+        ({"tolerance": True}, "tolerance"),
+        ({"tolerance": float("inf")}, "tolerance"),
+        ({"simulate_options": {"method": "RK45", "rtol": -1.0}}, r"simulate_options\['rtol'\]"),
+        ({"simulate_options": {"substeps": True}}, r"simulate_options\['substeps'\]"),
+        ({"simulate_options": {"substeps": 10**8}}, r"simulate_options\['substeps'\]"),
+        ({"simulate_options": {"method": "foo"}}, r"simulate_options\['method'\]"),
+    ],
+)
+def test_identify_refuses_bad_options(kwargs, culprit):
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=0)
+    parameters = kwargs.pop("parameters", ["M_q", "M_delta"])
+    with pytest.raises(IdentificationError, match=culprit):
+        aeroid.identify(model, data, parameters, **kwargs)
+
+
+def test_identify_outputs_as_one_name():
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=0)
+    a = aeroid.identify(model, data, ["M_q", "M_delta"], outputs="q")
+    b = aeroid.identify(model, data, ["M_q", "M_delta"], outputs=["q"])
+    assert a.parameters == b.parameters

@@ -570,3 +570,29 @@ def test_the_documented_workflow_converges_with_the_defaults(seed: int) -> None:
     assert max(post.r_hat.values()) < 1.05
     for name in priors:  # the posterior agrees with the fit it started from
         assert post.parameters[name] == pytest.approx(fit.parameters[name], abs=fit.stderr[name])
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"n_steps": 10**12}, "n_steps"),
+        ({"n_walkers": 10**9}, "n_walkers"),
+        ({"stretch": "2"}, "stretch"),
+        ({"progress": "no"}, "progress"),
+        ({"noise": {"alpha": "0.005", "q": 0.01}}, r"noise\['alpha'\]"),
+        ({"noise": {"alpha": True, "q": 0.01}}, r"noise\['alpha'\]"),
+        ({"initial": {"M_q": True}}, r"initial\['M_q'\]"),
+        ({"simulate_options": [1]}, "simulate_options"),
+        ({"simulate_options": {"method": "RK45", "rtol": -1.0}}, r"simulate_options\['rtol'\]"),
+        ({"simulate_options": {"substeps": 10**8}}, r"simulate_options\['substeps'\]"),
+    ],
+)
+def test_infer_refuses_bad_arguments(kwargs: dict, culprit: str) -> None:
+    data = catalog.short_period_flight(seed=0).window(0, 1)
+    options = {"noise": {"alpha": 0.005, "q": 0.01}, "n_steps": 20, "n_walkers": 8, "seed": 0}
+    options.update(kwargs)
+    with pytest.raises(InferenceError, match=culprit):
+        infer(catalog.short_period(), data, {"M_q": Normal(-2.5, 1.0)}, **options)

@@ -310,3 +310,64 @@ def test_automatic_substeps_hold_each_modes_error_near_its_bound(zeta, omega, du
         assert err[max(chosen // 2, 1)] > err[chosen] * 8  # fourth order: 16x per halving
     auto = m.simulate(t, None, [1.0, 0.0], method="auto")
     np.testing.assert_allclose(auto.state("x"), exact, atol=4e-5)
+
+
+# -- input audit: bad arguments raise SimulationError naming the argument -------------------
+
+
+def _pendulum() -> Model:
+    def f(t, x, u, p):
+        return np.array([x[1], -p["k"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])
+
+    return Model(["theta", "omega"], ["torque"], {"k": 4.0, "c": 0.3}, f)
+
+
+_T = np.linspace(0.0, 2.0, 41)
+_U = 0.5 * np.sin(2.0 * _T)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"controls": "abc"}, "controls"),
+        ({"controls": _U + 1j}, "controls"),
+        ({"controls": {"torque": "x"}}, "control 'torque'"),
+        ({"controls": {"torque": _U + 1j}}, "control 'torque'"),
+        ({"controls": {"torque": np.where(_T > 1, np.nan, _U)}}, "control 'torque'"),
+        ({"x0": "ab"}, "x0"),
+        ({"x0": [1j, 0.0]}, "x0"),
+        ({"x0": {"theta": "a"}}, r"x0\['theta'\]"),
+        ({"x0": {"theta": True}}, r"x0\['theta'\]"),
+        ({"parameters": {"k": True}}, "parameter 'k'"),
+        ({"parameters": {"k": "4"}}, "parameter 'k'"),
+        ({"rtol": float("nan")}, "rtol"),
+        ({"rtol": -1.0}, "rtol"),
+        ({"rtol": "1e-6"}, "rtol"),
+        ({"atol": -1.0}, "atol"),
+        ({"method": "rk4", "substeps": True}, "substeps"),
+        ({"method": "rk4", "substeps": float("nan")}, "substeps"),
+        ({"method": "rk4", "substeps": 10**9}, "substeps"),
+    ],
+)
+def test_simulate_refuses_bad_arguments(kwargs, culprit):
+    kwargs = {"controls": _U, **kwargs}
+    controls = kwargs.pop("controls")
+    with pytest.raises(SimulationError, match=culprit):
+        _pendulum().simulate(_T, controls, **kwargs)
+
+
+def test_simulate_refuses_complex_time():
+    with pytest.raises(SimulationError, match="time: complex"):
+        _pendulum().simulate(_T + 0j, _U)
+
+
+def test_simulate_data_refuses_non_flight_data():
+    with pytest.raises(SimulationError, match="data: expected a FlightData"):
+        catalog.short_period().simulate_data({"elevator": [0.0, 1.0]})
+
+
+def test_simulate_valid_call_unchanged_by_checks():
+    m = _pendulum()
+    a = m.simulate(_T, _U, method="rk4", substeps=np.int64(3))
+    b = m.simulate(_T, {"torque": _U}, method="rk4", substeps=3)
+    assert np.array_equal(a.states, b.states)

@@ -89,3 +89,18 @@ def test_invalid_arguments_raise(make, arg: str) -> None:
         make()
     assert isinstance(info.value, ValueError)
     assert isinstance(info.value, AeroidError)
+
+
+@pytest.mark.parametrize(
+    ("make", "culprit"),
+    [
+        (lambda: Normal("0", 1.0), "mu"),
+        (lambda: Normal(True, 1.0), "mu"),
+        (lambda: Uniform("0", 1.0), "lo"),
+        (lambda: LogUniform(True, 2.0), "lo"),
+        (lambda: HalfNormal("1"), "sigma"),
+    ],
+)
+def test_prior_refuses_text_and_bools(make, culprit):
+    with pytest.raises(InferenceError, match=culprit):
+        make()

@@ -307,3 +307,31 @@ def test_a_metric_that_changes_its_shape_fails_those_draws():
     # P(a >= 1.2) = P(z >= 1) = 0.159 with sd 0.016 of the fraction over 500 draws
     assert 0.11 < res.n_failed / 500 < 0.21
     assert np.all(res["metric[0]"].samples < 1.2)
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+def test_too_many_draws_refused_before_allocating():
+    with pytest.raises(PropagationError, match="n_samples"):
+        propagate(_result(), lambda p: p["a"], n_samples=10**12, seed=0)
+
+
+def test_too_large_vector_metric_refused():
+    with pytest.raises(PropagationError, match="n_samples"):
+        propagate(_result(), lambda p: np.zeros(10**6), n_samples=10**4, seed=0)
+
+
+def test_empty_percentiles_refused():
+    with pytest.raises(PropagationError, match="percentiles"):
+        propagate(_result(), lambda p: p["a"], n_samples=10, seed=0, percentiles=())
+
+
+def test_progress_must_be_a_bool():
+    with pytest.raises(PropagationError, match="progress"):
+        propagate(_result(), lambda p: p["a"], n_samples=10, seed=0, progress="no")
+
+
+def test_complex_vector_metric_is_a_failed_draw_not_a_truncated_one():
+    with pytest.raises(PropagationError, match="complex"):
+        propagate(_result(), lambda p: np.array([1.0 + 1j, 2.0]), n_samples=10, seed=0)

@@ -259,3 +259,23 @@ def test_parameter_values_given_where_names_go_are_used_as_the_values():
         np.testing.assert_allclose(s.fisher_information, by_values.fisher_information, rtol=1e-12)
     with pytest.raises(IdentificationError, match="either as `parameters` or as `values`"):
         aeroid.sensitivities(model, data, dict(fit.parameters), values=fit)
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"relative_step": "1e-6"}, "relative_step"),
+        ({"relative_step": True}, "relative_step"),
+        ({"outputs": []}, "outputs"),
+        ({"noise": {"alpha": True, "q": 0.01}}, r"noise\['alpha'\]"),
+        ({"simulate_options": {"method": "RK45", "rtol": -1.0}}, r"simulate_options\['rtol'\]"),
+        ({"simulate_options": {"substeps": True}}, r"simulate_options\['substeps'\]"),
+    ],
+)
+def test_bad_arguments_name_the_culprit(kwargs, culprit):
+    data = catalog.short_period_flight(seed=0)
+    with pytest.raises(aeroid.IdentificationError, match=culprit):
+        sensitivities(catalog.short_period(), data, ["M_q"], **kwargs)

@@ -190,3 +190,32 @@ def test_ljung_box_p_value_matches_scipy_for_odd_and_even_lags():
     for lags in (1, 2, 7, 20, 51):
         q, p = ljung_box(x, lags)
         assert p == pytest.approx(scipy.stats.chi2.sf(q, lags), rel=1e-12)
+
+
+# -- input audit ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        ({"confidence": "0.9"}, "confidence"),
+        ({"outputs": []}, "outputs"),
+        ({"simulate_options": {"zz": 1}}, "simulate_options"),
+        ({"simulate_options": [1]}, "simulate_options"),
+        ({"simulate_options": {"method": "RK45", "rtol": -1.0}}, r"simulate_options\['rtol'\]"),
+    ],
+)
+def test_validate_refuses_bad_options(kwargs, culprit):
+    with pytest.raises(IdentificationError, match=culprit):
+        validate(catalog.short_period(), catalog.short_period_flight(seed=0), **kwargs)
+
+
+def test_validate_refuses_two_sample_record():
+    data = catalog.short_period_flight(seed=0).window(0.0, 0.02)
+    with pytest.raises(IdentificationError, match="data: validation needs at least 3 samples"):
+        validate(catalog.short_period(), data)
+
+
+def test_validate_outputs_as_one_name():
+    model, data = catalog.short_period(), catalog.short_period_flight(seed=0)
+    assert validate(model, data, outputs="q").output_names == ("q",)
