@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from ._logtypes import FlightLog, LogChannel
 from ._threads import small_blas
-from .data import FlightData, plain
+from .data import FlightData, plain, positive_number
 from .errors import ChannelError, DataFormatError
 
 __all__ = ["resample"]
@@ -174,17 +174,6 @@ def clean_source(name: str, raw: Any) -> Source:
     time.setflags(write=False)
     values.setflags(write=False)
     return Source(name, time, values, unit, duplicates, reordered)
-
-
-def _positive(value: Any, what: str) -> float:
-    try:
-        out = float(value)
-        ok = not isinstance(value, bool) and math.isfinite(out) and out > 0
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise DataFormatError(f"{what}: expected a positive finite number, got {plain(value)}")
-    return out
 
 
 def _seconds(value: Any, what: str) -> float:
@@ -532,7 +521,7 @@ def resample(
     """
     raw, events, log_meta = log_parts(log)
     mapping = _mapping(channels)
-    rate = _positive(rate, "rate")
+    rate = positive_number(rate, "rate", " in Hz")
     names = list(mapping)
     methods = _per_channel(method, "method", names)
     for name, m in methods.items():
@@ -544,7 +533,9 @@ def resample(
     for name, g in gaps.items():
         if g is not None:
             gaps[name] = (
-                float("inf") if g == float("inf") else _positive(g, f"max_gap for {name!r}")
+                float("inf")
+                if g == float("inf")
+                else positive_number(g, f"max_gap for {name!r}", " of seconds")
             )
 
     sources: dict[str, Source] = {}

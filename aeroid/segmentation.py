@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from ._logtypes import FlightLog
 from ._records import ReadOnlyDict, fmt, frozen_array, markdown_table
 from ._threads import small_blas
-from .data import FlightData, plain
+from .data import FlightData, plain, positive_number
 from .errors import DataFormatError
 from .resampling import Source, clean_source, close_names, log_parts, missing_channel
 
@@ -214,14 +214,7 @@ def _nonnegative(value: Any, what: str, unit: str = "of seconds") -> float:
 
 def _positive(value: Any, what: str, unit: str = "of seconds") -> float:
     """`value` as a finite float > 0; `unit` completes "expected a positive number"."""
-    try:
-        out = float(value)
-        ok = not isinstance(value, bool) and math.isfinite(out) and out > 0
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise DataFormatError(f"{what}: expected a positive number {unit}, got {plain(value)}")
-    return out
+    return positive_number(value, what, f" {unit}")
 
 
 def _margin(margin: Any) -> tuple[float, float]:

@@ -257,7 +257,7 @@ def test_flight_data_and_log_channels_are_accepted_in_place_of_a_log():
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"rate": 0}, "rate: expected a positive finite number"),
+        ({"rate": 0}, "rate: expected a positive number in Hz"),
         ({"rate": float("nan")}, "rate"),
         ({"rate": 10, "method": "spline"}, "method for 'a': expected one of"),
         ({"rate": 10, "method": {"b": "hold"}}, r"method: names \['b'\] are not among"),
