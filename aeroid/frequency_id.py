@@ -1067,6 +1067,8 @@ def fit_transfer_function(
     h = ch.response[keep]
     coh = ch.coherence[keep]
     err = ch.random_error[keep]
+    if not isinstance(delay, (bool, np.bool_)):  # delay="no" would read as True
+        raise IdentificationError(f"delay: expected True or False, got {plain(delay)}")
     st = _Structure(m, n, bool(delay), w)
     p = len(st.names)
     if 2 * w.size <= p:

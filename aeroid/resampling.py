@@ -179,7 +179,7 @@ def clean_source(name: str, raw: Any) -> Source:
 def _seconds(value: Any, what: str) -> float:
     try:
         out = float(value)
-        ok = not isinstance(value, bool) and math.isfinite(out)
+        ok = not isinstance(value, (bool, str, bytes)) and math.isfinite(out)
     except (TypeError, ValueError):
         ok = False
     if not ok:

@@ -314,6 +314,8 @@ def test_fit_rejects_bad_options():
     for value in (np.nan, "x", True):
         with pytest.raises(IdentificationError, match=r"start\['a0'\]: expected a finite number"):
             fit_transfer_function(ch, numerator_order=0, denominator_order=1, start={"a0": value})
+    with pytest.raises(IdentificationError, match="delay: expected True or False, got 'no'"):
+        fit_transfer_function(ch, numerator_order=0, denominator_order=1, delay="no")  # type: ignore[arg-type]
 
 
 def test_fit_straight_from_flight_data_needs_the_pair():

@@ -264,6 +264,7 @@ def test_flight_data_and_log_channels_are_accepted_in_place_of_a_log():
         ({"rate": 10, "max_gap": -1.0}, "max_gap for 'a'"),
         ({"rate": 1000, "t0": 0.0, "t1": 0.0005}, "fewer than 2 samples"),
         ({"rate": 10, "t0": "start"}, "t0: expected a finite time in seconds, got 'start'"),
+        ({"rate": 10, "t0": "1"}, "t0: expected a finite time in seconds, got '1'"),
         ({"rate": 10, "t1": float("nan")}, "t1: expected a finite time"),
     ],
 )
