@@ -285,6 +285,8 @@ def ensemble_sampler(
     if burn_in >= n_steps:
         raise InferenceError(f"burn_in ({burn_in}) must be smaller than n_steps ({n_steps})")
     try:
+        if isinstance(stretch, (bool, str, bytes)):  # float() would read "2" as 2.0
+            raise TypeError
         a = float(stretch)
     except (TypeError, ValueError):
         raise InferenceError(f"stretch: expected a number > 1, got {stretch!r}") from None

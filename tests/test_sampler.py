@@ -196,6 +196,8 @@ def test_one_vectorised_call_per_half_ensemble() -> None:
         ({"n_steps": 10, "burn_in": 10}, "burn_in"),
         ({"n_steps": 10, "thin": 0}, "thin"),
         ({"n_steps": 10, "stretch": 1.0}, "stretch"),
+        ({"n_steps": 10, "stretch": "2"}, "stretch: expected a number > 1, got '2'"),
+        ({"n_steps": 10, "stretch": True}, "stretch: expected a number > 1, got True"),
         ({"n_steps": 10, "move": "walk"}, "move"),
         ({"n_steps": 10, "seed": -1}, "seed"),
     ],
