@@ -39,6 +39,26 @@ def plain(value: Any) -> str:
     return repr(value)
 
 
+def as_float(value: Any) -> float | None:
+    """`value` as a float, or None when it is not a plain real number: bools and text are
+    refused (float() would read True as 1.0 and "2" as 2.0), and so are complex numbers.
+    NaN and infinity pass: each caller says which values it takes, and in its own words."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        return None
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
+def check_flag(value: Any, name: str, error: type[Exception]) -> bool:
+    """`value` as a bool, else `error` naming `name`: a switch given as ``"no"`` or 0
+    would otherwise be read by its truth value."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise error(f"{name}: expected True or False, got {plain(value)}")
+    return bool(value)
+
+
 def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 1) -> int:
     """`value` as an int >= `least` (integral floats such as 2e3 accepted), else `error`."""
     try:
@@ -57,12 +77,8 @@ def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 
 def positive_number(value: Any, name: str, unit: str = "") -> float:
     """`value` as a finite float > 0, else a `DataFormatError` naming `name` (`unit`, such
     as ``" of seconds"``, completes "a positive number")."""
-    try:
-        x = float(value)
-        ok = not isinstance(value, (bool, str)) and bool(np.isfinite(x)) and x > 0
-    except (TypeError, ValueError, OverflowError):
-        ok = False
-    if not ok:
+    x = as_float(value)
+    if x is None or not (np.isfinite(x) and x > 0):
         raise DataFormatError(f"{name}: expected a positive number{unit}, got {plain(value)}")
     return x
 

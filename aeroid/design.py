@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import CALLER_STACKLEVEL, small_blas
-from .data import FlightData
+from .data import FlightData, as_float, check_flag
 from .errors import (
     AeroidError,
     ChannelError,
@@ -334,10 +334,7 @@ def _check_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
             f"{sorted(_OPTIMIZER_DEFAULTS)}"
         )
     merged.update(options)
-    if not isinstance(merged["polish"], (bool, np.bool_)):  # a truthy "no" would polish
-        raise IdentificationError(
-            f"optimizer_options['polish']: expected True or False, got {merged['polish']!r}"
-        )
+    check_flag(merged["polish"], "optimizer_options['polish']", IdentificationError)
     for key in ("tol", "atol", "recombination"):
         v = merged[key]
         if isinstance(v, (bool, np.bool_, str, bytes)):  # float() would read "0.01" as 0.01
@@ -488,15 +485,11 @@ def design_experiment(
     vals = resolve_parameters(model, values, error=IdentificationError)
     options = _check_simulate_options(simulate_options, model)
     opts = _check_options(optimizer_options)
-    try:
-        # float() would read "5" as 5.0 and True as 1.0
-        if any(isinstance(v, (bool, np.bool_, str, bytes)) for v in (duration, sample_rate)):
-            raise TypeError
-        dur, fs = float(duration), float(sample_rate)
-    except (TypeError, ValueError):
+    dur, fs = as_float(duration), as_float(sample_rate)
+    if dur is None or fs is None:
         raise IdentificationError(
             f"duration and sample_rate: expected numbers, got {duration!r}, {sample_rate!r}"
-        ) from None
+        )
     if not (np.isfinite(dur) and dur > 0 and np.isfinite(fs) and fs > 0):
         raise IdentificationError(
             f"duration and sample_rate must be positive, got {duration!r}, {sample_rate!r}"
@@ -509,8 +502,7 @@ def design_experiment(
             f"duration * sample_rate gives {n_t} samples; at most {_MAX_SAMPLES} are supported"
         )
     rel = _relative_step(relative_step)
-    if not isinstance(progress, (bool, np.bool_)):  # a truthy "no" would show the bar
-        raise IdentificationError(f"progress: expected True or False, got {progress!r}")
+    check_flag(progress, "progress", IdentificationError)
     if seed is not None and (
         isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
     ):

@@ -29,7 +29,15 @@ from . import _integrate, _linalg
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._stats import chi2_sf
 from ._threads import small_blas
-from .data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
+from .data import (
+    FlightData,
+    check_flag,
+    check_symmetric,
+    measured_start,
+    plain,
+    real_array,
+    whole_number,
+)
 from .errors import AeroidError, ChannelError, FilterError, SimulationError
 from .model import (
     MAX_SUBSTEPS,
@@ -1430,8 +1438,7 @@ def filter_states(
     """
     if not isinstance(data, FlightData):  # before the fit's start and delays read it
         raise FilterError(f"data: expected a FlightData record, got {type(data).__name__}")
-    if not isinstance(smooth, (bool, np.bool_)):  # a truthy "no" would smooth
-        raise FilterError(f"smooth: expected True or False, got {plain(smooth)}")
+    check_flag(smooth, "smooth", FilterError)
     if x0 is None:
         x0 = fitted_start(parameters, data)[0]
     data = delayed_controls(parameters, data)  # a fit's estimated time delays

@@ -41,7 +41,7 @@ from . import _integrate
 from ._czt import hann
 from ._records import fmt, frozen_array, markdown_table
 from ._threads import small_blas
-from .data import FlightData, measured_start, whole_number
+from .data import FlightData, as_float, measured_start, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from .model import (
     Model,
@@ -618,14 +618,8 @@ def frequency_response(
         raise IdentificationError(
             f"model_response: expected one of {list(_MODEL_RESPONSES)}, got {model_response!r}"
         )
-    try:
-        # float() would read "0.5" as 0.5 and True as 1.0
-        if isinstance(coherence_threshold, (bool, np.bool_, str, bytes)):
-            raise TypeError
-        thr = float(coherence_threshold)
-    except (TypeError, ValueError):
-        thr = float("nan")
-    if not 0.0 <= thr <= 1.0:
+    thr = as_float(coherence_threshold)
+    if thr is None or not 0.0 <= thr <= 1.0:
         raise IdentificationError(
             f"coherence_threshold: expected a number in [0, 1], got {coherence_threshold!r}"
         )

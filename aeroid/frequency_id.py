@@ -61,7 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._czt import _evenly_spaced, _kernel, fourier, hann
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData, _numeric, plain
+from .data import FlightData, _numeric, as_float, check_flag, plain
 from .errors import ChannelError, DataFormatError, IdentificationError
 
 __all__ = [
@@ -1067,9 +1067,7 @@ def fit_transfer_function(
     h = ch.response[keep]
     coh = ch.coherence[keep]
     err = ch.random_error[keep]
-    if not isinstance(delay, (bool, np.bool_)):  # delay="no" would read as True
-        raise IdentificationError(f"delay: expected True or False, got {plain(delay)}")
-    st = _Structure(m, n, bool(delay), w)
+    st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
     p = len(st.names)
     if 2 * w.size <= p:
         raise IdentificationError(
@@ -1210,10 +1208,7 @@ def _start(
 
 def _start_value(name: str, value: Any) -> float:
     """A start value as a finite float, else an error naming the parameter."""
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        out = float("nan")
-    if isinstance(value, bool) or not np.isfinite(out):
+    out = as_float(value)
+    if out is None or not np.isfinite(out):
         raise IdentificationError(f"start[{name!r}]: expected a finite number, got {plain(value)}")
     return out

@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._records import fmt, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import plain
+from .data import check_flag, plain
 from .errors import IdentificationError
 from .frequency_id import (
     CompositeResponse,
@@ -520,8 +520,7 @@ def equivalent_system(
     """
     if kind not in _LOES_FORMS:
         raise IdentificationError(f"kind: expected one of {sorted(_LOES_FORMS)}, got {kind!r}")
-    if not isinstance(delay, (bool, np.bool_)):  # a truthy "no" would fit a delay
-        raise IdentificationError(f"delay: expected True or False, got {plain(delay)}")
+    check_flag(delay, "delay", IdentificationError)
     # float() would read "0.1" as 0.1 and "1" as a start value
     if isinstance(frequency_range, (str, bytes)) or any(
         isinstance(v, (bool, np.bool_, str, bytes)) for v in _items(frequency_range)

@@ -14,6 +14,7 @@ from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_
 from ._threads import small_blas
 from .data import (
     FlightData,
+    as_float,
     check_symmetric,
     delay_starts,
     fingerprint,
@@ -272,15 +273,12 @@ def _names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str
         names = list(parameters)
         initial = {}
         for n, v in parameters.items():
-            try:
-                # float() would read True as 1.0 and "2" as 2.0
-                if isinstance(v, (bool, np.bool_, str, bytes)):
-                    raise TypeError
-                initial[n] = float(v)
-            except (TypeError, ValueError):
+            value = as_float(v)
+            if value is None:
                 raise IdentificationError(
                     f"parameters: initial guess of {n!r} is not a number: {plain(v)}"
-                ) from None
+                )
+            initial[n] = value
     else:
         try:
             names = [str(n) for n in parameters]
@@ -573,14 +571,9 @@ def identify(
             f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
         )
     max_iterations = whole_number(max_iterations, "max_iterations", IdentificationError)
-    try:
-        # a bool or text is no tolerance; an infinite one would stop at the initial guess
-        if isinstance(tolerance, (bool, np.bool_, str, bytes)):
-            raise TypeError
-        tol = float(tolerance)
-    except (TypeError, ValueError):
-        tol = float("nan")
-    if not (tol > 0 and np.isfinite(tol)):
+    # a bool or text is no tolerance; an infinite one would stop at the initial guess
+    tol = as_float(tolerance)
+    if tol is None or not (tol > 0 and np.isfinite(tol)):
         raise IdentificationError(f"tolerance must be positive and finite, got {plain(tolerance)}")
     datas = _as_list(data)
     names, initial = _names_and_initial(model, parameters)

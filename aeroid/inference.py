@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData, measured_start
+from .data import FlightData, as_float, check_flag, measured_start
 from .errors import InferenceError, SimulationError
 from .model import Model, check_integrator, check_simulate_options, fitted_start, require_model
 from .priors import LogUniform, Prior
@@ -498,16 +498,8 @@ class _Posterior:
                 raise InferenceError(
                     f"noise: {k!r} is not an output in the likelihood; outputs: {list(outs)}"
                 )
-            try:
-                # float() would read True as 1.0 and "0.01" as 0.01
-                if isinstance(v, (bool, np.bool_, str, bytes)):
-                    raise TypeError
-                s = float(v)
-            except (TypeError, ValueError):
-                raise InferenceError(
-                    f"noise[{k!r}]: expected a standard deviation > 0, got {v!r}"
-                ) from None
-            if not (s > 0.0 and math.isfinite(s)):
+            s = as_float(v)
+            if s is None or not (s > 0.0 and math.isfinite(s)):
                 raise InferenceError(f"noise[{k!r}]: expected a standard deviation > 0, got {v!r}")
             out[str(k)] = s
         return out
@@ -648,14 +640,11 @@ class _Posterior:
                     raise InferenceError(
                         f"initial: {k!r} is not an inferred parameter; inferred: {list(names)}"
                     )
-                try:
-                    # float() would read True as 1.0 and "2" as 2.0
-                    if isinstance(v, (bool, np.bool_, str, bytes)):
-                        raise TypeError
-                    given[k] = float(v)
-                except (TypeError, ValueError):
-                    raise InferenceError(f"initial[{k!r}]: expected a number, got {v!r}") from None
-                if not math.isfinite(given[k]):
+                value = as_float(v)
+                if value is None:
+                    raise InferenceError(f"initial[{k!r}]: expected a number, got {v!r}")
+                given[k] = value
+                if not math.isfinite(value):
                     raise InferenceError(f"initial[{k!r}]: value {v!r} is not finite")
         elif hasattr(initial, "parameters"):
             given = self._from_fit(initial, center, root)
@@ -1118,8 +1107,7 @@ def infer(
     # text read as a number, or a truthy "no" read as True, would pass unnoticed
     if isinstance(stretch, (bool, np.bool_, str, bytes)):
         raise InferenceError(f"stretch: expected a finite number > 1, got {stretch!r}")
-    if not isinstance(progress, (bool, np.bool_)):
-        raise InferenceError(f"progress: expected True or False, got {progress!r}")
+    check_flag(progress, "progress", InferenceError)
     if isinstance(initial, InferenceResult) and len(initial.chain) != n_ensembles:
         if n_ensembles == 1:
             n_ensembles = len(initial.chain)

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _integrate
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._threads import small_blas
-from .data import FlightData, _readonly, fingerprint, measured_start, plain, real_array
+from .data import FlightData, _readonly, as_float, fingerprint, measured_start, plain, real_array
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
 __all__ = [
@@ -79,13 +79,8 @@ def check_integrator(
                 f"(RK4 steps per sample interval), got {plain(substeps)}"
             )
     for key, value, least in (("rtol", rtol, "positive"), ("atol", atol, "non-negative")):
-        try:
-            v = float(value)
-            ok = not isinstance(value, (bool, np.bool_, str, bytes)) and bool(np.isfinite(v))
-            ok = ok and (v > 0 if least == "positive" else v >= 0)
-        except (TypeError, ValueError, OverflowError):
-            ok = False
-        if not ok:
+        v = as_float(value)
+        if v is None or not (np.isfinite(v) and (v > 0 if least == "positive" else v >= 0)):
             raise error(f"{name(key)}: expected a finite {least} number, got {plain(value)}")
 
 
@@ -169,13 +164,9 @@ def resolve_parameters(
                 f"parameter {name!r} is not a parameter of model {model.name!r}; "
                 f"its parameters are {sorted(nominal)}"
             )
-        try:
-            # float() would read True as 1.0 and "2" as 2.0
-            if isinstance(value, (bool, np.bool_, str, bytes)):
-                raise TypeError
-            v = float(value)
-        except (TypeError, ValueError):
-            raise error(f"parameter {name!r}: expected a number, got {plain(value)}") from None
+        v = as_float(value)
+        if v is None:
+            raise error(f"parameter {name!r}: expected a number, got {plain(value)}")
         if not np.isfinite(v):
             raise error(f"parameter {name!r}: value {v!r} is not finite")
         out[name] = v
@@ -940,12 +931,9 @@ def real_number(
     """`value` as a float, or `error` naming `what`: bools and text are refused (float()
     would read True as 1.0 and "2" as 2.0), so is a complex number, and with `finite`
     NaN and infinity."""
-    try:
-        if isinstance(value, (bool, np.bool_, str, bytes)):
-            raise TypeError
-        v = float(value)
-    except (TypeError, ValueError, OverflowError):
-        raise error(f"{what}: expected a number, got {plain(value)}") from None
+    v = as_float(value)
+    if v is None:
+        raise error(f"{what}: expected a number, got {plain(value)}")
     if finite and not np.isfinite(v):
         raise error(f"{what}: expected a finite number, got {plain(value)}")
     return v

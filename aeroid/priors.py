@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .data import as_float
 from .errors import InferenceError
 
 __all__ = ["HalfNormal", "InvalidPriorError", "LogUniform", "Normal", "Prior", "Uniform"]
@@ -29,13 +30,9 @@ class InvalidPriorError(InferenceError, ValueError):
 
 
 def _number(cls: str, name: str, value: Any) -> float:
-    try:
-        # float() would read True as 1.0 and "2" as 2.0
-        if isinstance(value, (bool, np.bool_, str, bytes)):
-            raise TypeError
-        v = float(value)
-    except (TypeError, ValueError):
-        raise InvalidPriorError(f"{cls}: {name} must be a number, got {value!r}") from None
+    v = as_float(value)
+    if v is None:
+        raise InvalidPriorError(f"{cls}: {name} must be a number, got {value!r}")
     if not math.isfinite(v):
         raise InvalidPriorError(f"{cls}: {name} must be finite, got {value!r}")
     return v

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
 from ._threads import CALLER_STACKLEVEL, small_blas
-from .data import plain, whole_number
+from .data import check_flag, plain, whole_number
 from .errors import AeroidError
 
 __all__ = [
@@ -360,8 +360,7 @@ def propagate_batch(
     n_samples = whole_number(n_samples, "n_samples", PropagationError, least=0)
     if not callable(func):
         raise PropagationError("func must be callable: func(parameters: dict) -> float")
-    if not isinstance(progress, (bool, np.bool_)):  # a truthy "no" would show the bar
-        raise PropagationError(f"progress must be True or False, got {plain(progress)}")
+    check_flag(progress, "progress", PropagationError)
     seed = _check_seed(seed)
     names, _, cov, fixed = _source(result)
     if n_samples * max(len(names), 1) > _MAX_VALUES:  # all draws are made up front

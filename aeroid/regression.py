@@ -72,7 +72,15 @@ from numpy.typing import ArrayLike, NDArray
 from ._czt import fast_length, fourier
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import FlightData, delay_starts, positive_number, real_array, whole_number
+from .data import (
+    FlightData,
+    as_float,
+    check_flag,
+    delay_starts,
+    positive_number,
+    real_array,
+    whole_number,
+)
 from .errors import ChannelError, DataFormatError, IdentificationError
 
 __all__ = [
@@ -262,12 +270,6 @@ def _check_names(names: Sequence[str]) -> None:
         if name in seen:
             raise DataFormatError(f"regressors: the name {name!r} appears twice")
         seen.add(name)
-
-
-def _check_flag(value: Any, name: str) -> None:
-    """Refuse a non-boolean switch: ``intercept="no"`` would read as True."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise DataFormatError(f"{name}: expected True or False, got {value!r}")
 
 
 def _step_of(time: FloatArray | None, dt: float | None) -> float | None:
@@ -580,7 +582,7 @@ def _fit(
     sse = float(v @ v)
     zc = z - z.mean()
     s_dev = float(zc @ zc)
-    sst = s_dev if has_const else float(z @ z)
+    sst = s_dev if has_const else zz
     if delays is not None:
         x = np.column_stack([x, delays[2]])
         names = [*names, *delays[0]]
@@ -740,7 +742,7 @@ def equation_error(
     if error_bars not in _ERROR_BARS:
         raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
     z, x, names, zname, time = _resolve(data, response, regressors, "equation error")
-    _check_flag(intercept, "intercept")
+    check_flag(intercept, "intercept", DataFormatError)
     use_const = bool(intercept)
     if use_const and x.shape[0]:
         # a column of ones built by hand, as SIDPAC's regressor matrices carry (a zero
@@ -1012,12 +1014,8 @@ def spline_terms(
         raise DataFormatError(f"knots of {name}: expected a sequence of numbers, got {knots!r}")
     out: dict[str, FloatArray] = {}
     for k in knots:
-        try:
-            knot = float(k)
-            ok = not isinstance(k, (bool, str)) and bool(np.isfinite(knot))
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
+        knot = as_float(k)
+        if knot is None or not np.isfinite(knot):
             raise DataFormatError(f"knots of {name}: expected finite numbers, got {k!r}")
         label = f"({name}-{knot:g})+" if knot >= 0 else f"({name}+{-knot:g})+"
         if degree > 1:
@@ -1300,8 +1298,8 @@ def stepwise_regression(
         raise DataFormatError(
             f"f_in, f_out: need numbers 0 <= f_out <= f_in, got {f_in!r}, {f_out!r}"
         )
-    _check_flag(intercept, "intercept")
-    _check_flag(orthogonalize, "orthogonalize")
+    check_flag(intercept, "intercept", DataFormatError)
+    check_flag(orthogonalize, "orthogonalize", DataFormatError)
     if error_bars not in _ERROR_BARS:
         raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
     z, x, names, zname, time = _resolve(data, response, candidates, "stepwise regression")

@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._records import frozen_array
+from .data import as_float
 from .errors import InferenceError
 
 __all__ = [
@@ -284,12 +285,9 @@ def ensemble_sampler(
     thin = _check_int("thin", thin, 1)
     if burn_in >= n_steps:
         raise InferenceError(f"burn_in ({burn_in}) must be smaller than n_steps ({n_steps})")
-    try:
-        if isinstance(stretch, (bool, str, bytes)):  # float() would read "2" as 2.0
-            raise TypeError
-        a = float(stretch)
-    except (TypeError, ValueError):
-        raise InferenceError(f"stretch: expected a number > 1, got {stretch!r}") from None
+    a = as_float(stretch)
+    if a is None:
+        raise InferenceError(f"stretch: expected a number > 1, got {stretch!r}")
     if not (a > 1.0 and math.isfinite(a)):
         raise InferenceError(f"stretch: expected a finite number > 1, got {stretch!r}")
     if move not in MOVES:
