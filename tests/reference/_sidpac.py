@@ -1,0 +1,384 @@
+"""Shared helpers of the SIDPAC reference suite (not part of the library).
+
+The suite compares AeroID, called through its public API as a user would,
+with the results SIDPAC V2.0 saved for its text examples and demos. The data
+are not ours to ship: each script reads them from the folder named by the
+environment variable ``AEROID_SIDPAC_DIR`` (the SIDPAC V2.0 folder holding
+``Text_Examples/`` and ``Demos/``) and skips cleanly when it is unset or a
+file is missing.
+
+Besides SIDPAC's numbers each case runs a Monte Carlo on its own residuals:
+the fitted model's outputs plus phase-randomised surrogates of the flight's
+residuals (one random phase per frequency shared by every output, so the
+residual auto- and cross-spectra are kept exactly), refitted N times. The
+scatter of the refits is the standard error this flight's noise really
+produces.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import pathlib
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+ENV = "AEROID_SIDPAC_DIR"
+KEYS = (
+    "case",
+    "parameter",
+    "sidpac",
+    "sidpac_se_white",
+    "sidpac_se_corrected",
+    "ours",
+    "ours_se",
+    "delta_sigma",
+    "se_ratio",
+    "mc_se",
+    "mc_ratio",
+    "seconds",
+)
+
+# the repository root, so a script run directly imports this checkout's aeroid
+_ROOT = pathlib.Path(__file__).resolve().parents[2]
+if str(_ROOT) not in sys.path:
+    sys.path.insert(0, str(_ROOT))
+
+
+class SkipCase(Exception):
+    """Raised when a case cannot run here (data folder unset or a file missing)."""
+
+
+def data_folder() -> pathlib.Path | None:
+    """The SIDPAC folder named by ``AEROID_SIDPAC_DIR``, or None when unset."""
+    value = os.environ.get(ENV, "").strip()
+    return pathlib.Path(value) if value else None
+
+
+def need(folder: pathlib.Path, *relative: str) -> list[pathlib.Path]:
+    """Paths of the files a case reads; SkipCase naming the first one missing."""
+    paths = [folder / r for r in relative]
+    for p in paths:
+        if not p.is_file():
+            raise SkipCase(f"{p} not found (is {ENV} the SIDPAC V2.0 folder?)")
+    return paths
+
+
+def loadmat(path: pathlib.Path) -> dict[str, Any]:
+    """A ``.mat`` file as a dict of arrays (scipy's reader, structs as records)."""
+    import scipy.io
+
+    return dict(scipy.io.loadmat(str(path)))
+
+
+def col(a: Any) -> np.ndarray:
+    """A saved MATLAB vector as a flat float array."""
+    return np.asarray(a, dtype=float).ravel()
+
+
+def se(cov: Any) -> np.ndarray:
+    """Standard errors from a saved covariance matrix."""
+    return np.sqrt(np.diag(np.asarray(cov, dtype=float)))
+
+
+def field(struct: Any, name: str) -> Any:
+    """A field of a MATLAB struct as scipy reads it (1x1 record array)."""
+    value = struct[name]
+    while isinstance(value, np.ndarray) and value.dtype == object and value.size == 1:
+        value = value.flat[0]
+    if isinstance(value, np.ndarray) and value.size == 1:
+        return float(value.ravel()[0])
+    return value
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    if a is None or b is None or not np.isfinite(a) or not np.isfinite(b) or b == 0:
+        return None
+    return float(a) / float(b)
+
+
+def row(
+    case: str,
+    parameter: str,
+    *,
+    sidpac: float | None,
+    sidpac_se_white: float | None,
+    sidpac_se_corrected: float | None,
+    ours: float | None,
+    ours_se: float | None,
+    mc_se: float | None = None,
+    seconds: float | None = None,
+    note: str | None = None,
+) -> dict[str, Any]:
+    """One table row with the derived columns filled in.
+
+    ``delta_sigma`` and ``se_ratio`` use SIDPAC's corrected standard error
+    where it saved one, else its white one; ``mc_ratio`` is ours over the
+    Monte Carlo scatter.
+    """
+
+    def f(v: Any) -> float | None:
+        return None if v is None else float(v)
+
+    ref = f(sidpac_se_corrected) if sidpac_se_corrected is not None else f(sidpac_se_white)
+    delta = None
+    if sidpac is not None and ours is not None and ref:
+        delta = abs(float(ours) - float(sidpac)) / ref
+    out: dict[str, Any] = {
+        "case": case,
+        "parameter": parameter,
+        "sidpac": f(sidpac),
+        "sidpac_se_white": f(sidpac_se_white),
+        "sidpac_se_corrected": f(sidpac_se_corrected),
+        "ours": f(ours),
+        "ours_se": f(ours_se),
+        "delta_sigma": delta,
+        "se_ratio": _ratio(f(ours_se), ref),
+        "mc_se": f(mc_se),
+        "mc_ratio": _ratio(f(ours_se), f(mc_se)),
+        "seconds": f(seconds),
+    }
+    if note:
+        out["note"] = note
+    return out
+
+
+def sidpac_mc_ratio(r: Mapping[str, Any]) -> float | None:
+    """SIDPAC's standard error (corrected where saved) over the Monte Carlo one."""
+    ref = r.get("sidpac_se_corrected")
+    if ref is None:
+        ref = r.get("sidpac_se_white")
+    return _ratio(ref, r.get("mc_se"))
+
+
+# ---------------------------------------------------------------- Monte Carlo
+
+
+def phase_surrogate(residuals: Any, rng: np.random.Generator) -> np.ndarray:
+    """A phase-randomised copy of residuals (n,) or (n, m).
+
+    Every non-zero frequency below Nyquist is turned by one random phase
+    shared by all columns, so each column's periodogram and every pair's
+    cross-periodogram are kept exactly; the mean (zero frequency) and the
+    Nyquist bin, both real, are kept as they are.
+    """
+    v = np.asarray(residuals, dtype=float)
+    flat = v.ndim == 1
+    v2 = v[:, None] if flat else v
+    n = v2.shape[0]
+    spectrum = np.fft.rfft(v2, axis=0)
+    phase = np.exp(2j * np.pi * rng.random(spectrum.shape[0]))
+    phase[0] = 1.0
+    if n % 2 == 0:
+        phase[-1] = 1.0
+    out = np.fft.irfft(spectrum * phase[:, None], n=n, axis=0)
+    return out[:, 0] if flat else out
+
+
+def monte_carlo(
+    refit: Callable[[np.ndarray], Mapping[str, float]],
+    fitted: Any,
+    residuals: Any,
+    n: int,
+    *,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Standard error of each parameter over `n` refits of surrogate records.
+
+    ``refit(z)`` fits the measured outputs ``z = fitted + surrogate`` (the
+    shape of `fitted`) and returns the estimates by name; refits that raise
+    are skipped (their count is printed). Empty when ``n < 2``.
+    """
+    if n < 2:
+        return {}
+    rng = np.random.default_rng(seed)
+    y = np.asarray(fitted, dtype=float)
+    draws: dict[str, list[float]] = {}
+    failed = 0
+    for _ in range(n):
+        z = y + phase_surrogate(residuals, rng)
+        try:
+            est = refit(z)
+        except Exception as exc:  # a failed refit is counted, not fatal
+            failed += 1
+            if failed == 1:
+                print(f"  (monte carlo refit failed: {type(exc).__name__}: {exc})")
+            continue
+        for k, val in est.items():
+            draws.setdefault(k, []).append(float(val))
+    if failed:
+        print(f"  ({failed} of {n} monte carlo refits failed)")
+    return {k: float(np.std(v, ddof=1)) for k, v in draws.items() if len(v) >= 2}
+
+
+class Timer:
+    """``with Timer() as t: ...`` then ``t.seconds``."""
+
+    seconds: float = 0.0
+
+    def __enter__(self) -> Timer:
+        self._t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.seconds = time.perf_counter() - self._t0
+
+
+# ---------------------------------------------------------------- printing
+
+
+def _fmt(v: Any, width: int, digits: int = 4) -> str:
+    if v is None:
+        return "-".rjust(width)
+    if isinstance(v, str):
+        return v[:width].rjust(width)
+    x = float(v)
+    if not math.isfinite(x):
+        return str(x).rjust(width)
+    if x != 0 and (abs(x) >= 1e4 or abs(x) < 1e-3):
+        return f"{x:.{digits - 1}e}".rjust(width)
+    return f"{x:.{digits}g}".rjust(width)
+
+
+_COLUMNS = (
+    ("parameter", "parameter", 14),
+    ("sidpac", "sidpac", 11),
+    ("sidpac_se_white", "se white", 10),
+    ("sidpac_se_corrected", "se corr", 10),
+    ("ours", "ours", 11),
+    ("ours_se", "ours se", 10),
+    ("delta_sigma", "|d|/sig", 8),
+    ("se_ratio", "se/sid", 7),
+    ("mc_se", "mc se", 10),
+    ("mc_ratio", "ours/mc", 8),
+    ("sidpac_mc", "sid/mc", 7),
+)
+
+
+def print_table(rows: Sequence[Mapping[str, Any]], *, title: str | None = None) -> None:
+    """Print one case's rows (with SIDPAC/MC added) and any notes."""
+    if title:
+        print(f"\n== {title}")
+    print(" ".join(h.rjust(w) if k != "parameter" else h.ljust(w) for k, h, w in _COLUMNS))
+    for r in rows:
+        cells = []
+        for k, _, w in _COLUMNS:
+            v = sidpac_mc_ratio(r) if k == "sidpac_mc" else r.get(k)
+            cells.append(str(v)[:w].ljust(w) if k == "parameter" else _fmt(v, w))
+        print(" ".join(cells))
+    secs = {r.get("seconds") for r in rows if r.get("seconds") is not None}
+    if secs:
+        print(f"time of our fit: {max(secs):.2f} s")
+    notes = dict.fromkeys(r["note"] for r in rows if r.get("note"))
+    for n in notes:
+        print(f"note: {n}")
+
+
+def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
+    """Max |delta|/sigma, min/max standard-error ratios and time of one case."""
+
+    def span(vals: list[Any]) -> tuple[float | None, float | None]:
+        v = [float(x) for x in vals if x is not None]
+        return (min(v), max(v)) if v else (None, None)
+
+    d = [r.get("delta_sigma") for r in rows if r.get("delta_sigma") is not None]
+    se_lo, se_hi = span([r.get("se_ratio") for r in rows])
+    mc_lo, mc_hi = span([r.get("mc_ratio") for r in rows])
+    sm_lo, sm_hi = span([sidpac_mc_ratio(r) for r in rows])
+    secs = [r.get("seconds") for r in rows if r.get("seconds") is not None]
+    return {
+        "max_delta_sigma": max(d) if d else None,
+        "se_min": se_lo,
+        "se_max": se_hi,
+        "mc_min": mc_lo,
+        "mc_max": mc_hi,
+        "sidpac_mc_min": sm_lo,
+        "sidpac_mc_max": sm_hi,
+        "seconds": max(secs) if secs else None,
+    }
+
+
+def arguments(argv: Sequence[str] | None = None, *, description: str = "") -> argparse.Namespace:
+    """The common command line: ``--mc N`` (0 skips) and ``--seed``."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--mc", type=int, default=100, help="Monte Carlo refits (0 to skip)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the surrogates")
+    return ap.parse_known_args(argv)[0]
+
+
+def main(case: str, run: Callable[..., list[dict[str, Any]]], argv: Sequence[str] | None = None) -> int:
+    """What a case script's ``__main__`` does: run it and print its table."""
+    args = arguments(argv, description=f"SIDPAC reference case {case}")
+    folder = data_folder()
+    if folder is None:
+        print(f"skipped {case}: set {ENV} to the SIDPAC V2.0 folder to run the reference suite")
+        return 0
+    try:
+        rows = run(folder, mc=args.mc, seed=args.seed)
+    except SkipCase as exc:
+        print(f"skipped {case}: {exc}")
+        return 0
+    print_table(rows, title=case)
+    return 0
+
+
+# ---------------------------------------------------------------- shared case bodies
+
+
+def regression_rows(
+    case: str,
+    regressors: Mapping[str, Any],
+    response: Any,
+    sidpac: Mapping[str, tuple[float | None, float | None, float | None]],
+    *,
+    label: str = "",
+    mc: int = 100,
+    seed: int = 0,
+    intercept: bool = True,
+    note: str | None = None,
+) -> list[dict[str, Any]]:
+    """Equation error through ``aeroid.equation_error`` next to SIDPAC's lesq.
+
+    `sidpac` maps our parameter name (``const`` for the bias) to SIDPAC's
+    (estimate, white se, corrected se). The Monte Carlo keeps the regressors
+    and refits the fitted response plus surrogates of our residuals.
+    """
+    import aeroid
+
+    names = list(regressors)
+    z = np.asarray(response, dtype=float).ravel()
+    data = {k: np.asarray(v, dtype=float).ravel() for k, v in regressors.items()}
+    data["__z"] = z
+    with Timer() as t:
+        res = aeroid.equation_error(data, "__z", names, intercept=intercept)
+    fitted = np.asarray(res.fitted, dtype=float)
+    resid = z - fitted
+
+    def refit(zz: np.ndarray) -> Mapping[str, float]:
+        d = dict(data)
+        d["__z"] = zz
+        return aeroid.equation_error(d, "__z", names, intercept=intercept, error_bars="white").parameters
+
+    mcs = monte_carlo(refit, fitted, resid, mc, seed=seed)
+    rows = []
+    for name, (p, sw, sc) in sidpac.items():
+        rows.append(
+            row(
+                case,
+                f"{label}{name}",
+                sidpac=p,
+                sidpac_se_white=sw,
+                sidpac_se_corrected=sc,
+                ours=res.parameters[name],
+                ours_se=res.stderr[name],
+                mc_se=mcs.get(name),
+                seconds=t.seconds,
+                note=note,
+            )
+        )
+    return rows
