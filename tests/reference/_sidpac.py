@@ -159,13 +159,15 @@ def sidpac_mc_ratio(r: Mapping[str, Any]) -> float | None:
 # ---------------------------------------------------------------- Monte Carlo
 
 
-def phase_surrogate(residuals: Any, rng: np.random.Generator) -> np.ndarray:
+def phase_surrogate(residuals: Any, rng: np.random.Generator, *, low_bins: int = 3) -> np.ndarray:
     """A phase-randomised copy of residuals (n,) or (n, m).
 
     Every non-zero frequency below Nyquist is turned by one random phase
     shared by all columns, so each column's periodogram and every pair's
-    cross-periodogram are kept exactly; the mean (zero frequency) and the
-    Nyquist bin, both real, are kept as they are.
+    cross-periodogram are kept exactly there; the Nyquist bin is kept. The
+    zero-frequency bin, which a fitted bias empties, keeps its value plus a
+    random real part with the power and cross-power, on average, of the
+    `low_bins` lowest non-zero bins (else a bias would never move).
     """
     v = np.asarray(residuals, dtype=float)
     flat = v.ndim == 1
@@ -176,8 +178,14 @@ def phase_surrogate(residuals: Any, rng: np.random.Generator) -> np.ndarray:
     phase[0] = 1.0
     if n % 2 == 0:
         phase[-1] = 1.0
-    out = np.fft.irfft(spectrum * phase[:, None], n=n, axis=0)
-    return out[:, 0] if flat else out
+    out = spectrum * phase[:, None]
+    k = min(low_bins, spectrum.shape[0] - 2 + n % 2)
+    if k > 0:
+        # sqrt(2/k) Re(X e^{i phi}) has mean outer product Re(X X*) / k per bin
+        low = spectrum[1 : k + 1] * np.exp(2j * np.pi * rng.random(k))[:, None]
+        out[0] = out[0] + np.sqrt(2.0 / k) * np.real(low).sum(axis=0)
+    res = np.fft.irfft(out, n=n, axis=0)
+    return res[:, 0] if flat else res
 
 
 def monte_carlo(
