@@ -319,7 +319,9 @@ def arguments(argv: Sequence[str] | None = None, *, description: str = "") -> ar
     return ap.parse_known_args(argv)[0]
 
 
-def main(case: str, run: Callable[..., list[dict[str, Any]]], argv: Sequence[str] | None = None) -> int:
+def main(
+    case: str, run: Callable[..., list[dict[str, Any]]], argv: Sequence[str] | None = None
+) -> int:
     """What a case script's ``__main__`` does: run it and print its table."""
     args = arguments(argv, description=f"SIDPAC reference case {case}")
     folder = data_folder()
@@ -370,7 +372,9 @@ def regression_rows(
     def refit(zz: np.ndarray) -> Mapping[str, float]:
         d = dict(data)
         d["__z"] = zz
-        return aeroid.equation_error(d, "__z", names, intercept=intercept, error_bars="white").parameters
+        return aeroid.equation_error(
+            d, "__z", names, intercept=intercept, error_bars="white"
+        ).parameters
 
     mcs = monte_carlo(refit, fitted, resid, mc, seed=seed)
     rows = []
