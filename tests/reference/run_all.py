@@ -1,0 +1,111 @@
+"""Run every SIDPAC reference case (``ref_*.py`` beside this file) and summarise.
+
+Usage::
+
+    AEROID_SIDPAC_DIR=/path/to/SIDPAC_V2.0 python tests/reference/run_all.py [--mc N] [--only CASE]
+
+Prints each case's table, then one summary line per case: the largest
+``|ours - SIDPAC| / sigma_SIDPAC``, the range of our standard errors over
+SIDPAC's (corrected where saved), over the Monte Carlo's, SIDPAC's over the
+Monte Carlo's, and the time of our fit. Exits 0 with a message when the data
+folder is unset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import pathlib
+import sys
+import time
+import traceback
+from types import ModuleType
+from typing import Any
+
+HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import _sidpac as S  # noqa: E402
+
+
+def cases() -> list[ModuleType]:
+    """Every ``ref_*.py`` module here, in file-name order."""
+    mods = []
+    for path in sorted(HERE.glob("ref_*.py")):
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        assert spec is not None and spec.loader is not None
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        if hasattr(mod, "run"):
+            mods.append(mod)
+    return mods
+
+
+def _f(v: Any, w: int = 8) -> str:
+    return S._fmt(v, w, 3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mc", type=int, default=100, help="Monte Carlo refits per case (0 to skip)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", action="append", default=[], help="case name (repeatable)")
+    args = ap.parse_args(argv)
+    folder = S.data_folder()
+    if folder is None:
+        print(f"skipped: set {S.ENV} to the SIDPAC V2.0 folder to run the reference suite")
+        return 0
+    results: list[tuple[str, dict[str, Any] | str]] = []
+    t_all = time.perf_counter()
+    for mod in cases():
+        case = getattr(mod, "CASE", mod.__name__)
+        if args.only and case not in args.only:
+            continue
+        t0 = time.perf_counter()
+        try:
+            rows = mod.run(folder, mc=args.mc, seed=args.seed)
+        except S.SkipCase as exc:
+            print(f"\nskipped {case}: {exc}")
+            results.append((case, f"skipped: {exc}"))
+            continue
+        except Exception as exc:  # one broken case must not hide the others
+            traceback.print_exc()
+            results.append((case, f"FAILED: {type(exc).__name__}: {exc}"))
+            continue
+        S.print_table(
+            rows, title=f"{case}  ({time.perf_counter() - t0:.1f} s with the Monte Carlo)"
+        )
+        results.append((case, S.summary(rows)))
+    print(f"\n== summary (--mc {args.mc}, {time.perf_counter() - t_all:.0f} s in all)")
+    head = (
+        "case",
+        "max|d|/sig",
+        "se/sid min",
+        "max",
+        "ours/mc min",
+        "max",
+        "sid/mc min",
+        "max",
+        "fit s",
+    )
+    print(f"{head[0]:<18}" + "".join(f"{h:>12}" for h in head[1:]))
+    for case, s in results:
+        if isinstance(s, str):
+            print(f"{case:<18}  {s}")
+            continue
+        keys = (
+            "max_delta_sigma",
+            "se_min",
+            "se_max",
+            "mc_min",
+            "mc_max",
+            "sidpac_mc_min",
+            "sidpac_mc_max",
+            "seconds",
+        )
+        print(f"{case:<18}" + "".join(_f(s[k], 12) for k in keys))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
