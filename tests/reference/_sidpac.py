@@ -394,3 +394,48 @@ def regression_rows(
             )
         )
     return rows
+
+
+def output_residuals(result: Any, outputs: Sequence[str], k: int = 0) -> np.ndarray:
+    """Manoeuvre `k`'s residuals of an identification, columns in `outputs` order."""
+    order = [list(result.output_names).index(o) for o in outputs]
+    return np.asarray(result.residuals[k], dtype=float)[:, order]
+
+
+def estimates_with_biases(result: Any) -> dict[str, float]:
+    """Parameters plus first-manoeuvre biases as ``bias.<name>``."""
+    out = {k: float(v) for k, v in result.parameters.items()}
+    if result.biases:
+        out.update({f"bias.{k}": float(v) for k, v in result.biases[0].items()})
+    return out
+
+
+def identify_monte_carlo(
+    model: Any,
+    flight: Callable[[np.ndarray], Any],
+    z: Any,
+    result: Any,
+    outputs: Sequence[str],
+    n: int,
+    *,
+    seed: int = 0,
+    **options: Any,
+) -> dict[str, float]:
+    """Monte Carlo of an output-error fit: refit ``fitted + surrogate`` records.
+
+    ``flight(z)`` builds the record from measured outputs (n, len(outputs));
+    each refit starts at `result`'s estimates with the same `options`
+    (``x0``, ``estimate_bias`` ...) and white error bars (only the estimates
+    are used).
+    """
+    import aeroid
+
+    zz = np.asarray(z, dtype=float)
+    resid = output_residuals(result, outputs)
+    start = dict(result.parameters)
+
+    def refit(znew: np.ndarray) -> dict[str, float]:
+        r = aeroid.identify(model, flight(znew), start, error_bars="white", **options)
+        return estimates_with_biases(r)
+
+    return monte_carlo(refit, zz - resid, resid, n, seed=seed)
