@@ -439,3 +439,121 @@ def identify_monte_carlo(
         return estimates_with_biases(r)
 
     return monte_carlo(refit, zz - resid, resid, n, seed=seed)
+
+
+# ---------------------------------------------------------------- SIDPAC's methods in numpy
+# Used only where SIDPAC saved no result: our own numpy code following the
+# algorithms of its lsims.m, oe.m, senest.m, estrr.m and m_colores.m.
+
+
+def lsims(A: Any, B: Any, C: Any, D: Any, u: Any, t: Any, x0: Any) -> np.ndarray:
+    """SIDPAC's linear simulation: a second-order step with the input averaged over the interval."""
+    u = np.asarray(u, dtype=float)
+    t = np.asarray(t, dtype=float).ravel()
+    n = len(t)
+    dt = 1.0 / round(2.0 / (t[2] - t[0]))
+    x = np.zeros((n, A.shape[0]))
+    x[0] = np.asarray(x0, dtype=float).ravel()
+    umid = 0.5 * (u[:-1] + u[1:])
+    for i in range(1, n):
+        xi = x[i - 1]
+        xh = xi + 0.5 * dt * (A @ xi + B @ u[i - 1])
+        x[i] = xi + dt * (A @ xh + B @ umid[i - 1])
+    return x @ C.T + u @ D.T
+
+
+def _sensitivities(
+    sim: Callable[[np.ndarray], np.ndarray], p: np.ndarray, rel: float = 0.01
+) -> np.ndarray:
+    """Central differences (n, no, np) with SIDPAC's steps: 1 % of |p|, at least 1e-4."""
+    steps = np.where(np.abs(p) > 1e-4, np.abs(rel * p), 1e-4)
+    cols = []
+    for j, h in enumerate(steps):
+        hi, lo = p.copy(), p.copy()
+        hi[j] += 0.5 * h
+        lo[j] -= 0.5 * h
+        cols.append((sim(hi) - sim(lo)) / h)
+    return np.stack(cols, axis=-1)
+
+
+def np_output_error(
+    sim: Callable[[np.ndarray], np.ndarray],
+    p0: Any,
+    z: Any,
+    *,
+    max_iterations: int = 50,
+    tolerance: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Output error as SIDPAC's oe.m: Gauss-Newton on a diagonal noise covariance.
+
+    ``sim(p)`` returns the outputs (n, no). The noise covariance is the
+    diagonal of the residual covariance, re-estimated each iteration.
+    Returns the estimates, the outputs, the Cramer-Rao covariance
+    ``M^{-1}`` (white residuals) and the noise covariance.
+    """
+    z = np.asarray(z, dtype=float)
+    p = np.asarray(p0, dtype=float).ravel().copy()
+    y = sim(p)
+    rr = np.diag(np.mean((z - y) ** 2, axis=0))
+    cost = np.inf
+    info = np.eye(len(p))
+    for _ in range(max_iterations):
+        w = 1.0 / np.diag(rr)
+        s = _sensitivities(sim, p)
+        v = z - y
+        info = np.einsum("iap,a,iaq->pq", s, w, s)
+        grad = np.einsum("iap,a,ia->p", s, w, v)
+        step = np.linalg.lstsq(info, grad, rcond=None)[0]
+        pn = p + step
+        yn = sim(pn)
+        # halve the step while the cost rises
+        for _ in range(20):
+            if 0.5 * np.sum((z - yn) ** 2 * w) <= 0.5 * np.sum(v**2 * w) * 1.0001:
+                break
+            step *= 0.5
+            pn = p + step
+            yn = sim(pn)
+        p, y = pn, yn
+        rr = np.diag(np.mean((z - y) ** 2, axis=0))
+        new = 0.5 * np.sum((z - y) ** 2 / np.diag(rr))
+        if abs(cost - new) <= tolerance * abs(new) and np.all(
+            np.abs(step) <= 1e-6 + 1e-5 * np.abs(p)
+        ):
+            break
+        cost = new
+    w = 1.0 / np.diag(rr)
+    s = _sensitivities(sim, p)
+    info = np.einsum("iap,a,iaq->pq", s, w, s)
+    return p, y, np.linalg.pinv(info), rr
+
+
+def m_colores(sens: Any, residuals: Any, rr: Any) -> tuple[np.ndarray, np.ndarray]:
+    """SIDPAC's m_colores.m: (corrected, white) covariance of an output-error fit.
+
+    ``M^{-1} [sum_i sum_j S_i' R^-1 Rvv(|i-j|) R^-1 S_j] M^{-1}`` with
+    ``Rvv(k)`` the unbiased residual auto/cross-correlation at lag k (the
+    lag-k block used for both signs, as m_colores does), summed over every
+    pair of samples; the double sum is done by FFT.
+    """
+    s = np.asarray(sens, dtype=float)  # (n, no, np)
+    v = np.asarray(residuals, dtype=float)  # (n, no)
+    n, no, npar = s.shape
+    rinv = np.linalg.inv(np.asarray(rr, dtype=float))
+    w = np.einsum("ab,ibp->iap", rinv, s)  # R^-1 S_i
+    info = np.einsum("iap,iaq->pq", s, w)
+    white = np.linalg.pinv(info)
+    nfft = 1 << int(np.ceil(np.log2(2 * n)))
+    lags = np.arange(n)
+    fv = np.fft.rfft(v, nfft, axis=0)
+    # Rvv[k][a, b] = sum_t v_a(t + k) v_b(t) / (n - k)
+    rvv = np.fft.irfft(np.conj(fv)[:, None, :] * fv[:, :, None], nfft, axis=0)[:n]
+    rvv /= (n - lags)[:, None, None]
+    fw = np.fft.rfft(w.reshape(n, no * npar), nfft, axis=0)
+    # C[k][(a,p),(b,q)] = sum_i w_i[a,p] w_{i+k}[b,q]
+    cc = np.fft.irfft(np.conj(fw)[:, :, None] * fw[:, None, :], nfft, axis=0)[:n]
+    cc = cc.reshape(n, no, npar, no, npar)
+    # pairs j = i + k (k >= 0) and j = i - k (k > 0), same Rvv(k) block
+    fwd = np.einsum("kab,kapbq->pq", rvv, cc)
+    back = np.einsum("kab,kbqap->pq", rvv[1:], cc[1:])
+    total = fwd + back
+    return white @ total @ white, white
