@@ -1,0 +1,135 @@
+"""The SIDPAC reference suite (tests/reference) skips cleanly and its Monte Carlo keeps spectra."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+
+HERE = pathlib.Path(__file__).resolve().parent
+REF = HERE / "reference"
+sys.path.insert(0, str(REF))
+
+import _sidpac as S  # noqa: E402
+
+
+def _env_without_data() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != S.ENV}
+    env["PYTHONPATH"] = str(HERE.parent)
+    return env
+
+
+def test_runner_skips_cleanly_without_the_data_folder() -> None:
+    out = subprocess.run(
+        [sys.executable, str(REF / "run_all.py"), "--mc", "0"],
+        env=_env_without_data(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "skipped" in out.stdout and S.ENV in out.stdout
+
+
+def test_a_case_script_skips_cleanly_without_the_data_folder() -> None:
+    out = subprocess.run(
+        [sys.executable, str(REF / "ref_example_5p1.py")],
+        env=_env_without_data(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "skipped example_5p1" in out.stdout
+
+
+def test_a_missing_file_is_a_skip_naming_it(tmp_path: pathlib.Path) -> None:
+    import ref_example_5p1
+
+    try:
+        ref_example_5p1.run(tmp_path, mc=0)
+    except S.SkipCase as exc:
+        assert "example_5p1_results.mat" in str(exc)
+    else:
+        raise AssertionError("an empty folder must raise SkipCase")
+
+
+def test_surrogates_keep_auto_and_cross_periodograms() -> None:
+    # two correlated coloured outputs; every bin 1..n/2 keeps |X_a|^2 and X_a X_b*
+    rng = np.random.default_rng(3)
+    n = 512
+    e = rng.normal(size=(n, 2))
+    a = np.convolve(e[:, 0], [1.0, 0.8, 0.5], mode="same")
+    v = np.column_stack([a, 0.6 * a + 0.3 * e[:, 1]])
+    s = S.phase_surrogate(v, rng)
+    fv, fs = np.fft.rfft(v, axis=0), np.fft.rfft(s, axis=0)
+    k = slice(1, None)
+    np.testing.assert_allclose(np.abs(fs[k]) ** 2, np.abs(fv[k]) ** 2, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        fs[k, 0] * np.conj(fs[k, 1]), fv[k, 0] * np.conj(fv[k, 1]), rtol=1e-9, atol=1e-9
+    )
+    # the phases really change, and the surrogate is a new signal
+    assert np.max(np.abs(s - v)) > 0.5 * np.std(v)
+    # the same seed gives the same surrogate
+    np.testing.assert_array_equal(
+        S.phase_surrogate(v, np.random.default_rng(7)),
+        S.phase_surrogate(v, np.random.default_rng(7)),
+    )
+
+
+def test_surrogate_zero_bin_carries_the_low_frequency_power_on_average() -> None:
+    # a zero-mean record: the zero bin gets mean power (and cross-power) of the 3 lowest bins
+    rng = np.random.default_rng(5)
+    n = 256
+    v = rng.normal(size=(n, 2))
+    v[:, 1] += 0.5 * v[:, 0]
+    v -= v.mean(axis=0)
+    fv = np.fft.rfft(v, axis=0)
+    target = np.real(fv[1:4, :, None] * np.conj(fv[1:4, None, :])).mean(axis=0)
+    draws = np.array([np.fft.rfft(S.phase_surrogate(v, rng), axis=0)[0].real for _ in range(4000)])
+    got = draws.T @ draws / len(draws)
+    # 4000 draws: relative sampling error of a second moment about sqrt(2/4000) ~ 2 %
+    np.testing.assert_allclose(got, target, rtol=0.1, atol=0.1 * np.abs(target).max())
+
+
+def test_monte_carlo_of_a_regression_matches_ordinary_least_squares_on_white_noise() -> None:
+    # white residuals: the surrogate scatter of a slope is sigma / sqrt(sum x^2)
+    rng = np.random.default_rng(11)
+    n = 400
+    x = rng.normal(size=n)
+    fitted = 2.0 * x
+    resid = 0.1 * rng.normal(size=n)
+    resid -= (
+        x * (x @ resid) / (x @ x)
+    )  # residuals orthogonal to the regressor, as a fit leaves them
+
+    def refit(z: np.ndarray) -> dict[str, float]:
+        return {"slope": float(x @ z / (x @ x))}
+
+    sd = S.monte_carlo(refit, fitted, resid, 400, seed=1)["slope"]
+    expected = np.sqrt(np.mean(resid**2) / (x @ x))
+    # 400 refits: the standard deviation is known to about 1/sqrt(2*399) ~ 3.5 %; allow 5 sigma
+    assert abs(sd / expected - 1.0) < 0.18
+
+
+def test_rows_fill_the_derived_columns() -> None:
+    r = S.row(
+        "c",
+        "p",
+        sidpac=1.0,
+        sidpac_se_white=0.1,
+        sidpac_se_corrected=0.2,
+        ours=1.3,
+        ours_se=0.3,
+        mc_se=0.15,
+    )
+    assert set(S.KEYS) <= set(r)
+    assert (
+        np.isclose(r["delta_sigma"], 1.5)
+        and np.isclose(r["se_ratio"], 1.5)
+        and np.isclose(r["mc_ratio"], 2.0)
+    )
+    assert np.isclose(S.sidpac_mc_ratio(r), 0.2 / 0.15)
