@@ -13,8 +13,12 @@ Ours: ``aeroid.equation_error`` for CZ and ``aeroid.stepwise_regression``
 for Cm on the same coefficients (computed here in numpy as compfc/compmc
 do); the initial values are removed with a local quadratic fit over the
 first second (xsmep's role), which moves only the biases. The output-error
-step (SIDPAC's nonlinear ``nldyn`` with measured states fed in) is not
-reproduced: its rows are listed with SIDPAC's values only.
+step is SIDPAC's ``nldyn`` with its ``totter_results`` settings: states
+alpha and q integrated, V, beta, p, r, phi, theta, q_hat, dynamic pressure,
+thrust and the measured CX fed in from the data; CZ and Cm modelled; outputs
+alpha, q and az with an az bias. Ours writes those equations as a user
+``aeroid.Model`` (the fed-in signals as controls) fitted by
+``aeroid.identify``; rows ``oe:...``.
 """
 
 from __future__ import annotations
@@ -107,31 +111,101 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                 note=note,
             )
         )
-    p, serr = S.col(r["p"]), S.col(r["serr"])
-    oe_names = (
-        "CZ_alpha",
-        "CZ_delta_e",
-        "CZ_0",
-        "Cm_alpha",
-        "Cm_q",
-        "Cm_delta_e",
-        "Cm_0",
-        "az_bias",
-    )
-    for i, n in enumerate(oe_names):
-        rows.append(
-            S.row(
-                CASE,
-                f"oe:{n}",
-                sidpac=p[i],
-                sidpac_se_white=None,
-                sidpac_se_corrected=serr[i],
-                ours=None,
-                ours_se=None,
-                note="oe: rows are SIDPAC's nonlinear output error (nldyn), not reproduced here",
-            )
-        )
+    rows += oe_rows(d, r, mc=mc, seed=seed + 2)
     return rows
+
+
+OE_NAMES = ("CZ_alpha", "CZ_delta_e", "CZ_0", "Cm_alpha", "Cm_q_hat", "Cm_delta_e", "Cm_0", "b_az")
+FED = ("V", "beta", "p", "r", "phi", "theta", "q_hat", "qbar", "thrust", "CX")
+
+
+def oe_rows(d: dict[str, Any], r: dict[str, Any], *, mc: int, seed: int) -> list[dict[str, Any]]:
+    """nldyn's alpha/q equations (measured states fed in) as a user model, fitted by identify."""
+    import aeroid
+
+    f = np.asarray(d["fdata"], dtype=float)
+    t = S.col(d["t"])
+    coe = r["coe"]
+    x0c, u0c = S.col(S.field(coe, "x0")), S.col(S.field(coe, "u0"))
+    alpha0, de0 = float(x0c[2]), float(u0c[0])
+    mass, ixx, iyy, izz, ixz = (float(np.mean(f[:, j])) for j in (47, 48, 49, 50, 51))
+    sarea, cbar = float(f[0, 76]), float(f[0, 78])
+    c5, c6, c7 = (izz - ixx) / iyy, ixz / iyy, 1.0 / iyy
+
+    def dynamics(tt: Any, x: Any, u: Any, p: Any) -> Any:
+        alpha, q = x
+        de, vt, beta, pr, rr, phi, the, qhat, qbar, thrust, cx = u
+        qs = qbar * sarea
+        cz = p["CZ_alpha"] * (alpha - alpha0) + p["CZ_delta_e"] * (de - de0) + p["CZ_0"]
+        cm = (
+            p["Cm_alpha"] * (alpha - alpha0) + p["Cm_q_hat"] * qhat
+            + p["Cm_delta_e"] * (de - de0) + p["Cm_0"]
+        )  # fmt: skip
+        cb = np.cos(beta)
+        ub, vb, wb = vt * np.cos(alpha) * cb, vt * np.sin(beta), vt * np.sin(alpha) * cb
+        udot = rr * vb - q * wb - G * np.sin(the) + (qs * cx + thrust) / mass
+        wdot = q * ub - pr * vb + G * np.cos(the) * np.cos(phi) + qs * cz / mass
+        adot = (wdot * ub - wb * udot) / (ub * ub + wb * wb)
+        qdot = c5 * pr * rr + c6 * (rr * rr - pr * pr) + qs * cbar * c7 * cm
+        return np.array([adot, qdot])
+
+    def measurement(tt: Any, x: Any, u: Any, p: Any) -> Any:
+        alpha, q = x
+        cz = p["CZ_alpha"] * (alpha - alpha0) + p["CZ_delta_e"] * (u[0] - de0) + p["CZ_0"]
+        return np.array([alpha, q, u[8] * sarea * cz / (mass * G) + p["b_az"]])
+
+    pr0 = S.col(r["p0"])
+    start = dict(zip(OE_NAMES, pr0.tolist(), strict=True))
+    model = aeroid.Model(
+        states=["alpha", "q"],
+        controls=["delta_e", *FED],
+        parameters=start,
+        dynamics=dynamics,
+        outputs=["alpha", "q", "az"],
+        measurement=measurement,
+        name="nldyn_short_period",
+    )
+    fed = {
+        "delta_e": f[:, 13] * DTR,
+        "V": f[:, 1],
+        "beta": f[:, 2] * DTR,
+        "p": f[:, 4] * DTR,
+        "r": f[:, 6] * DTR,
+        "phi": f[:, 7] * DTR,
+        "theta": f[:, 8] * DTR,
+        "q_hat": f[:, 71],
+        "qbar": f[:, 26],
+        "thrust": f[:, 37:41].sum(axis=1),
+        "CX": f[:, 60],
+    }
+    z = np.column_stack([f[:, 3] * DTR, f[:, 5] * DTR, f[:, 12]])
+    outs = ("alpha", "q", "az")
+
+    def flight(zz: np.ndarray) -> Any:
+        return aeroid.FlightData(
+            time=t, channels=dict(fed, **{o: zz[:, j] for j, o in enumerate(outs)})
+        )
+
+    opts = {"x0": {"alpha": alpha0, "q": float(x0c[4])}}
+    with S.Timer() as tm:
+        res = aeroid.identify(model, flight(z), start, **opts)
+    mcs = S.identify_monte_carlo(model, flight, z, res, outs, mc, seed=seed, **opts)
+    p, serr = S.col(r["p"]), S.col(r["serr"])
+    return [
+        S.row(
+            CASE,
+            f"oe:{n}",
+            sidpac=p[i],
+            sidpac_se_white=None,
+            sidpac_se_corrected=serr[i],
+            ours=res.parameters[n],
+            ours_se=res.stderr[n],
+            mc_se=mcs.get(n),
+            seconds=tm.seconds,
+            note="oe: SIDPAC's nldyn (Adams-Bashforth) as a user Model (RK4); SIDPAC saved m_colores errors only",
+        )
+        for i, n in enumerate(OE_NAMES)
+    ]
 
 
 if __name__ == "__main__":
