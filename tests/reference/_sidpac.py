@@ -287,15 +287,41 @@ def print_table(rows: Sequence[Mapping[str, Any]], *, title: str | None = None) 
         print(f"note: {n}")
 
 
-def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
-    """Max |delta|/sigma, min/max standard-error ratios and time of one case."""
+BIAS_MARKERS = ("const", "bias", "b_")
+
+
+def is_derivative(name: str) -> bool:
+    """A stability or control derivative, not a bias, constant or sensor parameter."""
+    base = name.split(":")[-1]
+    stem = base.split("_", 1)[-1] if "_" in base else base
+    if any(m in base for m in ("const", "bias")) or base.startswith(("b_", "k_", "tau_")):
+        return False
+    return not (base.endswith("_0") or stem == "0")
+
+
+def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One case in numbers: the largest |delta|/sigma, the ranges of the
+    standard-error ratios (all rows; derivatives against SIDPAC's corrected
+    errors), and how many rows meet the targets (derivative se within
+    0.8-1.25 of SIDPAC's corrected, every se within 0.8-1.25 of the Monte
+    Carlo, every estimate within 1 SIDPAC sigma)."""
 
     def span(vals: list[Any]) -> tuple[float | None, float | None]:
         v = [float(x) for x in vals if x is not None]
         return (min(v), max(v)) if v else (None, None)
 
+    def inside(vals: list[Any], lo: float, hi: float) -> str:
+        v = [float(x) for x in vals if x is not None]
+        return f"{sum(lo <= x <= hi for x in v)}/{len(v)}" if v else "-"
+
     d = [r.get("delta_sigma") for r in rows if r.get("delta_sigma") is not None]
+    deriv_corr = [
+        _ratio(r.get("ours_se"), r.get("sidpac_se_corrected"))
+        for r in rows
+        if is_derivative(str(r.get("parameter"))) and r.get("sidpac_se_corrected") is not None
+    ]
     se_lo, se_hi = span([r.get("se_ratio") for r in rows])
+    dv_lo, dv_hi = span(deriv_corr)
     mc_lo, mc_hi = span([r.get("mc_ratio") for r in rows])
     sm_lo, sm_hi = span([sidpac_mc_ratio(r) for r in rows])
     secs = [r.get("seconds") for r in rows if r.get("seconds") is not None]
@@ -303,11 +329,16 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
         "max_delta_sigma": max(d) if d else None,
         "se_min": se_lo,
         "se_max": se_hi,
+        "deriv_corr_min": dv_lo,
+        "deriv_corr_max": dv_hi,
         "mc_min": mc_lo,
         "mc_max": mc_hi,
         "sidpac_mc_min": sm_lo,
         "sidpac_mc_max": sm_hi,
         "seconds": max(secs) if secs else None,
+        "target_se": inside(deriv_corr, 0.8, 1.25),
+        "target_mc": inside([r.get("mc_ratio") for r in rows], 0.8, 1.25),
+        "target_estimate": inside(d, 0.0, 1.0),
     }
 
 
@@ -557,3 +588,22 @@ def m_colores(sens: Any, residuals: Any, rr: Any) -> tuple[np.ndarray, np.ndarra
     back = np.einsum("kab,kbqap->pq", rvv[1:], cc[1:])
     total = fwd + back
     return white @ total @ white, white
+
+
+def r_colores(X: Any, z: Any) -> tuple[np.ndarray, np.ndarray]:
+    """SIDPAC's r_colores.m: (corrected, white) covariance of a least-squares fit.
+
+    ``(X'X)^-1 X' Rvv X (X'X)^-1`` with ``Rvv`` the Toeplitz matrix of the
+    biased residual autocorrelation over every lag; white ``s^2 (X'X)^-1``.
+    """
+    import scipy.linalg
+
+    X = np.asarray(X, dtype=float)
+    z = np.asarray(z, dtype=float).ravel()
+    n, npar = X.shape
+    xtxi = np.linalg.pinv(X.T @ X)
+    v = z - X @ (xtxi @ X.T @ z)
+    white = float(v @ v) / (n - npar) * xtxi
+    acf = np.correlate(v, v, mode="full")[n - 1 :] / n
+    corrected = xtxi @ X.T @ scipy.linalg.toeplitz(acf) @ X @ xtxi
+    return corrected, white

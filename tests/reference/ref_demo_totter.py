@@ -64,11 +64,17 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     X = X - np.array([np.polyval(np.polyfit(tt, X[:m, j], 2), 0.0) for j in range(3)])
     reg = {"alpha": X[:, 0], "q_hat": X[:, 1], "delta_e": X[:, 2]}
     pZ, sZ = S.col(r["pZ"]), S.col(r["serrZ"])
+    one = np.ones(len(t))
+    # SIDPAC saved corrected errors only: its lesq white ones computed here in numpy
+    wZ = S.se(S.r_colores(np.column_stack([reg["alpha"], reg["delta_e"], one]), cz)[1])
+    wm = S.se(
+        S.r_colores(np.column_stack([reg["alpha"], reg["q_hat"], reg["delta_e"], one]), cm)[1]
+    )
     rows = S.regression_rows(
         CASE,
         {"alpha": reg["alpha"], "delta_e": reg["delta_e"]},
         cz,
-        {k: (pZ[i], None, sZ[i]) for i, k in enumerate(("alpha", "delta_e", "const"))},
+        {k: (pZ[i], wZ[i], sZ[i]) for i, k in enumerate(("alpha", "delta_e", "const"))},
         label="CZ_",
         mc=mc,
         seed=seed,
@@ -89,20 +95,22 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
 
     mcs = S.monte_carlo(refit, fitted, cm - fitted, mc, seed=seed + 1)
     pm, sm = S.col(r["pm"]), S.col(r["serrm"])
-    sid_m = dict(zip(("alpha", "q_hat", "delta_e", "const"), zip(pm, sm, strict=True), strict=True))
+    sid_m = dict(
+        zip(("alpha", "q_hat", "delta_e", "const"), zip(pm, wm, sm, strict=True), strict=True)
+    )
     note = (
         f"Cm terms: SIDPAC alpha, q_hat, delta_e, const; ours {', '.join(sw.selected)}, const; "
-        "SIDPAC saved corrected (r_colores) errors only; the biases differ because xsmep's smoothed "
+        "SIDPAC saved corrected (r_colores) errors only, white ones computed in numpy; the biases differ because xsmep's smoothed "
         "initial values are approximated here by a local quadratic fit"
     )
     for k in (*cands, "const"):
-        sp, ss = sid_m.get(k, (0.0, None))
+        sp, sw_, ss = sid_m.get(k, (0.0, None, None))
         rows.append(
             S.row(
                 CASE,
                 f"Cm_{k}",
                 sidpac=sp,
-                sidpac_se_white=None,
+                sidpac_se_white=sw_,
                 sidpac_se_corrected=ss,
                 ours=fit.parameters.get(k, 0.0),
                 ours_se=fit.stderr.get(k),

@@ -4,7 +4,9 @@ Klein & Morelli Example 5.1, flight ``totter_f1_017``: ordinary least squares
 of CY, Cl and Cn on beta, p_hat, r_hat, aileron and rudder plus a bias
 (``lesq``). SIDPAC saved, in ``example_5p1_results.mat``, white (``lesq``) and
 coloured-residual corrected (``r_colores``) covariances for CY and Cl, and
-only the white one for Cn (its corrected one is Example 5.2).
+only the white one for Cn (its corrected one is Example 5.2; here SIDPAC's
+``r_colores`` is run in numpy for it, which ``ref_example_5p2`` checks
+against the saved one).
 """
 
 from __future__ import annotations
@@ -51,15 +53,16 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         seed=seed + 1,
     )
     pn, wn = S.col(d["pn"]), S.se(d["crbn"])
+    cn_corr = S.se(S.r_colores(X, d["Cn"])[0])  # SIDPAC's r_colores in numpy (saved in 5.2)
     rows += S.regression_rows(
         CASE,
         reg,
         d["Cn"],
-        {k: (pn[i], wn[i], None) for i, k in enumerate(_X)},
+        {k: (pn[i], wn[i], cn_corr[i]) for i, k in enumerate(_X)},
         label="Cn_",
         mc=mc,
         seed=seed + 2,
-        note="Cn: SIDPAC saved only the white (lesq) error here; corrected ones are Example 5.2",
+        note="Cn: SIDPAC saved only the white (lesq) error here; its r_colores run in numpy gives the corrected",
     )
     return rows
 

@@ -77,33 +77,35 @@ def main(argv: list[str] | None = None) -> int:
         )
         results.append((case, S.summary(rows)))
     print(f"\n== summary (--mc {args.mc}, {time.perf_counter() - t_all:.0f} s in all)")
-    head = (
-        "case",
-        "max|d|/sig",
-        "se/sid min",
-        "max",
-        "ours/mc min",
-        "max",
-        "sid/mc min",
-        "max",
-        "fit s",
+    cols = (
+        ("max_delta_sigma", "max|d|/sig"),
+        ("se_min", "se/sid min"),
+        ("se_max", "max"),
+        ("deriv_corr_min", "drv/corr min"),
+        ("deriv_corr_max", "max"),
+        ("mc_min", "ours/mc min"),
+        ("mc_max", "max"),
+        ("sidpac_mc_min", "sid/mc min"),
+        ("sidpac_mc_max", "max"),
+        ("seconds", "fit s"),
     )
-    print(f"{head[0]:<18}" + "".join(f"{h:>12}" for h in head[1:]))
+    targets = (("target_se", "drv se ok"), ("target_mc", "mc ok"), ("target_estimate", "est ok"))
+    print(
+        f"{'case':<15}"
+        + "".join(f"{h:>13}" for _, h in cols)
+        + "".join(f"{h:>10}" for _, h in targets)
+    )
     for case, s in results:
         if isinstance(s, str):
-            print(f"{case:<18}  {s}")
+            print(f"{case:<15}  {s}")
             continue
-        keys = (
-            "max_delta_sigma",
-            "se_min",
-            "se_max",
-            "mc_min",
-            "mc_max",
-            "sidpac_mc_min",
-            "sidpac_mc_max",
-            "seconds",
-        )
-        print(f"{case:<18}" + "".join(_f(s[k], 12) for k in keys))
+        line = f"{case:<15}" + "".join(_f(s[k], 13) for k, _ in cols)
+        print(line + "".join(f"{s[k]:>10}" for k, _ in targets))
+    print(
+        "se/sid: ours over SIDPAC's corrected se where saved, else its white; drv/corr: derivatives "
+        "only, over SIDPAC's corrected; targets: drv se within 0.8-1.25 of SIDPAC's corrected, "
+        "every se within 0.8-1.25 of the Monte Carlo, |d|/sig <= 1 (rows meeting / rows)"
+    )
     return 0
 
 
