@@ -57,7 +57,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     results: list[tuple[str, dict[str, Any] | str]] = []
     t_all = time.perf_counter()
-    for mod in cases():
+    mods = cases()
+    unknown = set(args.only) - {getattr(m, "CASE", m.__name__) for m in mods}
+    if unknown:
+        known = ", ".join(getattr(m, "CASE", m.__name__) for m in mods)
+        print(f"unknown case(s) {', '.join(sorted(unknown))}; known: {known}")
+        return 2
+    for mod in mods:
         case = getattr(mod, "CASE", mod.__name__)
         if args.only and case not in args.only:
             continue
