@@ -395,6 +395,18 @@ def test_a_drifting_unestimated_offset_is_named_in_this_functions_terms():
 # -- SIDPAC's set-up: held initial state, measured states, scale factors about the start --
 
 SIDPAC_LON = {"b_ax": 0.15, "b_az": -0.2, "b_q": 0.002, "k_alpha": 0.08, "k_theta": 0.04}
+SIDPAC_LAT = {
+    "b_ay": -0.1,
+    "b_p": 0.003,
+    "b_r": 0.0025,
+    "k_beta": 0.09,
+    "k_phi": 0.07,
+    "k_psi": 0.06,
+}
+SETUPS = {
+    "lon": (SIDPAC_LON, ["V", "alpha", "theta"], ["v", "phi", "psi"]),
+    "lat": (SIDPAC_LAT, ["beta", "phi", "psi"], ["u", "w", "theta"]),
+}
 
 
 def _true_start(data: aeroid.FlightData) -> dict[str, float]:
@@ -411,33 +423,37 @@ def _true_start(data: aeroid.FlightData) -> dict[str, float]:
     }
 
 
-def test_sidpac_longitudinal_setup_recovers_its_sensor_errors():
+@pytest.mark.parametrize("axis", ["lon", "lat"])
+def test_sidpac_setup_recovers_its_sensor_errors(axis):
+    truths, fitted, fed = SETUPS[axis]
     # scale factors about the start value: (1 + k)(y - y0) + y0 = (1 + k) y - k y0
     t0 = truth(np.zeros(1))
-    errors = dict(SIDPAC_LON)
-    for o in ("alpha", "theta"):
-        errors[f"b_{o}"] = -SIDPAC_LON[f"k_{o}"] * t0[o][0]
+    errors = dict(truths)
+    for o in fitted:
+        if f"k_{o}" in truths:
+            errors[f"b_{o}"] = -truths[f"k_{o}"] * t0[o][0]
     data = simulated_flight(DURATION, RATE, errors=errors, seed=21)
     res = check_compatibility(
         data,
-        estimate=list(SIDPAC_LON),
-        outputs=["V", "alpha", "theta"],
-        measured_states=["v", "phi", "psi"],
+        estimate=list(truths),
+        outputs=fitted,
+        measured_states=fed,
         estimate_x0=False,
         x0=_true_start(data),
         scale_about="initial",
         error_bars="white",
     )
-    assert res.output_names == ("V", "alpha", "theta")
-    assert res.measured_states == ("v", "phi", "psi")
+    assert res.output_names == tuple(fitted)
+    assert res.measured_states == tuple(s for s in compat.STATES if s in fed)
     assert res.initial_state_stderr == {}
-    assert res.scale_pivots["alpha"] == pytest.approx(t0["alpha"][0], abs=1e-9)
-    for n, v in SIDPAC_LON.items():
+    o = fitted[1]
+    assert res.scale_pivots[o] == pytest.approx(t0[o][0], abs=1e-9)
+    for n, v in truths.items():
         assert abs(res.parameters[n] - v) < 4.0 * res.stderr[n], n
-    # the corrected alpha undoes the pivoted scale factor
-    fixed = res.corrected["alpha"]
-    clean = truth(data.time)["alpha"]
-    assert np.sqrt(np.mean((fixed - clean) ** 2)) < 1.5 * NOISE["alpha"]
+    # the corrected channel undoes the pivoted scale factor
+    fixed = res.corrected[o]
+    clean = truth(data.time)[o]
+    assert np.sqrt(np.mean((fixed - clean) ** 2)) < 1.5 * NOISE[o]
 
 
 def test_a_measured_state_stands_in_for_the_integrated_one():
