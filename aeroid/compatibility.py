@@ -454,6 +454,17 @@ class CompatibilityResult:
             f"Data compatibility over {self.time.size} samples: {self.n_passes} output-error "
             f"pass(es); standard errors {kind}."
         ]
+        if self.measured_states:
+            notes.append(
+                f"States taken from their measurements: {', '.join(self.measured_states)}."
+            )
+        pivoted = {o: v for o, v in self.scale_pivots.items() if v}
+        if pivoted:
+            notes.append(
+                "Scale factors act on the change from the start value: "
+                + ", ".join(f"{o} about {fmt(v)}" for o, v in pivoted.items())
+                + "."
+            )
         if not self.success:
             notes.append(f"**Not converged:** {self.message}")
         if not self.identifiable:

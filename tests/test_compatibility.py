@@ -448,6 +448,7 @@ def test_sidpac_setup_recovers_its_sensor_errors(axis):
     assert res.initial_state_stderr == {}
     o = fitted[1]
     assert res.scale_pivots[o] == pytest.approx(t0[o][0], abs=1e-9)
+    assert "taken from their measurements" in res.summary()
     for n, v in truths.items():
         assert abs(res.parameters[n] - v) < 4.0 * res.stderr[n], n
     # the corrected channel undoes the pivoted scale factor
