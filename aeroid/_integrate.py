@@ -11,6 +11,10 @@ vectors (and, optionally, of control histories) is integrated in one pass.
   when the model declares itself linear (``Model(..., linear=True)``).
 * ``"rk4"``: classical Runge-Kutta with ``substeps`` steps per grid interval;
   no step ever straddles a control breakpoint.
+* ``"euler"``: one forward-Euler step per grid interval with the controls held
+  at the interval's first sample. Crude (first order), but what some legacy
+  tools integrate with: SIDPAC's saved data-compatibility outputs
+  (``dca_lon_demo``, ``dca_lat_demo``) follow it, not its Adams-Bashforth code.
 * a `scipy.integrate.solve_ivp` method name, integrating the stacked batch.
   The explicit Runge-Kutta pairs (``"RK45"``, ``"RK23"``, ``"DOP853"``) run
   one sample interval at a time, each ending exactly on the next sample and
@@ -45,7 +49,7 @@ UserFunction = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
 
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 _BY_INTERVAL = ("RK45", "RK23", "DOP853")  # restarted at every sample (module notes)
-METHODS = ("auto", "exact", "rk4", *SOLVE_IVP_METHODS)
+METHODS = ("auto", "exact", "rk4", "euler", *SOLVE_IVP_METHODS)
 _MAX_AUTO_SUBSTEPS = 256
 # Accumulated RK4 error of each mode of df/dx, relative to its amplitude, that the
 # automatic substeps allow (`substeps_for`): far below any sensor's noise.
@@ -300,6 +304,28 @@ def auto_substeps(
     lam = jacobian_eigenvalues(f, float(time[0]), x0, u[:, 0, :].T, p)
     h = float(np.max(np.diff(time)))
     return substeps_for(lam, h, float(time[-1] - time[0]))
+
+
+def euler(
+    f: BatchFunction,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+) -> RawTrajectory:
+    """Forward Euler on the grid, controls held at each interval's start; x0 (n_x, B)."""
+    n_t = time.size
+    out = np.empty((n_t, x0.shape[0], x0.shape[1]))
+    x = np.array(x0, dtype=np.float64)
+    out[0] = x
+    with np.errstate(all="ignore"):
+        for k in range(n_t - 1):
+            h = float(time[k + 1] - time[k])
+            x = x + h * f(float(time[k]), x, np.ascontiguousarray(u[:, k, :].T), p)
+            out[k + 1] = x
+    states = np.transpose(out, (2, 0, 1))
+    ok, fail_time = _first_failure(states, time)
+    return RawTrajectory(states, ok, fail_time)
 
 
 def rk4(
@@ -782,4 +808,6 @@ def integrate(
         if compiled is not None:
             return compiled
         return rk4(f, time, X0, u, p, int(m))
+    if method == "euler":
+        return euler(f, time, X0, u, p)
     return solve_ivp_batch(f, time, X0, u, p, method, rtol, atol)

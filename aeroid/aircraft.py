@@ -135,6 +135,9 @@ def _position(name: str, value: Any) -> tuple[float, float, float]:
     return (x, y, z)
 
 
+_LATERAL_ONLY = ("Ixx", "Izz", "b")
+
+
 @dataclass(frozen=True)
 class AircraftConstants:
     """The known constants of an aircraft model, validated.
@@ -144,7 +147,10 @@ class AircraftConstants:
     mass : float
         Mass, kg.
     Ixx, Iyy, Izz : float
-        Moments of inertia about the body axes through the centre of gravity, kg m^2.
+        Moments of inertia about the body axes through the centre of gravity,
+        kg m^2. ``Ixx`` and ``Izz`` (and the span `b`) may be left out
+        (``nan``, the default) for a longitudinal model, which does not use
+        them; the lateral and six-degree-of-freedom models then refuse the record.
     Ixz : float
         Product of inertia ``∫ x z dm``, kg m^2 (the tensor is
         ``[[Ixx, 0, -Ixz], [0, Iyy, 0], [-Ixz, 0, Izz]]``, aircraft symmetric in x-z).
@@ -180,12 +186,12 @@ class AircraftConstants:
     """
 
     mass: float
-    Ixx: float
-    Iyy: float
-    Izz: float
-    S: float
-    b: float
-    cbar: float
+    Ixx: float = math.nan
+    Iyy: float = math.nan
+    Izz: float = math.nan
+    S: float = math.nan
+    b: float = math.nan
+    cbar: float = math.nan
     Ixz: float = 0.0
     rho: float | None = None
     altitude: float | None = None
@@ -198,7 +204,12 @@ class AircraftConstants:
 
     def __post_init__(self) -> None:
         for name in ("mass", "Ixx", "Iyy", "Izz", "S", "b", "cbar", "g"):
-            v = _finite(name, getattr(self, name))
+            value = getattr(self, name)
+            if name in _LATERAL_ONLY and isinstance(value, float) and math.isnan(value):
+                continue  # not given: only a longitudinal model may use the record
+            if name in ("Iyy", "S", "cbar") and isinstance(value, float) and math.isnan(value):
+                raise ModelDefinitionError(f"{name}: required (a positive number), not given")
+            v = _finite(name, value)
             if not v > 0:
                 raise ModelDefinitionError(f"{name}: must be positive, got {v!r}")
             object.__setattr__(self, name, v)
@@ -219,6 +230,8 @@ class AircraftConstants:
                 isa_density(self.altitude)  # range check, naming the altitude
         for name in ("accel_position", "alpha_vane_position", "beta_vane_position"):
             object.__setattr__(self, name, _position(name, getattr(self, name)))
+        if not self.lateral_complete:
+            return
         if not self.Ixx * self.Izz - self.Ixz**2 > 0:
             raise ModelDefinitionError(
                 f"Ixz: inertia tensor is not positive definite (Ixx Izz - Ixz^2 = "
@@ -233,6 +246,11 @@ class AircraftConstants:
                 f"Ixx, Iyy, Izz, Ixz: principal moments {principal.round(6).tolist()} kg m^2 "
                 "violate the triangle inequality (no rigid body has them)"
             )
+
+    @property
+    def lateral_complete(self) -> bool:
+        """Whether ``Ixx``, ``Izz`` and ``b`` are given (the lateral axes need them)."""
+        return not any(math.isnan(getattr(self, n)) for n in _LATERAL_ONLY)
 
     def inertia_tensor(self) -> np.ndarray:
         """The body-axis inertia tensor, kg m^2."""
@@ -429,12 +447,30 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
     return names
 
 
-def _accel_scale(accel_units: str) -> float:
+def _accel_scale(accel_units: str, g: float) -> float:
+    """Output scale of the specific forces: 1, or 1/g with the model's own g (US units too)."""
     if accel_units == "m/s2":
         return 1.0
     if accel_units == "g":
-        return 1.0 / _ISA_G0
+        return 1.0 / g
     raise ModelDefinitionError(f"accel_units: expected 'm/s2' or 'g', got {accel_units!r}")
+
+
+_RATE_REFERENCES = ("V", "V0")
+
+
+def _positive_g(g: float) -> float:
+    if not g > 0:
+        raise ModelDefinitionError(f"g: must be positive, got {g!r}")
+    return g
+
+
+def _check_rate_reference(rate_reference: Any) -> str:
+    if rate_reference not in _RATE_REFERENCES:
+        raise ModelDefinitionError(
+            f"rate_reference: expected 'V' (q c̄/2V) or 'V0' (q c̄/2V0), got {rate_reference!r}"
+        )
+    return str(rate_reference)
 
 
 def _content_version(version: str | None, *content: Any) -> str:
@@ -597,6 +633,7 @@ def _longitudinal_function(
     with_altitude: bool,
     outputs: tuple[str, ...],
     accel_scale: float,
+    rate_V0: bool,
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
     m, S, cbar, Iyy, g = c.mass, c.S, c.cbar, c.Iyy, c.g
@@ -618,7 +655,9 @@ def _longitudinal_function(
     def longitudinal_equations(t: Any, x: Any, u: Any, p: Any) -> Any:
         # Klein & Morelli (2006) ch. 3 wind/stability-axis force equations, beta = 0.
         V, alpha, theta, q = x[0], x[1], x[2], x[3]
-        reg = {"alpha": alpha, "V": V * inv_V0 - 1.0, "q": q * half_cbar / V}
+        # nondimensional rates over the airspeed, or over V0 (the linearised book form)
+        V_rate = V0 + 0.0 * V if rate_V0 else V
+        reg = {"alpha": alpha, "V": V * inv_V0 - 1.0, "q": q * half_cbar / V_rate}
         for i in range(n_surf):
             reg[surfaces[i]] = u[i]
         T = u[n_surf] if thrust else 0.0 * V
@@ -628,10 +667,10 @@ def _longitudinal_function(
         alpha_dot = q + (g * np.cos(gamma) - (qbar_S * CL + T * np.sin(alpha + sigma)) / m) / V
         if cl_alpha_dot:
             # CL = CL' + CL_alpha_dot α̇ c̄/(2V) in the α equation, solved for α̇
-            k = p[cl_alpha_dot[0]] * half_cbar / V
+            k = p[cl_alpha_dot[0]] * half_cbar / V_rate
             alpha_dot = alpha_dot / (1.0 + qbar_S * k / (m * V))
             CL = CL + k * alpha_dot
-        reg["alpha_dot"] = alpha_dot * half_cbar / V
+        reg["alpha_dot"] = alpha_dot * half_cbar / V_rate
         CD = _expand(cd, reg, p)
         Cm = _expand(cm, reg, p)
         V_dot = (T * np.cos(alpha + sigma) - qbar_S * CD) / m - g * np.sin(gamma)
@@ -687,10 +726,15 @@ def _check_trim_angles(alpha0: Any, theta0: Any) -> tuple[float, float]:
     return alpha0, theta0
 
 
-def _check_constants(constants: Any) -> AircraftConstants:
+def _check_constants(constants: Any, kind: str = "longitudinal") -> AircraftConstants:
     if not isinstance(constants, AircraftConstants):
         raise ModelDefinitionError(
             f"constants: expected an AircraftConstants record, got {type(constants).__name__}"
+        )
+    if kind != "longitudinal" and not constants.lateral_complete:
+        lacking = [n for n in _LATERAL_ONLY if math.isnan(getattr(constants, n))]
+        raise ModelDefinitionError(
+            f"constants: a {kind} model needs {', '.join(lacking)}, which the record lacks"
         )
     return constants
 
@@ -714,6 +758,7 @@ def longitudinal(
     thrust: bool = True,
     with_altitude: bool = False,
     accel_units: str = "m/s2",
+    rate_reference: str = "V",
     name: str = "longitudinal",
     version: str | None = None,
 ) -> AircraftModel:
@@ -773,7 +818,12 @@ def longitudinal(
     with_altitude : bool
         Add the state ``h``.
     accel_units : {"m/s2", "g"}
-        Units of ``ax``, ``az``.
+        Units of ``ax``, ``az``: those of `AircraftConstants.g` (m/s², or
+        ft/s² with US constants), or g, divided by the constants' own g.
+    rate_reference : {"V", "V0"}
+        The airspeed that makes ``q`` and ``alpha_dot`` nondimensional:
+        ``q c̄ / 2V`` with the current airspeed, or ``q c̄ / 2V0`` with the
+        reference one (the linearised textbook form, Klein & Morelli ch. 3).
     name, version : str
         As for `aeroid.Model`; the constants and terms are folded into the version.
 
@@ -797,10 +847,11 @@ def longitudinal(
     values = _parameter_values(expansions, parameters)
     allowed = [o for o in _LONG_OUTPUTS if with_altitude or o != "h"]
     outs = _outputs(outputs, _LONG_DEFAULT_OUTPUTS, allowed)
-    scale = _accel_scale(accel_units)
+    scale = _accel_scale(accel_units, c.g)
+    rate_V0 = _check_rate_reference(rate_reference) == "V0"
     states = ["V", "alpha", "theta", "q"] + (["h"] if with_altitude else [])
     controls = [*surf] + (["thrust"] if thrust else [])
-    args = (c, V0, expansions, surf, bool(thrust), bool(with_altitude), outs, scale)
+    args = (c, V0, expansions, surf, bool(thrust), bool(with_altitude), outs, scale, rate_V0)
     equations = "\n".join(
         [
             "Klein & Morelli ch. 3, stability (wind) axes, β = 0, q̄ = ρ V²/2:",
@@ -985,7 +1036,7 @@ def lateral(
         Unknown terms, outputs or parameter names, bad constants, or a trim pitch
         angle `theta0` outside ±π/2.
     """
-    c = _check_constants(constants)
+    c = _check_constants(constants, "lateral")
     V0 = _check_speed(V0)
     alpha0, theta0 = _check_trim_angles(alpha0, theta0)
     surf = _surfaces(surfaces, ("beta", "p", "r"))
@@ -993,7 +1044,7 @@ def lateral(
     values = _parameter_values(expansions, parameters)
     allowed = [o for o in _LAT_OUTPUTS if with_heading or o != "psi"]
     outs = _outputs(outputs, _LAT_DEFAULT_OUTPUTS, allowed)
-    scale = _accel_scale(accel_units)
+    scale = _accel_scale(accel_units, c.g)
     states = ["beta", "p", "r", "phi"] + (["psi"] if with_heading else [])
     args = (c, V0, alpha0, theta0, expansions, surf, bool(with_heading), outs, scale)
     equations = "\n".join(
@@ -1302,7 +1353,7 @@ def six_dof(
         Unknown terms, outputs or parameter names, bad constants, or an unknown
         `force_axes`.
     """
-    c = _check_constants(constants)
+    c = _check_constants(constants, "six-degree-of-freedom")
     V0 = _check_speed(V0)
     if force_axes not in _SIX_DEFAULT_TERMS:
         raise ModelDefinitionError(
@@ -1319,7 +1370,7 @@ def six_dof(
     nav = ("north", "east", "h")
     allowed = [o for o in _SIX_OUTPUTS if position or o not in nav]
     outs = _outputs(outputs, _SIX_DEFAULT_OUTPUTS, allowed)
-    scale = _accel_scale(accel_units)
+    scale = _accel_scale(accel_units, c.g)
     states = [*_SIX_STATES] + (list(nav) if position else [])
     stability = force_axes == "stability"
     args = (c, V0, expansions, surf, bool(thrust), stability, bool(position), outs, scale)
@@ -1386,7 +1437,7 @@ _LONG_LINEAR_TERMS: Mapping[str, Sequence[str]] = {
     "Z": ("V", "alpha", "delta_e"),
     "M": ("V", "alpha", "q", "delta_e"),
 }
-_LONG_LINEAR_OUTPUTS = ("V", "alpha", "theta", "q", "q_dot", "gamma")
+_LONG_LINEAR_OUTPUTS = ("V", "alpha", "theta", "q", "q_dot", "gamma", "az")
 
 
 def _longitudinal_linear_function(
@@ -1397,6 +1448,7 @@ def _longitudinal_linear_function(
     surfaces: tuple[str, ...],
     thrust: bool,
     outputs: tuple[str, ...],
+    accel_scale: float,
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
     g_cos = g * math.cos(gamma0)
@@ -1414,9 +1466,10 @@ def _longitudinal_linear_function(
             reg["thrust"] = u[n_surf]
         gamma = theta - alpha
         q_dot = _expand(cmm, reg, p) + 0.0 * q
+        normal = _expand(cz, reg, p) + 0.0 * alpha
         if dynamics:
             V_dot = _expand(cx, reg, p) - g_cos * gamma
-            alpha_dot = q + _expand(cz, reg, p) - g_sin_V0 * gamma
+            alpha_dot = q + normal - g_sin_V0 * gamma
             return np.stack(np.broadcast_arrays(V_dot, alpha_dot, q, q_dot))
         values = {
             "V": V,
@@ -1425,6 +1478,7 @@ def _longitudinal_linear_function(
             "q": q,
             "q_dot": q_dot,
             "gamma": gamma,
+            "az": V0 * normal * accel_scale,
         }
         return np.stack(np.broadcast_arrays(*[values[k] for k in outputs]))
 
@@ -1441,6 +1495,7 @@ def longitudinal_linear(
     outputs: Sequence[str] | None = None,
     surfaces: Sequence[str] = ("delta_e",),
     thrust: bool = False,
+    accel_units: str = "m/s2",
     name: str = "longitudinal_linear",
     version: str | None = None,
 ) -> AircraftModel:
@@ -1461,7 +1516,9 @@ def longitudinal_linear(
     the surfaces, ``thrust`` and the constant ``"0"``. The gravity terms are
     fixed by `V0`, `gamma0` and `g`.
 
-    Outputs (any of): ``V, alpha, theta, q, q_dot, gamma`` (``θ - α``).
+    Outputs (any of): ``V, alpha, theta, q, q_dot, gamma`` (``θ - α``) and
+    ``az`` (``V0 ΣZ``, the change of the normal specific force at the c.g.,
+    positive down, stability axes).
 
     Parameters
     ----------
@@ -1476,6 +1533,8 @@ def longitudinal_linear(
     surfaces : sequence of str
     thrust : bool
         Add a ``thrust`` perturbation control (N).
+    accel_units : {"m/s2", "g"}
+        Units of ``az``: those of `g`, or g (divided by `g`).
     name, version : str
 
     Returns
@@ -1497,7 +1556,9 @@ def longitudinal_linear(
     expansions = _parse_expansions(terms, _LONG_LINEAR_TERMS, regs, "linear longitudinal")
     values = _parameter_values(expansions, parameters)
     outs = _outputs(outputs, ("V", "alpha", "theta", "q"), _LONG_LINEAR_OUTPUTS)
-    args = (V0, gamma0, g, expansions, surf, bool(thrust), outs)
+    g = _positive_g(g)
+    scale = _accel_scale(accel_units, g)
+    args = (V0, gamma0, g, expansions, surf, bool(thrust), outs, scale)
     equations = "\n".join(
         [
             "Small perturbations about trim (V0, γ0), stability axes, dimensional derivatives:",
@@ -1506,6 +1567,7 @@ def longitudinal_linear(
             "  θ̇ = q",
             "  q̇ = ΣM",
             *(f"  Σ{_expansion_text(k, e)}" for k, e in expansions.items()),
+            "  az = V0 ΣZ" + (" / g (in g)" if accel_units == "g" else ""),
             f"  V0 = {V0:.6g} m/s, γ0 = {gamma0:.6g} rad, g = {g:.6g} m/s^2",
         ]
     )
@@ -1517,6 +1579,7 @@ def longitudinal_linear(
         controls=[*surf] + (["thrust"] if thrust else []),
         parameters=values,
         outputs=outs,
+        accel_units=accel_units,
         name=name,
         version=version,
         reference={"V0": V0, "gamma0": gamma0},
@@ -1551,6 +1614,7 @@ def _lateral_linear_function(
     surfaces: tuple[str, ...],
     with_heading: bool,
     outputs: tuple[str, ...],
+    accel_scale: float,
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
     sin_a0, cos_a0 = math.sin(alpha0), math.cos(alpha0)
@@ -1581,7 +1645,7 @@ def _lateral_linear_function(
             "phi": phi,
             "p_dot": p_dot,
             "r_dot": r_dot,
-            "ay": V0 * side,
+            "ay": V0 * side * accel_scale,
         }
         if with_heading:
             values["psi"] = x[4]
@@ -1601,6 +1665,7 @@ def lateral_linear(
     outputs: Sequence[str] | None = None,
     surfaces: Sequence[str] = ("delta_a", "delta_r"),
     with_heading: bool = False,
+    accel_units: str = "m/s2",
     name: str = "lateral_linear",
     version: str | None = None,
 ) -> AircraftModel:
@@ -1633,6 +1698,8 @@ def lateral_linear(
         Default: the states.
     surfaces : sequence of str
     with_heading : bool
+    accel_units : {"m/s2", "g"}
+        Units of ``ay``: those of `g`, or g (divided by `g`).
     name, version : str
 
     Returns
@@ -1658,7 +1725,9 @@ def lateral_linear(
     states = ["beta", "p", "r", "phi"] + (["psi"] if with_heading else [])
     allowed = [o for o in _LAT_LINEAR_OUTPUTS if with_heading or o != "psi"]
     outs = _outputs(outputs, states, allowed)
-    args = (V0, alpha0, theta0, g, expansions, surf, bool(with_heading), outs)
+    g = _positive_g(g)
+    scale = _accel_scale(accel_units, g)
+    args = (V0, alpha0, theta0, g, expansions, surf, bool(with_heading), outs, scale)
     equations = "\n".join(
         [
             "Small perturbations about trim (V0, α0, θ0), body-axis rates, dimensional derivatives:",
@@ -1668,7 +1737,7 @@ def lateral_linear(
             "  φ̇ = p + tan θ0 r",
             *(["  ψ̇ = r / cos θ0"] if with_heading else []),
             *(f"  Σ{_expansion_text(k, e)}" for k, e in expansions.items()),
-            "  ay = V0 ΣY",
+            "  ay = V0 ΣY" + (" / g (in g)" if accel_units == "g" else ""),
             f"  V0 = {V0:.6g} m/s, α0 = {alpha0:.6g} rad, θ0 = {theta0:.6g} rad, g = {g:.6g} m/s^2",
         ]
     )
@@ -1680,6 +1749,7 @@ def lateral_linear(
         controls=list(surf),
         parameters=values,
         outputs=outs,
+        accel_units=accel_units,
         name=name,
         version=version,
         reference={"V0": V0, "alpha0": alpha0, "theta0": theta0},
@@ -2356,9 +2426,9 @@ def model_from_config(spec: Mapping[str, Any]) -> AircraftModel:
     if bad:
         raise ModelDefinitionError(f"constants: unknown fields {bad}; fields: {sorted(names)}")
     values: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in raw.items()}
-    missing = sorted(
-        f.name for f in fields(AircraftConstants) if f.default is MISSING and f.name not in values
-    )
+    needed = {f.name for f in fields(AircraftConstants) if f.default is MISSING}
+    needed |= {"Iyy", "S", "cbar"} | (set() if kind == "longitudinal" else set(_LATERAL_ONLY))
+    missing = sorted(needed - set(values))
     if missing:
         raise ModelDefinitionError(f"constants: missing {missing}")
     return factory(AircraftConstants(**values), **options)

@@ -55,6 +55,7 @@ attitude and velocity errors, is added by Monte Carlo (see
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import warnings
@@ -88,7 +89,8 @@ INPUT_CHANNELS = ("p", "q", "r", "ax", "ay", "az")
 OUTPUT_CHANNELS = ("V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve")
 """The outputs: airspeed (m/s), angles (rad), altitude (m), north and east ground speed (m/s)."""
 STATES = ("u", "v", "w", "phi", "theta", "psi", "h")
-_REQUIRED_OUTPUTS = ("V", "alpha", "phi", "theta")
+_MEASURED = tuple(f"{s}_measured" for s in STATES)  # controls that stand in for states
+_REQUIRED_OUTPUTS = ("V", "alpha", "theta")
 _WIND = ("w_n", "w_e", "w_d")
 SENSOR_PARAMETERS = (
     *(f"b_{c}" for c in INPUT_CHANNELS),
@@ -134,7 +136,7 @@ _MAX_PASSES = 6
 
 def _rates(c: Any, p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
     """Rates and specific forces with the gyro and accelerometer errors removed."""
-    pm, qm, rm, axm, aym, azm = c
+    pm, qm, rm, axm, aym, azm = (c[j] for j in range(6))
     return (
         (pm - p["b_p"]) / (1.0 + p["k_p"]),
         (qm - p["b_q"]) / (1.0 + p["k_q"]),
@@ -145,8 +147,12 @@ def _rates(c: Any, p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
     )
 
 
-def _kinematics(t: Any, x: Any, c: Any, p: Any) -> Any:
-    """Rigid-body translational and rotational kinematics (states `STATES`)."""
+def _effective(x: Any, c: Any, p: Any) -> list[Any]:
+    """The states with those marked measured (``m_<state>`` = 1) replaced by the record."""
+    return [x[i] + p[f"m_{s}"] * (c[6 + i] - x[i]) for i, s in enumerate(STATES)]
+
+
+def _derivatives(x: Any, c: Any, p: Any) -> list[Any]:
     uu, vv, ww, phi, theta, _psi, _h = x
     P, Q, R, AX, AY, AZ = _rates(c, p)
     g = p["g"]
@@ -155,24 +161,33 @@ def _kinematics(t: Any, x: Any, c: Any, p: Any) -> Any:
     sth = np.sin(theta)
     cth = np.cos(theta)
     turn = Q * sphi + R * cphi
-    return np.stack(
-        [
-            R * vv - Q * ww - g * sth + AX,
-            P * ww - R * uu + g * cth * sphi + AY,
-            Q * uu - P * vv + g * cth * cphi + AZ,
-            P + sth / cth * turn,
-            Q * cphi - R * sphi,
-            turn / cth,
-            uu * sth - (vv * sphi + ww * cphi) * cth,
-        ]
-    )
+    return [
+        R * vv - Q * ww - g * sth + AX,
+        P * ww - R * uu + g * cth * sphi + AY,
+        Q * uu - P * vv + g * cth * cphi + AZ,
+        P + sth / cth * turn,
+        Q * cphi - R * sphi,
+        turn / cth,
+        uu * sth - (vv * sphi + ww * cphi) * cth,
+    ]
+
+
+def _kinematics(t: Any, x: Any, c: Any, p: Any) -> Any:
+    """Rigid-body translational and rotational kinematics (states `STATES`).
+
+    A state replaced by its measurement is held still (its derivative zeroed):
+    the measurement stands in for it wherever it is used.
+    """
+    rates = _derivatives(_effective(x, c, p), c, p)
+    return np.stack([d * (1.0 - p[f"m_{s}"]) for d, s in zip(rates, STATES, strict=True)])
 
 
 def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
     """What the air-data, attitude and altitude sensors read (outputs `OUTPUT_CHANNELS`)."""
-    uu, vv, ww, phi, theta, psi, h = x
+    xe = _effective(x, c, p)
+    uu, vv, ww, phi, theta, psi, h = xe
     P, Q, R, AX, AY, AZ = _rates(c, p)
-    du, dv, dw, dphi, dtheta, dpsi, dh = _kinematics(t, x, c, p)
+    du, dv, dw, dphi, dtheta, dpsi, dh = _derivatives(xe, c, p)
     sphi = np.sin(phi)
     cphi = np.cos(phi)
     sth = np.sin(theta)
@@ -211,17 +226,24 @@ def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
     ve = e_x * uu + e_y * vv + e_z * ww
     dvn = n_x * AX + n_y * AY + n_z * AZ
     dve = e_x * AX + e_y * AY + e_z * AZ
+    true = {
+        "V": (V, dV),
+        "alpha": (alpha, dalpha),
+        "beta": (beta, dbeta),
+        "phi": (phi, dphi),
+        "theta": (theta, dtheta),
+        "psi": (psi, dpsi),
+        "h": (h, dh),
+        "vn": (vn, dvn),
+        "ve": (ve, dve),
+    }
+    # a scale factor acts on the change from the pivot y0_<o> (zero, or the start value)
     return np.stack(
         [
-            (1.0 + p["k_V"]) * (V - p["tau_V"] * dV) + p["b_V"],
-            (1.0 + p["k_alpha"]) * (alpha - p["tau_alpha"] * dalpha) + p["b_alpha"],
-            (1.0 + p["k_beta"]) * (beta - p["tau_beta"] * dbeta) + p["b_beta"],
-            (1.0 + p["k_phi"]) * (phi - p["tau_phi"] * dphi) + p["b_phi"],
-            (1.0 + p["k_theta"]) * (theta - p["tau_theta"] * dtheta) + p["b_theta"],
-            (1.0 + p["k_psi"]) * (psi - p["tau_psi"] * dpsi) + p["b_psi"],
-            (1.0 + p["k_h"]) * (h - p["tau_h"] * dh) + p["b_h"],
-            (1.0 + p["k_vn"]) * (vn - p["tau_vn"] * dvn) + p["b_vn"],
-            (1.0 + p["k_ve"]) * (ve - p["tau_ve"] * dve) + p["b_ve"],
+            (1.0 + p[f"k_{o}"]) * (y - p[f"tau_{o}"] * dy - p[f"y0_{o}"])
+            + p[f"y0_{o}"]
+            + p[f"b_{o}"]
+            for o, (y, dy) in true.items()
         ]
     )
 
@@ -237,7 +259,7 @@ def _model(nominal: tuple[tuple[str, float], ...]) -> Any:
 
     return Model(
         states=list(STATES),
-        controls=list(INPUT_CHANNELS),
+        controls=[*INPUT_CHANNELS, *_MEASURED],
         parameters=dict(nominal),
         dynamics=_kinematics,
         outputs=list(OUTPUT_CHANNELS),
@@ -314,6 +336,11 @@ class CompatibilityResult:
     gravity : float
     input_noise : mapping of str to float
         Noise standard deviation of each input used for the error bars.
+    measured_states : tuple of str
+        States replaced by their measurement (see `check_compatibility`).
+    scale_pivots : mapping of str to float
+        Per fitted output, the value its scale factor pivots about: zero, or
+        the reconstructed start value (``scale_about="initial"``).
     """
 
     corrected: FlightData
@@ -340,6 +367,8 @@ class CompatibilityResult:
     n_passes: int
     gravity: float
     input_noise: Mapping[str, float]
+    measured_states: tuple[str, ...] = ()
+    scale_pivots: Mapping[str, float] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -350,6 +379,7 @@ class CompatibilityResult:
             "initial_states",
             "initial_state_stderr",
             "input_noise",
+            "scale_pivots",
         ):
             set_(self, name, frozen_mapping(getattr(self, name)))
         set_(self, "channels", frozen_mapping(self.channels))
@@ -358,6 +388,7 @@ class CompatibilityResult:
         set_(self, "parameter_names", tuple(self.parameter_names))
         set_(self, "output_names", tuple(self.output_names))
         set_(self, "state_names", tuple(self.state_names))
+        set_(self, "measured_states", tuple(self.measured_states))
         set_(self, "unidentifiable", tuple(tuple(c) for c in self.unidentifiable))
 
     @property
@@ -423,6 +454,17 @@ class CompatibilityResult:
             f"Data compatibility over {self.time.size} samples: {self.n_passes} output-error "
             f"pass(es); standard errors {kind}."
         ]
+        if self.measured_states:
+            notes.append(
+                f"States taken from their measurements: {', '.join(self.measured_states)}."
+            )
+        pivoted = {o: v for o, v in self.scale_pivots.items() if v}
+        if pivoted:
+            notes.append(
+                "Scale factors act on the change from the start value: "
+                + ", ".join(f"{o} about {fmt(v)}" for o, v in pivoted.items())
+                + "."
+            )
         if not self.success:
             notes.append(f"**Not converged:** {self.message}")
         if not self.identifiable:
@@ -561,7 +603,8 @@ def _parameter_values(
         channel = n.partition("_")[2]
         if n not in _WIND and channel not in present:
             raise ChannelError(
-                f"estimate: {n!r} belongs to channel {channel!r}, which the data lack"
+                f"estimate: {n!r} belongs to channel {channel!r}, which the data lack "
+                "or which is not among the fitted outputs"
             )
     if not names:
         raise IdentificationError("estimate: name at least one sensor parameter to estimate")
@@ -730,7 +773,8 @@ def _input_noise_covariance(
 ) -> FloatArray:
     """Covariance of the estimates that white input noise causes (see `check_compatibility`)."""
     n_p = len(names)
-    scale = np.array([sigma[c] for c in INPUT_CHANNELS])
+    # the measured stand-ins for states are not integrated: no share of theirs here
+    scale = np.array([sigma[c] for c in INPUT_CHANNELS] + [0.0] * len(_MEASURED))
     if not np.any(scale > 0):
         return np.zeros((n_p, n_p))
     theta = np.array([fit.parameters[n] for n in names])
@@ -787,6 +831,11 @@ def check_compatibility(
     input_noise: Mapping[str, float] | None = None,
     n_draws: int = 40,
     seed: int = 0,
+    outputs: Sequence[str] | None = None,
+    measured_states: Sequence[str] = (),
+    estimate_x0: bool | Sequence[str] = True,
+    scale_about: str = "zero",
+    integration: str = "rk4",
 ) -> CompatibilityResult:
     """Reconstruct the flight path from the inertial sensors and estimate the sensor errors.
 
@@ -798,7 +847,9 @@ def check_compatibility(
         (m/s), angles ``alpha, beta, phi, theta, psi`` (rad), altitude ``h``
         (m) and ground speed north and east ``vn, ve`` (m/s). ``beta``,
         ``psi``, ``h``, ``vn`` and ``ve`` are optional: whichever the record
-        lacks is not fitted. A heading that wraps at ±pi is unwrapped.
+        lacks is not fitted. ``phi`` is optional too (a longitudinal
+        analysis): without it the bank angle is held at zero. A heading that
+        wraps at ±pi is unwrapped.
     channels : mapping of str to str or None, optional
         Data channel of each quantity where it is not named as above
         (``{"alpha": "aoa"}``); None marks an optional output as absent.
@@ -836,6 +887,31 @@ def check_compatibility(
         kinematics do not compile (without JAX); compiled, it is exact.
     seed : int
         Seed of those draws.
+    outputs : sequence of str, optional
+        The outputs to fit (default every one the record has); the others
+        may still stand in for states (`measured_states`) or give the start.
+    measured_states : sequence of str
+        States replaced by their measurement throughout (SIDPAC's ``ims``):
+        ``u, v, w`` from ``V, alpha, beta`` (and the wind), ``phi``,
+        ``theta``, ``psi``, ``h`` from their channels, with the given sensor
+        errors removed. Such a state is neither integrated nor estimated; a
+        lateral analysis can take ``u, w, theta`` from the data, a
+        longitudinal one ``v, phi, psi``.
+    estimate_x0 : bool or sequence of str
+        True: estimate every initial state the outputs see; False: hold them
+        all at the measured values (the start of each channel, smoothed);
+        or the names of the states to estimate, the others held.
+    scale_about : {"zero", "initial"}
+        What an output's scale factor multiplies: the value itself,
+        ``(1 + k) y + b``, or its change from the start value,
+        ``(1 + k) (y - y0) + y0 + b`` with ``y0`` the output reconstructed
+        from the start state (SIDPAC's form; the offset ``b`` then is the
+        error at the start of the record).
+    integration : {"rk4", "euler"}
+        Runge-Kutta with substeps (accurate), or one forward-Euler step per
+        sample with the inputs held (first order: what SIDPAC's saved
+        data-compatibility results were computed with; use it only to
+        reproduce those).
 
     Notes
     -----
@@ -880,7 +956,21 @@ def check_compatibility(
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
     present = _channel_map(data, channels)
-    names, values = _parameter_values(estimate, fixed, present)
+    fitted = _fitted_outputs(outputs, present)
+    names, values = _parameter_values(
+        estimate,
+        fixed,
+        {**{o: present[o] for o in fitted}, **{c: present[c] for c in INPUT_CHANNELS}},
+    )
+    held_in = _measured_state_names(measured_states, present)
+    if scale_about not in ("zero", "initial"):
+        raise IdentificationError(
+            f"scale_about: expected 'zero' or 'initial', got {plain(scale_about)}"
+        )
+    if integration not in ("rk4", "euler"):
+        raise IdentificationError(
+            f"integration: expected 'rk4' or 'euler', got {plain(integration)}"
+        )
     try:
         g = float(gravity)
     except (TypeError, ValueError):
@@ -893,26 +983,51 @@ def check_compatibility(
         raise IdentificationError(f"seed: expected an integer, got {plain(seed)}")
     max_passes = min(max_passes, _MAX_PASSES)
     t = data.time
-    outputs = [o for o in OUTPUT_CHANNELS if o in present]
-    measured = {o: np.array(data.channels[present[o]], dtype=np.float64) for o in outputs}
+    outputs = list(fitted)
+    measured = {
+        o: np.array(data.channels[present[o]], dtype=np.float64)
+        for o in OUTPUT_CHANNELS
+        if o in present
+    }
     if "psi" in measured:
         measured["psi"] = np.unwrap(measured["psi"])
     inputs = {c: np.asarray(data.channels[present[c]], dtype=np.float64) for c in INPUT_CHANNELS}
     substeps = _substeps(t, np.stack([inputs[c] for c in ("p", "q", "r")]))
+    how: dict[str, Any] = (
+        {"method": "rk4", "substeps": substeps} if integration == "rk4" else {"method": "euler"}
+    )
     sigma_in = _input_noise(inputs, input_noise)
-    start = _start_state(measured, values, x0)
+    start = _start_state(_first_values(t, measured), values, x0)
+    stand_in = _states_from(measured, values)
+    held = np.column_stack([stand_in[s] if s in held_in else np.zeros(t.size) for s in STATES])
     # the heading is seen by its own channel or through the ground speed
-    seen = {"psi": "psi" in measured or "vn" in measured or "ve" in measured, "h": "h" in measured}
-    free_x0 = ["u", "v", "w", "phi", "theta"] + [s for s in ("psi", "h") if seen[s]]
+    seen = {
+        "phi": "phi" in outputs,
+        "psi": bool({"psi", "vn", "ve"} & set(outputs)),
+        "h": "h" in outputs,
+    }
+    free_x0 = ["u", "v", "w"] + [s for s in ("phi", "theta", "psi", "h") if seen.get(s, True)]
+    free_x0 = [s for s in _free_states(estimate_x0, free_x0) if s not in held_in]
+    masks = tuple((f"m_{s}", 1.0 if s in held_in else 0.0) for s in STATES)
+    pivots = {o: 0.0 for o in OUTPUT_CHANNELS}
+    if scale_about == "initial":
+        x_start = np.array([start[s] for s in STATES])
+        c_start = np.concatenate([[inputs[c][0] for c in INPUT_CHANNELS], held[0]])
+        p_start = {**_zero_sensor_errors(values), "g": g, **dict(masks)}
+        p_start.update({f"y0_{o}": 0.0 for o in OUTPUT_CHANNELS})
+        y_start = _sensors(t[0], x_start, c_start, p_start)
+        pivots = {o: float(y_start[j]) for j, o in enumerate(OUTPUT_CHANNELS)}
     shifted_names = [n for n in names if n.startswith("tau_")]
     applied = {n: 0.0 for n in shifted_names}
     current = dict(values)
     passes = 0
     fit: Any = None
-    model = _model((("g", g), *sorted(values.items())))
+    nominal = (("g", g), *masks, *((f"y0_{o}", v) for o, v in pivots.items()))
+    model = _model((*nominal, *sorted(values.items())))
     while True:
         passes += 1
         channels_now = {c: inputs[c] for c in INPUT_CHANNELS}
+        channels_now.update({m: held[:, j] for j, m in enumerate(_MEASURED)})
         for o in outputs:
             channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
         record = FlightData(t, channels_now)
@@ -929,7 +1044,7 @@ def check_compatibility(
                 error_bars=error_bars,
                 max_iterations=max_iterations,
                 tolerance=tolerance,
-                simulate_options={"method": "rk4", "substeps": substeps},
+                simulate_options=how,
             )
         _rewarn(caught, names)
         current.update({n: fit.parameters[n] + applied.get(n, 0.0) for n in names})
@@ -943,10 +1058,11 @@ def check_compatibility(
         if step < 0.05 * float(np.min(np.diff(t))):
             break
         applied = {n: current[n] for n in shifted_names}
+    controls = np.column_stack([*(inputs[c] for c in INPUT_CHANNELS), held])
     extra = _input_noise_covariance(
         model,
         t,
-        np.column_stack([inputs[c] for c in INPUT_CHANNELS]),
+        controls,
         fit,
         names,
         free_x0,
@@ -963,6 +1079,7 @@ def check_compatibility(
         outputs,
         measured,
         inputs,
+        controls,
         names,
         current,
         fit,
@@ -970,7 +1087,9 @@ def check_compatibility(
         sigma_in,
         passes,
         g,
-        substeps,
+        how,
+        tuple(s for s in STATES if s in held_in),
+        {o: pivots[o] for o in outputs},
     )
 
 
@@ -996,37 +1115,135 @@ def _rewarn(caught: list[warnings.WarningMessage], names: list[str]) -> None:
         )
 
 
-def _start_state(
-    measured: Mapping[str, FloatArray],
-    values: Mapping[str, float],
-    x0: Mapping[str, float] | None,
-) -> dict[str, float]:
-    """Initial state from the first samples with the start sensor errors removed."""
+def _fitted_outputs(outputs: Sequence[str] | None, present: Mapping[str, str]) -> list[str]:
+    """The outputs to fit, in `OUTPUT_CHANNELS` order."""
+    if outputs is None:
+        return [o for o in OUTPUT_CHANNELS if o in present]
+    names = [outputs] if isinstance(outputs, str) else outputs
+    try:
+        names = list(names)
+    except TypeError:
+        raise IdentificationError(
+            f"outputs: expected a list of output names, got {plain(outputs)}"
+        ) from None
+    for o in names:
+        if o not in OUTPUT_CHANNELS:
+            raise IdentificationError(
+                f"outputs: {o!r} is not an output; outputs: {list(OUTPUT_CHANNELS)}"
+            )
+        if o not in present:
+            raise ChannelError(f"outputs: {o!r} is not in the flight data")
+    if not names:
+        raise IdentificationError("outputs: name at least one output to fit")
+    return [o for o in OUTPUT_CHANNELS if o in names]
 
-    def first(o: str) -> float:
+
+_STAND_IN_SOURCES = {
+    "u": ("V", "alpha"),
+    "v": ("V", "alpha"),
+    "w": ("V", "alpha"),
+    "phi": ("phi",),
+    "theta": ("theta",),
+    "psi": ("psi",),
+    "h": ("h",),
+}
+
+
+def _measured_state_names(states: Sequence[str], present: Mapping[str, str]) -> set[str]:
+    names = [states] if isinstance(states, str) else states
+    try:
+        names = list(names)
+    except TypeError:
+        raise IdentificationError(
+            f"measured_states: expected a list of state names, got {plain(states)}"
+        ) from None
+    for s in names:
+        if s not in STATES:
+            raise IdentificationError(
+                f"measured_states: {s!r} is not a state; states: {list(STATES)}"
+            )
+        lacking = [c for c in _STAND_IN_SOURCES[s] if c not in present]
+        if lacking:
+            raise ChannelError(
+                f"measured_states: state {s!r} needs the channel(s) {lacking}, which the data lack"
+            )
+    return set(names)
+
+
+def _free_states(choice: bool | Sequence[str], seen: list[str]) -> list[str]:
+    """The initial states to estimate."""
+    if isinstance(choice, bool):
+        return list(seen) if choice else []
+    names = [choice] if isinstance(choice, str) else choice
+    try:
+        names = list(names)
+    except TypeError:
+        raise IdentificationError(
+            f"estimate_x0: expected True, False or a list of state names, got {plain(choice)}"
+        ) from None
+    for s in names:
+        if s not in STATES:
+            raise IdentificationError(f"estimate_x0: {s!r} is not a state; states: {list(STATES)}")
+    return [s for s in STATES if s in names]
+
+
+def _first_values(t: FloatArray, measured: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
+    """Each channel's start, smoothed (a held initial state should not carry one sample's noise)."""
+    from .smoothing import smooth
+
+    out: dict[str, FloatArray] = {}
+    steps = np.diff(t)
+    uniform = t.size >= 16 and float(np.ptp(steps)) <= 1e-6 * float(np.mean(steps))
+    for o, y in measured.items():
+        first = float(y[0])
+        if uniform:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                first = float(np.asarray(smooth(y, dt=float(np.mean(steps)), method="local"))[0])
+        out[o] = np.array([first])
+    return out
+
+
+def _states_from(
+    measured: Mapping[str, FloatArray], values: Mapping[str, float]
+) -> dict[str, FloatArray]:
+    """The states as the air data, attitude and altitude channels give them, with the
+    known sensor errors removed; ground velocity = air velocity + the wind, in body axes."""
+    n = next(iter(measured.values())).size
+
+    def get(o: str) -> FloatArray:
         if o not in measured:
-            return 0.0
-        return (float(measured[o][0]) - values[f"b_{o}"]) / (1.0 + values[f"k_{o}"])
+            return np.zeros(n)
+        y = measured[o]
+        return np.asarray((y - values[f"b_{o}"]) / (1.0 + values[f"k_{o}"]), dtype=np.float64)
 
-    V, alpha, beta = first("V"), first("alpha"), first("beta")
-    phi, theta, psi = first("phi"), first("theta"), first("psi")
-    # ground velocity = air velocity + the start wind, in body axes
-    sphi, cphi, sth, cth = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-    spsi, cpsi = math.sin(psi), math.cos(psi)
+    V, alpha, beta = get("V"), get("alpha"), get("beta")
+    phi, theta, psi = get("phi"), get("theta"), get("psi")
+    sphi, cphi, sth, cth = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+    spsi, cpsi = np.sin(psi), np.cos(psi)
     along = cpsi * values["w_n"] + spsi * values["w_e"]
     across = cpsi * values["w_e"] - spsi * values["w_n"]
     wx = cth * along - sth * values["w_d"]
     wy = sphi * sth * along + cphi * across + sphi * cth * values["w_d"]
     wz = cphi * sth * along - sphi * across + cphi * cth * values["w_d"]
-    state = {
-        "u": V * math.cos(alpha) * math.cos(beta) + wx,
-        "v": V * math.sin(beta) + wy,
-        "w": V * math.sin(alpha) * math.cos(beta) + wz,
+    return {
+        "u": V * np.cos(alpha) * np.cos(beta) + wx,
+        "v": V * np.sin(beta) + wy,
+        "w": V * np.sin(alpha) * np.cos(beta) + wz,
         "phi": phi,
         "theta": theta,
         "psi": psi,
-        "h": first("h"),
+        "h": get("h"),
     }
+
+
+def _start_state(
+    first: Mapping[str, FloatArray],
+    values: Mapping[str, float],
+    x0: Mapping[str, float] | None,
+) -> dict[str, float]:
+    """Initial state from the (smoothed) first samples with the start sensor errors removed."""
+    state = {s: float(v[0]) for s, v in _states_from(first, values).items()}
     if x0 is not None:
         if not isinstance(x0, Mapping):
             raise IdentificationError(f"x0: expected a mapping state -> value, got {plain(x0)}")
@@ -1049,6 +1266,7 @@ def _result(
     outputs: list[str],
     measured: Mapping[str, FloatArray],
     inputs: Mapping[str, FloatArray],
+    controls: FloatArray,
     names: list[str],
     values: Mapping[str, float],
     fit: Any,
@@ -1056,15 +1274,14 @@ def _result(
     sigma_in: Mapping[str, float],
     passes: int,
     g: float,
-    substeps: int,
+    how: Mapping[str, Any],
+    held: tuple[str, ...],
+    pivots: Mapping[str, float],
 ) -> CompatibilityResult:
     t = data.time
     x0 = dict(fit.initial_states[0])
     # the fitted model itself (and whatever was compiled for it), free of output errors
-    controls = np.column_stack([inputs[c] for c in INPUT_CHANNELS])
-    sim = model.simulate(
-        t, controls, x0, _zero_sensor_errors(values), method="rk4", substeps=substeps
-    )
+    sim = model.simulate(t, controls, x0, _zero_sensor_errors(values), **how)
     true_out = np.asarray(sim.outputs)
     reconstructed = np.empty((t.size, len(outputs)))
     raw = np.empty((t.size, len(outputs)))
@@ -1072,9 +1289,10 @@ def _result(
     for j, o in enumerate(outputs):
         k = OUTPUT_CHANNELS.index(o)
         b, s, tau = values[f"b_{o}"], values[f"k_{o}"], values[f"tau_{o}"]
-        reconstructed[:, j] = (1.0 + s) * _shift(t, true_out[:, k], -tau) + b
+        y0 = pivots[o]
+        reconstructed[:, j] = (1.0 + s) * (_shift(t, true_out[:, k], -tau) - y0) + y0 + b
         raw[:, j] = data.channels[present[o]]
-        fixed_y = (_shift(t, measured[o], tau) - b) / (1.0 + s)
+        fixed_y = (_shift(t, measured[o], tau) - b - y0) / (1.0 + s) + y0
         if o == "psi":  # back on the record's own branch of the heading
             fixed_y = fixed_y + (raw[:, j] - measured[o])
             reconstructed[:, j] = reconstructed[:, j] + (raw[:, j] - measured[o])
@@ -1111,4 +1329,6 @@ def _result(
         n_passes=passes,
         gravity=g,
         input_noise=sigma_in,
+        measured_states=held,
+        scale_pivots=pivots,
     )

@@ -765,8 +765,10 @@ class Model:
         method : str
             ``"auto"`` (exact for dynamics shown linear time-invariant at
             every sample time of `time`, for every member, or declared so with
-            ``linear=True``; else RK4), ``"exact"``, ``"rk4"``, or a
-            `scipy.integrate.solve_ivp` method.
+            ``linear=True``; else RK4), ``"exact"``, ``"rk4"``, ``"euler"``
+            (one forward-Euler step per sample, controls held: first order,
+            for reproducing legacy tools only), or a `scipy.integrate.solve_ivp`
+            method.
         substeps : int, optional
             RK4 steps per sample interval (default: from the dynamics' stiffness).
 

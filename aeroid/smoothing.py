@@ -27,10 +27,23 @@ record amplifies its noise by the frequency. Two smoothers are offered:
     chosen so that the filter's −3 dB frequency matches the Fourier cut-off.
 
 Both need uniformly sampled data and treat every column independently.
+
+No noise floor. The data-chosen cut-off needs white noise to flatten the top
+of the spectrum. Band-limited, already smoothed or coarsely sampled data have
+a spectrum that keeps falling to the top of the band, the cut-off lands near
+the band edge and the "smoothed" signal is the input, nearly unchanged; a
+`NoiseFloorWarning` says so (then give `cutoff` in Hz). The test: the median
+power of the third and of the top quarter of the sine coefficients agree for
+white noise (each median's log scatters by ``1 / (2 f sqrt(n) med)`` with
+``f`` the χ²₁ density at its median ``med``); a fall by more than four of
+those standard deviations of the difference, and by at least a factor of
+two, means no floor.
 """
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Sequence
 from typing import overload
 
@@ -41,7 +54,7 @@ from ._threads import small_blas
 from .data import FlightData, positive_number, real_array, whole_number
 from .errors import DataFormatError
 
-__all__ = ["differentiate", "optimal_cutoff", "smooth"]
+__all__ = ["NoiseFloorWarning", "differentiate", "optimal_cutoff", "smooth"]
 
 FloatArray = NDArray[np.float64]
 
@@ -49,6 +62,12 @@ _METHODS = ("fourier", "local")
 # Median of the χ² distribution with one degree of freedom: the median of the squared
 # orthonormal coefficients of white noise is this fraction of its variance.
 _CHI2_1_MEDIAN = 0.454936423119572
+# The χ²₁ density at that median: it sets the scatter of a sample median.
+_CHI2_1_DENSITY_AT_MEDIAN = 0.4711
+
+
+class NoiseFloorWarning(UserWarning):
+    """The data-chosen cut-off found no white-noise floor (see the module notes)."""
 
 
 def _as_columns(x: ArrayLike, what: str) -> tuple[FloatArray, bool]:
@@ -108,10 +127,45 @@ def _sine_series(col: FloatArray) -> tuple[FloatArray, float, float]:
     return coef, start, end
 
 
-def _cutoff_index(coef: FloatArray, order: int) -> int:
+def _no_floor(power: FloatArray) -> float | None:
+    """How far the top quarter of the spectrum sits below the third: None when flat,
+    infinite when the floor is round-off (noise-free data)."""
+    m = power.shape[0]
+    quarter = m // 4
+    if quarter < 8:
+        return None
+    third = float(np.median(power[m // 2 : m // 2 + quarter]))
+    top = float(np.median(power[m - quarter :]))
+    if top <= (1e3 * np.finfo(float).eps) ** 2 * float(np.max(power)):
+        return math.inf
+    if third <= 0.0:
+        return None
+    if top <= 0.0:
+        return math.inf
+    spread = 1.0 / (2.0 * _CHI2_1_DENSITY_AT_MEDIAN * math.sqrt(quarter) * _CHI2_1_MEDIAN)
+    fall = third / top
+    return fall if math.log(fall) > max(4.0 * math.sqrt(2.0) * spread, math.log(2.0)) else None
+
+
+def _cutoff_index(coef: FloatArray, order: int, label: str = "x") -> int:
     """Number of sine terms that minimises the estimated squared error (see module doc)."""
     power = coef**2
     m = power.shape[0]
+    fall = _no_floor(power)
+    if fall is not None:
+        why = (
+            "the data carry no noise above round-off"
+            if math.isinf(fall)
+            else f"the spectrum still falls by a factor {fall:.3g} over its top quarter "
+            "(band-limited, already smoothed or coarsely sampled data)"
+        )
+        warnings.warn(
+            NoiseFloorWarning(
+                f"{label}: no noise floor found: {why}, so the data-chosen cut-off "
+                "leaves the signal (nearly) unchanged; give cutoff= in Hz to smooth it"
+            ),
+            stacklevel=2,
+        )
     noise = float(np.median(power[m // 2 :])) / _CHI2_1_MEDIAN
     weight = np.arange(1, m + 1, dtype=np.float64) ** (2 * order)
     gain = np.cumsum(weight * (power - 2.0 * noise))
@@ -119,7 +173,9 @@ def _cutoff_index(coef: FloatArray, order: int) -> int:
     return best + 1 if gain[best] > 0 else 0
 
 
-def _fourier(col: FloatArray, dt: float, order: int, cutoff: float | None) -> FloatArray:
+def _fourier(
+    col: FloatArray, dt: float, order: int, cutoff: float | None, label: str = "x"
+) -> FloatArray:
     import scipy.fft  # imported on first use: it costs a large part of a second
 
     n = col.shape[0]
@@ -127,7 +183,7 @@ def _fourier(col: FloatArray, dt: float, order: int, cutoff: float | None) -> Fl
     m = coef.shape[0]
     span = (n - 1) * dt
     if cutoff is None:
-        keep = _cutoff_index(coef, order)
+        keep = _cutoff_index(coef, order, label)
     else:
         # sine term m has frequency m / (2 T) Hz
         keep = int(min(m, np.floor(2.0 * span * cutoff)))
@@ -157,10 +213,10 @@ def _fourier(col: FloatArray, dt: float, order: int, cutoff: float | None) -> Fl
     return out
 
 
-def _local_window(col: FloatArray, dt: float, order: int, polyorder: int) -> int:
+def _local_window(col: FloatArray, dt: float, order: int, polyorder: int, label: str = "x") -> int:
     n = col.shape[0]
     coef, _, _ = _sine_series(col)
-    keep = _cutoff_index(coef, order)
+    keep = _cutoff_index(coef, order, label)
     nyquist_fraction = max(keep, 1) / max(coef.shape[0], 1)
     # Savitzky–Golay -3 dB point (Schafer 2011): f/f_nyq ≈ (p + 1) / (3.2 h - 4.6)
     half = int(np.ceil(((polyorder + 1) / nyquist_fraction + 4.6) / 3.2))
@@ -171,7 +227,12 @@ def _local_window(col: FloatArray, dt: float, order: int, polyorder: int) -> int
 
 
 def _local(
-    col: FloatArray, dt: float, order: int, window: int | None, polyorder: int
+    col: FloatArray,
+    dt: float,
+    order: int,
+    window: int | None,
+    polyorder: int,
+    label: str = "x",
 ) -> FloatArray:
     n = col.shape[0]
     if polyorder >= n:
@@ -180,7 +241,7 @@ def _local(
             f"{polyorder} samples; the record has {n}"
         )
     if window is None:
-        w = _local_window(col, dt, order, polyorder)
+        w = _local_window(col, dt, order, polyorder, label)
     else:
         w = whole_number(window, "window", DataFormatError)
     if w % 2 == 0 or w <= polyorder or w > n:
@@ -205,16 +266,21 @@ def _apply(
     cutoff: float | None,
     window: int | None,
     polyorder: int,
+    names: Sequence[str] | None = None,
 ) -> FloatArray:
     cols, one = _as_columns(x, what)
     if cutoff is not None:
         cutoff = positive_number(cutoff, "cutoff", " (a frequency in Hz)")
     out = np.empty_like(cols)
     for j in range(cols.shape[1]):
-        if method == "fourier":
-            out[:, j] = _fourier(cols[:, j], dt, order, cutoff)
+        if names is not None:
+            label = f"channel {names[j]!r}"
         else:
-            out[:, j] = _local(cols[:, j], dt, order, window, polyorder)
+            label = what if one else f"{what}[:, {j}]"
+        if method == "fourier":
+            out[:, j] = _fourier(cols[:, j], dt, order, cutoff, label)
+        else:
+            out[:, j] = _local(cols[:, j], dt, order, window, polyorder, label)
     return out[:, 0] if one else out
 
 
@@ -250,7 +316,7 @@ def _process(
                     f"suffix: the derivative of {n!r} would replace the channel {n + tail!r} "
                     "the record already has; choose another suffix"
                 )
-    out = _apply(x.array(names), "channels", step, order, method, cutoff, window, polyorder)
+    out = _apply(x.array(names), "channels", step, order, method, cutoff, window, polyorder, names)
     values = {n + tail: out[:, j] for j, n in enumerate(names)}
     if order == 0:
         return x.with_channels(values)

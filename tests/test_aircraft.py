@@ -879,3 +879,104 @@ def test_channel_units_label_a_record_that_gives_none():
     # a unit the record states wins
     given = aeroid.FlightData(plain.time, dict(plain.channels), units={"q": "deg/s"})
     assert aeroid.validate(lin, given, dict(lin.parameters)).units["q"] == "deg/s"
+
+
+# -- textbook set-ups: accelerations of the linear models, US units, rate reference -------------
+
+
+def test_linear_models_give_the_specific_forces_in_either_unit():
+    # az = V0 ΣZ (α̇ = q + ΣZ ...: ΣZ is Z/(m V0)), ay = V0 ΣY; in g divided by g
+    Z = {"Z_V": -0.01, "Z_alpha": -1.1, "Z_q": -0.02, "Z_delta_e": -0.1}
+    for g, units, scale in ((9.80665, "m/s2", 1.0), (32.174, "g", 1.0 / 32.174)):
+        lon = longitudinal_linear(
+            V0=100.0,
+            g=g,
+            terms={"X": ["V"], "Z": ["V", "alpha", "q", "delta_e"], "M": ["alpha"]},
+            parameters=Z,
+            outputs=["alpha", "az"],
+            accel_units=units,
+        )
+        lin = linearize(lon, np.zeros(4), np.zeros(1))
+        want = 100.0 * scale * np.array([Z["Z_V"], Z["Z_alpha"], 0.0, Z["Z_q"]])
+        np.testing.assert_allclose(lin.C[1], want, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(lin.D[1, 0], 100.0 * scale * Z["Z_delta_e"], rtol=1e-9)
+        lat = lateral_linear(
+            V0=100.0,
+            g=g,
+            terms={"Y": ["beta", "delta_r"]},
+            parameters={"Y_beta": -0.2, "Y_delta_r": 0.05},
+            outputs=["beta", "ay"],
+            accel_units=units,
+        )
+        lin = linearize(lat, np.zeros(4), np.zeros(2))
+        np.testing.assert_allclose(lin.C[1], [-20.0 * scale, 0, 0, 0], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(lin.D[1], [0.0, 5.0 * scale], rtol=1e-9, atol=1e-12)
+    with pytest.raises(ModelDefinitionError, match="accel_units"):
+        lateral_linear(V0=100.0, accel_units="ft/s2")
+    with pytest.raises(ModelDefinitionError, match="g: must be positive"):
+        longitudinal_linear(V0=100.0, g=-9.8)
+
+
+def test_accelerations_in_g_use_the_constants_gravity():
+    # US units: constants in slug, ft, g = 32.174 ft/s^2; an output in g divides by that g
+    us = AircraftConstants(
+        mass=85.4, Ixx=1048.0, Iyy=3000.0, Izz=3530.0, S=184.0, b=33.4, cbar=5.7,
+        rho=0.002377, g=32.174,
+    )  # fmt: skip
+    for make in (
+        lambda u: longitudinal(us, V0=176.0, parameters=LONG, accel_units=u),
+        lambda u: lateral(us, V0=176.0, terms=LAT_TERMS, parameters=LAT, accel_units=u),
+    ):
+        native, in_g = make("m/s2"), make("g")
+        tr = trim(native)
+        a = linearize(native, tr)
+        b = linearize(in_g, tr)
+        rows = [i for i, o in enumerate(native.output_names) if o in ("ax", "ay", "az")]
+        assert rows
+        np.testing.assert_allclose(b.C[rows], a.C[rows] / 32.174, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(b.D[rows], a.D[rows] / 32.174, rtol=1e-9, atol=1e-15)
+
+
+def test_rate_reference_chooses_the_airspeed_of_the_nondimensional_rate():
+    # q̇ = q̄ S c̄ Cm / Iyy with Cm = Cm_q q c̄ / (2 V_ref): off the reference speed the two
+    # forms differ by exactly the ratio V / V0
+    params = {"Cm_q": -12.0}
+    terms = {"CD": ["0"], "CL": ["alpha"], "Cm": ["q"]}
+    x = np.array([1.2 * V0, 0.05, 0.05, 0.3])
+    u = np.array([0.0, 0.0])
+    got = {}
+    for ref in ("V", "V0"):
+        m = longitudinal(
+            CONSTANTS, V0=V0, terms=terms, parameters=params, outputs=["q_dot"],
+            rate_reference=ref,
+        )  # fmt: skip
+        got[ref] = float(np.asarray(m.measurement(0.0, x, u, dict(m.parameters)))[0])
+    qbar_S_c = 0.5 * 1.225 * x[0] ** 2 * BASE["S"] * BASE["cbar"]
+    expect_V = qbar_S_c * params["Cm_q"] * x[3] * BASE["cbar"] / (2 * x[0]) / BASE["Iyy"]
+    assert got["V"] == pytest.approx(expect_V, rel=1e-12)
+    assert got["V0"] == pytest.approx(expect_V * 1.2, rel=1e-12)
+    with pytest.raises(ModelDefinitionError, match="rate_reference"):
+        longitudinal(CONSTANTS, V0=V0, rate_reference="Vtrue")
+
+
+def test_a_longitudinal_model_needs_no_lateral_constants():
+    lon_only = AircraftConstants(
+        mass=BASE["mass"], Iyy=BASE["Iyy"], S=BASE["S"], cbar=BASE["cbar"], rho=1.225
+    )
+    m = longitudinal(lon_only, V0=V0, parameters=LONG)
+    assert np.isfinite(linearize(m, trim(m)).A).all()
+    with pytest.raises(ModelDefinitionError, match="Ixx, Izz, b"):
+        lateral(lon_only, V0=V0)
+    with pytest.raises(ModelDefinitionError, match="six-degree-of-freedom model needs"):
+        six_dof(lon_only, V0=V0)
+    with pytest.raises(ModelDefinitionError, match="Iyy: required"):
+        AircraftConstants(mass=1.0, S=1.0, cbar=1.0, rho=1.0)
+    from aeroid.aircraft import model_from_config
+
+    cfg = {k: lon_only_value for k, lon_only_value in (("mass", 1.0), ("Iyy", 2.0), ("S", 1.0))}
+    with pytest.raises(ModelDefinitionError, match="cbar"):
+        model_from_config({"aircraft": "longitudinal", "V0": 50, "constants": {**cfg, "rho": 1}})
+    ok = model_from_config(
+        {"aircraft": "longitudinal", "V0": 50, "constants": {**cfg, "cbar": 1.0, "rho": 1}}
+    )
+    assert ok.kind == "longitudinal"

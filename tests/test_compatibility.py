@@ -199,6 +199,10 @@ def test_summary_and_plot(clean):
 def _params(batch: int, **values: float) -> dict[str, np.ndarray]:
     p = {n: np.zeros(batch) for n in SENSOR_PARAMETERS}
     p["g"] = np.full(batch, G)
+    for name in compat.STATES:  # no state replaced by its measurement
+        p[f"m_{name}"] = np.zeros(batch)
+    for name in compat.OUTPUT_CHANNELS:  # scale factors about zero
+        p[f"y0_{name}"] = np.zeros(batch)
     for k, v in values.items():
         p[k] = np.full(batch, v)
     return p
@@ -219,7 +223,7 @@ def test_kinematics_match_the_closed_form_flight():
             np.zeros_like(t),
         ]
     )
-    c = np.stack([tr[k] for k in compat.INPUT_CHANNELS])
+    c = np.stack([tr[k] for k in compat.INPUT_CHANNELS] + [np.zeros_like(t)] * 7)
     p = _params(t.size)
     xd = compat._kinematics(t, x, c, p)
     eps = 1e-6
@@ -243,7 +247,7 @@ def test_wind_enters_the_air_data_as_in_earth_axes():
     # level, wings level, heading east, flying at 50 m/s over ground into a 10 m/s east wind
     # with 2 m/s of updraft: 40 m/s airspeed and a small positive alpha
     x = np.array([[50.0], [0.0], [0.0], [0.0], [0.0], [np.pi / 2], [100.0]])
-    c = np.zeros((6, 1))
+    c = np.zeros((13, 1))
     y = compat._sensors(0.0, x, c, _params(1, w_e=10.0, w_d=-2.0))
     assert np.allclose(y[0], np.hypot(40.0, 2.0))
     assert np.allclose(y[1], np.arctan2(2.0, 40.0))
@@ -256,7 +260,7 @@ def test_model_broadcasts_over_a_batch():
     x = np.array([45.0, 1.0, 3.0, 0.1, 0.05, 0.2, 1500.0])[:, None] + 0.1 * rng.standard_normal(
         (7, batch)
     )
-    c = 0.1 * rng.standard_normal((6, batch))
+    c = 0.1 * rng.standard_normal((13, batch))
     p = _params(batch)
     for n in SENSOR_PARAMETERS:
         p[n] = 1e-2 * rng.standard_normal(batch)
@@ -299,6 +303,16 @@ def small():
     return simulated_flight(2.0, 10.0, seed=9)
 
 
+def test_a_state_measured_or_fitted_needs_its_channel(small):
+    no_psi = aeroid.FlightData(small.time, {c: small[c] for c in small.names if c != "psi"})
+    with pytest.raises(ChannelError, match="'psi'"):
+        check_compatibility(no_psi, measured_states=["psi"])
+    with pytest.raises(ChannelError, match="'psi'"):
+        check_compatibility(no_psi, outputs=["V", "psi"])
+    with pytest.raises(ChannelError, match="b_phi"):
+        check_compatibility(small, outputs=["V", "alpha", "theta"], estimate=["b_phi"])
+
+
 def test_missing_required_channel_is_named(small):
     data = aeroid.FlightData(small.time, {c: small[c] for c in small.names if c != "q"})
     with pytest.raises(ChannelError, match="'q'"):
@@ -336,6 +350,12 @@ def test_bad_values_are_named(small):
         ({"x0": {"speed": 1.0}}, "speed"),
         ({"input_noise": {"p": -1.0}}, "input_noise"),
         ({"seed": 1.5}, "seed"),
+        ({"outputs": ["V", "speed"]}, "speed"),
+        ({"outputs": []}, "at least one"),
+        ({"measured_states": ["q"]}, "measured_states"),
+        ({"estimate_x0": ["u", "x"]}, "estimate_x0"),
+        ({"scale_about": "mean"}, "scale_about"),
+        ({"integration": "rk2"}, "integration"),
     ],
 )
 def test_bad_options_are_named(small, kwargs, match):
@@ -370,3 +390,130 @@ def test_a_drifting_unestimated_offset_is_named_in_this_functions_terms():
     drift = [w.message for w in caught if isinstance(w.message, aeroid.ResidualDriftWarning)]
     assert drift and "b_alpha" in str(drift[0]) and "estimate_bias" not in str(drift[0])
     assert caught[0].filename == __file__
+
+
+# -- SIDPAC's set-up: held initial state, measured states, scale factors about the start --
+
+SIDPAC_LON = {"b_ax": 0.15, "b_az": -0.2, "b_q": 0.002, "k_alpha": 0.08, "k_theta": 0.04}
+SIDPAC_LAT = {
+    "b_ay": -0.1,
+    "b_p": 0.003,
+    "b_r": 0.0025,
+    "k_beta": 0.09,
+    "k_phi": 0.07,
+    "k_psi": 0.06,
+}
+SETUPS = {
+    "lon": (SIDPAC_LON, ["V", "alpha", "theta"], ["v", "phi", "psi"]),
+    "lat": (SIDPAC_LAT, ["beta", "phi", "psi"], ["u", "w", "theta"]),
+}
+
+
+def _true_start(data: aeroid.FlightData) -> dict[str, float]:
+    tr = truth(data.time[:1])
+    a, b, V = tr["alpha"][0], tr["beta"][0], tr["V"][0]
+    return {
+        "u": V * np.cos(a) * np.cos(b),
+        "v": V * np.sin(b),
+        "w": V * np.sin(a) * np.cos(b),
+        "phi": tr["phi"][0],
+        "theta": tr["theta"][0],
+        "psi": tr["psi"][0],
+        "h": 1500.0,
+    }
+
+
+@pytest.mark.parametrize("axis", ["lon", "lat"])
+def test_sidpac_setup_recovers_its_sensor_errors(axis):
+    truths, fitted, fed = SETUPS[axis]
+    # scale factors about the start value: (1 + k)(y - y0) + y0 = (1 + k) y - k y0
+    t0 = truth(np.zeros(1))
+    errors = dict(truths)
+    for o in fitted:
+        if f"k_{o}" in truths:
+            errors[f"b_{o}"] = -truths[f"k_{o}"] * t0[o][0]
+    data = simulated_flight(DURATION, RATE, errors=errors, seed=21)
+    res = check_compatibility(
+        data,
+        estimate=list(truths),
+        outputs=fitted,
+        measured_states=fed,
+        estimate_x0=False,
+        x0=_true_start(data),
+        scale_about="initial",
+        error_bars="white",
+    )
+    assert res.output_names == tuple(fitted)
+    assert res.measured_states == tuple(s for s in compat.STATES if s in fed)
+    assert res.initial_state_stderr == {}
+    o = fitted[1]
+    assert res.scale_pivots[o] == pytest.approx(t0[o][0], abs=1e-9)
+    assert "taken from their measurements" in res.summary()
+    for n, v in truths.items():
+        assert abs(res.parameters[n] - v) < 4.0 * res.stderr[n], n
+    # the corrected channel undoes the pivoted scale factor
+    fixed = res.corrected[o]
+    clean = truth(data.time)[o]
+    assert np.sqrt(np.mean((fixed - clean) ** 2)) < 1.5 * NOISE[o]
+
+
+def test_a_measured_state_stands_in_for_the_integrated_one():
+    # phi taken from the data: a roll-gyro bias then cannot move the bank angle, and the
+    # reconstructed phi state is the measured one (the model never integrates it)
+    data = simulated_flight(DURATION, RATE, errors={"b_p": 0.01}, seed=22)
+    res = check_compatibility(
+        data,
+        estimate=["b_q", "b_az"],
+        outputs=["V", "alpha", "theta"],
+        measured_states=["phi"],
+        error_bars="white",
+    )
+    k = compat.STATES.index("phi")
+    assert np.all(res.states[:, k] == res.states[0, k])  # held, not integrated
+    assert "phi" not in res.initial_states or "phi" not in res.initial_state_stderr
+
+
+def test_a_longitudinal_record_without_phi(monkeypatch):
+    import _compat_flight as flight
+
+    # wings level, no sideslip, constant heading: a purely longitudinal flight
+    monkeypatch.setitem(flight._SIGNALS, "phi", (0.0, 0.0, []))
+    monkeypatch.setitem(flight._SIGNALS, "beta", (0.0, 0.0, []))
+    monkeypatch.setitem(flight._SIGNALS, "psi", (0.3, 0.0, []))
+    data = simulated_flight(DURATION, RATE, errors={"b_q": -0.002, "b_ax": 0.15}, seed=23)
+    lon = aeroid.FlightData(
+        data.time, {c: data[c] for c in ("p", "q", "r", "ax", "ay", "az", "V", "alpha", "theta")}
+    )
+    res = check_compatibility(lon, estimate=["b_q", "b_ax", "b_az"], error_bars="white")
+    assert res.output_names == ("V", "alpha", "theta")
+    assert "phi" not in res.initial_state_stderr
+    assert abs(res.parameters["b_q"] + 0.002) < 4.0 * res.stderr["b_q"]
+    assert abs(res.parameters["b_ax"] - 0.15) < 4.0 * res.stderr["b_ax"]
+    assert abs(res.parameters["b_az"]) < 4.0 * res.stderr["b_az"]
+
+
+def test_scale_about_initial_is_a_reparametrisation():
+    # (1 + k)(y - y0) + y0 + b == (1 + k) y + (b - k y0): same k, offset moved by k y0
+    data = simulated_flight(DURATION, RATE, errors={"k_alpha": 0.08, "b_alpha": 0.01}, seed=24)
+    names = ["k_alpha", "b_alpha", "b_q"]
+    zero = check_compatibility(data, estimate=names, error_bars="white")
+    pivot = check_compatibility(data, estimate=names, error_bars="white", scale_about="initial")
+    y0 = pivot.scale_pivots["alpha"]
+    assert pivot.parameters["k_alpha"] == pytest.approx(zero.parameters["k_alpha"], abs=1e-6)
+    shifted = pivot.parameters["b_alpha"] - pivot.parameters["k_alpha"] * y0
+    assert shifted == pytest.approx(zero.parameters["b_alpha"], abs=1e-6)
+    assert zero.scale_pivots["alpha"] == 0.0
+
+
+@pytest.mark.filterwarnings("ignore::aeroid.errors.ResidualDriftWarning")
+def test_euler_integration_is_first_order():
+    # one Euler step per sample: the reconstruction error halves with the step
+    errors = []
+    for rate in (25.0, 50.0):
+        data = simulated_flight(4.0, rate, noise={}, seed=25)
+        res = check_compatibility(
+            data, estimate=["b_q"], estimate_x0=False, x0=_true_start(data), integration="euler"
+        )
+        theta = res.true_outputs[:, compat.OUTPUT_CHANNELS.index("theta")]
+        errors.append(float(np.max(np.abs(theta - truth(data.time)["theta"]))))
+    assert 1.6 < errors[0] / errors[1] < 2.5

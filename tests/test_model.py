@@ -29,6 +29,19 @@ def test_exponential_decay_closed_form(method):
     assert sim.time is not T and np.array_equal(sim.time, T)
 
 
+def test_euler_is_the_forward_euler_recursion_with_held_controls():
+    # x' = -k x: x_n = (1 - k h)^n x0 exactly; a held control enters at the step's start
+    sim = decay_model().simulate(T, None, [2.0], method="euler")
+    h = T[1] - T[0]
+    np.testing.assert_allclose(sim.state("x"), 2.0 * (1 - 0.7 * h) ** np.arange(T.size), rtol=1e-12)
+    ramp = Model(
+        states=["x"], controls=["u"], parameters={}, dynamics=lambda t, x, u, p: u, name="ramp"
+    )
+    u = np.arange(T.size, dtype=float)
+    got = ramp.simulate(T, u[:, None], [0.0], method="euler").state("x")
+    np.testing.assert_allclose(got, h * np.concatenate([[0.0], np.cumsum(u[:-1])]), atol=1e-12)
+
+
 def test_outputs_land_exactly_on_irregular_grid():
     t = np.sort(np.random.default_rng(3).uniform(0, 4, 60))
     sim = decay_model(1.3).simulate(t, None, [1.0])
@@ -199,7 +212,7 @@ def test_model_is_frozen_and_argument_errors():
     with pytest.raises(SimulationError, match="not strictly increasing"):
         m.simulate([0.0, 1.0, 0.5], None, [1.0])
     with pytest.raises(SimulationError, match="unknown"):
-        m.simulate(T, None, [1.0], method="euler")
+        m.simulate(T, None, [1.0], method="midpoint")
     with pytest.raises(SimulationError, match="x0"):
         m.simulate(T, None, [1.0, 2.0])
     with pytest.raises(SimulationError, match="'kk' is not a parameter"):

@@ -22,6 +22,7 @@ def _band_limited() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, dx, ddx
 
 
+@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
 def test_fourier_exact_on_band_limited_signal() -> None:
     x, dx, ddx = _band_limited()
     np.testing.assert_allclose(smooth(x, dt=DT), x, rtol=0, atol=1e-12)
@@ -32,6 +33,7 @@ def test_fourier_exact_on_band_limited_signal() -> None:
     assert abs(dd[0] - ddx[0]) < 1e-2 * np.max(np.abs(ddx))
 
 
+@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
 def test_local_polynomial_exact_on_cubic() -> None:
     x = 2.0 + T - 0.5 * T**2 + 0.1 * T**3
     dx = 1.0 - T + 0.3 * T**2
@@ -45,6 +47,7 @@ def test_local_polynomial_exact_on_cubic() -> None:
     np.testing.assert_allclose(smooth(x, dt=DT, method="local"), x, rtol=0, atol=1e-10)
 
 
+@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
 def test_fourier_on_non_periodic_sine_interior() -> None:
     y = np.sin(1.3 * T) + 0.1 * T**2
     dy = 1.3 * np.cos(1.3 * T) + 0.2 * T
@@ -97,6 +100,7 @@ def test_explicit_cutoff() -> None:
     np.testing.assert_allclose(out[50:-50], np.sin(2 * np.pi * 0.5 * T)[50:-50], atol=0.05)
 
 
+@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
 def test_columns_and_flight_data() -> None:
     x, dx, _ = _band_limited()
     cols = np.column_stack([x, 2 * x])
@@ -164,3 +168,37 @@ def test_public_entry_points_limit_blas_threads():
     # wrapped by `small_blas`, as every numerical entry point of the library
     for fn in (smooth, differentiate, optimal_cutoff):
         assert hasattr(fn, "__wrapped__"), fn.__name__
+
+
+def test_band_limited_data_without_noise_floor_are_named() -> None:
+    import warnings
+
+    from aeroid.smoothing import NoiseFloorWarning
+
+    # a sine not periodic over the record: its end-point-detrended spectrum falls as
+    # 1/m^4 to the top of the band, with no white floor to find
+    t = T[:-1]
+    clean = np.sin(2 * np.pi * 0.5 * t) + 0.3 * np.sin(2 * np.pi * 1.3 * t)
+    with pytest.warns(NoiseFloorWarning, match=r"x: no noise floor.*falls.*cutoff="):
+        out = smooth(clean, dt=DT)
+    assert np.max(np.abs(out - clean)) < 1e-3  # nearly the input, as the warning says
+    # sine terms of the series itself: the floor is round-off, the output the input
+    exact, _, _ = _band_limited()
+    with pytest.warns(NoiseFloorWarning, match="round-off"):
+        assert np.allclose(smooth(exact, dt=DT), exact, rtol=0, atol=1e-12)
+    data = FlightData(t, {"alpha": clean, "beta": clean})
+    with pytest.warns(NoiseFloorWarning, match="channel 'alpha'"):
+        smooth(data, "alpha")
+    noisy = clean + 1e-2 * np.random.default_rng(1).standard_normal(t.size)
+    with pytest.warns(NoiseFloorWarning, match=r"x\[:, 1\]"):
+        smooth(np.column_stack([noisy, clean]), dt=DT)
+    # white noise on top: a floor, no warning, over many seeds and lengths
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", NoiseFloorWarning)
+        for seed in range(40):
+            rng = np.random.default_rng(seed)
+            for n in (64, 501, 2001):
+                y = np.sin(0.05 * np.arange(n)) + 1e-2 * rng.standard_normal(n)
+                smooth(y, dt=DT)
+        smooth(clean, dt=DT, cutoff=2.0)  # a given cut-off needs no floor
+        smooth(noisy, dt=DT)
