@@ -903,11 +903,6 @@ def frequency_response(
             f"frequency_range: {frequency_range!r} Hz holds none of the analysis frequencies "
             f"({f[0]:.4g} to {f[-1]:.4g} Hz for {longest}-sample windows at {fs:.6g} Hz)"
         )
-    if band[0] < 2.0 * fs / longest and frequency_range is not None:
-        notes.append(
-            f"frequencies below {2.0 * fs / longest:.4g} Hz hold fewer than two periods in "
-            f"the longest ({longest}-sample) window and are not counted"
-        )
 
     # the model's response: the same windowed estimate from its simulated outputs
     # (noise-free, so it measures what each window does to a response like the model's),
@@ -945,6 +940,12 @@ def frequency_response(
     signals = np.vstack([u, y_meas] + ([] if y_sim is None else [y_sim[:, idx_y].T])).T
     est = [_window_estimate(signals, fs, s, f, n_u, n_y) for s in segs]
     est += [_record_estimate(signals, fs, m, n_u, n_y) for m in smoothing]
+    lowest = min(e.lowest for e in est)
+    if band[0] < lowest and frequency_range is not None:
+        notes.append(
+            f"frequencies below {lowest:.4g} Hz hold fewer than two periods in every window "
+            "and are not counted"
+        )
     if values_ref is None:
         # no transfer function (so y_sim exists): the whole-record ratio of the simulated
         # outputs (no window, no averaging) for one input, else the longest window's
