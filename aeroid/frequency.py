@@ -47,6 +47,7 @@ from . import _integrate
 from ._czt import fourier, hann
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
+from ._transfer import state_space_response
 from .data import FlightData, as_float, measured_start, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from .model import (
@@ -415,12 +416,9 @@ def _state_outputs(model: Model) -> tuple[FloatArray, FloatArray]:
 def _transfer(
     a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, freqs: FloatArray
 ) -> ComplexArray:
-    """``C (j 2π f I - A)^-1 B + D`` at each of `freqs`, shape (n_f, n_u, n_y)."""
-    s = 2j * np.pi * freqs
-    m = s[:, None, None] * np.eye(a.shape[0])[None] - a[None]
+    """``C (j 2π f I - A)^-1 B + D`` at each of `freqs` (Hz), shape (n_f, n_u, n_y)."""
     with np.errstate(all="ignore"):
-        x = np.linalg.solve(m, np.broadcast_to(b, (freqs.size, *b.shape)).astype(complex))
-    h = c[None] @ x + d[None]  # (n_f, n_y, n_u)
+        h = state_space_response(a, b, c, d, 2.0 * np.pi * freqs)  # (n_f, n_y, n_u)
     return np.transpose(h, (0, 2, 1))
 
 

@@ -214,6 +214,28 @@ class ResponseChannel:
         out.setflags(write=False)
         return out
 
+    # The unit-explicit names every response type shares (`ChannelFrequencyResponse`
+    # too, whose fields keep Hz, gain and radians).
+    @property
+    def frequency_rad_s(self) -> FloatArray:
+        """Frequencies in rad/s (the `frequency` field)."""
+        return self.frequency
+
+    @property
+    def gain(self) -> FloatArray:
+        """|H|, output unit per input unit."""
+        return frozen_array(np.abs(self.response))
+
+    @property
+    def magnitude_db(self) -> FloatArray:
+        """``20 log10 |H|`` (the `magnitude` field)."""
+        return self.magnitude
+
+    @property
+    def phase_deg(self) -> FloatArray:
+        """Unwrapped phase in degrees (the `phase` field)."""
+        return self.phase
+
     def plot(self) -> Any:
         """Bode plot (dB, deg) with a coherence panel. Returns a matplotlib Figure."""
         return _bode([self], [])

@@ -663,3 +663,31 @@ def test_twin_otter_pitch_record_agrees_with_the_whole_record_ratio():
     assert np.median(np.abs(20 * np.log10(np.abs(est / ref)))) < 1.0
     assert np.median(np.abs(np.degrees(np.angle(est / ref)))) < 5.0
     assert sum(ch.dropped.values()) + ch.n_coherent == ch.frequency.size
+
+
+def test_both_response_types_share_the_unit_explicit_names():
+    from aeroid.frequency_id import ResponseChannel
+
+    model = catalog.short_period(TRUTH)
+    data = _noise_free_multisine(model, 20.0)
+    ch = _quiet_response(model, data, None, frequency_range=(0.2, 3.0)).channel("elevator", "q")
+    rc = ch.as_response_channel()
+    assert isinstance(rc, ResponseChannel)
+    # the historical fields of ChannelFrequencyResponse: Hz, gain, radians (the spec's)
+    np.testing.assert_allclose(ch.frequency_rad_s, 2 * np.pi * ch.frequency, rtol=1e-15)
+    np.testing.assert_allclose(ch.response, ch.magnitude * np.exp(1j * ch.phase))
+    # one set of unit-explicit names on both: rad/s and Hz, complex H, gain, dB, degrees
+    for name in ("frequency_hz", "frequency_rad_s", "response", "gain", "magnitude_db"):
+        np.testing.assert_allclose(getattr(rc, name), getattr(ch, name), rtol=1e-12)
+    np.testing.assert_allclose(rc.phase_deg, ch.phase_deg, atol=1e-9)
+    np.testing.assert_allclose(
+        np.exp(1j * np.radians(ch.phase_deg)), np.exp(1j * ch.phase), atol=1e-12
+    )
+    np.testing.assert_allclose(rc.magnitude, 20 * np.log10(ch.magnitude), rtol=1e-12)
+    h = exact_short_period(ch.frequency)["q"]
+    exact_res = _quiet_response(
+        model, data, None, frequency_range=(0.2, 3.0), model_response="exact"
+    ).channel("elevator", "q")
+    np.testing.assert_allclose(exact_res.model_response, h, rtol=1e-9)
+    with pytest.raises(ValueError):
+        ch.frequency_rad_s[0] = 0.0
