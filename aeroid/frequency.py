@@ -961,17 +961,24 @@ def frequency_response(
     chosen, reason = chosen[keep], reason[keep]
     thr_used = min(e.threshold for e in est)
 
+    # each frequency's values from the window chosen for it
+    rows = np.arange(f.size)
+    h_all = np.stack([e.h[keep] for e in est])  # (n_est, n_f, n_u, n_y)
+    coh_all = np.stack([e.coherence[keep] for e in est])
+    sims = [e.h_sim for e in est]
+    sim_all = (
+        None
+        if use_ref or any(h is None for h in sims)
+        else np.stack([h[keep] for h in sims if h is not None])
+    )
     chans = []
     few = []
     for i, inp in enumerate(ins):
         for k, out in enumerate(outs):
             pick = chosen[:, i, k]
-            he = np.array([est[j].h[keep][m, i, k] for m, j in enumerate(pick)])
-            g = np.array([est[j].coherence[keep][m, i, k] for m, j in enumerate(pick)])
-            if use_ref or est[0].h_sim is None:
-                hm = h_ref[:, i, k]
-            else:
-                hm = np.array([est[j].h_sim[keep][m, i, k] for m, j in enumerate(pick)])
+            he = h_all[pick, rows, i, k]
+            g = coh_all[pick, rows, i, k]
+            hm = h_ref[:, i, k] if sim_all is None else sim_all[pick, rows, i, k]
             why = reason[:, i, k]
             mask = why == 0
             with np.errstate(all="ignore"):
