@@ -570,30 +570,13 @@ class _Estimate:
     threshold: float = 1.0
 
 
-def _record_estimate(signals: FloatArray, fs: float, m: int, n_u: int, n_y: int) -> _Estimate:
-    """Whole-record estimate on the grid k fs / n (k >= 1), spectra averaged over 2m + 1 bins.
-
-    The line through each signal's end points is removed (SIDPAC's ``zep``) so the
-    record starts and ends at zero and needs no taper; the bins ``1/T`` apart are then
-    about independent, and the average of ``2m + 1`` of them has coherence at most 1
-    (one weight for every spectrum) and ``2m + 1`` averages.
-    """
+def _estimate(
+    g: ComplexArray, n_u: int, n_y: int, seg: int, n_avg: float, lowest: float, cell: float
+) -> _Estimate:
+    """An `_Estimate` from the spectral matrix (n_f, c, c) of [inputs, outputs, simulated]."""
     from .frequency_id import _condition
 
-    n, c = signals.shape
-    ramp = np.linspace(0.0, 1.0, n)[:, None]
-    x = signals - (signals[:1] + ramp * (signals[-1:] - signals[:1]))
-    k_top = n // 2
-    z = np.fft.rfft(x, axis=0)[: k_top + m + 1] / fs  # bins 0 .. k_top + m
-    if z.shape[0] < k_top + m + 1:
-        # bins beyond Nyquist mirror those below it (a real signal's spectrum)
-        need = k_top + m + 1 - z.shape[0]
-        z = np.concatenate([z, np.conj(z[n - k_top - need : n - k_top][::-1])])
-    prod = np.conj(z)[:, :, None] * z[:, None, :]  # (bins, c, c)
-    csum = np.concatenate([np.zeros((1, c, c)), np.cumsum(prod, axis=0)])
-    k = np.arange(1, k_top + 1)
-    lo = np.maximum(k - m, 1)  # never the zero bin (the mean)
-    g = (csum[k + m + 1] - csum[lo]) / (k + m + 1 - lo)[:, None, None]
+    c = g.shape[1]
     meas = [*range(n_u + n_y)]
     h, coh, _ = _condition(g[:, meas][:, :, meas], n_u)
     puu = np.real(np.diagonal(g[:, :n_u, :n_u], axis1=1, axis2=2))
@@ -605,31 +588,49 @@ def _record_estimate(signals: FloatArray, fs: float, m: int, n_u: int, n_y: int)
     if c > n_u + n_y:
         sim = [*range(n_u), *range(n_u + n_y, c)]
         h_sim = _condition(g[:, sim][:, :, sim], n_u)[0]
+    return _Estimate(seg, h, coh, excitation, h_sim, n_avg, lowest, cell)
+
+
+def _zero_ends(x: FloatArray) -> FloatArray:
+    """Each column less the line through its end points (SIDPAC's ``zep``)."""
+    ramp = np.linspace(0.0, 1.0, x.shape[0])[:, None]
+    return np.asarray(x - (x[:1] + ramp * (x[-1:] - x[:1])), dtype=np.float64)
+
+
+def _record_estimate(signals: FloatArray, fs: float, m: int, n_u: int, n_y: int) -> _Estimate:
+    """Whole-record estimate on the grid k fs / n (k >= 1), spectra averaged over 2m + 1 bins.
+
+    The line through each signal's end points is removed (SIDPAC's ``zep``) so the
+    record starts and ends at zero and needs no taper; the bins ``1/T`` apart are then
+    about independent, and the average of ``2m + 1`` of them has coherence at most 1
+    (one weight for every spectrum) and ``2m + 1`` averages.
+    """
+
+    n, c = signals.shape
+    x = _zero_ends(signals)
+    k_top = n // 2
+    z = np.fft.rfft(x, axis=0)[: k_top + m + 1] / fs  # bins 0 .. k_top + m
+    if z.shape[0] < k_top + m + 1:
+        # bins beyond Nyquist mirror those below it (a real signal's spectrum)
+        need = k_top + m + 1 - z.shape[0]
+        z = np.concatenate([z, np.conj(z[n - k_top - need : n - k_top][::-1])])
+    prod = np.conj(z)[:, :, None] * z[:, None, :]  # (bins, c, c)
+    csum = np.concatenate([np.zeros((1, c, c)), np.cumsum(prod, axis=0)])
+    k = np.arange(1, k_top + 1)
+    lo = np.maximum(k - m, 1)  # never the zero bin (the mean)
+    g = (csum[k + m + 1] - csum[lo]) / (k + m + 1 - lo)[:, None, None]
     # the lowest bin averaged holds one period, the frequency itself at least two
-    return _Estimate(
-        n, h, coh, excitation, h_sim, float(2 * m + 1), (m + 2) * fs / n, (2 * m + 1) * fs / n
-    )
+    return _estimate(g, n_u, n_y, n, float(2 * m + 1), (m + 2) * fs / n, (2 * m + 1) * fs / n)
 
 
 def _window_estimate(
     signals: FloatArray, fs: float, seg: int, f: FloatArray, n_u: int, n_y: int
 ) -> _Estimate:
     """Hann-windowed, half-overlapped (Welch) estimate of one window length at `f` (Hz)."""
-    from .frequency_id import _condition, _window_spectra
+    from .frequency_id import _window_spectra
 
     g, _, n_avg = _window_spectra(signals, 1.0 / fs, seg, seg - seg // 2, 2.0 * np.pi * f)
-    meas = [*range(n_u + n_y)]
-    h, coh, _ = _condition(g[:, meas][:, :, meas], n_u)
-    puu = np.real(np.diagonal(g[:, :n_u, :n_u], axis1=1, axis2=2))
-    peak = np.max(puu, axis=0, initial=0.0)
-    with np.errstate(all="ignore"):
-        excitation = np.where(peak > 0, puu / peak, 0.0)
-    coh = np.where((excitation >= _EXCITATION_FLOOR)[:, :, None], coh, 0.0)
-    h_sim = None
-    if signals.shape[1] > n_u + n_y:
-        sim = [*range(n_u), *range(n_u + n_y, signals.shape[1])]
-        h_sim = _condition(g[:, sim][:, :, sim], n_u)[0]
-    return _Estimate(seg, h, coh, excitation, h_sim, n_avg, 2.0 * fs / seg, fs / seg)
+    return _estimate(g, n_u, n_y, seg, n_avg, 2.0 * fs / seg, fs / seg)
 
 
 def _record_ratio(u: FloatArray, y: FloatArray, fs: float, f: FloatArray) -> ComplexArray:
@@ -638,10 +639,7 @@ def _record_ratio(u: FloatArray, y: FloatArray, fs: float, f: FloatArray) -> Com
     The line through each signal's end points is removed first, so the record
     starts and ends at zero and no window is needed (SIDPAC's ``zep``).
     """
-    x = np.vstack([u, y]).T
-    ramp = np.linspace(0.0, 1.0, x.shape[0])[:, None]
-    x = x - (x[:1] + ramp * (x[-1:] - x[:1]))
-    z = fourier(x, 1.0 / fs, f)
+    z = fourier(_zero_ends(np.vstack([u, y]).T), 1.0 / fs, f)
     with np.errstate(all="ignore"):
         return np.asarray(z[:, None, 1:] / z[:, :1, None], dtype=np.complex128)
 
