@@ -9,6 +9,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import scipy.io
+from _sidpac import sidpac_mat
 
 import aeroid
 from aeroid import ChannelError, DataFormatError, FlightData, load_flight_test
@@ -354,15 +355,7 @@ def test_jittered_record_reaches_the_frequency_tools_and_larger_jitter_is_refuse
 
 
 def test_sidpac_example_7p2_time_stamps_are_taken_as_uniform():
-    import os
-
-    root = os.environ.get("AEROID_SIDPAC_DIR")
-    if not root:
-        pytest.skip("AEROID_SIDPAC_DIR not set")
-    path = os.path.join(root, "Text_Examples", "example_7p2_results.mat")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} not found")
-    mat = pytest.importorskip("scipy.io").loadmat(path)
+    mat = sidpac_mat("Text_Examples", "example_7p2_results.mat")
     t = mat["t"][:, 0]
     steps = np.diff(t)
     assert np.ptp(steps) / np.mean(steps) > 1e-4  # rounded stamps: refused before

@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.signal
+from _sidpac import sidpac_mat
 
 from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError, Model, catalog
 from aeroid.frequency import FrequencyResponseResult, frequency_response
@@ -616,16 +617,7 @@ def test_twin_otter_pitch_record_agrees_with_the_whole_record_ratio():
     # SIDPAC's tfest demo: 8 s of Twin Otter elevator -> pitch rate at 50 Hz. Its
     # estimate is Z/U, one Fourier transform of each end-zeroed record. The counted
     # frequencies must agree with that ratio: median within 1 dB and 5 deg.
-    import os
-
-    root = os.environ.get("AEROID_SIDPAC_DIR")
-    if not root:
-        pytest.skip("AEROID_SIDPAC_DIR not set")
-    scipy_io = pytest.importorskip("scipy.io")
-    path = os.path.join(root, "Demos", "totter_demo_data.mat")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} not found")
-    mat = scipy_io.loadmat(path)
+    mat = sidpac_mat("Demos", "totter_demo_data.mat")
     t = mat["t"][:, 0] - mat["t"][0, 0]
     de = np.radians(mat["fdata"][:, 13])
     q = np.radians(mat["fdata"][:, 5])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import scipy.signal
 import scipy.stats
+from _sidpac import sidpac_mat
 
 from aeroid import (
     ChannelError,
@@ -519,15 +520,7 @@ def test_tfest_demo_composite_keeps_coherence_below_one_and_the_fit_honest():
     # SIDPAC's tfest demo (simulated aileron -> roll rate, 15 s at 40 Hz): the composite
     # read γ² = 1.0074 there, was clipped to 1, and its 1e-9 random error decided the
     # random-error fit (a0 = 4.77 +- 4e-8 for SIDPAC's 3.40 +- 0.11).
-    import os
-
-    root = os.environ.get("AEROID_SIDPAC_DIR")
-    if not root:
-        pytest.skip("AEROID_SIDPAC_DIR not set")
-    path = os.path.join(root, "Demos", "tfest_demo_data.mat")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} not found")
-    mat = pytest.importorskip("scipy.io").loadmat(path)
+    mat = sidpac_mat("Demos", "tfest_demo_data.mat")
     t = mat["t"][:, 0] - mat["t"][0, 0]
     data = FlightData(t, {"aileron": mat["fdata"][:, 14], "p": np.radians(mat["fdata"][:, 4])})
     with pytest.warns(UserWarning, match="two periods"):  # SIDPAC's band starts at 0.1 Hz
