@@ -492,6 +492,18 @@ def test_noise_free_multisine_band_resolves_many_frequencies():
             assert np.max(np.abs(np.angle(ch.response[good] / h[good]))) < 0.15
     q = res.channel("elevator", "q")
     assert q.n_coherent > 5 and q.mismatch < 0.05
+    # a 50 % M_alpha error: more than three times the true model's mismatch (the default,
+    # simulated response shares the estimator's bias; the exact one carries it, up to
+    # the 10 % a counted frequency allows)
+    wrong = {**TRUTH, "M_alpha": 1.5 * TRUTH["M_alpha"]}
+    kw = {"frequency_range": (0.2, 3.0), "outputs": ["q"]}
+    right = _quiet_response(model, data, TRUTH, **kw).channel("elevator", "q")
+    off = _quiet_response(model, data, wrong, **kw).channel("elevator", "q")
+    assert right.mismatch < 0.05 and off.mismatch > 3 * right.mismatch
+    kw["model_response"] = "exact"
+    right = _quiet_response(model, data, TRUTH, **kw).channel("elevator", "q")
+    off = _quiet_response(model, data, wrong, **kw).channel("elevator", "q")
+    assert right.mismatch < 0.05 and off.mismatch > 2 * right.mismatch
     # each frequency's window holds at least two periods of it
     assert np.all(q.frequency[q.coherent] * q.window[q.coherent] / data.sample_rate >= 2.0)
 
@@ -683,3 +695,38 @@ def test_both_response_types_share_the_unit_explicit_names():
     np.testing.assert_allclose(exact_res.model_response, h, rtol=1e-9)
     with pytest.raises(ValueError):
         ch.frequency_rad_s[0] = 0.0
+
+
+class _SteppedShortPeriod:
+    """A SimulatorModel look-alike: no transfer function, only simulations."""
+
+    name = "stepped_short_period"
+    controls = ("elevator",)
+    outputs = ("alpha", "q")
+
+    def __init__(self, parameters):
+        self._m = catalog.short_period(parameters)
+        self.parameters = dict(self._m.parameters)
+
+    def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+        return self._m.simulate(time, controls, x0, parameters, method="exact")
+
+    def simulate_data(self, data, *, x0=None, parameters=None, **options):
+        return self._m.simulate_data(data, x0=x0, parameters=parameters, method="exact")
+
+
+def test_a_simulator_is_judged_against_its_whole_record_ratio():
+    # no transfer function: resolution is judged against the ratio of the simulated
+    # output's and the input's Fourier transforms over the whole record
+    model = catalog.short_period(TRUTH)
+    data = _noise_free_multisine(model)
+    sim = _SteppedShortPeriod(TRUTH)
+    res = _quiet_response(sim, data, None, frequency_range=(0.2, 3.0))
+    assert res.model_response == "simulated"
+    ch = res.channel("elevator", "q")
+    h = exact_short_period(ch.frequency)["q"]
+    assert ch.n_coherent > 5
+    assert np.all(np.abs(ch.response[ch.coherent] / h[ch.coherent] - 1) < 0.12)
+    wrong = _SteppedShortPeriod({**TRUTH, "M_alpha": 1.5 * TRUTH["M_alpha"]})
+    off = _quiet_response(wrong, data, None, frequency_range=(0.2, 3.0)).channel("elevator", "q")
+    assert off.mismatch > 3 * ch.mismatch and ch.mismatch < 0.05
