@@ -112,6 +112,14 @@ class ChannelFrequencyResponse:
         Coherence-weighted mean relative error ``Σ γ² |Ĥ − H| / |H| / Σ γ²``
         over the coherent frequencies (NaN when none is coherent).
     n_coherent : int
+    window : ndarray of int, shape (n_f,)
+        Length in samples of the window each value comes from (the record's
+        length for a whole-record estimate).
+    dropped : mapping of str to int
+        How many frequencies did not count, by reason: below two periods of
+        every window, input not excited, not coherent, not resolved by any
+        window (its estimate of the model's own response off by more than
+        10 %).
     """
 
     input_name: str
@@ -234,7 +242,20 @@ class FrequencyResponseResult:
         sample).
     model_name : str
     n_averages : float
-        Independent averages equivalent to the overlapping Welch segments.
+        Independent averages equivalent to the overlapping segments of the
+        longest Welch window.
+    windows : tuple of int
+        Welch window lengths (samples) tried at every frequency.
+    window_averages : tuple of float
+        Their independent averages.
+    record_bins : tuple of int
+        Whole-record estimates also tried: the record's transform with the
+        spectra averaged over this many neighbouring ``1/T`` bins.
+    frequency_step : float
+        Spacing of the analysis frequencies (Hz).
+    notes : tuple of str
+        What the analysis changed or could not count (a band clipped at
+        Nyquist, frequencies below two periods of every window).
     """
 
     channels: tuple[ChannelFrequencyResponse, ...]
@@ -249,6 +270,8 @@ class FrequencyResponseResult:
     n_averages: float = float("nan")
     windows: tuple[int, ...] = ()
     window_averages: tuple[float, ...] = ()
+    record_bins: tuple[int, ...] = ()
+    frequency_step: float = float("nan")
     notes: tuple[str, ...] = ()
 
     def channel(self, input: str, output: str) -> ChannelFrequencyResponse:
@@ -307,6 +330,16 @@ class FrequencyResponseResult:
         }.get(self.model_response, "Welch estimate from the simulated outputs")
         lo, hi = self.frequency_range
         wins = ", ".join(str(w) for w in (self.windows or (self.nperseg,)))
+        step = self.frequency_step
+        if not np.isfinite(step):
+            step = self.sample_rate / self.nperseg
+        record = (
+            " and the whole record's transform averaged over "
+            + ", ".join(str(b) for b in self.record_bins)
+            + " neighbouring bins"
+            if self.record_bins
+            else ""
+        )
         notes = "".join(f" Note: {n}." for n in self.notes)
         return "\n".join(
             [
@@ -314,8 +347,8 @@ class FrequencyResponseResult:
                 "",
                 table,
                 "",
-                f"Welch estimates (Hann, half-overlapping) with windows of {wins} samples, "
-                f"evaluated every {fmt(self.sample_rate / self.nperseg, 3)} Hz over "
+                f"Welch estimates (Hann, half-overlapping) with windows of {wins} samples"
+                f"{record}, evaluated every {fmt(step, 3)} Hz over "
                 f"{fmt(lo, 3)}–{fmt(hi, 3)} Hz; at each frequency the window with the most "
                 "averages among those that qualify: at least two periods in the window, the "
                 f"input's spectral density at least 1/{round(1 / _EXCITED_FRACTION)} of its "
@@ -1024,7 +1057,7 @@ def frequency_response(
             UserWarning,
             stacklevel=3,  # frequency_response, its BLAS wrapper (aeroid._threads), the caller
         )
-    longest_est = max(est, key=lambda e: e.seg)
+    longest_est = est[list(segs).index(longest)]
     return FrequencyResponseResult(
         channels=tuple(chans),
         input_names=tuple(ins),
@@ -1036,8 +1069,10 @@ def frequency_response(
         model_response=how,
         model_name=str(model.name),
         n_averages=longest_est.n_averages,
-        windows=tuple(e.seg for e in est),
-        window_averages=tuple(e.n_averages for e in est),
+        windows=tuple(int(v) for v in segs),
+        window_averages=tuple(e.n_averages for e in est[: len(segs)]),
+        record_bins=tuple(2 * m + 1 for m in smoothing),
+        frequency_step=float(fs / grid),
         notes=tuple(notes),
     )
 
