@@ -15,32 +15,39 @@ models ``model_response="exact"`` gives ``C (jωI - A)^-1 B + D`` from the
 model's own matrices instead; `FrequencyResponseResult.model_response`
 records which was used.
 
-A frequency counts in the comparison ("coherent") only where the data show a
-response to the input: its coherence beats both the requested threshold and
-the level noise alone would reach by chance with the record's number of
-averages, and the input's spectral density there is at least a twentieth of
-its peak. A frequency must also be resolved by the window, whatever the
-model's response: the estimate changes by at most 15 % to either neighbouring
-frequency and the input's power there is not mostly leakage from a neighbour,
-so that on noise-free data a counted frequency is within about 5 % of the true
-transfer function. The mismatch is the
-coherence-weighted mean relative error over those frequencies.
+Several window lengths are tried at every frequency (by default a half, a
+third, ... a sixteenth of the record: half-overlapping Hann segments, so even the
+longest averages three and none has coherence 1 by construction), all
+transformed at the longest window's frequency grid by chirp-z. A frequency counts
+in the comparison ("coherent") with the window of most averages among those that
+qualify there: the window holds at least two periods of it, the input's spectral
+density is at least a twentieth of its peak, its coherence beats both the
+requested threshold and the level noise alone would reach by chance with that
+window's averages, and the window resolves the response: its estimate of the
+model's own, noise-free response (simulated on the measured inputs) is within
+10 % of the model's transfer function (exact or linearised; for a simulator, the
+whole-record ratio of the simulated output's and input's Fourier transforms).
+So on noise-free data a counted frequency is within 10 % of the true transfer
+function. Each channel says how many frequencies did not count and why
+(`ChannelFrequencyResponse.dropped`). The mismatch is the coherence-weighted
+mean relative error over the counted frequencies.
 """
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from . import _integrate
-from ._czt import hann
-from ._records import fmt, frozen_array, markdown_table
+from ._czt import fourier, hann
+from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
+from ._transfer import state_space_response
 from .data import FlightData, as_float, measured_start, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from .model import (
@@ -77,24 +84,6 @@ _FALSE_COHERENCE_LEVEL = 0.01
 # lobe (10.6 dB down) and drops its second (15.1 dB down). Each rule misses what the
 # other catches: (a) that side lobe, (b) noise where the input is strong.
 _EXCITED_FRACTION = 0.05
-# The estimate is reported as the data's transfer function, so a frequency counts only
-# where the estimator's own bias is small, whatever the model's response (a simulated
-# one shares the bias and would hide it: on a noise-free 10 s doublet the two counted
-# bins were 9 % and 63 % off the true response). Welch's Hann estimate at a bin is
-# about the response averaged over that bin and its two neighbours with power weights
-# 2/3, 1/6, 1/6: a resolution bias near (H[k-1] - 2 H[k] + H[k+1]) / 6. A frequency
-# counts only (c) where the model's response (exact, linearised, or its own Welch
-# estimate when simulated: noise-free in every case, so noise cannot hide a resolved
-# bin) changes by at most this fraction to either neighbour, which bounds that bias by
-# (0.15 + 0.15) / 6 = 5 % for a right model (on a noise-free 60 s multisine at the
-# default segments the short-period bins counted before were up to 22 % off, near the
-# 0.48 Hz mode) ...
-_RESOLVED_STEP = 0.15
-# ... and (d) where the input's own power is at least this fraction of a neighbour's:
-# one bin from a spectral line (a multisine's, or the last line of its band) the Hann
-# window leaks a quarter of the line's power, and the estimate there is the line's
-# response, not the bin's (9 % off at 4.2 Hz above that multisine's 4 Hz top line).
-_LEAKED_FRACTION = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +112,14 @@ class ChannelFrequencyResponse:
         Coherence-weighted mean relative error ``Σ γ² |Ĥ − H| / |H| / Σ γ²``
         over the coherent frequencies (NaN when none is coherent).
     n_coherent : int
+    window : ndarray of int, shape (n_f,)
+        Length in samples of the window each value comes from (the record's
+        length for a whole-record estimate).
+    dropped : mapping of str to int
+        How many frequencies did not count, by reason: below two periods of
+        every window, input not excited, not coherent, not resolved by any
+        window (its estimate of the model's own response off by more than
+        10 %).
     """
 
     input_name: str
@@ -136,8 +133,14 @@ class ChannelFrequencyResponse:
     coherent: NDArray[np.bool_]
     mismatch: float
     n_coherent: int
+    window: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    dropped: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "dropped", frozen_mapping(self.dropped))
+        win = np.array(self.window, dtype=np.int64, copy=True)
+        win.setflags(write=False)
+        object.__setattr__(self, "window", win)
         for name in (
             "frequency",
             "magnitude",
@@ -166,6 +169,53 @@ class ChannelFrequencyResponse:
         out.setflags(write=False)
         return out
 
+    # The unit-explicit names every response type shares (`ResponseChannel` too); the
+    # fields above keep this record's historical units (Hz, gain, radians).
+    @property
+    def frequency_hz(self) -> FloatArray:
+        """Frequencies in Hz (the `frequency` field)."""
+        return self.frequency
+
+    @property
+    def frequency_rad_s(self) -> FloatArray:
+        """Frequencies in rad/s."""
+        return _frozen(2.0 * np.pi * self.frequency)
+
+    @property
+    def gain(self) -> FloatArray:
+        """Empirical |H| (the `magnitude` field)."""
+        return self.magnitude
+
+    @property
+    def response(self) -> ComplexArray:
+        """Empirical complex response H(jω)."""
+        return _frozen(self.magnitude * np.exp(1j * self.phase))
+
+    @property
+    def model_response(self) -> ComplexArray:
+        """The model's complex response at the same frequencies."""
+        return _frozen(self.model_magnitude * np.exp(1j * self.model_phase))
+
+    @property
+    def phase_deg(self) -> FloatArray:
+        """Empirical phase in degrees, unwrapped along frequency as `ResponseChannel`'s."""
+        from .frequency_id import _unwrapped_phase
+
+        return _frozen(_unwrapped_phase(self.response))
+
+    def as_response_channel(self) -> Any:
+        """The empirical response as a `ResponseChannel` (rad/s, dB, deg) for the
+        frequency-domain tools (`fit_transfer_function`, handling qualities)."""
+        from .frequency_id import ResponseChannel
+
+        return ResponseChannel(
+            self.input_name,
+            self.output_name,
+            self.frequency_rad_s,
+            self.response,
+            coherence=self.coherence,
+        )
+
 
 @dataclass(frozen=True, eq=False)
 class FrequencyResponseResult:
@@ -192,7 +242,20 @@ class FrequencyResponseResult:
         sample).
     model_name : str
     n_averages : float
-        Independent averages equivalent to the overlapping Welch segments.
+        Independent averages equivalent to the overlapping segments of the
+        longest Welch window.
+    windows : tuple of int
+        Welch window lengths (samples) tried at every frequency.
+    window_averages : tuple of float
+        Their independent averages.
+    record_bins : tuple of int
+        Whole-record estimates also tried: the record's transform with the
+        spectra averaged over this many neighbouring ``1/T`` bins.
+    frequency_step : float
+        Spacing of the analysis frequencies (Hz).
+    notes : tuple of str
+        What the analysis changed or could not count (a band clipped at
+        Nyquist, frequencies below two periods of every window).
     """
 
     channels: tuple[ChannelFrequencyResponse, ...]
@@ -205,6 +268,11 @@ class FrequencyResponseResult:
     model_response: str
     model_name: str = ""
     n_averages: float = float("nan")
+    windows: tuple[int, ...] = ()
+    window_averages: tuple[float, ...] = ()
+    record_bins: tuple[int, ...] = ()
+    frequency_step: float = float("nan")
+    notes: tuple[str, ...] = ()
 
     def channel(self, input: str, output: str) -> ChannelFrequencyResponse:
         """The response from control `input` to output `output`."""
@@ -240,36 +308,65 @@ class FrequencyResponseResult:
             )
             mean_coh = float(np.mean(c.coherence)) if c.coherence.size else float("nan")
             mis = f"{100 * c.mismatch:.3g}%" if np.isfinite(c.mismatch) else "—"
-            rows.append((c.input_name, c.output_name, c.n_coherent, band, fmt(mean_coh, 3), mis))
+            why = "; ".join(f"{int(v)} {k}" for k, v in c.dropped.items()) or "—"
+            rows.append(
+                (c.input_name, c.output_name, c.n_coherent, band, fmt(mean_coh, 3), mis, why)
+            )
         table = markdown_table(
-            ("input", "output", "coherent freqs", "coherent band", "mean γ²", "mismatch"), rows
+            (
+                "input",
+                "output",
+                "coherent freqs",
+                "coherent band",
+                "mean γ²",
+                "mismatch",
+                "not counted",
+            ),
+            rows,
         )
         how = {
             "exact": "exact (linear time-invariant model)",
             "linearised": "the model linearised at the record's first sample",
         }.get(self.model_response, "Welch estimate from the simulated outputs")
-        how += (
-            "; a frequency counts only where the window resolves the estimate (at most "
-            f"{100 * _RESOLVED_STEP:.0f} % change to either neighbour, input not leaked "
-            "from a neighbour)"
-        )
         lo, hi = self.frequency_range
+        wins = ", ".join(str(w) for w in (self.windows or (self.nperseg,)))
+        step = self.frequency_step
+        if not np.isfinite(step):
+            step = self.sample_rate / self.nperseg
+        record = (
+            " and the whole record's transform averaged over "
+            + ", ".join(str(b) for b in self.record_bins)
+            + " neighbouring bins"
+            if self.record_bins
+            else ""
+        )
+        notes = "".join(f" Note: {n}." for n in self.notes)
         return "\n".join(
             [
                 "## Frequency response",
                 "",
                 table,
                 "",
-                f"Welch estimate, {self.nperseg}-sample segments "
-                f"({fmt(self.sample_rate / self.nperseg, 3)} Hz resolution) over "
-                f"{fmt(lo, 3)}–{fmt(hi, 3)} Hz; coherent means γ² ≥ "
-                f"{fmt(self.coherence_threshold, 3)} (at least the requested threshold and "
-                f"above chance for {fmt(self.n_averages, 3)} independent averages) with the "
+                f"Welch estimates (Hann, half-overlapping) with windows of {wins} samples"
+                f"{record}, evaluated every {fmt(step, 3)} Hz over "
+                f"{fmt(lo, 3)}–{fmt(hi, 3)} Hz; at each frequency the window with the most "
+                "averages among those that qualify: at least two periods in the window, the "
                 f"input's spectral density at least 1/{round(1 / _EXCITED_FRACTION)} of its "
-                f"peak. Model response: {how}. Mismatch is the "
+                f"peak, γ² ≥ {fmt(self.coherence_threshold, 3)} or more (the requested "
+                "threshold, raised to beat chance for each window's averages: "
+                f"{fmt(self.n_averages, 3)} independent averages in the longest) and the "
+                f"window's estimate of the model's own response within "
+                f"{100 * _RESOLVED_BIAS:.0f} % of its transfer function. Model response: "
+                f"{how}.{notes} Mismatch is the "
                 "coherence-weighted mean relative error of the transfer function.",
             ]
         )
+
+
+def _frozen(values: Any) -> Any:
+    out = np.array(values, copy=True)
+    out.setflags(write=False)
+    return out
 
 
 # -- estimation ---------------------------------------------------------------------------
@@ -296,61 +393,6 @@ def _spectral_matrix(signals: FloatArray, fs: float, nperseg: int) -> tuple[Floa
     s[1 : None if nperseg % 2 else -1] *= 2.0
     freqs = np.asarray(np.fft.rfftfreq(nperseg, 1.0 / fs), dtype=np.float64)
     return freqs, s  # (n_f,), (n_f, n, n)
-
-
-def _empirical(
-    inputs: FloatArray, outputs: FloatArray, fs: float, nperseg: int
-) -> tuple[FloatArray, ComplexArray, FloatArray, FloatArray]:
-    """Frequencies, H (n_f, n_u, n_y), (partial) coherence (n_f, n_u, n_y) and excitation.
-
-    The excitation (n_f, n_u) is each input's spectral density relative to its peak.
-    """
-    n_u = inputs.shape[0]
-    f, s = _spectral_matrix(np.vstack([inputs, outputs]), fs, nperseg)
-    suu = s[:, :n_u, :n_u]
-    puu = np.real(np.diagonal(suu, axis1=1, axis2=2))  # (n_f, n_u)
-    peak = np.max(puu, axis=0, initial=0.0)
-    with np.errstate(all="ignore"):
-        excitation = np.where(peak > 0, puu / peak, 0.0)
-    excited = puu >= _EXCITATION_FLOOR * peak
-    suy = s[:, :n_u, n_u:]
-    syy = np.real(np.diagonal(s[:, n_u:, n_u:], axis1=1, axis2=2))  # (n_f, n_y)
-    with np.errstate(all="ignore"):
-        if n_u == 1:
-            pxx = np.real(suu[:, 0, 0])
-            h = suy / pxx[:, None, None]
-            coh = np.abs(suy) ** 2 / (pxx[:, None, None] * syy[:, None, :])
-        else:
-            # Conditioned estimate and partial coherence from the inverse spectral matrix.
-            h = np.linalg.pinv(suu) @ suy
-            coh = np.empty(suy.shape)
-            for k in range(outputs.shape[0]):
-                idx = [*range(n_u), n_u + k]
-                g = np.linalg.pinv(s[:, idx][:, :, idx])
-                giy = g[:, :n_u, n_u]
-                gii = np.real(np.diagonal(g[:, :n_u, :n_u], axis1=1, axis2=2))
-                gyy = np.real(g[:, n_u, n_u])
-                coh[:, :, k] = np.abs(giy) ** 2 / (gii * gyy[:, None])
-    coh = np.clip(np.nan_to_num(coh, nan=0.0, posinf=0.0, neginf=0.0), 0.0, 1.0)
-    coh = np.where(excited[:, :, None] & (peak > 0)[None, :, None], coh, 0.0)
-    return f, h, coh, excitation
-
-
-def _resolved(h: ComplexArray, excitation: FloatArray) -> NDArray[np.bool_]:
-    """Bins (n_f, n_u, n_y) that the window resolves: rules (c) and (d) above.
-
-    `h` (the model's response) and `excitation` on the full Welch grid, so a band's edge bins are judged
-    against both neighbours; the grid's first and last bins never count.
-    """
-    ok = np.zeros(h.shape, dtype=bool)
-    if h.shape[0] < 3:
-        return ok
-    mid = h[1:-1]
-    with np.errstate(all="ignore"):
-        step = np.maximum(np.abs(h[:-2] - mid), np.abs(h[2:] - mid)) / np.abs(mid)
-    own = excitation[1:-1] >= _LEAKED_FRACTION * np.maximum(excitation[:-2], excitation[2:])
-    ok[1:-1] = (step <= _RESOLVED_STEP) & own[:, :, None]
-    return ok
 
 
 def _affine_measurement(
@@ -407,12 +449,9 @@ def _state_outputs(model: Model) -> tuple[FloatArray, FloatArray]:
 def _transfer(
     a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray, freqs: FloatArray
 ) -> ComplexArray:
-    """``C (j 2π f I - A)^-1 B + D`` at each of `freqs`, shape (n_f, n_u, n_y)."""
-    s = 2j * np.pi * freqs
-    m = s[:, None, None] * np.eye(a.shape[0])[None] - a[None]
+    """``C (j 2π f I - A)^-1 B + D`` at each of `freqs` (Hz), shape (n_f, n_u, n_y)."""
     with np.errstate(all="ignore"):
-        x = np.linalg.solve(m, np.broadcast_to(b, (freqs.size, *b.shape)).astype(complex))
-    h = c[None] @ x + d[None]  # (n_f, n_y, n_u)
+        h = state_space_response(a, b, c, d, 2.0 * np.pi * freqs)  # (n_f, n_y, n_u)
     return np.transpose(h, (0, 2, 1))
 
 
@@ -513,11 +552,188 @@ def _chance_coherence(n_averages: float, n_inputs: int, n_frequencies: int) -> f
     return float(1.0 - (_FALSE_COHERENCE_LEVEL / n_frequencies) ** (1.0 / dof))
 
 
-def _default_nperseg(n: int) -> int:
-    # About 20 averages (12 segments with 50 % overlap) keep the random error of |H|
-    # near 3 % where γ² = 0.95 (Bendat & Piersol: sqrt(1 - γ²) / (|γ| sqrt(2 n_d)));
-    # short records keep at least 128-sample segments for resolution.
-    return int(n // 12 if n // 12 >= 128 else min(n, 128))
+# Why a frequency did not count, by code (0: counted).
+_REASONS = (
+    "",
+    "below two periods of every window",
+    "input not excited",
+    "not coherent",
+    "not resolved by any window",
+)
+# A window counts at a frequency only where its estimate of the model's own (noise-free)
+# response is within this fraction of the model's transfer function: the estimator's bias
+# (resolution, leakage from a neighbouring line, transients) measured on this record's
+# input rather than bounded by a rule of thumb. A tenth: what the issue-52 users expect of a
+# noise-free estimate (10 % in magnitude); the transients of a short record (8 s of Twin
+# Otter pitch data) already cost 7-11 % in the whole-record estimate.
+_RESOLVED_BIAS = 0.10
+# Default windows: these fractions of the record (50 % overlap, so the longest still
+# averages three segments; a window as long as the record has coherence 1 by construction).
+_WINDOW_DIVISORS = (2, 3, 4, 6, 8, 12, 16)
+_MIN_WINDOW = 32
+
+
+def _default_windows(n: int) -> tuple[int, ...]:
+    """Window lengths (samples) tried at every frequency, longest first."""
+    out = sorted({n // d for d in _WINDOW_DIVISORS if n // d >= _MIN_WINDOW}, reverse=True)
+    if out:
+        return tuple(out)
+    return (max(8, n // 2),) if n >= 16 else (n,)
+
+
+# The whole record, transformed once (SIDPAC's and CIFER's single-window estimate), with
+# the cross-spectra averaged over this many neighbouring 1/T bins either side: 3, 5 and 7
+# about independent averages at the record's own resolution, which resolves responses a
+# record too short for several segments holds (an 8 s Twin Otter pitch record).
+_RECORD_SMOOTHING = (1, 2, 3)
+
+
+@dataclass(eq=False)
+class _Estimate:
+    """One window's estimates on the analysis grid."""
+
+    seg: int
+    h: ComplexArray  # (n_f, n_u, n_y)
+    coherence: FloatArray  # (n_f, n_u, n_y)
+    excitation: FloatArray  # (n_f, n_u), relative to the input's peak
+    h_sim: ComplexArray | None  # the model's simulated outputs, same window
+    n_averages: float
+    lowest: float  # lowest frequency (Hz) with two periods in the window
+    cell: float  # spacing (Hz) of independent estimates
+    threshold: float = 1.0
+
+
+def _estimate(
+    g: ComplexArray, n_u: int, n_y: int, seg: int, n_avg: float, lowest: float, cell: float
+) -> _Estimate:
+    """An `_Estimate` from the spectral matrix (n_f, c, c) of [inputs, outputs, simulated]."""
+    from .frequency_id import _condition
+
+    c = g.shape[1]
+    meas = [*range(n_u + n_y)]
+    h, coh, _ = _condition(g[:, meas][:, :, meas], n_u)
+    puu = np.real(np.diagonal(g[:, :n_u, :n_u], axis1=1, axis2=2))
+    peak = np.max(puu, axis=0, initial=0.0)
+    with np.errstate(all="ignore"):
+        excitation = np.where(peak > 0, puu / peak, 0.0)
+    coh = np.where((excitation >= _EXCITATION_FLOOR)[:, :, None], coh, 0.0)
+    h_sim = None
+    if c > n_u + n_y:
+        sim = [*range(n_u), *range(n_u + n_y, c)]
+        h_sim = _condition(g[:, sim][:, :, sim], n_u)[0]
+    return _Estimate(seg, h, coh, excitation, h_sim, n_avg, lowest, cell)
+
+
+def _zero_ends(x: FloatArray) -> FloatArray:
+    """Each column less the line through its end points (SIDPAC's ``zep``)."""
+    ramp = np.linspace(0.0, 1.0, x.shape[0])[:, None]
+    return np.asarray(x - (x[:1] + ramp * (x[-1:] - x[:1])), dtype=np.float64)
+
+
+def _record_estimate(signals: FloatArray, fs: float, m: int, n_u: int, n_y: int) -> _Estimate:
+    """Whole-record estimate on the grid k fs / n (k >= 1), spectra averaged over 2m + 1 bins.
+
+    The line through each signal's end points is removed (SIDPAC's ``zep``) so the
+    record starts and ends at zero and needs no taper; the bins ``1/T`` apart are then
+    about independent, and the average of ``2m + 1`` of them has coherence at most 1
+    (one weight for every spectrum) and ``2m + 1`` averages.
+    """
+
+    n, c = signals.shape
+    x = _zero_ends(signals)
+    k_top = n // 2
+    z = np.fft.rfft(x, axis=0)[: k_top + m + 1] / fs  # bins 0 .. k_top + m
+    if z.shape[0] < k_top + m + 1:
+        # bins beyond Nyquist mirror those below it (a real signal's spectrum)
+        need = k_top + m + 1 - z.shape[0]
+        z = np.concatenate([z, np.conj(z[n - k_top - need : n - k_top][::-1])])
+    prod = np.conj(z)[:, :, None] * z[:, None, :]  # (bins, c, c)
+    csum = np.concatenate([np.zeros((1, c, c)), np.cumsum(prod, axis=0)])
+    k = np.arange(1, k_top + 1)
+    lo = np.maximum(k - m, 1)  # never the zero bin (the mean)
+    g = (csum[k + m + 1] - csum[lo]) / (k + m + 1 - lo)[:, None, None]
+    # the lowest bin averaged holds one period, the frequency itself at least two
+    return _estimate(g, n_u, n_y, n, float(2 * m + 1), (m + 2) * fs / n, (2 * m + 1) * fs / n)
+
+
+def _window_estimate(
+    signals: FloatArray, fs: float, seg: int, f: FloatArray, n_u: int, n_y: int
+) -> _Estimate:
+    """Hann-windowed, half-overlapped (Welch) estimate of one window length at `f` (Hz)."""
+    from .frequency_id import _window_spectra
+
+    g, _, n_avg = _window_spectra(signals, 1.0 / fs, seg, seg - seg // 2, 2.0 * np.pi * f)
+    return _estimate(g, n_u, n_y, seg, n_avg, 2.0 * fs / seg, fs / seg)
+
+
+def _record_ratio(u: FloatArray, y: FloatArray, fs: float, f: FloatArray) -> ComplexArray:
+    """Y(f) / U(f), shape (n_f, 1, n_y), from one transform of the whole record.
+
+    The line through each signal's end points is removed first, so the record
+    starts and ends at zero and no window is needed (SIDPAC's ``zep``).
+    """
+    z = fourier(_zero_ends(np.vstack([u, y]).T), 1.0 / fs, f)
+    with np.errstate(all="ignore"):
+        return np.asarray(z[:, None, 1:] / z[:, :1, None], dtype=np.complex128)
+
+
+def _choose_windows(
+    est: Sequence[_Estimate],
+    h_ref: ComplexArray,
+    f: FloatArray,
+    thr: float,
+    fs: float,
+    n_u: int,
+    band_hz: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Per frequency and pair, the window used and why the frequency does not count.
+
+    A window qualifies at a frequency when it holds two periods of it, the input
+    is excited there, the coherence beats the requested threshold and chance, and
+    its estimate of the model's response is within `_RESOLVED_BIAS` of the
+    transfer function; of those, the one with the most averages (the shortest) is
+    used, without combining spectra. Where none qualifies,
+    the two-period window with the smallest random error is shown and the
+    furthest test passed names the reason.
+    """
+    from .frequency_id import _random_error
+
+    shape = h_ref.shape
+    best = np.full(shape, np.inf)
+    shown = np.full(shape, -np.inf)
+    chosen = np.zeros(shape, dtype=np.int64)
+    display = np.full(shape, int(np.argmax([e.seg for e in est])), dtype=np.int64)
+    stage = np.zeros(shape, dtype=np.int64)
+    for j, e in enumerate(est):
+        independent = max(1, round(band_hz / e.cell))
+        e.threshold = max(thr, _chance_coherence(e.n_averages, n_u, independent))
+        err = _random_error(e.coherence, e.n_averages, n_u)
+        two = np.broadcast_to((f >= e.lowest)[:, None, None] & (e.n_averages > n_u), shape)
+        excited = two & (e.excitation >= _EXCITED_FRACTION)[:, :, None]
+        coherent = excited & (e.coherence >= e.threshold)
+        if e.h_sim is None:
+            resolved = coherent
+        else:
+            with np.errstate(all="ignore"):
+                bias = np.abs(e.h_sim - h_ref) / np.abs(h_ref)
+            resolved = coherent & (bias <= _RESOLVED_BIAS)
+        level = two.astype(np.int64) + excited + coherent + resolved
+        stage = np.maximum(stage, level)
+        # the most averages wins: a coherence from few averages reads high, so its
+        # random error would flatter the long windows
+        better = resolved & (1.0 / e.n_averages < best)
+        chosen = np.where(better, j, chosen)
+        best = np.where(better, 1.0 / e.n_averages, best)
+        # shown where nothing counts: the window that passed the most tests, then the
+        # smallest random error
+        key = level - np.arctan(np.nan_to_num(err, posinf=1e300)) / np.pi
+        nearer = key > shown
+        display = np.where(nearer, j, display)
+        shown = np.where(nearer, key, shown)
+    counted = np.isfinite(best)
+    chosen = np.where(counted, chosen, display)
+    reason = np.where(counted, 0, np.minimum(stage, 3) + 1)
+    return chosen, reason
 
 
 @small_blas
@@ -551,12 +767,13 @@ def frequency_response(
     outputs : sequence of str, optional
         Outputs to analyse (default: the model outputs present in the data).
     nperseg : int, optional
-        Welch segment length in samples (default: a twelfth of the record,
-        about 20 averages with the 50 % overlap, but at least 128 samples).
-        Longer segments resolve more frequencies, with fewer averages.
+        One Welch segment length in samples, evaluated at its own frequency
+        bins (default: several windows from half to a sixteenth of the record,
+        chosen per frequency; see the module notes).
     frequency_range : (float, float), optional
-        Band in Hz to analyse (default: from the second non-zero bin, above
-        the window's leakage from DC, to Nyquist).
+        Band in Hz to analyse (default: from two periods of the longest
+        window to Nyquist). A top above Nyquist is clipped there, with a note
+        in the result's ``notes``.
     coherence_threshold : float
         γ² at or above which a frequency counts as coherent. Raised, when
         the record gives few averages, to the level that noise alone exceeds
@@ -575,7 +792,7 @@ def frequency_response(
         estimator's bias. ``"exact"``: the analytic response of a linear
         time-invariant `Model`. In every mode a frequency also counts only
         where the window resolves the response (see the module notes), so a
-        counted estimate is within about 5 % of the truth on noise-free data.
+        counted estimate is within about 10 % of the truth on noise-free data.
         ``"auto"``: exact where the model is linear time-invariant over the
         record; else the transfer function of the model linearised by central
         differences at the record's first sample (its trim, for a manoeuvre
@@ -658,7 +875,7 @@ def frequency_response(
     data.require(outs, role="output")
     n = data.n_samples
     try:
-        seg = _default_nperseg(n) if nperseg is None else int(nperseg)
+        seg = n if nperseg is None else int(nperseg)
         ok = nperseg is None or (
             not isinstance(nperseg, (bool, np.bool_)) and seg == nperseg and 8 <= seg <= n
         )
@@ -672,7 +889,7 @@ def frequency_response(
     fs = data.sample_rate
     if frequency_range is None:
         # the Hann main lobe spans two bins: the first bin is mostly leakage from DC
-        band = (2.0 * fs / seg, fs / 2.0)
+        band = (2.0 * fs / (max(_default_windows(n)) if nperseg is None else seg), fs / 2.0)
     else:
         try:
             if isinstance(frequency_range, (str, bytes)) or any(
@@ -692,27 +909,39 @@ def frequency_response(
 
     u = data.array(ins).T
     y_meas = data.array(outs).T
-    f, h_emp, coh, excitation = _empirical(u, y_meas, fs, seg)
-    keep = (f > 0) & (f >= band[0]) & (f <= band[1])
+    n_u, n_y = len(ins), len(outs)
+    segs = _default_windows(n) if nperseg is None else (seg,)
+    longest = max(segs)
+    nyquist = fs / 2.0
+    notes: list[str] = []
+    if band[1] > nyquist:
+        notes.append(
+            f"the requested band's top {band[1]:.6g} Hz lies above Nyquist; clipped to "
+            f"{nyquist:.6g} Hz"
+        )
+        band = (band[0], nyquist)
+    # the analysis grid: the longest window's bins (what it can resolve), every window
+    # transformed at them by chirp-z; evaluated up to Nyquist so that each input's
+    # excitation is judged against its peak anywhere, then cut to the band
+    smoothing = _RECORD_SMOOTHING if nperseg is None else ()
+    grid = n if smoothing else longest
+    f = np.arange(1, grid // 2 + 1) * fs / grid
+    keep = (f >= band[0]) & (f <= band[1])
     if not keep.any():  # every channel would be empty
         raise IdentificationError(
             f"frequency_range: {frequency_range!r} Hz holds none of the analysis frequencies "
-            f"({f[1]:.4g} to {f[-1]:.4g} Hz for nperseg={seg} at {fs:.6g} Hz)"
+            f"({f[0]:.4g} to {f[-1]:.4g} Hz for {longest}-sample windows at {fs:.6g} Hz)"
         )
-    # which frequencies count: see _FALSE_COHERENCE_LEVEL and _EXCITED_FRACTION
-    n_avg = _independent_averages(n, seg)
-    thr_used = max(thr, _chance_coherence(n_avg, len(ins), int(keep.sum())))
-    # with no more averages than inputs the coherence is 1 whatever the data
-    resolvable = n_avg > len(ins)
 
-    # the model's response on the whole Welch grid: the window's resolution is judged
-    # on it (noise-free), a band's edge bins against both neighbours
-    h_model: ComplexArray | None = None
+    # the model's response: the same windowed estimate from its simulated outputs
+    # (noise-free, so it measures what each window does to a response like the model's),
+    # and, where the model allows, its transfer function
+    values_ref: ComplexArray | None = None
     how = "simulated"
-    if model_response in ("exact", "auto") and isinstance(model, Model):
+    if isinstance(model, Model):
         full = _exact_response(model, values, data.time, f)
         how = "exact"
-        if full is None and model_response == "auto":
+        if full is None:
             u_ref = data.array(list(controls))[:, 0]
             x_ref = _reference_state(model, data, x0)
             full = _linearised_response(model, values, data.time[0], x_ref, u_ref, f)
@@ -720,42 +949,85 @@ def frequency_response(
         if full is not None:
             idx_u = [controls.index(i) for i in ins]
             idx_y = [model_outputs.index(o) for o in outs]
-            h_model = full[:, idx_u][:, :, idx_y]
+            values_ref = full[:, idx_u][:, :, idx_y]
             # a fit's estimated time delays: u(t - tau) is e^(-j omega tau) U
             delays = dict(getattr(parameters, "time_delays", None) or {})
             lag = np.array([float(delays.get(i, 0.0)) for i in ins])
-            h_model = h_model * np.exp(-2j * np.pi * f[:, None, None] * lag[None, :, None])
-        else:
-            how = "simulated"
-    if h_model is None:
-        if model_response == "exact":
-            raise IdentificationError(
-                f"model_response='exact' needs a linear time-invariant aeroid.Model; "
-                f"{model.name!r} is not (use 'simulated')"
-            )
+            values_ref = values_ref * np.exp(-2j * np.pi * f[:, None, None] * lag[None, :, None])
+    if model_response == "exact" and (values_ref is None or how != "exact"):
+        raise IdentificationError(
+            f"model_response='exact' needs a linear time-invariant aeroid.Model; "
+            f"{model.name!r} is not (use 'simulated')"
+        )
+    try:
         y_sim = _simulated_outputs(model, delayed_controls(parameters, data), values, x0)
-        idx_y = [model_outputs.index(o) for o in outs]
-        _, h_model, _, _ = _empirical(u, y_sim[:, idx_y].T, fs, seg)
-    resolved = _resolved(h_model, excitation)
-    f, h_emp, h_model, coh = f[keep], h_emp[keep], h_model[keep], coh[keep]
-    excitation, resolved = excitation[keep], resolved[keep]
+    except SimulationError:
+        if values_ref is None or model_response == "simulated":
+            raise
+        y_sim = None  # judged against the transfer function alone
+    idx_y = [model_outputs.index(o) for o in outs]
+    signals = np.vstack([u, y_meas] + ([] if y_sim is None else [y_sim[:, idx_y].T])).T
+    est = [_window_estimate(signals, fs, s, f, n_u, n_y) for s in segs]
+    est += [_record_estimate(signals, fs, m, n_u, n_y) for m in smoothing]
+    lowest = min(e.lowest for e in est)
+    if band[0] < lowest and frequency_range is not None:
+        notes.append(
+            f"frequencies below {lowest:.4g} Hz hold fewer than two periods in every window "
+            "and are not counted"
+        )
+    if values_ref is None:
+        # no transfer function (so y_sim exists): the whole-record ratio of the simulated
+        # outputs (no window, no averaging) for one input, else the longest window's
+        assert y_sim is not None
+        longest_sim = max(est, key=lambda e: e.seg).h_sim
+        assert longest_sim is not None
+        values_ref = _record_ratio(u, y_sim[:, idx_y].T, fs, f) if n_u == 1 else longest_sim
+    h_ref: ComplexArray = values_ref
+    use_ref = model_response != "simulated" and how in ("exact", "linearised")
+    if not use_ref:
+        how = "simulated"
+    band_hz = float(np.sum(keep)) * fs / grid
+    chosen, reason = _choose_windows(est, h_ref, f, thr, fs, n_u, band_hz)
+    f, h_ref = f[keep], h_ref[keep]
+    chosen, reason = chosen[keep], reason[keep]
+    thr_used = min(e.threshold for e in est)
 
+    # each frequency's values from the window chosen for it
+    rows = np.arange(f.size)
+    h_all = np.stack([e.h[keep] for e in est])  # (n_est, n_f, n_u, n_y)
+    coh_all = np.stack([e.coherence[keep] for e in est])
+    sims = [e.h_sim for e in est]
+    sim_all = (
+        None
+        if use_ref or any(h is None for h in sims)
+        else np.stack([h[keep] for h in sims if h is not None])
+    )
     chans = []
     few = []
-    unresolved = 0  # coherent, excited frequencies of the few channels the window blurs
     for i, inp in enumerate(ins):
         for k, out in enumerate(outs):
-            he, hm, g = h_emp[:, i, k], h_model[:, i, k], coh[:, i, k]
-            responding = (g >= thr_used) & (excitation[:, i] >= _EXCITED_FRACTION) & resolvable
-            mask = responding & resolved[:, i, k]  # see _RESOLVED_STEP
+            pick = chosen[:, i, k]
+            he = h_all[pick, rows, i, k]
+            g = coh_all[pick, rows, i, k]
+            hm = h_ref[:, i, k] if sim_all is None else sim_all[pick, rows, i, k]
+            why = reason[:, i, k]
+            mask = why == 0
             with np.errstate(all="ignore"):
                 rel = np.abs(he - hm) / np.abs(hm)
             good = mask & np.isfinite(rel)
             mis = float(np.sum(g[good] * rel[good]) / np.sum(g[good])) if good.any() else np.nan
             n_coh = int(mask.sum())
+            dropped = {
+                text: int(np.sum(why == code))
+                for code, text in enumerate(_REASONS)
+                if code and np.any(why == code)
+            }
             if n_coh < min_coherent:
-                few.append(f"{inp}->{out} ({n_coh})")
-                unresolved += int(responding.sum()) - n_coh
+                few.append(
+                    f"{inp}->{out} ({n_coh}; "
+                    + (", ".join(f"{v} {t}" for t, v in dropped.items()) or "none dropped")
+                    + ")"
+                )
             chans.append(
                 ChannelFrequencyResponse(
                     input_name=inp,
@@ -769,34 +1041,39 @@ def frequency_response(
                     coherent=mask,
                     mismatch=mis,
                     n_coherent=n_coh,
+                    window=np.array([est[j].seg for j in pick], dtype=np.int64),
+                    dropped=dropped,
                 )
             )
     if few:
         warnings.warn(
-            f"frequency_response: too few coherent frequencies (γ² ≥ {thr_used:.3g} with "
-            f"{n_avg:.3g} independent averages, input within "
-            f"{10 * np.log10(1 / _EXCITED_FRACTION):.0f} dB of its peak) in "
-            f"{band[0]:.3g}–{band[1]:.3g} Hz for {', '.join(few)}; "
-            + (
-                f"{unresolved} more respond but are not resolved by {seg}-sample segments "
-                "(longer segments, `nperseg`, resolve lower and sharper responses)"
-                if unresolved
-                else "the input does not excite these channels enough to judge the model there"
-            ),
+            f"frequency_response: too few coherent frequencies in "
+            f"{band[0]:.3g}–{band[1]:.3g} Hz for {', '.join(few)} (windows of "
+            f"{', '.join(str(e.seg) for e in est)} samples; a frequency counts with γ² above "
+            f"the requested threshold and chance, the input within "
+            f"{10 * np.log10(1 / _EXCITED_FRACTION):.0f} dB of its peak, two periods in the "
+            f"window and the window's bias on the model's response within "
+            f"{100 * _RESOLVED_BIAS:.0f} %)",
             UserWarning,
             stacklevel=3,  # frequency_response, its BLAS wrapper (aeroid._threads), the caller
         )
+    longest_est = est[list(segs).index(longest)]
     return FrequencyResponseResult(
         channels=tuple(chans),
         input_names=tuple(ins),
         output_names=tuple(outs),
         sample_rate=float(fs),
-        nperseg=seg,
+        nperseg=longest,
         coherence_threshold=thr_used,
         frequency_range=(float(band[0]), float(band[1])),
         model_response=how,
         model_name=str(model.name),
-        n_averages=n_avg,
+        n_averages=longest_est.n_averages,
+        windows=tuple(int(v) for v in segs),
+        window_averages=tuple(e.n_averages for e in est[: len(segs)]),
+        record_bins=tuple(2 * m + 1 for m in smoothing),
+        frequency_step=float(fs / grid),
+        notes=tuple(notes),
     )
 
 

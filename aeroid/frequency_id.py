@@ -11,16 +11,23 @@ frequency response ``H = Gxy / Gxx``, a coherence ``γ²`` and the random error
 ``εr = sqrt(1 − γ²) / (|γ| sqrt(2 n_d))`` (Bendat & Piersol), ``n_d`` the
 number of independent averages equivalent to the overlapped segments.
 
-The windows are combined per frequency as CIFER's composite optimisation
-does: the composite auto- and cross-spectra are those that minimise the sum
-over windows of ``W_i ((G − G_i) / G_i)²`` (and ``|G − G_i|² / |G_i|²`` for the
-complex cross-spectrum), with the weight ``W_i = 1 / εr_i²`` of each window at
-that frequency. That quadratic cost has a closed-form minimum (a weighted mean
-of the spectra with weights ``W_i / |G_i|²``), so no iterative optimiser is
-needed. The composite response, coherence and random error follow from the
-composite spectra. All windows see the same data, so averaging them adds no
-independent information: the composite's ``n_d`` is the weighted mean of the
-windows' ``n_d``, not their sum.
+The windows are combined per frequency with CIFER's weights ``W_i = 1 / εr_i²``
+(each window's random error at that frequency), but with one weight for each
+window's whole spectral matrix, first scaled by its input power: the composite
+is a weighted mean of positive semi-definite matrices, so its coherence is at
+most 1 by construction, and with one input its response is the weighted mean
+of the windows' responses. (Weighting each auto- and cross-spectrum on its own,
+as a relative least-squares fit of every spectrum does, let the coherence
+exceed 1.) A window counts only from two periods of a frequency up; requested
+frequencies below two periods of the longest window are dropped with a
+warning and a note, and a window that fits the record only once (coherence 1
+whatever the data) is refused. The composite response, coherence and random
+error follow from the composite spectra. All windows see the same data, so
+averaging them adds no independent information: the composite's ``n_d`` is the
+weighted mean of the windows' ``n_d``, not their sum. The random error
+reported is at least 1 %: no estimate from windows is better (leakage and
+resolution bias), and no point can outweigh the others in a fit by more than
+that allows.
 
 With several inputs every window's full spectral matrix is combined the same
 way (weights from the mean random error of its pairs) and the composite is
@@ -51,6 +58,7 @@ Levenberg-Marquardt then minimises one of two costs:
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -85,6 +93,11 @@ _CR_LIMIT = 20.0
 _INSENSITIVITY_LIMIT = 10.0
 # A random error this small (γ² = 1 to rounding) still gives a finite weight.
 _MIN_RANDOM_ERROR = 1e-9
+# The least random error a composite reports: a windowed estimate of even a noise-free
+# record is only good to about 1 % (leakage and resolution bias: the noise-free sweep
+# of the tests), so no point claims less, and none outweighs a fit's others by more
+# than (εr / 0.01)².
+_RANDOM_ERROR_FLOOR = 0.01
 # Reweighting passes of the random-error fit (weights from the previous pass's model).
 _PASSES = 3
 # Smallest eigenvalue of the inputs' coherence matrix taken as singular.
@@ -201,6 +214,28 @@ class ResponseChannel:
         out.setflags(write=False)
         return out
 
+    # The unit-explicit names every response type shares (`ChannelFrequencyResponse`
+    # too, whose fields keep Hz, gain and radians).
+    @property
+    def frequency_rad_s(self) -> FloatArray:
+        """Frequencies in rad/s (the `frequency` field)."""
+        return self.frequency
+
+    @property
+    def gain(self) -> FloatArray:
+        """|H|, output unit per input unit."""
+        return frozen_array(np.abs(self.response))
+
+    @property
+    def magnitude_db(self) -> FloatArray:
+        """``20 log10 |H|`` (the `magnitude` field)."""
+        return self.magnitude
+
+    @property
+    def phase_deg(self) -> FloatArray:
+        """Unwrapped phase in degrees (the `phase` field)."""
+        return self.phase
+
     def plot(self) -> Any:
         """Bode plot (dB, deg) with a coherence panel. Returns a matplotlib Figure."""
         return _bode([self], [])
@@ -260,6 +295,9 @@ class CompositeResponse:
     multiple_coherence : mapping of str to ndarray
         Per output, the multiple coherence with all inputs (equal to the
         ordinary coherence with one input).
+    notes : tuple of str
+        What was dropped and why (frequencies below two periods of the
+        longest window).
     """
 
     channels: tuple[ResponseChannel, ...]
@@ -271,6 +309,7 @@ class CompositeResponse:
     n_averages: tuple[float, ...]
     sample_rate: float
     multiple_coherence: Mapping[str, FloatArray] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "frequency", frozen_array(self.frequency))
@@ -473,11 +512,20 @@ def _condition(g: ComplexArray, n_u: int) -> tuple[ComplexArray, FloatArray, Flo
     return np.nan_to_num(h), coh, mult
 
 
-def _random_error(coh: FloatArray, n_d: FloatArray | float, n_u: int) -> FloatArray:
+def _random_error(
+    coh: FloatArray, n_d: FloatArray | float, n_u: int, *, floor: bool = True
+) -> FloatArray:
+    """Bendat & Piersol's ``sqrt(1 − γ²) / (|γ| sqrt(2 n_d))``, at least `_RANDOM_ERROR_FLOOR`.
+
+    With the floor a point read at γ² = 1 weighs at most 10⁴ times a point of 100 %
+    error in a fit, not 10¹⁸ (the old floor of 1e-9 let one such point decide a fit).
+    Without it (`floor=False`) the error only ranks the windows of one frequency.
+    """
     dof = np.maximum(np.asarray(n_d, dtype=np.float64) - n_u + 1.0, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         err = np.sqrt(1.0 - coh) / (np.sqrt(coh) * np.sqrt(2.0 * dof))
-    return np.where(coh > 0.0, np.maximum(err, _MIN_RANDOM_ERROR), np.inf)
+    least = _RANDOM_ERROR_FLOOR if floor else _MIN_RANDOM_ERROR
+    return np.where(coh > 0.0, np.maximum(err, least), np.inf)
 
 
 def _names(value: str | Sequence[str], what: str) -> list[str]:
@@ -532,14 +580,22 @@ def composite_response(
     ------
     DataFormatError
         Non-uniform time grid, or a window that is not finite, longer than the
-        record or shorter than 8 samples.
+        record, shorter than 8 samples, or that fits the record only once at
+        the given overlap (one segment: coherence 1 whatever the data).
     ChannelError
         A channel is missing or repeated, or `inputs`/`outputs` are not names.
     IdentificationError
         Bad overlap, windows, frequencies (not numbers, repeated, outside
-        (0, Nyquist]) or range; a constant input (no excitation); inputs that
-        are linearly dependent (their cross-spectral matrix singular at every
+        (0, Nyquist]) or range, or all of them below two periods of the
+        longest window; a constant input (no excitation); inputs that are
+        linearly dependent (their cross-spectral matrix singular at every
         frequency).
+
+    Warns
+    -----
+    UserWarning
+        When requested frequencies lie below two periods of the longest
+        window: they are dropped, and the result's ``notes`` say so.
     """
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
@@ -584,6 +640,13 @@ def composite_response(
             raise DataFormatError(
                 f"windows: a {w!r} s window holds {seg} samples; it needs 8 to the record's {n}"
             )
+        if (n - seg) // max(1, round(seg * (1.0 - ov))) + 1 < 2:
+            # one segment: γ² = 1 at every frequency, whatever the data
+            raise DataFormatError(
+                f"windows: a {w!r} s window fits the {data.duration:.6g} s record once "
+                f"(overlap {ov:g}), and one segment has coherence 1 by construction; "
+                "use shorter windows"
+            )
         segs.append(seg)
     nyquist = np.pi * fs
     if frequencies is None:
@@ -619,6 +682,22 @@ def composite_response(
                 f"frequencies: {omega[repeated[0]]:.6g} rad/s is given more than once; "
                 "give each frequency once"
             )
+    # two periods in the longest window: below that its Hann estimate is leakage
+    limit = 4.0 * np.pi / (max(segs) * dt)
+    notes: list[str] = []
+    low = omega < limit * (1.0 - 1e-12)
+    if low.all():
+        raise IdentificationError(
+            f"frequencies: all below {limit:.6g} rad/s, two periods of the longest window "
+            f"({max(segs) * dt:.6g} s); give higher frequencies or longer windows"
+        )
+    if low.any():
+        notes.append(
+            f"{int(low.sum())} frequencies below {limit:.4g} rad/s (two periods of the longest, "
+            f"{max(segs) * dt:.4g} s, window) dropped"
+        )
+        warnings.warn(f"composite_response: {notes[-1]}", UserWarning, stacklevel=3)
+        omega = omega[~low]
     for name in ins:
         samples = data.channels[name]
         # after the segments' means are removed a constant input is zero: nothing to divide by
@@ -639,7 +718,9 @@ def composite_response(
             else np.full(omega.size, nd_stationary)
         )
         _, coh, _ = _condition(g, n_u)
-        err = _random_error(coh, nd[:, None, None], n_u)
+        # CIFER's window weights: the windows' own random errors (a convex combination, so
+        # a near-zero one only prefers that window)
+        err = _random_error(coh, nd[:, None, None], n_u, floor=False)
         with np.errstate(over="ignore"):
             wt = 1.0 / np.mean(err**2, axis=(1, 2))
         # below two periods per window the Hann estimate is leakage, not response
@@ -651,21 +732,14 @@ def composite_response(
     wts = np.array(weights)  # (n_w, m)
     none = ~np.any(wts > 0, axis=0)
     if np.any(none):
-        # no window resolves these (or none is coherent): use every window that resolves
-        # them, else the longest
+        # no coherent window: every window that holds two periods (the longest does: the
+        # frequencies below its limit were dropped above) counts alike
         resolves = np.array([omega >= 4.0 * np.pi / (s * dt) for s in segs], dtype=float)
-        longest = np.array([s == max(segs) for s in segs], dtype=float)[:, None]
-        fallback = np.where(resolves.any(axis=0), resolves, longest)
-        wts[:, none] = fallback[:, none]
-    gall = np.array(spectra)  # (n_w, m, c, c)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mag2 = np.abs(gall) ** 2
-        rel = np.where(mag2 > 0, wts[:, :, None, None] / mag2, wts[:, :, None, None])
-        gc = np.sum(rel * gall, axis=0) / np.sum(rel, axis=0)
-    gc = np.nan_to_num(gc)
+        wts[:, none] = resolves[:, none]
+    wn = wts / np.sum(wts, axis=0)
+    gc = _combine(np.array(spectra), wn, n_u)
     if n_u > 1:
         _refuse_dependent_inputs(gc[:, :n_u, :n_u], ins)
-    wn = wts / np.sum(wts, axis=0)
     nd_c = np.sum(wn * np.array(n_avg), axis=0)
     h, coh, mult = _condition(gc, n_u)
     err = _random_error(coh, nd_c[:, None, None], n_u)
@@ -686,7 +760,26 @@ def composite_response(
         tuple(n_stationary),
         fs,
         {o: mult[:, j] for j, o in enumerate(outs)},
+        notes=tuple(notes),
     )
+
+
+def _combine(spectra: ComplexArray, weights: FloatArray, n_u: int) -> ComplexArray:
+    """Composite spectral matrix (m, c, c) of the windows' (n_w, m, c, c), weights (n_w, m).
+
+    One weight per window and frequency for the whole matrix: a weighted mean of
+    Hermitian, positive semi-definite matrices is one, so ``|Gxy|² <= Gxx Gyy`` and
+    every coherence is at most 1 by construction (a weight per element, as a
+    relative least-squares fit of each spectrum gives, broke that). Each window's
+    matrix is first scaled by its inputs' power, so with one input the composite
+    response is the weighted mean of the windows' responses.
+    """
+    power = np.mean(np.real(np.diagonal(spectra[:, :, :n_u, :n_u], axis1=2, axis2=3)), axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = np.where(power > 0, weights / power, 0.0)
+    total = np.sum(scaled, axis=0)
+    scaled = np.where(total > 0, scaled / np.where(total > 0, total, 1.0), weights)
+    return np.asarray(np.einsum("wm,wmab->mab", scaled, spectra), dtype=np.complex128)
 
 
 def _refuse_dependent_inputs(gxx: ComplexArray, names: Sequence[str]) -> None:

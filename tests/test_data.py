@@ -9,6 +9,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import scipy.io
+from _sidpac import sidpac_mat
 
 import aeroid
 from aeroid import ChannelError, DataFormatError, FlightData, load_flight_test
@@ -306,3 +307,58 @@ def test_csv_comment_lines_among_the_data_are_skipped(tmp_path):
     path.write_text("time,a\n")
     with pytest.raises(DataFormatError, match=r"notes\.csv: fewer than 2 data rows"):
         load_flight_test(path)
+
+
+def test_time_jitter_below_one_percent_is_uniform_sampling_with_a_note():
+    # stamps rounded as in SIDPAC's Example 7.2: 1e-4 of the 0.1 s interval
+    rng = np.random.default_rng(0)
+    n = 3050
+    exact = np.arange(n) * 0.1
+    t = exact + rng.uniform(-1e-5, 1e-5, n)
+    t[0], t[-1] = exact[0], exact[-1]
+    d = FlightData(t, {"u": np.sin(t), "y": np.cos(t)})
+    assert d.is_uniform and d.sample_rate == pytest.approx(10.0, rel=1e-12)
+    note = d.metadata["time_jitter"]
+    assert "taken as uniform" in note and "0.01 %" in note
+    # a grid exact to rounding makes no note; a caller's own note is kept
+    assert "time_jitter" not in FlightData(exact, {"u": np.sin(exact)}).metadata
+    mine = FlightData(t, {"u": np.sin(t)}, metadata={"time_jitter": "known"})
+    assert mine.metadata["time_jitter"] == "known"
+    # just under and just over 1 % of the interval
+    for frac, uniform in ((0.009, True), (0.011, False), (0.05, False)):
+        s = exact.copy()
+        s[n // 2] += frac * 0.1
+        rec = FlightData(s, {"u": np.sin(s)})
+        assert rec.is_uniform is uniform
+        assert ("time_jitter" in rec.metadata) is uniform
+
+
+def test_jittered_record_reaches_the_frequency_tools_and_larger_jitter_is_refused():
+    from aeroid import catalog, composite_response, frequency_response
+
+    rng = np.random.default_rng(1)
+    sp = catalog.short_period_flight(duration=20.0, seed=0)
+    t = sp.time + rng.uniform(-2e-5, 2e-5, sp.n_samples) * (np.arange(sp.n_samples) % 3 > 0)
+    jittered = FlightData(t, dict(sp.channels))
+    assert "time_jitter" in jittered.metadata
+    res = composite_response(jittered, "elevator", "q")
+    clean = composite_response(sp, "elevator", "q")
+    np.testing.assert_allclose(res.channels[0].response, clean.channels[0].response, rtol=1e-6)
+    with pytest.warns(UserWarning):  # a doublet: few resolved frequencies
+        frequency_response(catalog.short_period(), jittered, nperseg=128)
+    t2 = sp.time.copy()
+    t2[100] += 0.02 * 0.02  # 2 % of the 0.02 s interval
+    with pytest.raises(DataFormatError, match="uniform"):
+        frequency_response(catalog.short_period(), FlightData(t2, dict(sp.channels)))
+    with pytest.raises(DataFormatError, match="uniform"):
+        composite_response(FlightData(t2, dict(sp.channels)), "elevator", "q")
+
+
+def test_sidpac_example_7p2_time_stamps_are_taken_as_uniform():
+    mat = sidpac_mat("Text_Examples", "example_7p2_results.mat")
+    t = mat["t"][:, 0]
+    steps = np.diff(t)
+    assert np.ptp(steps) / np.mean(steps) > 1e-4  # rounded stamps: refused before
+    d = FlightData(t, {"u": mat["u"][:, 0], "z": mat["z"][:, 0]})
+    assert d.is_uniform and d.sample_rate == pytest.approx(10.0, rel=1e-6)
+    assert "time_jitter" in d.metadata

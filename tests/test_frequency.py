@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.signal
+from _sidpac import sidpac_mat
 
 from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError, Model, catalog
 from aeroid.frequency import FrequencyResponseResult, frequency_response
@@ -35,7 +36,9 @@ def test_empirical_response_matches_exact_short_period(multisine_record):
     res = frequency_response(catalog.short_period(), multisine_record, TRUTH)
     for out in ("alpha", "q"):
         ch = res.channel("elevator", out)
-        good = ch.coherence > 0.95
+        # the counted frequencies: a coherence from a window's few averages reads high
+        # where nothing counts
+        good = ch.coherent & (ch.coherence > 0.95)
         assert good.sum() >= (1 if out == "alpha" else 5)
         h = exact_short_period(ch.frequency[good])[out]
         np.testing.assert_allclose(ch.magnitude[good], np.abs(h), rtol=0.10)
@@ -66,7 +69,6 @@ def test_mismatch_separates_right_and_wrong_parameters(multisine_record):
     assert right.n_coherent == int(right.coherent.sum()) > 5
     # counted: coherent beyond the threshold, and resolved by the window
     assert np.all(right.coherence[right.coherent] >= 0.6)
-    assert (right.coherence >= 0.6).sum() > right.n_coherent
 
 
 def test_result_record_and_summary(multisine_record):
@@ -225,7 +227,9 @@ def test_doublet_flight_averages_and_chance_threshold():
     # 501 samples in 128-sample segments: six half-overlapping Hann segments, whose
     # overlap correlation is 1/6, worth 6 / (1 + 2 (5/6) / 36) = 5.73 independent ones
     # (Welch 1967); 63 frequencies from 0.78 Hz to Nyquist
-    res = _quiet_response(catalog.short_period(), catalog.short_period_flight(seed=0), TRUTH)
+    res = _quiet_response(
+        catalog.short_period(), catalog.short_period_flight(seed=0), TRUTH, nperseg=128
+    )
     _, _, seg = scipy.signal.spectrogram(np.zeros(501), nperseg=128, noverlap=64)
     assert seg.shape[-1] == 6
     assert res.n_averages == pytest.approx(6 / (1 + 2 * (5 / 6) / 36), rel=1e-12)
@@ -249,9 +253,10 @@ def test_a_short_doublet_resolves_no_frequency_and_says_so():
     model = catalog.short_period(TRUTH)
     for seed in range(3):
         data = catalog.short_period_flight(seed=seed)
-        with pytest.warns(UserWarning, match="not resolved by 128-sample segments"):
-            ch = frequency_response(model, data, TRUTH).channel("elevator", "q")
-        assert ch.n_coherent == 0 and np.isnan(ch.mismatch)
+        with pytest.warns(UserWarning, match="not resolved by any window"):
+            ch = frequency_response(model, data, TRUTH, nperseg=128).channel("elevator", "q")
+        # at most the 1.56 Hz bin, whose bias on the true model is under a tenth
+        assert ch.n_coherent <= 1
         old = ch.coherence >= 0.6
         rel = _relative_error(ch)
         before = np.sum(ch.coherence[old] * rel[old]) / np.sum(ch.coherence[old])
@@ -259,12 +264,13 @@ def test_a_short_doublet_resolves_no_frequency_and_says_so():
     clean = catalog.short_period_flight(seed=0)
     sim = model.simulate(clean.time, clean.array(["elevator"]), method="exact")
     clean = FlightData(clean.time, {"elevator": clean["elevator"], "q": sim.output("q").copy()})
-    ch = _quiet_response(model, clean, TRUTH, outputs=["q"]).channel("elevator", "q")
+    ch = _quiet_response(model, clean, TRUTH, outputs=["q"], nperseg=128).channel("elevator", "q")
     h = exact_short_period(ch.frequency)["q"]
     rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
     at = np.isin(ch.frequency, [0.78125, 1.5625])
     assert np.all(ch.coherence[at] > 0.9) and np.all(rel[at] > 0.09)
-    assert ch.n_coherent == 0
+    assert not ch.coherent[np.isclose(ch.frequency, 0.78125)].any()  # 63 % off
+    assert np.all(rel[ch.coherent] < 0.10)
 
 
 def test_wrong_model_is_flagged_on_the_multisine_flight():
@@ -308,7 +314,7 @@ def test_noise_alone_passes_the_raised_threshold_rarely():
         data = FlightData(
             t, {"u": rng.standard_normal(t.size)} | {y: rng.standard_normal(t.size) for y in names}
         )
-        res = _quiet_response(model, data, model_response="exact")
+        res = _quiet_response(model, data, model_response="exact", nperseg=128)
         coh += [c.coherence for c in res.channels]
         hit += [c.n_coherent > 0 for c in res.channels]
     g = np.concatenate(coh)
@@ -341,7 +347,7 @@ def test_partial_coherence_chance_level_counts_the_conditioning_inputs():
     coh = []
     for _ in range(150):
         data = FlightData(t, {name: rng.standard_normal(t.size) for name in ("u1", "u2", "y")})
-        res = _quiet_response(model, data, model_response="exact")
+        res = _quiet_response(model, data, model_response="exact", nperseg=128)
         coh += [c.coherence for c in res.channels]
     g = np.concatenate(coh)
     rate = np.mean(g >= 0.6)
@@ -357,7 +363,7 @@ def test_weakly_excited_frequencies_do_not_count():
     # Seed 0: the doublet's third side lobe (3.5 Hz) beats the chance level, but the
     # input there is 17 dB below its peak and the estimate is off by 1.4.
     data = catalog.short_period_flight(seed=0)
-    res = _quiet_response(catalog.short_period(), data, TRUTH)
+    res = _quiet_response(catalog.short_period(), data, TRUTH, nperseg=128)
     ch = res.channel("elevator", "q")
     i = int(np.argmin(np.abs(ch.frequency - 3.52)))
     assert ch.coherence[i] >= res.coherence_threshold
@@ -368,7 +374,7 @@ def test_weakly_excited_frequencies_do_not_count():
     assert 10 * np.log10(rel_input[i]) == pytest.approx(-17.4, abs=0.1)
     for seed in range(20):  # the same doublet on every seed: rel_input holds for all
         data = catalog.short_period_flight(seed=seed)
-        for c in _quiet_response(catalog.short_period(), data, TRUTH).channels:
+        for c in _quiet_response(catalog.short_period(), data, TRUTH, nperseg=128).channels:
             assert np.all(rel_input[c.coherent] >= 0.05)
             assert np.all(c.frequency[c.coherent] < 2.0)  # inside the second null
 
@@ -432,8 +438,8 @@ def _second_order(wn, zeta):
 @pytest.mark.parametrize(
     "system", ["short period", "lag", "oscillator (zeta 0.1)", "short period, 120 s"]
 )
-def test_exact_mode_counts_only_frequencies_within_5_percent_of_the_transfer_function(system):
-    # Noise-free records: every counted frequency's estimate within 5 % of the closed
+def test_exact_mode_counts_only_frequencies_within_10_percent_of_the_transfer_function(system):
+    # Noise-free records: every counted frequency's estimate within 10 % of the closed
     # form. The coherence alone counted bins 10-40 % off (the window averages the
     # response over neighbouring bins, and leaks a spectral line into the next bin).
     duration = 120.0 if "120" in system else 60.0
@@ -453,7 +459,7 @@ def test_exact_mode_counts_only_frequencies_within_5_percent_of_the_transfer_fun
         h = exact(ch.frequency)[ch.output_name]
         rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
         np.testing.assert_allclose(ch.model_magnitude, np.abs(h), rtol=1e-9)
-        assert np.all(rel[ch.coherent] < 0.05), (ch.output_name, ch.frequency[ch.coherent])
+        assert np.all(rel[ch.coherent] < 0.10), (ch.output_name, ch.frequency[ch.coherent])
         counted += ch.n_coherent
         # what the coherence and excitation rules alone counted
         excited = (ch.coherence >= res.coherence_threshold) & (ch.frequency < 4.5)
@@ -462,29 +468,44 @@ def test_exact_mode_counts_only_frequencies_within_5_percent_of_the_transfer_fun
     assert worst_before > 0.09
 
 
-def test_the_lowest_bins_of_a_requested_band_count_only_when_resolved():
-    # The audit's case: with the band down to 0.2 Hz the 0.2 Hz bin (one cycle per
-    # 5 s segment) was counted at γ² = 0.94 while 15-21 % off the exact response.
+def test_noise_free_multisine_band_resolves_many_frequencies():
+    # The issue's case: a noise-free 60 s multisine (60 lines 0.1-4 Hz, 0.005 rad,
+    # 50 Hz) through the short period, band 0.2-3 Hz. One 5 s window resolved no q
+    # frequency; windows of several periods of the band's low end resolve the band.
     model = catalog.short_period(TRUTH)
     data = _noise_free_multisine(model)
-    res = _quiet_response(model, data, None, model_response="exact", frequency_range=(0.2, 3.0))
-    for ch in res.channels:
-        assert ch.frequency[0] == pytest.approx(0.2)
-        h = exact_short_period(ch.frequency)[ch.output_name]
-        rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
-        assert ch.coherence[0] > 0.9 and rel[0] > 0.15
-        assert not ch.coherent[0]
-        assert np.all(rel[ch.coherent] < 0.05)
-    # the default, simulated model response shares the estimator's bias, which would
-    # hide it: resolution is judged on the model's own estimate alike
-    sim = _quiet_response(model, data, None, frequency_range=(0.2, 3.0))
-    assert sim.model_response == "simulated"
-    for ch in sim.channels:
-        h = exact_short_period(ch.frequency)[ch.output_name]
-        rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
-        assert not ch.coherent[0]
-        assert np.all(rel[ch.coherent] < 0.05)
-    assert sim.channel("elevator", "q").n_coherent >= 3
+    for how in ("exact", "simulated"):
+        res = _quiet_response(model, data, None, model_response=how, frequency_range=(0.2, 3.0))
+        assert res.model_response == how
+        # several windows, none of a single segment (coherence 1 by construction)
+        assert len(res.windows) > 1 and min(res.window_averages) > 2.5
+        for ch in res.channels:
+            assert 0.2 <= ch.frequency[0] < 0.2 + 50.0 / data.n_samples
+            assert ch.frequency[-1] <= 3.0
+            h = exact_short_period(ch.frequency)[ch.output_name]
+            rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
+            # counted: the window's bias on the model's own response within 10 %
+            assert np.all(rel[ch.coherent] < 0.10)
+            good = ch.coherent & (ch.coherence > 0.95)
+            assert good.sum() > 5
+            np.testing.assert_allclose(ch.magnitude[good], np.abs(h[good]), rtol=0.10)
+            assert np.max(np.abs(np.angle(ch.response[good] / h[good]))) < 0.15
+    q = res.channel("elevator", "q")
+    assert q.n_coherent > 5 and q.mismatch < 0.05
+    # a 50 % M_alpha error: more than three times the true model's mismatch (the default,
+    # simulated response shares the estimator's bias; the exact one carries it, up to
+    # the 10 % a counted frequency allows)
+    wrong = {**TRUTH, "M_alpha": 1.5 * TRUTH["M_alpha"]}
+    kw = {"frequency_range": (0.2, 3.0), "outputs": ["q"]}
+    right = _quiet_response(model, data, TRUTH, **kw).channel("elevator", "q")
+    off = _quiet_response(model, data, wrong, **kw).channel("elevator", "q")
+    assert right.mismatch < 0.05 and off.mismatch > 3 * right.mismatch
+    kw["model_response"] = "exact"
+    right = _quiet_response(model, data, TRUTH, **kw).channel("elevator", "q")
+    off = _quiet_response(model, data, wrong, **kw).channel("elevator", "q")
+    assert right.mismatch < 0.05 and off.mismatch > 2 * right.mismatch
+    # each frequency's window holds at least two periods of it
+    assert np.all(q.frequency[q.coherent] * q.window[q.coherent] / data.sample_rate >= 2.0)
 
 
 @pytest.mark.parametrize(("n_t", "nperseg"), [(1501, 256), (1000, 255), (64, 64), (100, 8)])
@@ -526,3 +547,186 @@ def test_spectral_matrix_matches_scipy_csd(n_t: int, nperseg: int) -> None:
 def test_bad_option_values_name_the_culprit(sp_noisy, kwargs, error, match):
     with pytest.raises(error, match=match):
         frequency_response(catalog.short_period(), sp_noisy, **kwargs)
+
+
+def _with_noise(data, outputs, sigma, seed):
+    rng = np.random.default_rng(seed)
+    return data.with_channels(
+        {o: data[o] + sigma * rng.standard_normal(data.n_samples) for o in outputs}
+    )
+
+
+def test_noise_lowers_the_coherence():
+    model = catalog.short_period(TRUTH)
+    clean = _noise_free_multisine(model)
+    band = {"frequency_range": (0.2, 3.0), "nperseg": 500}  # one window: same estimator
+    before = _quiet_response(model, clean, None, **band).channel("elevator", "q")
+    after = _quiet_response(model, _with_noise(clean, ["q"], 0.03, seed=3), None, **band).channel(
+        "elevator", "q"
+    )
+    assert np.all(before.coherence > 0.9)
+    # the output's noise adds to the auto-spectrum only: γ² = S / (S + N) on average
+    assert np.mean(after.coherence) < np.mean(before.coherence) - 0.05
+    assert np.mean(after.coherence < before.coherence) > 0.9
+    # with the default windows too, the counted frequencies lose coherence
+    clean_d = _quiet_response(model, clean, None, frequency_range=(0.2, 3.0)).channel(
+        "elevator", "q"
+    )
+    noisy_d = _quiet_response(
+        model, _with_noise(clean, ["q"], 0.03, seed=3), None, frequency_range=(0.2, 3.0)
+    ).channel("elevator", "q")
+    assert np.median(noisy_d.coherence) < np.median(clean_d.coherence)
+
+
+def test_a_band_above_nyquist_is_clipped_and_noted():
+    model = catalog.short_period(TRUTH)
+    data = _noise_free_multisine(model, 20.0)
+    res = _quiet_response(model, data, None, frequency_range=(0.5, 40.0))
+    assert res.frequency_range == (0.5, 25.0)
+    assert any("Nyquist" in n for n in res.notes) and "Nyquist" in res.summary()
+    for ch in res.channels:
+        assert ch.frequency[-1] <= 25.0 and ch.frequency[-1] > 24.9
+
+
+def test_frequencies_below_two_periods_of_every_window_are_reported():
+    model = catalog.short_period(TRUTH)
+    data = _noise_free_multisine(model, 20.0)
+    res = _quiet_response(model, data, None, frequency_range=(0.01, 3.0))
+    # the whole record with one bin either side: three bins of 1/T, two periods at 3/T
+    lowest = 3.0 / (data.n_samples / 50.0)
+    assert any("two periods" in n for n in res.notes)
+    for ch in res.channels:
+        below = ch.frequency < lowest
+        assert below.any() and not ch.coherent[below].any()
+        assert ch.dropped["below two periods of every window"] == below.sum()
+        assert np.all(ch.frequency[ch.coherent] * ch.window[ch.coherent] / 50.0 >= 2.0)
+    assert "below two periods" in res.summary()
+
+
+def test_a_lightly_damped_mode_is_resolved_and_judged():
+    # not the short period: a 1 Hz mode with 5 % damping, noisy, 60 s multisine
+    model, exact = _second_order(2 * np.pi * 1.0, 0.05)
+    data = _with_noise(_noise_free_multisine(model), ["y"], 0.002, seed=5)
+    res = _quiet_response(model, data, None, frequency_range=(0.2, 3.0))
+    ch = res.channel("u", "y")
+    h = exact(ch.frequency)["y"]
+    rel = np.abs(ch.response - h) / np.abs(h)
+    assert ch.n_coherent > 20
+    # counted near the resonance, where the gain changes fastest
+    assert np.any(ch.coherent & (np.abs(ch.frequency - 1.0) < 0.05))
+    assert np.median(rel[ch.coherent]) < 0.05
+    wrong, _ = _second_order(2 * np.pi * 1.1, 0.05)
+    off = _quiet_response(wrong, data, None, frequency_range=(0.2, 3.0)).channel("u", "y")
+    assert off.mismatch > 3 * ch.mismatch
+
+
+def _zero_ends(x):
+    """The record less the line through its end points (SIDPAC's zep)."""
+    return x - (x[0] + np.linspace(0.0, 1.0, x.size) * (x[-1] - x[0]))
+
+
+def test_twin_otter_pitch_record_agrees_with_the_whole_record_ratio():
+    # SIDPAC's tfest demo: 8 s of Twin Otter elevator -> pitch rate at 50 Hz. Its
+    # estimate is Z/U, one Fourier transform of each end-zeroed record. The counted
+    # frequencies must agree with that ratio: median within 1 dB and 5 deg.
+    mat = sidpac_mat("Demos", "totter_demo_data.mat")
+    t = mat["t"][:, 0] - mat["t"][0, 0]
+    de = np.radians(mat["fdata"][:, 13])
+    q = np.radians(mat["fdata"][:, 5])
+    data = FlightData(t, {"elevator": de - de[0], "q": q - q[0]})
+
+    def ratio(w):
+        kern = np.exp(-1j * np.outer(w, t))
+        return (kern @ _zero_ends(q)) / (kern @ _zero_ends(de))
+
+    # a model to judge resolution: tfest's (b1 s + b0) / (s^2 + a1 s + a0), fitted by
+    # equation error to Z/U over SIDPAC's 0.3-1.3 Hz band
+    w = 2 * np.pi * np.arange(0.3, 1.3001, 0.01)
+    kern = np.exp(-1j * np.outer(w, t))
+    u_f, z_f = kern @ _zero_ends(de), kern @ _zero_ends(q)
+    jw = 1j * w
+    x = np.column_stack([jw * u_f, u_f, -jw * z_f, -z_f])
+    b1, b0, a1, a0 = np.linalg.lstsq(
+        np.vstack([x.real, x.imag]),
+        np.concatenate([(jw**2 * z_f).real, (jw**2 * z_f).imag]),
+        rcond=None,
+    )[0]
+    model = Model(
+        states=["x1", "x2"],
+        controls=["elevator"],
+        parameters={"b1": b1, "b0": b0, "a1": a1, "a0": a0},
+        dynamics=lambda t, x, u, p: np.array([x[1], -p["a0"] * x[0] - p["a1"] * x[1] + u[0]]),
+        outputs=["q"],
+        measurement=lambda t, x, u, p: np.array([p["b0"] * x[0] + p["b1"] * x[1]]),
+        name="q_over_elevator",
+    )
+    ch = _quiet_response(model, data, outputs=["q"]).channel("elevator", "q")
+    assert ch.n_coherent >= 5
+    ref = ratio(ch.frequency_rad_s[ch.coherent])
+    est = ch.response[ch.coherent]
+    assert np.median(np.abs(20 * np.log10(np.abs(est / ref)))) < 1.0
+    assert np.median(np.abs(np.degrees(np.angle(est / ref)))) < 5.0
+    assert sum(ch.dropped.values()) + ch.n_coherent == ch.frequency.size
+
+
+def test_both_response_types_share_the_unit_explicit_names():
+    from aeroid.frequency_id import ResponseChannel
+
+    model = catalog.short_period(TRUTH)
+    data = _noise_free_multisine(model, 20.0)
+    ch = _quiet_response(model, data, None, frequency_range=(0.2, 3.0)).channel("elevator", "q")
+    rc = ch.as_response_channel()
+    assert isinstance(rc, ResponseChannel)
+    # the historical fields of ChannelFrequencyResponse: Hz, gain, radians (the spec's)
+    np.testing.assert_allclose(ch.frequency_rad_s, 2 * np.pi * ch.frequency, rtol=1e-15)
+    np.testing.assert_allclose(ch.response, ch.magnitude * np.exp(1j * ch.phase))
+    # one set of unit-explicit names on both: rad/s and Hz, complex H, gain, dB, degrees
+    for name in ("frequency_hz", "frequency_rad_s", "response", "gain", "magnitude_db"):
+        np.testing.assert_allclose(getattr(rc, name), getattr(ch, name), rtol=1e-12)
+    np.testing.assert_allclose(rc.phase_deg, ch.phase_deg, atol=1e-9)
+    np.testing.assert_allclose(
+        np.exp(1j * np.radians(ch.phase_deg)), np.exp(1j * ch.phase), atol=1e-12
+    )
+    np.testing.assert_allclose(rc.magnitude, 20 * np.log10(ch.magnitude), rtol=1e-12)
+    h = exact_short_period(ch.frequency)["q"]
+    exact_res = _quiet_response(
+        model, data, None, frequency_range=(0.2, 3.0), model_response="exact"
+    ).channel("elevator", "q")
+    np.testing.assert_allclose(exact_res.model_response, h, rtol=1e-9)
+    with pytest.raises(ValueError):
+        ch.frequency_rad_s[0] = 0.0
+
+
+class _SteppedShortPeriod:
+    """A SimulatorModel look-alike: no transfer function, only simulations."""
+
+    name = "stepped_short_period"
+    controls = ("elevator",)
+    outputs = ("alpha", "q")
+
+    def __init__(self, parameters):
+        self._m = catalog.short_period(parameters)
+        self.parameters = dict(self._m.parameters)
+
+    def simulate(self, time, controls=None, x0=None, parameters=None, **options):
+        return self._m.simulate(time, controls, x0, parameters, method="exact")
+
+    def simulate_data(self, data, *, x0=None, parameters=None, **options):
+        return self._m.simulate_data(data, x0=x0, parameters=parameters, method="exact")
+
+
+def test_a_simulator_is_judged_against_its_whole_record_ratio():
+    # no transfer function: resolution is judged against the ratio of the simulated
+    # output's and the input's Fourier transforms over the whole record
+    model = catalog.short_period(TRUTH)
+    data = _noise_free_multisine(model)
+    sim = _SteppedShortPeriod(TRUTH)
+    res = _quiet_response(sim, data, None, frequency_range=(0.2, 3.0))
+    assert res.model_response == "simulated"
+    ch = res.channel("elevator", "q")
+    h = exact_short_period(ch.frequency)["q"]
+    assert ch.n_coherent > 5
+    assert np.all(np.abs(ch.response[ch.coherent] / h[ch.coherent] - 1) < 0.12)
+    wrong = _SteppedShortPeriod({**TRUTH, "M_alpha": 1.5 * TRUTH["M_alpha"]})
+    off = _quiet_response(wrong, data, None, frequency_range=(0.2, 3.0)).channel("elevator", "q")
+    assert off.mismatch > 3 * ch.mismatch and ch.mismatch < 0.05

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.signal
 import scipy.stats
+from _sidpac import sidpac_mat
 
 from aeroid import (
     ChannelError,
@@ -447,3 +450,89 @@ print(sorted(m for m in sys.modules if m.startswith("scipy.signal")))
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120
     )
     assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_composite_coherence_is_at_most_one_by_construction():
+    # Two windows whose spectra a per-element weighting combined into γ² = 1.16:
+    # G1 = [[1, 1], [1, 1]] (γ² = 1), G2 = [[100, 0.1], [0.1, 0.01]] (γ² = 0.01).
+    from aeroid.frequency_id import _combine, _condition
+
+    g1 = np.array([[1.0, 1.0], [1.0, 1.0]], dtype=complex)
+    g2 = np.array([[100.0, 0.1], [0.1, 0.01]], dtype=complex)
+    spectra = np.array([g1, g2])[:, None]  # (n_w, m, c, c)
+    old = sum((1 / np.abs(g) ** 2) * g for g in (g1, g2)) / sum(
+        1 / np.abs(g) ** 2 for g in (g1, g2)
+    )
+    assert abs(old[0, 1]) ** 2 / (old[0, 0].real * old[1, 1].real) > 1.1
+    for w in ([0.5, 0.5], [0.9, 0.1], [1e-6, 1.0 - 1e-6]):
+        gc = _combine(spectra, np.array(w)[:, None], 1)
+        assert abs(gc[0, 0, 1]) ** 2 <= gc[0, 0, 0].real * gc[0, 1, 1].real * (1 + 1e-12)
+    # random Hermitian positive semi-definite windows and weights, three channels
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        z = rng.standard_normal((4, 5, 3, 2)) + 1j * rng.standard_normal((4, 5, 3, 2))
+        spectra = np.einsum("wmak,wmbk->wmab", np.conj(z), z)  # rank 2: γ² < 1
+        gc = _combine(spectra, rng.random((4, 5)), 1)
+        g = np.abs(gc[:, 0, 1:]) ** 2 / (
+            gc[:, 0, 0].real[:, None] * np.diagonal(gc, axis1=1, axis2=2)[:, 1:].real
+        )
+        assert np.all(g <= 1 + 1e-12)
+        _, coh, _ = _condition(gc, 1)
+        assert np.all(coh <= 1.0)
+
+
+def test_random_error_floor_keeps_a_noise_free_point_from_deciding_a_fit(clean_sweep):
+    data, _, _ = clean_sweep
+    res = composite_response(data, "u", "y", windows=(60, 30, 15), frequency_range=(0.6, 8.0))
+    ch = res.channel("u", "y")
+    assert np.all(ch.coherence <= 1.0)
+    # noise-free: γ² near 1 everywhere, yet no error below 1 %, so no point weighs more
+    # than (εr_max / εr_min)² <= 1e4 times another
+    assert np.min(ch.random_error) == pytest.approx(0.01)
+    assert np.all(ch.random_error >= 0.01)
+
+
+def test_a_window_of_one_segment_is_refused(clean_sweep):
+    data, _, _ = clean_sweep
+    with pytest.raises(DataFormatError, match="coherence 1 by construction"):
+        composite_response(data, "u", "y", windows=(data.duration,))
+    # at 80 % overlap a window of 90 % of the record still fits once
+    with pytest.raises(DataFormatError, match="windows"):
+        composite_response(data, "u", "y", windows=(0.9 * data.duration,))
+
+
+def test_frequencies_below_two_periods_of_the_longest_window_are_dropped_and_said(clean_sweep):
+    data, _, _ = clean_sweep
+    limit = 4 * np.pi / 30.0  # two periods of the 30 s window, rad/s
+    with pytest.warns(UserWarning, match="two periods of the longest"):
+        res = composite_response(data, "u", "y", windows=(30, 15), frequency_range=(0.1, 8.0))
+    assert res.frequency[0] >= limit * (1 - 1e-12)
+    assert res.notes and "dropped" in res.notes[0]
+    with pytest.raises(IdentificationError, match="two periods"):
+        composite_response(data, "u", "y", windows=(30, 15), frequencies=[0.1, 0.2])
+    # the default range starts at the limit: nothing dropped, nothing said
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert composite_response(data, "u", "y", windows=(30, 15)).notes == ()
+
+
+def test_tfest_demo_composite_keeps_coherence_below_one_and_the_fit_honest():
+    # SIDPAC's tfest demo (simulated aileron -> roll rate, 15 s at 40 Hz): the composite
+    # read γ² = 1.0074 there, was clipped to 1, and its 1e-9 random error decided the
+    # random-error fit (a0 = 4.77 +- 4e-8 for SIDPAC's 3.40 +- 0.11).
+    mat = sidpac_mat("Demos", "tfest_demo_data.mat")
+    t = mat["t"][:, 0] - mat["t"][0, 0]
+    data = FlightData(t, {"aileron": mat["fdata"][:, 14], "p": np.radians(mat["fdata"][:, 4])})
+    with pytest.warns(UserWarning, match="two periods"):  # SIDPAC's band starts at 0.1 Hz
+        res = composite_response(
+            data, "aileron", "p", frequency_range=(2 * np.pi * 0.1, 2 * np.pi * 1.5)
+        )
+    ch = res.channel("aileron", "p")
+    assert np.max(ch.coherence) < 1.0 and np.min(ch.random_error) >= 0.01
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        fit = fit_transfer_function(
+            ch, numerator_order=0, denominator_order=1, delay=False, weighting="random_error"
+        )
+    assert fit.standard_errors["a0"] > 1e-3
+    assert abs(fit.parameters["a0"] - 3.40) < 3 * max(fit.standard_errors["a0"], 0.11)

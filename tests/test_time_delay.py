@@ -7,6 +7,8 @@ within 3 standard errors of 0.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -235,9 +237,10 @@ def test_a_fits_delay_reaches_validate_filter_sensitivities_and_frequency_respon
     assert not np.allclose(sens.fisher_information, bare.fisher_information, rtol=1e-3)
 
     kw = {"model_response": "exact", "outputs": ["p"], "inputs": ["delta_a"]}
-    with pytest.warns(UserWarning, match="too few coherent"):  # 15 s: few resolved bins
-        h = aeroid.frequency_response(model, clean, truth, **kw).channel("delta_a", "p")
-    with pytest.warns(UserWarning, match="too few coherent"):
+    h = aeroid.frequency_response(model, clean, truth, **kw).channel("delta_a", "p")
+    assert h.n_coherent >= 3  # the windows chosen per frequency resolve the 15 s record
+    with warnings.catch_warnings():  # the wrong model may leave few resolved frequencies
+        warnings.simplefilter("ignore", UserWarning)
         bare_h = aeroid.frequency_response(model, clean, dict(LATERAL), **kw)
     phase = np.angle(np.exp(1j * (h.model_phase - bare_h.channel("delta_a", "p").model_phase)))
     np.testing.assert_allclose(
