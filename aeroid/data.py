@@ -393,6 +393,47 @@ class FlightData:
         new_units.update(units or {})
         return FlightData(self.time, merged, new_units, self.metadata)
 
+    def to_csv(self, path: str | Path) -> Path:
+        """Write the record as a CSV file that `load_flight_test` reads back exactly.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file to write (replaced if it exists). Its columns are ``time``
+            and the channels in order, each value written with enough digits to
+            round-trip.
+
+        Returns
+        -------
+        Path
+            The file written.
+
+        Raises
+        ------
+        DataFormatError
+            If a channel is named ``time`` or holds a comma or line break in its
+            name, or the file cannot be written.
+        """
+        target = Path(path)
+        for name in self.channels:
+            if name == "time" or any(c in name for c in ',"\n\r'):
+                raise DataFormatError(
+                    f"to_csv: channel name {name!r} cannot be a CSV column of its own"
+                )
+        columns = [self.time, *self.channels.values()]
+        lines = [",".join(["time", *self.channels])]
+        lines += [
+            ",".join(repr(float(c[i])) for c in columns) for i in range(self.n_samples)
+        ]
+        tmp = target.with_name(target.name + ".part")
+        try:
+            tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+            tmp.replace(target)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise DataFormatError(f"to_csv: cannot write {target} ({exc.strerror})") from None
+        return target
+
     def summary(self) -> str:
         """A Markdown table of the channels with their ranges."""
         lines = [

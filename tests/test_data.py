@@ -362,3 +362,22 @@ def test_sidpac_example_7p2_time_stamps_are_taken_as_uniform():
     d = FlightData(t, {"u": mat["u"][:, 0], "z": mat["z"][:, 0]})
     assert d.is_uniform and d.sample_rate == pytest.approx(10.0, rel=1e-6)
     assert "time_jitter" in d.metadata
+
+
+def test_to_csv_round_trips_exactly_and_refuses_unwritable_names(tmp_path):
+    from aeroid import catalog
+
+    data = catalog.short_period_flight(seed=3, duration=2.0)
+    path = data.to_csv(tmp_path / "f.csv")
+    back = load_flight_test(path)
+    assert back.names == data.names
+    np.testing.assert_array_equal(back.time, data.time)
+    for name in data.names:
+        np.testing.assert_array_equal(back[name], data[name])
+    assert not list(tmp_path.glob("*.part"))
+    odd = FlightData(np.arange(3.0), {"a,b": np.zeros(3)})
+    with pytest.raises(DataFormatError, match=r"'a,b'"):
+        odd.to_csv(tmp_path / "g.csv")
+    assert not (tmp_path / "g.csv").exists()
+    with pytest.raises(DataFormatError, match="cannot write"):
+        data.to_csv(tmp_path / "missing" / "h.csv")

@@ -31,17 +31,14 @@ def test_readme_has_the_two_commands():
 def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
     blocks = _blocks()
     assert len(blocks) >= 2
-    # The flight file the README loads: the truth case, written as a CSV.
-    data = catalog.short_period_flight(seed=42)
-    lines = ["time,alpha,q,elevator"]
-    for i, t in enumerate(data.time):
-        row = (t, data["alpha"][i], data["q"][i], data["elevator"][i])
-        lines.append(",".join(repr(float(v)) for v in row))
-    (tmp_path / "flight_042.csv").write_text("\n".join(lines) + "\n")
     monkeypatch.chdir(tmp_path)
     namespace: dict[str, object] = {"__name__": "readme"}
     for block in blocks:
         exec(compile(block, str(README), "exec"), namespace)
+    # the README makes the flight file it loads: the truth case, as a CSV
+    assert (tmp_path / "flight_042.csv").read_text(encoding="utf-8").startswith(
+        "time,elevator,alpha,q\n"
+    )
     result = namespace["result"]
     truth = catalog.SHORT_PERIOD_TRUTH
     for name, value in truth.items():
