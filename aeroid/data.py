@@ -758,6 +758,8 @@ def load_flight_test(
     units: Mapping[str, str] | None = None,
     sample_rate: float | None = None,
     max_gap: float | None = None,
+    t0: float | None = None,
+    t1: float | None = None,
 ) -> FlightData:
     """Load a flight-test record from a table (CSV, Parquet, MATLAB) or a flight log.
 
@@ -791,6 +793,10 @@ def load_flight_test(
     max_gap : float, optional
         Logs only, with `sample_rate`: longest gap in a channel's stamps (s)
         to interpolate across; passed to the resampler.
+    t0, t1 : float, optional
+        Logs only, with `sample_rate`: the span (s, in the log's own time) to
+        put on the grid, so that a gap outside it (a logging pause before
+        take-off) does not stop the load; passed to the resampler.
 
     Returns
     -------
@@ -838,11 +844,13 @@ def load_flight_test(
             units=units,
             sample_rate=sample_rate,
             max_gap=max_gap,
+            t0=t0,
+            t1=t1,
         )
-    if sample_rate is not None or max_gap is not None:
+    if sample_rate is not None or max_gap is not None or t0 is not None or t1 is not None:
         raise DataFormatError(
-            f"{p}: sample_rate and max_gap apply to flight logs; this is a table "
-            "already on one time axis"
+            f"{p}: sample_rate, max_gap, t0 and t1 apply to flight logs; this is a table "
+            "already on one time axis (FlightData.window cuts a span out of it)"
         )
     suffix = p.suffix.lower()
     columns: Mapping[str, NDArray[Any]]
@@ -943,6 +951,8 @@ def _load_log(
     units: Mapping[str, str] | None,
     sample_rate: float | None,
     max_gap: float | None,
+    t0: float | None = None,
+    t1: float | None = None,
 ) -> FlightData:
     """`load_flight_test` for a flight log: read it, pick channels, put them on one grid."""
     from .logs import read_log
@@ -953,8 +963,9 @@ def _load_log(
         raise DataFormatError(f"{p}: channels: none selected")
     metadata = {"source": p.name, "format": str(log.metadata.get("format", log_format))}
     if sample_rate is None:
-        if max_gap is not None:
-            raise DataFormatError(f"{p}: max_gap applies only with sample_rate")
+        for name, value in (("max_gap", max_gap), ("t0", t0), ("t1", t1)):
+            if value is not None:
+                raise DataFormatError(f"{p}: {name} applies only with sample_rate")
         first = next(iter(mapping.values()))
         time = log.channels[first].time
         for source in mapping.values():
@@ -982,7 +993,7 @@ def _load_log(
             f"{p}: resampling a log needs aeroid.resampling, which is unavailable"
         ) from None
     try:
-        data = resample(log, mapping, rate=sample_rate, max_gap=max_gap)
+        data = resample(log, mapping, rate=sample_rate, max_gap=max_gap, t0=t0, t1=t1)
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
     extra = dict(units or {})

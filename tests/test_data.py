@@ -288,7 +288,7 @@ def test_csv_header_only_or_empty(tmp_path):
     one.write_text("time,a\n0,1\n")
     with pytest.raises(DataFormatError, match="fewer than 2 data rows"):
         load_flight_test(one)
-    with pytest.raises(DataFormatError, match="sample_rate and max_gap apply to flight logs"):
+    with pytest.raises(DataFormatError, match="sample_rate, max_gap, t0 and t1 apply to flight logs"):
         load_flight_test(one, sample_rate=10.0)
 
 
@@ -381,3 +381,16 @@ def test_to_csv_round_trips_exactly_and_refuses_unwritable_names(tmp_path):
     assert not (tmp_path / "g.csv").exists()
     with pytest.raises(DataFormatError, match="cannot write"):
         data.to_csv(tmp_path / "missing" / "h.csv")
+
+
+def test_a_log_is_loaded_between_t0_and_t1_around_a_gap_outside_them():
+    from pathlib import Path
+
+    log = Path(__file__).parent / "data" / "px4" / "sample_log_small.ulg"
+    chans = {"y": "vehicle_angular_velocity.xyz[0]", "u": "actuator_controls_0.control[0]"}
+    with pytest.raises(DataFormatError, match="gap of 0.16"):
+        load_flight_test(log, channels=chans, sample_rate=100)
+    data = load_flight_test(log, channels=chans, sample_rate=100, t0=21.0, t1=26.0)
+    assert data.time[0] == pytest.approx(21.0) and data.time[-1] <= 26.0 + 1e-9
+    with pytest.raises(DataFormatError, match="t0 applies only with sample_rate"):
+        load_flight_test(log, channels=chans, t0=21.0)
