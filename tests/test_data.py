@@ -388,7 +388,7 @@ def test_a_log_is_loaded_between_t0_and_t1_around_a_gap_outside_them():
 
     log = Path(__file__).parent / "data" / "px4" / "sample_log_small.ulg"
     chans = {"y": "vehicle_angular_velocity.xyz[0]", "u": "actuator_controls_0.control[0]"}
-    with pytest.raises(DataFormatError, match="gap of 0.16"):
+    with pytest.raises(DataFormatError, match=r"gap of 0\.16"):
         load_flight_test(log, channels=chans, sample_rate=100)
     data = load_flight_test(log, channels=chans, sample_rate=100, t0=21.0, t1=26.0)
     assert data.time[0] == pytest.approx(21.0) and data.time[-1] <= 26.0 + 1e-9
