@@ -422,9 +422,7 @@ class FlightData:
                 )
         columns = [self.time, *self.channels.values()]
         lines = [",".join(["time", *self.channels])]
-        lines += [
-            ",".join(repr(float(c[i])) for c in columns) for i in range(self.n_samples)
-        ]
+        lines += [",".join(repr(float(c[i])) for c in columns) for i in range(self.n_samples)]
         tmp = target.with_name(target.name + ".part")
         try:
             tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")

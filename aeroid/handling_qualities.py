@@ -36,6 +36,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._criteria import (
+    BANDWIDTH_LEVEL_1,
+    BANDWIDTH_LEVEL_2,
+    BANDWIDTH_SOURCE,
+    HandlingQualitiesLevel,
+    bandwidth_level,
+    muad_envelopes,
+    short_period_level,
+)
 from ._records import fmt, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import check_flag, plain
@@ -53,9 +62,12 @@ from .frequency_id import (
 __all__ = [
     "BandwidthResult",
     "EquivalentSystemFit",
+    "HandlingQualitiesLevel",
     "Margins",
     "bandwidth",
+    "bandwidth_level",
     "equivalent_system",
+    "short_period_level",
     "stability_margins",
 ]
 
@@ -250,8 +262,24 @@ class BandwidthResult:
                 markdown_table(("metric", "value"), rows),
                 "",
                 f"Response kind: {self.kind} (ADS-33E / MIL-STD-1797A definitions).",
+                "",
+                self._level_line(),
             ]
         )
+
+    @property
+    def level(self) -> HandlingQualitiesLevel | None:
+        """Category A Level of (ω_BW, τ_p) (`aeroid.bandwidth_level`); None where either
+        is undefined."""
+        if not (np.isfinite(self.bandwidth) and np.isfinite(self.phase_delay)):
+            return None
+        return bandwidth_level(self.bandwidth, self.phase_delay)
+
+    def _level_line(self) -> str:
+        level = self.level
+        if level is None:
+            return "Level: not assessed (bandwidth or phase delay undefined)."
+        return f"Level {level.level} (Category A; {level.source})."
 
     def plot(
         self,
@@ -265,15 +293,23 @@ class BandwidthResult:
         ----------
         boundaries : mapping of str to sequence of (ω_BW, τ_p), optional
             Region polygons by label (for example ``"Level 1"``), vertices in
-            rad/s and s, copied from the criterion you cite; none are built in.
+            rad/s and s, copied from the criterion you cite. Default: the
+            Category A patches of `aeroid._criteria` (digitised, unverified).
         source : str
-            The criterion's citation, printed under the plot.
+            The criterion's citation, printed under the plot (default: the
+            built-in boundaries' source).
         """
         from .plotting import _figure
 
+        if boundaries is None:
+            boundaries = {
+                "Level 1 (Category A)": BANDWIDTH_LEVEL_1,
+                "Level 2 (Category A)": BANDWIDTH_LEVEL_2,
+            }
+            source = source or BANDWIDTH_SOURCE
         fig, axes = _figure(1, height=4.0)
         ax = axes[0, 0]
-        for i, (label, poly) in enumerate((boundaries or {}).items()):
+        for i, (label, poly) in enumerate(boundaries.items()):
             pts = np.asarray(poly, dtype=np.float64)
             if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 3:
                 raise IdentificationError(
@@ -444,21 +480,74 @@ class EquivalentSystemFit:
         """The equivalent system's response at ω (rad/s)."""
         return self.fit.evaluate(frequency)
 
+    @property
+    def level(self) -> HandlingQualitiesLevel | None:
+        """MIL-STD-1797A Level of a short-period fit (`aeroid.short_period_level`, as
+        SIDPAC's ``milstd``); None for the other kinds, which it does not cover."""
+        if self.kind != "short_period":
+            return None
+        p = self.parameters
+        inv = p["1/T_theta2"]
+        t_theta2 = 1.0 / inv if inv != 0 else float("inf")
+        return short_period_level(p["omega"], p["zeta"], t_theta2, p["tau"])
+
+    @property
+    def flags(self) -> tuple[str, ...]:
+        """What makes the fit suspect: a right-half-plane zero, a negative delay, a
+        mismatch beyond the guideline."""
+        p = self.parameters
+        out = []
+        if self.kind == "short_period" and p["1/T_theta2"] < 0:
+            out.append("right-half-plane zero (1/T_theta2 < 0): not a physical pitch response")
+        if p.get("tau", 0.0) < 0:
+            out.append("negative time delay")
+        if self.mismatch > _MISMATCH_GUIDELINE:
+            out.append(f"mismatch J above {_MISMATCH_GUIDELINE:.0f}")
+        return tuple(out)
+
     def summary(self) -> str:
-        """Markdown table of the equivalent-system parameters and the mismatch."""
+        """Markdown table of the equivalent-system parameters, the mismatch and the Level."""
         rows = [(k, fmt(v)) for k, v in self.parameters.items()]
         verdict = "within" if self.mismatch <= _MISMATCH_GUIDELINE else "beyond"
         lo, hi = self.frequency_range
-        return "\n".join(
-            [
-                f"## Low-order equivalent system ({self.kind})",
-                "",
-                markdown_table(("parameter", "value"), rows),
-                "",
-                f"Mismatch J = {fmt(self.mismatch, 4)} over {fmt(lo, 3)}–{fmt(hi, 3)} rad/s "
-                f"({verdict} the J ≤ {_MISMATCH_GUIDELINE:.0f} guideline).",
-            ]
+        lines = [
+            f"## Low-order equivalent system ({self.kind})",
+            "",
+            markdown_table(("parameter", "value"), rows),
+            "",
+            f"Mismatch J = {fmt(self.mismatch, 4)} over {fmt(lo, 3)}–{fmt(hi, 3)} rad/s "
+            f"({verdict} the J ≤ {_MISMATCH_GUIDELINE:.0f} guideline).",
+        ]
+        level = self.level
+        if level is not None:
+            beyond = (
+                f", beyond the Level 3 limits on {', '.join(level.beyond_level_3)}"
+                if level.beyond_level_3
+                else ""
+            )
+            lines += ["", f"Level {level.level}{beyond} ({level.source})."]
+        lines += [f"Warning: {f}." for f in self.flags]
+        return "\n".join(lines)
+
+    def mismatch_envelopes(self, omega: ArrayLike | None = None) -> dict[str, FloatArray]:
+        """The maximum unnoticeable added dynamics envelopes at ω (rad/s; default the
+        fit's band) with the mismatch HOS/LOES, gain in dB and phase in degrees.
+
+        Returns a dict with ``omega``, ``gain_db``, ``phase_deg`` (the mismatch; NaN
+        where the response has no point) and the four envelopes of
+        `aeroid._criteria.MUAD_ENVELOPES` (digitised, unverified by their source).
+        """
+        fit_w = np.asarray(self.fit.frequency, dtype=np.float64)
+        w = fit_w if omega is None else np.asarray(omega, dtype=np.float64)
+        measured = np.asarray(self.fit.response, dtype=np.complex128)
+        loes = np.asarray(self.fit.evaluate(fit_w), dtype=np.complex128)
+        with np.errstate(all="ignore"):
+            ratio = measured / loes
+        gain = np.interp(w, fit_w, 20.0 * np.log10(np.abs(ratio)), left=np.nan, right=np.nan)
+        phase = np.interp(
+            w, fit_w, np.degrees(np.unwrap(np.angle(ratio))), left=np.nan, right=np.nan
         )
+        return {"omega": w, "gain_db": gain, "phase_deg": phase, **muad_envelopes(w)}
 
     def plot(self) -> Any:
         """The equivalent system over the response. Returns a matplotlib Figure."""
