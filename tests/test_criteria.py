@@ -177,3 +177,16 @@ def test_bandwidth_result_has_a_level_and_draws_the_boundaries_by_default() -> N
     labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "Level 1 (Category A)" in labels and "Level 2 (Category A)" in labels
     assert "unchecked" in fig.axes[0].get_title(loc="left")
+
+
+def test_the_campaign_table_names_levels_and_a_right_half_plane_zero() -> None:
+    from aeroid.pipeline.analysis_stages import hq_table
+
+    briefs = [
+        {"omega": 3.0, "1/T_theta2": 1.2, "tau": 0.05, "LOES level": 1.0},
+        {"omega": 3.0, "1/T_theta2": -18.0, "tau": 0.05, "LOES level": 3.0},
+    ]
+    text = "\n".join(hq_table(["f1", "f2"], ["a", "b"], briefs))
+    assert "| LOES level [MIL-STD-1797A] |" in text
+    assert "f2: 1/T_theta2 = -18 1/s is a right-half-plane zero" in text
+    assert "f1: 1/T_theta2" not in text

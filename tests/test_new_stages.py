@@ -103,6 +103,8 @@ def test_new_stages_run_store_and_read_back_what_the_library_computes(tmp_path):
     campaign = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     table = campaign.split("### Handling qualities", 1)[1]
     assert "| omega [rad/s] |" in table and "| zeta [-] |" in table
+    level = hq.equivalent_system.level.level
+    assert "| LOES level [MIL-STD-1797A] |" in table and f"Level {level}" in hq.summary()
     omega = hq.equivalent_system.parameters["omega"]
     assert f"{omega:.4g}" in table.split("\n\n")[2]
     # none of the new steps feeds identify without compatibility: its input is as loaded

@@ -251,6 +251,8 @@ _HQ_UNITS = {
     "1/T_theta2": "1/s",
     "1/T_R": "1/s",
     "tau": "s",
+    "LOES level": "MIL-STD-1797A",
+    "bandwidth level": "Cat. A",
 }
 
 
@@ -260,9 +262,15 @@ def hq_brief(record: Any) -> dict[str, float]:
     bw, eq, margins = record.bandwidth, record.equivalent_system, record.margins
     if bw is not None:
         out.update({"bandwidth": bw.bandwidth, "phase delay": bw.phase_delay})
+        level = getattr(bw, "level", None)
+        if level is not None:
+            out["bandwidth level"] = float(level.level)
     if eq is not None:
         out.update({n: float(v) for n, v in eq.parameters.items() if n != "K"})
         out["mismatch"] = float(eq.mismatch)
+        level = getattr(eq, "level", None)
+        if level is not None:
+            out["LOES level"] = float(level.level)
     if margins is not None:
         out.update({"gain margin": margins.gain_margin, "phase margin": margins.phase_margin})
     return {k: float(v) for k, v in out.items()}
@@ -280,14 +288,30 @@ def hq_table(flights: list[str], conditions: list[str], briefs: list[Any]) -> li
         (f, c, *(f"{b[k]:.4g}" if b and k in b else "—" for k in labels))
         for f, c, b in zip(flights, conditions, briefs, strict=True)
     ]
+    notes = [
+        f"- {f}: 1/T_theta2 = {b['1/T_theta2']:.4g} 1/s is a right-half-plane zero, not a "
+        "physical pitch response: the equivalent system (and its Level) is suspect."
+        for f, b in zip(flights, briefs, strict=True)
+        if b and b.get("1/T_theta2", 0.0) < 0
+    ]
+    notes += [
+        f"- {f}: negative equivalent time delay ({b['tau']:.4g} s)."
+        for f, b in zip(flights, briefs, strict=True)
+        if b and b.get("tau", 0.0) < 0
+    ]
     return [
         "### Handling qualities",
         "",
         "Bandwidth and phase delay of the measured response, the low-order equivalent "
-        "system fitted to it and its mismatch, and the loop's margins, per flight condition.",
+        "system fitted to it and its mismatch, and the loop's margins, per flight condition. "
+        "Levels: the short-period equivalent system against MIL-STD-1797A's limits (as "
+        "SIDPAC's milstd states them); bandwidth and phase delay against the Category A "
+        "boundaries digitised in BandwidthCrit.m (C. Regan, NASA, 2006), which its author "
+        "marks unchecked.",
         "",
         markdown_table(columns, rows),
         "",
+        *([*notes, ""] if notes else []),
     ]
 
 

@@ -413,8 +413,9 @@ register_stage(
         # 3: figures with fixed margins; 4: corner plot with shared axes (other bytes);
         # 5: the trend across flights as two figures, drawn in parallel; 6: figures of
         # every flight beside its tables, status flags from every stage, units;
-        # 7: data-quality flags in the status, handling qualities across flights
-        "7",
+        # 7: data-quality flags in the status, handling qualities across flights;
+        # 8: handling-qualities Levels and right-half-plane zeros named
+        "8",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

@@ -529,8 +529,9 @@ for _stage in (
     Stage(
         "report",
         # 2: a section's summary no longer repeats the section heading; 3: the loaded
-        # data's quality checks (role data); 4: a clean record's checks in one line
-        "4",
+        # data's quality checks (role data); 4: a clean record's checks in one line;
+        # 5: equivalent systems and bandwidths state their handling-qualities Level
+        "5",
         ReportOptions,
         "FlightReport",
         _run_report,
