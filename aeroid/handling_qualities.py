@@ -18,13 +18,16 @@ when the phase never reaches −180°), and the phase delay
 ``τ_p = −(φ(2ω_180) + 180°) / (57.3 · 2ω_180)``. A rate response (``kind="rate"``)
 is integrated first (divided by jω).
 
-The published Level 1/2/3 boundaries in the (ω_BW, τ_p) plane are not built in:
-`BandwidthResult.plot` draws whatever boundaries the caller gives (as
-polygons), so the figure shows the criterion the user cites and nothing
-invented. The same holds for the MIL-STD-1797A LOES mismatch (maximum
-unnoticeable added dynamics) envelopes: the digitised boundaries and envelope
-transfer functions found in circulation are marked unchecked by their own
-authors, and the standard's figures could not be consulted.
+Levels come from the published boundaries in `aeroid._criteria`, each cited
+there: a short-period equivalent system against MIL-STD-1797A's limits on ζ,
+ω, ω T_θ2 and τ as SIDPAC's ``milstd`` states them (`short_period_level`, the
+same Level as ``milstd`` for the same inputs, and the criteria beyond even the
+Level 3 limits named); bandwidth and phase delay against the Category A
+boundaries digitised in ``BandwidthCrit.m`` (`bandwidth_level`), drawn on
+`BandwidthResult.plot`; the LOES mismatch against the maximum unnoticeable
+added dynamics envelopes of ``LoesBound.m``
+(`EquivalentSystemFit.mismatch_envelopes`). The authors of the last two
+routines mark their values unchecked, and every caption and summary says so.
 """
 
 from __future__ import annotations
