@@ -382,6 +382,18 @@ def _frequency_grid(frequencies: Any, dt: float, duration: float) -> FloatArray:
         omega = omega[omega > 0]  # the zero frequency carries only the mean: dropped
         if np.unique(omega).size != omega.size:
             raise IdentificationError("frequencies: a frequency is listed twice")
+        gaps = np.diff(np.sort(omega))
+        resolution = 2 * np.pi / duration
+        if gaps.size and float(gaps.min()) < resolution * (1 - 1e-6):
+            # transforms closer than 1/T share their noise: the error bars, which count
+            # every frequency as independent, come out too small
+            warnings.warn(
+                f"frequencies: spacing {float(gaps.min()):.4g} rad/s is finer than the "
+                f"record's resolution 2π/T = {resolution:.4g} rad/s; neighbouring transforms "
+                "then share their noise and the error bars are too small",
+                UserWarning,
+                stacklevel=CALLER_STACKLEVEL + 1,
+            )
     if omega.size and float(omega.max()) >= nyquist:
         raise IdentificationError(
             f"frequencies: {float(omega.max()):.6g} rad/s is at or above the Nyquist frequency "

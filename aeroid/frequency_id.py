@@ -1086,6 +1086,7 @@ def fit_transfer_function(
     start: Mapping[str, float] | None = None,
     weighting: str = "cifer",
     min_coherence: float = 0.6,
+    fixed: Mapping[str, float] | None = None,
 ) -> TransferFunctionFit:
     """Fit ``(b_m s^m + … + b_0) / (s^n + a_{n−1} s^{n−1} + … + a_0) · e^{−τ s}`` to a frequency response.
 
@@ -1095,7 +1096,8 @@ def fit_transfer_function(
         The measured response (flight data are first turned into a composite
         response with the default windows; then `input` and `output` are needed).
     numerator_order, denominator_order : int
-        m ≥ 0 and n ≥ 1 (with m ≤ n).
+        m ≥ 0 and n ≥ 1, in any order (m > n, an improper transfer function,
+        fits a band-limited response such as SIDPAC's Example 7.2).
     delay : bool
         Fit the equivalent time delay τ.
     frequency_range : (float, float), optional
@@ -1111,6 +1113,9 @@ def fit_transfer_function(
         weighting with calibrated standard errors.
     min_coherence : float
         Frequencies with a lower coherence γ² are left out (CIFER: 0.6).
+    fixed : mapping, optional
+        Parameters held at the given values (names as `start`); they are
+        reported with zero standard error and zero covariance.
 
     Returns
     -------
@@ -1128,12 +1133,12 @@ def fit_transfer_function(
     ch = _resolve_response(response_or_data, input, output)
     try:
         m, n = int(numerator_order), int(denominator_order)
-        ok = m == numerator_order and n == denominator_order and 0 <= m <= n and n >= 1
+        ok = m == numerator_order and n == denominator_order and m >= 0 and n >= 1
     except (TypeError, ValueError):
         ok = False
     if not ok:
         raise IdentificationError(
-            "numerator_order, denominator_order: expected integers 0 <= m <= n, n >= 1, got "
+            "numerator_order, denominator_order: expected integers m >= 0, n >= 1, got "
             f"{numerator_order!r}, {denominator_order!r}"
         )
     if weighting not in _WEIGHTINGS:
@@ -1161,7 +1166,11 @@ def fit_transfer_function(
     coh = ch.coherence[keep]
     err = ch.random_error[keep]
     st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
-    p = len(st.names)
+    held = _held(st, fixed)
+    free = np.array([nm not in held for nm in st.names])
+    p = int(free.sum())
+    if p == 0:
+        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
     if 2 * w.size <= p:
         raise IdentificationError(
             f"{w.size} frequencies with γ² >= {min_coherence} in the band cannot fit {p} parameters "
@@ -1191,12 +1200,26 @@ def fit_transfer_function(
     import scipy.optimize  # only a fit needs it; composite responses do not
 
     theta = _start(st, h, w, _coherence_weight(coh), residual, start)
+    for k, v in held.items():
+        theta[st.names.index(k)] = v
+
+    def full(x: FloatArray) -> FloatArray:
+        out = theta.copy()
+        out[free] = x
+        return out
+
     for _ in range(_PASSES if weighting == "random_error" else 1):
         with np.errstate(all="ignore"):
             sol = scipy.optimize.least_squares(
-                residual, theta, jac=jacobian, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12
+                lambda x: residual(full(x)),
+                theta[free],
+                jac=lambda x: jacobian(full(x))[:, free],
+                method="lm",
+                x_scale="jac",
+                xtol=1e-12,
+                ftol=1e-12,
             )
-        theta = sol.x
+        theta = full(sol.x)
         if weighting == "random_error":
             model = np.abs(np.exp(st.log_response(theta)[0]))
             if not np.all(np.isfinite(model) & (model > 0)):
@@ -1207,12 +1230,17 @@ def fit_transfer_function(
         raise IdentificationError(
             f"transfer-function fit {ch.input_name} -> {ch.output_name} diverged; give start values"
         )
-    jac = jacobian(theta)
-    info = jac.T @ jac
+    jac = jacobian(theta)[:, free]
+    info_free = jac.T @ jac
     try:
-        inv = np.linalg.inv(info)
+        inv_free = np.linalg.inv(info_free)
     except np.linalg.LinAlgError:
-        inv = np.full((p, p), np.inf)
+        inv_free = np.full((p, p), np.inf)
+    # fixed parameters: zero rows and columns (no uncertainty), an infinite insensitivity
+    inv = np.zeros((free.size, free.size))
+    inv[np.ix_(free, free)] = inv_free
+    info = np.full((free.size, free.size), 0.0)
+    info[np.ix_(free, free)] = info_free
     if weighting == "random_error":
         dof = r.size - p
         chi2 = float(r @ r) / dof
@@ -1278,7 +1306,11 @@ def _start(
         # the phase left over is about −τω: its least-squares slope through the origin
         tau = max(0.0, -float(np.sum(w * ph) / np.sum(w * w)))
         candidates = [best]
-        for t in (tau, 2.0 * tau):
+        # and a grid up to half a turn of phase at the top frequency: a numerator of
+        # higher order than the denominator lets the rational part mimic a lead and
+        # leaves the phase slope above useless
+        grid = np.linspace(0.0, np.pi / float(w.max()), 25)[1:]
+        for t in (tau, 2.0 * tau, *grid):
             if t > 0:
                 cand = np.append(_levy_sk(st, h * np.exp(1j * w * t), weight), t)
                 candidates.append(cand)
@@ -1297,6 +1329,20 @@ def _start(
         for k, v in start.items():
             best[st.names.index(k)] = _start_value(k, v)
     return np.asarray(best, dtype=np.float64)
+
+
+def _held(st: _Structure, fixed: Any) -> dict[str, float]:
+    """The `fixed` option checked: known names -> finite values."""
+    if fixed is None:
+        return {}
+    if not isinstance(fixed, Mapping):
+        raise IdentificationError(
+            f"fixed: expected a mapping of parameter name to value, got {plain(fixed)}"
+        )
+    unknown = sorted(set(fixed) - set(st.names))
+    if unknown:
+        raise IdentificationError(f"fixed: unknown parameters {unknown}; parameters: {st.names}")
+    return {str(k): _start_value(str(k), v) for k, v in fixed.items()}
 
 
 def _start_value(name: str, value: Any) -> float:

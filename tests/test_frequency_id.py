@@ -297,13 +297,52 @@ def test_fit_is_exact_on_an_exact_response():
     assert "tau" not in fit0.parameters and fit0.cost > 1.0
 
 
+def test_numerator_of_higher_order_than_the_denominator():
+    # Klein & Morelli Example 7.2's form: (p1 s^2 + p2 s + p3)/(s + p4), exact data
+    w = np.geomspace(0.5, 12.0, 40)
+    s = 1j * w
+    h = (0.3 * s**2 + 2.0 * s + 5.0) / (s + 4.0) * np.exp(-0.05 * s)
+    from aeroid import ResponseChannel
+
+    ch = ResponseChannel("x", "y", w, h, coherence=np.ones(w.size))
+    fit = fit_transfer_function(ch, numerator_order=2, denominator_order=1)
+    expect = {"b0": 5.0, "b1": 2.0, "b2": 0.3, "a0": 4.0, "tau": 0.05}
+    for k, v in expect.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=1e-6), k
+    np.testing.assert_allclose(fit.numerator, [0.3, 2.0, 5.0], rtol=1e-6)
+
+
+def test_fixed_parameters_are_held_and_the_rest_fitted():
+    w = np.geomspace(0.3, 20.0, 60)
+    s = 1j * w
+    h = (2.0 * s + 3.0) / (s**2 + 1.5 * s + 9.0) * np.exp(-0.08 * s)
+    from aeroid import ResponseChannel
+
+    ch = ResponseChannel("x", "y", w, h, coherence=np.ones(w.size))
+    fit = fit_transfer_function(ch, numerator_order=1, denominator_order=2, fixed={"tau": 0.08})
+    assert fit.parameters["tau"] == 0.08 and fit.standard_errors["tau"] == 0.0
+    for k, v in {"b0": 3.0, "b1": 2.0, "a0": 9.0, "a1": 1.5}.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=1e-6), k
+    # a wrong fixed value: the others move to absorb it, the held one stays put
+    off = fit_transfer_function(ch, numerator_order=1, denominator_order=2, fixed={"a0": 8.0})
+    assert off.parameters["a0"] == 8.0 and off.cost > 1e-3
+    i = list(off.parameters).index("a0")
+    assert np.all(np.asarray(off.covariance)[i, :] == 0.0)
+
+
 def test_fit_rejects_bad_options():
     w = np.geomspace(0.3, 20.0, 10)
     from aeroid import ResponseChannel
 
     ch = ResponseChannel("x", "y", w, 1.0 / (1j * w + 1.0), coherence=np.ones(w.size))
     with pytest.raises(IdentificationError, match="numerator_order"):
-        fit_transfer_function(ch, numerator_order=3, denominator_order=2)
+        fit_transfer_function(ch, numerator_order=-1, denominator_order=2)
+    with pytest.raises(IdentificationError, match="fixed: unknown"):
+        fit_transfer_function(ch, numerator_order=0, denominator_order=1, fixed={"zz": 1.0})
+    with pytest.raises(IdentificationError, match="every parameter is fixed"):
+        fit_transfer_function(
+            ch, numerator_order=0, denominator_order=1, delay=False, fixed={"a0": 1, "b0": 1}
+        )
     with pytest.raises(IdentificationError, match="weighting"):
         fit_transfer_function(ch, numerator_order=0, denominator_order=1, weighting="x")
     with pytest.raises(IdentificationError, match="cannot fit"):

@@ -56,8 +56,9 @@ def tf_model(start: dict[str, float]) -> Any:
 
 
 def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str, Any]]:
-    import aeroid
     import scipy.io
+
+    import aeroid
 
     path = pathlib.Path(folder) / FILE
     if not path.exists():
