@@ -354,7 +354,8 @@ class _StateSpace:
 # -- argument checks -------------------------------------------------------------------------
 
 
-def _frequency_grid(frequencies: Any, dt: float, duration: float) -> FloatArray:
+def _frequency_grid(frequencies: Any, dt: float, duration: float, *, depth: int = 1) -> FloatArray:
+    """The frequencies checked; `depth`: calls between the public entry point and here."""
     nyquist = np.pi / dt
     if frequencies is None:
         # The k/T grid of the record: transformed white noise is then uncorrelated
@@ -392,7 +393,7 @@ def _frequency_grid(frequencies: Any, dt: float, duration: float) -> FloatArray:
                 f"record's resolution 2π/T = {resolution:.4g} rad/s; neighbouring transforms "
                 "then share their noise and the error bars are too small",
                 UserWarning,
-                stacklevel=CALLER_STACKLEVEL + 1,
+                stacklevel=CALLER_STACKLEVEL + depth,
             )
     if omega.size and float(omega.max()) >= nyquist:
         raise IdentificationError(

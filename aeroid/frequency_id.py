@@ -1435,7 +1435,7 @@ def _fit_fourier(
         w = np.asarray(2 * np.pi * k / T, dtype=np.float64)
         w = w[w < np.pi / dt]
     else:
-        w = _frequency_grid(frequencies, dt, T)
+        w = _frequency_grid(frequencies, dt, T, depth=2)
         if frequency_range is not None:
             lo, hi = _band(frequency_range)
             w = w[(w >= lo) & (w <= hi)]
