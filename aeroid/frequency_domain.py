@@ -78,6 +78,7 @@ ComplexArray = NDArray[np.complex128]
 _METHODS = ("output_error", "equation_error")
 _BOUNDARY = ("estimate", "ignore")
 _ERROR_BARS = ("colored", "white")
+_WEIGHTING = ("hermitian", "real", "sidpac")
 _DEFAULT_BAND_HZ = (0.1, 2.0)
 
 
@@ -353,7 +354,8 @@ class _StateSpace:
 # -- argument checks -------------------------------------------------------------------------
 
 
-def _frequency_grid(frequencies: Any, dt: float, duration: float) -> FloatArray:
+def _frequency_grid(frequencies: Any, dt: float, duration: float, *, depth: int = 1) -> FloatArray:
+    """The frequencies checked; `depth`: calls between the public entry point and here."""
     nyquist = np.pi / dt
     if frequencies is None:
         # The k/T grid of the record: transformed white noise is then uncorrelated
@@ -381,6 +383,18 @@ def _frequency_grid(frequencies: Any, dt: float, duration: float) -> FloatArray:
         omega = omega[omega > 0]  # the zero frequency carries only the mean: dropped
         if np.unique(omega).size != omega.size:
             raise IdentificationError("frequencies: a frequency is listed twice")
+        gaps = np.diff(np.sort(omega))
+        resolution = 2 * np.pi / duration
+        if gaps.size and float(gaps.min()) < resolution * (1 - 1e-6):
+            # transforms closer than 1/T share their noise: the error bars, which count
+            # every frequency as independent, come out too small
+            warnings.warn(
+                f"frequencies: spacing {float(gaps.min()):.4g} rad/s is finer than the "
+                f"record's resolution 2π/T = {resolution:.4g} rad/s; neighbouring transforms "
+                "then share their noise and the error bars are too small",
+                UserWarning,
+                stacklevel=CALLER_STACKLEVEL + depth,
+            )
     if omega.size and float(omega.max()) >= nyquist:
         raise IdentificationError(
             f"frequencies: {float(omega.max()):.6g} rad/s is at or above the Nyquist frequency "
@@ -600,19 +614,31 @@ def _output_error(
     noise: FloatArray | None,
     max_iterations: int,
     tolerance: float,
+    cross: str = "hermitian",
+    delayed: Sequence[int] = (),
+    tau0: FloatArray | None = None,
 ) -> _Fit:
     n_x, n_p = ss.n_x, p0.size
-    labels = list(ss.names)
+    n_d = len(delayed)
+    labels = list(ss.names) + [f"delay[{j}]" for j in delayed]
     bcols: ComplexArray | None = None
     if boundary:
         bcols, blabels = _boundary(sp, states)
         labels += blabels
-    n_b = len(labels) - n_p
+    n_b = len(labels) - n_p - n_d
+    n_pd = n_p + n_d
+    dcols = list(delayed)
+    jwU = -1j * sp.omega[:, None]
     jw = 1j * sp.omega[:, None, None] * np.eye(n_x)
     bT = None if bcols is None else np.ascontiguousarray(bcols.transpose(0, 2, 1))
 
     def evaluate(theta: FloatArray, slopes: bool) -> tuple[ComplexArray, ComplexArray | None]:
         p = theta[:n_p]
+        U = sp.U
+        if n_d:
+            # a pure input delay τ: U(ω) e^{−jωτ}
+            U = U.copy()
+            U[:, dcols] = U[:, dcols] * np.exp(jwU * theta[n_p:n_pd][None, :])
         if slopes:
             F, H, dF, dH = ss.with_slopes(p)
         else:
@@ -620,13 +646,13 @@ def _output_error(
             dF, dH = None, None
         assert H is not None
         A = F[:, :n_x]
-        forcing = sp.U @ F[:, n_x:].T  # (M, n_x)
+        forcing = U @ F[:, n_x:].T  # (M, n_x)
         if bT is not None:
-            forcing = forcing + bT @ theta[n_p:]
+            forcing = forcing + bT @ theta[n_pd:]
         with np.errstate(all="ignore"):
             G = np.linalg.inv(jw - A)
         X = (G @ forcing[:, :, None])[:, :, 0]
-        Xa = np.concatenate([X, sp.U], axis=1)
+        Xa = np.concatenate([X, U], axis=1)
         v = sp.Z - Xa @ H.T
         if not slopes:
             return v, None
@@ -637,15 +663,29 @@ def _output_error(
         dFXa = (Xa @ dF.reshape(n_p * n_x, n_a).T).reshape(-1, n_p, n_x).transpose(0, 2, 1)
         dHXa = (Xa @ dH.reshape(n_p * n_y, n_a).T).reshape(-1, n_p, n_y).transpose(0, 2, 1)
         dY = CG @ dFXa + dHXa
+        if n_d:
+            # ∂U_j/∂τ_j = −jω U_j: through the state equations and the feedthrough
+            dU = jwU * U[:, dcols]  # (M, n_d)
+            bd = F[:, n_x:][:, dcols]  # (n_x, n_d)
+            dd = H[:, n_x:][:, dcols]  # (n_y, n_d)
+            dYd = CG @ (bd[None, :, :] * dU[:, None, :]) + dd[None, :, :] * dU[:, None, :]
+            dY = np.concatenate([dY, dYd], axis=2)
         if bT is not None:
             dY = np.concatenate([dY, CG @ bT], axis=2)
         return v, np.asarray(dY, dtype=np.complex128)
 
-    def weighting(v: ComplexArray) -> FloatArray:
+    def weighting(v: ComplexArray) -> ComplexArray:
+        # the full Hermitian covariance: outputs whose noise is correlated with a phase
+        # shift (one sensor lagging another) have a complex cross term that the real
+        # part alone throws away
         if noise is not None:
-            S = noise * sp.span
+            S = (noise * sp.span).astype(np.complex128)
         else:
-            S = (v.conj().T @ v).real / v.shape[0]
+            S = v.T @ v.conj() / v.shape[0]
+            if cross == "real":
+                S = S.real.astype(np.complex128)
+            elif cross == "sidpac":
+                S = S.conj()  # fdoe's E[v̄ vᵀ]: the transpose of the covariance
         try:
             L = np.linalg.cholesky(S)
         except np.linalg.LinAlgError:
@@ -653,14 +693,15 @@ def _output_error(
                 "output error: the residual covariance is singular (an output the model fits "
                 "exactly, or two identical outputs); drop that output or give noise="
             ) from None
-        return np.asarray(np.linalg.inv(L), dtype=np.float64)
+        return np.asarray(np.linalg.inv(L), dtype=np.complex128)
 
-    def cost_of(v: ComplexArray, Li: FloatArray) -> float:
+    def cost_of(v: ComplexArray, Li: ComplexArray) -> float:
         e = v @ Li.T
         return 0.5 * float(np.sum(e.real**2 + e.imag**2))
 
     ss.affine(p0)  # then the iterations evaluate no model function
-    theta = np.concatenate([p0, np.zeros(n_b)])
+    tau = np.zeros(n_d) if tau0 is None else np.asarray(tau0, dtype=np.float64)
+    theta = np.concatenate([p0, tau, np.zeros(n_b)])
     v, dY = evaluate(theta, True)
     if not np.all(np.isfinite(v)):
         raise IdentificationError(
@@ -673,9 +714,9 @@ def _output_error(
         # the ends enter linearly: solve for them first, so the first noise estimate
         # is not swamped by the transients they leave
         assert dY is not None
-        Jb = _stack(Li @ dY[:, :, n_p:])
+        Jb = _stack(Li @ dY[:, :, n_pd:])
         rb = _stack(v @ Li.T)
-        theta[n_p:] = np.linalg.lstsq(Jb.reshape(-1, n_b), rb.reshape(-1), rcond=None)[0]
+        theta[n_pd:] = np.linalg.lstsq(Jb.reshape(-1, n_b), rb.reshape(-1), rcond=None)[0]
         v, dY = evaluate(theta, True)
         Li = weighting(v)
     for step in range(1, max_iterations + 1):
@@ -727,7 +768,7 @@ def _output_error(
     n_rows = res.size
     scale = 0.5 if noise is not None else 0.5 * n_rows / max(n_rows - theta.size, 1)
     white, colored, combos, _ = _covariances(jac, res, labels, scale)
-    S = np.linalg.inv(Li.T @ Li)
+    S = np.linalg.inv(Li.conj().T @ Li)
     return _Fit(
         theta,
         labels,
@@ -735,7 +776,7 @@ def _output_error(
         colored,
         combos,
         cost_of(v, Li),
-        np.asarray(S / sp.span, dtype=np.float64),
+        np.asarray((S / sp.span).real, dtype=np.float64),
         v,
         it,
         success,
@@ -761,6 +802,8 @@ def identify_frequency_domain(
     reference: Mapping[str, float] | None = None,
     max_iterations: int = 50,
     tolerance: float = 1e-8,
+    weighting: str = "hermitian",
+    delays: Sequence[str] | Mapping[str, float] | None = None,
 ) -> FrequencyDomainResult:
     """Estimate the parameters of a linear(ised) state-space model in the frequency domain.
 
@@ -811,6 +854,18 @@ def identify_frequency_domain(
     tolerance : float
         Convergence threshold: every step smaller than `tolerance` times the
         parameter's size plus its error bar.
+    weighting : {"hermitian", "real", "sidpac"}
+        Output error with an estimated noise covariance: the full Hermitian
+        ``S = E[v v*]`` (default; outputs whose noise is correlated with a
+        phase shift have complex cross terms, and this is the maximum
+        likelihood weighting), its real part only (the library's weighting
+        before 0.6), or SIDPAC ``fdoe``'s ``Σ v̄ vᵀ``, the transpose of
+        ``S``, to reproduce its numbers (less efficient than either when
+        the cross spectra are complex).
+    delays : sequence of str or mapping of str to float, optional
+        Output error: controls whose pure time delay ``τ`` (``U(ω) e^{−jωτ}``,
+        seconds) is estimated with the parameters (from 0, or the given
+        initial guess); reported as parameters ``"delay.<control>"``.
 
     Returns
     -------
@@ -850,6 +905,10 @@ def identify_frequency_domain(
     if boundary not in _BOUNDARY:
         raise IdentificationError(
             f"boundary {boundary!r} is unknown; choose one of {list(_BOUNDARY)}"
+        )
+    if weighting not in _WEIGHTING:
+        raise IdentificationError(
+            f"weighting {weighting!r} is unknown; choose one of {list(_WEIGHTING)}"
         )
     if error_bars not in _ERROR_BARS:
         raise IdentificationError(
@@ -915,7 +974,31 @@ def identify_frequency_domain(
         if not np.all(np.isfinite(sd) & (sd > 0)):
             raise IdentificationError("noise: every standard deviation must be positive")
         noise_var = np.diag(sd**2)
-    n_unknown = len(names) + (model.n_states if boundary == "estimate" else 0)
+    controls = list(model.controls)
+    tau0: dict[str, float] = {}
+    if delays is not None:
+        if method == "equation_error":
+            raise IdentificationError(
+                "delays apply to method='output_error' only (equation error needs the "
+                "transforms of the delayed controls as regressors)"
+            )
+        if isinstance(delays, str):
+            delays = [delays]
+        tau0 = (
+            {str(k): float(v) for k, v in delays.items()}
+            if isinstance(delays, Mapping)
+            else dict.fromkeys(map(str, delays), 0.0)
+        )
+        for c, v in tau0.items():
+            if c not in controls:
+                raise IdentificationError(
+                    f"delays: {c!r} is not a control of model {model.name!r}; its controls "
+                    f"are {controls}"
+                )
+            if not math.isfinite(v):
+                raise IdentificationError(f"delays: the initial delay of {c!r} is not finite")
+    delayed = [controls.index(c) for c in tau0]
+    n_unknown = len(names) + len(delayed) + (model.n_states if boundary == "estimate" else 0)
     n_real = 2 * omega.size * len(fit_names)
     if n_real <= n_unknown:
         raise IdentificationError(
@@ -949,8 +1032,19 @@ def identify_frequency_domain(
         fit = _equation_error(ss, spectra, p0, boundary == "estimate", states)
     else:
         fit = _output_error(
-            ss, spectra, p0, boundary == "estimate", states, noise_var, max_iterations, tol
+            ss,
+            spectra,
+            p0,
+            boundary == "estimate",
+            states,
+            noise_var,
+            max_iterations,
+            tol,
+            weighting,
+            delayed,
+            np.array(list(tau0.values())),
         )
+    names = names + [f"delay.{c}" for c in tau0]
     return _result(model, data, names, fit, method, error_bars, fit_names, omega, states)
 
 

@@ -88,6 +88,7 @@ _DEG = 180.0 / np.pi
 # CIFER's phase weight: 1 dB of magnitude error costs as much as 7.57 deg of phase.
 _W_PHASE = 0.01745
 _WEIGHTINGS = ("cifer", "random_error")
+_EXCITED = 0.01  # power, relative to the input's peak, that counts as excited
 # Tischler's guidelines for a reliable parameter.
 _CR_LIMIT = 20.0
 _INSENSITIVITY_LIMIT = 10.0
@@ -1086,6 +1087,9 @@ def fit_transfer_function(
     start: Mapping[str, float] | None = None,
     weighting: str = "cifer",
     min_coherence: float = 0.6,
+    fixed: Mapping[str, float] | None = None,
+    fourier: bool = False,
+    frequencies: ArrayLike | None = None,
 ) -> TransferFunctionFit:
     """Fit ``(b_m s^m + … + b_0) / (s^n + a_{n−1} s^{n−1} + … + a_0) · e^{−τ s}`` to a frequency response.
 
@@ -1095,7 +1099,8 @@ def fit_transfer_function(
         The measured response (flight data are first turned into a composite
         response with the default windows; then `input` and `output` are needed).
     numerator_order, denominator_order : int
-        m ≥ 0 and n ≥ 1 (with m ≤ n).
+        m ≥ 0 and n ≥ 1, in any order (m > n, an improper transfer function,
+        fits a band-limited response such as SIDPAC's Example 7.2).
     delay : bool
         Fit the equivalent time delay τ.
     frequency_range : (float, float), optional
@@ -1111,6 +1116,23 @@ def fit_transfer_function(
         weighting with calibrated standard errors.
     min_coherence : float
         Frequencies with a lower coherence γ² are left out (CIFER: 0.6).
+    fixed : mapping, optional
+        Parameters held at the given values (names as `start`); they are
+        reported with zero standard error and zero covariance.
+    fourier : bool
+        Flight data only: fit the model to the record's finite Fourier
+        transforms directly, minimising ``Σ_ω |Y(ω) − T(jω) U(ω)|²`` (output
+        error in the frequency domain, as SIDPAC's ``tfest``/``fdoe``), with
+        the error bars of complex circular residuals (each complex residual
+        two real observations); `weighting` and `min_coherence` do not apply.
+    frequencies : array_like, optional
+        ``fourier=True``: the frequencies in rad/s (default: the ``k/T`` grid
+        of the record over the band the input excited).
+
+    When flight data are given without `frequency_range` (or `frequencies`),
+    the band is the one the input excited: from the lowest to the highest
+    frequency of the ``k/T`` grid where the input's power is at least 1 % of
+    its peak.
 
     Returns
     -------
@@ -1125,17 +1147,33 @@ def fit_transfer_function(
     ChannelError
         The requested pair is not in the response.
     """
-    ch = _resolve_response(response_or_data, input, output)
-    try:
-        m, n = int(numerator_order), int(denominator_order)
-        ok = m == numerator_order and n == denominator_order and 0 <= m <= n and n >= 1
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
+    fourier = check_flag(fourier, "fourier", IdentificationError)
+    if fourier and not isinstance(response_or_data, FlightData):
         raise IdentificationError(
-            "numerator_order, denominator_order: expected integers 0 <= m <= n, n >= 1, got "
-            f"{numerator_order!r}, {denominator_order!r}"
+            "fourier=True fits a record's Fourier transforms: give FlightData with input= "
+            "and output="
         )
+    if frequencies is not None and not fourier:
+        raise IdentificationError("frequencies applies to fourier=True only")
+    if isinstance(response_or_data, FlightData) and frequency_range is None and input is not None:
+        response_or_data.require([input], role="input")
+        frequency_range = _excited_band(response_or_data, input)
+    if fourier:
+        assert isinstance(response_or_data, FlightData)
+        return _fit_fourier(
+            response_or_data,
+            input,
+            output,
+            numerator_order,
+            denominator_order,
+            delay,
+            frequency_range,
+            frequencies,
+            start,
+            fixed,
+        )
+    ch = _resolve_response(response_or_data, input, output)
+    m, n = _orders(numerator_order, denominator_order)
     if weighting not in _WEIGHTINGS:
         raise IdentificationError(
             f"weighting: expected one of {list(_WEIGHTINGS)}, got {weighting!r}"
@@ -1161,7 +1199,11 @@ def fit_transfer_function(
     coh = ch.coherence[keep]
     err = ch.random_error[keep]
     st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
-    p = len(st.names)
+    held = _held(st, fixed)
+    free = np.array([nm not in held for nm in st.names])
+    p = int(free.sum())
+    if p == 0:
+        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
     if 2 * w.size <= p:
         raise IdentificationError(
             f"{w.size} frequencies with γ² >= {min_coherence} in the band cannot fit {p} parameters "
@@ -1191,12 +1233,26 @@ def fit_transfer_function(
     import scipy.optimize  # only a fit needs it; composite responses do not
 
     theta = _start(st, h, w, _coherence_weight(coh), residual, start)
+    for k, v in held.items():
+        theta[st.names.index(k)] = v
+
+    def full(x: FloatArray) -> FloatArray:
+        out = theta.copy()
+        out[free] = x
+        return out
+
     for _ in range(_PASSES if weighting == "random_error" else 1):
         with np.errstate(all="ignore"):
             sol = scipy.optimize.least_squares(
-                residual, theta, jac=jacobian, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12
+                lambda x: residual(full(x)),
+                theta[free],
+                jac=lambda x: jacobian(full(x))[:, free],
+                method="lm",
+                x_scale="jac",
+                xtol=1e-12,
+                ftol=1e-12,
             )
-        theta = sol.x
+        theta = full(sol.x)
         if weighting == "random_error":
             model = np.abs(np.exp(st.log_response(theta)[0]))
             if not np.all(np.isfinite(model) & (model > 0)):
@@ -1207,12 +1263,17 @@ def fit_transfer_function(
         raise IdentificationError(
             f"transfer-function fit {ch.input_name} -> {ch.output_name} diverged; give start values"
         )
-    jac = jacobian(theta)
-    info = jac.T @ jac
+    jac = jacobian(theta)[:, free]
+    info_free = jac.T @ jac
     try:
-        inv = np.linalg.inv(info)
+        inv_free = np.linalg.inv(info_free)
     except np.linalg.LinAlgError:
-        inv = np.full((p, p), np.inf)
+        inv_free = np.full((p, p), np.inf)
+    # fixed parameters: zero rows and columns (no uncertainty), an infinite insensitivity
+    inv = np.zeros((free.size, free.size))
+    inv[np.ix_(free, free)] = inv_free
+    info = np.full((free.size, free.size), 0.0)
+    info[np.ix_(free, free)] = info_free
     if weighting == "random_error":
         dof = r.size - p
         chi2 = float(r @ r) / dof
@@ -1278,7 +1339,11 @@ def _start(
         # the phase left over is about −τω: its least-squares slope through the origin
         tau = max(0.0, -float(np.sum(w * ph) / np.sum(w * w)))
         candidates = [best]
-        for t in (tau, 2.0 * tau):
+        # and a grid up to half a turn of phase at the top frequency: a numerator of
+        # higher order than the denominator lets the rational part mimic a lead and
+        # leaves the phase slope above useless
+        grid = np.linspace(0.0, np.pi / float(w.max()), 25)[1:]
+        for t in (tau, 2.0 * tau, *grid):
             if t > 0:
                 cand = np.append(_levy_sk(st, h * np.exp(1j * w * t), weight), t)
                 candidates.append(cand)
@@ -1297,6 +1362,197 @@ def _start(
         for k, v in start.items():
             best[st.names.index(k)] = _start_value(k, v)
     return np.asarray(best, dtype=np.float64)
+
+
+def _orders(numerator_order: Any, denominator_order: Any) -> tuple[int, int]:
+    try:
+        m, n = int(numerator_order), int(denominator_order)
+        ok = m == numerator_order and n == denominator_order and m >= 0 and n >= 1
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise IdentificationError(
+            "numerator_order, denominator_order: expected integers m >= 0, n >= 1, got "
+            f"{numerator_order!r}, {denominator_order!r}"
+        )
+    return m, n
+
+
+def _record_grid(data: FlightData) -> tuple[float, float]:
+    """Sample interval and record length of a uniformly sampled record."""
+    if data.n_samples < 4 or not data.is_uniform:
+        raise IdentificationError(
+            "data: a transfer-function fit from flight data needs a uniformly sampled record "
+            "of at least 4 samples"
+        )
+    dt = float(np.mean(np.diff(data.time)))
+    return dt, dt * (data.n_samples - 1)
+
+
+def _excited_band(data: FlightData, input: str) -> tuple[float, float]:
+    """The band (rad/s) over which the input's power is at least 1 % of its peak."""
+    from .frequency_domain import _transform
+
+    dt, T = _record_grid(data)
+    k = np.arange(1, data.n_samples // 2)
+    omega = np.asarray(2 * np.pi * k / T, dtype=np.float64)
+    u = np.asarray(data[input], dtype=np.float64)
+    power = np.abs(_transform((u - u.mean())[:, None], dt, omega, cubic=False)[:, 0]) ** 2
+    if not np.any(power > 0):
+        raise IdentificationError(f"input {input!r} is constant: it excites no frequency")
+    hit = np.flatnonzero(power >= _EXCITED * power.max())
+    return float(omega[hit[0]]), float(omega[hit[-1]])
+
+
+def _fit_fourier(
+    data: FlightData,
+    input: str | None,
+    output: str | None,
+    numerator_order: Any,
+    denominator_order: Any,
+    delay: Any,
+    frequency_range: tuple[float, float] | None,
+    frequencies: ArrayLike | None,
+    start: Mapping[str, float] | None,
+    fixed: Mapping[str, float] | None,
+) -> TransferFunctionFit:
+    """Output error on the record's Fourier transforms: min Σ |Y − T U|², real parameters."""
+    import scipy.optimize
+
+    from .frequency_domain import _frequency_grid, _transform
+
+    if input is None or output is None:
+        raise ChannelError("response_or_data: flight data need input= and output= channel names")
+    data.require([input], role="input")
+    data.require([output], role="output")
+    m, n = _orders(numerator_order, denominator_order)
+    dt, T = _record_grid(data)
+    if frequencies is None:
+        lo, hi = frequency_range if frequency_range is not None else _excited_band(data, input)
+        k = np.arange(
+            max(1, int(np.ceil(lo * T / (2 * np.pi) - 1e-9))), 1 + int(hi * T / (2 * np.pi) + 1e-9)
+        )
+        w = np.asarray(2 * np.pi * k / T, dtype=np.float64)
+        w = w[w < np.pi / dt]
+    else:
+        w = _frequency_grid(frequencies, dt, T, depth=2)
+        if frequency_range is not None:
+            lo, hi = _band(frequency_range)
+            w = w[(w >= lo) & (w <= hi)]
+    u = np.asarray(data[input], dtype=np.float64)
+    y = np.asarray(data[output], dtype=np.float64)
+    # linear trends (trim, drift) removed as SIDPAC's detrend; on the k/T grid a constant
+    # has no transform anyway
+    U = _transform(_detrended(data.time, u)[:, None], dt, w, cubic=False)[:, 0]
+    Y = _transform(_detrended(data.time, y)[:, None], dt, w, cubic=True)[:, 0]
+    st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
+    held = _held(st, fixed)
+    free = np.array([nm not in held for nm in st.names])
+    p = int(free.sum())
+    if p == 0:
+        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
+    if 2 * w.size <= p:
+        raise IdentificationError(
+            f"{w.size} frequencies in the band cannot fit {p} parameters ({input} -> {output})"
+        )
+    ok = np.abs(U) > 0
+    h = np.where(ok, Y / np.where(ok, U, 1.0), 0.0)
+
+    def model(theta: FloatArray) -> tuple[ComplexArray, ComplexArray]:
+        logt, g = st.log_response(theta)
+        t = np.exp(logt)
+        return t * U, (t * U)[:, None] * g
+
+    def residual(theta: FloatArray) -> FloatArray:
+        v = Y - model(theta)[0]
+        return np.concatenate([v.real, v.imag])
+
+    def jacobian(theta: FloatArray) -> FloatArray:
+        d = -model(theta)[1]
+        return np.concatenate([d.real, d.imag])
+
+    # the start: the rational fit of Y/U weighted by |U| (its equation-error form)
+    theta = _start(st, h, w, np.abs(U) ** 2, residual, start)
+    for k_, v_ in held.items():
+        theta[st.names.index(k_)] = v_
+
+    def full(x: FloatArray) -> FloatArray:
+        out = theta.copy()
+        out[free] = x
+        return out
+
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(
+            lambda x: residual(full(x)),
+            theta[free],
+            jac=lambda x: jacobian(full(x))[:, free],
+            method="lm",
+            x_scale="jac",
+            xtol=1e-12,
+            ftol=1e-12,
+        )
+    theta = full(sol.x)
+    r = residual(theta)
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
+        raise IdentificationError(
+            f"transfer-function fit {input} -> {output} diverged; give start values"
+        )
+    jac = jacobian(theta)[:, free]
+    info_free = jac.T @ jac
+    # complex circular residuals: each real and imaginary part is one observation of
+    # variance σ²/2, estimated from the 2M real residuals less the unknowns
+    s2 = float(r @ r) / (r.size - p)
+    inv = np.zeros((free.size, free.size))
+    info = np.zeros((free.size, free.size))
+    info[np.ix_(free, free)] = info_free
+    try:
+        inv[np.ix_(free, free)] = np.linalg.inv(info_free)
+    except np.linalg.LinAlgError:
+        inv[np.ix_(free, free)] = np.inf
+    cov = s2 * inv
+    with np.errstate(invalid="ignore", divide="ignore"):
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        insens = np.sqrt(s2) / np.sqrt(np.diag(info))
+    b, a, tau = st.split(theta)
+    names = st.names
+    return TransferFunctionFit(
+        dict(zip(names, theta.tolist(), strict=True)),
+        dict(zip(names, se.tolist(), strict=True)),
+        dict(zip(names, insens.tolist(), strict=True)),
+        np.asarray(cov, dtype=np.float64),
+        b[::-1].copy(),
+        np.concatenate([[1.0], a[::-1]]),
+        tau,
+        0.5 * float(r @ r) / s2,
+        "fourier",
+        1.0,
+        w,
+        h,
+        np.ones(w.size),
+        np.full(w.size, np.nan),
+        input,
+        output,
+    )
+
+
+def _detrended(t: Any, x: FloatArray) -> FloatArray:
+    tt = np.asarray(t, dtype=np.float64)
+    coef = np.polyfit(tt - tt[0], x, 1)
+    return np.asarray(x - np.polyval(coef, tt - tt[0]), dtype=np.float64)
+
+
+def _held(st: _Structure, fixed: Any) -> dict[str, float]:
+    """The `fixed` option checked: known names -> finite values."""
+    if fixed is None:
+        return {}
+    if not isinstance(fixed, Mapping):
+        raise IdentificationError(
+            f"fixed: expected a mapping of parameter name to value, got {plain(fixed)}"
+        )
+    unknown = sorted(set(fixed) - set(st.names))
+    if unknown:
+        raise IdentificationError(f"fixed: unknown parameters {unknown}; parameters: {st.names}")
+    return {str(k): _start_value(str(k), v) for k, v in fixed.items()}
 
 
 def _start_value(name: str, value: Any) -> float:

@@ -297,13 +297,52 @@ def test_fit_is_exact_on_an_exact_response():
     assert "tau" not in fit0.parameters and fit0.cost > 1.0
 
 
+def test_numerator_of_higher_order_than_the_denominator():
+    # Klein & Morelli Example 7.2's form: (p1 s^2 + p2 s + p3)/(s + p4), exact data
+    w = np.geomspace(0.5, 12.0, 40)
+    s = 1j * w
+    h = (0.3 * s**2 + 2.0 * s + 5.0) / (s + 4.0) * np.exp(-0.05 * s)
+    from aeroid import ResponseChannel
+
+    ch = ResponseChannel("x", "y", w, h, coherence=np.ones(w.size))
+    fit = fit_transfer_function(ch, numerator_order=2, denominator_order=1)
+    expect = {"b0": 5.0, "b1": 2.0, "b2": 0.3, "a0": 4.0, "tau": 0.05}
+    for k, v in expect.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=1e-6), k
+    np.testing.assert_allclose(fit.numerator, [0.3, 2.0, 5.0], rtol=1e-6)
+
+
+def test_fixed_parameters_are_held_and_the_rest_fitted():
+    w = np.geomspace(0.3, 20.0, 60)
+    s = 1j * w
+    h = (2.0 * s + 3.0) / (s**2 + 1.5 * s + 9.0) * np.exp(-0.08 * s)
+    from aeroid import ResponseChannel
+
+    ch = ResponseChannel("x", "y", w, h, coherence=np.ones(w.size))
+    fit = fit_transfer_function(ch, numerator_order=1, denominator_order=2, fixed={"tau": 0.08})
+    assert fit.parameters["tau"] == 0.08 and fit.standard_errors["tau"] == 0.0
+    for k, v in {"b0": 3.0, "b1": 2.0, "a0": 9.0, "a1": 1.5}.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=1e-6), k
+    # a wrong fixed value: the others move to absorb it, the held one stays put
+    off = fit_transfer_function(ch, numerator_order=1, denominator_order=2, fixed={"a0": 8.0})
+    assert off.parameters["a0"] == 8.0 and off.cost > 1e-3
+    i = list(off.parameters).index("a0")
+    assert np.all(np.asarray(off.covariance)[i, :] == 0.0)
+
+
 def test_fit_rejects_bad_options():
     w = np.geomspace(0.3, 20.0, 10)
     from aeroid import ResponseChannel
 
     ch = ResponseChannel("x", "y", w, 1.0 / (1j * w + 1.0), coherence=np.ones(w.size))
     with pytest.raises(IdentificationError, match="numerator_order"):
-        fit_transfer_function(ch, numerator_order=3, denominator_order=2)
+        fit_transfer_function(ch, numerator_order=-1, denominator_order=2)
+    with pytest.raises(IdentificationError, match="fixed: unknown"):
+        fit_transfer_function(ch, numerator_order=0, denominator_order=1, fixed={"zz": 1.0})
+    with pytest.raises(IdentificationError, match="every parameter is fixed"):
+        fit_transfer_function(
+            ch, numerator_order=0, denominator_order=1, delay=False, fixed={"a0": 1, "b0": 1}
+        )
     with pytest.raises(IdentificationError, match="weighting"):
         fit_transfer_function(ch, numerator_order=0, denominator_order=1, weighting="x")
     with pytest.raises(IdentificationError, match="cannot fit"):
@@ -536,3 +575,79 @@ def test_tfest_demo_composite_keeps_coherence_below_one_and_the_fit_honest():
         )
     assert fit.standard_errors["a0"] > 1e-3
     assert abs(fit.parameters["a0"] - 3.40) < 3 * max(fit.standard_errors["a0"], 0.11)
+
+
+def _first_order_record(seed: int, noise: float, window: bool = True) -> FlightData:
+    """y = 3/(s + 2) u, u a multisine 0.2-1 Hz (k/T components), white noise on y.
+
+    Windowed, the record starts and ends at rest, so its transforms hold no
+    transient of the ends (which the direct fit does not model, as SIDPAC's).
+    """
+    from aeroid import Model
+
+    model = Model(
+        ["x"],
+        ["u"],
+        {"a0": 2.0, "b0": 3.0},
+        lambda t, x, u, p: np.array([-p["a0"] * x[0] + u[0]]),
+        outputs=["y"],
+        measurement=lambda t, x, u, p: np.array([p["b0"] * x[0]]),
+        name="first_order",
+    )
+    dt, T = 0.02, 40.0
+    t = np.arange(0.0, T + dt / 2, dt)
+    rng = np.random.default_rng(100 + seed)
+    u = sum(np.sin(2 * np.pi * k / T * t + rng.uniform(0, 2 * np.pi)) for k in range(8, 41)) * 0.1
+    if window:
+        u = u * np.sin(np.pi * t / T) ** 2
+    sim = model.simulate(t, {"u": u}, method="exact").to_flight_data()
+    y = sim["y"] + noise * np.random.default_rng(seed).standard_normal(t.size)
+    return FlightData(t, {"u": u, "y": y})
+
+
+def test_excited_band_follows_the_input():
+    from aeroid.frequency_id import _excited_band
+
+    lo, hi = _excited_band(_first_order_record(0, 0.0, window=False), "u")
+    assert lo == pytest.approx(2 * np.pi * 8 / 40.0, rel=1e-9)
+    assert hi == pytest.approx(2 * np.pi * 40 / 40.0, rel=1e-9)
+
+
+def test_direct_fourier_fit_recovers_the_truth_with_calibrated_errors():
+    exact = fit_transfer_function(
+        _first_order_record(0, 0.0),
+        input="u",
+        output="y",
+        numerator_order=0,
+        denominator_order=1,
+        delay=False,
+        fourier=True,
+    )
+    assert exact.parameters["a0"] == pytest.approx(2.0, rel=1e-4)
+    assert exact.parameters["b0"] == pytest.approx(3.0, rel=1e-4)
+    assert exact.frequency.min() < 2 * np.pi * 8 / 40.0 < exact.frequency.max()
+    # 40 seeds: the scatter of the estimates matches the reported standard errors
+    z = []
+    for seed in range(40):
+        fit = fit_transfer_function(
+            _first_order_record(seed, 0.05),
+            input="u",
+            output="y",
+            numerator_order=0,
+            denominator_order=1,
+            delay=False,
+            fourier=True,
+        )
+        z.append((fit.parameters["a0"] - 2.0) / fit.standard_errors["a0"])
+    # the sample sd of 40 unit normals lies within 0.75-1.25 with probability > 99 %
+    assert 0.75 < float(np.std(z)) < 1.25, np.std(z)
+    assert abs(float(np.mean(z))) < 3 / np.sqrt(40)
+    from aeroid import ResponseChannel
+
+    with pytest.raises(IdentificationError, match="fourier"):
+        fit_transfer_function(
+            ResponseChannel("u", "y", exact.frequency, exact.response, coherence=exact.coherence),
+            numerator_order=0,
+            denominator_order=1,
+            fourier=True,
+        )
