@@ -802,6 +802,25 @@ def _ar1_filter_columns(v: FloatArray, phi: FloatArray) -> FloatArray:
 _DRIFT_WIDENING = 10.0
 
 
+def _state_biased_outputs(
+    mans: list[_Manoeuvre], states: list[str], outputs: list[str]
+) -> set[int]:
+    """Outputs whose own state equation carries an estimated bias (``estimate_bias=
+    {name: 'state'}``): `identify` adds it as a constant state ``bias.<name>`` (with
+    leading underscores where that name was taken) whose initial value is estimated."""
+    from .identification import _STATE_BIAS_PREFIX
+
+    found: set[int] = set()
+    for m in mans:
+        for j in m.x0_free:
+            name = states[j].lstrip("_")
+            if name.startswith(_STATE_BIAS_PREFIX):
+                target = name[len(_STATE_BIAS_PREFIX) :]
+                if target in outputs:
+                    found.add(outputs.index(target))
+    return found
+
+
 def _warn_unabsorbed_drift(
     phi: FloatArray,
     mans: list[_Manoeuvre],
@@ -809,15 +828,20 @@ def _warn_unabsorbed_drift(
     cov: FloatArray,
     cov_white: FloatArray,
     names: list[str],
+    states: list[str] | None = None,
 ) -> None:
-    """Warn when an output's residual drifts like a random walk over the record with no
-    bias estimated on it: the coloured error bars then widen, most on the parameter
-    named. A constant offset an output bias (`estimate_bias`) absorbs; a wandering one
-    (turbulence, unmodelled slow dynamics) is process noise, which filter error models."""
+    """Warn when an output's residual drifts like a random walk over the record: the
+    coloured error bars then widen, most on the parameter named. An output bias
+    (`estimate_bias`) absorbs a constant offset; a bias on the output's state equation
+    (``estimate_bias={name: 'state'}``) absorbs a ramp but not a wandering offset; a
+    wandering one (turbulence, unmodelled slow dynamics) is process noise, which
+    filter error models. Outputs with an output bias are not named: their drift is
+    what that bias is for."""
     n_t = sum(m.time.size for m in mans)
     with np.errstate(divide="ignore"):
         tau = np.where(phi > 0, -1.0 / np.log(np.clip(phi, 1e-300, None)), 0.0)
     biased = {k for m in mans for k in m.bias_free}
+    via_state = _state_biased_outputs(mans, states or [], outputs)
     drifting = [outputs[k] for k in range(phi.size) if tau[k] > n_t and k not in biased]
     if not drifting:
         return
@@ -828,19 +852,31 @@ def _warn_unabsorbed_drift(
     ratio = np.diag(cov)[ok] / white[ok]
     worst = int(ok[np.argmax(ratio)])
     widening = float(np.sqrt(np.max(ratio)))
-    if widening > _DRIFT_WIDENING:
-        warnings.warn(
-            ResidualDriftWarning(
-                f"identify: the residuals of {drifting} drift like a random walk over the "
-                "record and no bias is estimated on them; the coloured error bars widen up "
-                f"to {widening:.0f}x the white ones (on {names[worst]}). A constant offset "
-                f"is absorbed by estimate_bias={drifting}; a wandering one (turbulence, "
-                "unmodelled slow dynamics) is process noise: method='filter_error'",
-                tuple(drifting),
-                widening,
-            ),
-            stacklevel=5,  # here, fit_output_error, identify, its BLAS wrapper, the caller
+    if widening <= _DRIFT_WIDENING:
+        return
+    bare = [o for o in drifting if outputs.index(o) not in via_state]
+    stated = [o for o in drifting if outputs.index(o) in via_state]
+    told = []
+    if bare:
+        told.append(
+            f"no bias is estimated on {bare} (estimate_bias={bare} absorbs a constant offset)"
         )
+    if stated:
+        told.append(
+            f"the bias estimated on the state equation of {stated} absorbs a ramp, not this "
+            "wandering offset"
+        )
+    warnings.warn(
+        ResidualDriftWarning(
+            f"identify: the residuals of {drifting} drift like a random walk over the "
+            f"record; {'; '.join(told)}. The coloured error bars widen up to "
+            f"{widening:.0f}x the white ones (on {names[worst]}). A wandering offset "
+            "(turbulence, unmodelled slow dynamics) is process noise: method='filter_error'",
+            tuple(drifting),
+            widening,
+        ),
+        stacklevel=5,  # here, fit_output_error, identify, its BLAS wrapper, the caller
+    )
 
 
 def _colored_covariance(
@@ -1007,7 +1043,8 @@ def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, 
             continue  # the direction of a parameter already listed as insensitive
         big = np.flatnonzero(np.abs(vec) > 0.1 * np.max(np.abs(vec))).tolist()
         members = [j for j in big if not zero[j]]
-        if members:
+        # two near-null directions can share their members: one group is told once
+        if members and tuple(names[j] for j in members) not in combos:
             combos.append(tuple(names[j] for j in members))
             null[members] = True
     return combos, null
@@ -1289,7 +1326,9 @@ def fit_output_error(
         shown = "white"
     if shown == "colored":
         cov_col, phi = _colored_covariance(jacobians, residuals, r, m_inv)
-        _warn_unabsorbed_drift(phi, mans, outputs, cov_col, cov_white, [names_all[j] for j in keep])
+        _warn_unabsorbed_drift(
+            phi, mans, outputs, cov_col, cov_white, [names_all[j] for j in keep], states
+        )
         cov = cov_col
         dc = np.diag(cov_col)
         bad = ~(dc > 0)

@@ -13,20 +13,13 @@ of flight data, arrays, or simple expressions of channels:
 A column of ones (named ``"const"``) is added by default. Modelling residuals
 of equation error are rarely white, and the classical ``s² (X'X)^-1``
 understates the error bars then; by default they use Morelli's correction
-for coloured residuals, ``(X'X)^-1 [Σ_ij x_i R(i−j) x_j'] (X'X)^-1`` with the
-residual autocorrelation ``R`` summed over lags up to five correlation times
-(the correlation time from the lag-one autocorrelation, ``τ = (1+ρ)/(1−ρ)``;
-no lags at all when ρ is not significant, which gives back the classical
-formula), scaled by ``N_eff / (N_eff − p)`` with ``N_eff = N/τ`` for the
-degrees of freedom the fit absorbs and by ``N / (N − 2L − 1)`` for the
-autocovariance that removing the fit (the mean above all) takes from each of
-the ``2L + 1`` lags in the window. Summing every lag of the biased
-autocorrelation instead (as SIDPAC's ``r_colores`` does) gives nearly the same
-bars on the slopes, but least-squares residuals sum to zero, so the sum over
-all lags nearly cancels along the constant: on 200 simulated records its
-bars on the constant came out about half as wide and covered 66–73 % of the
-truths where 95 % was asked (``tests/test_regression.py`` pins the window's
-coverage).
+for coloured residuals, ``(X'X)^-1 [Σ_ij x_i R(i−j) x_j'] (X'X)^-1``, with the
+residual spectrum estimated as every estimator of the package estimates it
+(`aeroid._colour`): a smoothed periodogram corrected for what the fit removed
+at each frequency (least-squares residuals sum to zero, so SIDPAC's sum of
+the residual autocorrelation over all lags nearly cancels along the
+constant), and a Satterthwaite t-quantile for the spectrum's own
+uncertainty. With white residuals it is the classical formula.
 
 ``error_bars="reml"`` corrects the bars exactly as output error corrects its
 own (`aeroid.identify`): the residual is modelled as an AR(1) disturbance plus
@@ -35,7 +28,7 @@ regressors the fit absorbed without any window, the sandwich is exact for that
 model, and the noise model's own uncertainty widens the interval through a
 Satterthwaite t-quantile. It covers as well or better (95–97 % on the tests'
 records, white or AR(1) with φ = 0.9) at an order of magnitude more work,
-so the window stays the default of this fast first step.
+so the spectral estimate stays the default of this fast first step.
 
 Fit statistics follow Klein & Morelli: ``R² = 1 − SSE/SST`` (SST about the
 mean when there is a constant term), the F statistic of the regression
@@ -69,7 +62,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._czt import fast_length, fourier
+from ._colour import colored_covariance, t_widening
+from ._czt import fourier
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import (
@@ -106,8 +100,6 @@ _COLLINEAR = 1e-9
 # Below this 1 - R^2 of a regressor on the others (condition number of the scaled
 # Gram matrix above ~1e10) the normal equations lose digits; QR is used instead.
 _WELL_POSED = 1e-8
-# Regressors convolved at a time in the coloured-residual covariance.
-_COLUMNS = 4
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
@@ -346,28 +338,6 @@ def _ls_solve(
     return theta, xtx_inv, gram
 
 
-def _autocovariance(v: FloatArray, lags: int) -> FloatArray:
-    n = v.shape[0]
-    if lags <= 32:
-        return np.array([float(v[: n - k] @ v[k:]) for k in range(lags + 1)]) / n
-    size = fast_length(n + lags)  # enough padding that lags up to `lags` do not wrap
-    spec = np.fft.rfft(v, size)
-    return np.fft.irfft(spec.real**2 + spec.imag**2, size)[: lags + 1] / n
-
-
-def _correlation_time(v: FloatArray) -> tuple[int, float]:
-    """Lag window and AR(1) correlation time of the residuals (1 and 0 when white)."""
-    n = v.shape[0]
-    c0 = float(v @ v)
-    if c0 <= 0 or n < 4:
-        return 0, 1.0
-    rho = min(float(v[:-1] @ v[1:]) / c0, 0.99)
-    if rho <= 3.0 / np.sqrt(n):  # not significantly coloured
-        return 0, 1.0
-    tau = (1.0 + rho) / (1.0 - rho)
-    return int(min(np.ceil(5.0 * tau), n // 3)), tau
-
-
 def _reml_covariance(x: FloatArray, v: FloatArray, xtx_inv: FloatArray) -> FloatArray:
     """Output error's coloured-residual covariance for this one-output regression: the
     residual as AR(1) plus white noise by REML, Satterthwaite-widened (`_output_error`)."""
@@ -377,59 +347,12 @@ def _reml_covariance(x: FloatArray, v: FloatArray, xtx_inv: FloatArray) -> Float
     return cov
 
 
-def _wrapped_pairs(x: FloatArray, r: FloatArray, size: int) -> FloatArray:
-    """What a circle of `size` samples adds to ``Σ_ij x_i R(i−j) x_j'`` for lags ``< len(r)``.
-
-    On the circle, the last K = L − (size − n) samples lie within L of the first K:
-    tail sample i and head sample t (t <= i) are joined at lag ``L − i + t``.
-    """
-    n, lags = x.shape[0], r.shape[0] - 1
-    k = lags - (size - n)
-    if k <= 0:
-        return np.zeros((x.shape[1], x.shape[1]))
-    i = np.arange(k)
-    lag = np.minimum(lags - i[:, None] + i[None, :], lags)  # beyond L where t > i: masked
-    joined = np.where(i[None, :] <= i[:, None], r[lag], 0.0)
-    wrap = x[n - k :].T @ joined @ x[:k]
-    return np.asarray(wrap + wrap.T)
-
-
-def _colored_covariance(
-    x: FloatArray, v: FloatArray, xtx_inv: FloatArray, gram: FloatArray
-) -> FloatArray:
-    """``(X'X)^-1 [Σ_ij x_i R(i−j) x_j'] (X'X)^-1`` over a lag window, dof-corrected."""
-    n, p = x.shape
-    lags, tau = _correlation_time(v)
-    r = _autocovariance(v, lags)
-    if lags == 0:
-        middle = r[0] * gram
-    else:
-        # Σ_ij x_i R(i-j) x_j' = X' (R * X), the convolution by FFT over a circle of N >= n
-        # samples (the record's own length when the FFT is fast there: zero padding costs
-        # numpy a slow path), the pairs the circle joins across the ends subtracted after.
-        # A few columns at a time: a transform of every column at once is fresh memory as
-        # large as X, which costs page faults on every call.
-        size = fast_length(n)
-        kernel = np.zeros(size)
-        kernel[: lags + 1] = r
-        kernel[size - lags :] = r[:0:-1]
-        gain = np.fft.rfft(kernel).real  # symmetric kernel: real spectrum
-        middle = np.empty((p, p))
-        for c0 in range(0, p, _COLUMNS):
-            block = np.fft.rfft(x[:, c0 : c0 + _COLUMNS], size, axis=0)
-            block *= gain[:, None]
-            middle[:, c0 : c0 + _COLUMNS] = x.T @ np.fft.irfft(block, size, axis=0)[:n]
-        middle -= _wrapped_pairs(x, r, size)
-        middle = 0.5 * (middle + middle.T)
-    # Degrees of freedom: the fit absorbs p of the N_eff = N/tau effectively independent
-    # samples; and the autocovariances of residuals orthogonal to the constant are low
-    # by about the variance of the mean at every lag, so the window sum of 2L+1 lags
-    # misses a fraction (2L+1)/N of the long-run variance.
-    n_eff = n / tau
-    dof = n_eff / (n_eff - p) if n_eff > 2 * p else 2.0
-    if lags > 0:
-        dof /= 1.0 - (2 * lags + 1) / n
-    return dof * (xtx_inv @ middle @ xtx_inv)
+def _colored_covariance(x: FloatArray, v: FloatArray, xtx_inv: FloatArray) -> FloatArray:
+    """The package's coloured-residual covariance (`aeroid._colour`) for one regression,
+    its diagonal widened to the Satterthwaite t interval."""
+    cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], xtx_inv)
+    factor = t_widening(nu)
+    return np.asarray(cov * np.outer(factor, factor), dtype=np.float64)
 
 
 # -- result records ----------------------------------------------------------------------------
@@ -605,7 +528,7 @@ def _fit(
     s2 = sse / (n - p)
     cov_white = s2 * xtx_inv
     if error_bars == "colored":
-        cov = _colored_covariance(x, v, xtx_inv, gram)
+        cov = _colored_covariance(x, v, xtx_inv)
     elif error_bars == "reml":
         cov = _reml_covariance(x, v, xtx_inv)
     else:

@@ -158,39 +158,62 @@ def test_a_hand_built_constant_column_is_named_with_the_remedy() -> None:
     np.testing.assert_allclose(list(own.parameters.values()), THETA, atol=0.01)
 
 
-@pytest.mark.parametrize(
-    ("n", "phi"),
-    [
-        (301, 0.8),  # transforms over 320 samples: the last 11 joined to the first
-        (300, 0.8),  # over the record's own 300: every lag joins the ends
-        (257, 0.4),  # over 270, more than the lag window: nothing joined
-    ],
-)
-def test_colored_covariance_is_morellis_double_sum(n: int, phi: float) -> None:
-    # (X'X)^-1 [sum_ij x_i R(i-j) x_j'] (X'X)^-1 over |i-j| <= L, written out directly
-    from aeroid._czt import fast_length
-    from aeroid.regression import _autocovariance, _colored_covariance, _correlation_time
+@pytest.mark.parametrize("n", [301, 1000])
+def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(n: int) -> None:
+    # white residuals, a whole-band window: the spectrum is flat, sum_k G~'G~ / N = X'X
+    # (Parseval over the 2n-point transform), so the sandwich is s^2 (X'X)^-1 exactly
+    # for s^2 = the leverage-corrected periodogram mean
+    from aeroid import _colour
 
     rng = np.random.default_rng(9)
     x = np.column_stack([np.ones(n), _design(rng, n)])
-    v = _ar1(rng, n, phi, 1.0)
-    lags, tau = _correlation_time(v)
-    assert lags == int(np.ceil(5 * tau)) and lags > 0
-    assert (fast_length(n) - n < lags) == (phi > 0.5)
-    r = np.array([v[: n - k] @ v[k:] / n for k in range(lags + 1)])
-    np.testing.assert_allclose(_autocovariance(v, lags), r, rtol=1e-10, atol=1e-14)
-    middle = np.zeros((3, 3))
-    for i in range(n):
-        for j in range(max(0, i - lags), min(n, i + lags + 1)):
-            middle += np.outer(x[i], x[j]) * r[abs(i - j)]
     inv = np.linalg.inv(x.T @ x)
-    n_eff = n / tau
-    dof = n_eff / (n_eff - 3) / (1 - (2 * lags + 1) / n)
-    got = _colored_covariance(x, v, inv, x.T @ x)
-    np.testing.assert_allclose(got, dof * inv @ middle @ inv, rtol=1e-10)
-    # regressors stored column by column (a strided transform) give the same
-    strided = _colored_covariance(np.asfortranarray(x), v, inv, x.T @ x)
-    np.testing.assert_allclose(strided, got, rtol=1e-12)
+    v = rng.standard_normal(n)
+    v -= x @ (inv @ (x.T @ v))  # least-squares residuals
+    cov, nu = _colour.colored_covariance([x[:, None, :]], [v[:, None]], inv)
+    # the flat window's estimate: mean periodogram over mean (1 - leverage), one-sided bins
+    size = 2 * n
+    uf = np.fft.rfft(v, size)
+    gf = np.fft.rfft(x, size, axis=0)
+    lev = np.einsum("kp,pq,kq->k", gf, inv, gf.conj()).real / n
+    if _colour._lag_scale([v[:, None]]) * 5.0 * np.pi / (3.0 * size) < 1.0 / (size // 2):
+        s2 = np.mean(np.abs(uf) ** 2 / n) / np.mean(1.0 - lev)
+        np.testing.assert_allclose(cov, s2 * inv, rtol=1e-9)
+    # and in any window, white residuals give the classical bars to within sampling
+    s2_classical = float(v @ v) / (n - 3)
+    np.testing.assert_allclose(np.diag(cov), s2_classical * np.diag(inv), rtol=0.25)
+    assert np.all(nu > 0.2 * n)
+
+
+def test_colored_covariance_is_the_frequency_domain_double_sum() -> None:
+    # the sandwich is (1/N) sum_k V~_k^H F^_k V~_k over the 2n-point transform, each
+    # bin's F^ the smoothed periodogram over the smoothed (1 - leverage)
+    from aeroid import _colour
+
+    rng = np.random.default_rng(4)
+    n = 400
+    x = np.column_stack([np.ones(n), _design(rng, n)])
+    inv = np.linalg.inv(x.T @ x)
+    v = _ar1(rng, n, 0.8, 1.0)
+    v -= x @ (inv @ (x.T @ v))
+    cov, _ = _colour.colored_covariance([x[:, None, :]], [v[:, None]], inv)
+    size = 2 * n
+    full_u = np.fft.fft(v, size)
+    full_x = np.fft.fft(x, size, axis=0) @ inv
+    lev = np.einsum("kp,kp->k", full_x, np.fft.fft(x, size, axis=0).conj()).real / n
+    one_sided = size // 2 + 1
+    half = 1
+    scale = _colour._lag_scale([v[:, None]])
+    half = max(1, int(np.ceil(3.0 * size / (5.0 * np.pi * scale))))
+    while True:
+        kept = _colour._smooth(np.clip(1 - lev[:one_sided], 0, 1)[:, None], half)[:, 0]
+        if half >= one_sided - 1 or kept.min() * (half + 1) >= 1.0:
+            break
+        half *= 2
+    spec = _colour._smooth((np.abs(full_u[:one_sided]) ** 2 / n)[:, None], half)[:, 0] / kept
+    both = np.concatenate([spec, spec[1:-1][::-1]])  # the even two-sided spectrum
+    want = np.einsum("k,kp,kq->pq", both, full_x.conj(), full_x).real / size
+    np.testing.assert_allclose(cov, want, rtol=1e-9)
 
 
 def test_expressions_and_flight_data() -> None:
