@@ -88,7 +88,18 @@ OTTER_TRUTH = {
     "Cm_de": -1.6,
 }
 _OTTER_INPUTS = [
-    "de", "V", "theta", "phi", "beta", "p", "r", "flap", "thrust", "qbar", "mass", "xcg",
+    "de",
+    "V",
+    "theta",
+    "phi",
+    "beta",
+    "p",
+    "r",
+    "flap",
+    "thrust",
+    "qbar",
+    "mass",
+    "xcg",
 ]
 
 
@@ -124,7 +135,7 @@ def otter_measurement(t, x, u, p):  # type: ignore[no-untyped-def]
     import numpy as np
 
     alpha, q = x
-    de, V, theta, phi, beta, pr, r, flap, thrust, qbar, mass, xcg = u
+    de, flap, qbar, mass = u[0], u[7], u[9], u[10]
     CZ = p["CZ0"] + p["CZ_alpha"] * np.sin(alpha) + p["CZ_de"] * de - 0.8 * flap
     return np.array([alpha, q, qbar * 39.0 * CZ / mass])
 
