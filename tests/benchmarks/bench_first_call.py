@@ -36,6 +36,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 TARGETS = {"hfb": 0.7, "otter": 0.5}
 
 _CHILD = r"""
@@ -105,8 +107,6 @@ _OTTER_INPUTS = [
 
 def otter_dynamics(t, x, u, p):  # type: ignore[no-untyped-def]
     """alpha, q of a Twin Otter-like aircraft driven by 12 measured channels."""
-    import numpy as np
-
     alpha, q = x
     de, V, theta, phi, beta, pr, r, flap, thrust, qbar, mass, xcg = u
     S, cbar, Iyy = 39.0, 1.98, 3.0e4
@@ -132,8 +132,6 @@ def otter_dynamics(t, x, u, p):  # type: ignore[no-untyped-def]
 
 
 def otter_measurement(t, x, u, p):  # type: ignore[no-untyped-def]
-    import numpy as np
-
     alpha, q = x
     de, flap, qbar, mass = u[0], u[7], u[9], u[10]
     CZ = p["CZ0"] + p["CZ_alpha"] * np.sin(alpha) + p["CZ_de"] * de - 0.8 * flap
