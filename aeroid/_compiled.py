@@ -60,6 +60,13 @@ ENABLED = True
 # Numpy RK4 work (dynamics calls, each on a whole batch) a model may spend before the
 # integrator hook compiles it: a compilation costs about as much as this many calls.
 COMPILE_AFTER_CALLS = 20_000
+# The same for a fit's sensitivities, whose compilation (exact Jacobians of the RK4
+# steps) costs several times a rollout's: a model's first fit runs in numpy
+# (finite differences batched over the parameter columns) when its expected numpy
+# work stays below this.
+SENSITIVITIES_AFTER_CALLS = 150_000
+# Evaluations a fit is expected to spend (Gauss-Newton iterations and step halvings).
+_FIT_EVALUATIONS = 8
 _VERIFY_RTOL = 1e-12
 _VERIFY_POINTS = 8
 
@@ -827,7 +834,9 @@ def worth_compiling(model: Model, calls: int) -> bool:
     entry = _entry(model)
     if entry.get("compiled_once"):
         return True
-    if entry["numpy_calls"] + calls <= COMPILE_AFTER_CALLS:
+    # the numpy rollouts of fits that `output_sensitivities` kept in numpy do not count
+    allowance = COMPILE_AFTER_CALLS + entry.get("sensitivity_numpy_calls", 0)
+    if entry["numpy_calls"] + calls <= allowance:
         entry["numpy_calls"] += calls
         return False
     return True
@@ -877,6 +886,7 @@ def output_sensitivities(
     options: Mapping[str, Any],
     *,
     probe: bool = True,
+    numpy_first: bool = False,
 ) -> tuple[FloatArray, FloatArray] | None:
     """Outputs (n_t, n_y) and their exact Jacobian (n_t, n_y, len(names) + len(x0_free)).
 
@@ -890,6 +900,11 @@ def output_sensitivities(
     plain simulation first asks the integrator which path it takes (the
     caller remembers the answer and passes ``probe=False`` afterwards).
     Outputs of a diverging simulation come back non-finite.
+
+    With `numpy_first` (a fit's first evaluation), None also while compiling would
+    not pay yet: the model's first fit in this process, whose expected numpy work
+    stays below `SENSITIVITIES_AFTER_CALLS`. A one-off fit of a short record then
+    never waits for JAX's import and compiler; a model fitted again compiles.
     """
     if not ENABLED or not isinstance(model, Model):
         return None
@@ -921,10 +936,31 @@ def output_sensitivities(
         m = auto_substeps(
             model._dynamics_batch, time, x0[:, None].copy(), np.asarray(controls)[None], p1
         )
+    if numpy_first and not _sensitivities_pay(model, m, time.size):
+        return None
     if not available(model, time, x0, controls, pvec):
         return None
     got = _sensitivities(model, time, controls, x0, pvec, names, x0_free, m)
+    _entry(model)["sensitivities_compiled"] = True
     return got[0], got[1]
+
+
+def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
+    """Whether a fit of `n_t` samples with `substeps` RK4 substeps should compile the
+    model's sensitivities now (see `output_sensitivities`); counts the numpy work
+    spent when not."""
+    entry = _entry(model)
+    if entry.get("sensitivities_compiled"):
+        return True
+    # batched dynamics calls of the fit's rollouts: 4 per substep
+    work = _FIT_EVALUATIONS * 4 * int(substeps) * max(n_t - 1, 1)
+    spent = entry.get("sensitivity_numpy_calls", 0)
+    # only the first fit: a model fitted twice is likely fitted again (warm calls as fast
+    # as compiled ones from the second on)
+    if spent == 0 and work <= SENSITIVITIES_AFTER_CALLS:
+        entry["sensitivity_numpy_calls"] = spent + work
+        return False
+    return True
 
 
 def input_noise_scatter(

@@ -212,6 +212,7 @@ class _Problem:
                     m.x0_free,
                     self.options,
                     probe=route is None,
+                    numpy_first=route is None,
                 )
                 if sens is None:
                     self._compiled_route = False

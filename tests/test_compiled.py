@@ -215,6 +215,8 @@ def test_untraceable_model_falls_back(monkeypatch: Any) -> None:
 
 @pytest.mark.slow
 def test_untraceable_model_identify_recovers_truth(monkeypatch: Any) -> None:
+    # compiling from the first fit on: the translation is tried and refused
+    monkeypatch.setattr(_compiled, "SENSITIVITIES_AFTER_CALLS", 0)
     model = _longitudinal(_untraceable, name="untraceable_fit")
     data = _flight(model, seed=5)
     guess = {k: 1.1 * TRUTH[k] for k in FIT[:4]}
@@ -224,6 +226,22 @@ def test_untraceable_model_identify_recovers_truth(monkeypatch: Any) -> None:
     assert _compiled._CACHE[model][("fn", "dynamics")] is None
     for k in FIT[:4]:
         assert abs(res.parameters[k] - TRUTH[k]) < 4.0 * res.stderr[k], k
+
+
+def test_first_fit_runs_in_numpy_and_the_next_compiles() -> None:
+    # a short record's first fit never waits for a compilation; the second compiles
+    # and lands on the same estimate (the same RK4 rollout, exact vs batched
+    # finite-difference sensitivities)
+    model = _longitudinal(name="numpy_first")
+    data = _flight(model, seed=7)
+    guess = {k: 1.1 * TRUTH[k] for k in FIT[:4]}
+    first = aeroid.identify(model, data, guess, estimate_bias=["ax", "az"])
+    assert ("fn", "dynamics") not in _compiled._CACHE[model]
+    second = aeroid.identify(model, data, guess, estimate_bias=["ax", "az"])
+    assert _compiled._CACHE[model].get("sensitivities_compiled")
+    for k in FIT[:4]:
+        assert abs(first.parameters[k] - second.parameters[k]) < 1e-3 * first.stderr[k], k
+        assert first.stderr[k] == pytest.approx(second.stderr[k], rel=1e-3), k
 
 
 def test_non_finite_dynamics_still_name_the_time(monkeypatch: Any) -> None:

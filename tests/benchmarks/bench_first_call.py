@@ -1,0 +1,224 @@
+"""Benchmark: the first call in a fresh process, with empty compilation caches (issue 47).
+
+    python tests/benchmarks/bench_first_call.py [--repeat N]
+
+Each case runs in its own ``python`` subprocess with the default environment,
+except ``AEROID_JAX_CACHE`` pointed at a new empty folder (JAX's persistent
+cache cold). Every case runs three ways:
+
+* ``cold``: default dispatch, empty disk cache;
+* ``disk``: default dispatch, a second fresh process reusing the first one's
+  disk cache (the compiled programs kept across processes);
+* ``numpy``: the compiled path switched off (``aeroid._compiled.ENABLED``),
+  finite-difference sensitivities batched over parameter columns.
+
+Printed per case and way: the first call's wall and process CPU time, whether
+JAX was imported, and the median of the warm calls, next to issue 47's
+targets. The cases:
+
+* ``hfb``: an HFB-320-like nonlinear longitudinal model after Jategaonkar's
+  book (11 coefficients, 7 outputs, 2 biases; `bench_nonlinear`'s model and
+  seeded record, 60 s at 10 Hz); target first <= 0.7 s;
+* ``otter``: a Twin Otter-like nonlinear longitudinal user model with 12
+  measured inputs (7 parameters, 3 outputs, 40 s at 20 Hz, seeded); target
+  first <= 0.5 s.
+
+The machine may be shared: run it several times and read the medians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+TARGETS = {"hfb": 0.7, "otter": 0.5}
+
+_CHILD = r"""
+import json, sys, time
+t_start = time.perf_counter()
+sys.path.insert(0, {here!r})
+import numpy as np
+import aeroid
+import aeroid._compiled as compiled
+if {numpy_only!r}:
+    compiled.ENABLED = False
+case = {case!r}
+if case == "hfb":
+    import bench_nonlinear as b
+    model = b.make_model()
+    data = b.make_data(model)
+    def call():
+        return aeroid.identify(model, data, b.GUESS, estimate_bias=list(b.BIAS))
+else:
+    import bench_first_call as b
+    model, data, guess = b.otter_case()
+    def call():
+        return aeroid.identify(model, data, guess)
+setup = time.perf_counter() - t_start
+w0, c0 = time.perf_counter(), time.process_time()
+res = call()
+first, first_cpu = time.perf_counter() - w0, time.process_time() - c0
+jax_loaded = "jax" in sys.modules
+warm = []
+for _ in range({repeat}):
+    w0 = time.perf_counter()
+    res = call()
+    warm.append(time.perf_counter() - w0)
+print(json.dumps({{"setup": setup, "first": first, "first_cpu": first_cpu,
+                  "warm": float(np.median(warm)), "jax": jax_loaded,
+                  "iterations": res.n_iterations,
+                  "estimate": {{k: float(v) for k, v in res.parameters.items()}}}}))
+"""
+
+
+# -- the Twin Otter-like user model ---------------------------------------------------------
+
+OTTER_TRUTH = {
+    "CZ0": -0.35,
+    "CZ_alpha": -5.2,
+    "CZ_de": -0.45,
+    "Cm0": 0.04,
+    "Cm_alpha": -1.1,
+    "Cm_q": -22.0,
+    "Cm_de": -1.6,
+}
+_OTTER_INPUTS = [
+    "de",
+    "V",
+    "theta",
+    "phi",
+    "beta",
+    "p",
+    "r",
+    "flap",
+    "thrust",
+    "qbar",
+    "mass",
+    "xcg",
+]
+
+
+def otter_dynamics(t, x, u, p):  # type: ignore[no-untyped-def]
+    """alpha, q of a Twin Otter-like aircraft driven by 12 measured channels."""
+    alpha, q = x
+    de, V, theta, phi, beta, pr, r, flap, thrust, qbar, mass, xcg = u
+    S, cbar, Iyy = 39.0, 1.98, 3.0e4
+    qh = q * cbar / (2.0 * V)
+    CZ = p["CZ0"] + p["CZ_alpha"] * np.sin(alpha) + p["CZ_de"] * de - 0.8 * flap
+    Cm = (
+        p["Cm0"]
+        + p["Cm_alpha"] * alpha
+        + p["Cm_q"] * qh
+        + p["Cm_de"] * de
+        + CZ * (xcg - 0.25)
+        + 0.002 * thrust / (qbar * S)
+    )
+    g = 9.81
+    a_dot = (
+        q
+        + qbar * S * CZ / (mass * V) * np.cos(alpha)
+        + g / V * np.cos(phi) * np.cos(theta - alpha)
+        - (pr * np.cos(alpha) + r * np.sin(alpha)) * np.tan(beta)
+    )
+    q_dot = qbar * S * cbar * Cm / Iyy + pr * r * 0.1
+    return np.array([a_dot, q_dot])
+
+
+def otter_measurement(t, x, u, p):  # type: ignore[no-untyped-def]
+    alpha, q = x
+    de, flap, qbar, mass = u[0], u[7], u[9], u[10]
+    CZ = p["CZ0"] + p["CZ_alpha"] * np.sin(alpha) + p["CZ_de"] * de - 0.8 * flap
+    return np.array([alpha, q, qbar * 39.0 * CZ / mass])
+
+
+def otter_case(seed: int = 3):  # type: ignore[no-untyped-def]
+    """Model, seeded record (40 s at 20 Hz) and start values of the Twin Otter-like case."""
+    import numpy as np
+
+    import aeroid
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(801) * 0.05
+    n = t.size
+    de = -0.03 + 0.03 * np.sign(np.sin(2 * np.pi * t / 2.5)) * ((t > 2) & (t < 12))
+    de += 0.02 * np.sign(np.sin(2 * np.pi * t / 1.2)) * ((t > 20) & (t < 28))
+    V = 60.0 + 0.5 * np.sin(0.1 * t)
+    inputs = {
+        "de": de,
+        "V": V,
+        "theta": 0.05 + 0.02 * np.sin(0.3 * t),
+        "phi": 0.02 * np.sin(0.2 * t),
+        "beta": 0.01 * np.sin(0.5 * t),
+        "p": 0.01 * np.sin(0.7 * t),
+        "r": 0.01 * np.cos(0.4 * t),
+        "flap": np.zeros(n),
+        "thrust": 8000.0 + 200.0 * np.sin(0.05 * t),
+        "qbar": 0.5 * 1.1 * V**2,
+        "mass": np.full(n, 5200.0),
+        "xcg": np.full(n, 0.27),
+    }
+    model = aeroid.Model(
+        ["alpha", "q"],
+        _OTTER_INPUTS,
+        dict(OTTER_TRUTH),
+        otter_dynamics,
+        outputs=["alpha", "q", "az"],
+        measurement=otter_measurement,
+        name="otter_longitudinal",
+    )
+    sim = model.simulate(t, inputs, np.array([0.06, 0.0]))
+    y = sim.outputs + rng.standard_normal(sim.outputs.shape) * np.array([0.002, 0.003, 0.05])
+    channels = dict(inputs)
+    channels.update(alpha=y[:, 0], q=y[:, 1], az=y[:, 2])
+    data = aeroid.FlightData(time=t, channels=channels)
+    guess = {k: 1.25 * v for k, v in OTTER_TRUTH.items()}
+    return model, data, guess
+
+
+def _run(case: str, cache: str, numpy_only: bool, repeat: int) -> dict[str, object]:
+    here = str(Path(__file__).resolve().parent)
+    code = _CHILD.format(here=here, numpy_only=numpy_only, case=case, repeat=repeat)
+    env = dict(os.environ, AEROID_JAX_CACHE=cache)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, check=True, capture_output=True, text=True
+    )
+    return dict(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--repeat", type=int, default=3, help="warm calls per process")
+    parser.add_argument("--cases", nargs="*", default=list(TARGETS))
+    args = parser.parse_args()
+    print(f"load: {os.getloadavg()}")
+    for case in args.cases:
+        with tempfile.TemporaryDirectory() as cache:
+            rows = {
+                "cold": _run(case, cache, False, args.repeat),
+                "disk": _run(case, cache, False, args.repeat),
+            }
+        with tempfile.TemporaryDirectory() as cache:
+            rows["numpy"] = _run(case, cache, True, args.repeat)
+        print(f"{case}: first-call target <= {TARGETS[case]:.2f} s")
+        for way, r in rows.items():
+            print(
+                f"  {way:6s} first {r['first']:6.2f} s (cpu {r['first_cpu']:5.2f} s, "
+                f"jax {'yes' if r['jax'] else 'no ':3s})  warm {r['warm']:6.3f} s  "
+                f"setup {r['setup']:5.2f} s  iterations {r['iterations']}"
+            )
+        ref = rows["cold"]["estimate"]
+        est = rows["numpy"]["estimate"]
+        assert isinstance(ref, dict) and isinstance(est, dict)
+        rel = max(abs(est[k] - ref[k]) / max(abs(ref[k]), 1e-12) for k in ref)
+        print(f"  largest relative difference numpy vs compiled estimate {rel:.1e}")
+
+
+if __name__ == "__main__":
+    main()
