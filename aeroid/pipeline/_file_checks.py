@@ -7,8 +7,9 @@ import csv
 import difflib
 import glob
 import os
+import re
 import stat
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -73,12 +74,13 @@ def _missing(needs: _Needs, have: Sequence[str]) -> list[str]:
             if name not in have:
                 faults.append(
                     f"model {needs.model!r} needs the {role} {name!r}, which the flight lacks"
-                    + _hint(name, have, "its channels")
+                    + _column_hint(name, have)
                 )
     if needs.any_output and not any(o in have for o in needs.any_output):
         faults.append(
             f"the flight has none of model {needs.model!r}'s outputs "
-            f"({', '.join(needs.any_output)}); its channels: {', '.join(have)}"
+            f"({', '.join(needs.any_output)})"
+            + (f"; its channels: {', '.join(named)}" if (named := _name_like(have)) else "")
         )
     return faults
 
@@ -208,12 +210,12 @@ def _file_channel_faults(
         if spec.time_column is not None and spec.time_column not in columns:
             faults.append(
                 f"{path.name}: time column {spec.time_column!r} not found"
-                + _hint(spec.time_column, columns, "its columns")
+                + _column_hint(spec.time_column, columns)
             )
         elif spec.time_column is None and not any(c in columns for c in _TIME_CANDIDATES):
             faults.append(
                 f"{path.name}: no time column (tried {', '.join(_TIME_CANDIDATES[:3])}, ...); "
-                f"set time_column; its columns: {', '.join(columns)}"
+                f"set time_column ({len(columns)} columns)"
             )
     time = spec.time_column or next((c for c in _TIME_CANDIDATES if c in columns), None)
     if spec.channels is None:
@@ -225,7 +227,7 @@ def _file_channel_faults(
                 what = "column" if header.has_time else "log channel"
                 faults.append(
                     f"{path.name}: channels: {what} {col!r} not found"
-                    + _hint(col, columns, "its channels")
+                    + _column_hint(col, columns)
                 )
         have = list(pairs)
     elif not header.has_time:
@@ -238,12 +240,32 @@ def _file_channel_faults(
             if col not in columns:
                 faults.append(
                     f"{path.name}: channels: column {col!r} not found"
-                    + _hint(col, columns, "its columns")
+                    + _column_hint(col, columns)
                 )
         have = [str(v) for v in chosen.values()] if isinstance(chosen, Mapping) else wanted
     if needs is not None:
         faults += [f"{path.name}: {f}" for f in _missing(needs, have)]
     return faults
+
+
+_NAME_LIKE = re.compile(r"[A-Za-z_][\w.\[\]()/ -]{0,63}")
+
+
+def _name_like(columns: Iterable[str]) -> list[str] | None:
+    """The columns when every one reads as a channel name, else None.
+
+    A config can name any file as a flight; quoting a first line that is not a
+    header of names (``AWS_SECRET=...``) would put it into the error and the CI log.
+    """
+    cols = [str(c) for c in columns]
+    ok = all(_NAME_LIKE.fullmatch(c) and "=" not in c for c in cols)
+    return cols if ok else None
+
+
+def _column_hint(name: str, columns: Iterable[str]) -> str:
+    """'; did you mean X?' or the channels, only from a header of names."""
+    named = _name_like(columns)
+    return _hint(name, named, "its channels") if named is not None else ""
 
 
 def _mapped(chosen: Any) -> dict[str, str] | None:
@@ -343,7 +365,7 @@ def _log_channels(
         if name not in names:
             faults.append(
                 f"{path.name}: channels: log channel {name!r} not found"
-                + _hint(name, names, "its channels")
+                + _column_hint(name, names)
             )
     return have
 

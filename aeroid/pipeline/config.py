@@ -295,6 +295,23 @@ def _flight_kind(value: Any) -> str:
     return "file"
 
 
+def _is_loopback(address: str) -> bool:
+    """True for a scheduler on this machine (``tcp://127.0.0.1:8786``, ``localhost``)."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    try:
+        host = urlsplit(address).hostname or ""
+    except ValueError:
+        return False
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 FlightSpec = Annotated[
     Annotated[str, Tag("glob")]
     | Annotated[FileFlights, Tag("file")]
@@ -321,6 +338,9 @@ class CampaignConfig(Options):
     # ``package.module:attribute`` models, metrics and generators (and pipelines from
     # installed modules) import and run code the config names: refused unless it opts in
     allow_imports: bool = False
+    # a scheduler on another host, or a store URL (``s3://``...), sends flight data and
+    # results off this machine (and a dask scheduler speaks pickle): refused unless opted in
+    allow_network: bool = False
 
     # each stage's options are validated by the stage's own model when a plan is made
     checked_later: ClassVar[frozenset[str]] = frozenset({"stages"})
@@ -335,6 +355,41 @@ class CampaignConfig(Options):
         if v is not None and "://" not in v:
             raise ValueError("expected a scheduler address such as tcp://127.0.0.1:8786")
         return v
+
+    @field_validator("store")
+    @classmethod
+    def _check_store(cls, v: str) -> str:
+        import re
+
+        if re.search(r"\$\{?[A-Za-z_]|%[A-Za-z_]+%", v):
+            raise ValueError(
+                f"{v!r} names an environment variable; aeroid does not expand them, "
+                "write the path itself"
+            )
+        if "\x00" in v or len(v) > 1024:
+            raise ValueError("expected a folder or URL (no NUL character, at most 1024 characters)")
+        return v
+
+    @model_validator(mode="after")
+    def _check_network(self) -> CampaignConfig:
+        if self.scheduler is not None and not self.allow_network:
+            if not _is_loopback(self.scheduler):
+                raise ValueError(
+                    f"scheduler: {self.scheduler} is another host; a scheduler receives the "
+                    "flight data and runs pickled code, so set allow_network: true to use it"
+                )
+        protocol = self.store.split("://", 1)[0].lower() if "://" in self.store else "file"
+        if protocol == "memory":
+            raise ValueError(
+                "store: memory:// lives in this process only and keeps nothing after the run; "
+                "name a folder or an object-store URL"
+            )
+        if protocol not in ("file", "local") and not self.allow_network:
+            raise ValueError(
+                f"store: {self.store} sends flight data and results to {protocol}://; "
+                "set allow_network: true to use a remote store"
+            )
+        return self
 
     @property
     def campaign_name(self) -> str:

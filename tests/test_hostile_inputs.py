@@ -1,0 +1,126 @@
+"""Hostile files and configs: no reading outside the file, no network without opt-in,
+no file contents in errors, sizes bounded before reading (issue 49)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeroid import read_log
+from aeroid.errors import ConfigError, DataFormatError
+from aeroid.pipeline.config import load_config
+
+h5py = pytest.importorskip("h5py")
+
+_SECRET = b"TOP-SECRET-VALUES-" * 8
+
+
+def _log_with_external(tmp_path, *, virtual: bool = False):
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(_SECRET)
+    n = len(_SECRET) // 8
+    path = tmp_path / "hostile.h5"
+    with h5py.File(path, "w") as f:
+        f["time"] = np.arange(n) * 0.1
+        f["q"] = np.ones(n)
+        if virtual:
+            src = tmp_path / "other.h5"
+            with h5py.File(src, "w") as g:
+                g["data"] = np.frombuffer(_SECRET, dtype="<f8")
+            layout = h5py.VirtualLayout(shape=(n,), dtype="<f8")
+            layout[:] = h5py.VirtualSource(str(src), "data", shape=(n,))
+            f.create_virtual_dataset("leak", layout)
+        else:
+            f.create_dataset("leak", (n,), dtype="<f8", external=[(str(secret), 0, n * 8)])
+    return path, n
+
+
+@pytest.mark.parametrize("virtual", [False, True])
+def test_external_and_virtual_hdf5_datasets_are_refused_unless_allowed(tmp_path, virtual):
+    path, n = _log_with_external(tmp_path, virtual=virtual)
+    with pytest.warns(UserWarning, match="allow_external_data"):
+        log = read_log(path)
+    assert "leak" not in log and "q" in log
+    assert "leak" in log.metadata["skipped"]
+    allowed = read_log(path, allow_external_data=True)
+    assert allowed.channels["leak"].values.tobytes() == _SECRET[: n * 8]
+
+
+def test_an_external_time_dataset_is_refused_with_its_name(tmp_path):
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(np.arange(16, dtype="<f8").tobytes())
+    path = tmp_path / "t.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("time", (16,), dtype="<f8", external=[(str(secret), 0, 128)])
+        f["q"] = np.ones(16)
+    with pytest.raises(DataFormatError, match="time dataset 'time' is stored in an external"):
+        read_log(path)
+
+
+def test_a_dataset_declaring_gigabytes_is_skipped_before_reading(tmp_path):
+    path = tmp_path / "bomb.h5"
+    with h5py.File(path, "w") as f:
+        f["time"] = np.arange(50) * 0.1
+        f["q"] = np.sin(np.arange(50))
+        # 2 GiB declared, nothing written: the file stays a few kB
+        f.create_dataset("huge", (1 << 28,), dtype="<f8", chunks=(1 << 16,), compression="gzip")
+    assert path.stat().st_size < 100_000
+    log = read_log(path)
+    assert "q" in log and "huge" not in log
+    assert "GiB" in log.metadata["skipped"]["huge"]
+    bomb_time = tmp_path / "bomb_time.h5"
+    with h5py.File(bomb_time, "w") as f:
+        f.create_dataset("time", (1 << 28,), dtype="<f8", chunks=(1 << 16,), compression="gzip")
+    with pytest.raises(DataFormatError, match=r"time dataset 'time' declares 2\.0 GiB"):
+        read_log(bomb_time)
+
+
+def _config(tmp_path, extra: str):
+    (tmp_path / "a.csv").write_text("time,q\n0,1\n0.1,2\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nflights: [a.csv]\n" + extra)
+    return cfg
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        ("scheduler: tcp://10.1.2.3:8786\n", "scheduler: tcp://10.1.2.3:8786 is another host"),
+        ("store: s3://bucket/campaign\n", "store: s3://bucket/campaign sends flight data"),
+        ("store: gcs://bucket/x\n", "allow_network: true"),
+        ("store: memory://x/store\n", "keeps nothing"),
+        ("store: $STORE_DIR\n", "environment variable"),
+        ("store: '${HOME}/s'\n", "environment variable"),
+        ("store: " + "a" * 5000 + "\n", "at most 1024 characters"),
+    ],
+)
+def test_network_and_odd_stores_are_refused_by_the_config(tmp_path, extra, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(_config(tmp_path, extra))
+
+
+def test_network_is_allowed_by_opt_in_and_loopback_needs_none(tmp_path):
+    for address in ("tcp://127.0.0.1:8786", "tcp://localhost:8786", "tcp://[::1]:8786"):
+        assert load_config(_config(tmp_path, f"scheduler: {address}\n")).scheduler == address
+    cfg = load_config(
+        _config(tmp_path, "scheduler: tcp://10.1.2.3:8786\nstore: s3://b/c\nallow_network: true\n")
+    )
+    assert cfg.allow_network and cfg.store == "s3://b/c"
+    assert load_config(_config(tmp_path, f"store: file://{tmp_path}/s\n")).store_is_url is False
+
+
+def test_pre_flight_errors_quote_no_file_contents(tmp_path):
+    from aeroid.pipeline.checks import preflight
+
+    secret = tmp_path / "creds.csv"
+    secret.write_text("AWS_SECRET=abc123xyz,other\n1,2\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nflights: [{path: creds.csv, time_column: t}]\n"
+        "stages:\n  identify: {parameters: [M_alpha]}\n"
+    )
+    with pytest.raises(ConfigError) as err:
+        preflight(cfg)
+    text = str(err.value)
+    assert "creds.csv" in text and "time column 't' not found" in text
+    assert "abc123xyz" not in text and "AWS_SECRET" not in text
