@@ -124,3 +124,25 @@ def test_pre_flight_errors_quote_no_file_contents(tmp_path):
     text = str(err.value)
     assert "creds.csv" in text and "time column 't' not found" in text
     assert "abc123xyz" not in text and "AWS_SECRET" not in text
+
+
+def test_flights_sharing_a_stem_are_named_by_their_relative_path(tmp_path):
+    from aeroid.pipeline.planning import _flight_sources
+
+    for folder in ("x", "y"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "a.csv").write_text("time,q\n0,1\n0.1,2\n")
+    (tmp_path / "b.csv").write_text("time,q\n0,1\n0.1,2\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nflights: ['x/a.csv', 'y/a.csv', 'b.csv']\n")
+    names = [f.name for f in _flight_sources(load_config(cfg))]
+    assert names == ["x/a.csv", "y/a.csv", "b"]
+
+
+def test_workers_beyond_four_per_core_are_refused(tmp_path):
+    import os
+
+    limit = 4 * (os.cpu_count() or 1)
+    assert load_config(_config(tmp_path, f"workers: {limit}\n")).workers == limit
+    with pytest.raises(ConfigError, match=f"workers: .*at most {limit}"):
+        load_config(_config(tmp_path, f"workers: {limit + 1}\n"))

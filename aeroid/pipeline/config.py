@@ -12,6 +12,7 @@ import difflib
 import glob
 import json
 import math
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -354,6 +355,15 @@ class CampaignConfig(Options):
     def _check_scheduler(cls, v: str | None) -> str | None:
         if v is not None and "://" not in v:
             raise ValueError("expected a scheduler address such as tcp://127.0.0.1:8786")
+        return v
+
+    @field_validator("workers")
+    @classmethod
+    def _check_workers(cls, v: int | None) -> int | None:
+        # each worker is a forked process with its own BLAS threads
+        limit = 4 * (os.cpu_count() or 1)
+        if v is not None and v > limit:
+            raise ValueError(f"{v} workers on {os.cpu_count()} CPU cores; at most {limit}")
         return v
 
     @field_validator("store")
