@@ -146,3 +146,15 @@ def test_workers_beyond_four_per_core_are_refused(tmp_path):
     assert load_config(_config(tmp_path, f"workers: {limit}\n")).workers == limit
     with pytest.raises(ConfigError, match=f"workers: .*at most {limit}"):
         load_config(_config(tmp_path, f"workers: {limit + 1}\n"))
+
+
+def test_a_recursive_glob_through_a_symlink_loop_ends(tmp_path):
+    (tmp_path / "loop" / "a").mkdir(parents=True)
+    (tmp_path / "loop" / "a" / "f.csv").write_text("time,q\n0,1\n0.1,2\n")
+    (tmp_path / "loop" / ".hidden.csv").write_text("time,q\n0,1\n0.1,2\n")
+    (tmp_path / "loop" / "a" / "up").symlink_to("..", target_is_directory=True)
+    (tmp_path / "loop" / "a" / "again").symlink_to("..", target_is_directory=True)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nflights: ['loop/**/*.csv']\n")
+    paths = [p for _, p, _ in load_config(cfg).expand_files()]
+    assert [p.relative_to(tmp_path).as_posix() for p in paths] == ["loop/a/f.csv"]

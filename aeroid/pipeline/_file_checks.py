@@ -32,6 +32,7 @@ from .config import (
     ChannelEntry,
     FileFlights,
     SimulatedSource,
+    glob_files,
 )
 
 
@@ -128,7 +129,7 @@ def _check_files(
         raw = Path(spec.path).expanduser()
         pattern = str(raw if raw.is_absolute() else (base_dir / raw))
         if glob.has_magic(pattern):
-            paths = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+            paths = glob_files(pattern)
             if not paths:
                 problems.add(where, f"the pattern {spec.path!r} matches no file")
                 continue

@@ -13,6 +13,7 @@ import glob
 import json
 import math
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -296,6 +297,61 @@ def _flight_kind(value: Any) -> str:
     return "file"
 
 
+def _segment_regex(segment: str) -> str:
+    """One path segment of a glob pattern as a regex that never crosses a '/'."""
+    out = [r"(?!\.)"] if segment[:1] in "*?[" else []  # like glob: '*' skips hidden names
+    i = 0
+    while i < len(segment):
+        c = segment[i]
+        close = segment.find("]", i + 2) if c == "[" else -1
+        if c == "*":
+            out.append("[^/]*")
+        elif c == "?":
+            out.append("[^/]")
+        elif close > 0:
+            body = segment[i + 1 : close]
+            body = "^" + body[1:] if body.startswith("!") else body
+            out.append("[" + body.replace("\\", "\\\\") + "]")
+            i = close
+        else:
+            out.append(re.escape(c))
+        i += 1
+    return "".join(out)
+
+
+def glob_files(pattern: str) -> list[Path]:
+    """Files a glob pattern matches, sorted; ``**`` walks each real folder once.
+
+    `glob.glob` with ``**`` follows a symbolic link loop until the path is too
+    long, which takes hours; this walk follows links but skips a folder it has
+    already seen.
+    """
+    if "**" not in pattern:
+        return sorted(Path(p) for p in glob.glob(pattern))
+    parts = Path(pattern).parts
+    first = next(i for i, part in enumerate(parts) if glob.has_magic(part))
+    root = Path(*parts[:first]) if first else Path(".")
+    rest = parts[first:]
+    regex = ""
+    for part in rest:
+        regex += "(?:[^/.][^/]*/)*" if part == "**" else _segment_regex(part) + "/"
+    if rest[-1] == "**":
+        regex += r"[^/.][^/]*/"
+    matcher = re.compile(regex[:-1] + r"\Z", re.DOTALL)
+    found: list[Path] = []
+    seen: set[str] = set()
+    for folder, dirs, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(folder)
+        if real in seen:
+            dirs[:] = []
+            continue
+        seen.add(real)
+        rel = Path(folder).relative_to(root).as_posix()
+        prefix = "" if rel == "." else rel + "/"
+        found += [Path(folder) / f for f in files if matcher.match(prefix + f)]
+    return sorted(found)
+
+
 def _is_loopback(address: str) -> bool:
     """True for a scheduler on this machine (``tcp://127.0.0.1:8786``, ``localhost``)."""
     import ipaddress
@@ -459,7 +515,7 @@ class CampaignConfig(Options):
             spec = FileFlights(path=item) if isinstance(item, str) else item
             pattern = str(self.resolve(spec.path))
             if glob.has_magic(pattern):
-                matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+                matches = glob_files(pattern)
                 if not matches:
                     raise ConfigError(
                         f"{self.source}: flights[{i}]: the pattern {spec.path!r} matches no file"
