@@ -158,3 +158,24 @@ def test_a_recursive_glob_through_a_symlink_loop_ends(tmp_path):
     cfg.write_text("model: short_period\nflights: ['loop/**/*.csv']\n")
     paths = [p for _, p, _ in load_config(cfg).expand_files()]
     assert [p.relative_to(tmp_path).as_posix() for p in paths] == ["loop/a/f.csv"]
+
+
+@pytest.mark.parametrize(
+    ("stage", "match"),
+    [
+        ("propagate: {n_samples: true}", r"n_samples: .*expected a number, got the boolean true"),
+        ("propagate: {n_samples: 1.0e+9, n_batches: 1.0e+9}", r"n_samples: .*less than or equal"),
+        ("propagate: {n_batches: 1.0e+9}", r"n_batches: .*less than or equal"),
+        ("infer: {parameters: {M_q: {normal: [0, 1]}}, n_ensembles: 1000000}", r"n_ensembles"),
+    ],
+)
+def test_counts_that_would_hang_a_run_are_refused_before_it(tmp_path, stage, match):
+    from aeroid.pipeline.planning import plan
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nflights: [{simulated: {n_flights: 1}}]\n"
+        f"stages:\n  identify: {{parameters: [M_alpha, M_q]}}\n  {stage}\n"
+    )
+    with pytest.raises(ConfigError, match=match):
+        plan(cfg)

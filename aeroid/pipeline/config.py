@@ -16,7 +16,7 @@ import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -62,6 +62,15 @@ class Options(BaseModel):
     #: Free-form fields validated by another model later (with better key paths).
     checked_later: ClassVar[frozenset[str]] = frozenset()
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_stray_bool(cls, value: Any, info: ValidationInfo) -> Any:
+        # pydantic reads `true` as 1 for a count: `n_samples: true` would run one draw
+        field = cls.model_fields.get(info.field_name or "")
+        if isinstance(value, bool) and field is not None and not _admits_bool(field.annotation):
+            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
+        return value
+
     @field_validator("*", mode="after")
     @classmethod
     def _finite(cls, value: Any, info: ValidationInfo) -> Any:
@@ -91,6 +100,13 @@ class Options(BaseModel):
         """Options given (not None) as keyword arguments for the library function."""
         out = self.model_dump(mode="python", exclude_none=True, exclude=set(exclude))
         return out
+
+
+def _admits_bool(annotation: Any) -> bool:
+    """True when a field's type takes a boolean as itself (bool, Any, a union with bool)."""
+    if annotation is bool or annotation is Any:
+        return True
+    return any(_admits_bool(a) for a in get_args(annotation))
 
 
 def _non_finite(value: Any, path: str = "") -> str | None:

@@ -162,9 +162,10 @@ class PropagateOptions(Options):
     ``n_batches`` splits the draws into batches run in parallel (same result)."""
 
     metric: str = "natural_frequency"
-    n_samples: int | None = Field(None, ge=1)
+    # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
+    n_samples: int | None = Field(None, ge=1, le=10_000_000)
     percentiles: list[float] | None = None
-    n_batches: int | None = Field(None, ge=1)
+    n_batches: int | None = Field(None, ge=1, le=10_000)
 
     execution_only: ClassVar[frozenset[str]] = frozenset({"n_batches"})
     library: ClassVar[str] = "aeroid.propagation:propagate"
@@ -259,9 +260,9 @@ class InferOptions(Options):
 
     parameters: dict[str, PriorSpec] = Field(validation_alias=AliasChoices("parameters", "priors"))
     noise: dict[str, float] | None = None
-    n_walkers: int | None = Field(None, ge=2)
-    n_steps: int | None = Field(None, ge=1)
-    n_ensembles: int | None = Field(None, ge=1)
+    n_walkers: int | None = Field(None, ge=2, le=100_000)
+    n_steps: int | None = Field(None, ge=1, le=10_000_000)
+    n_ensembles: int | None = Field(None, ge=1, le=1_000)
     burn_in: int | None = Field(None, ge=0)
     thin: int | None = Field(None, ge=1)
     stretch: float | None = Field(None, gt=1)
