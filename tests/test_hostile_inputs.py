@@ -179,3 +179,57 @@ def test_counts_that_would_hang_a_run_are_refused_before_it(tmp_path, stage, mat
     )
     with pytest.raises(ConfigError, match=match):
         plan(cfg)
+
+
+@pytest.mark.slow  # botocore's randomised back-off: about 2 s
+def test_an_s3_server_that_stops_answering_fails_the_request(tmp_path, monkeypatch):
+    import socket
+    import threading
+    import time
+
+    pytest.importorskip("s3fs")
+    import fsspec.config
+
+    from aeroid.errors import StoreError
+    from aeroid.pipeline import ResultStore
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept_and_stay_silent() -> None:
+        server.settimeout(0.1)
+        while not stop.is_set():
+            with contextlib.suppress(OSError):
+                held.append(server.accept()[0])
+
+    import contextlib
+
+    thread = threading.Thread(target=accept_and_stay_silent, daemon=True)
+    thread.start()
+    for name in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):
+        monkeypatch.setenv(name, "testing")
+    monkeypatch.setenv("AWS_DEFAULT_REGION", "us-east-1")
+    monkeypatch.setenv("AEROID_REMOTE_TIMEOUT", "0.05")
+    endpoint = f"http://127.0.0.1:{server.getsockname()[1]}"
+    monkeypatch.setitem(fsspec.config.conf, "s3", {"endpoint_url": endpoint})
+    start = time.monotonic()
+    try:
+        with pytest.raises(StoreError, match="store s3://silent/store") as err:
+            ResultStore("s3://silent/store", create=True)
+    finally:
+        stop.set()
+        thread.join()
+        for conn in held:
+            conn.close()
+        server.close()
+    assert "timeout" in str(err.value).lower()
+    assert time.monotonic() - start < 30  # bounded by the timeout, not minutes
+
+
+def test_a_store_or_scheduler_the_caller_names_needs_no_opt_in(tmp_path):
+    cfg = _config(tmp_path, "")
+    assert load_config(cfg, store="memory://x/s").store == "memory://x/s"
+    assert load_config(cfg, scheduler="tcp://10.1.2.3:8786").scheduler == "tcp://10.1.2.3:8786"

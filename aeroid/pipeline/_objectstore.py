@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
+import os
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from ..errors import StoreError
 from ._backend import (
@@ -22,6 +25,45 @@ from ._backend import (
 from ._zipentry import (
     Entry,
 )
+
+
+def remote_timeout() -> float:
+    """Seconds a remote store may take to connect or answer one request
+    (``AEROID_REMOTE_TIMEOUT``, default 30): a server that stops answering
+    fails the request instead of hanging the run."""
+    text = os.environ.get("AEROID_REMOTE_TIMEOUT", "30")
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise StoreError(f"AEROID_REMOTE_TIMEOUT={text!r}: expected a positive number of seconds")
+    return value
+
+
+def url_to_fs(url: str) -> tuple[Any, str]:
+    """`fsspec.core.url_to_fs` with timeouts and few retries for the protocols that
+    take them, unless fsspec's own configuration already sets them."""
+    import fsspec
+    import fsspec.config
+
+    protocol = url.split("://", 1)[0].lower()
+    t = remote_timeout()
+    kwargs: dict[str, Any] = {}
+    conf = fsspec.config.conf.get(protocol, {})
+    if protocol in ("s3", "s3a") and "config_kwargs" not in conf:
+        kwargs["config_kwargs"] = {
+            "connect_timeout": t,
+            "read_timeout": t,
+            "retries": {"max_attempts": 2, "mode": "standard"},
+        }
+    elif protocol in ("gs", "gcs") and "timeout" not in conf:
+        kwargs["timeout"] = t
+    fs, base = fsspec.core.url_to_fs(url, **kwargs)
+    if "config_kwargs" in kwargs and getattr(fs, "retries", 0) > 1:
+        # s3fs's own retries (five, nested in reads) multiply botocore's: leave one layer
+        fs.retries = 1
+    return fs, str(base)
 
 
 class _ObjectBackend:
@@ -45,9 +87,7 @@ class _ObjectBackend:
     def __init__(self, location: StoreLocation, *, create: bool) -> None:
         text = location.root
         try:
-            import fsspec
-
-            fs, base = fsspec.core.url_to_fs(text)
+            fs, base = url_to_fs(text)
         except (ImportError, ValueError) as exc:  # unknown protocol, backend not installed
             raise StoreError(f"store {text!r}: {exc}") from None
         self.root: Path | str = text

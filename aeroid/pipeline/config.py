@@ -453,14 +453,19 @@ class CampaignConfig(Options):
         return v
 
     @model_validator(mode="after")
-    def _check_network(self) -> CampaignConfig:
-        if self.scheduler is not None and not self.allow_network:
+    def _check_network(self, info: ValidationInfo) -> CampaignConfig:
+        # what the caller passes (``--store``, ``run(store=...)``) is its own choice;
+        # these checks are for what a config file asks for
+        given = (info.context or {}).get("caller_set", frozenset())
+        if self.scheduler is not None and not self.allow_network and "scheduler" not in given:
             if not _is_loopback(self.scheduler):
                 raise ValueError(
                     f"scheduler: {self.scheduler} is another host; a scheduler receives the "
                     "flight data and runs pickled code, so set allow_network: true to use it"
                 )
         protocol = self.store.split("://", 1)[0].lower() if "://" in self.store else "file"
+        if "store" in given:
+            return self
         if protocol == "memory":
             raise ValueError(
                 "store: memory:// lives in this process only and keeps nothing after the run; "
@@ -725,10 +730,11 @@ def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
     p = Path(path)
     source = str(path)
     raw = read_yaml(p, source)
-    raw.update({k: v for k, v in overrides.items() if v is not None})
+    given = {k: v for k, v in overrides.items() if v is not None}
+    raw.update(given)
     raw["source"] = source
     raw["base_dir"] = str(p.resolve().parent)
     try:
-        return CampaignConfig.model_validate(raw)
+        return CampaignConfig.model_validate(raw, context={"caller_set": frozenset(given)})
     except ValidationError as exc:
         raise ConfigError(format_validation_error(exc, source, CampaignConfig)) from None
