@@ -233,3 +233,33 @@ def test_a_store_or_scheduler_the_caller_names_needs_no_opt_in(tmp_path):
     cfg = _config(tmp_path, "")
     assert load_config(cfg, store="memory://x/s").store == "memory://x/s"
     assert load_config(cfg, scheduler="tcp://10.1.2.3:8786").scheduler == "tcp://10.1.2.3:8786"
+
+
+def test_a_url_store_that_lost_its_marker_mid_run_is_made_whole_by_the_next(tmp_path):
+    import uuid
+
+    import fsspec
+
+    from aeroid.pipeline import ResultStore
+    from aeroid.pipeline._backend import _CHECKED
+    from aeroid.pipeline.keys import canonical_json, sha256_hex
+    from aeroid.pipeline.stages import CampaignReport
+
+    url = f"memory://aeroid-test-{uuid.uuid4().hex[:12]}/store"
+    store = ResultStore(url)
+    key = sha256_hex(canonical_json({"n": 1}))
+    report = CampaignReport("t", "x", ("a",), ("flight",), (("a",),))
+    assert store.commit("campaign_report", key, report, task={"n": 1})
+    fs, base = fsspec.core.url_to_fs(url)
+    fs.rm(f"{base}/aeroid-store.json")  # the prefix emptied while the run still wrote
+    _CHECKED.discard(url)
+    again = ResultStore(url)
+    assert fs.exists(f"{base}/aeroid-store.json")
+    assert [e.key for e in again.entries()] == [key]
+    # anything else under the prefix is still not taken over
+    other = f"memory://aeroid-test-{uuid.uuid4().hex[:12]}/store"
+    fs.pipe_file(fsspec.core.url_to_fs(other)[1] + "/notes.txt", b"mine")
+    from aeroid.errors import StoreError
+
+    with pytest.raises(StoreError, match="is not empty and is not an aeroid store"):
+        ResultStore(other)

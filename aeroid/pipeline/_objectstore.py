@@ -6,6 +6,7 @@ import contextlib
 import io
 import math
 import os
+import re
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -66,6 +67,16 @@ def url_to_fs(url: str) -> tuple[Any, str]:
     return fs, str(base)
 
 
+_ENTRY_NAME = re.compile(r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)")
+
+
+def _only_entries(fs: Any, base: str) -> bool:
+    """True when a prefix holds nothing but store entries and claims: a store whose
+    marker went (the prefix emptied while a run still wrote), made whole again."""
+    names = [str(n)[len(base) + 1 :] for n in fs.find(base)]
+    return all(_ENTRY_NAME.fullmatch(n) for n in names)
+
+
 class _ObjectBackend:
     """A store at a URL that fsspec understands (``s3://``, ``gs://``, ``az://``, ``memory://`` ...).
 
@@ -107,7 +118,7 @@ class _ObjectBackend:
             _check_marker(raw, text)
         elif create:
             try:
-                if fs.exists(self._base) and fs.ls(self._base, detail=False):
+                if fs.exists(self._base) and not _only_entries(fs, self._base):
                     raise StoreError(
                         f"store {text}: the location exists, is not empty and is not an aeroid "
                         "store"
