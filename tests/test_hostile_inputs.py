@@ -263,3 +263,9 @@ def test_a_url_store_that_lost_its_marker_mid_run_is_made_whole_by_the_next(tmp_
 
     with pytest.raises(StoreError, match="is not empty and is not an aeroid store"):
         ResultStore(other)
+
+
+@pytest.mark.parametrize("name", ['"a\\0b"', "x" * 5000, "a/../../b", "''"])
+def test_a_campaign_name_that_cannot_name_a_file_is_refused(tmp_path, name):
+    with pytest.raises(ConfigError, match=r"name: .*printable characters"):
+        load_config(_config(tmp_path, f"name: {name}\n"))

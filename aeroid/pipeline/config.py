@@ -429,6 +429,19 @@ class CampaignConfig(Options):
             raise ValueError("expected a scheduler address such as tcp://127.0.0.1:8786")
         return v
 
+    @field_validator("name")
+    @classmethod
+    def _check_name(cls, v: str | None) -> str | None:
+        # the name becomes the report's file name
+        if v is not None and (
+            not v.strip() or len(v) > 200 or any(c in v for c in "/\\") or not v.isprintable()
+        ):
+            raise ValueError(
+                "expected a campaign name of 1 to 200 printable characters without '/' or '\\' "
+                "(it names the report file)"
+            )
+        return v
+
     @field_validator("workers")
     @classmethod
     def _check_workers(cls, v: int | None) -> int | None:
