@@ -269,3 +269,15 @@ def test_a_url_store_that_lost_its_marker_mid_run_is_made_whole_by_the_next(tmp_
 def test_a_campaign_name_that_cannot_name_a_file_is_refused(tmp_path, name):
     with pytest.raises(ConfigError, match=r"name: .*printable characters"):
         load_config(_config(tmp_path, f"name: {name}\n"))
+
+
+def test_an_unknown_simulate_options_key_is_refused_before_any_load(tmp_path):
+    from aeroid.pipeline.planning import plan
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nflights: [missing.csv]\n"
+        "stages:\n  identify: {parameters: [M_q], simulate_options: {rtoll: 1.0e-6}}\n"
+    )
+    with pytest.raises(ConfigError, match=r"simulate_options: .*unknown keys \['rtoll'\]"):
+        plan(cfg)

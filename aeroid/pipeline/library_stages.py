@@ -77,6 +77,17 @@ class IdentifyOptions(Options):
         {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start"}
     )
 
+    @field_validator("simulate_options", mode="after")
+    @classmethod
+    def _check_simulate_options(cls, value: Any) -> Any:
+        # the keys are the library's: checked here, before any flight loads
+        from .._output_error import SIMULATE_OPTIONS
+
+        unknown = sorted(set(value or {}) - set(SIMULATE_OPTIONS))
+        if unknown:
+            raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTIONS)}")
+        return value
+
     @field_validator("bounds", mode="after")
     @classmethod
     def _check_bounds(cls, value: Any) -> Any:
