@@ -281,3 +281,13 @@ def test_an_unknown_simulate_options_key_is_refused_before_any_load(tmp_path):
     )
     with pytest.raises(ConfigError, match=r"simulate_options: .*unknown keys \['rtoll'\]"):
         plan(cfg)
+
+
+def test_a_csv_with_many_columns_reports_its_duplicates(tmp_path):
+    from aeroid import load_flight_test
+
+    names = ["time", *(f"c{i}" for i in range(20_000)), "c7", "c7", "c19999"]
+    path = tmp_path / "wide.csv"
+    path.write_text(",".join(names) + "\n" + "\n".join(",".join(["0"] * len(names)) for _ in "ab"))
+    with pytest.raises(DataFormatError, match=r"duplicate column names \['c19999', 'c7'\]"):
+        load_flight_test(path)
