@@ -339,8 +339,16 @@ def apply_channel_map(data: FlightData, mapping: Any) -> FlightData:
     for e in cmap.entries:
         if e.channel not in data.channels:
             raise _missing(e.channel, list(data.names), where)
+        stated = data.units.get(e.channel, "")
+        if e.unit is not None and stated in UNIT_CONVERSIONS and stated != e.unit:
+            # the log says what its channel holds: a map that disagrees is a mistake
+            # that would scale the channel silently (deg/s applied to a rad/s channel)
+            raise DataFormatError(
+                f"{where}: channel map {e.name!r}: unit {e.unit!r} contradicts the unit "
+                f"{stated!r} the file states for {e.channel!r}; drop the unit or fix it"
+            )
         channels[e.name] = e.factor * data.channels[e.channel] + e.offset
-        unit = e.converted_unit(data.units.get(e.channel, ""))
+        unit = e.converted_unit(stated)
         if unit:
             units[e.name] = unit
     meta = {**dict(data.metadata), "channel_map": cmap.to_json()}

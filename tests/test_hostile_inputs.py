@@ -291,3 +291,18 @@ def test_a_csv_with_many_columns_reports_its_duplicates(tmp_path):
     path.write_text(",".join(names) + "\n" + "\n".join(",".join(["0"] * len(names)) for _ in "ab"))
     with pytest.raises(DataFormatError, match=r"duplicate column names \['c19999', 'c7'\]"):
         load_flight_test(path)
+
+
+def test_a_map_unit_that_contradicts_the_files_own_is_refused():
+    from aeroid import FlightData
+    from aeroid.channel_map import apply_channel_map
+
+    t = np.arange(10) * 0.1
+    data = FlightData(t, {"gyro_y": np.sin(t)}, {"gyro_y": "rad/s"}, {"source": "log.ulg"})
+    with pytest.raises(DataFormatError, match=r"log.ulg: channel map 'q': unit 'deg/s' contra"):
+        apply_channel_map(data, {"q": {"channel": "gyro_y", "unit": "deg/s"}})
+    same = apply_channel_map(data, {"q": {"channel": "gyro_y", "unit": "rad/s"}})
+    np.testing.assert_array_equal(same.channels["q"], np.sin(t))
+    unstated = FlightData(t, {"gyro_y": np.sin(t)})
+    converted = apply_channel_map(unstated, {"q": {"channel": "gyro_y", "unit": "deg/s"}})
+    np.testing.assert_allclose(converted.channels["q"], np.deg2rad(np.sin(t)))
