@@ -497,6 +497,7 @@ def load_mapped(
     time_column: str | None = None,
     units: Mapping[str, str] | None = None,
     quality: bool | Mapping[str, float] = False,
+    allow_external_data: bool = False,
 ) -> FlightData:
     """Load a flight file through a channel map, cut to a manoeuvre window.
 
@@ -527,6 +528,8 @@ def load_mapped(
         before resampling; inside the window) with `aeroid.check_data_quality`,
         with its default limits (True) or those given (``{"jitter_limit":
         0.05}``), and keep the report in ``metadata["quality"]``.
+    allow_external_data : bool, default False
+        HDF5 logs: read datasets stored outside the file (see `aeroid.read_log`).
 
     Returns
     -------
@@ -554,6 +557,7 @@ def load_mapped(
     if (
         window is None
         and not raw_log
+        and not allow_external_data
         and (
             channels is None
             or _plain_pairs(channels) is not None
@@ -590,7 +594,9 @@ def load_mapped(
             data = data.window(t0, t1)
         report = None if limits is None else _quality(data, cmap.sources, None, limits)
     else:
-        log = read_log(p, format=fmt, time_column=time_column)
+        log = read_log(
+            p, format=fmt, time_column=time_column, allow_external_data=allow_external_data
+        )
         cmap = _map_for(channels, list(log.channels), table=False)
         for source in cmap.sources:
             if source not in log.channels:

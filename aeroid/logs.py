@@ -616,7 +616,9 @@ def _read_hdf5(
         for key, ds in datasets.items():
             if key in time_keys:
                 continue
-            reason = _hdf5_refusal(path, ds, allow_external) or _hdf5_channels(key, ds, times, matlab, channels)
+            reason = _hdf5_refusal(path, ds, allow_external) or _hdf5_channels(
+                key, ds, times, matlab, channels
+            )
             if reason:
                 skipped[key.replace("/", ".")] = reason
     if not channels:
@@ -636,9 +638,7 @@ def _read_hdf5(
     return FlightLog(channels, (), metadata)
 
 
-_EXTERNAL_HINT = (
-    " (pass allow_external_data=True to read data stored outside the file you named)"
-)
+_EXTERNAL_HINT = " (pass allow_external_data=True to read data stored outside the file you named)"
 
 
 def _is_matlab_header(path: Path) -> bool:

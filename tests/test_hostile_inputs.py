@@ -306,3 +306,23 @@ def test_a_map_unit_that_contradicts_the_files_own_is_refused():
     unstated = FlightData(t, {"gyro_y": np.sin(t)})
     converted = apply_channel_map(unstated, {"q": {"channel": "gyro_y", "unit": "deg/s"}})
     np.testing.assert_allclose(converted.channels["q"], np.deg2rad(np.sin(t)))
+
+
+def test_load_mapped_and_the_config_pass_the_external_data_opt_in(tmp_path):
+    from aeroid.channel_map import load_mapped
+    from aeroid.errors import ChannelError
+
+    path, n = _log_with_external(tmp_path)
+    with pytest.warns(UserWarning, match="allow_external_data"), pytest.raises(ChannelError):
+        load_mapped(path, {"alpha": "leak"})
+    data = load_mapped(path, {"alpha": "leak"}, allow_external_data=True)
+    assert data.channels["alpha"].tobytes() == _SECRET[: n * 8]
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nflights: [{path: hostile.h5, allow_external_data: true}]\n"
+    )
+    ((_, _, spec),) = load_config(cfg).expand_files()
+    assert spec.loader_options()["allow_external_data"] is True
+    cfg.write_text("model: short_period\nflights: [{path: hostile.h5}]\n")
+    ((_, _, spec),) = load_config(cfg).expand_files()
+    assert "allow_external_data" not in spec.loader_options()  # keys of old runs unchanged

@@ -156,7 +156,9 @@ def _check_files(
             try:
                 header = headers.get((path, spec.time_column))
                 if header is None:
-                    header = headers[(path, spec.time_column)] = _header(path, spec.time_column)
+                    header = headers[(path, spec.time_column)] = _header(
+                        path, spec.time_column, bool(spec.allow_external_data)
+                    )
             except AeroidError as exc:
                 problems.add(where, str(exc))
                 continue
@@ -227,8 +229,7 @@ def _file_channel_faults(
             if col not in columns:
                 what = "column" if header.has_time else "log channel"
                 faults.append(
-                    f"{path.name}: channels: {what} {col!r} not found"
-                    + _column_hint(col, columns)
+                    f"{path.name}: channels: {what} {col!r} not found" + _column_hint(col, columns)
                 )
         have = list(pairs)
     elif not header.has_time:
@@ -240,8 +241,7 @@ def _file_channel_faults(
         for col in wanted:
             if col not in columns:
                 faults.append(
-                    f"{path.name}: channels: column {col!r} not found"
-                    + _column_hint(col, columns)
+                    f"{path.name}: channels: column {col!r} not found" + _column_hint(col, columns)
                 )
         have = [str(v) for v in chosen.values()] if isinstance(chosen, Mapping) else wanted
     if needs is not None:
@@ -365,8 +365,7 @@ def _log_channels(
     for name in wanted:
         if name not in names:
             faults.append(
-                f"{path.name}: channels: log channel {name!r} not found"
-                + _column_hint(name, names)
+                f"{path.name}: channels: log channel {name!r} not found" + _column_hint(name, names)
             )
     return have
 
@@ -381,11 +380,13 @@ class _Header:
     log: Any = None  # the log read (a FlightLog), for the checks of windows
 
 
-def _header(path: Path, time_column: str | None = None) -> _Header | None:
+def _header(
+    path: Path, time_column: str | None = None, allow_external: bool = False
+) -> _Header | None:
     """A flight file's column names, from its header only; None for an unknown format."""
     from ..errors import DataFormatError
 
-    log = _log_listing(path, time_column)
+    log = _log_listing(path, time_column, allow_external)
     if log is not None:
         return log
     suffix = path.suffix.lower()
@@ -405,7 +406,7 @@ def _header(path: Path, time_column: str | None = None) -> _Header | None:
     return None
 
 
-def _log_listing(path: Path, time_column: str | None) -> _Header | None:
+def _log_listing(path: Path, time_column: str | None, allow_external: bool) -> _Header | None:
     """A flight log's channels (`aeroid.list_channels`, where this aeroid reads logs);
     None when `path` is not a log (a table) or logs cannot be listed."""
     try:
@@ -415,7 +416,7 @@ def _log_listing(path: Path, time_column: str | None) -> _Header | None:
     fmt = sniff_format(path)  # the first bytes, then the suffix, as the loader decides
     if fmt is None:
         return None
-    log = read_log(path, format=fmt, time_column=time_column)
+    log = read_log(path, format=fmt, time_column=time_column, allow_external_data=allow_external)
     names = listing(log).names
     # a log's time axis is the reader's business, not one of the channels
     return _Header([str(n) for n in names], has_time=False, log=log)

@@ -231,6 +231,8 @@ class FileFlights(Options):
     units: dict[str, str] | None = None
     sample_rate: Annotated[float, Field(gt=0)] | None = None
     max_gap: Annotated[float, Field(gt=0)] | None = None
+    # HDF5: read datasets stored outside the file (external or virtual); refused unset
+    allow_external_data: bool | None = None
     # [t0, t1] seconds in the log's time, or {mode: ...} / {events: [start, end]}
     window: (
         Annotated[
