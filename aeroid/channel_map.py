@@ -339,8 +339,16 @@ def apply_channel_map(data: FlightData, mapping: Any) -> FlightData:
     for e in cmap.entries:
         if e.channel not in data.channels:
             raise _missing(e.channel, list(data.names), where)
+        stated = data.units.get(e.channel, "")
+        if e.unit is not None and stated in UNIT_CONVERSIONS and stated != e.unit:
+            # the log says what its channel holds: a map that disagrees is a mistake
+            # that would scale the channel silently (deg/s applied to a rad/s channel)
+            raise DataFormatError(
+                f"{where}: channel map {e.name!r}: unit {e.unit!r} contradicts the unit "
+                f"{stated!r} the file states for {e.channel!r}; drop the unit or fix it"
+            )
         channels[e.name] = e.factor * data.channels[e.channel] + e.offset
-        unit = e.converted_unit(data.units.get(e.channel, ""))
+        unit = e.converted_unit(stated)
         if unit:
             units[e.name] = unit
     meta = {**dict(data.metadata), "channel_map": cmap.to_json()}
@@ -489,6 +497,7 @@ def load_mapped(
     time_column: str | None = None,
     units: Mapping[str, str] | None = None,
     quality: bool | Mapping[str, float] = False,
+    allow_external_data: bool = False,
 ) -> FlightData:
     """Load a flight file through a channel map, cut to a manoeuvre window.
 
@@ -519,6 +528,8 @@ def load_mapped(
         before resampling; inside the window) with `aeroid.check_data_quality`,
         with its default limits (True) or those given (``{"jitter_limit":
         0.05}``), and keep the report in ``metadata["quality"]``.
+    allow_external_data : bool, default False
+        HDF5 logs: read datasets stored outside the file (see `aeroid.read_log`).
 
     Returns
     -------
@@ -546,6 +557,7 @@ def load_mapped(
     if (
         window is None
         and not raw_log
+        and not allow_external_data
         and (
             channels is None
             or _plain_pairs(channels) is not None
@@ -582,7 +594,9 @@ def load_mapped(
             data = data.window(t0, t1)
         report = None if limits is None else _quality(data, cmap.sources, None, limits)
     else:
-        log = read_log(p, format=fmt, time_column=time_column)
+        log = read_log(
+            p, format=fmt, time_column=time_column, allow_external_data=allow_external_data
+        )
         cmap = _map_for(channels, list(log.channels), table=False)
         for source in cmap.sources:
             if source not in log.channels:

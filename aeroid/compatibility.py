@@ -956,6 +956,9 @@ def check_compatibility(
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
     present = _channel_map(data, channels)
+    from ._excitation import check_kinematic_channels
+
+    check_kinematic_channels(data, present)
     fitted = _fitted_outputs(outputs, present)
     names, values = _parameter_values(
         estimate,

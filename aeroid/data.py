@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import os
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -607,7 +608,7 @@ def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
     header, offset, _ = _csv_header(path)
     if any(not h for h in header):
         raise DataFormatError(f"{path}: empty column name at column {header.index('') + 1}")
-    dupes = sorted({h for h in header if header.count(h) > 1})
+    dupes = sorted(h for h, n in Counter(header).items() if n > 1)  # linear in columns
     if dupes:
         raise DataFormatError(f"{path}: duplicate column names {dupes}")
     if offset >= path.stat().st_size:

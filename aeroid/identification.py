@@ -557,6 +557,7 @@ def identify(
         When the iteration limit is reached, or the fit ends with a non-finite
         cost or estimates; the result is flagged ``success=False``.
     """
+    from ._excitation import require_excitation
     from .model import MAX_SUBSTEPS, SimulatorModel, check_simulate_options, require_model
 
     require_model(model, IdentificationError)
@@ -651,6 +652,7 @@ def identify(
                 "measurement-noise variances": len(fit_outputs) if measurement_noise is None else 0,
             },
         )
+        require_excitation(datas, model.controls)
         from ._filter_error import identify_filter_error
 
         fitted = identify_filter_error(
@@ -739,6 +741,7 @@ def identify(
             "biases": (len(sel_bias) + len(state_bias)) * len(datas),
         },
     )
+    require_excitation(datas, model.controls)
     fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
     fitted = fit_output_error(
         fit_model,

@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+import warnings
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -542,7 +543,27 @@ def _text_attr(obj: Any, *names: str) -> str:
     return ""
 
 
-def _read_hdf5(path: Path, time_column: str | None = None) -> FlightLog:
+# The most one dataset may declare (bytes, uncompressed): a few MB of compressed
+# file can declare gigabytes, and a flight channel is far below this.
+_MAX_DATASET_BYTES = 1 << 30
+
+
+def _hdf5_refusal(path: Path, ds: Any, allow_external: bool) -> str:
+    """Why a dataset is not read ('' to read it): storage outside the file, or too big."""
+    if not allow_external:
+        if ds.is_virtual:
+            return "is a virtual dataset mapping other files"
+        if ds.external:
+            return "is stored in an external file"
+    declared = int(ds.size) * int(ds.dtype.itemsize)
+    if declared > _MAX_DATASET_BYTES:
+        return f"declares {declared / 2**30:.1f} GiB, over the {_MAX_DATASET_BYTES >> 20} MiB limit"
+    return ""
+
+
+def _read_hdf5(
+    path: Path, time_column: str | None = None, *, allow_external: bool = False
+) -> FlightLog:
     try:
         import h5py
     except ImportError:
@@ -576,6 +597,12 @@ def _read_hdf5(path: Path, time_column: str | None = None) -> FlightLog:
             for candidate in names:
                 key = f"{group}/{candidate}" if group else candidate
                 if key in datasets:
+                    refusal = _hdf5_refusal(path, datasets[key], allow_external)
+                    if refusal:
+                        raise DataFormatError(
+                            f"{path}: time dataset {key!r} {refusal}; not read"
+                            + _EXTERNAL_HINT * ("GiB" not in refusal)
+                        )
                     times[group] = (key, _hdf5_time(path, datasets[key], matlab))
                     break
         if not times:
@@ -589,7 +616,9 @@ def _read_hdf5(path: Path, time_column: str | None = None) -> FlightLog:
         for key, ds in datasets.items():
             if key in time_keys:
                 continue
-            reason = _hdf5_channels(key, ds, times, matlab, channels)
+            reason = _hdf5_refusal(path, ds, allow_external) or _hdf5_channels(
+                key, ds, times, matlab, channels
+            )
             if reason:
                 skipped[key.replace("/", ".")] = reason
     if not channels:
@@ -598,9 +627,18 @@ def _read_hdf5(path: Path, time_column: str | None = None) -> FlightLog:
             + (f" (skipped: {skipped})" if skipped else "")
         )
     metadata: dict[str, Any] = {"source": path.name, "format": "matlab" if matlab else "hdf5"}
+    refused = {k: v for k, v in skipped.items() if "external" in v or "virtual" in v}
+    if refused:
+        # never silently missing: a channel the caller asks for would read 'not found'
+        warnings.warn(
+            f"{path}: datasets not read: {refused}{_EXTERNAL_HINT}", UserWarning, stacklevel=4
+        )
     if skipped:
         metadata["skipped"] = skipped
     return FlightLog(channels, (), metadata)
+
+
+_EXTERNAL_HINT = " (pass allow_external_data=True to read data stored outside the file you named)"
 
 
 def _is_matlab_header(path: Path) -> bool:
@@ -675,7 +713,11 @@ def _hdf5_channels(
 
 
 def read_log(
-    path: str | Path, *, format: str | None = None, time_column: str | None = None
+    path: str | Path,
+    *,
+    format: str | None = None,
+    time_column: str | None = None,
+    allow_external_data: bool = False,
 ) -> FlightLog:
     """Read an autopilot or HDF5 flight log with every channel at its own rate.
 
@@ -691,6 +733,11 @@ def read_log(
         HDF5 only: the name of the time dataset in each group. Default: the
         first of ``time``, ``t``, ``timestamp`` ... present; a ``units``
         attribute of ``ms``, ``us`` or ``ns`` is converted to seconds.
+    allow_external_data : bool, default False
+        HDF5 only: read datasets whose storage lies outside the file
+        (external raw files, virtual datasets into other files). Refused by
+        default: a file could otherwise make AeroID read any local file.
+        Datasets declaring more than 1 GiB are never read.
 
     Returns
     -------
@@ -717,7 +764,7 @@ def read_log(
         "ulog": lambda: _read_ulog(p),
         "dataflash": lambda: _read_dataflash(p, text=False),
         "dataflash-text": lambda: _read_dataflash(p, text=True),
-        "hdf5": lambda: _read_hdf5(p, time_column),
+        "hdf5": lambda: _read_hdf5(p, time_column, allow_external=allow_external_data),
     }
     return readers[fmt]()
 

@@ -42,7 +42,7 @@ def test_minimal_config_and_relative_paths(tmp_path):
         ),
         (
             "model: short_period\nflights: [{path: a.csv, tim_column: t}]\n",
-            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: channels, condition, max_gap, model, path, sample_rate, segments, time_column, units, window",
+            r"camp.yaml: flights\[0\].tim_column: unknown key; allowed keys: allow_external_data, channels, condition, max_gap, model, path, sample_rate, segments, time_column, units, window",
         ),
         (
             "model: short_period\nflights: [{simulated: {n_flights: 0}}]\n",

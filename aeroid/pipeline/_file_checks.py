@@ -7,8 +7,9 @@ import csv
 import difflib
 import glob
 import os
+import re
 import stat
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from .config import (
     ChannelEntry,
     FileFlights,
     SimulatedSource,
+    glob_files,
 )
 
 
@@ -73,12 +75,13 @@ def _missing(needs: _Needs, have: Sequence[str]) -> list[str]:
             if name not in have:
                 faults.append(
                     f"model {needs.model!r} needs the {role} {name!r}, which the flight lacks"
-                    + _hint(name, have, "its channels")
+                    + _column_hint(name, have)
                 )
     if needs.any_output and not any(o in have for o in needs.any_output):
         faults.append(
             f"the flight has none of model {needs.model!r}'s outputs "
-            f"({', '.join(needs.any_output)}); its channels: {', '.join(have)}"
+            f"({', '.join(needs.any_output)})"
+            + (f"; its channels: {', '.join(named)}" if (named := _name_like(have)) else "")
         )
     return faults
 
@@ -126,7 +129,7 @@ def _check_files(
         raw = Path(spec.path).expanduser()
         pattern = str(raw if raw.is_absolute() else (base_dir / raw))
         if glob.has_magic(pattern):
-            paths = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+            paths = glob_files(pattern)
             if not paths:
                 problems.add(where, f"the pattern {spec.path!r} matches no file")
                 continue
@@ -153,7 +156,9 @@ def _check_files(
             try:
                 header = headers.get((path, spec.time_column))
                 if header is None:
-                    header = headers[(path, spec.time_column)] = _header(path, spec.time_column)
+                    header = headers[(path, spec.time_column)] = _header(
+                        path, spec.time_column, bool(spec.allow_external_data)
+                    )
             except AeroidError as exc:
                 problems.add(where, str(exc))
                 continue
@@ -208,12 +213,12 @@ def _file_channel_faults(
         if spec.time_column is not None and spec.time_column not in columns:
             faults.append(
                 f"{path.name}: time column {spec.time_column!r} not found"
-                + _hint(spec.time_column, columns, "its columns")
+                + _column_hint(spec.time_column, columns)
             )
         elif spec.time_column is None and not any(c in columns for c in _TIME_CANDIDATES):
             faults.append(
                 f"{path.name}: no time column (tried {', '.join(_TIME_CANDIDATES[:3])}, ...); "
-                f"set time_column; its columns: {', '.join(columns)}"
+                f"set time_column ({len(columns)} columns)"
             )
     time = spec.time_column or next((c for c in _TIME_CANDIDATES if c in columns), None)
     if spec.channels is None:
@@ -224,8 +229,7 @@ def _file_channel_faults(
             if col not in columns:
                 what = "column" if header.has_time else "log channel"
                 faults.append(
-                    f"{path.name}: channels: {what} {col!r} not found"
-                    + _hint(col, columns, "its channels")
+                    f"{path.name}: channels: {what} {col!r} not found" + _column_hint(col, columns)
                 )
         have = list(pairs)
     elif not header.has_time:
@@ -237,13 +241,32 @@ def _file_channel_faults(
         for col in wanted:
             if col not in columns:
                 faults.append(
-                    f"{path.name}: channels: column {col!r} not found"
-                    + _hint(col, columns, "its columns")
+                    f"{path.name}: channels: column {col!r} not found" + _column_hint(col, columns)
                 )
         have = [str(v) for v in chosen.values()] if isinstance(chosen, Mapping) else wanted
     if needs is not None:
         faults += [f"{path.name}: {f}" for f in _missing(needs, have)]
     return faults
+
+
+_NAME_LIKE = re.compile(r"[A-Za-z_][\w.\[\]()/ -]{0,63}")
+
+
+def _name_like(columns: Iterable[str]) -> list[str] | None:
+    """The columns when every one reads as a channel name, else None.
+
+    A config can name any file as a flight; quoting a first line that is not a
+    header of names (``AWS_SECRET=...``) would put it into the error and the CI log.
+    """
+    cols = [str(c) for c in columns]
+    ok = all(_NAME_LIKE.fullmatch(c) and "=" not in c for c in cols)
+    return cols if ok else None
+
+
+def _column_hint(name: str, columns: Iterable[str]) -> str:
+    """'; did you mean X?' or the channels, only from a header of names."""
+    named = _name_like(columns)
+    return _hint(name, named, "its channels") if named is not None else ""
 
 
 def _mapped(chosen: Any) -> dict[str, str] | None:
@@ -342,8 +365,7 @@ def _log_channels(
     for name in wanted:
         if name not in names:
             faults.append(
-                f"{path.name}: channels: log channel {name!r} not found"
-                + _hint(name, names, "its channels")
+                f"{path.name}: channels: log channel {name!r} not found" + _column_hint(name, names)
             )
     return have
 
@@ -358,11 +380,13 @@ class _Header:
     log: Any = None  # the log read (a FlightLog), for the checks of windows
 
 
-def _header(path: Path, time_column: str | None = None) -> _Header | None:
+def _header(
+    path: Path, time_column: str | None = None, allow_external: bool = False
+) -> _Header | None:
     """A flight file's column names, from its header only; None for an unknown format."""
     from ..errors import DataFormatError
 
-    log = _log_listing(path, time_column)
+    log = _log_listing(path, time_column, allow_external)
     if log is not None:
         return log
     suffix = path.suffix.lower()
@@ -382,7 +406,7 @@ def _header(path: Path, time_column: str | None = None) -> _Header | None:
     return None
 
 
-def _log_listing(path: Path, time_column: str | None) -> _Header | None:
+def _log_listing(path: Path, time_column: str | None, allow_external: bool) -> _Header | None:
     """A flight log's channels (`aeroid.list_channels`, where this aeroid reads logs);
     None when `path` is not a log (a table) or logs cannot be listed."""
     try:
@@ -392,7 +416,7 @@ def _log_listing(path: Path, time_column: str | None) -> _Header | None:
     fmt = sniff_format(path)  # the first bytes, then the suffix, as the loader decides
     if fmt is None:
         return None
-    log = read_log(path, format=fmt, time_column=time_column)
+    log = read_log(path, format=fmt, time_column=time_column, allow_external_data=allow_external)
     names = listing(log).names
     # a log's time axis is the reader's business, not one of the channels
     return _Header([str(n) for n in names], has_time=False, log=log)

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
+import os
+import re
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from ..errors import StoreError
 from ._backend import (
@@ -22,6 +26,55 @@ from ._backend import (
 from ._zipentry import (
     Entry,
 )
+
+
+def remote_timeout() -> float:
+    """Seconds a remote store may take to connect or answer one request
+    (``AEROID_REMOTE_TIMEOUT``, default 30): a server that stops answering
+    fails the request instead of hanging the run."""
+    text = os.environ.get("AEROID_REMOTE_TIMEOUT", "30")
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise StoreError(f"AEROID_REMOTE_TIMEOUT={text!r}: expected a positive number of seconds")
+    return value
+
+
+def url_to_fs(url: str) -> tuple[Any, str]:
+    """`fsspec.core.url_to_fs` with timeouts and few retries for the protocols that
+    take them, unless fsspec's own configuration already sets them."""
+    import fsspec
+    import fsspec.config
+
+    protocol = url.split("://", 1)[0].lower()
+    t = remote_timeout()
+    kwargs: dict[str, Any] = {}
+    conf = fsspec.config.conf.get(protocol, {})
+    if protocol in ("s3", "s3a") and "config_kwargs" not in conf:
+        kwargs["config_kwargs"] = {
+            "connect_timeout": t,
+            "read_timeout": t,
+            "retries": {"max_attempts": 2, "mode": "standard"},
+        }
+    elif protocol in ("gs", "gcs") and "timeout" not in conf:
+        kwargs["timeout"] = t
+    fs, base = fsspec.core.url_to_fs(url, **kwargs)
+    if "config_kwargs" in kwargs and getattr(fs, "retries", 0) > 1:
+        # s3fs's own retries (five, nested in reads) multiply botocore's: leave one layer
+        fs.retries = 1
+    return fs, str(base)
+
+
+_ENTRY_NAME = re.compile(r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)")
+
+
+def _only_entries(fs: Any, base: str) -> bool:
+    """True when a prefix holds nothing but store entries and claims: a store whose
+    marker went (the prefix emptied while a run still wrote), made whole again."""
+    names = [str(n)[len(base) + 1 :] for n in fs.find(base)]
+    return all(_ENTRY_NAME.fullmatch(n) for n in names)
 
 
 class _ObjectBackend:
@@ -45,9 +98,7 @@ class _ObjectBackend:
     def __init__(self, location: StoreLocation, *, create: bool) -> None:
         text = location.root
         try:
-            import fsspec
-
-            fs, base = fsspec.core.url_to_fs(text)
+            fs, base = url_to_fs(text)
         except (ImportError, ValueError) as exc:  # unknown protocol, backend not installed
             raise StoreError(f"store {text!r}: {exc}") from None
         self.root: Path | str = text
@@ -67,7 +118,7 @@ class _ObjectBackend:
             _check_marker(raw, text)
         elif create:
             try:
-                if fs.exists(self._base) and fs.ls(self._base, detail=False):
+                if fs.exists(self._base) and not _only_entries(fs, self._base):
                     raise StoreError(
                         f"store {text}: the location exists, is not empty and is not an aeroid "
                         "store"

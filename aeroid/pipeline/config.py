@@ -12,9 +12,11 @@ import difflib
 import glob
 import json
 import math
+import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -60,6 +62,15 @@ class Options(BaseModel):
     #: Free-form fields validated by another model later (with better key paths).
     checked_later: ClassVar[frozenset[str]] = frozenset()
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_stray_bool(cls, value: Any, info: ValidationInfo) -> Any:
+        # pydantic reads `true` as 1 for a count: `n_samples: true` would run one draw
+        field = cls.model_fields.get(info.field_name or "")
+        if isinstance(value, bool) and field is not None and not _admits_bool(field.annotation):
+            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
+        return value
+
     @field_validator("*", mode="after")
     @classmethod
     def _finite(cls, value: Any, info: ValidationInfo) -> Any:
@@ -89,6 +100,13 @@ class Options(BaseModel):
         """Options given (not None) as keyword arguments for the library function."""
         out = self.model_dump(mode="python", exclude_none=True, exclude=set(exclude))
         return out
+
+
+def _admits_bool(annotation: Any) -> bool:
+    """True when a field's type takes a boolean as itself (bool, Any, a union with bool)."""
+    if annotation is bool or annotation is Any:
+        return True
+    return any(_admits_bool(a) for a in get_args(annotation))
 
 
 def _non_finite(value: Any, path: str = "") -> str | None:
@@ -213,6 +231,8 @@ class FileFlights(Options):
     units: dict[str, str] | None = None
     sample_rate: Annotated[float, Field(gt=0)] | None = None
     max_gap: Annotated[float, Field(gt=0)] | None = None
+    # HDF5: read datasets stored outside the file (external or virtual); refused unset
+    allow_external_data: bool | None = None
     # [t0, t1] seconds in the log's time, or {mode: ...} / {events: [start, end]}
     window: (
         Annotated[
@@ -295,6 +315,78 @@ def _flight_kind(value: Any) -> str:
     return "file"
 
 
+def _segment_regex(segment: str) -> str:
+    """One path segment of a glob pattern as a regex that never crosses a '/'."""
+    out = [r"(?!\.)"] if segment[:1] in "*?[" else []  # like glob: '*' skips hidden names
+    i = 0
+    while i < len(segment):
+        c = segment[i]
+        close = segment.find("]", i + 2) if c == "[" else -1
+        if c == "*":
+            out.append("[^/]*")
+        elif c == "?":
+            out.append("[^/]")
+        elif close > 0:
+            body = segment[i + 1 : close]
+            body = "^" + body[1:] if body.startswith("!") else body
+            out.append("[" + body.replace("\\", "\\\\") + "]")
+            i = close
+        else:
+            out.append(re.escape(c))
+        i += 1
+    return "".join(out)
+
+
+def glob_files(pattern: str) -> list[Path]:
+    """Files a glob pattern matches, sorted; ``**`` walks each real folder once.
+
+    `glob.glob` with ``**`` follows a symbolic link loop until the path is too
+    long, which takes hours; this walk follows links but skips a folder it has
+    already seen.
+    """
+    if "**" not in pattern:
+        return sorted(Path(p) for p in glob.glob(pattern))
+    parts = Path(pattern).parts
+    first = next(i for i, part in enumerate(parts) if glob.has_magic(part))
+    root = Path(*parts[:first]) if first else Path(".")
+    rest = parts[first:]
+    regex = ""
+    for part in rest:
+        regex += "(?:[^/.][^/]*/)*" if part == "**" else _segment_regex(part) + "/"
+    if rest[-1] == "**":
+        regex += r"[^/.][^/]*/"
+    matcher = re.compile(regex[:-1] + r"\Z", re.DOTALL)
+    found: list[Path] = []
+    seen: set[str] = set()
+    for folder, dirs, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(folder)
+        if real in seen:
+            dirs[:] = []
+            continue
+        seen.add(real)
+        rel = Path(folder).relative_to(root).as_posix()
+        prefix = "" if rel == "." else rel + "/"
+        found += [Path(folder) / f for f in files if matcher.match(prefix + f)]
+    return sorted(found)
+
+
+def _is_loopback(address: str) -> bool:
+    """True for a scheduler on this machine (``tcp://127.0.0.1:8786``, ``localhost``)."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    try:
+        host = urlsplit(address).hostname or ""
+    except ValueError:
+        return False
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 FlightSpec = Annotated[
     Annotated[str, Tag("glob")]
     | Annotated[FileFlights, Tag("file")]
@@ -321,6 +413,9 @@ class CampaignConfig(Options):
     # ``package.module:attribute`` models, metrics and generators (and pipelines from
     # installed modules) import and run code the config names: refused unless it opts in
     allow_imports: bool = False
+    # a scheduler on another host, or a store URL (``s3://``...), sends flight data and
+    # results off this machine (and a dask scheduler speaks pickle): refused unless opted in
+    allow_network: bool = False
 
     # each stage's options are validated by the stage's own model when a plan is made
     checked_later: ClassVar[frozenset[str]] = frozenset({"stages"})
@@ -335,6 +430,68 @@ class CampaignConfig(Options):
         if v is not None and "://" not in v:
             raise ValueError("expected a scheduler address such as tcp://127.0.0.1:8786")
         return v
+
+    @field_validator("name")
+    @classmethod
+    def _check_name(cls, v: str | None) -> str | None:
+        # the name becomes the report's file name
+        if v is not None and (
+            not v.strip() or len(v) > 200 or any(c in v for c in "/\\") or not v.isprintable()
+        ):
+            raise ValueError(
+                "expected a campaign name of 1 to 200 printable characters without '/' or '\\' "
+                "(it names the report file)"
+            )
+        return v
+
+    @field_validator("workers")
+    @classmethod
+    def _check_workers(cls, v: int | None) -> int | None:
+        # each worker is a forked process with its own BLAS threads
+        limit = 4 * (os.cpu_count() or 1)
+        if v is not None and v > limit:
+            raise ValueError(f"{v} workers on {os.cpu_count()} CPU cores; at most {limit}")
+        return v
+
+    @field_validator("store")
+    @classmethod
+    def _check_store(cls, v: str) -> str:
+        import re
+
+        if re.search(r"\$\{?[A-Za-z_]|%[A-Za-z_]+%", v):
+            raise ValueError(
+                f"{v!r} names an environment variable; aeroid does not expand them, "
+                "write the path itself"
+            )
+        if "\x00" in v or len(v) > 1024:
+            raise ValueError("expected a folder or URL (no NUL character, at most 1024 characters)")
+        return v
+
+    @model_validator(mode="after")
+    def _check_network(self, info: ValidationInfo) -> CampaignConfig:
+        # what the caller passes (``--store``, ``run(store=...)``) is its own choice;
+        # these checks are for what a config file asks for
+        given = (info.context or {}).get("caller_set", frozenset())
+        if self.scheduler is not None and not self.allow_network and "scheduler" not in given:
+            if not _is_loopback(self.scheduler):
+                raise ValueError(
+                    f"scheduler: {self.scheduler} is another host; a scheduler receives the "
+                    "flight data and runs pickled code, so set allow_network: true to use it"
+                )
+        protocol = self.store.split("://", 1)[0].lower() if "://" in self.store else "file"
+        if "store" in given:
+            return self
+        if protocol == "memory":
+            raise ValueError(
+                "store: memory:// lives in this process only and keeps nothing after the run; "
+                "name a folder or an object-store URL"
+            )
+        if protocol not in ("file", "local") and not self.allow_network:
+            raise ValueError(
+                f"store: {self.store} sends flight data and results to {protocol}://; "
+                "set allow_network: true to use a remote store"
+            )
+        return self
 
     @property
     def campaign_name(self) -> str:
@@ -394,7 +551,7 @@ class CampaignConfig(Options):
             spec = FileFlights(path=item) if isinstance(item, str) else item
             pattern = str(self.resolve(spec.path))
             if glob.has_magic(pattern):
-                matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+                matches = glob_files(pattern)
                 if not matches:
                     raise ConfigError(
                         f"{self.source}: flights[{i}]: the pattern {spec.path!r} matches no file"
@@ -588,10 +745,11 @@ def load_config(path: str | Path, **overrides: Any) -> CampaignConfig:
     p = Path(path)
     source = str(path)
     raw = read_yaml(p, source)
-    raw.update({k: v for k, v in overrides.items() if v is not None})
+    given = {k: v for k, v in overrides.items() if v is not None}
+    raw.update(given)
     raw["source"] = source
     raw["base_dir"] = str(p.resolve().parent)
     try:
-        return CampaignConfig.model_validate(raw)
+        return CampaignConfig.model_validate(raw, context={"caller_set": frozenset(given)})
     except ValidationError as exc:
         raise ConfigError(format_validation_error(exc, source, CampaignConfig)) from None

@@ -77,6 +77,17 @@ class IdentifyOptions(Options):
         {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start"}
     )
 
+    @field_validator("simulate_options", mode="after")
+    @classmethod
+    def _check_simulate_options(cls, value: Any) -> Any:
+        # the keys are the library's: checked here, before any flight loads
+        from .._output_error import SIMULATE_OPTIONS
+
+        unknown = sorted(set(value or {}) - set(SIMULATE_OPTIONS))
+        if unknown:
+            raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTIONS)}")
+        return value
+
     @field_validator("bounds", mode="after")
     @classmethod
     def _check_bounds(cls, value: Any) -> Any:
@@ -162,9 +173,10 @@ class PropagateOptions(Options):
     ``n_batches`` splits the draws into batches run in parallel (same result)."""
 
     metric: str = "natural_frequency"
-    n_samples: int | None = Field(None, ge=1)
+    # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
+    n_samples: int | None = Field(None, ge=1, le=10_000_000)
     percentiles: list[float] | None = None
-    n_batches: int | None = Field(None, ge=1)
+    n_batches: int | None = Field(None, ge=1, le=10_000)
 
     execution_only: ClassVar[frozenset[str]] = frozenset({"n_batches"})
     library: ClassVar[str] = "aeroid.propagation:propagate"
@@ -259,9 +271,9 @@ class InferOptions(Options):
 
     parameters: dict[str, PriorSpec] = Field(validation_alias=AliasChoices("parameters", "priors"))
     noise: dict[str, float] | None = None
-    n_walkers: int | None = Field(None, ge=2)
-    n_steps: int | None = Field(None, ge=1)
-    n_ensembles: int | None = Field(None, ge=1)
+    n_walkers: int | None = Field(None, ge=2, le=100_000)
+    n_steps: int | None = Field(None, ge=1, le=10_000_000)
+    n_ensembles: int | None = Field(None, ge=1, le=1_000)
     burn_in: int | None = Field(None, ge=0)
     thin: int | None = Field(None, ge=1)
     stretch: float | None = Field(None, gt=1)

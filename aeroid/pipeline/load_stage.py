@@ -42,11 +42,13 @@ class LoadOptions(Options):
     # unset or true (default limits), false, or limits such as {jitter_limit: 0.05}
     quality: bool | QualityLimits | None = None
     condition: dict[str, float] | None = None
+    # HDF5: read data stored outside the flight file (refused unless set)
+    allow_external_data: bool | None = None
 
     engine_only: ClassVar[frozenset[str]] = frozenset({"condition"})
     # unset, they leave the keys of flights loaded before they existed unchanged
     added_later: ClassVar[frozenset[str]] = frozenset(
-        {"sample_rate", "max_gap", "window", "condition"}
+        {"sample_rate", "max_gap", "window", "condition", "allow_external_data"}
     )
 
 

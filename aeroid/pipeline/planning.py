@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import json
 import warnings
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -271,7 +272,7 @@ def _flight_sources(config: CampaignConfig) -> list[_Flight]:
     from .synthetic import flight_spec
 
     files = config.expand_files()
-    stems = [p.stem for _, p, _ in files]
+    stems = Counter(p.stem for _, p, _ in files)
     out: list[_Flight] = []
     for i, item in enumerate(config.flights):
         if isinstance(item, SimulatedSource):
@@ -290,7 +291,7 @@ def _flight_sources(config: CampaignConfig) -> list[_Flight]:
                 opts["condition"] = dict(loader.condition)
             model = _flight_model(config, i, loader)
             name = path.stem
-            if stems.count(path.stem) > 1:
+            if stems[path.stem] > 1:
                 base = Path(config.base_dir)
                 name = str(path.relative_to(base)) if path.is_relative_to(base) else str(path)
             try:

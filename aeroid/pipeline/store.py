@@ -524,10 +524,10 @@ def is_store(root: str | os.PathLike[str] | StoreLocation) -> bool:
     if location.kind == "local":
         return os.path.isfile(os.path.join(location.root, _MARKER))
     try:
-        import fsspec
+        from ._objectstore import url_to_fs
 
-        fs, base = fsspec.core.url_to_fs(location.root)
-        return bool(fs.exists(f"{str(base).rstrip('/')}/{_MARKER}"))
+        fs, base = url_to_fs(location.root)
+        return bool(fs.exists(f"{base.rstrip('/')}/{_MARKER}"))
     except (ImportError, ValueError) as exc:
         raise StoreError(f"store {location.root!r}: {exc}") from None
 

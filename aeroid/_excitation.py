@@ -1,0 +1,106 @@
+"""Checks that the numbers can be trusted before an estimate is made of them.
+
+An estimator given an input that never moves, or a channel off by a unit
+factor, still converges and reports tiny error bars: the error bars are only
+as good as the information in the record. These checks catch the cases the
+data itself can show (Klein & Morelli, ch. 9: a record without excitation
+holds no information about the derivatives it is meant to give).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from .errors import ChannelError, IdentificationError
+
+# Airspeed of anything that flies, m/s: a glider's stall to beyond Mach 10. A
+# median outside is a channel in another unit (km/h near the top, mm/s or cm/s
+# beyond it, knots x 1000...), not a flight.
+_AIRSPEED_RANGE = (0.5, 4000.0)
+# body rates, rad/s: 20 rad/s (1150 deg/s) is beyond any airframe
+_RATE_LIMIT = 20.0
+
+
+def _constant(values: Any) -> float | None:
+    """The value of a channel that never changes, else None."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    scale = max(1.0, float(np.max(np.abs(v))))
+    return float(v[0]) if float(np.ptp(v)) <= 1e-12 * scale else None
+
+
+def require_excitation(datas: Sequence[Any], controls: Iterable[str]) -> None:
+    """Refuse a fit whose every control holds one non-zero value in every manoeuvre.
+
+    A control held at zero leaves the free response from the initial states
+    (weak, but information); a constant non-zero one is a trim offset the
+    fit cannot tell from the derivatives it multiplies.
+
+    Raises
+    ------
+    IdentificationError
+        Naming the controls and their constant values.
+    """
+    names = list(controls)
+    if not names:
+        return  # a model without controls is fitted to its free response
+    held: dict[str, float] = {}
+    for name in names:
+        values = [_constant(d[name]) for d in datas]
+        if any(v is None or v == 0.0 for v in values):
+            return
+        held[name] = float(values[0])  # type: ignore[arg-type]
+    listing = ", ".join(f"{n!r} = {v:.6g}" for n, v in held.items())
+    raise IdentificationError(
+        f"no excitation: every control is constant in every manoeuvre ({listing}); a "
+        "constant input cannot be told from a trim bias, so the derivatives it multiplies "
+        "are not identifiable. Fit a record with an input (doublet, 3-2-1-1, multisine)"
+    )
+
+
+def check_kinematic_channels(data: Any, present: Mapping[str, str]) -> None:
+    """Refuse flight-path reconstruction from channels that cannot be right.
+
+    `present` maps a quantity (``V``, ``alpha``, ``p`` ...) to its channel.
+
+    Raises
+    ------
+    ChannelError
+        An airspeed or rate whose magnitude is off by a unit factor,
+        naming the channel.
+    IdentificationError
+        Every rate and acceleration channel constant: nothing to reconstruct.
+    """
+    inertial = [q for q in ("p", "q", "r", "ax", "ay", "az") if q in present]
+    if inertial and all(_constant(data[present[q]]) is not None for q in inertial):
+        raise IdentificationError(
+            "no excitation: every rate and acceleration channel ("
+            + ", ".join(repr(present[q]) for q in inertial)
+            + ") is constant; the sensor errors cannot be estimated from a record without motion"
+        )
+    if "V" in present:
+        v = np.asarray(data[present["V"]], dtype=np.float64)
+        median = float(np.nanmedian(np.abs(v))) if v.size else float("nan")
+        lo, hi = _AIRSPEED_RANGE
+        if np.isfinite(median) and not lo <= median <= hi:
+            raise ChannelError(
+                f"channel {present['V']!r} (airspeed V): median {median:.4g} is not an "
+                f"airspeed in m/s ({lo:g} to {hi:g}); convert the channel (km/h, knots, "
+                "mm/s?) or map the right one"
+            )
+    # (the angles' range is checked with the channel map)
+    for quantity in ("p", "q", "r"):
+        if quantity not in present:
+            continue
+        v = np.asarray(data[present[quantity]], dtype=np.float64)
+        peak = float(np.nanmax(np.abs(v))) if v.size else 0.0
+        if peak > _RATE_LIMIT:
+            raise ChannelError(
+                f"channel {present[quantity]!r} ({quantity}): reaches {peak:.4g}, beyond the "
+                f"{_RATE_LIMIT:g} rad/s any airframe shows; is it in degrees per second?"
+            )
