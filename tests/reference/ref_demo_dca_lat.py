@@ -1,11 +1,11 @@
 """SIDPAC demo ``dca_lat_demo``: lateral data compatibility of HARV flight 342l.
 
 ``dcmp`` fits beta, phi and psi by output error, estimating ay, p and r
-biases and beta, phi and psi scale factors. ``dca_lat_demo_data.mat`` holds
-``pc`` and ``oe``'s covariance ``crbc`` (white). Ours:
-``aeroid.check_compatibility`` with the same six parameters; the differences
-listed in ``ref_demo_dca_lon.py`` apply (ours must also fit V, alpha and
-theta, and a psi scale factor about zero meets a heading near 3.8 rad).
+biases and beta, phi and psi scale factors, with u, w and theta replaced by
+their measurements. ``dca_lat_demo_data.mat`` holds ``pc`` and ``oe``'s
+covariance ``crbc`` (white). Ours: ``aeroid.check_compatibility`` set up as
+``ref_demo_dca_lon.py`` describes (the stored time tags alternate 0.0249 and
+0.0251 s; SIDPAC's constant step is the first interval).
 """
 
 from __future__ import annotations
@@ -37,7 +37,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         ("b_ay", "b_p", "b_r", "k_beta", "k_phi", "k_psi"),
         S.col(d["pc"]),
         np.asarray(d["crbc"], dtype=float),
-        absent=(),
+        outputs=("beta", "phi", "psi"),
+        measured=("u", "w", "theta"),
+        x0=S.col(d["x0"]),
         mc=mc,
         seed=seed,
     )

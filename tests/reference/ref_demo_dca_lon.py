@@ -2,18 +2,22 @@
 
 ``dcmp`` reconstructs the flight path from the accelerometers and rate gyros
 (ft/s^2, rad/s) and fits V, alpha and theta by output error, estimating
-ax, az and q biases and alpha and theta scale factors, from an initial
-state off the smoothed data with v, phi and psi replaced by their
-measurements. ``dca_lon_demo_data.mat`` holds the estimates ``pc`` and
-``oe``'s covariance ``crbc`` (white).
+ax, az and q biases and alpha and theta scale factors, from a held initial
+state (saved as ``x0``) with v, phi and psi replaced by their measurements
+and the scale factors acting on the change from the initial value. Its saved
+outputs are reproduced by forward Euler with the inputs held over each step,
+on a constant step equal to the first time-tag interval.
+``dca_lon_demo_data.mat`` holds the estimates ``pc`` and ``oe``'s covariance
+``crbc`` (white).
 
-Ours: ``aeroid.check_compatibility`` with the same five parameters, in
-ft/s^2 (``gravity=32.174``), with its defaults otherwise. Differences the
-library cannot remove yet: SIDPAC's biases are corrections added to the
-measurement (ours, subtracted, are shown negated); its scale factors act on
-the change from the initial value (ours on the value); it fixes the initial
-state and feeds some states from the measurements, where ours estimates the
-initial state and fits phi too (``V, alpha, phi, theta`` are required).
+Ours: ``aeroid.check_compatibility`` set up the same way (``outputs``,
+``measured_states``, ``estimate_x0=False`` with SIDPAC's ``x0``,
+``scale_about="initial"``, ``integration="euler"``, ``gravity=32.174``, the
+uniform time base). SIDPAC's biases are corrections added to the
+measurement; ours, subtracted, are compared negated. ``ours se`` is our
+default (coloured, with the input noise's share); the note gives the ratio
+of our white bars to SIDPAC's white ones. The Monte Carlo perturbs the fitted
+outputs only, not the inertial inputs.
 """
 
 from __future__ import annotations
@@ -32,8 +36,8 @@ import _sidpac as S
 CASE = "demo_dca_lon"
 FILE = "Demos/dca_lon_demo_data.mat"
 NOTE = (
-    "check_compatibility lacks SIDPAC's options: fixed initial state, measured states fed in, "
-    "scale factors about the initial value, fitting only SIDPAC's outputs; SIDPAC bias sign flipped"
+    "SIDPAC's set-up (held x0, measured states, scale about the initial value, Euler, "
+    "uniform time); SIDPAC bias sign flipped"
 )
 
 
@@ -46,11 +50,14 @@ def compat_rows(
     pc: np.ndarray,
     crbc: np.ndarray,
     *,
-    absent: Sequence[str],
+    outputs: Sequence[str],
+    measured: Sequence[str],
+    x0: np.ndarray,
     mc: int,
     seed: int,
 ) -> list[dict[str, Any]]:
-    """``u`` = ax, ay, az, p, q, r; ``z`` = V, beta, alpha, phi, theta, psi (ft, rad)."""
+    """``u`` = ax, ay, az, p, q, r; ``z`` = V, beta, alpha, phi, theta, psi (ft, rad);
+    ``x0`` = SIDPAC's held u, v, w, phi, theta, psi."""
     import aeroid
 
     inputs = ("ax", "ay", "az", "p", "q", "r")
@@ -61,13 +68,22 @@ def compat_rows(
         ch.update({n: zz[:, j] for j, n in enumerate(outs)})
         return aeroid.FlightData(time=t, channels=ch)
 
+    t = np.arange(t.size) * (t[1] - t[0])  # SIDPAC's time base: the first interval
     opts: dict[str, Any] = {
-        "channels": dict.fromkeys(absent),
         "estimate": list(names),
         "gravity": 32.174,
+        "outputs": list(outputs),
+        "measured_states": list(measured),
+        "estimate_x0": False,
+        "x0": dict(zip(("u", "v", "w", "phi", "theta", "psi"), map(float, x0), strict=True)),
+        "scale_about": "initial",
+        "integration": "euler",
     }
     with S.Timer() as tm:
         res = aeroid.check_compatibility(flight(z), **opts)
+    white = aeroid.check_compatibility(
+        flight(z), error_bars="white", input_noise=dict.fromkeys(inputs, 0.0), **opts
+    )
     fitted = [outs.index(o) for o in res.output_names]
     resid = np.asarray(res.measured) - np.asarray(res.reconstructed)
     model_out = z.copy()
@@ -81,6 +97,8 @@ def compat_rows(
 
     mcs = S.monte_carlo(refit, model_out[:, fitted], resid, mc, seed=seed)
     sw = S.se(crbc)
+    ratios = [white.stderr[n] / sw[i] for i, n in enumerate(names)]
+    white_note = f"white bars / SIDPAC's {min(ratios):.2f}-{max(ratios):.2f}"
     rows = []
     for i, n in enumerate(names):
         sign = -1.0 if n.startswith("b_") else 1.0
@@ -95,7 +113,7 @@ def compat_rows(
                 ours_se=res.stderr[n],
                 mc_se=mcs.get(n),
                 seconds=tm.seconds,
-                note=NOTE + f"; ours fits {', '.join(res.output_names)}",
+                note=NOTE + f"; ours fits {', '.join(res.output_names)}; {white_note}",
             )
         )
     return rows
@@ -113,7 +131,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         ("b_ax", "b_az", "b_q", "k_alpha", "k_theta"),
         S.col(d["pc"]),
         np.asarray(d["crbc"], dtype=float),
-        absent=("beta", "psi"),
+        outputs=("V", "alpha", "theta"),
+        measured=("v", "phi", "psi"),
+        x0=S.col(d["x0"]),
         mc=mc,
         seed=seed,
     )
