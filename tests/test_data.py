@@ -9,7 +9,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import scipy.io
-from _sidpac import sidpac_mat
+from _sidpac_files import sidpac_mat
 
 import aeroid
 from aeroid import ChannelError, DataFormatError, FlightData, load_flight_test

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.signal
-from _sidpac import sidpac_mat
+from _sidpac_files import sidpac_mat
 
 from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError, Model, catalog
 from aeroid.frequency import FrequencyResponseResult, frequency_response

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.signal
 import scipy.stats
-from _sidpac import sidpac_mat
+from _sidpac_files import sidpac_mat
 
 from aeroid import (
     ChannelError,
