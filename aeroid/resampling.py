@@ -56,6 +56,10 @@ MAX_SAMPLES = 100_000_000
 _SPLINE_PAD = 24
 
 
+# Out-of-order stamps are sorted unless the clock steps back by more than this many sample
+# intervals with more than this many samples after the step lying before it.
+_BACKWARD_STEPS = 3.0
+
 def close_names(name: str, available: Sequence[str]) -> list[str]:
     """Up to three of `available` that look like `name` (for 'did you mean' messages)."""
     return difflib.get_close_matches(name, list(available), n=3, cutoff=0.5)
@@ -156,6 +160,21 @@ def clean_source(name: str, raw: Any) -> Source:
     steps = np.diff(time)
     reordered = int(np.count_nonzero(steps < 0))
     if reordered:
+        # Stamps a sample or two out of order (packets logged late) sort into place; a
+        # clock that jumps back further would interleave two stretches of the record.
+        forward = steps[steps > 0]
+        typical = float(np.median(forward)) if forward.size else 0.0
+        back = int(np.argmin(steps))
+        # a stale stamp or two re-sent late sort into place; a run of them is a stretch
+        overlap = int(np.count_nonzero(time[back + 1 :] < time[back]))
+        if -steps[back] > _BACKWARD_STEPS * typical and overlap > _BACKWARD_STEPS:
+            raise DataFormatError(
+                f"channel {name!r}: time steps back by {-steps[back]:.6g} s at sample "
+                f"{back + 1} (from t = {time[back]:.6g} s to {time[back + 1]:.6g} s), "
+                f"more than {_BACKWARD_STEPS:g} sample intervals: the clock jumped or two "
+                "records were joined; sorting would interleave them. Load the stretches "
+                "on either side separately (t0/t1)"
+            )
         order = np.argsort(time, kind="stable")
         time, values = time[order], values[order]
     duplicates = int(np.count_nonzero(np.diff(time) == 0))

@@ -336,3 +336,15 @@ def test_fir_convolution_matches_numpy_and_scipy(n: int, k: int) -> None:
     scale = np.abs(h).sum() * np.abs(x).max()
     assert np.abs(got - np.convolve(x, h, "valid")).max() <= 1e-14 * scale
     assert np.abs(got - scipy.signal.oaconvolve(x, h, "valid")).max() <= 1e-14 * scale
+
+
+def test_a_clock_that_jumps_back_is_refused_not_interleaved():
+    # two stretches joined with the second starting 0.7 s before the first ends: sorting
+    # would interleave them into a saw-tooth
+    t = np.r_[np.arange(0, 5, 0.01), np.arange(4.3, 8, 0.01)]
+    with pytest.raises(DataFormatError, match=r"'x': time steps back by 0\.69 s at sample 500"):
+        resample({"x": (t, np.sin(t))}, ["x"], rate=50)
+    # a single stale stamp re-sent late still sorts into place
+    t1 = np.r_[np.arange(0, 5, 0.01), [1.005]]
+    out = resample({"x": (t1, np.sin(t1))}, ["x"], rate=50)
+    assert out.metadata["resampling"]["channels"]["x"]["reordered_stamps"] == 1
