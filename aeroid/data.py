@@ -22,6 +22,14 @@ __all__ = ["FlightData", "load_flight_test"]
 FloatArray = NDArray[np.float64]
 
 
+# A table or MATLAB file may not expand to more than this in memory (a small compressed
+# file can declare gigabytes); checked from the declared sizes before reading.
+_MAX_DECLARED_BYTES = 1 << 30
+_MAT_ITEM_BYTES = {
+    "double": 8, "single": 4, "int64": 8, "uint64": 8, "int32": 4, "uint32": 4,
+    "int16": 2, "uint16": 2, "int8": 1, "uint8": 1, "logical": 1, "char": 2,
+}  # fmt: skip
+
 def _readonly(values: ArrayLike) -> FloatArray:
     """Return a read-only float64 copy (the caller's array is never aliased)."""
     out = np.array(values, dtype=np.float64, copy=True)
@@ -690,6 +698,23 @@ def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
             f"{path}: reading Parquet needs pyarrow (pip install pyarrow)"
         ) from None
     try:
+        meta = pq.ParquetFile(path).metadata
+        declared = sum(
+            meta.row_group(i).column(j).total_uncompressed_size
+            for i in range(meta.num_row_groups)
+            for j in range(meta.num_columns)
+        )
+    except Exception as exc:  # pyarrow raises many types for corrupt files
+        raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
+    # what the table would take in memory, checked before a byte of it is decompressed
+    declared = max(declared, 8 * meta.num_rows * meta.num_columns)
+    if declared > _MAX_DECLARED_BYTES:
+        raise DataFormatError(
+            f"{path}: declares {declared / 2**30:.1f} GiB of data ({meta.num_rows} rows x "
+            f"{meta.num_columns} columns), over the {_MAX_DECLARED_BYTES >> 20} MiB a flight "
+            "file may expand to; split the record"
+        )
+    try:
         table = pq.read_table(path)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
@@ -720,6 +745,22 @@ def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
 def _read_mat(path: Path) -> tuple[list[str], dict[str, NDArray[Any]]]:
     import scipy.io
 
+    try:
+        listing = scipy.io.whosmat(path)
+    except Exception as exc:  # scipy raises ValueError/TypeError/NotImplementedError
+        raise DataFormatError(
+            f"{path}: not a readable MATLAB file ({exc}); MATLAB v7.3 (HDF5) files are "
+            "read as logs (see aeroid.read_log)"
+        ) from None
+    # the variables' declared sizes, checked before any of them is decompressed
+    for name, shape, kind in listing:
+        size = int(np.prod(shape, dtype=np.float64)) * _MAT_ITEM_BYTES.get(kind, 8)
+        if size > _MAX_DECLARED_BYTES:
+            raise DataFormatError(
+                f"{path}: variable {name!r} declares {size / 2**30:.1f} GiB ({kind} "
+                f"{'x'.join(map(str, shape))}), over the {_MAX_DECLARED_BYTES >> 20} MiB a "
+                "flight file may expand to"
+            )
     try:
         raw = scipy.io.loadmat(path, squeeze_me=True)
     except Exception as exc:  # scipy raises ValueError/TypeError/NotImplementedError

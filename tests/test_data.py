@@ -394,3 +394,23 @@ def test_a_log_is_loaded_between_t0_and_t1_around_a_gap_outside_them():
     assert data.time[0] == pytest.approx(21.0) and data.time[-1] <= 26.0 + 1e-9
     with pytest.raises(DataFormatError, match="t0 applies only with sample_rate"):
         load_flight_test(log, channels=chans, t0=21.0)
+
+
+@pytest.mark.parametrize("suffix", [".mat", ".parquet"])
+def test_a_file_declaring_more_than_the_limit_is_refused_before_reading(
+    tmp_path, monkeypatch, suffix
+):
+    # a small compressed file can declare gigabytes: the declared size is checked first
+    import aeroid.data as data_module
+
+    n = 2000
+    t = np.arange(n) * 0.01
+    path = tmp_path / f"big{suffix}"
+    if suffix == ".mat":
+        scipy.io.savemat(path, {"time": t, "q": np.zeros(n)}, do_compression=True)
+    else:
+        pq.write_table(pa.table({"time": t, "q": np.zeros(n)}), path, compression="zstd")
+    assert load_flight_test(path).n_samples == n
+    monkeypatch.setattr(data_module, "_MAX_DECLARED_BYTES", 8 * n - 1)
+    with pytest.raises(DataFormatError, match=r"declares .* over the 0 MiB"):
+        load_flight_test(path)
