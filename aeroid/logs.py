@@ -419,7 +419,10 @@ def _read_dataflash(path: Path, *, text: bool) -> FlightLog:
         try:
             channels: dict[str, LogChannel] = {}
             untimed: list[str] = []
-            collected = _df_collect_text(reader) if text else _df_collect_binary(reader)
+            try:
+                collected = _df_collect_text(reader) if text else _df_collect_binary(reader)
+            except DataFormatError as exc:
+                raise DataFormatError(f"{path}: {exc}") from None
             # Units are final only once every FMTU message has been read.
             for fmt, values in collected:
                 if not _df_channels(fmt, values, channels):
@@ -456,6 +459,14 @@ def _df_collect_binary(reader: Any) -> list[tuple[Any, dict[str, NDArray[Any]]]]
                 continue
             dtype = _df_dtype(fmt)
             body = dtype.itemsize
+            declared = int(getattr(fmt, "len", body + 3))
+            if declared != body + 3:
+                # pymavlink steps through the log by the declared length: a wrong one
+                # drops or garbles messages without a word
+                raise DataFormatError(
+                    f"message {fmt.name}: its FMT record declares {declared} bytes, but its "
+                    f"format {fmt.format!r} packs {body + 3}; the log is corrupt"
+                )
             offs = np.asarray(offsets, dtype=np.int64) + 3
             offs = offs[offs + body <= data.size]  # a message cut off at the end of the file
             rows = np.empty((offs.size, body), dtype=np.uint8)

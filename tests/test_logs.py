@@ -402,3 +402,15 @@ def test_records_are_exported():
     listing = listing_of(log)
     assert listing.names == ("a.b",) and listing.rate("a.b") == pytest.approx(1.0)
     assert not listing.rates.flags.writeable
+
+
+def test_a_format_record_that_lies_about_its_length_is_refused(tmp_path):
+    log, _ = _ardupilot_log(80)
+    # the IMU's FMT record claims two bytes more than its format packs
+    for i, (name, values) in enumerate(log.lines):
+        if name == "FMT" and values[2] == "IMU":
+            log.lines[i] = ("FMT", [values[0], values[1] + 2, *values[2:]])
+    path = tmp_path / "lying.bin"
+    path.write_bytes(log.binary())
+    with pytest.raises(DataFormatError, match=r"lying\.bin: message IMU: its FMT record declares"):
+        aeroid.read_log(path)
