@@ -494,3 +494,21 @@ def test_the_px4_roll_campaign_passes_its_checks():
     pytest.importorskip("pyulog")
     with _deadline(30.0):
         preflight(ROOT / "configs" / "px4_roll.yaml")
+
+
+def test_every_missing_flight_file_is_named_under_its_own_index(tmp_path):
+    # the demo's flights each bring their own trim, so they are checked in groups
+    text = (ROOT / "configs" / "demo.yaml").read_text(encoding="utf-8")
+    text = text.replace("c172x/flight_01.csv", "nope1.csv").replace(
+        "c172x/flight_04.csv", "nope4.csv"
+    )
+    text = text.replace("path: c172x/", f"path: {ROOT / 'configs' / 'c172x'}/")
+    cfg = tmp_path / "demo.yaml"
+    cfg.write_text(text, encoding="utf-8")
+    from aeroid.pipeline import plan
+
+    with pytest.raises(ConfigError) as info:
+        plan(cfg)
+    lines = str(info.value).splitlines()
+    assert any("flights[0].path: no such file" in ln and "nope1.csv" in ln for ln in lines)
+    assert any("flights[3].path: no such file" in ln and "nope4.csv" in ln for ln in lines)

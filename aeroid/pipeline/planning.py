@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 import warnings
 from collections import Counter
 from collections.abc import Mapping
@@ -116,6 +117,9 @@ class Plan:
 
 # -- models -----------------------------------------------------------------------------
 
+
+# "flights[3]" in a check's message: the flight's index in the list checked
+_FLIGHT_INDEX = re.compile(r"flights\[(\d+)\]")
 
 def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) -> Any:
     """A model from a built-in name, ``module:attribute`` (a Model or a factory; the
@@ -314,17 +318,35 @@ def _flight_sources(config: CampaignConfig) -> list[_Flight]:
 def _check_flight_models(
     config: CampaignConfig, model: Any, pipeline: Pipeline, allowed: bool
 ) -> None:
-    """The pre-flight checks, once per distinct model: each flight against its own."""
-    groups: dict[str, tuple[dict[str, Any] | None, list[Any]]] = {}
+    """The pre-flight checks, once per distinct model: each flight against its own.
+
+    Every group's faults are reported together, each under the flight's own index in
+    the config (a group's checks see only its flights, numbered from zero).
+    """
+    groups: dict[str, tuple[dict[str, Any] | None, list[Any], list[int]]] = {}
     for i, item in enumerate(config.flights):
         spec = item if isinstance(item, FileFlights) else None
         own = None if spec is None else _flight_model(config, i, spec)
         text = "" if own is None else canonical_json(own).decode()
-        groups.setdefault(text, (own, []))[1].append(item)
+        group = groups.setdefault(text, (own, [], []))
+        group[1].append(item)
+        group[2].append(i)
     if set(groups) == {""}:
         check_campaign(config, model, pipeline, base_dir=config.base_dir, allow_imports=allowed)
         return
-    for own, items in groups.values():
+    faults: list[str] = []
+
+    def collect(sub: CampaignConfig, checked: Any, index: list[int] | None) -> None:
+        try:
+            check_campaign(sub, checked, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+        except ConfigError as exc:
+            for line in str(exc).splitlines():
+                if index is not None:
+                    line = _FLIGHT_INDEX.sub(lambda m: f"flights[{index[int(m[1])]}]", line)
+                if line not in faults:
+                    faults.append(line)
+
+    for own, items, index in groups.values():
         sub = config.model_copy(
             update={"flights": items}
             if own is None
@@ -334,10 +356,11 @@ def _check_flight_models(
             }
         )
         checked = model if own is None else resolve_model(own, config.base_dir)
-        check_campaign(sub, checked, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+        collect(sub, checked, index)
     if "" not in groups:  # the campaign-level steps keep the campaign's model
-        sub = config.model_copy(update={"flights": []})
-        check_campaign(sub, model, pipeline, base_dir=config.base_dir, allow_imports=allowed)
+        collect(config.model_copy(update={"flights": []}), model, None)
+    if faults:
+        raise ConfigError("\n".join(faults))
 
 
 def plan(
