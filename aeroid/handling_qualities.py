@@ -605,6 +605,7 @@ def equivalent_system(
     input: str | None = None,
     output: str | None = None,
     start: Mapping[str, float] | None = None,
+    frequencies: ArrayLike | None = None,
 ) -> EquivalentSystemFit:
     """Fit a MIL-STD-1797A low-order equivalent system.
 
@@ -626,6 +627,9 @@ def equivalent_system(
     start : mapping, optional
         Start values of the polynomial parameters (see `fit_transfer_function`);
         given, they replace the global start.
+    frequencies : array_like, optional
+        A record only: the frequencies (rad/s) of its Fourier transforms
+        (default: the ``k/T`` grid over the band; see `fit_transfer_function`).
 
     Returns
     -------
@@ -669,6 +673,8 @@ def equivalent_system(
             f"frequency_range: expected 0 < low < high, got {frequency_range!r}"
         )
     m, n = _LOES_FORMS[kind]
+    if frequencies is not None and not isinstance(response, FlightData):
+        raise IdentificationError("frequencies applies to a record (FlightData) only")
     if isinstance(response, FlightData):
         data = response
 
@@ -683,6 +689,7 @@ def equivalent_system(
                 frequency_range=(lo, hi),
                 start=s,
                 fourier=True,
+                frequencies=frequencies,
             )
 
     else:
