@@ -269,3 +269,16 @@ def test_delta_method_standard_errors_match_monte_carlo():
     np.testing.assert_array_less(
         np.abs(centre - [3.0, 0.6, 2.0 / 3.0, 0.1]), 4 * spread / np.sqrt(40) + 1e-3
     )
+
+
+def test_record_path_errors_name_the_option():
+    import aeroid
+
+    data = _record(np.random.default_rng(0), ([2.0, 3.0], [1.0, 3.6, 9.0], 0.1))
+    with pytest.raises(aeroid.ChannelError):
+        equivalent_system(data)
+    with pytest.raises(IdentificationError, match="frequencies"):
+        equivalent_system(([1.0], [1.0, 1.0]), kind="roll", frequencies=[1.0, 2.0])
+    fit = equivalent_system(data, input="u", output="y")
+    assert np.isnan(fit.mismatch) and "no mismatch J" in fit.summary()
+    assert "T_theta2" in fit.summary()
