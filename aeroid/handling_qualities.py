@@ -50,14 +50,17 @@ from ._criteria import (
 )
 from ._records import fmt, frozen_mapping, markdown_table
 from ._threads import small_blas
-from .data import check_flag, plain
+from .data import FlightData, check_flag, plain
 from .errors import IdentificationError
 from .frequency_id import (
     CompositeResponse,
     ResponseChannel,
     TransferFunctionFit,
     _band,
+    _coherence_weight,
+    _levy_sk,
     _resolve_response,
+    _Structure,
     _unwrapped_phase,
     fit_transfer_function,
 )
@@ -465,9 +468,16 @@ class EquivalentSystemFit:
         ``short_period``: K, 1/T_theta2, zeta, omega, tau; ``roll``: K, 1/T_R,
         tau; ``dutch_roll``: K, zeta, omega, tau (rad/s, s).
     mismatch : float
-        The Hodgkinson/CIFER mismatch J over the band.
+        The Hodgkinson/CIFER mismatch J over the band (NaN for a fit to a
+        record's Fourier transforms).
     fit : TransferFunctionFit
         The underlying transfer-function fit (its polynomial parameters and bounds).
+    frequency_range : (float, float)
+        The band in rad/s.
+    standard_errors : mapping of str to float
+        Standard error of each parameter (and, for the short period, of
+        ``T_theta2``) by the delta method from the fit's covariance: first-order
+        propagation through the map from the polynomial coefficients.
     """
 
     kind: str
@@ -475,9 +485,11 @@ class EquivalentSystemFit:
     mismatch: float
     fit: TransferFunctionFit
     frequency_range: tuple[float, float] = field(default=_LOES_BAND)
+    standard_errors: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
+        object.__setattr__(self, "standard_errors", frozen_mapping(self.standard_errors))
 
     def evaluate(self, frequency: ArrayLike) -> ComplexArray:
         """The equivalent system's response at ω (rad/s)."""
@@ -510,16 +522,28 @@ class EquivalentSystemFit:
 
     def summary(self) -> str:
         """Markdown table of the equivalent-system parameters, the mismatch and the Level."""
-        rows = [(k, fmt(v)) for k, v in self.parameters.items()]
+        se = self.standard_errors
+        rows = [(k, fmt(v), fmt(se.get(k, float("nan")))) for k, v in self.parameters.items()]
+        if "T_theta2" in se:
+            inv = self.parameters["1/T_theta2"]
+            rows.append(
+                ("T_theta2", fmt(1.0 / inv if inv != 0 else float("inf")), fmt(se["T_theta2"]))
+            )
         verdict = "within" if self.mismatch <= _MISMATCH_GUIDELINE else "beyond"
         lo, hi = self.frequency_range
+        j_line = (
+            f"Mismatch J = {fmt(self.mismatch, 4)} over {fmt(lo, 3)}–{fmt(hi, 3)} rad/s "
+            f"({verdict} the J ≤ {_MISMATCH_GUIDELINE:.0f} guideline)."
+            if np.isfinite(self.mismatch)
+            else f"Fitted to the record's Fourier transforms over {fmt(lo, 3)}–{fmt(hi, 3)} "
+            "rad/s (no averaged response: no mismatch J)."
+        )
         lines = [
             f"## Low-order equivalent system ({self.kind})",
             "",
-            markdown_table(("parameter", "value"), rows),
+            markdown_table(("parameter", "value", "standard error"), rows),
             "",
-            f"Mismatch J = {fmt(self.mismatch, 4)} over {fmt(lo, 3)}–{fmt(hi, 3)} rad/s "
-            f"({verdict} the J ≤ {_MISMATCH_GUIDELINE:.0f} guideline).",
+            j_line,
         ]
         level = self.level
         if level is not None:
@@ -581,14 +605,17 @@ def equivalent_system(
     input: str | None = None,
     output: str | None = None,
     start: Mapping[str, float] | None = None,
+    frequencies: ArrayLike | None = None,
 ) -> EquivalentSystemFit:
     """Fit a MIL-STD-1797A low-order equivalent system.
 
     Parameters
     ----------
-    response : CompositeResponse, ResponseChannel, fit or (num, den[, delay])
-        The measured response, or a high-order system's transfer function
-        (evaluated at 100 log-spaced frequencies over the band).
+    response : CompositeResponse, ResponseChannel, FlightData, fit or (num, den[, delay])
+        The measured response, a record (fitted directly on its finite Fourier
+        transforms over the band's ``k/T`` frequencies, as SIDPAC's Example 7.3;
+        `input` and `output` name the channels), or a high-order system's
+        transfer function (evaluated at 100 log-spaced frequencies over the band).
     kind : {"short_period", "roll", "dutch_roll"}
         The standard form (see the module notes).
     frequency_range : (float, float)
@@ -598,11 +625,25 @@ def equivalent_system(
     input, output : str, optional
         The pair, for a composite response with several.
     start : mapping, optional
-        Start values of the polynomial parameters (see `fit_transfer_function`).
+        Start values of the polynomial parameters (see `fit_transfer_function`);
+        given, they replace the global start.
+    frequencies : array_like, optional
+        A record only: the frequencies (rad/s) of its Fourier transforms
+        (default: the ``k/T`` grid over the band; see `fit_transfer_function`).
 
     Returns
     -------
     EquivalentSystemFit
+
+    Notes
+    -----
+    The global start: for each delay on a grid from 0 to half a turn of phase at
+    the band's top frequency, a linear (Sanathanan-Koerner) fit of the rational
+    form to ``H(jω) e^{jωτ}``; the best four with stable poles, ranked by their
+    mismatch, and the default start each start the nonlinear fit. The lowest
+    final cost wins; among costs within 10 % of it a physical solution
+    (minimum-phase zero, ``τ ≥ 0``) is preferred. Standard errors of the
+    parameters follow by the delta method.
 
     Raises
     ------
@@ -631,37 +672,209 @@ def equivalent_system(
         raise IdentificationError(
             f"frequency_range: expected 0 < low < high, got {frequency_range!r}"
         )
-    if isinstance(response, (CompositeResponse, ResponseChannel)):
-        ch = _resolve_response(response, input, output, "response")
-    else:
-        ch = _exact_channel(response, (lo, hi))
     m, n = _LOES_FORMS[kind]
-    fit = fit_transfer_function(
-        ch,
-        numerator_order=m,
-        denominator_order=n,
-        delay=delay,
-        frequency_range=frequency_range,
-        start=start,
-    )
-    p = fit.parameters
+    if frequencies is not None and not isinstance(response, FlightData):
+        raise IdentificationError("frequencies applies to a record (FlightData) only")
+    if isinstance(response, FlightData):
+        data = response
+
+        def fitter(s: Mapping[str, float] | None) -> TransferFunctionFit:
+            return fit_transfer_function(
+                data,
+                input=input,
+                output=output,
+                numerator_order=m,
+                denominator_order=n,
+                delay=delay,
+                frequency_range=(lo, hi),
+                start=s,
+                fourier=True,
+                frequencies=frequencies,
+            )
+
+    else:
+        if isinstance(response, (CompositeResponse, ResponseChannel)):
+            ch = _resolve_response(response, input, output, "response")
+        else:
+            ch = _exact_channel(response, (lo, hi))
+
+        def fitter(s: Mapping[str, float] | None) -> TransferFunctionFit:
+            return fit_transfer_function(
+                ch,
+                numerator_order=m,
+                denominator_order=n,
+                delay=delay,
+                frequency_range=(lo, hi),
+                start=s,
+            )
+
+    objective: Callable[[TransferFunctionFit], float] = _cifer_cost
+    if isinstance(response, FlightData):
+        objective = _fourier_residual(response, input, output)
+    fit = fitter(start) if start is not None else _global_fit(fitter, objective, kind, m, n, delay)
+    out = _loes_parameters(kind, fit.parameters)
+    # a Fourier fit's Y/U ratios are raw (no averaging, no coherence): no mismatch J
+    mismatch = float("nan") if isinstance(response, FlightData) else fit.cost
+    return EquivalentSystemFit(kind, out, mismatch, fit, (lo, hi), _delta_method(kind, fit))
+
+
+# Delays tried by the global start: a grid up to half a turn of phase at the top
+# frequency, and the number of the best rational fits refined nonlinearly.
+_DELAY_GRID = 13
+_STARTS = 4
+# Among final fits whose cost is within this factor of the lowest, a physical one
+# (minimum-phase zero, τ ≥ 0) is preferred.
+_CLOSE = 1.1
+
+
+def _loes_parameters(kind: str, p: Mapping[str, float]) -> dict[str, float]:
+    """The equivalent-system parameters from the polynomial ones."""
     tau = float(p.get("tau", 0.0))
+    nan = float("nan")
+    if kind == "roll":
+        return {"K": p["b0"], "1/T_R": p["a0"], "tau": tau}
+    omega = float(np.sqrt(p["a0"])) if p["a0"] > 0 else nan
+    zeta = p["a1"] / (2.0 * omega) if p["a0"] > 0 else nan
     if kind == "short_period":
         k = p["b1"]
-        out = {
+        return {
             "K": k,
-            "1/T_theta2": p["b0"] / k if k != 0 else float("nan"),
-            "zeta": p["a1"] / (2.0 * np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
-            "omega": float(np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
+            "1/T_theta2": p["b0"] / k if k != 0 else nan,
+            "zeta": zeta,
+            "omega": omega,
             "tau": tau,
         }
-    elif kind == "roll":
-        out = {"K": p["b0"], "1/T_R": p["a0"], "tau": tau}
-    else:
-        out = {
-            "K": p["b0"],
-            "zeta": p["a1"] / (2.0 * np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
-            "omega": float(np.sqrt(p["a0"])) if p["a0"] > 0 else float("nan"),
-            "tau": tau,
-        }
-    return EquivalentSystemFit(kind, out, fit.cost, fit, (lo, hi))
+    return {"K": p["b0"], "zeta": zeta, "omega": omega, "tau": tau}
+
+
+def _derived(kind: str, p: Mapping[str, float]) -> dict[str, float]:
+    """`_loes_parameters` and, for the short period, T_theta2."""
+    out = _loes_parameters(kind, p)
+    if kind == "short_period":
+        out["T_theta2"] = p["b1"] / p["b0"] if p["b0"] != 0 else float("nan")
+    return out
+
+
+def _delta_method(kind: str, fit: TransferFunctionFit) -> dict[str, float]:
+    """Standard errors of the derived parameters: sqrt(diag(G Σ Gᵀ)), G by central differences."""
+    names = list(fit.parameters)
+    theta = np.array([fit.parameters[k] for k in names], dtype=np.float64)
+    cov = np.asarray(fit.covariance, dtype=np.float64)
+    base = _derived(kind, fit.parameters)
+    keys = list(base)
+    g = np.zeros((len(keys), theta.size))
+    for j in range(theta.size):
+        step = 1e-6 * max(abs(theta[j]), 1e-3)
+        hi, lo = theta.copy(), theta.copy()
+        hi[j] += step
+        lo[j] -= step
+        up = _derived(kind, dict(zip(names, hi.tolist(), strict=True)))
+        down = _derived(kind, dict(zip(names, lo.tolist(), strict=True)))
+        g[:, j] = [(up[k] - down[k]) / (2.0 * step) for k in keys]
+    with np.errstate(invalid="ignore"):
+        var = np.einsum("ij,jk,ik->i", g, cov, g)
+        se = np.sqrt(np.clip(var, 0.0, None))
+    return dict(zip(keys, se.tolist(), strict=True))
+
+
+def _mismatch(fit: TransferFunctionFit, p: Mapping[str, float]) -> float:
+    """Hodgkinson/CIFER mismatch J of the transfer function `p` against the fit's points."""
+    w = np.asarray(fit.frequency, dtype=np.float64)
+    h = np.asarray(fit.response, dtype=np.complex128)
+    keys = list(fit.parameters)
+    m = sum(k.startswith("b") for k in keys) - 1
+    n = sum(k.startswith("a") for k in keys)
+    st = _Structure(m, n, "tau" in p, w)
+    theta = np.array([p[k] for k in keys], dtype=np.float64)
+    with np.errstate(all="ignore"):
+        d = np.log(h) - st.log_response(theta)[0]
+        j = (20.0 / w.size) * np.sum(
+            _coherence_weight(np.asarray(fit.coherence, dtype=np.float64))
+            * (
+                (20.0 / np.log(10.0) * d.real) ** 2
+                + 0.01745 * np.degrees(np.angle(np.exp(1j * d.imag))) ** 2
+            )
+        )
+    return float(j) if np.isfinite(j) else float("inf")
+
+
+def _cifer_cost(fit: TransferFunctionFit) -> float:
+    return fit.cost
+
+
+def _fourier_residual(
+    data: FlightData, input: str | None, output: str | None
+) -> Callable[[TransferFunctionFit], float]:
+    """The objective of a Fourier-transform fit, Σ |Y − T U|², at the fit's frequencies."""
+    from .frequency_domain import _transform
+    from .frequency_id import _detrended
+
+    dt = float(np.mean(np.diff(data.time)))
+    u = _detrended(data.time, np.asarray(data[str(input)], dtype=np.float64))
+    y = _detrended(data.time, np.asarray(data[str(output)], dtype=np.float64))
+
+    def cost(fit: TransferFunctionFit) -> float:
+        w = np.asarray(fit.frequency, dtype=np.float64)
+        big_u = _transform(u[:, None], dt, w, cubic=False)[:, 0]
+        big_y = _transform(y[:, None], dt, w, cubic=True)[:, 0]
+        r = big_y - fit.evaluate(w) * big_u
+        return float(np.sum(np.abs(r) ** 2))
+
+    return cost
+
+
+def _physical(kind: str, p: Mapping[str, float]) -> bool:
+    if p.get("tau", 0.0) < 0:
+        return False
+    return not (kind == "short_period" and p["b1"] != 0 and p["b0"] / p["b1"] < 0)
+
+
+def _global_fit(
+    fitter: Callable[[Mapping[str, float] | None], TransferFunctionFit],
+    objective: Callable[[TransferFunctionFit], float],
+    kind: str,
+    m: int,
+    n: int,
+    delay: bool,
+) -> TransferFunctionFit:
+    """The fit from several starts: linear rational fits over a grid of delays.
+
+    For each delay on a grid from 0 to half a turn of phase at the top frequency,
+    a Sanathanan-Koerner (iterated Levy) fit of the rational form to H(jω) e^{jωτ};
+    those with stable poles, ranked by their mismatch, start the nonlinear fit. The
+    lowest final cost wins, a physical solution preferred among costs within 10 %.
+    """
+    base = fitter(None)
+    w = np.asarray(base.frequency, dtype=np.float64)
+    h = np.asarray(base.response, dtype=np.complex128)
+    weight = _coherence_weight(np.asarray(base.coherence, dtype=np.float64))
+    st = _Structure(m, n, False, w)
+    names = list(base.parameters)
+    taus = np.linspace(0.0, np.pi / float(w.max()), _DELAY_GRID) if delay else np.zeros(1)
+    ranked: list[tuple[float, dict[str, float]]] = []
+    for tau in taus:
+        with np.errstate(all="ignore"):
+            theta = _levy_sk(st, h * np.exp(1j * w * tau), weight)
+        poles = np.roots(np.concatenate([[1.0], theta[m + 1 :][::-1]]))
+        if not (np.all(np.isfinite(theta)) and np.all(poles.real < 0)):
+            continue
+        cand = dict(zip(names, [*theta.tolist(), float(tau)][: len(names)], strict=True))
+        ranked.append((_mismatch(base, cand), cand))
+    ranked.sort(key=lambda c: c[0])
+    fits = [base]
+    for _, cand in ranked[:_STARTS]:
+        try:
+            fits.append(fitter(cand))
+        except IdentificationError:
+            continue  # a start that diverges is no candidate
+
+    costs = [objective(f) for f in fits]
+    best = min(costs)
+    close = [
+        f
+        for f, c in zip(fits, costs, strict=True)
+        if c <= _CLOSE * best and _physical(kind, f.parameters)
+    ]
+    if close:
+        return min(close, key=objective)
+    return fits[int(np.argmin(costs))]

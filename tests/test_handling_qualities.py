@@ -166,3 +166,119 @@ def test_margins_refuse_bad_coefficients(tf, culprit):
 def test_equivalent_system_refuses_bad_options(kwargs, culprit):
     with pytest.raises(IdentificationError, match=culprit):
         equivalent_system(([4.0, 2.0], [1.0, 2.0, 4.0], 0.02), **kwargs)
+
+
+# -- global start and standard errors of equivalent systems -----------------------------
+
+# A high-order pitch response (short period, lead-lag, second-order actuator, delay)
+# whose fit from the single best linear start ends with a right-half-plane zero.
+_HOS_NUM = np.polymul(np.polymul([1.0, 2.229], [1.0 / 7.463, 1.0]), [13.361**2])
+_HOS_DEN = np.polymul(
+    np.polymul([1.0, 2 * 0.389 * 4.721, 4.721**2], [1.0, 2 * 0.552 * 13.361, 13.361**2]),
+    [1.0 / 2.093, 1.0],
+)
+_HOS = (_HOS_NUM, _HOS_DEN, 0.261)
+
+
+def test_global_start_leaves_the_right_half_plane_minimum():
+    from aeroid import fit_transfer_function
+    from aeroid.handling_qualities import _exact_channel
+
+    ch = _exact_channel(_HOS, (0.1, 10.0))
+    single = fit_transfer_function(ch, numerator_order=1, denominator_order=2)
+    assert single.parameters["b1"] < 0  # the minimum the single start finds: a RHP zero
+    fit = equivalent_system(_HOS)
+    assert fit.flags == ()
+    assert fit.parameters["1/T_theta2"] > 0 and fit.parameters["tau"] > 0
+    assert fit.mismatch < single.cost / 5
+    # no start from the short-period mode itself over a grid of delays does better
+    for tau in np.linspace(0.0, 0.5, 6):
+        start = {"b0": 2.229 * 12.0, "b1": 12.0, "a0": 4.721**2, "a1": 3.7, "tau": tau}
+        other = equivalent_system(_HOS, start=start)
+        assert fit.mismatch <= other.mismatch * (1 + 1e-6) or other.flags
+    # and the optimum is a stationary point: refitting from it stays there
+    again = equivalent_system(_HOS, start=dict(fit.fit.parameters))
+    assert again.mismatch == pytest.approx(fit.mismatch, rel=1e-6)
+
+
+def test_rhp_zero_and_negative_delay_are_flagged():
+    # an exact non-minimum-phase, advanced response: the fit must reproduce and flag it
+    fit = equivalent_system(([2.0, -3.0], [1.0, 2.0, 9.0], -0.05))
+    assert fit.parameters["1/T_theta2"] == pytest.approx(-1.5, rel=1e-6)
+    assert fit.parameters["tau"] == pytest.approx(-0.05, abs=1e-8)
+    assert any("right-half-plane" in f for f in fit.flags)
+    assert any("negative time delay" in f for f in fit.flags)
+    assert "Warning" in fit.summary()
+
+
+@pytest.mark.parametrize(
+    ("kind", "tf", "expect"),
+    [
+        ("roll", ([4.0], [1.0, 2.5], 0.08), {"K": 4.0, "1/T_R": 2.5, "tau": 0.08}),
+        (
+            "dutch_roll",
+            ([3.0], [1.0, 2 * 0.2 * 2.2, 2.2**2], 0.05),
+            {"K": 3.0, "zeta": 0.2, "omega": 2.2, "tau": 0.05},
+        ),
+    ],
+)
+def test_global_start_recovers_other_forms(kind, tf, expect):
+    fit = equivalent_system(tf, kind=kind)
+    for k, v in expect.items():
+        assert fit.parameters[k] == pytest.approx(v, rel=1e-6, abs=1e-9)
+    assert set(fit.standard_errors) == set(fit.parameters)
+    assert fit.flags == ()
+
+
+def _record(rng, tf, n=2001, dt=0.02, noise=0.3):
+    """A seeded random-step input through `tf` (delay a whole number of samples) plus noise."""
+    import scipy.signal
+
+    import aeroid
+
+    num, den, tau = tf
+    t = dt * np.arange(n)
+    steps = np.repeat(np.random.default_rng(0).standard_normal(n // 25 + 1), 25)[:n]
+    u = np.convolve(steps, np.ones(5) / 5, mode="same")
+    # at rest at both ends, so the finite Fourier transforms carry no end effects
+    u[(t < 1.0) | (t > t[-1] - 10.0)] = 0.0
+    lag = round(tau / dt)
+    u_late = np.concatenate([np.zeros(lag), u[: n - lag]])
+    y = scipy.signal.lsim((num, den), u_late, t)[1]
+    y = y + noise * np.std(y) * rng.standard_normal(n)
+    return aeroid.FlightData(time=t, channels={"u": u, "y": y})
+
+
+def test_delta_method_standard_errors_match_monte_carlo():
+    """Delta-method SEs of ω, ζ, T_θ2 and τ against the scatter over 40 seeded records."""
+    truth = ([2.0, 3.0], [1.0, 2 * 0.6 * 3.0, 9.0], 0.1)
+    names = ("omega", "zeta", "T_theta2", "tau")
+    draws, ses = [], []
+    for seed in range(40):
+        fit = equivalent_system(_record(np.random.default_rng(seed), truth), input="u", output="y")
+        p = dict(fit.parameters)
+        p["T_theta2"] = 1.0 / p["1/T_theta2"]
+        draws.append([p[k] for k in names])
+        ses.append([fit.standard_errors[k] for k in names])
+    spread = np.std(np.asarray(draws), axis=0, ddof=1)
+    mean_se = np.mean(np.asarray(ses), axis=0)
+    # the sample standard deviation of 40 draws is within ~3/sqrt(2*39) = 34 % of the truth
+    np.testing.assert_allclose(mean_se / spread, 1.0, atol=0.34)
+    # and the estimates centre on the truth within 4 standard errors of their mean
+    centre = np.mean(np.asarray(draws), axis=0)
+    np.testing.assert_array_less(
+        np.abs(centre - [3.0, 0.6, 2.0 / 3.0, 0.1]), 4 * spread / np.sqrt(40) + 1e-3
+    )
+
+
+def test_record_path_errors_name_the_option():
+    import aeroid
+
+    data = _record(np.random.default_rng(0), ([2.0, 3.0], [1.0, 3.6, 9.0], 0.1))
+    with pytest.raises(aeroid.ChannelError):
+        equivalent_system(data)
+    with pytest.raises(IdentificationError, match="frequencies"):
+        equivalent_system(([1.0], [1.0, 1.0]), kind="roll", frequencies=[1.0, 2.0])
+    fit = equivalent_system(data, input="u", output="y")
+    assert np.isnan(fit.mismatch) and "no mismatch J" in fit.summary()
+    assert "T_theta2" in fit.summary()
