@@ -205,7 +205,7 @@ def test_report_paths_that_would_overwrite_inputs_or_each_other_are_refused(tmp_
     with pytest.raises(ConfigError, match=r"c.yaml is an input of the campaign"):
         run(cfg, workers=0)
     cfg.write_text(text.replace("report: out/report.md\n", "name: ../elsewhere\n"))
-    with pytest.raises(ConfigError, match=r"name: '../elsewhere' names the report file"):
+    with pytest.raises(ConfigError, match=r"name: .*names the report file.*'\.\./elsewhere'"):
         run(cfg, workers=0)
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "report.md").write_text("# my own notes\n")

@@ -11,16 +11,14 @@ from __future__ import annotations
 import difflib
 import glob
 import json
-import math
 import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, get_args
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
-    ConfigDict,
     Discriminator,
     Field,
     Tag,
@@ -31,6 +29,8 @@ from pydantic import (
 )
 
 from ..errors import ConfigError
+from ._options import Options
+from ._paths import glob_files, network_refusal
 from ._yaml import read_yaml
 
 __all__ = [
@@ -44,86 +44,6 @@ __all__ = [
     "format_validation_error",
     "load_config",
 ]
-
-
-class Options(BaseModel):
-    """Base of every options model: frozen, unknown keys forbidden, numbers finite."""
-
-    # NaN and infinity are refused where a float is declared, and (below) anywhere
-    # inside free-form options: no config option means "not a number"
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    #: Options added after the stage's keys were first computed: left out of the
-    #: key while unset, so adding one does not recompute every stored result.
-    added_later: ClassVar[frozenset[str]] = frozenset()
-    #: Options that change how a result is computed, never the result (how many
-    #: parallel parts): kept out of the key, so changing one recomputes nothing.
-    execution_only: ClassVar[frozenset[str]] = frozenset()
-    #: Free-form fields validated by another model later (with better key paths).
-    checked_later: ClassVar[frozenset[str]] = frozenset()
-
-    @field_validator("*", mode="before")
-    @classmethod
-    def _no_stray_bool(cls, value: Any, info: ValidationInfo) -> Any:
-        # pydantic reads `true` as 1 for a count: `n_samples: true` would run one draw
-        field = cls.model_fields.get(info.field_name or "")
-        if isinstance(value, bool) and field is not None and not _admits_bool(field.annotation):
-            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
-        return value
-
-    @field_validator("*", mode="after")
-    @classmethod
-    def _finite(cls, value: Any, info: ValidationInfo) -> Any:
-        if info.field_name in cls.checked_later:
-            return value
-        where = _non_finite(value)
-        if where is not None:
-            raise ValueError(f"must be a finite number{where}")
-        return value
-
-    def key_document(self) -> dict[str, Any]:
-        """The options as they enter a task's key (plain JSON)."""
-        doc = self.model_dump(mode="json")
-        return {
-            k: v
-            for k, v in doc.items()
-            if k not in self.execution_only and not (v is None and k in self.added_later)
-        }
-
-    def task_document(self) -> dict[str, Any]:
-        """The options a task runs with: `key_document` plus the execution-only ones set."""
-        doc = self.model_dump(mode="json")
-        extra = {k: doc[k] for k in self.execution_only if doc.get(k) is not None}
-        return {**self.key_document(), **extra}
-
-    def library_kwargs(self, *, exclude: Sequence[str] = ()) -> dict[str, Any]:
-        """Options given (not None) as keyword arguments for the library function."""
-        out = self.model_dump(mode="python", exclude_none=True, exclude=set(exclude))
-        return out
-
-
-def _admits_bool(annotation: Any) -> bool:
-    """True when a field's type takes a boolean as itself (bool, Any, a union with bool)."""
-    if annotation is bool or annotation is Any:
-        return True
-    return any(_admits_bool(a) for a in get_args(annotation))
-
-
-def _non_finite(value: Any, path: str = "") -> str | None:
-    """Where in a plain value (mappings, lists, numbers) a NaN or infinity sits, else None."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return f" (at {path.lstrip('.')}: {value})" if path else f" (got {value})"
-    if isinstance(value, Mapping):
-        for k, v in value.items():
-            found = _non_finite(v, f"{path}.{k}")
-            if found is not None:
-                return found
-    elif isinstance(value, (list, tuple)):
-        for i, v in enumerate(value):
-            found = _non_finite(v, f"{path}[{i}]")
-            if found is not None:
-                return found
-    return None
 
 
 class ChannelEntry(Options):
@@ -315,78 +235,6 @@ def _flight_kind(value: Any) -> str:
     return "file"
 
 
-def _segment_regex(segment: str) -> str:
-    """One path segment of a glob pattern as a regex that never crosses a '/'."""
-    out = [r"(?!\.)"] if segment[:1] in "*?[" else []  # like glob: '*' skips hidden names
-    i = 0
-    while i < len(segment):
-        c = segment[i]
-        close = segment.find("]", i + 2) if c == "[" else -1
-        if c == "*":
-            out.append("[^/]*")
-        elif c == "?":
-            out.append("[^/]")
-        elif close > 0:
-            body = segment[i + 1 : close]
-            body = "^" + body[1:] if body.startswith("!") else body
-            out.append("[" + body.replace("\\", "\\\\") + "]")
-            i = close
-        else:
-            out.append(re.escape(c))
-        i += 1
-    return "".join(out)
-
-
-def glob_files(pattern: str) -> list[Path]:
-    """Files a glob pattern matches, sorted; ``**`` walks each real folder once.
-
-    `glob.glob` with ``**`` follows a symbolic link loop until the path is too
-    long, which takes hours; this walk follows links but skips a folder it has
-    already seen.
-    """
-    if "**" not in pattern:
-        return sorted(Path(p) for p in glob.glob(pattern))
-    parts = Path(pattern).parts
-    first = next(i for i, part in enumerate(parts) if glob.has_magic(part))
-    root = Path(*parts[:first]) if first else Path(".")
-    rest = parts[first:]
-    regex = ""
-    for part in rest:
-        regex += "(?:[^/.][^/]*/)*" if part == "**" else _segment_regex(part) + "/"
-    if rest[-1] == "**":
-        regex += r"[^/.][^/]*/"
-    matcher = re.compile(regex[:-1] + r"\Z", re.DOTALL)
-    found: list[Path] = []
-    seen: set[str] = set()
-    for folder, dirs, files in os.walk(root, followlinks=True):
-        real = os.path.realpath(folder)
-        if real in seen:
-            dirs[:] = []
-            continue
-        seen.add(real)
-        rel = Path(folder).relative_to(root).as_posix()
-        prefix = "" if rel == "." else rel + "/"
-        found += [Path(folder) / f for f in files if matcher.match(prefix + f)]
-    return sorted(found)
-
-
-def _is_loopback(address: str) -> bool:
-    """True for a scheduler on this machine (``tcp://127.0.0.1:8786``, ``localhost``)."""
-    import ipaddress
-    from urllib.parse import urlsplit
-
-    try:
-        host = urlsplit(address).hostname or ""
-    except ValueError:
-        return False
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
 FlightSpec = Annotated[
     Annotated[str, Tag("glob")]
     | Annotated[FileFlights, Tag("file")]
@@ -456,7 +304,6 @@ class CampaignConfig(Options):
     @field_validator("store")
     @classmethod
     def _check_store(cls, v: str) -> str:
-        import re
 
         if re.search(r"\$\{?[A-Za-z_]|%[A-Za-z_]+%", v):
             raise ValueError(
@@ -472,25 +319,9 @@ class CampaignConfig(Options):
         # what the caller passes (``--store``, ``run(store=...)``) is its own choice;
         # these checks are for what a config file asks for
         given = (info.context or {}).get("caller_set", frozenset())
-        if self.scheduler is not None and not self.allow_network and "scheduler" not in given:
-            if not _is_loopback(self.scheduler):
-                raise ValueError(
-                    f"scheduler: {self.scheduler} is another host; a scheduler receives the "
-                    "flight data and runs pickled code, so set allow_network: true to use it"
-                )
-        protocol = self.store.split("://", 1)[0].lower() if "://" in self.store else "file"
-        if "store" in given:
-            return self
-        if protocol == "memory":
-            raise ValueError(
-                "store: memory:// lives in this process only and keeps nothing after the run; "
-                "name a folder or an object-store URL"
-            )
-        if protocol not in ("file", "local") and not self.allow_network:
-            raise ValueError(
-                f"store: {self.store} sends flight data and results to {protocol}://; "
-                "set allow_network: true to use a remote store"
-            )
+        refusal = network_refusal(self.scheduler, self.store, self.allow_network, given)
+        if refusal:
+            raise ValueError(refusal)
         return self
 
     @property
