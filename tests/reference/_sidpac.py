@@ -114,11 +114,13 @@ def row(
     mc_se: float | None = None,
     seconds: float | None = None,
     note: str | None = None,
+    delta_sigma: float | None = None,
 ) -> dict[str, Any]:
     """One table row with the derived columns filled in.
 
     ``delta_sigma`` and ``se_ratio`` use SIDPAC's corrected standard error
-    where it saved one, else its white one; ``mc_ratio`` is ours over the
+    where it saved one, else its white one (a case with no SIDPAC error, compared
+    with a truth, passes its own |delta|/sigma); ``mc_ratio`` is ours over the
     Monte Carlo scatter.
     """
 
@@ -129,6 +131,8 @@ def row(
     delta = None
     if sidpac is not None and ours is not None and ref:
         delta = abs(float(ours) - float(sidpac)) / ref
+    elif delta_sigma is not None:
+        delta = abs(float(delta_sigma))
     out: dict[str, Any] = {
         "case": case,
         "parameter": parameter,

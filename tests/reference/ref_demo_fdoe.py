@@ -17,12 +17,16 @@ library's defaults otherwise.
 
 from __future__ import annotations
 
-import os
 import pathlib
+import sys
 import time
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+
+import _sidpac as S
 
 CASE = "demo_fdoe"
 FILE = "Demos/fdoe_demo_data.mat"
@@ -78,7 +82,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     for i, n in enumerate(NAMES):
         ours, se = res.parameters[n], res.stderr[n]
         rows.append(
-            dict(
+            S.row(
                 case=CASE,
                 parameter=n,
                 sidpac=float(truth[i]),
@@ -86,33 +90,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                 sidpac_se_corrected=None,
                 ours=float(ours),
                 ours_se=float(se),
-                delta_sigma=float((ours - truth[i]) / se),
-                se_ratio=None,
                 mc_se=None,
-                mc_ratio=None,
                 seconds=secs,
+                delta_sigma=float((ours - truth[i]) / se),
             )
         )
     return rows
 
 
-def _main() -> int:
-    folder = os.environ.get("AEROID_SIDPAC_DIR")
-    if not folder:
-        print(f"{CASE}: AEROID_SIDPAC_DIR unset; skipped")
-        return 0
-    rows = run(pathlib.Path(folder))
-    if not rows:
-        print(f"{CASE}: {FILE} not found; skipped")
-        return 0
-    print("{:10s} {:>9s} {:>9s} {:>9s} {:>6s}".format("parameter", "truth", "ours", "se", "dsig"))
-    for r in rows:
-        print(
-            f"{r['parameter']:10s} {r['sidpac']:9.4f} {r['ours']:9.4f} {r['ours_se']:9.4f} "
-            f"{r['delta_sigma']:6.2f}"
-        )
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(S.main(CASE, run))

@@ -17,12 +17,16 @@ record's k/T grid, error bars of complex circular residuals.
 
 from __future__ import annotations
 
-import os
 import pathlib
+import sys
 import time
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+
+import _sidpac as S
 
 CASE = "demo_tfest"
 FILE = "Demos/tfest_demo_data.mat"
@@ -78,7 +82,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     rows = []
     for i, n in enumerate(NAMES):
         rows.append(
-            dict(
+            S.row(
                 case=CASE,
                 parameter=n,
                 sidpac=float(ref[i]),
@@ -86,34 +90,12 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                 sidpac_se_corrected=None,
                 ours=float(ours[n]),
                 ours_se=float(ours_se[n]),
-                delta_sigma=float((ours[n] - ref[i]) / ref_se[i]),
-                se_ratio=float(ours_se[n] / ref_se[i]),
                 mc_se=None,
-                mc_ratio=None,
                 seconds=secs,
             )
         )
     return rows
 
 
-def _main() -> int:
-    folder = os.environ.get("AEROID_SIDPAC_DIR")
-    if not folder:
-        print(f"{CASE}: AEROID_SIDPAC_DIR unset; skipped")
-        return 0
-    rows = run(pathlib.Path(folder))
-    if not rows:
-        print(f"{CASE}: {FILE} not found; skipped")
-        return 0
-    head = ("parameter", "tfest", "se", "ours", "se", "dsig", "ratio")
-    print("{:10s} {:>9s} {:>8s} {:>9s} {:>8s} {:>6s} {:>6s}".format(*head))
-    for r in rows:
-        print(
-            f"{r['parameter']:10s} {r['sidpac']:9.4f} {r['sidpac_se_white']:8.4f} "
-            f"{r['ours']:9.4f} {r['ours_se']:8.4f} {r['delta_sigma']:6.2f} {r['se_ratio']:6.2f}"
-        )
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(S.main(CASE, run))

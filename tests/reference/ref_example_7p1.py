@@ -17,12 +17,16 @@ reports.
 
 from __future__ import annotations
 
-import os
 import pathlib
+import sys
 import time
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+
+import _sidpac as S
 
 CASE = "example_7p1"
 FILE = "Text_Examples/example_7p1_oe_results.mat"
@@ -137,7 +141,7 @@ def run(
     for i, n in enumerate(NAMES):
         ours, se = res.parameters[n], res.stderr[n]
         rows.append(
-            dict(
+            S.row(
                 case=CASE,
                 parameter=n,
                 sidpac=float(p[i]),
@@ -145,36 +149,12 @@ def run(
                 sidpac_se_corrected=None,
                 ours=float(ours),
                 ours_se=float(se),
-                delta_sigma=float((ours - p[i]) / w[i]),
-                se_ratio=float(se / w[i]),
                 mc_se=None,
-                mc_ratio=None,
                 seconds=secs,
             )
         )
     return rows
 
 
-def _main() -> int:
-    folder = os.environ.get("AEROID_SIDPAC_DIR")
-    if not folder:
-        print(f"{CASE}: AEROID_SIDPAC_DIR unset; skipped")
-        return 0
-    rows = run(pathlib.Path(folder))
-    if not rows:
-        print(f"{CASE}: {FILE} not found; skipped")
-        return 0
-    like = run(pathlib.Path(folder), weighting="sidpac")
-    head = ("parameter", "sidpac", "se", "ours", "se", "dsig", "ratio", "dsig(sidpac wt)")
-    print("{:12s} {:>11s} {:>9s} {:>11s} {:>9s} {:>6s} {:>6s} {:>16s}".format(*head))
-    for r, q in zip(rows, like, strict=True):
-        print(
-            f"{r['parameter']:12s} {r['sidpac']:11.5f} {r['sidpac_se_white']:9.5f} "
-            f"{r['ours']:11.5f} {r['ours_se']:9.5f} {r['delta_sigma']:6.2f} {r['se_ratio']:6.2f} "
-            f"{q['delta_sigma']:16.2f}"
-        )
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(S.main(CASE, run))

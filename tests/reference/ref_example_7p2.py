@@ -16,12 +16,16 @@ nominal 0.1 s grid before building ``FlightData``.
 
 from __future__ import annotations
 
-import os
 import pathlib
+import sys
 import time
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+
+import _sidpac as S
 
 CASE = "example_7p2"
 FILE = "Text_Examples/example_7p2_results.mat"
@@ -60,7 +64,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     for i, n in enumerate(NAMES):
         ours, se = fit.parameters[n], fit.standard_errors[n]
         rows.append(
-            dict(
+            S.row(
                 case=CASE,
                 parameter=n,
                 sidpac=float(p[i]),
@@ -68,34 +72,12 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                 sidpac_se_corrected=None,
                 ours=float(ours),
                 ours_se=float(se),
-                delta_sigma=float((ours - p[i]) / w[i]),
-                se_ratio=float(se / w[i]),
                 mc_se=None,
-                mc_ratio=None,
                 seconds=secs,
             )
         )
     return rows
 
 
-def _main() -> int:
-    folder = os.environ.get("AEROID_SIDPAC_DIR")
-    if not folder:
-        print(f"{CASE}: AEROID_SIDPAC_DIR unset; skipped")
-        return 0
-    rows = run(pathlib.Path(folder))
-    if not rows:
-        print(f"{CASE}: {FILE} not found; skipped")
-        return 0
-    head = ("parameter", "sidpac", "se", "ours", "se", "dsig", "ratio")
-    print("{:10s} {:>9s} {:>8s} {:>9s} {:>8s} {:>6s} {:>6s}".format(*head))
-    for r in rows:
-        print(
-            f"{r['parameter']:10s} {r['sidpac']:9.4f} {r['sidpac_se_white']:8.4f} "
-            f"{r['ours']:9.4f} {r['ours_se']:8.4f} {r['delta_sigma']:6.2f} {r['se_ratio']:6.2f}"
-        )
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(S.main(CASE, run))

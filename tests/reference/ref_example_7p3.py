@@ -20,12 +20,16 @@ record (CIFER's mismatch cost), the other way a user may go; the rows
 
 from __future__ import annotations
 
-import os
 import pathlib
+import sys
 import time
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+
+import _sidpac as S
 
 CASE = "example_7p3"
 FILE = "Text_Examples/example_7p3_results.mat"
@@ -93,7 +97,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         for n in NAMES:
             ours, se = p[n], fit.standard_errors[n]
             rows.append(
-                dict(
+                S.row(
                     case=CASE,
                     parameter=n + suffix,
                     sidpac=ref[n],
@@ -101,34 +105,12 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                     sidpac_se_corrected=None,
                     ours=float(ours),
                     ours_se=float(se),
-                    delta_sigma=float((ours - ref[n]) / ref_se[n]),
-                    se_ratio=float(se / ref_se[n]),
                     mc_se=None,
-                    mc_ratio=None,
                     seconds=secs,
                 )
             )
     return rows
 
 
-def _main() -> int:
-    folder = os.environ.get("AEROID_SIDPAC_DIR")
-    if not folder:
-        print(f"{CASE}: AEROID_SIDPAC_DIR unset; skipped")
-        return 0
-    rows = run(pathlib.Path(folder))
-    if not rows:
-        print(f"{CASE}: {FILE} not found; skipped")
-        return 0
-    head = ("parameter", "sidpac", "se", "ours", "se", "dsig", "ratio")
-    print("{:18s} {:>9s} {:>8s} {:>9s} {:>8s} {:>6s} {:>6s}".format(*head))
-    for r in rows:
-        print(
-            f"{r['parameter']:18s} {r['sidpac']:9.4f} {r['sidpac_se_white']:8.4f} "
-            f"{r['ours']:9.4f} {r['ours_se']:8.4f} {r['delta_sigma']:6.2f} {r['se_ratio']:6.2f}"
-        )
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(S.main(CASE, run))
