@@ -149,6 +149,8 @@ def run(
         )
         if doc["report"]:
             click.echo(f"report: {doc['report']}")
+        if doc.get("report_html"):
+            click.echo(f"report (HTML, with the figures): {doc['report_html']}")
     if summary.report_error:
         click.echo(f"error: {summary.report_error}", err=True)
     sys.exit(1 if doc["failed"] or summary.report_error else 0)

@@ -144,6 +144,8 @@ def test_fresh_run_then_unchanged_rerun_computes_nothing(tmp_path):
     code, out, _ = invoke("run", str(cfg), "--workers", "0")
     assert code == 0 and "| f00" in out and "0 computed, 9 cached, 0 failed" in out
     assert f"report: {report}" in out
+    if doc["report_html"]:
+        assert f"report (HTML, with the figures): {doc['report_html']}" in out
 
 
 def test_changed_flight_recomputes_exactly_its_chain_and_the_report(tmp_path):
