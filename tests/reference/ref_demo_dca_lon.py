@@ -1,19 +1,22 @@
 """SIDPAC demo ``dca_lon_demo``: longitudinal data compatibility of HARV flight 250h.
 
-``dcmp`` reconstructs the flight path from the accelerometers and rate gyros
-(ft/s^2, rad/s) and fits V, alpha and theta by output error, estimating
-ax, az and q biases and alpha and theta scale factors, from an initial
-state off the smoothed data with v, phi and psi replaced by their
-measurements. ``dca_lon_demo_data.mat`` holds the estimates ``pc`` and
-``oe``'s covariance ``crbc`` (white).
+``dcmp`` (set up by ``dcmp_psel`` for a longitudinal run) reconstructs the
+flight path from the accelerometers and rate gyros (ft/s^2, rad/s) and fits
+V, alpha and theta by output error, estimating ax, az and q biases and alpha
+and theta scale factors about the initial value, from an initial state held
+at the smoothed data, with v, phi and psi replaced by their measurements,
+integrated by forward Euler at the recorder's first time-tag interval.
+``dca_lon_demo_data.mat`` holds the estimates ``pc``, ``oe``'s covariance
+``crbc`` (white) and the initial state ``x0``.
 
-Ours: ``aeroid.check_compatibility`` with the same five parameters, in
-ft/s^2 (``gravity=32.174``), with its defaults otherwise. Differences the
-library cannot remove yet: SIDPAC's biases are corrections added to the
-measurement (ours, subtracted, are shown negated); its scale factors act on
-the change from the initial value (ours on the value); it fixes the initial
-state and feeds some states from the measurements, where ours estimates the
-initial state and fits phi too (``V, alpha, phi, theta`` are required).
+Ours: ``aeroid.check_compatibility`` with that set-up (`SETUP`), in ft/s^2
+(``gravity=32.174``), on the uniform time ``k (t1 - t0)``. SIDPAC's biases are
+corrections added to the measurement (ours, subtracted, are shown negated).
+Both our default error bars (coloured residuals plus the integrated
+input-noise share) and our white ones are reported. The Monte Carlo
+perturbs the fitted outputs only, as SIDPAC's output-error noise model
+does (inputs exact); the measured states come from channels not fitted, so
+they stay as flown.
 """
 
 from __future__ import annotations
@@ -31,10 +34,15 @@ import _sidpac as S
 
 CASE = "demo_dca_lon"
 FILE = "Demos/dca_lon_demo_data.mat"
-NOTE = (
-    "check_compatibility lacks SIDPAC's options: fixed initial state, measured states fed in, "
-    "scale factors about the initial value, fitting only SIDPAC's outputs; SIDPAC bias sign flipped"
-)
+INPUTS = ("ax", "ay", "az", "p", "q", "r")
+OUTPUTS = ("V", "beta", "alpha", "phi", "theta", "psi")
+STATES = ("u", "v", "w", "phi", "theta", "psi")
+SETUP = "scale_about='initial', integration='euler', estimate_x0=False with SIDPAC's x0, uniform t"
+
+
+def uniform_time(t: np.ndarray) -> np.ndarray:
+    """SIDPAC's time base: a constant step equal to the first time-tag interval."""
+    return np.arange(t.size) * (t[1] - t[0])
 
 
 def compat_rows(
@@ -45,30 +53,40 @@ def compat_rows(
     names: Sequence[str],
     pc: np.ndarray,
     crbc: np.ndarray,
+    x0: np.ndarray,
     *,
-    absent: Sequence[str],
+    outputs: Sequence[str],
+    measured_states: Sequence[str],
     mc: int,
     seed: int,
 ) -> list[dict[str, Any]]:
-    """``u`` = ax, ay, az, p, q, r; ``z`` = V, beta, alpha, phi, theta, psi (ft, rad)."""
+    """``u`` = ax, ay, az, p, q, r; ``z`` = V, beta, alpha, phi, theta, psi (ft,
+    rad); ``x0`` = u, v, w, phi, theta, psi as SIDPAC saved it."""
     import aeroid
 
-    inputs = ("ax", "ay", "az", "p", "q", "r")
-    outs = ("V", "beta", "alpha", "phi", "theta", "psi")
+    time = uniform_time(t)
 
     def flight(zz: np.ndarray) -> Any:
-        ch = {n: u[:, j] for j, n in enumerate(inputs)}
-        ch.update({n: zz[:, j] for j, n in enumerate(outs)})
-        return aeroid.FlightData(time=t, channels=ch)
+        ch = {n: u[:, j] for j, n in enumerate(INPUTS)}
+        ch.update({n: zz[:, j] for j, n in enumerate(OUTPUTS)})
+        return aeroid.FlightData(time=time, channels=ch)
 
     opts: dict[str, Any] = {
-        "channels": dict.fromkeys(absent),
         "estimate": list(names),
         "gravity": 32.174,
+        "outputs": list(outputs),
+        "measured_states": list(measured_states),
+        "estimate_x0": False,
+        "x0": {s: float(v) for s, v in zip(STATES, x0, strict=True)},
+        "scale_about": "initial",
+        "integration": "euler",
     }
     with S.Timer() as tm:
         res = aeroid.check_compatibility(flight(z), **opts)
-    fitted = [outs.index(o) for o in res.output_names]
+    # SIDPAC's white bars: white residuals, inputs exact (no input-noise share)
+    quiet = dict.fromkeys(INPUTS, 0.0)
+    white = aeroid.check_compatibility(flight(z), error_bars="white", input_noise=quiet, **opts)
+    fitted = [OUTPUTS.index(o) for o in res.output_names]
     resid = np.asarray(res.measured) - np.asarray(res.reconstructed)
     model_out = z.copy()
     model_out[:, fitted] = np.asarray(res.reconstructed)
@@ -76,28 +94,38 @@ def compat_rows(
     def refit(zz: np.ndarray) -> dict[str, float]:
         full = z.copy()
         full[:, fitted] = zz
-        r = aeroid.check_compatibility(flight(full), error_bars="white", **opts)
+        r = aeroid.check_compatibility(
+            flight(full), error_bars="white", input_noise=quiet, **opts
+        )
         return dict(r.parameters)
 
     mcs = S.monte_carlo(refit, model_out[:, fitted], resid, mc, seed=seed)
     sw = S.se(crbc)
+    bars = ", ".join(f"{n} {white.stderr[n] / sw[i]:.3g}" for i, n in enumerate(names))
+    note = (
+        f"SIDPAC's set-up: fits {', '.join(res.output_names)}; measured states "
+        f"{', '.join(measured_states)}; {SETUP} (dt {time[1]:.6g} s), gravity 32.174; "
+        "SIDPAC bias sign flipped; ours se = default bars (coloured + input noise); "
+        f"our white se (inputs exact) / SIDPAC white: {bars}; MC perturbs the fitted outputs only "
+        "(SIDPAC's output-error noise model: inputs exact)"
+    )
     rows = []
     for i, n in enumerate(names):
         sign = -1.0 if n.startswith("b_") else 1.0
-        rows.append(
-            S.row(
-                case,
-                n,
-                sidpac=sign * pc[i],
-                sidpac_se_white=sw[i],
-                sidpac_se_corrected=None,
-                ours=res.parameters[n],
-                ours_se=res.stderr[n],
-                mc_se=mcs.get(n),
-                seconds=tm.seconds,
-                note=NOTE + f"; ours fits {', '.join(res.output_names)}",
-            )
+        r = S.row(
+            case,
+            n,
+            sidpac=sign * pc[i],
+            sidpac_se_white=sw[i],
+            sidpac_se_corrected=None,
+            ours=res.parameters[n],
+            ours_se=res.stderr[n],
+            mc_se=mcs.get(n),
+            seconds=tm.seconds,
+            note=note,
         )
+        r["ours_se_white"] = float(white.stderr[n])
+        rows.append(r)
     return rows
 
 
@@ -113,7 +141,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         ("b_ax", "b_az", "b_q", "k_alpha", "k_theta"),
         S.col(d["pc"]),
         np.asarray(d["crbc"], dtype=float),
-        absent=("beta", "psi"),
+        S.col(d["x0"]),
+        outputs=("V", "alpha", "theta"),
+        measured_states=("v", "phi", "psi"),
         mc=mc,
         seed=seed,
     )
