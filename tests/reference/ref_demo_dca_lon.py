@@ -94,9 +94,7 @@ def compat_rows(
     def refit(zz: np.ndarray) -> dict[str, float]:
         full = z.copy()
         full[:, fitted] = zz
-        r = aeroid.check_compatibility(
-            flight(full), error_bars="white", input_noise=quiet, **opts
-        )
+        r = aeroid.check_compatibility(flight(full), error_bars="white", input_noise=quiet, **opts)
         return dict(r.parameters)
 
     mcs = S.monte_carlo(refit, model_out[:, fitted], resid, mc, seed=seed)
