@@ -86,6 +86,8 @@ def compat_rows(
     # SIDPAC's white bars: white residuals, inputs exact (no input-noise share)
     quiet = dict.fromkeys(INPUTS, 0.0)
     white = aeroid.check_compatibility(flight(z), error_bars="white", input_noise=quiet, **opts)
+    # the share the Monte Carlo below can see: coloured residuals, inputs exact
+    coloured = aeroid.check_compatibility(flight(z), input_noise=quiet, **opts)
     fitted = [OUTPUTS.index(o) for o in res.output_names]
     resid = np.asarray(res.measured) - np.asarray(res.reconstructed)
     model_out = z.copy()
@@ -100,12 +102,14 @@ def compat_rows(
     mcs = S.monte_carlo(refit, model_out[:, fitted], resid, mc, seed=seed)
     sw = S.se(crbc)
     bars = ", ".join(f"{n} {white.stderr[n] / sw[i]:.3g}" for i, n in enumerate(names))
+    vs_mc = ", ".join(f"{n} {coloured.stderr[n] / mcs[n]:.3g}" for n in names if mcs.get(n))
     note = (
         f"SIDPAC's set-up: fits {', '.join(res.output_names)}; measured states "
         f"{', '.join(measured_states)}; {SETUP} (dt {time[1]:.6g} s), gravity 32.174; "
         "SIDPAC bias sign flipped; ours se = default bars (coloured + input noise); "
         f"our white se (inputs exact) / SIDPAC white: {bars}; MC perturbs the fitted outputs only "
-        "(SIDPAC's output-error noise model: inputs exact)"
+        "(SIDPAC's output-error noise model: inputs exact), so it lacks our input-noise share"
+        + (f"; our coloured se (inputs exact) / MC: {vs_mc}" if vs_mc else "")
     )
     rows = []
     for i, n in enumerate(names):
@@ -123,6 +127,7 @@ def compat_rows(
             note=note,
         )
         r["ours_se_white"] = float(white.stderr[n])
+        r["ours_se_coloured_inputs_exact"] = float(coloured.stderr[n])
         rows.append(r)
     return rows
 
