@@ -1,11 +1,14 @@
 """SIDPAC demo ``dca_lat_demo``: lateral data compatibility of HARV flight 342l.
 
 ``dcmp`` fits beta, phi and psi by output error, estimating ay, p and r
-biases and beta, phi and psi scale factors, with u, w and theta replaced by
-their measurements. ``dca_lat_demo_data.mat`` holds ``pc`` and ``oe``'s
-covariance ``crbc`` (white). Ours: ``aeroid.check_compatibility`` set up as
-``ref_demo_dca_lon.py`` describes (the stored time tags alternate 0.0249 and
-0.0251 s; SIDPAC's constant step is the first interval).
+biases and beta, phi and psi scale factors. ``dca_lat_demo_data.mat`` holds
+``pc``, ``oe``'s covariance ``crbc`` (white) and the initial state ``x0``.
+Ours: ``aeroid.check_compatibility`` with the same six parameters and
+SIDPAC's lateral set-up (``dcmp_psel``): outputs beta, phi, psi; u, w and
+theta replaced by their measurements; scale factors about the initial value;
+initial state held at SIDPAC's ``x0``; forward Euler on the uniform time
+``k 51/2048 s`` (see ``ref_demo_dca_lon.py`` for the error bars and the Monte
+Carlo).
 """
 
 from __future__ import annotations
@@ -37,9 +40,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         ("b_ay", "b_p", "b_r", "k_beta", "k_phi", "k_psi"),
         S.col(d["pc"]),
         np.asarray(d["crbc"], dtype=float),
+        S.col(d["x0"]),
         outputs=("beta", "phi", "psi"),
-        measured=("u", "w", "theta"),
-        x0=S.col(d["x0"]),
+        measured_states=("u", "w", "theta"),
         mc=mc,
         seed=seed,
     )

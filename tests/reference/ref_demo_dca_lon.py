@@ -1,23 +1,22 @@
 """SIDPAC demo ``dca_lon_demo``: longitudinal data compatibility of HARV flight 250h.
 
-``dcmp`` reconstructs the flight path from the accelerometers and rate gyros
-(ft/s^2, rad/s) and fits V, alpha and theta by output error, estimating
-ax, az and q biases and alpha and theta scale factors, from a held initial
-state (saved as ``x0``) with v, phi and psi replaced by their measurements
-and the scale factors acting on the change from the initial value. Its saved
-outputs are reproduced by forward Euler with the inputs held over each step,
-on a constant step equal to the first time-tag interval.
-``dca_lon_demo_data.mat`` holds the estimates ``pc`` and ``oe``'s covariance
-``crbc`` (white).
+``dcmp`` (set up by ``dcmp_psel`` for a longitudinal run) reconstructs the
+flight path from the accelerometers and rate gyros (ft/s^2, rad/s) and fits
+V, alpha and theta by output error, estimating ax, az and q biases and alpha
+and theta scale factors about the initial value, from an initial state held
+at the smoothed data, with v, phi and psi replaced by their measurements,
+integrated by forward Euler at the recorder's first time-tag interval.
+``dca_lon_demo_data.mat`` holds the estimates ``pc``, ``oe``'s covariance
+``crbc`` (white) and the initial state ``x0``.
 
-Ours: ``aeroid.check_compatibility`` set up the same way (``outputs``,
-``measured_states``, ``estimate_x0=False`` with SIDPAC's ``x0``,
-``scale_about="initial"``, ``integration="euler"``, ``gravity=32.174``, the
-uniform time base). SIDPAC's biases are corrections added to the
-measurement; ours, subtracted, are compared negated. ``ours se`` is our
-default (coloured, with the input noise's share); the note gives the ratio
-of our white bars to SIDPAC's white ones. The Monte Carlo perturbs the fitted
-outputs only, not the inertial inputs.
+Ours: ``aeroid.check_compatibility`` with that set-up (`SETUP`), in ft/s^2
+(``gravity=32.174``), on the uniform time ``k (t1 - t0)``. SIDPAC's biases are
+corrections added to the measurement (ours, subtracted, are shown negated).
+Both our default error bars (coloured residuals plus the integrated
+input-noise share) and our white ones are reported. The Monte Carlo
+perturbs the fitted outputs only, as SIDPAC's output-error noise model
+does (inputs exact); the measured states come from channels not fitted, so
+they stay as flown.
 """
 
 from __future__ import annotations
@@ -35,10 +34,15 @@ import _sidpac as S
 
 CASE = "demo_dca_lon"
 FILE = "Demos/dca_lon_demo_data.mat"
-NOTE = (
-    "SIDPAC's set-up (held x0, measured states, scale about the initial value, Euler, "
-    "uniform time); SIDPAC bias sign flipped"
-)
+INPUTS = ("ax", "ay", "az", "p", "q", "r")
+OUTPUTS = ("V", "beta", "alpha", "phi", "theta", "psi")
+STATES = ("u", "v", "w", "phi", "theta", "psi")
+SETUP = "scale_about='initial', integration='euler', estimate_x0=False with SIDPAC's x0, uniform t"
+
+
+def uniform_time(t: np.ndarray) -> np.ndarray:
+    """SIDPAC's time base: a constant step equal to the first time-tag interval."""
+    return np.arange(t.size) * (t[1] - t[0])
 
 
 def compat_rows(
@@ -49,42 +53,42 @@ def compat_rows(
     names: Sequence[str],
     pc: np.ndarray,
     crbc: np.ndarray,
+    x0: np.ndarray,
     *,
     outputs: Sequence[str],
-    measured: Sequence[str],
-    x0: np.ndarray,
+    measured_states: Sequence[str],
     mc: int,
     seed: int,
 ) -> list[dict[str, Any]]:
-    """``u`` = ax, ay, az, p, q, r; ``z`` = V, beta, alpha, phi, theta, psi (ft, rad);
-    ``x0`` = SIDPAC's held u, v, w, phi, theta, psi."""
+    """``u`` = ax, ay, az, p, q, r; ``z`` = V, beta, alpha, phi, theta, psi (ft,
+    rad); ``x0`` = u, v, w, phi, theta, psi as SIDPAC saved it."""
     import aeroid
 
-    inputs = ("ax", "ay", "az", "p", "q", "r")
-    outs = ("V", "beta", "alpha", "phi", "theta", "psi")
+    time = uniform_time(t)
 
     def flight(zz: np.ndarray) -> Any:
-        ch = {n: u[:, j] for j, n in enumerate(inputs)}
-        ch.update({n: zz[:, j] for j, n in enumerate(outs)})
-        return aeroid.FlightData(time=t, channels=ch)
+        ch = {n: u[:, j] for j, n in enumerate(INPUTS)}
+        ch.update({n: zz[:, j] for j, n in enumerate(OUTPUTS)})
+        return aeroid.FlightData(time=time, channels=ch)
 
-    t = np.arange(t.size) * (t[1] - t[0])  # SIDPAC's time base: the first interval
     opts: dict[str, Any] = {
         "estimate": list(names),
         "gravity": 32.174,
         "outputs": list(outputs),
-        "measured_states": list(measured),
+        "measured_states": list(measured_states),
         "estimate_x0": False,
-        "x0": dict(zip(("u", "v", "w", "phi", "theta", "psi"), map(float, x0), strict=True)),
+        "x0": {s: float(v) for s, v in zip(STATES, x0, strict=True)},
         "scale_about": "initial",
         "integration": "euler",
     }
     with S.Timer() as tm:
         res = aeroid.check_compatibility(flight(z), **opts)
-    white = aeroid.check_compatibility(
-        flight(z), error_bars="white", input_noise=dict.fromkeys(inputs, 0.0), **opts
-    )
-    fitted = [outs.index(o) for o in res.output_names]
+    # SIDPAC's white bars: white residuals, inputs exact (no input-noise share)
+    quiet = dict.fromkeys(INPUTS, 0.0)
+    white = aeroid.check_compatibility(flight(z), error_bars="white", input_noise=quiet, **opts)
+    # the share the Monte Carlo below can see: coloured residuals, inputs exact
+    coloured = aeroid.check_compatibility(flight(z), input_noise=quiet, **opts)
+    fitted = [OUTPUTS.index(o) for o in res.output_names]
     resid = np.asarray(res.measured) - np.asarray(res.reconstructed)
     model_out = z.copy()
     model_out[:, fitted] = np.asarray(res.reconstructed)
@@ -92,30 +96,39 @@ def compat_rows(
     def refit(zz: np.ndarray) -> dict[str, float]:
         full = z.copy()
         full[:, fitted] = zz
-        r = aeroid.check_compatibility(flight(full), error_bars="white", **opts)
+        r = aeroid.check_compatibility(flight(full), error_bars="white", input_noise=quiet, **opts)
         return dict(r.parameters)
 
     mcs = S.monte_carlo(refit, model_out[:, fitted], resid, mc, seed=seed)
     sw = S.se(crbc)
-    ratios = [white.stderr[n] / sw[i] for i, n in enumerate(names)]
-    white_note = f"white bars / SIDPAC's {min(ratios):.2f}-{max(ratios):.2f}"
+    bars = ", ".join(f"{n} {white.stderr[n] / sw[i]:.3g}" for i, n in enumerate(names))
+    vs_mc = ", ".join(f"{n} {coloured.stderr[n] / mcs[n]:.3g}" for n in names if mcs.get(n))
+    note = (
+        f"SIDPAC's set-up: fits {', '.join(res.output_names)}; measured states "
+        f"{', '.join(measured_states)}; {SETUP} (dt {time[1]:.6g} s), gravity 32.174; "
+        "SIDPAC bias sign flipped; ours se = default bars (coloured + input noise); "
+        f"our white se (inputs exact) / SIDPAC white: {bars}; MC perturbs the fitted outputs only "
+        "(SIDPAC's output-error noise model: inputs exact), so it lacks our input-noise share"
+        + (f"; our coloured se (inputs exact) / MC: {vs_mc}" if vs_mc else "")
+    )
     rows = []
     for i, n in enumerate(names):
         sign = -1.0 if n.startswith("b_") else 1.0
-        rows.append(
-            S.row(
-                case,
-                n,
-                sidpac=sign * pc[i],
-                sidpac_se_white=sw[i],
-                sidpac_se_corrected=None,
-                ours=res.parameters[n],
-                ours_se=res.stderr[n],
-                mc_se=mcs.get(n),
-                seconds=tm.seconds,
-                note=NOTE + f"; ours fits {', '.join(res.output_names)}; {white_note}",
-            )
+        r = S.row(
+            case,
+            n,
+            sidpac=sign * pc[i],
+            sidpac_se_white=sw[i],
+            sidpac_se_corrected=None,
+            ours=res.parameters[n],
+            ours_se=res.stderr[n],
+            mc_se=mcs.get(n),
+            seconds=tm.seconds,
+            note=note,
         )
+        r["ours_se_white"] = float(white.stderr[n])
+        r["ours_se_coloured_inputs_exact"] = float(coloured.stderr[n])
+        rows.append(r)
     return rows
 
 
@@ -131,9 +144,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         ("b_ax", "b_az", "b_q", "k_alpha", "k_theta"),
         S.col(d["pc"]),
         np.asarray(d["crbc"], dtype=float),
+        S.col(d["x0"]),
         outputs=("V", "alpha", "theta"),
-        measured=("v", "phi", "psi"),
-        x0=S.col(d["x0"]),
+        measured_states=("v", "phi", "psi"),
         mc=mc,
         seed=seed,
     )

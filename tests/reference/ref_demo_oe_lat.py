@@ -10,12 +10,13 @@ beta, p, r, phi, ay (g), from an initial state taken off the smoothed data.
 
 Ours: ``aircraft.lateral_linear`` with the same terms (constants ``Y_0``,
 ``L_0``, ``N_0``), ``estimate_bias={"phi": "state", "ay": "output"}``,
-trim from SIDPAC's constants, ``ay`` in ft/s^2, and SIDPAC's initial state.
-Our model puts ``V0 Y_0`` into ``ay`` where ``tlatssd`` does not, so the
-``ay`` bias is compared as ``(V0 Y_0 + b_ay) / g`` without a standard error.
-The record runs on SIDPAC's own time base, the raw time tags' first interval
-(51/2048 s), which ``method="exact"`` (our default for a linear model)
-reproduces SIDPAC's saved outputs on to 1e-13.
+trim from SIDPAC's constants, ``ay`` in g (``accel_units="g"``), SIDPAC's
+initial state and SIDPAC's time base: ``tlatssd`` discretises with a
+first-order hold at the recorder's first time-tag interval (51/2048 s, not
+the rounded 0.025 s of ``t``), so ours runs ``method="exact"``
+(piecewise-linear inputs) on ``t = k 51/2048 s``. Our model puts
+``V0 Y_0 / g`` into ``ay`` where ``tlatssd`` does not, so the ``ay`` bias is
+compared as ``V0 Y_0 / g + b_ay`` without a standard error.
 """
 
 from __future__ import annotations
@@ -63,13 +64,11 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             "N": ["beta", "r", "delta_r", "delta_a", "0"],
         },
         outputs=list(OUTPUTS),
+        accel_units="g",
     )
-    z, u = np.asarray(d["z"], dtype=float).copy(), np.asarray(d["u"], dtype=float)
-    # SIDPAC's time base: tlatssd discretises at the raw record's first interval (51/2048 s),
-    # where the saved t is rounded to 0.025 s (0.4 % slower: 3 SIDPAC sigma on N_beta)
-    raw = np.asarray(d["fdata_372e"], dtype=float)[:, 0]
-    t = np.arange(z.shape[0]) * (raw[1] - raw[0])
-    z[:, 4] *= G  # ay in ft/s^2, the model's units
+    z, u = np.asarray(d["z"], dtype=float), np.asarray(d["u"], dtype=float)
+    tags = np.asarray(d["fdata_372e"], dtype=float)[:, 0]
+    t = np.arange(z.shape[0]) * (tags[1] - tags[0])  # SIDPAC's step, 51/2048 s
 
     def flight(zz: np.ndarray) -> Any:
         ch = {o: zz[:, j] for j, o in enumerate(OUTPUTS)}
@@ -81,6 +80,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     options: dict[str, Any] = {
         "x0": dict(zip(("beta", "p", "r", "phi"), S.col(d["x0"]).tolist(), strict=True)),
         "estimate_bias": {"phi": "state", "ay": "output"},
+        "simulate_options": {"method": "exact"},
     }
     with S.Timer() as tm:
         res = aeroid.identify(model, flight(z), start, **options)
@@ -114,7 +114,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             seconds=tm.seconds,
         )
     )
-    ay_bias = (V0 * res.parameters["Y_0"] + b["ay"]) / G
+    ay_bias = V0 * res.parameters["Y_0"] / G + b["ay"]
     rows.append(
         S.row(
             CASE,
@@ -126,7 +126,10 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             ours_se=None,
             mc_se=None,
             seconds=tm.seconds,
-            note="ay bias: ours is (V0 Y_0 + b_ay)/g (lateral_linear puts Y_0 into ay); no se",
+            note=(
+                "ay bias: ours is V0 Y_0/g + b_ay (lateral_linear puts Y_0 into ay); no se; "
+                "time k*51/2048 s (SIDPAC's step), method='exact', ay in g"
+            ),
         )
     )
     return rows

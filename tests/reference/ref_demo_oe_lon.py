@@ -11,8 +11,15 @@ script runs SIDPAC's method itself in plain numpy (``_sidpac.np_output_error``
 and ``_sidpac.m_colores``, following oe.m, lsims.m and m_colores.m) for the
 SIDPAC columns.
 
-Ours: the same equations as a user ``aeroid.Model`` (``aircraft.longitudinal_linear``
-has no ``az`` output and no free ``Z_q``), fitted by ``aeroid.identify``.
+Ours: ``aircraft.longitudinal_linear`` with ``Z`` and ``M`` terms alpha, q,
+delta_e and a constant, no ``X`` terms, level trim (``gamma0 = 0``) at the
+mean airspeed, outputs alpha, q and ``az`` in g (``accel_units="g"``,
+``g = 32.174``) and an output bias on ``az``, fitted by ``aeroid.identify``.
+Its alpha equation carries ``q`` itself, so SIDPAC's ``Z_q`` is ours plus
+one (``az = V0 ΣZ / g`` then equals SIDPAC's ``(V/g)(... + (Z_q - 1) q ...)``)
+and its ``az`` carries ``V0 Z_0 / g``, so SIDPAC's ``b_az`` is compared as our
+output bias plus that, without a standard error;
+its V and theta states are driven but neither observed nor fed back.
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ def initial_state(z: np.ndarray, t: np.ndarray, m: int = 21) -> np.ndarray:
 
 def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str, Any]]:
     import aeroid
+    from aeroid import aircraft
 
     (path,) = S.need(folder, FILE)
     d = S.loadmat(path)
@@ -73,30 +81,18 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     crb, crbo = S.m_colores(S._sensitivities(sim, ps), z - ys, rr)
     sw, sc = S.se(crbo), S.se(crb)
 
-    def dynamics(tt: Any, x: Any, uu: Any, p: Any) -> Any:
-        a, q = x
-        return np.array(
-            [
-                p["Z_alpha"] * a + p["Z_q"] * q + p["Z_delta_e"] * uu[0] + p["b_alpha"],
-                p["M_alpha"] * a + p["M_q"] * q + p["M_delta_e"] * uu[0] + p["b_q"],
-            ]
-        )
-
-    def measurement(tt: Any, x: Any, uu: Any, p: Any) -> Any:
-        a, q = x
-        az = vtg * (p["Z_alpha"] * a + (p["Z_q"] - 1.0) * q + p["Z_delta_e"] * uu[0]) + p["b_az"]
-        return np.array([a, q, az])
-
-    start = dict(zip(NAMES, p0.tolist(), strict=True))
-    model = aeroid.Model(
-        states=["alpha", "q"],
-        controls=["delta_e"],
-        parameters=start,
-        dynamics=dynamics,
+    ours = {  # SIDPAC's name -> ours
+        "Z_alpha": "Z_alpha", "Z_q": "Z_q", "Z_delta_e": "Z_delta_e", "b_alpha": "Z_0",
+        "M_alpha": "M_alpha", "M_q": "M_q", "M_delta_e": "M_delta_e", "b_q": "M_0",
+    }  # fmt: skip
+    start = {ours[n]: float(p0[i]) for i, n in enumerate(NAMES) if n in ours}
+    start["Z_q"] -= 1.0
+    model = aircraft.longitudinal_linear(
+        V0=vtg * g,
+        g=g,
+        terms={"X": [], "Z": ["alpha", "q", "delta_e", "0"], "M": ["alpha", "q", "delta_e", "0"]},
         outputs=list(OUTPUTS),
-        measurement=measurement,
-        name="tlonssd",
-        linear=True,
+        accel_units="g",
     )
 
     def flight(zz: np.ndarray) -> Any:
@@ -104,14 +100,26 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         ch["delta_e"] = u[:, 0]
         return aeroid.FlightData(time=t, channels=ch)
 
-    opts = {"x0": {"alpha": float(x0[0]), "q": float(x0[1])}}
+    opts: dict[str, Any] = {
+        "x0": {"V": 0.0, "alpha": float(x0[0]), "theta": 0.0, "q": float(x0[1])},
+        "estimate_bias": {"az": "output"},
+    }
     with S.Timer() as tm:
         res = aeroid.identify(model, flight(z), start, **opts)
     mcs = S.identify_monte_carlo(model, flight, z, res, OUTPUTS, mc, seed=seed, **opts)
     note = (
         "SIDPAC saved no result for oe_lon: its oe + m_colores run in numpy here; "
-        "ours is a user Model (longitudinal_linear has no az output)"
+        "ours is longitudinal_linear with az in g (its Z_q + 1 shown; constants Z_0, M_0 "
+        "as b_alpha, b_q; b_az = our az output bias + V0 Z_0/g, no se)"
     )
+    est = {n: res.parameters[m] for n, m in ours.items()}
+    est["Z_q"] += 1.0
+    # our az carries V0 Z_0 / g, SIDPAC's does not: its b_az is our sum (no se)
+    est["b_az"] = res.biases[0]["az"] + vtg * res.parameters["Z_0"]
+    err: dict[str, float | None] = {n: res.stderr[m] for n, m in ours.items()}
+    err["b_az"] = None
+    mcd = {n: mcs.get(m) for n, m in ours.items()}
+    mcd["b_az"] = None
     return [
         S.row(
             CASE,
@@ -119,9 +127,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             sidpac=ps[i],
             sidpac_se_white=sw[i],
             sidpac_se_corrected=sc[i],
-            ours=res.parameters[n],
-            ours_se=res.stderr[n],
-            mc_se=mcs.get(n),
+            ours=est[n],
+            ours_se=err[n],
+            mc_se=mcd[n],
             seconds=tm.seconds,
             note=note,
         )

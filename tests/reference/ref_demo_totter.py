@@ -18,7 +18,10 @@ alpha and q integrated, V, beta, p, r, phi, theta, q_hat, dynamic pressure,
 thrust and the measured CX fed in from the data; CZ and Cm modelled; outputs
 alpha, q and az with an az bias. Ours writes those equations as a user
 ``aeroid.Model`` (the fed-in signals as controls) fitted by
-``aeroid.identify``; rows ``oe:...``.
+``aeroid.identify``; rows ``oe:...``. ``aircraft.longitudinal`` cannot
+express it: it integrates V and theta (here fed from the data) and has no
+fed-in measured CX; ``rate_reference="V0"`` would only change q_hat, which
+``nldyn`` takes from the data too.
 """
 
 from __future__ import annotations

@@ -10,9 +10,13 @@ SIDPAC saved the estimates and ``oe``'s Cramer-Rao covariance (white
 residuals) in ``example_6p1_results.mat``; the corrected bounds are Example
 6.2 (``ref_example_6p2.py``).
 
-Ours: the same equations as a user ``aeroid.Model`` (the library's
-``aircraft.lateral`` is the nonlinear stability-axis form, not this linear
-body-axis one), fitted by ``aeroid.identify`` with its default error bars.
+Ours: the same equations as a user ``aeroid.Model``, fitted by
+``aeroid.identify`` with its default error bars. No library model expresses
+them: ``aircraft.lateral`` is the nonlinear stability-axis form and
+``aircraft.lateral_linear`` takes dimensional derivatives (``L_beta``...),
+where ``tnlatss`` estimates the non-dimensional ones (``Cl_beta``...) through
+the dynamic pressure and the inertia coupling (``rate_reference`` concerns
+``q c/2V`` of the longitudinal model only).
 """
 
 from __future__ import annotations
