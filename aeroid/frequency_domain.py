@@ -19,11 +19,14 @@ integration, so they take unstable and lightly damped vehicles as they come.
   residual variance per state equation.
 
 The ends of the record: SIDPAC drops the ``x(0)`` and ``x(T)`` terms, which
-is right when the record starts and ends at trim. Here they are estimated by
-default (``boundary="estimate"``: unknowns that enter linearly, two per
-state, or one per state on the ``ω = 2πk/T`` grid, where ``e^{−jωT} = 1``
-and only the jump ``x(0) − x(T)`` shows), which removes that condition;
-``boundary="ignore"`` is SIDPAC's choice. On that grid ``F₁ = 0`` too: trim
+is right when the record starts and ends at trim. Here they are estimated
+(unknowns that enter linearly, two per state, or one per state on the
+``ω = 2πk/T`` grid, where ``e^{−jωT} = 1`` and only the jump ``x(0) − x(T)``
+shows), which removes that condition, and by default (``boundary="auto"``)
+kept only when a Wald test finds them jointly different from zero: a record
+at trim then gets SIDPAC's fit and pays no variance for unknowns it does not
+need. ``boundary="ignore"`` is SIDPAC's choice, ``"estimate"`` always keeps
+them. On that grid ``F₁ = 0`` too: trim
 values and constant sensor biases have no transform and drop out (a drift
 does not).
 
@@ -42,7 +45,10 @@ interpolation corrections of the Euler approximation.
 
 Error bars: the Cramér–Rao bound ``(2 Σ_ω Re(∂Y* S⁻¹ ∂Y))⁻¹`` (``"white"``,
 with the ``N/(N − p)`` factor of an ``S`` estimated from ``N`` real
-residuals), or (default ``"colored"``) the sandwich that lets the residual
+residuals; each complex residual is two real observations of variance
+``S/2``, hence the 2 — SIDPAC's ``fdoe`` reports ``(Σ_ω Re(…))⁻¹``, so its
+standard errors are √2 larger for the same fit, which our coverage tests
+refute on white noise), or (default ``"colored"``) the sandwich that lets the residual
 spectrum vary with frequency and between outputs, ``M⁻¹ (Σ_ω g_ω g_ωᵀ) M⁻¹``
 with ``g_ω`` the score of frequency ``ω``, each frequency's residuals
 divided by one minus its leverage (the jackknife form) — residuals at
@@ -53,6 +59,7 @@ residuals (the frequency-domain counterpart of the time-domain correction).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -76,7 +83,8 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 _METHODS = ("output_error", "equation_error")
-_BOUNDARY = ("estimate", "ignore")
+_BOUNDARY = ("auto", "estimate", "ignore")
+_BOUNDARY_LEVEL = 0.05  # Wald test level below which estimated record ends are kept
 _ERROR_BARS = ("colored", "white")
 _WEIGHTING = ("hermitian", "real", "sidpac")
 _DEFAULT_BAND_HZ = (0.1, 2.0)
@@ -362,7 +370,8 @@ def _frequency_grid(frequencies: Any, dt: float, duration: float, *, depth: int 
         # between frequencies, which the error bars assume.
         df = 1.0 / duration
         lo, hi = _DEFAULT_BAND_HZ
-        k = np.arange(math.ceil(lo / df - 1e-9), math.floor(hi / df + 1e-9) + 1)
+        # and from two periods in the record up, the rule every window obeys
+        k = np.arange(max(math.ceil(lo / df - 1e-9), 2), math.floor(hi / df + 1e-9) + 1)
         omega = 2 * np.pi * df * k.astype(np.float64)
     else:
         try:
@@ -719,38 +728,62 @@ def _output_error(
         theta[n_pd:] = np.linalg.lstsq(Jb.reshape(-1, n_b), rb.reshape(-1), rcond=None)[0]
         v, dY = evaluate(theta, True)
         Li = weighting(v)
+
+    def objective(v: ComplexArray) -> float:
+        # the negative log-likelihood less constants: with the noise covariance
+        # estimated it is concentrated out, leaving log det S (the weighted sum of
+        # squares is then n_y M / 2 whatever the parameters)
+        if not np.all(np.isfinite(v)):
+            return np.inf
+        if noise is not None or cross == "sidpac":
+            # (fdoe's weighting is no likelihood's: its fixed point is searched with
+            # the weighting held, as fdoe does)
+            return cost_of(v, Li)
+        S = v.T @ v.conj() / v.shape[0]
+        sign, logdet = np.linalg.slogdet(S.real if cross == "real" else S)
+        return float(logdet) if sign.real > 0 else np.inf
+
     for step in range(1, max_iterations + 1):
         it = step
         assert dY is not None
         Li = weighting(v)
-        cost = cost_of(v, Li)
         J = _stack(Li @ dY).reshape(-1, theta.size)
         r = _stack(v @ Li.T).reshape(-1)
         norms = np.linalg.norm(J, axis=0)
         norms[norms == 0] = 1.0
-        delta = np.linalg.lstsq(J / norms, r, rcond=None)[0] / norms
-        alpha, accepted = 1.0, False
+        Jn = J / norms
+        delta = np.linalg.lstsq(Jn, r, rcond=None)[0] / norms
+        # standard errors at this weighting (a weighted real row has variance 1/2)
+        se = np.sqrt(0.5 * np.abs(np.diag(np.linalg.pinv(Jn.T @ Jn, hermitian=True)))) / norms
+        f0 = objective(v)
+        alpha, best, f_best = 1.0, None, f0
         for _ in range(20):
-            trial = theta + alpha * delta
-            v_t, _ = evaluate(trial, False)
-            c_t = cost_of(v_t, Li) if np.all(np.isfinite(v_t)) else np.inf
-            if c_t <= cost * (1 + 1e-12):
-                accepted = True
+            f_t = objective(evaluate(theta + alpha * delta, False)[0])
+            if f_t <= f_best + 1e-12 * abs(f_best):
+                best, f_best = alpha, f_t
                 break
             alpha *= 0.5
-        se = 1.0 / np.maximum(norms, 1e-300)  # a scale for each unknown's error bar
-        if not accepted:
+        if best == 1.0 and noise is None and cross != "sidpac":
+            # re-estimating the noise between steps converges only linearly, each
+            # step short of the optimum along nearly the same line: go further
+            # while the likelihood still rises
+            for _ in range(6):
+                f_t = objective(evaluate(theta + 2.0 * best * delta, False)[0])
+                if not f_t < f_best:
+                    break
+                best, f_best = 2.0 * best, f_t
+        if best is None:
             # no decrease along the Gauss-Newton step: at the minimum to rounding when
-            # that step is tiny, stuck otherwise
-            if np.all(np.abs(delta) <= 1e-3 * (np.abs(theta) + se)):
+            # that step is tiny against the error bars, stuck otherwise
+            if np.all(np.abs(delta) <= 1e-3 * se + 1e-12 * np.abs(theta)):
                 success, message = True, "converged (no further decrease of the cost)"
             else:
                 message = "the line search found no decrease of the cost"
             break
-        theta = trial
+        theta = theta + best * delta
         v, dY = evaluate(theta, True)
-        # a step small against the parameter or its error bar ends the iteration
-        if np.all(np.abs(alpha * delta) <= tolerance * (np.abs(theta) + se)):
+        # converged once no parameter moves by more than `tolerance` of its error bar
+        if np.all(np.abs(best * delta) <= tolerance * se + 1e-12 * np.abs(theta)):
             success, message = True, "converged"
             break
     if not success:
@@ -796,12 +829,12 @@ def identify_frequency_domain(
     frequencies: ArrayLike | None = None,
     method: str = "output_error",
     outputs: Sequence[str] | None = None,
-    boundary: str = "estimate",
+    boundary: str = "auto",
     error_bars: str = "colored",
     noise: Mapping[str, float] | None = None,
     reference: Mapping[str, float] | None = None,
-    max_iterations: int = 50,
-    tolerance: float = 1e-8,
+    max_iterations: int = 100,
+    tolerance: float = 1e-4,
     weighting: str = "hermitian",
     delays: Sequence[str] | Mapping[str, float] | None = None,
 ) -> FrequencyDomainResult:
@@ -824,7 +857,8 @@ def identify_frequency_domain(
     frequencies : array_like, optional
         Frequencies in rad/s, above zero and below Nyquist (a zero entry is
         dropped: it carries only the mean). Default: the multiples of ``1/T``
-        (``T`` the record length) from 0.1 to 2 Hz, on which the transformed
+        (``T`` the record length) from 0.1 Hz, or ``2/T`` (two periods in the
+        record) if higher, to 2 Hz, on which the transformed
         noise of distinct frequencies is uncorrelated, as the error bars
         assume; a finer grid gives error bars that are too small.
     method : {"output_error", "equation_error"}
@@ -833,10 +867,14 @@ def identify_frequency_domain(
     outputs : sequence of str, optional
         Output error: the outputs to fit (default every model output present
         in the data).
-    boundary : {"estimate", "ignore"}
+    boundary : {"auto", "estimate", "ignore"}
         Estimate the states at the ends of the record (they enter linearly),
         or drop their terms as SIDPAC does, which is right when the record
-        starts and ends at trim.
+        starts and ends at trim. ``"auto"`` (default) estimates them and
+        keeps them only when they differ from zero jointly (a Wald test at
+        the 5 % level with the reported covariance): ends at trim then cost
+        no variance, ends away from trim no bias. The result's `message`
+        says which was kept.
     error_bars : {"colored", "white"}
         The frequency sandwich that lets the residual spectrum vary with
         frequency (default), or the classical Cramér–Rao bound.
@@ -852,16 +890,18 @@ def identify_frequency_domain(
     max_iterations : int
         Gauss–Newton iteration limit (output error).
     tolerance : float
-        Convergence threshold: every step smaller than `tolerance` times the
-        parameter's size plus its error bar.
+        Convergence threshold: no parameter moves by more than `tolerance`
+        times its standard error in the last step.
     weighting : {"hermitian", "real", "sidpac"}
         Output error with an estimated noise covariance: the full Hermitian
-        ``S = E[v v*]`` (default; outputs whose noise is correlated with a
-        phase shift have complex cross terms, and this is the maximum
-        likelihood weighting), its real part only (the library's weighting
-        before 0.6), or SIDPAC ``fdoe``'s ``Σ v̄ vᵀ``, the transpose of
-        ``S``, to reproduce its numbers (less efficient than either when
-        the cross spectra are complex).
+        ``S = (1/M) Σ v vᴴ`` (default: the maximum-likelihood weighting of
+        circular complex residuals, Klein & Morelli's ``S_vv``; the fit then
+        minimises ``log det S``), its real part only (the weighting of
+        ``aeroid`` before 0.2), or ``Σ v̄ vᵀ``, the conjugate of ``S``, which
+        is what SIDPAC ``fdoe``'s ``v'*v`` forms on its frequency-by-output
+        array: it reproduces fdoe's estimates, and is less efficient than
+        either when the residual cross-spectra are complex (one output a
+        quarter turn from another, as roll angle from roll rate).
     delays : sequence of str or mapping of str to float, optional
         Output error: controls whose pure time delay ``τ`` (``U(ω) e^{−jωτ}``,
         seconds) is estimated with the parameters (from 0, or the given
@@ -998,7 +1038,7 @@ def identify_frequency_domain(
             if not math.isfinite(v):
                 raise IdentificationError(f"delays: the initial delay of {c!r} is not finite")
     delayed = [controls.index(c) for c in tau0]
-    n_unknown = len(names) + len(delayed) + (model.n_states if boundary == "estimate" else 0)
+    n_unknown = len(names) + len(delayed) + (model.n_states if boundary != "ignore" else 0)
     n_real = 2 * omega.size * len(fit_names)
     if n_real <= n_unknown:
         raise IdentificationError(
@@ -1028,24 +1068,43 @@ def identify_frequency_domain(
         _reference(model, data, reference),
     )
     p0 = np.array([initial[n] for n in names])
-    if method == "equation_error":
-        fit = _equation_error(ss, spectra, p0, boundary == "estimate", states)
-    else:
-        fit = _output_error(
-            ss,
-            spectra,
-            p0,
-            boundary == "estimate",
-            states,
-            noise_var,
-            max_iterations,
-            tol,
-            weighting,
-            delayed,
-            np.array(list(tau0.values())),
-        )
+
+    def run(ends: bool, start: FloatArray, tau: FloatArray) -> _Fit:
+        if method == "equation_error":
+            return _equation_error(ss, spectra, start, ends, states)
+        return _output_error(
+            ss, spectra, start, ends, states, noise_var, max_iterations, tol, weighting,
+            delayed, tau,
+        )  # fmt: skip
+
+    tau_start = np.array(list(tau0.values()))
+    fit = run(boundary != "ignore", p0, tau_start)
+    if boundary == "auto":
+        fit = _ends_tested(fit, error_bars, len(names), len(delayed), run)
     names = names + [f"delay.{c}" for c in tau0]
     return _result(model, data, names, fit, method, error_bars, fit_names, omega, states)
+
+
+def _ends_tested(fit: _Fit, error_bars: str, n_p: int, n_d: int, run: Any) -> _Fit:
+    """`fit` if its record-end unknowns differ from zero jointly (Wald), else the fit without them."""
+    import scipy.stats
+
+    n_pd = n_p + n_d
+    b = fit.theta[n_pd:]
+    if b.size == 0:
+        return fit
+    cov = (fit.colored if error_bars == "colored" else fit.white)[n_pd:, n_pd:]
+    try:
+        wald = float(b @ np.linalg.solve(cov, b))
+    except np.linalg.LinAlgError:
+        wald = np.inf
+    p_value = float(scipy.stats.chi2.sf(wald, b.size)) if np.isfinite(wald) else 0.0
+    if p_value < _BOUNDARY_LEVEL:
+        note = f"record ends estimated (Wald p = {p_value:.2g})"
+        return dataclasses.replace(fit, message=f"{fit.message}; {note}")
+    refit = run(False, fit.theta[:n_p], fit.theta[n_p:n_pd])
+    note = f"record ends dropped: not different from zero (Wald p = {p_value:.2g})"
+    return dataclasses.replace(refit, message=f"{refit.message}; {note}")
 
 
 def _result(

@@ -68,7 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._czt import _evenly_spaced, _kernel, fourier, hann
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
-from ._threads import small_blas
+from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, _numeric, as_float, check_flag, plain
 from .errors import ChannelError, DataFormatError, IdentificationError
 
@@ -89,6 +89,7 @@ _DEG = 180.0 / np.pi
 _W_PHASE = 0.01745
 _WEIGHTINGS = ("cifer", "random_error")
 _EXCITED = 0.01  # power, relative to the input's peak, that counts as excited
+_MIN_PERIODS = 2  # periods of a frequency a window (or the whole record) must hold
 # Tischler's guidelines for a reliable parameter.
 _CR_LIMIT = 20.0
 _INSENSITIVITY_LIMIT = 10.0
@@ -1132,7 +1133,9 @@ def fit_transfer_function(
     When flight data are given without `frequency_range` (or `frequencies`),
     the band is the one the input excited: from the lowest to the highest
     frequency of the ``k/T`` grid where the input's power is at least 1 % of
-    its peak.
+    its peak. A record's Fourier fit never goes below ``4π/T`` rad/s (two
+    periods in the record, the rule every window of `composite_response`
+    obeys); explicit `frequencies` below it are kept with a warning.
 
     Returns
     -------
@@ -1155,7 +1158,12 @@ def fit_transfer_function(
         )
     if frequencies is not None and not fourier:
         raise IdentificationError("frequencies applies to fourier=True only")
-    if isinstance(response_or_data, FlightData) and frequency_range is None and input is not None:
+    if (
+        isinstance(response_or_data, FlightData)
+        and frequency_range is None
+        and frequencies is None
+        and input is not None
+    ):
         response_or_data.require([input], role="input")
         frequency_range = _excited_band(response_or_data, input)
     if fourier:
@@ -1429,8 +1437,11 @@ def _fit_fourier(
     dt, T = _record_grid(data)
     if frequencies is None:
         lo, hi = frequency_range if frequency_range is not None else _excited_band(data, input)
+        # two periods in the record, the rule every window obeys (the whole record is
+        # the window here): below it the detrend and the record's ends decide Y/U
         k = np.arange(
-            max(1, int(np.ceil(lo * T / (2 * np.pi) - 1e-9))), 1 + int(hi * T / (2 * np.pi) + 1e-9)
+            max(_MIN_PERIODS, int(np.ceil(lo * T / (2 * np.pi) - 1e-9))),
+            1 + int(hi * T / (2 * np.pi) + 1e-9),
         )
         w = np.asarray(2 * np.pi * k / T, dtype=np.float64)
         w = w[w < np.pi / dt]
@@ -1439,6 +1450,15 @@ def _fit_fourier(
         if frequency_range is not None:
             lo, hi = _band(frequency_range)
             w = w[(w >= lo) & (w <= hi)]
+        short = w < _MIN_PERIODS * 2.0 * np.pi / T * (1 - 1e-9)
+        if np.any(short):
+            warnings.warn(
+                f"frequencies: {int(short.sum())} below {_MIN_PERIODS * 2 * np.pi / T:.4g} "
+                "rad/s, two periods of the record; their transforms are decided by the "
+                "detrend and the record's ends",
+                UserWarning,
+                stacklevel=CALLER_STACKLEVEL + 1,
+            )
     u = np.asarray(data[input], dtype=np.float64)
     y = np.asarray(data[output], dtype=np.float64)
     # linear trends (trim, drift) removed as SIDPAC's detrend; on the k/T grid a constant

@@ -651,3 +651,34 @@ def test_direct_fourier_fit_recovers_the_truth_with_calibrated_errors():
             denominator_order=1,
             fourier=True,
         )
+
+
+def test_fourier_fit_keeps_two_periods_of_the_record():
+    # the whole record is the window: the default grid starts at k = 2 (4π/T), and
+    # explicit frequencies below it are kept with a warning
+    data = _first_order_record(0, 0.0, window=False)
+    T = float(data.time[-1] - data.time[0])
+    fit = fit_transfer_function(
+        data,
+        input="u",
+        output="y",
+        numerator_order=0,
+        denominator_order=1,
+        delay=False,
+        fourier=True,
+        frequency_range=(0.01, 10.0),
+    )
+    assert fit.frequency.min() == pytest.approx(4 * np.pi / T, rel=1e-9)
+    w = 2 * np.pi * np.arange(1, 30) / T
+    with pytest.warns(UserWarning, match="two periods of the record"):
+        low = fit_transfer_function(
+            data,
+            input="u",
+            output="y",
+            numerator_order=0,
+            denominator_order=1,
+            delay=False,
+            fourier=True,
+            frequencies=w,
+        )
+    assert low.frequency.min() == pytest.approx(w[0], rel=1e-9)
