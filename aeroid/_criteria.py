@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import ReadOnlyDict, fmt, frozen_mapping, markdown_table
+from ._transfer import transfer_response
 from .data import as_float
 from .errors import IdentificationError
 
@@ -263,10 +264,9 @@ def bandwidth_level(bandwidth: float, phase_delay: float) -> HandlingQualitiesLe
 
 def muad_envelopes(omega: FloatArray) -> dict[str, FloatArray]:
     """The MUAD envelopes at ω (rad/s): gains in dB, phases in degrees (`MUAD_SOURCE`)."""
-    s = 1j * np.asarray(omega, dtype=np.float64)
     out: dict[str, FloatArray] = {}
     for name, (num, den) in MUAD_ENVELOPES.items():
-        h = np.polyval(num, s) / np.polyval(den, s)
+        h = transfer_response(num, den, omega)
         if name.endswith("_db"):
             out[name] = np.asarray(20.0 * np.log10(np.abs(h)), dtype=np.float64)
         else:

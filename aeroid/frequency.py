@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -45,11 +45,12 @@ from numpy.typing import NDArray
 
 from . import _integrate
 from ._czt import fourier, hann
-from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import fmt, markdown_table
 from ._threads import small_blas
 from ._transfer import state_space_response
 from .data import FlightData, as_float, measured_start, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, SimulationError
+from .frequency_id import ResponseChannel
 from .model import (
     Model,
     SimulatorModel,
@@ -86,135 +87,9 @@ _FALSE_COHERENCE_LEVEL = 0.01
 _EXCITED_FRACTION = 0.05
 
 
-@dataclass(frozen=True, eq=False)
-class ChannelFrequencyResponse:
-    """Empirical and model frequency response of one input-output pair.
-
-    Attributes
-    ----------
-    input_name, output_name : str
-    frequency : ndarray, shape (n_f,)
-        Frequencies in Hz (inside the requested range; no DC).
-    magnitude, phase : ndarray, shape (n_f,)
-        Empirical gain (output unit per input unit) and phase in radians,
-        wrapped to (-π, π].
-    coherence : ndarray, shape (n_f,)
-        Coherence γ² of the input with the output (partial coherence given
-        the other inputs when there are several); zero where the input's
-        spectral density is more than 60 dB below its peak (not excited).
-    model_magnitude, model_phase : ndarray, shape (n_f,)
-        The model's gain and wrapped phase at the same frequencies.
-    coherent : ndarray of bool, shape (n_f,)
-        Frequencies that count: γ² at or above the result's
-        ``coherence_threshold`` and the input's spectral density at least a
-        twentieth of its peak.
-    mismatch : float
-        Coherence-weighted mean relative error ``Σ γ² |Ĥ − H| / |H| / Σ γ²``
-        over the coherent frequencies (NaN when none is coherent).
-    n_coherent : int
-    window : ndarray of int, shape (n_f,)
-        Length in samples of the window each value comes from (the record's
-        length for a whole-record estimate).
-    dropped : mapping of str to int
-        How many frequencies did not count, by reason: below two periods of
-        every window, input not excited, not coherent, not resolved by any
-        window (its estimate of the model's own response off by more than
-        10 %).
-    """
-
-    input_name: str
-    output_name: str
-    frequency: FloatArray
-    magnitude: FloatArray
-    phase: FloatArray
-    coherence: FloatArray
-    model_magnitude: FloatArray
-    model_phase: FloatArray
-    coherent: NDArray[np.bool_]
-    mismatch: float
-    n_coherent: int
-    window: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    dropped: Mapping[str, int] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "dropped", frozen_mapping(self.dropped))
-        win = np.array(self.window, dtype=np.int64, copy=True)
-        win.setflags(write=False)
-        object.__setattr__(self, "window", win)
-        for name in (
-            "frequency",
-            "magnitude",
-            "phase",
-            "coherence",
-            "model_magnitude",
-            "model_phase",
-        ):
-            object.__setattr__(self, name, frozen_array(getattr(self, name)))
-        mask = np.array(self.coherent, dtype=bool, copy=True)
-        mask.setflags(write=False)
-        object.__setattr__(self, "coherent", mask)
-
-    @property
-    def phase_error(self) -> FloatArray:
-        """Empirical minus model phase, wrapped to (-π, π]."""
-        out = np.angle(np.exp(1j * (self.phase - self.model_phase)))
-        out.setflags(write=False)
-        return out
-
-    @property
-    def magnitude_db(self) -> FloatArray:
-        """Empirical gain in decibels."""
-        with np.errstate(divide="ignore"):
-            out = 20.0 * np.log10(self.magnitude)
-        out.setflags(write=False)
-        return out
-
-    # The unit-explicit names every response type shares (`ResponseChannel` too); the
-    # fields above keep this record's historical units (Hz, gain, radians).
-    @property
-    def frequency_hz(self) -> FloatArray:
-        """Frequencies in Hz (the `frequency` field)."""
-        return self.frequency
-
-    @property
-    def frequency_rad_s(self) -> FloatArray:
-        """Frequencies in rad/s."""
-        return _frozen(2.0 * np.pi * self.frequency)
-
-    @property
-    def gain(self) -> FloatArray:
-        """Empirical |H| (the `magnitude` field)."""
-        return self.magnitude
-
-    @property
-    def response(self) -> ComplexArray:
-        """Empirical complex response H(jω)."""
-        return _frozen(self.magnitude * np.exp(1j * self.phase))
-
-    @property
-    def model_response(self) -> ComplexArray:
-        """The model's complex response at the same frequencies."""
-        return _frozen(self.model_magnitude * np.exp(1j * self.model_phase))
-
-    @property
-    def phase_deg(self) -> FloatArray:
-        """Empirical phase in degrees, unwrapped along frequency as `ResponseChannel`'s."""
-        from .frequency_id import _unwrapped_phase
-
-        return _frozen(_unwrapped_phase(self.response))
-
-    def as_response_channel(self) -> Any:
-        """The empirical response as a `ResponseChannel` (rad/s, dB, deg) for the
-        frequency-domain tools (`fit_transfer_function`, handling qualities)."""
-        from .frequency_id import ResponseChannel
-
-        return ResponseChannel(
-            self.input_name,
-            self.output_name,
-            self.frequency_rad_s,
-            self.response,
-            coherence=self.coherence,
-        )
+# One response record for every frequency tool: rad/s, complex response, dB and
+# degrees as properties (`frequency_id.ResponseChannel`); the spec's name stays.
+ChannelFrequencyResponse = ResponseChannel
 
 
 @dataclass(frozen=True, eq=False)
@@ -223,7 +98,9 @@ class FrequencyResponseResult:
 
     Attributes
     ----------
-    channels : tuple of ChannelFrequencyResponse
+    channels : tuple of ResponseChannel
+        One per input-output pair: frequencies in rad/s, the complex measured
+        and model responses, coherence, the coherent mask and mismatch.
     input_names, output_names : tuple of str
     sample_rate : float
         Hz.
@@ -301,8 +178,8 @@ class FrequencyResponseResult:
         rows = []
         for c in self.channels:
             band = (
-                f"{fmt(float(c.frequency[c.coherent].min()), 3)}–"
-                f"{fmt(float(c.frequency[c.coherent].max()), 3)} Hz"
+                f"{fmt(float(c.frequency_hz[c.coherent].min()), 3)}–"
+                f"{fmt(float(c.frequency_hz[c.coherent].max()), 3)} Hz"
                 if c.n_coherent
                 else "—"
             )
@@ -361,12 +238,6 @@ class FrequencyResponseResult:
                 "coherence-weighted mean relative error of the transfer function.",
             ]
         )
-
-
-def _frozen(values: Any) -> Any:
-    out = np.array(values, copy=True)
-    out.setflags(write=False)
-    return out
 
 
 # -- estimation ---------------------------------------------------------------------------
@@ -1029,18 +900,15 @@ def frequency_response(
                     + ")"
                 )
             chans.append(
-                ChannelFrequencyResponse(
+                ResponseChannel(
                     input_name=inp,
                     output_name=out,
-                    frequency=f,
-                    magnitude=np.abs(he),
-                    phase=np.angle(he),
+                    frequency=2.0 * np.pi * f,
+                    response=he,
                     coherence=g,
-                    model_magnitude=np.abs(hm),
-                    model_phase=np.angle(hm),
+                    model_response=hm,
                     coherent=mask,
                     mismatch=mis,
-                    n_coherent=n_coh,
                     window=np.array([est[j].seg for j in pick], dtype=np.int64),
                     dropped=dropped,
                 )

@@ -69,6 +69,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._czt import _evenly_spaced, _kernel, fourier, hann
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import CALLER_STACKLEVEL, small_blas
+from ._transfer import transfer_at
 from .data import FlightData, _numeric, as_float, check_flag, plain
 from .errors import ChannelError, DataFormatError, IdentificationError
 
@@ -117,7 +118,13 @@ def _frozen_complex(values: ArrayLike) -> ComplexArray:
 
 @dataclass(frozen=True, eq=False)
 class ResponseChannel:
-    """Frequency response of one input-output pair.
+    """Frequency response of one input-output pair: the one response record of AeroID.
+
+    Every frequency tool returns it (`frequency_response`'s channels, also
+    reachable as ``ChannelFrequencyResponse``; `composite_response`'s;
+    `fit_transfer_function` and the handling-qualities tools read it):
+    frequencies in rad/s and the complex response, with magnitude (dB),
+    phase (degrees), Hz and linear gain as derived properties.
 
     Attributes
     ----------
@@ -125,16 +132,29 @@ class ResponseChannel:
     frequency : ndarray, shape (n_ω,)
         Frequencies in rad/s, increasing.
     response : ndarray of complex, shape (n_ω,)
-        The (conditioned) frequency response ``H(jω)``.
-    magnitude : ndarray
-        ``20 log10 |H|`` in dB.
-    phase : ndarray
-        Phase of H in degrees, unwrapped along frequency; the first point lies
-        in (-270°, 90°].
+        The measured (conditioned) frequency response ``H(jω)``.
     coherence : ndarray
-        γ² (partial coherence given the other inputs when there are several).
+        γ² (partial coherence given the other inputs when there are
+        several); NaN where unknown.
     random_error : ndarray
-        Normalised random error ``εr`` of |H| (and of the phase, in radians).
+        Normalised random error ``εr`` of |H| (and of the phase, in
+        radians); NaN where unknown.
+    model_response : ndarray of complex
+        A model's response at the same frequencies (`frequency_response`);
+        NaN where there is none.
+    coherent : ndarray of bool
+        Frequencies that count (`frequency_response`: coherence above its
+        threshold, input excited, resolved by a window); all of them by
+        default.
+    mismatch : float
+        Coherence-weighted mean relative error ``Σ γ² |Ĥ − H| / |H| / Σ γ²``
+        of the response against `model_response` over the coherent
+        frequencies (NaN when not computed or none is coherent).
+    window : ndarray of int
+        Length in samples of the window each value comes from (empty when
+        not recorded).
+    dropped : mapping of str to int
+        How many frequencies did not count, by reason.
 
     Raises
     ------
@@ -151,10 +171,13 @@ class ResponseChannel:
     output_name: str
     frequency: FloatArray
     response: ComplexArray
-    magnitude: FloatArray = field(init=False)
-    phase: FloatArray = field(init=False)
     coherence: FloatArray = field(default_factory=lambda: np.zeros(0))
     random_error: FloatArray = field(default_factory=lambda: np.zeros(0))
+    model_response: ComplexArray = field(default_factory=lambda: np.zeros(0, dtype=complex))
+    coherent: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    mismatch: float = float("nan")
+    window: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    dropped: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for label in ("input_name", "output_name"):
@@ -165,15 +188,7 @@ class ResponseChannel:
                 )
         what = f"ResponseChannel {self.input_name!r} -> {self.output_name!r}"
         omega = _frequency_axis(self.frequency, f"{what}: frequency")
-        try:
-            h = _frozen_complex(self.response)
-        except (TypeError, ValueError) as exc:
-            raise DataFormatError(f"{what}: response: not numeric ({exc})") from None
-        if h.shape != omega.shape:
-            raise DataFormatError(
-                f"{what}: response has shape {h.shape}, frequency {omega.shape}; "
-                "expected one value per frequency"
-            )
+        h = self._complex(self.response, "response", omega.shape, what)
         bad = np.flatnonzero(~np.isfinite(h))
         if bad.size:
             i = int(bad[0])
@@ -183,9 +198,12 @@ class ResponseChannel:
             )
         object.__setattr__(self, "frequency", omega)
         object.__setattr__(self, "response", h)
-        with np.errstate(divide="ignore"):
-            object.__setattr__(self, "magnitude", frozen_array(20.0 * np.log10(np.abs(h))))
-        object.__setattr__(self, "phase", frozen_array(_unwrapped_phase(h)))
+        model = self.model_response
+        if model is None or np.size(model) == 0:
+            model = np.full(h.shape, np.nan + 0j)
+        object.__setattr__(
+            self, "model_response", self._complex(model, "model_response", omega.shape, what)
+        )
         for name in ("coherence", "random_error"):
             given = getattr(self, name)
             if given is None or np.size(given) == 0:
@@ -208,20 +226,47 @@ class ResponseChannel:
                         f"index {i} ({omega[i]:.6g} rad/s)"
                     )
             object.__setattr__(self, name, frozen_array(vals))
+        mask = self.coherent
+        mask = (
+            np.ones(h.shape, dtype=bool)
+            if mask is None or np.size(mask) == 0
+            else np.array(mask, dtype=bool, copy=True)
+        )
+        if mask.shape != h.shape:
+            raise DataFormatError(
+                f"{what}: coherent has shape {mask.shape}, frequency {h.shape}; expected one "
+                "flag per frequency"
+            )
+        mask.setflags(write=False)
+        object.__setattr__(self, "coherent", mask)
+        win = np.array(self.window, dtype=np.int64, copy=True)
+        win.setflags(write=False)
+        object.__setattr__(self, "window", win)
+        object.__setattr__(self, "mismatch", float(self.mismatch))
+        object.__setattr__(self, "dropped", frozen_mapping(self.dropped))
 
-    @property
-    def frequency_hz(self) -> FloatArray:
-        """Frequencies in Hz."""
-        out = self.frequency / (2.0 * np.pi)
-        out.setflags(write=False)
+    @staticmethod
+    def _complex(values: Any, name: str, shape: tuple[int, ...], what: str) -> ComplexArray:
+        try:
+            out = _frozen_complex(values)
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{what}: {name}: not numeric ({exc})") from None
+        if out.shape != shape:
+            raise DataFormatError(
+                f"{what}: {name} has shape {out.shape}, frequency {shape}; expected one value "
+                "per frequency"
+            )
         return out
 
-    # The unit-explicit names every response type shares (`ChannelFrequencyResponse`
-    # too, whose fields keep Hz, gain and radians).
     @property
     def frequency_rad_s(self) -> FloatArray:
         """Frequencies in rad/s (the `frequency` field)."""
         return self.frequency
+
+    @property
+    def frequency_hz(self) -> FloatArray:
+        """Frequencies in Hz."""
+        return frozen_array(self.frequency / (2.0 * np.pi))
 
     @property
     def gain(self) -> FloatArray:
@@ -229,17 +274,54 @@ class ResponseChannel:
         return frozen_array(np.abs(self.response))
 
     @property
-    def magnitude_db(self) -> FloatArray:
-        """``20 log10 |H|`` (the `magnitude` field)."""
-        return self.magnitude
+    def magnitude(self) -> FloatArray:
+        """``20 log10 |H|`` in dB."""
+        with np.errstate(divide="ignore"):
+            return frozen_array(20.0 * np.log10(np.abs(self.response)))
+
+    magnitude_db = magnitude
 
     @property
-    def phase_deg(self) -> FloatArray:
-        """Unwrapped phase in degrees (the `phase` field)."""
-        return self.phase
+    def phase(self) -> FloatArray:
+        """Phase of H in degrees, unwrapped along frequency; the first point lies in (-270°, 90°]."""
+        return frozen_array(_unwrapped_phase(self.response))
+
+    phase_deg = phase
+
+    @property
+    def model_gain(self) -> FloatArray:
+        """|model response|."""
+        return frozen_array(np.abs(self.model_response))
+
+    @property
+    def model_magnitude(self) -> FloatArray:
+        """The model's ``20 log10 |H|`` in dB."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return frozen_array(20.0 * np.log10(np.abs(self.model_response)))
+
+    @property
+    def model_phase(self) -> FloatArray:
+        """The model's phase in degrees, on the measured phase's branch at each frequency."""
+        return frozen_array(self.phase - self.phase_error)
+
+    @property
+    def phase_error(self) -> FloatArray:
+        """Measured minus model phase in degrees, wrapped to (-180°, 180°]."""
+        with np.errstate(invalid="ignore"):
+            out = np.degrees(np.angle(self.response / self.model_response))
+        return frozen_array(np.where(out <= -180.0, out + 360.0, out))
+
+    @property
+    def n_coherent(self) -> int:
+        """How many frequencies count."""
+        return int(np.count_nonzero(self.coherent))
+
+    def as_response_channel(self) -> ResponseChannel:
+        """This record (kept for code written when the types were two)."""
+        return self
 
     def plot(self) -> Any:
-        """Bode plot (dB, deg) with a coherence panel. Returns a matplotlib Figure."""
+        """Bode plot (dB, deg against rad/s) with a coherence panel. Returns a matplotlib Figure."""
         return _bode([self], [])
 
 
@@ -381,8 +463,11 @@ def _bode(channels: Sequence[ResponseChannel], fits: Sequence[Any]) -> Any:
     for c, ch in enumerate(channels):
         w = ch.frequency
         mag, pha, coh = axes[0, c], axes[1, c], axes[2, c]
-        mag.semilogx(w, ch.magnitude, "o", color="0.45", ms=2.5, label="composite")
+        mag.semilogx(w, ch.magnitude, "o", color="0.45", ms=2.5, label="measured")
         pha.semilogx(w, ch.phase, "o", color="0.45", ms=2.5)
+        if np.isfinite(ch.model_response).any():
+            mag.semilogx(w, ch.model_magnitude, color="C1", lw=1.2, label="model")
+            pha.semilogx(w, ch.model_phase, color="C1", lw=1.2)
         for fit in fits:
             dense = np.geomspace(float(w[0]), float(w[-1]), 400)
             h = fit.evaluate(dense)
@@ -402,7 +487,7 @@ def _bode(channels: Sequence[ResponseChannel], fits: Sequence[Any]) -> Any:
         coh.set_xlabel("frequency [rad/s]")
         coh.xaxis.set_major_formatter(_LOG_LABELS)
         coh.xaxis.set_minor_formatter(_LOG_LABELS)
-        if fits:
+        if fits or np.isfinite(ch.model_response).any():
             mag.legend(fontsize=7)
     return fig
 
@@ -889,13 +974,7 @@ class TransferFunctionFit:
 
     def transfer_function(self, s: ArrayLike) -> ComplexArray:
         """T(s) at complex `s`."""
-        z = np.asarray(s, dtype=np.complex128)
-        out = (
-            np.polyval(self.numerator, z)
-            / np.polyval(self.denominator, z)
-            * np.exp(-self.delay * z)
-        )
-        return np.asarray(out, dtype=np.complex128)
+        return transfer_at(self.numerator, self.denominator, s, delay=self.delay)
 
     def evaluate(self, frequency: ArrayLike) -> ComplexArray:
         """T(jω) at frequencies ω in rad/s."""

@@ -50,6 +50,7 @@ from ._criteria import (
 )
 from ._records import fmt, frozen_mapping, markdown_table
 from ._threads import small_blas
+from ._transfer import transfer_response
 from .data import FlightData, check_flag, plain
 from .errors import IdentificationError
 from .frequency_id import (
@@ -212,9 +213,8 @@ def _as_function(tf: Any) -> Callable[[FloatArray], ComplexArray]:
         if num.size and den.size and np.any(den != 0) and np.isfinite(tau):
 
             def h(w: FloatArray) -> ComplexArray:
-                s = 1j * np.asarray(w, dtype=np.float64)
                 with np.errstate(all="ignore"):
-                    return np.asarray(np.polyval(num, s) / np.polyval(den, s) * np.exp(-tau * s))
+                    return transfer_response(num, den, w, delay=tau)
 
             return h
     raise IdentificationError(

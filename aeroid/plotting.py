@@ -158,11 +158,12 @@ def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None
         3, len(chans), width=4.2 * len(chans), height=2.1, right=0.3, hgap=0.3, sharex="col"
     )
     for c, ch in enumerate(chans):
+        # rad/s, as handling-qualities work reads a Bode plot
         f = ch.frequency
         ok = ch.coherent
         mag, pha = axes[0, c], axes[1, c]
-        db = 20.0 * np.log10(np.maximum(np.asarray(ch.magnitude, dtype=float), 1e-300))
-        model_db = 20.0 * np.log10(np.maximum(np.asarray(ch.model_magnitude, dtype=float), 1e-300))
+        db = np.asarray(ch.magnitude, dtype=float)
+        model_db = np.asarray(ch.model_magnitude, dtype=float)
         mag.semilogx(f, db, color="0.6", lw=0.8, label="empirical")
         mag.semilogx(f[ok], db[ok], "o", color="C1", ms=3, label="coherent")
         how = getattr(freq, "model_response", "")
@@ -174,16 +175,16 @@ def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None
             "magnitude" + (_ratio_unit(ch.output_name, ch.input_name, unit_of) or " [dB]")
         )
         mag.legend(fontsize=7)
-        pha.semilogx(f, np.degrees(ch.phase), color="0.6", lw=0.8)
-        pha.semilogx(f[ok], np.degrees(ch.phase)[ok], "o", color="C1", ms=3)
-        pha.semilogx(f, np.degrees(ch.model_phase), color="C0", lw=1.4)
+        pha.semilogx(f, ch.phase, color="0.6", lw=0.8)
+        pha.semilogx(f[ok], ch.phase[ok], "o", color="C1", ms=3)
+        pha.semilogx(f, ch.model_phase, color="C0", lw=1.4)
         pha.set_ylabel("phase [deg]")
         coh = axes[2, c]
         coh.semilogx(f, ch.coherence, color="C2")
         coh.axhline(freq.coherence_threshold, color="k", ls="--", lw=0.7)
         coh.set_ylim(0, 1.05)
         coh.set_ylabel("coherence [-]")
-        coh.set_xlabel("frequency [Hz]")
+        coh.set_xlabel("frequency [rad/s]")
         coh.xaxis.set_major_formatter(_LOG_LABELS)
         coh.xaxis.set_minor_formatter(_LOG_LABELS)
     return fig

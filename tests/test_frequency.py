@@ -9,6 +9,7 @@ import pytest
 import scipy.signal
 from _sidpac_files import sidpac_mat
 
+import aeroid
 from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError, Model, catalog
 from aeroid.frequency import FrequencyResponseResult, frequency_response
 from aeroid.maneuvers import orthogonal_multisine
@@ -40,9 +41,9 @@ def test_empirical_response_matches_exact_short_period(multisine_record):
         # where nothing counts
         good = ch.coherent & (ch.coherence > 0.95)
         assert good.sum() >= (1 if out == "alpha" else 5)
-        h = exact_short_period(ch.frequency[good])[out]
-        np.testing.assert_allclose(ch.magnitude[good], np.abs(h), rtol=0.10)
-        dphase = np.angle(np.exp(1j * (ch.phase[good] - np.angle(h))))
+        h = exact_short_period(ch.frequency_hz[good])[out]
+        np.testing.assert_allclose(ch.gain[good], np.abs(h), rtol=0.10)
+        dphase = np.angle(np.exp(1j * (np.angle(ch.response[good]) - np.angle(h))))
         assert np.max(np.abs(dphase)) < 0.15
 
 
@@ -53,10 +54,10 @@ def test_exact_model_response_is_the_closed_form(multisine_record):
     assert res.model_response == "exact"
     for out in ("alpha", "q"):
         ch = res.channel("elevator", out)
-        h = exact_short_period(ch.frequency)[out]
-        np.testing.assert_allclose(ch.model_magnitude, np.abs(h), rtol=1e-9)
+        h = exact_short_period(ch.frequency_hz)[out]
+        np.testing.assert_allclose(ch.model_gain, np.abs(h), rtol=1e-9)
         np.testing.assert_allclose(
-            np.angle(np.exp(1j * (ch.model_phase - np.angle(h)))), 0.0, atol=1e-9
+            np.angle(np.exp(1j * (np.angle(ch.model_response) - np.angle(h)))), 0.0, atol=1e-9
         )
 
 
@@ -78,9 +79,9 @@ def test_result_record_and_summary(multisine_record):
     assert isinstance(res, FrequencyResponseResult)
     assert res.model_response == "simulated"
     ch = res.channel("elevator", "alpha")
-    assert ch.frequency.min() >= 0.2 and ch.frequency.max() <= 3.0
+    assert ch.frequency_hz.min() >= 0.2 and ch.frequency_hz.max() <= 3.0
     with pytest.raises(ValueError):
-        ch.magnitude[0] = 0.0
+        ch.response[0] = 0.0
     text = res.summary()
     assert "elevator" in text and "mismatch" in text and "Welch" in text
     with pytest.raises(ChannelError, match="rudder"):
@@ -110,9 +111,9 @@ def test_two_inputs_conditioned_estimate():
         ch = res.channel(name, "y")
         good = ch.coherence > 0.95
         assert good.sum() >= 5
-        h = b / (2j * np.pi * ch.frequency[good] + a)
-        np.testing.assert_allclose(ch.magnitude[good], np.abs(h), rtol=0.1)
-        assert np.max(np.abs(np.angle(np.exp(1j * (ch.phase[good] - np.angle(h)))))) < 0.15
+        h = b / (2j * np.pi * ch.frequency_hz[good] + a)
+        np.testing.assert_allclose(ch.gain[good], np.abs(h), rtol=0.1)
+        assert np.max(np.abs(np.angle(np.exp(1j * (np.angle(ch.response[good]) - np.angle(h)))))) < 0.15
 
 
 def test_too_few_coherent_frequencies_warn(multisine_record):
@@ -134,7 +135,7 @@ def test_unexcited_frequencies_are_not_coherent(multisine_record):
     ch = frequency_response(catalog.short_period(), multisine_record, TRUTH).channel(
         "elevator", "q"
     )
-    assert not np.any(ch.coherent & (ch.frequency > 4.5))
+    assert not np.any(ch.coherent & (ch.frequency_hz > 4.5))
 
 
 def test_non_uniform_time_grid_rejected(sp_noisy):
@@ -189,10 +190,10 @@ def test_exact_response_needs_a_linear_model(sp_noisy):
     at_trim = {**TRUTH, "M_alpha": TRUTH["M_alpha"] + 1.5 * alpha0**2}
     for out in ("alpha", "q"):
         ch = auto.channel("elevator", out)
-        h = exact_short_period(ch.frequency, at_trim)[out]
-        np.testing.assert_allclose(ch.model_magnitude, np.abs(h), rtol=1e-6)
+        h = exact_short_period(ch.frequency_hz, at_trim)[out]
+        np.testing.assert_allclose(ch.model_gain, np.abs(h), rtol=1e-6)
         np.testing.assert_allclose(
-            np.angle(np.exp(1j * (ch.model_phase - np.angle(h)))), 0, atol=1e-6
+            np.angle(np.exp(1j * (np.angle(ch.model_response) - np.angle(h)))), 0, atol=1e-6
         )
     # about a state where the cubic term matters, the linearisation moves with it
     with warnings.catch_warnings():
@@ -202,9 +203,9 @@ def test_exact_response_needs_a_linear_model(sp_noisy):
         )
 
     h = exact_short_period(
-        far.channel("elevator", "q").frequency, {**TRUTH, "M_alpha": TRUTH["M_alpha"] + 1.5}
+        far.channel("elevator", "q").frequency_hz, {**TRUTH, "M_alpha": TRUTH["M_alpha"] + 1.5}
     )["q"]
-    np.testing.assert_allclose(far.channel("elevator", "q").model_magnitude, np.abs(h), rtol=1e-6)
+    np.testing.assert_allclose(far.channel("elevator", "q").model_gain, np.abs(h), rtol=1e-6)
 
 
 # -- which frequencies count ----------------------------------------------------------------
@@ -212,8 +213,8 @@ def test_exact_response_needs_a_linear_model(sp_noisy):
 
 def _relative_error(ch):
     """|Ĥ - H| / |H| per frequency, from a channel's magnitudes and phases."""
-    he = ch.magnitude * np.exp(1j * ch.phase)
-    hm = ch.model_magnitude * np.exp(1j * ch.model_phase)
+    he = ch.response
+    hm = ch.model_response
     return np.abs(he - hm) / np.abs(hm)
 
 
@@ -265,11 +266,11 @@ def test_a_short_doublet_resolves_no_frequency_and_says_so():
     sim = model.simulate(clean.time, clean.array(["elevator"]), method="exact")
     clean = FlightData(clean.time, {"elevator": clean["elevator"], "q": sim.output("q").copy()})
     ch = _quiet_response(model, clean, TRUTH, outputs=["q"], nperseg=128).channel("elevator", "q")
-    h = exact_short_period(ch.frequency)["q"]
-    rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
-    at = np.isin(ch.frequency, [0.78125, 1.5625])
+    h = exact_short_period(ch.frequency_hz)["q"]
+    rel = np.abs(ch.response - h) / np.abs(h)
+    at = np.isin(ch.frequency_hz, [0.78125, 1.5625])
     assert np.all(ch.coherence[at] > 0.9) and np.all(rel[at] > 0.09)
-    assert not ch.coherent[np.isclose(ch.frequency, 0.78125)].any()  # 63 % off
+    assert not ch.coherent[np.isclose(ch.frequency_hz, 0.78125)].any()  # 63 % off
     assert np.all(rel[ch.coherent] < 0.10)
 
 
@@ -365,18 +366,18 @@ def test_weakly_excited_frequencies_do_not_count():
     data = catalog.short_period_flight(seed=0)
     res = _quiet_response(catalog.short_period(), data, TRUTH, nperseg=128)
     ch = res.channel("elevator", "q")
-    i = int(np.argmin(np.abs(ch.frequency - 3.52)))
+    i = int(np.argmin(np.abs(ch.frequency_hz - 3.52)))
     assert ch.coherence[i] >= res.coherence_threshold
     assert not ch.coherent[i]
     assert _relative_error(ch)[i] == pytest.approx(1.36, abs=0.01)
     f, puu = scipy.signal.welch(data["elevator"], fs=50.0, nperseg=res.nperseg)
-    rel_input = np.interp(ch.frequency, f, puu / puu.max())
+    rel_input = np.interp(ch.frequency_hz, f, puu / puu.max())
     assert 10 * np.log10(rel_input[i]) == pytest.approx(-17.4, abs=0.1)
     for seed in range(20):  # the same doublet on every seed: rel_input holds for all
         data = catalog.short_period_flight(seed=seed)
         for c in _quiet_response(catalog.short_period(), data, TRUTH, nperseg=128).channels:
             assert np.all(rel_input[c.coherent] >= 0.05)
-            assert np.all(c.frequency[c.coherent] < 2.0)  # inside the second null
+            assert np.all(c.frequency_hz[c.coherent] < 2.0)  # inside the second null
 
 
 def test_doublet_side_lobes_straddle_the_excitation_fraction():
@@ -456,13 +457,13 @@ def test_exact_mode_counts_only_frequencies_within_10_percent_of_the_transfer_fu
     res = _quiet_response(model, data, None, model_response="exact")
     counted, worst_before = 0, 0.0
     for ch in res.channels:
-        h = exact(ch.frequency)[ch.output_name]
-        rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
-        np.testing.assert_allclose(ch.model_magnitude, np.abs(h), rtol=1e-9)
-        assert np.all(rel[ch.coherent] < 0.10), (ch.output_name, ch.frequency[ch.coherent])
+        h = exact(ch.frequency_hz)[ch.output_name]
+        rel = np.abs(ch.response - h) / np.abs(h)
+        np.testing.assert_allclose(ch.model_gain, np.abs(h), rtol=1e-9)
+        assert np.all(rel[ch.coherent] < 0.10), (ch.output_name, ch.frequency_hz[ch.coherent])
         counted += ch.n_coherent
         # what the coherence and excitation rules alone counted
-        excited = (ch.coherence >= res.coherence_threshold) & (ch.frequency < 4.5)
+        excited = (ch.coherence >= res.coherence_threshold) & (ch.frequency_hz < 4.5)
         worst_before = max(worst_before, float(np.max(rel[excited])))
     assert counted >= 3  # the default min_coherent: still enough to judge a model
     assert worst_before > 0.09
@@ -480,15 +481,15 @@ def test_noise_free_multisine_band_resolves_many_frequencies():
         # several windows, none of a single segment (coherence 1 by construction)
         assert len(res.windows) > 1 and min(res.window_averages) > 2.5
         for ch in res.channels:
-            assert 0.2 <= ch.frequency[0] < 0.2 + 50.0 / data.n_samples
-            assert ch.frequency[-1] <= 3.0
-            h = exact_short_period(ch.frequency)[ch.output_name]
-            rel = np.abs(ch.magnitude * np.exp(1j * ch.phase) - h) / np.abs(h)
+            assert 0.2 <= ch.frequency_hz[0] < 0.2 + 50.0 / data.n_samples
+            assert ch.frequency_hz[-1] <= 3.0
+            h = exact_short_period(ch.frequency_hz)[ch.output_name]
+            rel = np.abs(ch.response - h) / np.abs(h)
             # counted: the window's bias on the model's own response within 10 %
             assert np.all(rel[ch.coherent] < 0.10)
             good = ch.coherent & (ch.coherence > 0.95)
             assert good.sum() > 5
-            np.testing.assert_allclose(ch.magnitude[good], np.abs(h[good]), rtol=0.10)
+            np.testing.assert_allclose(ch.gain[good], np.abs(h[good]), rtol=0.10)
             assert np.max(np.abs(np.angle(ch.response[good] / h[good]))) < 0.15
     q = res.channel("elevator", "q")
     assert q.n_coherent > 5 and q.mismatch < 0.05
@@ -505,7 +506,7 @@ def test_noise_free_multisine_band_resolves_many_frequencies():
     off = _quiet_response(model, data, wrong, **kw).channel("elevator", "q")
     assert right.mismatch < 0.05 and off.mismatch > 2 * right.mismatch
     # each frequency's window holds at least two periods of it
-    assert np.all(q.frequency[q.coherent] * q.window[q.coherent] / data.sample_rate >= 2.0)
+    assert np.all(q.frequency_hz[q.coherent] * q.window[q.coherent] / data.sample_rate >= 2.0)
 
 
 @pytest.mark.parametrize(("n_t", "nperseg"), [(1501, 256), (1000, 255), (64, 64), (100, 8)])
@@ -585,7 +586,7 @@ def test_a_band_above_nyquist_is_clipped_and_noted():
     assert res.frequency_range == (0.5, 25.0)
     assert any("Nyquist" in n for n in res.notes) and "Nyquist" in res.summary()
     for ch in res.channels:
-        assert ch.frequency[-1] <= 25.0 and ch.frequency[-1] > 24.9
+        assert ch.frequency_hz[-1] <= 25.0 and ch.frequency_hz[-1] > 24.9
 
 
 def test_frequencies_below_two_periods_of_every_window_are_reported():
@@ -596,10 +597,10 @@ def test_frequencies_below_two_periods_of_every_window_are_reported():
     lowest = 3.0 / (data.n_samples / 50.0)
     assert any("two periods" in n for n in res.notes)
     for ch in res.channels:
-        below = ch.frequency < lowest
+        below = ch.frequency_hz < lowest
         assert below.any() and not ch.coherent[below].any()
         assert ch.dropped["below two periods of every window"] == below.sum()
-        assert np.all(ch.frequency[ch.coherent] * ch.window[ch.coherent] / 50.0 >= 2.0)
+        assert np.all(ch.frequency_hz[ch.coherent] * ch.window[ch.coherent] / 50.0 >= 2.0)
     assert "below two periods" in res.summary()
 
 
@@ -609,11 +610,11 @@ def test_a_lightly_damped_mode_is_resolved_and_judged():
     data = _with_noise(_noise_free_multisine(model), ["y"], 0.002, seed=5)
     res = _quiet_response(model, data, None, frequency_range=(0.2, 3.0))
     ch = res.channel("u", "y")
-    h = exact(ch.frequency)["y"]
+    h = exact(ch.frequency_hz)["y"]
     rel = np.abs(ch.response - h) / np.abs(h)
     assert ch.n_coherent > 20
     # counted near the resonance, where the gain changes fastest
-    assert np.any(ch.coherent & (np.abs(ch.frequency - 1.0) < 0.05))
+    assert np.any(ch.coherent & (np.abs(ch.frequency_hz - 1.0) < 0.05))
     assert np.median(rel[ch.coherent]) < 0.05
     wrong, _ = _second_order(2 * np.pi * 1.1, 0.05)
     off = _quiet_response(wrong, data, None, frequency_range=(0.2, 3.0)).channel("u", "y")
@@ -666,29 +667,39 @@ def test_twin_otter_pitch_record_agrees_with_the_whole_record_ratio():
     est = ch.response[ch.coherent]
     assert np.median(np.abs(20 * np.log10(np.abs(est / ref)))) < 1.0
     assert np.median(np.abs(np.degrees(np.angle(est / ref)))) < 5.0
-    assert sum(ch.dropped.values()) + ch.n_coherent == ch.frequency.size
+    assert sum(ch.dropped.values()) + ch.n_coherent == ch.frequency_hz.size
 
 
-def test_both_response_types_share_the_unit_explicit_names():
+def test_one_response_type_for_every_frequency_tool():
     from aeroid.frequency_id import ResponseChannel
 
     model = catalog.short_period(TRUTH)
     data = _noise_free_multisine(model, 20.0)
     ch = _quiet_response(model, data, None, frequency_range=(0.2, 3.0)).channel("elevator", "q")
-    rc = ch.as_response_channel()
-    assert isinstance(rc, ResponseChannel)
-    # the historical fields of ChannelFrequencyResponse: Hz, gain, radians (the spec's)
-    np.testing.assert_allclose(ch.frequency_rad_s, 2 * np.pi * ch.frequency, rtol=1e-15)
-    np.testing.assert_allclose(ch.response, ch.magnitude * np.exp(1j * ch.phase))
-    # one set of unit-explicit names on both: rad/s and Hz, complex H, gain, dB, degrees
-    for name in ("frequency_hz", "frequency_rad_s", "response", "gain", "magnitude_db"):
-        np.testing.assert_allclose(getattr(rc, name), getattr(ch, name), rtol=1e-12)
-    np.testing.assert_allclose(rc.phase_deg, ch.phase_deg, atol=1e-9)
+    # the spec's name is the one record: rad/s inside, complex responses
+    assert aeroid.ChannelFrequencyResponse is ResponseChannel
+    assert isinstance(ch, ResponseChannel) and ch.as_response_channel() is ch
+    comp = aeroid.composite_response(data, "elevator", "q").channel("elevator", "q")
+    assert type(comp) is type(ch)
+    np.testing.assert_allclose(ch.frequency_rad_s, 2 * np.pi * ch.frequency_hz, rtol=1e-15)
+    assert ch.frequency is ch.frequency_rad_s
+    # dB and degrees are derived from the complex response, the same on every record
+    for rec in (ch, comp):
+        np.testing.assert_allclose(rec.magnitude_db, 20 * np.log10(np.abs(rec.response)))
+        np.testing.assert_allclose(rec.gain, np.abs(rec.response))
+        np.testing.assert_allclose(
+            np.exp(1j * np.radians(rec.phase_deg)), rec.response / np.abs(rec.response),
+            atol=1e-12,
+        )  # fmt: skip
+        assert -270.0 < rec.phase_deg[0] <= 90.0
     np.testing.assert_allclose(
-        np.exp(1j * np.radians(ch.phase_deg)), np.exp(1j * ch.phase), atol=1e-12
+        np.exp(1j * np.radians(ch.model_phase)),
+        ch.model_response / np.abs(ch.model_response),
+        atol=1e-12,
     )
-    np.testing.assert_allclose(rc.magnitude, 20 * np.log10(ch.magnitude), rtol=1e-12)
-    h = exact_short_period(ch.frequency)["q"]
+    assert np.all(np.abs(ch.phase_error) <= 180.0)
+    assert np.isnan(comp.model_response).all() and np.isnan(comp.mismatch)
+    h = exact_short_period(ch.frequency_hz)["q"]
     exact_res = _quiet_response(
         model, data, None, frequency_range=(0.2, 3.0), model_response="exact"
     ).channel("elevator", "q")
@@ -724,7 +735,7 @@ def test_a_simulator_is_judged_against_its_whole_record_ratio():
     res = _quiet_response(sim, data, None, frequency_range=(0.2, 3.0))
     assert res.model_response == "simulated"
     ch = res.channel("elevator", "q")
-    h = exact_short_period(ch.frequency)["q"]
+    h = exact_short_period(ch.frequency_hz)["q"]
     assert ch.n_coherent > 5
     assert np.all(np.abs(ch.response[ch.coherent] / h[ch.coherent] - 1) < 0.12)
     wrong = _SteppedShortPeriod({**TRUTH, "M_alpha": 1.5 * TRUTH["M_alpha"]})

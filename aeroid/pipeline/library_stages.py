@@ -525,8 +525,9 @@ for _stage in (
         "frequency",
         # 3: only frequencies whose coherence beats chance and that the input excites;
         # 4: the model's exact response by default where it is linear time-invariant;
-        # 5: else the transfer function of the model linearised at the record's start
-        "5",
+        # 5: else the transfer function of the model linearised at the record's start;
+        # 6: one response record (rad/s, complex responses; dB and degrees derived)
+        "6",
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
