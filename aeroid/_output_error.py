@@ -1326,7 +1326,17 @@ def fit_output_error(
         # one, and a lag-window estimate would only add noise to it.
         shown = "white"
     if shown == "colored":
-        cov_col, phi = _colored_covariance(jacobians, residuals, r, m_inv)
+        from ._colour import colored_covariance, t_widening
+
+        _, phi = _colored_covariance(jacobians, residuals, r, m_inv)
+        root = np.sqrt(r)
+        cov_col, nu = colored_covariance(
+            [jac / root[None, :, None] for jac in jacobians],
+            [v / root[None, :] for v in residuals],
+            m_inv,
+        )
+        widen = t_widening(nu)
+        cov_col = cov_col * np.outer(widen, widen)
         _warn_unabsorbed_drift(
             phi, mans, outputs, cov_col, cov_white, [names_all[j] for j in keep], states
         )
