@@ -798,9 +798,6 @@ def _ar1_filter_columns(v: FloatArray, phi: FloatArray) -> FloatArray:
     return e
 
 
-# A residual whose AR(1) correlation time exceeds the record, a widening beyond which
-# an unabsorbed drift is worth a word.
-
 
 def _state_biased_outputs(
     mans: list[_Manoeuvre], states: list[str], outputs: list[str]
