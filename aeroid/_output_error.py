@@ -798,7 +798,6 @@ def _ar1_filter_columns(v: FloatArray, phi: FloatArray) -> FloatArray:
     return e
 
 
-
 def _state_biased_outputs(
     mans: list[_Manoeuvre], states: list[str], outputs: list[str]
 ) -> set[int]:
