@@ -174,3 +174,34 @@ def t_widening(nu: FloatArray) -> FloatArray:
 
     nu = np.maximum(np.where(np.isfinite(nu), nu, 1e12), 1.0)
     return np.asarray(stdtrit(nu, 0.975) / 1.959963984540054, dtype=np.float64)
+
+
+def frequency_sandwich(jac: FloatArray, res: FloatArray, m_inv: FloatArray) -> FloatArray:
+    """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies.
+
+    Frequency-domain estimators fit Fourier transforms on the ``k/T`` grid, where
+    the transforms at distinct frequencies are nearly independent however
+    coloured the residuals are in time, so ``B`` needs no smoothing across
+    frequencies: each frequency's noise spectrum is its own residual's outer
+    product, corrected for what the fit removed exactly as `colored_covariance`
+    does, ``E[u u'] = F (1 - L)`` with ``L`` that frequency's leverage (here a
+    matrix over its real-stacked rows), so ``u`` is scaled by ``(1 - L)^-1/2``.
+
+    Parameters
+    ----------
+    jac : (M, r, p) array
+        Per frequency, the real-stacked weighted sensitivities.
+    res : (M, r) array
+        Per frequency, the real-stacked weighted residuals.
+    m_inv : (p, p) array
+        The (pseudo-)inverse of ``M = sum J'J``.
+    """
+    lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
+    lev = 0.5 * (lev + lev.transpose(0, 2, 1))
+    w, v = np.linalg.eigh(np.eye(lev.shape[1])[None] - lev)
+    # a frequency that alone fixes an unknown (1 - L ~ 0) keeps its plain residual
+    scale = np.where(w > 1e-9, 1.0 / np.sqrt(np.maximum(w, 1e-300)), 1.0)
+    u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
+    score = np.einsum("mrn,mr->mn", jac, u)
+    return np.asarray(m_inv @ (score.T @ score) @ m_inv, dtype=np.float64)
+

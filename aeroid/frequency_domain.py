@@ -70,6 +70,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
+from ._colour import frequency_sandwich
 from ._czt import fourier
 from ._records import frozen_array
 from ._threads import CALLER_STACKLEVEL, small_blas
@@ -478,18 +479,10 @@ def _covariances(
     combos, null = _unidentifiable(info, labels)
     inv = np.linalg.pinv(info, rcond=1e-13, hermitian=True)
     white = white_scale * inv
-    # Each frequency's residuals are inflated by its own leverage (the jackknife form
-    # of the sandwich): the few frequencies near a mode carry most of the information,
-    # and their residuals are pulled towards zero by the fit.
-    lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
-    eye = np.eye(r)
-    try:
-        res = np.linalg.solve(eye - lev, res[:, :, None])[:, :, 0]
-    except np.linalg.LinAlgError:
-        pass  # a frequency that alone fixes an unknown: plain residuals
-    score = np.einsum("mrn,mr->mn", jac, res)
-    middle = score.T @ score
-    colored = inv @ middle @ inv
+    # the one coloured-residual correction, in its per-frequency form: the few
+    # frequencies near a mode carry most of the information, and the fit pulls
+    # their residuals towards zero (their leverage)
+    colored = frequency_sandwich(jac, res, np.asarray(inv, dtype=np.float64))
     for cov in (white, colored):
         for j in np.flatnonzero(null):
             cov[j, :] = np.nan

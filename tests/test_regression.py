@@ -549,3 +549,19 @@ def test_public_entry_points_limit_blas_threads():
     # wrapped by `small_blas`, as every numerical entry point of the library
     for fn in (equation_error, stepwise_regression):
         assert hasattr(fn, "__wrapped__"), fn.__name__
+
+
+def test_frequency_sandwich_is_the_leverage_corrected_score_sum() -> None:
+    # one real row per frequency: u_m / sqrt(1 - L_m), then M^-1 (sum g g') M^-1; with
+    # the rows of one frequency uncorrelated it is the same row by row
+    from aeroid import _colour
+
+    rng = np.random.default_rng(3)
+    m, p = 60, 3
+    jac = rng.standard_normal((m, 1, p))
+    res = rng.standard_normal((m, 1))
+    inv = np.linalg.inv(np.einsum("mrp,mrq->pq", jac, jac))
+    lev = np.einsum("mp,pq,mq->m", jac[:, 0], inv, jac[:, 0])
+    score = jac[:, 0] * (res[:, 0] / np.sqrt(1.0 - lev))[:, None]
+    want = inv @ score.T @ score @ inv
+    np.testing.assert_allclose(_colour.frequency_sandwich(jac, res, inv), want, rtol=1e-10)
