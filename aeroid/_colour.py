@@ -11,7 +11,11 @@ for output error) and ``M = sum_t G_t' G_t``; with noise of cross-spectrum
 the form Morelli & Klein write in the time domain (SIDPAC's colores) and here
 in the frequency domain, where it is cheap and where its estimate can be
 corrected for what the fit removed. `colored_covariance` is the one
-implementation; see its docstring for the estimator and its degrees of freedom.
+implementation for estimators that fit time histories (equation error,
+stepwise regression, output error, data compatibility); see its docstring
+for the estimator and its degrees of freedom. `frequency_sandwich` is the same
+``B`` for estimators that fit Fourier transforms on the ``k/T`` grid, where
+each frequency is its own window.
 """
 
 from __future__ import annotations
