@@ -78,3 +78,12 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     out = [line(head), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
     out.extend(line(r) for r in body)
     return "\n".join(out)
+
+
+#: What every estimator's result offers (`identify`, `check_compatibility`,
+#: `equation_error`, `stepwise_regression`, `identify_frequency_domain`,
+#: `fit_transfer_function`, `equivalent_system`, `infer`): estimates and standard
+#: errors by parameter name (``stderr`` and ``standard_errors`` are one mapping),
+#: their covariance, a Markdown `summary` and a `plot`.
+ESTIMATE_PROTOCOL = ("parameters", "stderr", "standard_errors", "covariance", "summary", "plot")
+

@@ -392,6 +392,11 @@ class CompatibilityResult:
         set_(self, "unidentifiable", tuple(tuple(c) for c in self.unidentifiable))
 
     @property
+    def standard_errors(self) -> Mapping[str, float]:
+        """The `stderr` (the name every estimator's result shares)."""
+        return self.stderr
+
+    @property
     def residuals(self) -> FloatArray:
         """Measured minus reconstructed sensor readings, shape (n_t, n_y)."""
         out = np.asarray(self.measured - self.reconstructed)

@@ -972,6 +972,11 @@ class TransferFunctionFit:
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
         object.__setattr__(self, "response", _frozen_complex(self.response))
 
+    @property
+    def stderr(self) -> Mapping[str, float]:
+        """The `standard_errors` (the name every estimator's result shares)."""
+        return self.standard_errors
+
     def transfer_function(self, s: ArrayLike) -> ComplexArray:
         """T(s) at complex `s`."""
         return transfer_at(self.numerator, self.denominator, s, delay=self.delay)

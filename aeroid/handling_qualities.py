@@ -48,7 +48,7 @@ from ._criteria import (
     muad_envelopes,
     short_period_level,
 )
-from ._records import fmt, frozen_mapping, markdown_table
+from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from ._transfer import transfer_response
 from .data import FlightData, check_flag, plain
@@ -491,6 +491,25 @@ class EquivalentSystemFit:
         object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
         object.__setattr__(self, "standard_errors", frozen_mapping(self.standard_errors))
 
+    @property
+    def stderr(self) -> Mapping[str, float]:
+        """The `standard_errors` (the name every estimator's result shares)."""
+        return self.standard_errors
+
+    @property
+    def covariance(self) -> FloatArray:
+        """Covariance of the derived parameters (``omega``, ``zeta``, ...) by the delta
+        method, in the order of `standard_errors`; NaN for names that have none."""
+        keys, cov = _delta_covariance(self.kind, self.fit)
+        names = list(self.standard_errors)
+        out = np.full((len(names), len(names)), np.nan)
+        idx = [keys.index(n) if n in keys else -1 for n in names]
+        for a, i in enumerate(idx):
+            for b, j in enumerate(idx):
+                if i >= 0 and j >= 0:
+                    out[a, b] = cov[i, j]
+        return frozen_array(out)
+
     def evaluate(self, frequency: ArrayLike) -> ComplexArray:
         """The equivalent system's response at ω (rad/s)."""
         return self.fit.evaluate(frequency)
@@ -756,7 +775,15 @@ def _derived(kind: str, p: Mapping[str, float]) -> dict[str, float]:
 
 
 def _delta_method(kind: str, fit: TransferFunctionFit) -> dict[str, float]:
-    """Standard errors of the derived parameters: sqrt(diag(G Σ Gᵀ)), G by central differences."""
+    """Standard errors of the derived parameters: sqrt(diag(G Σ Gᵀ))."""
+    keys, cov = _delta_covariance(kind, fit)
+    with np.errstate(invalid="ignore"):
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return dict(zip(keys, se.tolist(), strict=True))
+
+
+def _delta_covariance(kind: str, fit: TransferFunctionFit) -> tuple[list[str], FloatArray]:
+    """The derived parameters' names and covariance G Σ Gᵀ, G by central differences."""
     names = list(fit.parameters)
     theta = np.array([fit.parameters[k] for k in names], dtype=np.float64)
     cov = np.asarray(fit.covariance, dtype=np.float64)
@@ -772,9 +799,7 @@ def _delta_method(kind: str, fit: TransferFunctionFit) -> dict[str, float]:
         down = _derived(kind, dict(zip(names, lo.tolist(), strict=True)))
         g[:, j] = [(up[k] - down[k]) / (2.0 * step) for k in keys]
     with np.errstate(invalid="ignore"):
-        var = np.einsum("ij,jk,ik->i", g, cov, g)
-        se = np.sqrt(np.clip(var, 0.0, None))
-    return dict(zip(keys, se.tolist(), strict=True))
+        return keys, np.asarray(g @ cov @ g.T, dtype=np.float64)
 
 
 def _mismatch(fit: TransferFunctionFit, p: Mapping[str, float]) -> float:

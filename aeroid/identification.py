@@ -173,6 +173,11 @@ class IdentificationResult:
         set_(self, "residuals", tuple(frozen_array(r) for r in self.residuals))
 
     @property
+    def standard_errors(self) -> Mapping[str, float]:
+        """The `stderr` (the name every estimator's result shares)."""
+        return self.stderr
+
+    @property
     def correlation(self) -> FloatArray:
         """Parameter correlation matrix derived from `covariance`."""
         d = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))

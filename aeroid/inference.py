@@ -254,6 +254,11 @@ class InferenceResult:
         set_(self, "converged", bool(self.converged))
 
     @property
+    def standard_errors(self) -> Mapping[str, float]:
+        """The `stderr` (the name every estimator's result shares)."""
+        return self.stderr
+
+    @property
     def all_parameters(self) -> Mapping[str, float]:
         """Fixed model parameters together with the posterior means of the inferred ones."""
         merged = dict(self.fixed)

@@ -428,6 +428,11 @@ class RegressionResult:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "parameter_names", tuple(self.parameter_names))
 
+    @property
+    def standard_errors(self) -> Mapping[str, float]:
+        """The `stderr` (the name every estimator's result shares)."""
+        return self.stderr
+
     def summary(self) -> str:
         """A Markdown table of the estimates and the fit statistics."""
         rows = []
@@ -1078,6 +1083,16 @@ class StepwiseResult:
     f_in: float
     f_out: float
     orthogonalized: bool
+
+    @property
+    def standard_errors(self) -> Mapping[str, float]:
+        """The `stderr` (the name every estimator's result shares)."""
+        return self.stderr
+
+    @property
+    def covariance(self) -> FloatArray:
+        """Covariance of the selected model's parameters (its `regression`'s)."""
+        return self.regression.covariance
 
     @property
     def parameters(self) -> Mapping[str, float]:
