@@ -159,6 +159,8 @@ class FrequencyIdentifyOptions(Options):
     reference: dict[str, float] | None = None
     max_iterations: int | None = Field(None, ge=1)
     tolerance: float | None = Field(None, gt=0)
+    weighting: Literal["sidpac", "hermitian", "real"] | None = None
+    delays: list[str] | dict[str, float] | None = None
 
     library: ClassVar[str] = "aeroid.frequency_domain:identify_frequency_domain"
 
@@ -381,7 +383,8 @@ for _stage in (
     ),
     Stage(
         "frequency_identify",
-        "1",
+        # 2: fdoe's noise weighting by default, record ends kept only when significant
+        "2",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,

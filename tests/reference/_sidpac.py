@@ -115,8 +115,12 @@ def row(
     seconds: float | None = None,
     note: str | None = None,
     delta_sigma: float | None = None,
+    variant: bool = False,
 ) -> dict[str, Any]:
     """One table row with the derived columns filled in.
+
+    ``variant`` marks a row for a non-default option (printed, left out of the
+    case's summary, which judges the library's defaults).
 
     ``delta_sigma`` and ``se_ratio`` use SIDPAC's corrected standard error
     where it saved one, else its white one (a case with no SIDPAC error, compared
@@ -136,6 +140,7 @@ def row(
     out: dict[str, Any] = {
         "case": case,
         "parameter": parameter,
+        "variant": bool(variant),
         "sidpac": f(sidpac),
         "sidpac_se_white": f(sidpac_se_white),
         "sidpac_se_corrected": f(sidpac_se_corrected),
@@ -318,6 +323,7 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         v = [float(x) for x in vals if x is not None]
         return f"{sum(lo <= x <= hi for x in v)}/{len(v)}" if v else "-"
 
+    rows = [r for r in rows if not r.get("variant")]
     d = [r.get("delta_sigma") for r in rows if r.get("delta_sigma") is not None]
     deriv_corr = [
         _ratio(r.get("ours_se"), r.get("sidpac_se_corrected"))

@@ -107,6 +107,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                     ours_se=float(se),
                     mc_se=None,
                     seconds=secs,
+                    variant=bool(suffix),
                 )
             )
     return rows

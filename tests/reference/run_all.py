@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         print(line + "".join(f"{s[k]:>10}" for k, _ in targets))
     print(
         "se/sid: ours over SIDPAC's corrected se where saved, else its white; drv/corr: derivatives "
-        "only, over SIDPAC's corrected; targets: drv se within 0.8-1.25 of SIDPAC's corrected, "
+        "only, over SIDPAC's corrected (rows for non-default options are printed, not "
+        "summarised); targets: drv se within 0.8-1.25 of SIDPAC's corrected, "
         "every se within 0.8-1.25 of the Monte Carlo, |d|/sig <= 1 (rows meeting / rows)"
     )
     return 0
