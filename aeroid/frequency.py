@@ -390,16 +390,12 @@ def _independent_averages(n: int, nperseg: int) -> float:
     K Hann segments overlapping by half average like
     ``K / (1 + 2 Σ_j (1 - j/K) ρ_j²)`` independent ones, ``ρ_j`` the window's
     overlap correlation at a shift of j segments (Welch 1967): 5.7 for the six
-    segments of a 10 s record at 50 Hz.
+    segments of a 10 s record at 50 Hz. One count for every window
+    (`frequency_id._independent_averages`).
     """
-    step = nperseg - nperseg // 2
-    k = (n - nperseg) // step + 1
-    w = hann(nperseg)
-    shifts = np.arange(1, k) * step
-    shifts = shifts[shifts < nperseg]
-    rho = np.array([np.dot(w[: nperseg - d], w[d:]) for d in shifts]) / np.dot(w, w)
-    lag = np.arange(1, shifts.size + 1)
-    return float(k / (1.0 + 2.0 * np.sum((1.0 - lag / k) * rho**2)))
+    from .frequency_id import _independent_averages as count
+
+    return count(n, nperseg, nperseg - nperseg // 2, hann(nperseg))
 
 
 def _chance_coherence(n_averages: float, n_inputs: int, n_frequencies: int) -> float:
