@@ -63,6 +63,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -201,12 +202,16 @@ class AeroDatabase:
         for name in ("centres", "half_ranges", "structures", "scale", "chi2", "dof"):
             object.__setattr__(self, name, frozen_mapping(getattr(self, name)))
         object.__setattr__(
-            self, "parameters", frozen_mapping({k: frozen_array(v) for k, v in self.parameters.items()})
+            self,
+            "parameters",
+            frozen_mapping({k: frozen_array(v) for k, v in self.parameters.items()}),
         )
         for name in ("covariance", "conditions", "estimates", "stderr"):
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
         object.__setattr__(self, "_exponents", frozen_mapping(self._exponents))
-        object.__setattr__(self, "_offsets", ReadOnlyDict({k: int(v) for k, v in self._offsets.items()}))
+        object.__setattr__(
+            self, "_offsets", ReadOnlyDict({k: int(v) for k, v in self._offsets.items()})
+        )
         object.__setattr__(self, "held_out", tuple(self.held_out))
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -260,7 +265,11 @@ class AeroDatabase:
         return value, np.sqrt(np.maximum(var, 0.0))
 
     def band(
-        self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike, *, confidence: float | None = None
+        self,
+        term: str,
+        condition: Mapping[str, ArrayLike] | ArrayLike,
+        *,
+        confidence: float | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Prediction with its lower and upper confidence bound (default `confidence`)."""
         level = self.confidence if confidence is None else float(confidence)
@@ -303,12 +312,38 @@ class AeroDatabase:
             rows["upper"].extend(hi.tolist())
         return rows
 
+    def to_jsbsim(self, path: str | Path | None = None, *, n: int = 21) -> str:
+        """The database as a JSBSim ``<aerodynamics>`` section (written to `path` if given).
+
+        Tables in JSBSim's variables (``aero/alpha-rad``, ``velocities/mach``,
+        ``position/h-sl-ft``, ...) with `n` breakpoints per key over the fitted
+        range; terms named ``<C>_<regressor>`` (``Cm_q``, ``Cl_delta_a``; see
+        `aeroid._database_export`). JSBSim holds a table's end values outside it.
+        """
+        from ._database_export import jsbsim_aerodynamics, write_jsbsim
+
+        if path is not None:
+            write_jsbsim(self, path, n=n)
+        return jsbsim_aerodynamics(self, n=n)
+
+    def to_parquet(self, path: str | Path, *, n: int = 11) -> Path:
+        """Write `table` (one row per term and grid point, with the band) as Parquet."""
+        from ._database_export import write_parquet
+
+        return write_parquet(self, path, n=n)
+
     def summary(self) -> str:
         """A Markdown table of the terms, their structures and fit statistics."""
         rows = []
         for t in self.terms:
             rows.append(
-                [t, " + ".join(self.structures[t]), fmt(self.chi2[t]), fmt(self.dof[t], 3), fmt(self.scale[t])]
+                [
+                    t,
+                    " + ".join(self.structures[t]),
+                    fmt(self.chi2[t]),
+                    fmt(self.dof[t], 3),
+                    fmt(self.scale[t]),
+                ]
             )
         head = (
             f"Aerodynamic database: {len(self.terms)} coefficients over {len(self.flights)} flights, "
@@ -581,7 +616,9 @@ def aerodynamic_database(
     forced = dict(structures or {})
     bad = [t for t in forced if t not in terms]
     if bad:
-        raise IdentificationError(f"structures name term(s) {', '.join(bad)} that no flight estimates")
+        raise IdentificationError(
+            f"structures name term(s) {', '.join(bad)} that no flight estimates"
+        )
 
     exponents: dict[str, tuple[Exponents, ...]] = {}
     for j, t in enumerate(terms):
@@ -645,7 +682,9 @@ def aerodynamic_database(
             pred, se = db.predict(t, hx[i : i + 1])
             s_est = math.sqrt(hcovs[i][j, j])
             zval = (hz[i, j] - pred[0]) / math.hypot(s_est, se[0])
-            checks.append(HeldOutCheck(f.name, t, float(hz[i, j]), s_est, float(pred[0]), float(se[0]), zval))
+            checks.append(
+                HeldOutCheck(f.name, t, float(hz[i, j]), s_est, float(pred[0]), float(se[0]), zval)
+            )
     object.__setattr__(db, "held_out", tuple(checks))
     return db
 
@@ -662,7 +701,11 @@ def _check_identifiable(
     sv = np.linalg.svd(a, compute_uv=False)
     if sv[-1] <= 1e-9 * max(sv[0], 1.0):
         flat = [k for i, k in enumerate(keys) if np.ptp(u[:, i]) <= 1e-9 and any(e[i] for e in es)]
-        why = f"condition {', '.join(flat)} does not vary over" if flat else "the conditions do not separate"
+        why = (
+            f"condition {', '.join(flat)} does not vary over"
+            if flat
+            else "the conditions do not separate"
+        )
         raise IdentificationError(
             f"{term!r} is unidentifiable: {why} the flights that excite it ({', '.join(flights)})"
         )

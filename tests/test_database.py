@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -81,7 +84,10 @@ def test_forced_structure_and_exports() -> None:
     assert abs(out["CL"][0] - TRUTH["CL"](0.05, 1000.0)) < 0.02
     table = db.table(n=5)
     assert len(table["term"]) == 3 * 25
-    assert all(lo <= v <= hi for lo, v, hi in zip(table["lower"], table["value"], table["upper"], strict=True))
+    assert all(
+        lo <= v <= hi
+        for lo, v, hi in zip(table["lower"], table["value"], table["upper"], strict=True)
+    )
 
 
 def test_joint_gls_equals_closed_form_for_constant_model() -> None:
@@ -110,7 +116,9 @@ def test_bad_input_names_flight_and_term() -> None:
     with pytest.raises(DataFormatError, match=r"flight_y.*altitude"):
         aerodynamic_database([*flights, lacking], keys=("alpha", "altitude"))
     nan = [
-        FlightCoefficients(f.name, f.condition, {**f.estimates, "Cm_de": np.nan}, np.pad(f.covariance, (0, 1)))
+        FlightCoefficients(
+            f.name, f.condition, {**f.estimates, "Cm_de": np.nan}, np.pad(f.covariance, (0, 1))
+        )
         for f in flights
     ]
     with pytest.raises(IdentificationError, match="no flight excites 'Cm_de'"):
@@ -128,3 +136,81 @@ def test_bad_input_names_flight_and_term() -> None:
     # a key that does not vary offers no candidate: the auto fit still works
     db = aerodynamic_database(same_alt)
     assert all("altitude" not in s for st in db.structures.values() for s in st)
+
+
+def _c172x_with(section: str, root: Path) -> str:
+    """A copy of JSBSim's c172x under `root` with its aerodynamics replaced."""
+    jsbsim = pytest.importorskip("jsbsim")
+    from aeroid._database_export import replace_aerodynamics
+
+    src = Path(jsbsim.get_default_root_dir())
+    for sub in ("engine", "systems"):
+        shutil.copytree(src / sub, root / sub)
+    shutil.copytree(src / "aircraft" / "c172x", root / "aircraft" / "c172x")
+    xml = root / "aircraft" / "c172x" / "c172x.xml"
+    xml.write_text(replace_aerodynamics(xml.read_text(), section))
+    return str(root)
+
+
+def test_jsbsim_reads_the_exported_tables_back(tmp_path: Path) -> None:
+    jsbsim = pytest.importorskip("jsbsim")
+    rng = np.random.default_rng(7)
+    flights = []
+    for i in range(16):
+        a, m = rng.uniform(0.0, 0.17), rng.uniform(0.10, 0.18)
+        est = {
+            "CL_0": 0.3 + 4.8 * a - 9.0 * a**2,
+            "CL_alpha": 4.8 - 18 * a,
+            "Cm_0": 0.0,
+            "Cm_alpha": -1.8 + 3 * a,
+            "Cm_q": -12.4,
+            "Cm_delta_e": -1.1 + 2.0 * m,
+            "CD_0": 0.03 + 0.3 * a**2,
+            "Cl_p": -0.48,
+            "Cl_beta": -0.09,
+            "Cl_delta_a": 0.23,
+            "Cn_beta": 0.065,
+            "Cn_r": -0.09,
+            "Cn_delta_r": -0.06,
+            "CY_beta": -0.39,
+        }
+        noise = {k: v + 1e-4 * rng.standard_normal() for k, v in est.items()}
+        flights.append(
+            FlightCoefficients.from_stderr(
+                f"f{i}", {"alpha": a, "mach": m}, noise, dict.fromkeys(est, 1e-4)
+            )
+        )
+    db = aerodynamic_database(flights)
+    section = db.to_jsbsim(tmp_path / "aero.xml", n=31)
+    assert (tmp_path / "aero.xml").read_text() == section
+    assert "aero/coefficient/aeroid-CL_alpha" not in section  # the slope of CL_0's table
+    assert "<property>aero/ci2vel</property>" in section
+    root = _c172x_with(section, tmp_path / "root")
+    fdm = jsbsim.FGFDMExec(root, None)
+    fdm.set_debug_level(0)
+    assert fdm.load_model("c172x")
+    fdm["ic/h-sl-ft"] = 3000.0
+    fdm["ic/vc-kts"] = 90.0
+    fdm["ic/alpha-deg"] = 4.0
+    fdm.run_ic()
+    for _ in range(5):
+        fdm.run()
+    cond = {"alpha": fdm["aero/alpha-rad"], "mach": fdm["velocities/mach"]}
+    for term in ("CL_0", "Cm_delta_e", "Cm_q", "Cl_p", "Cn_r"):
+        assert fdm[f"aero/aeroid/{term}"] == pytest.approx(db.predict(term, cond)[0][0], abs=2e-3)
+    qs = fdm["aero/qbar-area"]
+    assert fdm["aero/coefficient/aeroid-CL_0"] == pytest.approx(
+        qs * fdm["aero/aeroid/CL_0"], rel=1e-9
+    )
+
+
+def test_parquet_table_round_trip(tmp_path: Path) -> None:
+    pq = pytest.importorskip("pyarrow.parquet")
+    db = aerodynamic_database(_flights(5, n=15))
+    db.to_parquet(tmp_path / "db.parquet", n=4)
+    table = pq.read_table(tmp_path / "db.parquet").to_pydict()
+    assert set(table) >= {"term", "alpha", "altitude", "value", "stderr", "lower", "upper"}
+    assert len(table["term"]) == 3 * 16
+    i = table["term"].index("CL")
+    v, _ = db.predict("CL", {"alpha": table["alpha"][i], "altitude": table["altitude"][i]})
+    assert table["value"][i] == pytest.approx(v[0])
