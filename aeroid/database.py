@@ -208,7 +208,8 @@ class AeroDatabase:
         )
         for name in ("covariance", "conditions", "estimates", "stderr"):
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
-        object.__setattr__(self, "_exponents", frozen_mapping(self._exponents))
+        exps = {t: tuple(tuple(int(n) for n in e) for e in es) for t, es in self._exponents.items()}
+        object.__setattr__(self, "_exponents", ReadOnlyDict(exps))
         object.__setattr__(
             self, "_offsets", ReadOnlyDict({k: int(v) for k, v in self._offsets.items()})
         )

@@ -191,7 +191,9 @@ def _band_plot(db: AeroDatabase, term: str) -> bytes:
         capsize=2,
         label="flights",
     )
-    for i in np.flatnonzero(has):
+    # each point names its flight; past 30 flights the names would hide the points
+    # (the section's table lists every flight's condition)
+    for i in np.flatnonzero(has) if has.sum() <= 30 else ():
         ax.annotate(db.flights[i], (db.conditions[i, 0], db.estimates[i, j]), fontsize=5)
     ax.set_xlabel(key + (" (others at their centre)" if others else ""))
     ax.set_ylabel(term)
