@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from .coefficients import coefficients_from_data
     from .compatibility import CompatibilityResult, check_compatibility
     from .data import FlightData, load_flight_test
+    from .database import AeroDatabase, FlightCoefficients, HeldOutCheck, aerodynamic_database
     from .design import ExperimentDesign, design_experiment
     from .filtering import FilterResult, filter_states
     from .frequency import ChannelFrequencyResponse, FrequencyResponseResult, frequency_response
@@ -114,6 +115,10 @@ _LAZY = {
     "flight_windows": ".channel_map",
     "load_mapped": ".channel_map",
     "FlightData": ".data",
+    "AeroDatabase": ".database",
+    "FlightCoefficients": ".database",
+    "HeldOutCheck": ".database",
+    "aerodynamic_database": ".database",
     "load_flight_test": ".data",
     "FlightLog": "._logtypes",
     "LogChannel": "._logtypes",
@@ -224,6 +229,7 @@ if not TYPE_CHECKING:  # type checkers see the imports above, and no catch-all
 
 __all__ = [
     "AdapterError",
+    "AeroDatabase",
     "AeroidError",
     "AircraftConstants",
     "BandwidthResult",
@@ -247,12 +253,14 @@ __all__ = [
     "ExperimentDesign",
     "FilterError",
     "FilterResult",
+    "FlightCoefficients",
     "FlightData",
     "FlightLog",
     "FrequencyDomainResult",
     "FrequencyResponseResult",
     "HalfNormal",
     "HandlingQualitiesLevel",
+    "HeldOutCheck",
     "IdentifiabilityWarning",
     "IdentificationError",
     "IdentificationResult",
@@ -292,6 +300,7 @@ __all__ = [
     "ValidationResult",
     "VectorPropagationResult",
     "__version__",
+    "aerodynamic_database",
     "apply_channel_map",
     "autocorrelation_time",
     "bandwidth",

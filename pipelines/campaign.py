@@ -19,7 +19,7 @@ Per flight::
                 -> handling_qualities (optional; bandwidth, equivalent system, margins)
          -> frequency_identify (optional; frequency-domain output/equation error)
 
-then one campaign report over every flight. Each ``Step`` runs a stage from
+then the aerodynamic database over every flight (optional) and one campaign report. Each ``Step`` runs a stage from
 `aeroid.pipeline.stages` and maps the stage's input roles to earlier steps;
 its options come from ``stages.<step name>`` in the config. To build your own
 pipeline, copy this file to ``pipelines/<name>.py`` and select it with
@@ -77,6 +77,8 @@ pipeline = Pipeline(
         ),
     ),
     campaign_steps=(
+        # optional: the aerodynamic database over every flight (aeroid.aerodynamic_database)
+        Step("database", inputs={"data": "load", "identification": "identify"}, optional=True),
         Step(
             "campaign_report",
             inputs={

@@ -21,6 +21,7 @@ from typing import Any
 
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
+from .database_stage import write_database_files
 from .definition import Pipeline
 from .execution import (
     BY_ANOTHER_RUN,
@@ -67,6 +68,8 @@ class RunSummary:
     rows: list[list[str]] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     report_error: str | None = None
+    # the aerodynamic database's files (stage ``database``), beside the report
+    database_dir: Path | None = None
 
     def count(self, status: str) -> int:
         return sum(1 for t in self.plan.tasks if self.statuses[t.key].status == status)
@@ -186,6 +189,8 @@ def _run(
         statuses[status.key] = status
     t_run = time.perf_counter()
     report_path, columns, rows, report_error = write_report(the_plan, result_store, statuses)
+    database_dir, database_error = write_database_files(the_plan, result_store, statuses)
+    report_error = report_error or database_error
     return RunSummary(
         plan=the_plan,
         statuses=statuses,
@@ -193,6 +198,7 @@ def _run(
         columns=columns,
         rows=rows,
         report_error=report_error,
+        database_dir=database_dir,
         seconds={
             "plan": t_plan - t0,
             "cache_check": t_check - t_plan,

@@ -220,6 +220,7 @@ def resolve_callable(spec: str, *, what: str) -> Any:
 # the built-in stages register themselves (imported last: they build on the above)
 from . import analysis_stages as _analysis_stages  # noqa: E402
 from . import campaign_report as _campaign_report  # noqa: E402
+from . import database_stage as _database_stage  # noqa: E402
 from . import library_stages as _library_stages  # noqa: E402
 from .library_stages import (  # noqa: E402  (their names, as before they moved)
     METRICS,
@@ -252,4 +253,4 @@ __all__ += [
     "damping_ratio",
     "natural_frequency",
 ]
-del _analysis_stages, _campaign_report, _library_stages
+del _analysis_stages, _campaign_report, _database_stage, _library_stages

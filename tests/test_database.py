@@ -1,0 +1,216 @@
+"""The aerodynamic database (issue 51): seeded recovery, band coverage, bad input."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeroid.database import AeroDatabase, FlightCoefficients, aerodynamic_database
+from aeroid.errors import DataFormatError, IdentificationError
+
+# truths over alpha (rad) and altitude (m): a lift curve with curvature, a roll damping
+# falling with altitude, a constant yaw damping (lateral terms, not the short period)
+TRUTH = {
+    "CL": lambda a, h: 0.3 + 4.8 * a - 9.0 * a**2,
+    "Cl_p": lambda a, h: -0.48 + 2.0e-5 * (h - 1000.0),
+    "Cn_r": lambda a, h: -0.09 + 0.0 * a,
+}
+SIGMA = {"CL": 0.01, "Cl_p": 0.02, "Cn_r": 0.005}
+
+
+def _flights(seed: int, n: int = 30, correlated: bool = True) -> list[FlightCoefficients]:
+    rng = np.random.default_rng(seed)
+    out = []
+    terms = list(TRUTH)
+    for i in range(n):
+        a = rng.uniform(0.0, 0.175)
+        h = float(rng.choice([500.0, 1000.0, 1500.0]))
+        s = np.array([SIGMA[t] for t in terms]) * rng.uniform(0.5, 1.5, len(terms))
+        rho = 0.6 * rng.uniform(-1, 1) if correlated else 0.0
+        corr = np.eye(3)
+        corr[0, 1] = corr[1, 0] = rho
+        cov = corr * np.outer(s, s)
+        noise = np.linalg.cholesky(cov) @ rng.standard_normal(3)
+        est = {t: TRUTH[t](a, h) + noise[k] for k, t in enumerate(terms)}
+        out.append(FlightCoefficients(f"flight_{i:02d}", {"alpha": a, "altitude": h}, est, cov))
+    return out
+
+
+def test_recovers_known_polynomial_truth() -> None:
+    db = aerodynamic_database(_flights(1, n=60), held_out=("flight_00", "flight_01"))
+    assert isinstance(db, AeroDatabase)
+    assert db.keys == ("alpha", "altitude")
+    assert db.structures["Cn_r"] == ("1",)
+    assert "P2(alpha)" in db.structures["CL"]
+    assert "P1(altitude)" in db.structures["Cl_p"]
+    a = np.linspace(0.01, 0.165, 9)
+    for h in (500.0, 1500.0):
+        for t, f in TRUTH.items():
+            value, se = db.predict(t, {"alpha": a, "altitude": h})
+            assert np.all(np.abs(value - f(a, h)) < 4.5 * se + 1e-12), t
+            assert np.all(se < SIGMA[t])  # the fit pools flights: tighter than one flight
+    assert len(db.held_out) == 6
+    assert all(abs(c.z) < 4.0 for c in db.held_out)
+    text = db.summary()
+    assert "Held out: 2 flights" in text and "CL" in text
+    with pytest.raises(ValueError):
+        db.parameters["CL"][0] = 1.0  # read-only
+
+
+def test_band_coverage_over_seeds() -> None:
+    # one point per term per seed: 150 x 3 Bernoulli trials, sd of the rate about 0.010
+    inside = total = 0
+    a0, h0 = 0.12, 1000.0
+    for seed in range(150):
+        db = aerodynamic_database(_flights(100 + seed, n=20))
+        for t, f in TRUTH.items():
+            _, lo, hi = db.band(t, {"alpha": a0, "altitude": h0})
+            inside += int(lo[0] <= f(a0, h0) <= hi[0])
+            total += 1
+    rate = inside / total
+    assert 0.92 <= rate <= 0.995, rate
+
+
+def test_forced_structure_and_exports() -> None:
+    flights = _flights(3, n=25)
+    db = aerodynamic_database(flights, structures={"CL": ["1", "alpha", "alpha^2"]})
+    assert db.structures["CL"] == ("1", "P1(alpha)", "P2(alpha)")
+    f = db.as_function()
+    out = f(alpha=np.array([0.05]), altitude=np.array([1000.0]))
+    assert set(out) == set(TRUTH)
+    assert abs(out["CL"][0] - TRUTH["CL"](0.05, 1000.0)) < 0.02
+    table = db.table(n=5)
+    assert len(table["term"]) == 3 * 25
+    assert all(
+        lo <= v <= hi
+        for lo, v, hi in zip(table["lower"], table["value"], table["upper"], strict=True)
+    )
+
+
+def test_joint_gls_equals_closed_form_for_constant_model() -> None:
+    # one term, constant model: GLS is the inverse-variance weighted mean
+    vals, ses = [1.0, 2.0, 4.0], [0.1, 0.2, 0.4]
+    flights = [
+        FlightCoefficients.from_stderr(f"f{i}", {"alpha": 0.05}, {"Cm_q": v}, {"Cm_q": s})
+        for i, (v, s) in enumerate(zip(vals, ses, strict=True))
+    ]
+    db = aerodynamic_database(flights)
+    w = 1.0 / np.square(ses)
+    mean = float(np.sum(w * vals) / np.sum(w))
+    chi2 = float(np.sum(w * (np.array(vals) - mean) ** 2))
+    value, se = db.predict("Cm_q", {"alpha": 0.05})
+    assert value[0] == pytest.approx(mean)
+    assert db.chi2["Cm_q"] == pytest.approx(chi2)
+    assert se[0] == pytest.approx(np.sqrt(chi2 / 2 / np.sum(w)))  # Birge-scaled
+
+
+def test_bad_input_names_flight_and_term() -> None:
+    flights = _flights(4, n=6)
+    no_cond = FlightCoefficients("flight_x", {}, {"CL": 0.3}, np.eye(1) * 1e-4)
+    with pytest.raises(DataFormatError, match="flight_x"):
+        aerodynamic_database([*flights, no_cond], keys=("alpha", "altitude"))
+    lacking = FlightCoefficients("flight_y", {"alpha": 0.1}, {"CL": 0.3}, np.eye(1) * 1e-4)
+    with pytest.raises(DataFormatError, match=r"flight_y.*altitude"):
+        aerodynamic_database([*flights, lacking], keys=("alpha", "altitude"))
+    nan = [
+        FlightCoefficients(
+            f.name, f.condition, {**f.estimates, "Cm_de": np.nan}, np.pad(f.covariance, (0, 1))
+        )
+        for f in flights
+    ]
+    with pytest.raises(IdentificationError, match="no flight excites 'Cm_de'"):
+        aerodynamic_database(nan)
+    same_alt = [
+        FlightCoefficients(f.name, {**f.condition, "altitude": 1000.0}, f.estimates, f.covariance)
+        for f in flights
+    ]
+    with pytest.raises(IdentificationError, match=r"'Cl_p' is unidentifiable.*altitude"):
+        aerodynamic_database(same_alt, structures={"Cl_p": ["1", "altitude"]})
+    with pytest.raises(IdentificationError, match=r"'CL'.*2 flight"):
+        aerodynamic_database(flights[:2], structures={"CL": ["1", "alpha", "alpha^2"]})
+    with pytest.raises(DataFormatError, match="nowhere"):
+        aerodynamic_database(flights, held_out=("nowhere",))
+    # a key that does not vary offers no candidate: the auto fit still works
+    db = aerodynamic_database(same_alt)
+    assert all("altitude" not in s for st in db.structures.values() for s in st)
+
+
+def _c172x_with(section: str, root: Path) -> str:
+    """A copy of JSBSim's c172x under `root` with its aerodynamics replaced."""
+    jsbsim = pytest.importorskip("jsbsim")
+    from aeroid._database_export import replace_aerodynamics
+
+    src = Path(jsbsim.get_default_root_dir())
+    for sub in ("engine", "systems"):
+        shutil.copytree(src / sub, root / sub)
+    shutil.copytree(src / "aircraft" / "c172x", root / "aircraft" / "c172x")
+    xml = root / "aircraft" / "c172x" / "c172x.xml"
+    xml.write_text(replace_aerodynamics(xml.read_text(), section))
+    return str(root)
+
+
+def test_jsbsim_reads_the_exported_tables_back(tmp_path: Path) -> None:
+    jsbsim = pytest.importorskip("jsbsim")
+    rng = np.random.default_rng(7)
+    flights = []
+    for i in range(16):
+        a, m = rng.uniform(0.0, 0.17), rng.uniform(0.10, 0.18)
+        est = {
+            "CL_0": 0.3 + 4.8 * a - 9.0 * a**2,
+            "CL_alpha": 4.8 - 18 * a,
+            "Cm_0": 0.0,
+            "Cm_alpha": -1.8 + 3 * a,
+            "Cm_q": -12.4,
+            "Cm_delta_e": -1.1 + 2.0 * m,
+            "CD_0": 0.03 + 0.3 * a**2,
+            "Cl_p": -0.48,
+            "Cl_beta": -0.09,
+            "Cl_delta_a": 0.23,
+            "Cn_beta": 0.065,
+            "Cn_r": -0.09,
+            "Cn_delta_r": -0.06,
+            "CY_beta": -0.39,
+        }
+        noise = {k: v + 1e-4 * rng.standard_normal() for k, v in est.items()}
+        flights.append(
+            FlightCoefficients.from_stderr(
+                f"f{i}", {"alpha": a, "mach": m}, noise, dict.fromkeys(est, 1e-4)
+            )
+        )
+    db = aerodynamic_database(flights)
+    section = db.to_jsbsim(tmp_path / "aero.xml", n=31)
+    assert (tmp_path / "aero.xml").read_text() == section
+    assert "aero/coefficient/aeroid-CL_alpha" not in section  # the slope of CL_0's table
+    assert "<property>aero/ci2vel</property>" in section
+    root = _c172x_with(section, tmp_path / "root")
+    fdm = jsbsim.FGFDMExec(root, None)
+    fdm.set_debug_level(0)
+    assert fdm.load_model("c172x")
+    fdm["ic/h-sl-ft"] = 3000.0
+    fdm["ic/vc-kts"] = 90.0
+    fdm["ic/alpha-deg"] = 4.0
+    fdm.run_ic()
+    for _ in range(5):
+        fdm.run()
+    cond = {"alpha": fdm["aero/alpha-rad"], "mach": fdm["velocities/mach"]}
+    for term in ("CL_0", "Cm_delta_e", "Cm_q", "Cl_p", "Cn_r"):
+        assert fdm[f"aero/aeroid/{term}"] == pytest.approx(db.predict(term, cond)[0][0], abs=2e-3)
+    qs = fdm["aero/qbar-area"]
+    assert fdm["aero/coefficient/aeroid-CL_0"] == pytest.approx(
+        qs * fdm["aero/aeroid/CL_0"], rel=1e-9
+    )
+
+
+def test_parquet_table_round_trip(tmp_path: Path) -> None:
+    pq = pytest.importorskip("pyarrow.parquet")
+    db = aerodynamic_database(_flights(5, n=15))
+    db.to_parquet(tmp_path / "db.parquet", n=4)
+    table = pq.read_table(tmp_path / "db.parquet").to_pydict()
+    assert set(table) >= {"term", "alpha", "altitude", "value", "stderr", "lower", "upper"}
+    assert len(table["term"]) == 3 * 16
+    i = table["term"].index("CL")
+    v, _ = db.predict("CL", {"alpha": table["alpha"][i], "altitude": table["altitude"][i]})
+    assert table["value"][i] == pytest.approx(v[0])

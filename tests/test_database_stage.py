@@ -1,0 +1,74 @@
+"""The campaign stage ``database`` (issue 51): fitted over the flights, files, incremental."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from aeroid.database import AeroDatabase
+from aeroid.pipeline import open_store, plan, run
+from aeroid.pipeline.synthetic import _truth
+
+
+def _config(tmp: Path, n: int, extra: str = "") -> Path:
+    # flights 10 m/s apart from 60 m/s: one more flight leaves the others as they were
+    cfg = tmp / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nseed: 5\nstore: store\nreport: out/report.md\n"
+        f"flights: [{{simulated: {{n_flights: {n}, seed: 1, duration: 6.0, airspeed: [60.0, {60.0 + 10.0 * (n - 1)}]}}}}]\n"
+        "stages:\n  identify: {parameters: [Z_alpha, M_alpha, M_q, M_delta]}\n  validate: {}\n"
+        "  database: {terms: [M_alpha, M_q], held_out: [sim-1], "
+        + (extra or "keys: [airspeed]")
+        + "}\n"
+    )
+    return cfg
+
+
+def test_database_stage_fits_the_flights_and_writes_its_files(tmp_path: Path) -> None:
+    cfg = _config(tmp_path, 7)
+    s = run(cfg, workers=0)
+    assert s.failed == 0, [st.error for st in s.statuses.values() if st.error]
+    task = next(t for t in s.plan.tasks if t.stage == "database")
+    db = open_store(tmp_path / "store").load(task.key, "database")
+    assert isinstance(db, AeroDatabase)
+    assert "sim-1" not in db.flights and len(db.flights) == 6
+    assert {c.flight for c in db.held_out} == {"sim-1"}
+    for v in (65.0, 90.0, 115.0):
+        for term in ("M_alpha", "M_q"):
+            value, se = db.predict(term, {"airspeed": v})
+            assert abs(value[0] - _truth(v)[term]) < 4.5 * se[0] + 0.02 * abs(_truth(v)[term])
+    folder = s.database_dir
+    assert folder == tmp_path / "out" / "report_database"
+    text = (folder / "database.md").read_text()
+    assert "## Aerodynamic database" in text and "Held-out flights" in text
+    assert "No JSBSim section" in text  # M_q is a dimensional derivative, not <C>_<regressor>
+    assert (folder / "M_q.png").read_bytes()[:4] == b"\x89PNG"
+    assert (folder / "database.parquet").is_file()
+
+
+def test_adding_a_flight_computes_that_flight_and_the_campaign_steps_only(tmp_path: Path) -> None:
+    run(_config(tmp_path, 6), workers=0)
+    p = plan(_config(tmp_path, 7))
+    store = open_store(tmp_path / "store")
+    stored = store.stored((t.stage, t.key) for t in p.tasks)
+    todo = [t for t in p.tasks if (t.stage, t.key) not in stored]
+    per_flight = {t.flight for t in todo if t.stage not in ("database", "campaign_report")}
+    assert per_flight == {"sim-6"}
+    assert {t.stage for t in todo if t.flight not in ("sim-6",)} <= {"database", "campaign_report"}
+    assert any(t.stage == "database" for t in todo)
+
+
+def test_database_stage_names_the_flight_without_a_condition(tmp_path: Path) -> None:
+    s = run(_config(tmp_path, 4, "keys: [airspeed, altitude]"), workers=0)
+    task = next(t for t in s.plan.tasks if t.stage == "database")
+    err = s.statuses[task.key].error or ""
+    assert "has no condition 'altitude'" in err and "sim-" in err
+    assert s.report_path is not None
+
+
+def test_database_stage_names_a_term_no_flight_excites(tmp_path: Path) -> None:
+    cfg = tmp_path / "c.yaml"
+    _config(tmp_path, 3)
+    cfg.write_text(cfg.read_text().replace("terms: [M_alpha, M_q]", "terms: [M_nothing]"))
+    s = run(cfg, workers=0)
+    task = next(t for t in s.plan.tasks if t.stage == "database")
+    assert "no flight excites 'M_nothing'" in (s.statuses[task.key].error or "")
