@@ -30,6 +30,7 @@ _MAT_ITEM_BYTES = {
     "int16": 2, "uint16": 2, "int8": 1, "uint8": 1, "logical": 1, "char": 2,
 }  # fmt: skip
 
+
 def _readonly(values: ArrayLike) -> FloatArray:
     """Return a read-only float64 copy (the caller's array is never aliased)."""
     out = np.array(values, dtype=np.float64, copy=True)
@@ -982,6 +983,29 @@ def _log_mapping(
     return {name: col for col, name in pairs.items()}
 
 
+def _refuse_contradicting_units(
+    p: Path, log: Any, mapping: Mapping[str, str], units: Mapping[str, str] | None
+) -> None:
+    """A unit label the caller gives that contradicts the one the log states is a mistake
+    (deg/s over a rad/s gyro): the values would be read in the wrong unit silently."""
+    from .channel_map import UNIT_CONVERSIONS
+
+    for name, given in dict(units or {}).items():
+        source = mapping.get(name)
+        if source is None or source not in log.channels:
+            continue
+        stated = log.channels[source].unit
+        if not stated or given == stated:
+            continue
+        theirs, ours = UNIT_CONVERSIONS.get(stated), UNIT_CONVERSIONS.get(str(given))
+        if theirs is not None and ours is not None and theirs != ours:
+            raise DataFormatError(
+                f"{p}: units[{name!r}] = {given!r} contradicts the unit {stated!r} the log "
+                f"states for {source!r}; drop it, or convert the channel with "
+                "aeroid.apply_channel_map"
+            )
+
+
 def _load_log(
     p: Path,
     log_format: str,
@@ -1001,6 +1025,7 @@ def _load_log(
     mapping = _log_mapping(log, channels, p)
     if not mapping:
         raise DataFormatError(f"{p}: channels: none selected")
+    _refuse_contradicting_units(p, log, mapping, units)
     metadata = {"source": p.name, "format": str(log.metadata.get("format", log_format))}
     if sample_rate is None:
         for name, value in (("max_gap", max_gap), ("t0", t0), ("t1", t1)):

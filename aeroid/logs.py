@@ -255,9 +255,10 @@ def _read_ulog(path: Path) -> FlightLog:
     except Exception as exc:  # pyulog raises many types for a corrupt file
         raise DataFormatError(f"{path}: not a readable ULog file ({exc})") from None
     if not ulog.data_list:
+        first = said.getvalue().strip().split("\n", 1)[0]
         raise DataFormatError(
             f"{path}: the ULog holds no data messages (truncated or corrupt?)"
-            + (f"; pyulog says: {said.getvalue().strip()}" if said.getvalue().strip() else "")
+            + (f"; pyulog says: {first}" if first else "")
         )
     topics = {d.name for d in ulog.data_list}
     channels: dict[str, LogChannel] = {}
@@ -292,6 +293,9 @@ def _read_ulog(path: Path) -> FlightLog:
     metadata: dict[str, Any] = {"source": path.name, "format": "ulog", "info": info}
     if said.getvalue().strip():
         metadata["warnings"] = said.getvalue().strip()
+    if "corruption detected while reading file definitions" in said.getvalue():
+        # topics whose format could not be parsed are missing, not absent from the flight
+        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
     return FlightLog(channels, tuple(events), metadata)
 
 
@@ -445,6 +449,9 @@ def _read_dataflash(path: Path, *, text: bool) -> FlightLog:
         metadata["untimed_messages"] = sorted(set(untimed))
     if said.getvalue().strip():
         metadata["warnings"] = said.getvalue().strip()
+    if "corruption detected while reading file definitions" in said.getvalue():
+        # topics whose format could not be parsed are missing, not absent from the flight
+        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
     return FlightLog(channels, tuple(events), metadata)
 
 
@@ -889,6 +896,11 @@ def find_channels(log: FlightLog, wanted: Iterable[str], path: Path | str) -> No
     from .errors import ChannelError
 
     for name in wanted:
+        if name not in log.channels and log.metadata.get("corrupt"):
+            raise DataFormatError(
+                f"{path}: channel {name!r} cannot be read: {log.metadata['corrupt']}, so "
+                f"only {len(log.channels)} channels were recovered; the file is damaged"
+            )
         if name not in log.channels:
             near = difflib.get_close_matches(name, list(log.channels), n=5, cutoff=0.6)
             hint = f"; close names: {near}" if near else ""

@@ -1,0 +1,107 @@
+"""Probes of issue 49 that earlier fixes left open: a ULog with corrupt definitions,
+unit labels that contradict the log or the model, a store prefix left half-made."""
+
+from __future__ import annotations
+
+import struct
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeroid import FlightData, catalog, identify, load_flight_test, read_log
+from aeroid.errors import DataFormatError, IdentificationError
+
+ULOG = Path(__file__).parent / "data" / "px4" / "sample_log_small.ulg"
+
+
+def _garble_definition(raw: bytes, topic: bytes) -> bytes:
+    """The ULog with the field list of `topic`'s format message overwritten."""
+    pos = 16  # after the file header
+    while pos < len(raw):
+        size, kind = struct.unpack_from("<HB", raw, pos)
+        if kind == ord("A"):  # the data section starts: no such topic
+            break
+        body = raw[pos + 3 : pos + 3 + size]
+        if kind == ord("F") and body.startswith(topic + b":"):
+            out = bytearray(raw)
+            at = pos + 3 + len(topic) + 6  # inside the first field type
+            out[at : at + 10] = b"\xff" * 10
+            return bytes(out)
+        pos += 3 + size
+    raise AssertionError(f"no format message for {topic!r}")
+
+
+def test_a_ulog_with_corrupt_definitions_says_so_not_channel_not_found(tmp_path):
+    pytest.importorskip("pyulog")
+    bad = tmp_path / "corrupt.ulg"
+    bad.write_bytes(_garble_definition(ULOG.read_bytes(), b"vehicle_angular_velocity"))
+    log = read_log(bad)  # the other topics are still read
+    assert "sensor_combined.gyro_rad[0]" in log
+    assert "corrupt" in log.metadata["corrupt"]
+    with pytest.raises(
+        DataFormatError, match=r"corrupt\.ulg: channel .* message definitions are corrupt"
+    ):
+        load_flight_test(bad, channels={"vehicle_angular_velocity.xyz[1]": "q"})
+    # a channel whose topic survived still loads; the intact file still names near misses
+    ok = load_flight_test(bad, channels={"sensor_combined.gyro_rad[1]": "q"})
+    assert ok.n_samples > 100
+    from aeroid import ChannelError
+
+    with pytest.raises(ChannelError, match="not found in the log"):
+        load_flight_test(ULOG, channels={"vehicle_angular_velocity.xyz[7]": "q"})
+
+
+def test_a_unit_label_contradicting_the_logs_own_is_refused():
+    pytest.importorskip("pyulog")
+    gyro = "sensor_combined.gyro_rad[1]"
+    with pytest.raises(
+        DataFormatError, match=r"units\['q'\] = 'deg/s' contradicts the unit 'rad/s'"
+    ):
+        load_flight_test(ULOG, channels={gyro: "q"}, units={"q": "deg/s"})
+    same = load_flight_test(ULOG, channels={gyro: "q"}, units={"q": "rad/s"})
+    assert same.units["q"] == "rad/s"
+    # a unit the log does not state, or one AeroID does not know, is the caller's label
+    assert (
+        load_flight_test(ULOG, channels={gyro: "q"}, units={"q": "rad/sec"}).units["q"] == "rad/sec"
+    )
+
+
+def _lateral_record():
+    from aeroid.aircraft import lateral_linear
+
+    model = lateral_linear(V0=30.0, outputs=["beta", "p", "r"])
+    t = np.arange(0.0, 8.0, 0.02)
+    da = np.where((t > 1.0) & (t < 2.0), 0.05, 0.0) - np.where((t > 2.0) & (t < 3.0), 0.05, 0.0)
+    dr = np.where((t > 4.0) & (t < 5.0), 0.05, 0.0)
+    sim = model.simulate(t, {"delta_a": da, "delta_r": dr}).to_flight_data()
+    rng = np.random.default_rng(3)
+    chans = {k: sim[k] + 1e-4 * rng.standard_normal(t.size) for k in ("beta", "p", "r")}
+    return model, FlightData(t, {**chans, "delta_a": da, "delta_r": dr})
+
+
+def test_a_record_in_degrees_for_a_model_in_radians_is_refused():
+    model, record = _lateral_record()
+    assert model.channel_units["beta"] == "rad"
+    names = list(model.parameters)[:3]
+    deg = FlightData(record.time, dict(record.channels), {"beta": "deg"}, {"source": "f.csv"})
+    with pytest.raises(
+        IdentificationError,
+        match=r"f\.csv: channel 'beta' is stated in 'deg' .* 'rad' \(1 deg = 0\.0174533 rad\)",
+    ):
+        identify(model, deg, names)
+    # a control in degrees is caught as well, a matching or unstated label passes
+    deg_da = FlightData(record.time, dict(record.channels), {"delta_a": "deg"})
+    with pytest.raises(IdentificationError, match=r"record 0: channel 'delta_a'"):
+        identify(model, deg_da, names)
+    rad = FlightData(record.time, dict(record.channels), {"beta": "rad", "p": "rad/s"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # three parameters of a short record: not the point
+        assert identify(model, rad, names).parameter_names == tuple(names)
+
+
+def test_a_plain_model_declares_no_units_so_labels_are_not_judged(sp_model, sp_noisy):
+    labelled = FlightData(sp_noisy.time, dict(sp_noisy.channels), {"alpha": "deg"})
+    assert catalog.short_period() is not None and getattr(sp_model, "channel_units", None) is None
+    assert identify(sp_model, labelled, ["M_alpha", "M_q", "M_delta"]).success
