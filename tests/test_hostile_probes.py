@@ -105,3 +105,95 @@ def test_a_plain_model_declares_no_units_so_labels_are_not_judged(sp_model, sp_n
     labelled = FlightData(sp_noisy.time, dict(sp_noisy.channels), {"alpha": "deg"})
     assert catalog.short_period() is not None and getattr(sp_model, "channel_units", None) is None
     assert identify(sp_model, labelled, ["M_alpha", "M_q", "M_delta"]).success
+
+
+def _store_with_entry(root):
+    from aeroid.pipeline import ResultStore
+    from aeroid.pipeline.keys import canonical_json, sha256_hex
+    from aeroid.pipeline.stages import CampaignReport
+
+    store = ResultStore(root)
+    key = sha256_hex(canonical_json({"n": 1}))
+    assert store.commit(
+        "campaign_report", key, CampaignReport("t", "x", ("a",), ("f",), (("a",),)), task={"n": 1}
+    )
+    return key
+
+
+def _forget(root) -> None:
+    from aeroid.pipeline._backend import _CHECKED
+
+    _CHECKED.clear()  # as a fresh process would
+
+
+def test_a_local_store_that_lost_its_marker_is_repaired_by_verify_remove(tmp_path):
+    from click.testing import CliRunner
+
+    from aeroid.cli import main
+    from aeroid.errors import StoreError
+    from aeroid.pipeline import ResultStore
+
+    root = tmp_path / "store"
+    key = _store_with_entry(root)
+    (root / "aeroid-store.json").unlink()  # emptied mid-run: the run's entries came back
+    (root / ".tmp").mkdir(exist_ok=True)
+    _forget(root)
+    with pytest.raises(StoreError, match=r"lost its aeroid-store\.json .*verify --remove"):
+        ResultStore(root, create=False)
+    out = CliRunner().invoke(main, ["verify", "--store", str(root)])
+    assert out.exit_code != 0 and "lost its" in out.output
+    out = CliRunner().invoke(main, ["verify", "--remove", "--store", str(root)])
+    assert out.exit_code == 0, out.output
+    assert (root / "aeroid-store.json").is_file()
+    _forget(root)
+    assert [e.key for e in ResultStore(root, create=False).entries()] == [key]
+
+
+def test_the_next_run_repairs_a_local_store_but_not_a_folder_of_other_files(tmp_path):
+    from aeroid.errors import StoreError
+    from aeroid.pipeline import ResultStore
+
+    root = tmp_path / "store"
+    key = _store_with_entry(root)
+    (root / "aeroid-store.json").unlink()
+    _forget(root)
+    assert [e.key for e in ResultStore(root).entries()] == [key]  # create=True: the next run
+    # a user's folder is not taken over, nor is a store with a stray file or a link
+    for extra in ("notes.txt", "identify/readme.md", "link"):
+        other = tmp_path / f"other-{extra.replace('/', '-')}"
+        _store_with_entry(other)
+        (other / "aeroid-store.json").unlink()
+        target = other / extra
+        target.parent.mkdir(exist_ok=True)
+        if extra == "link":
+            target.symlink_to(tmp_path, target_is_directory=True)
+        else:
+            target.write_text("mine")
+        _forget(other)
+        with pytest.raises(StoreError, match="is not empty and is not an aeroid store"):
+            ResultStore(other)
+        with pytest.raises(StoreError, match=r"not an aeroid store \(no aeroid-store.json\)"):
+            ResultStore(other, create=False, repair=True)
+    stages_only = tmp_path / "empty-stages"
+    (stages_only / "identify").mkdir(parents=True)
+    with pytest.raises(StoreError, match="not an aeroid store"):
+        ResultStore(stages_only, create=False, repair=True)  # no entry: nothing to repair
+
+
+def test_verify_remove_repairs_a_url_store_that_lost_its_marker():
+    import uuid
+
+    import fsspec
+
+    from aeroid.errors import StoreError
+    from aeroid.pipeline import ResultStore
+
+    url = f"memory://aeroid-test-{uuid.uuid4().hex[:12]}/store"
+    key = _store_with_entry(url)
+    fs, base = fsspec.core.url_to_fs(url)
+    fs.rm(f"{base}/aeroid-store.json")
+    _forget(url)
+    with pytest.raises(StoreError, match="not an aeroid store"):
+        ResultStore(url, create=False)
+    assert [e.key for e in ResultStore(url, create=False, repair=True).entries()] == [key]
+    assert fs.exists(f"{base}/aeroid-store.json")

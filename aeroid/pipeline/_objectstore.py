@@ -95,7 +95,7 @@ class _ObjectBackend:
 
     look_first = True  # a PUT overwrites: never write under a committed key
 
-    def __init__(self, location: StoreLocation, *, create: bool) -> None:
+    def __init__(self, location: StoreLocation, *, create: bool, repair: bool = False) -> None:
         text = location.root
         try:
             fs, base = url_to_fs(text)
@@ -116,7 +116,8 @@ class _ObjectBackend:
             raise StoreError(f"store {text}: cannot read {_MARKER} ({exc})") from None
         if raw is not None:
             _check_marker(raw, text)
-        elif create:
+        elif create or (repair and fs.exists(self._base) and _only_entries(fs, self._base)):
+            # (repair: verify --remove gives a prefix of entries its marker back)
             try:
                 if fs.exists(self._base) and not _only_entries(fs, self._base):
                     raise StoreError(
