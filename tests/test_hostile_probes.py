@@ -71,7 +71,12 @@ def test_a_unit_label_contradicting_the_logs_own_is_refused():
 def _lateral_record():
     from aeroid.aircraft import lateral_linear
 
-    model = lateral_linear(V0=30.0, outputs=["beta", "p", "r"])
+    truth = {
+        **{"Y_beta": -0.2, "Y_delta_r": 0.03, "L_beta": -15.0, "L_p": -8.0, "L_r": 2.0},
+        **{"L_delta_a": 30.0, "L_delta_r": 2.0, "N_beta": 6.0, "N_p": -0.5, "N_r": -1.5},
+        **{"N_delta_a": -1.0, "N_delta_r": -5.0},
+    }
+    model = lateral_linear(V0=30.0, outputs=["beta", "p", "r"], parameters=truth)
     t = np.arange(0.0, 8.0, 0.02)
     da = np.where((t > 1.0) & (t < 2.0), 0.05, 0.0) - np.where((t > 2.0) & (t < 3.0), 0.05, 0.0)
     dr = np.where((t > 4.0) & (t < 5.0), 0.05, 0.0)
@@ -84,7 +89,7 @@ def _lateral_record():
 def test_a_record_in_degrees_for_a_model_in_radians_is_refused():
     model, record = _lateral_record()
     assert model.channel_units["beta"] == "rad"
-    names = list(model.parameters)[:3]
+    names = ["L_p", "L_delta_a", "N_r"]
     deg = FlightData(record.time, dict(record.channels), {"beta": "deg"}, {"source": "f.csv"})
     with pytest.raises(
         IdentificationError,
@@ -197,3 +202,45 @@ def test_verify_remove_repairs_a_url_store_that_lost_its_marker():
         ResultStore(url, create=False)
     assert [e.key for e in ResultStore(url, create=False, repair=True).entries()] == [key]
     assert fs.exists(f"{base}/aeroid-store.json")
+
+
+@pytest.mark.parametrize(
+    "start",
+    [
+        {"Z_alpha": 1.5, "M_alpha": 21.1, "M_q": 2.9, "M_delta": 9.2},
+        {"Z_alpha": -1.1, "M_alpha": 20.0, "M_q": 7.1, "M_delta": -5.7},
+    ],
+)
+def test_a_fit_stalled_on_a_diverging_simulation_is_an_error(sp_model, sp_noisy, start):
+    # from these unstable starts the iteration used to "converge" with M_delta in the
+    # thousands, success=True, and numpy's and scipy's warnings leaking
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(
+            IdentificationError, match=r"diverges from the record: 'alpha' off"
+        ) as err:
+            identify(sp_model, sp_noisy, start)
+    text = str(err.value)
+    assert "'q' off by" in text and "at the parameters {'Z_alpha': " in text
+    # the same record from the catalogue's start is fitted
+    assert identify(sp_model, sp_noisy, list(start)).success
+
+
+def test_a_lateral_fit_from_an_unstable_start_is_refused_not_returned():
+    model, record = _lateral_record()
+    truth = dict(model.parameters)
+    names = [n for n in truth if n.startswith(("L_", "N_"))]
+    # roll and yaw damping of the wrong sign: the simulation runs away
+    start = {n: (-v if n in ("L_p", "N_r") else v) for n, v in truth.items() if n in names}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(IdentificationError, match=r"'lateral_linear' diverges from") as err:
+            identify(model, record, start)
+    assert "'p' off by" in str(err.value) and "'L_p': " in str(err.value)
+    # from the truth's signs the same record is fitted to the truth
+    fit = identify(
+        model, record, {n: 0.5 * v for n, v in start.items()} | {"L_p": -4.0, "N_r": -0.75}
+    )
+    assert fit.success
+    for n in names:
+        assert fit.parameters[n] == pytest.approx(truth[n], rel=0.02, abs=0.02)
