@@ -148,3 +148,27 @@ def require_model_units(model: Any, datas: Sequence[Any], channels: Iterable[str
                 f"{want!r} ({apart}); convert the channel (aeroid.apply_channel_map with a "
                 "unit) or correct its unit label"
             )
+
+
+def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable[str]) -> None:
+    """Refuse a fitted air-data or attitude channel that holds one non-zero value while
+    the rates and accelerations move: a stuck or held sensor, whose scale factor and
+    bias the fit would report with error bars it does not have. (A channel at exactly
+    zero is a simulated symmetric flight's, and is left alone.)
+
+    Raises
+    ------
+    ChannelError
+        Naming the channel and its value.
+    """
+    inertial = [q for q in ("p", "q", "r", "ax", "ay", "az") if q in present]
+    if not inertial or all(_constant(data[present[q]]) is not None for q in inertial):
+        return  # no motion: check_kinematic_channels says so
+    for quantity in fitted:
+        value = _constant(data[present[quantity]])
+        if value is not None and value != 0.0:
+            raise ChannelError(
+                f"channel {present[quantity]!r} ({quantity}): holds {value:.6g} through the "
+                "record while the rates and accelerations move: a stuck or held sensor. Fix "
+                f"the channel or leave {quantity!r} out of outputs="
+            )

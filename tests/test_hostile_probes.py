@@ -244,3 +244,22 @@ def test_a_lateral_fit_from_an_unstable_start_is_refused_not_returned():
     assert fit.success
     for n in names:
         assert fit.parameters[n] == pytest.approx(truth[n], rel=0.02, abs=0.02)
+
+
+@pytest.mark.parametrize(("channel", "value"), [("V", 30.0), ("alpha", 0.05), ("theta", 0.02)])
+def test_a_stuck_air_data_channel_is_refused_by_the_compatibility_check(channel, value):
+    from _compat_flight import simulated_flight
+
+    from aeroid import ChannelError, check_compatibility
+
+    flight = simulated_flight(duration=10.0, rate=25.0)
+    stuck = FlightData(flight.time, {**flight.channels, channel: np.full(flight.n_samples, value)})
+    with pytest.raises(ChannelError, match=rf"channel '{channel}' \({channel}\): holds {value:g}"):
+        check_compatibility(stuck, max_passes=1, n_draws=2)
+    if channel != "alpha":
+        return  # one full check is enough (seconds each)
+    # left out of the fitted outputs, the rest of the record is checked
+    outputs = [o for o in ("V", "alpha", "beta", "phi", "theta", "psi") if o != channel]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert check_compatibility(stuck, outputs=outputs, max_passes=1, n_draws=2) is not None
