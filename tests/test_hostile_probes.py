@@ -263,3 +263,38 @@ def test_a_stuck_air_data_channel_is_refused_by_the_compatibility_check(channel,
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert check_compatibility(stuck, outputs=outputs, max_passes=1, n_draws=2) is not None
+
+
+@pytest.mark.parametrize(
+    ("text", "kwargs", "shown"),
+    [
+        (
+            "time,q\n0,1\n0.1,AWS_SECRET=abc123xyz\n0.2,3\n",
+            {},
+            "non-numeric (20 characters of text)",
+        ),
+        ("AWS_SECRET=abc123xyz,q\n0,1\n0.1,2\n", {}, "2 columns (not listed"),
+        ("AWS_SECRET=abc123xyz,q\n0,1\n0.1,2\n", {"time_column": "t"}, "2 columns (not listed"),
+        ("time,AWS_SECRET=abc123xyz\n0,1\n0.1,2\n", {"channels": ["q"]}, "2 columns (not listed"),
+        ("time,AWS_SECRET=abc123xyz,AWS_SECRET=abc123xyz\n0,1,1\n0.1,2,2\n", {}, "appear twice"),
+    ],
+)
+def test_library_errors_quote_no_file_contents(tmp_path, text, kwargs, shown):
+    # the pipeline's load stage reports these messages in `aeroid run` and the report
+    path = tmp_path / "creds.csv"
+    path.write_text(text)
+    with pytest.raises((DataFormatError, KeyError)) as err:
+        load_flight_test(path, **kwargs)
+    message = str(err.value)
+    assert "creds.csv" in message and shown in message
+    assert "abc123" not in message and "AWS_SECRET" not in message
+
+
+def test_a_malformed_number_is_still_quoted_and_names_still_listed(tmp_path):
+    path = tmp_path / "f.csv"
+    path.write_text("time,q\n0,1\n0.1,1.2.3\n")
+    with pytest.raises(DataFormatError, match=r"row 3, column 'q': non-numeric \('1\.2\.3'\)"):
+        load_flight_test(path)
+    path.write_text("time,q\n0,1\n0.1,2\n")
+    with pytest.raises(KeyError, match=r"columns: \['time', 'q'\]"):
+        load_flight_test(path, channels=["r"])
