@@ -298,3 +298,63 @@ def test_a_malformed_number_is_still_quoted_and_names_still_listed(tmp_path):
     path.write_text("time,q\n0,1\n0.1,2\n")
     with pytest.raises(KeyError, match=r"columns: \['time', 'q'\]"):
         load_flight_test(path, channels=["r"])
+
+
+def test_every_remote_protocol_gets_the_timeout(monkeypatch):
+    import fsspec.core
+
+    from aeroid.pipeline import _objectstore
+
+    seen: dict[str, dict] = {}
+
+    def fake(url, **kwargs):
+        seen[url.split("://")[0]] = kwargs
+        return object(), url.split("://", 1)[1]
+
+    monkeypatch.setattr(fsspec.core, "url_to_fs", fake)
+    monkeypatch.setenv("AEROID_REMOTE_TIMEOUT", "2.5")
+    for url in ("s3://b/c", "gs://b/c", "az://b/c", "abfs://b/c", "https://h/c"):
+        _objectstore.url_to_fs(url)
+    assert seen["s3"]["config_kwargs"]["read_timeout"] == 2.5
+    assert seen["gs"]["timeout"] == 2.5
+    assert seen["az"]["read_timeout"] == seen["abfs"]["connection_timeout"] == 3
+    assert seen["https"]["client_kwargs"]["timeout"].total == 2.5
+
+
+def test_an_http_server_that_stops_answering_fails_the_read(monkeypatch):
+    import contextlib
+    import socket
+    import threading
+    import time
+
+    pytest.importorskip("aiohttp")
+    from aeroid.pipeline._objectstore import url_to_fs
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept_and_stay_silent() -> None:
+        server.settimeout(0.05)
+        while not stop.is_set():
+            with contextlib.suppress(OSError):
+                held.append(server.accept()[0])
+
+    thread = threading.Thread(target=accept_and_stay_silent, daemon=True)
+    thread.start()
+    monkeypatch.setenv("AEROID_REMOTE_TIMEOUT", "0.3")
+    start = time.monotonic()
+    try:
+        fs, path = url_to_fs(f"http://127.0.0.1:{server.getsockname()[1]}/store/x")
+        with pytest.raises(Exception) as err:  # fsspec wraps the timeout
+            fs.cat_file(path)
+    finally:
+        stop.set()
+        thread.join()
+        for conn in held:
+            conn.close()
+        server.close()
+    assert "timeout" in type(err.value).__name__.lower() + str(err.value).lower()
+    assert time.monotonic() - start < 20

@@ -60,6 +60,14 @@ def url_to_fs(url: str) -> tuple[Any, str]:
         }
     elif protocol in ("gs", "gcs") and "timeout" not in conf:
         kwargs["timeout"] = t
+    elif protocol in ("az", "abfs", "abfss") and "read_timeout" not in conf:
+        # adlfs: seconds to connect and between reads (whole seconds)
+        kwargs["connection_timeout"] = kwargs["read_timeout"] = max(1, math.ceil(t))
+    elif protocol in ("http", "https") and "client_kwargs" not in conf:
+        with contextlib.suppress(ImportError):  # fsspec's HTTP needs aiohttp and says so
+            import aiohttp
+
+            kwargs["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(total=t)}
     fs, base = fsspec.core.url_to_fs(url, **kwargs)
     if "config_kwargs" in kwargs and getattr(fs, "retries", 0) > 1:
         # s3fs's own retries (five, nested in reads) multiply botocore's: leave one layer
