@@ -302,6 +302,10 @@ def rerun(
         _fail("give a KEY or --all (not both)")
     if (stage is not None or scheduler is not None or workers is not None) and not every:
         _fail("--stage, --scheduler and --workers go with --all")
+    from .pipeline.config import workers_problem
+
+    if problem := workers_problem(workers):
+        _fail(f"--workers: {problem}")
     st = _open_store(config, store)
     if key is not None:
         try:

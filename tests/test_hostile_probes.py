@@ -358,3 +358,26 @@ def test_an_http_server_that_stops_answering_fails_the_read(monkeypatch):
         server.close()
     assert "timeout" in type(err.value).__name__.lower() + str(err.value).lower()
     assert time.monotonic() - start < 20
+
+
+def test_workers_given_to_run_or_rerun_are_bounded_like_the_configs(tmp_path):
+    import os
+
+    from click.testing import CliRunner
+
+    from aeroid.cli import main
+    from aeroid.errors import ConfigError
+    from aeroid.pipeline import run
+
+    limit = 4 * (os.cpu_count() or 1)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nflights: [{simulated: {n_flights: 1}}]\n")
+    with pytest.raises(ConfigError, match=rf"workers: {limit + 1} workers .* at most {limit}"):
+        run(cfg, store=str(tmp_path / "s"), workers=limit + 1)
+    assert not (tmp_path / "s").exists()  # refused before anything is made
+    out = CliRunner().invoke(main, ["run", str(cfg), "--workers", str(10 * limit)])
+    assert out.exit_code != 0 and f"at most {limit}" in out.output
+    out = CliRunner().invoke(
+        main, ["rerun", "--all", "--store", str(tmp_path), "--workers", str(10 * limit)]
+    )
+    assert out.exit_code != 0 and f"--workers: {10 * limit} workers" in out.output
