@@ -381,3 +381,40 @@ def test_workers_given_to_run_or_rerun_are_bounded_like_the_configs(tmp_path):
         main, ["rerun", "--all", "--store", str(tmp_path), "--workers", str(10 * limit)]
     )
     assert out.exit_code != 0 and f"--workers: {10 * limit} workers" in out.output
+
+
+def test_datasets_beyond_a_files_total_budget_are_not_read_and_say_so(tmp_path, monkeypatch):
+    h5py = pytest.importorskip("h5py")
+    import aeroid.logs as logs
+
+    path = tmp_path / "many.h5"
+    n = 1000
+    with h5py.File(path, "w") as f:
+        f["time"] = np.arange(n) * 0.01
+        for i in range(5):
+            f[f"c{i}"] = np.full(n, float(i))
+    # time (8 kB) and two channels fit a 26 kB budget; the third does not
+    monkeypatch.setattr(logs, "_MAX_FILE_BYTES", 3 * 8 * n + 2000)
+    log = read_log(path)
+    assert sorted(log.channels) == ["c0", "c1"]
+    assert "one file may declare in all" in log.metadata["skipped"]["c2"]
+    with pytest.raises(KeyError, match=r"many\.h5: channel 'c3' not read: the datasets"):
+        load_flight_test(path, channels=["c0", "c3"])
+    monkeypatch.setattr(logs, "_MAX_FILE_BYTES", 4 << 30)
+    assert len(read_log(path).channels) == 5
+
+
+def test_a_channel_skipped_for_its_storage_names_why_when_asked_for(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    path = tmp_path / "ext.h5"
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(bytes(80))
+    with h5py.File(path, "w") as f:
+        f["time"] = np.arange(10) * 0.1
+        f["q"] = np.ones(10)
+        f.create_dataset("leak", (10,), dtype="<f8", external=[(str(secret), 0, 80)])
+    with (
+        pytest.warns(UserWarning, match="allow_external_data"),
+        pytest.raises(KeyError, match=r"ext\.h5: channel 'leak' is stored in an external"),
+    ):
+        load_flight_test(path, channels=["q", "leak"])
