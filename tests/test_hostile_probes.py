@@ -418,3 +418,24 @@ def test_a_channel_skipped_for_its_storage_names_why_when_asked_for(tmp_path):
         pytest.raises(KeyError, match=r"ext\.h5: channel 'leak' is stored in an external"),
     ):
         load_flight_test(path, channels=["q", "leak"])
+
+
+@pytest.mark.parametrize("sample_rate", [None, 10.0])
+def test_a_log_clock_stepping_back_half_a_second_is_refused(tmp_path, sample_rate):
+    h5py = pytest.importorskip("h5py")
+    t = np.arange(0.0, 4.0, 0.1)
+    t[20:] -= 0.7  # the clock steps back 0.7 s at 2 s
+    path = tmp_path / "back.h5"
+    with h5py.File(path, "w") as f:
+        f["time"] = t
+        f["q"] = np.sin(t)
+    with pytest.raises(DataFormatError, match=r"back\.h5: .*(back|increasing)"):
+        load_flight_test(path, channels=["q"], sample_rate=sample_rate)
+    csv = tmp_path / "back.csv"
+    csv.write_text(
+        "time,q\n" + "\n".join(f"{a:.2f},{b}" for a, b in zip(t, np.sin(t), strict=True))
+    )
+    with pytest.raises(
+        DataFormatError, match=r"back\.csv: time: not strictly increasing at index 20"
+    ):
+        load_flight_test(csv)
