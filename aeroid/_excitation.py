@@ -104,3 +104,71 @@ def check_kinematic_channels(data: Any, present: Mapping[str, str]) -> None:
                 f"channel {present[quantity]!r} ({quantity}): reaches {peak:.4g}, beyond the "
                 f"{_RATE_LIMIT:g} rad/s any airframe shows; is it in degrees per second?"
             )
+
+
+def _unit_key(unit: str) -> str:
+    # the aircraft models print m/s²; the channel map spells it m/s2
+    return unit.strip().replace("²", "2").replace("^2", "2").replace(" ", "")
+
+
+def require_model_units(model: Any, datas: Sequence[Any], channels: Iterable[str]) -> None:
+    """Refuse a record whose stated unit for a channel contradicts the model's.
+
+    A record that says ``alpha`` is in deg fitted by a model in rad would be
+    fitted as if a degree were a radian: derivatives off by 57.3 with tight
+    error bars. Units either side leaves unstated, or that AeroID does not
+    know, are not judged.
+
+    Raises
+    ------
+    IdentificationError
+        Naming the channel, both units and the factor between them.
+    """
+    from .channel_map import UNIT_CONVERSIONS
+
+    declared = dict(getattr(model, "channel_units", None) or {})
+    for name in channels:
+        want = declared.get(name)
+        if not want:
+            continue
+        ours = UNIT_CONVERSIONS.get(_unit_key(want))
+        for i, data in enumerate(datas):
+            stated = dict(getattr(data, "units", None) or {}).get(name)
+            theirs = UNIT_CONVERSIONS.get(_unit_key(stated)) if stated else None
+            if ours is None or theirs is None or theirs == ours:
+                continue
+            where = str(getattr(data, "metadata", {}).get("source", f"record {i}"))
+            apart = (
+                f"1 {stated} = {theirs[0] / ours[0]:.6g} {want}"
+                if theirs[1] == ours[1]
+                else "not even the same quantity"
+            )
+            raise IdentificationError(
+                f"{where}: channel {name!r} is stated in {stated!r} but the model expects "
+                f"{want!r} ({apart}); convert the channel (aeroid.apply_channel_map with a "
+                "unit) or correct its unit label"
+            )
+
+
+def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable[str]) -> None:
+    """Refuse a fitted air-data or attitude channel that holds one non-zero value while
+    the rates and accelerations move: a stuck or held sensor, whose scale factor and
+    bias the fit would report with error bars it does not have. (A channel at exactly
+    zero is a simulated symmetric flight's, and is left alone.)
+
+    Raises
+    ------
+    ChannelError
+        Naming the channel and its value.
+    """
+    inertial = [q for q in ("p", "q", "r", "ax", "ay", "az") if q in present]
+    if not inertial or all(_constant(data[present[q]]) is not None for q in inertial):
+        return  # no motion: check_kinematic_channels says so
+    for quantity in fitted:
+        value = _constant(data[present[quantity]])
+        if value is not None and value != 0.0:
+            raise ChannelError(
+                f"channel {present[quantity]!r} ({quantity}): holds {value:.6g} through the "
+                "record while the rates and accelerations move: a stuck or held sensor. Fix "
+                f"the channel or leave {quantity!r} out of outputs="
+            )

@@ -35,6 +35,8 @@ _IDENTIFIABILITY_RCOND = 1e-9
 # Residuals count as coloured when a lag-one correlation is significant (3/sqrt(N)),
 # which makes the estimated correlation time exceed 1.
 _WHITE_TAU = 1.0
+# residual RMS over the record's RMS beyond which an end point is a runaway simulation
+_RUNAWAY = 100.0
 
 
 @dataclass
@@ -1103,6 +1105,42 @@ def _projected_step(
     return np.where(clipped, theta - trial, step), trial
 
 
+def _refuse_runaway(
+    model: Any,
+    names: Sequence[str],
+    theta: FloatArray,
+    outputs: Sequence[str],
+    residuals: list[FloatArray],
+    measured: FloatArray,
+) -> None:
+    """Refuse an end point whose simulation runs away from the record.
+
+    From an unstable start the output-error cost can stall where the simulated
+    outputs diverge: the estimated noise variances swallow residuals of 1e20
+    and the iteration "converges". Predicting a constant zero gives residuals
+    no larger than the record's own RMS, so residuals a hundred times that are
+    no fit of the record at all.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        res = np.concatenate(residuals, axis=0)
+        rms_res = np.sqrt(np.mean(res**2, axis=0))
+        rms_meas = np.sqrt(np.mean(measured**2, axis=0))
+    away = [
+        (o, float(a), float(b))
+        for o, a, b in zip(outputs, rms_res, rms_meas, strict=True)
+        if not np.isfinite(a) or (b > 0.0 and a > _RUNAWAY * b)
+    ]
+    if away:
+        listing = ", ".join(f"{o!r} off by {a:.3g} RMS (the record's {b:.3g})" for o, a, b in away)
+        params = {n: float(f"{v:.6g}") for n, v in zip(names, theta.tolist(), strict=True)}
+        raise IdentificationError(
+            f"the fit stalled where the simulation of {getattr(model, 'name', '')!r} diverges "
+            f"from the record: {listing}, at the parameters {params}. An unstable or "
+            "wrong-signed start: start nearer the truth (start='equation_error') or fit an "
+            "unstable airframe with method='filter_error'"
+        )
+
+
 def fit_output_error(
     model: Any,
     datas: list[FlightData],
@@ -1295,6 +1333,7 @@ def fit_output_error(
             success = True
             message = f"converged after {iteration} iterations"
             break
+    _refuse_runaway(model, names, theta[:n_p], outputs, residuals, all_meas)
     r = fixed_r if fixed_r is not None else _noise_variances(residuals, floor)
     info = _information(jacobians, r)
     held = np.zeros(layout.n_total, dtype=bool)

@@ -20,7 +20,7 @@ def _fail(message: str, code: int = 2) -> None:
     sys.exit(code)
 
 
-def _open_store(config: str | None, store: str | None) -> Any:
+def _open_store(config: str | None, store: str | None, *, repair: bool = False) -> Any:
     from .errors import AeroidError
     from .pipeline.config import load_config
     from .pipeline.store import ResultStore
@@ -29,7 +29,7 @@ def _open_store(config: str | None, store: str | None) -> Any:
         _fail("give --config or --store, not both")
     try:
         if store:
-            return ResultStore(store, create=False)
+            return ResultStore(store, create=False, repair=repair)
         if config:
             from .pipeline.definition import resolve_pipeline
 
@@ -37,7 +37,7 @@ def _open_store(config: str | None, store: str | None) -> Any:
             # registers the pipeline's record types
             allowed = bool(getattr(cfg, "allow_imports", False))
             resolve_pipeline(cfg.pipeline, cfg.base_dir, allow_imports=allowed)
-            return ResultStore(cfg.store_location, create=False)
+            return ResultStore(cfg.store_location, create=False, repair=repair)
     except AeroidError as exc:
         _fail(str(exc))
     _fail("give the store: --config CONFIG or --store PATH")
@@ -302,6 +302,10 @@ def rerun(
         _fail("give a KEY or --all (not both)")
     if (stage is not None or scheduler is not None or workers is not None) and not every:
         _fail("--stage, --scheduler and --workers go with --all")
+    from .pipeline.config import workers_problem
+
+    if problem := workers_problem(workers):
+        _fail(f"--workers: {problem}")
     st = _open_store(config, store)
     if key is not None:
         try:
@@ -359,7 +363,7 @@ def verify(config: str | None, store: str | None, as_json: bool, remove: bool) -
     """Check every entry's digests; list corrupt entries (exit 1 if any)."""
     from .errors import AeroidError
 
-    st = _open_store(config, store)
+    st = _open_store(config, store, repair=remove)  # --remove also restores a lost marker
     try:
         n = sum(1 for _ in st.entries())
         bad = st.verify_all()

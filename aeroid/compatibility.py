@@ -961,10 +961,11 @@ def check_compatibility(
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
     present = _channel_map(data, channels)
-    from ._excitation import check_kinematic_channels
+    from ._excitation import check_kinematic_channels, refuse_stuck_outputs
 
     check_kinematic_channels(data, present)
     fitted = _fitted_outputs(outputs, present)
+    refuse_stuck_outputs(data, present, fitted)
     names, values = _parameter_values(
         estimate,
         fixed,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import os
+import re
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ _MAT_ITEM_BYTES = {
     "double": 8, "single": 4, "int64": 8, "uint64": 8, "int32": 4, "uint32": 4,
     "int16": 2, "uint16": 2, "int8": 1, "uint8": 1, "logical": 1, "char": 2,
 }  # fmt: skip
+
 
 def _readonly(values: ArrayLike) -> FloatArray:
     """Return a read-only float64 copy (the caller's array is never aliased)."""
@@ -478,11 +480,29 @@ def fingerprint(data: FlightData) -> str:
 # -- loading ----------------------------------------------------------------------
 
 
+# A config can name any file as a flight, and errors reach CI logs: a header is
+# listed only when every column reads as a channel name, and no cell is quoted.
+_NUMBER_LIKE = re.compile(r"[\d.,+\-eE ]{1,24}")
+_NAME_LIKE = re.compile(r"[A-Za-z_][\w.\[\]()/ -]{0,63}")
+
+
+def _columns_text(columns: Sequence[str]) -> str:
+    cols = [str(c) for c in columns]
+    if all(_NAME_LIKE.fullmatch(c) and "=" not in c for c in cols):
+        return f"columns: {cols}"
+    return f"{len(cols)} columns (not listed: the first line does not read as names)"
+
+
+def _reader_error(exc: Exception) -> str:
+    """A CSV reader's message without the row text some of them append."""
+    return re.sub(r"(got \d+|Row #\d+)\s*:.*", r"\1", str(exc), flags=re.S)
+
+
 def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Path) -> str:
     if time_column is not None:
         if time_column not in columns:
             raise ChannelError(
-                f"{path}: time column {time_column!r} not found; columns: {list(columns)}"
+                f"{path}: time column {time_column!r} not found; {_columns_text(columns)}"
             )
         return time_column
     for candidate in ("time", "t", "Time", "TIME", "time_s", "Time (s)", "t_s"):
@@ -490,7 +510,7 @@ def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Pat
             return candidate
     raise ChannelError(
         f"{path}: no time column found (tried 'time', 't', 'Time', ...); "
-        f"pass time_column=...; columns: {list(columns)}"
+        f"pass time_column=...; {_columns_text(columns)}"
     )
 
 
@@ -545,7 +565,9 @@ def _csv_cell_error(path: Path, header: list[str], offset: int, exc: Exception) 
     try:
         return _locate_csv_error(path, header, offset, exc)
     except (OSError, pa.ArrowException) as again:
-        return DataFormatError(f"{path}: not a readable CSV file ({exc}; {again})")
+        return DataFormatError(
+            f"{path}: not a readable CSV file ({_reader_error(exc)}; {_reader_error(again)})"
+        )
 
 
 def _locate_csv_error(
@@ -600,9 +622,14 @@ def _locate_csv_error(
         if bad.size:
             i = int(bad[0])
             cell = str(cells[i].as_py()).strip()
-            what = "blank" if not cell else f"non-numeric ({cell!r})"
+            if not cell:
+                what = "blank"
+            elif len(cell) <= 4 or _NUMBER_LIKE.fullmatch(cell):  # x, N/A, 1.2.3: shown
+                what = f"non-numeric ({cell!r})"
+            else:  # text: not quoted (a config can name any file; errors reach logs)
+                what = f"non-numeric ({len(cell)} characters of text)"
             return DataFormatError(f"{path}: row {i + 2}, column {name!r}: {what} cell")
-    return DataFormatError(f"{path}: not a readable CSV file ({exc})")
+    return DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})")
 
 
 def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
@@ -618,7 +645,12 @@ def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
         raise DataFormatError(f"{path}: empty column name at column {header.index('') + 1}")
     dupes = sorted(h for h, n in Counter(header).items() if n > 1)  # linear in columns
     if dupes:
-        raise DataFormatError(f"{path}: duplicate column names {dupes}")
+        shown = dupes if all(_NAME_LIKE.fullmatch(h) and "=" not in h for h in dupes) else None
+        raise DataFormatError(
+            f"{path}: duplicate column names {shown}"
+            if shown is not None
+            else f"{path}: {len(dupes)} column names appear twice (not listed: not names)"
+        )
     if offset >= path.stat().st_size:
         raise DataFormatError(f"{path}: fewer than 2 data rows")
 
@@ -660,7 +692,7 @@ def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
             if table is None or not comments:
                 raise _csv_cell_error(path, header, offset, exc) from None
     except (OSError, pa.ArrowException) as exc:
-        raise DataFormatError(f"{path}: not a readable CSV file ({exc})") from None
+        raise DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})") from None
     n = table.num_rows
     if n < 2:
         raise DataFormatError(f"{path}: fewer than 2 data rows")
@@ -925,7 +957,7 @@ def load_flight_test(
         mapping = {str(c): str(c) for c in names}
     for col in mapping:
         if col not in columns:
-            raise ChannelError(f"{p}: column {col!r} not found; columns: {list(header)}")
+            raise ChannelError(f"{p}: column {col!r} not found; {_columns_text(header)}")
     for col in (tname, *mapping):
         if columns[col].dtype.kind == "c":
             raise DataFormatError(
@@ -982,6 +1014,29 @@ def _log_mapping(
     return {name: col for col, name in pairs.items()}
 
 
+def _refuse_contradicting_units(
+    p: Path, log: Any, mapping: Mapping[str, str], units: Mapping[str, str] | None
+) -> None:
+    """A unit label the caller gives that contradicts the one the log states is a mistake
+    (deg/s over a rad/s gyro): the values would be read in the wrong unit silently."""
+    from .channel_map import UNIT_CONVERSIONS
+
+    for name, given in dict(units or {}).items():
+        source = mapping.get(name)
+        if source is None or source not in log.channels:
+            continue
+        stated = log.channels[source].unit
+        if not stated or given == stated:
+            continue
+        theirs, ours = UNIT_CONVERSIONS.get(stated), UNIT_CONVERSIONS.get(str(given))
+        if theirs is not None and ours is not None and theirs != ours:
+            raise DataFormatError(
+                f"{p}: units[{name!r}] = {given!r} contradicts the unit {stated!r} the log "
+                f"states for {source!r}; drop it, or convert the channel with "
+                "aeroid.apply_channel_map"
+            )
+
+
 def _load_log(
     p: Path,
     log_format: str,
@@ -1001,6 +1056,7 @@ def _load_log(
     mapping = _log_mapping(log, channels, p)
     if not mapping:
         raise DataFormatError(f"{p}: channels: none selected")
+    _refuse_contradicting_units(p, log, mapping, units)
     metadata = {"source": p.name, "format": str(log.metadata.get("format", log_format))}
     if sample_rate is None:
         for name, value in (("max_gap", max_gap), ("t0", t0), ("t1", t1)):

@@ -562,7 +562,7 @@ def identify(
         When the iteration limit is reached, or the fit ends with a non-finite
         cost or estimates; the result is flagged ``success=False``.
     """
-    from ._excitation import require_excitation
+    from ._excitation import require_excitation, require_model_units
     from .model import MAX_SUBSTEPS, SimulatorModel, check_simulate_options, require_model
 
     require_model(model, IdentificationError)
@@ -658,6 +658,7 @@ def identify(
             },
         )
         require_excitation(datas, model.controls)
+        require_model_units(model, datas, [*fit_outputs, *model.controls])
         from ._filter_error import identify_filter_error
 
         fitted = identify_filter_error(
@@ -747,6 +748,7 @@ def identify(
         },
     )
     require_excitation(datas, model.controls)
+    require_model_units(model, datas, [*fit_outputs, *model.controls])
     fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
     fitted = fit_output_error(
         fit_model,

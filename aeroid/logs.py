@@ -255,9 +255,10 @@ def _read_ulog(path: Path) -> FlightLog:
     except Exception as exc:  # pyulog raises many types for a corrupt file
         raise DataFormatError(f"{path}: not a readable ULog file ({exc})") from None
     if not ulog.data_list:
+        first = said.getvalue().strip().split("\n", 1)[0]
         raise DataFormatError(
             f"{path}: the ULog holds no data messages (truncated or corrupt?)"
-            + (f"; pyulog says: {said.getvalue().strip()}" if said.getvalue().strip() else "")
+            + (f"; pyulog says: {first}" if first else "")
         )
     topics = {d.name for d in ulog.data_list}
     channels: dict[str, LogChannel] = {}
@@ -292,6 +293,9 @@ def _read_ulog(path: Path) -> FlightLog:
     metadata: dict[str, Any] = {"source": path.name, "format": "ulog", "info": info}
     if said.getvalue().strip():
         metadata["warnings"] = said.getvalue().strip()
+    if "corruption detected while reading file definitions" in said.getvalue():
+        # topics whose format could not be parsed are missing, not absent from the flight
+        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
     return FlightLog(channels, tuple(events), metadata)
 
 
@@ -445,6 +449,9 @@ def _read_dataflash(path: Path, *, text: bool) -> FlightLog:
         metadata["untimed_messages"] = sorted(set(untimed))
     if said.getvalue().strip():
         metadata["warnings"] = said.getvalue().strip()
+    if "corruption detected while reading file definitions" in said.getvalue():
+        # topics whose format could not be parsed are missing, not absent from the flight
+        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
     return FlightLog(channels, tuple(events), metadata)
 
 
@@ -557,6 +564,8 @@ def _text_attr(obj: Any, *names: str) -> str:
 # The most one dataset may declare (bytes, uncompressed): a few MB of compressed
 # file can declare gigabytes, and a flight channel is far below this.
 _MAX_DATASET_BYTES = 1 << 30
+# ... and the most all datasets read from one file may declare together
+_MAX_FILE_BYTES = 4 << 30
 
 
 def _hdf5_refusal(path: Path, ds: Any, allow_external: bool) -> str:
@@ -624,12 +633,20 @@ def _read_hdf5(
         channels: dict[str, LogChannel] = {}
         skipped: dict[str, str] = {}
         time_keys = {key for key, _ in times.values()}
+        budget = _MAX_FILE_BYTES - sum(t.nbytes for _, t in times.values())
         for key, ds in datasets.items():
             if key in time_keys:
                 continue
-            reason = _hdf5_refusal(path, ds, allow_external) or _hdf5_channels(
-                key, ds, times, matlab, channels
-            )
+            reason = _hdf5_refusal(path, ds, allow_external)
+            declared = int(ds.size) * int(ds.dtype.itemsize)
+            if not reason and declared > budget:
+                reason = (
+                    f"not read: the datasets before it use the {_MAX_FILE_BYTES >> 30} GiB "
+                    "one file may declare in all"
+                )
+            if not reason:
+                budget -= declared
+                reason = _hdf5_channels(key, ds, times, matlab, channels)
             if reason:
                 skipped[key.replace("/", ".")] = reason
     if not channels:
@@ -748,7 +765,7 @@ def read_log(
         HDF5 only: read datasets whose storage lies outside the file
         (external raw files, virtual datasets into other files). Refused by
         default: a file could otherwise make AeroID read any local file.
-        Datasets declaring more than 1 GiB are never read.
+        Datasets declaring more than 1 GiB, or beyond 4 GiB in all, are never read.
 
     Returns
     -------
@@ -883,12 +900,22 @@ def list_channels(
 
 
 def find_channels(log: FlightLog, wanted: Iterable[str], path: Path | str) -> None:
-    """Raise `ChannelError` naming the first of `wanted` the log lacks, with near names."""
+    """Raise `ChannelError` naming the first of `wanted` the log lacks, with near names
+    or why the file's dataset was not read; `DataFormatError` when the log's definitions
+    are corrupt (the channel may have been lost with them)."""
     import difflib
 
     from .errors import ChannelError
 
+    skipped = dict(log.metadata.get("skipped", {}) or {})
     for name in wanted:
+        if name not in log.channels and name in skipped:
+            raise ChannelError(f"{path}: channel {name!r} {skipped[name]}")
+        if name not in log.channels and log.metadata.get("corrupt"):
+            raise DataFormatError(
+                f"{path}: channel {name!r} cannot be read: {log.metadata['corrupt']}, so "
+                f"only {len(log.channels)} channels were recovered; the file is damaged"
+            )
         if name not in log.channels:
             near = difflib.get_close_matches(name, list(log.channels), n=5, cutoff=0.6)
             hint = f"; close names: {near}" if near else ""

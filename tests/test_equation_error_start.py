@@ -54,8 +54,9 @@ def _quiet_identify(*args, **kwargs):
 def test_sign_flipped_start_short_period():
     data = catalog.short_period_flight(seed=0)
     flipped = {n: -TRUTH[n] for n in NAMES}
-    stuck = _quiet_identify(catalog.short_period(), data, flipped)
-    assert any(abs(stuck.parameters[n] - TRUTH[n]) > 0.5 * abs(TRUTH[n]) for n in NAMES)
+    # from the flipped start the plain fit stalls on a diverging simulation: refused
+    with pytest.raises(IdentificationError, match="diverges from the record"):
+        _quiet_identify(catalog.short_period(), data, flipped)
     r = identify(catalog.short_period(), data, flipped, start="equation_error")
     assert r.success
     for n in NAMES:

@@ -60,6 +60,14 @@ def url_to_fs(url: str) -> tuple[Any, str]:
         }
     elif protocol in ("gs", "gcs") and "timeout" not in conf:
         kwargs["timeout"] = t
+    elif protocol in ("az", "abfs", "abfss") and "read_timeout" not in conf:
+        # adlfs: seconds to connect and between reads (whole seconds)
+        kwargs["connection_timeout"] = kwargs["read_timeout"] = max(1, math.ceil(t))
+    elif protocol in ("http", "https") and "client_kwargs" not in conf:
+        with contextlib.suppress(ImportError):  # fsspec's HTTP needs aiohttp and says so
+            import aiohttp
+
+            kwargs["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(total=t)}
     fs, base = fsspec.core.url_to_fs(url, **kwargs)
     if "config_kwargs" in kwargs and getattr(fs, "retries", 0) > 1:
         # s3fs's own retries (five, nested in reads) multiply botocore's: leave one layer
@@ -95,7 +103,7 @@ class _ObjectBackend:
 
     look_first = True  # a PUT overwrites: never write under a committed key
 
-    def __init__(self, location: StoreLocation, *, create: bool) -> None:
+    def __init__(self, location: StoreLocation, *, create: bool, repair: bool = False) -> None:
         text = location.root
         try:
             fs, base = url_to_fs(text)
@@ -116,7 +124,8 @@ class _ObjectBackend:
             raise StoreError(f"store {text}: cannot read {_MARKER} ({exc})") from None
         if raw is not None:
             _check_marker(raw, text)
-        elif create:
+        elif create or (repair and fs.exists(self._base) and _only_entries(fs, self._base)):
+            # (repair: verify --remove gives a prefix of entries its marker back)
             try:
                 if fs.exists(self._base) and not _only_entries(fs, self._base):
                     raise StoreError(

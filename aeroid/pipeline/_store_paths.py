@@ -8,6 +8,7 @@ import ctypes
 import errno
 import functools
 import os
+import re
 import shutil
 import socket
 import stat
@@ -133,24 +134,56 @@ _NO_LINKS = {errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EMLINK, errno.E
 # once; outside a scope nothing is cached.
 
 
+_ENTRY_FILE = re.compile(r"[0-9a-f]{64}(?:\.zarr\.zip|\.claim(?:\.[0-9a-f]{8})?)")
+_STAGE_DIR = re.compile(r"[a-z_]+")
+
+
+def _only_store_content(folder: Path) -> bool:
+    """True when `folder` holds what a store holds and at least one entry, but no
+    marker: a store emptied while a run still wrote, which that run's entries refill.
+    Anything else (a link, a file of the user's) keeps the folder refused."""
+    entries = 0
+    for top in folder.iterdir():
+        if top.name.startswith(f".{_MARKER}.") and top.is_file():
+            continue  # a marker being written
+        if top.is_symlink() or not top.is_dir():
+            return False
+        inner = list(top.iterdir())
+        if any(p.is_symlink() or not p.is_file() for p in inner if top.name != "reports"):
+            return False
+        if top.name in (_TMP, "reports"):
+            continue
+        if not _STAGE_DIR.fullmatch(top.name):
+            return False
+        if not all(_ENTRY_FILE.fullmatch(p.name) for p in inner):
+            return False
+        entries += sum(p.name.endswith(_SUFFIX) for p in inner)
+    return entries > 0
+
+
 class _LocalBackend:
     """A store in a folder of a local or shared file system."""
 
     look_first = False  # the final rename refuses an existing entry: no look first
 
-    def __init__(self, location: StoreLocation, given: str, *, create: bool) -> None:
+    def __init__(
+        self, location: StoreLocation, given: str, *, create: bool, repair: bool = False
+    ) -> None:
         self.root: Path | str = Path(given.removeprefix("file://")).expanduser()
         self._folder = location.root
         self.ident = location.root
         marker = os.path.join(self._folder, _MARKER)
         if not (self.ident in _CHECKED and os.path.isfile(marker)):
-            self._open_marker(marker, create=create)
+            self._open_marker(marker, create=create, repair=repair)
             _CHECKED.add(self.ident)
         # every path below is made from the real root: a link above it was the user's choice
         self._real = os.path.realpath(self._folder)
 
-    def _open_marker(self, marker: str, *, create: bool) -> None:
+    def _open_marker(self, marker: str, *, create: bool, repair: bool = False) -> None:
         folder, shown = Path(self._folder), self.root
+        if repair and not create and not os.path.isfile(marker):
+            # verify --remove: a store that lost its marker gets it back, nothing new is made
+            create = folder.is_dir() and _only_store_content(folder)
         if os.path.isfile(marker):
             try:
                 raw = Path(marker).read_bytes()
@@ -167,9 +200,11 @@ class _LocalBackend:
                 if os.path.isfile(marker):
                     self._open_marker(marker, create=False)
                     return
-                raise StoreError(
-                    f"store {shown}: the directory exists, is not empty and is not an aeroid store"
-                )
+                if not _only_store_content(folder):
+                    raise StoreError(
+                        f"store {shown}: the directory exists, is not empty and is not an "
+                        "aeroid store"
+                    )
             try:
                 folder.mkdir(parents=True, exist_ok=True)
                 tmp = folder / f".{_MARKER}.{uuid.uuid4().hex}"
@@ -179,6 +214,11 @@ class _LocalBackend:
                 raise StoreError(
                     f"store {shown}: cannot create it ({exc.strerror or exc})"
                 ) from None
+        elif folder.is_dir() and _only_store_content(folder):
+            raise StoreError(
+                f"store {shown}: holds store entries but lost its {_MARKER} (emptied while a "
+                "run wrote?); `aeroid verify --remove` or the next run gives it back"
+            )
         else:
             raise StoreError(f"store {shown}: not an aeroid store (no {_MARKER})")
 

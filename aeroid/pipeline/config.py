@@ -243,6 +243,15 @@ FlightSpec = Annotated[
 ]
 
 
+def workers_problem(v: int | None) -> str | None:
+    """Why `v` workers cannot run here, or None: each worker is a forked process with
+    its own BLAS threads, so more than four a core only thrash (and exhaust memory)."""
+    limit = 4 * (os.cpu_count() or 1)
+    if v is not None and not isinstance(v, bool) and v > limit:
+        return f"{v} workers on {os.cpu_count()} CPU cores; at most {limit}"
+    return None
+
+
 class CampaignConfig(Options):
     """The top level of a campaign config file."""
 
@@ -295,10 +304,9 @@ class CampaignConfig(Options):
     @field_validator("workers")
     @classmethod
     def _check_workers(cls, v: int | None) -> int | None:
-        # each worker is a forked process with its own BLAS threads
-        limit = 4 * (os.cpu_count() or 1)
-        if v is not None and v > limit:
-            raise ValueError(f"{v} workers on {os.cpu_count()} CPU cores; at most {limit}")
+        problem = workers_problem(v)
+        if problem:
+            raise ValueError(problem)
         return v
 
     @field_validator("store")

@@ -166,6 +166,11 @@ def _run(
     if scheduler is not None:
         updates["scheduler"] = scheduler
     if workers is not None:
+        from ..errors import ConfigError
+        from .config import workers_problem
+
+        if problem := workers_problem(workers):  # model_copy below skips the validators
+            raise ConfigError(f"workers: {problem}")
         updates["workers"] = workers
     if updates:
         config = config.model_copy(update=updates)

@@ -176,6 +176,11 @@ class ResultStore:
         filesystem or an object store.
     create : bool
         Create the store if it does not exist; otherwise raise `StoreError`.
+    repair : bool
+        Give a store that lost its marker (emptied while a run still wrote) the
+        marker back when it holds nothing but store content, without `create`:
+        what ``aeroid verify --remove`` does. A location holding anything else is
+        still refused.
     """
 
     root: Path | str
@@ -184,15 +189,19 @@ class ResultStore:
     """Where the store lives, parsed."""
 
     def __init__(
-        self, root: str | os.PathLike[str] | StoreLocation, *, create: bool = True
+        self,
+        root: str | os.PathLike[str] | StoreLocation,
+        *,
+        create: bool = True,
+        repair: bool = False,
     ) -> None:
         self.location = parse(root)
         backend: _Backend
         if self.location.kind == "fsspec":
-            backend = _ObjectBackend(self.location, create=create)
+            backend = _ObjectBackend(self.location, create=create, repair=repair)
         else:
             given = root.root if isinstance(root, StoreLocation) else os.fspath(root)
-            backend = _LocalBackend(self.location, given, create=create)
+            backend = _LocalBackend(self.location, given, create=create, repair=repair)
         self._backend = backend
         self.root = backend.root
         self._root_id = backend.ident
