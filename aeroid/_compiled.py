@@ -912,7 +912,6 @@ def output_sensitivities(
         return None
     pvec = _pmatrix(model, params, 1)[0]
     x0 = np.asarray(x0, dtype=np.float64)
-    substeps = options.get("substeps")
     # pvec carries the lifted constants after the parameters
     p1 = {k: np.array([v]) for k, v in zip(model.parameter_names, pvec, strict=False)}
     if probe:
@@ -928,21 +927,42 @@ def output_sensitivities(
             entry.pop("probing", None)
         if entry.pop("last_substeps", None) is None:
             return None
-    if substeps is not None:
-        m = int(substeps)
-    else:
-        from ._integrate import auto_substeps
-
-        m = auto_substeps(
-            model._dynamics_batch, time, x0[:, None].copy(), np.asarray(controls)[None], p1
-        )
+    m = rk4_substeps(model, time, controls, x0, params, options)
     if numpy_first and not _sensitivities_pay(model, m, time.size):
+        _entry(model)["declined"] = True
         return None
     if not available(model, time, x0, controls, pvec):
         return None
     got = _sensitivities(model, time, controls, x0, pvec, names, x0_free, m)
     _entry(model)["sensitivities_compiled"] = True
     return got[0], got[1]
+
+
+def rk4_substeps(
+    model: Model,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    params: Mapping[str, float],
+    options: Mapping[str, Any],
+) -> int:
+    """The RK4 substeps of one simulation: `options`' ``substeps``, else from the
+    stiffness of the dynamics at the start (`_integrate.auto_substeps`)."""
+    if options.get("substeps") is not None:
+        return int(options["substeps"])
+    from ._integrate import auto_substeps
+
+    p1 = {k: np.array([float(params.get(k, v))]) for k, v in model.parameters.items()}
+    x = np.asarray(x0, dtype=np.float64)[:, None].copy()
+    return auto_substeps(model._dynamics_batch, time, x, np.asarray(controls)[None], p1)
+
+
+def declined(model: Any) -> bool:
+    """Whether `output_sensitivities` just declined to compile `model`'s first fit
+    (asked with ``numpy_first``): the fit then runs in numpy."""
+    if not isinstance(model, Model):
+        return False
+    return bool(_entry(model).pop("declined", False))
 
 
 def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:

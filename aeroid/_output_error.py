@@ -197,7 +197,8 @@ class _Problem:
             # gradient="auto": the exact sensitivities of the compiled RK4 when
             # the model compiles and integrates by RK4 (decided at the first call).
             route = getattr(self, "_compiled_route", None)
-            if steps is not None and self.gradient == "auto" and route is not False:
+            sens = None
+            if steps is not None and self.gradient == "auto" and route in (None, True):
                 from . import _compiled
 
                 p = dict(self.fixed)
@@ -215,26 +216,55 @@ class _Problem:
                     numpy_first=route is None,
                 )
                 if sens is None:
+                    # a first fit that compiling would not pay for runs in numpy, with
+                    # the sensitivities of Newton's method over the record (`_shooting`)
+                    route = "numpy" if _compiled.declined(self.model) else False
+                    self._compiled_route = route
+            if steps is not None and route == "numpy":
+                from . import _compiled, _shooting
+
+                p = dict(self.fixed)
+                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
+                sens = _shooting.output_sensitivities(
+                    self.model,
+                    m.time,
+                    u_now,
+                    x0,
+                    p,
+                    lay.names,
+                    m.x0_free,
+                    _compiled.rk4_substeps(self.model, m.time, u_now, x0, p, self.options),
+                    steps[cols],
+                )
+                if sens is None and self.model._dynamics_batch.time_broadcasts is False:
+                    # dynamics that do not take an array of times: step by step from now
+                    # on (a point where Newton did not settle steps once, below)
                     self._compiled_route = False
-                elif np.all(np.isfinite(sens[0])) and np.all(np.isfinite(sens[1])):
-                    # (a diverging point falls through to the numpy path, which reports it)
-                    y_all, jac_all = sens
-                    y = y_all[:, self.out_idx]
+            if (
+                steps is not None
+                and sens is not None
+                and np.all(np.isfinite(sens[0]))
+                and np.all(np.isfinite(sens[1]))
+            ):
+                # (a diverging point falls through to the numpy path, which reports it)
+                y_all, jac_all = sens
+                y = y_all[:, self.out_idx]
+                if route is None:
                     self._compiled_route = True
-                    v = m.measured - y - bias
-                    picked = jac_all[:, self.out_idx, :]
-                    if len(cols) == lay.n_total:  # one manoeuvre, no delays or biases
-                        jac = np.negative(picked, out=picked)
-                    else:
-                        jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
-                        jac[:, :, cols] = -picked
-                    if not self._delay_columns(jac, theta, steps, i, x0):
-                        return [], None, False
-                    residuals.append(v)
-                    self._bias_columns(jac, i)
-                    assert jacobians is not None
-                    jacobians.append(jac)
-                    continue
+                v = m.measured - y - bias
+                picked = jac_all[:, self.out_idx, :]
+                if len(cols) == lay.n_total:  # one manoeuvre, no delays or biases
+                    jac = np.negative(picked, out=picked)
+                else:
+                    jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
+                    jac[:, :, cols] = -picked
+                if not self._delay_columns(jac, theta, steps, i, x0):
+                    return [], None, False
+                residuals.append(v)
+                self._bias_columns(jac, i)
+                assert jacobians is not None
+                jacobians.append(jac)
+                continue
             if steps is not None and self.gradient == "jax":
                 from . import _jax
 
