@@ -65,6 +65,9 @@ COMPILE_AFTER_CALLS = 20_000
 # (finite differences batched over the parameter columns) when its expected numpy
 # work stays below this.
 SENSITIVITIES_AFTER_CALLS = 150_000
+# RK4 substeps of a record up to which a first fit runs in numpy by Newton's method over
+# the record (`_shooting`): its cost grows with the record, a compilation's does not.
+SHOOTING_STEPS = 50_000
 # Evaluations a fit is expected to spend (Gauss-Newton iterations and step halvings).
 _FIT_EVALUATIONS = 8
 _VERIFY_RTOL = 1e-12
@@ -864,6 +867,15 @@ def rk4_hook(
         # a probe only asks which path the integrator takes: no compilation for its
         # two-sample record
         return None  # decided: numpy only
+    if x0.shape[1] == 1 and not entry.get("compiled_once"):
+        from ._shooting import last_states
+
+        known = last_states(model, time, x0, u, p, substeps)
+        if known is not None:
+            # the rollout a fit's numpy sensitivities last solved for (the result's
+            # simulation at the estimate): the same RK4 steps, to rounding
+            ok, fail_time = _first_failure(known[None], time)
+            return RawTrajectory(known[None], ok, fail_time)
     if not worth_compiling(model, 4 * int(substeps) * (time.size - 1)):
         return None
     traj = rk4_states(model, time, x0, u, p, substeps)
@@ -977,7 +989,14 @@ def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
     spent = entry.get("sensitivity_numpy_calls", 0)
     # only the first fit: a model fitted twice is likely fitted again (warm calls as fast
     # as compiled ones from the second on)
-    if spent == 0 and work <= SENSITIVITIES_AFTER_CALLS:
+    f = model._dynamics_batch
+    # Newton over the record (`_shooting`) makes a few calls of each RK4 stage on every
+    # substep at once, for dynamics that take an array of times: far cheaper
+    shooting = f.broadcasts is not False and f.time_broadcasts is not False
+    steps = int(substeps) * max(n_t - 1, 1)
+    # (SENSITIVITIES_AFTER_CALLS = 0 compiles from the first fit on, Newton or not)
+    shooting = shooting and steps <= SHOOTING_STEPS and SENSITIVITIES_AFTER_CALLS > 0
+    if spent == 0 and (work <= SENSITIVITIES_AFTER_CALLS or shooting):
         entry["sensitivity_numpy_calls"] = spent + work
         return False
     return True
@@ -1002,6 +1021,15 @@ def input_noise_scatter(
     None when the model does not compile."""
     if not ENABLED or not isinstance(model, Model) or time.size < 2:
         return None
+    if not _entry(model).get("sensitivities_compiled"):
+        # a model whose fit ran in numpy: the same adjoint in numpy, no compilation
+        from . import _shooting
+
+        got = _shooting.input_noise_scatter(
+            model, time, controls, x0, params, names, x0_free, substeps, inverse_variances, sigma
+        )
+        if got is not None:
+            return got
     pvec = _pmatrix(model, params, 1)[0]
     x0 = np.asarray(x0, dtype=np.float64)
     if not available(model, time, x0, controls, pvec):

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import weakref
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -39,14 +40,18 @@ FloatArray = NDArray[np.float64]
 
 # Relative step of the central differences of a step and of the measurement.
 _REL = 1e-6
-# Newton stops when a correction moves no state by more than this fraction of its range.
-_NEWTON_TOL = 1e-11
+# Newton stops after a sweep with every column whose correction moves no state by more
+# than this fraction of its range.
+_ACCEPT = 1e-8
 _MAX_SWEEPS = 8
+# A correction this small (relative) is one Newton sweep from the solution.
+_CLOSE = 1e-6
 # Substeps in the first window when a trajectory is built from its start.
 _FIRST_WINDOW = 32
 
 # A fit's last trajectory: (model ref, time, controls, substeps, names, x0_free,
-# theta, states (N + 1, n_x), state sensitivities (N + 1, n_x, cols)).
+# theta, states (N + 1, n_x), state sensitivities (N + 1, n_x, cols), the steps'
+# state Jacobians (N, n_x, n_x), every parameter's value).
 _LAST: list[Any] = []
 
 
@@ -89,21 +94,25 @@ def _steps(
     X: FloatArray,
     P: Mapping[str, FloatArray],
     reps: int,
+    du: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
     """RK4 steps ks (K,) of the points X (n_x, K * reps), each step's `reps` columns
-    side by side; P name -> (K * reps,)."""
+    side by side; P name -> (K * reps,); `du` is added to the controls at the three
+    stage times."""
 
     def take(a: FloatArray) -> FloatArray:
         return np.repeat(a[..., ks], reps, axis=-1) if reps > 1 else a[..., ks]
 
     h, hh, h6 = take(grid.h), take(grid.hh), take(grid.h6)
     t2 = take(grid.t2)
-    u2 = take(grid.u2)
+    u1, u2, u4 = take(grid.u1), take(grid.u2), take(grid.u4)
+    if du is not None:
+        u1, u2, u4 = u1 + du[0], u2 + du[1], u4 + du[2]
     with np.errstate(all="ignore"):
-        k1 = f.at_times(take(grid.t1), X, take(grid.u1), P)
+        k1 = f.at_times(take(grid.t1), X, u1, P)
         k2 = f.at_times(t2, X + hh * k1, u2, P)
         k3 = f.at_times(t2, X + hh * k2, u2, P)
-        k4 = f.at_times(take(grid.t4), X + h * k3, take(grid.u4), P)
+        k4 = f.at_times(take(grid.t4), X + h * k3, u4, P)
         return np.asarray(X + h6 * (k1 + 2.0 * (k2 + k3) + k4), dtype=np.float64)
 
 
@@ -116,12 +125,17 @@ def _linearised(
     hx: FloatArray,
     names: Sequence[str],
     hp: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+    hu: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Steps of the points G (K, n_x) and their central-difference Jacobians
-    A (K, n_x, n_x) and B (K, n_x, len(names))."""
+    A (K, n_x, n_x), B (K, n_x, len(names)) and, with `hu` (n_u,) the steps of the
+    controls (zero: left out), C (K, n_x, 2 n_c) in the n_c controls of nonzero step
+    at the step's interval's first, then last sample."""
     K, n_x = G.shape
     n_p = len(names)
-    cols = 1 + 2 * n_x + 2 * n_p
+    active = [] if hu is None else np.flatnonzero(hu).tolist()
+    n_c = len(active)
+    cols = 1 + 2 * n_x + 2 * n_p + 4 * n_c
     X = np.repeat(G.T[:, :, None], cols, axis=2)  # (n_x, K, cols)
     for i in range(n_x):
         X[i, :, 1 + 2 * i] += hx[i]
@@ -130,14 +144,40 @@ def _linearised(
     for c, name in enumerate(names):
         P[name][:, 1 + 2 * n_x + 2 * c] += hp[c]
         P[name][:, 2 + 2 * n_x + 2 * c] -= hp[c]
+    du: tuple[FloatArray, FloatArray, FloatArray] | None = None
+    if n_c:
+        assert hu is not None
+        # a sample's control moves the nodes between it and its neighbour linearly
+        j = (np.asarray(ks) % grid.m).astype(np.float64)
+        n_u = grid.u1.shape[0]
+        nodes = [np.zeros((n_u, K, cols)) for _ in range(3)]
+        for node, d in enumerate(nodes):
+            frac = (2.0 * j + node) / (2.0 * grid.m)
+            for c, ui in enumerate(active):
+                base = 1 + 2 * n_x + 2 * n_p + 4 * c
+                for end, w in enumerate((1.0 - frac, frac)):
+                    d[ui, :, base + 2 * end] = w * hu[ui]
+                    d[ui, :, base + 2 * end + 1] = -w * hu[ui]
+        du = (
+            nodes[0].reshape(n_u, K * cols),
+            nodes[1].reshape(n_u, K * cols),
+            nodes[2].reshape(n_u, K * cols),
+        )
     out = _steps(
-        f, grid, ks, X.reshape(n_x, K * cols), {k: v.reshape(-1) for k, v in P.items()}, cols
+        f, grid, ks, X.reshape(n_x, K * cols), {k: v.reshape(-1) for k, v in P.items()}, cols, du
     ).reshape(n_x, K, cols)
     out = np.transpose(out, (1, 0, 2))  # (K, n_x, cols)
     diff = out[:, :, 1::2] - out[:, :, 2::2]
     A = diff[:, :, :n_x] / (2.0 * hx)[None, None, :]
-    B = diff[:, :, n_x:] / (2.0 * hp)[None, None, :] if n_p else np.zeros((K, n_x, 0))
-    return out[:, :, 0], A, B
+    B = diff[:, :, n_x : n_x + n_p] / (2.0 * hp)[None, None, :]
+    C = np.zeros((K, n_x, 0))
+    if n_c:
+        assert hu is not None
+        steps_c = np.repeat(hu[active], 2)  # (first, last) per control
+        C = diff[:, :, n_x + n_p :] / (2.0 * steps_c)[None, None, :]
+        # columns: every control at the first sample, then every control at the last
+        C = np.concatenate([C[:, :, 0::2], C[:, :, 1::2]], axis=2)
+    return out[:, :, 0], A, B, C
 
 
 def linear_recursion(A: FloatArray, z0: FloatArray, F: FloatArray) -> FloatArray:
@@ -186,15 +226,31 @@ def _newton(
     p: Mapping[str, float],
     hx: FloatArray,
     scale: FloatArray,
-    names: Sequence[str],
-    hp: FloatArray,
+    names: Sequence[str] = (),
+    hp: FloatArray | None = None,
+    hu: FloatArray | None = None,
+    A_prev: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Settle G[lo + 1 : hi + 1] (G[lo] held) on the RK4 steps lo..hi-1, in place;
-    returns the last sweep's A and B, or None when Newton does not settle."""
+    returns the last sweep's Jacobians A, B, C (`_linearised`), or None when Newton
+    does not settle. Sweeps far from the solution leave B and C out; `A_prev`, the
+    state Jacobians of a nearby trajectory, serves a first sweep of the steps alone."""
     ks = np.arange(lo, hi)
     n_x = G.shape[1]
-    for _ in range(_MAX_SWEEPS):
-        nxt, A, B = _linearised(f, grid, ks, G[lo:hi], p, hx, names, hp)
+    extras = bool(names) or hu is not None
+    full = not extras
+    none = np.zeros(0)
+    for sweep in range(_MAX_SWEEPS):
+        if sweep == 0 and A_prev is not None and A_prev.shape[0] == ks.size:
+            X = np.ascontiguousarray(G[lo:hi].T)
+            nxt = _steps(f, grid, ks, X, _columns(p, ks.size), 1).T
+            A, B, C = A_prev, np.zeros(0), np.zeros(0)
+        elif full:
+            nxt, A, B, C = _linearised(
+                f, grid, ks, G[lo:hi], p, hx, names, none if hp is None else hp, hu
+            )
+        else:
+            nxt, A, B, C = _linearised(f, grid, ks, G[lo:hi], p, hx, (), none)
         defect = nxt - G[lo + 1 : hi + 1]
         if not (np.all(np.isfinite(defect)) and np.all(np.isfinite(A))):
             return None
@@ -202,9 +258,45 @@ def _newton(
         if not np.all(np.isfinite(d)):
             return None
         G[lo + 1 : hi + 1] += d
-        if np.all(np.abs(d) <= _NEWTON_TOL * scale):
-            return A, B, nxt
+        moved = float(np.max(np.abs(d) / scale)) if d.size else 0.0
+        if full and B.ndim == 3 and moved <= _ACCEPT:
+            # the correction's own error is of its square: the trajectory is the RK4 one
+            # to rounding, its Jacobians to about `moved`
+            return A, B, C
+        # Newton converges quadratically: after a correction this small the next sweep
+        # lands on the solution, and carries the other columns
+        full = full or moved <= _CLOSE
     return None
+
+
+def _read_by_dynamics(
+    f: BatchFunction, grid: _Grid, G: FloatArray, p: Mapping[str, float], names: Sequence[str]
+) -> list[bool]:
+    """Which of `names` the dynamics read: a change of each moves some derivative at
+    points scattered about the trajectory (states and controls jittered, so that a
+    parameter multiplying a state or control that happens to be zero still shows)."""
+    if not names:
+        return []
+    rng = np.random.default_rng(0)
+    ks = np.linspace(0, grid.n - 1, min(grid.n, 8)).astype(np.int64)
+    K = ks.size
+    n_x = G.shape[1]
+    cols = 1 + len(names)
+    x = G[ks].T * (1.0 + 0.1 * rng.standard_normal((n_x, K))) + 0.01 * rng.standard_normal((n_x, K))
+    u = grid.u1[:, ks] * (1.0 + 0.1 * rng.standard_normal(grid.u1[:, ks].shape))
+    u = u + 0.01 * rng.standard_normal(u.shape)
+    P = {k: np.full((K, cols), v) for k, v in p.items()}
+    for c, name in enumerate(names):
+        P[name][:, 1 + c] += 0.1 * max(abs(p[name]), 1.0)
+    with np.errstate(all="ignore"):
+        out = f.at_times(
+            np.repeat(grid.t1[ks], cols),
+            np.repeat(x, cols, axis=1),
+            np.repeat(u, cols, axis=1),
+            {k: v.reshape(-1) for k, v in P.items()},
+        ).reshape(n_x, K, cols)
+    same = np.all((out[:, :, 1:] == out[:, :, :1]), axis=(0, 1))
+    return [not bool(v) for v in same]
 
 
 def _columns(p: Mapping[str, float], n: int) -> dict[str, FloatArray]:
@@ -230,7 +322,7 @@ def _from_start(
         G[lo + 1 : hi + 1] = G[lo]
         scale = _scale(G[: hi + 1])
         hx = _REL * scale
-        got = _newton(f, grid, lo, hi, G, p, hx, scale, (), np.zeros(0))
+        got = _newton(f, grid, lo, hi, G, p, hx, scale)
         if got is None:
             if width <= 2:
                 return None
@@ -241,7 +333,21 @@ def _from_start(
     return G
 
 
-def output_sensitivities(
+@dataclass
+class _Record:
+    """A record's RK4 rollout linearised: outputs, their Jacobian, and the pieces the
+    input-noise scatter needs (per substep: A, C; per sample: gx, gu)."""
+
+    y: FloatArray
+    jac: FloatArray
+    grid: _Grid
+    A: FloatArray
+    C: FloatArray
+    gx: FloatArray
+    gu: FloatArray
+
+
+def _linearise(
     model: Any,
     time: FloatArray,
     controls: FloatArray,
@@ -250,12 +356,9 @@ def output_sensitivities(
     names: Sequence[str],
     x0_free: Sequence[int],
     substeps: int,
-    steps: FloatArray,
-) -> tuple[FloatArray, FloatArray] | None:
-    """Outputs (n_t, n_y) and their Jacobian (n_t, n_y, len(names) + len(x0_free)) of
-    the RK4 rollout with `substeps`, as `_compiled.output_sensitivities` returns them;
-    `steps` are the central-difference steps of those columns. None when Newton does
-    not settle or the dynamics do not take an array of times (the caller then steps)."""
+    hp: FloatArray,
+    hu: FloatArray | None = None,
+) -> _Record | None:
     f = model._dynamics_batch
     if f.broadcasts is False or f.time_broadcasts is False or time.size < 2:
         return None
@@ -274,35 +377,129 @@ def output_sensitivities(
     x0_free = list(x0_free)
     n_p = len(names)
     theta = np.concatenate([[p[n] for n in names], x0[x0_free]])
-    hp = np.asarray(steps[:n_p], dtype=np.float64)
-    G = _guess(model, time, controls, m, names, x0_free, theta, x0)
-    if G is None:
-        G = _from_start(f, grid, x0, p)
-        if G is None:
+    guessed = _guess(model, time, controls, m, names, x0_free, theta, x0)
+    A_last = None
+    if guessed is not None:
+        G, A_last = guessed
+    else:
+        start = _from_start(f, grid, x0, p)
+        if start is None:
             return None
+        G = start
     G[0] = x0
     scale = _scale(G)
-    got = _newton(f, grid, 0, grid.n, G, p, _REL * scale, scale, names, hp)
+    read = np.flatnonzero(_read_by_dynamics(f, grid, G, p, names))
+    got = _newton(
+        f,
+        grid,
+        0,
+        grid.n,
+        G,
+        p,
+        _REL * scale,
+        scale,
+        [names[j] for j in read],
+        hp[read],
+        hu,
+        A_last,
+    )
     if got is None or f.time_broadcasts is False:
         return None
-    A, B, _ = got
+    A, B, C = got
     # state sensitivities: S[0] = d x0 / d(x0_free), S[k+1] = A[k] S[k] + B[k]
     cols = n_p + len(x0_free)
     S0 = np.zeros((n_x, cols))
     for c, i in enumerate(x0_free):
         S0[i, n_p + c] = 1.0
     F = np.zeros((grid.n, n_x, cols))
-    F[:, :, :n_p] = B
+    F[:, :, read] = B
     S = np.concatenate([S0[None], linear_recursion(A, S0, F)])
-    _LAST[:] = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S]
+    _LAST[:] = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S, A, p]
     xs = G[::m]
-    Ss = S[::m]
-    y, gx, gp = _measurement(model, time, controls, xs, p, _REL * scale, names, hp)
-    if y is None:
+    got_y = _measurement(model, time, controls, xs, p, _REL * scale, names, hp, hu)
+    if got_y is None:
         return None
-    jac = np.matmul(gx, Ss)
+    y, gx, gp, gu = got_y
+    jac = np.matmul(gx, S[::m])
     jac[:, :, :n_p] += gp
-    return y, jac
+    return _Record(y=y, jac=jac, grid=grid, A=A, C=C, gx=gx, gu=gu)
+
+
+def output_sensitivities(
+    model: Any,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    params: Mapping[str, float],
+    names: Sequence[str],
+    x0_free: Sequence[int],
+    substeps: int,
+    steps: FloatArray,
+) -> tuple[FloatArray, FloatArray] | None:
+    """Outputs (n_t, n_y) and their Jacobian (n_t, n_y, len(names) + len(x0_free)) of
+    the RK4 rollout with `substeps`, as `_compiled.output_sensitivities` returns them;
+    `steps` are the central-difference steps of those columns. None when Newton does
+    not settle or the dynamics do not take an array of times (the caller then steps)."""
+    hp = np.asarray(steps[: len(names)], dtype=np.float64)
+    rec = _linearise(model, time, controls, x0, params, names, x0_free, substeps, hp)
+    return None if rec is None else (rec.y, rec.jac)
+
+
+def input_noise_scatter(
+    model: Any,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    params: Mapping[str, float],
+    names: Sequence[str],
+    x0_free: Sequence[int],
+    substeps: int,
+    inverse_variances: FloatArray,
+    sigma: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """`_compiled.input_noise_scatter` in numpy: outputs, their Jacobian and the
+    covariance of the Gauss–Newton gradient that white control noise of standard
+    deviations `sigma` causes to first order, by the adjoint of the linearised
+    rollout (``lam[k] = hx[k]' c[k] + phi[k]' lam[k+1]``). None where Newton does
+    not apply."""
+    names = list(names)
+    sigma = np.asarray(sigma, dtype=np.float64)
+    u = np.asarray(controls, dtype=np.float64)
+    hp = _REL * np.maximum(np.abs(np.array([float(params[n]) for n in names])), 1e-3)
+    hu = np.where(sigma > 0, _REL * np.maximum(np.max(np.abs(u), axis=0), 1e-3), 0.0)
+    rec = _linearise(model, time, u, x0, params, names, x0_free, substeps, hp, hu)
+    if rec is None:
+        return None
+    m = rec.grid.m
+    n_t = time.size
+    n_x = rec.A.shape[1]
+    active = np.flatnonzero(hu)
+    n_c = active.size
+    # each sample interval's transition and control Jacobians, from its substeps
+    A = rec.A.reshape(n_t - 1, m, n_x, n_x)
+    C = rec.C.reshape(n_t - 1, m, n_x, 2 * n_c)
+    phi = A[:, 0]
+    D = C[:, 0]
+    for j in range(1, m):
+        phi = np.matmul(A[:, j], phi)
+        D = np.matmul(A[:, j], D) + C[:, j]
+    c = rec.jac * np.asarray(inverse_variances, dtype=np.float64)[None, :, None]
+    g = np.matmul(np.transpose(rec.gx, (0, 2, 1)), c)  # (n_t, n_x, cols)
+    lam = np.empty_like(g)
+    lam[-1] = g[-1]
+    if n_t > 1:
+        back = linear_recursion(
+            np.ascontiguousarray(np.transpose(phi[::-1], (0, 2, 1))), g[-1], g[-2::-1]
+        )
+        lam[:-1] = back[::-1]
+    after = lam[1:]  # lam[k + 1] for each interval k
+    z = np.zeros((n_t, n_c, c.shape[2]))
+    Dt = np.transpose(D, (0, 2, 1))
+    z[:-1] += np.matmul(Dt[:, :n_c], after)
+    z[1:] += np.matmul(Dt[:, n_c:], after)
+    z += np.matmul(np.transpose(rec.gu, (0, 2, 1)), c)
+    flat = (z * sigma[active][None, :, None]).reshape(-1, c.shape[2])
+    return rec.y, rec.jac, flat.T @ flat
 
 
 def _guess(
@@ -314,9 +511,9 @@ def _guess(
     x0_free: list[int],
     theta: FloatArray,
     x0: FloatArray,
-) -> FloatArray | None:
+) -> tuple[FloatArray, FloatArray] | None:
     """The last trajectory moved to first order to the new point, when it was of the
-    same record and columns."""
+    same record and columns, and its steps' state Jacobians."""
     last = _LAST
     if not last or last[0]() is not model or last[3] != m:
         return None
@@ -328,7 +525,7 @@ def _guess(
         return None
     G: FloatArray = last[7] + np.matmul(last[8], theta - last[6])
     G[0] = x0
-    return G if np.all(np.isfinite(G)) else None
+    return (G, last[9]) if np.all(np.isfinite(G)) else None
 
 
 def _measurement(
@@ -340,18 +537,23 @@ def _measurement(
     hx: FloatArray,
     names: Sequence[str],
     hp: FloatArray,
-) -> tuple[FloatArray | None, FloatArray, FloatArray]:
+    hu: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
     """Outputs (n_t, n_y) at the states xs (n_t, n_x) and their central-difference
-    Jacobians in the states (n_t, n_y, n_x) and the parameters (n_t, n_y, n_p)."""
+    Jacobians in the states (n_t, n_y, n_x), the parameters (n_t, n_y, n_p) and the
+    controls of nonzero step `hu` (n_t, n_y, n_c); None when not finite."""
     n_t, n_x = xs.shape
     n_p = len(names)
+    active = [] if hu is None else np.flatnonzero(hu).tolist()
+    n_c = len(active)
     g = model._measurement_batch
     if g is None:
         idx = [model.states.index(o) for o in model.output_names]
         gx = np.zeros((n_t, len(idx), n_x))
         gx[:, np.arange(len(idx)), idx] = 1.0
-        return xs[:, idx].copy(), gx, np.zeros((n_t, len(idx), n_p))
-    cols = 1 + 2 * n_x + 2 * n_p
+        zero = np.zeros((n_t, len(idx), n_p + n_c))
+        return xs[:, idx].copy(), gx, zero[:, :, :n_p], zero[:, :, n_p:]
+    cols = 1 + 2 * n_x + 2 * n_p + 2 * n_c
     X = np.repeat(xs.T[:, :, None], cols, axis=2)
     for i in range(n_x):
         X[i, :, 1 + 2 * i] += hx[i]
@@ -360,16 +562,57 @@ def _measurement(
     for c, name in enumerate(names):
         P[name][:, 1 + 2 * n_x + 2 * c] += hp[c]
         P[name][:, 2 + 2 * n_x + 2 * c] -= hp[c]
+    U = np.repeat(controls.T[:, :, None], cols, axis=2)
+    for c, ui in enumerate(active):
+        assert hu is not None
+        U[ui, :, 1 + 2 * (n_x + n_p + c)] += hu[ui]
+        U[ui, :, 2 + 2 * (n_x + n_p + c)] -= hu[ui]
     T = np.repeat(time, cols)
-    U = np.repeat(controls.T, cols, axis=1)
     with np.errstate(all="ignore"):
-        Y = g.at_times(T, X.reshape(n_x, n_t * cols), U, {k: v.reshape(-1) for k, v in P.items()})
+        Y = g.at_times(
+            T,
+            X.reshape(n_x, n_t * cols),
+            U.reshape(-1, n_t * cols),
+            {k: v.reshape(-1) for k, v in P.items()},
+        )
     if g.time_broadcasts is False:
-        return None, np.zeros(0), np.zeros(0)
+        return None
     Y = np.transpose(Y.reshape(-1, n_t, cols), (1, 0, 2))  # (n_t, n_y, cols)
     if not np.all(np.isfinite(Y[:, :, 0])):
-        return None, np.zeros(0), np.zeros(0)
+        return None
     diff = Y[:, :, 1::2] - Y[:, :, 2::2]
     gx = diff[:, :, :n_x] / (2.0 * hx)[None, None, :]
-    gp = diff[:, :, n_x:] / (2.0 * hp)[None, None, :] if n_p else np.zeros((n_t, Y.shape[1], 0))
-    return np.ascontiguousarray(Y[:, :, 0]), gx, gp
+    gp = diff[:, :, n_x : n_x + n_p] / (2.0 * hp)[None, None, :]
+    gu = diff[:, :, n_x + n_p :]
+    if n_c:
+        assert hu is not None
+        gu = gu / (2.0 * hu[active])[None, None, :]
+    return np.ascontiguousarray(Y[:, :, 0]), gx, gp, gu
+
+
+def last_states(
+    model: Any,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    substeps: int,
+) -> FloatArray | None:
+    """The states (n_t, n_x) of the last linearised rollout when a one-member RK4
+    simulation asks for the same one: the same record, substeps, initial state and
+    parameters (a fit's result simulated at its estimate). x0 (n_x, 1), u (1, n_t, n_u)."""
+    last = _LAST
+    if not last or last[0]() is not model or last[3] != int(substeps) or x0.shape[1] != 1:
+        return None
+    G: FloatArray = last[7]
+    m = last[3]
+    if not np.array_equal(G[0], x0[:, 0]):
+        return None
+    if last[1] is not time and not np.array_equal(last[1], time):
+        return None
+    if not np.array_equal(last[2], u[0]):
+        return None
+    known: Mapping[str, float] = last[10]
+    if set(known) != set(p) or any(float(p[k][0]) != v for k, v in known.items()):
+        return None
+    return np.ascontiguousarray(G[::m])
