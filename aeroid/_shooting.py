@@ -51,7 +51,7 @@ _FIRST_WINDOW = 32
 
 # A fit's last trajectory: (model ref, time, controls, substeps, names, x0_free,
 # theta, states (N + 1, n_x), state sensitivities (N + 1, n_x, cols), the steps'
-# state Jacobians (N, n_x, n_x), every parameter's value).
+# state Jacobians (N, n_x, n_x), the values of the parameters the dynamics read).
 _LAST: list[Any] = []
 
 
@@ -140,10 +140,7 @@ def _linearised(
     for i in range(n_x):
         X[i, :, 1 + 2 * i] += hx[i]
         X[i, :, 2 + 2 * i] -= hx[i]
-    P = {k: np.full((K, cols), v) for k, v in p.items()}
-    for c, name in enumerate(names):
-        P[name][:, 1 + 2 * n_x + 2 * c] += hp[c]
-        P[name][:, 2 + 2 * n_x + 2 * c] -= hp[c]
+    P = _perturbed(p, K, cols, names, hp, 1 + 2 * n_x)
     du: tuple[FloatArray, FloatArray, FloatArray] | None = None
     if n_c:
         assert hu is not None
@@ -163,9 +160,7 @@ def _linearised(
             nodes[1].reshape(n_u, K * cols),
             nodes[2].reshape(n_u, K * cols),
         )
-    out = _steps(
-        f, grid, ks, X.reshape(n_x, K * cols), {k: v.reshape(-1) for k, v in P.items()}, cols, du
-    ).reshape(n_x, K, cols)
+    out = _steps(f, grid, ks, X.reshape(n_x, K * cols), P, cols, du).reshape(n_x, K, cols)
     out = np.transpose(out, (1, 0, 2))  # (K, n_x, cols)
     diff = out[:, :, 1::2] - out[:, :, 2::2]
     A = diff[:, :, :n_x] / (2.0 * hx)[None, None, :]
@@ -300,7 +295,22 @@ def _read_by_dynamics(
 
 
 def _columns(p: Mapping[str, float], n: int) -> dict[str, FloatArray]:
-    return {k: np.full(n, v) for k, v in p.items()}
+    """Every parameter's value on n columns (read-only views: nothing writes to them)."""
+    return {k: np.broadcast_to(np.float64(v), (n,)) for k, v in p.items()}
+
+
+def _perturbed(
+    p: Mapping[str, float], K: int, cols: int, names: Sequence[str], hp: FloatArray, at: int
+) -> dict[str, FloatArray]:
+    """Parameters on K points of `cols` columns each, `names` moved by +-hp in the
+    column pairs from `at` on."""
+    P = _columns(p, K * cols)
+    for c, name in enumerate(names):
+        v = np.full((K, cols), p[name])
+        v[:, at + 2 * c] += hp[c]
+        v[:, at + 1 + 2 * c] -= hp[c]
+        P[name] = v.reshape(-1)
+    return P
 
 
 def _scale(G: FloatArray) -> FloatArray:
@@ -414,7 +424,9 @@ def _linearise(
     F = np.zeros((grid.n, n_x, cols))
     F[:, :, read] = B
     S = np.concatenate([S0[None], linear_recursion(A, S0, F)])
-    _LAST[:] = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S, A, p]
+    # the parameters the dynamics read: others may differ in `last_states`
+    seen = {k: v for k, v in p.items() if k not in names or names.index(k) in read}
+    _LAST[:] = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S, A, seen]
     xs = G[::m]
     got_y = _measurement(model, time, controls, xs, p, _REL * scale, names, hp, hu)
     if got_y is None:
@@ -558,10 +570,7 @@ def _measurement(
     for i in range(n_x):
         X[i, :, 1 + 2 * i] += hx[i]
         X[i, :, 2 + 2 * i] -= hx[i]
-    P = {k: np.full((n_t, cols), v) for k, v in p.items()}
-    for c, name in enumerate(names):
-        P[name][:, 1 + 2 * n_x + 2 * c] += hp[c]
-        P[name][:, 2 + 2 * n_x + 2 * c] -= hp[c]
+    P = _perturbed(p, n_t, cols, names, hp, 1 + 2 * n_x)
     U = np.repeat(controls.T[:, :, None], cols, axis=2)
     for c, ui in enumerate(active):
         assert hu is not None
@@ -573,7 +582,7 @@ def _measurement(
             T,
             X.reshape(n_x, n_t * cols),
             U.reshape(-1, n_t * cols),
-            {k: v.reshape(-1) for k, v in P.items()},
+            P,
         )
     if g.time_broadcasts is False:
         return None
@@ -600,7 +609,8 @@ def last_states(
 ) -> FloatArray | None:
     """The states (n_t, n_x) of the last linearised rollout when a one-member RK4
     simulation asks for the same one: the same record, substeps, initial state and
-    parameters (a fit's result simulated at its estimate). x0 (n_x, 1), u (1, n_t, n_u)."""
+    values of the parameters the dynamics read (a fit's result simulated at its
+    estimate, its sensors' errors perhaps zeroed). x0 (n_x, 1), u (1, n_t, n_u)."""
     last = _LAST
     if not last or last[0]() is not model or last[3] != int(substeps) or x0.shape[1] != 1:
         return None
@@ -613,6 +623,6 @@ def last_states(
     if not np.array_equal(last[2], u[0]):
         return None
     known: Mapping[str, float] = last[10]
-    if set(known) != set(p) or any(float(p[k][0]) != v for k, v in known.items()):
+    if not set(known) <= set(p) or any(float(p[k][0]) != v for k, v in known.items()):
         return None
     return np.ascontiguousarray(G[::m])
