@@ -453,7 +453,8 @@ def output_sensitivities(
     `steps` are the central-difference steps of those columns. None when Newton does
     not settle or the dynamics do not take an array of times (the caller then steps)."""
     hp = np.asarray(steps[: len(names)], dtype=np.float64)
-    rec = _linearise(model, time, controls, x0, params, names, x0_free, substeps, hp)
+    with np.errstate(all="ignore"):  # a diverging point gives None
+        rec = _linearise(model, time, controls, x0, params, names, x0_free, substeps, hp)
     return None if rec is None else (rec.y, rec.jac)
 
 
@@ -479,7 +480,8 @@ def input_noise_scatter(
     u = np.asarray(controls, dtype=np.float64)
     hp = _REL * np.maximum(np.abs(np.array([float(params[n]) for n in names])), 1e-3)
     hu = np.where(sigma > 0, _REL * np.maximum(np.max(np.abs(u), axis=0), 1e-3), 0.0)
-    rec = _linearise(model, time, u, x0, params, names, x0_free, substeps, hp, hu)
+    with np.errstate(all="ignore"):  # a diverging point gives None
+        rec = _linearise(model, time, u, x0, params, names, x0_free, substeps, hp, hu)
     if rec is None:
         return None
     m = rec.grid.m
