@@ -128,19 +128,22 @@ def _linearised(
     hu: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Steps of the points G (K, n_x) and their central-difference Jacobians
-    A (K, n_x, n_x), B (K, n_x, len(names)) and, with `hu` (n_u,) the steps of the
+    A (K, n_x, n_x) (`hx` the states' steps, zero for a state the dynamics do not
+    read), B (K, n_x, len(names)) and, with `hu` (n_u,) the steps of the
     controls (zero: left out), C (K, n_x, 2 n_c) in the n_c controls of nonzero step
     at the step's interval's first, then last sample."""
     K, n_x = G.shape
     n_p = len(names)
     active = [] if hu is None else np.flatnonzero(hu).tolist()
     n_c = len(active)
-    cols = 1 + 2 * n_x + 2 * n_p + 4 * n_c
+    xs = np.flatnonzero(hx)  # the states the dynamics read
+    n_s = xs.size
+    cols = 1 + 2 * n_s + 2 * n_p + 4 * n_c
     X = np.repeat(G.T[:, :, None], cols, axis=2)  # (n_x, K, cols)
-    for i in range(n_x):
-        X[i, :, 1 + 2 * i] += hx[i]
-        X[i, :, 2 + 2 * i] -= hx[i]
-    P = _perturbed(p, K, cols, names, hp, 1 + 2 * n_x)
+    for c, i in enumerate(xs.tolist()):
+        X[i, :, 1 + 2 * c] += hx[i]
+        X[i, :, 2 + 2 * c] -= hx[i]
+    P = _perturbed(p, K, cols, names, hp, 1 + 2 * n_s)
     du: tuple[FloatArray, FloatArray, FloatArray] | None = None
     if n_c:
         assert hu is not None
@@ -151,7 +154,7 @@ def _linearised(
         for node, d in enumerate(nodes):
             frac = (2.0 * j + node) / (2.0 * grid.m)
             for c, ui in enumerate(active):
-                base = 1 + 2 * n_x + 2 * n_p + 4 * c
+                base = 1 + 2 * n_s + 2 * n_p + 4 * c
                 for end, w in enumerate((1.0 - frac, frac)):
                     d[ui, :, base + 2 * end] = w * hu[ui]
                     d[ui, :, base + 2 * end + 1] = -w * hu[ui]
@@ -163,13 +166,16 @@ def _linearised(
     out = _steps(f, grid, ks, X.reshape(n_x, K * cols), P, cols, du).reshape(n_x, K, cols)
     out = np.transpose(out, (1, 0, 2))  # (K, n_x, cols)
     diff = out[:, :, 1::2] - out[:, :, 2::2]
-    A = diff[:, :, :n_x] / (2.0 * hx)[None, None, :]
-    B = diff[:, :, n_x : n_x + n_p] / (2.0 * hp)[None, None, :]
+    # a state the dynamics do not read moves only itself: its column of A is exact
+    A = np.zeros((K, n_x, n_x))
+    A[:, np.arange(n_x), np.arange(n_x)] = 1.0
+    A[:, :, xs] = diff[:, :, :n_s] / (2.0 * hx[xs])[None, None, :]
+    B = diff[:, :, n_s : n_s + n_p] / (2.0 * hp)[None, None, :]
     C = np.zeros((K, n_x, 0))
     if n_c:
         assert hu is not None
         steps_c = np.repeat(hu[active], 2)  # (first, last) per control
-        C = diff[:, :, n_x + n_p :] / (2.0 * steps_c)[None, None, :]
+        C = diff[:, :, n_s + n_p :] / (2.0 * steps_c)[None, None, :]
         # columns: every control at the first sample, then every control at the last
         C = np.concatenate([C[:, :, 0::2], C[:, :, 1::2]], axis=2)
     return out[:, :, 0], A, B, C
@@ -266,32 +272,35 @@ def _newton(
 
 def _read_by_dynamics(
     f: BatchFunction, grid: _Grid, G: FloatArray, p: Mapping[str, float], names: Sequence[str]
-) -> list[bool]:
-    """Which of `names` the dynamics read: a change of each moves some derivative at
-    points scattered about the trajectory (states and controls jittered, so that a
-    parameter multiplying a state or control that happens to be zero still shows)."""
-    if not names:
-        return []
+) -> tuple[list[bool], list[bool]]:
+    """Which of `names`, and which states, the dynamics read: a change of each moves
+    some derivative at points scattered about the trajectory (states and controls
+    jittered, so that a factor that happens to be zero on the record still shows)."""
     rng = np.random.default_rng(0)
     ks = np.linspace(0, grid.n - 1, min(grid.n, 8)).astype(np.int64)
     K = ks.size
     n_x = G.shape[1]
-    cols = 1 + len(names)
-    x = G[ks].T * (1.0 + 0.1 * rng.standard_normal((n_x, K))) + 0.01 * rng.standard_normal((n_x, K))
+    n_p = len(names)
+    cols = 1 + n_p + n_x
+    x = G[ks].T * (1.0 + 0.1 * rng.standard_normal((n_x, K)))
+    x = x + 0.01 * rng.standard_normal((n_x, K))
     u = grid.u1[:, ks] * (1.0 + 0.1 * rng.standard_normal(grid.u1[:, ks].shape))
     u = u + 0.01 * rng.standard_normal(u.shape)
     P = {k: np.full((K, cols), v) for k, v in p.items()}
     for c, name in enumerate(names):
         P[name][:, 1 + c] += 0.1 * max(abs(p[name]), 1.0)
+    X = np.repeat(x[:, :, None], cols, axis=2)
+    for i in range(n_x):
+        X[i, :, 1 + n_p + i] += 0.1 * np.maximum(np.abs(x[i]), 1.0)
     with np.errstate(all="ignore"):
         out = f.at_times(
             np.repeat(grid.t1[ks], cols),
-            np.repeat(x, cols, axis=1),
+            X.reshape(n_x, K * cols),
             np.repeat(u, cols, axis=1),
             {k: v.reshape(-1) for k, v in P.items()},
         ).reshape(n_x, K, cols)
     same = np.all((out[:, :, 1:] == out[:, :, :1]), axis=(0, 1))
-    return [not bool(v) for v in same]
+    return [not bool(v) for v in same[:n_p]], [not bool(v) for v in same[n_p:]]
 
 
 def _columns(p: Mapping[str, float], n: int) -> dict[str, FloatArray]:
@@ -398,7 +407,9 @@ def _linearise(
         G = start
     G[0] = x0
     scale = _scale(G)
-    read = np.flatnonzero(_read_by_dynamics(f, grid, G, p, names))
+    read_p, read_x = _read_by_dynamics(f, grid, G, p, names)
+    read = np.flatnonzero(read_p)
+    hx = _REL * scale * np.asarray(read_x, dtype=np.float64)
     got = _newton(
         f,
         grid,
@@ -406,7 +417,7 @@ def _linearise(
         grid.n,
         G,
         p,
-        _REL * scale,
+        hx,
         scale,
         [names[j] for j in read],
         hp[read],
