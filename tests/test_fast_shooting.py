@@ -233,3 +233,17 @@ def test_auto_substeps_are_those_of_the_compiled_path() -> None:
     m = auto_substeps(model._dynamics_batch, t, X0[:, None].copy(), u[None], p1)
     assert _compiled.rk4_substeps(model, t, u, X0, TRUTH, {}) == m
     assert _compiled.rk4_substeps(model, t, u, X0, TRUTH, {"substeps": 5}) == 5
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000])
+@pytest.mark.parametrize("phi", [0.0, 0.6, -0.9, 0.995])
+def test_blocked_ar1_recursion_is_the_plain_loop(n: int, phi: float) -> None:
+    from aeroid._output_error import _ar1_recursion
+
+    r = np.random.default_rng(n).standard_normal((n, 3))
+    ref = np.empty_like(r)
+    y = np.zeros(3)
+    for t in range(n):
+        y = r[t] + phi * y
+        ref[t] = y
+    np.testing.assert_allclose(_ar1_recursion(r, phi), ref, rtol=1e-12, atol=1e-12)
