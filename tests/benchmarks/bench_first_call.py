@@ -26,6 +26,9 @@ warm calls after it, next to issue 47's targets. The cases:
 * ``otter``: a Twin Otter-like nonlinear longitudinal user model with 12
   measured inputs (7 parameters, 3 outputs, 40 s at 20 Hz, seeded); target
   first <= 0.5 s;
+* ``lat61``: SIDPAC Text Example 6.1's lateral record fitted with
+  `aircraft.lateral` (16 coefficients, 5 outputs, 1001 samples); needs
+  ``AEROID_SIDPAC_DIR``; target first <= 0.7 s;
 * ``compat``: `check_compatibility` on 60 s at 50 Hz with 12 sensor parameters
   (`bench_compatibility`'s case); target first <= 0.7 s.
 
@@ -44,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-TARGETS = {"hfb": 0.7, "otter": 0.5, "compat": 0.7}
+TARGETS = {"hfb": 0.7, "otter": 0.5, "compat": 0.7, "lat61": 0.7}
 
 _CHILD = r"""
 import json, sys, time
@@ -62,6 +65,14 @@ if case == "hfb":
     data = b.make_data(model)
     def call():
         return aeroid.identify(model, data, b.GUESS, estimate_bias=list(b.BIAS))
+elif case == "lat61":
+    import warnings
+    warnings.simplefilter("ignore")
+    import bench_first_call as b
+    model, data, guess = b.example_6p1_case()
+    x0 = dict.fromkeys(model.states, 0.0)
+    def call():
+        return aeroid.identify(model, data, guess, x0=x0)
 elif case == "compat":
     import warnings
     warnings.simplefilter("ignore")
@@ -199,6 +210,57 @@ def otter_case(seed: int = 3):  # type: ignore[no-untyped-def]
     return model, data, guess
 
 
+def example_6p1_case():  # type: ignore[no-untyped-def]
+    """SIDPAC Text Example 6.1's lateral record with `aircraft.lateral` (SI units, the
+    constants from SIDPAC's record), its CY, Cl, Cn derivatives and constant terms
+    estimated from SIDPAC's start values; needs ``AEROID_SIDPAC_DIR``."""
+    import scipy.io
+
+    from aeroid import FlightData, aircraft
+
+    path = Path(os.environ["AEROID_SIDPAC_DIR"]) / "Text_Examples" / "example_6p1_results.mat"
+    d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
+    c = d["c"]
+    ft, slug, slug_ft3 = 0.3048, 14.593903, 515.378818
+    ci = np.asarray(c.ci, dtype=float)  # the inverse of [[Ixx, -Ixz], [-Ixz, Izz]]
+    inertia = np.linalg.inv(np.array([[ci[2], ci[3]], [ci[3], ci[8]]])) * slug * ft**2
+    constants = aircraft.AircraftConstants(
+        mass=float(c.mass) * slug,
+        Ixx=float(inertia[0, 0]),
+        Iyy=0.6 * float(inertia[0, 0] + inertia[1, 1]),  # not used by the lateral model
+        Izz=float(inertia[1, 1]),
+        Ixz=-float(inertia[0, 1]),
+        S=float(d["sarea"]) * ft**2,
+        b=float(d["bspan"]) * ft,
+        cbar=float(d["cbar"]) * ft,
+        rho=2.0 * float(c.qbar) / float(c.vo) ** 2 * slug_ft3,
+    )
+    terms = {
+        "CY": ["0", "beta", "r", "delta_r"],
+        "Cl": ["0", "beta", "p", "r", "delta_a", "delta_r"],
+        "Cn": ["0", "beta", "p", "r", "delta_a", "delta_r"],
+    }
+    outputs = ["beta", "p", "r", "phi", "ay"]
+    model = aircraft.lateral(
+        constants,
+        V0=float(c.vo) * ft,
+        alpha0=float(np.arcsin(c.sa)),
+        theta0=float(np.arctan(c.tt)),
+        terms=terms,
+        outputs=outputs,
+        accel_units="g",
+    )
+    p0 = np.asarray(d["p0"], dtype=float)
+    known = ["CY_beta", "CY_r", "CY_delta_r", None, "Cl_beta", "Cl_p", "Cl_r", "Cl_delta_a"]
+    known += ["Cl_delta_r", None, "Cn_beta", "Cn_p", "Cn_r", "Cn_delta_a", "Cn_delta_r"]
+    guess = {n: 0.0 for n in model.parameters if n.startswith(("CY", "Cl", "Cn"))}
+    guess.update({n: float(v) for n, v in zip(known, p0, strict=False) if n is not None})
+    z, u = np.asarray(d["z"], dtype=float), np.asarray(d["u"], dtype=float)
+    channels = {n: z[:, j] for j, n in enumerate(outputs)}
+    channels.update(delta_a=u[:, 0], delta_r=u[:, 1])
+    return model, FlightData(time=np.asarray(d["t"], dtype=float), channels=channels), guess
+
+
 def _run(case: str, cache: str, numpy_only: bool, repeat: int) -> dict[str, object]:
     here = str(Path(__file__).resolve().parent)
     tests = str(Path(__file__).resolve().parents[1])
@@ -217,6 +279,9 @@ def main() -> None:
     args = parser.parse_args()
     print(f"load: {os.getloadavg()}")
     for case in args.cases:
+        if case == "lat61" and not os.environ.get("AEROID_SIDPAC_DIR"):
+            print("lat61: skipped (AEROID_SIDPAC_DIR unset)")
+            continue
         with tempfile.TemporaryDirectory() as cache:
             rows = {
                 "cold": _run(case, cache, False, args.repeat),
