@@ -274,18 +274,25 @@ def _read_by_dynamics(
     f: BatchFunction, grid: _Grid, G: FloatArray, p: Mapping[str, float], names: Sequence[str]
 ) -> tuple[list[bool], list[bool]]:
     """Which of `names`, and which states, the dynamics read: a change of each moves
-    some derivative at points scattered about the trajectory (states and controls
-    jittered, so that a factor that happens to be zero on the record still shows)."""
+    some derivative at the start of some step of the trajectory G, or at points
+    scattered about it (states and controls jittered, so that a factor that happens
+    to be zero on the record still shows). A parameter read only in a branch the
+    trajectory does not visit has no effect on this rollout: its columns are zero."""
     rng = np.random.default_rng(0)
-    ks = np.linspace(0, grid.n - 1, min(grid.n, 8)).astype(np.int64)
-    K = ks.size
+    few = np.linspace(0, grid.n - 1, min(grid.n, 8)).astype(np.int64)
     n_x = G.shape[1]
     n_p = len(names)
     cols = 1 + n_p + n_x
-    x = G[ks].T * (1.0 + 0.1 * rng.standard_normal((n_x, K)))
-    x = x + 0.01 * rng.standard_normal((n_x, K))
-    u = grid.u1[:, ks] * (1.0 + 0.1 * rng.standard_normal(grid.u1[:, ks].shape))
+    x = G[few].T * (1.0 + 0.1 * rng.standard_normal((n_x, few.size)))
+    x = x + 0.01 * rng.standard_normal((n_x, few.size))
+    u = grid.u1[:, few] * (1.0 + 0.1 * rng.standard_normal(grid.u1[:, few].shape))
     u = u + 0.01 * rng.standard_normal(u.shape)
+    # and every step's start on the trajectory itself: a parameter read only in a
+    # branch the trajectory visits shows there
+    ks = np.concatenate([few, np.arange(grid.n)])
+    x = np.concatenate([x, G[:-1].T], axis=1)
+    u = np.concatenate([u, grid.u1], axis=1)
+    K = ks.size
     P = {k: np.full((K, cols), v) for k, v in p.items()}
     for c, name in enumerate(names):
         P[name][:, 1 + c] += 0.1 * max(abs(p[name]), 1.0)

@@ -247,3 +247,29 @@ def test_blocked_ar1_recursion_is_the_plain_loop(n: int, phi: float) -> None:
         y = r[t] + phi * y
         ref[t] = y
     np.testing.assert_allclose(_ar1_recursion(r, phi), ref, rtol=1e-12, atol=1e-12)
+
+
+def test_a_parameter_read_in_a_branch_keeps_its_column() -> None:
+    # "stall" acts only while x > 0.5, early in the record: the jittered probe points
+    # alone could miss it; the trajectory's own steps do not
+    def stalling(t: Any, x: Any, u: Any, p: Any) -> Any:
+        extra = np.where(x[0] > 0.5, p["stall"] * (x[0] - 0.5) ** 2, 0.0)
+        return np.array([-p["k"] * x[0] + extra + u[0]])
+
+    model = aeroid.Model(["x"], ["u"], {"k": 0.8, "stall": -0.6}, stalling, name="shoot_branch")
+    t = np.arange(201) * 0.05
+    u = 0.05 * np.sin(t)[:, None]
+    params = {"k": 0.8, "stall": -0.6}
+    got = _shooting.output_sensitivities(
+        model, t, u, np.array([1.0]), params, ["k", "stall"], [], 2, np.array([1e-6, 1e-6])
+    )
+    assert got is not None
+    for c, name in enumerate(["k", "stall"]):
+        ys = []
+        for sign in (1.0, -1.0):
+            p = dict(params)
+            p[name] += sign * 1e-5
+            ys.append(model.simulate_batch(t, u, [1.0], p, method="rk4", substeps=2).outputs[0])
+        fd = (ys[0] - ys[1]) / 2e-5
+        assert np.max(np.abs(fd)) > 1e-3
+        assert np.max(np.abs(got[1][:, :, c] - fd)) < 1e-6 * np.max(np.abs(fd)), name
