@@ -49,10 +49,20 @@ _CLOSE = 1e-6
 # Substeps in the first window when a trajectory is built from its start.
 _FIRST_WINDOW = 32
 
-# A fit's last trajectory: (model ref, time, controls, substeps, names, x0_free,
-# theta, states (N + 1, n_x), state sensitivities (N + 1, n_x, cols), the steps'
-# state Jacobians (N, n_x, n_x), the values of the parameters the dynamics read).
-_LAST: list[Any] = []
+# The last trajectories, newest first, one per record (a fit of several manoeuvres
+# alternates): (model ref, time, controls, substeps, names, x0_free, theta, states
+# (N + 1, n_x), state sensitivities (N + 1, n_x, cols), the steps' state Jacobians
+# (N, n_x, n_x), the values of the parameters the dynamics read).
+_RECENT: list[list[Any]] = []
+_KEEP = 4
+
+
+def _same_record(last: list[Any], model: Any, time: FloatArray, controls: FloatArray) -> bool:
+    if last[0]() is not model:
+        return False
+    if last[1] is not time and not np.array_equal(last[1], time):
+        return False
+    return last[2] is controls or bool(np.array_equal(last[2], controls))
 
 
 class _Grid:
@@ -444,7 +454,9 @@ def _linearise(
     S = np.concatenate([S0[None], linear_recursion(A, S0, F)])
     # the parameters the dynamics read: others may differ in `last_states`
     seen = {k: v for k, v in p.items() if k not in names or names.index(k) in read}
-    _LAST[:] = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S, A, seen]
+    entry = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S, A, seen]
+    _RECENT[:] = [entry] + [e for e in _RECENT if not _same_record(e, model, time, controls)]
+    del _RECENT[_KEEP:]
     xs = G[::m]
     got_y = _measurement(model, time, controls, xs, p, _REL * scale, names, hp, hu)
     if got_y is None:
@@ -546,14 +558,11 @@ def _guess(
 ) -> tuple[FloatArray, FloatArray] | None:
     """The last trajectory moved to first order to the new point, when it was of the
     same record and columns, and its steps' state Jacobians."""
-    last = _LAST
-    if not last or last[0]() is not model or last[3] != m:
+    found = [e for e in _RECENT if _same_record(e, model, time, controls)]
+    if not found:
         return None
-    if last[4] != names or last[5] != x0_free:
-        return None
-    if last[1] is not time and not np.array_equal(last[1], time):
-        return None
-    if last[2] is not controls and not np.array_equal(last[2], controls):
+    last = found[0]
+    if last[3] != m or last[4] != names or last[5] != x0_free:
         return None
     G: FloatArray = last[7] + np.matmul(last[8], theta - last[6])
     G[0] = x0
@@ -631,16 +640,15 @@ def last_states(
     simulation asks for the same one: the same record, substeps, initial state and
     values of the parameters the dynamics read (a fit's result simulated at its
     estimate, its sensors' errors perhaps zeroed). x0 (n_x, 1), u (1, n_t, n_u)."""
-    last = _LAST
-    if not last or last[0]() is not model or last[3] != int(substeps) or x0.shape[1] != 1:
+    if x0.shape[1] != 1:
         return None
+    found = [e for e in _RECENT if _same_record(e, model, time, u[0])]
+    if not found or found[0][3] != int(substeps):
+        return None
+    last = found[0]
     G: FloatArray = last[7]
     m = last[3]
     if not np.array_equal(G[0], x0[:, 0]):
-        return None
-    if last[1] is not time and not np.array_equal(last[1], time):
-        return None
-    if not np.array_equal(last[2], u[0]):
         return None
     known: Mapping[str, float] = last[10]
     if not set(known) <= set(p) or any(float(p[k][0]) != v for k, v in known.items()):
