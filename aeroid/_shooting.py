@@ -291,33 +291,50 @@ def _read_by_dynamics(
     rng = np.random.default_rng(0)
     few = np.linspace(0, grid.n - 1, min(grid.n, 8)).astype(np.int64)
     n_x = G.shape[1]
-    n_p = len(names)
-    cols = 1 + n_p + n_x
     x = G[few].T * (1.0 + 0.1 * rng.standard_normal((n_x, few.size)))
     x = x + 0.01 * rng.standard_normal((n_x, few.size))
     u = grid.u1[:, few] * (1.0 + 0.1 * rng.standard_normal(grid.u1[:, few].shape))
     u = u + 0.01 * rng.standard_normal(u.shape)
-    # and every step's start on the trajectory itself: a parameter read only in a
-    # branch the trajectory visits shows there
-    ks = np.concatenate([few, np.arange(grid.n)])
-    x = np.concatenate([x, G[:-1].T], axis=1)
-    u = np.concatenate([u, grid.u1], axis=1)
-    K = ks.size
-    P = {k: np.full((K, cols), v) for k, v in p.items()}
+    moved = _moves(f, grid.t1[few], x, u, p, names, True)
+    read_p, read_x = moved[: len(names)], moved[len(names) :]
+    # the others again at every step's start on the trajectory itself: a parameter
+    # read only in a branch the trajectory visits shows there
+    rest = [n for n, r in zip(names, read_p, strict=True) if not r]
+    if rest:
+        again = dict(zip(rest, _moves(f, grid.t1, G[:-1].T, grid.u1, p, rest, False), strict=True))
+        read_p = [r or again[n] for n, r in zip(names, read_p, strict=True)]
+    return read_p, read_x
+
+
+def _moves(
+    f: BatchFunction,
+    t: FloatArray,
+    x: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, float],
+    names: Sequence[str],
+    states: bool,
+) -> list[bool]:
+    """Whether a change of each of `names` (then, with `states`, of each state) moves
+    some derivative at the points (t, x, u)."""
+    n_x, K = x.shape
+    n_p = len(names)
+    cols = 1 + n_p + (n_x if states else 0)
+    P = _columns(p, K * cols)
     for c, name in enumerate(names):
-        P[name][:, 1 + c] += 0.1 * max(abs(p[name]), 1.0)
+        v = np.full((K, cols), p[name])
+        v[:, 1 + c] += 0.1 * max(abs(p[name]), 1.0)
+        P[name] = v.reshape(-1)
     X = np.repeat(x[:, :, None], cols, axis=2)
-    for i in range(n_x):
-        X[i, :, 1 + n_p + i] += 0.1 * np.maximum(np.abs(x[i]), 1.0)
+    if states:
+        for i in range(n_x):
+            X[i, :, 1 + n_p + i] += 0.1 * np.maximum(np.abs(x[i]), 1.0)
     with np.errstate(all="ignore"):
         out = f.at_times(
-            np.repeat(grid.t1[ks], cols),
-            X.reshape(n_x, K * cols),
-            np.repeat(u, cols, axis=1),
-            {k: v.reshape(-1) for k, v in P.items()},
+            np.repeat(t, cols), X.reshape(n_x, K * cols), np.repeat(u, cols, axis=1), P
         ).reshape(n_x, K, cols)
     same = np.all((out[:, :, 1:] == out[:, :, :1]), axis=(0, 1))
-    return [not bool(v) for v in same[:n_p]], [not bool(v) for v in same[n_p:]]
+    return [not bool(v) for v in same]
 
 
 def _columns(p: Mapping[str, float], n: int) -> dict[str, FloatArray]:
