@@ -199,11 +199,11 @@ class _Problem:
             # the model compiles and integrates by RK4 (decided at the first call).
             route = getattr(self, "_compiled_route", None)
             sens = None
+            p = dict(self.fixed)
+            p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
             if steps is not None and self.gradient == "auto" and route in (None, True):
                 from . import _compiled
 
-                p = dict(self.fixed)
-                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
                 sens = _compiled.output_sensitivities(
                     self.model,
                     m.time,
@@ -224,8 +224,6 @@ class _Problem:
             if steps is not None and route == "numpy":
                 from . import _compiled, _shooting
 
-                p = dict(self.fixed)
-                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
                 sens = _shooting.output_sensitivities(
                     self.model,
                     m.time,
@@ -269,8 +267,6 @@ class _Problem:
             if steps is not None and self.gradient == "jax":
                 from . import _jax
 
-                p = dict(self.fixed)
-                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
                 y, jac_p = _jax.outputs_and_jacobian(
                     self.model,
                     m.time,
