@@ -55,6 +55,7 @@ _FIRST_WINDOW = 32
 # (N, n_x, n_x), the values of the parameters the dynamics read).
 _RECENT: list[list[Any]] = []
 _KEEP = 4
+_KEEP_BYTES = 64 * 2**20
 
 
 def _same_record(last: list[Any], model: Any, time: FloatArray, controls: FloatArray) -> bool:
@@ -474,6 +475,13 @@ def _linearise(
     entry = [weakref.ref(model), time, controls, m, names, x0_free, theta, G, S, A, seen]
     _RECENT[:] = [entry] + [e for e in _RECENT if not _same_record(e, model, time, controls)]
     del _RECENT[_KEEP:]
+    # older records only while they stay small (the newest serves the fit under way)
+    held = G.nbytes + S.nbytes + A.nbytes
+    for k in range(1, len(_RECENT)):
+        held += sum(_RECENT[k][j].nbytes for j in (7, 8, 9))
+        if held > _KEEP_BYTES:
+            del _RECENT[k:]
+            break
     xs = G[::m]
     got_y = _measurement(model, time, controls, xs, p, _REL * scale, names, hp, hu)
     if got_y is None:
