@@ -9,6 +9,11 @@ to 1e-12 relative); a function that cannot be traced (a Python ``if`` on a
 state, ``float(x[0])``, SciPy calls) or that disagrees keeps the numpy path,
 and that decision is remembered per model.
 
+A model's first fit in a process compiles nothing: `_shooting` solves its RK4
+rollouts and their sensitivities (and the data-compatibility input-noise
+scatter) in numpy by Newton's method over the whole record; the model's next
+fit compiles (`output_sensitivities`, `_sensitivities_pay`).
+
 What is compiled:
 
 * a batched (vmapped) fixed-step RK4 rollout that reproduces
@@ -61,9 +66,9 @@ ENABLED = True
 # integrator hook compiles it: a compilation costs about as much as this many calls.
 COMPILE_AFTER_CALLS = 20_000
 # The same for a fit's sensitivities, whose compilation (exact Jacobians of the RK4
-# steps) costs several times a rollout's: a model's first fit runs in numpy
-# (finite differences batched over the parameter columns) when its expected numpy
-# work stays below this.
+# steps) costs several times a rollout's: a model's first fit runs in numpy (finite
+# differences batched over the parameter columns, step by step) when its expected
+# numpy work stays below this (0: compile from the first fit on).
 SENSITIVITIES_AFTER_CALLS = 150_000
 # RK4 substeps of a record up to which a first fit runs in numpy by Newton's method over
 # the record (`_shooting`): its cost grows with the record, a compilation's does not.
@@ -914,9 +919,12 @@ def output_sensitivities(
     Outputs of a diverging simulation come back non-finite.
 
     With `numpy_first` (a fit's first evaluation), None also while compiling would
-    not pay yet: the model's first fit in this process, whose expected numpy work
-    stays below `SENSITIVITIES_AFTER_CALLS`. A one-off fit of a short record then
-    never waits for JAX's import and compiler; a model fitted again compiles.
+    not pay yet: the model's first fit in this process, whose expected step-by-step
+    numpy work stays below `SENSITIVITIES_AFTER_CALLS`, or whose record has at most
+    `SHOOTING_STEPS` RK4 substeps where the dynamics take an array of times (the fit
+    then runs `_shooting`'s Newton over the record; `declined` tells the caller). A
+    one-off fit then never waits for JAX's import and compiler; a model fitted again
+    compiles.
     """
     if not ENABLED or not isinstance(model, Model):
         return None
