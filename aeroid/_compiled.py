@@ -9,6 +9,11 @@ to 1e-12 relative); a function that cannot be traced (a Python ``if`` on a
 state, ``float(x[0])``, SciPy calls) or that disagrees keeps the numpy path,
 and that decision is remembered per model.
 
+A model's first fit in a process compiles nothing: `_shooting` solves its RK4
+rollouts and their sensitivities (and the data-compatibility input-noise
+scatter) in numpy by Newton's method over the whole record; the model's next
+fit compiles (`output_sensitivities`, `_sensitivities_pay`).
+
 What is compiled:
 
 * a batched (vmapped) fixed-step RK4 rollout that reproduces
@@ -61,10 +66,13 @@ ENABLED = True
 # integrator hook compiles it: a compilation costs about as much as this many calls.
 COMPILE_AFTER_CALLS = 20_000
 # The same for a fit's sensitivities, whose compilation (exact Jacobians of the RK4
-# steps) costs several times a rollout's: a model's first fit runs in numpy
-# (finite differences batched over the parameter columns) when its expected numpy
-# work stays below this.
+# steps) costs several times a rollout's: a model's first fit runs in numpy (finite
+# differences batched over the parameter columns, step by step) when its expected
+# numpy work stays below this (0: compile from the first fit on).
 SENSITIVITIES_AFTER_CALLS = 150_000
+# RK4 substeps of a record up to which a first fit runs in numpy by Newton's method over
+# the record (`_shooting`): its cost grows with the record, a compilation's does not.
+SHOOTING_STEPS = 50_000
 # Evaluations a fit is expected to spend (Gauss-Newton iterations and step halvings).
 _FIT_EVALUATIONS = 8
 _VERIFY_RTOL = 1e-12
@@ -864,6 +872,15 @@ def rk4_hook(
         # a probe only asks which path the integrator takes: no compilation for its
         # two-sample record
         return None  # decided: numpy only
+    if x0.shape[1] == 1 and not entry.get("compiled_once"):
+        from ._shooting import last_states
+
+        known = last_states(model, time, x0, u, p, substeps)
+        if known is not None:
+            # the rollout a fit's numpy sensitivities last solved for (the result's
+            # simulation at the estimate): the same RK4 steps, to rounding
+            ok, fail_time = _first_failure(known[None], time)
+            return RawTrajectory(known[None], ok, fail_time)
     if not worth_compiling(model, 4 * int(substeps) * (time.size - 1)):
         return None
     traj = rk4_states(model, time, x0, u, p, substeps)
@@ -902,9 +919,12 @@ def output_sensitivities(
     Outputs of a diverging simulation come back non-finite.
 
     With `numpy_first` (a fit's first evaluation), None also while compiling would
-    not pay yet: the model's first fit in this process, whose expected numpy work
-    stays below `SENSITIVITIES_AFTER_CALLS`. A one-off fit of a short record then
-    never waits for JAX's import and compiler; a model fitted again compiles.
+    not pay yet: the model's first fit in this process, whose expected step-by-step
+    numpy work stays below `SENSITIVITIES_AFTER_CALLS`, or whose record has at most
+    `SHOOTING_STEPS` RK4 substeps where the dynamics take an array of times (the fit
+    then runs `_shooting`'s Newton over the record; `declined` tells the caller). A
+    one-off fit then never waits for JAX's import and compiler; a model fitted again
+    compiles.
     """
     if not ENABLED or not isinstance(model, Model):
         return None
@@ -912,7 +932,6 @@ def output_sensitivities(
         return None
     pvec = _pmatrix(model, params, 1)[0]
     x0 = np.asarray(x0, dtype=np.float64)
-    substeps = options.get("substeps")
     # pvec carries the lifted constants after the parameters
     p1 = {k: np.array([v]) for k, v in zip(model.parameter_names, pvec, strict=False)}
     if probe:
@@ -928,21 +947,42 @@ def output_sensitivities(
             entry.pop("probing", None)
         if entry.pop("last_substeps", None) is None:
             return None
-    if substeps is not None:
-        m = int(substeps)
-    else:
-        from ._integrate import auto_substeps
-
-        m = auto_substeps(
-            model._dynamics_batch, time, x0[:, None].copy(), np.asarray(controls)[None], p1
-        )
+    m = rk4_substeps(model, time, controls, x0, params, options)
     if numpy_first and not _sensitivities_pay(model, m, time.size):
+        _entry(model)["declined"] = True
         return None
     if not available(model, time, x0, controls, pvec):
         return None
     got = _sensitivities(model, time, controls, x0, pvec, names, x0_free, m)
     _entry(model)["sensitivities_compiled"] = True
     return got[0], got[1]
+
+
+def rk4_substeps(
+    model: Model,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    params: Mapping[str, float],
+    options: Mapping[str, Any],
+) -> int:
+    """The RK4 substeps of one simulation: `options`' ``substeps``, else from the
+    stiffness of the dynamics at the start (`_integrate.auto_substeps`)."""
+    if options.get("substeps") is not None:
+        return int(options["substeps"])
+    from ._integrate import auto_substeps
+
+    p1 = {k: np.array([float(params.get(k, v))]) for k, v in model.parameters.items()}
+    x = np.asarray(x0, dtype=np.float64)[:, None].copy()
+    return auto_substeps(model._dynamics_batch, time, x, np.asarray(controls)[None], p1)
+
+
+def declined(model: Any) -> bool:
+    """Whether `output_sensitivities` just declined to compile `model`'s first fit
+    (asked with ``numpy_first``): the fit then runs in numpy."""
+    if not isinstance(model, Model):
+        return False
+    return bool(_entry(model).pop("declined", False))
 
 
 def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
@@ -957,7 +997,14 @@ def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
     spent = entry.get("sensitivity_numpy_calls", 0)
     # only the first fit: a model fitted twice is likely fitted again (warm calls as fast
     # as compiled ones from the second on)
-    if spent == 0 and work <= SENSITIVITIES_AFTER_CALLS:
+    f = model._dynamics_batch
+    # Newton over the record (`_shooting`) makes a few calls of each RK4 stage on every
+    # substep at once, for dynamics that take an array of times: far cheaper
+    shooting = f.broadcasts is not False and f.time_broadcasts is not False
+    steps = int(substeps) * max(n_t - 1, 1)
+    # (SENSITIVITIES_AFTER_CALLS = 0 compiles from the first fit on, Newton or not)
+    shooting = shooting and steps <= SHOOTING_STEPS and SENSITIVITIES_AFTER_CALLS > 0
+    if spent == 0 and (work <= SENSITIVITIES_AFTER_CALLS or shooting):
         entry["sensitivity_numpy_calls"] = spent + work
         return False
     return True
@@ -982,6 +1029,15 @@ def input_noise_scatter(
     None when the model does not compile."""
     if not ENABLED or not isinstance(model, Model) or time.size < 2:
         return None
+    if not _entry(model).get("sensitivities_compiled"):
+        # a model whose fit ran in numpy: the same adjoint in numpy, no compilation
+        from . import _shooting
+
+        got = _shooting.input_noise_scatter(
+            model, time, controls, x0, params, names, x0_free, substeps, inverse_variances, sigma
+        )
+        if got is not None:
+            return got
     pvec = _pmatrix(model, params, 1)[0]
     x0 = np.asarray(x0, dtype=np.float64)
     if not available(model, time, x0, controls, pvec):

@@ -101,7 +101,8 @@ class BatchFunction:
         # False once a call with one time per point (an array t) has failed or
         # disagreed with calls at one time each
         self.time_broadcasts: bool | None = None
-        self._times_checked: tuple[float, ...] = ()  # (n, times) of the last agreement
+        # (n, times) of recent agreements: RK4's stage times take turns (a few keys)
+        self._times_checked: set[tuple[float, ...]] = set()
         # time grids on which `lti_form` has checked every member at every sample
         self.lti_grids: dict[tuple[int, int], None] = {}
 
@@ -195,7 +196,7 @@ class BatchFunction:
             except Exception:  # an array t it cannot take: one time per call below
                 good = False
             key = (n, *(float(t[i]) for i in (n - 1, n // 2, n // 4, (3 * n) // 4)))
-            if good and key != self._times_checked:
+            if good and key not in self._times_checked:
                 for tk in sorted(set(key[1:])):
                     sel = np.flatnonzero(t == tk)
                     ref = self(tk, x[:, sel], u[:, sel], {a: v[sel] for a, v in p.items()})
@@ -203,7 +204,9 @@ class BatchFunction:
                         good = False
                         break
                 if good:
-                    self._times_checked = key
+                    if len(self._times_checked) >= 16:
+                        self._times_checked.clear()
+                    self._times_checked.add(key)
             if good:
                 return out
             self.time_broadcasts = False

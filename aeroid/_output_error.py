@@ -11,6 +11,7 @@ finite-difference columns.
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -199,11 +200,12 @@ class _Problem:
             # gradient="auto": the exact sensitivities of the compiled RK4 when
             # the model compiles and integrates by RK4 (decided at the first call).
             route = getattr(self, "_compiled_route", None)
-            if steps is not None and self.gradient == "auto" and route is not False:
+            sens = None
+            p = dict(self.fixed)
+            p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
+            if steps is not None and self.gradient == "auto" and route in (None, True):
                 from . import _compiled
 
-                p = dict(self.fixed)
-                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
                 sens = _compiled.output_sensitivities(
                     self.model,
                     m.time,
@@ -217,31 +219,56 @@ class _Problem:
                     numpy_first=route is None,
                 )
                 if sens is None:
+                    # a first fit that compiling would not pay for runs in numpy, with
+                    # the sensitivities of Newton's method over the record (`_shooting`)
+                    route = "numpy" if _compiled.declined(self.model) else False
+                    self._compiled_route = route
+            if steps is not None and route == "numpy":
+                from . import _compiled, _shooting
+
+                sens = _shooting.output_sensitivities(
+                    self.model,
+                    m.time,
+                    u_now,
+                    x0,
+                    p,
+                    lay.names,
+                    m.x0_free,
+                    _compiled.rk4_substeps(self.model, m.time, u_now, x0, p, self.options),
+                    steps[cols],
+                )
+                if sens is None and self.model._dynamics_batch.time_broadcasts is False:
+                    # dynamics that do not take an array of times: step by step from now
+                    # on (a point where Newton did not settle steps once, below)
                     self._compiled_route = False
-                elif np.all(np.isfinite(sens[0])) and np.all(np.isfinite(sens[1])):
-                    # (a diverging point falls through to the numpy path, which reports it)
-                    y_all, jac_all = sens
-                    y = y_all[:, self.out_idx]
+            if (
+                steps is not None
+                and sens is not None
+                and np.all(np.isfinite(sens[0]))
+                and np.all(np.isfinite(sens[1]))
+            ):
+                # (a diverging point falls through to the numpy path, which reports it)
+                y_all, jac_all = sens
+                y = y_all[:, self.out_idx]
+                if route is None:
                     self._compiled_route = True
-                    v = m.measured - y - bias
-                    picked = jac_all[:, self.out_idx, :]
-                    if len(cols) == lay.n_total:  # one manoeuvre, no delays or biases
-                        jac = np.negative(picked, out=picked)
-                    else:
-                        jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
-                        jac[:, :, cols] = -picked
-                    if not self._delay_columns(jac, theta, steps, i, x0):
-                        return [], None, False
-                    residuals.append(v)
-                    self._bias_columns(jac, i)
-                    assert jacobians is not None
-                    jacobians.append(jac)
-                    continue
+                v = m.measured - y - bias
+                picked = jac_all[:, self.out_idx, :]
+                if len(cols) == lay.n_total:  # one manoeuvre, no delays or biases
+                    jac = np.negative(picked, out=picked)
+                else:
+                    jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
+                    jac[:, :, cols] = -picked
+                if not self._delay_columns(jac, theta, steps, i, x0):
+                    return [], None, False
+                residuals.append(v)
+                self._bias_columns(jac, i)
+                assert jacobians is not None
+                jacobians.append(jac)
+                continue
             if steps is not None and self.gradient == "jax":
                 from . import _jax
 
-                p = dict(self.fixed)
-                p.update({n: float(theta[j]) for j, n in enumerate(lay.names)})
                 y, jac_p = _jax.outputs_and_jacobian(
                     self.model,
                     m.time,
@@ -749,13 +776,40 @@ def _recolour(w: FloatArray, phi: FloatArray) -> FloatArray:
 
     Backwards ``g(t) = w(t) + phi g(t + 1)``, then ``g(0) /= sqrt(1 - phi^2)``.
     """
-    from scipy.signal import lfilter
-
     g = np.empty_like(w)
     for k in range(w.shape[1]):
-        g[::-1, k, :] = lfilter([1.0], [1.0, -phi[k]], w[::-1, k, :], axis=0)
+        g[::-1, k, :] = _ar1_recursion(w[::-1, k, :], float(phi[k]))
         g[0, k, :] /= np.sqrt((1.0 - phi[k]) * (1.0 + phi[k]))
     return g
+
+
+def _ar1_recursion(r: FloatArray, phi: float) -> FloatArray:
+    """``y[t] = r[t] + phi y[t - 1]`` (y[-1] = 0) down the rows of r (N, c).
+
+    In blocks of L ~ sqrt(N) rows: each block from a zero start by one product
+    with the matrix of powers ``phi^(i - j)``, then the blocks' carries in a loop
+    of N / L steps (what `scipy.signal.lfilter` computes, without importing
+    SciPy's signal package: over half a second of a first fit).
+    """
+    n, c = r.shape
+    if n == 0:
+        return r.copy()
+    size = math.isqrt(n - 1) + 1
+    nb = -(-n // size)
+    padded = np.zeros((nb * size, c))
+    padded[:n] = r
+    blocks = padded.reshape(nb, size, c)
+    lag = np.arange(size)[:, None] - np.arange(size)[None, :]
+    with np.errstate(under="ignore"):
+        powers = np.where(lag >= 0, float(phi) ** np.maximum(lag, 0), 0.0)
+        local = np.matmul(powers, blocks)  # each block from a zero start
+        rise = float(phi) ** np.arange(1, size + 1)  # phi^(i + 1): a carry's weight
+    out = np.empty_like(local)
+    carry = np.zeros(c)
+    for b in range(nb):
+        out[b] = local[b] + rise[:, None] * carry[None, :]
+        carry = out[b, -1]
+    return np.asarray(out.reshape(nb * size, c)[:n], dtype=np.float64)
 
 
 def _cross_covariances(

@@ -1198,7 +1198,7 @@ def _free_states(choice: bool | Sequence[str], seen: list[str]) -> list[str]:
 
 def _first_values(t: FloatArray, measured: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
     """Each channel's start, smoothed (a held initial state should not carry one sample's noise)."""
-    from .smoothing import smooth
+    from .smoothing import _local_window
 
     out: dict[str, FloatArray] = {}
     steps = np.diff(t)
@@ -1206,9 +1206,13 @@ def _first_values(t: FloatArray, measured: Mapping[str, FloatArray]) -> dict[str
     for o, y in measured.items():
         first = float(y[0])
         if uniform:
+            # smooth(y, method="local")[0] (Savitzky-Golay of degree 3, its end value
+            # from the cubic through the first window) without importing scipy.signal
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                first = float(np.asarray(smooth(y, dt=float(np.mean(steps)), method="local"))[0])
+                w = _local_window(y, float(np.mean(steps)), 0, 3, o)
+                coef = np.polyfit(np.arange(w, dtype=np.float64), y[:w], 3)
+            first = float(coef[-1])
         out[o] = np.array([first])
     return out
 
