@@ -20,9 +20,6 @@ if TYPE_CHECKING:
     from .store import ResultStore
 
 
-_GARBLED_LEASE = 60.0  # a claim file being written, or cut short: held this long after its write
-
-
 def _claim_doc(token: str, lease: float) -> bytes:
     doc = {
         "pid": os.getpid(),
@@ -35,13 +32,15 @@ def _claim_doc(token: str, lease: float) -> bytes:
 
 
 def _claim_stale(raw: bytes, age: float) -> bool:
-    """True when the claim in `raw` no longer holds: its lease ran out, or its process
-    (on this host) is gone."""
+    """True when the claim in `raw` no longer holds: its lease ran out, its process (on
+    this host) is gone, or it is empty or garbled. A claim is written whole (a file
+    moved into place, one PUT), so an unreadable one was left by a crash or a failing
+    disk, never by a run still writing it: taken over at once."""
     try:
         doc = json.loads(raw)
         expires, host, pid = float(doc["expires"]), str(doc["host"]), int(doc["pid"])
     except (ValueError, KeyError, TypeError):
-        return age > _GARBLED_LEASE
+        return True
     if time.time() > expires:
         return True
     return host == _hostname() and pid != os.getpid() and not _pid_alive(pid)

@@ -264,6 +264,13 @@ class ResultStore:
         return self._backend.remove(_check_name(stage, "stage"), _check_name(key, "key"))
 
     # -- claims: runs sharing one store compute each key once ----------------------
+    @property
+    def claims_per_task(self) -> bool:
+        """Whether a run claims each task before computing it: True in a folder; False
+        in an object store, where a claim would cost more requests than the result's
+        own PUT (a put-if-absent commit still stores each key once)."""
+        return self._backend.claims_per_task
+
     def claim(self, stage: str, key: str, *, lease: float = 60.0) -> Claim | None:
         """Claim the computing of `key`, or None when another live run holds it.
 
