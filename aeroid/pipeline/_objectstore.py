@@ -68,9 +68,7 @@ def url_to_fs(url: str) -> tuple[Any, str]:
     return fs, str(base)
 
 
-_ENTRY_NAME = re.compile(
-    r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)|\.index/[0-9a-z_.-]+\.json"
-)
+_ENTRY_NAME = re.compile(r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)|\.index/[0-9a-z_.-]+\.json")
 
 
 def _only_entries(fs: Any, base: str) -> bool:

@@ -58,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import StoreError
-from . import codec
+from . import codec, verified
 from .keys import array_digest, sha256_hex
 
 __all__ = [
@@ -482,33 +482,53 @@ class ResultStore:
 
     def verify(self, key: str, stage: str | None = None) -> str | None:
         """None when the entry is intact, else what is wrong with it."""
+        return self._verify(key, stage)[0]
+
+    def _verify(self, key: str, stage: str | None) -> tuple[str | None, tuple[str, ...]]:
+        """What is wrong with the entry (None: intact), and the warnings stored with it."""
         try:
             entry = self._entry(key, stage)
             meta, arrays = self._read_verified(entry)
         except StoreError as exc:
-            return str(exc)
+            return str(exc), ()
         try:
             codec.decode(meta["record"], arrays)
         except codec.UnknownRecordType:
             pass  # intact bytes of a type defined by a pipeline not imported here
         except StoreError as exc:
-            return str(exc)
+            return str(exc), ()
         except MemoryError as exc:
-            return f"entry {key[:12]} ({entry.stage}) in {self.root} is corrupt: {exc!r}"
-        return None
+            return f"entry {key[:12]} ({entry.stage}) in {self.root} is corrupt: {exc!r}", ()
+        found = (meta.get("provenance") or {}).get("warnings") or ()
+        return None, tuple(str(w) for w in found) if isinstance(found, list) else ()
 
     def verify_all(self) -> dict[str, str]:
         """Problems by key for every entry that fails its checks.
 
+        The entries found intact become the store's index of entries checked
+        whole (`verified`), which later runs trust instead of reading them.
         A link planted as a stage folder raises `StoreError` naming it: the
         store neither reads nor removes anything through it.
         """
-        bad = {}
+        old = [name for name, _ in self._backend.index_files()]
+        bad: dict[str, str] = {}
+        sound: dict[tuple[str, str], tuple[str, ...]] = {}
         for entry in self.entries():
-            problem = self.verify(entry.key, entry.stage)
+            problem, found = self._verify(entry.key, entry.stage)
             if problem is not None:
                 bad[entry.key] = f"{entry.stage}: {problem}"
+            else:
+                sound[(entry.stage, entry.key)] = found
+        listed = self.signatures({stage for stage, _ in sound})
+        index = {i: (listed[i], w) for i, w in sound.items() if i in listed}
+        with contextlib.suppress(OSError, StoreError):  # a read-only store: no index
+            verified.replace(self, index, old)
         return bad
+
+    def signatures(self, stages: Iterable[str]) -> dict[tuple[str, str], tuple[int, str]]:
+        """(stage, key) -> signature (size, time or ETag) of every entry of `stages`, as
+        the store's listing shows it: one listing per stage, no entry opened."""
+        return self._backend.signatures({_check_name(s, "stage") for s in stages})
 
     # -- housekeeping ----------------------------------------------------------
     def temporaries(self) -> list[Path | str]:
