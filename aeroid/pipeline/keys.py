@@ -182,7 +182,7 @@ def keyed_text(
     record_type: str,
     stage: str,
     stage_version: str,
-    options: Mapping[str, Any],
+    options: Mapping[str, Any] | Canonical,
     upstream: Mapping[str, str],
     model: Mapping[str, Any] | None,
     seed: Any,
@@ -212,7 +212,13 @@ def keyed_text(
     }
     pieces = []
     for name, value in fields.items():  # already in sorted order
-        shared = memo is not None and name in ("model", "options") and value is not None
+        # what every flight of a step shares (a flight's own options come made)
+        shared = (
+            memo is not None
+            and name in ("model", "options")
+            and value is not None
+            and type(value) is not Canonical
+        )
         hit = memo.get(id(value)) if shared and memo is not None else None
         if hit is not None:
             text = hit[1]
@@ -232,9 +238,16 @@ def keyed_text(
     return sha256_hex(canonical), canonical
 
 
+class Canonical(bytes):
+    """A value's canonical JSON text, made already: `keyed_text` takes it as it is (a
+    plan writes each flight's load options from pieces it serialised once)."""
+
+
 def _flat_text(value: Any) -> bytes | None:
     """Canonical text of a string, or of a mapping of strings to strings (a task's
     upstream keys), written as `json.dumps` writes them; None for anything else."""
+    if type(value) is Canonical:
+        return bytes(value)
     if type(value) is str:
         return _json_string(value).encode("utf-8")
     if type(value) is not dict or not all(
