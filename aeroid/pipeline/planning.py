@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import functools
+import gc
 import json
 import re
 import warnings
@@ -285,6 +286,24 @@ def plan(
     ``module:attribute`` models and metrics import and run code: refused with a
     `ConfigError` unless `allow_imports` or the config's ``allow_imports: true``.
     """
+    # a plan makes a few objects a task and no reference cycles: the cyclic collector,
+    # which walks every live object each time it runs, made planning superlinear
+    # (6.1 s for 100,000 flights with it, 3.3 s without)
+    paused = gc.isenabled()
+    gc.disable()
+    try:
+        return _plan(config, pipeline=pipeline, allow_imports=allow_imports)
+    finally:
+        if paused:
+            gc.enable()
+
+
+def _plan(
+    config: CampaignConfig | str | Path,
+    *,
+    pipeline: Pipeline | None,
+    allow_imports: bool,
+) -> Plan:
     if not isinstance(config, CampaignConfig):
         config = load_config(config)
     allowed = allow_imports or config.allow_imports

@@ -19,7 +19,7 @@ processes, the default environment:
 Targets (issue 49): ``status`` <= 3 s at 100,000 flights; planning, status
 and rerun linear in flights. Usage:
 ``python tests/benchmarks/bench_campaign_scale.py [--sizes 1000 10000 100000] [--repeats 3]``
-(``--no-run`` measures planning only).
+(``--no-run``: planning, and ``status`` before any run, only).
 """
 
 from __future__ import annotations
@@ -165,6 +165,8 @@ def main() -> None:
             plans = [_plan_seconds(cfg) for _ in range(args.repeats)]
             print(f"{n} flights: plan {statistics.median(plans):.2f} s", flush=True)
             if args.no_run:
+                status = [_command(["status", str(cfg), "--json"], folder)[0] for _ in plans]
+                print(f"{n} flights: status (no store yet) {statistics.median(status):.2f} s")
                 continue
             before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             cold, out = _command(["run", str(cfg), "--quiet", "--json"], folder)
