@@ -9,6 +9,7 @@ so the same inputs give the same bytes on every machine and Python version.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -222,6 +223,10 @@ def keyed_text(
         hit = memo.get(id(value)) if shared and memo is not None else None
         if hit is not None:
             text = hit[1]
+        elif value is None:
+            text = b"null"
+        elif type(value) is str:
+            text = _string_text(value)
         else:
             flat = _flat_text(value)
             if flat is None:
@@ -236,6 +241,12 @@ def keyed_text(
         pieces.append(b'"' + name.encode() + b'":' + text)
     canonical = b"{" + b",".join(pieces) + b"}"
     return sha256_hex(canonical), canonical
+
+
+@functools.lru_cache(maxsize=256)
+def _string_text(value: str) -> bytes:
+    # a step's record type, stage name and version: the same strings for every flight
+    return _json_string(value).encode("utf-8")
 
 
 class Canonical(bytes):
