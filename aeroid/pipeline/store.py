@@ -6,6 +6,7 @@ Layout under the store root::
     <stage>/<key>.zarr.zip           one result: a zipped Zarr v3 group (arrays + JSON attributes)
     <stage>/<key>.claim              a run computing `key` now (see `ResultStore.claim`)
     .tmp/<key>.<host>.<pid>.<nonce>  results being written (removed by `gc` after a crash)
+    .index/<time>-<nonce>.json       entries checked whole, trusted by later runs (`verified`)
 
 Each entry is a Zarr v3 hierarchy in one uncompressed zip file, the form
 zarr-python opens with ``zarr.storage.ZipStore``: its root group holds the
