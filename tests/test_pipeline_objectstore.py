@@ -101,20 +101,20 @@ def test_a_commit_is_one_object_so_an_interrupted_one_leaves_nothing(monkeypatch
     fs, base = fsspec.core.url_to_fs(url)
     task = {"n": 7}
     key = sha256_hex(canonical_json(task))
-    put = store._backend._put  # type: ignore[attr-defined]
+    put = store._backend._put_new  # type: ignore[attr-defined]
     puts = []
     monkeypatch.setattr(
-        store._backend, "_put", lambda files: (puts.append(list(files)), put(files))
+        store._backend, "_put_new", lambda path, data: (puts.append(path), put(path, data))[1]
     )
     assert store.commit("identify", key, _ident(), task=task) is True
-    assert puts == [[f"{base}/identify/{key}.zarr.zip"]]  # the whole entry in one PUT
+    assert puts == [f"{base}/identify/{key}.zarr.zip"]  # the whole entry in one PUT
 
-    def killed(files):
+    def killed(path, data):
         raise KeyboardInterrupt  # the run is killed while its PUT is on the wire
 
     other = {"n": 8}
     other_key = sha256_hex(canonical_json(other))
-    monkeypatch.setattr(store._backend, "_put", killed)
+    monkeypatch.setattr(store._backend, "_put_new", killed)
     with pytest.raises(KeyboardInterrupt):
         store.commit("identify", other_key, _ident(), task=other)
     monkeypatch.undo()

@@ -107,15 +107,19 @@ def test_a_live_claim_holds_and_a_stale_one_is_taken_over(tmp_path):
     assert not (Path(store.root) / "x" / f"{key}.claim").exists()
 
 
-def test_a_claim_file_being_written_holds_for_a_minute(tmp_path):
+def test_an_empty_or_garbled_claim_is_taken_over_at_once(tmp_path):
+    # claims are written whole and moved into place: an empty one was left by a kill
     store = ResultStore(tmp_path / "s")
     key = _key(0)
     path = _plant(store, key)
-    path.write_bytes(b"")  # made, not yet written (or cut short by a crash)
-    assert store.claim("x", key) is None
-    old = time.time() - 61
-    os.utime(path, (old, old))
-    assert store.claim("x", key) is not None
+    for left in (b"", b'{"pid": 1, "ho'):
+        path.write_bytes(left)
+        taken = store.claim("x", key)
+        assert taken is not None and json.loads(path.read_text())["pid"] == os.getpid()
+        taken.release()
+        assert not path.exists()
+        path.write_bytes(b"")
+    assert store.temporaries() == []
 
 
 def test_renewing_extends_the_lease_and_a_lost_claim_says_so(tmp_path):

@@ -15,6 +15,7 @@ from typing import Any
 from ..errors import StoreError
 from ._backend import (
     _CHECKED,
+    _INDEX,
     _MARKER,
     _MARKER_DOC,
     _SUFFIX,
@@ -75,7 +76,7 @@ def url_to_fs(url: str) -> tuple[Any, str]:
     return fs, str(base)
 
 
-_ENTRY_NAME = re.compile(r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)")
+_ENTRY_NAME = re.compile(r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)|\.index/[0-9a-z_.-]+\.json")
 
 
 def _only_entries(fs: Any, base: str) -> bool:
@@ -101,7 +102,11 @@ class _ObjectBackend:
     same result and the second commit is refused.
     """
 
-    look_first = True  # a PUT overwrites: never write under a committed key
+    look_first = False  # the commit is a put-if-absent: it refuses a committed key itself
+    # a claim costs requests around every PUT (create, read back, delete): a run on an
+    # object store commits with put-if-absent instead, and two runs sharing the store
+    # at once may compute a task twice but store it once
+    claims_per_task = False
 
     def __init__(self, location: StoreLocation, *, create: bool, repair: bool = False) -> None:
         text = location.root
@@ -177,7 +182,25 @@ class _ObjectBackend:
         return out
 
     def publish(self, stage: str, key: str, data: bytes) -> bool:
-        self._put({self._object(stage, key + _SUFFIX): data})  # the commit
+        """The commit: one PUT that refuses an existing object (S3's ``If-None-Match``);
+        False when the key was committed already."""
+        return self._put_new(self._object(stage, key + _SUFFIX), data)
+
+    def _put_new(self, path: str, data: bytes) -> bool:
+        """Write one object unless it exists (False then), in one request where the
+        backend has put-if-absent."""
+        try:
+            self._fs.pipe_file(path, data, mode="create")
+        except FileExistsError:
+            return False
+        except FileNotFoundError:  # a filesystem with real folders: make them once
+            self._fs.makedirs(path.rsplit("/", 1)[0], exist_ok=True)
+            return self._put_new(path, data)
+        except (NotImplementedError, TypeError, ValueError):
+            # a backend without put-if-absent: a look, then a PUT
+            if self._fs.exists(path):
+                return False
+            self._put({path: data})
         return True
 
     def remove(self, stage: str, key: str) -> bool:
@@ -242,3 +265,42 @@ class _ObjectBackend:
     def delete(self, stage: str, name: str) -> None:
         with contextlib.suppress(FileNotFoundError):
             self._fs.rm_file(self._object(stage, name))
+
+    # -- the index of entries checked whole (`verified`) ---------------------------
+    def signatures(self, stages: set[str]) -> dict[tuple[str, str], tuple[int, str]]:
+        """(stage, key) -> (size, ETag or modification time) of every entry of
+        `stages`: one listing each (a request per thousand entries on S3)."""
+        out: dict[tuple[str, str], tuple[int, str]] = {}
+        for stage in stages:
+            try:
+                found = self._fs.find(f"{self._base}/{stage}", detail=True)
+            except FileNotFoundError:
+                continue
+            for path, info in found.items():
+                name = str(path).rpartition("/")[2]
+                key = name.removesuffix(_SUFFIX)
+                if len(key) == 64 and name.endswith(_SUFFIX):
+                    tag = next((info[k] for k in _TAGS if info.get(k) is not None), "")
+                    out[(stage, key)] = (int(info.get("size") or 0), str(tag))
+        return out
+
+    def index_files(self) -> list[tuple[str, bytes]]:
+        try:
+            names = sorted(self._fs.find(f"{self._base}/{_INDEX}"))
+        except FileNotFoundError:
+            return []
+        out = []
+        for path in names:
+            with contextlib.suppress(FileNotFoundError):
+                out.append((str(path).rpartition("/")[2], self._fs.cat_file(path)))
+        return out
+
+    def write_index(self, name: str, data: bytes) -> None:
+        self._put({f"{self._base}/{_INDEX}/{name}": data})
+
+    def remove_index(self, name: str) -> None:
+        self.delete(_INDEX, name)
+
+
+# what tells one object's bytes from another's write of the same name, per backend
+_TAGS = ("ETag", "etag", "md5Hash", "mtime", "LastModified", "last_modified", "created")

@@ -22,6 +22,7 @@ from typing import Any
 from ..errors import StoreError
 from ._backend import (
     _CHECKED,
+    _INDEX,
     _MARKER,
     _MARKER_DOC,
     _SUFFIX,
@@ -165,6 +166,7 @@ class _LocalBackend:
     """A store in a folder of a local or shared file system."""
 
     look_first = False  # the final rename refuses an existing entry: no look first
+    claims_per_task = True  # a claim is a file made and removed in a folder: cheap
 
     def __init__(
         self, location: StoreLocation, given: str, *, create: bool, repair: bool = False
@@ -450,24 +452,33 @@ class _LocalBackend:
 
     # -- claims -------------------------------------------------------------------
     def create(self, stage: str, name: str, data: bytes) -> bool:
+        """Put a small file (a claim) in place unless one exists: written whole under
+        ``.tmp`` and moved in, so no reader ever sees it empty or half-written."""
+        tmp = f"{name}.{_hostname()}.{os.getpid()}.{os.urandom(4).hex()}"
         try:
-            with self._folder_fd(stage, make=True) as folder:
+            with self._folder_fd(_TMP, make=True) as tmp_dir:
+                self._write_new(tmp_dir, tmp, data)
                 try:
-                    fd = os.open(
-                        name,
-                        os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC,
-                        0o644,
-                        dir_fd=folder,
-                    )
-                except FileExistsError:
-                    return False
-                try:
-                    os.write(fd, data)
+                    with self._folder_fd(stage, make=True) as folder:
+                        placed = _place(tmp_dir, tmp, folder, name)
                 finally:
-                    os.close(fd)
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(tmp, dir_fd=tmp_dir)
         except OSError as exc:
             raise _os_error("write", self._shown(stage, name), exc) from None
-        return True
+        return placed
+
+    @staticmethod
+    def _write_new(folder: int, name: str, data: bytes) -> None:
+        fd = os.open(
+            name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC, 0o644, dir_fd=folder
+        )
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+        finally:
+            os.close(fd)
 
     def read_small(self, stage: str, name: str) -> tuple[bytes, float] | None:
         try:
@@ -486,14 +497,17 @@ class _LocalBackend:
             os.close(fd)
 
     def overwrite(self, stage: str, name: str, data: bytes) -> None:
+        # a new file renamed over the old one: a reader sees the old claim or the new
+        tmp = f"{name}.{_hostname()}.{os.getpid()}.{os.urandom(4).hex()}"
         try:
-            with self._folder_fd(stage) as folder:
-                fd = os.open(name, os.O_WRONLY | _NOFOLLOW | _CLOEXEC, dir_fd=folder)
+            with self._folder_fd(_TMP, make=True) as tmp_dir, self._folder_fd(stage) as folder:
+                self._write_new(tmp_dir, tmp, data)
                 try:
-                    os.write(fd, data)
-                    os.ftruncate(fd, len(data))
-                finally:
-                    os.close(fd)
+                    os.rename(tmp, name, src_dir_fd=tmp_dir, dst_dir_fd=folder)
+                except BaseException:
+                    with contextlib.suppress(OSError):
+                        os.unlink(tmp, dir_fd=tmp_dir)
+                    raise
         except OSError as exc:
             raise _os_error("write", self._shown(stage, name), exc) from None
 
@@ -532,3 +546,51 @@ class _LocalBackend:
             pass
         except OSError as exc:
             raise _os_error("remove", self._shown(stage, name), exc) from None
+
+    # -- the index of entries checked whole (`verified`) ---------------------------
+    def signatures(self, stages: set[str]) -> dict[tuple[str, str], tuple[int, str]]:
+        """(stage, key) -> (size, mtime in ns) of every entry of `stages`, one folder
+        listing each; a link planted as an entry gets no signature (never trusted)."""
+        out: dict[tuple[str, str], tuple[int, str]] = {}
+        for stage in stages:
+            if not self._stage_present(stage):
+                continue
+            with self._folder_fd(stage) as fd, os.scandir(fd) as it:
+                for e in it:
+                    key = e.name.removesuffix(_SUFFIX)
+                    if len(key) != 64 or not e.name.endswith(_SUFFIX):
+                        continue
+                    info = e.stat(follow_symlinks=False)
+                    size = info.st_size if stat.S_ISREG(info.st_mode) else -1
+                    out[(stage, key)] = (size, str(info.st_mtime_ns))
+        return out
+
+    def index_files(self) -> list[tuple[str, bytes]]:
+        try:
+            fd = self._dir(_INDEX)
+        except FileNotFoundError:
+            return []
+        out = []
+        try:
+            for name in sorted(os.listdir(fd)):
+                with contextlib.suppress(OSError):
+                    f = os.open(name, os.O_RDONLY | _NOFOLLOW | _CLOEXEC, dir_fd=fd)
+                    with os.fdopen(f, "rb") as file:
+                        out.append((name, file.read()))
+        finally:
+            os.close(fd)
+        return out
+
+    def write_index(self, name: str, data: bytes) -> None:
+        tmp = f"{name}.{_hostname()}.{os.getpid()}.{os.urandom(4).hex()}"
+        try:
+            with self._folder_fd(_TMP, make=True) as tmp_dir:
+                self._write_new(tmp_dir, tmp, data)
+                with self._folder_fd(_INDEX, make=True) as folder:
+                    os.rename(tmp, name, src_dir_fd=tmp_dir, dst_dir_fd=folder)
+        except OSError as exc:
+            raise _os_error("write", self._shown(_INDEX, name), exc) from None
+
+    def remove_index(self, name: str) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self.delete(_INDEX, name)

@@ -20,9 +20,6 @@ if TYPE_CHECKING:
     from .store import ResultStore
 
 
-_GARBLED_LEASE = 60.0  # a claim file being written, or cut short: held this long after its write
-
-
 def _claim_doc(token: str, lease: float) -> bytes:
     doc = {
         "pid": os.getpid(),
@@ -35,13 +32,15 @@ def _claim_doc(token: str, lease: float) -> bytes:
 
 
 def _claim_stale(raw: bytes, age: float) -> bool:
-    """True when the claim in `raw` no longer holds: its lease ran out, or its process
-    (on this host) is gone."""
+    """True when the claim in `raw` no longer holds: its lease ran out, its process (on
+    this host) is gone, or it is empty or garbled. A claim is written whole (a file
+    moved into place, one PUT), so an unreadable one was left by a crash or a failing
+    disk, never by a run still writing it: taken over at once."""
     try:
         doc = json.loads(raw)
         expires, host, pid = float(doc["expires"]), str(doc["host"]), int(doc["pid"])
     except (ValueError, KeyError, TypeError):
-        return age > _GARBLED_LEASE
+        return True
     if time.time() > expires:
         return True
     return host == _hostname() and pid != os.getpid() and not _pid_alive(pid)
@@ -62,8 +61,6 @@ class Claim:
         self.store, self.stage, self.key = store, stage, key
         self.lease = lease
         self._token = token
-        self._stop: threading.Event | None = None
-        self._thread: threading.Thread | None = None
 
     def __repr__(self) -> str:
         return f"Claim({self.stage!r}, {self.key[:12]!r})"
@@ -89,27 +86,68 @@ class Claim:
 
     def release(self) -> None:
         """Give the claim up (after committing, or when the task failed)."""
-        if self._stop is not None:
-            self._stop.set()
-            if self._thread is not None and self._thread is not threading.current_thread():
-                self._thread.join()
-            self._stop = self._thread = None
+        _RENEWER.discard(self)
         if self._mine():
             self.store._backend.delete(self.stage, self.key + _CLAIM)
 
-    def _renewing(self, stop: threading.Event) -> None:
-        while not stop.wait(self.lease / 3):
-            try:
-                if not self.renew():
-                    return
-            except Exception:  # a renewal that fails leaves the lease to run out
-                return
-
     def __enter__(self) -> Claim:
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._renewing, args=(self._stop,), daemon=True)
-        self._thread.start()
+        _RENEWER.add(self)
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+class _Renewer:
+    """One thread per process renews every claim held as a context manager, each every
+    ``lease / 3`` seconds: a thread started and joined per task cost more than a
+    small task itself."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._held: dict[int, tuple[Claim, float]] = {}  # id -> (claim, next renewal)
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def add(self, claim: Claim) -> None:
+        with self._lock:
+            self._held[id(claim)] = (claim, time.monotonic() + claim.lease / 3)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._loop, daemon=True)
+                self._thread.start()
+        self._wake.set()
+
+    def discard(self, claim: Claim) -> None:
+        with self._lock:
+            self._held.pop(id(claim), None)
+
+    def forget(self) -> None:
+        """In a forked child: the parent's claims are the parent's to renew."""
+        self._lock = threading.Lock()
+        self._held, self._thread, self._wake = {}, None, threading.Event()
+
+    def _loop(self) -> None:
+        while True:
+            self._wake.clear()  # before looking: a claim added from here on wakes the wait
+            with self._lock:
+                now = time.monotonic()
+                due = [c for c, t in self._held.values() if t <= now]
+                later = [t for _, t in self._held.values() if t > now]
+            for claim in due:
+                try:
+                    kept = claim.renew()
+                except Exception:  # a renewal that fails leaves the lease to run out
+                    kept = False
+                with self._lock:
+                    if id(claim) in self._held:
+                        if kept:
+                            self._held[id(claim)] = (claim, now + claim.lease / 3)
+                        else:
+                            del self._held[id(claim)]
+            if not due:
+                self._wake.wait(min(later, default=now + 1.0) - now)
+
+
+_RENEWER = _Renewer()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_RENEWER.forget)

@@ -306,7 +306,9 @@ def execute_task(
 _WAIT_SECONDS = 60.0
 
 
-def _claimed(store: ResultStore, task: Task, scope: str | None) -> Claim | str:
+def _claimed(
+    store: ResultStore, task: Task, scope: str | None
+) -> Claim | contextlib.nullcontext[None] | str:
     """Claim `task` for this run, or say why there is nothing to compute.
 
     Runs sharing a store compute each key once: where another live run holds
@@ -316,6 +318,9 @@ def _claimed(store: ResultStore, task: Task, scope: str | None) -> Claim | str:
     or by this run (`scope`) before an executor ran the task again after its
     worker died (``"computed"``).
     """
+    if not store.claims_per_task:
+        # the runner pruned what was stored: no look before computing
+        return contextlib.nullcontext()
     while True:
         claim = store.claim(task.stage, task.key)
         if claim is None:
@@ -383,6 +388,9 @@ def _compute(
         out.update(status="computed", cached=True)
         if task.briefs:
             out["briefs"] = _briefs(task, store)
+    elif scope is not None and _run_of(store, task) == scope:
+        # committed by this run before its worker died and the executor ran it again
+        out.update(status="computed", cached=True)
     else:
         # committed by another run between our claim and commit (its claim went stale)
         out.update(status=BY_ANOTHER_RUN, cached=True)

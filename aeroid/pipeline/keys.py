@@ -9,6 +9,7 @@ so the same inputs give the same bytes on every machine and Python version.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -182,7 +183,7 @@ def keyed_text(
     record_type: str,
     stage: str,
     stage_version: str,
-    options: Mapping[str, Any],
+    options: Mapping[str, Any] | Canonical,
     upstream: Mapping[str, str],
     model: Mapping[str, Any] | None,
     seed: Any,
@@ -212,10 +213,20 @@ def keyed_text(
     }
     pieces = []
     for name, value in fields.items():  # already in sorted order
-        shared = memo is not None and name in ("model", "options") and value is not None
+        # what every flight of a step shares (a flight's own options come made)
+        shared = (
+            memo is not None
+            and name in ("model", "options")
+            and value is not None
+            and type(value) is not Canonical
+        )
         hit = memo.get(id(value)) if shared and memo is not None else None
         if hit is not None:
             text = hit[1]
+        elif value is None:
+            text = b"null"
+        elif type(value) is str:
+            text = _string_text(value)
         else:
             flat = _flat_text(value)
             if flat is None:
@@ -232,9 +243,22 @@ def keyed_text(
     return sha256_hex(canonical), canonical
 
 
+@functools.lru_cache(maxsize=256)
+def _string_text(value: str) -> bytes:
+    # a step's record type, stage name and version: the same strings for every flight
+    return _json_string(value).encode("utf-8")
+
+
+class Canonical(bytes):
+    """A value's canonical JSON text, made already: `keyed_text` takes it as it is (a
+    plan writes each flight's load options from pieces it serialised once)."""
+
+
 def _flat_text(value: Any) -> bytes | None:
     """Canonical text of a string, or of a mapping of strings to strings (a task's
     upstream keys), written as `json.dumps` writes them; None for anything else."""
+    if type(value) is Canonical:
+        return bytes(value)
     if type(value) is str:
         return _json_string(value).encode("utf-8")
     if type(value) is not dict or not all(

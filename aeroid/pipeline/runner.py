@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..errors import StoreError
+from . import verified
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
 from .database_stage import write_database_files
@@ -181,18 +183,30 @@ def _run(
         check_report_path(config, campaign_inputs(the_plan))
     statuses: dict[str, TaskStatus] = {}
     todo: list[Task] = []
-    stored = result_store.stored((t.stage, t.key) for t in the_plan.tasks)
+    # a listing per stage; an entry the index holds with the same signature is trusted
+    # without opening it, any other is CRC-checked (`verified`)
+    listed = result_store.signatures({t.stage for t in the_plan.tasks})
+    trusted = verified.read_index(result_store)
+    checked: dict[tuple[str, str], verified.Known] = {}
     for t in the_plan.tasks:
         if t.key in statuses:
             continue
-        if (t.stage, t.key) in stored:
-            statuses[t.key] = _cache_hit(result_store, t)
-        else:
+        ident = (t.stage, t.key)
+        if ident not in listed:
             todo.append(t)
+            continue
+        found = trusted.lookup(ident, listed[ident])
+        if found is not None:
+            statuses[t.key] = TaskStatus(t.key, t.step, t.flight, "cached", warnings=found)
+            continue
+        statuses[t.key] = status = _cache_hit(result_store, t)
+        if status.status == "cached":
+            checked[ident] = (listed[ident], status.warnings)
     t_check = time.perf_counter()
     for status in _compute(todo, config, result_store, progress):
         statuses[status.key] = status
     t_run = time.perf_counter()
+    _record_checked(result_store, todo, statuses, checked, trusted)
     report_path, columns, rows, report_error = write_report(the_plan, result_store, statuses)
     database_dir, database_error = write_database_files(the_plan, result_store, statuses)
     report_error = report_error or database_error
@@ -212,6 +226,27 @@ def _run(
             "compute": sum(s.compute_seconds for s in statuses.values()),
         },
     )
+
+
+def _record_checked(
+    result_store: ResultStore,
+    todo: list[Task],
+    statuses: dict[str, TaskStatus],
+    checked: dict[tuple[str, str], verified.Known],
+    trusted: verified.Trusted,
+) -> None:
+    """Add what this run committed (written from memory) and what it CRC-checked to the
+    store's index of entries checked whole: the next run trusts them unopened."""
+    done = [t for t in todo if statuses[t.key].status == "computed" and statuses[t.key].cached]
+    if done:
+        try:
+            listed = result_store.signatures({t.stage for t in done})
+        except (StoreError, OSError):
+            listed = {}
+        for t in done:
+            if (t.stage, t.key) in listed:
+                checked[(t.stage, t.key)] = (listed[(t.stage, t.key)], statuses[t.key].warnings)
+    verified.record(result_store, checked, trusted)
 
 
 def _cache_hit(result_store: ResultStore, task: Task) -> TaskStatus:

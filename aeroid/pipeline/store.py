@@ -6,6 +6,7 @@ Layout under the store root::
     <stage>/<key>.zarr.zip           one result: a zipped Zarr v3 group (arrays + JSON attributes)
     <stage>/<key>.claim              a run computing `key` now (see `ResultStore.claim`)
     .tmp/<key>.<host>.<pid>.<nonce>  results being written (removed by `gc` after a crash)
+    .index/<time>-<nonce>.json       entries checked whole, trusted by later runs (`verified`)
 
 Each entry is a Zarr v3 hierarchy in one uncompressed zip file, the form
 zarr-python opens with ``zarr.storage.ZipStore``: its root group holds the
@@ -58,7 +59,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import StoreError
-from . import codec
+from . import codec, verified
 from .keys import array_digest, sha256_hex
 
 __all__ = [
@@ -273,6 +274,13 @@ class ResultStore:
         return self._backend.remove(_check_name(stage, "stage"), _check_name(key, "key"))
 
     # -- claims: runs sharing one store compute each key once ----------------------
+    @property
+    def claims_per_task(self) -> bool:
+        """Whether a run claims each task before computing it: True in a folder; False
+        in an object store, where a claim would cost more requests than the result's
+        own PUT (a put-if-absent commit still stores each key once)."""
+        return self._backend.claims_per_task
+
     def claim(self, stage: str, key: str, *, lease: float = 60.0) -> Claim | None:
         """Claim the computing of `key`, or None when another live run holds it.
 
@@ -484,33 +492,53 @@ class ResultStore:
 
     def verify(self, key: str, stage: str | None = None) -> str | None:
         """None when the entry is intact, else what is wrong with it."""
+        return self._verify(key, stage)[0]
+
+    def _verify(self, key: str, stage: str | None) -> tuple[str | None, tuple[str, ...]]:
+        """What is wrong with the entry (None: intact), and the warnings stored with it."""
         try:
             entry = self._entry(key, stage)
             meta, arrays = self._read_verified(entry)
         except StoreError as exc:
-            return str(exc)
+            return str(exc), ()
         try:
             codec.decode(meta["record"], arrays)
         except codec.UnknownRecordType:
             pass  # intact bytes of a type defined by a pipeline not imported here
         except StoreError as exc:
-            return str(exc)
+            return str(exc), ()
         except MemoryError as exc:
-            return f"entry {key[:12]} ({entry.stage}) in {self.root} is corrupt: {exc!r}"
-        return None
+            return f"entry {key[:12]} ({entry.stage}) in {self.root} is corrupt: {exc!r}", ()
+        found = (meta.get("provenance") or {}).get("warnings") or ()
+        return None, tuple(str(w) for w in found) if isinstance(found, list) else ()
 
     def verify_all(self) -> dict[str, str]:
         """Problems by key for every entry that fails its checks.
 
+        The entries found intact become the store's index of entries checked
+        whole (`verified`), which later runs trust instead of reading them.
         A link planted as a stage folder raises `StoreError` naming it: the
         store neither reads nor removes anything through it.
         """
-        bad = {}
+        old = [name for name, _ in self._backend.index_files()]
+        bad: dict[str, str] = {}
+        sound: dict[tuple[str, str], tuple[str, ...]] = {}
         for entry in self.entries():
-            problem = self.verify(entry.key, entry.stage)
+            problem, found = self._verify(entry.key, entry.stage)
             if problem is not None:
                 bad[entry.key] = f"{entry.stage}: {problem}"
+            else:
+                sound[(entry.stage, entry.key)] = found
+        listed = self.signatures({stage for stage, _ in sound})
+        index = {i: (listed[i], w) for i, w in sound.items() if i in listed}
+        with contextlib.suppress(OSError, StoreError):  # a read-only store: no index
+            verified.replace(self, index, old)
         return bad
+
+    def signatures(self, stages: Iterable[str]) -> dict[tuple[str, str], tuple[int, str]]:
+        """(stage, key) -> signature (size, time or ETag) of every entry of `stages`, as
+        the store's listing shows it: one listing per stage, no entry opened."""
+        return self._backend.signatures({_check_name(s, "stage") for s in stages})
 
     # -- housekeeping ----------------------------------------------------------
     def temporaries(self) -> list[Path | str]:
