@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._identification_record import IdentificationResult
 from ._output_error import held_at_bounds
 from .data import FlightData
 from .errors import IdentifiabilityWarning, IdentificationError
@@ -46,7 +47,6 @@ from .filtering import (
     noise_matrix,
     run_filter,
 )
-from .identification import IdentificationResult
 from .model import Model, resolve_parameters
 
 __all__ = ["FILTER_OPTIONS", "identify_filter_error"]

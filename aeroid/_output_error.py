@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._identification_record import IdentificationResult
 from .data import FlightData
 from .errors import (
     IdentifiabilityWarning,
@@ -26,11 +27,9 @@ from .errors import (
     ResidualDriftWarning,
     SimulationError,
 )
-from .identification import IdentificationResult
 
 FloatArray = NDArray[np.float64]
 
-SIMULATE_OPTIONS = ("method", "substeps", "rtol", "atol")
 _IDENTIFIABILITY_RCOND = 1e-9
 # Residuals count as coloured when a lag-one correlation is significant (3/sqrt(N)),
 # which makes the estimated correlation time exceed 1.
@@ -809,7 +808,7 @@ def _state_biased_outputs(
     """Outputs whose own state equation carries an estimated bias (``estimate_bias=
     {name: 'state'}``): `identify` adds it as a constant state ``bias.<name>`` (with
     leading underscores where that name was taken) whose initial value is estimated."""
-    from .identification import _STATE_BIAS_PREFIX
+    from ._identification_record import STATE_BIAS_PREFIX as _STATE_BIAS_PREFIX
 
     found: set[int] = set()
     for m in mans:

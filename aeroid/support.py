@@ -1,0 +1,31 @@
+"""What aeroid's own subpackages (`aeroid.pipeline`, `aeroid.adapters`) take from the
+library's private helpers, named once here.
+
+Not part of the user API (`aeroid` does not export it): the subpackages import
+these names from here rather than reach into the library's private modules, so
+that what crosses a package boundary is listed in one place.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import _html
+from ._html import figure_png, markdown_to_html
+from ._records import ReadOnlyDict, markdown_table
+from ._units import parameter_units
+
+__all__ = [
+    "ReadOnlyDict",
+    "atomic_write",
+    "figure_png",
+    "markdown_table",
+    "markdown_to_html",
+    "parameter_units",
+]
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Write `data` to `path` whole or not at all (looked up at each call, so that a
+    test that replaces the library's writer replaces this one too)."""
+    _html._atomic_write(path, data)
