@@ -162,3 +162,21 @@ def test_no_import_cycles():
 def test_no_private_name_crosses_a_package():
     crossings = private_crossings()
     assert crossings == [], "private names used across packages:\n" + "\n".join(crossings)
+
+
+def test_the_public_namespace_holds_only_public_names():
+    import aeroid
+
+    tools = {"Any", "TYPE_CHECKING", "annotations", "importlib", "typing"}
+    assert not tools & set(dir(aeroid))
+    assert not [name for name in tools if hasattr(aeroid, name)]
+    assert len(aeroid.__all__) == len(set(aeroid.__all__))
+    assert dir(aeroid) == sorted(aeroid.__all__)
+    # the errors come from the import, the rest from the lazy table: nothing listed twice
+    assert set(aeroid.__all__) == {"__version__"} | set(aeroid._LAZY) | {
+        n
+        for n in aeroid.__all__
+        if isinstance(getattr(aeroid, n), type)
+        and issubclass(getattr(aeroid, n), aeroid.AeroidError | Warning)
+    }
+    assert "ResidualDriftWarning" in aeroid.__all__ and "identify" in aeroid.__all__
