@@ -13,6 +13,8 @@ import ast
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1] / "aeroid"
 
 
@@ -180,3 +182,44 @@ def test_the_public_namespace_holds_only_public_names():
         and issubclass(getattr(aeroid, n), aeroid.AeroidError | Warning)
     }
     assert "ResidualDriftWarning" in aeroid.__all__ and "identify" in aeroid.__all__
+
+
+def _pair_information(ratio: float, scales: tuple[float, float, float]) -> np.ndarray:
+    # unit-diagonal eigenvalues 1 +- rho, so the relative one is (1 - rho)/(1 + rho);
+    # a third parameter without any effect; every row scaled as units would scale it
+    rho = (1.0 - ratio) / (1.0 + ratio)
+    c = np.array([[1.0, rho, 0.0], [rho, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    d = np.diag(scales)
+    return d @ c @ d
+
+
+def test_one_identifiability_check_with_one_threshold():
+    from aeroid import _filter_error, _identifiability, _output_error, frequency_domain
+    from aeroid import sensitivity as sens_module
+    from aeroid._identifiability import RCOND, unidentifiable
+
+    names = ["a", "b", "dead"]
+    for scales in [(1.0, 1.0, 1.0), (1e6, 1e-3, 5.0)]:
+        combos, null = unidentifiable(_pair_information(0.5 * RCOND, scales), names)
+        assert combos == [("dead",), ("a", "b")] and null.tolist() == [True, True, True]
+        combos, null = unidentifiable(_pair_information(4.0 * RCOND, scales), names)
+        assert combos == [("dead",)] and null.tolist() == [False, False, True]
+    # the same kernel, not a copy, behind every estimator and the design tools
+    assert _output_error._combinations is unidentifiable
+    for module in (_filter_error, frequency_domain, sens_module):
+        assert module.unidentifiable is unidentifiable
+    cov, combos, _ = sens_module._analyse_fisher(_pair_information(0.5 * RCOND, (1, 1, 1)), names)
+    assert list(combos) == [("dead",), ("a", "b")] and np.all(np.isinf(np.diag(cov)))
+    cov, combos, _ = sens_module._analyse_fisher(_pair_information(4.0 * RCOND, (2, 3, 1)), names)
+    # the bound of the separable pair is the inverse of its 2 x 2 information
+    c = _pair_information(4.0 * RCOND, (2, 3, 1))[:2, :2]
+    assert np.allclose(cov[:2, :2], np.linalg.inv(c), rtol=1e-5)
+    # no module keeps its own copy of the check
+    copies = [
+        p.name
+        for p in ROOT.rglob("*.py")
+        if p.name != "_identifiability.py"
+        and ("def _unidentifiable(" in p.read_text() or "def _combinations(" in p.read_text())
+    ]
+    assert copies == []
+    assert _identifiability.RCOND == 1e-9
