@@ -3,12 +3,6 @@
 It works on plain arrays and returns them (`Regridded`), so that the file loaders in
 `aeroid.data` can use it below `FlightData`; `aeroid.resampling.resample` wraps it.
 
-Each channel arrives on its own stamps (a 400 Hz gyro, a 10 Hz air-data
-probe, a flight mode logged on change). `resample` puts the chosen ones on
-one grid, filtering before it decimates so that nothing above the new
-Nyquist frequency folds into the band the model sees, and refusing to
-interpolate silently across holes in the record.
-
 Why a centred convolution with a symmetric FIR rather than ``filtfilt``: an
 odd-length symmetric FIR has exactly linear phase with an integer delay of
 ``(taps - 1) / 2`` samples, so centring the convolution removes the delay

@@ -6,14 +6,8 @@ one grid, filtering before it decimates so that nothing above the new
 Nyquist frequency folds into the band the model sees, and refusing to
 interpolate silently across holes in the record.
 
-Why a centred convolution with a symmetric FIR rather than ``filtfilt``: an
-odd-length symmetric FIR has exactly linear phase with an integer delay of
-``(taps - 1) / 2`` samples, so centring the convolution removes the delay
-exactly and the filter is zero-phase as designed. ``filtfilt`` would apply it
-twice: the magnitude response squares (the ripple the Kaiser design promises
-no longer holds) for twice the work, and it buys nothing that a linear-phase
-filter lacks. The ends are padded by odd reflection (as ``filtfilt`` pads),
-which a constant or a straight line passes unchanged.
+The work is done on plain arrays in `aeroid._regrid` (which `aeroid.data`
+uses below `FlightData`); the reasons for its filter are given there.
 """
 
 from __future__ import annotations
