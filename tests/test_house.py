@@ -223,3 +223,14 @@ def test_one_identifiability_check_with_one_threshold():
     ]
     assert copies == []
     assert _identifiability.RCOND == 1e-9
+
+
+def test_the_simulate_options_are_defined_once():
+    from aeroid import adapters, inference
+    from aeroid.model import SIMULATE_OPTION_KEYS
+
+    assert adapters.INTEGRATOR_OPTIONS is SIMULATE_OPTION_KEYS
+    assert inference._SIM_OPTIONS is SIMULATE_OPTION_KEYS
+    literal = '"method", "substeps", "rtol", "atol"'
+    holders = sorted(p.name for p in ROOT.rglob("*.py") if literal in p.read_text())
+    assert holders == ["model.py"]
