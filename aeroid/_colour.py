@@ -208,4 +208,3 @@ def frequency_sandwich(jac: FloatArray, res: FloatArray, m_inv: FloatArray) -> F
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
     score = np.einsum("mrn,mr->mn", jac, u)
     return np.asarray(m_inv @ (score.T @ score) @ m_inv, dtype=np.float64)
-

@@ -41,13 +41,17 @@ import types
 import warnings
 import weakref
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ._integrate import _INSIDE, RawTrajectory, _first_failure
-from .model import Model
+
+if TYPE_CHECKING:
+    from .model import Model
+else:  # below aeroid.model (it calls this module): its base class stands in
+    from ._model_base import ContinuousModel as Model
 
 __all__ = [
     "available",

@@ -124,7 +124,7 @@ def require_model_units(model: Any, datas: Sequence[Any], channels: Iterable[str
     IdentificationError
         Naming the channel, both units and the factor between them.
     """
-    from .channel_map import UNIT_CONVERSIONS
+    from ._units import UNIT_CONVERSIONS
 
     declared = dict(getattr(model, "channel_units", None) or {})
     for name in channels:

@@ -34,6 +34,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._identifiability import unidentifiable
+from ._identification_record import IdentificationResult
 from ._output_error import held_at_bounds
 from .data import FlightData
 from .errors import IdentifiabilityWarning, IdentificationError
@@ -46,7 +48,6 @@ from .filtering import (
     noise_matrix,
     run_filter,
 )
-from .identification import IdentificationResult
 from .model import Model, resolve_parameters
 
 __all__ = ["FILTER_OPTIONS", "identify_filter_error"]
@@ -222,24 +223,6 @@ def _derivatives(
             elif bad[n + i] and np.isfinite(cost[1 + i]):
                 grad[i] = (cost[1 + i] - cost[0]) / h[i]
     return float(cost[0]), grad, fisher, quad, [(nu[0], S[0]) for nu, S in per]
-
-
-def _unidentifiable(fisher: FloatArray, labels: list[str]) -> list[tuple[str, ...]]:
-    d = np.sqrt(np.clip(np.diag(fisher), 0.0, None))
-    combos: list[tuple[str, ...]] = []
-    zero = d <= 1e-300
-    for i in np.flatnonzero(zero):
-        combos.append((labels[i],))
-    keep = np.flatnonzero(~zero)
-    if keep.size:
-        Fn = fisher[np.ix_(keep, keep)] / np.outer(d[keep], d[keep])
-        w, V = np.linalg.eigh(Fn)
-        for lam, v in zip(w, V.T, strict=True):
-            if lam < 1e-10 * max(float(w[-1]), 1e-300):
-                members = tuple(labels[keep[j]] for j in np.flatnonzero(np.abs(v) > 0.2))
-                if members:
-                    combos.append(members)
-    return combos
 
 
 def _bounded_delta(
@@ -512,7 +495,7 @@ def identify_filter_error(
     free &= ~held
     while True:
         idx = np.flatnonzero(free)
-        combos = _unidentifiable(fisher[np.ix_(idx, idx)], [labels[i] for i in idx])
+        combos, _ = unidentifiable(fisher[np.ix_(idx, idx)], [labels[i] for i in idx])
         noise_only = [c for c in combos if all(lab not in names for lab in c)]
         if not noise_only:
             break

@@ -773,8 +773,13 @@ def integrate(
     substeps: int | None = None,
     rtol: float = 1e-9,
     atol: float = 1e-12,
+    compiled_rk4: Callable[..., RawTrajectory | None] | None = None,
 ) -> RawTrajectory:
-    """Integrate a batch: x0 (B, n_x), u (B, n_t, n_u), p name -> (B,)."""
+    """Integrate a batch: x0 (B, n_x), u (B, n_t, n_u), p name -> (B,).
+
+    `compiled_rk4` (``_compiled.rk4_hook``, passed by the model, which sits above
+    both) runs the same RK4 compiled where that pays, returning None where not.
+    """
     if method not in METHODS:
         raise SimulationError(f"method {method!r} is unknown; choose one of {list(METHODS)}")
     if substeps is not None and (int(substeps) != substeps or substeps < 1):
@@ -805,9 +810,7 @@ def integrate(
         )
     if method in ("auto", "rk4"):
         m = substeps if substeps is not None else auto_substeps(f, time, X0, u, p)
-        from ._compiled import rk4_hook  # the same RK4, compiled once it pays
-
-        compiled = rk4_hook(model, time, X0, u, p, int(m))
+        compiled = None if compiled_rk4 is None else compiled_rk4(model, time, X0, u, p, int(m))
         if compiled is not None:
             return compiled
         return rk4(f, time, X0, u, p, int(m))

@@ -23,14 +23,18 @@ import platform
 import weakref
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ._integrate import substeps_for
 from .errors import AdapterError
-from .model import Model
+
+if TYPE_CHECKING:
+    from .model import Model
+else:  # below aeroid.model (it calls this module): its base class stands in
+    from ._model_base import ContinuousModel as Model
 
 __all__ = ["batch_outputs", "outputs_and_jacobian", "require_jax", "rollout"]
 
@@ -252,7 +256,7 @@ def _compiled(model: Model, kind: str, substeps: int) -> Callable[..., Any]:
 def _grid(
     model: Model, time: Any, controls: Any, x0: Any
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    from .model import check_time
+    from ._checks import check_time
 
     t = check_time(time)
     u = model.control_array(t, controls)

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._identifiability import unidentifiable as _combinations
+from ._identification_record import IdentificationResult
 from .data import FlightData
 from .errors import (
     IdentifiabilityWarning,
@@ -27,12 +29,9 @@ from .errors import (
     ResidualDriftWarning,
     SimulationError,
 )
-from .identification import IdentificationResult
 
 FloatArray = NDArray[np.float64]
 
-SIMULATE_OPTIONS = ("method", "substeps", "rtol", "atol")
-_IDENTIFIABILITY_RCOND = 1e-9
 # Residuals count as coloured when a lag-one correlation is significant (3/sqrt(N)),
 # which makes the estimated correlation time exceed 1.
 _WHITE_TAU = 1.0
@@ -860,7 +859,7 @@ def _state_biased_outputs(
     """Outputs whose own state equation carries an estimated bias (``estimate_bias=
     {name: 'state'}``): `identify` adds it as a constant state ``bias.<name>`` (with
     leading underscores where that name was taken) whose initial value is estimated."""
-    from .identification import _STATE_BIAS_PREFIX
+    from ._identification_record import STATE_BIAS_PREFIX as _STATE_BIAS_PREFIX
 
     found: set[int] = set()
     for m in mans:
@@ -1072,34 +1071,6 @@ def _pair_sums(arrays: list[FloatArray]) -> FloatArray:
         at = np.ascontiguousarray(a.transpose(2, 0, 1))  # (p, n_t, n_y): a product per parameter
         total += np.matmul(at.transpose(0, 2, 1), at)
     return np.ascontiguousarray(total.transpose(1, 2, 0))
-
-
-def _combinations(m: FloatArray, names: Sequence[str]) -> tuple[list[tuple[str, ...]], FloatArray]:
-    """Near-null directions of the normalised information matrix, as name groups."""
-    d = np.sqrt(np.clip(np.diag(m), 0, None))
-    zero = d <= 0
-    d_safe = np.where(zero, 1.0, d)
-    mn = m / np.outer(d_safe, d_safe)
-    mn[zero, :] = 0
-    mn[:, zero] = 0
-    evals, evecs = np.linalg.eigh(mn)
-    top = max(float(evals[-1]), 1e-300)
-    combos: list[tuple[str, ...]] = []
-    null = np.zeros(m.shape[0], dtype=bool)
-    for j in np.flatnonzero(zero).tolist():
-        combos.append((names[j],))
-        null[j] = True
-    for k in np.flatnonzero(evals < _IDENTIFIABILITY_RCOND * top):
-        vec = evecs[:, k]
-        if float(np.sum(vec[zero] ** 2)) > 0.81:
-            continue  # the direction of a parameter already listed as insensitive
-        big = np.flatnonzero(np.abs(vec) > 0.1 * np.max(np.abs(vec))).tolist()
-        members = [j for j in big if not zero[j]]
-        # two near-null directions can share their members: one group is told once
-        if members and tuple(names[j] for j in members) not in combos:
-            combos.append(tuple(names[j] for j in members))
-            null[members] = True
-    return combos, null
 
 
 def held_at_bounds(

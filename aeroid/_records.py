@@ -86,4 +86,3 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
 #: errors by parameter name (``stderr`` and ``standard_errors`` are one mapping),
 #: their covariance, a Markdown `summary` and a `plot`.
 ESTIMATE_PROTOCOL = ("parameters", "stderr", "standard_errors", "covariance", "summary", "plot")
-

@@ -8,6 +8,7 @@ print them (``1/s``, ``m/s²``, ``1/(m s)``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 
 Unit = Mapping[str, int]
@@ -20,6 +21,28 @@ METRE_PER_SECOND_SQUARED: Unit = {"m": 1, "s": -2}
 NEWTON: Unit = {"N": 1}
 RADIAN: Unit = {"rad": 1}
 ONE: Unit = {}
+
+_DEG = math.pi / 180.0
+#: source unit -> (factor to SI, SI unit): a channel in the source unit times the
+#: factor is in the SI unit. SI units themselves convert with factor 1.
+UNIT_CONVERSIONS: Mapping[str, tuple[float, str]] = {
+    "deg": (_DEG, "rad"),
+    "cdeg": (_DEG / 100.0, "rad"),  # centidegrees (ArduPilot attitude)
+    "deg/s": (_DEG, "rad/s"),
+    "cdeg/s": (_DEG / 100.0, "rad/s"),
+    "us": (1e-6, "s"),
+    "ms": (1e-3, "s"),
+    "ft": (0.3048, "m"),
+    "ft/s": (0.3048, "m/s"),
+    "kt": (1852.0 / 3600.0, "m/s"),
+    "g": (9.80665, "m/s2"),
+    "rad": (1.0, "rad"),
+    "rad/s": (1.0, "rad/s"),
+    "s": (1.0, "s"),
+    "m": (1.0, "m"),
+    "m/s": (1.0, "m/s"),
+    "m/s2": (1.0, "m/s2"),
+}
 
 _POWERS = {2: "²", 3: "³", 4: "⁴"}
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ._logtypes import FlightLog
+from ._units import UNIT_CONVERSIONS
 from .data import FlightData, load_flight_test, plain
 from .errors import ChannelError, DataFormatError
 from .resampling import close_names
@@ -34,27 +35,6 @@ __all__ = [
     "resolve_window",
 ]
 
-_DEG = math.pi / 180.0
-#: source unit -> (factor to SI, SI unit): a channel in the source unit times the
-#: factor is in the SI unit. SI units themselves convert with factor 1.
-UNIT_CONVERSIONS: Mapping[str, tuple[float, str]] = {
-    "deg": (_DEG, "rad"),
-    "cdeg": (_DEG / 100.0, "rad"),  # centidegrees (ArduPilot attitude)
-    "deg/s": (_DEG, "rad/s"),
-    "cdeg/s": (_DEG / 100.0, "rad/s"),
-    "us": (1e-6, "s"),
-    "ms": (1e-3, "s"),
-    "ft": (0.3048, "m"),
-    "ft/s": (0.3048, "m/s"),
-    "kt": (1852.0 / 3600.0, "m/s"),
-    "g": (9.80665, "m/s2"),
-    "rad": (1.0, "rad"),
-    "rad/s": (1.0, "rad/s"),
-    "s": (1.0, "s"),
-    "m": (1.0, "m"),
-    "m/s": (1.0, "m/s"),
-    "m/s2": (1.0, "m/s2"),
-}
 # the keys a window or segments mapping may hold, and the `segment` keywords they feed
 _WINDOW_KEYS = frozenset({"mode", "events", "index"})
 _SEGMENT_KEYS = frozenset(

@@ -16,6 +16,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._checks import as_float as as_float  # re-exported: the other modules import it here
+from ._checks import plain
+from ._checks import positive_number as positive_number
 from .errors import ChannelError, DataFormatError
 
 __all__ = ["FlightData", "load_flight_test"]
@@ -43,25 +46,6 @@ def _first_bad(values: FloatArray) -> int:
     return int(np.flatnonzero(~np.isfinite(values))[0])
 
 
-def plain(value: Any) -> str:
-    """`value` for an error message: numpy scalars as plain numbers (0.45, not np.float64(0.45))."""
-    if isinstance(value, np.generic):
-        value = value.item()
-    return repr(value)
-
-
-def as_float(value: Any) -> float | None:
-    """`value` as a float, or None when it is not a plain real number: bools and text are
-    refused (float() would read True as 1.0 and "2" as 2.0), and so are complex numbers.
-    NaN and infinity pass: each caller says which values it takes, and in its own words."""
-    if isinstance(value, (bool, np.bool_, str, bytes)):
-        return None
-    try:
-        return float(value)
-    except (TypeError, ValueError, OverflowError):
-        return None
-
-
 def check_flag(value: Any, name: str, error: type[Exception]) -> bool:
     """`value` as a bool, else `error` naming `name`: a switch given as ``"no"`` or 0
     would otherwise be read by its truth value."""
@@ -83,15 +67,6 @@ def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 
         )
         raise error(f"{name} must be {what}, got {plain(value)}")
     return n
-
-
-def positive_number(value: Any, name: str, unit: str = "") -> float:
-    """`value` as a finite float > 0, else a `DataFormatError` naming `name` (`unit`, such
-    as ``" of seconds"``, completes "a positive number")."""
-    x = as_float(value)
-    if x is None or not (np.isfinite(x) and x > 0):
-        raise DataFormatError(f"{name}: expected a positive number{unit}, got {plain(value)}")
-    return x
 
 
 def real_array(values: Any, what: str) -> FloatArray:
@@ -1019,7 +994,7 @@ def _refuse_contradicting_units(
 ) -> None:
     """A unit label the caller gives that contradicts the one the log states is a mistake
     (deg/s over a rad/s gyro): the values would be read in the wrong unit silently."""
-    from .channel_map import UNIT_CONVERSIONS
+    from ._units import UNIT_CONVERSIONS
 
     for name, given in dict(units or {}).items():
         source = mapping.get(name)
@@ -1082,14 +1057,11 @@ def _load_log(
             )
         except DataFormatError as exc:
             raise DataFormatError(f"{p}: {exc}") from None
+    from ._regrid import flightlog_parts, regrid
+
     try:
-        from .resampling import resample
-    except ImportError:  # pragma: no cover - the module ships with aeroid
-        raise DataFormatError(
-            f"{p}: resampling a log needs aeroid.resampling, which is unavailable"
-        ) from None
-    try:
-        data = resample(log, mapping, rate=sample_rate, max_gap=max_gap, t0=t0, t1=t1)
+        parts = flightlog_parts(log)
+        data = regrid(*parts, mapping, rate=sample_rate, max_gap=max_gap, t0=t0, t1=t1)
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
     extra = dict(units or {})

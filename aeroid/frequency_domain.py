@@ -72,6 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _integrate
 from ._colour import frequency_sandwich
 from ._czt import fourier
+from ._identifiability import unidentifiable
 from ._records import frozen_array
 from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, fingerprint, measured_start, plain, whole_number
@@ -444,24 +445,6 @@ def _reference(model: Any, data: FlightData, reference: Any) -> tuple[FloatArray
 # -- shared statistics ---------------------------------------------------------------------
 
 
-def _unidentifiable(info: FloatArray, labels: list[str]) -> tuple[list[tuple[str, ...]], Any]:
-    d = np.sqrt(np.clip(np.diag(info), 0.0, None))
-    combos: list[tuple[str, ...]] = []
-    null = d <= 1e-300
-    for i in np.flatnonzero(null):
-        combos.append((labels[i],))
-    keep = np.flatnonzero(~null)
-    if keep.size:
-        Fn = info[np.ix_(keep, keep)] / np.outer(d[keep], d[keep])
-        w, V = np.linalg.eigh(Fn)
-        for lam, v in zip(w, V.T, strict=True):
-            if lam < 1e-10 * max(float(w[-1]), 1e-300):
-                members = np.flatnonzero(np.abs(v) > 0.2)
-                null[keep[members]] = True
-                combos.append(tuple(labels[keep[j]] for j in members))
-    return combos, null
-
-
 def _covariances(
     jac: FloatArray, res: FloatArray, labels: list[str], white_scale: float
 ) -> tuple[FloatArray, FloatArray, list[tuple[str, ...]], Any]:
@@ -476,7 +459,7 @@ def _covariances(
     m, r, n = jac.shape
     J = jac.reshape(m * r, n)
     info = J.T @ J
-    combos, null = _unidentifiable(info, labels)
+    combos, null = unidentifiable(info, labels)
     inv = np.linalg.pinv(info, rcond=1e-13, hermitian=True)
     white = white_scale * inv
     # the one coloured-residual correction, in its per-frequency form: the few

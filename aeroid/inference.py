@@ -36,7 +36,14 @@ from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, as_float, check_flag, measured_start
 from .errors import InferenceError, SimulationError
-from .model import Model, check_integrator, check_simulate_options, fitted_start, require_model
+from .model import (
+    SIMULATE_OPTION_KEYS,
+    Model,
+    check_integrator,
+    check_simulate_options,
+    fitted_start,
+    require_model,
+)
 from .priors import LogUniform, Prior
 from .sampler import (
     INIT_TAG,
@@ -76,7 +83,7 @@ _DEFAULT_MOVE = "de"
 # half, six parameters' chains ran 25-33 steps per autocorrelation time, so the
 # documented 2000 steps converged for half the seeds; 16 a half gives 18-24.
 _MIN_WALKERS = 32
-_SIM_OPTIONS = ("method", "substeps", "rtol", "atol")
+_SIM_OPTIONS = SIMULATE_OPTION_KEYS
 # Most float64 values one chain or one batched simulation may hold (2 GiB).
 _MAX_VALUES = 2**28
 _JAX_OPTIONS = ("substeps",)

@@ -14,6 +14,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
+from ._checks import check_time as check_time  # re-exported (adapters import it here)
+from ._model_base import ContinuousModel
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._threads import small_blas
 from .data import FlightData, _readonly, as_float, fingerprint, measured_start, plain, real_array
@@ -384,7 +386,7 @@ def _jax_64_bit() -> None:
 
 
 @dataclass(frozen=True, eq=False)
-class Model:
+class Model(ContinuousModel):
     """A continuous-time vehicle model ``x' = f(t, x, u, p)``, ``y = h(t, x, u, p)``.
 
     Parameters
@@ -810,8 +812,19 @@ class Model:
                     f"substeps={int(substeps)}: RK4 would hold {nodes} control values "
                     f"({t.size} samples, batch {batch}); use fewer substeps or a finer time grid"
                 )
+        from ._compiled import rk4_hook  # the same RK4, compiled once it pays
+
         traj = _integrate.integrate(
-            self, t, X0, U, p, method=method, substeps=substeps, rtol=rtol, atol=atol
+            self,
+            t,
+            X0,
+            U,
+            p,
+            method=method,
+            substeps=substeps,
+            rtol=rtol,
+            atol=atol,
+            compiled_rk4=rk4_hook,
         )
         outputs = self._outputs(t, traj.states, U, p)
         ok = traj.ok & np.all(np.isfinite(outputs), axis=(1, 2))
@@ -947,25 +960,3 @@ def require_model(model: Any, error: type[AeroidError]) -> None:
         raise error(
             f"model: expected an aeroid.Model or a SimulatorModel, got {type(model).__name__}"
         )
-
-
-def check_time(time: Any) -> FloatArray:
-    """A finite, strictly increasing 1-D time grid of at least two samples."""
-    if np.iscomplexobj(time):  # a cast would drop the imaginary part
-        raise SimulationError("time: complex values are not supported")
-    try:
-        t = np.asarray(time, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SimulationError(
-            f"time: expected an array of numbers, got {type(time).__name__}"
-        ) from None
-    if t.ndim != 1 or t.size < 2:
-        raise SimulationError(
-            f"time: expected a 1-D grid of at least 2 samples, got shape {t.shape}"
-        )
-    if not np.all(np.isfinite(t)):
-        raise SimulationError("time: contains NaN or infinite values")
-    if np.any(np.diff(t) <= 0):
-        bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise SimulationError(f"time: not strictly increasing at index {bad}")
-    return t

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._identifiability import NO_EFFECT, RCOND, unidentifiable
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, measured_start
@@ -43,11 +44,6 @@ from .model import (
 __all__ = ["SensitivityResult", "sensitivities"]
 
 FloatArray = NDArray[np.float64]
-
-# Relative eigenvalue of the normalised Fisher matrix below which a parameter
-# combination counts as not identifiable: its standard error would be more than
-# 1e4 times what the parameters' individual sensitivities suggest.
-_NULL_TOLERANCE = 1e-8
 
 
 # -- shared numerics (also used by experiment design) ---------------------------------
@@ -213,30 +209,21 @@ def _analyse_fisher(
     instead of a silently huge (or truncated) number.
     """
     n = len(names)
+    combos, bad = unidentifiable(fisher, names)
     d = np.sqrt(np.clip(np.diag(fisher), 0.0, None))
-    combos: list[tuple[str, ...]] = []
-    dead = d <= 1e-150 + 1e-14 * (d.max() if n else 0.0)
-    for i in np.flatnonzero(dead).tolist():
-        combos.append((names[i],))
+    dead = d <= 1e-300 + NO_EFFECT * (d.max() if n else 0.0)
     live = np.flatnonzero(~dead)
     cov = np.full((n, n), np.nan)
     eig = np.zeros(n)
-    bad = set(np.flatnonzero(dead).tolist())
     if live.size:
         dl = d[live]
         fn = fisher[np.ix_(live, live)] / np.outer(dl, dl)
         w, v = np.linalg.eigh(0.5 * (fn + fn.T))
         eig[: live.size] = w
-        null = w < _NULL_TOLERANCE * max(float(w[-1]), 1e-300)
-        for k in np.flatnonzero(null).tolist():
-            vec = np.abs(v[:, k])
-            involved = [int(live[i]) for i in np.flatnonzero(vec >= 0.1 * vec.max())]
-            combos.append(tuple(names[i] for i in involved))
-            bad.update(involved)
-        keep = ~null
+        keep = ~(w < RCOND * max(float(w[-1]), 1e-300))
         inv_n = (v[:, keep] / w[keep]) @ v[:, keep].T
         cov[np.ix_(live, live)] = inv_n / np.outer(dl, dl)
-    for i in bad:
+    for i in np.flatnonzero(bad).tolist():
         cov[i, :] = np.nan
         cov[:, i] = np.nan
         cov[i, i] = np.inf

@@ -106,9 +106,34 @@ def test_stages_call_the_library_by_import_not_by_name():
 def test_engine_modules_are_small():
     sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in ENGINE.glob("*.py")}
     assert sizes["runner.py"] <= 400
-    # every module of the engine, the store's and the checks' pieces included
-    assert len(sizes) >= 25, sizes
     assert {name: n for name, n in sizes.items() if n > 600} == {}
+
+
+def test_importing_the_engine_registers_every_built_in_stage_once():
+    # a fresh interpreter, whichever engine module it imports first: the built-in stages
+    # are all there, in one order, each run by the stage module that defines it
+    code = (
+        "import json, sys\n"
+        "import aeroid.pipeline.{first}\n"
+        "from aeroid.pipeline import STAGES\n"
+        "print(json.dumps([[n, s.name, s.run.__module__] for n, s in STAGES.items()]))\n"
+    )
+    seen = []
+    for first in ("stages", "store", "planning", "codec"):
+        out = subprocess.run(
+            [sys.executable, "-c", code.format(first=first)],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        seen.append(json.loads(out.stdout))
+    assert all(s == seen[0] for s in seen)
+    names = [n for n, _, _ in seen[0]]
+    assert names[0] == "load" and names[-1] == "campaign_report"
+    assert len(names) == len(set(names)) and {"identify", "propagate", "report"} <= set(names)
+    assert all(n == name for n, name, _ in seen[0])
+    homes = {"load_stage", "library_stages", "analysis_stages", "database_stage", "campaign_report"}
+    assert {module.rsplit(".", 1)[1] for _, _, module in seen[0]} == homes
 
 
 def test_a_task_status_is_frozen_and_reads_as_the_mapping_it_replaced():

@@ -328,7 +328,7 @@ def test_anti_alias_design_matches_scipy_firwin(source: float, rate: float) -> N
 def test_fir_convolution_matches_numpy_and_scipy(n: int, k: int) -> None:
     import scipy.signal
 
-    from aeroid.resampling import _convolve_valid
+    from aeroid._regrid import _convolve_valid
 
     rng = np.random.default_rng(n * k)
     x, h = rng.standard_normal(n), rng.standard_normal(k)

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from ..data import FlightData
 from ..errors import AdapterError, ChannelError, SimulationError
-from ..model import check_time
+from ..model import SIMULATE_OPTION_KEYS, check_time
 
 __all__: list[str] = []
 
@@ -32,7 +32,7 @@ FloatArray = NDArray[np.float64]
 # Keyword options of Model.simulate that generic callers (identify, validate, ...)
 # may pass to any model; a stepped simulator integrates with its own scheme and
 # accepts them without effect.
-INTEGRATOR_OPTIONS = ("method", "substeps", "rtol", "atol")
+INTEGRATOR_OPTIONS = SIMULATE_OPTION_KEYS
 
 
 def require(module: str, extra: str) -> ModuleType:

@@ -32,10 +32,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import ReadOnlyDict
 from ..data import FlightData
 from ..errors import AdapterError, DataFormatError, SimulationError
 from ..model import SimulationResult, resolve_parameters
+from ..support import ReadOnlyDict
 from . import INTEGRATOR_OPTIONS, check_options, control_matrix, require, time_grid
 
 __all__ = ["JsbsimModel", "load_jsbsim_output"]

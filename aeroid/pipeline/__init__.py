@@ -12,7 +12,8 @@ Use it from Python the way the ``aeroid`` command does::
 Numerical modules never import this package.
 """
 
-from .codec import register_record
+from . import builtin_stages as _builtin_stages  # registers the built-in stages
+from .codec import exported_records, register_record
 from .config import CampaignConfig, load_config
 from .definition import Pipeline, Step, resolve_pipeline
 from .execution import TaskStatus, execute_task
@@ -51,3 +52,7 @@ __all__ = [
     "run",
     "task_key",
 ]
+
+# the records exported above are stored under their bare names, as aeroid's own are
+exported_records(__name__, __all__)
+del _builtin_stages

@@ -13,7 +13,7 @@ from pydantic import Field, model_validator
 from ..errors import PipelineError
 from .codec import register_record
 from .config import Options
-from .library_stages import flight_data
+from .load_stage import flight_data
 from .stages import Stage, StageContext, register_stage
 
 __all__ = [
@@ -283,7 +283,7 @@ def hq_table(flights: list[str], conditions: list[str], briefs: list[Any]) -> li
     labels = list(dict.fromkeys(k for b in briefs if b for k in b))
     if not labels:
         return []
-    from .._records import markdown_table
+    from ..support import markdown_table
 
     columns = ("flight", "condition", *(f"{k} [{_HQ_UNITS.get(k, '-')}]" for k in labels))
     rows = [

@@ -158,7 +158,7 @@ def _figure_key(flight: str, label: str) -> str:
 
 def _flight_units(records: Mapping[str, Any]) -> dict[str, str]:
     """Units of one flight's channels (its data and validation) and its parameters."""
-    from .._units import parameter_units
+    from ..support import parameter_units
 
     units: dict[str, str] = {}
     for role in ("data", "validation"):
@@ -201,7 +201,7 @@ def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
     """The figures of flight `flight`: (file name, PNG bytes)."""
     import matplotlib.pyplot as plt
 
-    from .._html import figure_png
+    from ..support import figure_png
 
     records = {
         role: ctx.inputs[role][flight]
@@ -224,9 +224,8 @@ def _declared(ctx: StageContext, flight: int) -> Mapping[str, str]:
 def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     import matplotlib.pyplot as plt
 
-    from .._html import figure_png
-    from .._units import parameter_units
     from ..plotting import plot_campaign_trend
+    from ..support import figure_png, parameter_units
 
     records = []
     for i, f in enumerate(ctx.flights):
@@ -314,8 +313,7 @@ def _anchor(flight: str) -> str:
 def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     import html
 
-    from .._records import markdown_table
-    from .._units import parameter_units
+    from ..support import markdown_table, parameter_units
 
     flights = ctx.flights
     ident = [ctx.brief("identification", i) for i in range(len(flights))]
@@ -499,7 +497,7 @@ def check_report_path(config: CampaignConfig, inputs: list[Path]) -> None:
 
 
 def _write(path: Path, data: bytes) -> None:
-    from .._html import _atomic_write
+    from ..support import atomic_write as _atomic_write
 
     try:
         _atomic_write(path, data)
@@ -572,7 +570,7 @@ def write_report(
 def html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
     """The self-contained HTML campaign report: the Markdown with its figures embedded
     where it links them (any figure it does not link is appended under "Figures")."""
-    from .._html import markdown_to_html
+    from ..support import markdown_to_html
 
     body = text.rstrip()
     unlinked = [name for name in figures if f"]({name})" not in body]

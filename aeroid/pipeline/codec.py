@@ -22,14 +22,22 @@ import functools
 import importlib
 import math
 import re
-from collections.abc import Mapping
+import sys
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from ..errors import StoreError
 
-__all__ = ["UnknownRecordType", "decode", "encode", "record_type_name", "register_record"]
+__all__ = [
+    "UnknownRecordType",
+    "decode",
+    "encode",
+    "exported_records",
+    "record_type_name",
+    "register_record",
+]
 
 _REGISTRY: dict[str, type] = {}
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
@@ -84,15 +92,29 @@ def register_record(cls: type | None = None, *, name: str | None = None) -> Any:
     return cls
 
 
+_EXPORTERS: list[tuple[str, tuple[str, ...]]] = []  # (package, its __all__) after aeroid's
+
+
+def exported_records(package: str, names: Sequence[str]) -> None:
+    """Store the dataclasses `package` exports (as ``names``) under their bare names.
+
+    The packages above the codec (``aeroid.pipeline``) call this once loaded,
+    so that the codec need not import them.
+    """
+    _EXPORTERS.append((package, tuple(names)))
+    _public_types.cache_clear()
+
+
 @functools.cache
 def _public_types() -> dict[str, type]:
     """aeroid's public dataclasses by the names its packages export them under."""
     import aeroid
-    import aeroid.pipeline
 
     found: dict[str, type] = {}
-    for package in (aeroid, aeroid.pipeline):
-        for attr in getattr(package, "__all__", ()):
+    exporters = [(aeroid, tuple(aeroid.__all__))]
+    exporters += [(sys.modules[name], names) for name, names in _EXPORTERS]
+    for package, names in exporters:
+        for attr in names:
             obj = getattr(package, attr, None)
             if isinstance(obj, type) and dataclasses.is_dataclass(obj) and attr == obj.__qualname__:
                 found.setdefault(attr, obj)

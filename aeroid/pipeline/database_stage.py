@@ -132,7 +132,7 @@ register_stage(
 
 def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -> str:
     """The database as a Markdown report section: fit, held-out check, band plots, files."""
-    from .._records import fmt, markdown_table
+    from ..support import fmt, markdown_table
 
     parts = ["## Aerodynamic database", "", db.summary(), ""]
     if db.held_out:
@@ -169,12 +169,11 @@ def _band_plot(db: AeroDatabase, term: str) -> bytes:
     """One coefficient's estimates (each flight labelled) and the 95 % band against the first key."""
     import numpy as np
 
-    from .._html import figure_png
-    from ..plotting import _figure
+    from ..support import figure, figure_png
 
     key = db.keys[0]
     j = db.terms.index(term)
-    fig, axes = _figure(1, height=3.0)
+    fig, axes = figure(1, height=3.0)
     ax = axes[0, 0]
     x = db.grid(key, 41)
     others = {k: db.centres[k] for k in db.keys if k != key}

@@ -19,7 +19,7 @@ from pydantic import AliasChoices, Field, field_validator, model_validator
 
 from ..errors import AeroidError, PipelineError
 from .config import Options
-from .load_stage import LoadOptions
+from .load_stage import LoadOptions, flight_data
 from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
 
 __all__ = [
@@ -81,11 +81,11 @@ class IdentifyOptions(Options):
     @classmethod
     def _check_simulate_options(cls, value: Any) -> Any:
         # the keys are the library's: checked here, before any flight loads
-        from .._output_error import SIMULATE_OPTIONS
+        from ..model import SIMULATE_OPTION_KEYS
 
-        unknown = sorted(set(value or {}) - set(SIMULATE_OPTIONS))
+        unknown = sorted(set(value or {}) - set(SIMULATE_OPTION_KEYS))
         if unknown:
-            raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTIONS)}")
+            raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTION_KEYS)}")
         return value
 
     @field_validator("bounds", mode="after")
@@ -97,13 +97,6 @@ class IdentifyOptions(Options):
                     f"{name}: the lower bound {lower} must be below the upper bound {upper}"
                 )
         return value
-
-
-def flight_data(ctx: StageContext) -> Any:
-    """The flight's data: corrected by the compatibility check where that ran (an input
-    role ``corrected``), else as loaded."""
-    checked = ctx.inputs.get("corrected")
-    return ctx.inputs["data"] if checked is None else checked.corrected
 
 
 def _run_identify(ctx: StageContext) -> Any:

@@ -13,7 +13,14 @@ from ..errors import DataFormatError, PipelineError
 from .config import Options
 from .stages import Stage, StageContext, register_stage
 
-__all__ = ["LoadOptions", "QualityLimits"]
+__all__ = ["LoadOptions", "QualityLimits", "flight_data"]
+
+
+def flight_data(ctx: StageContext) -> Any:
+    """The flight's data: corrected by the compatibility check where that ran (an input
+    role ``corrected``), else as loaded."""
+    checked = ctx.inputs.get("corrected")
+    return ctx.inputs["data"] if checked is None else checked.corrected
 
 
 class QualityLimits(Options):

@@ -4,8 +4,9 @@ A stage declares its options model (mirroring the library function's
 keywords), the record type it produces, whether it needs the vehicle model
 and whether it is stochastic, and a ``run(ctx)`` function. Adding a stage is
 one `register_stage` call; pipelines (``pipelines/``) wire stages together.
-The built-in stages live in `library_stages` (one per library function) and
-`campaign_report`; both register here when `aeroid.pipeline` is imported.
+The built-in stages live in `load_stage`, `library_stages` (one per library
+function), `analysis_stages` and `campaign_report`; `builtin_stages` imports
+them (and they register here) when `aeroid.pipeline` is imported.
 """
 
 from __future__ import annotations
@@ -215,42 +216,3 @@ def resolve_callable(spec: str, *, what: str) -> Any:
         except AttributeError:
             raise PipelineError(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
     return obj
-
-
-# the built-in stages register themselves (imported last: they build on the above)
-from . import analysis_stages as _analysis_stages  # noqa: E402
-from . import campaign_report as _campaign_report  # noqa: E402
-from . import database_stage as _database_stage  # noqa: E402
-from . import library_stages as _library_stages  # noqa: E402
-from .library_stages import (  # noqa: E402  (their names, as before they moved)
-    METRICS,
-    DesignOptions,
-    FilterOptions,
-    FrequencyOptions,
-    IdentifyOptions,
-    InferOptions,
-    LoadOptions,
-    PropagateOptions,
-    ReportOptions,
-    SensitivityOptions,
-    ValidateOptions,
-    damping_ratio,
-    natural_frequency,
-)
-
-__all__ += [
-    "METRICS",
-    "DesignOptions",
-    "FilterOptions",
-    "FrequencyOptions",
-    "IdentifyOptions",
-    "InferOptions",
-    "LoadOptions",
-    "PropagateOptions",
-    "ReportOptions",
-    "SensitivityOptions",
-    "ValidateOptions",
-    "damping_ratio",
-    "natural_frequency",
-]
-del _analysis_stages, _campaign_report, _database_stage, _library_stages

@@ -212,7 +212,7 @@ def _library_flights(
 ) -> float:
     """The campaign's per-flight library calls, as the pipeline's stages make them."""
     from aeroid import catalog
-    from aeroid.pipeline.stages import natural_frequency
+    from aeroid.pipeline.library_stages import natural_frequency
     from aeroid.pipeline.synthetic import flight_spec, fly
 
     model = catalog.short_period()

@@ -1,0 +1,45 @@
+"""What aeroid's own subpackages (`aeroid.pipeline`, `aeroid.adapters`) take from the
+library's private helpers, named once here.
+
+Not part of the user API (`aeroid` does not export it): the subpackages import
+these names from here rather than reach into the library's private modules, so
+that what crosses a package boundary is listed in one place.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from . import _html
+from ._html import figure_png, markdown_to_html
+from ._records import ReadOnlyDict, fmt, markdown_table
+from ._units import parameter_units
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "ReadOnlyDict",
+    "atomic_write",
+    "figure",
+    "figure_png",
+    "fmt",
+    "markdown_table",
+    "markdown_to_html",
+    "parameter_units",
+]
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Write `data` to `path` whole or not at all (looked up at each call, so that a
+    test that replaces the library's writer replaces this one too)."""
+    _html._atomic_write(path, data)
+
+
+def figure(rows: int, cols: int = 1, *, height: float | None = None) -> tuple[Figure, Any]:
+    """A report figure with `rows` x `cols` axes in the library's layout (matplotlib
+    is imported on first use)."""
+    from .plotting import _figure
+
+    return _figure(rows, cols) if height is None else _figure(rows, cols, height=height)
