@@ -26,6 +26,13 @@ img { max-width: 100%; display: block; margin: 0.5em 0 1.5em 0; }
 code { background: #f4f4f4; padding: 0 3px; }
 summary { font-weight: bold; cursor: pointer; margin: 0.4em 0; }
 h1 { border-bottom: 2px solid #333; } h2 { border-bottom: 1px solid #aaa; margin-top: 1.6em; }
+@media print {
+  body { max-width: none; margin: 0; font-size: 10pt; }
+  table { font-size: 8pt; page-break-inside: auto; } tr { page-break-inside: avoid; }
+  th, td { padding: 1px 4px; }
+  img { max-width: 100%; page-break-inside: avoid; }
+  details > summary { list-style: none; }
+}
 """
 
 
@@ -61,7 +68,9 @@ _BLOCK_START = re.compile(r"^(#|\||!\[|- |\* |<details|</details>|<summary>)")
 _TITLE_MARKS = re.compile(r"^#+\s*")
 _LINK = re.compile(r"\[([^\]]+)\]\((#[A-Za-z0-9_.:-]+)\)")
 # the raw HTML our reports use to fold a section: passed through as it is
-_RAW = re.compile(r"^(<details( id=\"[A-Za-z0-9_.:-]+\")?>|</details>|<summary>.*</summary>)$")
+_RAW = re.compile(
+    r"^(<details( id=\"[A-Za-z0-9_.:-]+\")?( open)?>|</details>|<summary>.*</summary>)$"
+)
 
 
 def _inline(text: str) -> str:

@@ -30,6 +30,7 @@ _MAT_ITEM_BYTES = {
     "int16": 2, "uint16": 2, "int8": 1, "uint8": 1, "logical": 1, "char": 2,
 }  # fmt: skip
 
+
 def _readonly(values: ArrayLike) -> FloatArray:
     """Return a read-only float64 copy (the caller's array is never aliased)."""
     out = np.array(values, dtype=np.float64, copy=True)

@@ -60,6 +60,7 @@ _SPLINE_PAD = 24
 # intervals with more than this many samples after the step lying before it.
 _BACKWARD_STEPS = 3.0
 
+
 def close_names(name: str, available: Sequence[str]) -> list[str]:
     """Up to three of `available` that look like `name` (for 'did you mean' messages)."""
     return difflib.get_close_matches(name, list(available), n=3, cutoff=0.5)

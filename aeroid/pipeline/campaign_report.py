@@ -19,9 +19,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import AeroidError, ConfigError
+from ._campaign_tables import estimate_tables, fit_whiteness
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
-from .flight_status import LEGEND, flight_status
+from .flight_status import LEGEND, flight_status, severity
 from .stages import CampaignReport, Stage, StageContext, register_stage
 
 if TYPE_CHECKING:
@@ -38,25 +39,6 @@ class CampaignReportOptions(Options):
     title: str | None = None
     include_flight_reports: bool = True
     figures: bool = True
-
-
-def _fit_whiteness(validation: Any) -> tuple[str, str, tuple[str, ...]]:
-    metrics = getattr(validation, "metrics", None)
-    if not isinstance(metrics, Mapping) or not metrics:
-        return "—", "—", ()
-    fits, white, coloured = [], [], []
-    for name, m in metrics.items():
-        fit = getattr(m, "fit", None)
-        if fit is not None:
-            fits.append(f"{name} {float(fit):.1f} %")
-        w = getattr(m, "white", getattr(m, "is_white", None))
-        if w is None and getattr(m, "whiteness_pvalue", None) is not None:
-            w = float(m.whiteness_pvalue) > 0.05
-        if w is not None:
-            white.append(f"{name} {'white' if w else 'coloured'}")
-            if not w:
-                coloured.append(str(name))
-    return (", ".join(fits) or "—"), (", ".join(white) or "—"), tuple(coloured)
 
 
 _CONDITIONS = (("airspeed", "m/s"), ("dynamic_pressure", "Pa"))
@@ -98,7 +80,7 @@ def _campaign_brief(role: str, record: Any) -> Any:
             "units": dict(getattr(record, "parameter_units", {}) or {}),
         }
     if role == "validation":
-        return _fit_whiteness(record)
+        return fit_whiteness(record)
     if role == "propagation":
         if getattr(record, "mean", None) is None:
             return "—"
@@ -335,6 +317,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         "metric (mean ± std)",
         "status",
     )
+    n_est = len(names)
     rows = []
     statuses = []
     for i, f in enumerate(flights):
@@ -370,7 +353,17 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 f"![estimates across flights ({k + 1})]({_FIGURE_DIR}/campaign_trend_{k}.png)"
             ]
             parts.append("")
-    parts += [markdown_table(columns, rows), "", LEGEND, ""]
+    parts += ["### Flights at a glance", ""]
+    parts += [
+        "Fit: each output's normalised fit 100 (1 - |e| / |y - mean y|), in percent. "
+        "Metric: the propagated metric, mean ± 1 standard deviation over its draws.",
+        "",
+    ]
+    glance = [0, 1, *range(2 + n_est, len(columns))]
+    parts += [markdown_table([columns[j] for j in glance], [[r[j] for j in glance] for r in rows])]
+    parts += ["", LEGEND, ""]
+    if names:
+        parts += estimate_tables(names, punits, flights, [r[2 : 2 + n_est] for r in rows])
     parts += hq_table(
         list(flights),
         [r[1] for r in rows],
@@ -380,10 +373,12 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         parts += ["## Failures", ""]
         parts += [f"- **{f}**: {err}" for f, err in ctx.failures.items()]
         parts.append("")
-    parts += ["## Flights", ""]
-    parts += [f"- [{f}](#{_anchor(f)}): {s}" for f, s in zip(flights, statuses, strict=True)]
+    parts += ["## Flights, worst first", ""]
+    order = sorted(range(len(flights)), key=lambda i: severity(statuses[i]))
+    parts += [f"- [{flights[i]}](#{_anchor(flights[i])}): {statuses[i]}" for i in order]
     for i, f in enumerate(flights):
-        parts += ["", f'<details id="{_anchor(f)}">']
+        # open, so that a printout shows every flight
+        parts += ["", f'<details id="{_anchor(f)}" open>']
         parts.append(f"<summary>{html.escape(f)}: {html.escape(statuses[i])}</summary>")
         parts.append("")
         text = ctx.brief("reports", i) if ctx.options.include_flight_reports else None
@@ -414,8 +409,10 @@ register_stage(
         # 5: the trend across flights as two figures, drawn in parallel; 6: figures of
         # every flight beside its tables, status flags from every stage, units;
         # 7: data-quality flags in the status, handling qualities across flights;
-        # 8: handling-qualities Levels and right-half-plane zeros named
-        "8",
+        # 8: handling-qualities Levels and right-half-plane zeros named; 9: estimates
+        # transposed and split to fit a page, 1σ labelled, poor-fit and error flags,
+        # flights worst first and open for printing
+        "9",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

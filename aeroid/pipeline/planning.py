@@ -121,6 +121,7 @@ class Plan:
 # "flights[3]" in a check's message: the flight's index in the list checked
 _FLIGHT_INDEX = re.compile(r"flights\[(\d+)\]")
 
+
 def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) -> Any:
     """A model from a built-in name, ``module:attribute`` (a Model or a factory; the
     module's file in `base_dir`, else an installed module), or a mapping that defines

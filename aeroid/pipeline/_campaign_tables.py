@@ -1,0 +1,60 @@
+"""The campaign report's tables: each flight's fit brief and the estimates side by side."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from .._records import markdown_table
+from .flight_status import POOR_FIT_R2
+
+__all__ = ["estimate_tables", "fit_whiteness"]
+
+
+def fit_whiteness(
+    validation: Any,
+) -> tuple[str, str, tuple[str, ...], tuple[tuple[str, float], ...]]:
+    """(fits, whiteness, coloured outputs, (output, R²) of each output fitted poorly)."""
+    metrics = getattr(validation, "metrics", None)
+    if not isinstance(metrics, Mapping) or not metrics:
+        return "—", "—", (), ()
+    fits, white, coloured, poor = [], [], [], []
+    for name, m in metrics.items():
+        fit = getattr(m, "fit", None)
+        if fit is not None:
+            fits.append(f"{name} {float(fit):.1f} %")
+            # fit = 100 (1 - |e|/|y - mean y|), so R² = 1 - (1 - fit/100)²
+            r2 = 1.0 - (1.0 - float(fit) / 100.0) ** 2
+            if r2 < POOR_FIT_R2:
+                poor.append((str(name), r2))
+        w = getattr(m, "white", getattr(m, "is_white", None))
+        if w is None and getattr(m, "whiteness_pvalue", None) is not None:
+            w = float(m.whiteness_pvalue) > 0.05
+        if w is not None:
+            white.append(f"{name} {'white' if w else 'coloured'}")
+            if not w:
+                coloured.append(str(name))
+    return (", ".join(fits) or "—"), (", ".join(white) or "—"), tuple(coloured), tuple(poor)
+
+
+# flights side by side in one estimates table: more are split into further tables, so
+# that each fits a printed page
+_FLIGHTS_PER_TABLE = 6
+
+
+def estimate_tables(
+    names: list[str], punits: Mapping[str, str], flights: Any, cells: list[Any]
+) -> list[str]:
+    """The estimates transposed (a parameter a row, a flight a column), split by flights."""
+    out = [
+        "### Estimates",
+        "",
+        "Each estimate ± 1 standard error (1σ; the plots' bars are 95 %, ±1.96σ).",
+        "",
+    ]
+    for start in range(0, len(flights), _FLIGHTS_PER_TABLE):
+        cols = list(range(start, min(start + _FLIGHTS_PER_TABLE, len(flights))))
+        header = ["parameter", "unit", *(flights[i] for i in cols)]
+        body = [[n, punits.get(n, "—"), *(cells[i][k] for i in cols)] for k, n in enumerate(names)]
+        out += [markdown_table(header, body), ""]
+    return out
