@@ -341,9 +341,9 @@ def test_html_report_renders_in_chromium_first_figure_on_screen(campaign, tmp_pa
     assert int(found.group(5)) == 0  # every flight open, so that a printout shows it
     assert found.group(6) == "true"  # and a flight's section shows its figures
     # on an A4 page's width (794 px at 96 dpi) no table runs off the page
+    page = probe.as_uri()
     narrow = subprocess.run(
-        [*common, "--window-size=794,1123", "--virtual-time-budget=20000", "--dump-dom"]
-        + [probe.as_uri()],
+        [*common, "--window-size=794,1123", "--virtual-time-budget=20000", "--dump-dom", page],
         capture_output=True,
         text=True,
         timeout=120,

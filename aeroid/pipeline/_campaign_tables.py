@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import html
+import re
 from collections.abc import Mapping
 from typing import Any
 
 from .._records import markdown_table
 from .flight_status import POOR_FIT_R2
 
-__all__ = ["estimate_tables", "fit_whiteness"]
+__all__ = ["estimate_tables", "fit_whiteness", "with_warnings"]
 
 
 def fit_whiteness(
@@ -58,3 +60,27 @@ def estimate_tables(
         body = [[n, punits.get(n, "—"), *(cells[i][k] for i in cols)] for k, n in enumerate(names)]
         out += [markdown_table(header, body), ""]
     return out
+
+
+def with_warnings(text: str, the_plan: Any, statuses: Mapping[str, Any]) -> str:
+    """The report with each flight's warnings (stored with its results, so a cached
+    rerun shows them too) at the top of that flight's section."""
+    by_flight: dict[str, list[str]] = {}
+    for t in the_plan.tasks:
+        for w in statuses[t.key].warnings if t.key in statuses else ():
+            by_flight.setdefault(t.flight or "", []).append(f"- **{t.step}**: {w}")
+    if not by_flight:
+        return text
+    out = []
+    for line in text.splitlines():
+        out.append(line)
+        m = _SUMMARY.match(line)
+        if m and html.unescape(m.group(1)) in by_flight:
+            out += ["", "**Warnings**", "", *by_flight[html.unescape(m.group(1))]]
+    campaign = by_flight.get("", [])
+    if campaign:
+        out += ["", "## Campaign warnings", "", *campaign]
+    return "\n".join(out) + "\n"
+
+
+_SUMMARY = re.compile(r"^<summary>(.*?): .*</summary>$")

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import AeroidError, ConfigError
-from ._campaign_tables import estimate_tables, fit_whiteness
+from ._campaign_tables import estimate_tables, fit_whiteness, with_warnings
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
 from .flight_status import LEGEND, flight_status, severity
@@ -531,6 +531,7 @@ def write_report(
         text = getattr(record, "markdown", str(record))
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
+    text = with_warnings(text, the_plan, statuses)
     path = the_plan.config.report_path
     folder = f"{path.stem}_figures"
     # the Markdown links its figures, written beside it

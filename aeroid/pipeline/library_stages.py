@@ -317,7 +317,7 @@ def _infer_model(ctx: StageContext) -> Any:
     if not isinstance(values, Mapping) or not isinstance(nominal, Mapping):
         return model
     held = {k: float(values[k]) for k in nominal if k in values}
-    if not held or not dataclasses.is_dataclass(model):
+    if not held or not dataclasses.is_dataclass(model) or isinstance(model, type):
         return model
     return dataclasses.replace(model, parameters={**nominal, **held})
 
