@@ -56,7 +56,7 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 # the terminal's results table: at most this many characters a row (the report has it all)
 _TABLE_WIDTH = 100
 # the campaign table's columns the terminal shows; the estimates are in the report
-_SHOWN = ("flight", "condition", "fit", "metric (mean ± std)", "status")
+_SHOWN = ("flight", "condition", "fit", "status")
 
 
 def _worst_fit(cell: str) -> str:
@@ -75,10 +75,12 @@ def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
     """The results table cut to `_TABLE_WIDTH` characters a row: the campaign's summary
     columns (the estimates stay in the report), cells shortened with an ellipsis.
     Returns (table, number of columns left out)."""
-    keep = [j for j, h in enumerate(header) if h in _SHOWN]
+    # the propagated metric's column is named after it: "<metric> [unit] (mean ± 1σ)"
+    keep = [j for j, h in enumerate(header) if h in _SHOWN or "(mean ± " in h]
     if len(keep) < 2 or len(_table(header, rows).split("\n", 1)[0]) <= _TABLE_WIDTH:
         keep = list(range(len(header)))
-    head = [header[j] for j in keep]
+    # the metric's name and unit are enough here; its mean ± 1σ the footnote says
+    head = [header[j].split(" (mean ± ")[0] for j in keep]
     body = [[str(r[j]) for j in keep] for r in rows]
     if "fit" in head:
         k = head.index("fit")
@@ -179,7 +181,10 @@ def run(
         table, left_out = _narrow_table(summary.columns, summary.rows)
         click.echo(("\n" if caught else "") + table)
         if left_out:
-            click.echo(f"({left_out} more columns, the estimates with their units: see the report)")
+            click.echo(
+                f"(metric: mean ± 1σ; {left_out} more columns, the estimates with their "
+                "units: see the report)"
+            )
         click.echo("")
     if not as_json:
         failed = [t for t in doc["tasks"] if t["status"] == "failed"]

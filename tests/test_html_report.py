@@ -190,6 +190,9 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
             assert label in body
     headers = re.search(r"<table>\n<tr>(.*?)</tr>", html).group(1)
     assert "<th>fit</th>" in headers and "<th>status</th>" in headers
+    # the propagated metric by name and unit, its spread labelled 1 sigma
+    assert "<th>natural_frequency [rad/s] (mean ± 1σ)</th>" in headers
+    assert "<th>whiteness</th>" not in headers  # each flight's section has it
     # the estimates transposed, each with its unit, labelled 1 sigma
     assert "± 1 standard error (1σ" in html
     for name, unit in (

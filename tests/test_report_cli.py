@@ -25,6 +25,7 @@ def test_narrow_table_keeps_the_summary_columns_within_the_width():
     assert cells[:2] == ["flight_01", "airspeed 45 m/s"]
     assert cells[2] == "worst phi 60.6 %"  # the worst output's fit
     assert cells[3] == "5.566 ± 0.088"
+    assert "metric" in lines[0]
     assert cells[4].startswith("error > 100 %") and cells[4].endswith("…")
     # a narrow table (a user pipeline's) is printed whole
     small, none = _narrow_table(["flight", "mean"], [["f00", "1.5"]])

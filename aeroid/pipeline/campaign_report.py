@@ -52,6 +52,7 @@ def _condition(meta: Mapping[str, Any]) -> str:
     return ", ".join(parts) or str(meta.get("source", "—"))
 
 
+_METRIC_COLUMN = "metric (mean ± std)"
 # units of the metrics `propagate` computes by name
 _METRIC_UNITS = {"natural_frequency": "rad/s", "damping_ratio": "-", "time_constant": "s"}
 
@@ -314,7 +315,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         *(f"{n} [{punits[n]}]" if n in punits else n for n in names),
         "fit",
         "whiteness",
-        "metric (mean ± std)",
+        _METRIC_COLUMN,
         "status",
     )
     n_est = len(names)
@@ -359,7 +360,8 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         "Metric: the propagated metric, mean ± 1 standard deviation over its draws.",
         "",
     ]
-    glance = [0, 1, *range(2 + n_est, len(columns))]
+    # whiteness output by output is in each flight's section; the status counts it
+    glance = [j for j in (0, 1, *range(2 + n_est, len(columns))) if columns[j] != "whiteness"]
     parts += [markdown_table([columns[j] for j in glance], [[r[j] for j in glance] for r in rows])]
     parts += ["", LEGEND, ""]
     if names:
@@ -532,6 +534,13 @@ def write_report(
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
     text = with_warnings(text, the_plan, statuses)
+    # the propagated metric by its name and unit (the config names it)
+    metric = (the_plan.config.stages.get("propagate") or {}).get("metric", "natural_frequency")
+    if isinstance(metric, str) and "propagate" in the_plan.config.stages:
+        unit = _METRIC_UNITS.get(metric)
+        heading = f"{metric}{f' [{unit}]' if unit else ''} (mean ± 1σ)"
+        text = text.replace(_METRIC_COLUMN, heading)
+        columns = [heading if c == _METRIC_COLUMN else c for c in columns]
     path = the_plan.config.report_path
     folder = f"{path.stem}_figures"
     # the Markdown links its figures, written beside it
