@@ -127,6 +127,12 @@ def test_status_names_every_flag_and_the_legend_explains_each():
     assert "**data F C**" in LEGEND
 
 
+def test_markdown_keeps_a_fenced_block_verbatim():
+    page = markdown_to_html("# T\n\n```yaml\nmodel: <x> & y\n  - a: 1\n```\n\nafter\n", {})
+    assert "<pre><code>model: &lt;x&gt; &amp; y\n  - a: 1</code></pre>" in page
+    assert "<p>after</p>" in page
+
+
 def test_markdown_folds_sections_and_links_anchors():
     page = markdown_to_html(
         '- [F<1>](#flight-F1)\n\n<details id="flight-F1">\n<summary>F1: ok</summary>\n\n'
@@ -193,6 +199,12 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
     # the propagated metric by name and unit, its spread labelled 1 sigma
     assert "<th>natural_frequency [rad/s] (mean ± 1σ)</th>" in headers
     assert "<th>whiteness</th>" not in headers  # each flight's section has it
+    # what was flown: the config as run, verbatim (the model, the trims, the settings)
+    flown = html.split("<h2>What was flown</h2>", 1)[1].split("<h2>", 1)[0]
+    config = campaign["config"].read_text(encoding="utf-8")
+    from html import escape
+
+    assert f"<pre><code>{escape(config.rstrip(chr(10)))}</code></pre>" in flown
     # the estimates transposed, each with its unit, labelled 1 sigma
     assert "± 1 standard error (1σ" in html
     for name, unit in (

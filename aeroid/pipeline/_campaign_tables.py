@@ -10,7 +10,7 @@ from typing import Any
 from .._records import markdown_table
 from .flight_status import POOR_FIT_R2
 
-__all__ = ["estimate_tables", "fit_whiteness", "with_warnings"]
+__all__ = ["estimate_tables", "fit_whiteness", "what_was_flown", "with_warnings"]
 
 
 def fit_whiteness(
@@ -84,3 +84,33 @@ def with_warnings(text: str, the_plan: Any, statuses: Mapping[str, Any]) -> str:
 
 
 _SUMMARY = re.compile(r"^<summary>(.*?): .*</summary>$")
+
+
+def what_was_flown(text: str, source: Any) -> str:
+    """The report with a "What was flown" section before its flights: the campaign's
+    config as run (aircraft and model equations, each flight's trim and condition,
+    every stage's settings, the filter's noise levels among them)."""
+    from pathlib import Path
+
+    try:
+        config = Path(source).read_text(encoding="utf-8")
+    except (OSError, TypeError, ValueError):
+        return text
+    section = [
+        "## What was flown",
+        "",
+        f"The campaign's config, `{Path(source).name}`, as run: the aircraft and its "
+        "model equations (`model:`), each flight's file, condition and trim "
+        "(`flights:`) and the settings of every step (`stages:`; the filter's process "
+        "and measurement noise among them).",
+        "",
+        "```yaml",
+        *config.replace("```", "` ` `").splitlines(),
+        "```",
+        "",
+    ]
+    marker = "## Flights, worst first"
+    if marker not in text:
+        return text.rstrip("\n") + "\n\n" + "\n".join(section)
+    head, tail = text.split(marker, 1)
+    return head + "\n".join(section) + "\n" + marker + tail

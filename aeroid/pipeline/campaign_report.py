@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import os
 import re
 from collections.abc import Mapping
@@ -19,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import AeroidError, ConfigError
-from ._campaign_tables import estimate_tables, fit_whiteness, with_warnings
+from ._campaign_tables import estimate_tables, fit_whiteness, what_was_flown, with_warnings
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
 from .flight_status import LEGEND, flight_status, severity
@@ -533,7 +534,7 @@ def write_report(
         text = getattr(record, "markdown", str(record))
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
-    text = with_warnings(text, the_plan, statuses)
+    text = what_was_flown(with_warnings(text, the_plan, statuses), the_plan.config.source)
     # the propagated metric by its name and unit (the config names it)
     metric = (the_plan.config.stages.get("propagate") or {}).get("metric", "natural_frequency")
     if isinstance(metric, str) and "propagate" in the_plan.config.stages:
@@ -549,8 +550,10 @@ def write_report(
         path.parent.mkdir(parents=True, exist_ok=True)
         marked = text.rstrip("\n") + "\n\n" + _MD_MARKER + "\n"
         target = html_report_path(path)
-        marker = f"{_HTML_MARKER} {task.key} -->"
-        # rebuilt only when the campaign report's key changes (an unchanged rerun stays cheap)
+        # rebuilt only when the campaign report or its text (the config shown, the
+        # warnings) changes: an unchanged rerun stays cheap
+        digest = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+        marker = f"{_HTML_MARKER} {task.key} {digest} -->"
         fresh = target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace")
         if not fresh:
             if status.figures is not None:
