@@ -175,6 +175,8 @@ def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
         kw: dict[str, Any] = {"units": units}
         if role == "filtering":
             kw["data"] = records.get("data")
+        if role == "identification" and records.get("data") is not None:
+            kw["time"] = records["data"].time  # residuals against time
         if role == "inference" and records.get("identification") is not None:
             kw["marker"] = dict(records["identification"].parameters)
         out.append((label, rec.plot(**kw)))
