@@ -112,3 +112,31 @@ def test_markdown_to_html_covers_what_the_reports_write():
     assert "<ul><li>one <strong>item</strong></li><li>two</li></ul>" in html
     assert '<img alt="trend" src="data:image/png;base64,iVBORw0KGgpmYWtl">' in html
     assert '<img alt="missing" src="other.png">' in html
+
+
+def test_report_shows_correlations_and_residual_autocorrelation_with_its_band():
+    import numpy as np
+
+    from aeroid import catalog, identify, validate
+    from aeroid.reporting import report_sections
+
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=3)
+    fit = identify(model, data, ["Z_alpha", "M_alpha", "M_q", "M_delta"])
+    val = validate(model, data, fit)
+    text = dict(report_sections(val, fit))
+    ident, valid = text["Identification"], text["Validation"]
+    assert "Parameter correlation matrix:" in ident
+    c = np.asarray(fit.correlation)
+    i, j = fit.parameter_names.index("M_q"), fit.parameter_names.index("M_alpha")
+    matrix = ident.split("Parameter correlation matrix:", 1)[1]
+    row = next(ln for ln in matrix.splitlines() if ln.startswith("| M_q "))
+    assert f"{c[i, j]:+.2f}" in row and "+1.00" in row  # lower triangle, unit diagonal
+    # lag-1 autocorrelation of alpha's residuals and the band 1.96/sqrt(N)
+    n = val.residuals.shape[0]
+    e = val.residuals[:, 0] - val.residuals[:, 0].mean()
+    r1 = float(np.dot(e[:-1], e[1:]) / np.dot(e, e))
+    assert f"±{1.96 / np.sqrt(n):.3f}" in valid
+    band = valid.split("Residual autocorrelation", 1)[1]
+    row = next(ln for ln in band.splitlines() if ln.startswith(f"| {val.output_names[0]} "))
+    assert row.split("|")[2].strip() == f"{r1:+.2f}"
