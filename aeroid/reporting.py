@@ -120,6 +120,50 @@ def _autocorrelation_table(validation: Any) -> str:
     )
 
 
+# a table whose header holds one of these gets a unit column after its first
+_VALUED = ("estimate", "RMSE", "innovation")
+
+
+def _with_units(body: str, units: dict[str, str]) -> str:
+    """Each table of estimates, residual statistics or innovations with a unit column:
+    the unit of the parameter or output its row names ("—" where none is known)."""
+    if not units:
+        return body
+    out: list[str] = []
+    header = False
+    for line in body.split("\n"):
+        cells = line.split("|")
+        if not line.startswith("|") or len(cells) < 3:
+            header = False
+            out.append(line)
+            continue
+        first = cells[1].strip()
+        if not header and any(v in line for v in _VALUED) and "unit" not in line:
+            header = True
+            cells.insert(2, " unit ")
+        elif header and set(first) <= set("-: ") and first:
+            cells.insert(2, "-" * 6)
+        elif header:
+            cells.insert(2, f" {units.get(first, '—')} ")
+        out.append("|".join(cells))
+    return "\n".join(out)
+
+
+def _report_units(*results: Any) -> dict[str, str]:
+    """Units of the channels and parameters the results know of."""
+    from ._units import parameter_units
+
+    units: dict[str, str] = {}
+    for r in results:
+        units.update({k: v for k, v in (getattr(r, "units", None) or {}).items() if v})
+    for r in results:
+        names = list(getattr(r, "parameter_names", ()) or ())
+        if names:
+            declared = getattr(r, "parameter_units", None)
+            units.update(parameter_units(names, declared))
+    return units
+
+
 def _without_heading(body: str) -> str:
     # a summary that opens with its own heading would repeat the section's heading
     lines = body.lstrip("\n").split("\n")
@@ -141,6 +185,7 @@ def report_sections(
 ) -> list[tuple[str, str]]:
     """The report as a list of (heading, Markdown body) sections, in report order."""
     sections: list[tuple[str, str]] = []
+    units = _report_units(validation, identification, filtering, sensitivity, inference)
 
     def add(heading: str, result: Any, notes: list[str] | None = None, extra: str = "") -> None:
         if result is None:
@@ -149,7 +194,7 @@ def report_sections(
             raise AeroidError(
                 f"report: {heading.lower()} result has no summary(): {type(result).__name__}"
             )
-        body = _without_heading(result.summary())
+        body = _with_units(_without_heading(result.summary()), units)
         if notes:
             body += "\n\n" + "\n".join(f"- {n}" for n in notes)
         if extra:
