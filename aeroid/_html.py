@@ -24,8 +24,16 @@ th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: left; }
 th { background: #f0f0f0; }
 img { max-width: 100%; display: block; margin: 0.5em 0 1.5em 0; }
 code { background: #f4f4f4; padding: 0 3px; }
+pre { background: #f4f4f4; padding: 0.5em; white-space: pre-wrap; font-size: 0.85em; }
 summary { font-weight: bold; cursor: pointer; margin: 0.4em 0; }
 h1 { border-bottom: 2px solid #333; } h2 { border-bottom: 1px solid #aaa; margin-top: 1.6em; }
+@media print {
+  body { max-width: none; margin: 0; font-size: 10pt; }
+  table { font-size: 8pt; page-break-inside: auto; } tr { page-break-inside: avoid; }
+  th, td { padding: 1px 4px; }
+  img { max-width: 100%; page-break-inside: avoid; }
+  details > summary { list-style: none; }
+}
 """
 
 
@@ -57,11 +65,13 @@ _CODE = re.compile(r"`([^`]+)`")
 _HEADING = re.compile(r"^(#{1,6})\s+(.*)$")
 _IMAGE = re.compile(r"^!\[(.*?)\]\((.*?)\)$")
 _RULE_CELL = re.compile(r":?-+:?")
-_BLOCK_START = re.compile(r"^(#|\||!\[|- |\* |<details|</details>|<summary>)")
+_BLOCK_START = re.compile(r"^(#|\||!\[|- |\* |<details|</details>|<summary>|```)")
 _TITLE_MARKS = re.compile(r"^#+\s*")
 _LINK = re.compile(r"\[([^\]]+)\]\((#[A-Za-z0-9_.:-]+)\)")
 # the raw HTML our reports use to fold a section: passed through as it is
-_RAW = re.compile(r"^(<details( id=\"[A-Za-z0-9_.:-]+\")?>|</details>|<summary>.*</summary>)$")
+_RAW = re.compile(
+    r"^(<details( id=\"[A-Za-z0-9_.:-]+\")?( open)?>|</details>|<summary>.*</summary>)$"
+)
 
 
 def _inline(text: str) -> str:
@@ -95,6 +105,15 @@ def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -
         if _RAW.match(stripped):
             out.append(stripped)
             i += 1
+        elif stripped.startswith("```"):
+            # a fenced block (the campaign's config): kept verbatim, escaped
+            block = []
+            i += 1
+            while i < len(lines) and not lines[i].strip().startswith("```"):
+                block.append(lines[i])
+                i += 1
+            i += 1
+            out.append("<pre><code>" + html.escape("\n".join(block)) + "</code></pre>")
         elif heading:
             level = len(heading.group(1))
             out.append(f"<h{level}>{_inline(heading.group(2))}</h{level}>")

@@ -53,6 +53,55 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return markdown_table(header, rows)
 
 
+# the terminal's results table: at most this many characters a row (the report has it all)
+_TABLE_WIDTH = 100
+# the campaign table's columns the terminal shows; the estimates are in the report
+_SHOWN = ("flight", "condition", "fit", "status")
+
+
+def _worst_fit(cell: str) -> str:
+    """'V 77.6 %, alpha 70.4 %' -> 'alpha 70.4 %' (the worst output's fit)."""
+    parts = [p.strip().rsplit(" ", 2) for p in cell.split(",")]
+    scored = []
+    for p in parts:
+        try:
+            scored.append((float(p[-2]), " ".join(p)))
+        except (ValueError, IndexError):
+            return cell
+    return f"worst {min(scored)[1]}" if scored else cell
+
+
+def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
+    """The results table cut to `_TABLE_WIDTH` characters a row: the campaign's summary
+    columns (the estimates stay in the report), cells shortened with an ellipsis.
+    Returns (table, number of columns left out)."""
+    # the propagated metric's column is named after it: "<metric> [unit] (mean ± 1σ)"
+    keep = [j for j, h in enumerate(header) if h in _SHOWN or "(mean ± " in h]
+    if len(keep) < 2 or len(_table(header, rows).split("\n", 1)[0]) <= _TABLE_WIDTH:
+        keep = list(range(len(header)))
+    # the metric's name and unit are enough here; its mean ± 1σ the footnote says
+    head = [header[j].split(" (mean ± ")[0] for j in keep]
+    body = [[str(r[j]) for j in keep] for r in rows]
+    if "fit" in head:
+        k = head.index("fit")
+        for r in body:
+            r[k] = _worst_fit(r[k])
+    cols = len(head)
+    widths = [max(len(head[j]), *(len(r[j]) for r in body)) for j in range(cols)] if body else []
+    # shorten the widest column until the row fits (a cell keeps at least 8 characters)
+    while widths and sum(widths) + 3 * cols + 1 > _TABLE_WIDTH:
+        j = max(range(cols), key=lambda i: widths[i])
+        if widths[j] <= 8:
+            break
+        widths[j] -= 1
+    cut = [
+        [c if len(c) <= widths[j] else c[: widths[j] - 1] + "…" for j, c in enumerate(r)]
+        for r in body
+    ]
+    head = [h if len(h) <= widths[j] else h[: widths[j] - 1] + "…" for j, h in enumerate(head)]
+    return _table(head, cut), len(header) - len(keep)
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="aeroid", prog_name="aeroid")
 def main() -> None:
@@ -114,10 +163,8 @@ def run(
     doc = summary.to_json()
     if as_json:
         click.echo(json.dumps(doc, indent=2))
-    elif not quiet and summary.rows:
-        click.echo(_table(summary.columns, summary.rows))
-        click.echo("")
-    # with --json, stdout holds the document alone: the warnings go to stderr
+    # with --json, stdout holds the document alone: the warnings go to stderr; else
+    # they come before the table, each naming its flight
     caught = summary.warnings()
     for task, text in caught[:_MAX_WARNINGS]:
         where = f"{task.step} {task.flight}" if task.flight else task.step
@@ -130,6 +177,15 @@ def run(
             "(`aeroid show KEY` lists a result's warnings)",
             err=as_json,
         )
+    if not as_json and not quiet and summary.rows:
+        table, left_out = _narrow_table(summary.columns, summary.rows)
+        click.echo(("\n" if caught else "") + table)
+        if left_out:
+            click.echo(
+                f"(metric: mean ± 1σ; {left_out} more columns, the estimates with their "
+                "units: see the report)"
+            )
+        click.echo("")
     if not as_json:
         failed = [t for t in doc["tasks"] if t["status"] == "failed"]
         first_errors = [t for t in failed if not str(t["error"]).startswith("upstream ")]
@@ -351,6 +407,23 @@ def rerun(
     sys.exit(0 if same == len(results) else 1)
 
 
+def _config_entries(config: str, st: Any) -> list[tuple[str, str]]:
+    """(stage, key) of every stored entry the campaign in `config` plans."""
+    from .errors import AeroidError
+    from .pipeline.config import load_config
+    from .pipeline.planning import plan
+
+    try:
+        cfg = load_config(config)
+        the_plan = plan(cfg, allow_imports=bool(getattr(cfg, "allow_imports", False)))
+    except AeroidError as exc:
+        _fail(str(exc))
+        raise AssertionError from None  # unreachable
+    wanted = list(dict.fromkeys((t.stage, t.key) for t in the_plan.tasks))
+    stored = st.stored(wanted)
+    return [w for w in wanted if w in stored]
+
+
 @main.command()
 @_store_options
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout.")
@@ -360,13 +433,21 @@ def rerun(
     help="Remove the corrupt entries, so that the next run recomputes them.",
 )
 def verify(config: str | None, store: str | None, as_json: bool, remove: bool) -> None:
-    """Check every entry's digests; list corrupt entries (exit 1 if any)."""
+    """Check the digests of the config's entries (with --store: of every entry); list
+    corrupt entries (exit 1 if any)."""
     from .errors import AeroidError
 
     st = _open_store(config, store, repair=remove)  # --remove also restores a lost marker
     try:
-        n = sum(1 for _ in st.entries())
-        bad = st.verify_all()
+        if config:
+            # the config's own entries only: several campaigns may share one store
+            mine = _config_entries(config, st)
+            n = len(mine)
+            found = ((key, st.verify(key, stage)) for stage, key in mine)
+            bad = {key: problem for key, problem in found if problem is not None}
+        else:
+            n = sum(1 for _ in st.entries())
+            bad = st.verify_all()
         removed = [key for key in bad if remove and st.remove(st.find(key).stage, key)]
     except AeroidError as exc:  # a linked folder in the store, a read-only store
         _fail(str(exc), 1)

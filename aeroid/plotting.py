@@ -147,7 +147,8 @@ def _ratio_unit(output: str, input: str, units: Mapping[str, str]) -> str:
 
 
 def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None) -> Figure:
-    """Bode plot per channel, magnitude in dB and phase in degrees, with coherence.
+    """Bode plot per channel against frequency in rad/s, magnitude in dB and phase in
+    degrees, with coherence.
 
     Empirical points (coherent ones marked) under the model's curve; the
     magnitude axis names the ratio's units when `units` gives them.
@@ -406,10 +407,14 @@ def plot_campaign_trend(
         ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=3, color="C0")
         ax.set_ylabel(_label(name, units), fontsize=8)
     if names:
+        # pinned 0.1 in below the top edge, inside the top margin, whatever the figure's
+        # height (a fraction of a tall figure would reach into the first panel)
         fig.suptitle(
             "estimates across flights, bars: 95 % (±1.96σ)"
             + (f" against {xlabel}" if condition is not None else ""),
             fontsize=10,
+            y=1.0 - 0.1 / fig.get_figheight(),
+            va="top",
         )
         axes[-1, 0].set_xlabel(xlabel)
         if condition is None:
@@ -417,11 +422,14 @@ def plot_campaign_trend(
     return fig
 
 
-def plot_identification(result: Any, *, units: Mapping[str, str] | None = None) -> Figure:
+def plot_identification(
+    result: Any, *, units: Mapping[str, str] | None = None, time: Any = None
+) -> Figure:
     """Residual histories of the fit, then each estimate with its 95 % bar in a panel of its own.
 
     One panel per parameter keeps each error bar visible whatever the
-    magnitudes of the others.
+    magnitudes of the others. `time`: the record's time stamps (s), the residuals'
+    abscissa where they are as long as a manoeuvre's residuals (else the sample index).
     """
     names = list(result.parameter_names)
     outs = list(result.output_names)
@@ -431,11 +439,14 @@ def plot_identification(result: Any, *, units: Mapping[str, str] | None = None) 
     fig, grid = _grid(max(len(outs) + rows, 1), cols, height=1.9, hgap=0.8, wgap=0.9)
     for k, out in enumerate(outs):
         ax = fig.add_subplot(grid[k, :])
+        on_time = time is not None and all(len(r) == len(time) for r in result.residuals)
         for i, r in enumerate(result.residuals):
-            ax.plot(r[:, k], lw=0.8, label=f"manoeuvre {i}" if len(result.residuals) > 1 else None)
+            x = np.asarray(time, dtype=float) if on_time else np.arange(len(r))
+            label = f"manoeuvre {i}" if len(result.residuals) > 1 else None
+            ax.plot(x, r[:, k], lw=0.8, label=label)
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_ylabel(_label(out, units, what="residual"), fontsize=8)
-        ax.set_xlabel("sample [-]")
+        ax.set_xlabel("time [s]" if on_time else "sample [-]")
     for i, name in enumerate(names):
         ax = fig.add_subplot(grid[len(outs) + i // cols, i % cols])
         value, err = result.parameters[name], 1.96 * result.stderr[name]

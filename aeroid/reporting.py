@@ -55,6 +55,115 @@ def _validation_notes(validation: Any) -> list[str]:
     return notes
 
 
+# the full correlation matrix up to this many parameters; above, the strongest pairs
+_FULL_MATRIX = 10
+_STRONGEST = 10
+
+
+def _correlation_table(result: Any) -> str:
+    """The parameter correlation matrix (lower triangle), or its strongest pairs."""
+    import numpy as np
+
+    from ._records import markdown_table
+
+    corr = getattr(result, "correlation", None)
+    names = list(getattr(result, "parameter_names", ()))
+    if corr is None or len(names) < 2:
+        return ""
+    c = np.asarray(corr, dtype=float)
+    if len(names) <= _FULL_MATRIX:
+        rows = [
+            [n, *(f"{c[i, j]:+.2f}" if j <= i else "" for j in range(len(names)))]
+            for i, n in enumerate(names)
+        ]
+        return "Parameter correlation matrix:\n\n" + markdown_table(["", *names], rows)
+    pairs = sorted(
+        ((abs(c[i, j]), names[i], names[j], c[i, j]) for i in range(len(names)) for j in range(i)),
+        key=lambda p: -p[0] if np.isfinite(p[0]) else 0.0,
+    )[:_STRONGEST]
+    rows = [[a, b, f"{r:+.2f}"] for _, a, b, r in pairs]
+    return (
+        f"Parameter correlations, the {len(rows)} strongest of {len(names)} parameters:\n\n"
+        + markdown_table(["parameter", "parameter", "correlation"], rows)
+    )
+
+
+def _autocorrelation_table(validation: Any) -> str:
+    """Each output's residual autocorrelation at a few lags against the 95 % band of
+    white noise, ±1.96/sqrt(N)."""
+    import numpy as np
+
+    from ._records import markdown_table
+
+    res = getattr(validation, "residuals", None)
+    names = list(getattr(validation, "output_names", ()))
+    if res is None or not names:
+        return ""
+    e = np.asarray(res, dtype=float)
+    if e.ndim != 2 or e.shape[0] < 4:
+        return ""
+    n = e.shape[0]
+    max_lag = int(min(getattr(validation, "whiteness_lags", 20) or 20, n - 1))
+    shown = [k for k in (1, 2, 5, 10, 20) if k <= max_lag]
+    band = 1.96 / np.sqrt(n)
+    rows = []
+    for j, name in enumerate(names):
+        x = e[:, j] - np.mean(e[:, j])
+        den = float(np.dot(x, x))
+        r = [float(np.dot(x[:-k], x[k:]) / den) if den > 0 else 0.0 for k in range(1, max_lag + 1)]
+        outside = sum(abs(v) > band for v in r)
+        rows.append([name, *(f"{r[k - 1]:+.2f}" for k in shown), f"{outside} of {max_lag}"])
+    header = ["output", *(f"r({k})" for k in shown), f"lags outside ±{band:.3f}"]
+    return (
+        "Residual autocorrelation at lags of k samples, against the 95 % band of white "
+        f"noise (±1.96/√N = ±{band:.3f}, N = {n}):\n\n" + markdown_table(header, rows)
+    )
+
+
+# a table whose header holds one of these gets a unit column after its first
+_VALUED = ("estimate", "RMSE", "innovation")
+
+
+def _with_units(body: str, units: dict[str, str]) -> str:
+    """Each table of estimates, residual statistics or innovations with a unit column:
+    the unit of the parameter or output its row names ("—" where none is known)."""
+    if not units:
+        return body
+    out: list[str] = []
+    header = False
+    for line in body.split("\n"):
+        cells = line.split("|")
+        if not line.startswith("|") or len(cells) < 3:
+            header = False
+            out.append(line)
+            continue
+        first = cells[1].strip()
+        if not header and any(v in line for v in _VALUED) and "unit" not in line:
+            header = True
+            cells.insert(2, " unit ")
+        elif header and set(first) <= set("-: ") and first:
+            cells.insert(2, "-" * 6)
+        elif header:
+            cells.insert(2, f" {units.get(first, '—')} ")
+        out.append("|".join(cells))
+    return "\n".join(out)
+
+
+def _report_units(*results: Any) -> dict[str, str]:
+    """Units of the channels and parameters the results know of."""
+    from ._units import parameter_units
+
+    units: dict[str, str] = {}
+    for r in results:
+        units.update({k: v for k, v in (getattr(r, "units", None) or {}).items() if v})
+    for r in results:
+        names = list(getattr(r, "parameter_names", ()) or ())
+        if names:
+            declared = getattr(r, "parameter_units", None)
+            units.update(parameter_units(names, declared))
+    return units
+
+
 def _without_heading(body: str) -> str:
     # a summary that opens with its own heading would repeat the section's heading
     lines = body.lstrip("\n").split("\n")
@@ -76,25 +185,34 @@ def report_sections(
 ) -> list[tuple[str, str]]:
     """The report as a list of (heading, Markdown body) sections, in report order."""
     sections: list[tuple[str, str]] = []
+    units = _report_units(validation, identification, filtering, sensitivity, inference)
 
-    def add(heading: str, result: Any, notes: list[str] | None = None) -> None:
+    def add(heading: str, result: Any, notes: list[str] | None = None, extra: str = "") -> None:
         if result is None:
             return
         if not hasattr(result, "summary"):
             raise AeroidError(
                 f"report: {heading.lower()} result has no summary(): {type(result).__name__}"
             )
-        body = _without_heading(result.summary())
+        body = _with_units(_without_heading(result.summary()), units)
         if notes:
             body += "\n\n" + "\n".join(f"- {n}" for n in notes)
+        if extra:
+            body += "\n\n" + extra
         sections.append((heading, body))
 
     add(
         "Identification",
         identification,
         _identification_notes(identification) if identification else None,
+        _correlation_table(identification) if identification else "",
     )
-    add("Validation", validation, _validation_notes(validation) if validation else None)
+    add(
+        "Validation",
+        validation,
+        _validation_notes(validation) if validation else None,
+        _autocorrelation_table(validation) if validation else "",
+    )
     add("State estimation", filtering)
     add("Sensitivities", sensitivity)
     add("Frequency response", frequency)

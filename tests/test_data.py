@@ -288,7 +288,9 @@ def test_csv_header_only_or_empty(tmp_path):
     one.write_text("time,a\n0,1\n")
     with pytest.raises(DataFormatError, match="fewer than 2 data rows"):
         load_flight_test(one)
-    with pytest.raises(DataFormatError, match="sample_rate, max_gap, t0 and t1 apply to flight logs"):
+    with pytest.raises(
+        DataFormatError, match="sample_rate, max_gap, t0 and t1 apply to flight logs"
+    ):
         load_flight_test(one, sample_rate=10.0)
 
 

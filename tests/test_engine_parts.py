@@ -97,6 +97,21 @@ def test_infer_takes_parameters_and_priors_as_its_old_name_with_the_same_key(tmp
     assert [t.key for t in before.tasks] == [t.key for t in after.tasks]
 
 
+def test_infer_holds_the_parameters_it_does_not_sample_at_the_fit(tmp_path):
+    # a posterior of M_q alone is conditional on M_delta at its fitted value, not on the
+    # model's nominal one
+    cfg = _config(tmp_path, "  infer: {parameters: {M_q: {normal: [-2.0, 2.0]}}, n_steps: 4}\n")
+    summary = run(cfg, workers=0)
+    store = open_store(tmp_path / "store")
+    tasks = {t.step: t for t in summary.plan.tasks if t.flight == summary.plan.tasks[0].flight}
+    fit = store.load(tasks["identify"].key, "identify")
+    post = store.load(tasks["infer"].key, "infer")
+    assert post.fixed["M_delta"] == pytest.approx(fit.parameters["M_delta"], rel=1e-12)
+    from aeroid.catalog import short_period
+
+    assert post.fixed["M_delta"] != pytest.approx(short_period().parameters["M_delta"])
+
+
 def test_stages_call_the_library_by_import_not_by_name():
     for path in (ENGINE / "library_stages.py", ENGINE / "campaign_report.py"):
         text = path.read_text(encoding="utf-8")

@@ -113,7 +113,10 @@ def test_two_inputs_conditioned_estimate():
         assert good.sum() >= 5
         h = b / (2j * np.pi * ch.frequency_hz[good] + a)
         np.testing.assert_allclose(ch.gain[good], np.abs(h), rtol=0.1)
-        assert np.max(np.abs(np.angle(np.exp(1j * (np.angle(ch.response[good]) - np.angle(h)))))) < 0.15
+        assert (
+            np.max(np.abs(np.angle(np.exp(1j * (np.angle(ch.response[good]) - np.angle(h))))))
+            < 0.15
+        )
 
 
 def test_too_few_coherent_frequencies_warn(multisine_record):

@@ -50,8 +50,11 @@ window.addEventListener("load", () => {
     if (ok < imgs.length && tries++ < 100) return setTimeout(verdict, 50);
     const probe = document.createElement("pre");
     probe.id = "aeroid-probe";
+    const right = Math.max(0, ...Array.from(document.querySelectorAll("table"))
+      .map((t) => t.getBoundingClientRect().right));
     probe.textContent = `IMAGES ${imgs.length} LOADED ${ok} TOP ${top} ` +
-      `HEIGHT ${window.innerHeight} CLOSED ${closed.length} OPENED ${opened}`;
+      `HEIGHT ${window.innerHeight} CLOSED ${closed.length} OPENED ${opened} ` +
+      `RIGHT ${Math.ceil(right)} WIDTH ${document.documentElement.clientWidth}`;
     document.body.appendChild(probe);
   };
   verdict();
@@ -87,17 +90,31 @@ def test_status_names_every_flag_and_the_legend_explains_each():
         "active_bounds": {"M_q": "upper"},
         "identifiable": False,
     }
-    status = flight_status(None, ident, ("—", "—", ("q",)), {"converged": False})
+    status = flight_status(None, ident, ("q 90.0 %", "—", ("q",)), {"converged": False})
     flags = status.split("; ")
+    # worst first: a poor fit or a loose estimate before a bound, coloured residuals last
     assert flags == [
         "not converged",
-        "bound M_q",
         "not identifiable",
-        "coloured q",
+        "bound M_q",
         "posterior not converged",
+        "coloured 1/1",
     ]
     for word in ("not converged", "bound", "not identifiable", "coloured", "posterior"):
         assert word in LEGEND
+    # fit 40 % is R² = 1 - 0.6² = 0.64; K's standard error exceeds its magnitude
+    loose = {
+        "success": True,
+        "parameters": {"K": 0.5, "tau": 2.0},
+        "stderr": {"K": 1.3, "tau": 0.1},
+    }
+    poor = ("p 40.0 %, r 95.0 %", "—", ("p", "r"), (("p", 0.64),))
+    assert flight_status(None, loose, poor, None).split("; ") == [
+        "poor fit p (R² 0.64)",
+        "error > 100 % K",
+        "coloured 2/2",
+    ]
+    assert "poor fit" in LEGEND and "error > 100 %" in LEGEND
     clean = {"success": True, "active_bounds": {}, "identifiable": True}
     assert flight_status(None, clean, ("—", "—", ()), {"converged": True}) == "ok"
     assert flight_status("boom", clean, None, None) == "failed"
@@ -108,6 +125,12 @@ def test_status_names_every_flag_and_the_legend_explains_each():
         "data dropouts alpha",
     ]
     assert "**data F C**" in LEGEND
+
+
+def test_markdown_keeps_a_fenced_block_verbatim():
+    page = markdown_to_html("# T\n\n```yaml\nmodel: <x> & y\n  - a: 1\n```\n\nafter\n", {})
+    assert "<pre><code>model: &lt;x&gt; &amp; y\n  - a: 1</code></pre>" in page
+    assert "<p>after</p>" in page
 
 
 def test_markdown_folds_sections_and_links_anchors():
@@ -163,7 +186,7 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
     first_img, first_table = html.index("<img"), html.index("<table>")
     assert first_img < first_table < html.index("<details")
     assert "estimates across flights" in html[first_img : first_img + 200]
-    sections = re.findall(r'<details id="(flight-[^"]+)">(.*?)</details>', html, re.S)
+    sections = re.findall(r'<details id="(flight-[^"]+)" open>(.*?)</details>', html, re.S)
     assert len(sections) == N_FLIGHTS
     for anchor, body in sections:
         assert f'href="#{anchor}"' in html
@@ -172,8 +195,25 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
         for label in ("model outputs", "residuals", "filtered states", "Bode", "posterior"):
             assert label in body
     headers = re.search(r"<table>\n<tr>(.*?)</tr>", html).group(1)
-    for header in ("Z_alpha [1/s]", "M_alpha [1/s²]", "M_q [1/s]", "M_delta [1/s²]"):
-        assert f"<th>{header}</th>" in headers
+    assert "<th>fit</th>" in headers and "<th>status</th>" in headers
+    # the propagated metric by name and unit, its spread labelled 1 sigma
+    assert "<th>natural_frequency [rad/s] (mean ± 1σ)</th>" in headers
+    assert "<th>whiteness</th>" not in headers  # each flight's section has it
+    # what was flown: the config as run, verbatim (the model, the trims, the settings)
+    flown = html.split("<h2>What was flown</h2>", 1)[1].split("<h2>", 1)[0]
+    config = campaign["config"].read_text(encoding="utf-8")
+    from html import escape
+
+    assert f"<pre><code>{escape(config.rstrip(chr(10)))}</code></pre>" in flown
+    # the estimates transposed, each with its unit, labelled 1 sigma
+    assert "± 1 standard error (1σ" in html
+    for name, unit in (
+        ("Z_alpha", "1/s"),
+        ("M_alpha", "1/s²"),
+        ("M_q", "1/s"),
+        ("M_delta", "1/s²"),
+    ):
+        assert f"<td>{name}</td><td>{unit}</td>" in html
 
 
 @pytest.mark.slow
@@ -313,8 +353,30 @@ def test_html_report_renders_in_chromium_first_figure_on_screen(campaign, tmp_pa
     top, height = float(found.group(3)), int(found.group(4))
     assert total == 2 + N_FLIGHTS * PER_FLIGHT and loaded == total
     assert 0 <= top < height  # the first figure is on the first screen
-    assert int(found.group(5)) == N_FLIGHTS  # every flight folded at first
-    assert found.group(6) == "true"  # and a flight's section opens to its figures
+    assert int(found.group(5)) == 0  # every flight open, so that a printout shows it
+    assert found.group(6) == "true"  # and a flight's section shows its figures
+    # on an A4 page's width (794 px at 96 dpi) no table runs off the page
+    page = probe.as_uri()
+    narrow = subprocess.run(
+        [*common, "--window-size=794,1123", "--virtual-time-budget=20000", "--dump-dom", page],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    ).stdout
+    fits = re.search(r"RIGHT (\d+) WIDTH (\d+)", narrow)
+    assert fits, narrow[-500:]
+    assert 0 < int(fits.group(1)) <= int(fits.group(2))
+    # printed (print CSS), every open flight section lays out on pages of its own
+    pdf = tmp_path / "page.pdf"
+    subprocess.run(
+        [*common, "--no-pdf-header-footer", f"--print-to-pdf={pdf}", html.as_uri()],
+        capture_output=True,
+        timeout=120,
+        check=False,
+    )
+    pages = len(re.findall(rb"/Type\s*/Page[^s]", pdf.read_bytes()))
+    assert pages >= 1 + N_FLIGHTS, pages
     shot = tmp_path / "page.png"
     subprocess.run(
         [*common, f"--screenshot={shot}", "--window-size=1200,900", html.as_uri()],

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import warnings
 
+import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -161,3 +162,36 @@ def test_log_axes_read_as_plain_numbers_at_one_two_and_five():
         100.0: "100",
     }
     assert _log_label(0.0, None) == "" and _log_label(float("nan"), None) == ""
+
+
+def test_residuals_against_time_bode_in_rad_per_s_and_trend_title_clear(chain):
+    r = chain["identification"]
+    data = catalog.short_period_flight(seed=0)
+    fig = r.plot(time=data.time)
+    residual_axes = fig.axes[: len(r.output_names)]
+    for ax in residual_axes:
+        assert ax.get_xlabel() == "time [s]"
+        np.testing.assert_array_equal(ax.lines[0].get_xdata(), data.time)
+    # residuals of another length than the time stamps: plotted against the sample index
+    assert r.plot(time=data.time[:-1]).axes[0].get_xlabel() == "sample [-]"
+    bode = chain["frequency"].plot()
+    ch = chain["frequency"].channels[0]
+    assert [ax.get_xlabel() for ax in bode.axes].count("frequency [rad/s]") == len(
+        chain["frequency"].channels
+    )
+    np.testing.assert_allclose(bode.axes[0].lines[0].get_xdata(), ch.frequency)
+    # a tall trend (15 panels): the title lies above the first panel, inside the figure
+    records = [
+        {
+            "flight": f"f{i}",
+            "parameters": {f"P{k}": float(k + i) for k in range(15)},
+            "stderr": {f"P{k}": 0.1 for k in range(15)},
+            "metadata": {"airspeed": 50.0 + i},
+        }
+        for i in range(3)
+    ]
+    trend = plot_campaign_trend(records)
+    renderer = FigureCanvasAgg(trend).get_renderer()
+    title = trend._suptitle.get_window_extent(renderer)
+    first = trend.axes[0].get_tightbbox(renderer)
+    assert first.y1 < title.y0 and title.y1 <= trend.bbox.height

@@ -112,3 +112,63 @@ def test_markdown_to_html_covers_what_the_reports_write():
     assert "<ul><li>one <strong>item</strong></li><li>two</li></ul>" in html
     assert '<img alt="trend" src="data:image/png;base64,iVBORw0KGgpmYWtl">' in html
     assert '<img alt="missing" src="other.png">' in html
+
+
+def test_report_shows_correlations_and_residual_autocorrelation_with_its_band():
+    import numpy as np
+
+    from aeroid import catalog, identify, validate
+    from aeroid.reporting import report_sections
+
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=3)
+    fit = identify(model, data, ["Z_alpha", "M_alpha", "M_q", "M_delta"])
+    val = validate(model, data, fit)
+    text = dict(report_sections(val, fit))
+    ident, valid = text["Identification"], text["Validation"]
+    assert "Parameter correlation matrix:" in ident
+    c = np.asarray(fit.correlation)
+    i, j = fit.parameter_names.index("M_q"), fit.parameter_names.index("M_alpha")
+    matrix = ident.split("Parameter correlation matrix:", 1)[1]
+    row = next(ln for ln in matrix.splitlines() if ln.startswith("| M_q "))
+    assert f"{c[i, j]:+.2f}" in row and "+1.00" in row  # lower triangle, unit diagonal
+    # lag-1 autocorrelation of alpha's residuals and the band 1.96/sqrt(N)
+    n = val.residuals.shape[0]
+    e = val.residuals[:, 0] - val.residuals[:, 0].mean()
+    r1 = float(np.dot(e[:-1], e[1:]) / np.dot(e, e))
+    assert f"±{1.96 / np.sqrt(n):.3f}" in valid
+    band = valid.split("Residual autocorrelation", 1)[1]
+    row = next(ln for ln in band.splitlines() if ln.startswith(f"| {val.output_names[0]} "))
+    assert row.split("|")[2].strip() == f"{r1:+.2f}"
+
+
+def test_report_tables_of_estimates_residuals_and_innovations_carry_units():
+    from aeroid import catalog, filter_states, identify, validate
+    from aeroid.reporting import report_sections
+
+    model = catalog.short_period()
+    data = catalog.short_period_flight(seed=3)
+    fit = identify(model, data, ["Z_alpha", "M_alpha", "M_q", "M_delta"])
+    val = validate(model, data, fit)
+    filt = filter_states(
+        model,
+        data,
+        fit,
+        process_noise={"alpha": 1e-8, "q": 1e-8},
+        measurement_noise={"alpha": 0.005**2, "q": 0.01**2},
+    )
+    text = dict(report_sections(val, fit, filtering=filt))
+
+    def unit_of(body: str, header_word: str, row: str) -> str:
+        lines = body.splitlines()
+        at = next(k for k, ln in enumerate(lines) if ln.startswith("|") and header_word in ln)
+        head, table = lines[at], lines[at:]
+        assert [c.strip() for c in head.split("|")][2] == "unit"
+        line = next(ln for ln in table if ln.startswith(f"| {row} "))
+        return line.split("|")[2].strip()
+
+    assert unit_of(text["Identification"], "estimate", "M_alpha") == "1/s²"
+    assert unit_of(text["Identification"], "estimate", "M_q") == "1/s"
+    assert unit_of(text["Validation"], "RMSE", "alpha") == data.units["alpha"]
+    assert unit_of(text["Validation"], "RMSE", "q") == data.units["q"]
+    assert unit_of(text["State estimation"], "innovation", "q") == data.units["q"]

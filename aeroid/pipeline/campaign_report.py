@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import os
 import re
 from collections.abc import Mapping
@@ -19,9 +20,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import AeroidError, ConfigError
+from ._campaign_tables import estimate_tables, fit_whiteness, what_was_flown, with_warnings
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
-from .flight_status import LEGEND, flight_status
+from .flight_status import LEGEND, flight_status, severity
 from .stages import CampaignReport, Stage, StageContext, register_stage
 
 if TYPE_CHECKING:
@@ -40,25 +42,6 @@ class CampaignReportOptions(Options):
     figures: bool = True
 
 
-def _fit_whiteness(validation: Any) -> tuple[str, str, tuple[str, ...]]:
-    metrics = getattr(validation, "metrics", None)
-    if not isinstance(metrics, Mapping) or not metrics:
-        return "—", "—", ()
-    fits, white, coloured = [], [], []
-    for name, m in metrics.items():
-        fit = getattr(m, "fit", None)
-        if fit is not None:
-            fits.append(f"{name} {float(fit):.1f} %")
-        w = getattr(m, "white", getattr(m, "is_white", None))
-        if w is None and getattr(m, "whiteness_pvalue", None) is not None:
-            w = float(m.whiteness_pvalue) > 0.05
-        if w is not None:
-            white.append(f"{name} {'white' if w else 'coloured'}")
-            if not w:
-                coloured.append(str(name))
-    return (", ".join(fits) or "—"), (", ".join(white) or "—"), tuple(coloured)
-
-
 _CONDITIONS = (("airspeed", "m/s"), ("dynamic_pressure", "Pa"))
 
 
@@ -70,6 +53,7 @@ def _condition(meta: Mapping[str, Any]) -> str:
     return ", ".join(parts) or str(meta.get("source", "—"))
 
 
+_METRIC_COLUMN = "metric (mean ± std)"
 # units of the metrics `propagate` computes by name
 _METRIC_UNITS = {"natural_frequency": "rad/s", "damping_ratio": "-", "time_constant": "s"}
 
@@ -98,7 +82,7 @@ def _campaign_brief(role: str, record: Any) -> Any:
             "units": dict(getattr(record, "parameter_units", {}) or {}),
         }
     if role == "validation":
-        return _fit_whiteness(record)
+        return fit_whiteness(record)
     if role == "propagation":
         if getattr(record, "mean", None) is None:
             return "—"
@@ -191,6 +175,8 @@ def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
         kw: dict[str, Any] = {"units": units}
         if role == "filtering":
             kw["data"] = records.get("data")
+        if role == "identification" and records.get("data") is not None:
+            kw["time"] = records["data"].time  # residuals against time
         if role == "inference" and records.get("identification") is not None:
             kw["marker"] = dict(records["identification"].parameters)
         out.append((label, rec.plot(**kw)))
@@ -330,9 +316,10 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         *(f"{n} [{punits[n]}]" if n in punits else n for n in names),
         "fit",
         "whiteness",
-        "metric (mean ± std)",
+        _METRIC_COLUMN,
         "status",
     )
+    n_est = len(names)
     rows = []
     statuses = []
     for i, f in enumerate(flights):
@@ -368,7 +355,18 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 f"![estimates across flights ({k + 1})]({_FIGURE_DIR}/campaign_trend_{k}.png)"
             ]
             parts.append("")
-    parts += [markdown_table(columns, rows), "", LEGEND, ""]
+    parts += ["### Flights at a glance", ""]
+    parts += [
+        "Fit: each output's normalised fit 100 (1 - |e| / |y - mean y|), in percent. "
+        "Metric: the propagated metric, mean ± 1 standard deviation over its draws.",
+        "",
+    ]
+    # whiteness output by output is in each flight's section; the status counts it
+    glance = [j for j in (0, 1, *range(2 + n_est, len(columns))) if columns[j] != "whiteness"]
+    parts += [markdown_table([columns[j] for j in glance], [[r[j] for j in glance] for r in rows])]
+    parts += ["", LEGEND, ""]
+    if names:
+        parts += estimate_tables(names, punits, flights, [r[2 : 2 + n_est] for r in rows])
     parts += hq_table(
         list(flights),
         [r[1] for r in rows],
@@ -378,10 +376,12 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         parts += ["## Failures", ""]
         parts += [f"- **{f}**: {err}" for f, err in ctx.failures.items()]
         parts.append("")
-    parts += ["## Flights", ""]
-    parts += [f"- [{f}](#{_anchor(f)}): {s}" for f, s in zip(flights, statuses, strict=True)]
+    parts += ["## Flights, worst first", ""]
+    order = sorted(range(len(flights)), key=lambda i: severity(statuses[i]))
+    parts += [f"- [{flights[i]}](#{_anchor(flights[i])}): {statuses[i]}" for i in order]
     for i, f in enumerate(flights):
-        parts += ["", f'<details id="{_anchor(f)}">']
+        # open, so that a printout shows every flight
+        parts += ["", f'<details id="{_anchor(f)}" open>']
         parts.append(f"<summary>{html.escape(f)}: {html.escape(statuses[i])}</summary>")
         parts.append("")
         text = ctx.brief("reports", i) if ctx.options.include_flight_reports else None
@@ -412,8 +412,10 @@ register_stage(
         # 5: the trend across flights as two figures, drawn in parallel; 6: figures of
         # every flight beside its tables, status flags from every stage, units;
         # 7: data-quality flags in the status, handling qualities across flights;
-        # 8: handling-qualities Levels and right-half-plane zeros named
-        "8",
+        # 8: handling-qualities Levels and right-half-plane zeros named; 9: estimates
+        # transposed and split to fit a page, 1σ labelled, poor-fit and error flags,
+        # flights worst first and open for printing
+        "9",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,
@@ -532,6 +534,14 @@ def write_report(
         text = getattr(record, "markdown", str(record))
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
+    text = what_was_flown(with_warnings(text, the_plan, statuses), the_plan.config.source)
+    # the propagated metric by its name and unit (the config names it)
+    metric = (the_plan.config.stages.get("propagate") or {}).get("metric", "natural_frequency")
+    if isinstance(metric, str) and "propagate" in the_plan.config.stages:
+        unit = _METRIC_UNITS.get(metric)
+        heading = f"{metric}{f' [{unit}]' if unit else ''} (mean ± 1σ)"
+        text = text.replace(_METRIC_COLUMN, heading)
+        columns = [heading if c == _METRIC_COLUMN else c for c in columns]
     path = the_plan.config.report_path
     folder = f"{path.stem}_figures"
     # the Markdown links its figures, written beside it
@@ -540,8 +550,10 @@ def write_report(
         path.parent.mkdir(parents=True, exist_ok=True)
         marked = text.rstrip("\n") + "\n\n" + _MD_MARKER + "\n"
         target = html_report_path(path)
-        marker = f"{_HTML_MARKER} {task.key} -->"
-        # rebuilt only when the campaign report's key changes (an unchanged rerun stays cheap)
+        # rebuilt only when the campaign report or its text (the config shown, the
+        # warnings) changes: an unchanged rerun stays cheap
+        digest = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+        marker = f"{_HTML_MARKER} {task.key} {digest} -->"
         fresh = target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace")
         if not fresh:
             if status.figures is not None:

@@ -4,21 +4,53 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["LEGEND", "flight_status"]
+__all__ = ["LEGEND", "POOR_FIT_R2", "flight_status", "severity"]
+
+# an output whose model explains less than this share of its variance is a poor fit
+POOR_FIT_R2 = 0.75
+# an estimate whose standard error exceeds its magnitude is not determined by the data
+_MAX_RELATIVE_ERROR = 1.0
 
 LEGEND = (
-    "Status: **ok** every check passed; **failed** a stage raised (see Failures); "
-    "**not converged** the optimiser stopped short; **bound X** estimate X ended at a bound; "
-    "**not identifiable** the data cannot separate some parameters; "
-    "**coloured Y** residuals of output Y are not white; "
+    "Status, worst first: **failed** a stage raised (see Failures); "
+    "**not converged** the optimiser stopped short; "
+    f"**poor fit Y** the model explains less than {POOR_FIT_R2:.0%} of output Y's "
+    "variance (R² shown); **not identifiable** the data cannot separate some parameters; "
+    "**error > 100 %** estimates whose standard error exceeds their magnitude; "
+    "**bound X** estimate X ended at a bound; "
     "**posterior not converged** the MCMC chains are too short; "
     "**data F C** the data-quality check of channel C as read (or of several channels) "
-    "raised F (see the flight's Data quality)."
+    "raised F (see the flight's Data quality); "
+    "**coloured k/n** the residuals of k of the n outputs are not white (the standard "
+    "errors are then corrected for it); **ok** every check passed."
+)
+
+# flag word -> rank (lower is worse): the campaign lists its flights worst first
+_RANK = (
+    "failed",
+    "not converged",
+    "poor fit",
+    "not identifiable",
+    "error >",
+    "bound",
+    "posterior",
+    "data",
+    "coloured",
 )
 
 
+def severity(status: str) -> tuple[int, int]:
+    """Sort key of a status: its worst flag's rank, then fewer flags first."""
+    if status == "ok":
+        return (len(_RANK), 0)
+    flags = status.split("; ")
+    ranks = [next((k for k, w in enumerate(_RANK) if f.startswith(w)), len(_RANK)) for f in flags]
+    return (min(ranks), -len(flags))
+
+
 def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta: Any = None) -> str:
-    """The flags of one flight from the briefs of its records (see `LEGEND`), or "ok"."""
+    """The flags of one flight from the briefs of its records (see `LEGEND`), worst
+    first, or "ok"."""
     if failure is not None:
         return "failed"
     flags = []
@@ -34,8 +66,20 @@ def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta:
         flags += [f"bound {n}" for n in ident.get("active_bounds", {})]
         if not ident.get("identifiable", True):
             flags.append("not identifiable")
+        loose = [
+            n
+            for n, v in ident.get("parameters", {}).items()
+            if abs(float(ident.get("stderr", {}).get(n, 0.0))) > _MAX_RELATIVE_ERROR * abs(float(v))
+        ]
+        if loose:
+            flags.append("error > 100 % " + ", ".join(loose))
     if valid is not None:
-        flags += [f"coloured {n}" for n in valid[2]]
+        poor = valid[3] if len(valid) > 3 else ()
+        flags += [f"poor fit {n} (R² {r2:.2f})" for n, r2 in poor]
+        if valid[2]:
+            n_out = max(len(valid[0].split(", ")), len(valid[2]))
+            flags.append(f"coloured {len(valid[2])}/{n_out}")
     if infer is not None and not infer["converged"]:
         flags.append("posterior not converged")
+    flags.sort(key=severity)
     return "; ".join(flags) or "ok"

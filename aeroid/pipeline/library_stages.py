@@ -10,6 +10,7 @@ many parallel parts to run).
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 from collections.abc import Callable, Mapping
@@ -299,13 +300,28 @@ def _infer_kwargs(ctx: StageContext) -> dict[str, Any]:
     return kw
 
 
+def _infer_model(ctx: StageContext) -> Any:
+    """The model with the parameters not inferred held at the fit (not at their nominal
+    values): a posterior of a few parameters is conditional on the others."""
+    fit = ctx.inputs.get("initial")
+    values = getattr(fit, "parameters", None)
+    model = ctx.model
+    nominal = getattr(model, "parameters", None)
+    if not isinstance(values, Mapping) or not isinstance(nominal, Mapping):
+        return model
+    held = {k: float(values[k]) for k in nominal if k in values}
+    if not held or not dataclasses.is_dataclass(model) or isinstance(model, type):
+        return model
+    return dataclasses.replace(model, parameters={**nominal, **held})
+
+
 def _run_infer(ctx: StageContext) -> Any:
     from ..inference import infer
 
     kw = _infer_kwargs(ctx)
     if ctx.options.n_ensembles is not None:
         kw["n_ensembles"] = ctx.options.n_ensembles
-    return infer(ctx.model, ctx.inputs["data"], **kw)
+    return infer(_infer_model(ctx), ctx.inputs["data"], **kw)
 
 
 def _infer_parts(options: Any, roles: frozenset[str]) -> int:
@@ -315,7 +331,8 @@ def _infer_parts(options: Any, roles: frozenset[str]) -> int:
 def _run_infer_part(ctx: StageContext, ensemble: int) -> Any:
     from ..inference import infer_ensemble
 
-    return infer_ensemble(ctx.model, ctx.inputs["data"], ensemble=ensemble, **_infer_kwargs(ctx))
+    data = ctx.inputs["data"]
+    return infer_ensemble(_infer_model(ctx), data, ensemble=ensemble, **_infer_kwargs(ctx))
 
 
 def _combine_infer(ctx: StageContext, parts: list[Any]) -> Any:
@@ -497,7 +514,7 @@ for _stage in (
     ),
     Stage(
         "infer",
-        "2",
+        "3",  # 3: parameters not inferred held at the fit
         InferOptions,
         "InferenceResult",
         _run_infer,
@@ -536,8 +553,9 @@ for _stage in (
         "report",
         # 2: a section's summary no longer repeats the section heading; 3: the loaded
         # data's quality checks (role data); 4: a clean record's checks in one line;
-        # 5: equivalent systems and bandwidths state their handling-qualities Level
-        "5",
+        # 5: equivalent systems and bandwidths state their handling-qualities Level;
+        # 6: parameter correlations and residual autocorrelation against its band
+        "6",
         ReportOptions,
         "FlightReport",
         _run_report,

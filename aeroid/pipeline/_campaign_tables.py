@@ -1,0 +1,116 @@
+"""The campaign report's tables: each flight's fit brief and the estimates side by side."""
+
+from __future__ import annotations
+
+import html
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from ..support import markdown_table
+from .flight_status import POOR_FIT_R2
+
+__all__ = ["estimate_tables", "fit_whiteness", "what_was_flown", "with_warnings"]
+
+
+def fit_whiteness(
+    validation: Any,
+) -> tuple[str, str, tuple[str, ...], tuple[tuple[str, float], ...]]:
+    """(fits, whiteness, coloured outputs, (output, R²) of each output fitted poorly)."""
+    metrics = getattr(validation, "metrics", None)
+    if not isinstance(metrics, Mapping) or not metrics:
+        return "—", "—", (), ()
+    fits, white, coloured, poor = [], [], [], []
+    for name, m in metrics.items():
+        fit = getattr(m, "fit", None)
+        if fit is not None:
+            fits.append(f"{name} {float(fit):.1f} %")
+            # fit = 100 (1 - |e|/|y - mean y|), so R² = 1 - (1 - fit/100)²
+            r2 = 1.0 - (1.0 - float(fit) / 100.0) ** 2
+            if r2 < POOR_FIT_R2:
+                poor.append((str(name), r2))
+        w = getattr(m, "white", getattr(m, "is_white", None))
+        if w is None and getattr(m, "whiteness_pvalue", None) is not None:
+            w = float(m.whiteness_pvalue) > 0.05
+        if w is not None:
+            white.append(f"{name} {'white' if w else 'coloured'}")
+            if not w:
+                coloured.append(str(name))
+    return (", ".join(fits) or "—"), (", ".join(white) or "—"), tuple(coloured), tuple(poor)
+
+
+# flights side by side in one estimates table: more are split into further tables, so
+# that each fits a printed page
+_FLIGHTS_PER_TABLE = 6
+
+
+def estimate_tables(
+    names: list[str], punits: Mapping[str, str], flights: Any, cells: list[Any]
+) -> list[str]:
+    """The estimates transposed (a parameter a row, a flight a column), split by flights."""
+    out = [
+        "### Estimates",
+        "",
+        "Each estimate ± 1 standard error (1σ; the plots' bars are 95 %, ±1.96σ).",
+        "",
+    ]
+    for start in range(0, len(flights), _FLIGHTS_PER_TABLE):
+        cols = list(range(start, min(start + _FLIGHTS_PER_TABLE, len(flights))))
+        header = ["parameter", "unit", *(flights[i] for i in cols)]
+        body = [[n, punits.get(n, "—"), *(cells[i][k] for i in cols)] for k, n in enumerate(names)]
+        out += [markdown_table(header, body), ""]
+    return out
+
+
+def with_warnings(text: str, the_plan: Any, statuses: Mapping[str, Any]) -> str:
+    """The report with each flight's warnings (stored with its results, so a cached
+    rerun shows them too) at the top of that flight's section."""
+    by_flight: dict[str, list[str]] = {}
+    for t in the_plan.tasks:
+        for w in statuses[t.key].warnings if t.key in statuses else ():
+            by_flight.setdefault(t.flight or "", []).append(f"- **{t.step}**: {w}")
+    if not by_flight:
+        return text
+    out = []
+    for line in text.splitlines():
+        out.append(line)
+        m = _SUMMARY.match(line)
+        if m and html.unescape(m.group(1)) in by_flight:
+            out += ["", "**Warnings**", "", *by_flight[html.unescape(m.group(1))]]
+    campaign = by_flight.get("", [])
+    if campaign:
+        out += ["", "## Campaign warnings", "", *campaign]
+    return "\n".join(out) + "\n"
+
+
+_SUMMARY = re.compile(r"^<summary>(.*?): .*</summary>$")
+
+
+def what_was_flown(text: str, source: Any) -> str:
+    """The report with a "What was flown" section before its flights: the campaign's
+    config as run (aircraft and model equations, each flight's trim and condition,
+    every stage's settings, the filter's noise levels among them)."""
+    from pathlib import Path
+
+    try:
+        config = Path(source).read_text(encoding="utf-8")
+    except (OSError, TypeError, ValueError):
+        return text
+    section = [
+        "## What was flown",
+        "",
+        f"The campaign's config, `{Path(source).name}`, as run: the aircraft and its "
+        "model equations (`model:`), each flight's file, condition and trim "
+        "(`flights:`) and the settings of every step (`stages:`; the filter's process "
+        "and measurement noise among them).",
+        "",
+        "```yaml",
+        *config.replace("```", "` ` `").splitlines(),
+        "```",
+        "",
+    ]
+    marker = "## Flights, worst first"
+    if marker not in text:
+        return text.rstrip("\n") + "\n\n" + "\n".join(section)
+    head, tail = text.split(marker, 1)
+    return head + "\n".join(section) + "\n" + marker + tail
