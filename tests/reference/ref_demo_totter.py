@@ -11,8 +11,8 @@ errors only (``serrZ``, ``serrm``), and the output-error refinement ``p``,
 
 Ours: ``aeroid.equation_error`` for CZ and ``aeroid.stepwise_regression``
 for Cm on the same coefficients (computed here in numpy as compfc/compmc
-do); the initial values are removed with a local quadratic fit over the
-first second (xsmep's role), which moves only the biases. The output-error
+do); the smoothed initial values are removed as xsmep does (reproduced in
+numpy here), which moves only the biases. The output-error
 step is SIDPAC's ``nldyn`` with its ``totter_results`` settings: states
 alpha and q integrated, V, beta, p, r, phi, theta, q_hat, dynamic pressure,
 thrust and the measured CX fed in from the data; CZ and Cm modelled; outputs
@@ -53,6 +53,34 @@ def coefficients(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cz, cm
 
 
+def smoothed_start(z: np.ndarray, cutoff: float, dt: float) -> np.ndarray:
+    """The smoothed value of each column at the first sample, as xsmep.m finds it.
+
+    Samples 2-4 are low-pass filtered with a one-sided window (an ideal filter
+    at `cutoff` Hz with a sine taper of width pi/(half the record) in
+    frequency, normalised to unit gain); a straight line through those three
+    filtered values, extrapolated back to the first sample's time, is the
+    start value.
+    """
+    n = z.shape[0]
+    half = round(n / 2.0 - 0.1)
+    w = 2.0 * np.pi * cutoff
+    wt = 2.0 * np.pi * (cutoff + np.pi / (half * dt))
+    k = np.arange(1, half + 1)
+    h = (np.pi / (2.0 * k * dt)) * (
+        (np.sin(wt * k * dt) + np.sin(w * k * dt)) / (np.pi**2 - ((wt - w) * k * dt) ** 2)
+    )
+    h0 = cutoff + (cutoff + np.pi / (half * dt))
+    norm = h0 + 2.0 * h.sum()
+    h0, h = h0 / norm, h / norm
+    rows = []
+    for i in (1, 2, 3):  # samples 2-4 (0-based 1-3)
+        rows.append(h0 * z[i] + 2.0 * (h[:, None] * z[i + 1 : i + 1 + half]).sum(axis=0))
+    x = np.column_stack([np.ones(3), dt * np.arange(1, 4)])
+    coef = np.linalg.lstsq(x, np.asarray(rows), rcond=None)[0]
+    return np.asarray(coef[0], dtype=float)
+
+
 def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str, Any]]:
     import aeroid
 
@@ -62,9 +90,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     t = S.col(d["t"])
     cz, cm = coefficients(f)
     X = np.column_stack([f[:, 3] * DTR, f[:, 71], f[:, 13] * DTR])
-    m = round(1.0 / (t[1] - t[0])) + 1
-    tt = t[:m] - t[0]
-    X = X - np.array([np.polyval(np.polyfit(tt, X[:m, j], 2), 0.0) for j in range(3)])
+    X = X - smoothed_start(X, 1.0, float(t[1] - t[0]))
     reg = {"alpha": X[:, 0], "q_hat": X[:, 1], "delta_e": X[:, 2]}
     pZ, sZ = S.col(r["pZ"]), S.col(r["serrZ"])
     one = np.ones(len(t))
@@ -103,8 +129,8 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     )
     note = (
         f"Cm terms: SIDPAC alpha, q_hat, delta_e, const; ours {', '.join(sw.selected)}, const; "
-        "SIDPAC saved corrected (r_colores) errors only, white ones computed in numpy; the biases differ because xsmep's smoothed "
-        "initial values are approximated here by a local quadratic fit"
+        "SIDPAC saved corrected (r_colores) errors only, white ones computed in numpy; "
+        "xsmep's smoothed initial values reproduced in numpy"
     )
     for k in (*cands, "const"):
         sp, sw_, ss = sid_m.get(k, (0.0, None, None))
