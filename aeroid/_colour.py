@@ -20,6 +20,8 @@ each frequency is its own window.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -90,8 +92,9 @@ def colored_covariance(
     Returns
     -------
     cov, nu : the covariance (p, p) and per-parameter Satterthwaite degrees of
-    freedom (p,) of its diagonal; the caller widens a 95 % bar by
-    ``t_nu(0.975) / 1.96``.
+    freedom (p,) of its diagonal: a standard error is ``sqrt(cov_jj)``, and its
+    95 % interval takes Student's t quantile with ``nu_j`` degrees of freedom
+    (`t_quantile`), not 1.96.
 
     Notes
     -----
@@ -172,12 +175,30 @@ def colored_covariance(
     return np.asarray(0.5 * (cov + cov.T), dtype=np.float64), np.asarray(nu, dtype=np.float64)
 
 
-def t_widening(nu: FloatArray) -> FloatArray:
-    """``t_nu(0.975) / 1.96`` per parameter, nu floored at one degree of freedom."""
-    from scipy.special import stdtrit
+def t_quantile(nu: FloatArray, level: float = 0.95) -> FloatArray:
+    """The two-sided `level` quantile of Student's t with `nu` degrees of freedom
+    (floored at one; the normal's where `nu` is infinite)."""
+    from scipy.special import ndtri, stdtrit
 
-    nu = np.maximum(np.where(np.isfinite(nu), nu, 1e12), 1.0)
-    return np.asarray(stdtrit(nu, 0.975) / 1.959963984540054, dtype=np.float64)
+    q = 0.5 + 0.5 * float(level)
+    nu = np.asarray(nu, dtype=np.float64)
+    finite = np.isfinite(nu)
+    t = stdtrit(np.maximum(np.where(finite, nu, 1.0), 1.0), q)
+    return np.asarray(np.where(finite, t, ndtri(q)), dtype=np.float64)
+
+
+def margins(
+    stderr: Mapping[str, float], dof: Mapping[str, float], level: float
+) -> dict[str, float]:
+    """Half-widths of two-sided `level` intervals: each standard error times the t
+    quantile of its degrees of freedom (the normal's where none is given)."""
+    if not 0.0 < level < 1.0:
+        from .errors import IdentificationError
+
+        raise IdentificationError(f"level must lie strictly between 0 and 1, got {level!r}")
+    names = list(stderr)
+    q = t_quantile(np.array([dof.get(n, np.inf) for n in names], dtype=float), level)
+    return {n: float(q[i] * stderr[n]) for i, n in enumerate(names)}
 
 
 def frequency_sandwich(jac: FloatArray, res: FloatArray, m_inv: FloatArray) -> FloatArray:

@@ -66,6 +66,13 @@ class IdentificationResult:
     extra_stderr : mapping of str to float
         Standard errors of estimated initial states and biases, keyed
         ``"x0[i].state"``, ``"bias[i].output"`` and ``"bias[i].state.<name>"``.
+    degrees_of_freedom : mapping of str to float
+        Per estimate (parameters and the `extra_stderr` names), the degrees of
+        freedom of its standard error: observations less estimates for white
+        bars; for coloured bars the Satterthwaite count of the residual
+        spectrum they rest on (few when the residuals are slow). `interval`
+        and `margin` take Student's t quantile with it; ``inf`` (or absent)
+        means the normal quantile.
     residuals : tuple of ndarray
         Per manoeuvre, measured minus model outputs, shape (n_t, n_y).
     sigma2 : float or None
@@ -119,6 +126,7 @@ class IdentificationResult:
     initial_states: tuple[Mapping[str, float], ...] = ()
     biases: tuple[Mapping[str, float], ...] = ()
     extra_stderr: Mapping[str, float] = field(default_factory=dict)
+    degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
     residuals: tuple[FloatArray, ...] = ()
     sigma2: float | None = None
     process_noise: Mapping[str, float] = field(default_factory=dict)
@@ -152,6 +160,7 @@ class IdentificationResult:
         set_(self, "stderr", frozen_mapping(self.stderr))
         set_(self, "fixed", frozen_mapping(self.fixed))
         set_(self, "extra_stderr", frozen_mapping(self.extra_stderr))
+        set_(self, "degrees_of_freedom", frozen_mapping(self.degrees_of_freedom))
         set_(self, "process_noise", frozen_mapping(self.process_noise))
         set_(self, "covariance", frozen_array(self.covariance))
         set_(self, "covariance_white", frozen_array(self.covariance_white))
@@ -178,6 +187,22 @@ class IdentificationResult:
         np.fill_diagonal(c, 1.0)
         c.setflags(write=False)
         return c
+
+    def margin(self, level: float = 0.95) -> Mapping[str, float]:
+        """Half-width of each estimate's two-sided `level` interval: its standard
+        error times Student's t quantile with its `degrees_of_freedom` (parameters
+        and the initial states and biases of `extra_stderr`)."""
+        from ._colour import margins
+
+        return ReadOnlyDict(
+            margins({**self.extra_stderr, **self.stderr}, self.degrees_of_freedom, level)
+        )
+
+    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
+        """Each parameter's two-sided `level` interval, ``name -> (lower, upper)``
+        (estimate -+ `margin`)."""
+        half = self.margin(level)
+        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in self.parameters.items()})
 
     @property
     def stderr_white(self) -> Mapping[str, float]:

@@ -932,9 +932,9 @@ def _warn_unabsorbed_drift(
 
 def _colored_covariance(
     jacobians: list[FloatArray], residuals: list[FloatArray], r: FloatArray, m_inv: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Covariance for coloured residuals: ``M^-1 [J' R^-1 Sigma R^-1 J] M^-1``, and each
-    output's AR(1) coefficient.
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Covariance for coloured residuals: ``M^-1 [J' R^-1 Sigma R^-1 J] M^-1``, each
+    output's AR(1) coefficient and each parameter's degrees of freedom.
 
     Morelli's correction (Klein & Morelli ch. 6; SIDPAC's colores) puts the
     full-record sample autocorrelation of the residuals in ``Sigma``. With
@@ -964,20 +964,15 @@ def _colored_covariance(
     The noise model is estimated from N/tau correlation times, so each
     variance is itself uncertain; the delta method through the REML
     curvature gives its variance and Satterthwaite's degrees of freedom
-    ``nu = 2 V^2 / Var(V)``, and the standard errors are scaled by
-    ``t_nu(0.975) / 1.96`` so that ``1.96 se`` is the t interval. The factor
-    tends to 1 as N/tau grows and stays finite as N/tau falls.
+    ``nu = 2 V^2 / Var(V)``, returned with the covariance: the result's
+    intervals take Student's t with them.
     """
-    from scipy.special import stdtrit
-
     phi, qa, qw, spread = _noise_model(jacobians, residuals)
     sandwich = _Sandwich(jacobians, r, m_inv, phi)
     cov = sandwich.covariance(residuals, qa, qw)
     # The noise model is itself estimated (from some N/tau correlation times), so
     # each variance is uncertain; its delta-method variance gives Satterthwaite
-    # degrees of freedom nu and the error bars take the t quantile's width,
-    # 1.96 se -> t_nu se: a correction that tends to 1 as N/tau grows and stays
-    # finite as it falls.
+    # degrees of freedom nu, with which the result's intervals take the t quantile.
     var = np.diag(cov)
     var_var = np.zeros_like(var)
     for k, (cov_x, steps, points) in enumerate(spread):
@@ -998,9 +993,7 @@ def _colored_covariance(
     # almost noise-free); one degree of freedom is the widest interval that still
     # has a finite meaning.
     nu = np.maximum(nu, 1.0)
-    factor = np.where(np.isfinite(nu), stdtrit(np.where(np.isfinite(nu), nu, 1.0), 0.975), 1.96)
-    factor = np.asarray(factor, dtype=np.float64) / 1.96
-    return np.asarray(cov * np.outer(factor, factor), dtype=np.float64), phi
+    return np.asarray(cov, dtype=np.float64), phi, np.asarray(nu, dtype=np.float64)
 
 
 class _Sandwich:
@@ -1384,18 +1377,22 @@ def fit_output_error(
         # Residuals indistinguishable from white: the classical bound is the right
         # one, and a lag-window estimate would only add noise to it.
         shown = "white"
+    # classical degrees of freedom: observations less estimates
+    n_obs = sum(int(v.size) for v in residuals)
+    nu: FloatArray = np.full(keep.size, float(max(n_obs - keep.size, 1)))
     if shown == "colored":
-        from ._colour import colored_covariance, t_widening
+        from ._colour import colored_covariance
 
-        _, phi = _colored_covariance(jacobians, residuals, r, m_inv)
+        _, phi, _ = _colored_covariance(jacobians, residuals, r, m_inv)
         root = np.sqrt(r)
-        cov_col, nu = colored_covariance(
+        cov_col, nu_kept = colored_covariance(
             [jac / root[None, :, None] for jac in jacobians],
             [v / root[None, :] for v in residuals],
             m_inv,
         )
-        widen = t_widening(nu)
-        cov_col = cov_col * np.outer(widen, widen)
+        # the spectrum behind the bars is itself estimated: its degrees of freedom
+        # travel with the result, whose intervals take the t quantile
+        nu = nu_kept
         _warn_unabsorbed_drift(
             phi, mans, outputs, cov_col, cov_white, [names_all[j] for j in keep], states
         )
@@ -1414,7 +1411,9 @@ def fit_output_error(
         white_full[np.ix_(keep, keep)] = cov_white
         null_full = np.zeros(layout.n_total, dtype=bool)
         null_full[keep] = null
-        cov, cov_white, null = cov_full, white_full, null_full
+        nu_full = np.full(layout.n_total, np.inf)
+        nu_full[keep] = nu
+        cov, cov_white, null, nu = cov_full, white_full, null_full, nu_full
     if not identifiable:
         for j in np.flatnonzero(null):
             cov[j, :] = np.nan
@@ -1466,6 +1465,7 @@ def fit_output_error(
         initial_states=tuple(x0_out),
         biases=tuple(bias_out),
         extra_stderr=extra,
+        degrees_of_freedom={n: float(nu[j]) for j, n in enumerate(names_all)},
         residuals=tuple(residuals),
         model_name=str(getattr(model, "name", "")),
         bounds={n: box[n] for n in names if n in box},

@@ -67,7 +67,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _compiled
-from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, plain, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, ResidualDriftWarning
@@ -341,6 +341,10 @@ class CompatibilityResult:
     scale_pivots : mapping of str to float
         Per fitted output, the value its scale factor pivots about: zero, or
         the reconstructed start value (``scale_about="initial"``).
+    degrees_of_freedom : mapping of str to float
+        Per estimate, the degrees of freedom of its standard error (see
+        `aeroid.IdentificationResult`): `interval` and `margin` take
+        Student's t with it.
     """
 
     corrected: FlightData
@@ -369,6 +373,7 @@ class CompatibilityResult:
     input_noise: Mapping[str, float]
     measured_states: tuple[str, ...] = ()
     scale_pivots: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    degrees_of_freedom: Mapping[str, float] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -380,6 +385,7 @@ class CompatibilityResult:
             "initial_state_stderr",
             "input_noise",
             "scale_pivots",
+            "degrees_of_freedom",
         ):
             set_(self, name, frozen_mapping(getattr(self, name)))
         set_(self, "channels", frozen_mapping(self.channels))
@@ -395,6 +401,18 @@ class CompatibilityResult:
     def standard_errors(self) -> Mapping[str, float]:
         """The `stderr` (the name every estimator's result shares)."""
         return self.stderr
+
+    def margin(self, level: float = 0.95) -> Mapping[str, float]:
+        """Half-width of each estimate's two-sided `level` interval: its standard error
+        times Student's t quantile with its `degrees_of_freedom`."""
+        from ._colour import margins
+
+        return ReadOnlyDict(margins(self.stderr, self.degrees_of_freedom, level))
+
+    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
+        """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""
+        half = self.margin(level)
+        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in self.parameters.items()})
 
     @property
     def residuals(self) -> FloatArray:
@@ -1343,5 +1361,8 @@ def _result(
         gravity=g,
         input_noise=sigma_in,
         measured_states=held,
+        degrees_of_freedom={
+            n: float(fit.degrees_of_freedom.get(n, np.inf)) for n in (*names, *fit.extra_stderr)
+        },
         scale_pivots=pivots,
     )

@@ -447,15 +447,16 @@ def plot_identification(
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_ylabel(_label(out, units, what="residual"), fontsize=8)
         ax.set_xlabel("time [s]" if on_time else "sample [-]")
+    half = result.margin(0.95)  # each estimate's own 95 % interval (t with its dof)
     for i, name in enumerate(names):
         ax = fig.add_subplot(grid[len(outs) + i // cols, i % cols])
-        value, err = result.parameters[name], 1.96 * result.stderr[name]
+        value, err = result.parameters[name], half[name]
         ax.errorbar([0.0], [value], yerr=[err], fmt="o", capsize=5, color="C0")
         ax.axhline(0.0, color="0.7", lw=0.6)
         ax.set_xticks([])
         ax.set_title(name, fontsize=9)
         ax.set_ylabel(
-            _label(name, units, what="±1.96σ") if (units or {}).get(name) else "estimate ±1.96σ",
+            _label(name, units, what="95 %") if (units or {}).get(name) else "estimate, 95 %",
             fontsize=7,
         )
         ax.tick_params(labelsize=7)

@@ -62,9 +62,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._colour import colored_covariance, t_widening
+from ._colour import colored_covariance, margins
 from ._czt import fourier
-from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import (
     FlightData,
@@ -338,21 +338,25 @@ def _ls_solve(
     return theta, xtx_inv, gram
 
 
-def _reml_covariance(x: FloatArray, v: FloatArray, xtx_inv: FloatArray) -> FloatArray:
+def _reml_covariance(
+    x: FloatArray, v: FloatArray, xtx_inv: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Output error's coloured-residual covariance for this one-output regression: the
-    residual as AR(1) plus white noise by REML, Satterthwaite-widened (`_output_error`)."""
+    residual as AR(1) plus white noise by REML, with Satterthwaite's degrees of freedom
+    (`_output_error`)."""
     from ._output_error import _colored_covariance as output_error_covariance
 
-    cov, _ = output_error_covariance([x[:, None, :]], [v[:, None]], np.ones(1), xtx_inv)
-    return cov
+    cov, _, nu = output_error_covariance([x[:, None, :]], [v[:, None]], np.ones(1), xtx_inv)
+    return cov, nu
 
 
-def _colored_covariance(x: FloatArray, v: FloatArray, xtx_inv: FloatArray) -> FloatArray:
+def _colored_covariance(
+    x: FloatArray, v: FloatArray, xtx_inv: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """The package's coloured-residual covariance (`aeroid._colour`) for one regression,
-    its diagonal widened to the Satterthwaite t interval."""
+    with each parameter's Satterthwaite degrees of freedom."""
     cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], xtx_inv)
-    factor = t_widening(nu)
-    return np.asarray(cov * np.outer(factor, factor), dtype=np.float64)
+    return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)
 
 
 # -- result records ----------------------------------------------------------------------------
@@ -394,6 +398,10 @@ class RegressionResult:
     time_delays : mapping of str to float
         Estimated time delay (s) per delayed channel (``time_delays=`` of
         `equation_error`), also among the parameters as ``"tau_<channel>"``.
+    degrees_of_freedom : mapping of str to float
+        Per estimate, the degrees of freedom of its standard error (``N - p``
+        for white bars; the Satterthwaite count of the residual spectrum for
+        coloured ones): `interval` and `margin` take Student's t with it.
     """
 
     parameters: Mapping[str, float]
@@ -415,9 +423,11 @@ class RegressionResult:
     error_bars: str = "colored"
     n_samples: int = 0
     time_delays: Mapping[str, float] = field(default_factory=dict)
+    degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "time_delays", frozen_mapping(self.time_delays))
+        object.__setattr__(self, "degrees_of_freedom", frozen_mapping(self.degrees_of_freedom))
         object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
         object.__setattr__(self, "stderr", frozen_mapping(self.stderr))
         for name in ("covariance", "covariance_white", "time", "frequencies"):
@@ -432,6 +442,16 @@ class RegressionResult:
     def standard_errors(self) -> Mapping[str, float]:
         """The `stderr` (the name every estimator's result shares)."""
         return self.stderr
+
+    def margin(self, level: float = 0.95) -> Mapping[str, float]:
+        """Half-width of each estimate's two-sided `level` interval: its standard error
+        times Student's t quantile with its `degrees_of_freedom`."""
+        return ReadOnlyDict(margins(self.stderr, self.degrees_of_freedom, level))
+
+    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
+        """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""
+        half = self.margin(level)
+        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in self.parameters.items()})
 
     def summary(self) -> str:
         """A Markdown table of the estimates and the fit statistics."""
@@ -475,10 +495,11 @@ class RegressionResult:
         ax = axes[2, 0]
         names = list(self.parameter_names)
         est = np.array([self.parameters[n] for n in names])
-        err = np.array([1.96 * self.stderr[n] for n in names])
+        half = self.margin(0.95)  # t intervals with each estimate's dof
+        err = np.array([half[n] for n in names])
         ax.errorbar(np.arange(len(names)), est, yerr=err, fmt="o", capsize=4)
         ax.set_xticks(np.arange(len(names)), names)
-        ax.set_ylabel("estimate ±1.96σ")
+        ax.set_ylabel("estimate, 95 %")
         return fig
 
 
@@ -532,10 +553,11 @@ def _fit(
             ) from None
     s2 = sse / (n - p)
     cov_white = s2 * xtx_inv
+    nu = np.full(p, float(n - p))  # the classical t interval's degrees of freedom
     if error_bars == "colored":
-        cov = _colored_covariance(x, v, xtx_inv)
+        cov, nu = _colored_covariance(x, v, xtx_inv)
     elif error_bars == "reml":
-        cov = _reml_covariance(x, v, xtx_inv)
+        cov, nu = _reml_covariance(x, v, xtx_inv)
     else:
         cov = cov_white.copy()
     bad = ~(np.diag(cov) > 0)
@@ -543,6 +565,7 @@ def _fit(
         # a lag-window estimate can go non-positive: keep the classical bars there
         cov[bad, :] = cov_white[bad, :]
         cov[:, bad] = cov_white[:, bad]
+        nu[bad] = float(n - p)
     r2, f_stat = _r2_f(sse, sst, n, p, p - 1 if has_const else p)
     pse = sse / n + (s_dev / n) * p / n
     return _result(
@@ -562,6 +585,7 @@ def _fit(
         domain="time",
         error_bars=error_bars,
         n_samples=n,
+        degrees_of_freedom={k: float(nu[j]) for j, k in enumerate(names)},
         time_delays={}
         if delays is None
         else {k[len(_DELAY) :]: float(t) for k, t in zip(delays[0], delays[1], strict=True)},
@@ -1141,10 +1165,11 @@ class StepwiseResult:
         axes[1, 0].set_xlabel("step")
         names = list(self.regression.parameter_names)
         est = np.array([self.regression.parameters[n] for n in names])
-        err = np.array([1.96 * self.regression.stderr[n] for n in names])
+        half = self.regression.margin(0.95)  # t intervals with each estimate's dof
+        err = np.array([half[n] for n in names])
         axes[2, 0].errorbar(np.arange(len(names)), est, yerr=err, fmt="o", capsize=4)
         axes[2, 0].set_xticks(np.arange(len(names)), names)
-        axes[2, 0].set_ylabel("estimate ±1.96σ")
+        axes[2, 0].set_ylabel("estimate, 95 %")
         return fig
 
 

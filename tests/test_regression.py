@@ -99,7 +99,7 @@ def _coverage(
         z = THETA[0] + x @ THETA[1:] + _ar1(rng, n, phi, 0.1)
         res = equation_error(x, z, error_bars=error_bars)
         est = np.array(list(res.parameters.values()))
-        hits[seed] = np.abs(est - THETA) < 1.96 * np.array(list(res.stderr.values()))
+        hits[seed] = np.abs(est - THETA) < np.array(list(res.margin(0.95).values()))
         white = 1.96 * np.sqrt(np.diag(res.covariance_white))
         hits_white[seed] = np.abs(est - THETA) < white
     return hits.mean(axis=0), hits_white.mean(axis=0)
@@ -141,10 +141,11 @@ def test_reml_error_bars_are_output_errors_own() -> None:
     assert res.error_bars == "reml"
     xc = np.column_stack([np.ones(800), x])
     inv = np.linalg.inv(xc.T @ xc)
-    want, _ = output_error_covariance(
+    want, _, nu = output_error_covariance(
         [xc[:, None, :]], [np.asarray(res.residuals)[:, None]], np.ones(1), inv
     )
     np.testing.assert_allclose(res.covariance, want, rtol=1e-9)
+    np.testing.assert_allclose(list(res.degrees_of_freedom.values()), nu, rtol=1e-9)
     assert np.all(np.diag(res.covariance) > np.diag(res.covariance_white))  # coloured: wider
 
 

@@ -357,14 +357,15 @@ def report_sections(inputs: Mapping[str, Any]) -> str:
 for _stage in (
     Stage(
         "compatibility",
-        "1",
+        "2",  # 2: standard errors without the t widening, their degrees of freedom carried
         CompatibilityOptions,
         "CompatibilityResult",
         _run_compatibility,
         uses_model=False,
         seeded=True,
     ),
-    Stage("regress", "1", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
+    # regress 2: standard errors without the t widening, their degrees of freedom carried
+    Stage("regress", "2", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
     Stage(
         "frequency_id",
         "1",

@@ -485,7 +485,8 @@ for _stage in (
     Stage(
         "identify",
         # 3: results carry the model's parameter units
-        "3",
+        # 4: standard errors without the t widening, their degrees of freedom carried
+        "4",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
