@@ -76,6 +76,16 @@ def test_every_stage_option_is_a_keyword_of_its_library_function(name):
             )
 
 
+@pytest.mark.parametrize("name", sorted(STAGES))
+def test_every_built_in_stage_names_the_library_function_it_wraps(name):
+    stage = STAGES[name]
+    if name in ENGINE_STAGES:
+        assert stage.library is None
+        return
+    assert stage.library == stage.options.library
+    assert callable(_library_function(stage.library))
+
+
 def test_identify_options_take_what_the_library_takes():
     opts = STAGES["identify"].options
     assert opts.model_validate({"estimate_x0": ["alpha"]}).estimate_x0 == ["alpha"]

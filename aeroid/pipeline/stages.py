@@ -12,7 +12,7 @@ them (and they register here) when `aeroid.pipeline` is imported.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -150,7 +150,8 @@ class Stage:
         The task gets ``SeedSequence(seed, spawn_key=(flight,))``.
     library : str or None
         The library function wrapped, as ``module:function`` (imported when
-        the stage runs).
+        the stage runs); `register_stage` takes it from the options model's
+        ``library`` when not given, so every built-in stage names its function.
     per_flight : bool
         False for campaign-level stages whose inputs are lists over flights.
     parts : callable, optional
@@ -194,7 +195,14 @@ STAGES: dict[str, Stage] = {}
 
 
 def register_stage(stage: Stage) -> Stage:
-    """Make a stage available to pipelines by name (replacing one of the same name)."""
+    """Make a stage available to pipelines by name (replacing one of the same name).
+
+    A stage given no ``library`` takes its options model's ``library``
+    (``module:function``), when the model names one."""
+    if stage.library is None:
+        library = getattr(stage.options, "library", None)
+        if isinstance(library, str):
+            stage = replace(stage, library=library)
     STAGES[stage.name] = stage
     return stage
 
