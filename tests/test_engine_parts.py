@@ -86,6 +86,39 @@ def test_every_built_in_stage_names_the_library_function_it_wraps(name):
     assert callable(_library_function(stage.library))
 
 
+def test_options_built_from_a_signature_take_its_types_and_refuse_other_keys():
+    from pydantic import Field
+
+    from aeroid.errors import PipelineError
+    from aeroid.pipeline.config import validate_options
+    from aeroid.pipeline.signature_options import library_fields
+
+    freq = STAGES["frequency"].options
+    # types read from `frequency_response`'s signature; bounds the stage's; None: the default
+    assert freq.model_fields["frequency_range"].annotation == (tuple[float, float] | None)
+    assert freq.model_fields["inputs"].annotation == (list[str] | None)
+    assert all(f.default is None for f in freq.model_fields.values())
+    assert freq(nperseg=256, frequency_range=[0.2, 3.0]).frequency_range == (0.2, 3.0)
+    for bad in ({"nperseg": "long"}, {"nperseg": 4}, {"outputs": "q"}):
+        with pytest.raises(ConfigError, match=r"stages\.frequency\.(nperseg|outputs)"):
+            validate_options(freq, bad, source="c.yaml", where="stages.frequency")
+    with pytest.raises(
+        ConfigError, match=r"nprseg: unknown key; allowed keys: .*; did you mean 'nperseg'\?"
+    ):
+        validate_options(freq, {"nprseg": 256}, source="c.yaml", where="stages.frequency")
+    # a keyword the function does not take, or typed `Any` without a type given, is refused
+    with pytest.raises(PipelineError, match="takes no keyword 'nperseg'"):
+        library_fields("aeroid.validation:validate", "nperseg")
+    with pytest.raises(PipelineError, match="'x0' is typed 'Any'"):
+        library_fields("aeroid.validation:validate", "x0")
+    with pytest.raises(PipelineError, match="not listed"):
+        library_fields("aeroid.validation:validate", "confidence", whiteness_lags=Field(None))
+    made = library_fields(
+        "aeroid.validation:validate", "x0", x0=(dict[str, float] | None, Field(None))
+    )
+    assert made(x0={"q": 0.0}).x0 == {"q": 0.0}
+
+
 def test_identify_options_take_what_the_library_takes():
     opts = STAGES["identify"].options
     assert opts.model_validate({"estimate_x0": ["alpha"]}).estimate_x0 == ["alpha"]

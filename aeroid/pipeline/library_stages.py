@@ -21,6 +21,7 @@ from pydantic import AliasChoices, Field, field_validator, model_validator
 from ..errors import AeroidError, PipelineError
 from .config import Options
 from .load_stage import LoadOptions, flight_data
+from .signature_options import library_fields
 from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
 
 __all__ = [
@@ -126,13 +127,16 @@ def _run_filter(ctx: StageContext) -> Any:
     )
 
 
-class ValidateOptions(Options):
+class ValidateOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.validation:validate",
+        "confidence",
+        "whiteness_lags",
+        confidence=Field(None, gt=0, lt=1),
+        whiteness_lags=Field(None, ge=1),
+    )
+):
     """`aeroid.validate` keywords."""
-
-    confidence: float | None = Field(None, gt=0, lt=1)
-    whiteness_lags: int | None = Field(None, ge=1)
-
-    library: ClassVar[str] = "aeroid.validation:validate"
 
 
 def _run_validate(ctx: StageContext) -> Any:
@@ -398,18 +402,22 @@ def _run_design(ctx: StageContext) -> Any:
 # -- frequency response and sensitivities --------------------------------------------------------
 
 
-class FrequencyOptions(Options):
+class FrequencyOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.frequency:frequency_response",
+        "inputs",
+        "outputs",
+        "nperseg",
+        "frequency_range",
+        "coherence_threshold",
+        "model_response",
+        "min_coherent",
+        nperseg=Field(None, ge=8),
+        coherence_threshold=Field(None, ge=0, le=1),
+        min_coherent=Field(None, ge=1),
+    )
+):
     """`aeroid.frequency_response` keywords."""
-
-    inputs: list[str] | None = None
-    outputs: list[str] | None = None
-    nperseg: int | None = Field(None, ge=8)
-    frequency_range: tuple[float, float] | None = None
-    coherence_threshold: float | None = Field(None, ge=0, le=1)
-    model_response: str | None = None
-    min_coherent: int | None = Field(None, ge=1)
-
-    library: ClassVar[str] = "aeroid.frequency:frequency_response"
 
 
 def _run_frequency(ctx: StageContext) -> Any:
@@ -421,15 +429,19 @@ def _run_frequency(ctx: StageContext) -> Any:
     return frequency_response(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
 
 
-class SensitivityOptions(Options):
+class SensitivityOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.sensitivity:sensitivities",
+        "parameters",
+        "noise",
+        "outputs",
+        "relative_step",
+        # the library also takes a mapping of values or a record; a config names parameters
+        parameters=(list[str] | None, Field(None)),
+        relative_step=Field(None, gt=0),
+    )
+):
     """`aeroid.sensitivities` keywords (evaluated at the identified values when wired so)."""
-
-    parameters: list[str] | None = None
-    noise: dict[str, float] | None = None
-    outputs: list[str] | None = None
-    relative_step: float | None = Field(None, gt=0)
-
-    library: ClassVar[str] = "aeroid.sensitivity:sensitivities"
 
 
 def _run_sensitivities(ctx: StageContext) -> Any:
@@ -444,12 +456,8 @@ def _run_sensitivities(ctx: StageContext) -> Any:
 # -- reports ---------------------------------------------------------------------------------
 
 
-class ReportOptions(Options):
+class ReportOptions(library_fields("aeroid.reporting:report", "title")):  # type: ignore[misc]
     """`aeroid.report` keywords for each flight's report."""
-
-    title: str | None = None
-
-    library: ClassVar[str] = "aeroid.reporting:report"
 
 
 def _run_report(ctx: StageContext) -> FlightReport:
