@@ -48,32 +48,30 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
 # -- identify / filter / validate ----------------------------------------------------
 
 
-class IdentifyOptions(Options):
+_NAMES: Any = (list[str] | None, Field(None))  # names to estimate (not starting values)
+_BY_NAME: Any = (dict[str, float] | None, Field(None))
+
+
+class IdentifyOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.identification:identify",
+        *("parameters", "method", "outputs", "x0", "estimate_x0", "estimate_bias", "weights"),
+        *("error_bars", "max_iterations", "tolerance", "gradient", "process_noise"),
+        *("measurement_noise", "simulate_options", "bounds", "filter_options"),
+        *("estimate_process_noise", "time_delays", "start"),
+        parameters=_NAMES,
+        x0=_BY_NAME,
+        weights=_BY_NAME,
+        process_noise=_BY_NAME,
+        measurement_noise=_BY_NAME,
+        max_iterations=Field(None, ge=1),
+        tolerance=Field(None, gt=0),
+        # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
+        bounds=(dict[str, tuple[float | None, float | None]] | None, Field(None)),
+    )
+):
     """`aeroid.identify` keywords (``parameters``: names to estimate; default all)."""
 
-    parameters: list[str] | None = None
-    method: str | None = None
-    outputs: list[str] | None = None
-    x0: dict[str, float] | None = None
-    # true, or the names of the states to estimate
-    estimate_x0: bool | list[str] | None = None
-    estimate_bias: bool | list[str] | dict[str, Any] | None = None
-    weights: dict[str, float] | None = None
-    error_bars: str | None = None
-    max_iterations: int | None = Field(None, ge=1)
-    tolerance: float | None = Field(None, gt=0)
-    gradient: str | None = None
-    process_noise: dict[str, float] | None = None
-    measurement_noise: dict[str, float] | None = None
-    simulate_options: dict[str, Any] | None = None
-    # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
-    bounds: dict[str, tuple[float | None, float | None]] | None = None
-    filter_options: dict[str, Any] | None = None
-    estimate_process_noise: bool | list[str] | None = None
-    time_delays: str | list[str] | dict[str, float] | None = None
-    start: str | None = None
-
-    library: ClassVar[str] = "aeroid.identification:identify"
     # unset, they leave the keys of results stored before they existed unchanged
     added_later: ClassVar[frozenset[str]] = frozenset(
         {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start"}
@@ -108,15 +106,15 @@ def _run_identify(ctx: StageContext) -> Any:
     return identify(ctx.model, flight_data(ctx), names, **_kwargs(ctx.options, "parameters"))
 
 
-class FilterOptions(Options):
+class FilterOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.filtering:filter_states",
+        *("process_noise", "measurement_noise", "method", "smooth"),
+        process_noise=(dict[str, float], Field()),
+        measurement_noise=(dict[str, float], Field()),
+    )
+):
     """`aeroid.filter_states` keywords (both noise levels are required, as there)."""
-
-    process_noise: dict[str, float]
-    measurement_noise: dict[str, float]
-    method: str | None = None
-    smooth: bool | None = None
-
-    library: ClassVar[str] = "aeroid.filtering:filter_states"
 
 
 def _run_filter(ctx: StageContext) -> Any:
@@ -166,18 +164,22 @@ METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
 }
 
 
-class PropagateOptions(Options):
+class PropagateOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.propagation:propagate",
+        "n_samples",
+        "percentiles",
+        # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
+        n_samples=Field(None, ge=1, le=10_000_000),
+    )
+):
     """`aeroid.propagate` keywords; ``metric`` is a built-in name or ``pkg.mod:function``;
     ``n_batches`` splits the draws into batches run in parallel (same result)."""
 
     metric: str = "natural_frequency"
-    # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
-    n_samples: int | None = Field(None, ge=1, le=10_000_000)
-    percentiles: list[float] | None = None
     n_batches: int | None = Field(None, ge=1, le=10_000)
 
     execution_only: ClassVar[frozenset[str]] = frozenset({"n_batches"})
-    library: ClassVar[str] = "aeroid.propagation:propagate"
     engine_only: ClassVar[frozenset[str]] = frozenset({"metric", "n_batches"})
     # names of code to import (``module:function``): only with the user's consent
     code_fields: ClassVar[frozenset[str]] = frozenset({"metric"})
@@ -263,26 +265,28 @@ class PriorSpec(Options):
         return cls(*args) if isinstance(args, (tuple, list)) else cls(args)
 
 
-class InferOptions(Options):
+class InferOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.inference:infer",
+        *("noise", "n_walkers", "n_steps", "n_ensembles", "burn_in", "thin", "stretch"),
+        *("move", "outputs", "backend"),
+        n_walkers=Field(None, ge=2, le=100_000),
+        n_steps=Field(None, ge=1, le=10_000_000),
+        n_ensembles=Field(None, ge=1, le=1_000),
+        burn_in=Field(None, ge=0),
+        thin=Field(None, ge=1),
+        stretch=Field(None, gt=1),
+        move=(Literal["stretch", "de"] | None, Field(None)),
+    )
+):
     """`aeroid.infer` keywords: ``parameters``, the prior of each parameter by name (once
     called ``priors``, still accepted); ``initial``: start at the fit."""
 
+    # the library takes `Prior` objects: a config describes each (`PriorSpec`)
     parameters: dict[str, PriorSpec] = Field(validation_alias=AliasChoices("parameters", "priors"))
-    noise: dict[str, float] | None = None
-    n_walkers: int | None = Field(None, ge=2, le=100_000)
-    n_steps: int | None = Field(None, ge=1, le=10_000_000)
-    n_ensembles: int | None = Field(None, ge=1, le=1_000)
-    burn_in: int | None = Field(None, ge=0)
-    thin: int | None = Field(None, ge=1)
-    stretch: float | None = Field(None, gt=1)
-    move: Literal["stretch", "de"] | None = None
-
-    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
-    outputs: list[str] | None = None
-    backend: str | None = None
     initial: bool = True
 
-    library: ClassVar[str] = "aeroid.inference:infer"
+    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
     # `initial` here says whether to start at the fit (the library takes the fit itself)
     engine_only: ClassVar[frozenset[str]] = frozenset({"initial"})
     # old name -> name: accepted in configs (with a warning) and in stored tasks
@@ -373,18 +377,19 @@ class ManeuverSpec(Options):
         return cls(self.control, **kw)
 
 
-class DesignOptions(Options):
+class DesignOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.design:design_experiment",
+        *("parameters", "criterion", "noise", "duration", "sample_rate", "optimizer_options"),
+        parameters=_NAMES,
+        duration=Field(None, gt=0),
+        sample_rate=Field(None, gt=0),
+    )
+):
     """`aeroid.design_experiment` keywords (designed at the identified values)."""
 
+    # the library takes a manoeuvre family: a config describes one (`ManeuverSpec`)
     maneuver: ManeuverSpec
-    parameters: list[str] | None = None
-    criterion: str | None = None
-    noise: dict[str, float] | None = None
-    duration: float | None = Field(None, gt=0)
-    sample_rate: float | None = Field(None, gt=0)
-    optimizer_options: dict[str, Any] | None = None
-
-    library: ClassVar[str] = "aeroid.design:design_experiment"
 
 
 def _run_design(ctx: StageContext) -> Any:

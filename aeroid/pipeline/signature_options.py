@@ -10,10 +10,12 @@ Every generated field defaults to None: the library's own default applies.
 from __future__ import annotations
 
 import ast
+import copy
 import importlib.util
 from functools import cache
 from pathlib import Path
-from typing import Any, Literal
+from types import UnionType
+from typing import Any, Literal, Union, get_args, get_origin
 
 from pydantic import create_model
 from pydantic.fields import FieldInfo
@@ -36,6 +38,7 @@ _TYPES: dict[str, Any] = {
     "bool": bool,
     "None": None,
     "Literal": Literal,
+    "Any": Any,
 }
 
 
@@ -60,12 +63,16 @@ def _keywords(spec: str) -> dict[str, str]:
 
 def _plain_type(spec: str, keyword: str, source: str) -> Any:
     try:
-        return eval(source, {"__builtins__": {}}, dict(_TYPES))
+        kind = eval(source, {"__builtins__": {}}, dict(_TYPES))
     except Exception:
+        kind = Any
+    # `Any` inside a container (a mapping's values) is plain data; as the type, it is not
+    if kind is Any or (get_origin(kind) in (Union, UnionType) and Any in get_args(kind)):
         raise PipelineError(
             f"{spec}: keyword {keyword!r} is typed {source!r}, not plain configuration data; "
             "give its type"
-        ) from None
+        )
+    return kind
 
 
 def library_fields(
@@ -85,11 +92,11 @@ def library_fields(
         if keyword not in params:
             raise PipelineError(f"{spec} takes no keyword {keyword!r}")
         extra = given.get(keyword)
-        if isinstance(extra, tuple):
-            fields[keyword] = extra
+        if isinstance(extra, tuple):  # copied: one given field may serve several models
+            fields[keyword] = (extra[0], copy.copy(extra[1]))
             continue
         kind = _plain_type(spec, keyword, params[keyword])
-        info = extra if extra is not None else FieldInfo(default=None)
+        info = copy.copy(extra) if extra is not None else FieldInfo(default=None)
         fields[keyword] = (kind | None, info)
     unused = set(given) - set(keywords)
     if unused:
