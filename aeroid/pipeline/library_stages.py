@@ -1,11 +1,11 @@
 """The stages that wrap aeroid's library functions: stored inputs -> one call -> a record.
 
 Each stage imports the function it calls from its module (inside the stage,
-so that planning an unchanged campaign imports no numerics), and its options
-model holds that function's keywords: `tests/test_engine_parts.py` checks
-every field against the function's signature, except those named in
-``engine_only`` (what the engine itself uses, such as a metric's name or how
-many parallel parts to run).
+so that planning an unchanged campaign imports no numerics). Its options
+model is built on `library_fields`: the fields are the function's keywords,
+typed from its signature; only what the engine itself uses (a metric's name,
+how many parallel parts to run; ``engine_only``) and what a config describes
+in its own terms (priors, a manoeuvre) are declared here.
 """
 
 from __future__ import annotations

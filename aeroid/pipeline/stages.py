@@ -1,7 +1,7 @@
 """Pipeline stages: the contract and the registry.
 
-A stage declares its options model (mirroring the library function's
-keywords), the record type it produces, whether it needs the vehicle model
+A stage declares its options model (built from the library function's
+signature), the record type it produces, whether it needs the vehicle model
 and whether it is stochastic, and a ``run(ctx)`` function. Adding a stage is
 one `register_stage` call; pipelines (``pipelines/``) wire stages together.
 The built-in stages live in `load_stage`, `library_stages` (one per library
