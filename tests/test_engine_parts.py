@@ -93,7 +93,7 @@ def test_options_built_from_a_signature_take_its_types_and_refuse_other_keys():
     from aeroid.pipeline.config import validate_options
     from aeroid.pipeline.signature_options import library_fields
 
-    freq = STAGES["frequency"].options
+    freq = STAGES["frequency_response"].options
     # types read from `frequency_response`'s signature; bounds the stage's; None: the default
     assert freq.model_fields["frequency_range"].annotation == (tuple[float, float] | None)
     assert freq.model_fields["inputs"].annotation == (list[str] | None)
@@ -165,6 +165,35 @@ def test_engine_modules_are_small():
     sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in ENGINE.glob("*.py")}
     assert sizes["runner.py"] <= 400
     assert {name: n for name, n in sizes.items() if n > 600} == {}
+
+
+def test_renamed_stages_keep_their_old_names_keys_and_store_folders(tmp_path):
+    import warnings
+
+    from aeroid.pipeline.definition import Pipeline, Step
+    from aeroid.pipeline.stages import STAGE_ALIASES
+
+    renamed = {
+        "frequency": "frequency_response",
+        "frequency_id": "composite_response",
+        "frequency_identify": "frequency_domain_identify",
+    }
+    assert renamed == STAGE_ALIASES
+    for old, new in renamed.items():
+        assert old in STAGES and old not in list(STAGES) and new in list(STAGES)
+        assert STAGES[old] is STAGES[new] is STAGES.get(old)
+        # results stored under the old name are found: the same key, the same folder
+        assert STAGES[new].name == new and STAGES[new].key_name == old
+    assert STAGES.get("frequencies") is None and "frequencies" not in STAGES
+    with pytest.raises(KeyError):
+        STAGES["frequencies"]
+    # the built-in pipeline runs the new names; one naming an old name still loads, warned
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        p = plan(_config(tmp_path, "  frequency: {outputs: [q]}\n"))
+    assert {t.stage for t in p.tasks if t.step == "frequency"} == {"frequency"}
+    with pytest.warns(DeprecationWarning, match="'frequency_id', now called 'composite_response'"):
+        Pipeline("mine", (Step("load"), Step("frequency_id", inputs={"data": "load"})))
 
 
 def test_importing_the_engine_registers_every_built_in_stage_once():

@@ -370,12 +370,13 @@ for _stage in (
     # regress 2: standard errors without the t widening, their degrees of freedom carried
     Stage("regress", "2", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
     Stage(
-        "frequency_id",
+        "composite_response",  # once "frequency_id"
         "1",
         FrequencyIdOptions,
         "CompositeResponse",
         _run_frequency_id,
         uses_model=False,
+        stored_as="frequency_id",
     ),
     Stage(
         "transfer_function",
@@ -386,12 +387,13 @@ for _stage in (
         uses_model=False,
     ),
     Stage(
-        "frequency_identify",
+        "frequency_domain_identify",  # once "frequency_identify"
         # 2: fdoe's noise weighting by default, record ends kept only when significant
         "2",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
+        stored_as="frequency_identify",
     ),
     Stage(
         "handling_qualities",

@@ -546,7 +546,7 @@ for _stage in (
         seeded=True,
     ),
     Stage(
-        "frequency",
+        "frequency_response",  # once "frequency"
         # 3: only frequencies whose coherence beats chance and that the input excites;
         # 4: the model's exact response by default where it is linear time-invariant;
         # 5: else the transfer function of the model linearised at the record's start;
@@ -555,6 +555,7 @@ for _stage in (
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
+        stored_as="frequency",
     ),
     Stage(
         "sensitivities",

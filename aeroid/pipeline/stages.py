@@ -22,6 +22,7 @@ from .config import Options
 
 __all__ = [
     "STAGES",
+    "STAGE_ALIASES",
     "CampaignReport",
     "FlightReport",
     "Stage",
@@ -165,8 +166,11 @@ class Stage:
         ``part_flights(options, roles, i)``: for a campaign-level split task,
         the flights (indices) part `i` reads; it then waits only for those
         flights. None (or the callable returning None): every flight.
+    stored_as : str or None
+        The name a renamed stage had: it stays in the keys of the stage's
+        results (`key_name`), so results stored before the rename are found.
     brief : callable, optional
-        ``brief(role, record) -> value``: for a campaign-level stage, the small
+        ``brief(role, record) -> value: for a campaign-level stage, the small
         part of one flight's `role` input it needs (a few numbers and strings;
         picklable). The flight's task makes it as it commits the record, while
         the record is in memory, and hands it over with its status, so the
@@ -189,9 +193,46 @@ class Stage:
     combine: Callable[[StageContext, list[Any]], Any] | None = None
     part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
     brief: Callable[[str, Any], Any] | None = None
+    stored_as: str | None = None
+
+    @property
+    def key_name(self) -> str:
+        """The stage's name in its results' keys: `stored_as` where it was renamed."""
+        return self.stored_as or self.name
 
 
-STAGES: dict[str, Stage] = {}
+#: Old stage name -> the name that says what the stage does. An old name still finds
+#: its stage (a pipeline naming it gets a DeprecationWarning), and the stage's results
+#: keep their keys and their folder in the store (`Stage.key_name`).
+STAGE_ALIASES: dict[str, str] = {
+    "frequency": "frequency_response",
+    "frequency_id": "composite_response",
+    "frequency_identify": "frequency_domain_identify",
+}
+
+
+class _Registry(dict[str, Stage]):
+    """Stages by name; an old name in `STAGE_ALIASES` finds the renamed stage (tasks
+    name a stage by `Stage.key_name`, so the engine itself looks old names up)."""
+
+    def _current(self, name: object) -> object:
+        new = STAGE_ALIASES.get(name) if isinstance(name, str) else None
+        return name if new is None or dict.__contains__(self, name) else new
+
+    def __missing__(self, name: str) -> Stage:
+        current = self._current(name)
+        if current == name:
+            raise KeyError(name)
+        return self[str(current)]
+
+    def __contains__(self, name: object) -> bool:
+        return dict.__contains__(self, self._current(name))
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+
+STAGES: dict[str, Stage] = _Registry()
 
 
 def register_stage(stage: Stage) -> Stage:
