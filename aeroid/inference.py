@@ -27,6 +27,7 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -161,7 +162,8 @@ class InferenceResult:
         Posterior sample covariance.
     percentiles : mapping of str to ndarray of shape (3,)
         Per parameter, the 2.5th, 50th and 97.5th percentiles (the median and
-        the central 95 % credible interval).
+        the central 95 % credible interval); deprecated shape, kept for one
+        release: read `percentile_table`, the shape every result shares.
     map_parameters : mapping of str to float
         The draw with the highest posterior density.
     r_hat : mapping of str to float
@@ -266,6 +268,17 @@ class InferenceResult:
         return self.stderr
 
     @property
+    def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
+        """The percentiles as every result gives them: parameter -> level (percent) -> value
+        (``{"M_q": {2.5: ..., 50.0: ..., 97.5: ...}}``)."""
+        return MappingProxyType(
+            {
+                n: MappingProxyType({p: float(v) for p, v in zip(PERCENTILES, row, strict=True)})
+                for n, row in self.percentiles.items()
+            }
+        )
+
+    @property
     def all_parameters(self) -> Mapping[str, float]:
         """Fixed model parameters together with the posterior means of the inferred ones."""
         merged = dict(self.fixed)
@@ -295,8 +308,9 @@ class InferenceResult:
     def summary(self) -> str:
         """Markdown: posterior means, standard deviations, 95 % intervals, R-hat and ESS."""
         rows = []
+        levels = self.percentile_table
         for n in self.parameter_names:
-            lo, med, hi = self.percentiles[n]
+            lo, med, hi = levels[n].values()
             rows.append(
                 (
                     n,

@@ -330,9 +330,9 @@ def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
     fig, axes = _figure(1, height=3.0)
     ax = axes[0, 0]
     _hist(ax, prop.samples, 50)
-    for k, v in prop.percentiles.items():
+    for p, v in prop.percentile_table["metric"].items():
         ax.axvline(v, color="k", ls="--", lw=0.8)
-        ax.text(v, ax.get_ylim()[1] * 0.95, k, fontsize=7, ha="center")
+        ax.text(v, ax.get_ylim()[1] * 0.95, f"P{p:g}", fontsize=7, ha="center")
     ax.set_xlabel(label)
     ax.set_ylabel("draws")
     return fig

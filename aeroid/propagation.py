@@ -52,7 +52,8 @@ class PropagationResult:
     ----------
     mean, std : float
     percentiles : mapping of str to float
-        Keys like ``"P2.5"``.
+        Keys like ``"P2.5"`` (deprecated shape, kept for one release: read
+        `percentile_table`, the shape every result shares).
     samples : ndarray
         Metric values of the successful draws.
     n_samples : int
@@ -77,6 +78,13 @@ class PropagationResult:
         object.__setattr__(self, "percentiles", MappingProxyType(dict(self.percentiles)))
         object.__setattr__(self, "samples", frozen_array(self.samples))
 
+    @property
+    def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
+        """The percentiles as every result gives them: name -> level (percent) -> value;
+        the one name here is ``"metric"`` (``{"metric": {2.5: ..., 50.0: ..., 97.5: ...}}``)."""
+        levels = {float(k[1:]): float(v) for k, v in self.percentiles.items()}
+        return MappingProxyType({"metric": MappingProxyType(levels)})
+
     def plot(self, **kwargs: Any) -> Any:
         """Histogram of the propagated metric. Returns a matplotlib Figure."""
         from .plotting import plot_propagation
@@ -86,7 +94,7 @@ class PropagationResult:
     def summary(self) -> str:
         """Markdown table of the metric's statistics."""
         rows = [("mean", fmt(self.mean)), ("std", fmt(self.std))]
-        rows += [(k, fmt(v)) for k, v in self.percentiles.items()]
+        rows += [(f"P{p:g}", fmt(v)) for p, v in self.percentile_table["metric"].items()]
         text = markdown_table(("statistic", "value"), rows)
         note = f"{self.n_samples - self.n_failed} of {self.n_samples} draws ({self.source})"
         if self.n_failed:
@@ -148,14 +156,22 @@ class VectorPropagationResult:
     def __contains__(self, name: object) -> bool:
         return name in self.components
 
+    @property
+    def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
+        """The percentiles as every result gives them: component -> level (percent) -> value."""
+        return MappingProxyType(
+            {name: r.percentile_table["metric"] for name, r in self.components.items()}
+        )
+
     def summary(self) -> str:
         """Markdown table: one row per component."""
-        first = next(iter(self.components.values()))
-        keys = list(first.percentiles)
+        table = self.percentile_table
+        levels = list(next(iter(table.values())))
         rows = [
-            (name, fmt(r.mean), fmt(r.std), *(fmt(r.percentiles[k]) for k in keys))
+            (name, fmt(r.mean), fmt(r.std), *(fmt(table[name][p]) for p in levels))
             for name, r in self.components.items()
         ]
+        keys = [f"P{p:g}" for p in levels]
         text = markdown_table(("component", "mean", "std", *keys), rows)
         good = self.n_samples - self.n_failed
         note = f"{good} of {self.n_samples} draws complete ({self.source})"

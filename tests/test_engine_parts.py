@@ -76,6 +76,49 @@ def test_every_stage_option_is_a_keyword_of_its_library_function(name):
             )
 
 
+@pytest.mark.parametrize("name", sorted(STAGES))
+def test_every_built_in_stage_names_the_library_function_it_wraps(name):
+    stage = STAGES[name]
+    if name in ENGINE_STAGES:
+        assert stage.library is None
+        return
+    assert stage.library == stage.options.library
+    assert callable(_library_function(stage.library))
+
+
+def test_options_built_from_a_signature_take_its_types_and_refuse_other_keys():
+    from pydantic import Field
+
+    from aeroid.errors import PipelineError
+    from aeroid.pipeline.config import validate_options
+    from aeroid.pipeline.signature_options import library_fields
+
+    freq = STAGES["frequency_response"].options
+    # types read from `frequency_response`'s signature; bounds the stage's; None: the default
+    assert freq.model_fields["frequency_range"].annotation == (tuple[float, float] | None)
+    assert freq.model_fields["inputs"].annotation == (list[str] | None)
+    assert all(f.default is None for f in freq.model_fields.values())
+    assert freq(nperseg=256, frequency_range=[0.2, 3.0]).frequency_range == (0.2, 3.0)
+    for bad in ({"nperseg": "long"}, {"nperseg": 4}, {"outputs": "q"}):
+        with pytest.raises(ConfigError, match=r"stages\.frequency\.(nperseg|outputs)"):
+            validate_options(freq, bad, source="c.yaml", where="stages.frequency")
+    with pytest.raises(
+        ConfigError, match=r"nprseg: unknown key; allowed keys: .*; did you mean 'nperseg'\?"
+    ):
+        validate_options(freq, {"nprseg": 256}, source="c.yaml", where="stages.frequency")
+    # a keyword the function does not take, or typed `Any` without a type given, is refused
+    with pytest.raises(PipelineError, match="takes no keyword 'nperseg'"):
+        library_fields("aeroid.validation:validate", "nperseg")
+    with pytest.raises(PipelineError, match="'x0' is typed 'Any'"):
+        library_fields("aeroid.validation:validate", "x0")
+    with pytest.raises(PipelineError, match="not listed"):
+        library_fields("aeroid.validation:validate", "confidence", whiteness_lags=Field(None))
+    made = library_fields(
+        "aeroid.validation:validate", "x0", x0=(dict[str, float] | None, Field(None))
+    )
+    assert made(x0={"q": 0.0}).x0 == {"q": 0.0}
+
+
 def test_identify_options_take_what_the_library_takes():
     opts = STAGES["identify"].options
     assert opts.model_validate({"estimate_x0": ["alpha"]}).estimate_x0 == ["alpha"]
@@ -122,6 +165,35 @@ def test_engine_modules_are_small():
     sizes = {p.name: len(p.read_text(encoding="utf-8").splitlines()) for p in ENGINE.glob("*.py")}
     assert sizes["runner.py"] <= 400
     assert {name: n for name, n in sizes.items() if n > 600} == {}
+
+
+def test_renamed_stages_keep_their_old_names_keys_and_store_folders(tmp_path):
+    import warnings
+
+    from aeroid.pipeline.definition import Pipeline, Step
+    from aeroid.pipeline.stages import STAGE_ALIASES
+
+    renamed = {
+        "frequency": "frequency_response",
+        "frequency_id": "composite_response",
+        "frequency_identify": "frequency_domain_identify",
+    }
+    assert renamed == STAGE_ALIASES
+    for old, new in renamed.items():
+        assert old in STAGES and old not in list(STAGES) and new in list(STAGES)
+        assert STAGES[old] is STAGES[new] is STAGES.get(old)
+        # results stored under the old name are found: the same key, the same folder
+        assert STAGES[new].name == new and STAGES[new].key_name == old
+    assert STAGES.get("frequencies") is None and "frequencies" not in STAGES
+    with pytest.raises(KeyError):
+        STAGES["frequencies"]
+    # the built-in pipeline runs the new names; one naming an old name still loads, warned
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        p = plan(_config(tmp_path, "  frequency: {outputs: [q]}\n"))
+    assert {t.stage for t in p.tasks if t.step == "frequency"} == {"frequency"}
+    with pytest.warns(DeprecationWarning, match="'frequency_id', now called 'composite_response'"):
+        Pipeline("mine", (Step("load"), Step("frequency_id", inputs={"data": "load"})))
 
 
 def test_importing_the_engine_registers_every_built_in_stage_once():

@@ -125,6 +125,12 @@ def test_result_record() -> None:
     np.testing.assert_array_equal(res.sample("k"), res.samples[:, 0])
     assert set(res.percentiles) == {"k", "sigma_y"}
     assert res.percentiles["k"].shape == (3,)
+    # one shape with propagation's: parameter -> level (percent) -> value
+    assert list(res.percentile_table) == ["k", "sigma_y"]
+    for i, n in enumerate(res.parameter_names):
+        expect = np.percentile(res.samples[:, i], [2.5, 50.0, 97.5])
+        assert list(res.percentile_table[n]) == [2.5, 50.0, 97.5]
+        np.testing.assert_allclose(list(res.percentile_table[n].values()), expect, rtol=1e-12)
     assert res.priors["k"] == "Normal(mu=0.5, sigma=0.4)"
     assert res.priors["sigma_y"].startswith("LogUniform(")
     assert res.burn_in == 15 and res.thin == 1 and res.n_walkers == 8

@@ -335,3 +335,20 @@ def test_progress_must_be_a_bool():
 def test_complex_vector_metric_is_a_failed_draw_not_a_truncated_one():
     with pytest.raises(PropagationError, match="complex"):
         propagate(_result(), lambda p: np.array([1.0 + 1j, 2.0]), n_samples=10, seed=0)
+
+
+def test_percentiles_take_the_shape_every_result_shares():
+    # name -> level (percent) -> value; a 1-D Gaussian metric: the closed form as above
+    res = propagate(_result(), lambda p: 2 * p["a"] - p["b"] + p["c"], n_samples=20000, seed=1)
+    table = res.percentile_table
+    assert list(table) == ["metric"] and list(table["metric"]) == [2.5, 50.0, 97.5]
+    assert table["metric"][2.5] == res.percentiles["P2.5"]  # the old shape, one more release
+    assert table["metric"][97.5] == pytest.approx(10 + 1.96 * math.sqrt(0.21), abs=0.03)
+    with pytest.raises(TypeError):
+        table["metric"][2.5] = 0.0  # type: ignore[index]
+    vec = propagate(_result(), lambda p: {"u": p["a"], "v": p["b"]}, n_samples=4000, seed=2)
+    assert list(vec.percentile_table) == ["u", "v"]
+    for name in ("u", "v"):
+        expect = np.percentile(vec[name].samples, [2.5, 50.0, 97.5])
+        np.testing.assert_array_equal(list(vec.percentile_table[name].values()), expect)
+    assert "| P2.5" in vec.summary() and "| P2.5" in res.summary()

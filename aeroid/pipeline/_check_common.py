@@ -32,7 +32,15 @@ _MATLAB_NUMERIC = frozenset(
 )
 # stages whose library function reads the flight's controls and outputs
 _READS_DATA = frozenset(
-    {"identify", "filter", "validate", "infer", "frequency", "sensitivities", "frequency_identify"}
+    {
+        "identify",
+        "filter",
+        "validate",
+        "infer",
+        "frequency_response",
+        "sensitivities",
+        "frequency_domain_identify",
+    }
 )
 
 # (stage, option) -> which of the model's names the option's entries are
@@ -57,14 +65,14 @@ _NAMED: dict[tuple[str, str], str] = {
     ("infer", "outputs"): "output",
     ("design", "parameters"): "parameter",
     ("design", "noise"): "output",
-    ("frequency", "inputs"): "control",
-    ("frequency", "outputs"): "output",
+    ("frequency_response", "inputs"): "control",
+    ("frequency_response", "outputs"): "output",
     ("sensitivities", "parameters"): "parameter",
     ("sensitivities", "noise"): "output",
     ("sensitivities", "outputs"): "output",
-    ("frequency_identify", "parameters"): "parameter",
-    ("frequency_identify", "outputs"): "output",
-    ("frequency_identify", "noise"): "output",
+    ("frequency_domain_identify", "parameters"): "parameter",
+    ("frequency_domain_identify", "outputs"): "output",
+    ("frequency_domain_identify", "noise"): "output",
 }
 
 

@@ -14,6 +14,7 @@ from ..errors import PipelineError
 from .codec import register_record
 from .config import Options
 from .load_stage import flight_data
+from .signature_options import library_fields
 from .stages import Stage, StageContext, register_stage
 
 __all__ = [
@@ -27,6 +28,11 @@ __all__ = [
 ]
 
 
+# types narrower than the library's: the values it names, a list of numbers (not an array)
+_ERROR_BARS: Any = (Literal["colored", "white"] | None, Field(None))
+_FREQUENCIES: Any = (list[float] | None, Field(None))
+
+
 def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
     return options.library_kwargs(exclude=exclude)
 
@@ -34,22 +40,20 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
 # -- compatibility ---------------------------------------------------------------------------
 
 
-class CompatibilityOptions(Options):
+class CompatibilityOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.compatibility:check_compatibility",
+        *("channels", "estimate", "fixed", "x0", "gravity", "error_bars", "max_iterations"),
+        *("tolerance", "max_passes", "input_noise", "n_draws"),
+        gravity=Field(None, gt=0),
+        error_bars=_ERROR_BARS,
+        max_iterations=Field(None, ge=1),
+        tolerance=Field(None, gt=0),
+        max_passes=Field(None, ge=1),
+        n_draws=Field(None, ge=1),
+    )
+):
     """`aeroid.check_compatibility` keywords (the seed is the campaign's)."""
-
-    channels: dict[str, str | None] | None = None
-    estimate: list[str] | dict[str, float] | None = None
-    fixed: dict[str, float] | None = None
-    x0: dict[str, float] | None = None
-    gravity: float | None = Field(None, gt=0)
-    error_bars: Literal["colored", "white"] | None = None
-    max_iterations: int | None = Field(None, ge=1)
-    tolerance: float | None = Field(None, gt=0)
-    max_passes: int | None = Field(None, ge=1)
-    input_noise: dict[str, float] | None = None
-    n_draws: int | None = Field(None, ge=1)
-
-    library: ClassVar[str] = "aeroid.compatibility:check_compatibility"
 
 
 def _run_compatibility(ctx: StageContext) -> Any:
@@ -102,17 +106,18 @@ def _run_regress(ctx: StageContext) -> Any:
 # -- frequency-domain identification -----------------------------------------------------------
 
 
-class FrequencyIdOptions(Options):
+class FrequencyIdOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.frequency_id:composite_response",
+        *("inputs", "outputs", "frequencies", "windows", "overlap", "frequency_range"),
+        # the library also takes one name; a config lists them
+        inputs=(list[str], Field()),
+        outputs=(list[str], Field()),
+        frequencies=_FREQUENCIES,
+        overlap=Field(None, ge=0, le=0.95),
+    )
+):
     """`aeroid.composite_response` keywords (frequencies and ranges in rad/s, windows in s)."""
-
-    inputs: list[str]
-    outputs: list[str]
-    frequencies: list[float] | None = None
-    windows: list[float] | None = None
-    overlap: float | None = Field(None, ge=0, le=0.95)
-    frequency_range: tuple[float, float] | None = None
-
-    library: ClassVar[str] = "aeroid.frequency_id:composite_response"
 
 
 def _run_frequency_id(ctx: StageContext) -> Any:
@@ -123,20 +128,17 @@ def _run_frequency_id(ctx: StageContext) -> Any:
     return composite_response(flight_data(ctx), opts.inputs, opts.outputs, **kw)
 
 
-class TransferFunctionOptions(Options):
+class TransferFunctionOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.frequency_id:fit_transfer_function",
+        *("numerator_order", "denominator_order", "delay", "frequency_range", "input"),
+        *("output", "start", "weighting", "min_coherence"),
+        numerator_order=(int, Field(ge=0)),
+        denominator_order=(int, Field(ge=1)),
+        min_coherence=Field(None, ge=0, le=1),
+    )
+):
     """`aeroid.fit_transfer_function` keywords, fitted to the frequency_id response."""
-
-    numerator_order: int = Field(ge=0)
-    denominator_order: int = Field(ge=1)
-    delay: bool | None = None
-    frequency_range: tuple[float, float] | None = None
-    input: str | None = None
-    output: str | None = None
-    start: dict[str, float] | None = None
-    weighting: str | None = None
-    min_coherence: float | None = Field(None, ge=0, le=1)
-
-    library: ClassVar[str] = "aeroid.frequency_id:fit_transfer_function"
 
 
 def _run_transfer_function(ctx: StageContext) -> Any:
@@ -145,24 +147,23 @@ def _run_transfer_function(ctx: StageContext) -> Any:
     return fit_transfer_function(ctx.inputs["response"], **_kwargs(ctx.options))
 
 
-class FrequencyIdentifyOptions(Options):
+class FrequencyIdentifyOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.frequency_domain:identify_frequency_domain",
+        *("parameters", "frequencies", "method", "outputs", "boundary", "error_bars"),
+        *("noise", "reference", "max_iterations", "tolerance", "weighting", "delays"),
+        # names to estimate (the library also takes starting values)
+        parameters=(list[str] | None, Field(None)),
+        frequencies=_FREQUENCIES,
+        method=(Literal["output_error", "equation_error"] | None, Field(None)),
+        error_bars=_ERROR_BARS,
+        max_iterations=Field(None, ge=1),
+        tolerance=Field(None, gt=0),
+        weighting=(Literal["sidpac", "hermitian", "real"] | None, Field(None)),
+    )
+):
     """`aeroid.identify_frequency_domain` keywords (``parameters``: names to estimate;
     default all; ``frequencies`` in rad/s)."""
-
-    parameters: list[str] | None = None
-    frequencies: list[float] | None = None
-    method: Literal["output_error", "equation_error"] | None = None
-    outputs: list[str] | None = None
-    boundary: str | None = None
-    error_bars: Literal["colored", "white"] | None = None
-    noise: dict[str, float] | None = None
-    reference: dict[str, float] | None = None
-    max_iterations: int | None = Field(None, ge=1)
-    tolerance: float | None = Field(None, gt=0)
-    weighting: Literal["sidpac", "hermitian", "real"] | None = None
-    delays: list[str] | dict[str, float] | None = None
-
-    library: ClassVar[str] = "aeroid.frequency_domain:identify_frequency_domain"
 
 
 def _run_frequency_identify(ctx: StageContext) -> Any:
@@ -191,29 +192,31 @@ class HandlingQualities:
         return "\n\n".join(p.summary() for p in parts if p is not None)
 
 
-class EquivalentSystemSpec(Options):
+class EquivalentSystemSpec(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.handling_qualities:equivalent_system",
+        *("kind", "frequency_range", "delay", "start"),
+        kind=(Literal["short_period", "roll", "dutch_roll"] | None, Field(None)),
+    )
+):
     """`aeroid.equivalent_system` keywords (the pair is the handling_qualities stage's)."""
 
-    kind: Literal["short_period", "roll", "dutch_roll"] | None = None
-    frequency_range: tuple[float, float] | None = None
-    delay: bool | None = None
-    start: dict[str, float] | None = None
 
-
-class HandlingQualitiesOptions(Options):
+class HandlingQualitiesOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.handling_qualities:bandwidth",
+        *("kind", "input", "output"),
+        kind=(Literal["attitude", "rate"] | None, Field(None)),
+    )
+):
     """`aeroid.bandwidth` keywords (``kind``: attitude or rate) for the response pair
     ``input`` -> ``output``; ``equivalent_system``: `aeroid.equivalent_system` keywords
     to fit a low-order equivalent system too; ``margins``: the pair is a broken-loop
     response, so report `aeroid.stability_margins` too. ``bandwidth: false`` skips it."""
 
-    kind: Literal["attitude", "rate"] | None = None
-    input: str | None = None
-    output: str | None = None
     bandwidth: bool = True
     equivalent_system: EquivalentSystemSpec | None = None
     margins: bool = False
-
-    library: ClassVar[str] = "aeroid.handling_qualities:bandwidth"
     engine_only: ClassVar[frozenset[str]] = frozenset({"bandwidth", "equivalent_system", "margins"})
 
     @model_validator(mode="after")
@@ -367,12 +370,13 @@ for _stage in (
     # regress 2: standard errors without the t widening, their degrees of freedom carried
     Stage("regress", "2", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
     Stage(
-        "frequency_id",
+        "composite_response",  # once "frequency_id"
         "1",
         FrequencyIdOptions,
         "CompositeResponse",
         _run_frequency_id,
         uses_model=False,
+        stored_as="frequency_id",
     ),
     Stage(
         "transfer_function",
@@ -383,12 +387,13 @@ for _stage in (
         uses_model=False,
     ),
     Stage(
-        "frequency_identify",
+        "frequency_domain_identify",  # once "frequency_identify"
         # 2: fdoe's noise weighting by default, record ends kept only when significant
         "2",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
+        stored_as="frequency_identify",
     ),
     Stage(
         "handling_qualities",

@@ -236,7 +236,8 @@ def _stage_options(
         if stage is None:
             continue
         try:
-            out[(step, stage_name)] = validate_options(
+            # keyed by the stage's current name, whichever name the pipeline used
+            out[(step, stage.name)] = validate_options(
                 stage.options, configured.get(step), source=config.source, where=f"stages.{step}"
             )
         except ConfigError as exc:

@@ -529,6 +529,8 @@ def format_validation_error(
         if err["type"] == "extra_forbidden":
             allowed = _allowed_keys(model, err["loc"])
             hint = f"; allowed keys: {', '.join(allowed)}" if allowed else ""
+            close = difflib.get_close_matches(str(err["loc"][-1]), allowed or [], n=1)
+            hint += f"; did you mean {close[0]!r}?" if close else ""
             msg = f"unknown key{hint}"
         elif err["type"] == "missing":
             msg = "required key is missing"

@@ -11,6 +11,7 @@ input whose upstream step does not run is left out.
 from __future__ import annotations
 
 import importlib
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +19,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ._code import load_file, module_file, user_module_name
-from .stages import STAGES
+from .stages import STAGE_ALIASES, STAGES
 
 __all__ = ["Pipeline", "Step", "resolve_pipeline"]
 
@@ -64,6 +65,14 @@ class Pipeline:
                 raise ConfigError(
                     f"pipeline {self.name!r}: step {step.name!r} runs unknown stage "
                     f"{step.stage_name!r}; stages: {sorted(STAGES)}"
+                )
+            if step.stage_name in STAGE_ALIASES:
+                warnings.warn(
+                    f"pipeline {self.name!r}: step {step.name!r} runs stage "
+                    f"{step.stage_name!r}, now called {STAGE_ALIASES[step.stage_name]!r}; "
+                    "the old name goes in a later release",
+                    DeprecationWarning,
+                    stacklevel=3,
                 )
             for role, up in step.inputs.items():
                 if up not in seen or up in {s.name for s in self.campaign_steps}:

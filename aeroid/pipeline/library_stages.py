@@ -1,11 +1,11 @@
 """The stages that wrap aeroid's library functions: stored inputs -> one call -> a record.
 
 Each stage imports the function it calls from its module (inside the stage,
-so that planning an unchanged campaign imports no numerics), and its options
-model holds that function's keywords: `tests/test_engine_parts.py` checks
-every field against the function's signature, except those named in
-``engine_only`` (what the engine itself uses, such as a metric's name or how
-many parallel parts to run).
+so that planning an unchanged campaign imports no numerics). Its options
+model is built on `library_fields`: the fields are the function's keywords,
+typed from its signature; only what the engine itself uses (a metric's name,
+how many parallel parts to run; ``engine_only``) and what a config describes
+in its own terms (priors, a manoeuvre) are declared here.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from pydantic import AliasChoices, Field, field_validator, model_validator
 from ..errors import AeroidError, PipelineError
 from .config import Options
 from .load_stage import LoadOptions, flight_data
+from .signature_options import library_fields
 from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
 
 __all__ = [
@@ -47,32 +48,30 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
 # -- identify / filter / validate ----------------------------------------------------
 
 
-class IdentifyOptions(Options):
+_NAMES: Any = (list[str] | None, Field(None))  # names to estimate (not starting values)
+_BY_NAME: Any = (dict[str, float] | None, Field(None))
+
+
+class IdentifyOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.identification:identify",
+        *("parameters", "method", "outputs", "x0", "estimate_x0", "estimate_bias", "weights"),
+        *("error_bars", "max_iterations", "tolerance", "gradient", "process_noise"),
+        *("measurement_noise", "simulate_options", "bounds", "filter_options"),
+        *("estimate_process_noise", "time_delays", "start"),
+        parameters=_NAMES,
+        x0=_BY_NAME,
+        weights=_BY_NAME,
+        process_noise=_BY_NAME,
+        measurement_noise=_BY_NAME,
+        max_iterations=Field(None, ge=1),
+        tolerance=Field(None, gt=0),
+        # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
+        bounds=(dict[str, tuple[float | None, float | None]] | None, Field(None)),
+    )
+):
     """`aeroid.identify` keywords (``parameters``: names to estimate; default all)."""
 
-    parameters: list[str] | None = None
-    method: str | None = None
-    outputs: list[str] | None = None
-    x0: dict[str, float] | None = None
-    # true, or the names of the states to estimate
-    estimate_x0: bool | list[str] | None = None
-    estimate_bias: bool | list[str] | dict[str, Any] | None = None
-    weights: dict[str, float] | None = None
-    error_bars: str | None = None
-    max_iterations: int | None = Field(None, ge=1)
-    tolerance: float | None = Field(None, gt=0)
-    gradient: str | None = None
-    process_noise: dict[str, float] | None = None
-    measurement_noise: dict[str, float] | None = None
-    simulate_options: dict[str, Any] | None = None
-    # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
-    bounds: dict[str, tuple[float | None, float | None]] | None = None
-    filter_options: dict[str, Any] | None = None
-    estimate_process_noise: bool | list[str] | None = None
-    time_delays: str | list[str] | dict[str, float] | None = None
-    start: str | None = None
-
-    library: ClassVar[str] = "aeroid.identification:identify"
     # unset, they leave the keys of results stored before they existed unchanged
     added_later: ClassVar[frozenset[str]] = frozenset(
         {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start"}
@@ -107,15 +106,15 @@ def _run_identify(ctx: StageContext) -> Any:
     return identify(ctx.model, flight_data(ctx), names, **_kwargs(ctx.options, "parameters"))
 
 
-class FilterOptions(Options):
+class FilterOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.filtering:filter_states",
+        *("process_noise", "measurement_noise", "method", "smooth"),
+        process_noise=(dict[str, float], Field()),
+        measurement_noise=(dict[str, float], Field()),
+    )
+):
     """`aeroid.filter_states` keywords (both noise levels are required, as there)."""
-
-    process_noise: dict[str, float]
-    measurement_noise: dict[str, float]
-    method: str | None = None
-    smooth: bool | None = None
-
-    library: ClassVar[str] = "aeroid.filtering:filter_states"
 
 
 def _run_filter(ctx: StageContext) -> Any:
@@ -126,13 +125,16 @@ def _run_filter(ctx: StageContext) -> Any:
     )
 
 
-class ValidateOptions(Options):
+class ValidateOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.validation:validate",
+        "confidence",
+        "whiteness_lags",
+        confidence=Field(None, gt=0, lt=1),
+        whiteness_lags=Field(None, ge=1),
+    )
+):
     """`aeroid.validate` keywords."""
-
-    confidence: float | None = Field(None, gt=0, lt=1)
-    whiteness_lags: int | None = Field(None, ge=1)
-
-    library: ClassVar[str] = "aeroid.validation:validate"
 
 
 def _run_validate(ctx: StageContext) -> Any:
@@ -162,18 +164,22 @@ METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
 }
 
 
-class PropagateOptions(Options):
+class PropagateOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.propagation:propagate",
+        "n_samples",
+        "percentiles",
+        # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
+        n_samples=Field(None, ge=1, le=10_000_000),
+    )
+):
     """`aeroid.propagate` keywords; ``metric`` is a built-in name or ``pkg.mod:function``;
     ``n_batches`` splits the draws into batches run in parallel (same result)."""
 
     metric: str = "natural_frequency"
-    # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
-    n_samples: int | None = Field(None, ge=1, le=10_000_000)
-    percentiles: list[float] | None = None
     n_batches: int | None = Field(None, ge=1, le=10_000)
 
     execution_only: ClassVar[frozenset[str]] = frozenset({"n_batches"})
-    library: ClassVar[str] = "aeroid.propagation:propagate"
     engine_only: ClassVar[frozenset[str]] = frozenset({"metric", "n_batches"})
     # names of code to import (``module:function``): only with the user's consent
     code_fields: ClassVar[frozenset[str]] = frozenset({"metric"})
@@ -259,26 +265,28 @@ class PriorSpec(Options):
         return cls(*args) if isinstance(args, (tuple, list)) else cls(args)
 
 
-class InferOptions(Options):
+class InferOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.inference:infer",
+        *("noise", "n_walkers", "n_steps", "n_ensembles", "burn_in", "thin", "stretch"),
+        *("move", "outputs", "backend"),
+        n_walkers=Field(None, ge=2, le=100_000),
+        n_steps=Field(None, ge=1, le=10_000_000),
+        n_ensembles=Field(None, ge=1, le=1_000),
+        burn_in=Field(None, ge=0),
+        thin=Field(None, ge=1),
+        stretch=Field(None, gt=1),
+        move=(Literal["stretch", "de"] | None, Field(None)),
+    )
+):
     """`aeroid.infer` keywords: ``parameters``, the prior of each parameter by name (once
     called ``priors``, still accepted); ``initial``: start at the fit."""
 
+    # the library takes `Prior` objects: a config describes each (`PriorSpec`)
     parameters: dict[str, PriorSpec] = Field(validation_alias=AliasChoices("parameters", "priors"))
-    noise: dict[str, float] | None = None
-    n_walkers: int | None = Field(None, ge=2, le=100_000)
-    n_steps: int | None = Field(None, ge=1, le=10_000_000)
-    n_ensembles: int | None = Field(None, ge=1, le=1_000)
-    burn_in: int | None = Field(None, ge=0)
-    thin: int | None = Field(None, ge=1)
-    stretch: float | None = Field(None, gt=1)
-    move: Literal["stretch", "de"] | None = None
-
-    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
-    outputs: list[str] | None = None
-    backend: str | None = None
     initial: bool = True
 
-    library: ClassVar[str] = "aeroid.inference:infer"
+    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
     # `initial` here says whether to start at the fit (the library takes the fit itself)
     engine_only: ClassVar[frozenset[str]] = frozenset({"initial"})
     # old name -> name: accepted in configs (with a warning) and in stored tasks
@@ -369,18 +377,19 @@ class ManeuverSpec(Options):
         return cls(self.control, **kw)
 
 
-class DesignOptions(Options):
+class DesignOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.design:design_experiment",
+        *("parameters", "criterion", "noise", "duration", "sample_rate", "optimizer_options"),
+        parameters=_NAMES,
+        duration=Field(None, gt=0),
+        sample_rate=Field(None, gt=0),
+    )
+):
     """`aeroid.design_experiment` keywords (designed at the identified values)."""
 
+    # the library takes a manoeuvre family: a config describes one (`ManeuverSpec`)
     maneuver: ManeuverSpec
-    parameters: list[str] | None = None
-    criterion: str | None = None
-    noise: dict[str, float] | None = None
-    duration: float | None = Field(None, gt=0)
-    sample_rate: float | None = Field(None, gt=0)
-    optimizer_options: dict[str, Any] | None = None
-
-    library: ClassVar[str] = "aeroid.design:design_experiment"
 
 
 def _run_design(ctx: StageContext) -> Any:
@@ -398,18 +407,22 @@ def _run_design(ctx: StageContext) -> Any:
 # -- frequency response and sensitivities --------------------------------------------------------
 
 
-class FrequencyOptions(Options):
+class FrequencyOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.frequency:frequency_response",
+        "inputs",
+        "outputs",
+        "nperseg",
+        "frequency_range",
+        "coherence_threshold",
+        "model_response",
+        "min_coherent",
+        nperseg=Field(None, ge=8),
+        coherence_threshold=Field(None, ge=0, le=1),
+        min_coherent=Field(None, ge=1),
+    )
+):
     """`aeroid.frequency_response` keywords."""
-
-    inputs: list[str] | None = None
-    outputs: list[str] | None = None
-    nperseg: int | None = Field(None, ge=8)
-    frequency_range: tuple[float, float] | None = None
-    coherence_threshold: float | None = Field(None, ge=0, le=1)
-    model_response: str | None = None
-    min_coherent: int | None = Field(None, ge=1)
-
-    library: ClassVar[str] = "aeroid.frequency:frequency_response"
 
 
 def _run_frequency(ctx: StageContext) -> Any:
@@ -421,15 +434,19 @@ def _run_frequency(ctx: StageContext) -> Any:
     return frequency_response(ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **kw)
 
 
-class SensitivityOptions(Options):
+class SensitivityOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.sensitivity:sensitivities",
+        "parameters",
+        "noise",
+        "outputs",
+        "relative_step",
+        # the library also takes a mapping of values or a record; a config names parameters
+        parameters=(list[str] | None, Field(None)),
+        relative_step=Field(None, gt=0),
+    )
+):
     """`aeroid.sensitivities` keywords (evaluated at the identified values when wired so)."""
-
-    parameters: list[str] | None = None
-    noise: dict[str, float] | None = None
-    outputs: list[str] | None = None
-    relative_step: float | None = Field(None, gt=0)
-
-    library: ClassVar[str] = "aeroid.sensitivity:sensitivities"
 
 
 def _run_sensitivities(ctx: StageContext) -> Any:
@@ -444,12 +461,8 @@ def _run_sensitivities(ctx: StageContext) -> Any:
 # -- reports ---------------------------------------------------------------------------------
 
 
-class ReportOptions(Options):
+class ReportOptions(library_fields("aeroid.reporting:report", "title")):  # type: ignore[misc]
     """`aeroid.report` keywords for each flight's report."""
-
-    title: str | None = None
-
-    library: ClassVar[str] = "aeroid.reporting:report"
 
 
 def _run_report(ctx: StageContext) -> FlightReport:
@@ -533,7 +546,7 @@ for _stage in (
         seeded=True,
     ),
     Stage(
-        "frequency",
+        "frequency_response",  # once "frequency"
         # 3: only frequencies whose coherence beats chance and that the input excites;
         # 4: the model's exact response by default where it is linear time-invariant;
         # 5: else the transfer function of the model linearised at the record's start;
@@ -542,6 +555,7 @@ for _stage in (
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
+        stored_as="frequency",
     ),
     Stage(
         "sensitivities",

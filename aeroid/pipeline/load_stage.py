@@ -11,6 +11,7 @@ from pydantic import Field
 
 from ..errors import DataFormatError, PipelineError
 from .config import Options
+from .signature_options import library_fields
 from .stages import Stage, StageContext, register_stage
 
 __all__ = ["LoadOptions", "QualityLimits", "flight_data"]
@@ -33,24 +34,25 @@ class QualityLimits(Options):
     alias_limit: float = Field(0.2, ge=0, le=1)
 
 
-class LoadOptions(Options):
+class LoadOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.channel_map:load_mapped",
+        *("time_column", "channels", "units", "sample_rate", "max_gap", "window", "quality"),
+        # HDF5: read data stored outside the flight file (refused unless set)
+        "allow_external_data",
+        channels=(list[str] | dict[str, str | dict[str, Any]] | None, Field(None)),
+        sample_rate=Field(None, gt=0),
+        max_gap=Field(None, gt=0),
+        window=(list[float] | dict[str, Any] | None, Field(None)),
+        # the data-quality check of the channels as read (`aeroid.check_data_quality`):
+        # unset or true (default limits), false, or limits such as {jitter_limit: 0.05}
+        quality=(bool | QualityLimits | None, Field(None)),
+    )
+):
     """`aeroid.channel_map.load_mapped` keywords (files) or the simulated-flight spec;
     ``condition``: the flight condition the planner passes on into the data's metadata."""
 
-    library: ClassVar[str] = "aeroid.channel_map:load_mapped"
-
-    time_column: str | None = None
-    channels: list[str] | dict[str, str | dict[str, Any]] | None = None
-    units: dict[str, str] | None = None
-    sample_rate: float | None = Field(None, gt=0)
-    max_gap: float | None = Field(None, gt=0)
-    window: list[float] | dict[str, Any] | None = None
-    # the data-quality check of the channels as read (`aeroid.check_data_quality`):
-    # unset or true (default limits), false, or limits such as {jitter_limit: 0.05}
-    quality: bool | QualityLimits | None = None
     condition: dict[str, float] | None = None
-    # HDF5: read data stored outside the flight file (refused unless set)
-    allow_external_data: bool | None = None
 
     engine_only: ClassVar[frozenset[str]] = frozenset({"condition"})
     # unset, they leave the keys of flights loaded before they existed unchanged

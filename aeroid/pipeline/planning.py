@@ -340,7 +340,8 @@ def _plan(
     _check_imports(config, options, allowed)
     fingerprint = model_fingerprint(model)
     model_ref = {"spec": config.model, "base_dir": config.base_dir}
-    step_stage = {s.name: s.stage_name for s in steps}
+    # the stage's stored name: where its results live (a renamed stage keeps its old one)
+    step_stage = {s.name: STAGES[s.stage_name].key_name for s in steps}
     # the same for every flight: (options as keyed, options as run)
     documents = {
         s.name: (options[s.name].key_document(), options[s.name].task_document()) for s in steps
@@ -407,7 +408,7 @@ def _plan(
                 seed = {"seed": config.seed, "spawn_key": [flight_id]}
             key, canonical = keyed_text(
                 record_type=stage.record_type,
-                stage=stage.name,
+                stage=stage.key_name,
                 stage_version=stage.version,
                 options=opts if made is None else made,
                 upstream=upstream,
@@ -435,7 +436,7 @@ def _plan(
                 Task(
                     key=key,
                     step=step.name,
-                    stage=stage.name,
+                    stage=stage.key_name,
                     flight=name,
                     options=run_opts,
                     upstream={r: v for r, v in upstream.items() if r in step.inputs},
@@ -461,7 +462,7 @@ def _plan(
         }
         key, canonical = keyed_text(
             record_type=stage.record_type,
-            stage=stage.name,
+            stage=stage.key_name,
             stage_version=stage.version,
             options={**opts, "flights": flights},
             upstream=upstream,
@@ -472,7 +473,7 @@ def _plan(
             Task(
                 key=key,
                 step=step.name,
-                stage=stage.name,
+                stage=stage.key_name,
                 flight=None,
                 options=run_options[step.name],
                 upstream=upstream,

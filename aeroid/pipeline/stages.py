@@ -1,7 +1,7 @@
 """Pipeline stages: the contract and the registry.
 
-A stage declares its options model (mirroring the library function's
-keywords), the record type it produces, whether it needs the vehicle model
+A stage declares its options model (built from the library function's
+signature), the record type it produces, whether it needs the vehicle model
 and whether it is stochastic, and a ``run(ctx)`` function. Adding a stage is
 one `register_stage` call; pipelines (``pipelines/``) wire stages together.
 The built-in stages live in `load_stage`, `library_stages` (one per library
@@ -12,7 +12,7 @@ them (and they register here) when `aeroid.pipeline` is imported.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,7 @@ from .config import Options
 
 __all__ = [
     "STAGES",
+    "STAGE_ALIASES",
     "CampaignReport",
     "FlightReport",
     "Stage",
@@ -150,7 +151,8 @@ class Stage:
         The task gets ``SeedSequence(seed, spawn_key=(flight,))``.
     library : str or None
         The library function wrapped, as ``module:function`` (imported when
-        the stage runs).
+        the stage runs); `register_stage` takes it from the options model's
+        ``library`` when not given, so every built-in stage names its function.
     per_flight : bool
         False for campaign-level stages whose inputs are lists over flights.
     parts : callable, optional
@@ -164,8 +166,11 @@ class Stage:
         ``part_flights(options, roles, i)``: for a campaign-level split task,
         the flights (indices) part `i` reads; it then waits only for those
         flights. None (or the callable returning None): every flight.
+    stored_as : str or None
+        The name a renamed stage had: it stays in the keys of the stage's
+        results (`key_name`), so results stored before the rename are found.
     brief : callable, optional
-        ``brief(role, record) -> value``: for a campaign-level stage, the small
+        ``brief(role, record) -> value: for a campaign-level stage, the small
         part of one flight's `role` input it needs (a few numbers and strings;
         picklable). The flight's task makes it as it commits the record, while
         the record is in memory, and hands it over with its status, so the
@@ -188,13 +193,57 @@ class Stage:
     combine: Callable[[StageContext, list[Any]], Any] | None = None
     part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
     brief: Callable[[str, Any], Any] | None = None
+    stored_as: str | None = None
+
+    @property
+    def key_name(self) -> str:
+        """The stage's name in its results' keys: `stored_as` where it was renamed."""
+        return self.stored_as or self.name
 
 
-STAGES: dict[str, Stage] = {}
+#: Old stage name -> the name that says what the stage does. An old name still finds
+#: its stage (a pipeline naming it gets a DeprecationWarning), and the stage's results
+#: keep their keys and their folder in the store (`Stage.key_name`).
+STAGE_ALIASES: dict[str, str] = {
+    "frequency": "frequency_response",
+    "frequency_id": "composite_response",
+    "frequency_identify": "frequency_domain_identify",
+}
+
+
+class _Registry(dict[str, Stage]):
+    """Stages by name; an old name in `STAGE_ALIASES` finds the renamed stage (tasks
+    name a stage by `Stage.key_name`, so the engine itself looks old names up)."""
+
+    def _current(self, name: object) -> object:
+        new = STAGE_ALIASES.get(name) if isinstance(name, str) else None
+        return name if new is None or dict.__contains__(self, name) else new
+
+    def __missing__(self, name: str) -> Stage:
+        current = self._current(name)
+        if current == name:
+            raise KeyError(name)
+        return self[str(current)]
+
+    def __contains__(self, name: object) -> bool:
+        return dict.__contains__(self, self._current(name))
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+
+STAGES: dict[str, Stage] = _Registry()
 
 
 def register_stage(stage: Stage) -> Stage:
-    """Make a stage available to pipelines by name (replacing one of the same name)."""
+    """Make a stage available to pipelines by name (replacing one of the same name).
+
+    A stage given no ``library`` takes its options model's ``library``
+    (``module:function``), when the model names one."""
+    if stage.library is None:
+        library = getattr(stage.options, "library", None)
+        if isinstance(library, str):
+            stage = replace(stage, library=library)
     STAGES[stage.name] = stage
     return stage
 
