@@ -9,12 +9,13 @@ holds no information about the derivatives it is meant to give).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from .errors import ChannelError, IdentificationError
+from .errors import ChannelError, IdentifiabilityWarning, IdentificationError
 
 # Airspeed of anything that flies, m/s: a glider's stall to beyond Mach 10. A
 # median outside is a channel in another unit (km/h near the top, mm/s or cm/s
@@ -60,6 +61,53 @@ def require_excitation(datas: Sequence[Any], controls: Iterable[str]) -> None:
         f"no excitation: every control is constant in every manoeuvre ({listing}); a "
         "constant input cannot be told from a trim bias, so the derivatives it multiplies "
         "are not identifiable. Fit a record with an input (doublet, 3-2-1-1, multisine)"
+    )
+
+
+def response_to_noise(
+    outputs: Sequence[str], residuals: Sequence[Any], datas: Sequence[Any]
+) -> dict[str, float]:
+    """Each output's fitted response over its residual noise (RMS over RMS).
+
+    The fitted response is the measurement minus the residual, about its mean in
+    each manoeuvre; the noise is the residual about its mean. Empty where the
+    records do not hold the outputs on the residuals' grid.
+    """
+    ratios: dict[str, float] = {}
+    for k, name in enumerate(outputs):
+        moves, noise = [], []
+        for d, r in zip(datas, residuals, strict=False):
+            res = np.asarray(r, dtype=np.float64)[:, k]
+            try:
+                y = np.asarray(d[name], dtype=np.float64)
+            except (KeyError, TypeError):
+                return {}
+            if y.shape != res.shape:
+                return {}
+            fit = y - res
+            moves.append(fit - np.mean(fit))
+            noise.append(res - np.mean(res))
+        signal = float(np.sqrt(np.mean(np.concatenate(moves) ** 2)))
+        scatter = float(np.sqrt(np.mean(np.concatenate(noise) ** 2)))
+        ratios[name] = signal / scatter if scatter > 0 else float("inf")
+    return ratios
+
+
+def warn_unexcited(ratios: Mapping[str, float]) -> None:
+    """Warn when no output's fitted response stands out of its residual noise
+    (`response_to_noise` below one on every output): the record holds no manoeuvre
+    the model could be fitted to, and the estimates and their error bars describe
+    noise, however the optimiser ended."""
+    if not ratios or any(v >= 1.0 for v in ratios.values()):
+        return
+    listing = ", ".join(f"{n!r} {v:.2g}" for n, v in ratios.items())
+    warnings.warn(
+        "identify: the record is not excited: no output's fitted response stands out of "
+        f"its residual noise (response over noise, RMS: {listing}); the estimates and their "
+        "error bars describe noise. Fit a window that holds a manoeuvre (doublet, 3-2-1-1, "
+        "multisine)",
+        IdentifiabilityWarning,
+        stacklevel=5,  # here, _finish, identify, its BLAS wrapper, the caller
     )
 
 

@@ -105,6 +105,10 @@ class IdentificationResult:
     parameter_units : mapping of str to str
         Units of the estimated parameters where the model declares them (the
         `aeroid.aircraft` models do; ``tau_<control>`` is in s), for labels.
+    response_to_noise : mapping of str to float
+        Per output, the RMS of the fitted response (about its mean) over the
+        RMS of the residual: below one on every output, the record holds no
+        manoeuvre and `identify` warns that it is not excited.
     """
 
     parameters: Mapping[str, float]
@@ -136,6 +140,7 @@ class IdentificationResult:
     active_bounds: Mapping[str, str] = field(default_factory=dict)
     time_delays: Mapping[str, float] = field(default_factory=dict)
     parameter_units: Mapping[str, str] = field(default_factory=dict)
+    response_to_noise: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -161,6 +166,7 @@ class IdentificationResult:
         set_(self, "fixed", frozen_mapping(self.fixed))
         set_(self, "extra_stderr", frozen_mapping(self.extra_stderr))
         set_(self, "degrees_of_freedom", frozen_mapping(self.degrees_of_freedom))
+        set_(self, "response_to_noise", frozen_mapping(self.response_to_noise))
         set_(self, "process_noise", frozen_mapping(self.process_noise))
         set_(self, "covariance", frozen_array(self.covariance))
         set_(self, "covariance_white", frozen_array(self.covariance_white))

@@ -960,6 +960,10 @@ def _finish(
             stacklevel=4,  # _finish, identify, its BLAS wrapper, the caller
         )
         fitted = replace(fitted, success=False, message=message)
+    from ._excitation import response_to_noise, warn_unexcited
+
+    ratios = {} if bad else response_to_noise(fitted.output_names, fitted.residuals, datas)
+    warn_unexcited(ratios)
     declared = dict(getattr(model, "parameter_units", None) or {})
     units = {
         n: "s" if n.startswith("tau_") and n not in declared else declared[n]
@@ -970,4 +974,5 @@ def _finish(
         fitted,
         data_fingerprints=tuple(fingerprint(d) for d in datas),
         parameter_units=units,
+        response_to_noise=ratios,
     )

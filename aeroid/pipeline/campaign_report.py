@@ -80,6 +80,7 @@ def _campaign_brief(role: str, record: Any) -> Any:
             "unidentifiable": [list(c) for c in getattr(record, "unidentifiable", ())],
             "identifiable": bool(getattr(record, "identifiable", True)),
             "units": dict(getattr(record, "parameter_units", {}) or {}),
+            "response_to_noise": dict(getattr(record, "response_to_noise", {}) or {}),
         }
     if role == "validation":
         return fit_whiteness(record)

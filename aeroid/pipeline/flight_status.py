@@ -14,6 +14,8 @@ _MAX_RELATIVE_ERROR = 1.0
 LEGEND = (
     "Status, worst first: **failed** a stage raised (see Failures); "
     "**not converged** the optimiser stopped short; "
+    "**not excited** no output's fitted response stands out of its residual noise "
+    "(the record holds no manoeuvre: the estimates describe noise); "
     f"**poor fit Y** the model explains less than {POOR_FIT_R2:.0%} of output Y's "
     "variance (R² shown); **not identifiable** the data cannot separate some parameters; "
     "**error > 100 %** estimates whose standard error exceeds their magnitude; "
@@ -29,6 +31,7 @@ LEGEND = (
 _RANK = (
     "failed",
     "not converged",
+    "not excited",
     "poor fit",
     "not identifiable",
     "error >",
@@ -64,6 +67,9 @@ def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta:
         if not ident["success"]:
             flags.append("not converged")
         flags += [f"bound {n}" for n in ident.get("active_bounds", {})]
+        ratios = ident.get("response_to_noise") or {}
+        if ratios and all(float(v) < 1.0 for v in ratios.values()):
+            flags.append("not excited")
         if not ident.get("identifiable", True):
             flags.append("not identifiable")
         loose = [
