@@ -14,13 +14,18 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .errors import ChannelError, IdentifiabilityWarning, IdentificationError
+
+FloatArray = NDArray[np.float64]
 
 # Airspeed of anything that flies, m/s: a glider's stall to beyond Mach 10. A
 # median outside is a channel in another unit (km/h near the top, mm/s or cm/s
 # beyond it, knots x 1000...), not a flight.
 _AIRSPEED_RANGE = (0.5, 4000.0)
+# residual RMS over the record's RMS beyond which an end point is a runaway simulation
+_RUNAWAY = 100.0
 # body rates, rad/s: 20 rad/s (1150 deg/s) is beyond any airframe
 _RATE_LIMIT = 20.0
 
@@ -220,3 +225,39 @@ def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable
                 "record while the rates and accelerations move: a stuck or held sensor. Fix "
                 f"the channel or leave {quantity!r} out of outputs="
             )
+
+
+def refuse_runaway(
+    model: Any,
+    names: Sequence[str],
+    theta: FloatArray,
+    outputs: Sequence[str],
+    residuals: list[FloatArray],
+    measured: FloatArray,
+) -> None:
+    """Refuse an end point whose simulation runs away from the record.
+
+    From an unstable start the output-error cost can stall where the simulated
+    outputs diverge: the estimated noise variances swallow residuals of 1e20
+    and the iteration "converges". Predicting a constant zero gives residuals
+    no larger than the record's own RMS, so residuals a hundred times that are
+    no fit of the record at all.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        res = np.concatenate(residuals, axis=0)
+        rms_res = np.sqrt(np.mean(res**2, axis=0))
+        rms_meas = np.sqrt(np.mean(measured**2, axis=0))
+    away = [
+        (o, float(a), float(b))
+        for o, a, b in zip(outputs, rms_res, rms_meas, strict=True)
+        if not np.isfinite(a) or (b > 0.0 and a > _RUNAWAY * b)
+    ]
+    if away:
+        listing = ", ".join(f"{o!r} off by {a:.3g} RMS (the record's {b:.3g})" for o, a, b in away)
+        params = {n: float(f"{v:.6g}") for n, v in zip(names, theta.tolist(), strict=True)}
+        raise IdentificationError(
+            f"the fit stalled where the simulation of {getattr(model, 'name', '')!r} diverges "
+            f"from the record: {listing}, at the parameters {params}. An unstable or "
+            "wrong-signed start: start nearer the truth (start='equation_error') or fit an "
+            "unstable airframe with method='filter_error'"
+        )

@@ -344,7 +344,7 @@ def _reml_covariance(
     """Output error's coloured-residual covariance for this one-output regression: the
     residual as AR(1) plus white noise by REML, with Satterthwaite's degrees of freedom
     (`_output_error`)."""
-    from ._output_error import _colored_covariance as output_error_covariance
+    from ._noise_model import _colored_covariance as output_error_covariance
 
     cov, _, nu = output_error_covariance([x[:, None, :]], [v[:, None]], np.ones(1), xtx_inv)
     return cov, nu

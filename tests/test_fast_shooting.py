@@ -238,7 +238,7 @@ def test_auto_substeps_are_those_of_the_compiled_path() -> None:
 @pytest.mark.parametrize("n", [1, 2, 7, 1000])
 @pytest.mark.parametrize("phi", [0.0, 0.6, -0.9, 0.995])
 def test_blocked_ar1_recursion_is_the_plain_loop(n: int, phi: float) -> None:
-    from aeroid._output_error import _ar1_recursion
+    from aeroid._noise_model import _ar1_recursion
 
     r = np.random.default_rng(n).standard_normal((n, 3))
     ref = np.empty_like(r)

@@ -458,7 +458,7 @@ def test_spectral_reml_criterion_matches_the_dense_formula(phi, log_ratio):
     # (N - r) log RSS + log det S + log det X'S^-1 X for S = AR(1) + white, dense
     from scipy.linalg import toeplitz
 
-    from aeroid._output_error import _arw_criterion, _arw_prepare
+    from aeroid._noise_model import _arw_criterion, _arw_prepare
 
     rng = np.random.default_rng(2)
     n, rank = 700, 3

@@ -132,7 +132,7 @@ def test_output_errors_correction_covers_white_and_ar1_residuals(phi: float) -> 
 
 def test_reml_error_bars_are_output_errors_own() -> None:
     # the same sandwich identify applies to its residuals, for one output and unit weights
-    from aeroid._output_error import _colored_covariance as output_error_covariance
+    from aeroid._noise_model import _colored_covariance as output_error_covariance
 
     rng = np.random.default_rng(5)
     x = _design(rng, 800)

@@ -27,7 +27,7 @@ from _timing import median_time
 from scipy.signal import butter, lfilter
 
 import aeroid
-from aeroid._output_error import _colored_covariance
+from aeroid._noise_model import _colored_covariance
 from aeroid._threads import small_blas
 
 FS = 50.0
