@@ -315,8 +315,7 @@ def measure(args: argparse.Namespace, tmp: Path) -> None:
     w1, w2, w0, m0, ceil, lib = [], [], [], [], [], []
     fs: list[tuple[float, float]] = []
     inside: dict[int, list[tuple[float, ...]]] = {1: [], 2: []}  # timed from the workers
-    # one BLAS thread per process, as in the pipeline's workers: two processes with a
-    # BLAS thread per core each oversubscribe the machine and measure that instead
+    # the default environment: the library, not the benchmark, manages BLAS threads
     with multiprocessing.get_context("spawn").Pool(2) as pool:
         ceiling(pool, 100_000)  # starts the pool's processes
         if CHAIN:
