@@ -179,12 +179,6 @@ def worker_time(cfg: Path, workers: int, base: Path) -> tuple[float, float, floa
     return t1 - t0, busy, before, between, after
 
 
-def _one_blas_thread() -> None:
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=1)
-
-
 def _burn(n: int) -> float:
     t = time.perf_counter()
     x = 0
@@ -321,9 +315,8 @@ def measure(args: argparse.Namespace, tmp: Path) -> None:
     w1, w2, w0, m0, ceil, lib = [], [], [], [], [], []
     fs: list[tuple[float, float]] = []
     inside: dict[int, list[tuple[float, ...]]] = {1: [], 2: []}  # timed from the workers
-    # one BLAS thread per process, as in the pipeline's workers: two processes with a
-    # BLAS thread per core each oversubscribe the machine and measure that instead
-    with multiprocessing.get_context("spawn").Pool(2, initializer=_one_blas_thread) as pool:
+    # the default environment: the library, not the benchmark, manages BLAS threads
+    with multiprocessing.get_context("spawn").Pool(2) as pool:
         ceiling(pool, 100_000)  # starts the pool's processes
         if CHAIN:
             pool.map(_library_flights, [[0], [1]], chunksize=1)  # and their imports
