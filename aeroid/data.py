@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import as_float as as_float  # re-exported: the other modules import it here
 from ._checks import plain
 from ._checks import positive_number as positive_number
+from ._records import frozen_array
 from .errors import ChannelError, DataFormatError
 
 __all__ = ["FlightData", "load_flight_test"]
@@ -35,11 +36,8 @@ _MAT_ITEM_BYTES = {
 }  # fmt: skip
 
 
-def _readonly(values: ArrayLike) -> FloatArray:
-    """Return a read-only float64 copy (the caller's array is never aliased)."""
-    out = np.array(values, dtype=np.float64, copy=True)
-    out.setflags(write=False)
-    return out
+# One read-only copier for the package; the name stays for existing importers.
+_readonly = frozen_array
 
 
 def _first_bad(values: FloatArray) -> int:
