@@ -16,6 +16,13 @@ def frozen_array(values: ArrayLike) -> NDArray[np.float64]:
     return out
 
 
+def frozen_complex(values: ArrayLike) -> NDArray[np.complex128]:
+    """A read-only complex128 copy."""
+    out = np.array(values, dtype=np.complex128, copy=True)
+    out.setflags(write=False)
+    return out
+
+
 class ReadOnlyDict(dict[str, Any]):
     """A plain `dict` that refuses changes.
 

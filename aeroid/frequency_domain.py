@@ -74,6 +74,7 @@ from ._colour import frequency_sandwich
 from ._czt import fourier
 from ._identifiability import unidentifiable
 from ._records import frozen_array
+from ._records import frozen_complex as _frozen_complex
 from ._threads import CALLER_STACKLEVEL, small_blas
 from .data import FlightData, fingerprint, measured_start, plain, whole_number
 from .errors import IdentifiabilityWarning, IdentificationError
@@ -90,12 +91,6 @@ _BOUNDARY_LEVEL = 0.05  # Wald test level below which estimated record ends are 
 _ERROR_BARS = ("colored", "white")
 _WEIGHTING = ("hermitian", "real", "sidpac")
 _DEFAULT_BAND_HZ = (0.1, 2.0)
-
-
-def _frozen_complex(values: ArrayLike) -> ComplexArray:
-    out = np.array(values, dtype=np.complex128, copy=True)
-    out.setflags(write=False)
-    return out
 
 
 @dataclass(frozen=True, eq=False)

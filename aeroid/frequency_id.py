@@ -68,6 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._czt import _evenly_spaced, _kernel, fourier, hann
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import frozen_complex as _frozen_complex
 from ._threads import CALLER_STACKLEVEL, small_blas
 from ._transfer import transfer_at
 from .data import FlightData, _numeric, as_float, check_flag, plain
@@ -105,12 +106,6 @@ _RANDOM_ERROR_FLOOR = 0.01
 _PASSES = 3
 # Smallest eigenvalue of the inputs' coherence matrix taken as singular.
 _DEPENDENT = 1e-10
-
-
-def _frozen_complex(values: ArrayLike) -> ComplexArray:
-    out = np.array(values, dtype=np.complex128, copy=True)
-    out.setflags(write=False)
-    return out
 
 
 # -- records -----------------------------------------------------------------------------
