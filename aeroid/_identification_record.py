@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import IntervalMixin, ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 
 __all__ = ["STATE_BIAS_PREFIX", "IdentificationResult"]
 
@@ -21,7 +21,7 @@ STATE_BIAS_PREFIX = "bias."
 
 
 @dataclass(frozen=True, eq=False)
-class IdentificationResult:
+class IdentificationResult(IntervalMixin):
     """Estimated parameters with their uncertainty and fit diagnostics.
 
     Attributes
@@ -203,12 +203,6 @@ class IdentificationResult:
         return ReadOnlyDict(
             margins({**self.extra_stderr, **self.stderr}, self.degrees_of_freedom, level)
         )
-
-    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
-        """Each parameter's two-sided `level` interval, ``name -> (lower, upper)``
-        (estimate -+ `margin`)."""
-        half = self.margin(level)
-        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in self.parameters.items()})
 
     @property
     def stderr_white(self) -> Mapping[str, float]:

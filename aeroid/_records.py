@@ -92,4 +92,34 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
 #: `fit_transfer_function`, `equivalent_system`, `infer`): estimates and standard
 #: errors by parameter name (``stderr`` and ``standard_errors`` are one mapping),
 #: their covariance, a Markdown `summary` and a `plot`.
-ESTIMATE_PROTOCOL = ("parameters", "stderr", "standard_errors", "covariance", "summary", "plot")
+ESTIMATE_PROTOCOL = (
+    "parameters",
+    "stderr",
+    "standard_errors",
+    "covariance",
+    "summary",
+    "plot",
+    "margin",
+    "interval",
+)
+
+
+class IntervalMixin:
+    """`margin` and `interval` for a result with `parameters`, `stderr` and (where the
+    estimator knows them) `degrees_of_freedom`: Student's t with each estimate's
+    degrees of freedom, the normal quantile where none is given."""
+
+    def margin(self, level: float = 0.95) -> Mapping[str, float]:
+        """Half-width of each estimate's two-sided `level` interval: its standard
+        error times the t quantile of its degrees of freedom."""
+        from ._colour import margins
+
+        dof = dict(getattr(self, "degrees_of_freedom", None) or {})
+        stderr: Mapping[str, float] = self.stderr  # type: ignore[attr-defined]
+        return ReadOnlyDict(margins(dict(stderr), dof, level))
+
+    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
+        """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""
+        half = self.margin(level)
+        values: Mapping[str, float] = self.parameters  # type: ignore[attr-defined]
+        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in values.items() if n in half})

@@ -67,7 +67,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _compiled
-from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, plain, whole_number
 from .errors import ChannelError, DataFormatError, IdentificationError, ResidualDriftWarning
@@ -280,7 +280,7 @@ def _zero_sensor_errors(values: Mapping[str, float]) -> dict[str, float]:
 
 
 @dataclass(frozen=True, eq=False)
-class CompatibilityResult:
+class CompatibilityResult(IntervalMixin):
     """Sensor errors, corrected data and the reconstructed flight path.
 
     Attributes
@@ -401,18 +401,6 @@ class CompatibilityResult:
     def standard_errors(self) -> Mapping[str, float]:
         """The `stderr` (the name every estimator's result shares)."""
         return self.stderr
-
-    def margin(self, level: float = 0.95) -> Mapping[str, float]:
-        """Half-width of each estimate's two-sided `level` interval: its standard error
-        times Student's t quantile with its `degrees_of_freedom`."""
-        from ._colour import margins
-
-        return ReadOnlyDict(margins(self.stderr, self.degrees_of_freedom, level))
-
-    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
-        """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""
-        half = self.margin(level)
-        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in self.parameters.items()})
 
     @property
     def residuals(self) -> FloatArray:

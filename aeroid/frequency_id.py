@@ -67,7 +67,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._czt import _evenly_spaced, _kernel, fourier, hann
-from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import IntervalMixin, ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from ._records import frozen_complex as _frozen_complex
 from ._threads import CALLER_STACKLEVEL, small_blas
 from ._transfer import transfer_at
@@ -905,7 +905,7 @@ def _band(frequency_range: Any) -> tuple[float, float]:
 
 
 @dataclass(frozen=True, eq=False)
-class TransferFunctionFit:
+class TransferFunctionFit(IntervalMixin):
     """A fitted transfer function ``(Σ b_k s^k) / (s^n + Σ a_k s^k) · e^{−τ s}``.
 
     Attributes
@@ -971,6 +971,14 @@ class TransferFunctionFit:
     def stderr(self) -> Mapping[str, float]:
         """The `standard_errors` (the name every estimator's result shares)."""
         return self.standard_errors
+
+    @property
+    def degrees_of_freedom(self) -> Mapping[str, float]:
+        """Per parameter, the residual degrees of freedom of the fit: two real
+        components per fitted frequency less the parameters (`interval` takes
+        Student's t with them)."""
+        nu = float(max(2 * np.size(self.frequency) - len(self.parameters), 1))
+        return ReadOnlyDict({n: nu for n in self.parameters})
 
     def transfer_function(self, s: ArrayLike) -> ComplexArray:
         """T(s) at complex `s`."""

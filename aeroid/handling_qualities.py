@@ -48,7 +48,7 @@ from ._criteria import (
     muad_envelopes,
     short_period_level,
 )
-from ._records import fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from ._transfer import transfer_response
 from .data import FlightData, check_flag, plain
@@ -458,7 +458,7 @@ def stability_margins(
 
 
 @dataclass(frozen=True, eq=False)
-class EquivalentSystemFit:
+class EquivalentSystemFit(IntervalMixin):
     """A low-order equivalent system fitted to a response.
 
     Attributes

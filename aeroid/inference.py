@@ -267,6 +267,21 @@ class InferenceResult:
         """The `stderr` (the name every estimator's result shares)."""
         return self.stderr
 
+    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
+        """Each parameter's central `level` credible interval from the posterior
+        samples, ``name -> (lower, upper)``."""
+        if not 0.0 < level < 1.0:
+            raise InferenceError(f"level must lie strictly between 0 and 1, got {level!r}")
+        samples = np.asarray(self.samples, dtype=np.float64).reshape(-1, len(self.parameter_names))
+        lo, hi = np.quantile(samples, [0.5 - level / 2, 0.5 + level / 2], axis=0)
+        return MappingProxyType(
+            {n: (float(lo[j]), float(hi[j])) for j, n in enumerate(self.parameter_names)}
+        )
+
+    def margin(self, level: float = 0.95) -> Mapping[str, float]:
+        """Half-width of each parameter's central `level` credible interval."""
+        return MappingProxyType({n: (hi - lo) / 2 for n, (lo, hi) in self.interval(level).items()})
+
     @property
     def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
         """The percentiles as every result gives them: parameter -> level (percent) -> value

@@ -62,9 +62,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._colour import colored_covariance, margins
+from ._colour import colored_covariance
 from ._czt import fourier
-from ._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
+from ._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import (
     FlightData,
@@ -363,7 +363,7 @@ def _colored_covariance(
 
 
 @dataclass(frozen=True, eq=False)
-class RegressionResult:
+class RegressionResult(IntervalMixin):
     """Equation-error (least-squares) estimates with fit statistics.
 
     Attributes
@@ -442,16 +442,6 @@ class RegressionResult:
     def standard_errors(self) -> Mapping[str, float]:
         """The `stderr` (the name every estimator's result shares)."""
         return self.stderr
-
-    def margin(self, level: float = 0.95) -> Mapping[str, float]:
-        """Half-width of each estimate's two-sided `level` interval: its standard error
-        times Student's t quantile with its `degrees_of_freedom`."""
-        return ReadOnlyDict(margins(self.stderr, self.degrees_of_freedom, level))
-
-    def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
-        """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""
-        half = self.margin(level)
-        return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in self.parameters.items()})
 
     def summary(self) -> str:
         """A Markdown table of the estimates and the fit statistics."""
@@ -1078,7 +1068,7 @@ class StepwiseStep:
 
 
 @dataclass(frozen=True, eq=False)
-class StepwiseResult:
+class StepwiseResult(IntervalMixin):
     """Model structure chosen by stepwise regression, and its least-squares fit.
 
     Attributes
@@ -1127,6 +1117,11 @@ class StepwiseResult:
     def stderr(self) -> Mapping[str, float]:
         """Standard errors of the final model (see `regression`)."""
         return self.regression.stderr
+
+    @property
+    def degrees_of_freedom(self) -> Mapping[str, float]:
+        """Degrees of freedom of the final model's standard errors (see `regression`)."""
+        return self.regression.degrees_of_freedom
 
     def summary(self) -> str:
         """A Markdown table of the steps followed by the final fit."""

@@ -391,9 +391,9 @@ def test_random_error_standard_errors_cover_over_200_seeds():
             res, numerator_order=0, denominator_order=2, weighting="random_error"
         )
         q = scipy.stats.t.ppf(0.975, 2 * fit.frequency.size - len(fit.parameters))
-        inside.extend(
-            abs(fit.parameters[k] - v) <= q * fit.standard_errors[k] for k, v in TRUTH.items()
-        )
+        half = fit.margin(0.95)  # the fit's own t interval
+        assert all(h == pytest.approx(q * fit.standard_errors[k]) for k, h in half.items())
+        inside.extend(abs(fit.parameters[k] - v) <= half[k] for k, v in TRUTH.items())
     coverage = float(np.mean(inside))
     assert 0.93 <= coverage <= 0.97, coverage
 
