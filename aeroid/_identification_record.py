@@ -194,15 +194,9 @@ class IdentificationResult(IntervalMixin):
         c.setflags(write=False)
         return c
 
-    def margin(self, level: float = 0.95) -> Mapping[str, float]:
-        """Half-width of each estimate's two-sided `level` interval: its standard
-        error times Student's t quantile with its `degrees_of_freedom` (parameters
-        and the initial states and biases of `extra_stderr`)."""
-        from ._colour import margins
-
-        return ReadOnlyDict(
-            margins({**self.extra_stderr, **self.stderr}, self.degrees_of_freedom, level)
-        )
+    def _margin_stderr(self) -> Mapping[str, float]:
+        # `margin` covers the initial states and biases of `extra_stderr` too
+        return {**self.extra_stderr, **self.stderr}
 
     @property
     def stderr_white(self) -> Mapping[str, float]:

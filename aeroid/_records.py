@@ -115,8 +115,12 @@ class IntervalMixin:
         from ._colour import margins
 
         dof = dict(getattr(self, "degrees_of_freedom", None) or {})
+        return ReadOnlyDict(margins(dict(self._margin_stderr()), dof, level))
+
+    def _margin_stderr(self) -> Mapping[str, float]:
+        """The standard errors `margin` covers (a result with more estimates widens it)."""
         stderr: Mapping[str, float] = self.stderr  # type: ignore[attr-defined]
-        return ReadOnlyDict(margins(dict(stderr), dof, level))
+        return stderr
 
     def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
         """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""

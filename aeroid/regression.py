@@ -350,15 +350,6 @@ def _reml_covariance(
     return cov, nu
 
 
-def _colored_covariance(
-    x: FloatArray, v: FloatArray, xtx_inv: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """The package's coloured-residual covariance (`aeroid._colour`) for one regression,
-    with each parameter's Satterthwaite degrees of freedom."""
-    cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], xtx_inv)
-    return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)
-
-
 # -- result records ----------------------------------------------------------------------------
 
 
@@ -545,7 +536,7 @@ def _fit(
     cov_white = s2 * xtx_inv
     nu = np.full(p, float(n - p))  # the classical t interval's degrees of freedom
     if error_bars == "colored":
-        cov, nu = _colored_covariance(x, v, xtx_inv)
+        cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], xtx_inv)
     elif error_bars == "reml":
         cov, nu = _reml_covariance(x, v, xtx_inv)
     else:
