@@ -382,9 +382,11 @@ def _decoupled_function(
     lon_u, lat_u = controls
 
     def decoupled_equations(t: Any, x: Any, u: Any, p: Any) -> Any:
-        # The two sets of equations share no state: stacked, they are one model.
-        first = longitudinal_f(t, x[:n_states], u[lon_u], p)
-        second = lateral_f(t, x[n_states:], u[lat_u], p)
+        # The two sets of equations share no state: stacked, they are one model. The
+        # controls are picked row by row (JAX, which compiles the model, indexes with
+        # no list).
+        first = longitudinal_f(t, x[:n_states], np.stack([u[i] for i in lon_u]), p)
+        second = lateral_f(t, x[n_states:], np.stack([u[i] for i in lat_u]), p)
         return np.concatenate([first, second])
 
     return decoupled_equations

@@ -14,15 +14,27 @@ flight whenever one is added and ties the database to the dynamic model of
 the campaign. The regression of the estimates costs microseconds, leaves each
 flight's task untouched (a campaign adding one flight recomputes that flight
 and this fit, nothing else) and carries each flight's full parameter
-covariance: the estimates are the data, their covariances the weights. This is
-generalised least squares (GLS): with ``V_f`` the covariance of flight ``f``'s
-estimates ``z_f`` and ``X_f`` the basis rows at its condition,
+covariance. Each coefficient ``j`` is fitted on its own estimates ``z_fj``,
+weighted by their variances ``v_fj``, with ``X_j`` the basis rows at the
+flights' conditions:
 
-    θ = (Σ X_f' V_f⁻¹ X_f)⁻¹ Σ X_f' V_f⁻¹ z_f,   Cov θ = (Σ X_f' V_f⁻¹ X_f)⁻¹,
+    θ_j = G_j z_j,   G_j = (X_j' W_j X_j)⁻¹ X_j' W_j,   W_j = diag(1 / v_fj),
 
-solved by whitening each flight with the Cholesky factor of ``V_f`` and a QR
-factorisation. The correlations between one flight's coefficients (Cm_alpha
-with Cm_q, say) enter through the off-diagonal blocks of ``V_f``.
+solved through a QR factorisation of the weighted rows. Not a joint
+generalised least squares over every coefficient with the full per-flight
+covariances: on real flights the coefficients of one flight share its errors
+(Cl_p with Cl_delta_a through the roll response, a bias from an unmodelled
+effect in all of them), and the joint fit then moves each mean by the
+residuals of the others, out of the range of every flight's estimate where
+the flights share a bias (Peelle's puzzle; the demo's twelve c172x flights
+put a joint Cl_p below all twelve estimates). The correlations are kept where
+they belong, in the covariance of the database: with ``V_f`` flight ``f``'s
+full covariance and ``g_jf`` column ``f`` of ``G_j``,
+
+    Cov(θ_j, θ_k) = Σ_f g_jf V_f,jk g_kf',
+
+the exact covariance of these linear estimates (the sandwich), so a band on a
+sum of coefficients (CL_0 + CL_alpha α) counts their correlation.
 
 Basis and structure selection
 -----------------------------
@@ -719,38 +731,33 @@ def _gls(
     terms: Sequence[str],
     exponents: Mapping[str, Sequence[Exponents]],
 ) -> tuple[FloatArray, FloatArray, dict[str, float], dict[str, float]]:
-    """Joint GLS of all terms, each flight whitened by the Cholesky factor of its covariance."""
+    """Each term by weighted least squares on its own variances; the covariance of all
+    terms' parameters by the sandwich through every flight's full covariance."""
     sizes = [len(exponents[t]) for t in terms]
     offs = np.concatenate([[0], np.cumsum(sizes)])
-    rows_a, rows_b, owner = [], [], []
-    for i, cov in enumerate(covs):
-        present = np.flatnonzero(np.isfinite(z[i]))
-        if present.size == 0:
-            continue
-        a = np.zeros((present.size, offs[-1]))
-        for row, j in enumerate(present):
-            a[row, offs[j] : offs[j + 1]] = _design(u[i : i + 1], exponents[terms[int(j)]])[0]
-        v = cov[np.ix_(present, present)]
-        try:
-            chol = np.linalg.cholesky(v)
-        except np.linalg.LinAlgError:
-            # a singular joint covariance: keep the variances, drop the correlations
-            chol = np.diag(np.sqrt(np.diag(v)))
-        rows_a.append(np.linalg.solve(chol, a))
-        rows_b.append(np.linalg.solve(chol, z[i, present]))
-        owner.append(present)
-    a_all = np.concatenate(rows_a)
-    b_all = np.concatenate(rows_b)
-    q, r_fac = np.linalg.qr(a_all)
-    theta = np.linalg.solve(r_fac, q.T @ b_all)
-    r_inv = np.linalg.solve(r_fac, np.eye(r_fac.shape[0]))
-    cov_theta = r_inv @ r_inv.T
-    # per-term χ² from the marginal (diagonal) residuals: each term's own scatter
+    n_f = z.shape[0]
+    # gain[j]: (p_j, n_f), the map from term j's estimates over the flights to its parameters
+    gain = []
+    theta = np.zeros(offs[-1])
     chi2, dof = {}, {}
     for jt, t in enumerate(terms):
         has = np.isfinite(z[:, jt])
-        pred = _design(u[has], exponents[t]) @ theta[offs[jt] : offs[jt + 1]]
         var = np.array([covs[int(i)][jt, jt] for i in np.flatnonzero(has)])
-        chi2[t] = float(np.sum((z[has, jt] - pred) ** 2 / var))
+        a = _design(u[has], exponents[t])
+        w = 1.0 / np.sqrt(var)
+        q, r_fac = np.linalg.qr(a * w[:, None])
+        g_has = np.linalg.solve(r_fac, q.T * w[None, :])  # (p, n_has)
+        g = np.zeros((sizes[jt], n_f))
+        g[:, has] = g_has
+        gain.append(g)
+        theta[offs[jt] : offs[jt + 1]] = g_has @ z[has, jt]
+        chi2[t] = float(np.sum((z[has, jt] - a @ theta[offs[jt] : offs[jt + 1]]) ** 2 / var))
         dof[t] = float(has.sum() - sizes[jt])
-    return theta, cov_theta, chi2, dof
+    cov_theta = np.zeros((offs[-1], offs[-1]))
+    for i, cov in enumerate(covs):
+        present = np.isfinite(z[i])
+        c = np.where(np.outer(present, present), np.nan_to_num(cov), 0.0)
+        g_i = np.concatenate([g[:, i] for g in gain])  # (P,): flight i's column per term
+        owner = np.repeat(np.arange(len(terms)), sizes)
+        cov_theta += np.outer(g_i, g_i) * c[np.ix_(owner, owner)]
+    return theta, 0.5 * (cov_theta + cov_theta.T), chi2, dof

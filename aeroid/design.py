@@ -14,6 +14,7 @@ call with per-member controls.
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -234,6 +235,7 @@ class _Evaluator:
         criterion: str,
         options: Mapping[str, Any],
         relative_step: float,
+        trim: FloatArray | None = None,
     ) -> None:
         self.model = model
         self.maneuver = maneuver
@@ -251,6 +253,7 @@ class _Evaluator:
         all_controls = _control_names(model)
         self.cols = [all_controls.index(c) for c in maneuver.controls]
         self.n_u = len(all_controls)
+        self.trim = np.zeros(self.n_u) if trim is None else trim
         self.n_candidates = 0
         self.n_simulations = 0
         self.errors: list[str] = []  # what failed in a simulation, for the messages
@@ -258,7 +261,7 @@ class _Evaluator:
     def controls(self, variables: FloatArray) -> FloatArray:
         """(S, n_t, n_u) control histories of candidate designs (S, n_v)."""
         n_t = self.time.size
-        out = np.zeros((variables.shape[0], n_t, self.n_u))
+        out = np.broadcast_to(self.trim, (variables.shape[0], n_t, self.n_u)).copy()
         for s, v in enumerate(variables):
             sig = np.asarray(self.maneuver.signal(v, self.time), dtype=np.float64)
             if sig.ndim == 1 and len(self.cols) == 1:
@@ -272,7 +275,7 @@ class _Evaluator:
                 raise IdentificationError(
                     f"maneuver.signal returned non-finite values for design {v.tolist()}"
                 )
-            out[s][:, self.cols] = sig
+            out[s][:, self.cols] += sig
         return out
 
     def fisher(self, variables: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
@@ -398,6 +401,7 @@ def design_experiment(
     duration: float,
     sample_rate: float,
     x0: Any = None,
+    trim: Mapping[str, float] | None = None,
     seed: int | None = None,
     optimizer_options: Mapping[str, Any] | None = None,
     progress: bool = False,
@@ -430,6 +434,11 @@ def design_experiment(
         Sample rate of the design grid in Hz.
     x0 : array_like or mapping, optional
         Initial (trim) state; default zero.
+    trim : mapping of str to float, optional
+        Constant control values the manoeuvre is flown about (a nonlinear
+        model's trim: the thrust, the elevator that holds the trim); the
+        manoeuvre adds to its control's value. Default zero for every control
+        (a perturbation model).
     seed : int, optional
         Seed of the optimiser; the same seed gives a bit-identical design.
         None draws fresh entropy.
@@ -535,6 +544,7 @@ def design_experiment(
             f"maneuver drives {missing}, which are not controls of model {model.name!r}; "
             f"controls: {list(controls)}"
         )
+    trim_vector = _trim_vector(trim, controls, model.name)
     bounds = np.array(maneuver.bounds, dtype=np.float64).reshape(-1, 2)
     var_names = tuple(maneuver.variable_names)
     if bounds.shape[0] == 0:
@@ -561,7 +571,7 @@ def design_experiment(
     x_init = np.clip(np.asarray(maneuver.initial(), dtype=np.float64), bounds[:, 0], bounds[:, 1])
 
     evaluate = _Evaluator(
-        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel
+        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel, trim_vector
     )
     _, ok_init = evaluate.fisher(x_init[None, :])
     if not ok_init[0]:
@@ -699,3 +709,29 @@ def _recommendation(
     return (
         f"{text}; predicted stderr improves {ratios[best]:.2g}x over the initial design for {best}"
     )
+
+
+def _trim_vector(
+    trim: Mapping[str, float] | None, controls: Sequence[str], model_name: str
+) -> FloatArray | None:
+    """The trim controls in the model's control order (None: all zero), checked."""
+    if trim is None:
+        return None
+    if not isinstance(trim, Mapping):
+        raise IdentificationError(
+            f"trim: expected a dict of control -> value, got {type(trim).__name__}"
+        )
+    unknown = sorted(set(trim) - set(controls))
+    if unknown:
+        raise ChannelError(
+            f"trim: {unknown} are not controls of model {model_name!r}; controls: {list(controls)}"
+        )
+    out = np.zeros(len(controls))
+    for name, value in trim.items():
+        v = float(value)
+        if not math.isfinite(v):
+            raise IdentificationError(
+                f"trim: the value of {name!r} is {value!r}; expected a finite number"
+            )
+        out[controls.index(name)] = v
+    return out

@@ -45,7 +45,7 @@ pipeline = Pipeline(
         ),
         Step("propagate", inputs={"result": "identify"}, optional=True),
         Step("infer", inputs={"data": "load", "initial": "identify"}, optional=True),
-        Step("design", inputs={"values": "identify"}, optional=True),
+        Step("design", inputs={"values": "identify", "data": "load"}, optional=True),
         Step(
             "frequency",
             stage="frequency_response",

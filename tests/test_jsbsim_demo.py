@@ -34,6 +34,15 @@ DEMO_CONDITIONS = [
     FlightCondition(60.0, 1000.0),
     FlightCondition(45.0, 1500.0),
     FlightCondition(55.0, 1500.0),
+    # slower trims, angle of attack up to 10 deg (issue 51); the last two are held out
+    FlightCondition(27.0, 500.0),
+    FlightCondition(27.0, 2000.0),
+    FlightCondition(30.0, 1500.0),
+    FlightCondition(33.0, 500.0),
+    FlightCondition(36.0, 2000.0),
+    FlightCondition(40.0, 1000.0),
+    FlightCondition(29.0, 1000.0),
+    FlightCondition(42.0, 1500.0),
 ]
 
 
@@ -64,9 +73,11 @@ def test_bad_conditions_and_rates_are_refused():
 
 def test_committed_demo_flights_are_reproduced_bit_for_bit(tmp_path):
     # configs/c172x holds the demo's flight files: write_campaign with the demo's
-    # conditions and seed writes the same bytes (the first flight is checked).
-    first = write_campaign(tmp_path, DEMO_CONDITIONS[:1], seed=2026)[0]
-    assert first.read_bytes() == (DEMO / "flight_01.csv").read_bytes()
+    # conditions and seed writes the same bytes, every one of its flights
+    written = write_campaign(tmp_path, DEMO_CONDITIONS, seed=2026)
+    assert len(written) == len(list(DEMO.glob("flight_*.csv"))) == 14
+    for path in written:
+        assert path.read_bytes() == (DEMO / path.name).read_bytes(), path.name
 
 
 def test_flight_file_round_trip(tmp_path):

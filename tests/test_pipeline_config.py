@@ -133,14 +133,23 @@ def test_the_demo_config_is_valid_and_plans_every_stage():
 
 def test_the_jsbsim_demo_plans_each_flight_with_its_own_trim_model():
     the_plan = plan(ROOT / "configs" / "demo.yaml")
-    assert len(the_plan.flights) == 6
+    # twelve flights fitted by the database, two held out (issue 51)
+    assert len(the_plan.flights) == 14
     identify = [t for t in the_plan.tasks if t.step == "identify"]
-    # each flight is fitted with the model at its own trim: six model fingerprints
-    assert len({repr(t.document["model"]) for t in identify}) == 6
+    # each flight is fitted with the model at its own trim: fourteen model fingerprints
+    assert len({repr(t.document["model"]) for t in identify}) == 14
     steps = {t.step for t in the_plan.tasks}
-    # all eight steps of the chain
+    # all eight steps of the chain, and the database
     chain = {"load", "identify", "filter", "validate", "propagate", "infer", "design", "report"}
-    assert chain <= steps
+    assert chain | {"database"} <= steps
+    # the posterior and the next manoeuvre on the flights their `flights` names only
+    assert [t.flight for t in the_plan.tasks if t.step == "infer"] == ["flight_03"]
+    assert [t.flight for t in the_plan.tasks if t.step == "design"] == ["flight_08"]
+    # the trim angle of attack of every flight lies in 0-10 deg
+    import math
+
+    alphas = [f.condition["alpha"] for f in the_plan.config.flights]
+    assert min(alphas) < math.radians(1.0) and math.radians(9.0) < max(alphas) < math.radians(10.5)
 
 
 def test_simulated_flights_fly_a_doublet_or_a_doublet_and_a_sweep():

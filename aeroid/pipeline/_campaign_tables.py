@@ -114,3 +114,26 @@ def what_was_flown(text: str, source: Any) -> str:
         return text.rstrip("\n") + "\n\n" + "\n".join(section)
     head, tail = text.split(marker, 1)
     return head + "\n".join(section) + "\n" + marker + tail
+
+
+def metric_heading(stages: Mapping[str, Any], units: Mapping[str, str]) -> str | None:
+    """The propagated metric's column heading, by its name and unit (the config names it)."""
+    metric = (stages.get("propagate") or {}).get("metric", "natural_frequency")
+    if not isinstance(metric, str) or "propagate" not in stages:
+        return None
+    unit = units.get(metric)
+    return f"{metric}{f' [{unit}]' if unit else ''} (mean ± 1σ)"
+
+
+def html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
+    """The self-contained HTML campaign report: the Markdown with its figures embedded
+    where it links them (any figure it does not link is appended under "Figures")."""
+    from ..support import markdown_to_html
+
+    body = text.rstrip()
+    unlinked = [name for name in figures if f"]({name})" not in body]
+    if unlinked:
+        body += "\n\n## Figures\n\n" + "\n\n".join(
+            f"### {name}\n\n![{name}]({name})" for name in unlinked
+        )
+    return markdown_to_html(body, figures).replace("<body>", "<body>\n" + marker, 1)

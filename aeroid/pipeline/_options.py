@@ -8,6 +8,8 @@ from typing import Any, ClassVar, get_args
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
+from ..errors import ConfigError
+
 __all__ = ["Options"]
 
 
@@ -89,3 +91,26 @@ def _non_finite(value: Any, path: str = "") -> str | None:
             if found is not None:
                 return found
     return None
+
+
+def stage_flights(
+    values: Mapping[str, Any] | None, *, where: str = "stages.<step>"
+) -> tuple[dict[str, Any] | None, list[str] | None]:
+    """A step's options without the engine's key ``flights`` (the flights an optional
+    per-flight step runs on; default every flight), and that list.
+
+    Raises
+    ------
+    ConfigError
+        ``flights`` is not a non-empty list of flight names.
+    """
+    if not isinstance(values, Mapping) or "flights" not in values:
+        return (dict(values) if isinstance(values, Mapping) else None), None
+    rest = {k: v for k, v in values.items() if k != "flights"}
+    only = values["flights"]
+    if not isinstance(only, list) or not only or not all(isinstance(n, str) and n for n in only):
+        raise ConfigError(
+            f"{where}.flights: expected a non-empty list of flight names (the flights this step "
+            f"runs on), got {only!r}"
+        )
+    return rest, list(dict.fromkeys(only))

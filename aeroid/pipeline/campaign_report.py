@@ -20,9 +20,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import AeroidError, ConfigError
-from ._campaign_tables import estimate_tables, fit_whiteness, what_was_flown, with_warnings
+from ._campaign_tables import (
+    estimate_tables,
+    fit_whiteness,
+    html_report,
+    metric_heading,
+    what_was_flown,
+    with_warnings,
+)
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
+from .database_stage import with_database
 from .flight_status import LEGEND, flight_status, severity
 from .stages import CampaignReport, Stage, StageContext, register_stage
 
@@ -56,6 +64,7 @@ def _condition(meta: Mapping[str, Any]) -> str:
 _METRIC_COLUMN = "metric (mean ± std)"
 # units of the metrics `propagate` computes by name
 _METRIC_UNITS = {"natural_frequency": "rad/s", "damping_ratio": "-", "time_constant": "s"}
+_METRIC_UNITS["static_margin"] = "mean aerodynamic chords"
 
 
 def _campaign_brief(role: str, record: Any) -> Any:
@@ -509,9 +518,14 @@ def _write(path: Path, data: bytes) -> None:
 
 
 def write_report(
-    the_plan: Plan, store: ResultStore, statuses: dict[str, TaskStatus]
+    the_plan: Plan,
+    store: ResultStore,
+    statuses: dict[str, TaskStatus],
+    *,
+    database_dir: Path | None = None,
 ) -> tuple[Path | None, list[str], list[list[str]], str | None]:
-    """Write the campaign report's Markdown and HTML files.
+    """Write the campaign report's Markdown and HTML files (with the aerodynamic
+    database's section and plots from `database_dir`, where the database was written).
 
     Returns (Markdown path or None, table columns, table rows, the error that kept a
     file from being written or None): the table comes back even when the files
@@ -536,11 +550,12 @@ def write_report(
         columns = list(getattr(record, "columns", ()))
         rows = [list(r) for r in getattr(record, "rows", ())]
     text = what_was_flown(with_warnings(text, the_plan, statuses), the_plan.config.source)
+    extra: dict[str, bytes] = {}
+    if database_dir is not None:
+        text, extra = with_database(text, database_dir)
     # the propagated metric by its name and unit (the config names it)
-    metric = (the_plan.config.stages.get("propagate") or {}).get("metric", "natural_frequency")
-    if isinstance(metric, str) and "propagate" in the_plan.config.stages:
-        unit = _METRIC_UNITS.get(metric)
-        heading = f"{metric}{f' [{unit}]' if unit else ''} (mean ± 1σ)"
+    heading = metric_heading(the_plan.config.stages, _METRIC_UNITS)
+    if heading is not None:
         text = text.replace(_METRIC_COLUMN, heading)
         columns = [heading if c == _METRIC_COLUMN else c for c in columns]
     path = the_plan.config.report_path
@@ -568,6 +583,7 @@ def write_report(
             named = {f"{folder}/{k}": png for k, png in figures.items()}
             for rel, png in named.items():
                 _write(path.parent / rel, png)
+            named.update(extra)  # written beside the report already
             if not path.is_file() or path.read_text(encoding="utf-8") != marked:
                 _write(path, marked.encode("utf-8"))
             _write(target, html_report(text, named, marker).encode("utf-8"))
@@ -578,17 +594,3 @@ def write_report(
     except OSError as exc:
         return None, columns, rows, f"cannot write the report {path}: {exc.strerror or exc}"
     return path, columns, rows, None
-
-
-def html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
-    """The self-contained HTML campaign report: the Markdown with its figures embedded
-    where it links them (any figure it does not link is appended under "Figures")."""
-    from ..support import markdown_to_html
-
-    body = text.rstrip()
-    unlinked = [name for name in figures if f"]({name})" not in body]
-    if unlinked:
-        body += "\n\n## Figures\n\n" + "\n\n".join(
-            f"### {name}\n\n![{name}]({name})" for name in unlinked
-        )
-    return markdown_to_html(body, figures).replace("<body>", "<body>\n" + marker, 1)

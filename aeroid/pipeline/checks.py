@@ -33,6 +33,7 @@ from ._file_checks import (
     _check_files,
     _check_simulated_channels,
 )
+from ._options import stage_flights
 from .config import (
     CampaignConfig,
     SimulatedSource,
@@ -194,7 +195,7 @@ def _check(
     names = None if model is None else _ModelNames.of(model)
     options = _stage_options(config, pipeline, problems)
     for (step, stage), opts in options.items():
-        raw = config.stages.get(step) or {}
+        raw = (_without_flights(config.stages.get(step))) or {}
         if names is not None:
             _check_names(step, stage, raw, names, problems)
         if stage == "propagate":
@@ -237,12 +238,20 @@ def _stage_options(
             continue
         try:
             # keyed by the stage's current name, whichever name the pipeline used
+            raw, _ = stage_flights(configured.get(step), where=f"stages.{step}")
             out[(step, stage.name)] = validate_options(
-                stage.options, configured.get(step), source=config.source, where=f"stages.{step}"
+                stage.options, raw, source=config.source, where=f"stages.{step}"
             )
         except ConfigError as exc:
             problems.add_lines(str(exc))
     return out
+
+
+def _without_flights(values: Any) -> dict[str, Any] | None:
+    try:
+        return stage_flights(values)[0]
+    except ConfigError:
+        return None  # `_stage_options` reports it
 
 
 def _entries(value: Any) -> list[str]:

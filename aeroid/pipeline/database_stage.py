@@ -15,6 +15,7 @@ files) and one band plot per coefficient.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 from collections.abc import Mapping
@@ -116,7 +117,7 @@ def _run_database(ctx: StageContext) -> Any:
 register_stage(
     Stage(
         "database",
-        "1",
+        "2",  # 2: each coefficient weighted by its own variances (aeroid.database notes)
         DatabaseOptions,
         "AeroDatabase",
         _run_database,
@@ -240,3 +241,24 @@ def write_database_files(
     except (AeroidError, OSError) as exc:
         return None, f"cannot write the aerodynamic database files: {exc}"
     return folder, None
+
+
+def with_database(text: str, folder: Path) -> tuple[str, dict[str, bytes]]:
+    """The report text with the database's section (from its folder's ``database.md``,
+    its links made relative to the report) before "What was flown", and its plots."""
+    try:
+        section = (folder / "database.md").read_text(encoding="utf-8")
+    except OSError:
+        return text, {}
+    rel = folder.name
+    section = section.replace("](", f"]({rel}/").replace(": `", f": `{rel}/")
+    section += f"\nAll of the database's files are in `{rel}/`, beside this report.\n"
+    figures = {}
+    for png in sorted(folder.glob("*.png")):
+        with contextlib.suppress(OSError):
+            figures[f"{rel}/{png.name}"] = png.read_bytes()
+    mark = "\n## What was flown"
+    at = text.find(mark)
+    if at < 0:
+        return text.rstrip("\n") + "\n\n" + section, figures
+    return text[:at] + "\n" + section.rstrip("\n") + "\n" + text[at:], figures

@@ -144,7 +144,9 @@ def _context(
             keys: list[str | None] = []
             name = f"{task.stage}/{role}"
             for i, (flight, k) in enumerate(zip(task.flights, ref, strict=True)):
-                if k in failed:
+                if k is None:  # the step did not run on this flight (its `flights`)
+                    keys.append(None)
+                elif k in failed:
                     keys.append(None)
                     failures.setdefault(flight, _failure_text(failed[k]))
                 else:

@@ -20,7 +20,7 @@ from pydantic import AliasChoices, Field, field_validator, model_validator
 
 from ..errors import AeroidError, PipelineError
 from .config import Options
-from .load_stage import LoadOptions, flight_data
+from .load_stage import LoadOptions, flight_data, record_start
 from .signature_options import library_fields
 from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
 
@@ -38,6 +38,7 @@ __all__ = [
     "ValidateOptions",
     "damping_ratio",
     "natural_frequency",
+    "static_margin",
 ]
 
 
@@ -158,9 +159,16 @@ def damping_ratio(p: Mapping[str, float]) -> float:
     return -(p["Z_alpha"] + p["M_q"]) / (2.0 * natural_frequency(p))
 
 
+def static_margin(p: Mapping[str, float]) -> float:
+    """Static margin -Cm_alpha / CL_alpha, in mean aerodynamic chords (stick fixed: the
+    neutral point's distance behind the centre of gravity)."""
+    return -p["Cm_alpha"] / p["CL_alpha"]
+
+
 METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
     "natural_frequency": natural_frequency,
     "damping_ratio": damping_ratio,
+    "static_margin": static_margin,
 }
 
 
@@ -386,19 +394,27 @@ class DesignOptions(
         sample_rate=Field(None, gt=0),
     )
 ):
-    """`aeroid.design_experiment` keywords (designed at the identified values)."""
+    """`aeroid.design_experiment` keywords (designed at the identified values);
+    ``at_record_start`` flies the design from the flight's own trim: the identified
+    initial state of its record (else its first sample) and its controls' first samples,
+    to which the manoeuvre adds (a nonlinear model; a perturbation model starts at zero)."""
 
     # the library takes a manoeuvre family: a config describes one (`ManeuverSpec`)
     maneuver: ManeuverSpec
+    at_record_start: bool = False
+
+    engine_only: ClassVar[frozenset[str]] = frozenset({"at_record_start"})
 
 
 def _run_design(ctx: StageContext) -> Any:
     from ..design import design_experiment
 
     names = ctx.options.parameters or list(ctx.model.parameter_names)
-    kw = _kwargs(ctx.options, "maneuver", "parameters")
+    kw = _kwargs(ctx.options, "maneuver", "parameters", "at_record_start")
     if "values" in ctx.inputs:
         kw["values"] = ctx.inputs["values"]
+    if ctx.options.at_record_start:
+        kw.update(record_start(ctx))
     return design_experiment(
         ctx.model, ctx.options.maneuver.build(), names, seed=ctx.seed_int(2), **kw
     )
@@ -539,7 +555,7 @@ for _stage in (
     ),
     Stage(
         "design",
-        "1",
+        "2",  # 2: the flight's record as an input (at_record_start), trim controls
         DesignOptions,
         "ExperimentDesign",
         _run_design,

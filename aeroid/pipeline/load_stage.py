@@ -24,6 +24,22 @@ def flight_data(ctx: StageContext) -> Any:
     return ctx.inputs["data"] if checked is None else checked.corrected
 
 
+def record_start(ctx: StageContext) -> dict[str, Any]:
+    """``x0`` and ``trim`` of `design_experiment` from the flight's record (the stage's
+    ``at_record_start``)."""
+    model = ctx.model
+    assert model is not None
+    data = flight_data(ctx)
+    first = {n: float(data[n][0]) for n in data.names}
+    missing = [c for c in model.controls if c not in first]
+    if missing:
+        raise PipelineError(f"design at_record_start: the record has no control channel {missing}")
+    fitted = getattr(ctx.inputs.get("values"), "initial_states", ())
+    start = dict(fitted[0]) if fitted else {}
+    x0 = {s: start.get(s, first.get(s, 0.0)) for s in model.states}
+    return {"x0": x0, "trim": {c: first[c] for c in model.controls}}
+
+
 class QualityLimits(Options):
     """Limits of `aeroid.check_data_quality` (its keywords)."""
 

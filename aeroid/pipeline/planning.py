@@ -7,12 +7,13 @@
 
 from __future__ import annotations
 
+import difflib
 import functools
 import gc
 import json
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from typing import Any
 from ..errors import AeroidError, ConfigError
 from . import _code
 from ._flights import _flight_model, _flight_sources
+from ._options import stage_flights
 from .checks import check_campaign
 from .config import CampaignConfig, FileFlights, load_config, validate_options
 from .definition import Pipeline, resolve_pipeline
@@ -69,7 +71,7 @@ class Task:
     def upstream_keys(self) -> list[str]:
         out: list[str] = []
         for v in self.upstream.values():
-            out += list(v) if isinstance(v, list) else [v]
+            out += [k for k in v if k is not None] if isinstance(v, list) else [v]
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -327,10 +329,16 @@ def _plan(
             )
     steps = pipeline.enabled(config.stages)
     enabled = {s.name for s in steps}
+    chosen = {
+        s.name: stage_flights(config.stages.get(s.name), where=f"{config.source}: stages.{s.name}")
+        for s in steps
+    }
+    selected = {name: only for name, (_, only) in chosen.items() if only is not None}
+    _check_selected(config, pipeline, selected)
     options = {
         s.name: validate_options(
             STAGES[s.stage_name].options,
-            config.stages.get(s.name),
+            chosen[s.name][0],
             source=config.source,
             where=f"stages.{s.name}",
         )
@@ -383,6 +391,8 @@ def _plan(
         keys: dict[str, str] = {}
         flight_id: int | None = None
         for step in flight_steps:
+            if step.name in selected and name not in selected[step.name]:
+                continue  # the step runs on the flights its `flights` names only
             stage = STAGES[step.stage_name]
             opts, how = documents[step.name]  # `how`: with the execution-only options
             upstream: dict[str, Any] = {}
@@ -400,7 +410,7 @@ def _plan(
             else:
                 run_opts = run_options[step.name]
             for role, up in step.inputs.items():
-                if up in enabled:
+                if up in keys:
                     upstream[role] = keys[up]
             seed = None
             if stage.seeded:
@@ -440,9 +450,7 @@ def _plan(
                     flight=name,
                     options=run_opts,
                     upstream={r: v for r, v in upstream.items() if r in step.inputs},
-                    upstream_stages={
-                        r: step_stage[u] for r, u in step.inputs.items() if u in enabled
-                    },
+                    upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in keys},
                     canonical=canonical,
                     model_ref=flight_model_ref if stage.uses_model else None,
                     seed=seed,
@@ -452,11 +460,13 @@ def _plan(
                 )
             )
         per_flight_keys[name] = keys
+    _check_selected_names(config, selected, flights)
     for step in (s for s in steps if s in pipeline.campaign_steps):
         stage = STAGES[step.stage_name]
         opts = documents[step.name][0]
         upstream = {
-            role: [per_flight_keys[f][up] for f in flights]
+            # None where a step ran on some flights only (`flights` in its options)
+            role: [per_flight_keys[f].get(up) for f in flights]
             for role, up in step.inputs.items()
             if up in enabled
         }
@@ -485,6 +495,37 @@ def _plan(
             )
         )
     return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
+
+
+def _check_selected(
+    config: CampaignConfig, pipeline: Pipeline, selected: Mapping[str, list[str]]
+) -> None:
+    """A step may run on some flights only when nothing needs it for every flight: an
+    optional per-flight step whose results other steps read where they exist."""
+    for step in pipeline.steps:
+        if step.name not in selected:
+            continue
+        if step not in pipeline.flight_steps or not step.optional:
+            raise ConfigError(
+                f"{config.source}: stages.{step.name}.flights: only an optional per-flight "
+                f"step runs on chosen flights; {step.name!r} runs on every flight"
+            )
+
+
+def _check_selected_names(
+    config: CampaignConfig, selected: Mapping[str, list[str]], flights: Sequence[str]
+) -> None:
+    for step, names in selected.items():
+        unknown = [n for n in names if n not in flights]
+        if unknown:
+            close = difflib.get_close_matches(unknown[0], flights, n=1)
+            raise ConfigError(
+                f"{config.source}: stages.{step}.flights: {unknown} are not flights of the "
+                f"campaign (its flights: {', '.join(flights[:10])}"
+                + (", ..." if len(flights) > 10 else "")
+                + ")"
+                + (f"; did you mean {close[0]!r}?" if close else "")
+            )
 
 
 def _simulated_load(

@@ -207,8 +207,11 @@ def _run(
         statuses[status.key] = status
     t_run = time.perf_counter()
     _record_checked(result_store, todo, statuses, checked, trusted)
-    report_path, columns, rows, report_error = write_report(the_plan, result_store, statuses)
+    # the database's files first: the campaign report shows their section and plots
     database_dir, database_error = write_database_files(the_plan, result_store, statuses)
+    report_path, columns, rows, report_error = write_report(
+        the_plan, result_store, statuses, database_dir=database_dir
+    )
     report_error = report_error or database_error
     return RunSummary(
         plan=the_plan,

@@ -1,0 +1,175 @@
+"""The demo campaign's aerodynamic database against the c172x it was flown with (issue 51).
+
+Runs ``configs/demo.yaml`` (fourteen JSBSim c172x flights, twelve fitted, two held
+out) into a store of its own, or reads one given with ``--store``, and compares the
+database with what the simulator holds:
+
+* the constants of the c172x's aerodynamic tables (its XML): Cm_q (with the
+  alpha-dot term, which the demo's model lumps into it, as the short-period response
+  sums them), Cl_p, Cl_delta_a, Cn_beta (the slope of its beta table), Cn_r;
+* the lift table CLwbh at its breakpoints inside the flown alpha range, against the
+  database's ``CL_0(alpha) + CL_alpha(alpha) alpha`` (the elevator's lift apart);
+  the c172x adds lift outside CLwbh (at a 30 m/s trim its aerodynamic z force is
+  1.29 q S, CLwbh 0.84 q S), which no identification from the motion can part, so
+  this row shows the gap rather than a target;
+* what JSBSim flies at each flight's trim (`effective_derivatives`, central
+  perturbations of the simulator itself): Cm_alpha, Cm_delta_e and the terms above,
+  and the whole lift coefficient at the trim (aerodynamic z force over q S) against
+  ``CL_0 + CL_alpha alpha + CL_delta_e delta_e`` at the trim's alpha and elevator;
+
+per point: the database's value, the truth, the relative error against the issue's
+10 % (0.02 absolute near zero) and whether its 95 % band covers the truth; then the
+fractions. Needs jsbsim. Takes a few minutes (the demo's run).
+
+    python3 tests/reference/c172x_demo_database.py [--store DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# c172x.xml's constants (per rad; the rate terms per nondimensional rate)
+TABLE = {
+    "Cm_q": -12.4 - 5.2,  # Cmq + Cmadot: lumped by the demo's model
+    "Cl_p": -0.47,
+    "Cl_delta_a": 0.229,
+    "Cn_beta": 0.0227 / 0.349,
+    "Cn_r": -0.099,
+}
+# CLwbh at stall hysteresis 0: alpha (rad) -> CL
+CL_TABLE = {0.0: 0.25, 0.09: 0.73, 0.1: 0.83, 0.12: 0.92, 0.14: 1.02}
+FLOWN = ("Cm_alpha", "Cm_delta_e", "Cm_q", "Cl_p", "Cl_delta_a", "Cn_beta", "Cn_r")
+
+
+def _close(value: float, truth: float) -> bool:
+    return abs(value - truth) <= max(0.10 * abs(truth), 0.02)
+
+
+def _database(store: Path | None) -> tuple[object, object]:
+    from aeroid.pipeline import open_store, plan, run
+    from aeroid.pipeline.config import load_config
+
+    if store is None:
+        work = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
+        store = work / "store"
+        cfg = load_config(
+            ROOT / "configs" / "demo.yaml", store=str(store), report=str(work / "demo.md")
+        )
+        t0 = time.perf_counter()
+        summary = run(cfg)
+        print(f"demo campaign run in {time.perf_counter() - t0:.1f} s ({summary.failed} failed)")
+    the_plan = plan(load_config(ROOT / "configs" / "demo.yaml", store=str(store)))
+    task = next(t for t in the_plan.tasks if t.stage == "database")
+    return open_store(store).load(task.key, "database"), the_plan
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
+    args = parser.parse_args()
+    from aeroid.adapters.jsbsim_flights import (
+        FlightCondition,
+        _coefficients,
+        _executive,
+        effective_derivatives,
+    )
+
+    db, the_plan = _database(args.store)
+    conditions = {
+        f.path.rsplit("/", 1)[-1].removesuffix(".csv"): f.condition for f in the_plan.config.flights
+    }
+    lo = db.centres["alpha"] - db.half_ranges["alpha"]
+    hi = db.centres["alpha"] + db.half_ranges["alpha"]
+    rows = []
+    print(f"flown trim alpha {np.degrees(lo):.2f}-{np.degrees(hi):.2f} deg")
+
+    for alt in sorted({c["altitude"] for c in conditions.values()}):
+        for a, cl in CL_TABLE.items():
+            if lo <= a <= hi:  # the gap (module notes), not a target
+                cond = {"alpha": np.array([a]), "altitude": np.array([alt])}
+                c0, l0, h0 = db.band("CL_0", cond)
+                ca, la, ha = db.band("CL_alpha", cond)
+                value = float(c0[0] + ca[0] * a)
+                # the band of the sum, from the two bands' half widths (correlation ignored)
+                half = float(np.hypot((h0[0] - l0[0]) / 2, a * (ha[0] - la[0]) / 2))
+                rows.append(("CLwbh", "CL", alt, a, value, cl, abs(value - cl) <= half))
+        grid = db.grid("alpha", 7)
+        for term, t in TABLE.items():
+            value, low, high = db.band(term, {"alpha": grid, "altitude": np.full(7, alt)})
+            for a, v, lw, hg in zip(grid, value, low, high, strict=True):
+                rows.append(("table", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
+
+    held = {c.flight for c in db.held_out}
+    print("table: the c172x's XML at 7 alpha over the flown range at each altitude flown; flown:")
+    print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims")
+    for name, cond in conditions.items():
+        flight = FlightCondition(cond["airspeed"], cond["altitude"])
+        truth = effective_derivatives(flight)
+        at = {"alpha": np.array([cond["alpha"]]), "altitude": np.array([cond["altitude"]])}
+        fdm = _executive(flight)
+        lift = _coefficients(fdm)["CL"]
+        a, de = float(fdm["aero/alpha-rad"]), float(fdm["fcs/elevator-pos-rad"])
+        parts = [db.band(t, at) for t in ("CL_0", "CL_alpha", "CL_delta_e")]
+        value = parts[0][0][0] + parts[1][0][0] * a + parts[2][0][0] * de
+        half = np.hypot.reduce(
+            [(p[2][0] - p[1][0]) / 2 * w for p, w in zip(parts, (1.0, a, de), strict=True)]
+        )
+        kind = "flown*" if name in held else "flown"
+        rows.append(
+            (kind, "CL", cond["altitude"], a, float(value), lift, abs(value - lift) <= half)
+        )
+        for term in FLOWN:
+            value, low, high = db.band(term, at)
+            t = float(truth[term])
+            rows.append(
+                (
+                    kind,
+                    term,
+                    cond["altitude"],
+                    cond["alpha"],
+                    float(value[0]),
+                    t,
+                    bool(low[0] <= t <= high[0]),
+                )
+            )
+    print(
+        f"{'against':8s} {'term':11s} {'alt m':>7s} {'alpha°':>7s} {'database':>10s} "
+        f"{'truth':>10s} {'error':>8s} {'in band':>7s}"
+    )
+    for kind, term, alt, a, v, t, inside in rows:
+        err = abs(v - t) / abs(t) if t else float("inf")
+        flag = "" if _close(v, t) else "  > 10 %"
+        print(
+            f"{kind:8s} {term:11s} {alt:7.0f} {np.degrees(a):7.2f} {v:10.4g} {t:10.4g} "
+            f"{100 * err:7.1f}% {'yes' if inside else 'no':>7s}{flag}"
+        )
+    for kind in ("table", "flown", "flown*", "CLwbh"):
+        sel = [r for r in rows if r[0] == kind]
+        if sel:
+            close = np.mean([_close(r[4], r[5]) for r in sel])
+            cover = np.mean([r[6] for r in sel])
+            print(
+                f"{kind:7s}: {len(sel)} points, within 10 % (0.02 abs): {close:.2f}, "
+                f"95 % band covers the truth: {cover:.2f}"
+            )
+    for term in sorted({r[1] for r in rows}):
+        sel = [r for r in rows if r[1] == term and r[0] != "CLwbh"]
+        print(
+            f"  {term:11s} within 10 %: {np.mean([_close(r[4], r[5]) for r in sel]):.2f}  "
+            f"covered: {np.mean([r[6] for r in sel]):.2f}"
+        )
+    z = [abs(c.z) for c in db.held_out]
+    print(f"held-out check: {len(z)} estimates, |z| < 1.96 for {np.mean(np.array(z) < 1.96):.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
