@@ -48,9 +48,24 @@ from ._criteria import (
     muad_envelopes,
     short_period_level,
 )
+from ._loes_fit import _CLOSE as _CLOSE
+from ._loes_fit import _DELAY_GRID as _DELAY_GRID
+from ._loes_fit import _STARTS as _STARTS
+from ._loes_fit import (
+    _cifer_cost,
+    _delta_covariance,
+    _delta_method,
+    _global_fit,
+    _loes_parameters,
+)
+from ._loes_fit import _derived as _derived
+from ._loes_fit import _fourier_residual as _fourier_residual
+from ._loes_fit import _mismatch as _mismatch
+from ._loes_fit import _physical as _physical
 from ._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
+from ._response_function import _DENSE as _DENSE
+from ._response_function import _as_function, _integrate, _Response
 from ._threads import small_blas
-from ._transfer import transfer_response
 from .data import FlightData, check_flag, plain
 from .errors import IdentificationError
 from .frequency_id import (
@@ -58,11 +73,7 @@ from .frequency_id import (
     ResponseChannel,
     TransferFunctionFit,
     _band,
-    _coherence_weight,
-    _levy_sk,
     _resolve_response,
-    _Structure,
-    _unwrapped_phase,
     fit_transfer_function,
 )
 
@@ -87,141 +98,6 @@ _LOES_BAND = (0.1, 10.0)
 _LOES_FORMS = {"short_period": (1, 2), "roll": (0, 1), "dutch_roll": (0, 2)}
 # Tischler's guideline for a transfer-function fit: J <= 100 acceptable.
 _MISMATCH_GUIDELINE = 100.0
-_DENSE = np.geomspace(1e-3, 1e3, 6001)
-
-
-# -- responses: measured points or an analytic transfer function ------------------------
-
-
-class _Response:
-    """Frequency response as a function of ω: analytic (refinable) or tabulated."""
-
-    def __init__(self, response_or_tf: Any, input: str | None, output: str | None) -> None:
-        self.analytic: Callable[[FloatArray], ComplexArray] | None = None
-        if isinstance(response_or_tf, (CompositeResponse, ResponseChannel)):
-            ch = _resolve_response(response_or_tf, input, output, "response_or_tf")
-            self.omega = ch.frequency
-            self.values = ch.response
-        else:
-            self.analytic = _as_function(response_or_tf)
-            self.omega = _DENSE
-            self.values = self.analytic(_DENSE)
-        if self.omega.size < 2:
-            raise IdentificationError("response_or_tf: need at least two frequencies")
-
-    def scaled(self, factor: Callable[[FloatArray], ComplexArray]) -> _Response:
-        out = object.__new__(_Response)
-        base = self.analytic
-        out.analytic = None if base is None else (lambda w: base(w) * factor(w))
-        out.omega = self.omega
-        out.values = self.values * factor(self.omega)
-        return out
-
-    def phase(self) -> FloatArray:
-        return _unwrapped_phase(self.values)
-
-    def crossing(self, level: FloatArray, target: float) -> float:
-        """First ω where `level` (on self.omega) falls through `target`; NaN if never."""
-        below = np.flatnonzero((level[:-1] > target) & (level[1:] <= target))
-        if below.size == 0:
-            return float("nan")
-        i = int(below[0])
-        w0, w1 = float(self.omega[i]), float(self.omega[i + 1])
-        y0, y1 = float(level[i]) - target, float(level[i + 1]) - target
-        guess = float(np.exp(np.log(w0) + (np.log(w1) - np.log(w0)) * y0 / (y0 - y1)))
-        if self.analytic is None:
-            return guess
-        # refine on the continuous phase/gain: the branch is fixed by the tabulated value
-        ref = float(level[i])
-        kind = self._kind
-
-        def f(w: float) -> float:
-            h = self.analytic(np.array([w]))[0]  # type: ignore[misc]
-            if kind == "phase":
-                v = np.degrees(np.angle(h))
-                v += 360.0 * np.round((ref - v) / 360.0)
-            else:
-                v = 20.0 * np.log10(abs(h))
-            return float(v - target)
-
-        import scipy.optimize  # only an analytic response is refined
-
-        try:
-            return float(scipy.optimize.brentq(f, w0, w1, xtol=1e-14, rtol=1e-12))
-        except ValueError:
-            return guess
-
-    _kind = "phase"
-
-    def phase_crossing(self, target: float) -> float:
-        self._kind = "phase"
-        return self.crossing(self.phase(), target)
-
-    def gain_crossing(self, target_db: float) -> float:
-        self._kind = "gain"
-        with np.errstate(divide="ignore"):
-            return self.crossing(20.0 * np.log10(np.abs(self.values)), target_db)
-
-    def at(self, w: float) -> complex:
-        if self.analytic is not None:
-            return complex(self.analytic(np.array([w]))[0])
-        if not self.omega[0] <= w <= self.omega[-1]:
-            return complex("nan")
-        lw = np.log(self.omega)
-        mag = np.interp(np.log(w), lw, np.log(np.abs(self.values)))
-        ph = np.interp(np.log(w), lw, np.radians(self.phase()))
-        return complex(np.exp(mag + 1j * ph))
-
-    def phase_at(self, w: float) -> float:
-        """Unwrapped phase (deg) at w on the branch of the tabulated phase."""
-        if not np.isfinite(w):
-            return float("nan")
-        ph = self.phase()
-        if self.analytic is None:
-            if not self.omega[0] <= w <= self.omega[-1]:
-                return float("nan")
-            return float(np.interp(np.log(w), np.log(self.omega), ph))
-        v = float(np.degrees(np.angle(self.at(w))))
-        ref = float(np.interp(np.log(w), np.log(self.omega), ph))
-        return v + 360.0 * float(np.round((ref - v) / 360.0))
-
-
-def _integrate(w: FloatArray) -> ComplexArray:
-    return np.asarray(1.0 / (1j * np.asarray(w, dtype=np.float64)), dtype=np.complex128)
-
-
-def _as_function(tf: Any) -> Callable[[FloatArray], ComplexArray]:
-    if hasattr(tf, "evaluate") and callable(tf.evaluate):
-        return lambda w: np.asarray(tf.evaluate(w), dtype=np.complex128)
-    if isinstance(tf, tuple) and len(tf) in (2, 3):
-        try:
-            num = np.atleast_1d(np.asarray(tf[0], dtype=np.float64))
-            den = np.atleast_1d(np.asarray(tf[1], dtype=np.float64))
-            if len(tf) == 3 and isinstance(tf[2], (bool, np.bool_, str, bytes)):
-                raise TypeError  # float() would read "0.05" as 0.05 and True as 1 s
-            tau = float(tf[2]) if len(tf) == 3 else 0.0
-        except (TypeError, ValueError):
-            num = den = np.zeros(0)
-            tau = 0.0
-        # NaN coefficients would surface as a phase that never crosses, or NaN margins
-        for what, arr, given in (("numerator", num, tf[0]), ("denominator", den, tf[1])):
-            if arr.ndim != 1 or not np.all(np.isfinite(arr)):
-                raise IdentificationError(
-                    f"response_or_tf: the {what} must be a 1-D sequence of finite "
-                    f"coefficients (highest power first), got {plain(given)}"
-                )
-        if num.size and den.size and np.any(den != 0) and np.isfinite(tau):
-
-            def h(w: FloatArray) -> ComplexArray:
-                with np.errstate(all="ignore"):
-                    return transfer_response(num, den, w, delay=tau)
-
-            return h
-    raise IdentificationError(
-        "response_or_tf: expected a CompositeResponse, ResponseChannel, a fit with "
-        "evaluate(ω), or (numerator, denominator[, delay]) coefficient arrays (highest power "
-        f"first), got {type(tf).__name__}"
-    )
 
 
 # -- bandwidth -----------------------------------------------------------------------------
@@ -735,171 +611,3 @@ def equivalent_system(
     # a Fourier fit's Y/U ratios are raw (no averaging, no coherence): no mismatch J
     mismatch = float("nan") if isinstance(response, FlightData) else fit.cost
     return EquivalentSystemFit(kind, out, mismatch, fit, (lo, hi), _delta_method(kind, fit))
-
-
-# Delays tried by the global start: a grid up to half a turn of phase at the top
-# frequency, and the number of the best rational fits refined nonlinearly.
-_DELAY_GRID = 13
-_STARTS = 4
-# Among final fits whose cost is within this factor of the lowest, a physical one
-# (minimum-phase zero, τ ≥ 0) is preferred.
-_CLOSE = 1.1
-
-
-def _loes_parameters(kind: str, p: Mapping[str, float]) -> dict[str, float]:
-    """The equivalent-system parameters from the polynomial ones."""
-    tau = float(p.get("tau", 0.0))
-    nan = float("nan")
-    if kind == "roll":
-        return {"K": p["b0"], "1/T_R": p["a0"], "tau": tau}
-    omega = float(np.sqrt(p["a0"])) if p["a0"] > 0 else nan
-    zeta = p["a1"] / (2.0 * omega) if p["a0"] > 0 else nan
-    if kind == "short_period":
-        k = p["b1"]
-        return {
-            "K": k,
-            "1/T_theta2": p["b0"] / k if k != 0 else nan,
-            "zeta": zeta,
-            "omega": omega,
-            "tau": tau,
-        }
-    return {"K": p["b0"], "zeta": zeta, "omega": omega, "tau": tau}
-
-
-def _derived(kind: str, p: Mapping[str, float]) -> dict[str, float]:
-    """`_loes_parameters` and, for the short period, T_theta2."""
-    out = _loes_parameters(kind, p)
-    if kind == "short_period":
-        out["T_theta2"] = p["b1"] / p["b0"] if p["b0"] != 0 else float("nan")
-    return out
-
-
-def _delta_method(kind: str, fit: TransferFunctionFit) -> dict[str, float]:
-    """Standard errors of the derived parameters: sqrt(diag(G Σ Gᵀ))."""
-    keys, cov = _delta_covariance(kind, fit)
-    with np.errstate(invalid="ignore"):
-        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return dict(zip(keys, se.tolist(), strict=True))
-
-
-def _delta_covariance(kind: str, fit: TransferFunctionFit) -> tuple[list[str], FloatArray]:
-    """The derived parameters' names and covariance G Σ Gᵀ, G by central differences."""
-    names = list(fit.parameters)
-    theta = np.array([fit.parameters[k] for k in names], dtype=np.float64)
-    cov = np.asarray(fit.covariance, dtype=np.float64)
-    base = _derived(kind, fit.parameters)
-    keys = list(base)
-    g = np.zeros((len(keys), theta.size))
-    for j in range(theta.size):
-        step = 1e-6 * max(abs(theta[j]), 1e-3)
-        hi, lo = theta.copy(), theta.copy()
-        hi[j] += step
-        lo[j] -= step
-        up = _derived(kind, dict(zip(names, hi.tolist(), strict=True)))
-        down = _derived(kind, dict(zip(names, lo.tolist(), strict=True)))
-        g[:, j] = [(up[k] - down[k]) / (2.0 * step) for k in keys]
-    with np.errstate(invalid="ignore"):
-        return keys, np.asarray(g @ cov @ g.T, dtype=np.float64)
-
-
-def _mismatch(fit: TransferFunctionFit, p: Mapping[str, float]) -> float:
-    """Hodgkinson/CIFER mismatch J of the transfer function `p` against the fit's points."""
-    w = np.asarray(fit.frequency, dtype=np.float64)
-    h = np.asarray(fit.response, dtype=np.complex128)
-    keys = list(fit.parameters)
-    m = sum(k.startswith("b") for k in keys) - 1
-    n = sum(k.startswith("a") for k in keys)
-    st = _Structure(m, n, "tau" in p, w)
-    theta = np.array([p[k] for k in keys], dtype=np.float64)
-    with np.errstate(all="ignore"):
-        d = np.log(h) - st.log_response(theta)[0]
-        j = (20.0 / w.size) * np.sum(
-            _coherence_weight(np.asarray(fit.coherence, dtype=np.float64))
-            * (
-                (20.0 / np.log(10.0) * d.real) ** 2
-                + 0.01745 * np.degrees(np.angle(np.exp(1j * d.imag))) ** 2
-            )
-        )
-    return float(j) if np.isfinite(j) else float("inf")
-
-
-def _cifer_cost(fit: TransferFunctionFit) -> float:
-    return fit.cost
-
-
-def _fourier_residual(
-    data: FlightData, input: str | None, output: str | None
-) -> Callable[[TransferFunctionFit], float]:
-    """The objective of a Fourier-transform fit, Σ |Y − T U|², at the fit's frequencies."""
-    from .frequency_domain import _transform
-    from .frequency_id import _detrended
-
-    dt = float(np.mean(np.diff(data.time)))
-    u = _detrended(data.time, np.asarray(data[str(input)], dtype=np.float64))
-    y = _detrended(data.time, np.asarray(data[str(output)], dtype=np.float64))
-
-    def cost(fit: TransferFunctionFit) -> float:
-        w = np.asarray(fit.frequency, dtype=np.float64)
-        big_u = _transform(u[:, None], dt, w, cubic=False)[:, 0]
-        big_y = _transform(y[:, None], dt, w, cubic=True)[:, 0]
-        r = big_y - fit.evaluate(w) * big_u
-        return float(np.sum(np.abs(r) ** 2))
-
-    return cost
-
-
-def _physical(kind: str, p: Mapping[str, float]) -> bool:
-    if p.get("tau", 0.0) < 0:
-        return False
-    return not (kind == "short_period" and p["b1"] != 0 and p["b0"] / p["b1"] < 0)
-
-
-def _global_fit(
-    fitter: Callable[[Mapping[str, float] | None], TransferFunctionFit],
-    objective: Callable[[TransferFunctionFit], float],
-    kind: str,
-    m: int,
-    n: int,
-    delay: bool,
-) -> TransferFunctionFit:
-    """The fit from several starts: linear rational fits over a grid of delays.
-
-    For each delay on a grid from 0 to half a turn of phase at the top frequency,
-    a Sanathanan-Koerner (iterated Levy) fit of the rational form to H(jω) e^{jωτ};
-    those with stable poles, ranked by their mismatch, start the nonlinear fit. The
-    lowest final cost wins, a physical solution preferred among costs within 10 %.
-    """
-    base = fitter(None)
-    w = np.asarray(base.frequency, dtype=np.float64)
-    h = np.asarray(base.response, dtype=np.complex128)
-    weight = _coherence_weight(np.asarray(base.coherence, dtype=np.float64))
-    st = _Structure(m, n, False, w)
-    names = list(base.parameters)
-    taus = np.linspace(0.0, np.pi / float(w.max()), _DELAY_GRID) if delay else np.zeros(1)
-    ranked: list[tuple[float, dict[str, float]]] = []
-    for tau in taus:
-        with np.errstate(all="ignore"):
-            theta = _levy_sk(st, h * np.exp(1j * w * tau), weight)
-        poles = np.roots(np.concatenate([[1.0], theta[m + 1 :][::-1]]))
-        if not (np.all(np.isfinite(theta)) and np.all(poles.real < 0)):
-            continue
-        cand = dict(zip(names, [*theta.tolist(), float(tau)][: len(names)], strict=True))
-        ranked.append((_mismatch(base, cand), cand))
-    ranked.sort(key=lambda c: c[0])
-    fits = [base]
-    for _, cand in ranked[:_STARTS]:
-        try:
-            fits.append(fitter(cand))
-        except IdentificationError:
-            continue  # a start that diverges is no candidate
-
-    costs = [objective(f) for f in fits]
-    best = min(costs)
-    close = [
-        f
-        for f, c in zip(fits, costs, strict=True)
-        if c <= _CLOSE * best and _physical(kind, f.parameters)
-    ]
-    if close:
-        return min(close, key=objective)
-    return fits[int(np.argmin(costs))]
