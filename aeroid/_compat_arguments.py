@@ -29,7 +29,6 @@ from .errors import ChannelError, DataFormatError, IdentificationError, Residual
 
 FloatArray = NDArray[np.float64]
 
-
 # Largest plausible magnitude of each angle in radians: beyond it the data are in degrees.
 _ANGLE_LIMITS = {"alpha": math.pi / 2, "beta": math.pi / 2, "phi": math.pi, "theta": math.pi / 2}
 

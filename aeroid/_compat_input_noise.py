@@ -15,12 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _compiled
-from ._compat_model import (
-    _MEASURED,
-    INPUT_CHANNELS,
-    OUTPUT_CHANNELS,
-    STATES,
-)
+from ._compat_model import _MEASURED, INPUT_CHANNELS, OUTPUT_CHANNELS, STATES
 from .data import plain
 from .errors import IdentificationError
 

@@ -12,9 +12,6 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-
-FloatArray = NDArray[np.float64]
 
 INPUT_CHANNELS = ("p", "q", "r", "ax", "ay", "az")
 """The inputs: body-axis rates (rad/s) and specific forces (m/s^2)."""

@@ -13,19 +13,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .data import (
-    FlightData,
-    check_symmetric,
-    measured_start,
-    plain,
-    real_array,
-    whole_number,
-)
+from .data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
 from .errors import AeroidError, FilterError
 from .model import MAX_SUBSTEPS, Model, SimulatorModel, real_number
 
 FloatArray = NDArray[np.float64]
-
 
 METHODS = ("ekf", "ukf")
 

@@ -20,10 +20,7 @@ from .errors import FilterError, SimulationError
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-
 _JITTER_TRIES = 8
-
-
 _MAX_DT_GROUPS = 64
 
 

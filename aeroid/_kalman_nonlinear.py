@@ -27,7 +27,6 @@ from ._kalman_linear import (
 )
 
 FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 def _linearise_model(

@@ -13,14 +13,10 @@ from numpy.typing import NDArray
 from .errors import DataFormatError, IdentificationError
 
 FloatArray = NDArray[np.float64]
-ComplexArray = NDArray[np.complex128]
-
 
 # A regressor whose part independent of the earlier ones is below this fraction of its
 # own norm is a linear combination of them to working precision.
 _COLLINEAR = 1e-9
-
-
 # Below this 1 - R^2 of a regressor on the others (condition number of the scaled
 # Gram matrix above ~1e10) the normal equations lose digits; QR is used instead.
 _WELL_POSED = 1e-8

@@ -15,26 +15,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._colour import colored_covariance
 from ._czt import fourier
-from ._least_squares import (
-    _ls_solve,
-    _qr_solve,
-    _reml_covariance,
-)
+from ._least_squares import _ls_solve, _qr_solve, _reml_covariance
 from ._regression_record import RegressionResult, _r2_f, _result
-from ._regressors import (
-    _resolve,
-    _step_of,
-)
-from .data import (
-    FlightData,
-    delay_starts,
-    real_array,
-)
+from ._regressors import _resolve, _step_of
+from .data import FlightData, delay_starts, real_array
 from .errors import ChannelError, DataFormatError, IdentificationError
 
 FloatArray = NDArray[np.float64]
-ComplexArray = NDArray[np.complex128]
-
 
 _DELAY = "tau_"
 

@@ -13,7 +13,6 @@ from numpy.typing import NDArray
 from ._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 
 FloatArray = NDArray[np.float64]
-ComplexArray = NDArray[np.complex128]
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,21 +14,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .data import (
-    FlightData,
-    as_float,
-    positive_number,
-    real_array,
-)
+from .data import FlightData, as_float, positive_number, real_array
 from .errors import ChannelError, DataFormatError
 
 FloatArray = NDArray[np.float64]
-ComplexArray = NDArray[np.complex128]
-
 
 _CONST = "const"
-
-
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 

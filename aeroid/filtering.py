@@ -58,16 +58,9 @@ from ._kalman_nonlinear import _Propagator as _Propagator
 from ._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ._stats import chi2_sf
 from ._threads import small_blas
-from .data import (
-    FlightData,
-    check_flag,
-)
+from .data import FlightData, check_flag
 from .errors import ChannelError, FilterError
-from .model import (
-    delayed_controls,
-    fitted_start,
-    resolve_parameters,
-)
+from .model import delayed_controls, fitted_start, resolve_parameters
 
 __all__ = ["FilterResult", "filter_states"]
 

@@ -88,11 +88,7 @@ from ._regressors import _step_of as _step_of
 from ._regressors import candidate_pool as candidate_pool
 from ._regressors import spline_terms as spline_terms
 from ._threads import small_blas
-from .data import (
-    FlightData,
-    check_flag,
-    whole_number,
-)
+from .data import FlightData, check_flag, whole_number
 from .errors import DataFormatError, IdentificationError
 
 __all__ = [
