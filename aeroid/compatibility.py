@@ -56,7 +56,6 @@ attitude and velocity errors, is added by Monte Carlo (see
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -66,11 +65,41 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from . import _compiled
+from ._compat_arguments import _ANGLE_LIMITS as _ANGLE_LIMITS
+from ._compat_arguments import _STAND_IN_SOURCES as _STAND_IN_SOURCES
+from ._compat_arguments import _channel_map as _channel_map
+from ._compat_arguments import _first_values as _first_values
+from ._compat_arguments import _fitted_outputs as _fitted_outputs
+from ._compat_arguments import _free_states as _free_states
+from ._compat_arguments import _measured_state_names as _measured_state_names
+from ._compat_arguments import _parameter_values as _parameter_values
+from ._compat_arguments import _rewarn as _rewarn
+from ._compat_arguments import _start_state as _start_state
+from ._compat_arguments import _states_from as _states_from
+from ._compat_input_noise import _difference_response as _difference_response
+from ._compat_input_noise import _input_noise as _input_noise
+from ._compat_input_noise import _input_noise_covariance as _input_noise_covariance
+from ._compat_input_noise import _shift as _shift
+from ._compat_input_noise import _substeps as _substeps
+from ._compat_model import _MEASURED as _MEASURED
+from ._compat_model import _REQUIRED_OUTPUTS as _REQUIRED_OUTPUTS
+from ._compat_model import _WIND as _WIND
+from ._compat_model import DEFAULT_ESTIMATE as DEFAULT_ESTIMATE
+from ._compat_model import INPUT_CHANNELS as INPUT_CHANNELS
+from ._compat_model import OUTPUT_CHANNELS as OUTPUT_CHANNELS
+from ._compat_model import SENSOR_PARAMETERS as SENSOR_PARAMETERS
+from ._compat_model import STATES as STATES
+from ._compat_model import _derivatives as _derivatives
+from ._compat_model import _effective as _effective
+from ._compat_model import _kinematics as _kinematics
+from ._compat_model import _model as _model
+from ._compat_model import _rates as _rates
+from ._compat_model import _sensors as _sensors
+from ._compat_model import _zero_sensor_errors as _zero_sensor_errors
 from ._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from ._threads import small_blas
 from .data import FlightData, plain, whole_number
-from .errors import ChannelError, DataFormatError, IdentificationError, ResidualDriftWarning
+from .errors import ChannelError, DataFormatError, IdentificationError
 from .identification import IdentificationResult
 
 __all__ = [
@@ -84,31 +113,6 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-INPUT_CHANNELS = ("p", "q", "r", "ax", "ay", "az")
-"""The inputs: body-axis rates (rad/s) and specific forces (m/s^2)."""
-OUTPUT_CHANNELS = ("V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve")
-"""The outputs: airspeed (m/s), angles (rad), altitude (m), north and east ground speed (m/s)."""
-STATES = ("u", "v", "w", "phi", "theta", "psi", "h")
-_MEASURED = tuple(f"{s}_measured" for s in STATES)  # controls that stand in for states
-_REQUIRED_OUTPUTS = ("V", "alpha", "theta")
-_WIND = ("w_n", "w_e", "w_d")
-SENSOR_PARAMETERS = (
-    *(f"b_{c}" for c in INPUT_CHANNELS),
-    *(f"k_{c}" for c in INPUT_CHANNELS),
-    *(f"b_{c}" for c in OUTPUT_CHANNELS),
-    *(f"k_{c}" for c in OUTPUT_CHANNELS),
-    *(f"tau_{c}" for c in OUTPUT_CHANNELS),
-    *_WIND,
-)
-"""Every parameter `check_compatibility` can estimate or hold at a given value."""
-DEFAULT_ESTIMATE = (
-    *(f"b_{c}" for c in INPUT_CHANNELS),
-    "b_V",
-    "b_alpha",
-    "b_beta",
-    "k_alpha",
-)
-"""Estimated when `estimate` is not given (those of absent channels dropped)."""
 _UNITS = {
     "p": "rad/s",
     "q": "rad/s",
@@ -126,154 +130,7 @@ _UNITS = {
     "vn": "m/s",
     "ve": "m/s",
 }
-# Largest plausible magnitude of each angle in radians: beyond it the data are in degrees.
-_ANGLE_LIMITS = {"alpha": math.pi / 2, "beta": math.pi / 2, "phi": math.pi, "theta": math.pi / 2}
 _MAX_PASSES = 6
-
-
-# -- the model: numpy broadcasting, module-level np calls, no branches on values --------
-
-
-def _rates(c: Any, p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
-    """Rates and specific forces with the gyro and accelerometer errors removed."""
-    pm, qm, rm, axm, aym, azm = (c[j] for j in range(6))
-    return (
-        (pm - p["b_p"]) / (1.0 + p["k_p"]),
-        (qm - p["b_q"]) / (1.0 + p["k_q"]),
-        (rm - p["b_r"]) / (1.0 + p["k_r"]),
-        (axm - p["b_ax"]) / (1.0 + p["k_ax"]),
-        (aym - p["b_ay"]) / (1.0 + p["k_ay"]),
-        (azm - p["b_az"]) / (1.0 + p["k_az"]),
-    )
-
-
-def _effective(x: Any, c: Any, p: Any) -> list[Any]:
-    """The states with those marked measured (``m_<state>`` = 1) replaced by the record."""
-    return [x[i] + p[f"m_{s}"] * (c[6 + i] - x[i]) for i, s in enumerate(STATES)]
-
-
-def _derivatives(x: Any, c: Any, p: Any) -> list[Any]:
-    uu, vv, ww, phi, theta, _psi, _h = x
-    P, Q, R, AX, AY, AZ = _rates(c, p)
-    g = p["g"]
-    sphi = np.sin(phi)
-    cphi = np.cos(phi)
-    sth = np.sin(theta)
-    cth = np.cos(theta)
-    turn = Q * sphi + R * cphi
-    return [
-        R * vv - Q * ww - g * sth + AX,
-        P * ww - R * uu + g * cth * sphi + AY,
-        Q * uu - P * vv + g * cth * cphi + AZ,
-        P + sth / cth * turn,
-        Q * cphi - R * sphi,
-        turn / cth,
-        uu * sth - (vv * sphi + ww * cphi) * cth,
-    ]
-
-
-def _kinematics(t: Any, x: Any, c: Any, p: Any) -> Any:
-    """Rigid-body translational and rotational kinematics (states `STATES`).
-
-    A state replaced by its measurement is held still (its derivative zeroed):
-    the measurement stands in for it wherever it is used.
-    """
-    rates = _derivatives(_effective(x, c, p), c, p)
-    return np.stack([d * (1.0 - p[f"m_{s}"]) for d, s in zip(rates, STATES, strict=True)])
-
-
-def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
-    """What the air-data, attitude and altitude sensors read (outputs `OUTPUT_CHANNELS`)."""
-    xe = _effective(x, c, p)
-    uu, vv, ww, phi, theta, psi, h = xe
-    P, Q, R, AX, AY, AZ = _rates(c, p)
-    du, dv, dw, dphi, dtheta, dpsi, dh = _derivatives(xe, c, p)
-    sphi = np.sin(phi)
-    cphi = np.cos(phi)
-    sth = np.sin(theta)
-    cth = np.cos(theta)
-    spsi = np.sin(psi)
-    cpsi = np.cos(psi)
-    # the wind (north-east-down) in body axes
-    along = cpsi * p["w_n"] + spsi * p["w_e"]
-    across = cpsi * p["w_e"] - spsi * p["w_n"]
-    wx = cth * along - sth * p["w_d"]
-    wy = sphi * sth * along + cphi * across + sphi * cth * p["w_d"]
-    wz = cphi * sth * along - sphi * across + cphi * cth * p["w_d"]
-    ua = uu - wx
-    va = vv - wy
-    wa = ww - wz
-    # an earth-fixed wind turns in body axes: d(w_b)/dt = -omega x w_b
-    dua = du + Q * wz - R * wy
-    dva = dv + R * wx - P * wz
-    dwa = dw + P * wy - Q * wx
-    plane = ua * ua + wa * wa
-    V = np.sqrt(plane + va * va)
-    dV = (ua * dua + va * dva + wa * dwa) / V
-    alpha = np.arctan2(wa, ua)
-    dalpha = (ua * dwa - wa * dua) / plane
-    beta = np.arcsin(va / V)
-    dbeta = (dva * V - va * dV) / (V * np.sqrt(plane))
-    # ground velocity north and east: the body-to-earth rotation of (u, v, w); its rate
-    # is the same rotation of the specific force (gravity acts along "down" only)
-    n_x = cth * cpsi
-    n_y = sphi * sth * cpsi - cphi * spsi
-    n_z = cphi * sth * cpsi + sphi * spsi
-    e_x = cth * spsi
-    e_y = sphi * sth * spsi + cphi * cpsi
-    e_z = cphi * sth * spsi - sphi * cpsi
-    vn = n_x * uu + n_y * vv + n_z * ww
-    ve = e_x * uu + e_y * vv + e_z * ww
-    dvn = n_x * AX + n_y * AY + n_z * AZ
-    dve = e_x * AX + e_y * AY + e_z * AZ
-    true = {
-        "V": (V, dV),
-        "alpha": (alpha, dalpha),
-        "beta": (beta, dbeta),
-        "phi": (phi, dphi),
-        "theta": (theta, dtheta),
-        "psi": (psi, dpsi),
-        "h": (h, dh),
-        "vn": (vn, dvn),
-        "ve": (ve, dve),
-    }
-    # a scale factor acts on the change from the pivot y0_<o> (zero, or the start value)
-    return np.stack(
-        [
-            (1.0 + p[f"k_{o}"]) * (y - p[f"tau_{o}"] * dy - p[f"y0_{o}"])
-            + p[f"y0_{o}"]
-            + p[f"b_{o}"]
-            for o, (y, dy) in true.items()
-        ]
-    )
-
-
-@functools.lru_cache(maxsize=8)
-def _model(nominal: tuple[tuple[str, float], ...]) -> Any:
-    """The kinematics-and-sensors `Model` with these nominal values.
-
-    Cached so that repeated analyses with the same fixed values reuse one
-    model (and whatever the simulation machinery learnt about it).
-    """
-    from .model import Model
-
-    return Model(
-        states=list(STATES),
-        controls=[*INPUT_CHANNELS, *_MEASURED],
-        parameters=dict(nominal),
-        dynamics=_kinematics,
-        outputs=list(OUTPUT_CHANNELS),
-        measurement=_sensors,
-        name="flight_path_reconstruction",
-    )
-
-
-def _zero_sensor_errors(values: Mapping[str, float]) -> dict[str, float]:
-    """The same parameters with every output error zeroed: the outputs are then the truth."""
-    out = dict(values)
-    for c in OUTPUT_CHANNELS:
-        out[f"b_{c}"] = out[f"k_{c}"] = out[f"tau_{c}"] = 0.0
-    return out
 
 
 # -- the result ------------------------------------------------------------------------
@@ -526,304 +383,7 @@ def _plot(result: CompatibilityResult) -> Any:
     return fig
 
 
-# -- argument checks ---------------------------------------------------------------------
-
-
-def _channel_map(data: FlightData, channels: Mapping[str, str | None] | None) -> dict[str, str]:
-    """Canonical name -> data channel, for the channels present."""
-    mapping: dict[str, str | None] = {c: c for c in (*INPUT_CHANNELS, *OUTPUT_CHANNELS)}
-    if channels is not None:
-        if not isinstance(channels, Mapping):
-            raise IdentificationError(
-                f"channels: expected a mapping of quantity -> channel name, got {plain(channels)}"
-            )
-        for key, value in channels.items():
-            if key not in mapping:
-                raise IdentificationError(
-                    f"channels: {key!r} is not a quantity of the analysis; quantities: "
-                    f"{list(mapping)}"
-                )
-            if value is not None and not isinstance(value, str):
-                raise IdentificationError(
-                    f"channels[{key!r}]: expected a channel name or None, got {plain(value)}"
-                )
-            mapping[key] = value
-    present: dict[str, str] = {}
-    for key, name in mapping.items():
-        required = key in INPUT_CHANNELS or key in _REQUIRED_OUTPUTS
-        if name is None:
-            if required:
-                raise ChannelError(f"channels[{key!r}]: {key} is required and cannot be None")
-            continue
-        if name in data:
-            present[key] = name
-        elif required or (channels is not None and key in channels):
-            role = "input" if key in INPUT_CHANNELS else "output"
-            raise ChannelError(
-                f"{role} {key!r} (channel {name!r}) not found in flight data; channels present: "
-                f"{sorted(data.names)}; map it with channels={{{key!r}: 'name'}}"
-            )
-    for key, name in present.items():
-        values = data.channels[name]
-        if not np.all(np.isfinite(values)):
-            bad = int(np.flatnonzero(~np.isfinite(values))[0])
-            raise DataFormatError(f"channel {name!r} ({key}): non-finite value at index {bad}")
-        limit = _ANGLE_LIMITS.get(key)
-        if limit is not None and float(np.max(np.abs(values))) > limit:
-            raise DataFormatError(
-                f"channel {name!r} ({key}): values up to {float(np.max(np.abs(values))):.4g} "
-                f"exceed {limit:.4g}; angles must be in radians"
-            )
-    v = data.channels[present["V"]]
-    if not float(np.min(v)) > 0.0:
-        raise DataFormatError(
-            f"channel {present['V']!r} (V): airspeed must be positive, minimum {float(np.min(v)):.4g}"
-        )
-    return present
-
-
-def _parameter_values(
-    estimate: Sequence[str] | Mapping[str, float] | None,
-    fixed: Mapping[str, float] | None,
-    present: Mapping[str, str],
-) -> tuple[list[str], dict[str, float]]:
-    """The names to estimate and every parameter's start (or fixed) value."""
-    values = {n: 0.0 for n in SENSOR_PARAMETERS}
-    if estimate is None:
-        names = [n for n in DEFAULT_ESTIMATE if n.partition("_")[2] in present]
-    elif isinstance(estimate, str):
-        names = [estimate]
-    elif isinstance(estimate, Mapping):
-        names = list(estimate)
-    else:
-        try:
-            names = list(estimate)
-        except TypeError:
-            raise IdentificationError(
-                f"estimate: expected a list of parameter names or a mapping name -> start "
-                f"value, got {plain(estimate)}"
-            ) from None
-    dupes = sorted({n for n in names if names.count(n) > 1})
-    if dupes:
-        raise IdentificationError(f"estimate: listed twice: {dupes}")
-    for n in names:
-        if n not in values:
-            raise IdentificationError(
-                f"estimate: {n!r} is not a sensor parameter; choose from {list(SENSOR_PARAMETERS)}"
-            )
-        channel = n.partition("_")[2]
-        if n not in _WIND and channel not in present:
-            raise ChannelError(
-                f"estimate: {n!r} belongs to channel {channel!r}, which the data lack "
-                "or which is not among the fitted outputs"
-            )
-    if not names:
-        raise IdentificationError("estimate: name at least one sensor parameter to estimate")
-    if fixed is not None and not isinstance(fixed, Mapping):
-        raise IdentificationError(f"fixed: expected a mapping name -> value, got {plain(fixed)}")
-    given: dict[str, Any] = dict(fixed or {})
-    both = sorted(set(given) & set(names))
-    if both:
-        raise IdentificationError(f"parameters {both} are both estimated and fixed")
-    starts: dict[str, Any] = dict(estimate) if isinstance(estimate, Mapping) else {}
-    for label, source in (("fixed", given), ("estimate", starts)):
-        for n, v in source.items():
-            if n not in values:
-                raise IdentificationError(
-                    f"{label}: {n!r} is not a sensor parameter; choose from "
-                    f"{list(SENSOR_PARAMETERS)}"
-                )
-            try:
-                value = float(v)
-            except (TypeError, ValueError):
-                raise IdentificationError(
-                    f"{label}[{n!r}]: expected a number, got {plain(v)}"
-                ) from None
-            if not math.isfinite(value):
-                raise IdentificationError(f"{label}[{n!r}]: value {value!r} is not finite")
-            if n.startswith("k_") and not value > -1.0:
-                raise IdentificationError(
-                    f"{label}[{n!r}]: a scale-factor error must exceed -1, got {value!r}"
-                )
-            values[n] = value
-    return names, values
-
-
 # -- the analysis ------------------------------------------------------------------------
-
-
-def _shift(t: FloatArray, y: FloatArray, tau: float) -> FloatArray:
-    """``y(t + tau)``: band-limited on a uniform grid, else linear interpolation.
-
-    Linear interpolation by a fraction of a sample averages neighbouring noise
-    samples: less noise variance, correlated from sample to sample, and error
-    bars that believe the channel became more precise. On a uniform grid the
-    shift is a phase ramp in the Fourier domain instead (an all-pass that keeps
-    white noise white, of the same variance), applied to the record less the
-    line through its end points, continued by its point reflection about each
-    end, so that the periodic extension and its slope are continuous; beyond
-    the ends the shift then extrapolates to first order.
-    """
-    if tau == 0.0:
-        return y.copy()
-    steps = np.diff(t)
-    if y.size < 4 or float(np.ptp(steps)) > 1e-6 * float(np.mean(steps)):
-        return np.asarray(np.interp(t + tau, t, y), dtype=np.float64)
-    n = y.size
-    slope = (y[-1] - y[0]) / (t[-1] - t[0])
-    rest = y - (y[0] + slope * (t - t[0]))
-    odd = np.concatenate([rest, -rest[-2:0:-1]])  # period 2 (n - 1), zero at both ends
-    m = odd.size
-    freq = np.fft.rfftfreq(m, float(np.mean(steps)))
-    shifted = np.fft.irfft(np.fft.rfft(odd) * np.exp(2j * np.pi * freq * tau), m)[:n]
-    return np.asarray(shifted + y[0] + slope * (t + tau - t[0]), dtype=np.float64)
-
-
-def _substeps(time: FloatArray, rates: FloatArray) -> int:
-    # Keep h * omega <= 0.05, where an RK4 step's error on a rotation is ~1e-9 of it.
-    h = float(np.max(np.diff(time)))
-    omega = float(np.max(np.abs(rates)))
-    return int(min(max(1, math.ceil(h * omega / 0.05)), 64))
-
-
-def _input_noise(
-    inputs: Mapping[str, FloatArray], given: Mapping[str, float] | None
-) -> dict[str, float]:
-    """Noise standard deviation per input: given, or from the fourth differences."""
-    if given is not None and not isinstance(given, Mapping):
-        raise IdentificationError(
-            f"input_noise: expected a mapping input -> standard deviation, got {plain(given)}"
-        )
-    given = dict(given or {})
-    unknown = sorted(set(given) - set(INPUT_CHANNELS))
-    if unknown:
-        raise IdentificationError(
-            f"input_noise: {unknown} are not inputs; inputs: {list(INPUT_CHANNELS)}"
-        )
-    out = {}
-    for c in INPUT_CHANNELS:
-        if c in given:
-            try:
-                value = float(given[c])
-            except (TypeError, ValueError):
-                value = float("nan")
-            if not (math.isfinite(value) and value >= 0):
-                raise IdentificationError(
-                    f"input_noise[{c!r}]: expected a standard deviation >= 0, got {plain(given[c])}"
-                )
-            out[c] = value
-            continue
-        x = inputs[c]
-        if x.size < 6:
-            out[c] = 0.0
-            continue
-        # White noise of variance s^2 gives fourth differences of variance 70 s^2,
-        # while a smooth signal sampled well above its bandwidth leaves almost none.
-        d4 = x[4:] - 4.0 * x[3:-1] + 6.0 * x[2:-2] - 4.0 * x[1:-3] + x[:-4]
-        mad = float(np.median(np.abs(d4 - np.median(d4))))
-        out[c] = 1.482602218505602 * mad / math.sqrt(70.0)
-    return out
-
-
-def _difference_response(
-    model: Any,
-    t: FloatArray,
-    controls: FloatArray,
-    noise: FloatArray,
-    theta: FloatArray,
-    x0: FloatArray,
-    names: list[str],
-    x_idx: list[int],
-    out_idx: list[int],
-    weight: FloatArray,
-    substeps: int,
-) -> tuple[FloatArray, FloatArray | None]:
-    """Weighted output sensitivities by forward differences and the draws' output changes.
-
-    One simulated batch: the fitted point, a forward difference in every estimated
-    parameter and initial state (accurate to about the step, a millionth: ample for an
-    error bar), then the draws of input noise. None for the changes when a member fails.
-    """
-    n_p = len(names)
-    n_draws = noise.shape[0]
-    cols = n_p + len(x_idx)
-    steps = np.empty(cols)
-    steps[:n_p] = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-    steps[n_p:] = 1e-6 * np.maximum(np.abs(x0[x_idx]), 1.0)
-    batch = 1 + cols + n_draws
-    P = {n: np.full(batch, theta[j]) for j, n in enumerate(names)}
-    X0 = np.repeat(x0[None, :], batch, axis=0)
-    for j in range(cols):
-        if j < n_p:
-            P[names[j]][1 + j] += steps[j]
-        else:
-            X0[1 + j, x_idx[j - n_p]] += steps[j]
-    U = np.repeat(controls[None], batch, axis=0)
-    U[1 + cols :] += noise
-    sim = model.simulate_batch(t, U, X0, P, method="rk4", substeps=substeps)
-    if not np.all(sim.ok):
-        return np.zeros((cols, 0)), None
-    y = np.asarray(sim.outputs)[:, :, out_idx] * weight[None, None, :]
-    jw = ((y[1 : 1 + cols] - y[:1]) / steps[:, None, None]).reshape(cols, -1)
-    return jw, y[1 + cols :] - y[:1]
-
-
-def _input_noise_covariance(
-    model: Any,
-    t: FloatArray,
-    controls: FloatArray,
-    fit: Any,
-    names: list[str],
-    free_x0: list[str],
-    out_idx: list[int],
-    sigma: Mapping[str, float],
-    *,
-    n_draws: int,
-    seed: int,
-    substeps: int,
-) -> FloatArray:
-    """Covariance of the estimates that white input noise causes (see `check_compatibility`)."""
-    n_p = len(names)
-    # the measured stand-ins for states are not integrated: no share of theirs here
-    scale = np.array([sigma[c] for c in INPUT_CHANNELS] + [0.0] * len(_MEASURED))
-    if not np.any(scale > 0):
-        return np.zeros((n_p, n_p))
-    theta = np.array([fit.parameters[n] for n in names])
-    x0 = np.array([fit.initial_states[0][s] for s in STATES])
-    x_idx = [STATES.index(s) for s in free_x0]
-    variance = np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None)
-    # Compiled: exact to first order, by the adjoint of the linearised kinematics.
-    params = dict(model.parameters)
-    params.update(zip(names, theta.tolist(), strict=True))
-    inverse = np.zeros(len(OUTPUT_CHANNELS))
-    inverse[out_idx] = 1.0 / variance
-    got = _compiled.input_noise_scatter(
-        model, t, controls, x0, params, names, x_idx, substeps, inverse, scale
-    )
-    if got is not None:
-        _, sens, scatter = got
-        if not (np.all(np.isfinite(sens)) and np.all(np.isfinite(scatter))):
-            return np.zeros((n_p, n_p))
-        jac = sens[:, out_idx, :] / np.sqrt(variance)[None, :, None]
-        flat = jac.reshape(-1, jac.shape[2])
-        info = flat.T @ flat
-    else:
-        # Without the compiled path: the scatter of `n_draws` simulated draws.
-        weight = 1.0 / np.sqrt(variance)
-        rng = np.random.default_rng(seed)
-        noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
-        jw, dy = _difference_response(
-            model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
-        )
-        if dy is None:
-            return np.zeros((n_p, n_p))
-        info = jw @ jw.T
-        gradients = jw @ dy.reshape(n_draws, -1).T
-        scatter = gradients @ gradients.T / n_draws
-    # the estimate shifts (J' W J)^-1 J' W dy: their covariance
-    half = np.linalg.lstsq(info, scatter, rcond=1e-12)[0]
-    cov = np.linalg.lstsq(info, half.T, rcond=1e-12)[0]
-    return np.asarray(cov[:n_p, :n_p], dtype=np.float64)
 
 
 @small_blas
@@ -1106,176 +666,6 @@ def check_compatibility(
         tuple(s for s in STATES if s in held_in),
         {o: pivots[o] for o in outputs},
     )
-
-
-def _rewarn(caught: list[warnings.WarningMessage], names: list[str]) -> None:
-    """The fit's warnings again, from here; an output drift is told in this function's
-    terms (an offset to estimate, not an output bias of `identify`)."""
-    for w in caught:
-        drift = w.message
-        if not isinstance(drift, ResidualDriftWarning):
-            warnings.warn(w.message, w.category, stacklevel=4)
-            continue
-        offsets = [f"b_{o}" for o in drift.outputs if f"b_{o}" not in names]
-        warnings.warn(
-            ResidualDriftWarning(
-                f"check_compatibility: the residuals of {list(drift.outputs)} drift like a "
-                "random walk over the record; their unknown offsets widen the error bars up "
-                f"to {drift.widening:.0f}x the white ones"
-                + (f" (estimate={offsets} absorbs them)" if offsets else ""),
-                drift.outputs,
-                drift.widening,
-            ),
-            stacklevel=4,  # here, check_compatibility, its BLAS wrapper, the caller
-        )
-
-
-def _fitted_outputs(outputs: Sequence[str] | None, present: Mapping[str, str]) -> list[str]:
-    """The outputs to fit, in `OUTPUT_CHANNELS` order."""
-    if outputs is None:
-        return [o for o in OUTPUT_CHANNELS if o in present]
-    names = [outputs] if isinstance(outputs, str) else outputs
-    try:
-        names = list(names)
-    except TypeError:
-        raise IdentificationError(
-            f"outputs: expected a list of output names, got {plain(outputs)}"
-        ) from None
-    for o in names:
-        if o not in OUTPUT_CHANNELS:
-            raise IdentificationError(
-                f"outputs: {o!r} is not an output; outputs: {list(OUTPUT_CHANNELS)}"
-            )
-        if o not in present:
-            raise ChannelError(f"outputs: {o!r} is not in the flight data")
-    if not names:
-        raise IdentificationError("outputs: name at least one output to fit")
-    return [o for o in OUTPUT_CHANNELS if o in names]
-
-
-_STAND_IN_SOURCES = {
-    "u": ("V", "alpha"),
-    "v": ("V", "alpha"),
-    "w": ("V", "alpha"),
-    "phi": ("phi",),
-    "theta": ("theta",),
-    "psi": ("psi",),
-    "h": ("h",),
-}
-
-
-def _measured_state_names(states: Sequence[str], present: Mapping[str, str]) -> set[str]:
-    names = [states] if isinstance(states, str) else states
-    try:
-        names = list(names)
-    except TypeError:
-        raise IdentificationError(
-            f"measured_states: expected a list of state names, got {plain(states)}"
-        ) from None
-    for s in names:
-        if s not in STATES:
-            raise IdentificationError(
-                f"measured_states: {s!r} is not a state; states: {list(STATES)}"
-            )
-        lacking = [c for c in _STAND_IN_SOURCES[s] if c not in present]
-        if lacking:
-            raise ChannelError(
-                f"measured_states: state {s!r} needs the channel(s) {lacking}, which the data lack"
-            )
-    return set(names)
-
-
-def _free_states(choice: bool | Sequence[str], seen: list[str]) -> list[str]:
-    """The initial states to estimate."""
-    if isinstance(choice, bool):
-        return list(seen) if choice else []
-    names = [choice] if isinstance(choice, str) else choice
-    try:
-        names = list(names)
-    except TypeError:
-        raise IdentificationError(
-            f"estimate_x0: expected True, False or a list of state names, got {plain(choice)}"
-        ) from None
-    for s in names:
-        if s not in STATES:
-            raise IdentificationError(f"estimate_x0: {s!r} is not a state; states: {list(STATES)}")
-    return [s for s in STATES if s in names]
-
-
-def _first_values(t: FloatArray, measured: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
-    """Each channel's start, smoothed (a held initial state should not carry one sample's noise)."""
-    from .smoothing import _local_window
-
-    out: dict[str, FloatArray] = {}
-    steps = np.diff(t)
-    uniform = t.size >= 16 and float(np.ptp(steps)) <= 1e-6 * float(np.mean(steps))
-    for o, y in measured.items():
-        first = float(y[0])
-        if uniform:
-            # smooth(y, method="local")[0] (Savitzky-Golay of degree 3, its end value
-            # from the cubic through the first window) without importing scipy.signal
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                w = _local_window(y, float(np.mean(steps)), 0, 3, o)
-                coef = np.polyfit(np.arange(w, dtype=np.float64), y[:w], 3)
-            first = float(coef[-1])
-        out[o] = np.array([first])
-    return out
-
-
-def _states_from(
-    measured: Mapping[str, FloatArray], values: Mapping[str, float]
-) -> dict[str, FloatArray]:
-    """The states as the air data, attitude and altitude channels give them, with the
-    known sensor errors removed; ground velocity = air velocity + the wind, in body axes."""
-    n = next(iter(measured.values())).size
-
-    def get(o: str) -> FloatArray:
-        if o not in measured:
-            return np.zeros(n)
-        y = measured[o]
-        return np.asarray((y - values[f"b_{o}"]) / (1.0 + values[f"k_{o}"]), dtype=np.float64)
-
-    V, alpha, beta = get("V"), get("alpha"), get("beta")
-    phi, theta, psi = get("phi"), get("theta"), get("psi")
-    sphi, cphi, sth, cth = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
-    spsi, cpsi = np.sin(psi), np.cos(psi)
-    along = cpsi * values["w_n"] + spsi * values["w_e"]
-    across = cpsi * values["w_e"] - spsi * values["w_n"]
-    wx = cth * along - sth * values["w_d"]
-    wy = sphi * sth * along + cphi * across + sphi * cth * values["w_d"]
-    wz = cphi * sth * along - sphi * across + cphi * cth * values["w_d"]
-    return {
-        "u": V * np.cos(alpha) * np.cos(beta) + wx,
-        "v": V * np.sin(beta) + wy,
-        "w": V * np.sin(alpha) * np.cos(beta) + wz,
-        "phi": phi,
-        "theta": theta,
-        "psi": psi,
-        "h": get("h"),
-    }
-
-
-def _start_state(
-    first: Mapping[str, FloatArray],
-    values: Mapping[str, float],
-    x0: Mapping[str, float] | None,
-) -> dict[str, float]:
-    """Initial state from the (smoothed) first samples with the start sensor errors removed."""
-    state = {s: float(v[0]) for s, v in _states_from(first, values).items()}
-    if x0 is not None:
-        if not isinstance(x0, Mapping):
-            raise IdentificationError(f"x0: expected a mapping state -> value, got {plain(x0)}")
-        for s, v in x0.items():
-            if s not in state:
-                raise IdentificationError(f"x0: unknown state {s!r}; states: {list(STATES)}")
-            try:
-                state[s] = float(v)
-            except (TypeError, ValueError):
-                raise IdentificationError(f"x0[{s!r}]: expected a number, got {plain(v)}") from None
-            if not math.isfinite(state[s]):
-                raise IdentificationError(f"x0[{s!r}]: value {state[s]!r} is not finite")
-    return state
 
 
 def _result(
