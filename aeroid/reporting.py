@@ -248,6 +248,13 @@ def report_figures(
     for label, result in named.items():
         if result is not None and hasattr(result, "plot"):
             figs[label] = result.plot()
+    if validation is not None and getattr(validation, "residuals", None) is not None:
+        from .plotting import plot_residual_autocorrelation
+
+        figs["residual_autocorrelation"] = plot_residual_autocorrelation(validation)
+        held = getattr(validation, "prediction", None)
+        if held is not None:
+            figs["prediction"] = held.plot()
     if inference is not None and hasattr(inference, "plot_traces"):
         figs["posterior_traces"] = inference.plot_traces()
     return figs
