@@ -10,6 +10,7 @@ or for a second record.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -19,13 +20,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
+from ._threads import CALLER_STACKLEVEL
 from .data import FlightData, plain
-from .errors import IdentificationError
+from .errors import IdentifiabilityWarning, IdentificationError
 
 FloatArray = NDArray[np.float64]
 
 # Fewer held-out samples than this say nothing about a model's dynamics.
 MIN_HOLDOUT_SAMPLES = 10
+# total RMS over noise RMS at which the response's variance equals the noise's
+_EXCITED = math.sqrt(2.0)
+
+
+def _response_to_noise(y: FloatArray) -> float:
+    """RMS of `y` about its mean over its noise RMS, the noise estimated from first
+    differences: white noise of variance s^2 gives differences of variance 2 s^2,
+    a response slow against the sample rate next to none."""
+    noise = float(np.std(np.diff(y))) / math.sqrt(2.0)
+    spread = float(np.std(y))
+    return spread / noise if noise > 0 else (math.inf if spread > 0 else 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,6 +82,13 @@ class PredictionResult:
     in_fit : bool
         True when the held-out window lies in a record the parameters were
         fitted to: then the prediction is no independent check.
+    response_to_noise : mapping of str to float
+        Per output, the measured output's RMS about its mean over its noise RMS,
+        estimated model-free from first differences (``std(diff y) / sqrt 2``,
+        exact for white noise on a response slow against the sample rate).
+        Below sqrt 2 on every output (the response's variance below the
+        noise's) the held-out data holds no manoeuvre and its metrics measure
+        noise: a warning says so.
     """
 
     metrics: Mapping[str, PredictionMetrics]
@@ -79,9 +99,19 @@ class PredictionResult:
     source: str
     units: Mapping[str, str] = field(default_factory=dict)
     in_fit: bool = False
+    response_to_noise: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def excited(self) -> bool:
+        """False when no output's measured response stands out of its noise."""
+        ratios = self.response_to_noise.values()
+        return not ratios or any(v >= _EXCITED for v in ratios)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "metrics", MappingProxyType(dict(self.metrics)))
+        object.__setattr__(
+            self, "response_to_noise", MappingProxyType(dict(self.response_to_noise))
+        )
         for name in ("time", "measured", "predicted"):
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
         object.__setattr__(self, "output_names", tuple(self.output_names))
@@ -110,6 +140,11 @@ class PredictionResult:
             if self.in_fit
             else ""
         )
+        if not self.excited:
+            caveat += (
+                " **Not excited: no output's measured response stands out of its noise; "
+                "the metrics measure noise.**"
+            )
         return (
             f"Prediction of held-out data ({self.source}, {self.time.size} samples), "
             f"parameters fixed, start from its measured state.{caveat}\n\n"
@@ -218,6 +253,17 @@ def predict(
     y_hat = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in outputs])
     y = record.array(list(outputs))
     metrics = {o: prediction_metrics(y[:, j], y_hat[:, j]) for j, o in enumerate(outputs)}
+    ratios = {o: _response_to_noise(y[:, j]) for j, o in enumerate(outputs)}
+    if ratios and all(v < _EXCITED for v in ratios.values()):
+        listing = ", ".join(f"{n!r} {v:.2g}" for n, v in ratios.items())
+        warnings.warn(
+            f"validate: the held-out data ({source}) is not excited: on no output does the "
+            "measured response's variance exceed its sample-to-sample noise's (RMS over "
+            f"noise RMS, below {_EXCITED:.3g}: {listing}); the prediction metrics measure "
+            "noise. Hold out a window that holds a manoeuvre",
+            IdentifiabilityWarning,
+            stacklevel=CALLER_STACKLEVEL + 1,
+        )
     return PredictionResult(
         metrics=metrics,
         time=record.time,
@@ -227,4 +273,5 @@ def predict(
         source=source,
         units={k: v for k, v in units.items() if k in outputs},
         in_fit=in_fit,
+        response_to_noise=ratios,
     )

@@ -12,7 +12,11 @@ from aeroid.validation import ljung_box
 
 
 def _validation(**kw):
-    data = catalog.short_period_flight(duration=20.0, seed=3)
+    t = np.arange(1001) / 50.0  # a doublet at 1 s and another at 13 s, in the held-out part
+    de = catalog.doublet(t, start=1.0, width=1.0, amplitude=0.05) + catalog.doublet(
+        t, start=13.0, width=1.0, amplitude=0.05
+    )
+    data = catalog.short_period_flight(duration=20.0, seed=3, elevator=de)
     return validate(catalog.short_period(catalog.SHORT_PERIOD_TRUTH), data, None, **kw)
 
 

@@ -8,6 +8,7 @@ import pytest
 from aeroid import FlightData, IdentificationError, catalog, identify, validate
 from aeroid._prediction import prediction_metrics
 from aeroid.aircraft import lateral_linear
+from aeroid.errors import IdentifiabilityWarning
 
 LATERAL = {
     "Y_beta": -0.15,
@@ -168,3 +169,39 @@ def test_a_window_of_the_fitted_record_is_marked_as_no_independent_check():
     held = validate(catalog.short_period(), data, part, holdout={"fraction": 0.4})
     assert held.prediction is not None and not held.prediction.in_fit
     assert "no independent check" not in held.summary()
+
+
+def test_an_unexcited_held_out_window_warns_and_is_marked():
+    # the default record's doublet ends at 3 s: 12-20 s is the trim and noise
+    data = catalog.short_period_flight(duration=20.0, seed=3)
+    truth = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
+    with pytest.warns(IdentifiabilityWarning, match=r"held-out data \(window \[12, 20\] s\)"):
+        v = validate(truth, data, None, holdout={"t0": 12.0, "t1": 20.0})
+    assert v.prediction is not None and not v.prediction.excited
+    assert all(r < np.sqrt(2.0) for r in v.prediction.response_to_noise.values())
+    assert "Not excited" in v.summary()
+    excited = validate(truth, _short_period_record(0), None, holdout={"t0": 10.0, "t1": 20.0})
+    assert excited.prediction is not None and excited.prediction.excited
+
+
+def test_the_validate_stage_takes_a_held_out_window_or_fraction():
+    from pydantic import ValidationError
+
+    from aeroid.pipeline.library_stages import ValidateOptions
+
+    opts = ValidateOptions(holdout={"t0": 12.0, "t1": 20.0})
+    assert opts.library_kwargs() == {"holdout": {"t0": 12.0, "t1": 20.0}}
+    assert ValidateOptions(holdout={"fraction": 0.25}).library_kwargs() == {
+        "holdout": {"fraction": 0.25}
+    }
+    assert ValidateOptions().library_kwargs() == {}
+    for bad, says in (
+        ({"t0": 1.0}, "needs both t0 and t1"),
+        ({"t0": 2.0, "t1": 1.0}, "t1 > t0"),
+        ({"fraction": 0.2, "t1": 3.0}, "not both"),
+        ({"fraction": 1.2}, "fraction"),
+        ({"start": 1.0}, "start"),
+        ({}, "give t0 and t1"),
+    ):
+        with pytest.raises(ValidationError, match=says):
+            ValidateOptions(holdout=bad)
