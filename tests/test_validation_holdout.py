@@ -205,3 +205,21 @@ def test_the_validate_stage_takes_a_held_out_window_or_fraction():
     ):
         with pytest.raises(ValidationError, match=says):
             ValidateOptions(holdout=bad)
+
+
+def test_a_campaign_config_with_a_bad_holdout_names_the_option(tmp_path):
+    from pathlib import Path
+
+    from aeroid.errors import ConfigError
+    from aeroid.pipeline import load_config, plan
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    text = (root / "short_period.yaml").read_text(encoding="utf-8")
+    assert "    whiteness_lags: 20\n" in text
+    text = text.replace(
+        "    whiteness_lags: 20\n", "    whiteness_lags: 20\n    holdout: {t0: 5.0}\n"
+    )
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(text.replace("store: ", f"store: {tmp_path}/store #"), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"stages\.validate\.holdout: .*needs both t0 and t1"):
+        plan(load_config(cfg))
