@@ -223,3 +223,24 @@ def test_a_campaign_config_with_a_bad_holdout_names_the_option(tmp_path):
     cfg.write_text(text.replace("store: ", f"store: {tmp_path}/store #"), encoding="utf-8")
     with pytest.raises(ConfigError, match=r"stages\.validate\.holdout: .*needs both t0 and t1"):
         plan(load_config(cfg))
+
+
+def test_the_fits_output_bias_applies_on_a_window_of_its_record_only():
+    data = _short_period_record(2)
+    offset = 0.01  # a sensor bias on alpha, estimated by the fit
+    biased = data.with_channels({"alpha": data["alpha"] + offset})
+    names = list(catalog.SHORT_PERIOD_TRUTH)
+    fit = identify(catalog.short_period(), biased, names, estimate_bias=["alpha"])
+    window = validate(catalog.short_period(), biased, fit, holdout={"fraction": 0.5})
+    assert window.prediction is not None
+    n = window.prediction.time.size
+    miss = window.prediction.measured[:, 0] - window.prediction.predicted[:, 0]
+    # the bias removed: the mean error within 4 standard errors of the noise
+    assert abs(miss.mean()) < 4 * SP_NOISE["alpha"] / np.sqrt(n)
+    # a second record (another fingerprint) starts without the fit's biases
+    other = FlightData(biased.time + 100.0, dict(biased.channels), dict(biased.units))
+    second = validate(catalog.short_period(), biased, fit, holdout=other)
+    assert second.prediction is not None
+    gap = second.prediction.measured[:, 0] - second.prediction.predicted[:, 0]
+    # (less the start's transient: the measured alpha(0) it starts from holds the offset)
+    assert 0.8 * offset < gap.mean() < offset + 4 * SP_NOISE["alpha"] / np.sqrt(gap.size)
