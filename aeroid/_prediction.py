@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from ._records import fmt, frozen_array, markdown_table
 from ._threads import CALLER_STACKLEVEL
-from .data import FlightData, plain
+from .data import FlightData, measured_start, plain
 from .errors import IdentifiabilityWarning, IdentificationError
 
 FloatArray = NDArray[np.float64]
@@ -248,7 +248,10 @@ def predict(
     `record` from its measured initial state, and score it against `record`."""
     record.require(list(outputs), role="output")
     names = list(model.outputs)
-    sim = model.simulate_data(flown, x0=None, parameters=p, **opts)
+    # the measured state at the first held-out sample, less the sensor biases the
+    # fit estimated where they apply (a measured state carries its sensor's bias)
+    x0 = {k: v - biases.get(k, 0.0) for k, v in measured_start(record, model.states).items()}
+    sim = model.simulate_data(flown, x0=x0 or None, parameters=p, **opts)
     idx = [names.index(o) for o in outputs]
     y_hat = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in outputs])
     y = record.array(list(outputs))
