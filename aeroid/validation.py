@@ -256,8 +256,9 @@ def validate(
         window of `data`, ``{"t0": .., "t1": ..}`` in seconds, or its last
         fraction, ``{"fraction": 0.25}``; or a second record (another
         manoeuvre). The model is simulated with the held-out controls from
-        the held-out data's measured state at its first sample (the fit's
-        output biases apply on a window of a record it was fitted to), and
+        the held-out data's measured state at its first sample (on a window
+        of a record it was fitted to, the fit's output biases are added to the
+        outputs and taken off that measured state), and
         ``result.prediction`` holds per-output RMSE, Theil U, R^2 and fit %.
         At least 10 held-out samples are needed.
 
