@@ -23,7 +23,9 @@ __all__ = [
     "plot_frequency_response",
     "plot_identification",
     "plot_posterior",
+    "plot_prediction",
     "plot_propagation",
+    "plot_residual_autocorrelation",
     "plot_sensitivities",
     "plot_time_histories",
     "plot_traces",
@@ -124,6 +126,82 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         ax.set_ylabel(_label(name, unit_of))
         ax.set_title(f"input {name}", fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+def plot_prediction(prediction: Any, *, units: Mapping[str, str] | None = None) -> Figure:
+    """Measured vs predicted outputs on data held out of the fit, one panel per output.
+
+    Each panel's title gives the output's Theil inequality coefficient and R^2.
+    """
+    names = list(prediction.output_names)
+    unit_of = {**dict(getattr(prediction, "units", {}) or {}), **dict(units or {})}
+    fig, axes = _figure(len(names), height=1.9, hgap=0.5, sharex=True)
+    t = prediction.time
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        m = prediction.metrics[name]
+        ax.plot(t, prediction.measured[:, j], color="0.55", lw=1.0, label="measured")
+        ax.plot(t, prediction.predicted[:, j], color="C1", lw=1.4, label="predicted")
+        ax.set_ylabel(_label(name, unit_of))
+        ax.set_title(
+            f"{name} predicted ({prediction.source}): Theil U {m.theil_u:.3f}, "
+            f"R² {m.r_squared:.3f}",
+            fontsize=9,
+            loc="left",
+        )
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+def residual_autocorrelation(residuals: Any, max_lag: int) -> np.ndarray:
+    """Sample autocorrelation of each residual column at lags 0..max_lag, shape (max_lag + 1, n_y)."""
+    e = np.asarray(residuals, dtype=float)
+    e = e - e.mean(axis=0)
+    den = np.sum(e * e, axis=0)
+    n = e.shape[0]
+    r = np.array([np.sum(e[: n - k] * e[k:], axis=0) for k in range(max_lag + 1)])
+    return np.divide(r, den, out=np.zeros_like(r), where=den > 0)
+
+
+def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None) -> Figure:
+    """Each output's residual autocorrelation against lag, with the 95 % band of white
+    noise, ±1.96/sqrt(N): a model that leaves white residuals stays inside it at
+    about 19 lags in 20.
+
+    Lags run to the validation's ``whiteness_lags`` unless `max_lag` is given,
+    along the bottom in samples and, where the sample interval is known, in seconds.
+    """
+    names = list(validation.output_names)
+    e = np.asarray(validation.residuals, dtype=float)
+    n = e.shape[0]
+    if n < 3 or not names:
+        raise IdentificationError("plot_residual_autocorrelation: needs at least 3 residuals")
+    lags = int(max_lag if max_lag is not None else (validation.whiteness_lags or 20))
+    lags = max(1, min(lags, n - 1))
+    r = residual_autocorrelation(e, lags)
+    band = 1.96 / np.sqrt(n)
+    t = np.asarray(validation.time, dtype=float)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    k = np.arange(lags + 1)
+    fig, axes = _figure(len(names), height=1.7, hgap=0.55, sharex=True)
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        ax.fill_between(k, -band, band, color="C0", alpha=0.15, lw=0, label="95 % band")
+        ax.vlines(k[1:], 0.0, r[1:, j], color="C3", lw=1.4)
+        ax.plot(k[1:], r[1:, j], "o", color="C3", ms=3)
+        ax.axhline(0.0, color="k", lw=0.6)
+        outside = int(np.sum(np.abs(r[1:, j]) > band))
+        ax.set_title(
+            f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}",
+            fontsize=9,
+            loc="left",
+        )
+        ax.set_ylabel("r(k)")
+        ax.legend(loc="upper right", fontsize=7)
+    lag_unit = f" ({dt:.3g} s each)" if dt > 0 else ""
+    axes[-1, 0].set_xlabel(f"lag k [samples{lag_unit}]")
     return fig
 
 

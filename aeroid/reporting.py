@@ -106,11 +106,12 @@ def _autocorrelation_table(validation: Any) -> str:
     max_lag = int(min(getattr(validation, "whiteness_lags", 20) or 20, n - 1))
     shown = [k for k in (1, 2, 5, 10, 20) if k <= max_lag]
     band = 1.96 / np.sqrt(n)
+    from .plotting import residual_autocorrelation
+
+    acf = residual_autocorrelation(e, max_lag)
     rows = []
     for j, name in enumerate(names):
-        x = e[:, j] - np.mean(e[:, j])
-        den = float(np.dot(x, x))
-        r = [float(np.dot(x[:-k], x[k:]) / den) if den > 0 else 0.0 for k in range(1, max_lag + 1)]
+        r = [float(v) for v in acf[1:, j]]
         outside = sum(abs(v) > band for v in r)
         rows.append([name, *(f"{r[k - 1]:+.2f}" for k in shown), f"{outside} of {max_lag}"])
     header = ["output", *(f"r({k})" for k in shown), f"lags outside ±{band:.3f}"]
@@ -248,6 +249,13 @@ def report_figures(
     for label, result in named.items():
         if result is not None and hasattr(result, "plot"):
             figs[label] = result.plot()
+    if validation is not None and getattr(validation, "residuals", None) is not None:
+        from .plotting import plot_residual_autocorrelation
+
+        figs["residual_autocorrelation"] = plot_residual_autocorrelation(validation)
+        held = getattr(validation, "prediction", None)
+        if held is not None:
+            figs["prediction"] = held.plot()
     if inference is not None and hasattr(inference, "plot_traces"):
         figs["posterior_traces"] = inference.plot_traces()
     return figs

@@ -11,10 +11,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._prediction import PredictionMetrics, PredictionResult, holdout_record, predict
 from ._records import fmt, frozen_array, markdown_table
 from ._stats import chi2_sf, norm_ppf
 from ._threads import CALLER_STACKLEVEL, small_blas
-from .data import FlightData, plain, whole_number
+from .data import FlightData, fingerprint, plain, whole_number
 from .errors import IdentificationError
 from .model import (
     check_simulate_options,
@@ -24,7 +25,14 @@ from .model import (
     resolve_parameters,
 )
 
-__all__ = ["OutputMetrics", "ValidationResult", "ljung_box", "validate"]
+__all__ = [
+    "OutputMetrics",
+    "PredictionMetrics",
+    "PredictionResult",
+    "ValidationResult",
+    "ljung_box",
+    "validate",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -116,6 +124,8 @@ class ValidationResult:
     units : mapping of str to str
         Units of the outputs and controls: the flight data's, else those the
         model declares (``channel_units`` of the `aeroid.aircraft` models).
+    prediction : PredictionResult or None
+        The model's prediction of held-out data (`validate`'s `holdout`).
     """
 
     metrics: Mapping[str, OutputMetrics]
@@ -129,6 +139,7 @@ class ValidationResult:
     control_names: tuple[str, ...] = ()
     controls: FloatArray | None = None
     units: Mapping[str, str] = field(default_factory=dict)
+    prediction: PredictionResult | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "metrics", MappingProxyType(dict(self.metrics)))
@@ -169,10 +180,13 @@ class ValidationResult:
                     f"{fmt(corr, 3)}{' (!)' if m.input_correlated else ''}",
                 )
             )
-        return markdown_table(
+        table = markdown_table(
             ("output", "RMSE", f"bias [{pct} CI]", "fit %", "white residuals", "max xcorr(e, u)"),
             rows,
         )
+        if self.prediction is not None:
+            table += "\n\n" + self.prediction.summary()
+        return table
 
 
 def _effective_samples(e: FloatArray) -> float:
@@ -208,6 +222,7 @@ def validate(
     confidence: float = 0.95,
     whiteness_lags: int | None = None,
     simulate_options: Mapping[str, Any] | None = None,
+    holdout: Mapping[str, float] | FlightData | None = None,
 ) -> ValidationResult:
     """Compare the model's simulation with measured outputs.
 
@@ -236,6 +251,16 @@ def validate(
     simulate_options : mapping, optional
         Passed to the simulation; default ``{"method": "auto"}`` for a `Model`,
         the integrator `identify` uses.
+    holdout : mapping or FlightData, optional
+        Data not used in the fit, to predict with the parameters fixed: a
+        window of `data`, ``{"t0": .., "t1": ..}`` in seconds, or its last
+        fraction, ``{"fraction": 0.25}``; or a second record (another
+        manoeuvre). The model is simulated with the held-out controls from
+        the held-out data's measured state at its first sample (on a window
+        of a record it was fitted to, the fit's output biases are added to the
+        outputs and taken off that measured state), and
+        ``result.prediction`` holds per-output RMSE, Theil U, R^2 and fit %.
+        At least 10 held-out samples are needed.
 
     Returns
     -------
@@ -246,7 +271,8 @@ def validate(
     IdentificationError
         Bad arguments, such as a `whiteness_lags` that is not a positive integer,
         an empty `outputs`, unknown or invalid `simulate_options`, or a record
-        of fewer than 3 samples.
+        of fewer than 3 samples, or a `holdout` window outside the record or
+        too short.
     ChannelError
         A control or output is missing from the data.
     """
@@ -329,6 +355,27 @@ def validate(
             input_correlated=bool(any(v > bound for v in xc.values())),
             effective_samples=n_eff,
         )
+    units = {
+        k: v
+        for k, v in {**dict(getattr(model, "channel_units", {}) or {}), **data.units}.items()
+        if k in chosen or k in model.controls
+    }
+    prediction = None
+    if holdout is not None:
+        record, source, window = holdout_record(data, holdout)
+        prediction = predict(
+            model,
+            record,
+            p,
+            chosen,
+            delayed_controls(parameters, record),
+            biases if window else {},
+            opts,
+            source,
+            units,
+            in_fit=window
+            and fingerprint(data) in tuple(getattr(parameters, "data_fingerprints", ()) or ()),
+        )
     return ValidationResult(
         metrics=metrics,
         time=data.time,
@@ -341,9 +388,6 @@ def validate(
         control_names=tuple(model.controls),
         controls=data.array(list(model.controls)) if model.controls else None,
         # the record's own units, else those the model declares (the aircraft models)
-        units={
-            k: v
-            for k, v in {**dict(getattr(model, "channel_units", {}) or {}), **data.units}.items()
-            if k in chosen or k in model.controls
-        },
+        units=units,
+        prediction=prediction,
     )

@@ -29,7 +29,9 @@ FLAGS = [
     "--disable-sync",
 ]
 N_FLIGHTS = 3
-PER_FLIGHT = 5  # time histories, identification, filter, Bode, posterior
+# time histories, residual autocorrelation, held-out prediction, identification,
+# filter, Bode, posterior
+PER_FLIGHT = 7
 
 # Once the page has loaded: where the first image sits (before anything is unfolded),
 # then unfold every flight and wait for every image, and write the verdict.
@@ -171,6 +173,10 @@ def campaign(tmp_path_factory):
     # the Bode plot's model curve: the exact transfer function linearised at the trim
     config = config.replace("    nperseg: 256", "    nperseg: 256\n    model_response: exact")
     config = config.replace("n_samples: 2000", "n_samples: 200")
+    # predict the record's last quarter: the report's prediction figure and table
+    config = config.replace(
+        "    whiteness_lags: 20", "    whiteness_lags: 20\n    holdout: {fraction: 0.25}"
+    )
     cfg = work / "demo.yaml"
     cfg.write_text(config, encoding="utf-8")
     run = _cli(cfg)
@@ -192,8 +198,18 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
         assert f'href="#{anchor}"' in html
         assert body.count('src="data:image/png;base64,') == PER_FLIGHT
         assert "<table>" in body  # the flight's tables beside its figures
-        for label in ("model outputs", "residuals", "filtered states", "Bode", "posterior"):
+        for label in (
+            "model outputs",
+            "residuals",
+            "residual autocorrelation, 95 % band",
+            "prediction of the held-out manoeuvre",
+            "filtered states",
+            "Bode",
+            "posterior",
+        ):
             assert label in body
+        # the prediction's metrics beside its figure, and the autocorrelation table kept
+        assert "Theil U" in body and "Residual autocorrelation at lags" in body
     headers = re.search(r"<table>\n<tr>(.*?)</tr>", html).group(1)
     assert "<th>fit</th>" in headers and "<th>status</th>" in headers
     # the propagated metric by name and unit, its spread labelled 1 sigma
@@ -296,6 +312,8 @@ def test_every_figure_labels_its_axes_with_units(campaign):
     figures = flight_figures(records)
     assert [label for label, _ in figures] == [
         "time_histories",
+        "residual_autocorrelation",
+        "prediction",
         "identification",
         "filter_states",
         "bode",

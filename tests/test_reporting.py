@@ -49,10 +49,15 @@ def test_report_with_figures_writes_pngs_and_self_contained_html(tmp_path):
     text = report(v, r, mc, path=first)
     report(*_chain(), path=second)
     pngs = sorted(p.name for p in (first.parent / "flight_figures").iterdir())
-    assert pngs == ["identification.png", "propagation.png", "time_histories.png"]
+    assert pngs == [
+        "identification.png",
+        "propagation.png",
+        "residual_autocorrelation.png",
+        "time_histories.png",
+    ]
     assert "![time_histories](flight_figures/time_histories.png)" in text
     html = first.with_suffix(".html").read_text(encoding="utf-8")
-    assert html.count('src="data:image/png;base64,') == 3 and "<table>" in html
+    assert html.count('src="data:image/png;base64,') == 4 and "<table>" in html
     # identical inputs give identical bytes, images included
     assert first.with_suffix(".html").read_bytes() == second.with_suffix(".html").read_bytes()
     assert not [p for p in first.parent.iterdir() if p.name.startswith(".tmp")]

@@ -113,6 +113,12 @@ def _campaign_brief(role: str, record: Any) -> Any:
 # The figures of each flight, drawn from its records: (role, file label, title).
 _FLIGHT_FIGURES = (
     ("validation", "time_histories", "measured and model outputs, inputs underneath"),
+    (
+        "validation",
+        "residual_autocorrelation",
+        "residual autocorrelation, 95 % band of white noise",
+    ),
+    ("validation", "prediction", "prediction of the held-out manoeuvre, measured vs predicted"),
     ("identification", "identification", "residuals and estimates (95 % bars)"),
     ("filtering", "filter_states", "filtered states and measurements"),
     ("frequency", "bode", "Bode plot and coherence"),
@@ -176,11 +182,21 @@ def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
     Every figure labels its axes with the units of the flight's channels and of
     the model's parameters.
     """
+    from ..plotting import plot_residual_autocorrelation
+
     units = _flight_units(records)
     out = []
     for role, label, _ in _FLIGHT_FIGURES:
         rec = records.get(role)
         if rec is None or not hasattr(rec, "plot"):
+            continue
+        if label == "residual_autocorrelation":
+            out.append((label, plot_residual_autocorrelation(rec)))
+            continue
+        if label == "prediction":
+            held = getattr(rec, "prediction", None)  # only where the flight held data out
+            if held is not None:
+                out.append((label, held.plot(units=units)))
             continue
         kw: dict[str, Any] = {"units": units}
         if role == "filtering":
@@ -424,8 +440,9 @@ register_stage(
         # 7: data-quality flags in the status, handling qualities across flights;
         # 8: handling-qualities Levels and right-half-plane zeros named; 9: estimates
         # transposed and split to fit a page, 1σ labelled, poor-fit and error flags,
-        # flights worst first and open for printing
-        "9",
+        # flights worst first and open for printing; 10: residual autocorrelation
+        # and held-out prediction figures per flight
+        "10",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

@@ -126,13 +126,37 @@ def _run_filter(ctx: StageContext) -> Any:
     )
 
 
+class HoldoutSpec(Options):
+    """Data held out of the fit, predicted by `validate`: a window ``t0``..``t1``
+    (seconds) of the flight's record, or its last ``fraction``."""
+
+    t0: float | None = None
+    t1: float | None = None
+    fraction: float | None = Field(None, gt=0, lt=1)
+
+    @model_validator(mode="after")
+    def _one_form(self) -> HoldoutSpec:
+        window = self.t0 is not None or self.t1 is not None
+        if window and self.fraction is not None:
+            raise ValueError("give either t0 and t1, or fraction, not both")
+        if window and (self.t0 is None or self.t1 is None):
+            raise ValueError("a held-out window needs both t0 and t1")
+        if not window and self.fraction is None:
+            raise ValueError("give t0 and t1 (seconds), or fraction (the record's last part)")
+        if self.t0 is not None and self.t1 is not None and not self.t1 > self.t0:
+            raise ValueError(f"need t1 > t0, got t0={self.t0:g}, t1={self.t1:g}")
+        return self
+
+
 class ValidateOptions(
     library_fields(  # type: ignore[misc]  # a generated base
         "aeroid.validation:validate",
         "confidence",
         "whiteness_lags",
+        "holdout",
         confidence=Field(None, gt=0, lt=1),
         whiteness_lags=Field(None, ge=1),
+        holdout=(HoldoutSpec | None, Field(None)),
     )
 ):
     """`aeroid.validate` keywords."""
@@ -525,7 +549,9 @@ for _stage in (
     Stage("filter", "2", FilterOptions, "FilterResult", _run_filter),
     Stage(
         "validate",
-        "2",  # 2: units the model declares where the record gives none
+        # 2: units the model declares where the record gives none;
+        # 3: the prediction of held-out data (`holdout`) in the result
+        "3",
         ValidateOptions,
         "ValidationResult",
         _run_validate,
