@@ -256,8 +256,7 @@ def test_the_line_counter_sees_a_long_module():
 
 @pytest.mark.xfail(
     strict=False,
-    reason="issue 50: splits pending for logs, model, identification, data, "
-    "_compiled, _integrate",
+    reason="issue 50: splits pending for logs, model, identification, data, _compiled, _integrate",
 )
 def test_no_module_exceeds_800_lines():
     assert long_modules() == {}

@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any, ClassVar, Literal
 
 from pydantic import AliasChoices, Field, field_validator, model_validator
@@ -21,8 +20,9 @@ from pydantic import AliasChoices, Field, field_validator, model_validator
 from ..errors import AeroidError, PipelineError
 from .config import Options
 from .load_stage import LoadOptions, flight_data, record_start
+from .metrics import METRICS, damping_ratio, metric, natural_frequency, static_margin
 from .signature_options import library_fields
-from .stages import FlightReport, Stage, StageContext, register_stage, resolve_callable
+from .stages import FlightReport, Stage, StageContext, register_stage
 
 __all__ = [
     "METRICS",
@@ -173,29 +173,6 @@ def _run_validate(ctx: StageContext) -> Any:
 # -- propagate ------------------------------------------------------------------------
 
 
-def natural_frequency(p: Mapping[str, float]) -> float:
-    """Short-period undamped natural frequency sqrt(M_q Z_alpha - M_alpha), rad/s."""
-    return math.sqrt(p["M_q"] * p["Z_alpha"] - p["M_alpha"])
-
-
-def damping_ratio(p: Mapping[str, float]) -> float:
-    """Short-period damping ratio -(Z_alpha + M_q) / (2 omega_n)."""
-    return -(p["Z_alpha"] + p["M_q"]) / (2.0 * natural_frequency(p))
-
-
-def static_margin(p: Mapping[str, float]) -> float:
-    """Static margin -Cm_alpha / CL_alpha, in mean aerodynamic chords (stick fixed: the
-    neutral point's distance behind the centre of gravity)."""
-    return -p["Cm_alpha"] / p["CL_alpha"]
-
-
-METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
-    "natural_frequency": natural_frequency,
-    "damping_ratio": damping_ratio,
-    "static_margin": static_margin,
-}
-
-
 class PropagateOptions(
     library_fields(  # type: ignore[misc]  # a generated base
         "aeroid.propagation:propagate",
@@ -217,24 +194,11 @@ class PropagateOptions(
     code_fields: ClassVar[frozenset[str]] = frozenset({"metric"})
 
 
-def _metric(name: str) -> Callable[[Mapping[str, float]], float]:
-    if name in METRICS:
-        return METRICS[name]
-    if ":" not in name:
-        raise PipelineError(
-            f"propagate metric {name!r}: expected one of {sorted(METRICS)} or 'package.module:function'"
-        )
-    fn = resolve_callable(name, what="propagate metric")
-    if not callable(fn):
-        raise PipelineError(f"propagate metric {name!r} is not callable")
-    return fn
-
-
 def _run_propagate(ctx: StageContext) -> Any:
     from ..propagation import propagate
 
     kw = _kwargs(ctx.options, "metric", "n_batches")
-    return propagate(ctx.inputs["result"], _metric(ctx.options.metric), seed=ctx.seed_int(0), **kw)
+    return propagate(ctx.inputs["result"], metric(ctx.options.metric), seed=ctx.seed_int(0), **kw)
 
 
 def _n_draws(options: Any) -> int:
@@ -254,11 +218,9 @@ def _run_propagate_part(ctx: StageContext, index: int) -> Any:
 
     n, k = _n_draws(ctx.options), _propagate_parts(ctx.options, frozenset(ctx.inputs))
     start, stop = index * n // k, (index + 1) * n // k
-    metric = _metric(ctx.options.metric)
+    fn = metric(ctx.options.metric)
     result = ctx.inputs["result"]
-    return propagate_batch(
-        result, metric, start=start, n_samples=stop - start, seed=ctx.seed_int(0)
-    )
+    return propagate_batch(result, fn, start=start, n_samples=stop - start, seed=ctx.seed_int(0))
 
 
 def _combine_propagate(ctx: StageContext, parts: list[Any]) -> Any:
