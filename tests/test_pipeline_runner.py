@@ -53,13 +53,17 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     assert rec.figure_titles == (
         "campaign_trend_0.png",
         "campaign_trend_1.png",
-        *(f"sim-{i}_{f}.png" for i in range(3) for f in ("time_histories", "identification")),
+        *(
+            f"sim-{i}_{f}.png"
+            for i in range(3)
+            for f in ("time_histories", "residual_autocorrelation", "identification")
+        ),
     )
     for png in rec.figures:
         assert png.dtype == np.uint8 and not png.flags.writeable
         assert png[:8].tobytes() == PNG
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
-    assert html.count("data:image/png;base64,") == 2 + 3 * 2
+    assert html.count("data:image/png;base64,") == 2 + 3 * 3
     assert f"aeroid campaign report {report.key}" in html
     # the text written by its own part is the text of the unsplit report
     plain_dir = tmp_path / "plain"
@@ -217,7 +221,7 @@ def test_detailed_figures_fall_back_to_the_first_identified_flight(tmp_path):
     assert "f01: measured and model outputs" in html and "f01: residuals" in html
     assert "f02: measured and model outputs" in html
     assert "f00: measured and model outputs" not in html
-    assert html.count("data:image/png;base64,") == 2 + 2 * 2  # and the trend's two halves
+    assert html.count("data:image/png;base64,") == 2 + 2 * 3  # and the trend's two halves
     assert "estimates across flights (1)" in html and "estimates across flights (2)" in html
 
 

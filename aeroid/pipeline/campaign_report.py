@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import AeroidError, ConfigError
 from ._campaign_tables import (
+    condition_text,
     estimate_tables,
     fit_whiteness,
     html_report,
@@ -48,17 +49,6 @@ class CampaignReportOptions(Options):
     title: str | None = None
     include_flight_reports: bool = True
     figures: bool = True
-
-
-_CONDITIONS = (("airspeed", "m/s"), ("dynamic_pressure", "Pa"))
-
-
-def _condition(meta: Mapping[str, Any]) -> str:
-    parts = []
-    for key, unit in _CONDITIONS:
-        if key in meta:
-            parts.append(f"{key.replace('_', ' ')} {float(meta[key]):.4g} {unit}")
-    return ", ".join(parts) or str(meta.get("source", "—"))
 
 
 _METRIC_COLUMN = "metric (mean ± std)"
@@ -113,11 +103,7 @@ def _campaign_brief(role: str, record: Any) -> Any:
 # The figures of each flight, drawn from its records: (role, file label, title).
 _FLIGHT_FIGURES = (
     ("validation", "time_histories", "measured and model outputs, inputs underneath"),
-    (
-        "validation",
-        "residual_autocorrelation",
-        "residual autocorrelation, 95 % band of white noise",
-    ),
+    ("validation", "residual_autocorrelation", "residual autocorrelation, white-noise band"),
     ("validation", "prediction", "prediction of the held-out manoeuvre, measured vs predicted"),
     ("identification", "identification", "residuals and estimates (95 % bars)"),
     ("filtering", "filter_states", "filtered states and measurements"),
@@ -361,7 +347,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         status = flight_status(ctx.failures.get(f), r, v, ctx.brief("inference", i), meta)
         statuses.append(status)
         rows.append(
-            (f, "—" if meta is None else _condition(meta), *est, fit, white, metric, status)
+            (f, "—" if meta is None else condition_text(meta), *est, fit, white, metric, status)
         )
     title = ctx.options.title or "Campaign report"
     parts = [f"# {title}", ""]
