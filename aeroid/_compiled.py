@@ -46,11 +46,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._integrate import RawTrajectory, _first_failure
-
-if TYPE_CHECKING:
-    from .model import Model
-else:  # below aeroid.model (it calls this module): its base class stands in
-    from ._model_base import ContinuousModel as Model
 from ._jax_rk4 import (
     _input_noise_scatter,
     _interval,
@@ -83,6 +78,11 @@ from ._jax_translation import _Slot as _Slot
 from ._jax_translation import _swap as _swap
 from ._jax_translation import _Template as _Template
 from ._jax_translation import _translate as _translate
+
+if TYPE_CHECKING:
+    from .model import Model
+else:  # below aeroid.model (it calls this module): its base class stands in
+    from ._model_base import ContinuousModel as Model
 
 __all__ = [
     "available",
