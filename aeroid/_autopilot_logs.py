@@ -1,4 +1,4 @@
-"""Autopilot flight logs: PX4 ULog and ArduPilot DataFlash (binary and text) read into a `FlightLog`.
+"""Autopilot flight logs: PX4 ULog and ArduPilot DataFlash (binary, text) read into a `FlightLog`.
 
 The optional readers (pyulog, pymavlink) are imported on first use; a missing one
 is reported by `_missing` with the install command.

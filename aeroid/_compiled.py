@@ -46,13 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._integrate import RawTrajectory, _first_failure
-from ._jax_rk4 import (
-    _input_noise_scatter,
-    _interval,
-    _interval_jacobian,
-    _rollout,
-    _tangent_linear,
-)
+from ._jax_rk4 import _input_noise_scatter, _interval, _interval_jacobian, _rollout, _tangent_linear
 from ._jax_rk4 import _substep as _substep
 from ._jax_translation import _CACHE as _CACHE
 from ._jax_translation import _NUMBER as _NUMBER

@@ -1,4 +1,4 @@
-"""Parameter values, initial states and delayed controls taken from a fit's result for a simulation."""
+"""Parameter values, initial states and delayed controls a simulation takes from a fit."""
 
 from __future__ import annotations
 

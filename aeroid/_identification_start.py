@@ -10,11 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .data import (
-    FlightData,
-    as_float,
-    plain,
-)
+from .data import FlightData, as_float, plain
 from .errors import IdentificationError
 
 FloatArray = NDArray[np.float64]

@@ -19,23 +19,13 @@ from ._checks import positive_number as positive_number
 from ._flight_csv import _NAME_LIKE as _NAME_LIKE
 from ._flight_csv import _NUMBER as _NUMBER
 from ._flight_csv import _NUMBER_LIKE as _NUMBER_LIKE
-from ._flight_csv import (
-    _adopt,
-    _columns_text,
-    _Owned,
-    _pick_time_column,
-    _read_csv,
-    _seconds,
-)
+from ._flight_csv import _adopt, _columns_text, _Owned, _pick_time_column, _read_csv, _seconds
 from ._flight_csv import _csv_cell_error as _csv_cell_error
 from ._flight_csv import _csv_header as _csv_header
 from ._flight_csv import _locate_csv_error as _locate_csv_error
 from ._flight_csv import _reader_error as _reader_error
 from ._records import frozen_array
-from ._value_checks import (
-    _first_bad,
-    real_array,
-)
+from ._value_checks import _first_bad, real_array
 from ._value_checks import check_flag as check_flag
 from ._value_checks import check_symmetric as check_symmetric
 from ._value_checks import delay_starts as delay_starts

@@ -20,11 +20,7 @@ from ._identification_start import (
     _x0_values,
 )
 from ._identification_start import _is_state_entry as _is_state_entry
-from ._state_biases import (
-    _bias_choice,
-    _state_biases_out,
-    _with_state_biases,
-)
+from ._state_biases import _bias_choice, _state_biases_out, _with_state_biases
 from ._threads import small_blas
 from .data import (
     FlightData,

@@ -45,11 +45,7 @@ from ._autopilot_logs import _df_dtype as _df_dtype
 from ._autopilot_logs import _df_events as _df_events
 from ._autopilot_logs import _df_time as _df_time
 from ._autopilot_logs import _df_unit as _df_unit
-from ._autopilot_logs import (
-    _missing,
-    _read_dataflash,
-    _read_ulog,
-)
+from ._autopilot_logs import _missing, _read_dataflash, _read_ulog
 from ._autopilot_logs import _px4_unit as _px4_unit
 from ._autopilot_logs import _transitions as _transitions
 from ._logtypes import FlightLog, LogChannel

@@ -15,25 +15,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
 from ._checks import check_time as check_time  # re-exported (adapters import it here)
-from ._fitted_parameters import (
-    _names,
-    resolve_parameters,
-)
+from ._fitted_parameters import _names, resolve_parameters
 from ._fitted_parameters import delayed_controls as delayed_controls
 from ._fitted_parameters import fitted_start as fitted_start
 from ._model_base import ContinuousModel
 from ._records import ReadOnlyDict
-from ._simulation_checks import (
-    _MAX_NODE_VALUES,
-    _real,
-    check_integrator,
-    real_number,
-)
+from ._simulation_checks import _MAX_NODE_VALUES, _real, check_integrator, real_number
 from ._simulation_checks import MAX_SUBSTEPS as MAX_SUBSTEPS
-from ._simulation_results import (
-    BatchSimulation,
-    SimulationResult,
-)
+from ._simulation_results import BatchSimulation, SimulationResult
 from ._threads import small_blas
 from .data import FlightData, measured_start, plain
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
