@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import os
-import re
-from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -19,7 +16,20 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import as_float as as_float  # re-exported: the other modules import it here
 from ._checks import plain
 from ._checks import positive_number as positive_number
+from ._flight_csv import _NAME_LIKE as _NAME_LIKE
+from ._flight_csv import _NUMBER as _NUMBER
+from ._flight_csv import _NUMBER_LIKE as _NUMBER_LIKE
+from ._flight_csv import _adopt, _columns_text, _Owned, _pick_time_column, _read_csv, _seconds
+from ._flight_csv import _csv_cell_error as _csv_cell_error
+from ._flight_csv import _csv_header as _csv_header
+from ._flight_csv import _locate_csv_error as _locate_csv_error
+from ._flight_csv import _reader_error as _reader_error
 from ._records import frozen_array
+from ._value_checks import _first_bad, real_array
+from ._value_checks import check_flag as check_flag
+from ._value_checks import check_symmetric as check_symmetric
+from ._value_checks import delay_starts as delay_starts
+from ._value_checks import whole_number as whole_number
 from .errors import ChannelError, DataFormatError
 
 __all__ = ["FlightData", "load_flight_test"]
@@ -38,127 +48,6 @@ _MAT_ITEM_BYTES = {
 
 # One read-only copier for the package; the name stays for existing importers.
 _readonly = frozen_array
-
-
-def _first_bad(values: FloatArray) -> int:
-    return int(np.flatnonzero(~np.isfinite(values))[0])
-
-
-def check_flag(value: Any, name: str, error: type[Exception]) -> bool:
-    """`value` as a bool, else `error` naming `name`: a switch given as ``"no"`` or 0
-    would otherwise be read by its truth value."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise error(f"{name}: expected True or False, got {plain(value)}")
-    return bool(value)
-
-
-def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 1) -> int:
-    """`value` as an int >= `least` (integral floats such as 2e3 accepted), else `error`."""
-    try:
-        n = int(value)
-        ok = not isinstance(value, (bool, str)) and n == value and n >= least
-    except (TypeError, ValueError, OverflowError):
-        ok = False
-    if not ok:
-        what = {1: "a positive integer", 0: "a non-negative integer"}.get(
-            least, f"an integer of at least {least}"
-        )
-        raise error(f"{name} must be {what}, got {plain(value)}")
-    return n
-
-
-def real_array(values: Any, what: str) -> FloatArray:
-    """`values` as a float64 array (not copied when it is one), or a `DataFormatError`
-    naming `what`: not numeric, or complex (a cast would drop the imaginary part)."""
-    try:
-        arr = np.asarray(values)
-    except (TypeError, ValueError) as exc:
-        raise DataFormatError(f"{what}: not numeric ({exc})") from None
-    if arr.dtype.kind == "c":
-        raise DataFormatError(
-            f"{what}: complex values are not supported; pass the real part or the "
-            "magnitude explicitly (np.real, np.abs)"
-        )
-    if arr.dtype.kind not in "biuf":
-        try:
-            arr = arr.astype(np.float64)
-        except (TypeError, ValueError) as exc:
-            raise DataFormatError(f"{what}: not numeric ({exc})") from None
-    return np.asarray(arr, dtype=np.float64)
-
-
-def delay_starts(
-    option: Any,
-    known: Sequence[str],
-    *,
-    what: str,
-    error: type[Exception],
-    unknown: Callable[[str], Exception],
-) -> dict[str, float]:
-    """The ``time_delays=`` option read as name -> start value in seconds.
-
-    A name, a sequence of names (each starting at 0 s) or a mapping name ->
-    start; every name one of `known` (else ``unknown(name)`` is raised), every
-    start a finite number (bools refused), else `error` names the entry.
-    """
-    if isinstance(option, str):
-        option = [option]
-    if isinstance(option, Mapping):
-        items = list(option.items())
-    else:
-        try:
-            items = [(c, 0.0) for c in option]
-        except TypeError:
-            raise error(
-                f"time_delays: expected a {what} name, a list of them or a dict of {what} "
-                f"name -> start value in s, got {plain(option)}"
-            ) from None
-    out: dict[str, float] = {}
-    for name, value in items:
-        if not isinstance(name, str) or name not in known:
-            raise unknown(name)
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            v = float("nan")
-        if isinstance(value, bool) or not np.isfinite(v):
-            raise error(
-                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
-                f"got {plain(value)}"
-            )
-        out[name] = v
-    return out
-
-
-def check_symmetric(
-    arr: FloatArray, names: Sequence[str], what: str, error: type[Exception]
-) -> None:
-    """Refuse a square matrix whose asymmetry is beyond rounding (relative to its largest
-    entry), naming the entry; NaN and infinity are left to the caller's finiteness check."""
-    with np.errstate(invalid="ignore"):
-        asym = np.abs(arr - arr.T)
-    if not np.all(np.isfinite(asym)):
-        return
-    scale = float(np.max(np.abs(arr))) if arr.size else 0.0
-    if float(np.max(asym, initial=0.0)) > 1e-10 * scale:
-        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
-        raise error(
-            f"{what}: the matrix must be symmetric, but [{i}, {j}] = {plain(arr[i, j])} and "
-            f"[{j}, {i}] = {plain(arr[j, i])} (order {list(names)})"
-        )
-
-
-def _seconds(values: NDArray[Any]) -> FloatArray:
-    """Datetimes as float seconds since the first sample, durations as float seconds.
-
-    Epoch nanoseconds (about 1.7e18) lose sub-microsecond resolution in
-    float64, so datetimes count from the first sample; a duration already
-    counts from a reference the user chose and is kept. NaT becomes NaN, which
-    the finite checks then report by index.
-    """
-    if values.dtype.kind == "M" and values.size:
-        values = values - values[0]
-    return np.asarray(values / np.timedelta64(1, "s"), dtype=np.float64)
 
 
 def _numeric(values: Any, what: str, failure: str) -> FloatArray:
@@ -451,248 +340,6 @@ def fingerprint(data: FlightData) -> str:
 
 
 # -- loading ----------------------------------------------------------------------
-
-
-# A config can name any file as a flight, and errors reach CI logs: a header is
-# listed only when every column reads as a channel name, and no cell is quoted.
-_NUMBER_LIKE = re.compile(r"[\d.,+\-eE ]{1,24}")
-_NAME_LIKE = re.compile(r"[A-Za-z_][\w.\[\]()/ -]{0,63}")
-
-
-def _columns_text(columns: Sequence[str]) -> str:
-    cols = [str(c) for c in columns]
-    if all(_NAME_LIKE.fullmatch(c) and "=" not in c for c in cols):
-        return f"columns: {cols}"
-    return f"{len(cols)} columns (not listed: the first line does not read as names)"
-
-
-def _reader_error(exc: Exception) -> str:
-    """A CSV reader's message without the row text some of them append."""
-    return re.sub(r"(got \d+|Row #\d+)\s*:.*", r"\1", str(exc), flags=re.S)
-
-
-def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Path) -> str:
-    if time_column is not None:
-        if time_column not in columns:
-            raise ChannelError(
-                f"{path}: time column {time_column!r} not found; {_columns_text(columns)}"
-            )
-        return time_column
-    for candidate in ("time", "t", "Time", "TIME", "time_s", "Time (s)", "t_s"):
-        if candidate in columns:
-            return candidate
-    raise ChannelError(
-        f"{path}: no time column found (tried 'time', 't', 'Time', ...); "
-        f"pass time_column=...; {_columns_text(columns)}"
-    )
-
-
-class _Owned(np.ndarray):
-    """A float64 array a loader built and hands over: `FlightData` keeps it without a copy.
-
-    Only the loaders below create one, and they drop their own reference, so
-    no caller can alias the record's arrays.
-    """
-
-
-def _adopt(values: _Owned) -> FloatArray:
-    values.setflags(write=False)  # with the base read-only, the view cannot be made writable
-    out = values.view(np.ndarray)
-    out.setflags(write=False)
-    return out
-
-
-def _csv_header(path: Path) -> tuple[list[str], int, int]:
-    """The header, the byte offset of the first data line, and the header's line number.
-
-    Comment lines (``#`` first) and blank lines before the header are skipped,
-    as flight-test exports often carry them.
-    """
-    offset = 0
-    line_no = 0
-    with open(path, "rb") as f:
-        for raw in f:
-            line_no += 1
-            start = offset
-            offset += len(raw)
-            try:
-                text = raw.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                raise DataFormatError(f"{path}: not a UTF-8 text file ({exc})") from None
-            if start == 0:
-                text = text.removeprefix("\ufeff")
-            if not text.strip() or text.lstrip().startswith("#"):
-                continue
-            header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]))]
-            return header, offset, line_no
-    raise DataFormatError(f"{path}: empty file")
-
-
-_NUMBER = r"^\s*[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan))\s*$"
-
-
-def _csv_cell_error(path: Path, header: list[str], offset: int, exc: Exception) -> DataFormatError:
-    """Name the row and column of the cell pyarrow refused (only ever on the error path)."""
-    import pyarrow as pa
-
-    try:
-        return _locate_csv_error(path, header, offset, exc)
-    except (OSError, pa.ArrowException) as again:
-        return DataFormatError(
-            f"{path}: not a readable CSV file ({_reader_error(exc)}; {_reader_error(again)})"
-        )
-
-
-def _locate_csv_error(
-    path: Path, header: list[str], offset: int, exc: Exception
-) -> DataFormatError:
-    import pyarrow as pa
-    import pyarrow.compute as pc
-    import pyarrow.csv as pacsv
-
-    # A row with the wrong number of cells (comment lines aside): the parser reports
-    # its line number.
-    bad_rows: list[Any] = []
-
-    def keep(row: Any) -> str:
-        if not row.text.lstrip().startswith("#"):
-            bad_rows.append(row)
-        return "skip"
-
-    def read(**convert: Any) -> Any:
-        with pa.OSFile(str(path)) as f:
-            f.seek(offset)
-            return pacsv.read_csv(
-                f,
-                read_options=pacsv.ReadOptions(column_names=header, use_threads=False),
-                parse_options=pacsv.ParseOptions(invalid_row_handler=keep),
-                convert_options=pacsv.ConvertOptions(**convert),
-                memory_pool=pa.system_memory_pool(),
-            )
-
-    read(
-        column_types=dict.fromkeys(header, pa.string()),
-        include_columns=header[:1],
-    )
-    if bad_rows:
-        row = bad_rows[0]
-        return DataFormatError(
-            f"{path}: row {row.number + 1} has {row.actual_columns} cells, "
-            f"header has {row.expected_columns}"
-        )
-    # Otherwise one column holds a cell that is not a number: find it as text.
-    for name in header:
-        try:
-            read(column_types={name: pa.float64()}, include_columns=[name], null_values=[""])
-            continue
-        except pa.ArrowInvalid:
-            pass
-        cells = read(
-            column_types={name: pa.string()}, include_columns=[name], strings_can_be_null=False
-        ).column(0)
-        numeric = pc.match_substring_regex(cells, _NUMBER)
-        bad = np.flatnonzero(~np.asarray(numeric.to_numpy(zero_copy_only=False), dtype=bool))
-        if bad.size:
-            i = int(bad[0])
-            cell = str(cells[i].as_py()).strip()
-            if not cell:
-                what = "blank"
-            elif len(cell) <= 4 or _NUMBER_LIKE.fullmatch(cell):  # x, N/A, 1.2.3: shown
-                what = f"non-numeric ({cell!r})"
-            else:  # text: not quoted (a config can name any file; errors reach logs)
-                what = f"non-numeric ({len(cell)} characters of text)"
-            return DataFormatError(f"{path}: row {i + 2}, column {name!r}: {what} cell")
-    return DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})")
-
-
-def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
-    """Parse with pyarrow (multi-threaded, straight to float64); locate bad cells only on failure.
-
-    Row numbers in messages count the header as row 1.
-    """
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-
-    header, offset, _ = _csv_header(path)
-    if any(not h for h in header):
-        raise DataFormatError(f"{path}: empty column name at column {header.index('') + 1}")
-    dupes = sorted(h for h, n in Counter(header).items() if n > 1)  # linear in columns
-    if dupes:
-        shown = dupes if all(_NAME_LIKE.fullmatch(h) and "=" not in h for h in dupes) else None
-        raise DataFormatError(
-            f"{path}: duplicate column names {shown}"
-            if shown is not None
-            else f"{path}: {len(dupes)} column names appear twice (not listed: not names)"
-        )
-    if offset >= path.stat().st_size:
-        raise DataFormatError(f"{path}: fewer than 2 data rows")
-
-    def read(parse: Any = None) -> Any:
-        with pa.OSFile(str(path)) as f:
-            f.seek(offset)
-            # The system allocator hands freed column buffers back to the OS at once,
-            # which keeps the peak near one copy of the data.
-            return pacsv.read_csv(
-                f,
-                read_options=pacsv.ReadOptions(column_names=header, use_threads=True),
-                parse_options=parse or pacsv.ParseOptions(),
-                convert_options=pacsv.ConvertOptions(
-                    column_types=dict.fromkeys(header, pa.float64()),
-                    null_values=[""],
-                    strings_can_be_null=False,
-                ),
-                memory_pool=pa.system_memory_pool(),
-            )
-
-    comments: list[int] = []
-
-    def skip_comment(row: Any) -> str:
-        if not row.text.lstrip().startswith("#"):
-            return "error"
-        comments.append(1)
-        return "skip"
-
-    try:
-        try:
-            table = read()
-        except pa.ArrowInvalid as exc:
-            # Comment lines among the data: read again without them (rare, so only
-            # on the error path); anything else is located and reported.
-            try:
-                table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
-            except pa.ArrowInvalid:
-                table = None
-            if table is None or not comments:
-                raise _csv_cell_error(path, header, offset, exc) from None
-    except (OSError, pa.ArrowException) as exc:
-        raise DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})") from None
-    n = table.num_rows
-    if n < 2:
-        raise DataFormatError(f"{path}: fewer than 2 data rows")
-    pending = {name: table.column(name) for name in header}
-    del table
-    columns: dict[str, FloatArray] = {}
-    for name in header:
-        chunked = pending.pop(name)
-        if chunked.null_count:
-            first = int(np.flatnonzero(np.asarray(chunked.is_null()))[0])
-            raise DataFormatError(f"{path}: row {first + 2}, column {name!r}: blank cell")
-        out = _Owned((n,), dtype=np.float64)  # owns its memory, so adopting it freezes it
-        at = 0
-        for chunk in chunked.chunks:
-            size = len(chunk)
-            out[at : at + size] = chunk.to_numpy(zero_copy_only=True)
-            at += size
-        del chunked  # frees this column's Arrow buffers before the next is copied
-        bad = ~np.isfinite(out)
-        if bad.any():
-            first = int(np.flatnonzero(bad)[0])
-            raise DataFormatError(
-                f"{path}: row {first + 2}, column {name!r}: non-finite value "
-                f"{str(float(out[first]))!r}"
-            )
-        columns[name] = out
-    return header, columns
 
 
 def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:

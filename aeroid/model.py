@@ -15,10 +15,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import _integrate
 from ._checks import check_time as check_time  # re-exported (adapters import it here)
+from ._fitted_parameters import _names, resolve_parameters
+from ._fitted_parameters import delayed_controls as delayed_controls
+from ._fitted_parameters import fitted_start as fitted_start
 from ._model_base import ContinuousModel
-from ._records import ReadOnlyDict, fmt, markdown_table
+from ._records import ReadOnlyDict
+from ._simulation_checks import _MAX_NODE_VALUES, _real, check_integrator, real_number
+from ._simulation_checks import MAX_SUBSTEPS as MAX_SUBSTEPS
+from ._simulation_results import BatchSimulation, SimulationResult
 from ._threads import small_blas
-from .data import FlightData, _readonly, as_float, fingerprint, measured_start, plain, real_array
+from .data import FlightData, measured_start, plain
 from .errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 
 __all__ = [
@@ -35,55 +41,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 Dynamics = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
 
-# RK4 holds the controls at every node of every interval, (n_t - 1) x (2 m + 1) values
-# per control: a substep count far beyond any stiffness (the automatic choice stops at
-# 256) would only exhaust memory.
-MAX_SUBSTEPS = 10_000
-# ... and with the batch, at most this many node values (1 GiB of float64).
-_MAX_NODE_VALUES = 2**27
 SIMULATE_OPTION_KEYS = ("method", "substeps", "rtol", "atol")
-
-
-def check_integrator(
-    method: Any,
-    substeps: Any,
-    rtol: Any,
-    atol: Any,
-    *,
-    error: type[AeroidError] = SimulationError,
-    prefix: str = "",
-) -> None:
-    """Refuse integrator settings `Model.simulate` cannot honour, naming the setting.
-
-    `prefix` qualifies the names (``"simulate_options"`` gives
-    ``simulate_options['rtol']``). A NaN tolerance would hang the adaptive
-    solvers and a non-positive one is silently raised to rounding by SciPy;
-    a bool substep count would be read as 1.
-    """
-
-    def name(key: str) -> str:
-        return f"{prefix}[{key!r}]" if prefix else key
-
-    if not isinstance(method, str) or method not in _integrate.METHODS:
-        raise error(
-            f"{name('method')}: unknown method {plain(method)}; choose one of "
-            f"{list(_integrate.METHODS)}"
-        )
-    if substeps is not None:
-        ok = not isinstance(substeps, (bool, np.bool_, str, bytes))
-        try:
-            ok = ok and int(substeps) == substeps and 1 <= substeps <= MAX_SUBSTEPS
-        except (TypeError, ValueError, OverflowError):
-            ok = False
-        if not ok:
-            raise error(
-                f"{name('substeps')} must be a positive integer of at most {MAX_SUBSTEPS} "
-                f"(RK4 steps per sample interval), got {plain(substeps)}"
-            )
-    for key, value, least in (("rtol", rtol, "positive"), ("atol", atol, "non-negative")):
-        v = as_float(value)
-        if v is None or not (np.isfinite(v) and (v > 0 if least == "positive" else v >= 0)):
-            raise error(f"{name(key)}: expected a finite {least} number, got {plain(value)}")
 
 
 def check_simulate_options(
@@ -114,230 +72,6 @@ def check_simulate_options(
             prefix=name,
         )
     return dict(options)
-
-
-def _names(value: Sequence[str] | str, what: str) -> tuple[str, ...]:
-    if isinstance(value, str):
-        value = [value]
-    try:
-        names = tuple(value)
-    except TypeError:
-        raise ModelDefinitionError(
-            f"{what}: expected a sequence of names, got {plain(value)}"
-        ) from None
-    for n in names:
-        if not isinstance(n, str) or not n:
-            raise ModelDefinitionError(f"{what}: every name must be a non-empty string, got {n!r}")
-    dupes = sorted({n for n in names if names.count(n) > 1})
-    if dupes:
-        raise ModelDefinitionError(f"{what}: duplicate names {dupes}")
-    return names
-
-
-def resolve_parameters(
-    model: Any,
-    parameters: Any,
-    *,
-    error: type[AeroidError] = ModelDefinitionError,
-) -> dict[str, float]:
-    """Merge a parameter dict (or any result with ``.parameters``) onto the model's nominal values.
-
-    Unknown names raise `error` naming them; values must be finite numbers.
-    Extra entries a result may carry (such as ``sigma_<output>`` noise
-    parameters of an inference result) are ignored when they are not model
-    parameters.
-    """
-    nominal = dict(model.parameters)
-    if parameters is None:
-        return {k: float(v) for k, v in nominal.items()}
-    from_result = not isinstance(parameters, Mapping) and hasattr(parameters, "parameters")
-    values = parameters.parameters if from_result else parameters
-    if not isinstance(values, Mapping):
-        raise error(
-            f"parameters: expected a dict of name -> value or a result with .parameters, "
-            f"got {type(parameters).__name__}"
-        )
-    out = {k: float(v) for k, v in nominal.items()}
-    for name, value in values.items():
-        if name not in nominal:
-            if from_result:
-                continue
-            raise error(
-                f"parameter {name!r} is not a parameter of model {model.name!r}; "
-                f"its parameters are {sorted(nominal)}"
-            )
-        v = as_float(value)
-        if v is None:
-            raise error(f"parameter {name!r}: expected a number, got {plain(value)}")
-        if not np.isfinite(v):
-            raise error(f"parameter {name!r}: value {v!r} is not finite")
-        out[name] = v
-    return out
-
-
-def fitted_start(result: Any, data: FlightData) -> tuple[dict[str, float] | None, dict[str, float]]:
-    """The initial state and output biases a fit used for `data`, if it was fitted to `data`.
-
-    An identification result holds one initial state (measured, given or
-    estimated) and one set of output biases per manoeuvre. Simulating one of
-    those records again, a function should start where the fit did; any
-    other record (cross-validation on another manoeuvre) starts from its own
-    measured state, without the fit's biases. Returns ``(None, {})`` then.
-    Results stored before records were fingerprinted apply their first
-    manoeuvre's values, as they always did.
-    """
-    states = getattr(result, "initial_states", None)
-    if not states:
-        return None, {}
-    fitted = tuple(getattr(result, "data_fingerprints", ()) or ())
-    if fitted:
-        mark = fingerprint(data)
-        if mark not in fitted:
-            return None, {}
-        i = fitted.index(mark)
-    else:
-        i = 0
-    biases = tuple(getattr(result, "biases", ()) or ())
-    return dict(states[i]), (dict(biases[i]) if i < len(biases) else {})
-
-
-def delayed_controls(result: Any, data: FlightData) -> FlightData:
-    """`data` with the controls an identification delayed shifted by their delays.
-
-    A result whose fit estimated pure time delays (``result.time_delays``,
-    control -> seconds) describes a vehicle whose controls act as
-    ``u(t - tau)``: its model is simulated on the controls delayed the same
-    way, interpolated piecewise-linearly as `identify` does, and held at the
-    first sample before it. Unlike the initial state and the output biases, a
-    delay belongs to the vehicle, so it applies on any record. Other values
-    of `result` (a mapping, None) leave `data` as it is.
-    """
-    delays = dict(getattr(result, "time_delays", None) or {})
-    t = data.time
-    shifted = {
-        c: np.interp(t - float(tau), t, data.channels[c])
-        for c, tau in delays.items()
-        if c in data and float(tau) != 0.0
-    }
-    return data.with_channels(shifted) if shifted else data
-
-
-@dataclass(frozen=True, eq=False)
-class SimulationResult:
-    """A simulated trajectory on the requested time grid.
-
-    Attributes
-    ----------
-    time : ndarray, shape (n_t,)
-    states : ndarray, shape (n_t, n_states)
-        Empty second axis for black-box simulators that expose no states.
-    outputs : ndarray, shape (n_t, n_outputs)
-    controls : ndarray, shape (n_t, n_controls)
-        The control history that drove the simulation.
-    """
-
-    time: FloatArray
-    states: FloatArray
-    outputs: FloatArray
-    controls: FloatArray
-    state_names: tuple[str, ...]
-    output_names: tuple[str, ...]
-    control_names: tuple[str, ...]
-
-    def __post_init__(self) -> None:
-        for name in ("time", "states", "outputs", "controls"):
-            object.__setattr__(self, name, _readonly(getattr(self, name)))
-
-    def state(self, name: str) -> FloatArray:
-        """History of one state."""
-        if name not in self.state_names:
-            raise ChannelError(f"state {name!r} not simulated; states: {list(self.state_names)}")
-        return self.states[:, self.state_names.index(name)]
-
-    def output(self, name: str) -> FloatArray:
-        """History of one output."""
-        if name not in self.output_names:
-            raise ChannelError(f"output {name!r} not simulated; outputs: {list(self.output_names)}")
-        return self.outputs[:, self.output_names.index(name)]
-
-    def summary(self) -> str:
-        """A Markdown table of every simulated channel: its range and final value."""
-        t = self.time
-        head = f"{t.size} samples over {t[-1] - t[0]:.6g} s (t = {t[0]:.6g} to {t[-1]:.6g} s)"
-        rows = []
-        for kind, names, values in (
-            ("state", self.state_names, self.states),
-            ("output", self.output_names, self.outputs),
-            ("control", self.control_names, self.controls),
-        ):
-            for j, name in enumerate(names):
-                if kind == "output" and name in self.state_names:
-                    continue  # an output that is a state is listed once, as the state
-                v = values[:, j]
-                rows.append((name, kind, fmt(v.min()), fmt(v.max()), fmt(v[-1])))
-        table = markdown_table(("channel", "kind", "min", "max", "final"), rows)
-        return f"{head}\n\n{table}"
-
-    def to_flight_data(
-        self,
-        *,
-        noise: Mapping[str, float] | None = None,
-        seed: int | None = None,
-        include_states: bool = False,
-        units: Mapping[str, str] | None = None,
-    ) -> FlightData:
-        """Package the trajectory as `FlightData` (controls plus outputs).
-
-        Parameters
-        ----------
-        noise : mapping of str to float, optional
-            Standard deviation of white Gaussian noise added to named outputs.
-        seed : int, optional
-            Seed of the noise generator (required when `noise` is given).
-        include_states : bool
-            Also include states that are not outputs.
-        units : mapping of str to str, optional
-        """
-        channels: dict[str, FloatArray] = {}
-        for j, n in enumerate(self.control_names):
-            channels[n] = self.controls[:, j]
-        if include_states:
-            for j, n in enumerate(self.state_names):
-                channels[n] = self.states[:, j]
-        for j, n in enumerate(self.output_names):
-            channels[n] = self.outputs[:, j]
-        if noise:
-            if seed is None:
-                raise SimulationError("to_flight_data: noise needs a seed for reproducibility")
-            rng = np.random.default_rng(seed)
-            for n in self.output_names:  # fixed order keeps the stream reproducible
-                if n in noise:
-                    channels[n] = channels[n] + float(noise[n]) * rng.standard_normal(
-                        self.time.size
-                    )
-            unknown = sorted(set(noise) - set(self.output_names))
-            if unknown:
-                raise ChannelError(f"noise given for unknown outputs {unknown}")
-        return FlightData(self.time, channels, dict(units or {}))
-
-
-@dataclass(frozen=True, eq=False)
-class BatchSimulation:
-    """Trajectories of a batch of parameter vectors.
-
-    ``states`` (batch, n_t, n_states), ``outputs`` (batch, n_t, n_outputs),
-    ``ok`` marks members that integrated to the end with finite values,
-    ``fail_time`` gives the first non-finite time of the others (NaN if ok)
-    and ``failure`` says, per member, which state or output failed and when
-    (empty if ok).
-    """
-
-    time: FloatArray
-    states: FloatArray
-    outputs: FloatArray
-    ok: NDArray[np.bool_]
-    fail_time: FloatArray
-    failure: tuple[str, ...] = ()
 
 
 @runtime_checkable
@@ -929,29 +663,6 @@ class Model(ContinuousModel):
         if x0 is None:
             x0 = measured_start(data, self.states)
         return self.simulate(data.time, data, x0, parameters, **options)
-
-
-def _real(values: Any, what: str) -> FloatArray:
-    """`values` as float64 (as ``np.asarray(values, dtype=float)``), or a `SimulationError`
-    naming `what`: text, or complex numbers whose imaginary part a cast would drop."""
-    try:
-        return real_array(values, what)
-    except AeroidError as exc:
-        raise SimulationError(str(exc)) from None
-
-
-def real_number(
-    value: Any, what: str, error: type[AeroidError] = SimulationError, *, finite: bool = False
-) -> float:
-    """`value` as a float, or `error` naming `what`: bools and text are refused (float()
-    would read True as 1.0 and "2" as 2.0), so is a complex number, and with `finite`
-    NaN and infinity."""
-    v = as_float(value)
-    if v is None:
-        raise error(f"{what}: expected a number, got {plain(value)}")
-    if finite and not np.isfinite(v):
-        raise error(f"{what}: expected a finite number, got {plain(value)}")
-    return v
 
 
 def require_model(model: Any, error: type[AeroidError]) -> None:

@@ -254,10 +254,6 @@ def test_the_line_counter_sees_a_long_module():
     assert all(n > 0 for n in long_modules(limit=0).values())
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 50: splits pending for logs, model, identification, data, _compiled, _integrate",
-)
 def test_no_module_exceeds_800_lines():
     assert long_modules() == {}
 
@@ -295,9 +291,7 @@ def repeated_functions(min_statements: int = 3) -> list[list[str]]:
 
 # Pending merges in modules another helper is splitting (issue 50); remove when merged.
 # two three-line closures (free parameters into the full vector) inside two fits
-_PENDING = [
-    ["aeroid.frequency_id.full", "aeroid.frequency_id.full"],
-]
+_PENDING: list[list[str]] = []
 
 
 def test_the_duplicate_finder_sees_a_renamed_copy():

@@ -1,0 +1,122 @@
+"""Argument checks shared by the estimators: switches, counts, real arrays, delays, symmetry."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._checks import plain
+from .errors import DataFormatError
+
+FloatArray = NDArray[np.float64]
+
+
+def _first_bad(values: FloatArray) -> int:
+    return int(np.flatnonzero(~np.isfinite(values))[0])
+
+
+def check_flag(value: Any, name: str, error: type[Exception]) -> bool:
+    """`value` as a bool, else `error` naming `name`: a switch given as ``"no"`` or 0
+    would otherwise be read by its truth value."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise error(f"{name}: expected True or False, got {plain(value)}")
+    return bool(value)
+
+
+def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 1) -> int:
+    """`value` as an int >= `least` (integral floats such as 2e3 accepted), else `error`."""
+    try:
+        n = int(value)
+        ok = not isinstance(value, (bool, str)) and n == value and n >= least
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        what = {1: "a positive integer", 0: "a non-negative integer"}.get(
+            least, f"an integer of at least {least}"
+        )
+        raise error(f"{name} must be {what}, got {plain(value)}")
+    return n
+
+
+def real_array(values: Any, what: str) -> FloatArray:
+    """`values` as a float64 array (not copied when it is one), or a `DataFormatError`
+    naming `what`: not numeric, or complex (a cast would drop the imaginary part)."""
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{what}: not numeric ({exc})") from None
+    if arr.dtype.kind == "c":
+        raise DataFormatError(
+            f"{what}: complex values are not supported; pass the real part or the "
+            "magnitude explicitly (np.real, np.abs)"
+        )
+    if arr.dtype.kind not in "biuf":
+        try:
+            arr = arr.astype(np.float64)
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{what}: not numeric ({exc})") from None
+    return np.asarray(arr, dtype=np.float64)
+
+
+def delay_starts(
+    option: Any,
+    known: Sequence[str],
+    *,
+    what: str,
+    error: type[Exception],
+    unknown: Callable[[str], Exception],
+) -> dict[str, float]:
+    """The ``time_delays=`` option read as name -> start value in seconds.
+
+    A name, a sequence of names (each starting at 0 s) or a mapping name ->
+    start; every name one of `known` (else ``unknown(name)`` is raised), every
+    start a finite number (bools refused), else `error` names the entry.
+    """
+    if isinstance(option, str):
+        option = [option]
+    if isinstance(option, Mapping):
+        items = list(option.items())
+    else:
+        try:
+            items = [(c, 0.0) for c in option]
+        except TypeError:
+            raise error(
+                f"time_delays: expected a {what} name, a list of them or a dict of {what} "
+                f"name -> start value in s, got {plain(option)}"
+            ) from None
+    out: dict[str, float] = {}
+    for name, value in items:
+        if not isinstance(name, str) or name not in known:
+            raise unknown(name)
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if isinstance(value, bool) or not np.isfinite(v):
+            raise error(
+                f"time_delays[{name!r}]: the start value must be a finite number of seconds, "
+                f"got {plain(value)}"
+            )
+        out[name] = v
+    return out
+
+
+def check_symmetric(
+    arr: FloatArray, names: Sequence[str], what: str, error: type[Exception]
+) -> None:
+    """Refuse a square matrix whose asymmetry is beyond rounding (relative to its largest
+    entry), naming the entry; NaN and infinity are left to the caller's finiteness check."""
+    with np.errstate(invalid="ignore"):
+        asym = np.abs(arr - arr.T)
+    if not np.all(np.isfinite(asym)):
+        return
+    scale = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if float(np.max(asym, initial=0.0)) > 1e-10 * scale:
+        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
+        raise error(
+            f"{what}: the matrix must be symmetric, but [{i}, {j}] = {plain(arr[i, j])} and "
+            f"[{j}, {i}] = {plain(arr[j, i])} (order {list(names)})"
+        )
