@@ -201,7 +201,7 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
         for label in (
             "model outputs",
             "residuals",
-            "residual autocorrelation, 95 % band",
+            "residual autocorrelation, white-noise band",
             "prediction of the held-out manoeuvre",
             "filtered states",
             "Bode",

@@ -158,11 +158,12 @@ def _identify(model, data, start):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index", range(len(DEMO_CONDITIONS)))
+@pytest.mark.parametrize("index", range(6))
 def test_identified_derivatives_match_what_jsbsim_flies(index):
-    # the README's table: each committed demo flight (flown by write_campaign, checked
-    # bit for bit above), its longitudinal and lateral-directional models fitted by
-    # output error, against the derivatives JSBSim flies at that trim
+    # the README's table: each of the first six committed demo flights (flown by
+    # write_campaign, checked bit for bit above), its longitudinal and
+    # lateral-directional models fitted by output error, against the derivatives
+    # JSBSim flies at that trim
     cond = DEMO_CONDITIONS[index]
     data = aeroid.load_flight_test(DEMO / f"flight_{index + 1:02d}.csv")
     assert data.window(0.0, 0.5)["V"].mean() == pytest.approx(cond.airspeed, abs=0.3)
@@ -209,3 +210,22 @@ def test_a_freshly_flown_record_gives_the_same_derivatives_within_their_scatter(
     for name in ("Cm_alpha", "Cm_delta_e", "CL_alpha"):
         assert found[name] == pytest.approx(eff[name], rel=0.15), name
     assert found["Cm_q"] == pytest.approx(eff["Cm_q"], rel=0.20)
+
+
+def test_a_flight_with_the_aircrafts_own_aerodynamics_in_place_is_the_same_flight():
+    # `aerodynamics=` swaps the c172x's <aerodynamics> section (the database replay):
+    # given its own section back, the flight is the stock one bit for bit; another
+    # section flies another aircraft
+    import jsbsim
+
+    xml = (Path(jsbsim.get_default_root_dir()) / "aircraft" / "c172x" / "c172x.xml").read_text()
+    own = xml[xml.index("<aerodynamics") : xml.index("</aerodynamics>") + len("</aerodynamics>")]
+    cond = FlightCondition(50.0, 1000.0)
+    stock = fly_c172x(cond, seed=3, duration=18.0)
+    again = fly_c172x(cond, seed=3, duration=18.0, aerodynamics=own)
+    for name in stock.names:
+        np.testing.assert_array_equal(again[name], stock[name])
+    stiffer = own.replace("<value>-12.4</value>", "<value>-24.8</value>", 1)
+    assert stiffer != own
+    other = fly_c172x(cond, seed=3, duration=18.0, aerodynamics=stiffer)
+    assert not np.array_equal(other["q"], stock["q"])

@@ -22,8 +22,11 @@ loaded aircraft and converts them to SI, as `aeroid.aircraft.AircraftConstants`.
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 import os
+import shutil
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,22 +108,41 @@ def _jsbsim() -> Any:
     return require("jsbsim", "jsbsim")
 
 
-_AIRCRAFT: list[Any] = []
+_AIRCRAFT: dict[str, Any] = {}
 
 
-def _aircraft() -> Any:
+def _aircraft(aerodynamics: str | None = None) -> Any:
     """The adapter's sanitised c172x (no ``<output>`` elements: the stock file declares a
-    CSV log beside the package and sockets), kept for the process's life."""
-    if not _AIRCRAFT:
+    CSV log beside the package and sockets), kept for the process's life; with
+    `aerodynamics`, a copy whose ``<aerodynamics>`` section is that one."""
+    key = "" if aerodynamics is None else hashlib.sha256(aerodynamics.encode()).hexdigest()
+    if key not in _AIRCRAFT:
         from .jsbsim import JsbsimModel
 
-        _AIRCRAFT.append(JsbsimModel("c172x", outputs={"V": "velocities/vt-fps"}))
-    return _AIRCRAFT[0]
+        root = None if aerodynamics is None else _root_with(aerodynamics)
+        _AIRCRAFT[key] = JsbsimModel("c172x", outputs={"V": "velocities/vt-fps"}, root=root)
+    return _AIRCRAFT[key]
 
 
-def _executive(condition: FlightCondition, *, dt: float = 1 / 120) -> Any:
+def _root_with(aerodynamics: str) -> Path:
+    """A private JSBSim data root holding the c172x with `aerodynamics` in place of its own."""
+    from .._database_export import replace_aerodynamics
+
+    src = Path(_jsbsim().get_default_root_dir())
+    root = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
+    for sub in ("engine", "systems"):
+        shutil.copytree(src / sub, root / sub)
+    shutil.copytree(src / "aircraft" / "c172x", root / "aircraft" / "c172x")
+    xml = root / "aircraft" / "c172x" / "c172x.xml"
+    xml.write_text(replace_aerodynamics(xml.read_text(), aerodynamics))
+    return root
+
+
+def _executive(
+    condition: FlightCondition, *, dt: float = 1 / 120, aerodynamics: str | None = None
+) -> Any:
     """A fresh ``FGFDMExec`` with the c172x trimmed in wings-level flight at `condition`."""
-    fdm = _aircraft().executive()
+    fdm = _aircraft(aerodynamics).executive()
     fdm.set_dt(dt)
     fdm["ic/h-sl-ft"] = condition.altitude / _FT
     fdm["ic/vt-fps"] = condition.airspeed / _FT
@@ -218,6 +240,7 @@ def fly_c172x(
     turbulence: float = 0.2,
     noise: bool = True,
     seed: int = 0,
+    aerodynamics: str | None = None,
 ) -> FlightData:
     """Fly one flight-test record with JSBSim's c172x.
 
@@ -235,6 +258,11 @@ def fly_c172x(
         Add seeded white sensor noise with the standard deviations of `C172X_CHANNELS`.
     seed : int
         Seeds the gusts and the sensor noise: the same seed flies the same record.
+    aerodynamics : str, optional
+        A JSBSim ``<aerodynamics>`` section flown in place of the c172x's own (an
+        exported `aeroid.AeroDatabase`, `AeroDatabase.to_jsbsim`): the same trim
+        condition, stick inputs, pilot, gusts and noise, another aircraft's
+        aerodynamics.
 
     Returns
     -------
@@ -257,7 +285,7 @@ def fly_c172x(
     # JSBSim steps at a whole multiple of the recording rate, at least its usual 120 Hz.
     every = math.ceil(120.0 / float(sample_rate) - 1e-9)
     step = 1.0 / (every * float(sample_rate))
-    fdm = _executive(condition, dt=step)
+    fdm = _executive(condition, dt=step, aerodynamics=aerodynamics)
     n = round(duration * sample_rate) + 1
     t = np.arange(n) / float(sample_rate)
     fine: FloatArray = np.arange((n - 1) * every + 1, dtype=np.float64) * step

@@ -98,6 +98,7 @@ def _run_database(ctx: StageContext) -> Any:
             cov = np.full((len(names), len(names)), math.nan)
         sub = cov[np.ix_(keep, keep)] if keep else np.zeros((0, 0))
         est = {names[j]: ident["parameters"][names[j]] for j in keep}
+        est, sub = _at_condition(est, sub, cond)
         flights.append(FlightCoefficients(name, condition, est, sub))
     if not flights:
         raise PipelineError("database: no flight was identified; there is nothing to fit")
@@ -114,10 +115,40 @@ def _run_database(ctx: StageContext) -> Any:
     return aerodynamic_database(flights, keys=keys, held_out=tuple(opts.held_out or ()), **kw)
 
 
+def _at_condition(
+    est: dict[str, float], cov: Any, cond: Mapping[str, float]
+) -> tuple[dict[str, float], Any]:
+    """Each static ``<C>_0`` moved to the flight's own angles: ``C_0 + C_alpha alpha +
+    C_beta beta`` with the condition's alpha and beta (rad), its covariance with them.
+
+    An aircraft model's expansion is about zero angle (``C = C_0 + C_alpha alpha +
+    ...``, alpha absolute), so its ``C_0`` is the coefficient extrapolated to alpha =
+    0; the database tabulates the coefficient where each flight flew (what the JSBSim
+    export reads as the static coefficient over alpha, ``C_alpha`` its slope).
+    """
+    import numpy as np
+
+    names = list(est)
+    jac = np.eye(len(names))
+    for j, n in enumerate(names):
+        if not n.endswith("_0"):
+            continue
+        for key in ("alpha", "beta"):
+            slope = f"{n[:-2]}_{key}"
+            if slope in est and key in cond:
+                jac[j, names.index(slope)] = float(cond[key])
+    if np.array_equal(jac, np.eye(len(names))):
+        return est, cov
+    z = jac @ np.array([est[n] for n in names])
+    return dict(zip(names, (float(v) for v in z), strict=True)), jac @ cov @ jac.T
+
+
 register_stage(
     Stage(
         "database",
-        "2",  # 2: each coefficient weighted by its own variances (aeroid.database notes)
+        # 2: each coefficient weighted by its own variances (aeroid.database notes);
+        # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition)
+        "3",
         DatabaseOptions,
         "AeroDatabase",
         _run_database,
