@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from . import _html
+from ._database_export import replace_aerodynamics
 from ._html import figure_png, markdown_to_html
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._units import parameter_units
@@ -28,6 +29,7 @@ __all__ = [
     "markdown_table",
     "markdown_to_html",
     "parameter_units",
+    "replace_aerodynamics",
 ]
 
 

@@ -126,7 +126,7 @@ def _aircraft(aerodynamics: str | None = None) -> Any:
 
 def _root_with(aerodynamics: str) -> Path:
     """A private JSBSim data root holding the c172x with `aerodynamics` in place of its own."""
-    from .._database_export import replace_aerodynamics
+    from ..support import replace_aerodynamics
 
     src = Path(_jsbsim().get_default_root_dir())
     root = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
