@@ -53,6 +53,10 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return markdown_table(header, rows)
 
 
+# `aeroid status` lists every task up to this many, else a summary per step and the
+# first missing tasks
+_STATUS_ROWS = 500
+_MISSING_SHOWN = 20
 # the terminal's results table: at most this many characters a row (the report has it all)
 _TABLE_WIDTH = 100
 # the campaign table's columns the terminal shows; the estimates are in the report
@@ -223,7 +227,16 @@ def run(
     is_flag=True,
     help="Allow 'module:attribute' models and metrics (they import and run that code).",
 )
-def status(config: str, store: str | None, as_json: bool, allow_imports: bool) -> None:
+@click.option(
+    "--all",
+    "list_all",
+    is_flag=True,
+    help=f"List every task (by default a campaign of over {_STATUS_ROWS} tasks is "
+    "summarised per step, with its first missing tasks).",
+)
+def status(
+    config: str, store: str | None, as_json: bool, allow_imports: bool, list_all: bool
+) -> None:
     """Which tasks of CONFIG are stored and which are missing (computes nothing)."""
     from .errors import AeroidError
     from .pipeline.config import load_config
@@ -238,32 +251,54 @@ def status(config: str, store: str | None, as_json: bool, allow_imports: bool) -
     except AeroidError as exc:
         _fail(str(exc))
         return
-    tasks: list[dict[str, str]] = []
     in_store = set() if st is None else st.stored((t.stage, t.key) for t in the_plan.tasks)
-    for t in the_plan.tasks:
-        stored = (t.stage, t.key) in in_store
-        tasks.append(
-            {
-                "stage": t.step,
-                "flight": t.flight or "",
-                "key": t.key,
-                "status": "stored" if stored else "missing",
-            }
-        )
-    n_stored = sum(t["status"] == "stored" for t in tasks)
-    doc: dict[str, Any] = {
-        "stored": n_stored,
-        "missing": len(tasks) - n_stored,
-        "store": cfg.store_location,
-        "tasks": tasks,
-    }
+    stored = [(t.stage, t.key) in in_store for t in the_plan.tasks]
+    n_stored = sum(stored)
+    where = cfg.store_location
     if as_json:
-        doc["tasks"] = [{**row, "flight": row["flight"] or None} for row in tasks]
+        doc: dict[str, Any] = {
+            "stored": n_stored,
+            "missing": len(stored) - n_stored,
+            "store": where,
+            "tasks": [
+                {
+                    "stage": t.step,
+                    "flight": t.flight,
+                    "key": t.key,
+                    "status": "stored" if ok else "missing",
+                }
+                for t, ok in zip(the_plan.tasks, stored, strict=True)
+            ],
+        }
         click.echo(json.dumps(doc, indent=2))
         return
-    rows = [[t["stage"], t["flight"] or "(campaign)", t["key"][:12], t["status"]] for t in tasks]
-    click.echo(_table(["stage", "flight", "key", "status"], rows))
-    click.echo(f"\n{doc['stored']} stored, {doc['missing']} missing in {cfg.store_location}")
+    if list_all or len(stored) <= _STATUS_ROWS:
+        rows = [
+            [t.step, t.flight or "(campaign)", t.key[:12], "stored" if ok else "missing"]
+            for t, ok in zip(the_plan.tasks, stored, strict=True)
+        ]
+        click.echo(_table(["stage", "flight", "key", "status"], rows))
+    else:
+        # a large campaign: one row per step, then the first missing tasks (a table of
+        # every task would be as long as the campaign)
+        counts: dict[str, list[int]] = {}
+        for t, ok in zip(the_plan.tasks, stored, strict=True):
+            counts.setdefault(t.step, [0, 0])[0 if ok else 1] += 1
+        click.echo(
+            _table(
+                ["stage", "stored", "missing"],
+                [[k, str(a), str(b)] for k, (a, b) in counts.items()],
+            )
+        )
+        missing = [t for t, ok in zip(the_plan.tasks, stored, strict=True) if not ok]
+        if missing:
+            shown = [
+                [t.step, t.flight or "(campaign)", t.key[:12]] for t in missing[:_MISSING_SHOWN]
+            ]
+            click.echo(f"\nfirst {len(shown)} of {len(missing)} missing tasks:")
+            click.echo(_table(["stage", "flight", "key"], shown))
+        click.echo(f"\n{len(stored)} tasks; `aeroid status --all` lists every one")
+    click.echo(f"\n{n_stored} stored, {len(stored) - n_stored} missing in {where}")
 
 
 def _store_options(f: Any) -> Any:

@@ -290,6 +290,27 @@ def test_show_status_rerun_and_gc(tmp_path):
     assert code == 2 and "--config" in err
 
 
+def test_status_of_a_large_campaign_is_a_summary_per_step(tmp_path, monkeypatch):
+    from aeroid import cli
+
+    cfg = make_campaign(tmp_path, n=3)  # 7 tasks: 3 loads, 3 stats, the campaign step
+    run_json(cfg)
+    (tmp_path / "flights" / "f00.csv").write_text(
+        (tmp_path / "flights" / "f01.csv").read_text().replace("0.", "1.", 3)
+    )
+    monkeypatch.setattr(cli, "_STATUS_ROWS", 4)
+    monkeypatch.setattr(cli, "_MISSING_SHOWN", 1)
+    code, out, _ = invoke("status", str(cfg))
+    assert code == 0
+    # one row per step with its counts, then the first missing task, then the totals
+    assert "| stage " in out and "| stored | missing |" in out
+    assert "first 1 of 3 missing tasks:" in out and "f00" in out
+    assert "7 tasks; `aeroid status --all` lists every one" in out
+    assert "4 stored, 3 missing" in out
+    code, every, _ = invoke("status", str(cfg), "--all")
+    assert code == 0 and every.count("| missing |") == 3 and every.count("| stored  |") == 4
+
+
 def test_rerun_reports_the_largest_difference(tmp_path):
     cfg = make_campaign(tmp_path, n=1)
     _, doc = run_json(cfg)
