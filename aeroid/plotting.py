@@ -435,8 +435,11 @@ def plot_campaign_trend(
         One per flight: ``{"flight": label, "parameters": {...}, "stderr": {...},
         "metadata": {...}}``.
     condition : str, optional
-        Metadata key to plot against (airspeed, Mach, dynamic pressure...);
-        default the first of those present, else the flight index.
+        Metadata key to plot against (alpha, airspeed, Mach, dynamic pressure...);
+        default the first of those present, else the flight index. Angles (alpha,
+        beta, in rad) are drawn in degrees; where the flights give an altitude that
+        varies, each altitude has its colour; up to 30 flights, each point is
+        labelled with its flight.
     parameters : sequence of str, optional
         The parameters to draw, a panel each, in this order; default those of
         the first flight. A flight without an estimate of one leaves a gap.
@@ -460,7 +463,7 @@ def plot_campaign_trend(
         names = list(parameters)
     if condition is None and ok:
         meta = ok[0].get("metadata", {})
-        for key in ("airspeed", "mach", "Mach", "dynamic_pressure", "qbar"):
+        for key in ("alpha", "airspeed", "mach", "Mach", "dynamic_pressure", "qbar"):
             if key in meta:
                 condition = key
                 break
@@ -474,16 +477,36 @@ def plot_campaign_trend(
     if condition is not None:
         x = np.array([float(r.get("metadata", {}).get(condition, np.nan)) for r in ok])
         unit_of = {condition: _CONDITION_UNITS.get(condition, ""), **dict(units or {})}
+        if condition in ("alpha", "beta"):  # given in rad, read in degrees
+            x, unit_of[condition] = np.degrees(x), "deg"
         xlabel = _label(condition, unit_of).replace("_", " ")
     else:
         x = np.arange(len(ok), dtype=float)
         xlabel = "flight"
+    # a second condition, where the flights give one that varies: a colour per value
+    alt = np.array([float(r.get("metadata", {}).get("altitude", np.nan)) for r in ok])
+    groups = sorted(set(alt[np.isfinite(alt)].tolist())) if condition != "altitude" else []
+    if len(groups) < 2:
+        groups = []
     for j, name in enumerate(names):
         ax = axes[j, 0]
         y = np.array([r["parameters"].get(name, np.nan) for r in ok])
         e = np.array([1.96 * r["stderr"].get(name, np.nan) for r in ok])
-        ax.errorbar(x, y, yerr=e, fmt="o", ms=4, capsize=3, color="C0")
+        for g, sel in enumerate(
+            [alt == h for h in groups] if groups else [np.ones(len(ok), dtype=bool)]
+        ):
+            label = f"altitude {groups[g]:g} m" if groups else None
+            ax.errorbar(
+                x[sel], y[sel], yerr=e[sel], fmt="o", ms=4, capsize=3, color=f"C{g}", label=label
+            )
+        if condition is not None and len(ok) <= 30:
+            for i in np.flatnonzero(np.isfinite(y)):
+                ax.annotate(
+                    labels[i], (x[i], y[i]), fontsize=5, xytext=(3, 2), textcoords="offset points"
+                )
         ax.set_ylabel(_label(name, units), fontsize=8)
+    if groups and names:
+        axes[0, 0].legend(fontsize=6, loc="best", ncol=min(len(groups), 4))
     if names:
         # pinned 0.1 in below the top edge, inside the top margin, whatever the figure's
         # height (a fraction of a tall figure would reach into the first panel)

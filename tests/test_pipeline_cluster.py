@@ -128,7 +128,7 @@ def _demo_campaign(tmp: Path) -> Path:
     cfg = tmp / "demo.yaml"
     # same campaign, fewer flights; the store and report are given per run
     text = text.replace("n_flights: 12", "n_flights: 4").replace(
-        "store: ../aeroid-store", "store: store"
+        "store: ../aeroid-store/", "store: store/"
     )
     text = text.replace("report: ../reports/short_period.md   # the campaign report", "")
     # a short chain (unconverged, and warned about) keeps the test quick

@@ -427,8 +427,9 @@ register_stage(
         # 8: handling-qualities Levels and right-half-plane zeros named; 9: estimates
         # transposed and split to fit a page, 1σ labelled, poor-fit and error flags,
         # flights worst first and open for printing; 10: residual autocorrelation
-        # and held-out prediction figures per flight
-        "10",
+        # and held-out prediction figures per flight; 11: trends against alpha (deg)
+        # where given, a colour per altitude, each point labelled with its flight
+        "11",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,
