@@ -21,6 +21,7 @@ loaded aircraft and converts them to SI, as `aeroid.aircraft.AircraftConstants`.
 
 from __future__ import annotations
 
+import atexit
 import csv
 import hashlib
 import math
@@ -130,6 +131,7 @@ def _root_with(aerodynamics: str) -> Path:
 
     src = Path(_jsbsim().get_default_root_dir())
     root = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
+    atexit.register(shutil.rmtree, root, True)  # kept while the process may fly it
     for sub in ("engine", "systems"):
         shutil.copytree(src / sub, root / sub)
     shutil.copytree(src / "aircraft" / "c172x", root / "aircraft" / "c172x")
