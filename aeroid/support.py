@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 from . import _html
 from ._database_export import replace_aerodynamics
 from ._html import figure_png, markdown_to_html
+from ._prediction import holdout_record
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._units import parameter_units
 
@@ -26,6 +27,7 @@ __all__ = [
     "figure",
     "figure_png",
     "fmt",
+    "holdout_record",
     "markdown_table",
     "markdown_to_html",
     "parameter_units",

@@ -244,3 +244,47 @@ def test_the_fits_output_bias_applies_on_a_window_of_its_record_only():
     gap = second.prediction.measured[:, 0] - second.prediction.predicted[:, 0]
     # (less the start's transient: the measured alpha(0) it starts from holds the offset)
     assert 0.8 * offset < gap.mean() < offset + 4 * SP_NOISE["alpha"] / np.sqrt(gap.size)
+
+
+def test_a_campaign_holds_the_window_out_of_the_fit_and_predicts_it(tmp_path):
+    from aeroid.pipeline import open_store, plan, run
+
+    def config(identify: str, store: str) -> object:
+        cfg = tmp_path / f"{store}.yaml"
+        cfg.write_text(
+            f"model: short_period\nseed: 5\nstore: {store}\nreport: out/{store}.md\n"
+            "flights: [{simulated: {n_flights: 2, seed: 1, duration: 20.0, "
+            "maneuver: doublet_sweep}}]\n"
+            f"stages:\n  identify: {{parameters: [Z_alpha, M_alpha, M_q, M_delta]{identify}}}\n"
+            "  validate: {holdout: {t0: 12.0, t1: 16.0}}\n"
+        )
+        return cfg
+
+    def results(cfg: object, store: str) -> dict[str, dict[str, object]]:
+        s = run(cfg, workers=0)
+        assert s.failed == 0, [st.error for st in s.statuses.values() if st.error]
+        st = open_store(tmp_path / store)
+        out: dict[str, dict[str, object]] = {}
+        for t in s.plan.tasks:
+            if t.step in ("identify", "validate"):
+                out.setdefault(t.flight, {})[t.step] = st.load(t.key, t.stage)
+        return out
+
+    plain_cfg = config("", "plain")
+    held_cfg = config(", holdout: {t0: 12.0, t1: 16.0}", "held")
+    # without the option the identify keys are those of earlier releases
+    plain_keys = {t.key for t in plan(plain_cfg).tasks if t.step == "identify"}
+    assert not plain_keys & {t.key for t in plan(held_cfg).tasks if t.step == "identify"}
+    inside, outside = results(plain_cfg, "plain"), results(held_cfg, "held")
+    for flight, rec in outside.items():
+        # fitted on the two parts either side of the window, records of their own
+        assert len(rec["identify"].data_fingerprints) == 2
+        held, seen = rec["validate"].prediction, inside[flight]["validate"].prediction
+        assert not held.in_fit and seen.in_fit
+        # the window is a small part of the data: the fits and predictions hardly differ
+        for name, m in held.metrics.items():
+            assert abs(m.rmse - seen.metrics[name].rmse) < 0.1 * seen.metrics[name].rmse
+    # a window that leaves nothing to fit on fails the flight's fit, naming the option
+    bad = run(config(", holdout: {t0: 0.0, t1: 19.95}", "bad"), workers=0)
+    errors = [st.error for st in bad.statuses.values() if st.error]
+    assert bad.failed and any("stages.identify.holdout" in e for e in errors), errors

@@ -19,7 +19,7 @@ from pydantic import AliasChoices, Field, field_validator, model_validator
 
 from ..errors import AeroidError, PipelineError
 from .config import Options
-from .load_stage import LoadOptions, flight_data, record_start
+from .load_stage import HoldoutSpec, LoadOptions, flight_data, outside_holdout, record_start
 from .metrics import METRICS, damping_ratio, metric, natural_frequency, static_margin
 from .signature_options import library_fields
 from .stages import FlightReport, Stage, StageContext, register_stage
@@ -71,12 +71,18 @@ class IdentifyOptions(
         bounds=(dict[str, tuple[float | None, float | None]] | None, Field(None)),
     )
 ):
-    """`aeroid.identify` keywords (``parameters``: names to estimate; default all)."""
+    """`aeroid.identify` keywords (``parameters``: names to estimate; default all);
+    ``holdout`` (as the validate stage's) keeps that part of the record out of the fit,
+    which then uses the data before and after it as records of their own, so that
+    validate's prediction of the same part is a check on data the fit never saw."""
+
+    holdout: HoldoutSpec | None = None
 
     # unset, they leave the keys of results stored before they existed unchanged
     added_later: ClassVar[frozenset[str]] = frozenset(
-        {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start"}
+        {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start", "holdout"}
     )
+    engine_only: ClassVar[frozenset[str]] = frozenset({"holdout"})
 
     @field_validator("simulate_options", mode="after")
     @classmethod
@@ -104,7 +110,11 @@ def _run_identify(ctx: StageContext) -> Any:
     from ..identification import identify
 
     names = ctx.options.parameters or list(ctx.model.parameter_names)
-    return identify(ctx.model, flight_data(ctx), names, **_kwargs(ctx.options, "parameters"))
+    data = flight_data(ctx)
+    if ctx.options.holdout is not None:
+        data = outside_holdout(data, ctx.options.holdout)
+    kw = _kwargs(ctx.options, "parameters", "holdout")
+    return identify(ctx.model, data, names, **kw)
 
 
 class FilterOptions(
@@ -124,28 +134,6 @@ def _run_filter(ctx: StageContext) -> Any:
     return filter_states(
         ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
     )
-
-
-class HoldoutSpec(Options):
-    """Data held out of the fit, predicted by `validate`: a window ``t0``..``t1``
-    (seconds) of the flight's record, or its last ``fraction``."""
-
-    t0: float | None = None
-    t1: float | None = None
-    fraction: float | None = Field(None, gt=0, lt=1)
-
-    @model_validator(mode="after")
-    def _one_form(self) -> HoldoutSpec:
-        window = self.t0 is not None or self.t1 is not None
-        if window and self.fraction is not None:
-            raise ValueError("give either t0 and t1, or fraction, not both")
-        if window and (self.t0 is None or self.t1 is None):
-            raise ValueError("a held-out window needs both t0 and t1")
-        if not window and self.fraction is None:
-            raise ValueError("give t0 and t1 (seconds), or fraction (the record's last part)")
-        if self.t0 is not None and self.t1 is not None and not self.t1 > self.t0:
-            raise ValueError(f"need t1 > t0, got t0={self.t0:g}, t1={self.t1:g}")
-        return self
 
 
 class ValidateOptions(

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from ..errors import DataFormatError, PipelineError
 from .config import Options
@@ -38,6 +38,52 @@ def record_start(ctx: StageContext) -> dict[str, Any]:
     start = dict(fitted[0]) if fitted else {}
     x0 = {s: start.get(s, first.get(s, 0.0)) for s in model.states}
     return {"x0": x0, "trim": {c: first[c] for c in model.controls}}
+
+
+class HoldoutSpec(Options):
+    """Data held out of the fit, predicted by `validate`: a window ``t0``..``t1``
+    (seconds) of the flight's record, or its last ``fraction``."""
+
+    t0: float | None = None
+    t1: float | None = None
+    fraction: float | None = Field(None, gt=0, lt=1)
+
+    @model_validator(mode="after")
+    def _one_form(self) -> HoldoutSpec:
+        window = self.t0 is not None or self.t1 is not None
+        if window and self.fraction is not None:
+            raise ValueError("give either t0 and t1, or fraction, not both")
+        if window and (self.t0 is None or self.t1 is None):
+            raise ValueError("a held-out window needs both t0 and t1")
+        if not window and self.fraction is None:
+            raise ValueError("give t0 and t1 (seconds), or fraction (the record's last part)")
+        if self.t0 is not None and self.t1 is not None and not self.t1 > self.t0:
+            raise ValueError(f"need t1 > t0, got t0={self.t0:g}, t1={self.t1:g}")
+        return self
+
+
+def outside_holdout(data: Any, holdout: Any) -> list[Any]:
+    """The parts of `data` before and after its held-out window, each a record."""
+    from ..errors import IdentificationError
+    from ..support import holdout_record
+
+    spec = holdout.model_dump(exclude_none=True)
+    try:
+        held, _, _ = holdout_record(data, spec)
+    except IdentificationError as exc:
+        raise PipelineError(f"stages.identify.{exc}") from None
+    t, first, last = data.time, float(held.time[0]), float(held.time[-1])
+    parts = [data.window(float(t[0]), float(t[t < first][-1])) if (t < first).sum() >= 10 else None]
+    parts.append(
+        data.window(float(t[t > last][0]), float(t[-1])) if (t > last).sum() >= 10 else None
+    )
+    kept = [p for p in parts if p is not None]
+    if not kept:
+        raise PipelineError(
+            f"stages.identify.holdout: the window [{first:g}, {last:g}] s leaves fewer than 10 "
+            "samples of the record to fit on either side"
+        )
+    return kept
 
 
 class QualityLimits(Options):
