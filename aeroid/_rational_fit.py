@@ -6,7 +6,7 @@ Fourier transforms (`aeroid.frequency_id.fit_transfer_function`'s parts).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -189,7 +189,6 @@ def _fit_fourier(
     fixed: Mapping[str, float] | None,
 ) -> TransferFunctionFit:
     """Output error on the record's Fourier transforms: min Σ |Y − T U|², real parameters."""
-    import scipy.optimize
 
     from .frequency_domain import _frequency_grid, _transform
 
@@ -260,20 +259,7 @@ def _fit_fourier(
     for k_, v_ in held.items():
         theta[st.names.index(k_)] = v_
 
-    def full(x: FloatArray) -> FloatArray:
-        return _filled(theta, free, x)
-
-    with np.errstate(all="ignore"):
-        sol = scipy.optimize.least_squares(
-            lambda x: residual(full(x)),
-            theta[free],
-            jac=lambda x: jacobian(full(x))[:, free],
-            method="lm",
-            x_scale="jac",
-            xtol=1e-12,
-            ftol=1e-12,
-        )
-    theta = full(sol.x)
+    theta = fit_free(residual, jacobian, theta, free)
     r = residual(theta)
     if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
         raise IdentificationError(
@@ -315,6 +301,32 @@ def _fit_fourier(
         input,
         output,
     )
+
+
+def fit_free(
+    residual: Callable[[FloatArray], FloatArray],
+    jacobian: Callable[[FloatArray], FloatArray],
+    theta: FloatArray,
+    free: NDArray[np.bool_],
+) -> FloatArray:
+    """`theta` with its free entries fitted by SciPy's Levenberg–Marquardt (the held
+    ones kept): the one least-squares call of the transfer-function fits."""
+    import scipy.optimize
+
+    def full(x: FloatArray) -> FloatArray:
+        return _filled(theta, free, x)
+
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(
+            lambda x: residual(full(x)),
+            theta[free],
+            jac=lambda x: jacobian(full(x))[:, free],
+            method="lm",
+            x_scale="jac",
+            xtol=1e-12,
+            ftol=1e-12,
+        )
+    return full(sol.x)
 
 
 def _filled(theta: FloatArray, free: NDArray[np.bool_], x: FloatArray) -> FloatArray:

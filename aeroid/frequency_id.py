@@ -80,7 +80,6 @@ from ._rational_fit import _MIN_PERIODS as _MIN_PERIODS
 from ._rational_fit import _coherence_weight as _coherence_weight
 from ._rational_fit import _detrended as _detrended
 from ._rational_fit import _excited_band as _excited_band
-from ._rational_fit import _filled
 from ._rational_fit import _fit_fourier as _fit_fourier
 from ._rational_fit import _held as _held
 from ._rational_fit import _levy_sk as _levy_sk
@@ -89,6 +88,7 @@ from ._rational_fit import _record_grid as _record_grid
 from ._rational_fit import _start as _start
 from ._rational_fit import _start_value as _start_value
 from ._rational_fit import _Structure as _Structure
+from ._rational_fit import fit_free
 from ._response_records import _CR_LIMIT as _CR_LIMIT
 from ._response_records import _INSENSITIVITY_LIMIT as _INSENSITIVITY_LIMIT
 from ._response_records import (
@@ -555,27 +555,12 @@ def fit_transfer_function(
         _, g = st.log_response(theta)
         return np.concatenate([-(w_mag * _DB)[:, None] * g.real, -(w_ph * _DEG)[:, None] * g.imag])
 
-    import scipy.optimize  # only a fit needs it; composite responses do not
-
     theta = _start(st, h, w, _coherence_weight(coh), residual, start)
     for k, v in held.items():
         theta[st.names.index(k)] = v
 
-    def full(x: FloatArray) -> FloatArray:
-        return _filled(theta, free, x)
-
     for _ in range(_PASSES if weighting == "random_error" else 1):
-        with np.errstate(all="ignore"):
-            sol = scipy.optimize.least_squares(
-                lambda x: residual(full(x)),
-                theta[free],
-                jac=lambda x: jacobian(full(x))[:, free],
-                method="lm",
-                x_scale="jac",
-                xtol=1e-12,
-                ftol=1e-12,
-            )
-        theta = full(sol.x)
+        theta = fit_free(residual, jacobian, theta, free)
         if weighting == "random_error":
             model = np.abs(np.exp(st.log_response(theta)[0]))
             if not np.all(np.isfinite(model) & (model > 0)):

@@ -38,3 +38,21 @@ LAT = {
     "Cn_delta_a": -0.0035,
     "Cn_delta_r": -0.072,
 }
+
+# dimensional derivatives of `aircraft.lateral_linear` (per second: Y_ per rad, L_ and N_
+# per rad/s^2), a lateral-directional truth for the linear-model tests, and its states
+LATERAL_LINEAR = {
+    "Y_beta": -0.15,
+    "Y_delta_r": 0.03,
+    "L_beta": -4.0,
+    "L_p": -2.5,
+    "L_r": 0.8,
+    "L_delta_a": 12.0,
+    "L_delta_r": 0.5,
+    "N_beta": 3.0,
+    "N_p": -0.1,
+    "N_r": -0.6,
+    "N_delta_a": -0.4,
+    "N_delta_r": -3.0,
+}
+LATERAL_STATES = ["beta", "p", "r", "phi"]

@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
+from _aircraft_data import LATERAL_LINEAR as LATERAL
 
 from aeroid import FlightData, IdentificationError, Model, catalog, identify
 from aeroid.aircraft import lateral_linear
@@ -14,21 +15,6 @@ from aeroid.identification import _equation_error_start
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 TRUTH = catalog.SHORT_PERIOD_TRUTH
-LATERAL = {
-    "Y_beta": -0.15,
-    "Y_delta_r": 0.03,
-    "L_beta": -4.0,
-    "L_p": -2.5,
-    "L_r": 0.8,
-    "L_delta_a": 12.0,
-    "L_delta_r": 0.5,
-    "N_beta": 3.0,
-    "N_p": -0.1,
-    "N_r": -0.6,
-    "N_delta_a": -0.4,
-    "N_delta_r": -3.0,
-}
-STATES = ["beta", "p", "r", "phi"]
 
 
 def _lateral_flight(seed: int) -> tuple[Model, FlightData]:

@@ -11,6 +11,8 @@ import warnings
 
 import numpy as np
 import pytest
+from _aircraft_data import LATERAL_LINEAR as LATERAL
+from _aircraft_data import LATERAL_STATES as STATES
 
 from aeroid import FlightData, IdentificationError, catalog, equation_error, identify
 from aeroid._output_error import shifted_controls
@@ -19,21 +21,6 @@ from aeroid.errors import ChannelError, DataFormatError
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 DELAY = 0.07
-LATERAL = {
-    "Y_beta": -0.15,
-    "Y_delta_r": 0.03,
-    "L_beta": -4.0,
-    "L_p": -2.5,
-    "L_r": 0.8,
-    "L_delta_a": 12.0,
-    "L_delta_r": 0.5,
-    "N_beta": 3.0,
-    "N_p": -0.1,
-    "N_r": -0.6,
-    "N_delta_a": -0.4,
-    "N_delta_r": -3.0,
-}
-STATES = ["beta", "p", "r", "phi"]
 
 
 def _short_period(tau: float, seed: int) -> FlightData:

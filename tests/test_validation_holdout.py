@@ -4,27 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _aircraft_data import LATERAL_LINEAR as LATERAL
+from _aircraft_data import LATERAL_STATES as STATES
 
 from aeroid import FlightData, IdentificationError, catalog, identify, validate
 from aeroid._prediction import prediction_metrics
 from aeroid.aircraft import lateral_linear
 from aeroid.errors import IdentifiabilityWarning
 
-LATERAL = {
-    "Y_beta": -0.15,
-    "Y_delta_r": 0.03,
-    "L_beta": -4.0,
-    "L_p": -2.5,
-    "L_r": 0.8,
-    "L_delta_a": 12.0,
-    "L_delta_r": 0.5,
-    "N_beta": 3.0,
-    "N_p": -0.1,
-    "N_r": -0.6,
-    "N_delta_a": -0.4,
-    "N_delta_r": -3.0,
-}
-STATES = ["beta", "p", "r", "phi"]
 SP_NOISE = {"alpha": 0.001, "q": 0.002}
 LAT_NOISE = {"beta": 0.002, "p": 0.005, "r": 0.003, "phi": 0.003}
 
