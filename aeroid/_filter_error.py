@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from ._identifiability import unidentifiable
 from ._identification_record import IdentificationResult
-from ._output_error import held_at_bounds
+from ._least_squares import Linearisation, minimise
 from .data import FlightData
 from .errors import IdentifiabilityWarning, IdentificationError
 from .filtering import (
@@ -223,25 +223,6 @@ def _derivatives(
             elif bad[n + i] and np.isfinite(cost[1 + i]):
                 grad[i] = (cost[1 + i] - cost[0]) / h[i]
     return float(cost[0]), grad, fisher, quad, [(nu[0], S[0]) for nu, S in per]
-
-
-def _bounded_delta(
-    fisher: FloatArray, g: FloatArray, lam: float, z: FloatArray, lo: FloatArray, hi: FloatArray
-) -> FloatArray:
-    """The damped scoring step, with quantities at a bound whose step would leave
-    the box held (zero step) and the step re-solved without them."""
-
-    def solve(idx: NDArray[np.intp]) -> FloatArray:
-        F = fisher[np.ix_(idx, idx)]
-        D = np.diag(np.maximum(np.diag(F), 1e-300))
-        try:
-            return np.asarray(np.linalg.solve(F + lam * D, -g[idx]), dtype=np.float64)
-        except np.linalg.LinAlgError:
-            return np.asarray(
-                -np.linalg.lstsq(F + lam * D, g[idx], rcond=None)[0], dtype=np.float64
-            )
-
-    return held_at_bounds(solve, z <= lo, z >= hi)
 
 
 def identify_filter_error(
@@ -449,40 +430,34 @@ def identify_filter_error(
             "filter-error identification: the filter fails at the initial parameters "
             f"{ {n: start[n] for n in names} }; check the initial values and noise levels"
         )
-    lam = 1e-3
-    success = False
-    message = f"stopped after {max_iterations} iterations without converging"
-    it = 0
-    for it in range(1, int(max_iterations) + 1):
-        accepted = False
-        while lam < 1e16:
-            delta = _bounded_delta(fisher, g, lam, z, lo, hi)
-            zt = np.clip(z + delta, lo, hi)
-            ft, gt, Ft, qt, pt = _derivatives(obj, zt, layout)
-            if np.isfinite(ft) and ft <= f:
-                accepted = True
-                break
-            lam *= 10.0
-        if not accepted:
-            free = (z > lo) & (z < hi)
-            gs = np.abs(g[free]) / np.sqrt(np.maximum(np.diag(fisher)[free], 1e-300))
-            success = bool(gs.size == 0 or np.max(gs) < 1e-3)
-            message = (
-                f"converged in {it - 1} iterations (no further decrease of the cost)"
-                if success
-                else "stopped: no step decreases the negative log-likelihood"
-            )
-            break
-        scale = np.ones_like(z)
-        scale[:n_p] = np.maximum(np.abs(z[:n_p]), 1e-8)
-        step = float(np.max(np.abs(zt - z) / scale))
-        decrease = f - ft
-        z, f, g, fisher, quad, per = zt, ft, gt, Ft, qt, pt
-        lam = max(lam / 10.0, 1e-12)
-        if step < tolerance or decrease <= 1e-3 * tolerance * max(abs(f), 1.0):
-            success = True
-            message = f"converged in {it} iterations"
-            break
+
+    def evaluate(zt: FloatArray, _base: Linearisation | None) -> Linearisation | None:
+        ft, gt, ft_info, qt, pt = _derivatives(obj, zt, layout)
+        return Linearisation(ft, gt, ft_info, (qt, pt)) if np.isfinite(ft) else None
+
+    # the noise intensities are logarithms: their steps count in absolute terms
+    typical = np.ones_like(z)
+    typical[:n_p] = 1e-8
+    fit = minimise(
+        evaluate,
+        z,
+        Linearisation(f, g, fisher, (quad, per)),
+        tolerance=tolerance,
+        max_iterations=int(max_iterations),
+        typical=typical,
+        lower=lo,
+        upper=hi,
+        damping=1e-3,
+    )
+    z, f, fisher = fit.theta, fit.point.cost, fit.point.curvature
+    quad, per = fit.point.payload
+    success, message, it = fit.success, fit.message, fit.iterations
+    if not success:
+        warnings.warn(
+            f"filter-error identification: {message}; the result is flagged success=False",
+            UserWarning,
+            stacklevel=4,  # identify_filter_error, identify, its BLAS wrapper, the caller
+        )
 
     labels = layout.labels(m, out_names)
     # Noise intensities at a bound, or that the data cannot determine, are

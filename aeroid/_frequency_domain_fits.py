@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from ._colour import frequency_sandwich
 from ._identifiability import unidentifiable
+from ._least_squares import Linearisation, minimise
 from ._state_space import _StateSpace
 from ._threads import CALLER_STACKLEVEL
 from .errors import IdentificationError
@@ -58,6 +59,36 @@ def _covariances(
         combos,
         null,
     )
+
+
+def _concentrated(gn: FloatArray, v: ComplexArray, dY: ComplexArray, real: bool) -> FloatArray:
+    """The Gauss-Newton matrix of ``M/2 log det S`` with ``S = (1/M) sum v v^H``
+    estimated from the residuals themselves.
+
+    `gn` is the matrix at S held fixed; the noise covariance moving with the
+    parameters takes ``M/2 tr(S^-1 dS_i S^-1 dS_j)`` off it. Without that term
+    each step falls short of the optimum by the share of the residual the noise
+    estimate absorbs, and the iteration converges only linearly. Where the
+    difference is not positive definite (far from the optimum) `gn` is kept.
+    """
+    m = v.shape[0]
+    a = np.einsum("kai,kb->iab", -dY, v.conj()) / m  # the residual's slope is -dY
+    dS = a + np.conj(np.transpose(a, (0, 2, 1)))
+    S = v.T @ v.conj() / m
+    if real:
+        S, dS = S.real, dS.real
+    try:
+        P = np.linalg.solve(S[None], dS)
+    except np.linalg.LinAlgError:
+        return gn
+    out = gn - 0.5 * m * np.einsum("iab,jba->ij", P, P).real
+    out = 0.5 * (out + out.T)
+    d = np.sqrt(np.clip(np.diag(gn), 1e-300, None))
+    try:
+        np.linalg.cholesky(out / np.outer(d, d) + 1e-10 * np.eye(d.size))
+    except np.linalg.LinAlgError:
+        return gn
+    return np.asarray(out, dtype=np.float64)
 
 
 def _stack(z: ComplexArray) -> FloatArray:
@@ -198,7 +229,7 @@ def _output_error(
     jw = 1j * sp.omega[:, None, None] * np.eye(n_x)
     bT = None if bcols is None else np.ascontiguousarray(bcols.transpose(0, 2, 1))
 
-    def evaluate(theta: FloatArray, slopes: bool) -> tuple[ComplexArray, ComplexArray | None]:
+    def evaluate_model(theta: FloatArray, slopes: bool) -> tuple[ComplexArray, ComplexArray | None]:
         p = theta[:n_p]
         U = sp.U
         if n_d:
@@ -268,13 +299,12 @@ def _output_error(
     ss.affine(p0)  # then the iterations evaluate no model function
     tau = np.zeros(n_d) if tau0 is None else np.asarray(tau0, dtype=np.float64)
     theta = np.concatenate([p0, tau, np.zeros(n_b)])
-    v, dY = evaluate(theta, True)
+    v, dY = evaluate_model(theta, True)
     if not np.all(np.isfinite(v)):
         raise IdentificationError(
             "output error: the model outputs are not finite at the initial parameters (a pole "
             "on a chosen frequency?)"
         )
-    success, message, it = False, f"iteration limit {max_iterations} reached", 0
     Li = weighting(v)
     if boundary and noise is None:
         # the ends enter linearly: solve for them first, so the first noise estimate
@@ -283,74 +313,60 @@ def _output_error(
         Jb = _stack(Li @ dY[:, :, n_pd:])
         rb = _stack(v @ Li.T)
         theta[n_pd:] = np.linalg.lstsq(Jb.reshape(-1, n_b), rb.reshape(-1), rcond=None)[0]
-        v, dY = evaluate(theta, True)
+        v, dY = evaluate_model(theta, True)
         Li = weighting(v)
 
-    def objective(v: ComplexArray) -> float:
-        # the negative log-likelihood less constants: with the noise covariance
-        # estimated it is concentrated out, leaving log det S (the weighted sum of
-        # squares is then n_y M / 2 whatever the parameters)
-        if not np.all(np.isfinite(v)):
-            return np.inf
-        if noise is not None or cross == "sidpac":
-            # (fdoe's weighting is no likelihood's: its fixed point is searched with
-            # the weighting held, as fdoe does)
-            return cost_of(v, Li)
-        S = v.T @ v.conj() / v.shape[0]
-        sign, logdet = np.linalg.slogdet(S.real if cross == "real" else S)
-        return float(logdet) if sign.real > 0 else np.inf
+    held = noise is not None or cross == "sidpac"
 
-    before = [theta.copy(), theta.copy()]  # the last two iterates
-    for step in range(1, max_iterations + 1):
-        it = step
-        assert dY is not None
+    def linearise(v: ComplexArray, dY: ComplexArray, base: Linearisation | None) -> Linearisation:
         Li = weighting(v)
         J = _stack(Li @ dY).reshape(-1, theta.size)
         r = _stack(v @ Li.T).reshape(-1)
-        norms = np.linalg.norm(J, axis=0)
-        norms[norms == 0] = 1.0
-        Jn = J / norms
-        delta = np.linalg.lstsq(Jn, r, rcond=None)[0] / norms
-        # standard errors at this weighting (a weighted real row has variance 1/2)
-        se = np.sqrt(0.5 * np.abs(np.diag(np.linalg.pinv(Jn.T @ Jn, hermitian=True)))) / norms
-        f0 = objective(v)
-        alpha, best, f_best = 1.0, None, f0
-        for _ in range(20):
-            f_t = objective(evaluate(theta + alpha * delta, False)[0])
-            if f_t <= f_best + 1e-12 * abs(f_best):
-                best, f_best = alpha, f_t
-                break
-            alpha *= 0.5
-        if best == 1.0 and noise is None and cross != "sidpac":
-            # re-estimating the noise between steps converges only linearly, each
-            # step short of the optimum along nearly the same line: go further
-            # while the likelihood still rises
-            for _ in range(6):
-                f_t = objective(evaluate(theta + 2.0 * best * delta, False)[0])
-                if not f_t < f_best:
-                    break
-                best, f_best = 2.0 * best, f_t
-        if best is None:
-            # no decrease along the Gauss-Newton step: at the minimum to rounding when
-            # that step is tiny against the error bars, stuck otherwise
-            if np.all(np.abs(delta) <= 1e-3 * se + 1e-12 * np.abs(theta)):
-                success, message = True, "converged (no further decrease of the cost)"
-            else:
-                message = "the line search found no decrease of the cost"
-            break
-        theta = theta + best * delta
-        v, dY = evaluate(theta, True)
-        # converged once no parameter moves by more than `tolerance` of its error bar
-        small = tolerance * se + 1e-12 * np.abs(theta)
-        if np.all(np.abs(best * delta) <= small):
-            success, message = True, "converged"
-            break
-        if step > 2 and np.all(np.abs(theta - before[0]) <= small):
-            # re-estimating the noise can settle into a two-step cycle about the fixed
-            # point (fdoe's weighting is no likelihood that would forbid it)
-            success, message = True, "converged (the noise re-estimate cycles within tolerance)"
-            break
-        before = [before[1], theta.copy()]
+        if held:
+            # a fixed noise, or fdoe's weighting, which is no likelihood's: each step is
+            # judged with the weighting of the point it starts from, as fdoe does
+            cost = cost_of(v, Li)
+            judged = None if base is None else cost_of(v, base.payload[2])
+        else:
+            # the negative log-likelihood less constants: with the noise covariance
+            # estimated it is concentrated out, leaving M/2 log det S, whose gradient and
+            # Gauss-Newton matrix are those of the weighted squares at this S
+            S = v.T @ v.conj() / v.shape[0]
+            sign, logdet = np.linalg.slogdet(S.real if cross == "real" else S)
+            cost = 0.5 * v.shape[0] * float(logdet) if sign.real > 0 else np.inf
+            judged = None
+        curvature = J.T @ J
+        if not held and np.isfinite(cost):
+            curvature = _concentrated(curvature, v, dY, cross == "real")
+        # (J is the model's slope, the residual's with its sign turned)
+        return Linearisation(cost, -(J.T @ r), curvature, (v, dY, Li), judged)
+
+    def evaluate(trial: FloatArray, base: Linearisation | None) -> Linearisation | None:
+        v_t, dY_t = evaluate_model(trial, True)
+        if dY_t is None or not (np.all(np.isfinite(v_t)) and np.all(np.isfinite(dY_t))):
+            return None
+        try:
+            return linearise(v_t, dY_t, base)
+        except IdentificationError:  # a singular residual covariance: a rejected trial
+            return None
+
+    assert dY is not None
+    first = linearise(v, dY, None)
+    # an unknown near zero (an end state, a small derivative) is measured against its
+    # standard error at the start (a weighted real row has variance 1/2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        typical = np.sqrt(0.5 * np.abs(np.diag(np.linalg.pinv(first.curvature, hermitian=True))))
+    typical[~(typical > 0)] = 1.0
+    fit = minimise(
+        evaluate,
+        theta,
+        first,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        typical=typical,
+    )
+    theta, it, success, message = fit.theta, fit.iterations, fit.success, fit.message
+    v, dY, _ = fit.point.payload
     if not success:
         warnings.warn(
             f"identify_frequency_domain: {message}; the result is flagged success=False",

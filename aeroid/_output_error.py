@@ -12,7 +12,7 @@ finite-difference columns.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from ._excitation import refuse_runaway as _refuse_runaway
 from ._identifiability import unidentifiable as _combinations
 from ._identification_record import IdentificationResult
+from ._least_squares import Linearisation, minimise
 from ._noise_model import _bandwidth, _colored_covariance, _warn_unabsorbed_drift
 from .data import FlightData
 from .errors import (
@@ -356,15 +357,6 @@ class _Problem:
             jac[:, k, j] = -1.0
 
 
-def _relative_step(step: FloatArray, theta: FloatArray, typ: FloatArray) -> float:
-    return float(np.max(np.abs(step) / np.maximum(np.abs(theta), typ)))
-
-
-def _converged(rel_step: float, decrease: float, cost: float, tolerance: float) -> bool:
-    """The convergence test: a relative parameter step or a cost decrease this small."""
-    return rel_step < tolerance or decrease < tolerance * max(1.0, abs(cost)) * 1e-3
-
-
 def _noise_variances(residuals: list[FloatArray], floor: FloatArray) -> FloatArray:
     stacked = np.concatenate(residuals, axis=0)
     return np.maximum(np.mean(stacked**2, axis=0), floor)
@@ -395,63 +387,6 @@ def _gradient(
     for jac, v in zip(jacobians, residuals, strict=True):
         g += np.einsum("tkp,tk->p", jac, v / r[None, :])
     return g
-
-
-def held_at_bounds(
-    solve: Callable[[NDArray[np.intp]], FloatArray],
-    at_lower: NDArray[np.bool_],
-    at_upper: NDArray[np.bool_],
-) -> FloatArray:
-    """A step (the change of each unknown) with the unknowns held that sit at a bound
-    and would leave the box: the active set of bounded Gauss–Newton and scoring.
-
-    ``solve(idx)`` returns the change of the free unknowns `idx`; an unknown at a
-    bound whose change points outward is held (zero change) and the rest solved
-    again, until none points outward.
-    """
-    n = at_lower.size
-    free = np.ones(n, dtype=bool)
-    change = np.zeros(n)
-    for _ in range(n + 1):
-        change = np.zeros(n)
-        idx = np.flatnonzero(free)
-        if idx.size:
-            change[idx] = solve(idx)
-        out = free & ((at_lower & (change < 0)) | (at_upper & (change > 0)))
-        if not np.any(out):
-            break
-        free &= ~out
-    return change
-
-
-def _projected_step(
-    a: FloatArray,
-    b: FloatArray,
-    dn: FloatArray,
-    lam: float,
-    theta: FloatArray,
-    lower: FloatArray,
-    upper: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """One bounded Gauss–Newton step: (the step taken, the trial point) with
-    ``trial = theta - step`` inside the box.
-
-    `a` and `b` are the scaled normal equations (scales `dn`); the active set
-    is `held_at_bounds`'s, and what remains is projected onto the box.
-    """
-
-    def solve(idx: NDArray[np.intp]) -> FloatArray:
-        sub = a if idx.size == theta.size else a[np.ix_(idx, idx)]
-        try:
-            sol = np.linalg.lstsq(sub + lam * np.eye(idx.size), b[idx], rcond=1e-12)[0]
-        except np.linalg.LinAlgError:
-            return np.zeros(idx.size)
-        return -sol / dn[idx]  # theta moves by -step
-
-    step = -held_at_bounds(solve, theta <= lower, theta >= upper)
-    trial = np.clip(theta - step, lower, upper)
-    clipped = trial != theta - step
-    return np.where(clipped, theta - trial, step), trial
 
 
 def fit_output_error(
@@ -584,68 +519,33 @@ def fit_output_error(
             f"squared residuals of outputs {overflow or outputs} overflow (measured values up "
             f"to {peak:.3g}); check the data's units and scale"
         )
-    success = False
-    message = f"iteration limit ({max_iterations}) reached before convergence"
-    lam = 0.0
-    bounded = bool(np.any(np.isfinite(lower)) or np.any(np.isfinite(upper)))
-    iteration = 0
-    for iteration in range(1, max_iterations + 1):
-        r = fixed_r if fixed_r is not None else _noise_variances(residuals, floor)
-        info = _information(jacobians, r)
-        grad = _gradient(jacobians, residuals, r)
-        dn = np.sqrt(np.clip(np.diag(info), 1e-300, None))
-        a = info / np.outer(dn, dn)
-        b = grad / dn
-        accepted = False
-        stopped_early = False
-        for _attempt in range(12):
-            if bounded:
-                step, trial = _projected_step(a, b, dn, lam, theta, lower, upper)
-            else:
-                try:
-                    step = np.linalg.lstsq(a + lam * np.eye(a.shape[0]), b, rcond=1e-12)[0] / dn
-                except np.linalg.LinAlgError:
-                    step = np.zeros_like(theta)
-                # Gauss–Newton minimises sum v'R^-1 v, so the step *adds* the solution
-                # of M step = -J'R^-1 v with J the residual Jacobian (J = -dy/dtheta).
-                trial = theta - step
-            if (
-                _attempt == 0
-                and lam == 0.0
-                # the decrease the quadratic model predicts: half the gradient along the step
-                and _converged(
-                    _relative_step(step, theta, typ), 0.5 * float(grad @ step), cost, tolerance
-                )
-            ):
-                # The next step would already pass the convergence test: stop here
-                # rather than simulate it.
-                stopped_early = True
-                break
-            t_res, t_jac, t_ok = problem.evaluate(trial, steps_for(trial))
-            if t_ok and t_jac is not None:
-                t_cost = _ml_cost(t_res, fixed_r, floor)
-                if t_cost <= cost + 1e-12 * abs(cost):
-                    accepted = True
-                    break
-            lam = max(lam * 10.0, 1e-4)
-        if stopped_early:
-            success = True
-            iteration -= 1
-            message = f"converged after {iteration} iterations"
-            break
-        if not accepted:
-            success = True
-            message = "converged (no further decrease possible)"
-            break
-        rel_step = _relative_step(step, theta, typ)
-        dcost = cost - t_cost
-        assert t_jac is not None  # accepted trials always carry their Jacobian
-        theta, residuals, jacobians, cost = trial, t_res, t_jac, t_cost
-        lam = lam / 10.0 if lam > 1e-6 else 0.0
-        if _converged(rel_step, dcost, cost, tolerance):
-            success = True
-            message = f"converged after {iteration} iterations"
-            break
+
+    def linearise(res: list[FloatArray], jacs: list[FloatArray], cost_here: float) -> Linearisation:
+        # the noise variances re-estimated from these residuals weight the step
+        r_here = fixed_r if fixed_r is not None else _noise_variances(res, floor)
+        return Linearisation(
+            cost_here, _gradient(jacs, res, r_here), _information(jacs, r_here), (res, jacs)
+        )
+
+    def evaluate(trial: FloatArray, _base: Linearisation | None) -> Linearisation | None:
+        t_res, t_jac, t_ok = problem.evaluate(trial, steps_for(trial))
+        if not t_ok or t_jac is None:
+            return None
+        return linearise(t_res, t_jac, _ml_cost(t_res, fixed_r, floor))
+
+    fit = minimise(
+        evaluate,
+        theta,
+        linearise(residuals, jacobians, cost),
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        typical=typ,
+        lower=lower,
+        upper=upper,
+    )
+    theta, cost = fit.theta, fit.point.cost
+    residuals, jacobians = fit.point.payload
+    success, message, iteration = fit.success, fit.message, fit.iterations
     _refuse_runaway(model, names, theta[:n_p], outputs, residuals, all_meas)
     r = fixed_r if fixed_r is not None else _noise_variances(residuals, floor)
     info = _information(jacobians, r)

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._least_squares import fit_residuals
 from ._response_records import TransferFunctionFit, _band
 from ._threads import CALLER_STACKLEVEL
 from .data import FlightData, as_float, check_flag, plain
@@ -20,6 +21,9 @@ from .errors import ChannelError, IdentificationError
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
+# The stopping rule's tolerance for the transfer-function fits (`fit_residuals`): a few
+# parameters and cheap residuals, so they converge to near rounding.
+_TOLERANCE = 1e-10
 _EXCITED = 0.01  # power, relative to the input's peak, that counts as excited
 _MIN_PERIODS = 2  # periods of a frequency a window (or the whole record) must hold
 
@@ -310,23 +314,20 @@ def fit_free(
     free: NDArray[np.bool_],
 ) -> FloatArray:
     """`theta` with its free entries fitted by SciPy's Levenberg–Marquardt (the held
-    ones kept): the one least-squares call of the transfer-function fits."""
-    import scipy.optimize
+    ones kept), through the one least-squares entry point and its stopping rule:
+    the one least-squares call of the transfer-function fits."""
 
     def full(x: FloatArray) -> FloatArray:
         return _filled(theta, free, x)
 
-    with np.errstate(all="ignore"):
-        sol = scipy.optimize.least_squares(
-            lambda x: residual(full(x)),
-            theta[free],
-            jac=lambda x: jacobian(full(x))[:, free],
-            method="lm",
-            x_scale="jac",
-            xtol=1e-12,
-            ftol=1e-12,
-        )
-    return full(sol.x)
+    fit = fit_residuals(
+        lambda x: residual(full(x)),
+        lambda x: jacobian(full(x))[:, free],
+        theta[free],
+        tolerance=_TOLERANCE,
+        solver="scipy",
+    )
+    return full(fit.theta)
 
 
 def _filled(theta: FloatArray, free: NDArray[np.bool_], x: FloatArray) -> FloatArray:

@@ -9,9 +9,11 @@ integration, so they take unstable and lightly damped vehicles as they come.
   with ``F₁(ω) = (1 − e^{−jωT})/(jω)`` the transform of a constant (so the
   affine terms ``c`` and ``d`` of the model count exactly) and ``x(0)``,
   ``x(T)`` the states at the ends of the record. The cost
-  ``J = ½ Σ_ω v* S⁻¹ v``, ``v = Ỹ − Y``, is minimised by Gauss–Newton with
-  analytic sensitivities, ``S = E[v v*]`` re-estimated from the residuals
-  at every iteration (relaxation) unless given.
+  ``J = ½ Σ_ω v* S⁻¹ v``, ``v = Ỹ − Y``, is minimised by aeroid's one
+  least-squares iteration (`aeroid._least_squares.minimise`) with analytic
+  sensitivities, ``S = E[v v*]`` re-estimated from the residuals at every
+  iteration unless given: for the likelihood weightings the cost is then
+  ``M/2 log det S``, whose curvature includes the moving ``S``.
 * Equation error (Fourier transform regression): with every state measured,
   ``jω X̃ + x(T) e^{−jωT} − x(0) = A X̃ + B Ũ + c F₁`` is linear in parameters
   that enter ``A``, ``B``, ``c`` affinely, and is solved as complex least
@@ -302,8 +304,8 @@ def identify_frequency_domain(
     error_bars: str = "colored",
     noise: Mapping[str, float] | None = None,
     reference: Mapping[str, float] | None = None,
-    max_iterations: int = 100,
-    tolerance: float = 1e-4,
+    max_iterations: int = 200,
+    tolerance: float = 1e-8,
     weighting: str = "sidpac",
     delays: Sequence[str] | Mapping[str, float] | None = None,
 ) -> FrequencyDomainResult:
@@ -357,10 +359,12 @@ def identify_frequency_domain(
         ones, zero for the others); the record should hold perturbations
         small about it.
     max_iterations : int
-        Gauss–Newton iteration limit (output error).
+        Iteration limit of the least-squares solver (output error).
     tolerance : float
-        Convergence threshold: no parameter moves by more than `tolerance`
-        times its standard error in the last step.
+        The stopping rule of aeroid's one least-squares iteration: a step
+        whose largest change of an unknown, relative to its size (at least its
+        standard error at the start), is below `tolerance`, or whose decrease
+        of the cost is below ``1e-3 tolerance max(|cost|, 1)``.
     weighting : {"sidpac", "hermitian", "real"}
         Output error with an estimated noise covariance. ``"sidpac"``
         (default): ``Σ v̄ vᵀ``, what SIDPAC's ``fdoe`` forms (its ``v'*v`` on
