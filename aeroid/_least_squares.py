@@ -419,7 +419,7 @@ def fit_residuals(
             )
         return minimise(evaluate, theta, first, tolerance=tolerance, max_iterations=max_iterations)
     if solver != "scipy":
-        raise ValueError(f"solver: expected 'aeroid' or 'scipy', got {solver!r}")
+        raise IdentificationError(f"solver: expected 'aeroid' or 'scipy', got {solver!r}")
     import scipy.optimize
 
     with np.errstate(all="ignore"):

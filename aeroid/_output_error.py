@@ -1,4 +1,5 @@
-"""Maximum-likelihood output-error estimation (Gauss–Newton with relaxation).
+"""Maximum-likelihood output-error estimation: Gauss–Newton, damped by
+Levenberg–Marquardt where a step fails, through `aeroid._least_squares.minimise`.
 
 The unknowns are the model parameters, optionally each manoeuvre's initial
 states and per-output measurement biases. The measurement-noise covariance is
