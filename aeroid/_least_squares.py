@@ -291,7 +291,9 @@ def minimise(
         The Levenberg-Marquardt parameter of the first step (0: Gauss-Newton).
         A rejected step's damping grows tenfold (from 1e-4); an accepted step's
         falls tenfold, to Gauss-Newton below 1e-6. A step no damping up to 1e8
-        makes decrease the cost ends the iteration.
+        makes decrease the cost ends the iteration: converged when the
+        Gauss-Newton step from there passes the stopping rule, else flagged
+        ``success=False``.
 
     Returns
     -------
@@ -338,13 +340,25 @@ def minimise(
                     break
             lam = max(lam * 10.0, _MIN_DAMPING)
         if trial is None:
+            # at the minimum to rounding when the Gauss-Newton step from here would
+            # pass the stopping rule; stuck otherwise
+            gn, _ = damped_step(point, 0.0, theta, lo, hi)
+            done = converged(
+                relative_step(gn, theta, typ),
+                -0.5 * float(point.gradient @ gn),
+                point.cost,
+                tolerance,
+            )
             return LeastSquaresFit(
                 theta,
                 point,
                 iteration,
                 evaluations,
-                True,
-                "converged (no step decreases the cost further)",
+                done,
+                "converged (no step decreases the cost further)"
+                if done
+                else "stopped: no step decreases the cost, though the Gauss-Newton step "
+                "is not negligible",
                 lam,
             )
         iteration += 1

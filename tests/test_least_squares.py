@@ -123,6 +123,23 @@ def test_failed_points_are_rejected_and_damped() -> None:
     assert fit.damping > 0.0  # the last steps were damped
 
 
+def test_no_decrease_at_the_minimum_is_convergence() -> None:
+    # a cost at its minimum to rounding: every trial comes out worse, and the
+    # Gauss-Newton step from there is negligible
+    def evaluate(th: np.ndarray, base: Linearisation | None) -> Linearisation:
+        return Linearisation(1.0 if base is None else 1.1, np.array([1e-14]), np.eye(1))
+
+    fit = minimise(
+        evaluate,
+        np.ones(1),
+        evaluate(np.ones(1), None),
+        tolerance=1e-8,
+        max_iterations=10,
+        damping=1.0,
+    )
+    assert fit.success and fit.iterations == 0
+
+
 def test_stopping_rule_halves() -> None:
     # a relative step below the tolerance, or a cost decrease below 1e-3 of it
     assert converged(0.9e-6, 1.0, 10.0, 1e-6)
@@ -194,3 +211,16 @@ def test_moving_weighting_judges_the_trial_in_the_base_metric() -> None:
 def test_unknown_solver_is_refused() -> None:
     with pytest.raises(IdentificationError, match="solver"):
         fit_residuals(_rosenbrock, _rosenbrock_jacobian, np.zeros(2), tolerance=1e-8, solver="x")
+
+
+def test_no_decrease_short_of_the_minimum_is_flagged() -> None:
+    # a gradient that points the wrong way: no step decreases the cost, and the
+    # Gauss-Newton step is far from negligible
+    def evaluate(th: np.ndarray, _base: Linearisation | None) -> Linearisation:
+        return Linearisation(0.5 * float(th @ th), -th, np.eye(1))
+
+    fit = minimise(
+        evaluate, np.ones(1), evaluate(np.ones(1), None), tolerance=1e-8, max_iterations=10
+    )
+    assert not fit.success and "no step decreases" in fit.message
+    assert fit.theta[0] == 1.0
