@@ -7,7 +7,8 @@ candidate parameter vector and maximises the likelihood of its innovations,
 
     -log L = 1/2 sum_k [ nu_k' S_k^-1 nu_k + log det S_k ] + const,
 
-by Levenberg–Marquardt-damped Fisher scoring. The innovations and their
+by Levenberg–Marquardt-damped Fisher scoring (the one least-squares
+iteration, `aeroid._least_squares.minimise`). The innovations and their
 covariances are differentiated by central differences: all perturbed
 parameter vectors go through one batched filter pass. The Fisher information
 of the innovations,
@@ -276,8 +277,10 @@ def identify_filter_error(
         Initial state per manoeuvre (default: the first measured values).
     max_iterations : int
     tolerance : float
-        Convergence threshold on the relative parameter step and the relative
-        cost decrease.
+        The stopping rule of aeroid's one least-squares iteration
+        (`aeroid._least_squares.minimise`): a step below `tolerance` relative
+        to each unknown's size (a noise log-intensity's taken as at least 1),
+        or a cost decrease below ``1e-3 tolerance max(|cost|, 1)``.
     bounds : mapping of str to (float, float), optional
         Lower and upper bounds (±inf for an open side) on estimated
         parameters. Steps are projected: a quantity at a bound whose step

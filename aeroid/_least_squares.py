@@ -111,13 +111,14 @@ def _gram_stats(
 
 # -- the one nonlinear least-squares iteration ----------------------------------------------
 #
-# Every iterative estimator (output error, filter error, frequency-domain output error, the
-# transfer-function fits) minimises its cost through `minimise`: Levenberg-Marquardt damping
-# of the Gauss-Newton step, Gauss-Newton itself being the undamped limit, on the estimator's
-# own linearisation (its cost, gradient and Gauss-Newton matrix at a point), with parameter
-# bounds held by an active set.
+# Every iterative estimator (output error, filter error, frequency-domain output error)
+# minimises its cost through `minimise`: Levenberg-Marquardt damping of the Gauss-Newton
+# step, Gauss-Newton itself being the undamped limit, on the estimator's own linearisation
+# (its cost, gradient and Gauss-Newton matrix at a point), with parameter bounds held by an
+# active set. The transfer-function fits, plain sums of squares, come in through
+# `fit_residuals`, which runs SciPy's MINPACK under the same stopping rule.
 
-# A step is judged once its damping passes this (the step has shrunk to a sliver of the
+# A step is given up once its damping passes this (the step has shrunk to a sliver of the
 # gradient's direction): no damping of it decreases the cost.
 _MAX_DAMPING = 1e8
 # The damping a rejected Gauss-Newton step starts from, and the one below which an
@@ -280,7 +281,10 @@ def minimise(
         The stopping rule (`converged`): a step whose largest change relative to
         its unknown's size (at least `typical`) is below `tolerance`, or whose
         cost decrease is below ``1e-3 tolerance max(|cost|, 1)``. A Gauss-Newton
-        step that would already pass the test is not taken.
+        step that would already pass the test is not taken. Where the points
+        carry ``judged`` (a weighting that moves with the iterate), the step over
+        the last two iterations counts too: such a weighting can settle into a
+        two-step cycle about its fixed point.
     max_iterations : int
         The most accepted steps; reaching it returns ``success=False``.
     typical : (n,) array, optional
