@@ -313,28 +313,18 @@ def minimise(
     evaluations = 0
     iteration = 0
     back: FloatArray | None = None  # the iterate before this one
+
+    def end(success: bool, message: str) -> LeastSquaresFit:
+        return LeastSquaresFit(theta, point, iteration, evaluations, success, message, lam)
+
     while iteration < max_iterations:
         trial: Linearisation | None = None
         delta = trial_theta = theta
         while lam <= _MAX_DAMPING:
             delta, trial_theta = damped_step(point, lam, theta, lo, hi)
-            if lam == 0.0 and converged(
-                # the decrease the quadratic model predicts
-                relative_step(delta, theta, typ),
-                -0.5 * float(point.gradient @ delta),
-                point.cost,
-                tolerance,
-            ):
+            if lam == 0.0 and _negligible(point, delta, theta, typ, tolerance):
                 # the step would already pass the test: stop rather than evaluate it
-                return LeastSquaresFit(
-                    theta,
-                    point,
-                    iteration,
-                    evaluations,
-                    True,
-                    f"converged after {iteration} iterations",
-                    lam,
-                )
+                return end(True, f"converged after {iteration} iterations")
             evaluations += 1
             found = evaluate(trial_theta, point)
             if found is not None and np.isfinite(found.cost):
@@ -346,24 +336,12 @@ def minimise(
         if trial is None:
             # at the minimum to rounding when the Gauss-Newton step from here would
             # pass the stopping rule; stuck otherwise
-            gn, _ = damped_step(point, 0.0, theta, lo, hi)
-            done = converged(
-                relative_step(gn, theta, typ),
-                -0.5 * float(point.gradient @ gn),
-                point.cost,
-                tolerance,
-            )
-            return LeastSquaresFit(
-                theta,
-                point,
-                iteration,
-                evaluations,
-                done,
-                "converged (no step decreases the cost further)"
-                if done
-                else "stopped: no step decreases the cost, though the Gauss-Newton step "
-                "is not negligible",
-                lam,
+            if _negligible(point, damped_step(point, 0.0, theta, lo, hi)[0], theta, typ, tolerance):
+                return end(True, "converged (no step decreases the cost further)")
+            return end(
+                False,
+                "stopped: no step decreases the cost, though the Gauss-Newton step is not "
+                "negligible",
             )
         iteration += 1
         judged = trial.cost if trial.judged is None else trial.judged
@@ -377,24 +355,17 @@ def minimise(
         theta, point = trial_theta, trial
         lam = lam / 10.0 if lam > _UNDAMPED else 0.0
         if converged(rel, decrease, point.cost, tolerance):
-            return LeastSquaresFit(
-                theta,
-                point,
-                iteration,
-                evaluations,
-                True,
-                f"converged after {iteration} iterations",
-                lam,
-            )
-    return LeastSquaresFit(
-        theta,
-        point,
-        iteration,
-        evaluations,
-        False,
-        f"iteration limit ({max_iterations}) reached before convergence",
-        lam,
-    )
+            return end(True, f"converged after {iteration} iterations")
+    return end(False, f"iteration limit ({max_iterations}) reached before convergence")
+
+
+def _negligible(
+    point: Linearisation, delta: FloatArray, theta: FloatArray, typ: FloatArray, tolerance: float
+) -> bool:
+    """A step from `point` that would pass the stopping rule, its cost decrease the one
+    the quadratic model predicts."""
+    predicted = -0.5 * float(point.gradient @ delta)
+    return converged(relative_step(delta, theta, typ), predicted, point.cost, tolerance)
 
 
 def fit_residuals(
