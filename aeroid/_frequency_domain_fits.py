@@ -353,9 +353,11 @@ def _output_error(
     assert dY is not None
     first = linearise(v, dY, None)
     # an unknown near zero (an end state, a small derivative) is measured against its
-    # standard error at the start (a weighted real row has variance 1/2)
+    # standard error at the start (a weighted real row has variance 1/2), from the
+    # weighted squares' own Gauss-Newton matrix
+    J0 = _stack(first.payload[2] @ dY).reshape(-1, theta.size)
     with np.errstate(divide="ignore", invalid="ignore"):
-        typical = np.sqrt(0.5 * np.abs(np.diag(np.linalg.pinv(first.curvature, hermitian=True))))
+        typical = np.sqrt(0.5 * np.abs(np.diag(np.linalg.pinv(J0.T @ J0, hermitian=True))))
     typical[~(typical > 0)] = 1.0
     fit = minimise(
         evaluate,
