@@ -129,6 +129,8 @@ _UNDAMPED = 1e-6
 _COST_SHARE = 1e-3
 # Rounding of a cost: a trial within this fraction of the current cost is no worse.
 _COST_ROUNDING = 1e-12
+# SciPy's Levenberg-Marquardt refuses a gradient tolerance below machine precision.
+_NO_GRADIENT_TEST = 4.0 * float(np.finfo(np.float64).eps)
 
 
 @dataclass(frozen=True)
@@ -382,7 +384,8 @@ def fit_residuals(
 
     ``solver="scipy"`` calls `scipy.optimize.least_squares` (``method="lm"``,
     MINPACK, column scaling by the Jacobian) with its step test at `tolerance`
-    and its cost test at ``1e-3 tolerance``, the two halves of `converged`;
+    and its cost test at ``1e-3 tolerance``, the two halves of `converged`
+    (its gradient test held at machine precision);
     ``max_iterations`` bounds its Jacobian evaluations. A residual that is not
     finite counts as a failed point.
     """
@@ -420,6 +423,9 @@ def fit_residuals(
             x_scale="jac",
             xtol=tolerance,
             ftol=_COST_SHARE * tolerance,
+            # MINPACK's third test (residual orthogonal to the Jacobian) is no part of
+            # the rule: held at the smallest value it accepts
+            gtol=_NO_GRADIENT_TEST,
             max_nfev=100 * max_iterations,
         )
         x = np.asarray(sol.x, dtype=np.float64)
