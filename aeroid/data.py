@@ -733,9 +733,11 @@ def _load_log(
     t1: float | None = None,
 ) -> FlightData:
     """`load_flight_test` for a flight log: read it, pick channels, put them on one grid."""
-    from .logs import read_log
+    from .logs import _read_selected
 
-    log = read_log(p, format=log_format, time_column=time_column)
+    # a log's datasets nobody asked for are not read (an HDF5 file can hold gigabytes)
+    wanted = None if channels is None else _wanted_columns(channels, None)
+    log = _read_selected(p, log_format, time_column, False, wanted)
     mapping = _log_mapping(log, channels, p)
     if not mapping:
         raise DataFormatError(f"{p}: channels: none selected")
