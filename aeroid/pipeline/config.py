@@ -535,8 +535,15 @@ def format_validation_error(
         elif err["type"] == "missing":
             msg = "required key is missing"
         else:
-            msg = f"{err['msg'].removeprefix('Value error, ')} (got {_brief(err.get('input'))})"
-            msg += _suggestion(err)
+            text = err["msg"].removeprefix("Value error, ")
+            given = err.get("input")
+            key, _, rest = text.partition(": ")
+            if not loc and isinstance(given, Mapping) and key in given:
+                # a check across keys that names its key: located there, not at the top
+                # level, and quoting that key's value rather than the whole config
+                path, text, given = _loc([*prefix, key]), rest, given[key]
+            shown = isinstance(given, str) and text.startswith(given)  # the value leads
+            msg = (text if shown else f"{text} (got {_brief(given)})") + _suggestion(err)
         line = f"{source}: {path}: {msg}"
         if line not in lines:
             lines.append(line)
