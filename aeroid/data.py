@@ -359,9 +359,13 @@ def _read_parquet(
         raise DataFormatError(
             f"{path}: reading Parquet needs pyarrow (pip install pyarrow)"
         ) from None
+    import pyarrow as pa
+
     try:
-        meta = pq.ParquetFile(path).metadata
+        file = pq.ParquetFile(path)
+        meta = file.metadata
         header = [meta.schema.column(j).path for j in range(meta.num_columns)]
+        types = {f.name: f.type for f in file.schema_arrow}
         # only the columns asked for are read (an unused huge one beside them is not)
         picked = [j for j, h in enumerate(header) if wanted is None or h in wanted]
         declared = sum(
@@ -374,6 +378,18 @@ def _read_parquet(
         )
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
+    # text, binary and nested columns are no channels, and their stored size (dictionary-
+    # encoded, compressed) does not bound what they decode to: refused before reading
+    for name in (header[j] for j in picked):
+        kind = types.get(name)
+        if kind is not None and not (
+            pa.types.is_integer(kind)
+            or pa.types.is_floating(kind)
+            or pa.types.is_boolean(kind)
+            or pa.types.is_temporal(kind)
+            or pa.types.is_decimal(kind)
+        ):
+            raise DataFormatError(f"{path}: column {name!r} is not numeric ({kind})")
     # what the table would take in memory, checked before a byte of it is decompressed
     if declared > _MAX_DECLARED_BYTES:
         raise DataFormatError(
@@ -385,8 +401,6 @@ def _read_parquet(
         table = pq.read_table(path, columns=[header[j] for j in picked] if wanted else None)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
-    import pyarrow as pa
-
     columns: dict[str, FloatArray] = {}
     for name in table.column_names:
         col = table.column(name)
@@ -450,7 +464,8 @@ def _read_mat(
                 f"{_MAX_DECLARED_BYTES >> 20} MiB a flight file may expand to"
             )
     # ... and what they inflate to, which a lying size tag inside one can hide
-    check_mat_expansion(path, listing, set(read), _MAX_DECLARED_BYTES)
+    # (a few kB a variable for its name, shape and flags)
+    check_mat_expansion(path, listing, set(read), _MAX_DECLARED_BYTES + (4 << 10) * len(read))
     every = [c for name, shape, _ in listing for c in _mat_columns(name, shape)]
     if wanted is not None and not read:
         return every, {}  # the caller names the channel it did not find
