@@ -1,0 +1,38 @@
+"""Issue 49, careless configs: paths that cannot be used as written are refused by key
+before anything runs (the store's own checks live in test_hostile_inputs.py)."""
+
+from __future__ import annotations
+
+import pytest
+
+from aeroid.errors import ConfigError
+from aeroid.pipeline.config import load_config
+
+
+def _config(tmp_path, extra: str):
+    (tmp_path / "a.csv").write_text("time,q\n0,1\n0.1,2\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nflights: [a.csv]\n" + extra)
+    return cfg
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        # made a folder literally named '$OUT' beside the config
+        ("report: $OUT/r.md\n", r"c\.yaml: report: '\$OUT/r\.md' names an environment variable"),
+        ("report: '%TEMP%/r.md'\n", r"report: .* names an environment variable"),
+        # a raw RuntimeError from pathlib
+        ("store: ~no-such-user-j49s/s\n", r"store: .* home folder of a user this machine"),
+        ("report: ~no-such-user-j49s/r.md\n", r"report: .* home folder of a user"),
+    ],
+)
+def test_a_path_that_cannot_be_used_as_written_is_refused_by_key(tmp_path, extra, match):
+    with pytest.raises(ConfigError, match=match):
+        load_config(_config(tmp_path, extra))
+
+
+def test_the_home_folder_and_plain_paths_are_still_taken(tmp_path):
+    cfg = load_config(_config(tmp_path, "store: ~/aeroid-store\nreport: out/r.md\n"))
+    assert cfg.store_location.endswith("aeroid-store") and "~" not in cfg.store_location
+    assert cfg.report_path == tmp_path / "out" / "r.md"
