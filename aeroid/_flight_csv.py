@@ -85,6 +85,10 @@ def _adopt(values: _Owned) -> FloatArray:
     return out
 
 
+# The longest header line read (200,000 column names take a few MB).
+_MAX_HEADER = 64 << 20
+
+
 def _csv_header(path: Path) -> tuple[list[str], int, int]:
     """The header, the byte offset of the first data line, and the header's line number.
 
@@ -94,7 +98,12 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
     offset = 0
     line_no = 0
     with open(path, "rb") as f:
-        for raw in f:
+        while raw := f.readline(_MAX_HEADER + 1):
+            if len(raw) > _MAX_HEADER:  # a binary file or a bomb: a line is read whole
+                raise DataFormatError(
+                    f"{path}: line {line_no + 1} is longer than {_MAX_HEADER >> 20} MiB; "
+                    "not a CSV header"
+                )
             line_no += 1
             start = offset
             offset += len(raw)

@@ -319,7 +319,11 @@ def _read_hdf5(
             if key in time_keys:
                 continue
             if bases is not None and key.replace("/", ".") not in bases:
-                unread.append(key.replace("/", "."))  # not asked for: not read at all
+                # not asked for: not read at all, only named from its shape
+                home = _time_group(key, time_of)
+                if home is not None:
+                    n = int(datasets[time_of[home]].size)
+                    unread.extend(_hdf5_names(key, ds, n, matlab))
                 continue
             reason = _hdf5_refusal(path, ds, allow_external)
             declared = int(ds.size) * int(ds.dtype.itemsize)
@@ -350,6 +354,22 @@ def _read_hdf5(
     if skipped:
         metadata["skipped"] = skipped
     return FlightLog(channels, (), metadata)
+
+
+def _hdf5_names(key: str, ds: Any, n: int, matlab: bool) -> list[str]:
+    """The channel names `_hdf5_channels` would make of a dataset, from its shape and
+    attributes alone (nothing is read); [] for one it would skip."""
+    cls = _text_attr(ds, "MATLAB_class")
+    if cls in _MATLAB_NON_NUMERIC or "MATLAB_empty" in ds.attrs or ds.dtype.kind not in "fiub":
+        return []
+    shape = tuple(ds.shape)[::-1] if matlab and ds.ndim == 2 else tuple(ds.shape)
+    name = key.replace("/", ".")
+    if len(shape) == 1 or (len(shape) == 2 and 1 in shape):
+        return [name] if int(np.prod(shape)) == n else []
+    if len(shape) != 2 or n not in shape:
+        return []
+    width = shape[1] if shape[0] == n else shape[0]
+    return [f"{name}_{j}" if matlab else f"{name}[{j}]" for j in range(width)]
 
 
 def _time_group(key: str, time_of: Mapping[str, str]) -> str | None:
