@@ -269,3 +269,15 @@ def test_the_config_check_names_hdf5_channels_without_reading_them(tmp_path, mon
     data = load_flight_test(tmp_path / "f.h5", channels={"q": "imu[1]", "alpha": "alpha"})
     assert sorted(data.channels) == ["alpha", "q"]
     assert sorted(read) == ["/alpha", "/imu", "/time"]
+
+
+def test_a_csv_whose_first_line_never_ends_is_refused_unread(tmp_path, monkeypatch):
+    import aeroid._flight_csv as flight_csv
+
+    monkeypatch.setattr(flight_csv, "_MAX_HEADER", 4096)
+    path = tmp_path / "blob.csv"
+    path.write_bytes(b"# exported\n" + b"A" * 10_000)  # one line, no newline: read whole before
+    with pytest.raises(DataFormatError, match=r"blob\.csv: line 2 is longer than \d+ MiB"):
+        load_flight_test(path)
+    path.write_text("time,q\n0,1\n0.1,2\n")
+    assert load_flight_test(path).n_samples == 2
