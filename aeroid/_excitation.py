@@ -221,7 +221,8 @@ def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable
     """Refuse a fitted air-data or attitude channel that holds one value while the rates
     and accelerations move: a stuck or held sensor, whose scale factor and bias the fit
     would report with error bars it does not have (or, at zero, whose fit breaks down
-    with non-finite numbers that name no channel).
+    with non-finite numbers that name no channel); and a rate or acceleration held at
+    one non-zero value while the others move.
 
     Raises
     ------
@@ -232,6 +233,17 @@ def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable
     moving = [q for q in inertial if _constant(data[present[q]]) is None]
     if not moving:
         return  # no motion: check_kinematic_channels says so
+    for quantity in inertial:
+        # a rate or acceleration frozen at a non-zero reading while the others move: the
+        # reconstruction would integrate it as motion (a zero one is a symmetric flight's)
+        value = _constant(data[present[quantity]])
+        if value is not None and value != 0.0:
+            others = [q for q in moving if q != quantity]
+            raise ChannelError(
+                f"channel {present[quantity]!r} ({quantity}): holds {value:.6g} through the "
+                f"record while {', '.join(repr(present[q]) for q in others)} "
+                f"move{'s' * (len(others) == 1)}: a stuck or held sensor. Fix the channel"
+            )
     for quantity in fitted:
         value = _constant(data[present[quantity]])
         if value is None:

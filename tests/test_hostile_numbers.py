@@ -34,6 +34,16 @@ def test_a_fitted_channel_held_at_zero_is_named_not_a_nan_at_index_0(flight, cha
             check_compatibility(dead, max_passes=1, n_draws=2)
 
 
+@pytest.mark.parametrize("channel", ["q", "az"])
+def test_a_rate_or_acceleration_frozen_at_a_reading_is_named(flight, channel):
+    # a gyro stuck at 0.5 rad/s returned success with only a drift warning
+    frozen = FlightData(flight.time, {**flight.channels, channel: np.full(flight.n_samples, 0.5)})
+    with pytest.raises(
+        ChannelError, match=rf"channel '{channel}' \({channel}\): holds 0\.5 .* stuck or held"
+    ):
+        check_compatibility(frozen, max_passes=1, n_draws=2)
+
+
 def test_a_symmetric_flights_zero_lateral_channels_are_not_called_stuck(flight):
     n = flight.n_samples
     lateral = ("p", "r", "ay", "beta", "phi", "psi")
