@@ -36,3 +36,27 @@ def test_the_home_folder_and_plain_paths_are_still_taken(tmp_path):
     cfg = load_config(_config(tmp_path, "store: ~/aeroid-store\nreport: out/r.md\n"))
     assert cfg.store_location.endswith("aeroid-store") and "~" not in cfg.store_location
     assert cfg.report_path == tmp_path / "out" / "r.md"
+
+
+@pytest.mark.parametrize(
+    ("counts", "refused"),
+    [
+        ("n_walkers: 100000, n_steps: 10000000", True),  # each within its own bound
+        ("n_steps: 10000000, n_ensembles: 1000", True),  # even at the fewest walkers
+        ("n_walkers: 64, n_steps: 100000, n_ensembles: 4", False),
+    ],
+)
+def test_infer_counts_whose_product_cannot_finish_are_refused_at_check(tmp_path, counts, refused):
+    from aeroid.pipeline.checks import preflight
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nflights: [{simulated: {n_flights: 1}}]\nstages:\n"
+        "  identify: {parameters: [M_alpha, M_q]}\n"
+        f"  infer: {{parameters: {{M_q: {{normal: [0, 1]}}}}, {counts}}}\n"
+    )
+    if not refused:
+        preflight(cfg)
+        return
+    with pytest.raises(ConfigError, match=r"stages\.infer: n_walkers x n_steps x n_ensembles"):
+        preflight(cfg)
