@@ -423,6 +423,10 @@ def _read_parquet(
     return header if wanted is not None else list(table.column_names), columns
 
 
+def _size_text(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.1f} MiB"
+
+
 def _mat_columns(name: str, shape: Sequence[int]) -> list[str]:
     """The channel names a MATLAB variable of `shape` becomes (see `_read_mat`)."""
     if len(shape) == 2 and min(shape) > 1:
@@ -459,7 +463,7 @@ def _read_mat(
         total += size
         if total > _MAX_DECLARED_BYTES:
             raise DataFormatError(
-                f"{path}: variable {name!r} declares {size / 2**30:.1f} GiB ({kind} "
+                f"{path}: variable {name!r} declares {_size_text(size)} ({kind} "
                 f"{'x'.join(map(str, shape))}), taking the variables read over the "
                 f"{_MAX_DECLARED_BYTES >> 20} MiB a flight file may expand to"
             )
