@@ -203,27 +203,60 @@ def require_model_units(model: Any, datas: Sequence[Any], channels: Iterable[str
             )
 
 
+# The rates and accelerations that move each air-data or attitude quantity: one held at
+# exactly zero while any of its own moves is a dead or missing channel (a zero beta, phi
+# or psi beside zero p, r and ay is a symmetric flight's, and is left alone).
+_DRIVEN_BY = {
+    "V": ("ax", "az", "q"),
+    "alpha": ("q", "az"),
+    "theta": ("q",),
+    "h": ("q",),
+    "beta": ("p", "r", "ay"),
+    "phi": ("p",),
+    "psi": ("r",),
+}
+
+
 def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable[str]) -> None:
-    """Refuse a fitted air-data or attitude channel that holds one non-zero value while
-    the rates and accelerations move: a stuck or held sensor, whose scale factor and
-    bias the fit would report with error bars it does not have. (A channel at exactly
-    zero is a simulated symmetric flight's, and is left alone.)
+    """Refuse a fitted air-data or attitude channel that holds one value while the rates
+    and accelerations move: a stuck or held sensor, whose scale factor and bias the fit
+    would report with error bars it does not have (or, at zero, whose fit breaks down
+    with non-finite numbers that name no channel); and a rate or acceleration held at
+    one non-zero value while the others move.
 
     Raises
     ------
     ChannelError
-        Naming the channel and its value.
+        Naming the channel, its value and the channels that move.
     """
     inertial = [q for q in ("p", "q", "r", "ax", "ay", "az") if q in present]
-    if not inertial or all(_constant(data[present[q]]) is not None for q in inertial):
+    moving = [q for q in inertial if _constant(data[present[q]]) is None]
+    if not moving:
         return  # no motion: check_kinematic_channels says so
-    for quantity in fitted:
+    for quantity in inertial:
+        # a rate or acceleration frozen at a non-zero reading while the others move: the
+        # reconstruction would integrate it as motion (a zero one is a symmetric flight's)
         value = _constant(data[present[quantity]])
         if value is not None and value != 0.0:
+            others = [q for q in moving if q != quantity]
             raise ChannelError(
                 f"channel {present[quantity]!r} ({quantity}): holds {value:.6g} through the "
-                "record while the rates and accelerations move: a stuck or held sensor. Fix "
-                f"the channel or leave {quantity!r} out of outputs="
+                f"record while {', '.join(repr(present[q]) for q in others)} "
+                f"move{'s' * (len(others) == 1)}: a stuck or held sensor. Fix the channel"
+            )
+    for quantity in fitted:
+        value = _constant(data[present[quantity]])
+        if value is None:
+            continue
+        drivers = (
+            moving if value != 0.0 else [q for q in _DRIVEN_BY.get(quantity, ()) if q in moving]
+        )
+        if drivers:
+            raise ChannelError(
+                f"channel {present[quantity]!r} ({quantity}): holds {value:.6g} through the "
+                f"record while {', '.join(repr(present[q]) for q in drivers)} "
+                f"move{'s' * (len(drivers) == 1)}: a stuck, "
+                f"held or missing sensor. Fix the channel or leave {quantity!r} out of outputs="
             )
 
 

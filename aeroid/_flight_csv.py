@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import re
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +51,9 @@ def _reader_error(exc: Exception) -> str:
     return re.sub(r"(got \d+|Row #\d+)\s*:.*", r"\1", str(exc), flags=re.S)
 
 
+_TIME_CANDIDATES = ("time", "t", "Time", "TIME", "time_s", "Time (s)", "t_s")
+
+
 def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Path) -> str:
     if time_column is not None:
         if time_column not in columns:
@@ -57,7 +61,7 @@ def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Pat
                 f"{path}: time column {time_column!r} not found; {_columns_text(columns)}"
             )
         return time_column
-    for candidate in ("time", "t", "Time", "TIME", "time_s", "Time (s)", "t_s"):
+    for candidate in _TIME_CANDIDATES:
         if candidate in columns:
             return candidate
     raise ChannelError(
@@ -81,6 +85,10 @@ def _adopt(values: _Owned) -> FloatArray:
     return out
 
 
+# The longest header line read (200,000 column names take a few MB).
+_MAX_HEADER = 64 << 20
+
+
 def _csv_header(path: Path) -> tuple[list[str], int, int]:
     """The header, the byte offset of the first data line, and the header's line number.
 
@@ -90,7 +98,12 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
     offset = 0
     line_no = 0
     with open(path, "rb") as f:
-        for raw in f:
+        while raw := f.readline(_MAX_HEADER + 1):
+            if len(raw) > _MAX_HEADER:  # a binary file or a bomb: a line is read whole
+                raise DataFormatError(
+                    f"{path}: line {line_no + 1} is longer than {_MAX_HEADER >> 20} MiB; "
+                    "not a CSV header"
+                )
             line_no += 1
             start = offset
             offset += len(raw)
@@ -110,12 +123,18 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
 _NUMBER = r"^\s*[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan))\s*$"
 
 
-def _csv_cell_error(path: Path, header: list[str], offset: int, exc: Exception) -> DataFormatError:
+def _csv_cell_error(
+    path: Path,
+    header: list[str],
+    offset: int,
+    exc: Exception,
+    columns: Sequence[str] | None = None,
+) -> DataFormatError:
     """Name the row and column of the cell pyarrow refused (only ever on the error path)."""
     import pyarrow as pa
 
     try:
-        return _locate_csv_error(path, header, offset, exc)
+        return _locate_csv_error(path, header, offset, exc, columns)
     except (OSError, pa.ArrowException) as again:
         return DataFormatError(
             f"{path}: not a readable CSV file ({_reader_error(exc)}; {_reader_error(again)})"
@@ -123,10 +142,13 @@ def _csv_cell_error(path: Path, header: list[str], offset: int, exc: Exception) 
 
 
 def _locate_csv_error(
-    path: Path, header: list[str], offset: int, exc: Exception
+    path: Path,
+    header: list[str],
+    offset: int,
+    exc: Exception,
+    columns: Sequence[str] | None = None,
 ) -> DataFormatError:
     import pyarrow as pa
-    import pyarrow.compute as pc
     import pyarrow.csv as pacsv
 
     # A row with the wrong number of cells (comment lines aside): the parser reports
@@ -159,35 +181,102 @@ def _locate_csv_error(
             f"{path}: row {row.number + 1} has {row.actual_columns} cells, "
             f"header has {row.expected_columns}"
         )
-    # Otherwise one column holds a cell that is not a number: find it as text.
-    for name in header:
-        try:
-            read(column_types={name: pa.float64()}, include_columns=[name], null_values=[""])
-            continue
-        except pa.ArrowInvalid:
-            pass
-        cells = read(
-            column_types={name: pa.string()}, include_columns=[name], strings_can_be_null=False
-        ).column(0)
-        numeric = pc.match_substring_regex(cells, _NUMBER)
-        bad = np.flatnonzero(~np.asarray(numeric.to_numpy(zero_copy_only=False), dtype=bool))
-        if bad.size:
-            i = int(bad[0])
-            cell = str(cells[i].as_py()).strip()
-            if not cell:
-                what = "blank"
-            elif len(cell) <= 4 or _NUMBER_LIKE.fullmatch(cell):  # x, N/A, 1.2.3: shown
-                what = f"non-numeric ({cell!r})"
-            else:  # text: not quoted (a config can name any file; errors reach logs)
-                what = f"non-numeric ({len(cell)} characters of text)"
-            return DataFormatError(f"{path}: row {i + 2}, column {name!r}: {what} cell")
+    # Otherwise a cell is not a number: one streaming pass finds the earliest (a column
+    # at a time would read a 200,000-column file 200,000 times).
+    names = list(columns) if columns is not None else header
+    found = (
+        _first_bad_cell_wide(path, header, offset, names)
+        if len(names) > _WIDE
+        else _first_bad_cell(path, header, offset, names, keep)
+    )
+    if found is not None:
+        row, name, cell = found
+        if not cell:
+            what = "blank"
+        elif len(cell) <= 4 or _NUMBER_LIKE.fullmatch(cell):  # x, N/A, 1.2.3: shown
+            what = f"non-numeric ({cell!r})"
+        else:  # text: not quoted (a config can name any file; errors reach logs)
+            what = f"non-numeric ({len(cell)} characters of text)"
+        return DataFormatError(f"{path}: row {row}, column {name!r}: {what} cell")
     return DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})")
 
 
-def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
+# Beyond this many columns pyarrow's cost per column outweighs its speed per cell.
+_WIDE = 1000
+
+
+def _first_bad_cell(
+    path: Path, header: list[str], offset: int, names: list[str], keep: Any
+) -> tuple[int, str, str] | None:
+    """(row, column, cell) of the earliest non-numeric cell among `names`, by pyarrow."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.csv as pacsv
+
+    with pa.OSFile(str(path)) as f:
+        f.seek(offset)
+        reader = pacsv.open_csv(
+            f,
+            read_options=pacsv.ReadOptions(column_names=header, use_threads=False),
+            parse_options=pacsv.ParseOptions(invalid_row_handler=keep),
+            convert_options=pacsv.ConvertOptions(
+                column_types=dict.fromkeys(names, pa.string()),
+                include_columns=names,
+                strings_can_be_null=False,
+            ),
+            memory_pool=pa.system_memory_pool(),
+        )
+        first_row = 0
+        for batch in reader:
+            rows = batch.num_rows
+            if not rows:
+                continue
+            # every column of the batch in one regex call: cell k is row k % rows of
+            # column k // rows
+            cells = pa.concat_arrays(list(batch.columns))
+            numeric = pc.match_substring_regex(cells, _NUMBER)
+            bad = np.flatnonzero(~np.asarray(numeric.to_numpy(zero_copy_only=False), dtype=bool))
+            if bad.size:
+                k = int(bad[np.lexsort((bad // rows, bad % rows))[0]])  # earliest row first
+                name = batch.schema.names[k // rows]
+                return first_row + k % rows + 2, name, str(cells[k].as_py()).strip()
+            first_row += rows
+    return None
+
+
+def _first_bad_cell_wide(
+    path: Path, header: list[str], offset: int, names: list[str]
+) -> tuple[int, str, str] | None:
+    """`_first_bad_cell` for a wide file: Python's csv reader, row by row."""
+    import io
+
+    number = re.compile(_NUMBER)
+    where = {h: j for j, h in enumerate(header)}
+    picked = [(where[n], n) for n in names]
+    with open(path, "rb") as raw:
+        raw.seek(offset)
+        text = io.TextIOWrapper(raw, encoding="utf-8", newline="")
+        row = 1
+        for cells in csv.reader(text):
+            if not cells or (len(cells) == 1 and not cells[0].strip()):
+                continue  # blank lines, which pyarrow skips
+            if cells[0].lstrip().startswith("#"):
+                continue
+            row += 1
+            for j, name in picked:
+                cell = cells[j].strip() if j < len(cells) else ""
+                if not number.match(cell):
+                    return row, name, cell
+    return None
+
+
+def _read_csv(
+    path: Path, wanted: Collection[str] | None = None
+) -> tuple[list[str], dict[str, FloatArray]]:
     """Parse with pyarrow (multi-threaded, straight to float64); locate bad cells only on failure.
 
-    Row numbers in messages count the header as row 1.
+    Only the columns named in `wanted` are converted (all when None); the header
+    comes back whole. Row numbers in messages count the header as row 1.
     """
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -205,6 +294,8 @@ def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
         )
     if offset >= path.stat().st_size:
         raise DataFormatError(f"{path}: fewer than 2 data rows")
+    # (at least one column: pyarrow reads every column for an empty selection)
+    names = header if wanted is None else [h for h in header if h in wanted] or header[:1]
 
     def read(parse: Any = None) -> Any:
         with pa.OSFile(str(path)) as f:
@@ -216,7 +307,8 @@ def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
                 read_options=pacsv.ReadOptions(column_names=header, use_threads=True),
                 parse_options=parse or pacsv.ParseOptions(),
                 convert_options=pacsv.ConvertOptions(
-                    column_types=dict.fromkeys(header, pa.float64()),
+                    column_types=dict.fromkeys(names, pa.float64()),
+                    include_columns=names,
                     null_values=[""],
                     strings_can_be_null=False,
                 ),
@@ -236,22 +328,23 @@ def _read_csv(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
             table = read()
         except pa.ArrowInvalid as exc:
             # Comment lines among the data: read again without them (rare, so only
-            # on the error path); anything else is located and reported.
-            try:
-                table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
-            except pa.ArrowInvalid:
-                table = None
+            # on the error path); anything else is located and reported. A cell that
+            # is not a number is no comment line (those have the wrong cell count).
+            table = None
+            if "conversion error" not in str(exc):
+                with contextlib.suppress(pa.ArrowInvalid):
+                    table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
             if table is None or not comments:
-                raise _csv_cell_error(path, header, offset, exc) from None
+                raise _csv_cell_error(path, header, offset, exc, names) from None
     except (OSError, pa.ArrowException) as exc:
         raise DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})") from None
     n = table.num_rows
     if n < 2:
         raise DataFormatError(f"{path}: fewer than 2 data rows")
-    pending = {name: table.column(name) for name in header}
+    pending = dict(zip(table.column_names, table.columns, strict=True))
     del table
     columns: dict[str, FloatArray] = {}
-    for name in header:
+    for name in names:
         chunked = pending.pop(name)
         if chunked.null_count:
             first = int(np.flatnonzero(np.asarray(chunked.is_null()))[0])

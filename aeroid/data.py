@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -19,7 +19,15 @@ from ._checks import positive_number as positive_number
 from ._flight_csv import _NAME_LIKE as _NAME_LIKE
 from ._flight_csv import _NUMBER as _NUMBER
 from ._flight_csv import _NUMBER_LIKE as _NUMBER_LIKE
-from ._flight_csv import _adopt, _columns_text, _Owned, _pick_time_column, _read_csv, _seconds
+from ._flight_csv import (
+    _TIME_CANDIDATES,
+    _adopt,
+    _columns_text,
+    _Owned,
+    _pick_time_column,
+    _read_csv,
+    _seconds,
+)
 from ._flight_csv import _csv_cell_error as _csv_cell_error
 from ._flight_csv import _csv_header as _csv_header
 from ._flight_csv import _locate_csv_error as _locate_csv_error
@@ -342,36 +350,57 @@ def fingerprint(data: FlightData) -> str:
 # -- loading ----------------------------------------------------------------------
 
 
-def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
+def _read_parquet(
+    path: Path, wanted: Collection[str] | None = None
+) -> tuple[list[str], dict[str, FloatArray]]:
     try:
         import pyarrow.parquet as pq
     except ImportError:  # pragma: no cover - pyarrow is a dependency
         raise DataFormatError(
             f"{path}: reading Parquet needs pyarrow (pip install pyarrow)"
         ) from None
+    import pyarrow as pa
+
     try:
-        meta = pq.ParquetFile(path).metadata
+        file = pq.ParquetFile(path)
+        meta = file.metadata
+        header = [meta.schema.column(j).path for j in range(meta.num_columns)]
+        types = {f.name: f.type for f in file.schema_arrow}
+        # only the columns asked for are read (an unused huge one beside them is not)
+        picked = [j for j, h in enumerate(header) if wanted is None or h in wanted]
         declared = sum(
-            meta.row_group(i).column(j).total_uncompressed_size
+            max(
+                meta.row_group(i).column(j).total_uncompressed_size,
+                8 * meta.row_group(i).num_rows,
+            )
             for i in range(meta.num_row_groups)
-            for j in range(meta.num_columns)
+            for j in picked
         )
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
+    # text, binary and nested columns are no channels, and their stored size (dictionary-
+    # encoded, compressed) does not bound what they decode to: refused before reading
+    for name in (header[j] for j in picked):
+        kind = types.get(name)
+        if kind is not None and not (
+            pa.types.is_integer(kind)
+            or pa.types.is_floating(kind)
+            or pa.types.is_boolean(kind)
+            or pa.types.is_temporal(kind)
+            or pa.types.is_decimal(kind)
+        ):
+            raise DataFormatError(f"{path}: column {name!r} is not numeric ({kind})")
     # what the table would take in memory, checked before a byte of it is decompressed
-    declared = max(declared, 8 * meta.num_rows * meta.num_columns)
     if declared > _MAX_DECLARED_BYTES:
         raise DataFormatError(
             f"{path}: declares {declared / 2**30:.1f} GiB of data ({meta.num_rows} rows x "
-            f"{meta.num_columns} columns), over the {_MAX_DECLARED_BYTES >> 20} MiB a flight "
+            f"{len(picked)} columns read), over the {_MAX_DECLARED_BYTES >> 20} MiB a flight "
             "file may expand to; split the record"
         )
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path, columns=[header[j] for j in picked] if wanted else None)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
-    import pyarrow as pa
-
     columns: dict[str, FloatArray] = {}
     for name in table.column_names:
         col = table.column(name)
@@ -391,11 +420,26 @@ def _read_parquet(path: Path) -> tuple[list[str], dict[str, FloatArray]]:
                 columns[name] = np.asarray(raw, dtype=np.float64)
         except (TypeError, ValueError, pa.ArrowException):
             raise DataFormatError(f"{path}: column {name!r} is not numeric ({col.type})") from None
-    return list(table.column_names), columns
+    return header if wanted is not None else list(table.column_names), columns
 
 
-def _read_mat(path: Path) -> tuple[list[str], dict[str, NDArray[Any]]]:
+def _size_text(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.1f} MiB"
+
+
+def _mat_columns(name: str, shape: Sequence[int]) -> list[str]:
+    """The channel names a MATLAB variable of `shape` becomes (see `_read_mat`)."""
+    if len(shape) == 2 and min(shape) > 1:
+        return [f"{name}_{j}" for j in range(min(shape))]
+    return [name]
+
+
+def _read_mat(
+    path: Path, wanted: Collection[str] | None = None
+) -> tuple[list[str], dict[str, NDArray[Any]]]:
     import scipy.io
+
+    from ._mat_scan import check_mat_expansion
 
     try:
         listing = scipy.io.whosmat(path)
@@ -404,17 +448,33 @@ def _read_mat(path: Path) -> tuple[list[str], dict[str, NDArray[Any]]]:
             f"{path}: not a readable MATLAB file ({exc}); MATLAB v7.3 (HDF5) files are "
             "read as logs (see aeroid.read_log)"
         ) from None
-    # the variables' declared sizes, checked before any of them is decompressed
+    # only the variables asked for are read (an unused huge one beside them is not)
+    read = [
+        name
+        for name, shape, _ in listing
+        if wanted is None or any(c in wanted for c in _mat_columns(name, shape))
+    ]
+    # the variables' declared sizes, checked before any of them is decompressed ...
+    total = 0
     for name, shape, kind in listing:
+        if name not in read:
+            continue
         size = int(np.prod(shape, dtype=np.float64)) * _MAT_ITEM_BYTES.get(kind, 8)
-        if size > _MAX_DECLARED_BYTES:
+        total += size
+        if total > _MAX_DECLARED_BYTES:
             raise DataFormatError(
-                f"{path}: variable {name!r} declares {size / 2**30:.1f} GiB ({kind} "
-                f"{'x'.join(map(str, shape))}), over the {_MAX_DECLARED_BYTES >> 20} MiB a "
-                "flight file may expand to"
+                f"{path}: variable {name!r} declares {_size_text(size)} ({kind} "
+                f"{'x'.join(map(str, shape))}), taking the variables read over the "
+                f"{_MAX_DECLARED_BYTES >> 20} MiB a flight file may expand to"
             )
+    # ... and what they inflate to, which a lying size tag inside one can hide
+    # (a few kB a variable for its name, shape and flags)
+    check_mat_expansion(path, listing, set(read), _MAX_DECLARED_BYTES + (4 << 10) * len(read))
+    every = [c for name, shape, _ in listing for c in _mat_columns(name, shape)]
+    if wanted is not None and not read:
+        return every, {}  # the caller names the channel it did not find
     try:
-        raw = scipy.io.loadmat(path, squeeze_me=True)
+        raw = scipy.io.loadmat(path, squeeze_me=True, variable_names=read)
     except Exception as exc:  # scipy raises ValueError/TypeError/NotImplementedError
         raise DataFormatError(
             f"{path}: not a readable MATLAB file ({exc}); MATLAB v7.3 (HDF5) files are "
@@ -439,6 +499,8 @@ def _read_mat(path: Path) -> tuple[list[str], dict[str, NDArray[Any]]]:
                 columns[f"{name}_{j}"] = mat[:, j].astype(dtype)
     if not columns:
         raise DataFormatError(f"{path}: no numeric vectors found")
+    if wanted is not None:  # every variable's names, so a missing one is reported as such
+        return every, columns
     return list(columns), columns
 
 
@@ -546,12 +608,13 @@ def load_flight_test(
         )
     suffix = p.suffix.lower()
     columns: Mapping[str, NDArray[Any]]
+    wanted = _wanted_columns(channels, time_column)
     if suffix in (".csv", ".txt", ".dat"):
-        header, columns = _read_csv(p)
+        header, columns = _read_csv(p, wanted)
     elif suffix in (".parquet", ".pq"):
-        header, columns = _read_parquet(p)
+        header, columns = _read_parquet(p, wanted)
     elif suffix == ".mat":
-        header, columns = _read_mat(p)
+        header, columns = _read_mat(p, wanted)
     else:
         raise DataFormatError(
             f"{p}: unknown file type {suffix!r} (expected .csv, .parquet or .mat)"
@@ -578,6 +641,8 @@ def load_flight_test(
     for col in mapping:
         if col not in columns:
             raise ChannelError(f"{p}: column {col!r} not found; {_columns_text(header)}")
+    if tname not in columns:  # a header name no reader turned into a column
+        raise ChannelError(f"{p}: time column {tname!r} is not a numeric vector")
     for col in (tname, *mapping):
         if columns[col].dtype.kind == "c":
             raise DataFormatError(
@@ -598,6 +663,23 @@ def load_flight_test(
         )
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
+
+
+def _wanted_columns(
+    channels: Sequence[str] | Mapping[str, str] | None, time_column: str | None
+) -> frozenset[str] | None:
+    """The names a loader needs to read: the channels asked for (both sides of a
+    mapping) and the time column or its candidates; None for every column."""
+    if channels is None:
+        return None
+    if isinstance(channels, str):
+        names = [channels]
+    elif isinstance(channels, Mapping):
+        names = [*channels.keys(), *channels.values()]
+    else:
+        names = list(channels)
+    times = (time_column,) if time_column is not None else _TIME_CANDIDATES
+    return frozenset(str(n) for n in (*names, *times))
 
 
 def _log_mapping(
@@ -670,9 +752,11 @@ def _load_log(
     t1: float | None = None,
 ) -> FlightData:
     """`load_flight_test` for a flight log: read it, pick channels, put them on one grid."""
-    from .logs import read_log
+    from .logs import _read_selected
 
-    log = read_log(p, format=log_format, time_column=time_column)
+    # a log's datasets nobody asked for are not read (an HDF5 file can hold gigabytes)
+    wanted = None if channels is None else _wanted_columns(channels, None)
+    log = _read_selected(p, log_format, time_column, False, wanted)
     mapping = _log_mapping(log, channels, p)
     if not mapping:
         raise DataFormatError(f"{p}: channels: none selected")

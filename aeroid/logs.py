@@ -24,8 +24,9 @@ Channel names
 
 from __future__ import annotations
 
+import re
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -233,8 +234,22 @@ def _hdf5_refusal(path: Path, ds: Any, allow_external: bool) -> str:
     return ""
 
 
+def _hdf5_wanted(wanted: Collection[str]) -> frozenset[str]:
+    """The dataset names (dots for slashes) that hold the channels in `wanted`: a
+    matrix dataset's columns are ``name[j]`` (``name_j`` in a MATLAB file)."""
+    bases = set()
+    for name in wanted:
+        bases.add(name)
+        bases.add(re.sub(r"(\[\d+\]|_\d+)$", "", name))
+    return frozenset(bases)
+
+
 def _read_hdf5(
-    path: Path, time_column: str | None = None, *, allow_external: bool = False
+    path: Path,
+    time_column: str | None = None,
+    *,
+    allow_external: bool = False,
+    wanted: Collection[str] | None = None,
 ) -> FlightLog:
     try:
         import h5py
@@ -264,30 +279,51 @@ def _read_hdf5(
         # MATLAB's layout without its text header (a copied or rewritten file)
         matlab = matlab or any("MATLAB_class" in ds.attrs for ds in datasets.values())
         names = (time_column,) if time_column is not None else _TIME_NAMES
-        times: dict[str, tuple[str, FloatArray]] = {}
+        time_of: dict[str, str] = {}  # group -> its time dataset
         for group in groups:
             for candidate in names:
                 key = f"{group}/{candidate}" if group else candidate
                 if key in datasets:
-                    refusal = _hdf5_refusal(path, datasets[key], allow_external)
-                    if refusal:
-                        raise DataFormatError(
-                            f"{path}: time dataset {key!r} {refusal}; not read"
-                            + _EXTERNAL_HINT * ("GiB" not in refusal)
-                        )
-                    times[group] = (key, _hdf5_time(path, datasets[key], matlab))
+                    time_of[group] = key
                     break
-        if not times:
+        if not time_of:
             raise DataFormatError(
                 f"{path}: no time dataset found (looked for {list(names)} in every group); "
                 "pass time_column=... naming it"
             )
+        bases = None if wanted is None else _hdf5_wanted(wanted)
+        needed = set(time_of)
+        if bases is not None:  # only the time of a group holding a channel asked for
+            groups_of = (
+                _time_group(key, time_of)
+                for key in datasets
+                if key.replace("/", ".") in bases and key not in time_of.values()
+            )
+            needed = {g for g in groups_of if g is not None}
+        times: dict[str, tuple[str, FloatArray]] = {}
+        for group in sorted(needed):
+            key = time_of[group]
+            refusal = _hdf5_refusal(path, datasets[key], allow_external)
+            if refusal:
+                raise DataFormatError(
+                    f"{path}: time dataset {key!r} {refusal}; not read"
+                    + _EXTERNAL_HINT * ("GiB" not in refusal)
+                )
+            times[group] = (key, _hdf5_time(path, datasets[key], matlab))
         channels: dict[str, LogChannel] = {}
         skipped: dict[str, str] = {}
-        time_keys = {key for key, _ in times.values()}
+        unread: list[str] = []
+        time_keys = set(time_of.values())
         budget = _MAX_FILE_BYTES - sum(t.nbytes for _, t in times.values())
         for key, ds in datasets.items():
             if key in time_keys:
+                continue
+            if bases is not None and key.replace("/", ".") not in bases:
+                # not asked for: not read at all, only named from its shape
+                home = _time_group(key, time_of)
+                if home is not None:
+                    n = int(datasets[time_of[home]].size)
+                    unread.extend(_hdf5_names(key, ds, n, matlab))
                 continue
             reason = _hdf5_refusal(path, ds, allow_external)
             declared = int(ds.size) * int(ds.dtype.itemsize)
@@ -301,12 +337,14 @@ def _read_hdf5(
                 reason = _hdf5_channels(key, ds, times, matlab, channels)
             if reason:
                 skipped[key.replace("/", ".")] = reason
-    if not channels:
+    if not channels and not unread:
         raise DataFormatError(
             f"{path}: no numeric dataset matches a time dataset in length"
             + (f" (skipped: {skipped})" if skipped else "")
         )
     metadata: dict[str, Any] = {"source": path.name, "format": "matlab" if matlab else "hdf5"}
+    if unread:
+        metadata["unread"] = tuple(unread)
     refused = {k: v for k, v in skipped.items() if "external" in v or "virtual" in v}
     if refused:
         # never silently missing: a channel the caller asks for would read 'not found'
@@ -316,6 +354,32 @@ def _read_hdf5(
     if skipped:
         metadata["skipped"] = skipped
     return FlightLog(channels, (), metadata)
+
+
+def _hdf5_names(key: str, ds: Any, n: int, matlab: bool) -> list[str]:
+    """The channel names `_hdf5_channels` would make of a dataset, from its shape and
+    attributes alone (nothing is read); [] for one it would skip."""
+    cls = _text_attr(ds, "MATLAB_class")
+    if cls in _MATLAB_NON_NUMERIC or "MATLAB_empty" in ds.attrs or ds.dtype.kind not in "fiub":
+        return []
+    shape = tuple(ds.shape)[::-1] if matlab and ds.ndim == 2 else tuple(ds.shape)
+    name = key.replace("/", ".")
+    if len(shape) == 1 or (len(shape) == 2 and 1 in shape):
+        return [name] if int(np.prod(shape)) == n else []
+    if len(shape) != 2 or n not in shape:
+        return []
+    width = shape[1] if shape[0] == n else shape[0]
+    return [f"{name}_{j}" if matlab else f"{name}[{j}]" for j in range(width)]
+
+
+def _time_group(key: str, time_of: Mapping[str, str]) -> str | None:
+    """The nearest group enclosing dataset `key` that has a time dataset."""
+    group = key.rpartition("/")[0]
+    while group not in time_of:
+        if not group:
+            return None
+        group = group.rpartition("/")[0]
+    return group
 
 
 _EXTERNAL_HINT = " (pass allow_external_data=True to read data stored outside the file you named)"
@@ -434,6 +498,18 @@ def read_log(
         contradict the format, a log without data, or the reading library
         not installed (``pip install "aeroid[logs]"``).
     """
+    return _read_selected(path, format, time_column, allow_external_data, None)
+
+
+def _read_selected(
+    path: str | Path,
+    format: str | None,
+    time_column: str | None,
+    allow_external_data: bool,
+    wanted: Collection[str] | None,
+) -> FlightLog:
+    """`read_log`; an HDF5 file's datasets outside `wanted` (channel names) are not
+    read, only listed in ``metadata["unread"]``."""
     p = _existing(path)
     fmt = _resolve_format(p, format)
     if fmt != "hdf5" and time_column is not None:
@@ -444,7 +520,9 @@ def read_log(
         "ulog": lambda: _read_ulog(p),
         "dataflash": lambda: _read_dataflash(p, text=False),
         "dataflash-text": lambda: _read_dataflash(p, text=True),
-        "hdf5": lambda: _read_hdf5(p, time_column, allow_external=allow_external_data),
+        "hdf5": lambda: _read_hdf5(
+            p, time_column, allow_external=allow_external_data, wanted=wanted
+        ),
     }
     return readers[fmt]()
 
@@ -569,9 +647,10 @@ def find_channels(log: FlightLog, wanted: Iterable[str], path: Path | str) -> No
                 f"only {len(log.channels)} channels were recovered; the file is damaged"
             )
         if name not in log.channels:
-            near = difflib.get_close_matches(name, list(log.channels), n=5, cutoff=0.6)
+            known = [*log.channels, *log.metadata.get("unread", ())]  # not read: not asked for
+            near = difflib.get_close_matches(name, known, n=5, cutoff=0.6)
             hint = f"; close names: {near}" if near else ""
             raise ChannelError(
-                f"{path}: channel {name!r} not found in the log ({len(log.channels)} "
+                f"{path}: channel {name!r} not found in the log ({len(known)} "
                 f"channels; aeroid.list_channels lists them){hint}"
             )

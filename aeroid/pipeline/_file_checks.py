@@ -155,9 +155,12 @@ def _check_files(
                 continue
             try:
                 header = headers.get((path, spec.time_column))
-                if header is None:
+                if header is None or (uses_log_options and header.log is None):
                     header = headers[(path, spec.time_column)] = _header(
-                        path, spec.time_column, bool(spec.allow_external_data)
+                        path,
+                        spec.time_column,
+                        bool(spec.allow_external_data),
+                        names_only=not uses_log_options,
                     )
             except AeroidError as exc:
                 problems.add(where, str(exc))
@@ -381,12 +384,17 @@ class _Header:
 
 
 def _header(
-    path: Path, time_column: str | None = None, allow_external: bool = False
+    path: Path,
+    time_column: str | None = None,
+    allow_external: bool = False,
+    *,
+    names_only: bool = False,
 ) -> _Header | None:
-    """A flight file's column names, from its header only; None for an unknown format."""
+    """A flight file's column names, from its header only; None for an unknown format.
+    With `names_only`, an HDF5 log's channels are named from their shapes, unread."""
     from ..errors import DataFormatError
 
-    log = _log_listing(path, time_column, allow_external)
+    log = _log_listing(path, time_column, allow_external, names_only=names_only)
     if log is not None:
         return log
     suffix = path.suffix.lower()
@@ -406,17 +414,24 @@ def _header(
     return None
 
 
-def _log_listing(path: Path, time_column: str | None, allow_external: bool) -> _Header | None:
+def _log_listing(
+    path: Path, time_column: str | None, allow_external: bool, *, names_only: bool = False
+) -> _Header | None:
     """A flight log's channels (`aeroid.list_channels`, where this aeroid reads logs);
-    None when `path` is not a log (a table) or logs cannot be listed."""
+    None when `path` is not a log (a table) or logs cannot be listed. With `names_only`
+    an HDF5 file's datasets are named, not read (a check must not load gigabytes), and
+    the header carries no log."""
     try:
-        from ..logs import listing, read_log, sniff_format
+        from ..logs import _read_selected, listing, sniff_format
     except ImportError:
         return None
     fmt = sniff_format(path)  # the first bytes, then the suffix, as the loader decides
     if fmt is None:
         return None
-    log = read_log(path, format=fmt, time_column=time_column, allow_external_data=allow_external)
+    if names_only and fmt == "hdf5":
+        log = _read_selected(path, fmt, time_column, allow_external, ())
+        return _Header([str(n) for n in log.metadata.get("unread", ())], has_time=False)
+    log = _read_selected(path, fmt, time_column, allow_external, None)
     names = listing(log).names
     # a log's time axis is the reader's business, not one of the channels
     return _Header([str(n) for n in names], has_time=False, log=log)

@@ -202,6 +202,8 @@ def _check(
             _check_metric(step, opts, base_dir, allowed, names, problems)
         else:
             _check_code_fields(step, opts, base_dir, allowed, problems)
+        if stage == "infer":
+            _check_infer_size(step, opts, problems)
     _check_generators(config, allowed, problems)
     needs = None if names is None else _channel_needs(options, names, pipeline is None)
     _check_simulated_channels(config, needs, problems)
@@ -245,6 +247,27 @@ def _stage_options(
         except ConfigError as exc:
             problems.add_lines(str(exc))
     return out
+
+
+# Posterior evaluations (one simulation each) an infer step may ask for per flight: each
+# count has its own bound, but their product can still ask for years of simulation.
+_MAX_EVALUATIONS = 10**9
+
+
+def _check_infer_size(step: str, opts: Any, problems: _Problems) -> None:
+    # unset counts at their least (the library's defaults are at least these), so only
+    # a request that cannot run in any case is refused
+    walkers = getattr(opts, "n_walkers", None) or 2
+    steps = getattr(opts, "n_steps", None) or 1
+    ensembles = getattr(opts, "n_ensembles", None) or 1
+    total = walkers * steps * ensembles
+    if total > _MAX_EVALUATIONS:
+        problems.add(
+            f"stages.{step}",
+            f"n_walkers x n_steps x n_ensembles = {walkers} x {steps} x {ensembles} = "
+            f"{total:.3g} simulations a flight, over the {_MAX_EVALUATIONS:.0e} a run can "
+            "finish (days at a millisecond each); use fewer steps or walkers",
+        )
 
 
 def _without_flights(values: Any) -> dict[str, Any] | None:

@@ -309,17 +309,12 @@ class CampaignConfig(Options):
             raise ValueError(problem)
         return v
 
-    @field_validator("store")
+    @field_validator("store", "report")
     @classmethod
-    def _check_store(cls, v: str) -> str:
-
-        if re.search(r"\$\{?[A-Za-z_]|%[A-Za-z_]+%", v):
-            raise ValueError(
-                f"{v!r} names an environment variable; aeroid does not expand them, "
-                "write the path itself"
-            )
-        if "\x00" in v or len(v) > 1024:
-            raise ValueError("expected a folder or URL (no NUL character, at most 1024 characters)")
+    def _check_store(cls, v: str | None) -> str | None:
+        problem = None if v is None else _path_problem(v)
+        if problem:
+            raise ValueError(problem)
         return v
 
     @model_validator(mode="after")
@@ -403,6 +398,23 @@ class CampaignConfig(Options):
                     seen.add((m, options))
                     out.append((i, m, spec))
         return out
+
+
+def _path_problem(v: str) -> str | None:
+    """Why a store or report path written in a config cannot be used as written."""
+    if re.search(r"\$\{?[A-Za-z_]|%[A-Za-z_]+%", v):
+        return (
+            f"{v!r} names an environment variable; aeroid does not expand them, "
+            "write the path itself"
+        )
+    if "\x00" in v or len(v) > 1024:
+        return "expected a folder or URL (no NUL character, at most 1024 characters)"
+    if v.startswith("~"):
+        try:
+            Path(v).expanduser()
+        except RuntimeError:  # ~name of a user this machine does not have
+            return f"{v!r} names the home folder of a user this machine does not know"
+    return None
 
 
 def _loc(loc: Sequence[Any]) -> str:
@@ -535,8 +547,15 @@ def format_validation_error(
         elif err["type"] == "missing":
             msg = "required key is missing"
         else:
-            msg = f"{err['msg'].removeprefix('Value error, ')} (got {_brief(err.get('input'))})"
-            msg += _suggestion(err)
+            text = err["msg"].removeprefix("Value error, ")
+            given = err.get("input")
+            key, _, rest = text.partition(": ")
+            if not loc and isinstance(given, Mapping) and key in given:
+                # a check across keys that names its key: located there, not at the top
+                # level, and quoting that key's value rather than the whole config
+                path, text, given = _loc([*prefix, key]), rest, given[key]
+            shown = isinstance(given, str) and text.startswith(given)  # the value leads
+            msg = (text if shown else f"{text} (got {_brief(given)})") + _suggestion(err)
         line = f"{source}: {path}: {msg}"
         if line not in lines:
             lines.append(line)
