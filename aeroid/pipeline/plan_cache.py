@@ -212,6 +212,8 @@ def load(store: ResultStore, inputs: str) -> list[PlannedTask] | None:
             found = None if raw is None else _parse(raw, inputs)
             if found is not None:
                 return found
+            if raw is not None:  # damaged: removed, so that `save` writes it again
+                store._backend.remove_plan(name)
     except (StoreError, OSError):
         pass
     return None
@@ -224,10 +226,11 @@ def save(store: ResultStore, inputs: str | None, planned: Iterable[PlannedTask])
     if inputs is None:
         return False
     try:
-        if _names(store, inputs):
+        names = _names(store)  # one listing (a request on an object store)
+        if any(name.endswith(f"-{inputs}.plan") for name in names):
             return False
         store._backend.write_plan(f"{time.time_ns()}-{inputs}.plan", _document(inputs, planned))
-        for old in _names(store)[_MAX_PLANS:]:
+        for old in names[_MAX_PLANS - 1 :]:
             store._backend.remove_plan(old)
     except (StoreError, OSError):
         return False
