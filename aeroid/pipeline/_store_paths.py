@@ -7,6 +7,7 @@ import contextlib
 import ctypes
 import errno
 import functools
+import itertools
 import os
 import re
 import shutil
@@ -285,8 +286,8 @@ class _LocalBackend:
             if len(keys) > _LOOKS:
                 # one listing of the folder instead of a look per key
                 with self._folder_fd(stage) as fd:
-                    names = set(os.listdir(fd))
-                out |= {(stage, k) for k in keys if k + _SUFFIX in names}
+                    listed = {n[: -len(_SUFFIX)] for n in os.listdir(fd) if n.endswith(_SUFFIX)}
+                out.update(zip(itertools.repeat(stage), listed.intersection(keys)))
                 continue
             folder = os.path.join(self._real, stage)
             out |= {(stage, k) for k in keys if os.path.lexists(os.path.join(folder, k + _SUFFIX))}
