@@ -299,3 +299,19 @@ def test_a_plan_is_stored_in_an_object_store_too(tmp_path, s3_url, monkeypatch):
         _refuse_planning(m)
         doc, _ = _status(cfg, "--store", s3_url)
     assert doc["missing"] == 0 and [t["key"] for t in doc["tasks"]] == [t.key for t in fresh.tasks]
+
+
+def test_a_store_that_lost_its_marker_with_a_stored_plan_is_still_repaired(tmp_path):
+    from aeroid.pipeline._backend import _CHECKED
+
+    cfg = make_campaign(tmp_path, n=2)
+    run(cfg, workers=0)
+    root = tmp_path / "store"
+    assert list((root / ".plans").iterdir())
+    (root / "aeroid-store.json").unlink()  # emptied mid-run: the run's entries came back
+    _CHECKED.clear()  # as a fresh process would
+    code, out, _ = invoke("verify", "--remove", "--store", str(root))
+    assert code == 0, out
+    assert (root / "aeroid-store.json").is_file()
+    doc, _ = _status(cfg)
+    assert doc["missing"] == 0

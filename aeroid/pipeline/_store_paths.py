@@ -157,7 +157,7 @@ def _only_store_content(folder: Path) -> bool:
         inner = list(top.iterdir())
         if any(p.is_symlink() or not p.is_file() for p in inner if top.name != "reports"):
             return False
-        if top.name in (_TMP, "reports", _PLANS):
+        if top.name in (_TMP, "reports", _INDEX, _PLANS):
             continue
         if not _STAGE_DIR.fullmatch(top.name):
             return False
