@@ -136,7 +136,13 @@ if sys.argv[3] == "plan":
     plan(sys.argv[1])
 else:
     sum(1 for _ in plan_stream(sys.argv[1]))
-print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+seconds = time.perf_counter() - t
+try:  # this process's own peak: ru_maxrss may carry the parent's over its fork and exec
+    with open("/proc/self/status") as f:
+        peak = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(seconds, peak)
 """
 
 
