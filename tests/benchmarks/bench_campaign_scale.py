@@ -253,13 +253,14 @@ def main() -> None:
                 shutil.rmtree(folder / "store", ignore_errors=True)
                 continue
             before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-            cold, out = _command(["run", str(cfg), "--quiet", "--json"], folder)
+            cold, cpu, out = _timed(["run", str(cfg), "--quiet", "--json"], folder)
             doc = json.loads(out)
             largest = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             peak = f"{largest / 1024:.0f} MB" if largest > before else "below an earlier run's"
             print(
                 f"{n} flights: cold run {cold:.1f} s ({doc['computed']} tasks, "
-                f"{doc['failed']} failed; {3600 * n / cold:,.0f} flights/hour); "
+                f"{doc['failed']} failed; {3600 * n / cold:,.0f} flights/hour; CPU {cpu:.0f} s, "
+                f"{1e3 * cpu / n:.1f} ms a flight); "
                 f"largest process {peak}",
                 flush=True,
             )
