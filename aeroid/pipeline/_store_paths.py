@@ -278,7 +278,7 @@ class _LocalBackend:
         by_stage: dict[str, list[str]] = {}
         for stage, key in tasks:
             by_stage.setdefault(stage, []).append(key)
-        out = set()
+        out: set[tuple[str, str]] = set()
         for stage, keys in by_stage.items():
             # a stage with no folder yet (a new store, a new stage) has none: one look for all
             if not self._stage_present(stage):

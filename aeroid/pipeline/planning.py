@@ -2,6 +2,8 @@
 
 `plan` turns a config into tasks whose keys are computed from keys only
 (file digests, options, model fingerprint, seeds), before anything runs;
+`plan_stream` computes the same tasks a flight at a time, and `stored_plan`
+reads the keys a store keeps for unchanged inputs (`plan_cache`);
 `resolve_model` finds the vehicle model a config names.
 """
 
@@ -21,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import AeroidError, ConfigError, PipelineError
 from . import _code
-from ._flights import _flight_model, _flight_sources, _iter_flight_sources  # noqa: F401
+from ._flights import _flight_model, _flight_sources, _iter_flight_sources  # noqa: F401 (tests)
 from ._options import stage_flights
 from .checks import check_campaign
 from .config import CampaignConfig, FileFlights, load_config, validate_options
