@@ -4,7 +4,7 @@ and own model, in config order (`planning.plan` keys them)."""
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -73,16 +73,26 @@ def _flight_sources(
 
     `source_texts` receives the canonical text of each simulated flight's spec, by
     the spec's id, so planning serialises each spec once."""
+    return list(_iter_flight_sources(config, source_texts))
+
+
+def _iter_flight_sources(
+    config: CampaignConfig,
+    source_texts: dict[int, bytes] | None = None,
+    files: list[tuple[int, Path, FileFlights]] | None = None,
+) -> Iterator[_Flight]:
+    """The flights of `_flight_sources`, one at a time (`files`: the config's
+    `expand_files`, where the caller has it already)."""
     from .synthetic import flight_spec
 
     if source_texts is None:
         source_texts = {}
-    files = config.expand_files()
+    if files is None:
+        files = config.expand_files()
     stems = Counter(p.stem for _, p, _ in files)
     by_entry: dict[int, list[tuple[int, Path, FileFlights]]] = {}
     for f in files:
         by_entry.setdefault(f[0], []).append(f)
-    out: list[_Flight] = []
     for i, item in enumerate(config.flights):
         if isinstance(item, SimulatedSource):
             spec = item.simulated.model_dump(mode="json")
@@ -92,7 +102,7 @@ def _flight_sources(
                 text = canonical_json(fs)
                 source = {"kind": "simulated", "spec": fs, "sha256": sha256_hex(text)}
                 source_texts[id(fs)] = text
-                out.append(_Flight(f"sim-{j:0{width}d}", source, {}))
+                yield _Flight(f"sim-{j:0{width}d}", source, {})
             continue
         for _, path, loader in by_entry.get(i, ()):
             opts = loader.loader_options()
@@ -111,11 +121,10 @@ def _flight_sources(
                 digest = "unreadable:" + sha256_hex(f"{path}:{exc}".encode())
             source = {"kind": "file", "path": str(path), "sha256": digest}
             if loader.segments is None:
-                out.append(_Flight(name, source, opts, model))
+                yield _Flight(name, source, opts, model)
                 continue
             windows = _windows(config, i, path, loader)
             width = len(str(len(windows)))
             for k, window in enumerate(windows, 1):
                 seg_opts = {**opts, "window": window}
-                out.append(_Flight(f"{name}-seg{k:0{width}d}", source, seg_opts, model))
-    return out
+                yield _Flight(f"{name}-seg{k:0{width}d}", source, seg_opts, model)

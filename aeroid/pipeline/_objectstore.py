@@ -18,6 +18,7 @@ from ._backend import (
     _INDEX,
     _MARKER,
     _MARKER_DOC,
+    _PLANS,
     _SUFFIX,
     StoreLocation,
     _Archive,
@@ -76,7 +77,10 @@ def url_to_fs(url: str) -> tuple[Any, str]:
     return fs, str(base)
 
 
-_ENTRY_NAME = re.compile(r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)|\.index/[0-9a-z_.-]+\.json")
+_ENTRY_NAME = re.compile(
+    r"[a-z_]+/[0-9a-f]{64}(?:\.zarr\.zip|\.claim)|\.index/[0-9a-z_.-]+\.json"
+    r"|\.plans/[0-9]+-[0-9a-f]{64}\.plan"
+)
 
 
 def _only_entries(fs: Any, base: str) -> bool:
@@ -300,6 +304,26 @@ class _ObjectBackend:
 
     def remove_index(self, name: str) -> None:
         self.delete(_INDEX, name)
+
+    # -- stored plans (`plan_cache`) ---------------------------------------------------
+    def plan_names(self) -> list[str]:
+        try:
+            found = self._fs.ls(f"{self._base}/{_PLANS}", detail=False)
+        except FileNotFoundError:
+            return []
+        return sorted(str(p).rpartition("/")[2] for p in found)
+
+    def read_plan(self, name: str) -> bytes | None:
+        try:
+            return bytes(self._fs.cat_file(f"{self._base}/{_PLANS}/{name}"))
+        except FileNotFoundError:
+            return None
+
+    def write_plan(self, name: str, data: bytes) -> None:
+        self._put({f"{self._base}/{_PLANS}/{name}": data})
+
+    def remove_plan(self, name: str) -> None:
+        self.delete(_PLANS, name)
 
 
 # what tells one object's bytes from another's write of the same name, per backend

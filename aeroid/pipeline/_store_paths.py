@@ -7,6 +7,7 @@ import contextlib
 import ctypes
 import errno
 import functools
+import itertools
 import os
 import re
 import shutil
@@ -25,6 +26,7 @@ from ._backend import (
     _INDEX,
     _MARKER,
     _MARKER_DOC,
+    _PLANS,
     _SUFFIX,
     _TMP,
     StoreLocation,
@@ -50,6 +52,9 @@ _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
 _CLOEXEC = getattr(os, "O_CLOEXEC", 0)
 _DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | _NOFOLLOW | _CLOEXEC
 _LINK_ERRNOS = {errno.ELOOP, errno.EMLINK}  # what O_NOFOLLOW gives on a link (Linux, BSD)
+# past this many keys of a stage, `stored` lists the stage's folder instead of looking
+# for each key (a listing costs about what 50 looks do, for any number of names)
+_LOOKS = 256
 
 
 def _link_refused(path: str) -> StoreError:
@@ -152,7 +157,7 @@ def _only_store_content(folder: Path) -> bool:
         inner = list(top.iterdir())
         if any(p.is_symlink() or not p.is_file() for p in inner if top.name != "reports"):
             return False
-        if top.name in (_TMP, "reports"):
+        if top.name in (_TMP, "reports", _INDEX, _PLANS):
             continue
         if not _STAGE_DIR.fullmatch(top.name):
             return False
@@ -270,14 +275,22 @@ class _LocalBackend:
         )
 
     def stored(self, tasks: set[tuple[str, str]]) -> set[tuple[str, str]]:
-        # a stage with no folder yet (a new store, a new stage) has none: one look for all
-        has_stage: dict[str, bool] = {}
-        out = set()
+        by_stage: dict[str, list[str]] = {}
         for stage, key in tasks:
-            if stage not in has_stage:
-                has_stage[stage] = self._stage_present(stage)
-            if has_stage[stage] and os.path.lexists(os.path.join(self._real, stage, key + _SUFFIX)):
-                out.add((stage, key))
+            by_stage.setdefault(stage, []).append(key)
+        out: set[tuple[str, str]] = set()
+        for stage, keys in by_stage.items():
+            # a stage with no folder yet (a new store, a new stage) has none: one look for all
+            if not self._stage_present(stage):
+                continue
+            if len(keys) > _LOOKS:
+                # one listing of the folder instead of a look per key
+                with self._folder_fd(stage) as fd:
+                    listed = {n[: -len(_SUFFIX)] for n in os.listdir(fd) if n.endswith(_SUFFIX)}
+                out.update(zip(itertools.repeat(stage), listed.intersection(keys)))
+                continue
+            folder = os.path.join(self._real, stage)
+            out |= {(stage, k) for k in keys if os.path.lexists(os.path.join(folder, k + _SUFFIX))}
         return out
 
     def _stage_present(self, stage: str) -> bool:
@@ -582,15 +595,50 @@ class _LocalBackend:
         return out
 
     def write_index(self, name: str, data: bytes) -> None:
+        self._write_whole(_INDEX, name, data)
+
+    def _write_whole(self, folder_name: str, name: str, data: bytes) -> None:
+        """Write a file whole under ``.tmp`` and move it into `folder_name`."""
         tmp = f"{name}.{_hostname()}.{os.getpid()}.{os.urandom(4).hex()}"
         try:
             with self._folder_fd(_TMP, make=True) as tmp_dir:
                 self._write_new(tmp_dir, tmp, data)
-                with self._folder_fd(_INDEX, make=True) as folder:
+                with self._folder_fd(folder_name, make=True) as folder:
                     os.rename(tmp, name, src_dir_fd=tmp_dir, dst_dir_fd=folder)
         except OSError as exc:
-            raise _os_error("write", self._shown(_INDEX, name), exc) from None
+            raise _os_error("write", self._shown(folder_name, name), exc) from None
 
     def remove_index(self, name: str) -> None:
         with contextlib.suppress(FileNotFoundError):
             self.delete(_INDEX, name)
+
+    # -- stored plans (`plan_cache`) ---------------------------------------------------
+    def plan_names(self) -> list[str]:
+        try:
+            fd = self._dir(_PLANS)
+        except FileNotFoundError:
+            return []
+        try:
+            return sorted(os.listdir(fd))
+        finally:
+            os.close(fd)
+
+    def read_plan(self, name: str) -> bytes | None:
+        try:
+            with self._folder_fd(_PLANS) as folder:
+                fd = os.open(name, os.O_RDONLY | _NOFOLLOW | _CLOEXEC, dir_fd=folder)
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            if exc.errno in _LINK_ERRNOS:
+                raise _link_refused(str(self._shown(_PLANS, name))) from None
+            raise _os_error("read", self._shown(_PLANS, name), exc) from None
+        with os.fdopen(fd, "rb") as file:
+            return file.read()
+
+    def write_plan(self, name: str, data: bytes) -> None:
+        self._write_whole(_PLANS, name, data)
+
+    def remove_plan(self, name: str) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self.delete(_PLANS, name)

@@ -2,29 +2,32 @@
 
 `plan` turns a config into tasks whose keys are computed from keys only
 (file digests, options, model fingerprint, seeds), before anything runs;
+`plan_stream` computes the same tasks a flight at a time, and `stored_plan`
+reads the keys a store keeps for unchanged inputs (`plan_cache`);
 `resolve_model` finds the vehicle model a config names.
 """
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import functools
 import gc
 import json
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..errors import AeroidError, ConfigError
+from ..errors import AeroidError, ConfigError, PipelineError
 from . import _code
-from ._flights import _flight_model, _flight_sources
+from ._flights import _flight_model, _flight_sources, _iter_flight_sources  # noqa: F401 (tests)
 from ._options import stage_flights
 from .checks import check_campaign
 from .config import CampaignConfig, FileFlights, load_config, validate_options
-from .definition import Pipeline, resolve_pipeline
+from .definition import Pipeline, Step, resolve_pipeline
 from .keys import (
     Canonical,
     canonical_json,
@@ -35,7 +38,21 @@ from .keys import (
 from .stages import STAGES
 from .store import parse
 
-__all__ = ["BUILTIN_MODELS", "Plan", "Task", "plan", "resolve_model", "store_argument"]
+if TYPE_CHECKING:
+    from .plan_cache import PlannedTask
+    from .store import ResultStore
+
+__all__ = [
+    "BUILTIN_MODELS",
+    "Plan",
+    "PlanStream",
+    "Task",
+    "plan",
+    "plan_stream",
+    "resolve_model",
+    "store_argument",
+    "stored_plan",
+]
 
 BUILTIN_MODELS = ("short_period", "first_order")
 
@@ -117,6 +134,8 @@ class Plan:
     pipeline: Pipeline
     tasks: list[Task]
     flights: list[str]
+    # digest of everything the keys depend on (`PlanStream.inputs`)
+    inputs: str | None = None
 
     @property
     def report_task(self) -> Task | None:
@@ -288,24 +307,56 @@ def plan(
     ``module:attribute`` models and metrics import and run code: refused with a
     `ConfigError` unless `allow_imports` or the config's ``allow_imports: true``.
     """
-    # a plan makes a few objects a task and no reference cycles: the cyclic collector,
-    # which walks every live object each time it runs, made planning superlinear
-    # (6.1 s for 100,000 flights with it, 3.3 s without)
+    with _no_cyclic_gc():  # see `PlanStream._tasks`
+        stream = plan_stream(config, pipeline=pipeline, allow_imports=allow_imports)
+        tasks = list(stream)
+    return Plan(
+        config=stream.config,
+        pipeline=stream.pipeline,
+        tasks=tasks,
+        flights=stream.flights,
+        inputs=stream.inputs,
+    )
+
+
+@contextlib.contextmanager
+def _no_cyclic_gc() -> Iterator[None]:
     paused = gc.isenabled()
     gc.disable()
     try:
-        return _plan(config, pipeline=pipeline, allow_imports=allow_imports)
+        yield
     finally:
         if paused:
             gc.enable()
 
 
-def _plan(
+@dataclass
+class _Setup:
+    """What every flight's tasks share: the checked config, pipeline, options and model."""
+
+    config: CampaignConfig
+    pipeline: Pipeline
+    pipe_ref: dict[str, Any] | None
+    steps: list[Step]
+    enabled: set[str]
+    selected: dict[str, list[str]]
+    fingerprint: dict[str, Any]
+    model_ref: dict[str, Any]
+    step_stage: dict[str, str]  # step -> the stage's stored name
+    documents: dict[str, tuple[dict[str, Any], dict[str, Any]]]  # (as keyed, as run)
+    run_options: dict[str, dict[str, Any]]
+    briefs: dict[str, tuple[tuple[str, str], ...]]
+
+
+def _setup(
     config: CampaignConfig | str | Path,
     *,
     pipeline: Pipeline | None,
     allow_imports: bool,
-) -> Plan:
+    check_flights: bool = True,
+) -> _Setup:
+    """Resolve and check what every flight's tasks share (`check_flights`: run the
+    pre-flight checks of every flight too, which may read each flight's file)."""
     if not isinstance(config, CampaignConfig):
         config = load_config(config)
     allowed = allow_imports or config.allow_imports
@@ -318,8 +369,9 @@ def _plan(
         pipe_ref = None
     _check_model_import(config, allowed)
     model = resolve_model(config.model, config.base_dir)
-    # every mistake the config shows (names, files, channels), listed in one error
-    _check_flight_models(config, model, pipeline, allowed)
+    if check_flights:
+        # every mistake the config shows (names, files, channels), listed in one error
+        _check_flight_models(config, model, pipeline, allowed)
     known = {s.name for s in pipeline.steps}
     for name in config.stages:
         if name not in known:
@@ -346,32 +398,151 @@ def _plan(
     }
     _warn_old_names(config, steps)
     _check_imports(config, options, allowed)
-    fingerprint = model_fingerprint(model)
-    model_ref = {"spec": config.model, "base_dir": config.base_dir}
     # the stage's stored name: where its results live (a renamed stage keeps its old one)
     step_stage = {s.name: STAGES[s.stage_name].key_name for s in steps}
     # the same for every flight: (options as keyed, options as run)
     documents = {
         s.name: (options[s.name].key_document(), options[s.name].task_document()) for s in steps
     }
-    # a load task's run options are made per flight: they add its file's loader options
-    run_options = {
-        name: _run_options(opts, how)
-        for name, (opts, how) in documents.items()
-        if step_stage[name] != "load"
-    }
-    briefs = _briefs_wanted(pipeline, enabled)
-    memo: dict[int, Any] = {}  # keyed_text's: every flight shares the options and the model
-    flight_steps = [s for s in steps if s in pipeline.flight_steps]
+    return _Setup(
+        config=config,
+        pipeline=pipeline,
+        pipe_ref=pipe_ref,
+        steps=steps,
+        enabled=enabled,
+        selected=selected,
+        fingerprint=model_fingerprint(model),
+        model_ref={"spec": config.model, "base_dir": config.base_dir},
+        step_stage=step_stage,
+        documents=documents,
+        # a load task's run options are made per flight: they add its file's loader options
+        run_options={
+            name: _run_options(opts, how)
+            for name, (opts, how) in documents.items()
+            if step_stage[name] != "load"
+        },
+        briefs=_briefs_wanted(pipeline, enabled),
+    )
 
-    tasks: list[Task] = []
-    flights: list[str] = []
-    per_flight_keys: dict[str, dict[str, str]] = {}
+
+class PlanStream:
+    """A campaign's tasks computed one flight at a time, in plan order.
+
+    What a plan holds for all its flights at once, a stream holds for one:
+    iterating it yields each flight's tasks, then the campaign tasks, and keeps
+    of a flight only its name and the keys a campaign step takes (and the load
+    key, to refuse a flight listed twice). A consumer that writes or counts the
+    tasks as they come (``aeroid status``) thus holds a small, fixed amount a
+    flight. Iterated once; `flights` fills as it goes.
+
+    Attributes
+    ----------
+    config : CampaignConfig
+    pipeline : Pipeline
+    flights : list of str
+        The flights planned so far (all of them once iterated).
+    inputs : str
+        Digest of everything the keys depend on (`plan_cache.inputs_digest`):
+        a stored plan made from the same inputs has the same tasks.
+    """
+
+    def __init__(self, setup: _Setup, files: list[tuple[int, Path, FileFlights]], inputs: str):
+        self._setup = setup
+        self._files = files
+        self.config = setup.config
+        self.pipeline = setup.pipeline
+        self.flights: list[str] = []
+        self.inputs = inputs
+        self._started = False
+
+    def __iter__(self) -> Iterator[Task]:
+        if self._started:
+            raise PipelineError("a plan stream is iterated once; plan again to iterate again")
+        self._started = True
+        return self._tasks()
+
+    def _tasks(self) -> Iterator[Task]:
+        # a plan makes a few objects a task and no reference cycles: the cyclic
+        # collector, which walks every live object each time it runs, made planning
+        # superlinear (6.1 s for 100,000 flights with it, 3.3 s without)
+        with _no_cyclic_gc():
+            yield from _tasks(self._setup, self._files, self.flights)
+
+    def batches(self, size: int = 1000) -> Iterator[list[Task]]:
+        """The tasks in lists of at most `size` (a flight's tasks may straddle two)."""
+        batch: list[Task] = []
+        for task in self:
+            batch.append(task)
+            if len(batch) >= size:
+                yield batch
+                batch = []
+        if batch:
+            yield batch
+
+
+def plan_stream(
+    config: CampaignConfig | str | Path,
+    *,
+    pipeline: Pipeline | None = None,
+    allow_imports: bool = False,
+) -> PlanStream:
+    """The tasks of `plan`, computed as they are iterated (see `PlanStream`).
+
+    The config, pipeline, options and every flight's pre-flight checks are
+    checked here, before the first task; a flight file's own problems (one
+    listed twice, a segment search that finds nothing) come as it is reached.
+    """
+    from .plan_cache import inputs_digest
+
+    setup = _setup(config, pipeline=pipeline, allow_imports=allow_imports)
+    files = setup.config.expand_files()
+    # stat the files before their contents are read: a file that changes in between
+    # gets a new signature, and a stored plan made now is never found for it
+    return PlanStream(setup, files, inputs_digest(setup, files))
+
+
+def stored_plan(
+    store: ResultStore, config: CampaignConfig, *, allow_imports: bool = False
+) -> list[PlannedTask] | None:
+    """The tasks of `config` as a plan of the same inputs stored them in `store`
+    (`plan_cache`), or None: then plan. Runs none of the pre-flight checks of the
+    flights (a stored plan's campaign passed them); a config that does not resolve
+    gives None, and planning reports the problem. Old option names warn as planning does."""
+    from . import plan_cache
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        try:
+            setup = _setup(config, pipeline=None, allow_imports=allow_imports, check_flights=False)
+            files = setup.config.expand_files()
+        except AeroidError:
+            return None
+    found = plan_cache.load(store, plan_cache.inputs_digest(setup, files))
+    if found is not None:
+        for w in seen:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return found
+
+
+def _tasks(
+    setup: _Setup, files: list[tuple[int, Path, FileFlights]], flights: list[str]
+) -> Iterator[Task]:
+    """Every task of the campaign, a flight at a time; `flights` receives the names."""
+    config, pipeline, selected = setup.config, setup.pipeline, setup.selected
+    documents, step_stage, briefs = setup.documents, setup.step_stage, setup.briefs
+    fingerprint, model_ref, pipe_ref = setup.fingerprint, setup.model_ref, setup.pipe_ref
+    memo: dict[int, Any] = {}  # keyed_text's: every flight shares the options and the model
+    flight_steps = [s for s in setup.steps if s in pipeline.flight_steps]
+    campaign_steps = [s for s in setup.steps if s in pipeline.campaign_steps]
+    # the per-flight steps whose keys campaign steps take: kept, one list a step
+    taken = {up for s in campaign_steps for up in s.inputs.values() if up in setup.enabled}
+    step_keys: dict[str, list[str | None]] = {name: [] for name in taken}
+    names: set[str] = set()
     loaded: dict[str, str] = {}  # load key -> the flight that has it
     own_models: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}  # JSON -> fingerprint, ref
     source_texts: dict[int, bytes] = {}
     load_pieces: dict[str, tuple[list[tuple[str, bytes]], dict[str, Any]]] = {}
-    for flight in _flight_sources(config, source_texts):
+    for flight in _iter_flight_sources(config, source_texts, files):
         name, source, loader_opts = flight.name, flight.source, flight.loader
         flight_fingerprint, flight_model_ref = fingerprint, model_ref
         if flight.model is not None:
@@ -385,8 +556,9 @@ def _plan(
             flight_fingerprint, flight_model_ref = own_models[text]
         base = name
         k = 2
-        while name in per_flight_keys:
+        while name in names:
             name, k = f"{base}#{k}", k + 1
+        names.add(name)
         flights.append(name)
         keys: dict[str, str] = {}
         flight_id: int | None = None
@@ -408,7 +580,7 @@ def _plan(
                         load_pieces, step.name, opts, how, source["spec"], source_texts
                     )
             else:
-                run_opts = run_options[step.name]
+                run_opts = setup.run_options[step.name]
             for role, up in step.inputs.items():
                 if up in keys:
                     upstream[role] = keys[up]
@@ -442,33 +614,32 @@ def _plan(
                     )
                 loaded[key] = name
             keys[step.name] = key
-            tasks.append(
-                Task(
-                    key=key,
-                    step=step.name,
-                    stage=stage.key_name,
-                    flight=name,
-                    options=run_opts,
-                    upstream={r: v for r, v in upstream.items() if r in step.inputs},
-                    upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in keys},
-                    canonical=canonical,
-                    model_ref=flight_model_ref if stage.uses_model else None,
-                    seed=seed,
-                    source=source if step.stage_name == "load" else None,
-                    pipeline_ref=pipe_ref,
-                    briefs=briefs.get(step.name, ()),
-                )
+            yield Task(
+                key=key,
+                step=step.name,
+                stage=stage.key_name,
+                flight=name,
+                options=run_opts,
+                upstream={r: v for r, v in upstream.items() if r in step.inputs},
+                upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in keys},
+                canonical=canonical,
+                model_ref=flight_model_ref if stage.uses_model else None,
+                seed=seed,
+                source=source if step.stage_name == "load" else None,
+                pipeline_ref=pipe_ref,
+                briefs=briefs.get(step.name, ()),
             )
-        per_flight_keys[name] = keys
+        for up, kept in step_keys.items():
+            kept.append(keys.get(up))
     _check_selected_names(config, selected, flights)
-    for step in (s for s in steps if s in pipeline.campaign_steps):
+    for step in campaign_steps:
         stage = STAGES[step.stage_name]
         opts = documents[step.name][0]
         upstream = {
             # None where a step ran on some flights only (`flights` in its options)
-            role: [per_flight_keys[f].get(up) for f in flights]
+            role: list(step_keys[up])
             for role, up in step.inputs.items()
-            if up in enabled
+            if up in setup.enabled
         }
         key, canonical = keyed_text(
             record_type=stage.record_type,
@@ -479,22 +650,21 @@ def _plan(
             model=fingerprint if stage.uses_model else None,
             seed=None,
         )
-        tasks.append(
-            Task(
-                key=key,
-                step=step.name,
-                stage=stage.key_name,
-                flight=None,
-                options=run_options[step.name],
-                upstream=upstream,
-                upstream_stages={r: step_stage[u] for r, u in step.inputs.items() if u in enabled},
-                canonical=canonical,
-                model_ref=model_ref if stage.uses_model else None,
-                pipeline_ref=pipe_ref,
-                flights=tuple(flights),
-            )
+        yield Task(
+            key=key,
+            step=step.name,
+            stage=stage.key_name,
+            flight=None,
+            options=setup.run_options[step.name],
+            upstream=upstream,
+            upstream_stages={
+                r: step_stage[u] for r, u in step.inputs.items() if u in setup.enabled
+            },
+            canonical=canonical,
+            model_ref=model_ref if stage.uses_model else None,
+            pipeline_ref=pipe_ref,
+            flights=tuple(flights),
         )
-    return Plan(config=config, pipeline=pipeline, tasks=tasks, flights=flights)
 
 
 def _check_selected(
@@ -546,7 +716,8 @@ def _simulated_load(
         ]
         cache[step] = (pieces, _run_options(base, how))
     pieces, base_run = cache[step]
-    text = texts.get(id(spec)) or canonical_json(spec)
+    # popped once used: a spec's id may be reused once the stream lets it go
+    text = texts.pop(id(spec), None) or canonical_json(spec)
     every = sorted([*pieces, ("simulated", b'"simulated":' + text)])
     keyed = Canonical(b"{" + b",".join(p for _, p in every) + b"}")
     # run with the spec as its text reads back: mappings in sorted order, as keyed

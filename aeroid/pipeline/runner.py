@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import StoreError
-from . import verified
+from . import plan_cache, verified
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
 from .database_stage import write_database_files
@@ -181,6 +181,8 @@ def _run(
     result_store = ResultStore(config.store_location)
     if the_plan.report_task is not None:
         check_report_path(config, campaign_inputs(the_plan))
+    # the plan's keys, for `aeroid status` on the unchanged campaign (`plan_cache`)
+    plan_cache.save(result_store, the_plan.inputs, plan_cache.rows(the_plan.tasks))
     statuses: dict[str, TaskStatus] = {}
     todo: list[Task] = []
     # a listing per stage; an entry the index holds with the same signature is trusted

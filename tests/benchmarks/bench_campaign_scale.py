@@ -5,12 +5,18 @@ reduced to its channel means by a one-line user stage (`mean`), no campaign
 step: what is measured is the engine, not the numerics. For each size, fresh
 processes, the default environment:
 
-- ``plan``: `aeroid.pipeline.plan` alone, in this process (median of 3);
+- ``plan``: `aeroid.pipeline.plan` alone, in a fresh process (median of
+  ``--repeats``), and the peak resident memory of that process: a whole plan,
+  and a plan streamed a flight at a time (`plan_stream`, each task counted and
+  let go, as ``aeroid status`` does);
 - the cold run as a user types it (``aeroid run CONFIG --quiet --json``, the
   default workers: one per core): wall time, flights per hour, and the peak
   resident memory of the largest process (the run, which plans and collects,
   or one of its workers);
-- ``aeroid status CONFIG`` on the finished store (median of ``--repeats``);
+- ``aeroid status CONFIG`` on the finished store (median of ``--repeats``),
+  reading the plan the run stored (`plan_cache`), and planning (its stored
+  plans removed before each call: what every call cost before plans were
+  stored);
 - an unchanged rerun (``aeroid run`` again: every result cached, trusted from
   the store's index of verified entries instead of opened);
 - the per-task overhead of the engine: (run wall time - time spent in the
@@ -19,7 +25,9 @@ processes, the default environment:
 Targets (issue 49): ``status`` <= 3 s at 100,000 flights; planning, status
 and rerun linear in flights. Usage:
 ``python tests/benchmarks/bench_campaign_scale.py [--sizes 1000 10000 100000] [--repeats 3]``
-(``--no-run``: planning, and ``status`` before any run, only).
+(``--no-run``: planning, ``status`` before any run, and ``status`` on a store
+whose entries are empty placeholder files, which is all ``status`` looks at:
+their names).
 """
 
 from __future__ import annotations
@@ -98,28 +106,95 @@ def _config(n: int) -> str:
 
 
 def _command(args: list[str], cwd: Path) -> tuple[float, str]:
+    dt, _, out = _timed(args, cwd)
+    return dt, out
+
+
+def _timed(args: list[str], cwd: Path) -> tuple[float, float, str]:
+    """(wall seconds, CPU seconds of the command's processes, stdout) of ``aeroid ARGS``;
+    the CPU time is what a loaded machine does not inflate."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     out = subprocess.run(
         [sys.executable, "-m", "aeroid.cli", *args], cwd=cwd, capture_output=True, text=True
     )
     dt = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if out.returncode != 0:
         raise SystemExit(f"{args[0]} failed:\n{out.stderr[-3000:]}")
-    return dt, out.stdout
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return dt, cpu, out.stdout
 
 
-def _plan_seconds(cfg: Path) -> float:
-    code = (
-        "import sys, time; sys.path.insert(0, sys.argv[2]); from aeroid.pipeline import plan; "
-        "t = time.perf_counter(); plan(sys.argv[1]); print(time.perf_counter() - t)"
-    )
+_PLANNING = """\
+import resource, sys, time
+sys.path.insert(0, sys.argv[2])
+from aeroid.pipeline import plan
+from aeroid.pipeline.planning import plan_stream
+t = time.perf_counter()
+if sys.argv[3] == "plan":
+    plan(sys.argv[1])
+else:
+    sum(1 for _ in plan_stream(sys.argv[1]))
+seconds = time.perf_counter() - t
+try:  # this process's own peak: ru_maxrss may carry the parent's over its fork and exec
+    with open("/proc/self/status") as f:
+        peak = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(seconds, peak)
+"""
+
+
+def _planning(cfg: Path, how: str) -> tuple[float, float]:
+    """(seconds, peak resident MB) of planning `cfg` in a fresh process: a whole plan
+    (``how="plan"``) or a stream whose tasks are counted and let go (``"stream"``)."""
     out = subprocess.run(
-        [sys.executable, "-c", code, str(cfg), str(cfg.parent)],
+        [sys.executable, "-c", _PLANNING, str(cfg), str(cfg.parent), how],
         capture_output=True,
         text=True,
         check=True,
     )
-    return float(out.stdout.strip())
+    seconds, peak = out.stdout.split()
+    return float(seconds), int(peak) / 1024
+
+
+def _statuses(cfg: Path, folder: Path, repeats: int) -> str:
+    """``aeroid status`` reading the stored plan, and planning (stored plans removed)."""
+    planned, stored = [], []
+    for _ in range(repeats):
+        shutil.rmtree(folder / "store" / ".plans", ignore_errors=True)
+        planned.append(_timed(["status", str(cfg), "--json"], folder)[:2])
+    for _ in range(repeats):
+        stored.append(_timed(["status", str(cfg), "--json"], folder)[:2])
+
+    def shown(times: list[tuple[float, float]]) -> str:
+        wall, cpu = (statistics.median(t[i] for t in times) for i in (0, 1))
+        return f"{wall:.2f} s (CPU {cpu:.2f} s)"
+
+    return f"status {shown(stored)} reading the stored plan, {shown(planned)} planning"
+
+
+_PLACEHOLDERS = """\
+import os, sys
+sys.path.insert(0, sys.argv[2])
+from aeroid.pipeline import open_store, plan
+p = plan(sys.argv[1])
+open_store(p.config.store_location, create=True)
+for t in p.tasks:
+    folder = os.path.join(p.config.store_location, t.stage)
+    os.makedirs(folder, exist_ok=True)
+    open(os.path.join(folder, t.key + ".zarr.zip"), "wb").close()
+"""
+
+
+def _placeholder_store(cfg: Path) -> None:
+    """A store holding every task of `cfg` as an empty file (what `status` sees)."""
+    subprocess.run(
+        [sys.executable, "-c", _PLACEHOLDERS, str(cfg), str(cfg.parent)],
+        check=True,
+        capture_output=True,
+    )
 
 
 def _overhead(work: Path, n: int) -> None:
@@ -162,31 +237,34 @@ def main() -> None:
             shutil.copy(work / "tiny.py", folder / "tiny.py")
             cfg = folder / "campaign.yaml"
             cfg.write_text(_config(n), encoding="utf-8")
-            plans = [_plan_seconds(cfg) for _ in range(args.repeats)]
-            print(f"{n} flights: plan {statistics.median(plans):.2f} s", flush=True)
+            plans = [_planning(cfg, "plan") for _ in range(args.repeats)]
+            streamed = _planning(cfg, "stream")
+            print(
+                f"{n} flights: plan {statistics.median(p[0] for p in plans):.2f} s, peak "
+                f"{max(p[1] for p in plans):.0f} MB; streamed {streamed[0]:.2f} s, peak "
+                f"{streamed[1]:.0f} MB",
+                flush=True,
+            )
             if args.no_run:
                 status = [_command(["status", str(cfg), "--json"], folder)[0] for _ in plans]
                 print(f"{n} flights: status (no store yet) {statistics.median(status):.2f} s")
+                _placeholder_store(cfg)
+                print(f"{n} flights: placeholder store: {_statuses(cfg, folder, args.repeats)}")
+                shutil.rmtree(folder / "store", ignore_errors=True)
                 continue
             before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-            cold, out = _command(["run", str(cfg), "--quiet", "--json"], folder)
+            cold, cpu, out = _timed(["run", str(cfg), "--quiet", "--json"], folder)
             doc = json.loads(out)
             largest = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             peak = f"{largest / 1024:.0f} MB" if largest > before else "below an earlier run's"
             print(
                 f"{n} flights: cold run {cold:.1f} s ({doc['computed']} tasks, "
-                f"{doc['failed']} failed; {3600 * n / cold:,.0f} flights/hour); "
+                f"{doc['failed']} failed; {3600 * n / cold:,.0f} flights/hour; CPU {cpu:.0f} s, "
+                f"{1e3 * cpu / n:.1f} ms a flight); "
                 f"largest process {peak}",
                 flush=True,
             )
-            status = [
-                _command(["status", str(cfg), "--json"], folder)[0] for _ in range(args.repeats)
-            ]
-            print(
-                f"{n} flights: status median {statistics.median(status):.2f} s "
-                f"(min {min(status):.2f})",
-                flush=True,
-            )
+            print(f"{n} flights: {_statuses(cfg, folder, args.repeats)}", flush=True)
             rerun, out = _command(["run", str(cfg), "--quiet", "--json"], folder)
             print(
                 f"{n} flights: unchanged rerun {rerun:.1f} s "
