@@ -60,3 +60,21 @@ def test_infer_counts_whose_product_cannot_finish_are_refused_at_check(tmp_path,
         return
     with pytest.raises(ConfigError, match=r"stages\.infer: n_walkers x n_steps x n_ensembles"):
         preflight(cfg)
+
+
+
+@pytest.mark.parametrize("command", ["verify", "gc"])
+def test_a_store_under_an_unknown_users_home_is_refused_by_the_cli(command: str) -> None:
+    import subprocess
+    import sys
+
+    code = "from aeroid.cli import main; main()"
+    done = subprocess.run(
+        [sys.executable, "-c", code, command, "--store", "~nosuchuser_aeroid/x"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    assert "no home folder for 'nosuchuser_aeroid'" in done.stderr
+    assert "Traceback" not in done.stderr

@@ -75,8 +75,12 @@ def parse(location: str | os.PathLike[str] | StoreLocation) -> StoreLocation:
     if "://" in text and not text.startswith("file://"):
         protocol = text.split("://", 1)[0]
         return StoreLocation("fsspec", text.rstrip("/"), protocol)
-    folder = os.path.abspath(os.path.expanduser(text.removeprefix("file://")))
-    return StoreLocation("local", folder, "file")
+    path = text.removeprefix("file://")
+    expanded = os.path.expanduser(path)
+    if path.startswith("~") and expanded == path:
+        user = path[1:].split("/", 1)[0] or "the current user"
+        raise StoreError(f"store location {text!r}: no home folder for {user!r}")
+    return StoreLocation("local", os.path.abspath(expanded), "file")
 
 
 def is_url(location: str | os.PathLike[str] | StoreLocation) -> bool:

@@ -176,7 +176,7 @@ class _LocalBackend:
     def __init__(
         self, location: StoreLocation, given: str, *, create: bool, repair: bool = False
     ) -> None:
-        self.root: Path | str = Path(given.removeprefix("file://")).expanduser()
+        self.root: Path | str = Path(os.path.expanduser(given.removeprefix("file://")))
         self._folder = location.root
         self.ident = location.root
         marker = os.path.join(self._folder, _MARKER)
