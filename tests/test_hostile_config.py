@@ -62,7 +62,6 @@ def test_infer_counts_whose_product_cannot_finish_are_refused_at_check(tmp_path,
         preflight(cfg)
 
 
-
 @pytest.mark.parametrize("command", ["verify", "gc"])
 def test_a_store_under_an_unknown_users_home_is_refused_by_the_cli(command: str) -> None:
     import subprocess
