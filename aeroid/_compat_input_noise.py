@@ -194,3 +194,70 @@ def _input_noise_covariance(
     half = np.linalg.lstsq(info, scatter, rcond=1e-12)[0]
     cov = np.linalg.lstsq(info, half.T, rcond=1e-12)[0]
     return np.asarray(cov[:n_p, :n_p], dtype=np.float64)
+
+
+def _measurement_noise_covariance(
+    model: Any,
+    t: FloatArray,
+    controls: FloatArray,
+    fit: Any,
+    names: list[str],
+    free_x0: list[str],
+    out_idx: list[int],
+    sigma: Mapping[str, float],
+    *,
+    n_draws: int,
+    seed: int,
+    substeps: int,
+) -> tuple[float, FloatArray, FloatArray] | None:
+    """The input-noise scale the residuals allow, and the coloured covariance of the rest.
+
+    The output residuals already hold the integrated input noise: a coloured
+    correction of them plus the input-noise share would count it twice. Draws of
+    white input noise at levels ``sigma`` carried through the fitted kinematics and
+    the fit's projection give the residual cross-periodogram that noise is
+    expected to leave; the coloured covariance (`colored_covariance`) is taken
+    of what the residual spectrum holds beyond it, the measurement noise.
+
+    The fourth-difference levels are an upper bound on the white input noise
+    (structural vibration and other real high-frequency motion count in them,
+    and being narrow-band they integrate to almost nothing): the residual of an
+    output cannot be smaller than the integrated input noise alone leaves it.
+    Where the mean draw leaves more residual on some output than the flight
+    did, every level is scaled by the largest common factor ``c`` (variance)
+    the residuals allow, ``min_a SSE_a / E[SS_a]``. Returns ``c``, the
+    measurement-noise covariance of the parameters and its degrees of freedom;
+    None where no input noise is set or a draw fails.
+    """
+    from ._colour import colored_covariance
+
+    n_p = len(names)
+    scale = np.array([sigma[c] for c in INPUT_CHANNELS] + [0.0] * len(_MEASURED))
+    if not np.any(scale > 0) or not fit.residuals:
+        return None
+    theta = np.array([fit.parameters[n] for n in names])
+    x0 = np.array([fit.initial_states[0][s] for s in STATES])
+    x_idx = [STATES.index(s) for s in free_x0]
+    variance = np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None)
+    weight = 1.0 / np.sqrt(variance)
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
+    jw, dy = _difference_response(
+        model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
+    )
+    if dy is None:
+        return None
+    n, n_y = t.size, len(out_idx)
+    jac = jw.T  # (n n_y, p + free states)
+    m_inv = np.asarray(np.linalg.pinv(jac.T @ jac, rcond=1e-12, hermitian=True), dtype=np.float64)
+    flat = dy.reshape(n_draws, -1).T
+    left = (flat - jac @ (m_inv @ (jac.T @ flat))).T.reshape(n_draws, n, n_y)
+    u = np.asarray(fit.residuals[0], dtype=np.float64) * weight[None, :]
+    expected = np.mean(np.sum(left**2, axis=1), axis=0)
+    seen = np.sum(u**2, axis=0)
+    live = expected > 0
+    c = float(min(1.0, np.min(seen[live] / expected[live]))) if np.any(live) else 1.0
+    lf = np.fft.rfft(left, 2 * n, axis=1)
+    known = c * np.einsum("dka,dkb->kab", lf, lf.conj()) / (n * n_draws)
+    cov, nu = colored_covariance([jac.reshape(n, n_y, -1)], [u], m_inv, known=[known])
+    return c, np.asarray(cov[:n_p, :n_p]), np.asarray(nu[:n_p])

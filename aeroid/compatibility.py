@@ -79,6 +79,9 @@ from ._compat_arguments import _states_from as _states_from
 from ._compat_input_noise import _difference_response as _difference_response
 from ._compat_input_noise import _input_noise as _input_noise
 from ._compat_input_noise import _input_noise_covariance as _input_noise_covariance
+from ._compat_input_noise import (
+    _measurement_noise_covariance as _measurement_noise_covariance,
+)
 from ._compat_input_noise import _shift as _shift
 from ._compat_input_noise import _substeps as _substeps
 from ._compat_model import _MEASURED as _MEASURED
@@ -647,6 +650,25 @@ def check_compatibility(
         seed=int(seed),
         substeps=substeps,
     )
+    base: tuple[FloatArray, FloatArray] | None = None
+    if fit.error_bars == "colored":
+        split = _measurement_noise_covariance(
+            model,
+            t,
+            controls,
+            fit,
+            names,
+            free_x0,
+            [OUTPUT_CHANNELS.index(o) for o in outputs],
+            sigma_in,
+            n_draws=n_draws,
+            seed=int(seed),
+            substeps=substeps,
+        )
+        if split is not None:
+            allowed, cov_noise, nu_noise = split
+            extra = allowed * extra
+            base = (cov_noise, nu_noise)
     return _result(
         model,
         data,
@@ -665,6 +687,7 @@ def check_compatibility(
         how,
         tuple(s for s in STATES if s in held_in),
         {o: pivots[o] for o in outputs},
+        base,
     )
 
 
@@ -686,6 +709,7 @@ def _result(
     how: Mapping[str, Any],
     held: tuple[str, ...],
     pivots: Mapping[str, float],
+    base: tuple[FloatArray, FloatArray] | None = None,
 ) -> CompatibilityResult:
     t = data.time
     x0 = dict(fit.initial_states[0])
@@ -708,7 +732,15 @@ def _result(
         corrected[present[o]] = fixed_y
     for c in INPUT_CHANNELS:
         corrected[present[c]] = (inputs[c] - values[f"b_{c}"]) / (1.0 + values[f"k_{c}"])
-    cov = np.asarray(fit.covariance) + extra
+    dof = {n: float(fit.degrees_of_freedom.get(n, np.inf)) for n in (*names, *fit.extra_stderr)}
+    if base is None:
+        cov = np.asarray(fit.covariance) + extra
+    else:
+        cov = base[0] + extra
+        # Satterthwaite: only the measurement-noise part is estimated from a finite band
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.diag(cov) / np.diag(base[0])
+        dof.update({n: float(base[1][j] * ratio[j] ** 2) for j, n in enumerate(names)})
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     se[~np.isfinite(np.diag(cov))] = np.inf
     stderr = {n: float(se[j]) for j, n in enumerate(names)}
@@ -739,8 +771,6 @@ def _result(
         gravity=g,
         input_noise=sigma_in,
         measured_states=held,
-        degrees_of_freedom={
-            n: float(fit.degrees_of_freedom.get(n, np.inf)) for n in (*names, *fit.extra_stderr)
-        },
+        degrees_of_freedom=dof,
         scale_pivots=pivots,
     )
