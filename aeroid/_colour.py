@@ -98,8 +98,9 @@ def colored_covariance(
         caller adds itself, such as integrated input noise propagated exactly
         (`aeroid.check_compatibility`). It is taken off the smoothed residual
         periodogram before the division by ``K*(1 - L)`` (the expectation already
-        carries the fit's projection), so that part is not counted twice; the
-        remaining spectrum is clipped to be positive semi-definite at every bin.
+        carries the fit's projection), so that part is not counted twice. The
+        difference is unbiased but noisy where the known part dominates; it is
+        summed unclipped and only the covariance made positive semi-definite.
 
     Returns
     -------
@@ -177,7 +178,9 @@ def colored_covariance(
         total = _smooth(pgram, half) / denom
         spec = total
         if known is not None:
-            spec = _psd(total - _smooth(np.asarray(known[i]), half) / denom)
+            # unbiased bin by bin; negative where noise outweighs the remainder, so
+            # only the summed covariance is made positive semi-definite (below)
+            spec = total - _smooth(np.asarray(known[i]), half) / denom
 
         # per-bin contributions to the covariance (one-sided: inner bins count twice)
         twice = np.full(n_bins, 2.0 / size)
@@ -189,18 +192,14 @@ def colored_covariance(
         diag = np.einsum("kap,kab,kbp->kp", vf.conj(), total, vf).real * twice[:, None]
         spread = np.asarray(_smooth(diag, half), dtype=np.float64)
         var_terms += (size / n) * np.sum(spread**2, axis=0)
+    cov = 0.5 * (cov + cov.T)
+    if known is not None:
+        w, v = np.linalg.eigh(cov)
+        cov = (v * np.maximum(w, 0.0)) @ v.T
     var = np.diag(cov)
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(var_terms > 0, 2.0 * var**2 / var_terms, np.inf)
-    return np.asarray(0.5 * (cov + cov.T), dtype=np.float64), np.asarray(nu, dtype=np.float64)
-
-
-def _psd(spec: NDArray[np.generic]) -> NDArray[np.complex128]:
-    """Each bin's Hermitian cross-spectrum with its negative eigenvalues set to zero."""
-    s = np.asarray(spec, dtype=np.complex128)
-    h = 0.5 * (s + np.conj(np.swapaxes(s, 1, 2)))
-    w, v = np.linalg.eigh(h)
-    return np.asarray(np.einsum("kab,kb,kcb->kac", v, np.maximum(w, 0.0), v.conj()))
+    return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)
 
 
 def t_quantile(nu: FloatArray, level: float = 0.95) -> FloatArray:

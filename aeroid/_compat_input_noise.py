@@ -59,7 +59,16 @@ def _substeps(time: FloatArray, rates: FloatArray) -> int:
 def _input_noise(
     inputs: Mapping[str, FloatArray], given: Mapping[str, float] | None
 ) -> dict[str, float]:
-    """Noise standard deviation per input: given, or from the fourth differences."""
+    """Noise standard deviation per input: given, or the white level the record allows.
+
+    Fourth differences measure the noise near the Nyquist frequency, while the
+    kinematics integrate the noise at the lowest frequencies (a gyro bias is
+    confounded with the noise's mean). White noise is as strong at every
+    frequency, so its level is also bounded by the input's own spectrum in
+    whichever band that is lowest: where vibration or buffet lifts the top of
+    the band above a quieter middle, the quieter level is the one white noise
+    can have (`_spectral_floor`). The smaller of the two is taken.
+    """
     if given is not None and not isinstance(given, Mapping):
         raise IdentificationError(
             f"input_noise: expected a mapping input -> standard deviation, got {plain(given)}"
@@ -91,8 +100,42 @@ def _input_noise(
         # while a smooth signal sampled well above its bandwidth leaves almost none.
         d4 = x[4:] - 4.0 * x[3:-1] + 6.0 * x[2:-2] - 4.0 * x[1:-3] + x[:-4]
         mad = float(np.median(np.abs(d4 - np.median(d4))))
-        out[c] = 1.482602218505602 * mad / math.sqrt(70.0)
+        level = 1.482602218505602 * mad / math.sqrt(70.0)
+        out[c] = min(level, _spectral_floor(x))
     return out
+
+
+def _spectral_floor(x: FloatArray, *, level: float = 0.05) -> float:
+    """An upper confidence bound on the standard deviation of white noise in `x`.
+
+    Welch's averaged periodogram (Hann segments of about ``4 sqrt(n)`` points,
+    half overlapping, each less its line) in bands of eight bins: white noise
+    of variance ``s^2`` has density ``2 s^2 dt`` in every band, and the signal only
+    adds to it. Each band's mean, with ``K B`` degrees of freedom for ``K``
+    segments and ``B`` bins (half the nominal count: overlapping segments and
+    the window's neighbouring bins are correlated), bounds ``s^2`` from above at
+    confidence ``1 - level / n_bands`` (Bonferroni over the bands), so that the
+    smallest bound undercuts white noise's level with probability at most
+    `level`. Infinite where the record is too short for two bands.
+    """
+    from scipy.signal import welch
+    from scipy.stats import chi2
+
+    n = x.size
+    seg = 1 << max(5, round(math.log2(4.0 * math.sqrt(n))))
+    if n < 2 * seg:
+        return math.inf
+    _, dens = welch(x, fs=1.0, window="hann", nperseg=seg, detrend="linear")
+    var = np.asarray(dens, dtype=np.float64)[2:-1] / 2.0  # the line took the lowest bins
+    width = 8
+    n_bands = var.size // width
+    if n_bands < 2:
+        return math.inf
+    bands = var[: n_bands * width].reshape(n_bands, width).mean(axis=1)
+    segments = 1 + (n - seg) // (seg // 2)
+    dof = float(segments * width)
+    bound = float(np.min(bands)) * dof / float(chi2.ppf(level / n_bands, dof))
+    return math.sqrt(bound)
 
 
 def _difference_response(

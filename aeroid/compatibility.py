@@ -738,9 +738,11 @@ def _result(
     else:
         cov = base[0] + extra
         # Satterthwaite: only the measurement-noise part is estimated from a finite band
+        # (none where the measurement noise adds nothing: the rest is not estimated)
+        part = np.diag(base[0])
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.diag(cov) / np.diag(base[0])
-        dof.update({n: float(base[1][j] * ratio[j] ** 2) for j, n in enumerate(names)})
+            nu = np.where(part > 0, base[1] * (np.diag(cov) / part) ** 2, np.inf)
+        dof.update({n: float(nu[j]) for j, n in enumerate(names)})
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     se[~np.isfinite(np.diag(cov))] = np.inf
     stderr = {n: float(se[j]) for j, n in enumerate(names)}
