@@ -455,10 +455,12 @@ def check_compatibility(
     input_noise : mapping of str to float, optional
         Noise standard deviation of the inputs (``p, q, r, ax, ay, az``),
         for the error bars (see Notes); default estimated from each input's
-        fourth differences. Zero leaves an input out of the correction.
+        fourth differences and its quietest spectral band. Zero leaves an
+        input out of the correction.
     n_draws : int
         Monte Carlo draws of input noise for that correction, where the
-        kinematics do not compile (without JAX); compiled, it is exact.
+        kinematics do not compile (without JAX; compiled, it is exact), and
+        for the residual spectrum that noise leaves (coloured error bars).
     seed : int
         Seed of those draws.
     outputs : sequence of str, optional
