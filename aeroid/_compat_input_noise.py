@@ -262,15 +262,13 @@ def _measurement_noise_covariance(
     expected to leave; the coloured covariance (`colored_covariance`) is taken
     of what the residual spectrum holds beyond it, the measurement noise.
 
-    The fourth-difference levels are an upper bound on the white input noise
-    (structural vibration and other real high-frequency motion count in them,
-    and being narrow-band they integrate to almost nothing): the residual of an
-    output cannot be smaller than the integrated input noise alone leaves it.
-    Where the mean draw leaves more residual on some output than the flight
-    did, every level is scaled by the largest common factor ``c`` (variance)
-    the residuals allow, ``min_a SSE_a / E[SS_a]``. Returns ``c``, the
-    measurement-noise covariance of the parameters and its degrees of freedom;
-    None where no input noise is set or a draw fails.
+    The input levels are upper bounds on the white input noise (see
+    `_input_noise`), and the residual of an output cannot be smaller than the
+    integrated input noise alone leaves it: where it is, beyond chance, every
+    level is scaled down by one common factor (`_allowed_scale`). Returns that
+    factor ``c`` (on variances), the measurement-noise covariance of the
+    parameters and its degrees of freedom; None where no input noise is set
+    or a draw fails.
     """
     from ._colour import colored_covariance
 
@@ -296,11 +294,34 @@ def _measurement_noise_covariance(
     flat = dy.reshape(n_draws, -1).T
     left = (flat - jac @ (m_inv @ (jac.T @ flat))).T.reshape(n_draws, n, n_y)
     u = np.asarray(fit.residuals[0], dtype=np.float64) * weight[None, :]
-    expected = np.mean(np.sum(left**2, axis=1), axis=0)
-    seen = np.sum(u**2, axis=0)
-    live = expected > 0
-    c = float(min(1.0, np.min(seen[live] / expected[live]))) if np.any(live) else 1.0
+    c = _allowed_scale(np.sum(left**2, axis=1), np.sum(u**2, axis=0))
     lf = np.fft.rfft(left, 2 * n, axis=1)
     known = c * np.einsum("dka,dkb->kab", lf, lf.conj()) / (n * n_draws)
     cov, nu = colored_covariance([jac.reshape(n, n_y, -1)], [u], m_inv, known=[known])
     return c, np.asarray(cov[:n_p, :n_p]), np.asarray(nu[:n_p])
+
+
+def _allowed_scale(drawn: FloatArray, seen: FloatArray, *, level: float = 0.05) -> float:
+    """The largest common factor on the input-noise variances the residuals allow.
+
+    `drawn` (n_draws, n_y) holds the residual sum of squares that draws of the input
+    noise alone leave on each output, `seen` (n_y,) the flight's. The sum of squares
+    of a projected random walk has few degrees of freedom: its distribution is
+    taken as Satterthwaite's scaled chi-square from the draws' mean and variance,
+    and an output rejects the noise level only when its residual falls below that
+    distribution's ``level / n_y`` quantile (Bonferroni over the outputs). The
+    factor is then the one that puts the residual at that quantile: ``c = min(1,
+    min_a seen_a / q_a)``. The flight's residual also holds measurement noise, so
+    the test is conservative: it lowers the level only where the data show it.
+    """
+    from scipy.stats import chi2
+
+    mean = np.mean(drawn, axis=0)
+    var = np.var(drawn, axis=0, ddof=1) if drawn.shape[0] > 1 else np.zeros_like(mean)
+    live = mean > 0
+    if not np.any(live):
+        return 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(var[live] > 0, 2.0 * mean[live] ** 2 / var[live], 1e6)
+    low = mean[live] * chi2.ppf(level / int(np.sum(live)), dof) / dof
+    return float(min(1.0, np.min(seen[live] / low)))

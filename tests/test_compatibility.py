@@ -567,3 +567,21 @@ def test_input_noise_level_is_bounded_by_the_quietest_band():
     # white noise alone: the band bound never undercuts the fourth differences by much
     for c in ("q", "r", "ax"):
         assert 0.9 < sigma[c] / 0.01 < 1.1, (c, sigma)
+
+
+def test_residuals_lower_the_input_noise_only_beyond_chance():
+    from aeroid._compat_input_noise import _allowed_scale
+
+    rng = np.random.default_rng(0)
+    # two outputs whose input-noise sums of squares are 100 chi2_4 / 4 and 10 chi2_50 / 50
+    drawn = np.column_stack([100 * rng.chisquare(4, 400) / 4, 10 * rng.chisquare(50, 400) / 50])
+    # residuals at half the mean of a four-degree-of-freedom sum: well within chance
+    assert _allowed_scale(drawn, np.array([50.0, 10.0])) == 1.0
+    # far below: the factor puts the residual at the 2.5 % quantile (Bonferroni, two
+    # outputs) of the fitted scaled chi-square, here close to chi2_4's
+    from scipy.stats import chi2
+
+    c = _allowed_scale(drawn, np.array([5.0, 10.0]))
+    assert c == pytest.approx(5.0 / (100 * chi2.ppf(0.025, 4) / 4), rel=0.2)
+    # exact draws (no spread): the mean itself is the bound
+    assert _allowed_scale(np.full((3, 1), 8.0), np.array([4.0])) == pytest.approx(0.5, rel=5e-3)
