@@ -508,7 +508,8 @@ def check_compatibility(
     (white noise is as strong in every band; vibration near the Nyquist
     frequency is not noise at the low frequencies the kinematics integrate),
     and it is lowered further, by one common factor, where the residuals of
-    an output are smaller than that noise alone would leave them. With
+    an output are smaller, beyond chance, than that noise alone would leave
+    them. With
     ``error_bars="colored"`` the residuals' coloured correction is taken of
     what their spectrum holds beyond the expected integrated input noise (the
     measurement noise), so the wander is counted once.
