@@ -99,8 +99,10 @@ def colored_covariance(
         (`aeroid.check_compatibility`). It is taken off the smoothed residual
         periodogram before the division by ``K*(1 - L)`` (the expectation already
         carries the fit's projection), so that part is not counted twice. The
-        difference is unbiased but noisy where the known part dominates; it is
-        summed unclipped and only the covariance made positive semi-definite.
+        difference is unbiased but noisy where the known part dominates, and so
+        is the covariance returned, which may then be indefinite: the caller
+        adds the known part's covariance and makes the sum positive
+        semi-definite (clipping this part alone would bias it up).
 
     Returns
     -------
@@ -193,10 +195,7 @@ def colored_covariance(
         spread = np.asarray(_smooth(diag, half), dtype=np.float64)
         var_terms += (size / n) * np.sum(spread**2, axis=0)
     cov = 0.5 * (cov + cov.T)
-    if known is not None:
-        w, v = np.linalg.eigh(cov)
-        cov = (v * np.maximum(w, 0.0)) @ v.T
-    var = np.diag(cov)
+    var = np.abs(np.diag(cov))
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(var_terms > 0, 2.0 * var**2 / var_terms, np.inf)
     return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)

@@ -749,10 +749,13 @@ def _result(
     if base is None:
         cov = np.asarray(fit.covariance) + extra
     else:
-        cov = base[0] + extra
+        # the measurement-noise part is unbiased but noisy, possibly indefinite:
+        # only the sum need be a covariance
+        w, v = np.linalg.eigh(0.5 * (base[0] + extra + (base[0] + extra).T))
+        cov = (v * np.maximum(w, 0.0)) @ v.T
         # Satterthwaite: only the measurement-noise part is estimated from a finite band
         # (none where the measurement noise adds nothing: the rest is not estimated)
-        part = np.diag(base[0])
+        part = np.abs(np.diag(base[0]))
         with np.errstate(divide="ignore", invalid="ignore"):
             nu = np.where(part > 0, base[1] * (np.diag(cov) / part) ** 2, np.inf)
         dof.update({n: float(nu[j]) for j, n in enumerate(names)})

@@ -49,16 +49,15 @@ def test_a_known_part_is_not_counted_twice() -> None:
         cov, nu = _colour.colored_covariance([x[:, None, :]], [u[:, None]], inv, known=[known])
         white += np.diag(cov) / SEEDS
         plain += np.diag(_colour.colored_covariance([x[:, None, :]], [u[:, None]], inv)[0]) / SEEDS
-        assert np.all(np.isfinite(nu) & (nu >= 0))
+        assert np.all(np.isfinite(nu) & (nu > 0))
     ratio = white / np.diag(inv)  # the white part's variance is 1
     # The slopes: a seed's estimate scatters by about 0.5, the mean of 200 by 0.036;
     # 0.1 is about three of those.
     assert np.all(np.abs(ratio[1:] - 1.0) < 0.1), ratio
     # The constant has its weight at w = 0, where the AR(1) part is three times the
-    # white one: a seed scatters by about 1.3 and the covariance, made positive
-    # semi-definite, keeps the upper side (a bias up of about 0.2; the mean's own
-    # scatter is 0.09).
-    assert 0.85 < ratio[0] < 1.45, ratio
+    # white one: a seed scatters by about 1.4, the mean of 200 by 0.1 (unclipped,
+    # the estimate is unbiased; it may be negative for one seed).
+    assert 0.7 < ratio[0] < 1.35, ratio
     # without the known part the sandwich holds the AR(1) share as well
     assert np.all(plain > 2.5 * white), (plain, white)
 
