@@ -76,7 +76,11 @@ def _smooth(x: NDArray[np.generic], half: int) -> NDArray[np.generic]:
 
 
 def colored_covariance(
-    sensitivities: list[FloatArray], residuals: list[FloatArray], m_inv: FloatArray
+    sensitivities: list[FloatArray],
+    residuals: list[FloatArray],
+    m_inv: FloatArray,
+    *,
+    known: list[NDArray[np.complex128]] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Coloured-residual covariance ``M^-1 B M^-1`` and each parameter's degrees of freedom.
 
@@ -88,6 +92,17 @@ def colored_covariance(
         Weighted residuals ``u`` per record, in the same units as ``G``.
     m_inv : (p, p) array
         The (pseudo-)inverse of ``M`` the estimate used.
+    known : list of (n_t + 1, n_y, n_y) complex arrays, optional
+        Per record, the expected cross-periodogram (over ``2 n_t`` points, divided
+        by ``n_t``) of a part of the residuals whose share of the covariance the
+        caller adds itself, such as integrated input noise propagated exactly
+        (`aeroid.check_compatibility`). It is taken off the smoothed residual
+        periodogram before the division by ``K*(1 - L)`` (the expectation already
+        carries the fit's projection), so that part is not counted twice. The
+        difference is unbiased but noisy where the known part dominates, and so
+        is the covariance returned, which may then be indefinite: the caller
+        adds the known part's covariance and makes the sum positive
+        semi-definite (clipping this part alone would bias it up).
 
     Returns
     -------
@@ -139,7 +154,9 @@ def colored_covariance(
     cov = np.zeros((p, p))
     var_terms = np.zeros(p)
     scale = _lag_scale(residuals)
-    for g, u in zip(sensitivities, residuals, strict=True):
+    if known is not None and len(known) != len(residuals):
+        raise ValueError("known: one expected periodogram per record")
+    for i, (g, u) in enumerate(zip(sensitivities, residuals, strict=True)):
         n = u.shape[0]
         size = 2 * n
         n_bins = size // 2 + 1
@@ -159,20 +176,29 @@ def colored_covariance(
                 break  # every estimate rests on at least one bin's worth of data
             half *= 2
         norm = np.sqrt(np.maximum(kept, 1e-300))
-        spec = _smooth(pgram, half) / (norm[:, :, None] * norm[:, None, :])
+        denom = norm[:, :, None] * norm[:, None, :]
+        total = _smooth(pgram, half) / denom
+        spec = total
+        if known is not None:
+            # unbiased bin by bin; negative where noise outweighs the remainder, so
+            # only the summed covariance is made positive semi-definite (below)
+            spec = total - _smooth(np.asarray(known[i]), half) / denom
+
         # per-bin contributions to the covariance (one-sided: inner bins count twice)
         twice = np.full(n_bins, 2.0 / size)
         twice[0] = twice[-1] = 1.0 / size
         cov += np.einsum("kap,kab,kbq->pq", vf.conj(), spec, vf * twice[:, None, None]).real
         # Satterthwaite: the diagonal's per-bin parts, each a smoothed mean of
-        # periodogram bins of unit relative variance, mapped back to those bins
-        diag = np.einsum("kap,kab,kbp->kp", vf.conj(), spec, vf).real * twice[:, None]
+        # periodogram bins of unit relative variance (relative to the whole
+        # residual spectrum, a known part included), mapped back to those bins
+        diag = np.einsum("kap,kab,kbp->kp", vf.conj(), total, vf).real * twice[:, None]
         spread = np.asarray(_smooth(diag, half), dtype=np.float64)
         var_terms += (size / n) * np.sum(spread**2, axis=0)
-    var = np.diag(cov)
+    cov = 0.5 * (cov + cov.T)
+    var = np.abs(np.diag(cov))
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(var_terms > 0, 2.0 * var**2 / var_terms, np.inf)
-    return np.asarray(0.5 * (cov + cov.T), dtype=np.float64), np.asarray(nu, dtype=np.float64)
+    return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)
 
 
 def t_quantile(nu: FloatArray, level: float = 0.95) -> FloatArray:

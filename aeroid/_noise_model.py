@@ -667,7 +667,8 @@ def _warn_unabsorbed_drift(
     told = []
     if bare:
         told.append(
-            f"no bias is estimated on {bare} (estimate_bias={bare} absorbs a constant offset)"
+            f"no output bias is estimated on {bare} (estimate_bias={bare} absorbs a constant "
+            "offset; a bias term in the model's own state equations, a ramp)"
         )
     if stated:
         told.append(

@@ -517,3 +517,71 @@ def test_euler_integration_is_first_order():
         theta = res.true_outputs[:, compat.OUTPUT_CHANNELS.index("theta")]
         errors.append(float(np.max(np.abs(theta - truth(data.time)["theta"]))))
     assert 1.6 < errors[0] / errors[1] < 2.5
+
+
+# -- integrated input noise: counted once, at the level the inputs and residuals allow --
+
+DRIFTING_INPUTS = {
+    **NOISE,
+    **dict.fromkeys(("p", "q", "r"), 4e-3),
+    **dict.fromkeys(("ax", "ay", "az"), 0.1),
+    **dict.fromkeys(("phi", "theta", "psi"), 3e-4),
+    "alpha": 5e-4,
+    "beta": 5e-4,
+    "V": 0.05,
+}
+
+
+@pytest.mark.slow
+def test_integrated_input_noise_is_counted_once():
+    # Gyro and accelerometer noise integrated into attitude and velocity random walks
+    # dominate the residuals: the coloured bars of the residuals plus the input-noise
+    # share counted that wander twice (z-scores of sd 0.84 over six seeds; now 1.00).
+    # Four seeds, 40 estimates: the sd of unit-normal z-scores is known to 11 %.
+    z = []
+    for seed in range(4):
+        data = simulated_flight(20.0, 25.0, errors=BIASES, noise=DRIFTING_INPUTS, seed=100 + seed)
+        r = check_compatibility(data)
+        assert r.error_bars == "colored"
+        z += [(r.parameters[n] - BIASES.get(n, 0.0)) / r.stderr[n] for n in r.parameter_names]
+    z = np.array(z)
+    assert z.size == 40
+    assert 0.7 < float(np.std(z)) < 1.35 and np.all(np.abs(z) < 3.5), z
+
+
+def test_input_noise_level_is_bounded_by_the_quietest_band():
+    # White noise of sd 0.01 plus a strong vibration at 0.4 of the sampling rate: the
+    # fourth differences see the vibration (sd 0.05 at that frequency amplified by
+    # (2 sin(0.4 pi))^4 = 13.1, against 70 for white noise), the quietest band does not.
+    rng = np.random.default_rng(0)
+    n = 2000
+    k = np.arange(n)
+    vibration = 0.05 * np.sqrt(2) * np.sin(2 * np.pi * 0.4 * k)
+    signal = np.sin(2 * np.pi * 0.002 * k)
+    inputs = {c: signal + 0.01 * rng.standard_normal(n) for c in compat.INPUT_CHANNELS}
+    inputs["p"] = inputs["p"] + vibration
+    sigma = compat._input_noise(inputs, None)
+    d4 = np.diff(inputs["p"], 4)
+    assert np.std(d4) / np.sqrt(70) > 2.0 * 0.01  # what the differences alone would say
+    assert 0.95 < sigma["p"] / 0.01 < 1.3, sigma
+    # white noise alone: the band bound never undercuts the fourth differences by much
+    for c in ("q", "r", "ax"):
+        assert 0.9 < sigma[c] / 0.01 < 1.1, (c, sigma)
+
+
+def test_residuals_lower_the_input_noise_only_beyond_chance():
+    from aeroid._compat_input_noise import _allowed_scale
+
+    rng = np.random.default_rng(0)
+    # two outputs whose input-noise sums of squares are 100 chi2_4 / 4 and 10 chi2_50 / 50
+    drawn = np.column_stack([100 * rng.chisquare(4, 400) / 4, 10 * rng.chisquare(50, 400) / 50])
+    # residuals at half the mean of a four-degree-of-freedom sum: well within chance
+    assert _allowed_scale(drawn, np.array([50.0, 10.0])) == 1.0
+    # far below: the factor puts the residual at the 2.5 % quantile (Bonferroni, two
+    # outputs) of the fitted scaled chi-square, here close to chi2_4's
+    from scipy.stats import chi2
+
+    c = _allowed_scale(drawn, np.array([5.0, 10.0]))
+    assert c == pytest.approx(5.0 / (100 * chi2.ppf(0.025, 4) / 4), rel=0.2)
+    # exact draws (no spread): the mean itself is the bound
+    assert _allowed_scale(np.full((3, 1), 8.0), np.array([4.0])) == pytest.approx(0.5, rel=5e-3)

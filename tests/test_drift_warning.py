@@ -42,7 +42,7 @@ def _told(mans: list[_Manoeuvre], states: list[str]) -> str:
 def test_state_bias_is_not_reported_as_no_bias() -> None:
     states = ["phi", "p", "bias.phi"]
     text = _told([_manoeuvre(500, [2], [])], states)
-    assert "no bias is estimated" not in text
+    assert "no output bias is estimated" not in text
     assert "state equation of ['phi']" in text
     assert "20x" in text and "(on a)" in text
 
@@ -50,12 +50,12 @@ def test_state_bias_is_not_reported_as_no_bias() -> None:
 def test_a_renamed_state_bias_is_found() -> None:
     # a model that already has a 'bias.phi' name gets '_bias.phi' for the added state
     text = _told([_manoeuvre(500, [2], [])], ["phi", "p", "_bias.phi"])
-    assert "no bias is estimated" not in text
+    assert "no output bias is estimated" not in text
 
 
 def test_no_bias_is_said_when_none_is_estimated() -> None:
     text = _told([_manoeuvre(500, [], [])], ["phi", "p", "q"])
-    assert "no bias is estimated on ['phi']" in text
+    assert "no output bias is estimated on ['phi']" in text
 
 
 def test_an_output_bias_silences_the_warning() -> None:

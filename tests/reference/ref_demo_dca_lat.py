@@ -7,8 +7,8 @@ Ours: ``aeroid.check_compatibility`` with the same six parameters and
 SIDPAC's lateral set-up (``dcmp_psel``): outputs beta, phi, psi; u, w and
 theta replaced by their measurements; scale factors about the initial value;
 initial state held at SIDPAC's ``x0``; forward Euler on the uniform time
-``k 51/2048 s`` (see ``ref_demo_dca_lon.py`` for the error bars and the Monte
-Carlo).
+``k 51/2048 s`` (see ``ref_demo_dca_lon.py`` for the error bars, the Monte
+Carlo and the known-truth study, ``--truth N``).
 """
 
 from __future__ import annotations
@@ -48,5 +48,21 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     )
 
 
+def run_truth(folder: pathlib.Path, n: int) -> None:
+    (path,) = S.need(folder, FILE)
+    d = S.loadmat(path)
+    LON.truth_study(
+        np.asarray(d["u"], dtype=float)[:, :6],
+        np.asarray(d["ztot"], dtype=float),
+        S.col(d["t"]),
+        ("b_ay", "b_p", "b_r", "k_beta", "k_phi", "k_psi"),
+        S.col(d["x0"]),
+        outputs=("beta", "phi", "psi"),
+        measured_states=("u", "w", "theta"),
+        n=n,
+    )
+
+
 if __name__ == "__main__":
-    raise SystemExit(S.main(CASE, run))
+    if LON.truth_main(run_truth) < 0:
+        raise SystemExit(S.main(CASE, run))
