@@ -498,10 +498,10 @@ def read_log(
         contradict the format, a log without data, or the reading library
         not installed (``pip install "aeroid[logs]"``).
     """
-    return _read_selected(path, format, time_column, allow_external_data, None)
+    return read_selected(path, format, time_column, allow_external_data, None)
 
 
-def _read_selected(
+def read_selected(
     path: str | Path,
     format: str | None,
     time_column: str | None,

@@ -403,7 +403,7 @@ def test_a_file_declaring_more_than_the_limit_is_refused_before_reading(
     tmp_path, monkeypatch, suffix
 ):
     # a small compressed file can declare gigabytes: the declared size is checked first
-    import aeroid.data as data_module
+    import aeroid._table_files as table_files
 
     n = 2000
     t = np.arange(n) * 0.01
@@ -413,6 +413,6 @@ def test_a_file_declaring_more_than_the_limit_is_refused_before_reading(
     else:
         pq.write_table(pa.table({"time": t, "q": np.zeros(n)}), path, compression="zstd")
     assert load_flight_test(path).n_samples == n
-    monkeypatch.setattr(data_module, "_MAX_DECLARED_BYTES", 8 * n - 1)
+    monkeypatch.setattr(table_files, "_MAX_DECLARED_BYTES", 8 * n - 1)
     with pytest.raises(DataFormatError, match=r"declares .* over the 0 MiB"):
         load_flight_test(path)

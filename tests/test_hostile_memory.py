@@ -10,7 +10,7 @@ import zlib
 import numpy as np
 import pytest
 
-import aeroid.data as data_module
+import aeroid._table_files as table_files
 from aeroid import load_flight_test
 from aeroid.errors import ChannelError, DataFormatError
 
@@ -19,7 +19,7 @@ _LIMIT = 1 << 20  # the bound each test lowers the real one (1 GiB) to
 
 @pytest.fixture
 def small_limit(monkeypatch):
-    monkeypatch.setattr(data_module, "_MAX_DECLARED_BYTES", _LIMIT)
+    monkeypatch.setattr(table_files, "_MAX_DECLARED_BYTES", _LIMIT)
 
 
 def _mat_header() -> bytes:

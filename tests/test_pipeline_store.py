@@ -209,7 +209,7 @@ def test_every_way_of_committing_never_overwrites(tmp_path, monkeypatch, system)
     import ctypes
     import errno
 
-    from aeroid.pipeline import _store_paths as store_mod
+    from aeroid.pipeline import _rename as store_mod
 
     def refused(*args: object) -> int:
         ctypes.set_errno(errno.EINVAL)

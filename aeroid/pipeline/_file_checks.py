@@ -422,16 +422,16 @@ def _log_listing(
     an HDF5 file's datasets are named, not read (a check must not load gigabytes), and
     the header carries no log."""
     try:
-        from ..logs import _read_selected, listing, sniff_format
+        from ..logs import listing, read_selected, sniff_format
     except ImportError:
         return None
     fmt = sniff_format(path)  # the first bytes, then the suffix, as the loader decides
     if fmt is None:
         return None
     if names_only and fmt == "hdf5":
-        log = _read_selected(path, fmt, time_column, allow_external, ())
+        log = read_selected(path, fmt, time_column, allow_external, ())
         return _Header([str(n) for n in log.metadata.get("unread", ())], has_time=False)
-    log = _read_selected(path, fmt, time_column, allow_external, None)
+    log = read_selected(path, fmt, time_column, allow_external, None)
     names = listing(log).names
     # a log's time axis is the reader's business, not one of the channels
     return _Header([str(n) for n in names], has_time=False, log=log)
