@@ -46,6 +46,13 @@ _ACCEPT = 1e-8
 _MAX_SWEEPS = 8
 # A correction this small (relative) is one Newton sweep from the solution.
 _CLOSE = 1e-6
+# Chord sweeps (`_newton`): taken from a correction this small on, kept while each
+# correction is at most this fraction of the one before (and for at most this many
+# sweeps), until a correction this small.
+_CHORD_FROM = 1e-2
+_CHORD_RATE = 0.25
+_MAX_CHORDS = 12
+_CHORD_DONE = 1e-2 * _ACCEPT
 # Substeps in the first window when a trajectory is built from its start.
 _FIRST_WINDOW = 32
 
@@ -246,23 +253,34 @@ def _newton(
     """Settle G[lo + 1 : hi + 1] (G[lo] held) on the RK4 steps lo..hi-1, in place;
     returns the last sweep's Jacobians A, B, C (`_linearised`), or None when Newton
     does not settle. Sweeps far from the solution leave B and C out; `A_prev`, the
-    state Jacobians of a nearby trajectory, serves a first sweep of the steps alone."""
+    state Jacobians of a nearby trajectory, serves the first sweeps of the steps alone.
+
+    A sweep whose state Jacobians are kept from an earlier one (a chord sweep: one
+    column instead of one pair per state) is taken while it contracts the corrections
+    by at least `_CHORD_RATE`; the last sweep always linearises afresh at the settled
+    trajectory, so what is returned is as exact as with Newton alone."""
     ks = np.arange(lo, hi)
     n_x = G.shape[1]
     extras = bool(names) or hu is not None
     full = not extras
     none = np.zeros(0)
-    for sweep in range(_MAX_SWEEPS):
-        if sweep == 0 and A_prev is not None and A_prev.shape[0] == ks.size:
+    chord = A_prev if A_prev is not None and A_prev.shape[0] == ks.size else None
+    last = np.inf
+    sweeps = chords = 0
+    while sweeps < _MAX_SWEEPS:
+        if chord is not None:
             X = np.ascontiguousarray(G[lo:hi].T)
             nxt = _steps(f, grid, ks, X, _columns(p, ks.size), 1).T
-            A, B, C = A_prev, np.zeros(0), np.zeros(0)
+            A, B, C = chord, np.zeros(0), np.zeros(0)
+            chords += 1
         elif full:
             nxt, A, B, C = _linearised(
                 f, grid, ks, G[lo:hi], p, hx, names, none if hp is None else hp, hu
             )
+            sweeps += 1
         else:
             nxt, A, B, C = _linearised(f, grid, ks, G[lo:hi], p, hx, (), none)
+            sweeps += 1
         defect = nxt - G[lo + 1 : hi + 1]
         if not (np.all(np.isfinite(defect)) and np.all(np.isfinite(A))):
             return None
@@ -271,13 +289,28 @@ def _newton(
             return None
         G[lo + 1 : hi + 1] += d
         moved = float(np.max(np.abs(d) / scale)) if d.size else 0.0
-        if full and B.ndim == 3 and moved <= _ACCEPT:
+        if chord is None and full and B.ndim == 3 and moved <= _ACCEPT:
             # the correction's own error is of its square: the trajectory is the RK4 one
             # to rounding, its Jacobians to about `moved`
             return A, B, C
-        # Newton converges quadratically: after a correction this small the next sweep
-        # lands on the solution, and carries the other columns
-        full = full or moved <= _CLOSE
+        if chord is not None:
+            if moved <= _CHORD_DONE:
+                # settled: one sweep linearised here carries the other columns
+                chord, full = None, True
+            elif moved > _CHORD_RATE * last or chords >= _MAX_CHORDS:
+                chord = None  # too slow: Newton's sweeps from here
+                if moved > last:
+                    G[lo + 1 : hi + 1] -= d  # a correction that grew is undone
+                    moved = last
+                full = full or moved <= _CLOSE
+        elif moved > _CHORD_DONE and moved <= _CHORD_FROM:
+            # near enough that these Jacobians serve the next sweeps of the steps alone
+            chord = A
+        else:
+            # Newton converges quadratically: after a correction this small the next
+            # sweep lands on the solution, and carries the other columns
+            full = full or moved <= _CLOSE
+        last = moved
     return None
 
 

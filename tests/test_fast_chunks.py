@@ -1,0 +1,62 @@
+"""Speed paths of a first fit that must not change its numbers (issue 47): large
+batches evaluated in cache-sized runs, and Newton's chord sweeps over the record."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from test_fast_shooting import FIT, TRUTH, X0, _controls, _model
+
+from aeroid import _batch_function, _shooting
+from aeroid._batch_function import BatchFunction
+
+
+def _f(t: Any, x: Any, u: Any, p: Any) -> Any:
+    return np.array([np.sin(x[0]) * p["a"] + u[0] * t, x[1] * x[0] - p["b"]])
+
+
+def test_large_batches_run_in_runs_with_the_same_values() -> None:
+    n = _batch_function._CHUNK_ABOVE + 3 * _batch_function._CHUNK // 2
+    rng = np.random.default_rng(0)
+    t = rng.uniform(0.0, 10.0, n)
+    x = rng.standard_normal((2, n))
+    u = rng.standard_normal((1, n))
+    p = {"a": rng.standard_normal(n), "b": np.broadcast_to(0.5, (n,))}
+    f = BatchFunction(_f, 2, ("a", "b"))
+    got = f.at_times(t, x, u, p)
+    assert f.time_broadcasts is not False
+    np.testing.assert_array_equal(got, _f(t, x, u, p))
+
+
+def test_a_wrong_shape_in_a_run_is_still_caught() -> None:
+    n = _batch_function._CHUNK_ABOVE + 10
+
+    def bad(t: Any, x: Any, u: Any, p: Any) -> Any:
+        # right at one time, or on a whole large batch; wrong on a run of it
+        return np.array([x[0], x[0]]) if np.ndim(t) == 0 or np.size(t) > 20000 else x[:1]
+
+    f = BatchFunction(bad, 2, ())
+    t = np.repeat(np.arange(10.0), -(-n // 10))[:n]
+    out = f.at_times(t, np.ones((1, n)), np.zeros((0, n)), {})
+    # the array call failed in one run: the function is called at one time at a time
+    assert f.time_broadcasts is False
+    np.testing.assert_array_equal(out, np.ones((2, n)))
+
+
+def test_chord_sweeps_give_the_jacobian_of_a_fresh_linearisation() -> None:
+    t = np.arange(301) * 0.05
+    u = _controls(t)
+    steps = 1e-6 * np.maximum(np.abs([TRUTH[n] for n in FIT]), 1e-3)
+    moved = {k: (1.03 * v if k in FIT else v) for k, v in TRUTH.items()}
+    warm = _model("chord_warm")
+    _shooting.output_sensitivities(warm, t, u, X0, TRUTH, FIT, [0], 2, steps)
+    # the next point starts from the last trajectory and its Jacobians (chord sweeps)
+    got = _shooting.output_sensitivities(warm, t, u, X0, moved, FIT, [0], 2, steps)
+    fresh = _shooting.output_sensitivities(
+        _model("chord_fresh"), t, u, X0, moved, FIT, [0], 2, steps
+    )
+    assert got is not None and fresh is not None
+    np.testing.assert_allclose(got[0], fresh[0], rtol=1e-12, atol=1e-13)
+    scale = np.max(np.abs(fresh[1]), axis=(0, 1))
+    assert np.max(np.abs(got[1] - fresh[1]) / scale) < 1e-8
