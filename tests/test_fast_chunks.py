@@ -60,3 +60,29 @@ def test_chord_sweeps_give_the_jacobian_of_a_fresh_linearisation() -> None:
     np.testing.assert_allclose(got[0], fresh[0], rtol=1e-12, atol=1e-13)
     scale = np.max(np.abs(fresh[1]), axis=(0, 1))
     assert np.max(np.abs(got[1] - fresh[1]) / scale) < 1e-8
+
+
+def test_compat_model_takes_fixed_parameters_as_numbers_with_the_same_values() -> None:
+    from aeroid._compat_model import _WIND, OUTPUT_CHANNELS, STATES, _kinematics, _sensors
+
+    rng = np.random.default_rng(3)
+    n = 50
+    x = np.array([60.0, 1.0, 3.0, 0.1, 0.05, 0.3, 1000.0])[:, None] + 0.1 * rng.standard_normal(
+        (7, n)
+    )
+    c = np.concatenate([0.1 * rng.standard_normal((6, n)), x + 0.01], axis=0)
+    for zeros in (True, False):
+        values = {"g": 9.81}
+        for s in STATES:
+            values[f"m_{s}"] = 0.0 if zeros else float(s in ("phi", "theta"))
+        for w in _WIND:
+            values[w] = 0.0 if zeros else rng.uniform(-5, 5)
+        for ch in ("p", "q", "r", "ax", "ay", "az"):
+            values[f"b_{ch}"], values[f"k_{ch}"] = rng.uniform(-0.01, 0.01, 2)
+        for o in OUTPUT_CHANNELS:
+            values[f"b_{o}"], values[f"k_{o}"], values[f"y0_{o}"] = rng.uniform(-0.1, 0.1, 3)
+            values[f"tau_{o}"] = 0.0 if zeros else rng.uniform(0, 0.1)
+        fixed = {k: np.broadcast_to(np.float64(v), (n,)) for k, v in values.items()}
+        full = {k: np.full(n, v) for k, v in values.items()}
+        for fn in (_kinematics, _sensors):
+            np.testing.assert_array_equal(fn(None, x, c, fixed), fn(None, x, c, full))
