@@ -103,6 +103,62 @@ class _Grid:
         self.u1 = np.ascontiguousarray(nodes[:, idx].reshape(self.n, -1).T)
         self.u2 = np.ascontiguousarray(nodes[:, idx + 1].reshape(self.n, -1).T)
         self.u4 = np.ascontiguousarray(nodes[:, idx + 2].reshape(self.n, -1).T)
+        # the stage arrays of runs of steps repeated per column (`_steps`), newest last:
+        # a fit's sweeps ask for the same few runs again and again
+        self.taken: dict[tuple[int, int, int], tuple[FloatArray, ...]] = {}
+
+    def stages(self, ks: Any, reps: int) -> tuple[FloatArray, ...]:
+        """t1, t2, t4, h, hh, h6, u1, u2, u4 of the steps ks, each repeated `reps` times."""
+        ks = np.asarray(ks)
+        run = ks.size > 0 and int(ks[-1]) - int(ks[0]) == ks.size - 1
+        key = (int(ks[0]), ks.size, reps) if run else None
+        if key is not None and key in self.taken:
+            return self.taken[key]
+
+        def take(a: FloatArray) -> FloatArray:
+            picked = a[..., ks[0] : ks[0] + ks.size] if run else a[..., ks]
+            return np.repeat(picked, reps, axis=-1) if reps > 1 else picked
+
+        got = tuple(
+            take(a)
+            for a in (
+                self.t1,
+                self.t2,
+                self.t4,
+                self.h,
+                self.hh,
+                self.h6,
+                self.u1,
+                self.u2,
+                self.u4,
+            )
+        )
+        for a in got:  # shared by the sweeps that follow: nobody writes to them
+            a.flags.writeable = False
+        if key is not None:
+            size = sum(a.nbytes for a in got)
+            held = sum(a.nbytes for v in self.taken.values() for a in v)
+            while self.taken and held + size > _KEEP_BYTES:
+                oldest = next(iter(self.taken))
+                held -= sum(a.nbytes for a in self.taken.pop(oldest))
+            if size <= _KEEP_BYTES:
+                self.taken[key] = got
+        return got
+
+
+# The grid of the last record linearised: (model ref, time, controls, substeps, grid).
+_LAST_GRID: list[Any] = []
+
+
+def _grid(model: Any, time: FloatArray, controls: FloatArray, m: int) -> _Grid:
+    """The grid of the record, the last one's when it is the same record and substeps."""
+    last = _LAST_GRID
+    if last and last[3] == m and _same_record(last, model, time, controls):
+        grid: _Grid = last[4]
+        return grid
+    grid = _Grid(time, controls, m)
+    _LAST_GRID[:] = [weakref.ref(model), time, controls, m, grid]
+    return grid
 
 
 def _steps(
@@ -118,19 +174,14 @@ def _steps(
     side by side; P name -> (K * reps,); `du` is added to the controls at the three
     stage times."""
 
-    def take(a: FloatArray) -> FloatArray:
-        return np.repeat(a[..., ks], reps, axis=-1) if reps > 1 else a[..., ks]
-
-    h, hh, h6 = take(grid.h), take(grid.hh), take(grid.h6)
-    t2 = take(grid.t2)
-    u1, u2, u4 = take(grid.u1), take(grid.u2), take(grid.u4)
+    t1, t2, t4, h, hh, h6, u1, u2, u4 = grid.stages(ks, reps)
     if du is not None:
         u1, u2, u4 = u1 + du[0], u2 + du[1], u4 + du[2]
     with np.errstate(all="ignore"):
-        k1 = f.at_times(take(grid.t1), X, u1, P)
+        k1 = f.at_times(t1, X, u1, P)
         k2 = f.at_times(t2, X + hh * k1, u2, P)
         k3 = f.at_times(t2, X + hh * k2, u2, P)
-        k4 = f.at_times(take(grid.t4), X + h * k3, u4, P)
+        k4 = f.at_times(t4, X + h * k3, u4, P)
         return np.asarray(X + h6 * (k1 + 2.0 * (k2 + k3) + k4), dtype=np.float64)
 
 
@@ -451,7 +502,7 @@ def _linearise(
         return None
     m = int(substeps)
     controls = np.asarray(controls, dtype=np.float64)
-    grid = _Grid(time, controls, m)
+    grid = _grid(model, time, controls, m)
     x0 = np.asarray(x0, dtype=np.float64)
     n_x = x0.size
     p = {k: float(v) for k, v in params.items()}
