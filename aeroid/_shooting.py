@@ -300,6 +300,8 @@ def _newton(
     hp: FloatArray | None = None,
     hu: FloatArray | None = None,
     A_prev: FloatArray | None = None,
+    *,
+    jacobians: bool = True,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Settle G[lo + 1 : hi + 1] (G[lo] held) on the RK4 steps lo..hi-1, in place;
     returns the last sweep's Jacobians A, B, C (`_linearised`), or None when Newton
@@ -309,7 +311,9 @@ def _newton(
     A sweep whose state Jacobians are kept from an earlier one (a chord sweep: one
     column instead of one pair per state) is taken while it contracts the corrections
     by at least `_CHORD_RATE`; the last sweep always linearises afresh at the settled
-    trajectory, so what is returned is as exact as with Newton alone."""
+    trajectory, so what is returned is as exact as with Newton alone. Without
+    `jacobians` (only the trajectory wanted) a settled chord sweep ends the search, and
+    the Jacobians returned are those it kept."""
     ks = np.arange(lo, hi)
     n_x = G.shape[1]
     extras = bool(names) or hu is not None
@@ -345,6 +349,8 @@ def _newton(
             # to rounding, its Jacobians to about `moved`
             return A, B, C
         if chord is not None:
+            if not jacobians and moved <= _ACCEPT:
+                return A, B, C
             if moved <= _CHORD_DONE:
                 # settled: one sweep linearised here carries the other columns
                 chord, full = None, True
@@ -460,7 +466,7 @@ def _from_start(
         G[lo + 1 : hi + 1] = G[lo]
         scale = _scale(G[: hi + 1])
         hx = _REL * scale
-        got = _newton(f, grid, lo, hi, G, p, hx, scale)
+        got = _newton(f, grid, lo, hi, G, p, hx, scale, jacobians=False)
         if got is None:
             if width <= 2:
                 return None
