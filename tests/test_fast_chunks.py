@@ -86,3 +86,35 @@ def test_compat_model_takes_fixed_parameters_as_numbers_with_the_same_values() -
         full = {k: np.full(n, v) for k, v in values.items()}
         for fn in (_kinematics, _sensors):
             np.testing.assert_array_equal(fn(None, x, c, fixed), fn(None, x, c, full))
+
+
+def test_the_scatter_after_a_pass_at_its_point_reuses_it() -> None:
+    t = np.arange(201) * 0.05
+    u = _controls(t)
+    inv = np.array([1.0 / 0.002**2, 1.0 / 0.004**2, 0.0, 1.0 / 0.003**2, 1.0 / 0.02**2])
+    sigma = np.array([0.001, 0.002, 0.0])
+    steps = 1e-6 * np.maximum(np.abs([TRUTH[n] for n in FIT]), 1e-3)
+    fresh = _shooting.input_noise_scatter(
+        _model("scatter_fresh"), t, u, X0, TRUTH, FIT, [0], 2, inv, sigma
+    )
+    model = _model("scatter_again")
+    _shooting.output_sensitivities(model, t, u, X0, TRUTH, FIT, [0], 2, steps)
+    calls = []
+    original = _shooting._linearised
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls.append(len(args[6]))  # the parameter columns of each sweep
+        return original(*args, **kwargs)
+
+    _shooting._linearised = counted  # type: ignore[assignment]
+    try:
+        again = _shooting.input_noise_scatter(model, t, u, X0, TRUTH, FIT, [0], 2, inv, sigma)
+    finally:
+        _shooting._linearised = original  # type: ignore[assignment]
+    assert calls == [0]  # one sweep, for the control columns alone
+    assert fresh is not None and again is not None
+    np.testing.assert_allclose(again[0], fresh[0], rtol=1e-12, atol=1e-14)
+    scale = np.max(np.abs(fresh[1]), axis=(0, 1))
+    assert np.max(np.abs(again[1] - fresh[1]) / scale) < 1e-8
+    d = np.sqrt(np.diag(fresh[2]))
+    np.testing.assert_allclose(again[2] / np.outer(d, d), fresh[2] / np.outer(d, d), atol=1e-8)
