@@ -118,3 +118,38 @@ def test_the_scatter_after_a_pass_at_its_point_reuses_it() -> None:
     assert np.max(np.abs(again[1] - fresh[1]) / scale) < 1e-8
     d = np.sqrt(np.diag(fresh[2]))
     np.testing.assert_allclose(again[2] / np.outer(d, d), fresh[2] / np.outer(d, d), atol=1e-8)
+
+
+def test_a_compiled_fit_serves_its_result_simulation_without_stepping(monkeypatch: Any) -> None:
+    import pytest
+
+    pytest.importorskip("jax")
+    from test_fast_shooting import _flight
+
+    import aeroid
+    from aeroid import _compiled, _integrate
+
+    model = _model("compiled_result")
+    data = _flight(model, seed=5)
+    guess = {k: 1.2 * TRUTH[k] for k in FIT}
+    opts = {"simulate_options": {"method": "rk4", "substeps": 2}}
+    aeroid.identify(model, data, guess, **opts)
+    fit = aeroid.identify(model, data, guess, **opts)  # the second fit compiles
+    assert _compiled._CACHE[model].get("sensitivities_compiled")
+    assert not _compiled._CACHE[model].get("compiled_once")  # no compiled rollouts yet
+    stepped = []
+    original = _integrate.rk4
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        stepped.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(_integrate, "rk4", counted)
+    u = np.column_stack([data[c] for c in model.controls])
+    x0 = np.asarray([fit.initial_states[0][s] for s in model.states])
+    sim = model.simulate(data.time, u, x0, fit.parameters, method="rk4", substeps=2)
+    assert not stepped  # the states of the fit's last compiled pass
+    monkeypatch.setattr(_integrate, "rk4", original)
+    monkeypatch.setattr(_compiled, "ENABLED", False)  # numpy's RK4, step by step
+    ref = model.simulate(data.time, u, x0, fit.parameters, method="rk4", substeps=2)
+    np.testing.assert_allclose(sim.outputs, ref.outputs, rtol=1e-10, atol=1e-12)
