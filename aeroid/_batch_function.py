@@ -17,6 +17,12 @@ from .errors import AeroidError, ModelDefinitionError, SimulationError
 
 FloatArray = NDArray[np.float64]
 UserFunction = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
+# Points per call of a broadcasting function evaluated at many points with a time each
+# (`BatchFunction.at_times`), for calls of more than `_CHUNK_ABOVE` points: small enough
+# that the temporaries of a model stay in cache, large enough (and the calls so large)
+# that the interpreter's overhead of the extra calls stays small.
+_CHUNK = 16384
+_CHUNK_ABOVE = 4 * _CHUNK
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:
@@ -122,6 +128,28 @@ class BatchFunction:
                 self.broadcasts = False
         return self._loop(t, x, u, p)
 
+    def _chunked(
+        self, t: FloatArray, x: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
+    ) -> FloatArray:
+        """The function on points with a time each, called on runs of `_CHUNK` points:
+        a model's temporaries then stay in the processor's cache (a model of a hundred
+        operations runs two to three times faster on ten thousand points at a time than
+        on a hundred thousand). Points are independent: the values are the same."""
+        n = t.size
+        if n <= _CHUNK_ABOVE:
+            return np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+        parts = []
+        for lo in range(0, n, _CHUNK):
+            s = slice(lo, min(n, lo + _CHUNK))
+            part = np.asarray(
+                self.fun(t[s], x[:, s], u[:, s], {a: v[s] for a, v in p.items()}),
+                dtype=np.float64,
+            )
+            if part.shape != (self.n_out, s.stop - s.start):
+                return part  # the caller reports the shape
+            parts.append(part)
+        return np.concatenate(parts, axis=1)
+
     def at_times(
         self, t: FloatArray, x: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
     ) -> FloatArray:
@@ -143,7 +171,7 @@ class BatchFunction:
         if self.time_broadcasts is not False:
             try:
                 with np.errstate(all="ignore"):
-                    out = np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+                    out = self._chunked(t, x, u, p)
                 good = out.shape == (self.n_out, n)
             except Exception:  # an array t it cannot take: one time per call below
                 good = False

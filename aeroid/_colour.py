@@ -60,7 +60,7 @@ def _smooth(x: NDArray[np.generic], half: int) -> NDArray[np.generic]:
     """Epanechnikov smoothing of one-sided spectra along axis 0, reflected at both ends
     (a real series' spectrum is even and periodic); the flat mean when `half` spans
     the band."""
-    from scipy.ndimage import convolve1d
+    from ._searches import mirror_smooth
 
     n_bins = x.shape[0]
     if half >= n_bins - 1:
@@ -68,11 +68,7 @@ def _smooth(x: NDArray[np.generic], half: int) -> NDArray[np.generic]:
     d = np.arange(-half, half + 1)
     w = 1.0 - (d / (half + 1.0)) ** 2
     w /= w.sum()
-    if np.iscomplexobj(x):
-        re = convolve1d(x.real, w, axis=0, mode="mirror")
-        im = convolve1d(x.imag, w, axis=0, mode="mirror")
-        return np.asarray(re + 1j * im)
-    return np.asarray(convolve1d(x, w, axis=0, mode="mirror"))
+    return mirror_smooth(x, w)
 
 
 def colored_covariance(

@@ -41,30 +41,51 @@ DEFAULT_ESTIMATE = (
 
 
 # -- the model: numpy broadcasting, module-level np calls, no branches on values --------
+#
+# Except one kind: the numpy batches pass a parameter that is the same at every point
+# as a broadcast view of one number (`_one`), and a term multiplied by such a zero is
+# left out (`_is_zero`). That changes no finite value and halves the arithmetic of a
+# batch of kinematics; a traced (JAX) or perturbed parameter takes the general formula.
+# (The types are held by name: the JAX translation of these functions rebinds `np`.)
+_NDARRAY = np.ndarray
+_NUMBER = (float, np.floating)
+
+
+def _one(v: Any) -> Any:
+    """A parameter the same at every point (a stride-0 view) as one number, so that
+    an operation with it costs what one with a scalar does; anything else unchanged."""
+    if isinstance(v, _NDARRAY) and v.ndim == 1 and v.size and v.strides == (0,):
+        return v[0]
+    return v
+
+
+def _is_zero(v: Any) -> bool:
+    """Whether `v` is a plain number equal to zero (never a traced value or an array)."""
+    return isinstance(v, _NUMBER) and float(v) == 0.0
 
 
 def _rates(c: Any, p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
     """Rates and specific forces with the gyro and accelerometer errors removed."""
-    pm, qm, rm, axm, aym, azm = (c[j] for j in range(6))
-    return (
-        (pm - p["b_p"]) / (1.0 + p["k_p"]),
-        (qm - p["b_q"]) / (1.0 + p["k_q"]),
-        (rm - p["b_r"]) / (1.0 + p["k_r"]),
-        (axm - p["b_ax"]) / (1.0 + p["k_ax"]),
-        (aym - p["b_ay"]) / (1.0 + p["k_ay"]),
-        (azm - p["b_az"]) / (1.0 + p["k_az"]),
-    )
+    out = []
+    for j, ch in enumerate(INPUT_CHANNELS):
+        b, k = _one(p[f"b_{ch}"]), _one(p[f"k_{ch}"])
+        out.append((c[j] - b) / (1.0 + k))
+    return out[0], out[1], out[2], out[3], out[4], out[5]
 
 
 def _effective(x: Any, c: Any, p: Any) -> list[Any]:
     """The states with those marked measured (``m_<state>`` = 1) replaced by the record."""
-    return [x[i] + p[f"m_{s}"] * (c[6 + i] - x[i]) for i, s in enumerate(STATES)]
+    out = []
+    for i, s in enumerate(STATES):
+        m = _one(p[f"m_{s}"])
+        out.append(x[i] if _is_zero(m) else x[i] + m * (c[6 + i] - x[i]))
+    return out
 
 
 def _derivatives(x: Any, c: Any, p: Any) -> list[Any]:
     uu, vv, ww, phi, theta, _psi, _h = x
     P, Q, R, AX, AY, AZ = _rates(c, p)
-    g = p["g"]
+    g = _one(p["g"])
     sphi = np.sin(phi)
     cphi = np.cos(phi)
     sth = np.sin(theta)
@@ -88,7 +109,11 @@ def _kinematics(t: Any, x: Any, c: Any, p: Any) -> Any:
     the measurement stands in for it wherever it is used.
     """
     rates = _derivatives(_effective(x, c, p), c, p)
-    return np.stack([d * (1.0 - p[f"m_{s}"]) for d, s in zip(rates, STATES, strict=True)])
+    out = []
+    for d, s in zip(rates, STATES, strict=True):
+        m = _one(p[f"m_{s}"])
+        out.append(d if _is_zero(m) else d * (1.0 - m))
+    return np.stack(out)
 
 
 def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
@@ -103,19 +128,24 @@ def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
     cth = np.cos(theta)
     spsi = np.sin(psi)
     cpsi = np.cos(psi)
-    # the wind (north-east-down) in body axes
-    along = cpsi * p["w_n"] + spsi * p["w_e"]
-    across = cpsi * p["w_e"] - spsi * p["w_n"]
-    wx = cth * along - sth * p["w_d"]
-    wy = sphi * sth * along + cphi * across + sphi * cth * p["w_d"]
-    wz = cphi * sth * along - sphi * across + cphi * cth * p["w_d"]
-    ua = uu - wx
-    va = vv - wy
-    wa = ww - wz
-    # an earth-fixed wind turns in body axes: d(w_b)/dt = -omega x w_b
-    dua = du + Q * wz - R * wy
-    dva = dv + R * wx - P * wz
-    dwa = dw + P * wy - Q * wx
+    w_n, w_e, w_d = (_one(p[w]) for w in _WIND)
+    if _is_zero(w_n) and _is_zero(w_e) and _is_zero(w_d):
+        # no wind: air and ground velocities are one
+        ua, va, wa, dua, dva, dwa = uu, vv, ww, du, dv, dw
+    else:
+        # the wind (north-east-down) in body axes
+        along = cpsi * w_n + spsi * w_e
+        across = cpsi * w_e - spsi * w_n
+        wx = cth * along - sth * w_d
+        wy = sphi * sth * along + cphi * across + sphi * cth * w_d
+        wz = cphi * sth * along - sphi * across + cphi * cth * w_d
+        ua = uu - wx
+        va = vv - wy
+        wa = ww - wz
+        # an earth-fixed wind turns in body axes: d(w_b)/dt = -omega x w_b
+        dua = du + Q * wz - R * wy
+        dva = dv + R * wx - P * wz
+        dwa = dw + P * wy - Q * wx
     plane = ua * ua + wa * wa
     V = np.sqrt(plane + va * va)
     dV = (ua * dua + va * dva + wa * dwa) / V
@@ -147,14 +177,12 @@ def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
         "ve": (ve, dve),
     }
     # a scale factor acts on the change from the pivot y0_<o> (zero, or the start value)
-    return np.stack(
-        [
-            (1.0 + p[f"k_{o}"]) * (y - p[f"tau_{o}"] * dy - p[f"y0_{o}"])
-            + p[f"y0_{o}"]
-            + p[f"b_{o}"]
-            for o, (y, dy) in true.items()
-        ]
-    )
+    out = []
+    for o, (y, dy) in true.items():
+        k, tau, y0, b = (_one(p[f"{e}_{o}"]) for e in ("k", "tau", "y0", "b"))
+        shifted = y if _is_zero(tau) else y - tau * dy
+        out.append((1.0 + k) * (shifted - y0) + y0 + b)
+    return np.stack(out)
 
 
 @functools.lru_cache(maxsize=8)

@@ -272,6 +272,15 @@ def rk4_hook(
             # simulation at the estimate): the same RK4 steps, to rounding
             ok, fail_time = _first_failure(known[None], time)
             return RawTrajectory(known[None], ok, fail_time)
+    if x0.shape[1] == 1 and entry.get("sensitivities_compiled"):
+        # the rollout a compiled fit's last sensitivities computed (the result simulated
+        # at its estimate, its sensors' errors perhaps zeroed): no numpy stepping for it
+        # while the rollouts themselves are not yet worth compiling
+        pvec = _pmatrix(model, p, 1)[0]
+        known = _last_states(model, time, x0[:, 0], u[0], pvec, substeps)
+        if known is not None:
+            ok, fail_time = _first_failure(known[None], time)
+            return RawTrajectory(known[None], ok, fail_time)
     if not worth_compiling(model, 4 * int(substeps) * (time.size - 1)):
         return None
     traj = rk4_states(model, time, x0, u, p, substeps)

@@ -115,16 +115,16 @@ def _arw_prepare(z: FloatArray) -> _Spectral:
     ``sum_m w(x_m) [sum_j l_m(lam_j) a_j]`` with the bracket precomputed.
     Bins with no more samples than nodes keep their samples.
     """
-    from scipy.fft import dct
+    from ._searches import dct2
 
     n, q = z.shape
     # transformed along rows of z', so that every per-sample product below is a
     # contiguous run of samples
-    zh = dct(z.T, type=2, norm="ortho", axis=1)  # (q, n)
+    zh = dct2(z.T)  # (q, n)
     unit = np.zeros((2, n))
     unit[0, 0] = 1.0
     unit[1, -1] = 1.0
-    fh = dct(unit, type=2, norm="ortho", axis=1)
+    fh = dct2(unit)
     lam = 4.0 * np.sin(0.5 * np.pi * np.arange(n) / n) ** 2
     iu, ju = np.triu_indices(q)
     n_tri = iu.size
@@ -280,7 +280,7 @@ def _noise_model(
     what `_colored_covariance` needs to carry the noise model's own
     uncertainty into the error bars.
     """
-    from scipy.optimize import minimize, minimize_scalar
+    from ._searches import bounded_minimum, nelder_mead
 
     n_y = residuals[0].shape[1]
     n_tot = sum(v.shape[0] for v in residuals)
@@ -320,13 +320,13 @@ def _noise_model(
         grid = np.linspace(-b_max, b_max, 57)
         vals = np.array([_ar1_criterion(float(g), *moments) for g in grid])
         i = int(np.argmin(vals))
-        res = minimize_scalar(
+        res = bounded_minimum(
             lambda b, mom=moments: _ar1_criterion(float(b), *mom),
-            bounds=(grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]),
-            method="bounded",
-            options={"xatol": 1e-6},
+            float(grid[max(i - 1, 0)]),
+            float(grid[min(i + 1, grid.size - 1)]),
+            xatol=1e-6,
         )
-        b0 = float(res.x) if float(res.fun) <= vals[i] else float(grid[i])
+        b0 = float(res.x[0]) if float(res.fun) <= vals[i] else float(grid[i])
         best_x = np.array([b0, _LOG_RATIO[0]])
         best_f = _arw_criterion(best_x, zs, n_tot - rank, rank)[0]
         # The white floor pulls a pure AR(1) fit towards zero; the search also starts
@@ -340,16 +340,12 @@ def _noise_model(
             if white > 0 and innov > 0:
                 starts.append((float(np.arctanh(phi_m)), float(np.log(white / innov))))
         for start in starts:
-            fit = minimize(
+            fit = nelder_mead(
                 lambda x, z_=zs, r_=rank: _arw_criterion(x, z_, n_tot - r_, r_)[0],
-                np.array(start),
-                method="Nelder-Mead",
-                options={
-                    "xatol": 5e-3,
-                    "fatol": 1e-3,
-                    "maxfev": 100,
-                    "initial_simplex": np.add(start, _SIMPLEX),
-                },
+                np.add(start, _SIMPLEX),
+                xatol=5e-3,
+                fatol=1e-3,
+                maxfev=100,
             )
             if float(fit.fun) < best_f:
                 best_x, best_f = np.asarray(fit.x, dtype=np.float64), float(fit.fun)

@@ -46,6 +46,13 @@ _ACCEPT = 1e-8
 _MAX_SWEEPS = 8
 # A correction this small (relative) is one Newton sweep from the solution.
 _CLOSE = 1e-6
+# Chord sweeps (`_newton`): taken from a correction this small on, kept while each
+# correction is at most this fraction of the one before (and for at most this many
+# sweeps), until a correction this small.
+_CHORD_FROM = 1e-2
+_CHORD_RATE = 0.25
+_MAX_CHORDS = 12
+_CHORD_DONE = 1e-2 * _ACCEPT
 # Substeps in the first window when a trajectory is built from its start.
 _FIRST_WINDOW = 32
 
@@ -96,6 +103,62 @@ class _Grid:
         self.u1 = np.ascontiguousarray(nodes[:, idx].reshape(self.n, -1).T)
         self.u2 = np.ascontiguousarray(nodes[:, idx + 1].reshape(self.n, -1).T)
         self.u4 = np.ascontiguousarray(nodes[:, idx + 2].reshape(self.n, -1).T)
+        # the stage arrays of runs of steps repeated per column (`_steps`), newest last:
+        # a fit's sweeps ask for the same few runs again and again
+        self.taken: dict[tuple[int, int, int], tuple[FloatArray, ...]] = {}
+
+    def stages(self, ks: Any, reps: int) -> tuple[FloatArray, ...]:
+        """t1, t2, t4, h, hh, h6, u1, u2, u4 of the steps ks, each repeated `reps` times."""
+        ks = np.asarray(ks)
+        run = ks.size > 0 and int(ks[-1]) - int(ks[0]) == ks.size - 1
+        key = (int(ks[0]), ks.size, reps) if run else None
+        if key is not None and key in self.taken:
+            return self.taken[key]
+
+        def take(a: FloatArray) -> FloatArray:
+            picked = a[..., ks[0] : ks[0] + ks.size] if run else a[..., ks]
+            return np.repeat(picked, reps, axis=-1) if reps > 1 else picked
+
+        got = tuple(
+            take(a)
+            for a in (
+                self.t1,
+                self.t2,
+                self.t4,
+                self.h,
+                self.hh,
+                self.h6,
+                self.u1,
+                self.u2,
+                self.u4,
+            )
+        )
+        for a in got:  # shared by the sweeps that follow: nobody writes to them
+            a.flags.writeable = False
+        if key is not None:
+            size = sum(a.nbytes for a in got)
+            held = sum(a.nbytes for v in self.taken.values() for a in v)
+            while self.taken and held + size > _KEEP_BYTES:
+                oldest = next(iter(self.taken))
+                held -= sum(a.nbytes for a in self.taken.pop(oldest))
+            if size <= _KEEP_BYTES:
+                self.taken[key] = got
+        return got
+
+
+# The grid of the last record linearised: (model ref, time, controls, substeps, grid).
+_LAST_GRID: list[Any] = []
+
+
+def _grid(model: Any, time: FloatArray, controls: FloatArray, m: int) -> _Grid:
+    """The grid of the record, the last one's when it is the same record and substeps."""
+    last = _LAST_GRID
+    if last and last[3] == m and _same_record(last, model, time, controls):
+        grid: _Grid = last[4]
+        return grid
+    grid = _Grid(time, controls, m)
+    _LAST_GRID[:] = [weakref.ref(model), time, controls, m, grid]
+    return grid
 
 
 def _steps(
@@ -111,19 +174,14 @@ def _steps(
     side by side; P name -> (K * reps,); `du` is added to the controls at the three
     stage times."""
 
-    def take(a: FloatArray) -> FloatArray:
-        return np.repeat(a[..., ks], reps, axis=-1) if reps > 1 else a[..., ks]
-
-    h, hh, h6 = take(grid.h), take(grid.hh), take(grid.h6)
-    t2 = take(grid.t2)
-    u1, u2, u4 = take(grid.u1), take(grid.u2), take(grid.u4)
+    t1, t2, t4, h, hh, h6, u1, u2, u4 = grid.stages(ks, reps)
     if du is not None:
         u1, u2, u4 = u1 + du[0], u2 + du[1], u4 + du[2]
     with np.errstate(all="ignore"):
-        k1 = f.at_times(take(grid.t1), X, u1, P)
+        k1 = f.at_times(t1, X, u1, P)
         k2 = f.at_times(t2, X + hh * k1, u2, P)
         k3 = f.at_times(t2, X + hh * k2, u2, P)
-        k4 = f.at_times(take(grid.t4), X + h * k3, u4, P)
+        k4 = f.at_times(t4, X + h * k3, u4, P)
         return np.asarray(X + h6 * (k1 + 2.0 * (k2 + k3) + k4), dtype=np.float64)
 
 
@@ -242,27 +300,42 @@ def _newton(
     hp: FloatArray | None = None,
     hu: FloatArray | None = None,
     A_prev: FloatArray | None = None,
+    *,
+    jacobians: bool = True,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Settle G[lo + 1 : hi + 1] (G[lo] held) on the RK4 steps lo..hi-1, in place;
     returns the last sweep's Jacobians A, B, C (`_linearised`), or None when Newton
     does not settle. Sweeps far from the solution leave B and C out; `A_prev`, the
-    state Jacobians of a nearby trajectory, serves a first sweep of the steps alone."""
+    state Jacobians of a nearby trajectory, serves the first sweeps of the steps alone.
+
+    A sweep whose state Jacobians are kept from an earlier one (a chord sweep: one
+    column instead of one pair per state) is taken while it contracts the corrections
+    by at least `_CHORD_RATE`; the last sweep always linearises afresh at the settled
+    trajectory, so what is returned is as exact as with Newton alone. Without
+    `jacobians` (only the trajectory wanted) a settled chord sweep ends the search, and
+    the Jacobians returned are those it kept."""
     ks = np.arange(lo, hi)
     n_x = G.shape[1]
     extras = bool(names) or hu is not None
     full = not extras
     none = np.zeros(0)
-    for sweep in range(_MAX_SWEEPS):
-        if sweep == 0 and A_prev is not None and A_prev.shape[0] == ks.size:
+    chord = A_prev if A_prev is not None and A_prev.shape[0] == ks.size else None
+    last = np.inf
+    sweeps = chords = 0
+    while sweeps < _MAX_SWEEPS:
+        if chord is not None:
             X = np.ascontiguousarray(G[lo:hi].T)
             nxt = _steps(f, grid, ks, X, _columns(p, ks.size), 1).T
-            A, B, C = A_prev, np.zeros(0), np.zeros(0)
+            A, B, C = chord, np.zeros(0), np.zeros(0)
+            chords += 1
         elif full:
             nxt, A, B, C = _linearised(
                 f, grid, ks, G[lo:hi], p, hx, names, none if hp is None else hp, hu
             )
+            sweeps += 1
         else:
             nxt, A, B, C = _linearised(f, grid, ks, G[lo:hi], p, hx, (), none)
+            sweeps += 1
         defect = nxt - G[lo + 1 : hi + 1]
         if not (np.all(np.isfinite(defect)) and np.all(np.isfinite(A))):
             return None
@@ -271,13 +344,30 @@ def _newton(
             return None
         G[lo + 1 : hi + 1] += d
         moved = float(np.max(np.abs(d) / scale)) if d.size else 0.0
-        if full and B.ndim == 3 and moved <= _ACCEPT:
+        if chord is None and full and B.ndim == 3 and moved <= _ACCEPT:
             # the correction's own error is of its square: the trajectory is the RK4 one
             # to rounding, its Jacobians to about `moved`
             return A, B, C
-        # Newton converges quadratically: after a correction this small the next sweep
-        # lands on the solution, and carries the other columns
-        full = full or moved <= _CLOSE
+        if chord is not None:
+            if not jacobians and moved <= _ACCEPT:
+                return A, B, C
+            if moved <= _CHORD_DONE:
+                # settled: one sweep linearised here carries the other columns
+                chord, full = None, True
+            elif moved > _CHORD_RATE * last or chords >= _MAX_CHORDS:
+                chord = None  # too slow: Newton's sweeps from here
+                if moved > last:
+                    G[lo + 1 : hi + 1] -= d  # a correction that grew is undone
+                    moved = last
+                full = full or moved <= _CLOSE
+        elif moved > _CHORD_DONE and moved <= _CHORD_FROM:
+            # near enough that these Jacobians serve the next sweeps of the steps alone
+            chord = A
+        else:
+            # Newton converges quadratically: after a correction this small the next
+            # sweep lands on the solution, and carries the other columns
+            full = full or moved <= _CLOSE
+        last = moved
     return None
 
 
@@ -376,7 +466,7 @@ def _from_start(
         G[lo + 1 : hi + 1] = G[lo]
         scale = _scale(G[: hi + 1])
         hx = _REL * scale
-        got = _newton(f, grid, lo, hi, G, p, hx, scale)
+        got = _newton(f, grid, lo, hi, G, p, hx, scale, jacobians=False)
         if got is None:
             if width <= 2:
                 return None
@@ -418,7 +508,7 @@ def _linearise(
         return None
     m = int(substeps)
     controls = np.asarray(controls, dtype=np.float64)
-    grid = _Grid(time, controls, m)
+    grid = _grid(model, time, controls, m)
     x0 = np.asarray(x0, dtype=np.float64)
     n_x = x0.size
     p = {k: float(v) for k, v in params.items()}
@@ -431,6 +521,10 @@ def _linearise(
     x0_free = list(x0_free)
     n_p = len(names)
     theta = np.concatenate([[p[n] for n in names], x0[x0_free]])
+    if hu is not None:
+        again = _controls_at_last(model, grid, time, controls, x0, p, names, x0_free, theta, hp, hu)
+        if again is not None:
+            return again
     guessed = _guess(model, time, controls, m, names, x0_free, theta, x0)
     A_last = None
     if guessed is not None:
@@ -489,6 +583,71 @@ def _linearise(
     y, gx, gp, gu = got_y
     jac = np.matmul(gx, S[::m])
     jac[:, :, :n_p] += gp
+    # what a pass at the same point for the control columns alone reuses
+    entry += [dict(p), np.array(hp, dtype=np.float64), (y, jac, gx)]
+    return _Record(y=y, jac=jac, grid=grid, A=A, C=C, gx=gx, gu=gu)
+
+
+def _controls_at_last(
+    model: Any,
+    grid: _Grid,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    p: Mapping[str, float],
+    names: list[str],
+    x0_free: list[int],
+    theta: FloatArray,
+    hp: FloatArray,
+    hu: FloatArray,
+) -> _Record | None:
+    """The record linearised at the point of the last one (a fit's error bars after
+    its final evaluation) with its control columns added: the trajectory, its state
+    Jacobians, outputs and output Jacobian are the last pass's, so only the columns of
+    the controls are evaluated (the steps', then the measurement's)."""
+    found = [e for e in _RECENT if _same_record(e, model, time, controls)]
+    if not found or len(found[0]) < 14:
+        return None
+    last = found[0]
+    if (
+        last[3] != grid.m
+        or last[4] != names
+        or last[5] != x0_free
+        or not np.array_equal(last[6], theta)
+        or not np.array_equal(last[7][0], x0)
+        or last[11] != dict(p)
+        or not np.array_equal(last[12], hp)
+    ):
+        return None
+    G, A = last[7], last[9]
+    y, jac, gx = last[13]
+    n_x = G.shape[1]
+    ks = np.arange(grid.n)
+    got = _linearised(model._dynamics_batch, grid, ks, G[:-1], p, np.zeros(n_x), (), hp[:0], hu)
+    C = got[3]
+    if not (np.all(np.isfinite(got[0])) and np.all(np.isfinite(C))):
+        return None
+    active = np.flatnonzero(hu)
+    xs = G[:: grid.m]
+    g = model._measurement_batch
+    if g is None:
+        gu = np.zeros((time.size, y.shape[1], active.size))
+    else:
+        n_t = time.size
+        cols = 1 + 2 * active.size
+        U = np.repeat(controls.T[:, :, None], cols, axis=2)
+        for c, ui in enumerate(active.tolist()):
+            U[ui, :, 1 + 2 * c] += hu[ui]
+            U[ui, :, 2 + 2 * c] -= hu[ui]
+        X = np.repeat(xs.T[:, :, None], cols, axis=2).reshape(n_x, n_t * cols)
+        with np.errstate(all="ignore"):
+            Y = g.at_times(
+                np.repeat(time, cols), X, U.reshape(-1, n_t * cols), _columns(p, n_t * cols)
+            )
+        if g.time_broadcasts is False:
+            return None
+        Y = np.transpose(Y.reshape(-1, n_t, cols), (1, 0, 2))
+        gu = (Y[:, :, 1::2] - Y[:, :, 2::2]) / (2.0 * hu[active])[None, None, :]
     return _Record(y=y, jac=jac, grid=grid, A=A, C=C, gx=gx, gu=gu)
 
 
