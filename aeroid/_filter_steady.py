@@ -119,7 +119,7 @@ def _reference_system(
 
 # relative change of the gain below which the Riccati recursion counts as converged:
 # far below what moves an estimate, far above rounding
-_GAIN_TOL = 1e-12
+_GAIN_TOL = 1e-10
 
 
 def _gains(
@@ -138,7 +138,6 @@ def _gains(
     n_y = H.shape[1]
     Ht = np.swapaxes(H, 1, 2)
     PhiT = np.swapaxes(ref.Phi, 2, 3)
-    eye = np.eye(n)
     S = np.empty((B, n_t, n_y, n_y))
     Kg = np.empty((B, n_t, n, n_y))
     P = P0
@@ -153,8 +152,7 @@ def _gains(
         PHt = Ppk @ Ht
         Sk = H @ PHt + R
         K = np.swapaxes(np.linalg.solve(Sk, np.swapaxes(PHt, 1, 2)), 1, 2)
-        IKH = eye - K @ H
-        P = IKH @ Ppk @ np.swapaxes(IKH, 1, 2) + K @ R @ np.swapaxes(K, 1, 2)
+        P = Ppk - K @ np.swapaxes(PHt, 1, 2)  # the optimal gain's update, (I - K H) Pp
         P = 0.5 * (P + np.swapaxes(P, 1, 2))
         S[:, k], Kg[:, k] = Sk, K
         if single and k > 1:
@@ -203,8 +201,11 @@ def _compiled_predictor(
     x0: FloatArray,
     Kg: FloatArray,
     substeps: int,
+    if_compiled: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """(xp, xf, nu) from sample 1 on, of the compiled predictor, or None (the numpy loop then runs)."""
+    """(xp, xf, nu) from sample 1 on, of the compiled predictor, or None (the numpy
+    loop then runs). With `if_compiled` only when a model of this structure has
+    compiled it already (another flight's fit): a first short fit stays in numpy."""
     model = prob.model
     if not _compiled.ENABLED:
         return None
@@ -219,6 +220,8 @@ def _compiled_predictor(
     cache = _compiled._shared(model)
     key = ("steady_predictor", tuple(prob.out_idx))
     fn = cache.get(key)
+    if fn is None and if_compiled:
+        return None
     if fn is None:
         fn = cache[key] = _build(model, tuple(prob.out_idx), jax, jnp)
     # batches padded to a power of two: each size would otherwise compile anew
@@ -281,7 +284,9 @@ def steady_pass(
             S, Kg, Pp, Pf = _gains(ref, R, P0, n_t)
         x = x0.copy()
         xf[:, 0], xp[:, 0] = x, x
-        fast = None if prop._cp is None else _compiled_predictor(prob, params, x0, Kg, prop.m)
+        fast = None
+        if prop.lin is None:
+            fast = _compiled_predictor(prob, params, x0, Kg, prop.m, prop._cp is None)
         if fast is not None:
             xp[:, 1:], xf[:, 1:], nu[:, 1:] = fast
         nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
