@@ -12,12 +12,22 @@ reference point, the record's start (its trim):
 with ``A = df/dx`` and ``C = dh/dx`` at the reference (central differences),
 ``Phi``, ``Qd`` their exact discretisation (Van Loan) and ``K_k``, ``S_k`` the
 Kalman gains and innovation covariances of that linear time-invariant system:
-the Riccati recursion on constant matrices, run once per parameter vector (by
-blocks, `_riccati_fast`, or step by step until it converges), so the gain is
-the steady-state gain after the first samples' transient from ``P0``. Keeping
-that transient makes the predictor on a linear model the linear filter of
+the Riccati recursion on constant matrices, run once per parameter vector
+until the gain stops changing (the first tens to hundreds of samples), so the
+gain is the steady-state gain after the transient from ``P0``. Keeping that
+transient makes the predictor on a linear model the linear filter of
 `run_filter` itself, innovation for innovation; the book's filter starts at
 the steady-state gain, which differs only in those first samples.
+
+Why it is the default (with ``method="ekf"``): the book argues the
+steady-state gain for the time-invariant models of system identification
+about a trim, where the extended filter's gain converges to it within a few
+samples anyway; the nonlinear model still carries the state through large
+motions, and the cost per parameter vector is one Riccati solution instead of
+a Jacobian, a matrix exponential and a factorisation at every sample (about a
+sixth of the time-varying filter's on the demo's flights). The time-varying
+filter (``gain="time_varying"``) remains for flights whose linearisation
+changes much over the record (large manoeuvres far from the trim).
 
 Each member of a batch (the filter-error method's central differences of the
 whole predictor) linearises and solves its own Riccati equation, so the
@@ -272,10 +282,10 @@ def steady_pass(
     xf = np.full((B, n_t, n), np.nan)
     xp = np.full((B, n_t, n), np.nan)
     nu = np.full((B, n_t, n_y), np.nan)
-    S = np.full((B, n_t, n_y, n_y), np.nan)
-    Pp = np.full((B, n_t, n, n), np.nan)
-    Pf = np.full((B, n_t, n, n), np.nan)
-    C = np.zeros((B, n_t, n, n))
+    # read-only views until the Riccati solution replaces them: no record-long copies
+    S = np.broadcast_to(np.nan, (B, n_t, n_y, n_y))
+    Pp = Pf = np.broadcast_to(np.nan, (B, n_t, n, n))
+    C = np.broadcast_to(0.0, (B, n_t, n, n))
     ok = np.ones(B, dtype=bool)
     fail = np.full(B, -1, dtype=np.int64)
     try:
