@@ -215,7 +215,7 @@ def _derivatives(
         W = np.einsum("kab,ikb->ika", Sinv, dnu)
         fisher += np.einsum("ika,jka->ij", dnu, W)
         SdS = Sinv[None] @ dS  # (n, K, m, m)
-        fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS)
+        fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS, optimize=True)  # one matmul
     if not np.all(np.isfinite(fisher)):
         fisher = np.nan_to_num(fisher, nan=0.0, posinf=0.0, neginf=0.0)
     fisher = 0.5 * (fisher + fisher.T)
