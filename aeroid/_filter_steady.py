@@ -134,13 +134,14 @@ _GAIN_TOL = 1e-10
 
 def _gains(
     ref: _Linear, R: FloatArray, P0: FloatArray, n_t: int
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """(S, Kg, Pp, Pf) of the reference system's Kalman filter over the record.
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
+    """(S, Kg, Pp, Pf, k) of the reference system's Kalman filter over the record.
 
     The Riccati recursion runs until the gain has converged (the first tens to
     hundreds of samples); from there S and the gain are the steady-state ones.
     ``Pp`` and ``Pf`` are the steady-state covariances, broadcast over the
-    record (the objective uses the innovations and S only).
+    record (the objective uses the innovations and S only); from sample ``k``
+    on the gain is constant.
     """
     assert ref.H is not None
     B, _, n, _ = ref.Phi.shape
@@ -156,6 +157,7 @@ def _gains(
     Ppk = P0
     K_prev = Kg[:, 0]
     single = ref.Phi.shape[1] == 1
+    done = n_t - 1
     for k in range(1, n_t):
         g = 0 if single else ref.idx[k - 1]
         Ppk = ref.Phi[:, g] @ P @ PhiT[:, g] + ref.Qd[:, g]
@@ -170,11 +172,12 @@ def _gains(
             if np.all(np.max(np.abs(K - K_prev), axis=(1, 2)) <= _GAIN_TOL * scale):
                 S[:, k + 1 :] = Sk[:, None]
                 Kg[:, k + 1 :] = K[:, None]
+                done = k
                 break
         K_prev = K
     Pp = np.broadcast_to(Ppk[:, None], (B, n_t, n, n))
     Pf = np.broadcast_to(P[:, None], (B, n_t, n, n))
-    return S, Kg, np.asarray(Pp), np.asarray(Pf)
+    return S, Kg, np.asarray(Pp), np.asarray(Pf), done
 
 
 def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
@@ -192,14 +195,19 @@ def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
         return x[sel] if h is None else h(t, x, u, pvec)[oi]
 
     def one(time: Any, U: Any, Y: Any, x0: Any, pvec: Any, Kg: Any, m: Any) -> Any:
+        # Kg: the gains of samples 1..T, the last of them the steady one
+        last = Kg.shape[0] - 1
+
         def body(x: Any, inp: Any) -> Any:
-            t0, t1, u0, u1, y, K = inp
+            t0, t1, u0, u1, y, j = inp
+            K = Kg[jnp.minimum(j, last)]
             xpk = step(x, t0, t1, u0, u1, pvec, m)
             v = y - meas(t1, xpk, u1, pvec)
             xn = xpk + K @ v
             return xn, (xpk, xn, v)
 
-        _, outs = jax.lax.scan(body, x0, (time[:-1], time[1:], U[:-1], U[1:], Y[1:], Kg))
+        steps = jnp.arange(time.shape[0] - 1)
+        _, outs = jax.lax.scan(body, x0, (time[:-1], time[1:], U[:-1], U[1:], Y[1:], steps))
         return outs
 
     return jax.jit(jax.vmap(one, in_axes=(None, None, None, 0, 0, 0, None)))
@@ -210,6 +218,7 @@ def _compiled_predictor(
     params: Mapping[str, FloatArray],
     x0: FloatArray,
     Kg: FloatArray,
+    steady_from: int,
     substeps: int,
     if_compiled: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
@@ -235,8 +244,10 @@ def _compiled_predictor(
     if fn is None:
         fn = cache[key] = _build(model, tuple(prob.out_idx), jax, jnp)
     # batches padded to a power of two: each size would otherwise compile anew
-    padded = 1 << (B - 1).bit_length() if B <= 16 else -(-B // 16) * 16
+    padded = 1 << (B - 1).bit_length() if B <= 16 else -(-B // 8) * 8
     rows = np.minimum(np.arange(padded), B - 1)
+    # the transient's gains only, to a power of two samples (few compilations)
+    n_gain = min(1 << max(steady_from, 1).bit_length(), prob.time.size - 1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
@@ -246,7 +257,7 @@ def _compiled_predictor(
                 prob.Y,
                 np.ascontiguousarray(x0[rows]),
                 pmat[rows],
-                np.ascontiguousarray(Kg[rows, 1:]),
+                np.ascontiguousarray(Kg[rows, 1 : n_gain + 1]),
                 np.int32(substeps),
             )
         except Exception:  # a model JAX traced pointwise but not in this scan: numpy
@@ -291,12 +302,12 @@ def steady_pass(
     try:
         ref = _reference_system(prob, params, Qc, x0, P0, prop, meas)
         with np.errstate(all="ignore"):
-            S, Kg, Pp, Pf = _gains(ref, R, P0, n_t)
+            S, Kg, Pp, Pf, steady_from = _gains(ref, R, P0, n_t)
         x = x0.copy()
         xf[:, 0], xp[:, 0] = x, x
         fast = None
         if prop.lin is None:
-            fast = _compiled_predictor(prob, params, x0, Kg, prop.m, prop._cp is None)
+            fast = _compiled_predictor(prob, params, x0, Kg, steady_from, prop.m, prop._cp is None)
         if fast is not None:
             xp[:, 1:], xf[:, 1:], nu[:, 1:] = fast
         nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
