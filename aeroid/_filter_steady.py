@@ -220,11 +220,9 @@ def _compiled_predictor(
     Kg: FloatArray,
     steady_from: int,
     substeps: int,
-    if_compiled: bool,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """(xp, xf, nu) from sample 1 on, of the compiled predictor, or None (the numpy
-    loop then runs). With `if_compiled` only when a model of this structure has
-    compiled it already (another flight's fit): a first short fit stays in numpy."""
+    loop then runs: the model does not compile)."""
     model = prob.model
     if not _compiled.ENABLED:
         return None
@@ -239,8 +237,6 @@ def _compiled_predictor(
     cache = _compiled._shared(model)
     key = ("steady_predictor", tuple(prob.out_idx))
     fn = cache.get(key)
-    if fn is None and if_compiled:
-        return None
     if fn is None:
         fn = cache[key] = _build(model, tuple(prob.out_idx), jax, jnp)
     # batches padded to a power of two: each size would otherwise compile anew
@@ -306,8 +302,11 @@ def steady_pass(
         x = x0.copy()
         xf[:, 0], xp[:, 0] = x, x
         fast = None
-        if prop.lin is None:
-            fast = _compiled_predictor(prob, params, x0, Kg, steady_from, prop.m, prop._cp is None)
+        # compiled when a fit's passes would spend what a compilation costs: decided
+        # by the problem's size alone, so a rerun in another process gives the same bits
+        work = 4 * prop.m * (n_t - 1) * _compiled._FIT_EVALUATIONS
+        if prop._cp is not None or work >= _compiled.COMPILE_AFTER_CALLS:
+            fast = _compiled_predictor(prob, params, x0, Kg, steady_from, prop.m)
         if fast is not None:
             xp[:, 1:], xf[:, 1:], nu[:, 1:] = fast
         nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
