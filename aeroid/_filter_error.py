@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._filter_steady import gain_choice, steady_pass
 from ._identifiability import unidentifiable
 from ._identification_record import IdentificationResult
 from ._least_squares import Linearisation, minimise
@@ -55,7 +56,7 @@ __all__ = ["FILTER_OPTIONS", "identify_filter_error"]
 
 FloatArray = NDArray[np.float64]
 
-FILTER_OPTIONS = ("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps")
+FILTER_OPTIONS = ("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain")
 
 
 @dataclass
@@ -80,7 +81,7 @@ class _Layout:
 
 def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
     opts: dict[str, Any] = {"method": "ekf", "ukf_alpha": 1e-3, "ukf_beta": 2.0, "ukf_kappa": 0.0}
-    opts.update({"P0": None, "substeps": None})
+    opts.update({"P0": None, "substeps": None, "gain": None})
     if filter_options is None:
         return opts
     if not isinstance(filter_options, Mapping):
@@ -128,6 +129,7 @@ class _Objective:
         self.R = R
         self.P0_given = P0_given
         self.method = method
+        self.gain = "time_varying"
 
     def inputs(self, Z: FloatArray) -> tuple[dict[str, FloatArray], FloatArray, FloatArray]:
         B = Z.shape[0]
@@ -161,7 +163,10 @@ class _Objective:
             else:
                 P0 = np.stack([_default_P0(self.model, prob.output_names, R[b]) for b in range(B)])
             with np.errstate(all="ignore"):
-                run = run_filter(prob, params, Qc, R, x0, P0, method=self.method)
+                if self.gain == "steady":
+                    run = steady_pass(prob, params, Qc, R, x0, P0)
+                else:
+                    run = run_filter(prob, params, Qc, R, x0, P0, method=self.method)
             nu, S = run.nu[:, 1:], run.S[:, 1:]
             ok = run.ok.copy()
             quad = np.full(B, np.inf)
@@ -211,7 +216,7 @@ def _derivatives(
         W = np.einsum("kab,ikb->ika", Sinv, dnu)
         fisher += np.einsum("ika,jka->ij", dnu, W)
         SdS = Sinv[None] @ dS  # (n, K, m, m)
-        fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS)
+        fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS, optimize=True)  # one matmul
     if not np.all(np.isfinite(fisher)):
         fisher = np.nan_to_num(fisher, nan=0.0, posinf=0.0, neginf=0.0)
     fisher = 0.5 * (fisher + fisher.T)
@@ -269,7 +274,12 @@ def identify_filter_error(
         estimated from the innovations (maximum likelihood).
     filter_options : mapping, optional
         ``method`` ("ekf" or "ukf"), ``ukf_alpha``, ``ukf_beta``,
-        ``ukf_kappa``, ``P0``, ``substeps`` (as in `filter_states`).
+        ``ukf_kappa``, ``P0``, ``substeps`` (as in `filter_states`), and
+        ``gain``: "steady" (default with "ekf": the nonlinear model predicts,
+        the gain is the Kalman gain of the model linearised at the record's
+        start, Jategaonkar's filter error for nonlinear systems; see
+        `aeroid._filter_steady`) or "time_varying" (an EKF or UKF relinearised
+        at every sample; the default with "ukf").
     estimate_process_noise : bool or sequence of str
         Estimate the process-noise intensities of all states (True) or of the
         named states, together with the parameters.
@@ -407,6 +417,7 @@ def identify_filter_error(
     z = np.array(z0, dtype=np.float64)
     n_p = len(names)
     obj = _Objective(m, probs, start, layout, Qc, R0, opts["P0"] is not None, opts["method"])
+    obj.gain = gain_choice(opts["gain"], opts["method"], filter_options)
     # Noise intensities may shrink towards zero (no turbulence in the data):
     # bound them 30 e-folds below and above their starting values.
     lo = np.full(z.size, -np.inf)

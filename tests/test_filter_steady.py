@@ -1,0 +1,166 @@
+"""The fixed-gain (steady-state) filter error for nonlinear models: the linear case
+reduces to the linear filter, and the option is checked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+from test_filter_error import NAMES, NOISE, _turbulent_flight
+
+import aeroid
+from aeroid import IdentificationError, Model, catalog
+from aeroid._filter_steady import steady_pass
+from aeroid.catalog import _short_period_dynamics
+from aeroid.filtering import build_problem, run_filter
+
+PROCESS = {"q": 1e-3}
+
+
+def _as_nonlinear(model: Model) -> Model:
+    """The same dynamics declared nonlinear: RK4 moves the state, differences linearise."""
+    return Model(
+        states=list(model.states),
+        controls=list(model.controls),
+        parameters=dict(model.parameters),
+        dynamics=_short_period_dynamics,
+        name="short_period_declared_nonlinear",
+        linear=False,
+    )
+
+
+@pytest.fixture(scope="module")
+def turbulent() -> aeroid.FlightData:
+    return _turbulent_flight(5, PROCESS["q"])
+
+
+def _fit(model: Model, data: aeroid.FlightData, **options: object) -> aeroid.IdentificationResult:
+    return aeroid.identify(
+        model,
+        data,
+        NAMES,
+        method="filter_error",
+        process_noise=PROCESS,
+        measurement_noise=NOISE,
+        filter_options={"substeps": 8, **options},
+        tolerance=1e-9,
+    )
+
+
+def test_on_a_linear_model_it_is_the_linear_filter_error(turbulent):
+    linear = catalog.short_period()
+    exact = _fit(linear, turbulent, gain="time_varying")
+    # declared nonlinear, the model goes through RK4 propagation, a difference
+    # Jacobian at the record's start and the fixed-gain Riccati solution
+    steady = _fit(_as_nonlinear(linear), turbulent, gain="steady")
+    assert exact.success and steady.success
+    for n in NAMES:
+        assert steady.parameters[n] == pytest.approx(exact.parameters[n], rel=1e-6)
+        assert steady.stderr[n] == pytest.approx(exact.stderr[n], rel=1e-4)
+    assert steady.cost == pytest.approx(exact.cost, rel=1e-9)
+    # the default for an affine model is the same linear filter
+    default = _fit(linear, turbulent)
+    assert default.parameters == pytest.approx(exact.parameters, rel=1e-12)
+
+
+def test_innovations_and_their_covariance_match_the_linear_pass(turbulent):
+    linear = catalog.short_period()
+    B = 3
+    params = {k: np.array([v, 0.9 * v, 1.1 * v]) for k, v in linear.parameters.items()}
+    Qc = np.repeat(np.diag([0.0, PROCESS["q"]])[None], B, axis=0)
+    args = dict(outputs=None, measurement_noise=NOISE, x0=None, P0=None, substeps=16, method="ekf")
+    runs = []
+    for model in (linear, _as_nonlinear(linear)):
+        prob, R = build_problem(
+            model, turbulent, ukf=(1e-3, 2.0, 0.0), error=IdentificationError, **args
+        )
+        x0 = np.repeat(prob.x0[None], B, axis=0)
+        P0 = np.repeat(prob.P0[None], B, axis=0)
+        Rb = np.repeat(R[None], B, axis=0)
+        if model is linear:
+            runs.append(run_filter(prob, params, Qc, Rb, x0, P0))
+        else:
+            runs.append(steady_pass(prob, params, Qc, Rb, x0, P0))
+    exact, steady = runs
+    assert np.all(steady.ok)
+    scale = np.sqrt(np.diagonal(exact.S, axis1=2, axis2=3))
+    assert np.max(np.abs(steady.nu - exact.nu) / scale) < 1e-7
+    # the gain is taken as converged once it changes by 1e-10 a step
+    assert np.max(np.abs(steady.S - exact.S) / (scale[..., :, None] * scale[..., None, :])) < 1e-8
+    # after the transient, the steady state: the discrete algebraic Riccati equation's
+    dt = float(turbulent.time[1] - turbulent.time[0])
+    H = np.eye(2)
+    R = np.diag([NOISE["alpha"], NOISE["q"]])
+    for b in range(B):
+        p = {k: v[b] for k, v in params.items()}
+        A = np.array([[p["Z_alpha"], 1.0], [p["M_alpha"], p["M_q"]]])
+        M = np.zeros((4, 4))
+        M[:2, :2], M[:2, 2:], M[2:, 2:] = -A, Qc[b], A.T
+        E = scipy.linalg.expm(M * dt)
+        Phi = E[2:, 2:].T
+        Qd = Phi @ E[:2, 2:]
+        P = scipy.linalg.solve_discrete_are(Phi.T, H.T, 0.5 * (Qd + Qd.T), R)
+        np.testing.assert_allclose(steady.S[b, -1], H @ P @ H.T + R, rtol=1e-8)
+
+
+def test_gain_option_is_checked(turbulent):
+    model = catalog.short_period()
+    with pytest.raises(IdentificationError, match=r"filter_options\['gain'\].*'fixed'"):
+        _fit(model, turbulent, gain="fixed")
+    with pytest.raises(IdentificationError, match=r"gain='steady'.*ukf"):
+        _fit(model, turbulent, gain="steady", method="ukf")
+    with pytest.raises(IdentificationError, match="unknown options"):
+        _fit(model, turbulent, filter_gain="steady")
+
+
+def test_the_compiled_predictor_is_the_numpy_one(monkeypatch):
+    from _aircraft_data import BASE, LAT
+
+    from aeroid import _compiled
+    from aeroid.aircraft import AircraftConstants, lateral
+
+    model = lateral(AircraftConstants(**BASE, Ixz=80.0, rho=1.225), V0=53.6, parameters=LAT)
+    t = np.arange(0.0, 8.0, 0.02)
+    rng = np.random.default_rng(1)
+    controls = {
+        "delta_a": catalog.doublet(t, start=1.0, amplitude=0.1),
+        "delta_r": catalog.doublet(t, start=4.0, amplitude=0.1),
+    }
+    clean = model.simulate(t, controls)
+    outputs = ["beta", "p", "r", "phi"]
+    noise = dict.fromkeys(outputs, 1e-5)
+    data = aeroid.FlightData(
+        t,
+        {**controls, **{o: clean.output(o) + 0.003 * rng.standard_normal(t.size) for o in outputs}},
+    )
+    prob, R = build_problem(
+        model,
+        data,
+        outputs=outputs,
+        measurement_noise=noise,
+        x0=None,
+        P0=None,
+        substeps=None,
+        method="ekf",
+        ukf=(1e-3, 2.0, 0.0),
+        error=IdentificationError,
+    )
+    B = 3
+    params = {k: v * np.array([1.0, 0.9, 1.1]) for k, v in model.parameters.items()}
+    Qc = np.repeat(np.diag([1e-5, 1e-3, 1e-4, 0.0])[None], B, axis=0)
+    args = (
+        prob,
+        params,
+        Qc,
+        np.repeat(R[None], B, axis=0),
+        np.repeat(prob.x0[None], B, axis=0),
+        np.repeat(prob.P0[None], B, axis=0),
+    )
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    compiled = steady_pass(*args)
+    assert ("steady_predictor", prob.out_idx) in _compiled._shared(model)  # it ran
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    plain = steady_pass(*args)
+    assert np.all(compiled.ok) and np.all(plain.ok)
+    np.testing.assert_allclose(compiled.nu, plain.nu, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(compiled.xf, plain.xf, rtol=0, atol=1e-12)
