@@ -360,7 +360,9 @@ def report_sections(inputs: Mapping[str, Any]) -> str:
 for _stage in (
     Stage(
         "compatibility",
-        "2",  # 2: standard errors without the t widening, their degrees of freedom carried
+        # 2: standard errors without the t widening, their degrees of freedom carried;
+        # 3: integrated input noise counted once in the error bars
+        "3",
         CompatibilityOptions,
         "CompatibilityResult",
         _run_compatibility,
@@ -388,8 +390,9 @@ for _stage in (
     ),
     Stage(
         "frequency_domain_identify",  # once "frequency_identify"
-        # 2: fdoe's noise weighting by default, record ends kept only when significant
-        "2",
+        # 2: fdoe's noise weighting by default, record ends kept only when significant;
+        # 3: the one least-squares solver and its relative stopping rule
+        "3",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,

@@ -489,7 +489,9 @@ for _stage in (
         "identify",
         # 3: results carry the model's parameter units
         # 4: standard errors without the t widening, their degrees of freedom carried
-        "4",
+        # 5: the one least-squares solver; filter error on a nonlinear model with a
+        #    steady-state gain by default
+        "5",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
