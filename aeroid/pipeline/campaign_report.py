@@ -223,8 +223,6 @@ def _declared(ctx: StageContext, flight: int) -> Mapping[str, str]:
 
 
 def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
-    import matplotlib.pyplot as plt
-
     from ..plotting import plot_campaign_trend
     from ..support import figure_png, parameter_units
 
@@ -249,7 +247,6 @@ def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     declared = {k: v for i in range(len(ctx.flights)) for k, v in _declared(ctx, i).items()}
     fig = plot_campaign_trend(records, parameters=names, units=parameter_units(names, declared))
     png = figure_png(fig, colors=64)
-    plt.close(fig)
     return f"campaign_trend_{index}.png", png
 
 
