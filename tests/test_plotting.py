@@ -261,3 +261,30 @@ def test_a_recycled_figure_draws_as_a_new_one(chain):
     # outside `reusing_figures` every figure is new
     first, second = (dict(flight_figures(flights[2])) for _ in range(2))
     assert all(first[k] is not second[k] for k in first)
+
+
+def test_palette_png_leaves_the_figure_as_it_was_and_repeats_its_bytes():
+    """`figure_png(colors=...)` renders at its own dpi and quantises the canvas itself:
+    the figure keeps its dpi and canvas, the same figure gives the same bytes, and the
+    palette holds at most `colors` colours close to the full-colour rendering."""
+    import io
+
+    from PIL import Image
+
+    from aeroid.support import figure_png
+
+    fig = Figure(figsize=(4.0, 3.0), dpi=100)
+    ax = fig.add_subplot()
+    t = np.linspace(0.0, 10.0, 500)
+    ax.plot(t, np.sin(t), color="C0")
+    ax.fill_between(t, -0.5, 0.5, color="C3", alpha=0.15)
+    ax.set_title("sine", loc="left")
+    canvas = fig.canvas
+    png = figure_png(fig, dpi=50, colors=16)
+    assert fig.dpi == 100 and fig.canvas is canvas
+    assert figure_png(fig, dpi=50, colors=16) == png
+    img = Image.open(io.BytesIO(png))
+    assert img.size == (200, 150) and img.mode == "P"
+    assert len(img.getcolors()) <= 16
+    full = np.asarray(Image.open(io.BytesIO(figure_png(fig, dpi=50))).convert("RGB"), float)
+    assert np.abs(np.asarray(img.convert("RGB"), float) - full).mean() < 3.0

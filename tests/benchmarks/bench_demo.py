@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))  # the checkout's aeroid, here and in the runs
 TARGET = 1.5  # s a flight, cold, on 2 cores
 
 
@@ -96,6 +97,7 @@ def main() -> None:
             )
             wall, cpu, _ = _run(config, args.workers)
             cold.append((wall, cpu))
+            print(f"cold run {i + 1}: {wall:.1f} s wall, {cpu:.1f} s CPU", flush=True)
             stages = _stage_times(config)
             wall, cpu, out = _run(config, args.workers)
             warm.append((wall, cpu))
