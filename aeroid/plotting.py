@@ -7,11 +7,16 @@ headless and leaves a user's chosen backend alone.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import contextlib
+import threading
+import weakref
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+import matplotlib as mpl
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 from .errors import IdentificationError
@@ -66,10 +71,108 @@ def _grid(
 
 
 def _figure(
-    rows: int, cols: int = 1, *, sharex: bool | str = False, **layout: float
+    rows: int,
+    cols: int = 1,
+    *,
+    sharex: bool | str = False,
+    reuse: str | None = None,
+    **layout: float,
 ) -> tuple[Figure, Any]:
+    """A figure with a grid of panels; `reuse` names the figure kind under which
+    `reusing_figures` may hand back a recycled one of the same layout."""
+    key = (reuse, rows, cols, sharex, tuple(sorted(layout.items())))
+    fig = _pooled(key) if reuse is not None else None
+    if fig is not None:
+        return fig, np.asarray(fig.axes, dtype=object).reshape(rows, cols)
     fig, grid = _grid(rows, cols, **layout)
-    return fig, grid.subplots(squeeze=False, sharex=sharex)
+    axes = grid.subplots(squeeze=False, sharex=sharex)
+    if reuse is not None:
+        _KEYS[fig] = key
+    return fig, axes
+
+
+def _cells(
+    reuse: str, rows: int, cols: int, cells: Sequence[tuple[Any, Any]], **layout: float
+) -> tuple[Figure, list[Any]]:
+    """A figure with a panel on each of `cells` (row, column; either may be a slice) of a
+    rows x cols grid, recycled as `_figure` does."""
+    spans = tuple((_span(r), _span(c)) for r, c in cells)
+    key = (reuse, rows, cols, spans, tuple(sorted(layout.items())))
+    fig = _pooled(key)
+    if fig is not None:
+        return fig, list(fig.axes)
+    fig, grid = _grid(rows, cols, **layout)
+    axes = [fig.add_subplot(grid[r, c]) for r, c in cells]
+    _KEYS[fig] = key
+    return fig, axes
+
+
+def _span(index: Any) -> Any:
+    return (index.start, index.stop, index.step) if isinstance(index, slice) else index
+
+
+# Figures a campaign report has drawn and rendered, kept to be drawn again for the next
+# flight: creating a figure's panels and their ticks costs as much as drawing it, and
+# a campaign draws the same layouts over and over. Only while `reusing_figures` is on.
+_POOL: dict[Any, Figure] = {}
+_POOL_SIZE = 16
+_KEYS: weakref.WeakKeyDictionary[Figure, Any] = weakref.WeakKeyDictionary()
+_LOCK = threading.Lock()
+_STATE = threading.local()
+
+
+@contextlib.contextmanager
+def reusing_figures() -> Iterator[None]:
+    """While on (in this thread), the per-flight figures of a campaign report reuse the
+    figures given back with `recycle_figure`: same layout, panels wiped and redrawn.
+
+    A recycled figure draws pixel for pixel as a new one would.
+    """
+    before = getattr(_STATE, "on", False)
+    _STATE.on = True
+    try:
+        yield
+    finally:
+        _STATE.on = before
+
+
+def recycle_figure(fig: Figure) -> None:
+    """Give back a figure drawn under `reusing_figures` once it is rendered: the next
+    figure of its kind and layout redraws it. Others are left alone."""
+    key = _KEYS.get(fig)
+    if key is None or not getattr(_STATE, "on", False):
+        return
+    with _LOCK:
+        _POOL.pop(key, None)
+        _POOL[key] = fig
+        while len(_POOL) > _POOL_SIZE:
+            _POOL.pop(next(iter(_POOL)))
+
+
+def _pooled(key: Any) -> Figure | None:
+    """A recycled figure of `key`, wiped of what was drawn on it, or None."""
+    if not getattr(_STATE, "on", False):
+        return None
+    with _LOCK:
+        fig = _POOL.pop(key, None)
+    if fig is None:
+        return None
+    for ax in fig.axes:
+        for artist in [*ax.lines, *ax.collections, *ax.patches, *ax.texts, *ax.images]:
+            artist.remove()
+        ax.containers.clear()
+        legend = ax.get_legend()
+        if legend is not None:
+            legend.remove()
+        for loc in ("left", "center", "right"):
+            ax.set_title("", loc=loc)
+        for label in (ax.xaxis.label, ax.yaxis.label):
+            label.set_text("")
+            label.set_fontsize(mpl.rcParams["axes.labelsize"])
+        ax.set_prop_cycle(None)  # colours start again at C0
+        ax.relim()  # no data: the next plot sets the limits afresh
+        ax.set_autoscale_on(True)
+    return fig
 
 
 def _label(name: str, units: Mapping[str, str] | None, *, what: str = "") -> str:
@@ -77,6 +180,15 @@ def _label(name: str, units: Mapping[str, str] | None, *, what: str = "") -> str
     unit = (units or {}).get(name, "")
     text = f"{name} {what}".strip()
     return f"{text} [{unit}]" if unit else text
+
+
+def _hline(ax: Any, y: float, **style: Any) -> Line2D:
+    """A horizontal line across the panel at `y` (kept in the data limits), as
+    ``axhline`` draws it, without the autoscale of every panel sharing the x axis
+    that ``axhline`` runs to see whether `y` is in view."""
+    line = Line2D([0.0, 1.0], [y, y], transform=ax.get_yaxis_transform(which="grid"), **style)
+    ax.add_line(line)
+    return line
 
 
 def _hist(ax: Any, x: np.ndarray, bins: int) -> None:
@@ -101,7 +213,9 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
     controls = getattr(validation, "controls", None)
     control_names = list(getattr(validation, "control_names", ()) or ())
     n_inputs = len(control_names) if controls is not None else 0
-    fig, axes = _figure(2 * len(names) + n_inputs, height=1.9, hgap=0.5, sharex=True)
+    fig, axes = _figure(
+        2 * len(names) + n_inputs, height=1.9, hgap=0.5, sharex=True, reuse="time_histories"
+    )
     t = validation.time
     for j, name in enumerate(names):
         ax = axes[2 * j, 0]
@@ -116,7 +230,7 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         band = 2.0 * float(np.std(e))
         rax.fill_between(t, -band, band, color="C3", alpha=0.15, lw=0, label="±2σ")
         rax.plot(t, e, color="C3", lw=0.9)
-        rax.axhline(0.0, color="k", lw=0.6)
+        _hline(rax, 0.0, color="k", lw=0.6)
         rax.set_ylabel(_label(name, unit_of, what="residual"))
         rax.legend(loc="upper right", fontsize=7)
     for k, name in enumerate(control_names[:n_inputs]):
@@ -136,7 +250,7 @@ def plot_prediction(prediction: Any, *, units: Mapping[str, str] | None = None) 
     """
     names = list(prediction.output_names)
     unit_of = {**dict(getattr(prediction, "units", {}) or {}), **dict(units or {})}
-    fig, axes = _figure(len(names), height=1.9, hgap=0.5, sharex=True)
+    fig, axes = _figure(len(names), height=1.9, hgap=0.5, sharex=True, reuse="prediction")
     t = prediction.time
     for j, name in enumerate(names):
         ax = axes[j, 0]
@@ -185,13 +299,13 @@ def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None
     t = np.asarray(validation.time, dtype=float)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     k = np.arange(lags + 1)
-    fig, axes = _figure(len(names), height=1.7, hgap=0.55, sharex=True)
+    fig, axes = _figure(len(names), height=1.7, hgap=0.55, sharex=True, reuse="autocorrelation")
     for j, name in enumerate(names):
         ax = axes[j, 0]
         ax.fill_between(k, -band, band, color="C0", alpha=0.15, lw=0, label="95 % band")
         ax.vlines(k[1:], 0.0, r[1:, j], color="C3", lw=1.4)
         ax.plot(k[1:], r[1:, j], "o", color="C3", ms=3)
-        ax.axhline(0.0, color="k", lw=0.6)
+        _hline(ax, 0.0, color="k", lw=0.6)
         outside = int(np.sum(np.abs(r[1:, j]) > band))
         ax.set_title(
             f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}",
@@ -276,7 +390,7 @@ def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | Non
     """
     names = list(result.state_names)
     unit_of = {**dict(getattr(data, "units", {}) or {}), **dict(units or {})}
-    fig, axes = _figure(len(names), sharex=True)
+    fig, axes = _figure(len(names), sharex=True, reuse="filter")
     t = result.time
     smoothed = result.smoothed_states is not None
     states = result.smoothed_states if smoothed else result.filtered_states
@@ -537,23 +651,27 @@ def plot_identification(
     units = {**dict(getattr(result, "parameter_units", {}) or {}), **dict(units or {})}
     cols = 4
     rows = -(-len(names) // cols) if names else 0
-    fig, grid = _grid(max(len(outs) + rows, 1), cols, height=1.9, hgap=0.8, wgap=0.9)
+    cells: list[tuple[int, Any]] = [(k, slice(None)) for k in range(len(outs))]
+    cells += [(len(outs) + i // cols, i % cols) for i in range(len(names))]
+    fig, panels = _cells(
+        "identification", max(len(outs) + rows, 1), cols, cells, height=1.9, hgap=0.8, wgap=0.9
+    )
     for k, out in enumerate(outs):
-        ax = fig.add_subplot(grid[k, :])
+        ax = panels[k]
         on_time = time is not None and all(len(r) == len(time) for r in result.residuals)
         for i, r in enumerate(result.residuals):
             x = np.asarray(time, dtype=float) if on_time else np.arange(len(r))
             label = f"manoeuvre {i}" if len(result.residuals) > 1 else None
             ax.plot(x, r[:, k], lw=0.8, label=label)
-        ax.axhline(0.0, color="k", lw=0.6)
+        _hline(ax, 0.0, color="k", lw=0.6)
         ax.set_ylabel(_label(out, units, what="residual"), fontsize=8)
         ax.set_xlabel("time [s]" if on_time else "sample [-]")
     half = result.margin(0.95)  # each estimate's own 95 % interval (t with its dof)
     for i, name in enumerate(names):
-        ax = fig.add_subplot(grid[len(outs) + i // cols, i % cols])
+        ax = panels[len(outs) + i]
         value, err = result.parameters[name], half[name]
         ax.errorbar([0.0], [value], yerr=[err], fmt="o", capsize=5, color="C0")
-        ax.axhline(0.0, color="0.7", lw=0.6)
+        _hline(ax, 0.0, color="0.7", lw=0.6)
         ax.set_xticks([])
         ax.set_title(name, fontsize=9)
         ax.set_ylabel(

@@ -195,3 +195,96 @@ def test_residuals_against_time_bode_in_rad_per_s_and_trend_title_clear(chain):
     title = trend._suptitle.get_window_extent(renderer)
     first = trend.axes[0].get_tightbbox(renderer)
     assert first.y1 < title.y0 and title.y1 <= trend.bbox.height
+
+
+def _lag_flight(K: float, seed: int) -> tuple[object, object]:
+    """A first-order lag flown with a doublet, its outputs `K` times the unit case."""
+    model = catalog.first_order(K=K, tau=0.4)
+    t = np.arange(401) / 40.0
+    u = catalog.doublet(t, start=1.0, width=1.5, amplitude=1.0)
+    clean = model.simulate(t, u[:, None])
+    rng = np.random.default_rng(seed)
+    y = clean.outputs[:, 0] + 0.02 * K * rng.standard_normal(t.size)
+    return model, aeroid.FlightData(t, {"u": u, "y": y}, units={"u": "rad", "y": "m"})
+
+
+def _lag_results(K: float, seed: int) -> dict[str, object]:
+    model, data = _lag_flight(K, seed)
+    r = aeroid.identify(model, data, ["K", "tau"])
+    return {
+        "data": data,
+        "identification": r,
+        "validation": aeroid.validate(model, data, r),
+        "filtering": aeroid.filter_states(
+            model,
+            data,
+            r,
+            process_noise={"y": 1e-4 * K**2},
+            measurement_noise={"y": (0.02 * K) ** 2},
+        ),
+    }
+
+
+def test_a_recycled_figure_draws_as_a_new_one(chain):
+    """Under `reusing_figures`, the next flight's figures redraw the recycled ones: the
+    same PNG bytes as new figures, whatever the scale of the flight drawn before
+    (here outputs 10^4 times larger, whose tick labels are wider and carry an offset)."""
+    from aeroid.pipeline.campaign_report import flight_figures
+    from aeroid.plotting import recycle_figure, reusing_figures
+    from aeroid.support import figure_png
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        flights = [_lag_results(1e4, 1), _lag_results(1.0, 2), _lag_results(3e-3, 3)]
+    short_period = {k: chain[k] for k in ("identification", "validation", "filtering")}
+    flights.insert(1, short_period)
+    fresh = [{k: figure_png(f, dpi=40, colors=32) for k, f in flight_figures(r)} for r in flights]
+    assert set(fresh[0]) == {
+        "time_histories",
+        "residual_autocorrelation",
+        "identification",
+        "filter_states",
+    }
+    reused = []
+    with reusing_figures():
+        for r in flights:
+            drawn = {}
+            for label, fig in flight_figures(r):
+                drawn[label] = (fig, figure_png(fig, dpi=40, colors=32))
+                recycle_figure(fig)
+            reused.append(drawn)
+    # the lags' layouts are the same (the short period's between them is kept apart):
+    # the same figures, redrawn
+    for i, before in ((2, 0), (3, 2)):
+        assert all(reused[i][k][0] is reused[before][k][0] for k in reused[i])
+    assert [{k: png for k, (_, png) in d.items()} for d in reused] == fresh
+    # outside `reusing_figures` every figure is new
+    first, second = (dict(flight_figures(flights[2])) for _ in range(2))
+    assert all(first[k] is not second[k] for k in first)
+
+
+def test_palette_png_leaves_the_figure_as_it_was_and_repeats_its_bytes():
+    """`figure_png(colors=...)` renders at its own dpi and quantises the canvas itself:
+    the figure keeps its dpi and canvas, the same figure gives the same bytes, and the
+    palette holds at most `colors` colours close to the full-colour rendering."""
+    import io
+
+    from PIL import Image
+
+    from aeroid.support import figure_png
+
+    fig = Figure(figsize=(4.0, 3.0), dpi=100)
+    ax = fig.add_subplot()
+    t = np.linspace(0.0, 10.0, 500)
+    ax.plot(t, np.sin(t), color="C0")
+    ax.fill_between(t, -0.5, 0.5, color="C3", alpha=0.15)
+    ax.set_title("sine", loc="left")
+    canvas = fig.canvas
+    png = figure_png(fig, dpi=50, colors=16)
+    assert fig.dpi == 100 and fig.canvas is canvas
+    assert figure_png(fig, dpi=50, colors=16) == png
+    img = Image.open(io.BytesIO(png))
+    assert img.size == (200, 150) and img.mode == "P"
+    assert len(img.getcolors()) <= 16
+    full = np.asarray(Image.open(io.BytesIO(figure_png(fig, dpi=50))).convert("RGB"), float)
+    assert np.abs(np.asarray(img.convert("RGB"), float) - full).mean() < 3.0

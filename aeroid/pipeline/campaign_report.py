@@ -197,8 +197,7 @@ def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
 
 def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
     """The figures of flight `flight`: (file name, PNG bytes)."""
-    import matplotlib.pyplot as plt
-
+    from ..plotting import recycle_figure, reusing_figures
     from ..support import figure_png
 
     records = {
@@ -207,9 +206,13 @@ def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
         if role in ctx.inputs
     }
     out = []
-    for label, fig in flight_figures(records):
-        out.append((_figure_key(ctx.flights[flight], label), figure_png(fig, dpi=72, colors=32)))
-        plt.close(fig)
+    # the next flight drawn in this process redraws these figures instead of making new
+    with reusing_figures():
+        for label, fig in flight_figures(records):
+            out.append(
+                (_figure_key(ctx.flights[flight], label), figure_png(fig, dpi=72, colors=32))
+            )
+            recycle_figure(fig)
     return out
 
 
@@ -220,8 +223,6 @@ def _declared(ctx: StageContext, flight: int) -> Mapping[str, str]:
 
 
 def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
-    import matplotlib.pyplot as plt
-
     from ..plotting import plot_campaign_trend
     from ..support import figure_png, parameter_units
 
@@ -246,7 +247,6 @@ def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     declared = {k: v for i in range(len(ctx.flights)) for k, v in _declared(ctx, i).items()}
     fig = plot_campaign_trend(records, parameters=names, units=parameter_units(names, declared))
     png = figure_png(fig, colors=64)
-    plt.close(fig)
     return f"campaign_trend_{index}.png", png
 
 

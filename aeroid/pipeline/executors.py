@@ -158,16 +158,21 @@ class LocalProcesses:
                 finished(key, value)
 
         rank = {name: i for i, name in enumerate(graph)}
+        # a flight's chain with more steps (an infer or a design on that flight) is the
+        # long one: started first, it does not run alone at the end of the run
+        steps = {name: len(node.chain or ()) for name, node in graph.items()}
 
         def start(dsk: Any, state: dict[str, Any]) -> None:
             # Dask orders nodes that wait on nothing by string hashes, which change with
             # every process: the first flight ran anywhere in the run, and when it ran last
             # the report's detailed figures of it (a third of a small campaign's work) ran
-            # alone at the end. Instead, the node more nodes wait on first, then the plan's
-            # order (the list is popped from its end).
+            # alone at the end. Instead, the node more nodes wait on first, then the longer
+            # chain, then the plan's order (the list is popped from its end).
             ready, dependents = state.get("ready"), state.get("dependents", {})
             if isinstance(ready, list):
-                ready.sort(key=lambda k: (len(dependents.get(k, ())), -rank.get(k, 0)))
+                ready.sort(
+                    key=lambda k: (len(dependents.get(k, ())), steps.get(k, 0), -rank.get(k, 0))
+                )
 
         def attempt(names: list[str], n_workers: int) -> None:
             dsk: dict[str, Any] = {}
