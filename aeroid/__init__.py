@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 # ``X as X``: an explicit re-export, as type checkers in strict mode require
+from . import _aliases
 from ._version import __version__ as __version__
 from .errors import AdapterError as AdapterError
 from .errors import AeroidError as AeroidError
@@ -26,215 +27,217 @@ from .errors import SimulationError as SimulationError
 from .errors import StoreError as StoreError
 
 if TYPE_CHECKING:  # the lazy table below, as type checkers must see it
-    from ._logtypes import FlightLog as FlightLog
-    from ._logtypes import LogChannel as LogChannel
-    from ._logtypes import LogEvent as LogEvent
-    from .aircraft import AircraftConstants as AircraftConstants
-    from .channel_map import ChannelMap as ChannelMap
-    from .channel_map import ChannelSpec as ChannelSpec
-    from .channel_map import apply_channel_map as apply_channel_map
-    from .channel_map import flight_windows as flight_windows
-    from .channel_map import load_mapped as load_mapped
-    from .coefficients import coefficients_from_data as coefficients_from_data
-    from .compatibility import CompatibilityResult as CompatibilityResult
-    from .compatibility import check_compatibility as check_compatibility
-    from .data import FlightData as FlightData
-    from .data import load_flight_test as load_flight_test
-    from .database import AeroDatabase as AeroDatabase
-    from .database import FlightCoefficients as FlightCoefficients
-    from .database import HeldOutCheck as HeldOutCheck
-    from .database import aerodynamic_database as aerodynamic_database
-    from .design import ExperimentDesign as ExperimentDesign
-    from .design import design_experiment as design_experiment
-    from .filtering import FilterResult as FilterResult
-    from .filtering import filter_states as filter_states
-    from .frequency import ChannelFrequencyResponse as ChannelFrequencyResponse
-    from .frequency import FrequencyResponseResult as FrequencyResponseResult
-    from .frequency import frequency_response as frequency_response
-    from .frequency_domain import FrequencyDomainResult as FrequencyDomainResult
-    from .frequency_domain import identify_frequency_domain as identify_frequency_domain
-    from .frequency_id import CompositeResponse as CompositeResponse
-    from .frequency_id import ResponseChannel as ResponseChannel
-    from .frequency_id import TransferFunctionFit as TransferFunctionFit
-    from .frequency_id import composite_response as composite_response
-    from .frequency_id import fit_transfer_function as fit_transfer_function
-    from .handling_qualities import BandwidthResult as BandwidthResult
-    from .handling_qualities import EquivalentSystemFit as EquivalentSystemFit
-    from .handling_qualities import HandlingQualitiesLevel as HandlingQualitiesLevel
-    from .handling_qualities import Margins as Margins
-    from .handling_qualities import bandwidth as bandwidth
-    from .handling_qualities import bandwidth_level as bandwidth_level
-    from .handling_qualities import equivalent_system as equivalent_system
-    from .handling_qualities import short_period_level as short_period_level
-    from .handling_qualities import stability_margins as stability_margins
-    from .identification import IdentificationResult as IdentificationResult
-    from .identification import identify as identify
-    from .inference import EnsembleRun as EnsembleRun
-    from .inference import InferenceResult as InferenceResult
-    from .inference import combine_ensembles as combine_ensembles
-    from .inference import infer as infer
-    from .inference import infer_ensemble as infer_ensemble
-    from .jax_backend import simulate_rk4 as simulate_rk4
-    from .logs import ChannelListing as ChannelListing
-    from .logs import list_channels as list_channels
-    from .logs import read_log as read_log
-    from .maneuvers import Chirp as Chirp
-    from .maneuvers import Doublet as Doublet
-    from .maneuvers import ManeuverFamily as ManeuverFamily
-    from .maneuvers import Multisine as Multisine
-    from .maneuvers import OrthogonalMultisine as OrthogonalMultisine
-    from .maneuvers import orthogonal_multisine as orthogonal_multisine
-    from .model import BatchSimulation as BatchSimulation
-    from .model import Model as Model
-    from .model import SimulationResult as SimulationResult
-    from .model import SimulatorModel as SimulatorModel
-    from .priors import HalfNormal as HalfNormal
-    from .priors import LogUniform as LogUniform
-    from .priors import Normal as Normal
-    from .priors import Prior as Prior
-    from .priors import Uniform as Uniform
-    from .propagation import PropagationBatch as PropagationBatch
-    from .propagation import PropagationResult as PropagationResult
-    from .propagation import VectorPropagationResult as VectorPropagationResult
-    from .propagation import combine_batches as combine_batches
-    from .propagation import propagate as propagate
-    from .propagation import propagate_batch as propagate_batch
-    from .quality import ChannelQuality as ChannelQuality
-    from .quality import DataQualityReport as DataQualityReport
-    from .quality import check_data_quality as check_data_quality
-    from .regression import RegressionResult as RegressionResult
-    from .regression import StepwiseResult as StepwiseResult
-    from .regression import StepwiseStep as StepwiseStep
-    from .regression import candidate_pool as candidate_pool
-    from .regression import equation_error as equation_error
-    from .regression import spline_terms as spline_terms
-    from .regression import stepwise_regression as stepwise_regression
-    from .reporting import report as report
-    from .resampling import resample as resample
-    from .sampler import ChainState as ChainState
-    from .sampler import SamplerRun as SamplerRun
-    from .sampler import autocorrelation_time as autocorrelation_time
-    from .sampler import effective_sample_size as effective_sample_size
-    from .sampler import ensemble_sampler as ensemble_sampler
-    from .sampler import split_r_hat as split_r_hat
-    from .segmentation import ManeuverWindow as ManeuverWindow
-    from .segmentation import SegmentationResult as SegmentationResult
-    from .segmentation import segment as segment
-    from .sensitivity import SensitivityResult as SensitivityResult
-    from .sensitivity import sensitivities as sensitivities
-    from .smoothing import differentiate as differentiate
-    from .smoothing import optimal_cutoff as optimal_cutoff
-    from .smoothing import smooth as smooth
-    from .validation import OutputMetrics as OutputMetrics
-    from .validation import ValidationResult as ValidationResult
-    from .validation import validate as validate
+    from .estimation.compatibility import CompatibilityResult as CompatibilityResult
+    from .estimation.compatibility import check_compatibility as check_compatibility
+    from .estimation.filtering import FilterResult as FilterResult
+    from .estimation.filtering import filter_states as filter_states
+    from .estimation.identification import IdentificationResult as IdentificationResult
+    from .estimation.identification import identify as identify
+    from .estimation.regression import RegressionResult as RegressionResult
+    from .estimation.regression import StepwiseResult as StepwiseResult
+    from .estimation.regression import StepwiseStep as StepwiseStep
+    from .estimation.regression import candidate_pool as candidate_pool
+    from .estimation.regression import equation_error as equation_error
+    from .estimation.regression import spline_terms as spline_terms
+    from .estimation.regression import stepwise_regression as stepwise_regression
+    from .frequency.frequency_domain import FrequencyDomainResult as FrequencyDomainResult
+    from .frequency.frequency_domain import identify_frequency_domain as identify_frequency_domain
+    from .frequency.frequency_id import CompositeResponse as CompositeResponse
+    from .frequency.frequency_id import ResponseChannel as ResponseChannel
+    from .frequency.frequency_id import TransferFunctionFit as TransferFunctionFit
+    from .frequency.frequency_id import composite_response as composite_response
+    from .frequency.frequency_id import fit_transfer_function as fit_transfer_function
+    from .frequency.handling_qualities import BandwidthResult as BandwidthResult
+    from .frequency.handling_qualities import EquivalentSystemFit as EquivalentSystemFit
+    from .frequency.handling_qualities import HandlingQualitiesLevel as HandlingQualitiesLevel
+    from .frequency.handling_qualities import Margins as Margins
+    from .frequency.handling_qualities import bandwidth as bandwidth
+    from .frequency.handling_qualities import bandwidth_level as bandwidth_level
+    from .frequency.handling_qualities import equivalent_system as equivalent_system
+    from .frequency.handling_qualities import short_period_level as short_period_level
+    from .frequency.handling_qualities import stability_margins as stability_margins
+    from .frequency.response import ChannelFrequencyResponse as ChannelFrequencyResponse
+    from .frequency.response import FrequencyResponseResult as FrequencyResponseResult
+    from .frequency.response import frequency_response as frequency_response
+    from .io._logtypes import FlightLog as FlightLog
+    from .io._logtypes import LogChannel as LogChannel
+    from .io._logtypes import LogEvent as LogEvent
+    from .io.channel_map import ChannelMap as ChannelMap
+    from .io.channel_map import ChannelSpec as ChannelSpec
+    from .io.channel_map import apply_channel_map as apply_channel_map
+    from .io.channel_map import flight_windows as flight_windows
+    from .io.channel_map import load_mapped as load_mapped
+    from .io.data import FlightData as FlightData
+    from .io.data import load_flight_test as load_flight_test
+    from .io.logs import ChannelListing as ChannelListing
+    from .io.logs import list_channels as list_channels
+    from .io.logs import read_log as read_log
+    from .io.quality import ChannelQuality as ChannelQuality
+    from .io.quality import DataQualityReport as DataQualityReport
+    from .io.quality import check_data_quality as check_data_quality
+    from .io.resampling import resample as resample
+    from .io.segmentation import ManeuverWindow as ManeuverWindow
+    from .io.segmentation import SegmentationResult as SegmentationResult
+    from .io.segmentation import segment as segment
+    from .io.smoothing import differentiate as differentiate
+    from .io.smoothing import optimal_cutoff as optimal_cutoff
+    from .io.smoothing import smooth as smooth
+    from .models.aircraft import AircraftConstants as AircraftConstants
+    from .models.coefficients import coefficients_from_data as coefficients_from_data
+    from .models.jax_backend import simulate_rk4 as simulate_rk4
+    from .models.model import BatchSimulation as BatchSimulation
+    from .models.model import Model as Model
+    from .models.model import SimulationResult as SimulationResult
+    from .models.model import SimulatorModel as SimulatorModel
+    from .reports.reporting import report as report
+    from .uncertainty.database import AeroDatabase as AeroDatabase
+    from .uncertainty.database import FlightCoefficients as FlightCoefficients
+    from .uncertainty.database import HeldOutCheck as HeldOutCheck
+    from .uncertainty.database import aerodynamic_database as aerodynamic_database
+    from .uncertainty.design import ExperimentDesign as ExperimentDesign
+    from .uncertainty.design import design_experiment as design_experiment
+    from .uncertainty.inference import EnsembleRun as EnsembleRun
+    from .uncertainty.inference import InferenceResult as InferenceResult
+    from .uncertainty.inference import combine_ensembles as combine_ensembles
+    from .uncertainty.inference import infer as infer
+    from .uncertainty.inference import infer_ensemble as infer_ensemble
+    from .uncertainty.maneuvers import Chirp as Chirp
+    from .uncertainty.maneuvers import Doublet as Doublet
+    from .uncertainty.maneuvers import ManeuverFamily as ManeuverFamily
+    from .uncertainty.maneuvers import Multisine as Multisine
+    from .uncertainty.maneuvers import OrthogonalMultisine as OrthogonalMultisine
+    from .uncertainty.maneuvers import orthogonal_multisine as orthogonal_multisine
+    from .uncertainty.priors import HalfNormal as HalfNormal
+    from .uncertainty.priors import LogUniform as LogUniform
+    from .uncertainty.priors import Normal as Normal
+    from .uncertainty.priors import Prior as Prior
+    from .uncertainty.priors import Uniform as Uniform
+    from .uncertainty.propagation import PropagationBatch as PropagationBatch
+    from .uncertainty.propagation import PropagationResult as PropagationResult
+    from .uncertainty.propagation import VectorPropagationResult as VectorPropagationResult
+    from .uncertainty.propagation import combine_batches as combine_batches
+    from .uncertainty.propagation import propagate as propagate
+    from .uncertainty.propagation import propagate_batch as propagate_batch
+    from .uncertainty.sampler import ChainState as ChainState
+    from .uncertainty.sampler import SamplerRun as SamplerRun
+    from .uncertainty.sampler import autocorrelation_time as autocorrelation_time
+    from .uncertainty.sampler import effective_sample_size as effective_sample_size
+    from .uncertainty.sampler import ensemble_sampler as ensemble_sampler
+    from .uncertainty.sampler import split_r_hat as split_r_hat
+    from .uncertainty.sensitivity import SensitivityResult as SensitivityResult
+    from .uncertainty.sensitivity import sensitivities as sensitivities
+    from .uncertainty.validation import OutputMetrics as OutputMetrics
+    from .uncertainty.validation import ValidationResult as ValidationResult
+    from .uncertainty.validation import validate as validate
+
+_aliases.install()  # the flat layout's module paths keep importing
 
 # The rest of the public API is imported on first use: `import aeroid` (and with it
 # the `aeroid` command, the pipeline and every worker it spawns) then pays only
 # for the modules it touches, not for all of SciPy.
 _LAZY = {
-    "AircraftConstants": ".aircraft",
-    "ChannelMap": ".channel_map",
-    "ChannelSpec": ".channel_map",
-    "apply_channel_map": ".channel_map",
-    "flight_windows": ".channel_map",
-    "load_mapped": ".channel_map",
-    "FlightData": ".data",
-    "load_flight_test": ".data",
-    "AeroDatabase": ".database",
-    "FlightCoefficients": ".database",
-    "HeldOutCheck": ".database",
-    "aerodynamic_database": ".database",
-    "FlightLog": "._logtypes",
-    "LogChannel": "._logtypes",
-    "LogEvent": "._logtypes",
-    "ChannelListing": ".logs",
-    "list_channels": ".logs",
-    "read_log": ".logs",
-    "ChannelQuality": ".quality",
-    "DataQualityReport": ".quality",
-    "check_data_quality": ".quality",
-    "coefficients_from_data": ".coefficients",
-    "CompatibilityResult": ".compatibility",
-    "check_compatibility": ".compatibility",
-    "ExperimentDesign": ".design",
-    "design_experiment": ".design",
-    "FilterResult": ".filtering",
-    "filter_states": ".filtering",
-    "ChannelFrequencyResponse": ".frequency",
-    "FrequencyResponseResult": ".frequency",
-    "frequency_response": ".frequency",
-    "FrequencyDomainResult": ".frequency_domain",
-    "identify_frequency_domain": ".frequency_domain",
-    "CompositeResponse": ".frequency_id",
-    "ResponseChannel": ".frequency_id",
-    "TransferFunctionFit": ".frequency_id",
-    "composite_response": ".frequency_id",
-    "fit_transfer_function": ".frequency_id",
-    "BandwidthResult": ".handling_qualities",
-    "EquivalentSystemFit": ".handling_qualities",
-    "HandlingQualitiesLevel": ".handling_qualities",
-    "bandwidth_level": ".handling_qualities",
-    "short_period_level": ".handling_qualities",
-    "Margins": ".handling_qualities",
-    "bandwidth": ".handling_qualities",
-    "equivalent_system": ".handling_qualities",
-    "stability_margins": ".handling_qualities",
-    "IdentificationResult": ".identification",
-    "identify": ".identification",
-    "EnsembleRun": ".inference",
-    "InferenceResult": ".inference",
-    "combine_ensembles": ".inference",
-    "infer": ".inference",
-    "infer_ensemble": ".inference",
-    "simulate_rk4": ".jax_backend",
-    "Chirp": ".maneuvers",
-    "Doublet": ".maneuvers",
-    "ManeuverFamily": ".maneuvers",
-    "Multisine": ".maneuvers",
-    "OrthogonalMultisine": ".maneuvers",
-    "orthogonal_multisine": ".maneuvers",
-    "BatchSimulation": ".model",
-    "Model": ".model",
-    "SimulationResult": ".model",
-    "SimulatorModel": ".model",
-    "HalfNormal": ".priors",
-    "LogUniform": ".priors",
-    "Normal": ".priors",
-    "Prior": ".priors",
-    "Uniform": ".priors",
-    "PropagationBatch": ".propagation",
-    "PropagationResult": ".propagation",
-    "VectorPropagationResult": ".propagation",
-    "combine_batches": ".propagation",
-    "propagate": ".propagation",
-    "propagate_batch": ".propagation",
-    "RegressionResult": ".regression",
-    "StepwiseResult": ".regression",
-    "StepwiseStep": ".regression",
-    "candidate_pool": ".regression",
-    "equation_error": ".regression",
-    "spline_terms": ".regression",
-    "stepwise_regression": ".regression",
-    "report": ".reporting",
-    "resample": ".resampling",
-    "ChainState": ".sampler",
-    "SamplerRun": ".sampler",
-    "autocorrelation_time": ".sampler",
-    "effective_sample_size": ".sampler",
-    "ensemble_sampler": ".sampler",
-    "split_r_hat": ".sampler",
-    "ManeuverWindow": ".segmentation",
-    "SegmentationResult": ".segmentation",
-    "segment": ".segmentation",
-    "SensitivityResult": ".sensitivity",
-    "sensitivities": ".sensitivity",
-    "differentiate": ".smoothing",
-    "optimal_cutoff": ".smoothing",
-    "smooth": ".smoothing",
-    "OutputMetrics": ".validation",
-    "ValidationResult": ".validation",
-    "validate": ".validation",
+    "AircraftConstants": ".models.aircraft",
+    "ChannelMap": ".io.channel_map",
+    "ChannelSpec": ".io.channel_map",
+    "apply_channel_map": ".io.channel_map",
+    "flight_windows": ".io.channel_map",
+    "load_mapped": ".io.channel_map",
+    "FlightData": ".io.data",
+    "load_flight_test": ".io.data",
+    "AeroDatabase": ".uncertainty.database",
+    "FlightCoefficients": ".uncertainty.database",
+    "HeldOutCheck": ".uncertainty.database",
+    "aerodynamic_database": ".uncertainty.database",
+    "FlightLog": ".io._logtypes",
+    "LogChannel": ".io._logtypes",
+    "LogEvent": ".io._logtypes",
+    "ChannelListing": ".io.logs",
+    "list_channels": ".io.logs",
+    "read_log": ".io.logs",
+    "ChannelQuality": ".io.quality",
+    "DataQualityReport": ".io.quality",
+    "check_data_quality": ".io.quality",
+    "coefficients_from_data": ".models.coefficients",
+    "CompatibilityResult": ".estimation.compatibility",
+    "check_compatibility": ".estimation.compatibility",
+    "ExperimentDesign": ".uncertainty.design",
+    "design_experiment": ".uncertainty.design",
+    "FilterResult": ".estimation.filtering",
+    "filter_states": ".estimation.filtering",
+    "ChannelFrequencyResponse": ".frequency.response",
+    "FrequencyResponseResult": ".frequency.response",
+    "frequency_response": ".frequency.response",
+    "FrequencyDomainResult": ".frequency.frequency_domain",
+    "identify_frequency_domain": ".frequency.frequency_domain",
+    "CompositeResponse": ".frequency.frequency_id",
+    "ResponseChannel": ".frequency.frequency_id",
+    "TransferFunctionFit": ".frequency.frequency_id",
+    "composite_response": ".frequency.frequency_id",
+    "fit_transfer_function": ".frequency.frequency_id",
+    "BandwidthResult": ".frequency.handling_qualities",
+    "EquivalentSystemFit": ".frequency.handling_qualities",
+    "HandlingQualitiesLevel": ".frequency.handling_qualities",
+    "bandwidth_level": ".frequency.handling_qualities",
+    "short_period_level": ".frequency.handling_qualities",
+    "Margins": ".frequency.handling_qualities",
+    "bandwidth": ".frequency.handling_qualities",
+    "equivalent_system": ".frequency.handling_qualities",
+    "stability_margins": ".frequency.handling_qualities",
+    "IdentificationResult": ".estimation.identification",
+    "identify": ".estimation.identification",
+    "EnsembleRun": ".uncertainty.inference",
+    "InferenceResult": ".uncertainty.inference",
+    "combine_ensembles": ".uncertainty.inference",
+    "infer": ".uncertainty.inference",
+    "infer_ensemble": ".uncertainty.inference",
+    "simulate_rk4": ".models.jax_backend",
+    "Chirp": ".uncertainty.maneuvers",
+    "Doublet": ".uncertainty.maneuvers",
+    "ManeuverFamily": ".uncertainty.maneuvers",
+    "Multisine": ".uncertainty.maneuvers",
+    "OrthogonalMultisine": ".uncertainty.maneuvers",
+    "orthogonal_multisine": ".uncertainty.maneuvers",
+    "BatchSimulation": ".models.model",
+    "Model": ".models.model",
+    "SimulationResult": ".models.model",
+    "SimulatorModel": ".models.model",
+    "HalfNormal": ".uncertainty.priors",
+    "LogUniform": ".uncertainty.priors",
+    "Normal": ".uncertainty.priors",
+    "Prior": ".uncertainty.priors",
+    "Uniform": ".uncertainty.priors",
+    "PropagationBatch": ".uncertainty.propagation",
+    "PropagationResult": ".uncertainty.propagation",
+    "VectorPropagationResult": ".uncertainty.propagation",
+    "combine_batches": ".uncertainty.propagation",
+    "propagate": ".uncertainty.propagation",
+    "propagate_batch": ".uncertainty.propagation",
+    "RegressionResult": ".estimation.regression",
+    "StepwiseResult": ".estimation.regression",
+    "StepwiseStep": ".estimation.regression",
+    "candidate_pool": ".estimation.regression",
+    "equation_error": ".estimation.regression",
+    "spline_terms": ".estimation.regression",
+    "stepwise_regression": ".estimation.regression",
+    "report": ".reports.reporting",
+    "resample": ".io.resampling",
+    "ChainState": ".uncertainty.sampler",
+    "SamplerRun": ".uncertainty.sampler",
+    "autocorrelation_time": ".uncertainty.sampler",
+    "effective_sample_size": ".uncertainty.sampler",
+    "ensemble_sampler": ".uncertainty.sampler",
+    "split_r_hat": ".uncertainty.sampler",
+    "ManeuverWindow": ".io.segmentation",
+    "SegmentationResult": ".io.segmentation",
+    "segment": ".io.segmentation",
+    "SensitivityResult": ".uncertainty.sensitivity",
+    "sensitivities": ".uncertainty.sensitivity",
+    "differentiate": ".io.smoothing",
+    "optimal_cutoff": ".io.smoothing",
+    "smooth": ".io.smoothing",
+    "OutputMetrics": ".uncertainty.validation",
+    "ValidationResult": ".uncertainty.validation",
+    "validate": ".uncertainty.validation",
 }
 
 
@@ -244,6 +247,8 @@ if not TYPE_CHECKING:  # type checkers see the imports above, and no catch-all
         from importlib import import_module
 
         module = _LAZY.get(name)
+        if module is None and f"aeroid.{name}" in _aliases.MOVED:
+            return import_module(f"aeroid.{name}")  # an old module path
         if module is None:
             raise AttributeError(f"module 'aeroid' has no attribute {name!r}")
         value = getattr(import_module(module, __name__), name)

@@ -1,5 +1,5 @@
 """Argument checks shared by every module, below `FlightData` (a leaf: it imports
-only the errors), so that the modules `aeroid.data` itself uses can check too."""
+only the errors), so that the modules `aeroid.io.data` itself uses can check too."""
 
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ With ``end_correction=True`` the sum becomes the trapezoidal rule: the two end
 samples count half, which removes the O(Δt) error the Euler sum makes on a
 record that does not start and end at zero. The fourth-order correction
 (SIDPAC's cubic-interpolation finite Fourier integral: the exact transform of
-the local cubic through four samples) is `aeroid.frequency_domain`'s
+the local cubic through four samples) is `aeroid.frequency.frequency_domain`'s
 piecewise-cubic transform, built on this sum; it is not repeated here.
 """
 

@@ -11,12 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from . import _html
-from ._database_export import replace_aerodynamics
-from ._html import figure_png, markdown_to_html
-from ._prediction import holdout_record
+from ._aliases import legacy_name
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._units import parameter_units
+from .reports import html as _html
+from .reports.html import figure_png, markdown_to_html
+from .uncertainty.database_export import replace_aerodynamics
+from .uncertainty.prediction import holdout_record
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -28,6 +29,7 @@ __all__ = [
     "figure_png",
     "fmt",
     "holdout_record",
+    "legacy_name",
     "markdown_table",
     "markdown_to_html",
     "parameter_units",
@@ -44,6 +46,6 @@ def atomic_write(path: Path, data: bytes) -> None:
 def figure(rows: int, cols: int = 1, *, height: float | None = None) -> tuple[Figure, Any]:
     """A report figure with `rows` x `cols` axes in the library's layout (matplotlib
     is imported on first use)."""
-    from .plotting import _figure
+    from .reports.plotting import figure
 
-    return _figure(rows, cols) if height is None else _figure(rows, cols, height=height)
+    return figure(rows, cols) if height is None else figure(rows, cols, height=height)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from aeroid import aircraft
+from aeroid.models import aircraft
 
 TERMS = {
     "CD": ["0", "alpha"],

@@ -5,7 +5,7 @@ sines (no wind: air and ground velocity agree), so the body-axis velocity, its
 derivative and the Euler-angle rates are known in closed form; the rates and
 specific forces follow from the inverse kinematics, the altitude from a
 tight-tolerance quadrature of its rate. Sensor errors follow the convention of
-`aeroid.compatibility`: ``x_m = (1 + k_x) x + b_x`` for the inertial
+`aeroid.estimation.compatibility`: ``x_m = (1 + k_x) x + b_x`` for the inertial
 sensors, ``y_m(t) = (1 + k_y) y(t - tau_y) + b_y`` for the others.
 """
 

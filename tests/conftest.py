@@ -14,7 +14,7 @@ import pytest  # noqa: E402
 
 matplotlib.use("Agg")
 
-from aeroid import catalog  # noqa: E402
+from aeroid.models import catalog  # noqa: E402
 
 
 @pytest.fixture

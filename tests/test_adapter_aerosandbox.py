@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 asb = pytest.importorskip("aerosandbox")
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 jsbsim = pytest.importorskip("jsbsim")
 

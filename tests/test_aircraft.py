@@ -1,4 +1,4 @@
-"""Standard aircraft models (`aeroid.aircraft`) against textbook closed forms."""
+"""Standard aircraft models (`aeroid.models.aircraft`) against textbook closed forms."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import pytest
 from _aircraft_data import BASE, LAT, LONG
 
 import aeroid
-from aeroid import ModelDefinitionError, SimulationError, _compiled
-from aeroid.aircraft import (
+from aeroid import ModelDefinitionError, SimulationError
+from aeroid.models import compiled as _compiled
+from aeroid.models.aircraft import (
     AircraftConstants,
     AircraftModel,
     isa_density,
@@ -684,7 +685,7 @@ stages:
 
 
 def test_a_campaign_config_defines_an_aircraft_model_by_name(tmp_path):
-    from aeroid.aircraft import model_from_config
+    from aeroid.models.aircraft import model_from_config
     from aeroid.pipeline.config import load_config
     from aeroid.pipeline.runner import plan, resolve_model
 
@@ -766,7 +767,7 @@ def test_trim_and_linearize_limit_blas_threads():
 
 def test_decoupled_nonlinear_model_translates_to_jax():
     pytest.importorskip("jax")
-    from aeroid.aircraft import decoupled
+    from aeroid.models.aircraft import decoupled
 
     both = decoupled(longitudinal(CONSTANTS, V0=V0), lateral(CONSTANTS, V0=V0, alpha0=0.05))
     t = np.linspace(0.0, 2.0, 101)
@@ -780,7 +781,7 @@ def test_decoupled_nonlinear_model_translates_to_jax():
 
 
 def test_decoupled_model_stacks_the_two_sets_of_equations_exactly():
-    from aeroid.aircraft import decoupled, model_from_config
+    from aeroid.models.aircraft import decoupled, model_from_config
 
     lon = longitudinal_linear(V0=V0, parameters={"Z_alpha": -1.2, "M_alpha": -4.0, "M_q": -2.0})
     lat = lateral_linear(V0=V0, alpha0=0.05, theta0=0.04, parameters={"L_p": -8.0, "N_r": -0.9})
@@ -851,7 +852,7 @@ def test_parameter_units_follow_from_the_equations_and_regressors():
     assert cl.parameter_units["CL_alpha_alpha"] == "1/rad²"
     assert cl.parameter_units["Cm_delta_e"] == "1/rad"
     assert set(cl.parameter_units) == set(cl.parameters)
-    both = aeroid.aircraft.decoupled(lon, lat)
+    both = aeroid.models.aircraft.decoupled(lon, lat)
     assert dict(both.parameter_units) == {**u, **lat.parameter_units}
 
 
@@ -986,7 +987,7 @@ def test_a_longitudinal_model_needs_no_lateral_constants():
         six_dof(lon_only, V0=V0)
     with pytest.raises(ModelDefinitionError, match="Iyy: required"):
         AircraftConstants(mass=1.0, S=1.0, cbar=1.0, rho=1.0)
-    from aeroid.aircraft import model_from_config
+    from aeroid.models.aircraft import model_from_config
 
     cfg = {k: lon_only_value for k, lon_only_value in (("mass", 1.0), ("Iyy", 2.0), ("S", 1.0))}
     with pytest.raises(ModelDefinitionError, match="cbar"):

@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from aeroid import FlightData, IdentificationError, Model, catalog, identify
+from aeroid import FlightData, IdentificationError, Model, identify
 from aeroid.errors import ConfigError
+from aeroid.models import catalog
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 TRUTH = catalog.SHORT_PERIOD_TRUTH
@@ -66,7 +67,7 @@ def test_a_violated_bound_is_met_exactly_and_reported_active(sp_fits):
 
 
 def test_every_trial_point_of_a_bounded_fit_lies_inside_the_box(monkeypatch, sp_noisy):
-    from aeroid import _output_error
+    from aeroid.estimation import _output_error
 
     seen = []
     evaluate = _output_error._Problem.evaluate
@@ -464,7 +465,7 @@ def test_jax_gradient_refuses_integrator_options_it_cannot_honour(sp_noisy):
 
 def test_jax_gradient_honours_substeps():
     jnp = pytest.importorskip("jax.numpy")
-    from aeroid import _jax
+    from aeroid.models import jax_compiled as _jax
 
     def lag(t, x, u, p):
         return jnp.array([-p["k"] * x[0] + p["b"] * u[0]])

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeroid import catalog, identify
+from aeroid import identify
+from aeroid.models import catalog
 
 NAMES = list(catalog.SHORT_PERIOD_TRUTH)
 TRUTH = np.array(list(catalog.SHORT_PERIOD_TRUTH.values()))

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid.catalog import first_order
-from aeroid.channel_map import (
+from aeroid.errors import AeroidError, ChannelError, DataFormatError
+from aeroid.io.channel_map import (
     UNIT_CONVERSIONS,
     ChannelMap,
     ChannelSpec,
@@ -19,8 +19,8 @@ from aeroid.channel_map import (
     flight_windows,
     load_mapped,
 )
-from aeroid.data import FlightData
-from aeroid.errors import AeroidError, ChannelError, DataFormatError
+from aeroid.io.data import FlightData
+from aeroid.models.catalog import first_order
 
 ROOT = Path(__file__).resolve().parents[1]
 PX4 = ROOT / "tests" / "data" / "px4" / "sample_log_small.ulg"

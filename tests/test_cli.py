@@ -24,8 +24,8 @@ import pytest
 from click.testing import CliRunner
 from test_pipeline_store import flip_a_bit, member_bytes
 
-from aeroid.catalog import short_period_flight
 from aeroid.cli import main
+from aeroid.models.catalog import short_period_flight
 from aeroid.pipeline import open_store
 
 USER_PIPELINE = textwrap.dedent(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from aeroid import ChannelError, DataFormatError, FlightData
-from aeroid.aircraft import AircraftConstants
-from aeroid.coefficients import coefficients_from_data
+from aeroid.models.aircraft import AircraftConstants
+from aeroid.models.coefficients import coefficients_from_data
 
 DT = 0.01
 T = np.arange(0.0, 8.0 + DT / 2, DT)

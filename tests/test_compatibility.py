@@ -10,9 +10,9 @@ from _compat_flight import BIASES, NOISE, G, simulated_flight, truth
 from matplotlib.figure import Figure
 
 import aeroid
-from aeroid import compatibility as compat
-from aeroid.compatibility import DEFAULT_ESTIMATE, SENSOR_PARAMETERS, check_compatibility
 from aeroid.errors import ChannelError, DataFormatError, IdentificationError
+from aeroid.estimation import compatibility as compat
+from aeroid.estimation.compatibility import DEFAULT_ESTIMATE, SENSOR_PARAMETERS, check_compatibility
 
 DURATION, RATE = 12.0, 25.0
 INJECTED = {**BIASES, "k_alpha": 0.08, "tau_alpha": 0.05}
@@ -24,7 +24,7 @@ def _numpy_simulation():
     # The compiled simulation path is checked once, in its own test; here the
     # numpy path keeps the fits free of compilation time.
     try:
-        from aeroid import _compiled
+        from aeroid.models import compiled as _compiled
     except ImportError:
         yield
         return
@@ -273,7 +273,7 @@ def test_model_broadcasts_over_a_batch():
 
 @pytest.mark.slow
 def test_compiled_simulation_agrees_with_numpy():
-    _compiled = pytest.importorskip("aeroid._compiled")
+    _compiled = pytest.importorskip("aeroid.models.compiled")
     data = simulated_flight(8.0, 25.0, errors=UNSHIFTED, seed=8)
     names = ["b_p", "b_q", "b_az", "b_alpha"]
     # many draws: the numpy path's Monte Carlo input-noise share, good to a few per cent
@@ -570,7 +570,7 @@ def test_input_noise_level_is_bounded_by_the_quietest_band():
 
 
 def test_residuals_lower_the_input_noise_only_beyond_chance():
-    from aeroid._compat_input_noise import _allowed_scale
+    from aeroid.estimation._compat_input_noise import _allowed_scale
 
     rng = np.random.default_rng(0)
     # two outputs whose input-noise sums of squares are 100 chi2_4 / 4 and 10 chi2_50 / 50

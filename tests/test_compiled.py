@@ -1,4 +1,4 @@
-"""Compiled simulation of numpy-written nonlinear models (aeroid._compiled).
+"""Compiled simulation of numpy-written nonlinear models (aeroid.models.compiled).
 
 The compiled RK4 must reproduce the numpy RK4 (states, outputs), its
 sensitivities must match finite differences of the numpy path,
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import _compiled
+from aeroid.models import compiled as _compiled
 
 pytest.importorskip("jax")
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import _criteria as crit
+from aeroid.frequency import _criteria as crit
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "handling-qualities.md"
 

@@ -336,7 +336,8 @@ def test_time_jitter_below_one_percent_is_uniform_sampling_with_a_note():
 
 
 def test_jittered_record_reaches_the_frequency_tools_and_larger_jitter_is_refused():
-    from aeroid import catalog, composite_response, frequency_response
+    from aeroid import composite_response, frequency_response
+    from aeroid.models import catalog
 
     rng = np.random.default_rng(1)
     sp = catalog.short_period_flight(duration=20.0, seed=0)
@@ -367,7 +368,7 @@ def test_sidpac_example_7p2_time_stamps_are_taken_as_uniform():
 
 
 def test_to_csv_round_trips_exactly_and_refuses_unwritable_names(tmp_path):
-    from aeroid import catalog
+    from aeroid.models import catalog
 
     data = catalog.short_period_flight(seed=3, duration=2.0)
     path = data.to_csv(tmp_path / "f.csv")
@@ -403,7 +404,7 @@ def test_a_file_declaring_more_than_the_limit_is_refused_before_reading(
     tmp_path, monkeypatch, suffix
 ):
     # a small compressed file can declare gigabytes: the declared size is checked first
-    import aeroid._table_files as table_files
+    import aeroid.io._table_files as table_files
 
     n = 2000
     t = np.arange(n) * 0.01

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeroid.database import AeroDatabase, FlightCoefficients, aerodynamic_database
 from aeroid.errors import DataFormatError, IdentificationError
+from aeroid.uncertainty.database import AeroDatabase, FlightCoefficients, aerodynamic_database
 
 # truths over alpha (rad) and altitude (m): a lift curve with curvature, a roll damping
 # falling with altitude, a constant yaw damping (lateral terms, not the short period)
@@ -141,7 +141,7 @@ def test_bad_input_names_flight_and_term() -> None:
 def _c172x_with(section: str, root: Path) -> str:
     """A copy of JSBSim's c172x under `root` with its aerodynamics replaced."""
     jsbsim = pytest.importorskip("jsbsim")
-    from aeroid._database_export import replace_aerodynamics
+    from aeroid.uncertainty.database_export import replace_aerodynamics
 
     src = Path(jsbsim.get_default_root_dir())
     for sub in ("engine", "systems"):

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("jsbsim")
 
-from aeroid.database import FlightCoefficients, aerodynamic_database
+from aeroid.uncertainty.database import FlightCoefficients, aerodynamic_database
 
 # the c172x's tables (c172x.xml): constants, Cn_beta the slope of its beta table,
 # CL the CLwbh table at stall hysteresis 0. Cm_alpha is not among them: the slope of

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from aeroid.database import AeroDatabase
 from aeroid.pipeline import open_store, plan, run
 from aeroid.pipeline.synthetic import _truth
+from aeroid.uncertainty.database import AeroDatabase
 
 
 def _config(tmp: Path, n: int, extra: str = "") -> Path:

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import ChannelError, FlightData, IdentificationError, Model, catalog
-from aeroid.design import ExperimentDesign, design_experiment
-from aeroid.maneuvers import Chirp, Doublet, Multisine
+from aeroid import ChannelError, FlightData, IdentificationError, Model
+from aeroid.models import catalog
+from aeroid.uncertainty.design import ExperimentDesign, design_experiment
+from aeroid.uncertainty.maneuvers import Chirp, Doublet, Multisine
 
 TRUTH = dict(catalog.SHORT_PERIOD_TRUTH)
 NOISE = {"alpha": 0.005, "q": 0.01}

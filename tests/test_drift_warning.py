@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid._noise_model import _warn_unabsorbed_drift
-from aeroid._output_error import _combinations, _Manoeuvre
+from aeroid.estimation._noise_model import _warn_unabsorbed_drift
+from aeroid.estimation._output_error import _combinations, _Manoeuvre
 
 
 def _manoeuvre(n: int, x0_free: list[int], bias_free: list[int]) -> _Manoeuvre:

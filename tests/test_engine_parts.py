@@ -108,13 +108,15 @@ def test_options_built_from_a_signature_take_its_types_and_refuse_other_keys():
         validate_options(freq, {"nprseg": 256}, source="c.yaml", where="stages.frequency")
     # a keyword the function does not take, or typed `Any` without a type given, is refused
     with pytest.raises(PipelineError, match="takes no keyword 'nperseg'"):
-        library_fields("aeroid.validation:validate", "nperseg")
+        library_fields("aeroid.uncertainty.validation:validate", "nperseg")
     with pytest.raises(PipelineError, match="'x0' is typed 'Any'"):
-        library_fields("aeroid.validation:validate", "x0")
+        library_fields("aeroid.uncertainty.validation:validate", "x0")
     with pytest.raises(PipelineError, match="not listed"):
-        library_fields("aeroid.validation:validate", "confidence", whiteness_lags=Field(None))
+        library_fields(
+            "aeroid.uncertainty.validation:validate", "confidence", whiteness_lags=Field(None)
+        )
     made = library_fields(
-        "aeroid.validation:validate", "x0", x0=(dict[str, float] | None, Field(None))
+        "aeroid.uncertainty.validation:validate", "x0", x0=(dict[str, float] | None, Field(None))
     )
     assert made(x0={"q": 0.0}).x0 == {"q": 0.0}
 
@@ -150,7 +152,7 @@ def test_infer_holds_the_parameters_it_does_not_sample_at_the_fit(tmp_path):
     fit = store.load(tasks["identify"].key, "identify")
     post = store.load(tasks["infer"].key, "infer")
     assert post.fixed["M_delta"] == pytest.approx(fit.parameters["M_delta"], rel=1e-12)
-    from aeroid.catalog import short_period
+    from aeroid.models.catalog import short_period
 
     assert post.fixed["M_delta"] != pytest.approx(short_period().parameters["M_delta"])
 
@@ -338,7 +340,7 @@ def test_a_report_written_by_a_run_is_rewritten_by_the_next(tmp_path):
 
 
 def test_a_full_disk_names_the_report_and_still_prints_the_table(tmp_path, monkeypatch):
-    from aeroid import _html
+    from aeroid.reports import html as _html
 
     def full(path, data):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
@@ -408,7 +410,7 @@ def test_a_forking_run_imports_its_stages_libraries_before_the_workers_fork(tmp_
         "if {off}:\n"
         "    _process.share_imports = lambda libraries: None\n"
         f"run({str(cfg)!r}, workers=2)\n"
-        "print(sorted(m for m in ('aeroid.identification', 'aeroid.validation', "
+        "print(sorted(m for m in ('aeroid.estimation.identification', 'aeroid.uncertainty.validation', "
         "'scipy.stats') if m in sys.modules))\n"
     )
     seen = {}
@@ -423,4 +425,7 @@ def test_a_forking_run_imports_its_stages_libraries_before_the_workers_fork(tmp_
         seen[off] = out.stdout.strip().splitlines()[-1]
         (tmp_path / "store").rename(tmp_path / f"store_{off}")
     assert seen[True] == "[]"  # without it, the workers import them, each on its own
-    assert seen[False] == "['aeroid.identification', 'aeroid.validation', 'scipy.stats']"
+    assert (
+        seen[False]
+        == "['aeroid.estimation.identification', 'aeroid.uncertainty.validation', 'scipy.stats']"
+    )

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from _aircraft_data import LATERAL_LINEAR as LATERAL
 
-from aeroid import FlightData, IdentificationError, Model, catalog, identify
-from aeroid.aircraft import lateral_linear
+from aeroid import FlightData, IdentificationError, Model, identify
 from aeroid.errors import ChannelError
-from aeroid.identification import _equation_error_start
+from aeroid.estimation.identification import _equation_error_start
+from aeroid.models import catalog
+from aeroid.models.aircraft import lateral_linear
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 TRUTH = catalog.SHORT_PERIOD_TRUTH

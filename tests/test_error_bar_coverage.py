@@ -153,7 +153,7 @@ def test_recolouring_is_the_exact_ar1_sandwich() -> None:
     # G'G = W' S W with S the AR(1) correlation over the innovation variance
     from scipy.linalg import toeplitz
 
-    from aeroid._noise_model import _recolour
+    from aeroid.estimation._noise_model import _recolour
 
     rng = np.random.default_rng(0)
     n, phi = 80, np.array([0.99, -0.4])
@@ -168,7 +168,7 @@ def test_reml_criterion_matches_the_dense_formula() -> None:
     # (N - r) log RSS + log det S + log det X'S^-1 X for S = AR(1) + white, dense
     from scipy.linalg import toeplitz
 
-    from aeroid._noise_model import _arw_criterion, _arw_prepare
+    from aeroid.estimation._noise_model import _arw_criterion, _arw_prepare
 
     rng = np.random.default_rng(1)
     n, phi, ratio, rank = 60, 0.95, 0.3, 2

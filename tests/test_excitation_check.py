@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 from aeroid.pipeline.flight_status import flight_status
 
 
@@ -52,7 +52,7 @@ def test_the_ratio_is_the_rms_of_the_fitted_response_over_that_of_the_residual()
 
 
 def test_one_excited_output_is_enough() -> None:
-    from aeroid._excitation import warn_unexcited
+    from aeroid.estimation._excitation import warn_unexcited
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")

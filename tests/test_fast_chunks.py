@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 from test_fast_shooting import FIT, TRUTH, X0, _controls, _model
 
-from aeroid import _batch_function, _shooting
-from aeroid._batch_function import BatchFunction
+from aeroid.models import _batch_function
+from aeroid.models import shooting as _shooting
+from aeroid.models._batch_function import BatchFunction
 
 
 def _f(t: Any, x: Any, u: Any, p: Any) -> Any:
@@ -63,7 +64,13 @@ def test_chord_sweeps_give_the_jacobian_of_a_fresh_linearisation() -> None:
 
 
 def test_compat_model_takes_fixed_parameters_as_numbers_with_the_same_values() -> None:
-    from aeroid._compat_model import _WIND, OUTPUT_CHANNELS, STATES, _kinematics, _sensors
+    from aeroid.estimation._compat_model import (
+        _WIND,
+        OUTPUT_CHANNELS,
+        STATES,
+        _kinematics,
+        _sensors,
+    )
 
     rng = np.random.default_rng(3)
     n = 50
@@ -127,7 +134,8 @@ def test_a_compiled_fit_serves_its_result_simulation_without_stepping(monkeypatc
     from test_fast_shooting import _flight
 
     import aeroid
-    from aeroid import _compiled, _integrate
+    from aeroid.models import compiled as _compiled
+    from aeroid.models import integration as _integrate
 
     model = _model("compiled_result")
     data = _flight(model, seed=5)

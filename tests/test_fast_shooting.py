@@ -1,4 +1,4 @@
-"""Newton's method over the whole RK4 record (aeroid._shooting, issue 47): the same
+"""Newton's method over the whole RK4 record (aeroid.models.shooting, issue 47): the same
 rollout as the step-by-step RK4, its sensitivities, and the numpy first fit."""
 
 from __future__ import annotations
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import _compiled, _shooting
-from aeroid._integrate import auto_substeps
+from aeroid.models import compiled as _compiled
+from aeroid.models import shooting as _shooting
+from aeroid.models.integration import auto_substeps
 
 # A lateral-directional nonlinear model (not the short period): sideslip, roll and yaw
 # rates and bank angle, with an aileron and a rudder and a time-varying airspeed.
@@ -219,7 +220,7 @@ def test_the_result_simulation_reuses_the_last_rollout() -> None:
     assert known is not None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ref = aeroid._integrate.rk4(model._dynamics_batch, t, X0[:, None], u[None], P, 2)
+        ref = aeroid.models.integration.rk4(model._dynamics_batch, t, X0[:, None], u[None], P, 2)
     np.testing.assert_allclose(known, ref.states[0], rtol=1e-12, atol=1e-15)
     P["Lp"] = np.array([-2.5])  # another point: not this rollout
     assert _shooting.last_states(model, t, X0[:, None], u[None], P, 2) is None
@@ -238,7 +239,7 @@ def test_auto_substeps_are_those_of_the_compiled_path() -> None:
 @pytest.mark.parametrize("n", [1, 2, 7, 1000])
 @pytest.mark.parametrize("phi", [0.0, 0.6, -0.9, 0.995])
 def test_blocked_ar1_recursion_is_the_plain_loop(n: int, phi: float) -> None:
-    from aeroid._noise_model import _ar1_recursion
+    from aeroid.estimation._noise_model import _ar1_recursion
 
     r = np.random.default_rng(n).standard_normal((n, 3))
     ref = np.empty_like(r)

@@ -11,8 +11,9 @@ import pytest
 import scipy.linalg
 
 import aeroid
-from aeroid import FlightData, IdentificationError, catalog
-from aeroid._filter_error import identify_filter_error
+from aeroid import FlightData, IdentificationError
+from aeroid.estimation._filter_error import identify_filter_error
+from aeroid.models import catalog
 
 NOISE = {"alpha": 0.005**2, "q": 0.01**2}
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]

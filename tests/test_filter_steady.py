@@ -9,10 +9,11 @@ import scipy.linalg
 from test_filter_error import NAMES, NOISE, _turbulent_flight
 
 import aeroid
-from aeroid import IdentificationError, Model, catalog
-from aeroid._filter_steady import steady_pass
-from aeroid.catalog import _short_period_dynamics
-from aeroid.filtering import build_problem, run_filter
+from aeroid import IdentificationError, Model
+from aeroid.estimation._filter_steady import steady_pass
+from aeroid.estimation.filtering import build_problem, run_filter
+from aeroid.models import catalog
+from aeroid.models.catalog import _short_period_dynamics
 
 PROCESS = {"q": 1e-3}
 
@@ -116,8 +117,8 @@ def test_gain_option_is_checked(turbulent):
 def test_the_compiled_predictor_is_the_numpy_one(monkeypatch):
     from _aircraft_data import BASE, LAT
 
-    from aeroid import _compiled
-    from aeroid.aircraft import AircraftConstants, lateral
+    from aeroid.models import compiled as _compiled
+    from aeroid.models.aircraft import AircraftConstants, lateral
 
     model = lateral(AircraftConstants(**BASE, Ixz=80.0, rho=1.225), V0=53.6, parameters=LAT)
     t = np.arange(0.0, 8.0, 0.02)

@@ -17,8 +17,9 @@ import pytest
 from _aircraft_data import BASE, LAT
 
 import aeroid
-from aeroid import FlightData, catalog
-from aeroid.aircraft import AircraftConstants, lateral
+from aeroid import FlightData
+from aeroid.models import catalog
+from aeroid.models.aircraft import AircraftConstants, lateral
 
 V0 = 53.6
 TERMS = {

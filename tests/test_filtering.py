@@ -10,8 +10,16 @@ import pytest
 import scipy.linalg
 
 import aeroid
-from aeroid import FilterError, FlightData, Model, catalog
-from aeroid.filtering import FilterResult, _chol, _Failure, build_problem, filter_states, run_filter
+from aeroid import FilterError, FlightData, Model
+from aeroid.estimation.filtering import (
+    FilterResult,
+    _chol,
+    _Failure,
+    build_problem,
+    filter_states,
+    run_filter,
+)
+from aeroid.models import catalog
 
 NOISE = {"alpha": 0.005**2, "q": 0.01**2}
 
@@ -460,7 +468,7 @@ def test_a_model_is_required(sp_noisy, model):
 
 def _fast_and_stepped(monkeypatch, *args, **kwargs):
     """filter_states through the block Riccati solution and through the step loop."""
-    import aeroid.filtering as filtering
+    import aeroid.estimation.filtering as filtering
 
     used = []
     fast = filtering._riccati_fast
@@ -531,7 +539,7 @@ def test_block_riccati_reaches_the_scalar_steady_state(monkeypatch):
 @pytest.mark.parametrize("K", [1, 2, 5, 16, 17, 101])
 @pytest.mark.parametrize("quadratic", [False, True])
 def test_affine_scan_equals_the_loop(K, quadratic):
-    from aeroid.filtering import _affine_scan
+    from aeroid.estimation.filtering import _affine_scan
 
     rng = np.random.default_rng(K)
     B, n = 2, 3
@@ -550,7 +558,7 @@ def test_affine_scan_equals_the_loop(K, quadratic):
 
 @pytest.mark.parametrize("method", ["ekf", "ukf"])
 def test_compiled_propagation_equals_numpy(monkeypatch, method):
-    from aeroid import _compiled
+    from aeroid.models import compiled as _compiled
 
     if not _compiled.available(
         _pendulum(),
@@ -568,7 +576,7 @@ def test_compiled_propagation_equals_numpy(monkeypatch, method):
         x0=[0.7, 0.0],
         P0=[0.05, 0.05],
     )
-    from aeroid import _ekf_compiled
+    from aeroid.estimation import _ekf_compiled
 
     used = []
     whole = _ekf_compiled.ekf_pass
@@ -597,7 +605,8 @@ def test_a_one_off_nonlinear_pass_does_not_wait_for_a_compiler(monkeypatch):
     pytest.importorskip("jax")
     data, _ = _pendulum_data()
     kw = dict(process_noise={"om": 1e-4}, measurement_noise={"s": 0.02**2}, x0=[0.7, 0.0])
-    from aeroid import _compiled, _ekf_compiled
+    from aeroid.estimation import _ekf_compiled
+    from aeroid.models import compiled as _compiled
 
     used = []
     whole = _ekf_compiled.ekf_pass

@@ -10,9 +10,10 @@ import scipy.signal
 from _sidpac_files import sidpac_mat
 
 import aeroid
-from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError, Model, catalog
-from aeroid.frequency import FrequencyResponseResult, frequency_response
-from aeroid.maneuvers import orthogonal_multisine
+from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError, Model
+from aeroid.frequency.response import FrequencyResponseResult, frequency_response
+from aeroid.models import catalog
+from aeroid.uncertainty.maneuvers import orthogonal_multisine
 
 TRUTH = dict(catalog.SHORT_PERIOD_TRUTH)
 
@@ -515,7 +516,7 @@ def test_noise_free_multisine_band_resolves_many_frequencies():
 @pytest.mark.parametrize(("n_t", "nperseg"), [(1501, 256), (1000, 255), (64, 64), (100, 8)])
 def test_spectral_matrix_matches_scipy_csd(n_t: int, nperseg: int) -> None:
     """The numpy Welch cross-spectra equal `scipy.signal.csd` with the defaults used."""
-    from aeroid.frequency import _spectral_matrix
+    from aeroid.frequency.response import _spectral_matrix
 
     x = np.random.default_rng(n_t).standard_normal((4, n_t)) + 3.0
     f0, s0 = scipy.signal.csd(
@@ -674,7 +675,7 @@ def test_twin_otter_pitch_record_agrees_with_the_whole_record_ratio():
 
 
 def test_one_response_type_for_every_frequency_tool():
-    from aeroid.frequency_id import ResponseChannel
+    from aeroid.frequency.frequency_id import ResponseChannel
 
     model = catalog.short_period(TRUTH)
     data = _noise_free_multisine(model, 20.0)

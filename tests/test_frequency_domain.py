@@ -11,12 +11,12 @@ import pytest
 
 import aeroid
 from aeroid import ChannelError, FlightData, IdentificationError, Model
-from aeroid.aircraft import lateral_linear
-from aeroid.frequency_domain import (
+from aeroid.frequency.frequency_domain import (
     FrequencyDomainResult,
     _transform,
     identify_frequency_domain,
 )
+from aeroid.models.aircraft import lateral_linear
 
 SHORT = {"Z_alpha": -1.2, "Z_delta": -0.1, "M_alpha": -6.0, "M_q": -2.0, "M_delta": -9.0}
 UNSTABLE = {**SHORT, "M_alpha": 4.0}  # eigenvalues +0.44 and -3.64 rad/s

@@ -459,7 +459,7 @@ def test_frequency_paths_do_not_import_scipy_signal() -> None:
 import sys
 import numpy as np
 import aeroid
-from aeroid.aircraft import lateral_linear
+from aeroid.models.aircraft import lateral_linear
 fs = 100.0
 t = np.arange(3001) / fs
 u = np.sin(0.3 * 30.0 / np.log(80.0) * (np.exp(np.log(80.0) * t / 30.0) - 1.0))
@@ -494,7 +494,7 @@ print(sorted(m for m in sys.modules if m.startswith("scipy.signal")))
 def test_composite_coherence_is_at_most_one_by_construction():
     # Two windows whose spectra a per-element weighting combined into γ² = 1.16:
     # G1 = [[1, 1], [1, 1]] (γ² = 1), G2 = [[100, 0.1], [0.1, 0.01]] (γ² = 0.01).
-    from aeroid.frequency_id import _combine, _condition
+    from aeroid.frequency.frequency_id import _combine, _condition
 
     g1 = np.array([[1.0, 1.0], [1.0, 1.0]], dtype=complex)
     g2 = np.array([[100.0, 0.1], [0.1, 0.01]], dtype=complex)
@@ -606,7 +606,7 @@ def _first_order_record(seed: int, noise: float, window: bool = True) -> FlightD
 
 
 def test_excited_band_follows_the_input():
-    from aeroid.frequency_id import _excited_band
+    from aeroid.frequency.frequency_id import _excited_band
 
     lo, hi = _excited_band(_first_order_record(0, 0.0, window=False), "u")
     assert lo == pytest.approx(2 * np.pi * 8 / 40.0, rel=1e-9)

@@ -182,7 +182,7 @@ _HOS = (_HOS_NUM, _HOS_DEN, 0.261)
 
 def test_global_start_leaves_the_right_half_plane_minimum():
     from aeroid import fit_transfer_function
-    from aeroid.handling_qualities import _exact_channel
+    from aeroid.frequency.handling_qualities import _exact_channel
 
     ch = _exact_channel(_HOS, (0.1, 10.0))
     single = fit_transfer_function(ch, numerator_order=1, denominator_order=2)

@@ -295,7 +295,7 @@ def test_a_csv_with_many_columns_reports_its_duplicates(tmp_path):
 
 def test_a_map_unit_that_contradicts_the_files_own_is_refused():
     from aeroid import FlightData
-    from aeroid.channel_map import apply_channel_map
+    from aeroid.io.channel_map import apply_channel_map
 
     t = np.arange(10) * 0.1
     data = FlightData(t, {"gyro_y": np.sin(t)}, {"gyro_y": "rad/s"}, {"source": "log.ulg"})
@@ -309,8 +309,8 @@ def test_a_map_unit_that_contradicts_the_files_own_is_refused():
 
 
 def test_load_mapped_and_the_config_pass_the_external_data_opt_in(tmp_path):
-    from aeroid.channel_map import load_mapped
     from aeroid.errors import ChannelError
+    from aeroid.io.channel_map import load_mapped
 
     path, n = _log_with_external(tmp_path)
     with pytest.warns(UserWarning, match="allow_external_data"), pytest.raises(ChannelError):

@@ -10,7 +10,7 @@ import zlib
 import numpy as np
 import pytest
 
-import aeroid._table_files as table_files
+import aeroid.io._table_files as table_files
 from aeroid import load_flight_test
 from aeroid.errors import ChannelError, DataFormatError
 
@@ -230,7 +230,7 @@ def test_aeroid_status_ends_on_a_glob_through_a_symlink_loop(tmp_path):
 
 def test_the_config_check_names_hdf5_channels_without_reading_them(tmp_path, monkeypatch):
     h5py = pytest.importorskip("h5py")
-    import aeroid.logs as logs
+    import aeroid.io.logs as logs
     from aeroid.pipeline.checks import preflight
 
     n = 50
@@ -272,7 +272,7 @@ def test_the_config_check_names_hdf5_channels_without_reading_them(tmp_path, mon
 
 
 def test_a_csv_whose_first_line_never_ends_is_refused_unread(tmp_path, monkeypatch):
-    import aeroid._flight_csv as flight_csv
+    import aeroid.io._flight_csv as flight_csv
 
     monkeypatch.setattr(flight_csv, "_MAX_HEADER", 4096)
     path = tmp_path / "blob.csv"

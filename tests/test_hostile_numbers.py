@@ -54,7 +54,7 @@ def test_a_symmetric_flights_zero_lateral_channels_are_not_called_stuck(flight):
 
 
 def test_a_lateral_model_with_held_controls_is_refused_naming_them():
-    from aeroid.aircraft import lateral_linear
+    from aeroid.models.aircraft import lateral_linear
 
     model = lateral_linear(V0=30.0, outputs=["beta", "p", "r"])
     t = np.arange(0.0, 6.0, 0.02)

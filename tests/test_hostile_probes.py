@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeroid import FlightData, catalog, identify, load_flight_test, read_log
+from aeroid import FlightData, identify, load_flight_test, read_log
 from aeroid.errors import DataFormatError, IdentificationError
+from aeroid.models import catalog
 
 ULOG = Path(__file__).parent / "data" / "px4" / "sample_log_small.ulg"
 
@@ -69,7 +70,7 @@ def test_a_unit_label_contradicting_the_logs_own_is_refused():
 
 
 def _lateral_record():
-    from aeroid.aircraft import lateral_linear
+    from aeroid.models.aircraft import lateral_linear
 
     truth = {
         **{"Y_beta": -0.2, "Y_delta_r": 0.03, "L_beta": -15.0, "L_p": -8.0, "L_r": 2.0},
@@ -385,7 +386,7 @@ def test_workers_given_to_run_or_rerun_are_bounded_like_the_configs(tmp_path):
 
 def test_datasets_beyond_a_files_total_budget_are_not_read_and_say_so(tmp_path, monkeypatch):
     h5py = pytest.importorskip("h5py")
-    import aeroid.logs as logs
+    import aeroid.io.logs as logs
 
     path = tmp_path / "many.h5"
     n = 1000

@@ -128,6 +128,18 @@ def _package(module: str, modules: dict[str, Path]) -> str:
     return module.rsplit(".", 1)[0]
 
 
+# the engine and the adapters reach the library's private helpers only through
+# `aeroid.support`; the library's own rooms share the leaves of `aeroid/`
+_APART = ("aeroid.pipeline", "aeroid.adapters")
+
+
+def _sees(importer: str, owner: str) -> bool:
+    """Whether package `importer` may use the private names of package `owner`."""
+    if importer == owner:
+        return True
+    return importer.startswith(owner + ".") and not importer.startswith(_APART)
+
+
 def _private(part: str) -> bool:
     return part.startswith("_") and not part.startswith("__")
 
@@ -137,7 +149,7 @@ def private_crossings() -> list[str]:
     modules = _modules()
     found = []
     for importer, imported, name in _edges(modules):
-        if _package(importer, modules) == _package(imported, modules):
+        if _sees(_package(importer, modules), _package(imported, modules)):
             continue
         last = imported.rsplit(".", 1)[-1]
         if _private(last) or _private(name):
@@ -147,7 +159,7 @@ def private_crossings() -> list[str]:
 
 def test_the_graph_sees_function_local_and_relative_imports():
     graph = import_graph()
-    assert "aeroid.errors" in graph["aeroid.model"]
+    assert "aeroid.errors" in graph["aeroid.models.model"]
     assert "aeroid.pipeline.store" in graph["aeroid.pipeline.runner"]
     # a cycle built by hand is found, and so is a function-local import
     toy = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
@@ -194,9 +206,11 @@ def _pair_information(ratio: float, scales: tuple[float, float, float]) -> np.nd
 
 
 def test_one_identifiability_check_with_one_threshold():
-    from aeroid import _filter_error, _identifiability, _output_error, frequency_domain
-    from aeroid import sensitivity as sens_module
-    from aeroid._identifiability import RCOND, unidentifiable
+    from aeroid.estimation import _filter_error, _output_error
+    from aeroid.estimation import identifiability as _identifiability
+    from aeroid.estimation.identifiability import RCOND, unidentifiable
+    from aeroid.frequency import frequency_domain
+    from aeroid.uncertainty import sensitivity as sens_module
 
     names = ["a", "b", "dead"]
     for scales in [(1.0, 1.0, 1.0), (1e6, 1e-3, 5.0)]:
@@ -226,8 +240,9 @@ def test_one_identifiability_check_with_one_threshold():
 
 
 def test_the_simulate_options_are_defined_once():
-    from aeroid import adapters, inference
-    from aeroid.model import SIMULATE_OPTION_KEYS
+    from aeroid import adapters
+    from aeroid.models.model import SIMULATE_OPTION_KEYS
+    from aeroid.uncertainty import inference
 
     assert adapters.INTEGRATOR_OPTIONS is SIMULATE_OPTION_KEYS
     assert inference._SIM_OPTIONS is SIMULATE_OPTION_KEYS
@@ -304,3 +319,117 @@ def test_the_duplicate_finder_sees_a_renamed_copy():
 
 def test_no_repeated_logic():
     assert [g for g in repeated_functions() if g not in _PENDING] == []
+
+
+# -- the floors (issue 50): imports flow one way between the rooms ------------------
+# Top floor first. A module imports from its own room or from a lower floor, never
+# up and never sideways into another room of its floor; function-local imports count.
+FLOORS: list[set[str]] = [
+    {"aeroid", "aeroid.cli", "aeroid.support", "aeroid.pipeline", "aeroid.adapters"},
+    {"aeroid.uncertainty", "aeroid.frequency"},
+    {"aeroid.estimation"},
+    {"aeroid.models"},
+    {"aeroid.io"},
+    {"aeroid.reports"},
+    {"leaves"},  # errors, _checks, _records, ...: the modules left in aeroid/
+]
+_TOP = FLOORS[0]
+
+
+def _room(module: str, modules: dict[str, Path]) -> str:
+    parts = module.split(".")
+    if module == "aeroid" or module in _TOP:
+        return module
+    room = ".".join(parts[:2])
+    return room if (ROOT / parts[1] / "__init__.py").exists() else "leaves"
+
+
+def upward_imports(graph: dict[str, set[str]], room: dict[str, str]) -> list[str]:
+    """Imports that go up a floor, or sideways from one room to another below the top."""
+    floor = {r: i for i, rooms in enumerate(FLOORS) for r in rooms}
+    found = []
+    for importer, targets in graph.items():
+        a = room[importer]
+        for imported in targets:
+            b = room[imported]
+            if a == b or (floor[a] == 0 and floor[b] == 0):
+                continue
+            if floor[b] <= floor[a]:
+                found.append(f"{importer} ({a}) -> {imported} ({b})")
+    return sorted(found)
+
+
+def test_every_module_has_a_room_on_a_floor():
+    modules = _modules()
+    rooms = {_room(m, modules) for m in modules}
+    assert rooms <= set().union(*FLOORS), rooms - set().union(*FLOORS)
+    # no flat module left beside the rooms but the package's face and the leaves
+    loose = sorted(p.stem for p in ROOT.glob("*.py") if not p.stem.startswith("_"))
+    assert loose == ["cli", "errors", "support"]
+
+
+def test_the_floor_check_sees_an_upward_import():
+    room = {"a.m": "aeroid.models", "a.e": "aeroid.estimation", "a.l": "leaves"}
+    assert upward_imports({"a.e": {"a.m"}, "a.m": {"a.l"}, "a.l": set()}, room) == []
+    assert upward_imports({"a.m": {"a.e"}, "a.e": set(), "a.l": set()}, room) == [
+        "a.m (aeroid.models) -> a.e (aeroid.estimation)"
+    ]
+    sideways = {"a.f": "aeroid.frequency", "a.u": "aeroid.uncertainty"}
+    assert upward_imports({"a.f": {"a.u"}, "a.u": set()}, sideways)
+
+
+def test_imports_flow_one_way_between_the_rooms():
+    modules = _modules()
+    room = {m: _room(m, modules) for m in modules}
+    assert upward_imports(import_graph(), room) == []
+
+
+def test_old_module_paths_still_import():
+    # run apart: the old names must work from a fresh interpreter, lazily
+    import subprocess
+    import sys
+
+    code = (
+        "import pickle, sys, aeroid\n"
+        "assert not [m for m in ('scipy.optimize', 'aeroid.estimation') if m in sys.modules]\n"
+        "import aeroid.identification as old\n"  # flat layout
+        "from aeroid.estimation import identification as new\n"
+        "assert old is new and old.__name__ == 'aeroid.estimation.identification'\n"
+        "assert old.__spec__.name == 'aeroid.estimation.identification'\n"
+        "from aeroid.aircraft import AircraftConstants\n"  # flat layout
+        "from aeroid.models.aircraft import AircraftConstants as A2\n"
+        "assert AircraftConstants is A2\n"
+        "import aeroid.frequency\n"
+        "old_fr = aeroid.frequency.frequency_response\n"  # flat layout
+        "from aeroid.frequency.response import frequency_response\n"
+        "assert old_fr is frequency_response\n"
+        "from aeroid.frequency import frequency_response as f2\n"
+        "assert f2 is frequency_response\n"
+        "assert aeroid.plotting is sys.modules['aeroid.reports.plotting']\n"  # flat layout
+        "from aeroid import _output_error\n"
+        "assert _output_error.__name__ == 'aeroid.estimation._output_error'\n"
+        "assert pickle.loads(b'caeroid.identification\\nidentify\\n.') is aeroid.identify\n"  # flat layout
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_stored_names_stay_those_of_the_flat_layout():
+    from aeroid._aliases import MOVED, legacy_name
+    from aeroid.models.model import SimulationResult
+    from aeroid.pipeline import codec
+
+    flat = "aeroid.identification"  # flat layout
+    assert legacy_name("aeroid.estimation.identification") == flat
+    assert legacy_name("aeroid.pipeline.store") == "aeroid.pipeline.store"
+    assert legacy_name("mine.vehicle") == "mine.vehicle"
+    # every old name leads to a module that exists, and each module has one old name
+    assert len(set(MOVED.values())) == len(MOVED)
+    for new in MOVED.values():
+        assert (ROOT.parent / (new.replace(".", "/") + ".py")).is_file(), new
+    # the codec writes a class's module by its flat-layout name, and reads it back
+    written = codec._qualified(SimulationResult)
+    assert written == "aeroid._simulation_results:SimulationResult"  # flat layout
+    assert codec._resolve_own(written) is SimulationResult
+    assert codec._resolve_own("aeroid.model:SimulationResult") is SimulationResult  # flat layout

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from aeroid._html import markdown_to_html
 from aeroid._units import parameter_units
 from aeroid.pipeline.flight_status import LEGEND, flight_status
+from aeroid.reports.html import markdown_to_html
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -287,7 +287,7 @@ def test_every_figure_labels_its_axes_with_units(campaign):
 
     from aeroid.pipeline import load_config, open_store, plan
     from aeroid.pipeline.campaign_report import _flight_units, flight_figures
-    from aeroid.plotting import plot_campaign_trend
+    from aeroid.reports.plotting import plot_campaign_trend
 
     the_plan = plan(load_config(campaign["config"]))
     store = open_store(the_plan.config.store)

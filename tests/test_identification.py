@@ -15,9 +15,9 @@ from aeroid import (
     IdentifiabilityWarning,
     IdentificationError,
     Model,
-    catalog,
     identify,
 )
+from aeroid.models import catalog
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 TRUTH = catalog.SHORT_PERIOD_TRUTH
@@ -296,8 +296,8 @@ def test_parameter_sets_are_plain_read_only_dicts(sp_model, sp_noisy):
 def test_functions_given_a_fit_start_its_records_where_it_did(sp_model):
     # filter_states, frequency_response, sensitivities and infer take the fit's initial
     # state for a record it was fitted to, and the record's own start for any other
-    from aeroid import catalog
-    from aeroid.data import fingerprint
+    from aeroid.io.data import fingerprint
+    from aeroid.models import catalog
 
     fitted = catalog.short_period_flight(seed=1)
     other = catalog.short_period_flight(seed=2)
@@ -392,7 +392,7 @@ def test_overflowing_data_is_an_error_not_a_success(sp_model, sp_noisy):
 def test_a_non_finite_end_of_fit_is_flagged(sp_model, sp_noisy):
     from dataclasses import replace
 
-    from aeroid.identification import _finish
+    from aeroid.estimation.identification import _finish
 
     fit = identify(sp_model, sp_noisy, NAMES)
     broken = replace(fit, parameters={**fit.parameters, "M_q": float("nan")})
@@ -458,7 +458,7 @@ def test_spectral_reml_criterion_matches_the_dense_formula(phi, log_ratio):
     # (N - r) log RSS + log det S + log det X'S^-1 X for S = AR(1) + white, dense
     from scipy.linalg import toeplitz
 
-    from aeroid._noise_model import _arw_criterion, _arw_prepare
+    from aeroid.estimation._noise_model import _arw_criterion, _arw_prepare
 
     rng = np.random.default_rng(2)
     n, rank = 700, 3

@@ -21,13 +21,13 @@ from aeroid import (
     Model,
     Normal,
     Uniform,
-    catalog,
     combine_ensembles,
     identify,
     infer,
     infer_ensemble,
 )
-from aeroid.inference import _Posterior
+from aeroid.models import catalog
+from aeroid.uncertainty.inference import _Posterior
 
 # -- a model whose output is linear in its one parameter: y(t) = k * t ------------------------
 
@@ -277,7 +277,7 @@ def test_convergence_rule_on_known_chains() -> None:
 
 
 def test_initial_from_identification_result() -> None:
-    from aeroid.identification import IdentificationResult
+    from aeroid.estimation.identification import IdentificationResult
 
     names = ("Z_alpha", "M_alpha", "M_q", "M_delta")
     truth = catalog.SHORT_PERIOD_TRUTH
@@ -341,7 +341,7 @@ class RampSimulator:
         **options: Any,
     ) -> Any:
         self.calls += 1
-        p = aeroid.model.resolve_parameters(self, parameters)
+        p = aeroid.models.model.resolve_parameters(self, parameters)
         if p["k"] > 1.5:
             raise RuntimeError("simulator crashed")
         return self._model.simulate(time, controls, x0, p, method="exact")

@@ -8,7 +8,7 @@ import pytest
 import scipy.stats
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 
 def _regression(phi: float, seed: int = 3, n: int = 600) -> aeroid.RegressionResult:

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 jnp = pytest.importorskip("jax.numpy")
 
-from aeroid import _jax  # noqa: E402
-from aeroid.jax_backend import simulate_rk4  # noqa: E402
+from aeroid.models import jax_compiled as _jax  # noqa: E402
+from aeroid.models.jax_backend import simulate_rk4  # noqa: E402
 
 
 def _sp_jax(t, x, u, p):
@@ -242,7 +242,7 @@ def test_dynamics_written_with_jax_numpy_run_in_float64_whatever_ran_first():
     code = """
 import jax, jax.numpy as jnp, numpy as np
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 assert not jax.config.read("jax_enable_x64")
 def f(t, x, u, p):
     return jnp.array([p["Z_alpha"] * x[0] + x[1], p["M_alpha"] * x[0] + p["M_q"] * x[1] + p["M_delta"] * u[0]])
@@ -326,7 +326,7 @@ def test_compiled_programs_are_reused_by_a_fresh_process(tmp_path):
 import jax
 import numpy as np
 import aeroid
-from aeroid import _compiled
+from aeroid.models import compiled as _compiled
 _compiled.COMPILE_AFTER_CALLS = 0  # compile at once
 def pendulum(t, x, u, p):  # written with numpy, as users do
     return np.array([x[1], -p["k"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])

@@ -11,7 +11,7 @@ import pytest
 from _c172x_model import longitudinal
 
 import aeroid
-from aeroid import aircraft
+from aeroid.models import aircraft
 
 pytest.importorskip("jsbsim")
 

@@ -1,11 +1,12 @@
-"""The one bounded least-squares iteration (`aeroid._least_squares.minimise`)."""
+"""The one bounded least-squares iteration (`aeroid.estimation.least_squares.minimise`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from aeroid._least_squares import (
+from aeroid.errors import IdentificationError
+from aeroid.estimation.least_squares import (
     Linearisation,
     converged,
     damped_step,
@@ -13,7 +14,6 @@ from aeroid._least_squares import (
     linearised,
     minimise,
 )
-from aeroid.errors import IdentificationError
 
 
 def _linear(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import catalog
-from aeroid._frequency_domain_fits import _concentrated, _stack
+from aeroid.frequency._frequency_domain_fits import _concentrated, _stack
+from aeroid.models import catalog
 
 
 def _spy(monkeypatch: pytest.MonkeyPatch, module: Any, name: str) -> list[Any]:
@@ -39,8 +39,8 @@ def _first_order_record() -> tuple[aeroid.Model, aeroid.FlightData]:
 
 
 def test_time_domain_estimators_call_the_one_solver(monkeypatch: pytest.MonkeyPatch) -> None:
-    import aeroid._filter_error as fe
-    import aeroid._output_error as oe
+    import aeroid.estimation._filter_error as fe
+    import aeroid.estimation._output_error as oe
 
     oe_calls = _spy(monkeypatch, oe, "minimise")
     fe_calls = _spy(monkeypatch, fe, "minimise")
@@ -63,8 +63,8 @@ def test_time_domain_estimators_call_the_one_solver(monkeypatch: pytest.MonkeyPa
 def test_frequency_domain_and_transfer_function_fits_call_it(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import aeroid._frequency_domain_fits as fdf
-    import aeroid._rational_fit as rf
+    import aeroid.frequency._frequency_domain_fits as fdf
+    import aeroid.frequency._rational_fit as rf
 
     fd_calls = _spy(monkeypatch, fdf, "minimise")
     tf_calls = _spy(monkeypatch, rf, "fit_residuals")

@@ -374,7 +374,7 @@ def test_load_flight_test_on_a_log_needs_channels_and_a_rate(tmp_path):
 
 
 def test_load_flight_test_resamples_a_log():
-    pytest.importorskip("aeroid.resampling")
+    pytest.importorskip("aeroid.io.resampling")
     names = {"p": "vehicle_angular_velocity.xyz[0]", "q0": "vehicle_attitude.q[0]"}
     # the log's gyro topic starts with a 0.16 s hole: refused by default, bridged on request
     with pytest.raises(DataFormatError, match=r"sample_log_small\.ulg: channel .*gap"):
@@ -395,7 +395,7 @@ def test_load_flight_test_resamples_a_log():
 
 
 def test_records_are_exported():
-    from aeroid.logs import listing as listing_of
+    from aeroid.io.logs import listing as listing_of
 
     ch = LogChannel("a.b", [0.0, 1.0], [1.0, 2.0], "m")
     log = FlightLog({"a.b": ch}, (LogEvent(0.5, "mode", "MANUAL"),), {"source": "x"})

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeroid import ModelDefinitionError, catalog
-from aeroid.maneuvers import (
+from aeroid import ModelDefinitionError
+from aeroid.models import catalog
+from aeroid.uncertainty.maneuvers import (
     Chirp,
     Doublet,
     ManeuverFamily,

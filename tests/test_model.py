@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import ChannelError, Model, ModelDefinitionError, SimulationError, catalog
+from aeroid import ChannelError, Model, ModelDefinitionError, SimulationError
+from aeroid.models import catalog
 
 
 def decay(t, x, u, p):
@@ -226,7 +227,7 @@ def test_blocked_linear_recursion_matches_the_step_by_step_loop(n_t, growth):
     # another order, so equal to rounding, for decaying and for growing systems
     import scipy.linalg
 
-    from aeroid._integrate import _linear_recursion
+    from aeroid.models.integration import _linear_recursion
 
     rng = np.random.default_rng(n_t)
     batch, n_x = 3, 3
@@ -247,7 +248,7 @@ def test_blocked_linear_recursion_matches_the_step_by_step_loop(n_t, growth):
 
 def test_blocked_linear_recursion_of_an_overflowing_system_matches_the_loop():
     # phi^L overflows: the blocks would turn 0 * inf into NaN where the loop has zeros
-    from aeroid._integrate import _linear_recursion
+    from aeroid.models.integration import _linear_recursion
 
     phi = np.array([[[1e40]]])
     forcing = np.zeros((1, 100, 1))
@@ -299,7 +300,7 @@ def test_automatic_substeps_hold_each_modes_error_near_its_bound(zeta, omega, du
     # a second-order mode with a closed-form response: the substeps the rule picks keep
     # the accumulated RK4 error within a few times 1e-5 of the amplitude, and halving
     # them would not (the rule takes no more substeps than its bound needs)
-    from aeroid._integrate import substeps_for
+    from aeroid.models.integration import substeps_for
 
     wd = omega * math.sqrt(max(1.0 - zeta**2, 0.0))
 

@@ -19,13 +19,16 @@ def test_every_public_name_resolves_and_is_listed():
 
 
 def test_public_names_are_the_objects_of_their_modules():
-    from aeroid.identification import identify
-    from aeroid.model import Model
+    from aeroid.estimation.identification import identify
+    from aeroid.models.model import Model
 
     assert aeroid.identify is identify and aeroid.Model is Model
     from aeroid import FlightData, validate  # from-imports go through the same path
 
-    assert FlightData.__module__ == "aeroid.data" and validate.__module__ == "aeroid.validation"
+    assert (
+        FlightData.__module__ == "aeroid.io.data"
+        and validate.__module__ == "aeroid.uncertainty.validation"
+    )
 
 
 def test_importing_aeroid_leaves_the_heavy_modules_for_later():

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from aeroid.errors import ConfigError
-from aeroid.model import Model
+from aeroid.models.model import Model
 from aeroid.pipeline import load_config, plan, resolve_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -155,7 +155,7 @@ def test_the_jsbsim_demo_plans_each_flight_with_its_own_trim_model():
 def test_simulated_flights_fly_a_doublet_or_a_doublet_and_a_sweep():
     import numpy as np
 
-    from aeroid import catalog
+    from aeroid.models import catalog
     from aeroid.pipeline.synthetic import flight_spec, fly
 
     base = {"n_flights": 12, "seed": 7, "duration": 20.0}
@@ -187,7 +187,7 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
     import numpy as np
 
     import aeroid
-    from aeroid import catalog
+    from aeroid.models import catalog
     from aeroid.pipeline.synthetic import flight_spec, fly
 
     model = catalog.short_period()
@@ -520,7 +520,7 @@ def test_one_file_with_two_windows_is_two_flights(tmp_path):
 
 def test_the_px4_roll_config_plans_and_its_load_options_load_through_the_channel_map():
     pytest.importorskip("pyulog")
-    from aeroid.channel_map import load_mapped
+    from aeroid.io.channel_map import load_mapped
 
     cfg = load_config(ROOT / "configs" / "px4_roll.yaml")
     p = plan(cfg)
@@ -551,7 +551,7 @@ def test_the_px4_roll_config_plans_and_its_load_options_load_through_the_channel
 
 def test_segments_of_a_config_give_the_windows_each_flight_is_made_of(tmp_path):
     pytest.importorskip("pyulog")
-    from aeroid.channel_map import flight_windows, load_mapped
+    from aeroid.io.channel_map import flight_windows, load_mapped
 
     log = ROOT / "tests" / "data" / "px4" / "sample_log_small.ulg"
     text = f"""model: first_order

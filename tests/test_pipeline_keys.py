@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from aeroid.catalog import short_period, short_period_flight
 from aeroid.errors import PipelineError
-from aeroid.model import Model
+from aeroid.models.catalog import short_period, short_period_flight
+from aeroid.models.model import Model
 from aeroid.pipeline import plan
 from aeroid.pipeline.keys import (
     array_digest,

@@ -342,7 +342,7 @@ def test_flights_from_csv_parquet_and_mat_files_give_the_same_numbers(tmp_path):
     import pyarrow.parquet as pq
     import scipy.io
 
-    from aeroid.catalog import short_period_flight
+    from aeroid.models.catalog import short_period_flight
 
     d = short_period_flight(seed=3)
     columns = {"time": d.time, **{n: d[n] for n in d.names}}
@@ -382,7 +382,7 @@ def test_stages_after_the_fit_start_from_its_initial_state(tmp_path):
     state the fit estimated (the library takes it from the fit), not from the first
     noisy samples."""
     import aeroid
-    from aeroid import catalog
+    from aeroid.models import catalog
 
     filter_noise = {
         "process_noise": {"alpha": 1.0e-8, "q": 1.0e-8},
@@ -432,7 +432,7 @@ def test_stages_after_a_fit_with_measured_initial_state_are_unchanged(tmp_path):
     """Without estimation the fit's initial state is the first sample, bit for bit, so the
     stages compute what the library's own default gives."""
     import aeroid
-    from aeroid import catalog
+    from aeroid.models import catalog
 
     cfg = _config(
         tmp_path,
@@ -476,8 +476,8 @@ def test_a_store_or_report_that_cannot_be_written_is_refused_before_anything_run
 
 
 def test_a_missing_flight_file_or_a_folder_is_refused_before_anything_runs(tmp_path):
-    from aeroid.catalog import short_period_flight
     from aeroid.errors import ConfigError
+    from aeroid.models.catalog import short_period_flight
 
     d = short_period_flight(seed=1, duration=4.0)
     rows = np.column_stack([d.time, *(d[n] for n in d.names)])
@@ -499,7 +499,7 @@ import os
 import numpy as np
 
 import aeroid
-from aeroid.catalog import short_period
+from aeroid.models.catalog import short_period
 
 
 def _dynamics(t, x, u, p):
@@ -520,7 +520,7 @@ model = aeroid.Model(states=["alpha", "q"], controls=["elevator"], parameters=di
     "scheduler", ["embedded", pytest.param("distributed", marks=pytest.mark.slow)]
 )
 def test_a_worker_that_dies_fails_its_flight_at_the_step_that_killed_it(tmp_path, scheduler):
-    from aeroid.catalog import short_period_flight
+    from aeroid.models.catalog import short_period_flight
 
     (tmp_path / "crashing_model.py").write_text(CRASHING_MODEL)
     for name, scale in (("good", 1.0), ("wild", 1e4)):

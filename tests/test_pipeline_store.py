@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeroid.catalog import short_period_flight
 from aeroid.errors import StoreError
-from aeroid.identification import IdentificationResult
+from aeroid.estimation.identification import IdentificationResult
+from aeroid.models.catalog import short_period_flight
 from aeroid.pipeline import ResultStore, open_store, register_record
 from aeroid.pipeline.codec import decode, encode
 from aeroid.pipeline.keys import canonical_json, sha256_hex
@@ -511,7 +511,10 @@ def test_record_types_are_stored_under_stable_names_and_old_names_still_read(tmp
     assert encode(CampaignReport("t", "m", (), (), ()))[0]["__record__"] == "CampaignReport"
     # entries written before stable names carry module:qualname; and a class that has
     # since moved to another module is found by its public name
-    for old in ("aeroid.identification:IdentificationResult", "aeroid.gone:IdentificationResult"):
+    for old in (
+        "aeroid.estimation.identification:IdentificationResult",
+        "aeroid.gone:IdentificationResult",
+    ):
         task = {"old": old}
         key = sha256_hex(canonical_json(task))
         monkeypatch.setitem(codec._NAMES, IdentificationResult, old)

@@ -11,9 +11,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 import aeroid
-from aeroid import catalog
 from aeroid.errors import IdentificationError
-from aeroid.plotting import plot_campaign_trend
+from aeroid.models import catalog
+from aeroid.reports.plotting import plot_campaign_trend
 
 NAMES = list(catalog.SHORT_PERIOD_TRUTH)
 
@@ -144,7 +144,7 @@ def test_traces_and_campaign_trend(chain):
 
 
 def test_log_axes_read_as_plain_numbers_at_one_two_and_five():
-    from aeroid.plotting import _log_label
+    from aeroid.reports.plotting import _log_label
 
     labels = {
         v: _log_label(v, None) for v in (0.02, 0.03, 0.2, 0.5, 0.7, 1.0, 2.0, 3.0, 50.0, 100.0)
@@ -230,7 +230,7 @@ def test_a_recycled_figure_draws_as_a_new_one(chain):
     same PNG bytes as new figures, whatever the scale of the flight drawn before
     (here outputs 10^4 times larger, whose tick labels are wider and carry an offset)."""
     from aeroid.pipeline.campaign_report import flight_figures
-    from aeroid.plotting import recycle_figure, reusing_figures
+    from aeroid.reports.plotting import recycle_figure, reusing_figures
     from aeroid.support import figure_png
 
     with warnings.catch_warnings():

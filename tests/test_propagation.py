@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from aeroid import IdentificationResult, combine_batches, propagate, propagate_batch
-from aeroid.propagation import BLOCK_SIZE, PropagationError, draw_parameters
+from aeroid.uncertainty.propagation import BLOCK_SIZE, PropagationError, draw_parameters
 
 
 def _result(mean=(1.0, 2.0), cov=((0.04, 0.01), (0.01, 0.09))):

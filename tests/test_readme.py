@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from aeroid import catalog
+from aeroid.models import catalog
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

@@ -10,7 +10,7 @@ import scipy.linalg
 import scipy.signal
 
 from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError
-from aeroid.regression import (
+from aeroid.estimation.regression import (
     RegressionResult,
     candidate_pool,
     equation_error,
@@ -132,7 +132,7 @@ def test_output_errors_correction_covers_white_and_ar1_residuals(phi: float) -> 
 
 def test_reml_error_bars_are_output_errors_own() -> None:
     # the same sandwich identify applies to its residuals, for one output and unit weights
-    from aeroid._noise_model import _colored_covariance as output_error_covariance
+    from aeroid.estimation._noise_model import _colored_covariance as output_error_covariance
 
     rng = np.random.default_rng(5)
     x = _design(rng, 800)
@@ -244,8 +244,8 @@ def test_expressions_and_flight_data() -> None:
 
 def test_state_derivative_from_smoothed_data() -> None:
     # alpha_dot = Z_alpha alpha + q on the noise-free truth case: differentiate, regress
-    from aeroid import catalog
-    from aeroid.smoothing import differentiate
+    from aeroid.io.smoothing import differentiate
+    from aeroid.models import catalog
 
     data = differentiate(catalog.short_period_flight(noise={}), "alpha")
     res = equation_error(data, "alpha_dot", ["alpha", "q"], intercept=False)

@@ -6,9 +6,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from aeroid import IdentificationError, catalog, report, validate
-from aeroid.plotting import plot_prediction, plot_residual_autocorrelation
-from aeroid.validation import ljung_box
+from aeroid import IdentificationError, report, validate
+from aeroid.models import catalog
+from aeroid.reports.plotting import plot_prediction, plot_residual_autocorrelation
+from aeroid.uncertainty.validation import ljung_box
 
 
 def _validation(**kw):

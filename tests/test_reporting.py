@@ -8,7 +8,8 @@ import stat
 
 import pytest
 
-from aeroid import OutputError, catalog, identify, propagate, report, validate
+from aeroid import OutputError, identify, propagate, report, validate
+from aeroid.models import catalog
 
 
 def _chain():
@@ -99,7 +100,7 @@ def test_each_section_heading_appears_once():
 
 
 def test_markdown_to_html_covers_what_the_reports_write():
-    from aeroid._html import markdown_to_html
+    from aeroid.reports.html import markdown_to_html
 
     png = b"\x89PNG\r\n\x1a\nfake"
     text = (
@@ -122,8 +123,9 @@ def test_markdown_to_html_covers_what_the_reports_write():
 def test_report_shows_correlations_and_residual_autocorrelation_with_its_band():
     import numpy as np
 
-    from aeroid import catalog, identify, validate
-    from aeroid.reporting import report_sections
+    from aeroid import identify, validate
+    from aeroid.models import catalog
+    from aeroid.reports.reporting import report_sections
 
     model = catalog.short_period()
     data = catalog.short_period_flight(seed=3)
@@ -148,8 +150,9 @@ def test_report_shows_correlations_and_residual_autocorrelation_with_its_band():
 
 
 def test_report_tables_of_estimates_residuals_and_innovations_carry_units():
-    from aeroid import catalog, filter_states, identify, validate
-    from aeroid.reporting import report_sections
+    from aeroid import filter_states, identify, validate
+    from aeroid.models import catalog
+    from aeroid.reports.reporting import report_sections
 
     model = catalog.short_period()
     data = catalog.short_period_flight(seed=3)

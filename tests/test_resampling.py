@@ -9,7 +9,7 @@ import pytest
 
 import aeroid
 from aeroid import ChannelError, DataFormatError, FlightData, resample
-from aeroid._logtypes import FlightLog, LogChannel, LogEvent
+from aeroid.io._logtypes import FlightLog, LogChannel, LogEvent
 
 FREQS = (0.3, 1.7, 4.1, 7.3, 9.9)  # all below 0.4 x the new Nyquist (10 Hz at 50 Hz)
 AMPS = (1.0, 0.7, 0.5, 0.4, 0.3)
@@ -309,7 +309,7 @@ def test_a_rate_beyond_any_sane_grid_is_refused_before_allocating():
 def test_anti_alias_design_matches_scipy_firwin(source: float, rate: float) -> None:
     import scipy.signal
 
-    from aeroid.resampling import design_anti_alias
+    from aeroid.io.resampling import design_anti_alias
 
     nyq = rate / 2.0
     width = (nyq - 0.8 * nyq) / (source / 2.0)
@@ -328,7 +328,7 @@ def test_anti_alias_design_matches_scipy_firwin(source: float, rate: float) -> N
 def test_fir_convolution_matches_numpy_and_scipy(n: int, k: int) -> None:
     import scipy.signal
 
-    from aeroid._regrid import _convolve_valid
+    from aeroid.io._regrid import _convolve_valid
 
     rng = np.random.default_rng(n * k)
     x, h = rng.standard_normal(n), rng.standard_normal(k)

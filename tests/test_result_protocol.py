@@ -74,7 +74,7 @@ def test_intervals_are_one_method_on_every_result() -> None:
 
 @pytest.mark.filterwarnings("ignore:the chain has not converged")
 def test_posterior_intervals_are_the_samples_quantiles() -> None:
-    from aeroid import catalog
+    from aeroid.models import catalog
 
     model = catalog.first_order()
     t = np.arange(0.0, 6.0, 0.05)

@@ -19,7 +19,7 @@ from aeroid import (
     resample,
     segment,
 )
-from aeroid._logtypes import FlightLog, LogChannel, LogEvent
+from aeroid.io._logtypes import FlightLog, LogChannel, LogEvent
 
 INPUTS = ["elevator", "aileron", "rudder"]
 

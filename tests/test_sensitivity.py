@@ -8,15 +8,9 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import (
-    ChannelError,
-    FlightData,
-    IdentifiabilityWarning,
-    IdentificationError,
-    Model,
-    catalog,
-)
-from aeroid.sensitivity import SensitivityResult, sensitivities
+from aeroid import ChannelError, FlightData, IdentifiabilityWarning, IdentificationError, Model
+from aeroid.models import catalog
+from aeroid.uncertainty.sensitivity import SensitivityResult, sensitivities
 
 NOISE = {"alpha": 0.005, "q": 0.01}
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from aeroid import ChannelError, DataFormatError, FlightData
-from aeroid.smoothing import differentiate, optimal_cutoff, smooth
+from aeroid.io.smoothing import differentiate, optimal_cutoff, smooth
 
 DT = 0.02
 T = np.arange(0.0, 10.0 + DT / 2, DT)
@@ -22,7 +22,7 @@ def _band_limited() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, dx, ddx
 
 
-@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
+@pytest.mark.filterwarnings("ignore::aeroid.io.smoothing.NoiseFloorWarning")  # clean data
 def test_fourier_exact_on_band_limited_signal() -> None:
     x, dx, ddx = _band_limited()
     np.testing.assert_allclose(smooth(x, dt=DT), x, rtol=0, atol=1e-12)
@@ -33,7 +33,7 @@ def test_fourier_exact_on_band_limited_signal() -> None:
     assert abs(dd[0] - ddx[0]) < 1e-2 * np.max(np.abs(ddx))
 
 
-@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
+@pytest.mark.filterwarnings("ignore::aeroid.io.smoothing.NoiseFloorWarning")  # clean data
 def test_local_polynomial_exact_on_cubic() -> None:
     x = 2.0 + T - 0.5 * T**2 + 0.1 * T**3
     dx = 1.0 - T + 0.3 * T**2
@@ -47,7 +47,7 @@ def test_local_polynomial_exact_on_cubic() -> None:
     np.testing.assert_allclose(smooth(x, dt=DT, method="local"), x, rtol=0, atol=1e-10)
 
 
-@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
+@pytest.mark.filterwarnings("ignore::aeroid.io.smoothing.NoiseFloorWarning")  # clean data
 def test_fourier_on_non_periodic_sine_interior() -> None:
     y = np.sin(1.3 * T) + 0.1 * T**2
     dy = 1.3 * np.cos(1.3 * T) + 0.2 * T
@@ -100,7 +100,7 @@ def test_explicit_cutoff() -> None:
     np.testing.assert_allclose(out[50:-50], np.sin(2 * np.pi * 0.5 * T)[50:-50], atol=0.05)
 
 
-@pytest.mark.filterwarnings("ignore::aeroid.smoothing.NoiseFloorWarning")  # clean data
+@pytest.mark.filterwarnings("ignore::aeroid.io.smoothing.NoiseFloorWarning")  # clean data
 def test_columns_and_flight_data() -> None:
     x, dx, _ = _band_limited()
     cols = np.column_stack([x, 2 * x])
@@ -173,7 +173,7 @@ def test_public_entry_points_limit_blas_threads():
 def test_band_limited_data_without_noise_floor_are_named() -> None:
     import warnings
 
-    from aeroid.smoothing import NoiseFloorWarning
+    from aeroid.io.smoothing import NoiseFloorWarning
 
     # a sine not periodic over the record: its end-point-detrended spectrum falls as
     # 1/m^4 to the top of the band, with no white floor to find

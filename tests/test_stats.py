@@ -40,7 +40,7 @@ def test_importing_the_numerics_does_not_import_scipy_stats():
     import sys
 
     code = (
-        "import sys, aeroid.filtering, aeroid.validation, aeroid.propagation; "
+        "import sys, aeroid.estimation.filtering, aeroid.uncertainty.validation, aeroid.uncertainty.propagation; "
         "print('scipy.stats' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

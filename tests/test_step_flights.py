@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from aeroid import ChannelError, IdentificationError, Model
-from aeroid.design import design_experiment
 from aeroid.errors import ConfigError
-from aeroid.maneuvers import Doublet
 from aeroid.pipeline import plan, run
+from aeroid.uncertainty.design import design_experiment
+from aeroid.uncertainty.maneuvers import Doublet
 
 
 def _config(tmp: Path, stages: str) -> Path:

@@ -11,8 +11,8 @@ import scipy.linalg  # noqa: F401  (SciPy's own BLAS loaded, so both libraries a
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
 import aeroid
-from aeroid import catalog
 from aeroid._threads import blas_threads, small_blas
+from aeroid.models import catalog
 
 _BLAS = ThreadpoolController().select(user_api="blas").lib_controllers  # after numpy and SciPy
 
@@ -118,7 +118,7 @@ def test_public_calls_run_their_callbacks_on_one_blas_thread():
 
 
 def test_public_entry_points_are_wrapped():
-    from aeroid.model import Model
+    from aeroid.models.model import Model
 
     for fn in (
         aeroid.identify,

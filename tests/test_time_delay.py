@@ -14,10 +14,11 @@ import pytest
 from _aircraft_data import LATERAL_LINEAR as LATERAL
 from _aircraft_data import LATERAL_STATES as STATES
 
-from aeroid import FlightData, IdentificationError, catalog, equation_error, identify
-from aeroid._output_error import shifted_controls
-from aeroid.aircraft import lateral_linear
+from aeroid import FlightData, IdentificationError, equation_error, identify
 from aeroid.errors import ChannelError, DataFormatError
+from aeroid.estimation._output_error import shifted_controls
+from aeroid.models import catalog
+from aeroid.models.aircraft import lateral_linear
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 DELAY = 0.07

@@ -17,11 +17,12 @@ import numpy as np
 import pytest
 
 import aeroid
-from aeroid import FlightData, Model, ModelDefinitionError, SimulationError, catalog
-from aeroid.design import design_experiment
+from aeroid import FlightData, Model, ModelDefinitionError, SimulationError
 from aeroid.errors import IdentificationError
-from aeroid.maneuvers import Doublet
-from aeroid.priors import Normal
+from aeroid.models import catalog
+from aeroid.uncertainty.design import design_experiment
+from aeroid.uncertainty.maneuvers import Doublet
+from aeroid.uncertainty.priors import Normal
 
 # -- the switch-off example ---------------------------------------------------------
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from aeroid._transfer import state_space_response, transfer_at, transfer_response
+from aeroid.frequency._transfer import state_space_response, transfer_at, transfer_response
 
 
 def test_first_order_lag_with_delay_closed_form() -> None:

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from aeroid import FlightData, IdentificationError, catalog, identify, validate
-from aeroid.validation import ljung_box
+from aeroid import FlightData, IdentificationError, identify, validate
+from aeroid.models import catalog
+from aeroid.uncertainty.validation import ljung_box
 
 
 def test_ljung_box_closed_form():

@@ -7,10 +7,11 @@ import pytest
 from _aircraft_data import LATERAL_LINEAR as LATERAL
 from _aircraft_data import LATERAL_STATES as STATES
 
-from aeroid import FlightData, IdentificationError, catalog, identify, validate
-from aeroid._prediction import prediction_metrics
-from aeroid.aircraft import lateral_linear
+from aeroid import FlightData, IdentificationError, identify, validate
 from aeroid.errors import IdentifiabilityWarning
+from aeroid.models import catalog
+from aeroid.models.aircraft import lateral_linear
+from aeroid.uncertainty.prediction import prediction_metrics
 
 SP_NOISE = {"alpha": 0.001, "q": 0.002}
 LAT_NOISE = {"beta": 0.002, "p": 0.005, "r": 0.003, "phi": 0.003}

@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data import FlightData
 from ..errors import AdapterError, ChannelError, SimulationError
-from ..model import SIMULATE_OPTION_KEYS, check_time
+from ..io.data import FlightData
+from ..models.model import SIMULATE_OPTION_KEYS, check_time
 
 __all__: list[str] = []
 

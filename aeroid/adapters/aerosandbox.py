@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import AdapterError
-from ..model import Model
+from ..models.model import Model
 from . import require
 
 __all__ = ["aerosandbox_model"]

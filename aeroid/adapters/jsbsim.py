@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..data import FlightData
 from ..errors import AdapterError, DataFormatError, SimulationError
-from ..model import SimulationResult, resolve_parameters
+from ..io.data import FlightData
+from ..models.model import SimulationResult, resolve_parameters
 from ..support import ReadOnlyDict
 from . import INTEGRATOR_OPTIONS, check_options, control_matrix, require, time_grid
 

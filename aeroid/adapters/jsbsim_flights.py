@@ -16,7 +16,7 @@ perturbations of JSBSim's state and controls (not of any AeroID model), so
 that identified derivatives can be checked against the simulator's physics.
 
 `c172x_constants` reads the mass, inertias and reference geometry from the
-loaded aircraft and converts them to SI, as `aeroid.aircraft.AircraftConstants`.
+loaded aircraft and converts them to SI, as `aeroid.models.aircraft.AircraftConstants`.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..data import FlightData
 from ..errors import AdapterError, SimulationError
+from ..io.data import FlightData
 from . import require
 
 __all__ = [
@@ -388,7 +388,7 @@ def write_campaign(
 def c172x_constants(altitude: float) -> Any:
     """The c172x's mass, inertias, reference geometry and thrust-line offset in SI, with
     JSBSim's (ISA) density at `altitude`."""
-    from ..aircraft import AircraftConstants
+    from ..models.aircraft import AircraftConstants
 
     fdm = _executive(FlightCondition(50.0, float(altitude)))
     return AircraftConstants(
@@ -448,7 +448,7 @@ def effective_derivatives(
     lift and ``Cmadot`` moment) are taken out of every perturbation and
     returned on their own as ``CL_alpha_dot`` and ``Cm_alpha_dot`` (per unit
     ``α̇ c̄/2V``): the derivatives a model with an ``alpha_dot`` term
-    (`aeroid.aircraft.longitudinal`) identifies. The α̇ lift's arm about the
+    (`aeroid.models.aircraft.longitudinal`) identifies. The α̇ lift's arm about the
     centre of gravity stays in, a part in a thousand of ``Cm_alpha``.
 
     Parameters

@@ -286,7 +286,7 @@ def _mapped(chosen: Any) -> dict[str, str] | None:
 
 def _unit_faults(spec: FileFlights) -> list[tuple[str, str]]:
     """(key path, fault) for every unit conversion of the channel map that is not known."""
-    from ..channel_map import UNIT_CONVERSIONS
+    from ..io.channel_map import UNIT_CONVERSIONS
 
     if not isinstance(spec.channels, Mapping):
         return []
@@ -314,7 +314,7 @@ def _window_faults(path: Path, header: _Header, spec: FileFlights) -> list[tuple
     log cannot give (a mode or event it lacks, an input it does not carry)."""
     if header.log is None or (spec.window is None and spec.segments is None):
         return []
-    from ..channel_map import flight_windows, orient, resolve_window
+    from ..io.channel_map import flight_windows, orient, resolve_window
 
     log = header.log
     names = list(log.channels)
@@ -422,7 +422,7 @@ def _log_listing(
     an HDF5 file's datasets are named, not read (a check must not load gigabytes), and
     the header carries no log."""
     try:
-        from ..logs import listing, read_selected, sniff_format
+        from ..io.logs import listing, read_selected, sniff_format
     except ImportError:
         return None
     fmt = sniff_format(path)  # the first bytes, then the suffix, as the loader decides

@@ -40,7 +40,7 @@ def _flight_model(config: CampaignConfig, i: int, spec: FileFlights) -> dict[str
     if not isinstance(config.model, Mapping):
         raise ConfigError(
             f"{config.source}: flights[{i}].model: changes a model mapping, but the "
-            f"campaign's model is {config.model!r}; give the model as an aeroid.aircraft "
+            f"campaign's model is {config.model!r}; give the model as an aeroid.models.aircraft "
             "mapping (aircraft: ...) to give flights their own"
         )
     return _merged(config.model, spec.model)
@@ -48,7 +48,7 @@ def _flight_model(config: CampaignConfig, i: int, spec: FileFlights) -> dict[str
 
 def _windows(config: CampaignConfig, i: int, path: Path, spec: FileFlights) -> list[list[float]]:
     """The manoeuvre windows `spec.segments` finds in `path`, each a flight's window."""
-    from ..channel_map import flight_windows
+    from ..io.channel_map import flight_windows
 
     assert spec.segments is not None
     segments = spec.segments.model_dump(mode="json", exclude_none=True)

@@ -42,7 +42,7 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
 
 class CompatibilityOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.compatibility:check_compatibility",
+        "aeroid.estimation.compatibility:check_compatibility",
         *("channels", "estimate", "fixed", "x0", "gravity", "error_bars", "max_iterations"),
         *("tolerance", "max_passes", "input_noise", "n_draws"),
         gravity=Field(None, gt=0),
@@ -57,7 +57,7 @@ class CompatibilityOptions(
 
 
 def _run_compatibility(ctx: StageContext) -> Any:
-    from ..compatibility import check_compatibility
+    from ..estimation.compatibility import check_compatibility
 
     return check_compatibility(ctx.inputs["data"], seed=ctx.seed_int(3), **_kwargs(ctx.options))
 
@@ -82,7 +82,7 @@ class RegressOptions(Options):
     error_bars: Literal["colored", "white"] | None = None
     max_steps: int | None = Field(None, ge=1)
 
-    library: ClassVar[str] = "aeroid.regression:stepwise_regression"
+    library: ClassVar[str] = "aeroid.estimation.regression:stepwise_regression"
     engine_only: ClassVar[frozenset[str]] = frozenset({"method"})
 
     @model_validator(mode="after")
@@ -94,7 +94,7 @@ class RegressOptions(Options):
 
 
 def _run_regress(ctx: StageContext) -> Any:
-    from ..regression import equation_error, stepwise_regression
+    from ..estimation.regression import equation_error, stepwise_regression
 
     opts = ctx.options
     kw = _kwargs(opts, "response", "candidates", "method")
@@ -108,7 +108,7 @@ def _run_regress(ctx: StageContext) -> Any:
 
 class FrequencyIdOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.frequency_id:composite_response",
+        "aeroid.frequency.frequency_id:composite_response",
         *("inputs", "outputs", "frequencies", "windows", "overlap", "frequency_range"),
         # the library also takes one name; a config lists them
         inputs=(list[str], Field()),
@@ -121,7 +121,7 @@ class FrequencyIdOptions(
 
 
 def _run_frequency_id(ctx: StageContext) -> Any:
-    from ..frequency_id import composite_response
+    from ..frequency.frequency_id import composite_response
 
     opts = ctx.options
     kw = _kwargs(opts, "inputs", "outputs")
@@ -130,7 +130,7 @@ def _run_frequency_id(ctx: StageContext) -> Any:
 
 class TransferFunctionOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.frequency_id:fit_transfer_function",
+        "aeroid.frequency.frequency_id:fit_transfer_function",
         *("numerator_order", "denominator_order", "delay", "frequency_range", "input"),
         *("output", "start", "weighting", "min_coherence"),
         numerator_order=(int, Field(ge=0)),
@@ -142,14 +142,14 @@ class TransferFunctionOptions(
 
 
 def _run_transfer_function(ctx: StageContext) -> Any:
-    from ..frequency_id import fit_transfer_function
+    from ..frequency.frequency_id import fit_transfer_function
 
     return fit_transfer_function(ctx.inputs["response"], **_kwargs(ctx.options))
 
 
 class FrequencyIdentifyOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.frequency_domain:identify_frequency_domain",
+        "aeroid.frequency.frequency_domain:identify_frequency_domain",
         *("parameters", "frequencies", "method", "outputs", "boundary", "error_bars"),
         *("noise", "reference", "max_iterations", "tolerance", "weighting", "delays"),
         # names to estimate (the library also takes starting values)
@@ -167,7 +167,7 @@ class FrequencyIdentifyOptions(
 
 
 def _run_frequency_identify(ctx: StageContext) -> Any:
-    from ..frequency_domain import identify_frequency_domain
+    from ..frequency.frequency_domain import identify_frequency_domain
 
     names = ctx.options.parameters or list(ctx.model.parameter_names)
     kw = _kwargs(ctx.options, "parameters")
@@ -194,7 +194,7 @@ class HandlingQualities:
 
 class EquivalentSystemSpec(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.handling_qualities:equivalent_system",
+        "aeroid.frequency.handling_qualities:equivalent_system",
         *("kind", "frequency_range", "delay", "start"),
         kind=(Literal["short_period", "roll", "dutch_roll"] | None, Field(None)),
     )
@@ -204,7 +204,7 @@ class EquivalentSystemSpec(
 
 class HandlingQualitiesOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.handling_qualities:bandwidth",
+        "aeroid.frequency.handling_qualities:bandwidth",
         *("kind", "input", "output"),
         kind=(Literal["attitude", "rate"] | None, Field(None)),
     )
@@ -227,7 +227,7 @@ class HandlingQualitiesOptions(
 
 
 def _run_handling_qualities(ctx: StageContext) -> HandlingQualities:
-    from ..handling_qualities import bandwidth, equivalent_system, stability_margins
+    from ..frequency.handling_qualities import bandwidth, equivalent_system, stability_margins
 
     opts = ctx.options
     response = ctx.inputs.get("response")

@@ -168,7 +168,7 @@ def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
     Every figure labels its axes with the units of the flight's channels and of
     the model's parameters.
     """
-    from ..plotting import plot_residual_autocorrelation
+    from ..reports.plotting import plot_residual_autocorrelation
 
     units = _flight_units(records)
     out = []
@@ -197,7 +197,7 @@ def flight_figures(records: Mapping[str, Any]) -> list[tuple[str, Any]]:
 
 def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
     """The figures of flight `flight`: (file name, PNG bytes)."""
-    from ..plotting import recycle_figure, reusing_figures
+    from ..reports.plotting import recycle_figure, reusing_figures
     from ..support import figure_png
 
     records = {
@@ -223,7 +223,7 @@ def _declared(ctx: StageContext, flight: int) -> Mapping[str, str]:
 
 
 def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
-    from ..plotting import plot_campaign_trend
+    from ..reports.plotting import plot_campaign_trend
     from ..support import figure_png, parameter_units
 
     records = []

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import StoreError
+from ..support import legacy_name
 
 __all__ = [
     "UnknownRecordType",
@@ -48,7 +49,8 @@ class UnknownRecordType(StoreError):
 
 
 def _qualified(cls: type) -> str:
-    return f"{cls.__module__}:{cls.__qualname__}"
+    # aeroid's own modules by their flat-layout names: stored bytes do not move with them
+    return f"{legacy_name(cls.__module__)}:{cls.__qualname__}"
 
 
 def record_type_name(cls: type) -> str:

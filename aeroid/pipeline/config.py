@@ -67,7 +67,7 @@ class CampaignConfig(Options):
     """The top level of a campaign config file."""
 
     name: str | None = None
-    # a built-in name, "package.module:attribute", or an aeroid.aircraft model as a
+    # a built-in name, "package.module:attribute", or an aeroid.models.aircraft model as a
     # mapping ({aircraft: longitudinal, constants: {...}, terms: {...}, ...})
     model: Annotated[str, Field(min_length=1)] | dict[str, Any] = Field(...)
     pipeline: str = "campaign"

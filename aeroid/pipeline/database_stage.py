@@ -29,7 +29,7 @@ from .config import Options
 from .stages import Stage, StageContext, register_stage
 
 if TYPE_CHECKING:
-    from ..database import AeroDatabase
+    from ..uncertainty.database import AeroDatabase
     from .planning import Plan
     from .store import ResultStore
 
@@ -53,7 +53,7 @@ class DatabaseOptions(Options):
     held_out: list[str] | None = None
     confidence: float | None = Field(None, gt=0, lt=1)
 
-    library: ClassVar[str] = "aeroid.database:aerodynamic_database"
+    library: ClassVar[str] = "aeroid.uncertainty.database:aerodynamic_database"
 
 
 def _brief(role: str, record: Any) -> Any:
@@ -78,7 +78,7 @@ def _brief(role: str, record: Any) -> Any:
 def _run_database(ctx: StageContext) -> Any:
     import numpy as np
 
-    from ..database import FlightCoefficients, aerodynamic_database
+    from ..uncertainty.database import FlightCoefficients, aerodynamic_database
 
     opts = ctx.options
     flights = []
@@ -146,7 +146,7 @@ def _at_condition(
 register_stage(
     Stage(
         "database",
-        # 2: each coefficient weighted by its own variances (aeroid.database notes);
+        # 2: each coefficient weighted by its own variances (aeroid.uncertainty.database notes);
         # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition)
         "3",
         DatabaseOptions,

@@ -21,7 +21,7 @@ class ChannelEntry(Options):
     """One model channel of a channel map: ``sign * scale * unit factor * raw + offset``."""
 
     channel: str = Field(..., min_length=1)
-    # the channel's unit in the file, converted to SI (aeroid.channel_map.UNIT_CONVERSIONS;
+    # the channel's unit in the file, converted to SI (aeroid.io.channel_map.UNIT_CONVERSIONS;
     # an unknown one is reported by the pre-flight checks with the others)
     unit: str | None = None
     scale: float | None = None
@@ -154,7 +154,7 @@ class FileFlights(Options):
         return self
 
     def loader_options(self) -> dict[str, Any]:
-        """The options as `aeroid.channel_map.load_mapped` takes them (plain JSON, unset
+        """The options as `aeroid.io.channel_map.load_mapped` takes them (plain JSON, unset
         ones left out, at every depth)."""
         return self.model_dump(
             mode="json", exclude={"path", "segments", "model", "condition"}, exclude_none=True

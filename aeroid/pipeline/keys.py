@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PipelineError
+from ..support import legacy_name
 
 __all__ = [
     "array_digest",
@@ -161,7 +162,7 @@ def model_fingerprint(model: Any) -> dict[str, Any]:
     else:
         cls = type(model)
         fp["states"] = []
-        fp["source"] = f"{cls.__module__}:{cls.__qualname__}"
+        fp["source"] = f"{legacy_name(cls.__module__)}:{cls.__qualname__}"
         config = getattr(model, "fingerprint_config", None)
         if config is not None:
             fp["config"] = to_jsonable(config() if callable(config) else config)

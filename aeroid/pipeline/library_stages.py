@@ -55,7 +55,7 @@ _BY_NAME: Any = (dict[str, float] | None, Field(None))
 
 class IdentifyOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.identification:identify",
+        "aeroid.estimation.identification:identify",
         *("parameters", "method", "outputs", "x0", "estimate_x0", "estimate_bias", "weights"),
         *("error_bars", "max_iterations", "tolerance", "gradient", "process_noise"),
         *("measurement_noise", "simulate_options", "bounds", "filter_options"),
@@ -88,7 +88,7 @@ class IdentifyOptions(
     @classmethod
     def _check_simulate_options(cls, value: Any) -> Any:
         # the keys are the library's: checked here, before any flight loads
-        from ..model import SIMULATE_OPTION_KEYS
+        from ..models.model import SIMULATE_OPTION_KEYS
 
         unknown = sorted(set(value or {}) - set(SIMULATE_OPTION_KEYS))
         if unknown:
@@ -107,7 +107,7 @@ class IdentifyOptions(
 
 
 def _run_identify(ctx: StageContext) -> Any:
-    from ..identification import identify
+    from ..estimation.identification import identify
 
     names = ctx.options.parameters or list(ctx.model.parameter_names)
     data = flight_data(ctx)
@@ -119,7 +119,7 @@ def _run_identify(ctx: StageContext) -> Any:
 
 class FilterOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.filtering:filter_states",
+        "aeroid.estimation.filtering:filter_states",
         *("process_noise", "measurement_noise", "method", "smooth"),
         process_noise=(dict[str, float], Field()),
         measurement_noise=(dict[str, float], Field()),
@@ -129,7 +129,7 @@ class FilterOptions(
 
 
 def _run_filter(ctx: StageContext) -> Any:
-    from ..filtering import filter_states
+    from ..estimation.filtering import filter_states
 
     return filter_states(
         ctx.model, ctx.inputs["data"], ctx.inputs.get("parameters"), **_kwargs(ctx.options)
@@ -138,7 +138,7 @@ def _run_filter(ctx: StageContext) -> Any:
 
 class ValidateOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.validation:validate",
+        "aeroid.uncertainty.validation:validate",
         "confidence",
         "whiteness_lags",
         "holdout",
@@ -151,7 +151,7 @@ class ValidateOptions(
 
 
 def _run_validate(ctx: StageContext) -> Any:
-    from ..validation import validate
+    from ..uncertainty.validation import validate
 
     return validate(
         ctx.model, flight_data(ctx), ctx.inputs.get("parameters"), **_kwargs(ctx.options)
@@ -163,7 +163,7 @@ def _run_validate(ctx: StageContext) -> Any:
 
 class PropagateOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.propagation:propagate",
+        "aeroid.uncertainty.propagation:propagate",
         "n_samples",
         "percentiles",
         # bounded so a typo cannot queue a run of days (1e7 draws is minutes per flight)
@@ -183,7 +183,7 @@ class PropagateOptions(
 
 
 def _run_propagate(ctx: StageContext) -> Any:
-    from ..propagation import propagate
+    from ..uncertainty.propagation import propagate
 
     kw = _kwargs(ctx.options, "metric", "n_batches")
     return propagate(ctx.inputs["result"], metric(ctx.options.metric), seed=ctx.seed_int(0), **kw)
@@ -192,7 +192,7 @@ def _run_propagate(ctx: StageContext) -> Any:
 def _n_draws(options: Any) -> int:
     if options.n_samples is not None:
         return int(options.n_samples)
-    from ..propagation import propagate
+    from ..uncertainty.propagation import propagate
 
     return int(inspect.signature(propagate).parameters["n_samples"].default)
 
@@ -202,7 +202,7 @@ def _propagate_parts(options: Any, roles: frozenset[str]) -> int:
 
 
 def _run_propagate_part(ctx: StageContext, index: int) -> Any:
-    from ..propagation import propagate_batch
+    from ..uncertainty.propagation import propagate_batch
 
     n, k = _n_draws(ctx.options), _propagate_parts(ctx.options, frozenset(ctx.inputs))
     start, stop = index * n // k, (index + 1) * n // k
@@ -212,7 +212,7 @@ def _run_propagate_part(ctx: StageContext, index: int) -> Any:
 
 
 def _combine_propagate(ctx: StageContext, parts: list[Any]) -> Any:
-    from ..propagation import combine_batches
+    from ..uncertainty.propagation import combine_batches
 
     return combine_batches(parts, **_kwargs(ctx.options, "metric", "n_batches", "n_samples"))
 
@@ -230,7 +230,7 @@ class PriorSpec(Options):
     half_normal: float | None = None
 
     def build(self, name: str) -> Any:
-        from ..priors import HalfNormal, LogUniform, Normal, Uniform
+        from ..uncertainty.priors import HalfNormal, LogUniform, Normal, Uniform
 
         given = self.model_dump(exclude_none=True)
         if len(given) != 1:
@@ -249,7 +249,7 @@ class PriorSpec(Options):
 
 class InferOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.inference:infer",
+        "aeroid.uncertainty.inference:infer",
         *("noise", "n_walkers", "n_steps", "n_ensembles", "burn_in", "thin", "stretch"),
         *("move", "outputs", "backend"),
         n_walkers=Field(None, ge=2, le=100_000),
@@ -306,7 +306,7 @@ def _infer_model(ctx: StageContext) -> Any:
 
 
 def _run_infer(ctx: StageContext) -> Any:
-    from ..inference import infer
+    from ..uncertainty.inference import infer
 
     kw = _infer_kwargs(ctx)
     if ctx.options.n_ensembles is not None:
@@ -319,14 +319,14 @@ def _infer_parts(options: Any, roles: frozenset[str]) -> int:
 
 
 def _run_infer_part(ctx: StageContext, ensemble: int) -> Any:
-    from ..inference import infer_ensemble
+    from ..uncertainty.inference import infer_ensemble
 
     data = ctx.inputs["data"]
     return infer_ensemble(_infer_model(ctx), data, ensemble=ensemble, **_infer_kwargs(ctx))
 
 
 def _combine_infer(ctx: StageContext, parts: list[Any]) -> Any:
-    from ..inference import combine_ensembles
+    from ..uncertainty.inference import combine_ensembles
 
     return combine_ensembles(parts)
 
@@ -351,7 +351,7 @@ class ManeuverSpec(Options):
         return self
 
     def build(self) -> Any:
-        from ..maneuvers import Chirp, Doublet, Multisine
+        from ..uncertainty.maneuvers import Chirp, Doublet, Multisine
 
         families: dict[str, Any] = {"multisine": Multisine, "doublet": Doublet, "chirp": Chirp}
         cls = families[self.type]
@@ -361,7 +361,7 @@ class ManeuverSpec(Options):
 
 class DesignOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.design:design_experiment",
+        "aeroid.uncertainty.design:design_experiment",
         *("parameters", "criterion", "noise", "duration", "sample_rate", "optimizer_options"),
         parameters=_NAMES,
         duration=Field(None, gt=0),
@@ -381,7 +381,7 @@ class DesignOptions(
 
 
 def _run_design(ctx: StageContext) -> Any:
-    from ..design import design_experiment
+    from ..uncertainty.design import design_experiment
 
     names = ctx.options.parameters or list(ctx.model.parameter_names)
     kw = _kwargs(ctx.options, "maneuver", "parameters", "at_record_start")
@@ -399,7 +399,7 @@ def _run_design(ctx: StageContext) -> Any:
 
 class FrequencyOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.frequency:frequency_response",
+        "aeroid.frequency.response:frequency_response",
         "inputs",
         "outputs",
         "nperseg",
@@ -416,7 +416,7 @@ class FrequencyOptions(
 
 
 def _run_frequency(ctx: StageContext) -> Any:
-    from ..frequency import frequency_response
+    from ..frequency.response import frequency_response
 
     kw = _kwargs(ctx.options)
     # the model's own transfer function where it has one, a smooth curve under the points
@@ -426,7 +426,7 @@ def _run_frequency(ctx: StageContext) -> Any:
 
 class SensitivityOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.sensitivity:sensitivities",
+        "aeroid.uncertainty.sensitivity:sensitivities",
         "parameters",
         "noise",
         "outputs",
@@ -440,7 +440,7 @@ class SensitivityOptions(
 
 
 def _run_sensitivities(ctx: StageContext) -> Any:
-    from ..sensitivity import sensitivities
+    from ..uncertainty.sensitivity import sensitivities
 
     kw = _kwargs(ctx.options, "parameters")
     if "values" in ctx.inputs:
@@ -451,12 +451,12 @@ def _run_sensitivities(ctx: StageContext) -> Any:
 # -- reports ---------------------------------------------------------------------------------
 
 
-class ReportOptions(library_fields("aeroid.reporting:report", "title")):  # type: ignore[misc]
+class ReportOptions(library_fields("aeroid.reports.reporting:report", "title")):  # type: ignore[misc]
     """`aeroid.report` keywords for each flight's report."""
 
 
 def _run_report(ctx: StageContext) -> FlightReport:
-    from ..reporting import report
+    from ..reports.reporting import report
 
     title = ctx.options.title or f"Flight {ctx.flight}"
     extra = {

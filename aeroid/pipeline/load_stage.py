@@ -98,7 +98,7 @@ class QualityLimits(Options):
 
 class LoadOptions(
     library_fields(  # type: ignore[misc]  # a generated base
-        "aeroid.channel_map:load_mapped",
+        "aeroid.io.channel_map:load_mapped",
         *("time_column", "channels", "units", "sample_rate", "max_gap", "window", "quality"),
         # HDF5: read data stored outside the flight file (refused unless set)
         "allow_external_data",
@@ -111,7 +111,7 @@ class LoadOptions(
         quality=(bool | QualityLimits | None, Field(None)),
     )
 ):
-    """`aeroid.channel_map.load_mapped` keywords (files) or the simulated-flight spec;
+    """`aeroid.io.channel_map.load_mapped` keywords (files) or the simulated-flight spec;
     ``condition``: the flight condition the planner passes on into the data's metadata."""
 
     condition: dict[str, float] | None = None
@@ -127,21 +127,21 @@ def _with_condition(data: Any, condition: Mapping[str, float] | None) -> Any:
     """The record with the flight condition merged into its (read-only) metadata."""
     if not condition:
         return data
-    from ..data import FlightData
+    from ..io.data import FlightData
 
     meta = {**dict(data.metadata), **{k: float(v) for k, v in condition.items()}}
     return FlightData(data.time, data.channels, units=data.units, metadata=meta)
 
 
 def _run_load(ctx: StageContext) -> Any:
-    from ..channel_map import load_mapped
+    from ..io.channel_map import load_mapped
     from .keys import file_digest
 
     src = dict(ctx.source or {})
     condition = ctx.options.condition
     if src.get("kind") == "simulated":
-        from ..data import FlightData
-        from ..quality import check_data_quality
+        from ..io.data import FlightData
+        from ..io.quality import check_data_quality
         from .synthetic import fly
 
         data = fly(src["spec"])

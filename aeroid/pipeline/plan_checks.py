@@ -33,7 +33,7 @@ _FLIGHT_INDEX = re.compile(r"flights\[(\d+)\]")
 def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) -> Any:
     """A model from a built-in name, ``module:attribute`` (a Model or a factory; the
     module's file in `base_dir`, else an installed module), or a mapping that defines
-    an `aeroid.aircraft` model (see `model_from_config`). Resolved once per process."""
+    an `aeroid.models.aircraft` model (see `model_from_config`). Resolved once per process."""
     if isinstance(spec, Mapping):
         return _model_from_mapping(canonical_json(dict(spec)).decode())
     return _named_model(spec, base_dir)
@@ -41,8 +41,8 @@ def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) ->
 
 @functools.lru_cache(maxsize=32)
 def _model_from_mapping(text: str) -> Any:
-    from ..aircraft import model_from_config
     from ..errors import ModelDefinitionError
+    from ..models.aircraft import model_from_config
 
     try:
         return model_from_config(json.loads(text))
@@ -52,12 +52,12 @@ def _model_from_mapping(text: str) -> Any:
 
 @functools.lru_cache(maxsize=32)
 def _named_model(spec: str, base_dir: str | None) -> Any:
-    from ..model import Model, SimulatorModel
+    from ..models.model import Model, SimulatorModel
 
     if ":" in spec:
         obj = _code.resolve(spec, base_dir, what="model")
     elif spec in BUILTIN_MODELS:
-        from .. import catalog
+        from ..models import catalog
 
         obj = getattr(catalog, spec)
     else:

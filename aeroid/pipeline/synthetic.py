@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..data import FlightData
+from ..io.data import FlightData
 
 __all__ = ["GENERATOR_VERSION", "flight_spec", "fly"]
 
@@ -30,7 +30,7 @@ _SWEEP_START = 4.0  # s: after the doublet (1-3 s) has settled
 
 
 def _truth(airspeed: float) -> dict[str, float]:
-    from ..catalog import SHORT_PERIOD_TRUTH
+    from ..models.catalog import SHORT_PERIOD_TRUTH
 
     s = airspeed / _V_REF
     return {
@@ -70,7 +70,7 @@ def flight_spec(spec: Mapping[str, Any], index: int) -> dict[str, Any]:
 
 def fly(flight: Mapping[str, Any]) -> FlightData:
     """Fly one simulated flight from its `flight_spec` (noise seeded per flight index)."""
-    from ..catalog import doublet, frequency_sweep, short_period_flight
+    from ..models.catalog import doublet, frequency_sweep, short_period_flight
 
     if flight.get("generator_version") != GENERATOR_VERSION:
         raise ValueError(

@@ -1,4 +1,4 @@
-"""Benchmark: `identify` on the standard aircraft models of `aeroid.aircraft` (run as a script).
+"""Benchmark: `identify` on the standard aircraft models of `aeroid.models.aircraft` (run as a script).
 
     python tests/benchmarks/bench_aircraft.py [longitudinal|six_dof]
 
@@ -34,7 +34,7 @@ LAT = {k: v for k, v in LAT_ALL.items() if k not in ("CY_p", "CY_r", "CY_delta_a
 
 
 def _constants() -> Any:
-    from aeroid.aircraft import AircraftConstants
+    from aeroid.models.aircraft import AircraftConstants
 
     return AircraftConstants(**BASE, Ixz=80.0, altitude=1000.0, accel_position=(0.3, 0.0, 0.1))
 
@@ -66,7 +66,7 @@ def _run(model: Any, data: Any, guess: dict[str, float], x0: Any, truth: dict[st
 
 
 def case_longitudinal() -> None:
-    from aeroid.aircraft import longitudinal, trim
+    from aeroid.models.aircraft import longitudinal, trim
 
     model = longitudinal(_constants(), V0=53.6, parameters=LONG)
     tr = trim(model)
@@ -84,7 +84,7 @@ def case_longitudinal() -> None:
 
 
 def case_six_dof() -> None:
-    from aeroid.aircraft import six_dof, trim
+    from aeroid.models.aircraft import six_dof, trim
 
     terms = {
         "CY": ["beta", "delta_r"],

@@ -14,7 +14,7 @@ import numpy as np
 from _timing import median_time
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 NOISE = {"alpha": 0.005, "q": 0.01}
 

@@ -7,7 +7,7 @@ A second line adds a time shift on alpha (a re-interpolating second pass).
 
 Run as a script in a fresh process: ``python tests/benchmarks/bench_compatibility.py
 [--repeat N] [--numpy]``. ``--numpy`` switches the compiled simulation off (when
-`aeroid._compiled` exists). Reports the first call (imports, and any
+`aeroid.models.compiled` exists). Reports the first call (imports, and any
 compilation) and the median of `--repeat` warm calls.
 """
 
@@ -37,7 +37,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.numpy:
         try:
-            from aeroid import _compiled
+            from aeroid.models import compiled as _compiled
 
             _compiled.ENABLED = False
         except ImportError:

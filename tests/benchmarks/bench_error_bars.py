@@ -27,8 +27,8 @@ from _timing import median_time
 from scipy.signal import butter, lfilter
 
 import aeroid
-from aeroid._noise_model import _colored_covariance
 from aeroid._threads import small_blas
+from aeroid.estimation._noise_model import _colored_covariance
 
 FS = 50.0
 N_A, N_B = 8, 6

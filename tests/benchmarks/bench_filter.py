@@ -11,7 +11,7 @@ from typing import Any
 from _timing import timed
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 PROCESS = {"alpha": 1e-8, "q": 1e-8}
 MEASUREMENT = {"alpha": 0.005**2, "q": 0.01**2}
@@ -28,7 +28,7 @@ def _filter_error(model: aeroid.Model, data: aeroid.FlightData) -> Any:
             process_noise=PROCESS,
             measurement_noise=MEASUREMENT,
         )
-    from aeroid._filter_error import identify_filter_error
+    from aeroid.estimation._filter_error import identify_filter_error
 
     return identify_filter_error(
         model,

@@ -9,12 +9,12 @@ cache cold). Every case runs three ways:
 * ``cold``: default dispatch, empty disk cache;
 * ``disk``: default dispatch, a second fresh process reusing the first one's
   disk cache (the compiled programs kept across processes);
-* ``numpy``: the compiled path switched off (``aeroid._compiled.ENABLED``):
+* ``numpy``: the compiled path switched off (``aeroid.models.compiled.ENABLED``):
   step-by-step RK4 with finite-difference sensitivities batched over
   parameter columns (the plain numpy Gauss-Newton of the issue's ">= 20x").
 
 With the compiled path on, a model's first fit runs in numpy by Newton's
-method over the whole record (`aeroid._shooting`) and its second compiles.
+method over the whole record (`aeroid.models.shooting`) and its second compiles.
 
 Printed per case and way: the first call's wall and process CPU time, whether
 JAX was imported by it, the second call (which compiles) and the median of the
@@ -62,7 +62,7 @@ t_start = time.perf_counter()
 sys.path.insert(0, {here!r})
 import numpy as np
 import aeroid
-import aeroid._compiled as compiled
+import aeroid.models.compiled as compiled
 if {numpy_only!r}:
     compiled.ENABLED = False
 case = {case!r}
@@ -223,7 +223,8 @@ def example_6p1_case():  # type: ignore[no-untyped-def]
     estimated from SIDPAC's start values; needs ``AEROID_SIDPAC_DIR``."""
     import scipy.io
 
-    from aeroid import FlightData, aircraft
+    from aeroid import FlightData
+    from aeroid.models import aircraft
 
     path = Path(os.environ["AEROID_SIDPAC_DIR"]) / "Text_Examples" / "example_6p1_results.mat"
     d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)

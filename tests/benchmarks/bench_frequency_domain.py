@@ -3,11 +3,11 @@
 Each case runs in its own ``python`` subprocess with this process's
 environment unchanged (no BLAS pinning, no thread variables set here). The
 record is simulated before the clock starts; the first call then pays for
-importing `aeroid.frequency_domain` and SciPy's chirp-z transform. Each case
+importing `aeroid.frequency.frequency_domain` and SciPy's chirp-z transform. Each case
 prints that first call and the median of several warm calls next to its
 target, and the largest estimate error in standard errors as a check.
 
-Case: the linear lateral-directional model (`aeroid.aircraft.lateral_linear`,
+Case: the linear lateral-directional model (`aeroid.models.aircraft.lateral_linear`,
 states beta, p, r, phi; 12 dimensional derivatives), 30 s at 50 Hz with
 measurement noise, starting 20 % off, fitted at the k/T grid from 0.1 to 2 Hz
 (57 frequencies).
@@ -34,7 +34,7 @@ import json, statistics, sys, time
 import numpy as np
 
 case, repeat = sys.argv[1], int(sys.argv[2])
-from aeroid.aircraft import lateral_linear
+from aeroid.models.aircraft import lateral_linear
 truth = dict(Y_beta=-0.15, Y_delta_r=0.03, L_beta=-8.0, L_p=-2.5, L_r=0.8, L_delta_a=12.0,
              L_delta_r=1.0, N_beta=3.5, N_p=-0.1, N_r=-0.4, N_delta_a=-0.3, N_delta_r=-2.5)
 model = lateral_linear(V0=60.0, parameters=truth)

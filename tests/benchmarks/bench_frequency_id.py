@@ -2,7 +2,7 @@
 
 Every case runs in its own ``python`` subprocess with this process's
 environment unchanged (no BLAS pinning, no thread variables set here), so the
-first call pays for importing `aeroid.frequency_id` and its SciPy modules. Each
+first call pays for importing `aeroid.frequency.frequency_id` and its SciPy modules. Each
 case prints that first call and the median of several warm calls next to its
 target.
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 from _timing import timed
 
-from aeroid import catalog, identify
+from aeroid import identify
+from aeroid.models import catalog
 
 NAMES = list(catalog.SHORT_PERIOD_TRUTH)
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 import aeroid
-from aeroid import catalog
+from aeroid.models import catalog
 
 TARGET = 1000.0
 COMPETITOR = 38.0

@@ -20,7 +20,8 @@ import numpy as np
 from _timing import median_time
 
 import aeroid
-from aeroid import _jax, catalog
+from aeroid.models import catalog
+from aeroid.models import jax_compiled as _jax
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 

@@ -7,7 +7,7 @@ Cases and targets:
   fresh process's baseline after imports) <= 2x the file's size.
 * `aeroid.list_channels` of the sample PX4 ULog: <= 1 s.
 * `aeroid.load_flight_test` of 12 ULog channels resampled at 100 Hz: <= 2 s
-  (needs `aeroid.resampling.resample`; skipped when that module is absent).
+  (needs `aeroid.io.resampling.resample`; skipped when that module is absent).
 
 Run as a script: ``python tests/benchmarks/bench_logs.py [--rows N] [--repeat N]``.
 Every measured call runs in a fresh child process (default environment), so
@@ -46,7 +46,7 @@ ULOG_CHANNELS = [
 CHILD = textwrap.dedent(
     """
     import json, resource, statistics, sys, time
-    import aeroid, aeroid.data, pyarrow.csv  # imports belong to the baseline
+    import aeroid, aeroid.io.data, pyarrow.csv  # imports belong to the baseline
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     kind, path, repeat = sys.argv[1], sys.argv[2], int(sys.argv[3])
     channels = json.loads(sys.argv[4])
@@ -127,8 +127,8 @@ def main() -> None:
         f"list_channels({ULOG.name}): first {r['first']:.3f} s, warm median "
         f"{r['warm']:.3f} s (target <= 1 s)"
     )
-    if importlib.util.find_spec("aeroid.resampling") is None:
-        print("load_flight_test(ULog, 12 channels, 100 Hz): skipped (no aeroid.resampling)")
+    if importlib.util.find_spec("aeroid.io.resampling") is None:
+        print("load_flight_test(ULog, 12 channels, 100 Hz): skipped (no aeroid.io.resampling)")
         return
     r = _child("load", ULOG, max(args.repeat, 5), ULOG_CHANNELS)
     print(

@@ -205,7 +205,7 @@ def _library_flights(
     indices: list[int], duration: float = 20.0, maneuver: str = "doublet_sweep"
 ) -> float:
     """The campaign's per-flight library calls, as the pipeline's stages make them."""
-    from aeroid import catalog
+    from aeroid.models import catalog
     from aeroid.pipeline.library_stages import natural_frequency
     from aeroid.pipeline.synthetic import flight_spec, fly
 

@@ -2,7 +2,7 @@
 
 ``Model.simulate_batch`` of an affine model discretises it exactly and then
 runs the recursion x_{k+1} = phi x_k + f_k. The library runs it in blocks of
-about sqrt(T) samples (`aeroid._integrate._linear_recursion`); the reference
+about sqrt(T) samples (`aeroid.models.integration._linear_recursion`); the reference
 here is the plain loop over samples it replaced. Reported: the ratio of the
 medians per record length and batch size, the largest relative difference
 between the two, and what it does to a whole identify and a short MCMC run.
@@ -19,7 +19,8 @@ import scipy.linalg
 from _timing import median_time
 
 import aeroid
-from aeroid import _integrate, catalog
+from aeroid.models import catalog
+from aeroid.models import integration as _integrate
 
 
 def _step_by_step(phi: np.ndarray, x0: np.ndarray, forcing: np.ndarray) -> np.ndarray:

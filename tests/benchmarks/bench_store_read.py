@@ -15,7 +15,7 @@ from pathlib import Path
 from _timing import median_time
 
 from aeroid import identify
-from aeroid.catalog import short_period, short_period_flight
+from aeroid.models.catalog import short_period, short_period_flight
 from aeroid.pipeline import ResultStore
 from aeroid.pipeline.keys import canonical_json, sha256_hex
 from aeroid.pipeline.store import Entry

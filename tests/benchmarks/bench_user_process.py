@@ -145,7 +145,7 @@ def main() -> None:
         _child(args.child, args.csv, args.repeat)
         return
 
-    from aeroid import catalog
+    from aeroid.models import catalog
 
     pinned = [
         v for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS") if v in os.environ

@@ -45,7 +45,7 @@ NAMES = (
 
 def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str, Any]]:
     import aeroid
-    from aeroid import aircraft
+    from aeroid.models import aircraft
 
     (path,) = S.need(folder, FILE)
     d = S.loadmat(path)

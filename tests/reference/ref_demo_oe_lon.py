@@ -57,7 +57,7 @@ def initial_state(z: np.ndarray, t: np.ndarray, m: int = 21) -> np.ndarray:
 
 def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str, Any]]:
     import aeroid
-    from aeroid import aircraft
+    from aeroid.models import aircraft
 
     (path,) = S.need(folder, FILE)
     d = S.loadmat(path)

@@ -35,7 +35,7 @@ NAMES = ("Lda", "Lp")
 
 def _tfest_like(t: np.ndarray, u: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """tfest's equation-error estimates and standard errors for nord=0, dord=1."""
-    from aeroid.frequency_domain import _transform
+    from aeroid.frequency.frequency_domain import _transform
 
     dt = float(t[1] - t[0])
     w = 2 * np.pi * np.arange(0.1, 1.5 + 1e-9, 0.05)

@@ -1,0 +1,163 @@
+"""The extended Kalman filter pass compiled whole (one `jax.lax.scan`), internal.
+
+The same algorithm as the numpy pass in `aeroid.estimation.filtering._general` step for
+step: the state moved over each interval by the RK4 of `_compiled._interval`
+(same substeps, one-sided ends, controls linear between samples), the
+covariance by the Van Loan discretisation of the central-difference Jacobian
+of the dynamics at the filtered state (same step rule), the measurement
+linearised by central differences at the prediction, and the Joseph-form
+update through the Cholesky factor of the innovation covariance. So the two
+agree to rounding; what the compiled pass cannot do (diagonal jitter of an
+indefinite innovation covariance, naming a failing state) it leaves to the
+numpy pass: any non-finite value makes it return None.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..models import compiled as _compiled
+from ..models.model import Model
+
+FloatArray = NDArray[np.float64]
+
+Arrays = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+
+
+def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
+    entry = _compiled._entry(model)
+    f = entry[("fn", "dynamics")]
+    h = entry.get(("fn", "measurement")) if model.measurement is not None else None
+    n = model.n_states
+    oi = jnp.asarray(np.array(out_idx, dtype=np.int64))
+    Hsel = np.zeros((len(out_idx), n))
+    sel = np.zeros(len(out_idx), dtype=np.int64)
+    if h is None:  # the outputs are states
+        sel = np.array([model.states.index(model.output_names[i]) for i in out_idx])
+        Hsel[np.arange(len(out_idx)), sel] = 1.0
+    step = _compiled._interval(f, jax)
+    expm = jax.scipy.linalg.expm
+    tri = jax.scipy.linalg.solve_triangular
+    eye = jnp.eye(n)
+
+    def sym(P: Any) -> Any:
+        return 0.5 * (P + P.T)
+
+    def fd_step(x: Any, P: Any) -> Any:  # as filtering._fd_step
+        sd = jnp.sqrt(jnp.clip(jnp.diagonal(P), 0.0, None))
+        return jnp.maximum(1e-3 * sd, 1e-7 * jnp.maximum(jnp.abs(x), 1e-2))
+
+    def meas_lin(t: Any, x: Any, P: Any, u: Any, pvec: Any) -> tuple[Any, Any]:
+        if h is None:
+            return x[sel], jnp.asarray(Hsel)
+        st = fd_step(x, P)
+        E = eye * st[:, None]
+        pts = jnp.concatenate([x[None], x[None] + E, x[None] - E], axis=0)
+        vals = jax.vmap(h, in_axes=(None, 0, None, None))(t, pts, u, pvec)[:, oi]
+        Hm = ((vals[1 : n + 1] - vals[n + 1 :]) / (2.0 * st[:, None])).T
+        return vals[0], Hm
+
+    def dyn_lin(t: Any, x: Any, P: Any, u: Any, pvec: Any, Qc: Any, dt: Any) -> tuple[Any, Any]:
+        st = fd_step(x, P)
+        E = eye * st[:, None]
+        pts = jnp.concatenate([x[None] + E, x[None] - E], axis=0)
+        vals = jax.vmap(f, in_axes=(None, 0, None, None))(t, pts, u, pvec)
+        A = ((vals[:n] - vals[n:]) / (2.0 * st[:, None])).T
+        M = jnp.zeros((2 * n, 2 * n))
+        M = M.at[:n, :n].set(-A).at[:n, n:].set(Qc).at[n:, n:].set(A.T)
+        Ev = expm(M * dt)
+        Phi = Ev[n:, n:].T
+        return Phi, sym(Phi @ Ev[:n, n:])
+
+    def one(time: Any, U: Any, Y: Any, x0: Any, P0: Any, pvec: Any, Qc: Any, R: Any, m: Any) -> Any:
+        yh0, H0 = meas_lin(time[0], x0, P0, U[0], pvec)
+        nu0 = Y[0] - yh0
+        S0 = H0 @ P0 @ H0.T + R
+
+        def body(carry: Any, inp: Any) -> Any:
+            x, P = carry
+            t0, t1, u0, u1, y = inp
+            xpk = step(x, t0, t1, u0, u1, pvec, m)
+            Phi, Qd = dyn_lin(t0, x, P, u0, pvec, Qc, t1 - t0)
+            Ppk = sym(Phi @ P @ Phi.T + Qd)
+            Ck = P @ Phi.T
+            yh, H = meas_lin(t1, xpk, Ppk, u1, pvec)
+            PHt = Ppk @ H.T
+            Sk = sym(H @ PHt + R)
+            L = jnp.linalg.cholesky(Sk)
+            K = tri(L.T, tri(L, PHt.T, lower=True), lower=False).T
+            v = y - yh
+            xn = xpk + K @ v
+            IKH = eye - K @ H
+            Pn = sym(IKH @ Ppk @ IKH.T + K @ R @ K.T)
+            return (xn, Pn), (xn, Pn, xpk, Ppk, Ck, v, Sk)
+
+        _, outs = jax.lax.scan(body, (x0, P0), (time[:-1], time[1:], U[:-1], U[1:], Y[1:]))
+        xf, Pf, xp, Pp, C, nu, S = outs
+
+        def cat(first: Any, rest: Any) -> Any:
+            return jnp.concatenate([first[None], rest], axis=0)
+
+        return (
+            cat(x0, xf),
+            cat(P0, Pf),
+            cat(x0, xp),
+            cat(P0, Pp),
+            cat(jnp.zeros_like(P0), C),
+            cat(nu0, nu),
+            cat(S0, S),
+        )
+
+    return jax.jit(jax.vmap(one, in_axes=(None, None, None, 0, 0, 0, 0, 0, None)))
+
+
+def ekf_pass(
+    model: Model,
+    time: FloatArray,
+    U: FloatArray,
+    Y: FloatArray,
+    out_idx: tuple[int, ...],
+    params: Mapping[str, FloatArray],
+    Qc: FloatArray,
+    R: FloatArray,
+    x0: FloatArray,
+    P0: FloatArray,
+    substeps: int,
+) -> Arrays | None:
+    """(xf, Pf, xp, Pp, C, nu, S) for a batch of B filters, or None (use numpy).
+
+    None when the model's functions do not compile, or when any value is not
+    finite (the numpy pass then jitters, or names the failure).
+    """
+    if not _compiled.ENABLED or not isinstance(model, Model):
+        return None
+    B = x0.shape[0]
+    pmat = _compiled._pmatrix(model, params, B)
+    pvec = pmat[0]
+    if not _compiled.available(model, time, x0[0], U, pvec, measurement=True):
+        return None
+    mods = _compiled._import_jax()
+    if mods is None:
+        return None
+    jax, jnp = mods
+    cache = _compiled._shared(model)
+    key = ("ekf_pass", tuple(out_idx))
+    fn = cache.get(key)
+    if fn is None:
+        fn = _build(model, tuple(out_idx), jax, jnp)
+        cache[key] = fn
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            outs = fn(time, U, Y, x0, P0, pmat, Qc, R, np.int32(substeps))
+        except Exception:  # a model JAX traced pointwise but not in this pass: numpy
+            return None
+        arrays = tuple(np.asarray(a, dtype=np.float64) for a in outs)
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        return None
+    return arrays  # type: ignore[return-value]

@@ -1,0 +1,550 @@
+"""Filter-error identification: maximum likelihood on Kalman-filter innovations.
+
+With process noise (turbulence, model error) the measured outputs are not a
+deterministic function of the parameters, and output-error fits are biased.
+The filter-error method (Jategaonkar, ch. 5) runs a Kalman filter for each
+candidate parameter vector and maximises the likelihood of its innovations,
+
+    -log L = 1/2 sum_k [ nu_k' S_k^-1 nu_k + log det S_k ] + const,
+
+by Levenberg–Marquardt-damped Fisher scoring (the one least-squares
+iteration, `aeroid.estimation.least_squares.minimise`). The innovations and their
+covariances are differentiated by central differences: all perturbed
+parameter vectors go through one batched filter pass. The Fisher information
+of the innovations,
+
+    I_ij = sum_k [ dnu_i' S^-1 dnu_j + 1/2 tr(S^-1 dS_i S^-1 dS_j) ],
+
+is the Gauss–Newton matrix of the whitened innovations extended by the
+covariance term, and its inverse gives the parameter covariance (the
+innovations are white by construction, so no colour correction applies).
+
+On request the process-noise intensities (and, when no measurement noise is
+given, the measurement-noise variances) are estimated together with the
+parameters, log-parameterised so they stay positive.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import IdentifiabilityWarning, IdentificationError
+from ..io.data import FlightData
+from ..models.model import Model, resolve_parameters
+from ._filter_steady import gain_choice, steady_pass
+from ._identification_record import IdentificationResult
+from .filtering import (
+    _default_P0,
+    _Problem,
+    _require_model,
+    build_problem,
+    innovation_loglik,
+    noise_matrix,
+    run_filter,
+)
+from .identifiability import unidentifiable
+from .least_squares import Linearisation, minimise
+
+__all__ = ["FILTER_OPTIONS", "identify_filter_error"]
+
+FloatArray = NDArray[np.float64]
+
+FILTER_OPTIONS = ("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain")
+
+
+@dataclass
+class _Layout:
+    """How the vector z of estimated quantities maps onto the filter inputs."""
+
+    names: tuple[str, ...]  # model parameters
+    q_states: tuple[int, ...]  # state indices whose log process noise is estimated
+    r_outputs: tuple[int, ...]  # output indices whose log measurement variance is estimated
+
+    @property
+    def size(self) -> int:
+        return len(self.names) + len(self.q_states) + len(self.r_outputs)
+
+    def labels(self, model: Model, outputs: Sequence[str]) -> list[str]:
+        return (
+            list(self.names)
+            + [f"process_noise.{model.states[i]}" for i in self.q_states]
+            + [f"measurement_noise.{outputs[j]}" for j in self.r_outputs]
+        )
+
+
+def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
+    opts: dict[str, Any] = {"method": "ekf", "ukf_alpha": 1e-3, "ukf_beta": 2.0, "ukf_kappa": 0.0}
+    opts.update({"P0": None, "substeps": None, "gain": None})
+    if filter_options is None:
+        return opts
+    if not isinstance(filter_options, Mapping):
+        raise IdentificationError(
+            f"filter_options: expected a dict with keys among {list(FILTER_OPTIONS)}, "
+            f"got {type(filter_options).__name__}"
+        )
+    unknown = sorted(set(filter_options) - set(FILTER_OPTIONS))
+    if unknown:
+        raise IdentificationError(
+            f"filter_options: unknown options {unknown}; valid options are {list(FILTER_OPTIONS)}"
+        )
+    opts.update(filter_options)
+    return opts
+
+
+def _noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
+    """Measurement variances to start from when none are given: half the variance of
+    first differences (white noise dominates sample-to-sample changes)."""
+    dy = np.diff(prob.Y, axis=0)
+    v = 0.5 * np.var(dy, axis=0)
+    scale = np.maximum(np.var(prob.Y, axis=0), 1e-300)
+    return np.maximum(v, 1e-12 * scale) if R is None else np.diag(R)
+
+
+class _Objective:
+    """Negative log-likelihood of the innovations for batches of z vectors."""
+
+    def __init__(
+        self,
+        model: Model,
+        probs: list[_Problem],
+        base: Mapping[str, float],
+        layout: _Layout,
+        Qc: FloatArray,
+        R: FloatArray,
+        P0_given: bool,
+        method: str,
+    ) -> None:
+        self.model = model
+        self.probs = probs
+        self.base = base
+        self.layout = layout
+        self.Qc = Qc
+        self.R = R
+        self.P0_given = P0_given
+        self.method = method
+        self.gain = "time_varying"
+
+    def inputs(self, Z: FloatArray) -> tuple[dict[str, FloatArray], FloatArray, FloatArray]:
+        B = Z.shape[0]
+        lay = self.layout
+        params = {k: np.full(B, v) for k, v in self.base.items()}
+        for j, name in enumerate(lay.names):
+            params[name] = Z[:, j].copy()
+        Qc = np.repeat(self.Qc[None], B, axis=0)
+        off = len(lay.names)
+        for j, i in enumerate(lay.q_states):
+            Qc[:, i, i] = np.exp(Z[:, off + j])
+        R = np.repeat(self.R[None], B, axis=0)
+        off += len(lay.q_states)
+        for j, i in enumerate(lay.r_outputs):
+            R[:, i, i] = np.exp(Z[:, off + j])
+        return params, Qc, R
+
+    def __call__(
+        self, Z: FloatArray
+    ) -> tuple[FloatArray, FloatArray, list[tuple[FloatArray, FloatArray]]]:
+        """Per member: cost (-log L), sum of nu'S^-1 nu; per record: (nu, S) for all members."""
+        B = Z.shape[0]
+        params, Qc, R = self.inputs(Z)
+        cost = np.zeros(B)
+        quad_all = np.zeros(B)
+        per: list[tuple[FloatArray, FloatArray]] = []
+        for prob in self.probs:
+            x0 = np.repeat(prob.x0[None], B, axis=0)
+            if self.P0_given:
+                P0 = np.repeat(prob.P0[None], B, axis=0)
+            else:
+                P0 = np.stack([_default_P0(self.model, prob.output_names, R[b]) for b in range(B)])
+            with np.errstate(all="ignore"):
+                if self.gain == "steady":
+                    run = steady_pass(prob, params, Qc, R, x0, P0)
+                else:
+                    run = run_filter(prob, params, Qc, R, x0, P0, method=self.method)
+            nu, S = run.nu[:, 1:], run.S[:, 1:]
+            ok = run.ok.copy()
+            quad = np.full(B, np.inf)
+            logdet = np.full(B, np.inf)
+            for b in np.flatnonzero(ok):
+                try:
+                    qb, lb = innovation_loglik(nu[b : b + 1], S[b : b + 1])
+                except np.linalg.LinAlgError:
+                    ok[b] = False
+                    continue
+                quad[b], logdet[b] = qb[0], lb[0]
+            n_obs = nu.shape[1] * nu.shape[2]
+            with np.errstate(invalid="ignore"):
+                cost += 0.5 * (quad + logdet + n_obs * math.log(2 * math.pi))
+            quad_all += quad
+            per.append((run.nu, run.S))
+        cost[~np.isfinite(cost)] = np.inf
+        return cost, quad_all, per
+
+
+def _steps(z: FloatArray, layout: _Layout) -> FloatArray:
+    n_p = len(layout.names)
+    h = np.full(z.size, 1e-4)  # log-parameters: absolute step
+    h[:n_p] = 1e-5 * np.maximum(np.abs(z[:n_p]), 1e-2)
+    return h
+
+
+def _derivatives(
+    obj: _Objective, z: FloatArray, layout: _Layout
+) -> tuple[float, FloatArray, FloatArray, FloatArray, list[tuple[FloatArray, FloatArray]]]:
+    """Cost, gradient and Fisher information at z from one batched pass (central differences)."""
+    n = z.size
+    h = _steps(z, layout)
+    Z = np.repeat(z[None], 1 + 2 * n, axis=0)
+    for i in range(n):
+        Z[1 + i, i] += h[i]
+        Z[1 + n + i, i] -= h[i]
+    cost, quad, per = obj(Z)
+    with np.errstate(invalid="ignore"):
+        grad = (cost[1 : 1 + n] - cost[1 + n :]) / (2 * h)
+    fisher = np.zeros((n, n))
+    for nu, S in per:
+        nu, S = nu[:, 1:], S[:, 1:]
+        Sinv = np.linalg.inv(S[0])  # (K, m, m)
+        dnu = (nu[1 : 1 + n] - nu[1 + n :]) / (2 * h[:, None, None])  # (n, K, m)
+        dS = (S[1 : 1 + n] - S[1 + n :]) / (2 * h[:, None, None, None])  # (n, K, m, m)
+        W = np.einsum("kab,ikb->ika", Sinv, dnu)
+        fisher += np.einsum("ika,jka->ij", dnu, W)
+        SdS = Sinv[None] @ dS  # (n, K, m, m)
+        fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS, optimize=True)  # one matmul
+    if not np.all(np.isfinite(fisher)):
+        fisher = np.nan_to_num(fisher, nan=0.0, posinf=0.0, neginf=0.0)
+    fisher = 0.5 * (fisher + fisher.T)
+    bad = ~np.isfinite(cost[1:])
+    if np.any(bad):
+        # a perturbed member failed: fall back to one-sided differences
+        for i in range(n):
+            if bad[i] and np.isfinite(cost[1 + n + i]):
+                grad[i] = (cost[0] - cost[1 + n + i]) / h[i]
+            elif bad[n + i] and np.isfinite(cost[1 + i]):
+                grad[i] = (cost[1 + i] - cost[0]) / h[i]
+    return float(cost[0]), grad, fisher, quad, [(nu[0], S[0]) for nu, S in per]
+
+
+def identify_filter_error(
+    model: Any,
+    datas: Sequence[FlightData],
+    names: Sequence[str],
+    initial: Mapping[str, float] | None,
+    *,
+    outputs: Sequence[str] | None = None,
+    process_noise: Any = None,
+    measurement_noise: Any = None,
+    filter_options: Mapping[str, Any] | None = None,
+    estimate_process_noise: bool | Sequence[str] = False,
+    x0: Sequence[Mapping[str, float] | None] | None = None,
+    max_iterations: int = 50,
+    tolerance: float = 1e-6,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+) -> IdentificationResult:
+    """Maximum-likelihood parameter estimation on Kalman-filter innovations.
+
+    Called by ``identify(method="filter_error")``; see the module docstring
+    for the method.
+
+    Parameters
+    ----------
+    model : Model
+        Needs a continuous dynamics callable; stepped simulators are rejected.
+    datas : sequence of FlightData
+        One record per manoeuvre; the parameters are shared.
+    names : sequence of str
+        Parameters to estimate.
+    initial : mapping of str to float, optional
+        Starting values (merged onto the model's nominal values; the
+        parameters not in `names` stay fixed at the merged values).
+    outputs : sequence of str, optional
+        Outputs the filter uses (default: all model outputs).
+    process_noise : mapping or array_like, optional
+        Continuous power spectral density per state (state² per second);
+        zero where not given. With `estimate_process_noise` it is the
+        starting value.
+    measurement_noise : mapping or array_like, optional
+        Measurement-noise variances per output. When omitted they are
+        estimated from the innovations (maximum likelihood).
+    filter_options : mapping, optional
+        ``method`` ("ekf" or "ukf"), ``ukf_alpha``, ``ukf_beta``,
+        ``ukf_kappa``, ``P0``, ``substeps`` (as in `filter_states`), and
+        ``gain``: "steady" (default with "ekf": the nonlinear model predicts,
+        the gain is the Kalman gain of the model linearised at the record's
+        start, Jategaonkar's filter error for nonlinear systems; see
+        `aeroid.estimation._filter_steady`) or "time_varying" (an EKF or UKF relinearised
+        at every sample; the default with "ukf").
+    estimate_process_noise : bool or sequence of str
+        Estimate the process-noise intensities of all states (True) or of the
+        named states, together with the parameters.
+    x0 : sequence of mapping or None, optional
+        Initial state per manoeuvre (default: the first measured values).
+    max_iterations : int
+    tolerance : float
+        The stopping rule of aeroid's one least-squares iteration
+        (`aeroid.estimation.least_squares.minimise`): a step below `tolerance` relative
+        to each unknown's size (a noise log-intensity's taken as at least 1),
+        or a cost decrease below ``1e-3 tolerance max(|cost|, 1)``.
+    bounds : mapping of str to (float, float), optional
+        Lower and upper bounds (±inf for an open side) on estimated
+        parameters. Steps are projected: a quantity at a bound whose step
+        would leave the box is held there and the step re-solved without it.
+        Parameters that end at a bound are listed in ``active_bounds``, with
+        standard error 0 and the others' covariance conditional on the bound.
+
+    Returns
+    -------
+    IdentificationResult
+        ``method="filter_error"``, ``sigma2`` the mean normalised innovation
+        variance, ``process_noise`` the intensities used or estimated.
+    """
+    m = _require_model(model, IdentificationError, "filter-error identification")
+    if isinstance(datas, FlightData):
+        datas = [datas]
+    datas = list(datas)
+    if not datas:
+        raise IdentificationError("data: at least one flight record is needed")
+    names = tuple([names] if isinstance(names, str) else names)
+    if not names:
+        raise IdentificationError("parameters: name at least one parameter to estimate")
+    bad = [n for n in names if n not in m.parameters]
+    if bad:
+        raise IdentificationError(
+            f"parameters {bad} are not parameters of model {m.name!r}; its parameters are "
+            f"{list(m.parameters)}"
+        )
+    if len(set(names)) != len(names):
+        raise IdentificationError(f"parameters: duplicate names in {list(names)}")
+    opts = _options(filter_options)
+    if x0 is None:
+        x0_list: list[Any] = [None] * len(datas)
+    else:
+        x0_list = list(x0)
+        if len(x0_list) != len(datas):
+            raise IdentificationError(
+                f"x0: expected one initial state per manoeuvre ({len(datas)}), got {len(x0_list)}"
+            )
+    if int(max_iterations) != max_iterations or max_iterations < 1:
+        raise IdentificationError(
+            f"max_iterations: expected a positive integer, got {max_iterations!r}"
+        )
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise IdentificationError(f"tolerance: expected a positive number, got {tolerance!r}")
+    start = resolve_parameters(m, initial, error=IdentificationError)
+
+    estimate_R = measurement_noise is None
+    probs: list[_Problem] = []
+    R: FloatArray | None = None
+    for i, data in enumerate(datas):
+        prob, Ri = build_problem(
+            m,
+            data,
+            outputs=outputs,
+            measurement_noise=measurement_noise,
+            x0=x0_list[i],
+            P0=opts["P0"],
+            substeps=opts["substeps"],
+            method=opts["method"],
+            ukf=(float(opts["ukf_alpha"]), float(opts["ukf_beta"]), float(opts["ukf_kappa"])),
+            error=IdentificationError,
+            require_R=not estimate_R,
+        )
+        probs.append(prob)
+        R = Ri
+    assert R is not None
+    out_names = probs[0].output_names
+    n_y = len(out_names)
+    Qc = noise_matrix(
+        process_noise,
+        m.states,
+        "process_noise",
+        IdentificationError,
+        require_all=False,
+        positive=False,
+    )
+    if estimate_process_noise is True:
+        q_states = tuple(range(m.n_states))
+    elif estimate_process_noise is False or estimate_process_noise is None:
+        q_states = ()
+    else:
+        sel = (
+            [estimate_process_noise]
+            if isinstance(estimate_process_noise, str)
+            else list(estimate_process_noise)
+        )
+        unknown = [s for s in sel if s not in m.states]
+        if unknown:
+            raise IdentificationError(
+                f"estimate_process_noise: {unknown} are not states; states: {list(m.states)}"
+            )
+        q_states = tuple(m.states.index(s) for s in sel)
+    if q_states:
+        off = np.abs(Qc - np.diag(np.diag(Qc)))
+        if np.any(off[list(q_states)] > 0) or np.any(off[:, list(q_states)] > 0):
+            raise IdentificationError(
+                "estimate_process_noise: the estimated states' process noise must be uncorrelated "
+                "(diagonal) with the others"
+            )
+    r_outputs = tuple(range(n_y)) if estimate_R else ()
+    layout = _Layout(names, q_states, r_outputs)
+
+    # starting values of the log-parameters
+    r_start = np.mean([_noise_start(p, None if estimate_R else R) for p in probs], axis=0)
+    R0 = np.diag(r_start) if estimate_R else R
+    z0 = [start[n] for n in names]
+    if q_states:
+        dt = float(np.median(np.diff(probs[0].time)))
+        sim = m.simulate_data(datas[0], x0=x0_list[0], parameters=start, method="auto")
+        svar = np.var(sim.states, axis=0)
+        for i in q_states:
+            if Qc[i, i] > 0:
+                z0.append(math.log(Qc[i, i]))
+                continue
+            s = m.states[i]
+            var = (
+                R0[out_names.index(s), out_names.index(s)]
+                if m._measurement_batch is None and s in out_names
+                else max(float(svar[i]), 1e-12)
+            )
+            z0.append(math.log(1e-2 * var / dt))
+    z0.extend(math.log(r_start[j]) for j in r_outputs)
+    z = np.array(z0, dtype=np.float64)
+    n_p = len(names)
+    obj = _Objective(m, probs, start, layout, Qc, R0, opts["P0"] is not None, opts["method"])
+    obj.gain = gain_choice(opts["gain"], opts["method"], filter_options)
+    # Noise intensities may shrink towards zero (no turbulence in the data):
+    # bound them 30 e-folds below and above their starting values.
+    lo = np.full(z.size, -np.inf)
+    hi = np.full(z.size, np.inf)
+    lo[n_p:] = z[n_p:] - 30.0
+    hi[n_p:] = z[n_p:] + 30.0
+    box = {} if bounds is None else {str(k): (float(a), float(b)) for k, (a, b) in bounds.items()}
+    for name, (a, b) in box.items():
+        if name not in names:
+            raise IdentificationError(
+                f"bounds: {name!r} is not among the estimated parameters {list(names)}"
+            )
+        j = names.index(name)
+        if not (a < b and a <= z[j] <= b):
+            raise IdentificationError(
+                f"bounds[{name!r}]: need lower < upper and the initial value {z[j]:.6g} "
+                f"inside, got ({a:.6g}, {b:.6g})"
+            )
+        lo[j], hi[j] = a, b
+
+    f, g, fisher, quad, per = _derivatives(obj, z, layout)
+    if not np.isfinite(f):
+        raise IdentificationError(
+            "filter-error identification: the filter fails at the initial parameters "
+            f"{ {n: start[n] for n in names} }; check the initial values and noise levels"
+        )
+
+    def evaluate(zt: FloatArray, _base: Linearisation | None) -> Linearisation | None:
+        ft, gt, ft_info, qt, pt = _derivatives(obj, zt, layout)
+        return Linearisation(ft, gt, ft_info, (qt, pt)) if np.isfinite(ft) else None
+
+    # the noise intensities are logarithms: their steps count in absolute terms
+    typical = np.ones_like(z)
+    typical[:n_p] = 1e-8
+    fit = minimise(
+        evaluate,
+        z,
+        Linearisation(f, g, fisher, (quad, per)),
+        tolerance=tolerance,
+        max_iterations=int(max_iterations),
+        typical=typical,
+        lower=lo,
+        upper=hi,
+        damping=1e-3,
+    )
+    z, f, fisher = fit.theta, fit.point.cost, fit.point.curvature
+    quad, per = fit.point.payload
+    success, message, it = fit.success, fit.message, fit.iterations
+    if not success:
+        warnings.warn(
+            f"filter-error identification: {message}; the result is flagged success=False",
+            UserWarning,
+            stacklevel=4,  # identify_filter_error, identify, its BLAS wrapper, the caller
+        )
+
+    labels = layout.labels(m, out_names)
+    # Noise intensities at a bound, or that the data cannot determine, are
+    # held fixed for the covariance: they are nuisance parameters.
+    free = np.ones(z.size, dtype=bool)
+    free[n_p:] = (z[n_p:] > lo[n_p:] + 1e-6) & (z[n_p:] < hi[n_p:] - 1e-6)
+    # Parameters at a bound are held there: error bars conditional on the bound.
+    held = np.zeros(z.size, dtype=bool)
+    held[:n_p] = (z[:n_p] <= lo[:n_p]) | (z[:n_p] >= hi[:n_p])
+    free &= ~held
+    while True:
+        idx = np.flatnonzero(free)
+        combos, _ = unidentifiable(fisher[np.ix_(idx, idx)], [labels[i] for i in idx])
+        noise_only = [c for c in combos if all(lab not in names for lab in c)]
+        if not noise_only:
+            break
+        for c in noise_only:
+            for lab in c:
+                free[labels.index(lab)] = False
+    identifiable = not combos
+    sub = fisher[np.ix_(idx, idx)]
+    if combos:
+        warnings.warn(
+            "filter-error identification: the data cannot separate "
+            + "; ".join(" + ".join(c) for c in combos),
+            IdentifiabilityWarning,
+            stacklevel=4,  # identify_filter_error, identify, its BLAS wrapper, the caller
+        )
+        cov_sub = np.linalg.pinv(sub, hermitian=True)
+    else:
+        cov_sub = np.linalg.inv(sub)
+    cov_full = np.full((z.size, z.size), np.nan)
+    cov_full[np.ix_(idx, idx)] = 0.5 * (cov_sub + cov_sub.T)
+    cov_full[held, :] = 0.0
+    cov_full[:, held] = 0.0
+    cov = cov_full[:n_p, :n_p]
+    se = np.sqrt(np.clip(np.diag(cov_full), 0.0, None))
+    params_hat = {n: float(z[j]) for j, n in enumerate(names)}
+    _, Qc_hat, R_hat = obj.inputs(z[None])
+    extra: dict[str, float] = {}
+    for j, lab in enumerate(labels[n_p:], start=n_p):
+        extra[lab] = float(math.exp(z[j]) * se[j])  # delta method from the log scale
+    n_obs = sum((p.time.size - 1) * n_y for p in probs)
+    sigma2 = float(quad[0] / n_obs)
+    fixed = {k: float(v) for k, v in start.items() if k not in names}
+    return IdentificationResult(
+        parameters=params_hat,
+        stderr={n: float(se[j]) for j, n in enumerate(names)},
+        covariance=cov,
+        parameter_names=names,
+        fixed=fixed,
+        covariance_white=cov,
+        error_bars="white",
+        identifiable=identifiable,
+        unidentifiable=tuple(combos),
+        success=success,
+        message=message,
+        n_iterations=it,
+        cost=float(f),
+        method="filter_error",
+        output_names=out_names,
+        noise_covariance=R_hat[0],
+        initial_states=tuple(
+            {s: float(v) for s, v in zip(m.states, p.x0, strict=True)} for p in probs
+        ),
+        biases=(),
+        extra_stderr=extra,
+        residuals=tuple(nu for nu, _ in per),
+        sigma2=sigma2,
+        process_noise={s: float(Qc_hat[0, i, i]) for i, s in enumerate(m.states)},
+        model_name=m.name,
+        bounds={n: box[n] for n in names if n in box},
+        active_bounds={
+            n: ("lower" if z[j] <= lo[j] else "upper") for j, n in enumerate(names) if held[j]
+        },
+    )

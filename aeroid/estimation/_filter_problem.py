@@ -1,0 +1,237 @@
+"""The filtering problem: model check, noise matrices, initial state and covariance.
+
+Split out of `aeroid.estimation.filtering` (which re-exports every name); shared with the
+filter-error method.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import AeroidError, FilterError
+from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
+from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number
+
+FloatArray = NDArray[np.float64]
+
+METHODS = ("ekf", "ukf")
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """One record's filtering problem, normalised (internal)."""
+
+    model: Model
+    time: FloatArray
+    U: FloatArray  # (n_t, n_u)
+    Y: FloatArray  # (n_t, n_y)
+    out_idx: tuple[int, ...]  # used outputs among the model's outputs
+    output_names: tuple[str, ...]
+    x0: FloatArray  # (n_x,)
+    P0: FloatArray  # (n_x, n_x)
+    substeps: int | None
+    method: str
+    ukf: tuple[float, float, float]
+
+
+def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
+    if isinstance(model, Model):
+        return model
+    kind = type(model).__name__
+    if not isinstance(model, SimulatorModel):
+        raise error(
+            f"model: {what} needs an aeroid.Model with a continuous dynamics callable "
+            f"f(t, x, u, p), got {kind}"
+        )
+    raise error(
+        f"{what} needs a Model with a continuous dynamics callable f(t, x, u, p); got {kind}, "
+        "which has none (a stepped simulator such as JSBSim or RocketPy cannot be linearised "
+        "between samples). Use output-error identification (identify(method='output_error')) "
+        "for such models, or wrap the dynamics in aeroid.Model."
+    )
+
+
+def noise_matrix(
+    value: Any,
+    names: Sequence[str],
+    what: str,
+    error: type[AeroidError],
+    *,
+    require_all: bool,
+    positive: bool,
+) -> FloatArray:
+    """A noise specification (dict by name, 1-D variances or a matrix) as a square matrix."""
+    n = len(names)
+    if value is None:
+        if require_all:
+            raise error(f"{what}: required; give a dict of name -> value for {list(names)}")
+        return np.zeros((n, n))
+    if isinstance(value, Mapping):
+        unknown = sorted(set(value) - set(names))
+        if unknown:
+            raise error(f"{what}: unknown names {unknown}; expected names among {list(names)}")
+        missing = [k for k in names if k not in value]
+        if require_all and missing:
+            raise error(f"{what}: no value for {missing}; give one for each of {list(names)}")
+        diag = np.zeros(n)
+        for i, k in enumerate(names):
+            if k in value:
+                diag[i] = real_number(value[k], f"{what}[{k!r}]", error)
+        mat = np.diag(diag)
+    else:
+        if np.iscomplexobj(value):  # a cast would drop the imaginary part
+            raise error(f"{what}: complex values are not supported, got {plain(value)}")
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise error(
+                f"{what}: expected a dict, a 1-D array or a matrix, got {plain(value)}"
+            ) from None
+        if arr.ndim == 0 and n == 1:
+            arr = arr.reshape(1)
+        if arr.shape == (n,):
+            mat = np.diag(arr)
+        elif arr.shape == (n, n):
+            check_symmetric(arr, names, what, error)
+            mat = 0.5 * (arr + arr.T)  # removes rounding-level asymmetry only
+        else:
+            raise error(
+                f"{what}: expected {n} values or a {n}x{n} matrix (order {list(names)}), "
+                f"got shape {arr.shape}"
+            )
+    if not np.all(np.isfinite(mat)):
+        raise error(f"{what}: contains NaN or infinite values")
+    eig = np.linalg.eigvalsh(mat) if n else np.zeros(0)
+    scale = float(np.max(np.abs(eig))) if n else 0.0
+    if n and eig.min() < -1e-12 * max(scale, 1e-300):
+        if np.any(np.diag(mat) < 0):
+            got = f"got {np.diag(mat).tolist()}"
+        else:
+            got = f"its smallest eigenvalue is {float(eig.min()):.6g} (order {list(names)})"
+        raise error(f"{what}: must be non-negative (positive semi-definite); {got}")
+    if positive and n and eig.min() <= 0:
+        raise error(
+            f"{what}: every variance must be positive (a measurement needs some noise); "
+            f"got {np.diag(mat).tolist()}"
+        )
+    return mat
+
+
+def _x0_vector(model: Model, data: FlightData, x0: Any, error: type[AeroidError]) -> FloatArray:
+    measured = measured_start(data, model.states)
+    if x0 is None:
+        return np.array([measured.get(s, 0.0) for s in model.states])
+    if isinstance(x0, Mapping):
+        unknown = sorted(set(x0) - set(model.states))
+        if unknown:
+            raise error(f"x0: unknown states {unknown}; states: {list(model.states)}")
+        given = {k: real_number(v, f"x0[{k!r}]", error) for k, v in x0.items()}
+        vals = {**measured, **given}
+        out = np.array([vals.get(s, 0.0) for s in model.states])
+    else:
+        try:
+            out = real_array(x0, "x0").reshape(-1)
+        except AeroidError as exc:
+            raise error(str(exc)) from None
+        if out.shape != (model.n_states,):
+            raise error(
+                f"x0: expected {model.n_states} values (states {list(model.states)}), got shape "
+                f"{np.shape(x0)}"
+            )
+    if not np.all(np.isfinite(out)):
+        raise error("x0: contains NaN or infinite values")
+    return out
+
+
+def _default_P0(model: Model, out_names: Sequence[str], R: FloatArray) -> FloatArray:
+    # A directly measured state starts with the uncertainty of one measurement;
+    # the others with unit variance (override with P0 when units make that poor).
+    diag = np.ones(model.n_states)
+    direct = model._measurement_batch is None
+    for i, s in enumerate(model.states):
+        if direct and s in out_names:
+            j = list(out_names).index(s)
+            diag[i] = R[j, j]
+    return np.diag(diag)
+
+
+def build_problem(
+    model: Any,
+    data: Any,
+    *,
+    outputs: Sequence[str] | None,
+    measurement_noise: Any,
+    x0: Any,
+    P0: Any,
+    substeps: int | None,
+    method: str,
+    ukf: tuple[float, float, float],
+    error: type[AeroidError],
+    require_R: bool = True,
+) -> tuple[_Problem, FloatArray]:
+    """Validate the common arguments; returns the problem and the measurement-noise matrix."""
+    what = "filter_states" if error is FilterError else "filter-error identification"
+    m = _require_model(model, error, what)
+    if not isinstance(data, FlightData):
+        raise error(f"data: expected a FlightData record, got {type(data).__name__}")
+    if method not in METHODS:
+        raise error(f"method {method!r} is unknown; choose one of {list(METHODS)}")
+    if outputs is None:
+        out_names = m.output_names
+    else:
+        out_names = tuple([outputs] if isinstance(outputs, str) else outputs)
+        bad = [o for o in out_names if o not in m.output_names]
+        if bad or not out_names:
+            raise error(
+                f"outputs: {bad or 'none'} not among the model's outputs {list(m.output_names)}"
+            )
+    data.require(m.controls, role="control")
+    data.require(out_names, role="output")
+    R = noise_matrix(
+        measurement_noise,
+        out_names,
+        "measurement_noise",
+        error,
+        require_all=require_R,
+        positive=require_R,
+    )
+    alpha, beta, kappa = (
+        real_number(v, k, error, finite=True)
+        for k, v in zip(("ukf_alpha", "ukf_beta", "ukf_kappa"), ukf, strict=True)
+    )
+    if not alpha > 0:
+        raise error(f"ukf_alpha must be positive and ukf_beta, ukf_kappa finite; got {ukf}")
+    if method == "ukf" and m.n_states + kappa <= 0:
+        raise error(f"ukf_kappa: n_states + kappa must be positive, got {m.n_states} + {kappa}")
+    if substeps is not None:
+        # a bool would be read as 1; a huge count would exhaust memory (as in `simulate`)
+        substeps = whole_number(substeps, "substeps", error)
+        if substeps > MAX_SUBSTEPS:
+            raise error(f"substeps: expected at most {MAX_SUBSTEPS}, got {substeps}")
+    xv = _x0_vector(m, data, x0, error)
+    if P0 is None:
+        P0m = _default_P0(m, out_names, R)
+    else:
+        P0m = noise_matrix(P0, m.states, "P0", error, require_all=False, positive=False)
+    out_idx = tuple(m.output_names.index(o) for o in out_names)
+    U = data.array(list(m.controls)) if m.n_controls else np.zeros((data.time.size, 0))
+    Y = data.array(list(out_names))
+    prob = _Problem(
+        m,
+        np.asarray(data.time, dtype=np.float64),
+        np.ascontiguousarray(U, dtype=np.float64),
+        np.ascontiguousarray(Y, dtype=np.float64),
+        out_idx,
+        out_names,
+        xv,
+        P0m,
+        None if substeps is None else int(substeps),
+        method,
+        (float(alpha), float(beta), float(kappa)),
+    )
+    return prob, R

@@ -1,0 +1,332 @@
+"""The fixed-gain predictor of the filter-error method for nonlinear models.
+
+Jategaonkar (Flight Vehicle System Identification, ch. 5, the filter-error
+method for nonlinear systems) keeps the nonlinear model for the state
+prediction and takes the Kalman gain from the system linearised about the
+reference point, the record's start (its trim):
+
+    x_k|k-1 = x_k-1|k-1 moved over the interval by the nonlinear model (RK4),
+    nu_k    = y_k - h(x_k|k-1),
+    x_k|k   = x_k|k-1 + K_k nu_k,
+
+with ``A = df/dx`` and ``C = dh/dx`` at the reference (central differences),
+``Phi``, ``Qd`` their exact discretisation (Van Loan) and ``K_k``, ``S_k`` the
+Kalman gains and innovation covariances of that linear time-invariant system:
+the Riccati recursion on constant matrices, run once per parameter vector
+until the gain stops changing (the first tens to hundreds of samples), so the
+gain is the steady-state gain after the transient from ``P0``. Keeping that
+transient makes the predictor on a linear model the linear filter of
+`run_filter` itself, innovation for innovation; the book's filter starts at
+the steady-state gain, which differs only in those first samples.
+
+Why it is the default (with ``method="ekf"``): the book argues the
+steady-state gain for the time-invariant models of system identification
+about a trim, where the extended filter's gain converges to it within a few
+samples anyway; the nonlinear model still carries the state through large
+motions, and the cost per parameter vector is one Riccati solution instead of
+a Jacobian, a matrix exponential and a factorisation at every sample (about a
+sixth of the time-varying filter's on the demo's flights). The time-varying
+filter (``gain="time_varying"``) remains for flights whose linearisation
+changes much over the record (large manoeuvres far from the trim).
+
+Each member of a batch (the filter-error method's central differences of the
+whole predictor) linearises and solves its own Riccati equation, so the
+sensitivities include the gain's dependence on the parameters and the noise
+intensities, as the book's relaxation does through its F/K update steps.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import IdentificationError
+from ..models import compiled as _compiled
+from ._filter_problem import _Problem
+from ._kalman_linear import (
+    _dt_groups,
+    _Failure,
+    _fd_step,
+    _Linear,
+    _Pass,
+    _van_loan,
+)
+from ._kalman_nonlinear import _linearise_model, _Measurer, _Propagator
+from .filtering import run_filter
+
+__all__ = ["GAINS", "gain_choice", "steady_pass"]
+
+FloatArray = NDArray[np.float64]
+
+GAINS = ("steady", "time_varying")
+
+
+def gain_choice(gain: object, method: str, given: Mapping[str, object] | None) -> str:
+    """The filter-error gain: ``filter_options["gain"]``, or its default.
+
+    The default is the book's, the steady-state gain (Jategaonkar ch. 5): for
+    the time-invariant models of system identification about a trim it is
+    what the time-varying filter converges to after a few samples, the
+    nonlinear model still moves the state, and the cost is one Riccati
+    solution per parameter vector instead of a linearisation, a matrix
+    exponential and a factorisation per sample. With ``method="ukf"`` the
+    filter is the unscented one, time-varying by construction.
+    """
+    if gain is None:
+        return "time_varying" if method == "ukf" else "steady"
+    if gain not in GAINS:
+        raise IdentificationError(
+            f"filter_options['gain']: {gain!r} is unknown; choose one of {list(GAINS)}"
+        )
+    if gain == "steady" and method == "ukf" and given is not None and "method" in given:
+        raise IdentificationError(
+            "filter_options: gain='steady' takes its gain from the linearised model, "
+            "which method='ukf' does not use; give gain='time_varying' with 'ukf'"
+        )
+    return str(gain)
+
+
+def _reference_system(
+    prob: _Problem,
+    params: Mapping[str, FloatArray],
+    Qc: FloatArray,
+    x0: FloatArray,
+    P0: FloatArray,
+    prop: _Propagator,
+    meas: _Measurer,
+) -> _Linear:
+    """The model linearised at (x0, u_0) and discretised per time-step group."""
+    m = prob.model
+    B, n = x0.shape
+    groups = _dt_groups(prob.time)
+    if groups is None:
+        raise _Failure(0, "the sample times vary too much for a fixed-gain filter")
+    hs, idx = groups
+    step = _fd_step(x0, P0)  # (B, n)
+    e = np.eye(n)[None] * step[:, :, None]
+    pts = np.concatenate([x0[:, None, :] + e, x0[:, None, :] - e], axis=1)  # (B, 2n, n)
+    cols = np.ascontiguousarray(pts.reshape(B * 2 * n, n).T)
+    u = np.broadcast_to(prob.U[0][:, None], (prob.U.shape[1], B * 2 * n))
+    with np.errstate(all="ignore"):
+        vals = prop.f(float(prob.time[0]), cols, u, prop._p(2 * n))
+    vals = np.asarray(vals, dtype=np.float64).T.reshape(B, 2 * n, n)
+    A = np.swapaxes((vals[:, :n] - vals[:, n:]) / (2 * step[:, :, None]), 1, 2)
+    if not np.all(np.isfinite(A)):
+        raise _Failure(
+            0, f"the dynamics Jacobian of model {m.name!r} at the record's start is not finite"
+        )
+    pairs = [_van_loan(np.ascontiguousarray(A), Qc, float(h)) for h in hs]
+    Phi = np.stack([p[0] for p in pairs], axis=1)
+    Qd = np.stack([p[1] for p in pairs], axis=1)
+    _, H = meas.linear(0, x0, P0)
+    F = np.zeros((B, 0, n))  # the forcing is the nonlinear model's: unused here
+    return _Linear(Phi, Qd, F, idx, np.ascontiguousarray(H), None)
+
+
+# relative change of the gain below which the Riccati recursion counts as converged:
+# far below what moves an estimate, far above rounding
+_GAIN_TOL = 1e-10
+
+
+def _gains(
+    ref: _Linear, R: FloatArray, P0: FloatArray, n_t: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
+    """(S, Kg, Pp, Pf, k) of the reference system's Kalman filter over the record.
+
+    The Riccati recursion runs until the gain has converged (the first tens to
+    hundreds of samples); from there S and the gain are the steady-state ones.
+    ``Pp`` and ``Pf`` are the steady-state covariances, broadcast over the
+    record (the objective uses the innovations and S only); from sample ``k``
+    on the gain is constant.
+    """
+    assert ref.H is not None
+    B, _, n, _ = ref.Phi.shape
+    H = ref.H
+    n_y = H.shape[1]
+    Ht = np.swapaxes(H, 1, 2)
+    PhiT = np.swapaxes(ref.Phi, 2, 3)
+    S = np.empty((B, n_t, n_y, n_y))
+    Kg = np.empty((B, n_t, n, n_y))
+    P = P0
+    S[:, 0] = H @ P0 @ Ht + R
+    Kg[:, 0] = 0.0
+    Ppk = P0
+    K_prev = Kg[:, 0]
+    single = ref.Phi.shape[1] == 1
+    done = n_t - 1
+    for k in range(1, n_t):
+        g = 0 if single else ref.idx[k - 1]
+        Ppk = ref.Phi[:, g] @ P @ PhiT[:, g] + ref.Qd[:, g]
+        PHt = Ppk @ Ht
+        Sk = H @ PHt + R
+        K = np.swapaxes(np.linalg.solve(Sk, np.swapaxes(PHt, 1, 2)), 1, 2)
+        P = Ppk - K @ np.swapaxes(PHt, 1, 2)  # the optimal gain's update, (I - K H) Pp
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        S[:, k], Kg[:, k] = Sk, K
+        if single and k > 1:
+            scale = np.max(np.abs(K), axis=(1, 2))
+            if np.all(np.max(np.abs(K - K_prev), axis=(1, 2)) <= _GAIN_TOL * scale):
+                S[:, k + 1 :] = Sk[:, None]
+                Kg[:, k + 1 :] = K[:, None]
+                done = k
+                break
+        K_prev = K
+    Pp = np.broadcast_to(Ppk[:, None], (B, n_t, n, n))
+    Pf = np.broadcast_to(P[:, None], (B, n_t, n, n))
+    return S, Kg, np.asarray(Pp), np.asarray(Pf), done
+
+
+def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
+    """The whole predictor as one `jax.lax.scan`, vmapped over members."""
+    entry = _compiled._entry(model)
+    f = entry[("fn", "dynamics")]
+    h = entry.get(("fn", "measurement")) if model.measurement is not None else None
+    oi = np.array(out_idx, dtype=np.int64)
+    sel = None
+    if h is None:  # the outputs are states
+        sel = np.array([model.states.index(model.output_names[i]) for i in out_idx])
+    step = _compiled._interval(f, jax)
+
+    def meas(t: Any, x: Any, u: Any, pvec: Any) -> Any:
+        return x[sel] if h is None else h(t, x, u, pvec)[oi]
+
+    def one(time: Any, U: Any, Y: Any, x0: Any, pvec: Any, Kg: Any, m: Any) -> Any:
+        # Kg: the gains of samples 1..T, the last of them the steady one
+        last = Kg.shape[0] - 1
+
+        def body(x: Any, inp: Any) -> Any:
+            t0, t1, u0, u1, y, j = inp
+            K = Kg[jnp.minimum(j, last)]
+            xpk = step(x, t0, t1, u0, u1, pvec, m)
+            v = y - meas(t1, xpk, u1, pvec)
+            xn = xpk + K @ v
+            return xn, (xpk, xn, v)
+
+        steps = jnp.arange(time.shape[0] - 1)
+        _, outs = jax.lax.scan(body, x0, (time[:-1], time[1:], U[:-1], U[1:], Y[1:], steps))
+        return outs
+
+    return jax.jit(jax.vmap(one, in_axes=(None, None, None, 0, 0, 0, None)))
+
+
+def _compiled_predictor(
+    prob: _Problem,
+    params: Mapping[str, FloatArray],
+    x0: FloatArray,
+    Kg: FloatArray,
+    steady_from: int,
+    substeps: int,
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """(xp, xf, nu) from sample 1 on, of the compiled predictor, or None (the numpy
+    loop then runs: the model does not compile)."""
+    model = prob.model
+    if not _compiled.ENABLED:
+        return None
+    B = x0.shape[0]
+    pmat = _compiled._pmatrix(model, params, B)
+    if not _compiled.available(model, prob.time, x0[0], prob.U, pmat[0], measurement=True):
+        return None
+    mods = _compiled._import_jax()
+    if mods is None:
+        return None
+    jax, jnp = mods
+    cache = _compiled._shared(model)
+    key = ("steady_predictor", tuple(prob.out_idx))
+    fn = cache.get(key)
+    if fn is None:
+        fn = cache[key] = _build(model, tuple(prob.out_idx), jax, jnp)
+    # batches padded to a power of two: each size would otherwise compile anew
+    padded = 1 << (B - 1).bit_length() if B <= 16 else -(-B // 8) * 8
+    rows = np.minimum(np.arange(padded), B - 1)
+    # the transient's gains only, to a power of two samples (few compilations)
+    n_gain = min(1 << max(steady_from, 1).bit_length(), prob.time.size - 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            outs = fn(
+                prob.time,
+                prob.U,
+                prob.Y,
+                np.ascontiguousarray(x0[rows]),
+                pmat[rows],
+                np.ascontiguousarray(Kg[rows, 1 : n_gain + 1]),
+                np.int32(substeps),
+            )
+        except Exception:  # a model JAX traced pointwise but not in this scan: numpy
+            return None
+    xp, xf, nu = (np.asarray(a, dtype=np.float64)[:B] for a in outs)
+    return xp, xf, nu
+
+
+def steady_pass(
+    prob: _Problem,
+    params: Mapping[str, FloatArray],
+    Qc: FloatArray,
+    R: FloatArray,
+    x0: FloatArray,
+    P0: FloatArray,
+) -> _Pass:
+    """Forward pass of the fixed-gain predictor for a batch of B members.
+
+    Arguments as `filtering.run_filter`; returns its record (``Pf``, ``Pp``
+    those of the reference system, ``C`` zero).
+    """
+    B, n = x0.shape
+    n_t, n_y = prob.Y.shape
+    Y = prob.Y
+    lin = _linearise_model(prob, params, Qc, B)
+    if lin is not None and lin.H is not None:
+        # an affine model is its own linearisation: the predictor is the linear
+        # Kalman filter, whose vectorised pass `run_filter` has
+        return run_filter(prob, params, Qc, R, x0, P0, method="ekf")
+    lin = None  # (a nonlinear measurement of linear dynamics: linearised below)
+    prop = _Propagator(prob, params, Qc, B, lin)
+    meas = _Measurer(prob, params, B, lin)
+    xf = np.full((B, n_t, n), np.nan)
+    xp = np.full((B, n_t, n), np.nan)
+    nu = np.full((B, n_t, n_y), np.nan)
+    # read-only views until the Riccati solution replaces them: no record-long copies
+    S = np.broadcast_to(np.nan, (B, n_t, n_y, n_y))
+    Pp = Pf = np.broadcast_to(np.nan, (B, n_t, n, n))
+    C = np.broadcast_to(0.0, (B, n_t, n, n))
+    ok = np.ones(B, dtype=bool)
+    fail = np.full(B, -1, dtype=np.int64)
+    try:
+        ref = _reference_system(prob, params, Qc, x0, P0, prop, meas)
+        with np.errstate(all="ignore"):
+            S, Kg, Pp, Pf, steady_from = _gains(ref, R, P0, n_t)
+        x = x0.copy()
+        xf[:, 0], xp[:, 0] = x, x
+        fast = None
+        # compiled when a fit's passes would spend what a compilation costs: decided
+        # by the problem's size alone, so a rerun in another process gives the same bits
+        work = 4 * prop.m * (n_t - 1) * _compiled._FIT_EVALUATIONS
+        if prop._cp is not None or work >= _compiled.COMPILE_AFTER_CALLS:
+            fast = _compiled_predictor(prob, params, x0, Kg, steady_from, prop.m)
+        if fast is not None:
+            xp[:, 1:], xf[:, 1:], nu[:, 1:] = fast
+        nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
+        with np.errstate(all="ignore"):
+            for k in range(1, n_t if fast is None else 1):
+                xpk = prop.points(k - 1, x[:, None, :])
+                v = Y[k] - meas.points(k, xpk)[:, 0]
+                x = xpk[:, 0] + np.einsum("bij,bj->bi", Kg[:, k], v)
+                xp[:, k], xf[:, k], nu[:, k] = xpk[:, 0], x, v
+    except _Failure as exc:
+        ok[:] = False
+        fail[:] = exc.k
+        return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, 0, exc.what, exc.simulation)
+    except np.linalg.LinAlgError:
+        ok[:] = False
+        fail[:] = 0
+        return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, 0, "the Riccati equation has no solution")
+    bad = ~np.all(np.isfinite(nu), axis=(1, 2)) | ~np.all(np.isfinite(S), axis=(1, 2, 3))
+    ok &= ~bad
+    for b in np.flatnonzero(bad):
+        fin = np.all(np.isfinite(nu[b]), axis=1)
+        fail[b] = int(np.argmin(fin))
+    return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, 0)

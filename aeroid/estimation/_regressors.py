@@ -1,0 +1,307 @@
+"""Regressors from flight data: channels, arrays, expressions; candidate pools.
+
+Split out of `aeroid.estimation.regression` (which re-exports every name): the parsing of
+regressor expressions into columns and the candidate pools of stepwise
+regression.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import ChannelError, DataFormatError
+from ..io.data import FlightData, as_float, positive_number, real_array
+
+FloatArray = NDArray[np.float64]
+
+_CONST = "const"
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+
+
+def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatArray:
+    """Value of a channel name or a product/quotient/power expression of channels."""
+    if repr(expr) not in role:
+        role = f"{role} {expr!r}"
+    if expr in lookup:
+        column = np.asarray(lookup[expr], dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(column))
+        if bad.size:
+            raise DataFormatError(f"{role}: non-finite value at sample {int(bad[0])}")
+        return column
+    text = expr.replace("**", "^").replace(" ", "")
+    if not text:
+        raise DataFormatError(f"{role}: empty expression")
+    parts = re.split(r"([*/])", text)
+    out = np.ones(n)
+    op = "*"
+    for k, part in enumerate(parts):
+        if k % 2 == 1:
+            op = part
+            continue
+        base, _, power = part.partition("^")
+        if not base:
+            raise DataFormatError(f"{role}: cannot parse {part!r}")
+        if _NUMBER.match(base):
+            value: Any = float(base)
+        elif base in lookup:
+            value = np.asarray(lookup[base], dtype=np.float64)
+        else:
+            hint = (
+                f"; {_CONST!r} is the constant term, added by intercept=True"
+                if base == _CONST
+                else ""
+            )
+            raise ChannelError(
+                f"{role}: channel {base!r} not found; channels present: {sorted(lookup)}{hint}"
+            )
+        if power:
+            if not _NUMBER.match(power):
+                raise DataFormatError(f"{role}: power {power!r} is not a number")
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                value = np.power(value, float(power))
+        # overflow and division by zero are reported below, by name, not as warnings
+        with np.errstate(all="ignore"):
+            out = out * value if op == "*" else out / value
+    if not np.all(np.isfinite(out)):
+        raise DataFormatError(
+            f"{role}: non-finite value (division by zero, or a negative number to a fractional power?)"
+        )
+    return out
+
+
+def _column(lookup: Mapping[str, Any], value: Any, n: int, role: str) -> FloatArray:
+    if isinstance(value, str):
+        return _evaluate(lookup, value, n, role)
+    arr = real_array(value, role)
+    if arr.shape != (n,):
+        raise DataFormatError(f"{role}: expected {n} samples, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise DataFormatError(
+            f"{role}: non-finite value at sample {int(np.argmin(np.isfinite(arr)))}"
+        )
+    return arr
+
+
+def _mapping_columns(data: Mapping[Any, Any]) -> tuple[dict[str, FloatArray], int]:
+    """A mapping's entries as named 1-D float arrays of one length, and that length."""
+    lookup = {str(k): real_array(v, f"data[{str(k)!r}]") for k, v in data.items()}
+    if not lookup:
+        raise DataFormatError("data: the mapping holds no channels")
+    first, n = None, -1
+    for name, col in lookup.items():
+        if col.ndim != 1:
+            raise DataFormatError(f"data[{name!r}]: expected a 1-D array, got shape {col.shape}")
+        if first is None:
+            first, n = name, col.shape[0]
+        elif col.shape[0] != n:
+            raise DataFormatError(
+                f"data[{name!r}]: {col.shape[0]} samples where data[{first!r}] has {n}"
+            )
+    return lookup, n
+
+
+def _resolve(
+    data: Any, response: Any, regressors: Any, what: str
+) -> tuple[FloatArray, FloatArray, list[str], str, FloatArray | None]:
+    """Response, regressor matrix, regressor names, response name and time axis."""
+    time: FloatArray | None = None
+    if isinstance(data, FlightData):
+        lookup: Mapping[str, Any] = data.channels
+        n = data.n_samples
+        time = np.asarray(data.time)
+    elif isinstance(data, Mapping):
+        lookup, n = _mapping_columns(data)
+    else:
+        if isinstance(data, (str, bytes)):
+            raise DataFormatError(
+                "data: expected FlightData, a mapping of arrays or a regressor matrix, got str"
+            )
+        mat = real_array(data, "data (a regressor matrix)")
+        if mat.ndim != 2:
+            raise DataFormatError(
+                f"data: a regressor matrix must be 2-D (samples, regressors), got shape {mat.shape}"
+            )
+        if not np.all(np.isfinite(mat)):
+            raise DataFormatError("data: the regressor matrix holds non-finite values")
+        n, p = mat.shape
+        if regressors is None:
+            names = [f"x{j + 1}" for j in range(p)]
+        elif isinstance(regressors, str) or len(regressors) != p:
+            raise DataFormatError(
+                f"regressors: with a regressor matrix give {p} names, got {regressors!r}"
+            )
+        else:
+            names = [str(r) for r in regressors]
+        z = _column({}, response, n, "response") if not isinstance(response, str) else None
+        if z is None:
+            raise DataFormatError("response: with a regressor matrix give the response samples")
+        return z, mat, names, "z", None
+    if isinstance(response, str):
+        zname = response
+        z = _evaluate(lookup, response, n, "response")
+    else:
+        zname = "z"
+        z = _column(lookup, response, n, "response")
+    if regressors is None:
+        role = "candidates" if what.startswith("stepwise") else "regressors"
+        raise DataFormatError(f"{role}: required for {what} on flight data or a mapping")
+    if isinstance(regressors, str):
+        regressors = [regressors]
+    if not isinstance(regressors, (Mapping, Sequence)):
+        role = "candidates" if what.startswith("stepwise") else "regressors"
+        raise DataFormatError(
+            f"{role}: expected names or expressions, or a mapping of name to samples, "
+            f"got {type(regressors).__name__}"
+        )
+    if isinstance(regressors, Mapping):
+        items = [(str(k), v) for k, v in regressors.items()]
+    else:
+        items = []
+        for r in regressors:
+            if not isinstance(r, str):
+                raise DataFormatError(
+                    "regressors: give names/expressions, or a mapping of name to samples"
+                )
+            items.append((r, r))
+    cols = [_column(lookup, v, n, f"regressor {k!r}") for k, v in items]
+    mat = np.column_stack(cols) if cols else np.zeros((n, 0))
+    return z, mat, [k for k, _ in items], zname, time
+
+
+def _check_names(names: Sequence[str]) -> None:
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise DataFormatError(f"regressors: the name {name!r} appears twice")
+        seen.add(name)
+
+
+def _step_of(time: FloatArray | None, dt: float | None) -> float | None:
+    if time is not None:
+        steps = np.diff(time)
+        if np.ptp(steps) > 1e-6 * float(np.mean(steps)):
+            return None
+        step = float(np.mean(steps))
+        if dt is not None and not np.isclose(
+            positive_number(dt, "dt", " of seconds"), step, rtol=1e-6
+        ):
+            raise DataFormatError(f"dt: {dt!r} contradicts the data's sample interval {step:.6g} s")
+        return step
+    if dt is None:
+        return None
+    return positive_number(dt, "dt", " of seconds")
+
+
+def spline_terms(
+    x: ArrayLike, knots: Sequence[float], *, name: str = "alpha", degree: int = 1
+) -> dict[str, FloatArray]:
+    """Truncated-power spline columns ``max(x − k, 0)^degree`` for each knot.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        The variable (typically the angle of attack).
+    knots : sequence of float
+        Knot positions in the units of `x`.
+    name : str
+        Name of the variable in the column names, ``"(alpha-0.1)+"`` or
+        ``"(alpha-0.1)+^2"``.
+    degree : int
+        Power of the truncated term (1: a change of slope at the knot).
+
+    Returns
+    -------
+    dict of str to ndarray
+    """
+    arr = real_array(x, f"spline_terms: {name}")
+    if arr.ndim != 1 or not np.all(np.isfinite(arr)):
+        raise DataFormatError(f"spline_terms: {name} must be a finite 1-D array")
+    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
+        raise DataFormatError(f"degree: expected a positive integer, got {degree!r}")
+    if isinstance(knots, (str, bytes)) or not isinstance(knots, Sequence | np.ndarray):
+        raise DataFormatError(f"knots of {name}: expected a sequence of numbers, got {knots!r}")
+    out: dict[str, FloatArray] = {}
+    for k in knots:
+        knot = as_float(k)
+        if knot is None or not np.isfinite(knot):
+            raise DataFormatError(f"knots of {name}: expected finite numbers, got {k!r}")
+        label = f"({name}-{knot:g})+" if knot >= 0 else f"({name}+{-knot:g})+"
+        if degree > 1:
+            label += f"^{degree}"
+        if label in out:  # the same knot to the label's precision: the same column
+            raise DataFormatError(f"knots of {name}: {knot:g} is given twice")
+        with np.errstate(over="ignore"):
+            column = np.maximum(arr - knot, 0.0) ** degree
+        if not np.all(np.isfinite(column)):
+            raise DataFormatError(f"spline {label}: overflows (degree {degree} too high?)")
+        out[label] = column
+    return out
+
+
+def candidate_pool(
+    data: FlightData | Mapping[str, ArrayLike],
+    variables: Sequence[str],
+    *,
+    squares: bool = True,
+    products: bool = True,
+    cubes: bool = False,
+    splines: Mapping[str, Sequence[float]] | None = None,
+) -> dict[str, FloatArray]:
+    """Candidate regressors for `stepwise_regression` built from a few variables.
+
+    Parameters
+    ----------
+    data : FlightData or mapping of str to array_like
+        Where the variables come from.
+    variables : sequence of str
+        Channel names or expressions (e.g. ``"alpha"``, ``"q*cbar/V"`` is not
+        allowed — put scaled rates in the mapping or data first).
+    squares, products, cubes : bool
+        Add ``v^2`` for each variable, ``v*w`` for each pair, ``v^3``.
+    splines : mapping of str to sequence of float, optional
+        Knots of first-degree splines per variable, ``{"alpha": [0.1, 0.2]}``.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Name to column, in the order: linear terms, squares, products, cubes,
+        splines. Names are expressions `equation_error` also understands
+        (except the splines).
+    """
+    if isinstance(variables, str):
+        variables = [variables]
+    if not isinstance(variables, Sequence) or not all(isinstance(v, str) for v in variables):
+        raise DataFormatError(
+            f"variables: expected channel names or expressions, got {variables!r}"
+        )
+    if not variables:
+        raise DataFormatError("variables: give at least one variable")
+    if isinstance(data, FlightData):
+        lookup: Mapping[str, Any] = data.channels
+        n = data.n_samples
+    elif isinstance(data, Mapping):
+        lookup, n = _mapping_columns(data)
+    else:
+        raise DataFormatError("data: expected FlightData or a mapping of name to samples")
+    if splines is not None and not isinstance(splines, Mapping):
+        raise DataFormatError(f"splines: expected a mapping of variable to knots, got {splines!r}")
+    cols = {v: _evaluate(lookup, v, n, "variable") for v in variables}
+    out: dict[str, FloatArray] = dict(cols)
+    if squares:
+        out.update({f"{v}^2": cols[v] ** 2 for v in variables})
+    if products:
+        for i, a in enumerate(variables):
+            for b in variables[i + 1 :]:
+                out[f"{a}*{b}"] = cols[a] * cols[b]
+    if cubes:
+        out.update({f"{v}^3": cols[v] ** 3 for v in variables})
+    for v, knots in dict(splines or {}).items():
+        if v not in cols:
+            cols[v] = _evaluate(lookup, v, n, "spline variable")
+        out.update(spline_terms(cols[v], knots, name=v))
+    return out

@@ -1,0 +1,794 @@
+"""Data compatibility analysis: flight-path reconstruction and sensor-error estimation.
+
+The measured body-axis rates and specific forces drive the rigid-body
+kinematics (Klein & Morelli ch. 10, Jategaonkar ch. 10)::
+
+    u' = r v - q w - g sin(theta) + ax
+    v' = p w - r u + g cos(theta) sin(phi) + ay
+    w' = q u - p v + g cos(theta) cos(phi) + az
+    phi'   = p + tan(theta) (q sin(phi) + r cos(phi))
+    theta' = q cos(phi) - r sin(phi)
+    psi'   = (q sin(phi) + r cos(phi)) / cos(theta)
+    h'     = u sin(theta) - v sin(phi) cos(theta) - w cos(phi) cos(theta)
+
+with ``u, v, w`` the body-axis velocity over the ground and ``h`` the altitude
+(positive up). The reconstructed airspeed, angles of attack and sideslip
+(air-relative, after removing a constant wind given in north-east-down
+axes), Euler angles, altitude and, where measured (GPS), north and east ground
+speed are compared with the measured ones, and the
+sensor errors that make the two agree are estimated by output error: an
+`aeroid.Model` of the kinematics and the sensors is fitted with
+`aeroid.identify`, the initial velocities and attitudes estimated with it.
+
+Sensor model (every parameter is zero unless given or estimated):
+
+* rate gyros and accelerometers, ``x_m = (1 + k_x) x + b_x`` for ``x`` in
+  ``p, q, r, ax, ay, az``;
+* air data, attitude, altitude and ground speed,
+  ``y_m(t) = (1 + k_y) y(t - tau_y) + b_y`` for ``y`` in
+  ``V, alpha, beta, phi, theta, psi, h, vn, ve``: a scale-factor error,
+  an offset and a time shift (positive when the channel lags the inertial
+  sensors, which are the time reference);
+* wind ``w_n, w_e, w_d``: a constant wind (m/s, north-east-down) or zero.
+  A constant wind obeys the same kinematics as the air velocity, so air data
+  alone cannot tell it from the initial velocity: the horizontal wind needs
+  the ground speed ``vn, ve``, the vertical one the altitude.
+
+Time shifts. A shift enters the measurement equation to first order,
+``y(t - tau) ~ y(t) - tau y'(t)`` with ``y'`` from the kinematics, so each
+``tau_y`` is an ordinary parameter of the fit with an ordinary error bar.
+The neglected second-order term would bias the scale factors slightly, so
+after a fit the measured channel is shifted by the estimate (a fraction of a
+sample, by a Fourier phase ramp on a uniform grid, which keeps white noise
+white, else by linear interpolation) and the fit repeated from there, until
+the remaining shift is below a twentieth of a sample, where the neglected term
+is under a twelfth of the (already small) first-order one even at the Nyquist
+frequency. The total shift is the sum; its error bar is that of the last fit.
+The first and last samples of a shifted channel are extrapolated (to first
+order), as any shift of a finite record must.
+
+Error bars. Output error treats the inputs as exact; the share of the
+gyro and accelerometer noise, which the kinematics integrate into wandering
+attitude and velocity errors, is added by Monte Carlo (see
+`check_compatibility`, Notes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
+from .._threads import small_blas
+from ..errors import ChannelError, DataFormatError, IdentificationError
+from ..io.data import FlightData, plain, whole_number
+from ._compat_arguments import _ANGLE_LIMITS as _ANGLE_LIMITS
+from ._compat_arguments import _STAND_IN_SOURCES as _STAND_IN_SOURCES
+from ._compat_arguments import _channel_map as _channel_map
+from ._compat_arguments import _first_values as _first_values
+from ._compat_arguments import _fitted_outputs as _fitted_outputs
+from ._compat_arguments import _free_states as _free_states
+from ._compat_arguments import _measured_state_names as _measured_state_names
+from ._compat_arguments import _parameter_values as _parameter_values
+from ._compat_arguments import _rewarn as _rewarn
+from ._compat_arguments import _start_state as _start_state
+from ._compat_arguments import _states_from as _states_from
+from ._compat_input_noise import _difference_response as _difference_response
+from ._compat_input_noise import _input_noise as _input_noise
+from ._compat_input_noise import _input_noise_covariance as _input_noise_covariance
+from ._compat_input_noise import (
+    _measurement_noise_covariance as _measurement_noise_covariance,
+)
+from ._compat_input_noise import _shift as _shift
+from ._compat_input_noise import _substeps as _substeps
+from ._compat_model import _MEASURED as _MEASURED
+from ._compat_model import _REQUIRED_OUTPUTS as _REQUIRED_OUTPUTS
+from ._compat_model import _WIND as _WIND
+from ._compat_model import DEFAULT_ESTIMATE as DEFAULT_ESTIMATE
+from ._compat_model import INPUT_CHANNELS as INPUT_CHANNELS
+from ._compat_model import OUTPUT_CHANNELS as OUTPUT_CHANNELS
+from ._compat_model import SENSOR_PARAMETERS as SENSOR_PARAMETERS
+from ._compat_model import STATES as STATES
+from ._compat_model import _derivatives as _derivatives
+from ._compat_model import _effective as _effective
+from ._compat_model import _kinematics as _kinematics
+from ._compat_model import _model as _model
+from ._compat_model import _rates as _rates
+from ._compat_model import _sensors as _sensors
+from ._compat_model import _zero_sensor_errors as _zero_sensor_errors
+from .identification import IdentificationResult
+
+__all__ = [
+    "DEFAULT_ESTIMATE",
+    "INPUT_CHANNELS",
+    "OUTPUT_CHANNELS",
+    "SENSOR_PARAMETERS",
+    "CompatibilityResult",
+    "check_compatibility",
+]
+
+FloatArray = NDArray[np.float64]
+
+_UNITS = {
+    "p": "rad/s",
+    "q": "rad/s",
+    "r": "rad/s",
+    "ax": "m/s^2",
+    "ay": "m/s^2",
+    "az": "m/s^2",
+    "V": "m/s",
+    "alpha": "rad",
+    "beta": "rad",
+    "phi": "rad",
+    "theta": "rad",
+    "psi": "rad",
+    "h": "m",
+    "vn": "m/s",
+    "ve": "m/s",
+}
+_MAX_PASSES = 6
+
+
+# -- the result ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class CompatibilityResult(IntervalMixin):
+    """Sensor errors, corrected data and the reconstructed flight path.
+
+    Attributes
+    ----------
+    corrected : FlightData
+        The input record with the estimated (and given) sensor errors
+        removed, under the user's channel names: rates and specific forces
+        ``(x_m - b_x) / (1 + k_x)``, outputs ``(y_m(t + tau_y) - b_y) / (1 + k_y)``
+        (shifted band-limited on a uniform grid, else linearly interpolated).
+        Other channels are passed through.
+    parameters : mapping of str to float
+        The estimated sensor parameters (see `SENSOR_PARAMETERS`).
+    stderr : mapping of str to float
+        Their standard errors: those of the output-error fit (see
+        `error_bars`) with the share of the input noise added (see
+        `check_compatibility`, Notes).
+    covariance : ndarray, shape (n_p, n_p)
+        Covariance of the estimates, in `parameter_names` order (the same two
+        parts).
+    parameter_names : tuple of str
+    fixed : mapping of str to float
+        Every other sensor parameter, at its given value (zero unless given).
+    initial_states : mapping of str to float
+        Estimated initial state: body-axis ground velocity ``u, v, w`` (m/s),
+        ``phi, theta, psi`` (rad) and ``h`` (m).
+    initial_state_stderr : mapping of str to float
+        Standard errors of the estimated initial states.
+    time : ndarray, shape (n_t,)
+    output_names : tuple of str
+        The fitted outputs (names of `OUTPUT_CHANNELS`).
+    channels : mapping of str to str
+        Data channel used for each input and fitted output.
+    measured : ndarray, shape (n_t, n_y)
+        The fitted outputs as recorded.
+    reconstructed : ndarray, shape (n_t, n_y)
+        What the sensors should have read: the kinematic reconstruction with
+        the estimated scale factors, offsets and time shifts applied.
+    states : ndarray, shape (n_t, 7)
+        The reconstructed kinematic states `state_names`.
+    true_outputs : ndarray, shape (n_t, 9)
+        The reconstructed airspeed, angles and altitude free of sensor errors,
+        every one of `OUTPUT_CHANNELS` (also those not measured).
+    state_names : tuple of str
+    error_bars : str
+        ``"colored"`` or ``"white"``, as in `IdentificationResult`.
+    identifiable : bool
+    unidentifiable : tuple of tuple of str
+        Parameter combinations the data cannot separate.
+    success : bool
+    message : str
+    n_passes : int
+        Output-error fits run (more than one when time shifts are estimated).
+    gravity : float
+    input_noise : mapping of str to float
+        Noise standard deviation of each input used for the error bars.
+    measured_states : tuple of str
+        States replaced by their measurement (see `check_compatibility`).
+    scale_pivots : mapping of str to float
+        Per fitted output, the value its scale factor pivots about: zero, or
+        the reconstructed start value (``scale_about="initial"``).
+    degrees_of_freedom : mapping of str to float
+        Per estimate, the degrees of freedom of its standard error (see
+        `aeroid.IdentificationResult`): `interval` and `margin` take
+        Student's t with it.
+    """
+
+    corrected: FlightData
+    parameters: Mapping[str, float]
+    stderr: Mapping[str, float]
+    covariance: FloatArray
+    parameter_names: tuple[str, ...]
+    fixed: Mapping[str, float]
+    initial_states: Mapping[str, float]
+    initial_state_stderr: Mapping[str, float]
+    time: FloatArray
+    output_names: tuple[str, ...]
+    channels: Mapping[str, str]
+    measured: FloatArray
+    reconstructed: FloatArray
+    states: FloatArray
+    true_outputs: FloatArray
+    state_names: tuple[str, ...]
+    error_bars: str
+    identifiable: bool
+    unidentifiable: tuple[tuple[str, ...], ...]
+    success: bool
+    message: str
+    n_passes: int
+    gravity: float
+    input_noise: Mapping[str, float]
+    measured_states: tuple[str, ...] = ()
+    scale_pivots: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    degrees_of_freedom: Mapping[str, float] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name in (
+            "parameters",
+            "stderr",
+            "fixed",
+            "initial_states",
+            "initial_state_stderr",
+            "input_noise",
+            "scale_pivots",
+            "degrees_of_freedom",
+        ):
+            set_(self, name, frozen_mapping(getattr(self, name)))
+        set_(self, "channels", frozen_mapping(self.channels))
+        for name in ("covariance", "time", "measured", "reconstructed", "states", "true_outputs"):
+            set_(self, name, frozen_array(getattr(self, name)))
+        set_(self, "parameter_names", tuple(self.parameter_names))
+        set_(self, "output_names", tuple(self.output_names))
+        set_(self, "state_names", tuple(self.state_names))
+        set_(self, "measured_states", tuple(self.measured_states))
+        set_(self, "unidentifiable", tuple(tuple(c) for c in self.unidentifiable))
+
+    @property
+    def standard_errors(self) -> Mapping[str, float]:
+        """The `stderr` (the name every estimator's result shares)."""
+        return self.stderr
+
+    @property
+    def residuals(self) -> FloatArray:
+        """Measured minus reconstructed sensor readings, shape (n_t, n_y)."""
+        out = np.asarray(self.measured - self.reconstructed)
+        out.setflags(write=False)
+        return out
+
+    @property
+    def correlation(self) -> FloatArray:
+        """Correlation matrix of the estimates."""
+        return _correlation_of(self)
+
+    @property
+    def all_parameters(self) -> Mapping[str, float]:
+        """Estimated and fixed sensor parameters together."""
+        merged = dict(self.fixed)
+        merged.update(self.parameters)
+        return frozen_mapping(merged)
+
+    def channel(self, name: str) -> tuple[FloatArray, FloatArray]:
+        """``(measured, reconstructed)`` history of one fitted output."""
+        if name not in self.output_names:
+            raise ChannelError(
+                f"output {name!r} was not fitted; fitted outputs: {list(self.output_names)}"
+            )
+        j = self.output_names.index(name)
+        return self.measured[:, j], self.reconstructed[:, j]
+
+    def summary(self) -> str:
+        """Markdown tables: sensor errors with standard errors, initial state, fit per channel."""
+        rows = []
+        for n in self.parameter_names:
+            unit = _parameter_unit(n)
+            rows.append((n, fmt(self.parameters[n]), fmt(self.stderr[n]), unit))
+        given = [(n, fmt(v), "given", _parameter_unit(n)) for n, v in self.fixed.items() if v]
+        table = markdown_table(("parameter", "estimate", "std. error", "unit"), rows + given)
+        x0_rows = [
+            (s, fmt(v), fmt(self.initial_state_stderr.get(s, float("nan"))))
+            for s, v in self.initial_states.items()
+        ]
+        x0_table = markdown_table(("initial state", "value", "std. error"), x0_rows)
+        fit_rows = []
+        res = self.residuals
+        for j, n in enumerate(self.output_names):
+            fit_rows.append(
+                (
+                    n,
+                    self.channels.get(n, n),
+                    fmt(float(np.sqrt(np.mean(res[:, j] ** 2)))),
+                    fmt(float(np.mean(res[:, j]))),
+                    _UNITS[n],
+                )
+            )
+        fit_table = markdown_table(("output", "channel", "RMS residual", "mean", "unit"), fit_rows)
+        kind = (
+            "corrected for coloured residuals"
+            if self.error_bars == "colored"
+            else "classical (white residuals)"
+        )
+        notes = [
+            f"Data compatibility over {self.time.size} samples: {self.n_passes} output-error "
+            f"pass(es); standard errors {kind}."
+        ]
+        if self.measured_states:
+            notes.append(
+                f"States taken from their measurements: {', '.join(self.measured_states)}."
+            )
+        pivoted = {o: v for o, v in self.scale_pivots.items() if v}
+        if pivoted:
+            notes.append(
+                "Scale factors act on the change from the start value: "
+                + ", ".join(f"{o} about {fmt(v)}" for o, v in pivoted.items())
+                + "."
+            )
+        if not self.success:
+            notes.append(f"**Not converged:** {self.message}")
+        if not self.identifiable:
+            combos = "; ".join(" + ".join(c) for c in self.unidentifiable) or "see covariance"
+            notes.append(f"**Not identifiable:** the data cannot separate {combos}.")
+        return "\n\n".join([table, x0_table, fit_table, "\n".join(notes)])
+
+    def plot(self) -> Any:
+        """Measured vs reconstructed channels with residuals. Returns a matplotlib Figure."""
+        return _plot(self)
+
+
+# `IdentificationResult.correlation` reads nothing but ``covariance``: one computation serves both.
+_correlation_of: Callable[[Any], FloatArray] = vars(IdentificationResult)["correlation"].fget
+
+
+def _parameter_unit(name: str) -> str:
+    if name in _WIND:
+        return "m/s"
+    kind, _, channel = name.partition("_")
+    if kind == "k":
+        return "-"
+    if kind == "tau":
+        return "s"
+    return _UNITS.get(channel, "")
+
+
+def _plot(result: CompatibilityResult) -> Any:
+    from ..reports.plotting import figure  # matplotlib on first use only
+
+    names = list(result.output_names)
+    fig, axes = figure(2 * len(names), height=1.8, hgap=0.5)
+    t = result.time
+    res = result.residuals
+    for j, name in enumerate(names):
+        ax = axes[2 * j, 0]
+        ax.plot(t, result.measured[:, j], color="0.55", lw=1.0, label="measured")
+        ax.plot(t, result.reconstructed[:, j], color="C0", lw=1.3, label="reconstructed")
+        ax.set_ylabel(f"{name} [{_UNITS[name]}]")
+        rms = float(np.sqrt(np.mean(res[:, j] ** 2)))
+        ax.set_title(f"{name}: RMS residual {rms:.3g} {_UNITS[name]}", fontsize=9, loc="left")
+        ax.legend(loc="upper right", fontsize=8)
+        rax = axes[2 * j + 1, 0]
+        rax.plot(t, res[:, j], color="C3", lw=0.9)
+        rax.axhline(0.0, color="k", lw=0.6)
+        rax.set_ylabel(f"{name} residual")
+    axes[-1, 0].set_xlabel("time [s]")
+    return fig
+
+
+# -- the analysis ------------------------------------------------------------------------
+
+
+@small_blas
+def check_compatibility(
+    data: FlightData,
+    *,
+    channels: Mapping[str, str | None] | None = None,
+    estimate: Sequence[str] | Mapping[str, float] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | None = None,
+    gravity: float = 9.80665,
+    error_bars: str = "colored",
+    max_iterations: int = 50,
+    tolerance: float = 1e-6,
+    max_passes: int = 4,
+    input_noise: Mapping[str, float] | None = None,
+    n_draws: int = 40,
+    seed: int = 0,
+    outputs: Sequence[str] | None = None,
+    measured_states: Sequence[str] = (),
+    estimate_x0: bool | Sequence[str] = True,
+    scale_about: str = "zero",
+    integration: str = "rk4",
+) -> CompatibilityResult:
+    """Reconstruct the flight path from the inertial sensors and estimate the sensor errors.
+
+    Parameters
+    ----------
+    data : FlightData
+        One record with body-axis rates ``p, q, r`` (rad/s), specific forces
+        ``ax, ay, az`` (m/s^2, at the centre of gravity), airspeed ``V``
+        (m/s), angles ``alpha, beta, phi, theta, psi`` (rad), altitude ``h``
+        (m) and ground speed north and east ``vn, ve`` (m/s). ``beta``,
+        ``psi``, ``h``, ``vn`` and ``ve`` are optional: whichever the record
+        lacks is not fitted. ``phi`` is optional too (a longitudinal
+        analysis): without it the bank angle is held at zero. A heading that
+        wraps at ±pi is unwrapped.
+    channels : mapping of str to str or None, optional
+        Data channel of each quantity where it is not named as above
+        (``{"alpha": "aoa"}``); None marks an optional output as absent.
+    estimate : sequence of str or mapping of str to float, optional
+        Sensor parameters to estimate (names in `SENSOR_PARAMETERS`), or a
+        mapping name -> start value. Default `DEFAULT_ESTIMATE`: gyro and
+        accelerometer biases, offsets of ``V``, ``alpha``, ``beta`` and the
+        scale-factor error of ``alpha``. Time shifts are ``tau_<output>``,
+        wind ``w_n, w_e, w_d``.
+    fixed : mapping of str to float, optional
+        Known values of parameters not estimated (a calibrated scale factor,
+        a known wind); every other parameter is zero.
+    x0 : mapping of str to float, optional
+        Start values of the initial state (``u, v, w, phi, theta, psi, h``);
+        default from the first sample of the measured channels.
+    gravity : float
+        Acceleration of gravity in m/s^2.
+    error_bars : {"colored", "white"}
+        As in `identify`.
+    max_iterations : int
+        Gauss-Newton iteration limit of each output-error pass.
+    tolerance : float
+        Convergence threshold on the relative parameter step, as in
+        `identify` (whose default is tighter: here a step of a millionth
+        moves no estimate by a noticeable fraction of its error bar).
+    max_passes : int
+        Output-error passes at most when time shifts are estimated (each
+        pass re-shifts the channels by the estimated shifts).
+    input_noise : mapping of str to float, optional
+        Noise standard deviation of the inputs (``p, q, r, ax, ay, az``),
+        for the error bars (see Notes); default estimated from each input's
+        fourth differences and its quietest spectral band. Zero leaves an
+        input out of the correction.
+    n_draws : int
+        Monte Carlo draws of input noise for that correction, where the
+        kinematics do not compile (without JAX; compiled, it is exact), and
+        for the residual spectrum that noise leaves (coloured error bars).
+    seed : int
+        Seed of those draws.
+    outputs : sequence of str, optional
+        The outputs to fit (default every one the record has); the others
+        may still stand in for states (`measured_states`) or give the start.
+    measured_states : sequence of str
+        States replaced by their measurement throughout (SIDPAC's ``ims``):
+        ``u, v, w`` from ``V, alpha, beta`` (and the wind), ``phi``,
+        ``theta``, ``psi``, ``h`` from their channels, with the given sensor
+        errors removed. Such a state is neither integrated nor estimated; a
+        lateral analysis can take ``u, w, theta`` from the data, a
+        longitudinal one ``v, phi, psi``.
+    estimate_x0 : bool or sequence of str
+        True: estimate every initial state the outputs see; False: hold them
+        all at the measured values (the start of each channel, smoothed);
+        or the names of the states to estimate, the others held.
+    scale_about : {"zero", "initial"}
+        What an output's scale factor multiplies: the value itself,
+        ``(1 + k) y + b``, or its change from the start value,
+        ``(1 + k) (y - y0) + y0 + b`` with ``y0`` the output reconstructed
+        from the start state (SIDPAC's form; the offset ``b`` then is the
+        error at the start of the record).
+    integration : {"rk4", "euler"}
+        Runge-Kutta with substeps (accurate), or one forward-Euler step per
+        sample with the inputs held (first order: what SIDPAC's saved
+        data-compatibility results were computed with; use it only to
+        reproduce those).
+
+    Notes
+    -----
+    Output error treats the inputs as exact, but gyro and accelerometer
+    noise is integrated by the kinematics into slowly wandering attitude and
+    velocity errors, which the classical error bars do not see, and which the
+    coloured-residual correction sees only in part: the fitted biases and
+    scale factors absorb the ramp-like share of a random walk, and the residuals
+    keep no trace of it (on SIDPAC's dca demos set up as a known truth, the
+    residuals' coloured bars were 0.1-0.8 of the true scatter). Their share is
+    added here: the covariance of the linearised estimate shifts
+    ``(J' W J)^-1 J' W dy`` that white input noise at the level of the data
+    causes through the fitted kinematics. With JAX it is computed exactly to
+    first order (the adjoint of the linearised kinematics carries every
+    sample's noise to the estimates); without, it is the scatter of `n_draws`
+    simulated records of such noise. The level of each input is the smaller
+    of its fourth-difference estimate and the quietest band of its spectrum
+    (white noise is as strong in every band; vibration near the Nyquist
+    frequency is not noise at the low frequencies the kinematics integrate),
+    and it is lowered further, by one common factor, where the residuals of
+    an output are smaller, beyond chance, than that noise alone would leave
+    them. With
+    ``error_bars="colored"`` the residuals' coloured correction is taken of
+    what their spectrum holds beyond the expected integrated input noise (the
+    measurement noise), so the wander is counted once.
+
+    Returns
+    -------
+    CompatibilityResult
+
+    Raises
+    ------
+    ChannelError
+        A required channel (the six inputs, ``V``, ``alpha``, ``phi``,
+        ``theta``) is missing, or a parameter to estimate belongs to an
+        absent channel.
+    DataFormatError
+        A channel holds non-finite values, an angle exceeds its range in
+        radians, or the airspeed is not positive.
+    IdentificationError
+        Unknown parameter names, bad values or options.
+
+    Warns
+    -----
+    IdentifiabilityWarning
+        When the data cannot separate some of the estimated parameters (for
+        instance a horizontal wind without ground-speed channels, or the
+        air-data offsets from a wind on a straight leg).
+    """
+    from .identification import identify
+
+    if not isinstance(data, FlightData):
+        raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
+    present = _channel_map(data, channels)
+    from ._excitation import check_kinematic_channels, refuse_stuck_outputs
+
+    check_kinematic_channels(data, present)
+    fitted = _fitted_outputs(outputs, present)
+    refuse_stuck_outputs(data, present, fitted)
+    names, values = _parameter_values(
+        estimate,
+        fixed,
+        {**{o: present[o] for o in fitted}, **{c: present[c] for c in INPUT_CHANNELS}},
+    )
+    held_in = _measured_state_names(measured_states, present)
+    if scale_about not in ("zero", "initial"):
+        raise IdentificationError(
+            f"scale_about: expected 'zero' or 'initial', got {plain(scale_about)}"
+        )
+    if integration not in ("rk4", "euler"):
+        raise IdentificationError(
+            f"integration: expected 'rk4' or 'euler', got {plain(integration)}"
+        )
+    try:
+        g = float(gravity)
+    except (TypeError, ValueError):
+        g = float("nan")
+    if not (math.isfinite(g) and g > 0):
+        raise IdentificationError(f"gravity must be a positive number, got {plain(gravity)}")
+    max_passes = whole_number(max_passes, "max_passes", IdentificationError)
+    n_draws = whole_number(n_draws, "n_draws", IdentificationError, least=2)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise IdentificationError(f"seed: expected an integer, got {plain(seed)}")
+    max_passes = min(max_passes, _MAX_PASSES)
+    t = data.time
+    outputs = list(fitted)
+    measured = {
+        o: np.array(data.channels[present[o]], dtype=np.float64)
+        for o in OUTPUT_CHANNELS
+        if o in present
+    }
+    if "psi" in measured:
+        measured["psi"] = np.unwrap(measured["psi"])
+    inputs = {c: np.asarray(data.channels[present[c]], dtype=np.float64) for c in INPUT_CHANNELS}
+    substeps = _substeps(t, np.stack([inputs[c] for c in ("p", "q", "r")]))
+    how: dict[str, Any] = (
+        {"method": "rk4", "substeps": substeps} if integration == "rk4" else {"method": "euler"}
+    )
+    sigma_in = _input_noise(inputs, input_noise)
+    start = _start_state(_first_values(t, measured), values, x0)
+    stand_in = _states_from(measured, values)
+    held = np.column_stack([stand_in[s] if s in held_in else np.zeros(t.size) for s in STATES])
+    # the heading is seen by its own channel or through the ground speed
+    seen = {
+        "phi": "phi" in outputs,
+        "psi": bool({"psi", "vn", "ve"} & set(outputs)),
+        "h": "h" in outputs,
+    }
+    free_x0 = ["u", "v", "w"] + [s for s in ("phi", "theta", "psi", "h") if seen.get(s, True)]
+    free_x0 = [s for s in _free_states(estimate_x0, free_x0) if s not in held_in]
+    masks = tuple((f"m_{s}", 1.0 if s in held_in else 0.0) for s in STATES)
+    pivots = {o: 0.0 for o in OUTPUT_CHANNELS}
+    if scale_about == "initial":
+        x_start = np.array([start[s] for s in STATES])
+        c_start = np.concatenate([[inputs[c][0] for c in INPUT_CHANNELS], held[0]])
+        p_start = {**_zero_sensor_errors(values), "g": g, **dict(masks)}
+        p_start.update({f"y0_{o}": 0.0 for o in OUTPUT_CHANNELS})
+        y_start = _sensors(t[0], x_start, c_start, p_start)
+        pivots = {o: float(y_start[j]) for j, o in enumerate(OUTPUT_CHANNELS)}
+    shifted_names = [n for n in names if n.startswith("tau_")]
+    applied = {n: 0.0 for n in shifted_names}
+    current = dict(values)
+    passes = 0
+    fit: Any = None
+    nominal = (("g", g), *masks, *((f"y0_{o}", v) for o, v in pivots.items()))
+    model = _model((*nominal, *sorted(values.items())))
+    while True:
+        passes += 1
+        channels_now = {c: inputs[c] for c in INPUT_CHANNELS}
+        channels_now.update({m: held[:, j] for j, m in enumerate(_MEASURED)})
+        for o in outputs:
+            channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
+        record = FlightData(t, channels_now)
+        guess = {n: current[n] - applied.get(n, 0.0) for n in names}
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fit = identify(
+                model,
+                record,
+                guess,
+                outputs=outputs,
+                x0=start,
+                estimate_x0=free_x0,
+                error_bars=error_bars,
+                max_iterations=max_iterations,
+                tolerance=tolerance,
+                simulate_options=how,
+            )
+        _rewarn(caught, names)
+        current.update({n: fit.parameters[n] + applied.get(n, 0.0) for n in names})
+        start = dict(fit.initial_states[0])
+        if not shifted_names or passes >= max_passes or not fit.success:
+            break
+        # Another pass only while the remaining shift is worth a re-interpolation: the
+        # first-order term neglects (omega tau)^2 / 2, and below a twentieth of a sample
+        # that is under a twelfth of the first-order term even at the Nyquist frequency.
+        step = max(abs(fit.parameters[n]) for n in shifted_names)
+        if step < 0.05 * float(np.min(np.diff(t))):
+            break
+        applied = {n: current[n] for n in shifted_names}
+    controls = np.column_stack([*(inputs[c] for c in INPUT_CHANNELS), held])
+    extra = _input_noise_covariance(
+        model,
+        t,
+        controls,
+        fit,
+        names,
+        free_x0,
+        [OUTPUT_CHANNELS.index(o) for o in outputs],
+        sigma_in,
+        n_draws=n_draws,
+        seed=int(seed),
+        substeps=substeps,
+    )
+    base: tuple[FloatArray, FloatArray] | None = None
+    if fit.error_bars == "colored":
+        split = _measurement_noise_covariance(
+            model,
+            t,
+            controls,
+            fit,
+            names,
+            free_x0,
+            [OUTPUT_CHANNELS.index(o) for o in outputs],
+            sigma_in,
+            n_draws=n_draws,
+            seed=int(seed),
+            substeps=substeps,
+        )
+        if split is not None:
+            allowed, cov_noise, nu_noise = split
+            extra = allowed * extra
+            sigma_in = {c: v * math.sqrt(allowed) for c, v in sigma_in.items()}
+            base = (cov_noise, nu_noise)
+    return _result(
+        model,
+        data,
+        present,
+        outputs,
+        measured,
+        inputs,
+        controls,
+        names,
+        current,
+        fit,
+        extra,
+        sigma_in,
+        passes,
+        g,
+        how,
+        tuple(s for s in STATES if s in held_in),
+        {o: pivots[o] for o in outputs},
+        base,
+    )
+
+
+def _result(
+    model: Any,
+    data: FlightData,
+    present: Mapping[str, str],
+    outputs: list[str],
+    measured: Mapping[str, FloatArray],
+    inputs: Mapping[str, FloatArray],
+    controls: FloatArray,
+    names: list[str],
+    values: Mapping[str, float],
+    fit: Any,
+    extra: FloatArray,
+    sigma_in: Mapping[str, float],
+    passes: int,
+    g: float,
+    how: Mapping[str, Any],
+    held: tuple[str, ...],
+    pivots: Mapping[str, float],
+    base: tuple[FloatArray, FloatArray] | None = None,
+) -> CompatibilityResult:
+    t = data.time
+    x0 = dict(fit.initial_states[0])
+    # the fitted model itself (and whatever was compiled for it), free of output errors
+    sim = model.simulate(t, controls, x0, _zero_sensor_errors(values), **how)
+    true_out = np.asarray(sim.outputs)
+    reconstructed = np.empty((t.size, len(outputs)))
+    raw = np.empty((t.size, len(outputs)))
+    corrected: dict[str, FloatArray] = {}
+    for j, o in enumerate(outputs):
+        k = OUTPUT_CHANNELS.index(o)
+        b, s, tau = values[f"b_{o}"], values[f"k_{o}"], values[f"tau_{o}"]
+        y0 = pivots[o]
+        reconstructed[:, j] = (1.0 + s) * (_shift(t, true_out[:, k], -tau) - y0) + y0 + b
+        raw[:, j] = data.channels[present[o]]
+        fixed_y = (_shift(t, measured[o], tau) - b - y0) / (1.0 + s) + y0
+        if o == "psi":  # back on the record's own branch of the heading
+            fixed_y = fixed_y + (raw[:, j] - measured[o])
+            reconstructed[:, j] = reconstructed[:, j] + (raw[:, j] - measured[o])
+        corrected[present[o]] = fixed_y
+    for c in INPUT_CHANNELS:
+        corrected[present[c]] = (inputs[c] - values[f"b_{c}"]) / (1.0 + values[f"k_{c}"])
+    dof = {n: float(fit.degrees_of_freedom.get(n, np.inf)) for n in (*names, *fit.extra_stderr)}
+    if base is None:
+        cov = np.asarray(fit.covariance) + extra
+    else:
+        # the measurement-noise part is unbiased but noisy, possibly indefinite:
+        # only the sum need be a covariance
+        w, v = np.linalg.eigh(0.5 * (base[0] + extra + (base[0] + extra).T))
+        cov = (v * np.maximum(w, 0.0)) @ v.T
+        # Satterthwaite: only the measurement-noise part is estimated from a finite band
+        # (none where the measurement noise adds nothing: the rest is not estimated)
+        part = np.abs(np.diag(base[0]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nu = np.where(part > 0, base[1] * (np.diag(cov) / part) ** 2, np.inf)
+        dof.update({n: float(nu[j]) for j, n in enumerate(names)})
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    se[~np.isfinite(np.diag(cov))] = np.inf
+    stderr = {n: float(se[j]) for j, n in enumerate(names)}
+    x0_se = {s: float(v) for k, v in fit.extra_stderr.items() for s in [k.partition(".")[2]]}
+    return CompatibilityResult(
+        corrected=data.with_channels(corrected),
+        parameters={n: float(values[n]) for n in names},
+        stderr=stderr,
+        covariance=cov,
+        parameter_names=tuple(names),
+        fixed={n: float(v) for n, v in values.items() if n not in names},
+        initial_states=x0,
+        initial_state_stderr=x0_se,
+        time=t,
+        output_names=tuple(outputs),
+        channels={k: present[k] for k in (*INPUT_CHANNELS, *outputs)},
+        measured=raw,
+        reconstructed=reconstructed,
+        states=np.asarray(sim.states),
+        true_outputs=true_out,
+        state_names=STATES,
+        error_bars=fit.error_bars,
+        identifiable=fit.identifiable,
+        unidentifiable=fit.unidentifiable,
+        success=fit.success,
+        message=fit.message,
+        n_passes=passes,
+        gravity=g,
+        input_noise=sigma_in,
+        measured_states=held,
+        degrees_of_freedom=dof,
+        scale_pivots=pivots,
+    )

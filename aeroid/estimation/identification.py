@@ -1,0 +1,614 @@
+"""Parameter identification: `identify` (its record, `IdentificationResult`, is re-exported)."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._threads import small_blas
+from ..errors import IdentificationError
+from ..io.data import (
+    FlightData,
+    as_float,
+    check_symmetric,
+    delay_starts,
+    fingerprint,
+    measured_start,
+    plain,
+    whole_number,
+)
+from ._identification_record import IdentificationResult
+from ._identification_start import (
+    _as_list,
+    _equation_error_start,
+    _select,
+    _x0_per_manoeuvre,
+    _x0_values,
+    names_and_initial,
+)
+from ._identification_start import _is_state_entry as _is_state_entry
+from ._state_biases import _bias_choice, _state_biases_out, _with_state_biases
+
+__all__ = ["IdentificationResult", "identify"]
+
+FloatArray = NDArray[np.float64]
+
+
+_METHODS = ("output_error", "filter_error")
+_STARTS = ("given", "equation_error")
+_GRADIENTS = ("auto", "fd", "jax")
+_ERROR_BARS = ("colored", "white")
+
+
+def _weight_variances(weights: Any, outputs: list[str]) -> FloatArray:
+    """Fixed noise variances per fitted output from `weights` (see `identify`)."""
+    n = len(outputs)
+    if isinstance(weights, Mapping):
+        unknown = sorted(set(weights) - set(outputs))
+        if unknown:
+            raise IdentificationError(
+                f"weights: unknown outputs {unknown}; fitted outputs: {outputs}"
+            )
+        w = np.empty(n)
+        for k, o in enumerate(outputs):
+            try:
+                w[k] = float(weights.get(o, 1.0))
+            except (TypeError, ValueError):
+                raise IdentificationError(
+                    f"weights[{o!r}]: expected a number, got {plain(weights[o])}"
+                ) from None
+        if np.any(w <= 0) or not np.all(np.isfinite(w)):
+            raise IdentificationError("weights: every weight must be positive and finite")
+        return 1.0 / w
+    r: FloatArray | None
+    try:
+        r = np.asarray(weights, dtype=np.float64)
+    except (TypeError, ValueError):
+        r = None
+    if r is None or r.shape != (n, n):
+        shape = f"shape {r.shape}" if r is not None else plain(weights)
+        raise IdentificationError(
+            f"weights: expected a mapping of output -> weight or a ({n}, {n}) noise "
+            f"covariance, got {shape}"
+        )
+    if not np.all(np.isfinite(r)):
+        raise IdentificationError("weights: the noise covariance holds NaN or infinite values")
+    check_symmetric(r, outputs, "weights", IdentificationError)
+    scale = float(np.max(np.abs(r)))
+    low = float(np.linalg.eigvalsh(0.5 * (r + r.T))[0])
+    if not low > 1e-12 * scale:
+        # A zero variance would be an infinite weight: the fit needs positive definite.
+        raise IdentificationError(
+            f"weights: the noise covariance must be positive definite; its smallest "
+            f"eigenvalue is {low:.6g} (order {outputs})"
+        )
+    if np.any(r != np.diag(np.diag(r))):
+        # Only variances enter the fit; dropping correlations silently would mislead.
+        raise IdentificationError(
+            "weights: correlated measurement noise is not supported; give a diagonal noise "
+            f"covariance (order {outputs}) or a mapping of output -> weight"
+        )
+    return np.diag(r).copy()
+
+
+@small_blas
+def identify(
+    model: Any,
+    data: FlightData | Sequence[FlightData],
+    parameters: Sequence[str] | Mapping[str, float],
+    *,
+    method: str = "output_error",
+    gradient: str = "auto",
+    outputs: Sequence[str] | None = None,
+    x0: Any = None,
+    estimate_x0: bool | Sequence[str] = False,
+    estimate_bias: bool | Sequence[str] | Mapping[str, Any] = False,
+    weights: Mapping[str, float] | Any = None,
+    error_bars: str = "colored",
+    max_iterations: int = 50,
+    tolerance: float = 1e-8,
+    simulate_options: Mapping[str, Any] | None = None,
+    process_noise: Mapping[str, float] | Any = None,
+    measurement_noise: Mapping[str, float] | Any = None,
+    filter_options: Mapping[str, Any] | None = None,
+    estimate_process_noise: bool | Sequence[str] = False,
+    bounds: Mapping[str, Any] | None = None,
+    time_delays: str | Sequence[str] | Mapping[str, float] | None = None,
+    start: str = "given",
+) -> IdentificationResult:
+    """Estimate model parameters from flight data.
+
+    Parameters
+    ----------
+    model : Model or SimulatorModel
+        The vehicle model. Stepped simulators work with output error and
+        finite differences only.
+    data : FlightData or sequence of FlightData
+        One manoeuvre, or several fitted together with shared parameters and
+        their own initial states and biases.
+    parameters : sequence of str or mapping of str to float
+        Names to estimate (starting from the model's nominal values) or a dict
+        of name to initial guess. Every model parameter not named here is held
+        fixed at its nominal value (``model.parameters``) and reported in
+        ``result.fixed``; to fix a parameter at another value, build the model
+        with that nominal value.
+    method : {"output_error", "filter_error"}
+        Maximum-likelihood output error, or filter error (fits on whitened
+        Kalman-filter innovations; needs `process_noise`).
+    gradient : {"auto", "fd", "jax"}
+        ``"auto"``: exact forward-mode sensitivities of a compiled RK4 when the
+        model's numpy-written functions compile with JAX (nonlinear models),
+        else finite differences. ``"fd"``: finite-difference sensitivities
+        (batched). ``"jax"``: exact JAX Jacobians of functions written with
+        jax.numpy.
+    outputs : sequence of str, optional
+        Model outputs to fit; default every model output present in the data.
+    x0 : mapping, array or list of them, optional
+        Initial state: a mapping of state to value or a vector of ``n_states``
+        numbers, used for every manoeuvre; or a list (or 2-D array) of one
+        such initial state per manoeuvre (``None`` entries for "measured").
+        A flat list of numbers is always read as one state vector shared by
+        every manoeuvre, even when its length also equals the number of
+        manoeuvres (``x0=[p0, r0]`` for two manoeuvres of a two-state model
+        is one state); only for a one-state model does a flat list of one
+        number per manoeuvre give each manoeuvre its own. Default: the
+        measured states at the first sample and zero for unmeasured ones.
+    estimate_x0 : bool or sequence of str
+        Estimate the initial value of these states (all when True), per manoeuvre.
+    estimate_bias : bool, sequence of str or mapping of str to str
+        Estimate constant biases, per manoeuvre. True or a list of names:
+        measurement biases on those outputs (all fitted outputs when True).
+        A mapping ``name -> "output"`` or ``"state"`` (or a list of both)
+        chooses per name: ``"state"`` adds an estimated constant to that
+        state's derivative (``x_dot = f(t, x, u, p) + b``), as lateral models
+        use for unmodelled trims. State biases need a `Model` (not
+        ``gradient="jax"``); they are reported in ``result.biases[i]`` under
+        ``"state.<name>"`` and in `extra_stderr` as ``"bias[i].state.<name>"``.
+        `validate` and the other functions replay the model without them.
+    weights : mapping of str to float or ndarray, optional
+        Fixed output weights (inverse noise variances, positive) or a diagonal,
+        positive definite noise covariance (correlated noise is refused, not
+        dropped). Default: the noise covariance is estimated from the
+        residuals at every iteration (maximum likelihood).
+    error_bars : {"colored", "white"}
+        Standard errors corrected for coloured residuals from their
+        autocorrelation (default), or the classical Cramér–Rao values.
+    max_iterations : int
+        Gauss–Newton iteration limit (a positive integer); hitting it returns
+        a result flagged ``success=False`` with a warning.
+    tolerance : float
+        Convergence threshold on the relative parameter step.
+    simulate_options : mapping, optional
+        Integrator options (``method``, ``substeps``, ``rtol``, ``atol``).
+        With ``gradient="jax"`` (a fixed-step RK4 rollout) only ``substeps``
+        applies (RK4 steps per sample interval; default chosen from the
+        dynamics' stiffness); the others are refused.
+    process_noise, measurement_noise, filter_options, estimate_process_noise
+        Filter-error settings: continuous process-noise PSD per state,
+        measurement-noise variances per output, filter options, and whether
+        to estimate the process-noise intensities.
+    bounds : mapping of str to (float or None, float or None), optional
+        Lower and upper bounds on estimated parameters, ``None`` (or
+        ``-inf``/``inf``) for an open side, e.g. ``{"M_q": (None, 0.0)}``.
+        The fit is a bounded Gauss–Newton (output error) or
+        Levenberg–Marquardt (filter error): a parameter at a bound whose step
+        would leave the box is held there and dropped from that step's normal
+        equations (the active set), and steps are projected onto the box, so
+        every iterate satisfies the bounds. A parameter that ends at a bound
+        is listed in ``result.active_bounds``; its standard error is reported
+        as 0 and the other parameters' covariance is conditional on the bound
+        (computed with it held fixed). The initial value of a bounded
+        parameter must lie inside its bounds (a bound itself is allowed).
+    time_delays : str, sequence of str or mapping of str to float, optional
+        Controls whose pure time delay to estimate (output error only), or a
+        dict of control name to start value in s (default start 0). The
+        control enters the model as ``u(t - tau)``, interpolated
+        piecewise-linearly between samples, so a delay may be a fraction of a
+        sample. Each delay is reported as parameter ``"tau_<control>"`` in
+        `parameters`, `stderr`, `covariance` and `summary`, and in
+        ``result.time_delays``; it is shared by every manoeuvre.
+    start : {"given", "equation_error"}
+        ``"given"``: start from `parameters`. ``"equation_error"``: first
+        regress each state equation on the measured states and controls
+        (Klein & Morelli's equation error): the response is the smoothed
+        derivative of each measured state (a channel ``<state>_dot`` when the
+        data carry one, else `aeroid.io.smoothing.differentiate` of the state on
+        a uniform grid; all states must be measured), the regressors the
+        columns ``df/dp`` of the dynamics, and the least-squares estimates
+        start the output-error fit. Needs dynamics linear in the estimated
+        parameters (checked; an error names those that are not). Parameters
+        that do not enter the state equations, or that the regression cannot
+        separate, keep their given start.
+
+    Returns
+    -------
+    IdentificationResult
+
+    Raises
+    ------
+    IdentificationError
+        Bad arguments (among them bounds on a name that is not an estimated
+        parameter, a lower bound not below the upper one, a NaN bound, or an
+        initial value outside its bounds), incompatible options, no more
+        measurements (samples
+        times outputs, over all records) than unknowns (parameters, estimated
+        initial states, biases and noise intensities), or a model that cannot
+        be simulated, or a cost that is not finite, at the initial guess.
+    ChannelError
+        A control or output the fit needs is missing from the data.
+
+    Warns
+    -----
+    IdentifiabilityWarning
+        When the data cannot separate some parameters (the result is flagged).
+    UserWarning
+        When the iteration limit is reached, or the fit ends with a non-finite
+        cost or estimates; the result is flagged ``success=False``.
+    """
+    from ..models.model import (
+        MAX_SUBSTEPS,
+        SIMULATE_OPTION_KEYS,
+        SimulatorModel,
+        check_simulate_options,
+        require_model,
+    )
+    from ._excitation import require_excitation, require_model_units
+
+    require_model(model, IdentificationError)
+    if method not in _METHODS:
+        raise IdentificationError(f"method {method!r} is unknown; choose one of {list(_METHODS)}")
+    if gradient not in _GRADIENTS:
+        raise IdentificationError(
+            f"gradient {gradient!r} is unknown; choose one of {list(_GRADIENTS)}"
+        )
+    if error_bars not in _ERROR_BARS:
+        raise IdentificationError(
+            f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
+        )
+    max_iterations = whole_number(max_iterations, "max_iterations", IdentificationError)
+    # a bool or text is no tolerance; an infinite one would stop at the initial guess
+    tol = as_float(tolerance)
+    if tol is None or not (tol > 0 and np.isfinite(tol)):
+        raise IdentificationError(f"tolerance must be positive and finite, got {plain(tolerance)}")
+    datas = _as_list(data)
+    names, initial = names_and_initial(model, parameters)
+    if start not in _STARTS:
+        raise IdentificationError(f"start {start!r} is unknown; choose one of {list(_STARTS)}")
+    delays = _time_delays(time_delays, model)
+    is_simulator = not hasattr(model, "simulate_batch") and isinstance(model, SimulatorModel)
+    model_outputs = list(model.outputs)
+    if outputs is None:
+        fit_outputs = [o for o in model_outputs if all(o in d for d in datas)]
+        if not fit_outputs:
+            datas[0].require(model_outputs[:1], role="output")
+    else:
+        # one name, not its letters
+        chosen = [outputs] if isinstance(outputs, str) else list(outputs)
+        fit_outputs = _select(chosen, model_outputs, "outputs")
+        if not fit_outputs:
+            raise IdentificationError("outputs: name at least one output to fit")
+    for d in datas:
+        d.require(model.controls, role="control")
+        d.require(fit_outputs, role="output")
+    states = list(getattr(model, "states", ()))
+    box = _check_bounds(bounds, model, names, initial)
+    x0_list = _x0_per_manoeuvre(x0, len(datas), states)
+    x0_dicts: list[dict[str, float]] = []
+    for d, xi in zip(datas, x0_list, strict=True):
+        if xi is None:
+            x0_dicts.append(measured_start(d, states))
+        else:
+            x0_dicts.append(_x0_values(xi, states))
+    if method == "filter_error" and delays:
+        raise IdentificationError(
+            "time_delays apply to method='output_error' only; estimate the delays by output "
+            "error and build the filter-error model on the delayed controls"
+        )
+    if start == "equation_error":
+        initial = _equation_error_start(model, datas, names, initial, delays, box)
+    if method == "filter_error":
+        if weights is not None:
+            raise IdentificationError(
+                "weights do not apply to filter error; give measurement_noise (variances) instead"
+            )
+        if simulate_options:
+            raise IdentificationError(
+                "simulate_options do not apply to filter error; pass integrator settings in "
+                "filter_options (e.g. {'substeps': 4})"
+            )
+        if is_simulator or not hasattr(model, "dynamics"):
+            raise IdentificationError(
+                "filter error needs a continuous dynamics callable; a stepped simulator "
+                "works with method='output_error'"
+            )
+        if gradient == "jax":
+            raise IdentificationError("gradient='jax' is available for output error only")
+        if estimate_x0 or estimate_bias:
+            raise IdentificationError(
+                "estimate_x0 and estimate_bias apply to method='output_error' only; the "
+                "filter-error method corrects the states through its Kalman filter"
+            )
+        if process_noise is None and not estimate_process_noise:
+            raise IdentificationError(
+                "filter error needs process_noise (continuous PSD per state) or "
+                "estimate_process_noise=True"
+            )
+        # Unknown names are reported by the filter-error code; count the valid ones.
+        noise_states = _select(
+            estimate_process_noise, states, "estimate_process_noise", strict=False
+        )
+        _check_data_count(
+            datas,
+            fit_outputs,
+            {
+                "parameters": len(names),
+                "process-noise intensities": len(noise_states),
+                "measurement-noise variances": len(fit_outputs) if measurement_noise is None else 0,
+            },
+        )
+        require_excitation(datas, model.controls)
+        require_model_units(model, datas, [*fit_outputs, *model.controls])
+        from ._filter_error import identify_filter_error
+
+        fitted = identify_filter_error(
+            model,
+            datas,
+            names,
+            initial,
+            outputs=fit_outputs,
+            process_noise=process_noise,
+            measurement_noise=measurement_noise,
+            filter_options=filter_options,
+            estimate_process_noise=estimate_process_noise,
+            x0=x0_dicts if x0 is not None else None,
+            max_iterations=max_iterations,
+            tolerance=tol,
+            bounds=box,
+        )
+        return _finish(fitted, datas, model)
+    if (
+        process_noise is not None
+        or measurement_noise is not None
+        or filter_options
+        or estimate_process_noise
+    ):
+        raise IdentificationError(
+            "process_noise, measurement_noise, filter_options and estimate_process_noise "
+            "apply to method='filter_error' only"
+        )
+    if gradient == "jax" and (is_simulator or not hasattr(model, "dynamics")):
+        raise IdentificationError(
+            "gradient='jax' needs a continuous dynamics callable written with jax.numpy; "
+            "use gradient='fd' for a stepped simulator"
+        )
+    if simulate_options is not None and not isinstance(simulate_options, Mapping):
+        raise IdentificationError(
+            f"simulate_options: expected a dict, got {type(simulate_options).__name__}"
+        )
+    opts = dict(simulate_options or {})
+    from ._output_error import fit_output_error
+
+    unknown_opts = sorted(set(opts) - set(SIMULATE_OPTION_KEYS))
+    if unknown_opts:
+        raise IdentificationError(
+            f"simulate_options: unknown keys {unknown_opts}; valid keys are {list(SIMULATE_OPTION_KEYS)}"
+        )
+    if gradient == "jax":
+        # The JAX path is one fixed-step RK4 rollout: only its substep count applies.
+        refused = sorted(set(opts) - {"substeps"})
+        if refused:
+            raise IdentificationError(
+                f"simulate_options {refused} do not apply to gradient='jax', whose simulation "
+                "is a fixed-step RK4 rollout; only 'substeps' does (or use gradient='fd')"
+            )
+        if opts.get("substeps") is None:
+            opts.pop("substeps", None)
+        else:
+            opts["substeps"] = whole_number(
+                opts["substeps"], "simulate_options['substeps']", IdentificationError
+            )
+            if opts["substeps"] > MAX_SUBSTEPS:  # the rollout would not fit in memory
+                raise IdentificationError(
+                    f"simulate_options['substeps'] must be at most {MAX_SUBSTEPS}, "
+                    f"got {opts['substeps']}"
+                )
+    elif not is_simulator:
+        opts.setdefault("method", "auto")
+        # here, not deep in the first simulation, and naming the option
+        check_simulate_options(opts, model, IdentificationError)
+    sel_x0 = _select(estimate_x0, states, "estimate_x0")
+    if sel_x0 and (is_simulator or gradient == "jax"):
+        raise IdentificationError("estimate_x0 needs a Model and gradient='fd'")
+    sel_bias, state_bias = _bias_choice(estimate_bias, fit_outputs, states)
+    if state_bias and (is_simulator or not hasattr(model, "dynamics") or gradient == "jax"):
+        raise IdentificationError(
+            f"estimate_bias: biases on the state equations {state_bias} need a Model (a "
+            "dynamics callable), and gradient='auto' or 'fd'"
+        )
+    w_arr = None if weights is None else _weight_variances(weights, fit_outputs)
+    _check_data_count(
+        datas,
+        fit_outputs,
+        {
+            "parameters": len(names),
+            "time delays": len(delays),
+            "initial states": len(sel_x0) * len(datas),
+            "biases": (len(sel_bias) + len(state_bias)) * len(datas),
+        },
+    )
+    require_excitation(datas, model.controls)
+    require_model_units(model, datas, [*fit_outputs, *model.controls])
+    fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
+    fitted = fit_output_error(
+        fit_model,
+        datas,
+        names,
+        initial,
+        outputs=fit_outputs,
+        x0=x0_dicts,
+        estimate_x0=sel_x0 + bias_states,
+        estimate_bias=sel_bias,
+        weights=w_arr,
+        error_bars=error_bars,
+        max_iterations=max_iterations,
+        tolerance=tol,
+        simulate_options=opts,
+        gradient=gradient,
+        bounds=box,
+        delays=delays,
+    )
+    if state_bias:
+        fitted = _state_biases_out(fitted, bias_states, state_bias)
+    return _finish(fitted, datas, model)
+
+
+def _time_delays(option: Any, model: Any) -> dict[str, float]:
+    """Control name -> start value (s) of each delay to estimate (see `identify`)."""
+    if option is None or option is False:
+        return {}
+    controls = list(model.controls)
+
+    def unknown(name: str) -> IdentificationError:
+        return IdentificationError(
+            f"time_delays: {name!r} is not a control of model "
+            f"{getattr(model, 'name', '')!r}; its controls are {controls}"
+        )
+
+    out = delay_starts(option, controls, what="control", error=IdentificationError, unknown=unknown)
+    for name in out:
+        if f"tau_{name}" in model.parameters:
+            raise IdentificationError(
+                f"time_delays: the delay of {name!r} would be reported as 'tau_{name}', "
+                "which is already a model parameter; rename that parameter"
+            )
+    return out
+
+
+def _bound_value(value: Any, name: str, side: str, default: float) -> float:
+    if value is None:
+        return default
+    if isinstance(value, bool):
+        v = float("nan")
+    else:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = float("nan")
+    if np.isnan(v):
+        raise IdentificationError(
+            f"bounds[{name!r}]: the {side} bound must be a number, None or ±inf, got {plain(value)}"
+        )
+    return v
+
+
+def _check_bounds(
+    bounds: Any, model: Any, names: list[str], initial: Mapping[str, float]
+) -> dict[str, tuple[float, float]]:
+    """Validated bounds ``name -> (lower, upper)`` with ±inf for open sides (see `identify`)."""
+    if bounds is None:
+        return {}
+    if not isinstance(bounds, Mapping):
+        raise IdentificationError(
+            "bounds: expected a dict of parameter name -> (lower, upper), with None for an "
+            f"open side, got {type(bounds).__name__}"
+        )
+    box: dict[str, tuple[float, float]] = {}
+    for name, pair in bounds.items():
+        if name not in model.parameters:
+            raise IdentificationError(
+                f"bounds: {name!r} is not a parameter of model {model.name!r}; its parameters "
+                f"are {sorted(model.parameters)}"
+            )
+        if name not in names:
+            raise IdentificationError(
+                f"bounds: {name!r} is not estimated (it stays fixed at its nominal value "
+                f"{float(model.parameters[name]):.6g}); add it to the parameters to estimate or "
+                "drop its bounds"
+            )
+        items: list[Any] | None
+        if isinstance(pair, (str, bytes, Mapping)):
+            items = None
+        else:
+            try:
+                items = list(pair)
+            except TypeError:
+                items = None
+        if items is None or len(items) != 2:
+            raise IdentificationError(
+                f"bounds[{name!r}]: expected (lower, upper) with None for an open side, "
+                f"got {plain(pair)}"
+            )
+        lo = _bound_value(items[0], name, "lower", -np.inf)
+        hi = _bound_value(items[1], name, "upper", np.inf)
+        if not lo < hi or lo == np.inf or hi == -np.inf:
+            raise IdentificationError(
+                f"bounds[{name!r}]: the lower bound {lo:.6g} must be below the upper bound {hi:.6g}"
+            )
+        start = float(initial[name])
+        if not lo <= start <= hi:
+            raise IdentificationError(
+                f"bounds[{name!r}]: the initial value {start:.6g} lies outside [{lo:.6g}, "
+                f"{hi:.6g}]; give an initial guess inside the bounds "
+                f"(parameters={{{name!r}: ...}})"
+            )
+        box[name] = (lo, hi)
+    return box
+
+
+def _check_data_count(
+    datas: list[FlightData], outputs: list[str], unknowns: dict[str, int]
+) -> None:
+    """Refuse a fit with no more measurements than unknowns (it would fit the noise exactly)."""
+    n_samples = sum(d.n_samples for d in datas)
+    n_meas = n_samples * len(outputs)
+    n_unknown = sum(unknowns.values())
+    if n_meas <= n_unknown:
+        parts = " + ".join(f"{what} {n}" for what, n in unknowns.items() if n)
+        raise IdentificationError(
+            f"data: too few measurements to identify {n_unknown} unknowns ({parts}): "
+            f"{n_samples} samples x {len(outputs)} outputs = {n_meas}; need more "
+            "measurements than unknowns (a longer record, more outputs or fewer parameters)"
+        )
+
+
+def _finish(
+    fitted: IdentificationResult, datas: list[FlightData], model: Any
+) -> IdentificationResult:
+    """Stamp the records' fingerprints and the parameters' units; a fit that ended
+    non-finite has not succeeded."""
+    estimates = [fitted.cost, *fitted.parameters.values()]
+    for group in (*fitted.initial_states, *fitted.biases):
+        estimates.extend(group.values())
+    bad = not np.all(np.isfinite(estimates))
+    if bad and fitted.success:
+        message = (
+            f"the fit ended with a non-finite cost or estimates (cost {fitted.cost:.6g}); "
+            "check the data's scale and units"
+        )
+        warnings.warn(
+            f"identify: {message}; the result is flagged success=False",
+            UserWarning,
+            stacklevel=4,  # _finish, identify, its BLAS wrapper, the caller
+        )
+        fitted = replace(fitted, success=False, message=message)
+    from ._excitation import response_to_noise, warn_unexcited
+
+    ratios = {} if bad else response_to_noise(fitted.output_names, fitted.residuals, datas)
+    warn_unexcited(ratios)
+    declared = dict(getattr(model, "parameter_units", None) or {})
+    units = {
+        n: "s" if n.startswith("tau_") and n not in declared else declared[n]
+        for n in fitted.parameter_names
+        if n in declared or n[4:] in fitted.time_delays
+    }
+    return replace(
+        fitted,
+        data_fingerprints=tuple(fingerprint(d) for d in datas),
+        parameter_units=units,
+        response_to_noise=ratios,
+    )

@@ -1,0 +1,365 @@
+"""The rational transfer function a fit adjusts: its parameter structure, the
+Sanathanan-Koerner start, the checks of its options, and the fit to a record's
+Fourier transforms (`aeroid.frequency.frequency_id.fit_transfer_function`'s parts).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._threads import CALLER_STACKLEVEL
+from ..errors import ChannelError, IdentificationError
+from ..estimation.least_squares import fit_residuals
+from ..io.data import FlightData, as_float, check_flag, plain
+from ._response_records import TransferFunctionFit, _band
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+# The stopping rule's tolerance for the transfer-function fits (`fit_residuals`): a few
+# parameters and cheap residuals, so they converge to near rounding.
+_TOLERANCE = 1e-10
+_EXCITED = 0.01  # power, relative to the input's peak, that counts as excited
+_MIN_PERIODS = 2  # periods of a frequency a window (or the whole record) must hold
+
+
+def _coherence_weight(coh: FloatArray) -> FloatArray:
+    return np.asarray((1.58 * (1.0 - np.exp(-coh))) ** 2, dtype=np.float64)
+
+
+class _Structure:
+    """Maps the parameter vector [b_0..b_m, a_0..a_{n-1}, (tau)] to T(jω) and its log-derivatives."""
+
+    def __init__(self, m: int, n: int, delay: bool, omega: FloatArray) -> None:
+        self.m, self.n, self.delay = m, n, delay
+        s = 1j * omega
+        self.s = s
+        self.sb = s[:, None] ** np.arange(m + 1)[None, :]  # (n_ω, m+1)
+        self.sa = s[:, None] ** np.arange(n)[None, :]  # (n_ω, n)
+        self.sn = s**n
+        self.names = (
+            [f"b{k}" for k in range(m + 1)]
+            + [f"a{k}" for k in range(n)]
+            + (["tau"] if delay else [])
+        )
+
+    def split(self, theta: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+        m, n = self.m, self.n
+        tau = float(theta[m + 1 + n]) if self.delay else 0.0
+        return theta[: m + 1], theta[m + 1 : m + 1 + n], tau
+
+    def log_response(self, theta: FloatArray) -> tuple[ComplexArray, ComplexArray]:
+        """log T(jω) and d log T / dθ (n_ω, p)."""
+        b, a, tau = self.split(theta)
+        num = self.sb @ b
+        den = self.sn + self.sa @ a
+        with np.errstate(all="ignore"):
+            logt = np.log(num) - np.log(den) - tau * self.s
+            cols: list[ComplexArray] = [self.sb / num[:, None], -self.sa / den[:, None]]
+        if self.delay:
+            cols.append(np.asarray(-self.s[:, None], dtype=np.complex128))
+        return logt, np.concatenate(cols, axis=1)
+
+
+def _levy_sk(
+    st: _Structure, h: ComplexArray, weight: FloatArray, iterations: int = 6
+) -> FloatArray:
+    """Rational fit N/D to the complex response by Sanathanan-Koerner iterations of Levy's method."""
+    prev = np.ones(h.size)
+    a_cols = -h[:, None] * st.sa
+    rhs = h * st.sn
+    design = np.concatenate([st.sb, a_cols], axis=1)
+    theta = np.zeros(design.shape[1])
+    for _ in range(iterations):
+        w = np.sqrt(weight) / prev
+        x = design * w[:, None]
+        y = rhs * w
+        xs = np.concatenate([x.real, x.imag])
+        ys = np.concatenate([y.real, y.imag])
+        # column scaling keeps powers of ω from ruining the conditioning
+        norms = np.linalg.norm(xs, axis=0)
+        norms[norms == 0] = 1.0
+        sol = np.linalg.lstsq(xs / norms, ys, rcond=None)[0] / norms
+        if not np.all(np.isfinite(sol)):
+            break
+        theta = sol
+        den = np.abs(st.sn + st.sa @ theta[st.m + 1 :])
+        prev = np.maximum(den, 1e-12 * max(float(den.max()), 1e-300))
+    return theta
+
+
+def _start(
+    st: _Structure,
+    h: ComplexArray,
+    w: FloatArray,
+    weight: FloatArray,
+    residual: Any,
+    start: Mapping[str, float] | None,
+) -> FloatArray:
+    """Sanathanan-Koerner start, with τ from the phase the rational part leaves unexplained."""
+
+    def cost(theta: FloatArray) -> float:
+        r = residual(theta)
+        return float(r @ r) if np.all(np.isfinite(r)) else np.inf
+
+    best = _levy_sk(st, h, weight)
+    if st.delay:
+        best = np.append(best, 0.0)
+        ratio = h / np.exp(st.log_response(best)[0])
+        ph = np.unwrap(np.angle(ratio))
+        # the phase left over is about −τω: its least-squares slope through the origin
+        tau = max(0.0, -float(np.sum(w * ph) / np.sum(w * w)))
+        candidates = [best]
+        # and a grid up to half a turn of phase at the top frequency: a numerator of
+        # higher order than the denominator lets the rational part mimic a lead and
+        # leaves the phase slope above useless
+        grid = np.linspace(0.0, np.pi / float(w.max()), 25)[1:]
+        for t in (tau, 2.0 * tau, *grid):
+            if t > 0:
+                cand = np.append(_levy_sk(st, h * np.exp(1j * w * t), weight), t)
+                candidates.append(cand)
+        best = min(candidates, key=cost)
+    if start is not None:
+        if not isinstance(start, Mapping):
+            raise IdentificationError(
+                f"start: expected a mapping of parameter name to value, got {start!r}"
+            )
+        unknown = sorted(set(start) - set(st.names))
+        if unknown:
+            raise IdentificationError(
+                f"start: unknown parameters {unknown}; parameters: {st.names}"
+            )
+        best = best.copy()
+        for k, v in start.items():
+            best[st.names.index(k)] = _start_value(k, v)
+    return np.asarray(best, dtype=np.float64)
+
+
+def _orders(numerator_order: Any, denominator_order: Any) -> tuple[int, int]:
+    try:
+        m, n = int(numerator_order), int(denominator_order)
+        ok = m == numerator_order and n == denominator_order and m >= 0 and n >= 1
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise IdentificationError(
+            "numerator_order, denominator_order: expected integers m >= 0, n >= 1, got "
+            f"{numerator_order!r}, {denominator_order!r}"
+        )
+    return m, n
+
+
+def _record_grid(data: FlightData) -> tuple[float, float]:
+    """Sample interval and record length of a uniformly sampled record."""
+    if data.n_samples < 4 or not data.is_uniform:
+        raise IdentificationError(
+            "data: a transfer-function fit from flight data needs a uniformly sampled record "
+            "of at least 4 samples"
+        )
+    dt = float(np.mean(np.diff(data.time)))
+    return dt, dt * (data.n_samples - 1)
+
+
+def _excited_band(data: FlightData, input: str) -> tuple[float, float]:
+    """The band (rad/s) over which the input's power is at least 1 % of its peak."""
+    from .frequency_domain import _transform
+
+    dt, T = _record_grid(data)
+    k = np.arange(1, data.n_samples // 2)
+    omega = np.asarray(2 * np.pi * k / T, dtype=np.float64)
+    u = np.asarray(data[input], dtype=np.float64)
+    power = np.abs(_transform((u - u.mean())[:, None], dt, omega, cubic=False)[:, 0]) ** 2
+    if not np.any(power > 0):
+        raise IdentificationError(f"input {input!r} is constant: it excites no frequency")
+    hit = np.flatnonzero(power >= _EXCITED * power.max())
+    return float(omega[hit[0]]), float(omega[hit[-1]])
+
+
+def _fit_fourier(
+    data: FlightData,
+    input: str | None,
+    output: str | None,
+    numerator_order: Any,
+    denominator_order: Any,
+    delay: Any,
+    frequency_range: tuple[float, float] | None,
+    frequencies: ArrayLike | None,
+    start: Mapping[str, float] | None,
+    fixed: Mapping[str, float] | None,
+) -> TransferFunctionFit:
+    """Output error on the record's Fourier transforms: min Σ |Y − T U|², real parameters."""
+
+    from .frequency_domain import _frequency_grid, _transform
+
+    if input is None or output is None:
+        raise ChannelError("response_or_data: flight data need input= and output= channel names")
+    data.require([input], role="input")
+    data.require([output], role="output")
+    m, n = _orders(numerator_order, denominator_order)
+    dt, T = _record_grid(data)
+    if frequencies is None:
+        lo, hi = frequency_range if frequency_range is not None else _excited_band(data, input)
+        # two periods in the record, the rule every window obeys (the whole record is
+        # the window here): below it the detrend and the record's ends decide Y/U
+        k = np.arange(
+            max(_MIN_PERIODS, int(np.ceil(lo * T / (2 * np.pi) - 1e-9))),
+            1 + int(hi * T / (2 * np.pi) + 1e-9),
+        )
+        w = np.asarray(2 * np.pi * k / T, dtype=np.float64)
+        w = w[w < np.pi / dt]
+    else:
+        w = _frequency_grid(frequencies, dt, T, depth=2)
+        if frequency_range is not None:
+            lo, hi = _band(frequency_range)
+            w = w[(w >= lo) & (w <= hi)]
+        short = w < _MIN_PERIODS * 2.0 * np.pi / T * (1 - 1e-9)
+        if np.any(short):
+            warnings.warn(
+                f"frequencies: {int(short.sum())} below {_MIN_PERIODS * 2 * np.pi / T:.4g} "
+                "rad/s, two periods of the record; their transforms are decided by the "
+                "detrend and the record's ends",
+                UserWarning,
+                stacklevel=CALLER_STACKLEVEL + 1,
+            )
+    u = np.asarray(data[input], dtype=np.float64)
+    y = np.asarray(data[output], dtype=np.float64)
+    # linear trends (trim, drift) removed as SIDPAC's detrend; on the k/T grid a constant
+    # has no transform anyway
+    U = _transform(_detrended(data.time, u)[:, None], dt, w, cubic=False)[:, 0]
+    Y = _transform(_detrended(data.time, y)[:, None], dt, w, cubic=True)[:, 0]
+    st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
+    held = _held(st, fixed)
+    free = np.array([nm not in held for nm in st.names])
+    p = int(free.sum())
+    if p == 0:
+        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
+    if 2 * w.size <= p:
+        raise IdentificationError(
+            f"{w.size} frequencies in the band cannot fit {p} parameters ({input} -> {output})"
+        )
+    ok = np.abs(U) > 0
+    h = np.where(ok, Y / np.where(ok, U, 1.0), 0.0)
+
+    def model(theta: FloatArray) -> tuple[ComplexArray, ComplexArray]:
+        logt, g = st.log_response(theta)
+        t = np.exp(logt)
+        return t * U, (t * U)[:, None] * g
+
+    def residual(theta: FloatArray) -> FloatArray:
+        v = Y - model(theta)[0]
+        return np.concatenate([v.real, v.imag])
+
+    def jacobian(theta: FloatArray) -> FloatArray:
+        d = -model(theta)[1]
+        return np.concatenate([d.real, d.imag])
+
+    # the start: the rational fit of Y/U weighted by |U| (its equation-error form)
+    theta = _start(st, h, w, np.abs(U) ** 2, residual, start)
+    for k_, v_ in held.items():
+        theta[st.names.index(k_)] = v_
+
+    theta = fit_free(residual, jacobian, theta, free)
+    r = residual(theta)
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
+        raise IdentificationError(
+            f"transfer-function fit {input} -> {output} diverged; give start values"
+        )
+    jac = jacobian(theta)[:, free]
+    info_free = jac.T @ jac
+    # complex circular residuals: each real and imaginary part is one observation of
+    # variance σ²/2, estimated from the 2M real residuals less the unknowns
+    s2 = float(r @ r) / (r.size - p)
+    inv = np.zeros((free.size, free.size))
+    info = np.zeros((free.size, free.size))
+    info[np.ix_(free, free)] = info_free
+    try:
+        inv[np.ix_(free, free)] = np.linalg.inv(info_free)
+    except np.linalg.LinAlgError:
+        inv[np.ix_(free, free)] = np.inf
+    cov = s2 * inv
+    with np.errstate(invalid="ignore", divide="ignore"):
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        insens = np.sqrt(s2) / np.sqrt(np.diag(info))
+    b, a, tau = st.split(theta)
+    names = st.names
+    return TransferFunctionFit(
+        dict(zip(names, theta.tolist(), strict=True)),
+        dict(zip(names, se.tolist(), strict=True)),
+        dict(zip(names, insens.tolist(), strict=True)),
+        np.asarray(cov, dtype=np.float64),
+        b[::-1].copy(),
+        np.concatenate([[1.0], a[::-1]]),
+        tau,
+        0.5 * float(r @ r) / s2,
+        "fourier",
+        1.0,
+        w,
+        h,
+        np.ones(w.size),
+        np.full(w.size, np.nan),
+        input,
+        output,
+    )
+
+
+def fit_free(
+    residual: Callable[[FloatArray], FloatArray],
+    jacobian: Callable[[FloatArray], FloatArray],
+    theta: FloatArray,
+    free: NDArray[np.bool_],
+) -> FloatArray:
+    """`theta` with its free entries fitted by SciPy's Levenberg–Marquardt (the held
+    ones kept), through the one least-squares entry point and its stopping rule:
+    the one least-squares call of the transfer-function fits."""
+
+    def full(x: FloatArray) -> FloatArray:
+        return _filled(theta, free, x)
+
+    fit = fit_residuals(
+        lambda x: residual(full(x)),
+        lambda x: jacobian(full(x))[:, free],
+        theta[free],
+        tolerance=_TOLERANCE,
+        solver="scipy",
+    )
+    return full(fit.theta)
+
+
+def _filled(theta: FloatArray, free: NDArray[np.bool_], x: FloatArray) -> FloatArray:
+    """`theta` with its free entries set to `x`, the held ones kept."""
+    out = theta.copy()
+    out[free] = x
+    return out
+
+
+def _detrended(t: Any, x: FloatArray) -> FloatArray:
+    tt = np.asarray(t, dtype=np.float64)
+    coef = np.polyfit(tt - tt[0], x, 1)
+    return np.asarray(x - np.polyval(coef, tt - tt[0]), dtype=np.float64)
+
+
+def _held(st: _Structure, fixed: Any) -> dict[str, float]:
+    """The `fixed` option checked: known names -> finite values."""
+    if fixed is None:
+        return {}
+    if not isinstance(fixed, Mapping):
+        raise IdentificationError(
+            f"fixed: expected a mapping of parameter name to value, got {plain(fixed)}"
+        )
+    unknown = sorted(set(fixed) - set(st.names))
+    if unknown:
+        raise IdentificationError(f"fixed: unknown parameters {unknown}; parameters: {st.names}")
+    return {str(k): _start_value(str(k), v) for k, v in fixed.items()}
+
+
+def _start_value(name: str, value: Any) -> float:
+    """A start value as a finite float, else an error naming the parameter."""
+    out = as_float(value)
+    if out is None or not np.isfinite(out):
+        raise IdentificationError(f"start[{name!r}]: expected a finite number, got {plain(value)}")
+    return out

@@ -1,0 +1,1 @@
+"""Flight data in: files, logs, channel maps, resampling, segmentation, data quality."""

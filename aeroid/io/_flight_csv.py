@@ -1,0 +1,367 @@
+"""Flight-test CSV tables read into named float columns, and the column helpers readers share."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import re
+from collections import Counter
+from collections.abc import Collection, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import ChannelError, DataFormatError
+
+FloatArray = NDArray[np.float64]
+
+
+def _seconds(values: NDArray[Any]) -> FloatArray:
+    """Datetimes as float seconds since the first sample, durations as float seconds.
+
+    Epoch nanoseconds (about 1.7e18) lose sub-microsecond resolution in
+    float64, so datetimes count from the first sample; a duration already
+    counts from a reference the user chose and is kept. NaT becomes NaN, which
+    the finite checks then report by index.
+    """
+    if values.dtype.kind == "M" and values.size:
+        values = values - values[0]
+    return np.asarray(values / np.timedelta64(1, "s"), dtype=np.float64)
+
+
+# A config can name any file as a flight, and errors reach CI logs: a header is
+# listed only when every column reads as a channel name, and no cell is quoted.
+_NUMBER_LIKE = re.compile(r"[\d.,+\-eE ]{1,24}")
+
+
+_NAME_LIKE = re.compile(r"[A-Za-z_][\w.\[\]()/ -]{0,63}")
+
+
+def _columns_text(columns: Sequence[str]) -> str:
+    cols = [str(c) for c in columns]
+    if all(_NAME_LIKE.fullmatch(c) and "=" not in c for c in cols):
+        return f"columns: {cols}"
+    return f"{len(cols)} columns (not listed: the first line does not read as names)"
+
+
+def _reader_error(exc: Exception) -> str:
+    """A CSV reader's message without the row text some of them append."""
+    return re.sub(r"(got \d+|Row #\d+)\s*:.*", r"\1", str(exc), flags=re.S)
+
+
+_TIME_CANDIDATES = ("time", "t", "Time", "TIME", "time_s", "Time (s)", "t_s")
+
+
+def _pick_time_column(columns: Sequence[str], time_column: str | None, path: Path) -> str:
+    if time_column is not None:
+        if time_column not in columns:
+            raise ChannelError(
+                f"{path}: time column {time_column!r} not found; {_columns_text(columns)}"
+            )
+        return time_column
+    for candidate in _TIME_CANDIDATES:
+        if candidate in columns:
+            return candidate
+    raise ChannelError(
+        f"{path}: no time column found (tried 'time', 't', 'Time', ...); "
+        f"pass time_column=...; {_columns_text(columns)}"
+    )
+
+
+class _Owned(np.ndarray):
+    """A float64 array a loader built and hands over: `FlightData` keeps it without a copy.
+
+    Only the loaders below create one, and they drop their own reference, so
+    no caller can alias the record's arrays.
+    """
+
+
+def _adopt(values: _Owned) -> FloatArray:
+    values.setflags(write=False)  # with the base read-only, the view cannot be made writable
+    out = values.view(np.ndarray)
+    out.setflags(write=False)
+    return out
+
+
+# The longest header line read (200,000 column names take a few MB).
+_MAX_HEADER = 64 << 20
+
+
+def _csv_header(path: Path) -> tuple[list[str], int, int]:
+    """The header, the byte offset of the first data line, and the header's line number.
+
+    Comment lines (``#`` first) and blank lines before the header are skipped,
+    as flight-test exports often carry them.
+    """
+    offset = 0
+    line_no = 0
+    with open(path, "rb") as f:
+        while raw := f.readline(_MAX_HEADER + 1):
+            if len(raw) > _MAX_HEADER:  # a binary file or a bomb: a line is read whole
+                raise DataFormatError(
+                    f"{path}: line {line_no + 1} is longer than {_MAX_HEADER >> 20} MiB; "
+                    "not a CSV header"
+                )
+            line_no += 1
+            start = offset
+            offset += len(raw)
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise DataFormatError(f"{path}: not a UTF-8 text file ({exc})") from None
+            if start == 0:
+                text = text.removeprefix("\ufeff")
+            if not text.strip() or text.lstrip().startswith("#"):
+                continue
+            header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]))]
+            return header, offset, line_no
+    raise DataFormatError(f"{path}: empty file")
+
+
+_NUMBER = r"^\s*[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan))\s*$"
+
+
+def _csv_cell_error(
+    path: Path,
+    header: list[str],
+    offset: int,
+    exc: Exception,
+    columns: Sequence[str] | None = None,
+) -> DataFormatError:
+    """Name the row and column of the cell pyarrow refused (only ever on the error path)."""
+    import pyarrow as pa
+
+    try:
+        return _locate_csv_error(path, header, offset, exc, columns)
+    except (OSError, pa.ArrowException) as again:
+        return DataFormatError(
+            f"{path}: not a readable CSV file ({_reader_error(exc)}; {_reader_error(again)})"
+        )
+
+
+def _locate_csv_error(
+    path: Path,
+    header: list[str],
+    offset: int,
+    exc: Exception,
+    columns: Sequence[str] | None = None,
+) -> DataFormatError:
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    # A row with the wrong number of cells (comment lines aside): the parser reports
+    # its line number.
+    bad_rows: list[Any] = []
+
+    def keep(row: Any) -> str:
+        if not row.text.lstrip().startswith("#"):
+            bad_rows.append(row)
+        return "skip"
+
+    def read(**convert: Any) -> Any:
+        with pa.OSFile(str(path)) as f:
+            f.seek(offset)
+            return pacsv.read_csv(
+                f,
+                read_options=pacsv.ReadOptions(column_names=header, use_threads=False),
+                parse_options=pacsv.ParseOptions(invalid_row_handler=keep),
+                convert_options=pacsv.ConvertOptions(**convert),
+                memory_pool=pa.system_memory_pool(),
+            )
+
+    read(
+        column_types=dict.fromkeys(header, pa.string()),
+        include_columns=header[:1],
+    )
+    if bad_rows:
+        row = bad_rows[0]
+        return DataFormatError(
+            f"{path}: row {row.number + 1} has {row.actual_columns} cells, "
+            f"header has {row.expected_columns}"
+        )
+    # Otherwise a cell is not a number: one streaming pass finds the earliest (a column
+    # at a time would read a 200,000-column file 200,000 times).
+    names = list(columns) if columns is not None else header
+    found = (
+        _first_bad_cell_wide(path, header, offset, names)
+        if len(names) > _WIDE
+        else _first_bad_cell(path, header, offset, names, keep)
+    )
+    if found is not None:
+        row, name, cell = found
+        if not cell:
+            what = "blank"
+        elif len(cell) <= 4 or _NUMBER_LIKE.fullmatch(cell):  # x, N/A, 1.2.3: shown
+            what = f"non-numeric ({cell!r})"
+        else:  # text: not quoted (a config can name any file; errors reach logs)
+            what = f"non-numeric ({len(cell)} characters of text)"
+        return DataFormatError(f"{path}: row {row}, column {name!r}: {what} cell")
+    return DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})")
+
+
+# Beyond this many columns pyarrow's cost per column outweighs its speed per cell.
+_WIDE = 1000
+
+
+def _first_bad_cell(
+    path: Path, header: list[str], offset: int, names: list[str], keep: Any
+) -> tuple[int, str, str] | None:
+    """(row, column, cell) of the earliest non-numeric cell among `names`, by pyarrow."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.csv as pacsv
+
+    with pa.OSFile(str(path)) as f:
+        f.seek(offset)
+        reader = pacsv.open_csv(
+            f,
+            read_options=pacsv.ReadOptions(column_names=header, use_threads=False),
+            parse_options=pacsv.ParseOptions(invalid_row_handler=keep),
+            convert_options=pacsv.ConvertOptions(
+                column_types=dict.fromkeys(names, pa.string()),
+                include_columns=names,
+                strings_can_be_null=False,
+            ),
+            memory_pool=pa.system_memory_pool(),
+        )
+        first_row = 0
+        for batch in reader:
+            rows = batch.num_rows
+            if not rows:
+                continue
+            # every column of the batch in one regex call: cell k is row k % rows of
+            # column k // rows
+            cells = pa.concat_arrays(list(batch.columns))
+            numeric = pc.match_substring_regex(cells, _NUMBER)
+            bad = np.flatnonzero(~np.asarray(numeric.to_numpy(zero_copy_only=False), dtype=bool))
+            if bad.size:
+                k = int(bad[np.lexsort((bad // rows, bad % rows))[0]])  # earliest row first
+                name = batch.schema.names[k // rows]
+                return first_row + k % rows + 2, name, str(cells[k].as_py()).strip()
+            first_row += rows
+    return None
+
+
+def _first_bad_cell_wide(
+    path: Path, header: list[str], offset: int, names: list[str]
+) -> tuple[int, str, str] | None:
+    """`_first_bad_cell` for a wide file: Python's csv reader, row by row."""
+    import io
+
+    number = re.compile(_NUMBER)
+    where = {h: j for j, h in enumerate(header)}
+    picked = [(where[n], n) for n in names]
+    with open(path, "rb") as raw:
+        raw.seek(offset)
+        text = io.TextIOWrapper(raw, encoding="utf-8", newline="")
+        row = 1
+        for cells in csv.reader(text):
+            if not cells or (len(cells) == 1 and not cells[0].strip()):
+                continue  # blank lines, which pyarrow skips
+            if cells[0].lstrip().startswith("#"):
+                continue
+            row += 1
+            for j, name in picked:
+                cell = cells[j].strip() if j < len(cells) else ""
+                if not number.match(cell):
+                    return row, name, cell
+    return None
+
+
+def _read_csv(
+    path: Path, wanted: Collection[str] | None = None
+) -> tuple[list[str], dict[str, FloatArray]]:
+    """Parse with pyarrow (multi-threaded, straight to float64); locate bad cells only on failure.
+
+    Only the columns named in `wanted` are converted (all when None); the header
+    comes back whole. Row numbers in messages count the header as row 1.
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    header, offset, _ = _csv_header(path)
+    if any(not h for h in header):
+        raise DataFormatError(f"{path}: empty column name at column {header.index('') + 1}")
+    dupes = sorted(h for h, n in Counter(header).items() if n > 1)  # linear in columns
+    if dupes:
+        shown = dupes if all(_NAME_LIKE.fullmatch(h) and "=" not in h for h in dupes) else None
+        raise DataFormatError(
+            f"{path}: duplicate column names {shown}"
+            if shown is not None
+            else f"{path}: {len(dupes)} column names appear twice (not listed: not names)"
+        )
+    if offset >= path.stat().st_size:
+        raise DataFormatError(f"{path}: fewer than 2 data rows")
+    # (at least one column: pyarrow reads every column for an empty selection)
+    names = header if wanted is None else [h for h in header if h in wanted] or header[:1]
+
+    def read(parse: Any = None) -> Any:
+        with pa.OSFile(str(path)) as f:
+            f.seek(offset)
+            # The system allocator hands freed column buffers back to the OS at once,
+            # which keeps the peak near one copy of the data.
+            return pacsv.read_csv(
+                f,
+                read_options=pacsv.ReadOptions(column_names=header, use_threads=True),
+                parse_options=parse or pacsv.ParseOptions(),
+                convert_options=pacsv.ConvertOptions(
+                    column_types=dict.fromkeys(names, pa.float64()),
+                    include_columns=names,
+                    null_values=[""],
+                    strings_can_be_null=False,
+                ),
+                memory_pool=pa.system_memory_pool(),
+            )
+
+    comments: list[int] = []
+
+    def skip_comment(row: Any) -> str:
+        if not row.text.lstrip().startswith("#"):
+            return "error"
+        comments.append(1)
+        return "skip"
+
+    try:
+        try:
+            table = read()
+        except pa.ArrowInvalid as exc:
+            # Comment lines among the data: read again without them (rare, so only
+            # on the error path); anything else is located and reported. A cell that
+            # is not a number is no comment line (those have the wrong cell count).
+            table = None
+            if "conversion error" not in str(exc):
+                with contextlib.suppress(pa.ArrowInvalid):
+                    table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
+            if table is None or not comments:
+                raise _csv_cell_error(path, header, offset, exc, names) from None
+    except (OSError, pa.ArrowException) as exc:
+        raise DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})") from None
+    n = table.num_rows
+    if n < 2:
+        raise DataFormatError(f"{path}: fewer than 2 data rows")
+    pending = dict(zip(table.column_names, table.columns, strict=True))
+    del table
+    columns: dict[str, FloatArray] = {}
+    for name in names:
+        chunked = pending.pop(name)
+        if chunked.null_count:
+            first = int(np.flatnonzero(np.asarray(chunked.is_null()))[0])
+            raise DataFormatError(f"{path}: row {first + 2}, column {name!r}: blank cell")
+        out = _Owned((n,), dtype=np.float64)  # owns its memory, so adopting it freezes it
+        at = 0
+        for chunk in chunked.chunks:
+            size = len(chunk)
+            out[at : at + size] = chunk.to_numpy(zero_copy_only=True)
+            at += size
+        del chunked  # frees this column's Arrow buffers before the next is copied
+        bad = ~np.isfinite(out)
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            raise DataFormatError(
+                f"{path}: row {first + 2}, column {name!r}: non-finite value "
+                f"{str(float(out[first]))!r}"
+            )
+        columns[name] = out
+    return header, columns

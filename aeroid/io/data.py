@@ -1,0 +1,641 @@
+"""Flight-test time series: the immutable `FlightData` record and its file loader."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._checks import as_float as as_float  # re-exported: the other modules import it here
+from .._checks import plain
+from .._checks import positive_number as positive_number
+from .._records import frozen_array
+from .._value_checks import _first_bad, real_array
+from .._value_checks import check_flag as check_flag
+from .._value_checks import check_symmetric as check_symmetric
+from .._value_checks import delay_starts as delay_starts
+from .._value_checks import whole_number as whole_number
+from ..errors import ChannelError, DataFormatError
+from ._flight_csv import _NAME_LIKE as _NAME_LIKE
+from ._flight_csv import _NUMBER as _NUMBER
+from ._flight_csv import _NUMBER_LIKE as _NUMBER_LIKE
+from ._flight_csv import (
+    _TIME_CANDIDATES,
+    _adopt,
+    _columns_text,
+    _Owned,
+    _pick_time_column,
+    _read_csv,
+    _seconds,
+)
+from ._flight_csv import _csv_cell_error as _csv_cell_error
+from ._flight_csv import _csv_header as _csv_header
+from ._flight_csv import _locate_csv_error as _locate_csv_error
+from ._flight_csv import _reader_error as _reader_error
+from ._table_files import _read_mat, _read_parquet
+
+__all__ = ["FlightData", "load_flight_test"]
+
+FloatArray = NDArray[np.float64]
+
+
+# One read-only copier for the package; the name stays for existing importers.
+readonly = frozen_array
+
+
+def numeric(values: Any, what: str, failure: str) -> FloatArray:
+    """`values` as a read-only float64 copy, or a `DataFormatError` naming `what`.
+
+    Complex samples are refused: casting them would silently drop the
+    imaginary part. Datetimes and durations become seconds (see `_seconds`).
+    """
+    if type(values) is _Owned:
+        return _adopt(values)
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{what}: {failure} ({exc})") from None
+    if arr.dtype.kind in "mM":
+        arr = _seconds(arr)
+    elif arr.dtype.kind == "c":
+        real_array(arr, what)  # raises, with the remedy
+    try:
+        return readonly(arr)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{what}: {failure} ({exc})") from None
+
+
+# Stamps within this fraction of the sample interval of a uniform grid are taken as
+# uniform sampling: stamps rounded to a few digits (SIDPAC's Example 7.2 holds 1e-4
+# relative jitter) leave a Fourier transform a phase error of at most 2π × 1 % of one
+# sample's phase step (1.8° at Nyquist, less below); larger jitter is refused by the
+# tools that need a uniform grid.
+_JITTER_FRACTION = 0.01
+# Below this the grid is uniform to rounding and no note is made.
+_EXACT_GRID = 1e-6
+
+
+def _grid_jitter(time: FloatArray) -> float:
+    """Largest distance of a stamp from the uniform grid through the end stamps, in steps."""
+    n = time.size
+    if n < 3:
+        return 0.0
+    step = (float(time[-1]) - float(time[0])) / (n - 1)
+    if not step > 0.0:
+        return float("inf")
+    grid = time[0] + step * np.arange(n)
+    return float(np.max(np.abs(time - grid))) / step
+
+
+@dataclass(frozen=True, eq=False)
+class FlightData:
+    """An immutable, name-indexed set of time series sampled on one time axis.
+
+    Parameters
+    ----------
+    time : array_like
+        Sample times in seconds, finite and strictly increasing. Datetimes
+        (``datetime64``) become seconds since the first sample, durations
+        (``timedelta64``) seconds.
+    channels : mapping of str to array_like
+        Channel name to real samples, each the same length as `time`.
+    units : mapping of str to str, optional
+        Unit label per channel (informational; AeroID is unit-agnostic).
+    metadata : mapping of str to Any, optional
+        Free-form JSON-compatible information (flight condition, source file).
+
+    Raises
+    ------
+    DataFormatError
+        If time is not strictly increasing and finite, a channel has a different
+        length, holds NaN, infinite or complex values, or `units` or `metadata`
+        is not a mapping.
+    """
+
+    time: FloatArray
+    channels: Mapping[str, FloatArray]
+    units: Mapping[str, str] = field(default_factory=dict)
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        time = numeric(self.time, "time", "cannot convert to float array")
+        if time.ndim != 1 or time.size < 2:
+            raise DataFormatError(
+                f"time: expected a 1-D array of at least 2 samples, got shape {time.shape}"
+            )
+        if not np.all(np.isfinite(time)):
+            raise DataFormatError(f"time: non-finite value at index {_first_bad(time)}")
+        steps = np.diff(time)
+        if np.any(steps <= 0):
+            bad = int(np.flatnonzero(steps <= 0)[0]) + 1
+            raise DataFormatError(
+                f"time: not strictly increasing at index {bad} "
+                f"(t[{bad - 1}]={plain(time[bad - 1])}, t[{bad}]={plain(time[bad])})"
+            )
+        if not isinstance(self.channels, Mapping):
+            raise DataFormatError("channels: expected a mapping of channel name to samples")
+        chans: dict[str, FloatArray] = {}
+        for name, values in self.channels.items():
+            if not isinstance(name, str) or not name:
+                raise DataFormatError(f"channel name {name!r}: expected a non-empty string")
+            arr = numeric(values, f"channel {name!r}", "not numeric")
+            if arr.shape != time.shape:
+                raise DataFormatError(
+                    f"channel {name!r}: length {arr.shape} does not match time {time.shape}"
+                )
+            if not np.all(np.isfinite(arr)):
+                raise DataFormatError(
+                    f"channel {name!r}: non-finite value at index {_first_bad(arr)}"
+                )
+            chans[name] = arr
+        # None reads as "none given", as for the other optional arguments.
+        for label, value in (("units", self.units), ("metadata", self.metadata)):
+            if value is not None and not isinstance(value, Mapping):
+                raise DataFormatError(
+                    f"{label}: expected a mapping (dict), got {type(value).__name__}"
+                )
+        units = {str(k): str(v) for k, v in dict(self.units or {}).items()}
+        unknown = sorted(set(units) - set(chans))
+        if unknown:
+            raise DataFormatError(f"units given for unknown channels {unknown}")
+        object.__setattr__(self, "time", time)
+        object.__setattr__(self, "channels", MappingProxyType(chans))
+        object.__setattr__(self, "units", MappingProxyType(units))
+        meta = dict(self.metadata or {})
+        jitter = _grid_jitter(time)
+        if _EXACT_GRID < jitter <= _JITTER_FRACTION and "time_jitter" not in meta:
+            meta["time_jitter"] = (
+                f"time stamps deviate from a uniform grid by up to {100 * jitter:.3g} % of "
+                "the sample interval; taken as uniform sampling"
+            )
+        object.__setattr__(self, "metadata", MappingProxyType(meta))
+
+    # -- access -----------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Channel names in insertion order."""
+        return tuple(self.channels)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples."""
+        return int(self.time.size)
+
+    @property
+    def duration(self) -> float:
+        """Record length in seconds."""
+        return float(self.time[-1] - self.time[0])
+
+    @property
+    def is_uniform(self) -> bool:
+        """True when every stamp lies within 1 % of the sample interval of a uniform grid.
+
+        Such jitter (stamps rounded to a few digits) is taken as uniform sampling at
+        `sample_rate`; the record's ``metadata["time_jitter"]`` then says so.
+        """
+        return _grid_jitter(self.time) <= _JITTER_FRACTION
+
+    @property
+    def sample_rate(self) -> float:
+        """Mean sample rate in Hz."""
+        return (self.n_samples - 1) / self.duration
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.channels
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.channels)
+
+    def __len__(self) -> int:
+        return self.n_samples
+
+    def __getitem__(self, name: str) -> FloatArray:
+        self.require([name])
+        return self.channels[name]
+
+    def require(self, names: Iterable[str], *, role: str = "channel") -> None:
+        """Raise `ChannelError` naming the first of `names` that is missing."""
+        for name in names:
+            if name not in self.channels:
+                raise ChannelError(
+                    f"{role} {name!r} not found in flight data; "
+                    f"channels present: {sorted(self.channels)}"
+                )
+
+    def array(self, names: str | Sequence[str]) -> FloatArray:
+        """Stack channels into an array of shape (n_samples, len(names))."""
+        if isinstance(names, str):
+            names = [names]
+        self.require(names)
+        if not names:
+            return np.zeros((self.n_samples, 0))
+        out = np.column_stack([self.channels[n] for n in names])
+        out.setflags(write=False)
+        return out
+
+    def window(self, t0: float, t1: float) -> FlightData:
+        """Return the samples with ``t0 <= time <= t1`` as new flight data."""
+        if not t1 > t0:
+            raise DataFormatError(f"window: need t1 > t0, got t0={plain(t0)}, t1={plain(t1)}")
+        mask = (self.time >= t0) & (self.time <= t1)
+        if int(mask.sum()) < 2:
+            raise DataFormatError(
+                f"window [{t0}, {t1}] holds fewer than 2 samples of [{self.time[0]}, {self.time[-1]}]"
+            )
+        return FlightData(
+            self.time[mask],
+            {k: v[mask] for k, v in self.channels.items()},
+            self.units,
+            self.metadata,
+        )
+
+    def with_channels(
+        self, channels: Mapping[str, ArrayLike], units: Mapping[str, str] | None = None
+    ) -> FlightData:
+        """Return a copy with channels added or replaced."""
+        merged: dict[str, Any] = dict(self.channels)
+        merged.update(channels)
+        new_units = dict(self.units)
+        new_units.update(units or {})
+        return FlightData(self.time, merged, new_units, self.metadata)
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write the record as a CSV file that `load_flight_test` reads back exactly.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file to write (replaced if it exists). Its columns are ``time``
+            and the channels in order, each value written with enough digits to
+            round-trip.
+
+        Returns
+        -------
+        Path
+            The file written.
+
+        Raises
+        ------
+        DataFormatError
+            If a channel is named ``time`` or holds a comma or line break in its
+            name, or the file cannot be written.
+        """
+        target = Path(path)
+        for name in self.channels:
+            if name == "time" or any(c in name for c in ',"\n\r'):
+                raise DataFormatError(
+                    f"to_csv: channel name {name!r} cannot be a CSV column of its own"
+                )
+        columns = [self.time, *self.channels.values()]
+        lines = [",".join(["time", *self.channels])]
+        lines += [",".join(repr(float(c[i])) for c in columns) for i in range(self.n_samples)]
+        tmp = target.with_name(target.name + ".part")
+        try:
+            tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+            tmp.replace(target)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise DataFormatError(f"to_csv: cannot write {target} ({exc.strerror})") from None
+        return target
+
+    def summary(self) -> str:
+        """A Markdown table of the channels with their ranges."""
+        lines = [
+            f"{self.n_samples} samples over {self.duration:.6g} s ({self.sample_rate:.6g} Hz)",
+            "",
+            "| channel | unit | min | max | mean |",
+            "|---------|------|-----|-----|------|",
+        ]
+        for name, v in self.channels.items():
+            lines.append(
+                f"| {name} | {self.units.get(name, '')} | {v.min():.4g} | {v.max():.4g} | {v.mean():.4g} |"
+            )
+        return "\n".join(lines)
+
+
+def measured_start(data: FlightData, states: Iterable[str]) -> dict[str, float]:
+    """The first sample of each of `states` that the record measures (the default initial state)."""
+    return {s: float(data.channels[s][0]) for s in states if s in data}
+
+
+def fingerprint(data: FlightData) -> str:
+    """SHA-256 of a record's time grid and channels (names and values).
+
+    An identification result keeps the fingerprints of the records it was
+    fitted to, so a later function given the result and one of those records
+    can start where the fit did (see `aeroid.models.model.fitted_start`).
+    """
+    h = hashlib.sha256(np.ascontiguousarray(data.time, dtype="<f8").tobytes())
+    for name in sorted(data.channels):
+        h.update(name.encode("utf-8") + b"\0")
+        h.update(np.ascontiguousarray(data.channels[name], dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
+# -- loading ----------------------------------------------------------------------
+
+
+def load_flight_test(
+    path: str | Path,
+    *,
+    time_column: str | None = None,
+    channels: Sequence[str] | Mapping[str, str] | None = None,
+    units: Mapping[str, str] | None = None,
+    sample_rate: float | None = None,
+    max_gap: float | None = None,
+    t0: float | None = None,
+    t1: float | None = None,
+) -> FlightData:
+    """Load a flight-test record from a table (CSV, Parquet, MATLAB) or a flight log.
+
+    Column headers are kept verbatim as channel names, so they match the
+    model's state, control and output names.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to read. Tables: ``.csv``/``.txt``, ``.parquet``/``.pq``,
+        ``.mat`` (v5). Flight logs (see `aeroid.read_log`): PX4 ``.ulg``,
+        ArduPilot ``.bin``/``.log``, HDF5 ``.h5``, MATLAB v7.3 ``.mat``; a
+        log is recognised by its first bytes as well as its suffix.
+    time_column : str, optional
+        Column holding time in seconds. Default: the first of ``time``, ``t``,
+        ``Time`` ... that is present. For HDF5 and MATLAB v7.3, the name of
+        the time dataset.
+    channels : sequence of str or mapping of str to str, optional
+        Columns (log channels) to keep. A mapping renames them:
+        ``{column: channel_name}`` for a table; for a log either
+        ``{channel_name: log_channel}`` or ``{log_channel: channel_name}``
+        (whichever side names the log's channels). Two columns renamed to the
+        same channel name are an error. Default: every column but time
+        (every channel of the log).
+    units : mapping of str to str, optional
+        Unit label per (renamed) channel; for a log, over the units it states.
+    sample_rate : float, optional
+        Logs only: resample the channels, each on its own stamps, onto one
+        uniform grid at this rate (Hz) with `aeroid.io.resampling.resample`.
+        Without it, the channels must share their time stamps.
+    max_gap : float, optional
+        Logs only, with `sample_rate`: longest gap in a channel's stamps (s)
+        to interpolate across; passed to the resampler.
+    t0, t1 : float, optional
+        Logs only, with `sample_rate`: the span (s, in the log's own time) to
+        put on the grid, so that a gap outside it (a logging pause before
+        take-off) does not stop the load; passed to the resampler.
+
+    Returns
+    -------
+    FlightData
+
+    Raises
+    ------
+    DataFormatError
+        A path that is not an existing file, an unreadable or malformed file
+        (naming the file and the row or column), a complex-valued column, or
+        two columns renamed to one channel name.
+    ChannelError
+        A requested column (or the time column) is missing.
+
+    Notes
+    -----
+    A Parquet timestamp or date column becomes seconds since its first
+    sample; a duration or time-of-day column becomes seconds. A CSV file is
+    parsed by pyarrow; comment (``#``) and blank lines before the header are
+    skipped, and a bad cell is reported by row (the header is row 1) and
+    column.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataFormatError(
+            f"path: expected a file path (str or Path), got {type(path).__name__}"
+        )
+    p = Path(path)
+    if os.fspath(path) == "":
+        raise DataFormatError("path: empty file name")
+    if p.is_dir():
+        raise DataFormatError(f"{p}: is a directory, not a data file")
+    if not p.exists():
+        raise DataFormatError(f"{p}: no such file")
+    if not p.is_file():
+        raise DataFormatError(f"{p}: not a regular file")
+    from .logs import sniff_format
+
+    log_format = sniff_format(p)
+    if log_format is not None:
+        return _load_log(
+            p,
+            log_format,
+            time_column=time_column,
+            channels=channels,
+            units=units,
+            sample_rate=sample_rate,
+            max_gap=max_gap,
+            t0=t0,
+            t1=t1,
+        )
+    if sample_rate is not None or max_gap is not None or t0 is not None or t1 is not None:
+        raise DataFormatError(
+            f"{p}: sample_rate, max_gap, t0 and t1 apply to flight logs; this is a table "
+            "already on one time axis (FlightData.window cuts a span out of it)"
+        )
+    suffix = p.suffix.lower()
+    columns: Mapping[str, NDArray[Any]]
+    wanted = _wanted_columns(channels, time_column)
+    if suffix in (".csv", ".txt", ".dat"):
+        header, columns = _read_csv(p, wanted)
+    elif suffix in (".parquet", ".pq"):
+        header, columns = _read_parquet(p, wanted)
+    elif suffix == ".mat":
+        header, columns = _read_mat(p, wanted)
+    else:
+        raise DataFormatError(
+            f"{p}: unknown file type {suffix!r} (expected .csv, .parquet or .mat)"
+        )
+    tname = _pick_time_column(header, time_column, p)
+    if channels is None:
+        mapping = {h: h for h in header if h != tname}
+    elif isinstance(channels, Mapping):
+        mapping = {str(k): str(v) for k, v in channels.items()}
+        # Keeping one of two columns renamed alike would silently drop the other.
+        sources: dict[str, list[str]] = {}
+        for col, name in mapping.items():
+            sources.setdefault(name, []).append(col)
+        clash = {name: cols for name, cols in sources.items() if len(cols) > 1}
+        if clash:
+            name, cols = next(iter(clash.items()))
+            raise DataFormatError(
+                f"{p}: channels: columns {cols} are all renamed to {name!r}; "
+                "give each column its own channel name"
+            )
+    else:
+        names = [channels] if isinstance(channels, str) else channels
+        mapping = {str(c): str(c) for c in names}
+    for col in mapping:
+        if col not in columns:
+            raise ChannelError(f"{p}: column {col!r} not found; {_columns_text(header)}")
+    if tname not in columns:  # a header name no reader turned into a column
+        raise ChannelError(f"{p}: time column {tname!r} is not a numeric vector")
+    for col in (tname, *mapping):
+        if columns[col].dtype.kind == "c":
+            raise DataFormatError(
+                f"{p}: column {col!r} holds complex values, which are not supported; "
+                "store the real part or the magnitude"
+            )
+    time = columns[tname]
+    chans: dict[str, Any] = {}
+    for col, name in mapping.items():
+        if columns[col].shape != time.shape:
+            raise DataFormatError(
+                f"{p}: column {col!r} has {columns[col].size} samples, time has {time.size}"
+            )
+        chans[name] = columns[col]
+    try:
+        return FlightData(
+            time, chans, dict(units or {}), {"source": p.name, "format": suffix.lstrip(".")}
+        )
+    except DataFormatError as exc:
+        raise DataFormatError(f"{p}: {exc}") from None
+
+
+def _wanted_columns(
+    channels: Sequence[str] | Mapping[str, str] | None, time_column: str | None
+) -> frozenset[str] | None:
+    """The names a loader needs to read: the channels asked for (both sides of a
+    mapping) and the time column or its candidates; None for every column."""
+    if channels is None:
+        return None
+    if isinstance(channels, str):
+        names = [channels]
+    elif isinstance(channels, Mapping):
+        names = [*channels.keys(), *channels.values()]
+    else:
+        names = list(channels)
+    times = (time_column,) if time_column is not None else _TIME_CANDIDATES
+    return frozenset(str(n) for n in (*names, *times))
+
+
+def _log_mapping(
+    log: Any, channels: Sequence[str] | Mapping[str, str] | None, path: Path
+) -> dict[str, str]:
+    """``{channel_name: log_channel}`` from what the caller passed."""
+    from .logs import find_channels
+
+    if channels is None:
+        return {c: c for c in log.channels}
+    if isinstance(channels, str):
+        channels = [channels]
+    if not isinstance(channels, Mapping):
+        names = [str(c) for c in channels]
+        find_channels(log, names, path)
+        return {c: c for c in names}
+    pairs = {str(k): str(v) for k, v in channels.items()}
+    keys_in = all(k in log.channels for k in pairs)
+    values_in = all(v in log.channels for v in pairs.values())
+    if values_in or not keys_in:
+        find_channels(log, pairs.values(), path)
+        return pairs
+    # {log_channel: name}, as for tables: refuse two log channels given one name
+    sources: dict[str, list[str]] = {}
+    for col, name in pairs.items():
+        sources.setdefault(name, []).append(col)
+    clash = {name: cols for name, cols in sources.items() if len(cols) > 1}
+    if clash:
+        name, cols = next(iter(clash.items()))
+        raise DataFormatError(
+            f"{path}: channels: log channels {cols} are all renamed to {name!r}; "
+            "give each its own channel name"
+        )
+    return {name: col for col, name in pairs.items()}
+
+
+def _refuse_contradicting_units(
+    p: Path, log: Any, mapping: Mapping[str, str], units: Mapping[str, str] | None
+) -> None:
+    """A unit label the caller gives that contradicts the one the log states is a mistake
+    (deg/s over a rad/s gyro): the values would be read in the wrong unit silently."""
+    from .._units import UNIT_CONVERSIONS
+
+    for name, given in dict(units or {}).items():
+        source = mapping.get(name)
+        if source is None or source not in log.channels:
+            continue
+        stated = log.channels[source].unit
+        if not stated or given == stated:
+            continue
+        theirs, ours = UNIT_CONVERSIONS.get(stated), UNIT_CONVERSIONS.get(str(given))
+        if theirs is not None and ours is not None and theirs != ours:
+            raise DataFormatError(
+                f"{p}: units[{name!r}] = {given!r} contradicts the unit {stated!r} the log "
+                f"states for {source!r}; drop it, or convert the channel with "
+                "aeroid.apply_channel_map"
+            )
+
+
+def _load_log(
+    p: Path,
+    log_format: str,
+    *,
+    time_column: str | None,
+    channels: Sequence[str] | Mapping[str, str] | None,
+    units: Mapping[str, str] | None,
+    sample_rate: float | None,
+    max_gap: float | None,
+    t0: float | None = None,
+    t1: float | None = None,
+) -> FlightData:
+    """`load_flight_test` for a flight log: read it, pick channels, put them on one grid."""
+    from .logs import read_selected
+
+    # a log's datasets nobody asked for are not read (an HDF5 file can hold gigabytes)
+    wanted = None if channels is None else _wanted_columns(channels, None)
+    log = read_selected(p, log_format, time_column, False, wanted)
+    mapping = _log_mapping(log, channels, p)
+    if not mapping:
+        raise DataFormatError(f"{p}: channels: none selected")
+    _refuse_contradicting_units(p, log, mapping, units)
+    metadata = {"source": p.name, "format": str(log.metadata.get("format", log_format))}
+    if sample_rate is None:
+        for name, value in (("max_gap", max_gap), ("t0", t0), ("t1", t1)):
+            if value is not None:
+                raise DataFormatError(f"{p}: {name} applies only with sample_rate")
+        first = next(iter(mapping.values()))
+        time = log.channels[first].time
+        for source in mapping.values():
+            other = log.channels[source].time
+            if other.shape != time.shape or not np.array_equal(other, time):
+                raise DataFormatError(
+                    f"{p}: log channels {first!r} ({log.channels[first].rate:.4g} Hz) and "
+                    f"{source!r} ({log.channels[source].rate:.4g} Hz) are on different time "
+                    "stamps; pass sample_rate=... to resample them onto one grid"
+                )
+        log_units = {n: log.channels[c].unit for n, c in mapping.items() if log.channels[c].unit}
+        try:
+            return FlightData(
+                time,
+                {n: log.channels[c].values for n, c in mapping.items()},
+                {**log_units, **dict(units or {})},
+                metadata,
+            )
+        except DataFormatError as exc:
+            raise DataFormatError(f"{p}: {exc}") from None
+    from ._regrid import flightlog_parts, regrid
+
+    try:
+        parts = flightlog_parts(log)
+        data = regrid(*parts, mapping, rate=sample_rate, max_gap=max_gap, t0=t0, t1=t1)
+    except DataFormatError as exc:
+        raise DataFormatError(f"{p}: {exc}") from None
+    extra = dict(units or {})
+    unknown = sorted(set(extra) - set(data.channels))
+    if unknown:
+        raise DataFormatError(f"{p}: units given for unknown channels {unknown}")
+    log_units = {n: log.channels[c].unit for n, c in mapping.items() if log.channels[c].unit}
+    merged = {**log_units, **dict(data.units), **extra}
+    merged = {n: u for n, u in merged.items() if n in data.channels}
+    return FlightData(data.time, dict(data.channels), merged, {**dict(data.metadata), **metadata})

@@ -1,0 +1,117 @@
+"""Parameter values, initial states and delayed controls a simulation takes from a fit."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..errors import AeroidError, ModelDefinitionError
+from ..io.data import FlightData, as_float, fingerprint, plain
+
+
+def _names(value: Sequence[str] | str, what: str) -> tuple[str, ...]:
+    if isinstance(value, str):
+        value = [value]
+    try:
+        names = tuple(value)
+    except TypeError:
+        raise ModelDefinitionError(
+            f"{what}: expected a sequence of names, got {plain(value)}"
+        ) from None
+    for n in names:
+        if not isinstance(n, str) or not n:
+            raise ModelDefinitionError(f"{what}: every name must be a non-empty string, got {n!r}")
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ModelDefinitionError(f"{what}: duplicate names {dupes}")
+    return names
+
+
+def resolve_parameters(
+    model: Any,
+    parameters: Any,
+    *,
+    error: type[AeroidError] = ModelDefinitionError,
+) -> dict[str, float]:
+    """Merge a parameter dict (or any result with ``.parameters``) onto the model's nominal values.
+
+    Unknown names raise `error` naming them; values must be finite numbers.
+    Extra entries a result may carry (such as ``sigma_<output>`` noise
+    parameters of an inference result) are ignored when they are not model
+    parameters.
+    """
+    nominal = dict(model.parameters)
+    if parameters is None:
+        return {k: float(v) for k, v in nominal.items()}
+    from_result = not isinstance(parameters, Mapping) and hasattr(parameters, "parameters")
+    values = parameters.parameters if from_result else parameters
+    if not isinstance(values, Mapping):
+        raise error(
+            f"parameters: expected a dict of name -> value or a result with .parameters, "
+            f"got {type(parameters).__name__}"
+        )
+    out = {k: float(v) for k, v in nominal.items()}
+    for name, value in values.items():
+        if name not in nominal:
+            if from_result:
+                continue
+            raise error(
+                f"parameter {name!r} is not a parameter of model {model.name!r}; "
+                f"its parameters are {sorted(nominal)}"
+            )
+        v = as_float(value)
+        if v is None:
+            raise error(f"parameter {name!r}: expected a number, got {plain(value)}")
+        if not np.isfinite(v):
+            raise error(f"parameter {name!r}: value {v!r} is not finite")
+        out[name] = v
+    return out
+
+
+def fitted_start(result: Any, data: FlightData) -> tuple[dict[str, float] | None, dict[str, float]]:
+    """The initial state and output biases a fit used for `data`, if it was fitted to `data`.
+
+    An identification result holds one initial state (measured, given or
+    estimated) and one set of output biases per manoeuvre. Simulating one of
+    those records again, a function should start where the fit did; any
+    other record (cross-validation on another manoeuvre) starts from its own
+    measured state, without the fit's biases. Returns ``(None, {})`` then.
+    Results stored before records were fingerprinted apply their first
+    manoeuvre's values, as they always did.
+    """
+    states = getattr(result, "initial_states", None)
+    if not states:
+        return None, {}
+    fitted = tuple(getattr(result, "data_fingerprints", ()) or ())
+    if fitted:
+        mark = fingerprint(data)
+        if mark not in fitted:
+            return None, {}
+        i = fitted.index(mark)
+    else:
+        i = 0
+    biases = tuple(getattr(result, "biases", ()) or ())
+    return dict(states[i]), (dict(biases[i]) if i < len(biases) else {})
+
+
+def delayed_controls(result: Any, data: FlightData) -> FlightData:
+    """`data` with the controls an identification delayed shifted by their delays.
+
+    A result whose fit estimated pure time delays (``result.time_delays``,
+    control -> seconds) describes a vehicle whose controls act as
+    ``u(t - tau)``: its model is simulated on the controls delayed the same
+    way, interpolated piecewise-linearly as `identify` does, and held at the
+    first sample before it. Unlike the initial state and the output biases, a
+    delay belongs to the vehicle, so it applies on any record. Other values
+    of `result` (a mapping, None) leave `data` as it is.
+    """
+    delays = dict(getattr(result, "time_delays", None) or {})
+    t = data.time
+    shifted = {
+        c: np.interp(t - float(tau), t, data.channels[c])
+        for c, tau in delays.items()
+        if c in data and float(tau) != 0.0
+    }
+    return data.with_channels(shifted) if shifted else data

@@ -1,0 +1,135 @@
+"""Simulation records: `SimulationResult` (one run) and `BatchSimulation` (many), re-exported by
+`aeroid.models.model` and `aeroid`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._records import fmt, markdown_table
+from ..errors import ChannelError, SimulationError
+from ..io.data import FlightData, readonly
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationResult:
+    """A simulated trajectory on the requested time grid.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n_t,)
+    states : ndarray, shape (n_t, n_states)
+        Empty second axis for black-box simulators that expose no states.
+    outputs : ndarray, shape (n_t, n_outputs)
+    controls : ndarray, shape (n_t, n_controls)
+        The control history that drove the simulation.
+    """
+
+    time: FloatArray
+    states: FloatArray
+    outputs: FloatArray
+    controls: FloatArray
+    state_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    control_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        for name in ("time", "states", "outputs", "controls"):
+            object.__setattr__(self, name, readonly(getattr(self, name)))
+
+    def state(self, name: str) -> FloatArray:
+        """History of one state."""
+        if name not in self.state_names:
+            raise ChannelError(f"state {name!r} not simulated; states: {list(self.state_names)}")
+        return self.states[:, self.state_names.index(name)]
+
+    def output(self, name: str) -> FloatArray:
+        """History of one output."""
+        if name not in self.output_names:
+            raise ChannelError(f"output {name!r} not simulated; outputs: {list(self.output_names)}")
+        return self.outputs[:, self.output_names.index(name)]
+
+    def summary(self) -> str:
+        """A Markdown table of every simulated channel: its range and final value."""
+        t = self.time
+        head = f"{t.size} samples over {t[-1] - t[0]:.6g} s (t = {t[0]:.6g} to {t[-1]:.6g} s)"
+        rows = []
+        for kind, names, values in (
+            ("state", self.state_names, self.states),
+            ("output", self.output_names, self.outputs),
+            ("control", self.control_names, self.controls),
+        ):
+            for j, name in enumerate(names):
+                if kind == "output" and name in self.state_names:
+                    continue  # an output that is a state is listed once, as the state
+                v = values[:, j]
+                rows.append((name, kind, fmt(v.min()), fmt(v.max()), fmt(v[-1])))
+        table = markdown_table(("channel", "kind", "min", "max", "final"), rows)
+        return f"{head}\n\n{table}"
+
+    def to_flight_data(
+        self,
+        *,
+        noise: Mapping[str, float] | None = None,
+        seed: int | None = None,
+        include_states: bool = False,
+        units: Mapping[str, str] | None = None,
+    ) -> FlightData:
+        """Package the trajectory as `FlightData` (controls plus outputs).
+
+        Parameters
+        ----------
+        noise : mapping of str to float, optional
+            Standard deviation of white Gaussian noise added to named outputs.
+        seed : int, optional
+            Seed of the noise generator (required when `noise` is given).
+        include_states : bool
+            Also include states that are not outputs.
+        units : mapping of str to str, optional
+        """
+        channels: dict[str, FloatArray] = {}
+        for j, n in enumerate(self.control_names):
+            channels[n] = self.controls[:, j]
+        if include_states:
+            for j, n in enumerate(self.state_names):
+                channels[n] = self.states[:, j]
+        for j, n in enumerate(self.output_names):
+            channels[n] = self.outputs[:, j]
+        if noise:
+            if seed is None:
+                raise SimulationError("to_flight_data: noise needs a seed for reproducibility")
+            rng = np.random.default_rng(seed)
+            for n in self.output_names:  # fixed order keeps the stream reproducible
+                if n in noise:
+                    channels[n] = channels[n] + float(noise[n]) * rng.standard_normal(
+                        self.time.size
+                    )
+            unknown = sorted(set(noise) - set(self.output_names))
+            if unknown:
+                raise ChannelError(f"noise given for unknown outputs {unknown}")
+        return FlightData(self.time, channels, dict(units or {}))
+
+
+@dataclass(frozen=True, eq=False)
+class BatchSimulation:
+    """Trajectories of a batch of parameter vectors.
+
+    ``states`` (batch, n_t, n_states), ``outputs`` (batch, n_t, n_outputs),
+    ``ok`` marks members that integrated to the end with finite values,
+    ``fail_time`` gives the first non-finite time of the others (NaN if ok)
+    and ``failure`` says, per member, which state or output failed and when
+    (empty if ok).
+    """
+
+    time: FloatArray
+    states: FloatArray
+    outputs: FloatArray
+    ok: NDArray[np.bool_]
+    fail_time: FloatArray
+    failure: tuple[str, ...] = ()

@@ -1,0 +1,444 @@
+"""JAX machinery: a jit-compiled, differentiable fixed-step RK4 rollout of a `Model`.
+
+The rollout follows the numpy RK4 of `aeroid.models.integration` step for step
+(``substeps`` classical RK4 steps per grid interval, controls linear between
+samples, evaluated at the RK4 nodes), but is traced once by JAX so that it can
+be jit-compiled, vmapped over parameter vectors and differentiated with
+respect to the parameters in forward mode.
+
+The user's dynamics (and measurement) function is called with ``x`` and ``u``
+as 1-D JAX arrays and ``p`` a dict of JAX scalars, so it must be written with
+`jax.numpy` (a function written with plain numpy operators on ``x``, ``u`` and
+``p`` works too, as long as it does not build arrays with ``np.array``).
+
+Nothing here is imported by ``import aeroid``; JAX is imported on first use
+and 64-bit floats are switched on then.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import weakref
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import AdapterError
+from .integration import substeps_for
+
+if TYPE_CHECKING:
+    from .model import Model
+else:  # below aeroid.models.model (it calls this module): its base class stands in
+    from ._model_base import ContinuousModel as Model
+
+__all__ = ["batch_outputs", "outputs_and_jacobian", "require_jax", "rollout"]
+
+FloatArray = NDArray[np.float64]
+
+# One entry per model (weakly held): compiled functions and chosen substeps.
+_CACHE: weakref.WeakKeyDictionary[Model, dict[Any, Any]] = weakref.WeakKeyDictionary()
+
+
+# Where compiled programs are kept between processes: a path, or "off".
+CACHE_ENV = "AEROID_JAX_CACHE"
+# Bound on that cache's size on disk; JAX drops the least recently used programs beyond.
+_CACHE_BYTES = 1 << 30
+_CONFIGURED = False
+
+
+def require_jax() -> tuple[Any, Any]:
+    """Import JAX with 64-bit floats enabled; return ``(jax, jax.numpy)``."""
+    try:
+        import jax
+        import jax.numpy as jnp
+    except ImportError:
+        raise AdapterError(
+            'the JAX backend needs jax, which is not installed: pip install "aeroid[jax]"'
+        ) from None
+    global _CONFIGURED
+    if not _CONFIGURED:
+        _CONFIGURED = True
+        _persistent_cache(jax)
+    if not jax.config.read("jax_enable_x64"):
+        jax.config.update("jax_enable_x64", True)
+    return jax, jnp
+
+
+def _persistent_cache(jax: Any) -> None:
+    """Keep XLA's compiled programs on disk (JAX's persistent compilation cache), so a
+    fresh process reuses them instead of compiling for seconds at its first fit.
+
+    Left alone when the user configured a cache of their own (``JAX_COMPILATION_CACHE_DIR``
+    or ``jax.config``) or set ``AEROID_JAX_CACHE=off``; ``AEROID_JAX_CACHE=<path>`` picks
+    the folder. The default is a per-user folder under the user's cache directory, one
+    per CPU kind, since XLA refuses programs compiled for other CPU features. A
+    compiled program is code JAX runs, so a folder that other users may write to is
+    never used.
+    """
+    if getattr(jax.config, "jax_compilation_cache_dir", None):
+        return
+    choice = os.environ.get(CACHE_ENV, "").strip()
+    if choice.lower() in {"off", "0", "false", "no", "none"}:
+        return
+    path = Path(choice).expanduser() if choice else _default_cache_dir()
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        info = path.stat()
+    except OSError:
+        return
+    if info.st_mode & 0o022 or (hasattr(os, "getuid") and info.st_uid != os.getuid()):
+        return
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    # JAX bounds the cache only with filelock installed, and without it drops the cache
+    # altogether when a bound is set
+    if getattr(jax.config, "jax_compilation_cache_max_size", 0) == -1 and _has_filelock():
+        jax.config.update("jax_compilation_cache_max_size", _CACHE_BYTES)
+
+
+def _has_filelock() -> bool:
+    try:
+        import filelock  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _default_cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or os.environ.get("LOCALAPPDATA")
+    root = Path(base) if base else Path.home() / ".cache"
+    cpu = platform.machine() + platform.processor()
+    found: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:  # the first processor's model and feature flags
+                key = line.partition(":")[0].strip()
+                if key in ("model name", "flags"):
+                    found.setdefault(key, line)
+                if len(found) == 2:
+                    break
+    except OSError:
+        pass
+    cpu += "".join(found.values())
+    kind = hashlib.sha256(cpu.encode()).hexdigest()[:12]
+    return root / "aeroid" / f"jax-{kind}"
+
+
+def _check_model(model: Any) -> Model:
+    if isinstance(model, Model):
+        return model
+    name = getattr(model, "name", type(model).__name__)
+    raise AdapterError(
+        f"model {name!r} is a stepped simulator ({type(model).__name__}) without a continuous "
+        "dynamics callable; the JAX paths (simulate_rk4, gradient='jax', backend='jax') need an "
+        "aeroid.Model whose dynamics are written with jax.numpy"
+    )
+
+
+# -- the traced rollout ---------------------------------------------------------------
+
+
+def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
+    """Pure function ``(time, controls, x0, pvec) -> (states, outputs)`` for JAX to trace.
+
+    Closes over the user's functions only (never the model itself), so the
+    weak cache keyed by the model can let it go.
+    """
+    _, jnp = require_jax()
+    import jax
+
+    f = model.dynamics
+    h = model.measurement
+    names = model.parameter_names
+    n_x = model.n_states
+    n_y = model.n_outputs
+    out_idx = (
+        None if h is not None else np.array([model.states.index(o) for o in model.output_names])
+    )
+    m = int(substeps)
+
+    def rollout(time: Any, controls: Any, x0: Any, pvec: Any) -> tuple[Any, Any]:
+        p = {n: pvec[i] for i, n in enumerate(names)}
+
+        def rhs(t: Any, x: Any, u: Any) -> Any:
+            return jnp.reshape(jnp.asarray(f(t, x, u, p), dtype=jnp.float64), (n_x,))
+
+        def interval(x: Any, inp: Any) -> tuple[Any, Any]:
+            t0, t1, u0, u1 = inp
+            step = (t1 - t0) / m
+            half = 0.5 * step
+            du = u1 - u0
+
+            def sub(j: Any, x: Any) -> Any:
+                ta = t0 + j * step
+                ua = u0 + (2 * j) / (2 * m) * du
+                um = u0 + (2 * j + 1) / (2 * m) * du
+                ub = u0 + (2 * j + 2) / (2 * m) * du
+                k1 = rhs(ta, x, ua)
+                k2 = rhs(ta + half, x + half * k1, um)
+                k3 = rhs(ta + half, x + half * k2, um)
+                k4 = rhs(ta + step, x + step * k3, ub)
+                return x + (step / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+
+            if m <= 8:  # unrolled: faster to run, still quick to compile
+                for j in range(m):
+                    x = sub(j, x)
+            else:
+                x = jax.lax.fori_loop(0, m, sub, x)
+            return x, x
+
+        _, xs = jax.lax.scan(interval, x0, (time[:-1], time[1:], controls[:-1], controls[1:]))
+        states = jnp.concatenate([x0[None, :], xs], axis=0)
+        if h is None:
+            outputs = states[:, out_idx]
+        else:
+
+            def meas(t: Any, x: Any, u: Any) -> Any:
+                return jnp.reshape(jnp.asarray(h(t, x, u, p), dtype=jnp.float64), (n_y,))
+
+            outputs = jax.vmap(meas)(time, states, controls)
+        return states, outputs
+
+    return rollout
+
+
+def _entry(model: Model) -> dict[Any, Any]:
+    entry = _CACHE.get(model)
+    if entry is None:
+        entry = {}
+        _CACHE[model] = entry
+    return entry
+
+
+def _compiled(model: Model, kind: str, substeps: int) -> Callable[..., Any]:
+    """The jitted function of `kind` for this model and substep count (jit caches shapes)."""
+    entry = _entry(model)
+    key = (kind, substeps)
+    fn = entry.get(key)
+    if fn is not None:
+        return fn
+    jax, _ = require_jax()
+    roll = _rollout_fn(model, substeps)
+    if kind == "rollout":
+        fn = jax.jit(roll)
+    elif kind == "jacobian":
+
+        def outs(theta: Any, base: Any, idx: Any, time: Any, u: Any, x0: Any) -> Any:
+            y = roll(time, u, x0, base.at[idx].set(theta))[1]
+            return y, y
+
+        jac = jax.jacfwd(outs, argnums=0, has_aux=True)
+
+        def both(theta: Any, base: Any, idx: Any, time: Any, u: Any, x0: Any) -> Any:
+            J, y = jac(theta, base, idx, time, u, x0)
+            return y, J
+
+        fn = jax.jit(both)
+    elif kind == "batch":
+        fn = jax.jit(
+            jax.vmap(
+                lambda time, u, x0, pv: roll(time, u, x0, pv)[1], in_axes=(None, None, None, 0)
+            )
+        )
+    else:  # pragma: no cover - internal
+        raise ValueError(kind)
+    entry[key] = fn
+    return fn
+
+
+# -- argument handling -------------------------------------------------------------------
+
+
+def _grid(
+    model: Model, time: Any, controls: Any, x0: Any
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    from .._checks import check_time
+
+    t = check_time(time)
+    u = model.control_array(t, controls)
+    if u.shape[0] != 1:
+        raise AdapterError(
+            f"controls: the JAX rollout takes one shared control history of shape "
+            f"({t.size}, {model.n_controls}), got shape {u.shape}"
+        )
+    x = model.initial_state(x0, 1)[0]
+    return t, np.ascontiguousarray(u[0]), x
+
+
+def _pvec(model: Model, params: Mapping[str, float]) -> FloatArray:
+    unknown = sorted(set(params) - set(model.parameters))
+    if unknown:
+        raise AdapterError(
+            f"parameters {unknown} are not parameters of model {model.name!r}; "
+            f"its parameters are {list(model.parameter_names)}"
+        )
+    return np.array(
+        [float(params.get(n, v)) for n, v in model.parameters.items()], dtype=np.float64
+    )
+
+
+def _auto_substeps(
+    model: Model, t: FloatArray, u: FloatArray, x0: FloatArray, pv: FloatArray
+) -> int:
+    """Substeps by the numpy RK4's rule (`_integrate.substeps_for`), cached per grid."""
+    h = float(np.max(np.diff(t)))
+    entry = _entry(model)
+    key = ("substeps", t.size, round(h, 12))
+    if key in entry:
+        return int(entry[key])
+    jax, jnp = require_jax()
+    f = model.dynamics
+    names = model.parameter_names
+    n_x = model.n_states
+
+    def rhs(x: Any) -> Any:
+        p = {n: pv[i] for i, n in enumerate(names)}
+        return jnp.reshape(jnp.asarray(f(float(t[0]), x, jnp.asarray(u[0]), p)), (n_x,))
+
+    try:
+        A = np.asarray(jax.jacfwd(rhs)(jnp.asarray(x0)), dtype=np.float64)
+    except Exception as exc:
+        raise _trace_error(model, exc) from None
+    lam = np.linalg.eigvals(A) if np.all(np.isfinite(A)) else np.zeros(0)
+    lam = np.asarray(lam, dtype=np.complex128)
+    m = substeps_for(lam, h, float(t[-1] - t[0]))
+    entry[key] = m
+    return m
+
+
+def _substeps(
+    model: Model, substeps: int | None, t: FloatArray, u: FloatArray, x0: FloatArray, pv: FloatArray
+) -> int:
+    if substeps is None:
+        return _auto_substeps(model, t, u, x0, pv)
+    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        raise AdapterError(f"substeps must be a positive integer, got {substeps!r}")
+    return int(substeps)
+
+
+def _trace_error(model: Model, exc: Exception) -> AdapterError:
+    return AdapterError(
+        f"the dynamics/measurement of model {model.name!r} could not be traced by JAX "
+        f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}); write them with "
+        "jax.numpy (e.g. jnp.array / jnp.stack instead of np.array, no float() of a state)"
+    )
+
+
+def _run(model: Model, fn: Callable[..., Any], *args: Any) -> Any:
+    try:
+        return fn(*args)
+    except AdapterError:
+        raise
+    except Exception as exc:  # tracing failures surface as many exception types
+        raise _trace_error(model, exc) from None
+
+
+# -- public (package-internal) entry points ------------------------------------------------
+
+
+def rollout(
+    model: Any,
+    time: Any,
+    controls: Any,
+    x0: Any,
+    params: Mapping[str, float],
+    *,
+    substeps: int | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Run the compiled rollout; returns ``(time, controls, states, outputs)`` as numpy arrays."""
+    model = _check_model(model)
+    require_jax()
+    t, u, x = _grid(model, time, controls, x0)
+    pv = _pvec(model, params)
+    m = _substeps(model, substeps, t, u, x, pv)
+    states, outputs = _run(model, _compiled(model, "rollout", m), t, u, x, pv)
+    return t, u, np.asarray(states, dtype=np.float64), np.asarray(outputs, dtype=np.float64)
+
+
+def outputs_and_jacobian(
+    model: Any,
+    time: Any,
+    controls: Any,
+    x0: Any,
+    params: Mapping[str, float],
+    names: Any,
+    *,
+    substeps: int | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Outputs (n_t, n_y) and their exact Jacobian (n_t, n_y, len(names)) w.r.t. `names`.
+
+    The Jacobian is the forward-mode derivative (`jax.jacfwd`) of the RK4
+    rollout, exact for the discretised trajectory.
+    """
+    model = _check_model(model)
+    require_jax()
+    names = tuple(names)
+    missing = [n for n in names if n not in model.parameters]
+    if missing:
+        raise AdapterError(
+            f"parameters {missing} are not parameters of model {model.name!r}; "
+            f"its parameters are {list(model.parameter_names)}"
+        )
+    t, u, x = _grid(model, time, controls, x0)
+    pv = _pvec(model, params)
+    m = _substeps(model, substeps, t, u, x, pv)
+    idx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
+    y, J = _run(model, _compiled(model, "jacobian", m), pv[idx], pv, idx, t, u, x)
+    return np.asarray(y, dtype=np.float64), np.asarray(J, dtype=np.float64)
+
+
+def batch_outputs(
+    model: Any,
+    time: Any,
+    controls: Any,
+    x0: Any,
+    params_batch: Any,
+    *,
+    substeps: int | None = None,
+) -> FloatArray:
+    """Outputs (B, n_t, n_y) of a batch of parameter vectors, vmapped in one compiled call.
+
+    `params_batch` is either a mapping name -> (B,) values (missing names take
+    their nominal values; scalars broadcast) or an array (B, n_p) in the
+    model's parameter order. Diverging members come back with NaN/inf values.
+    """
+    model = _check_model(model)
+    require_jax()
+    t, u, x = _grid(model, time, controls, x0)
+    names = model.parameter_names
+    if isinstance(params_batch, Mapping):
+        unknown = sorted(set(params_batch) - set(names))
+        if unknown:
+            raise AdapterError(
+                f"parameters {unknown} are not parameters of model {model.name!r}; "
+                f"its parameters are {list(names)}"
+            )
+        sizes = {np.size(v) for v in params_batch.values() if np.ndim(v) > 0}
+        if len(sizes) > 1:
+            raise AdapterError(f"params_batch: parameter arrays differ in length {sorted(sizes)}")
+        batch = sizes.pop() if sizes else 1
+        P = np.stack(
+            [
+                np.broadcast_to(
+                    np.asarray(params_batch.get(n, model.parameters[n]), dtype=np.float64),
+                    (batch,),
+                )
+                for n in names
+            ],
+            axis=1,
+        )
+    else:
+        P = np.asarray(params_batch, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != len(names):
+            raise AdapterError(
+                f"params_batch: expected a mapping name -> (B,) or an array (B, {len(names)}) "
+                f"in the order {list(names)}, got shape {P.shape}"
+            )
+    P = np.ascontiguousarray(P)
+    m = _substeps(model, substeps, t, u, x, P[0])
+    ys = _run(model, _compiled(model, "batch", m), t, u, x, P)
+    return np.asarray(ys, dtype=np.float64)

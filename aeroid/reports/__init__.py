@@ -1,0 +1,1 @@
+"""Figures and reports: plots, HTML and Markdown reports."""

@@ -1,0 +1,763 @@
+"""The aerodynamic database: coefficients as smooth functions of the flight condition.
+
+A campaign identifies each manoeuvre on its own, at its own flight condition
+(airspeed, altitude, angle of attack, Mach, ...). `aerodynamic_database`
+stitches the per-flight estimates into one model per coefficient,
+``c_j(x) = Σ_k θ_jk φ_k(x)``, fitted jointly over all flights.
+
+Why a weighted global regression of the per-flight estimates
+--------------------------------------------------------------
+Klein & Morelli (ch. 5, "global" modelling; SIDPAC's stepwise and PSE tools)
+fit a global model by regressing local estimates on the flight condition. The
+alternative, one multi-flight output error over every record, refits every
+flight whenever one is added and ties the database to the dynamic model of
+the campaign. The regression of the estimates costs microseconds, leaves each
+flight's task untouched (a campaign adding one flight recomputes that flight
+and this fit, nothing else) and carries each flight's full parameter
+covariance. Each coefficient ``j`` is fitted on its own estimates ``z_fj``,
+weighted by their variances ``v_fj``, with ``X_j`` the basis rows at the
+flights' conditions:
+
+    θ_j = G_j z_j,   G_j = (X_j' W_j X_j)⁻¹ X_j' W_j,   W_j = diag(1 / v_fj),
+
+solved through a QR factorisation of the weighted rows. Not a joint
+generalised least squares over every coefficient with the full per-flight
+covariances: on real flights the coefficients of one flight share its errors
+(Cl_p with Cl_delta_a through the roll response, a bias from an unmodelled
+effect in all of them), and the joint fit then moves each mean by the
+residuals of the others, out of the range of every flight's estimate where
+the flights share a bias (Peelle's puzzle; the demo's twelve c172x flights
+put a joint Cl_p below all twelve estimates). The correlations are kept where
+they belong, in the covariance of the database: with ``V_f`` flight ``f``'s
+full covariance and ``g_jf`` column ``f`` of ``G_j``,
+
+    Cov(θ_j, θ_k) = Σ_f g_jf V_f,jk g_kf',
+
+the exact covariance of these linear estimates (the sandwich), so a band on a
+sum of coefficients (CL_0 + CL_alpha α) counts their correlation.
+
+Basis and structure selection
+-----------------------------
+Each condition key is scaled to ``u ∈ [-1, 1]`` over the fitted flights and
+the candidates are products of Legendre polynomials ``P_n(u)`` of total degree
+at most `max_degree`: orthogonal over the flown box, so the columns stay well
+conditioned where raw powers of alpha in radians would not. The structure of
+each coefficient is chosen by forward stepwise regression on its whitened
+estimates as in Klein & Morelli ch. 5: a candidate enters when its partial F
+exceeds `f_in` (default 4, about 95 % significance for one term) *and* the
+predicted squared error ``PSE = χ²/N + σ²_max p/N`` decreases. Klein & Morelli's
+``σ²_max`` bounds the noise variance from above; for whitened estimates that
+variance is 1 when the stated covariances hold, so ``σ²_max`` is the larger of 1
+and the residual variance of the richest candidate model (the scatter about the
+mean, their choice for raw data, would bound it by the trend itself); PSE stops the F test from adding terms
+that fit scatter with few flights. Candidates respect hierarchy (``P_2(u)``
+needs ``P_1(u)``, a product needs both factors), and a key that does not vary
+over the flights offering a coefficient offers it no candidate. A structure can
+also be forced per coefficient with `structures`.
+
+Uncertainty
+-----------
+The stated per-flight covariances are trusted when they explain the scatter
+about the model; when they do not (``χ²_j / dof_j > 1`` for coefficient ``j``,
+model inadequacy or optimistic per-flight bars), that coefficient's block of
+``Cov θ`` is scaled by the ratio (Birge ratio), never shrunk. A band at a
+condition ``x`` is ``c(x) ± z σ(x)`` with ``σ²(x) = φ(x)' Cov θ_j φ(x)``.
+
+Held-out check
+--------------
+Flights named in `held_out` stay out of the fit; their estimates are compared
+with the database's prediction, ``(z − c(x)) / sqrt(σ_z² + σ²(x))``, a
+standard normal when the database and the flight agree.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
+from .._stats import norm_ppf
+from ..errors import DataFormatError, IdentificationError
+
+__all__ = ["AeroDatabase", "FlightCoefficients", "HeldOutCheck", "aerodynamic_database"]
+
+FloatArray = NDArray[np.float64]
+Exponents = tuple[int, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class FlightCoefficients:
+    """One flight's coefficient estimates at its flight condition.
+
+    Attributes
+    ----------
+    name : str
+        The flight, named in every message and table.
+    condition : mapping of str to float
+        Flight condition keys (airspeed, altitude, alpha, mach, ...).
+    estimates : mapping of str to float
+        Coefficient estimates by name (``CL_alpha``, ``Cm_q``, ...); NaN
+        marks a coefficient this flight did not excite.
+    covariance : ndarray, shape (n, n)
+        Covariance of the estimates in the order of `estimates`.
+    """
+
+    name: str
+    condition: Mapping[str, float]
+    estimates: Mapping[str, float]
+    covariance: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", str(self.name))
+        object.__setattr__(self, "condition", frozen_mapping(self.condition))
+        object.__setattr__(self, "estimates", frozen_mapping(self.estimates))
+        object.__setattr__(self, "covariance", frozen_array(self.covariance))
+
+    @classmethod
+    def from_stderr(
+        cls,
+        name: str,
+        condition: Mapping[str, float],
+        estimates: Mapping[str, float],
+        stderr: Mapping[str, float],
+    ) -> FlightCoefficients:
+        """Estimates with independent standard errors (a diagonal covariance)."""
+        names = list(estimates)
+        var = [float(stderr[n]) ** 2 if n in stderr else math.nan for n in names]
+        return cls(name, condition, estimates, np.diag(var))
+
+
+@dataclass(frozen=True, eq=False)
+class HeldOutCheck:
+    """A held-out flight's estimate against the database's prediction.
+
+    Attributes
+    ----------
+    flight, term : str
+    estimate, stderr : float
+        The flight's own estimate and standard error.
+    prediction, band_stderr : float
+        The database at the flight's condition and its standard error.
+    z : float
+        ``(estimate − prediction) / sqrt(stderr² + band_stderr²)``.
+    """
+
+    flight: str
+    term: str
+    estimate: float
+    stderr: float
+    prediction: float
+    band_stderr: float
+    z: float
+
+
+@dataclass(frozen=True, eq=False)
+class AeroDatabase:
+    """Coefficients as functions of the flight condition, with covariance.
+
+    Attributes
+    ----------
+    terms : tuple of str
+        The coefficients modelled.
+    keys : tuple of str
+        Condition keys, in the order `predict` takes them.
+    centres, half_ranges : mapping of str to float
+        The scaling ``u = (x − centre) / half_range`` of each key over the fitted
+        flights (half range 1 for a key that did not vary).
+    structures : mapping of str to tuple of str
+        Basis functions of each coefficient, as labels (``"1"``, ``"P1(alpha)"``,
+        ``"P1(alpha)*P1(mach)"``).
+    parameters : mapping of str to ndarray
+        Coefficients of the basis functions, per term.
+    covariance : ndarray
+        Joint covariance of all basis coefficients, terms in order `terms`.
+    scale : mapping of str to float
+        The Birge factor ``max(1, χ²/dof)`` applied to each term's block.
+    chi2, dof : mapping of str to float
+        Weighted residual sum of squares and its degrees of freedom per term.
+    flights : tuple of str
+        Flights in the fit.
+    conditions : ndarray, shape (n_flights, n_keys)
+    estimates, stderr : ndarray, shape (n_flights, n_terms)
+        The per-flight data (NaN where a flight did not excite a term).
+    held_out : tuple of HeldOutCheck
+    confidence : float
+        Level of the bands of `band` and the held-out coverage.
+    """
+
+    terms: tuple[str, ...]
+    keys: tuple[str, ...]
+    centres: Mapping[str, float]
+    half_ranges: Mapping[str, float]
+    structures: Mapping[str, tuple[str, ...]]
+    parameters: Mapping[str, FloatArray]
+    covariance: FloatArray
+    scale: Mapping[str, float]
+    chi2: Mapping[str, float]
+    dof: Mapping[str, float]
+    flights: tuple[str, ...]
+    conditions: FloatArray
+    estimates: FloatArray
+    stderr: FloatArray
+    held_out: tuple[HeldOutCheck, ...] = ()
+    confidence: float = 0.95
+    _exponents: Mapping[str, tuple[Exponents, ...]] = field(default_factory=dict, repr=False)
+    _offsets: Mapping[str, int] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("centres", "half_ranges", "structures", "scale", "chi2", "dof"):
+            object.__setattr__(self, name, frozen_mapping(getattr(self, name)))
+        object.__setattr__(
+            self,
+            "parameters",
+            frozen_mapping({k: frozen_array(v) for k, v in self.parameters.items()}),
+        )
+        for name in ("covariance", "conditions", "estimates", "stderr"):
+            object.__setattr__(self, name, frozen_array(getattr(self, name)))
+        exps = {t: tuple(tuple(int(n) for n in e) for e in es) for t, es in self._exponents.items()}
+        object.__setattr__(self, "_exponents", ReadOnlyDict(exps))
+        object.__setattr__(
+            self, "_offsets", ReadOnlyDict({k: int(v) for k, v in self._offsets.items()})
+        )
+        object.__setattr__(self, "held_out", tuple(self.held_out))
+
+    # -- evaluation ---------------------------------------------------------------------------
+
+    def _basis(self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike) -> FloatArray:
+        if term not in self.parameters:
+            raise IdentificationError(
+                f"the database has no term {term!r}; it models {', '.join(self.terms)}"
+            )
+        if isinstance(condition, Mapping):
+            missing = [k for k in self.keys if k not in condition]
+            if missing:
+                raise DataFormatError(
+                    f"condition for {term!r} lacks key(s) {', '.join(missing)} "
+                    f"(the database uses {', '.join(self.keys)})"
+                )
+            cols = [np.atleast_1d(np.asarray(condition[k], dtype=np.float64)) for k in self.keys]
+            x = np.stack(np.broadcast_arrays(*cols), axis=-1)
+        else:
+            x = np.atleast_2d(np.asarray(condition, dtype=np.float64))
+            if x.shape[-1] != len(self.keys):
+                raise DataFormatError(
+                    f"condition for {term!r} has {x.shape[-1]} columns, the database "
+                    f"uses {len(self.keys)} keys ({', '.join(self.keys)})"
+                )
+        u = _scaled(x, self.keys, self.centres, self.half_ranges)
+        return _design(u, self._exponents[term])
+
+    def predict(
+        self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """The coefficient and its standard error at one or more conditions.
+
+        Parameters
+        ----------
+        term : str
+            A coefficient of `terms`.
+        condition : mapping of str to array_like, or array_like (n, n_keys)
+            Condition keys (arrays broadcast), or rows in the order of `keys`.
+
+        Returns
+        -------
+        value, stderr : ndarray, shape (n,)
+        """
+        phi = self._basis(term, condition)
+        j0 = self._offsets[term]
+        theta = self.parameters[term]
+        block = self.covariance[j0 : j0 + theta.size, j0 : j0 + theta.size]
+        value = phi @ theta
+        var = np.einsum("ij,jk,ik->i", phi, block, phi)
+        return value, np.sqrt(np.maximum(var, 0.0))
+
+    def band(
+        self,
+        term: str,
+        condition: Mapping[str, ArrayLike] | ArrayLike,
+        *,
+        confidence: float | None = None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Prediction with its lower and upper confidence bound (default `confidence`)."""
+        level = self.confidence if confidence is None else float(confidence)
+        if not 0.0 < level < 1.0:
+            raise IdentificationError(f"confidence must lie in (0, 1), got {level}")
+        value, se = self.predict(term, condition)
+        z = norm_ppf(0.5 + 0.5 * level)
+        return value, value - z * se, value + z * se
+
+    def as_function(self) -> Callable[..., dict[str, FloatArray]]:
+        """A plain callable ``f(**condition) -> {term: value}`` for a simulation."""
+
+        def evaluate(**condition: ArrayLike) -> dict[str, FloatArray]:
+            return {t: self.predict(t, condition)[0] for t in self.terms}
+
+        return evaluate
+
+    def grid(self, key: str, n: int = 11) -> FloatArray:
+        """`n` evenly spaced values of condition `key` over the fitted range."""
+        if key not in self.keys:
+            raise DataFormatError(f"the database has no condition key {key!r}")
+        c, h = self.centres[key], self.half_ranges[key]
+        return np.linspace(c - h, c + h, int(n))
+
+    def table(self, *, n: int = 11) -> dict[str, list[Any]]:
+        """A tidy table: one row per term and grid point, with the band (`n` points per key)."""
+        axes = np.meshgrid(*[self.grid(k, n) for k in self.keys], indexing="ij")
+        flat = {k: a.ravel() for k, a in zip(self.keys, axes, strict=True)}
+        rows: dict[str, list[Any]] = {"term": [], **{k: [] for k in self.keys}}
+        rows.update(value=[], stderr=[], lower=[], upper=[])
+        for term in self.terms:
+            value, lo, hi = self.band(term, flat)
+            se = self.predict(term, flat)[1]
+            rows["term"].extend([term] * value.size)
+            for k in self.keys:
+                rows[k].extend(flat[k].tolist())
+            rows["value"].extend(value.tolist())
+            rows["stderr"].extend(se.tolist())
+            rows["lower"].extend(lo.tolist())
+            rows["upper"].extend(hi.tolist())
+        return rows
+
+    def to_jsbsim(self, path: str | Path | None = None, *, n: int = 21) -> str:
+        """The database as a JSBSim ``<aerodynamics>`` section (written to `path` if given).
+
+        Tables in JSBSim's variables (``aero/alpha-rad``, ``velocities/mach``,
+        ``position/h-sl-ft``, ...) with `n` breakpoints per key over the fitted
+        range; terms named ``<C>_<regressor>`` (``Cm_q``, ``Cl_delta_a``; see
+        `aeroid.uncertainty.database_export`). JSBSim holds a table's end values outside it.
+        """
+        from .database_export import jsbsim_aerodynamics, write_jsbsim
+
+        if path is not None:
+            write_jsbsim(self, path, n=n)
+        return jsbsim_aerodynamics(self, n=n)
+
+    def to_parquet(self, path: str | Path, *, n: int = 11) -> Path:
+        """Write `table` (one row per term and grid point, with the band) as Parquet."""
+        from .database_export import write_parquet
+
+        return write_parquet(self, path, n=n)
+
+    def summary(self) -> str:
+        """A Markdown table of the terms, their structures and fit statistics."""
+        rows = []
+        for t in self.terms:
+            rows.append(
+                [
+                    t,
+                    " + ".join(self.structures[t]),
+                    fmt(self.chi2[t]),
+                    fmt(self.dof[t], 3),
+                    fmt(self.scale[t]),
+                ]
+            )
+        head = (
+            f"Aerodynamic database: {len(self.terms)} coefficients over {len(self.flights)} flights, "
+            f"condition keys {', '.join(self.keys)}\n\n"
+        )
+        out = head + markdown_table(["term", "structure", "χ²", "dof", "scale"], rows)
+        if self.held_out:
+            z = norm_ppf(0.5 + 0.5 * self.confidence)
+            inside = sum(abs(c.z) <= z for c in self.held_out)
+            out += (
+                f"\n\nHeld out: {len({c.flight for c in self.held_out})} flights, {inside} of "
+                f"{len(self.held_out)} estimates inside the {self.confidence:.0%} band"
+            )
+        return out
+
+
+# -- basis ---------------------------------------------------------------------------------------
+
+
+def _legendre(u: FloatArray, n: int) -> FloatArray:
+    p0, p1 = np.ones_like(u), u
+    if n == 0:
+        return p0
+    for k in range(1, n):
+        p0, p1 = p1, ((2 * k + 1) * u * p1 - k * p0) / (k + 1)
+    return p1
+
+
+def _scaled(
+    x: FloatArray, keys: Sequence[str], centres: Mapping[str, float], half: Mapping[str, float]
+) -> FloatArray:
+    c = np.array([centres[k] for k in keys])
+    h = np.array([half[k] for k in keys])
+    return np.asarray((x - c) / h, dtype=np.float64)
+
+
+def _design(u: FloatArray, exponents: Sequence[Exponents]) -> FloatArray:
+    cols = []
+    for e in exponents:
+        col = np.ones(u.shape[0])
+        for i, n in enumerate(e):
+            if n:
+                col = col * _legendre(u[:, i], n)
+        cols.append(col)
+    return np.stack(cols, axis=1)
+
+
+def _label(e: Exponents, keys: Sequence[str]) -> str:
+    parts = [f"P{n}({k})" for n, k in zip(e, keys, strict=True) if n]
+    return "*".join(parts) if parts else "1"
+
+
+def _parse_label(label: str, keys: Sequence[str], term: str) -> Exponents:
+    """``"1"``, ``"alpha"``, ``"alpha^2"``, ``"alpha*mach"`` or ``"P2(alpha)"`` as exponents."""
+    e = [0] * len(keys)
+    text = label.replace(" ", "").replace("**", "^")
+    if text in ("1", "const", "0"):
+        return tuple(e)
+    for part in text.split("*"):
+        name, n = part, 1
+        if part.startswith("P") and "(" in part and part.endswith(")"):
+            n = int(part[1 : part.index("(")])
+            name = part[part.index("(") + 1 : -1]
+        elif "^" in part:
+            name, power = part.split("^", 1)
+            n = int(power)
+        if name not in keys:
+            raise IdentificationError(
+                f"structure of {term!r} uses {name!r}, not a condition key ({', '.join(keys)})"
+            )
+        e[list(keys).index(name)] += n
+    return tuple(e)
+
+
+def _candidates(n_keys: int, max_degree: int, varying: Sequence[bool]) -> list[Exponents]:
+    out: list[Exponents] = []
+
+    def grow(prefix: list[int], left: int) -> None:
+        if len(prefix) == n_keys:
+            out.append(tuple(prefix))
+            return
+        i = len(prefix)
+        for n in range(0, (left if varying[i] else 0) + 1):
+            grow([*prefix, n], left - n)
+
+    grow([], max_degree)
+    return sorted((e for e in out if any(e)), key=lambda e: (sum(e), e))
+
+
+def _parents(e: Exponents) -> list[Exponents]:
+    """Hierarchy: each key's degree lowered by one (a product needs its factors)."""
+    out = []
+    for i, n in enumerate(e):
+        if n:
+            p = list(e)
+            p[i] -= 1
+            out.append(tuple(p))
+    return out
+
+
+# -- fitting -------------------------------------------------------------------------------------
+
+
+def _wls_chi2(a: FloatArray, b: FloatArray) -> float:
+    theta, *_ = np.linalg.lstsq(a, b, rcond=None)
+    r = b - a @ theta
+    return float(r @ r)
+
+
+def _select(
+    u: FloatArray, z: FloatArray, w: FloatArray, candidates: list[Exponents], f_in: float
+) -> list[Exponents]:
+    """Forward stepwise by partial F and PSE on the whitened data (Klein & Morelli ch. 5)."""
+    n = z.size
+    chosen: list[Exponents] = [tuple(0 for _ in range(u.shape[1]))]
+    sw = np.sqrt(w)
+    all_cols = {e: _design(u, [e])[:, 0] * sw for e in [*chosen, *candidates]}
+    b = z * sw
+
+    def chi2_of(es: list[Exponents]) -> float:
+        return _wls_chi2(np.stack([all_cols[e] for e in es], axis=1), b)
+
+    chi2 = chi2_of(chosen)
+    # the noise variance of whitened data is 1 if the stated covariances hold; the
+    # richest candidate model's residual variance bounds it from above when they do not
+    full = [*chosen, *candidates]
+    s2_max = max(1.0, chi2_of(full) / (n - len(full))) if n > len(full) else 1.0
+    pse = chi2 / n + s2_max * len(chosen) / n
+    while n - len(chosen) > 1:
+        best: tuple[float, Exponents] | None = None
+        for e in candidates:
+            if e in chosen or any(p not in chosen for p in _parents(e) if any(p)):
+                continue
+            c2 = chi2_of([*chosen, e])
+            if best is None or c2 < best[0]:
+                best = (c2, e)
+        if best is None:
+            break
+        c2, e = best
+        p = len(chosen) + 1
+        s2 = max(c2 / (n - p), 1.0)  # stated covariances are a floor on the scatter
+        f = (chi2 - c2) / s2
+        new_pse = c2 / n + s2_max * p / n
+        if f < f_in or new_pse >= pse:
+            break
+        chosen.append(e)
+        chi2, pse = c2, new_pse
+    return chosen
+
+
+def _flight_data(
+    flights: Sequence[FlightCoefficients], terms: Sequence[str], keys: Sequence[str]
+) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
+    """Conditions, estimates (NaN where absent) and each flight's covariance over `terms`."""
+    x = np.empty((len(flights), len(keys)))
+    z = np.full((len(flights), len(terms)), np.nan)
+    covs = []
+    for i, f in enumerate(flights):
+        for j, k in enumerate(keys):
+            if k not in f.condition:
+                raise DataFormatError(
+                    f"flight {f.name!r} has no condition {k!r} (it gives "
+                    f"{', '.join(f.condition) or 'no condition at all'})"
+                )
+            value = float(f.condition[k])
+            if not math.isfinite(value):
+                raise DataFormatError(f"flight {f.name!r}: condition {k!r} is {value}")
+            x[i, j] = value
+        names = list(f.estimates)
+        cov_f = np.asarray(f.covariance, dtype=np.float64)
+        if cov_f.shape != (len(names), len(names)):
+            raise DataFormatError(
+                f"flight {f.name!r}: covariance is {cov_f.shape}, its {len(names)} estimates "
+                f"need ({len(names)}, {len(names)})"
+            )
+        idx = [names.index(t) if t in names else -1 for t in terms]
+        sub = np.full((len(terms), len(terms)), np.nan)
+        for a, ia in enumerate(idx):
+            if ia < 0:
+                continue
+            value = float(f.estimates[terms[a]])
+            var = cov_f[ia, ia]
+            if math.isfinite(value) and math.isfinite(var) and var > 0.0:
+                z[i, a] = value
+            for b, ib in enumerate(idx):
+                if ib >= 0:
+                    sub[a, b] = cov_f[ia, ib]
+        covs.append(sub)
+    return x, z, covs
+
+
+def aerodynamic_database(
+    flights: Sequence[FlightCoefficients],
+    *,
+    terms: Sequence[str] | None = None,
+    keys: Sequence[str] | None = None,
+    max_degree: int = 3,
+    f_in: float = 4.0,
+    structures: Mapping[str, Sequence[str]] | None = None,
+    held_out: Sequence[str] = (),
+    confidence: float = 0.95,
+) -> AeroDatabase:
+    """Fit each coefficient as a smooth function of the flight condition over all flights.
+
+    Parameters
+    ----------
+    flights : sequence of FlightCoefficients
+        Per-flight estimates with their covariances and conditions.
+    terms : sequence of str, optional
+        Coefficients to model (default: every name any flight estimates).
+    keys : sequence of str, optional
+        Condition keys of the model (default: those every flight gives, in the
+        first flight's order).
+    max_degree : int
+        Highest total degree of the candidate Legendre products.
+    f_in : float
+        Partial F a candidate needs to enter (module notes).
+    structures : mapping of str to sequence of str, optional
+        Forced basis per coefficient: ``["1", "alpha", "alpha^2", "alpha*mach"]``
+        (powers mean Legendre degrees of the scaled key).
+    held_out : sequence of str
+        Flights kept out of the fit and checked against it.
+    confidence : float
+        Level of the bands and of the held-out check.
+
+    Returns
+    -------
+    AeroDatabase
+
+    Raises
+    ------
+    DataFormatError
+        A flight lacks a condition key, or its covariance does not match.
+    IdentificationError
+        No flight excites a term, or the conditions cannot identify a forced
+        structure (both named).
+    """
+    if not 0.0 < confidence < 1.0:
+        raise IdentificationError(f"confidence must lie in (0, 1), got {confidence}")
+    if max_degree < 0:
+        raise IdentificationError(f"max_degree must be >= 0, got {max_degree}")
+    flights = list(flights)
+    names = [f.name for f in flights]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise DataFormatError(f"flight name(s) {', '.join(dup)} appear more than once")
+    unknown = [h for h in held_out if h not in names]
+    if unknown:
+        raise DataFormatError(f"held-out flight(s) {', '.join(unknown)} are not among the flights")
+    fit = [f for f in flights if f.name not in set(held_out)]
+    if not fit:
+        raise IdentificationError("no flight is left to fit once the held-out flights are removed")
+    for f in fit:
+        if not f.condition:
+            raise DataFormatError(f"flight {f.name!r} has no condition")
+    if keys is None:
+        keys = [k for k in fit[0].condition if all(k in f.condition for f in fit)]
+    keys = tuple(keys)
+    if terms is None:
+        seen: dict[str, None] = {}
+        for f in fit:
+            seen.update(dict.fromkeys(f.estimates))
+        terms = list(seen)
+    terms = tuple(terms)
+    x, z, covs = _flight_data(fit, terms, keys)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    centres = {k: float(0.5 * (lo[i] + hi[i])) for i, k in enumerate(keys)}
+    half = {k: float(0.5 * (hi[i] - lo[i])) or 1.0 for i, k in enumerate(keys)}
+    u = _scaled(x, keys, centres, half)
+    forced = dict(structures or {})
+    bad = [t for t in forced if t not in terms]
+    if bad:
+        raise IdentificationError(
+            f"structures name term(s) {', '.join(bad)} that no flight estimates"
+        )
+
+    exponents: dict[str, tuple[Exponents, ...]] = {}
+    for j, t in enumerate(terms):
+        has = np.isfinite(z[:, j])
+        if not has.any():
+            raise IdentificationError(
+                f"no flight excites {t!r}: every flight's estimate is missing or has no finite variance"
+            )
+        var = np.array([covs[i][j, j] for i in range(len(fit))])
+        uj = u[has]
+        if t in forced:
+            es = [_parse_label(lab, keys, t) for lab in forced[t]]
+            _check_identifiable(t, es, uj, [fit[i].name for i in np.flatnonzero(has)], keys)
+        else:
+            varying = [bool(np.ptp(uj[:, i]) > 1e-9) for i in range(len(keys))]
+            cands = _candidates(len(keys), max_degree, varying)
+            es = _select(uj, z[has, j], 1.0 / var[has], cands, f_in)
+        exponents[t] = tuple(es)
+
+    theta, cov, chi2, dof = _gls(u, z, covs, terms, exponents)
+    offsets, params, scale = {}, {}, {}
+    j0 = 0
+    for t in terms:
+        p = len(exponents[t])
+        offsets[t] = j0
+        params[t] = theta[j0 : j0 + p]
+        scale[t] = max(1.0, chi2[t] / dof[t]) if dof[t] > 0 else 1.0
+        j0 += p
+    d = np.concatenate([np.full(len(exponents[t]), math.sqrt(scale[t])) for t in terms])
+    cov = cov * np.outer(d, d)
+    stderr = np.sqrt(np.array([np.diag(c) for c in covs]))
+    stderr = np.where(np.isfinite(z), stderr, np.nan)
+    db = AeroDatabase(
+        terms=terms,
+        keys=keys,
+        centres=centres,
+        half_ranges=half,
+        structures={t: tuple(_label(e, keys) for e in exponents[t]) for t in terms},
+        parameters=params,
+        covariance=cov,
+        scale=scale,
+        chi2=chi2,
+        dof=dof,
+        flights=tuple(f.name for f in fit),
+        conditions=x,
+        estimates=z,
+        stderr=stderr,
+        confidence=confidence,
+        _exponents=exponents,
+        _offsets=offsets,
+    )
+    held = [f for f in flights if f.name in set(held_out)]
+    if not held:
+        return db
+    checks = []
+    hx, hz, hcovs = _flight_data(held, terms, keys)
+    for i, f in enumerate(held):
+        for j, t in enumerate(terms):
+            if not np.isfinite(hz[i, j]):
+                continue
+            pred, se = db.predict(t, hx[i : i + 1])
+            s_est = math.sqrt(hcovs[i][j, j])
+            zval = (hz[i, j] - pred[0]) / math.hypot(s_est, se[0])
+            checks.append(
+                HeldOutCheck(f.name, t, float(hz[i, j]), s_est, float(pred[0]), float(se[0]), zval)
+            )
+    object.__setattr__(db, "held_out", tuple(checks))
+    return db
+
+
+def _check_identifiable(
+    term: str, es: Sequence[Exponents], u: FloatArray, flights: Sequence[str], keys: Sequence[str]
+) -> None:
+    a = _design(u, es)
+    if a.shape[0] < a.shape[1]:
+        raise IdentificationError(
+            f"{term!r}: the forced structure has {a.shape[1]} functions but only "
+            f"{a.shape[0]} flight(s) excite it ({', '.join(flights)})"
+        )
+    sv = np.linalg.svd(a, compute_uv=False)
+    if sv[-1] <= 1e-9 * max(sv[0], 1.0):
+        flat = [k for i, k in enumerate(keys) if np.ptp(u[:, i]) <= 1e-9 and any(e[i] for e in es)]
+        why = (
+            f"condition {', '.join(flat)} does not vary over"
+            if flat
+            else "the conditions do not separate"
+        )
+        raise IdentificationError(
+            f"{term!r} is unidentifiable: {why} the flights that excite it ({', '.join(flights)})"
+        )
+
+
+def _gls(
+    u: FloatArray,
+    z: FloatArray,
+    covs: Sequence[FloatArray],
+    terms: Sequence[str],
+    exponents: Mapping[str, Sequence[Exponents]],
+) -> tuple[FloatArray, FloatArray, dict[str, float], dict[str, float]]:
+    """Each term by weighted least squares on its own variances; the covariance of all
+    terms' parameters by the sandwich through every flight's full covariance."""
+    sizes = [len(exponents[t]) for t in terms]
+    offs = np.concatenate([[0], np.cumsum(sizes)])
+    n_f = z.shape[0]
+    # gain[j]: (p_j, n_f), the map from term j's estimates over the flights to its parameters
+    gain = []
+    theta = np.zeros(offs[-1])
+    chi2, dof = {}, {}
+    for jt, t in enumerate(terms):
+        has = np.isfinite(z[:, jt])
+        var = np.array([covs[int(i)][jt, jt] for i in np.flatnonzero(has)])
+        a = _design(u[has], exponents[t])
+        w = 1.0 / np.sqrt(var)
+        q, r_fac = np.linalg.qr(a * w[:, None])
+        g_has = np.linalg.solve(r_fac, q.T * w[None, :])  # (p, n_has)
+        g = np.zeros((sizes[jt], n_f))
+        g[:, has] = g_has
+        gain.append(g)
+        theta[offs[jt] : offs[jt + 1]] = g_has @ z[has, jt]
+        chi2[t] = float(np.sum((z[has, jt] - a @ theta[offs[jt] : offs[jt + 1]]) ** 2 / var))
+        dof[t] = float(has.sum() - sizes[jt])
+    cov_theta = np.zeros((offs[-1], offs[-1]))
+    for i, cov in enumerate(covs):
+        present = np.isfinite(z[i])
+        c = np.where(np.outer(present, present), np.nan_to_num(cov), 0.0)
+        g_i = np.concatenate([g[:, i] for g in gain])  # (P,): flight i's column per term
+        owner = np.repeat(np.arange(len(terms)), sizes)
+        cov_theta += np.outer(g_i, g_i) * c[np.ix_(owner, owner)]
+    return theta, 0.5 * (cov_theta + cov_theta.T), chi2, dof

@@ -1,0 +1,195 @@
+"""Export of an `AeroDatabase`: a JSBSim aerodynamics section and a tidy Parquet table.
+
+JSBSim builds each force and moment as a sum of functions per axis, each a
+product of ``aero/qbar-area`` (``q̄ S``), a reference length for the moments,
+a regressor (``aero/alpha-rad``, ``aero/ci2vel · velocities/q-aero-rad_sec``, a
+surface position) and a table of the coefficient over the flight condition.
+Coefficient names follow the package's convention ``<C>_<regressor>``:
+``C`` one of CL, CD, CY, Cl, Cm, Cn; the regressor alpha, beta, p, q, r,
+delta_e, delta_a, delta_r (rates nondimensional, ``p b/2V``, ``q c/2V``), or
+``0`` (``CL_0``) for the coefficient at the flight condition itself. When the
+static ``<C>_0`` is tabulated over a condition key that is also a regressor
+(``CL_0`` over alpha), ``<C>_<key>`` is its slope and is not exported again.
+
+Each table also stands alone as ``aero/aeroid/<term>`` (without the products),
+so that a simulation can read the database's value directly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from ..errors import DataFormatError, OutputError
+
+if TYPE_CHECKING:
+    from .database import AeroDatabase
+
+_FT = 0.3048
+_PSF = 47.88025898
+
+# condition key -> (JSBSim property, factor from the condition's SI unit to the property's)
+CONDITION_PROPERTIES: Mapping[str, tuple[str, float]] = {
+    "alpha": ("aero/alpha-rad", 1.0),
+    "beta": ("aero/beta-rad", 1.0),
+    "mach": ("velocities/mach", 1.0),
+    "airspeed": ("velocities/vt-fps", 1.0 / _FT),
+    "altitude": ("position/h-sl-ft", 1.0 / _FT),
+    "qbar": ("aero/qbar-psf", 1.0 / _PSF),
+    "dynamic_pressure": ("aero/qbar-psf", 1.0 / _PSF),
+}
+
+# regressor -> JSBSim properties whose product it is
+REGRESSOR_PROPERTIES: Mapping[str, tuple[str, ...]] = {
+    "0": (),
+    "alpha": ("aero/alpha-rad",),
+    "beta": ("aero/beta-rad",),
+    "p": ("aero/bi2vel", "velocities/p-aero-rad_sec"),
+    "q": ("aero/ci2vel", "velocities/q-aero-rad_sec"),
+    "r": ("aero/bi2vel", "velocities/r-aero-rad_sec"),
+    "delta_e": ("fcs/elevator-pos-rad",),
+    "delta_a": ("fcs/left-aileron-pos-rad",),
+    "delta_r": ("fcs/rudder-pos-rad",),
+}
+
+# coefficient -> (JSBSim axis, reference length property or None)
+AXES: Mapping[str, tuple[str, str | None]] = {
+    "CL": ("LIFT", None),
+    "CD": ("DRAG", None),
+    "CY": ("SIDE", None),
+    "Cl": ("ROLL", "metrics/bw-ft"),
+    "Cm": ("PITCH", "metrics/cbarw-ft"),
+    "Cn": ("YAW", "metrics/bw-ft"),
+}
+
+
+def split_term(term: str) -> tuple[str, str]:
+    """``"Cm_delta_e"`` -> ``("Cm", "delta_e")``; a bare ``"CL"`` is ``("CL", "0")``."""
+    base, _, regressor = term.partition("_")
+    if base not in AXES or (regressor or "0") not in REGRESSOR_PROPERTIES:
+        raise DataFormatError(
+            f"term {term!r} is not <C>_<regressor> with C in {', '.join(AXES)} and regressor "
+            f"in {', '.join(REGRESSOR_PROPERTIES)}: JSBSim export cannot place it"
+        )
+    return base, regressor or "0"
+
+
+def _table_keys(db: AeroDatabase, term: str) -> list[str]:
+    exps = db._exponents[term]
+    return [k for i, k in enumerate(db.keys) if any(e[i] for e in exps)]
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.8g}"
+
+
+def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
+    keys = _table_keys(db, term)
+    base = {k: db.centres[k] for k in db.keys}
+    if not keys:
+        return [f"{indent}<value>{_fmt(float(db.predict(term, base)[0][0]))}</value>"]
+    for k in keys:
+        if k not in CONDITION_PROPERTIES:
+            raise DataFormatError(
+                f"term {term!r} varies with condition {k!r}, which has no JSBSim property "
+                f"(known: {', '.join(CONDITION_PROPERTIES)})"
+            )
+    if len(keys) > 2:
+        raise DataFormatError(
+            f"term {term!r} varies with {len(keys)} condition keys; JSBSim export takes 2"
+        )
+    grids = [db.grid(k, n) for k in keys]
+    lines = [f"{indent}<table>"]
+    for k, how in zip(keys, ("row", "column"), strict=False):
+        lines.append(
+            f'{indent}  <independentVar lookup="{how}">{CONDITION_PROPERTIES[k][0]}</independentVar>'
+        )
+    lines.append(f"{indent}  <tableData>")
+    conv = [CONDITION_PROPERTIES[k][1] for k in keys]
+    if len(keys) == 1:
+        values = db.predict(term, {**base, keys[0]: grids[0]})[0]
+        for x, v in zip(grids[0], values, strict=True):
+            lines.append(f"{indent}    {_fmt(x * conv[0])} {_fmt(v)}")
+    else:
+        rows, cols = np.meshgrid(grids[0], grids[1], indexing="ij")
+        values = db.predict(term, {**base, keys[0]: rows.ravel(), keys[1]: cols.ravel()})[0]
+        values = values.reshape(rows.shape)
+        lines.append(f"{indent}    " + " ".join(_fmt(c * conv[1]) for c in grids[1]))
+        for i, x in enumerate(grids[0]):
+            lines.append(f"{indent}    {_fmt(x * conv[0])} " + " ".join(_fmt(v) for v in values[i]))
+    lines.append(f"{indent}  </tableData>")
+    lines.append(f"{indent}</table>")
+    return lines
+
+
+def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
+    """The ``<aerodynamics>`` XML section of `db` (module notes), `n` breakpoints per key."""
+    placed: dict[str, list[tuple[str, str]]] = {axis: [] for axis, _ in AXES.values()}
+    for term in db.terms:
+        base, regressor = split_term(term)
+        static = next((t for t in (f"{base}_0", base) if t in db.terms), None)
+        if static is not None and regressor != "0" and regressor in _table_keys(db, static):
+            continue  # the slope of the static table, already in it
+        placed[AXES[base][0]].append((term, regressor))
+    out = ["<aerodynamics>", "  <!-- written by AeroID from an aerodynamic database -->"]
+    for term in db.terms:
+        out.append(f'  <function name="aero/aeroid/{escape(term)}">')
+        out.extend(_table_xml(db, term, n, "    "))
+        out.append("  </function>")
+    for base, (axis, length) in AXES.items():
+        entries = [(t, r) for t, r in placed[axis] if t.partition("_")[0] == base]
+        if not entries:
+            continue
+        out.append(f'  <axis name="{axis}">')
+        for term, regressor in entries:
+            out.append(f'    <function name="aero/coefficient/aeroid-{escape(term)}">')
+            out.append("      <product>")
+            props = [
+                "aero/qbar-area",
+                *([length] if length else []),
+                *REGRESSOR_PROPERTIES[regressor],
+            ]
+            props.append(f"aero/aeroid/{term}")
+            out.extend(f"        <property>{p}</property>" for p in props)
+            out.append("      </product>")
+            out.append("    </function>")
+        out.append("  </axis>")
+    out.append("</aerodynamics>")
+    return "\n".join(out) + "\n"
+
+
+def write_jsbsim(db: AeroDatabase, path: str | Path, *, n: int = 21) -> Path:
+    """Write `jsbsim_aerodynamics` to `path`."""
+    target = Path(path)
+    try:
+        target.write_text(jsbsim_aerodynamics(db, n=n), encoding="utf-8")
+    except OSError as exc:
+        raise OutputError(f"cannot write the JSBSim aerodynamics to {target}: {exc}") from exc
+    return target
+
+
+def write_parquet(db: AeroDatabase, path: str | Path, *, n: int = 11) -> Path:
+    """Write the tidy table of `db` (`AeroDatabase.table`) as Parquet."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    target = Path(path)
+    table = pa.table(db.table(n=n))
+    try:
+        pq.write_table(table, target)
+    except OSError as exc:
+        raise OutputError(f"cannot write the database table to {target}: {exc}") from exc
+    return target
+
+
+def replace_aerodynamics(aircraft_xml: str, section: str) -> str:
+    """The aircraft definition `aircraft_xml` with its ``<aerodynamics>`` replaced by `section`."""
+    start = aircraft_xml.find("<aerodynamics")
+    end = aircraft_xml.find("</aerodynamics>")
+    if start < 0 or end < 0:
+        raise DataFormatError("the aircraft definition has no <aerodynamics> section to replace")
+    return aircraft_xml[:start] + section.strip() + aircraft_xml[end + len("</aerodynamics>") :]

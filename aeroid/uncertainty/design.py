@@ -1,0 +1,737 @@
+"""Optimal input design: which manoeuvre constrains the parameters best?
+
+`design_experiment` searches a manoeuvre family's design variables for the
+D-optimal (smallest volume of the Cramér–Rao ellipsoid) or A-optimal
+(smallest sum of relative variances) Fisher information, with a seeded
+differential-evolution search (Storn & Price 1997) followed by a bounded
+quasi-Newton polish.
+
+Every generation is one batched simulation: each candidate's control
+history is paired with its ``2 n_p`` central-difference parameter columns,
+and all candidates x columns are integrated in a single `Model.simulate_batch`
+call with per-member controls.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.optimize
+from numpy.typing import NDArray
+
+from .._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .._threads import CALLER_STACKLEVEL, small_blas
+from ..errors import (
+    AeroidError,
+    ChannelError,
+    IdentifiabilityWarning,
+    IdentificationError,
+    SimulationError,
+)
+from ..io.data import FlightData, as_float, check_flag
+from ..models.model import Model, SimulatorModel, require_model, resolve_parameters
+from .maneuvers import ManeuverFamily
+from .sensitivity import (
+    _analyse_fisher,
+    _check_simulate_options,
+    _combo_text,
+    _control_names,
+    _crb,
+    _fd_sensitivities,
+    _fd_steps,
+    _fisher,
+    _noise_vector,
+    _output_names,
+    _parameter_list,
+    _relative_step,
+)
+
+__all__ = ["ExperimentDesign", "design_experiment"]
+
+FloatArray = NDArray[np.float64]
+
+_CRITERIA = ("D", "A")
+# Most samples of a design's time grid, and most values one batched simulation of the
+# optimiser's population may hold (2 GiB of float64).
+_MAX_SAMPLES = 10**7
+_MAX_BATCH_VALUES = 2**28
+_OPTIMIZER_DEFAULTS: dict[str, Any] = {
+    "maxiter": 30,
+    "popsize": 10,
+    "tol": 1e-6,
+    "atol": 0.0,
+    "mutation": (0.5, 1.0),
+    "recombination": 0.7,
+    "strategy": "best1bin",
+    "init": "latinhypercube",
+    "polish": True,
+}
+# A criterion value for candidates whose information matrix is singular or whose
+# simulation failed: finite, so the optimiser's population statistics stay finite.
+_PENALTY = 1e30
+
+
+@dataclass(frozen=True, eq=False)
+class ExperimentDesign:
+    """An optimised manoeuvre with its predicted parameter precision.
+
+    Attributes
+    ----------
+    design : mapping of str to float
+        The chosen design variables (as flown: after any peak limiting).
+    initial_design : mapping of str to float
+        The family's reference design the optimum is compared with.
+    variable_names : tuple of str
+    bounds : ndarray, shape (n_variables, 2)
+    time : ndarray, shape (n_t,)
+    controls : ndarray, shape (n_t, n_controls)
+        The designed history of every model control (undriven ones are zero).
+    control_names : tuple of str
+    parameter_names : tuple of str
+    values : mapping of str to float
+        Parameter values the design was computed at.
+    noise : mapping of str to float
+        Measurement-noise standard deviation per output.
+    criterion : str
+        ``"D"`` or ``"A"``.
+    criterion_value, initial_criterion_value : float
+        The minimised criterion at the optimum and at the initial design
+        (lower is better; infinite when the design cannot identify the
+        parameters). D: ``log det`` of the relative Cramér–Rao covariance
+        (each parameter scaled by ``|θ|``, or by 1 at zero); A: the sum of
+        the relative Cramér–Rao variances.
+    predicted_stderr, initial_stderr : mapping of str to float
+        Cramér–Rao standard errors with the designed and the initial manoeuvre.
+    fisher_information : ndarray, shape (n_p, n_p)
+        At the optimum.
+    recommendation : str
+        One-paragraph advice for the flight-test plan.
+    maneuver : str
+        Description of the designed manoeuvre.
+    n_generations, n_candidates, n_simulations : int
+        Work done: optimiser generations, candidate designs evaluated,
+        trajectories integrated.
+    success : bool
+    message : str
+    seed : int or None
+    model_name : str
+    """
+
+    design: Mapping[str, float]
+    initial_design: Mapping[str, float]
+    variable_names: tuple[str, ...]
+    bounds: FloatArray
+    time: FloatArray
+    controls: FloatArray
+    control_names: tuple[str, ...]
+    parameter_names: tuple[str, ...]
+    values: Mapping[str, float]
+    noise: Mapping[str, float]
+    criterion: str
+    criterion_value: float
+    initial_criterion_value: float
+    predicted_stderr: Mapping[str, float]
+    initial_stderr: Mapping[str, float]
+    fisher_information: FloatArray
+    recommendation: str
+    maneuver: str
+    n_generations: int
+    n_candidates: int
+    n_simulations: int
+    success: bool
+    message: str
+    seed: int | None = None
+    model_name: str = ""
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name in ("bounds", "time", "controls", "fisher_information"):
+            set_(self, name, frozen_array(getattr(self, name)))
+        for name in ("design", "initial_design", "values", "noise", "predicted_stderr",
+                     "initial_stderr"):  # fmt: skip
+            set_(self, name, frozen_mapping(getattr(self, name)))
+        for name in ("variable_names", "control_names", "parameter_names"):
+            set_(self, name, tuple(getattr(self, name)))
+
+    def control(self, name: str) -> FloatArray:
+        """Designed history of one control."""
+        if name not in self.control_names:
+            raise ChannelError(
+                f"control {name!r} not designed; controls: {list(self.control_names)}"
+            )
+        return self.controls[:, self.control_names.index(name)]
+
+    def to_flight_data(self) -> FlightData:
+        """The fly-ready control history as `FlightData` (one channel per control)."""
+        return FlightData(
+            self.time,
+            {n: self.controls[:, j] for j, n in enumerate(self.control_names)},
+            metadata={"maneuver": self.maneuver, "criterion": self.criterion},
+        )
+
+    def plot(self, **kwargs: Any) -> Any:
+        """The designed manoeuvre and predicted precision. Returns a matplotlib Figure."""
+        from ..reports.plotting import plot_design
+
+        return plot_design(self, **kwargs)
+
+    def summary(self) -> str:
+        """Markdown section: design variables, predicted precision and the recommendation."""
+        var_rows = [
+            (n, fmt(self.initial_design[n]), fmt(self.design[n]), f"{fmt(lo)} – {fmt(hi)}")
+            for n, (lo, hi) in zip(self.variable_names, self.bounds, strict=True)
+        ]
+        vars_table = markdown_table(("variable", "initial", "designed", "bounds"), var_rows)
+        rows = []
+        for n in self.parameter_names:
+            se0, se = self.initial_stderr[n], self.predicted_stderr[n]
+            ratio = f"{se0 / se:.3g}x" if np.isfinite(se0) and se > 0 and np.isfinite(se) else "—"
+            v = self.values[n]
+            rel = f"{100 * se / abs(v):.2g}%" if v != 0 and np.isfinite(se) else "—"
+            rows.append((n, fmt(v), fmt(se0), fmt(se), rel, ratio))
+        par_table = markdown_table(
+            ("parameter", "value", "initial stderr", "predicted stderr", "rel.", "improvement"),
+            rows,
+        )
+        duration = float(self.time[-1] - self.time[0])
+        return "\n".join(
+            [
+                "## Experiment design",
+                "",
+                f"{self.criterion}-optimal design over {fmt(duration)} s at "
+                f"{fmt((self.time.size - 1) / duration)} Hz: {self.maneuver}.",
+                "",
+                vars_table,
+                "",
+                par_table,
+                "",
+                f"Criterion {fmt(self.initial_criterion_value)} → {fmt(self.criterion_value)} "
+                f"after {self.n_generations} generations ({self.n_candidates} candidates, "
+                f"{self.n_simulations} simulated trajectories). {self.message}",
+                "",
+                f"**Recommendation:** {self.recommendation}",
+            ]
+        )
+
+
+class _Evaluator:
+    """Criterion of many candidate designs from one batched simulation each call."""
+
+    def __init__(
+        self,
+        model: Any,
+        maneuver: ManeuverFamily,
+        time: FloatArray,
+        x0: Any,
+        values: Mapping[str, float],
+        names: Sequence[str],
+        sigma: FloatArray,
+        out_idx: list[int],
+        criterion: str,
+        options: Mapping[str, Any],
+        relative_step: float,
+        trim: FloatArray | None = None,
+    ) -> None:
+        self.model = model
+        self.maneuver = maneuver
+        self.time = time
+        self.x0 = x0
+        self.values = values
+        self.names = list(names)
+        self.sigma = sigma
+        self.out_idx = out_idx
+        self.criterion = criterion
+        self.options = options
+        theta = np.array([values[n] for n in names])
+        self.steps = _fd_steps(theta, relative_step)
+        self.scale = np.where(theta != 0, np.abs(theta), 1.0)
+        all_controls = _control_names(model)
+        self.cols = [all_controls.index(c) for c in maneuver.controls]
+        self.n_u = len(all_controls)
+        self.trim = np.zeros(self.n_u) if trim is None else trim
+        self.n_candidates = 0
+        self.n_simulations = 0
+        self.errors: list[str] = []  # what failed in a simulation, for the messages
+
+    def controls(self, variables: FloatArray) -> FloatArray:
+        """(S, n_t, n_u) control histories of candidate designs (S, n_v)."""
+        n_t = self.time.size
+        out = np.broadcast_to(self.trim, (variables.shape[0], n_t, self.n_u)).copy()
+        for s, v in enumerate(variables):
+            sig = np.asarray(self.maneuver.signal(v, self.time), dtype=np.float64)
+            if sig.ndim == 1 and len(self.cols) == 1:
+                sig = sig[:, None]
+            if sig.shape != (n_t, len(self.cols)):
+                raise IdentificationError(
+                    f"maneuver.signal returned shape {sig.shape}; expected "
+                    f"({n_t}, {len(self.cols)}) for controls {list(self.maneuver.controls)}"
+                )
+            if not np.all(np.isfinite(sig)):
+                raise IdentificationError(
+                    f"maneuver.signal returned non-finite values for design {v.tolist()}"
+                )
+            out[s][:, self.cols] += sig
+        return out
+
+    def fisher(self, variables: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+        u = self.controls(variables)
+        _, sens, ok = _fd_sensitivities(
+            self.model,
+            self.time,
+            u,
+            self.x0,
+            self.values,
+            self.names,
+            self.steps,
+            self.options,
+            nominal=False,
+            errors=self.errors,
+        )
+        self.n_candidates += variables.shape[0]
+        self.n_simulations += variables.shape[0] * 2 * len(self.names)
+        return _fisher(sens[..., self.out_idx], self.sigma), ok
+
+    def criterion_of(self, fisher: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
+        """Criterion per candidate (lower is better); `_PENALTY` when singular or failed."""
+        fs = fisher * np.outer(self.scale, self.scale)  # information about θ / scale
+        out = np.full(fs.shape[0], _PENALTY)
+        with np.errstate(all="ignore"):
+            if self.criterion == "D":
+                sign, logdet = np.linalg.slogdet(fs)
+                good = ok & (sign > 0) & np.isfinite(logdet)
+                out[good] = -logdet[good]
+            else:
+                for s in np.flatnonzero(ok):
+                    try:
+                        c = np.linalg.cholesky(fs[s])
+                    except np.linalg.LinAlgError:
+                        continue
+                    ci = np.linalg.inv(c)
+                    val = float(np.sum(ci**2))  # trace of fs^-1
+                    if np.isfinite(val):
+                        out[s] = val
+        return out
+
+    def __call__(self, variables: FloatArray) -> FloatArray:
+        f, ok = self.fisher(variables)
+        return self.criterion_of(f, ok)
+
+
+def _check_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
+    merged = dict(_OPTIMIZER_DEFAULTS)
+    if options is None:
+        return merged
+    if not isinstance(options, Mapping):
+        raise IdentificationError(
+            f"optimizer_options: expected a dict, got {type(options).__name__}"
+        )
+    unknown = sorted(set(options) - set(_OPTIMIZER_DEFAULTS))
+    if unknown:
+        raise IdentificationError(
+            f"optimizer_options: unknown keys {unknown}; valid keys are "
+            f"{sorted(_OPTIMIZER_DEFAULTS)}"
+        )
+    merged.update(options)
+    check_flag(merged["polish"], "optimizer_options['polish']", IdentificationError)
+    for key in ("tol", "atol", "recombination"):
+        v = merged[key]
+        if isinstance(v, (bool, np.bool_, str, bytes)):  # float() would read "0.01" as 0.01
+            raise IdentificationError(f"optimizer_options[{key!r}]: expected a number, got {v!r}")
+    for key in ("maxiter", "popsize"):
+        v = merged[key]
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, (int, np.integer))
+            or v < (0 if key == "maxiter" else 1)
+        ):
+            raise IdentificationError(
+                f"optimizer_options[{key!r}]: expected a {'non-negative' if key == 'maxiter' else 'positive'} "
+                f"integer, got {v!r}"
+            )
+    return merged
+
+
+def _polish(
+    evaluate: _Evaluator, x: FloatArray, f: float, bounds: FloatArray, maxiter: int = 40
+) -> tuple[FloatArray, float]:
+    """Bounded L-BFGS-B from the best candidate; each gradient is ONE batched evaluation."""
+    lo, hi = bounds[:, 0], bounds[:, 1]
+    h = 1e-4 * (hi - lo)
+    n = x.size
+
+    def fun(z: FloatArray) -> tuple[float, FloatArray]:
+        z = np.clip(z, lo, hi)
+        up = np.minimum(z + h, hi)
+        dn = np.maximum(z - h, lo)
+        cand = np.vstack([z[None, :], np.tile(z, (2 * n, 1))])
+        idx = np.arange(n)
+        cand[1 + idx, idx] = up
+        cand[1 + n + idx, idx] = dn
+        vals = evaluate(cand)
+        if vals[0] >= _PENALTY:
+            return float(vals[0]), np.zeros(n)
+        grad = (vals[1 : 1 + n] - vals[1 + n :]) / (up - dn)
+        grad[~np.isfinite(grad) | (np.abs(vals[1:1 + n]) >= _PENALTY) | (np.abs(vals[1 + n:]) >= _PENALTY)] = 0.0  # fmt: skip
+        return float(vals[0]), grad
+
+    res = scipy.optimize.minimize(
+        fun, x, jac=True, method="L-BFGS-B", bounds=list(map(tuple, bounds)),
+        options={"maxiter": maxiter},
+    )  # fmt: skip
+    xr = np.clip(np.asarray(res.x, dtype=np.float64), lo, hi)
+    if float(res.fun) < f:
+        return xr, float(res.fun)
+    return x, f
+
+
+@small_blas
+def design_experiment(
+    model: Model | SimulatorModel,
+    maneuver: ManeuverFamily,
+    parameters: Sequence[str] | str,
+    *,
+    criterion: str = "D",
+    values: Any = None,
+    noise: Mapping[str, float] | None = None,
+    duration: float,
+    sample_rate: float,
+    x0: Any = None,
+    trim: Mapping[str, float] | None = None,
+    seed: int | None = None,
+    optimizer_options: Mapping[str, Any] | None = None,
+    progress: bool = False,
+    relative_step: float = 1e-6,
+    simulate_options: Mapping[str, Any] | None = None,
+) -> ExperimentDesign:
+    """D- or A-optimal manoeuvre design over a manoeuvre family.
+
+    Parameters
+    ----------
+    model : Model or SimulatorModel
+    maneuver : ManeuverFamily
+        `Doublet`, `Multisine`, `Chirp` or any object with that interface.
+    parameters : sequence of str
+        Parameters whose precision the design should maximise.
+    criterion : {"D", "A"}
+        D: minimise the volume of the Cramér–Rao ellipsoid (``log det`` of
+        the relative covariance); A: minimise the sum of relative variances.
+        Parameters are scaled by ``|θ|`` (1 at zero) so units do not matter.
+    values : mapping or result, optional
+        Parameter values to design at (default: nominal), or a result with
+        ``.parameters``.
+    noise : mapping of str to float, optional
+        Measurement-noise standard deviation per output used in the design
+        (its outputs are the measured ones); default: every output with unit
+        noise, so the predicted standard errors are per unit noise.
+    duration : float
+        Length of the manoeuvre in seconds.
+    sample_rate : float
+        Sample rate of the design grid in Hz.
+    x0 : array_like or mapping, optional
+        Initial (trim) state; default zero.
+    trim : mapping of str to float, optional
+        Constant control values the manoeuvre is flown about (a nonlinear
+        model's trim: the thrust, the elevator that holds the trim); the
+        manoeuvre adds to its control's value. Default zero for every control
+        (a perturbation model).
+    seed : int, optional
+        Seed of the optimiser; the same seed gives a bit-identical design.
+        None draws fresh entropy.
+    optimizer_options : mapping, optional
+        Differential-evolution settings: ``maxiter`` (default 30),
+        ``popsize`` (10, times the number of variables), ``tol``, ``atol``,
+        ``mutation``, ``recombination``, ``strategy``, ``init``, and
+        ``polish`` (bounded L-BFGS-B refinement, default True).
+    progress : bool
+        Show a progress bar of the generations.
+    relative_step : float
+        Central-difference step of the sensitivities, relative to ``max(|θ|, 1)``.
+    simulate_options : mapping, optional
+        Passed to the simulator (for a `Model`: ``method``, ``substeps``,
+        ``rtol``, ``atol``; default method ``"auto"``).
+
+    Returns
+    -------
+    ExperimentDesign
+
+    Raises
+    ------
+    IdentificationError
+        Bad parameters, criterion, noise, grid or optimiser options, or a
+        family with no design variables.
+    ChannelError
+        The family drives a control the model does not have.
+    SimulationError
+        The model fails to simulate the initial design.
+
+    Warns
+    -----
+    IdentifiabilityWarning
+        When even the best design cannot identify every parameter: the
+        message names the parameter combinations the manoeuvre cannot
+        separate, their predicted standard errors are infinite and the
+        result has ``success=False``.
+    """
+    require_model(model, IdentificationError)
+    if not isinstance(maneuver, ManeuverFamily):
+        raise IdentificationError(
+            "maneuver: expected a ManeuverFamily (Doublet, Multisine, Chirp or an object with "
+            f"controls, variable_names, bounds, initial, signal, describe), got "
+            f"{type(maneuver).__name__}"
+        )
+    if parameters is None:
+        raise IdentificationError("parameters: name the parameters the design should target")
+    names = _parameter_list(model, parameters)
+    if criterion not in _CRITERIA:
+        raise IdentificationError(
+            f"criterion: expected one of {list(_CRITERIA)}, got {criterion!r}"
+        )
+    vals = resolve_parameters(model, values, error=IdentificationError)
+    options = _check_simulate_options(simulate_options, model)
+    opts = _check_options(optimizer_options)
+    dur, fs = as_float(duration), as_float(sample_rate)
+    if dur is None or fs is None:
+        raise IdentificationError(
+            f"duration and sample_rate: expected numbers, got {duration!r}, {sample_rate!r}"
+        )
+    if not (np.isfinite(dur) and dur > 0 and np.isfinite(fs) and fs > 0):
+        raise IdentificationError(
+            f"duration and sample_rate must be positive, got {duration!r}, {sample_rate!r}"
+        )
+    n_t = round(dur * fs) + 1
+    if n_t < 3:
+        raise IdentificationError(f"duration * sample_rate gives {n_t} samples; need at least 3")
+    if n_t > _MAX_SAMPLES:  # every candidate is simulated on this grid, all at once
+        raise IdentificationError(
+            f"duration * sample_rate gives {n_t} samples; at most {_MAX_SAMPLES} are supported"
+        )
+    rel = _relative_step(relative_step)
+    check_flag(progress, "progress", IdentificationError)
+    if seed is not None and (
+        isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+    ):
+        raise IdentificationError(f"seed: expected a non-negative integer or None, got {seed!r}")
+    time = np.arange(n_t) / fs
+    all_outputs = _output_names(model)
+    if noise is None:
+        outs = list(all_outputs)
+        sigma = np.ones(len(outs))
+    else:
+        if not isinstance(noise, Mapping):
+            raise IdentificationError(
+                f"noise: expected a dict of output -> standard deviation, got {type(noise).__name__}"
+            )
+        unknown = sorted(set(noise) - set(all_outputs))
+        if unknown:
+            raise IdentificationError(
+                f"noise: {unknown} are not outputs of model {model.name!r}; "
+                f"outputs: {list(all_outputs)}"
+            )
+        outs = [o for o in all_outputs if o in noise]
+        if not outs:
+            raise IdentificationError("noise: give a standard deviation for at least one output")
+        sigma = _noise_vector(noise, outs)
+    out_idx = [all_outputs.index(o) for o in outs]
+    controls = _control_names(model)
+    missing = [c for c in maneuver.controls if c not in controls]
+    if missing:
+        raise ChannelError(
+            f"maneuver drives {missing}, which are not controls of model {model.name!r}; "
+            f"controls: {list(controls)}"
+        )
+    trim_vector = _trim_vector(trim, controls, model.name)
+    bounds = np.array(maneuver.bounds, dtype=np.float64).reshape(-1, 2)
+    var_names = tuple(maneuver.variable_names)
+    if bounds.shape[0] == 0:
+        raise IdentificationError(
+            f"maneuver {maneuver!r} has no design variables: give a (low, high) range for at "
+            "least one of its settings"
+        )
+    if len(var_names) != bounds.shape[0] or np.any(bounds[:, 1] <= bounds[:, 0]):
+        raise IdentificationError(
+            f"maneuver: {len(var_names)} variable names for {bounds.shape[0]} bounds, or a "
+            f"bound with low >= high: {bounds.tolist()}"
+        )
+    # differential evolution scores its whole population in one batched simulation
+    members = int(opts["popsize"]) * len(var_names) * (2 * len(names) + 1)
+    width = len(all_outputs) + (model.n_states if isinstance(model, Model) else 0)
+    if members * n_t * max(width, 1) > _MAX_BATCH_VALUES:
+        raise IdentificationError(
+            f"duration * sample_rate: {n_t} samples for {members} simulations at once "
+            f"(popsize {opts['popsize']}) would not fit in memory; use fewer samples or a "
+            "smaller optimizer_options['popsize']"
+        )
+    if isinstance(model, Model) and x0 is not None:
+        x0 = model.initial_state(x0, 1)[0]
+    x_init = np.clip(np.asarray(maneuver.initial(), dtype=np.float64), bounds[:, 0], bounds[:, 1])
+
+    evaluate = _Evaluator(
+        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel, trim_vector
+    )
+    _, ok_init = evaluate.fisher(x_init[None, :])
+    if not ok_init[0]:
+        why = f": {evaluate.errors[-1]}" if evaluate.errors else ""
+        raise SimulationError(
+            f"design_experiment: model {model.name!r} fails to simulate the initial design "
+            f"{dict(zip(var_names, x_init.tolist(), strict=True))}{why}"
+        )
+
+    from .._progress import progress_bar
+
+    bar = progress_bar(int(opts["maxiter"]), desc="design_experiment", enabled=progress, unit="gen")
+
+    generations = 0
+
+    def callback(intermediate_result: Any) -> None:
+        nonlocal generations
+        generations += 1
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(criterion=f"{float(intermediate_result.fun):.4g}")
+
+    def func(x: FloatArray) -> FloatArray:
+        return evaluate(np.atleast_2d(x.T))  # scipy passes (n_v, S)
+
+    try:
+        res = scipy.optimize.differential_evolution(
+            func,
+            list(map(tuple, bounds)),
+            strategy=opts["strategy"],
+            maxiter=int(opts["maxiter"]),
+            popsize=int(opts["popsize"]),
+            tol=float(opts["tol"]),
+            atol=float(opts["atol"]),
+            mutation=opts["mutation"],
+            recombination=float(opts["recombination"]),
+            rng=np.random.default_rng(seed),
+            callback=callback,
+            polish=False,
+            init=opts["init"],
+            x0=x_init,
+            updating="deferred",
+            vectorized=True,
+        )
+    except (ValueError, TypeError) as exc:
+        if isinstance(exc, AeroidError):  # ours (a bad design, a model that misbehaves)
+            raise
+        raise IdentificationError(f"optimizer_options: rejected by the optimiser: {exc}") from None
+    finally:
+        if bar is not None:
+            bar.close()
+    x_best = np.clip(np.asarray(res.x, dtype=np.float64), bounds[:, 0], bounds[:, 1])
+    f_best = float(res.fun)
+    if opts["polish"] and f_best < _PENALTY:
+        x_best, f_best = _polish(evaluate, x_best, f_best, bounds)
+    canon = getattr(maneuver, "canonical", None)
+    if callable(canon):
+        x_best = np.asarray(canon(x_best, time), dtype=np.float64)
+        x_init_c = np.asarray(canon(x_init, time), dtype=np.float64)
+    else:
+        x_init_c = x_init
+    fis, ok = evaluate.fisher(np.vstack([x_best, x_init]))
+    crit = evaluate.criterion_of(fis, ok)
+    crit = np.where(crit >= _PENALTY, np.inf, crit)
+    cov, combos, _ = _analyse_fisher(fis[0], names)
+    cov0, _, _ = _analyse_fisher(fis[1], names)
+    se = dict(zip(names, _crb(cov).tolist(), strict=True))
+    se0 = dict(zip(names, _crb(cov0).tolist(), strict=True))
+    description = maneuver.describe(x_best, time)
+    u = evaluate.controls(x_best[None, :])[0]
+    success = bool(np.isfinite(crit[0])) and not combos
+    message = (
+        "Optimiser finished: " + str(res.message)
+        if success
+        else "No design in the bounds identifies all parameters."
+    )
+    if combos or not success:
+        # Degeneracy is loud: a design that cannot identify a parameter is flagged
+        # (success=False) and named, not returned as if it were merely imprecise.
+        what = _combo_text(combos) if combos else ", ".join(n for n in names if not se[n] < np.inf)
+        message += f" The best design found cannot separate {what or 'the parameters'}."
+        warnings.warn(
+            f"design_experiment: no design of {description} within the "
+            f"bounds can separate {what or 'the parameters'}; their predicted standard "
+            "errors are infinite and the design is flagged success=False",
+            IdentifiabilityWarning,
+            stacklevel=CALLER_STACKLEVEL,
+        )
+    return ExperimentDesign(
+        design=dict(zip(var_names, x_best.tolist(), strict=True)),
+        initial_design=dict(zip(var_names, np.asarray(x_init_c).tolist(), strict=True)),
+        variable_names=var_names,
+        bounds=bounds,
+        time=time,
+        controls=u,
+        control_names=controls,
+        parameter_names=tuple(names),
+        values=vals,
+        noise=dict(zip(outs, sigma.tolist(), strict=True)),
+        criterion=criterion,
+        criterion_value=float(crit[0]),
+        initial_criterion_value=float(crit[1]),
+        predicted_stderr=se,
+        initial_stderr=se0,
+        fisher_information=fis[0],
+        recommendation=_recommendation(description, names, se, se0),
+        maneuver=description,
+        n_generations=generations,
+        n_candidates=evaluate.n_candidates,
+        n_simulations=evaluate.n_simulations,
+        success=success,
+        message=message,
+        seed=seed,
+        model_name=str(model.name),
+    )
+
+
+def _recommendation(
+    description: str, names: Sequence[str], se: Mapping[str, float], se0: Mapping[str, float]
+) -> str:
+    text = f"designed {description}"
+    if not all(np.isfinite(se[n]) for n in names):
+        bad = [n for n in names if not np.isfinite(se[n])]
+        return f"{text}; even this design cannot identify {', '.join(bad)} — widen the bounds"
+    unident = [n for n in names if not np.isfinite(se0[n])]
+    if unident:
+        return (
+            f"{text}; the initial design could not identify {', '.join(unident)}, the designed "
+            "one can"
+        )
+    ratios = {n: se0[n] / se[n] for n in names if se[n] > 0}
+    best = max(ratios, key=lambda n: ratios[n])
+    if ratios[best] <= 1.0 + 1e-9:
+        return f"{text}; no improvement over the initial design was found"
+    return (
+        f"{text}; predicted stderr improves {ratios[best]:.2g}x over the initial design for {best}"
+    )
+
+
+def _trim_vector(
+    trim: Mapping[str, float] | None, controls: Sequence[str], model_name: str
+) -> FloatArray | None:
+    """The trim controls in the model's control order (None: all zero), checked."""
+    if trim is None:
+        return None
+    if not isinstance(trim, Mapping):
+        raise IdentificationError(
+            f"trim: expected a dict of control -> value, got {type(trim).__name__}"
+        )
+    unknown = sorted(set(trim) - set(controls))
+    if unknown:
+        raise ChannelError(
+            f"trim: {unknown} are not controls of model {model_name!r}; controls: {list(controls)}"
+        )
+    out = np.zeros(len(controls))
+    for name, value in trim.items():
+        v = float(value)
+        if not math.isfinite(v):
+            raise IdentificationError(
+                f"trim: the value of {name!r} is {value!r}; expected a finite number"
+            )
+        out[controls.index(name)] = v
+    return out

@@ -1,0 +1,668 @@
+"""Monte Carlo propagation of parameter uncertainty into engineering quantities."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, overload
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._records import fmt, frozen_array, markdown_table
+from .._threads import CALLER_STACKLEVEL, small_blas
+from ..errors import AeroidError
+from ..io.data import check_flag, plain, whole_number
+
+__all__ = [
+    "BLOCK_SIZE",
+    "PropagationBatch",
+    "PropagationResult",
+    "VectorPropagationResult",
+    "combine_batches",
+    "draw_parameters",
+    "propagate",
+    "propagate_batch",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: More failed draws than this fraction of all draws are reported by a warning.
+FAILURE_WARNING_FRACTION = 0.01
+
+#: Draws are generated in blocks of this size, block b from
+#: ``SeedSequence(seed, spawn_key=(b,))``, so the samples do not depend on how
+#: a caller (such as the pipeline) splits the work into batches.
+BLOCK_SIZE = 256
+# Most float64 values the draws or the metric's values of one batch may hold (1 GiB).
+_MAX_VALUES = 2**27
+
+
+class PropagationError(AeroidError, ValueError):
+    """Propagation cannot run (no usable draws, bad arguments)."""
+
+
+@dataclass(frozen=True, eq=False)
+class PropagationResult:
+    """Distribution of a metric under parameter uncertainty.
+
+    Attributes
+    ----------
+    mean, std : float
+    percentiles : mapping of str to float
+        Keys like ``"P2.5"`` (deprecated shape, kept for one release: read
+        `percentile_table`, the shape every result shares).
+    samples : ndarray
+        Metric values of the successful draws.
+    n_samples : int
+        Draws attempted.
+    n_failed : int
+        Draws where the metric raised or returned a non-finite value.
+    seed : int or None
+    source : str
+        ``"covariance"`` (Gaussian draws) or ``"posterior"`` (resampled rows).
+    """
+
+    mean: float
+    std: float
+    percentiles: Mapping[str, float]
+    samples: FloatArray
+    n_samples: int
+    n_failed: int
+    seed: int | None
+    source: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "percentiles", MappingProxyType(dict(self.percentiles)))
+        object.__setattr__(self, "samples", frozen_array(self.samples))
+
+    @property
+    def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
+        """The percentiles as every result gives them: name -> level (percent) -> value;
+        the one name here is ``"metric"`` (``{"metric": {2.5: ..., 50.0: ..., 97.5: ...}}``)."""
+        levels = {float(k[1:]): float(v) for k, v in self.percentiles.items()}
+        return MappingProxyType({"metric": MappingProxyType(levels)})
+
+    def plot(self, **kwargs: Any) -> Any:
+        """Histogram of the propagated metric. Returns a matplotlib Figure."""
+        from ..reports.plotting import plot_propagation
+
+        return plot_propagation(self, **kwargs)
+
+    def summary(self) -> str:
+        """Markdown table of the metric's statistics."""
+        rows = [("mean", fmt(self.mean)), ("std", fmt(self.std))]
+        rows += [(f"P{p:g}", fmt(v)) for p, v in self.percentile_table["metric"].items()]
+        text = markdown_table(("statistic", "value"), rows)
+        note = f"{self.n_samples - self.n_failed} of {self.n_samples} draws ({self.source})"
+        if self.n_failed:
+            note += f"; {self.n_failed} failed and are excluded"
+        return text + "\n\n" + note + "."
+
+
+@dataclass(frozen=True, eq=False)
+class VectorPropagationResult:
+    """Distribution of a metric with several values: one `PropagationResult` per component.
+
+    A metric returning a sequence or 1-D array gives components named
+    ``"<metric>[0]"``, ``"<metric>[1]"``... (``<metric>`` is the function's
+    name, ``metric`` for a lambda); one returning a mapping gives its keys.
+    ``result["name"]`` is that component's `PropagationResult`.
+
+    Attributes
+    ----------
+    components : mapping of str to PropagationResult
+        In the metric's order. A component's ``n_failed`` counts the draws
+        where the metric raised or that component was not finite.
+    values : ndarray, shape (n_samples, n_components)
+        Every draw's values, NaN where the draw failed (for the joint
+        distribution of the components).
+    n_samples : int
+        Draws attempted.
+    n_failed : int
+        Draws where the metric raised, returned another shape, or returned a
+        non-finite value in any component.
+    seed : int or None
+    source : str
+        ``"covariance"`` or ``"posterior"``, as in `PropagationResult`.
+    """
+
+    components: Mapping[str, PropagationResult]
+    values: FloatArray
+    n_samples: int
+    n_failed: int
+    seed: int | None
+    source: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "components", MappingProxyType(dict(self.components)))
+        object.__setattr__(self, "values", frozen_array(self.values))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Component names, in the metric's order."""
+        return tuple(self.components)
+
+    def __getitem__(self, name: str) -> PropagationResult:
+        try:
+            return self.components[name]
+        except KeyError:
+            raise PropagationError(
+                f"no component {name!r}; components: {list(self.components)}"
+            ) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.components
+
+    @property
+    def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
+        """The percentiles as every result gives them: component -> level (percent) -> value."""
+        return MappingProxyType(
+            {name: r.percentile_table["metric"] for name, r in self.components.items()}
+        )
+
+    def summary(self) -> str:
+        """Markdown table: one row per component."""
+        table = self.percentile_table
+        levels = list(next(iter(table.values())))
+        rows = [
+            (name, fmt(r.mean), fmt(r.std), *(fmt(table[name][p]) for p in levels))
+            for name, r in self.components.items()
+        ]
+        keys = [f"P{p:g}" for p in levels]
+        text = markdown_table(("component", "mean", "std", *keys), rows)
+        good = self.n_samples - self.n_failed
+        note = f"{good} of {self.n_samples} draws complete ({self.source})"
+        if self.n_failed:
+            note += f"; {self.n_failed} failed in some component and are excluded there"
+        return text + "\n\n" + note + "."
+
+
+def _source(result: Any) -> tuple[list[str], FloatArray, FloatArray | None, dict[str, float]]:
+    names = list(getattr(result, "parameter_names", ()))
+    fixed = {k: float(v) for k, v in dict(getattr(result, "fixed", {}) or {}).items()}
+    samples = getattr(result, "samples", None)
+    if samples is not None and np.ndim(samples) == 2:
+        arr = np.asarray(samples, dtype=np.float64)
+        if arr.shape[1] != len(names):
+            raise PropagationError("posterior samples do not match parameter_names")
+        return names, arr, None, fixed
+    if not names or not hasattr(result, "covariance"):
+        raise PropagationError(
+            "propagate needs an identification result (parameters + covariance) or a "
+            f"posterior (samples), got {type(result).__name__}"
+        )
+    mean = np.array([float(result.parameters[n]) for n in names])
+    cov = np.asarray(result.covariance, dtype=np.float64)
+    if not np.all(np.isfinite(cov)):
+        raise PropagationError(
+            "the covariance holds non-finite entries (unidentifiable parameters); "
+            "fix or drop those parameters before propagating"
+        )
+    return names, mean, cov, fixed
+
+
+def draw_parameters(result: Any, n_samples: int, seed: int | None, start: int = 0) -> FloatArray:
+    """Parameter draws ``start .. start + n_samples`` of the stream for `seed`.
+
+    Block-wise generation makes any split of the index range reproduce the
+    same rows as one call.
+    """
+    names, first, cov, _ = _source(result)
+    stop = start + n_samples
+    out = np.empty((n_samples, len(names)))
+    if cov is not None:
+        # Factor once; eigh tolerates positive semidefinite covariances.
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        root = v * np.sqrt(np.clip(w, 0, None))
+    for block in range(start // BLOCK_SIZE, (stop - 1) // BLOCK_SIZE + 1):
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(block,)))
+        lo = block * BLOCK_SIZE
+        if cov is None:
+            rows = first[rng.integers(0, first.shape[0], BLOCK_SIZE)]
+        else:
+            rows = first + rng.standard_normal((BLOCK_SIZE, len(names))) @ root.T
+        a, b = max(start, lo), min(stop, lo + BLOCK_SIZE)
+        out[a - start : b - start] = rows[a - lo : b - lo]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class PropagationBatch:
+    """The metric at draws ``start .. start + len(values)`` of one seed's stream.
+
+    Batches of one seed computed anywhere (other processes, other machines)
+    combine with `combine_batches` into exactly the result of `propagate`.
+
+    Attributes
+    ----------
+    start : int
+        Index of the batch's first draw in the stream.
+    values : ndarray, shape (n,) or (n, n_components)
+        Metric value of each draw; NaN where the metric raised or returned a
+        non-finite value. Two-dimensional for a metric with several values
+        (see `VectorPropagationResult`).
+    seed : int
+    source : str
+        ``"covariance"`` or ``"posterior"``, as in `PropagationResult`.
+    names : tuple of str
+        Component names of a metric with several values; empty for a scalar
+        metric (or when no draw of the batch succeeded).
+    first_error : str
+        What the metric raised or returned at the batch's first failed draw.
+    """
+
+    start: int
+    values: FloatArray
+    seed: int
+    source: str
+    names: tuple[str, ...] = ()
+    first_error: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", int(self.start))
+        object.__setattr__(self, "values", frozen_array(self.values))
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+
+    @property
+    def stop(self) -> int:
+        """Index one past the batch's last draw."""
+        return self.start + int(self.values.shape[0])
+
+    def summary(self) -> str:
+        """One line: which draws, how many failed."""
+        failed = int(np.sum(~_complete(self.values)))
+        return (
+            f"draws {self.start}-{self.stop} of seed {self.seed} ({self.source}), {failed} failed"
+        )
+
+
+def _check_seed(seed: Any) -> int:
+    if seed is None:
+        return int(np.random.SeedSequence().generate_state(1)[0])
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise PropagationError(f"seed must be a non-negative integer or None, got {plain(seed)}")
+    return int(seed)
+
+
+def _metric_name(func: Any) -> str:
+    name = getattr(func, "__name__", "")
+    return name if isinstance(name, str) and name.isidentifier() else "metric"
+
+
+class _Shape:
+    """What the metric returns, learnt from its first successful draw."""
+
+    def __init__(self, func: Any) -> None:
+        self.func_name = _metric_name(func)
+        self.names: tuple[str, ...] | None = None  # None: not yet known; (): a scalar
+
+    def convert(self, out: Any) -> float | FloatArray:
+        """The draw's value(s), or ValueError naming what does not fit."""
+        if type(out) is float:  # the common case, first
+            got: tuple[str, ...] = ()
+            value: float | FloatArray = out
+        elif isinstance(out, Mapping):
+            got = tuple(out)
+            if not got or not all(isinstance(k, str) for k in got):
+                raise ValueError(f"a mapping needs string keys, got {list(out)!r}")
+            value = np.array([float(out[k]) for k in got])
+        else:
+            if np.iscomplexobj(out):  # a cast would drop the imaginary part
+                raise ValueError("complex values are not supported")
+            arr = np.asarray(out, dtype=np.float64)
+            if arr.ndim == 0:
+                got, value = (), float(arr)
+            elif arr.ndim == 1 and arr.size:
+                got = tuple(f"{self.func_name}[{i}]" for i in range(arr.size))
+                value = arr
+            else:
+                raise ValueError(f"expected a number or a 1-D sequence, got shape {arr.shape}")
+        if self.names is None:
+            self.names = got
+        elif got != self.names:
+            raise ValueError(
+                f"returned {list(got) or 'a number'} after {list(self.names) or 'a number'}"
+            )
+        return value
+
+
+def _complete(values: FloatArray) -> NDArray[np.bool_]:
+    """Draws whose every value is finite."""
+    ok = np.isfinite(values)
+    return ok if ok.ndim == 1 else np.all(ok, axis=1)
+
+
+def propagate_batch(
+    result: Any,
+    func: Callable[[dict[str, float]], Any],
+    *,
+    start: int,
+    n_samples: int,
+    seed: int,
+    progress: bool = False,
+) -> PropagationBatch:
+    """Evaluate a metric at one batch of the draws that `propagate` makes.
+
+    Parameters
+    ----------
+    result : IdentificationResult or InferenceResult
+        As in `propagate`.
+    func : callable
+        ``func(parameters: dict) -> float``, or a sequence or mapping of
+        floats (see `propagate`).
+    start : int
+        Index of the batch's first draw in the stream of `seed`.
+    n_samples : int
+        Draws in the batch (0 allowed).
+    seed : int
+        Seed of the whole stream, shared by every batch of one propagation.
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
+
+    Returns
+    -------
+    PropagationBatch
+
+    Raises
+    ------
+    PropagationError
+        Bad arguments (among them a `progress` that is not a bool), or more
+        draws than fit in memory.
+    """
+    start = whole_number(start, "start", PropagationError, least=0)
+    n_samples = whole_number(n_samples, "n_samples", PropagationError, least=0)
+    if not callable(func):
+        raise PropagationError("func must be callable: func(parameters: dict) -> float")
+    check_flag(progress, "progress", PropagationError)
+    seed = _check_seed(seed)
+    names, _, cov, fixed = _source(result)
+    if n_samples * max(len(names), 1) > _MAX_VALUES:  # all draws are made up front
+        raise PropagationError(
+            f"n_samples={n_samples}: {n_samples} draws of {len(names)} parameters would not "
+            f"fit in memory (at most {_MAX_VALUES} values); split them with propagate_batch"
+        )
+    draws = draw_parameters(result, n_samples, seed, start)
+    n = draws.shape[0]
+    values = np.full(n, np.nan)
+    shape = _Shape(func)
+    first_error = ""
+    from .._progress import progress_bar
+
+    bar = progress_bar(n, desc="propagate", enabled=progress, unit="draw")
+    for i, row in enumerate(draws.tolist()):
+        if bar is not None:
+            bar.update(1)
+        p = dict(fixed)
+        p.update(zip(names, row, strict=True))
+        try:
+            v = shape.convert(func(p))
+        except Exception as exc:  # a metric failing for some draws is expected, not fatal
+            if not first_error:
+                first_error = f"draw {start + i}: {type(exc).__name__}: {exc}"
+            continue
+        if values.ndim == 1 and shape.names:  # the first vector: widen the failures so far
+            if n * len(shape.names) > _MAX_VALUES:
+                raise PropagationError(
+                    f"n_samples={n}: {n} draws of a metric with {len(shape.names)} values "
+                    f"would not fit in memory (at most {_MAX_VALUES} values)"
+                )
+            values = np.full((n, len(shape.names)), np.nan)
+        values[i] = v
+    if bar is not None:
+        bar.close()
+    bad = ~np.isfinite(values)
+    if np.any(bad):
+        values[bad] = np.nan  # infinities count as failures, as NaN does
+        if not first_error:
+            first = int(np.flatnonzero(~_complete(values))[0])
+            first_error = f"draw {start + first}: a non-finite value"
+    return PropagationBatch(
+        start=start,
+        values=values,
+        seed=seed,
+        source="covariance" if cov is not None else "posterior",
+        names=shape.names or (),
+        first_error=first_error,
+    )
+
+
+def _percentiles(percentiles: Sequence[float]) -> list[float]:
+    # A string is iterable: "50" would read as the percentiles 5 and 0.
+    if isinstance(percentiles, (str, bytes)):
+        raise PropagationError(
+            f"percentiles must be a list of numbers in [0, 100], got the string {percentiles!r}"
+        )
+    try:
+        pcts = [float(p) for p in percentiles]
+    except (TypeError, ValueError):
+        raise PropagationError(
+            f"percentiles must be a list of numbers in [0, 100], got {plain(percentiles)}"
+        ) from None
+    if not pcts:  # a result without any percentile would be silently incomplete
+        raise PropagationError("percentiles must name at least one percentile in [0, 100]")
+    if any(not 0.0 <= p <= 100.0 for p in pcts):
+        shown = ", ".join(f"{p:g}" for p in pcts)
+        raise PropagationError(f"percentiles must lie in [0, 100], got [{shown}]")
+    return pcts
+
+
+def _shape_of(batches: Sequence[PropagationBatch]) -> tuple[str, ...]:
+    """Component names shared by the batches (() for a scalar metric), else an error."""
+    vector = {b.names for b in batches if b.values.ndim == 2}
+    if len(vector) > 1:
+        raise PropagationError(
+            "batches of different metrics cannot be combined "
+            f"(components {' and '.join(str(list(v)) for v in sorted(vector))})"
+        )
+    if not vector:
+        return ()
+    names = vector.pop()
+    for b in batches:
+        # a 1-D batch beside vector ones is one whose every draw failed
+        if b.values.ndim == 1 and np.any(np.isfinite(b.values)):
+            raise PropagationError(
+                f"batches of different metrics cannot be combined (a scalar metric and "
+                f"components {list(names)})"
+            )
+    return names
+
+
+def _statistics(
+    values: FloatArray, pcts: list[float], n_samples: int, seed: int | None, source: str
+) -> PropagationResult:
+    ok = np.isfinite(values)
+    good = values[ok]
+    return PropagationResult(
+        mean=float(good.mean()),
+        std=float(good.std(ddof=1)) if good.size > 1 else 0.0,
+        percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
+        samples=good,
+        n_samples=n_samples,
+        n_failed=int((~ok).sum()),
+        seed=seed,
+        source=source,
+    )
+
+
+def _combine(
+    batches: Sequence[PropagationBatch], pcts: list[float], stacklevel: int
+) -> PropagationResult | VectorPropagationResult:
+    if not batches:
+        raise PropagationError("combine_batches needs at least one batch")
+    first = batches[0]
+    for b in batches:
+        if b.seed != first.seed or b.source != first.source:
+            raise PropagationError(
+                "batches of different propagations cannot be combined "
+                f"(seed {first.seed} from the {first.source}, seed {b.seed} from the {b.source})"
+            )
+    # an empty batch covers no draws, wherever it starts
+    ordered = sorted((b for b in batches if b.values.shape[0]), key=lambda b: b.start)
+    if not ordered:
+        raise PropagationError("the batches hold no draws")
+    at = 0
+    for b in ordered:
+        if b.start != at:
+            what = "overlap" if b.start < at else "leave a gap"
+            raise PropagationError(f"batches {what} at draw {min(at, b.start)}")
+        at = b.stop
+    names = _shape_of(ordered)
+    parts = [
+        np.full((b.values.shape[0], len(names)), np.nan)
+        if names and b.values.ndim == 1
+        else np.asarray(b.values)
+        for b in ordered
+    ]
+    values = np.concatenate(parts)
+    n_samples = int(values.shape[0])
+    complete = _complete(values)
+    n_failed = int((~complete).sum())
+    first_error = next((b.first_error for b in ordered if b.first_error), "")
+    because = f" (first failure: {first_error})" if first_error else ""
+    if not np.any(np.isfinite(values)):
+        raise PropagationError(f"the metric failed for all {n_samples} draws{because}")
+    empty = [name for j, name in enumerate(names) if not np.any(np.isfinite(values[:, j]))]
+    if empty:
+        raise PropagationError(
+            f"the metric's component(s) {empty} failed for all {n_samples} draws{because}"
+        )
+    if n_failed > FAILURE_WARNING_FRACTION * n_samples:
+        warnings.warn(
+            f"propagate: the metric failed for {n_failed} of {n_samples} draws "
+            f"({100.0 * n_failed / n_samples:.3g} %), excluded from the statistics{because}",
+            UserWarning,
+            stacklevel=stacklevel + 1,
+        )
+    if not names:
+        return _statistics(values, pcts, n_samples, first.seed, first.source)
+    return VectorPropagationResult(
+        components={
+            name: _statistics(values[:, j], pcts, n_samples, first.seed, first.source)
+            for j, name in enumerate(names)
+        },
+        values=values,
+        n_samples=n_samples,
+        n_failed=n_failed,
+        seed=first.seed,
+        source=first.source,
+    )
+
+
+def combine_batches(
+    batches: Sequence[PropagationBatch],
+    *,
+    percentiles: Sequence[float] = (2.5, 50.0, 97.5),
+) -> PropagationResult | VectorPropagationResult:
+    """Pool batches covering draws ``0 .. n`` of one seed into a `PropagationResult`.
+
+    The result is the one `propagate` returns for ``n_samples=n`` and that
+    seed, bit for bit, whatever the batches' sizes and order (a
+    `VectorPropagationResult` for a metric with several values).
+
+    Parameters
+    ----------
+    batches : sequence of PropagationBatch
+        Together exactly the draws ``0 .. n``, each once, in any order.
+    percentiles : sequence of float
+        Percentiles to report (``"P2.5"`` etc.).
+
+    Warns
+    -----
+    UserWarning
+        When more than 1 % of the draws failed.
+    """
+    return _combine(batches, _percentiles(percentiles), stacklevel=2)
+
+
+@overload
+def propagate(
+    result: Any,
+    func: Callable[[dict[str, float]], float],
+    *,
+    n_samples: int = ...,
+    percentiles: Sequence[float] = ...,
+    seed: int | None = ...,
+    progress: bool = ...,
+) -> PropagationResult: ...
+
+
+@overload
+def propagate(
+    result: Any,
+    func: Callable[[dict[str, float]], Mapping[str, float] | Sequence[float] | FloatArray],
+    *,
+    n_samples: int = ...,
+    percentiles: Sequence[float] = ...,
+    seed: int | None = ...,
+    progress: bool = ...,
+) -> VectorPropagationResult: ...
+
+
+@small_blas
+def propagate(
+    result: Any,
+    func: Callable[[dict[str, float]], Any],
+    *,
+    n_samples: int = 1000,
+    percentiles: Sequence[float] = (2.5, 50.0, 97.5),
+    seed: int | None = None,
+    progress: bool = False,
+) -> PropagationResult | VectorPropagationResult:
+    """Push parameter uncertainty through a metric by Monte Carlo.
+
+    Parameters
+    ----------
+    result : IdentificationResult or InferenceResult
+        Gaussian draws from an identification result's covariance, or rows
+        resampled (with replacement) from a posterior's samples, so skew,
+        bounds and correlations of the posterior are kept.
+    func : callable
+        ``func(parameters: dict) -> float``; gets fixed and drawn parameters.
+        A metric with several values returns a sequence (or 1-D array) of
+        floats, whose components are named ``"<func name>[i]"``, or a mapping
+        of names to floats.
+    n_samples : int
+        Number of draws.
+    percentiles : sequence of float
+        Percentiles to report (``"P2.5"`` etc.).
+    seed : int, optional
+        Seed of the draws; the same seed gives the same result. With None a
+        fresh seed is drawn and recorded in the result.
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
+
+    Returns
+    -------
+    PropagationResult or VectorPropagationResult
+        A `PropagationResult` for a scalar metric; for one with several
+        values a `VectorPropagationResult`, a `PropagationResult` per
+        component. Draws where `func` raises or returns a non-finite value
+        are counted in ``n_failed``; they do not stop the run.
+
+    Raises
+    ------
+    PropagationError
+        Bad arguments (an empty `percentiles`, a `progress` that is not a
+        bool, more draws than fit in memory), or the metric failed for every
+        draw (the message quotes the first failure).
+
+    Warns
+    -----
+    UserWarning
+        When the metric failed for more than 1 % of the draws (the message
+        gives the count and the first failure).
+
+    See Also
+    --------
+    propagate_batch, combine_batches : the same draws split into batches that
+        run anywhere (the pipeline's ``propagate: {n_batches: k}``).
+    """
+    n = whole_number(n_samples, "n_samples", PropagationError)
+    pcts = _percentiles(percentiles)
+    batch = propagate_batch(
+        result, func, start=0, n_samples=n, seed=_check_seed(seed), progress=progress
+    )
+    return _combine([batch], pcts, stacklevel=CALLER_STACKLEVEL)

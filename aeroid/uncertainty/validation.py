@@ -1,0 +1,393 @@
+"""Model validation: residual statistics of a simulation against measurements."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._records import fmt, frozen_array, markdown_table
+from .._stats import chi2_sf, norm_ppf
+from .._threads import CALLER_STACKLEVEL, small_blas
+from ..errors import IdentificationError
+from ..io.data import FlightData, fingerprint, plain, whole_number
+from ..models.model import (
+    check_simulate_options,
+    delayed_controls,
+    fitted_start,
+    require_model,
+    resolve_parameters,
+)
+from .prediction import PredictionMetrics, PredictionResult, holdout_record, predict
+
+__all__ = [
+    "OutputMetrics",
+    "PredictionMetrics",
+    "PredictionResult",
+    "ValidationResult",
+    "ljung_box",
+    "validate",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def _autocorrelation(x: FloatArray, max_lag: int) -> FloatArray:
+    """Sample autocorrelation r_k = sum (x_t - m)(x_{t+k} - m) / sum (x_t - m)^2, k = 0..max_lag."""
+    xc = x - x.mean()
+    den = float(xc @ xc)
+    if den <= 0:
+        return np.zeros(max_lag + 1)
+    return np.array([float(xc[: x.size - k] @ xc[k:]) / den for k in range(max_lag + 1)])
+
+
+def ljung_box(x: FloatArray, lags: int) -> tuple[float, float]:
+    """Ljung–Box statistic Q = N(N+2) sum_k r_k^2/(N-k) and its chi-square(lags) p-value."""
+    x = np.asarray(x, dtype=np.float64)
+    n = x.size
+    lags = int(min(lags, n - 1))
+    r = _autocorrelation(x, lags)
+    k = np.arange(1, lags + 1)
+    q = float(n * (n + 2) * np.sum(r[1:] ** 2 / (n - k)))
+    return q, chi2_sf(q, lags)
+
+
+@dataclass(frozen=True, eq=False)
+class OutputMetrics:
+    """Residual statistics of one output.
+
+    Attributes
+    ----------
+    rmse : float
+        Root-mean-square residual (measured minus model).
+    bias : float
+        Mean residual.
+    bias_ci : tuple of float
+        Confidence interval of the bias, widened for residual autocorrelation
+        through an effective sample size.
+    fit : float
+        Normalised fit in percent, ``100 (1 - |e| / |y - mean(y)|)``.
+    ljung_box_q, ljung_box_p : float
+        Ljung–Box statistic and p-value over `whiteness_lags` lags.
+    white : bool
+        True when whiteness is not rejected at the 5 % level.
+    input_correlation : mapping of str to float
+        Per control, the largest absolute normalised residual–input
+        cross-correlation over lags ±`whiteness_lags`.
+    input_correlation_bound : float
+        The 5 % significance bound for the maximum over all lags,
+        ``z/sqrt(N)`` with z Bonferroni-corrected for the number of lags.
+    input_correlated : bool
+        True when any control's cross-correlation exceeds the bound.
+    effective_samples : float
+    """
+
+    rmse: float
+    bias: float
+    bias_ci: tuple[float, float]
+    fit: float
+    ljung_box_q: float
+    ljung_box_p: float
+    white: bool
+    input_correlation: Mapping[str, float]
+    input_correlation_bound: float
+    input_correlated: bool
+    effective_samples: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "input_correlation", MappingProxyType(dict(self.input_correlation))
+        )
+        object.__setattr__(self, "bias_ci", (float(self.bias_ci[0]), float(self.bias_ci[1])))
+
+
+@dataclass(frozen=True, eq=False)
+class ValidationResult:
+    """Per-output residual statistics of a model against one flight record.
+
+    Attributes
+    ----------
+    metrics : mapping of str to OutputMetrics
+    time : ndarray, shape (n_t,)
+    measured, simulated, residuals : ndarray, shape (n_t, n_y)
+    output_names : tuple of str
+    confidence : float
+    whiteness_lags : int
+    control_names : tuple of str
+        The model's controls, as flown (for plots: the inputs under the outputs).
+    controls : ndarray, shape (n_t, n_u), or None
+    units : mapping of str to str
+        Units of the outputs and controls: the flight data's, else those the
+        model declares (``channel_units`` of the `aeroid.models.aircraft` models).
+    prediction : PredictionResult or None
+        The model's prediction of held-out data (`validate`'s `holdout`).
+    """
+
+    metrics: Mapping[str, OutputMetrics]
+    time: FloatArray
+    measured: FloatArray
+    simulated: FloatArray
+    residuals: FloatArray
+    output_names: tuple[str, ...]
+    confidence: float
+    whiteness_lags: int
+    control_names: tuple[str, ...] = ()
+    controls: FloatArray | None = None
+    units: Mapping[str, str] = field(default_factory=dict)
+    prediction: PredictionResult | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "metrics", MappingProxyType(dict(self.metrics)))
+        for name in ("time", "measured", "simulated", "residuals"):
+            object.__setattr__(self, name, frozen_array(getattr(self, name)))
+        object.__setattr__(self, "output_names", tuple(self.output_names))
+        object.__setattr__(self, "control_names", tuple(self.control_names))
+        if self.controls is not None:
+            object.__setattr__(self, "controls", frozen_array(self.controls))
+        object.__setattr__(
+            self, "units", MappingProxyType({str(k): str(v) for k, v in dict(self.units).items()})
+        )
+
+    def residual(self, name: str) -> FloatArray:
+        """Residual history of one output."""
+        return self.residuals[:, self.output_names.index(name)]
+
+    def plot(self, **kwargs: Any) -> Any:
+        """Measured vs model time histories with residuals. Returns a matplotlib Figure."""
+        from ..reports.plotting import plot_time_histories
+
+        return plot_time_histories(self, **kwargs)
+
+    def summary(self) -> str:
+        """Markdown table of the per-output statistics."""
+        pct = f"{100 * self.confidence:g} %"
+        rows = []
+        for n in self.output_names:
+            m = self.metrics[n]
+            corr = max(m.input_correlation.values(), default=0.0)
+            rows.append(
+                (
+                    n,
+                    fmt(m.rmse),
+                    f"{fmt(m.bias)} [{fmt(m.bias_ci[0])}, {fmt(m.bias_ci[1])}]",
+                    f"{m.fit:.1f}",
+                    f"{'yes' if m.white else 'no'} (p={m.ljung_box_p:.3g})",
+                    f"{fmt(corr, 3)}{' (!)' if m.input_correlated else ''}",
+                )
+            )
+        table = markdown_table(
+            ("output", "RMSE", f"bias [{pct} CI]", "fit %", "white residuals", "max xcorr(e, u)"),
+            rows,
+        )
+        if self.prediction is not None:
+            table += "\n\n" + self.prediction.summary()
+        return table
+
+
+def _effective_samples(e: FloatArray) -> float:
+    """N / tau with tau = (1 + r1) / (1 - r1) from the lag-one autocorrelation."""
+    n = e.size
+    r1 = float(np.clip(_autocorrelation(e, 1)[1], -0.99, 0.99))
+    tau = max((1.0 + r1) / (1.0 - r1), 1.0)
+    return max(n / tau, 2.0)
+
+
+def _max_crosscorrelation(e: FloatArray, u: FloatArray, lags: int) -> float:
+    ec = e - e.mean()
+    uc = u - u.mean()
+    den = float(np.sqrt((ec @ ec) * (uc @ uc)))
+    if den <= 0:
+        return 0.0
+    n = e.size
+    best = 0.0
+    for k in range(-lags, lags + 1):
+        c = float(ec[: n - k] @ uc[k:]) if k >= 0 else float(ec[-k:] @ uc[: n + k])
+        best = max(best, abs(c) / den)
+    return best
+
+
+@small_blas
+def validate(
+    model: Any,
+    data: FlightData,
+    parameters: Any = None,
+    *,
+    outputs: Sequence[str] | None = None,
+    x0: Any = None,
+    confidence: float = 0.95,
+    whiteness_lags: int | None = None,
+    simulate_options: Mapping[str, Any] | None = None,
+    holdout: Mapping[str, float] | FlightData | None = None,
+) -> ValidationResult:
+    """Compare the model's simulation with measured outputs.
+
+    Parameters
+    ----------
+    model : Model or SimulatorModel
+    data : FlightData
+        Must carry the model's controls and the outputs to check.
+    parameters : mapping or result, optional
+        Parameter values, or an identification/inference result. When `data`
+        is a record the identification result was fitted to, the initial
+        state and output biases the fit used for it are applied as well. A
+        fit's estimated time delays (``result.time_delays``) apply on any
+        record: the model is simulated on the delayed controls.
+    outputs : sequence of str, optional
+        Outputs to check; default every model output present in the data.
+    x0 : mapping or array, optional
+        Initial state; default the fit's for this record (see `parameters`),
+        else the measured states at t0.
+    confidence : float
+        Confidence level of the bias interval.
+    whiteness_lags : int, optional
+        Lags of the Ljung–Box test and of the residual–input correlation.
+        At most N - 2 are used: more are clamped to N - 2 with a warning that
+        names both. Default 20, or N - 2 for a shorter record.
+    simulate_options : mapping, optional
+        Passed to the simulation; default ``{"method": "auto"}`` for a `Model`,
+        the integrator `identify` uses.
+    holdout : mapping or FlightData, optional
+        Data not used in the fit, to predict with the parameters fixed: a
+        window of `data`, ``{"t0": .., "t1": ..}`` in seconds, or its last
+        fraction, ``{"fraction": 0.25}``; or a second record (another
+        manoeuvre). The model is simulated with the held-out controls from
+        the held-out data's measured state at its first sample (on a window
+        of a record it was fitted to, the fit's output biases are added to the
+        outputs and taken off that measured state), and
+        ``result.prediction`` holds per-output RMSE, Theil U, R^2 and fit %.
+        At least 10 held-out samples are needed.
+
+    Returns
+    -------
+    ValidationResult
+
+    Raises
+    ------
+    IdentificationError
+        Bad arguments, such as a `whiteness_lags` that is not a positive integer,
+        an empty `outputs`, unknown or invalid `simulate_options`, or a record
+        of fewer than 3 samples, or a `holdout` window outside the record or
+        too short.
+    ChannelError
+        A control or output is missing from the data.
+    """
+    require_model(model, IdentificationError)
+    if not isinstance(data, FlightData):
+        raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
+    try:
+        # float() would read "0.9" as 0.9
+        level = float("nan") if isinstance(confidence, (str, bytes)) else float(confidence)
+    except (TypeError, ValueError):
+        level = float("nan")
+    if not 0.0 < level < 1.0:
+        raise IdentificationError(f"confidence must lie in (0, 1), got {plain(confidence)}")
+    n = data.n_samples
+    if n < 3:  # the Ljung–Box test needs one lag of N - 2: its p-value would be NaN
+        raise IdentificationError(f"data: validation needs at least 3 samples, got {n}")
+    opts = check_simulate_options(simulate_options, model, IdentificationError)
+    if whiteness_lags is None:
+        whiteness_lags = 20
+    else:
+        whiteness_lags = whole_number(whiteness_lags, "whiteness_lags", IdentificationError)
+        if whiteness_lags > n - 2:
+            warnings.warn(
+                f"validate: whiteness_lags={whiteness_lags} is beyond the record's {n} "
+                f"samples; using {max(n - 2, 0)} lags",
+                UserWarning,
+                stacklevel=CALLER_STACKLEVEL,
+            )
+    p = resolve_parameters(model, parameters, error=IdentificationError)
+    names = list(model.outputs)
+    if isinstance(outputs, str):  # one name, not its letters
+        outputs = [outputs]
+    chosen = [o for o in names if o in data] if outputs is None else list(outputs)
+    for o in chosen:
+        if o not in names:
+            raise IdentificationError(f"outputs: {o!r} is not an output of model {model.name!r}")
+    if outputs is not None and not chosen:  # an empty result would pass for a check
+        raise IdentificationError("outputs: name at least one output to check")
+    if not chosen:
+        data.require(names[:1], role="output")
+    data.require(chosen, role="output")
+    fitted_x0, biases = fitted_start(parameters, data)
+    if x0 is None:
+        x0 = fitted_x0
+    # the controls as the fitted model takes them (a fit's estimated time delays)
+    flown = delayed_controls(parameters, data)
+    if hasattr(model, "simulate_batch"):
+        opts.setdefault("method", "auto")  # the integrator identify uses by default
+    sim = model.simulate_data(flown, x0=x0, parameters=p, **opts)
+    idx = [names.index(o) for o in chosen]
+    y_model = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
+    y_meas = data.array(chosen)
+    resid = y_meas - y_model
+    lags = int(min(whiteness_lags, n - 2))
+    # The maximum over 2L+1 lags is tested, so the 5 % level is split across them
+    # (Bonferroni); a per-lag 1.96/sqrt(N) would flag a correct model most of the time.
+    bound = norm_ppf(1 - 0.025 / (2 * lags + 1)) / np.sqrt(n)
+    z = norm_ppf(0.5 + level / 2)
+    metrics: dict[str, OutputMetrics] = {}
+    for j, o in enumerate(chosen):
+        e = resid[:, j]
+        y = y_meas[:, j]
+        bias = float(e.mean())
+        n_eff = _effective_samples(e)
+        half = z * float(e.std(ddof=1)) / np.sqrt(n_eff)
+        spread = float(np.linalg.norm(y - y.mean()))
+        fit = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else float("nan")
+        q, pval = ljung_box(e, lags)
+        xc = {c: _max_crosscorrelation(e, flown[c], lags) for c in model.controls}
+        metrics[o] = OutputMetrics(
+            rmse=float(np.sqrt(np.mean(e**2))),
+            bias=bias,
+            bias_ci=(bias - half, bias + half),
+            fit=fit,
+            ljung_box_q=q,
+            ljung_box_p=pval,
+            white=bool(pval >= 0.05),
+            input_correlation=xc,
+            input_correlation_bound=float(bound),
+            input_correlated=bool(any(v > bound for v in xc.values())),
+            effective_samples=n_eff,
+        )
+    units = {
+        k: v
+        for k, v in {**dict(getattr(model, "channel_units", {}) or {}), **data.units}.items()
+        if k in chosen or k in model.controls
+    }
+    prediction = None
+    if holdout is not None:
+        record, source, window = holdout_record(data, holdout)
+        prediction = predict(
+            model,
+            record,
+            p,
+            chosen,
+            delayed_controls(parameters, record),
+            biases if window else {},
+            opts,
+            source,
+            units,
+            in_fit=window
+            and fingerprint(data) in tuple(getattr(parameters, "data_fingerprints", ()) or ()),
+        )
+    return ValidationResult(
+        metrics=metrics,
+        time=data.time,
+        measured=y_meas,
+        simulated=y_model,
+        residuals=resid,
+        output_names=tuple(chosen),
+        confidence=level,
+        whiteness_lags=lags,
+        control_names=tuple(model.controls),
+        controls=data.array(list(model.controls)) if model.controls else None,
+        # the record's own units, else those the model declares (the aircraft models)
+        units=units,
+        prediction=prediction,
+    )
