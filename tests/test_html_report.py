@@ -129,6 +129,48 @@ def test_status_names_every_flag_and_the_legend_explains_each():
     assert "**data F C**" in LEGEND
 
 
+def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():
+    """A filter-error fit's poor-fit flag comes from its innovations against each
+    output's measured variance (R² = 1 - ms / var), not from the open-loop simulation
+    that drifts with every gust; an output-error fit keeps the simulation's."""
+    from aeroid.pipeline.flight_status import flight_status
+
+    simulated_poorly = ("V 10.0 %, q 95.0 %", "—", (), (("V", 0.19),), {"V": 4.0, "q": 1.0})
+    base = {"success": True, "parameters": {}, "stderr": {}}
+    fe = {**base, "method": "filter_error", "residual_ms": {"V": 0.4, "q": 0.5}}
+    # V: 1 - 0.4/4 = 0.9 (fine); q: 1 - 0.5/1 = 0.5 (poor)
+    assert flight_status(None, fe, simulated_poorly, None) == "poor fit q (R² 0.50)"
+    oe = {**base, "method": "output_error", "residual_ms": {"V": 0.4, "q": 0.5}}
+    assert flight_status(None, oe, simulated_poorly, None) == "poor fit V (R² 0.19)"
+    # a brief from before (no variances, no residuals) keeps the simulation's flag
+    assert flight_status(None, base, simulated_poorly[:4], None) == "poor fit V (R² 0.19)"
+
+
+def test_the_briefs_carry_measured_variances_and_residual_mean_squares():
+    import numpy as np
+
+    from aeroid.pipeline._campaign_tables import fit_whiteness, residual_mean_squares
+
+    class _Fit:
+        output_names = ("a", "b")
+        residuals = (np.array([[1.0, 0.0], [-1.0, 2.0]]), np.array([[3.0, 0.0]]))
+
+    assert residual_mean_squares(_Fit()) == {"a": 11.0 / 3.0, "b": 4.0 / 3.0}
+
+    class _Metric:
+        fit = 50.0
+        white = True
+
+    class _Valid:
+        metrics = {"a": _Metric(), "b": _Metric()}
+        output_names = ("a", "b")
+        measured = np.array([[0.0, 1.0], [2.0, 1.0], [4.0, 1.0]])
+
+    brief = fit_whiteness(_Valid())
+    assert brief[4] == {"a": 8.0 / 3.0, "b": 0.0}
+    assert brief[3] == ()  # fit 50 % is R² 0.75: not below the threshold
+
+
 def test_markdown_keeps_a_fenced_block_verbatim():
     page = markdown_to_html("# T\n\n```yaml\nmodel: <x> & y\n  - a: 1\n```\n\nafter\n", {})
     assert "<pre><code>model: &lt;x&gt; &amp; y\n  - a: 1</code></pre>" in page

@@ -8,19 +8,28 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from ..support import markdown_table
 from .flight_status import POOR_FIT_R2
 
-__all__ = ["estimate_tables", "fit_whiteness", "what_was_flown", "with_warnings"]
+__all__ = [
+    "estimate_tables",
+    "fit_whiteness",
+    "residual_mean_squares",
+    "what_was_flown",
+    "with_warnings",
+]
 
 
 def fit_whiteness(
     validation: Any,
-) -> tuple[str, str, tuple[str, ...], tuple[tuple[str, float], ...]]:
-    """(fits, whiteness, coloured outputs, (output, R²) of each output fitted poorly)."""
+) -> tuple[str, str, tuple[str, ...], tuple[tuple[str, float], ...], dict[str, float]]:
+    """(fits, whiteness, coloured outputs, (output, R²) of each output whose simulation
+    fits poorly, each output's measured variance)."""
     metrics = getattr(validation, "metrics", None)
     if not isinstance(metrics, Mapping) or not metrics:
-        return "—", "—", (), ()
+        return "—", "—", (), (), {}
     fits, white, coloured, poor = [], [], [], []
     for name, m in metrics.items():
         fit = getattr(m, "fit", None)
@@ -37,7 +46,26 @@ def fit_whiteness(
             white.append(f"{name} {'white' if w else 'coloured'}")
             if not w:
                 coloured.append(str(name))
-    return (", ".join(fits) or "—"), (", ".join(white) or "—"), tuple(coloured), tuple(poor)
+    measured = getattr(validation, "measured", None)
+    names = tuple(getattr(validation, "output_names", ()) or ())
+    spread: dict[str, float] = {}
+    if measured is not None and len(names) == np.shape(measured)[-1]:
+        var = np.var(np.asarray(measured, dtype=np.float64), axis=0)
+        spread = {str(n): float(v) for n, v in zip(names, var, strict=True)}
+    fits_text, white_text = (", ".join(fits) or "—"), (", ".join(white) or "—")
+    return fits_text, white_text, tuple(coloured), tuple(poor), spread
+
+
+def residual_mean_squares(identification: Any) -> dict[str, float]:
+    """Each output's mean square residual over a fit's records: for a filter-error fit,
+    of its innovations (the one-step predictions), which judge such a fit."""
+    names = tuple(getattr(identification, "output_names", ()) or ())
+    parts = [np.asarray(r, dtype=np.float64) for r in getattr(identification, "residuals", ())]
+    parts = [r for r in parts if r.ndim == 2 and r.shape[1] == len(names) and r.shape[0]]
+    if not parts:
+        return {}
+    stacked = np.concatenate(parts)
+    return {str(n): float(v) for n, v in zip(names, np.mean(stacked**2, axis=0), strict=True)}
 
 
 # flights side by side in one estimates table: more are split into further tables, so

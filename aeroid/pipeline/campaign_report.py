@@ -26,6 +26,7 @@ from ._campaign_tables import (
     fit_whiteness,
     html_report,
     metric_heading,
+    residual_mean_squares,
     what_was_flown,
     with_warnings,
 )
@@ -80,6 +81,8 @@ def _campaign_brief(role: str, record: Any) -> Any:
             "identifiable": bool(getattr(record, "identifiable", True)),
             "units": dict(getattr(record, "parameter_units", {}) or {}),
             "response_to_noise": dict(getattr(record, "response_to_noise", {}) or {}),
+            "method": str(getattr(record, "method", "")),
+            "residual_ms": residual_mean_squares(record),
         }
     if role == "validation":
         return fit_whiteness(record)

@@ -17,7 +17,8 @@ LEGEND = (
     "**not excited** no output's fitted response stands out of its residual noise "
     "(the record holds no manoeuvre: the estimates describe noise); "
     f"**poor fit Y** the model explains less than {POOR_FIT_R2:.0%} of output Y's "
-    "variance (R² shown); **not identifiable** the data cannot separate some parameters; "
+    "variance (R² shown; of its simulation, or for a filter-error fit of the filter's "
+    "one-step prediction); **not identifiable** the data cannot separate some parameters; "
     "**error > 100 %** estimates whose standard error exceeds their magnitude; "
     "**bound X** estimate X ended at a bound; "
     "**posterior not converged** the MCMC chains are too short; "
@@ -81,6 +82,17 @@ def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta:
             flags.append("error > 100 % " + ", ".join(loose))
     if valid is not None:
         poor = valid[3] if len(valid) > 3 else ()
+        spread = valid[4] if len(valid) > 4 else {}
+        innovations = (ident or {}).get("residual_ms") or {}
+        if (ident or {}).get("method") == "filter_error" and spread and innovations:
+            # a filter-error fit models the turbulence as process noise: what it
+            # claims is its one-step prediction, not an open-loop simulation, which
+            # drifts with every gust it cannot know
+            poor = tuple(
+                (n, 1.0 - innovations[n] / v)
+                for n, v in spread.items()
+                if n in innovations and v > 0 and 1.0 - innovations[n] / v < POOR_FIT_R2
+            )
         flags += [f"poor fit {n} (R² {r2:.2f})" for n, r2 in poor]
         if valid[2]:
             n_out = max(len(valid[0].split(", ")), len(valid[2]))
