@@ -157,16 +157,15 @@ def test_the_briefs_carry_measured_variances_and_residual_mean_squares():
 
     assert residual_mean_squares(_Fit()) == {"a": 11.0 / 3.0, "b": 4.0 / 3.0}
 
-    class _Metric:
-        fit = 50.0
-        white = True
+    from types import SimpleNamespace
 
-    class _Valid:
-        metrics = {"a": _Metric(), "b": _Metric()}
-        output_names = ("a", "b")
-        measured = np.array([[0.0, 1.0], [2.0, 1.0], [4.0, 1.0]])
-
-    brief = fit_whiteness(_Valid())
+    metric = SimpleNamespace(fit=50.0, white=True)
+    valid = SimpleNamespace(
+        metrics={"a": metric, "b": metric},
+        output_names=("a", "b"),
+        measured=np.array([[0.0, 1.0], [2.0, 1.0], [4.0, 1.0]]),
+    )
+    brief = fit_whiteness(valid)
     assert brief[4] == {"a": 8.0 / 3.0, "b": 0.0}
     assert brief[3] == ()  # fit 50 % is R² 0.75: not below the threshold
 
