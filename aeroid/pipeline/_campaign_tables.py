@@ -16,6 +16,7 @@ from .flight_status import POOR_FIT_R2
 __all__ = [
     "estimate_tables",
     "fit_whiteness",
+    "identification_brief",
     "residual_mean_squares",
     "what_was_flown",
     "with_warnings",
@@ -54,6 +55,23 @@ def fit_whiteness(
         spread = {str(n): float(v) for n, v in zip(names, var, strict=True)}
     fits_text, white_text = (", ".join(fits) or "—"), (", ".join(white) or "—")
     return fits_text, white_text, tuple(coloured), tuple(poor), spread
+
+
+def identification_brief(record: Any) -> dict[str, Any]:
+    """What the campaign's tables and status flags read of one flight's fit."""
+    return {
+        "names": list(getattr(record, "parameter_names", ())),
+        "parameters": dict(record.parameters),
+        "stderr": dict(record.stderr),
+        "success": bool(getattr(record, "success", True)),
+        "active_bounds": dict(getattr(record, "active_bounds", {}) or {}),
+        "unidentifiable": [list(c) for c in getattr(record, "unidentifiable", ())],
+        "identifiable": bool(getattr(record, "identifiable", True)),
+        "units": dict(getattr(record, "parameter_units", {}) or {}),
+        "response_to_noise": dict(getattr(record, "response_to_noise", {}) or {}),
+        "method": str(getattr(record, "method", "")),
+        "residual_ms": residual_mean_squares(record),
+    }
 
 
 def residual_mean_squares(identification: Any) -> dict[str, float]:

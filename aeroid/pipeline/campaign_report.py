@@ -25,8 +25,8 @@ from ._campaign_tables import (
     estimate_tables,
     fit_whiteness,
     html_report,
+    identification_brief,
     metric_heading,
-    residual_mean_squares,
     what_was_flown,
     with_warnings,
 )
@@ -71,19 +71,7 @@ def _campaign_brief(role: str, record: Any) -> Any:
             meta["quality_flags"] = {n: list(f) for n, f in quality.flags.items() if f}
         return meta
     if role == "identification":
-        return {
-            "names": list(getattr(record, "parameter_names", ())),
-            "parameters": dict(record.parameters),
-            "stderr": dict(record.stderr),
-            "success": bool(getattr(record, "success", True)),
-            "active_bounds": dict(getattr(record, "active_bounds", {}) or {}),
-            "unidentifiable": [list(c) for c in getattr(record, "unidentifiable", ())],
-            "identifiable": bool(getattr(record, "identifiable", True)),
-            "units": dict(getattr(record, "parameter_units", {}) or {}),
-            "response_to_noise": dict(getattr(record, "response_to_noise", {}) or {}),
-            "method": str(getattr(record, "method", "")),
-            "residual_ms": residual_mean_squares(record),
-        }
+        return identification_brief(record)
     if role == "validation":
         return fit_whiteness(record)
     if role == "propagation":
