@@ -17,7 +17,10 @@ all here:
 * `dct2`: the orthonormal DCT-II along the last axis through one complex FFT
   of the even-odd reordered sequence (Makhoul 1980);
 * `mirror_smooth`: a symmetric weighted moving sum along axis 0 with the ends
-  reflected about the edge samples (``d c b | a b c d | c b a``).
+  reflected about the edge samples (``d c b | a b c d | c b a``);
+* `welch_density`: Welch's averaged one-sided periodogram (half-overlapping Hann
+  segments, each less its least-squares line), the spectrum data compatibility
+  reads its input-noise floor from, without `scipy.signal`.
 """
 
 from __future__ import annotations
@@ -213,3 +216,30 @@ def mirror_smooth(x: NDArray[np.generic], weights: FloatArray) -> NDArray[np.gen
         # the weights are symmetric: the samples d either side share one product
         out = out + weights[half + d] * (xp[half + d : half + d + n] + xp[half - d : half - d + n])
     return np.asarray(out)
+
+
+def welch_density(x: FloatArray, segment: int) -> FloatArray:
+    """Welch's one-sided power spectral density of `x` per unit sample rate.
+
+    Segments of `segment` points overlapping by half (a trailing partial one
+    dropped), each less its least-squares line and tapered by the periodic Hann
+    window; their periodograms, scaled to a density (``1 / sum w^2``) and folded
+    to one side (every bin but zero and Nyquist doubled), averaged. Bins
+    ``0 .. segment // 2``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    step = segment - segment // 2  # an overlap of segment // 2, as scipy's default
+    count = 1 + (x.size - segment) // step
+    starts = step * np.arange(count)
+    segs = x[starts[:, None] + np.arange(segment)[None, :]]
+    # each segment less its least-squares line
+    u = np.arange(segment, dtype=np.float64) - 0.5 * (segment - 1)
+    segs = segs - segs.mean(axis=1, keepdims=True)
+    segs = segs - np.outer(segs @ u / float(u @ u), u)
+    window = 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(segment) / segment)
+    power = np.abs(np.fft.rfft(segs * window, axis=1)) ** 2 / float(window @ window)
+    if segment % 2 == 0:
+        power[:, 1:-1] *= 2.0
+    else:
+        power[:, 1:] *= 2.0
+    return np.asarray(power.mean(axis=0), dtype=np.float64)

@@ -134,3 +134,24 @@ print(sorted(m for m in new if m.split(".")[0] in ("scipy", "jax", "matplotlib")
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     ).stdout
     assert out.strip().splitlines()[-1] == "[]"
+
+
+@pytest.mark.parametrize(("n", "segment"), [(3000, 256), (1001, 64), (515, 63)])
+def test_welch_density_is_scipys_welch(n: int, segment: int) -> None:
+    from scipy.signal import welch
+
+    from aeroid._searches import welch_density
+
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.normal(size=n)) * 0.1 + rng.normal(size=n) + 0.01 * np.arange(n)
+    _, expected = welch(x, fs=1.0, window="hann", nperseg=segment, detrend="linear")
+    np.testing.assert_allclose(welch_density(x, segment), expected, rtol=1e-10, atol=1e-14)
+
+
+def test_white_noise_density_is_twice_its_variance() -> None:
+    from aeroid._searches import welch_density
+
+    x = np.random.default_rng(3).normal(scale=2.0, size=200_000)
+    dens = welch_density(x, 512)[1:-1]
+    # one-sided density of white noise of variance 4 at unit rate: 8, to 1 % over the band
+    assert np.mean(dens) == pytest.approx(8.0, rel=0.01)

@@ -118,15 +118,15 @@ def _spectral_floor(x: FloatArray, *, level: float = 0.05) -> float:
     smallest bound undercuts white noise's level with probability at most
     `level`. Infinite where the record is too short for two bands.
     """
-    from scipy.signal import welch
-    from scipy.stats import chi2
+    from scipy.special import chdtri  # scipy.stats costs a first call tenths of a second
+
+    from .._searches import welch_density
 
     n = x.size
     seg = 1 << max(5, round(math.log2(4.0 * math.sqrt(n))))
     if n < 2 * seg:
         return math.inf
-    _, dens = welch(x, fs=1.0, window="hann", nperseg=seg, detrend="linear")
-    var = np.asarray(dens, dtype=np.float64)[2:-1] / 2.0  # the line took the lowest bins
+    var = welch_density(x, seg)[2:-1] / 2.0  # the line took the lowest bins
     width = 8
     n_bands = var.size // width
     if n_bands < 2:
@@ -134,7 +134,7 @@ def _spectral_floor(x: FloatArray, *, level: float = 0.05) -> float:
     bands = var[: n_bands * width].reshape(n_bands, width).mean(axis=1)
     segments = 1 + (n - seg) // (seg // 2)
     dof = float(segments * width)
-    bound = float(np.min(bands)) * dof / float(chi2.ppf(level / n_bands, dof))
+    bound = float(np.min(bands)) * dof / float(chdtri(dof, 1.0 - level / n_bands))
     return math.sqrt(bound)
 
 
@@ -314,7 +314,7 @@ def _allowed_scale(drawn: FloatArray, seen: FloatArray, *, level: float = 0.05) 
     min_a seen_a / q_a)``. The flight's residual also holds measurement noise, so
     the test is conservative: it lowers the level only where the data show it.
     """
-    from scipy.stats import chi2
+    from scipy.special import chdtri
 
     mean = np.mean(drawn, axis=0)
     var = np.var(drawn, axis=0, ddof=1) if drawn.shape[0] > 1 else np.zeros_like(mean)
@@ -323,5 +323,5 @@ def _allowed_scale(drawn: FloatArray, seen: FloatArray, *, level: float = 0.05) 
         return 1.0
     with np.errstate(divide="ignore", invalid="ignore"):
         dof = np.where(var[live] > 0, 2.0 * mean[live] ** 2 / var[live], 1e6)
-    low = mean[live] * chi2.ppf(level / int(np.sum(live)), dof) / dof
+    low = mean[live] * chdtri(dof, 1.0 - level / int(np.sum(live))) / dof
     return float(min(1.0, np.min(seen[live] / low)))
