@@ -447,3 +447,40 @@ def test_html_report_renders_in_chromium_first_figure_on_screen(campaign, tmp_pa
 
     pixels = imread(shot)
     assert pixels.std() > 0.05  # a rendered page, not a blank one
+
+
+def test_a_filter_error_fit_is_called_coloured_by_its_innovations():
+    """White innovations on one output and AR(1) ones (phi 0.8) on another: only the
+    second is coloured, and the flag counts it against the fit's outputs, whatever
+    the open-loop simulation's residuals say."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from aeroid.pipeline._campaign_tables import coloured_innovations, identification_brief
+    from aeroid.pipeline.flight_status import flight_status
+
+    rng = np.random.default_rng(7)
+    white = rng.normal(size=2000)
+    e = rng.normal(size=2000)
+    ar = np.empty(2000)
+    ar[0] = e[0]
+    for k in range(1, 2000):
+        ar[k] = 0.8 * ar[k - 1] + e[k]
+    fit = SimpleNamespace(
+        parameter_names=("a",),
+        parameters={"a": 1.0},
+        stderr={"a": 0.1},
+        method="filter_error",
+        output_names=("u", "v"),
+        residuals=(np.column_stack([white, ar]),),
+    )
+    assert coloured_innovations(fit) == ["v"]
+    brief = identification_brief(fit)
+    assert brief["coloured_innovations"] == ["v"]
+    simulated = ("u 90.0 %, v 90.0 %", "—", ("u", "v"), (), {"u": 100.0, "v": 100.0})
+    assert flight_status(None, brief, simulated, None) == "coloured 1/2"
+    # an output-error fit keeps the simulation's verdict
+    oe = identification_brief(SimpleNamespace(**{**vars(fit), "method": "output_error"}))
+    assert "coloured_innovations" not in oe
+    assert flight_status(None, oe, simulated, None) == "coloured 2/2"

@@ -14,6 +14,7 @@ from ..support import markdown_table
 from .flight_status import POOR_FIT_R2
 
 __all__ = [
+    "coloured_innovations",
     "estimate_tables",
     "fit_whiteness",
     "identification_brief",
@@ -71,7 +72,29 @@ def identification_brief(record: Any) -> dict[str, Any]:
         "response_to_noise": dict(getattr(record, "response_to_noise", {}) or {}),
         "method": str(getattr(record, "method", "")),
         "residual_ms": residual_mean_squares(record),
+        **(
+            {"coloured_innovations": coloured_innovations(record)}
+            if getattr(record, "method", "") == "filter_error"
+            else {}
+        ),
     }
+
+
+def coloured_innovations(record: Any, lags: int = 20) -> list[str]:
+    """The outputs whose filter-error innovations fail the Ljung-Box test at 5 %: a
+    filter that models the turbulence leaves white innovations where the model
+    is right, so these point at what it gets wrong (an open-loop simulation of
+    such a fit drifts on every output and would say nothing)."""
+    from ..uncertainty.validation import ljung_box
+
+    names = tuple(getattr(record, "output_names", ()) or ())
+    out = []
+    for j, name in enumerate(names):
+        parts = [np.asarray(r, dtype=np.float64)[:, j] for r in getattr(record, "residuals", ())]
+        parts = [v - v.mean() for v in parts if v.size > lags + 2]
+        if parts and min(ljung_box(v, lags)[1] for v in parts) < 0.05:
+            out.append(str(name))
+    return out
 
 
 def residual_mean_squares(identification: Any) -> dict[str, float]:

@@ -419,8 +419,10 @@ register_stage(
         # transposed and split to fit a page, 1σ labelled, poor-fit and error flags,
         # flights worst first and open for printing; 10: residual autocorrelation
         # and held-out prediction figures per flight; 11: trends against alpha (deg)
-        # where given, a colour per altitude, each point labelled with its flight
-        "11",
+        # where given, a colour per altitude, each point labelled with its flight;
+        # 12: a filter-error fit's poor-fit and coloured flags from its innovations,
+        # palette figures drawn straight from the canvas
+        "12",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

@@ -24,8 +24,9 @@ LEGEND = (
     "**posterior not converged** the MCMC chains are too short; "
     "**data F C** the data-quality check of channel C as read (or of several channels) "
     "raised F (see the flight's Data quality); "
-    "**coloured k/n** the residuals of k of the n outputs are not white (the standard "
-    "errors are then corrected for it); **ok** every check passed."
+    "**coloured k/n** the residuals of k of the n outputs are not white (for a "
+    "filter-error fit its innovations; the standard errors are then corrected for "
+    "it); **ok** every check passed."
 )
 
 # flag word -> rank (lower is worse): the campaign lists its flights worst first
@@ -94,9 +95,13 @@ def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta:
                 if n in innovations and v > 0 and 1.0 - innovations[n] / v < POOR_FIT_R2
             )
         flags += [f"poor fit {n} (R² {r2:.2f})" for n, r2 in poor]
-        if valid[2]:
-            n_out = max(len(valid[0].split(", ")), len(valid[2]))
-            flags.append(f"coloured {len(valid[2])}/{n_out}")
+        coloured = valid[2]
+        n_out = max(len(valid[0].split(", ")), len(coloured))
+        if (ident or {}).get("method") == "filter_error" and "coloured_innovations" in ident:
+            coloured = ident["coloured_innovations"]  # the filter's innovations, as above
+            n_out = max(len(ident.get("residual_ms") or {}), len(coloured))
+        if coloured:
+            flags.append(f"coloured {len(coloured)}/{n_out}")
     if infer is not None and not infer["converged"]:
         flags.append("posterior not converged")
     flags.sort(key=severity)
