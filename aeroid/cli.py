@@ -90,11 +90,24 @@ def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
         k = head.index("fit")
         for r in body:
             r[k] = _worst_fit(r[k])
+    # a header's unit ("name [unit]") may go where the cells are narrower than it
+    widths = [max([len(h.split(" [")[0]), *(len(r[j]) for r in body)]) for j, h in enumerate(head)]
+    if body and "condition" in head and sum(widths) + 3 * len(head) + 1 > _TABLE_WIDTH:
+        # the condition (the report has it) gives way to the status, which ranks the flights
+        k = head.index("condition")
+        keep, head, widths = (
+            keep[:k] + keep[k + 1 :],
+            head[:k] + head[k + 1 :],
+            widths[:k] + widths[k + 1 :],
+        )
+        body = [r[:k] + r[k + 1 :] for r in body]
     cols = len(head)
-    widths = [max(len(head[j]), *(len(r[j]) for r in body)) for j in range(cols)] if body else []
-    # shorten the widest column until the row fits (a cell keeps at least 8 characters)
+    widths = widths if body else []
+    # shorten the widest column until the row fits (a cell keeps at least 8 characters);
+    # the status, which ranks the flights, counts at half its width
+    weight = [0.5 if h == "status" else 1.0 for h in head]
     while widths and sum(widths) + 3 * cols + 1 > _TABLE_WIDTH:
-        j = max(range(cols), key=lambda i: widths[i])
+        j = max(range(cols), key=lambda i: (widths[i] > 8, widths[i] * weight[i]))
         if widths[j] <= 8:
             break
         widths[j] -= 1
@@ -102,6 +115,7 @@ def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
         [c if len(c) <= widths[j] else c[: widths[j] - 1] + "…" for j, c in enumerate(r)]
         for r in body
     ]
+    head = [h if len(h) <= widths[j] else h.split(" [")[0] for j, h in enumerate(head)]
     head = [h if len(h) <= widths[j] else h[: widths[j] - 1] + "…" for j, h in enumerate(head)]
     return _table(head, cut), len(header) - len(keep)
 
@@ -185,9 +199,10 @@ def run(
         table, left_out = _narrow_table(summary.columns, summary.rows)
         click.echo(("\n" if caught else "") + table)
         if left_out:
+            metric = [h.split(" (mean ± ")[0] for h in summary.columns if "(mean ± " in h]
             click.echo(
-                f"(metric: mean ± 1σ; {left_out} more columns, the estimates with their "
-                "units: see the report)"
+                f"({metric[0] if metric else 'metric'}: mean ± 1σ; {left_out} more "
+                "columns, the estimates: see the report)"
             )
         click.echo("")
     if not as_json:

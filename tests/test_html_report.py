@@ -104,19 +104,20 @@ def test_status_names_every_flag_and_the_legend_explains_each():
     ]
     for word in ("not converged", "bound", "not identifiable", "coloured", "posterior"):
         assert word in LEGEND
-    # fit 40 % is R² = 1 - 0.6² = 0.64; K's standard error exceeds its magnitude
+    # fit 40 % is R² = 1 - 0.6² = 0.64; K is within two standard errors of zero and,
+    # on a flight of its own, flagged as such
     loose = {
         "success": True,
         "parameters": {"K": 0.5, "tau": 2.0},
-        "stderr": {"K": 1.3, "tau": 0.1},
+        "stderr": {"K": 0.26, "tau": 0.1},
     }
     poor = ("p 40.0 %, r 95.0 %", "—", ("p", "r"), (("p", 0.64),))
     assert flight_status(None, loose, poor, None).split("; ") == [
         "poor fit p (R² 0.64)",
-        "error > 100 % K",
+        "≈ 0 K",
         "coloured 2/2",
     ]
-    assert "poor fit" in LEGEND and "error > 100 %" in LEGEND
+    assert "poor fit" in LEGEND and "**≈ 0 X**" in LEGEND and "**not determined X**" in LEGEND
     clean = {"success": True, "active_bounds": {}, "identifiable": True}
     assert flight_status(None, clean, ("—", "—", ()), {"converged": True}) == "ok"
     assert flight_status("boom", clean, None, None) == "failed"
@@ -127,6 +128,55 @@ def test_status_names_every_flag_and_the_legend_explains_each():
         "data dropouts alpha",
     ]
     assert "**data F C**" in LEGEND
+
+
+def _fit(**t_ratios: float) -> dict[str, object]:
+    """A fit brief whose estimates are these many standard errors from zero."""
+    return {
+        "success": True,
+        "parameters": {n: t * 0.01 for n, t in t_ratios.items()},
+        "stderr": dict.fromkeys(t_ratios, 0.01),
+    }
+
+
+def test_a_flight_is_flagged_for_a_term_the_other_flights_determine():
+    """|t| < 2 flags a flight only where most of the other flights tell the term from
+    zero (the flight's manoeuvres fell short); a term most flights cannot tell from zero
+    flags none and is named once, under Model structure."""
+    from aeroid.pipeline.flight_status import (
+        determined_shares,
+        flight_status,
+        severity,
+        structure_note,
+    )
+
+    # A: determined on three flights, not on the fourth; Z: zero everywhere; B: |t| = 2
+    # counts as determined, 1.99 does not
+    idents = [
+        _fit(A=8.0, Z=0.3, B=2.0),
+        _fit(A=-5.0, Z=-1.2, B=2.5),
+        _fit(A=3.0, Z=1.9, B=-1.99),
+        _fit(A=1.5, Z=0.0, B=4.0),
+        None,  # a failed flight counts nowhere
+    ]
+    shares = determined_shares(idents)
+    assert shares[3] == {"A": 1.0, "Z": 0.0, "B": 2.0 / 3.0}
+    assert shares[2] == {"A": 2.0 / 3.0, "Z": 0.0, "B": 1.0}
+    assert shares[4] is None
+    status = [flight_status(None, r, None, None, determined=d) for r, d in zip(idents, shares)]
+    assert status[:4] == ["ok", "ok", "not determined B", "not determined A"]
+    # it ranks with the estimation flags: above a bound, a posterior, coloured residuals
+    assert severity("not determined A") < severity("bound M_q") < severity("coloured 1/8")
+    note = "\n".join(structure_note(idents))
+    assert "Model structure" in note and "Z (4 of 4)" in note
+    assert "A (" not in note and "B (" not in note
+    # one flight: nothing to compare with, so a weak term is flagged "≈ 0" (low rank)
+    assert determined_shares([idents[3]]) == [None]
+    assert flight_status(None, idents[3], None, None) == "≈ 0 A, Z"
+    assert severity("≈ 0 A") > severity("data jitter q")
+    assert structure_note([idents[3]]) == []
+    # a standard error that could not be computed flags nothing
+    assert flight_status(None, _fit(A=1.0) | {"stderr": {"A": float("nan")}}, None, None) == "ok"
 
 
 def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():

@@ -18,15 +18,21 @@ def test_narrow_table_keeps_the_summary_columns_within_the_width():
     row += ["error > 100 % X_0, X_V, Y_0, N_0; coloured 8/8"]
     table, left_out = _narrow_table(header, [row])
     lines = table.splitlines()
-    assert left_out == 31  # the 30 estimates and the whiteness
+    # the condition (in the report) gives way to the status, which ranks the flights
+    assert left_out == 32  # the 30 estimates, the whiteness and the condition
     assert all(len(line) <= _TABLE_WIDTH for line in lines)
-    assert [h.strip() for h in lines[0].split("|")[1:-1]][:2] == ["flight", "condition"]
+    assert [h.strip() for h in lines[0].split("|")[1:-1]] == ["flight", "fit", "metric", "status"]
     cells = [c.strip() for c in lines[2].split("|")[1:-1]]
-    assert cells[:2] == ["flight_01", "airspeed 45 m/s"]
-    assert cells[2] == "worst phi 60.6 %"  # the worst output's fit
-    assert cells[3] == "5.566 ± 0.088"
-    assert "metric" in lines[0]
-    assert cells[4].startswith("error > 100 %") and cells[4].endswith("…")
+    assert cells == ["flight_01", "worst phi 60.6 %", "5.566 ± 0.088", row[-1]]
+    # a status too long even then is cut, but last: it keeps twice the others' widths
+    row[-1] = "not determined " + ", ".join(f"X_{k}" for k in range(30))
+    cells = [c.strip() for c in _narrow_table(header, [row])[0].splitlines()[2].split("|")[1:-1]]
+    assert cells[3].startswith("not determined X_0, X_1") and cells[3].endswith("…")
+    assert len(cells[3]) > 2 * max(len(c) for c in cells[:3])
+    # a row that fits keeps its condition
+    row[-1] = "ok"
+    fits, n = _narrow_table(header, [row])
+    assert n == 31 and "| airspeed 45 m/s |" in fits
     # a narrow table (a user pipeline's) is printed whole
     small, none = _narrow_table(["flight", "mean"], [["f00", "1.5"]])
     assert none == 0 and "| f00" in small

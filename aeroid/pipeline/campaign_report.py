@@ -33,7 +33,7 @@ from ._campaign_tables import (
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
 from .database_stage import with_database
-from .flight_status import LEGEND, flight_status, severity
+from .flight_status import LEGEND, determined_shares, flight_status, severity, structure_note
 from .stages import CampaignReport, Stage, StageContext, register_stage
 
 if TYPE_CHECKING:
@@ -323,6 +323,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         "status",
     )
     n_est = len(names)
+    shares = determined_shares(ident)
     rows = []
     statuses = []
     for i, f in enumerate(flights):
@@ -335,7 +336,8 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 est.append("—")
         fit, white = ("—", "—") if v is None else v[:2]
         metric = ctx.brief("propagation", i) or "—"
-        status = flight_status(ctx.failures.get(f), r, v, ctx.brief("inference", i), meta)
+        infer = ctx.brief("inference", i)
+        status = flight_status(ctx.failures.get(f), r, v, infer, meta, determined=shares[i])
         statuses.append(status)
         rows.append(
             (f, "—" if meta is None else condition_text(meta), *est, fit, white, metric, status)
@@ -367,7 +369,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     # whiteness output by output is in each flight's section; the status counts it
     glance = [j for j in (0, 1, *range(2 + n_est, len(columns))) if columns[j] != "whiteness"]
     parts += [markdown_table([columns[j] for j in glance], [[r[j] for j in glance] for r in rows])]
-    parts += ["", LEGEND, ""]
+    parts += ["", LEGEND, "", *structure_note(ident)]
     if names:
         parts += estimate_tables(names, punits, flights, [r[2 : 2 + n_est] for r in rows])
     parts += hq_table(
@@ -421,8 +423,9 @@ register_stage(
         # and held-out prediction figures per flight; 11: trends against alpha (deg)
         # where given, a colour per altitude, each point labelled with its flight;
         # 12: a filter-error fit's poor-fit and coloured flags from its innovations,
-        # palette figures drawn straight from the canvas
-        "12",
+        # palette figures drawn straight from the canvas; 13: "not determined" against
+        # the other flights in place of "error > 100 %", the model-structure note
+        "13",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

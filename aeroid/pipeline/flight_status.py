@@ -2,14 +2,29 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-__all__ = ["LEGEND", "POOR_FIT_R2", "flight_status", "severity"]
+__all__ = [
+    "LEGEND",
+    "POOR_FIT_R2",
+    "T_SIGNIFICANT",
+    "determined_shares",
+    "flight_status",
+    "severity",
+    "structure_note",
+]
 
 # an output whose model explains less than this share of its variance is a poor fit
 POOR_FIT_R2 = 0.75
-# an estimate whose standard error exceeds its magnitude is not determined by the data
-_MAX_RELATIVE_ERROR = 1.0
+# |estimate| / standard error below this: the data cannot tell the term from zero (the
+# two-sided t-test at about 5 %, Klein & Morelli's test of a model term, ch. 5)
+T_SIGNIFICANT = 2.0
+# a term is one the campaign determines where at least this share of its other fitted
+# flights tells it from zero: a flight that does not is then short of excitation; a
+# term most flights cannot tell from zero is the model's structure, not a flight's fault
+_DETERMINED_SHARE = 0.5
 
 LEGEND = (
     "Status, worst first: **failed** a stage raised (see Failures); "
@@ -19,11 +34,16 @@ LEGEND = (
     f"**poor fit Y** the model explains less than {POOR_FIT_R2:.0%} of output Y's "
     "variance (R² shown; of its simulation, or for a filter-error fit of the filter's "
     "one-step prediction); **not identifiable** the data cannot separate some parameters; "
-    "**error > 100 %** estimates whose standard error exceeds their magnitude; "
+    "**not determined X** this flight cannot tell X from zero (|X| < 2 standard "
+    "errors) where most of the campaign's other flights can: its manoeuvres did not "
+    "excite a term the model needs; "
     "**bound X** estimate X ended at a bound; "
     "**posterior not converged** the MCMC chains are too short; "
     "**data F C** the data-quality check of channel C as read (or of several channels) "
     "raised F (see the flight's Data quality); "
+    "**≈ 0 X** (a campaign of one flight) the data cannot tell X from zero: a term to "
+    "drop, or one the manoeuvre did not excite (terms that most flights of a campaign "
+    "cannot tell from zero flag no flight: they are listed under Model structure); "
     "**coloured k/n** the residuals of k of the n outputs are not white (for a "
     "filter-error fit its innovations; the standard errors are then corrected for "
     "it); **ok** every check passed."
@@ -36,10 +56,11 @@ _RANK = (
     "not excited",
     "poor fit",
     "not identifiable",
-    "error >",
+    "not determined",
     "bound",
     "posterior",
     "data",
+    "≈ 0",
     "coloured",
 )
 
@@ -53,9 +74,81 @@ def severity(status: str) -> tuple[int, int]:
     return (min(ranks), -len(flags))
 
 
-def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta: Any = None) -> str:
+def _weak_terms(ident: Any) -> list[str]:
+    """The estimates of a fit brief within `T_SIGNIFICANT` standard errors of zero."""
+    stderr = (ident or {}).get("stderr", {})
+    weak = []
+    for name, value in (ident or {}).get("parameters", {}).items():
+        se = abs(float(stderr.get(name, 0.0)))
+        if math.isfinite(se) and abs(float(value)) < T_SIGNIFICANT * se:
+            weak.append(str(name))
+    return weak
+
+
+def determined_shares(idents: Sequence[Any]) -> list[dict[str, float] | None]:
+    """Per flight (None where it has no fit, or no other flight has one), for each of
+    its parameters the share of the campaign's other fitted flights that tell the
+    parameter from zero."""
+    weak = [None if r is None else set(_weak_terms(r)) for r in idents]
+    shares: list[dict[str, float] | None] = []
+    for i, r in enumerate(idents):
+        others = [
+            (idents[j], weak[j]) for j in range(len(idents)) if j != i and weak[j] is not None
+        ]
+        if r is None or not others:
+            shares.append(None)
+            continue
+        shares.append(
+            {
+                n: sum(n in o.get("parameters", {}) and n not in w for o, w in others)
+                / sum(n in o.get("parameters", {}) for o, _ in others)
+                for n in r.get("parameters", {})
+                if any(n in o.get("parameters", {}) for o, _ in others)
+            }
+        )
+    return shares
+
+
+def structure_note(idents: Sequence[Any]) -> list[str]:
+    """The campaign report's Model structure lines: the terms that most fitted flights
+    cannot tell from zero (Markdown; empty when there are none or one flight)."""
+    fitted = [r for r in idents if r is not None]
+    if len(fitted) < 2:
+        return []
+    counts: dict[str, list[int]] = {}
+    for r in fitted:
+        weak = set(_weak_terms(r))
+        for n in r.get("parameters", {}):
+            c = counts.setdefault(str(n), [0, 0])
+            c[0] += n in weak
+            c[1] += 1
+    zero = [f"{n} ({k} of {m})" for n, (k, m) in counts.items() if k > m * (1 - _DETERMINED_SHARE)]
+    if not zero:
+        return []
+    return [
+        "### Model structure",
+        "",
+        "Terms that most flights cannot tell from zero (|estimate| < 2 standard errors "
+        "on k of n flights): " + ", ".join(zero) + ". These manoeuvres do not show them: "
+        "drop them from the model or hold them at a priori values (Klein & Morelli, "
+        "ch. 5); they flag no flight.",
+        "",
+    ]
+
+
+def flight_status(
+    failure: str | None,
+    ident: Any,
+    valid: Any,
+    infer: Any,
+    meta: Any = None,
+    *,
+    determined: Mapping[str, float] | None = None,
+) -> str:
     """The flags of one flight from the briefs of its records (see `LEGEND`), worst
-    first, or "ok"."""
+    first, or "ok". ``determined`` (from `determined_shares`) tells a term this flight
+    failed to determine from one that no flight determines; without it (a flight on
+    its own) a term within two standard errors of zero is flagged "≈ 0"."""
     if failure is not None:
         return "failed"
     flags = []
@@ -74,13 +167,12 @@ def flight_status(failure: str | None, ident: Any, valid: Any, infer: Any, meta:
             flags.append("not excited")
         if not ident.get("identifiable", True):
             flags.append("not identifiable")
-        loose = [
-            n
-            for n, v in ident.get("parameters", {}).items()
-            if abs(float(ident.get("stderr", {}).get(n, 0.0))) > _MAX_RELATIVE_ERROR * abs(float(v))
-        ]
-        if loose:
-            flags.append("error > 100 % " + ", ".join(loose))
+        weak = _weak_terms(ident)
+        if determined is None and weak:
+            flags.append("≈ 0 " + ", ".join(weak))
+        missed = [n for n in weak if (determined or {}).get(n, 0.0) >= _DETERMINED_SHARE]
+        if determined is not None and missed:
+            flags.append("not determined " + ", ".join(missed))
     if valid is not None:
         poor = valid[3] if len(valid) > 3 else ()
         spread = valid[4] if len(valid) > 4 else {}

@@ -146,7 +146,9 @@ def main() -> int:
         fdm = _executive(flight)
         lift = _coefficients(fdm)["CL"]
         a, de = float(fdm["aero/alpha-rad"]), float(fdm["fcs/elevator-pos-rad"])
-        parts = [db.band(t, at) for t in ("CL_0", "CL_delta_e")]
+        # a model without the elevator's lift has it in each flight's CL_0 at its trim
+        lift_terms = [t for t in ("CL_0", "CL_delta_e") if t in db.structures]
+        parts = [db.band(t, at) for t in lift_terms] + [(np.zeros(1),) * 3] * (2 - len(lift_terms))
         value = parts[0][0][0] + parts[1][0][0] * de
         # the band of the sum from the two half widths (their correlation left out)
         half = np.hypot(
