@@ -179,6 +179,19 @@ def test_a_flight_is_flagged_for_a_term_the_other_flights_determine():
     assert flight_status(None, _fit(A=1.0) | {"stderr": {"A": float("nan")}}, None, None) == "ok"
 
 
+def test_the_propagated_metric_is_named_with_its_unit_where_it_is_shown():
+    from aeroid.pipeline._campaign_tables import metric_heading, name_the_metric
+
+    heading = metric_heading({"propagate": {"metric": "static_margin"}}, {"static_margin": "mac"})
+    assert heading == "static_margin [mac] (mean ± 1σ)"
+    text = "| f | metric (mean ± std) |\n\n### Uncertainty propagation\n\n| statistic |\n"
+    named = name_the_metric(text, "metric (mean ± std)", heading)
+    assert "| f | static_margin [mac] (mean ± 1σ) |" in named
+    assert "\n### Uncertainty propagation: static_margin [mac]\n" in named
+    # a heading that merely starts so is left alone
+    assert name_the_metric("## Uncertainty propagation notes", "x", heading).endswith("notes")
+
+
 def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():
     """A filter-error fit's poor-fit flag comes from its innovations against each
     output's measured variance (R² = 1 - ms / var), not from the open-loop simulation

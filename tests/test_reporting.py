@@ -180,3 +180,5 @@ def test_report_tables_of_estimates_residuals_and_innovations_carry_units():
     assert unit_of(text["Validation"], "RMSE", "alpha") == data.units["alpha"]
     assert unit_of(text["Validation"], "RMSE", "q") == data.units["q"]
     assert unit_of(text["State estimation"], "innovation", "q") == data.units["q"]
+    # the states' standard deviations too (filtered here; smoothed ones alike)
+    assert unit_of(text["State estimation"], "max std", "alpha") == data.units["alpha"]

@@ -18,6 +18,7 @@ __all__ = [
     "estimate_tables",
     "fit_whiteness",
     "identification_brief",
+    "name_the_metric",
     "residual_mean_squares",
     "what_was_flown",
     "with_warnings",
@@ -184,6 +185,15 @@ def what_was_flown(text: str, source: Any) -> str:
         return text.rstrip("\n") + "\n\n" + "\n".join(section)
     head, tail = text.split(marker, 1)
     return head + "\n".join(section) + "\n" + marker + tail
+
+
+def name_the_metric(text: str, column: str, heading: str) -> str:
+    """The report with the propagated metric named, with its unit, in the campaign
+    table's column (`column` -> `heading`) and in each flight's propagation section."""
+    name = heading.split(" (mean ± ")[0]
+    text = text.replace(column, heading)
+    section = re.compile(r"(?m)^(#+ Uncertainty propagation)$")
+    return section.sub(lambda m: f"{m.group(1)}: {name}", text)
 
 
 def metric_heading(stages: Mapping[str, Any], units: Mapping[str, str]) -> str | None:

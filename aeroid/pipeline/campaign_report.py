@@ -27,6 +27,7 @@ from ._campaign_tables import (
     html_report,
     identification_brief,
     metric_heading,
+    name_the_metric,
     what_was_flown,
     with_warnings,
 )
@@ -556,7 +557,7 @@ def write_report(
     # the propagated metric by its name and unit (the config names it)
     heading = metric_heading(the_plan.config.stages, _METRIC_UNITS)
     if heading is not None:
-        text = text.replace(_METRIC_COLUMN, heading)
+        text = name_the_metric(text, _METRIC_COLUMN, heading)
         columns = [heading if c == _METRIC_COLUMN else c for c in columns]
     path = the_plan.config.report_path
     folder = f"{path.stem}_figures"

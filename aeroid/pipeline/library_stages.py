@@ -563,8 +563,9 @@ for _stage in (
         # 2: a section's summary no longer repeats the section heading; 3: the loaded
         # data's quality checks (role data); 4: a clean record's checks in one line;
         # 5: equivalent systems and bandwidths state their handling-qualities Level;
-        # 6: parameter correlations and residual autocorrelation against its band
-        "6",
+        # 6: parameter correlations and residual autocorrelation against its band;
+        # 7: the filtered or smoothed states' standard deviations with their units
+        "7",
         ReportOptions,
         "FlightReport",
         _run_report,

@@ -122,7 +122,7 @@ def _autocorrelation_table(validation: Any) -> str:
 
 
 # a table whose header holds one of these gets a unit column after its first
-_VALUED = ("estimate", "RMSE", "innovation")
+_VALUED = ("estimate", "RMSE", "innovation", "max std")
 
 
 def _with_units(body: str, units: dict[str, str]) -> str:
