@@ -75,6 +75,14 @@ def _worst_fit(cell: str) -> str:
     return f"worst {min(scored)[1]}" if scored else cell
 
 
+def _metric(header: list[str], rows: list[list[str]]) -> str | None:
+    """The propagated metric's name and unit, where some flight has a value of it."""
+    for j, h in enumerate(header):
+        if "(mean ± " in h and any(str(r[j]) != "—" for r in rows):
+            return h.split(" (mean ± ")[0]
+    return None
+
+
 def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
     """The results table cut to `_TABLE_WIDTH` characters a row: the campaign's summary
     columns (the estimates stay in the report), cells shortened with an ellipsis.
@@ -83,6 +91,8 @@ def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
     keep = [j for j, h in enumerate(header) if h in _SHOWN or "(mean ± " in h]
     if len(keep) < 2 or len(_table(header, rows).split("\n", 1)[0]) <= _TABLE_WIDTH:
         keep = list(range(len(header)))
+    elif _metric(header, rows) is None:  # no step propagated a metric: no empty column
+        keep = [j for j in keep if "(mean ± " not in header[j]]
     # the metric's name and unit are enough here; its mean ± 1σ the footnote says
     head = [header[j].split(" (mean ± ")[0] for j in keep]
     body = [[str(r[j]) for j in keep] for r in rows]
@@ -199,10 +209,10 @@ def run(
         table, left_out = _narrow_table(summary.columns, summary.rows)
         click.echo(("\n" if caught else "") + table)
         if left_out:
-            metric = [h.split(" (mean ± ")[0] for h in summary.columns if "(mean ± " in h]
+            metric = _metric(summary.columns, summary.rows)
             click.echo(
-                f"({metric[0] if metric else 'metric'}: mean ± 1σ; {left_out} more "
-                "columns, the estimates: see the report)"
+                f"({f'{metric}: mean ± 1σ; ' if metric else ''}{left_out} more columns, "
+                "the estimates: see the report)"
             )
         click.echo("")
     if not as_json:

@@ -33,6 +33,10 @@ def test_narrow_table_keeps_the_summary_columns_within_the_width():
     row[-1] = "ok"
     fits, n = _narrow_table(header, [row])
     assert n == 31 and "| airspeed 45 m/s |" in fits
+    # a campaign that propagates nothing shows no empty metric column
+    row[-2] = "—"
+    empty, n = _narrow_table(header, [row])
+    assert n == 32 and "metric" not in empty.splitlines()[0]
     # a narrow table (a user pipeline's) is printed whole
     small, none = _narrow_table(["flight", "mean"], [["f00", "1.5"]])
     assert none == 0 and "| f00" in small
