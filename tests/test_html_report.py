@@ -163,7 +163,10 @@ def test_a_flight_is_flagged_for_a_term_the_other_flights_determine():
     assert shares[3] == {"A": 1.0, "Z": 0.0, "B": 2.0 / 3.0}
     assert shares[2] == {"A": 2.0 / 3.0, "Z": 0.0, "B": 1.0}
     assert shares[4] is None
-    status = [flight_status(None, r, None, None, determined=d) for r, d in zip(idents, shares)]
+    status = [
+        flight_status(None, r, None, None, determined=d)
+        for r, d in zip(idents, shares, strict=True)
+    ]
     assert status[:4] == ["ok", "ok", "not determined B", "not determined A"]
     # it ranks with the estimation flags: above a bound, a posterior, coloured residuals
     assert severity("not determined A") < severity("bound M_q") < severity("coloured 1/8")

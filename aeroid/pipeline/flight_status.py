@@ -89,12 +89,10 @@ def determined_shares(idents: Sequence[Any]) -> list[dict[str, float] | None]:
     """Per flight (None where it has no fit, or no other flight has one), for each of
     its parameters the share of the campaign's other fitted flights that tell the
     parameter from zero."""
-    weak = [None if r is None else set(_weak_terms(r)) for r in idents]
+    weak = {j: set(_weak_terms(r)) for j, r in enumerate(idents) if r is not None}
     shares: list[dict[str, float] | None] = []
     for i, r in enumerate(idents):
-        others = [
-            (idents[j], weak[j]) for j in range(len(idents)) if j != i and weak[j] is not None
-        ]
+        others = [(idents[j], w) for j, w in weak.items() if j != i]
         if r is None or not others:
             shares.append(None)
             continue
