@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import re
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -62,3 +64,36 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
 @pytest.mark.parametrize("block", range(len(_blocks())))
 def test_readme_blocks_are_formatted(block):
     assert "\t" not in _blocks()[block]
+
+
+@pytest.mark.skipif(shutil.which("ruff") is None, reason="ruff not installed")
+def test_the_development_commands_pass_on_the_readme_itself():
+    # the README's `ruff format --check .` reads its Python blocks too
+    run = subprocess.run(
+        ["ruff", "format", "--check", str(README)], capture_output=True, text=True, check=False
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+
+
+def test_every_aeroid_command_in_the_readme_exists_with_its_options():
+    """The shell blocks' `aeroid ...` lines name commands and options the CLI has
+    (running them all needs the demo's store: the fresh-clone walkthrough does that)."""
+    import shlex
+
+    from click.testing import CliRunner
+
+    from aeroid.cli import main
+
+    text = README.read_text(encoding="utf-8")
+    shell = "\n".join(re.findall(r"```bash\n(.*?)```", text, flags=re.S))
+    lines = [ln.split("#")[0].split("&&")[-1].strip() for ln in shell.splitlines()]
+    commands = [shlex.split(ln)[1:] for ln in lines if ln.startswith("aeroid ")]
+    assert len(commands) >= 9
+    runner = CliRunner()
+    for words in commands:
+        name, options = words[0], [w for w in words[1:] if w.startswith("--")]
+        assert name in main.commands, words
+        helped = runner.invoke(main, [name, "--help"])
+        assert helped.exit_code == 0, words
+        for option in options:
+            assert option in helped.output, (words, option)
