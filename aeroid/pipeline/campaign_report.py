@@ -347,7 +347,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     parts = [f"# {title}", ""]
     n_flagged = sum(s not in ("ok", "failed") for s in statuses)
     parts += [
-        f"{len(flights)} flights, {len(ctx.failures)} failed, {n_flagged} with warnings.",
+        f"{len(flights)} flights, {len(ctx.failures)} failed, {n_flagged} flagged (status).",
         "",
         "## Campaign",
         "",
