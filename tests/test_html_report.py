@@ -242,6 +242,26 @@ def test_markdown_keeps_a_fenced_block_verbatim():
     assert "<p>after</p>" in page
 
 
+def test_a_figure_prints_on_one_page_where_it_stays_readable():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aeroid.reports.html import figure_png, markdown_to_html
+
+    pngs = {}
+    for name, (w, h) in {"trend": (4.0, 9.6), "long": (4.0, 13.0)}.items():
+        fig = plt.figure(figsize=(w, h))
+        pngs[f"{name}.png"] = figure_png(fig)
+        plt.close(fig)
+    page = markdown_to_html("![trend](trend.png)\n\n![long](long.png)\n", pngs)
+    # 2.4 high for 1 wide is scaled to a page in print; 3.25 runs on at page width
+    assert '<img alt="trend" class="page"' in page
+    assert '<img alt="long" loading' in page or '<img alt="long" src' in page
+    assert "img.page { max-height: 9in;" in page
+
+
 def test_markdown_folds_sections_and_links_anchors():
     page = markdown_to_html(
         '- [F<1>](#flight-F1)\n\n<details id="flight-F1">\n<summary>F1: ok</summary>\n\n'

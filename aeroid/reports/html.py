@@ -31,10 +31,11 @@ h1 { border-bottom: 2px solid #333; } h2 { border-bottom: 1px solid #aaa; margin
   body { max-width: none; margin: 0; font-size: 10pt; }
   table { font-size: 8pt; page-break-inside: auto; } tr { page-break-inside: avoid; }
   th, td { padding: 1px 4px; }
-  /* a figure taller than a page (the trend's panels) is scaled to fit one: letter
-     and A4 both hold 9 in under Chromium's margins */
-  img { max-width: 100%; max-height: 9in; width: auto; height: auto;
-        page-break-inside: avoid; }
+  img { max-width: 100%; page-break-inside: avoid; }
+  /* a figure a little taller than a page is scaled to fit one (letter and A4 both
+     hold 9 in under Chromium's margins); a much taller one would shrink past
+     reading and runs on at the page's width instead */
+  img.page { max-height: 9in; width: auto; height: auto; }
   details > summary { list-style: none; }
 }
 """
@@ -103,6 +104,20 @@ def _inline(text: str) -> str:
     return out
 
 
+# a printed figure is scaled to one page only up to this height over width: 9 in tall,
+# it is then still 3.5 in wide, about half the page, and its labels readable
+_PAGE_ASPECT = 2.6
+
+
+def _fits_a_page(png: bytes) -> bool:
+    """Whether a PNG (its size from the IHDR chunk) prints on one page at a readable
+    width; bytes that are not a PNG are left to run on."""
+    if len(png) < 24 or png[:8] != b"\x89PNG\r\n\x1a\n" or png[12:16] != b"IHDR":
+        return False
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    return width > 0 and height / width <= _PAGE_ASPECT
+
+
 def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -> str:
     """Convert the Markdown our reports produce (headings, paragraphs, lists, tables,
     images) into HTML; ``![alt](name)`` whose name is in `images` is embedded as base64."""
@@ -137,15 +152,17 @@ def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -
             i += 1
         elif image:
             alt, src = image.group(1), image.group(2)
+            fits = ""
             if src in images:
                 data = base64.b64encode(images[src]).decode("ascii")
                 src_attr = f"data:image/png;base64,{data}"
+                fits = ' class="page"' if _fits_a_page(images[src]) else ""
             else:
                 src_attr = html.escape(src)
             # every image but the first few waits until it is scrolled to or unfolded
             lazy = ' loading="lazy"' if n_images >= 2 else ""
             n_images += 1
-            out.append(f'<img alt="{html.escape(alt)}"{lazy} src="{src_attr}">')
+            out.append(f'<img alt="{html.escape(alt)}"{fits}{lazy} src="{src_attr}">')
             i += 1
         elif stripped.startswith("|"):
             rows = []
