@@ -31,11 +31,11 @@ h1 { border-bottom: 2px solid #333; } h2 { border-bottom: 1px solid #aaa; margin
   body { max-width: none; margin: 0; font-size: 10pt; }
   table { font-size: 8pt; page-break-inside: auto; } tr { page-break-inside: avoid; }
   th, td { padding: 1px 4px; }
-  img { max-width: 100%; page-break-inside: avoid; }
+  img { max-width: 100%; }
   /* a figure a little taller than a page is scaled to fit one (letter and A4 both
      hold 9 in under Chromium's margins); a much taller one would shrink past
      reading and runs on at the page's width instead */
-  img.page { max-height: 9in; width: auto; height: auto; }
+  img.page { max-height: 9in; width: auto; height: auto; page-break-inside: avoid; }
   details > summary { list-style: none; }
 }
 """
