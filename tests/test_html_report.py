@@ -210,6 +210,12 @@ def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():
     assert flight_status(None, oe, simulated_poorly, None) == "poor fit V (R² 0.19)"
     # a brief from before (no variances, no residuals) keeps the simulation's flag
     assert flight_status(None, base, simulated_poorly[:4], None) == "poor fit V (R² 0.19)"
+    # the fit column says the same: 100 (1 - sqrt(ms / var)), R² = 1 - (1 - fit / 100)²
+    from aeroid.pipeline.flight_status import one_step_fits
+
+    assert one_step_fits(fe, simulated_poorly) == "V 68.4 %, q 29.3 %"
+    assert one_step_fits(oe, simulated_poorly) is None
+    assert one_step_fits(fe, simulated_poorly[:4]) is None
 
 
 def test_the_briefs_carry_measured_variances_and_residual_mean_squares():

@@ -34,7 +34,7 @@ from ._campaign_tables import (
 from .analysis_stages import hq_brief, hq_table
 from .config import CampaignConfig, Options
 from .database_stage import with_database
-from .flight_status import LEGEND, determined_shares, flight_status, severity, structure_note
+from .flight_status import determined_shares, flight_status, legend, one_step_fits, severity
 from .stages import CampaignReport, Stage, StageContext, register_stage
 
 if TYPE_CHECKING:
@@ -335,7 +335,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
                 est.append(f"{r['parameters'][n]:.4g} ± {r['stderr'][n]:.2g}")
             else:
                 est.append("—")
-        fit, white = ("—", "—") if v is None else v[:2]
+        fit, white = ("—", "—") if v is None else (one_step_fits(r, v) or v[0], v[1])
         metric = ctx.brief("propagation", i) or "—"
         infer = ctx.brief("inference", i)
         status = flight_status(ctx.failures.get(f), r, v, infer, meta, determined=shares[i])
@@ -363,14 +363,15 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
             parts.append("")
     parts += ["### Flights at a glance", ""]
     parts += [
-        "Fit: each output's normalised fit 100 (1 - |e| / |y - mean y|), in percent. "
+        "Fit: each output's normalised fit 100 (1 - |e| / |y - mean y|), in percent, of "
+        "its simulation (of a filter-error fit, its one-step prediction: e the innovations). "
         "Metric: the propagated metric, mean ± 1 standard deviation over its draws.",
         "",
     ]
     # whiteness output by output is in each flight's section; the status counts it
     glance = [j for j in (0, 1, *range(2 + n_est, len(columns))) if columns[j] != "whiteness"]
     parts += [markdown_table([columns[j] for j in glance], [[r[j] for j in glance] for r in rows])]
-    parts += ["", LEGEND, "", *structure_note(ident)]
+    parts += ["", *legend(ident)]
     if names:
         parts += estimate_tables(names, punits, flights, [r[2 : 2 + n_est] for r in rows])
     parts += hq_table(
@@ -425,7 +426,7 @@ register_stage(
         # where given, a colour per altitude, each point labelled with its flight;
         # 12: a filter-error fit's poor-fit and coloured flags from its innovations,
         # palette figures drawn straight from the canvas; 13: "not determined" against
-        # the other flights in place of "error > 100 %", the model-structure note
+        # the other flights, the model-structure note, filter error's one-step fits
         "13",
         CampaignReportOptions,
         "CampaignReport",

@@ -12,6 +12,8 @@ __all__ = [
     "T_SIGNIFICANT",
     "determined_shares",
     "flight_status",
+    "legend",
+    "one_step_fits",
     "severity",
     "structure_note",
 ]
@@ -65,6 +67,22 @@ _RANK = (
 )
 
 
+def one_step_fits(ident: Any, valid: Any) -> str | None:
+    """A filter-error fit's normalised fit per output, of its one-step prediction
+    (100 (1 - rms innovation / std of the measured output), so that R² = 1 - ms / var
+    is the poor-fit flag's), as the validation brief writes fits; None for any other."""
+    spread = valid[4] if valid is not None and len(valid) > 4 else {}
+    innovations = (ident or {}).get("residual_ms") or {}
+    if (ident or {}).get("method") != "filter_error" or not spread or not innovations:
+        return None
+    fits = [
+        f"{n} {100.0 * (1.0 - math.sqrt(innovations[n] / v)):.1f} %"
+        for n, v in spread.items()
+        if n in innovations and v > 0
+    ]
+    return ", ".join(fits) or None
+
+
 def severity(status: str) -> tuple[int, int]:
     """Sort key of a status: its worst flag's rank, then fewer flags first."""
     if status == "ok":
@@ -105,6 +123,12 @@ def determined_shares(idents: Sequence[Any]) -> list[dict[str, float] | None]:
             }
         )
     return shares
+
+
+def legend(idents: Sequence[Any]) -> list[str]:
+    """The campaign report's lines under its status column: `LEGEND`, then the model
+    structure note of these fits (see `structure_note`)."""
+    return [LEGEND, "", *structure_note(idents)]
 
 
 def structure_note(idents: Sequence[Any]) -> list[str]:
