@@ -147,8 +147,9 @@ register_stage(
     Stage(
         "database",
         # 2: each coefficient weighted by its own variances (aeroid.uncertainty.database notes);
-        # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition)
-        "3",
+        # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition);
+        # 4: random-effects meta-regression, model-averaged Knapp-Hartung bands
+        "4",
         DatabaseOptions,
         "AeroDatabase",
         _run_database,
