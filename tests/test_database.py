@@ -305,3 +305,17 @@ def test_parquet_table_round_trip(tmp_path: Path) -> None:
     i = table["term"].index("CL")
     v, _ = db.predict("CL", {"alpha": table["alpha"][i], "altitude": table["altitude"][i]})
     assert table["value"][i] == pytest.approx(v[0])
+
+
+def test_condition_keys_are_one_list() -> None:
+    # the stage's default keys, the report's rows and plots, the JSBSim export: one list
+    from aeroid.pipeline._campaign_tables import condition_text
+    from aeroid.pipeline.database_stage import CONDITION_KEYS as STAGE_KEYS
+    from aeroid.support import CONDITION_KEYS, CONDITION_NAMES
+    from aeroid.uncertainty.database_export import CONDITION_PROPERTIES
+
+    assert STAGE_KEYS == CONDITION_NAMES == tuple(k.name for k in CONDITION_KEYS)
+    assert set(CONDITION_PROPERTIES) == set(CONDITION_NAMES)
+    text = condition_text({"airspeed": 45.0, "alpha": 0.0299, "altitude": 500.0, "x": 1.0})
+    assert text == "alpha 1.713 deg, airspeed 45 m/s, altitude 500 m"
+

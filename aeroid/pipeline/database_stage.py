@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from pydantic import Field
 
 from ..errors import AeroidError, DataFormatError, PipelineError
+from ..support import CONDITION_NAMES
 from .config import Options
 from .stages import Stage, StageContext, register_stage
 
@@ -36,7 +37,7 @@ if TYPE_CHECKING:
 __all__ = ["DatabaseOptions", "database_section", "write_database_files"]
 
 # condition keys the stage takes from a flight's metadata unless `keys` names others
-CONDITION_KEYS = ("alpha", "beta", "airspeed", "altitude", "mach", "dynamic_pressure", "qbar")
+CONDITION_KEYS = CONDITION_NAMES
 _COEFFICIENT = re.compile(r"^C[LDYlmn](_|$)")
 
 
