@@ -318,4 +318,3 @@ def test_condition_keys_are_one_list() -> None:
     assert set(CONDITION_PROPERTIES) == set(CONDITION_NAMES)
     text = condition_text({"airspeed": 45.0, "alpha": 0.0299, "altitude": 500.0, "x": 1.0})
     assert text == "alpha 1.713 deg, airspeed 45 m/s, altitude 500 m"
-

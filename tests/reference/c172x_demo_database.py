@@ -59,22 +59,26 @@ def _close(value: float, truth: float) -> bool:
     return abs(value - truth) <= max(0.10 * abs(truth), 0.02)
 
 
-def _database(store: Path | None) -> tuple[object, object]:
+def _database(store: Path | None) -> tuple[object, object, Path | None]:
+    import yaml
+
     from aeroid.pipeline import open_store, plan, run
     from aeroid.pipeline.config import load_config
 
-    # the run is incremental: into a store the demo already ran into, it recomputes nothing
+    # the run is incremental: into a store the demo already ran into, it recomputes nothing;
+    # the report's replay of the held-out flights needs the simulator named (no key changes)
     work = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
     store = work / "store" if store is None else store
-    cfg = load_config(
-        ROOT / "configs" / "demo.yaml", store=str(store), report=str(work / "demo.md")
-    )
+    path = ROOT / "configs" / "demo.yaml"
+    stages = yaml.safe_load(path.read_text())["stages"]
+    stages["database"] = {**stages["database"], "replay": "c172x"}
+    cfg = load_config(path, store=str(store), report=str(work / "demo.md"), stages=stages)
     t0 = time.perf_counter()
     summary = run(cfg)
     print(f"demo campaign run in {time.perf_counter() - t0:.1f} s ({summary.failed} failed)")
-    the_plan = plan(load_config(ROOT / "configs" / "demo.yaml", store=str(store)))
+    the_plan = plan(load_config(path, store=str(store)))
     task = next(t for t in the_plan.tasks if t.stage == "database")
-    return open_store(store).load(task.key, "database"), the_plan
+    return open_store(store).load(task.key, "database"), the_plan, summary.database_dir
 
 
 def _replay(db: object, the_plan: object, held: set[str]) -> None:
@@ -114,7 +118,7 @@ def main() -> int:
         effective_derivatives,
     )
 
-    db, the_plan = _database(args.store)
+    db, the_plan, folder = _database(args.store)
     conditions = {
         f.path.rsplit("/", 1)[-1].removesuffix(".csv"): f.condition for f in the_plan.config.flights
     }
@@ -197,6 +201,11 @@ def main() -> int:
             f"covered: {np.mean([r[6] for r in sel]):.2f}"
         )
     _replay(db, the_plan, held)
+    if folder is not None:
+        text = (folder / "database.md").read_text()
+        at = text.find("### Held-out flights flown again")
+        print("\nthe campaign report's replay (recorded surfaces, open loop):")
+        print(text[at:].split("![")[0].strip() if at >= 0 else "  (no replay section)")
     z = [abs(c.z) for c in db.held_out]
     print(f"held-out check: {len(z)} estimates, |z| < 1.96 for {np.mean(np.array(z) < 1.96):.2f}")
     return 0
