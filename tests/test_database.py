@@ -293,6 +293,41 @@ def test_jsbsim_reads_the_exported_tables_back(tmp_path: Path) -> None:
     assert fdm["aero/coefficient/aeroid-CL_0"] == pytest.approx(
         qs * fdm["aero/aeroid/CL_0"], rel=1e-9
     )
+    # the moments JSBSim flies about the centre of gravity are the database's, whatever
+    # the c172x's aerodynamic reference point (24 in above the cg): its forces' arms are
+    # cancelled (database_export notes); at a state with pitch and roll rate and sideslip
+    fdm["ic/beta-deg"] = 3.0
+    fdm["ic/q-rad_sec"] = 0.1
+    fdm["ic/p-rad_sec"] = 0.2
+    fdm.run_ic()
+    fdm.run()
+    cond = {"alpha": fdm["aero/alpha-rad"], "mach": fdm["velocities/mach"]}
+    qs, c, b = fdm["aero/qbar-area"], fdm["metrics/cbarw-ft"], fdm["metrics/bw-ft"]
+    at = {t: db.predict(t, cond)[0][0] for t in db.terms}
+    q_hat = fdm["aero/ci2vel"] * fdm["velocities/q-aero-rad_sec"]
+    cm = at["Cm_0"] + at["Cm_q"] * q_hat + at["Cm_delta_e"] * fdm["fcs/elevator-pos-rad"]
+    assert fdm["moments/m-aero-lbsft"] / (qs * c) == pytest.approx(cm, rel=1e-6)
+    # the ailerons' mean deflection, what a record holds (the c172x's left aileron alone
+    # moves 15 deg up and 20 deg down)
+    fdm["fcs/aileron-cmd-norm"] = 0.3
+    fdm["fcs/rudder-cmd-norm"] = -0.2
+    for _ in range(60):
+        fdm.run()
+    assert abs(fdm["fcs/effective-aileron-pos"]) > 0.05
+    cond = {"alpha": fdm["aero/alpha-rad"], "mach": fdm["velocities/mach"]}
+    qs = fdm["aero/qbar-area"]
+    at = {t: db.predict(t, cond)[0][0] for t in db.terms}
+    p_hat = fdm["aero/bi2vel"] * fdm["velocities/p-aero-rad_sec"]
+    r_hat = fdm["aero/bi2vel"] * fdm["velocities/r-aero-rad_sec"]
+    beta = fdm["aero/beta-rad"]
+    cl = (
+        at["Cl_p"] * p_hat
+        + at["Cl_beta"] * beta
+        + at["Cl_delta_a"] * fdm["fcs/effective-aileron-pos"]
+    )
+    assert fdm["moments/l-aero-lbsft"] / (qs * b) == pytest.approx(cl, rel=1e-6)
+    cn = at["Cn_beta"] * beta + at["Cn_r"] * r_hat + at["Cn_delta_r"] * fdm["fcs/rudder-pos-rad"]
+    assert fdm["moments/n-aero-lbsft"] / (qs * b) == pytest.approx(cn, rel=1e-6)
 
 
 def test_parquet_table_round_trip(tmp_path: Path) -> None:

@@ -13,6 +13,19 @@ static ``<C>_0`` is tabulated over a condition key that is also a regressor
 
 Each table also stands alone as ``aero/aeroid/<term>`` (without the products),
 so that a simulation can read the database's value directly.
+
+The moments are about the centre of gravity: an identification fits the
+equations of motion about it, so its moment coefficients already hold the
+moments of the lift, drag and side force about the centre of gravity. JSBSim
+applies an ``<aerodynamics>`` section's forces at the aircraft's aerodynamic
+reference point (``AERORP`` in its ``<metrics>``) and adds their moment about the
+centre of gravity; on the c172x, 24 in above and 2 in ahead of it, that moment
+would count the lift's and the drag's arms twice (about 0.4 in Cm_alpha). Each
+moment axis of the section therefore carries ``aero/coefficient/aeroid-cg-<axis>``,
+the opposite of that moment (``(cg − rp) × F`` in body axes, from JSBSim's own
+reference point, centre of gravity and the section's forces), so the section
+flies the database's moments about the centre of gravity wherever the
+aircraft's reference point sits.
 """
 
 from __future__ import annotations
@@ -52,7 +65,13 @@ REGRESSOR_PROPERTIES: Mapping[str, tuple[str, ...]] = {
     "q": ("aero/ci2vel", "velocities/q-aero-rad_sec"),
     "r": ("aero/bi2vel", "velocities/r-aero-rad_sec"),
     "delta_e": ("fcs/elevator-pos-rad",),
-    "delta_a": ("fcs/left-aileron-pos-rad",),
+    # the mean deflection of the two ailerons, right trailing edge up positive: what a
+    # record's delta_a holds (the c172x's fcs/effective-aileron-pos); the left
+    # aileron alone deflects 15 deg up and 20 deg down on the c172x
+    "delta_a": (
+        "<product><value>0.5</value><difference><property>fcs/left-aileron-pos-rad"
+        "</property><property>fcs/right-aileron-pos-rad</property></difference></product>",
+    ),
     "delta_r": ("fcs/rudder-pos-rad",),
 }
 
@@ -126,6 +145,45 @@ def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
     return lines
 
 
+def _offset(axis: str) -> str:
+    """JSBSim's ``(cg − aero reference point)`` along body `axis` (x, y, z), ft, as XML:
+    the structural frame runs x aft and z up, the body frame x forward and z down."""
+    cg, rp = f"inertia/cg-{axis}-in", f"metrics/aero-rp-{axis}-in"
+    # body x = −structural x: cg − rp in body is rp − cg in structural (likewise z);
+    # for y the frames agree
+    first, second = (rp, cg) if axis != "y" else (cg, rp)
+    return (
+        f"<quotient><difference><property>{first}</property><property>{second}</property>"
+        "</difference><value>12</value></quotient>"
+    )
+
+
+# moment axis -> the two (offset axis, force axis) products of (cg − rp) × F, the first
+# minus the second
+_CROSS = {
+    "ROLL": (("y", "z"), ("z", "y")),
+    "PITCH": (("z", "x"), ("x", "z")),
+    "YAW": (("x", "y"), ("y", "x")),
+}
+
+
+def _cg_shift(axis: str) -> list[str]:
+    """The function cancelling JSBSim's moment of the section's forces about the cg."""
+    (o1, f1), (o2, f2) = _CROSS[axis]
+    term = "<product>{}<property>forces/fb{}-aero-lbs</property></product>"
+    return [
+        f'    <function name="aero/coefficient/aeroid-cg-{axis}">',
+        "      <description>the forces' moment about the cg, which the database's",
+        "        moments already hold (module notes of aeroid.uncertainty.database_export)",
+        "      </description>",
+        "      <difference>",
+        f"        {term.format(_offset(o1), f1)}",
+        f"        {term.format(_offset(o2), f2)}",
+        "      </difference>",
+        "    </function>",
+    ]
+
+
 def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
     """The ``<aerodynamics>`` XML section of `db` (module notes), `n` breakpoints per key."""
     placed: dict[str, list[tuple[str, str]]] = {axis: [] for axis, _ in AXES.values()}
@@ -154,9 +212,14 @@ def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
                 *REGRESSOR_PROPERTIES[regressor],
             ]
             props.append(f"aero/aeroid/{term}")
-            out.extend(f"        <property>{p}</property>" for p in props)
+            out.extend(
+                f"        {p}" if p.startswith("<") else f"        <property>{p}</property>"
+                for p in props
+            )
             out.append("      </product>")
             out.append("    </function>")
+        if axis in _CROSS:
+            out.extend(_cg_shift(axis))
         out.append("  </axis>")
     out.append("</aerodynamics>")
     return "\n".join(out) + "\n"
