@@ -107,6 +107,34 @@ def _replay(db: object, the_plan: object, held: set[str]) -> None:
         print(f"  {name}: " + ", ".join(cells))
 
 
+def _diagnose(per_flight: list[tuple[str, float, float, float, float, float]]) -> None:
+    """Where a band misses: the flights themselves, or the database made of them."""
+    print(
+        "\nper term, over the fitted flights against what JSBSim flies at each trim: the "
+        "flights' mean error, the share of\nflights whose own 95 % interval holds the "
+        "truth, the database's error and band half-width (mean over the trims),\nthe "
+        "between-flight scatter tau and the flights' own mean standard error"
+    )
+    print(
+        f"  {'term':11s} {'flights err':>11s} {'own cover':>9s} {'db err':>8s} "
+        f"{'band':>8s} {'tau':>8s} {'se':>8s}"
+    )
+    for term in FLOWN:
+        sel = [r for r in per_flight if r[0] == term]
+        rel = np.mean([(e - t) / abs(t) for _, e, _, t, _, _ in sel])
+        cover = np.mean([abs(e - t) <= 1.96 * se for _, e, se, t, _, _ in sel])
+        db_err = np.mean([abs(v - t) for *_, t, v, _ in sel])
+        band = np.mean([b for *_, b in sel])
+        se = np.mean([r[2] for r in sel])
+        print(
+            f"  {term:11s} {100 * rel:+10.1f}% {cover:9.2f} {db_err:8.3g} {band:8.3g} "
+            f"{_TAU.get(term, float('nan')):8.3g} {se:8.3g}"
+        )
+
+
+_TAU: dict[str, float] = {}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
@@ -119,6 +147,7 @@ def main() -> int:
     )
 
     db, the_plan, folder = _database(args.store)
+    _TAU.update({t: float(np.sqrt(db.tau2.get(t, 0.0))) for t in db.terms})
     conditions = {
         f.path.rsplit("/", 1)[-1].removesuffix(".csv"): f.condition for f in the_plan.config.flights
     }
@@ -141,6 +170,7 @@ def main() -> int:
                 rows.append(("table", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
 
     held = {c.flight for c in db.held_out}
+    per_flight: list[tuple[str, float, float, float, float, float]] = []
     print("table: the c172x's XML at 7 alpha over the flown range at each altitude flown; flown:")
     print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims")
     for name, cond in conditions.items():
@@ -163,6 +193,11 @@ def main() -> int:
         for term in FLOWN:
             value, low, high = db.band(term, at)
             t = float(truth[term])
+            if name in db.flights:
+                i, j = db.flights.index(name), db.terms.index(term)
+                est, se = float(db.estimates[i, j]), float(db.stderr[i, j])
+                band = float(high[0] - low[0]) / 2
+                per_flight.append((term, est, se, t, float(value[0]), band))
             rows.append(
                 (
                     kind,
@@ -200,6 +235,7 @@ def main() -> int:
             f"  {term:11s} within 10 %: {np.mean([_close(r[4], r[5]) for r in sel]):.2f}  "
             f"covered: {np.mean([r[6] for r in sel]):.2f}"
         )
+    _diagnose(per_flight)
     _replay(db, the_plan, held)
     if folder is not None:
         text = (folder / "database.md").read_text()
