@@ -353,3 +353,37 @@ def test_condition_keys_are_one_list() -> None:
     assert set(CONDITION_PROPERTIES) == set(CONDITION_NAMES)
     text = condition_text({"airspeed": 45.0, "alpha": 0.0299, "altitude": 500.0, "x": 1.0})
     assert text == "alpha 1.713 deg, airspeed 45 m/s, altitude 500 m"
+
+
+def test_a_term_over_three_keys_is_a_jsbsim_three_dimensional_table(tmp_path: Path) -> None:
+    # multilinear in alpha, mach and altitude: JSBSim's linear interpolation is exact
+    jsbsim = pytest.importorskip("jsbsim")
+    rng = np.random.default_rng(11)
+    flights = []
+    for i in range(20):
+        a, m, h = rng.uniform(0.0, 0.17), rng.uniform(0.10, 0.18), rng.uniform(300.0, 1500.0)
+        value = -12.0 + 8.0 * a + 5.0 * m + 1e-3 * h + 0.02 * a * h
+        flights.append(
+            FlightCoefficients.from_stderr(
+                f"f{i}", {"alpha": a, "mach": m, "altitude": h}, {"Cm_q": value}, {"Cm_q": 0.01}
+            )
+        )
+    db = aerodynamic_database(
+        flights, structures={"Cm_q": ["1", "alpha", "mach", "altitude", "alpha*altitude"]}
+    )
+    section = db.to_jsbsim(n=5)
+    assert '<independentVar lookup="table">position/h-sl-ft</independentVar>' in section
+    fdm = jsbsim.FGFDMExec(_c172x_with(section, tmp_path / "root"), None)
+    fdm.set_debug_level(0)
+    assert fdm.load_model("c172x")
+    fdm["ic/h-sl-ft"] = 2500.0
+    fdm["ic/vc-kts"] = 95.0
+    fdm["ic/alpha-deg"] = 3.0
+    fdm.run_ic()
+    fdm.run()
+    cond = {
+        "alpha": fdm["aero/alpha-rad"],
+        "mach": fdm["velocities/mach"],
+        "altitude": fdm["position/h-sl-ft"] * 0.3048,
+    }
+    assert fdm["aero/aeroid/Cm_q"] == pytest.approx(db.predict("Cm_q", cond)[0][0], abs=1e-6)

@@ -117,30 +117,40 @@ def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
                 f"term {term!r} varies with condition {k!r}, which has no JSBSim property "
                 f"(known: {', '.join(CONDITION_PROPERTIES)})"
             )
-    if len(keys) > 2:
+    if len(keys) > 3:
         raise DataFormatError(
-            f"term {term!r} varies with {len(keys)} condition keys; JSBSim export takes 2"
+            f"term {term!r} varies with {len(keys)} condition keys; JSBSim tables take 3"
         )
     grids = [db.grid(k, n) for k in keys]
     lines = [f"{indent}<table>"]
-    for k, how in zip(keys, ("row", "column"), strict=False):
+    for k, how in zip(keys, ("row", "column", "table"), strict=False):
         lines.append(
             f'{indent}  <independentVar lookup="{how}">{CONDITION_PROPERTIES[k][0]}</independentVar>'
         )
-    lines.append(f"{indent}  <tableData>")
     conv = [CONDITION_PROPERTIES[k][1] for k in keys]
     if len(keys) == 1:
+        lines.append(f"{indent}  <tableData>")
         values = db.predict(term, {**base, keys[0]: grids[0]})[0]
         for x, v in zip(grids[0], values, strict=True):
             lines.append(f"{indent}    {_fmt(x * conv[0])} {_fmt(v)}")
+        lines.append(f"{indent}  </tableData>")
     else:
-        rows, cols = np.meshgrid(grids[0], grids[1], indexing="ij")
-        values = db.predict(term, {**base, keys[0]: rows.ravel(), keys[1]: cols.ravel()})[0]
-        values = values.reshape(rows.shape)
-        lines.append(f"{indent}    " + " ".join(_fmt(c * conv[1]) for c in grids[1]))
-        for i, x in enumerate(grids[0]):
-            lines.append(f"{indent}    {_fmt(x * conv[0])} " + " ".join(_fmt(v) for v in values[i]))
-    lines.append(f"{indent}  </tableData>")
+        # a 2-D table, or one per breakpoint of the third key (JSBSim's 3-D table)
+        layers = grids[2] if len(keys) == 3 else [None]
+        for layer in layers:
+            at = dict(base) if layer is None else {**base, keys[2]: layer}
+            if layer is None:
+                lines.append(f"{indent}  <tableData>")
+            else:
+                lines.append(f'{indent}  <tableData breakPoint="{_fmt(layer * conv[2])}">')
+            rows, cols = np.meshgrid(grids[0], grids[1], indexing="ij")
+            values = db.predict(term, {**at, keys[0]: rows.ravel(), keys[1]: cols.ravel()})[0]
+            values = values.reshape(rows.shape)
+            lines.append(f"{indent}    " + " ".join(_fmt(c * conv[1]) for c in grids[1]))
+            for i, x in enumerate(grids[0]):
+                row = " ".join(_fmt(v) for v in values[i])
+                lines.append(f"{indent}    {_fmt(x * conv[0])} {row}")
+            lines.append(f"{indent}  </tableData>")
     lines.append(f"{indent}</table>")
     return lines
 
