@@ -56,7 +56,8 @@ def _plot(name: str, record: FlightData, flown: Mapping[str, FlightData]) -> byt
     channels = [c for c in _PLOTTED if c in record.names]
     fig, axes = figure(len(channels), height=1.5)
     for ax, ch in zip(axes[:, 0], channels, strict=False):
-        unit = record.units.get(ch, "")
+        # a CSV record may carry no units; the simulator's record does
+        unit = record.units.get(ch) or next(iter(flown.values())).units.get(ch, "")
         scale, shown = (np.degrees(1.0), "deg") if unit == "rad" else (1.0, unit)
         scale, shown = (np.degrees(1.0), "deg/s") if unit == "rad/s" else (scale, shown)
         ax.plot(record.time, record[ch] * scale, lw=0.8, color="k", label="record")
