@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -243,8 +244,22 @@ def _c172x_with(section: str, root: Path) -> str:
     return str(root)
 
 
-def test_jsbsim_reads_the_exported_tables_back(tmp_path: Path) -> None:
+def _flying(section: str, root: Path, *, feet: float, knots: float, alpha: float) -> Any:
+    """The c172x with `section` for its aerodynamics, initialised and one step flown."""
     jsbsim = pytest.importorskip("jsbsim")
+    fdm = jsbsim.FGFDMExec(_c172x_with(section, root), None)
+    fdm.set_debug_level(0)
+    assert fdm.load_model("c172x")
+    fdm["ic/h-sl-ft"] = feet
+    fdm["ic/vc-kts"] = knots
+    fdm["ic/alpha-deg"] = alpha
+    fdm.run_ic()
+    fdm.run()
+    return fdm
+
+
+def test_jsbsim_reads_the_exported_tables_back(tmp_path: Path) -> None:
+    pytest.importorskip("jsbsim")
     rng = np.random.default_rng(7)
     flights = []
     for i in range(16):
@@ -276,15 +291,8 @@ def test_jsbsim_reads_the_exported_tables_back(tmp_path: Path) -> None:
     assert (tmp_path / "aero.xml").read_text() == section
     assert "aero/coefficient/aeroid-CL_alpha" not in section  # the slope of CL_0's table
     assert "<property>aero/ci2vel</property>" in section
-    root = _c172x_with(section, tmp_path / "root")
-    fdm = jsbsim.FGFDMExec(root, None)
-    fdm.set_debug_level(0)
-    assert fdm.load_model("c172x")
-    fdm["ic/h-sl-ft"] = 3000.0
-    fdm["ic/vc-kts"] = 90.0
-    fdm["ic/alpha-deg"] = 4.0
-    fdm.run_ic()
-    for _ in range(5):
+    fdm = _flying(section, tmp_path / "root", feet=3000.0, knots=90.0, alpha=4.0)
+    for _ in range(4):
         fdm.run()
     cond = {"alpha": fdm["aero/alpha-rad"], "mach": fdm["velocities/mach"]}
     for term in ("CL_0", "Cm_delta_e", "Cm_q", "Cl_p", "Cn_r"):
@@ -357,7 +365,7 @@ def test_condition_keys_are_one_list() -> None:
 
 def test_a_term_over_three_keys_is_a_jsbsim_three_dimensional_table(tmp_path: Path) -> None:
     # multilinear in alpha, mach and altitude: JSBSim's linear interpolation is exact
-    jsbsim = pytest.importorskip("jsbsim")
+    pytest.importorskip("jsbsim")
     rng = np.random.default_rng(11)
     flights = []
     for i in range(20):
@@ -373,14 +381,7 @@ def test_a_term_over_three_keys_is_a_jsbsim_three_dimensional_table(tmp_path: Pa
     )
     section = db.to_jsbsim(n=5)
     assert '<independentVar lookup="table">position/h-sl-ft</independentVar>' in section
-    fdm = jsbsim.FGFDMExec(_c172x_with(section, tmp_path / "root"), None)
-    fdm.set_debug_level(0)
-    assert fdm.load_model("c172x")
-    fdm["ic/h-sl-ft"] = 2500.0
-    fdm["ic/vc-kts"] = 95.0
-    fdm["ic/alpha-deg"] = 3.0
-    fdm.run_ic()
-    fdm.run()
+    fdm = _flying(section, tmp_path / "root", feet=2500.0, knots=95.0, alpha=3.0)
     cond = {
         "alpha": fdm["aero/alpha-rad"],
         "mach": fdm["velocities/mach"],
