@@ -179,14 +179,22 @@ def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -
     parts = ["## Aerodynamic database", "", db.summary(), ""]
     if db.held_out:
         rows = [
-            [c.flight, c.term, fmt(c.estimate), fmt(c.stderr), fmt(c.prediction), fmt(c.z, 3)]
+            [
+                c.flight,
+                c.term,
+                fmt(c.estimate),
+                fmt(c.stderr),
+                fmt(c.prediction),
+                fmt(c.z, 3),
+                "yes" if c.inside else f"no (|z| > {fmt(c.limit, 3)})",
+            ]
             for c in db.held_out
         ]
         parts += [
             "### Held-out flights",
             "",
             markdown_table(
-                ["flight", "term", "estimate", "std error", "database", "z"],
+                ["flight", "term", "estimate", "std error", "database", "z", "inside"],
                 rows,
             ),
             "",
