@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ._aliases import legacy_name
+from ._conditions import CONDITION_KEYS, CONDITION_NAMES
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._units import parameter_units
 from .reports import html as _html
@@ -23,6 +24,8 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = [
+    "CONDITION_KEYS",
+    "CONDITION_NAMES",
     "ReadOnlyDict",
     "atomic_write",
     "figure",

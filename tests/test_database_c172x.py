@@ -96,10 +96,11 @@ def test_database_meets_the_c172x_tables() -> None:
             assert np.all(np.abs(value - t) <= np.maximum(0.10 * abs(t), 0.02)), (term, value, t)
             inside += int(np.sum((low <= t) & (t <= high)))
             total += grid.size
-    # 0.76 here, short of the issue's 0.90: the bands follow the derivatives JSBSim flies,
-    # which differ from its tables by a few per cent (Cm_delta_e and Cl_p change with
-    # alpha), and the lift table's kinks at 0.09-0.10 rad are no smooth function's
-    assert inside / total >= 0.70, inside / total
+    # 0.94 here (0.76 with release 0.5.0's fixed-effect fit): the estimates follow the
+    # derivatives JSBSim flies, which differ from its tables by a few per cent (Cm_delta_e
+    # and Cl_p change with alpha) and scatter about them by that much more than their
+    # stated errors; the random-effects band carries the scatter (the issue's 0.90)
+    assert inside / total >= 0.90, inside / total
     # against what the aircraft flies, at every trim in the fit: Cm_alpha bends with
     # alpha, and at the highest trim (13 deg) 5 % noise on 14 flights left its curvature
     # out of the selected structure (10.3 % off there)
@@ -113,5 +114,5 @@ def test_database_meets_the_c172x_tables() -> None:
             inside += int(low[0] <= t <= high[0])
             total += 1
     assert close / total >= 0.97, close / total
-    assert inside / total >= 0.80, inside / total
-    assert all(abs(c.z) < 4.0 for c in db.held_out)
+    assert inside / total >= 0.90, inside / total  # 0.94
+    assert sum(c.inside for c in db.held_out) >= len(db.held_out) - 1  # 15 of 16

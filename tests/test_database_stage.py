@@ -72,3 +72,19 @@ def test_database_stage_names_a_term_no_flight_excites(tmp_path: Path) -> None:
     s = run(cfg, workers=0)
     task = next(t for t in s.plan.tasks if t.stage == "database")
     assert "no flight excites 'M_nothing'" in (s.statuses[task.key].error or "")
+
+
+def test_the_replay_option_changes_no_key_and_the_section_says_what_it_flew(
+    tmp_path: Path,
+) -> None:
+    plain = plan(_config(tmp_path, 4))
+    cfg = _config(tmp_path, 4, "keys: [airspeed], replay: c172x")
+    named = plan(cfg)
+    assert [t.key for t in plain.tasks] == [t.key for t in named.tasks]
+    s = run(cfg, workers=0)
+    text = (s.database_dir / "database.md").read_text()
+    # the short-period model's M_q has no JSBSim section to fly
+    assert "### Held-out flights flown again with the database" in text
+    assert "no JSBSim section" in text or "jsbsim is not installed" in text
+    s = run(_config(tmp_path, 4), workers=0)
+    assert "names no simulator" in (s.database_dir / "database.md").read_text()

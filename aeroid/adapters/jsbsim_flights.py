@@ -26,6 +26,7 @@ import csv
 import hashlib
 import math
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Sequence
@@ -46,6 +47,7 @@ __all__ = [
     "c172x_constants",
     "effective_derivatives",
     "fly_c172x",
+    "replay_c172x",
     "write_campaign",
     "write_flight",
 ]
@@ -112,21 +114,34 @@ def _jsbsim() -> Any:
 _AIRCRAFT: dict[str, Any] = {}
 
 
-def _aircraft(aerodynamics: str | None = None) -> Any:
+def _aircraft(aerodynamics: str | None = None, *, direct: bool = False) -> Any:
     """The adapter's sanitised c172x (no ``<output>`` elements: the stock file declares a
     CSV log beside the package and sockets), kept for the process's life; with
-    `aerodynamics`, a copy whose ``<aerodynamics>`` section is that one."""
+    `aerodynamics`, a copy whose ``<aerodynamics>`` section is that one; `direct`, a
+    copy whose surfaces follow their commands at once (`_direct_surfaces`)."""
     key = "" if aerodynamics is None else hashlib.sha256(aerodynamics.encode()).hexdigest()
+    key += ":direct" if direct else ""
     if key not in _AIRCRAFT:
         from .jsbsim import JsbsimModel
 
-        root = None if aerodynamics is None else _root_with(aerodynamics)
+        root = None if key == "" else _root_with(aerodynamics, direct=direct)
         _AIRCRAFT[key] = JsbsimModel("c172x", outputs={"V": "velocities/vt-fps"}, root=root)
     return _AIRCRAFT[key]
 
 
-def _root_with(aerodynamics: str) -> Path:
-    """A private JSBSim data root holding the c172x with `aerodynamics` in place of its own."""
+def _direct_surfaces(xml: str) -> str:
+    """The flight controls' actuators without their lag, rate limit, hysteresis and bias:
+    a replay drives the surfaces to the positions a record holds, dynamics and all."""
+    start, end = xml.find("<flight_control"), xml.find("</flight_control>")
+    if start < 0 or end < 0:
+        raise AdapterError("the c172x definition has no <flight_control> section")
+    fcs = re.sub(r"<(lag|rate_limit|hysteresis_width|bias)>[^<]*</\1>", "", xml[start:end])
+    return xml[:start] + fcs + xml[end:]
+
+
+def _root_with(aerodynamics: str | None, *, direct: bool = False) -> Path:
+    """A private JSBSim data root holding the c172x with `aerodynamics` in place of its own
+    (None: its own) and, `direct`, its surfaces following their commands at once."""
     from ..support import replace_aerodynamics
 
     src = Path(_jsbsim().get_default_root_dir())
@@ -136,15 +151,22 @@ def _root_with(aerodynamics: str) -> Path:
         shutil.copytree(src / sub, root / sub)
     shutil.copytree(src / "aircraft" / "c172x", root / "aircraft" / "c172x")
     xml = root / "aircraft" / "c172x" / "c172x.xml"
-    xml.write_text(replace_aerodynamics(xml.read_text(), aerodynamics))
+    text = xml.read_text()
+    if aerodynamics is not None:
+        text = replace_aerodynamics(text, aerodynamics)
+    xml.write_text(_direct_surfaces(text) if direct else text)
     return root
 
 
 def _executive(
-    condition: FlightCondition, *, dt: float = 1 / 120, aerodynamics: str | None = None
+    condition: FlightCondition,
+    *,
+    dt: float = 1 / 120,
+    aerodynamics: str | None = None,
+    direct: bool = False,
 ) -> Any:
     """A fresh ``FGFDMExec`` with the c172x trimmed in wings-level flight at `condition`."""
-    fdm = _aircraft(aerodynamics).executive()
+    fdm = _aircraft(aerodynamics, direct=direct).executive()
     fdm.set_dt(dt)
     fdm["ic/h-sl-ft"] = condition.altitude / _FT
     fdm["ic/vt-fps"] = condition.airspeed / _FT
@@ -350,6 +372,105 @@ def fly_c172x(
         "seed": int(seed),
     }
     return FlightData(t, channels, units, meta)
+
+
+# surface -> (JSBSim command, degrees of deflection per unit command below and above
+# zero: the c172x's aerosurface_scale ranges; the aileron's is the effective one, the
+# mean of the left and right surfaces' ranges)
+_SURFACES = {
+    "delta_e": ("fcs/elevator-cmd-norm", 28.0, 23.0),
+    "delta_a": ("fcs/aileron-cmd-norm", 17.5, 17.5),
+    "delta_r": ("fcs/rudder-cmd-norm", 16.0, 16.0),
+}
+_DEG = 0.01745  # the c172x's own degree (its aerosurface_scale gain)
+
+
+def _command(surface: str, position: FloatArray) -> FloatArray:
+    """The normalised command that puts `surface` at `position` (rad) through its scale."""
+    _, down, up = _SURFACES[surface]
+    return np.where(position > 0.0, position / (up * _DEG), position / (down * _DEG))
+
+
+def replay_c172x(
+    record: FlightData,
+    condition: FlightCondition,
+    *,
+    aerodynamics: str | None = None,
+    sample_rate: float | None = None,
+) -> FlightData:
+    """Fly a record's surface deflections again with the c172x, open loop.
+
+    The c172x (or, with `aerodynamics`, the c172x with that ``<aerodynamics>`` section
+    in place of its own: an exported `aeroid.AeroDatabase`) is trimmed at `condition`
+    and flown with the record's elevator, aileron and rudder: each surface at the new
+    trim's position plus the record's deflection from its first half second (the
+    pilot's corrections included, as recorded), in calm air, throttle at the trim,
+    without sensor noise. The surfaces follow the record exactly: this copy of the
+    c172x drops its actuators' lag, rate limit and hysteresis (the record's positions
+    already hold them). What the record's gusts did is not flown again: the c172x's own
+    aerodynamics replayed this way show what a replay can reach.
+
+    Parameters
+    ----------
+    record : FlightData
+        A record with ``delta_e``, ``delta_a``, ``delta_r`` (rad) and time.
+    condition : FlightCondition
+        The record's trim airspeed and altitude.
+    aerodynamics : str, optional
+        A JSBSim ``<aerodynamics>`` section flown in place of the c172x's own.
+    sample_rate : float, optional
+        The record's rate, Hz (default from its time).
+
+    Returns
+    -------
+    FlightData
+        The channels of `C172X_CHANNELS` at the record's times.
+
+    Raises
+    ------
+    AdapterError
+        JSBSim missing, or the record lacks a surface channel.
+    SimulationError
+        The trim fails or the flight diverges.
+    """
+    missing = [s for s in _SURFACES if s not in record.names]
+    if missing:
+        raise AdapterError(f"replay: the record has no {', '.join(missing)} channel")
+    t = np.asarray(record.time, dtype=np.float64)
+    rate = float(sample_rate) if sample_rate else 1.0 / float(np.median(np.diff(t)))
+    every = math.ceil(120.0 / rate - 1e-9)
+    step = 1.0 / (every * rate)
+    fdm = _executive(condition, dt=step, aerodynamics=aerodynamics, direct=True)
+    fine = t[0] + np.arange((t.size - 1) * every + 1, dtype=np.float64) * step
+    start = t <= t[0] + 0.5
+    commands = {}
+    for surface, (prop, _, _) in _SURFACES.items():
+        trim_pos = (
+            float(fdm[prop.replace("cmd-norm", "pos-rad")])
+            if surface != "delta_a"
+            else (float(fdm["fcs/effective-aileron-pos"]))
+        )
+        y = np.asarray(record[surface], dtype=np.float64)
+        # a sample holds the surface that acted over the step before it (`fly_c172x`
+        # records, then moves the surfaces): each step is commanded the next one's
+        target = trim_pos + np.interp(fine + step, t, y - float(np.mean(y[start])))
+        commands[prop] = (
+            float(fdm[prop]) + _command(surface, target) - _command(surface, np.array(trim_pos))
+        )
+    rows = np.empty((t.size, len(C172X_CHANNELS)))
+    for k in range(fine.size):
+        if k % every == 0:
+            rows[k // every] = _record(fdm)
+        for prop, cmd in commands.items():
+            fdm[prop] = float(cmd[k])
+        if k + 1 < fine.size and not fdm.run():
+            raise SimulationError(f"jsbsim c172x stopped at t = {fine[k]:.3f} s")
+    if not np.all(np.isfinite(rows)):
+        raise SimulationError("jsbsim c172x: the replay diverged (non-finite values)")
+    channels = {name: rows[:, i] for i, (name, _, _) in enumerate(C172X_CHANNELS)}
+    units = {name: unit for name, unit, _ in C172X_CHANNELS}
+    meta = {"source": "jsbsim c172x replay", "airspeed": float(condition.airspeed)}
+    return FlightData(t, channels, units, {**meta, "altitude": float(condition.altitude)})
 
 
 def write_flight(data: FlightData, path: str | os.PathLike[str]) -> Path:

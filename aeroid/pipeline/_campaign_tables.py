@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import html
-import math
 import re
 from collections.abc import Mapping
 from typing import Any
@@ -219,24 +218,14 @@ def html_report(text: str, figures: Mapping[str, bytes], marker: str) -> str:
     return markdown_to_html(body, figures).replace("<body>", "<body>\n" + marker, 1)
 
 
-# the flight-condition keys a flight's row shows, in this order, with their units (angles
-# are given in rad and shown in degrees)
-_CONDITIONS = (
-    ("airspeed", "m/s", 1.0),
-    ("altitude", "m", 1.0),
-    ("mach", "", 1.0),
-    ("dynamic_pressure", "Pa", 1.0),
-    ("qbar", "Pa", 1.0),
-    ("alpha", "deg", 180.0 / math.pi),
-    ("beta", "deg", 180.0 / math.pi),
-)
-
-
 def condition_text(meta: Mapping[str, Any]) -> str:
     """A flight's condition as its row shows it: every condition key it gives, with units."""
+    from ..support import CONDITION_KEYS
+
     parts = []
-    for key, unit, scale in _CONDITIONS:
-        if isinstance(meta.get(key), (int, float)) and not isinstance(meta[key], bool):
-            text = f"{key.replace('_', ' ')} {float(meta[key]) * scale:.4g}"
-            parts.append(f"{text} {unit}".rstrip())
+    for c in CONDITION_KEYS:
+        value = meta.get(c.name)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            text = f"{c.name.replace('_', ' ')} {float(value) * c.scale:.4g}"
+            parts.append(f"{text} {c.shown}".rstrip())
     return ", ".join(parts) or str(meta.get("source", "—"))

@@ -20,11 +20,13 @@ import math
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import Field
 
 from ..errors import AeroidError, DataFormatError, PipelineError
+from ..support import CONDITION_NAMES
+from ._database_report import replay_section
 from .config import Options
 from .stages import Stage, StageContext, register_stage
 
@@ -36,7 +38,7 @@ if TYPE_CHECKING:
 __all__ = ["DatabaseOptions", "database_section", "write_database_files"]
 
 # condition keys the stage takes from a flight's metadata unless `keys` names others
-CONDITION_KEYS = ("alpha", "beta", "airspeed", "altitude", "mach", "dynamic_pressure", "qbar")
+CONDITION_KEYS = CONDITION_NAMES
 _COEFFICIENT = re.compile(r"^C[LDYlmn](_|$)")
 
 
@@ -52,6 +54,13 @@ class DatabaseOptions(Options):
     structures: dict[str, list[str]] | None = None
     held_out: list[str] | None = None
     confidence: float | None = Field(None, gt=0, lt=1)
+    # the simulator that flies the held-out flights again with the exported database,
+    # after the run, for the report (`aeroid.pipeline._database_report`): no result
+    # changes with it, so it stays out of the key
+    replay: Literal["c172x"] | None = None
+
+    execution_only: ClassVar[frozenset[str]] = frozenset({"replay"})
+    engine_only: ClassVar[frozenset[str]] = frozenset({"replay"})
 
     library: ClassVar[str] = "aeroid.uncertainty.database:aerodynamic_database"
 
@@ -111,7 +120,7 @@ def _run_database(ctx: StageContext) -> Any:
                 f"database: no flight gives a condition ({', '.join(CONDITION_KEYS)}); "
                 f"give each flight one in the config, or name the keys in stages.database.keys"
             )
-    kw = opts.library_kwargs(exclude=("keys", "held_out"))
+    kw = opts.library_kwargs(exclude=("keys", "held_out", "replay"))
     return aerodynamic_database(flights, keys=keys, held_out=tuple(opts.held_out or ()), **kw)
 
 
@@ -147,8 +156,9 @@ register_stage(
     Stage(
         "database",
         # 2: each coefficient weighted by its own variances (aeroid.uncertainty.database notes);
-        # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition)
-        "3",
+        # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition);
+        # 4: random-effects meta-regression, model-averaged Knapp-Hartung bands
+        "4",
         DatabaseOptions,
         "AeroDatabase",
         _run_database,
@@ -169,14 +179,22 @@ def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -
     parts = ["## Aerodynamic database", "", db.summary(), ""]
     if db.held_out:
         rows = [
-            [c.flight, c.term, fmt(c.estimate), fmt(c.stderr), fmt(c.prediction), fmt(c.z, 3)]
+            [
+                c.flight,
+                c.term,
+                fmt(c.estimate),
+                fmt(c.stderr),
+                fmt(c.prediction),
+                fmt(c.z, 3),
+                "yes" if c.inside else f"no (|z| > {fmt(c.limit, 3)})",
+            ]
             for c in db.held_out
         ]
         parts += [
             "### Held-out flights",
             "",
             markdown_table(
-                ["flight", "term", "estimate", "std error", "database", "z"],
+                ["flight", "term", "estimate", "std error", "database", "z", "inside"],
                 rows,
             ),
             "",
@@ -267,7 +285,9 @@ def write_database_files(
             png = folder / f"{term}.png"
             png.write_bytes(_band_plot(db, term))
             files[term] = png.name
-        text = database_section(db, files) + "".join(f"\n{n}\n" for n in notes)
+        held = list(task.options.get("held_out") or [])
+        replay, _ = replay_section(the_plan, store, task, held, folder)
+        text = database_section(db, files) + "".join(f"\n{n}\n" for n in notes) + replay
         (folder / "database.md").write_text(text, encoding="utf-8")
     except (AeroidError, OSError) as exc:
         return None, f"cannot write the aerodynamic database files: {exc}"

@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter, MaxNLocator
 
+from .._conditions import CONDITION_KEYS, condition_key
 from ..errors import IdentificationError
 
 __all__ = [
@@ -530,10 +531,6 @@ def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
     return fig
 
 
-# Units of the flight-condition keys the campaign records carry.
-_CONDITION_UNITS = {"airspeed": "m/s", "dynamic_pressure": "Pa", "qbar": "Pa", "altitude": "m"}
-
-
 def plot_campaign_trend(
     records: Sequence[Mapping[str, Any]],
     *,
@@ -577,9 +574,12 @@ def plot_campaign_trend(
         names = list(parameters)
     if condition is None and ok:
         meta = ok[0].get("metadata", {})
-        for key in ("alpha", "airspeed", "mach", "Mach", "dynamic_pressure", "qbar"):
-            if key in meta:
-                condition = key
+        # the first condition key it gives, but for the sideslip and the altitude (a
+        # trim's sideslip is zero; a varying altitude colours the points)
+        for key_def in CONDITION_KEYS:
+            given = [k for k in (key_def.name, key_def.name.capitalize()) if k in meta]
+            if given and key_def.name not in ("beta", "altitude"):
+                condition = given[0]
                 break
     labels = [str(r.get("flight", i)) for i, r in enumerate(ok)]
     # flight names are written at 45 degrees under the last panel: room for the longest
@@ -590,9 +590,10 @@ def plot_campaign_trend(
     )
     if condition is not None:
         x = np.array([float(r.get("metadata", {}).get(condition, np.nan)) for r in ok])
-        unit_of = {condition: _CONDITION_UNITS.get(condition, ""), **dict(units or {})}
-        if condition in ("alpha", "beta"):  # given in rad, read in degrees
-            x, unit_of[condition] = np.degrees(x), "deg"
+        cond_key = condition_key(condition)
+        unit_of = {condition: cond_key.unit if cond_key else "", **dict(units or {})}
+        if cond_key is not None and cond_key.shown != cond_key.unit:  # angles, in degrees
+            x, unit_of[condition] = x * cond_key.scale, cond_key.shown
         xlabel = _label(condition, unit_of).replace("_", " ")
     else:
         x = np.arange(len(ok), dtype=float)

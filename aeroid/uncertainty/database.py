@@ -11,63 +11,102 @@ Klein & Morelli (ch. 5, "global" modelling; SIDPAC's stepwise and PSE tools)
 fit a global model by regressing local estimates on the flight condition. The
 alternative, one multi-flight output error over every record, refits every
 flight whenever one is added and ties the database to the dynamic model of
-the campaign. The regression of the estimates costs microseconds, leaves each
+the campaign. The regression of the estimates costs milliseconds, leaves each
 flight's task untouched (a campaign adding one flight recomputes that flight
 and this fit, nothing else) and carries each flight's full parameter
-covariance. Each coefficient ``j`` is fitted on its own estimates ``z_fj``,
-weighted by their variances ``v_fj``, with ``X_j`` the basis rows at the
-flights' conditions:
+covariance. Each coefficient ``j`` is fitted on its own estimates ``z_fj`` with the basis
+rows ``X_j`` at the flights' conditions.
 
-    θ_j = G_j z_j,   G_j = (X_j' W_j X_j)⁻¹ X_j' W_j,   W_j = diag(1 / v_fj),
+Why random effects
+------------------
+A flight's covariance (Cramér-Rao, or its sandwich) states only the error the
+noise it models leaves; each flight also carries errors it does not state:
+model structure (an unmodelled effect or nonlinearity, lumped terms), coloured
+residuals, the pilot's corrections, its own turbulence. They differ from flight
+to flight, so the estimates scatter about the smooth surface by more than their
+error bars, and the flights with the tightest bars, no less biased, would
+dominate a fit weighted by the bars alone (the fixed-effect fit; its Birge
+factor widens the band but keeps those weights). The meta-analysis of studies
+with unequal, understated errors has the same structure and its answer is the
+random-effects meta-regression (DerSimonian & Laird 1986; Raudenbush 2009;
+Viechtbauer 2005 for the REML estimator):
 
-solved through a QR factorisation of the weighted rows. Not a joint
-generalised least squares over every coefficient with the full per-flight
-covariances: on real flights the coefficients of one flight share its errors
-(Cl_p with Cl_delta_a through the roll response, a bias from an unmodelled
-effect in all of them), and the joint fit then moves each mean by the
-residuals of the others, out of the range of every flight's estimate where
-the flights share a bias (Peelle's puzzle; the demo's twelve c172x flights
-put a joint Cl_p below all twelve estimates). The correlations are kept where
-they belong, in the covariance of the database: with ``V_f`` flight ``f``'s
-full covariance and ``g_jf`` column ``f`` of ``G_j``,
+    z_fj = x_f' θ_j + b_fj + e_fj,   b_fj ~ N(0, τ_j²),   e_fj ~ N(0, v_fj),
 
-    Cov(θ_j, θ_k) = Σ_f g_jf V_f,jk g_kf',
+``τ_j²`` the between-flight variance of coefficient ``j``, estimated by
+restricted maximum likelihood (zero when the stated variances explain the
+scatter, and then the fit is the fixed-effect one), and the weights
+``1/(v_fj + τ_j²)``:
 
-the exact covariance of these linear estimates (the sandwich), so a band on a
-sum of coefficients (CL_0 + CL_alpha α) counts their correlation.
+    θ_j = G_j z_j,   G_j = (X_j' W_j X_j)⁻¹ X_j' W_j,   W_j = diag(1 / (v_fj + τ_j²)),
 
-Basis and structure selection
------------------------------
+solved through a QR factorisation of the weighted rows. With the dozen flights
+of a campaign the normal quantile understates the band: the Knapp-Hartung
+(Hartung-Knapp-Sidik-Jonkman) variance, ``(X'WX)⁻¹`` scaled by
+``max(1, Σ w r² / (n − p))``, and Student's t quantile on ``n − p`` degrees of
+freedom keep the coverage near nominal for few studies (Knapp & Hartung 2003;
+Röver, Knapp & Friede 2015 for the ``max(1, ·)``). Not a joint generalised
+least squares over every coefficient with the full per-flight covariances: on
+real flights the coefficients of one flight share its errors (Cl_p with
+Cl_delta_a through the roll response, a bias from an unmodelled effect in all
+of them), and the joint fit then moves each mean by the residuals of the
+others, out of the range of every flight's estimate where the flights share a
+bias (Peelle's puzzle; the demo's twelve c172x flights put a joint Cl_p below
+all twelve estimates). The correlations are kept where they belong, in the
+covariance of the database: with ``V_f`` flight ``f``'s full covariance and
+``g_jf`` column ``f`` of ``G_j``,
+
+    Cov(θ_j, θ_k) = Σ_f g_jf V_f,jk g_kf'   (j ≠ k),
+
+the covariance of these linear estimates (the sandwich), so a band on a sum of
+coefficients (CL_0 + CL_alpha α) counts their correlation.
+
+What no fit of the estimates can see is an error all flights share (the same
+model-structure bias in every identification): it moves the surface without
+scattering the flights about it, and it belongs to each flight's
+identification. `tests/reference/c172x_demo_database.py` separates the two on
+the demo campaign (each flight's own interval against the simulator's value).
+
+Basis, structure selection and model averaging
+----------------------------------------------
 Each condition key is scaled to ``u ∈ [-1, 1]`` over the fitted flights and
 the candidates are products of Legendre polynomials ``P_n(u)`` of total degree
 at most `max_degree`: orthogonal over the flown box, so the columns stay well
 conditioned where raw powers of alpha in radians would not. The structure of
 each coefficient is chosen by forward stepwise regression on its whitened
-estimates as in Klein & Morelli ch. 5: a candidate enters when its partial F
-exceeds `f_in` (default 4, about 95 % significance for one term) *and* the
-predicted squared error ``PSE = χ²/N + σ²_max p/N`` decreases. Klein & Morelli's
-``σ²_max`` bounds the noise variance from above; for whitened estimates that
-variance is 1 when the stated covariances hold, so ``σ²_max`` is the larger of 1
-and the residual variance of the richest candidate model (the scatter about the
-mean, their choice for raw data, would bound it by the trend itself); PSE stops the F test from adding terms
-that fit scatter with few flights. Candidates respect hierarchy (``P_2(u)``
-needs ``P_1(u)``, a product needs both factors), and a key that does not vary
-over the flights offering a coefficient offers it no candidate. A structure can
-also be forced per coefficient with `structures`.
+estimates (weights ``1/(v + τ²)``, ``τ²`` of the richest candidate model) as in
+Klein & Morelli ch. 5: a candidate enters when its partial F exceeds `f_in`
+(default 4, about 95 % significance for one term) *and* the predicted squared
+error ``PSE = χ²/N + σ²_max p/N`` decreases. Klein & Morelli's ``σ²_max``
+bounds the noise variance from above; for whitened estimates that variance is
+1 when the weights hold, so ``σ²_max`` is the larger of 1 and the residual
+variance of the richest candidate model. Candidates respect hierarchy
+(``P_2(u)`` needs ``P_1(u)``, a product needs both factors); a key that does not
+vary over the flights offering a coefficient offers it no candidate, nor does a
+function the flights' conditions cannot tell from those before it.
+
+A band drawn from the selected structure alone is conditional on a choice
+made from the same data, and narrower than its error (a curvature the F test
+just missed is a bias the band does not hold). The database therefore averages
+the models along the stepwise path (the selected one, its predecessors and
+two richer ones) with their Akaike weights (AICc of the maximum-likelihood
+fit), and the band is the unconditional one of Buckland, Burnham & Augustin
+(1997) and Burnham & Anderson (2002, eq. 4.9): each model's covariance plus its
+spread about the average, ``Σ_m w_m [C_m + (θ_m − θ̄)(θ_m − θ̄)']``. The
+structures stay nested, so the average is one model in the richest basis kept
+(`basis`); `structures` names the selected one. A structure can also be forced
+per coefficient with `structures` (then no average).
 
 Uncertainty
 -----------
-The stated per-flight covariances are trusted when they explain the scatter
-about the model; when they do not (``χ²_j / dof_j > 1`` for coefficient ``j``,
-model inadequacy or optimistic per-flight bars), that coefficient's block of
-``Cov θ`` is scaled by the ratio (Birge ratio), never shrunk. A band at a
-condition ``x`` is ``c(x) ± z σ(x)`` with ``σ²(x) = φ(x)' Cov θ_j φ(x)``.
+A band at a condition ``x`` is ``c(x) ± t σ(x)`` with ``σ²(x) = φ(x)' Cov θ_j
+φ(x)`` and ``t`` Student's quantile on the term's `dof`.
 
 Held-out check
 --------------
 Flights named in `held_out` stay out of the fit; their estimates are compared
-with the database's prediction, ``(z − c(x)) / sqrt(σ_z² + σ²(x))``, a
-standard normal when the database and the flight agree.
+with the database's prediction, ``(z − c(x)) / sqrt(σ_z² + τ² + σ²(x))`` (a new
+flight scatters by ``τ`` too), inside when within the band's quantile.
 """
 
 from __future__ import annotations
@@ -84,6 +123,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import norm_ppf
 from ..errors import DataFormatError, IdentificationError
+from ._database_fit import TermFit, design, fit_term
 
 __all__ = ["AeroDatabase", "FlightCoefficients", "HeldOutCheck", "aerodynamic_database"]
 
@@ -145,7 +185,11 @@ class HeldOutCheck:
     prediction, band_stderr : float
         The database at the flight's condition and its standard error.
     z : float
-        ``(estimate − prediction) / sqrt(stderr² + band_stderr²)``.
+        ``(estimate − prediction) / sqrt(stderr² + τ² + band_stderr²)``, ``τ²`` the
+        term's between-flight variance (a new flight scatters by it too).
+    limit : float
+        The quantile `z` is compared with at the database's confidence (Student's t
+        on the term's degrees of freedom).
     """
 
     flight: str
@@ -155,6 +199,12 @@ class HeldOutCheck:
     prediction: float
     band_stderr: float
     z: float
+    limit: float = 1.959963984540054
+
+    @property
+    def inside(self) -> bool:
+        """Whether the estimate lies inside the database's prediction band."""
+        return abs(self.z) <= self.limit
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,16 +221,18 @@ class AeroDatabase:
         The scaling ``u = (x − centre) / half_range`` of each key over the fitted
         flights (half range 1 for a key that did not vary).
     structures : mapping of str to tuple of str
-        Basis functions of each coefficient, as labels (``"1"``, ``"P1(alpha)"``,
-        ``"P1(alpha)*P1(mach)"``).
+        The structure stepwise regression selects for each coefficient, as labels
+        (``"1"``, ``"P1(alpha)"``, ``"P1(alpha)*P1(mach)"``).
     parameters : mapping of str to ndarray
-        Coefficients of the basis functions, per term.
+        Coefficients of the basis functions of `basis`, per term (the model average).
     covariance : ndarray
         Joint covariance of all basis coefficients, terms in order `terms`.
     scale : mapping of str to float
-        The Birge factor ``max(1, χ²/dof)`` applied to each term's block.
+        The Knapp-Hartung factor ``max(1, χ²/dof)`` applied to each term's block.
     chi2, dof : mapping of str to float
-        Weighted residual sum of squares and its degrees of freedom per term.
+        Weighted residual sum of squares (weights ``1/(v + τ²)``) and its degrees of
+        freedom per term, of the model with the largest weight; `dof` sets the
+        Student's t quantile of the bands.
     flights : tuple of str
         Flights in the fit.
     conditions : ndarray, shape (n_flights, n_keys)
@@ -189,6 +241,11 @@ class AeroDatabase:
     held_out : tuple of HeldOutCheck
     confidence : float
         Level of the bands of `band` and the held-out coverage.
+    tau2 : mapping of str to float
+        Between-flight variance of each coefficient (REML; module notes).
+    basis : mapping of str to tuple of str
+        The basis of each coefficient's model average (`structures` and the richer
+        models along the stepwise path that keep an Akaike weight).
     """
 
     terms: tuple[str, ...]
@@ -207,11 +264,14 @@ class AeroDatabase:
     stderr: FloatArray
     held_out: tuple[HeldOutCheck, ...] = ()
     confidence: float = 0.95
+    tau2: Mapping[str, float] = field(default_factory=dict)
+    basis: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     _exponents: Mapping[str, tuple[Exponents, ...]] = field(default_factory=dict, repr=False)
     _offsets: Mapping[str, int] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        for name in ("centres", "half_ranges", "structures", "scale", "chi2", "dof"):
+        names = ("centres", "half_ranges", "structures", "scale", "chi2", "dof", "tau2", "basis")
+        for name in names:
             object.__setattr__(self, name, frozen_mapping(getattr(self, name)))
         object.__setattr__(
             self,
@@ -251,7 +311,7 @@ class AeroDatabase:
                     f"uses {len(self.keys)} keys ({', '.join(self.keys)})"
                 )
         u = _scaled(x, self.keys, self.centres, self.half_ranges)
-        return _design(u, self._exponents[term])
+        return design(u, self._exponents[term])
 
     def predict(
         self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
@@ -284,13 +344,19 @@ class AeroDatabase:
         *,
         confidence: float | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Prediction with its lower and upper confidence bound (default `confidence`)."""
+        """Prediction with its lower and upper confidence bound (default `confidence`):
+        ``± t σ``, ``t`` Student's quantile on the term's `dof` (Knapp-Hartung)."""
         level = self.confidence if confidence is None else float(confidence)
         if not 0.0 < level < 1.0:
             raise IdentificationError(f"confidence must lie in (0, 1), got {level}")
         value, se = self.predict(term, condition)
-        z = norm_ppf(0.5 + 0.5 * level)
+        z = self.quantile(term, level)
         return value, value - z * se, value + z * se
+
+    def quantile(self, term: str, confidence: float | None = None) -> float:
+        """The two-sided quantile of `term`'s bands: Student's t on its `dof`."""
+        level = self.confidence if confidence is None else float(confidence)
+        return _t_quantile(self.dof.get(term, 0.0), 0.5 + 0.5 * level)
 
     def as_function(self) -> Callable[..., dict[str, FloatArray]]:
         """A plain callable ``f(**condition) -> {term: value}`` for a simulation."""
@@ -356,16 +422,16 @@ class AeroDatabase:
                     fmt(self.chi2[t]),
                     fmt(self.dof[t], 3),
                     fmt(self.scale[t]),
+                    fmt(math.sqrt(self.tau2.get(t, 0.0))),
                 ]
             )
         head = (
             f"Aerodynamic database: {len(self.terms)} coefficients over {len(self.flights)} flights, "
             f"condition keys {', '.join(self.keys)}\n\n"
         )
-        out = head + markdown_table(["term", "structure", "χ²", "dof", "scale"], rows)
+        out = head + markdown_table(["term", "structure", "χ²", "dof", "scale", "τ"], rows)
         if self.held_out:
-            z = norm_ppf(0.5 + 0.5 * self.confidence)
-            inside = sum(abs(c.z) <= z for c in self.held_out)
+            inside = sum(c.inside for c in self.held_out)
             out += (
                 f"\n\nHeld out: {len({c.flight for c in self.held_out})} flights, {inside} of "
                 f"{len(self.held_out)} estimates inside the {self.confidence:.0%} band"
@@ -376,32 +442,12 @@ class AeroDatabase:
 # -- basis ---------------------------------------------------------------------------------------
 
 
-def _legendre(u: FloatArray, n: int) -> FloatArray:
-    p0, p1 = np.ones_like(u), u
-    if n == 0:
-        return p0
-    for k in range(1, n):
-        p0, p1 = p1, ((2 * k + 1) * u * p1 - k * p0) / (k + 1)
-    return p1
-
-
 def _scaled(
     x: FloatArray, keys: Sequence[str], centres: Mapping[str, float], half: Mapping[str, float]
 ) -> FloatArray:
     c = np.array([centres[k] for k in keys])
     h = np.array([half[k] for k in keys])
     return np.asarray((x - c) / h, dtype=np.float64)
-
-
-def _design(u: FloatArray, exponents: Sequence[Exponents]) -> FloatArray:
-    cols = []
-    for e in exponents:
-        col = np.ones(u.shape[0])
-        for i, n in enumerate(e):
-            if n:
-                col = col * _legendre(u[:, i], n)
-        cols.append(col)
-    return np.stack(cols, axis=1)
 
 
 def _label(e: Exponents, keys: Sequence[str]) -> str:
@@ -444,67 +490,6 @@ def _candidates(n_keys: int, max_degree: int, varying: Sequence[bool]) -> list[E
 
     grow([], max_degree)
     return sorted((e for e in out if any(e)), key=lambda e: (sum(e), e))
-
-
-def _parents(e: Exponents) -> list[Exponents]:
-    """Hierarchy: each key's degree lowered by one (a product needs its factors)."""
-    out = []
-    for i, n in enumerate(e):
-        if n:
-            p = list(e)
-            p[i] -= 1
-            out.append(tuple(p))
-    return out
-
-
-# -- fitting -------------------------------------------------------------------------------------
-
-
-def _wls_chi2(a: FloatArray, b: FloatArray) -> float:
-    theta, *_ = np.linalg.lstsq(a, b, rcond=None)
-    r = b - a @ theta
-    return float(r @ r)
-
-
-def _select(
-    u: FloatArray, z: FloatArray, w: FloatArray, candidates: list[Exponents], f_in: float
-) -> list[Exponents]:
-    """Forward stepwise by partial F and PSE on the whitened data (Klein & Morelli ch. 5)."""
-    n = z.size
-    chosen: list[Exponents] = [tuple(0 for _ in range(u.shape[1]))]
-    sw = np.sqrt(w)
-    all_cols = {e: _design(u, [e])[:, 0] * sw for e in [*chosen, *candidates]}
-    b = z * sw
-
-    def chi2_of(es: list[Exponents]) -> float:
-        return _wls_chi2(np.stack([all_cols[e] for e in es], axis=1), b)
-
-    chi2 = chi2_of(chosen)
-    # the noise variance of whitened data is 1 if the stated covariances hold; the
-    # richest candidate model's residual variance bounds it from above when they do not
-    full = [*chosen, *candidates]
-    s2_max = max(1.0, chi2_of(full) / (n - len(full))) if n > len(full) else 1.0
-    pse = chi2 / n + s2_max * len(chosen) / n
-    while n - len(chosen) > 1:
-        best: tuple[float, Exponents] | None = None
-        for e in candidates:
-            if e in chosen or any(p not in chosen for p in _parents(e) if any(p)):
-                continue
-            c2 = chi2_of([*chosen, e])
-            if best is None or c2 < best[0]:
-                best = (c2, e)
-        if best is None:
-            break
-        c2, e = best
-        p = len(chosen) + 1
-        s2 = max(c2 / (n - p), 1.0)  # stated covariances are a floor on the scatter
-        f = (chi2 - c2) / s2
-        new_pse = c2 / n + s2_max * p / n
-        if f < f_in or new_pse >= pse:
-            break
-        chosen.append(e)
-        chi2, pse = c2, new_pse
-    return chosen
 
 
 def _flight_data(
@@ -633,35 +618,28 @@ def aerodynamic_database(
             f"structures name term(s) {', '.join(bad)} that no flight estimates"
         )
 
-    exponents: dict[str, tuple[Exponents, ...]] = {}
+    fits: dict[str, TermFit] = {}
     for j, t in enumerate(terms):
         has = np.isfinite(z[:, j])
         if not has.any():
             raise IdentificationError(
                 f"no flight excites {t!r}: every flight's estimate is missing or has no finite variance"
             )
-        var = np.array([covs[i][j, j] for i in range(len(fit))])
+        var = np.array([covs[i][j, j] for i in np.flatnonzero(has)])
         uj = u[has]
         if t in forced:
             es = [_parse_label(lab, keys, t) for lab in forced[t]]
             _check_identifiable(t, es, uj, [fit[i].name for i in np.flatnonzero(has)], keys)
+            fits[t] = fit_term(uj, z[has, j], var, forced=es)
         else:
             varying = [bool(np.ptp(uj[:, i]) > 1e-9) for i in range(len(keys))]
             cands = _candidates(len(keys), max_degree, varying)
-            es = _select(uj, z[has, j], 1.0 / var[has], cands, f_in)
-        exponents[t] = tuple(es)
+            fits[t] = fit_term(uj, z[has, j], var, candidates=cands, f_in=f_in)
 
-    theta, cov, chi2, dof = _gls(u, z, covs, terms, exponents)
-    offsets, params, scale = {}, {}, {}
-    j0 = 0
+    offsets, j0 = {}, 0
     for t in terms:
-        p = len(exponents[t])
         offsets[t] = j0
-        params[t] = theta[j0 : j0 + p]
-        scale[t] = max(1.0, chi2[t] / dof[t]) if dof[t] > 0 else 1.0
-        j0 += p
-    d = np.concatenate([np.full(len(exponents[t]), math.sqrt(scale[t])) for t in terms])
-    cov = cov * np.outer(d, d)
+        j0 += len(fits[t].exponents)
     stderr = np.sqrt(np.array([np.diag(c) for c in covs]))
     stderr = np.where(np.isfinite(z), stderr, np.nan)
     db = AeroDatabase(
@@ -669,18 +647,20 @@ def aerodynamic_database(
         keys=keys,
         centres=centres,
         half_ranges=half,
-        structures={t: tuple(_label(e, keys) for e in exponents[t]) for t in terms},
-        parameters=params,
-        covariance=cov,
-        scale=scale,
-        chi2=chi2,
-        dof=dof,
+        structures={t: tuple(_label(e, keys) for e in fits[t].selected) for t in terms},
+        parameters={t: fits[t].theta for t in terms},
+        covariance=_joint_covariance(z, covs, terms, fits),
+        scale={t: fits[t].scale for t in terms},
+        chi2={t: fits[t].chi2 for t in terms},
+        dof={t: fits[t].dof for t in terms},
         flights=tuple(f.name for f in fit),
         conditions=x,
         estimates=z,
         stderr=stderr,
         confidence=confidence,
-        _exponents=exponents,
+        tau2={t: fits[t].tau2 for t in terms},
+        basis={t: tuple(_label(e, keys) for e in fits[t].exponents) for t in terms},
+        _exponents={t: fits[t].exponents for t in terms},
         _offsets=offsets,
     )
     held = [f for f in flights if f.name in set(held_out)]
@@ -694,18 +674,64 @@ def aerodynamic_database(
                 continue
             pred, se = db.predict(t, hx[i : i + 1])
             s_est = math.sqrt(hcovs[i][j, j])
-            zval = (hz[i, j] - pred[0]) / math.hypot(s_est, se[0])
+            spread = math.sqrt(s_est**2 + db.tau2[t] + se[0] ** 2)
+            zval = (hz[i, j] - pred[0]) / spread
             checks.append(
-                HeldOutCheck(f.name, t, float(hz[i, j]), s_est, float(pred[0]), float(se[0]), zval)
+                HeldOutCheck(
+                    f.name,
+                    t,
+                    float(hz[i, j]),
+                    s_est,
+                    float(pred[0]),
+                    float(se[0]),
+                    zval,
+                    db.quantile(t),
+                )
             )
     object.__setattr__(db, "held_out", tuple(checks))
     return db
 
 
+def _joint_covariance(
+    z: FloatArray, covs: Sequence[FloatArray], terms: Sequence[str], fits: Mapping[str, TermFit]
+) -> FloatArray:
+    """The covariance of every term's basis coefficients: across terms the sandwich
+    ``Σ_f g_jf V_f,jk g_kf'`` through each flight's full covariance; each term's own
+    block its model-averaged covariance (`fit_term`), which holds that term's part of
+    the sandwich and more, so the whole stays positive semi-definite."""
+    sizes = [len(fits[t].exponents) for t in terms]
+    offs = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    gains = []
+    for jt, t in enumerate(terms):
+        g = np.zeros((sizes[jt], z.shape[0]))
+        g[:, np.isfinite(z[:, jt])] = fits[t].gain
+        gains.append(g)
+    owner = np.repeat(np.arange(len(terms)), sizes)
+    out = np.zeros((offs[-1], offs[-1]))
+    for i, cov in enumerate(covs):
+        present = np.isfinite(z[i])
+        c = np.where(np.outer(present, present), np.nan_to_num(cov), 0.0)
+        g_i = np.concatenate([g[:, i] for g in gains])
+        out += np.outer(g_i, g_i) * c[np.ix_(owner, owner)]
+    for jt, t in enumerate(terms):
+        sl = slice(offs[jt], offs[jt + 1])
+        out[sl, sl] = fits[t].covariance
+    return 0.5 * (out + out.T)
+
+
+def _t_quantile(dof: float, p: float) -> float:
+    """Student's t quantile (the normal's where no degree of freedom is left)."""
+    if dof < 1.0:
+        return norm_ppf(p)
+    from scipy.special import stdtrit
+
+    return float(stdtrit(dof, p))
+
+
 def _check_identifiable(
     term: str, es: Sequence[Exponents], u: FloatArray, flights: Sequence[str], keys: Sequence[str]
 ) -> None:
-    a = _design(u, es)
+    a = design(u, es)
     if a.shape[0] < a.shape[1]:
         raise IdentificationError(
             f"{term!r}: the forced structure has {a.shape[1]} functions but only "
@@ -722,42 +748,3 @@ def _check_identifiable(
         raise IdentificationError(
             f"{term!r} is unidentifiable: {why} the flights that excite it ({', '.join(flights)})"
         )
-
-
-def _gls(
-    u: FloatArray,
-    z: FloatArray,
-    covs: Sequence[FloatArray],
-    terms: Sequence[str],
-    exponents: Mapping[str, Sequence[Exponents]],
-) -> tuple[FloatArray, FloatArray, dict[str, float], dict[str, float]]:
-    """Each term by weighted least squares on its own variances; the covariance of all
-    terms' parameters by the sandwich through every flight's full covariance."""
-    sizes = [len(exponents[t]) for t in terms]
-    offs = np.concatenate([[0], np.cumsum(sizes)])
-    n_f = z.shape[0]
-    # gain[j]: (p_j, n_f), the map from term j's estimates over the flights to its parameters
-    gain = []
-    theta = np.zeros(offs[-1])
-    chi2, dof = {}, {}
-    for jt, t in enumerate(terms):
-        has = np.isfinite(z[:, jt])
-        var = np.array([covs[int(i)][jt, jt] for i in np.flatnonzero(has)])
-        a = _design(u[has], exponents[t])
-        w = 1.0 / np.sqrt(var)
-        q, r_fac = np.linalg.qr(a * w[:, None])
-        g_has = np.linalg.solve(r_fac, q.T * w[None, :])  # (p, n_has)
-        g = np.zeros((sizes[jt], n_f))
-        g[:, has] = g_has
-        gain.append(g)
-        theta[offs[jt] : offs[jt + 1]] = g_has @ z[has, jt]
-        chi2[t] = float(np.sum((z[has, jt] - a @ theta[offs[jt] : offs[jt + 1]]) ** 2 / var))
-        dof[t] = float(has.sum() - sizes[jt])
-    cov_theta = np.zeros((offs[-1], offs[-1]))
-    for i, cov in enumerate(covs):
-        present = np.isfinite(z[i])
-        c = np.where(np.outer(present, present), np.nan_to_num(cov), 0.0)
-        g_i = np.concatenate([g[:, i] for g in gain])  # (P,): flight i's column per term
-        owner = np.repeat(np.arange(len(terms)), sizes)
-        cov_theta += np.outer(g_i, g_i) * c[np.ix_(owner, owner)]
-    return theta, 0.5 * (cov_theta + cov_theta.T), chi2, dof

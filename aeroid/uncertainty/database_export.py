@@ -13,6 +13,19 @@ static ``<C>_0`` is tabulated over a condition key that is also a regressor
 
 Each table also stands alone as ``aero/aeroid/<term>`` (without the products),
 so that a simulation can read the database's value directly.
+
+The moments are about the centre of gravity: an identification fits the
+equations of motion about it, so its moment coefficients already hold the
+moments of the lift, drag and side force about the centre of gravity. JSBSim
+applies an ``<aerodynamics>`` section's forces at the aircraft's aerodynamic
+reference point (``AERORP`` in its ``<metrics>``) and adds their moment about the
+centre of gravity; on the c172x, 24 in above and 2 in ahead of it, that moment
+would count the lift's and the drag's arms twice (about 0.4 in Cm_alpha). Each
+moment axis of the section therefore carries ``aero/coefficient/aeroid-cg-<axis>``,
+the opposite of that moment (``(cg − rp) × F`` in body axes, from JSBSim's own
+reference point, centre of gravity and the section's forces), so the section
+flies the database's moments about the centre of gravity wherever the
+aircraft's reference point sits.
 """
 
 from __future__ import annotations
@@ -52,7 +65,13 @@ REGRESSOR_PROPERTIES: Mapping[str, tuple[str, ...]] = {
     "q": ("aero/ci2vel", "velocities/q-aero-rad_sec"),
     "r": ("aero/bi2vel", "velocities/r-aero-rad_sec"),
     "delta_e": ("fcs/elevator-pos-rad",),
-    "delta_a": ("fcs/left-aileron-pos-rad",),
+    # the mean deflection of the two ailerons, right trailing edge up positive: what a
+    # record's delta_a holds (the c172x's fcs/effective-aileron-pos); the left
+    # aileron alone deflects 15 deg up and 20 deg down on the c172x
+    "delta_a": (
+        "<product><value>0.5</value><difference><property>fcs/left-aileron-pos-rad"
+        "</property><property>fcs/right-aileron-pos-rad</property></difference></product>",
+    ),
     "delta_r": ("fcs/rudder-pos-rad",),
 }
 
@@ -98,32 +117,81 @@ def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
                 f"term {term!r} varies with condition {k!r}, which has no JSBSim property "
                 f"(known: {', '.join(CONDITION_PROPERTIES)})"
             )
-    if len(keys) > 2:
+    if len(keys) > 3:
         raise DataFormatError(
-            f"term {term!r} varies with {len(keys)} condition keys; JSBSim export takes 2"
+            f"term {term!r} varies with {len(keys)} condition keys; JSBSim tables take 3"
         )
     grids = [db.grid(k, n) for k in keys]
     lines = [f"{indent}<table>"]
-    for k, how in zip(keys, ("row", "column"), strict=False):
+    for k, how in zip(keys, ("row", "column", "table"), strict=False):
         lines.append(
             f'{indent}  <independentVar lookup="{how}">{CONDITION_PROPERTIES[k][0]}</independentVar>'
         )
-    lines.append(f"{indent}  <tableData>")
     conv = [CONDITION_PROPERTIES[k][1] for k in keys]
     if len(keys) == 1:
+        lines.append(f"{indent}  <tableData>")
         values = db.predict(term, {**base, keys[0]: grids[0]})[0]
         for x, v in zip(grids[0], values, strict=True):
             lines.append(f"{indent}    {_fmt(x * conv[0])} {_fmt(v)}")
+        lines.append(f"{indent}  </tableData>")
     else:
-        rows, cols = np.meshgrid(grids[0], grids[1], indexing="ij")
-        values = db.predict(term, {**base, keys[0]: rows.ravel(), keys[1]: cols.ravel()})[0]
-        values = values.reshape(rows.shape)
-        lines.append(f"{indent}    " + " ".join(_fmt(c * conv[1]) for c in grids[1]))
-        for i, x in enumerate(grids[0]):
-            lines.append(f"{indent}    {_fmt(x * conv[0])} " + " ".join(_fmt(v) for v in values[i]))
-    lines.append(f"{indent}  </tableData>")
+        # a 2-D table, or one per breakpoint of the third key (JSBSim's 3-D table)
+        layers = grids[2] if len(keys) == 3 else [None]
+        for layer in layers:
+            at = dict(base) if layer is None else {**base, keys[2]: layer}
+            if layer is None:
+                lines.append(f"{indent}  <tableData>")
+            else:
+                lines.append(f'{indent}  <tableData breakPoint="{_fmt(layer * conv[2])}">')
+            rows, cols = np.meshgrid(grids[0], grids[1], indexing="ij")
+            values = db.predict(term, {**at, keys[0]: rows.ravel(), keys[1]: cols.ravel()})[0]
+            values = values.reshape(rows.shape)
+            lines.append(f"{indent}    " + " ".join(_fmt(c * conv[1]) for c in grids[1]))
+            for i, x in enumerate(grids[0]):
+                row = " ".join(_fmt(v) for v in values[i])
+                lines.append(f"{indent}    {_fmt(x * conv[0])} {row}")
+            lines.append(f"{indent}  </tableData>")
     lines.append(f"{indent}</table>")
     return lines
+
+
+def _offset(axis: str) -> str:
+    """JSBSim's ``(cg − aero reference point)`` along body `axis` (x, y, z), ft, as XML:
+    the structural frame runs x aft and z up, the body frame x forward and z down."""
+    cg, rp = f"inertia/cg-{axis}-in", f"metrics/aero-rp-{axis}-in"
+    # body x = −structural x: cg − rp in body is rp − cg in structural (likewise z);
+    # for y the frames agree
+    first, second = (rp, cg) if axis != "y" else (cg, rp)
+    return (
+        f"<quotient><difference><property>{first}</property><property>{second}</property>"
+        "</difference><value>12</value></quotient>"
+    )
+
+
+# moment axis -> the two (offset axis, force axis) products of (cg − rp) × F, the first
+# minus the second
+_CROSS = {
+    "ROLL": (("y", "z"), ("z", "y")),
+    "PITCH": (("z", "x"), ("x", "z")),
+    "YAW": (("x", "y"), ("y", "x")),
+}
+
+
+def _cg_shift(axis: str) -> list[str]:
+    """The function cancelling JSBSim's moment of the section's forces about the cg."""
+    (o1, f1), (o2, f2) = _CROSS[axis]
+    term = "<product>{}<property>forces/fb{}-aero-lbs</property></product>"
+    return [
+        f'    <function name="aero/coefficient/aeroid-cg-{axis}">',
+        "      <description>the forces' moment about the cg, which the database's",
+        "        moments already hold (module notes of aeroid.uncertainty.database_export)",
+        "      </description>",
+        "      <difference>",
+        f"        {term.format(_offset(o1), f1)}",
+        f"        {term.format(_offset(o2), f2)}",
+        "      </difference>",
+        "    </function>",
+    ]
 
 
 def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
@@ -154,9 +222,14 @@ def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
                 *REGRESSOR_PROPERTIES[regressor],
             ]
             props.append(f"aero/aeroid/{term}")
-            out.extend(f"        <property>{p}</property>" for p in props)
+            out.extend(
+                f"        {p}" if p.startswith("<") else f"        <property>{p}</property>"
+                for p in props
+            )
             out.append("      </product>")
             out.append("    </function>")
+        if axis in _CROSS:
+            out.extend(_cg_shift(axis))
         out.append("  </axis>")
     out.append("</aerodynamics>")
     return "\n".join(out) + "\n"

@@ -59,22 +59,26 @@ def _close(value: float, truth: float) -> bool:
     return abs(value - truth) <= max(0.10 * abs(truth), 0.02)
 
 
-def _database(store: Path | None) -> tuple[object, object]:
+def _database(store: Path | None) -> tuple[object, object, Path | None]:
+    import yaml
+
     from aeroid.pipeline import open_store, plan, run
     from aeroid.pipeline.config import load_config
 
-    if store is None:
-        work = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
-        store = work / "store"
-        cfg = load_config(
-            ROOT / "configs" / "demo.yaml", store=str(store), report=str(work / "demo.md")
-        )
-        t0 = time.perf_counter()
-        summary = run(cfg)
-        print(f"demo campaign run in {time.perf_counter() - t0:.1f} s ({summary.failed} failed)")
-    the_plan = plan(load_config(ROOT / "configs" / "demo.yaml", store=str(store)))
+    # the run is incremental: into a store the demo already ran into, it recomputes nothing;
+    # the report's replay of the held-out flights needs the simulator named (no key changes)
+    work = Path(tempfile.mkdtemp(prefix="aeroid-c172x-"))
+    store = work / "store" if store is None else store
+    path = ROOT / "configs" / "demo.yaml"
+    stages = yaml.safe_load(path.read_text())["stages"]
+    stages["database"] = {**stages["database"], "replay": "c172x"}
+    cfg = load_config(path, store=str(store), report=str(work / "demo.md"), stages=stages)
+    t0 = time.perf_counter()
+    summary = run(cfg)
+    print(f"demo campaign run in {time.perf_counter() - t0:.1f} s ({summary.failed} failed)")
+    the_plan = plan(load_config(path, store=str(store)))
     task = next(t for t in the_plan.tasks if t.stage == "database")
-    return open_store(store).load(task.key, "database"), the_plan
+    return open_store(store).load(task.key, "database"), the_plan, summary.database_dir
 
 
 def _replay(db: object, the_plan: object, held: set[str]) -> None:
@@ -103,6 +107,34 @@ def _replay(db: object, the_plan: object, held: set[str]) -> None:
         print(f"  {name}: " + ", ".join(cells))
 
 
+def _diagnose(per_flight: list[tuple[str, float, float, float, float, float]]) -> None:
+    """Where a band misses: the flights themselves, or the database made of them."""
+    print(
+        "\nper term, over the fitted flights against what JSBSim flies at each trim: the "
+        "flights' mean error, the share of\nflights whose own 95 % interval holds the "
+        "truth, the database's error and band half-width (mean over the trims),\nthe "
+        "between-flight scatter tau and the flights' own mean standard error"
+    )
+    print(
+        f"  {'term':11s} {'flights err':>11s} {'own cover':>9s} {'db err':>8s} "
+        f"{'band':>8s} {'tau':>8s} {'se':>8s}"
+    )
+    for term in FLOWN:
+        sel = [r for r in per_flight if r[0] == term]
+        rel = np.mean([(e - t) / abs(t) for _, e, _, t, _, _ in sel])
+        cover = np.mean([abs(e - t) <= 1.96 * se for _, e, se, t, _, _ in sel])
+        db_err = np.mean([abs(v - t) for *_, t, v, _ in sel])
+        band = np.mean([b for *_, b in sel])
+        se = np.mean([r[2] for r in sel])
+        print(
+            f"  {term:11s} {100 * rel:+10.1f}% {cover:9.2f} {db_err:8.3g} {band:8.3g} "
+            f"{_TAU.get(term, float('nan')):8.3g} {se:8.3g}"
+        )
+
+
+_TAU: dict[str, float] = {}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
@@ -114,7 +146,8 @@ def main() -> int:
         effective_derivatives,
     )
 
-    db, the_plan = _database(args.store)
+    db, the_plan, folder = _database(args.store)
+    _TAU.update({t: float(np.sqrt(db.tau2.get(t, 0.0))) for t in db.terms})
     conditions = {
         f.path.rsplit("/", 1)[-1].removesuffix(".csv"): f.condition for f in the_plan.config.flights
     }
@@ -137,6 +170,7 @@ def main() -> int:
                 rows.append(("table", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
 
     held = {c.flight for c in db.held_out}
+    per_flight: list[tuple[str, float, float, float, float, float]] = []
     print("table: the c172x's XML at 7 alpha over the flown range at each altitude flown; flown:")
     print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims")
     for name, cond in conditions.items():
@@ -161,6 +195,11 @@ def main() -> int:
         for term in FLOWN:
             value, low, high = db.band(term, at)
             t = float(truth[term])
+            if name in db.flights:
+                i, j = db.flights.index(name), db.terms.index(term)
+                est, se = float(db.estimates[i, j]), float(db.stderr[i, j])
+                band = float(high[0] - low[0]) / 2
+                per_flight.append((term, est, se, t, float(value[0]), band))
             rows.append(
                 (
                     kind,
@@ -198,7 +237,13 @@ def main() -> int:
             f"  {term:11s} within 10 %: {np.mean([_close(r[4], r[5]) for r in sel]):.2f}  "
             f"covered: {np.mean([r[6] for r in sel]):.2f}"
         )
+    _diagnose(per_flight)
     _replay(db, the_plan, held)
+    if folder is not None:
+        text = (folder / "database.md").read_text()
+        at = text.find("### Held-out flights flown again")
+        print("\nthe campaign report's replay (recorded surfaces, open loop):")
+        print(text[at:].split("![")[0].strip() if at >= 0 else "  (no replay section)")
     z = [abs(c.z) for c in db.held_out]
     print(f"held-out check: {len(z)} estimates, |z| < 1.96 for {np.mean(np.array(z) < 1.96):.2f}")
     return 0
