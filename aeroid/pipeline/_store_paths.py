@@ -62,14 +62,6 @@ def _link_refused(path: str) -> StoreError:
     )
 
 
-# -- a run-scoped cache of records -------------------------------------------------
-# Within one run, a record committed or read (digests checked) by this process is
-# handed to later tasks of the same run without reading it back: entries are
-# immutable, so the copy in memory is what a verified read would return. A new
-# scope (the next run) starts empty, so every run verifies what it reads at least
-# once; outside a scope nothing is cached.
-
-
 _ENTRY_FILE = re.compile(r"[0-9a-f]{64}(?:\.zarr\.zip|\.claim(?:\.[0-9a-f]{8})?)")
 _STAGE_DIR = re.compile(r"[a-z_]+")
 

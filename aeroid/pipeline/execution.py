@@ -8,7 +8,6 @@ functions every executor (`executors`) runs, wherever it runs them.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import platform
 import sys
@@ -22,10 +21,12 @@ from typing import Any, overload
 import numpy as np
 
 from ..errors import AeroidError, PipelineError
+from .commits import BY_ANOTHER_RUN, Made, put
 from .definition import load_pipeline
 from .planning import Task, resolve_model
 from .stages import STAGES, StageContext
-from .store import Claim, ResultStore, record_cache, run_store
+from .store import ResultStore, record_cache, run_store
+from .work import Work, context_of, options_of, perform, stage_of
 
 __all__ = [
     "BY_ANOTHER_RUN",
@@ -88,9 +89,6 @@ class TaskStatus:
 
 _FIELDS = frozenset(f.name for f in dataclasses.fields(TaskStatus))
 
-# the status of a task another run sharing the store computed while this one waited
-BY_ANOTHER_RUN = "by_another_run"
-
 
 @dataclass(frozen=True)
 class PartResult:
@@ -124,15 +122,27 @@ def _context(
     store_root: str,
     upstream_status: tuple[TaskStatus, ...],
     read_root: str | None,
-) -> tuple[Any, StageContext, ResultStore, dict[str, str]]:
-    """Load a task's inputs (digests checked) and build its stage context."""
+) -> tuple[Any, StageContext]:
+    """A split task's stage and the context a part of it runs in."""
+    gathered = _gather(task, store_root, upstream_status, read_root, None)
+    stage = stage_of(task)
+    return stage, context_of(task, stage, gathered)
+
+
+def _gather(
+    task: Task,
+    store_root: str,
+    upstream_status: tuple[TaskStatus, ...],
+    read_root: str | None,
+    store: ResultStore | None,
+) -> dict[str, Any]:
+    """What a task reads: its inputs (digests checked), model and seed, the failures of
+    its flights, and the briefs its upstream tasks handed over."""
     failed = {s.key: s for s in upstream_status if s.status == "failed"}
     if task.pipeline_ref is not None:
         load_pipeline(task.pipeline_ref)  # registers any stages the pipeline defines
-    stage = STAGES.get(task.stage)
-    if stage is None:
-        raise PipelineError(f"unknown stage {task.stage!r}")
-    store = run_store(store_root)
+    if store is None:
+        store = run_store(store_root)
     reader = store if read_root is None else ResultStore(read_root, create=False)
     inputs: dict[str, Any] = {}
     failures: dict[str, str] = {}
@@ -164,19 +174,7 @@ def _context(
     seed = None
     if task.seed is not None:
         seed = np.random.SeedSequence(task.seed["seed"], spawn_key=tuple(task.seed["spawn_key"]))
-    ctx = StageContext(
-        options=options_of(task),
-        inputs=inputs,
-        model=model,
-        seed=seed,
-        flight=task.flight,
-        source=task.source,
-        failures=failures,
-        flights=task.flights,
-        briefs=briefs,
-        summarize=stage.brief,
-    )
-    return stage, ctx, store, failures
+    return {"inputs": inputs, "model": model, "seed": seed, "failures": failures, "briefs": briefs}
 
 
 class _LazyRecords(Sequence[Any]):
@@ -217,13 +215,6 @@ def _flatten(statuses: tuple[Any, ...]) -> tuple[TaskStatus | PartResult, ...]:
     return tuple(out)
 
 
-def options_of(task: Task) -> Any:
-    """A task's options model, from the options it runs with (old names accepted)."""
-    model = STAGES[task.stage].options
-    known = set(model.model_fields) | set(getattr(model, "renamed", {}))
-    return model.model_validate({k: v for k, v in task.options.items() if k in known})
-
-
 def n_parts(task: Task) -> int:
     """How many parallel parts a task splits into (1: it runs whole)."""
     stage = STAGES.get(task.stage)
@@ -246,7 +237,7 @@ def execute_part(
     """Compute part `index` of a split task (not stored; its task combines the parts)."""
     record_cache(scope)
     try:
-        stage, ctx, _, _ = _context(task, store_root, _statuses(upstream_status), read_root)
+        stage, ctx = _context(task, store_root, _statuses(upstream_status), read_root)
         t1 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -281,21 +272,13 @@ def execute_task(
     results of its parts. Records are cached in this process for the run
     `scope` (see `record_cache`).
     """
-    record_cache(scope)
     t0 = time.perf_counter()
     flat = _flatten(upstream_status)
     parts = sorted((s for s in flat if isinstance(s, PartResult)), key=lambda s: s.part)
     upstream = tuple(s for s in flat if isinstance(s, TaskStatus))
     out: dict[str, Any] = {}
     try:
-        store = run_store(store_root)
-        claim = _claimed(store, task, scope)
-        if isinstance(claim, str):
-            # cached, computed by another run meanwhile, or by this one's earlier attempt
-            out.update(status=claim, cached=claim == "computed")
-        else:
-            with claim:
-                _compute(task, store_root, upstream, parts, read_root, store, out, scope)
+        _compute(task, store_root, upstream, parts, read_root, out, scope)
     except Exception as exc:
         out.update(status="failed", error=error_text(exc))
         if not isinstance(exc, AeroidError):
@@ -304,125 +287,63 @@ def execute_task(
     return TaskStatus(task.key, task.step, task.flight, **out)
 
 
-# how long one wait for another run's entry lasts before its claim is looked at afresh
-_WAIT_SECONDS = 60.0
-
-
-def _claimed(
-    store: ResultStore, task: Task, scope: str | None
-) -> Claim | contextlib.nullcontext[None] | str:
-    """Claim `task` for this run, or say why there is nothing to compute.
-
-    Runs sharing a store compute each key once: where another live run holds
-    the claim, this one waits for its entry (``"by_another_run"``); where the
-    other run failed or died, the claim is taken here. An entry found right
-    after claiming was committed by a run that finished meanwhile (``"cached"``),
-    or by this run (`scope`) before an executor ran the task again after its
-    worker died (``"computed"``).
-    """
-    if not store.claims_per_task:
-        # the runner pruned what was stored: no look before computing
-        return contextlib.nullcontext()
-    while True:
-        claim = store.claim(task.stage, task.key)
-        if claim is None:
-            if store.wait_for(task.stage, task.key, timeout=_WAIT_SECONDS):
-                return BY_ANOTHER_RUN
-            continue  # the other run gave up, or is slow: claim again (or wait again)
-        if store.exists(task.stage, task.key):
-            claim.release()
-            return "computed" if scope is not None and _run_of(store, task) == scope else "cached"
-        return claim
-
-
-def _run_of(store: ResultStore, task: Task) -> str | None:
-    """The run (its `scope`) that committed `task`'s entry, where the entry says."""
-    try:
-        run = store.metadata(task.key, task.stage).get("provenance", {}).get("run")
-    except AeroidError:
-        return None
-    return run if isinstance(run, str) else None
-
-
 def _compute(
     task: Task,
     store_root: str,
     upstream: tuple[TaskStatus, ...],
     parts: list[PartResult],
     read_root: str | None,
-    store: ResultStore,
     out: dict[str, Any],
     scope: str | None,
 ) -> None:
-    """Compute `task` (or combine its `parts`) and commit it; what happened into `out`."""
-    stage, ctx, _, failures = _context(task, store_root, upstream, read_root)
-    t1 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        # the library's warnings (an unconverged chain, poor coherence) belong to the
-        # task: kept with its status and provenance instead of on a worker's stderr
-        warnings.simplefilter("always")
-        if parts:
-            bad = [p for p in parts if p.status != "ok"]
-            if bad:
-                raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
-            record = stage.combine(ctx, [p.value for p in parts])
-            part_seconds = sum(p.compute_seconds for p in parts)
-        else:
-            record = stage.run(ctx)
-            part_seconds = 0.0
-    t2 = time.perf_counter()
-    found = [*(w for p in parts for w in p.warnings), *_warning_texts(caught)]
-    out["warnings"] = tuple(dict.fromkeys(found))
-    provenance = {
-        "task": task.to_json(),
-        "versions": _versions(),
-        "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
-        "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "host": platform.node(),
-        "warnings": list(out["warnings"]),
-    }
-    if scope is not None:
-        provenance["run"] = scope  # tells this run's entries from others' (`_claimed`)
-    if failures:
+    """Compute `task` (or combine its `parts`) and put it in the store; what happened
+    into `out`. Each seam is entered once: the store (`commits.put`) claims the key and
+    has `make` gather the inputs and run the stage (`work.perform`, which also makes
+    the result's briefs) while the claim holds, then writes the entry and releases."""
+    failures: dict[str, str] = {}
+    work: list[Work] = []
+
+    def make(store: ResultStore) -> Made:
+        gathered = _gather(task, store_root, upstream, read_root, store)
+        failures.update(gathered["failures"])
+        bad = [p for p in parts if p.status != "ok"]
+        if bad:
+            raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
+        t1 = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            # the library's warnings (an unconverged chain, poor coherence) belong to the
+            # task: kept with its status and provenance instead of on a worker's stderr
+            warnings.simplefilter("always")
+            work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
+        t2 = time.perf_counter()
+        part_seconds = sum(p.compute_seconds for p in parts)
+        found = [*(w for p in parts for w in p.warnings), *_warning_texts(caught)]
+        out["warnings"] = tuple(dict.fromkeys(found))
+        out["compute_seconds"] = t2 - t1 + part_seconds
+        provenance = {
+            "task": task.to_json(),
+            "versions": _versions(),
+            "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "host": platform.node(),
+            "warnings": list(out["warnings"]),
+        }
         # a report over failed flights is written out but never cached
-        out.update(status="computed", cached=False, failures=failures)
-    elif store.commit(task.stage, task.key, record, task=task.document, provenance=provenance):
-        out.update(status="computed", cached=True)
-        if task.briefs:
-            out["briefs"] = _briefs(task, store)
-    elif scope is not None and _run_of(store, task) == scope:
-        # committed by this run before its worker died and the executor ran it again
-        out.update(status="computed", cached=True)
-    else:
-        # committed by another run between our claim and commit (its claim went stale)
-        out.update(status=BY_ANOTHER_RUN, cached=True)
-    out["compute_seconds"] = t2 - t1 + part_seconds
-    if task.flight is None and hasattr(record, "markdown"):
+        return Made(work[0].record, provenance, keep=not failures)
+
+    done = put(store_root, task.stage, task.key, make, task=task.document, scope=scope)
+    out.update(status=done.status, cached=done.stored)
+    if failures:
+        out["failures"] = failures
+    if done.committed and work[0].briefs:
+        out["briefs"] = dict(work[0].briefs)
+    record = work[0].record if work else None
+    if record is not None and task.flight is None and hasattr(record, "markdown"):
         out["markdown"] = record.markdown
         out["rows"] = tuple(tuple(r) for r in getattr(record, "rows", ()))
         out["columns"] = tuple(getattr(record, "columns", ()))
         if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
             out["figures"] = record.figure_bytes()
-
-
-def _briefs(task: Task, store: ResultStore) -> dict[str, Any]:
-    """The briefs campaign tasks take of `task`'s committed result (`Stage.brief`).
-
-    They are made from the record as a read of the entry returns it (from this
-    run's cache: no read), so they equal what the campaign task would make from
-    the store. One that cannot be made is left out: the campaign task then makes
-    it itself and reports the problem. So is a None brief (a role the stage reads
-    whole), which would only travel for nothing.
-    """
-    out: dict[str, Any] = {}
-    with contextlib.suppress(Exception):
-        record = store.load(task.key, task.stage)
-        for consumer, role in task.briefs:
-            make = STAGES[consumer].brief
-            value = None if make is None else make(role, record)
-            if value is not None:
-                out[f"{consumer}/{role}"] = value
-    return out
 
 
 def execute_chain(

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import StoreError
 from . import plan_cache, verified
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
@@ -185,30 +184,29 @@ def _run(
     plan_cache.save(result_store, the_plan.inputs, plan_cache.rows(the_plan.tasks))
     statuses: dict[str, TaskStatus] = {}
     todo: list[Task] = []
-    # a listing per stage; an entry the index holds with the same signature is trusted
-    # without opening it, any other is CRC-checked (`verified`)
-    listed = result_store.signatures({t.stage for t in the_plan.tasks})
-    trusted = verified.read_index(result_store)
-    checked: dict[tuple[str, str], verified.Known] = {}
+    # one look at the store for every task (`verified.look_up`)
+    look = verified.look_up(result_store, ((t.stage, t.key) for t in the_plan.tasks))
     for t in the_plan.tasks:
         if t.key in statuses:
             continue
-        ident = (t.stage, t.key)
-        if ident not in listed:
+        found = look.found.get((t.stage, t.key))
+        if found is None:
             todo.append(t)
-            continue
-        found = trusted.lookup(ident, listed[ident])
-        if found is not None:
+        elif isinstance(found, str):  # its bytes fail their checksum
+            statuses[t.key] = TaskStatus(t.key, t.step, t.flight, "failed", error=found)
+        else:
             statuses[t.key] = TaskStatus(t.key, t.step, t.flight, "cached", warnings=found)
-            continue
-        statuses[t.key] = status = _cache_hit(result_store, t)
-        if status.status == "cached":
-            checked[ident] = (listed[ident], status.warnings)
     t_check = time.perf_counter()
     for status in _compute(todo, config, result_store, progress):
         statuses[status.key] = status
     t_run = time.perf_counter()
-    _record_checked(result_store, todo, statuses, checked, trusted)
+    # what this run committed (written from memory) joins the index of entries checked whole
+    committed = {
+        (t.stage, t.key): statuses[t.key].warnings
+        for t in todo
+        if statuses[t.key].status == "computed" and statuses[t.key].cached
+    }
+    look.record_run(result_store, committed)
     # the database's files first: the campaign report shows their section and plots
     database_dir, database_error = write_database_files(the_plan, result_store, statuses)
     report_path, columns, rows, report_error = write_report(
@@ -231,38 +229,6 @@ def _run(
             "compute": sum(s.compute_seconds for s in statuses.values()),
         },
     )
-
-
-def _record_checked(
-    result_store: ResultStore,
-    todo: list[Task],
-    statuses: dict[str, TaskStatus],
-    checked: dict[tuple[str, str], verified.Known],
-    trusted: verified.Trusted,
-) -> None:
-    """Add what this run committed (written from memory) and what it CRC-checked to the
-    store's index of entries checked whole: the next run trusts them unopened."""
-    done = [t for t in todo if statuses[t.key].status == "computed" and statuses[t.key].cached]
-    if done:
-        try:
-            listed = result_store.signatures({t.stage for t in done})
-        except (StoreError, OSError):
-            listed = {}
-        for t in done:
-            if (t.stage, t.key) in listed:
-                checked[(t.stage, t.key)] = (listed[(t.stage, t.key)], statuses[t.key].warnings)
-    verified.record(result_store, checked, trusted)
-
-
-def _cache_hit(result_store: ResultStore, task: Task) -> TaskStatus:
-    """A stored task's status: cached only where its entry's bytes pass their CRC-32;
-    with the warnings the computation raised, stored beside its result."""
-    found = result_store.cached_warnings(task.stage, task.key)
-    if found is not None:
-        return TaskStatus(task.key, task.step, task.flight, "cached", warnings=found)
-    where = result_store.path_for(task.stage, task.key)
-    error = f"{task.stage} entry {where} is corrupt: its bytes fail their checksum"
-    return TaskStatus(task.key, task.step, task.flight, "failed", error=error)
 
 
 def _compute(

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PipelineError
-from .config import Options
+from ._options import Options
 
 __all__ = [
     "STAGES",

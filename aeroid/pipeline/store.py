@@ -48,11 +48,9 @@ import contextlib
 import json
 import os
 import re
-import threading
 import time
 import uuid
 import zipfile
-from collections import OrderedDict
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -83,6 +81,7 @@ from ._backend import (
     is_url,
     parse,
 )
+from ._cache import _CACHE, record_cache
 from ._objectstore import (
     _ObjectBackend,
 )
@@ -108,51 +107,8 @@ from .claims import (
     _claim_stale,
 )
 
-_CACHE_BYTES = 256 * 2**20
 # what `_check_name` admits, checked over many names joined at once
 _PLAIN = re.compile(r"[A-Za-z0-9_.\-]*")
-
-
-class _RecordCache:
-    def __init__(self) -> None:
-        self.scope: str | None = None
-        self.items: OrderedDict[tuple[str, str, str], tuple[Any, int]] = OrderedDict()
-        self.nbytes = 0
-        self.lock = threading.Lock()
-        self.stores: dict[str, ResultStore] = {}  # opened in this scope, by root
-
-    def enter(self, scope: str | None) -> None:
-        with self.lock:
-            if scope != self.scope:
-                self.items.clear()
-                self.stores.clear()
-                self.nbytes = 0
-                self.scope = scope
-
-    def get(self, ident: tuple[str, str, str]) -> Any:
-        with self.lock:
-            if self.scope is None or ident not in self.items:
-                return None
-            self.items.move_to_end(ident)
-            return self.items[ident][0]
-
-    def put(self, ident: tuple[str, str, str], record: Any, nbytes: int) -> None:
-        with self.lock:
-            if self.scope is None or nbytes > _CACHE_BYTES or ident in self.items:
-                return
-            self.items[ident] = (record, nbytes)
-            self.nbytes += nbytes
-            while self.nbytes > _CACHE_BYTES:
-                _, (_, n) = self.items.popitem(last=False)
-                self.nbytes -= n
-
-
-_CACHE = _RecordCache()
-
-
-def record_cache(scope: str | None) -> None:
-    """Cache records in this process for the run `scope` (None: stop caching, forget all)."""
-    _CACHE.enter(scope)
 
 
 def run_store(root: str) -> ResultStore:

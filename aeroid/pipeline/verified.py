@@ -31,7 +31,7 @@ from ..errors import StoreError
 if TYPE_CHECKING:
     from .store import ResultStore
 
-__all__ = ["Trusted", "read_index", "record", "replace"]
+__all__ = ["Lookup", "Trusted", "look_up", "read_index", "record", "replace"]
 
 FORMAT = 1
 _MAX_FILES = 8
@@ -111,3 +111,57 @@ def replace(store: ResultStore, entries: Mapping[Ident, Known], old: Iterable[st
     store._backend.write_index(_name(), _document(entries))
     for name in old:
         store._backend.remove_index(name)
+
+
+@dataclass
+class Lookup:
+    """What a run found stored of its tasks (`look_up`), and what it keeps to add
+    to the index once it has run the rest (`record_run`).
+
+    `found` maps each stored (stage, key) to the warnings stored with the entry,
+    or to a text saying why the entry cannot count as cached (its bytes fail their
+    CRC-32); a task not in it is to be computed.
+    """
+
+    found: dict[Ident, tuple[str, ...] | str]
+    trusted: Trusted
+    checked: dict[Ident, Known] = field(default_factory=dict)
+
+    def record_run(self, store: ResultStore, committed: Mapping[Ident, tuple[str, ...]]) -> None:
+        """Add to the index what the run CRC-checked and what it `committed` (written from
+        memory, with their warnings): the next run trusts them unopened."""
+        if committed:
+            try:
+                listed = store.signatures({stage for stage, _ in committed})
+            except (StoreError, OSError):
+                listed = {}
+            for ident, warnings in committed.items():
+                if ident in listed:
+                    self.checked[ident] = (listed[ident], warnings)
+        record(store, self.checked, self.trusted)
+
+
+def look_up(store: ResultStore, idents: Iterable[Ident]) -> Lookup:
+    """Which of `idents` are stored and sound, in one pass: a listing per stage; an
+    entry the index holds with the listing's signature is trusted unopened, any other
+    stored one is CRC-checked (`ResultStore.cached_warnings`)."""
+    wanted = list(dict.fromkeys(idents))
+    listed = store.signatures({stage for stage, _ in wanted})
+    trusted = read_index(store)
+    out = Lookup({}, trusted)
+    for ident in wanted:
+        if ident not in listed:
+            continue
+        known = trusted.lookup(ident, listed[ident])
+        if known is not None:
+            out.found[ident] = known
+            continue
+        stage, key = ident
+        warnings = store.cached_warnings(stage, key)
+        if warnings is None:
+            where = store.path_for(stage, key)
+            out.found[ident] = f"{stage} entry {where} is corrupt: its bytes fail their checksum"
+        else:
+            out.found[ident] = warnings
+            out.checked[ident] = (listed[ident], warnings)
+    return out

@@ -1,0 +1,128 @@
+"""One task's way through the campaign engine's seams (plan, run, store, stages), followed
+with `sys.setprofile` (see `_engine_path`): after the run hands the task over, each seam
+is entered once, and none is entered again after it was left."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from _engine_path import Stop, Way, follow
+
+from aeroid.pipeline import open_store
+from aeroid.pipeline.stages import STAGES
+
+# the engine's modules by seam; the rest of aeroid/pipeline is the vocabulary every
+# seam shares (the stage contract, content keys, the options base, pipeline
+# definitions, the vehicle model a task names), which belongs to no seam
+SEAMS = {
+    "plans": (
+        "config _yaml flight_specs _paths _flights synthetic planning plan_checks checks "
+        "_check_common _file_checks plan_cache"
+    ),
+    "running": "runner execution executors graph _process rerun",
+    "storage": (
+        "store commits _cache _store_paths _zipentry codec claims verified _objectstore "
+        "_backend _rename"
+    ),
+    "stages": (
+        "work builtin_stages load_stage library_stages analysis_stages database_stage "
+        "campaign_report flight_status _campaign_tables metrics signature_options"
+    ),
+}
+SHARED = {"pipeline", "stages", "keys", "_options", "definition", "_code", "vehicle"}
+_SEAM = {module: seam for seam, names in SEAMS.items() for module in names.split()}
+
+
+def seam_of(module: str) -> str | None:
+    leaf = module.rsplit(".", 1)[-1]
+    if leaf in SHARED:
+        return None
+    return _SEAM[leaf]  # a module of no seam and not shared: place it above
+
+
+def _config(tmp: Path) -> Path:
+    cfg = tmp / "c.yaml"
+    cfg.write_text(
+        "model: short_period\nseed: 5\nstore: store\nreport: out/report.md\n"
+        "flights: [{simulated: {n_flights: 2, seed: 1, duration: 4.0}}]\n"
+        "stages:\n  identify: {parameters: [M_q, M_delta]}\n"
+        "  campaign_report: {figures: false}\n",
+        encoding="utf-8",
+    )
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def identify_way(tmp_path_factory: pytest.TempPathFactory) -> tuple[Way, object, Path]:
+    tmp = tmp_path_factory.mktemp("way")
+    # the second flight's fit: the run's caches are warm, as for most of a campaign's tasks
+    way, summary = follow(_config(tmp), "identify", seam_of, flight_index=1)
+    return way, summary, tmp
+
+
+def test_every_engine_module_has_a_seam_or_is_shared():
+    engine = Path(__file__).resolve().parents[1] / "aeroid" / "pipeline"
+    names = {p.stem for p in engine.rglob("*.py")} - {"__init__"}
+    assert names <= set(_SEAM) | SHARED, sorted(names - set(_SEAM) - SHARED)
+
+
+def test_the_way_finder_sees_a_seam_entered_again():
+    def entry(seam: str, below: frozenset[str] = frozenset({"running"})) -> Stop:
+        return Stop(f"m.{seam}", "call", True, seam, True, below)
+
+    back = Stop("m.running", "return", True, "running")
+    once = Way([entry("storage"), back, entry("stages"), back])
+    assert once.reentered() == [] and once.entries() == ["storage", "stages"]
+    twice = Way([entry("storage"), back, entry("stages"), back, entry("storage"), back])
+    assert twice.reentered() == ["storage"]
+    # called back while one of its frames waits below: never left
+    nested = Way([entry("storage"), entry("running", frozenset({"running", "storage"}))])
+    nested.stops.append(entry("storage", frozenset({"running", "storage"})))
+    assert nested.reentered() == []
+
+
+def test_a_task_passes_each_seam_once_from_the_run_to_its_entry(identify_way):
+    way, summary, _ = identify_way
+    assert summary.failed == 0
+    print("\nthe task's own execution:", way.summary(True), way.counts(True))
+    print("its whole way from run(config):", way.summary(None))
+    assert way.reentered(True) == []
+    entered = [s for s in way.part(True) if s.entry]
+    # the run calls the store once (`commits.put`): it claims, has the run make the
+    # record under the claim, writes the entry, releases
+    called_by_run = [s for s in entered if s.on_stack == {"running"}]
+    assert [(s.seam, s.function) for s in called_by_run] == [("storage", "put")]
+    # the stage's work is one call into the stages seam (`work.perform`), inside `put`
+    into_stages = [s for s in entered if s.seam == "stages"]
+    assert [s.function for s in into_stages] == ["perform"]
+    assert {"storage", "running"} <= into_stages[0].on_stack
+    # the task carries what the run needs: the plan seam is not visited
+    assert not [s for s in way.part(True) if s.seam == "plans"]
+
+
+def test_the_run_looks_at_the_store_once_for_every_task(identify_way):
+    way, _, _ = identify_way
+    before = [s for s in way.part(False) if s.entry and s.seam == "storage"]
+    looks = [s.function for s in before if s.on_stack == {"running"}]
+    # open the store, then one look at what is stored (`verified.look_up`)
+    assert looks == ["ResultStore.__init__", "look_up"]
+
+
+def test_briefs_made_before_the_commit_equal_those_made_from_the_entry(identify_way):
+    # `work.perform` makes a result's briefs from the record it computed; the campaign
+    # task would make them from the stored entry: they must be the same
+    _, summary, tmp = identify_way
+    store = open_store(tmp / "store")
+    seen = 0
+    for task in summary.plan.tasks:
+        given = summary.statuses[task.key].briefs
+        for consumer, role in task.briefs:
+            name = f"{consumer}/{role}"
+            if name not in given:
+                continue
+            make = STAGES[consumer].brief
+            assert make is not None
+            assert given[name] == make(role, store.load(task.key, task.stage)), name
+            seen += 1
+    assert seen >= 2  # both flights' fits
