@@ -12,9 +12,10 @@ from _engine_path import Stop, Way, follow
 from aeroid.pipeline import open_store
 from aeroid.pipeline.stages import STAGES
 
-# the engine's modules by seam; the rest of aeroid/pipeline is the vocabulary every
-# seam shares (the stage contract, content keys, the options base, pipeline
-# definitions, the vehicle model a task names), which belongs to no seam
+# the engine's modules by seam (the subpackages of aeroid/pipeline); the modules left in
+# aeroid/pipeline itself, and the stage contract (`aeroid.pipeline.stages`), are the
+# vocabulary every seam shares (content keys, the options base, pipeline definitions, the
+# vehicle model a task names), which belongs to no seam
 SEAMS = {
     "plans": (
         "config _yaml flight_specs _paths _flights synthetic planning plan_checks checks "
@@ -26,19 +27,33 @@ SEAMS = {
         "_backend _rename"
     ),
     "stages": (
-        "work builtin_stages load_stage library_stages analysis_stages database_stage "
+        "work builtin builtin_stages load_stage library_stages analysis_stages database_stage "
         "campaign_report flight_status _campaign_tables metrics signature_options"
     ),
 }
-SHARED = {"pipeline", "stages", "keys", "_options", "definition", "_code", "vehicle"}
+SHARED = {"keys", "_options", "definition", "_code", "vehicle"}
+CONTRACT = "aeroid.pipeline.stages"
 _SEAM = {module: seam for seam, names in SEAMS.items() for module in names.split()}
 
 
 def seam_of(module: str) -> str | None:
-    leaf = module.rsplit(".", 1)[-1]
-    if leaf in SHARED:
+    """The seam of an engine module: the subpackage it lives in (or, in the flat layout,
+    the one `SEAMS` gives it); None for the shared vocabulary."""
+    parts = module.split(".")
+    if module in ("aeroid.pipeline", CONTRACT) or (parts[-1] in SHARED and len(parts) == 3):
         return None
-    return _SEAM[leaf]  # a module of no seam and not shared: place it above
+    if len(parts) > 3 or parts[-1] in SEAMS:
+        return parts[2]  # in (or the package of) a seam
+    return _SEAM[parts[-1]]  # a module of no seam and not shared: place it above
+
+
+def _engine_modules() -> list[str]:
+    engine = Path(__file__).resolve().parents[1] / "aeroid" / "pipeline"
+    out = []
+    for p in sorted(engine.rglob("*.py")):
+        parts = ["aeroid", *p.relative_to(engine.parent).with_suffix("").parts]
+        out.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return out
 
 
 def _config(tmp: Path) -> Path:
@@ -62,9 +77,13 @@ def identify_way(tmp_path_factory: pytest.TempPathFactory) -> tuple[Way, object,
 
 
 def test_every_engine_module_has_a_seam_or_is_shared():
-    engine = Path(__file__).resolve().parents[1] / "aeroid" / "pipeline"
-    names = {p.stem for p in engine.rglob("*.py")} - {"__init__"}
-    assert names <= set(_SEAM) | SHARED, sorted(names - set(_SEAM) - SHARED)
+    seams = {m: seam_of(m) for m in _engine_modules()}
+    assert set(seams.values()) == {None, *SEAMS}
+    assert {m for m, seam in seams.items() if seam is None} == {
+        "aeroid.pipeline",
+        CONTRACT,
+        *(f"aeroid.pipeline.{name}" for name in SHARED),
+    }
 
 
 def test_the_way_finder_sees_a_seam_entered_again():
