@@ -314,6 +314,26 @@ class PlanStream:
         self._started = True
         return self._tasks()
 
+    @property
+    def stages(self) -> set[str]:
+        """The stored names of the stages the tasks run (where their results live)."""
+        return set(self._setup.step_stage.values())
+
+    @property
+    def has_campaign_tasks(self) -> bool:
+        """Whether campaign steps (a report, a database) follow the flights' tasks."""
+        return any(s in self.pipeline.campaign_steps for s in self._setup.steps)
+
+    def input_files(self) -> list[Path]:
+        """The files the campaign reads: its config, pipeline file and flight files (as
+        `campaign_inputs` of a whole plan)."""
+        out = [Path(self.config.source)] if Path(self.config.source).is_file() else []
+        out += [path for _, path, _ in self._files]
+        ref = self._setup.pipe_ref
+        if ref is not None and ref.get("file"):
+            out.append(Path(ref["file"]))
+        return list(dict.fromkeys(out))
+
     def _tasks(self) -> Iterator[Task]:
         # a plan makes a few objects a task and no reference cycles: the cyclic
         # collector, which walks every live object each time it runs, made planning
