@@ -241,7 +241,7 @@ def _load_fails_on(monkeypatch: pytest.MonkeyPatch, flight: str) -> None:
 
 
 def test_a_run_in_windows_of_flights_stores_and_reports_what_one_window_does(tmp_path, monkeypatch):
-    from aeroid.pipeline import executors, runner
+    from aeroid.pipeline import executors, streaming
 
     cfg = make_campaign(tmp_path, n=5, stats="{n_boot: 20, warn: true}")
     _load_fails_on(monkeypatch, "f02")
@@ -254,7 +254,7 @@ def test_a_run_in_windows_of_flights_stores_and_reports_what_one_window_does(tmp
         return real_run(self, tasks, *args, **kwargs)
 
     monkeypatch.setattr(executors.InProcess, "run", counting)
-    monkeypatch.setattr(runner, "_WINDOW_FLIGHTS", 2)
+    monkeypatch.setattr(streaming, "WINDOW_FLIGHTS", 2)
     windowed = run(cfg, store=tmp_path / "windowed", workers=0)
     # three windows of at most two flights; the campaign report runs with the last
     assert sizes == [2, 2, 1]

@@ -128,6 +128,15 @@ class Ledger:
             r = self.row(i)
             yield PlannedTask(r.step, r.stage, r.flight, r.key)
 
+    def committed(self) -> Iterator[tuple[str, str, tuple[str, ...]]]:
+        """(stage, key, warnings) of every task this run computed and committed."""
+        computed = _CODE["computed"]
+        for i in range(len(self)):
+            if self._code[i] == computed and self._stored[i]:
+                r = self.row(i)
+                warnings = self._full[i].warnings if i in self._full else ()
+                yield r.stage, r.key, warnings
+
     def told(self) -> Iterator[tuple[PlannedTask, TaskStatus]]:
         """The tasks whose status says more than its code (errors, warnings), in order."""
         for i in sorted(self._full):

@@ -325,8 +325,7 @@ class PlanStream:
         return any(s in self.pipeline.campaign_steps for s in self._setup.steps)
 
     def input_files(self) -> list[Path]:
-        """The files the campaign reads: its config, pipeline file and flight files (as
-        `campaign_inputs` of a whole plan)."""
+        """The files the campaign reads: its config, pipeline file and flight files."""
         out = [Path(self.config.source)] if Path(self.config.source).is_file() else []
         out += [path for _, path, _ in self._files]
         ref = self._setup.pipe_ref
@@ -590,14 +589,3 @@ def store_argument(store: str | Path) -> str:
     """A store given on the command line or to `run`: a URL as is, a folder made absolute."""
     location = parse(store)
     return location.root if location.is_url else str(Path(location.root).resolve())
-
-
-def campaign_inputs(the_plan: Plan) -> list[Path]:
-    """The files a campaign reads: its config, pipeline file and flight files."""
-    out = [Path(the_plan.config.source)] if Path(the_plan.config.source).is_file() else []
-    for t in the_plan.tasks:
-        if t.source is not None and t.source.get("kind") == "file":
-            out.append(Path(t.source["path"]))
-        if t.pipeline_ref is not None and t.pipeline_ref.get("file"):
-            out.append(Path(t.pipeline_ref["file"]))
-    return list(dict.fromkeys(out))
