@@ -52,8 +52,10 @@ _CREDENTIALS = {
 # the S3 server: moto's, counting the requests it serves; "count" on stdin prints the
 # counts and its CPU seconds, "reset" clears the counts
 _SERVER = """\
-import collections, json, resource, sys
+import collections, json, logging, resource, sys
 from moto.moto_server import threaded_moto_server as t
+
+logging.getLogger("werkzeug").setLevel(logging.ERROR)  # no line a request on stderr
 
 counts = collections.Counter()
 
@@ -128,12 +130,13 @@ def _timed_run(label: str, n: int, workers: int, **kwargs: Any) -> Any:
     wall, cpu = time.perf_counter() - t0, _cpu() - cpu
     tasks = len(summary.ledger)
     compute = summary.seconds["compute"]
-    overhead = (wall * workers - compute) / max(1, summary.count("computed"))
+    computed = summary.count("computed")
+    overhead = f"{1e3 * (wall * workers - compute) / computed:.1f} ms" if computed else "-"
     print(
         f"{label}: {wall:.1f} s wall, {cpu:.1f} s CPU in this process; "
         f"{summary.count('computed')} computed, {summary.count('cached')} cached, "
         f"{summary.failed} failed of {tasks} tasks; {3600 * n / wall:,.0f} flights an hour; "
-        f"overhead {1e3 * overhead:.1f} ms a task ({1e3 * compute / tasks:.2f} ms in stages)",
+        f"overhead {overhead} a task ({1e3 * compute / tasks:.2f} ms in stages)",
         flush=True,
     )
     return summary, wall
@@ -154,6 +157,9 @@ def main() -> None:
     os.environ.update(_CREDENTIALS)
     # the workers are other processes: they find the server through the environment
     os.environ["FSSPEC_S3_ENDPOINT_URL"] = server.endpoint
+    import fsspec.config
+
+    fsspec.config.conf["s3"] = {"endpoint_url": server.endpoint}  # read once, at import
     try:
         bucket = f"aeroid-{uuid.uuid4().hex[:12]}"
         s3fs.S3FileSystem(endpoint_url=server.endpoint).mkdir(bucket)
@@ -173,16 +179,14 @@ def main() -> None:
         local, local_wall = _timed_run(
             "local pool, folder store", n, 2, config=cfg, store=work / "local"
         )
-        with (
-            distributed.LocalCluster(
-                n_workers=2,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                silence_logs=logging.CRITICAL,
-            ) as cluster,
-            distributed.Client(cluster) as client,
-        ):
+        # no client of its own here: the run's is the only one in this process
+        with distributed.LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,
+        ) as cluster:
             address = cluster.scheduler_address
             _, folder_wall = _timed_run(
                 "cluster, folder store",
@@ -192,7 +196,7 @@ def main() -> None:
                 store=work / "folder",
                 scheduler=address,
             )
-            pids = list(client.run(os.getpid).values())
+            pids = [w.pid for w in cluster.scheduler.workers.values()]
             open_store(s3_url, create=True)
             killed: list[float] = []
             t_start = time.perf_counter()
