@@ -316,3 +316,28 @@ def test_a_ledger_keeps_a_few_bytes_a_task(tmp_path):
     assert ledger.statuses[p.tasks[1].key].warnings == ("W",)
     assert len(ledger.statuses) == 7 and list(ledger.statuses) == [t.key for t in p.tasks]
     assert [t.key for t in ledger.planned()] == [t.key for t in p.tasks]
+
+
+@pytest.mark.parametrize("executor", ["local pool", "dask threads"])
+def test_a_failed_flight_reaches_a_campaign_task_windows_later_on_every_executor(
+    tmp_path, monkeypatch, executor
+):
+    from aeroid.pipeline import streaming
+
+    cfg = make_campaign(tmp_path, n=3)
+    _load_fails_on(monkeypatch, "f00")  # forked workers inherit the patch
+    whole = run(cfg, store=tmp_path / "whole", workers=0)
+    monkeypatch.setattr(streaming, "WINDOW_FLIGHTS", 1)
+    if executor == "local pool":
+        windowed = run(cfg, store=tmp_path / "windowed", workers=2)
+    else:
+        distributed = pytest.importorskip("distributed")
+        with distributed.LocalCluster(
+            n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+        ) as cluster:
+            windowed = run(cfg, store=tmp_path / "windowed", scheduler=cluster.scheduler_address)
+    assert windowed.failed == whole.failed == 2
+    report = next(s for s in windowed.statuses.values() if s.step == "campaign_report")
+    assert report.status == "computed" and set(report.failures) == {"f00"}
+    assert whole.rows == windowed.rows
+    assert _arrays(open_store(tmp_path / "whole")) == _arrays(open_store(tmp_path / "windowed"))
