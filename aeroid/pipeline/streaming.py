@@ -14,6 +14,7 @@ results reach later tasks through the store.
 
 from __future__ import annotations
 
+import gc
 import sys
 import time
 import uuid
@@ -128,7 +129,16 @@ class StreamedRun:
     def _run_window(self) -> None:
         """Run the queued tasks, settle their statuses, and let them go."""
         window, self.window, self.window_flights = self.window, [], 0
-        self._settle_window(window)
+        # the stream pauses the cyclic collector while it plans (`PlanStream`), also while
+        # it waits here: the executor's graphs, futures and tracebacks make cycles
+        paused = not gc.isenabled()
+        if paused:
+            gc.enable()
+        try:
+            self._settle_window(window)
+        finally:
+            if paused:
+                gc.disable()
         for index, first in self.twins:
             # its time is counted once, with the first
             self.ledger.settle(index, self.ledger.status(first).replace(compute_seconds=0.0))
