@@ -16,7 +16,8 @@ __all__ = ["Options"]
 
 
 class Options(BaseModel):
-    """Base of every options model: frozen, unknown keys forbidden, numbers finite."""
+    """Base of every options model: frozen, unknown keys forbidden, numbers finite and
+    written as numbers (not quoted, not a boolean)."""
 
     # NaN and infinity are refused where a float is declared, and (below) anywhere
     # inside free-form options: no config option means "not a number"
@@ -33,7 +34,7 @@ class Options(BaseModel):
 
     @field_validator("*", mode="before")
     @classmethod
-    def _no_stray_bool(cls, value: Any, info: ValidationInfo) -> Any:
+    def _numbers_as_numbers(cls, value: Any, info: ValidationInfo) -> Any:
         # pydantic reads `true` as 1 for a count: `n_samples: true` would run one draw
         field = cls.model_fields.get(info.field_name or "")
         if field is None:

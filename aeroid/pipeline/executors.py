@@ -429,6 +429,9 @@ def _run_dask(
                 on_done(status)
     finally:
         client.close()
+        # workers that are threads of this process (a cluster made with processes=False)
+        # cached this run's records here: forgotten, as the other executors forget them
+        record_cache(None)
     return list(results.values())
 
 

@@ -120,7 +120,7 @@ class Ledger:
 
     def count(self, status: str) -> int:
         """Tasks (as planned: a key planned twice counts twice) with this status."""
-        return self._code.tolist().count(_CODE[status])
+        return self._code.count(_CODE[status])
 
     def planned(self) -> Iterator[PlannedTask]:
         """Every task as a stored plan keeps it (`plan_cache`)."""
