@@ -14,7 +14,7 @@ import pytest
 
 from aeroid.errors import ConfigError
 from aeroid.models.model import Model
-from aeroid.pipeline import load_config, plan, resolve_model
+from aeroid.pipeline import load_config, plan, resolve_model, run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -616,6 +616,8 @@ def test_quoted_numbers_and_booleans_are_refused_before_anything_runs(tmp_path, 
     cfg = _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n" + text)
     with pytest.raises(ConfigError, match=expected):
         plan(cfg)
+    with pytest.raises(ConfigError, match=expected):
+        run(cfg, workers=0)
     assert not (tmp_path / ".aeroid-store").exists()  # nothing ran, nothing was stored
 
 
