@@ -14,7 +14,7 @@ import pytest
 
 from aeroid.errors import ConfigError
 from aeroid.models.model import Model
-from aeroid.pipeline import load_config, plan, resolve_model
+from aeroid.pipeline import load_config, plan, resolve_model, run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -579,3 +579,72 @@ flights:
             cfg.resolve(flight.path), **{**flight.loader_options(), "window": [t0, t1]}
         )
         assert data.time[0] == pytest.approx(t0) and data.names == ("y", "u")
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        # a quoted number is refused where a number is meant, naming the key
+        (
+            "stages:\n  propagate: {n_samples: '100'}\n",
+            r"camp.yaml: stages.propagate.n_samples: expected a number, not a string",
+        ),
+        ("stages:\n  propagate: {n_samples: true}\n", r"stages.propagate.n_samples: .*boolean"),
+        ("stages:\n  infer: {n_ensembles: '2'}\n", r"stages.infer.n_ensembles: .*not a string"),
+        ("stages:\n  identify: {tolerance: ' 1e-6'}\n", r"stages.identify.tolerance: .*string"),
+        (
+            "stages:\n  identify: {weights: {alpha: 1.0, q: '2'}}\n",
+            r"stages.identify.weights: expected a number at q, got the string '2'",
+        ),
+        (
+            "stages:\n  identify: {bounds: {M_q: [-10, 'true']}}\n",
+            r"stages.identify.bounds.M_q\[1\]: Input should be a valid number",
+        ),
+        (
+            "stages:\n  identify: {bounds: {M_q: ['-10', 0]}}\n",
+            r"stages.identify.bounds: expected a number at M_q\[0\], got the string '-10'",
+        ),
+        (
+            "stages:\n  identify: {bounds: {M_q: [true, 0]}}\n",
+            r"stages.identify.bounds: expected a number at M_q\[0\], got the boolean true",
+        ),
+        ("seed: '7'\n", r"camp.yaml: seed: expected a number, not a string"),
+        ("workers: '2'\n", r"camp.yaml: workers: expected a number, not a string"),
+    ],
+)
+def test_quoted_numbers_and_booleans_are_refused_before_anything_runs(tmp_path, text, expected):
+    cfg = _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n" + text)
+    with pytest.raises(ConfigError, match=expected):
+        plan(cfg)
+    with pytest.raises(ConfigError, match=expected):
+        run(cfg, workers=0)
+    assert not (tmp_path / ".aeroid-store").exists()  # nothing ran, nothing was stored
+
+
+def test_a_quoted_flight_count_is_refused_and_numbers_stay_numbers(tmp_path):
+    with pytest.raises(ConfigError, match=r"flights\[0\].simulated.n_flights: .*not a string"):
+        load_config(
+            _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: '2'}}]\n")
+        )
+    # an int where a float is meant, and YAML 1.2 exponents (PyYAML reads 1e-6 as text)
+    text = (
+        "model: short_period\nflights: [{simulated: {n_flights: 2, duration: 4}}]\n"
+        "stages:\n  identify: {tolerance: 1e-6, max_iterations: 20}\n"
+        "  propagate: {n_samples: 2e2}\n"
+        "  validate: {confidence: 0.9}\n"
+    )
+    p = plan(_write(tmp_path, text))
+    opts = {t.step: t.options for t in p.tasks if t.flight is not None}
+    assert opts["identify"]["tolerance"] == 1e-6 and opts["identify"]["max_iterations"] == 20
+    assert opts["propagate"]["n_samples"] == 200
+    flights = load_config(_write(tmp_path, text)).flights[0]
+    assert flights.simulated.duration == 4.0  # type: ignore[union-attr]
+    # a string option stays a string, and text that is not a number keeps pydantic's word
+    with pytest.raises(ConfigError, match=r"stages.propagate.n_samples: .*valid integer"):
+        plan(
+            _write(
+                tmp_path,
+                "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n"
+                "stages:\n  propagate: {n_samples: many}\n",
+            )
+        )

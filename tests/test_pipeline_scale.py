@@ -221,3 +221,123 @@ def test_the_signatures_of_a_store_come_from_one_listing(tmp_path):
         assert size == Path(store.path_for(stage, key)).stat().st_size
     assert np.all([s > 0 for s, _ in listed.values()])
     assert json.loads((Path(store.root) / "aeroid-store.json").read_text())
+
+
+# -- a streamed run: windows of flights, a ledger of statuses ---------------------------
+
+
+def _load_fails_on(monkeypatch: pytest.MonkeyPatch, flight: str) -> None:
+    from aeroid.pipeline import execution
+    from aeroid.pipeline.execution import TaskStatus
+
+    real = execution.execute_task
+
+    def patched(task, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if task.flight == flight and task.step == "load":
+            return TaskStatus(task.key, task.step, task.flight, "failed", error="lost in transit")
+        return real(task, *args, **kwargs)
+
+    monkeypatch.setattr(execution, "execute_task", patched)
+
+
+def test_a_run_in_windows_of_flights_stores_and_reports_what_one_window_does(tmp_path, monkeypatch):
+    from aeroid.pipeline import executors, streaming
+
+    cfg = make_campaign(tmp_path, n=5, stats="{n_boot: 20, warn: true}")
+    _load_fails_on(monkeypatch, "f02")
+    whole = run(cfg, store=tmp_path / "whole", workers=0)
+    sizes: list[int] = []
+    real_run = executors.InProcess.run
+
+    def counting(self, tasks, *args, **kwargs):  # type: ignore[no-untyped-def]
+        sizes.append(len({t.flight for t in tasks if t.flight is not None}))
+        return real_run(self, tasks, *args, **kwargs)
+
+    monkeypatch.setattr(executors.InProcess, "run", counting)
+    monkeypatch.setattr(streaming, "WINDOW_FLIGHTS", 2)
+    windowed = run(cfg, store=tmp_path / "windowed", workers=0)
+    # three windows of at most two flights; the campaign report runs with the last
+    assert sizes == [2, 2, 1]
+    # the failed flight's statuses reach the campaign report in a later window
+    assert whole.failed == windowed.failed == 2  # f02's load and stats
+    assert {k: (s.status, s.error, s.warnings) for k, s in whole.statuses.items()} == {
+        k: (s.status, s.error, s.warnings) for k, s in windowed.statuses.items()
+    }
+    assert list(whole.statuses) == [t.key for t in windowed.plan.tasks]
+    report = next(s for s in windowed.statuses.values() if s.step == "campaign_report")
+    assert report.status == "computed" and not report.cached and "f02" in report.failures
+    assert whole.rows == windowed.rows and whole.columns == windowed.columns
+    assert whole.report_path is not None and windowed.report_path is not None
+    assert whole.report_path.read_text() == windowed.report_path.read_text()
+    assert "only 20 bootstrap samples" in windowed.report_path.read_text()
+    assert _arrays(open_store(tmp_path / "whole")) == _arrays(open_store(tmp_path / "windowed"))
+    assert windowed.to_json()["tasks"] == whole.to_json()["tasks"]
+    assert [w for _, w in windowed.warnings()] == [w for _, w in whole.warnings()]
+    # the stored plan lists every task of the streamed run
+    from aeroid.pipeline import plan_cache
+
+    stored = plan_cache.load(open_store(tmp_path / "windowed"), windowed.plan.inputs or "")
+    assert [p.key for p in stored or ()] == [t.key for t in windowed.plan.tasks]
+
+
+def test_a_ledger_keeps_a_few_bytes_a_task(tmp_path):
+    from aeroid.pipeline.execution import TaskStatus
+    from aeroid.pipeline.ledger import Ledger
+    from aeroid.pipeline.planning import plan
+
+    p = plan(make_campaign(tmp_path, n=3))
+    ledger = Ledger()
+    for t in p.tasks:
+        i = ledger.add(t)
+        warned = ("W",) if t.step == "stats" else ()
+        ledger.settle(
+            i,
+            TaskStatus(
+                t.key,
+                t.step,
+                t.flight,
+                "computed",
+                cached=True,
+                warnings=warned,
+                compute_seconds=0.5,
+            ),
+        )
+    assert ledger.flights == p.flights and ledger.count("computed") == len(p.tasks) == 7
+    assert ledger.compute_seconds == pytest.approx(3.5)
+    # a plain status is rebuilt from its code; one with warnings is kept whole
+    load = ledger.statuses[p.tasks[0].key]
+    assert (load.key, load.step, load.flight, load.status, load.cached) == (
+        p.tasks[0].key,
+        "load",
+        p.flights[0],
+        "computed",
+        True,
+    )
+    assert ledger.statuses[p.tasks[1].key].warnings == ("W",)
+    assert len(ledger.statuses) == 7 and list(ledger.statuses) == [t.key for t in p.tasks]
+    assert [t.key for t in ledger.planned()] == [t.key for t in p.tasks]
+
+
+@pytest.mark.parametrize("executor", ["local pool", "dask threads"])
+def test_a_failed_flight_reaches_a_campaign_task_windows_later_on_every_executor(
+    tmp_path, monkeypatch, executor
+):
+    from aeroid.pipeline import streaming
+
+    cfg = make_campaign(tmp_path, n=3)
+    _load_fails_on(monkeypatch, "f00")  # forked workers inherit the patch
+    whole = run(cfg, store=tmp_path / "whole", workers=0)
+    monkeypatch.setattr(streaming, "WINDOW_FLIGHTS", 1)
+    if executor == "local pool":
+        windowed = run(cfg, store=tmp_path / "windowed", workers=2)
+    else:
+        distributed = pytest.importorskip("distributed")
+        with distributed.LocalCluster(
+            n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+        ) as cluster:
+            windowed = run(cfg, store=tmp_path / "windowed", scheduler=cluster.scheduler_address)
+    assert windowed.failed == whole.failed == 2
+    report = next(s for s in windowed.statuses.values() if s.step == "campaign_report")
+    assert report.status == "computed" and set(report.failures) == {"f00"}
+    assert whole.rows == windowed.rows
+    assert _arrays(open_store(tmp_path / "whole")) == _arrays(open_store(tmp_path / "windowed"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import stat
 from pathlib import Path
 from typing import Any
@@ -90,6 +91,13 @@ def _config_loader() -> tuple[type, type[Exception]]:
                 seen.add(key)
             return super().construct_mapping(node, deep=deep)
 
+    # YAML 1.2's floats: PyYAML (YAML 1.1) reads `1e-6` and `1e9` (no dot, or no sign in
+    # the exponent) as strings, which the options refuse where a number is meant
+    Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+        list("-+0123456789"),
+    )
     return Loader, Refused
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import socket
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from ..errors import PipelineError
@@ -31,6 +31,9 @@ class Executor(Protocol):
     """Runs tasks (plan order) against the store at `store_root`; a status per task run.
 
     `read_root`: a store to read the tasks' inputs from instead (a rerun's).
+    `given`: statuses of tasks run before (an earlier window of a streamed run)
+    that these tasks take as upstream: a failed flight's, which a campaign task
+    reports instead of reading its missing result.
     """
 
     def run(
@@ -41,7 +44,16 @@ class Executor(Protocol):
         scope: str,
         on_done: OnDone,
         read_root: str | None = None,
+        given: Sequence[TaskStatus] = (),
     ) -> list[TaskStatus]: ...
+
+
+def _taken(tasks: Sequence[Task], given: Mapping[str, TaskStatus]) -> list[TaskStatus]:
+    """The statuses in `given` that `tasks` take as upstream."""
+    if not given:
+        return []
+    keys = dict.fromkeys(k for t in tasks for k in t.upstream_keys if k in given)
+    return [given[k] for k in keys]
 
 
 def executor_for(scheduler: str | None, workers: int | None) -> Executor:
@@ -65,14 +77,18 @@ class InProcess:
         scope: str,
         on_done: OnDone,
         read_root: str | None = None,
+        given: Sequence[TaskStatus] = (),
     ) -> list[TaskStatus]:
         results: dict[str, TaskStatus] = {}
+        before = {s.key: s for s in given}
         try:
             for t in tasks:
                 if t.key in results:
                     continue
                 ups: list[Any] = [
-                    results[k] for k in dict.fromkeys(t.upstream_keys) if k in results
+                    results.get(k) or before[k]
+                    for k in dict.fromkeys(t.upstream_keys)
+                    if k in results or k in before
                 ]
                 n = n_parts(t)
                 if n > 1:
@@ -121,6 +137,7 @@ class LocalProcesses:
         scope: str,
         on_done: OnDone,
         read_root: str | None = None,
+        given: Sequence[TaskStatus] = (),
     ) -> list[TaskStatus]:
         from concurrent.futures.process import BrokenProcessPool
 
@@ -131,6 +148,9 @@ class LocalProcesses:
 
         n = pool_size(tasks, self.workers or _process.workers_default())
         graph = {node.name: node for node in nodes(tasks, store_root, scope, read_root)}
+        earlier = {s.key: s for s in given}
+        # the earlier statuses each node takes, passed as one more argument (a list)
+        extra = {name: _taken(_node_tasks(node), earlier) for name, node in graph.items()}
         fork = _process.start_method() == "fork"
         if fork and n > 1:
             stages = {t.stage for t in tasks} & set(STAGES)
@@ -181,10 +201,11 @@ class LocalProcesses:
                 for dep in [*node.deps, *node.parts]:
                     if dep in done:
                         dsk[dep] = quote(done[dep])
+                more = (quote(extra[name]),) if extra.get(name) else ()
                 if node.chain is not None:
-                    dsk[name] = (node.call, list(node.parts), *node.deps)
+                    dsk[name] = (node.call, list(node.parts), *node.deps, *more)
                 else:
-                    dsk[name] = (node.call, *node.deps)
+                    dsk[name] = (node.call, *node.deps, *more)
             with _process.process_pool(n_workers) as pool:
                 get_async(
                     pool.submit,
@@ -228,6 +249,13 @@ class LocalProcesses:
             # temporaries of dead processes, which `gc` removes
             ResultStore(store_root).gc()
         return list(results.values())
+
+
+def _node_tasks(node: Node) -> list[Task]:
+    """The tasks a node runs: its chain, or the split task it is a part of."""
+    if node.chain is not None:
+        return node.chain
+    return [] if node.part is None else [node.part[0]]
 
 
 def _dead_node(node: Node, store_root: str, exc: BaseException) -> Any:
@@ -288,9 +316,16 @@ class DaskCluster:
         scope: str,
         on_done: OnDone,
         read_root: str | None = None,
+        given: Sequence[TaskStatus] = (),
     ) -> list[TaskStatus]:
         return _run_dask(
-            tasks, store_root, self.address, on_done=on_done, scope=scope, read_root=read_root
+            tasks,
+            store_root,
+            self.address,
+            on_done=on_done,
+            scope=scope,
+            read_root=read_root,
+            given=given,
         )
 
 
@@ -302,6 +337,7 @@ def _run_dask(
     on_done: OnDone,
     scope: str,
     read_root: str | None,
+    given: Sequence[TaskStatus] = (),
 ) -> list[TaskStatus]:
     from dask.distributed import Client, as_completed
 
@@ -311,6 +347,7 @@ def _run_dask(
     except (OSError, TimeoutError) as exc:
         raise PipelineError(f"cannot reach the dask scheduler {scheduler}: {exc}") from None
     results: dict[str, TaskStatus] = {}
+    before = {s.key: s for s in given}
     try:
         owner: dict[str, Any] = {}  # task key -> future of the chain that runs it
         # future -> (its chain, the split task or None, the futures it waits for)
@@ -328,6 +365,7 @@ def _run_dask(
                         store_root,
                         i,
                         *(stand_in.get(d, d) for d in part_deps(split, i, deps, owner)),
+                        *([taken] if (taken := _taken([split], before)) else []),
                         scope=scope,
                         read_root=read_root,
                         key=f"{split.step}-{split.key}-part{i}-{uuid.uuid4().hex[:8]}",
@@ -345,6 +383,7 @@ def _run_dask(
                 store_root,
                 parts,
                 *(stand_in.get(d, d) for d in deps),
+                *([taken] if (taken := _taken(chain, before)) else []),
                 scope=scope,
                 read_root=read_root,
                 key=f"{head.flight or 'campaign'}-{head.step}-{head.key}-{uuid.uuid4().hex[:8]}",
@@ -390,6 +429,9 @@ def _run_dask(
                 on_done(status)
     finally:
         client.close()
+        # workers that are threads of this process (a cluster made with processes=False)
+        # cached this run's records here: forgotten, as the other executors forget them
+        record_cache(None)
     return list(results.values())
 
 

@@ -314,6 +314,25 @@ class PlanStream:
         self._started = True
         return self._tasks()
 
+    @property
+    def stages(self) -> set[str]:
+        """The stored names of the stages the tasks run (where their results live)."""
+        return set(self._setup.step_stage.values())
+
+    @property
+    def has_campaign_tasks(self) -> bool:
+        """Whether campaign steps (a report, a database) follow the flights' tasks."""
+        return any(s in self.pipeline.campaign_steps for s in self._setup.steps)
+
+    def input_files(self) -> list[Path]:
+        """The files the campaign reads: its config, pipeline file and flight files."""
+        out = [Path(self.config.source)] if Path(self.config.source).is_file() else []
+        out += [path for _, path, _ in self._files]
+        ref = self._setup.pipe_ref
+        if ref is not None and ref.get("file"):
+            out.append(Path(ref["file"]))
+        return list(dict.fromkeys(out))
+
     def _tasks(self) -> Iterator[Task]:
         # a plan makes a few objects a task and no reference cycles: the cyclic
         # collector, which walks every live object each time it runs, made planning
@@ -570,14 +589,3 @@ def store_argument(store: str | Path) -> str:
     """A store given on the command line or to `run`: a URL as is, a folder made absolute."""
     location = parse(store)
     return location.root if location.is_url else str(Path(location.root).resolve())
-
-
-def campaign_inputs(the_plan: Plan) -> list[Path]:
-    """The files a campaign reads: its config, pipeline file and flight files."""
-    out = [Path(the_plan.config.source)] if Path(the_plan.config.source).is_file() else []
-    for t in the_plan.tasks:
-        if t.source is not None and t.source.get("kind") == "file":
-            out.append(Path(t.source["path"]))
-        if t.pipeline_ref is not None and t.pipeline_ref.get("file"):
-            out.append(Path(t.pipeline_ref["file"]))
-    return list(dict.fromkeys(out))

@@ -1,25 +1,26 @@
 """Running a campaign: plan, prune what is stored, run the rest, write the report.
 
-`run` is the whole of it: `planning.plan` computes every task's key from the
-config alone; the tasks already in the store are pruned; the rest run on an
-executor (`executors`: worker processes under Dask's local scheduler by
-default, a `dask.distributed` scheduler, or this process); the campaign
-report is written (`campaign_report`). A failing task is reported with its
+`run` is the whole of it: `planning.plan_stream` computes every task's key
+from the config alone, a flight at a time; the tasks already in the store are
+pruned; the rest run a window of flights at a time on an executor
+(`executors`: worker processes under Dask's local scheduler by default, a
+`dask.distributed` scheduler, or this process), and of each task only a line
+of a `Ledger` is kept; the campaign report is written (`campaign_report`),
+its campaign tasks reading the flights' results from the store. A failing task is reported with its
 error and never committed; its dependants fail with a pointer to it; other
 flights carry on.
 """
 
 from __future__ import annotations
 
-import sys
+import functools
 import time
-import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from . import plan_cache, verified
+from ..errors import PipelineError
 from .campaign_report import check_report_path, html_report_path, write_report
 from .config import CampaignConfig, load_config
 from .database_stage import write_database_files
@@ -32,10 +33,12 @@ from .execution import (
     execute_task,
     n_parts,
 )
-from .executors import executor_for
-from .planning import Plan, Task, campaign_inputs, plan, resolve_model, store_argument
+from .ledger import Ledger, Statuses
+from .plan_cache import PlannedTask
+from .planning import Plan, Task, plan, plan_stream, resolve_model, store_argument
 from .rerun import rerun
 from .store import ResultStore
+from .streaming import StreamedRun
 
 __all__ = [
     "Plan",
@@ -60,10 +63,18 @@ class RunSummary:
 
     `report_error` says why the report files could not be written (a full
     disk); the table (`columns`, `rows`) is there all the same.
+
+    A run keeps of each task only what its summary shows (a `Ledger`: step,
+    flight, key and status code, the whole status where it carries an error
+    or warnings), never the plan: a campaign of 100,000 flights would hold
+    some 4 kB a flight in its tasks. `plan` is made again on first access from
+    the config the run was given (keys are computed from the config alone, so
+    it is the plan that ran, unless a flight file was rewritten since: its
+    keys then differ from `statuses`); `statuses` reads the ledger as the
+    mapping key -> `TaskStatus` it always was.
     """
 
-    plan: Plan
-    statuses: dict[str, TaskStatus]
+    ledger: Ledger
     report_path: Path | None
     columns: list[str] = field(default_factory=list)
     rows: list[list[str]] = field(default_factory=list)
@@ -71,9 +82,27 @@ class RunSummary:
     report_error: str | None = None
     # the aerodynamic database's files (stage ``database``), beside the report
     database_dir: Path | None = None
+    replan: Callable[[], Plan] | None = field(default=None, repr=False)
+
+    @functools.cached_property
+    def plan(self) -> Plan:
+        """The campaign's plan, made again from the run's config (see above)."""
+        if self.replan is None:
+            raise PipelineError("this summary keeps no way to plan its campaign again")
+        return self.replan()
+
+    @property
+    def statuses(self) -> Statuses:
+        """Task key -> `TaskStatus`, in plan order."""
+        return self.ledger.statuses
+
+    @property
+    def flights(self) -> list[str]:
+        """The flights of the run, in plan order."""
+        return self.ledger.flights
 
     def count(self, status: str) -> int:
-        return sum(1 for t in self.plan.tasks if self.statuses[t.key].status == status)
+        return self.ledger.count(status)
 
     @property
     def failed(self) -> int:
@@ -81,22 +110,22 @@ class RunSummary:
 
     def task_rows(self) -> list[dict[str, Any]]:
         out = []
-        for t in self.plan.tasks:
-            s = self.statuses[t.key]
+        for i in range(len(self.ledger)):
+            s = self.ledger.status(i)
             out.append(
                 {
-                    "stage": t.step,
-                    "flight": t.flight,
-                    "key": t.key,
+                    "stage": s.step,
+                    "flight": s.flight,
+                    "key": s.key,
                     "status": s.status,
                     "error": s.error,
                 }
             )
         return out
 
-    def warnings(self) -> list[tuple[Task, str]]:
+    def warnings(self) -> list[tuple[PlannedTask, str]]:
         """Warnings raised by the tasks computed in this run, task by task."""
-        return [(t, w) for t in self.plan.tasks for w in self.statuses[t.key].warnings]
+        return [(t, w) for t, s in self.ledger.told() for w in s.warnings]
 
     def to_json(self) -> dict[str, Any]:
         html = None if self.report_path is None else html_report_path(self.report_path)
@@ -125,6 +154,11 @@ def run(
     allow_imports: bool = False,
 ) -> RunSummary:
     """Compute every missing result of a campaign and write its report.
+
+    The plan is streamed (`plan_stream`): flights are planned, pruned of what
+    is stored and run a window of `streaming.WINDOW_FLIGHTS` at a time, and only a
+    ledger of their statuses is kept (`RunSummary`, `streaming`), so the memory of this
+    process grows by some bytes a flight, not by its tasks.
 
     Parameters
     ----------
@@ -175,82 +209,62 @@ def _run(
         updates["workers"] = workers
     if updates:
         config = config.model_copy(update=updates)
-    the_plan = plan(config, pipeline=pipeline, allow_imports=allow_imports)
-    t_plan = time.perf_counter()
+    stream = plan_stream(config, pipeline=pipeline, allow_imports=allow_imports)
     result_store = ResultStore(config.store_location)
-    if the_plan.report_task is not None:
-        check_report_path(config, campaign_inputs(the_plan))
-    # the plan's keys, for `aeroid status` on the unchanged campaign (`plan_cache`)
-    plan_cache.save(result_store, the_plan.inputs, plan_cache.rows(the_plan.tasks))
-    statuses: dict[str, TaskStatus] = {}
-    todo: list[Task] = []
-    # one look at the store for every task (`verified.look_up`)
-    look = verified.look_up(result_store, ((t.stage, t.key) for t in the_plan.tasks))
-    for t in the_plan.tasks:
-        if t.key in statuses:
-            continue
-        found = look.found.get((t.stage, t.key))
-        if found is None:
-            todo.append(t)
-        elif isinstance(found, str):  # its bytes fail their checksum
-            statuses[t.key] = TaskStatus(t.key, t.step, t.flight, "failed", error=found)
-        else:
-            statuses[t.key] = TaskStatus(t.key, t.step, t.flight, "cached", warnings=found)
-    t_check = time.perf_counter()
-    for status in _compute(todo, config, result_store, progress):
-        statuses[status.key] = status
-    t_run = time.perf_counter()
-    # what this run committed (written from memory) joins the index of entries checked whole
-    committed = {
-        (t.stage, t.key): statuses[t.key].warnings
-        for t in todo
-        if statuses[t.key].status == "computed" and statuses[t.key].cached
-    }
-    look.record_run(result_store, committed)
-    # the database's files first: the campaign report shows their section and plots
-    database_dir, database_error = write_database_files(the_plan, result_store, statuses)
-    report_path, columns, rows, report_error = write_report(
-        the_plan, result_store, statuses, database_dir=database_dir
+    if stream.has_campaign_tasks:
+        check_report_path(config, stream.input_files())
+    state = StreamedRun(result_store, config, progress)
+    try:
+        state.consume(stream)
+    finally:
+        state.close()
+    ledger = state.ledger
+    state.record_checked()
+    # the report sees the campaign tasks and the statuses that carry warnings or errors
+    told = {s.key: s for _, s in ledger.told()}
+    report_plan = Plan(
+        config=stream.config,
+        pipeline=stream.pipeline,
+        tasks=[*_warned(ledger), *state.campaign],
+        flights=ledger.flights,
+        inputs=stream.inputs,
     )
+    # the database's files first: the campaign report shows their section and plots
+    database_dir, database_error = write_database_files(report_plan, result_store, told)
+    report_path, columns, rows, report_error = write_report(
+        report_plan, result_store, told, database_dir=database_dir
+    )
+    for t in state.campaign:  # the report task's status, where its entry could not be read
+        if t.key in told:
+            ledger.settle(state.campaign_index[t.key], told[t.key])
     report_error = report_error or database_error
+
+    def replan() -> Plan:
+        return plan(config, pipeline=pipeline, allow_imports=allow_imports)
+
     return RunSummary(
-        plan=the_plan,
-        statuses=statuses,
+        ledger=ledger,
         report_path=report_path,
         columns=columns,
         rows=rows,
         report_error=report_error,
         database_dir=database_dir,
+        replan=replan,
         seconds={
-            "plan": t_plan - t0,
-            "cache_check": t_check - t_plan,
-            "run": t_run - t_check,
+            "plan": state.t_plan,
+            "cache_check": state.t_check,
+            "run": state.t_run,
             "total": time.perf_counter() - t0,
-            "compute": sum(s.compute_seconds for s in statuses.values()),
+            "compute": ledger.compute_seconds,
         },
     )
 
 
-def _compute(
-    todo: list[Task],
-    config: CampaignConfig,
-    result_store: ResultStore,
-    progress: bool,
-) -> list[TaskStatus]:
-    """Run the tasks not yet stored on the executor the config asks for."""
-    if not todo:
-        return []
-    bar = None
-    if progress and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(todo), desc="aeroid", unit="task", file=sys.stderr)
-    on_done: Callable[[TaskStatus], None] = (
-        (lambda s: None) if bar is None else (lambda s: bar.update(1))
-    )
-    try:
-        executor = executor_for(config.scheduler, config.workers)
-        return executor.run(todo, str(result_store.root), scope=uuid.uuid4().hex, on_done=on_done)
-    finally:
-        if bar is not None:
-            bar.close()
+def _warned(ledger: Ledger) -> list[Task]:
+    """Stand-ins for the flight tasks with warnings, as the report reads them (step,
+    stage, flight, key): it shows each flight's warnings in its section."""
+    return [
+        Task(t.key, t.step, t.stage, t.flight, {}, {}, {}, b"")
+        for t, s in ledger.told()
+        if s.warnings and t.flight is not None
+    ]

@@ -27,7 +27,8 @@ and rerun linear in flights. Usage:
 ``python tests/benchmarks/bench_campaign_scale.py [--sizes 1000 10000 100000] [--repeats 3]``
 (``--no-run``: planning, ``status`` before any run, and ``status`` on a store
 whose entries are empty placeholder files, which is all ``status`` looks at:
-their names).
+their names; ``--collect``: the peak memory of the process that plans and
+collects a cold run and an unchanged rerun, and its bytes a flight).
 """
 
 from __future__ import annotations
@@ -159,6 +160,72 @@ def _planning(cfg: Path, how: str) -> tuple[float, float]:
     return float(seconds), int(peak) / 1024
 
 
+_COLLECTING = """\
+import json, sys, time
+sys.path.insert(0, sys.argv[2])
+from aeroid.pipeline import run
+
+
+def rss(field):
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith(field + ":"))
+
+
+before = rss("VmRSS")
+t, c = time.perf_counter(), time.process_time()
+s = run(sys.argv[1], store=sys.argv[3])
+doc = {"seconds": time.perf_counter() - t, "cpu": time.process_time() - c,
+       "peak_kb": rss("VmHWM"), "before_kb": before, "computed": s.count("computed"),
+       "cached": s.count("cached"), "failed": s.failed}
+print(json.dumps(doc))
+"""
+
+
+def _collecting(cfg: Path, store: Path) -> dict[str, float]:
+    """A run of `cfg` in a fresh process (default workers): its wall and CPU seconds and
+    the peak resident memory of that process, the one that plans and collects (its
+    workers are other processes), with what it held before the run (imports)."""
+    out = subprocess.run(
+        [sys.executable, "-c", _COLLECTING, str(cfg), str(cfg.parent), str(store)],
+        capture_output=True,
+        text=True,
+    )
+    if out.returncode != 0:
+        raise SystemExit(f"run failed:\n{out.stderr[-3000:]}")
+    doc: dict[str, float] = json.loads(out.stdout.splitlines()[-1])
+    return doc
+
+
+def _collect_sizes(work: Path, sizes: list[int]) -> None:
+    """``--collect``: per size, a cold run and an unchanged rerun, each in a fresh process:
+    the peak memory of the process that plans and collects, and bytes a flight (the
+    growth between the smallest and each larger size, over the flights added)."""
+    first: tuple[int, float] | None = None
+    for n in sizes:
+        folder = work / f"c{n}"
+        folder.mkdir()
+        shutil.copy(work / "tiny.py", folder / "tiny.py")
+        cfg = folder / "campaign.yaml"
+        cfg.write_text(_config(n), encoding="utf-8")
+        for what in ("cold run", "unchanged rerun"):
+            doc = _collecting(cfg, folder / "store")
+            peak = doc["peak_kb"] * 1024
+            slope = ""
+            if what == "cold run":
+                if first is None:
+                    first = (n, peak)
+                elif n > first[0]:
+                    slope = f", {(peak - first[1]) / (n - first[0]):,.0f} bytes a flight beyond {first[0]:,}"
+            print(
+                f"{n} flights, {what}: {doc['seconds']:.1f} s (its own CPU {doc['cpu']:.1f} s; "
+                f"{doc['computed']:.0f} computed, {doc['cached']:.0f} cached, "
+                f"{doc['failed']:.0f} failed); planning/collecting process peak "
+                f"{peak / 2**20:.0f} MB ({doc['before_kb'] / 1024:.0f} MB before the run){slope}",
+                flush=True,
+            )
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _statuses(cfg: Path, folder: Path, repeats: int) -> str:
     """``aeroid status`` reading the stored plan, and planning (stored plans removed)."""
     planned, stored = [], []
@@ -224,11 +291,19 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-run", action="store_true", help="measure planning only")
+    parser.add_argument(
+        "--collect",
+        action="store_true",
+        help="measure the memory of the process that plans and collects a run only",
+    )
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="aeroid-bench-scale-"))
     try:
         (work / "tiny.py").write_text(TINY, encoding="utf-8")
         print(f"cores: {len(os.sched_getaffinity(0))}", flush=True)
+        if args.collect:
+            _collect_sizes(work, args.sizes)
+            return
         if not args.no_run:
             _overhead(work, 1000)
         for n in args.sizes:
