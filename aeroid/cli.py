@@ -22,8 +22,8 @@ def _fail(message: str, code: int = 2) -> None:
 
 def _open_store(config: str | None, store: str | None, *, repair: bool = False) -> Any:
     from .errors import AeroidError
-    from .pipeline.config import load_config
-    from .pipeline.store import ResultStore
+    from .pipeline.plans.config import load_config
+    from .pipeline.storage.store import ResultStore
 
     if config and store:
         _fail("give --config or --store, not both")
@@ -165,7 +165,7 @@ def run(
 ) -> None:
     """Compute every missing result of the campaign in CONFIG and write its report."""
     from .errors import AeroidError
-    from .pipeline.runner import run as run_campaign
+    from .pipeline.running.runner import run as run_campaign
 
     try:
         summary = run_campaign(
@@ -266,8 +266,8 @@ def _status_json(n_stored: int, where: str, tasks: list[Any], stored: list[bool]
 def _status_tasks(cfg: Any, st: Any, allow_imports: bool) -> list[Any]:
     """The campaign's tasks (step, stage, flight, key): the plan the store keeps for
     these very inputs (`plan_cache`), else planned one flight at a time and kept."""
-    from .pipeline import plan_cache
-    from .pipeline.planning import plan_stream, stored_plan
+    from .pipeline.plans import plan_cache
+    from .pipeline.plans.planning import plan_stream, stored_plan
 
     if st is not None:
         found = stored_plan(st, cfg, allow_imports=allow_imports)
@@ -303,9 +303,9 @@ def status(
 ) -> None:
     """Which tasks of CONFIG are stored and which are missing (computes nothing)."""
     from .errors import AeroidError
-    from .pipeline.config import load_config
-    from .pipeline.planning import store_argument
-    from .pipeline.store import ResultStore, is_store
+    from .pipeline.plans.config import load_config
+    from .pipeline.plans.planning import store_argument
+    from .pipeline.storage.store import ResultStore, is_store
 
     try:
         cfg = load_config(config, store=store_argument(store) if store else None)
@@ -437,13 +437,13 @@ def rerun(
 ) -> None:
     """Recompute a stored result (or --all) from its recorded inputs and compare bit for bit."""
     from .errors import AeroidError
-    from .pipeline.rerun import rerun as rerun_entry
+    from .pipeline.running.rerun import rerun as rerun_entry
 
     if (key is None) == (not every):
         _fail("give a KEY or --all (not both)")
     if (stage is not None or scheduler is not None or workers is not None) and not every:
         _fail("--stage, --scheduler and --workers go with --all")
-    from .pipeline.config import workers_problem
+    from .pipeline.plans.config import workers_problem
 
     if problem := workers_problem(workers):
         _fail(f"--workers: {problem}")
@@ -458,8 +458,8 @@ def rerun(
             click.echo(line)
         sys.exit(0 if identical else 1)
     from ._progress import progress_bar
-    from .pipeline.executors import executor_for
-    from .pipeline.rerun import RerunResult, rerun_all
+    from .pipeline.running.executors import executor_for
+    from .pipeline.running.rerun import RerunResult, rerun_all
 
     n = sum(1 for _ in st.entries(stage))
     if stage is not None and not n:
@@ -495,8 +495,8 @@ def rerun(
 def _config_entries(config: str, st: Any) -> list[tuple[str, str]]:
     """(stage, key) of every stored entry the campaign in `config` plans."""
     from .errors import AeroidError
-    from .pipeline.config import load_config
-    from .pipeline.planning import plan
+    from .pipeline.plans.config import load_config
+    from .pipeline.plans.planning import plan
 
     try:
         cfg = load_config(config)

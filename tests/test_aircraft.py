@@ -686,8 +686,8 @@ stages:
 
 def test_a_campaign_config_defines_an_aircraft_model_by_name(tmp_path):
     from aeroid.models.aircraft import model_from_config
-    from aeroid.pipeline.config import load_config
-    from aeroid.pipeline.runner import plan, resolve_model
+    from aeroid.pipeline.plans.config import load_config
+    from aeroid.pipeline.running.runner import plan, resolve_model
 
     (tmp_path / "flight.csv").write_text(
         "time,V,alpha,theta,q,az,delta_e,thrust\n0,1,2,3,4,5,6,7\n"

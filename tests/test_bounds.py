@@ -526,8 +526,8 @@ def _campaign(tmp_path, identify_options: str):
 
 def test_bounds_in_a_pipeline_config_are_validated_keyed_and_passed_through(tmp_path):
     from aeroid.pipeline import open_store, plan
-    from aeroid.pipeline.library_stages import IdentifyOptions
-    from aeroid.pipeline.runner import execute_task
+    from aeroid.pipeline.running.runner import execute_task
+    from aeroid.pipeline.stages.library_stages import IdentifyOptions
 
     with pytest.raises(
         ConfigError,

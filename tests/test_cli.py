@@ -37,7 +37,7 @@ USER_PIPELINE = textwrap.dedent(
     import numpy as np
 
     from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
-    from aeroid.pipeline.config import Options
+    from aeroid.pipeline.plans.config import Options
 
 
     @register_record

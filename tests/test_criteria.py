@@ -180,7 +180,7 @@ def test_bandwidth_result_has_a_level_and_draws_the_boundaries_by_default() -> N
 
 
 def test_the_campaign_table_names_levels_and_a_right_half_plane_zero() -> None:
-    from aeroid.pipeline.analysis_stages import hq_table
+    from aeroid.pipeline.stages.analysis_stages import hq_table
 
     briefs = [
         {"omega": 3.0, "1/T_theta2": 1.2, "tau": 0.05, "LOES level": 1.0},

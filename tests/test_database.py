@@ -352,8 +352,8 @@ def test_parquet_table_round_trip(tmp_path: Path) -> None:
 
 def test_condition_keys_are_one_list() -> None:
     # the stage's default keys, the report's rows and plots, the JSBSim export: one list
-    from aeroid.pipeline._campaign_tables import condition_text
-    from aeroid.pipeline.database_stage import CONDITION_KEYS as STAGE_KEYS
+    from aeroid.pipeline.stages._campaign_tables import condition_text
+    from aeroid.pipeline.stages.database_stage import CONDITION_KEYS as STAGE_KEYS
     from aeroid.support import CONDITION_KEYS, CONDITION_NAMES
     from aeroid.uncertainty.database_export import CONDITION_PROPERTIES
 

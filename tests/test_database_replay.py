@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeroid.pipeline._database_report import REPLAY_OUTPUTS, r_squared, replay_section
+from aeroid.pipeline.stages._database_report import REPLAY_OUTPUTS, r_squared, replay_section
 
 
 def test_r_squared_closed_form() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from aeroid.pipeline import open_store, plan, run
-from aeroid.pipeline.synthetic import _truth
+from aeroid.pipeline.plans.synthetic import _truth
 from aeroid.uncertainty.database import AeroDatabase
 
 

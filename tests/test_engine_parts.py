@@ -18,8 +18,8 @@ from click.testing import CliRunner
 from aeroid.cli import main
 from aeroid.errors import ConfigError
 from aeroid.pipeline import STAGES, TaskStatus, open_store, plan, run
-from aeroid.pipeline.executors import InProcess, LocalProcesses
-from aeroid.pipeline.rerun import rerun_all
+from aeroid.pipeline.running.executors import InProcess, LocalProcesses
+from aeroid.pipeline.running.rerun import rerun_all
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE = ROOT / "aeroid" / "pipeline"
@@ -90,8 +90,8 @@ def test_options_built_from_a_signature_take_its_types_and_refuse_other_keys():
     from pydantic import Field
 
     from aeroid.errors import PipelineError
-    from aeroid.pipeline.config import validate_options
-    from aeroid.pipeline.signature_options import library_fields
+    from aeroid.pipeline.plans.config import validate_options
+    from aeroid.pipeline.stages.signature_options import library_fields
 
     freq = STAGES["frequency_response"].options
     # types read from `frequency_response`'s signature; bounds the stage's; None: the default
@@ -380,8 +380,8 @@ def test_rerun_all_on_worker_processes_finds_every_entry_bit_identical(tmp_path)
 
 
 def test_a_report_only_rerun_draws_its_figure_parts_on_every_worker(tmp_path):
-    from aeroid.pipeline.executors import pool_size
-    from aeroid.pipeline.runner import n_parts
+    from aeroid.pipeline.running.executors import pool_size
+    from aeroid.pipeline.running.runner import n_parts
 
     cfg = _config(tmp_path, n=3)
     cfg.write_text(cfg.read_text().replace("figures: false", "figures: true"))

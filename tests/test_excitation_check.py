@@ -10,7 +10,7 @@ import pytest
 
 import aeroid
 from aeroid.models import catalog
-from aeroid.pipeline.flight_status import flight_status
+from aeroid.pipeline.stages.flight_status import flight_status
 
 
 def _first_order_record(amplitude: float, seed: int = 0) -> aeroid.FlightData:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from aeroid.errors import ConfigError
-from aeroid.pipeline.config import load_config
+from aeroid.pipeline.plans.config import load_config
 
 
 def _config(tmp_path, extra: str):
@@ -47,7 +47,7 @@ def test_the_home_folder_and_plain_paths_are_still_taken(tmp_path):
     ],
 )
 def test_infer_counts_whose_product_cannot_finish_are_refused_at_check(tmp_path, counts, refused):
-    from aeroid.pipeline.checks import preflight
+    from aeroid.pipeline.plans.checks import preflight
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(

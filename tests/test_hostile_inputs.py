@@ -8,7 +8,7 @@ import pytest
 
 from aeroid import read_log
 from aeroid.errors import ConfigError, DataFormatError
-from aeroid.pipeline.config import load_config
+from aeroid.pipeline.plans.config import load_config
 
 h5py = pytest.importorskip("h5py")
 
@@ -110,7 +110,7 @@ def test_network_is_allowed_by_opt_in_and_loopback_needs_none(tmp_path):
 
 
 def test_pre_flight_errors_quote_no_file_contents(tmp_path):
-    from aeroid.pipeline.checks import preflight
+    from aeroid.pipeline.plans.checks import preflight
 
     secret = tmp_path / "creds.csv"
     secret.write_text("AWS_SECRET=abc123xyz,other\n1,2\n")
@@ -127,7 +127,7 @@ def test_pre_flight_errors_quote_no_file_contents(tmp_path):
 
 
 def test_flights_sharing_a_stem_are_named_by_their_relative_path(tmp_path):
-    from aeroid.pipeline.planning import _flight_sources
+    from aeroid.pipeline.plans.planning import _flight_sources
 
     for folder in ("x", "y"):
         (tmp_path / folder).mkdir()
@@ -170,7 +170,7 @@ def test_a_recursive_glob_through_a_symlink_loop_ends(tmp_path):
     ],
 )
 def test_counts_that_would_hang_a_run_are_refused_before_it(tmp_path, stage, match):
-    from aeroid.pipeline.planning import plan
+    from aeroid.pipeline.plans.planning import plan
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(
@@ -241,9 +241,9 @@ def test_a_url_store_that_lost_its_marker_mid_run_is_made_whole_by_the_next(tmp_
     import fsspec
 
     from aeroid.pipeline import ResultStore
-    from aeroid.pipeline._backend import _CHECKED
     from aeroid.pipeline.keys import canonical_json, sha256_hex
     from aeroid.pipeline.stages import CampaignReport
+    from aeroid.pipeline.storage._backend import _CHECKED
 
     url = f"memory://aeroid-test-{uuid.uuid4().hex[:12]}/store"
     store = ResultStore(url)
@@ -272,7 +272,7 @@ def test_a_campaign_name_that_cannot_name_a_file_is_refused(tmp_path, name):
 
 
 def test_an_unknown_simulate_options_key_is_refused_before_any_load(tmp_path):
-    from aeroid.pipeline.planning import plan
+    from aeroid.pipeline.plans.planning import plan
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(

@@ -231,7 +231,7 @@ def test_aeroid_status_ends_on_a_glob_through_a_symlink_loop(tmp_path):
 def test_the_config_check_names_hdf5_channels_without_reading_them(tmp_path, monkeypatch):
     h5py = pytest.importorskip("h5py")
     import aeroid.io.logs as logs
-    from aeroid.pipeline.checks import preflight
+    from aeroid.pipeline.plans.checks import preflight
 
     n = 50
     with h5py.File(tmp_path / "f.h5", "w") as f:

@@ -127,7 +127,7 @@ def _store_with_entry(root):
 
 
 def _forget(root) -> None:
-    from aeroid.pipeline._backend import _CHECKED
+    from aeroid.pipeline.storage._backend import _CHECKED
 
     _CHECKED.clear()  # as a fresh process would
 
@@ -304,7 +304,7 @@ def test_a_malformed_number_is_still_quoted_and_names_still_listed(tmp_path):
 def test_every_remote_protocol_gets_the_timeout(monkeypatch):
     import fsspec.core
 
-    from aeroid.pipeline import _objectstore
+    from aeroid.pipeline.storage import _objectstore
 
     seen: dict[str, dict] = {}
 
@@ -329,7 +329,7 @@ def test_an_http_server_that_stops_answering_fails_the_read(monkeypatch):
     import time
 
     pytest.importorskip("aiohttp")
-    from aeroid.pipeline._objectstore import url_to_fs
+    from aeroid.pipeline.storage._objectstore import url_to_fs
 
     server = socket.socket()
     server.bind(("127.0.0.1", 0))

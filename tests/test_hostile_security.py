@@ -10,7 +10,7 @@ import pytest
 
 from aeroid import load_flight_test, read_log
 from aeroid.errors import ChannelError, ConfigError, DataFormatError
-from aeroid.pipeline.config import load_config
+from aeroid.pipeline.plans.config import load_config
 
 h5py = pytest.importorskip("h5py")
 
@@ -107,7 +107,7 @@ def test_a_secret_in_a_cell_is_not_quoted_by_either_locator(tmp_path, columns):
 
 
 def test_a_text_file_named_as_a_flight_is_not_quoted_by_the_config_check(tmp_path):
-    from aeroid.pipeline.checks import preflight
+    from aeroid.pipeline.plans.checks import preflight
 
     (tmp_path / "passwd.txt").write_text("root:x:0:0:root:/root:/bin/bash\nAWS_KEY=wJalrXUtnFEMI\n")
     cfg = tmp_path / "c.yaml"

@@ -164,7 +164,7 @@ def private_crossings() -> list[str]:
 def test_the_graph_sees_function_local_and_relative_imports():
     graph = import_graph()
     assert "aeroid.errors" in graph["aeroid.models.model"]
-    assert "aeroid.pipeline.store" in graph["aeroid.pipeline.runner"]
+    assert "aeroid.pipeline.storage.store" in graph["aeroid.pipeline.running.runner"]
     # a cycle built by hand is found, and so is a function-local import
     toy = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert import_cycles(toy) == [["a", "b", "c"]]
@@ -422,7 +422,7 @@ def test_old_module_paths_still_import():
 def test_stored_names_stay_those_of_the_flat_layout():
     from aeroid._aliases import MOVED, legacy_name
     from aeroid.models.model import SimulationResult
-    from aeroid.pipeline import codec
+    from aeroid.pipeline.storage import codec
 
     flat = "aeroid.identification"  # flat layout
     assert legacy_name("aeroid.estimation.identification") == flat

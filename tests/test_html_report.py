@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from aeroid._units import parameter_units
-from aeroid.pipeline.flight_status import LEGEND, flight_status
+from aeroid.pipeline.stages.flight_status import LEGEND, flight_status
 from aeroid.reports.html import markdown_to_html
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -143,7 +143,7 @@ def test_a_flight_is_flagged_for_a_term_the_other_flights_determine():
     """|t| < 2 flags a flight only where most of the other flights tell the term from
     zero (the flight's manoeuvres fell short); a term most flights cannot tell from zero
     flags none and is named once, under Model structure."""
-    from aeroid.pipeline.flight_status import (
+    from aeroid.pipeline.stages.flight_status import (
         determined_shares,
         flight_status,
         severity,
@@ -183,7 +183,7 @@ def test_a_flight_is_flagged_for_a_term_the_other_flights_determine():
 
 
 def test_the_propagated_metric_is_named_with_its_unit_where_it_is_shown():
-    from aeroid.pipeline._campaign_tables import metric_heading, name_the_metric
+    from aeroid.pipeline.stages._campaign_tables import metric_heading, name_the_metric
 
     heading = metric_heading({"propagate": {"metric": "static_margin"}}, {"static_margin": "mac"})
     assert heading == "static_margin [mac] (mean ± 1σ)"
@@ -199,7 +199,7 @@ def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():
     """A filter-error fit's poor-fit flag comes from its innovations against each
     output's measured variance (R² = 1 - ms / var), not from the open-loop simulation
     that drifts with every gust; an output-error fit keeps the simulation's."""
-    from aeroid.pipeline.flight_status import flight_status
+    from aeroid.pipeline.stages.flight_status import flight_status
 
     simulated_poorly = ("V 10.0 %, q 95.0 %", "—", (), (("V", 0.19),), {"V": 4.0, "q": 1.0})
     base = {"success": True, "parameters": {}, "stderr": {}}
@@ -211,7 +211,7 @@ def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():
     # a brief from before (no variances, no residuals) keeps the simulation's flag
     assert flight_status(None, base, simulated_poorly[:4], None) == "poor fit V (R² 0.19)"
     # the fit column says the same: 100 (1 - sqrt(ms / var)), R² = 1 - (1 - fit / 100)²
-    from aeroid.pipeline.flight_status import one_step_fits
+    from aeroid.pipeline.stages.flight_status import one_step_fits
 
     assert one_step_fits(fe, simulated_poorly) == "V 68.4 %, q 29.3 %"
     assert one_step_fits(oe, simulated_poorly) is None
@@ -221,7 +221,7 @@ def test_a_filter_error_fit_is_judged_by_its_one_step_prediction():
 def test_the_briefs_carry_measured_variances_and_residual_mean_squares():
     import numpy as np
 
-    from aeroid.pipeline._campaign_tables import fit_whiteness, residual_mean_squares
+    from aeroid.pipeline.stages._campaign_tables import fit_whiteness, residual_mean_squares
 
     class _Fit:
         output_names = ("a", "b")
@@ -419,7 +419,7 @@ def test_every_figure_labels_its_axes_with_units(campaign):
     import matplotlib.pyplot as plt
 
     from aeroid.pipeline import load_config, open_store, plan
-    from aeroid.pipeline.campaign_report import _flight_units, flight_figures
+    from aeroid.pipeline.stages.campaign_report import _flight_units, flight_figures
     from aeroid.reports.plotting import plot_campaign_trend
 
     the_plan = plan(load_config(campaign["config"]))
@@ -549,8 +549,8 @@ def test_a_filter_error_fit_is_called_coloured_by_its_innovations():
 
     import numpy as np
 
-    from aeroid.pipeline._campaign_tables import coloured_innovations, identification_brief
-    from aeroid.pipeline.flight_status import flight_status
+    from aeroid.pipeline.stages._campaign_tables import coloured_innovations, identification_brief
+    from aeroid.pipeline.stages.flight_status import flight_status
 
     rng = np.random.default_rng(7)
     white = rng.normal(size=2000)
@@ -587,8 +587,8 @@ def test_a_term_absent_from_the_truth_is_flagged_about_as_often_as_the_test_says
 
     import aeroid
     from aeroid.models import catalog
-    from aeroid.pipeline._campaign_tables import identification_brief
-    from aeroid.pipeline.flight_status import flight_status
+    from aeroid.pipeline.stages._campaign_tables import identification_brief
+    from aeroid.pipeline.stages.flight_status import flight_status
 
     def dynamics(t, x, u, p):
         alpha, q = x

@@ -398,7 +398,7 @@ def test_diverging_members_are_rejected() -> None:
 
 
 def test_storable_by_the_pipeline_codec() -> None:
-    codec = pytest.importorskip("aeroid.pipeline.codec")
+    codec = pytest.importorskip("aeroid.pipeline.storage.codec")
     res = quiet_infer(
         ramp_model(), ramp_data(), {"k": Normal(0.5, 0.4)}, n_steps=40, seed=None, n_walkers=8
     )

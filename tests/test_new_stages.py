@@ -13,9 +13,9 @@ from _compat_flight import BIASES, simulated_flight
 
 import aeroid
 from aeroid.pipeline import STAGES, open_store, plan, run
-from aeroid.pipeline.analysis_stages import HandlingQualities
-from aeroid.pipeline.codec import decode, encode
 from aeroid.pipeline.stages import StageContext
+from aeroid.pipeline.stages.analysis_stages import HandlingQualities
+from aeroid.pipeline.storage.codec import decode, encode
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -23,7 +23,7 @@ import pytest
 
 import aeroid
 from aeroid.pipeline import open_store, run
-from aeroid.pipeline.runner import n_parts
+from aeroid.pipeline.running.runner import n_parts
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_cli import invoke, make_campaign
@@ -203,7 +203,7 @@ pipeline = Pipeline("inf", flight_steps=(Step("load"), Step("infer", inputs={"da
 
 @pytest.mark.skipif(not hasattr(aeroid, "infer"), reason="aeroid.infer not yet available")
 def test_parallel_mcmc_ensembles_equal_the_unsplit_run(tmp_path):
-    from aeroid.pipeline.runner import rerun
+    from aeroid.pipeline.running.runner import rerun
 
     (tmp_path / "inf_pipeline.py").write_text(INFER_PIPELINE)
     cfg = tmp_path / "inf.yaml"
@@ -241,7 +241,7 @@ pipeline = Pipeline(
 
 @pytest.mark.skipif(not HAS_CHAIN, reason="aeroid.propagate not yet available")
 def test_monte_carlo_batches_in_parallel_equal_the_unsplit_run(tmp_path):
-    from aeroid.pipeline.runner import rerun
+    from aeroid.pipeline.running.runner import rerun
 
     (tmp_path / "mc_pipeline.py").write_text(PROPAGATE_PIPELINE)
 

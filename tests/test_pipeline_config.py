@@ -156,7 +156,7 @@ def test_simulated_flights_fly_a_doublet_or_a_doublet_and_a_sweep():
     import numpy as np
 
     from aeroid.models import catalog
-    from aeroid.pipeline.synthetic import flight_spec, fly
+    from aeroid.pipeline.plans.synthetic import flight_spec, fly
 
     base = {"n_flights": 12, "seed": 7, "duration": 20.0}
     doublet = flight_spec(base, 3)
@@ -188,7 +188,7 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
 
     import aeroid
     from aeroid.models import catalog
-    from aeroid.pipeline.synthetic import flight_spec, fly
+    from aeroid.pipeline.plans.synthetic import flight_spec, fly
 
     model = catalog.short_period()
     names = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
@@ -444,7 +444,7 @@ def _csv_flight(path: Path) -> Path:
 
 
 def test_log_options_left_unset_change_no_flight_options_or_keys(tmp_path):
-    from aeroid.pipeline.config import FileFlights
+    from aeroid.pipeline.plans.config import FileFlights
 
     _csv_flight(tmp_path / "f1.csv")
     text = "model: short_period\nflights:\n  - {path: f1.csv, channels: {alpha: alpha, q: q, elevator: elevator}}\n"

@@ -215,7 +215,7 @@ def test_a_plans_memo_gives_the_same_keys_and_documents():
 def test_an_option_added_later_enters_keys_only_once_set(tmp_path):
     # `infer: {move: ...}` came after infer keys were first stored: unset, it is left out
     # of the key document, so the keys of campaigns that do not use it stay the same
-    from aeroid.pipeline.library_stages import InferOptions
+    from aeroid.pipeline.stages.library_stages import InferOptions
 
     priors = {"M_q": {"normal": [-2.0, 2.0]}}
     doc = InferOptions(priors=priors).key_document()
@@ -243,8 +243,8 @@ def test_an_option_added_later_enters_keys_only_once_set(tmp_path):
 def test_an_execution_only_option_travels_with_the_task_but_not_in_its_key(tmp_path):
     # `propagate: {n_batches: k}` changes how the draws are split over tasks, not the
     # result: keys are those without it, and each task still runs with it
-    from aeroid.pipeline.library_stages import PropagateOptions
-    from aeroid.pipeline.runner import n_parts
+    from aeroid.pipeline.running.runner import n_parts
+    from aeroid.pipeline.stages.library_stages import PropagateOptions
 
     assert "n_batches" not in PropagateOptions(n_batches=3).key_document()
     assert PropagateOptions(n_batches=3).task_document()["n_batches"] == 3

@@ -22,7 +22,7 @@ from aeroid.errors import StoreError
 from aeroid.pipeline import ResultStore, open_store, run
 from aeroid.pipeline.keys import canonical_json, sha256_hex
 from aeroid.pipeline.stages import CampaignReport
-from aeroid.pipeline.store import is_store
+from aeroid.pipeline.storage.store import is_store
 
 
 def _url() -> str:

@@ -15,16 +15,16 @@ from test_pipeline_store import flip_a_bit
 
 from aeroid.errors import PipelineError, StoreError
 from aeroid.pipeline import ResultStore, open_store, run
-from aeroid.pipeline import _process as process_mod
-from aeroid.pipeline import execution as execution_mod
-from aeroid.pipeline import executors as executors_mod
-from aeroid.pipeline import runner as runner_mod
-from aeroid.pipeline._process import start_method as _start_method
-from aeroid.pipeline.graph import segments as _segments
 from aeroid.pipeline.keys import canonical_json, sha256_hex
-from aeroid.pipeline.runner import n_parts, plan
+from aeroid.pipeline.running import _process as process_mod
+from aeroid.pipeline.running import execution as execution_mod
+from aeroid.pipeline.running import executors as executors_mod
+from aeroid.pipeline.running import runner as runner_mod
+from aeroid.pipeline.running._process import start_method as _start_method
+from aeroid.pipeline.running.graph import segments as _segments
+from aeroid.pipeline.running.runner import n_parts, plan
 from aeroid.pipeline.stages import CampaignReport
-from aeroid.pipeline.store import record_cache
+from aeroid.pipeline.storage.store import record_cache
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -260,7 +260,7 @@ def test_an_unchanged_rerun_draws_nothing_and_does_not_import_matplotlib(tmp_pat
 BLAS_PROBE = """
 from dataclasses import dataclass
 from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
-from aeroid.pipeline.config import Options
+from aeroid.pipeline.plans.config import Options
 
 
 @register_record

@@ -19,7 +19,8 @@ import pytest
 from test_cli import make_campaign
 from test_pipeline_objectstore import _CREDENTIALS, s3_endpoint, s3_url  # noqa: F401 (fixtures)
 
-from aeroid.pipeline import ResultStore, open_store, run, verified
+from aeroid.pipeline import ResultStore, open_store, run
+from aeroid.pipeline.storage import verified
 
 
 def _arrays(store: ResultStore) -> dict[str, dict[str, bytes]]:
@@ -227,8 +228,8 @@ def test_the_signatures_of_a_store_come_from_one_listing(tmp_path):
 
 
 def _load_fails_on(monkeypatch: pytest.MonkeyPatch, flight: str) -> None:
-    from aeroid.pipeline import execution
-    from aeroid.pipeline.execution import TaskStatus
+    from aeroid.pipeline.running import execution
+    from aeroid.pipeline.running.execution import TaskStatus
 
     real = execution.execute_task
 
@@ -241,7 +242,7 @@ def _load_fails_on(monkeypatch: pytest.MonkeyPatch, flight: str) -> None:
 
 
 def test_a_run_in_windows_of_flights_stores_and_reports_what_one_window_does(tmp_path, monkeypatch):
-    from aeroid.pipeline import executors, streaming
+    from aeroid.pipeline.running import executors, streaming
 
     cfg = make_campaign(tmp_path, n=5, stats="{n_boot: 20, warn: true}")
     _load_fails_on(monkeypatch, "f02")
@@ -274,16 +275,16 @@ def test_a_run_in_windows_of_flights_stores_and_reports_what_one_window_does(tmp
     assert windowed.to_json()["tasks"] == whole.to_json()["tasks"]
     assert [w for _, w in windowed.warnings()] == [w for _, w in whole.warnings()]
     # the stored plan lists every task of the streamed run
-    from aeroid.pipeline import plan_cache
+    from aeroid.pipeline.plans import plan_cache
 
     stored = plan_cache.load(open_store(tmp_path / "windowed"), windowed.plan.inputs or "")
     assert [p.key for p in stored or ()] == [t.key for t in windowed.plan.tasks]
 
 
 def test_a_ledger_keeps_a_few_bytes_a_task(tmp_path):
-    from aeroid.pipeline.execution import TaskStatus
-    from aeroid.pipeline.ledger import Ledger
-    from aeroid.pipeline.planning import plan
+    from aeroid.pipeline.plans.planning import plan
+    from aeroid.pipeline.running.execution import TaskStatus
+    from aeroid.pipeline.running.ledger import Ledger
 
     p = plan(make_campaign(tmp_path, n=3))
     ledger = Ledger()
@@ -322,7 +323,7 @@ def test_a_ledger_keeps_a_few_bytes_a_task(tmp_path):
 def test_a_failed_flight_reaches_a_campaign_task_windows_later_on_every_executor(
     tmp_path, monkeypatch, executor
 ):
-    from aeroid.pipeline import streaming
+    from aeroid.pipeline.running import streaming
 
     cfg = make_campaign(tmp_path, n=3)
     _load_fails_on(monkeypatch, "f00")  # forked workers inherit the patch

@@ -19,9 +19,9 @@ from aeroid.errors import StoreError
 from aeroid.estimation.identification import IdentificationResult
 from aeroid.models.catalog import short_period_flight
 from aeroid.pipeline import ResultStore, open_store, register_record
-from aeroid.pipeline.codec import decode, encode
 from aeroid.pipeline.keys import canonical_json, sha256_hex
 from aeroid.pipeline.stages import CampaignReport
+from aeroid.pipeline.storage.codec import decode, encode
 
 # -- altering entries as a failing disk or a careless hand would --------------------
 
@@ -209,7 +209,7 @@ def test_every_way_of_committing_never_overwrites(tmp_path, monkeypatch, system)
     import ctypes
     import errno
 
-    from aeroid.pipeline import _rename as store_mod
+    from aeroid.pipeline.storage import _rename as store_mod
 
     def refused(*args: object) -> int:
         ctypes.set_errno(errno.EINVAL)
@@ -376,7 +376,7 @@ def test_reading_never_imports_unregistered_code():
     tree["__record__"] = "os:system"
     with pytest.raises(StoreError, match="not registered"):
         decode(tree, arrays)
-    tree["__record__"] = "aeroid.pipeline.store:ResultStore"
+    tree["__record__"] = "aeroid.pipeline.storage.store:ResultStore"
     with pytest.raises(StoreError, match="not a dataclass"):
         decode(tree, arrays)
 
@@ -406,7 +406,7 @@ def test_gc_removes_temporaries_of_dead_processes_only(tmp_path):
 def test_two_runs_creating_one_store_at_once_both_open_it(tmp_path, monkeypatch):
     # A second run finds the first one's marker being written (its temporary file), or
     # already written with the first folders beside it: neither is a foreign folder.
-    from aeroid.pipeline import _store_paths
+    from aeroid.pipeline.storage import _store_paths
 
     busy = tmp_path / "a"
     busy.mkdir()
@@ -475,7 +475,7 @@ def test_entries_are_plain_zarr_v3_that_zarr_python_reads(tmp_path):
 def test_an_entry_is_a_valid_zip_whichever_writer_made_it(tmp_path, monkeypatch):
     """The store's own zip writer and zipfile's (used past 2 GiB, for Zip64) make entries
     that zipfile reads member for member, checksums included, and that load the same."""
-    from aeroid.pipeline import _zipentry as store_mod
+    from aeroid.pipeline.storage import _zipentry as store_mod
 
     record = Everything(
         **{**_everything().__dict__, "arrays": {"x": np.arange(3.0), "é": np.eye(2)}}
@@ -503,7 +503,7 @@ def test_an_entry_is_a_valid_zip_whichever_writer_made_it(tmp_path, monkeypatch)
 
 
 def test_record_types_are_stored_under_stable_names_and_old_names_still_read(tmp_path, monkeypatch):
-    from aeroid.pipeline import codec
+    from aeroid.pipeline.storage import codec
 
     store = ResultStore(tmp_path / "s")
     tree, _ = encode(_ident())
@@ -532,7 +532,7 @@ def test_record_types_are_stored_under_stable_names_and_old_names_still_read(tmp
 
 
 def test_registered_types_may_take_a_stable_name(monkeypatch):
-    from aeroid.pipeline import codec
+    from aeroid.pipeline.storage import codec
 
     monkeypatch.setattr(codec, "_REGISTRY", dict(codec._REGISTRY))
     monkeypatch.setattr(codec, "_NAMES", dict(codec._NAMES))

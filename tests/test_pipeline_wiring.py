@@ -17,7 +17,7 @@ from aeroid.cli import main
 from aeroid.errors import ConfigError
 from aeroid.pipeline import open_store, plan, run
 from aeroid.pipeline.keys import model_fingerprint
-from aeroid.pipeline.planning import resolve_model
+from aeroid.pipeline.plans.planning import resolve_model
 
 
 def _sim_config(tmp: Path, n: int = 2) -> Path:

@@ -16,10 +16,11 @@ from test_pipeline_objectstore import _CREDENTIALS, s3_endpoint, s3_url  # noqa:
 
 from aeroid.cli import _status_json
 from aeroid.errors import PipelineError, StoreError
-from aeroid.pipeline import open_store, plan_cache, planning, run
-from aeroid.pipeline.config import load_config
-from aeroid.pipeline.planning import plan, plan_stream, stored_plan
-from aeroid.pipeline.store import ResultStore
+from aeroid.pipeline import open_store, run
+from aeroid.pipeline.plans import plan_cache, planning
+from aeroid.pipeline.plans.config import load_config
+from aeroid.pipeline.plans.planning import plan, plan_stream, stored_plan
+from aeroid.pipeline.storage.store import ResultStore
 
 
 def _status(cfg: Path, *extra: str) -> tuple[dict, str]:
@@ -264,7 +265,7 @@ def test_stored_looks_up_many_keys_with_one_listing_and_agrees_with_exists(tmp_p
 
 
 def test_the_status_document_is_what_json_dumps_writes():
-    from aeroid.pipeline.plan_cache import PlannedTask
+    from aeroid.pipeline.plans.plan_cache import PlannedTask
 
     tasks = [
         PlannedTask("load", "load", 'odd "name" é\n', "a" * 64),
@@ -302,7 +303,7 @@ def test_a_plan_is_stored_in_an_object_store_too(tmp_path, s3_url, monkeypatch):
 
 
 def test_a_store_that_lost_its_marker_with_a_stored_plan_is_still_repaired(tmp_path):
-    from aeroid.pipeline._backend import _CHECKED
+    from aeroid.pipeline.storage._backend import _CHECKED
 
     cfg = make_campaign(tmp_path, n=2)
     run(cfg, workers=0)

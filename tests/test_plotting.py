@@ -229,7 +229,7 @@ def test_a_recycled_figure_draws_as_a_new_one(chain):
     """Under `reusing_figures`, the next flight's figures redraw the recycled ones: the
     same PNG bytes as new figures, whatever the scale of the flight drawn before
     (here outputs 10^4 times larger, whose tick labels are wider and carry an offset)."""
-    from aeroid.pipeline.campaign_report import flight_figures
+    from aeroid.pipeline.stages.campaign_report import flight_figures
     from aeroid.reports.plotting import recycle_figure, reusing_figures
     from aeroid.support import figure_png
 

@@ -14,7 +14,7 @@ import pytest
 
 from aeroid.errors import ConfigError
 from aeroid.pipeline import load_config, resolve_model, resolve_pipeline
-from aeroid.pipeline.checks import check_campaign, preflight
+from aeroid.pipeline.plans.checks import check_campaign, preflight
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM = "flights: [{simulated: {n_flights: 2}}]\n"

@@ -102,7 +102,7 @@ def test_a_bad_trim_is_refused_naming_it():
 
 
 def test_the_static_margin_metric_is_the_neutral_point_distance():
-    from aeroid.pipeline.library_stages import METRICS
+    from aeroid.pipeline.stages.library_stages import METRICS
 
     # -Cm_alpha / CL_alpha: 0.2 chords for Cm_alpha -1, CL_alpha 5
     assert METRICS["static_margin"]({"Cm_alpha": -1.0, "CL_alpha": 5.0}) == pytest.approx(0.2)

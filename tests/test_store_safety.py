@@ -15,9 +15,9 @@ from test_pipeline_store import _ident, flip_a_bit, rezip
 
 from aeroid.errors import StoreError
 from aeroid.pipeline import ResultStore
-from aeroid.pipeline import store as store_mod
 from aeroid.pipeline.keys import canonical_json, sha256_hex
-from aeroid.pipeline.store import StoreLocation, is_url, parse
+from aeroid.pipeline.storage import store as store_mod
+from aeroid.pipeline.storage.store import StoreLocation, is_url, parse
 
 
 def _store(tmp_path: Path, name: str = "s") -> tuple[ResultStore, str]:

@@ -175,7 +175,7 @@ def test_an_unexcited_held_out_window_warns_and_is_marked():
 def test_the_validate_stage_takes_a_held_out_window_or_fraction():
     from pydantic import ValidationError
 
-    from aeroid.pipeline.library_stages import ValidateOptions
+    from aeroid.pipeline.stages.library_stages import ValidateOptions
 
     opts = ValidateOptions(holdout={"t0": 12.0, "t1": 20.0})
     assert opts.library_kwargs() == {"holdout": {"t0": 12.0, "t1": 20.0}}

@@ -12,16 +12,18 @@ Use it from Python the way the ``aeroid`` command does::
 Numerical modules never import this package.
 """
 
-from . import builtin_stages as _builtin_stages  # registers the built-in stages
-from .codec import exported_records, register_record
-from .config import CampaignConfig, load_config
+from .stages import builtin as _builtin_stages  # registers the built-in stages
+
+# isort: split
 from .definition import Pipeline, Step, resolve_pipeline
-from .execution import TaskStatus, execute_task
 from .keys import model_fingerprint, task_key
-from .planning import Plan, Task, plan, resolve_model
-from .runner import RunSummary, run
+from .plans.config import CampaignConfig, load_config
+from .plans.planning import Plan, Task, plan, resolve_model
+from .running.execution import TaskStatus, execute_task
+from .running.runner import RunSummary, run
 from .stages import STAGES, CampaignReport, FlightReport, Stage, StageContext, register_stage
-from .store import Claim, Entry, ResultStore, StoreLocation, open_store
+from .storage.codec import exported_records, register_record
+from .storage.store import Claim, Entry, ResultStore, StoreLocation, open_store
 
 __all__ = [
     "STAGES",

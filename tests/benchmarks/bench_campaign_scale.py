@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
-from aeroid.pipeline.config import Options
+from aeroid.pipeline.plans.config import Options
 
 
 @register_record
@@ -131,7 +131,7 @@ _PLANNING = """\
 import resource, sys, time
 sys.path.insert(0, sys.argv[2])
 from aeroid.pipeline import plan
-from aeroid.pipeline.planning import plan_stream
+from aeroid.pipeline.plans.planning import plan_stream
 t = time.perf_counter()
 if sys.argv[3] == "plan":
     plan(sys.argv[1])

@@ -38,7 +38,7 @@ for i in range(n):
     data[i] = {"alpha": a, "altitude": h, "airspeed": v}
 
 t0 = time.perf_counter()
-from aeroid.pipeline.database_stage import DatabaseOptions, _band_plot, _run_database
+from aeroid.pipeline.stages.database_stage import DatabaseOptions, _band_plot, _run_database
 from aeroid.pipeline.stages import StageContext
 
 flights = tuple(f"flight_{i:03d}" for i in range(n))

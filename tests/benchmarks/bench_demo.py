@@ -66,7 +66,7 @@ def _run(config: Path, workers: int | None) -> tuple[float, float, str]:
 def _stage_times(config: Path) -> dict[str, tuple[int, float, float]]:
     """Per stage: (tasks, compute s summed, longest task s), from the stored provenance."""
     from aeroid.cli import _open_store
-    from aeroid.pipeline.planning import plan
+    from aeroid.pipeline.plans.planning import plan
 
     the_plan = plan(config)
     store = _open_store(str(config), None)

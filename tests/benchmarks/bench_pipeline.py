@@ -50,7 +50,7 @@ STAND_IN = textwrap.dedent(
     from dataclasses import dataclass
     import numpy as np
     from aeroid.pipeline import Pipeline, Stage, Step, register_record, register_stage
-    from aeroid.pipeline.config import Options
+    from aeroid.pipeline.plans.config import Options
 
     @register_record
     @dataclass(frozen=True, eq=False)
@@ -136,7 +136,7 @@ def worker_time(cfg: Path, workers: int, base: Path) -> tuple[float, float, floa
     on the report); busy time that grows from 1 worker to 2 is the machine's: two
     processes at once run slower than one alone (the ceilings above).
     """
-    from aeroid.pipeline import execution as runner
+    from aeroid.pipeline.running import execution as runner
 
     log = Path(tempfile.mkdtemp(prefix="bench-spans-", dir=base)) / "spans"
 
@@ -206,8 +206,8 @@ def _library_flights(
 ) -> float:
     """The campaign's per-flight library calls, as the pipeline's stages make them."""
     from aeroid.models import catalog
-    from aeroid.pipeline.library_stages import natural_frequency
-    from aeroid.pipeline.synthetic import flight_spec, fly
+    from aeroid.pipeline.plans.synthetic import flight_spec, fly
+    from aeroid.pipeline.stages.library_stages import natural_frequency
 
     model = catalog.short_period()
     spec = {"n_flights": 24, "seed": 3, "duration": duration, "maneuver": maneuver}

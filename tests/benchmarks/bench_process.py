@@ -1,6 +1,6 @@
 """What each piece of the engine's process tuning is worth on the demo run (issue 29).
 
-`aeroid.pipeline._process` keeps a piece of tuning only where it is worth more
+`aeroid.pipeline.running._process` keeps a piece of tuning only where it is worth more
 than 5 % of a demo run. This benchmark runs the demo campaign cold, as a user
 types it (``aeroid run configs/demo.yaml`` with a fresh store, the default
 environment, a fresh process each time), as shipped and with one piece taken

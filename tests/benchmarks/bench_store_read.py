@@ -18,7 +18,7 @@ from aeroid import identify
 from aeroid.models.catalog import short_period, short_period_flight
 from aeroid.pipeline import ResultStore
 from aeroid.pipeline.keys import canonical_json, sha256_hex
-from aeroid.pipeline.store import Entry
+from aeroid.pipeline.storage.store import Entry
 
 N_ENTRIES = 100  # each read 10 times: 1,000 reads per timing
 
@@ -37,7 +37,7 @@ def _fill(store: ResultStore) -> list[Entry]:
 
 
 def _hand(store: ResultStore, entries: list[Entry]) -> None:
-    from aeroid.pipeline.store import _read_array
+    from aeroid.pipeline.storage.store import _read_array
 
     for _ in range(10):
         for entry in entries:

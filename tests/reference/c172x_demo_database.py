@@ -63,7 +63,7 @@ def _database(store: Path | None) -> tuple[object, object, Path | None]:
     import yaml
 
     from aeroid.pipeline import open_store, plan, run
-    from aeroid.pipeline.config import load_config
+    from aeroid.pipeline.plans.config import load_config
 
     # the run is incremental: into a store the demo already ran into, it recomputes nothing;
     # the report's replay of the held-out flights needs the simulator named (no key changes)

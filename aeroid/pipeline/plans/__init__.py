@@ -1,0 +1,2 @@
+"""The plan seam: a campaign's config read and checked, and every task with its
+key computed from the config alone (`plan`), ready for the run."""

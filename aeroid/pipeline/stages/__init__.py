@@ -1,0 +1,267 @@
+"""Pipeline stages: the contract and the registry.
+
+A stage declares its options model (built from the library function's
+signature), the record type it produces, whether it needs the vehicle model
+and whether it is stochastic, and a ``run(ctx)`` function. Adding a stage is
+one `register_stage` call; pipelines (``pipelines/``) wire stages together.
+The built-in stages live in `load_stage`, `library_stages` (one per library
+function), `analysis_stages` and `campaign_report`; `builtin_stages` imports
+them (and they register here) when `aeroid.pipeline` is imported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ...errors import PipelineError
+from .._options import Options
+
+__all__ = [
+    "STAGES",
+    "STAGE_ALIASES",
+    "CampaignReport",
+    "FlightReport",
+    "Stage",
+    "StageContext",
+    "register_stage",
+    "resolve_callable",
+]
+
+
+# -- records produced by the pipeline itself -------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class FlightReport:
+    """The Markdown engineering report of one flight."""
+
+    title: str
+    markdown: str
+
+    def summary(self) -> str:
+        return self.markdown
+
+
+@dataclass(frozen=True, eq=False)
+class CampaignReport:
+    """The campaign report: a per-flight table, failures, each flight's report and figures.
+
+    `figures` holds PNG images (bytes as ``uint8`` arrays) titled by
+    `figure_titles`: the trend of every estimate across flights and the
+    detailed figures of the first flight that was identified.
+    """
+
+    title: str
+    markdown: str
+    flights: tuple[str, ...]
+    columns: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+    failures: Mapping[str, str] = field(default_factory=dict)
+    figure_titles: tuple[str, ...] = ()
+    figures: tuple[np.ndarray, ...] = ()
+
+    def __post_init__(self) -> None:
+        pngs = []
+        for png in self.figures:
+            arr = np.frombuffer(png, dtype=np.uint8) if isinstance(png, bytes) else png
+            arr = np.array(arr, dtype=np.uint8, copy=True)
+            arr.setflags(write=False)
+            pngs.append(arr)
+        if len(pngs) != len(self.figure_titles):
+            raise PipelineError("CampaignReport: one title per figure expected")
+        object.__setattr__(self, "figures", tuple(pngs))
+
+    def figure_bytes(self) -> dict[str, bytes]:
+        """The PNG images by title."""
+        return {t: f.tobytes() for t, f in zip(self.figure_titles, self.figures, strict=True)}
+
+    def summary(self) -> str:
+        return self.markdown
+
+
+# -- the stage contract -------------------------------------------------------------
+
+
+@dataclass
+class StageContext:
+    """What a stage's ``run`` receives on the worker."""
+
+    options: Any
+    inputs: dict[str, Any]
+    model: Any = None
+    seed: np.random.SeedSequence | None = None
+    flight: str | None = None
+    source: Mapping[str, Any] | None = None
+    failures: Mapping[str, str] = field(default_factory=dict)
+    flights: tuple[str, ...] = ()
+    # role -> {flight index: brief} handed over by the flights' tasks (see `Stage.brief`)
+    briefs: Mapping[str, Mapping[int, Any]] = field(default_factory=dict)
+    summarize: Callable[[str, Any], Any] | None = None
+
+    def brief(self, role: str, index: int) -> Any:
+        """The brief of flight `index`'s `role` input (see `Stage.brief`): the one its task
+        handed over, else made from the record (read on access); None where the flight
+        failed or the role is not an input."""
+        given = self.briefs.get(role)
+        if given is not None and index in given:
+            return given[index]
+        if role not in self.inputs or self.summarize is None:
+            return None
+        record = self.inputs[role][index]
+        return None if record is None else self.summarize(role, record)
+
+    def seed_sequence(self, *extra: int) -> np.random.SeedSequence:
+        """This task's `SeedSequence`, or its child with `extra` appended to the spawn key."""
+        if self.seed is None:
+            raise PipelineError("this stage has no seed specification")
+        return np.random.SeedSequence(self.seed.entropy, spawn_key=(*self.seed.spawn_key, *extra))
+
+    def seed_int(self, *extra: int) -> int:
+        """A 64-bit integer seed from this task's `SeedSequence` (child `extra` if given)."""
+        if self.seed is None:
+            raise PipelineError("this stage has no seed specification")
+        ss = self.seed
+        if extra:
+            ss = np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, *extra))
+        return int(ss.generate_state(1, dtype=np.uint64)[0])
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A pipeline stage.
+
+    Attributes
+    ----------
+    name : str
+    version : str
+        Bump when the wrapper's behaviour changes; it enters every key.
+    options : type of Options
+        The stage's options model (unknown keys are config errors).
+    record_type : str
+        Name of the record type produced (a label that enters the key).
+    run : callable
+        ``run(ctx: StageContext) -> record``.
+    uses_model : bool
+        The model fingerprint enters the key and the model is passed in.
+    seeded : bool
+        The task gets ``SeedSequence(seed, spawn_key=(flight,))``.
+    library : str or None
+        The library function wrapped, as ``module:function`` (imported when
+        the stage runs); `register_stage` takes it from the options model's
+        ``library`` when not given, so every built-in stage names its function.
+    per_flight : bool
+        False for campaign-level stages whose inputs are lists over flights.
+    parts : callable, optional
+        ``parts(options, roles) -> n`` (`roles`: the task's input roles):
+        the task splits into `n` independent parts
+        (MCMC ensembles, Monte Carlo batches) that run in parallel, each with
+        its own random stream; ``run_part(ctx, i)`` computes part `i` and
+        ``combine(ctx, parts)`` the stored record. Results equal the unsplit
+        computation whatever runs which part.
+    part_flights : callable, optional
+        ``part_flights(options, roles, i)``: for a campaign-level split task,
+        the flights (indices) part `i` reads; it then waits only for those
+        flights. None (or the callable returning None): every flight.
+    stored_as : str or None
+        The name a renamed stage had: it stays in the keys of the stage's
+        results (`key_name`), so results stored before the rename are found.
+    brief : callable, optional
+        ``brief(role, record) -> value: for a campaign-level stage, the small
+        part of one flight's `role` input it needs (a few numbers and strings;
+        picklable). The flight's task makes it as it commits the record, while
+        the record is in memory, and hands it over with its status, so the
+        campaign task reads no entry for it; ``ctx.brief(role, i)`` returns it,
+        or makes it from the stored record when no task handed it over (a
+        cached flight, a rerun). Either way it is the same value.
+    """
+
+    name: str
+    version: str
+    options: type[Options]
+    record_type: str
+    run: Callable[[StageContext], Any]
+    uses_model: bool = True
+    seeded: bool = False
+    library: str | None = None
+    per_flight: bool = True
+    parts: Callable[[Any, frozenset[str]], int] | None = None
+    run_part: Callable[[StageContext, int], Any] | None = None
+    combine: Callable[[StageContext, list[Any]], Any] | None = None
+    part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
+    brief: Callable[[str, Any], Any] | None = None
+    stored_as: str | None = None
+
+    @property
+    def key_name(self) -> str:
+        """The stage's name in its results' keys: `stored_as` where it was renamed."""
+        return self.stored_as or self.name
+
+
+#: Old stage name -> the name that says what the stage does. An old name still finds
+#: its stage (a pipeline naming it gets a DeprecationWarning), and the stage's results
+#: keep their keys and their folder in the store (`Stage.key_name`).
+STAGE_ALIASES: dict[str, str] = {
+    "frequency": "frequency_response",
+    "frequency_id": "composite_response",
+    "frequency_identify": "frequency_domain_identify",
+}
+
+
+class _Registry(dict[str, Stage]):
+    """Stages by name; an old name in `STAGE_ALIASES` finds the renamed stage (tasks
+    name a stage by `Stage.key_name`, so the engine itself looks old names up)."""
+
+    def _current(self, name: object) -> object:
+        new = STAGE_ALIASES.get(name) if isinstance(name, str) else None
+        return name if new is None or dict.__contains__(self, name) else new
+
+    def __missing__(self, name: str) -> Stage:
+        current = self._current(name)
+        if current == name:
+            raise KeyError(name)
+        return self[str(current)]
+
+    def __contains__(self, name: object) -> bool:
+        return dict.__contains__(self, self._current(name))
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+
+STAGES: dict[str, Stage] = _Registry()
+
+
+def register_stage(stage: Stage) -> Stage:
+    """Make a stage available to pipelines by name (replacing one of the same name).
+
+    A stage given no ``library`` takes its options model's ``library``
+    (``module:function``), when the model names one."""
+    if stage.library is None:
+        library = getattr(stage.options, "library", None)
+        if isinstance(library, str):
+            stage = replace(stage, library=library)
+    STAGES[stage.name] = stage
+    return stage
+
+
+def resolve_callable(spec: str, *, what: str) -> Any:
+    """Import ``package.module:attribute`` (dotted attributes allowed)."""
+    import importlib
+
+    module, sep, attr = spec.partition(":")
+    if not sep or not module or not attr:
+        raise PipelineError(f"{what} {spec!r}: expected 'package.module:attribute'")
+    try:
+        obj: Any = importlib.import_module(module)
+    except ImportError as exc:
+        raise PipelineError(f"{what} {spec!r}: cannot import {module!r} ({exc})") from None
+    for part in attr.split("."):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            raise PipelineError(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
+    return obj

@@ -1,0 +1,315 @@
+"""The campaign stage ``database``: the aerodynamic database over every flight, and its files.
+
+The stage reads each flight's identified coefficients with their covariance
+(``identification``) and its flight condition (``data``: the config's
+``condition:``, merged into the loaded data's metadata) and fits
+`aeroid.aerodynamic_database`. It reads only a brief of each flight (a few
+numbers), so adding a flight computes that flight's tasks and this one.
+
+After the run, `write_database_files` writes the database beside the campaign
+report, in ``<report stem>_database/``: ``aerodynamics.xml`` (a JSBSim
+``<aerodynamics>`` section), ``database.parquet`` (the tidy table),
+``database.md`` (the report section: the fit, the held-out check and the
+files) and one band plot per coefficient.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from pydantic import Field
+
+from ...errors import AeroidError, DataFormatError, PipelineError
+from ...support import CONDITION_NAMES
+from ..plans.config import Options
+from . import Stage, StageContext, register_stage
+from ._database_report import replay_section
+
+if TYPE_CHECKING:
+    from ...uncertainty.database import AeroDatabase
+    from ..plans.planning import Plan
+    from ..storage.store import ResultStore
+
+__all__ = ["DatabaseOptions", "database_section", "write_database_files"]
+
+# condition keys the stage takes from a flight's metadata unless `keys` names others
+CONDITION_KEYS = CONDITION_NAMES
+_COEFFICIENT = re.compile(r"^C[LDYlmn](_|$)")
+
+
+class DatabaseOptions(Options):
+    """`aeroid.aerodynamic_database` keywords (``terms``: default every identified
+    coefficient named ``C<L,D,Y,l,m,n>_...``; ``keys``: default the flight-condition
+    keys the flights give, of alpha, beta, airspeed, altitude, mach, dynamic_pressure)."""
+
+    terms: list[str] | None = None
+    keys: list[str] | None = None
+    max_degree: int | None = Field(None, ge=0, le=6)
+    f_in: float | None = Field(None, gt=0)
+    structures: dict[str, list[str]] | None = None
+    held_out: list[str] | None = None
+    confidence: float | None = Field(None, gt=0, lt=1)
+    # the simulator that flies the held-out flights again with the exported database,
+    # after the run, for the report (`aeroid.pipeline.stages._database_report`): no result
+    # changes with it, so it stays out of the key
+    replay: Literal["c172x"] | None = None
+
+    execution_only: ClassVar[frozenset[str]] = frozenset({"replay"})
+    engine_only: ClassVar[frozenset[str]] = frozenset({"replay"})
+
+    library: ClassVar[str] = "aeroid.uncertainty.database:aerodynamic_database"
+
+
+def _brief(role: str, record: Any) -> Any:
+    """A flight's coefficients with their covariance, or its numeric condition keys."""
+    if role == "identification":
+        names = list(getattr(record, "parameter_names", ()))
+        return {
+            "names": names,
+            "parameters": {n: float(record.parameters[n]) for n in names},
+            "covariance": [[float(v) for v in row] for row in getattr(record, "covariance", [])],
+        }
+    if role == "data":
+        meta = dict(getattr(record, "metadata", {}) or {})
+        return {
+            k: float(v)
+            for k, v in meta.items()
+            if isinstance(v, (int, float)) and not isinstance(v, bool)
+        }
+    return None
+
+
+def _run_database(ctx: StageContext) -> Any:
+    import numpy as np
+
+    from ...uncertainty.database import FlightCoefficients, aerodynamic_database
+
+    opts = ctx.options
+    flights = []
+    for i, name in enumerate(ctx.flights):
+        ident = ctx.brief("identification", i)
+        if ident is None or name in ctx.failures:
+            continue  # a failed flight offers nothing; the report names its failure
+        cond = ctx.brief("data", i) or {}
+        wanted = opts.keys or [k for k in CONDITION_KEYS if k in cond]
+        condition = {k: cond[k] for k in wanted if k in cond}
+        names = ident["names"]
+        keep = [j for j, n in enumerate(names) if opts.terms is None and _COEFFICIENT.match(n)]
+        if opts.terms is not None:
+            keep = [j for j, n in enumerate(names) if n in opts.terms]
+        cov = np.asarray(ident["covariance"], dtype=float)
+        if cov.shape != (len(names), len(names)):
+            cov = np.full((len(names), len(names)), math.nan)
+        sub = cov[np.ix_(keep, keep)] if keep else np.zeros((0, 0))
+        est = {names[j]: ident["parameters"][names[j]] for j in keep}
+        est, sub = _at_condition(est, sub, cond)
+        flights.append(FlightCoefficients(name, condition, est, sub))
+    if not flights:
+        raise PipelineError("database: no flight was identified; there is nothing to fit")
+    keys = opts.keys
+    if keys is None:
+        present = {k for f in flights for k in f.condition}
+        keys = [k for k in CONDITION_KEYS if k in present]
+        if not keys:
+            raise PipelineError(
+                f"database: no flight gives a condition ({', '.join(CONDITION_KEYS)}); "
+                f"give each flight one in the config, or name the keys in stages.database.keys"
+            )
+    kw = opts.library_kwargs(exclude=("keys", "held_out", "replay"))
+    return aerodynamic_database(flights, keys=keys, held_out=tuple(opts.held_out or ()), **kw)
+
+
+def _at_condition(
+    est: dict[str, float], cov: Any, cond: Mapping[str, float]
+) -> tuple[dict[str, float], Any]:
+    """Each static ``<C>_0`` moved to the flight's own angles: ``C_0 + C_alpha alpha +
+    C_beta beta`` with the condition's alpha and beta (rad), its covariance with them.
+
+    An aircraft model's expansion is about zero angle (``C = C_0 + C_alpha alpha +
+    ...``, alpha absolute), so its ``C_0`` is the coefficient extrapolated to alpha =
+    0; the database tabulates the coefficient where each flight flew (what the JSBSim
+    export reads as the static coefficient over alpha, ``C_alpha`` its slope).
+    """
+    import numpy as np
+
+    names = list(est)
+    jac = np.eye(len(names))
+    for j, n in enumerate(names):
+        if not n.endswith("_0"):
+            continue
+        for key in ("alpha", "beta"):
+            slope = f"{n[:-2]}_{key}"
+            if slope in est and key in cond:
+                jac[j, names.index(slope)] = float(cond[key])
+    if np.array_equal(jac, np.eye(len(names))):
+        return est, cov
+    z = jac @ np.array([est[n] for n in names])
+    return dict(zip(names, (float(v) for v in z), strict=True)), jac @ cov @ jac.T
+
+
+register_stage(
+    Stage(
+        "database",
+        # 2: each coefficient weighted by its own variances (aeroid.uncertainty.database notes);
+        # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition);
+        # 4: random-effects meta-regression, model-averaged Knapp-Hartung bands
+        "4",
+        DatabaseOptions,
+        "AeroDatabase",
+        _run_database,
+        uses_model=False,
+        per_flight=False,
+        brief=_brief,
+    )
+)
+
+
+# -- the report section and the files ---------------------------------------------------------
+
+
+def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -> str:
+    """The database as a Markdown report section: fit, held-out check, band plots, files."""
+    from ...support import fmt, markdown_table
+
+    parts = ["## Aerodynamic database", "", db.summary(), ""]
+    if db.held_out:
+        rows = [
+            [
+                c.flight,
+                c.term,
+                fmt(c.estimate),
+                fmt(c.stderr),
+                fmt(c.prediction),
+                fmt(c.z, 3),
+                "yes" if c.inside else f"no (|z| > {fmt(c.limit, 3)})",
+            ]
+            for c in db.held_out
+        ]
+        parts += [
+            "### Held-out flights",
+            "",
+            markdown_table(
+                ["flight", "term", "estimate", "std error", "database", "z", "inside"],
+                rows,
+            ),
+            "",
+        ]
+    rows = []
+    for i, flight in enumerate(db.flights):
+        cond = ", ".join(f"{k} {db.conditions[i, j]:.4g}" for j, k in enumerate(db.keys))
+        rows.append([flight, cond])
+    parts += ["### Flights in the fit", "", markdown_table(["flight", "condition"], rows), ""]
+    for name, rel in (files or {}).items():
+        if rel.endswith(".png"):
+            parts += [f"![{name}]({rel})", ""]
+    listed = [
+        f"- {name}: `{rel}`" for name, rel in (files or {}).items() if not rel.endswith(".png")
+    ]
+    if listed:
+        parts += ["### Files", "", *listed, ""]
+    return "\n".join(parts)
+
+
+def _band_plot(db: AeroDatabase, term: str) -> bytes:
+    """One coefficient's estimates (each flight labelled) and the 95 % band against the first key."""
+    import numpy as np
+
+    from ...support import figure, figure_png
+
+    key = db.keys[0]
+    j = db.terms.index(term)
+    fig, axes = figure(1, height=3.0)
+    ax = axes[0, 0]
+    x = db.grid(key, 41)
+    others = {k: db.centres[k] for k in db.keys if k != key}
+    value, lo, hi = db.band(term, {**others, key: x})
+    ax.fill_between(x, lo, hi, alpha=0.25, label=f"{db.confidence:.0%} band")
+    ax.plot(x, value, lw=1.0, label="database")
+    has = np.isfinite(db.estimates[:, j])
+    ax.errorbar(
+        db.conditions[has, 0],
+        db.estimates[has, j],
+        yerr=1.96 * db.stderr[has, j],
+        fmt="o",
+        ms=3,
+        capsize=2,
+        label="flights",
+    )
+    # each point names its flight; past 30 flights the names would hide the points
+    # (the section's table lists every flight's condition)
+    for i in np.flatnonzero(has) if has.sum() <= 30 else ():
+        ax.annotate(db.flights[i], (db.conditions[i, 0], db.estimates[i, j]), fontsize=5)
+    ax.set_xlabel(key + (" (others at their centre)" if others else ""))
+    ax.set_ylabel(term)
+    ax.legend(loc="best", fontsize="small")
+    return bytes(figure_png(fig, dpi=72))
+
+
+def write_database_files(
+    the_plan: Plan, store: ResultStore, statuses: Mapping[str, Any]
+) -> tuple[Path | None, str | None]:
+    """Write the database's files beside the campaign report (module notes).
+
+    Returns (the folder or None, the error that kept the files from being written or None).
+    """
+    task = next((t for t in the_plan.tasks if t.stage == "database"), None)
+    if task is None:
+        return None, None
+    status = statuses.get(task.key)
+    if status is None or status.status == "failed":
+        return None, None
+    try:
+        db = store.load(task.key, task.stage)
+        report = the_plan.config.report_path
+        folder = report.parent / f"{report.stem}_database"
+        folder.mkdir(parents=True, exist_ok=True)
+        files: dict[str, str] = {}
+        notes = []
+        try:
+            db.to_jsbsim(folder / "aerodynamics.xml")
+            files["JSBSim aerodynamics section"] = "aerodynamics.xml"
+        except DataFormatError as exc:
+            # dimensional derivatives (M_q) or a table of three keys: no JSBSim section
+            notes.append(f"No JSBSim section: {exc}")
+        try:
+            db.to_parquet(folder / "database.parquet")
+            files["tidy table (Parquet)"] = "database.parquet"
+        except ImportError:
+            pass  # pyarrow is optional
+        for term in db.terms:
+            png = folder / f"{term}.png"
+            png.write_bytes(_band_plot(db, term))
+            files[term] = png.name
+        held = list(task.options.get("held_out") or [])
+        replay, _ = replay_section(the_plan, store, task, held, folder)
+        text = database_section(db, files) + "".join(f"\n{n}\n" for n in notes) + replay
+        (folder / "database.md").write_text(text, encoding="utf-8")
+    except (AeroidError, OSError) as exc:
+        return None, f"cannot write the aerodynamic database files: {exc}"
+    return folder, None
+
+
+def with_database(text: str, folder: Path) -> tuple[str, dict[str, bytes]]:
+    """The report text with the database's section (from its folder's ``database.md``,
+    its links made relative to the report) before "What was flown", and its plots."""
+    try:
+        section = (folder / "database.md").read_text(encoding="utf-8")
+    except OSError:
+        return text, {}
+    rel = folder.name
+    section = section.replace("](", f"]({rel}/").replace(": `", f": `{rel}/")
+    section += f"\nAll of the database's files are in `{rel}/`, beside this report.\n"
+    figures = {}
+    for png in sorted(folder.glob("*.png")):
+        with contextlib.suppress(OSError):
+            figures[f"{rel}/{png.name}"] = png.read_bytes()
+    mark = "\n## What was flown"
+    at = text.find(mark)
+    if at < 0:
+        return text.rstrip("\n") + "\n\n" + section, figures
+    return text[:at] + "\n" + section.rstrip("\n") + "\n" + text[at:], figures
