@@ -12,39 +12,22 @@ from _engine_path import Stop, Way, follow
 from aeroid.pipeline import open_store
 from aeroid.pipeline.stages import STAGES
 
-# the engine's modules by seam (the subpackages of aeroid/pipeline); the modules left in
+# the engine's seams are the subpackages of aeroid/pipeline; the modules left in
 # aeroid/pipeline itself, and the stage contract (`aeroid.pipeline.stages`), are the
 # vocabulary every seam shares (content keys, the options base, pipeline definitions, the
 # vehicle model a task names), which belongs to no seam
-SEAMS = {
-    "plans": (
-        "config _yaml flight_specs _paths _flights synthetic planning plan_checks checks "
-        "_check_common _file_checks plan_cache"
-    ),
-    "running": "runner execution executors graph _process rerun",
-    "storage": (
-        "store commits _cache _store_paths _zipentry codec claims verified _objectstore "
-        "_backend _rename"
-    ),
-    "stages": (
-        "work builtin builtin_stages load_stage library_stages analysis_stages database_stage "
-        "campaign_report flight_status _campaign_tables metrics signature_options"
-    ),
-}
+SEAMS = ("plans", "running", "storage", "stages")
 SHARED = {"keys", "_options", "definition", "_code", "vehicle"}
 CONTRACT = "aeroid.pipeline.stages"
-_SEAM = {module: seam for seam, names in SEAMS.items() for module in names.split()}
 
 
 def seam_of(module: str) -> str | None:
-    """The seam of an engine module: the subpackage it lives in (or, in the flat layout,
-    the one `SEAMS` gives it); None for the shared vocabulary."""
+    """The seam of an engine module: the subpackage it lives in; None for the shared
+    vocabulary."""
     parts = module.split(".")
-    if module in ("aeroid.pipeline", CONTRACT) or (parts[-1] in SHARED and len(parts) == 3):
+    if module == CONTRACT or len(parts) < 3 or parts[2] not in SEAMS:
         return None
-    if len(parts) > 3 or parts[-1] in SEAMS:
-        return parts[2]  # in (or the package of) a seam
-    return _SEAM[parts[-1]]  # a module of no seam and not shared: place it above
+    return parts[2]
 
 
 def _engine_modules() -> list[str]:
@@ -79,11 +62,18 @@ def identify_way(tmp_path_factory: pytest.TempPathFactory) -> tuple[Way, object,
 def test_every_engine_module_has_a_seam_or_is_shared():
     seams = {m: seam_of(m) for m in _engine_modules()}
     assert set(seams.values()) == {None, *SEAMS}
+    # beside the seams only the shared vocabulary: a new module goes into a seam
     assert {m for m, seam in seams.items() if seam is None} == {
         "aeroid.pipeline",
         CONTRACT,
         *(f"aeroid.pipeline.{name}" for name in SHARED),
     }
+    # the seams import the vocabulary, never the other way round
+    from test_house import import_graph
+
+    graph = import_graph()
+    shared = [m for m, seam in seams.items() if seam is None and m != "aeroid.pipeline"]
+    assert not [(m, i) for m in shared for i in graph[m] if seam_of(i) is not None]
 
 
 def test_the_way_finder_sees_a_seam_entered_again():

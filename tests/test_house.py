@@ -427,6 +427,10 @@ def test_stored_names_stay_those_of_the_flat_layout():
     flat = "aeroid.identification"  # flat layout
     assert legacy_name("aeroid.estimation.identification") == flat
     assert legacy_name("aeroid.pipeline.keys") == "aeroid.pipeline.keys"
+    # the engine's modules moved into its seams keep their names in stored records too
+    engine = ("aeroid.pipeline.store", "aeroid.pipeline.builtin_stages")  # flat layout
+    assert legacy_name("aeroid.pipeline.storage.store") == engine[0]
+    assert legacy_name("aeroid.pipeline.stages.builtin") == engine[1]
     assert legacy_name("mine.vehicle") == "mine.vehicle"
     # every old name leads to a module that exists, and each module has one old name
     assert len(set(MOVED.values())) == len(MOVED)

@@ -4,9 +4,12 @@ A stage declares its options model (built from the library function's
 signature), the record type it produces, whether it needs the vehicle model
 and whether it is stochastic, and a ``run(ctx)`` function. Adding a stage is
 one `register_stage` call; pipelines (``pipelines/``) wire stages together.
-The built-in stages live in `load_stage`, `library_stages` (one per library
-function), `analysis_stages` and `campaign_report`; `builtin_stages` imports
-them (and they register here) when `aeroid.pipeline` is imported.
+This package's modules are the stages seam: the built-in stages in
+`load_stage`, `library_stages` (one per library function), `analysis_stages`,
+`database_stage` and `campaign_report`, which `builtin` imports (and they
+register here) when `aeroid.pipeline` is imported; and `work`, a task's work
+in its stage in one call. The contract itself (this module) is the vocabulary
+every seam shares: planning reads the stages' options, the run looks them up.
 """
 
 from __future__ import annotations
