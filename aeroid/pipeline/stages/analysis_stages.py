@@ -67,22 +67,25 @@ def _run_compatibility(ctx: StageContext) -> Any:
 _STEPWISE_ONLY = ("forced", "f_in", "f_out", "orthogonalize", "max_steps")
 
 
-class RegressOptions(Options):
+class RegressOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.estimation.regression:stepwise_regression",
+        *("response", "candidates", "forced", "intercept", "f_in", "f_out", "orthogonalize"),
+        *("error_bars", "max_steps"),
+        # `response` may be an array, `candidates` any mapping, in the library: here names
+        response=(str, Field()),
+        candidates=(list[str] | dict[str, str] | None, Field(None)),
+        f_in=Field(None, gt=0),
+        f_out=Field(None, gt=0),
+        error_bars=_ERROR_BARS,
+        max_steps=Field(None, ge=1),
+    )
+):
     """`aeroid.stepwise_regression` keywords; ``method: equation_error`` fits the
     ``candidates`` as given (`aeroid.equation_error`'s regressors) instead."""
 
-    response: str
-    candidates: list[str] | dict[str, str] | None = None
     method: Literal["stepwise", "equation_error"] = "stepwise"
-    forced: list[str] | None = None
-    intercept: bool | None = None
-    f_in: float | None = Field(None, gt=0)
-    f_out: float | None = Field(None, gt=0)
-    orthogonalize: bool | None = None
-    error_bars: Literal["colored", "white"] | None = None
-    max_steps: int | None = Field(None, ge=1)
 
-    library: ClassVar[str] = "aeroid.estimation.regression:stepwise_regression"
     engine_only: ClassVar[frozenset[str]] = frozenset({"method"})
 
     @model_validator(mode="after")
