@@ -106,9 +106,10 @@ def follow(
     step: str,
     seam_of: Callable[[str], str | None],
     *,
-    flight_index: int = 0,
+    flight_index: int | None = 0,
 ) -> tuple[Way, Any]:
-    """The way of the task of `step` on the campaign's `flight_index`-th flight.
+    """The way of the task of `step` on the campaign's `flight_index`-th flight (None: the
+    campaign-level task of `step`).
 
     `seam_of` maps an engine module to its seam (None: shared by all, no seam).
     Returns the way and the run's summary.
@@ -117,7 +118,8 @@ def follow(
 
     planned = plan(config)
     flights = list(dict.fromkeys(t.flight for t in planned.tasks if t.flight is not None))
-    key = next(t.key for t in planned.tasks if t.step == step and t.flight == flights[flight_index])
+    flight = None if flight_index is None else flights[flight_index]
+    key = next(t.key for t in planned.tasks if t.step == step and t.flight == flight)
     way = Way()
     state: dict[str, Any] = {"current": None, "done": False}
 

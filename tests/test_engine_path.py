@@ -135,3 +135,17 @@ def test_briefs_made_before_the_commit_equal_those_made_from_the_entry(identify_
             assert given[name] == make(role, store.load(task.key, task.stage)), name
             seen += 1
     assert seen >= 2  # both flights' fits
+
+
+def test_a_campaign_task_passes_each_seam_once_too(tmp_path):
+    # the campaign report, over every flight (its inputs' briefs handed over, or their
+    # records read through the store inside `put`)
+    way, summary = follow(_config(tmp_path), "campaign_report", seam_of, flight_index=None)
+    assert summary.failed == 0
+    assert way.reentered(True) == []
+    entered = [s for s in way.part(True) if s.entry]
+    assert [(s.seam, s.function) for s in entered if s.on_stack == {"running"}] == [
+        ("storage", "put")
+    ]
+    assert [s.function for s in entered if s.seam == "stages"] == ["perform"]
+    assert not [s for s in way.part(True) if s.seam == "plans"]
