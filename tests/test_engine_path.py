@@ -111,28 +111,44 @@ def test_a_task_passes_each_seam_once_from_the_run_to_its_entry(identify_way):
 
 
 def test_the_run_looks_at_the_store_once_for_every_task(identify_way):
-    way, _, _ = identify_way
+    way, summary, _ = identify_way
     before = [s for s in way.part(False) if s.entry and s.seam == "storage"]
     looks = [s.function for s in before if s.on_stack == {"running"}]
-    # open the store, then one look at what is stored (`verified.look_up`)
-    assert looks == ["ResultStore.__init__", "look_up"]
+    # open the store, open one look at what is stored (`verified.look_up`: a listing per
+    # stage and the index, read once), then ask it a task at a time as the plan streams
+    assert looks[:2] == ["ResultStore.__init__", "look_up"]
+    assert set(looks[2:]) == {"Lookup.find"}
+    assert len(looks) - 2 == len(summary.plan.tasks)
 
 
-def test_briefs_made_before_the_commit_equal_those_made_from_the_entry(identify_way):
+def test_briefs_made_before_the_commit_equal_those_made_from_the_entry(tmp_path, monkeypatch):
     # `work.perform` makes a result's briefs from the record it computed; the campaign
     # task would make them from the stored entry: they must be the same
-    _, summary, tmp = identify_way
-    store = open_store(tmp / "store")
+    from aeroid.pipeline import run
+    from aeroid.pipeline.running import executors
+
+    returned: list = []  # the statuses as the executor returns them (the ledger keeps none)
+    real_run = executors.InProcess.run
+
+    def keep(self, *args, **kwargs):
+        out = real_run(self, *args, **kwargs)
+        returned.extend(out)
+        return out
+
+    monkeypatch.setattr(executors.InProcess, "run", keep)
+    summary = run(_config(tmp_path), workers=0)
+    assert summary.failed == 0
+    store = open_store(tmp_path / "store")
+    given = {st["key"]: st.get("briefs", {}) for st in returned}
     seen = 0
     for task in summary.plan.tasks:
-        given = summary.statuses[task.key].briefs
         for consumer, role in task.briefs:
             name = f"{consumer}/{role}"
-            if name not in given:
+            if name not in given.get(task.key, {}):
                 continue
             make = STAGES[consumer].brief
             assert make is not None
-            assert given[name] == make(role, store.load(task.key, task.stage)), name
+            assert given[task.key][name] == make(role, store.load(task.key, task.stage)), name
             seen += 1
     assert seen >= 2  # both flights' fits
 

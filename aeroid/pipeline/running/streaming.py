@@ -20,7 +20,6 @@ import time
 import uuid
 from typing import Any
 
-from ...errors import StoreError
 from ..plans import plan_cache
 from ..plans.config import CampaignConfig
 from ..plans.planning import PlanStream, Task
@@ -48,7 +47,7 @@ class StreamedRun:
         self.ledger = Ledger()
         self.scope = uuid.uuid4().hex
         self.executor = executor_for(config.scheduler, config.workers)
-        self.checked: dict[tuple[str, str], verified.Known] = {}
+        self.look: verified.Lookup | None = None
         self.failed: dict[str, TaskStatus] = {}  # run here and failed: later tasks take them
         self.campaign: list[Task] = []
         self.campaign_index: dict[str, int] = {}
@@ -64,7 +63,9 @@ class StreamedRun:
 
     def record_checked(self) -> None:
         """Add what this run committed and CRC-checked to the store's index (`verified`)."""
-        _record_checked(self.store, self.ledger, self.checked, self.trusted)
+        if self.look is not None:
+            committed = (((stage, key), w) for stage, key, w in self.ledger.committed())
+            self.look.record_run(self.store, committed)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -73,10 +74,9 @@ class StreamedRun:
     def consume(self, stream: PlanStream) -> None:
         """Plan, prune and run the stream a window of flights at a time."""
         t = time.perf_counter()
-        # a listing per stage; an entry the index holds with the same signature is trusted
-        # without opening it, any other is CRC-checked (`verified`)
-        self.listed = self.store.signatures(stream.stages)
-        self.trusted = verified.read_index(self.store)
+        # a listing per stage and the index of entries checked whole, read once: an entry
+        # the index holds with the same signature is trusted unopened (`verified`)
+        self.look = verified.look_up(self.store, stream.stages)
         self.t_check += time.perf_counter() - t
         flight: str | None = None
         seen: dict[str, int] = {}  # the current flight's keys (a key planned twice runs once)
@@ -109,17 +109,15 @@ class StreamedRun:
 
     def _prune(self, index: int, task: Task) -> None:
         """Settle a stored task (trusted from the index, or CRC-checked), or queue it."""
-        ident = (task.stage, task.key)
-        if ident not in self.listed:
+        assert self.look is not None
+        found = self.look.find(self.store, (task.stage, task.key))
+        if found is None:
             self.window.append((index, task))
             return
-        found = self.trusted.lookup(ident, self.listed[ident])
-        if found is not None:
-            status = TaskStatus(task.key, task.step, task.flight, "cached", warnings=found)
+        if isinstance(found, str):  # its bytes fail their checksum
+            status = TaskStatus(task.key, task.step, task.flight, "failed", error=found)
         else:
-            status = _cache_hit(self.store, task)
-            if status.status == "cached":
-                self.checked[ident] = (self.listed[ident], status.warnings)
+            status = TaskStatus(task.key, task.step, task.flight, "cached", warnings=found)
         self.ledger.settle(index, status)
         self._tick()
 
@@ -172,34 +170,3 @@ class StreamedRun:
             self.ledger.settle(index, status)
             if status.status == "failed":
                 self.failed[task.key] = status
-
-
-def _record_checked(
-    result_store: ResultStore,
-    ledger: Ledger,
-    checked: dict[tuple[str, str], verified.Known],
-    trusted: verified.Trusted,
-) -> None:
-    """Add what this run committed (written from memory) and what it CRC-checked to the
-    store's index of entries checked whole: the next run trusts them unopened."""
-    stages = {stage for stage, _, _ in ledger.committed()}
-    if stages:
-        try:
-            listed = result_store.signatures(stages)
-        except (StoreError, OSError):
-            listed = {}
-        for stage, key, warnings in ledger.committed():
-            if (stage, key) in listed:
-                checked[(stage, key)] = (listed[(stage, key)], warnings)
-    verified.record(result_store, checked, trusted)
-
-
-def _cache_hit(result_store: ResultStore, task: Task) -> TaskStatus:
-    """A stored task's status: cached only where its entry's bytes pass their CRC-32;
-    with the warnings the computation raised, stored beside its result."""
-    found = result_store.cached_warnings(task.stage, task.key)
-    if found is not None:
-        return TaskStatus(task.key, task.step, task.flight, "cached", warnings=found)
-    where = result_store.path_for(task.stage, task.key)
-    error = f"{task.stage} entry {where} is corrupt: its bytes fail their checksum"
-    return TaskStatus(task.key, task.step, task.flight, "failed", error=error)

@@ -115,53 +115,55 @@ def replace(store: ResultStore, entries: Mapping[Ident, Known], old: Iterable[st
 
 @dataclass
 class Lookup:
-    """What a run found stored of its tasks (`look_up`), and what it keeps to add
-    to the index once it has run the rest (`record_run`).
+    """What a run finds stored of its tasks, a task at a time (`look_up` opens it), and
+    what it keeps to add to the index once it has run the rest (`record_run`).
 
-    `found` maps each stored (stage, key) to the warnings stored with the entry,
-    or to a text saying why the entry cannot count as cached (its bytes fail their
-    CRC-32); a task not in it is to be computed.
+    It holds one listing per stage and the index, read once; `find` answers for one
+    task, so a streamed run never holds more than the listing.
     """
 
-    found: dict[Ident, tuple[str, ...] | str]
+    listed: dict[Ident, Signature]
     trusted: Trusted
     checked: dict[Ident, Known] = field(default_factory=dict)
 
-    def record_run(self, store: ResultStore, committed: Mapping[Ident, tuple[str, ...]]) -> None:
+    def find(self, store: ResultStore, ident: Ident) -> tuple[str, ...] | str | None:
+        """None where `ident` is not stored (to be computed); else the warnings stored
+        with its entry, trusted unopened where the index holds it with the listing's
+        signature and CRC-checked otherwise; or a text saying why the entry cannot count
+        as cached (its bytes fail their CRC-32)."""
+        signature = self.listed.get(ident)
+        if signature is None:
+            return None
+        known = self.trusted.lookup(ident, signature)
+        if known is not None:
+            return known
+        stage, key = ident
+        warnings = store.cached_warnings(stage, key)
+        if warnings is None:
+            where = store.path_for(stage, key)
+            return f"{stage} entry {where} is corrupt: its bytes fail their checksum"
+        self.checked[ident] = (signature, warnings)
+        return warnings
+
+    def record_run(
+        self, store: ResultStore, committed: Iterable[tuple[Ident, tuple[str, ...]]]
+    ) -> None:
         """Add to the index what the run CRC-checked and what it `committed` (written from
         memory, with their warnings): the next run trusts them unopened."""
+        committed = list(committed)
         if committed:
             try:
-                listed = store.signatures({stage for stage, _ in committed})
+                listed = store.signatures({stage for (stage, _), _ in committed})
             except (StoreError, OSError):
                 listed = {}
-            for ident, warnings in committed.items():
+            for ident, warnings in committed:
                 if ident in listed:
                     self.checked[ident] = (listed[ident], warnings)
         record(store, self.checked, self.trusted)
 
 
-def look_up(store: ResultStore, idents: Iterable[Ident]) -> Lookup:
-    """Which of `idents` are stored and sound, in one pass: a listing per stage; an
-    entry the index holds with the listing's signature is trusted unopened, any other
-    stored one is CRC-checked (`ResultStore.cached_warnings`)."""
-    wanted = list(dict.fromkeys(idents))
-    listed = store.signatures({stage for stage, _ in wanted})
-    trusted = read_index(store)
-    out = Lookup({}, trusted)
-    for ident in wanted:
-        if ident not in listed:
-            continue
-        known = trusted.lookup(ident, listed[ident])
-        if known is not None:
-            out.found[ident] = known
-            continue
-        stage, key = ident
-        warnings = store.cached_warnings(stage, key)
-        if warnings is None:
-            where = store.path_for(stage, key)
-            out.found[ident] = f"{stage} entry {where} is corrupt: its bytes fail their checksum"
-        else:
-            out.found[ident] = warnings
-            out.checked[ident] = (listed[ident], warnings)
-    return out
+def look_up(store: ResultStore, stages: Iterable[str]) -> Lookup:
+    """Open a run's look at what is stored of `stages`: a listing per stage and the
+    index of entries checked whole, each read once (`Lookup.find` then answers a task
+    at a time)."""
+    return Lookup(store.signatures(set(stages)), read_index(store))
