@@ -201,3 +201,30 @@ def test_the_library_thread_is_a_daemon() -> None:
     assert wait_background(5.0)
     worker = _threads._worker
     assert worker is not None and worker.daemon
+
+
+def test_the_input_noise_program_compiles_in_the_background_too() -> None:
+    import numpy as np
+
+    pytest.importorskip("jax")
+    from test_fast_shooting import FIT, TRUTH, X0, _controls, _model
+
+    from aeroid.models import compiled as _compiled
+
+    model = _model("background_input_noise")
+    t = np.arange(201) * 0.05
+    u = _controls(t)
+    inv = np.array([1.0 / 0.002**2, 1.0 / 0.004**2, 0.0, 1.0 / 0.003**2, 1.0 / 0.02**2])
+    sigma = np.array([0.001, 0.002, 0.0])
+    entry = _compiled._entry(model)
+    entry["sensitivities_compiled"] = True  # a fit that ran compiled
+    first = _compiled.input_noise_scatter(model, t, u, X0, TRUTH, FIT, [0], 2, inv, sigma)
+    assert first is not None
+    assert entry[("background", "input_noise")] == "queued"  # numpy now, compiled later
+    assert wait_background(120.0)
+    assert entry[("background", "input_noise")] == "ready"
+    again = _compiled.input_noise_scatter(model, t, u, X0, TRUTH, FIT, [0], 2, inv, sigma)
+    assert again is not None
+    d = np.sqrt(np.diag(again[2]))
+    np.testing.assert_allclose(first[0], again[0], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(first[2] / np.outer(d, d), again[2] / np.outer(d, d), atol=1e-6)

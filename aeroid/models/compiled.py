@@ -519,7 +519,9 @@ def input_noise_scatter(
             model, time, controls, x0, params, names, x0_free, substeps, inverse_variances, sigma
         )
         if got is not None:
-            if BACKGROUND and state is None and entry.get("sensitivities_compiled"):
+            queued = entry.get(("background", "sensitivities")) is not None
+            if BACKGROUND and state is None and (queued or entry.get("sensitivities_compiled")):
+                # compiled in the background too (after the sensitivities, where queued)
                 extra = (np.asarray(inverse_variances, dtype=np.float64), np.asarray(sigma))
                 job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), substeps, extra)
                 _queue(model, "input_noise", *job)
