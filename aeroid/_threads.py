@@ -23,19 +23,30 @@ BLAS limits are per process, not per thread: while a public call runs, a
 caller's other threads also see one BLAS thread. (OpenBLAS 0.3.31 ignores a
 thread count set from another thread once the main thread has set one, so a
 public call made from a worker thread may run with the caller's count.)
+
+Background work (`after_call`): a job the library defers, such as compiling a
+model fitted twice so that its next fit finds the program ready, runs in one
+thread of the library's, one job at a time, started when the outermost public
+call in the calling thread returns (the call itself never waits for it). A
+failing job is logged at debug level and otherwise ignored. At interpreter
+exit the jobs still queued are dropped and the running one is finished
+(`_stop`); `wait_background` waits for the queue to empty.
 """
 
 from __future__ import annotations
 
+import atexit
 import functools
+import logging
 import os
+import queue
 import sys
 import threading
 from collections.abc import Callable
 from types import TracebackType
 from typing import Any, ParamSpec, TypeVar
 
-__all__ = ["CALLER_STACKLEVEL", "blas_threads", "small_blas"]
+__all__ = ["CALLER_STACKLEVEL", "after_call", "blas_threads", "small_blas", "wait_background"]
 
 # `small_blas` wraps a public function in one more frame: a warning issued in
 # the function's body points at its caller with this stacklevel (one more per
@@ -48,6 +59,9 @@ _R = TypeVar("_R")
 
 class _State(threading.local):
     depth = 0  # public calls open in this thread
+
+    def __init__(self) -> None:
+        self.deferred: list[Callable[[], None]] = []  # jobs for when the call returns
 
 
 _local = _State()
@@ -112,6 +126,87 @@ def _exit() -> None:
         _active -= 1
         if _active == 0:
             _restore()
+    if _local.deferred:
+        jobs, _local.deferred = _local.deferred, []
+        for job in jobs:
+            _submit(job)
+
+
+# -- background jobs -------------------------------------------------------------------
+
+_log = logging.getLogger("aeroid")
+_jobs: queue.Queue[Callable[[], None]] = queue.Queue()
+_worker: threading.Thread | None = None
+_stopping = False
+
+
+def after_call(job: Callable[[], None]) -> None:
+    """Run `job` in the library's background thread once the outermost public call
+    in this thread has returned (at once when none is open)."""
+    if _local.depth:
+        _local.deferred.append(job)
+    else:
+        _submit(job)
+
+
+def _submit(job: Callable[[], None]) -> None:
+    global _worker
+    if _stopping:
+        return
+    _jobs.put(job)
+    with _lock:
+        if _worker is None or not _worker.is_alive():
+            _worker = threading.Thread(target=_work, name="aeroid-background", daemon=True)
+            _worker.start()
+
+
+def _work() -> None:
+    try:  # below the caller's threads in the scheduler's eyes (Linux: per thread)
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    except (AttributeError, OSError):
+        pass
+    while True:
+        job = _jobs.get()
+        try:
+            if job is _END:
+                return
+            if not _stopping:
+                job()
+        except Exception:  # a background job only ever saves time: its failure costs none
+            _log.debug("aeroid: a background job failed", exc_info=True)
+        finally:
+            _jobs.task_done()
+
+
+def wait_background(timeout: float | None = None) -> bool:
+    """Wait until the background jobs queued so far have run; False on `timeout` (s)."""
+    jobs = _jobs
+    with jobs.all_tasks_done:
+        return jobs.all_tasks_done.wait_for(lambda: not jobs.unfinished_tasks, timeout)
+
+
+def _END() -> None:  # the worker's last job
+    return None
+
+
+def _stop() -> None:
+    """At interpreter exit: queued jobs are dropped and the running one is waited for.
+
+    A thread inside a compiler's C++ code must not meet the interpreter's
+    finalisation: when it returns to Python then it is unwound through frames
+    that do not allow it, and the process aborts. Only jobs a public call has
+    queued run here (a model's compilation once it has been fitted twice), so a
+    script that fits once never waits.
+    """
+    global _stopping
+    _stopping = True
+    worker = _worker
+    if worker is not None and worker.is_alive():
+        _jobs.put(_END)
+        worker.join()
+
+
+atexit.register(_stop)
 
 
 def _after_fork_in_child() -> None:
@@ -119,8 +214,10 @@ def _after_fork_in_child() -> None:
     # gone (their one-thread limits stay, harmless in a child, and are not
     # restored, which would start OpenBLAS's threads), and the forking thread
     # closes its own open calls as usual.
-    global _lock, _active
+    global _lock, _active, _worker, _jobs
     _lock = threading.Lock()
+    # the parent's background thread is not in the child, nor are its jobs
+    _worker, _jobs = None, queue.Queue()
     if _local.depth:
         _active = 1
     else:

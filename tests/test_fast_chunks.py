@@ -141,8 +141,12 @@ def test_a_compiled_fit_serves_its_result_simulation_without_stepping(monkeypatc
     data = _flight(model, seed=5)
     guess = {k: 1.2 * TRUTH[k] for k in FIT}
     opts = {"simulate_options": {"method": "rk4", "substeps": 2}}
+    from aeroid._threads import wait_background
+
     aeroid.identify(model, data, guess, **opts)
-    fit = aeroid.identify(model, data, guess, **opts)  # the second fit compiles
+    aeroid.identify(model, data, guess, **opts)  # the second fit queues the compilation
+    assert wait_background(120.0)
+    fit = aeroid.identify(model, data, guess, **opts)  # the third runs it
     assert _compiled._CACHE[model].get("sensitivities_compiled")
     assert not _compiled._CACHE[model].get("compiled_once")  # no compiled rollouts yet
     stepped = []

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import aeroid
+from aeroid._threads import wait_background
 from aeroid.models import compiled as _compiled
 from aeroid.models import shooting as _shooting
 from aeroid.models.integration import auto_substeps
@@ -181,6 +182,8 @@ def test_first_fit_in_numpy_agrees_with_the_compiled_second() -> None:
     first = aeroid.identify(model, data, guess, **opts)
     assert not _compiled._CACHE[model].get("sensitivities_compiled")
     assert "x" not in model.states  # (the model is the lateral one)
+    aeroid.identify(model, data, guess, **opts)  # queues the compilation
+    assert wait_background(120.0)
     second = aeroid.identify(model, data, guess, **opts)
     assert _compiled._CACHE[model].get("sensitivities_compiled")
     for k in FIT:
@@ -199,6 +202,7 @@ def test_input_noise_scatter_matches_the_compiled_adjoint() -> None:
     got = _shooting.input_noise_scatter(model, t, u, X0, TRUTH, FIT, [0], 2, inv, sigma)
     assert got is not None
     _compiled._entry(model)["sensitivities_compiled"] = True  # the compiled adjoint
+    _compiled._entry(model)[("background", "input_noise")] = "ready"
     ref = _compiled.input_noise_scatter(model, t, u, X0, TRUTH, FIT, [0], 2, inv, sigma)
     assert ref is not None
     np.testing.assert_allclose(got[0], ref[0], rtol=1e-12, atol=1e-14)

@@ -118,6 +118,25 @@ def test_non_broadcasting_dynamics_fall_back_to_loop():
     np.testing.assert_allclose(b.outputs[:, -1, 0], np.exp(-np.array([1.0, 2.0])), atol=1e-5)
 
 
+def test_a_model_not_finite_at_the_lti_probe_is_decided_nonlinear_once():
+    # q / V is infinite at the check's zero airspeed: an affine function never is, so
+    # the first simulation settles it and later ones skip the check
+    def pitch(t, x, u, p):
+        return np.array([-p["k"] * x[0] + u[0], x[0] / x[1] * 0.0 - 0.1 * (x[1] - 30.0)])
+
+    m = Model(["q", "V"], ["de"], {"k": 2.0}, pitch)
+    t = np.linspace(0, 2, 101)
+    u = 0.1 * np.sin(3 * t)
+    first = m.simulate(t, u, [0.0, 30.0], method="auto")
+    assert m._maybe_lti is False
+    rk4 = m.simulate(t, u, [0.0, 30.0], method="rk4")
+    np.testing.assert_array_equal(first.states, rk4.states)
+    # with a non-finite parameter the check cannot tell: nothing is decided
+    m2 = Model(["q", "V"], ["de"], {"k": 2.0}, pitch)
+    m2.simulate_batch(t, u, [0.0, 30.0], {"k": np.array([2.0, np.nan])}, method="auto")
+    assert m2._maybe_lti is True
+
+
 def test_nonlinear_model_uses_rk4_and_matches_solve_ivp():
     def pendulum(t, x, u, p):
         return np.array([x[1], -p["g"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])

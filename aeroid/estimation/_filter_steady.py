@@ -180,6 +180,10 @@ def _gains(
     return S, Kg, np.asarray(Pp), np.asarray(Pf), done
 
 
+# gains passed to the compiled predictor when the Riccati recursion converged before
+_GAIN_SAMPLES = 256
+
+
 def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     """The whole predictor as one `jax.lax.scan`, vmapped over members."""
     entry = _compiled._entry(model)
@@ -242,8 +246,11 @@ def _compiled_predictor(
     # batches padded to a power of two: each size would otherwise compile anew
     padded = 1 << (B - 1).bit_length() if B <= 16 else -(-B // 8) * 8
     rows = np.minimum(np.arange(padded), B - 1)
-    # the transient's gains only, to a power of two samples (few compilations)
-    n_gain = min(1 << max(steady_from, 1).bit_length(), prob.time.size - 1)
+    # the transient's gains only: the first `_GAIN_SAMPLES`, or every sample where the
+    # gain settles later (two shapes, two compilations, whatever the flight)
+    n_gain = prob.time.size - 1
+    if steady_from < _GAIN_SAMPLES:
+        n_gain = min(_GAIN_SAMPLES, n_gain)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:

@@ -379,10 +379,22 @@ def run_filter(
 
 def innovation_loglik(nu: FloatArray, S: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Per member: (sum of nu' S^-1 nu, sum of log det S) over the given samples."""
-    L = np.linalg.cholesky(S)  # (B, K, m, m)
-    z = np.linalg.solve(L, nu[..., None])[..., 0]
+    K = S.shape[1]
+    # a fixed-gain filter's S stops changing once its gain has converged: the samples
+    # from there on share one factorisation
+    same = np.all(S == S[:, -1:], axis=(0, 2, 3))
+    k0 = K - int(np.argmin(same[::-1])) if not np.all(same) else 0
+    if K - k0 < 8:
+        k0 = K
+    L = np.linalg.cholesky(S[:, :k0])  # (B, k0, m, m)
+    z = np.linalg.solve(L, nu[:, :k0, :, None])[..., 0]
     quad = np.sum(z**2, axis=(1, 2))
     logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=2, axis2=3)), axis=(1, 2))
+    if k0 < K:
+        L1 = np.linalg.cholesky(S[:, -1])  # (B, m, m)
+        z1 = np.linalg.solve(L1, np.swapaxes(nu[:, k0:], 1, 2))  # (B, m, K - k0)
+        quad = quad + np.sum(z1**2, axis=(1, 2))
+        logdet = logdet + 2.0 * (K - k0) * np.sum(np.log(np.diagonal(L1, axis1=1, axis2=2)), axis=1)
     return quad, logdet
 
 

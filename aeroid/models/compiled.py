@@ -37,6 +37,7 @@ a power of two so that few shapes occur.
 
 from __future__ import annotations
 
+import logging
 import warnings
 import weakref
 from collections.abc import Callable, Mapping, Sequence
@@ -45,6 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import _threads
 from ._jax_rk4 import _input_noise_scatter, _interval, _interval_jacobian, _rollout, _tangent_linear
 from ._jax_rk4 import _substep as _substep
 from ._jax_translation import _CACHE as _CACHE
@@ -89,8 +91,13 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
+_log = logging.getLogger("aeroid")
+
 # Tests switch this off to force the numpy path.
 ENABLED = True
+# A model whose first fit ran in numpy compiles in the library's background thread
+# after it (`aeroid._threads.after_call`); off, its next fit compiles in the foreground.
+BACKGROUND = True
 # Numpy RK4 work (dynamics calls, each on a whole batch) a model may spend before the
 # integrator hook compiles it: a compilation costs about as much as this many calls.
 COMPILE_AFTER_CALLS = 20_000
@@ -349,7 +356,15 @@ def output_sensitivities(
             return None
     m = rk4_substeps(model, time, controls, x0, params, options)
     if numpy_first and not _sensitivities_pay(model, m, time.size):
-        _entry(model)["declined"] = True
+        entry = _entry(model)
+        entry["declined"] = True
+        entry["numpy_fits"] = fits = entry.get("numpy_fits", 0) + 1
+        if BACKGROUND and fits > 1:
+            # a model fitted again is likely fitted once more: compiled in the background
+            # once this fit has returned (a one-off fit never starts a compiler), and the
+            # next fit switches to the compiled program if it is ready by then
+            job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), m)
+            _queue(model, "sensitivities", *job)
         return None
     if not available(model, time, x0, controls, pvec):
         return None
@@ -395,6 +410,15 @@ def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
     # batched dynamics calls of the fit's rollouts: 4 per substep
     work = _FIT_EVALUATIONS * 4 * int(substeps) * max(n_t - 1, 1)
     spent = entry.get("sensitivity_numpy_calls", 0)
+    state = entry.get(("background", "sensitivities"))
+    if state == "ready":
+        return True
+    if BACKGROUND and spent > 0:
+        # fitted in numpy before: this fit too, while the background thread compiles
+        # (`output_sensitivities` queues it; for good where that failed), its rollouts
+        # not counted towards compiling them (`worth_compiling`)
+        entry["sensitivity_numpy_calls"] = spent + work
+        return False
     # only the first fit: a model fitted twice is likely fitted again (warm calls as fast
     # as compiled ones from the second on)
     f = model._dynamics_batch
@@ -408,6 +432,59 @@ def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
         entry["sensitivity_numpy_calls"] = spent + work
         return False
     return True
+
+
+def _queue(model: Model, program: str, *job: Any) -> None:
+    """Compile `program` ("sensitivities" or "input_noise") of `model` in the library's
+    background thread once the current public call returns (`_compile_in_background`);
+    its state under ``("background", program)`` in the model's entry."""
+    entry = _entry(model)
+    if ("background", program) in entry:
+        return
+    entry[("background", program)] = "queued"
+    _threads.after_call(lambda: _compile_in_background(model, program, *job))
+
+
+def _compile_in_background(
+    model: Model,
+    program: str,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    pvec: FloatArray,
+    names: tuple[str, ...],
+    x0_free: tuple[int, ...],
+    substeps: int,
+    extra: tuple[FloatArray, ...] = (),
+) -> None:
+    """The background job: `program` traced, compiled (by XLA, or read from the disk
+    cache) and run once with the arguments of the call that queued it, which fills
+    JAX's cache for the shapes of the model's next call. Sets the state to "ready",
+    or "failed" (the numpy path then stays, silently: logged at debug level)."""
+    entry = _entry(model)
+    key = ("background", program)
+    entry[key] = "compiling"
+    try:
+        if not available(model, time, x0, controls, pvec):
+            entry[key] = "failed"
+            return
+        args = _sensitivity_args(model, time, controls, x0, pvec, names, x0_free, substeps)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            got = _compiled(model, "sensitivities")(*args)
+            if program == "input_noise":
+                inverse_variances, sigma = extra
+                J = np.asarray(got[1], dtype=np.float64)
+                weighted = np.zeros((*J.shape[:2], -(-J.shape[2] // 8) * 8))
+                weighted[:, :, : J.shape[2]] = J * inverse_variances[None, :, None]
+                fn = _compiled(model, "input_noise")
+                got = (fn(*got[2:5], time, args[7], pvec, args[8], weighted, sigma),)
+            np.asarray(got[0])  # waits for the run
+    except Exception:
+        _log.debug("aeroid: compiling %s of model %r failed", program, model.name, exc_info=True)
+        entry[key] = "failed"
+        return
+    entry[key] = "ready"
 
 
 def input_noise_scatter(
@@ -429,17 +506,26 @@ def input_noise_scatter(
     None when the model does not compile."""
     if not ENABLED or not isinstance(model, Model) or time.size < 2:
         return None
-    if not _entry(model).get("sensitivities_compiled"):
-        # a model whose fit ran in numpy: the same adjoint in numpy, no compilation
+    entry = _entry(model)
+    pvec = _pmatrix(model, params, 1)[0]
+    x0 = np.asarray(x0, dtype=np.float64)
+    state = entry.get(("background", "input_noise"))
+    if not entry.get("sensitivities_compiled") or (BACKGROUND and state != "ready"):
+        # a model whose fit ran in numpy, or whose program for this is not compiled yet:
+        # the same adjoint in numpy, no compilation in the foreground
         from . import shooting as _shooting
 
         got = _shooting.input_noise_scatter(
             model, time, controls, x0, params, names, x0_free, substeps, inverse_variances, sigma
         )
         if got is not None:
+            queued = entry.get(("background", "sensitivities")) is not None
+            if BACKGROUND and state is None and (queued or entry.get("sensitivities_compiled")):
+                # compiled in the background too (after the sensitivities, where queued)
+                extra = (np.asarray(inverse_variances, dtype=np.float64), np.asarray(sigma))
+                job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), substeps, extra)
+                _queue(model, "input_noise", *job)
             return got
-    pvec = _pmatrix(model, params, 1)[0]
-    x0 = np.asarray(x0, dtype=np.float64)
     if not available(model, time, x0, controls, pvec):
         return None
     y, J, xs, phi, hx = _sensitivities(model, time, controls, x0, pvec, names, x0_free, substeps)
@@ -467,12 +553,8 @@ def _sensitivities(
     x0_free: Sequence[int],
     substeps: int,
 ) -> tuple[FloatArray, ...]:
-    pidx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
-    xidx = np.asarray(list(x0_free), dtype=np.int64)
-    theta = np.concatenate([pvec[pidx], x0[xidx]])
-    u = np.asarray(controls, dtype=np.float64)
-    dynamic = _dynamic_parameters(model, time, x0, u)
-    dpos = np.flatnonzero(np.isin(pidx, dynamic)).astype(np.int64)
+    args = _sensitivity_args(model, time, controls, x0, pvec, names, x0_free, substeps)
+    u = args[7]
     key = (pvec.tobytes(), x0.tobytes(), tuple(names), tuple(x0_free), int(substeps))
     last = _LAST_SENSITIVITIES
     if (
@@ -486,13 +568,33 @@ def _sensitivities(
     fn = _compiled(model, "sensitivities")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        got = fn(theta, pvec, pidx, dpos, x0, xidx, time, u, np.int32(substeps))
+        got = fn(*args)
     out = tuple(np.asarray(a, dtype=np.float64) for a in got)
     for a in out:  # shared with the next caller at the same point: nobody writes to them
         a.flags.writeable = False
     keep = out[1].nbytes <= _KEEP_BYTES
     _LAST_SENSITIVITIES[:] = [weakref.ref(model), key, time, u, out] if keep else []
     return out
+
+
+def _sensitivity_args(
+    model: Model,
+    time: FloatArray,
+    controls: FloatArray,
+    x0: FloatArray,
+    pvec: FloatArray,
+    names: Sequence[str],
+    x0_free: Sequence[int],
+    substeps: int,
+) -> tuple[Any, ...]:
+    """The arguments of the compiled sensitivities program (`_jax_rk4._tangent_linear`)."""
+    pidx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
+    xidx = np.asarray(list(x0_free), dtype=np.int64)
+    theta = np.concatenate([pvec[pidx], x0[xidx]])
+    u = np.asarray(controls, dtype=np.float64)
+    dynamic = _dynamic_parameters(model, time, x0, u)
+    dpos = np.flatnonzero(np.isin(pidx, dynamic)).astype(np.int64)
+    return theta, pvec, pidx, dpos, x0, xidx, time, u, np.int32(substeps)
 
 
 def _last_states(

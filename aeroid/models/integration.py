@@ -425,9 +425,10 @@ def lti_form(
     point by point, so it always gets that lighter check.
 
     Returns ``(None, True)`` when the function is shown not to have that form
-    (callers may remember it), and ``(None, False)`` when it could not be
-    evaluated (an exception or a non-finite value): the integrator then meets
-    the failure where it happens and reports it.
+    (callers may remember it; a non-finite value at a finite point with finite
+    parameters shows it too), and ``(None, False)`` when it could not be
+    evaluated (an exception, or non-finite parameters): the integrator then
+    meets the failure where it happens and reports it.
     """
     batch = next(iter(p.values())).shape[0] if p else 1
     n_out = f.n_out
@@ -462,7 +463,9 @@ def lti_form(
         return None, False
     vals = got[:, : lay.n_head].reshape(n_out, 1 + n_in, batch)
     if not np.all(np.isfinite(vals)):
-        return None, False
+        # an affine function with finite coefficients is finite at every finite point:
+        # with finite parameters, this one is not affine (a division by the airspeed)
+        return None, _finite(p)
     c = vals[:, 0, :]  # (n_out, B)
     M = np.empty((batch, n_out, n_in + 1))  # [A, B, c] per member
     M[:, :, :n_in] = np.transpose(vals[:, 1:, :] - c[:, None, :], (2, 0, 1))
@@ -495,7 +498,11 @@ def lti_form(
                 f.lti_grids.pop(next(iter(f.lti_grids)))
             f.lti_grids[grid] = None
         return mats, False
-    return None, bool(np.all(np.isfinite(fc)))
+    return None, bool(np.all(np.isfinite(fc))) or _finite(p)
+
+
+def _finite(p: Mapping[str, FloatArray]) -> bool:
+    return all(bool(np.all(np.isfinite(v))) for v in p.values())
 
 
 def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> FloatArray:

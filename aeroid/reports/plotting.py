@@ -225,7 +225,8 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         m = validation.metrics[name]
         ax.set_ylabel(_label(name, unit_of))
         ax.set_title(f"{name}: fit {m.fit:.1f} %, RMSE {m.rmse:.3g}", fontsize=9, loc="left")
-        ax.legend(loc="upper right", fontsize=8)
+        if j == 0:  # the same legend on every pair of panels: drawn once, at the top
+            ax.legend(loc="upper right", fontsize=8)
         rax = axes[2 * j + 1, 0]
         e = validation.residuals[:, j]
         band = 2.0 * float(np.std(e))
@@ -233,7 +234,8 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         rax.plot(t, e, color="C3", lw=0.9)
         _hline(rax, 0.0, color="k", lw=0.6)
         rax.set_ylabel(_label(name, unit_of, what="residual"))
-        rax.legend(loc="upper right", fontsize=7)
+        if j == 0:
+            rax.legend(loc="upper right", fontsize=7)
     for k, name in enumerate(control_names[:n_inputs]):
         ax = axes[2 * len(names) + k, 0]
         assert controls is not None
@@ -674,6 +676,7 @@ def plot_identification(
         ax.errorbar([0.0], [value], yerr=[err], fmt="o", capsize=5, color="C0")
         _hline(ax, 0.0, color="0.7", lw=0.6)
         ax.set_xticks([])
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=3))  # a bar needs few ticks
         ax.set_title(name, fontsize=9)
         ax.set_ylabel(
             _label(name, units, what="95 %") if (units or {}).get(name) else "estimate, 95 %",
