@@ -441,7 +441,7 @@ def test_the_readme_whole_log_snippet_runs(monkeypatch, capsys):
     with pytest.warns(UserWarning, match="336 of 1162 channels left out"):
         exec(compile(block, "README.md", "exec"), namespace)
     out = capsys.readouterr().out
-    assert "266 of 1162 channels flagged" in out and "1. frozen" in out
+    assert "76 of 1162 channels flagged" in out and "1. frozen" in out
     assert "- constant: 624 channels" in out
     data = namespace["data"]
     assert len(data.channels) == 826  # type: ignore[attr-defined]

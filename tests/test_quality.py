@@ -215,6 +215,9 @@ def _planted_log(seed: int = 0) -> FlightLog:
     chans["servo.armed"] = (ts, (ts > 12.0).astype(float))  # a boolean at its two states
     tc = 10.0 + np.cumsum((1 + 0.3 * rng.standard_normal(2000)).clip(0.55, 1.45)) / 100.0
     chans["clock.x"] = (tc, np.sin(tc) + 0.01 * rng.standard_normal(tc.size))  # wandering clock
+    # an estimator on a 200 Hz IMU: two or three IMU periods a step (1 or 1.5 median steps)
+    te = 10.0 + np.cumsum(rng.choice([2, 3], size=1500, p=[0.7, 0.3])) / 200.0
+    chans["ekf.x"] = (te, np.cos(te) + 0.01 * rng.standard_normal(te.size))
     chans["mission.id"] = (np.array([3.0]), np.array([7.0]))  # logged once
     return _log(**chans)
 
@@ -233,6 +236,7 @@ def test_a_whole_log_finds_each_planted_defect_and_notes_the_rest():
         "servo.aileron": ("saturation",),
         "servo.armed": (),
         "clock.x": ("jitter",),
+        "ekf.x": (),
         "mission.id": (),
     }
     assert dict(report.flags) == expected
@@ -245,6 +249,7 @@ def test_a_whole_log_finds_each_planted_defect_and_notes_the_rest():
     }
     # PX4's logging (steps of one or two periods, the stream starting late) is no defect
     assert report["imu.p"].jitter > 0.3 and report["imu.p"].off_period < 0.01
+    assert report["ekf.x"].jitter > 0.2 and report["ekf.x"].off_period < 1e-9
     assert report["imu.p"].dropouts == 1  # the start-up hole, counted but not flagged
     # ranked: values lost or stuck first, then holes, clipping, timing
     assert [f for f, _ in report.ranked] == [
@@ -262,6 +267,7 @@ def test_a_whole_log_finds_each_planted_defect_and_notes_the_rest():
     assert not chosen.whole_log
     assert chosen["imu.device_id"].flags == ("jitter", "dropouts", "constant")
     assert "jitter" in chosen["imu.p"].flags and "saturation" in chosen["servo.armed"].flags
+    assert "jitter" in chosen["ekf.x"].flags
     assert chosen["mission.id"].flags == ("too_few_samples",)
 
 
@@ -286,7 +292,7 @@ def test_the_shipped_px4_log_before_and_after():
     before = check_data_quality(log, channels=list(log.channels))  # the per-channel rules
     assert len(before.channels) == 1162 and len(before.flagged) == 977
     after = check_data_quality(log)
-    assert len(after.flagged) < 300  # 266: timing of a few topics, clipping, holes
+    assert len(after.flagged) < 100  # 76: clipping, timing of 3 topics, frozen, a hole
     notes = after.notes
     assert (len(notes["constant"]), len(notes["one_sample"]), len(notes["never_set"])) == (
         624,
@@ -295,12 +301,26 @@ def test_the_shipped_px4_log_before_and_after():
     )
     flags = {f for f, _ in after.ranked}
     assert not flags & {"constant", "too_few_samples"}
-    # the 400 Hz gyro, logged at one or two publication periods, is not jitter
-    gyro = after["vehicle_angular_velocity.xyz[0]"]
-    assert gyro.flags == () and gyro.jitter > 0.1 and gyro.off_period < 0.05
+    # the 400 Hz gyro, logged at one or two publication periods, is not jitter, nor the
+    # 100 Hz estimator stepping two or three periods of its 200 Hz IMU
+    for name in ("vehicle_angular_velocity.xyz[0]", "estimator_status.states[0]"):
+        assert after[name].flags == () and after[name].jitter > 0.1
+        assert after[name].off_period < 0.05
     # the one hole inside a stream: ekf_gps_drift, 1.2 s
     assert set(dict(after.ranked)["dropouts"]) == {
         n for n in log.channels if n.startswith("ekf_gps_drift.")
     }
     # PX4 leaves unset fields NaN: noted, not flagged
     assert "battery_status.temperature" in notes["never_set"]
+
+
+@pytest.mark.parametrize("sigma", [0.15, 0.3, 1.0])
+def test_a_wandering_clock_fits_no_period_of_a_whole_log(sigma):
+    # stamps scattered about a uniform grid by sigma steps fit none of the periods
+    # (median / k, k = 1..4): the steps scatter by sigma sqrt(2) median steps, k sigma
+    # sqrt(2) periods, wrapped to at most about 0.29 (uniform over a period)
+    rng = np.random.default_rng(11)
+    t = (np.arange(3000) + sigma * rng.standard_normal(3000)) / 100.0
+    t.sort()
+    c = check_data_quality(_log(x=(t, np.sin(t))))["x"]
+    assert "jitter" in c.flags and c.off_period > 0.12

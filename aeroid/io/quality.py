@@ -63,6 +63,9 @@ NOTES = {
 # The chance of a frozen run under the channel's own rate of repeated values, below
 # which the run is flagged (one false alarm in a thousand channels of pure chance).
 _FROZEN_CHANCE = 1e-3
+# A PX4 topic's period may be its median step over 1 to 4: the estimator publishes on
+# every second or third IMU sample, a rate controller every fourth to sixth.
+_DIVISORS = 4
 
 
 @dataclass(frozen=True)
@@ -108,8 +111,9 @@ class ChannelQuality:
         first or last sample, not at its extremes), s; whole-log checks only.
     off_period : float
         Whole-log checks: standard deviation of each regular step's distance
-        from a whole number of median steps, over the median step (NaN
-        otherwise); the ``jitter`` flag of a whole log is judged on it.
+        from a whole number of the topic's period (its median step over the
+        k = 1 .. 4 that fits best), in periods (NaN otherwise); the ``jitter``
+        flag of a whole log is judged on it.
     notes : tuple of str
         What the channel is by design rather than by fault (keys of
         `aeroid.io.quality.NOTES`); whole-log checks only.
@@ -267,7 +271,7 @@ def _whole_log_lines(report: DataQualityReport) -> list[str]:
         for note, names in notes.items():
             lines.append(
                 f"- {note}: {len(names)} channels in {len({_topic(n) for n in names})} "
-                f"topics ({NOTES[note]}) — {_by_topic(names)}"
+                f"topics, {NOTES[note]}: {_by_topic(names)}"
             )
     return [*lines, ""]
 
@@ -405,18 +409,23 @@ def _check_channel(
 
 
 def _off_period(time: FloatArray, dropout_factor: float) -> float:
-    """Scatter of a log's steps about whole numbers of its median step (see `_as_whole_log`)."""
+    """Scatter of a log's steps about whole multiples of the topic's period, in periods:
+    the period is the median step over the k = 1 .. `_DIVISORS` that fits best (see
+    `check_data_quality`); dropouts are left out."""
     steps = np.diff(time)
     forward = steps[steps > 0]
     if forward.size < 2:
         return 0.0
     median = float(np.median(forward))
-    # extra stamps (a topic also published on change) and dropouts are judged elsewhere
-    regular = forward[(forward >= 0.5 * median) & (forward <= dropout_factor * median)]
-    if regular.size < 2:
-        return 0.0
-    ratio = regular / median
-    return float(np.std(ratio - np.round(ratio)))
+    best = math.inf
+    for k in range(1, _DIVISORS + 1):
+        period = median / k
+        regular = forward[(forward >= 0.5 * period) & (forward <= dropout_factor * median)]
+        if regular.size < 2:
+            continue
+        ratio = regular / period
+        best = min(best, float(np.std(ratio - np.round(ratio))))
+    return 0.0 if math.isinf(best) else best
 
 
 def _longest_frozen(time: FloatArray, values: FloatArray, least: int) -> float:
@@ -565,15 +574,18 @@ def check_data_quality(
       field as NaN and "no limit" as inf) and one logged once (a topic published on
       an event) get ``notes`` (``constant``, ``never_set``, ``one_sample``), not flags.
     * Stamp jitter is judged against what the logger does. A ULog stamp is the
-      publisher's own sample time; PX4's logger writes a topic when its loop finds a
-      new sample (or once per configured interval), so a sample overwritten before
-      the loop came round leaves a step of two or three publication periods, and a
-      topic also published on change has extra, shorter steps. Neither misplaces a
-      sample: the resampler puts each at its own stamp. So the ``jitter`` flag of a
-      whole log looks at how far each step (of half a median step or more, below a
-      dropout) lies from a whole number of median steps (``off_period``) against
-      `jitter_limit`: a gyro whose steps are one or two periods passes, stamps
-      scattered by a clock that wanders do not.
+      publisher's own sample time, and PX4's estimator and controllers run on the
+      IMU's samples, so a topic's stamps lie on whole multiples of one period. That
+      period may be a fraction of the median step (the estimator, at 100 Hz on a
+      200 Hz IMU, steps two or three IMU periods), and the logger, which writes a
+      topic when its loop finds a new sample, leaves a step of two periods where a
+      sample was overwritten first. Neither misplaces a sample: the resampler puts
+      each at its own stamp. So the ``jitter`` flag of a whole log looks at how far
+      each step (below a dropout) lies from a whole number of periods, the period
+      being the median step over the k = 1 .. 4 that fits best (``off_period``, the
+      scatter in periods), against `jitter_limit`: a gyro stepping one or two
+      periods passes, stamps scattered by a wandering clock do not (a scatter spread
+      over the whole period is about 0.29 for every k).
     * ``dropouts`` counts only holes inside a topic's stream: its first and last
       steps are the stream starting and stopping (PX4 writes a topic's first sample
       when it subscribes, the regular stream when logging starts).
@@ -619,6 +631,11 @@ def check_data_quality(
     if not 0.0 < limits["alias_band"] < 1.0:
         raise DataFormatError(f"alias_band: expected a fraction in (0, 1), got {plain(alias_band)}")
     whole = isinstance(data, FlightLog) and channels is None
+    rules = {
+        "jitter_limit": limits["jitter_limit"],
+        "dropout_factor": limits["dropout_factor"],
+        "saturation_run": int(limits["saturation_run"]),
+    }
     report = {}
     for name, (time_in, values_in) in series.items():
         time = np.asarray(time_in, dtype=np.float64)
@@ -627,20 +644,9 @@ def check_data_quality(
             name,
             time,
             values,
-            jitter_limit=limits["jitter_limit"],
-            dropout_factor=limits["dropout_factor"],
-            saturation_run=int(limits["saturation_run"]),
             alias_band=limits["alias_band"],
             alias_limit=limits["alias_limit"],
+            **rules,  # type: ignore[arg-type]
         )
-        if whole:
-            one = _as_whole_log(
-                one,
-                time,
-                values,
-                jitter_limit=limits["jitter_limit"],
-                dropout_factor=limits["dropout_factor"],
-                saturation_run=int(limits["saturation_run"]),
-            )
-        report[name] = one
+        report[name] = _as_whole_log(one, time, values, **rules) if whole else one  # type: ignore[arg-type]
     return DataQualityReport(report, limits, str(data.metadata.get("source", "")), whole)
