@@ -485,6 +485,13 @@ def test_the_whole_log_span_is_the_most_topic_seconds(tmp_path):
     with pytest.warns(UserWarning, match=r"1 of 11 channels left out: outside the span \(1\)"):
         data = aeroid.load_flight_test(later, sample_rate=25, t0=1.0)
     assert data.time[0] == 1.0 and data.time[-1] == pytest.approx(10.0)
+    # nothing that can be resampled: an error, not an empty record
+    empty = tmp_path / "empty.h5"
+    with h5py.File(empty, "w") as f:
+        f["t/time"] = np.arange(10.0)
+        f["t/x"] = np.full(10, np.nan)
+    with pytest.raises(DataFormatError, match=r"empty\.h5: no channel of the log can be"):
+        aeroid.load_flight_test(empty, sample_rate=5)
 
 
 def test_records_are_exported():

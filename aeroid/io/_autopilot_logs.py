@@ -431,19 +431,22 @@ def _best_span(
         starts = np.maximum(starts, t0)
     if t1 is not None:
         ends = np.minimum(ends, t1)
-    a = np.unique(starts) if t0 is None else np.array([t0])
-    b = np.unique(ends) if t1 is None else np.array([t1])
-    covered = (starts[:, None, None] <= a[None, :, None]) & (
-        ends[:, None, None] >= b[None, None, :]
-    )
-    length = b[None, :] - a[:, None]
-    score = np.where(length * rate >= 1.0, covered.sum(axis=0) * length, -1.0)
-    i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-    if score[i, j] <= 0:
+    a_all = np.unique(starts) if t0 is None else np.array([t0])
+    b_all = np.unique(ends) if t1 is None else np.array([t1])
+    best, span = 0.0, (math.nan, math.nan)
+    for a in a_all:  # topics x candidates per start: no cube of booleans for a big log
+        kept = np.sort(ends[starts <= a])
+        covering = kept.size - np.searchsorted(kept, b_all, side="left")
+        length = b_all - a
+        score = np.where(length * rate >= 1.0, covering * length, 0.0)
+        j = int(np.argmax(score))
+        if score[j] > best:
+            best, span = float(score[j]), (float(a), float(b_all[j]))
+    if not best > 0:
         raise DataFormatError(
             f"no span of two samples at {rate:g} Hz is covered by any channel without a gap"
         )
-    return float(a[i]), float(b[j])
+    return span
 
 
 def _whole_log_plan(
