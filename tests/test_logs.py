@@ -421,6 +421,13 @@ def test_a_whole_log_loads_what_can_be_resampled_over_its_bulk():
     a, b = data.metadata["resampling"]["window"]
     assert a == max(log[n].time[0] for n in data.channels) > 21.3
     assert b <= min(log[n].time[-1] for n in data.channels) and b - a > 4.9
+    spans = [
+        (c.time[0], c.time[-1])
+        for n, c in log.channels.items()
+        if n in data.channels or left[n] in ("outside the span", "a gap in the span")
+    ]
+    common = min(e for _, e in spans) - max(s for s, _ in spans)
+    assert common == pytest.approx(1.0, abs=0.1)  # what every channel covers
     # the gyro on the grid is exactly what a strict load of it over that span gives
     gyro = "vehicle_angular_velocity.xyz[0]"
     alone = aeroid.load_flight_test(ULOG, channels=[gyro], sample_rate=100, t0=a, t1=b)
