@@ -492,6 +492,13 @@ def test_the_whole_log_span_is_the_most_topic_seconds(tmp_path):
     with pytest.warns(UserWarning, match=r"1 of 11 channels left out: outside the span \(1\)"):
         data = aeroid.load_flight_test(later, sample_rate=25, t0=1.0)
     assert data.time[0] == 1.0 and data.time[-1] == pytest.approx(10.0)
+    # bad options are named before anything is resampled
+    with pytest.raises(DataFormatError, match=r"c\.h5: sample_rate: expected a positive"):
+        aeroid.load_flight_test(later, sample_rate=0)
+    with pytest.raises(DataFormatError, match=r"c\.h5: t0: expected a finite time"):
+        aeroid.load_flight_test(later, sample_rate=25, t0="start")
+    with pytest.raises(DataFormatError, match=r"c\.h5: max_gap: expected a positive"):
+        aeroid.load_flight_test(later, sample_rate=25, max_gap=-1.0)
     # nothing that can be resampled: an error, not an empty record
     empty = tmp_path / "empty.h5"
     with h5py.File(empty, "w") as f:
