@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -392,6 +393,119 @@ def test_load_flight_test_resamples_a_log():
     assert (
         src.values.min() - 1e-9 <= data["q0"].min() and data["q0"].max() <= src.values.max() + 1e-9
     )
+
+
+def test_a_whole_log_loads_what_can_be_resampled_over_its_bulk():
+    log = aeroid.read_log(ULOG)
+    with pytest.warns(UserWarning) as caught:
+        data = aeroid.load_flight_test(ULOG, sample_rate=100)
+    (warning,) = [w for w in caught if "left out" in str(w.message)]  # one warning
+    text = str(warning.message)
+    left = data.metadata["resampling"]["left_out"]
+    counts: dict[str, int] = {}
+    for why in left.values():
+        counts[why] = counts.get(why, 0) + 1
+    for why, k in counts.items():
+        assert f"{why} ({k})" in text
+    assert f"{len(left)} of {len(log.channels)} channels left out" in text
+    assert len(data.channels) + len(left) == len(log.channels)
+    assert len(data.channels) > 800  # of 1162
+    # why each is left out
+    assert left["battery_status.temperature"] == "NaN or inf"  # PX4 never set it
+    assert left["mission.count"] == "one sample"
+    assert left["yaw_estimator_status.yaw[0]"] == "outside the span"  # logged for 1 s
+    assert left["ekf_gps_drift.hpos_drift_rate"] == "a gap in the span"  # 1.2 s hole
+    # the span: from the last of the kept topics to start (the 1 Hz sensors start a
+    # second after the rest) to the first to end: 5 of the log's 6.5 s, where every
+    # channel's common span is about 1 s
+    a, b = data.metadata["resampling"]["window"]
+    assert a == max(log[n].time[0] for n in data.channels) > 21.3
+    assert b <= min(log[n].time[-1] for n in data.channels) and b - a > 4.9
+    spans = [
+        (c.time[0], c.time[-1])
+        for n, c in log.channels.items()
+        if n in data.channels or left[n] in ("outside the span", "a gap in the span")
+    ]
+    common = min(e for _, e in spans) - max(s for s, _ in spans)
+    assert common == pytest.approx(1.0, abs=0.1)  # what every channel covers
+    # the gyro on the grid is exactly what a strict load of it over that span gives
+    gyro = "vehicle_angular_velocity.xyz[0]"
+    alone = aeroid.load_flight_test(ULOG, channels=[gyro], sample_rate=100, t0=a, t1=b)
+    np.testing.assert_array_equal(data[gyro], alone[gyro])
+    assert data.units[gyro] == "rad/s"
+    # channels= keeps the strict rule: an error naming the channel
+    with pytest.raises(DataFormatError, match=r"'battery_status.temperature': nan value"):
+        aeroid.load_flight_test(ULOG, channels=["battery_status.temperature"], sample_rate=100)
+
+
+def test_the_readme_whole_log_snippet_runs(monkeypatch, capsys):
+    import re
+
+    text = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    (block,) = [b for b in re.findall(r"```py\n(.*?)```", text, flags=re.S) if "read_log" in b]
+    monkeypatch.chdir(Path(__file__).parents[1])  # the snippet runs from a clone's root
+    namespace: dict[str, object] = {}
+    with pytest.warns(UserWarning, match="336 of 1162 channels left out"):
+        exec(compile(block, "README.md", "exec"), namespace)
+    out = capsys.readouterr().out
+    assert "76 of 1162 channels flagged" in out and "1. frozen" in out
+    assert "- constant: 624 channels" in out
+    data = namespace["data"]
+    assert len(data.channels) == 826  # type: ignore[attr-defined]
+    assert data.time[0] == pytest.approx(21.33, abs=0.005)  # type: ignore[attr-defined]
+    assert data.time[-1] == pytest.approx(26.29, abs=0.01)  # type: ignore[attr-defined]
+
+
+def _topics_file(path: Path, spans: dict[str, tuple[float, float]]) -> Path:
+    """An HDF5 log with one group per topic, each a 50 Hz sine over its span."""
+    with h5py.File(path, "w") as f:
+        for topic, (start, end) in spans.items():
+            t = np.arange(start, end + 1e-9, 0.02)
+            f[f"{topic}/time"] = t
+            f[f"{topic}/x"] = np.sin(t)
+    return path
+
+
+def test_the_whole_log_span_is_the_most_topic_seconds(tmp_path):
+    # ten topics over [0, 10] s, one over [4, 5] s: the common span would be 1 s; the
+    # chosen one keeps ten topics for 10 s and leaves the short one out
+    spans = {f"t{i}": (0.0, 10.0) for i in range(10)}
+    path = _topics_file(tmp_path / "a.h5", {**spans, "event": (4.0, 5.0)})
+    with pytest.warns(UserWarning, match=r"1 of 11 channels left out: outside the span \(1\)"):
+        data = aeroid.load_flight_test(path, sample_rate=25)
+    assert data.time[0] == 0.0 and data.time[-1] == pytest.approx(10.0)
+    assert data.metadata["resampling"]["left_out"] == {"event.x": "outside the span"}
+    # a topic that starts 0.5 s late costs 5 % of the span and is worth 1/11 of the
+    # topics: it is kept (10.5 topic-seconds gained); one that starts 2 s late is not
+    late = _topics_file(tmp_path / "b.h5", {**spans, "late": (0.5, 10.0)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing left out: no warning
+        data = aeroid.load_flight_test(late, sample_rate=25)
+    assert data.time[0] == pytest.approx(0.5) and len(data.channels) == 11
+    later = _topics_file(tmp_path / "c.h5", {**spans, "late": (2.0, 10.0)})
+    with pytest.warns(UserWarning, match="outside the span"):
+        data = aeroid.load_flight_test(later, sample_rate=25)
+    assert data.time[0] == 0.0 and "late.x" not in data.channels
+    # t0/t1 fix the span; what does not cover it is left out
+    data = aeroid.load_flight_test(later, sample_rate=25, t0=3.0, t1=9.0)  # all cover it
+    assert len(data.channels) == 11 and (data.time[0], data.time[-1]) == (3.0, 9.0)
+    with pytest.warns(UserWarning, match=r"1 of 11 channels left out: outside the span \(1\)"):
+        data = aeroid.load_flight_test(later, sample_rate=25, t0=1.0)
+    assert data.time[0] == 1.0 and data.time[-1] == pytest.approx(10.0)
+    # bad options are named before anything is resampled
+    with pytest.raises(DataFormatError, match=r"c\.h5: sample_rate: expected a positive"):
+        aeroid.load_flight_test(later, sample_rate=0)
+    with pytest.raises(DataFormatError, match=r"c\.h5: t0: expected a finite time"):
+        aeroid.load_flight_test(later, sample_rate=25, t0="start")
+    with pytest.raises(DataFormatError, match=r"c\.h5: max_gap: expected a positive"):
+        aeroid.load_flight_test(later, sample_rate=25, max_gap=-1.0)
+    # nothing that can be resampled: an error, not an empty record
+    empty = tmp_path / "empty.h5"
+    with h5py.File(empty, "w") as f:
+        f["t/time"] = np.arange(10.0)
+        f["t/x"] = np.full(10, np.nan)
+    with pytest.raises(DataFormatError, match=r"empty\.h5: no channel of the log can be"):
+        aeroid.load_flight_test(empty, sample_rate=5)
 
 
 def test_records_are_exported():

@@ -159,7 +159,9 @@ def test_bad_input_is_refused_clearly():
     with pytest.raises(DataFormatError, match="saturation_run"):
         check_data_quality(data, saturation_run=2.5)
     one = _log(a=(np.array([1.0]), np.array([2.0])))
-    assert check_data_quality(one)["a"].flags == ("too_few_samples",)
+    assert check_data_quality(one, channels=["a"])["a"].flags == ("too_few_samples",)
+    # in a whole log, a topic logged once is what it is, not a defect
+    assert check_data_quality(one)["a"].notes == ("one_sample",)
 
 
 def test_a_doublet_from_trim_is_not_saturation_but_a_clipped_one_is():
@@ -172,3 +174,153 @@ def test_a_doublet_from_trim_is_not_saturation_but_a_clipped_one_is():
     # a smooth input clipped at its limits has no plateau elsewhere: flagged
     raw = 1.5 * np.sin(2 * np.pi * 0.5 * t) + 0.01 * np.random.default_rng(1).standard_normal(N)
     assert "saturation" in check_data_quality(FlightData(t, {"x": raw.clip(-1, 1)}))["x"].flags
+
+
+# -- a whole log, judged as a log ------------------------------------------------------
+
+
+def _px4_stamps(rate: float, duration: float, rng: np.random.Generator) -> np.ndarray:
+    """Stamps as PX4's logger writes a fast topic: on the publisher's own period, with a
+    sample overwritten before the logger's loop came round now and then (a step of two
+    periods), and the stream starting 0.15 s after the first sample it subscribed to."""
+    n = int(duration * rate)
+    missed = rng.random(n) < 0.3
+    missed[1:] &= ~missed[:-1]  # the logger's loop is faster than two periods
+    t = np.flatnonzero(~missed) / rate
+    return np.concatenate([[t[0] - 0.15], t]) + 10.0
+
+
+def _planted_log(seed: int = 0) -> FlightLog:
+    """A log of five topics with one defect planted per channel (see the test)."""
+    rng = np.random.default_rng(seed)
+    chans: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    t = _px4_stamps(400.0, 20.0, rng)
+    wave = np.sin(2 * np.pi * 0.7 * t)
+    noisy = wave + 0.01 * rng.standard_normal(t.size)
+    chans["imu.p"] = (t, noisy)  # clean, on PX4-like stamps
+    q = wave + 0.01 * rng.standard_normal(t.size)
+    q[t.size // 2] = np.nan
+    chans["imu.q"] = (t, q)  # one NaN mid-flight
+    r = wave + 0.01 * rng.standard_normal(t.size)
+    mid = int(np.searchsorted(t, 18.0))
+    r[mid : mid + 60] = r[mid]  # stuck for 60 samples (~0.2 s) mid-flight
+    chans["imu.r"] = (t, r)
+    chans["imu.device_id"] = (t, np.full(t.size, 4242.0))  # an id: constant by design
+    chans["imu.temperature"] = (t, np.full(t.size, np.nan))  # never set
+    ta = 10.0 + np.arange(1000) / 50.0
+    ta = np.delete(ta, np.s_[500:525])  # half a second lost mid-flight
+    chans["air.v"] = (ta, 20 + np.sin(ta) + 0.01 * rng.standard_normal(ta.size))
+    ts = 10.0 + np.arange(2000) / 100.0
+    chans["servo.aileron"] = (ts, (1.5 * np.sin(2 * np.pi * 0.5 * ts)).clip(-1, 1))  # clipped
+    chans["servo.armed"] = (ts, (ts > 12.0).astype(float))  # a boolean at its two states
+    tc = 10.0 + np.cumsum((1 + 0.3 * rng.standard_normal(2000)).clip(0.55, 1.45)) / 100.0
+    chans["clock.x"] = (tc, np.sin(tc) + 0.01 * rng.standard_normal(tc.size))  # wandering clock
+    # an estimator on a 200 Hz IMU: two or three IMU periods a step (1 or 1.5 median steps)
+    te = 10.0 + np.cumsum(rng.choice([2, 3], size=1500, p=[0.7, 0.3])) / 200.0
+    chans["ekf.x"] = (te, np.cos(te) + 0.01 * rng.standard_normal(te.size))
+    chans["mission.id"] = (np.array([3.0]), np.array([7.0]))  # logged once
+    return _log(**chans)
+
+
+def test_a_whole_log_finds_each_planted_defect_and_notes_the_rest():
+    log = _planted_log()
+    report = check_data_quality(log)
+    assert report.whole_log
+    expected = {
+        "imu.p": (),
+        "imu.q": ("non_finite",),
+        "imu.r": ("frozen",),
+        "imu.device_id": (),
+        "imu.temperature": (),
+        "air.v": ("dropouts",),
+        "servo.aileron": ("saturation",),
+        "servo.armed": (),
+        "clock.x": ("jitter",),
+        "ekf.x": (),
+        "mission.id": (),
+    }
+    assert dict(report.flags) == expected
+    assert report["imu.q"].non_finite == 1
+    assert report["imu.r"].frozen == pytest.approx(59 / 400, rel=0.5)  # 59 steps of 1-2 periods
+    assert dict(report.notes) == {
+        "constant": ("imu.device_id",),
+        "never_set": ("imu.temperature",),
+        "one_sample": ("mission.id",),
+    }
+    # PX4's logging (steps of one or two periods, the stream starting late) is no defect
+    assert report["imu.p"].jitter > 0.3 and report["imu.p"].off_period < 0.01
+    assert report["ekf.x"].jitter > 0.2 and report["ekf.x"].off_period < 1e-9
+    assert report["imu.p"].dropouts == 1  # the start-up hole, counted but not flagged
+    # ranked: values lost or stuck first, then holes, clipping, timing
+    assert [f for f, _ in report.ranked] == [
+        "non_finite",
+        "frozen",
+        "dropouts",
+        "saturation",
+        "jitter",
+    ]
+    text = report.summary()
+    assert text.index("1. non_finite: 1 — imu (1)") < text.index("5. jitter: 1 — clock (1)")
+    assert "- constant: 1 channels in 1 topics" in text and "| imu.p |" not in text
+    # the same channels chosen one by one keep the per-channel rules
+    chosen = check_data_quality(log, channels=list(log.channels))
+    assert not chosen.whole_log
+    assert chosen["imu.device_id"].flags == ("jitter", "dropouts", "constant")
+    assert "jitter" in chosen["imu.p"].flags and "saturation" in chosen["servo.armed"].flags
+    assert "jitter" in chosen["ekf.x"].flags
+    assert chosen["mission.id"].flags == ("too_few_samples",)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_frozen_needs_a_run_its_own_repeats_do_not_explain(seed):
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) / FS
+    noisy = np.sin(t) + 0.01 * rng.standard_normal(N)
+    # a quantised signal repeats its neighbours often: long runs are its shape
+    quantised = np.round(np.sin(0.2 * t) * 20)
+    stepped = 0.1 + np.where((t > 5) & (t < 7), 1.0, 0.0) - np.where((t > 7) & (t < 9), 1.0, 0.0)
+    report = check_data_quality(_log(noisy=(t, noisy), q=(t, quantised), s=(t, stepped)))
+    assert report.ok, report.flags
+    stuck = noisy.copy()
+    stuck[2000:2006] = stuck[2000]  # six samples: 1e-3 chance needs n p^5 < 1e-3, p = 0
+    assert check_data_quality(_log(x=(t, stuck)))["x"].flags == ("frozen",)
+
+
+def test_the_shipped_px4_log_before_and_after():
+    pytest.importorskip("pyulog")
+    log = aeroid.read_log(Path(__file__).parent / "data" / "px4" / "sample_log_small.ulg")
+    before = check_data_quality(log, channels=list(log.channels))  # the per-channel rules
+    assert len(before.channels) == 1162 and len(before.flagged) == 977
+    after = check_data_quality(log)
+    assert len(after.flagged) < 100  # 76: clipping, timing of 3 topics, frozen, a hole
+    notes = after.notes
+    assert (len(notes["constant"]), len(notes["one_sample"]), len(notes["never_set"])) == (
+        624,
+        145,
+        37,
+    )
+    flags = {f for f, _ in after.ranked}
+    assert not flags & {"constant", "too_few_samples"}
+    # the 400 Hz gyro, logged at one or two publication periods, is not jitter, nor the
+    # 100 Hz estimator stepping two or three periods of its 200 Hz IMU
+    for name in ("vehicle_angular_velocity.xyz[0]", "estimator_status.states[0]"):
+        assert after[name].flags == () and after[name].jitter > 0.1
+        assert after[name].off_period < 0.05
+    # the one hole inside a stream: ekf_gps_drift, 1.2 s
+    assert set(dict(after.ranked)["dropouts"]) == {
+        n for n in log.channels if n.startswith("ekf_gps_drift.")
+    }
+    # PX4 leaves unset fields NaN: noted, not flagged
+    assert "battery_status.temperature" in notes["never_set"]
+
+
+@pytest.mark.parametrize("sigma", [0.15, 0.3, 1.0])
+def test_a_wandering_clock_fits_no_period_of_a_whole_log(sigma):
+    # stamps scattered about a uniform grid by sigma steps fit none of the periods
+    # (median / k, k = 1..4): the steps scatter by sigma sqrt(2) median steps, k sigma
+    # sqrt(2) periods, wrapped to at most about 0.29 (uniform over a period)
+    rng = np.random.default_rng(11)
+    t = (np.arange(3000) + sigma * rng.standard_normal(3000)) / 100.0
+    t.sort()
+    c = check_data_quality(_log(x=(t, np.sin(t))))["x"]
+    assert "jitter" in c.flags and c.off_period > 0.12

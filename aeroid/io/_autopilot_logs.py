@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -385,3 +386,120 @@ def _df_collect_text(reader: Any) -> list[tuple[Any, dict[str, NDArray[Any]]]]:
                 values[column] = np.asarray([str(c) for c in cells])
         out.append((fmt, values))
     return out
+
+
+# -- a whole log on one grid -----------------------------------------------------------
+
+
+def _usable_run(src: Any, rate: float, max_gap: float | None) -> tuple[float, float, bool]:
+    """The longest stretch of a cleaned channel the resampler takes at `rate` without a
+    refused gap, as (start, end, cut): cut is True when a gap shortened it.
+
+    A side that a gap bounds is pulled in by the anti-aliasing filter's half length
+    (and half a step), since the resampler checks for gaps that far outside its grid.
+    """
+    from ._regrid import _SAME_RATE, GAP_STEPS, design_anti_alias
+
+    time = src.time
+    limit = GAP_STEPS * src.step if max_gap is None else max_gap
+    cuts = np.flatnonzero(np.diff(time) > limit)
+    if not cuts.size:
+        return float(time[0]), float(time[-1]), False
+    first = np.concatenate([[0], cuts + 1])
+    last = np.concatenate([cuts, [time.size - 1]])
+    best = int(np.argmax(time[last] - time[first]))
+    start, end = float(time[first[best]]), float(time[last[best]])
+    source_rate = 1.0 / src.step
+    edge = 0.5 * src.step
+    if source_rate > _SAME_RATE * rate:
+        edge += float(design_anti_alias(source_rate, rate)[1]["edge_s"])
+    if best > 0:
+        start += edge
+    if best < cuts.size:
+        end -= edge
+    return start, end, True
+
+
+def _best_span(
+    runs: Mapping[Any, tuple[float, float]], rate: float, t0: float | None, t1: float | None
+) -> tuple[float, float]:
+    """The span [a, b] that makes the most topic-seconds: topics covering it times its
+    length (see `_whole_log_plan`); `t0`/`t1`, where given, fix its ends."""
+    starts = np.array([r[0] for r in runs.values()])
+    ends = np.array([r[1] for r in runs.values()])
+    if t0 is not None:
+        starts = np.maximum(starts, t0)
+    if t1 is not None:
+        ends = np.minimum(ends, t1)
+    a_all = np.unique(starts) if t0 is None else np.array([t0])
+    b_all = np.unique(ends) if t1 is None else np.array([t1])
+    best, span = 0.0, (math.nan, math.nan)
+    for a in a_all:  # topics x candidates per start: no cube of booleans for a big log
+        kept = np.sort(ends[starts <= a])
+        covering = kept.size - np.searchsorted(kept, b_all, side="left")
+        length = b_all - a
+        score = np.where(length * rate >= 1.0, covering * length, 0.0)
+        j = int(np.argmax(score))
+        if score[j] > best:
+            best, span = float(score[j]), (float(a), float(b_all[j]))
+    if not best > 0:
+        raise DataFormatError(
+            f"no span of two samples at {rate:g} Hz is covered by any channel without a gap"
+        )
+    return span
+
+
+def _whole_log_plan(
+    log: FlightLog, rate: float, max_gap: float | None, t0: float | None, t1: float | None
+) -> tuple[dict[str, str], float, float, dict[str, str]]:
+    """The channels of a whole log that go on one grid at `rate`, the span, and the reason
+    each other channel is left out.
+
+    The span is the one that the most topics cover for the longest: the [a, b], with a
+    a topic's start and b a topic's end, that maximises (topics covering it) x (b - a).
+    Topics count, not channels: a topic's fields share its stamps, and a topic of a
+    hundred fields logged once would otherwise choose the span. The intersection of
+    every channel would be set by the shortest (a topic logged only around an event),
+    the union would leave most channels short of it; the product keeps the longest
+    span that most of the log covers, and gives up a topic only where its loss buys
+    more length than it costs. A channel covers the span when its longest stretch
+    without a gap the resampler refuses (`max_gap`, default 5 median steps) does.
+    """
+    from ._regrid import clean_source
+
+    left: dict[str, str] = {}
+    chan_run: dict[str, tuple[float, float, bool]] = {}
+    topic_run: dict[tuple[str, int, float, float], tuple[float, float, bool]] = {}
+    for name, channel in log.channels.items():
+        time = channel.time
+        if np.unique(time).size < 2:
+            left[name] = "one sample"
+            continue
+        if not np.all(np.isfinite(channel.values)):
+            left[name] = "NaN or inf"
+            continue
+        # a topic's fields share its stamps: its run is found once
+        key = (name.partition(".")[0], int(time.size), float(time[0]), float(time[-1]))
+        if key not in topic_run:
+            try:
+                start, end, cut = _usable_run(clean_source(name, channel), rate, max_gap)
+            except DataFormatError:
+                start, end, cut = math.nan, math.nan, True  # a clock that steps back
+            topic_run[key] = (start, end, cut)
+        chan_run[name] = topic_run[key]
+    usable = {k: v[:2] for k, v in topic_run.items() if v[1] > v[0]}
+    if not usable:
+        raise DataFormatError("no channel of the log can be resampled")
+    a, b = _best_span(usable, rate, t0, t1)
+    mapping: dict[str, str] = {}
+    for name, (start, end, cut) in chan_run.items():
+        time = log.channels[name].time
+        if math.isnan(start):
+            left[name] = "stamps step back"
+        elif start <= a and end >= b:
+            mapping[name] = name
+        elif cut and time[0] <= a and time[-1] >= b:
+            left[name] = "a gap in the span"
+        else:
+            left[name] = "outside the span"
+    return mapping, a, b, left

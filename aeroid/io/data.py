@@ -381,7 +381,10 @@ def load_flight_test(
     sample_rate : float, optional
         Logs only: resample the channels, each on its own stamps, onto one
         uniform grid at this rate (Hz) with `aeroid.io.resampling.resample`.
-        Without it, the channels must share their time stamps.
+        Without it, the channels must share their time stamps. Without
+        `channels`, the whole log: the channels that can be resampled go on
+        the grid over the span the bulk of the log covers, and the others are
+        left out with one warning (see Notes).
     max_gap : float, optional
         Logs only, with `sample_rate`: longest gap in a channel's stamps (s)
         to interpolate across; passed to the resampler.
@@ -410,6 +413,22 @@ def load_flight_test(
     parsed by pyarrow; comment (``#``) and blank lines before the header are
     skipped, and a bad cell is reported by row (the header is row 1) and
     column.
+
+    A whole log (`sample_rate` without `channels`) is a first look at
+    everything, not a fit: a PX4 log holds fields never set (NaN), topics
+    logged once, and topics that start late, stop early or only exist around
+    an event, so the span every channel covers is short (about 1 s of the
+    shipped PX4 sample's 6.5 s). The grid spans instead the [a, b] that makes
+    the most topic-seconds: with a the start of a topic and b the end of one, it maximises
+    (topics covering it) x (b - a), a topic covering it when its longest
+    stretch without a gap the resampler refuses (`max_gap`) does. Topics
+    count, not channels, since a topic's fields share its stamps. So a topic
+    is given up only where the length it costs outweighs its share of the
+    topics, and a short or late topic cannot shrink the grid. `t0`/`t1`
+    fix either end. Left out, with one warning counting them by reason and
+    ``metadata["resampling"]["left_out"]`` naming each: channels with a NaN
+    or inf, with one sample, with a gap inside the span, and outside it.
+    With `channels`, a channel that cannot be resampled is an error naming it.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise DataFormatError(
@@ -626,11 +645,17 @@ def _load_log(
             raise DataFormatError(f"{p}: {exc}") from None
     from ._regrid import flightlog_parts, regrid
 
+    left: dict[str, str] = {}
     try:
+        if channels is None:  # the whole log: what can go on the grid, over its bulk
+            mapping, t0, t1, left = _whole_log_grid(p, log, sample_rate, max_gap, t0, t1)
         parts = flightlog_parts(log)
         data = regrid(*parts, mapping, rate=sample_rate, max_gap=max_gap, t0=t0, t1=t1)
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
+    if left:
+        resampling = {**data.metadata["resampling"], "left_out": left}
+        data = data._replace(metadata={**data.metadata, "resampling": resampling})
     extra = dict(units or {})
     unknown = sorted(set(extra) - set(data.channels))
     if unknown:
@@ -639,3 +664,42 @@ def _load_log(
     merged = {**log_units, **dict(data.units), **extra}
     merged = {n: u for n, u in merged.items() if n in data.channels}
     return FlightData(data.time, dict(data.channels), merged, {**dict(data.metadata), **metadata})
+
+
+def _whole_log_grid(
+    p: Path,
+    log: Any,
+    rate: Any,
+    max_gap: float | None,
+    t0: float | None,
+    t1: float | None,
+) -> tuple[dict[str, str], float, float, dict[str, str]]:
+    """The channels of a whole log to resample, the span, and those left out (one warning
+    says how many and why; see `aeroid.io._autopilot_logs._whole_log_plan`)."""
+    import warnings
+
+    from .._checks import positive_number
+    from ._autopilot_logs import _whole_log_plan
+    from ._regrid import _seconds
+
+    rate = positive_number(rate, "sample_rate", " in Hz")
+    gap = max_gap
+    if gap is not None and gap != float("inf"):
+        gap = positive_number(gap, "max_gap", " of seconds")
+    start = None if t0 is None else _seconds(t0, "t0")
+    end = None if t1 is None else _seconds(t1, "t1")
+    mapping, a, b, left = _whole_log_plan(log, rate, gap, start, end)
+    if left:
+        counts: dict[str, int] = {}
+        for why in left.values():
+            counts[why] = counts.get(why, 0) + 1
+        why_text = ", ".join(f"{why} ({k})" for why, k in counts.items())
+        warnings.warn(
+            f"{p}: {len(left)} of {len(log.channels)} channels left out: {why_text}; the "
+            f"{rate:g} Hz grid spans [{a:.6g}, {b:.6g}] s, the span most of the log covers "
+            "(metadata['resampling']['left_out'] names each; channels=... loads chosen "
+            "ones strictly)",
+            UserWarning,
+            stacklevel=4,
+        )
+    return mapping, a, b, left

@@ -1,11 +1,16 @@
 """Checks on flight data as it arrives: time-stamp jitter, duplicates, dropouts,
-saturation and aliasing, per channel, before any identification is run on it."""
+saturation and aliasing, per channel, before any identification is run on it.
+
+A whole autopilot log (a `FlightLog` checked without ``channels=``) is judged as a
+log: what a logger does by design (flags and ids that never change, fields it never
+sets, topics logged once or at their own irregular rates) is reported as information,
+grouped, and the defects are ranked (see `check_data_quality`)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any
 
@@ -31,7 +36,36 @@ FLAGS = {
     "(and more of them than held runs elsewhere)",
     "constant": "the channel never changes",
     "aliasing": "share of the spectrum in the top alias_band of the band above alias_limit",
+    "non_finite": "NaN or infinite values in a channel that holds finite ones too (whole log)",
+    "frozen": "a run of identical values inside a signal that otherwise changes, longer "
+    "than its own repeats make likely (whole log)",
 }
+# A whole log's defects, most serious first: values lost or stuck, then holes, clipping,
+# broken stamps, then what only degrades a resampled signal.
+RANKING = (
+    "non_finite",
+    "frozen",
+    "dropouts",
+    "saturation",
+    "non_increasing_stamps",
+    "duplicate_stamps",
+    "jitter",
+    "aliasing",
+    "too_few_samples",
+    "constant",
+)
+# What a whole log holds by design: reported, grouped, never counted as a defect.
+NOTES = {
+    "constant": "the same value throughout the log (a flag, id, setting or unused field)",
+    "never_set": "no finite value at all (PX4 logs an unset field as NaN, a limit as inf)",
+    "one_sample": "logged once (a topic published on an event, or at start-up)",
+}
+# The chance of a frozen run under the channel's own rate of repeated values, below
+# which the run is flagged (one false alarm in a thousand channels of pure chance).
+_FROZEN_CHANCE = 1e-3
+# A PX4 topic's period may be its median step over 1 to 4: the estimator publishes on
+# every second or third IMU sample, a rate controller every fourth to sixth.
+_DIVISORS = 4
 
 
 @dataclass(frozen=True)
@@ -70,6 +104,19 @@ class ChannelQuality:
         than 16 samples).
     flags : tuple of str
         The checks the channel fails (keys of `aeroid.io.quality.FLAGS`).
+    non_finite : int
+        NaN or infinite values.
+    frozen : float
+        Longest run of identical values inside the signal (not touching its
+        first or last sample, not at its extremes), s; whole-log checks only.
+    off_period : float
+        Whole-log checks: standard deviation of each regular step's distance
+        from a whole number of the topic's period (its median step over the
+        k = 1 .. 4 that fits best), in periods (NaN otherwise); the ``jitter``
+        flag of a whole log is judged on it.
+    notes : tuple of str
+        What the channel is by design rather than by fault (keys of
+        `aeroid.io.quality.NOTES`); whole-log checks only.
     """
 
     name: str
@@ -83,6 +130,10 @@ class ChannelQuality:
     saturation: float
     alias_fraction: float
     flags: tuple[str, ...]
+    non_finite: int = 0
+    frozen: float = 0.0
+    off_period: float = float("nan")
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -97,11 +148,16 @@ class DataQualityReport:
         The limits the flags were raised against.
     source : str
         The file the data came from, when its metadata says so.
+    whole_log : bool
+        True when a whole log was checked (a `FlightLog` without
+        ``channels=``): flags follow the whole-log rules and ``summary()``
+        ranks them, with what the log holds by design listed apart.
     """
 
     channels: Mapping[str, ChannelQuality]
     thresholds: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
+    whole_log: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "channels", MappingProxyType(dict(self.channels)))
@@ -122,6 +178,25 @@ class DataQualityReport:
         """True when no channel is flagged."""
         return not self.flagged
 
+    @property
+    def notes(self) -> Mapping[str, tuple[str, ...]]:
+        """Per note (keys of `aeroid.io.quality.NOTES`), the channels it applies to."""
+        out: dict[str, list[str]] = {}
+        for name, c in self.channels.items():
+            for note in c.notes:
+                out.setdefault(note, []).append(name)
+        return MappingProxyType({k: tuple(out[k]) for k in NOTES if k in out})
+
+    @property
+    def ranked(self) -> tuple[tuple[str, tuple[str, ...]], ...]:
+        """The flags raised, most serious first, each with the channels raising it."""
+        out: dict[str, list[str]] = {}
+        for name, c in self.channels.items():
+            for flag in c.flags:
+                out.setdefault(flag, []).append(name)
+        order = [f for f in RANKING if f in out] + sorted(set(out) - set(RANKING))
+        return tuple((f, tuple(out[f])) for f in order)
+
     def __getitem__(self, name: str) -> ChannelQuality:
         try:
             return self.channels[name]
@@ -131,22 +206,31 @@ class DataQualityReport:
             ) from None
 
     def summary(self) -> str:
-        """A Markdown table: one row per channel, then a legend of the flags raised."""
+        """A Markdown table: one row per channel, then a legend of the flags raised.
+
+        A whole log's summary ranks the flags first (most serious first, by
+        topic), lists what the log holds by design apart, and tabulates only
+        the flagged channels.
+        """
         head = f"Data quality{f' of {self.source}' if self.source else ''}: "
         head += (
             "no flags"
             if self.ok
             else f"{len(self.flagged)} of {len(self.channels)} channels flagged"
         )
-        lines = [
-            head,
-            "",
-            "| channel | samples | rate (Hz) | jitter | dup. | back | dropouts | longest gap (s) "
-            "| saturated | alias share | flags |",
-            "|---------|---------|-----------|--------|------|------|----------|-----------------"
-            "|-----------|-------------|-------|",
-        ]
-        for c in self.channels.values():
+        lines = [head, ""]
+        shown = list(self.channels.values())
+        if self.whole_log:
+            lines += _whole_log_lines(self)
+            shown = [c for c in shown if c.flags]
+        if shown:
+            lines += [
+                "| channel | samples | rate (Hz) | jitter | dup. | back | dropouts "
+                "| longest gap (s) | saturated | alias share | flags |",
+                "|---------|---------|-----------|--------|------|------|----------"
+                "|-----------------|-----------|-------------|-------|",
+            ]
+        for c in shown:
             lines.append(
                 f"| {c.name} | {c.n_samples} | {c.rate:.4g} | {c.jitter:.3g} | {c.duplicates} "
                 f"| {c.non_increasing} | {c.dropouts} | {c.longest_gap:.4g} | {c.saturation:.3g} "
@@ -156,6 +240,40 @@ class DataQualityReport:
         if raised:
             lines += ["", *(f"- {f}: {FLAGS[f]}" for f in raised)]
         return "\n".join(lines)
+
+
+def _topic(name: str) -> str:
+    """The topic (message, group) of a log channel: its name before the first dot."""
+    return name.partition(".")[0]
+
+
+def _by_topic(names: Sequence[str], most: int = 6) -> str:
+    """``topic (n), ...`` for the topics of `names`, the largest first, `most` shown."""
+    counts: dict[str, int] = {}
+    for name in names:
+        counts[_topic(name)] = counts.get(_topic(name), 0) + 1
+    order = sorted(counts, key=lambda t: (-counts[t], t))
+    text = ", ".join(f"{t} ({counts[t]})" for t in order[:most])
+    return text + (f", ... {len(order) - most} more" if len(order) > most else "")
+
+
+def _whole_log_lines(report: DataQualityReport) -> list[str]:
+    """The ranked defects and the grouped notes of a whole-log report."""
+    topics = {_topic(n) for n in report.channels}
+    lines = [f"Whole log: {len(report.channels)} channels in {len(topics)} topics."]
+    if report.ranked:
+        lines += ["", "Defects, most serious first (channels, by topic):", ""]
+        for rank, (flag, names) in enumerate(report.ranked, 1):
+            lines.append(f"{rank}. {flag}: {len(names)} — {_by_topic(names)}")
+    notes = report.notes
+    if notes:
+        lines += ["", "By design, not defects:", ""]
+        for note, names in notes.items():
+            lines.append(
+                f"- {note}: {len(names)} channels in {len({_topic(n) for n in names})} "
+                f"topics, {NOTES[note]}: {_by_topic(names)}"
+            )
+    return [*lines, ""]
 
 
 def _option(value: Any, what: str, *, low: float, high: float = math.inf) -> float:
@@ -290,6 +408,107 @@ def _check_channel(
     )
 
 
+def _off_period(time: FloatArray, dropout_factor: float) -> float:
+    """Scatter of a log's steps about whole multiples of the topic's period, in periods:
+    the period is the median step over the k = 1 .. `_DIVISORS` that fits best (see
+    `check_data_quality`); dropouts are left out."""
+    steps = np.diff(time)
+    forward = steps[steps > 0]
+    if forward.size < 2:
+        return 0.0
+    median = float(np.median(forward))
+    best = math.inf
+    for k in range(1, _DIVISORS + 1):
+        period = median / k
+        regular = forward[(forward >= 0.5 * period) & (forward <= dropout_factor * median)]
+        if regular.size < 2:
+            continue
+        ratio = regular / period
+        best = min(best, float(np.std(ratio - np.round(ratio))))
+    return 0.0 if math.isinf(best) else best
+
+
+def _longest_frozen(time: FloatArray, values: FloatArray, least: int) -> float:
+    """Seconds of the longest run of identical values inside the signal that its own
+    rate of repeats makes unlikely (0 when none): a sensor stuck mid-flight.
+
+    A run of k equal samples is k - 1 equal neighbours; with p the share of equal
+    neighbours elsewhere in the channel, n p^(k-1) runs that long are expected by
+    chance, and the run is frozen when that is below `_FROZEN_CHANCE`. A stepped or
+    quantised signal repeats often (p near 1) and is never frozen; a noisy sensor
+    (p near 0) is frozen after `least` samples. Runs touching the first or last
+    sample (the record starting or ending there) or at the channel's extremes
+    (saturation's business) are left out.
+    """
+    n = values.size
+    finite = values[np.isfinite(values)]
+    if n < 3 or finite.size < n:
+        return 0.0
+    same = values[1:] == values[:-1]
+    edges = np.diff(np.concatenate([[0], same.astype(np.int8), [0]]))
+    starts = np.flatnonzero(edges == 1)  # first sample of each run
+    ends = np.flatnonzero(edges == -1)  # last sample of each run
+    lo, hi = float(finite.min()), float(finite.max())
+    inside = (starts > 0) & (ends < n - 1) & (values[starts] != lo) & (values[starts] != hi)
+    if not inside.any():
+        return 0.0
+    lengths = ends - starts + 1
+    k = int(lengths[inside].max())
+    if k < least:
+        return 0.0
+    others = n - 1 - (k - 1)
+    p = (int(np.count_nonzero(same)) - (k - 1)) / others if others > 0 else 1.0
+    if n * p ** (k - 1) >= _FROZEN_CHANCE:
+        return 0.0
+    j = int(np.flatnonzero(inside & (lengths == k))[0])
+    return float(time[ends[j]] - time[starts[j]])
+
+
+def _as_whole_log(
+    c: ChannelQuality,
+    time: FloatArray,
+    values: FloatArray,
+    *,
+    jitter_limit: float,
+    dropout_factor: float,
+    saturation_run: int,
+) -> ChannelQuality:
+    """The flags of one channel of a whole log, judged as a log (see `check_data_quality`)."""
+    flags = [f for f in c.flags if f not in ("too_few_samples", "constant", "jitter")]
+    notes: list[str] = []
+    finite = np.isfinite(values)
+    non_finite = int(values.size - np.count_nonzero(finite))
+    if c.n_samples == 1:
+        notes.append("one_sample")
+    elif "too_few_samples" in c.flags:
+        flags.append("too_few_samples")  # an empty channel
+    if values.size and not finite.any():
+        notes.append("never_set")
+    elif non_finite:
+        flags.insert(0, "non_finite")
+    if "constant" in c.flags:
+        notes.append("constant")
+    off = float("nan")
+    if c.n_samples >= 2:
+        off = _off_period(time, dropout_factor)
+        if off > jitter_limit:
+            flags.append("jitter")
+        if "dropouts" in flags and c.rate > 0:
+            # the first and last steps are the topic's stream starting and stopping
+            inner = np.diff(time)[1:-1]
+            if not np.any(inner > dropout_factor * (1 + 1e-9) / c.rate):
+                flags.remove("dropouts")
+    if "saturation" in flags and np.unique(values[finite]).size <= 2:
+        flags.remove("saturation")  # a two-state channel's extremes are its states
+    frozen = _longest_frozen(time, values, saturation_run) if c.n_samples >= 3 else 0.0
+    if frozen > 0:
+        flags.insert(0, "frozen")
+    ordered = tuple(sorted(flags, key=lambda f: RANKING.index(f) if f in RANKING else 99))
+    return replace(
+        c, flags=ordered, non_finite=non_finite, frozen=frozen, off_period=off, notes=tuple(notes)
+    )
+
+
 def check_data_quality(
     data: FlightData | FlightLog,
     *,
@@ -307,7 +526,8 @@ def check_data_quality(
     data : FlightData or FlightLog
         A record on one time axis, or a log with each channel on its own stamps.
     channels : sequence of str, optional
-        Channels to check. Default: all.
+        Channels to check. Default: all; for a `FlightLog`, all is a whole-log
+        check (see Notes).
     jitter_limit : float, optional
         Flag a channel whose time steps vary by more than this fraction of
         the median step (standard deviation over median, dropouts left out).
@@ -344,6 +564,42 @@ def check_data_quality(
     median step; a channel with non-finite values gets no alias share. A
     channel with fewer than 2 samples is flagged ``too_few_samples`` rather
     than refused, so that one empty topic does not hide the rest of a log.
+
+    A whole log (a `FlightLog` without ``channels=``) is judged as a log, because
+    much of what the per-channel checks flag is what a logger does by design. The
+    numbers are the same; the flags differ:
+
+    * A channel with the same value throughout (a flag, an id, a setting, an unused
+      field: most of a PX4 log), one with no finite value at all (PX4 logs an unset
+      field as NaN and "no limit" as inf) and one logged once (a topic published on
+      an event) get ``notes`` (``constant``, ``never_set``, ``one_sample``), not flags.
+    * Stamp jitter is judged against what the logger does. A ULog stamp is the
+      publisher's own sample time, and PX4's estimator and controllers run on the
+      IMU's samples, so a topic's stamps lie on whole multiples of one period. That
+      period may be a fraction of the median step (the estimator, at 100 Hz on a
+      200 Hz IMU, steps two or three IMU periods), and the logger, which writes a
+      topic when its loop finds a new sample, leaves a step of two periods where a
+      sample was overwritten first. Neither misplaces a sample: the resampler puts
+      each at its own stamp. So the ``jitter`` flag of a whole log looks at how far
+      each step (below a dropout) lies from a whole number of periods, the period
+      being the median step over the k = 1 .. 4 that fits best (``off_period``, the
+      scatter in periods), against `jitter_limit`: a gyro stepping one or two
+      periods passes, stamps scattered by a wandering clock do not (a scatter spread
+      over the whole period is about 0.29 for every k).
+    * ``dropouts`` counts only holes inside a topic's stream: its first and last
+      steps are the stream starting and stopping (PX4 writes a topic's first sample
+      when it subscribes, the regular stream when logging starts).
+    * A channel with at most two values (a switch, a boolean) is not saturated at its
+      extremes: they are its states.
+    * Two faults are looked for that a record cannot hold: ``non_finite`` (NaN or
+      inf in a channel that also holds finite values) and ``frozen`` (a run of
+      identical values inside a signal that otherwise changes, longer than its own
+      rate of repeats makes likely: a sensor stuck mid-flight).
+
+    ``summary()`` then ranks the flags, most serious first (`RANKING`: lost or stuck
+    values, holes, clipping, broken stamps, then jitter and aliasing), by topic, and
+    lists the notes apart. A record (`FlightData`) and chosen channels of a log keep
+    the per-channel rules above unchanged.
     """
     if isinstance(data, FlightData):
         series = {n: (data.time, v) for n, v in data.channels.items()}
@@ -374,17 +630,23 @@ def check_data_quality(
         raise DataFormatError(f"saturation_run: expected an integer, got {plain(saturation_run)}")
     if not 0.0 < limits["alias_band"] < 1.0:
         raise DataFormatError(f"alias_band: expected a fraction in (0, 1), got {plain(alias_band)}")
-    report = {
-        name: _check_channel(
+    whole = isinstance(data, FlightLog) and channels is None
+    rules = {
+        "jitter_limit": limits["jitter_limit"],
+        "dropout_factor": limits["dropout_factor"],
+        "saturation_run": int(limits["saturation_run"]),
+    }
+    report = {}
+    for name, (time_in, values_in) in series.items():
+        time = np.asarray(time_in, dtype=np.float64)
+        values = np.asarray(values_in, dtype=np.float64)
+        one = _check_channel(
             name,
-            np.asarray(time, dtype=np.float64),
-            np.asarray(values, dtype=np.float64),
-            jitter_limit=limits["jitter_limit"],
-            dropout_factor=limits["dropout_factor"],
-            saturation_run=int(limits["saturation_run"]),
+            time,
+            values,
             alias_band=limits["alias_band"],
             alias_limit=limits["alias_limit"],
+            **rules,  # type: ignore[arg-type]
         )
-        for name, (time, values) in series.items()
-    }
-    return DataQualityReport(report, limits, str(data.metadata.get("source", "")))
+        report[name] = _as_whole_log(one, time, values, **rules) if whole else one  # type: ignore[arg-type]
+    return DataQualityReport(report, limits, str(data.metadata.get("source", "")), whole)
