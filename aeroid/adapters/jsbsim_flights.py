@@ -301,6 +301,18 @@ def fly_c172x(
         outside 10-400 Hz.
     SimulationError
         The trim fails or the flight diverges.
+
+    Notes
+    -----
+    Every channel of a sample is JSBSim's at the same step: the states, the
+    forces and the surface positions its flight controls set in that step,
+    which give the accelerations at that instant; a 50 Hz record is the same
+    flight's every-step record at every third step. JSBSim integrates the body
+    rates and the attitude by forward Euler (``q[k+1] = q[k] + h qdot[k]``) and
+    its alpha-dot terms use the previous step's accelerations, so a
+    continuous-time model fitted to the record sees the surfaces act about one
+    step late (4-8 ms at the 150 Hz step; under 2 ms at 400 Hz): a property of
+    the simulator's time step, not of the record.
     """
     if duration < 18.0:
         raise AdapterError(f"duration {duration!r} s: the c172x test inputs need at least 18 s")
@@ -451,8 +463,9 @@ def replay_c172x(
             else (float(fdm["fcs/effective-aileron-pos"]))
         )
         y = np.asarray(record[surface], dtype=np.float64)
-        # a sample holds the surface that acted over the step before it (`fly_c172x`
-        # records, then moves the surfaces): each step is commanded the next one's
+        # a command set before a step reaches these direct surfaces in that step, and a
+        # sample holds the surfaces set in the step ending at it (`fly_c172x` records,
+        # then commands): each step is commanded the record's surface at its end
         target = trim_pos + np.interp(fine + step, t, y - float(np.mean(y[start])))
         commands[prop] = (
             float(fdm[prop]) + _command(surface, target) - _command(surface, np.array(trim_pos))
