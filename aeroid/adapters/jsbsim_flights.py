@@ -585,6 +585,12 @@ def effective_derivatives(
     (`aeroid.models.aircraft.longitudinal`) identifies. The α̇ lift's arm about the
     centre of gravity stays in, a part in a thousand of ``Cm_alpha``.
 
+    ``Cl_alpha`` and ``Cn_alpha`` are the roll and yaw the angle of attack
+    brings in a wings-level trim: the c172x's centre of gravity lies off its
+    plane of symmetry (its seats are loaded unequally), so its lift rolls it
+    (``Cl_alpha`` about the lift slope times the offset in spans), a coupling
+    that a lateral model about a fixed trim does not hold.
+
     Parameters
     ----------
     condition : FlightCondition
@@ -593,8 +599,8 @@ def effective_derivatives(
     Returns
     -------
     dict of str to float
-        ``CL_alpha, CD_alpha, Cm_alpha, CL_q, Cm_q, CL_delta_e, Cm_delta_e,
-        CY_beta, Cl_beta, Cn_beta, Cl_p, Cn_p, Cl_r, Cn_r, CY_delta_r, Cl_delta_a,
+        ``CL_alpha, CD_alpha, Cm_alpha, Cl_alpha, Cn_alpha, CL_q, Cm_q, CL_delta_e,
+        Cm_delta_e, CY_beta, Cl_beta, Cn_beta, Cl_p, Cn_p, Cl_r, Cn_r, CY_delta_r, Cl_delta_a,
         Cn_delta_a, Cl_delta_r, Cn_delta_r``, and with ``"separate"`` also
         ``CL_alpha_dot, Cm_alpha_dot``.
     """
@@ -645,6 +651,7 @@ def effective_derivatives(
     plus, minus = at(alpha=alpha0 + da), at(alpha=alpha0 - da)
     s = slope(plus, minus, da)
     out.update(CL_alpha=s["CL"], CD_alpha=s["CD"], Cm_alpha=s["Cm"])
+    out.update(Cl_alpha=s["Cl"], Cn_alpha=s["Cn"])
     if separate:
         # the alpha-dot terms over the alpha-dot the alpha perturbation brings
         change = plus["ad"] - minus["ad"]
