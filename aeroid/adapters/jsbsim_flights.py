@@ -301,6 +301,18 @@ def fly_c172x(
         outside 10-400 Hz.
     SimulationError
         The trim fails or the flight diverges.
+
+    Notes
+    -----
+    Every channel of a sample is JSBSim's at the same step: the states, the
+    forces and the surface positions its flight controls set in that step,
+    which give the accelerations at that instant; a 50 Hz record is the same
+    flight's every-step record at every third step. JSBSim integrates the body
+    rates and the attitude by forward Euler (``q[k+1] = q[k] + h qdot[k]``) and
+    its alpha-dot terms use the previous step's accelerations, so a
+    continuous-time model fitted to the record sees the surfaces act about one
+    step late (4-8 ms at the 150 Hz step; under 2 ms at 400 Hz): a property of
+    the simulator's time step, not of the record.
     """
     if duration < 18.0:
         raise AdapterError(f"duration {duration!r} s: the c172x test inputs need at least 18 s")
@@ -451,8 +463,9 @@ def replay_c172x(
             else (float(fdm["fcs/effective-aileron-pos"]))
         )
         y = np.asarray(record[surface], dtype=np.float64)
-        # a sample holds the surface that acted over the step before it (`fly_c172x`
-        # records, then moves the surfaces): each step is commanded the next one's
+        # a command set before a step reaches these direct surfaces in that step, and a
+        # sample holds the surfaces set in the step ending at it (`fly_c172x` records,
+        # then commands): each step is commanded the record's surface at its end
         target = trim_pos + np.interp(fine + step, t, y - float(np.mean(y[start])))
         commands[prop] = (
             float(fdm[prop]) + _command(surface, target) - _command(surface, np.array(trim_pos))
@@ -572,6 +585,12 @@ def effective_derivatives(
     (`aeroid.models.aircraft.longitudinal`) identifies. The α̇ lift's arm about the
     centre of gravity stays in, a part in a thousand of ``Cm_alpha``.
 
+    ``Cl_alpha`` and ``Cn_alpha`` are the roll and yaw the angle of attack
+    brings in a wings-level trim: the c172x's centre of gravity lies off its
+    plane of symmetry (its seats are loaded unequally), so its lift rolls it
+    (``Cl_alpha`` about the lift slope times the offset in spans), a coupling
+    that a lateral model about a fixed trim does not hold.
+
     Parameters
     ----------
     condition : FlightCondition
@@ -580,8 +599,8 @@ def effective_derivatives(
     Returns
     -------
     dict of str to float
-        ``CL_alpha, CD_alpha, Cm_alpha, CL_q, Cm_q, CL_delta_e, Cm_delta_e,
-        CY_beta, Cl_beta, Cn_beta, Cl_p, Cn_p, Cl_r, Cn_r, CY_delta_r, Cl_delta_a,
+        ``CL_alpha, CD_alpha, Cm_alpha, Cl_alpha, Cn_alpha, CL_q, Cm_q, CL_delta_e,
+        Cm_delta_e, CY_beta, Cl_beta, Cn_beta, Cl_p, Cn_p, Cl_r, Cn_r, CY_delta_r, Cl_delta_a,
         Cn_delta_a, Cl_delta_r, Cn_delta_r``, and with ``"separate"`` also
         ``CL_alpha_dot, Cm_alpha_dot``.
     """
@@ -632,6 +651,7 @@ def effective_derivatives(
     plus, minus = at(alpha=alpha0 + da), at(alpha=alpha0 - da)
     s = slope(plus, minus, da)
     out.update(CL_alpha=s["CL"], CD_alpha=s["CD"], Cm_alpha=s["Cm"])
+    out.update(Cl_alpha=s["Cl"], Cn_alpha=s["Cn"])
     if separate:
         # the alpha-dot terms over the alpha-dot the alpha perturbation brings
         change = plus["ad"] - minus["ad"]
