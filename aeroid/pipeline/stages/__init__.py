@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import PipelineError
+from .._code import resolve
 from .._options import Options
 
 __all__ = [
@@ -253,18 +254,4 @@ def register_stage(stage: Stage) -> Stage:
 
 def resolve_callable(spec: str, *, what: str) -> Any:
     """Import ``package.module:attribute`` (dotted attributes allowed)."""
-    import importlib
-
-    module, sep, attr = spec.partition(":")
-    if not sep or not module or not attr:
-        raise PipelineError(f"{what} {spec!r}: expected 'package.module:attribute'")
-    try:
-        obj: Any = importlib.import_module(module)
-    except ImportError as exc:
-        raise PipelineError(f"{what} {spec!r}: cannot import {module!r} ({exc})") from None
-    for part in attr.split("."):
-        try:
-            obj = getattr(obj, part)
-        except AttributeError:
-            raise PipelineError(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
-    return obj
+    return resolve(spec, None, what=what, error=PipelineError)
