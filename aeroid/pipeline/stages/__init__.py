@@ -7,8 +7,9 @@ one `register_stage` call; pipelines (``pipelines/``) wire stages together.
 This package's modules are the stages seam: the built-in stages in
 `load_stage`, `library_stages` (one per library function), `analysis_stages`,
 `database_stage` and `campaign_report`, which `builtin` imports (and they
-register here) when `aeroid.pipeline` is imported; and `work`, a task's work
-in its stage in one call. The contract itself (this module) is the vocabulary
+register here) when `aeroid.pipeline` is imported; `work`, a task's work in
+its stage in one call; and `run_outputs`, what a run leaves once its tasks are
+done (the store's index, the database's files, the report) in one call. The contract itself (this module) is the vocabulary
 every seam shares: planning reads the stages' options, the run looks them up.
 """
 
