@@ -116,6 +116,7 @@ def test_a_task_passes_each_seam_once_from_the_run_to_its_entry(identify_way):
 # campaign task's parts counted through its stage, the records cached for a window let go;
 # those calls are the tasks' work, made again for every window, and are not the run's.
 RUN = {"aeroid.pipeline.running.runner", "aeroid.pipeline.running.streaming"}
+EXECUTOR = {f"aeroid.pipeline.running.{m}" for m in ("executors", "graph", "execution")}
 # what the run may ask a seam again after its one call there, a task at a time: the plan
 # stream `plan_run` handed back, read as the run goes (planned a flight at a time, so the
 # run's memory stays bounded per flight; at its end the stream keeps the plan's keys), and
@@ -149,6 +150,11 @@ def test_the_whole_way_from_run_passes_each_seam_once(identify_way):
     n = len(summary.plan.tasks)
     assert calls.count(("storage", "Lookup.find")) == n
     assert calls.count(("plans", "_kept")) == n + 1
+    # the executor's own calls, for each window's tasks: parts counted through their stage
+    # (`work.options_of`, the stage's `parts`), the window's cached records let go
+    executor = way.calls_from(EXECUTOR)
+    assert {seam for seam, _ in executor} == {"stages", "storage"}
+    assert {f for seam, f in executor if seam == "storage"} == {"record_cache"}
     # the store is opened once, inside the plan seam's call, and never by the run
     opened = [
         s for s in way.part(False) if s.kind == "call" and s.function == "ResultStore.__init__"
