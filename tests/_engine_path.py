@@ -1,11 +1,12 @@
 """Following one task through the campaign engine with `sys.setprofile`.
 
 `follow` runs a campaign in this process (``workers=0``) and records one task's
-way, from ``run(config)`` until the task's ``execute_task`` returns: every call
-and return that changes the innermost engine module (consecutive frames in one
-module are one stop). Work done for the run's other tasks (their own
-``execute_task`` or ``execute_part``) is left out; what the run does for all its
-tasks at once (planning, the look for stored entries) is on every task's way.
+way, from ``run(config)`` until ``run`` returns: every call and return that
+changes the innermost engine module (consecutive frames in one module are one
+stop). Work done for the run's other tasks (their own ``execute_task`` or
+``execute_part``) is left out; what the run does for all its tasks at once
+(planning, the look for stored entries, the report at the end) is on every
+task's way, before and after the task's own execution (its ``execute_task``).
 
 The accessors of `MESSAGES` (the task the plan hands to the run: plain data that
 travels to workers) are read as data, not as a visit to the module defining them.
@@ -14,7 +15,7 @@ travels to workers) are read as data, not as a visit to the module defining them
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
@@ -45,6 +46,7 @@ class Stop:
     entry: bool = False  # a call that moved into another seam
     on_stack: frozenset[str] = frozenset()  # seams below it when it was entered
     function: str = ""
+    caller: str = ""  # the engine module a call came from
 
 
 @dataclass
@@ -78,6 +80,16 @@ class Way:
                 again.append(s.seam)
             seen.add(s.seam)
         return again
+
+    def calls_from(self, callers: Collection[str]) -> list[tuple[str, str]]:
+        """(seam, function) of each call that the modules `callers` make into another
+        seam, outside the task's own execution. What a seam's call does inside (the
+        report reading the store) is that seam's own."""
+        return [
+            (s.seam, s.function)
+            for s in self.part(False)
+            if s.entry and s.seam is not None and s.caller in callers
+        ]
 
     def summary(self, in_task: bool | None = None) -> str:
         part = self.part(in_task)
@@ -121,7 +133,7 @@ def follow(
     flight = None if flight_index is None else flights[flight_index]
     key = next(t.key for t in planned.tasks if t.step == step and t.flight == flight)
     way = Way()
-    state: dict[str, Any] = {"current": None, "done": False}
+    state: dict[str, Any] = {"current": None}
 
     def seams_below(frame: FrameType | None) -> frozenset[str]:
         found = set()
@@ -140,23 +152,18 @@ def follow(
         entry = kind == "call" and seam is not None and (before is None or seam_of(before) != seam)
         below = seams_below(frame.f_back) if entry else frozenset()
         function = frame.f_code.co_qualname
-        way.stops.append(Stop(module, kind, owner == key, seam, entry, below, function))
+        caller = _innermost(frame.f_back) if kind == "call" else None
+        came_from = "" if caller is None else _module(caller)
+        way.stops.append(Stop(module, kind, owner == key, seam, entry, below, function, came_from))
 
     def profile(frame: FrameType, event: str, arg: Any) -> None:
-        if state["done"] or event not in ("call", "return") or not _engine(frame):
+        if event not in ("call", "return") or not _engine(frame):
             return  # the library, the standard library: the innermost engine frame stays
         owner = _task_of(frame)
         if owner is not None and owner != key:
             return  # another task's work
         if event == "call":
             note(frame, "call", owner)
-            return
-        if (
-            frame.f_code.co_name == "execute_task"
-            and owner == key
-            and _task_of(frame.f_back) is None
-        ):
-            state["done"] = True  # the task's status is made: its way ends here
             return
         caller = _innermost(frame.f_back)
         if caller is not None:

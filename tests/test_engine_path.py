@@ -110,15 +110,71 @@ def test_a_task_passes_each_seam_once_from_the_run_to_its_entry(identify_way):
     assert not [s for s in way.part(True) if s.seam == "plans"]
 
 
-def test_the_run_looks_at_the_store_once_for_every_task(identify_way):
+# the run itself: `run` and the streamed run it drives (the ledger calls no seam). The
+# executor's modules (`executors`, `graph`, `execution`) call the seams for the tasks of
+# each window it is handed: a task's `execute_task` (its `put`, asserted above), a
+# campaign task's parts counted through its stage, the records cached for a window let go;
+# those calls are the tasks' work, made again for every window, and are not the run's.
+RUN = {"aeroid.pipeline.running.runner", "aeroid.pipeline.running.streaming"}
+EXECUTOR = {f"aeroid.pipeline.running.{m}" for m in ("executors", "graph", "execution")}
+# what the run may ask a seam again after its one call there, a task at a time: the plan
+# stream `plan_run` handed back, read as the run goes (planned a flight at a time, so the
+# run's memory stays bounded per flight; at its end the stream keeps the plan's keys), and
+# the store's one look, asked whether a task is stored (`Lookup.find`)
+ASKED_A_TASK_AT_A_TIME = {("plans", "_kept"), ("storage", "Lookup.find")}
+
+
+def reentered_by_run(way: Way) -> list[tuple[str, str]]:
+    """The run's calls into a seam it had called before, less the asks above."""
+    seen: set[str] = set()
+    again = []
+    for seam, function in way.calls_from(RUN):
+        if seam in seen and (seam, function) not in ASKED_A_TASK_AT_A_TIME:
+            again.append((seam, function))
+        seen.add(seam)
+    return again
+
+
+def test_the_whole_way_from_run_passes_each_seam_once(identify_way):
     way, summary, _ = identify_way
-    before = [s for s in way.part(False) if s.entry and s.seam == "storage"]
-    looks = [s.function for s in before if s.on_stack == {"running"}]
-    # open the store, open one look at what is stored (`verified.look_up`: a listing per
-    # stage and the index, read once), then ask it a task at a time as the plan streams
-    assert looks[:2] == ["ResultStore.__init__", "look_up"]
-    assert set(looks[2:]) == {"Lookup.find"}
-    assert len(looks) - 2 == len(summary.plan.tasks)
+    print("\nits whole way from run(config):", way.summary(None))
+    assert reentered_by_run(way) == []
+    calls = way.calls_from(RUN)
+    # the plan seam once first (the config checked, the stream, the report path checked,
+    # the store opened with its look), the stages seam once last (the store's index, the
+    # database's files, the report)
+    assert calls[0] == ("plans", "plan_run")
+    assert calls[-1] == ("stages", "write_run_outputs")
+    assert set(calls[1:-1]) == ASKED_A_TASK_AT_A_TIME
+    # the look is asked once a task; the stream once a task and once more to end
+    n = len(summary.plan.tasks)
+    assert calls.count(("storage", "Lookup.find")) == n
+    assert calls.count(("plans", "_kept")) == n + 1
+    # the executor's own calls, for each window's tasks: parts counted through their stage
+    # (`work.options_of`, the stage's `parts`), the window's cached records let go
+    executor = way.calls_from(EXECUTOR)
+    assert {seam for seam, _ in executor} == {"stages", "storage"}
+    assert {f for seam, f in executor if seam == "storage"} == {"record_cache"}
+    # the store is opened once, inside the plan seam's call, and never by the run
+    opened = [
+        s for s in way.part(False) if s.kind == "call" and s.function == "ResultStore.__init__"
+    ]
+    assert len(opened) == 1 and "plans" in opened[0].on_stack
+
+
+def test_the_way_finder_sees_the_run_call_a_seam_again():
+    def call(seam: str, function: str) -> Stop:
+        below = frozenset({"running"})
+        return Stop(f"m.{seam}", "call", False, seam, True, below, function, min(RUN))
+
+    back = Stop("m.running", "return", False, "running")
+    once = Way([call("plans", "plan_run"), back, call("storage", "Lookup.find"), back])
+    once.stops += [call("storage", "Lookup.find"), back, call("stages", "write"), back]
+    assert reentered_by_run(once) == []
+    # today's startup asked the plan seam, the store and the stages seam apart
+    twice = Way([call("plans", "load_config"), back, call("plans", "plan_stream"), back])
+    twice.stops += [call("storage", "ResultStore.__init__"), back, call("storage", "look_up")]
+    assert reentered_by_run(twice) == [("plans", "plan_stream"), ("storage", "look_up")]
 
 
 def test_briefs_made_before_the_commit_equal_those_made_from_the_entry(tmp_path, monkeypatch):

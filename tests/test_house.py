@@ -164,7 +164,7 @@ def private_crossings() -> list[str]:
 def test_the_graph_sees_function_local_and_relative_imports():
     graph = import_graph()
     assert "aeroid.errors" in graph["aeroid.models.model"]
-    assert "aeroid.pipeline.storage.store" in graph["aeroid.pipeline.running.runner"]
+    assert "aeroid.pipeline.storage.store" in graph["aeroid.pipeline.running.executors"]
     # a cycle built by hand is found, and so is a function-local import
     toy = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert import_cycles(toy) == [["a", "b", "c"]]

@@ -15,7 +15,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from ..errors import ConfigError
+from ..errors import AeroidError, ConfigError
 
 __all__: list[str] = []
 
@@ -65,12 +65,18 @@ def user_module_name(module: str) -> str:
     return "_aeroid_user_" + module.replace(".", "__")
 
 
-def resolve(spec: str, base_dir: str | Path | None, *, what: str) -> Any:
+def resolve(
+    spec: str,
+    base_dir: str | Path | None,
+    *,
+    what: str,
+    error: type[AeroidError] = ConfigError,
+) -> Any:
     """``module:attribute`` (dotted attributes allowed): the module's file in `base_dir`
-    when there is one, else the installed module of that name."""
+    when there is one, else the installed module of that name; a problem raises `error`."""
     module, sep, attr = spec.partition(":")
     if not sep or not module or not attr:
-        raise ConfigError(f"{what} {spec!r}: expected 'package.module:attribute'")
+        raise error(f"{what} {spec!r}: expected 'package.module:attribute'")
     path = module_file(module, base_dir)
     try:
         if path is not None:
@@ -78,10 +84,10 @@ def resolve(spec: str, base_dir: str | Path | None, *, what: str) -> Any:
         else:
             obj = importlib.import_module(module)
     except ImportError as exc:
-        raise ConfigError(f"{what} {spec!r}: cannot import {module!r} ({exc})") from None
+        raise error(f"{what} {spec!r}: cannot import {module!r} ({exc})") from None
     for part in attr.split("."):
         try:
             obj = getattr(obj, part)
         except AttributeError:
-            raise ConfigError(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
+            raise error(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
     return obj

@@ -28,6 +28,7 @@ __all__ = [
     "file_digest",
     "keyed_text",
     "model_fingerprint",
+    "scalar_document",
     "sha256_hex",
     "stable_int",
     "task_key",
@@ -79,20 +80,32 @@ def _jsonable(value: Any) -> Any:
                 exc.path = f"[{i}]{exc.path}"
                 raise
         return items
-    if isinstance(value, (bool, str)):
+    if isinstance(value, str):
         return value
-    if isinstance(value, (int, np.integer)) and not isinstance(value, np.bool_):
-        return int(value)
-    if isinstance(value, np.bool_):
+    if (scalar := scalar_document(value)) is not NOT_SCALAR:
+        return scalar
+    if isinstance(value, np.ndarray):
+        return {"__array_digest__": array_digest(value)}
+    raise _NotJsonable(f"cannot hash a value of type {type(value).__name__} deterministically")
+
+
+# what `scalar_document` gives for a value that is no number
+NOT_SCALAR: Any = object()
+
+
+def scalar_document(value: Any) -> Any:
+    """A bool, int or float, Python's or NumPy's, as JSON holds it (a float that is not
+    finite as ``{"__float__": "nan" | "inf" | "-inf"}``); `NOT_SCALAR` for anything else."""
+    if isinstance(value, (bool, np.bool_)):
         return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
     if isinstance(value, (float, np.floating)):
         v = float(value)
         if math.isfinite(v):
             return v
         return {"__float__": "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")}
-    if isinstance(value, np.ndarray):
-        return {"__array_digest__": array_digest(value)}
-    raise _NotJsonable(f"cannot hash a value of type {type(value).__name__} deterministically")
+    return NOT_SCALAR
 
 
 def canonical_json(document: Any) -> bytes:

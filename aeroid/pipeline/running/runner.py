@@ -22,12 +22,11 @@ from typing import Any
 
 from ...errors import PipelineError
 from ..definition import Pipeline
-from ..plans.config import CampaignConfig, load_config
+from ..plans.config import CampaignConfig
 from ..plans.plan_cache import PlannedTask
-from ..plans.planning import Plan, Task, plan, plan_stream, resolve_model, store_argument
-from ..stages.campaign_report import check_report_path, html_report_path, write_report
-from ..stages.database_stage import write_database_files
-from ..storage.store import ResultStore
+from ..plans.planning import Plan, Task, plan, resolve_model, store_argument
+from ..plans.run_plan import html_report_path, plan_run
+from ..stages.run_outputs import write_run_outputs
 from .execution import (
     BY_ANOTHER_RUN,
     TaskStatus,
@@ -193,62 +192,41 @@ def _run(
     pipeline: Pipeline | None,
     allow_imports: bool,
 ) -> RunSummary:
-    if not isinstance(config, CampaignConfig):
-        config = load_config(config)
-    updates: dict[str, Any] = {}
-    if store is not None:
-        updates["store"] = store_argument(store)
-    if scheduler is not None:
-        updates["scheduler"] = scheduler
-    if workers is not None:
-        from ...errors import ConfigError
-        from ..plans.config import workers_problem
-
-        if problem := workers_problem(workers):  # model_copy below skips the validators
-            raise ConfigError(f"workers: {problem}")
-        updates["workers"] = workers
-    if updates:
-        config = config.model_copy(update=updates)
-    stream = plan_stream(config, pipeline=pipeline, allow_imports=allow_imports)
-    result_store = ResultStore(config.store_location)
-    if stream.has_campaign_tasks:
-        check_report_path(config, stream.input_files())
-    state = StreamedRun(result_store, config, progress)
+    # each seam once: the plan (config, stream, report path, the store and its look),
+    # the tasks (the stream read and the look asked a task at a time, the executor), the
+    # files the run leaves (the store's index, the database's files, the report)
+    ledger = Ledger()
+    start = plan_run(
+        config,
+        store=store,
+        scheduler=scheduler,
+        workers=workers,
+        pipeline=pipeline,
+        allow_imports=allow_imports,
+        planned=ledger.planned,
+    )
+    state = StreamedRun(start, ledger, progress)
     try:
-        state.consume(stream)
+        state.consume(start.tasks)
     finally:
         state.close()
-    ledger = state.ledger
-    state.record_checked()
-    # the report sees the campaign tasks and the statuses that carry warnings or errors
-    told = {s.key: s for _, s in ledger.told()}
-    report_plan = Plan(
-        config=stream.config,
-        pipeline=stream.pipeline,
-        tasks=[*_warned(ledger), *state.campaign],
-        flights=ledger.flights,
-        inputs=stream.inputs,
-    )
-    # the database's files first: the campaign report shows their section and plots
-    database_dir, database_error = write_database_files(report_plan, result_store, told)
-    report_path, columns, rows, report_error = write_report(
-        report_plan, result_store, told, database_dir=database_dir
-    )
+    committed = (((stage, key), w) for stage, key, w in ledger.committed())
+    out = write_run_outputs(start, ledger.told(), state.campaign, ledger.flights, committed)
     for t in state.campaign:  # the report task's status, where its entry could not be read
-        if t.key in told:
-            ledger.settle(state.campaign_index[t.key], told[t.key])
-    report_error = report_error or database_error
+        if t.key in out.statuses:
+            ledger.settle(state.campaign_index[t.key], out.statuses[t.key])
+    checked = start.config
 
     def replan() -> Plan:
-        return plan(config, pipeline=pipeline, allow_imports=allow_imports)
+        return plan(checked, pipeline=pipeline, allow_imports=allow_imports)
 
     return RunSummary(
         ledger=ledger,
-        report_path=report_path,
-        columns=columns,
-        rows=rows,
-        report_error=report_error,
-        database_dir=database_dir,
+        report_path=out.report_path,
+        columns=out.columns,
+        rows=out.rows,
+        report_error=out.report_error,
+        database_dir=out.database_dir,
         replan=replan,
         seconds={
             "plan": state.t_plan,
@@ -258,13 +236,3 @@ def _run(
             "compute": ledger.compute_seconds,
         },
     )
-
-
-def _warned(ledger: Ledger) -> list[Task]:
-    """Stand-ins for the flight tasks with warnings, as the report reads them (step,
-    stage, flight, key): it shows each flight's warnings in its section."""
-    return [
-        Task(t.key, t.step, t.stage, t.flight, {}, {}, {}, b"")
-        for t, s in ledger.told()
-        if s.warnings and t.flight is not None
-    ]

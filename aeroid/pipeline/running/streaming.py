@@ -18,13 +18,11 @@ import gc
 import sys
 import time
 import uuid
+from collections.abc import Iterator
 from typing import Any
 
-from ..plans import plan_cache
-from ..plans.config import CampaignConfig
-from ..plans.planning import PlanStream, Task
-from ..storage import verified
-from ..storage.store import ResultStore
+from ..plans.planning import Task
+from ..plans.run_plan import RunPlan
 from .execution import TaskStatus
 from .executors import executor_for
 from .ledger import Ledger
@@ -38,49 +36,38 @@ WINDOW_FLIGHTS = 2_000
 
 
 class StreamedRun:
-    """The state of a streamed run: the ledger, what the store holds, the window of
-    tasks to run, and what the index of checked entries gets at the end."""
+    """The state of a streamed run: the ledger, the store's look, and the window of
+    tasks to run."""
 
-    def __init__(self, result_store: ResultStore, config: CampaignConfig, progress: bool):
-        self.store = result_store
-        self.config = config
-        self.ledger = Ledger()
+    def __init__(self, start: RunPlan, ledger: Ledger, progress: bool):
+        self.store = start.store
+        self.look = start.look  # the store's one look, asked a task at a time
+        self.ledger = ledger
         self.scope = uuid.uuid4().hex
-        self.executor = executor_for(config.scheduler, config.workers)
-        self.look: verified.Lookup | None = None
+        self.executor = executor_for(start.config.scheduler, start.config.workers)
         self.failed: dict[str, TaskStatus] = {}  # run here and failed: later tasks take them
         self.campaign: list[Task] = []
         self.campaign_index: dict[str, int] = {}
         self.window: list[tuple[int, Task]] = []
         self.twins: list[tuple[int, int]] = []  # (task, earlier task of the same key)
         self.window_flights = 0
-        self.t_plan = self.t_check = self.t_run = 0.0
+        self.t_plan = self.t_run = 0.0
+        self.t_check = start.look_seconds
         self.bar: Any = None
         if progress and sys.stderr.isatty():
             from tqdm import tqdm
 
             self.bar = tqdm(desc="aeroid", unit="task", file=sys.stderr)
 
-    def record_checked(self) -> None:
-        """Add what this run committed and CRC-checked to the store's index (`verified`)."""
-        if self.look is not None:
-            committed = (((stage, key), w) for stage, key, w in self.ledger.committed())
-            self.look.record_run(self.store, committed)
-
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
 
-    def consume(self, stream: PlanStream) -> None:
-        """Plan, prune and run the stream a window of flights at a time."""
-        t = time.perf_counter()
-        # a listing per stage and the index of entries checked whole, read once: an entry
-        # the index holds with the same signature is trusted unopened (`verified`)
-        self.look = verified.look_up(self.store, stream.stages)
-        self.t_check += time.perf_counter() - t
+    def consume(self, tasks: Iterator[Task]) -> None:
+        """Plan, prune and run the stream a window of flights at a time (`tasks`: the
+        plan stream's, which keeps the plan's keys in the store at its end)."""
         flight: str | None = None
         seen: dict[str, int] = {}  # the current flight's keys (a key planned twice runs once)
-        tasks = iter(stream)
         while True:
             t = time.perf_counter()
             task = next(tasks, None)
@@ -103,13 +90,10 @@ class StreamedRun:
             t = time.perf_counter()
             self._prune(index, task)
             self.t_check += time.perf_counter() - t
-        # the plan's keys, for `aeroid status` on the unchanged campaign (`plan_cache`)
-        plan_cache.save(self.store, stream.inputs, self.ledger.planned())
         self._run_window()
 
     def _prune(self, index: int, task: Task) -> None:
         """Settle a stored task (trusted from the index, or CRC-checked), or queue it."""
-        assert self.look is not None
         found = self.look.find(self.store, (task.stage, task.key))
         if found is None:
             self.window.append((index, task))

@@ -7,8 +7,9 @@ one `register_stage` call; pipelines (``pipelines/``) wire stages together.
 This package's modules are the stages seam: the built-in stages in
 `load_stage`, `library_stages` (one per library function), `analysis_stages`,
 `database_stage` and `campaign_report`, which `builtin` imports (and they
-register here) when `aeroid.pipeline` is imported; and `work`, a task's work
-in its stage in one call. The contract itself (this module) is the vocabulary
+register here) when `aeroid.pipeline` is imported; `work`, a task's work in
+its stage in one call; and `run_outputs`, what a run leaves once its tasks are
+done (the store's index, the database's files, the report) in one call. The contract itself (this module) is the vocabulary
 every seam shares: planning reads the stages' options, the run looks them up.
 """
 
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import PipelineError
+from .._code import resolve
 from .._options import Options
 
 __all__ = [
@@ -253,18 +255,4 @@ def register_stage(stage: Stage) -> Stage:
 
 def resolve_callable(spec: str, *, what: str) -> Any:
     """Import ``package.module:attribute`` (dotted attributes allowed)."""
-    import importlib
-
-    module, sep, attr = spec.partition(":")
-    if not sep or not module or not attr:
-        raise PipelineError(f"{what} {spec!r}: expected 'package.module:attribute'")
-    try:
-        obj: Any = importlib.import_module(module)
-    except ImportError as exc:
-        raise PipelineError(f"{what} {spec!r}: cannot import {module!r} ({exc})") from None
-    for part in attr.split("."):
-        try:
-            obj = getattr(obj, part)
-        except AttributeError:
-            raise PipelineError(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
-    return obj
+    return resolve(spec, None, what=what, error=PipelineError)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
-import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...errors import AeroidError, ConfigError
-from ..plans.config import CampaignConfig, Options
+from ...errors import AeroidError
+from ..plans.config import Options
+from ..plans.run_plan import HTML_MARKER, MD_MARKER, html_report_path
 from . import CampaignReport, Stage, StageContext, register_stage
 from ._campaign_tables import (
     condition_text,
@@ -444,70 +444,9 @@ register_stage(
 
 # -- the files a run writes ---------------------------------------------------------------
 
-# the last line of every Markdown report a run writes: a file without it is not one of
-# ours, and is never overwritten
-_MD_MARKER = "<!-- written by aeroid: every run of the campaign rewrites this file -->"
-_HTML_MARKER = "<!-- aeroid campaign report"
-
 
 class ReportWriteError(AeroidError):
     """A campaign report could not be written (a full disk, a permission): names the path."""
-
-
-def html_report_path(markdown_path: Path) -> Path:
-    """Where the HTML twin of a campaign report lives."""
-    return markdown_path.with_suffix(".html")
-
-
-def _ours(path: Path, marker: str) -> bool:
-    """`path` is absent, or a report an earlier run wrote (it holds `marker`)."""
-    if not path.exists():
-        return True
-    try:
-        return marker.encode() in path.read_bytes()
-    except OSError:
-        return False
-
-
-def check_report_path(config: CampaignConfig, inputs: list[Path]) -> None:
-    """Refuse, before anything runs, a report path that cannot or must not be written.
-
-    `inputs`: the campaign's files (flight data, the config, the pipeline), which a
-    report must never replace.
-    """
-    path = config.report_path
-    where = f"{config.source}: report" if config.report else f"store {config.store}"
-    if config.name is not None and ("/" in config.name or "\\" in config.name):
-        raise ConfigError(
-            f"{config.source}: name: {config.name!r} names the report file; "
-            "no path separators in it"
-        )
-    if path.suffix.lower() in (".html", ".htm"):
-        raise ConfigError(
-            f"{where}: {path.name}: name the Markdown report (.md); its HTML twin is written "
-            "beside it"
-        )
-    if path.is_dir():
-        raise ConfigError(f"{where}: {path} is a folder; name a .md file")
-    resolved = {p.resolve() for p in inputs}
-    for target in (path, html_report_path(path)):
-        if target.resolve() in resolved:
-            raise ConfigError(f"{where}: {target} is an input of the campaign; name another file")
-    html = html_report_path(path)
-    # a Markdown report of an earlier version has no marker; its HTML twin has one
-    md_ours = _ours(path, _MD_MARKER) or (html.is_file() and _ours(html, _HTML_MARKER))
-    for target, ours in ((path, md_ours), (html, _ours(html, _HTML_MARKER))):
-        if not ours:
-            raise ConfigError(
-                f"{where}: {target} exists and was not written by aeroid; "
-                "move it away or name another report file"
-            )
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"{where}: cannot make {path.parent} ({exc.strerror or exc})") from None
-    if not os.access(path.parent, os.W_OK):
-        raise ConfigError(f"{where}: {path.parent} is not writable")
 
 
 def _write(path: Path, data: bytes) -> None:
@@ -566,12 +505,12 @@ def write_report(
     text = text.replace(f"]({_FIGURE_DIR}/", f"]({folder}/")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        marked = text.rstrip("\n") + "\n\n" + _MD_MARKER + "\n"
+        marked = text.rstrip("\n") + "\n\n" + MD_MARKER + "\n"
         target = html_report_path(path)
         # rebuilt only when the campaign report or its text (the config shown, the
         # warnings) changes: an unchanged rerun stays cheap
         digest = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
-        marker = f"{_HTML_MARKER} {task.key} {digest} -->"
+        marker = f"{HTML_MARKER} {task.key} {digest} -->"
         fresh = target.is_file() and marker in target.read_text(encoding="utf-8", errors="replace")
         if not fresh:
             if status.figures is not None:

@@ -26,9 +26,9 @@ from pydantic import Field
 
 from ...errors import AeroidError, DataFormatError, PipelineError
 from ...support import CONDITION_NAMES
-from ..plans.config import Options
 from . import Stage, StageContext, register_stage
 from ._database_report import replay_section
+from .signature_options import library_fields
 
 if TYPE_CHECKING:
     from ...uncertainty.database import AeroDatabase
@@ -42,18 +42,19 @@ CONDITION_KEYS = CONDITION_NAMES
 _COEFFICIENT = re.compile(r"^C[LDYlmn](_|$)")
 
 
-class DatabaseOptions(Options):
+class DatabaseOptions(
+    library_fields(  # type: ignore[misc]  # a generated base
+        "aeroid.uncertainty.database:aerodynamic_database",
+        *("terms", "keys", "max_degree", "f_in", "structures", "held_out", "confidence"),
+        max_degree=Field(None, ge=0, le=6),
+        f_in=Field(None, gt=0),
+        confidence=Field(None, gt=0, lt=1),
+    )
+):
     """`aeroid.aerodynamic_database` keywords (``terms``: default every identified
     coefficient named ``C<L,D,Y,l,m,n>_...``; ``keys``: default the flight-condition
     keys the flights give, of alpha, beta, airspeed, altitude, mach, dynamic_pressure)."""
 
-    terms: list[str] | None = None
-    keys: list[str] | None = None
-    max_degree: int | None = Field(None, ge=0, le=6)
-    f_in: float | None = Field(None, gt=0)
-    structures: dict[str, list[str]] | None = None
-    held_out: list[str] | None = None
-    confidence: float | None = Field(None, gt=0, lt=1)
     # the simulator that flies the held-out flights again with the exported database,
     # after the run, for the report (`aeroid.pipeline.stages._database_report`): no result
     # changes with it, so it stays out of the key
@@ -61,8 +62,6 @@ class DatabaseOptions(Options):
 
     execution_only: ClassVar[frozenset[str]] = frozenset({"replay"})
     engine_only: ClassVar[frozenset[str]] = frozenset({"replay"})
-
-    library: ClassVar[str] = "aeroid.uncertainty.database:aerodynamic_database"
 
 
 def _brief(role: str, record: Any) -> Any:

@@ -292,19 +292,9 @@ class _LocalBackend:
         tmp = f"{key}.{_hostname()}.{os.getpid()}.{os.urandom(4).hex()}"
         try:
             with self._folder_fd(_TMP, make=True) as tmp_dir:
-                fd = os.open(
-                    tmp,
-                    os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC,
-                    0o644,
-                    dir_fd=tmp_dir,
-                )
+                fd = self._create(tmp_dir, tmp)
                 try:
-                    try:
-                        view = memoryview(data)
-                        while view:
-                            view = view[os.write(fd, view) :]
-                    finally:
-                        os.close(fd)
+                    self._fill(fd, data)
                     with self._folder_fd(stage, make=True) as folder:
                         placed = _place(tmp_dir, tmp, folder, key + _SUFFIX)
                 except BaseException:
@@ -404,10 +394,15 @@ class _LocalBackend:
         return placed
 
     @staticmethod
-    def _write_new(folder: int, name: str, data: bytes) -> None:
-        fd = os.open(
-            name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC, 0o644, dir_fd=folder
-        )
+    def _create(folder: int, name: str) -> int:
+        """A new file `name` in `folder`, opened to write (never an existing one, nor
+        through a link)."""
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC
+        return os.open(name, flags, 0o644, dir_fd=folder)
+
+    @staticmethod
+    def _fill(fd: int, data: bytes) -> None:
+        """Write `data` whole to `fd` and close it."""
         try:
             view = memoryview(data)
             while view:
@@ -415,16 +410,27 @@ class _LocalBackend:
         finally:
             os.close(fd)
 
-    def read_small(self, stage: str, name: str) -> tuple[bytes, float] | None:
+    @classmethod
+    def _write_new(cls, folder: int, name: str, data: bytes) -> None:
+        cls._fill(cls._create(folder, name), data)
+
+    def _open_to_read(self, folder_name: str, name: str) -> int | None:
+        """A file of `folder_name` opened for reading, never through a link; None where
+        there is none."""
         try:
-            with self._folder_fd(stage) as folder:
-                fd = os.open(name, os.O_RDONLY | _NOFOLLOW | _CLOEXEC, dir_fd=folder)
+            with self._folder_fd(folder_name) as folder:
+                return os.open(name, os.O_RDONLY | _NOFOLLOW | _CLOEXEC, dir_fd=folder)
         except FileNotFoundError:
             return None
         except OSError as exc:
             if exc.errno in _LINK_ERRNOS:
-                raise _link_refused(str(self._shown(stage, name))) from None
-            raise _os_error("read", self._shown(stage, name), exc) from None
+                raise _link_refused(str(self._shown(folder_name, name))) from None
+            raise _os_error("read", self._shown(folder_name, name), exc) from None
+
+    def read_small(self, stage: str, name: str) -> tuple[bytes, float] | None:
+        fd = self._open_to_read(stage, name)
+        if fd is None:
+            return None
         try:
             age = time.time() - os.fstat(fd).st_mtime
             return os.read(fd, 4096), age
@@ -546,15 +552,9 @@ class _LocalBackend:
             os.close(fd)
 
     def read_plan(self, name: str) -> bytes | None:
-        try:
-            with self._folder_fd(_PLANS) as folder:
-                fd = os.open(name, os.O_RDONLY | _NOFOLLOW | _CLOEXEC, dir_fd=folder)
-        except FileNotFoundError:
+        fd = self._open_to_read(_PLANS, name)
+        if fd is None:
             return None
-        except OSError as exc:
-            if exc.errno in _LINK_ERRNOS:
-                raise _link_refused(str(self._shown(_PLANS, name))) from None
-            raise _os_error("read", self._shown(_PLANS, name), exc) from None
         with os.fdopen(fd, "rb") as file:
             return file.read()
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from ...errors import StoreError
 from ...support import legacy_name
+from ..keys import NOT_SCALAR, scalar_document
 
 __all__ = [
     "UnknownRecordType",
@@ -206,17 +207,10 @@ class _Encoder:
         return self._value(v, path)
 
     def _value(self, v: Any, path: str) -> Any:
-        if v is None or isinstance(v, (bool, str)):
+        if v is None or isinstance(v, str):
             return v
-        if isinstance(v, np.bool_):
-            return bool(v)
-        if isinstance(v, (int, np.integer)):
-            return int(v)
-        if isinstance(v, (float, np.floating)):
-            f = float(v)
-            if math.isfinite(f):
-                return f
-            return {"__float__": "nan" if math.isnan(f) else ("inf" if f > 0 else "-inf")}
+        if (scalar := scalar_document(v)) is not NOT_SCALAR:
+            return scalar
         if isinstance(v, np.ndarray):
             if v.dtype.kind in "US":
                 return {"__strings__": v.tolist(), "shape": list(v.shape)}
