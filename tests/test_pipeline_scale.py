@@ -11,6 +11,8 @@ from __future__ import annotations
 import collections
 import json
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -319,6 +321,34 @@ def test_a_ledger_keeps_a_few_bytes_a_task(tmp_path):
     assert [t.key for t in ledger.planned()] == [t.key for t in p.tasks]
 
 
+def _outcome(summary) -> dict:  # type: ignore[no-untyped-def]
+    report = next(s for s in summary.statuses.values() if s.step == "campaign_report")
+    doc = {
+        "failed": summary.failed,
+        "report": [report.status, sorted(report.failures)],
+        "rows": summary.rows,
+    }
+    return json.loads(json.dumps(doc))
+
+
+def _windowed_in_a_fresh_process(cfg: Path, store: Path) -> dict:
+    script = (
+        "import json, sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "import pytest\n"
+        "from test_pipeline_scale import _load_fails_on, _outcome\n"
+        "from aeroid.pipeline import run\n"
+        "from aeroid.pipeline.running import streaming\n"
+        "_load_fails_on(pytest.MonkeyPatch(), 'f00')\n"
+        "streaming.WINDOW_FLIGHTS = 1\n"
+        f"print(json.dumps(_outcome(run({str(cfg)!r}, store={str(store)!r}, workers=2))))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True, timeout=300
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 @pytest.mark.parametrize("executor", ["local pool", "dask threads"])
 def test_a_failed_flight_reaches_a_campaign_task_windows_later_on_every_executor(
     tmp_path, monkeypatch, executor
@@ -330,15 +360,17 @@ def test_a_failed_flight_reaches_a_campaign_task_windows_later_on_every_executor
     whole = run(cfg, store=tmp_path / "whole", workers=0)
     monkeypatch.setattr(streaming, "WINDOW_FLIGHTS", 1)
     if executor == "local pool":
-        windowed = run(cfg, store=tmp_path / "windowed", workers=2)
+        # in a fresh process: its forked workers inherit the planted failure (a pool
+        # spawns its workers instead once an earlier test here has loaded JAX)
+        got = _windowed_in_a_fresh_process(cfg, tmp_path / "windowed")
     else:
         distributed = pytest.importorskip("distributed")
         with distributed.LocalCluster(
             n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
         ) as cluster:
             windowed = run(cfg, store=tmp_path / "windowed", scheduler=cluster.scheduler_address)
-    assert windowed.failed == whole.failed == 2
-    report = next(s for s in windowed.statuses.values() if s.step == "campaign_report")
-    assert report.status == "computed" and set(report.failures) == {"f00"}
-    assert whole.rows == windowed.rows
+        got = _outcome(windowed)
+    assert got == _outcome(whole)
+    assert got["failed"] == 2
+    assert got["report"] == ["computed", ["f00"]]
     assert _arrays(open_store(tmp_path / "whole")) == _arrays(open_store(tmp_path / "windowed"))
