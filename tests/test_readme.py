@@ -26,7 +26,7 @@ def test_readme_has_the_two_commands():
     (command,) = [line for line in ci.splitlines() if line.startswith("python3 -m pip install")]
     assert command.startswith('python3 -m pip install -e ".[all,test]" && ')
     assert "ruff check aeroid tests" in command and "&& mypy &&" in command
-    assert command.endswith("&& python3 -m pytest")
+    assert command.endswith("&& python3 -m pytest -n auto")
     assert command in text
 
 
