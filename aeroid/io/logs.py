@@ -161,7 +161,9 @@ def _resolve_format(path: Path, format: str | None) -> str:
     return fmt
 
 
-def _existing(path: str | Path) -> Path:
+def _existing(path: str | Path, *, kind: str = "log") -> Path:
+    """`path` as a Path to a regular file, or a `DataFormatError` saying why not
+    (`kind` names the file in the message: ``"log"``, ``"data"``)."""
     import os
 
     if not isinstance(path, (str, os.PathLike)):
@@ -172,7 +174,7 @@ def _existing(path: str | Path) -> Path:
     if os.fspath(path) == "":
         raise DataFormatError("path: empty file name")
     if p.is_dir():
-        raise DataFormatError(f"{p}: is a directory, not a log file")
+        raise DataFormatError(f"{p}: is a directory, not a {kind} file")
     if not p.exists():
         raise DataFormatError(f"{p}: no such file")
     if not p.is_file():
