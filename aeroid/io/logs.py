@@ -374,7 +374,7 @@ def _hdf5_names(key: str, ds: Any, n: int, matlab: bool) -> list[str]:
     return [f"{name}_{j}" if matlab else f"{name}[{j}]" for j in range(width)]
 
 
-def _time_group(key: str, time_of: Mapping[str, str]) -> str | None:
+def _time_group(key: str, time_of: Mapping[str, Any]) -> str | None:
     """The nearest group enclosing dataset `key` that has a time dataset."""
     group = key.rpartition("/")[0]
     while group not in time_of:
@@ -430,11 +430,9 @@ def _hdf5_channels(
         return f"not numeric ({ds.dtype})"
     if ds.ndim > 2:
         return f"{ds.ndim}-D"
-    group = key.rpartition("/")[0]
-    while group not in times:  # the nearest enclosing group with a time dataset
-        if not group:
-            return "no time dataset in its group or above"
-        group = group.rpartition("/")[0]
+    group = _time_group(key, times)
+    if group is None:
+        return "no time dataset in its group or above"
     time = times[group][1]
     arr = _hdf5_array(ds, matlab)
     name = key.replace("/", ".")
