@@ -256,23 +256,10 @@ def _fit_fourier(
         theta[st.names.index(k_)] = v_
 
     theta = fit_free(residual, jacobian, theta, free)
-    r = residual(theta)
-    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
-        raise IdentificationError(
-            f"transfer-function fit {input} -> {output} diverged; give start values"
-        )
-    jac = jacobian(theta)[:, free]
-    info_free = jac.T @ jac
+    r, inv, info = _fitted_information(residual, jacobian, theta, free, f"{input} -> {output}")
     # complex circular residuals: each real and imaginary part is one observation of
     # variance σ²/2, estimated from the 2M real residuals less the unknowns
     s2 = float(r @ r) / (r.size - p)
-    inv = np.zeros((free.size, free.size))
-    info = np.zeros((free.size, free.size))
-    info[np.ix_(free, free)] = info_free
-    try:
-        inv[np.ix_(free, free)] = np.linalg.inv(info_free)
-    except np.linalg.LinAlgError:
-        inv[np.ix_(free, free)] = np.inf
     cov = s2 * inv
     with np.errstate(invalid="ignore", divide="ignore"):
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -346,6 +333,31 @@ def _free_structure(
     if 2 * w.size <= p:
         raise IdentificationError(f"{w.size} frequencies {band} cannot fit {p} parameters ({pair})")
     return st, held, free
+
+
+def _fitted_information(
+    residual: Callable[[FloatArray], FloatArray],
+    jacobian: Callable[[FloatArray], FloatArray],
+    theta: FloatArray,
+    free: NDArray[np.bool_],
+    pair: str,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The residuals at the fitted `theta`, and the inverse and the information matrix
+    of the Jacobian's free columns, both zero in the held rows and columns (no
+    uncertainty there); an error naming the channel `pair` when the fit diverged."""
+    r = residual(theta)
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
+        raise IdentificationError(f"transfer-function fit {pair} diverged; give start values")
+    jac = jacobian(theta)[:, free]
+    info_free = jac.T @ jac
+    inv = np.zeros((free.size, free.size))
+    info = np.zeros((free.size, free.size))
+    info[np.ix_(free, free)] = info_free
+    try:
+        inv[np.ix_(free, free)] = np.linalg.inv(info_free)
+    except np.linalg.LinAlgError:
+        inv[np.ix_(free, free)] = np.inf
+    return r, inv, info
 
 
 def _fit_record(

@@ -84,7 +84,7 @@ from ._rational_fit import _coherence_weight as _coherence_weight
 from ._rational_fit import _detrended as _detrended
 from ._rational_fit import _excited_band as _excited_band
 from ._rational_fit import _fit_fourier as _fit_fourier
-from ._rational_fit import _fit_record, _free_structure, fit_free
+from ._rational_fit import _fit_record, _fitted_information, _free_structure, fit_free
 from ._rational_fit import _held as _held
 from ._rational_fit import _levy_sk as _levy_sk
 from ._rational_fit import _orders as _orders
@@ -565,22 +565,10 @@ def fit_transfer_function(
             if not np.all(np.isfinite(model) & (model > 0)):
                 break
             w_mag, w_ph = model / (_DB * sigma), model / (_DEG * sigma)
-    r = residual(theta)
-    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
-        raise IdentificationError(
-            f"transfer-function fit {ch.input_name} -> {ch.output_name} diverged; give start values"
-        )
-    jac = jacobian(theta)[:, free]
-    info_free = jac.T @ jac
-    try:
-        inv_free = np.linalg.inv(info_free)
-    except np.linalg.LinAlgError:
-        inv_free = np.full((p, p), np.inf)
     # fixed parameters: zero rows and columns (no uncertainty), an infinite insensitivity
-    inv = np.zeros((free.size, free.size))
-    inv[np.ix_(free, free)] = inv_free
-    info = np.full((free.size, free.size), 0.0)
-    info[np.ix_(free, free)] = info_free
+    r, inv, info = _fitted_information(
+        residual, jacobian, theta, free, f"{ch.input_name} -> {ch.output_name}"
+    )
     if weighting == "random_error":
         dof = r.size - p
         chi2 = float(r @ r) / dof
