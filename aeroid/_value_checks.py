@@ -1,4 +1,4 @@
-"""Argument checks shared by the estimators: switches, counts, real arrays, delays, symmetry."""
+"""Argument checks shared by the estimators: switches, choices, counts, real arrays, delays, symmetry."""
 
 from __future__ import annotations
 
@@ -24,6 +24,12 @@ def check_flag(value: Any, name: str, error: type[Exception]) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise error(f"{name}: expected True or False, got {plain(value)}")
     return bool(value)
+
+
+def check_choice(value: Any, name: str, choices: Any, error: type[Exception]) -> None:
+    """Refuse a `value` that is not one of `choices`, naming the option `name`."""
+    if value not in choices:
+        raise error(f"{name} {value!r} is unknown; choose one of {list(choices)}")
 
 
 def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 1) -> int:

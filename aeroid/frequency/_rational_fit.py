@@ -232,16 +232,8 @@ def _fit_fourier(
     # has no transform anyway
     U = _transform(_detrended(data.time, u)[:, None], dt, w, cubic=False)[:, 0]
     Y = _transform(_detrended(data.time, y)[:, None], dt, w, cubic=True)[:, 0]
-    st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
-    held = _held(st, fixed)
-    free = np.array([nm not in held for nm in st.names])
+    st, held, free = _free_structure(m, n, delay, w, fixed, "in the band", f"{input} -> {output}")
     p = int(free.sum())
-    if p == 0:
-        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
-    if 2 * w.size <= p:
-        raise IdentificationError(
-            f"{w.size} frequencies in the band cannot fit {p} parameters ({input} -> {output})"
-        )
     ok = np.abs(U) > 0
     h = np.where(ok, Y / np.where(ok, U, 1.0), 0.0)
 
@@ -264,37 +256,20 @@ def _fit_fourier(
         theta[st.names.index(k_)] = v_
 
     theta = fit_free(residual, jacobian, theta, free)
-    r = residual(theta)
-    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
-        raise IdentificationError(
-            f"transfer-function fit {input} -> {output} diverged; give start values"
-        )
-    jac = jacobian(theta)[:, free]
-    info_free = jac.T @ jac
+    r, inv, info = _fitted_information(residual, jacobian, theta, free, f"{input} -> {output}")
     # complex circular residuals: each real and imaginary part is one observation of
     # variance σ²/2, estimated from the 2M real residuals less the unknowns
     s2 = float(r @ r) / (r.size - p)
-    inv = np.zeros((free.size, free.size))
-    info = np.zeros((free.size, free.size))
-    info[np.ix_(free, free)] = info_free
-    try:
-        inv[np.ix_(free, free)] = np.linalg.inv(info_free)
-    except np.linalg.LinAlgError:
-        inv[np.ix_(free, free)] = np.inf
     cov = s2 * inv
     with np.errstate(invalid="ignore", divide="ignore"):
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         insens = np.sqrt(s2) / np.sqrt(np.diag(info))
-    b, a, tau = st.split(theta)
-    names = st.names
-    return TransferFunctionFit(
-        dict(zip(names, theta.tolist(), strict=True)),
-        dict(zip(names, se.tolist(), strict=True)),
-        dict(zip(names, insens.tolist(), strict=True)),
-        np.asarray(cov, dtype=np.float64),
-        b[::-1].copy(),
-        np.concatenate([[1.0], a[::-1]]),
-        tau,
+    return _fit_record(
+        st,
+        theta,
+        se,
+        insens,
+        cov,
         0.5 * float(r @ r) / s2,
         "fourier",
         1.0,
@@ -341,6 +316,72 @@ def _detrended(t: Any, x: FloatArray) -> FloatArray:
     tt = np.asarray(t, dtype=np.float64)
     coef = np.polyfit(tt - tt[0], x, 1)
     return np.asarray(x - np.polyval(coef, tt - tt[0]), dtype=np.float64)
+
+
+def _free_structure(
+    m: int, n: int, delay: Any, w: FloatArray, fixed: Any, band: str, pair: str
+) -> tuple[_Structure, dict[str, float], NDArray[np.bool_]]:
+    """The fit's structure, its held parameters and the mask of the free ones, refusing
+    a fit with nothing free or more free parameters than the frequencies can fit
+    (`band` and the channel `pair` word the message)."""
+    st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
+    held = _held(st, fixed)
+    free = np.array([nm not in held for nm in st.names])
+    p = int(free.sum())
+    if p == 0:
+        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
+    if 2 * w.size <= p:
+        raise IdentificationError(f"{w.size} frequencies {band} cannot fit {p} parameters ({pair})")
+    return st, held, free
+
+
+def _fitted_information(
+    residual: Callable[[FloatArray], FloatArray],
+    jacobian: Callable[[FloatArray], FloatArray],
+    theta: FloatArray,
+    free: NDArray[np.bool_],
+    pair: str,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The residuals at the fitted `theta`, and the inverse and the information matrix
+    of the Jacobian's free columns, both zero in the held rows and columns (no
+    uncertainty there); an error naming the channel `pair` when the fit diverged."""
+    r = residual(theta)
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
+        raise IdentificationError(f"transfer-function fit {pair} diverged; give start values")
+    jac = jacobian(theta)[:, free]
+    info_free = jac.T @ jac
+    inv = np.zeros((free.size, free.size))
+    info = np.zeros((free.size, free.size))
+    info[np.ix_(free, free)] = info_free
+    try:
+        inv[np.ix_(free, free)] = np.linalg.inv(info_free)
+    except np.linalg.LinAlgError:
+        inv[np.ix_(free, free)] = np.inf
+    return r, inv, info
+
+
+def _fit_record(
+    st: _Structure,
+    theta: FloatArray,
+    se: FloatArray,
+    insens: FloatArray,
+    cov: FloatArray,
+    *rest: Any,
+) -> TransferFunctionFit:
+    """A `TransferFunctionFit` of `theta`: its polynomials in descending powers, the
+    denominator monic; `rest` the record's fields from the cost on."""
+    b, a, tau = st.split(theta)
+    names = st.names
+    return TransferFunctionFit(
+        dict(zip(names, theta.tolist(), strict=True)),
+        dict(zip(names, se.tolist(), strict=True)),
+        dict(zip(names, insens.tolist(), strict=True)),
+        np.asarray(cov, dtype=np.float64),
+        b[::-1].copy(),
+        np.concatenate([[1.0], a[::-1]]),
+        tau,
+        *rest,
+    )
 
 
 def _held(st: _Structure, fixed: Any) -> dict[str, float]:

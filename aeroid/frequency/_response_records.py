@@ -323,13 +323,7 @@ class CompositeResponse:
 
     def channel(self, input: str, output: str) -> ResponseChannel:
         """The response from `input` to `output`."""
-        for ch in self.channels:
-            if ch.input_name == input and ch.output_name == output:
-                return ch
-        raise ChannelError(
-            f"no composite response for input {input!r} -> output {output!r}; "
-            f"inputs {list(self.input_names)}, outputs {list(self.output_names)}"
-        )
+        return _pick_channel(self, input, output, "composite response")
 
     def summary(self) -> str:
         """Markdown section: per pair, the band where γ² ≥ 0.6 and its mean random error."""
@@ -374,6 +368,17 @@ class CompositeResponse:
     def plot(self) -> Any:
         """Bode plot (dB, deg) with coherence, one column per pair. Returns a Figure."""
         return _bode(list(self.channels), [])
+
+
+def _pick_channel(record: Any, input: str, output: str, what: str) -> Any:
+    """The channel of a response record (`what` names the record kind in the error)."""
+    for ch in record.channels:
+        if ch.input_name == input and ch.output_name == output:
+            return ch
+    raise ChannelError(
+        f"no {what} for input {input!r} -> output {output!r}; "
+        f"inputs {list(record.input_names)}, outputs {list(record.output_names)}"
+    )
 
 
 def _bode(channels: Sequence[ResponseChannel], fits: Sequence[Any]) -> Any:

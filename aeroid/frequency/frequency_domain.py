@@ -75,6 +75,7 @@ from .._czt import fourier
 from .._records import frozen_array
 from .._records import frozen_complex as _frozen_complex
 from .._threads import CALLER_STACKLEVEL, small_blas
+from .._value_checks import check_choice
 from ..errors import IdentifiabilityWarning, IdentificationError
 from ..estimation.identifiability import unidentifiable as unidentifiable
 from ..estimation.identification import IdentificationResult, names_and_initial
@@ -417,20 +418,10 @@ def identify_frequency_domain(
         )
     if not isinstance(data, FlightData):
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
-    if method not in _METHODS:
-        raise IdentificationError(f"method {method!r} is unknown; choose one of {list(_METHODS)}")
-    if boundary not in _BOUNDARY:
-        raise IdentificationError(
-            f"boundary {boundary!r} is unknown; choose one of {list(_BOUNDARY)}"
-        )
-    if weighting not in _WEIGHTING:
-        raise IdentificationError(
-            f"weighting {weighting!r} is unknown; choose one of {list(_WEIGHTING)}"
-        )
-    if error_bars not in _ERROR_BARS:
-        raise IdentificationError(
-            f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
-        )
+    check_choice(method, "method", _METHODS, IdentificationError)
+    check_choice(boundary, "boundary", _BOUNDARY, IdentificationError)
+    check_choice(weighting, "weighting", _WEIGHTING, IdentificationError)
+    check_choice(error_bars, "error_bars", _ERROR_BARS, IdentificationError)
     max_iterations = whole_number(max_iterations, "max_iterations", IdentificationError)
     try:
         tol = float(tolerance)

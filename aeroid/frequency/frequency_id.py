@@ -84,6 +84,7 @@ from ._rational_fit import _coherence_weight as _coherence_weight
 from ._rational_fit import _detrended as _detrended
 from ._rational_fit import _excited_band as _excited_band
 from ._rational_fit import _fit_fourier as _fit_fourier
+from ._rational_fit import _fit_record, _fitted_information, _free_structure, fit_free
 from ._rational_fit import _held as _held
 from ._rational_fit import _levy_sk as _levy_sk
 from ._rational_fit import _orders as _orders
@@ -91,7 +92,6 @@ from ._rational_fit import _record_grid as _record_grid
 from ._rational_fit import _start as _start
 from ._rational_fit import _start_value as _start_value
 from ._rational_fit import _Structure as _Structure
-from ._rational_fit import fit_free
 from ._response_records import _CR_LIMIT as _CR_LIMIT
 from ._response_records import _INSENSITIVITY_LIMIT as _INSENSITIVITY_LIMIT
 from ._response_records import (
@@ -523,17 +523,16 @@ def fit_transfer_function(
     h = ch.response[keep]
     coh = ch.coherence[keep]
     err = ch.random_error[keep]
-    st = _Structure(m, n, check_flag(delay, "delay", IdentificationError), w)
-    held = _held(st, fixed)
-    free = np.array([nm not in held for nm in st.names])
+    st, held, free = _free_structure(
+        m,
+        n,
+        delay,
+        w,
+        fixed,
+        f"with γ² >= {min_coherence} in the band",
+        f"{ch.input_name} -> {ch.output_name}",
+    )
     p = int(free.sum())
-    if p == 0:
-        raise IdentificationError("fixed: every parameter is fixed; nothing left to fit")
-    if 2 * w.size <= p:
-        raise IdentificationError(
-            f"{w.size} frequencies with γ² >= {min_coherence} in the band cannot fit {p} parameters "
-            f"({ch.input_name} -> {ch.output_name})"
-        )
     if weighting == "cifer":
         wg = np.sqrt(20.0 / w.size * _coherence_weight(coh))
         w_mag, w_ph = wg, wg * np.sqrt(_W_PHASE)
@@ -566,22 +565,10 @@ def fit_transfer_function(
             if not np.all(np.isfinite(model) & (model > 0)):
                 break
             w_mag, w_ph = model / (_DB * sigma), model / (_DEG * sigma)
-    r = residual(theta)
-    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(r))):
-        raise IdentificationError(
-            f"transfer-function fit {ch.input_name} -> {ch.output_name} diverged; give start values"
-        )
-    jac = jacobian(theta)[:, free]
-    info_free = jac.T @ jac
-    try:
-        inv_free = np.linalg.inv(info_free)
-    except np.linalg.LinAlgError:
-        inv_free = np.full((p, p), np.inf)
     # fixed parameters: zero rows and columns (no uncertainty), an infinite insensitivity
-    inv = np.zeros((free.size, free.size))
-    inv[np.ix_(free, free)] = inv_free
-    info = np.full((free.size, free.size), 0.0)
-    info[np.ix_(free, free)] = info_free
+    r, inv, info = _fitted_information(
+        residual, jacobian, theta, free, f"{ch.input_name} -> {ch.output_name}"
+    )
     if weighting == "random_error":
         dof = r.size - p
         chi2 = float(r @ r) / dof
@@ -603,16 +590,12 @@ def fit_transfer_function(
             * ((_DB * d.real) ** 2 + _W_PHASE * (_DEG * np.angle(np.exp(1j * d.imag))) ** 2)
         )
     )
-    b, a, tau = st.split(theta)
-    names = st.names
-    return TransferFunctionFit(
-        dict(zip(names, theta.tolist(), strict=True)),
-        dict(zip(names, se.tolist(), strict=True)),
-        dict(zip(names, insens.tolist(), strict=True)),
-        np.asarray(cov, dtype=np.float64),
-        b[::-1].copy(),
-        np.concatenate([[1.0], a[::-1]]),
-        tau,
+    return _fit_record(
+        st,
+        theta,
+        se,
+        insens,
+        cov,
         cost,
         weighting,
         chi2,

@@ -85,6 +85,7 @@ from ._response_estimates import _estimate as _estimate
 from ._response_estimates import _independent_averages as _independent_averages
 from ._response_estimates import _spectral_matrix as _spectral_matrix
 from ._response_estimates import _zero_ends as _zero_ends
+from ._response_records import _pick_channel
 from .frequency_id import ResponseChannel
 
 __all__ = ["ChannelFrequencyResponse", "FrequencyResponseResult", "frequency_response"]
@@ -161,13 +162,8 @@ class FrequencyResponseResult:
 
     def channel(self, input: str, output: str) -> ChannelFrequencyResponse:
         """The response from control `input` to output `output`."""
-        for ch in self.channels:
-            if ch.input_name == input and ch.output_name == output:
-                return ch
-        raise ChannelError(
-            f"no frequency response for input {input!r} -> output {output!r}; "
-            f"inputs {list(self.input_names)}, outputs {list(self.output_names)}"
-        )
+        ch: ChannelFrequencyResponse = _pick_channel(self, input, output, "frequency response")
+        return ch
 
     @property
     def mismatch(self) -> float:

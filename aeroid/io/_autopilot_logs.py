@@ -150,12 +150,7 @@ def _read_ulog(path: Path) -> FlightLog:
         events.append(LogEvent(drop.timestamp / 1e6, "dropout", f"{drop.duration} ms lost"))
     info = {k: v for k, v in ulog.msg_info_dict.items() if isinstance(v, (str, int, float))}
     metadata: dict[str, Any] = {"source": path.name, "format": "ulog", "info": info}
-    if said.getvalue().strip():
-        metadata["warnings"] = said.getvalue().strip()
-    if "corruption detected while reading file definitions" in said.getvalue():
-        # topics whose format could not be parsed are missing, not absent from the flight
-        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
-    return FlightLog(channels, tuple(events), metadata)
+    return _finished_log(channels, events, metadata, said.getvalue())
 
 
 # -- ArduPilot DataFlash --------------------------------------------------------------
@@ -177,6 +172,21 @@ _STRUCT_DTYPE = {
 
 
 _NOT_CHANNELS = {"FMT", "FMTU", "UNIT", "MULT"}
+
+
+def _finished_log(
+    channels: dict[str, LogChannel],
+    events: list[LogEvent],
+    metadata: dict[str, Any],
+    said: str,
+) -> FlightLog:
+    """The log a reader built, with what its parser printed (`said`) in the metadata."""
+    if said.strip():
+        metadata["warnings"] = said.strip()
+    if "corruption detected while reading file definitions" in said:
+        # topics whose format could not be parsed are missing, not absent from the flight
+        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
+    return FlightLog(channels, tuple(events), metadata)
 
 
 def _df_dtype(fmt: Any) -> np.dtype[Any]:
@@ -308,12 +318,7 @@ def _read_dataflash(path: Path, *, text: bool) -> FlightLog:
     }
     if untimed:
         metadata["untimed_messages"] = sorted(set(untimed))
-    if said.getvalue().strip():
-        metadata["warnings"] = said.getvalue().strip()
-    if "corruption detected while reading file definitions" in said.getvalue():
-        # topics whose format could not be parsed are missing, not absent from the flight
-        metadata["corrupt"] = "its message definitions are corrupt (pyulog could not parse them)"
-    return FlightLog(channels, tuple(events), metadata)
+    return _finished_log(channels, events, metadata, said.getvalue())
 
 
 def _df_collect_binary(reader: Any) -> list[tuple[Any, dict[str, NDArray[Any]]]]:

@@ -354,6 +354,15 @@ def _as_dict(value: Any) -> Any:
     return value.model_dump(exclude_none=True) if hasattr(value, "model_dump") else value
 
 
+def _check_keys(value: Any, option: str, expected: str, keys: frozenset[str]) -> None:
+    """Refuse a config option that is not a mapping of `keys` (`expected` words what is)."""
+    if not isinstance(value, Mapping):
+        raise DataFormatError(f"{option}: expected {expected}, got {value!r}")
+    unknown = sorted(set(value) - keys)
+    if unknown:
+        raise DataFormatError(f"{option}: unknown keys {unknown}; allowed: {sorted(keys)}")
+
+
 def resolve_window(record: Any, window: Any) -> tuple[float, float, dict[str, Any]]:
     """``(t0, t1, record of how)`` for a window spec on a log or record.
 
@@ -366,13 +375,12 @@ def resolve_window(record: Any, window: Any) -> tuple[float, float, dict[str, An
     if isinstance(window, (tuple, list)):
         t0, t1 = _window_pair(window)
         return t0, t1, {"t0": t0, "t1": t1, "way": "time"}
-    if not isinstance(window, Mapping):
-        raise DataFormatError(
-            f"window: expected [t0, t1] or {{mode: ...}} / {{events: [start, end]}}, got {window!r}"
-        )
-    unknown = sorted(set(window) - _WINDOW_KEYS)
-    if unknown:
-        raise DataFormatError(f"window: unknown keys {unknown}; allowed: {sorted(_WINDOW_KEYS)}")
+    _check_keys(
+        window,
+        "window",
+        "[t0, t1] or {mode: ...} / {events: [start, end]}",
+        _WINDOW_KEYS,
+    )
     from .segmentation import segment
 
     kwargs: dict[str, Any] = {}
@@ -685,13 +693,7 @@ def flight_windows(
     from .segmentation import segment
 
     spec = _as_dict(spec)
-    if not isinstance(spec, Mapping):
-        raise DataFormatError(
-            f"segments: expected a mapping of aeroid.segment options, got {spec!r}"
-        )
-    unknown = sorted(set(spec) - _SEGMENT_KEYS)
-    if unknown:
-        raise DataFormatError(f"segments: unknown keys {unknown}; allowed: {sorted(_SEGMENT_KEYS)}")
+    _check_keys(spec, "segments", "a mapping of aeroid.segment options", _SEGMENT_KEYS)
     record: Any
     if isinstance(path, (FlightLog, FlightData)):
         record, where = path, str(path.metadata.get("source", "the log"))

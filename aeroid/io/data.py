@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -430,21 +429,9 @@ def load_flight_test(
     or inf, with one sample, with a gap inside the span, and outside it.
     With `channels`, a channel that cannot be resampled is an error naming it.
     """
-    if not isinstance(path, (str, os.PathLike)):
-        raise DataFormatError(
-            f"path: expected a file path (str or Path), got {type(path).__name__}"
-        )
-    p = Path(path)
-    if os.fspath(path) == "":
-        raise DataFormatError("path: empty file name")
-    if p.is_dir():
-        raise DataFormatError(f"{p}: is a directory, not a data file")
-    if not p.exists():
-        raise DataFormatError(f"{p}: no such file")
-    if not p.is_file():
-        raise DataFormatError(f"{p}: not a regular file")
-    from .logs import sniff_format
+    from .logs import _existing, sniff_format
 
+    p = _existing(path, kind="data")
     log_format = sniff_format(p)
     if log_format is not None:
         return _load_log(
@@ -481,17 +468,7 @@ def load_flight_test(
         mapping = {h: h for h in header if h != tname}
     elif isinstance(channels, Mapping):
         mapping = {str(k): str(v) for k, v in channels.items()}
-        # Keeping one of two columns renamed alike would silently drop the other.
-        sources: dict[str, list[str]] = {}
-        for col, name in mapping.items():
-            sources.setdefault(name, []).append(col)
-        clash = {name: cols for name, cols in sources.items() if len(cols) > 1}
-        if clash:
-            name, cols = next(iter(clash.items()))
-            raise DataFormatError(
-                f"{p}: channels: columns {cols} are all renamed to {name!r}; "
-                "give each column its own channel name"
-            )
+        _refuse_renamed_alike(mapping, p, sources="columns", each="each column")
     else:
         names = [channels] if isinstance(channels, str) else channels
         mapping = {str(c): str(c) for c in names}
@@ -520,6 +497,23 @@ def load_flight_test(
         )
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
+
+
+def _refuse_renamed_alike(
+    mapping: Mapping[str, str], path: Path, *, sources: str, each: str
+) -> None:
+    """Refuse a ``{source: name}`` mapping that gives two sources one name: keeping
+    one would silently drop the other (`sources`, `each` word the message)."""
+    by_name: dict[str, list[str]] = {}
+    for col, name in mapping.items():
+        by_name.setdefault(name, []).append(col)
+    clash = {name: cols for name, cols in by_name.items() if len(cols) > 1}
+    if clash:
+        name, cols = next(iter(clash.items()))
+        raise DataFormatError(
+            f"{path}: channels: {sources} {cols} are all renamed to {name!r}; "
+            f"give {each} its own channel name"
+        )
 
 
 def _wanted_columns(
@@ -560,16 +554,7 @@ def _log_mapping(
         find_channels(log, pairs.values(), path)
         return pairs
     # {log_channel: name}, as for tables: refuse two log channels given one name
-    sources: dict[str, list[str]] = {}
-    for col, name in pairs.items():
-        sources.setdefault(name, []).append(col)
-    clash = {name: cols for name, cols in sources.items() if len(cols) > 1}
-    if clash:
-        name, cols = next(iter(clash.items()))
-        raise DataFormatError(
-            f"{path}: channels: log channels {cols} are all renamed to {name!r}; "
-            "give each its own channel name"
-        )
+    _refuse_renamed_alike(pairs, path, sources="log channels", each="each")
     return {name: col for col, name in pairs.items()}
 
 

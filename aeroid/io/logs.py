@@ -161,7 +161,9 @@ def _resolve_format(path: Path, format: str | None) -> str:
     return fmt
 
 
-def _existing(path: str | Path) -> Path:
+def _existing(path: str | Path, *, kind: str = "log") -> Path:
+    """`path` as a Path to a regular file, or a `DataFormatError` saying why not
+    (`kind` names the file in the message: ``"log"``, ``"data"``)."""
     import os
 
     if not isinstance(path, (str, os.PathLike)):
@@ -172,7 +174,7 @@ def _existing(path: str | Path) -> Path:
     if os.fspath(path) == "":
         raise DataFormatError("path: empty file name")
     if p.is_dir():
-        raise DataFormatError(f"{p}: is a directory, not a log file")
+        raise DataFormatError(f"{p}: is a directory, not a {kind} file")
     if not p.exists():
         raise DataFormatError(f"{p}: no such file")
     if not p.is_file():
@@ -372,7 +374,7 @@ def _hdf5_names(key: str, ds: Any, n: int, matlab: bool) -> list[str]:
     return [f"{name}_{j}" if matlab else f"{name}[{j}]" for j in range(width)]
 
 
-def _time_group(key: str, time_of: Mapping[str, str]) -> str | None:
+def _time_group(key: str, time_of: Mapping[str, Any]) -> str | None:
     """The nearest group enclosing dataset `key` that has a time dataset."""
     group = key.rpartition("/")[0]
     while group not in time_of:
@@ -428,11 +430,9 @@ def _hdf5_channels(
         return f"not numeric ({ds.dtype})"
     if ds.ndim > 2:
         return f"{ds.ndim}-D"
-    group = key.rpartition("/")[0]
-    while group not in times:  # the nearest enclosing group with a time dataset
-        if not group:
-            return "no time dataset in its group or above"
-        group = group.rpartition("/")[0]
+    group = _time_group(key, times)
+    if group is None:
+        return "no time dataset in its group or above"
     time = times[group][1]
     arr = _hdf5_array(ds, matlab)
     name = key.replace("/", ".")

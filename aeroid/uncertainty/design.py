@@ -38,6 +38,7 @@ from ..models.model import Model, SimulatorModel, require_model, resolve_paramet
 from .maneuvers import ManeuverFamily
 from .sensitivity import (
     _analyse_fisher,
+    _check_noise_names,
     _check_simulate_options,
     _combo_text,
     _control_names,
@@ -522,16 +523,7 @@ def design_experiment(
         outs = list(all_outputs)
         sigma = np.ones(len(outs))
     else:
-        if not isinstance(noise, Mapping):
-            raise IdentificationError(
-                f"noise: expected a dict of output -> standard deviation, got {type(noise).__name__}"
-            )
-        unknown = sorted(set(noise) - set(all_outputs))
-        if unknown:
-            raise IdentificationError(
-                f"noise: {unknown} are not outputs of model {model.name!r}; "
-                f"outputs: {list(all_outputs)}"
-            )
+        _check_noise_names(noise, all_outputs, model.name)
         outs = [o for o in all_outputs if o in noise]
         if not outs:
             raise IdentificationError("noise: give a standard deviation for at least one output")

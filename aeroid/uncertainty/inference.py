@@ -276,6 +276,37 @@ def _resume_state(
     return state
 
 
+def _problem(
+    model: Any,
+    data: FlightData,
+    parameters: Mapping[str, Prior],
+    *,
+    outputs: Sequence[str] | None,
+    noise: Mapping[str, float] | None,
+    x0: Any,
+    initial: Any,
+    seed: int | np.random.SeedSequence | None,
+    backend: str,
+    simulate_options: Mapping[str, Any] | None,
+) -> tuple[_Posterior, np.random.SeedSequence | None]:
+    """The posterior `infer` and `infer_ensemble` sample, and the root of their random
+    streams (None: a continued chain resumes its stored streams)."""
+    if x0 is None:  # None unless `initial` is a fit of this record
+        x0 = fitted_start(initial, data)[0]
+    post = _Posterior(
+        model,
+        data,
+        parameters,
+        outputs=outputs,
+        noise=noise,
+        x0=x0,
+        backend=backend,
+        simulate_options=simulate_options,
+    )
+    root = None if seed is None and isinstance(initial, InferenceResult) else seed_sequence(seed)
+    return post, root
+
+
 def infer_ensemble(
     model: Any,
     data: FlightData,
@@ -311,19 +342,18 @@ def infer_ensemble(
     EnsembleRun
     """
     ensemble = _check_count("ensemble", ensemble, 0)
-    if x0 is None:  # None unless `initial` is a fit of this record
-        x0 = fitted_start(initial, data)[0]
-    post = _Posterior(
+    post, root = _problem(
         model,
         data,
         parameters,
         outputs=outputs,
         noise=noise,
         x0=x0,
+        initial=initial,
+        seed=seed,
         backend=backend,
         simulate_options=simulate_options,
     )
-    root = None if seed is None and isinstance(initial, InferenceResult) else seed_sequence(seed)
     return _run(
         post,
         initial=initial,
@@ -478,19 +508,18 @@ def infer(
                 f"n_ensembles: the stored result holds {len(initial.chain)} ensemble(s), "
                 f"got {n_ensembles}"
             )
-    if x0 is None:  # None unless `initial` is a fit of this record
-        x0 = fitted_start(initial, data)[0]
-    post = _Posterior(
+    post, root = _problem(
         model,
         data,
         parameters,
         outputs=outputs,
         noise=noise,
         x0=x0,
+        initial=initial,
+        seed=seed,
         backend=backend,
         simulate_options=simulate_options,
     )
-    root = None if seed is None and isinstance(initial, InferenceResult) else seed_sequence(seed)
     runs = [
         _run(
             post,

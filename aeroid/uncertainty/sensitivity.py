@@ -418,6 +418,20 @@ class SensitivityResult:
 # -- the public function --------------------------------------------------------------------
 
 
+def _check_noise_names(noise: Any, all_outputs: Sequence[str], model_name: str) -> None:
+    """Refuse a `noise` option that is not a mapping of the model's output names."""
+    if not isinstance(noise, Mapping):
+        raise IdentificationError(
+            f"noise: expected a dict of output -> standard deviation, got {type(noise).__name__}"
+        )
+    unknown = sorted(set(noise) - set(all_outputs))
+    if unknown:
+        raise IdentificationError(
+            f"noise: {unknown} are not outputs of model {model_name!r}; "
+            f"outputs: {list(all_outputs)}"
+        )
+
+
 @small_blas
 def sensitivities(
     model: Model | SimulatorModel,
@@ -529,17 +543,7 @@ def sensitivities(
     else:
         outs = list(all_outputs)
     if noise is not None:
-        if not isinstance(noise, Mapping):
-            raise IdentificationError(
-                f"noise: expected a dict of output -> standard deviation, got "
-                f"{type(noise).__name__}"
-            )
-        unknown = sorted(set(noise) - set(all_outputs))
-        if unknown:
-            raise IdentificationError(
-                f"noise: {unknown} are not outputs of model {model.name!r}; "
-                f"outputs: {list(all_outputs)}"
-            )
+        _check_noise_names(noise, all_outputs, model.name)
     controls = _control_names(model)
     data.require(controls, role="control")
     u = data.array(list(controls))[None] if controls else np.zeros((1, data.n_samples, 0))
