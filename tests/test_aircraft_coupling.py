@@ -140,3 +140,16 @@ def test_the_roll_by_lift_is_recovered_from_an_elevator_input(monkeypatch):
         assert abs(res.parameters[k] - v) < 3 * res.stderr[k], (k, res.parameters[k], res.stderr[k])
     for k in ROLL_BY_LIFT:
         assert res.stderr[k] < 0.2 * abs(truth[k]), (k, res.stderr[k])
+
+
+def test_the_coupled_model_translates_to_jax():
+    # the state fed as an input is picked row by row too, so the nonlinear filters'
+    # compiled propagation is used for it
+    pytest.importorskip("jax")
+    lon, lat = _parts(0.05)
+    both = decoupled(lon, lat)
+    t = np.linspace(0.0, 2.0, 101)
+    u = np.column_stack([np.full(t.size, 0.01 * k) for k in range(len(both.controls))])
+    x0 = np.array([V0, 0.05, 0.05, 0.0, 0.01, 0.0, 0.0, 0.0])
+    p = {k: 0.01 for k in both.parameters}
+    assert _compiled.interval_propagator(both, t, u, x0, p, 1) is not None
