@@ -376,20 +376,34 @@ def lateral_linear(
 def _decoupled_function(
     parts: tuple[Callable[[Any, Any, Any, Any], Any], Callable[[Any, Any, Any, Any], Any]],
     n_states: int,
-    controls: tuple[list[int], list[int]],
+    sources: tuple[list[tuple[bool, int]], list[tuple[bool, int]]],
 ) -> Callable[[Any, Any, Any, Any], Any]:
     longitudinal_f, lateral_f = parts
-    lon_u, lat_u = controls
+    lon_u, lat_u = sources
+
+    def inputs(x: Any, u: Any, picks: list[tuple[bool, int]]) -> Any:
+        # each part's inputs row by row (JAX, which compiles the model, indexes with no
+        # list): a control, or the other part's state where the part names one
+        return np.stack([x[i] if from_state else u[i] for from_state, i in picks])
 
     def decoupled_equations(t: Any, x: Any, u: Any, p: Any) -> Any:
-        # The two sets of equations share no state: stacked, they are one model. The
-        # controls are picked row by row (JAX, which compiles the model, indexes with
-        # no list).
-        first = longitudinal_f(t, x[:n_states], np.stack([u[i] for i in lon_u]), p)
-        second = lateral_f(t, x[n_states:], np.stack([u[i] for i in lat_u]), p)
+        # Stacked, the two sets of equations are one model.
+        first = longitudinal_f(t, x[:n_states], inputs(x, u, lon_u), p)
+        second = lateral_f(t, x[n_states:], inputs(x, u, lat_u), p)
         return np.concatenate([first, second])
 
     return decoupled_equations
+
+
+def _input_sources(
+    part: AircraftModel, other: AircraftModel, offset: int, controls: list[str]
+) -> list[tuple[bool, int]]:
+    """Where each of `part`'s inputs comes from: (True, the full state's index) for a
+    state of `other` (which starts at `offset`), else (False, the control's index)."""
+    return [
+        (True, offset + other.states.index(c)) if c in other.states else (False, controls.index(c))
+        for c in part.controls
+    ]
 
 
 def decoupled(
@@ -399,7 +413,7 @@ def decoupled(
     name: str = "decoupled",
     version: str | None = None,
 ) -> AircraftModel:
-    """A longitudinal and a lateral-directional model flown as one (motion without coupling).
+    """A longitudinal and a lateral-directional model flown as one.
 
     For small perturbations about wings-level flight the two sets of equations
     share no state (Klein & Morelli ch. 3; Jategaonkar ch. 3), so one
@@ -408,6 +422,15 @@ def decoupled(
     campaign handles one model per flight. States, outputs and parameters
     are the longitudinal model's then the lateral model's; controls are the
     union in that order (a control both use is one input).
+
+    A part may take the other part's state as an input: an input named after
+    one of its states (the lateral model's ``surfaces=("delta_a", "delta_r",
+    "alpha")`` with a ``Cl: alpha`` term) is fed that state, not a control.
+    This is the textbooks' longitudinal variable in the lateral-directional
+    equations (Jategaonkar ch. 3, Klein & Morelli ch. 3, there measured and
+    fed as an input), here the model's own: an aircraft whose lift rolls it
+    (a centre of gravity off its plane of symmetry, asymmetric stores) gives
+    ``Cl_alpha``, and the parts are coupled through that state.
 
     Parameters
     ----------
@@ -442,14 +465,16 @@ def decoupled(
         shared = sorted(set(getattr(longitudinal, what)) & set(getattr(lateral, what)))
         if shared:
             raise ModelDefinitionError(f"decoupled: both parts have the {what} {shared}")
-    controls = list(longitudinal.controls) + [
-        c for c in lateral.controls if c not in longitudinal.controls
+    n = len(longitudinal.states)
+    fed = set(longitudinal.controls) & set(lateral.states)
+    fed |= set(lateral.controls) & set(longitudinal.states)
+    controls = [c for c in longitudinal.controls if c not in fed] + [
+        c for c in lateral.controls if c not in longitudinal.controls and c not in fed
     ]
     index = (
-        [controls.index(c) for c in longitudinal.controls],
-        [controls.index(c) for c in lateral.controls],
+        _input_sources(longitudinal, lateral, n, controls),
+        _input_sources(lateral, longitudinal, 0, controls),
     )
-    n = len(longitudinal.states)
     measurement_parts = (longitudinal.measurement, lateral.measurement)
     if measurement_parts[0] is None or measurement_parts[1] is None:
         raise ModelDefinitionError("decoupled: both parts must have a measurement function")
@@ -471,7 +496,8 @@ def decoupled(
         equations="longitudinal part:\n"
         + longitudinal.equations
         + "\n\nlateral-directional part:\n"
-        + lateral.equations,
+        + lateral.equations
+        + "".join(f"\n(input {c}: the other part's state)" for c in sorted(fed)),
         parameter_units={**longitudinal.parameter_units, **lateral.parameter_units},
         channel_units={**longitudinal.channel_units, **lateral.channel_units},
     )
