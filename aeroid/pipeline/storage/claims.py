@@ -61,6 +61,10 @@ class Claim:
         self.store, self.stage, self.key = store, stage, key
         self.lease = lease
         self._token = token
+        # renewal (the renewer's thread) and release (the holder's) one at a time: a
+        # renewal that read the claim just before its release must not write it back
+        self._guard = threading.Lock()
+        self._released = False
 
     def __repr__(self) -> str:
         return f"Claim({self.stage!r}, {self.key[:12]!r})"
@@ -76,19 +80,22 @@ class Claim:
 
     def renew(self) -> bool:
         """Extend the lease by `lease` seconds from now; False when the claim was lost
-        (taken over after its lease ran out, or removed)."""
-        if not self._mine():
-            return False
-        self.store._backend.overwrite(
-            self.stage, self.key + _CLAIM, _claim_doc(self._token, self.lease)
-        )
-        return True
+        (taken over after its lease ran out, or removed, or released)."""
+        with self._guard:
+            if self._released or not self._mine():
+                return False
+            self.store._backend.overwrite(
+                self.stage, self.key + _CLAIM, _claim_doc(self._token, self.lease)
+            )
+            return True
 
     def release(self) -> None:
         """Give the claim up (after committing, or when the task failed)."""
         _RENEWER.discard(self)
-        if self._mine():
-            self.store._backend.delete(self.stage, self.key + _CLAIM)
+        with self._guard:
+            self._released = True
+            if self._mine():
+                self.store._backend.delete(self.stage, self.key + _CLAIM)
 
     def __enter__(self) -> Claim:
         _RENEWER.add(self)
