@@ -252,7 +252,8 @@ def test_identification_forest_scales_each_row_and_labels_its_values():
         "nil = 0.01 ± 0.04 [1/s]",
         "zero = 0 ± 0",
     ]
-    rows = {round(float(y)): lab.split(" ")[0] for y, lab in zip(forest.get_yticks(), labels)}
+    ticks = forest.get_yticks()
+    rows = {round(float(y)): lab.split(" ")[0] for y, lab in zip(ticks, labels, strict=True)}
     assert rows == {3: "big", 2: "small", 1: "nil", 0: "zero"}  # the first on top
     # errorbar draws the points as a line each call: clear estimates, then grey ones
     clear, grey = (c.lines[0] for c in forest.containers)

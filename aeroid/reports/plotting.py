@@ -315,9 +315,7 @@ def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None
         ax.plot(k[1:], r[1:, j], "o", color="C3", ms=3)
         _hline(ax, 0.0, color="k", lw=0.6)
         outside = int(np.sum(np.abs(r[1:, j]) > band))
-        _title(
-            ax, f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}"
-        )
+        _title(ax, f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}")
         ax.set_ylabel("r(k)")
         ax.legend(loc="upper right", fontsize=7)
     lag_unit = f" ({dt:.3g} s each)" if dt > 0 else ""
@@ -643,9 +641,7 @@ def plot_campaign_trend(
     return fig
 
 
-def _identification_figure(
-    n_outs: int, n_names: int, left: float
-) -> tuple[Figure, list[Any], Any]:
+def _identification_figure(n_outs: int, n_names: int, left: float) -> tuple[Figure, list[Any], Any]:
     """The identification figure's axes: a residual panel per output, then the forest
     (a row per parameter, `left` inches for its labels); recycled as `figure` does."""
     # the residual panels share one time axis, labelled under the last of them only
