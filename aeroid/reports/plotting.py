@@ -713,18 +713,18 @@ def plot_identification(
         panels[-1].set_xlabel("time [s]" if on_time else "sample [-]")
     if forest is None:
         return fig
-    value = np.array([float(result.parameters[n]) for n in names])
-    err = np.array([float(half[n]) for n in names])
-    scale = np.maximum(np.abs(value), err)
+    est = np.array([float(result.parameters[n]) for n in names])
+    bar = np.array([float(half[n]) for n in names])
+    scale = np.maximum(np.abs(est), bar)
     scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
     rows = np.arange(len(names))[::-1]  # the first parameter on top
-    zero_in = np.abs(value) <= err
+    zero_in = np.abs(est) <= bar
     for sel, color in ((~zero_in, "C0"), (zero_in, "0.55")):
         if sel.any():
             forest.errorbar(
-                value[sel] / scale[sel],
+                est[sel] / scale[sel],
                 rows[sel],
-                xerr=err[sel] / scale[sel],
+                xerr=bar[sel] / scale[sel],
                 fmt="o",
                 ms=3.5,
                 capsize=2.5,
