@@ -167,11 +167,11 @@ def test_the_compiled_predictor_is_the_numpy_one(monkeypatch):
     np.testing.assert_allclose(compiled.xf, plain.xf, rtol=0, atol=1e-12)
 
 
-def test_the_start_simulation_is_the_compiled_predictor_with_no_gain(monkeypatch):
+def test_the_start_simulation_is_the_compiled_rollout(monkeypatch):
     """`start_states` (the states a filter-error fit picks its starting process noise
-    from) runs the fit's own compiled predictor with a zero gain: the model simulated
-    by the same RK4 as `simulate(method="rk4")`, to rounding; None where the fit would not compile
-    it (a small problem) or the dynamics are linear."""
+    from) is the compiled rollout, the RK4 of `simulate(method="rk4")` to rounding,
+    where the fit's passes compile its predictor; None for a small problem or
+    linear dynamics."""
     from _aircraft_data import BASE, LAT
 
     from aeroid.estimation._filter_steady import start_states
@@ -202,9 +202,9 @@ def test_the_start_simulation_is_the_compiled_predictor_with_no_gain(monkeypatch
     values = {k: 1.1 * v for k, v in model.parameters.items()}
     Qc = np.zeros((4, 4))
     monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 10**12)  # a small problem
-    assert start_states(prob, values, Qc, 5) is None
+    assert start_states(prob, values, Qc) is None
     monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
-    states = start_states(prob, values, Qc, 5)
+    states = start_states(prob, values, Qc)
     assert states is not None
     sim = model.simulate(t, controls, x0=prob.x0, parameters=values, substeps=2, method="rk4")
     np.testing.assert_allclose(states, sim.states, rtol=0, atol=1e-12)
@@ -224,7 +224,7 @@ def test_the_start_simulation_is_the_compiled_predictor_with_no_gain(monkeypatch
         ukf=(1e-3, 2.0, 0.0),
         error=IdentificationError,
     )
-    assert start_states(lin_prob, dict(linear.parameters), np.zeros((2, 2)), 5) is None
+    assert start_states(lin_prob, dict(linear.parameters), np.zeros((2, 2))) is None
 
 
 def test_a_known_settled_sample_gives_the_same_likelihood():

@@ -418,9 +418,8 @@ def identify_filter_error(
         dt = float(np.median(np.diff(probs[0].time)))
         states = None
         if gain_choice(opts["gain"], opts["method"], filter_options) == "steady":
-            # the fit's own compiled predictor with no gain, where its passes compile it
-            n_z = len(names) + len(q_states) + len(r_outputs)
-            states = start_states(probs[0], start, Qc, 1 + 2 * n_z)
+            # the compiled rollout, where the fit's passes compile its predictor
+            states = start_states(probs[0], start, Qc)
         if states is None:
             sim = m.simulate_data(datas[0], x0=x0_list[0], parameters=start, method="auto")
             states = sim.states

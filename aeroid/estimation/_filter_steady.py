@@ -292,33 +292,26 @@ def _compiles(prob: _Problem, substeps: int) -> bool:
     return work >= _compiled.COMPILE_AFTER_CALLS
 
 
-def start_states(
-    prob: _Problem, values: Mapping[str, float], Qc: FloatArray, batch: int
-) -> FloatArray | None:
-    """The model's states over `prob`'s record from its x0 at `values`, (n_t, n_x), from
-    the compiled fixed-gain predictor run with a zero gain (a simulation by the same RK4),
-    or None where the fit's passes would not run it (the caller then simulates in numpy).
-
-    `batch` is the fit's batch size: the program and shapes are then those its passes
-    compile anyway, so the start costs one pass and no compilation of its own.
+def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) -> FloatArray | None:
+    """The model's states over `prob`'s record from its x0 at `values`, (n_t, n_x), by
+    the compiled RK4 rollout where the fit's passes compile its predictor (decided by
+    the problem's size alone, so a rerun in another process gives the same bits), else
+    None (the caller then simulates in numpy). The model's later simulations (its
+    validation) take the same compiled rollout.
     """
-    params = {k: np.full(batch, float(v)) for k, v in values.items()}
-    if _linearise_model(prob, params, Qc, batch) is not None:
+    params = {k: np.full(1, float(v)) for k, v in values.items()}
+    if _linearise_model(prob, params, Qc, 1) is not None:
         return None  # linear dynamics: the fit's filter and the simulation are exact
     m = prob.substeps
     if m is None:
-        p0 = {k: v[:1] for k, v in params.items()}
         f = prob.model._dynamics_batch
-        m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], p0)
+        m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
     if not _compiles(prob, m):
         return None
-    n = prob.x0.size
-    x0 = np.repeat(prob.x0[None], batch, axis=0)
-    Kg = np.zeros((batch, 1, n, prob.Y.shape[1]))  # the gain at every sample: none
-    fast = _compiled_predictor(prob, params, x0, Kg, 0, m)
-    if fast is None:
-        return None
-    return np.concatenate([prob.x0[None], fast[0][0]])
+    traj = _compiled.compiled_rollout(
+        prob.model, prob.time, prob.x0[:, None], prob.U[None], params, int(m)
+    )
+    return None if traj is None else np.asarray(traj.states[0], dtype=np.float64)
 
 
 def steady_pass(
