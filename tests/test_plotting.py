@@ -327,3 +327,19 @@ def test_palette_png_leaves_the_figure_as_it_was_and_repeats_its_bytes():
     assert len(img.getcolors()) <= 16
     full = np.asarray(Image.open(io.BytesIO(figure_png(fig, dpi=50))).convert("RGB"), float)
     assert np.abs(np.asarray(img.convert("RGB"), float) - full).mean() < 3.0
+
+
+def test_one_legend_a_figure_with_every_entry(chain):
+    """Panels that repeat one legend carry it once, on the top panel; the filter's
+    legend names the measured points even where the top state was not measured."""
+    f = chain["filtering"]
+    q = f.smoothed_states[:, list(f.state_names).index("q")]
+    fig = f.plot(data={"q": q})  # alpha (the top panel) not measured
+    legends = [ax.get_legend() for ax in fig.axes]
+    assert legends[0] is not None and all(leg is None for leg in legends[1:])
+    labels = [t.get_text() for t in legends[0].get_texts()]
+    assert labels == ["measured", "±2σ", "filtered", "smoothed"]
+    from aeroid.reports.plotting import plot_residual_autocorrelation
+
+    auto = plot_residual_autocorrelation(chain["validation"])
+    assert [ax.get_legend() is not None for ax in auto.axes] == [True, False]

@@ -272,7 +272,8 @@ def plot_prediction(prediction: Any, *, units: Mapping[str, str] | None = None) 
             f"{name} predicted ({prediction.source}): Theil U {m.theil_u:.3f}, "
             f"R² {m.r_squared:.3f}",
         )
-        ax.legend(loc="upper right", fontsize=8)
+        if j == 0:  # the same legend on every panel: drawn once, at the top
+            ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
@@ -317,7 +318,8 @@ def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None
         outside = int(np.sum(np.abs(r[1:, j]) > band))
         _title(ax, f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}")
         ax.set_ylabel("r(k)")
-        ax.legend(loc="upper right", fontsize=7)
+        if j == 0:  # the same legend on every panel: drawn once, at the top
+            ax.legend(loc="upper right", fontsize=7)
     lag_unit = f" ({dt:.3g} s each)" if dt > 0 else ""
     axes[-1, 0].set_xlabel(f"lag k [samples{lag_unit}]")
     return fig
@@ -400,6 +402,7 @@ def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | Non
     states = result.smoothed_states if smoothed else result.filtered_states
     cov = result.smoothed_covariance if smoothed else result.filtered_covariance
     label = "smoothed" if smoothed else "filtered"
+    legend: tuple[list[Any], list[str]] = ([], [])
     for j, name in enumerate(names):
         ax = axes[j, 0]
         if data is not None and name in data and len(data[name]) == len(t):
@@ -412,7 +415,13 @@ def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | Non
             ax.plot(t, result.filtered_states[:, j], color="C1", lw=0.8, label="filtered")
         ax.plot(t, states[:, j], color="C0", lw=1.3, label=label)
         ax.set_ylabel(_label(name, unit_of))
-        ax.legend(fontsize=8, loc="upper right", ncol=4)
+        drawn = ax.get_legend_handles_labels()
+        if len(drawn[1]) > len(legend[1]):
+            legend = drawn
+    # one legend, on the top panel, with the entries of the panel that has the most
+    # (a state the flight measured adds its points): not one legend a panel
+    if names:
+        axes[0, 0].legend(*legend, fontsize=8, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
