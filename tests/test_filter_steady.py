@@ -165,3 +165,82 @@ def test_the_compiled_predictor_is_the_numpy_one(monkeypatch):
     assert np.all(compiled.ok) and np.all(plain.ok)
     np.testing.assert_allclose(compiled.nu, plain.nu, rtol=0, atol=1e-12)
     np.testing.assert_allclose(compiled.xf, plain.xf, rtol=0, atol=1e-12)
+
+
+def test_the_start_simulation_is_the_compiled_rollout(monkeypatch):
+    """`start_states` (the states a filter-error fit picks its starting process noise
+    from) is the compiled rollout, the RK4 of `simulate(method="rk4")` to rounding,
+    where the fit's passes compile its predictor; None for a small problem or
+    linear dynamics."""
+    from _aircraft_data import BASE, LAT
+
+    from aeroid.estimation._filter_steady import start_states
+    from aeroid.models import compiled as _compiled
+    from aeroid.models.aircraft import AircraftConstants, lateral
+
+    model = lateral(AircraftConstants(**BASE, Ixz=80.0, rho=1.225), V0=53.6, parameters=LAT)
+    t = np.arange(0.0, 6.0, 0.02)
+    controls = {
+        "delta_a": catalog.doublet(t, start=1.0, amplitude=0.1),
+        "delta_r": catalog.doublet(t, start=3.0, amplitude=0.1),
+    }
+    clean = model.simulate(t, controls, substeps=2)
+    outputs = ["beta", "p", "r", "phi"]
+    data = aeroid.FlightData(t, {**controls, **{o: clean.output(o) for o in outputs}})
+    prob, _ = build_problem(
+        model,
+        data,
+        outputs=outputs,
+        measurement_noise=dict.fromkeys(outputs, 1e-5),
+        x0=None,
+        P0=None,
+        substeps=2,
+        method="ekf",
+        ukf=(1e-3, 2.0, 0.0),
+        error=IdentificationError,
+    )
+    values = {k: 1.1 * v for k, v in model.parameters.items()}
+    Qc = np.zeros((4, 4))
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 10**12)  # a small problem
+    assert start_states(prob, values, Qc) is None
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    states = start_states(prob, values, Qc)
+    assert states is not None
+    sim = model.simulate(t, controls, x0=prob.x0, parameters=values, substeps=2, method="rk4")
+    np.testing.assert_allclose(states, sim.states, rtol=0, atol=1e-12)
+    assert np.ptp(states[:, 1]) > 0.01  # the doublets moved it
+    # linear dynamics: the simulation is exact, and the fit's filter the linear one
+    linear = catalog.short_period()
+    lin_data = catalog.short_period_flight(seed=0)
+    lin_prob, _ = build_problem(
+        linear,
+        lin_data,
+        outputs=None,
+        measurement_noise=NOISE,
+        x0=None,
+        P0=None,
+        substeps=None,
+        method="ekf",
+        ukf=(1e-3, 2.0, 0.0),
+        error=IdentificationError,
+    )
+    assert start_states(lin_prob, dict(linear.parameters), np.zeros((2, 2))) is None
+
+
+def test_a_known_settled_sample_gives_the_same_likelihood():
+    """`innovation_loglik(settled=k)` (a fixed-gain pass knows where S stops changing)
+    equals the search for it, and the full sum over every sample."""
+    from aeroid.estimation.filtering import innovation_loglik
+
+    rng = np.random.default_rng(3)
+    B, K, m = 3, 60, 2
+    A = rng.standard_normal((B, K, m, m))
+    S = A @ np.swapaxes(A, 2, 3) + np.eye(m)
+    S[:, 20:] = S[:, 20:21]
+    nu = rng.standard_normal((B, K, m))
+    quad = np.einsum("bki,bkij,bkj->b", nu, np.linalg.inv(S), nu)
+    logdet = np.sum(np.linalg.slogdet(S)[1], axis=1)
+    for settled in (None, 20, 40):
+        q, ld = innovation_loglik(nu, S, settled=settled)
+        np.testing.assert_allclose(q, quad, rtol=1e-12)
+        np.testing.assert_allclose(ld, logdet, rtol=1e-12)

@@ -73,7 +73,7 @@ def chain():
 @pytest.mark.parametrize(
     ("name", "n_axes"),
     [
-        ("identification", 6),  # two residual panels + a panel per estimate (4)
+        ("identification", 3),  # two residual panels + the forest of the 4 estimates
         ("validation", 5),  # alpha, alpha residual, q, q residual, elevator input
         ("propagation", 1),
         ("filtering", 2),
@@ -169,11 +169,11 @@ def test_residuals_against_time_bode_in_rad_per_s_and_trend_title_clear(chain):
     data = catalog.short_period_flight(seed=0)
     fig = r.plot(time=data.time)
     residual_axes = fig.axes[: len(r.output_names)]
-    for ax in residual_axes:
-        assert ax.get_xlabel() == "time [s]"
+    for ax in residual_axes:  # one time axis, labelled under the last panel
         np.testing.assert_array_equal(ax.lines[0].get_xdata(), data.time)
+    assert [ax.get_xlabel() for ax in residual_axes] == ["", "time [s]"]
     # residuals of another length than the time stamps: plotted against the sample index
-    assert r.plot(time=data.time[:-1]).axes[0].get_xlabel() == "sample [-]"
+    assert r.plot(time=data.time[:-1]).axes[1].get_xlabel() == "sample [-]"
     bode = chain["frequency"].plot()
     ch = chain["frequency"].channels[0]
     assert [ax.get_xlabel() for ax in bode.axes].count("frequency [rad/s]") == len(
@@ -223,6 +223,45 @@ def _lag_results(K: float, seed: int) -> dict[str, object]:
             measurement_noise={"y": (0.02 * K) ** 2},
         ),
     }
+
+
+def test_identification_forest_scales_each_row_and_labels_its_values():
+    """One axes for every estimate: a row each, divided by max(|estimate|, 95 % half-width),
+    so a clear estimate sits at ±1 and one whose interval holds zero inside (-1, 1), grey."""
+    from types import SimpleNamespace
+
+    values = {"big": 2.0e4, "small": -3.0e-4, "nil": 0.01, "zero": 0.0}
+    half = {"big": 1.0e3, "small": 1.5e-4, "nil": 0.04, "zero": 0.0}
+    fake = SimpleNamespace(
+        parameter_names=list(values),
+        output_names=["y"],
+        parameters=values,
+        parameter_units={"big": "N", "nil": "1/s"},
+        residuals=[np.zeros((5, 1))],
+        margin=lambda level: dict(half),
+    )
+    from aeroid.reports.plotting import plot_identification
+
+    fig = plot_identification(fake)
+    assert len(fig.axes) == 2
+    forest = fig.axes[1]
+    labels = [t.get_text() for t in forest.get_yticklabels()]
+    assert labels == [
+        "big = 2e+04 ± 1e+03 [N]",
+        "small = -0.0003 ± 0.00015",
+        "nil = 0.01 ± 0.04 [1/s]",
+        "zero = 0 ± 0",
+    ]
+    ticks = forest.get_yticks()
+    rows = {round(float(y)): lab.split(" ")[0] for y, lab in zip(ticks, labels, strict=True)}
+    assert rows == {3: "big", 2: "small", 1: "nil", 0: "zero"}  # the first on top
+    # errorbar draws the points as a line each call: clear estimates, then grey ones
+    clear, grey = (c.lines[0] for c in forest.containers)
+    np.testing.assert_allclose(clear.get_xdata(), [1.0, -1.0])
+    np.testing.assert_allclose(clear.get_ydata(), [3.0, 2.0])
+    np.testing.assert_allclose(grey.get_xdata(), [0.25, 0.0])  # 0.01 / 0.04; 0 / 1
+    assert grey.get_color() == "0.55"
+    _assert_laid_out(fig)
 
 
 def test_a_recycled_figure_draws_as_a_new_one(chain):
@@ -288,3 +327,19 @@ def test_palette_png_leaves_the_figure_as_it_was_and_repeats_its_bytes():
     assert len(img.getcolors()) <= 16
     full = np.asarray(Image.open(io.BytesIO(figure_png(fig, dpi=50))).convert("RGB"), float)
     assert np.abs(np.asarray(img.convert("RGB"), float) - full).mean() < 3.0
+
+
+def test_one_legend_a_figure_with_every_entry(chain):
+    """Panels that repeat one legend carry it once, on the top panel; the filter's
+    legend names the measured points even where the top state was not measured."""
+    f = chain["filtering"]
+    q = f.smoothed_states[:, list(f.state_names).index("q")]
+    fig = f.plot(data={"q": q})  # alpha (the top panel) not measured
+    legends = [ax.get_legend() for ax in fig.axes]
+    assert legends[0] is not None and all(leg is None for leg in legends[1:])
+    labels = [t.get_text() for t in legends[0].get_texts()]
+    assert labels == ["measured", "±2σ", "filtered", "smoothed"]
+    from aeroid.reports.plotting import plot_residual_autocorrelation
+
+    auto = plot_residual_autocorrelation(chain["validation"])
+    assert [ax.get_legend() is not None for ax in auto.axes] == [True, False]

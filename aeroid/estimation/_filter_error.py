@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData
 from ..models.model import Model, resolve_parameters
-from ._filter_steady import gain_choice, steady_pass
+from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
 from .filtering import (
     _default_P0,
@@ -149,13 +149,14 @@ class _Objective:
 
     def __call__(
         self, Z: FloatArray
-    ) -> tuple[FloatArray, FloatArray, list[tuple[FloatArray, FloatArray]]]:
-        """Per member: cost (-log L), sum of nu'S^-1 nu; per record: (nu, S) for all members."""
+    ) -> tuple[FloatArray, FloatArray, list[tuple[FloatArray, FloatArray, int | None]]]:
+        """Per member: cost (-log L), sum of nu'S^-1 nu; per record: (nu, S) for all members
+        and the sample (of nu[:, 1:]) from which every member's S is its last, or None."""
         B = Z.shape[0]
         params, Qc, R = self.inputs(Z)
         cost = np.zeros(B)
         quad_all = np.zeros(B)
-        per: list[tuple[FloatArray, FloatArray]] = []
+        per: list[tuple[FloatArray, FloatArray, int | None]] = []
         for prob in self.probs:
             x0 = np.repeat(prob.x0[None], B, axis=0)
             if self.P0_given:
@@ -168,21 +169,26 @@ class _Objective:
                 else:
                     run = run_filter(prob, params, Qc, R, x0, P0, method=self.method)
             nu, S = run.nu[:, 1:], run.S[:, 1:]
+            settled = None if run.settled is None else max(run.settled - 1, 0)
             ok = run.ok.copy()
             quad = np.full(B, np.inf)
             logdet = np.full(B, np.inf)
-            for b in np.flatnonzero(ok):
-                try:
-                    qb, lb = innovation_loglik(nu[b : b + 1], S[b : b + 1])
-                except np.linalg.LinAlgError:
-                    ok[b] = False
-                    continue
-                quad[b], logdet[b] = qb[0], lb[0]
+            good = np.flatnonzero(ok)
+            try:  # the whole batch at once; member by member where one is not positive
+                quad[good], logdet[good] = innovation_loglik(nu[good], S[good], settled=settled)
+            except np.linalg.LinAlgError:
+                for b in good:
+                    try:
+                        qb, lb = innovation_loglik(nu[b : b + 1], S[b : b + 1], settled=settled)
+                    except np.linalg.LinAlgError:
+                        ok[b] = False
+                        continue
+                    quad[b], logdet[b] = qb[0], lb[0]
             n_obs = nu.shape[1] * nu.shape[2]
             with np.errstate(invalid="ignore"):
                 cost += 0.5 * (quad + logdet + n_obs * math.log(2 * math.pi))
             quad_all += quad
-            per.append((run.nu, run.S))
+            per.append((run.nu, run.S, settled))
         cost[~np.isfinite(cost)] = np.inf
         return cost, quad_all, per
 
@@ -208,15 +214,25 @@ def _derivatives(
     with np.errstate(invalid="ignore"):
         grad = (cost[1 : 1 + n] - cost[1 + n :]) / (2 * h)
     fisher = np.zeros((n, n))
-    for nu, S in per:
+    for nu, S, settled in per:
         nu, S = nu[:, 1:], S[:, 1:]
-        Sinv = np.linalg.inv(S[0])  # (K, m, m)
+        K = S.shape[1]
+        # from `settled` on every member's S is its last (a fixed gain): those samples
+        # share one inverse and one dS, and their trace terms are one term times their count
+        k0 = K if settled is None or K - settled < 8 else settled
         dnu = (nu[1 : 1 + n] - nu[1 + n :]) / (2 * h[:, None, None])  # (n, K, m)
-        dS = (S[1 : 1 + n] - S[1 + n :]) / (2 * h[:, None, None, None])  # (n, K, m, m)
-        W = np.einsum("kab,ikb->ika", Sinv, dnu)
-        fisher += np.einsum("ika,jka->ij", dnu, W)
-        SdS = Sinv[None] @ dS  # (n, K, m, m)
+        Sinv = np.linalg.inv(S[0, :k0])  # (k0, m, m)
+        dS = (S[1 : 1 + n, :k0] - S[1 + n :, :k0]) / (2 * h[:, None, None, None])
+        W = np.einsum("kab,ikb->ika", Sinv, dnu[:, :k0])
+        fisher += np.einsum("ika,jka->ij", dnu[:, :k0], W)
+        SdS = Sinv[None] @ dS  # (n, k0, m, m)
         fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS, optimize=True)  # one matmul
+        if k0 < K:
+            Sinv1 = np.linalg.inv(S[0, -1])
+            W1 = np.einsum("ab,ikb->ika", Sinv1, dnu[:, k0:])
+            fisher += np.einsum("ika,jka->ij", dnu[:, k0:], W1)
+            SdS1 = Sinv1[None] @ ((S[1 : 1 + n, -1] - S[1 + n :, -1]) / (2 * h[:, None, None]))
+            fisher += 0.5 * (K - k0) * np.einsum("iab,jba->ij", SdS1, SdS1)
     if not np.all(np.isfinite(fisher)):
         fisher = np.nan_to_num(fisher, nan=0.0, posinf=0.0, neginf=0.0)
     fisher = 0.5 * (fisher + fisher.T)
@@ -228,7 +244,7 @@ def _derivatives(
                 grad[i] = (cost[0] - cost[1 + n + i]) / h[i]
             elif bad[n + i] and np.isfinite(cost[1 + i]):
                 grad[i] = (cost[1 + i] - cost[0]) / h[i]
-    return float(cost[0]), grad, fisher, quad, [(nu[0], S[0]) for nu, S in per]
+    return float(cost[0]), grad, fisher, quad, [(nu[0], S[0]) for nu, S, _ in per]
 
 
 def identify_filter_error(
@@ -400,8 +416,14 @@ def identify_filter_error(
     z0 = [start[n] for n in names]
     if q_states:
         dt = float(np.median(np.diff(probs[0].time)))
-        sim = m.simulate_data(datas[0], x0=x0_list[0], parameters=start, method="auto")
-        svar = np.var(sim.states, axis=0)
+        states = None
+        if gain_choice(opts["gain"], opts["method"], filter_options) == "steady":
+            # the compiled rollout, where the fit's passes compile its predictor
+            states = start_states(probs[0], start, Qc)
+        if states is None:
+            sim = m.simulate_data(datas[0], x0=x0_list[0], parameters=start, method="auto")
+            states = sim.states
+        svar = np.var(states, axis=0)
         for i in q_states:
             if Qc[i, i] > 0:
                 z0.append(math.log(Qc[i, i]))

@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 
 from ..errors import IdentificationError
 from ..models import compiled as _compiled
+from ..models import integration as _integrate
 from ._filter_problem import _Problem
 from ._kalman_linear import (
     _dt_groups,
@@ -58,7 +59,7 @@ from ._kalman_linear import (
 from ._kalman_nonlinear import _linearise_model, _Measurer, _Propagator
 from .filtering import run_filter
 
-__all__ = ["GAINS", "gain_choice", "steady_pass"]
+__all__ = ["GAINS", "gain_choice", "start_states", "steady_pass"]
 
 FloatArray = NDArray[np.float64]
 
@@ -137,6 +138,8 @@ def _gains(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
     """(S, Kg, Pp, Pf, k) of the reference system's Kalman filter over the record.
 
+    ``Kg`` holds the gains of samples 0..k only, the last of them the gain from then on.
+
     The Riccati recursion runs until the gain has converged (the first tens to
     hundreds of samples); from there S and the gain are the steady-state ones.
     ``Pp`` and ``Pf`` are the steady-state covariances, broadcast over the
@@ -157,21 +160,28 @@ def _gains(
     Ppk = P0
     K_prev = Kg[:, 0]
     single = ref.Phi.shape[1] == 1
+    Phi, PhiT_, Qd = ref.Phi[:, 0], PhiT[:, 0], ref.Qd[:, 0]
     done = n_t - 1
+    # a step in as few array operations as it takes: at the demo's sizes each costs
+    # about what its arithmetic does, and the recursion runs hundreds of steps a pass
     for k in range(1, n_t):
-        g = 0 if single else ref.idx[k - 1]
-        Ppk = ref.Phi[:, g] @ P @ PhiT[:, g] + ref.Qd[:, g]
-        PHt = Ppk @ Ht
-        Sk = H @ PHt + R
-        K = np.swapaxes(np.linalg.solve(Sk, np.swapaxes(PHt, 1, 2)), 1, 2)
-        P = Ppk - K @ np.swapaxes(PHt, 1, 2)  # the optimal gain's update, (I - K H) Pp
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        if not single:
+            g = ref.idx[k - 1]
+            Phi, PhiT_, Qd = ref.Phi[:, g], PhiT[:, g], ref.Qd[:, g]
+        Ppk = Phi @ P @ PhiT_ + Qd
+        HP = H @ Ppk  # (P H')', Ppk being symmetric
+        Sk = HP @ Ht + R
+        K = np.swapaxes(np.linalg.solve(Sk, HP), 1, 2)
+        P = Ppk - K @ HP  # the optimal gain's update, (I - K H) Pp
+        P += np.swapaxes(P, 1, 2)
+        P *= 0.5
         S[:, k], Kg[:, k] = Sk, K
-        if single and k > 1:
+        # converged: checked every fourth step (a later stop only converges further)
+        if single and k > 1 and k % 4 == 0:
             scale = np.max(np.abs(K), axis=(1, 2))
             if np.all(np.max(np.abs(K - K_prev), axis=(1, 2)) <= _GAIN_TOL * scale):
                 S[:, k + 1 :] = Sk[:, None]
-                Kg[:, k + 1 :] = K[:, None]
+                Kg = Kg[:, : k + 1]  # the gain from here on is the last row's
                 done = k
                 break
         K_prev = K
@@ -251,6 +261,12 @@ def _compiled_predictor(
     n_gain = prob.time.size - 1
     if steady_from < _GAIN_SAMPLES:
         n_gain = min(_GAIN_SAMPLES, n_gain)
+    # written once, where they go: Kg holds the gains up to the steady one only
+    last = Kg.shape[1] - 1
+    gains = np.empty((padded, n_gain, *Kg.shape[2:]))
+    given = min(n_gain, last)
+    gains[:, :given] = Kg[rows, 1 : given + 1]
+    gains[:, given:] = Kg[rows, last][:, None]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
@@ -260,13 +276,42 @@ def _compiled_predictor(
                 prob.Y,
                 np.ascontiguousarray(x0[rows]),
                 pmat[rows],
-                np.ascontiguousarray(Kg[rows, 1 : n_gain + 1]),
+                gains,
                 np.int32(substeps),
             )
         except Exception:  # a model JAX traced pointwise but not in this scan: numpy
             return None
     xp, xf, nu = (np.asarray(a, dtype=np.float64)[:B] for a in outs)
     return xp, xf, nu
+
+
+def _compiles(prob: _Problem, substeps: int) -> bool:
+    """Whether a fit's passes pay a compiled predictor: by the problem's size alone, so
+    a rerun in another process takes the same path and gives the same bits."""
+    work = 4 * substeps * (prob.time.size - 1) * _compiled._FIT_EVALUATIONS
+    return work >= _compiled.COMPILE_AFTER_CALLS
+
+
+def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) -> FloatArray | None:
+    """The model's states over `prob`'s record from its x0 at `values`, (n_t, n_x), by
+    the compiled RK4 rollout where the fit's passes compile its predictor (decided by
+    the problem's size alone, so a rerun in another process gives the same bits), else
+    None (the caller then simulates in numpy). The model's later simulations (its
+    validation) take the same compiled rollout.
+    """
+    params = {k: np.full(1, float(v)) for k, v in values.items()}
+    if _linearise_model(prob, params, Qc, 1) is not None:
+        return None  # linear dynamics: the fit's filter and the simulation are exact
+    m = prob.substeps
+    if m is None:
+        f = prob.model._dynamics_batch
+        m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
+    if not _compiles(prob, m):
+        return None
+    traj = _compiled.compiled_rollout(
+        prob.model, prob.time, prob.x0[:, None], prob.U[None], params, int(m)
+    )
+    return None if traj is None else np.asarray(traj.states[0], dtype=np.float64)
 
 
 def steady_pass(
@@ -309,10 +354,9 @@ def steady_pass(
         x = x0.copy()
         xf[:, 0], xp[:, 0] = x, x
         fast = None
-        # compiled when a fit's passes would spend what a compilation costs: decided
-        # by the problem's size alone, so a rerun in another process gives the same bits
-        work = 4 * prop.m * (n_t - 1) * _compiled._FIT_EVALUATIONS
-        if prop._cp is not None or work >= _compiled.COMPILE_AFTER_CALLS:
+        last = Kg.shape[1] - 1  # the steady gain's row
+        # compiled when a fit's passes would spend what a compilation costs
+        if prop._cp is not None or _compiles(prob, prop.m):
             fast = _compiled_predictor(prob, params, x0, Kg, steady_from, prop.m)
         if fast is not None:
             xp[:, 1:], xf[:, 1:], nu[:, 1:] = fast
@@ -321,7 +365,7 @@ def steady_pass(
             for k in range(1, n_t if fast is None else 1):
                 xpk = prop.points(k - 1, x[:, None, :])
                 v = Y[k] - meas.points(k, xpk)[:, 0]
-                x = xpk[:, 0] + np.einsum("bij,bj->bi", Kg[:, k], v)
+                x = xpk[:, 0] + np.einsum("bij,bj->bi", Kg[:, min(k, last)], v)
                 xp[:, k], xf[:, k], nu[:, k] = xpk[:, 0], x, v
     except _Failure as exc:
         ok[:] = False
@@ -336,4 +380,4 @@ def steady_pass(
     for b in np.flatnonzero(bad):
         fin = np.all(np.isfinite(nu[b]), axis=1)
         fail[b] = int(np.argmin(fin))
-    return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, 0)
+    return _Pass(xf, Pf, xp, Pp, C, nu, S, ok, fail, 0, settled=steady_from)

@@ -74,6 +74,7 @@ class _Pass:
     n_jitter: int
     message: str = ""
     simulation: bool = False  # the model itself gave a non-finite value (finite inputs)
+    settled: int | None = None  # S[:, settled:] all equal S[:, -1] (a fixed gain's pass)
 
 
 class _ModelFailure(SimulationError, FilterError):

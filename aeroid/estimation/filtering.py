@@ -377,13 +377,22 @@ def run_filter(
     return _general(prob, params, Qc, R, x0, P0, lin, method)
 
 
-def innovation_loglik(nu: FloatArray, S: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Per member: (sum of nu' S^-1 nu, sum of log det S) over the given samples."""
+def innovation_loglik(
+    nu: FloatArray, S: FloatArray, *, settled: int | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Per member: (sum of nu' S^-1 nu, sum of log det S) over the given samples.
+
+    `settled`: where known, the sample from which every member's S is its last
+    (a fixed-gain pass knows it); else found by comparing them.
+    """
     K = S.shape[1]
     # a fixed-gain filter's S stops changing once its gain has converged: the samples
     # from there on share one factorisation
-    same = np.all(S == S[:, -1:], axis=(0, 2, 3))
-    k0 = K - int(np.argmin(same[::-1])) if not np.all(same) else 0
+    if settled is None:
+        same = np.all(S == S[:, -1:], axis=(0, 2, 3))
+        k0 = K - int(np.argmin(same[::-1])) if not np.all(same) else 0
+    else:
+        k0 = min(max(int(settled), 0), K)
     if K - k0 < 8:
         k0 = K
     L = np.linalg.cholesky(S[:, :k0])  # (B, k0, m, m)

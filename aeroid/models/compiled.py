@@ -82,6 +82,7 @@ else:  # below aeroid.models.model (it calls this module): its base class stands
 
 __all__ = [
     "available",
+    "compiled_rollout",
     "input_noise_scatter",
     "interval_propagator",
     "output_sensitivities",
@@ -228,6 +229,23 @@ def rk4_states(
     states = states[:batch]
     ok, fail_time = _first_failure(states, time)
     return RawTrajectory(states, ok, fail_time)
+
+
+def compiled_rollout(
+    model: Model,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    substeps: int,
+) -> RawTrajectory | None:
+    """`rk4_states`, asked for by a caller that has decided by its problem's size that
+    the compiled rollout pays; the model's later simulations then take it too, as
+    they do once `rk4_hook` has compiled it. None where the model does not compile."""
+    traj = rk4_states(model, time, x0, u, p, substeps)
+    if traj is not None:
+        _entry(model)["compiled_once"] = True
+    return traj
 
 
 def worth_compiling(model: Model, calls: int) -> bool:

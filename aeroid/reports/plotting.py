@@ -183,6 +183,12 @@ def _label(name: str, units: Mapping[str, str] | None, *, what: str = "") -> str
     return f"{text} [{unit}]" if unit else text
 
 
+def _title(ax: Any, text: str, *, fontsize: float = 9) -> None:
+    # a title at a fixed height: left to find its own, matplotlib measures every tick
+    # label of the panel on each draw to keep clear of ticks that are never on top
+    ax.set_title(text, fontsize=fontsize, loc="left", y=1.0)
+
+
 def _hline(ax: Any, y: float, **style: Any) -> Line2D:
     """A horizontal line across the panel at `y` (kept in the data limits), as
     ``axhline`` draws it, without the autoscale of every panel sharing the x axis
@@ -224,7 +230,7 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         ax.plot(t, validation.simulated[:, j], color="C0", lw=1.4, label="model")
         m = validation.metrics[name]
         ax.set_ylabel(_label(name, unit_of))
-        ax.set_title(f"{name}: fit {m.fit:.1f} %, RMSE {m.rmse:.3g}", fontsize=9, loc="left")
+        _title(ax, f"{name}: fit {m.fit:.1f} %, RMSE {m.rmse:.3g}")
         if j == 0:  # the same legend on every pair of panels: drawn once, at the top
             ax.legend(loc="upper right", fontsize=8)
         rax = axes[2 * j + 1, 0]
@@ -241,7 +247,7 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         assert controls is not None
         ax.plot(t, controls[:, k], color="C2", lw=1.2)
         ax.set_ylabel(_label(name, unit_of))
-        ax.set_title(f"input {name}", fontsize=9, loc="left")
+        _title(ax, f"input {name}")
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
@@ -261,13 +267,13 @@ def plot_prediction(prediction: Any, *, units: Mapping[str, str] | None = None) 
         ax.plot(t, prediction.measured[:, j], color="0.55", lw=1.0, label="measured")
         ax.plot(t, prediction.predicted[:, j], color="C1", lw=1.4, label="predicted")
         ax.set_ylabel(_label(name, unit_of))
-        ax.set_title(
+        _title(
+            ax,
             f"{name} predicted ({prediction.source}): Theil U {m.theil_u:.3f}, "
             f"R² {m.r_squared:.3f}",
-            fontsize=9,
-            loc="left",
         )
-        ax.legend(loc="upper right", fontsize=8)
+        if j == 0:  # the same legend on every panel: drawn once, at the top
+            ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
@@ -310,13 +316,10 @@ def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None
         ax.plot(k[1:], r[1:, j], "o", color="C3", ms=3)
         _hline(ax, 0.0, color="k", lw=0.6)
         outside = int(np.sum(np.abs(r[1:, j]) > band))
-        ax.set_title(
-            f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}",
-            fontsize=9,
-            loc="left",
-        )
+        _title(ax, f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}")
         ax.set_ylabel("r(k)")
-        ax.legend(loc="upper right", fontsize=7)
+        if j == 0:  # the same legend on every panel: drawn once, at the top
+            ax.legend(loc="upper right", fontsize=7)
     lag_unit = f" ({dt:.3g} s each)" if dt > 0 else ""
     axes[-1, 0].set_xlabel(f"lag k [samples{lag_unit}]")
     return fig
@@ -399,6 +402,7 @@ def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | Non
     states = result.smoothed_states if smoothed else result.filtered_states
     cov = result.smoothed_covariance if smoothed else result.filtered_covariance
     label = "smoothed" if smoothed else "filtered"
+    legend: tuple[list[Any], list[str]] = ([], [])
     for j, name in enumerate(names):
         ax = axes[j, 0]
         if data is not None and name in data and len(data[name]) == len(t):
@@ -411,7 +415,13 @@ def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | Non
             ax.plot(t, result.filtered_states[:, j], color="C1", lw=0.8, label="filtered")
         ax.plot(t, states[:, j], color="C0", lw=1.3, label=label)
         ax.set_ylabel(_label(name, unit_of))
-        ax.legend(fontsize=8, loc="upper right", ncol=4)
+        drawn = ax.get_legend_handles_labels()
+        if len(drawn[1]) > len(legend[1]):
+            legend = drawn
+    # one legend, on the top panel, with the entries of the panel that has the most
+    # (a state the flight measured adds its points): not one legend a panel
+    if names:
+        axes[0, 0].legend(*legend, fontsize=8, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 
@@ -640,47 +650,103 @@ def plot_campaign_trend(
     return fig
 
 
+def _identification_figure(n_outs: int, n_names: int, left: float) -> tuple[Figure, list[Any], Any]:
+    """The identification figure's axes: a residual panel per output, then the forest
+    (a row per parameter, `left` inches for its labels); recycled as `figure` does."""
+    # the residual panels share one time axis, labelled under the last of them only
+    width, top, bottom, gap, panel, row = 8.0, 0.35, 0.55, 0.15, 1.1, 0.2
+    below = 0.8 if n_names else 0.0  # the residuals' time axis, then the forest's title
+    forest_h = row * n_names + 0.15 if n_names else 0.0
+    height = top + bottom + n_outs * (panel + gap) - gap * (n_outs > 0) + forest_h
+    height = max(height + below * (n_outs > 0), 2.5)
+    key = ("identification", n_outs, n_names)
+    fig = _pooled(key)
+    if fig is None:
+        fig = Figure(figsize=(width, height))
+        y = height - top  # inches from the bottom, walking down
+        for k in range(n_outs):
+            y -= panel
+            rect = (0.95 / width, y / height, 6.85 / width, panel / height)
+            fig.add_axes(rect, sharex=fig.axes[0] if k else None)
+            if k < n_outs - 1:
+                fig.axes[-1].tick_params(labelbottom=False)
+            y -= gap
+        if n_names or not n_outs:  # the forest, or an empty panel where nothing was fitted
+            h = forest_h if n_names else height - top - bottom
+            fig.add_axes((0.95 / width, bottom / height, 6.85 / width, h / height))
+        _KEYS[fig] = key
+    axes = list(fig.axes)
+    forest = axes[n_outs] if n_names else None
+    if forest is not None:  # the width of its labels varies from flight to flight
+        forest.set_position(
+            (left / width, bottom / height, (width - left - 0.2) / width, forest_h / height)
+        )
+    return fig, axes[:n_outs], forest
+
+
 def plot_identification(
     result: Any, *, units: Mapping[str, str] | None = None, time: Any = None
 ) -> Figure:
-    """Residual histories of the fit, then each estimate with its 95 % bar in a panel of its own.
+    """Residual histories of the fit, then a forest plot of the estimates with their 95 % bars.
 
-    One panel per parameter keeps each error bar visible whatever the
-    magnitudes of the others. `time`: the record's time stamps (s), the residuals'
-    abscissa where they are as long as a manoeuvre's residuals (else the sample index).
+    The forest has a row per parameter, labelled with its estimate, the half-width
+    of its 95 % interval and its unit. Each row is divided by the larger of
+    |estimate| and that half-width, so parameters of any size share the axis: an
+    estimate lies at ±1 when it is larger than its half-width, and a bar that
+    crosses zero (drawn grey) is an estimate not told apart from zero. `time`: the
+    record's time stamps (s), the residuals' abscissa where they are as long as a
+    manoeuvre's residuals (else the sample index).
     """
     names = list(result.parameter_names)
     outs = list(result.output_names)
     units = {**dict(getattr(result, "parameter_units", {}) or {}), **dict(units or {})}
-    cols = 4
-    rows = -(-len(names) // cols) if names else 0
-    cells: list[tuple[int, Any]] = [(k, slice(None)) for k in range(len(outs))]
-    cells += [(len(outs) + i // cols, i % cols) for i in range(len(names))]
-    fig, panels = _cells(
-        "identification", max(len(outs) + rows, 1), cols, cells, height=1.9, hgap=0.8, wgap=0.9
-    )
+    half = result.margin(0.95)  # each estimate's own 95 % interval (t with its dof)
+    labels = []
+    for name in names:
+        unit = units.get(name, "")
+        value, err = float(result.parameters[name]), float(half[name])
+        labels.append(f"{name} = {value:.4g} ± {err:.2g}" + (f" [{unit}]" if unit else ""))
+    # fixed margins (no layout engine): room for the longest row label at 7 pt
+    left = round(max(0.95, 0.45 + 0.065 * max(map(len, labels), default=0)), 1)
+    fig, panels, forest = _identification_figure(len(outs), len(names), left)
+    on_time = time is not None and all(len(r) == len(time) for r in result.residuals)
     for k, out in enumerate(outs):
         ax = panels[k]
-        on_time = time is not None and all(len(r) == len(time) for r in result.residuals)
         for i, r in enumerate(result.residuals):
             x = np.asarray(time, dtype=float) if on_time else np.arange(len(r))
             label = f"manoeuvre {i}" if len(result.residuals) > 1 else None
             ax.plot(x, r[:, k], lw=0.8, label=label)
         _hline(ax, 0.0, color="k", lw=0.6)
         ax.set_ylabel(_label(out, units, what="residual"), fontsize=8)
-        ax.set_xlabel("time [s]" if on_time else "sample [-]")
-    half = result.margin(0.95)  # each estimate's own 95 % interval (t with its dof)
-    for i, name in enumerate(names):
-        ax = panels[len(outs) + i]
-        value, err = result.parameters[name], half[name]
-        ax.errorbar([0.0], [value], yerr=[err], fmt="o", capsize=5, color="C0")
-        _hline(ax, 0.0, color="0.7", lw=0.6)
-        ax.set_xticks([])
-        ax.yaxis.set_major_locator(MaxNLocator(nbins=3))  # a bar needs few ticks
-        ax.set_title(name, fontsize=9)
-        ax.set_ylabel(
-            _label(name, units, what="95 %") if (units or {}).get(name) else "estimate, 95 %",
-            fontsize=7,
-        )
-        ax.tick_params(labelsize=7)
+    if panels:
+        panels[-1].set_xlabel("time [s]" if on_time else "sample [-]")
+    if forest is None:
+        return fig
+    est = np.array([float(result.parameters[n]) for n in names])
+    bar = np.array([float(half[n]) for n in names])
+    scale = np.maximum(np.abs(est), bar)
+    scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+    rows = np.arange(len(names))[::-1]  # the first parameter on top
+    zero_in = np.abs(est) <= bar
+    for sel, color in ((~zero_in, "C0"), (zero_in, "0.55")):
+        if sel.any():
+            forest.errorbar(
+                est[sel] / scale[sel],
+                rows[sel],
+                xerr=bar[sel] / scale[sel],
+                fmt="o",
+                ms=3.5,
+                capsize=2.5,
+                lw=1.1,
+                color=color,
+            )
+    forest.axvline(0.0, color="0.7", lw=0.6)
+    forest.set_xlim(-2.15, 2.15)
+    forest.set_ylim(-0.6, len(names) - 0.4)
+    forest.set_yticks(rows, labels, fontsize=7)
+    forest.tick_params(axis="y", length=0)
+    forest.tick_params(axis="x", labelsize=7)
+    forest.set_xlabel("estimate / max(|estimate|, 95 % half-width)", fontsize=8)
+    forest.set_ylabel("parameter", fontsize=8)
+    _title(forest, "estimates, bars: 95 %; grey: the interval holds zero", fontsize=8)
     return fig
