@@ -867,8 +867,10 @@ def test_an_identification_result_carries_the_models_units():
     fit = aeroid.identify(model, data, ["M_alpha", "M_q"])
     assert dict(fit.parameter_units) == {"M_alpha": "1/s²", "M_q": "1/s"}
     fig = fit.plot()
-    labels = [ax.get_ylabel() for ax in fig.axes]
-    assert any("[1/s²]" in lab for lab in labels) and any("[1/s]" in lab for lab in labels)
+    # the estimates' forest plot labels each row with its value and unit
+    labels = [t.get_text() for ax in fig.axes for t in ax.get_yticklabels()]
+    assert any(lab.startswith("M_alpha") and lab.endswith("[1/s²]") for lab in labels)
+    assert any(lab.startswith("M_q") and lab.endswith("[1/s]") for lab in labels)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

@@ -54,6 +54,8 @@ from ._kalman_linear import (
     _fd_step,
     _Linear,
     _Pass,
+    _riccati_arrays,
+    _step_matrices,
     _van_loan,
 )
 from ._kalman_nonlinear import _linearise_model, _Measurer, _Propagator
@@ -146,17 +148,11 @@ def _gains(
     record (the objective uses the innovations and S only); from sample ``k``
     on the gain is constant.
     """
-    assert ref.H is not None
-    B, _, n, _ = ref.Phi.shape
-    H = ref.H
-    n_y = H.shape[1]
+    B, n, H, S, Kg = _riccati_arrays(ref, n_t)
     Ht = np.swapaxes(H, 1, 2)
     PhiT = np.swapaxes(ref.Phi, 2, 3)
-    S = np.empty((B, n_t, n_y, n_y))
-    Kg = np.empty((B, n_t, n, n_y))
     P = P0
     S[:, 0] = H @ P0 @ Ht + R
-    Kg[:, 0] = 0.0
     Ppk = P0
     K_prev = Kg[:, 0]
     single = ref.Phi.shape[1] == 1
@@ -166,8 +162,7 @@ def _gains(
     # about what its arithmetic does, and the recursion runs hundreds of steps a pass
     for k in range(1, n_t):
         if not single:
-            g = ref.idx[k - 1]
-            Phi, PhiT_, Qd = ref.Phi[:, g], PhiT[:, g], ref.Qd[:, g]
+            Phi, PhiT_, Qd = _step_matrices(ref, PhiT, k)
         Ppk = Phi @ P @ PhiT_ + Qd
         HP = H @ Ppk  # (P H')', Ppk being symmetric
         Sk = HP @ Ht + R

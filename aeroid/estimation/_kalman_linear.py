@@ -307,33 +307,47 @@ def _riccati_fast(
     return None
 
 
-def _riccati_steps(
-    lin: _Linear, R: FloatArray, P0: FloatArray, n_t: int
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """(Pp, Pf, S, Kg) step by step, stopping once the gain has converged."""
+def _riccati_arrays(lin: _Linear, n_t: int) -> tuple[int, int, FloatArray, FloatArray, FloatArray]:
+    """What every Riccati recursion over a record starts from: the batch size and state
+    count, H, and S and the gains over the record (no gain at the first sample)."""
     assert lin.H is not None
     B, _, n, _ = lin.Phi.shape
     H = lin.H
     n_y = H.shape[1]
+    S = np.empty((B, n_t, n_y, n_y))
+    Kg = np.empty((B, n_t, n, n_y))
+    Kg[:, 0] = 0.0
+    return B, n, H, S, Kg
+
+
+def _step_matrices(
+    lin: _Linear, PhiT: FloatArray, k: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Phi, its transpose and Qd of the step into sample `k` (steps of several sizes)."""
+    g = lin.idx[k - 1]
+    return lin.Phi[:, g], PhiT[:, g], lin.Qd[:, g]
+
+
+def _riccati_steps(
+    lin: _Linear, R: FloatArray, P0: FloatArray, n_t: int
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """(Pp, Pf, S, Kg) step by step, stopping once the gain has converged."""
+    B, n, H, S, Kg = _riccati_arrays(lin, n_t)
     Ht = np.ascontiguousarray(H.transpose(0, 2, 1))
     PhiT = np.ascontiguousarray(np.swapaxes(lin.Phi, 2, 3))
     eye = np.eye(n)
     Pf = np.empty((B, n_t, n, n))
     Pp = np.empty((B, n_t, n, n))
-    S = np.empty((B, n_t, n_y, n_y))
-    Kg = np.empty((B, n_t, n, n_y))
     P = P0.copy()
     Pf[:, 0], Pp[:, 0] = P, P
     S[:, 0] = H @ P @ Ht + R
-    Kg[:, 0] = 0.0
     single = lin.Phi.shape[1] == 1
     Phi, PT, Qd = lin.Phi[:, 0], PhiT[:, 0], lin.Qd[:, 0]
     Rt = R
     prev = P
     for k in range(1, n_t):
         if not single:
-            g = lin.idx[k - 1]
-            Phi, PT, Qd = lin.Phi[:, g], PhiT[:, g], lin.Qd[:, g]
+            Phi, PT, Qd = _step_matrices(lin, PhiT, k)
         Ppk = Phi @ P @ PT + Qd
         PHt = Ppk @ Ht
         Sk = H @ PHt + Rt
