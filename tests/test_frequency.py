@@ -745,3 +745,21 @@ def test_a_simulator_is_judged_against_its_whole_record_ratio():
     wrong = _SteppedShortPeriod({**TRUTH, "M_alpha": 1.5 * TRUTH["M_alpha"]})
     off = _quiet_response(wrong, data, None, frequency_range=(0.2, 3.0)).channel("elevator", "q")
     assert off.mismatch > 3 * ch.mismatch and ch.mismatch < 0.05
+
+
+def test_model_phase_is_one_continuous_branch_under_a_noisy_measured_phase():
+    # a second-order lag to -180 deg; past the coherent band the measured phase is
+    # noise, which taken frequency by frequency would throw the model's curve by 360 deg
+    from aeroid.frequency.response import ResponseChannel
+
+    w = np.logspace(-1, 2, 200)
+    model = 1.0 / ((1j * w) ** 2 + 0.8 * (1j * w) + 1.0)
+    rng = np.random.default_rng(3)
+    coherent = w < 10.0
+    noise = np.where(coherent, 0.0, rng.uniform(-np.pi, np.pi, w.size))
+    measured = model * np.exp(1j * noise)
+    ch = ResponseChannel("u", "y", w, measured, model_response=model, coherent=coherent)
+    assert np.max(np.abs(np.diff(ch.model_phase))) < 10.0
+    exact = np.degrees(np.unwrap(np.angle(model)))
+    np.testing.assert_allclose(ch.model_phase, exact, atol=1e-9)
+    np.testing.assert_allclose(ch.model_phase[coherent], (ch.phase - ch.phase_error)[coherent])

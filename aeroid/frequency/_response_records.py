@@ -223,8 +223,25 @@ class ResponseChannel:
 
     @property
     def model_phase(self) -> FloatArray:
-        """The model's phase in degrees, on the measured phase's branch at each frequency."""
-        return frozen_array(self.phase - self.phase_error)
+        """The model's phase in degrees, unwrapped along frequency and on the measured
+        phase's branch where the measurement is coherent.
+
+        One branch for the whole curve: taken frequency by frequency, a noisy
+        measured phase at low coherence would make the model's curve jump by 360°.
+        """
+        pointwise = self.phase - self.phase_error
+        model = self.model_response
+        finite = np.isfinite(model)
+        if not finite.all():
+            return frozen_array(pointwise)
+        raw = _unwrapped_phase(model)
+        usable = np.isfinite(pointwise)
+        chosen = usable & np.asarray(self.coherent, dtype=bool)
+        chosen = chosen if chosen.any() else usable
+        if not chosen.any():
+            return frozen_array(raw)
+        turns = np.round(np.median((pointwise - raw)[chosen]) / 360.0)
+        return frozen_array(raw + 360.0 * turns)
 
     @property
     def phase_error(self) -> FloatArray:
