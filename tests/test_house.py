@@ -402,18 +402,10 @@ def repeated_runs(
     return sorted(groups)
 
 
-# Repeats allowed, each with its reason. The models and estimation packages are being
-# reworked by their owners (issue 50); their repeats are listed here until then.
+# Repeats allowed, each with its reason (look-alikes only: a repeat of one job is merged)
 _ALLOWED_RUNS: dict[tuple[str, ...], str] = {
     ("aeroid.adapters.jsbsim._number", "aeroid.models._aircraft_parts._finite"): (
         "alike only: a float check per package, each with its own error class and wording"
-    ),
-    (
-        "aeroid.estimation._kalman_nonlinear._linearise_model",
-        "aeroid.models.integration.exact_lti",
-    ): ("pending: the models/estimation rework owns both"),
-    ("aeroid.estimation._output_error._Problem.evaluate",) * 2: (
-        "pending: the estimation rework owns it (two branches of one evaluation)"
     ),
 }
 

@@ -48,12 +48,7 @@ def _linearise_model(
     Bm = np.broadcast_to(mats[1], (B, n, nu))
     c = np.broadcast_to(mats[2], (B, n))
     hs, idx = groups
-    n_aug = n + 2 * nu + 1
-    Maug = np.zeros((B, n_aug, n_aug))
-    Maug[:, :n, :n] = A
-    Maug[:, :n, n : n + nu] = Bm
-    Maug[:, n : n + nu, n + nu : n + 2 * nu] = np.eye(nu)
-    Maug[:, :n, -1] = c
+    Maug = _integrate.hold_augmented(A, Bm, c)
     Phis, Qds = [], []
     U = prob.U
     dU = U[1:] - U[:-1]

@@ -259,12 +259,8 @@ class _Problem:
                 else:
                     jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
                     jac[:, :, cols] = -picked
-                if not self._delay_columns(jac, theta, steps, i, x0):
+                if not self._append(residuals, jacobians, v, jac, (theta, steps, i, x0)):
                     return [], None, False
-                residuals.append(v)
-                self._bias_columns(jac, i)
-                assert jacobians is not None
-                jacobians.append(jac)
                 continue
             if steps is not None and self.gradient == "jax":
                 from ..models import jax_compiled as _jax
@@ -285,12 +281,8 @@ class _Problem:
                 v = m.measured - y - bias
                 jac = np.zeros((m.time.size, len(self.out_idx), lay.n_total))
                 jac[:, :, : lay.n_p] = -jac_p
-                if not self._delay_columns(jac, theta, steps, i, x0):
+                if not self._append(residuals, jacobians, v, jac, (theta, steps, i, x0)):
                     return [], None, False
-                residuals.append(v)
-                self._bias_columns(jac, i)
-                assert jacobians is not None
-                jacobians.append(jac)
                 continue
             n_cols = len(cols) if steps is not None else 0
             batch = 1 + 2 * n_cols
@@ -323,6 +315,26 @@ class _Problem:
                 assert jacobians is not None
                 jacobians.append(jac)
         return residuals, jacobians, True
+
+    def _append(
+        self,
+        residuals: list[FloatArray],
+        jacobians: list[FloatArray] | None,
+        v: FloatArray,
+        jac: FloatArray,
+        at: tuple[FloatArray, FloatArray, int, FloatArray],
+    ) -> bool:
+        """Complete manoeuvre i's Jacobian (delay and bias columns; `at` is theta, the
+        steps, i and x0) and keep it with its residuals; False where a delay's
+        difference fails."""
+        theta, steps, i, x0 = at
+        if not self._delay_columns(jac, theta, steps, i, x0):
+            return False
+        residuals.append(v)
+        self._bias_columns(jac, i)
+        assert jacobians is not None
+        jacobians.append(jac)
+        return True
 
     def _delay_columns(
         self, jac: FloatArray, theta: FloatArray, steps: FloatArray, i: int, x0: FloatArray

@@ -556,6 +556,23 @@ def _linear_recursion(phi: FloatArray, x0: FloatArray, forcing: FloatArray) -> F
     return states.reshape(batch, n_blk * size, n_x)[:, :n_t]
 
 
+def hold_augmented(A: FloatArray, Bm: FloatArray, c: FloatArray) -> FloatArray:
+    """The augmented matrix whose exponential discretises ``x' = A x + B u + c`` for
+    controls piecewise-linear between samples: for a step h, ``expm(M h)`` holds Phi
+    in ``[:n, :n]``, the gains of the step's first control value and (divided by h)
+    of its change in the next two column blocks, and the constant's in the last
+    column. A, Bm and c are batched: (B, n, n), (B, n, n_u), (B, n)."""
+    batch, n_x, _ = A.shape
+    n_u = Bm.shape[2]
+    n_aug = n_x + 2 * n_u + 1
+    M = np.zeros((batch, n_aug, n_aug))
+    M[:, :n_x, :n_x] = A
+    M[:, :n_x, n_x : n_x + n_u] = Bm
+    M[:, n_x : n_x + n_u, n_x + n_u : n_x + 2 * n_u] = np.eye(n_u)
+    M[:, :n_x, -1] = c
+    return M
+
+
 def exact_lti(
     time: FloatArray,
     x0: FloatArray,
@@ -573,12 +590,7 @@ def exact_lti(
     uniq, inverse = np.unique(np.round(dts / dts[0], 9), return_inverse=True)
     if uniq.size > 64:
         return None
-    n_aug = n_x + 2 * n_u + 1
-    M = np.zeros((batch, n_aug, n_aug))
-    M[:, :n_x, :n_x] = A
-    M[:, :n_x, n_x : n_x + n_u] = Bm
-    M[:, n_x : n_x + n_u, n_x + n_u : n_x + 2 * n_u] = np.eye(n_u)
-    M[:, :n_x, -1] = c
+    M = hold_augmented(A, Bm, c)
     phis = []
     gam = []
     for r in uniq:
