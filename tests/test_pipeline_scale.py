@@ -173,13 +173,14 @@ def test_a_cluster_on_s3_stores_what_a_local_run_does_and_survives_a_killed_work
     cfg = make_campaign(tmp_path, n=n_flights, stats="{n_boot: 20, sleep: 0.15}")
     local = run(cfg, store=tmp_path / "local", workers=0)
     assert local.failed == 0
-    with (
-        distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-        ) as cluster,
-        distributed.Client(cluster) as client,
-    ):
-        pids = list(client.run(os.getpid).values())
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        # the workers' pids, from a client closed before the run opens its own (with
+        # this one still open, on another event loop, a run once failed when the worker
+        # died: "Event ... is bound to a different event loop")
+        with distributed.Client(cluster, set_as_default=False) as client:
+            pids = list(client.run(os.getpid).values())
         store = open_store(s3_url, create=True)
         killed: list[int] = []
         import s3fs
