@@ -115,6 +115,63 @@ def test_separate_alpha_dot_terms_are_the_aircraft_files_constants():
         effective_derivatives(cond, alpha_dot="both")
 
 
+def _state(fdm, **rates):
+    """Put the trimmed c172x back at its trim with body rates `rates` (rad/s) and
+    sideslip `beta` (rad), its forces and accelerations recomputed."""
+    trim = {k: float(fdm[k]) for k in ("velocities/vt-fps", "aero/alpha-rad", "attitude/theta-rad")}
+    for name, value in zip(
+        ("ic/vt-fps", "ic/alpha-rad", "ic/theta-rad"), trim.values(), strict=True
+    ):
+        fdm[name] = value
+    fdm["ic/phi-rad"] = 0.0
+    fdm["ic/beta-rad"] = rates.pop("beta", 0.0)
+    for rate in ("p", "q", "r"):
+        fdm[f"ic/{rate}-rad_sec"] = rates.get(rate, 0.0)
+    fdm.run_ic()
+
+
+def test_the_constants_inertia_gives_jsbsim_own_angular_accelerations():
+    # Under a sideslip JSBSim's moments about the centre of gravity change and so do its
+    # angular accelerations; the change in roll and yaw acceleration is the inverse of
+    # c172x_constants' tensor (AeroID's sign of Ixz, [[Ixx, 0, -Ixz], ...]) times the
+    # change in moment, the products Ixy, Iyz of its off-centre seats apart (their part
+    # of the roll and yaw, a 1e-4 relative effect, is inside the tolerance)
+    from aeroid.adapters.jsbsim_flights import _executive
+
+    c = c172x_constants(500.0, airspeed=45.0)
+    fdm = _executive(FlightCondition(45.0, 500.0))
+    ends = []
+    for beta in (0.02, -0.02):
+        _state(fdm, beta=beta)
+        moments = [float(fdm[f"moments/{a}-total-lbsft"]) for a in ("l", "n")]
+        accels = [float(fdm[f"accelerations/{a}dot-rad_sec2"]) for a in ("p", "r")]
+        ends.append((np.array(moments) * 4.4482216152605 * 0.3048, np.array(accels)))
+    moment, accel = ends[0][0] - ends[1][0], ends[0][1] - ends[1][1]
+    tensor = np.array([[c.Ixx, -c.Ixz], [-c.Ixz, c.Izz]])
+    np.testing.assert_allclose(np.linalg.solve(tensor, moment), accel, rtol=2e-4)
+    # JSBSim's own ixz property, taken as AeroID's Ixz, misses the yaw acceleration by 2 %
+    flipped = np.array([[c.Ixx, c.Ixz], [c.Ixz, c.Izz]])
+    assert abs(np.linalg.solve(flipped, moment)[1] / accel[1] - 1.0) > 0.01
+
+
+def test_the_engine_momentum_is_the_propellers_gyroscopic_moment():
+    # engine=True: h from the yaw the pitch rate gives (N = h q); the pitch a yaw rate
+    # gives is then -h r, the sign the aircraft models use (Stevens & Lewis, -ω × h)
+    from aeroid.adapters.jsbsim_flights import _executive
+
+    slow = c172x_constants(500.0, airspeed=30.0, engine=True)
+    fast = c172x_constants(500.0, airspeed=60.0, engine=True)
+    assert c172x_constants(500.0).engine_momentum == 0.0
+    # the propeller turns faster at the faster trim
+    assert 300.0 < slow.engine_momentum < fast.engine_momentum < 800.0
+    fdm = _executive(FlightCondition(60.0, 500.0))
+    pitch = []
+    for r in (0.02, -0.02):
+        _state(fdm, r=r)
+        pitch.append(float(fdm["moments/m-prop-lbsft"]) * 4.4482216152605 * 0.3048)
+    assert (pitch[0] - pitch[1]) / 0.04 == pytest.approx(-fast.engine_momentum, rel=0.01)
+
+
 def _longitudinal(constants, V0):
     """The stability-axis model the physics check fits, and its start values."""
     lon = longitudinal(constants, V0)

@@ -527,18 +527,26 @@ def write_campaign(
     return paths
 
 
-def c172x_constants(altitude: float) -> Any:
+def c172x_constants(altitude: float, *, airspeed: float = 50.0, engine: bool = False) -> Any:
     """The c172x's mass, inertias, reference geometry and thrust-line offset in SI, with
-    JSBSim's (ISA) density at `altitude`."""
+    JSBSim's (ISA) density at `altitude`, read at the trim at `airspeed` (m/s).
+
+    ``Ixz`` is in `aeroid.models.aircraft.AircraftConstants`' sign convention (the tensor
+    ``[[Ixx, 0, -Ixz], ...]``): the negative of JSBSim's ``inertia/ixz-slugs_ft2``, whose
+    tensor holds ``+ixz`` off the diagonal (JSBSim's angular accelerations under its own
+    moments say so). With `engine`, ``engine_momentum`` is the propeller's angular momentum
+    at that trim (`AircraftConstants.engine_momentum`: a model given it takes the other
+    axis's rate as an input); without, zero.
+    """
     from ..models.aircraft import AircraftConstants
 
-    fdm = _executive(FlightCondition(50.0, float(altitude)))
+    fdm = _executive(FlightCondition(float(airspeed), float(altitude)))
     return AircraftConstants(
         mass=float(fdm["inertia/mass-slugs"]) * _SLUG,
         Ixx=float(fdm["inertia/ixx-slugs_ft2"]) * _SLUGFT2,
         Iyy=float(fdm["inertia/iyy-slugs_ft2"]) * _SLUGFT2,
         Izz=float(fdm["inertia/izz-slugs_ft2"]) * _SLUGFT2,
-        Ixz=float(fdm["inertia/ixz-slugs_ft2"]) * _SLUGFT2,
+        Ixz=-float(fdm["inertia/ixz-slugs_ft2"]) * _SLUGFT2,
         S=float(fdm["metrics/Sw-sqft"]) * _FT**2,
         b=float(fdm["metrics/bw-ft"]) * _FT,
         cbar=float(fdm["metrics/cbarw-ft"]) * _FT,
@@ -548,7 +556,28 @@ def c172x_constants(altitude: float) -> Any:
         thrust_offset=float(fdm["moments/m-prop-lbsft"])
         / float(fdm["propulsion/engine/thrust-lbs"])
         * _FT,
+        engine_momentum=_engine_momentum(fdm) if engine else 0.0,
     )
+
+
+def _engine_momentum(fdm: Any) -> float:
+    """The propeller's angular momentum along the body x axis at the trim, kg m^2/s: JSBSim's
+    own gyroscopic yawing moment per unit pitch rate (``N = h q``), by a central difference."""
+    state = {
+        "ic/vt-fps": float(fdm["velocities/vt-fps"]),
+        "ic/alpha-rad": float(fdm["aero/alpha-rad"]),
+        "ic/theta-rad": float(fdm["attitude/theta-rad"]),
+    }
+    ends = []
+    for q in (0.02, -0.02):
+        for prop, value in {**state, "ic/beta-rad": 0.0, "ic/phi-rad": 0.0}.items():
+            fdm[prop] = value
+        for rate in ("p", "r"):
+            fdm[f"ic/{rate}-rad_sec"] = 0.0
+        fdm["ic/q-rad_sec"] = q
+        fdm.run_ic()
+        ends.append(float(fdm["moments/n-prop-lbsft"]))
+    return (ends[0] - ends[1]) / 0.04 * _LBF * _FT
 
 
 def _coefficients(fdm: Any) -> dict[str, float]:

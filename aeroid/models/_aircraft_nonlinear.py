@@ -24,6 +24,7 @@ from ._aircraft_parts import (
     _Expansion,
     _expansion_text,
     _expansion_units,
+    _gyro_input,
     _outputs,
     _parameter_values,
     _parse_expansions,
@@ -70,6 +71,8 @@ def _longitudinal_function(
     cl_alpha_dot = [n for n, f in expansions["CL"] if f == ("alpha_dot",)]
     n_surf = len(surfaces)
     dynamics = role == "dynamics"
+    h_engine = c.engine_momentum
+    yaw_rate = _gyro_input(c, surfaces, "r", "longitudinal")
 
     def longitudinal_equations(t: Any, x: Any, u: Any, p: Any) -> Any:
         # Klein & Morelli (2006) ch. 3 wind/stability-axis force equations, beta = 0.
@@ -93,7 +96,10 @@ def _longitudinal_function(
         CD = _expand(cd, reg, p)
         Cm = _expand(cm, reg, p)
         V_dot = (T * np.cos(alpha + sigma) - qbar_S * CD) / m - g * np.sin(gamma)
-        q_dot = (qbar_S * cbar * Cm + T * d) / Iyy
+        pitching = qbar_S * cbar * Cm + T * d
+        if yaw_rate >= 0:
+            pitching = pitching - h_engine * u[yaw_rate]  # the engine's gyroscopic moment
+        q_dot = pitching / Iyy
         if dynamics:
             rates = [V_dot, alpha_dot, q, q_dot]
             if with_altitude:
@@ -213,6 +219,7 @@ def longitudinal(
     c = _check_constants(constants)
     V0 = _check_speed(V0)
     surf = _surfaces(surfaces, ("alpha", "V", "q", "alpha_dot", "thrust"))
+    _gyro_input(c, surf, "r", "longitudinal")
     expansions = _parse_expansions(
         terms, _LONG_DEFAULT_TERMS, ("alpha", "V", "q", "alpha_dot", *surf), "longitudinal"
     )
@@ -231,7 +238,10 @@ def longitudinal(
             "  V̇ = (T cos(α + σT) - q̄ S CD)/m - g sin(θ - α)",
             "  α̇ = q + [g cos(θ - α) - (q̄ S CL + T sin(α + σT))/m] / V",
             "  θ̇ = q",
-            "  q̇ = (q̄ S c̄ Cm + T dT)/Iyy",
+            "  q̇ = (q̄ S c̄ Cm + T dT)/Iyy"
+            + (
+                f" - {c.engine_momentum:.6g} r/Iyy (engine gyroscopic)" if c.engine_momentum else ""
+            ),
             *(["  ḣ = V sin(θ - α)"] if with_altitude else []),
             *(
                 ["  α̇ enters as α̇ c̄/(2V); a CL_alpha_dot term is solved for in the α equation"]
@@ -303,6 +313,8 @@ def _lateral_function(
     cy, cl, cn = expansions["CY"], expansions["Cl"], expansions["Cn"]
     n_surf = len(surfaces)
     dynamics = role == "dynamics"
+    h_engine = c.engine_momentum
+    pitch_rate = _gyro_input(c, surfaces, "q", "lateral")
 
     def lateral_equations(t: Any, x: Any, u: Any, p: Any) -> Any:
         # Klein & Morelli ch. 3 small-perturbation lateral equations about (V0, α0, θ0),
@@ -316,6 +328,8 @@ def _lateral_function(
         Cn = _expand(cn, reg, p)
         rolling = qbar_S * b * Cl
         yawing = qbar_S * b * Cn
+        if pitch_rate >= 0:
+            yawing = yawing + h_engine * u[pitch_rate]  # the engine's gyroscopic moment
         p_dot = (Izz * rolling + Ixz * yawing) / gamma_i
         r_dot = (Ixz * rolling + Ixx * yawing) / gamma_i
         cos_phi = np.cos(phi)
@@ -413,6 +427,7 @@ def lateral(
     V0 = _check_speed(V0)
     alpha0, theta0 = _check_trim_angles(alpha0, theta0)
     surf = _surfaces(surfaces, ("beta", "p", "r"))
+    _gyro_input(c, surf, "q", "lateral")
     expansions = _parse_expansions(terms, _LAT_DEFAULT_TERMS, ("beta", "p", "r", *surf), "lateral")
     values = _parameter_values(expansions, parameters)
     allowed = [o for o in _LAT_OUTPUTS if with_heading or o != "psi"]
@@ -426,7 +441,8 @@ def lateral(
             " q̄ = ρ V0²/2:",
             "  β̇ = q̄ S CY/(m V0) + p sin α0 - r cos α0 + (g/V0) cos θ0 sin φ",
             "  Ixx ṗ - Ixz ṙ = q̄ S b Cl",
-            "  Izz ṙ - Ixz ṗ = q̄ S b Cn",
+            "  Izz ṙ - Ixz ṗ = q̄ S b Cn"
+            + (f" + {c.engine_momentum:.6g} q (engine gyroscopic)" if c.engine_momentum else ""),
             "  φ̇ = p + tan θ0 r cos φ",
             *(["  ψ̇ = r cos φ / cos θ0"] if with_heading else []),
             *(f"  {_expansion_text(k, e).replace('(2V)', '(2V0)')}" for k, e in expansions.items()),

@@ -133,6 +133,14 @@ class AircraftConstants:
     thrust_offset : float
         Perpendicular distance of the thrust line below the centre of gravity,
         m (positive: thrust pitches the nose up, ``M_T = T d``).
+    engine_momentum : float
+        Angular momentum of the engine's rotating parts (propeller, rotor,
+        spool) along the body x axis, kg m^2/s (positive: turning clockwise
+        seen from behind). Its gyroscopic moment ``-ω × h`` pitches the
+        aircraft by ``-h r`` and yaws it by ``h q`` (Stevens & Lewis,
+        *Aircraft Control and Simulation*, the engine angular momentum in the
+        moment equations); the longitudinal model then takes the yaw rate
+        ``r`` and the lateral model the pitch rate ``q`` as inputs.
 
     Raises
     ------
@@ -159,6 +167,7 @@ class AircraftConstants:
     beta_vane_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     thrust_angle: float = 0.0
     thrust_offset: float = 0.0
+    engine_momentum: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("mass", "Ixx", "Iyy", "Izz", "S", "b", "cbar", "g"):
@@ -171,7 +180,7 @@ class AircraftConstants:
             if not v > 0:
                 raise ModelDefinitionError(f"{name}: must be positive, got {v!r}")
             object.__setattr__(self, name, v)
-        for name in ("Ixz", "thrust_angle", "thrust_offset"):
+        for name in ("Ixz", "thrust_angle", "thrust_offset", "engine_momentum"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
         if self.rho is None and self.altitude is None:
             raise ModelDefinitionError(
@@ -403,6 +412,20 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
     if len(set(names)) != len(names):
         raise ModelDefinitionError(f"surfaces: duplicate names in {list(names)}")
     return names
+
+
+def _gyro_input(c: AircraftConstants, surfaces: tuple[str, ...], rate: str, part: str) -> int:
+    """The index among `surfaces` of the other axis's `rate` that the engine's gyroscopic
+    moment needs (-1 without an engine momentum)."""
+    if c.engine_momentum == 0.0:
+        return -1
+    if rate not in surfaces:
+        raise ModelDefinitionError(
+            f"surfaces: the {part} model with an engine_momentum needs the "
+            f"{'yaw' if rate == 'r' else 'pitch'} rate {rate!r} among its inputs (its "
+            f"gyroscopic moment); add {rate!r} to surfaces"
+        )
+    return surfaces.index(rate)
 
 
 def _accel_scale(accel_units: str, g: float) -> float:

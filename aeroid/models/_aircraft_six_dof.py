@@ -105,7 +105,7 @@ def _six_dof_function(
     half_rho_S = 0.5 * c.density() * S
     half_b, half_cbar = 0.5 * b, 0.5 * cbar
     inv_V0 = 1.0 / V0
-    d = c.thrust_offset
+    d, h_engine = c.thrust_offset, c.engine_momentum
     cos_sigma, sin_sigma = math.cos(c.thrust_angle), math.sin(c.thrust_angle)
     xa, ya, za = c.accel_position
     xv, yv, zv = c.alpha_vane_position
@@ -152,8 +152,11 @@ def _six_dof_function(
         fy = qbar_S * CY / m
         fz = (qbar_S * CZ - T * sin_sigma) / m
         rolling = qbar_S * b * _expand(cl, reg, p) + (Iyy - Izz) * q * r + Ixz * p_ * q
-        yawing = qbar_S * b * _expand(cn, reg, p) + (Ixx - Iyy) * p_ * q - Ixz * q * r
-        pitching = qbar_S * cbar * _expand(cm, reg, p) + T * d
+        # the engine's gyroscopic moment -ω × (h, 0, 0): pitch -h r, yaw h q
+        yawing = (
+            qbar_S * b * _expand(cn, reg, p) + (Ixx - Iyy) * p_ * q - Ixz * q * r + h_engine * q
+        )
+        pitching = qbar_S * cbar * _expand(cm, reg, p) + T * d - h_engine * r
         p_dot = (Izz * rolling + Ixz * yawing) / gamma_i
         r_dot = (Ixz * rolling + Ixx * yawing) / gamma_i
         q_dot = (pitching + (Izz - Ixx) * p_ * r + Ixz * (r * r - p_ * p_)) / Iyy
@@ -247,8 +250,8 @@ def six_dof(
         v̇ = Y/m + p w - r u + g cos θ sin φ
         ẇ = Z/m + q u - p v + g cos θ cos φ
         Ixx ṗ - Ixz ṙ = q̄ S b Cl + (Iyy - Izz) q r + Ixz p q
-        Iyy q̇ = q̄ S c̄ Cm + T dT + (Izz - Ixx) p r + Ixz (r² - p²)
-        Izz ṙ - Ixz ṗ = q̄ S b Cn + (Ixx - Iyy) p q - Ixz q r
+        Iyy q̇ = q̄ S c̄ Cm + T dT + (Izz - Ixx) p r + Ixz (r² - p²) - hE r
+        Izz ṙ - Ixz ṗ = q̄ S b Cn + (Ixx - Iyy) p q - Ixz q r + hE q
         φ̇ = p + (q sin φ + r cos φ) tan θ
         θ̇ = q cos φ - r sin φ
         ψ̇ = (q sin φ + r cos φ) / cos θ
@@ -334,8 +337,10 @@ def six_dof(
             "  v̇ = q̄ S CY/m + p w - r u + g cos θ sin φ",
             "  ẇ = (q̄ S CZ - T sin σT)/m + q u - p v + g cos θ cos φ",
             "  Ixx ṗ - Ixz ṙ = q̄ S b Cl + (Iyy - Izz) q r + Ixz p q",
-            "  Iyy q̇ = q̄ S c̄ Cm + T dT + (Izz - Ixx) p r + Ixz (r² - p²)",
-            "  Izz ṙ - Ixz ṗ = q̄ S b Cn + (Ixx - Iyy) p q - Ixz q r",
+            "  Iyy q̇ = q̄ S c̄ Cm + T dT + (Izz - Ixx) p r + Ixz (r² - p²)"
+            + (" - hE r" if c.engine_momentum else ""),
+            "  Izz ṙ - Ixz ṗ = q̄ S b Cn + (Ixx - Iyy) p q - Ixz q r"
+            + (" + hE q" if c.engine_momentum else ""),
             "  φ̇ = p + (q sin φ + r cos φ) tan θ",
             "  θ̇ = q cos φ - r sin φ",
             "  ψ̇ = (q sin φ + r cos φ)/cos θ",
@@ -351,6 +356,7 @@ def six_dof(
             "  V = √(u² + v² + w²),  α = atan2(w, u),  β = asin(v/V)",
             *force_text,
             f"  σT = {c.thrust_angle:.6g} rad, dT = {c.thrust_offset:.6g} m"
+            + (f", hE = {c.engine_momentum:.6g} kg m²/s" if c.engine_momentum else "")
             + ("" if thrust else " (no thrust input: T = 0)"),
             *(f"  {_expansion_text(k, e)}" for k, e in expansions.items()),
             "outputs:",
