@@ -28,7 +28,12 @@ per point: the database's value, the truth, the relative error against the issue
 10 % (0.02 absolute near zero) and whether its 95 % band covers the truth; then the
 fractions. Needs jsbsim. Takes a few minutes (the demo's run).
 
-    python3 tests/reference/c172x_demo_database.py [--store DIR]
+With ``--clean`` it instead flies three of the demo's conditions without gusts or sensor
+noise and fits each with the demo's model and identification options: what is left
+against what JSBSim flies is the model's structure or the truth's definition, not the
+records (about half a minute).
+
+    python3 tests/reference/c172x_demo_database.py [--store DIR] [--clean]
 """
 
 from __future__ import annotations
@@ -134,12 +139,67 @@ def _diagnose(per_flight: list[tuple[str, float, float, float, float, float]]) -
 
 
 _TAU: dict[str, float] = {}
+CLEAN = ((45.0, 500.0), (30.0, 1500.0), (60.0, 1000.0))
+
+
+def _merged(base: dict, override: dict) -> dict:
+    out = dict(base)
+    for k, v in override.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _clean() -> int:
+    """The demo's model on noise- and gust-free flights against what JSBSim flies."""
+    import yaml
+
+    from aeroid.adapters.jsbsim_flights import (
+        FlightCondition,
+        c172x_constants,
+        effective_derivatives,
+        fly_c172x,
+    )
+    from aeroid.estimation.identification import identify
+    from aeroid.models.aircraft import model_from_config
+
+    cfg = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
+    options = {k: v for k, v in cfg["stages"]["identify"].items() if k != "parameters"}
+    print("the demo's model on calm, noise-free flights: estimate/JSBSim's, estimate/JSBSim's - 1")
+    for airspeed, altitude in CLEAN:
+        cond = FlightCondition(airspeed, altitude)
+        data = fly_c172x(cond, noise=False, turbulence=0.0)
+        trim = data.metadata["trim"]
+        const = {"altitude": altitude}
+        const["engine_momentum"] = c172x_constants(
+            altitude, airspeed=airspeed, engine=True
+        ).engine_momentum
+        flight = {
+            "longitudinal": {"V0": airspeed, "constants": const},
+            "lateral": {
+                "V0": airspeed,
+                "alpha0": trim["alpha"],
+                "theta0": trim["theta"],
+                "constants": const,
+            },
+        }
+        model = model_from_config(_merged(cfg["model"], flight))
+        found = identify(model, data, list(model.parameter_names), **options).parameters
+        truth = effective_derivatives(cond)
+        cells = [
+            f"{t} {found[t]:.4g}/{truth[t]:.4g} {100 * (found[t] / truth[t] - 1):+.1f}%"
+            for t in FLOWN
+        ]
+        print(f"  {airspeed:g} m/s {altitude:g} m: " + ", ".join(cells))
+    return 0
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
+    parser.add_argument("--clean", action="store_true", help="calm, noise-free flights only")
     args = parser.parse_args()
+    if args.clean:
+        return _clean()
     from aeroid.adapters.jsbsim_flights import (
         FlightCondition,
         _coefficients,
