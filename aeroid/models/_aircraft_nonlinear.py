@@ -150,11 +150,14 @@ def longitudinal(
         V̇ = (T cos(α + σT) - q̄ S CD) / m - g sin(θ - α)
         α̇ = q + [g cos(θ - α) - (q̄ S CL + T sin(α + σT)) / m] / V
         θ̇ = q
-        q̇ = (q̄ S c̄ Cm + T dT) / Iyy
+        q̇ = (q̄ S c̄ Cm + T dT - hE r) / Iyy
         ḣ = V sin(θ - α)
 
     with ``q̄ = ρ V² / 2`` (ρ constant), σT and dT the thrust line's angle and
-    offset (`AircraftConstants.thrust_angle`, `thrust_offset`), and each of
+    offset (`AircraftConstants.thrust_angle`, `thrust_offset`), hE the engine's
+    angular momentum (`AircraftConstants.engine_momentum`; when nonzero the yaw
+    rate ``r`` must be among the `surfaces`: measured, or fed by `decoupled`
+    from the lateral model), and each of
     CD, CL, Cm a linear-in-parameters expansion whose terms are chosen with
     `terms`: regressors ``alpha``, ``V`` (``V/V0 - 1``), ``q`` (``q c̄ / 2V``),
     each surface, their products (``"alpha*delta_e"``) and the constant
@@ -380,11 +383,13 @@ def lateral(
 
         β̇ = q̄ S CY / (m V0) + p sin α0 - r cos α0 + (g/V0) cos θ0 sin φ
         Ixx ṗ - Ixz ṙ = q̄ S b Cl
-        Izz ṙ - Ixz ṗ = q̄ S b Cn
+        Izz ṙ - Ixz ṗ = q̄ S b Cn + hE q
         φ̇ = p + tan θ0 r cos φ
         ψ̇ = r cos φ / cos θ0
 
-    with ``q̄ = ρ V0² / 2``, and CY, Cl, Cn linear-in-parameters expansions in
+    with ``q̄ = ρ V0² / 2``, hE the engine's angular momentum
+    (`AircraftConstants.engine_momentum`; when nonzero the pitch rate ``q`` must be
+    among the `surfaces`, measured or fed by `decoupled`), and CY, Cl, Cn linear-in-parameters expansions in
     ``beta``, ``p`` (``p b / 2V0``), ``r`` (``r b / 2V0``), the surfaces,
     their products and the constant ``"0"``; parameters named ``Cl_p``,
     ``Cn_beta``, ``Cn_delta_r``, ``CY_0``.

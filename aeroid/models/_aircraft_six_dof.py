@@ -256,7 +256,8 @@ def six_dof(
         θ̇ = q cos φ - r sin φ
         ψ̇ = (q sin φ + r cos φ) / cos θ
 
-    with ``X = q̄ S CX + T cos σT``, ``Y = q̄ S CY``, ``Z = q̄ S CZ - T sin σT``,
+    with hE the engine's angular momentum (`AircraftConstants.engine_momentum`),
+    ``X = q̄ S CX + T cos σT``, ``Y = q̄ S CY``, ``Z = q̄ S CZ - T sin σT``,
     ``V = √(u² + v² + w²)``, ``α = atan2(w, u)``, ``β = asin(v / V)``. With
     ``force_axes="stability"`` the force coefficients are CD, CY, CL
     (``CX = -CD cos α + CL sin α``, ``CZ = -CD sin α - CL cos α``); with
