@@ -9,8 +9,9 @@ for output error) and ``M = sum_t G_t' G_t``; with noise of cross-spectrum
     B = sum_ij G_i' R(i - j) G_j = (1/N) sum_k G~_k^H F(w_k) G~_k,
 
 the form Morelli & Klein write in the time domain (SIDPAC's colores) and here
-in the frequency domain, where it is cheap and where its estimate can be
-corrected for what the fit removed. `colored_covariance` is the one
+in the frequency domain, where it is cheap, where its estimate can be
+corrected for what the fit removed, and where prewhitening by an AR(1) filter
+and recolouring by its inverse are products. `colored_covariance` is the one
 implementation for estimators that fit time histories (equation error,
 stepwise regression, output error, data compatibility); see its docstring
 for the estimator and its degrees of freedom. `frequency_sandwich` is the same
@@ -205,9 +206,10 @@ def colored_covariance(
         Per record, the expected cross-periodogram (over ``2 n_t`` points, divided
         by ``n_t``) of a part of the residuals whose share of the covariance the
         caller adds itself, such as integrated input noise propagated exactly
-        (`aeroid.check_compatibility`). It is taken off the smoothed residual
-        periodogram before the division by ``K*(1 - L)`` (the expectation already
-        carries the fit's projection), so that part is not counted twice. The
+        (`aeroid.check_compatibility`). It is whitened with the residuals and taken
+        off their smoothed periodogram before the division by ``K*k`` (the
+        expectation already carries the fit's projection), so that part is not
+        counted twice. The
         difference is unbiased but noisy where the known part dominates, and so
         is the covariance returned, which may then be indefinite: the caller
         adds the known part's covariance and makes the sum positive
@@ -227,35 +229,69 @@ def colored_covariance(
     residuals are least like the noise: the fit removed the noise's component
     in the span of ``G`` (at w = 0 a constant removes all of it, so a sum of
     the residual autocorrelation over all lags, SIDPAC's, is nearly zero
-    there). The residual periodogram's expectation tells how much: with the
-    Fourier vector ``d_w`` and ``H`` the fit's projection, for noise locally
-    flat at ``F(w)``
+    there), and where slowly drifting residuals have a peak narrower than any
+    window. Both are met as Andrews & Monahan (1992) prescribe: prewhiten,
+    smooth, recolour.
 
-        E[I_u(w)]_aa = F_aa(w) (1 - L_aa(w)),  L_aa(w) = G~_a(w) M^-1 G~_a(w)^H / n,
+    *Prewhitening.* Each output ``a`` gets an AR(1) filter ``1 - a_a e^{-iw}``.
+    Its coefficient starts at the residuals' pooled lag-one correlation, which
+    under-reads the noise's (the fit took the slowest part of the noise), and
+    is moved (`_AR_STEPS` fixed-point steps) until the lag-one correlation the
+    model predicts for the *residuals*, ``sum_w E[I_u(w)] cos w / sum_w E[I_u(w)]``
+    with the expectation below, is the one seen. It is held within ``|a| <= 1 -
+    2 pi / n`` (n the longest record): a root nearer the unit circle makes a
+    peak narrower than the record's first Fourier frequency, which the record
+    cannot tell from a trend, and there the recoloured spectrum at w = 0 is at
+    most twice the model's at that first frequency (Andrews & Monahan cap at a
+    fixed 0.97 for the same reason, the recolouring gain ``1 / (1 - a)^2``
+    resting on the last digits of a noisy estimate; a fixed cap would truncate
+    a 50 Hz record's true 0.99).
 
-    the leverage of frequency w on output a. Over all n Fourier frequencies the
-    leverages sum to ``tr(M^-1 M) = p``. The spectrum is therefore estimated by
-    smoothing the residual periodogram and the ``1 - L`` together over a
-    window and dividing, ``F^ = K*I / K*(1 - L)`` (cross terms by the geometric
-    mean of their outputs' factors): near w = 0 it borrows from neighbouring
-    frequencies the fit left alone, and with white residuals and the window
-    the whole band it is exactly ``SSE / (N - p)``, the classical variance with
-    its classical degrees of freedom. That is the whole degrees-of-freedom
+    *Smoothing with the fit's leverage.* With ``S`` the model's covariance (one
+    AR(1) per output, level the whitened residuals' mean square), ``H`` the
+    fit's projection and ``d_w`` the Fourier vector, the residual periodogram
+    ``I_u = d' u u' d / n`` has expectation
+
+        E[I_u(w)]_aa = d'(S - 2 H S + H S H) d / n
+                     = Fej_a(w) - 2 Re G~_a M^-1 (S G)~_a^H / n
+                       + G~_a M^-1 (G' S G) M^-1 G~_a^H / n  =  F_a(w) k_a(w),
+
+    ``Fej`` the Fejer mean of the model spectrum ``F_a``; all terms exact
+    through Toeplitz products by FFT (`_model_keeps`). For white noise ``k =
+    1 - L`` with ``L_aa(w) = G~_a M^-1 G~_a^H / n`` the leverage of frequency w
+    (they sum to ``tr(M^-1 M) = p`` over the n Fourier frequencies). The
+    whitened periodogram ``|1 - a e^{-iw}|^2 I_u`` then has expectation
+    ``F_e k`` with ``F_e`` the whitened spectrum, flat where the model holds and
+    slowly varying where it does not, so it is estimated by smoothing both and
+    dividing, ``F_e^ = K*(|1 - a e^{-iw}|^2 I_u) / K*k`` (cross terms by the
+    geometric mean of their outputs' factors), and recoloured, ``F^ = F_e^ /
+    ((1 - a_a e^{-iw})(1 - a_b e^{iw}))``. Near w = 0 it borrows from
+    neighbouring frequencies the fit left alone, with the model's shape rather
+    than a flat one; with white residuals (``a = 0``) and the window the whole
+    band it is exactly ``SSE / (N - p)``, the classical variance with its
+    classical degrees of freedom. That is the whole degrees-of-freedom
     correction for the projection: each frequency loses the fraction of a
     degree of freedom the fit took from it, no more (no ``N_eff / (N_eff - p)``
     factor on top, which would count the loss twice).
 
-    The window is the quadratic-spectral kernel's (Epanechnikov in frequency),
-    its bandwidth half Andrews' (1991) AR(1) plug-in from the residuals' lag-one
-    correlations (see ``_NARROW``), widened until every smoothed ``K*(1 - L)`` holds at least
-    one bin's worth of data. Sensitivities and residuals are transformed over
-    2n points, so the circular products are the record's linear sums.
+    *The window* is the quadratic-spectral kernel's (Epanechnikov in
+    frequency), its bandwidth half Andrews' (1991) AR(1) plug-in from the
+    (unwhitened) residuals' lag-one correlations (see ``_NARROW``), widened
+    until every smoothed ``K*k`` holds at least one bin's worth of data.
+    Andrews & Monahan take the plug-in of the whitened series instead; here it
+    widened the window 2-40x on SIDPAC's flights (their whitened residuals are
+    far from white: AR(1) plus sensor noise is over-whitened) and the 95 %
+    coverage of biases under AR(1) phi = 0.99 noise fell to 0.55-0.83, so the
+    window stays as local as the colour of the residuals themselves asks. Sensitivities and residuals
+    are transformed over 2n points, so the circular products are the record's
+    linear sums.
 
     The spectrum is estimated from a finite band, so ``B^_jj`` is itself
     random: each periodogram bin is ``F chi2_2 / 2``, and ``B^_jj`` a weighted
     sum of them, whose Satterthwaite degrees of freedom ``nu_j = 2 B_jj^2 /
     Var(B^_jj)`` follow from the weights (padded bins counted at half, as two
-    share one bin's information). Narrow windows (strong colour) give few
+    share one bin's information), here the whitened periodogram's bins smoothed
+    by the window and recoloured. Narrow windows (strong colour) give few
     degrees of freedom and a wide t interval; white residuals give the
     classical N - p.
     """
@@ -297,13 +333,13 @@ def colored_covariance(
         norm = np.sqrt(np.maximum(kept, 1e-300))
         # recolour: the whitened estimate through the inverse filter on both sides
         denom = (norm * filt)[:, :, None] * (norm * filt).conj()[:, None, :]
-        total = _smooth(pgram, half) / denom
+        total = np.asarray(_smooth(pgram, half), dtype=np.complex128) / denom
         spec = total
         if known is not None:
             # unbiased bin by bin; negative where noise outweighs the remainder, so
             # only the summed covariance is made positive semi-definite (below)
             kf = filt[:, :, None] * np.asarray(known[i]) * filt.conj()[:, None, :]
-            spec = total - _smooth(kf, half) / denom
+            spec = total - np.asarray(_smooth(kf, half), dtype=np.complex128) / denom
 
         # per-bin contributions to the covariance (one-sided: inner bins count twice)
         cov += np.einsum("kap,kab,kbq->pq", vf.conj(), spec, vf * twice[:, None, None]).real
