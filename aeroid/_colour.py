@@ -106,7 +106,7 @@ def _model_keeps(
         out = []
         for g, u in zip(sensitivities, residuals, strict=True):
             gf, _, _ = _bins(g, a, 2 * u.shape[0])
-            lev = np.einsum("kap,pq,kaq->ka", gf, m_inv, gf.conj()).real / u.shape[0]
+            lev = np.einsum("kaq,kaq->ka", gf @ m_inv, gf.conj()).real / u.shape[0]
             out.append(np.clip(1.0 - lev, 0.0, 1.0))
         return out
     level = _innovations(residuals, a)
@@ -123,7 +123,7 @@ def _model_keeps(
         circ = np.concatenate([acov, np.zeros((1, a.size)), acov[:0:-1]])
         spec = np.fft.rfft(circ, axis=0).real  # (n_bins, n_y)
         sg = np.fft.irfft(spec[:, :, None] * gf, size, axis=0)[:n]
-        b_model += np.einsum("tap,taq->pq", g, sg)
+        b_model += np.tensordot(g, sg, axes=([0, 1], [0, 1]))
         # Fejer mean of the model spectrum: sum_|k|<n (1 - |k|/n) r(k) e^{-iwk}
         taper = (1.0 - lags / n) * acov
         fejer = 2.0 * np.fft.rfft(taper, size, axis=0).real - taper[0]
@@ -132,8 +132,8 @@ def _model_keeps(
     model_cov = m_inv @ b_model @ m_inv
     out = []
     for gf, sgf, fejer, shape, n in parts:
-        cross = np.einsum("kap,pq,kaq->ka", gf, m_inv, sgf.conj()).real / n
-        back = np.einsum("kap,pq,kaq->ka", gf, model_cov, gf.conj()).real / n
+        cross = np.einsum("kaq,kaq->ka", gf @ m_inv, sgf.conj()).real / n
+        back = np.einsum("kaq,kaq->ka", gf @ model_cov, gf.conj()).real / n
         out.append(np.clip((fejer - 2.0 * cross + back) / shape, 0.0, None))
     return out
 
