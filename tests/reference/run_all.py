@@ -7,8 +7,13 @@ Usage::
 Prints each case's table, then one summary line per case: the largest
 ``|ours - SIDPAC| / sigma_SIDPAC``, the range of our standard errors over
 SIDPAC's (corrected where saved), over the Monte Carlo's, SIDPAC's over the
-Monte Carlo's, and the time of our fit. Exits 0 with a message when the data
-folder is unset.
+Monte Carlo's, ours over the Monte Carlo's first-order value (``ours/lin``:
+the raw-periodogram sandwich of the same fit, `_sidpac.linear_mc`), and the
+time of our fit; then how many rows meet each target, and of the rows
+outside 0.8-1.25 of the Monte Carlo how many lie inside the 95 % range of
+that first-order value's own degrees of freedom (``mc spread``: the Monte
+Carlo's answer for this flight is a draw that far from the spectrum the
+kernel estimates). Exits 0 with a message when the data folder is unset.
 """
 
 from __future__ import annotations
