@@ -169,3 +169,57 @@ def test_numpy_r_colores_white_is_ordinary_least_squares() -> None:
     middle = sum(np.outer(X[i], X[j]) * acf[abs(i - j)] for i in range(200) for j in range(200))
     np.testing.assert_allclose(corrected, xtxi @ middle @ xtxi, rtol=1e-9)
     # (SIDPAC's own saved r_colores errors are matched to 1e-13 by ref_example_5p2 on real data)
+
+
+def test_linear_mc_is_the_monte_carlo_of_a_linear_fit() -> None:
+    # coloured residuals of a fit with a constant and a slow regressor: the surrogate
+    # scatter of a linear estimator is the raw-periodogram sandwich linear_mc gives
+    rng = np.random.default_rng(12)
+    n = 300
+    x = np.column_stack([np.ones(n), np.cumsum(rng.normal(size=n)) / np.sqrt(n)])
+    inv = np.linalg.inv(x.T @ x)
+    e = np.convolve(rng.normal(size=n + 20), np.ones(20) / 20, mode="valid")[:n]
+    resid = e - x @ (inv @ (x.T @ e))
+    var, dof = S.linear_mc([x[:, None, :]], [resid[:, None]], inv)
+    draws = np.array([inv @ (x.T @ S.phase_surrogate(resid, rng)) for _ in range(4000)])
+    # 4000 draws: a second moment to about sqrt(2/4000) ~ 2.2 %; allow over 4 of those
+    np.testing.assert_allclose(np.mean(draws**2, axis=0), var, rtol=0.1)
+    assert np.all((dof > 1.0) & (dof < n))
+    lo, hi = S.chi2_band(4.0)
+    assert 0.0 < lo < 1.0 < hi  # sqrt(chi2_4 / 4) spans about 0.35-1.66
+    assert np.isclose(lo, np.sqrt(0.4844 / 4.0), rtol=1e-3) and np.isclose(
+        hi, np.sqrt(11.1433 / 4.0), rtol=1e-3
+    )
+
+
+def test_recorder_annotates_rows_with_the_kernels_figures() -> None:
+    import aeroid
+
+    rng = np.random.default_rng(13)
+    n = 400
+    data = {"x": np.cumsum(rng.normal(size=n)) / 20.0}
+    data["z"] = (
+        1.0 + 2.0 * data["x"] + np.convolve(rng.normal(size=n + 9), np.ones(10) / 10, "valid")
+    )
+    with S.ColourRecorder() as rec:
+        res = aeroid.equation_error(data, "z", ["x"])
+    rows = [
+        S.row(
+            "c",
+            k,
+            sidpac=None,
+            sidpac_se_white=None,
+            sidpac_se_corrected=None,
+            ours=res.parameters[k],
+            ours_se=res.stderr[k],
+        )
+        for k in res.parameters
+    ]
+    rec.annotate(rows)
+    for r in rows:
+        assert r["lin_se"] > 0 and r["lin_dof"] > 0
+        assert np.isclose(r["ours_dof"], res.degrees_of_freedom[r["parameter"]])
+        assert np.isclose(r["lin_ratio"], r["ours_se"] / r["lin_se"])
+    import aeroid._colour as colour
+
+    assert colour.colored_covariance.__name__ == "colored_covariance"  # restored
