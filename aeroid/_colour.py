@@ -9,8 +9,9 @@ for output error) and ``M = sum_t G_t' G_t``; with noise of cross-spectrum
     B = sum_ij G_i' R(i - j) G_j = (1/N) sum_k G~_k^H F(w_k) G~_k,
 
 the form Morelli & Klein write in the time domain (SIDPAC's colores) and here
-in the frequency domain, where it is cheap and where its estimate can be
-corrected for what the fit removed. `colored_covariance` is the one
+in the frequency domain, where it is cheap, where its estimate can be
+corrected for what the fit removed, and where prewhitening by an AR(1) filter
+and recolouring by its inverse are products. `colored_covariance` is the one
 implementation for estimators that fit time histories (equation error,
 stepwise regression, output error, data compatibility); see its docstring
 for the estimator and its degrees of freedom. `frequency_sandwich` is the same
@@ -37,6 +38,12 @@ _RHO_LIMIT = 0.999
 # (and so the t widening) already carry (the fixed-b argument of Kiefer and
 # Vogelsang, 2005).
 _NARROW = 2.0
+# Prewhitening (Andrews & Monahan, 1992) by one AR(1) per output; False gives the
+# kernel without it (private: for comparisons only).
+_PREWHITEN = True
+# Fixed-point steps that move the AR(1) coefficients until the model's expected
+# residual lag-one correlation is the one seen (the fit removed the slowest noise).
+_AR_STEPS = 3
 
 
 def _lag_scale(u: list[FloatArray]) -> float:
@@ -54,6 +61,113 @@ def _lag_scale(u: list[FloatArray]) -> float:
         den += float(np.sum(s4 / (1.0 - rho) ** 4))
     alpha = num / den if den > 0 else 0.0
     return _QS_CONSTANT * (alpha * n) ** 0.2
+
+
+def _prewhitening(u: list[FloatArray]) -> FloatArray:
+    """Each output's lag-one correlation pooled over the records (least squares),
+    within +-`_cap` (zero for an output without residuals)."""
+    return np.asarray(np.clip(_lag_one(u), -_cap(u), _cap(u)), dtype=np.float64)
+
+
+def _innovations(u: list[FloatArray], a: FloatArray) -> FloatArray:
+    """Each output's mean square of the whitened residuals ``u_t - a u_{t-1}``."""
+    num = sum(np.einsum("tk,tk->k", v[1:] - a * v[:-1], v[1:] - a * v[:-1]) for v in u)
+    den = sum(max(v.shape[0] - 1, 1) for v in u)
+    out = np.asarray(num, dtype=np.float64) / den
+    return np.asarray(np.where(out > 0, out, 1.0), dtype=np.float64)
+
+
+def _bins(
+    g: FloatArray, a: FloatArray, size: int
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128], FloatArray]:
+    """The sensitivities' one-sided transform over `size` points, the prewhitening
+    filter ``1 - a e^{-iw}`` at its bins, and each bin's weight in a linear sum
+    (inner bins count twice)."""
+    n_bins = size // 2 + 1
+    gf = np.fft.rfft(g, size, axis=0)
+    filt = 1.0 - a[None, :] * np.exp(-2j * np.pi * np.arange(n_bins) / size)[:, None]
+    twice = np.full(n_bins, 2.0 / size)
+    twice[0] = twice[-1] = 1.0 / size
+    return gf, filt, twice
+
+
+def _model_keeps(
+    sensitivities: list[FloatArray], residuals: list[FloatArray], m_inv: FloatArray, a: FloatArray
+) -> list[FloatArray]:
+    """Per record, bin and output, the residual periodogram's expectation over the noise
+    spectrum were the noise the AR(1) model `a` (``1 - L`` for white noise).
+
+    With ``S`` the model's covariance (one AR(1) per output), ``H = G M^-1 G'`` and
+    ``d`` the Fourier vector, ``E[I_u(w)] = d'(S - 2 HS + HSH)d / n``: the Fejer mean
+    of the model spectrum, less twice ``Re G~ M^-1 (SG)~^H / n``, plus
+    ``G~ M^-1 G'SG M^-1 G~^H / n``, exact through Toeplitz products by FFT.
+    """
+    if not np.any(a != 0.0):
+        out = []
+        for g, u in zip(sensitivities, residuals, strict=True):
+            gf, _, _ = _bins(g, a, 2 * u.shape[0])
+            lev = np.einsum("kaq,kaq->ka", gf @ m_inv, gf.conj()).real / u.shape[0]
+            out.append(np.clip(1.0 - lev, 0.0, 1.0))
+        return out
+    level = _innovations(residuals, a)
+    p = m_inv.shape[0]
+    b_model = np.zeros((p, p))
+    parts = []
+    for g, u in zip(sensitivities, residuals, strict=True):
+        n = u.shape[0]
+        size = 2 * n
+        gf, filt, _ = _bins(g, a, size)
+        lags = np.arange(n)[:, None]
+        acov = level / (1.0 - a**2) * a[None, :] ** lags  # (n, n_y)
+        # the Toeplitz product S g, exact through a circulant of twice the length
+        circ = np.concatenate([acov, np.zeros((1, a.size)), acov[:0:-1]])
+        spec = np.fft.rfft(circ, axis=0).real  # (n_bins, n_y)
+        sg = np.fft.irfft(spec[:, :, None] * gf, size, axis=0)[:n]
+        b_model += np.tensordot(g, sg, axes=([0, 1], [0, 1]))
+        # Fejer mean of the model spectrum: sum_|k|<n (1 - |k|/n) r(k) e^{-iwk}
+        taper = (1.0 - lags / n) * acov
+        fejer = 2.0 * np.fft.rfft(taper, size, axis=0).real - taper[0]
+        shape = level[None, :] / np.abs(filt) ** 2
+        parts.append((gf, np.fft.rfft(sg, size, axis=0), fejer, shape, n))
+    model_cov = m_inv @ b_model @ m_inv
+    out = []
+    for gf, sgf, fejer, shape, n in parts:
+        cross = np.einsum("kaq,kaq->ka", gf @ m_inv, sgf.conj()).real / n
+        back = np.einsum("kaq,kaq->ka", gf @ model_cov, gf.conj()).real / n
+        out.append(np.clip((fejer - 2.0 * cross + back) / shape, 0.0, None))
+    return out
+
+
+def _lag_one(u: list[FloatArray]) -> FloatArray:
+    """Each output's lag-one correlation, pooled over the records."""
+    c0 = np.asarray(sum(np.einsum("tk,tk->k", v, v) for v in u), dtype=np.float64)
+    c1 = np.asarray(sum(np.einsum("tk,tk->k", v[:-1], v[1:]) for v in u), dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(np.where(c0 > 0, c1 / c0, 0.0), dtype=np.float64)
+
+
+def _expected_lag_one(keeps: list[FloatArray], u: list[FloatArray], a: FloatArray) -> FloatArray:
+    """The residuals' lag-one correlation the AR(1) model `a` and the fit predict."""
+    c0 = np.zeros(a.shape)
+    c1 = np.zeros(a.shape)
+    for keep, v in zip(keeps, u, strict=True):
+        size = 2 * v.shape[0]
+        w = 2.0 * np.pi * np.arange(keep.shape[0]) / size
+        filt = 1.0 - a[None, :] * np.exp(-1j * w)[:, None]
+        twice = np.full(keep.shape[0], 2.0)
+        twice[0] = twice[-1] = 1.0
+        power = twice[:, None] * keep / np.abs(filt) ** 2
+        c0 += power.sum(axis=0)
+        c1 += (power * np.cos(w)[:, None]).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(np.where(c0 > 0, c1 / c0, 0.0), dtype=np.float64)
+
+
+def _cap(u: list[FloatArray]) -> float:
+    """The largest |a| allowed: ``1 - 2 pi / n`` for the longest record (see
+    `colored_covariance`)."""
+    n = max(v.shape[0] for v in u)
+    return float(max(1.0 - 2.0 * np.pi / n, 0.0))
 
 
 def _smooth(x: NDArray[np.generic], half: int) -> NDArray[np.generic]:
@@ -92,9 +206,10 @@ def colored_covariance(
         Per record, the expected cross-periodogram (over ``2 n_t`` points, divided
         by ``n_t``) of a part of the residuals whose share of the covariance the
         caller adds itself, such as integrated input noise propagated exactly
-        (`aeroid.check_compatibility`). It is taken off the smoothed residual
-        periodogram before the division by ``K*(1 - L)`` (the expectation already
-        carries the fit's projection), so that part is not counted twice. The
+        (`aeroid.check_compatibility`). It is whitened with the residuals and taken
+        off their smoothed periodogram before the division by ``K*k`` (the
+        expectation already carries the fit's projection), so that part is not
+        counted twice. The
         difference is unbiased but noisy where the known part dominates, and so
         is the covariance returned, which may then be indefinite: the caller
         adds the known part's covariance and makes the sum positive
@@ -114,55 +229,99 @@ def colored_covariance(
     residuals are least like the noise: the fit removed the noise's component
     in the span of ``G`` (at w = 0 a constant removes all of it, so a sum of
     the residual autocorrelation over all lags, SIDPAC's, is nearly zero
-    there). The residual periodogram's expectation tells how much: with the
-    Fourier vector ``d_w`` and ``H`` the fit's projection, for noise locally
-    flat at ``F(w)``
+    there), and where slowly drifting residuals have a peak narrower than any
+    window. Both are met as Andrews & Monahan (1992) prescribe: prewhiten,
+    smooth, recolour.
 
-        E[I_u(w)]_aa = F_aa(w) (1 - L_aa(w)),  L_aa(w) = G~_a(w) M^-1 G~_a(w)^H / n,
+    *Prewhitening.* Each output ``a`` gets an AR(1) filter ``1 - a_a e^{-iw}``.
+    Its coefficient starts at the residuals' pooled lag-one correlation, which
+    under-reads the noise's (the fit took the slowest part of the noise), and
+    is moved (`_AR_STEPS` fixed-point steps) until the lag-one correlation the
+    model predicts for the *residuals*, ``sum_w E[I_u(w)] cos w / sum_w E[I_u(w)]``
+    with the expectation below, is the one seen. It is held within ``|a| <= 1 -
+    2 pi / n`` (n the longest record): a root nearer the unit circle makes a
+    peak narrower than the record's first Fourier frequency, which the record
+    cannot tell from a trend, and there the recoloured spectrum at w = 0 is at
+    most twice the model's at that first frequency (Andrews & Monahan cap at a
+    fixed 0.97 for the same reason, the recolouring gain ``1 / (1 - a)^2``
+    resting on the last digits of a noisy estimate; a fixed cap would truncate
+    a 50 Hz record's true 0.99).
 
-    the leverage of frequency w on output a. Over all n Fourier frequencies the
-    leverages sum to ``tr(M^-1 M) = p``. The spectrum is therefore estimated by
-    smoothing the residual periodogram and the ``1 - L`` together over a
-    window and dividing, ``F^ = K*I / K*(1 - L)`` (cross terms by the geometric
-    mean of their outputs' factors): near w = 0 it borrows from neighbouring
-    frequencies the fit left alone, and with white residuals and the window
-    the whole band it is exactly ``SSE / (N - p)``, the classical variance with
-    its classical degrees of freedom. That is the whole degrees-of-freedom
+    *Smoothing with the fit's leverage.* With ``S`` the model's covariance (one
+    AR(1) per output, level the whitened residuals' mean square), ``H`` the
+    fit's projection and ``d_w`` the Fourier vector, the residual periodogram
+    ``I_u = d' u u' d / n`` has expectation
+
+        E[I_u(w)]_aa = d'(S - 2 H S + H S H) d / n
+                     = Fej_a(w) - 2 Re G~_a M^-1 (S G)~_a^H / n
+                       + G~_a M^-1 (G' S G) M^-1 G~_a^H / n  =  F_a(w) k_a(w),
+
+    ``Fej`` the Fejer mean of the model spectrum ``F_a``; all terms exact
+    through Toeplitz products by FFT (`_model_keeps`). For white noise ``k =
+    1 - L`` with ``L_aa(w) = G~_a M^-1 G~_a^H / n`` the leverage of frequency w
+    (they sum to ``tr(M^-1 M) = p`` over the n Fourier frequencies). The
+    whitened periodogram ``|1 - a e^{-iw}|^2 I_u`` then has expectation
+    ``F_e k`` with ``F_e`` the whitened spectrum, flat where the model holds and
+    slowly varying where it does not, so it is estimated by smoothing both and
+    dividing, ``F_e^ = K*(|1 - a e^{-iw}|^2 I_u) / K*k`` (cross terms by the
+    geometric mean of their outputs' factors), and recoloured, ``F^ = F_e^ /
+    ((1 - a_a e^{-iw})(1 - a_b e^{iw}))``. Near w = 0 it borrows from
+    neighbouring frequencies the fit left alone, with the model's shape rather
+    than a flat one; with white residuals (``a = 0``) and the window the whole
+    band it is exactly ``SSE / (N - p)``, the classical variance with its
+    classical degrees of freedom. That is the whole degrees-of-freedom
     correction for the projection: each frequency loses the fraction of a
     degree of freedom the fit took from it, no more (no ``N_eff / (N_eff - p)``
     factor on top, which would count the loss twice).
 
-    The window is the quadratic-spectral kernel's (Epanechnikov in frequency),
-    its bandwidth half Andrews' (1991) AR(1) plug-in from the residuals' lag-one
-    correlations (see ``_NARROW``), widened until every smoothed ``K*(1 - L)`` holds at least
-    one bin's worth of data. Sensitivities and residuals are transformed over
-    2n points, so the circular products are the record's linear sums.
+    *The window* is the quadratic-spectral kernel's (Epanechnikov in
+    frequency), its bandwidth half Andrews' (1991) AR(1) plug-in from the
+    (unwhitened) residuals' lag-one correlations (see ``_NARROW``), widened
+    until every smoothed ``K*k`` holds at least one bin's worth of data.
+    Andrews & Monahan take the plug-in of the whitened series instead; here it
+    widened the window 2-40x on SIDPAC's flights (their whitened residuals are
+    far from white: AR(1) plus sensor noise is over-whitened) and the 95 %
+    coverage of biases under AR(1) phi = 0.99 noise fell to 0.55-0.83, so the
+    window stays as local as the colour of the residuals themselves asks. Sensitivities and residuals
+    are transformed over 2n points, so the circular products are the record's
+    linear sums.
 
     The spectrum is estimated from a finite band, so ``B^_jj`` is itself
     random: each periodogram bin is ``F chi2_2 / 2``, and ``B^_jj`` a weighted
     sum of them, whose Satterthwaite degrees of freedom ``nu_j = 2 B_jj^2 /
     Var(B^_jj)`` follow from the weights (padded bins counted at half, as two
-    share one bin's information). Narrow windows (strong colour) give few
+    share one bin's information), here the whitened periodogram's bins smoothed
+    by the window and recoloured. Narrow windows (strong colour) give few
     degrees of freedom and a wide t interval; white residuals give the
     classical N - p.
     """
     p = m_inv.shape[0]
     cov = np.zeros((p, p))
     var_terms = np.zeros(p)
+    n_y = residuals[0].shape[1] if residuals else 0
+    a = _prewhitening(residuals) if _PREWHITEN and n_y else np.zeros(n_y)
     scale = _lag_scale(residuals)
     if known is not None and len(known) != len(residuals):
         raise ValueError("known: one expected periodogram per record")
+    keeps = _model_keeps(sensitivities, residuals, m_inv, a)
+    if np.any(a != 0.0):
+        # the fit took the noise's slowest part, so the residuals' lag-one correlation
+        # under-reads the noise's: move a until the model's residuals have the one seen
+        seen = _lag_one(residuals)
+        cap = _cap(residuals)
+        for _ in range(_AR_STEPS):
+            a = np.clip(a + seen - _expected_lag_one(keeps, residuals, a), -cap, cap)
+            keeps = _model_keeps(sensitivities, residuals, m_inv, a)
     for i, (g, u) in enumerate(zip(sensitivities, residuals, strict=True)):
         n = u.shape[0]
         size = 2 * n
         n_bins = size // 2 + 1
-        gf = np.fft.rfft(g, size, axis=0)  # (n_bins, n_y, p)
+        gf, filt, twice = _bins(g, a, size)  # (n_bins, n_y, p), the filter, bin weights
         uf = np.fft.rfft(u, size, axis=0)  # (n_bins, n_y)
         vf = np.matmul(gf, m_inv)  # sensitivities carried through M^-1
-        # leverage of each bin on each output, and the residual cross-periodogram
-        lev = np.einsum("kap,kap->ka", vf, gf.conj()).real / n
-        keep = np.clip(1.0 - lev, 0.0, 1.0)
-        pgram = np.einsum("ka,kb->kab", uf, uf.conj()) / n
+        keep = keeps[i]
+        wf = uf * filt
+        pgram = np.einsum("ka,kb->kab", wf, wf.conj()) / n
         # half-width in bins of 2 pi / size: 6 pi / (5 S) rad/sample
         half = n_bins if scale <= 0 else int(np.ceil(3.0 * size / (5.0 * np.pi * _NARROW * scale)))
         half = max(half, 1)
@@ -172,17 +331,17 @@ def colored_covariance(
                 break  # every estimate rests on at least one bin's worth of data
             half *= 2
         norm = np.sqrt(np.maximum(kept, 1e-300))
-        denom = norm[:, :, None] * norm[:, None, :]
-        total = _smooth(pgram, half) / denom
+        # recolour: the whitened estimate through the inverse filter on both sides
+        denom = (norm * filt)[:, :, None] * (norm * filt).conj()[:, None, :]
+        total = np.asarray(_smooth(pgram, half), dtype=np.complex128) / denom
         spec = total
         if known is not None:
             # unbiased bin by bin; negative where noise outweighs the remainder, so
             # only the summed covariance is made positive semi-definite (below)
-            spec = total - _smooth(np.asarray(known[i]), half) / denom
+            kf = filt[:, :, None] * np.asarray(known[i]) * filt.conj()[:, None, :]
+            spec = total - np.asarray(_smooth(kf, half), dtype=np.complex128) / denom
 
         # per-bin contributions to the covariance (one-sided: inner bins count twice)
-        twice = np.full(n_bins, 2.0 / size)
-        twice[0] = twice[-1] = 1.0 / size
         cov += np.einsum("kap,kab,kbq->pq", vf.conj(), spec, vf * twice[:, None, None]).real
         # Satterthwaite: the diagonal's per-bin parts, each a smoothed mean of
         # periodogram bins of unit relative variance (relative to the whole

@@ -113,14 +113,12 @@ def _coverage(noise: str) -> np.ndarray:
 
 
 # The two biases (constant sensitivities, all their weight at w = 0) under coloured
-# residuals this slow (correlation time 199 samples, 12.6 in the record) cover
-# 0.82-0.86: the nonparametric spectrum cannot resolve a peak narrower than its
-# window at w = 0, where the bias fit also removed the residuals' own evidence. A
-# parametric AR(1) model (REML) covers them, but on real flights (SIDPAC's
-# examples) it gave constants bars 5-28x the Monte Carlo of the flight's own
-# residuals, and AR prewhitening of the kernel did the same; the reference suite
-# (tests/reference) shows the real-data side. This bound records the shortfall.
-BIAS_FLOOR = 0.80
+# residuals this slow (correlation time 199 samples, 12.6 in the record) rest on few
+# degrees of freedom: the fit removed the residuals' own evidence at w = 0, and the
+# spectrum there is the AR(1) prewhitening's extrapolation (without it they covered
+# 0.82-0.86, with it 0.875-0.89). They must be consistent with the issue's 90 % at
+# two binomial standard errors of a 90 % rate over 200 seeds (2.1 %).
+BIAS_FLOOR = 0.90 - 2.0 * float(np.sqrt(0.90 * 0.10 / N_SEEDS))
 
 
 def _assert_calibrated(cover: np.ndarray) -> None:

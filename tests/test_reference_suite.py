@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 HERE = pathlib.Path(__file__).resolve().parent
 REF = HERE / "reference"
@@ -169,3 +170,86 @@ def test_numpy_r_colores_white_is_ordinary_least_squares() -> None:
     middle = sum(np.outer(X[i], X[j]) * acf[abs(i - j)] for i in range(200) for j in range(200))
     np.testing.assert_allclose(corrected, xtxi @ middle @ xtxi, rtol=1e-9)
     # (SIDPAC's own saved r_colores errors are matched to 1e-13 by ref_example_5p2 on real data)
+
+
+def test_linear_mc_is_the_monte_carlo_of_a_linear_fit() -> None:
+    # coloured residuals of a fit with a constant and a slow regressor: the surrogate
+    # scatter of a linear estimator is the raw-periodogram sandwich linear_mc gives
+    rng = np.random.default_rng(12)
+    n = 300
+    x = np.column_stack([np.ones(n), np.cumsum(rng.normal(size=n)) / np.sqrt(n)])
+    inv = np.linalg.inv(x.T @ x)
+    e = np.convolve(rng.normal(size=n + 20), np.ones(20) / 20, mode="valid")[:n]
+    resid = e - x @ (inv @ (x.T @ e))
+    var, dof = S.linear_mc([x[:, None, :]], [resid[:, None]], inv)
+    draws = np.array([inv @ (x.T @ S.phase_surrogate(resid, rng)) for _ in range(4000)])
+    # 4000 draws: a second moment to about sqrt(2/4000) ~ 2.2 %; allow over 4 of those
+    np.testing.assert_allclose(np.mean(draws**2, axis=0), var, rtol=0.1)
+    assert np.all((dof > 1.0) & (dof < n))
+    lo, hi = S.chi2_band(4.0)
+    assert 0.0 < lo < 1.0 < hi  # sqrt(chi2_4 / 4) spans about 0.35-1.66
+    assert np.isclose(lo, np.sqrt(0.4844 / 4.0), rtol=1e-3) and np.isclose(
+        hi, np.sqrt(11.1433 / 4.0), rtol=1e-3
+    )
+
+
+def test_recorder_annotates_rows_with_the_kernels_figures() -> None:
+    import aeroid
+
+    rng = np.random.default_rng(13)
+    n = 400
+    data = {"x": np.cumsum(rng.normal(size=n)) / 20.0}
+    data["z"] = (
+        1.0 + 2.0 * data["x"] + np.convolve(rng.normal(size=n + 9), np.ones(10) / 10, "valid")
+    )
+    with S.ColourRecorder() as rec:
+        res = aeroid.equation_error(data, "z", ["x"])
+    rows = [
+        S.row(
+            "c",
+            k,
+            sidpac=None,
+            sidpac_se_white=None,
+            sidpac_se_corrected=None,
+            ours=res.parameters[k],
+            ours_se=res.stderr[k],
+        )
+        for k in res.parameters
+    ]
+    rec.annotate(rows)
+    for r in rows:
+        assert r["lin_se"] > 0 and r["lin_dof"] > 0
+        assert np.isclose(r["ours_dof"], res.degrees_of_freedom[r["parameter"]])
+        assert np.isclose(r["lin_ratio"], r["ours_se"] / r["lin_se"])
+    import aeroid._colour as colour
+
+    assert colour.colored_covariance.__name__ == "colored_covariance"  # restored
+
+
+@pytest.mark.slow
+def test_the_monte_carlo_under_reads_a_constant_under_slow_ar1_noise() -> None:
+    # The suite's Monte Carlo keeps the residuals' periodogram (which the fit emptied
+    # near w = 0) and fills bin 0 from the three lowest bins (a flat extrapolation).
+    # Under AR(1) noise with phi = 0.99 on 1000 samples (true spectrum at w = 0 2.3x
+    # the mean of those bins) its first-order variance of a constant is about 0.46 of
+    # the exact one, averaged over 100 seeds (a seed scatters by about 1, the mean by
+    # 0.1): where residuals drift, a constant's Monte Carlo figure is low by itself.
+    from scipy.linalg import toeplitz
+    from scipy.signal import butter, lfilter
+
+    n, phi, seeds = 1000, 0.99, 100
+    cov = toeplitz(phi ** np.arange(n))
+    ratio = np.zeros(3)
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        b, a = butter(2, 0.05)
+        slow = [lfilter(b, a, rng.normal(size=n + 200))[200:] for _ in range(2)]
+        x = np.column_stack([np.ones(n), *slow])
+        inv = np.linalg.inv(x.T @ x)
+        e = lfilter([1.0], [1.0, -phi], rng.normal(size=n + 3000))[3000:] * np.sqrt(1 - phi**2)
+        v = e - x @ (inv @ (x.T @ e))
+        exact = np.diag(inv @ x.T @ cov @ x @ inv)
+        ratio += S.linear_mc([x[:, None, :]], [v[:, None]], inv)[0] / exact / seeds
+    print(ratio)
+    assert ratio[0] < 0.75, ratio
+    assert np.all(np.abs(ratio[1:] - 1.0) < 0.2), ratio

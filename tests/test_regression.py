@@ -160,10 +160,13 @@ def test_a_hand_built_constant_column_is_named_with_the_remedy() -> None:
 
 
 @pytest.mark.parametrize("n", [301, 1000])
-def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(n: int) -> None:
+def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(
+    n: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # white residuals, a whole-band window: the spectrum is flat, sum_k G~'G~ / N = X'X
     # (Parseval over the 2n-point transform), so the sandwich is s^2 (X'X)^-1 exactly
-    # for s^2 = the leverage-corrected periodogram mean
+    # for s^2 = the leverage-corrected periodogram mean (the kernel without its AR(1)
+    # prewhitening, which tests/test_colour_prewhitening.py checks)
     from aeroid import _colour
 
     rng = np.random.default_rng(9)
@@ -171,6 +174,8 @@ def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(n: int) ->
     inv = np.linalg.inv(x.T @ x)
     v = rng.standard_normal(n)
     v -= x @ (inv @ (x.T @ v))  # least-squares residuals
+    cov_pw, nu_pw = _colour.colored_covariance([x[:, None, :]], [v[:, None]], inv)
+    monkeypatch.setattr(_colour, "_PREWHITEN", False)
     cov, nu = _colour.colored_covariance([x[:, None, :]], [v[:, None]], inv)
     # the flat window's estimate: mean periodogram over mean (1 - leverage), one-sided bins
     size = 2 * n
@@ -181,19 +186,28 @@ def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(n: int) ->
     if scale * 5.0 * np.pi / (3.0 * size) < 1.0 / (size // 2):
         s2 = np.mean(np.abs(uf) ** 2 / n) / np.mean(1.0 - lev)
         np.testing.assert_allclose(cov, s2 * inv, rtol=1e-9)
-    # and in any window, white residuals give the classical bars to within sampling
+    # and in any window, white residuals give the classical bars to within sampling:
+    # each variance rests on nu_j degrees of freedom (relative sd sqrt(2 / nu_j))
     s2_classical = float(v @ v) / (n - 3)
-    np.testing.assert_allclose(np.diag(cov), s2_classical * np.diag(inv), rtol=0.25)
-    # white residuals keep most of their degrees of freedom (the t widening at
-    # nu = 0.1 n is below 2 % for n = 301)
-    assert np.all(nu > 0.1 * n)
+    for c, d in ((cov, nu), (cov_pw, nu_pw)):
+        rel = np.diag(c) / (s2_classical * np.diag(inv)) - 1.0
+        assert np.all(np.abs(rel) <= 3.0 * np.sqrt(2.0 / d)), (rel, d)
+        # white residuals keep most of their degrees of freedom (the t widening at
+        # nu = 0.1 n is below 2 % for n = 301)
+        assert np.all(d > 0.1 * n)
+    # prewhitening white residuals changes the bars by little
+    np.testing.assert_allclose(np.diag(cov_pw), np.diag(cov), rtol=0.1)
 
 
-def test_colored_covariance_is_the_frequency_domain_double_sum() -> None:
+def test_colored_covariance_is_the_frequency_domain_double_sum(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     # the sandwich is (1/N) sum_k V~_k^H F^_k V~_k over the 2n-point transform, each
-    # bin's F^ the smoothed periodogram over the smoothed (1 - leverage)
+    # bin's F^ the smoothed periodogram over the smoothed (1 - leverage) (without the
+    # prewhitening; with it, tests/test_colour_prewhitening.py)
     from aeroid import _colour
 
+    monkeypatch.setattr(_colour, "_PREWHITEN", False)
     rng = np.random.default_rng(4)
     n = 400
     x = np.column_stack([np.ones(n), _design(rng, n)])

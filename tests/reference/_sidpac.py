@@ -233,6 +233,110 @@ def monte_carlo(
     return {k: float(np.std(v, ddof=1)) for k, v in draws.items() if len(v) >= 2}
 
 
+class ColourRecorder:
+    """``with ColourRecorder() as rec: ...`` records every call of the library's
+    coloured-residual kernel (``aeroid._colour.colored_covariance``) made inside,
+    with the Monte Carlo's linear expectation (`linear_mc`) of the same fit.
+
+    `annotate` then adds to each row whose standard error is one the kernel
+    returned: ``lin_se`` (that expectation), ``lin_dof`` (its degrees of
+    freedom) and ``ours_dof`` (the kernel's Satterthwaite ones).
+    """
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def __enter__(self) -> ColourRecorder:
+        import aeroid._colour as colour
+        import aeroid.estimation._regression_fits as fits
+
+        self._saved = [(colour, colour.colored_covariance), (fits, fits.colored_covariance)]
+        original = colour.colored_covariance
+
+        def recorded(sens: Any, resid: Any, m_inv: Any, **kw: Any) -> Any:
+            cov, nu = original(sens, resid, m_inv, **kw)
+            var, dof = linear_mc(sens, resid, m_inv)
+            self.calls.append((np.sqrt(np.abs(np.diag(cov))), nu, np.sqrt(var), dof))
+            return cov, nu
+
+        for mod, _ in self._saved:
+            mod.colored_covariance = recorded  # type: ignore[attr-defined]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for mod, fn in self._saved:
+            mod.colored_covariance = fn  # type: ignore[attr-defined]
+
+    def annotate(self, rows: Sequence[dict[str, Any]]) -> None:
+        for r in rows:
+            se_r = r.get("ours_se")
+            if se_r is None or not np.isfinite(se_r) or se_r <= 0:
+                continue
+            for se_k, nu_k, lin_k, dof_k in reversed(self.calls):
+                hit = np.flatnonzero(np.abs(se_k - se_r) <= 1e-9 * se_r)
+                if hit.size:
+                    j = int(hit[0])
+                    r["ours_dof"] = float(nu_k[j])
+                    r["lin_se"] = float(lin_k[j])
+                    r["lin_dof"] = float(dof_k[j])
+                    r["lin_ratio"] = _ratio(se_r, float(lin_k[j]))
+                    break
+
+
+def linear_mc(
+    sens: Sequence[Any], resid: Sequence[Any], m_inv: Any, *, low_bins: int = 3
+) -> tuple[np.ndarray, np.ndarray]:
+    """The Monte Carlo's variance to first order, and its degrees of freedom.
+
+    A refit moves the estimate by ``M^-1 sum_t G_t' s_t`` for the surrogate
+    ``s`` (`phase_surrogate`): on the n-point grid each bin's transform turned
+    by its own random phase, so the variance is the raw-periodogram sandwich
+    ``(1/n^2) sum_k |V~_k^H u~_k|^2`` (``V = G M^-1``; inner bins twice, the
+    Nyquist bin, kept, nothing; bin 0 the mean real cross-power of the
+    `low_bins` lowest bins). Its degrees of freedom are Satterthwaite's with
+    each bin's term a periodogram bin (relative variance one): few where the
+    sensitivity sits on few bins, as a constant's does, so the Monte Carlo's
+    own answer is then a noisy draw around the spectrum's expectation.
+    """
+    m_inv = np.asarray(m_inv, dtype=float)
+    p = m_inv.shape[0]
+    total = np.zeros(p)
+    squares = np.zeros(p)
+    for g, u in zip(sens, resid, strict=True):
+        g = np.asarray(g, dtype=float)
+        u = np.asarray(u, dtype=float)
+        n = u.shape[0]
+        vf = np.fft.rfft(g, axis=0) @ m_inv  # (bins, n_y, p)
+        uf = np.fft.rfft(u, axis=0)  # (bins, n_y)
+        score = np.einsum("kap,ka->kp", vf.conj(), uf)
+        terms = 2.0 * np.abs(score) ** 2 / n**2
+        terms[0] = 0.0
+        if n % 2 == 0:
+            terms[-1] = 0.0
+        k = min(low_bins, uf.shape[0] - 2 + n % 2)
+        if k > 0:
+            low = uf[1 : k + 1]
+            s0 = np.einsum("ka,kb->ab", low, low.conj()).real / k
+            v0 = vf[0].real
+            terms[0] = np.einsum("ap,ab,bp->p", v0, s0, v0) / n**2
+        total += terms.sum(axis=0)
+        squares += (terms**2).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = np.where(squares > 0, 2.0 * total**2 / squares, np.inf)
+    return total, dof
+
+
+def chi2_band(dof: float, level: float = 0.95) -> tuple[float, float]:
+    """The central `level` range of ``sqrt(chi2_nu / nu)``: where a standard error
+    resting on `dof` degrees of freedom falls about its expectation."""
+    from scipy.stats import chi2
+
+    if not np.isfinite(dof):
+        return 1.0, 1.0
+    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], dof)
+    return float(np.sqrt(lo / dof)), float(np.sqrt(hi / dof))
+
+
 class Timer:
     """``with Timer() as t: ...`` then ``t.seconds``."""
 
@@ -274,6 +378,10 @@ _COLUMNS = (
     ("mc_se", "mc se", 10),
     ("mc_ratio", "ours/mc", 8),
     ("sidpac_mc", "sid/mc", 7),
+    ("lin_se", "mc lin", 10),
+    ("lin_ratio", "ours/lin", 8),
+    ("lin_dof", "lin nu", 7),
+    ("ours_dof", "ours nu", 8),
 )
 
 
@@ -335,7 +443,11 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     mc_lo, mc_hi = span([r.get("mc_ratio") for r in rows])
     sm_lo, sm_hi = span([sidpac_mc_ratio(r) for r in rows])
     secs = [r.get("seconds") for r in rows if r.get("seconds") is not None]
+    ln_lo, ln_hi = span([r.get("lin_ratio") for r in rows])
     return {
+        "lin_min": ln_lo,
+        "lin_max": ln_hi,
+        "mc_spread": spread_explained(rows),
         "max_delta_sigma": max(d) if d else None,
         "se_min": se_lo,
         "se_max": se_hi,
@@ -350,6 +462,23 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "target_mc": inside([r.get("mc_ratio") for r in rows], 0.8, 1.25),
         "target_estimate": inside(d, 0.0, 1.0),
     }
+
+
+def spread_explained(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Of the rows outside 0.8-1.25 of the Monte Carlo, those whose ratio to the
+    Monte Carlo's linear expectation lies inside the 95 % range that expectation's
+    own degrees of freedom give it (`chi2_band`): the Monte Carlo's answer for this
+    flight is a draw that far from the spectrum the kernel estimates."""
+    out = [r for r in rows if r.get("mc_ratio") is not None and not 0.8 <= r["mc_ratio"] <= 1.25]
+    if not out:
+        return "-"
+    ok = 0
+    for r in out:
+        if r.get("lin_ratio") is None or r.get("lin_dof") is None:
+            continue
+        lo, hi = chi2_band(float(r["lin_dof"]))
+        ok += lo <= 1.0 / float(r["lin_ratio"]) <= hi
+    return f"{ok}/{len(out)}"
 
 
 def arguments(argv: Sequence[str] | None = None, *, description: str = "") -> argparse.Namespace:
