@@ -388,3 +388,38 @@ def test_a_term_over_three_keys_is_a_jsbsim_three_dimensional_table(tmp_path: Pa
         "altitude": fdm["position/h-sl-ft"] * 0.3048,
     }
     assert fdm["aero/aeroid/Cm_q"] == pytest.approx(db.predict("Cm_q", cond)[0][0], abs=1e-6)
+
+
+def test_a_product_term_flies_as_the_product_of_its_regressors(tmp_path: Path) -> None:
+    # drag with the square of the sideslip (an aircraft model's "beta*beta" term, named
+    # CD_beta_beta): JSBSim's drag at a sideslip is q S (CD_0 + CD_beta_beta beta^2)
+    from aeroid.uncertainty.database_export import split_term
+
+    assert split_term("CD_beta_beta") == ("CD", "beta_beta")
+    assert split_term("CL_alpha_delta_e") == ("CL", "alpha_delta_e")
+    assert split_term("Cm_delta_e") == ("Cm", "delta_e")
+    for bad in ("CD_beta_gamma", "CD_beta_", "CD_delta"):
+        with pytest.raises(DataFormatError, match=bad):
+            split_term(bad)
+    pytest.importorskip("jsbsim")
+    flights = [
+        FlightCoefficients.from_stderr(
+            f"f{i}",
+            {"alpha": a},
+            {"CD_0": 0.03 + 0.2 * a, "CD_beta_beta": 3.5},
+            {"CD_0": 1e-4, "CD_beta_beta": 0.05},
+        )
+        for i, a in enumerate(np.linspace(0.0, 0.15, 8))
+    ]
+    db = aerodynamic_database(flights)
+    section = db.to_jsbsim(n=11)
+    assert section.count("<property>aero/beta-rad</property>") == 2
+    fdm = _flying(section, tmp_path / "root", feet=3000.0, knots=90.0, alpha=4.0)
+    fdm["ic/beta-deg"] = 4.0
+    fdm.run_ic()
+    fdm.run()
+    cond = {"alpha": fdm["aero/alpha-rad"]}
+    beta = fdm["aero/beta-rad"]
+    assert abs(beta) > 0.05
+    cd = db.predict("CD_0", cond)[0][0] + db.predict("CD_beta_beta", cond)[0][0] * beta**2
+    assert fdm["forces/fwx-aero-lbs"] / fdm["aero/qbar-area"] == pytest.approx(cd, rel=1e-4)

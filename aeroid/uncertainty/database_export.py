@@ -7,7 +7,9 @@ surface position) and a table of the coefficient over the flight condition.
 Coefficient names follow the package's convention ``<C>_<regressor>``:
 ``C`` one of CL, CD, CY, Cl, Cm, Cn; the regressor alpha, beta, p, q, r,
 delta_e, delta_a, delta_r (rates nondimensional, ``p b/2V``, ``q c/2V``), or
-``0`` (``CL_0``) for the coefficient at the flight condition itself. When the
+``0`` (``CL_0``) for the coefficient at the flight condition itself, or a
+product of regressors as an aircraft model names it (``CD_beta_beta``, drag with
+``β²``; ``CL_alpha_delta_e``), flown as the product of their properties. When the
 static ``<C>_0`` is tabulated over a condition key that is also a regressor
 (``CL_0`` over alpha), ``<C>_<key>`` is its slope and is not exported again.
 
@@ -86,15 +88,42 @@ AXES: Mapping[str, tuple[str, str | None]] = {
 }
 
 
+def _factors(regressor: str) -> tuple[str, ...] | None:
+    """``"beta_beta"`` -> ``("beta", "beta")``, ``"alpha_delta_e"`` -> ``("alpha",
+    "delta_e")``: the regressors a product term's name joins with ``_`` (None if it
+    is not one). The longest name first, so ``delta_e`` is not read as ``delta``."""
+    names = sorted((n for n in REGRESSOR_PROPERTIES if n != "0"), key=len, reverse=True)
+    out: list[str] = []
+    rest = regressor
+    while True:
+        name = next((n for n in names if rest == n or rest.startswith(n + "_")), None)
+        if name is None:
+            return None
+        out.append(name)
+        if rest == name:
+            return tuple(out)
+        rest = rest[len(name) + 1 :]
+
+
 def split_term(term: str) -> tuple[str, str]:
-    """``"Cm_delta_e"`` -> ``("Cm", "delta_e")``; a bare ``"CL"`` is ``("CL", "0")``."""
+    """``"Cm_delta_e"`` -> ``("Cm", "delta_e")``; a bare ``"CL"`` is ``("CL", "0")``;
+    a product ``"CD_beta_beta"`` -> ``("CD", "beta_beta")``."""
     base, _, regressor = term.partition("_")
-    if base not in AXES or (regressor or "0") not in REGRESSOR_PROPERTIES:
+    regressor = regressor or "0"
+    if base not in AXES or (regressor != "0" and _factors(regressor) is None):
         raise DataFormatError(
             f"term {term!r} is not <C>_<regressor> with C in {', '.join(AXES)} and regressor "
-            f"in {', '.join(REGRESSOR_PROPERTIES)}: JSBSim export cannot place it"
+            f"in {', '.join(REGRESSOR_PROPERTIES)} or a product of them joined by '_' "
+            "(CD_beta_beta): JSBSim export cannot place it"
         )
-    return base, regressor or "0"
+    return base, regressor
+
+
+def _regressor_properties(regressor: str) -> tuple[str, ...]:
+    """The JSBSim properties (or XML) whose product is `regressor` (`split_term`'s)."""
+    if regressor == "0":
+        return ()
+    return tuple(p for f in _factors(regressor) or () for p in REGRESSOR_PROPERTIES[f])
 
 
 def _table_keys(db: AeroDatabase, term: str) -> list[str]:
@@ -219,7 +248,7 @@ def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
             props = [
                 "aero/qbar-area",
                 *([length] if length else []),
-                *REGRESSOR_PROPERTIES[regressor],
+                *_regressor_properties(regressor),
             ]
             props.append(f"aero/aeroid/{term}")
             out.extend(

@@ -103,14 +103,43 @@ def _replay(db: object, the_plan: object, held: set[str]) -> None:
         seed = int(np.random.SeedSequence(2026, spawn_key=(i,)).generate_state(1)[0])
         flown = fly_c172x(cond, seed=seed, aerodynamics=section, noise=False)
         own = fly_c172x(cond, seed=seed, noise=False)
-        cells = []
-        for ch in ("alpha", "q", "beta", "p", "r"):
-            y = record[ch]
-            sst = np.sum((y - y.mean()) ** 2)
-            r2 = 1 - np.sum((y - flown[ch]) ** 2) / sst
-            r2_own = 1 - np.sum((y - own[ch]) ** 2) / sst
-            cells.append(f"{ch} {r2:.3f} ({r2_own:.3f})")
+
+        def r2(ch: str, run: object, rec: object = record) -> float:
+            y = rec[ch]
+            return float(1 - np.sum((y - run[ch]) ** 2) / np.sum((y - y.mean()) ** 2))
+
+        cells = [f"{ch} {r2(ch, flown):.3f} ({r2(ch, own):.3f})" for ch in CHANNELS]
         print(f"  {name}: " + ", ".join(cells))
+        # where the loss is: the c172x's own aerodynamics with one axis the database's
+        cells = []
+        for axis in ("DRAG", "LIFT", "PITCH"):
+            hybrid = fly_c172x(cond, seed=seed, aerodynamics=_one_axis(section, axis), noise=False)
+            cells.append(f"{axis} alpha {r2('alpha', hybrid):.3f} V {r2('V', hybrid):.3f}")
+        print("    own but the database's " + "; ".join(cells))
+
+
+CHANNELS = ("V", "alpha", "q", "beta", "p", "r")
+
+
+def _one_axis(section: str, axis: str) -> str:
+    """The c172x's own <aerodynamics> with `axis` replaced by the database's (and the
+    database's tables, which it reads)."""
+    import re
+
+    import jsbsim
+
+    xml = (Path(jsbsim.get_default_root_dir()) / "aircraft/c172x/c172x.xml").read_text()
+    own = xml[xml.find("<aerodynamics") : xml.find("</aerodynamics>") + len("</aerodynamics>")]
+    pattern = rf'<axis name="{axis}">.*?</axis>'
+    theirs = re.search(pattern, section, flags=re.S)
+    mine = re.search(pattern, own, flags=re.S)
+    assert theirs is not None and mine is not None
+    tables = "\n".join(
+        re.findall(r'  <function name="aero/aeroid/.*?\n  </function>', section, flags=re.S)
+    )
+    out = own[: mine.start()] + theirs.group(0) + own[mine.end() :]
+    at = out.find(">", out.find("<aerodynamics")) + 1
+    return out[:at] + "\n" + tables + "\n" + out[at:]
 
 
 def _diagnose(per_flight: list[tuple[str, float, float, float, float, float]]) -> None:
