@@ -51,3 +51,40 @@ def test_a_process_that_dies_leaves_the_serial_loop_to_finish(monkeypatch):
     monkeypatch.setenv("AEROID_START_METHOD", "fork")
     _PARENT[0] = os.getpid()
     assert forked_map(_die_on_three, [1, 2, 3, 4], 2) == [-1, -2, -3, -4]
+
+
+_WHERE = """
+import sys
+import numpy as np
+from aeroid.pipeline.running import _process
+kept = _process.keep_freed_memory() if sys.argv[1] == "keep" else None
+a = np.ones(8 << 20)  # 64 MB
+address = a.ctypes.data
+for line in open("/proc/self/maps"):
+    if line.rstrip().endswith("[heap]"):
+        lo, hi = (int(v, 16) for v in line.split()[0].split("-"))
+        print(kept, lo <= address < hi)
+        break
+else:
+    print(kept, False)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_a_worker_serves_large_arrays_from_its_heap():
+    import subprocess
+
+    def in_heap(mode: str) -> tuple[str, str]:
+        done = subprocess.run(
+            [sys.executable, "-c", _WHERE, mode], capture_output=True, text=True, check=True
+        )
+        kept, inside = done.stdout.split()
+        return kept, inside
+
+    kept, inside = in_heap("keep")
+    if kept != "True":
+        pytest.skip("the C library has no mallopt (not glibc)")
+    # kept: the block comes from the heap, where a freed one stays for the next
+    # allocation; otherwise glibc maps a large block of its own, unmapped when freed
+    assert inside == "True"
+    assert in_heap("plain")[1] == "False"
