@@ -45,8 +45,8 @@ def test_campaign_report_draws_its_figures_as_parts_and_stores_them(tmp_path):
     p = plan(cfg)
     report = p.report_task
     assert report is not None
-    # the trend in two halves, text, and eight parts drawing every eighth flight's figures
-    assert n_parts(report) == 3 + 8
+    # the trend in two halves, text, and sixteen parts drawing every sixteenth flight's figures
+    assert n_parts(report) == 3 + 16
     s = run(cfg, workers=0)
     assert s.failed == 0
     rec = open_store(tmp_path / "store").load(report.key, "campaign_report")

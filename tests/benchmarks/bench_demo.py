@@ -54,7 +54,11 @@ def _run(config: Path, workers: int | None) -> tuple[float, float, str]:
         cmd += ["--workers", str(workers)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    # run from the config's folder: ``-m`` puts the working directory first on the path,
+    # and run from another checkout it would import that checkout's aeroid
+    done = subprocess.run(
+        cmd, env=env, cwd=config.parent, capture_output=True, text=True, check=False
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:

@@ -11,7 +11,13 @@ Each piece is here for the reason given with it:
 - the modules the tasks will import are imported once before the workers
   fork, so that their pages are shared rather than copied into every
   worker (a 1,000-flight campaign: the process tree's peak PSS 357 -> 272 MB
-  on two workers).
+  on two workers);
+- a worker keeps the memory it frees in its heap (glibc's `mallopt`): a
+  filter-error pass allocates and frees record-long arrays of tens of MB,
+  which glibc would otherwise map afresh from the kernel each time, every
+  page faulted in and zeroed again (the demo's identify: a fifth of its CPU
+  time was the kernel's, 100,000-150,000 page faults a flight; after: none
+  once the first flight has grown the heap).
 """
 
 from __future__ import annotations
@@ -80,10 +86,33 @@ def blas_pinned(fork: bool) -> Iterator[None]:
         limiter.restore_original_limits()
 
 
+# glibc's mallopt parameters (malloc.h)
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
+# free memory at the heap's top kept for reuse rather than given back to the kernel
+_KEEP_FREE = 256 << 20
+
+
+def keep_freed_memory() -> bool:
+    """Serve every allocation of this process from its heap and keep up to `_KEEP_FREE`
+    bytes of freed memory there (module notes); False where the C library has no
+    `mallopt` (not glibc), which changes nothing."""
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    # no mmap for large blocks: a freed block returns to the heap, not to the kernel
+    return bool(mallopt(_M_MMAP_MAX, 0)) and bool(mallopt(_M_TRIM_THRESHOLD, _KEEP_FREE))
+
+
 def _start_worker(parent: int, forked: bool) -> None:
-    """What each worker process does as it starts: BLAS on one thread, and an exit as
-    soon as the run that started it is gone."""
+    """What each worker process does as it starts: BLAS on one thread, freed memory
+    kept for reuse, and an exit as soon as the run that started it is gone."""
     os.environ.update(_BLAS_ENV)  # for libraries not loaded yet, and processes it starts
+    if sys.platform.startswith("linux"):
+        keep_freed_memory()
     if not forked:
         # spawned: numpy is loaded as the worker unpickles its work, after the env
         from threadpoolctl import threadpool_limits

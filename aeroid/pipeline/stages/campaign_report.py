@@ -108,8 +108,12 @@ _FLIGHT_FIGURES = (
 # writes the tables and text (these three need every flight), and each of the
 # `_FIGURE_PARTS` further parts draws the figures of every `_FIGURE_PARTS`-th flight as
 # soon as those flights are done, so the figures overlap the flights still running.
+# Sixteen: up to sixteen flights, a part draws one flight, so the part that waits for
+# the run's last flight draws that flight alone (with eight, the demo's last part
+# drew two flights after every flight was done, on the run's critical path); an
+# empty part costs a few milliseconds.
 _TRENDS, _TEXT, _FIRST_FIGURES = (0, 1), 2, 3
-_FIGURE_PARTS = 8
+_FIGURE_PARTS = 16
 _MAX_FLIGHTS = 1 << 16
 
 
@@ -246,16 +250,16 @@ def _run_campaign_part(ctx: StageContext, index: int) -> Any:
     """Part `index` of the campaign report.
 
     A trend part returns (file name, PNG bytes) or None; the text part the
-    `CampaignReport` without figures; a figure part a list of (file name, PNG
+    `CampaignReport` without figures; a figure part a list of (flight index, file name, PNG
     bytes) of its flights.
     """
     if index == _TEXT:
         return _run_campaign_report(ctx)
     if index in _TRENDS:
         return _trend_figure(ctx, index)
-    drawn: list[tuple[str, bytes]] = []
+    drawn: list[tuple[int, str, bytes]] = []
     for i in range(index - _FIRST_FIGURES, len(ctx.flights), _FIGURE_PARTS):
-        drawn += _flight_figures(ctx, i)
+        drawn += [(i, name, png) for name, png in _flight_figures(ctx, i)]
     return drawn
 
 
@@ -267,8 +271,11 @@ def _combine_campaign(ctx: StageContext, parts: list[Any]) -> CampaignReport:
     for part in parts:
         if isinstance(part, tuple):
             drawn[part[0]] = part[1]
-        elif isinstance(part, list):
-            drawn.update(part)
+    # the flights' figures in flight order, however the parts split the flights
+    flown = sorted(
+        (f for part in parts if isinstance(part, list) for f in part), key=lambda f: f[0]
+    )
+    drawn.update((name, png) for _, name, png in flown)
     # the text links every figure a flight could have: drop those not drawn
     lines = [
         ln
@@ -426,8 +433,10 @@ register_stage(
         # where given, a colour per altitude, each point labelled with its flight;
         # 12: a filter-error fit's poor-fit and coloured flags from its innovations,
         # palette figures drawn straight from the canvas; 13: "not determined" against
-        # the other flights, the model-structure note, filter error's one-step fits
-        "13",
+        # the other flights, the model-structure note, filter error's one-step fits;
+        # 14: a flight's figures drawn by a part of their own up to sixteen flights,
+        # stored in flight order
+        "14",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

@@ -16,6 +16,7 @@ files) and one band plot per coefficient.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import re
 from collections.abc import Mapping
@@ -26,6 +27,7 @@ from pydantic import Field
 
 from ...errors import AeroidError, DataFormatError, PipelineError
 from ...support import CONDITION_NAMES
+from ..running.parallel import forked_map
 from . import Stage, StageContext, register_stage
 from ._database_report import replay_section
 from .signature_options import library_fields
@@ -280,9 +282,11 @@ def write_database_files(
             files["tidy table (Parquet)"] = "database.parquet"
         except ImportError:
             pass  # pyarrow is optional
-        for term in db.terms:
+        # drawn in parallel: the run's worker processes are gone and the cores idle
+        drawn = forked_map(functools.partial(_band_plot, db), db.terms)
+        for term, png_bytes in zip(db.terms, drawn, strict=True):
             png = folder / f"{term}.png"
-            png.write_bytes(_band_plot(db, term))
+            png.write_bytes(png_bytes)
             files[term] = png.name
         held = list(task.options.get("held_out") or [])
         replay, _ = replay_section(the_plan, store, task, held, folder)
