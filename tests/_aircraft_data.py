@@ -7,6 +7,8 @@ positions) and non-dimensional derivatives (`LONG`, `LAT`).
 
 from __future__ import annotations
 
+from typing import Any
+
 BASE = dict(mass=1247.0, Ixx=1421.0, Iyy=4067.0, Izz=4786.0, S=17.09, b=10.18, cbar=1.74)
 LONG = {
     "CD_0": 0.03,
@@ -56,3 +58,17 @@ LATERAL_LINEAR = {
     "N_delta_r": -3.0,
 }
 LATERAL_STATES = ["beta", "p", "r", "phi"]
+
+
+def coupled_inputs(controls: dict[str, float], t: Any) -> Any:
+    """The coupled tests' manoeuvre about a trim's `controls` on the time grid `t`
+    (s): an elevator 3-2-1-1 from 1.6 s (0.04 rad), then aileron and rudder doublets
+    (0.03 rad) from 8 s and 11 s; columns delta_e, thrust, delta_a, delta_r."""
+    import numpy as np
+
+    de = np.full(t.size, controls["delta_e"])
+    for start, end, sign in ((1, 4, 1), (4, 6, -1), (6, 7, 1), (7, 8, -1)):
+        de[(t >= 1.0 + start * 0.6) & (t < 1.0 + end * 0.6)] += 0.04 * sign
+    da = 0.03 * (((t >= 8.0) & (t < 9.0)) * 1.0 - ((t >= 9.0) & (t < 10.0)))
+    dr = 0.03 * (((t >= 11.0) & (t < 12.0)) * 1.0 - ((t >= 12.0) & (t < 13.0)))
+    return np.column_stack([de, np.full(t.size, controls["thrust"]), da, dr])

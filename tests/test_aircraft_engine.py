@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from _aircraft_data import BASE, LAT, LONG
+from _aircraft_data import BASE, LAT, LONG, coupled_inputs
 
 import aeroid
 from aeroid.models import compiled as _compiled
@@ -120,12 +120,7 @@ def test_the_derivatives_are_recovered_with_the_term_and_biased_without(monkeypa
     alpha0 = float(tr.x0[1])
     truth = decoupled(*_parts(H, alpha0))
     t = np.arange(0.0, 14.0 + 1e-9, 0.05)
-    de = np.full(t.size, tr.controls["delta_e"])
-    for start, end, sign in ((1, 4, 1), (4, 6, -1), (6, 7, 1), (7, 8, -1)):
-        de[(t >= 1.0 + start * 0.6) & (t < 1.0 + end * 0.6)] += 0.04 * sign
-    da = 0.03 * (((t >= 8.0) & (t < 9.0)) * 1.0 - ((t >= 9.0) & (t < 10.0)))
-    dr = 0.03 * (((t >= 11.0) & (t < 12.0)) * 1.0 - ((t >= 12.0) & (t < 13.0)))
-    U = np.column_stack([de, np.full(t.size, tr.controls["thrust"]), da, dr])
+    U = coupled_inputs(tr.controls, t)
     x0 = np.concatenate([tr.x0, np.zeros(4)])
     sim = truth.simulate(t, U, x0, method="rk4")
     # the elevator alone yaws it through the propeller
