@@ -174,8 +174,14 @@ class _Objective:
             quad = np.full(B, np.inf)
             logdet = np.full(B, np.inf)
             good = np.flatnonzero(ok)
-            try:  # the whole batch at once; member by member where one is not positive
-                quad[good], logdet[good] = innovation_loglik(nu[good], S[good], settled=settled)
+            # the whole batch at once (the arrays themselves where every member ran: a
+            # record-long copy costs as much as the sums); member by member where one is
+            # not positive
+            whole = good.size == B
+            try:
+                quad[good], logdet[good] = innovation_loglik(
+                    nu if whole else nu[good], S if whole else S[good], settled=settled
+                )
             except np.linalg.LinAlgError:
                 for b in good:
                     try:

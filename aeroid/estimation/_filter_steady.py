@@ -54,7 +54,6 @@ from ._kalman_linear import (
     _fd_step,
     _Linear,
     _Pass,
-    _riccati_arrays,
     _step_matrices,
     _van_loan,
 )
@@ -134,13 +133,29 @@ def _reference_system(
 # far below what moves an estimate, far above rounding
 _GAIN_TOL = 1e-10
 
+# samples of gains the compiled predictor takes: this, or the next power-of-two multiple
+# of it that holds the transient (a few shapes, a few compilations, whatever the flight)
+_GAIN_SAMPLES = 256
+
+
+def _capacity(needed: int, most: int) -> int:
+    """Rows of a gain buffer holding `needed` of at most `most`: 256, 512, ... or `most`."""
+    cap = _GAIN_SAMPLES
+    while cap < needed:
+        cap *= 2
+    return min(cap, most)
+
 
 def _gains(
-    ref: _Linear, R: FloatArray, P0: FloatArray, n_t: int
+    ref: _Linear, R: FloatArray, P0: FloatArray, n_t: int, rows: int
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
-    """(S, Kg, Pp, Pf, k) of the reference system's Kalman filter over the record.
+    """(S, G, Pp, Pf, k) of the reference system's Kalman filter over the record.
 
-    ``Kg`` holds the gains of samples 0..k only, the last of them the gain from then on.
+    ``G`` holds the gains time-major, ``G[j, b]`` the gain of sample ``j`` for
+    member ``b``, for ``j = 0..k`` only (``G[0]`` zero), the last of them the gain
+    from then on; its `rows` (at least B) repeat the last member after the B given,
+    as the compiled predictor's padded batch takes them; its samples past ``k`` are
+    left unset (untouched memory: the recursion stops after a few hundred samples).
 
     The Riccati recursion runs until the gain has converged (the first tens to
     hundreds of samples); from there S and the gain are the steady-state ones.
@@ -148,13 +163,21 @@ def _gains(
     record (the objective uses the innovations and S only); from sample ``k``
     on the gain is constant.
     """
-    B, n, H, S, Kg = _riccati_arrays(ref, n_t)
+    assert ref.H is not None
+    B, _, n, _ = ref.Phi.shape
+    H = ref.H
+    n_y = H.shape[1]
+    S = np.empty((B, n_t, n_y, n_y))
+    # time-major: a step writes one contiguous block, and the predictor takes a leading
+    # slice of it without a copy
+    G = np.empty((n_t, rows, n, n_y))
+    G[0] = 0.0
     Ht = np.swapaxes(H, 1, 2)
     PhiT = np.swapaxes(ref.Phi, 2, 3)
     P = P0
     S[:, 0] = H @ P0 @ Ht + R
     Ppk = P0
-    K_prev = Kg[:, 0]
+    K_prev = G[0, :B]
     single = ref.Phi.shape[1] == 1
     Phi, PhiT_, Qd = ref.Phi[:, 0], PhiT[:, 0], ref.Qd[:, 0]
     done = n_t - 1
@@ -170,27 +193,31 @@ def _gains(
         P = Ppk - K @ HP  # the optimal gain's update, (I - K H) Pp
         P += np.swapaxes(P, 1, 2)
         P *= 0.5
-        S[:, k], Kg[:, k] = Sk, K
+        S[:, k] = Sk
+        G[k, :B] = K
         # converged: checked every fourth step (a later stop only converges further)
         if single and k > 1 and k % 4 == 0:
             scale = np.max(np.abs(K), axis=(1, 2))
             if np.all(np.max(np.abs(K - K_prev), axis=(1, 2)) <= _GAIN_TOL * scale):
                 S[:, k + 1 :] = Sk[:, None]
-                Kg = Kg[:, : k + 1]  # the gain from here on is the last row's
                 done = k
                 break
         K_prev = K
+    G[: done + 1, B:] = G[: done + 1, B - 1 : B]
     Pp = np.broadcast_to(Ppk[:, None], (B, n_t, n, n))
     Pf = np.broadcast_to(P[:, None], (B, n_t, n, n))
-    return S, Kg, np.asarray(Pp), np.asarray(Pf), done
+    return S, G, np.asarray(Pp), np.asarray(Pf), done
 
 
-# gains passed to the compiled predictor when the Riccati recursion converged before
-_GAIN_SAMPLES = 256
+def _padded(B: int) -> int:
+    """The compiled predictor's batch for B members: each size would otherwise compile
+    anew, so a power of two up to 16, then a multiple of 8."""
+    return 1 << (B - 1).bit_length() if B <= 16 else -(-B // 8) * 8
 
 
 def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
-    """The whole predictor as one `jax.lax.scan`, vmapped over members."""
+    """The whole predictor as one `jax.lax.scan` over the record, the batch of members
+    vmapped inside each step."""
     entry = _compiled._entry(model)
     f = entry[("fn", "dynamics")]
     h = entry.get(("fn", "measurement")) if model.measurement is not None else None
@@ -203,37 +230,40 @@ def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     def meas(t: Any, x: Any, u: Any, pvec: Any) -> Any:
         return x[sel] if h is None else h(t, x, u, pvec)[oi]
 
-    def one(time: Any, U: Any, Y: Any, x0: Any, pvec: Any, Kg: Any, m: Any) -> Any:
-        # Kg: the gains of samples 1..T, the last of them the steady one
-        last = Kg.shape[0] - 1
+    def one(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, y: Any, pvec: Any, K: Any, m: Any) -> Any:
+        xpk = step(x, t0, t1, u0, u1, pvec, m)
+        v = y - meas(t1, xpk, u1, pvec)
+        return xpk, xpk + K @ v, v
 
-        def body(x: Any, inp: Any) -> Any:
+    every = jax.vmap(one, in_axes=(0, None, None, None, None, None, 0, 0, None))
+
+    def run(time: Any, U: Any, Y: Any, X0: Any, P: Any, G: Any, last: Any, m: Any) -> Any:
+        # G: time-major gains of samples 1.., the one at `last` the steady one
+        def body(X: Any, inp: Any) -> Any:
             t0, t1, u0, u1, y, j = inp
-            K = Kg[jnp.minimum(j, last)]
-            xpk = step(x, t0, t1, u0, u1, pvec, m)
-            v = y - meas(t1, xpk, u1, pvec)
-            xn = xpk + K @ v
+            xpk, xn, v = every(X, t0, t1, u0, u1, y, P, G[jnp.minimum(j, last)], m)
             return xn, (xpk, xn, v)
 
         steps = jnp.arange(time.shape[0] - 1)
-        _, outs = jax.lax.scan(body, x0, (time[:-1], time[1:], U[:-1], U[1:], Y[1:], steps))
+        _, outs = jax.lax.scan(body, X0, (time[:-1], time[1:], U[:-1], U[1:], Y[1:], steps))
         return outs
 
-    return jax.jit(jax.vmap(one, in_axes=(None, None, None, 0, 0, 0, None)))
+    return jax.jit(run)
 
 
 def _compiled_predictor(
     prob: _Problem,
     params: Mapping[str, FloatArray],
     x0: FloatArray,
-    Kg: FloatArray,
+    G: FloatArray,
     steady_from: int,
     substeps: int,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """(xp, xf, nu) from sample 1 on, of the compiled predictor, or None (the numpy
-    loop then runs: the model does not compile)."""
+    """(xp, xf, nu) from sample 1 on, time-major, of the compiled predictor with the
+    `_gains` buffer `G` (its rows the padded batch), or None (the numpy loop then
+    runs: the model does not compile)."""
     model = prob.model
-    if not _compiled.ENABLED:
+    if not _compiled.ENABLED or prob.time.size < 2:
         return None
     B = x0.shape[0]
     pmat = _compiled._pmatrix(model, params, B)
@@ -248,20 +278,8 @@ def _compiled_predictor(
     fn = cache.get(key)
     if fn is None:
         fn = cache[key] = _build(model, tuple(prob.out_idx), jax, jnp)
-    # batches padded to a power of two: each size would otherwise compile anew
-    padded = 1 << (B - 1).bit_length() if B <= 16 else -(-B // 8) * 8
+    padded = G.shape[1]
     rows = np.minimum(np.arange(padded), B - 1)
-    # the transient's gains only: the first `_GAIN_SAMPLES`, or every sample where the
-    # gain settles later (two shapes, two compilations, whatever the flight)
-    n_gain = prob.time.size - 1
-    if steady_from < _GAIN_SAMPLES:
-        n_gain = min(_GAIN_SAMPLES, n_gain)
-    # written once, where they go: Kg holds the gains up to the steady one only
-    last = Kg.shape[1] - 1
-    gains = np.empty((padded, n_gain, *Kg.shape[2:]))
-    given = min(n_gain, last)
-    gains[:, :given] = Kg[rows, 1 : given + 1]
-    gains[:, given:] = Kg[rows, last][:, None]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
@@ -271,12 +289,13 @@ def _compiled_predictor(
                 prob.Y,
                 np.ascontiguousarray(x0[rows]),
                 pmat[rows],
-                gains,
+                G[1 : _capacity(steady_from + 1, G.shape[0])],  # a leading slice: no copy
+                np.int32(steady_from - 1),
                 np.int32(substeps),
             )
         except Exception:  # a model JAX traced pointwise but not in this scan: numpy
             return None
-    xp, xf, nu = (np.asarray(a, dtype=np.float64)[:B] for a in outs)
+    xp, xf, nu = (np.asarray(a, dtype=np.float64)[:, :B] for a in outs)
     return xp, xf, nu
 
 
@@ -345,22 +364,22 @@ def steady_pass(
     try:
         ref = _reference_system(prob, params, Qc, x0, P0, prop, meas)
         with np.errstate(all="ignore"):
-            S, Kg, Pp, Pf, steady_from = _gains(ref, R, P0, n_t)
+            S, G, Pp, Pf, steady_from = _gains(ref, R, P0, n_t, _padded(B))
         x = x0.copy()
         xf[:, 0], xp[:, 0] = x, x
         fast = None
-        last = Kg.shape[1] - 1  # the steady gain's row
         # compiled when a fit's passes would spend what a compilation costs
         if prop._cp is not None or _compiles(prob, prop.m):
-            fast = _compiled_predictor(prob, params, x0, Kg, steady_from, prop.m)
+            fast = _compiled_predictor(prob, params, x0, G, steady_from, prop.m)
         if fast is not None:
-            xp[:, 1:], xf[:, 1:], nu[:, 1:] = fast
+            for rec, got in zip((xp, xf, nu), fast, strict=True):
+                rec[:, 1:] = np.swapaxes(got, 0, 1)
         nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
         with np.errstate(all="ignore"):
             for k in range(1, n_t if fast is None else 1):
                 xpk = prop.points(k - 1, x[:, None, :])
                 v = Y[k] - meas.points(k, xpk)[:, 0]
-                x = xpk[:, 0] + np.einsum("bij,bj->bi", Kg[:, min(k, last)], v)
+                x = xpk[:, 0] + np.einsum("bij,bj->bi", G[min(k, steady_from), :B], v)
                 xp[:, k], xf[:, k], nu[:, k] = xpk[:, 0], x, v
     except _Failure as exc:
         ok[:] = False

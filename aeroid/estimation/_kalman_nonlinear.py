@@ -41,8 +41,14 @@ def _linearise_model(
         return None
     n, nu = m.n_states, m.n_controls
     trusted = m.linear is True
-    mats, _ = _integrate.lti_form(m._dynamics_batch, prob.time, n, nu, params, trusted=trusted)
+    mats, not_lti = _integrate.lti_form(
+        m._dynamics_batch, prob.time, n, nu, params, trusted=trusted
+    )
     if mats is None:
+        if not_lti:
+            # shown not to be LTI: remembered, as `simulate` does, so that a fit's later
+            # passes skip a check that costs about a tenth of a fixed-gain pass
+            object.__setattr__(m, "_maybe_lti", False)
         return None
     A = np.broadcast_to(mats[0], (B, n, n))
     Bm = np.broadcast_to(mats[1], (B, n, nu))
