@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg
+from numpy.typing import NDArray
 from test_filter_error import NAMES, NOISE, _turbulent_flight
 
 import aeroid
@@ -14,6 +15,8 @@ from aeroid.estimation._filter_steady import steady_pass
 from aeroid.estimation.filtering import build_problem, run_filter
 from aeroid.models import catalog
 from aeroid.models.catalog import _short_period_dynamics
+
+FloatArray = NDArray[np.float64]
 
 PROCESS = {"q": 1e-3}
 
@@ -244,3 +247,95 @@ def test_a_known_settled_sample_gives_the_same_likelihood():
         q, ld = innovation_loglik(nu, S, settled=settled)
         np.testing.assert_allclose(q, quad, rtol=1e-12)
         np.testing.assert_allclose(ld, logdet, rtol=1e-12)
+
+
+def _lateral_problem(duration: float, process: FloatArray) -> tuple:
+    """A lateral model (nonlinear: it compiles) on a doublet record, and the arguments of
+    a pass of three members."""
+    from _aircraft_data import BASE, LAT
+
+    from aeroid.models.aircraft import AircraftConstants, lateral
+
+    model = lateral(AircraftConstants(**BASE, Ixz=80.0, rho=1.225), V0=53.6, parameters=LAT)
+    t = np.arange(0.0, duration, 0.02)
+    rng = np.random.default_rng(1)
+    controls = {
+        "delta_a": catalog.doublet(t, start=1.0, amplitude=0.1),
+        "delta_r": catalog.doublet(t, start=4.0, amplitude=0.1),
+    }
+    clean = model.simulate(t, controls)
+    outputs = ["beta", "p", "r", "phi"]
+    data = aeroid.FlightData(
+        t,
+        {**controls, **{o: clean.output(o) + 0.003 * rng.standard_normal(t.size) for o in outputs}},
+    )
+    prob, R = build_problem(
+        model,
+        data,
+        outputs=outputs,
+        measurement_noise=dict.fromkeys(outputs, 1e-5),
+        x0=None,
+        P0=None,
+        substeps=None,
+        method="ekf",
+        ukf=(1e-3, 2.0, 0.0),
+        error=IdentificationError,
+    )
+    B = 3
+    params = {k: v * np.array([1.0, 0.9, 1.1]) for k, v in model.parameters.items()}
+    Qc = np.repeat(np.diag(process)[None], B, axis=0)
+    args = (
+        prob,
+        params,
+        Qc,
+        np.repeat(R[None], B, axis=0),
+        np.repeat(prob.x0[None], B, axis=0),
+        np.repeat(prob.P0[None], B, axis=0),
+    )
+    return model, prob, args
+
+
+def test_a_long_transient_takes_the_next_gain_buffer(monkeypatch):
+    """A gain that settles after the first 256 samples: the compiled predictor takes the
+    next buffer size (512 samples of gains, the steady one from where it settled) and
+    is still the numpy predictor; without the states recorded the innovations and
+    their covariances are the same."""
+    from aeroid.estimation import _filter_steady
+    from aeroid.models import compiled as _compiled
+
+    # little process noise: the gain settles after some 400 samples
+    model, prob, args = _lateral_problem(12.0, np.array([1e-6, 1e-4, 1e-5, 1e-7]))
+    monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    compiled = steady_pass(*args)
+    assert ("steady_predictor", prob.out_idx) in _compiled._shared(model)  # it ran
+    assert compiled.settled is not None
+    assert _filter_steady._GAIN_SAMPLES < compiled.settled < prob.time.size - 1
+    lean = steady_pass(*args, states=False)
+    np.testing.assert_array_equal(lean.nu, compiled.nu)
+    np.testing.assert_array_equal(lean.S, compiled.S)
+    assert np.all(np.isnan(lean.xf))
+    monkeypatch.setattr(_compiled, "ENABLED", False)
+    plain = steady_pass(*args)
+    assert np.all(compiled.ok) and np.all(plain.ok)
+    np.testing.assert_allclose(compiled.nu, plain.nu, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(compiled.xf, plain.xf, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(compiled.S, plain.S)
+    # the gain buffer sizes: a few shapes whatever the flight
+    assert [_filter_steady._capacity(k, 1000) for k in (2, 256, 257, 600, 999)] == [
+        256,
+        256,
+        512,
+        1000,
+        1000,
+    ]
+
+
+def test_a_nonlinear_model_is_checked_for_linearity_once():
+    """A pass that finds the dynamics not affine remembers it on the model (as
+    `simulate` does), so a fit's later passes skip the check."""
+    model, _, args = _lateral_problem(4.0, np.array([1e-5, 1e-3, 1e-4, 0.0]))
+    assert model._maybe_lti
+    first = steady_pass(*args)
+    assert not model._maybe_lti
+    again = steady_pass(*args)
+    np.testing.assert_array_equal(first.nu, again.nu)

@@ -165,7 +165,7 @@ class _Objective:
                 P0 = np.stack([_default_P0(self.model, prob.output_names, R[b]) for b in range(B)])
             with np.errstate(all="ignore"):
                 if self.gain == "steady":
-                    run = steady_pass(prob, params, Qc, R, x0, P0)
+                    run = steady_pass(prob, params, Qc, R, x0, P0, states=False)
                 else:
                     run = run_filter(prob, params, Qc, R, x0, P0, method=self.method)
             nu, S = run.nu[:, 1:], run.S[:, 1:]

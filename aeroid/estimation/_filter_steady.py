@@ -335,11 +335,14 @@ def steady_pass(
     R: FloatArray,
     x0: FloatArray,
     P0: FloatArray,
+    *,
+    states: bool = True,
 ) -> _Pass:
     """Forward pass of the fixed-gain predictor for a batch of B members.
 
     Arguments as `filtering.run_filter`; returns its record (``Pf``, ``Pp``
-    those of the reference system, ``C`` zero).
+    those of the reference system, ``C`` zero). ``states=False`` leaves ``xp`` and
+    ``xf`` unrecorded (read-only NaN): the likelihood takes the innovations only.
     """
     B, n = x0.shape
     n_t, n_y = prob.Y.shape
@@ -352,8 +355,11 @@ def steady_pass(
     lin = None  # (a nonlinear measurement of linear dynamics: linearised below)
     prop = _Propagator(prob, params, Qc, B, lin)
     meas = _Measurer(prob, params, B, lin)
-    xf = np.full((B, n_t, n), np.nan)
-    xp = np.full((B, n_t, n), np.nan)
+    if states:
+        xf = np.full((B, n_t, n), np.nan)
+        xp = np.full((B, n_t, n), np.nan)
+    else:  # two record-long arrays a pass less to fill
+        xf = xp = np.broadcast_to(np.nan, (B, n_t, n))
     nu = np.full((B, n_t, n_y), np.nan)
     # read-only views until the Riccati solution replaces them: no record-long copies
     S = np.broadcast_to(np.nan, (B, n_t, n_y, n_y))
@@ -366,21 +372,25 @@ def steady_pass(
         with np.errstate(all="ignore"):
             S, G, Pp, Pf, steady_from = _gains(ref, R, P0, n_t, _padded(B))
         x = x0.copy()
-        xf[:, 0], xp[:, 0] = x, x
+        if states:
+            xf[:, 0], xp[:, 0] = x, x
         fast = None
         # compiled when a fit's passes would spend what a compilation costs
         if prop._cp is not None or _compiles(prob, prop.m):
             fast = _compiled_predictor(prob, params, x0, G, steady_from, prop.m)
         if fast is not None:
-            for rec, got in zip((xp, xf, nu), fast, strict=True):
-                rec[:, 1:] = np.swapaxes(got, 0, 1)
+            nu[:, 1:] = np.swapaxes(fast[2], 0, 1)
+            if states:
+                xp[:, 1:], xf[:, 1:] = np.swapaxes(fast[0], 0, 1), np.swapaxes(fast[1], 0, 1)
         nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
         with np.errstate(all="ignore"):
             for k in range(1, n_t if fast is None else 1):
                 xpk = prop.points(k - 1, x[:, None, :])
                 v = Y[k] - meas.points(k, xpk)[:, 0]
                 x = xpk[:, 0] + np.einsum("bij,bj->bi", G[min(k, steady_from), :B], v)
-                xp[:, k], xf[:, k], nu[:, k] = xpk[:, 0], x, v
+                nu[:, k] = v
+                if states:
+                    xp[:, k], xf[:, k] = xpk[:, 0], x
     except _Failure as exc:
         ok[:] = False
         fail[:] = exc.k
