@@ -368,6 +368,9 @@ def steady_pass(
     ok = np.ones(B, dtype=bool)
     fail = np.full(B, -1, dtype=np.int64)
     try:
+        # the first sample's outputs first: a model's first measurement call decides, point
+        # by point, whether it broadcasts, at a 17th of the Jacobian's points
+        nu[:, 0] = Y[0] - meas.points(0, x0[:, None, :])[:, 0]
         ref = _reference_system(prob, params, Qc, x0, P0, prop, meas)
         with np.errstate(all="ignore"):
             S, G, Pp, Pf, steady_from = _gains(ref, R, P0, n_t, _padded(B))
@@ -382,7 +385,6 @@ def steady_pass(
             nu[:, 1:] = np.swapaxes(fast[2], 0, 1)
             if states:
                 xp[:, 1:], xf[:, 1:] = np.swapaxes(fast[0], 0, 1), np.swapaxes(fast[1], 0, 1)
-        nu[:, 0] = Y[0] - meas.points(0, x[:, None, :])[:, 0]
         with np.errstate(all="ignore"):
             for k in range(1, n_t if fast is None else 1):
                 xpk = prop.points(k - 1, x[:, None, :])
