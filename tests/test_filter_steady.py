@@ -296,15 +296,16 @@ def _lateral_problem(duration: float, process: FloatArray) -> tuple:
 
 
 def test_a_long_transient_takes_the_next_gain_buffer(monkeypatch):
-    """A gain that settles after the first 256 samples: the compiled predictor takes the
-    next buffer size (512 samples of gains, the steady one from where it settled) and
-    is still the numpy predictor; without the states recorded the innovations and
-    their covariances are the same."""
+    """A gain that settles after the first buffer's samples: the compiled predictor takes
+    a larger buffer (four times 128 samples of gains here, the steady one from where it
+    settled) and is still the numpy predictor; without the states recorded the
+    innovations and their covariances are the same."""
     from aeroid.estimation import _filter_steady
     from aeroid.models import compiled as _compiled
 
     # little process noise: the gain settles after some 400 samples
     model, prob, args = _lateral_problem(12.0, np.array([1e-6, 1e-4, 1e-5, 1e-7]))
+    monkeypatch.setattr(_filter_steady, "_GAIN_SAMPLES", 128)
     monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
     compiled = steady_pass(*args)
     assert ("steady_predictor", prob.out_idx) in _compiled._shared(model)  # it ran
@@ -321,8 +322,9 @@ def test_a_long_transient_takes_the_next_gain_buffer(monkeypatch):
     np.testing.assert_allclose(compiled.xf, plain.xf, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(compiled.S, plain.S)
     # the gain buffer sizes: a few shapes whatever the flight
-    assert [_filter_steady._capacity(k, 1000) for k in (2, 256, 257, 600, 999)] == [
-        256,
+    assert [_filter_steady._capacity(k, 1000) for k in (2, 128, 129, 300, 600, 999)] == [
+        128,
+        128,
         256,
         512,
         1000,

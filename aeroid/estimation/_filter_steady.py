@@ -134,12 +134,14 @@ def _reference_system(
 _GAIN_TOL = 1e-10
 
 # samples of gains the compiled predictor takes: this, or the next power-of-two multiple
-# of it that holds the transient (a few shapes, a few compilations, whatever the flight)
-_GAIN_SAMPLES = 256
+# of it that holds the transient (a few shapes, a few compilations, whatever the flight;
+# the demo's transients take 30 to 540 samples, or the whole record where a process
+# noise went to zero)
+_GAIN_SAMPLES = 512
 
 
 def _capacity(needed: int, most: int) -> int:
-    """Rows of a gain buffer holding `needed` of at most `most`: 256, 512, ... or `most`."""
+    """Rows of a gain buffer holding `needed` of at most `most`: 512, 1024, ... or `most`."""
     cap = _GAIN_SAMPLES
     while cap < needed:
         cap *= 2
