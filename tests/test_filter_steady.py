@@ -341,3 +341,22 @@ def test_a_nonlinear_model_is_checked_for_linearity_once():
     assert not model._maybe_lti
     again = steady_pass(*args)
     np.testing.assert_array_equal(first.nu, again.nu)
+
+
+def test_forward_substitution_is_the_triangular_solve():
+    """The likelihood's whitening, row by row over a stack of Cholesky factors, equals
+    a triangular solve of each (factors with sub-diagonal entries larger than their
+    diagonal included, where a pivoting solver would swap rows)."""
+    from aeroid.estimation.filtering import _forward_substitution
+
+    rng = np.random.default_rng(7)
+    A = rng.standard_normal((3, 40, 5, 5))
+    S = A @ np.swapaxes(A, 2, 3) + 0.01 * np.eye(5)
+    L = np.linalg.cholesky(S)
+    assert np.any(np.abs(L[..., 1:, 0]) > L[..., :1, 0])
+    b = rng.standard_normal((3, 40, 5))
+    z = _forward_substitution(L, b)
+    for i in range(3):
+        for k in range(40):
+            expect = scipy.linalg.solve_triangular(L[i, k], b[i, k], lower=True)
+            np.testing.assert_allclose(z[i, k], expect, rtol=1e-10, atol=1e-12)

@@ -232,7 +232,9 @@ def _derivatives(
         W = np.einsum("kab,ikb->ika", Sinv, dnu[:, :k0])
         fisher += np.einsum("ika,jka->ij", dnu[:, :k0], W)
         SdS = Sinv[None] @ dS  # (n, k0, m, m)
-        fisher += 0.5 * np.einsum("ikab,jkba->ij", SdS, SdS, optimize=True)  # one matmul
+        # sum over k, a, b of SdS[i, k, a, b] SdS[j, k, b, a]: one matrix product
+        SdS_T = np.ascontiguousarray(np.swapaxes(SdS, 2, 3))
+        fisher += 0.5 * (SdS.reshape(n, -1) @ SdS_T.reshape(n, -1).T)
         if k0 < K:
             Sinv1 = np.linalg.inv(S[0, -1])
             W1 = np.einsum("ab,ikb->ika", Sinv1, dnu[:, k0:])

@@ -491,7 +491,9 @@ for _stage in (
         # 4: standard errors without the t widening, their degrees of freedom carried
         # 5: the one least-squares solver; filter error on a nonlinear model with a
         #    steady-state gain by default
-        "5",
+        # 6: the filter error's likelihood and information summed in another order
+        #    (rounding: a fit stopped by its tolerance may stop an iteration apart)
+        "6",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
