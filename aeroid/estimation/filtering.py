@@ -407,7 +407,7 @@ def innovation_loglik(
     return quad, logdet
 
 
-def _forward_substitution(L: FloatArray, b: FloatArray) -> FloatArray:
+def _forward_substitution(L: NDArray[np.floating[Any]], b: FloatArray) -> FloatArray:
     """``L^-1 b`` for lower-triangular ``L`` (..., m, m) and ``b`` (..., m), a row at a
     time over the whole stack: LAPACK's general solver factorises each small matrix
     again, at about twice the cost over a record of them."""
