@@ -228,7 +228,8 @@ def _derivatives(
         k0 = K if settled is None or K - settled < 8 else settled
         dnu = (nu[1 : 1 + n] - nu[1 + n :]) / (2 * h[:, None, None])  # (n, K, m)
         Sinv = np.linalg.inv(S[0, :k0])  # (k0, m, m)
-        dS = (S[1 : 1 + n, :k0] - S[1 + n :, :k0]) / (2 * h[:, None, None, None])
+        dS = np.subtract(S[1 : 1 + n, :k0], S[1 + n :, :k0])  # in place: record-long
+        dS /= 2 * h[:, None, None, None]
         W = np.einsum("kab,ikb->ika", Sinv, dnu[:, :k0])
         fisher += np.einsum("ika,jka->ij", dnu[:, :k0], W)
         SdS = Sinv[None] @ dS  # (n, k0, m, m)
