@@ -54,6 +54,7 @@ from ._kalman_linear import (
     _fd_step,
     _Linear,
     _Pass,
+    _riccati_start,
     _step_matrices,
     _van_loan,
 )
@@ -165,11 +166,8 @@ def _gains(
     record (the objective uses the innovations and S only); from sample ``k``
     on the gain is constant.
     """
-    assert ref.H is not None
-    B, _, n, _ = ref.Phi.shape
-    H = ref.H
+    B, n, H, S = _riccati_start(ref, n_t)
     n_y = H.shape[1]
-    S = np.empty((B, n_t, n_y, n_y))
     # time-major: a step writes one contiguous block, and the predictor takes a leading
     # slice of it without a copy
     G = np.empty((n_t, rows, n, n_y))
@@ -197,8 +195,14 @@ def _gains(
         P *= 0.5
         S[:, k] = Sk
         G[k, :B] = K
-        # converged: checked every fourth step (a later stop only converges further)
-        if single and k > 1 and k % 4 == 0:
+        # converged: checked every fourth step (a later stop only converges further), the
+        # whole batch only once the first member has
+        if (
+            single
+            and k > 1
+            and k % 4 == 0
+            and np.max(np.abs(K[0] - K_prev[0])) <= _GAIN_TOL * np.max(np.abs(K[0]))
+        ):
             scale = np.max(np.abs(K), axis=(1, 2))
             if np.all(np.max(np.abs(K - K_prev), axis=(1, 2)) <= _GAIN_TOL * scale):
                 S[:, k + 1 :] = Sk[:, None]

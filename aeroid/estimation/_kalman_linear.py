@@ -307,15 +307,20 @@ def _riccati_fast(
     return None
 
 
-def _riccati_arrays(lin: _Linear, n_t: int) -> tuple[int, int, FloatArray, FloatArray, FloatArray]:
+def _riccati_start(lin: _Linear, n_t: int) -> tuple[int, int, FloatArray, FloatArray]:
     """What every Riccati recursion over a record starts from: the batch size and state
-    count, H, and S and the gains over the record (no gain at the first sample)."""
+    count, H, and S over the record (unset)."""
     assert lin.H is not None
     B, _, n, _ = lin.Phi.shape
     H = lin.H
-    n_y = H.shape[1]
-    S = np.empty((B, n_t, n_y, n_y))
-    Kg = np.empty((B, n_t, n, n_y))
+    S = np.empty((B, n_t, H.shape[1], H.shape[1]))
+    return B, n, H, S
+
+
+def _riccati_arrays(lin: _Linear, n_t: int) -> tuple[int, int, FloatArray, FloatArray, FloatArray]:
+    """`_riccati_start`, and the gains over the record (no gain at the first sample)."""
+    B, n, H, S = _riccati_start(lin, n_t)
+    Kg = np.empty((B, n_t, n, H.shape[1]))
     Kg[:, 0] = 0.0
     return B, n, H, S, Kg
 
