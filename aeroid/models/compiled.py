@@ -250,46 +250,52 @@ def compiled_rollout(
     return traj
 
 
-# Substep counts up to which `rk4_outputs` compiles the count into its program (the steps
-# written out, no inner loop to run: a third faster for one substep); above, one program
-# serves every count.
+# Substep counts up to which `rk4_outputs` writes the count into its program (no inner
+# loop to run); above, one program serves every count.
 _STATIC_SUBSTEPS = 2
 
 
 def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) -> Any:
-    """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`)."""
+    """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`):
+    `static` substeps written in, 0 for `m`'s, -1 for the stiffness rule's, decided in
+    the program (one substep taking the program without the inner loop)."""
+    from .jax_compiled import _fixed_rollout, _substeps_rule
+
     entry = _entry(model)
-    f, h = entry[("fn", "dynamics")], entry.get(("fn", "measurement"))
-    if static:
-        sub = _substep(f, jax)
-
-        def interval(x: Any, inp: Any) -> tuple[Any, Any]:
-            m = jnp.int32(static)
-            for j in range(static):
-                x = sub(jnp.int32(j), x, *inp, m)
-            return x, x
-
-        def roll(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> Any:
-            inputs = (time[:-1], time[1:], u[:-1], u[1:])
-            body = lambda x, inp: interval(x, (*inp, pvec))  # noqa: E731
-            _, xs = jax.lax.scan(body, x0, inputs, unroll=2)
-            return jnp.concatenate([x0[None, :], xs], axis=0)
-
-    else:
-        roll = _rollout(f, jax, jnp)
+    # each traced once, however often the steps call them: tracing the program is most of
+    # its cost where the compiled program comes from the disk cache
+    f = jax.jit(entry[("fn", "dynamics")])
+    h = entry.get(("fn", "measurement"))
+    h = None if h is None else jax.jit(h)
     pick = np.asarray(index, dtype=np.int64)
     states_out = None if h is not None else [model.states.index(o) for o in model.output_names]
 
-    def member(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> tuple[Any, Any]:
-        xs = roll(time, u, x0, pvec, m)
-        if h is None:
-            ys = xs[:, states_out]
-        else:
-            ys = jax.vmap(lambda t, x, uk: h(t, x, uk, pvec))(time, xs, u)
-        ok = jnp.all(jnp.isfinite(xs)) & jnp.all(jnp.isfinite(ys))
-        return ys[:, pick], ok
+    def batch_of(roll: Callable[..., Any]) -> Callable[..., Any]:
+        def member(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> tuple[Any, Any]:
+            xs = roll(time, u, x0, pvec, m)
+            if h is None:
+                ys = xs[:, states_out]
+            else:
+                ys = jax.vmap(lambda t, x, uk: h(t, x, uk, pvec))(time, xs, u)
+            ok = jnp.all(jnp.isfinite(xs)) & jnp.all(jnp.isfinite(ys))
+            return ys[:, pick], ok
 
-    return jax.jit(jax.vmap(member, in_axes=(None, None, 0, 0, None)))
+        return jax.vmap(member, in_axes=(None, None, 0, 0, None))
+
+    if static > 0:
+        return jax.jit(batch_of(_fixed_rollout(_substep(f, jax), jax, jnp, static)))
+    looped = batch_of(_rollout(f, jax, jnp))
+    if static == 0:
+        return jax.jit(looped)
+    single = batch_of(_fixed_rollout(_substep(f, jax), jax, jnp, 1))
+    rule = _substeps_rule(f, jax, jnp)
+
+    def decided(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:
+        m = rule(time, u, X, P)
+        args = (time, u, X, P, m)
+        return jax.lax.cond(m == 1, lambda: single(*args), lambda: looped(*args))
+
+    return jax.jit(decided)
 
 
 def rk4_outputs(
@@ -298,28 +304,33 @@ def rk4_outputs(
     x0: FloatArray,
     u: FloatArray,
     p: Mapping[str, FloatArray],
-    substeps: int,
+    substeps: int | None,
     index: Sequence[int],
 ) -> tuple[FloatArray, NDArray[np.bool_]] | None:
     """The outputs at `index` (B, n_t, k) of a compiled RK4 batch and whether each member
     stayed finite (every state and output at every sample): x0 (n_x, B), u (n_t, n_u)
     shared, p name -> (B,). One compiled call from the parameters to the outputs, for
     a caller about to simulate many batches on one record (a sampler): the same RK4
-    steps as `rk4_states` and the same measurement, equal to it to rounding. None when
-    the model does not compile (dynamics and measurement)."""
+    steps as `rk4_states` and the same measurement, equal to it to rounding; `substeps`
+    None: the stiffness rule's (`_integrate.auto_substeps`), applied in the program.
+    None when the model does not compile (dynamics and measurement)."""
     if not ENABLED or time.size < 2:
         return None
     batch = x0.shape[1]
     P = _pmatrix(model, p, batch)
     if not available(model, time, x0[:, 0], u, P[0]):
         return None
-    static = int(substeps) if int(substeps) <= _STATIC_SUBSTEPS else 0
+    if substeps is None:  # by the stiffness rule, in the program
+        static, m = -1, 0
+    else:
+        m = int(substeps)
+        static = m if m <= _STATIC_SUBSTEPS else 0
     fn = _compiled(model, "outputs", (static, tuple(int(i) for i in index)))
     padded = 1 << (batch - 1).bit_length()  # few batch sizes, few compilations
     rows = np.minimum(np.arange(padded), batch - 1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(substeps))
+        y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(m))
         y = np.array(y, dtype=np.float64)[:batch]
     _entry(model)["compiled_once"] = True  # its later simulations take the compiled RK4 too
     return y, np.asarray(ok, dtype=bool)[:batch]
