@@ -183,3 +183,18 @@ def test_infer_samples_the_same_chain_compiled_or_not(monkeypatch: Any) -> None:
     # log-densities equal to rounding, so every accept/reject decision is the same
     np.testing.assert_array_equal(fast.samples, slow.samples)
     np.testing.assert_allclose(fast.log_prob, slow.log_prob, rtol=1e-10)
+
+
+def test_smaller_batches_after_a_batch_share_its_program() -> None:
+    model = _pendulum()
+    sim = BatchSimulator(model, T, _torque(T), X0, repeated=10**6)
+    params = {"w2": np.array([9.0, 8.0, 10.0, 9.5]), "c": np.array([0.4, 0.3, 0.5, 0.45])}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim.outputs(params, [1])
+        four = sim.outputs(params, [1])
+        fewer = [sim.outputs({k: v[:n] for k, v in params.items()}, [1]) for n in (3, 1)]
+    program = _compiled._shared(model)[("outputs", (-1, (1,)))]
+    assert program._cache_size() == 1  # batches of 3 and 1 padded to 4: no compilation
+    for got in fewer:
+        np.testing.assert_array_equal(got, four[: got.shape[0]])

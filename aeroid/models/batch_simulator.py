@@ -9,6 +9,7 @@ the compilation (`aeroid.models.compiled.rk4_outputs`).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +28,8 @@ if TYPE_CHECKING:
 __all__ = ["BatchSimulator"]
 
 FloatArray = NDArray[np.float64]
+
+_log = logging.getLogger("aeroid")
 
 
 class BatchSimulator:
@@ -63,7 +66,11 @@ class BatchSimulator:
         x0_arr = None if x0 is None or isinstance(x0, Mapping) else np.atleast_2d(_real(x0, "x0"))
         self._x0_batch = 1 if x0_arr is None else x0_arr.shape[0]
         self.repeated = int(repeated)
-        self._linear = False  # shown linear time-invariant: integrated exactly, in numpy
+        # shown linear time-invariant (integrated exactly, in numpy) or not compiled: the
+        # plain call from then on
+        self._plain = False
+        # the largest batch yet: smaller ones are padded to it (one compiled program)
+        self._widest = 0
         # per batch size: initial states, controls and the nominal parameter rows
         self._batches: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
 
@@ -169,19 +176,27 @@ class BatchSimulator:
         self, parameters: Mapping[str, ArrayLike], index: Any
     ) -> FloatArray | None:
         model = self.model
-        if self._linear or not self._compile_now() or self.u.shape[0] != 1 or self._x0_batch != 1:
+        if self._plain or not self._compile_now() or self.u.shape[0] != 1 or self._x0_batch != 1:
             return None
         batch = self._batch(parameters)
-        if batch < 2:
-            return None
+        if batch < 2 and self._widest < 2:
+            return None  # a single member before any batch (a sampler's start): as before
+        self._widest = max(self._widest, batch)
         X0, U, p = self._arrays(parameters, batch)
         if _integrate.linear_path(model, self.time, X0, U, p, self.method) is not None:
-            self._linear = True  # the exact solution, which the plain call takes from now on
+            self._plain = True  # the exact solution, which the plain call takes from now on
             return None
         from .compiled import rk4_outputs
 
-        got = rk4_outputs(model, self.time, X0.T, self.u[0], p, self.substeps, index)
+        try:
+            got = rk4_outputs(
+                model, self.time, X0.T, self.u[0], p, self.substeps, index, pad=self._widest
+            )
+        except Exception as exc:  # a program JAX cannot build or run here: the plain path
+            _log.debug("compiled outputs of model %r unavailable: %s", model.name, exc)
+            got = None
         if got is None:
+            self._plain = True
             return None
         y, ok = got
         y[~ok] = np.nan

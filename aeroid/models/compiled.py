@@ -306,6 +306,8 @@ def rk4_outputs(
     p: Mapping[str, FloatArray],
     substeps: int | None,
     index: Sequence[int],
+    *,
+    pad: int = 0,
 ) -> tuple[FloatArray, NDArray[np.bool_]] | None:
     """The outputs at `index` (B, n_t, k) of a compiled RK4 batch and whether each member
     stayed finite (every state and output at every sample): x0 (n_x, B), u (n_t, n_u)
@@ -313,7 +315,9 @@ def rk4_outputs(
     a caller about to simulate many batches on one record (a sampler): the same RK4
     steps as `rk4_states` and the same measurement, equal to it to rounding; `substeps`
     None: the stiffness rule's (`_integrate.auto_substeps`), applied in the program.
-    None when the model does not compile (dynamics and measurement)."""
+    Batches are padded to a power of two, at least `pad` (the caller's usual batch:
+    one compiled program). None when the model does not compile (dynamics and
+    measurement)."""
     if not ENABLED or time.size < 2:
         return None
     batch = x0.shape[1]
@@ -326,7 +330,7 @@ def rk4_outputs(
         m = int(substeps)
         static = m if m <= _STATIC_SUBSTEPS else 0
     fn = _compiled(model, "outputs", (static, tuple(int(i) for i in index)))
-    padded = 1 << (batch - 1).bit_length()  # few batch sizes, few compilations
+    padded = 1 << (max(batch, pad) - 1).bit_length()  # few batch sizes, few compilations
     rows = np.minimum(np.arange(padded), batch - 1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
