@@ -21,6 +21,8 @@ What is compiled:
   between samples and evaluated at the RK4 nodes), used by `_integrate.integrate`
   through `rk4_hook` once a model has spent more numpy RK4 work than a
   compilation costs;
+* a sampler's batch from the parameters to the outputs in one call, the substeps decided
+  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`);
 * outputs and their exact sensitivities with respect to chosen parameters and
   initial states (`output_sensitivities`), used by output error, and the
   first-order effect of white control noise on a fit's gradient
