@@ -21,6 +21,8 @@ What is compiled:
   between samples and evaluated at the RK4 nodes), used by `_integrate.integrate`
   through `rk4_hook` once a model has spent more numpy RK4 work than a
   compilation costs;
+* a sampler's batch from the parameters to the outputs in one call, the substeps decided
+  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`);
 * outputs and their exact sensitivities with respect to chosen parameters and
   initial states (`output_sensitivities`), used by output error, and the
   first-order effect of white control noise on a fit's gradient
@@ -87,6 +89,7 @@ __all__ = [
     "interval_propagator",
     "output_sensitivities",
     "rk4_hook",
+    "rk4_outputs",
     "rk4_states",
 ]
 
@@ -158,6 +161,8 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
     elif kind == "sensitivities":
         fn = jax.jit(_tangent_linear(f, entry.get(("fn", "measurement")), model, jax, jnp))
+    elif kind == "outputs":
+        fn = _outputs_program(model, jax, jnp, *extra)
     elif kind == "input_noise":
         fn = jax.jit(_input_noise_scatter(f, entry.get(("fn", "measurement")), jax, jnp))
     elif kind == "interval":
@@ -180,14 +185,13 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
 def _pmatrix(model: Model, p: Mapping[str, Any], batch: int) -> FloatArray:
     """Rows of the model parameters (model order), then the model's lifted constants."""
     consts = _structure(model)["consts"]
-    columns = [
-        np.broadcast_to(np.asarray(p.get(n, v), dtype=np.float64), (batch,))
-        for n, v in model.parameters.items()
-    ]
-    columns += [np.full(batch, c) for c in consts]
-    if not columns:  # a model without parameters: rows of nothing
-        return np.zeros((batch, 0))
-    return np.ascontiguousarray(np.stack(columns, axis=1))
+    n_p = len(model.parameters)
+    P = np.empty((batch, n_p + consts.size))
+    # column by column: the values a stack of broadcast columns holds, without building them
+    for i, (n, v) in enumerate(model.parameters.items()):
+        P[:, i] = np.asarray(p.get(n, v), dtype=np.float64)
+    P[:, n_p:] = consts
+    return P
 
 
 def rk4_states(
@@ -246,6 +250,96 @@ def compiled_rollout(
     if traj is not None:
         _entry(model)["compiled_once"] = True
     return traj
+
+
+# Substep counts up to which `rk4_outputs` writes the count into its program (no inner
+# loop to run); above, one program serves every count.
+_STATIC_SUBSTEPS = 2
+
+
+def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) -> Any:
+    """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`):
+    `static` substeps written in, 0 for `m`'s, -1 for the stiffness rule's, decided in
+    the program (one substep taking the program without the inner loop)."""
+    from .jax_compiled import _fixed_rollout, _substeps_rule
+
+    entry = _entry(model)
+    # each traced once, however often the steps call them: tracing the program is most of
+    # its cost where the compiled program comes from the disk cache
+    f = jax.jit(entry[("fn", "dynamics")])
+    h = entry.get(("fn", "measurement"))
+    h = None if h is None else jax.jit(h)
+    pick = np.asarray(index, dtype=np.int64)
+    states_out = None if h is not None else [model.states.index(o) for o in model.output_names]
+
+    def batch_of(roll: Callable[..., Any]) -> Callable[..., Any]:
+        def member(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> tuple[Any, Any]:
+            xs = roll(time, u, x0, pvec, m)
+            if h is None:
+                ys = xs[:, states_out]
+            else:
+                ys = jax.vmap(lambda t, x, uk: h(t, x, uk, pvec))(time, xs, u)
+            ok = jnp.all(jnp.isfinite(xs)) & jnp.all(jnp.isfinite(ys))
+            return ys[:, pick], ok
+
+        return jax.vmap(member, in_axes=(None, None, 0, 0, None))
+
+    if static > 0:
+        return jax.jit(batch_of(_fixed_rollout(_substep(f, jax), jax, jnp, static)))
+    looped = batch_of(_rollout(f, jax, jnp))
+    if static == 0:
+        return jax.jit(looped)
+    single = batch_of(_fixed_rollout(_substep(f, jax), jax, jnp, 1))
+    rule = _substeps_rule(f, jax, jnp)
+
+    def decided(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:
+        m = rule(time, u, X, P)
+        args = (time, u, X, P, m)
+        return jax.lax.cond(m == 1, lambda: single(*args), lambda: looped(*args))
+
+    return jax.jit(decided)
+
+
+def rk4_outputs(
+    model: Model,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    substeps: int | None,
+    index: Sequence[int],
+    *,
+    pad: int = 0,
+) -> tuple[FloatArray, NDArray[np.bool_]] | None:
+    """The outputs at `index` (B, n_t, k) of a compiled RK4 batch and whether each member
+    stayed finite (every state and output at every sample): x0 (n_x, B), u (n_t, n_u)
+    shared, p name -> (B,). One compiled call from the parameters to the outputs, for
+    a caller about to simulate many batches on one record (a sampler): the same RK4
+    steps as `rk4_states` and the same measurement, equal to it to rounding; `substeps`
+    None: the stiffness rule's (`_integrate.auto_substeps`), applied in the program.
+    Batches are padded to a power of two, at least `pad` (the caller's usual batch:
+    one compiled program). None when the model does not compile (dynamics and
+    measurement)."""
+    if not ENABLED or time.size < 2:
+        return None
+    batch = x0.shape[1]
+    P = _pmatrix(model, p, batch)
+    if not available(model, time, x0[:, 0], u, P[0]):
+        return None
+    if substeps is None:  # by the stiffness rule, in the program
+        static, m = -1, 0
+    else:
+        m = int(substeps)
+        static = m if m <= _STATIC_SUBSTEPS else 0
+    fn = _compiled(model, "outputs", (static, tuple(int(i) for i in index)))
+    padded = 1 << (max(batch, pad) - 1).bit_length()  # few batch sizes, few compilations
+    rows = np.minimum(np.arange(padded), batch - 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(m))
+        y = np.array(y, dtype=np.float64)[:batch]
+    _entry(model)["compiled_once"] = True  # its later simulations take the compiled RK4 too
+    return y, np.asarray(ok, dtype=bool)[:batch]
 
 
 def worth_compiling(model: Model, calls: int) -> bool:

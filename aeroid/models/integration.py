@@ -632,6 +632,43 @@ def exact_lti(
 # -- front door ---------------------------------------------------------------------------
 
 
+def linear_path(
+    model: Model,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    method: str,
+) -> RawTrajectory | None:
+    """`integrate`'s exact solution where `method` takes it and the dynamics are linear
+    time-invariant on the record; else None (a model shown not to be is remembered, so
+    later calls skip the check). x0 (B, n_x), u (B, n_t, n_u), p name -> (B,)."""
+    f = model._dynamics_batch
+    if f.broadcasts is None and x0.shape[0] >= 2:
+        f.detect(float(time[0]), np.ascontiguousarray(x0.T), np.ascontiguousarray(u[:, 0, :].T), p)
+    if method in ("auto", "exact") and model._maybe_lti:
+        mats, not_lti = lti_form(
+            f, time, model.n_states, model.n_controls, p, trusted=model.linear is True
+        )
+        if mats is not None:
+            traj = exact_lti(time, x0.T, u, *mats)
+            if traj is not None:
+                return traj
+        elif not_lti and method == "auto":
+            # Shown not to be LTI: remember, so later calls skip the check.
+            object.__setattr__(model, "_maybe_lti", False)
+        if method == "exact":
+            raise SimulationError(
+                f"method='exact' needs dynamics affine in state and control and independent "
+                f"of time over the record; model {model.name!r} is not"
+            )
+    elif method == "exact":
+        raise SimulationError(
+            f"method='exact' is not available for model {model.name!r} (not linear)"
+        )
+    return None
+
+
 def integrate(
     model: Model,
     time: FloatArray,
@@ -656,28 +693,9 @@ def integrate(
         raise SimulationError(f"substeps must be a positive integer, got {substeps!r}")
     f = model._dynamics_batch
     X0 = np.ascontiguousarray(x0.T)
-    if f.broadcasts is None and X0.shape[1] >= 2:
-        f.detect(float(time[0]), X0, np.ascontiguousarray(u[:, 0, :].T), p)
-    if method in ("auto", "exact") and model._maybe_lti:
-        mats, not_lti = lti_form(
-            f, time, model.n_states, model.n_controls, p, trusted=model.linear is True
-        )
-        if mats is not None:
-            traj = exact_lti(time, x0.T, u, *mats)
-            if traj is not None:
-                return traj
-        elif not_lti and method == "auto":
-            # Shown not to be LTI: remember, so later calls skip the check.
-            object.__setattr__(model, "_maybe_lti", False)
-        if method == "exact":
-            raise SimulationError(
-                f"method='exact' needs dynamics affine in state and control and independent "
-                f"of time over the record; model {model.name!r} is not"
-            )
-    elif method == "exact":
-        raise SimulationError(
-            f"method='exact' is not available for model {model.name!r} (not linear)"
-        )
+    traj = linear_path(model, time, x0, u, p, method)
+    if traj is not None:
+        return traj
     if method in ("auto", "rk4"):
         m = substeps if substeps is not None else auto_substeps(f, time, X0, u, p)
         compiled = None if compiled_rk4 is None else compiled_rk4(model, time, X0, u, p, int(m))

@@ -23,12 +23,14 @@ from ._fitted_parameters import _names, resolve_parameters
 from ._fitted_parameters import delayed_controls as delayed_controls
 from ._fitted_parameters import fitted_start as fitted_start
 from ._model_base import ContinuousModel
-from ._simulation_checks import _MAX_NODE_VALUES, _real, check_integrator, real_number
 from ._simulation_checks import MAX_SUBSTEPS as MAX_SUBSTEPS
+from ._simulation_checks import _real, check_integrator, real_number
 from ._simulation_results import BatchSimulation, SimulationResult
+from .batch_simulator import BatchSimulator
 
 __all__ = [
     "BatchSimulation",
+    "BatchSimulator",
     "Model",
     "SimulationResult",
     "SimulatorModel",
@@ -518,57 +520,10 @@ class Model(ContinuousModel):
         SimulationError
             If an argument is malformed (see `simulate`).
         """
-        t = check_time(time)
-        check_integrator(method, substeps, rtol, atol)
-        unknown = sorted(set(parameters) - set(self.parameters))
-        if unknown:
-            raise SimulationError(f"parameters {unknown} are not parameters of model {self.name!r}")
-        sizes = {np.size(v) for v in parameters.values() if np.ndim(v) > 0}
-        u = self.control_array(t, controls)
-        x0_arr = None if x0 is None or isinstance(x0, Mapping) else np.atleast_2d(_real(x0, "x0"))
-        sizes |= {u.shape[0]} if u.shape[0] > 1 else set()
-        sizes |= {x0_arr.shape[0]} if x0_arr is not None and x0_arr.shape[0] > 1 else set()
-        if len(sizes) > 1:
-            raise SimulationError(
-                f"batch sizes disagree between parameters, controls and x0: {sorted(sizes)}"
-            )
-        batch = sizes.pop() if sizes else 1
-        p = {
-            k: np.broadcast_to(np.asarray(parameters.get(k, v), dtype=np.float64), (batch,)).copy()
-            for k, v in self.parameters.items()
-        }
-        X0 = self.initial_state(x0, batch)
-        U = np.broadcast_to(u, (batch, t.size, self.n_controls))
-        if substeps is not None and method in ("auto", "rk4"):
-            nodes = (t.size - 1) * (2 * int(substeps) + 1) * max(self.n_controls, 1) * batch
-            if nodes > _MAX_NODE_VALUES:
-                raise SimulationError(
-                    f"substeps={int(substeps)}: RK4 would hold {nodes} control values "
-                    f"({t.size} samples, batch {batch}); use fewer substeps or a finer time grid"
-                )
-        from .compiled import rk4_hook  # the same RK4, compiled once it pays
-
-        traj = _integrate.integrate(
-            self,
-            t,
-            X0,
-            U,
-            p,
-            method=method,
-            substeps=substeps,
-            rtol=rtol,
-            atol=atol,
-            compiled_rk4=rk4_hook,
+        simulator = BatchSimulator(
+            self, time, controls, x0, method=method, substeps=substeps, rtol=rtol, atol=atol
         )
-        outputs = self._outputs(t, traj.states, U, p)
-        ok = traj.ok & np.all(np.isfinite(outputs), axis=(1, 2))
-        fail_time = np.array(traj.fail_time, dtype=np.float64)
-        failure = [""] * batch
-        for b in np.flatnonzero(~ok).tolist():
-            fail_time[b], failure[b] = self._failure(
-                t, traj.states[b], outputs[b], float(traj.fail_time[b])
-            )
-        return BatchSimulation(t, traj.states, outputs, ok, fail_time, tuple(failure))
+        return simulator(parameters)
 
     @small_blas
     def simulate(

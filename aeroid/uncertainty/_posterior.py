@@ -19,6 +19,7 @@ from ..errors import InferenceError, SimulationError
 from ..io.data import FlightData, as_float, measured_start
 from ..models.model import (
     SIMULATE_OPTION_KEYS,
+    BatchSimulator,
     Model,
     check_integrator,
     check_simulate_options,
@@ -188,6 +189,16 @@ class _Posterior:
         self.options = opts
         self.last_error: Exception | None = None
         self._jax_batch: int | None = None
+        # the record's simulation, checked once (the sampler's thousands of calls pay none)
+        self._simulator: BatchSimulator | None = None
+        if self.batched and backend == "numpy":
+            self._simulator = BatchSimulator(model, self.time, self.controls, self.x0, **opts)
+
+    def expect(self, calls: int) -> None:
+        """Tell the simulation how many batches the sampler will score: enough of them
+        compile the model's RK4 from the first (`BatchSimulator`)."""
+        if self._simulator is not None:
+            self._simulator.repeated = int(calls)
 
     @staticmethod
     def _check_noise(noise: Mapping[str, float] | None, outs: tuple[str, ...]) -> dict[str, float]:
@@ -235,10 +246,8 @@ class _Posterior:
             return np.stack(rows)
 
     def _numpy(self, params: Mapping[str, FloatArray]) -> FloatArray:
-        res = self.model.simulate_batch(self.time, self.controls, self.x0, params, **self.options)
-        y = res.outputs[:, :, self.out_index]
-        y[~res.ok] = np.nan
-        return np.asarray(y)
+        assert self._simulator is not None
+        return self._simulator.outputs(params, self.out_index)
 
     def _jax(self, params: Mapping[str, FloatArray], batch: int) -> FloatArray:
         from ..models import jax_compiled as _jax
@@ -309,6 +318,14 @@ class _Posterior:
         if not self.batched:
             return
         values = {n: np.array([center[i]]) for n, i in self.model_cols}
+        size = self._jax_batch or 1
+        if self._simulator is not None and size > 1:
+            # a batch of the sampler's size: the program it runs, compiled once for both
+            many = {n: np.repeat(v, size) for n, v in values.items()}
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")
+                if np.all(np.isfinite(self._simulator.outputs(many, self.out_index)[0])):
+                    return
         res = self.model.simulate_batch(
             self.time, self.controls, self.x0, values, **{"method": "auto", **self.options}
         )

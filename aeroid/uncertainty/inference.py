@@ -190,6 +190,7 @@ def _run(
         raise InferenceError(
             f"no draws kept: n_steps - burn_in = {n_steps - burn_in} with thin = {thin}"
         )
+    post.expect(2 * n_steps)  # the sampler scores two half-ensembles a step
     start: FloatArray | ChainState
     if resume:
         state = _resume_state(post, initial, ensemble, n_walkers)

@@ -524,7 +524,9 @@ for _stage in (
     ),
     Stage(
         "infer",
-        "3",  # 3: parameters not inferred held at the fit
+        # 3: parameters not inferred held at the fit; 4: the sampler's simulations compiled
+        # from the first (log-densities equal to rounding, the same draws)
+        "4",
         InferOptions,
         "InferenceResult",
         _run_infer,
