@@ -181,3 +181,36 @@ def test_errors(sp_model, sp_noisy):
         _fe(sp_model, [sp_noisy], filter_options={"method": "pf"})
     with pytest.raises(IdentificationError, match="measurement_noise"):
         _fe(sp_model, [sp_noisy], measurement_noise={"alpha": 1e-4})
+
+
+def test_derivatives_step_back_where_the_forward_member_fails() -> None:
+    # a Gaussian innovation model with nu_k = y_k - a t_k, S = exp(s): the forward
+    # differences of the one batched pass give the exact gradient to O(h), and an
+    # unknown whose forward member fails (a > 0.9999 here) takes the backward one
+    from aeroid.estimation._filter_error import _derivatives, _Layout
+
+    t = np.linspace(0.0, 1.0, 50)
+    y = 0.8 * t + 0.1 * np.sin(7.0 * t)
+
+    def obj(Z):
+        a, s = Z[:, 0], Z[:, 1]
+        nu = (y[None] - a[:, None] * t[None])[:, :, None]
+        S = np.broadcast_to(np.exp(s)[:, None, None, None], (Z.shape[0], t.size, 1, 1)).copy()
+        quad = np.sum(nu[:, 1:, 0] ** 2, axis=1) / np.exp(s)
+        cost = 0.5 * (quad + (t.size - 1) * s)
+        cost[a > 0.9999] = np.inf
+        return cost, quad, [(nu, S, None)]
+
+    layout = _Layout(names=("a",), q_states=(), r_outputs=(0,))
+    tt = t[1:]
+    for a0 in (0.5, 0.9999):
+        z = np.array([a0, math.log(0.02)])
+        f, g, fisher, _, _ = _derivatives(obj, z, layout)
+        r = y[1:] - a0 * tt
+        exact = np.array([-np.sum(r * tt) / 0.02, 0.5 * (tt.size - np.sum(r**2) / 0.02)])
+        np.testing.assert_allclose(g, exact, rtol=2e-3, atol=1e-6)
+        # Fisher: sum t^2 / S for a, n/2 for the log-variance, no cross term
+        np.testing.assert_allclose(
+            fisher, np.diag([np.sum(tt**2) / 0.02, 0.5 * tt.size]), rtol=1e-3, atol=1e-6
+        )
+        assert np.isfinite(f)

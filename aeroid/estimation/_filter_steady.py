@@ -29,7 +29,7 @@ sixth of the time-varying filter's on the demo's flights). The time-varying
 filter (``gain="time_varying"``) remains for flights whose linearisation
 changes much over the record (large manoeuvres far from the trim).
 
-Each member of a batch (the filter-error method's central differences of the
+Each member of a batch (the filter-error method's finite differences of the
 whole predictor) linearises and solves its own Riccati equation, so the
 sensitivities include the gain's dependence on the parameters and the noise
 intensities, as the book's relaxation does through its F/K update steps.

@@ -493,7 +493,8 @@ for _stage in (
         #    steady-state gain by default
         # 6: the filter error's likelihood and information summed in another order
         #    (rounding: a fit stopped by its tolerance may stop an iteration apart)
-        "6",
+        # 7: the filter error's derivatives by forward differences
+        "7",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
