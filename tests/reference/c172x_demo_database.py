@@ -6,7 +6,12 @@ database with what the simulator holds:
 
 * the constants of the c172x's aerodynamic tables (its XML): Cm_q (with the
   alpha-dot term, which the demo's model lumps into it, as the short-period response
-  sums them), Cl_p, Cl_delta_a, Cn_beta (the slope of its beta table), Cn_r;
+  sums them), Cl_p, Cl_delta_a, Cn_beta (the slope of its beta table), Cn_r; as
+  written (about the aerodynamic reference point) and about the centre of gravity
+  (``table@cg``: plus the arm times the XML's own force derivatives, ``r x F``; the
+  reference point lies 2.3 in ahead of, 4.2 in left of and 24 in above the loaded cg,
+  which moves Cn_beta by -2.5 %, Cl_delta_a by -1.2 %, Cn_r by +1.1 %), the values a
+  flight, which turns about its cg, can identify;
 * the lift table CLwbh at its breakpoints inside the flown alpha range, against the
   database's ``CL_0(alpha)`` (the lift at alpha, the elevator's apart);
   the c172x adds lift outside CLwbh (at a 30 m/s trim its aerodynamic z force is
@@ -52,10 +57,52 @@ ROOT = Path(__file__).resolve().parents[2]
 TABLE = {
     "Cm_q": -12.4 - 5.2,  # Cmq + Cmadot: lumped by the demo's model
     "Cl_p": -0.47,
-    "Cl_delta_a": 0.229,
+    "Cl_delta_a": 0.23,
     "Cn_beta": 0.0227 / 0.349,
     "Cn_r": -0.099,
 }
+# The same XML's force derivatives that move those moments when taken about the centre
+# of gravity (the tables act at the aerodynamic reference point, the aircraft turns about
+# its cg): body side force CY (CYb's slope, CYp, CYr, CYda, per the same nondimensional
+# variables) and the lift of the pitch damping (CLq + CLadot, per q c/2V)
+FORCE = {
+    "Cm_q": ("CL", 3.9 + 1.7),
+    "Cl_p": ("CY", -0.037),
+    "Cl_delta_a": ("CY", -0.05),
+    "Cn_beta": ("CY", -0.108 / 0.349),
+    "Cn_r": ("CY", 0.21),
+}
+
+
+def _at_cg(term: str, alpha: float, arm: tuple[float, float, float], b: float, c: float) -> float:
+    """The XML's constant `term` about the centre of gravity: ``M_cg = M_rp + r x F`` with
+    ``r`` (body axes, m) from the cg to the aerodynamic reference point and the table's
+    force derivative ``F`` (lift along -z rotated by alpha, side force along y)."""
+    rx, ry, rz = arm
+    kind, value = FORCE[term]
+    if kind == "CL":  # body x and z components of a lift derivative at alpha
+        fx, fy, fz = value * np.sin(alpha), 0.0, -value * np.cos(alpha)
+    else:
+        fx, fy, fz = 0.0, value, 0.0
+    if term.startswith("Cl"):
+        return TABLE[term] + (ry * fz - rz * fy) / b
+    if term.startswith("Cm"):
+        return TABLE[term] + (rz * fx - rx * fz) / c
+    return TABLE[term] + (rx * fy - ry * fx) / b
+
+
+def _arm() -> tuple[tuple[float, float, float], float, float]:
+    """The c172x's arm from its centre of gravity to its aerodynamic reference point in
+    body axes (m; JSBSim's structural frame has x aft and z up), its span and chord (m)."""
+    from aeroid.adapters.jsbsim_flights import FlightCondition, _executive
+
+    fdm = _executive(FlightCondition(45.0, 1000.0))
+    inch = 0.0254
+    d = [float(fdm[f"metrics/aero-rp-{a}-in"]) - float(fdm[f"inertia/cg-{a}-in"]) for a in "xyz"]
+    arm = (-d[0] * inch, d[1] * inch, -d[2] * inch)
+    return arm, float(fdm["metrics/bw-ft"]) * 0.3048, float(fdm["metrics/cbarw-ft"]) * 0.3048
+
+
 # CLwbh at stall hysteresis 0: alpha (rad) -> CL
 CL_TABLE = {0.0: 0.25, 0.09: 0.73, 0.1: 0.83, 0.12: 0.92, 0.14: 1.02}
 FLOWN = ("Cm_alpha", "Cm_delta_e", "Cm_q", "Cl_p", "Cl_delta_a", "Cn_beta", "Cn_r")
@@ -244,6 +291,8 @@ def main() -> int:
     lo = db.centres["alpha"] - db.half_ranges["alpha"]
     hi = db.centres["alpha"] + db.half_ranges["alpha"]
     rows = []
+    arm, span, chord = _arm()
+    print(f"cg to aerodynamic reference point (body axes): {np.round(arm, 4)} m")
     print(f"flown trim alpha {np.degrees(lo):.2f}-{np.degrees(hi):.2f} deg")
 
     for alt in sorted({c["altitude"] for c in conditions.values()}):
@@ -258,11 +307,14 @@ def main() -> int:
             value, low, high = db.band(term, {"alpha": grid, "altitude": np.full(7, alt)})
             for a, v, lw, hg in zip(grid, value, low, high, strict=True):
                 rows.append(("table", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
+                t = _at_cg(term, float(a), arm, span, chord)
+                rows.append(("table@cg", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
 
     held = {c.flight for c in db.held_out}
     per_flight: list[tuple[str, float, float, float, float, float]] = []
     print("table: the c172x's XML at 7 alpha over the flown range at each altitude flown; flown:")
-    print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims")
+    print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims;")
+    print("table@cg: the XML's constants about the centre of gravity (what a flight can see)")
     for name, cond in conditions.items():
         flight = FlightCondition(cond["airspeed"], cond["altitude"])
         truth = effective_derivatives(flight)
@@ -317,7 +369,7 @@ def main() -> int:
             f"{kind:8s} {term:11s} {alt:7.0f} {np.degrees(a):7.2f} {v:10.4g} {t:10.4g} "
             f"{100 * err:7.1f}% {'yes' if inside else 'no':>7s}{flag}"
         )
-    for kind in ("table", "flown", "flown*", "CLwbh"):
+    for kind in ("table", "table@cg", "flown", "flown*", "CLwbh"):
         sel = [r for r in rows if r[0] == kind]
         if sel:
             close = np.mean([_close(r[4], r[5]) for r in sel])
@@ -327,7 +379,7 @@ def main() -> int:
                 f"95 % band covers the truth: {cover:.2f}"
             )
     for term in sorted({r[1] for r in rows}):
-        sel = [r for r in rows if r[1] == term and r[0] != "CLwbh"]
+        sel = [r for r in rows if r[1] == term and r[0] not in ("CLwbh", "table")]
         print(
             f"  {term:11s} within 10 %: {np.mean([_close(r[4], r[5]) for r in sel]):.2f}  "
             f"covered: {np.mean([r[6] for r in sel]):.2f}"
