@@ -307,8 +307,9 @@ def main() -> int:
             value, low, high = db.band(term, {"alpha": grid, "altitude": np.full(7, alt)})
             for a, v, lw, hg in zip(grid, value, low, high, strict=True):
                 rows.append(("table", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
-                t = _at_cg(term, float(a), arm, span, chord)
-                rows.append(("table@cg", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
+                at_cg = _at_cg(term, float(a), arm, span, chord)
+                inside = bool(lw <= at_cg <= hg)
+                rows.append(("table@cg", term, alt, float(a), float(v), at_cg, inside))
 
     held = {c.flight for c in db.held_out}
     per_flight: list[tuple[str, float, float, float, float, float]] = []
