@@ -33,12 +33,18 @@ per point: the database's value, the truth, the relative error against the issue
 10 % (0.02 absolute near zero) and whether its 95 % band covers the truth; then the
 fractions. Needs jsbsim. Takes a few minutes (the demo's run).
 
+With ``--budget V H`` it flies one calm, noise-free flight at airspeed V (m/s) and
+altitude H (m) and prints its rate budget: at every JSBSim step, the demo's model's
+alpha, q, beta, p and r derivatives at JSBSim's states (the stability and control
+terms at what JSBSim flies) against JSBSim's own rates, and the candidate terms that
+explain most of the miss (about ten seconds).
+
 With ``--clean`` it instead flies three of the demo's conditions without gusts or sensor
 noise and fits each with the demo's model and identification options: what is left
 against what JSBSim flies is the model's structure or the truth's definition, not the
 records (about half a minute).
 
-    python3 tests/reference/c172x_demo_database.py [--store DIR] [--clean]
+    python3 tests/reference/c172x_demo_database.py [--store DIR] [--clean] [--budget V H]
 """
 
 from __future__ import annotations
@@ -225,8 +231,9 @@ def _merged(base: dict, override: dict) -> dict:
     return out
 
 
-def _clean() -> int:
-    """The demo's model on noise- and gust-free flights against what JSBSim flies."""
+def _clean_fit(airspeed: float, altitude: float, data: object | None = None) -> tuple:
+    """The demo's model and identification options on a calm, noise-free flight (flown
+    here unless given): the model, the record, the estimates and what JSBSim flies."""
     import yaml
 
     from aeroid.adapters.jsbsim_flights import (
@@ -240,27 +247,33 @@ def _clean() -> int:
 
     cfg = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
     options = {k: v for k, v in cfg["stages"]["identify"].items() if k != "parameters"}
+    cond = FlightCondition(airspeed, altitude)
+    if data is None:
+        data = fly_c172x(cond, noise=False, turbulence=0.0)
+    trim = data.metadata["trim"]
+    const = {"altitude": altitude}
+    const["engine_momentum"] = c172x_constants(
+        altitude, airspeed=airspeed, engine=True
+    ).engine_momentum
+    flight = {
+        "longitudinal": {"V0": airspeed, "constants": const},
+        "lateral": {
+            "V0": airspeed,
+            "alpha0": trim["alpha"],
+            "theta0": trim["theta"],
+            "constants": const,
+        },
+    }
+    model = model_from_config(_merged(cfg["model"], flight))
+    found = identify(model, data, list(model.parameter_names), **options).parameters
+    return model, data, found, effective_derivatives(cond)
+
+
+def _clean() -> int:
+    """The demo's model on noise- and gust-free flights against what JSBSim flies."""
     print("the demo's model on calm, noise-free flights: estimate/JSBSim's, estimate/JSBSim's - 1")
     for airspeed, altitude in CLEAN:
-        cond = FlightCondition(airspeed, altitude)
-        data = fly_c172x(cond, noise=False, turbulence=0.0)
-        trim = data.metadata["trim"]
-        const = {"altitude": altitude}
-        const["engine_momentum"] = c172x_constants(
-            altitude, airspeed=airspeed, engine=True
-        ).engine_momentum
-        flight = {
-            "longitudinal": {"V0": airspeed, "constants": const},
-            "lateral": {
-                "V0": airspeed,
-                "alpha0": trim["alpha"],
-                "theta0": trim["theta"],
-                "constants": const,
-            },
-        }
-        model = model_from_config(_merged(cfg["model"], flight))
-        found = identify(model, data, list(model.parameter_names), **options).parameters
-        truth = effective_derivatives(cond)
+        _, _, found, truth = _clean_fit(airspeed, altitude)
         cells = [
             f"{t} {found[t]:.4g}/{truth[t]:.4g} {100 * (found[t] / truth[t] - 1):+.1f}%"
             for t in FLOWN
@@ -269,13 +282,98 @@ def _clean() -> int:
     return 0
 
 
+# JSBSim's own rates at each step, and the candidate terms the budget regresses the
+# model's misses on (the inertia and kinematic couplings, the sideslip's drag, alpha)
+_RATES = {
+    "alpha": "aero/alphadot-rad_sec",
+    "q": "accelerations/qdot-rad_sec2",
+    "beta": "aero/betadot-rad_sec",
+    "p": "accelerations/pdot-rad_sec2",
+    "r": "accelerations/rdot-rad_sec2",
+}
+
+
+def _budget(airspeed: float, altitude: float) -> int:
+    """The rate budget of one calm, noise-free flight: at every JSBSim step (150 Hz), the
+    demo's model's state derivatives at JSBSim's states and surfaces, with what JSBSim
+    flies for the stability and control terms and the fit's values for the rest,
+    against JSBSim's own rates; per equation the miss and the candidate terms that
+    explain most of it."""
+    from aeroid.adapters import jsbsim_flights as jf
+    from aeroid.io.data import FlightData
+
+    steps: list[list[float]] = []
+    record = jf._record
+
+    def logged(fdm: object) -> list[float]:
+        steps.append([float(fdm[prop]) for prop in _RATES.values()])  # type: ignore[index]
+        return record(fdm)
+
+    jf._record = logged
+    try:
+        fine = jf.fly_c172x(
+            jf.FlightCondition(airspeed, altitude),
+            noise=False,
+            turbulence=0.0,
+            sample_rate=150.0,
+        )
+    finally:
+        jf._record = record
+    # the demo's 50 Hz record is every third step of the same flight
+    coarse = FlightData(
+        fine.time[::3], {n: fine[n][::3] for n in fine.names}, fine.units, fine.metadata
+    )
+    model, _, found, truth = _clean_fit(airspeed, altitude, coarse)
+    p = {
+        k: float(truth.get(k, v)) if not k.startswith(("CL", "CD")) else v for k, v in found.items()
+    }
+    x = np.vstack([fine[s] for s in model.states])
+    u = np.vstack([fine[c] for c in model.controls])
+    f = np.asarray(model.dynamics(0.0, x, u, p))
+    rates = np.asarray(steps).T
+    v = dict(zip(model.states, x, strict=True))
+    candidates = {
+        "p r": v["p"] * v["r"],
+        "r^2 - p^2": v["r"] ** 2 - v["p"] ** 2,
+        "beta^2": v["beta"] ** 2,
+        "tan(beta) (p cos a + r sin a)": np.tan(v["beta"])
+        * (v["p"] * np.cos(v["alpha"]) + v["r"] * np.sin(v["alpha"])),
+        "q r": v["q"] * v["r"],
+        "p q": v["p"] * v["q"],
+        "alpha": v["alpha"],
+        "V": v["V"],
+        "delta_a": fine["delta_a"],
+        "delta_r": fine["delta_r"],
+    }
+    print(f"rate budget at {airspeed:g} m/s, {altitude:g} m (every 150 Hz step, calm, no noise):")
+    for i, state in enumerate(_RATES):
+        miss = rates[i] - f[model.states.index(state)]
+        miss = miss - miss.mean()
+        cells = []
+        for name, col in candidates.items():
+            a = np.column_stack([np.ones_like(col), col])
+            coef, *_ = np.linalg.lstsq(a, miss, rcond=None)
+            cells.append((float(np.std(miss - a @ coef)), name))
+        best = ", ".join(f"{n} -> {r:.2g}" for r, n in sorted(cells)[:3])
+        print(
+            f"  {state:5s} rms {np.std(rates[i]):.3g}, model's miss {np.std(miss):.2g}; "
+            f"left by one term: {best}"
+        )
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
     parser.add_argument("--clean", action="store_true", help="calm, noise-free flights only")
+    parser.add_argument(
+        "--budget", nargs=2, type=float, metavar=("V", "H"), help="one calm flight's rate budget"
+    )
     args = parser.parse_args()
     if args.clean:
         return _clean()
+    if args.budget:
+        return _budget(*args.budget)
     from aeroid.adapters.jsbsim_flights import (
         FlightCondition,
         _coefficients,
