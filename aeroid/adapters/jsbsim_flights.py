@@ -623,9 +623,9 @@ def effective_derivatives(
     centre of gravity stays in, a part in a thousand of ``Cm_alpha``.
 
     ``Cl_alpha`` and ``Cn_alpha`` are the roll and yaw the angle of attack
-    brings in a wings-level trim: the c172x's centre of gravity lies off its
-    plane of symmetry (its seats are loaded unequally), so its lift rolls it
-    (``Cl_alpha`` about the lift slope times the offset in spans), a coupling
+    brings in a wings-level trim: the c172x's centre of gravity lies 4.2 in off its
+    plane of symmetry (its file loads an 80 lb point mass on the right wing tip), so
+    its lift rolls it (``Cl_alpha`` about the lift slope times the offset in spans), a coupling
     that a lateral model about a fixed trim does not hold.
 
     Parameters

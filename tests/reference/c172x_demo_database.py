@@ -6,7 +6,12 @@ database with what the simulator holds:
 
 * the constants of the c172x's aerodynamic tables (its XML): Cm_q (with the
   alpha-dot term, which the demo's model lumps into it, as the short-period response
-  sums them), Cl_p, Cl_delta_a, Cn_beta (the slope of its beta table), Cn_r;
+  sums them), Cl_p, Cl_delta_a, Cn_beta (the slope of its beta table), Cn_r; as
+  written (about the aerodynamic reference point) and about the centre of gravity
+  (``table@cg``: plus the arm times the XML's own force derivatives, ``r x F``; the
+  reference point lies 2.3 in ahead of, 4.2 in left of and 24 in above the loaded cg,
+  which moves Cn_beta by -2.5 %, Cl_delta_a by -1.2 %, Cn_r by +1.1 %), the values a
+  flight, which turns about its cg, can identify;
 * the lift table CLwbh at its breakpoints inside the flown alpha range, against the
   database's ``CL_0(alpha)`` (the lift at alpha, the elevator's apart);
   the c172x adds lift outside CLwbh (at a 30 m/s trim its aerodynamic z force is
@@ -28,12 +33,18 @@ per point: the database's value, the truth, the relative error against the issue
 10 % (0.02 absolute near zero) and whether its 95 % band covers the truth; then the
 fractions. Needs jsbsim. Takes a few minutes (the demo's run).
 
+With ``--budget V H`` it flies one calm, noise-free flight at airspeed V (m/s) and
+altitude H (m) and prints its rate budget: at every JSBSim step, the demo's model's
+alpha, q, beta, p and r derivatives at JSBSim's states (the stability and control
+terms at what JSBSim flies) against JSBSim's own rates, and the candidate terms that
+explain most of the miss (about ten seconds).
+
 With ``--clean`` it instead flies three of the demo's conditions without gusts or sensor
 noise and fits each with the demo's model and identification options: what is left
 against what JSBSim flies is the model's structure or the truth's definition, not the
 records (about half a minute).
 
-    python3 tests/reference/c172x_demo_database.py [--store DIR] [--clean]
+    python3 tests/reference/c172x_demo_database.py [--store DIR] [--clean] [--budget V H]
 """
 
 from __future__ import annotations
@@ -52,10 +63,52 @@ ROOT = Path(__file__).resolve().parents[2]
 TABLE = {
     "Cm_q": -12.4 - 5.2,  # Cmq + Cmadot: lumped by the demo's model
     "Cl_p": -0.47,
-    "Cl_delta_a": 0.229,
+    "Cl_delta_a": 0.23,
     "Cn_beta": 0.0227 / 0.349,
     "Cn_r": -0.099,
 }
+# The same XML's force derivatives that move those moments when taken about the centre
+# of gravity (the tables act at the aerodynamic reference point, the aircraft turns about
+# its cg): body side force CY (CYb's slope, CYp, CYr, CYda, per the same nondimensional
+# variables) and the lift of the pitch damping (CLq + CLadot, per q c/2V)
+FORCE = {
+    "Cm_q": ("CL", 3.9 + 1.7),
+    "Cl_p": ("CY", -0.037),
+    "Cl_delta_a": ("CY", -0.05),
+    "Cn_beta": ("CY", -0.108 / 0.349),
+    "Cn_r": ("CY", 0.21),
+}
+
+
+def _at_cg(term: str, alpha: float, arm: tuple[float, float, float], b: float, c: float) -> float:
+    """The XML's constant `term` about the centre of gravity: ``M_cg = M_rp + r x F`` with
+    ``r`` (body axes, m) from the cg to the aerodynamic reference point and the table's
+    force derivative ``F`` (lift along -z rotated by alpha, side force along y)."""
+    rx, ry, rz = arm
+    kind, value = FORCE[term]
+    if kind == "CL":  # body x and z components of a lift derivative at alpha
+        fx, fy, fz = value * np.sin(alpha), 0.0, -value * np.cos(alpha)
+    else:
+        fx, fy, fz = 0.0, value, 0.0
+    if term.startswith("Cl"):
+        return TABLE[term] + (ry * fz - rz * fy) / b
+    if term.startswith("Cm"):
+        return TABLE[term] + (rz * fx - rx * fz) / c
+    return TABLE[term] + (rx * fy - ry * fx) / b
+
+
+def _arm() -> tuple[tuple[float, float, float], float, float]:
+    """The c172x's arm from its centre of gravity to its aerodynamic reference point in
+    body axes (m; JSBSim's structural frame has x aft and z up), its span and chord (m)."""
+    from aeroid.adapters.jsbsim_flights import FlightCondition, _executive
+
+    fdm = _executive(FlightCondition(45.0, 1000.0))
+    inch = 0.0254
+    d = [float(fdm[f"metrics/aero-rp-{a}-in"]) - float(fdm[f"inertia/cg-{a}-in"]) for a in "xyz"]
+    arm = (-d[0] * inch, d[1] * inch, -d[2] * inch)
+    return arm, float(fdm["metrics/bw-ft"]) * 0.3048, float(fdm["metrics/cbarw-ft"]) * 0.3048
+
+
 # CLwbh at stall hysteresis 0: alpha (rad) -> CL
 CL_TABLE = {0.0: 0.25, 0.09: 0.73, 0.1: 0.83, 0.12: 0.92, 0.14: 1.02}
 FLOWN = ("Cm_alpha", "Cm_delta_e", "Cm_q", "Cl_p", "Cl_delta_a", "Cn_beta", "Cn_r")
@@ -178,8 +231,9 @@ def _merged(base: dict, override: dict) -> dict:
     return out
 
 
-def _clean() -> int:
-    """The demo's model on noise- and gust-free flights against what JSBSim flies."""
+def _clean_fit(airspeed: float, altitude: float, data: object | None = None) -> tuple:
+    """The demo's model and identification options on a calm, noise-free flight (flown
+    here unless given): the model, the record, the estimates and what JSBSim flies."""
     import yaml
 
     from aeroid.adapters.jsbsim_flights import (
@@ -193,27 +247,33 @@ def _clean() -> int:
 
     cfg = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
     options = {k: v for k, v in cfg["stages"]["identify"].items() if k != "parameters"}
+    cond = FlightCondition(airspeed, altitude)
+    if data is None:
+        data = fly_c172x(cond, noise=False, turbulence=0.0)
+    trim = data.metadata["trim"]
+    const = {"altitude": altitude}
+    const["engine_momentum"] = c172x_constants(
+        altitude, airspeed=airspeed, engine=True
+    ).engine_momentum
+    flight = {
+        "longitudinal": {"V0": airspeed, "constants": const},
+        "lateral": {
+            "V0": airspeed,
+            "alpha0": trim["alpha"],
+            "theta0": trim["theta"],
+            "constants": const,
+        },
+    }
+    model = model_from_config(_merged(cfg["model"], flight))
+    found = identify(model, data, list(model.parameter_names), **options).parameters
+    return model, data, found, effective_derivatives(cond)
+
+
+def _clean() -> int:
+    """The demo's model on noise- and gust-free flights against what JSBSim flies."""
     print("the demo's model on calm, noise-free flights: estimate/JSBSim's, estimate/JSBSim's - 1")
     for airspeed, altitude in CLEAN:
-        cond = FlightCondition(airspeed, altitude)
-        data = fly_c172x(cond, noise=False, turbulence=0.0)
-        trim = data.metadata["trim"]
-        const = {"altitude": altitude}
-        const["engine_momentum"] = c172x_constants(
-            altitude, airspeed=airspeed, engine=True
-        ).engine_momentum
-        flight = {
-            "longitudinal": {"V0": airspeed, "constants": const},
-            "lateral": {
-                "V0": airspeed,
-                "alpha0": trim["alpha"],
-                "theta0": trim["theta"],
-                "constants": const,
-            },
-        }
-        model = model_from_config(_merged(cfg["model"], flight))
-        found = identify(model, data, list(model.parameter_names), **options).parameters
-        truth = effective_derivatives(cond)
+        _, _, found, truth = _clean_fit(airspeed, altitude)
         cells = [
             f"{t} {found[t]:.4g}/{truth[t]:.4g} {100 * (found[t] / truth[t] - 1):+.1f}%"
             for t in FLOWN
@@ -222,13 +282,98 @@ def _clean() -> int:
     return 0
 
 
+# JSBSim's own rates at each step, and the candidate terms the budget regresses the
+# model's misses on (the inertia and kinematic couplings, the sideslip's drag, alpha)
+_RATES = {
+    "alpha": "aero/alphadot-rad_sec",
+    "q": "accelerations/qdot-rad_sec2",
+    "beta": "aero/betadot-rad_sec",
+    "p": "accelerations/pdot-rad_sec2",
+    "r": "accelerations/rdot-rad_sec2",
+}
+
+
+def _budget(airspeed: float, altitude: float) -> int:
+    """The rate budget of one calm, noise-free flight: at every JSBSim step (150 Hz), the
+    demo's model's state derivatives at JSBSim's states and surfaces, with what JSBSim
+    flies for the stability and control terms and the fit's values for the rest,
+    against JSBSim's own rates; per equation the miss and the candidate terms that
+    explain most of it."""
+    from aeroid.adapters import jsbsim_flights as jf
+    from aeroid.io.data import FlightData
+
+    steps: list[list[float]] = []
+    record = jf._record
+
+    def logged(fdm: object) -> list[float]:
+        steps.append([float(fdm[prop]) for prop in _RATES.values()])  # type: ignore[index]
+        return record(fdm)
+
+    jf._record = logged
+    try:
+        fine = jf.fly_c172x(
+            jf.FlightCondition(airspeed, altitude),
+            noise=False,
+            turbulence=0.0,
+            sample_rate=150.0,
+        )
+    finally:
+        jf._record = record
+    # the demo's 50 Hz record is every third step of the same flight
+    coarse = FlightData(
+        fine.time[::3], {n: fine[n][::3] for n in fine.names}, fine.units, fine.metadata
+    )
+    model, _, found, truth = _clean_fit(airspeed, altitude, coarse)
+    p = {
+        k: float(truth.get(k, v)) if not k.startswith(("CL", "CD")) else v for k, v in found.items()
+    }
+    x = np.vstack([fine[s] for s in model.states])
+    u = np.vstack([fine[c] for c in model.controls])
+    f = np.asarray(model.dynamics(0.0, x, u, p))
+    rates = np.asarray(steps).T
+    v = dict(zip(model.states, x, strict=True))
+    candidates = {
+        "p r": v["p"] * v["r"],
+        "r^2 - p^2": v["r"] ** 2 - v["p"] ** 2,
+        "beta^2": v["beta"] ** 2,
+        "tan(beta) (p cos a + r sin a)": np.tan(v["beta"])
+        * (v["p"] * np.cos(v["alpha"]) + v["r"] * np.sin(v["alpha"])),
+        "q r": v["q"] * v["r"],
+        "p q": v["p"] * v["q"],
+        "alpha": v["alpha"],
+        "V": v["V"],
+        "delta_a": fine["delta_a"],
+        "delta_r": fine["delta_r"],
+    }
+    print(f"rate budget at {airspeed:g} m/s, {altitude:g} m (every 150 Hz step, calm, no noise):")
+    for i, state in enumerate(_RATES):
+        miss = rates[i] - f[model.states.index(state)]
+        miss = miss - miss.mean()
+        cells = []
+        for name, col in candidates.items():
+            a = np.column_stack([np.ones_like(col), col])
+            coef, *_ = np.linalg.lstsq(a, miss, rcond=None)
+            cells.append((float(np.std(miss - a @ coef)), name))
+        best = ", ".join(f"{n} -> {r:.2g}" for r, n in sorted(cells)[:3])
+        print(
+            f"  {state:5s} rms {np.std(rates[i]):.3g}, model's miss {np.std(miss):.2g}; "
+            f"left by one term: {best}"
+        )
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
     parser.add_argument("--clean", action="store_true", help="calm, noise-free flights only")
+    parser.add_argument(
+        "--budget", nargs=2, type=float, metavar=("V", "H"), help="one calm flight's rate budget"
+    )
     args = parser.parse_args()
     if args.clean:
         return _clean()
+    if args.budget:
+        return _budget(*args.budget)
     from aeroid.adapters.jsbsim_flights import (
         FlightCondition,
         _coefficients,
@@ -244,6 +389,8 @@ def main() -> int:
     lo = db.centres["alpha"] - db.half_ranges["alpha"]
     hi = db.centres["alpha"] + db.half_ranges["alpha"]
     rows = []
+    arm, span, chord = _arm()
+    print(f"cg to aerodynamic reference point (body axes): {np.round(arm, 4)} m")
     print(f"flown trim alpha {np.degrees(lo):.2f}-{np.degrees(hi):.2f} deg")
 
     for alt in sorted({c["altitude"] for c in conditions.values()}):
@@ -258,11 +405,15 @@ def main() -> int:
             value, low, high = db.band(term, {"alpha": grid, "altitude": np.full(7, alt)})
             for a, v, lw, hg in zip(grid, value, low, high, strict=True):
                 rows.append(("table", term, alt, float(a), float(v), t, bool(lw <= t <= hg)))
+                at_cg = _at_cg(term, float(a), arm, span, chord)
+                inside = bool(lw <= at_cg <= hg)
+                rows.append(("table@cg", term, alt, float(a), float(v), at_cg, inside))
 
     held = {c.flight for c in db.held_out}
     per_flight: list[tuple[str, float, float, float, float, float]] = []
     print("table: the c172x's XML at 7 alpha over the flown range at each altitude flown; flown:")
-    print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims")
+    print("what JSBSim flies at each fitted flight's trim; flown*: at the two held-out trims;")
+    print("table@cg: the XML's constants about the centre of gravity (what a flight can see)")
     for name, cond in conditions.items():
         flight = FlightCondition(cond["airspeed"], cond["altitude"])
         truth = effective_derivatives(flight)
@@ -317,7 +468,7 @@ def main() -> int:
             f"{kind:8s} {term:11s} {alt:7.0f} {np.degrees(a):7.2f} {v:10.4g} {t:10.4g} "
             f"{100 * err:7.1f}% {'yes' if inside else 'no':>7s}{flag}"
         )
-    for kind in ("table", "flown", "flown*", "CLwbh"):
+    for kind in ("table", "table@cg", "flown", "flown*", "CLwbh"):
         sel = [r for r in rows if r[0] == kind]
         if sel:
             close = np.mean([_close(r[4], r[5]) for r in sel])
@@ -327,7 +478,7 @@ def main() -> int:
                 f"95 % band covers the truth: {cover:.2f}"
             )
     for term in sorted({r[1] for r in rows}):
-        sel = [r for r in rows if r[1] == term and r[0] != "CLwbh"]
+        sel = [r for r in rows if r[1] == term and r[0] not in ("CLwbh", "table")]
         print(
             f"  {term:11s} within 10 %: {np.mean([_close(r[4], r[5]) for r in sel]):.2f}  "
             f"covered: {np.mean([r[6] for r in sel]):.2f}"
