@@ -9,9 +9,10 @@ import io
 import os
 import re
 import tempfile
+import threading
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # matplotlib is imported by whoever draws the figures, not here
     from matplotlib.figure import Figure
@@ -52,7 +53,6 @@ def figure_png(fig: Figure, *, dpi: int = 90, colors: int | None = None) -> byte
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
         return buf.getvalue()
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
     # the canvas's pixels straight to the palette: a full-colour PNG written and read
@@ -60,7 +60,7 @@ def figure_png(fig: Figure, *, dpi: int = 90, colors: int | None = None) -> byte
     canvas, old_dpi = fig.canvas, fig.dpi
     try:
         fig.set_dpi(dpi)
-        agg = FigureCanvasAgg(fig)
+        agg = _agg_canvas(fig)
         agg.draw()
         width, height = agg.get_width_height()
         rgba = Image.frombuffer("RGBA", (width, height), agg.buffer_rgba(), "raw", "RGBA", 0, 1)
@@ -74,6 +74,79 @@ def figure_png(fig: Figure, *, dpi: int = 90, colors: int | None = None) -> byte
     # zlib's default level: the highest doubles the time for 7 % fewer bytes
     small.save(out, format="PNG", compress_level=6)
     return out.getvalue()
+
+
+# Agg renderers kept for the next figure of the same size and dpi, in each thread: a
+# renderer's text metrics are cached with it, and a report draws the same layouts with
+# mostly the same labels over and over (a new renderer measured every string afresh)
+_RENDERERS = threading.local()
+_KEEP_RENDERERS = 8
+
+
+def _agg_canvas(fig: Figure) -> Any:
+    """An Agg canvas for `fig` (set as its canvas) that draws with a kept renderer."""
+    cls = getattr(_RENDERERS, "canvas_class", None)
+    if cls is None:
+        cls = _RENDERERS.canvas_class = _canvas_class()
+        _RENDERERS.kept = {}
+    return cls(fig)
+
+
+def _canvas_class() -> Any:
+    """The Agg canvas `figure_png` draws on: renderers kept (`_RENDERERS`), and each
+    plain string of text drawn as one bitmap.
+
+    Matplotlib 3.11 rasterises text glyph by glyph, with Python arithmetic around each
+    glyph: half the time of drawing a report's figure went to its tick labels and
+    titles. FreeType lays out and rasterises a whole string in one call (as Agg did up
+    to matplotlib 3.10), at whole-pixel rather than sub-pixel positions, which no one
+    can tell apart at these sizes. Mathematical text, and any matplotlib without those
+    calls, is drawn as matplotlib draws it.
+    """
+    import math
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
+    from matplotlib.ft2font import FT2Font
+
+    whole_strings = all(
+        hasattr(FT2Font, name)
+        for name in ("set_text", "draw_glyphs_to_bitmap", "get_bitmap_offset", "get_descent")
+    ) and hasattr(RendererAgg, "_prepare_font")
+
+    class _Renderer(RendererAgg):
+        def draw_text(  # type: ignore[no-untyped-def]
+            self, gc, x, y, s, prop, angle, ismath=False, mtext=None
+        ) -> None:
+            if ismath or not whole_strings:
+                return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
+            font = self._prepare_font(prop)
+            font.set_text(s, 0.0, flags=get_hinting_flag())
+            font.draw_glyphs_to_bitmap(antialiased=gc.get_antialiased())
+            # the bitmap's corner from the text's anchor: its offset from the layout's
+            # origin, and the descent along the rotated vertical (26.6 fixed point)
+            descent = font.get_descent() / 64.0
+            dx, dy = (v / 64.0 for v in font.get_bitmap_offset())
+            rad = math.radians(angle)
+            left = round(x + dx + descent * math.sin(rad))
+            top = round(y + dy + descent * math.cos(rad))
+            self._renderer.draw_text_image(font, left, top + 1, angle, gc)
+            return None
+
+    class _KeptRendererCanvas(FigureCanvasAgg):
+        def get_renderer(self) -> RendererAgg:
+            w, h = self.get_width_height(physical=True)
+            key = (w, h, self.figure.dpi)
+            kept: dict[Any, RendererAgg] = _RENDERERS.kept
+            renderer = kept.pop(key, None)
+            if renderer is None:
+                renderer = _Renderer(w, h, self.figure.dpi)
+            kept[key] = renderer  # the most recent last
+            while len(kept) > _KEEP_RENDERERS:
+                kept.pop(next(iter(kept)))
+            self.renderer = renderer
+            return renderer
+
+    return _KeptRendererCanvas
 
 
 _STRONG = re.compile(r"\*\*(.+?)\*\*")

@@ -21,7 +21,7 @@ import numpy as np
 from ...errors import AeroidError
 from ..plans.config import Options
 from ..plans.run_plan import HTML_MARKER, MD_MARKER, html_report_path
-from . import CampaignReport, Stage, StageContext, register_stage
+from . import FIGURE_IMPORTS, CampaignReport, Stage, StageContext, register_stage
 from ._campaign_tables import (
     condition_text,
     estimate_tables,
@@ -447,6 +447,7 @@ register_stage(
         combine=_combine_campaign,
         part_flights=_campaign_part_flights,
         brief=_campaign_brief,
+        imports=FIGURE_IMPORTS,
     )
 )
 
