@@ -81,6 +81,7 @@ def figure_png(fig: Figure, *, dpi: int = 90, colors: int | None = None) -> byte
 # mostly the same labels over and over (a new renderer measured every string afresh)
 _RENDERERS = threading.local()
 _KEEP_RENDERERS = 8
+_KEEP_BITMAPS = 4096
 
 
 def _agg_canvas(fig: Figure) -> Any:
@@ -110,8 +111,18 @@ def _canvas_class() -> Any:
 
     whole_strings = all(
         hasattr(FT2Font, name)
-        for name in ("set_text", "draw_glyphs_to_bitmap", "get_bitmap_offset", "get_descent")
+        for name in (
+            "set_text",
+            "draw_glyphs_to_bitmap",
+            "get_bitmap_offset",
+            "get_descent",
+            "get_image",
+        )
     ) and hasattr(RendererAgg, "_prepare_font")
+
+    # each string's bitmap, kept: it depends on the string, its font and the dpi, not on
+    # where it is drawn, and a report repeats its tick labels on every panel
+    bitmaps: dict[Any, tuple[Any, float, float, float]] = {}
 
     class _Renderer(RendererAgg):
         def draw_text(  # type: ignore[no-untyped-def]
@@ -119,17 +130,25 @@ def _canvas_class() -> Any:
         ) -> None:
             if ismath or not whole_strings:
                 return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
-            font = self._prepare_font(prop)
-            font.set_text(s, 0.0, flags=get_hinting_flag())
-            font.draw_glyphs_to_bitmap(antialiased=gc.get_antialiased())
-            # the bitmap's corner from the text's anchor: its offset from the layout's
-            # origin, and the descent along the rotated vertical (26.6 fixed point)
-            descent = font.get_descent() / 64.0
-            dx, dy = (v / 64.0 for v in font.get_bitmap_offset())
+            key = (s, prop.copy(), self.dpi, bool(gc.get_antialiased()))
+            drawn = bitmaps.get(key)
+            if drawn is None:
+                font = self._prepare_font(prop)
+                font.set_text(s, 0.0, flags=get_hinting_flag())
+                font.draw_glyphs_to_bitmap(antialiased=key[3])
+                # the bitmap's corner from the layout's origin, and the descent
+                # (26.6 fixed point)
+                dx, dy = (v / 64.0 for v in font.get_bitmap_offset())
+                drawn = (font.get_image().copy(), font.get_descent() / 64.0, dx, dy)
+                if len(bitmaps) >= _KEEP_BITMAPS:
+                    bitmaps.pop(next(iter(bitmaps)))
+                bitmaps[key] = drawn
+            image, descent, dx, dy = drawn
+            # the descent runs along the text's rotated vertical
             rad = math.radians(angle)
             left = round(x + dx + descent * math.sin(rad))
             top = round(y + dy + descent * math.cos(rad))
-            self._renderer.draw_text_image(font, left, top + 1, angle, gc)
+            self._renderer.draw_text_image(image, left, top + 1, angle, gc)
             return None
 
     class _KeptRendererCanvas(FigureCanvasAgg):

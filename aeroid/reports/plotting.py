@@ -87,6 +87,12 @@ def figure(
         return fig, np.asarray(fig.axes, dtype=object).reshape(rows, cols)
     fig, grid = _grid(rows, cols, **layout)
     axes = grid.subplots(squeeze=False, sharex=sharex)
+    if sharex:
+        # a shared x axis is labelled under the last row only: the other rows' labels
+        # stay empty, and a fixed place spares matplotlib measuring their tick labels
+        # on every draw to keep an empty label clear of them
+        for ax in axes[:-1].flat:
+            ax.xaxis.set_label_coords(0.5, 0.0)
     if reuse is not None:
         _KEYS[fig] = key
     return fig, axes
@@ -236,7 +242,9 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         rax = axes[2 * j + 1, 0]
         e = validation.residuals[:, j]
         band = 2.0 * float(np.std(e))
-        rax.fill_between(t, -band, band, color="C3", alpha=0.15, lw=0, label="±2σ")
+        # a constant band: its two ends draw it (a vertex per sample costs 20 times more)
+        ends = np.r_[t[:1], t[-1:]]
+        rax.fill_between(ends, -band, band, color="C3", alpha=0.15, lw=0, label="±2σ")
         rax.plot(t, e, color="C3", lw=0.9)
         _hline(rax, 0.0, color="k", lw=0.6)
         rax.set_ylabel(_label(name, unit_of, what="residual"))
@@ -311,7 +319,7 @@ def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None
     fig, axes = figure(len(names), height=1.7, hgap=0.55, sharex=True, reuse="autocorrelation")
     for j, name in enumerate(names):
         ax = axes[j, 0]
-        ax.fill_between(k, -band, band, color="C0", alpha=0.15, lw=0, label="95 % band")
+        ax.fill_between(k[[0, -1]], -band, band, color="C0", alpha=0.15, lw=0, label="95 % band")
         ax.vlines(k[1:], 0.0, r[1:, j], color="C3", lw=1.4)
         ax.plot(k[1:], r[1:, j], "o", color="C3", ms=3)
         _hline(ax, 0.0, color="k", lw=0.6)
@@ -668,8 +676,9 @@ def _identification_figure(n_outs: int, n_names: int, left: float) -> tuple[Figu
             y -= panel
             rect = (0.95 / width, y / height, 6.85 / width, panel / height)
             fig.add_axes(rect, sharex=fig.axes[0] if k else None)
-            if k < n_outs - 1:
+            if k < n_outs - 1:  # unlabelled, at a fixed place (see `figure`)
                 fig.axes[-1].tick_params(labelbottom=False)
+                fig.axes[-1].xaxis.set_label_coords(0.5, 0.0)
             y -= gap
         if n_names or not n_outs:  # the forest, or an empty panel where nothing was fitted
             h = forest_h if n_names else height - top - bottom
