@@ -95,6 +95,14 @@ def _agg_canvas(fig: Figure) -> Any:
     return cls(fig)
 
 
+def _shaped(text: Any) -> bool:
+    """Whether a Text asks for font features or a language (matplotlib >= 3.10), which
+    only matplotlib's own text layout honours."""
+    features = getattr(text, "get_fontfeatures", None)
+    language = getattr(text, "get_language", None)
+    return bool(features is not None and features()) or bool(language is not None and language())
+
+
 def _canvas_class() -> Any:
     """The Agg canvas `figure_png` draws on: renderers kept (`_RENDERERS`), and each
     plain string of text drawn as one bitmap.
@@ -103,8 +111,8 @@ def _canvas_class() -> Any:
     glyph: half the time of drawing a report's figure went to its tick labels and
     titles. FreeType lays out and rasterises a whole string in one call (as Agg did up
     to matplotlib 3.10), at whole-pixel rather than sub-pixel positions, which no one
-    can tell apart at these sizes. Mathematical text, and any matplotlib without those
-    calls, is drawn as matplotlib draws it.
+    can tell apart at these sizes. Mathematical text, text with font features or a
+    language, and any matplotlib without those calls are drawn as matplotlib draws them.
     """
     import math
 
@@ -130,7 +138,7 @@ def _canvas_class() -> Any:
         def draw_text(  # type: ignore[no-untyped-def]
             self, gc, x, y, s, prop, angle, ismath=False, mtext=None
         ) -> None:
-            if ismath or not whole_strings:
+            if ismath or not whole_strings or _shaped(mtext):
                 return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
             key = (s, prop.copy(), self.dpi, bool(gc.get_antialiased()))
             drawn = bitmaps.get(key)
