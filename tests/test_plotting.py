@@ -343,3 +343,37 @@ def test_one_legend_a_figure_with_every_entry(chain):
 
     auto = plot_residual_autocorrelation(chain["validation"])
     assert [ax.get_legend() is not None for ax in auto.axes] == [True, False]
+
+
+def test_figure_png_draws_text_as_matplotlib_does():
+    """`figure_png` draws each string of text as one bitmap, kept for the next draw: the
+    picture matches matplotlib's own rendering (text within a pixel of where matplotlib
+    puts it), mathematical text included, and repeats its bytes."""
+    import io
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from PIL import Image
+
+    from aeroid.support import figure_png
+
+    fig = Figure(figsize=(4.0, 3.0), dpi=100)
+    ax = fig.add_subplot()
+    t = np.linspace(0.0, 10.0, 200)
+    ax.plot(t, np.cos(t))
+    ax.set_title("cosine, ±2σ", loc="left")
+    ax.set_ylabel(r"$\alpha$ [rad]")
+    ax.set_xlabel("time [s]")
+    png = figure_png(fig, dpi=60)
+    assert figure_png(fig, dpi=60) == png  # the kept bitmaps draw the same pixels
+    ours = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), float)
+    fig.set_dpi(60)
+    stock = FigureCanvasAgg(fig)
+    stock.draw()
+    theirs = np.asarray(stock.buffer_rgba(), float)[..., :3]
+    assert ours.shape == theirs.shape == (180, 240, 3)
+    differ = np.abs(ours - theirs).max(axis=2) > 0
+    assert differ.mean() < 0.05  # only text edges move, by under a pixel
+    # wherever a pixel differs, matplotlib drew ink within one pixel of it
+    ink = (theirs < 200).any(axis=2)
+    near = ink | np.roll(ink, 1, 0) | np.roll(ink, -1, 0) | np.roll(ink, 1, 1) | np.roll(ink, -1, 1)
+    assert near[differ].mean() > 0.95

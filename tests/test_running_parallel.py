@@ -88,3 +88,46 @@ def test_a_worker_serves_large_arrays_from_its_heap():
     # allocation; otherwise glibc maps a large block of its own, unmapped when freed
     assert inside == "True"
     assert in_heap("plain")[1] == "False"
+
+
+def _collector_state(_: int) -> tuple[int, int, int]:
+    """In a forked child: how many objects are frozen, and the young generation's size."""
+    import gc
+
+    return gc.get_freeze_count(), gc.get_threshold()[0], os.getpid()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork is Linux's")
+def test_forked_children_inherit_a_frozen_parent_which_thaws_after(monkeypatch):
+    """The children's collector leaves the parent's objects alone (frozen before the
+    fork), runs on a larger young generation, and the parent thaws once they are done."""
+    import gc
+
+    monkeypatch.setenv("AEROID_START_METHOD", "fork")
+    assert gc.get_freeze_count() == 0
+    young = gc.get_threshold()[0]
+    out = forked_map(_collector_state, [0, 1], 2)
+    assert all(frozen > 1000 and threshold == 10_000 for frozen, threshold, _ in out)
+    assert gc.get_freeze_count() == 0 and gc.get_threshold()[0] == young
+
+
+def test_settle_imports_freezes_only_in_a_worker_after_an_import(monkeypatch):
+    """`settle_imports` does nothing outside a worker; in one, it freezes what lives
+    after a task that imported a module, and only then."""
+    import gc
+
+    from aeroid.pipeline.running import _process
+
+    assert _process._SETTLED == []  # this process is no worker
+    _process.settle_imports()
+    assert gc.get_freeze_count() == 0
+    try:
+        monkeypatch.setattr(_process, "_SETTLED", [len(sys.modules)])
+        _process.settle_imports()  # nothing imported since
+        assert gc.get_freeze_count() == 0
+        monkeypatch.setattr(_process, "_SETTLED", [len(sys.modules) - 1])
+        _process.settle_imports()
+        assert gc.get_freeze_count() > 0
+        assert _process._SETTLED == [len(sys.modules)]
+    finally:
+        gc.unfreeze()

@@ -87,6 +87,12 @@ def figure(
         return fig, np.asarray(fig.axes, dtype=object).reshape(rows, cols)
     fig, grid = _grid(rows, cols, **layout)
     axes = grid.subplots(squeeze=False, sharex=sharex)
+    if sharex:
+        # a shared x axis is labelled under the last row only: the other rows' labels
+        # stay empty, and a fixed place spares matplotlib measuring their tick labels
+        # on every draw to keep an empty label clear of them
+        for ax in axes[:-1].flat:
+            ax.xaxis.set_label_coords(0.5, 0.0)
     if reuse is not None:
         _KEYS[fig] = key
     return fig, axes
@@ -176,6 +182,14 @@ def _pooled(key: Any) -> Figure | None:
     return fig
 
 
+def _cn(n: int) -> str:
+    """The colour ``"C<n>"`` of the colour cycle, as its hex code: matplotlib resolves a
+    ``"C<n>"`` afresh on every draw of every artist that carries it (a walk through
+    the cycle each time, a quarter of the time to draw the campaign's trend figure),
+    a hex code from its cache."""
+    return str(mpl.colors.to_hex(f"C{n}"))
+
+
 def _label(name: str, units: Mapping[str, str] | None, *, what: str = "") -> str:
     """An axis label: the quantity, then its unit in brackets where one is known."""
     unit = (units or {}).get(name, "")
@@ -205,7 +219,7 @@ def _hist(ax: Any, x: np.ndarray, bins: int) -> None:
     if x.size == 0:
         return
     counts, edges = np.histogram(x, bins=bins)
-    ax.stairs(counts, edges, fill=True, color="C0", alpha=0.8)
+    ax.stairs(counts, edges, fill=True, color=_cn(0), alpha=0.8)
 
 
 def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = None) -> Figure:
@@ -227,7 +241,7 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
     for j, name in enumerate(names):
         ax = axes[2 * j, 0]
         ax.plot(t, validation.measured[:, j], color="0.55", lw=1.0, label="measured")
-        ax.plot(t, validation.simulated[:, j], color="C0", lw=1.4, label="model")
+        ax.plot(t, validation.simulated[:, j], color=_cn(0), lw=1.4, label="model")
         m = validation.metrics[name]
         ax.set_ylabel(_label(name, unit_of))
         _title(ax, f"{name}: fit {m.fit:.1f} %, RMSE {m.rmse:.3g}")
@@ -236,8 +250,10 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
         rax = axes[2 * j + 1, 0]
         e = validation.residuals[:, j]
         band = 2.0 * float(np.std(e))
-        rax.fill_between(t, -band, band, color="C3", alpha=0.15, lw=0, label="±2σ")
-        rax.plot(t, e, color="C3", lw=0.9)
+        # a constant band: its two ends draw it (a vertex per sample costs 20 times more)
+        ends = np.r_[t[:1], t[-1:]]
+        rax.fill_between(ends, -band, band, color=_cn(3), alpha=0.15, lw=0, label="±2σ")
+        rax.plot(t, e, color=_cn(3), lw=0.9)
         _hline(rax, 0.0, color="k", lw=0.6)
         rax.set_ylabel(_label(name, unit_of, what="residual"))
         if j == 0:
@@ -245,7 +261,7 @@ def plot_time_histories(validation: Any, *, units: Mapping[str, str] | None = No
     for k, name in enumerate(control_names[:n_inputs]):
         ax = axes[2 * len(names) + k, 0]
         assert controls is not None
-        ax.plot(t, controls[:, k], color="C2", lw=1.2)
+        ax.plot(t, controls[:, k], color=_cn(2), lw=1.2)
         ax.set_ylabel(_label(name, unit_of))
         _title(ax, f"input {name}")
     axes[-1, 0].set_xlabel("time [s]")
@@ -265,7 +281,7 @@ def plot_prediction(prediction: Any, *, units: Mapping[str, str] | None = None) 
         ax = axes[j, 0]
         m = prediction.metrics[name]
         ax.plot(t, prediction.measured[:, j], color="0.55", lw=1.0, label="measured")
-        ax.plot(t, prediction.predicted[:, j], color="C1", lw=1.4, label="predicted")
+        ax.plot(t, prediction.predicted[:, j], color=_cn(1), lw=1.4, label="predicted")
         ax.set_ylabel(_label(name, unit_of))
         _title(
             ax,
@@ -311,9 +327,9 @@ def plot_residual_autocorrelation(validation: Any, *, max_lag: int | None = None
     fig, axes = figure(len(names), height=1.7, hgap=0.55, sharex=True, reuse="autocorrelation")
     for j, name in enumerate(names):
         ax = axes[j, 0]
-        ax.fill_between(k, -band, band, color="C0", alpha=0.15, lw=0, label="95 % band")
-        ax.vlines(k[1:], 0.0, r[1:, j], color="C3", lw=1.4)
-        ax.plot(k[1:], r[1:, j], "o", color="C3", ms=3)
+        ax.fill_between(k[[0, -1]], -band, band, color=_cn(0), alpha=0.15, lw=0, label="95 % band")
+        ax.vlines(k[1:], 0.0, r[1:, j], color=_cn(3), lw=1.4)
+        ax.plot(k[1:], r[1:, j], "o", color=_cn(3), ms=3)
         _hline(ax, 0.0, color="k", lw=0.6)
         outside = int(np.sum(np.abs(r[1:, j]) > band))
         _title(ax, f"{name} residual autocorrelation: {outside} of {lags} lags outside ±{band:.3f}")
@@ -364,9 +380,9 @@ def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None
         db = np.asarray(ch.magnitude, dtype=float)
         model_db = np.asarray(ch.model_magnitude, dtype=float)
         mag.semilogx(f, db, color="0.6", lw=0.8, label="empirical")
-        mag.semilogx(f[ok], db[ok], "o", color="C1", ms=3, label="coherent")
+        mag.semilogx(f[ok], db[ok], "o", color=_cn(1), ms=3, label="coherent")
         how = getattr(freq, "model_response", "")
-        mag.semilogx(f, model_db, color="C0", lw=1.4, label=f"model ({how})" if how else "model")
+        mag.semilogx(f, model_db, color=_cn(0), lw=1.4, label=f"model ({how})" if how else "model")
         mag.set_title(
             f"{ch.output_name} / {ch.input_name} (mismatch {ch.mismatch:.2g})", fontsize=9
         )
@@ -375,11 +391,11 @@ def plot_frequency_response(freq: Any, *, units: Mapping[str, str] | None = None
         )
         mag.legend(fontsize=7)
         pha.semilogx(f, ch.phase, color="0.6", lw=0.8)
-        pha.semilogx(f[ok], ch.phase[ok], "o", color="C1", ms=3)
-        pha.semilogx(f, ch.model_phase, color="C0", lw=1.4)
+        pha.semilogx(f[ok], ch.phase[ok], "o", color=_cn(1), ms=3)
+        pha.semilogx(f, ch.model_phase, color=_cn(0), lw=1.4)
         pha.set_ylabel("phase [deg]")
         coh = axes[2, c]
-        coh.semilogx(f, ch.coherence, color="C2")
+        coh.semilogx(f, ch.coherence, color=_cn(2))
         coh.axhline(freq.coherence_threshold, color="k", ls="--", lw=0.7)
         coh.set_ylim(0, 1.05)
         coh.set_ylabel("coherence [-]")
@@ -409,11 +425,11 @@ def plot_filter(result: Any, *, data: Any = None, units: Mapping[str, str] | Non
             ax.plot(t, data[name], ".", color="0.55", ms=2, label="measured")
         sd = 2.0 * np.sqrt(np.clip(cov[:, j, j], 0, None))
         ax.fill_between(
-            t, states[:, j] - sd, states[:, j] + sd, color="C0", alpha=0.35, lw=0, label="±2σ"
+            t, states[:, j] - sd, states[:, j] + sd, color=_cn(0), alpha=0.35, lw=0, label="±2σ"
         )
         if smoothed:
-            ax.plot(t, result.filtered_states[:, j], color="C1", lw=0.8, label="filtered")
-        ax.plot(t, states[:, j], color="C0", lw=1.3, label=label)
+            ax.plot(t, result.filtered_states[:, j], color=_cn(1), lw=0.8, label="filtered")
+        ax.plot(t, states[:, j], color=_cn(0), lw=1.3, label=label)
         ax.set_ylabel(_label(name, unit_of))
         drawn = ax.get_legend_handles_labels()
         if len(drawn[1]) > len(legend[1]):
@@ -461,12 +477,12 @@ def plot_posterior(
                 _hist(ax, s[:, i], 40)
                 ax.set_yticks([])
                 if names[i] in mark:
-                    ax.axvline(mark[names[i]], color="C3", lw=1.2)
+                    ax.axvline(mark[names[i]], color=_cn(3), lw=1.2)
             else:
                 row.setdefault(i, ax)
-                ax.plot(s[::step, j], s[::step, i], ".", ms=1, color="C0", alpha=0.4)
+                ax.plot(s[::step, j], s[::step, i], ".", ms=1, color=_cn(0), alpha=0.4)
                 if names[i] in mark and names[j] in mark:
-                    ax.plot(mark[names[j]], mark[names[i]], "x", color="C3", ms=8, mew=2)
+                    ax.plot(mark[names[j]], mark[names[i]], "x", color=_cn(3), ms=8, mew=2)
                 ax.yaxis.set_major_locator(MaxNLocator(3))
             ax.xaxis.set_major_locator(MaxNLocator(3))
             ax.tick_params(labelsize=8, labelbottom=i == n - 1, labelleft=j == 0 and i > 0)
@@ -485,7 +501,7 @@ def plot_traces(inference: Any) -> Figure:
     fig, axes = figure(len(names), height=1.4, hgap=0.35)
     for j, name in enumerate(names):
         ax = axes[j, 0]
-        ax.plot(inference.samples[:, j], lw=0.3, color="C0")
+        ax.plot(inference.samples[:, j], lw=0.3, color=_cn(0))
         ax.set_ylabel(name, fontsize=8)
     axes[-1, 0].set_xlabel("sample")
     return fig
@@ -522,7 +538,9 @@ def plot_design(design: Any) -> Figure:
     bx.bar(
         x - 0.2, [design.initial_stderr[n] for n in names], 0.4, label="initial design", color="0.6"
     )
-    bx.bar(x + 0.2, [design.predicted_stderr[n] for n in names], 0.4, label="optimised", color="C0")
+    bx.bar(
+        x + 0.2, [design.predicted_stderr[n] for n in names], 0.4, label="optimised", color=_cn(0)
+    )
     bx.set_xticks(x, names)
     bx.set_ylabel("predicted std. error")
     bx.legend(fontsize=8)
@@ -624,7 +642,7 @@ def plot_campaign_trend(
         ):
             label = f"altitude {groups[g]:g} m" if groups else None
             ax.errorbar(
-                x[sel], y[sel], yerr=e[sel], fmt="o", ms=4, capsize=3, color=f"C{g}", label=label
+                x[sel], y[sel], yerr=e[sel], fmt="o", ms=4, capsize=3, color=_cn(g), label=label
             )
         if condition is not None and len(ok) <= 30:
             for i in np.flatnonzero(np.isfinite(y)):
@@ -668,8 +686,9 @@ def _identification_figure(n_outs: int, n_names: int, left: float) -> tuple[Figu
             y -= panel
             rect = (0.95 / width, y / height, 6.85 / width, panel / height)
             fig.add_axes(rect, sharex=fig.axes[0] if k else None)
-            if k < n_outs - 1:
+            if k < n_outs - 1:  # unlabelled, at a fixed place (see `figure`)
                 fig.axes[-1].tick_params(labelbottom=False)
+                fig.axes[-1].xaxis.set_label_coords(0.5, 0.0)
             y -= gap
         if n_names or not n_outs:  # the forest, or an empty panel where nothing was fitted
             h = forest_h if n_names else height - top - bottom
@@ -728,7 +747,7 @@ def plot_identification(
     scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
     rows = np.arange(len(names))[::-1]  # the first parameter on top
     zero_in = np.abs(est) <= bar
-    for sel, color in ((~zero_in, "C0"), (zero_in, "0.55")):
+    for sel, color in ((~zero_in, _cn(0)), (zero_in, "0.55")):
         if sel.any():
             forest.errorbar(
                 est[sel] / scale[sel],

@@ -27,6 +27,7 @@ from ..stages import STAGES, StageContext
 from ..stages.work import Work, context_of, options_of, perform, stage_of
 from ..storage.commits import BY_ANOTHER_RUN, Made, put
 from ..storage.store import ResultStore, record_cache, run_store
+from . import _process
 
 __all__ = [
     "BY_ANOTHER_RUN",
@@ -242,13 +243,15 @@ def execute_part(
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             value = stage.run_part(ctx, index)
+        seconds = time.perf_counter() - t1
+        _process.settle_imports()
         return PartResult(
             task.key,
             index,
             "ok",
             value=value,
             warnings=_warning_texts(caught),
-            compute_seconds=time.perf_counter() - t1,
+            compute_seconds=seconds,
         )
     except Exception as exc:
         return PartResult(task.key, index, "failed", error=error_text(exc))
@@ -284,6 +287,7 @@ def execute_task(
         if not isinstance(exc, AeroidError):
             out["traceback"] = traceback.format_exc(limit=6)
     out["seconds"] = time.perf_counter() - t0
+    _process.settle_imports()
     return TaskStatus(task.key, task.step, task.flight, **out)
 
 

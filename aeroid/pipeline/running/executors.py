@@ -155,7 +155,12 @@ class LocalProcesses:
         if fork and n > 1:
             stages = {t.stage for t in tasks} & set(STAGES)
             _process.share_imports(
-                STAGES[s].library or getattr(STAGES[s].options, "library", None) for s in stages
+                name
+                for s in stages
+                for name in (
+                    STAGES[s].library or getattr(STAGES[s].options, "library", None),
+                    *STAGES[s].imports,
+                )
             )
         done: dict[str, Any] = {}  # node name -> its result
         running: set[str] = set()

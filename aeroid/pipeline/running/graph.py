@@ -32,13 +32,11 @@ def part_deps(task: Task, index: int, deps: list[Any], owner: Mapping[str, Any])
         return deps  # the part itself will report the problem
     if flights is None:
         return deps
-    keys = [
-        ref[j]
-        for ref in task.upstream.values()
-        if isinstance(ref, list)
-        for j in flights
-        if 0 <= j < len(ref)
-    ]
+    lists = [ref for ref in task.upstream.values() if isinstance(ref, list)]
+    # `flights` may run far past the campaign's flights (every 16th of up to 65,536)
+    n = max(map(len, lists), default=0)
+    wanted = [j for j in flights if 0 <= j < n]
+    keys = [ref[j] for ref in lists for j in wanted if j < len(ref)]
     return list(dict.fromkeys(owner[k] for k in keys if k in owner))
 
 

@@ -30,9 +30,15 @@ def forked_map(fn: Callable[[_T], _R], items: Sequence[_T], n: int | None = None
     n = min(n or _process.workers_default(), len(todo))
     if n <= 1 or _process.start_method() != "fork":
         return [fn(x) for x in todo]
+    import gc
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
+    # as for the workers (`_process.process_pool`): the children's garbage collector
+    # leaves this process's objects alone, instead of examining (and copying) them all
+    freeze = gc.get_freeze_count() == 0
+    if freeze:
+        gc.freeze()
     try:
         with (
             _process.blas_pinned(True),
@@ -47,3 +53,6 @@ def forked_map(fn: Callable[[_T], _R], items: Sequence[_T], n: int | None = None
             return list(pool.map(fn, todo, chunksize=-(-len(todo) // n)))
     except BrokenProcessPool:
         return [fn(x) for x in todo]
+    finally:
+        if freeze:
+            gc.unfreeze()

@@ -26,6 +26,7 @@ from .._code import resolve
 from .._options import Options
 
 __all__ = [
+    "FIGURE_IMPORTS",
     "STAGES",
     "STAGE_ALIASES",
     "CampaignReport",
@@ -182,6 +183,10 @@ class Stage:
         campaign task reads no entry for it; ``ctx.brief(role, i)`` returns it,
         or makes it from the stored record when no task handed it over (a
         cached flight, a rerun). Either way it is the same value.
+    imports : tuple of str
+        Modules its tasks import as they run beyond `library` (the figures' plotting
+        modules): a run imports them once before it forks its worker processes,
+        which then share them instead of each importing them.
     """
 
     name: str
@@ -199,6 +204,7 @@ class Stage:
     part_flights: Callable[[Any, frozenset[str], int], tuple[int, ...] | None] | None = None
     brief: Callable[[str, Any], Any] | None = None
     stored_as: str | None = None
+    imports: tuple[str, ...] = ()
 
     @property
     def key_name(self) -> str:
@@ -238,6 +244,14 @@ class _Registry(dict[str, Stage]):
 
 
 STAGES: dict[str, Stage] = _Registry()
+
+#: What a stage that draws figures imports as it draws them (its `Stage.imports`).
+FIGURE_IMPORTS = (
+    "aeroid.reports.plotting",
+    "matplotlib.backends.backend_agg",
+    "PIL.Image",
+    "PIL.PngImagePlugin",
+)
 
 
 def register_stage(stage: Stage) -> Stage:

@@ -21,7 +21,7 @@ import numpy as np
 from ...errors import AeroidError
 from ..plans.config import Options
 from ..plans.run_plan import HTML_MARKER, MD_MARKER, html_report_path
-from . import CampaignReport, Stage, StageContext, register_stage
+from . import FIGURE_IMPORTS, CampaignReport, Stage, StageContext, register_stage
 from ._campaign_tables import (
     condition_text,
     estimate_tables,
@@ -435,8 +435,8 @@ register_stage(
         # palette figures drawn straight from the canvas; 13: "not determined" against
         # the other flights, the model-structure note, filter error's one-step fits;
         # 14: a flight's figures drawn by a part of their own up to sixteen flights,
-        # stored in flight order
-        "14",
+        # stored in flight order; 15: text drawn a string at a time (other bytes)
+        "15",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,
@@ -447,6 +447,7 @@ register_stage(
         combine=_combine_campaign,
         part_flights=_campaign_part_flights,
         brief=_campaign_brief,
+        imports=FIGURE_IMPORTS,
     )
 )
 

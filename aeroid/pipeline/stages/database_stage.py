@@ -28,7 +28,7 @@ from pydantic import Field
 from ...errors import AeroidError, DataFormatError, PipelineError
 from ...support import CONDITION_NAMES
 from ..running.parallel import forked_map
-from . import Stage, StageContext, register_stage
+from . import FIGURE_IMPORTS, Stage, StageContext, register_stage
 from ._database_report import replay_section
 from .signature_options import library_fields
 
@@ -166,6 +166,8 @@ register_stage(
         uses_model=False,
         per_flight=False,
         brief=_brief,
+        # its plots are drawn by the run's own process, in forked children
+        imports=FIGURE_IMPORTS,
     )
 )
 

@@ -575,6 +575,8 @@ for _stage in (
         "FlightReport",
         _run_report,
         uses_model=False,
+        # the residuals' autocorrelation is the plotting module's
+        imports=("aeroid.reports.plotting",),
     ),
 ):
     register_stage(_stage)

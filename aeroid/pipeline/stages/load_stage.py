@@ -178,5 +178,7 @@ register_stage(
         "FlightData",
         _run_load,
         uses_model=False,
+        # a CSV file is read by pyarrow, whose arrays become numpy's through pandas
+        imports=("pyarrow.csv", "pyarrow.compute", "pandas"),
     )
 )
