@@ -309,6 +309,12 @@ def test_persistent_cache_policy(tmp_path, monkeypatch):
     _jax._persistent_cache(fake)
     folder = fake.config.jax_compilation_cache_dir
     assert folder is not None and folder.startswith(str(tmp_path / "home" / "aeroid" / "jax-"))
+    # programs that compile in a fifth of a second are kept too, unless the user says
+    assert fake.config.jax_persistent_cache_min_compile_time_secs == 0.2
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "3")
+    fake = _fake_jax()
+    _jax._persistent_cache(fake)
+    assert not hasattr(fake.config, "jax_persistent_cache_min_compile_time_secs")
 
 
 def test_compiled_programs_are_reused_by_a_fresh_process(tmp_path):

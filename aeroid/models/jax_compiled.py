@@ -48,6 +48,8 @@ _CACHE: weakref.WeakKeyDictionary[Model, dict[Any, Any]] = weakref.WeakKeyDictio
 CACHE_ENV = "AEROID_JAX_CACHE"
 # Bound on that cache's size on disk; JAX drops the least recently used programs beyond.
 _CACHE_BYTES = 1 << 30
+# the shortest compilation worth a file in the persistent cache
+_CACHE_MIN_SECONDS = 0.2
 _CONFIGURED = False
 
 
@@ -94,6 +96,10 @@ def _persistent_cache(jax: Any) -> None:
     if info.st_mode & 0o022 or (hasattr(os, "getuid") and info.st_uid != os.getuid()):
         return
     jax.config.update("jax_compilation_cache_dir", str(path))
+    # JAX keeps only programs that took a second to compile; a fit's smaller programs
+    # (filters, short scans: tenths of a second each) add up to seconds a process
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", _CACHE_MIN_SECONDS)
     # JAX bounds the cache only with filelock installed, and without it drops the cache
     # altogether when a bound is set
     if getattr(jax.config, "jax_compilation_cache_max_size", 0) == -1 and _has_filelock():
