@@ -118,48 +118,9 @@ def test_gain_option_is_checked(turbulent):
 
 
 def test_the_compiled_predictor_is_the_numpy_one(monkeypatch):
-    from _aircraft_data import BASE, LAT
-
     from aeroid.models import compiled as _compiled
-    from aeroid.models.aircraft import AircraftConstants, lateral
 
-    model = lateral(AircraftConstants(**BASE, Ixz=80.0, rho=1.225), V0=53.6, parameters=LAT)
-    t = np.arange(0.0, 8.0, 0.02)
-    rng = np.random.default_rng(1)
-    controls = {
-        "delta_a": catalog.doublet(t, start=1.0, amplitude=0.1),
-        "delta_r": catalog.doublet(t, start=4.0, amplitude=0.1),
-    }
-    clean = model.simulate(t, controls)
-    outputs = ["beta", "p", "r", "phi"]
-    noise = dict.fromkeys(outputs, 1e-5)
-    data = aeroid.FlightData(
-        t,
-        {**controls, **{o: clean.output(o) + 0.003 * rng.standard_normal(t.size) for o in outputs}},
-    )
-    prob, R = build_problem(
-        model,
-        data,
-        outputs=outputs,
-        measurement_noise=noise,
-        x0=None,
-        P0=None,
-        substeps=None,
-        method="ekf",
-        ukf=(1e-3, 2.0, 0.0),
-        error=IdentificationError,
-    )
-    B = 3
-    params = {k: v * np.array([1.0, 0.9, 1.1]) for k, v in model.parameters.items()}
-    Qc = np.repeat(np.diag([1e-5, 1e-3, 1e-4, 0.0])[None], B, axis=0)
-    args = (
-        prob,
-        params,
-        Qc,
-        np.repeat(R[None], B, axis=0),
-        np.repeat(prob.x0[None], B, axis=0),
-        np.repeat(prob.P0[None], B, axis=0),
-    )
+    model, prob, args = _lateral_problem(8.0, np.array([1e-5, 1e-3, 1e-4, 0.0]))
     monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
     compiled = steady_pass(*args)
     assert ("steady_predictor", prob.out_idx) in _compiled._shared(model)  # it ran
