@@ -101,9 +101,27 @@ def _interval_jacobian(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..
     return jacobian
 
 
-def _rollout(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
-    """``(time, u (n_t, n_u), x0 (n_x,), pvec, m) -> states (n_t, n_x)``."""
-    step = _interval(f, jax)
+def _fixed_interval(f: Callable[..., Any], jax: Any, jnp: Any, substeps: int) -> Callable[..., Any]:
+    """`_interval` with the substep count written into the program (its `m` argument
+    ignored): no inner loop to run, a third faster for one substep. The same steps; the
+    compiler may order their rounding differently."""
+    sub = _substep(f, jax)
+    m = jnp.int32(substeps)
+
+    def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, _m: Any) -> Any:
+        for j in range(substeps):
+            x = sub(jnp.int32(j), x, t0, t1, u0, u1, pvec, m)
+        return x
+
+    return step
+
+
+def _rollout(
+    f: Callable[..., Any], jax: Any, jnp: Any, substeps: int | None = None
+) -> Callable[..., Any]:
+    """``(time, u (n_t, n_u), x0 (n_x,), pvec, m) -> states (n_t, n_x)``; with `substeps`,
+    that count written into the program (`_fixed_interval`) in place of `m`."""
+    step = _interval(f, jax) if substeps is None else _fixed_interval(f, jax, jnp, substeps)
 
     def roll(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> Any:
         def body(x: Any, inp: Any) -> tuple[Any, Any]:

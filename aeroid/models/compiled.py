@@ -261,7 +261,7 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
     """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`):
     `static` substeps written in, 0 for `m`'s, -1 for the stiffness rule's, decided in
     the program (one substep taking the program without the inner loop)."""
-    from .jax_compiled import _fixed_rollout, _substeps_rule
+    from .jax_compiled import _substeps_rule
 
     entry = _entry(model)
     # each traced once, however often the steps call them: tracing the program is most of
@@ -285,11 +285,11 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
         return jax.vmap(member, in_axes=(None, None, 0, 0, None))
 
     if static > 0:
-        return jax.jit(batch_of(_fixed_rollout(_substep(f, jax), jax, jnp, static)))
+        return jax.jit(batch_of(_rollout(f, jax, jnp, static)))
     looped = batch_of(_rollout(f, jax, jnp))
     if static == 0:
         return jax.jit(looped)
-    single = batch_of(_fixed_rollout(_substep(f, jax), jax, jnp, 1))
+    single = batch_of(_rollout(f, jax, jnp, 1))
     rule = _substeps_rule(f, jax, jnp)
 
     def decided(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:

@@ -145,11 +145,17 @@ def substeps_for(eigenvalues: ComplexArray, h: float, duration: float) -> int:
     lam, size = lam[size > 0], size[size > 0]
     if lam.size == 0 or not h > 0:
         return 1
-    zeta = np.clip(-lam.real / size, 0.0, 1.0)
-    lasting = np.maximum(zeta, 1.0 / (size * max(float(duration), h)))
-    z_max = (120.0 * SUBSTEP_ERROR * lasting) ** 0.25
-    m = math.ceil(float(np.max(h * size / z_max)))
+    m = math.ceil(float(np.max(substep_demand(lam.real, size, h, duration, np))))
     return int(min(max(1, m), _MAX_AUTO_SUBSTEPS))
+
+
+def substep_demand(real: Any, size: Any, h: Any, duration: Any, xp: Any) -> Any:
+    """Each mode's ``h |λ| / z_max`` (`substeps_for`), from its eigenvalue's real part and
+    modulus (non-zero), in the array module `xp` (numpy, or jax.numpy in a program)."""
+    zeta = xp.clip(-real / size, 0.0, 1.0)
+    lasting = xp.maximum(zeta, 1.0 / (size * xp.maximum(duration, h)))
+    z_max = (120.0 * SUBSTEP_ERROR * lasting) ** 0.25
+    return h * size / z_max
 
 
 def auto_substeps(

@@ -212,34 +212,11 @@ def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
     return rollout
 
 
-def _fixed_rollout(
-    sub: Callable[..., Any], jax: Any, jnp: Any, substeps: int
-) -> Callable[..., Any]:
-    """`aeroid.models._jax_rk4._rollout` with the substep count `substeps` written into the
-    program (``sub`` is its `_substep`): no inner loop to run, a third faster for one
-    substep. The same steps; the compiler may order their rounding differently."""
-
-    def interval(x: Any, inp: Any) -> tuple[Any, Any]:
-        m = jnp.int32(substeps)
-        for j in range(substeps):
-            x = sub(jnp.int32(j), x, *inp, m)
-        return x, x
-
-    def roll(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> Any:
-        def body(x: Any, inp: Any) -> tuple[Any, Any]:
-            return interval(x, (*inp, pvec))
-
-        _, xs = jax.lax.scan(body, x0, (time[:-1], time[1:], u[:-1], u[1:]), unroll=2)
-        return jnp.concatenate([x0[None, :], xs], axis=0)
-
-    return roll
-
-
 def _substeps_rule(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
     """``(time, u, X (B, n_x), P) -> m``: `aeroid.models.integration.auto_substeps` of a batch
     in the program, `f` the single-point dynamics ``f(t, x, u, pvec)``: the same central
     differences at each member's start, the same eigenvalue rule (`substeps_for`)."""
-    from .integration import _MAX_AUTO_SUBSTEPS, SUBSTEP_ERROR
+    from .integration import _MAX_AUTO_SUBSTEPS, substep_demand
 
     def jacobian(time: Any, u: Any, x0: Any, pvec: Any) -> Any:
         scale = jnp.maximum(jnp.abs(x0), 1.0) * 1e-6
@@ -260,10 +237,8 @@ def _substeps_rule(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., A
         keep = finite[:, None] & (size > 0)
         size1 = jnp.where(keep, size, 1.0)
         h = jnp.max(jnp.diff(time))
-        zeta = jnp.clip(-lam.real / size1, 0.0, 1.0)
-        lasting = jnp.maximum(zeta, 1.0 / (size1 * jnp.maximum(time[-1] - time[0], h)))
-        z_max = (120.0 * SUBSTEP_ERROR * lasting) ** 0.25
-        m = jnp.ceil(jnp.max(jnp.where(keep, h * size / z_max, 0.0)))
+        demand = substep_demand(lam.real, size1, h, time[-1] - time[0], jnp)
+        m = jnp.ceil(jnp.max(jnp.where(keep, demand, 0.0)))
         return jnp.clip(m, 1, _MAX_AUTO_SUBSTEPS).astype(jnp.int32)
 
     return rule
