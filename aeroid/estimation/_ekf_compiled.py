@@ -34,7 +34,7 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     f = entry[("fn", "dynamics")]
     h = entry.get(("fn", "measurement")) if model.measurement is not None else None
     n = model.n_states
-    oi = jnp.asarray(np.array(out_idx, dtype=np.int64))
+    oi = np.array(out_idx, dtype=np.int64)
     Hsel = np.zeros((len(out_idx), n))
     sel = np.zeros(len(out_idx), dtype=np.int64)
     if h is None:  # the outputs are states
@@ -43,7 +43,7 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     step = _compiled._interval(f, jax)
     expm = jax.scipy.linalg.expm
     tri = jax.scipy.linalg.solve_triangular
-    eye = jnp.eye(n)
+    eye = np.eye(n)
 
     def sym(P: Any) -> Any:
         return 0.5 * (P + P.T)
