@@ -75,6 +75,32 @@ def test_band_coverage_over_seeds() -> None:
     assert 0.92 <= rate <= 0.995, rate
 
 
+def test_forced_slope_band_holds_a_slope_below_detection() -> None:
+    # a pitch damping whose slope over the flown alpha (-0.4 over 0-10 deg) is smaller
+    # than one flight's standard error (0.6): the structure forced to the truth's terms
+    # keeps the slope's uncertainty in the band, which holds the truth at the range's
+    # end at no less than the nominal rate (150 Bernoulli trials: the rate's sd about
+    # 0.018 at 0.95, the bound three of them below)
+    inside = 0
+    for seed in range(150):
+        rng = np.random.default_rng(500 + seed)
+        a = rng.uniform(0.005, 0.175, 12)
+        flights = []
+        for i in range(12):
+            se = 0.6 * rng.uniform(0.8, 1.2)
+            value = -17.4 - 2.3 * a[i] + se * rng.standard_normal()
+            condition = {"alpha": a[i], "altitude": float(rng.choice([500.0, 1000.0, 1500.0]))}
+            flights.append(
+                FlightCoefficients.from_stderr(f"f{i}", condition, {"Cm_q": value}, {"Cm_q": se})
+            )
+        db = aerodynamic_database(flights, structures={"Cm_q": ["1", "alpha"]})
+        assert db.basis["Cm_q"] == ("1", "P1(alpha)")
+        end = db.centres["alpha"] + db.half_ranges["alpha"]
+        _, lo, hi = db.band("Cm_q", {"alpha": end, "altitude": 1000.0})
+        inside += int(lo[0] <= -17.4 - 2.3 * end <= hi[0])
+    assert inside / 150 >= 0.895, inside / 150
+
+
 def test_forced_structure_and_exports() -> None:
     flights = _flights(3, n=25)
     db = aerodynamic_database(flights, structures={"CL": ["1", "alpha", "alpha^2"]})

@@ -44,7 +44,12 @@ noise and fits each with the demo's model and identification options: what is le
 against what JSBSim flies is the model's structure or the truth's definition, not the
 records (about half a minute).
 
-    python3 tests/reference/c172x_demo_database.py [--store DIR] [--clean] [--budget V H]
+``--rate HZ`` records them at another rate; with ``--lead MS`` the model takes, at each
+time, the aileron and rudder recorded MS milliseconds later (the surfaces' timing
+against the response).
+
+    python3 tests/reference/c172x_demo_database.py [--store DIR] [--budget V H]
+        [--clean [--rate HZ] [--lead MS]]
 """
 
 from __future__ import annotations
@@ -231,9 +236,18 @@ def _merged(base: dict, override: dict) -> dict:
     return out
 
 
-def _clean_fit(airspeed: float, altitude: float, data: object | None = None) -> tuple:
+def _clean_fit(
+    airspeed: float,
+    altitude: float,
+    data: object | None = None,
+    *,
+    rate: float = 50.0,
+    lead: float = 0.0,
+) -> tuple:
     """The demo's model and identification options on a calm, noise-free flight (flown
-    here unless given): the model, the record, the estimates and what JSBSim flies."""
+    here unless given, recorded at `rate` Hz; at each time the model takes the aileron
+    and rudder recorded `lead` seconds later): the model, the record, the estimates and
+    what JSBSim flies."""
     import yaml
 
     from aeroid.adapters.jsbsim_flights import (
@@ -249,7 +263,12 @@ def _clean_fit(airspeed: float, altitude: float, data: object | None = None) -> 
     options = {k: v for k, v in cfg["stages"]["identify"].items() if k != "parameters"}
     cond = FlightCondition(airspeed, altitude)
     if data is None:
-        data = fly_c172x(cond, noise=False, turbulence=0.0)
+        data = fly_c172x(cond, noise=False, turbulence=0.0, sample_rate=rate)
+    if lead:
+        t = data.time
+        data = data.with_channels(
+            {c: np.interp(t + lead, t, data[c]) for c in ("delta_a", "delta_r")}
+        )
     trim = data.metadata["trim"]
     const = {"altitude": altitude}
     const["engine_momentum"] = c172x_constants(
@@ -269,11 +288,14 @@ def _clean_fit(airspeed: float, altitude: float, data: object | None = None) -> 
     return model, data, found, effective_derivatives(cond)
 
 
-def _clean() -> int:
+def _clean(rate: float = 50.0, lead: float = 0.0) -> int:
     """The demo's model on noise- and gust-free flights against what JSBSim flies."""
-    print("the demo's model on calm, noise-free flights: estimate/JSBSim's, estimate/JSBSim's - 1")
+    print(
+        f"the demo's model on calm, noise-free flights at {rate:g} Hz (aileron and rudder "
+        f"taken {1e3 * lead:g} ms ahead): estimate/JSBSim's, estimate/JSBSim's - 1"
+    )
     for airspeed, altitude in CLEAN:
-        _, _, found, truth = _clean_fit(airspeed, altitude)
+        _, _, found, truth = _clean_fit(airspeed, altitude, rate=rate, lead=lead)
         cells = [
             f"{t} {found[t]:.4g}/{truth[t]:.4g} {100 * (found[t] / truth[t] - 1):+.1f}%"
             for t in FLOWN
@@ -366,12 +388,19 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
     parser.add_argument("--clean", action="store_true", help="calm, noise-free flights only")
+    parser.add_argument("--rate", type=float, default=50.0, help="--clean: record rate, Hz")
+    parser.add_argument(
+        "--lead",
+        type=float,
+        default=0.0,
+        help="--clean: aileron and rudder taken this far ahead, ms",
+    )
     parser.add_argument(
         "--budget", nargs=2, type=float, metavar=("V", "H"), help="one calm flight's rate budget"
     )
     args = parser.parse_args()
     if args.clean:
-        return _clean()
+        return _clean(args.rate, args.lead * 1e-3)
     if args.budget:
         return _budget(*args.budget)
     from aeroid.adapters.jsbsim_flights import (
