@@ -170,11 +170,64 @@ def test_each_generation_is_one_batched_simulation(monkeypatch):
         optimizer_options={**FAST, "polish": False},
     )
     # initial design, then the population (3 x 4 = 12 candidates) every generation,
-    # then the final comparison: each candidate carries 2 x 2 difference columns
-    assert sizes[0] == 4
-    assert sizes[1:-1] == [12 * 4] * (d.n_generations + 1)
-    assert sizes[-1] == 2 * 4
-    assert d.n_simulations == sum(sizes)
+    # then the final comparison: each candidate carries 2 x 2 difference columns, and
+    # every batch is padded to the population, so one batch shape is simulated
+    assert sizes == [12 * 4] * (d.n_generations + 3)
+    # the work counted is the candidates' own, not the padding's
+    assert d.n_candidates == 1 + 12 * (d.n_generations + 1) + 2
+    assert d.n_simulations == d.n_candidates * 4
+
+
+def _cubic_pitch_model() -> Model:
+    """The short period with a cubic pitch stiffness: integrated by RK4, not exactly."""
+
+    def dynamics(t, x, u, p):
+        alpha, q = x[0], x[1]
+        return np.array(
+            [
+                p["Z_alpha"] * alpha + q,
+                p["M_alpha"] * alpha - 20.0 * alpha**3 + p["M_q"] * q + p["M_delta"] * u[0],
+            ]
+        )
+
+    return Model(states=["alpha", "q"], controls=["elevator"], parameters=TRUTH, dynamics=dynamics)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_padded_batches_give_the_unpadded_criteria_bit_for_bit(monkeypatch, compiled):
+    # a batch of three candidates, alone and padded to seven (copies of the last, or of
+    # another design): each candidate's information is its own, whatever shares its batch
+    from aeroid.models import compiled as _compiled
+    from aeroid.uncertainty import design as _design
+
+    if compiled:
+        pytest.importorskip("jax")
+        monkeypatch.setattr(_compiled, "COMPILE_AFTER_CALLS", 0)
+    model = _cubic_pitch_model()
+    family = Doublet("elevator", amplitude=(0.01, 0.05), width=(0.5, 2.0))
+    names = ["M_alpha", "M_q", "M_delta"]
+    t = np.arange(101) / 25.0
+
+    def evaluator(width: int) -> _design._Evaluator:
+        return _design._Evaluator(
+            model, family, t, None, TRUTH, names, np.array([0.005, 0.01]), [0, 1], "D",
+            {}, 1e-6, None, width,
+        )  # fmt: skip
+
+    candidates = np.array([[0.02, 0.7], [0.05, 1.9], [0.035, 1.1]])
+    plain = evaluator(0)
+    f0, ok0 = plain.fisher(candidates)
+    c0 = plain.criterion_of(f0, ok0)
+    for filler in (None, np.array([0.01, 0.5])):
+        padded = evaluator(7)
+        f1, ok1 = padded.fisher(candidates, filler=filler)
+        np.testing.assert_array_equal(f1, f0)
+        np.testing.assert_array_equal(ok1, ok0)
+        np.testing.assert_array_equal(padded.criterion_of(f1, ok1), c0)
+        assert (padded.n_candidates, padded.n_simulations) == (3, 3 * 2 * len(names))
+    assert ok0.all() and np.all(c0 < _design._PENALTY)
+    # the designs differ: the check compares three distinct informations
+    assert len({float(c) for c in c0}) == 3
 
 
 def test_a_optimal_and_chirp():

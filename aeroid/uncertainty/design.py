@@ -9,11 +9,14 @@ quasi-Newton polish.
 Every generation is one batched simulation: each candidate's control
 history is paired with its ``2 n_p`` central-difference parameter columns,
 and all candidates x columns are integrated in a single `Model.simulate_batch`
-call with per-member controls.
+call with per-member controls. Every batch (the initial design, the population,
+the polish's gradient stencil, the final comparison) is padded to one number of
+candidates, so a compiled simulation compiles one program for the whole design.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -116,7 +119,8 @@ class ExperimentDesign:
         Description of the designed manoeuvre.
     n_generations, n_candidates, n_simulations : int
         Work done: optimiser generations, candidate designs evaluated,
-        trajectories integrated.
+        trajectories integrated for them (the copies that pad a batch to the
+        population's size are not counted).
     success : bool
     message : str
     seed : int or None
@@ -237,6 +241,7 @@ class _Evaluator:
         options: Mapping[str, Any],
         relative_step: float,
         trim: FloatArray | None = None,
+        width: int = 0,
     ) -> None:
         self.model = model
         self.maneuver = maneuver
@@ -255,6 +260,10 @@ class _Evaluator:
         self.cols = [all_controls.index(c) for c in maneuver.controls]
         self.n_u = len(all_controls)
         self.trim = np.zeros(self.n_u) if trim is None else trim
+        # Every batch is padded to this many candidates (0: none): each batch shape
+        # compiles a program of its own, and the population, the polish's gradient
+        # stencil and the final comparison would otherwise give three or four.
+        self.width = int(width)
         self.n_candidates = 0
         self.n_simulations = 0
         self.errors: list[str] = []  # what failed in a simulation, for the messages
@@ -279,8 +288,24 @@ class _Evaluator:
             out[s][:, self.cols] += sig
         return out
 
-    def fisher(self, variables: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+    def fisher(
+        self, variables: FloatArray, *, filler: FloatArray | None = None
+    ) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """Fisher information (S, n_p, n_p) and success flags of candidates (S, n_v).
+
+        The batch simulated is padded to `width` candidates with copies of the last
+        one, or of `filler` where given, and the padding's results are dropped: every
+        member is integrated on its own, so a candidate's information does not depend
+        on what else is in its batch.
+        """
+        n = variables.shape[0]
         u = self.controls(variables)
+        if n < self.width:
+            extra = u[-1:]
+            if filler is not None:
+                with contextlib.suppress(IdentificationError):  # a family's bad corner
+                    extra = self.controls(filler[None, :])
+            u = np.concatenate([u, np.repeat(extra, self.width - n, axis=0)])
         _, sens, ok = _fd_sensitivities(
             self.model,
             self.time,
@@ -293,9 +318,9 @@ class _Evaluator:
             nominal=False,
             errors=self.errors,
         )
-        self.n_candidates += variables.shape[0]
-        self.n_simulations += variables.shape[0] * 2 * len(self.names)
-        return _fisher(sens[..., self.out_idx], self.sigma), ok
+        self.n_candidates += n
+        self.n_simulations += n * 2 * len(self.names)
+        return _fisher(sens[:n, ..., self.out_idx], self.sigma), ok[:n]
 
     def criterion_of(self, fisher: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
         """Criterion per candidate (lower is better); `_PENALTY` when singular or failed."""
@@ -355,6 +380,19 @@ def _check_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
                 f"integer, got {v!r}"
             )
     return merged
+
+
+def _batch_width(opts: Mapping[str, Any], n_variables: int) -> int:
+    """Candidates in every batch the design simulates: the largest batch it asks for,
+    differential evolution's population (scipy's size: ``popsize`` per variable, at
+    least five, or the rows of an array ``init``), or the polish's gradient stencil."""
+    init = opts["init"]
+    if isinstance(init, str):
+        population = max(5, int(opts["popsize"]) * max(1, n_variables))
+    else:
+        population = int(np.shape(init)[0]) if np.ndim(init) == 2 else 0
+    stencil = 2 * n_variables + 1 if opts["polish"] else 0
+    return max(population, stencil, 2)
 
 
 def _polish(
@@ -549,8 +587,9 @@ def design_experiment(
             f"maneuver: {len(var_names)} variable names for {bounds.shape[0]} bounds, or a "
             f"bound with low >= high: {bounds.tolist()}"
         )
+    batch_width = _batch_width(opts, len(var_names)) if isinstance(model, Model) else 0
     # differential evolution scores its whole population in one batched simulation
-    members = int(opts["popsize"]) * len(var_names) * (2 * len(names) + 1)
+    members = max(int(opts["popsize"]) * len(var_names), batch_width) * (2 * len(names) + 1)
     width = len(all_outputs) + (model.n_states if isinstance(model, Model) else 0)
     if members * n_t * max(width, 1) > _MAX_BATCH_VALUES:
         raise IdentificationError(
@@ -563,9 +602,13 @@ def design_experiment(
     x_init = np.clip(np.asarray(maneuver.initial(), dtype=np.float64), bounds[:, 0], bounds[:, 1])
 
     evaluate = _Evaluator(
-        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel, trim_vector
-    )
-    _, ok_init = evaluate.fisher(x_init[None, :])
+        model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel,
+        trim_vector, batch_width,
+    )  # fmt: skip
+    # padded with another design (a corner of the bounds): a batch of one control history
+    # repeated is simulated as a shared history, by a compiled program of its own
+    corner = np.where(x_init == bounds[:, 0], bounds[:, 1], bounds[:, 0])
+    _, ok_init = evaluate.fisher(x_init[None, :], filler=corner)
     if not ok_init[0]:
         why = f": {evaluate.errors[-1]}" if evaluate.errors else ""
         raise SimulationError(
