@@ -9,12 +9,14 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
 from aeroid._units import parameter_units
 from aeroid.pipeline.stages.flight_status import LEGEND, flight_status
-from aeroid.reports.html import markdown_to_html
+from aeroid.reports.html import figure_png, markdown_to_html
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -611,3 +613,75 @@ def test_a_term_absent_from_the_truth_is_flagged_about_as_often_as_the_test_says
         flagged += status == "≈ 0 Z_delta"
     # binomial(24, 0.95): at most 4 flights unflagged fails with probability under 1 %
     assert flagged >= n - 4, flagged
+
+
+def _panels() -> Any:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(4.0, 3.0))
+    axes = fig.subplots(2, 1, sharex=True)
+    t = np.linspace(0.0, 10.0, 200)
+    for k, ax in enumerate(axes):
+        ax.plot(t, np.sin(t + k), lw=1.0)
+        ax.set_ylabel(f"q{k} [rad/s]")
+        # at a fixed height, as the reports' titles: an automatic one measures the
+        # panel's ticks before its axes are drawn
+        ax.set_title(f"panel {k}: fit 98.{k} %", loc="left", fontsize=9, y=1.0)
+    axes[-1].set_xlabel("time [s]")
+    return fig
+
+
+def test_kept_text_metrics_are_the_ones_matplotlib_measures():
+    """The renderer `figure_png` draws with keeps each string's extent and each font's
+    line height: the numbers matplotlib's own Agg renderer gives, first time and kept."""
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    from aeroid.reports.html import _agg_canvas
+
+    fig = _panels()
+    fig.set_dpi(72)
+    ours = _agg_canvas(fig).get_renderer()
+    plain = RendererAgg(*_agg_canvas(fig).get_width_height(physical=True), fig.dpi)
+    texts = [t for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label)]
+    for _ in range(2):  # measured, then kept
+        for text in texts:
+            assert text.get_window_extent(ours).bounds == text.get_window_extent(plain).bounds
+        for size, weight in ((7.0, "normal"), (10.0, "bold")):
+            prop = FontProperties(size=size, weight=weight)
+            for s in ("0.05", "Cm_delta_e = -1.304 ± 0.021", "lp"):
+                got = ours.get_text_width_height_descent(s, prop, False)
+                assert got == plain.get_text_width_height_descent(s, prop, False)
+
+
+def test_ticks_are_placed_once_a_draw_and_the_figure_is_left_as_it_was(monkeypatch):
+    """Each axis computes its ticks once per draw (matplotlib computes them again to
+    place the axis label): the same bytes, and no trace left on the figure."""
+    import contextlib
+
+    from matplotlib.axis import Axis
+
+    from aeroid.reports import html
+
+    calls = []
+    update = Axis._update_ticks
+
+    def counted(self):
+        calls.append(self)
+        return update(self)
+
+    monkeypatch.setattr(Axis, "_update_ticks", counted)
+    fig = _panels()
+    once = figure_png(fig, dpi=50)
+    n_axes = 2 * len(fig.axes)
+    assert len(calls) == n_axes
+    assert not any(
+        name in axis.__dict__
+        for ax in fig.axes
+        for axis in (ax.xaxis, ax.yaxis)
+        for name in ("draw", "_update_ticks", "_get_ticklabel_bboxes")
+    )
+    calls.clear()
+    monkeypatch.setattr(html, "_ticks_once_a_draw", lambda fig: contextlib.nullcontext())
+    assert figure_png(fig, dpi=50) == once
+    assert len(calls) > n_axes  # matplotlib's own draw: the y axes' ticks twice

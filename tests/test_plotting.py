@@ -302,6 +302,32 @@ def test_a_recycled_figure_draws_as_a_new_one(chain):
     assert all(first[k] is not second[k] for k in first)
 
 
+@pytest.mark.parametrize(("t0", "t1", "half"), [(0.0, 20.0, 0.013), (0.3, 7.7, 2.5e-4)])
+def test_a_constant_band_draws_the_pixels_of_its_fill_between(t0, t1, half):
+    """`_band`'s rectangle draws the picture ``fill_between`` draws over the band's two
+    ends, legend entry included, and gives the panel the same limits."""
+    from aeroid.reports.plotting import _band
+    from aeroid.support import figure_png
+
+    t = np.linspace(t0, t1, 301)
+    pngs, limits = [], []
+    for rectangle in (False, True):
+        fig = Figure(figsize=(5.0, 4.0))
+        axes = fig.subplots(2, 1, sharex=True)
+        for ax in axes:
+            ax.plot(t, 0.8 * half * np.sin(3.0 * t), color="C3", lw=0.9)
+            style = {"color": "#d62728", "alpha": 0.15, "lw": 0, "label": "band"}
+            if rectangle:
+                _band(ax, t[0], t[-1], half, **style)
+            else:
+                ax.fill_between(t[[0, -1]], -half, half, **style)
+        axes[0].legend(loc="upper right", fontsize=7)
+        pngs.append(figure_png(fig, dpi=72))
+        limits.append([(ax.get_xlim(), ax.get_ylim()) for ax in axes])
+    assert pngs[0] == pngs[1]
+    assert limits[0] == limits[1]
+
+
 def test_palette_png_leaves_the_figure_as_it_was_and_repeats_its_bytes():
     """`figure_png(colors=...)` renders at its own dpi and quantises the canvas itself:
     the figure keeps its dpi and canvas, the same figure gives the same bytes, and the

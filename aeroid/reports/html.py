@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import contextlib
 import functools
 import html
 import io
@@ -10,7 +11,7 @@ import os
 import re
 import tempfile
 import threading
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -59,7 +60,8 @@ def figure_png(fig: Figure, *, dpi: int = 90, colors: int | None = None) -> byte
     try:
         fig.set_dpi(dpi)
         agg = _agg_canvas(fig)
-        agg.draw()
+        with _ticks_once_a_draw(fig):
+            agg.draw()
         width, height = agg.get_width_height()
         rgba = Image.frombuffer("RGBA", (width, height), agg.buffer_rgba(), "raw", "RGBA", 0, 1)
         if colors is None:
@@ -76,6 +78,65 @@ def figure_png(fig: Figure, *, dpi: int = 90, colors: int | None = None) -> byte
         fig.set_dpi(old_dpi)
         fig.set_canvas(canvas)
     return out.getvalue()
+
+
+@contextlib.contextmanager
+def _ticks_once_a_draw(fig: Figure) -> Iterator[None]:
+    """While on, each axis of `fig` places and measures its ticks once per draw of it.
+
+    Matplotlib's axis draw computes its ticks (locator, formatter, label extents),
+    then computes them again to place its label clear of the tick labels: the same
+    numbers, nothing having moved in between. Each axis keeps them for the rest of
+    its own draw; outside it (another axis asking, a draw before the limits settle)
+    they are computed as before. The figure is left as it was found.
+    """
+    axes = [axis for ax in fig.axes for axis in getattr(ax, "_axis_map", {}).values()]
+    if not all(hasattr(axis, name) for axis in axes for name in _TICK_METHODS):
+        yield  # another matplotlib: drawn as it draws
+        return
+    for axis in axes:
+        _keep_ticks(axis)
+    try:
+        yield
+    finally:
+        for axis in axes:
+            for name in ("draw", *_TICK_METHODS):
+                axis.__dict__.pop(name, None)
+
+
+_TICK_METHODS = ("_update_ticks", "_get_ticklabel_bboxes")
+
+
+def _keep_ticks(axis: Any) -> None:
+    """Give `axis` (for one figure draw) a draw in which its ticks are computed once."""
+    draw, ticks, boxes = axis.draw, axis._update_ticks, axis._get_ticklabel_bboxes
+    kept: dict[str, Any] = {}
+
+    def drawing(renderer: Any, *args: Any, **kwargs: Any) -> Any:
+        kept.clear()
+        kept["on"] = True
+        try:
+            return draw(renderer, *args, **kwargs)
+        finally:
+            kept.clear()
+
+    def update_ticks() -> Any:
+        if not kept:
+            return ticks()
+        if "ticks" not in kept:
+            kept["ticks"] = ticks()
+        return kept["ticks"]
+
+    def ticklabel_bboxes(drawn: Any, renderer: Any) -> Any:
+        if not kept or drawn is not kept.get("ticks"):
+            return boxes(drawn, renderer)
+        if kept.get("renderer") is not renderer:
+            kept["renderer"], kept["boxes"] = renderer, boxes(drawn, renderer)
+        return kept["boxes"]
+
+    axis.draw = drawing
+    axis._update_ticks = update_ticks
+    axis._get_ticklabel_bboxes = ticklabel_bboxes
 
 
 # Agg renderers kept for the next figure of the same size and dpi, in each thread: a
@@ -116,7 +177,9 @@ def _canvas_class() -> Any:
     """
     import math
 
+    import matplotlib as mpl
     from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
+    from matplotlib.font_manager import fontManager, get_font
     from matplotlib.ft2font import FT2Font
 
     whole_strings = all(
@@ -133,8 +196,75 @@ def _canvas_class() -> Any:
     # each string's bitmap, kept: it depends on the string, its font and the dpi, not on
     # where it is drawn, and a report repeats its tick labels on every panel
     bitmaps: dict[Any, tuple[Any, float, float, float]] = {}
+    # each string's extent and each font's line height, kept for the same reason: every
+    # label is measured on each draw (and its line height looked up in the font file's
+    # tables), and matplotlib keeps what it measured for one renderer only
+    extents: dict[Any, tuple[float, float, float]] = {}
+    heights: dict[Any, tuple[float, float, float] | tuple[None, None, None]] = {}
+    # the font tables that give a line's ascent, descent and gap, in matplotlib's order
+    line_tables = (
+        ("OS/2", "sTypoAscender", "sTypoDescender", "sTypoLineGap"),
+        ("hhea", "ascent", "descent", "lineGap"),
+    )
+
+    def keep(cache: dict[Any, Any], key: Any, value: Any) -> None:
+        if len(cache) >= _KEEP_BITMAPS:
+            cache.pop(next(iter(cache)))
+        cache[key] = value
 
     class _Renderer(RendererAgg):
+        def get_text_width_height_descent(  # type: ignore[no-untyped-def]
+            self, s, prop, ismath
+        ) -> tuple[float, float, float]:
+            if ismath:
+                return super().get_text_width_height_descent(s, prop, ismath)
+            key = (s, prop.copy(), self.dpi)
+            got = extents.get(key)
+            if got is None:
+                if whole_strings:  # measured and rasterised in one layout (`_lay_out`)
+                    self._lay_out(s, prop, bool(mpl.rcParams["text.antialiased"]))
+                    got = extents[key]
+                else:
+                    got = super().get_text_width_height_descent(s, prop, ismath)
+                    keep(extents, key, got)
+            return got
+
+        def _lay_out(self, s: str, prop: Any, antialiased: bool) -> None:
+            """Lay out `s` once (FreeType's layout of a whole string is most of the cost
+            of measuring or drawing it): keep its extent, as matplotlib measures it, and
+            its bitmap, which the label's draw then finds."""
+            font = self._prepare_font(prop)
+            font.set_text(s, 0.0, flags=get_hinting_flag())
+            width, height = font.get_width_height()
+            extent = (width / 64.0, height / 64.0, font.get_descent() / 64.0)
+            keep(extents, (s, prop.copy(), self.dpi), extent)
+            font.draw_glyphs_to_bitmap(antialiased=antialiased)
+            # the bitmap's corner from the layout's origin, and the descent (26.6 fixed
+            # point)
+            dx, dy = (v / 64.0 for v in font.get_bitmap_offset())
+            drawn = (font.get_image().copy(), font.get_descent() / 64.0, dx, dy)
+            keep(bitmaps, (s, prop.copy(), self.dpi, antialiased), drawn)
+
+        def _get_font_height_metrics(  # type: ignore[no-untyped-def]
+            self, prop
+        ) -> tuple[float, float, float] | tuple[None, None, None]:
+            # matplotlib's text layout asks a renderer for a font's line metrics before
+            # it reads them from the font: the same numbers, computed once per font
+            key = (prop.copy(), self.dpi)
+            got = heights.get(key)
+            if got is None:
+                got = (None, None, None)  # none in the font: matplotlib measures "lp"
+                font: Any = get_font(fontManager._find_fonts_by_props(prop))
+                for name, ascent, descent, gap in line_tables:
+                    table = font.get_sfnt_table(name)
+                    if table is not None:
+                        per_em = font.get_sfnt_table("head")["unitsPerEm"]
+                        scale = 1 / per_em * prop.get_size_in_points() * self.dpi / 72
+                        got = (table[ascent] * scale, -table[descent] * scale, table[gap] * scale)
+                        break
+                keep(heights, key, got)
+            return got
+
         def draw_text(  # type: ignore[no-untyped-def]
             self, gc, x, y, s, prop, angle, ismath=False, mtext=None
         ) -> None:
@@ -143,16 +273,8 @@ def _canvas_class() -> Any:
             key = (s, prop.copy(), self.dpi, bool(gc.get_antialiased()))
             drawn = bitmaps.get(key)
             if drawn is None:
-                font = self._prepare_font(prop)
-                font.set_text(s, 0.0, flags=get_hinting_flag())
-                font.draw_glyphs_to_bitmap(antialiased=key[3])
-                # the bitmap's corner from the layout's origin, and the descent
-                # (26.6 fixed point)
-                dx, dy = (v / 64.0 for v in font.get_bitmap_offset())
-                drawn = (font.get_image().copy(), font.get_descent() / 64.0, dx, dy)
-                if len(bitmaps) >= _KEEP_BITMAPS:
-                    bitmaps.pop(next(iter(bitmaps)))
-                bitmaps[key] = drawn
+                self._lay_out(s, prop, key[3])
+                drawn = bitmaps[key]
             image, descent, dx, dy = drawn
             # the descent runs along the text's rotated vertical
             rad = math.radians(angle)
