@@ -685,3 +685,19 @@ def test_ticks_are_placed_once_a_draw_and_the_figure_is_left_as_it_was(monkeypat
     monkeypatch.setattr(html, "_ticks_once_a_draw", lambda fig: contextlib.nullcontext())
     assert figure_png(fig, dpi=50) == once
     assert len(calls) > n_axes  # matplotlib's own draw: the y axes' ticks twice
+
+
+def test_an_axis_method_set_by_its_owner_is_kept():
+    """An axis whose draw its owner replaced keeps that draw after `figure_png`."""
+    fig = _panels()
+    axis = fig.axes[0].yaxis
+    drawn = []
+    own = axis.draw
+
+    def mine(renderer):
+        drawn.append(renderer)
+        return own(renderer)
+
+    axis.draw = mine
+    figure_png(fig, dpi=40)
+    assert axis.__dict__["draw"] is mine and len(drawn) == 1

@@ -94,6 +94,8 @@ def _ticks_once_a_draw(fig: Figure) -> Iterator[None]:
     if not all(hasattr(axis, name) for axis in axes for name in _TICK_METHODS):
         yield  # another matplotlib: drawn as it draws
         return
+    # an axis whose methods someone already replaced on it is left to them
+    axes = [a for a in axes if not any(n in a.__dict__ for n in ("draw", *_TICK_METHODS))]
     for axis in axes:
         _keep_ticks(axis)
     try:
