@@ -214,3 +214,49 @@ def test_derivatives_step_back_where_the_forward_member_fails() -> None:
             fisher, np.diag([np.sum(tt**2) / 0.02, 0.5 * tt.size]), rtol=1e-3, atol=1e-6
         )
         assert np.isfinite(f)
+
+
+def test_a_vanished_process_noise_costs_no_rejected_steps(sp_model, monkeypatch):
+    """Turbulence on q only, both states' intensities estimated: alpha's falls towards
+    zero, where the likelihood is flat in its logarithm. Held out of the steps once an
+    e-fold moves the cost by less than the stopping rule's decrease, every evaluation
+    is an accepted step (without the hold, seeds 2 and 3 spend 10 and 5 more on steps
+    dozens of e-folds long); the estimates are those of the fit that leaves alpha's
+    noise at zero, and q's intensity is recovered."""
+    from aeroid.estimation import _filter_error
+
+    calls = []
+    derivatives = _filter_error._derivatives
+    monkeypatch.setattr(
+        _filter_error, "_derivatives", lambda *a: calls.append(1) or derivatives(*a)
+    )
+    s_q = 3e-3
+    for seed in range(1, 5):
+        data = _turbulent_flight(seed, s_q)
+        calls.clear()
+        both = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=True)
+        assert both.success
+        assert len(calls) == both.n_iterations + 1  # the start, then one per step
+        assert both.process_noise["alpha"] < 1e-9 * s_q
+        q_only = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=["q"])
+        for n in NAMES:
+            assert abs(both.parameters[n] - q_only.parameters[n]) < 0.01 * q_only.stderr[n]
+            assert both.stderr[n] == pytest.approx(q_only.stderr[n], rel=0.01)
+        q_hat, q_se = both.process_noise["q"], both.extra_stderr["process_noise.q"]
+        assert abs(q_hat - s_q) < 3 * q_se
+
+
+def test_a_flat_noise_takes_no_step():
+    """The held intensity's step is zero, the others' the plain Gauss-Newton step, and
+    the whole information rides along for the error bars."""
+    from aeroid.estimation._filter_error import _flat_noises_held
+    from aeroid.estimation.least_squares import Linearisation, damped_step
+
+    F = np.array([[4.0, 1.0, 1e-5], [1.0, 3.0, 0.0], [1e-5, 0.0, 1e-12]])
+    g = np.array([1.0, -2.0, 3e-9])
+    point = _flat_noises_held(Linearisation(-1e4, g, F, ("q", "p")), 1, 1e-4)
+    assert point.payload[:2] == ("q", "p") and point.payload[2] is F
+    # parameter 0 is no noise; noise 1 is well determined (3 >> 2e-3 of 1e4): both move
+    delta, _ = damped_step(point, 0.0, np.zeros(3), np.full(3, -np.inf), np.full(3, np.inf))
+    assert delta[2] == 0.0
+    np.testing.assert_allclose(delta[:2], -np.linalg.solve(F[:2, :2], g[:2]), rtol=1e-12)

@@ -53,7 +53,7 @@ from .filtering import (
     run_filter,
 )
 from .identifiability import unidentifiable
-from .least_squares import Linearisation, minimise
+from .least_squares import _COST_SHARE, Linearisation, minimise
 
 __all__ = ["FILTER_OPTIONS", "identify_filter_error"]
 
@@ -271,6 +271,36 @@ def _derivatives(
         fisher = np.nan_to_num(fisher, nan=0.0, posinf=0.0, neginf=0.0)
     fisher = 0.5 * (fisher + fisher.T)
     return float(cost[0]), grad, fisher, quad, [(nu[0], S[0]) for nu, S, _ in per]
+
+
+def _flat_noises_held(point: Linearisation, n_p: int, tolerance: float) -> Linearisation:
+    """`point` with the noise log-intensities the cost no longer feels taken out of the
+    step (zero gradient, uncoupled from the other unknowns, unit curvature: a zero step to
+    rounding); the payload gains the whole information for the error bars.
+
+    An intensity's information ``F_ii`` is the cost's curvature in its logarithm, so an
+    e-fold's change moves the cost by about ``F_ii / 2``. Where that is below the stopping
+    rule's cost decrease (``1e-3 tolerance |cost|``), the intensity is spent: one that has
+    fallen far below the others (no turbulence in that state) leaves the likelihood flat,
+    and its gradient and curvature are the finite differences' rounding, whose ratio sends
+    the Gauss-Newton step dozens of e-folds either way and the damping through a string of
+    rejected steps before it is small. Held for that step, it stays where the iteration
+    left it; a later point where it matters again frees it.
+    """
+    F = point.curvature
+    floor = 2.0 * _COST_SHARE * tolerance * max(1.0, abs(point.cost))
+    flat = n_p + np.flatnonzero(np.diag(F)[n_p:] < floor)
+    payload = (*point.payload, F)
+    if not flat.size:
+        return Linearisation(point.cost, point.gradient, F, payload, point.judged)
+    g = point.gradient.copy()
+    g[flat] = 0.0
+    held = F.copy()
+    held[flat, :] = 0.0
+    held[:, flat] = 0.0
+    # a zero curvature would scale the solve's rounding by 1e150 into the step
+    held[flat, flat] = 1.0
+    return Linearisation(point.cost, g, held, payload, point.judged)
 
 
 def identify_filter_error(
@@ -495,7 +525,9 @@ def identify_filter_error(
 
     def evaluate(zt: FloatArray, _base: Linearisation | None) -> Linearisation | None:
         ft, gt, ft_info, qt, pt = _derivatives(obj, zt, layout)
-        return Linearisation(ft, gt, ft_info, (qt, pt)) if np.isfinite(ft) else None
+        if not np.isfinite(ft):
+            return None
+        return _flat_noises_held(Linearisation(ft, gt, ft_info, (qt, pt)), n_p, tolerance)
 
     # the noise intensities are logarithms: their steps count in absolute terms
     typical = np.ones_like(z)
@@ -503,7 +535,7 @@ def identify_filter_error(
     fit = minimise(
         evaluate,
         z,
-        Linearisation(f, g, fisher, (quad, per)),
+        _flat_noises_held(Linearisation(f, g, fisher, (quad, per)), n_p, tolerance),
         tolerance=tolerance,
         max_iterations=int(max_iterations),
         typical=typical,
@@ -511,8 +543,8 @@ def identify_filter_error(
         upper=hi,
         damping=1e-3,
     )
-    z, f, fisher = fit.theta, fit.point.cost, fit.point.curvature
-    quad, per = fit.point.payload
+    z, f = fit.theta, fit.point.cost
+    quad, per, fisher = fit.point.payload
     success, message, it = fit.success, fit.message, fit.iterations
     if not success:
         warnings.warn(

@@ -494,7 +494,9 @@ for _stage in (
         # 6: the filter error's likelihood and information summed in another order
         #    (rounding: a fit stopped by its tolerance may stop an iteration apart)
         # 7: the filter error's derivatives by forward differences
-        "7",
+        # 8: the filter error holds a process noise the likelihood no longer feels out
+        #    of its steps (a fit whose noise vanishes takes fewer, other steps)
+        "8",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
