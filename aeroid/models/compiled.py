@@ -255,18 +255,26 @@ def compiled_rollout(
 # Substep counts up to which `rk4_outputs` writes the count into its program (no inner
 # loop to run); above, one program serves every count.
 _STATIC_SUBSTEPS = 2
+# `_outputs_program`'s kinds where the stiffness rule picks the substeps in the program:
+# the one-substep rollout returning the rule's count with its outputs, and the rule alone
+_RULED = -1
+_RULE_ONLY = -2
 
 
 def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) -> Any:
     """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`):
-    `static` substeps written in, 0 for `m`'s, -1 for the stiffness rule's, decided in
-    the program (one substep taking the program without the inner loop)."""
+    `static` substeps written in, 0 for `m`'s. `_RULED`: the one-substep program, which
+    also returns the count the stiffness rule picks, ``(outputs, ok, m)`` (its caller
+    runs the `m` program where that is not one); `_RULE_ONLY`: ``m`` alone."""
     from .jax_compiled import _substeps_rule
 
     entry = _entry(model)
     # each traced once, however often the steps call them: tracing the program is most of
     # its cost where the compiled program comes from the disk cache
     f = jax.jit(entry[("fn", "dynamics")])
+    if static == _RULE_ONLY:
+        rule = _substeps_rule(f, jax, jnp)
+        return jax.jit(lambda time, u, X, P, m: rule(time, u, X, P))
     h = entry.get(("fn", "measurement"))
     h = None if h is None else jax.jit(h)
     pick = np.asarray(index, dtype=np.int64)
@@ -286,18 +294,40 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
 
     if static > 0:
         return jax.jit(batch_of(_rollout(f, jax, jnp, static)))
-    looped = batch_of(_rollout(f, jax, jnp))
     if static == 0:
-        return jax.jit(looped)
+        return jax.jit(batch_of(_rollout(f, jax, jnp)))
+    # Only the one-substep rollout in the program, not both behind a condition: the
+    # stiffness rule rarely asks for more, and the looped rollout doubled the compilation
     single = batch_of(_rollout(f, jax, jnp, 1))
     rule = _substeps_rule(f, jax, jnp)
 
-    def decided(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:
-        m = rule(time, u, X, P)
-        args = (time, u, X, P, m)
-        return jax.lax.cond(m == 1, lambda: single(*args), lambda: looped(*args))
+    def ruled(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:
+        return (*single(time, u, X, P, m), rule(time, u, X, P))
 
-    return jax.jit(decided)
+    return jax.jit(ruled)
+
+
+def _ruled_outputs(model: Model, index: tuple[int, ...], args: tuple[Any, ...]) -> tuple[Any, Any]:
+    """`rk4_outputs` with the stiffness rule's substeps: the one-substep program, and the
+    looped one only where the rule asks for more (compiled then). A model that did once
+    asks the rule first (a program of its own) from then on, so that no batch pays for
+    both rollouts again."""
+    entry = _entry(model)
+    stiff = ("stiff", index)
+    if entry.get(stiff):
+        m = int(_compiled(model, "outputs", (_RULE_ONLY, ()))(*args))
+        if m == 1:
+            y, ok, _ = _compiled(model, "outputs", (_RULED, index))(*args)
+            return y, ok
+    else:
+        y, ok, m_rule = _compiled(model, "outputs", (_RULED, index))(*args)
+        m = int(m_rule)
+        if m == 1:
+            return y, ok
+        entry[stiff] = True
+    looped = _compiled(model, "outputs", (0, index))
+    y, ok = looped(*args[:4], np.int32(m))
+    return y, ok
 
 
 def rk4_outputs(
@@ -326,17 +356,19 @@ def rk4_outputs(
     P = _pmatrix(model, p, batch)
     if not available(model, time, x0[:, 0], u, P[0]):
         return None
-    if substeps is None:  # by the stiffness rule, in the program
-        static, m = -1, 0
-    else:
-        m = int(substeps)
-        static = m if m <= _STATIC_SUBSTEPS else 0
-    fn = _compiled(model, "outputs", (static, tuple(int(i) for i in index)))
+    key = tuple(int(i) for i in index)
     padded = 1 << (max(batch, pad) - 1).bit_length()  # few batch sizes, few compilations
     rows = np.minimum(np.arange(padded), batch - 1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(m))
+        if substeps is None:  # by the stiffness rule, in the program
+            args = (time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(0))
+            y, ok = _ruled_outputs(model, key, args)
+        else:
+            m = int(substeps)
+            static = m if m <= _STATIC_SUBSTEPS else 0
+            fn = _compiled(model, "outputs", (static, key))
+            y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(m))
         y = np.array(y, dtype=np.float64)[:batch]
     _entry(model)["compiled_once"] = True  # its later simulations take the compiled RK4 too
     return y, np.asarray(ok, dtype=bool)[:batch]
