@@ -22,7 +22,9 @@ What is compiled:
   through `rk4_hook` once a model has spent more numpy RK4 work than a
   compilation costs;
 * a sampler's batch from the parameters to the outputs in one call, the substeps decided
-  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`);
+  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`):
+  the one-substep rollout, which returns the count the stiffness rule picks, and a
+  looped rollout compiled only for a batch whose count is larger;
 * outputs and their exact sensitivities with respect to chosen parameters and
   initial states (`output_sensitivities`), used by output error, and the
   first-order effect of white control noise on a fit's gradient
