@@ -233,3 +233,39 @@ def test_the_rule_picks_each_batch_program_after_a_stiff_one() -> None:
     assert np.max(np.abs(hard - want) / scale) < 1e-11
     other = _numpy_outputs(model, stiff, [0, 1], m + 1)
     assert np.max(np.abs(other - want) / scale) > 1e-9
+
+
+def test_a_sampler_batch_refills_the_rows_of_the_last(monkeypatch: Any) -> None:
+    # Batches of the same parameter names and size write only their own columns into
+    # the rows of the last one: the same rows, so the same outputs bit for bit as a
+    # batch built afresh; other batches (another size, values of other types) do not.
+    model = _pendulum()
+    u = _torque(T)
+    rng = np.random.default_rng(5)
+    batches = [
+        {"w2": 9.0 + rng.standard_normal(4), "c": 0.4 + 0.1 * rng.standard_normal(4)}
+        for _ in range(3)
+    ]
+    others = [
+        {"w2": batches[0]["w2"][:3], "c": batches[0]["c"][:3]},  # another size
+        {"w2": list(batches[1]["w2"]), "c": batches[1]["c"]},  # a list
+        {"w2": 9.5, "c": batches[2]["c"]},  # a scalar
+    ]
+    calls: list[int] = []
+    full = _compiled.rk4_outputs
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        return full(*args, **kwargs)
+
+    monkeypatch.setattr(_compiled, "rk4_outputs", counted)
+    sim = BatchSimulator(model, T, u, X0, repeated=10**6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = [sim.outputs(b, [1, 3]) for b in batches]
+        assert len(calls) == 1  # the first batch built its rows; the next two refilled them
+        got += [sim.outputs(b, [1, 3]) for b in others]
+        assert len(calls) == 4
+        for b, y in zip(batches + others, got, strict=True):
+            fresh = BatchSimulator(_pendulum(), T, u, X0, repeated=10**6)
+            np.testing.assert_array_equal(y, fresh.outputs(b, [1, 3]))

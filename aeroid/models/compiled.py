@@ -309,19 +309,35 @@ def rk4_outputs(
     P = _pmatrix(model, p, batch)
     if not available(model, time, x0[:, 0], u, P[0]):
         return None
-    key = tuple(int(i) for i in index)
     padded = 1 << (max(batch, pad) - 1).bit_length()  # few batch sizes, few compilations
     rows = np.minimum(np.arange(padded), batch - 1)
+    X = np.ascontiguousarray(x0.T[rows])
+    return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch)
+
+
+def rk4_output_rows(
+    model: Model,
+    time: FloatArray,
+    u: FloatArray,
+    X: FloatArray,
+    P: FloatArray,
+    substeps: int | None,
+    index: Sequence[int],
+    batch: int,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """`rk4_outputs` of rows already padded: initial states X (padded, n_x) and parameter
+    rows P (padded, n_p + constants, `_pmatrix`'s columns), the first `batch` of them
+    returned; for a caller that has checked the model compiles (`available`) and keeps
+    the rows that stay the same from call to call."""
+    key = tuple(int(i) for i in index)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if substeps is None:  # by the stiffness rule, in the program
-            args = (time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(0))
-            y, ok = _ruled_outputs(model, key, args)
+            y, ok = _ruled_outputs(model, key, (time, u, X, P, np.int32(0)))
         else:
             m = int(substeps)
             static = m if m <= _STATIC_SUBSTEPS else 0
-            fn = _compiled(model, "outputs", (static, key))
-            y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(m))
+            y, ok = _compiled(model, "outputs", (static, key))(time, u, X, P, np.int32(m))
         y = np.array(y, dtype=np.float64)[:batch]
     _entry(model)["compiled_once"] = True  # its later simulations take the compiled RK4 too
     return y, np.asarray(ok, dtype=bool)[:batch]
