@@ -198,3 +198,74 @@ def test_smaller_batches_after_a_batch_share_its_program() -> None:
     assert program._cache_size() == 1  # batches of 3 and 1 padded to 4: no compilation
     for got in fewer:
         np.testing.assert_array_equal(got, four[: got.shape[0]])
+
+
+def test_the_rule_picks_each_batch_program_after_a_stiff_one() -> None:
+    # The sampler's batches run the one-substep program, which also returns the rule's
+    # count; a batch the rule gives more substeps runs the looped program, and from then
+    # on the rule is asked first. Each batch must come out as the program of its count.
+    model = _pendulum()
+    u = _torque(T)
+    sim = BatchSimulator(model, T, u, X0, repeated=10**6)
+    soft = {"w2": np.array([9.0, 9.9, 8.1, 9.5])}
+    stiff = {"w2": np.array([900.0, 990.0, 810.0, 950.0])}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim.outputs(soft, [0, 1])  # the first call shows the model nonlinear
+        before = sim.outputs(soft, [0, 1])
+        assert not _compiled._entry(model).get(("stiff", (0, 1)))
+        hard = sim.outputs(stiff, [0, 1])
+        assert _compiled._entry(model)[("stiff", (0, 1))]
+        after = sim.outputs(soft, [0, 1])
+        fixed = BatchSimulator(_pendulum(), T, u, X0, substeps=1, repeated=10**6)
+        fixed.outputs(soft, [0, 1])
+        one = fixed.outputs(soft, [0, 1])
+    # the one-substep batches: the same program before and after, and as with substeps=1
+    np.testing.assert_array_equal(after, before)
+    np.testing.assert_array_equal(before, one)
+    p = {k: np.broadcast_to(np.asarray(v, float), (4,)) for k, v in model.parameters.items()}
+    p.update(stiff)
+    x = np.repeat(X0[:, None], 4, axis=1)
+    m = _integrate.auto_substeps(model._dynamics_batch, T, x, np.broadcast_to(u, (4, *u.shape)), p)
+    assert m > 1
+    want = _numpy_outputs(model, stiff, [0, 1], m)
+    scale = np.max(np.abs(want), axis=1, keepdims=True)
+    assert np.max(np.abs(hard - want) / scale) < 1e-11
+    other = _numpy_outputs(model, stiff, [0, 1], m + 1)
+    assert np.max(np.abs(other - want) / scale) > 1e-9
+
+
+def test_a_sampler_batch_refills_the_rows_of_the_last(monkeypatch: Any) -> None:
+    # Batches of the same parameter names and size write only their own columns into
+    # the rows of the last one: the same rows, so the same outputs bit for bit as a
+    # batch built afresh; other batches (another size, values of other types) do not.
+    model = _pendulum()
+    u = _torque(T)
+    rng = np.random.default_rng(5)
+    batches = [
+        {"w2": 9.0 + rng.standard_normal(4), "c": 0.4 + 0.1 * rng.standard_normal(4)}
+        for _ in range(3)
+    ]
+    others = [
+        {"w2": batches[0]["w2"][:3], "c": batches[0]["c"][:3]},  # another size
+        {"w2": list(batches[1]["w2"]), "c": batches[1]["c"]},  # a list
+        {"w2": 9.5, "c": batches[2]["c"]},  # a scalar
+    ]
+    calls: list[int] = []
+    full = _compiled.rk4_outputs
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        return full(*args, **kwargs)
+
+    monkeypatch.setattr(_compiled, "rk4_outputs", counted)
+    sim = BatchSimulator(model, T, u, X0, repeated=10**6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = [sim.outputs(b, [1, 3]) for b in batches]
+        assert len(calls) == 1  # the first batch built its rows; the next two refilled them
+        got += [sim.outputs(b, [1, 3]) for b in others]
+        assert len(calls) == 4
+        for b, y in zip(batches + others, got, strict=True):
+            fresh = BatchSimulator(_pendulum(), T, u, X0, repeated=10**6)
+            np.testing.assert_array_equal(y, fresh.outputs(b, [1, 3]))

@@ -73,6 +73,9 @@ class BatchSimulator:
         self._widest = 0
         # per batch size: initial states, controls and the nominal parameter rows
         self._batches: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        # per (parameter names, output index, batch size): the padded rows of the compiled program's
+        # last batch, only the given parameters' columns to fill in again (`_Lane`)
+        self._lanes: dict[tuple[Any, ...], _Lane] = {}
 
     def _batch(self, parameters: Mapping[str, ArrayLike]) -> int:
         model = self.model
@@ -178,6 +181,17 @@ class BatchSimulator:
         model = self.model
         if self._plain or not self._compile_now() or self.u.shape[0] != 1 or self._x0_batch != 1:
             return None
+        size = np.size(next(iter(parameters.values()))) if parameters else 1
+        key = (tuple(parameters), tuple(int(i) for i in index), size)
+        lane = self._lanes.get(key)
+        if lane is not None:
+            try:
+                fast = lane.run(self, parameters)
+            except Exception:  # the full path below decides (and logs) what went wrong
+                del self._lanes[key]
+                fast = None
+            if fast is not None:
+                return fast
         batch = self._batch(parameters)
         if batch < 2 and self._widest < 2:
             return None  # a single member before any batch (a sampler's start): as before
@@ -186,7 +200,7 @@ class BatchSimulator:
         if _integrate.linear_path(model, self.time, X0, U, p, self.method) is not None:
             self._plain = True  # the exact solution, which the plain call takes from now on
             return None
-        from .compiled import rk4_outputs
+        from .compiled import _pmatrix, rk4_outputs
 
         try:
             got = rk4_outputs(
@@ -198,6 +212,61 @@ class BatchSimulator:
         if got is None:
             self._plain = True
             return None
+        # the integrator's exact path is ruled out for good (or not taken): the next
+        # batches of these names fill in their columns of the same rows
+        if not (self.method in ("auto", "exact") and model._maybe_lti):
+            padded = 1 << (max(batch, self._widest) - 1).bit_length()
+            rows = np.minimum(np.arange(padded), batch - 1)
+            names = model.parameter_names
+            columns = tuple(names.index(k) for k in parameters)
+            P = _pmatrix(model, p, batch)[rows]
+            X = np.ascontiguousarray(X0[rows])
+            self._lanes[key] = _Lane(batch, padded, columns, X, P, key[1])
         y, ok = got
+        y[~ok] = np.nan
+        return y
+
+
+class _Lane:
+    """The rows of a compiled batch of one size and one set of parameter names: initial
+    states and parameter rows padded as `rk4_outputs` pads them, into which a batch of
+    the same names and size writes only its own columns (the same rows that
+    `rk4_outputs` would build, bit for bit, without rebuilding the rest each call)."""
+
+    def __init__(
+        self,
+        batch: int,
+        padded: int,
+        columns: tuple[int, ...],
+        X: FloatArray,
+        P: FloatArray,
+        index: tuple[int, ...],
+    ) -> None:
+        self.batch, self.padded, self.columns, self.index = batch, padded, columns, index
+        self.X, self.P = X, P
+        for arr in (X, P):
+            arr.flags.writeable = False
+
+    def run(self, sim: BatchSimulator, parameters: Mapping[str, ArrayLike]) -> FloatArray | None:
+        """The outputs of this batch, or None when it is not one of this lane's (another
+        size, values that are not a float64 vector each, a wider batch seen since)."""
+        batch = self.batch
+        if 1 << (max(batch, sim._widest) - 1).bit_length() != self.padded:
+            return None
+        P = self.P.copy()
+        for column, value in zip(self.columns, parameters.values(), strict=True):
+            if not (
+                isinstance(value, np.ndarray)
+                and value.dtype == np.float64
+                and value.shape == (batch,)
+            ):
+                return None
+            P[:batch, column] = value
+            P[batch:, column] = value[-1]
+        from .compiled import rk4_output_rows
+
+        y, ok = rk4_output_rows(
+            sim.model, sim.time, sim.u[0], self.X, P, sim.substeps, self.index, batch
+        )
         y[~ok] = np.nan
         return y

@@ -22,7 +22,9 @@ What is compiled:
   through `rk4_hook` once a model has spent more numpy RK4 work than a
   compilation costs;
 * a sampler's batch from the parameters to the outputs in one call, the substeps decided
-  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`);
+  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`):
+  the one-substep rollout, which returns the count the stiffness rule picks, and a
+  looped rollout compiled only for a batch whose count is larger;
 * outputs and their exact sensitivities with respect to chosen parameters and
   initial states (`output_sensitivities`), used by output error, and the
   first-order effect of white control noise on a fit's gradient
@@ -49,6 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _threads
+from ._jax_outputs import _RULE_ONLY, _RULED, _outputs_program
 from ._jax_rk4 import _input_noise_scatter, _interval, _interval_jacobian, _rollout, _tangent_linear
 from ._jax_rk4 import _substep as _substep
 from ._jax_translation import _CACHE as _CACHE
@@ -257,47 +260,27 @@ def compiled_rollout(
 _STATIC_SUBSTEPS = 2
 
 
-def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) -> Any:
-    """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`):
-    `static` substeps written in, 0 for `m`'s, -1 for the stiffness rule's, decided in
-    the program (one substep taking the program without the inner loop)."""
-    from .jax_compiled import _substeps_rule
-
+def _ruled_outputs(model: Model, index: tuple[int, ...], args: tuple[Any, ...]) -> tuple[Any, Any]:
+    """`rk4_outputs` with the stiffness rule's substeps: the one-substep program, and the
+    looped one only where the rule asks for more (compiled then). A model that did once
+    asks the rule first (a program of its own) from then on, so that no batch pays for
+    both rollouts again."""
     entry = _entry(model)
-    # each traced once, however often the steps call them: tracing the program is most of
-    # its cost where the compiled program comes from the disk cache
-    f = jax.jit(entry[("fn", "dynamics")])
-    h = entry.get(("fn", "measurement"))
-    h = None if h is None else jax.jit(h)
-    pick = np.asarray(index, dtype=np.int64)
-    states_out = None if h is not None else [model.states.index(o) for o in model.output_names]
-
-    def batch_of(roll: Callable[..., Any]) -> Callable[..., Any]:
-        def member(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> tuple[Any, Any]:
-            xs = roll(time, u, x0, pvec, m)
-            if h is None:
-                ys = xs[:, states_out]
-            else:
-                ys = jax.vmap(lambda t, x, uk: h(t, x, uk, pvec))(time, xs, u)
-            ok = jnp.all(jnp.isfinite(xs)) & jnp.all(jnp.isfinite(ys))
-            return ys[:, pick], ok
-
-        return jax.vmap(member, in_axes=(None, None, 0, 0, None))
-
-    if static > 0:
-        return jax.jit(batch_of(_rollout(f, jax, jnp, static)))
-    looped = batch_of(_rollout(f, jax, jnp))
-    if static == 0:
-        return jax.jit(looped)
-    single = batch_of(_rollout(f, jax, jnp, 1))
-    rule = _substeps_rule(f, jax, jnp)
-
-    def decided(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:
-        m = rule(time, u, X, P)
-        args = (time, u, X, P, m)
-        return jax.lax.cond(m == 1, lambda: single(*args), lambda: looped(*args))
-
-    return jax.jit(decided)
+    stiff = ("stiff", index)
+    if entry.get(stiff):
+        m = int(_compiled(model, "outputs", (_RULE_ONLY, ()))(*args))
+        if m == 1:
+            y, ok, _ = _compiled(model, "outputs", (_RULED, index))(*args)
+            return y, ok
+    else:
+        y, ok, m_rule = _compiled(model, "outputs", (_RULED, index))(*args)
+        m = int(m_rule)
+        if m == 1:
+            return y, ok
+        entry[stiff] = True
+    looped = _compiled(model, "outputs", (0, index))
+    y, ok = looped(*args[:4], np.int32(m))
+    return y, ok
 
 
 def rk4_outputs(
@@ -326,17 +309,35 @@ def rk4_outputs(
     P = _pmatrix(model, p, batch)
     if not available(model, time, x0[:, 0], u, P[0]):
         return None
-    if substeps is None:  # by the stiffness rule, in the program
-        static, m = -1, 0
-    else:
-        m = int(substeps)
-        static = m if m <= _STATIC_SUBSTEPS else 0
-    fn = _compiled(model, "outputs", (static, tuple(int(i) for i in index)))
     padded = 1 << (max(batch, pad) - 1).bit_length()  # few batch sizes, few compilations
     rows = np.minimum(np.arange(padded), batch - 1)
+    X = np.ascontiguousarray(x0.T[rows])
+    return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch)
+
+
+def rk4_output_rows(
+    model: Model,
+    time: FloatArray,
+    u: FloatArray,
+    X: FloatArray,
+    P: FloatArray,
+    substeps: int | None,
+    index: Sequence[int],
+    batch: int,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """`rk4_outputs` of rows already padded: initial states X (padded, n_x) and parameter
+    rows P (padded, n_p + constants, `_pmatrix`'s columns), the first `batch` of them
+    returned; for a caller that has checked the model compiles (`available`) and keeps
+    the rows that stay the same from call to call."""
+    key = tuple(int(i) for i in index)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        y, ok = fn(time, u, np.ascontiguousarray(x0.T[rows]), P[rows], np.int32(m))
+        if substeps is None:  # by the stiffness rule, in the program
+            y, ok = _ruled_outputs(model, key, (time, u, X, P, np.int32(0)))
+        else:
+            m = int(substeps)
+            static = m if m <= _STATIC_SUBSTEPS else 0
+            y, ok = _compiled(model, "outputs", (static, key))(time, u, X, P, np.int32(m))
         y = np.array(y, dtype=np.float64)[:batch]
     _entry(model)["compiled_once"] = True  # its later simulations take the compiled RK4 too
     return y, np.asarray(ok, dtype=bool)[:batch]
