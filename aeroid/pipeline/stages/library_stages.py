@@ -494,7 +494,8 @@ for _stage in (
         # 6: the filter error's likelihood and information summed in another order
         #    (rounding: a fit stopped by its tolerance may stop an iteration apart)
         # 7: the filter error's derivatives by forward differences
-        "7",
+        # 8: coloured-residual degrees of freedom with the low band's exact covariance
+        "8",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
