@@ -161,14 +161,16 @@ def _model_keeps(
     return _ArModel(out, level, model_cov, [part[1] for part in parts])
 
 
-def _ar1_product(x: NDArray[np.complex128], a: float, var: float) -> NDArray[np.complex128]:
-    """``S x`` along the last axis for the AR(1) covariance ``S_ts = var a^|t-s|``: the
-    causal and anti-causal recursions, the diagonal counted once."""
-    from scipy.signal import lfilter
-
-    fwd = lfilter([1.0], [1.0, -a], x, axis=-1)
-    bwd = lfilter([1.0], [1.0, -a], x[..., ::-1], axis=-1)[..., ::-1]
-    return np.asarray(var * (fwd + bwd - x), dtype=np.complex128)
+def _ar1_exponentials(w: FloatArray, n: int, a: float, var: float) -> NDArray[np.complex128]:
+    """``S d_m^*`` (bins, n) for the AR(1) covariance ``S_ts = var a^|t-s|`` and the
+    Fourier vectors ``d_m = e^{-i w_m t}``, in closed form: the geometric sums of
+    the causal and anti-causal parts (the diagonal in the first)."""
+    t = np.arange(n)[None, :]
+    r = (a * np.exp(-1j * w))[:, None]  # |a| < 1: neither ratio is one
+    q = (a * np.exp(1j * w))[:, None]
+    fwd = (1.0 - r ** (t + 1)) / (1.0 - r)
+    bwd = q * (1.0 - q ** (n - 1 - t)) / (1.0 - q)
+    return np.asarray(var * np.exp(1j * w[:, None] * t) * (fwd + bwd), dtype=np.complex128)
 
 
 def _band_moments(
@@ -187,19 +189,18 @@ def _band_moments(
     ``u = (I - H) e`` the fit's residuals.
 
     With ``d_l`` the Fourier vector, ``E[u~_la u~_mb^*] = d_l'(S - HS - SH + HSH)_ab
-    d_m^*``; the ``S`` part by the AR(1) recursions, the others through ``G~`` and
+    d_m^*``; the ``S`` part in closed form, the others through ``G~`` and
     ``(SG)~``. ``E[u~ u~^T]`` is the same with ``d_m`` unconjugated: it vanishes
     only for a circular series, which the low bins of a real record are not.
     """
     size = 2 * n
     bins, n_y = gf.shape[:2]
     w = 2.0 * np.pi * np.arange(bins) / size
-    d_conj = np.exp(1j * np.outer(w, np.arange(n)))  # (bins, n)
     s_gam = np.zeros((bins, n_y, bins), dtype=np.complex128)  # d_l' S_a d_m^*
     s_rel = np.zeros((bins, n_y, bins), dtype=np.complex128)  # d_l' S_a d_m
     for k in range(n_y):
         var = float(level[k] / (1.0 - a[k] ** 2))
-        sd = _ar1_product(d_conj, float(a[k]), var)  # (bins m, n)
+        sd = _ar1_exponentials(w, n, float(a[k]), var)  # (bins m, n)
         s_gam[:, k] = np.fft.fft(sd, size, axis=-1)[:, :bins].T
         s_rel[:, k] = np.fft.fft(sd.conj(), size, axis=-1)[:, :bins].T
     eye = np.eye(n_y)
@@ -504,7 +505,7 @@ def colored_covariance(
         # residual spectrum, a known part included), mapped back to those bins
         diag = np.einsum("kap,kab,kbp->kp", vf.conj(), total, vf).real * twice[:, None]
         spread = np.asarray(_smooth(diag, half), dtype=np.float64)
-        bins = min(n_bins, _band_bins(half), max(_BAND_SIZE // n_y, 2))
+        bins = min(n_bins, _band_bins(half), max(_BAND_SIZE // max(n_y, 1), 2))
         rows = n_bins if bins + 2 * half + 1 >= n_bins else bins + half
         if rows > _BAND_ROWS:  # a window this wide spreads the band's share thin
             bins = 0
