@@ -243,7 +243,8 @@ def _band_variance(
     weights: FloatArray,
     gam: NDArray[np.complex128],
     rel: NDArray[np.complex128],
-    guess: NDArray[np.complex128],
+    level: NDArray[np.complex128],
+    root_keep: FloatArray,
     n: int,
 ) -> FloatArray:
     """Per parameter, the variance of the low band's share of ``B^_jj``.
@@ -254,9 +255,11 @@ def _band_variance(
     the band's share is ``Q = sum_l w_l^H A_l w_l`` with ``A_l = conj(R_l) / n``
     and ``R_l = sum_k K_kl Y_k``. For Gaussian ``w`` (Isserlis) ``Var Q = tr(A Gam
     A Gam) + tr(Rel^* A Rel A^T)`` and ``E Q = tr(A Gam)`` under the model; the
-    variance is scaled by ``(Q^ / E Q)^2`` to the data's level, ``Q^ = sum_l R_l .
-    E^[I_l]`` with `guess` the periodogram's expectation as the smoothed estimate
-    puts it.
+    variance is scaled by ``(Q^ / E Q)^2`` to the data's level: ``Q^`` is the
+    band's share of ``B^_jj`` as the estimate itself puts it, each bin k's
+    smoothed whitened spectrum over its normaliser (`level`, (rows, n_y, n_y))
+    times bin l's share ``sqrt(k_la k_lb)`` (`root_keep`, (bins, n_y)), so that
+    a band spanning every bin has ``Q^ = B^_jj`` and ``nu >= 1``.
     """
     bins, n_y = gam.shape[:2]
     size = bins * n_y
@@ -268,7 +271,8 @@ def _band_variance(
         zj = z[:, :, j]
         yj = (zj.conj()[:, :, None] * zj[:, None, :]).reshape(zj.shape[0], -1)
         r = (weights.T @ yj).reshape(bins, n_y, n_y)
-        expected = float(np.sum(r * guess).real)
+        seen = (weights.T @ (yj * level.reshape(yj.shape))).reshape(bins, n_y, n_y)
+        expected = float(np.sum(seen * root_keep[:, :, None] * root_keep[:, None, :]).real)
         aj = r.conj() / n
         # with A block-diagonal, as (bins n_y, bins n_y) matrices
         ag = np.matmul(aj, flat_gam).reshape(size, size)  # A Gam
@@ -515,13 +519,13 @@ def colored_covariance(
             # projection couples them, so they are neither independent nor chi2_2 / 2
             z = (vf / (norm * filt).conj()[:, :, None])[:rows]
             z = z * np.sqrt(twice[:rows])[:, None, None]
-            share = np.sqrt(keep[:bins] / np.maximum(kept[:bins], 1e-300))
-            guess = smoothed[:bins] * share[:, :, None] * share[:, None, :]
+            level = smoothed[:rows] / (norm[:rows, :, None] * norm[:rows, None, :])
             gam, rel = _band_moments(
                 gf[:bins], model.sgf[i][:bins], n, a, model.level, m_inv, model.cov
             )
             weights = _window_columns(n_bins, half, rows, bins)
-            var_terms += _band_variance(z, weights, gam, rel, guess, n)
+            root_keep = np.sqrt(keep[:bins])
+            var_terms += _band_variance(z, weights, gam, rel, level, root_keep, n)
     cov = 0.5 * (cov + cov.T)
     var = np.abs(np.diag(cov))
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -81,9 +81,8 @@ def test_band_variance_is_the_gaussian_quadratic_forms() -> None:
     rows = bins + half
     z = rng.standard_normal((rows, 2, 4)) + 1j * rng.standard_normal((rows, 2, 4))
     weights = _colour._window_columns(n_bins, half, rows, bins)
-    # the model's own expectation as the data's, so the level scale is one
-    guess = np.array([gam[i, :, i, :] for i in range(bins)]) / n
-    var = _colour._band_variance(z, weights, gam, rel, guess, n)
+    level = np.broadcast_to(np.eye(2), (rows, 2, 2)).astype(complex)
+    var = _colour._band_variance(z, weights, gam, rel, level, np.ones((bins, 2)), n)
     f = _fourier(n, bins, a)
     cov_u = p["resid"] @ p["s"] @ p["resid"].T
     for j in range(4):
@@ -95,7 +94,9 @@ def test_band_variance_is_the_gaussian_quadratic_forms() -> None:
         w_real = (f.conj().T @ big @ f).real
         w_real = 0.5 * (w_real + w_real.T)
         ws = w_real @ cov_u
-        assert var[j] == pytest.approx(2.0 * np.trace(ws @ ws), rel=1e-9)
+        # scaled from the model's mean to the estimate's share, here sum_l tr R_l
+        scale = np.einsum("laa->", r).real / np.trace(ws)
+        assert var[j] == pytest.approx(2.0 * np.trace(ws @ ws) * scale**2, rel=1e-9)
 
 
 def test_window_columns_are_the_smoothing() -> None:
@@ -119,8 +120,8 @@ def test_band_variance_matches_monte_carlo() -> None:
     vf = gf @ p["m_inv"]
     z = (vf / filt.conj()[:, :, None] * np.sqrt(twice)[:, None, None])[: bins + half]
     weights = _colour._window_columns(n_bins, half, bins + half, bins)
-    guess = np.array([gam[i, :, i, :] for i in range(bins)]) / n
-    var = _colour._band_variance(z, weights, gam, rel, guess, n)
+    level = np.broadcast_to(np.eye(2), (bins + half, 2, 2)).astype(complex)
+    var = _colour._band_variance(z, weights, gam, rel, level, np.ones((bins, 2)), n)
     rng = np.random.default_rng(3)
     chol = np.linalg.cholesky(p["s"])
     u = (p["resid"] @ chol @ rng.standard_normal((2 * n, draws))).T.reshape(draws, n, 2)
@@ -129,8 +130,11 @@ def test_band_variance_matches_monte_carlo() -> None:
         y = np.einsum("ka,kb->kab", z[:, :, j].conj(), z[:, :, j])
         r = np.einsum("kl,kab->lab", weights, y)
         q = np.einsum("lab,dla,dlb->d", r, wf, wf.conj()).real / n
+        mean = np.einsum("lab,lbla->", r.conj(), gam).real / n  # the model's E Q
+        model_var = var[j] * (mean / np.einsum("laa->", r).real) ** 2
+        assert abs(q.mean() - mean) <= 4.0 * q.std() / np.sqrt(draws)
         se = np.sqrt(np.mean((q - q.mean()) ** 4) - q.var() ** 2) / np.sqrt(draws)
-        assert abs(q.var() - var[j]) <= 4.0 * se, (j, q.var(), var[j], se)
+        assert abs(q.var() - model_var) <= 4.0 * se, (j, q.var(), model_var, se)
 
 
 def _white_residuals(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
