@@ -165,12 +165,16 @@ def _ar1_exponentials(w: FloatArray, n: int, a: float, var: float) -> NDArray[np
     """``S d_m^*`` (bins, n) for the AR(1) covariance ``S_ts = var a^|t-s|`` and the
     Fourier vectors ``d_m = e^{-i w_m t}``, in closed form: the geometric sums of
     the causal and anti-causal parts (the diagonal in the first)."""
-    t = np.arange(n)[None, :]
+    t = np.arange(n)
     r = (a * np.exp(-1j * w))[:, None]  # |a| < 1: neither ratio is one
     q = (a * np.exp(1j * w))[:, None]
-    fwd = (1.0 - r ** (t + 1)) / (1.0 - r)
-    bwd = q * (1.0 - q ** (n - 1 - t)) / (1.0 - q)
-    return np.asarray(var * np.exp(1j * w[:, None] * t) * (fwd + bwd), dtype=np.complex128)
+    wave = np.exp(1j * np.outer(w, t))  # d_m^*
+    # e^{iwt} sum_{k<=t} r^k and e^{iwt} sum_{0<k<n-t} q^k, their powers split into a
+    # real power of a and a phase
+    fwd = (wave - a ** (t + 1.0)[None, :] * np.exp(-1j * w)[:, None]) / (1.0 - r)
+    tail = a ** (n - 1.0 - t)[None, :] * np.exp(1j * w * (n - 1))[:, None]
+    bwd = q * (wave - tail) / (1.0 - q)
+    return np.asarray(var * (fwd + bwd), dtype=np.complex128)
 
 
 def _band_moments(
