@@ -22,6 +22,7 @@ each frequency is its own window.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +45,16 @@ _PREWHITEN = True
 # Fixed-point steps that move the AR(1) coefficients until the model's expected
 # residual lag-one correlation is the one seen (the fit removed the slowest noise).
 _AR_STEPS = 3
+# At most this many (bin, output) pairs of the low band get the exact covariance.
+_BAND_SIZE = 128
+# ... and only where the window reaches no further than this many bins from w = 0.
+_BAND_ROWS = 4096
+
+
+def _band_bins(half: int) -> int:
+    """The low band's bins for a window `half` bins wide: those whose periodogram
+    enters the estimate within the window of w = 0."""
+    return 2 * half + 2
 
 
 def _lag_scale(u: list[FloatArray]) -> float:
@@ -91,9 +102,18 @@ def _bins(
     return gf, filt, twice
 
 
+class _ArModel(NamedTuple):
+    """The AR(1) noise model a residual periodogram's expectation was taken under."""
+
+    keeps: list[FloatArray]  # per record, E[I_u] over the model spectrum (bins, n_y)
+    level: FloatArray  # each output's innovation variance
+    cov: FloatArray  # the estimate's covariance under it, M^-1 (sum G'SG) M^-1
+    sgf: list[NDArray[np.complex128]]  # per record, the transform of S G (bins, n_y, p)
+
+
 def _model_keeps(
     sensitivities: list[FloatArray], residuals: list[FloatArray], m_inv: FloatArray, a: FloatArray
-) -> list[FloatArray]:
+) -> _ArModel:
     """Per record, bin and output, the residual periodogram's expectation over the noise
     spectrum were the noise the AR(1) model `a` (``1 - L`` for white noise).
 
@@ -102,16 +122,19 @@ def _model_keeps(
     of the model spectrum, less twice ``Re G~ M^-1 (SG)~^H / n``, plus
     ``G~ M^-1 G'SG M^-1 G~^H / n``, exact through Toeplitz products by FFT.
     """
+    level = _innovations(residuals, a)
+    p = m_inv.shape[0]
+    b_model = np.zeros((p, p))
     if not np.any(a != 0.0):
         out = []
+        sgfs = []
         for g, u in zip(sensitivities, residuals, strict=True):
             gf, _, _ = _bins(g, a, 2 * u.shape[0])
             lev = np.einsum("kaq,kaq->ka", gf @ m_inv, gf.conj()).real / u.shape[0]
             out.append(np.clip(1.0 - lev, 0.0, 1.0))
-        return out
-    level = _innovations(residuals, a)
-    p = m_inv.shape[0]
-    b_model = np.zeros((p, p))
+            b_model += np.einsum("tap,taq,a->pq", g, g, level)
+            sgfs.append(gf * level[None, :, None])
+        return _ArModel(out, level, m_inv @ b_model @ m_inv, sgfs)
     parts = []
     for g, u in zip(sensitivities, residuals, strict=True):
         n = u.shape[0]
@@ -135,6 +158,135 @@ def _model_keeps(
         cross = np.einsum("kaq,kaq->ka", gf @ m_inv, sgf.conj()).real / n
         back = np.einsum("kaq,kaq->ka", gf @ model_cov, gf.conj()).real / n
         out.append(np.clip((fejer - 2.0 * cross + back) / shape, 0.0, None))
+    return _ArModel(out, level, model_cov, [part[1] for part in parts])
+
+
+def _ar1_exponentials(w: FloatArray, n: int, a: float, var: float) -> NDArray[np.complex128]:
+    """``S d_m^*`` (bins, n) for the AR(1) covariance ``S_ts = var a^|t-s|`` and the
+    Fourier vectors ``d_m = e^{-i w_m t}``, in closed form: the geometric sums of
+    the causal and anti-causal parts (the diagonal in the first)."""
+    t = np.arange(n)
+    r = (a * np.exp(-1j * w))[:, None]  # |a| < 1: neither ratio is one
+    q = (a * np.exp(1j * w))[:, None]
+    wave = np.exp(1j * np.outer(w, t))  # d_m^*
+    # e^{iwt} sum_{k<=t} r^k and e^{iwt} sum_{0<k<n-t} q^k, their powers split into a
+    # real power of a and a phase
+    fwd = (wave - a ** (t + 1.0)[None, :] * np.exp(-1j * w)[:, None]) / (1.0 - r)
+    tail = a ** (n - 1.0 - t)[None, :] * np.exp(1j * w * (n - 1))[:, None]
+    bwd = q * (wave - tail) / (1.0 - q)
+    return np.asarray(var * (fwd + bwd), dtype=np.complex128)
+
+
+def _band_moments(
+    gf: NDArray[np.complex128],
+    sgf: NDArray[np.complex128],
+    n: int,
+    a: FloatArray,
+    level: FloatArray,
+    m_inv: FloatArray,
+    model_cov: FloatArray,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """``E[w w^H]`` and ``E[w w^T]``, each (bins, n_y, bins, n_y), of the whitened
+    padded transform ``w_la = (1 - a_a e^{-i w_l}) u~_la`` of one record's residuals
+    over the first bins (those of `gf` and `sgf`, the transforms of ``G`` and
+    ``SG``), were the noise the AR(1) model (innovation variances `level`) and
+    ``u = (I - H) e`` the fit's residuals.
+
+    With ``d_l`` the Fourier vector, ``E[u~_la u~_mb^*] = d_l'(S - HS - SH + HSH)_ab
+    d_m^*``; the ``S`` part in closed form, the others through ``G~`` and
+    ``(SG)~``. ``E[u~ u~^T]`` is the same with ``d_m`` unconjugated: it vanishes
+    only for a circular series, which the low bins of a real record are not.
+    """
+    size = 2 * n
+    bins, n_y = gf.shape[:2]
+    w = 2.0 * np.pi * np.arange(bins) / size
+    s_gam = np.zeros((bins, n_y, bins), dtype=np.complex128)  # d_l' S_a d_m^*
+    s_rel = np.zeros((bins, n_y, bins), dtype=np.complex128)  # d_l' S_a d_m
+    for k in range(n_y):
+        var = float(level[k] / (1.0 - a[k] ** 2))
+        sd = _ar1_exponentials(w, n, float(a[k]), var)  # (bins m, n)
+        s_gam[:, k] = np.fft.fft(sd, size, axis=-1)[:, :bins].T
+        s_rel[:, k] = np.fft.fft(sd.conj(), size, axis=-1)[:, :bins].T
+    eye = np.eye(n_y)
+    gm_inv = (gf @ m_inv).reshape(bins * n_y, -1)
+    sgm_inv = (sgf @ m_inv).reshape(bins * n_y, -1)
+    gm_cov = (gf @ model_cov).reshape(bins * n_y, -1)
+    moments = []
+    for s_part, gm, sgm in ((s_gam, gf.conj(), sgf.conj()), (s_rel, gf, sgf)):
+        gm2 = gm.reshape(bins * n_y, -1).T
+        mom = np.einsum("lam,ab->lamb", s_part, eye).reshape(bins * n_y, -1)
+        mom = mom - gm_inv @ sgm.reshape(bins * n_y, -1).T - sgm_inv @ gm2 + gm_cov @ gm2
+        moments.append(mom.reshape(bins, n_y, bins, n_y))
+    filt = 1.0 - a[None, :] * np.exp(-1j * w)[:, None]
+    gam = filt[:, :, None, None] * moments[0] * filt.conj()[None, None, :, :]
+    rel = filt[:, :, None, None] * moments[1] * filt[None, None, :, :]
+    return np.asarray(gam), np.asarray(rel)
+
+
+def _window_columns(n_bins: int, half: int, rows: int, bins: int) -> FloatArray:
+    """``K[:rows, :bins]`` of the smoothing `_smooth` applies with half-width `half`
+    over `n_bins` bins: ``K*x`` at bin k is ``sum_l K_kl x_l``."""
+    if half >= n_bins - 1:
+        return np.full((rows, bins), 1.0 / n_bins)
+    total = np.sum(1.0 - (np.arange(-half, half + 1) / (half + 1.0)) ** 2)
+    k = np.arange(rows)[:, None]
+    col = np.arange(bins)[None, :]
+
+    def _w(off: NDArray[np.int_]) -> FloatArray:
+        return np.where(np.abs(off) <= half, 1.0 - (off / (half + 1.0)) ** 2, 0.0) / total
+
+    # bin l reached directly, through its reflection about bin 0 (l > 0), and about
+    # the last bin, as `mirror_smooth` pads
+    top = 2 * (n_bins - 1) - col
+    out = _w(col - k) + np.where(col > 0, _w(-col - k), 0.0)
+    return np.asarray(out + np.where(top != col, _w(top - k), 0.0), dtype=np.float64)
+
+
+def _band_variance(
+    z: NDArray[np.complex128],
+    weights: FloatArray,
+    gam: NDArray[np.complex128],
+    rel: NDArray[np.complex128],
+    level: NDArray[np.complex128],
+    root_keep: FloatArray,
+    n: int,
+) -> FloatArray:
+    """Per parameter, the variance of the low band's share of ``B^_jj``.
+
+    With ``Y_k = z_k^* z_k^T`` (`z` (rows, n_y, p): the carried sensitivities over
+    the filter and the window's normaliser, times the bin weight's square root)
+    and `weights` ``K[:rows, :bins]``, ``B^_jj = sum_k sum_l K_kl Y_k . I_l``, so
+    the band's share is ``Q = sum_l w_l^H A_l w_l`` with ``A_l = conj(R_l) / n``
+    and ``R_l = sum_k K_kl Y_k``. For Gaussian ``w`` (Isserlis) ``Var Q = tr(A Gam
+    A Gam) + tr(Rel^* A Rel A^T)`` and ``E Q = tr(A Gam)`` under the model; the
+    variance is scaled by ``(Q^ / E Q)^2`` to the data's level: ``Q^`` is the
+    band's share of ``B^_jj`` as the estimate itself puts it, each bin k's
+    smoothed whitened spectrum over its normaliser (`level`, (rows, n_y, n_y))
+    times bin l's share ``sqrt(k_la k_lb)`` (`root_keep`, (bins, n_y)), so that
+    a band spanning every bin has ``Q^ = B^_jj`` and ``nu >= 1``.
+    """
+    bins, n_y = gam.shape[:2]
+    size = bins * n_y
+    flat_gam = gam.reshape(bins, n_y, size)
+    rel_conj = np.moveaxis(rel.conj().reshape(size, bins, n_y), 1, 0)  # (m, la, c)
+    rel_l = np.moveaxis(rel.reshape(size, bins, n_y), 1, 0)  # (l, mb, d)
+    out = np.zeros(z.shape[-1])
+    for j in range(z.shape[-1]):
+        zj = z[:, :, j]
+        yj = (zj.conj()[:, :, None] * zj[:, None, :]).reshape(zj.shape[0], -1)
+        r = (weights.T @ yj).reshape(bins, n_y, n_y)
+        seen = (weights.T @ (yj * level.reshape(yj.shape))).reshape(bins, n_y, n_y)
+        expected = float(np.sum(seen * root_keep[:, :, None] * root_keep[:, None, :]).real)
+        aj = r.conj() / n
+        # with A block-diagonal, as (bins n_y, bins n_y) matrices
+        ag = np.matmul(aj, flat_gam).reshape(size, size)  # A Gam
+        mean = float(np.trace(ag).real)
+        if mean <= 0:
+            continue
+        ca = np.moveaxis(np.matmul(rel_conj, aj), 0, 1).reshape(size, size)  # Rel^* A
+        cat = np.moveaxis(np.matmul(rel_l, aj.transpose(0, 2, 1)), 0, 1)  # Rel A^T
+        var = np.sum(ag * ag.T).real + np.sum(ca * cat.reshape(size, size).T).real
+        out[j] = var * (expected / mean) ** 2
     return out
 
 
@@ -287,13 +439,25 @@ def colored_covariance(
     linear sums.
 
     The spectrum is estimated from a finite band, so ``B^_jj`` is itself
-    random: each periodogram bin is ``F chi2_2 / 2``, and ``B^_jj`` a weighted
-    sum of them, whose Satterthwaite degrees of freedom ``nu_j = 2 B_jj^2 /
-    Var(B^_jj)`` follow from the weights (padded bins counted at half, as two
-    share one bin's information), here the whitened periodogram's bins smoothed
-    by the window and recoloured. Narrow windows (strong colour) give few
-    degrees of freedom and a wide t interval; white residuals give the
-    classical N - p.
+    random: a weighted sum of the whitened periodogram's bins, smoothed by the
+    window and recoloured, ``B^_jj = sum_l R_l . I_l`` with ``R_l`` the window's
+    weights mapped back to bin l. Its Satterthwaite degrees of freedom are ``nu_j
+    = 2 B_jj^2 / Var(B^_jj)``. Away from w = 0 each bin is taken as ``F chi2_2 /
+    2`` and independent of the others, padded bins counted at half (two share one
+    bin's information). In the low band -- the bins whose periodogram enters the
+    estimate within the window of w = 0 (`_band_bins`, at most `_BAND_SIZE` bin
+    and output pairs), where constants and slow sensitivities have their weight
+    -- that is wrong: the 2n padding correlates neighbouring bins, and the fit's
+    projection and the prewhitening leave them far from independent chi2_2 / 2
+    (bin 0 of a fitted constant holds almost nothing), so independent bins
+    overstate a bias's nu and understate its t quantile. There the variance is
+    the exact one of a Gaussian quadratic form, ``Var Q = tr(A Gam A Gam) +
+    tr(Rel^* A Rel A^T)`` (Isserlis), with ``Gam = E[w w^H]`` and ``Rel = E[w
+    w^T]`` of the whitened transform under the fitted AR(1) model and the
+    projection (`_band_moments`, exact as `_model_keeps` is), scaled from the
+    model's level to the data's. Narrow windows (strong colour) give few
+    degrees of freedom and a wide t interval; white residuals with a whole-band
+    window give the classical N - p. Standard errors do not depend on it.
     """
     p = m_inv.shape[0]
     cov = np.zeros((p, p))
@@ -303,15 +467,15 @@ def colored_covariance(
     scale = _lag_scale(residuals)
     if known is not None and len(known) != len(residuals):
         raise ValueError("known: one expected periodogram per record")
-    keeps = _model_keeps(sensitivities, residuals, m_inv, a)
+    model = _model_keeps(sensitivities, residuals, m_inv, a)
     if np.any(a != 0.0):
         # the fit took the noise's slowest part, so the residuals' lag-one correlation
         # under-reads the noise's: move a until the model's residuals have the one seen
         seen = _lag_one(residuals)
         cap = _cap(residuals)
         for _ in range(_AR_STEPS):
-            a = np.clip(a + seen - _expected_lag_one(keeps, residuals, a), -cap, cap)
-            keeps = _model_keeps(sensitivities, residuals, m_inv, a)
+            a = np.clip(a + seen - _expected_lag_one(model.keeps, residuals, a), -cap, cap)
+            model = _model_keeps(sensitivities, residuals, m_inv, a)
     for i, (g, u) in enumerate(zip(sensitivities, residuals, strict=True)):
         n = u.shape[0]
         size = 2 * n
@@ -319,7 +483,7 @@ def colored_covariance(
         gf, filt, twice = _bins(g, a, size)  # (n_bins, n_y, p), the filter, bin weights
         uf = np.fft.rfft(u, size, axis=0)  # (n_bins, n_y)
         vf = np.matmul(gf, m_inv)  # sensitivities carried through M^-1
-        keep = keeps[i]
+        keep = model.keeps[i]
         wf = uf * filt
         pgram = np.einsum("ka,kb->kab", wf, wf.conj()) / n
         # half-width in bins of 2 pi / size: 6 pi / (5 S) rad/sample
@@ -333,7 +497,8 @@ def colored_covariance(
         norm = np.sqrt(np.maximum(kept, 1e-300))
         # recolour: the whitened estimate through the inverse filter on both sides
         denom = (norm * filt)[:, :, None] * (norm * filt).conj()[:, None, :]
-        total = np.asarray(_smooth(pgram, half), dtype=np.complex128) / denom
+        smoothed = np.asarray(_smooth(pgram, half), dtype=np.complex128)
+        total = smoothed / denom
         spec = total
         if known is not None:
             # unbiased bin by bin; negative where noise outweighs the remainder, so
@@ -348,7 +513,23 @@ def colored_covariance(
         # residual spectrum, a known part included), mapped back to those bins
         diag = np.einsum("kap,kab,kbp->kp", vf.conj(), total, vf).real * twice[:, None]
         spread = np.asarray(_smooth(diag, half), dtype=np.float64)
-        var_terms += (size / n) * np.sum(spread**2, axis=0)
+        bins = min(n_bins, _band_bins(half), max(_BAND_SIZE // max(n_y, 1), 2))
+        rows = n_bins if bins + 2 * half + 1 >= n_bins else bins + half
+        if rows > _BAND_ROWS:  # a window this wide spreads the band's share thin
+            bins = 0
+        var_terms += (size / n) * np.sum(spread[bins:] ** 2, axis=0)
+        if bins:
+            # the low band exactly: there the padded bins overlap and the fit's
+            # projection couples them, so they are neither independent nor chi2_2 / 2
+            z = (vf / (norm * filt).conj()[:, :, None])[:rows]
+            z = z * np.sqrt(twice[:rows])[:, None, None]
+            level = smoothed[:rows] / (norm[:rows, :, None] * norm[:rows, None, :])
+            gam, rel = _band_moments(
+                gf[:bins], model.sgf[i][:bins], n, a, model.level, m_inv, model.cov
+            )
+            weights = _window_columns(n_bins, half, rows, bins)
+            root_keep = np.sqrt(keep[:bins])
+            var_terms += _band_variance(z, weights, gam, rel, level, root_keep, n)
     cov = 0.5 * (cov + cov.T)
     var = np.abs(np.diag(cov))
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -55,7 +55,7 @@ def test_model_leverage_is_the_exact_expected_periodogram(phis: tuple[float, ...
     a = np.array(phis)
     resid = rng.standard_normal((n, n_y))
     level = _colour._innovations([resid], a)
-    keep = _colour._model_keeps([g], [resid], m_inv, a)[0]
+    keep = _colour._model_keeps([g], [resid], m_inv, a).keeps[0]
     covs = [_ar1_cov(n, phi, lv) for phi, lv in zip(phis, level, strict=True)]
     want = _dense_expectation(g, m_inv, covs)
     w = 2.0 * np.pi * np.arange(n + 1) / (2 * n)
@@ -68,7 +68,9 @@ def test_white_model_leverage_is_one_less_the_leverage() -> None:
     n = 120
     x = _design(rng, n)
     m_inv = np.linalg.inv(x.T @ x)
-    keep = _colour._model_keeps([x[:, None, :]], [rng.standard_normal((n, 1))], m_inv, np.zeros(1))
+    keep = _colour._model_keeps(
+        [x[:, None, :]], [rng.standard_normal((n, 1))], m_inv, np.zeros(1)
+    ).keeps
     want = _dense_expectation(x[:, None, :], m_inv, [np.eye(n)])
     np.testing.assert_allclose(keep[0], want, rtol=1e-9, atol=1e-12)
 

@@ -173,6 +173,25 @@ def time_correction(n: int, n_y: int, n_par: int, *, as_in_identify: bool = Fals
     )
 
 
+def time_kernel(n: int, n_y: int, n_par: int, phi: float) -> None:
+    """Time `colored_covariance` (the kernel estimator of equation error, stepwise
+    regression and data compatibility) alone, on AR(1) residuals of coefficient `phi`."""
+    from aeroid._colour import colored_covariance
+
+    rng = np.random.default_rng(0)
+    g = rng.standard_normal((n, n_y, n_par))
+    v = lfilter([1.0], [1.0, -phi], rng.standard_normal((n, n_y)), axis=0)
+    m_inv = np.linalg.inv(np.einsum("tkp,tkq->pq", g, g))
+    t0 = time.perf_counter()
+    colored_covariance([g], [v], m_inv)
+    first = time.perf_counter() - t0
+    warm = median_time(lambda: colored_covariance([g], [v], m_inv), repeats=5)
+    print(
+        f"colored_covariance, N = {n}, {n_y} outputs, {n_par} parameters, phi = {phi}: "
+        f"first {first:.3f} s, warm {warm:.3f} s (median of 5)"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seeds", type=int, default=100)
@@ -188,6 +207,9 @@ def main() -> None:
     for n in (5_000, 20_000):
         time_correction(n, 7, 20)
         time_correction(n, 7, 20, as_in_identify=True)
+    for n, n_y, n_par in ((2_000, 2, 16), (20_000, 4, 18)):
+        for phi in (0.0, 0.99):
+            time_kernel(n, n_y, n_par, phi)
     if args.large:
         time_correction(100_000, 10, 30)
 

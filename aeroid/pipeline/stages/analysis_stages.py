@@ -365,15 +365,17 @@ for _stage in (
         "compatibility",
         # 2: standard errors without the t widening, their degrees of freedom carried;
         # 3: integrated input noise counted once in the error bars
-        "3",
+        # 4: coloured-residual degrees of freedom with the low band's exact covariance
+        "4",
         CompatibilityOptions,
         "CompatibilityResult",
         _run_compatibility,
         uses_model=False,
         seeded=True,
     ),
-    # regress 2: standard errors without the t widening, their degrees of freedom carried
-    Stage("regress", "2", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
+    # regress 2: standard errors without the t widening, their degrees of freedom carried;
+    # 3: coloured-residual degrees of freedom with the low band's exact covariance
+    Stage("regress", "3", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
     Stage(
         "composite_response",  # once "frequency_id"
         "1",

@@ -496,7 +496,8 @@ for _stage in (
         # 7: the filter error's derivatives by forward differences
         # 8: the filter error holds a process noise the likelihood no longer feels out
         #    of its steps (a fit whose noise vanishes takes fewer, other steps)
-        "8",
+        # 9: coloured-residual degrees of freedom with the low band's exact covariance
+        "9",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
