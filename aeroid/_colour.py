@@ -228,12 +228,12 @@ def _window_columns(n_bins: int, half: int, rows: int, bins: int) -> FloatArray:
     over `n_bins` bins: ``K*x`` at bin k is ``sum_l K_kl x_l``."""
     if half >= n_bins - 1:
         return np.full((rows, bins), 1.0 / n_bins)
-    total = np.sum(1.0 - (np.arange(-half, half + 1) / (half + 1.0)) ** 2)
+    window = _window(half)
     k = np.arange(rows)[:, None]
     col = np.arange(bins)[None, :]
 
     def _w(off: NDArray[np.int_]) -> FloatArray:
-        return np.where(np.abs(off) <= half, 1.0 - (off / (half + 1.0)) ** 2, 0.0) / total
+        return np.where(np.abs(off) <= half, window[np.clip(off + half, 0, 2 * half)], 0.0)
 
     # bin l reached directly, through its reflection about bin 0 (l > 0), and about
     # the last bin, as `mirror_smooth` pads
@@ -331,10 +331,14 @@ def _smooth(x: NDArray[np.generic], half: int) -> NDArray[np.generic]:
     n_bins = x.shape[0]
     if half >= n_bins - 1:
         return np.broadcast_to(x.mean(axis=0), x.shape).copy()
+    return mirror_smooth(x, _window(half))
+
+
+def _window(half: int) -> FloatArray:
+    """The Epanechnikov window's weights at offsets ``-half .. half`` bins, summing to one."""
     d = np.arange(-half, half + 1)
     w = 1.0 - (d / (half + 1.0)) ** 2
-    w /= w.sum()
-    return mirror_smooth(x, w)
+    return np.asarray(w / w.sum(), dtype=np.float64)
 
 
 def colored_covariance(

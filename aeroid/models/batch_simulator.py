@@ -200,7 +200,7 @@ class BatchSimulator:
         if _integrate.linear_path(model, self.time, X0, U, p, self.method) is not None:
             self._plain = True  # the exact solution, which the plain call takes from now on
             return None
-        from .compiled import _pmatrix, rk4_outputs
+        from .compiled import _pmatrix, padded_rows, rk4_outputs
 
         try:
             got = rk4_outputs(
@@ -215,13 +215,12 @@ class BatchSimulator:
         # the integrator's exact path is ruled out for good (or not taken): the next
         # batches of these names fill in their columns of the same rows
         if not (self.method in ("auto", "exact") and model._maybe_lti):
-            padded = 1 << (max(batch, self._widest) - 1).bit_length()
-            rows = np.minimum(np.arange(padded), batch - 1)
+            rows = padded_rows(batch, self._widest)
             names = model.parameter_names
             columns = tuple(names.index(k) for k in parameters)
             P = _pmatrix(model, p, batch)[rows]
             X = np.ascontiguousarray(X0[rows])
-            self._lanes[key] = _Lane(batch, padded, columns, X, P, key[1])
+            self._lanes[key] = _Lane(batch, rows.size, columns, X, P, key[1])
         y, ok = got
         y[~ok] = np.nan
         return y
@@ -251,7 +250,9 @@ class _Lane:
         """The outputs of this batch, or None when it is not one of this lane's (another
         size, values that are not a float64 vector each, a wider batch seen since)."""
         batch = self.batch
-        if 1 << (max(batch, sim._widest) - 1).bit_length() != self.padded:
+        from .compiled import padded_rows
+
+        if padded_rows(batch, sim._widest).size != self.padded:
             return None
         P = self.P.copy()
         for column, value in zip(self.columns, parameters.values(), strict=True):

@@ -226,8 +226,7 @@ def rk4_states(
     fn = _compiled(model, "states", shared)
     # Batches padded to a power of two (copies of the last member): every batch size
     # would otherwise cost a compilation of its own.
-    padded = 1 << (batch - 1).bit_length()
-    rows = np.minimum(np.arange(padded), batch - 1)
+    rows = padded_rows(batch)
     uu = np.ascontiguousarray(u[0] if shared else u[rows])
     X = np.ascontiguousarray(x0.T[rows])
     with warnings.catch_warnings():
@@ -283,6 +282,14 @@ def _ruled_outputs(model: Model, index: tuple[int, ...], args: tuple[Any, ...]) 
     return y, ok
 
 
+def padded_rows(batch: int, pad: int = 0) -> NDArray[np.int_]:
+    """The rows a compiled batch of `batch` members runs: the members, then the last one
+    repeated up to the next power of two of ``max(batch, pad)`` (few batch sizes, few
+    compilations)."""
+    padded = 1 << (max(batch, pad) - 1).bit_length()
+    return np.minimum(np.arange(padded), batch - 1)
+
+
 def rk4_outputs(
     model: Model,
     time: FloatArray,
@@ -309,8 +316,7 @@ def rk4_outputs(
     P = _pmatrix(model, p, batch)
     if not available(model, time, x0[:, 0], u, P[0]):
         return None
-    padded = 1 << (max(batch, pad) - 1).bit_length()  # few batch sizes, few compilations
-    rows = np.minimum(np.arange(padded), batch - 1)
+    rows = padded_rows(batch, pad)
     X = np.ascontiguousarray(x0.T[rows])
     return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch)
 
