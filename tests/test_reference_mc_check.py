@@ -51,6 +51,38 @@ def test_expected_mc_matches_the_exact_mc_of_one_design() -> None:
     assert np.all(np.abs(mean - expected) < 4.0 * se), (mean, expected, se)
 
 
+def test_leverage_ratio_is_both_judges_exact_expectation_under_white_noise() -> None:
+    # the Monte Carlo's against check_mc's closed form (a dense DFT), SIDPAC's colores
+    # against the sandwich over the expected biased autocorrelation of (I - H) e,
+    # summed sample by sample
+    n = 240
+    case = C.EquationError(n, 0.0, 0)
+    x = case.design
+    inv = np.linalg.inv(x.T @ x)
+    mc = C.S.leverage_ratio([x[:, None, :]], inv)
+    np.testing.assert_allclose(mc, C.expected_mc_sd(x, 0.0) / C.exact_sd(x, 0.0), rtol=1e-10)
+    keep = np.eye(n) - x @ inv @ x.T
+    acf = np.array([np.trace(keep, offset=k) / n for k in range(n)])
+    lags = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    v = x @ inv
+    dense = np.sqrt(np.diag(v.T @ acf[lags] @ v) / np.diag(v.T @ v))
+    colores = C.S.leverage_ratio([x[:, None, :]], inv, padded=True)
+    np.testing.assert_allclose(colores, dense, rtol=1e-10)
+    # colores sums the residuals' autocorrelation, nothing at w = 0: a constant reads
+    # about 0.6 of the truth even under white noise; the Monte Carlo's bin-0 fill
+    # keeps it near the slopes'
+    assert colores[-1] < 0.75 and mc[-1] > 0.85, (colores, mc)
+    # two outputs with parameters of their own: each output's figures alone
+    g = np.zeros((n, 2, 8))
+    g[:, 0, :4] = x
+    g[:, 1, 4:] = x[::-1]
+    inv2 = np.linalg.inv(np.einsum("tap,taq->pq", g, g))
+    both = C.S.leverage_ratio([g], inv2, padded=True)
+    rev = np.linalg.inv(x[::-1].T @ x[::-1])
+    alone = C.S.leverage_ratio([x[::-1, None, :]], rev, padded=True)
+    np.testing.assert_allclose(both, np.concatenate([colores, alone]), rtol=1e-10)
+
+
 def test_the_monte_carlo_reads_a_constant_low_and_our_bars_do_not() -> None:
     # equation error with a constant, AR(1) phi = 0.99 on 1000 samples (correlation
     # time 199 samples): over 200 seeds our default variance averages the exact one
@@ -70,6 +102,9 @@ def test_the_monte_carlo_reads_a_constant_low_and_our_bars_do_not() -> None:
     assert closed[-1] < 0.75 and np.all((closed[:-1] > 0.85) & (closed[:-1] < 0.95)), closed
     # so one record's ours / mc lands within 0.8-1.25 in well under half the seeds
     assert const["ours_mc_inside"] < 0.5, const["ours_mc_inside"]
+    # SIDPAC's colores on the same records: a constant about half of the truth
+    assert case.expected_sidpac is not None
+    assert case.expected_sidpac[-1] / case.exact[-1] < 0.6
 
 
 @pytest.mark.slow

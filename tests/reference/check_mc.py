@@ -77,28 +77,38 @@ def exact_sd(x: np.ndarray, phi: float) -> np.ndarray:
 
 
 def expected_mc_sd(
-    g: np.ndarray, phi: float, *, low_bins: int = 3, residuals: bool = True
+    g: np.ndarray,
+    phi: float,
+    *,
+    low_bins: int = 3,
+    residuals: bool = True,
+    padded: bool = False,
 ) -> np.ndarray:
     """The surrogate Monte Carlo's standard errors in expectation over noise records
     (infinite refits, first order), for least squares on `g` (n, p) under unit-variance
     AR(1) noise: `_sidpac.linear_mc` with each residual periodogram bin replaced by
     its expectation ``E|U_k|^2 = d_k'(I - H) S (I - H) d_k``; with `residuals`
     False, surrogates of the noise itself (``H = 0``), which leaves only the
-    zero-frequency bin's extrapolation from the `low_bins` lowest."""
+    zero-frequency bin's extrapolation from the `low_bins` lowest. With `padded`,
+    SIDPAC's colores instead: the sandwich over the residuals' biased
+    autocorrelation at every lag, the same sum over the 2n-point grid with every
+    bin as it is."""
     n = g.shape[0]
+    size = 2 * n if padded else n
     cov = toeplitz(phi ** np.arange(n)) if phi else np.eye(n)
     m_inv = np.linalg.inv(g.T @ g)
-    dft = np.fft.rfft(np.eye(n), axis=0)  # (bins, n): row k is d_k'
+    dft = np.fft.rfft(np.eye(n), size, axis=0)  # (bins, n): row k is d_k'
     if residuals:
         dft = dft - (dft @ g) @ m_inv @ g.T  # d_k'(I - H)
     power = np.sum((dft @ cov) * dft.conj(), axis=1).real
-    vf = np.fft.rfft(g, axis=0) @ m_inv  # (bins, p)
-    terms = 2.0 * np.abs(vf) ** 2 * power[:, None] / n**2
-    terms[0] = 0.0
-    if n % 2 == 0:
-        terms[-1] = 0.0
-    k = min(low_bins, power.size - 2 + n % 2)
-    terms[0] = vf[0].real ** 2 * power[1 : k + 1].mean() / n**2
+    vf = np.fft.rfft(g, size, axis=0) @ m_inv  # (bins, p)
+    terms = 2.0 * np.abs(vf) ** 2 * power[:, None] / (size * n)
+    terms[0] /= 2.0
+    if size % 2 == 0:
+        terms[-1] = 0.0 if not padded else terms[-1] / 2.0
+    if not padded:
+        k = min(low_bins, power.size - 2 + n % 2)
+        terms[0] = vf[0].real ** 2 * power[1 : k + 1].mean() / n**2
     return np.sqrt(terms.sum(axis=0))
 
 
@@ -110,6 +120,7 @@ class Case:
     exact: np.ndarray | None = None
     expected_mc: np.ndarray | None = None
     expected_noise_mc: np.ndarray | None = None
+    expected_sidpac: np.ndarray | None = None
 
     def fit(self, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         raise NotImplementedError
@@ -131,6 +142,7 @@ class EquationError(Case):
         self.exact = exact_sd(design, phi)
         self.expected_mc = expected_mc_sd(design, phi)
         self.expected_noise_mc = expected_mc_sd(design, phi, residuals=False)
+        self.expected_sidpac = expected_mc_sd(design, phi, padded=True)
 
     def fit(self, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         import aeroid
@@ -220,6 +232,7 @@ class OutputError(Case):
         self.m_inv = np.linalg.inv(self.sens.T @ self.sens)
         self.expected_mc = NOISE * expected_mc_sd(self.sens, self.phi)
         self.expected_noise_mc = NOISE * expected_mc_sd(self.sens, self.phi, residuals=False)
+        self.expected_sidpac = NOISE * expected_mc_sd(self.sens, self.phi, padded=True)
         return NOISE * exact_sd(self.sens, self.phi)
 
     def fit(self, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
@@ -285,6 +298,9 @@ def study(case: Case, seeds: int) -> list[dict[str, Any]]:
         if case.expected_noise_mc is not None:
             row["expected_noise_mc"] = float(case.expected_noise_mc[j] / true[j])
             line += f"(of the noise {row['expected_noise_mc']:5.3f})  "
+        if case.expected_sidpac is not None:
+            row["expected_sidpac"] = float(case.expected_sidpac[j] / true[j])
+            line += f"E[colores]/true {row['expected_sidpac']:5.3f}  "
         line += _ratios("ours", np.array(ours)[:, j], true[j])
         line += "  " + _ratios("mc-lin", np.array(lins)[:, j], true[j])
         judge = np.array(mcs)[:, j] if mcs else np.array(lins)[:, j]
@@ -306,36 +322,40 @@ CASES: dict[str, Callable[[int, float, int], Case]] = {
 }
 
 
-def structural(n: int = 1000) -> dict[str, dict[float, dict[str, float]]]:
-    """Per case and phi, each parameter's ``E[mc] / true`` in closed form (no seeds):
-    how low the suite's Monte Carlo reads by construction on that known truth."""
-    out: dict[str, dict[float, dict[str, float]]] = {}
+def structural(n: int = 1000) -> dict[str, dict[str, dict[float, dict[str, float]]]]:
+    """Per judge (``mc``: the suite's Monte Carlo, ``colores``: SIDPAC's corrected
+    bars), case and phi, each parameter's ``E[judge] / true`` in closed form (no
+    seeds): how low that residual-based figure reads by construction."""
+    out: dict[str, dict[str, dict[float, dict[str, float]]]] = {"mc": {}, "colores": {}}
     for key, make in CASES.items():
         for phi in PHIS:
             case = make(n, phi, 0)
-            assert case.expected_mc is not None and case.exact is not None
-            ratio = case.expected_mc / case.exact
-            out.setdefault(key, {})[phi] = dict(zip(case.names, map(float, ratio), strict=True))
+            assert case.exact is not None
+            for judge, got in (("mc", case.expected_mc), ("colores", case.expected_sidpac)):
+                assert got is not None
+                ratio = dict(zip(case.names, map(float, got / case.exact), strict=True))
+                out[judge].setdefault(key, {})[phi] = ratio
     return out
 
 
+def _span(vals: list[float]) -> str:
+    lo, hi = min(vals), max(vals)
+    return f"{lo:.2f}" if round(lo, 2) == round(hi, 2) else f"{lo:.2f}-{hi:.2f}"
+
+
 def structural_lines(n: int = 1000) -> list[str]:
-    """`structural` as one line per case: constants and biases, then the rest."""
-    table = structural(n)
+    """`structural` as one line per judge and case: constants and biases, then the rest."""
     lines = []
-    for key, by_phi in table.items():
-        first = next(iter(by_phi.values()))
-        cb = [k for k in first if k in ("const", "bias")]
-        rest = [k for k in first if k not in cb]
-        parts = []
-        for label, names in ((f"{'/'.join(cb)}", cb), ("others", rest)):
-            vals = [
-                f"{min(by_phi[phi][k] for k in names):.2f}"
-                + (f"-{max(by_phi[phi][k] for k in names):.2f}" if len(names) > 1 else "")
-                for phi in PHIS
-            ]
-            parts.append(f"{label} {' / '.join(vals)}")
-        lines.append(f"  {CASE_LABELS[key]:<26} " + ";  ".join(parts))
+    for judge, table in structural(n).items():
+        for key, by_phi in table.items():
+            first = next(iter(by_phi.values()))
+            cb = [k for k in first if k in ("const", "bias")]
+            rest = [k for k in first if k not in cb]
+            parts = []
+            for label, names in (("/".join(cb), cb), ("others", rest)):
+                vals = [_span([by_phi[phi][k] for k in names]) for phi in PHIS]
+                parts.append(f"{label} {' / '.join(vals)}")
+            lines.append(f"  {judge:<8}{CASE_LABELS[key]:<26} " + ";  ".join(parts))
     return lines
 
 
