@@ -6,25 +6,33 @@ of the residuals, refitted (`_sidpac.monte_carlo`). This script asks, on
 simulated records with a known truth, how that Monte Carlo and our default
 bars each compare with the true sampling spread of the estimates:
 
-(i)   ``true``: the standard deviation of the estimates over fresh noise
-      draws (the same inputs, a new noise record per seed); for the linear
-      fits also the exact ``M^-1 G'SG M^-1`` with the AR(1) covariance ``S``;
+(i)   ``true``: the exact first-order ``M^-1 G'SG M^-1`` with the AR(1)
+      covariance ``S`` (exact for least squares; for output error ``G`` by
+      central differences at the truth), beside the spread of the estimates
+      over the seeds' fresh noise draws (the same inputs) that checks it;
 (ii)  ``mc``: the suite's Monte Carlo on one record's own residuals, seed by
       seed: its infinite-refit value (`_sidpac.linear_mc`, exact for a
-      linear fit) and, for equation error, `--mc` actual refits;
-(iii) ``ours``: the default standard errors the public API returns.
+      linear fit) and, for equation error, `--mc` actual refits; and its
+      expectation over noise records in closed form (`expected_mc_sd`),
+      also with surrogates of the noise itself (no fit: what bin 0's
+      extrapolation alone costs);
+(iii) ``ours``: the default standard errors the public API returns;
+(iv)  ``colores``: SIDPAC's corrected bars (the sandwich over the residuals'
+      autocorrelation at every lag), their expectation in closed form.
 
 Cases: equation error with a constant (``aeroid.equation_error``), output
-error with an output bias (``identify(..., estimate_bias=["y"])`` on a
-first-order lag), and a compatibility-like integrator with a bias on its
-state equation (``estimate_bias={"x": "state"}``, the bias's sensitivity a
+error with an output bias (``identify(..., estimate_bias={"y": "output"})``
+on a first-order lag), and a compatibility-like integrator with a bias on its
+state equation (``estimate_bias={"y": "state"}``, the bias's sensitivity a
 ramp, as the rate biases of data compatibility), each under white noise and
-AR(1) noise of phi 0.9 and 0.99. For every parameter it prints the median
-over seeds of ``mc / true`` and ``ours / true``, the root-mean-square ratio
-``sqrt(mean(se^2) / true^2)`` (the variances' mean, an unbiased estimator
-scores 1) with its standard error over seeds, and the share of seeds within
-0.8-1.25 of the truth. It needs no data: ``python tests/reference/check_mc.py
-[--seeds 200] [--n 1000]``.
+AR(1) noise of phi 0.9 and 0.99. For every parameter it prints the closed
+forms over the truth, then for ours and the Monte Carlo the median over
+seeds of ``se / true``, the root-mean-square ratio ``sqrt(mean(se^2)) /
+true`` (an unbiased variance scores 1) with its standard error over seeds,
+and the share of seeds within 0.8-1.25 of the truth; last, the median of
+one record's ``ours / mc`` and the share of seeds where it lies within
+0.8-1.25 (what the suite's target asks of one flight). It needs no data:
+``python tests/reference/check_mc.py [--seeds 200] [--n 1000]``.
 """
 
 from __future__ import annotations
@@ -376,8 +384,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     print(
         "per parameter: median of se/true, rms ratio sqrt(mean se^2)/true +- its se over "
-        "seeds, share of seeds within 0.8-1.25; true = exact sandwich (linear least "
-        "squares) or the spread over seeds"
+        "seeds, share of seeds within 0.8-1.25; true = the exact first-order sandwich, "
+        "spread = the estimates' scatter over the seeds; E[.] = closed forms"
     )
     for key in args.case or list(CASES):
         for phi in args.phi or PHIS:
