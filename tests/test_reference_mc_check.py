@@ -127,3 +127,29 @@ def test_output_error_biases_the_same(kind: str) -> None:
     # the exact first-order variance is the seeds' own spread (200 seeds: the
     # variance to about 10 %; four of those)
     assert abs(bias["spread"] ** 2 / bias["true"] ** 2 - 1.0) < 0.4
+
+
+def test_summary_counts_derivatives_and_constants_apart() -> None:
+    def r(name: str, mc_ratio: float, sid_lev: float) -> dict[str, float | str | None]:
+        out = C.S.row(
+            "c",
+            name,
+            sidpac=1.0,
+            sidpac_se_white=0.1,
+            sidpac_se_corrected=0.2,
+            ours=1.0,
+            ours_se=0.3,
+            mc_se=0.3 / mc_ratio,
+        )
+        out["sid_lev"] = sid_lev
+        out["mc_lev"] = 0.9
+        return out
+
+    rows = [r("Cm_alpha", 1.0, 0.8), r("Cm_q", 1.5, 0.9), r("Cm_const", 1.6, 0.6)]
+    s = C.S.summary(rows)
+    assert s["target_mc_drv"] == "1/2" and s["target_mc_cb"] == "0/1"
+    assert s["target_mc"] == "1/3"
+    # ours over SIDPAC's corrected is 1.5; its leverage taken out, 1.5 * 0.8 and 1.5 * 0.9
+    assert np.isclose(s["drv_lev_min"], 1.2) and np.isclose(s["drv_lev_max"], 1.35)
+    assert s["target_se_lev"] == "1/2"
+    assert np.isclose(s["cb_sidlev_min"], 0.6) and np.isclose(s["cb_mc_max"], 1.6)
