@@ -72,3 +72,22 @@ def coupled_inputs(controls: dict[str, float], t: Any) -> Any:
     da = 0.03 * (((t >= 8.0) & (t < 9.0)) * 1.0 - ((t >= 9.0) & (t < 10.0)))
     dr = 0.03 * (((t >= 11.0) & (t < 12.0)) * 1.0 - ((t >= 12.0) & (t < 13.0)))
     return np.column_stack([de, np.full(t.size, controls["thrust"]), da, dr])
+
+
+def noisy_interval(
+    f: Any, t0: float, x: Any, u: tuple[Any, Any], sub: int, h: float, noise: Any
+) -> Any:
+    """The state `x` carried over one sample interval from `t0` by `sub` RK4 steps of
+    `h`, the controls linear from ``u[0]`` to ``u[1]`` across it, and ``noise()`` (a
+    step's process noise) added after each step (Euler-Maruyama); ``f(t, x, u)`` is
+    the dynamics."""
+    u0, u1 = u
+    for j in range(sub):
+        ua, ub, uc = (u0 + a * (u1 - u0) for a in (j / sub, (j + 0.5) / sub, (j + 1) / sub))
+        tt = t0 + j * h
+        k1 = f(tt, x, ua)
+        k2 = f(tt + h / 2, x + h / 2 * k1, ub)
+        k3 = f(tt + h / 2, x + h / 2 * k2, ub)
+        k4 = f(tt + h, x + h * k3, uc)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4) + noise()
+    return x

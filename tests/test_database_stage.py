@@ -88,3 +88,25 @@ def test_the_replay_option_changes_no_key_and_the_section_says_what_it_flew(
     assert "no JSBSim section" in text or "jsbsim is not installed" in text
     s = run(_config(tmp_path, 4), workers=0)
     assert "names no simulator" in (s.database_dir / "database.md").read_text()
+
+
+def test_database_stage_leaves_the_time_delays_out(tmp_path: Path) -> None:
+    # each flight's fit reports tau_elevator with its covariance; the database fits the
+    # aerodynamic terms only (a delay is the recorder's, not a coefficient of the condition)
+    from aeroid.pipeline.stages.database_stage import _COEFFICIENT
+
+    cfg = _config(tmp_path, 5, "keys: [airspeed]")
+    cfg.write_text(
+        cfg.read_text().replace(
+            "identify: {parameters: [Z_alpha, M_alpha, M_q, M_delta]}",
+            "identify: {parameters: [Z_alpha, M_alpha, M_q, M_delta], time_delays: [elevator]}",
+        )
+    )
+    s = run(cfg, workers=0)
+    assert s.failed == 0, [st.error for st in s.statuses.values() if st.error]
+    store = open_store(tmp_path / "store")
+    ident = next(t for t in s.plan.tasks if t.stage == "identify")
+    assert "tau_elevator" in store.load(ident.key, "identify").parameter_names
+    db = store.load(next(t for t in s.plan.tasks if t.stage == "database").key, "database")
+    assert set(db.structures) == {"M_alpha", "M_q"}
+    assert _COEFFICIENT.match("Cl_p") and not _COEFFICIENT.match("tau_delta_a")

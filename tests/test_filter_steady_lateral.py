@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 import pytest
-from _aircraft_data import BASE, LAT
+from _aircraft_data import BASE, LAT, noisy_interval
 
 import aeroid
 from aeroid import FlightData
@@ -66,22 +66,15 @@ def _flights(model: aeroid.Model, dt: float = 0.02, duration: float = 15.0) -> l
     def f(tt: float, xx: np.ndarray, uu: np.ndarray) -> np.ndarray:
         return np.asarray(model.dynamics(tt, xx, uu, p))
 
+    def noise() -> np.ndarray:
+        w = np.stack([r.standard_normal(model.n_states) for r in rngs], axis=1)
+        return np.sqrt(q * h)[:, None] * w
+
     for k in range(t.size - 1):
         # the controls pushed against the Cl_delta_a < 0, Cn_delta_r < 0 moments
         u[ia, k + 1] += x[st["phi"]] + 0.5 * x[st["p"]]
         u[ir, k + 1] += x[st["r"]]
-        for j in range(sub):
-            ua, ub, uc = (
-                u[:, k] + a * (u[:, k + 1] - u[:, k])
-                for a in (j / sub, (j + 0.5) / sub, (j + 1) / sub)
-            )
-            tt = t[k] + j * h
-            k1 = f(tt, x, ua)
-            k2 = f(tt + h / 2, x + h / 2 * k1, ub)
-            k3 = f(tt + h / 2, x + h / 2 * k2, ub)
-            k4 = f(tt + h, x + h * k3, uc)
-            w = np.stack([r.standard_normal(model.n_states) for r in rngs], axis=1)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4) + np.sqrt(q * h)[:, None] * w
+        x = noisy_interval(f, t[k], x, (u[:, k], u[:, k + 1]), sub, h, noise)
         X[k + 1] = x
     out = []
     for i, r in enumerate(rngs):

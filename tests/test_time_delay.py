@@ -146,15 +146,6 @@ def test_time_delay_errors():
         identify(model, data, NAMES, time_delays=["aileron"])
     with pytest.raises(IdentificationError, match="finite number"):
         identify(model, data, NAMES, time_delays={"elevator": float("nan")})
-    with pytest.raises(IdentificationError, match=r"output_error.? only"):
-        identify(
-            model,
-            data,
-            NAMES,
-            method="filter_error",
-            process_noise={"q": 1e-4},
-            time_delays="elevator",
-        )
     with pytest.raises(ChannelError, match="aileron"):
         equation_error(data, "q", ["alpha", "elevator"], time_delays="aileron")
     with pytest.raises(DataFormatError, match="time domain"):

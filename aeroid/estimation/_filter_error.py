@@ -25,6 +25,14 @@ innovations are white by construction, so no colour correction applies).
 On request the process-noise intensities (and, when no measurement noise is
 given, the measurement-noise variances) are estimated together with the
 parameters, log-parameterised so they stay positive.
+
+Pure time delays of controls (``time_delays=``) are unknowns of the same
+iteration, as in output error (Jategaonkar ch. 4, Klein & Morelli ch. 6): the
+filter runs on ``u(t - tau)``, interpolated between the samples
+(`aeroid.estimation._output_error.shifted_controls`), so a delay may be a
+fraction of a sample, and the innovations' differences in tau give its row of
+the information matrix and its error bar. The members of a batch that share
+the delays share one pass; a delay's perturbed member runs its own.
 """
 
 from __future__ import annotations
@@ -32,7 +40,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -43,6 +51,7 @@ from ..io.data import FlightData
 from ..models.model import Model, resolve_parameters
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
+from ._output_error import delay_parameter, shifted_controls
 from .filtering import (
     _default_P0,
     _Problem,
@@ -59,6 +68,9 @@ __all__ = ["FILTER_OPTIONS", "identify_filter_error"]
 
 FloatArray = NDArray[np.float64]
 
+# one batch's filter inputs: parameters, Qc, R, x0 and P0, each per member
+_Batch = tuple[Mapping[str, FloatArray], FloatArray, FloatArray, FloatArray, FloatArray]
+
 FILTER_OPTIONS = ("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain")
 
 
@@ -69,14 +81,24 @@ class _Layout:
     names: tuple[str, ...]  # model parameters
     q_states: tuple[int, ...]  # state indices whose log process noise is estimated
     r_outputs: tuple[int, ...]  # output indices whose log measurement variance is estimated
+    # control columns whose time delay (s) is estimated: right after the parameters
+    delayed: tuple[int, ...] = ()
+    # the shortest sample interval: a delay's natural scale
+    dt: float = 1.0
+
+    @property
+    def n_e(self) -> int:
+        """Parameters and delays: the unknowns before the noise log-intensities."""
+        return len(self.names) + len(self.delayed)
 
     @property
     def size(self) -> int:
-        return len(self.names) + len(self.q_states) + len(self.r_outputs)
+        return self.n_e + len(self.q_states) + len(self.r_outputs)
 
     def labels(self, model: Model, outputs: Sequence[str]) -> list[str]:
         return (
             list(self.names)
+            + [delay_parameter(model.controls[i]) for i in self.delayed]
             + [f"process_noise.{model.states[i]}" for i in self.q_states]
             + [f"measurement_noise.{outputs[j]}" for j in self.r_outputs]
         )
@@ -141,7 +163,7 @@ class _Objective:
         for j, name in enumerate(lay.names):
             params[name] = Z[:, j].copy()
         Qc = np.repeat(self.Qc[None], B, axis=0)
-        off = len(lay.names)
+        off = lay.n_e
         for j, i in enumerate(lay.q_states):
             Qc[:, i, i] = np.exp(Z[:, off + j])
         R = np.repeat(self.R[None], B, axis=0)
@@ -150,6 +172,46 @@ class _Objective:
             R[:, i, i] = np.exp(Z[:, off + j])
         return params, Qc, R
 
+    def _run(
+        self, prob: _Problem, batch: _Batch
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], int | None]:
+        """(nu, S, ok, settled) of one filter pass over `prob` for a batch (its parameters,
+        Qc, R, x0 and P0 per member)."""
+        with np.errstate(all="ignore"):
+            if self.gain == "steady":
+                run = steady_pass(prob, *batch, states=False)
+            else:
+                run = run_filter(prob, *batch, method=self.method)
+        return run.nu, run.S, run.ok, run.settled
+
+    def _delayed_run(
+        self, prob: _Problem, batch: _Batch, delays: FloatArray
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], int | None]:
+        """`_run` with each member's controls delayed by its row of `delays` (B, n_d): one
+        pass per distinct row, the members sharing it batched."""
+        rows, which = np.unique(delays, axis=0, return_inverse=True)
+        which = np.asarray(which).reshape(-1)
+        cols = self.layout.delayed
+        if rows.shape[0] == 1:
+            return self._run(
+                replace(prob, U=shifted_controls(prob.time, prob.U, cols, rows[0])), batch
+            )
+        B = delays.shape[0]
+        n_t, n_y = prob.Y.shape
+        nu = np.empty((B, n_t, n_y))
+        S = np.empty((B, n_t, n_y, n_y))
+        ok = np.zeros(B, dtype=bool)
+        settled: int | None = 0
+        params, *arrays = batch
+        for g, row in enumerate(rows):
+            sel = np.flatnonzero(which == g)
+            shifted = replace(prob, U=shifted_controls(prob.time, prob.U, cols, row))
+            part = {k: v[sel] for k, v in params.items()}
+            Qc, R, x0, P0 = (a[sel] for a in arrays)
+            nu[sel], S[sel], ok[sel], s = self._run(shifted, (part, Qc, R, x0, P0))
+            settled = None if s is None or settled is None else max(settled, s)
+        return nu, S, ok, settled
+
     def __call__(
         self, Z: FloatArray
     ) -> tuple[FloatArray, FloatArray, list[tuple[FloatArray, FloatArray, int | None]]]:
@@ -157,6 +219,7 @@ class _Objective:
         and the sample (of nu[:, 1:]) from which every member's S is its last, or None."""
         B = Z.shape[0]
         params, Qc, R = self.inputs(Z)
+        lay = self.layout
         cost = np.zeros(B)
         quad_all = np.zeros(B)
         per: list[tuple[FloatArray, FloatArray, int | None]] = []
@@ -166,14 +229,15 @@ class _Objective:
                 P0 = np.repeat(prob.P0[None], B, axis=0)
             else:
                 P0 = np.stack([_default_P0(self.model, prob.output_names, R[b]) for b in range(B)])
-            with np.errstate(all="ignore"):
-                if self.gain == "steady":
-                    run = steady_pass(prob, params, Qc, R, x0, P0, states=False)
-                else:
-                    run = run_filter(prob, params, Qc, R, x0, P0, method=self.method)
-            nu, S = run.nu[:, 1:], run.S[:, 1:]
-            settled = None if run.settled is None else max(run.settled - 1, 0)
-            ok = run.ok.copy()
+            batch = (params, Qc, R, x0, P0)
+            if lay.delayed:
+                D = Z[:, len(lay.names) : lay.n_e]
+                run_nu, run_S, run_ok, run_settled = self._delayed_run(prob, batch, D)
+            else:
+                run_nu, run_S, run_ok, run_settled = self._run(prob, batch)
+            nu, S = run_nu[:, 1:], run_S[:, 1:]
+            settled = None if run_settled is None else max(run_settled - 1, 0)
+            ok = run_ok.copy()
             quad = np.full(B, np.inf)
             logdet = np.full(B, np.inf)
             good = np.flatnonzero(ok)
@@ -197,15 +261,18 @@ class _Objective:
             with np.errstate(invalid="ignore"):
                 cost += 0.5 * (quad + logdet + n_obs * math.log(2 * math.pi))
             quad_all += quad
-            per.append((run.nu, run.S, settled))
+            per.append((run_nu, run_S, settled))
         cost[~np.isfinite(cost)] = np.inf
         return cost, quad_all, per
 
 
 def _steps(z: FloatArray, layout: _Layout) -> FloatArray:
     n_p = len(layout.names)
+    n_e = layout.n_e
     h = np.full(z.size, 1e-4)  # log-parameters: absolute step
     h[:n_p] = 1e-5 * np.maximum(np.abs(z[:n_p]), 1e-2)
+    # a delay moves the interpolated controls linearly within a sample interval
+    h[n_p:n_e] = 1e-5 * np.maximum(np.abs(z[n_p:n_e]), layout.dt)
     return h
 
 
@@ -318,6 +385,7 @@ def identify_filter_error(
     max_iterations: int = 50,
     tolerance: float = 1e-6,
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    time_delays: Mapping[str, float] | None = None,
 ) -> IdentificationResult:
     """Maximum-likelihood parameter estimation on Kalman-filter innovations.
 
@@ -369,6 +437,11 @@ def identify_filter_error(
         would leave the box is held there and the step re-solved without it.
         Parameters that end at a bound are listed in ``active_bounds``, with
         standard error 0 and the others' covariance conditional on the bound.
+    time_delays : mapping of str to float, optional
+        Control name -> start value (s) of its pure time delay, estimated with
+        the parameters: the filter takes ``u(t - tau)``, interpolated between
+        the samples. Reported as parameter ``"tau_<control>"`` and in
+        ``result.time_delays``.
 
     Returns
     -------
@@ -464,12 +537,22 @@ def identify_filter_error(
                 "(diagonal) with the others"
             )
     r_outputs = tuple(range(n_y)) if estimate_R else ()
-    layout = _Layout(names, q_states, r_outputs)
+    delay_starts = dict(time_delays or {})
+    unknown_controls = [c for c in delay_starts if c not in m.controls]
+    if unknown_controls:
+        raise IdentificationError(
+            f"time_delays: {unknown_controls} are not controls of model {m.name!r}; its "
+            f"controls are {list(m.controls)}"
+        )
+    dt_min = min(float(np.min(np.diff(p.time))) if p.time.size > 1 else 1.0 for p in probs)
+    layout = _Layout(
+        names, q_states, r_outputs, tuple(m.controls.index(c) for c in delay_starts), dt_min
+    )
 
     # starting values of the log-parameters
     r_start = np.mean([_noise_start(p, None if estimate_R else R) for p in probs], axis=0)
     R0 = np.diag(r_start) if estimate_R else R
-    z0 = [start[n] for n in names]
+    z0 = [start[n] for n in names] + [float(v) for v in delay_starts.values()]
     if q_states:
         dt = float(np.median(np.diff(probs[0].time)))
         states = None
@@ -494,14 +577,15 @@ def identify_filter_error(
     z0.extend(math.log(r_start[j]) for j in r_outputs)
     z = np.array(z0, dtype=np.float64)
     n_p = len(names)
+    n_e = layout.n_e
     obj = _Objective(m, probs, start, layout, Qc, R0, opts["P0"] is not None, opts["method"])
     obj.gain = gain_choice(opts["gain"], opts["method"], filter_options)
     # Noise intensities may shrink towards zero (no turbulence in the data):
     # bound them 30 e-folds below and above their starting values.
     lo = np.full(z.size, -np.inf)
     hi = np.full(z.size, np.inf)
-    lo[n_p:] = z[n_p:] - 30.0
-    hi[n_p:] = z[n_p:] + 30.0
+    lo[n_e:] = z[n_e:] - 30.0
+    hi[n_e:] = z[n_e:] + 30.0
     box = {} if bounds is None else {str(k): (float(a), float(b)) for k, (a, b) in bounds.items()}
     for name, (a, b) in box.items():
         if name not in names:
@@ -527,15 +611,16 @@ def identify_filter_error(
         ft, gt, ft_info, qt, pt = _derivatives(obj, zt, layout)
         if not np.isfinite(ft):
             return None
-        return _flat_noises_held(Linearisation(ft, gt, ft_info, (qt, pt)), n_p, tolerance)
+        return _flat_noises_held(Linearisation(ft, gt, ft_info, (qt, pt)), n_e, tolerance)
 
     # the noise intensities are logarithms: their steps count in absolute terms
     typical = np.ones_like(z)
     typical[:n_p] = 1e-8
+    typical[n_p:n_e] = layout.dt
     fit = minimise(
         evaluate,
         z,
-        _flat_noises_held(Linearisation(f, g, fisher, (quad, per)), n_p, tolerance),
+        _flat_noises_held(Linearisation(f, g, fisher, (quad, per)), n_e, tolerance),
         tolerance=tolerance,
         max_iterations=int(max_iterations),
         typical=typical,
@@ -557,7 +642,7 @@ def identify_filter_error(
     # Noise intensities at a bound, or that the data cannot determine, are
     # held fixed for the covariance: they are nuisance parameters.
     free = np.ones(z.size, dtype=bool)
-    free[n_p:] = (z[n_p:] > lo[n_p:] + 1e-6) & (z[n_p:] < hi[n_p:] - 1e-6)
+    free[n_e:] = (z[n_e:] > lo[n_e:] + 1e-6) & (z[n_e:] < hi[n_e:] - 1e-6)
     # Parameters at a bound are held there: error bars conditional on the bound.
     held = np.zeros(z.size, dtype=bool)
     held[:n_p] = (z[:n_p] <= lo[:n_p]) | (z[:n_p] >= hi[:n_p])
@@ -565,7 +650,7 @@ def identify_filter_error(
     while True:
         idx = np.flatnonzero(free)
         combos, _ = unidentifiable(fisher[np.ix_(idx, idx)], [labels[i] for i in idx])
-        noise_only = [c for c in combos if all(lab not in names for lab in c)]
+        noise_only = [c for c in combos if all(lab not in labels[:n_e] for lab in c)]
         if not noise_only:
             break
         for c in noise_only:
@@ -587,21 +672,21 @@ def identify_filter_error(
     cov_full[np.ix_(idx, idx)] = 0.5 * (cov_sub + cov_sub.T)
     cov_full[held, :] = 0.0
     cov_full[:, held] = 0.0
-    cov = cov_full[:n_p, :n_p]
+    cov = cov_full[:n_e, :n_e]
     se = np.sqrt(np.clip(np.diag(cov_full), 0.0, None))
-    params_hat = {n: float(z[j]) for j, n in enumerate(names)}
+    params_hat = {n: float(z[j]) for j, n in enumerate(labels[:n_e])}
     _, Qc_hat, R_hat = obj.inputs(z[None])
     extra: dict[str, float] = {}
-    for j, lab in enumerate(labels[n_p:], start=n_p):
+    for j, lab in enumerate(labels[n_e:], start=n_e):
         extra[lab] = float(math.exp(z[j]) * se[j])  # delta method from the log scale
     n_obs = sum((p.time.size - 1) * n_y for p in probs)
     sigma2 = float(quad[0] / n_obs)
     fixed = {k: float(v) for k, v in start.items() if k not in names}
     return IdentificationResult(
         parameters=params_hat,
-        stderr={n: float(se[j]) for j, n in enumerate(names)},
+        stderr={n: float(se[j]) for j, n in enumerate(labels[:n_e])},
         covariance=cov,
-        parameter_names=names,
+        parameter_names=tuple(labels[:n_e]),
         fixed=fixed,
         covariance_white=cov,
         error_bars="white",
@@ -627,4 +712,5 @@ def identify_filter_error(
         active_bounds={
             n: ("lower" if z[j] <= lo[j] else "upper") for j, n in enumerate(names) if held[j]
         },
+        time_delays={c: float(z[n_p + i]) for i, c in enumerate(delay_starts)},
     )

@@ -205,8 +205,9 @@ def identify(
         (computed with it held fixed). The initial value of a bounded
         parameter must lie inside its bounds (a bound itself is allowed).
     time_delays : str, sequence of str or mapping of str to float, optional
-        Controls whose pure time delay to estimate (output error only), or a
-        dict of control name to start value in s (default start 0). The
+        Controls whose pure time delay to estimate (output error and filter
+        error), or a dict of control name to start value in s (default start
+        0). The
         control enters the model as ``u(t - tau)``, interpolated
         piecewise-linearly between samples, so a delay may be a fraction of a
         sample. Each delay is reported as parameter ``"tau_<control>"`` in
@@ -304,11 +305,6 @@ def identify(
             x0_dicts.append(measured_start(d, states))
         else:
             x0_dicts.append(_x0_values(xi, states))
-    if method == "filter_error" and delays:
-        raise IdentificationError(
-            "time_delays apply to method='output_error' only; estimate the delays by output "
-            "error and build the filter-error model on the delayed controls"
-        )
     if start == "equation_error":
         initial = _equation_error_start(model, datas, names, initial, delays, box)
     if method == "filter_error":
@@ -347,6 +343,7 @@ def identify(
             fit_outputs,
             {
                 "parameters": len(names),
+                "time delays": len(delays),
                 "process-noise intensities": len(noise_states),
                 "measurement-noise variances": len(fit_outputs) if measurement_noise is None else 0,
             },
@@ -369,6 +366,7 @@ def identify(
             max_iterations=max_iterations,
             tolerance=tol,
             bounds=box,
+            time_delays=delays,
         )
         return _finish(fitted, datas, model)
     if (
