@@ -102,6 +102,38 @@ Uncertainty
 A band at a condition ``x`` is ``c(x) ± t σ(x)`` with ``σ²(x) = φ(x)' Cov θ_j
 φ(x)`` and ``t`` Student's quantile on the term's `dof`.
 
+Speed terms and their trim-speed reference
+------------------------------------------
+An aircraft model's speed regressor is ``V/V0 − 1`` about the flight's own trim
+speed ``V0`` (``CD_V``, ``CL_V``, ``Cm_V``), a reference that changes from flight
+to flight. The database carries it as a smooth function of the condition keys,
+``V0(x)``, fitted over the flights' trim speeds (each flight's `trim_speed`, by
+default its condition's airspeed), and a speed term flies as
+``C_V(x) (V/V0(x) − 1)``. Why the trim curve, and not a constant or the speed
+at the start of a simulation: the flights fly along it, so the database's static
+coefficient ``C_0(x)`` (each flight's coefficient at its trim,
+`aeroid.pipeline.stages.database_stage`) is the coefficient along the trim
+curve, and its slope over alpha holds the speed's share,
+``C_alpha + C_V V0'(alpha)/V0``. The speed term about ``V0(alpha)`` takes that
+share away again: at a fixed speed the database's slope over alpha is the
+flights' ``C_alpha``, at a fixed alpha its slope over ``V/V0`` is their ``C_V``,
+and on the trim curve the term vanishes, so the static table flies unchanged
+where the flights flew. The physics agrees where the speed term is a lumped
+alpha-dot term (``Cm_V ≈ −Cm_alphadot c̄ g / V0²``): the flight path turns at
+``γ̇ = (L − W)/(m V)``, and at one weight ``(L − W)/W = V²/V0(alpha)² − 1``, whose
+first order is ``2 (V/V0 − 1)``: zero on the trim curve, where the trim speed is
+the one at which the lift at that alpha holds the weight.
+
+The fitted quantity is ``(V̄/V0)²`` (``V̄`` the flights' mean trim speed): at one
+weight ``ρ V0² S CL(alpha) / 2 = W``, so ``1/V0²`` is ``ρ(h) CL(alpha)``, nearly
+linear in alpha and in altitude, where ``V0`` itself curves steeply
+(``CL^{-1/2}``). It is fitted with the same stepwise Legendre regression and
+model average, the trim speeds taken as exact (a relative variance of ``1e-12``
+keeps the weights finite), so the between-flight variance holds what the keys
+do not (weight, power, flap) and the fit is the ordinary least squares of the
+curve. A flight that estimates a speed term without a trim speed is an error
+naming it.
+
 Held-out check
 --------------
 Flights named in `held_out` stay out of the fit; their estimates are compared
@@ -125,7 +157,14 @@ from .._stats import norm_ppf
 from ..errors import DataFormatError, IdentificationError
 from ._database_fit import TermFit, design, fit_term
 
-__all__ = ["AeroDatabase", "FlightCoefficients", "HeldOutCheck", "aerodynamic_database"]
+__all__ = [
+    "AeroDatabase",
+    "FlightCoefficients",
+    "HeldOutCheck",
+    "TrimSpeedModel",
+    "aerodynamic_database",
+    "is_speed_term",
+]
 
 FloatArray = NDArray[np.float64]
 Exponents = tuple[int, ...]
@@ -146,14 +185,26 @@ class FlightCoefficients:
         marks a coefficient this flight did not excite.
     covariance : ndarray, shape (n, n)
         Covariance of the estimates in the order of `estimates`.
+    trim_speed : float, optional
+        The trim speed ``V0`` (m/s) the flight's speed regressor ``V/V0 − 1`` refers
+        to (its speed terms ``CL_V``, ``Cm_V``, ...); default the condition's
+        ``airspeed``.
     """
 
     name: str
     condition: Mapping[str, float]
     estimates: Mapping[str, float]
     covariance: FloatArray
+    trim_speed: float | None = None
 
     def __post_init__(self) -> None:
+        if self.trim_speed is None and "airspeed" in self.condition:
+            object.__setattr__(self, "trim_speed", self.condition["airspeed"])
+        if self.trim_speed is not None:
+            v0 = float(self.trim_speed)
+            if not (math.isfinite(v0) and v0 > 0.0):
+                raise DataFormatError(f"flight {self.name!r}: trim speed {v0} is not positive")
+            object.__setattr__(self, "trim_speed", v0)
         object.__setattr__(self, "name", str(self.name))
         object.__setattr__(self, "condition", frozen_mapping(self.condition))
         object.__setattr__(self, "estimates", frozen_mapping(self.estimates))
@@ -166,11 +217,13 @@ class FlightCoefficients:
         condition: Mapping[str, float],
         estimates: Mapping[str, float],
         stderr: Mapping[str, float],
+        *,
+        trim_speed: float | None = None,
     ) -> FlightCoefficients:
         """Estimates with independent standard errors (a diagonal covariance)."""
         names = list(estimates)
         var = [float(stderr[n]) ** 2 if n in stderr else math.nan for n in names]
-        return cls(name, condition, estimates, np.diag(var))
+        return cls(name, condition, estimates, np.diag(var), trim_speed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,6 +258,62 @@ class HeldOutCheck:
     def inside(self) -> bool:
         """Whether the estimate lies inside the database's prediction band."""
         return abs(self.z) <= self.limit
+
+
+def is_speed_term(term: str) -> bool:
+    """Whether `term` is a speed term, ``<C>_V`` (its regressor ``V/V0 − 1``)."""
+    base, _, regressor = term.partition("_")
+    return regressor == "V" and base[:1] == "C"
+
+
+@dataclass(frozen=True, eq=False)
+class TrimSpeedModel:
+    """The trim speed ``V0`` over the condition keys, the reference of the speed terms.
+
+    ``(scale / V0)²`` is a Legendre model over the database's scaled keys (module
+    notes: the trim's lift balances the weight, so it is nearly linear in alpha).
+
+    Attributes
+    ----------
+    scale : float
+        ``V̄``, the fitted flights' mean trim speed (m/s).
+    structure : tuple of str
+        The structure stepwise regression selects, as labels.
+    parameters : ndarray
+        Coefficients of the basis functions (the model average).
+    covariance : ndarray
+        Their covariance.
+    rms : float
+        The root mean square of the fitted flights' trim speeds about the model (m/s).
+    """
+
+    scale: float
+    structure: tuple[str, ...]
+    parameters: FloatArray
+    covariance: FloatArray
+    rms: float
+    _exponents: tuple[Exponents, ...] = field(default=(), repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "parameters", frozen_array(self.parameters))
+        object.__setattr__(self, "covariance", frozen_array(self.covariance))
+        object.__setattr__(self, "structure", tuple(self.structure))
+        exps = tuple(tuple(int(n) for n in e) for e in self._exponents)
+        object.__setattr__(self, "_exponents", exps)
+
+    def evaluate(self, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """``V0`` and its standard error at scaled conditions `u` (rows)."""
+        phi = design(u, self._exponents)
+        y = phi @ self.parameters
+        if np.any(y <= 0.0):
+            raise IdentificationError(
+                "the trim-speed model is not positive at the condition asked for "
+                "(far outside the flown range)"
+            )
+        var_y = np.einsum("ij,jk,ik->i", phi, self.covariance, phi)
+        v0 = self.scale / np.sqrt(y)
+        # d V0 / d y = -V0 / (2 y)
+        return v0, 0.5 * v0 / y * np.sqrt(np.maximum(var_y, 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,6 +355,9 @@ class AeroDatabase:
     basis : mapping of str to tuple of str
         The basis of each coefficient's model average (`structures` and the richer
         models along the stepwise path that keep an Akaike weight).
+    speed_reference : TrimSpeedModel or None
+        The trim speed ``V0`` over the keys that the speed terms (``Cm_V``) refer to:
+        such a term flies as ``C_V (V/V0 − 1)`` (module notes); None without one.
     """
 
     terms: tuple[str, ...]
@@ -266,6 +378,7 @@ class AeroDatabase:
     confidence: float = 0.95
     tau2: Mapping[str, float] = field(default_factory=dict)
     basis: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    speed_reference: TrimSpeedModel | None = None
     _exponents: Mapping[str, tuple[Exponents, ...]] = field(default_factory=dict, repr=False)
     _offsets: Mapping[str, int] = field(default_factory=dict, repr=False)
 
@@ -294,6 +407,11 @@ class AeroDatabase:
             raise IdentificationError(
                 f"the database has no term {term!r}; it models {', '.join(self.terms)}"
             )
+        return design(self._scaled_condition(term, condition), self._exponents[term])
+
+    def _scaled_condition(
+        self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
+    ) -> FloatArray:
         if isinstance(condition, Mapping):
             missing = [k for k in self.keys if k not in condition]
             if missing:
@@ -310,8 +428,32 @@ class AeroDatabase:
                     f"condition for {term!r} has {x.shape[-1]} columns, the database "
                     f"uses {len(self.keys)} keys ({', '.join(self.keys)})"
                 )
-        u = _scaled(x, self.keys, self.centres, self.half_ranges)
-        return design(u, self._exponents[term])
+        return _scaled(x, self.keys, self.centres, self.half_ranges)
+
+    @property
+    def speed_terms(self) -> tuple[str, ...]:
+        """The speed terms (``<C>_V``), which fly as ``C_V (V/V0 − 1)``."""
+        return tuple(t for t in self.terms if is_speed_term(t))
+
+    def trim_speed(
+        self, condition: Mapping[str, ArrayLike] | ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """The trim speed ``V0`` (m/s) the speed terms refer to, and its standard error.
+
+        Parameters
+        ----------
+        condition : mapping of str to array_like, or array_like (n, n_keys)
+            As for `predict`.
+
+        Returns
+        -------
+        value, stderr : ndarray, shape (n,)
+        """
+        if self.speed_reference is None:
+            raise IdentificationError(
+                "the database has no speed term (<C>_V), so no trim-speed reference"
+            )
+        return self.speed_reference.evaluate(self._scaled_condition("V0", condition))
 
     def predict(
         self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
@@ -359,10 +501,16 @@ class AeroDatabase:
         return _t_quantile(self.dof.get(term, 0.0), 0.5 + 0.5 * level)
 
     def as_function(self) -> Callable[..., dict[str, FloatArray]]:
-        """A plain callable ``f(**condition) -> {term: value}`` for a simulation."""
+        """A plain callable ``f(**condition) -> {term: value}`` for a simulation.
+
+        With speed terms it also returns ``"V0"``, the trim speed (m/s) they refer
+        to: a speed term ``C_V`` adds ``C_V (V/V0 − 1)`` at airspeed ``V``."""
 
         def evaluate(**condition: ArrayLike) -> dict[str, FloatArray]:
-            return {t: self.predict(t, condition)[0] for t in self.terms}
+            out = {t: self.predict(t, condition)[0] for t in self.terms}
+            if self.speed_reference is not None:
+                out["V0"] = self.trim_speed(condition)[0]
+            return out
 
         return evaluate
 
@@ -374,7 +522,8 @@ class AeroDatabase:
         return np.linspace(c - h, c + h, int(n))
 
     def table(self, *, n: int = 11) -> dict[str, list[Any]]:
-        """A tidy table: one row per term and grid point, with the band (`n` points per key)."""
+        """A tidy table: one row per term and grid point, with the band (`n` points per key);
+        with speed terms also rows ``"V0"``, their trim-speed reference (m/s)."""
         axes = np.meshgrid(*[self.grid(k, n) for k in self.keys], indexing="ij")
         flat = {k: a.ravel() for k, a in zip(self.keys, axes, strict=True)}
         rows: dict[str, list[Any]] = {"term": [], **{k: [] for k in self.keys}}
@@ -389,6 +538,17 @@ class AeroDatabase:
             rows["stderr"].extend(se.tolist())
             rows["lower"].extend(lo.tolist())
             rows["upper"].extend(hi.tolist())
+        if self.speed_reference is not None:
+            # the speed terms' reference, with the normal quantile's band
+            v0, se = self.trim_speed(flat)
+            z = norm_ppf(0.5 + 0.5 * self.confidence)
+            rows["term"].extend(["V0"] * v0.size)
+            for k in self.keys:
+                rows[k].extend(flat[k].tolist())
+            rows["value"].extend(v0.tolist())
+            rows["stderr"].extend(se.tolist())
+            rows["lower"].extend((v0 - z * se).tolist())
+            rows["upper"].extend((v0 + z * se).tolist())
         return rows
 
     def to_jsbsim(self, path: str | Path | None = None, *, n: int = 21) -> str:
@@ -435,6 +595,14 @@ class AeroDatabase:
             out += (
                 f"\n\nHeld out: {len({c.flight for c in self.held_out})} flights, {inside} of "
                 f"{len(self.held_out)} estimates inside the {self.confidence:.0%} band"
+            )
+        ref = self.speed_reference
+        if ref is not None:
+            out += (
+                f"\n\nSpeed terms ({', '.join(self.speed_terms)}) fly as C_V (V/V0 − 1), V0 the "
+                f"trim speed over {', '.join(self.keys)}: (V̄/V0)² with V̄ {fmt(ref.scale)} m/s "
+                f"= {' + '.join(ref.structure)}, {fmt(ref.rms)} m/s rms about the flights' "
+                "trim speeds"
             )
         return out
 
@@ -574,7 +742,8 @@ def aerodynamic_database(
     Raises
     ------
     DataFormatError
-        A flight lacks a condition key, or its covariance does not match.
+        A flight lacks a condition key, its covariance does not match, or it
+        estimates a speed term (``Cm_V``) but gives no trim speed.
     IdentificationError
         No flight excites a term, or the conditions cannot identify a forced
         structure (both named).
@@ -636,6 +805,7 @@ def aerodynamic_database(
             cands = _candidates(len(keys), max_degree, varying)
             fits[t] = fit_term(uj, z[has, j], var, candidates=cands, f_in=f_in)
 
+    reference = _speed_reference(fit, terms, z, u, keys, max_degree, f_in)
     offsets, j0 = {}, 0
     for t in terms:
         offsets[t] = j0
@@ -660,6 +830,7 @@ def aerodynamic_database(
         confidence=confidence,
         tau2={t: fits[t].tau2 for t in terms},
         basis={t: tuple(_label(e, keys) for e in fits[t].exponents) for t in terms},
+        speed_reference=reference,
         _exponents={t: fits[t].exponents for t in terms},
         _offsets=offsets,
     )
@@ -690,6 +861,47 @@ def aerodynamic_database(
             )
     object.__setattr__(db, "held_out", tuple(checks))
     return db
+
+
+def _speed_reference(
+    fit: Sequence[FlightCoefficients],
+    terms: Sequence[str],
+    z: FloatArray,
+    u: FloatArray,
+    keys: Sequence[str],
+    max_degree: int,
+    f_in: float,
+) -> TrimSpeedModel | None:
+    """The trim speed over the keys, ``(V̄/V0)²`` fitted to the flights' trim speeds
+    (module notes), if any term is a speed term; None otherwise."""
+    speed = [j for j, t in enumerate(terms) if is_speed_term(t)]
+    if not speed:
+        return None
+    for i, f in enumerate(fit):
+        excited = [terms[j] for j in speed if np.isfinite(z[i, j])]
+        if excited and f.trim_speed is None:
+            raise DataFormatError(
+                f"flight {f.name!r} estimates {', '.join(excited)}, a speed term about its "
+                "trim speed, but gives none (trim_speed, or an airspeed in its condition)"
+            )
+    has = np.array([f.trim_speed is not None for f in fit])
+    v0 = np.array([float(f.trim_speed) for f in fit if f.trim_speed is not None])
+    scale = float(np.mean(v0))
+    y = (scale / v0) ** 2
+    uh = u[has]
+    varying = [bool(np.ptp(uh[:, i]) > 1e-9) for i in range(len(keys))]
+    cands = _candidates(len(keys), max_degree, varying)
+    # the trim speeds are taken as exact: the floor only keeps the weights finite
+    tf = fit_term(uh, y, np.full(y.size, 1e-12), candidates=cands, f_in=f_in)
+    resid = scale / np.sqrt(np.maximum(design(uh, tf.exponents) @ tf.theta, 1e-12)) - v0
+    return TrimSpeedModel(
+        scale=scale,
+        structure=tuple(_label(e, keys) for e in tf.selected),
+        parameters=tf.theta,
+        covariance=tf.covariance,
+        rms=float(np.sqrt(np.mean(resid**2))),
+        _exponents=tf.exponents,
+    )
 
 
 def _joint_covariance(
