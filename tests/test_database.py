@@ -557,10 +557,28 @@ def test_a_speed_term_needs_its_flights_trim_speed() -> None:
     with pytest.raises(DataFormatError, match=r"flight_v.*Cm_V.*trim speed"):
         aerodynamic_database([*flights, bare], keys=("alpha", "altitude"))
     with pytest.raises(DataFormatError, match=r"flight_w.*trim speed"):
-        FlightCoefficients.from_stderr("flight_w", {"airspeed": -3.0}, {"Cm_V": 0.0}, {})
+        FlightCoefficients.from_stderr("flight_w", {}, {"Cm_V": 0.0}, {}, trim_speed=-3.0)
+    # an airspeed that is not a speed gives no reference: named where a speed term needs it
+    odd = FlightCoefficients.from_stderr(
+        "flight_z", {"alpha": 0.1, "altitude": 900.0, "airspeed": -3.0}, {"Cm_V": 0.05}, {}
+    )
+    assert odd.trim_speed is None
     from aeroid.uncertainty.database_export import split_term
 
     assert split_term("Cm_V") == ("Cm", "V")
+    # over the airspeed, the static table's slope is the speed's effect: no speed term
+    # flies again beside it (as CL_alpha beside a table over alpha)
+    by_speed = [
+        FlightCoefficients.from_stderr(
+            f"s{i}",
+            {"airspeed": v},
+            {"Cm_0": 0.001 * v, "Cm_V": 0.04},
+            {"Cm_0": 1e-4, "Cm_V": 1e-3},
+        )
+        for i, v in enumerate(np.linspace(30.0, 60.0, 7))
+    ]
+    section = aerodynamic_database(by_speed).to_jsbsim(n=5)
+    assert "aeroid-Cm_V" not in section and "aeroid-Cm_0" in section
 
 
 def test_jsbsim_flies_the_speed_term_about_the_trim_speed(tmp_path: Path) -> None:

@@ -198,9 +198,15 @@ class FlightCoefficients:
     trim_speed: float | None = None
 
     def __post_init__(self) -> None:
-        if self.trim_speed is None and "airspeed" in self.condition:
-            object.__setattr__(self, "trim_speed", self.condition["airspeed"])
-        if self.trim_speed is not None:
+        if self.trim_speed is None:
+            # the condition's airspeed where it is one (a flight without speed terms
+            # needs none, and a bad airspeed key is named where a fit uses it)
+            try:
+                v = float(self.condition.get("airspeed", math.nan))
+            except (TypeError, ValueError):
+                v = math.nan
+            object.__setattr__(self, "trim_speed", v if math.isfinite(v) and v > 0.0 else None)
+        else:
             v0 = float(self.trim_speed)
             if not (math.isfinite(v0) and v0 > 0.0):
                 raise DataFormatError(f"flight {self.name!r}: trim speed {v0} is not positive")
