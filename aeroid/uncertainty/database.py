@@ -102,37 +102,9 @@ Uncertainty
 A band at a condition ``x`` is ``c(x) ± t σ(x)`` with ``σ²(x) = φ(x)' Cov θ_j
 φ(x)`` and ``t`` Student's quantile on the term's `dof`.
 
-Speed terms and their trim-speed reference
-------------------------------------------
-An aircraft model's speed regressor is ``V/V0 − 1`` about the flight's own trim
-speed ``V0`` (``CD_V``, ``CL_V``, ``Cm_V``), a reference that changes from flight
-to flight. The database carries it as a smooth function of the condition keys,
-``V0(x)``, fitted over the flights' trim speeds (each flight's `trim_speed`, by
-default its condition's airspeed), and a speed term flies as
-``C_V(x) (V/V0(x) − 1)``. Why the trim curve, and not a constant or the speed
-at the start of a simulation: the flights fly along it, so the database's static
-coefficient ``C_0(x)`` (each flight's coefficient at its trim,
-`aeroid.pipeline.stages.database_stage`) is the coefficient along the trim
-curve, and its slope over alpha holds the speed's share,
-``C_alpha + C_V V0'(alpha)/V0``. The speed term about ``V0(alpha)`` takes that
-share away again: at a fixed speed the database's slope over alpha is the
-flights' ``C_alpha``, at a fixed alpha its slope over ``V/V0`` is their ``C_V``,
-and on the trim curve the term vanishes, so the static table flies unchanged
-where the flights flew. The physics agrees where the speed term is a lumped
-alpha-dot term (``Cm_V ≈ −Cm_alphadot c̄ g / V0²``): the flight path turns at
-``γ̇ = (L − W)/(m V)``, and at one weight ``(L − W)/W = V²/V0(alpha)² − 1``, whose
-first order is ``2 (V/V0 − 1)``: zero on the trim curve, where the trim speed is
-the one at which the lift at that alpha holds the weight.
-
-The fitted quantity is ``(V̄/V0)²`` (``V̄`` the flights' mean trim speed): at one
-weight ``ρ V0² S CL(alpha) / 2 = W``, so ``1/V0²`` is ``ρ(h) CL(alpha)``, nearly
-linear in alpha and in altitude, where ``V0`` itself curves steeply
-(``CL^{-1/2}``). It is fitted with the same stepwise Legendre regression and
-model average, the trim speeds taken as exact (a relative variance of ``1e-12``
-keeps the weights finite), so the between-flight variance holds what the keys
-do not (weight, power, flap) and the fit is the ordinary least squares of the
-curve. A flight that estimates a speed term without a trim speed is an error
-naming it.
+Speed terms (``Cm_V``: a model's regressor ``V/V0 − 1`` about each flight's own
+trim speed) fly about the trim speed over the condition keys, fitted to the
+flights' trim speeds: `aeroid.uncertainty._database_speed` argues the reference.
 
 Held-out check
 --------------
@@ -155,7 +127,16 @@ from numpy.typing import ArrayLike, NDArray
 from .._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import norm_ppf
 from ..errors import DataFormatError, IdentificationError
-from ._database_fit import TermFit, design, fit_term
+from ._database_fit import (
+    TermFit,
+    candidate_exponents,
+    design,
+    fit_term,
+    label,
+    parse_label,
+    scaled,
+)
+from ._database_speed import TrimSpeedModel, fit_trim_speed, is_speed_term
 
 __all__ = [
     "AeroDatabase",
@@ -266,62 +247,6 @@ class HeldOutCheck:
         return abs(self.z) <= self.limit
 
 
-def is_speed_term(term: str) -> bool:
-    """Whether `term` is a speed term, ``<C>_V`` (its regressor ``V/V0 − 1``)."""
-    base, _, regressor = term.partition("_")
-    return regressor == "V" and base[:1] == "C"
-
-
-@dataclass(frozen=True, eq=False)
-class TrimSpeedModel:
-    """The trim speed ``V0`` over the condition keys, the reference of the speed terms.
-
-    ``(scale / V0)²`` is a Legendre model over the database's scaled keys (module
-    notes: the trim's lift balances the weight, so it is nearly linear in alpha).
-
-    Attributes
-    ----------
-    scale : float
-        ``V̄``, the fitted flights' mean trim speed (m/s).
-    structure : tuple of str
-        The structure stepwise regression selects, as labels.
-    parameters : ndarray
-        Coefficients of the basis functions (the model average).
-    covariance : ndarray
-        Their covariance.
-    rms : float
-        The root mean square of the fitted flights' trim speeds about the model (m/s).
-    """
-
-    scale: float
-    structure: tuple[str, ...]
-    parameters: FloatArray
-    covariance: FloatArray
-    rms: float
-    _exponents: tuple[Exponents, ...] = field(default=(), repr=False)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "parameters", frozen_array(self.parameters))
-        object.__setattr__(self, "covariance", frozen_array(self.covariance))
-        object.__setattr__(self, "structure", tuple(self.structure))
-        exps = tuple(tuple(int(n) for n in e) for e in self._exponents)
-        object.__setattr__(self, "_exponents", exps)
-
-    def evaluate(self, u: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """``V0`` and its standard error at scaled conditions `u` (rows)."""
-        phi = design(u, self._exponents)
-        y = phi @ self.parameters
-        if np.any(y <= 0.0):
-            raise IdentificationError(
-                "the trim-speed model is not positive at the condition asked for "
-                "(far outside the flown range)"
-            )
-        var_y = np.einsum("ij,jk,ik->i", phi, self.covariance, phi)
-        v0 = self.scale / np.sqrt(y)
-        # d V0 / d y = -V0 / (2 y)
-        return v0, 0.5 * v0 / y * np.sqrt(np.maximum(var_y, 0.0))
-
-
 @dataclass(frozen=True, eq=False)
 class AeroDatabase:
     """Coefficients as functions of the flight condition, with covariance.
@@ -363,7 +288,8 @@ class AeroDatabase:
         models along the stepwise path that keep an Akaike weight).
     speed_reference : TrimSpeedModel or None
         The trim speed ``V0`` over the keys that the speed terms (``Cm_V``) refer to:
-        such a term flies as ``C_V (V/V0 − 1)`` (module notes); None without one.
+        such a term flies as ``C_V (V/V0 − 1)`` (`aeroid.uncertainty._database_speed`);
+        None without one.
     """
 
     terms: tuple[str, ...]
@@ -434,7 +360,7 @@ class AeroDatabase:
                     f"condition for {term!r} has {x.shape[-1]} columns, the database "
                     f"uses {len(self.keys)} keys ({', '.join(self.keys)})"
                 )
-        return _scaled(x, self.keys, self.centres, self.half_ranges)
+        return scaled(x, self.keys, self.centres, self.half_ranges)
 
     @property
     def speed_terms(self) -> tuple[str, ...]:
@@ -613,59 +539,6 @@ class AeroDatabase:
         return out
 
 
-# -- basis ---------------------------------------------------------------------------------------
-
-
-def _scaled(
-    x: FloatArray, keys: Sequence[str], centres: Mapping[str, float], half: Mapping[str, float]
-) -> FloatArray:
-    c = np.array([centres[k] for k in keys])
-    h = np.array([half[k] for k in keys])
-    return np.asarray((x - c) / h, dtype=np.float64)
-
-
-def _label(e: Exponents, keys: Sequence[str]) -> str:
-    parts = [f"P{n}({k})" for n, k in zip(e, keys, strict=True) if n]
-    return "*".join(parts) if parts else "1"
-
-
-def _parse_label(label: str, keys: Sequence[str], term: str) -> Exponents:
-    """``"1"``, ``"alpha"``, ``"alpha^2"``, ``"alpha*mach"`` or ``"P2(alpha)"`` as exponents."""
-    e = [0] * len(keys)
-    text = label.replace(" ", "").replace("**", "^")
-    if text in ("1", "const", "0"):
-        return tuple(e)
-    for part in text.split("*"):
-        name, n = part, 1
-        if part.startswith("P") and "(" in part and part.endswith(")"):
-            n = int(part[1 : part.index("(")])
-            name = part[part.index("(") + 1 : -1]
-        elif "^" in part:
-            name, power = part.split("^", 1)
-            n = int(power)
-        if name not in keys:
-            raise IdentificationError(
-                f"structure of {term!r} uses {name!r}, not a condition key ({', '.join(keys)})"
-            )
-        e[list(keys).index(name)] += n
-    return tuple(e)
-
-
-def _candidates(n_keys: int, max_degree: int, varying: Sequence[bool]) -> list[Exponents]:
-    out: list[Exponents] = []
-
-    def grow(prefix: list[int], left: int) -> None:
-        if len(prefix) == n_keys:
-            out.append(tuple(prefix))
-            return
-        i = len(prefix)
-        for n in range(0, (left if varying[i] else 0) + 1):
-            grow([*prefix, n], left - n)
-
-    grow([], max_degree)
-    return sorted((e for e in out if any(e)), key=lambda e: (sum(e), e))
-
-
 def _flight_data(
     flights: Sequence[FlightCoefficients], terms: Sequence[str], keys: Sequence[str]
 ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
@@ -785,7 +658,7 @@ def aerodynamic_database(
     lo, hi = x.min(axis=0), x.max(axis=0)
     centres = {k: float(0.5 * (lo[i] + hi[i])) for i, k in enumerate(keys)}
     half = {k: float(0.5 * (hi[i] - lo[i])) or 1.0 for i, k in enumerate(keys)}
-    u = _scaled(x, keys, centres, half)
+    u = scaled(x, keys, centres, half)
     forced = dict(structures or {})
     bad = [t for t in forced if t not in terms]
     if bad:
@@ -803,15 +676,15 @@ def aerodynamic_database(
         var = np.array([covs[i][j, j] for i in np.flatnonzero(has)])
         uj = u[has]
         if t in forced:
-            es = [_parse_label(lab, keys, t) for lab in forced[t]]
+            es = [parse_label(lab, keys, t) for lab in forced[t]]
             _check_identifiable(t, es, uj, [fit[i].name for i in np.flatnonzero(has)], keys)
             fits[t] = fit_term(uj, z[has, j], var, forced=es)
         else:
             varying = [bool(np.ptp(uj[:, i]) > 1e-9) for i in range(len(keys))]
-            cands = _candidates(len(keys), max_degree, varying)
+            cands = candidate_exponents(len(keys), max_degree, varying)
             fits[t] = fit_term(uj, z[has, j], var, candidates=cands, f_in=f_in)
 
-    reference = _speed_reference(fit, terms, z, u, keys, max_degree, f_in)
+    reference = fit_trim_speed(fit, terms, z, u, keys, max_degree, f_in)
     offsets, j0 = {}, 0
     for t in terms:
         offsets[t] = j0
@@ -823,7 +696,7 @@ def aerodynamic_database(
         keys=keys,
         centres=centres,
         half_ranges=half,
-        structures={t: tuple(_label(e, keys) for e in fits[t].selected) for t in terms},
+        structures={t: tuple(label(e, keys) for e in fits[t].selected) for t in terms},
         parameters={t: fits[t].theta for t in terms},
         covariance=_joint_covariance(z, covs, terms, fits),
         scale={t: fits[t].scale for t in terms},
@@ -835,7 +708,7 @@ def aerodynamic_database(
         stderr=stderr,
         confidence=confidence,
         tau2={t: fits[t].tau2 for t in terms},
-        basis={t: tuple(_label(e, keys) for e in fits[t].exponents) for t in terms},
+        basis={t: tuple(label(e, keys) for e in fits[t].exponents) for t in terms},
         speed_reference=reference,
         _exponents={t: fits[t].exponents for t in terms},
         _offsets=offsets,
@@ -867,47 +740,6 @@ def aerodynamic_database(
             )
     object.__setattr__(db, "held_out", tuple(checks))
     return db
-
-
-def _speed_reference(
-    fit: Sequence[FlightCoefficients],
-    terms: Sequence[str],
-    z: FloatArray,
-    u: FloatArray,
-    keys: Sequence[str],
-    max_degree: int,
-    f_in: float,
-) -> TrimSpeedModel | None:
-    """The trim speed over the keys, ``(V̄/V0)²`` fitted to the flights' trim speeds
-    (module notes), if any term is a speed term; None otherwise."""
-    speed = [j for j, t in enumerate(terms) if is_speed_term(t)]
-    if not speed:
-        return None
-    for i, f in enumerate(fit):
-        excited = [terms[j] for j in speed if np.isfinite(z[i, j])]
-        if excited and f.trim_speed is None:
-            raise DataFormatError(
-                f"flight {f.name!r} estimates {', '.join(excited)}, a speed term about its "
-                "trim speed, but gives none (trim_speed, or an airspeed in its condition)"
-            )
-    has = np.array([f.trim_speed is not None for f in fit])
-    v0 = np.array([float(f.trim_speed) for f in fit if f.trim_speed is not None])
-    scale = float(np.mean(v0))
-    y = (scale / v0) ** 2
-    uh = u[has]
-    varying = [bool(np.ptp(uh[:, i]) > 1e-9) for i in range(len(keys))]
-    cands = _candidates(len(keys), max_degree, varying)
-    # the trim speeds are taken as exact: the floor only keeps the weights finite
-    tf = fit_term(uh, y, np.full(y.size, 1e-12), candidates=cands, f_in=f_in)
-    resid = scale / np.sqrt(np.maximum(design(uh, tf.exponents) @ tf.theta, 1e-12)) - v0
-    return TrimSpeedModel(
-        scale=scale,
-        structure=tuple(_label(e, keys) for e in tf.selected),
-        parameters=tf.theta,
-        covariance=tf.covariance,
-        rms=float(np.sqrt(np.mean(resid**2))),
-        _exponents=tf.exponents,
-    )
 
 
 def _joint_covariance(

@@ -18,7 +18,7 @@ Each table also stands alone as ``aero/aeroid/<term>`` (without the products),
 so that a simulation can read the database's value directly.
 
 A speed term refers to the trim speed over the condition keys
-(`AeroDatabase.speed_reference`, the module notes of `aeroid.uncertainty.database`):
+(`AeroDatabase.speed_reference`, argued in `aeroid.uncertainty._database_speed`):
 the section tabulates it as ``aero/aeroid/trim-speed-fps`` and flies ``C_V``
 times ``velocities/vt-fps / aero/aeroid/trim-speed-fps − 1``. With the airspeed a
 key of the static coefficient's table, its slope holds the speed's effect and the
