@@ -449,3 +449,164 @@ def test_a_product_term_flies_as_the_product_of_its_regressors(tmp_path: Path) -
     assert abs(beta) > 0.05
     cd = db.predict("CD_0", cond)[0][0] + db.predict("CD_beta_beta", cond)[0][0] * beta**2
     assert fdm["forces/fwx-aero-lbs"] / fdm["aero/qbar-area"] == pytest.approx(cd, rel=1e-4)
+
+
+# -- speed terms and their trim-speed reference ---------------------------------------------
+
+_WEIGHT, _AREA = 11000.0, 16.2  # N, m^2
+
+
+def _trim_speed(a: Any, h: Any) -> Any:
+    """The speed at which the lift 0.5 rho V^2 S (0.3 + 4.8 alpha) holds the weight."""
+    rho = 1.225 * (1.0 - 2.2558e-5 * np.asarray(h)) ** 4.256
+    return np.sqrt(2.0 * _WEIGHT / (rho * _AREA * (0.3 + 4.8 * np.asarray(a))))
+
+
+def _speed_flights(seed: int, sigma: float = 1e-3) -> list[FlightCoefficients]:
+    """Flights at their trims over alpha and altitude with a known Cm_V(alpha)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    grid = zip(np.linspace(0.0, 0.17, 18), [500.0, 1200.0, 2000.0] * 6, strict=True)
+    for i, (a, h) in enumerate(grid):
+        truth = {"Cm_V": 0.02 + 0.3 * a, "Cm_q": -12.0, "Cm_0": -0.05 - 0.2 * a}
+        est = {k: v + sigma * rng.standard_normal() for k, v in truth.items()}
+        cond = {"alpha": a, "altitude": h, "airspeed": float(_trim_speed(a, h))}
+        out.append(FlightCoefficients.from_stderr(f"f{i}", cond, est, dict.fromkeys(est, sigma)))
+    return out
+
+
+def test_speed_terms_carry_the_trim_speed_they_refer_to(tmp_path: Path) -> None:
+    pq = pytest.importorskip("pyarrow.parquet")
+    flights = _speed_flights(3)
+    db = aerodynamic_database(flights, keys=("alpha", "altitude"))
+    assert db.speed_terms == ("Cm_V",)
+    assert db.speed_reference is not None
+    # the trims' lift balances the weight: 1/V0^2 is rho(h) CL(alpha), nearly bilinear;
+    # the model holds the flights' trim speeds and the curve between them
+    assert db.speed_reference.rms < 0.01
+    a, h = np.array([0.03, 0.08, 0.15]), np.array([700.0, 1500.0, 1900.0])
+    v0, se = db.trim_speed({"alpha": a, "altitude": h})
+    np.testing.assert_allclose(v0, _trim_speed(a, h), rtol=2e-3)
+    assert np.all(se < 0.01 * v0)
+    # the speed derivative itself: its band covers the truth (sigma 1e-3 per flight)
+    value, lo, hi = db.band("Cm_V", {"alpha": a, "altitude": h})
+    assert np.all((lo <= 0.02 + 0.3 * a) & (0.02 + 0.3 * a <= hi))
+    assert np.all(hi - lo < 0.005)
+    out = db.as_function()(alpha=a, altitude=h)
+    np.testing.assert_allclose(out["V0"], v0)
+    np.testing.assert_allclose(out["Cm_V"], value)
+    assert "Speed terms (Cm_V) fly as C_V (V/V0 − 1)" in db.summary()
+    db.to_parquet(tmp_path / "db.parquet", n=3)
+    table = pq.read_table(tmp_path / "db.parquet").to_pydict()
+    i = table["term"].index("V0")
+    assert table["value"][i] == pytest.approx(
+        db.trim_speed({"alpha": table["alpha"][i], "altitude": table["altitude"][i]})[0][0]
+    )
+    assert table["term"].count("V0") == 9
+    # a plain database has no reference to ask for
+    plain = aerodynamic_database(flights, terms=("Cm_q",), keys=("alpha", "altitude"))
+    assert plain.speed_reference is None
+    with pytest.raises(IdentificationError, match="no speed term"):
+        plain.trim_speed({"alpha": 0.1, "altitude": 1000.0})
+
+
+def test_the_speed_term_about_the_trim_curve_keeps_the_slope_at_fixed_speed() -> None:
+    # a truth linear in speed about a fixed 40 m/s: Cm = -0.1 - 1.5 alpha + k (V - 40)/40.
+    # Each flight reads at its trim Cm_0 (the trim's Cm), Cm_alpha -1.5 and
+    # Cm_V = k V0/40 (per V/V0 - 1). The static table over alpha follows the trim curve,
+    # so its slope is -1.5 + k V0'/40; the speed term about V0(alpha) takes the share back
+    # (module notes): at a fixed speed the database's slope over alpha is -1.5 again
+    k = 0.1
+
+    def cm(a: Any, v: Any) -> Any:
+        return -0.1 - 1.5 * a + k * (v - 40.0) / 40.0
+
+    flights = []
+    for i, a in enumerate(np.linspace(0.0, 0.17, 15)):
+        v0 = float(_trim_speed(a, 1000.0))
+        est = {"Cm_0": float(cm(a, v0)), "Cm_V": k * v0 / 40.0}
+        flights.append(
+            FlightCoefficients.from_stderr(
+                f"f{i}", {"alpha": a}, est, {"Cm_0": 1e-5, "Cm_V": 1e-5}, trim_speed=v0
+            )
+        )
+    # quintics: the curves in 1/sqrt(CL) leave a cubic's slope 0.04 off at the ends
+    db = aerodynamic_database(flights, max_degree=5)
+    f = db.as_function()
+
+    def flown(a: Any, v: Any) -> Any:
+        out = f(alpha=a)
+        return out["Cm_0"] + out["Cm_V"] * (v / out["V0"] - 1.0)
+
+    a, da = np.array([0.04, 0.09, 0.13]), 1e-3
+    v = 1.2 * _trim_speed(a, 1000.0)  # off the trim curve
+    np.testing.assert_allclose(flown(a, v), cm(a, v), atol=1e-4)
+    assert np.all(np.abs(f(alpha=a)["Cm_0"] - cm(a, v)) > 0.015)  # the term is 0.02-0.03
+    slope = (flown(a + da, v) - flown(a - da, v)) / (2 * da)
+    np.testing.assert_allclose(slope, -1.5, atol=0.02)
+    # the static table alone: its slope at a fixed speed is the trim curve's
+    static = (f(alpha=a + da)["Cm_0"] - f(alpha=a - da)["Cm_0"]) / (2 * da)
+    assert np.all(static - -1.5 < -0.15)
+
+
+def test_a_speed_term_needs_its_flights_trim_speed() -> None:
+    flights = _speed_flights(5)
+    bare = FlightCoefficients.from_stderr(
+        "flight_v", {"alpha": 0.1, "altitude": 900.0}, {"Cm_V": 0.05}, {"Cm_V": 1e-3}
+    )
+    with pytest.raises(DataFormatError, match=r"flight_v.*Cm_V.*trim speed"):
+        aerodynamic_database([*flights, bare], keys=("alpha", "altitude"))
+    with pytest.raises(DataFormatError, match=r"flight_w.*trim speed"):
+        FlightCoefficients.from_stderr("flight_w", {}, {"Cm_V": 0.0}, {}, trim_speed=-3.0)
+    # an airspeed that is not a speed gives no reference: named where a speed term needs it
+    odd = FlightCoefficients.from_stderr(
+        "flight_z", {"alpha": 0.1, "altitude": 900.0, "airspeed": -3.0}, {"Cm_V": 0.05}, {}
+    )
+    assert odd.trim_speed is None
+    from aeroid.uncertainty.database_export import split_term
+
+    assert split_term("Cm_V") == ("Cm", "V")
+    # over the airspeed, the static table's slope is the speed's effect: no speed term
+    # flies again beside it (as CL_alpha beside a table over alpha)
+    by_speed = [
+        FlightCoefficients.from_stderr(
+            f"s{i}",
+            {"airspeed": v},
+            {"Cm_0": 0.001 * v, "Cm_V": 0.04},
+            {"Cm_0": 1e-4, "Cm_V": 1e-3},
+        )
+        for i, v in enumerate(np.linspace(30.0, 60.0, 7))
+    ]
+    section = aerodynamic_database(by_speed).to_jsbsim(n=5)
+    assert "aeroid-Cm_V" not in section and "aeroid-Cm_0" in section
+
+
+def test_jsbsim_flies_the_speed_term_about_the_trim_speed(tmp_path: Path) -> None:
+    pytest.importorskip("jsbsim")
+    from aeroid.uncertainty.database_export import TRIM_SPEED
+
+    db = aerodynamic_database(_speed_flights(8), keys=("alpha", "altitude"))
+    section = db.to_jsbsim(n=31)
+    assert section.index(TRIM_SPEED) < section.index("aeroid-Cm_V")
+    # 90 kt at 4 deg: about 10 % above the trim speed there
+    fdm = _flying(section, tmp_path / "root", feet=3000.0, knots=90.0, alpha=4.0)
+    fdm["ic/q-rad_sec"] = 0.1
+    fdm.run_ic()
+    fdm.run()
+    ft = 0.3048
+    cond = {"alpha": fdm["aero/alpha-rad"], "altitude": fdm["position/h-sl-ft"] * ft}
+    v0 = db.trim_speed(cond)[0][0]
+    # JSBSim interpolates the 31 x 31 table linearly; the trim speed curves in alpha
+    # (a breakpoint's spacing 0.0057 rad: h^2 V0''/8 is about 1e-4 of V0)
+    assert fdm[TRIM_SPEED] * ft == pytest.approx(v0, rel=5e-4)
+    ratio = fdm["velocities/vt-fps"] / fdm[TRIM_SPEED] - 1.0
+    assert ratio == pytest.approx(fdm["velocities/vt-fps"] * ft / v0 - 1.0, abs=1e-3)
+    assert abs(ratio) > 0.05
+    at = {t: db.predict(t, cond)[0][0] for t in db.terms}
+    q_hat = fdm["aero/ci2vel"] * fdm["velocities/q-aero-rad_sec"]
+    cm = at["Cm_0"] + at["Cm_q"] * q_hat + at["Cm_V"] * ratio
+    qs, c = fdm["aero/qbar-area"], fdm["metrics/cbarw-ft"]
+    assert fdm["moments/m-aero-lbsft"] / (qs * c) == pytest.approx(cm, rel=1e-4, abs=1e-6)
+    assert fdm["aero/coefficient/aeroid-Cm_V"] / (qs * c) == pytest.approx(
+        at["Cm_V"] * ratio, rel=1e-4
+    )

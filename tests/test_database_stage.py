@@ -110,3 +110,35 @@ def test_database_stage_leaves_the_time_delays_out(tmp_path: Path) -> None:
     db = store.load(next(t for t in s.plan.tasks if t.stage == "database").key, "database")
     assert set(db.structures) == {"M_alpha", "M_q"}
     assert _COEFFICIENT.match("Cl_p") and not _COEFFICIENT.match("tau_delta_a")
+
+
+def test_the_stage_refers_speed_terms_to_each_flights_airspeed() -> None:
+    # the briefs of flights trimmed along 1/V0^2 = 2.5e-4 (1 + 10 alpha): the stage takes
+    # each flight's trim speed from its condition's airspeed, though the database's keys
+    # are alpha alone, and the fitted reference returns those speeds
+    import numpy as np
+
+    from aeroid.pipeline.stages import StageContext
+    from aeroid.pipeline.stages.database_stage import DatabaseOptions, _run_database
+
+    names = ["Cm_0", "Cm_V"]
+    alphas = np.linspace(0.0, 0.15, 8)
+    ident, data = {}, {}
+    for i, a in enumerate(alphas):
+        ident[i] = {
+            "names": names,
+            "parameters": {"Cm_0": -0.1 * a, "Cm_V": 0.04 + 0.2 * a},
+            "covariance": (np.eye(2) * 1e-6).tolist(),
+        }
+        data[i] = {"alpha": float(a), "airspeed": float(1.0 / np.sqrt(2.5e-4 * (1 + 10 * a)))}
+    flights = tuple(f"f{i}" for i in range(len(alphas)))
+    ctx = StageContext(
+        options=DatabaseOptions(keys=["alpha"]),
+        inputs={},
+        flights=flights,
+        briefs={"identification": ident, "data": data},
+    )
+    db = _run_database(ctx)
+    assert db.keys == ("alpha",) and db.speed_terms == ("Cm_V",)
+    v0, _ = db.trim_speed({"alpha": alphas})
+    np.testing.assert_allclose(v0, [data[i]["airspeed"] for i in range(len(alphas))], rtol=1e-6)

@@ -8,11 +8,13 @@ stated variances ``v`` and the scaled conditions ``u`` of those flights.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+
+from ..errors import IdentificationError
 
 FloatArray = NDArray[np.float64]
 Exponents = tuple[int, ...]
@@ -44,6 +46,60 @@ def design(u: FloatArray, exponents: Sequence[Exponents]) -> FloatArray:
                 col = col * legendre(u[:, i], n)
         cols.append(col)
     return np.stack(cols, axis=1)
+
+
+def scaled(
+    x: FloatArray, keys: Sequence[str], centres: Mapping[str, float], half: Mapping[str, float]
+) -> FloatArray:
+    """Condition rows `x` (columns `keys`) scaled to ``u = (x − centre) / half``."""
+    c = np.array([centres[k] for k in keys])
+    h = np.array([half[k] for k in keys])
+    return np.asarray((x - c) / h, dtype=np.float64)
+
+
+def label(e: Exponents, keys: Sequence[str]) -> str:
+    """A basis function's label, ``"1"`` or ``"P1(alpha)*P2(mach)"``."""
+    parts = [f"P{n}({k})" for n, k in zip(e, keys, strict=True) if n]
+    return "*".join(parts) if parts else "1"
+
+
+def parse_label(given: str, keys: Sequence[str], term: str) -> Exponents:
+    """``"1"``, ``"alpha"``, ``"alpha^2"``, ``"alpha*mach"`` or ``"P2(alpha)"`` as exponents."""
+    e = [0] * len(keys)
+    text = given.replace(" ", "").replace("**", "^")
+    if text in ("1", "const", "0"):
+        return tuple(e)
+    for part in text.split("*"):
+        name, n = part, 1
+        if part.startswith("P") and "(" in part and part.endswith(")"):
+            n = int(part[1 : part.index("(")])
+            name = part[part.index("(") + 1 : -1]
+        elif "^" in part:
+            name, power = part.split("^", 1)
+            n = int(power)
+        if name not in keys:
+            raise IdentificationError(
+                f"structure of {term!r} uses {name!r}, not a condition key ({', '.join(keys)})"
+            )
+        e[list(keys).index(name)] += n
+    return tuple(e)
+
+
+def candidate_exponents(n_keys: int, max_degree: int, varying: Sequence[bool]) -> list[Exponents]:
+    """Every product of Legendre degrees up to `max_degree` in total over the keys that
+    vary, lowest total degree first (the constant apart)."""
+    out: list[Exponents] = []
+
+    def grow(prefix: list[int], left: int) -> None:
+        if len(prefix) == n_keys:
+            out.append(tuple(prefix))
+            return
+        i = len(prefix)
+        for n in range(0, (left if varying[i] else 0) + 1):
+            grow([*prefix, n], left - n)
+
+    grow([], max_degree)
+    return sorted((e for e in out if any(e)), key=lambda e: (sum(e), e))
 
 
 def parents(e: Exponents) -> list[Exponents]:

@@ -102,6 +102,10 @@ Uncertainty
 A band at a condition ``x`` is ``c(x) ± t σ(x)`` with ``σ²(x) = φ(x)' Cov θ_j
 φ(x)`` and ``t`` Student's quantile on the term's `dof`.
 
+Speed terms (``Cm_V``: a model's regressor ``V/V0 − 1`` about each flight's own
+trim speed) fly about the trim speed over the condition keys, fitted to the
+flights' trim speeds: `aeroid.uncertainty._database_speed` argues the reference.
+
 Held-out check
 --------------
 Flights named in `held_out` stay out of the fit; their estimates are compared
@@ -123,9 +127,25 @@ from numpy.typing import ArrayLike, NDArray
 from .._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import norm_ppf
 from ..errors import DataFormatError, IdentificationError
-from ._database_fit import TermFit, design, fit_term
+from ._database_fit import (
+    TermFit,
+    candidate_exponents,
+    design,
+    fit_term,
+    label,
+    parse_label,
+    scaled,
+)
+from ._database_speed import TrimSpeedModel, fit_trim_speed, is_speed_term
 
-__all__ = ["AeroDatabase", "FlightCoefficients", "HeldOutCheck", "aerodynamic_database"]
+__all__ = [
+    "AeroDatabase",
+    "FlightCoefficients",
+    "HeldOutCheck",
+    "TrimSpeedModel",
+    "aerodynamic_database",
+    "is_speed_term",
+]
 
 FloatArray = NDArray[np.float64]
 Exponents = tuple[int, ...]
@@ -146,14 +166,32 @@ class FlightCoefficients:
         marks a coefficient this flight did not excite.
     covariance : ndarray, shape (n, n)
         Covariance of the estimates in the order of `estimates`.
+    trim_speed : float, optional
+        The trim speed ``V0`` (m/s) the flight's speed regressor ``V/V0 − 1`` refers
+        to (its speed terms ``CL_V``, ``Cm_V``, ...); default the condition's
+        ``airspeed``.
     """
 
     name: str
     condition: Mapping[str, float]
     estimates: Mapping[str, float]
     covariance: FloatArray
+    trim_speed: float | None = None
 
     def __post_init__(self) -> None:
+        if self.trim_speed is None:
+            # the condition's airspeed where it is one (a flight without speed terms
+            # needs none, and a bad airspeed key is named where a fit uses it)
+            try:
+                v = float(self.condition.get("airspeed", math.nan))
+            except (TypeError, ValueError):
+                v = math.nan
+            object.__setattr__(self, "trim_speed", v if math.isfinite(v) and v > 0.0 else None)
+        else:
+            v0 = float(self.trim_speed)
+            if not (math.isfinite(v0) and v0 > 0.0):
+                raise DataFormatError(f"flight {self.name!r}: trim speed {v0} is not positive")
+            object.__setattr__(self, "trim_speed", v0)
         object.__setattr__(self, "name", str(self.name))
         object.__setattr__(self, "condition", frozen_mapping(self.condition))
         object.__setattr__(self, "estimates", frozen_mapping(self.estimates))
@@ -166,11 +204,13 @@ class FlightCoefficients:
         condition: Mapping[str, float],
         estimates: Mapping[str, float],
         stderr: Mapping[str, float],
+        *,
+        trim_speed: float | None = None,
     ) -> FlightCoefficients:
         """Estimates with independent standard errors (a diagonal covariance)."""
         names = list(estimates)
         var = [float(stderr[n]) ** 2 if n in stderr else math.nan for n in names]
-        return cls(name, condition, estimates, np.diag(var))
+        return cls(name, condition, estimates, np.diag(var), trim_speed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,6 +286,10 @@ class AeroDatabase:
     basis : mapping of str to tuple of str
         The basis of each coefficient's model average (`structures` and the richer
         models along the stepwise path that keep an Akaike weight).
+    speed_reference : TrimSpeedModel or None
+        The trim speed ``V0`` over the keys that the speed terms (``Cm_V``) refer to:
+        such a term flies as ``C_V (V/V0 − 1)`` (`aeroid.uncertainty._database_speed`);
+        None without one.
     """
 
     terms: tuple[str, ...]
@@ -266,6 +310,7 @@ class AeroDatabase:
     confidence: float = 0.95
     tau2: Mapping[str, float] = field(default_factory=dict)
     basis: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    speed_reference: TrimSpeedModel | None = None
     _exponents: Mapping[str, tuple[Exponents, ...]] = field(default_factory=dict, repr=False)
     _offsets: Mapping[str, int] = field(default_factory=dict, repr=False)
 
@@ -294,6 +339,11 @@ class AeroDatabase:
             raise IdentificationError(
                 f"the database has no term {term!r}; it models {', '.join(self.terms)}"
             )
+        return design(self._scaled_condition(term, condition), self._exponents[term])
+
+    def _scaled_condition(
+        self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
+    ) -> FloatArray:
         if isinstance(condition, Mapping):
             missing = [k for k in self.keys if k not in condition]
             if missing:
@@ -310,8 +360,32 @@ class AeroDatabase:
                     f"condition for {term!r} has {x.shape[-1]} columns, the database "
                     f"uses {len(self.keys)} keys ({', '.join(self.keys)})"
                 )
-        u = _scaled(x, self.keys, self.centres, self.half_ranges)
-        return design(u, self._exponents[term])
+        return scaled(x, self.keys, self.centres, self.half_ranges)
+
+    @property
+    def speed_terms(self) -> tuple[str, ...]:
+        """The speed terms (``<C>_V``), which fly as ``C_V (V/V0 − 1)``."""
+        return tuple(t for t in self.terms if is_speed_term(t))
+
+    def trim_speed(
+        self, condition: Mapping[str, ArrayLike] | ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
+        """The trim speed ``V0`` (m/s) the speed terms refer to, and its standard error.
+
+        Parameters
+        ----------
+        condition : mapping of str to array_like, or array_like (n, n_keys)
+            As for `predict`.
+
+        Returns
+        -------
+        value, stderr : ndarray, shape (n,)
+        """
+        if self.speed_reference is None:
+            raise IdentificationError(
+                "the database has no speed term (<C>_V), so no trim-speed reference"
+            )
+        return self.speed_reference.evaluate(self._scaled_condition("V0", condition))
 
     def predict(
         self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
@@ -359,10 +433,16 @@ class AeroDatabase:
         return _t_quantile(self.dof.get(term, 0.0), 0.5 + 0.5 * level)
 
     def as_function(self) -> Callable[..., dict[str, FloatArray]]:
-        """A plain callable ``f(**condition) -> {term: value}`` for a simulation."""
+        """A plain callable ``f(**condition) -> {term: value}`` for a simulation.
+
+        With speed terms it also returns ``"V0"``, the trim speed (m/s) they refer
+        to: a speed term ``C_V`` adds ``C_V (V/V0 − 1)`` at airspeed ``V``."""
 
         def evaluate(**condition: ArrayLike) -> dict[str, FloatArray]:
-            return {t: self.predict(t, condition)[0] for t in self.terms}
+            out = {t: self.predict(t, condition)[0] for t in self.terms}
+            if self.speed_reference is not None:
+                out["V0"] = self.trim_speed(condition)[0]
+            return out
 
         return evaluate
 
@@ -374,7 +454,8 @@ class AeroDatabase:
         return np.linspace(c - h, c + h, int(n))
 
     def table(self, *, n: int = 11) -> dict[str, list[Any]]:
-        """A tidy table: one row per term and grid point, with the band (`n` points per key)."""
+        """A tidy table: one row per term and grid point, with the band (`n` points per key);
+        with speed terms also rows ``"V0"``, their trim-speed reference (m/s)."""
         axes = np.meshgrid(*[self.grid(k, n) for k in self.keys], indexing="ij")
         flat = {k: a.ravel() for k, a in zip(self.keys, axes, strict=True)}
         rows: dict[str, list[Any]] = {"term": [], **{k: [] for k in self.keys}}
@@ -389,6 +470,17 @@ class AeroDatabase:
             rows["stderr"].extend(se.tolist())
             rows["lower"].extend(lo.tolist())
             rows["upper"].extend(hi.tolist())
+        if self.speed_reference is not None:
+            # the speed terms' reference, with the normal quantile's band
+            v0, se = self.trim_speed(flat)
+            z = norm_ppf(0.5 + 0.5 * self.confidence)
+            rows["term"].extend(["V0"] * v0.size)
+            for k in self.keys:
+                rows[k].extend(flat[k].tolist())
+            rows["value"].extend(v0.tolist())
+            rows["stderr"].extend(se.tolist())
+            rows["lower"].extend((v0 - z * se).tolist())
+            rows["upper"].extend((v0 + z * se).tolist())
         return rows
 
     def to_jsbsim(self, path: str | Path | None = None, *, n: int = 21) -> str:
@@ -436,60 +528,15 @@ class AeroDatabase:
                 f"\n\nHeld out: {len({c.flight for c in self.held_out})} flights, {inside} of "
                 f"{len(self.held_out)} estimates inside the {self.confidence:.0%} band"
             )
-        return out
-
-
-# -- basis ---------------------------------------------------------------------------------------
-
-
-def _scaled(
-    x: FloatArray, keys: Sequence[str], centres: Mapping[str, float], half: Mapping[str, float]
-) -> FloatArray:
-    c = np.array([centres[k] for k in keys])
-    h = np.array([half[k] for k in keys])
-    return np.asarray((x - c) / h, dtype=np.float64)
-
-
-def _label(e: Exponents, keys: Sequence[str]) -> str:
-    parts = [f"P{n}({k})" for n, k in zip(e, keys, strict=True) if n]
-    return "*".join(parts) if parts else "1"
-
-
-def _parse_label(label: str, keys: Sequence[str], term: str) -> Exponents:
-    """``"1"``, ``"alpha"``, ``"alpha^2"``, ``"alpha*mach"`` or ``"P2(alpha)"`` as exponents."""
-    e = [0] * len(keys)
-    text = label.replace(" ", "").replace("**", "^")
-    if text in ("1", "const", "0"):
-        return tuple(e)
-    for part in text.split("*"):
-        name, n = part, 1
-        if part.startswith("P") and "(" in part and part.endswith(")"):
-            n = int(part[1 : part.index("(")])
-            name = part[part.index("(") + 1 : -1]
-        elif "^" in part:
-            name, power = part.split("^", 1)
-            n = int(power)
-        if name not in keys:
-            raise IdentificationError(
-                f"structure of {term!r} uses {name!r}, not a condition key ({', '.join(keys)})"
+        ref = self.speed_reference
+        if ref is not None:
+            out += (
+                f"\n\nSpeed terms ({', '.join(self.speed_terms)}) fly as C_V (V/V0 − 1), V0 the "
+                f"trim speed over {', '.join(self.keys)}: (V̄/V0)² with V̄ {fmt(ref.scale)} m/s "
+                f"= {' + '.join(ref.structure)}, {fmt(ref.rms)} m/s rms about the flights' "
+                "trim speeds"
             )
-        e[list(keys).index(name)] += n
-    return tuple(e)
-
-
-def _candidates(n_keys: int, max_degree: int, varying: Sequence[bool]) -> list[Exponents]:
-    out: list[Exponents] = []
-
-    def grow(prefix: list[int], left: int) -> None:
-        if len(prefix) == n_keys:
-            out.append(tuple(prefix))
-            return
-        i = len(prefix)
-        for n in range(0, (left if varying[i] else 0) + 1):
-            grow([*prefix, n], left - n)
-
-    grow([], max_degree)
-    return sorted((e for e in out if any(e)), key=lambda e: (sum(e), e))
+        return out
 
 
 def _flight_data(
@@ -574,7 +621,8 @@ def aerodynamic_database(
     Raises
     ------
     DataFormatError
-        A flight lacks a condition key, or its covariance does not match.
+        A flight lacks a condition key, its covariance does not match, or it
+        estimates a speed term (``Cm_V``) but gives no trim speed.
     IdentificationError
         No flight excites a term, or the conditions cannot identify a forced
         structure (both named).
@@ -610,7 +658,7 @@ def aerodynamic_database(
     lo, hi = x.min(axis=0), x.max(axis=0)
     centres = {k: float(0.5 * (lo[i] + hi[i])) for i, k in enumerate(keys)}
     half = {k: float(0.5 * (hi[i] - lo[i])) or 1.0 for i, k in enumerate(keys)}
-    u = _scaled(x, keys, centres, half)
+    u = scaled(x, keys, centres, half)
     forced = dict(structures or {})
     bad = [t for t in forced if t not in terms]
     if bad:
@@ -628,14 +676,15 @@ def aerodynamic_database(
         var = np.array([covs[i][j, j] for i in np.flatnonzero(has)])
         uj = u[has]
         if t in forced:
-            es = [_parse_label(lab, keys, t) for lab in forced[t]]
+            es = [parse_label(lab, keys, t) for lab in forced[t]]
             _check_identifiable(t, es, uj, [fit[i].name for i in np.flatnonzero(has)], keys)
             fits[t] = fit_term(uj, z[has, j], var, forced=es)
         else:
             varying = [bool(np.ptp(uj[:, i]) > 1e-9) for i in range(len(keys))]
-            cands = _candidates(len(keys), max_degree, varying)
+            cands = candidate_exponents(len(keys), max_degree, varying)
             fits[t] = fit_term(uj, z[has, j], var, candidates=cands, f_in=f_in)
 
+    reference = fit_trim_speed(fit, terms, z, u, keys, max_degree, f_in)
     offsets, j0 = {}, 0
     for t in terms:
         offsets[t] = j0
@@ -647,7 +696,7 @@ def aerodynamic_database(
         keys=keys,
         centres=centres,
         half_ranges=half,
-        structures={t: tuple(_label(e, keys) for e in fits[t].selected) for t in terms},
+        structures={t: tuple(label(e, keys) for e in fits[t].selected) for t in terms},
         parameters={t: fits[t].theta for t in terms},
         covariance=_joint_covariance(z, covs, terms, fits),
         scale={t: fits[t].scale for t in terms},
@@ -659,7 +708,8 @@ def aerodynamic_database(
         stderr=stderr,
         confidence=confidence,
         tau2={t: fits[t].tau2 for t in terms},
-        basis={t: tuple(_label(e, keys) for e in fits[t].exponents) for t in terms},
+        basis={t: tuple(label(e, keys) for e in fits[t].exponents) for t in terms},
+        speed_reference=reference,
         _exponents={t: fits[t].exponents for t in terms},
         _offsets=offsets,
     )

@@ -7,6 +7,7 @@ surface position) and a table of the coefficient over the flight condition.
 Coefficient names follow the package's convention ``<C>_<regressor>``:
 ``C`` one of CL, CD, CY, Cl, Cm, Cn; the regressor alpha, beta, p, q, r,
 delta_e, delta_a, delta_r (rates nondimensional, ``p b/2V``, ``q c/2V``), or
+``V`` the speed regressor ``V/V0 − 1`` (``Cm_V``), or
 ``0`` (``CL_0``) for the coefficient at the flight condition itself, or a
 product of regressors as an aircraft model names it (``CD_beta_beta``, drag with
 ``β²``; ``CL_alpha_delta_e``), flown as the product of their properties. When the
@@ -15,6 +16,13 @@ static ``<C>_0`` is tabulated over a condition key that is also a regressor
 
 Each table also stands alone as ``aero/aeroid/<term>`` (without the products),
 so that a simulation can read the database's value directly.
+
+A speed term refers to the trim speed over the condition keys
+(`AeroDatabase.speed_reference`, argued in `aeroid.uncertainty._database_speed`):
+the section tabulates it as ``aero/aeroid/trim-speed-fps`` and flies ``C_V``
+times ``velocities/vt-fps / aero/aeroid/trim-speed-fps − 1``. With the airspeed a
+key of the static coefficient's table, its slope holds the speed's effect and the
+speed term is not exported again (as ``C_alpha`` beside a table over alpha).
 
 The moments are about the centre of gravity: an identification fits the
 equations of motion about it, so its moment coefficients already hold the
@@ -32,12 +40,13 @@ aircraft's reference point sits.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import escape
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import DataFormatError, OutputError
 
@@ -58,6 +67,9 @@ CONDITION_PROPERTIES: Mapping[str, tuple[str, float]] = {
     "dynamic_pressure": ("aero/qbar-psf", 1.0 / _PSF),
 }
 
+# the speed terms' reference, the trim speed over the condition keys (ft/s)
+TRIM_SPEED = "aero/aeroid/trim-speed-fps"
+
 # regressor -> JSBSim properties whose product it is
 REGRESSOR_PROPERTIES: Mapping[str, tuple[str, ...]] = {
     "0": (),
@@ -75,7 +87,15 @@ REGRESSOR_PROPERTIES: Mapping[str, tuple[str, ...]] = {
         "</property><property>fcs/right-aileron-pos-rad</property></difference></product>",
     ),
     "delta_r": ("fcs/rudder-pos-rad",),
+    # V/V0 - 1 about the database's trim speed over the condition keys
+    "V": (
+        "<difference><quotient><property>velocities/vt-fps</property><property>"
+        f"{TRIM_SPEED}</property></quotient><value>1</value></difference>",
+    ),
 }
+
+# a regressor that is also a condition key: a table over the key holds its slope
+_REGRESSOR_KEY: Mapping[str, str] = {"V": "airspeed"}
 
 # coefficient -> (JSBSim axis, reference length property or None)
 AXES: Mapping[str, tuple[str, str | None]] = {
@@ -136,10 +156,33 @@ def _fmt(x: float) -> str:
 
 
 def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
-    keys = _table_keys(db, term)
-    base = {k: db.centres[k] for k in db.keys}
+    """`term`'s table over the keys it varies with."""
+    return _tabulated(db, term, _table_keys(db, term), lambda c: db.predict(term, c)[0], n, indent)
+
+
+def _trim_speed_xml(db: AeroDatabase, n: int, indent: str) -> list[str]:
+    """The speed terms' trim speed (ft/s) over the keys its model varies with."""
+    ref = db.speed_reference
+    if ref is None:
+        raise DataFormatError(
+            f"speed term(s) {', '.join(db.speed_terms)} need the database's trim-speed "
+            "reference, which it lacks"
+        )
+    keys = [k for i, k in enumerate(db.keys) if any(e[i] for e in ref._exponents)]
+    return _tabulated(db, "V0", keys, lambda c: db.trim_speed(c)[0] / _FT, n, indent)
+
+
+def _tabulated(
+    db: AeroDatabase,
+    term: str,
+    keys: list[str],
+    value: Callable[[dict[str, Any]], NDArray[np.float64]],
+    n: int,
+    indent: str,
+) -> list[str]:
+    base: dict[str, Any] = {k: db.centres[k] for k in db.keys}
     if not keys:
-        return [f"{indent}<value>{_fmt(float(db.predict(term, base)[0][0]))}</value>"]
+        return [f"{indent}<value>{_fmt(float(value(base)[0]))}</value>"]
     for k in keys:
         if k not in CONDITION_PROPERTIES:
             raise DataFormatError(
@@ -159,7 +202,7 @@ def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
     conv = [CONDITION_PROPERTIES[k][1] for k in keys]
     if len(keys) == 1:
         lines.append(f"{indent}  <tableData>")
-        values = db.predict(term, {**base, keys[0]: grids[0]})[0]
+        values = value({**base, keys[0]: grids[0]})
         for x, v in zip(grids[0], values, strict=True):
             lines.append(f"{indent}    {_fmt(x * conv[0])} {_fmt(v)}")
         lines.append(f"{indent}  </tableData>")
@@ -173,7 +216,7 @@ def _table_xml(db: AeroDatabase, term: str, n: int, indent: str) -> list[str]:
             else:
                 lines.append(f'{indent}  <tableData breakPoint="{_fmt(layer * conv[2])}">')
             rows, cols = np.meshgrid(grids[0], grids[1], indexing="ij")
-            values = db.predict(term, {**at, keys[0]: rows.ravel(), keys[1]: cols.ravel()})[0]
+            values = value({**at, keys[0]: rows.ravel(), keys[1]: cols.ravel()})
             values = values.reshape(rows.shape)
             lines.append(f"{indent}    " + " ".join(_fmt(c * conv[1]) for c in grids[1]))
             for i, x in enumerate(grids[0]):
@@ -229,10 +272,17 @@ def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
     for term in db.terms:
         base, regressor = split_term(term)
         static = next((t for t in (f"{base}_0", base) if t in db.terms), None)
-        if static is not None and regressor != "0" and regressor in _table_keys(db, static):
+        key = _REGRESSOR_KEY.get(regressor, regressor)
+        if static is not None and regressor != "0" and key in _table_keys(db, static):
             continue  # the slope of the static table, already in it
         placed[AXES[base][0]].append((term, regressor))
     out = ["<aerodynamics>", "  <!-- written by AeroID from an aerodynamic database -->"]
+    if any("V" in (_factors(r) or ()) for entries in placed.values() for _, r in entries):
+        # defined first: the speed terms' regressor reads it
+        out.append(f'  <function name="{TRIM_SPEED}">')
+        out.append("    <description>the trim speed the speed terms refer to</description>")
+        out.extend(_trim_speed_xml(db, n, "    "))
+        out.append("  </function>")
     for term in db.terms:
         out.append(f'  <function name="aero/aeroid/{escape(term)}">')
         out.extend(_table_xml(db, term, n, "    "))

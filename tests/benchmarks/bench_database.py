@@ -1,7 +1,8 @@
 """Benchmark: the campaign stage ``database`` over 100 flights (issue 51, target <= 10 s).
 
-The stage's run on 100 flights' briefs (14 coefficients with full covariances,
-condition keys alpha, altitude and airspeed), then the files a run writes beside
+The stage's run on 100 flights' briefs (15 coefficients with full covariances, a
+speed term among them with its trim-speed reference, condition keys alpha, altitude
+and airspeed), then the files a run writes beside
 the report (JSBSim section, Parquet table, one band plot per coefficient). The
 first call runs in a fresh process and pays for the imports.
 
@@ -25,14 +26,15 @@ import numpy as np
 
 n, repeat = int(sys.argv[1]), int(sys.argv[2])
 rng = np.random.default_rng(0)
-terms = ["CL_0", "CL_alpha", "CD_0", "Cm_0", "Cm_alpha", "Cm_q", "Cm_delta_e", "CY_beta",
-         "Cl_beta", "Cl_p", "Cl_delta_a", "Cn_beta", "Cn_r", "Cn_delta_r"]
+terms = ["CL_0", "CL_alpha", "CD_0", "Cm_0", "Cm_alpha", "Cm_V", "Cm_q", "Cm_delta_e",
+         "CY_beta", "Cl_beta", "Cl_p", "Cl_delta_a", "Cn_beta", "Cn_r", "Cn_delta_r"]
+k = len(terms)
 ident, data = {}, {}
 for i in range(n):
     a, h, v = rng.uniform(0, 0.17), rng.choice([500.0, 1000.0, 1500.0]), rng.uniform(35, 65)
-    m = rng.standard_normal((14, 14)) * 0.01
-    cov = m @ m.T + np.eye(14) * 1e-4
-    est = 0.1 * np.arange(1, 15) * (1 + a) + np.linalg.cholesky(cov) @ rng.standard_normal(14)
+    m = rng.standard_normal((k, k)) * 0.01
+    cov = m @ m.T + np.eye(k) * 1e-4
+    est = 0.1 * np.arange(1, k + 1) * (1 + a) + np.linalg.cholesky(cov) @ rng.standard_normal(k)
     ident[i] = {"names": terms, "parameters": dict(zip(terms, est.tolist())),
                 "covariance": cov.tolist()}
     data[i] = {"alpha": a, "altitude": h, "airspeed": v}

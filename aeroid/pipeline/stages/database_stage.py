@@ -109,7 +109,10 @@ def _run_database(ctx: StageContext) -> Any:
         sub = cov[np.ix_(keep, keep)] if keep else np.zeros((0, 0))
         est = {names[j]: ident["parameters"][names[j]] for j in keep}
         est, sub = _at_condition(est, sub, cond)
-        flights.append(FlightCoefficients(name, condition, est, sub))
+        # the speed terms' V/V0 - 1 refers to the flight's trim speed: its condition's
+        # airspeed, whether or not the database is a function of it
+        v0 = cond.get("airspeed")
+        flights.append(FlightCoefficients(name, condition, est, sub, v0))
     if not flights:
         raise PipelineError("database: no flight was identified; there is nothing to fit")
     keys = opts.keys
@@ -158,8 +161,9 @@ register_stage(
         "database",
         # 2: each coefficient weighted by its own variances (aeroid.uncertainty.database notes);
         # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition);
-        # 4: random-effects meta-regression, model-averaged Knapp-Hartung bands
-        "4",
+        # 4: random-effects meta-regression, model-averaged Knapp-Hartung bands;
+        # 5: speed terms with their trim-speed reference over the keys
+        "5",
         DatabaseOptions,
         "AeroDatabase",
         _run_database,
