@@ -157,17 +157,19 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
     mods = _import_jax()
     assert mods is not None
     jax, jnp = mods
-    f = entry[("fn", "dynamics")]
+    f = _traced_once(entry[("fn", "dynamics")], jax)
+    h = entry.get(("fn", "measurement"))
+    h = None if h is None else _traced_once(h, jax)
     roll = _rollout(f, jax, jnp)
     if kind == "states":
         shared_u = bool(extra)
         fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
     elif kind == "sensitivities":
-        fn = jax.jit(_tangent_linear(f, entry.get(("fn", "measurement")), model, jax, jnp))
+        fn = jax.jit(_tangent_linear(f, h, model, jax, jnp))
     elif kind == "outputs":
         fn = _outputs_program(model, jax, jnp, *extra)
     elif kind == "input_noise":
-        fn = jax.jit(_input_noise_scatter(f, entry.get(("fn", "measurement")), jax, jnp))
+        fn = jax.jit(_input_noise_scatter(f, h, jax, jnp))
     elif kind == "interval":
         step = _interval(f, jax)
         jacobian = _interval_jacobian(f, jax, jnp)
@@ -183,6 +185,14 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         raise ValueError(kind)
     cache[key] = fn
     return fn
+
+
+def _traced_once(fn: Callable[..., Any], jax: Any) -> Callable[..., Any]:
+    """`fn` as a function JAX traces once per argument shape, however often a program
+    calls it (the RK4 steps call the dynamics four times a substep): tracing the model
+    is most of a program's cost where its compilation comes from the disk cache, and
+    the compiler inlines the call, so the program computes the same."""
+    return jax.jit(fn)
 
 
 def _pmatrix(model: Model, p: Mapping[str, Any], batch: int) -> FloatArray:
