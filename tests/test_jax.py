@@ -378,6 +378,7 @@ def test_a_program_another_process_compiles_is_waited_for_and_read(tmp_path):
     # nobody else compiles it: compiled here, the cache not read again
     assert once(None, None, None, None, (), "jit_f", "k1") == "compiled k1"
     assert compiled == ["k1"]
+    assert not list(tmp_path.iterdir())  # its lock file removed
     # another process holds the program's lock: wait, then take what it wrote
     for written, expected in (("from disk", "from disk"), (None, "compiled k2")):
         compiled.clear()

@@ -17,6 +17,7 @@ and 64-bit floats are switched on then.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
@@ -181,8 +182,9 @@ def _compile_once(
                 backend, computation, devices, options, callbacks, module_name, cache_key
             )
 
+        path = locks / _lock_name(cache_key)
         try:
-            fd = os.open(locks / _lock_name(cache_key), os.O_RDWR | os.O_CREAT, 0o600)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
         except OSError:
             return compile_here()
         try:
@@ -193,7 +195,12 @@ def _compile_once(
                 found, _ = read(module_name, cache_key, options, backend, devices)
                 if found is not None:
                     return found
-            return compile_here()
+            program = compile_here()
+            # no lock files pile up: a process arriving from now on finds the program
+            # in the cache (or, too quick to keep, compiles it as before)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            return program
         finally:
             os.close(fd)  # releases the lock
 
