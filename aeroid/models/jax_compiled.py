@@ -121,13 +121,13 @@ def _share_compilations(folder: Path) -> None:
     """Processes sharing `folder` compile each program once: a process about to compile a
     program another is compiling waits for it and reads its result from the cache.
 
-    The workers of a campaign start on flights of the same model together and met each
-    program at the same moment: each compiled it, none found it on disk. Now the
-    compilation holds an advisory lock named by the program's cache key (released by
-    the system if the process dies); a process that finds it held waits, then reads the
-    cache, and compiles only where the program is still missing (one too quick to
-    compile for the cache keeps). Without POSIX file locks, or with a JAX whose
-    internals differ, programs compile as before.
+    The workers of a campaign start on flights of the same model together and meet each
+    program at the same moment, when none is on disk yet. A compilation holds an
+    advisory lock named by the program's cache key (released by the system if the
+    process dies); a process that finds it held waits, then reads the cache, and
+    compiles only where the program is still missing (one too quick to compile for the
+    cache to keep). Without POSIX file locks, or with a JAX whose internals differ,
+    each process compiles on its own.
     """
     try:
         import fcntl  # noqa: F401  (POSIX only)
@@ -182,6 +182,8 @@ def _compile_once(
                 backend, computation, devices, options, callbacks, module_name, cache_key
             )
 
+        if callbacks:  # JAX keeps no program with host callbacks: nothing to wait for
+            return compile_here()
         path = locks / _lock_name(cache_key)
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
