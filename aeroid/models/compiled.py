@@ -67,6 +67,7 @@ from ._jax_translation import (
     _import_jax,
     _shared,
     _structure,
+    _traced_once,
     _verified,
 )
 from ._jax_translation import _frozen as _frozen
@@ -185,14 +186,6 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
         raise ValueError(kind)
     cache[key] = fn
     return fn
-
-
-def _traced_once(fn: Callable[..., Any], jax: Any) -> Callable[..., Any]:
-    """`fn` as a function JAX traces once per argument shape, however often a program
-    calls it (the RK4 steps call the dynamics four times a substep): tracing the model
-    is most of a program's cost where its compilation comes from the disk cache, and
-    the compiler inlines the call, so the program computes the same."""
-    return jax.jit(fn)
 
 
 def _pmatrix(model: Model, p: Mapping[str, Any], batch: int) -> FloatArray:
