@@ -357,3 +357,120 @@ print(jax.config.jax_compilation_cache_dir)
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
     )
     assert programs() == stored  # read back: not compiled and written again
+
+
+def test_a_program_another_process_compiles_is_waited_for_and_read(tmp_path):
+    import fcntl
+    import os
+    import threading
+
+    compiled: list[str] = []
+    on_disk: dict[str, str] = {}
+
+    def compile_and_write(backend, computation, devices, options, callbacks, name, key):
+        compiled.append(key)
+        return f"compiled {key}"
+
+    def read(name, key, options, backend, devices):
+        return on_disk.get(key), 1
+
+    once = _jax._compile_once(compile_and_write, read, tmp_path)
+    # nobody else compiles it: compiled here, the cache not read again
+    assert once(None, None, None, None, (), "jit_f", "k1") == "compiled k1"
+    assert compiled == ["k1"]
+    assert not list(tmp_path.iterdir())  # its lock file removed
+    # another process holds the program's lock: wait, then take what it wrote
+    for written, expected in (("from disk", "from disk"), (None, "compiled k2")):
+        compiled.clear()
+        fd = os.open(tmp_path / _jax._lock_name("k2"), os.O_RDWR | os.O_CREAT, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        got: list[str] = []
+
+        def call(into: list[str] = got) -> None:
+            into.append(once(0, 0, 0, 0, (), "f", "k2"))
+
+        waiter = threading.Thread(target=call)
+        waiter.start()
+        waiter.join(0.3)
+        assert waiter.is_alive() and not compiled  # waiting, not compiling
+        if written is not None:
+            on_disk["k2"] = written
+        os.close(fd)
+        waiter.join(10)
+        # the other's program where it wrote one, else (too quick to keep) compiled here
+        assert got == [expected]
+        assert compiled == ([] if written is not None else ["k2"])
+        on_disk.clear()
+
+
+def test_processes_that_meet_a_program_together_compile_it_once(tmp_path):
+    """Two fresh processes on one cache folder reach one program at the same moment (a
+    campaign's workers on their first flights): one compiles it, the other reads it."""
+    import os
+
+    folder = tmp_path / "jax"
+    env = {
+        **os.environ,
+        _jax.CACHE_ENV: str(folder),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+    }
+    code = """
+import pathlib, sys, time
+import jax
+import numpy as np
+from aeroid.models.jax_compiled import require_jax
+from jax._src import compiler
+_, jnp = require_jax()
+real = compiler.backend_compile_and_load
+count = []
+def slow(*args, **kwargs):  # a compilation long enough for the other process to meet it
+    count.append(1)
+    time.sleep(1.0)
+    return real(*args, **kwargs)
+compiler.backend_compile_and_load = slow
+here, other = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+here.touch()
+while not other.exists():  # both imported and set up: start together
+    time.sleep(0.01)
+f = jax.jit(lambda x: jnp.sin(x) * 3.0 + jnp.cumsum(x))
+print(float(np.asarray(f(np.arange(7.0)))[-1]), len(count))
+"""
+    a, b = tmp_path / "a", tmp_path / "b"
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", code, str(x), str(y)], stdout=subprocess.PIPE, text=True, env=env
+        )
+        for x, y in ((a, b), (b, a))
+    ]
+    outs = [p.communicate(timeout=120)[0].split() for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    expected = float(np.sin(6.0) * 3.0 + 21.0)
+    assert [float(o[0]) for o in outs] == pytest.approx([expected, expected], rel=1e-15)
+    # one compilation between them (without the lock each process compiled its own)
+    assert sorted(int(o[1]) for o in outs) == [0, 1]
+
+
+def test_a_program_traces_the_model_once_however_often_it_calls_it():
+    """The RK4 step calls the dynamics four times: traced once, the program the same."""
+    import jax
+
+    from aeroid.models import compiled as _compiled
+
+    traced: list[int] = []
+
+    def pendulum(t, x, u, p):
+        if isinstance(x, jax.core.Tracer):
+            traced.append(1)
+        return np.array([x[1], -p["k"] * np.sin(x[0]) - p["c"] * x[1] + u[0]])
+
+    model = aeroid.Model(["theta", "omega"], ["torque"], {"k": 4.0, "c": 0.3}, pendulum)
+    t = np.arange(201) * 0.02
+    u = np.sin(t)[None, :, None]
+    p = {"k": np.array([4.0]), "c": np.array([0.3])}
+    traj = _compiled.compiled_rollout(model, t, np.array([[0.1], [0.0]]), u, p, 2)
+    assert traj is not None
+    # the check against numpy traces it once, the rollout once more at most (four times
+    # a substep before)
+    assert 1 <= len(traced) <= 2
+    ref = model.simulate_batch(t, u[0], np.array([[0.1, 0.0]]), p, method="rk4", substeps=2)
+    np.testing.assert_allclose(traj.states, ref.states, rtol=0, atol=1e-13)

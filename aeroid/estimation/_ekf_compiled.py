@@ -31,8 +31,9 @@ Arrays = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, Float
 
 def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     entry = _compiled._entry(model)
-    f = entry[("fn", "dynamics")]
+    f = _compiled._traced_once(entry[("fn", "dynamics")], jax)
     h = entry.get(("fn", "measurement")) if model.measurement is not None else None
+    h = None if h is None else _compiled._traced_once(h, jax)
     n = model.n_states
     oi = np.array(out_idx, dtype=np.int64)
     Hsel = np.zeros((len(out_idx), n))

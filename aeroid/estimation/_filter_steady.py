@@ -225,8 +225,9 @@ def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     """The whole predictor as one `jax.lax.scan` over the record, the batch of members
     vmapped inside each step."""
     entry = _compiled._entry(model)
-    f = entry[("fn", "dynamics")]
+    f = _compiled._traced_once(entry[("fn", "dynamics")], jax)
     h = entry.get(("fn", "measurement")) if model.measurement is not None else None
+    h = None if h is None else _compiled._traced_once(h, jax)
     oi = np.array(out_idx, dtype=np.int64)
     sel = None
     if h is None:  # the outputs are states

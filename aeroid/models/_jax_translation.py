@@ -55,6 +55,14 @@ def _import_jax() -> tuple[Any, Any] | None:
         return None
 
 
+def _traced_once(fn: Callable[..., Any], jax: Any) -> Callable[..., Any]:
+    """`fn` as a function JAX traces once per argument shape, however often a program
+    calls it (the RK4 steps call the dynamics four times a substep): tracing the model
+    is most of a program's cost where its compilation comes from the disk cache, and
+    the compiler inlines the call, so the program computes the same."""
+    return jax.jit(fn)
+
+
 # -- translation of a numpy function to jax.numpy ----------------------------------------
 
 

@@ -67,6 +67,7 @@ from ._jax_translation import (
     _import_jax,
     _shared,
     _structure,
+    _traced_once,
     _verified,
 )
 from ._jax_translation import _frozen as _frozen
@@ -157,17 +158,19 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
     mods = _import_jax()
     assert mods is not None
     jax, jnp = mods
-    f = entry[("fn", "dynamics")]
+    f = _traced_once(entry[("fn", "dynamics")], jax)
+    h = entry.get(("fn", "measurement"))
+    h = None if h is None else _traced_once(h, jax)
     roll = _rollout(f, jax, jnp)
     if kind == "states":
         shared_u = bool(extra)
         fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
     elif kind == "sensitivities":
-        fn = jax.jit(_tangent_linear(f, entry.get(("fn", "measurement")), model, jax, jnp))
+        fn = jax.jit(_tangent_linear(f, h, model, jax, jnp))
     elif kind == "outputs":
         fn = _outputs_program(model, jax, jnp, *extra)
     elif kind == "input_noise":
-        fn = jax.jit(_input_noise_scatter(f, entry.get(("fn", "measurement")), jax, jnp))
+        fn = jax.jit(_input_noise_scatter(f, h, jax, jnp))
     elif kind == "interval":
         step = _interval(f, jax)
         jacobian = _interval_jacobian(f, jax, jnp)

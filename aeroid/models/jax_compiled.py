@@ -17,6 +17,7 @@ and 64-bit floats are switched on then.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
@@ -65,15 +66,18 @@ def require_jax() -> tuple[Any, Any]:
     global _CONFIGURED
     if not _CONFIGURED:
         _CONFIGURED = True
-        _persistent_cache(jax)
+        folder = _persistent_cache(jax)
+        if folder is not None:
+            _share_compilations(folder)
     if not jax.config.read("jax_enable_x64"):
         jax.config.update("jax_enable_x64", True)
     return jax, jnp
 
 
-def _persistent_cache(jax: Any) -> None:
+def _persistent_cache(jax: Any) -> Path | None:
     """Keep XLA's compiled programs on disk (JAX's persistent compilation cache), so a
-    fresh process reuses them instead of compiling for seconds at its first fit.
+    fresh process reuses them instead of compiling for seconds at its first fit; returns
+    the folder, or None where this left the cache alone.
 
     Left alone when the user configured a cache of their own (``JAX_COMPILATION_CACHE_DIR``
     or ``jax.config``) or set ``AEROID_JAX_CACHE=off``; ``AEROID_JAX_CACHE=<path>`` picks
@@ -83,18 +87,18 @@ def _persistent_cache(jax: Any) -> None:
     never used.
     """
     if getattr(jax.config, "jax_compilation_cache_dir", None):
-        return
+        return None
     choice = os.environ.get(CACHE_ENV, "").strip()
     if choice.lower() in {"off", "0", "false", "no", "none"}:
-        return
+        return None
     path = Path(choice).expanduser() if choice else _default_cache_dir()
     try:
         path.mkdir(mode=0o700, parents=True, exist_ok=True)
         info = path.stat()
     except OSError:
-        return
+        return None
     if info.st_mode & 0o022 or (hasattr(os, "getuid") and info.st_uid != os.getuid()):
-        return
+        return None
     jax.config.update("jax_compilation_cache_dir", str(path))
     # JAX keeps only programs that took a second to compile; a fit's smaller programs
     # (filters, short scans: tenths of a second each) add up to seconds a process
@@ -104,6 +108,110 @@ def _persistent_cache(jax: Any) -> None:
     # altogether when a bound is set
     if getattr(jax.config, "jax_compilation_cache_max_size", 0) == -1 and _has_filelock():
         jax.config.update("jax_compilation_cache_max_size", _CACHE_BYTES)
+    return path
+
+
+# JAX's function that compiles a program missing from the persistent cache and writes it
+# there, and the one that reads the cache (`_share_compilations` wraps the first)
+_COMPILE_AND_WRITE = "_compile_and_write_cache"
+_CACHE_READ = "_cache_read"
+
+
+def _share_compilations(folder: Path) -> None:
+    """Processes sharing `folder` compile each program once: a process about to compile a
+    program another is compiling waits for it and reads its result from the cache.
+
+    The workers of a campaign start on flights of the same model together and meet each
+    program at the same moment, when none is on disk yet. A compilation holds an
+    advisory lock named by the program's cache key (released by the system if the
+    process dies); a process that finds it held waits, then reads the cache, and
+    compiles only where the program is still missing (one too quick to compile for the
+    cache to keep). Without POSIX file locks, or with a JAX whose internals differ,
+    each process compiles on its own.
+    """
+    try:
+        import fcntl  # noqa: F401  (POSIX only)
+
+        from jax._src import compiler
+    except ImportError:
+        return
+    compile_and_write = getattr(compiler, _COMPILE_AND_WRITE, None)
+    read = getattr(compiler, _CACHE_READ, None)
+    if not callable(compile_and_write) or not callable(read):
+        return
+    import inspect
+
+    try:  # the arguments this wrapper passes them
+        if len(inspect.signature(compile_and_write).parameters) != 7:
+            return
+        if len(inspect.signature(read).parameters) != 5:
+            return
+    except (TypeError, ValueError):
+        return
+    if getattr(compile_and_write, "_aeroid_shared", False):
+        return
+    locks = folder / "compiling"
+    try:
+        locks.mkdir(mode=0o700, exist_ok=True)
+    except OSError:
+        return
+    shared = _compile_once(compile_and_write, read, locks)
+    shared._aeroid_shared = True  # type: ignore[attr-defined]
+    setattr(compiler, _COMPILE_AND_WRITE, shared)
+
+
+def _compile_once(
+    compile_and_write: Callable[..., Any], read: Callable[..., Any], locks: Path
+) -> Callable[..., Any]:
+    """`compile_and_write` (JAX's ``_compile_and_write_cache``) under a lock per cache key
+    in `locks`; a caller that had to wait for the lock first tries `read` (JAX's
+    ``_cache_read``)."""
+    import fcntl
+
+    def compile_once(
+        backend: Any,
+        computation: Any,
+        devices: Any,
+        options: Any,
+        callbacks: Any,
+        module_name: str,
+        cache_key: str,
+    ) -> Any:
+        def compile_here() -> Any:
+            return compile_and_write(
+                backend, computation, devices, options, callbacks, module_name, cache_key
+            )
+
+        if callbacks:  # JAX keeps no program with host callbacks: nothing to wait for
+            return compile_here()
+        path = locks / _lock_name(cache_key)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError:
+            return compile_here()
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:  # another process (or thread) compiles it now: wait for it
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                found, _ = read(module_name, cache_key, options, backend, devices)
+                if found is not None:
+                    return found
+            program = compile_here()
+            # no lock files pile up: a process arriving from now on finds the program
+            # in the cache (or, too quick to keep, compiles it as before)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            return program
+        finally:
+            os.close(fd)  # releases the lock
+
+    return compile_once
+
+
+def _lock_name(cache_key: str) -> str:
+    """The lock file of a program's cache key (a file name whatever the key holds)."""
+    return hashlib.sha256(str(cache_key).encode()).hexdigest()[:32]
 
 
 def _has_filelock() -> bool:

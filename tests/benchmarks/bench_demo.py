@@ -107,7 +107,13 @@ def main() -> None:
             jax_cache = folder / "jax"  # empty: nothing compiled by an earlier run
             wall, cpu, _ = _run(config, args.workers, jax_cache)
             cold.append((wall, cpu))
-            print(f"cold run {i + 1}: {wall:.1f} s wall, {cpu:.1f} s CPU", flush=True)
+            # the programs the run compiled and kept (those over a fifth of a second)
+            kept_programs = sorted(p.name.split("-")[0] for p in jax_cache.glob("*-cache"))
+            print(
+                f"cold run {i + 1}: {wall:.1f} s wall, {cpu:.1f} s CPU; programs kept on "
+                f"disk: {len(kept_programs)} ({', '.join(kept_programs)})",
+                flush=True,
+            )
             stages = _stage_times(config)
             wall, cpu, out = _run(config, args.workers, jax_cache)
             warm.append((wall, cpu))
