@@ -48,8 +48,15 @@ records (about half a minute).
 time, the aileron and rudder recorded MS milliseconds later (the surfaces' timing
 against the response).
 
+With ``--scheme V H`` it flies one calm flight at 150 Hz, fits it with the demo's model
+and takes that fit as the model's own truth: the model driven by JSBSim's surfaces,
+integrated by RK4 (the surfaces linear between JSBSim's samples) and by JSBSim's own
+scheme (Adams-Bashforth 2 at its step), each fitted at 150 Hz and at 50 Hz, beside
+JSBSim's record against what JSBSim flies (a couple of minutes): what the record's
+samples and the simulator's step alone make of the estimates.
+
     python3 tests/reference/c172x_demo_database.py [--store DIR] [--budget V H]
-        [--clean [--rate HZ] [--lead MS]]
+        [--clean [--rate HZ] [--lead MS]] [--scheme V H]
 """
 
 from __future__ import annotations
@@ -384,6 +391,75 @@ def _budget(airspeed: float, altitude: float) -> int:
     return 0
 
 
+def _every(data: object, k: int) -> object:
+    """Every `k`-th sample of a record."""
+    from aeroid.io.data import FlightData
+
+    return FlightData(
+        data.time[::k], {n: data[n][::k] for n in data.names}, data.units, data.metadata
+    )
+
+
+def _adams_bashforth(model: object, data: object, parameters: dict) -> object:
+    """The model's own equations integrated as JSBSim integrates the c172x's rates: Adams-
+    Bashforth 2 at the record's step, each step's derivative at that step's state and
+    surfaces (JSBSim's recorded rates satisfy this to rounding), the states as outputs."""
+    u = np.vstack([data[c] for c in model.controls])
+    h = float(data.time[1] - data.time[0])
+    x = np.empty((len(model.states), data.time.size))
+    x[:, 0] = [data[s][0] for s in model.states]
+    before = None
+    for k in range(data.time.size - 1):
+        f = np.asarray(model.dynamics(0.0, x[:, k : k + 1], u[:, k : k + 1], parameters))[:, 0]
+        x[:, k + 1] = x[:, k] + h * (f if before is None else 1.5 * f - 0.5 * before)
+        before = f
+    return data.with_channels({s: x[i] for i, s in enumerate(model.states)})
+
+
+SCHEME_TERMS = ("Cl_p", "Cl_delta_a", "Cl_beta", "Cn_beta", "Cn_r", "Cm_q")
+
+
+def _scheme(airspeed: float, altitude: float) -> int:
+    """Where the clean fits' shared scale comes from: the demo's model with the clean fit's
+    values as its own truth, its states made from JSBSim's surfaces (150 Hz) by a
+    continuous-time integrator (RK4, surfaces linear between JSBSim's samples) and by
+    JSBSim's own scheme (AB2 at JSBSim's step), each fitted at 150 Hz and at 50 Hz, beside
+    JSBSim's record itself against what JSBSim flies."""
+    import yaml
+
+    from aeroid.adapters.jsbsim_flights import FlightCondition, fly_c172x
+    from aeroid.estimation.identification import identify
+
+    cfg = yaml.safe_load((ROOT / "configs" / "demo.yaml").read_text())
+    options = {k: v for k, v in cfg["stages"]["identify"].items() if k != "parameters"}
+    fine = fly_c172x(
+        FlightCondition(airspeed, altitude), noise=False, turbulence=0.0, sample_rate=150.0
+    )
+    model, _, found, truth = _clean_fit(airspeed, altitude, _every(fine, 3))
+
+    def cells(data: object, reference: dict) -> str:
+        est = identify(model, data, list(model.parameter_names), **options).parameters
+        return ", ".join(f"{t} {100 * (est[t] / reference[t] - 1):+.2f}%" for t in SCHEME_TERMS)
+
+    x0 = {s: float(fine[s][0]) for s in model.states}
+    sim = model.simulate_data(fine, x0=x0, parameters=found)
+    rk4 = fine.with_channels({n: sim.outputs[:, i] for i, n in enumerate(sim.output_names)})
+    ab2 = _adams_bashforth(model, fine, found)
+    print(
+        f"calm flight at {airspeed:g} m/s, {altitude:g} m: estimate/truth - 1 at a 150 Hz and "
+        "a 50 Hz record (every third sample)"
+    )
+    print(f"  JSBSim against what it flies, 150 Hz: {cells(fine, truth)}")
+    print(
+        "  JSBSim against what it flies,  50 Hz: "
+        + ", ".join(f"{t} {100 * (found[t] / truth[t] - 1):+.2f}%" for t in SCHEME_TERMS)
+    )
+    for label, data in (("the model by RK4", rk4), ("the model by AB2", ab2)):
+        print(f"  {label}, 150 Hz: {cells(data, found)}")
+        print(f"  {label},  50 Hz: {cells(_every(data, 3), found)}")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--store", type=Path, default=None, help="a store the demo ran into")
@@ -398,7 +474,16 @@ def main() -> int:
     parser.add_argument(
         "--budget", nargs=2, type=float, metavar=("V", "H"), help="one calm flight's rate budget"
     )
+    parser.add_argument(
+        "--scheme",
+        nargs=2,
+        type=float,
+        metavar=("V", "H"),
+        help="one calm flight: the demo model's own equations by RK4 and by JSBSim's AB2",
+    )
     args = parser.parse_args()
+    if args.scheme:
+        return _scheme(*args.scheme)
     if args.clean:
         return _clean(args.rate, args.lead * 1e-3)
     if args.budget:
