@@ -21,11 +21,12 @@ transcription of that (`sidpac_outputs`) with SIDPAC's own ``pc`` gives
 theta. That drift is a defect of the kinematics the lon results were computed
 with, not a method: their pitch-attitude rate was ``cos(phi) (q - r sin(phi))``
 (a misplaced parenthesis; V2.0's ``dcmp_eqs`` has the textbook ``q cos(phi) -
-r sin(phi)``); with that rate it reproduces ``yc`` to rounding (1e-13 ft/s).
+r sin(phi)``); with that rate the transcription gives ``yc`` to rounding
+(1e-13 ft/s).
 Output error on that transcription (`sidpac_refit`) returns ``pc`` within
 2e-4 SIDPAC sigma, so what is left between ours and SIDPAC's estimates
-(the textbook rate) is that defect alone. The lat demo holds theta at its
-measurement, where the rate does not enter. The table's note prints these
+(the textbook rate) is that defect alone. The lat demo takes theta from its
+measurement, so the rate does not enter there. The table's note prints these
 figures.
 
 Ours: ``aeroid.check_compatibility`` with that set-up (`SETUP`,
