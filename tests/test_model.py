@@ -43,6 +43,42 @@ def test_euler_is_the_forward_euler_recursion_with_held_controls():
     np.testing.assert_allclose(got, h * np.concatenate([[0.0], np.cumsum(u[:-1])]), atol=1e-12)
 
 
+def _lag(t, x, u, p):
+    return -p["a"] * x + u
+
+
+@pytest.mark.parametrize("substeps", [1, 3])
+def test_rk4_hold_is_runge_kutta_with_the_control_held(substeps):
+    # x' = -a x + u with u held at u_k over a step of length s: RK4 gives the exact
+    # solution's Taylor series to fourth order, x <- T(a s) x + s E(a s) u_k with
+    # T(z) = 1 - z + z^2/2 - z^3/6 + z^4/24 and E(z) = 1 - z/2 + z^2/6 - z^3/24
+    a = 0.7
+    lag = Model(states=["x"], controls=["u"], parameters={"a": a}, dynamics=_lag, name="lag")
+    t = np.sort(np.random.default_rng(5).uniform(0.0, 5.0, 80))
+    u = np.sin(3.0 * t) + 0.5
+    options = {} if substeps == 1 else {"substeps": substeps}
+    got = lag.simulate(t, u[:, None], [2.0], method="rk4_hold", **options).state("x")
+    want = np.empty(t.size)
+    want[0] = x = 2.0
+    for k in range(t.size - 1):
+        s = (t[k + 1] - t[k]) / substeps
+        z = a * s
+        for _ in range(substeps):
+            x = (1 - z + z**2 / 2 - z**3 / 6 + z**4 / 24) * x + s * (
+                1 - z / 2 + z**2 / 6 - z**3 / 24
+            ) * u[k]
+        want[k + 1] = x
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+    # the interpolating RK4 sees u between the samples: not the same recursion
+    smooth = lag.simulate(t, u[:, None], [2.0], method="rk4", substeps=substeps).state("x")
+    assert np.max(np.abs(smooth - want)) > 1e-3
+
+
+def test_rk4_hold_rejects_bad_substeps():
+    with pytest.raises(SimulationError, match="substeps"):
+        decay_model().simulate(T, None, [2.0], method="rk4_hold", substeps=0)
+
+
 def test_outputs_land_exactly_on_irregular_grid():
     t = np.sort(np.random.default_rng(3).uniform(0, 4, 60))
     sim = decay_model(1.3).simulate(t, None, [1.0])

@@ -121,7 +121,7 @@ class BatchSimulator:
         model, t = self.model, self.time
         batch = self._batch(parameters)
         X0, U, p = self._arrays(parameters, batch)
-        if self.substeps is not None and self.method in ("auto", "rk4"):
+        if self.substeps is not None and self.method in ("auto", "rk4", "rk4_hold"):
             nodes = (t.size - 1) * (2 * int(self.substeps) + 1) * max(model.n_controls, 1) * batch
             if nodes > _MAX_NODE_VALUES:
                 raise SimulationError(

@@ -13,8 +13,13 @@ vectors (and, optionally, of control histories) is integrated in one pass.
   no step ever straddles a control breakpoint.
 * ``"euler"``: one forward-Euler step per grid interval with the controls held
   at the interval's first sample. Crude (first order), but what some legacy
-  tools integrate with: SIDPAC's saved data-compatibility outputs
-  (``dca_lon_demo``, ``dca_lat_demo``) follow it, not its Adams-Bashforth code.
+  tools integrate with.
+* ``"rk4_hold"``: classical Runge-Kutta, one step per grid interval (or
+  ``substeps``), with the controls held at the interval's first sample at
+  every stage (a zero-order hold). SIDPAC's saved data-compatibility outputs
+  (``dca_lon_demo``, ``dca_lat_demo``) were integrated so, not by the
+  Adams-Bashforth code it ships: fourth order in the states, but a held
+  input lags the sampled one by half an interval.
 * a `scipy.integrate.solve_ivp` method name, integrating the stacked batch.
   The explicit Runge-Kutta pairs (``"RK45"``, ``"RK23"``, ``"DOP853"``) run
   one sample interval at a time, each ending exactly on the next sample and
@@ -51,7 +56,7 @@ ComplexArray = NDArray[np.complex128]
 
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 _BY_INTERVAL = ("RK45", "RK23", "DOP853")  # restarted at every sample (module notes)
-METHODS = ("auto", "exact", "rk4", "euler", *SOLVE_IVP_METHODS)
+METHODS = ("auto", "exact", "rk4", "rk4_hold", "euler", *SOLVE_IVP_METHODS)
 _MAX_AUTO_SUBSTEPS = 256
 # Accumulated RK4 error of each mode of df/dx, relative to its amplitude, that the
 # automatic substeps allow (`substeps_for`): far below any sensor's noise.
@@ -81,10 +86,16 @@ class RawTrajectory:
 # -- controls -----------------------------------------------------------------------
 
 
-def control_nodes(u: FloatArray, substeps: int) -> FloatArray:
-    """Controls at every RK4 node: shape (n_t - 1, 2*substeps + 1, n_u, batch)."""
+def control_nodes(u: FloatArray, substeps: int, *, hold: bool = False) -> FloatArray:
+    """Controls at every RK4 node: shape (n_t - 1, 2*substeps + 1, n_u, batch).
+
+    Interpolated linearly between samples, or with `hold` the interval's first
+    sample at every node.
+    """
     # u: (batch, n_t, n_u)
     frac = np.arange(2 * substeps + 1) / (2 * substeps)
+    if hold:
+        frac = np.zeros_like(frac)
     lo = u[:, :-1, None, :]
     hi = u[:, 1:, None, :]
     nodes = lo + frac[None, None, :, None] * (hi - lo)  # (B, n_t-1, 2m+1, n_u)
@@ -195,12 +206,14 @@ def rk4(
     u: FloatArray,
     p: Mapping[str, FloatArray],
     substeps: int,
+    *,
+    hold: bool = False,
 ) -> RawTrajectory:
-    """Fixed-step RK4; x0 (n_x, B), u (B, n_t, n_u)."""
+    """Fixed-step RK4; x0 (n_x, B), u (B, n_t, n_u); controls held with `hold`."""
     n_t = time.size
     batch = x0.shape[1]
     m = int(substeps)
-    nodes = control_nodes(u, m)
+    nodes = control_nodes(u, m, hold=hold)
     out = np.empty((n_t, x0.shape[0], batch))
     x = np.array(x0, dtype=np.float64)
     out[0] = x
@@ -708,6 +721,8 @@ def integrate(
         if compiled is not None:
             return compiled
         return rk4(f, time, X0, u, p, int(m))
+    if method == "rk4_hold":
+        return rk4(f, time, X0, u, p, int(substeps or 1), hold=True)
     if method == "euler":
         return euler(f, time, X0, u, p)
     return solve_ivp_batch(f, time, X0, u, p, method, rtol, atol)

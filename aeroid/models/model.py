@@ -503,12 +503,15 @@ class Model(ContinuousModel):
         method : str
             ``"auto"`` (exact for dynamics shown linear time-invariant at
             every sample time of `time`, for every member, or declared so with
-            ``linear=True``; else RK4), ``"exact"``, ``"rk4"``, ``"euler"``
-            (one forward-Euler step per sample, controls held: first order,
-            for reproducing legacy tools only), or a `scipy.integrate.solve_ivp`
-            method.
+            ``linear=True``; else RK4), ``"exact"``, ``"rk4"``, ``"rk4_hold"``
+            (RK4 with the controls held at each interval's first sample, one
+            step per sample unless `substeps`: SIDPAC's data compatibility),
+            ``"euler"`` (one forward-Euler step per sample, controls held:
+            first order; both for reproducing legacy tools only), or a
+            `scipy.integrate.solve_ivp` method.
         substeps : int, optional
-            RK4 steps per sample interval (default: from the dynamics' stiffness).
+            RK4 steps per sample interval (default: from the dynamics'
+            stiffness; one for ``"rk4_hold"``).
 
         Returns
         -------
@@ -556,7 +559,8 @@ class Model(ContinuousModel):
             A `scipy.integrate.solve_ivp` method (default ``"RK45"``; the
             explicit pairs restart at every sample, where the controls kink,
             the implicit ones take steps no longer than the sample spacing),
-            ``"rk4"``, ``"exact"`` or ``"auto"``.
+            ``"rk4"``, ``"rk4_hold"``, ``"euler"``, ``"exact"`` or ``"auto"``
+            (as in `simulate_batch`).
         substeps : int, optional
             RK4 steps per sample interval.
         rtol, atol : float

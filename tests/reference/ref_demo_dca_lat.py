@@ -6,9 +6,11 @@ biases and beta, phi and psi scale factors. ``dca_lat_demo_data.mat`` holds
 Ours: ``aeroid.check_compatibility`` with the same six parameters and
 SIDPAC's lateral set-up (``dcmp_psel``): outputs beta, phi, psi; u, w and
 theta replaced by their measurements; scale factors about the initial value;
-initial state held at SIDPAC's ``x0``; forward Euler on the uniform time
-``k 51/2048 s`` (see ``ref_demo_dca_lon.py`` for the error bars, the Monte
-Carlo and the known-truth study, ``--truth N``).
+initial state held at SIDPAC's ``x0``; one Runge-Kutta step per sample with
+the inputs held (``integration="rk4_hold"``: SIDPAC's own ``pc`` through it
+gives the saved ``yc`` to rounding) on the uniform time ``k 51/2048 s`` (see
+``ref_demo_dca_lon.py`` for how that integration was found, the error bars,
+the Monte Carlo and the known-truth study, ``--truth N``).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         S.col(d["pc"]),
         np.asarray(d["crbc"], dtype=float),
         S.col(d["x0"]),
+        np.asarray(d["yc"], dtype=float),
         outputs=("beta", "phi", "psi"),
         measured_states=("u", "w", "theta"),
         mc=mc,
