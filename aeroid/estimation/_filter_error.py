@@ -557,9 +557,8 @@ def identify_filter_error(
         dt = float(np.median(np.diff(probs[0].time)))
         states = None
         if gain_choice(opts["gain"], opts["method"], filter_options) == "steady":
-            # the fit's compiled predictor at zero gain, where its passes compile it (its
-            # first pass: the estimated quantities' forward differences, one member each)
-            states = start_states(probs[0], start, Qc, batch=1 + layout.size)
+            # the compiled rollout, where the fit's passes compile its predictor
+            states = start_states(probs[0], start, Qc)
         if states is None:
             sim = m.simulate_data(datas[0], x0=x0_list[0], parameters=start, method="auto")
             states = sim.states

@@ -313,20 +313,12 @@ def _compiles(prob: _Problem, substeps: int) -> bool:
     return work >= _compiled.COMPILE_AFTER_CALLS
 
 
-def start_states(
-    prob: _Problem, values: Mapping[str, float], Qc: FloatArray, batch: int = 1
-) -> FloatArray | None:
+def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) -> FloatArray | None:
     """The model's states over `prob`'s record from its x0 at `values`, (n_t, n_x), by
     the compiled RK4 rollout where the fit's passes compile its predictor (decided by
     the problem's size alone, so a rerun in another process gives the same bits), else
-    None (the caller then simulates in numpy).
-
-    The rollout is the fit's own compiled predictor with every gain zero (`batch` the
-    members of the fit's first pass, so that the program is the one its passes run):
-    its predictions are the model's RK4 steps from x0, and the fit compiles no program
-    of its own for one simulation. Where that predictor cannot run, the compiled
-    rollout of `aeroid.models.compiled` does; the model's later simulations take the
-    compiled rollout either way.
+    None (the caller then simulates in numpy). The model's later simulations (its
+    validation) take the same compiled rollout.
     """
     params = {k: np.full(1, float(v)) for k, v in values.items()}
     if _linearise_model(prob, params, Qc, 1) is not None:
@@ -337,30 +329,10 @@ def start_states(
         m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
     if not _compiles(prob, m):
         return None
-    states = _zero_gain_states(prob, params, int(m), batch)
-    if states is not None:
-        _compiled._entry(prob.model)["compiled_once"] = True
-        return states
     traj = _compiled.compiled_rollout(
         prob.model, prob.time, prob.x0[:, None], prob.U[None], params, int(m)
     )
     return None if traj is None else np.asarray(traj.states[0], dtype=np.float64)
-
-
-def _zero_gain_states(
-    prob: _Problem, params: Mapping[str, FloatArray], substeps: int, batch: int
-) -> FloatArray | None:
-    """The compiled predictor's states at zero gains, (n_t, n_x), from `prob`'s x0, its
-    gain buffer shaped as a fit's first pass of `batch` members shapes it (the same
-    program), or None where it does not run or a state is not finite."""
-    n_t, n_y = prob.Y.shape
-    # the leading rows a pass whose gain settles at once hands the predictor
-    G = np.zeros((min(_GAIN_SAMPLES, n_t), _padded(max(batch, 1)), prob.x0.size, n_y))
-    fast = _compiled_predictor(prob, params, prob.x0[None], G, 1, substeps)
-    if fast is None:
-        return None
-    states = np.concatenate([prob.x0[None], fast[0][:, 0]])
-    return states if bool(np.all(np.isfinite(states))) else None
 
 
 def steady_pass(

@@ -497,10 +497,7 @@ for _stage in (
         # 8: the filter error holds a process noise the likelihood no longer feels out
         #    of its steps (a fit whose noise vanishes takes fewer, other steps)
         # 9: coloured-residual degrees of freedom with the low band's exact covariance
-        # 10: the filter error's start simulation by its own predictor at zero gain
-        #     (the same RK4, other rounding: a fit stopped by its tolerance may stop
-        #     an iteration apart)
-        "10",
+        "9",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
