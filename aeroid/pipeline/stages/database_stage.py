@@ -280,7 +280,7 @@ def _files_stamp(task: Any) -> str:
     import hashlib
     import importlib.util
 
-    from ..._version import __version__
+    from ... import __version__
     from ..keys import canonical_json
 
     flies = importlib.util.find_spec("jsbsim") is not None
