@@ -142,3 +142,27 @@ def test_the_stage_refers_speed_terms_to_each_flights_airspeed() -> None:
     assert db.keys == ("alpha",) and db.speed_terms == ("Cm_V",)
     v0, _ = db.trim_speed({"alpha": alphas})
     np.testing.assert_allclose(v0, [data[i]["airspeed"] for i in range(len(alphas))], rtol=1e-6)
+
+
+def test_an_unchanged_rerun_writes_no_database_file_and_a_missing_one_again(
+    tmp_path: Path,
+) -> None:
+    cfg = _config(tmp_path, 4)
+    folder = run(cfg, workers=0).database_dir
+    assert folder is not None
+    plot = folder / "M_q.png"
+    first = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in folder.iterdir()}
+    assert run(cfg, workers=0).database_dir == folder
+    assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == {
+        k: v[0] for k, v in first.items()
+    }
+    # a plot removed (or cut short) is written again, the same bytes
+    plot.unlink()
+    (folder / "database.md").write_text("cut")
+    run(cfg, workers=0)
+    assert plot.read_bytes() == first["M_q.png"][1]
+    assert (folder / "database.md").read_bytes() == first["database.md"][1]
+    # an option outside the keys (the replay) writes the section again
+    named = _config(tmp_path, 4, "keys: [airspeed], replay: c172x")
+    run(named, workers=0)
+    assert "names no simulator" not in (folder / "database.md").read_text()

@@ -554,3 +554,28 @@ def test_registered_types_may_take_a_stable_name(monkeypatch):
 
     with pytest.raises(StoreError, match="'Thing' is taken"):
         register_record(Other, name="Thing")
+
+
+def test_reading_a_record_imports_its_type_only(tmp_path):
+    # aeroid exports its types lazily: a record read in a fresh process (an unchanged
+    # rerun reads the campaign report's) resolves its one type, not every export
+    import subprocess
+    import sys
+
+    store = ResultStore(tmp_path / "s")
+    key = sha256_hex(canonical_json({"x": 1}))
+    rep = CampaignReport("t", "text", ("a",), ("flight",), (("a",),))
+    assert store.commit("campaign_report", key, rep, task={"x": 1})
+    code = (
+        "import sys\n"
+        "from aeroid.pipeline import ResultStore\n"
+        f"rec = ResultStore({str(tmp_path / 's')!r}).load({key!r}, 'campaign_report')\n"
+        "print(type(rec).__name__, rec.markdown, 'scipy.optimize' in sys.modules)\n"
+    )
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": root}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=root
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["CampaignReport", "text", "False"]

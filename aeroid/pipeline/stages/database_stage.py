@@ -224,14 +224,24 @@ def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -
 
 def _band_plot(db: AeroDatabase, term: str) -> bytes:
     """One coefficient's estimates (each flight labelled) and the 95 % band against the first key."""
-    import numpy as np
-
-    from ...support import figure, figure_png
+    from ...reports.plotting import figure, recycle_figure, reusing_figures
 
     key = db.keys[0]
     j = db.terms.index(term)
-    fig, axes = figure(1, height=3.0)
-    ax = axes[0, 0]
+    # every term's plot has this layout: the next term drawn in this process redraws
+    # the figure instead of building its panel and ticks again (pixel for pixel the same)
+    with reusing_figures():
+        fig, axes = figure(1, height=3.0, reuse="database_band")
+        png = _draw_band(db, term, key, j, fig, axes[0, 0])
+        recycle_figure(fig)
+    return png
+
+
+def _draw_band(db: AeroDatabase, term: str, key: str, j: int, fig: Any, ax: Any) -> bytes:
+    import numpy as np
+
+    from ...support import figure_png
+
     x = db.grid(key, 41)
     others = {k: db.centres[k] for k in db.keys if k != key}
     value, lo, hi = db.band(term, {**others, key: x})
@@ -257,6 +267,51 @@ def _band_plot(db: AeroDatabase, term: str) -> bytes:
     return bytes(figure_png(fig, dpi=72))
 
 
+# The file a run writes last into the database's folder: what the files were written
+# from (`_files_stamp`) and each file's size. A rerun that finds it unchanged and every
+# file in place writes nothing (the plots cost more than the rest of an unchanged run).
+_STAMP = ".aeroid-files"
+
+
+def _files_stamp(task: Any) -> str:
+    """A digest of what the database's files depend on: the stage's result (its key), its
+    options (the replay is not in the key), the release, and whether jsbsim can fly
+    the replay."""
+    import hashlib
+    import importlib.util
+
+    from ... import __version__
+    from ..keys import canonical_json
+
+    flies = importlib.util.find_spec("jsbsim") is not None
+    what = canonical_json([task.key, dict(task.options or {}), __version__, flies])
+    return hashlib.sha256(what).hexdigest()
+
+
+def _written(folder: Path, stamp: str) -> bool:
+    """Whether `folder` holds the files written from `stamp`, each of its recorded size."""
+    try:
+        lines = (folder / _STAMP).read_text(encoding="utf-8").splitlines()
+        if not lines or lines[0] != stamp:
+            return False
+        for line in lines[1:]:
+            name, size = line.rsplit(" ", 1)
+            if (folder / name).stat().st_size != int(size):
+                return False
+    except (OSError, ValueError):
+        return False
+    return len(lines) > 1
+
+
+def _stamp(folder: Path, stamp: str) -> None:
+    sizes = [
+        f"{p.name} {p.stat().st_size}"
+        for p in sorted(folder.iterdir())
+        if p.is_file() and p.name != _STAMP
+    ]
+    (folder / _STAMP).write_text("\n".join([stamp, *sizes]) + "\n", encoding="utf-8")
+
+
 def write_database_files(
     the_plan: Plan, store: ResultStore, statuses: Mapping[str, Any]
 ) -> tuple[Path | None, str | None]:
@@ -270,11 +325,16 @@ def write_database_files(
     status = statuses.get(task.key)
     if status is None or status.status == "failed":
         return None, None
+    report = the_plan.config.report_path
+    folder = report.parent / f"{report.stem}_database"
+    stamp = _files_stamp(task)
+    if _written(folder, stamp):
+        return folder, None  # an unchanged rerun: the files are those of this database
     try:
         db = store.load(task.key, task.stage)
-        report = the_plan.config.report_path
-        folder = report.parent / f"{report.stem}_database"
         folder.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(OSError):
+            (folder / _STAMP).unlink()  # written again last, once every file is
         files: dict[str, str] = {}
         notes = []
         try:
@@ -298,6 +358,7 @@ def write_database_files(
         replay, _ = replay_section(the_plan, store, task, held, folder)
         text = database_section(db, files) + "".join(f"\n{n}\n" for n in notes) + replay
         (folder / "database.md").write_text(text, encoding="utf-8")
+        _stamp(folder, stamp)
     except (AeroidError, OSError) as exc:
         return None, f"cannot write the aerodynamic database files: {exc}"
     return folder, None

@@ -18,7 +18,6 @@ so decoding never imports arbitrary code.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import importlib
 import math
 import re
@@ -62,7 +61,7 @@ def record_type_name(cls: type) -> str:
     """
     name = _NAMES.get(cls)
     if name is None:
-        public = _public_types().get(cls.__qualname__)
+        public = _public_type(cls.__qualname__)
         name = _NAMES[cls] = cls.__qualname__ if public is cls else _qualified(cls)
     return name
 
@@ -105,23 +104,35 @@ def exported_records(package: str, names: Sequence[str]) -> None:
     so that the codec need not import them.
     """
     _EXPORTERS.append((package, tuple(names)))
-    _public_types.cache_clear()
+    _PUBLIC.clear()
 
 
-@functools.cache
-def _public_types() -> dict[str, type]:
-    """aeroid's public dataclasses by the names its packages export them under."""
+def _public_type(name: str) -> type | None:
+    """The public dataclass aeroid's packages export under `name` (aeroid's own first),
+    or None. Only the package attribute of that name is looked up: aeroid imports its
+    exports lazily, and importing them all (scipy's optimisers among them) cost a
+    fresh process more than reading the record it was asked for."""
+    got = _PUBLIC.get(name, _UNSEEN)
+    if got is not _UNSEEN:
+        return got  # type: ignore[return-value]
     import aeroid
 
-    found: dict[str, type] = {}
+    found: type | None = None
     exporters = [(aeroid, tuple(aeroid.__all__))]
-    exporters += [(sys.modules[name], names) for name, names in _EXPORTERS]
+    exporters += [(sys.modules[package], names) for package, names in _EXPORTERS]
     for package, names in exporters:
-        for attr in names:
-            obj = getattr(package, attr, None)
-            if isinstance(obj, type) and dataclasses.is_dataclass(obj) and attr == obj.__qualname__:
-                found.setdefault(attr, obj)
+        if name not in names:
+            continue
+        obj = getattr(package, name, None)
+        if isinstance(obj, type) and dataclasses.is_dataclass(obj) and name == obj.__qualname__:
+            found = obj
+            break
+    _PUBLIC[name] = found
     return found
+
+
+_PUBLIC: dict[str, type | None] = {}  # _public_type's answers, by name
+_UNSEEN = object()
 
 
 def _resolve(name: str) -> type:
@@ -139,7 +150,7 @@ _RESOLVED: dict[str, type] = {}  # aeroid's own record types, by stored name
 def _resolve_own(name: str) -> type:
     module, _, qualname = name.partition(":")
     if not qualname:  # a stable name
-        public = _public_types().get(name)
+        public = _public_type(name)
         if public is None:
             raise UnknownRecordType(
                 f"record type {name!r} is not registered and aeroid exports no such type; "
@@ -159,7 +170,7 @@ def _resolve_own(name: str) -> type:
             obj = getattr(obj, part)
     except (ImportError, AttributeError):
         # written before stable names, by a version where the class lived elsewhere
-        moved = _public_types().get(qualname)
+        moved = _public_type(qualname)
         if moved is None:
             raise UnknownRecordType(
                 f"record type {name!r} does not exist in this aeroid version"
