@@ -236,6 +236,12 @@ def test_demcz_keeps_the_target_invariant() -> None:
     assert run.acceptance_fraction.mean() > 0.2
 
 
+def test_chain_state_archive_shape_is_checked() -> None:
+    with pytest.raises(InferenceError, match=r"archive of shape \(5, 3\) for 2 parameters"):
+        ChainState(np.zeros((4, 2)), np.zeros(4), 0, 1, (), np.zeros((5, 3)))
+    assert ChainState(np.zeros((4, 2)), np.zeros(4), 0, 1, ()).archive.shape == (0, 2)
+
+
 def test_demcz_archive_drops_the_burn_ins_first_half() -> None:
     start = MU + 0.1 * np.random.default_rng(9).standard_normal((8, 2))
     short = ensemble_sampler(gauss, start, 60, seed=4, burn_in=40, move="demcz")

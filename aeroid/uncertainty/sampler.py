@@ -164,6 +164,11 @@ class ChainState:
         object.__setattr__(self, "spawn_key", tuple(int(k) for k in self.spawn_key))
         n_dim = self.positions.shape[1]
         archive = np.zeros((0, n_dim)) if self.archive is None else np.asarray(self.archive)
+        if archive.size and (archive.ndim != 2 or archive.shape[1] != n_dim):
+            raise InferenceError(
+                f"ChainState: archive of shape {archive.shape} for {n_dim} parameters; "
+                f"expected (n_archive, {n_dim})"
+            )
         archive = np.asarray(archive, dtype=np.float64).reshape(-1, n_dim)
         object.__setattr__(self, "archive", frozen_array(archive))
         if self.positions.shape[0] != self.log_prob.shape[0]:
