@@ -67,7 +67,7 @@ def quiet_infer(*args: Any, **kwargs: Any) -> InferenceResult:
         return infer(*args, **kwargs)
 
 
-@pytest.mark.parametrize("move", ["stretch", "de"])
+@pytest.mark.parametrize("move", ["stretch", "de", "demcz"])
 def test_conjugate_normal_normal_posterior(move: str) -> None:
     data = ramp_data()
     mean, sd = conjugate(data, 0.5, 0.4, SIGMA)
@@ -233,6 +233,32 @@ def test_seeded_resumable_and_ensembles() -> None:
     st_more = quiet_infer(model, data, priors, n_steps=40, initial=st_first, noise={"y": SIGMA})
     assert st_more.move == "stretch"
     np.testing.assert_array_equal(np.concatenate([st_first.samples, st_more.samples]), st.samples)
+
+
+def test_demcz_seeded_resumable_and_ensembles() -> None:
+    # the archive travels in the stored state: a continued chain is the longer run's
+    model, data, priors = ramp_model(), ramp_data(1), {"k": Normal(0.5, 0.4)}
+    kw: dict[str, Any] = {"noise": {"y": SIGMA}, "n_walkers": 8, "seed": 5, "move": "demcz"}
+    a = quiet_infer(model, data, priors, n_steps=100, burn_in=20, **kw)
+    assert a.move == "demcz" and "DE-MCz" in a.summary()
+    np.testing.assert_array_equal(
+        a.samples, quiet_infer(model, data, priors, n_steps=100, burn_in=20, **kw).samples
+    )
+    first = quiet_infer(model, data, priors, n_steps=60, burn_in=20, **kw)
+    second = quiet_infer(model, data, priors, n_steps=40, initial=first, noise={"y": SIGMA})
+    assert second.move == "demcz" and second.chain[0].archive.shape[0] > 0
+    np.testing.assert_array_equal(np.concatenate([first.samples, second.samples]), a.samples)
+    np.testing.assert_array_equal(second.chain[0].archive, a.chain[0].archive)
+    two = quiet_infer(model, data, priors, n_steps=100, burn_in=20, n_ensembles=2, **kw)
+    runs = [
+        infer_ensemble(model, data, priors, n_steps=100, burn_in=20, ensemble=e, **kw)
+        for e in (1, 0)
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        pooled = combine_ensembles(runs)
+    np.testing.assert_array_equal(two.samples, pooled.samples)
+    np.testing.assert_array_equal(two.samples[: a.samples.shape[0]], a.samples)
 
 
 def test_not_converged_warns() -> None:

@@ -20,6 +20,12 @@ FloatArray = NDArray[np.float64]
 
 #: Percentile levels reported in `InferenceResult.percentiles`.
 PERCENTILES = (2.5, 50.0, 97.5)
+# how the summary names each move
+_MOVE_NAMES = {
+    "de": "differential-evolution",
+    "demcz": "differential-evolution (archive, DE-MCz)",
+    "stretch": "stretch",
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,7 +78,7 @@ class InferenceResult:
     n_walkers, n_steps, burn_in, thin, n_ensembles : int
     stretch : float
     move : str
-        The sampler's move, ``"stretch"`` or ``"de"``.
+        The sampler's move, ``"stretch"``, ``"de"`` or ``"demcz"``.
     converged : bool
         False when the chains are shorter than 50 autocorrelation times or
         an R-hat exceeds 1.05 (a `UserWarning` was issued).
@@ -226,7 +232,7 @@ class InferenceResult:
         notes = [
             f"Posterior from {self.samples.shape[0]} draws: {ens}{self.n_walkers} walkers, "
             f"{self.n_steps} steps ({self.burn_in} burn-in, thin {self.thin}"
-            f"; {'differential-evolution' if self.move == 'de' else 'stretch'} move); "
+            f"; {_MOVE_NAMES.get(self.move, self.move)} move); "
             f"acceptance fraction {self.acceptance_fraction:.2f}; "
             f"longest autocorrelation time {_max_finite(self.autocorrelation_time)} steps.",
         ]

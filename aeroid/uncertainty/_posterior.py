@@ -468,7 +468,7 @@ class _Posterior:
     ) -> tuple[FloatArray, FloatArray]:
         """Walkers in the ball; walkers at impossible points are redrawn a few times."""
         x = center + rng.standard_normal((n_walkers, self.n_dim)) @ root.T
-        lp = self._score_halves(x)
+        lp = self._score(x)  # in the batches the sampler will score
         shrink = 1.0
         for _ in range(10):
             bad = np.flatnonzero(~np.isfinite(lp))
@@ -482,10 +482,6 @@ class _Posterior:
     def _score(self, theta: FloatArray) -> FloatArray:
         half = max(1, self._jax_batch or theta.shape[0])
         return np.concatenate([self(theta[i : i + half]) for i in range(0, theta.shape[0], half)])
-
-    def _score_halves(self, x: FloatArray) -> FloatArray:
-        h = x.shape[0] // 2
-        return np.concatenate([self(x[:h]), self(x[h:])])
 
 
 def _default_noise_prior(y: FloatArray) -> Prior:

@@ -2,9 +2,9 @@
 
 The sampler moves the walkers in two halves ("red/blue"), and all proposals
 of a half are scored in *one* call of the vectorised log-probability
-``log_prob(theta (B, n_dim)) -> (B,)``; a NaN or infinite log-probability is
-a rejected proposal. Two moves, both unchanged by any linear
-reparameterisation:
+``log_prob(theta (B, n_dim)) -> (B,)`` (``"demcz"``: all walkers in one
+call); a NaN or infinite log-probability is a rejected proposal. Three
+moves, all unchanged by any linear reparameterisation:
 
 - ``"stretch"`` (Goodman & Weare 2010): every walker proposes a point on the
   line through itself and a random walker of the other half.
@@ -13,15 +13,40 @@ reparameterisation:
   with ``gamma = 2.38 / sqrt(2 n_dim)`` and, one proposal in ten, ``gamma =
   1`` (a jump between modes). On near-Gaussian posteriors of a few
   parameters its autocorrelation time is several times shorter.
+- ``"demcz"``, differential evolution from an archive of past states (ter Braak
+  & Vrugt 2008): every walker moves by ``s (z_a - z_b)``, two distinct points
+  of an archive ``Z``, with ``s = gamma (1 + lambda)``, ``lambda ~ U(-0.1,
+  0.1)`` (a continuous scale, as in Vrugt et al.'s DREAM, 2009, so that jumps
+  drawn from a finite archive reach every point), and ``s = 1`` one proposal
+  in ten. Given the archive a walker's proposal depends on nothing but its
+  own position and is symmetric (``(a, b)`` and ``(b, a)`` are equally
+  likely, ``s`` is drawn alike), so every step is, walker by walker, a
+  Metropolis step that leaves the target invariant, and *all* walkers move at
+  once: one call of ``log_prob`` per step for the whole ensemble, where the
+  two-halves moves make two sequential calls of half the size. The archive
+  starts as the walkers' start positions and gains every walker's position
+  after each step (every ``1 + n // 10000``-th step once it holds ``n``
+  points); at the end of the burn-in it drops the start and the burn-in's
+  first half (points on the way in). It changes the proposal by a share
+  ``n_walkers / n`` a step, which vanishes as the chain runs: an adaptive
+  chain with diminishing adaptation (Roberts & Rosenthal 2007), whose
+  archive of draws from about the target gives the differences of the
+  target, so the proposal approaches the optimal Gaussian random walk
+  (``2.38^2 / n_dim`` times the target's covariance) whatever the number of
+  walkers, where the red/blue moves draw from the few differences of the
+  other half's walkers. Per call of ``log_prob`` it decorrelates 2-4 times
+  faster than ``"de"`` on near-Gaussian targets of a few parameters
+  (tests/test_sampler.py). It needs a burn-in that reaches the target's
+  bulk: the points of its second half stay in the archive.
 
 Randomness and resuming
 -----------------------
 The random numbers of sampler step ``k`` (0-based, counted from the start of
 the chain) come from ``default_rng(SeedSequence(entropy, spawn_key=(*key,
 STEP_TAG, k)))``, where ``entropy`` and ``key`` identify the chain. The final
-`ChainState` stores positions, log-probabilities, the step counter and the
-seed identity as plain arrays and integers. Sampling on from a stored state
-therefore reproduces, bit for bit, the walker trajectories of one
+`ChainState` stores positions, log-probabilities, the step counter, the
+seed identity and the ``"demcz"`` archive as plain arrays and integers.
+Sampling on from a stored state therefore reproduces, bit for bit, the walker trajectories of one
 uninterrupted run with the same seed, provided the log-probability function
 returns the same values (same model, data and options). The *kept* samples of
 the two pieces concatenate to those of the long run when the first piece's
@@ -120,6 +145,8 @@ class ChainState:
     spawn_key : tuple of int
         Spawn key of the chain's `SeedSequence`; step ``k`` draws from
         ``SeedSequence(entropy, spawn_key=(*spawn_key, STEP_TAG, k))``.
+    archive : ndarray, shape (n_archive, n_dim)
+        The ``"demcz"`` move's archive of past states (empty for the other moves).
     """
 
     positions: FloatArray
@@ -127,6 +154,7 @@ class ChainState:
     step: int
     entropy: int
     spawn_key: tuple[int, ...]
+    archive: FloatArray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "positions", frozen_array(np.atleast_2d(self.positions)))
@@ -134,6 +162,15 @@ class ChainState:
         object.__setattr__(self, "step", int(self.step))
         object.__setattr__(self, "entropy", int(self.entropy))
         object.__setattr__(self, "spawn_key", tuple(int(k) for k in self.spawn_key))
+        n_dim = self.positions.shape[1]
+        archive = np.zeros((0, n_dim)) if self.archive is None else np.asarray(self.archive)
+        if archive.size and (archive.ndim != 2 or archive.shape[1] != n_dim):
+            raise InferenceError(
+                f"ChainState: archive of shape {archive.shape} for {n_dim} parameters; "
+                f"expected (n_archive, {n_dim})"
+            )
+        archive = np.asarray(archive, dtype=np.float64).reshape(-1, n_dim)
+        object.__setattr__(self, "archive", frozen_array(archive))
         if self.positions.shape[0] != self.log_prob.shape[0]:
             raise InferenceError(
                 f"ChainState: {self.positions.shape[0]} positions but "
@@ -166,7 +203,7 @@ class SamplerRun:
     state : ChainState
         Final state, for resuming.
     move : str
-        ``"stretch"`` or ``"de"``.
+        ``"stretch"``, ``"de"`` or ``"demcz"``.
     """
 
     chain: FloatArray
@@ -209,7 +246,13 @@ def _score(log_prob: LogProb, theta: FloatArray) -> FloatArray:
     return np.where(np.isfinite(out), out, -np.inf)
 
 
-MOVES = ("stretch", "de")
+MOVES = ("stretch", "de", "demcz")
+# most points the "demcz" archive holds: its burn-in appends every k-th step's walkers
+_ARCHIVE_ROWS = 10_000
+# share of "demcz" proposals with scale 1 (jumps between modes) and the half-width of the
+# uniform relative spread of the others' scale
+_JUMP_SHARE = 0.1
+_SCALE_SPREAD = 0.1
 
 
 def _check_int(name: str, value: Any, lo: int) -> int:
@@ -242,7 +285,7 @@ def ensemble_sampler(
     progress: bool = False,
     move: str = "stretch",
 ) -> SamplerRun:
-    """Sample with an affine-invariant ensemble move, one vectorised call per half-ensemble.
+    """Sample with an affine-invariant ensemble move, one vectorised call per (half-)ensemble.
 
     Parameters
     ----------
@@ -268,8 +311,10 @@ def ensemble_sampler(
         Keep every `thin`-th step after burn-in.
     progress : bool
         Show a tqdm progress bar (if tqdm is installed).
-    move : {"stretch", "de"}
-        The stretch move, or differential evolution (see the module notes).
+    move : {"stretch", "de", "demcz"}
+        The stretch move, differential evolution between the walkers of the
+        other half, or differential evolution from an archive of past states
+        (one call per step for all walkers; see the module notes).
 
     Returns
     -------
@@ -294,9 +339,12 @@ def ensemble_sampler(
         raise InferenceError(f"move: expected one of {list(MOVES)}, got {move!r}")
 
     lp: FloatArray | None = None
+    archive: FloatArray | None = None
     if isinstance(start, ChainState):
         x = np.array(start.positions, dtype=np.float64)
         lp = np.array(start.log_prob, dtype=np.float64)
+        if start.archive is not None and start.archive.shape[0] >= 2:
+            archive = np.array(start.archive, dtype=np.float64)
         if seed is None:
             entropy, key, step0 = start.entropy, start.spawn_key, start.step
         else:
@@ -316,7 +364,10 @@ def ensemble_sampler(
     check_walkers(n_walkers, n_dim)
     half = n_walkers // 2
     if lp is None:
-        lp = np.concatenate([_score(log_prob, x[:half]), _score(log_prob, x[half:])])
+        if move == "demcz":
+            lp = _score(log_prob, x)
+        else:
+            lp = np.concatenate([_score(log_prob, x[:half]), _score(log_prob, x[half:])])
     if not np.any(np.isfinite(lp)):
         raise InferenceError(
             "no walker starts at a point with finite log-probability (every start point "
@@ -330,11 +381,16 @@ def ensemble_sampler(
     halves = ((slice(0, half), slice(half, None)), (slice(half, None), slice(0, half)))
     log_a = math.log(a)
     gamma = 2.38 / math.sqrt(2.0 * n_dim)
+    grow = _Archive(x if archive is None else archive, burn_in)
     bar = _progress(n_steps) if progress else None
     try:
         for k in range(n_steps):
             rng = _stream(entropy, key, STEP_TAG, step0 + k)
-            for act, comp in halves:
+            if move == "demcz":
+                _demcz_step(log_prob, rng, x, lp, accepted, grow.rows(), gamma)
+                grow.add(k, step0 + k, x)
+            # the two halves in turn (none for "demcz", which moved every walker above)
+            for act, comp in halves if move != "demcz" else ():
                 xs = x[act]
                 xc = x[comp]
                 if move == "stretch":
@@ -370,8 +426,68 @@ def ensemble_sampler(
     finally:
         if bar is not None:
             bar.close()
-    state = ChainState(x, lp, step0 + n_steps, entropy, key)
+    kept_archive = grow.rows() if move == "demcz" else None
+    state = ChainState(x, lp, step0 + n_steps, entropy, key, kept_archive)
     return SamplerRun(chain, chain_lp, accepted, n_steps, burn_in, thin, a, state, move)
+
+
+class _Archive:
+    """The "demcz" archive: the points given, then the walkers' positions after each
+    step, every ``1 + n // _ARCHIVE_ROWS``-th step once it holds ``n`` points (a
+    rule of the state alone, so that a resumed chain grows it as one long run would);
+    at the end of the burn-in only the points of its second half are kept."""
+
+    def __init__(self, first: FloatArray, burn_in: int) -> None:
+        self.z = np.array(first, dtype=np.float64)
+        self.start = 0
+        self.n = first.shape[0]
+        self.burn_in = burn_in
+        self.half = 0
+
+    def rows(self) -> FloatArray:
+        return self.z[self.start : self.n]
+
+    def add(self, k: int, step: int, x: FloatArray) -> None:
+        """After local step `k` (global `step`), with the walkers at `x`."""
+        if k == self.burn_in // 2 and self.burn_in >= 2:
+            self.half = self.n
+        if (step + 1) % (1 + (self.n - self.start) // _ARCHIVE_ROWS) == 0:
+            if self.n + x.shape[0] > self.z.shape[0]:
+                grown = np.empty((2 * self.z.shape[0] + x.shape[0], x.shape[1]))
+                grown[: self.n] = self.z[: self.n]
+                self.z = grown
+            self.z[self.n : self.n + x.shape[0]] = x
+            self.n += x.shape[0]
+        if k + 1 == self.burn_in and self.burn_in >= 2 and self.n - self.half >= 2:
+            # the points given and the burn-in's first half may lie on the way in
+            self.start = self.half
+
+
+def _demcz_step(
+    log_prob: LogProb,
+    rng: np.random.Generator,
+    x: FloatArray,
+    lp: FloatArray,
+    accepted: FloatArray,
+    archive: FloatArray,
+    gamma: float,
+) -> None:
+    """One "demcz" step: every walker proposes from archive differences, one call."""
+    n = x.shape[0]
+    m = archive.shape[0]
+    # two distinct archive points; (a, b) and (b, a) are equally likely
+    i = rng.integers(0, m, n)
+    j = (i + 1 + rng.integers(0, m - 1, n)) % m
+    jump = rng.random(n) < _JUMP_SHARE
+    spread = 1.0 + _SCALE_SPREAD * (2.0 * rng.random(n) - 1.0)
+    s = np.where(jump, 1.0, gamma * spread)
+    proposal = x + s[:, None] * (archive[i] - archive[j])
+    lp_new = _score(log_prob, proposal)
+    with np.errstate(invalid="ignore"):
+        ok = np.log(rng.random(n)) < lp_new - lp
+    x[ok] = proposal[ok]
+    lp[ok] = lp_new[ok]
+    accepted[ok] += 1
 
 
 def _progress(total: int) -> Any:

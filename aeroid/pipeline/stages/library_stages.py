@@ -258,7 +258,7 @@ class InferOptions(
         burn_in=Field(None, ge=0),
         thin=Field(None, ge=1),
         stretch=Field(None, gt=1),
-        move=(Literal["stretch", "de"] | None, Field(None)),
+        move=(Literal["stretch", "de", "demcz"] | None, Field(None)),
     )
 ):
     """`aeroid.infer` keywords: ``parameters``, the prior of each parameter by name (once
