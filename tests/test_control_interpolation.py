@@ -245,3 +245,36 @@ def test_filter_states_propagates_the_cubic():
             assert miss < 1e-6
         else:
             assert miss > 1e-3
+
+
+def _two_integrators(t, x, u, p):
+    return u[:2] * p["g"]
+
+
+def test_a_mapping_names_the_cubic_controls():
+    # each control its own integrator: the named control's state follows the cubic,
+    # the other's straight lines, each as when all controls are interpolated alike
+    model = Model(["x1", "x2"], ["u1", "u2"], {"g": 1.0}, _two_integrators, name="two")
+    t = np.linspace(0.0, 4.0, 41)
+    u = np.stack([np.sin(3.0 * t), np.cos(2.0 * t)], axis=1)
+
+    def run(how):
+        return model.simulate(
+            t, u, [0.0, 0.0], method="rk4", substeps=2, control_interpolation=how
+        ).states
+
+    mixed, cubic, straight = run({"u1": "cubic"}), run("cubic"), run("linear")
+    np.testing.assert_allclose(mixed[:, 0], cubic[:, 0], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(mixed[:, 1], straight[:, 1], rtol=0, atol=1e-14)
+    assert np.max(np.abs(cubic[:, 1] - straight[:, 1])) > 1e-4
+    assert np.array_equal(run({"u1": "linear"}), straight)
+    with pytest.raises(SimulationError, match=r"\['u3'\] are not controls"):
+        run({"u3": "cubic"})
+    with pytest.raises(SimulationError, match=r"control_interpolation\['u2'\]: 'spline'"):
+        run({"u2": "spline"})
+    # delayed controls take each column's own interpolation
+    moved = shifted_controls(t, u, [0, 1], [0.03, 0.03], ("cubic", "linear"))
+    np.testing.assert_allclose(moved[:, 1], np.interp(t - 0.03, t, u[:, 1]), atol=1e-15)
+    np.testing.assert_allclose(
+        moved[:, 0], controls_at(t, u[:, :1], t - 0.03, "cubic")[:, 0], atol=1e-15
+    )

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from ..errors import AeroidError, FilterError
 from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
-from ..models.integration import check_control_interpolation
+from ..models.integration import Interpolation, check_control_interpolation
 from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number
 
 FloatArray = NDArray[np.float64]
@@ -39,7 +39,7 @@ class _Problem:
     method: str
     ukf: tuple[float, float, float]
     # how the controls run between samples (`aeroid.models.integration.control_slopes`)
-    interpolation: str = "linear"
+    interpolation: Interpolation = "linear"
 
 
 def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
@@ -176,7 +176,7 @@ def build_problem(
     ukf: tuple[float, float, float],
     error: type[AeroidError],
     require_R: bool = True,
-    control_interpolation: str = "linear",
+    control_interpolation: str | Mapping[str, str] = "linear",
 ) -> tuple[_Problem, FloatArray]:
     """Validate the common arguments; returns the problem and the measurement-noise matrix."""
     what = "filter_states" if error is FilterError else "filter-error identification"
@@ -185,7 +185,9 @@ def build_problem(
         raise error(f"data: expected a FlightData record, got {type(data).__name__}")
     if method not in METHODS:
         raise error(f"method {method!r} is unknown; choose one of {list(METHODS)}")
-    check_control_interpolation(control_interpolation, error)
+    interpolation = check_control_interpolation(
+        control_interpolation, error, controls=_require_model(model, error, "filtering").controls
+    )
     if outputs is None:
         out_names = m.output_names
     else:
@@ -238,6 +240,6 @@ def build_problem(
         None if substeps is None else int(substeps),
         method,
         (float(alpha), float(beta), float(kappa)),
-        control_interpolation,
+        interpolation,
     )
     return prob, R

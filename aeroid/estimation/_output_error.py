@@ -26,7 +26,7 @@ from ..errors import (
     SimulationError,
 )
 from ..io.data import FlightData
-from ..models.integration import controls_at
+from ..models.integration import Interpolation, check_control_interpolation, controls_at
 from ._excitation import refuse_runaway as _refuse_runaway
 from ._identification_record import IdentificationResult
 from ._noise_model import _bandwidth, _colored_covariance, _warn_unabsorbed_drift
@@ -95,7 +95,7 @@ def shifted_controls(
     controls: FloatArray,
     columns: Sequence[int],
     delays: Sequence[float] | FloatArray,
-    interpolation: str = "linear",
+    interpolation: Interpolation = "linear",
 ) -> FloatArray:
     """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds:
     ``u(t - tau)`` interpolated between the samples as the simulation is told
@@ -106,11 +106,11 @@ def shifted_controls(
     for j, tau in zip(columns, np.asarray(delays, dtype=np.float64).tolist(), strict=True):
         if tau == 0.0:
             continue
-        if interpolation == "linear":
+        how = interpolation[j] if isinstance(interpolation, tuple) else interpolation
+        if how == "linear":
             out[:, j] = np.interp(time - tau, time, controls[:, j])
         else:
-            col = controls[:, j : j + 1]
-            out[:, j] = controls_at(time, col, time - tau, interpolation)[:, 0]
+            out[:, j] = controls_at(time, controls[:, j : j + 1], time - tau, how)[:, 0]
     return out
 
 
@@ -178,7 +178,12 @@ class _Problem:
         self.options = dict(options)
         self.gradient = gradient
         self.errors: list[str] = []  # what a stepped simulator raised, for messages
-        self.interpolation = str(self.options.get("control_interpolation", "linear"))
+        self.interpolation: Interpolation = check_control_interpolation(
+            self.options.get("control_interpolation", "linear"),
+            IdentificationError,
+            "simulate_options['control_interpolation']",
+            getattr(model, "controls", None),
+        )
         if self.interpolation != "linear":
             # the compiled and Newton sensitivities hold straight-line controls: the
             # central differences of `simulate_batch` see the cubic

@@ -447,7 +447,7 @@ def filter_states(
     ukf_beta: float = 2.0,
     ukf_kappa: float = 0.0,
     substeps: int | None = None,
-    control_interpolation: str = "linear",
+    control_interpolation: str | Mapping[str, str] = "linear",
 ) -> FilterResult:
     """Estimate the states of a flight record with a Kalman filter and smoother.
 
@@ -495,7 +495,7 @@ def filter_states(
         How the controls run between samples while the state is propagated
         (as in `aeroid.Model.simulate`): with ``"cubic"`` even a linear model
         is propagated by RK4 (the exact discretisation holds straight lines),
-        in numpy.
+        in numpy; a mapping of control names to either names the cubic ones.
 
     Returns
     -------

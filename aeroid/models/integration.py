@@ -32,7 +32,7 @@ vectors (and, optionally, of control histories) is integrated in one pass.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -87,14 +87,38 @@ class RawTrajectory:
 # adaptive solvers take and the exact LTI discretisation and Euler refuse.
 CONTROL_INTERPOLATIONS = ("linear", "cubic")
 
+# one of CONTROL_INTERPOLATIONS for every control, or one per control column
+Interpolation = str | tuple[str, ...]
+
 
 def check_control_interpolation(
-    value: Any, error: type[AeroidError] = SimulationError, name: str = "control_interpolation"
-) -> str:
-    """`value` if it names one of `CONTROL_INTERPOLATIONS`, else `error` saying so."""
-    if not isinstance(value, str) or value not in CONTROL_INTERPOLATIONS:
-        raise error(f"{name}: {value!r} is unknown; choose one of {list(CONTROL_INTERPOLATIONS)}")
-    return value
+    value: Any,
+    error: type[AeroidError] = SimulationError,
+    name: str = "control_interpolation",
+    controls: Sequence[str] | None = None,
+) -> Interpolation:
+    """`value` normalised: a name among `CONTROL_INTERPOLATIONS`, or, given the model's
+    `controls`, a mapping of some of them to such names (the others straight) as one
+    name per control column (one name when they agree); else `error` naming the fault."""
+    if isinstance(value, str) and value in CONTROL_INTERPOLATIONS:
+        return value
+    if isinstance(value, tuple) and value and all(v in CONTROL_INTERPOLATIONS for v in value):
+        return value
+    if isinstance(value, Mapping) and controls is not None:
+        unknown = sorted(str(k) for k in value if k not in controls)
+        if unknown:
+            raise error(f"{name}: {unknown} are not controls; the controls are {list(controls)}")
+        for k, v in value.items():
+            if not isinstance(v, str) or v not in CONTROL_INTERPOLATIONS:
+                raise error(
+                    f"{name}[{k!r}]: {v!r} is unknown; choose one of {list(CONTROL_INTERPOLATIONS)}"
+                )
+        cols = tuple(str(value.get(c, "linear")) for c in controls)
+        return cols[0] if cols and len(set(cols)) == 1 else (cols or "linear")
+    raise error(
+        f"{name}: {value!r} is unknown; choose one of {list(CONTROL_INTERPOLATIONS)} "
+        "or a mapping of control names to them"
+    )
 
 
 def control_slopes(time: FloatArray, u: FloatArray) -> FloatArray:
@@ -149,19 +173,27 @@ def hermite(u0: Any, u1: Any, a: Any, b: Any, s: Any) -> Any:
     return u0 + s * (u1 - u0) + s * (1.0 - s) * ((1.0 - s) * a - s * b)
 
 
-def _cubic_excess(time: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Per interval, `hermite`'s a and b: ``(..., n_t - 1, n_u)`` each."""
+def _cubic_excess(
+    time: FloatArray, u: FloatArray, interpolation: Interpolation = "cubic"
+) -> tuple[FloatArray, FloatArray]:
+    """Per interval, `hermite`'s a and b: ``(..., n_t - 1, n_u)`` each; zero in the
+    columns a per-column `interpolation` keeps straight."""
     d = control_slopes(time, u)
     h = np.diff(np.asarray(time, dtype=np.float64))[:, None]
     du = np.diff(u, axis=-2)
-    return d[..., :-1, :] * h - du, d[..., 1:, :] * h - du
+    a, b = d[..., :-1, :] * h - du, d[..., 1:, :] * h - du
+    if isinstance(interpolation, tuple):
+        straight = np.array([v == "linear" for v in interpolation])
+        a[..., straight] = 0.0
+        b[..., straight] = 0.0
+    return a, b
 
 
 def control_nodes(
     u: FloatArray,
     substeps: int,
     time: FloatArray | None = None,
-    interpolation: str = "linear",
+    interpolation: Interpolation = "linear",
 ) -> FloatArray:
     """Controls at every RK4 node: shape (n_t - 1, 2*substeps + 1, n_u, batch); "cubic"
     `interpolation` needs the record's `time`."""
@@ -174,14 +206,14 @@ def control_nodes(
     else:
         if time is None:
             raise SimulationError("control_nodes: cubic controls need the record's time")
-        a, b = _cubic_excess(time, u)
+        a, b = _cubic_excess(time, u, interpolation)
         s = frac[None, None, :, None]
         nodes = hermite(lo, hi, a[:, :, None, :], b[:, :, None, :], s)
     return np.ascontiguousarray(np.transpose(nodes, (1, 2, 3, 0)))
 
 
 def controls_at(
-    time: FloatArray, u: FloatArray, t: FloatArray, interpolation: str = "linear"
+    time: FloatArray, u: FloatArray, t: FloatArray, interpolation: Interpolation = "linear"
 ) -> FloatArray:
     """One record's controls u (n_t, n_u) at times t (held at the first and last samples
     outside the record), interpolated as `interpolation` says: (t.size, n_u)."""
@@ -190,7 +222,7 @@ def controls_at(
         return np.stack([np.interp(t, time, u[:, j]) for j in range(u.shape[1])], axis=1)
     k = np.clip(np.searchsorted(time, t, side="right") - 1, 0, time.size - 2)
     s = np.clip((t - time[k]) / (time[k + 1] - time[k]), 0.0, 1.0)[:, None]
-    a, b = _cubic_excess(time, u)
+    a, b = _cubic_excess(time, u, interpolation)
     out: FloatArray = hermite(u[k], u[k + 1], a[k], b[k], s)
     return out
 
@@ -299,7 +331,7 @@ def rk4(
     u: FloatArray,
     p: Mapping[str, FloatArray],
     substeps: int,
-    interpolation: str = "linear",
+    interpolation: Interpolation = "linear",
 ) -> RawTrajectory:
     """Fixed-step RK4; x0 (n_x, B), u (B, n_t, n_u)."""
     n_t = time.size
@@ -343,12 +375,12 @@ def solve_ivp_batch(
     method: str,
     rtol: float,
     atol: float,
-    interpolation: str = "linear",
+    interpolation: Interpolation = "linear",
 ) -> RawTrajectory:
     """The whole batch as one stacked ODE through `scipy.integrate.solve_ivp`."""
     import scipy.integrate  # on first use: half a second that a rerun or `aeroid status` skips
 
-    excess = None if interpolation == "linear" else _cubic_excess(time, u)
+    excess = None if interpolation == "linear" else _cubic_excess(time, u, interpolation)
     if method in _BY_INTERVAL:
         return _runge_kutta_by_interval(
             getattr(scipy.integrate, method), f, time, x0, u, p, rtol, atol, excess
@@ -765,7 +797,7 @@ def linear_path(
     u: FloatArray,
     p: Mapping[str, FloatArray],
     method: str,
-    interpolation: str = "linear",
+    interpolation: Interpolation = "linear",
 ) -> RawTrajectory | None:
     """`integrate`'s exact solution where `method` takes it and the dynamics are linear
     time-invariant on the record; else None (a model shown not to be is remembered, so
@@ -816,7 +848,7 @@ def integrate(
     rtol: float = 1e-9,
     atol: float = 1e-12,
     compiled_rk4: Callable[..., RawTrajectory | None] | None = None,
-    control_interpolation: str = "linear",
+    control_interpolation: Interpolation = "linear",
 ) -> RawTrajectory:
     """Integrate a batch: x0 (B, n_x), u (B, n_t, n_u), p name -> (B,).
 

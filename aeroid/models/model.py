@@ -77,6 +77,7 @@ def check_simulate_options(
             options.get("control_interpolation", "linear"),
             error,
             f"{name}['control_interpolation']",
+            model.controls,
         )
     return dict(options)
 
@@ -492,7 +493,7 @@ class Model(ContinuousModel):
         substeps: int | None = None,
         rtol: float = 1e-9,
         atol: float = 1e-12,
-        control_interpolation: str = "linear",
+        control_interpolation: str | Mapping[str, str] = "linear",
     ) -> BatchSimulation:
         """Integrate many parameter vectors in one pass.
 
@@ -553,7 +554,7 @@ class Model(ContinuousModel):
         substeps: int | None = None,
         rtol: float = 1e-9,
         atol: float = 1e-12,
-        control_interpolation: str = "linear",
+        control_interpolation: str | Mapping[str, str] = "linear",
     ) -> SimulationResult:
         """Simulate the model with outputs exactly on `time`.
 
@@ -584,8 +585,9 @@ class Model(ContinuousModel):
             samples (Catmull-Rom on a uniform grid; see
             `aeroid.models.integration.control_slopes`), for smooth inputs
             recorded at a rate near the motion's bandwidth, where straight
-            lines lose about ``(ωT)²/12`` of a swing's amplitude. Steps and
-            surfaces at their stops overshoot with it, so it is not the
+            lines lose about ``(ωT)²/12`` of a swing's amplitude; or a
+            mapping of control names to either (the others straight). Steps
+            and surfaces at their stops overshoot with it, so it is not the
             default. ``"exact"`` and ``"euler"`` refuse it; RK4 with it runs
             in numpy (never compiled).
 
