@@ -71,7 +71,10 @@ FloatArray = NDArray[np.float64]
 # one batch's filter inputs: parameters, Qc, R, x0 and P0, each per member
 _Batch = tuple[Mapping[str, FloatArray], FloatArray, FloatArray, FloatArray, FloatArray]
 
-FILTER_OPTIONS = ("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain")
+FILTER_OPTIONS = (
+    *("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain"),
+    "control_interpolation",
+)
 
 
 @dataclass
@@ -106,7 +109,7 @@ class _Layout:
 
 def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
     opts: dict[str, Any] = {"method": "ekf", "ukf_alpha": 1e-3, "ukf_beta": 2.0, "ukf_kappa": 0.0}
-    opts.update({"P0": None, "substeps": None, "gain": None})
+    opts.update({"P0": None, "substeps": None, "gain": None, "control_interpolation": "linear"})
     if filter_options is None:
         return opts
     if not isinstance(filter_options, Mapping):
@@ -193,9 +196,8 @@ class _Objective:
         which = np.asarray(which).reshape(-1)
         cols = self.layout.delayed
         if rows.shape[0] == 1:
-            return self._run(
-                replace(prob, U=shifted_controls(prob.time, prob.U, cols, rows[0])), batch
-            )
+            moved = shifted_controls(prob.time, prob.U, cols, rows[0], prob.interpolation)
+            return self._run(replace(prob, U=moved), batch)
         B = delays.shape[0]
         n_t, n_y = prob.Y.shape
         nu = np.empty((B, n_t, n_y))
@@ -205,7 +207,9 @@ class _Objective:
         params, *arrays = batch
         for g, row in enumerate(rows):
             sel = np.flatnonzero(which == g)
-            shifted = replace(prob, U=shifted_controls(prob.time, prob.U, cols, row))
+            shifted = replace(
+                prob, U=shifted_controls(prob.time, prob.U, cols, row, prob.interpolation)
+            )
             part = {k: v[sel] for k, v in params.items()}
             Qc, R, x0, P0 = (a[sel] for a in arrays)
             nu[sel], S[sel], ok[sel], s = self._run(shifted, (part, Qc, R, x0, P0))
@@ -414,8 +418,8 @@ def identify_filter_error(
         estimated from the innovations (maximum likelihood).
     filter_options : mapping, optional
         ``method`` ("ekf" or "ukf"), ``ukf_alpha``, ``ukf_beta``,
-        ``ukf_kappa``, ``P0``, ``substeps`` (as in `filter_states`), and
-        ``gain``: "steady" (default with "ekf": the nonlinear model predicts,
+        ``ukf_kappa``, ``P0``, ``substeps``, ``control_interpolation`` (as in
+        `filter_states`), and ``gain``: "steady" (default with "ekf": the nonlinear model predicts,
         the gain is the Kalman gain of the model linearised at the record's
         start, Jategaonkar's filter error for nonlinear systems; see
         `aeroid.estimation._filter_steady`) or "time_varying" (an EKF or UKF relinearised
@@ -499,6 +503,7 @@ def identify_filter_error(
             ukf=(float(opts["ukf_alpha"]), float(opts["ukf_beta"]), float(opts["ukf_kappa"])),
             error=IdentificationError,
             require_R=not estimate_R,
+            control_interpolation=opts["control_interpolation"],
         )
         probs.append(prob)
         R = Ri
@@ -560,7 +565,13 @@ def identify_filter_error(
             # the compiled rollout, where the fit's passes compile its predictor
             states = start_states(probs[0], start, Qc)
         if states is None:
-            sim = m.simulate_data(datas[0], x0=x0_list[0], parameters=start, method="auto")
+            sim = m.simulate_data(
+                datas[0],
+                x0=x0_list[0],
+                parameters=start,
+                method="auto",
+                control_interpolation=opts["control_interpolation"],
+            )
             states = sim.states
         svar = np.var(states, axis=0)
         for i in q_states:

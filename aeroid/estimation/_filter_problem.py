@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from ..errors import AeroidError, FilterError
 from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
+from ..models.integration import Interpolation, check_control_interpolation
 from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number
 
 FloatArray = NDArray[np.float64]
@@ -37,6 +38,8 @@ class _Problem:
     substeps: int | None
     method: str
     ukf: tuple[float, float, float]
+    # how the controls run between samples (`aeroid.models.integration.control_slopes`)
+    interpolation: Interpolation = "linear"
 
 
 def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
@@ -173,6 +176,7 @@ def build_problem(
     ukf: tuple[float, float, float],
     error: type[AeroidError],
     require_R: bool = True,
+    control_interpolation: str | Mapping[str, str] = "linear",
 ) -> tuple[_Problem, FloatArray]:
     """Validate the common arguments; returns the problem and the measurement-noise matrix."""
     what = "filter_states" if error is FilterError else "filter-error identification"
@@ -181,6 +185,9 @@ def build_problem(
         raise error(f"data: expected a FlightData record, got {type(data).__name__}")
     if method not in METHODS:
         raise error(f"method {method!r} is unknown; choose one of {list(METHODS)}")
+    interpolation = check_control_interpolation(
+        control_interpolation, error, controls=_require_model(model, error, "filtering").controls
+    )
     if outputs is None:
         out_names = m.output_names
     else:
@@ -233,5 +240,6 @@ def build_problem(
         None if substeps is None else int(substeps),
         method,
         (float(alpha), float(beta), float(kappa)),
+        interpolation,
     )
     return prob, R

@@ -327,7 +327,7 @@ def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) ->
     if m is None:
         f = prob.model._dynamics_batch
         m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
-    if not _compiles(prob, m):
+    if not _compiles(prob, m) or prob.interpolation != "linear":
         return None
     traj = _compiled.compiled_rollout(
         prob.model, prob.time, prob.x0[:, None], prob.U[None], params, int(m)
@@ -386,7 +386,7 @@ def steady_pass(
             xf[:, 0], xp[:, 0] = x, x
         fast = None
         # compiled when a fit's passes would spend what a compilation costs
-        if prop._cp is not None or _compiles(prob, prop.m):
+        if prob.interpolation == "linear" and (prop._cp is not None or _compiles(prob, prop.m)):
             fast = _compiled_predictor(prob, params, x0, G, steady_from, prop.m)
         if fast is not None:
             nu[:, 1:] = np.swapaxes(fast[2], 0, 1)

@@ -34,7 +34,8 @@ def _linearise_model(
     prob: _Problem, params: Mapping[str, FloatArray], Qc: FloatArray, B: int
 ) -> _Linear | None:
     m = prob.model
-    if not m._maybe_lti:
+    if not m._maybe_lti or prob.interpolation != "linear":
+        # the exact discretisation holds straight-line controls only: RK4 sees the cubic
         return None
     groups = _dt_groups(prob.time)
     if groups is None:
@@ -119,14 +120,14 @@ class _Propagator:
                 p0 = {k: v[:1] for k, v in params.items()}
                 X0 = prob.x0[:, None]
                 self.m = _integrate.auto_substeps(self.f, prob.time, X0, prob.U[None], p0)
-            self.nodes = _integrate.control_nodes(prob.U[None], self.m)[
-                ..., 0
-            ]  # (n_t-1, 2m+1, n_u)
+            self.nodes = _integrate.control_nodes(
+                prob.U[None], self.m, prob.time, prob.interpolation
+            )[..., 0]  # (n_t-1, 2m+1, n_u)
         self._rep: dict[int, dict[str, FloatArray]] = {}
         # the same RK4 over one interval, compiled, when the dynamics translate to JAX
         self._cp = None
         self._pmat: FloatArray | None = None
-        if lin is None:
+        if lin is None and prob.interpolation == "linear":  # compiled: straight lines only
             from ..models import compiled as _compiled
 
             # a point propagation and a difference Jacobian per interval, each RK4

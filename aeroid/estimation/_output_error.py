@@ -26,6 +26,7 @@ from ..errors import (
     SimulationError,
 )
 from ..io.data import FlightData
+from ..models.integration import Interpolation, check_control_interpolation, controls_at
 from ._excitation import refuse_runaway as _refuse_runaway
 from ._identification_record import IdentificationResult
 from ._noise_model import _bandwidth, _colored_covariance, _warn_unabsorbed_drift
@@ -94,14 +95,22 @@ def shifted_controls(
     controls: FloatArray,
     columns: Sequence[int],
     delays: Sequence[float] | FloatArray,
+    interpolation: Interpolation = "linear",
 ) -> FloatArray:
     """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds:
-    ``u(t - tau)`` interpolated piecewise-linearly between the samples (the
-    simulation contract) and held at the first and last samples outside them."""
+    ``u(t - tau)`` interpolated between the samples as the simulation is told
+    (piecewise-linearly by default, or the cubic of
+    `aeroid.models.integration.control_slopes`) and held at the first and last
+    samples outside them."""
     out = np.array(controls, dtype=np.float64, copy=True)
     for j, tau in zip(columns, np.asarray(delays, dtype=np.float64).tolist(), strict=True):
-        if tau != 0.0:
+        if tau == 0.0:
+            continue
+        how = interpolation[j] if isinstance(interpolation, tuple) else interpolation
+        if how == "linear":
             out[:, j] = np.interp(time - tau, time, controls[:, j])
+        else:
+            out[:, j] = controls_at(time, controls[:, j : j + 1], time - tau, how)[:, 0]
     return out
 
 
@@ -169,6 +178,16 @@ class _Problem:
         self.options = dict(options)
         self.gradient = gradient
         self.errors: list[str] = []  # what a stepped simulator raised, for messages
+        self.interpolation: Interpolation = check_control_interpolation(
+            self.options.get("control_interpolation", "linear"),
+            IdentificationError,
+            "simulate_options['control_interpolation']",
+            getattr(model, "controls", None),
+        )
+        if self.interpolation != "linear":
+            # the compiled and Newton sensitivities hold straight-line controls: the
+            # central differences of `simulate_batch` see the cubic
+            self._compiled_route: Any = False
 
     def unpack(self, theta: FloatArray, i: int) -> tuple[FloatArray, FloatArray]:
         m = self.mans[i]
@@ -193,7 +212,7 @@ class _Problem:
             x0, bias = self.unpack(theta, i)
             sx = lay.x0_slices[i]
             delays = theta[lay.n_p : lay.n_p + lay.n_d]
-            u_now = shifted_controls(m.time, m.controls, lay.delayed, delays)
+            u_now = shifted_controls(m.time, m.controls, lay.delayed, delays, self.interpolation)
             # simulated columns: model parameters and this manoeuvre's initial states
             cols = list(range(lay.n_p)) + list(range(sx.start, sx.stop))
             # gradient="auto": the exact sensitivities of the compiled RK4 when
@@ -354,7 +373,7 @@ class _Problem:
             for sign, b in ((1.0, 2 * c), (-1.0, 2 * c + 1)):
                 d = base.copy()
                 d[c] += sign * steps[lay.n_p + c]
-                U[b] = shifted_controls(m.time, m.controls, lay.delayed, d)
+                U[b] = shifted_controls(m.time, m.controls, lay.delayed, d, self.interpolation)
         P = {n: np.full(batch, theta[j]) for j, n in enumerate(lay.names)}
         X0 = np.repeat(x0[None, :], batch, axis=0)
         outs, ok = _simulate_members(self.model, m, P, X0, self.out_idx, self.options, None, U)

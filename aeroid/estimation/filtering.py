@@ -447,6 +447,7 @@ def filter_states(
     ukf_beta: float = 2.0,
     ukf_kappa: float = 0.0,
     substeps: int | None = None,
+    control_interpolation: str | Mapping[str, str] = "linear",
 ) -> FilterResult:
     """Estimate the states of a flight record with a Kalman filter and smoother.
 
@@ -490,6 +491,11 @@ def filter_states(
     substeps : int, optional
         RK4 steps per sample interval for nonlinear dynamics (default from the
         dynamics' stiffness).
+    control_interpolation : {"linear", "cubic"}
+        How the controls run between samples while the state is propagated
+        (as in `aeroid.Model.simulate`): with ``"cubic"`` even a linear model
+        is propagated by RK4 (the exact discretisation holds straight lines),
+        in numpy; a mapping of control names to either names the cubic ones.
 
     Returns
     -------
@@ -537,6 +543,7 @@ def filter_states(
         method=method,
         ukf=(ukf_alpha, ukf_beta, ukf_kappa),
         error=FilterError,
+        control_interpolation=control_interpolation,
     )
     m = prob.model
     Qc = noise_matrix(

@@ -184,14 +184,17 @@ def identify(
     tolerance : float
         Convergence threshold on the relative parameter step.
     simulate_options : mapping, optional
-        Integrator options (``method``, ``substeps``, ``rtol``, ``atol``).
+        Integrator options (``method``, ``substeps``, ``rtol``, ``atol``,
+        ``control_interpolation`` as in `aeroid.Model.simulate`: with the
+        cubic, the sensitivities are central differences of the simulation).
         With ``gradient="jax"`` (a fixed-step RK4 rollout) only ``substeps``
         applies (RK4 steps per sample interval; default chosen from the
         dynamics' stiffness); the others are refused.
     process_noise, measurement_noise, filter_options, estimate_process_noise
         Filter-error settings: continuous process-noise PSD per state,
-        measurement-noise variances per output, filter options, and whether
-        to estimate the process-noise intensities.
+        measurement-noise variances per output, filter options (among them
+        ``control_interpolation``, as in `filter_states`), and whether to
+        estimate the process-noise intensities.
     bounds : mapping of str to (float or None, float or None), optional
         Lower and upper bounds on estimated parameters, ``None`` (or
         ``-inf``/``inf``) for an open side, e.g. ``{"M_q": (None, 0.0)}``.

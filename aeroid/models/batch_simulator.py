@@ -56,11 +56,15 @@ class BatchSimulator:
         rtol: float = 1e-9,
         atol: float = 1e-12,
         repeated: int = 0,
+        control_interpolation: str | Mapping[str, str] = "linear",
     ) -> None:
         self.model = model
         self.time = check_time(time)
         check_integrator(method, substeps, rtol, atol)
         self.method, self.substeps, self.rtol, self.atol = method, substeps, rtol, atol
+        self.interpolation = _integrate.check_control_interpolation(
+            control_interpolation, controls=model.controls
+        )
         self.u = model.control_array(self.time, controls)
         self.x0 = x0
         x0_arr = None if x0 is None or isinstance(x0, Mapping) else np.atleast_2d(_real(x0, "x0"))
@@ -145,6 +149,7 @@ class BatchSimulator:
             rtol=self.rtol,
             atol=self.atol,
             compiled_rk4=hook,
+            control_interpolation=self.interpolation,
         )
         outputs = model._outputs(t, traj.states, U, p)
         ok = traj.ok & np.all(np.isfinite(outputs), axis=(1, 2))

@@ -120,12 +120,15 @@ def _run_identify(ctx: StageContext) -> Any:
 class FilterOptions(
     library_fields(  # type: ignore[misc]  # a generated base
         "aeroid.estimation.filtering:filter_states",
-        *("process_noise", "measurement_noise", "method", "smooth"),
+        *("process_noise", "measurement_noise", "method", "smooth", "control_interpolation"),
         process_noise=(dict[str, float], Field()),
         measurement_noise=(dict[str, float], Field()),
     )
 ):
     """`aeroid.filter_states` keywords (both noise levels are required, as there)."""
+
+    # unset, it leaves the keys of results stored before it existed unchanged
+    added_later: ClassVar[frozenset[str]] = frozenset({"control_interpolation"})
 
 
 def _run_filter(ctx: StageContext) -> Any:
