@@ -181,6 +181,65 @@ def _replay(db: object, the_plan: object, held: set[str]) -> None:
             hybrid = fly_c172x(cond, seed=seed, aerodynamics=_one_axis(section, axis), noise=False)
             cells.append(f"{axis} alpha {r2('alpha', hybrid):.3f} V {r2('V', hybrid):.3f}")
         print("    own but the database's " + "; ".join(cells))
+        # the two misses the database once traded against each other: the c172x's sideslip
+        # drag (which the database holds in CD_beta_beta and Cm_beta_beta) and its alpha-dot
+        # (which the database lumps into Cm_q, with Cm_V the part through the speed)
+        plain = _without(_own_section(), "aero/coefficient/CDbeta")
+        cells = [_cells(record, fly_c172x(cond, seed=seed, aerodynamics=plain, noise=False))]
+        alpha_dot = _c172x_pitch_damping(section)
+        run = fly_c172x(cond, seed=seed, aerodynamics=alpha_dot, noise=False)
+        cells.append(_cells(record, run))
+        print(
+            f"    own without its sideslip drag (CDbeta): {cells[0]}; the database with the "
+            f"c172x's Cmq and Cmadot for its Cm_q and Cm_V: {cells[1]}"
+        )
+
+
+def _cells(record: object, run: object) -> str:
+    out = []
+    for ch in ("alpha", "V"):
+        y = record[ch]  # type: ignore[index]
+        r2 = 1 - np.sum((y - run[ch]) ** 2) / np.sum((y - y.mean()) ** 2)  # type: ignore[index]
+        out.append(f"{ch} {r2:.3f}")
+    return " ".join(out)
+
+
+def _own_section() -> str:
+    import jsbsim
+
+    xml = (Path(jsbsim.get_default_root_dir()) / "aircraft/c172x/c172x.xml").read_text()
+    return xml[xml.find("<aerodynamics") : xml.find("</aerodynamics>") + len("</aerodynamics>")]
+
+
+def _without(section: str, name: str) -> str:
+    """`section` without the function `name`."""
+    import re
+
+    pattern = rf'\s*<function name="{re.escape(name)}">.*?</function>'
+    out, n = re.subn(pattern, "", section, count=1, flags=re.S)
+    assert n == 1, name
+    return out
+
+
+def _c172x_pitch_damping(section: str) -> str:
+    """The database's `section` with the c172x's own pitch damping, its Cmq (-12.4 per
+    q c/2V) and Cmadot (-5.2 per alpha-dot c/2V), in place of the lumped Cm_q and Cm_V."""
+    out = _without(section, "aero/coefficient/aeroid-Cm_q")
+    if "aero/coefficient/aeroid-Cm_V" in out:
+        out = _without(out, "aero/coefficient/aeroid-Cm_V")
+    terms = []
+    for name, rate, value in (
+        ("Cmq", "velocities/q-aero-rad_sec", -12.4),
+        ("Cmadot", "aero/alphadot-rad_sec", -5.2),
+    ):
+        props = ("aero/qbar-area", "metrics/cbarw-ft", "aero/ci2vel", rate)
+        terms.append(
+            f'    <function name="aero/coefficient/c172x-{name}"><product>'
+            + "".join(f"<property>{p}</property>" for p in props)
+            + f"<value>{value}</value></product></function>"
+        )
+    at = out.find('<axis name="PITCH">') + len('<axis name="PITCH">')
+    return out[:at] + "\n" + "\n".join(terms) + out[at:]
 
 
 CHANNELS = ("V", "alpha", "q", "beta", "p", "r")
