@@ -202,16 +202,7 @@ def test_seeded_resumable_and_ensembles() -> None:
         quiet_infer(model, data, priors, n_steps=10, initial=first)
 
     # two ensembles = two separately run ensembles combined; ensemble 0 = the single run
-    two = quiet_infer(model, data, priors, n_steps=100, burn_in=20, n_ensembles=2, **kw)
-    runs = [
-        infer_ensemble(model, data, priors, n_steps=100, burn_in=20, ensemble=e, **kw)
-        for e in (1, 0)
-    ]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        pooled = combine_ensembles(runs)
-    np.testing.assert_array_equal(two.samples, pooled.samples)
-    np.testing.assert_array_equal(two.samples[: a.samples.shape[0]], a.samples)
+    two = _two_ensembles_pool(model, data, priors, kw, a)
     assert two.n_ensembles == 2 and len(two.chain) == 2
     assert two.samples.shape[0] == 2 * a.samples.shape[0]
     assert "2 ensembles" in two.summary()
@@ -235,6 +226,22 @@ def test_seeded_resumable_and_ensembles() -> None:
     np.testing.assert_array_equal(np.concatenate([st_first.samples, st_more.samples]), st.samples)
 
 
+def _two_ensembles_pool(model: Any, data: Any, priors: Any, kw: dict[str, Any], a: Any) -> Any:
+    """Two ensembles in one call equal the two run apart and combined, and ensemble 0
+    equals the single run `a` (100 steps, 20 burn-in): the two-ensemble result."""
+    two = quiet_infer(model, data, priors, n_steps=100, burn_in=20, n_ensembles=2, **kw)
+    runs = [
+        infer_ensemble(model, data, priors, n_steps=100, burn_in=20, ensemble=e, **kw)
+        for e in (1, 0)
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        pooled = combine_ensembles(runs)
+    np.testing.assert_array_equal(two.samples, pooled.samples)
+    np.testing.assert_array_equal(two.samples[: a.samples.shape[0]], a.samples)
+    return two
+
+
 def test_demcz_seeded_resumable_and_ensembles() -> None:
     # the archive travels in the stored state: a continued chain is the longer run's
     model, data, priors = ramp_model(), ramp_data(1), {"k": Normal(0.5, 0.4)}
@@ -249,16 +256,7 @@ def test_demcz_seeded_resumable_and_ensembles() -> None:
     assert second.move == "demcz" and second.chain[0].archive.shape[0] > 0
     np.testing.assert_array_equal(np.concatenate([first.samples, second.samples]), a.samples)
     np.testing.assert_array_equal(second.chain[0].archive, a.chain[0].archive)
-    two = quiet_infer(model, data, priors, n_steps=100, burn_in=20, n_ensembles=2, **kw)
-    runs = [
-        infer_ensemble(model, data, priors, n_steps=100, burn_in=20, ensemble=e, **kw)
-        for e in (1, 0)
-    ]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        pooled = combine_ensembles(runs)
-    np.testing.assert_array_equal(two.samples, pooled.samples)
-    np.testing.assert_array_equal(two.samples[: a.samples.shape[0]], a.samples)
+    _two_ensembles_pool(model, data, priors, kw, a)
 
 
 def test_not_converged_warns() -> None:
