@@ -451,6 +451,48 @@ def test_a_product_term_flies_as_the_product_of_its_regressors(tmp_path: Path) -
     assert fdm["forces/fwx-aero-lbs"] / fdm["aero/qbar-area"] == pytest.approx(cd, rel=1e-4)
 
 
+def test_an_absolute_term_flies_through_jsbsims_abs(tmp_path: Path) -> None:
+    # drag and pitch V-shaped in the sideslip (an aircraft model's "abs(beta)", named
+    # CD_abs_beta): the section's function is q S CD_abs_beta |beta| (times the chord for
+    # the pitch), as the callable's value gives it, at sideslips of both signs
+    from aeroid.uncertainty.database_export import split_term
+
+    assert split_term("CD_abs_beta") == ("CD", "abs_beta")
+    assert split_term("CD_abs_beta_alpha") == ("CD", "abs_beta_alpha")
+    assert split_term("Cn_abs_delta_a") == ("Cn", "abs_delta_a")
+    for bad in ("CD_abs_", "CD_abs_gamma", "CD_abs"):
+        with pytest.raises(DataFormatError, match=bad):
+            split_term(bad)
+    pytest.importorskip("jsbsim")
+    flights = [
+        FlightCoefficients.from_stderr(
+            f"f{i}",
+            {"alpha": a},
+            {"CD_0": 0.03 + 0.2 * a, "CD_abs_beta": 0.17 + 0.5 * a, "Cm_abs_beta": 0.07},
+            {"CD_0": 1e-4, "CD_abs_beta": 0.005, "Cm_abs_beta": 0.003},
+        )
+        for i, a in enumerate(np.linspace(0.0, 0.15, 8))
+    ]
+    db = aerodynamic_database(flights)
+    section = db.to_jsbsim(n=11)
+    assert section.count("<abs><property>aero/beta-rad</property></abs>") == 2
+    f = db.as_function()
+    fdm = _flying(section, tmp_path / "root", feet=3000.0, knots=90.0, alpha=4.0)
+    seen = []
+    for beta_deg in (-6.0, -2.5, 1.0, 3.0, 6.0):
+        fdm["ic/beta-deg"] = beta_deg
+        fdm.run_ic()
+        fdm.run()
+        beta, qs = fdm["aero/beta-rad"], fdm["aero/qbar-area"]
+        seen.append(np.sign(beta))
+        at = f(alpha=fdm["aero/alpha-rad"])
+        drag = fdm["aero/coefficient/aeroid-CD_abs_beta"]
+        assert drag == pytest.approx(qs * at["CD_abs_beta"][0] * abs(beta), rel=1e-4)
+        pitch = fdm["aero/coefficient/aeroid-Cm_abs_beta"] / fdm["metrics/cbarw-ft"]
+        assert pitch == pytest.approx(qs * at["Cm_abs_beta"][0] * abs(beta), rel=1e-4)
+    assert set(seen) == {-1.0, 1.0}
+
+
 # -- speed terms and their trim-speed reference ---------------------------------------------
 
 _WEIGHT, _AREA = 11000.0, 16.2  # N, m^2

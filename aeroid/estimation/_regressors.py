@@ -21,6 +21,9 @@ FloatArray = NDArray[np.float64]
 
 _CONST = "const"
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+# the absolute value of a channel, ``abs(beta)``: the nonsmooth regressor of a model
+# even in an angle with a corner at zero (Klein & Morelli ch. 5)
+_ABS = re.compile(r"^abs\((.*)\)$")
 
 
 def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatArray:
@@ -46,8 +49,21 @@ def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatA
         base, _, power = part.partition("^")
         if not base:
             raise DataFormatError(f"{role}: cannot parse {part!r}")
-        if _NUMBER.match(base):
-            value: Any = float(base)
+        absolute = _ABS.match(base)
+        if absolute:
+            inner = absolute.group(1)
+            if inner not in lookup:
+                raise ChannelError(
+                    f"{role}: {part!r} takes the absolute value of {inner!r}, which is not a "
+                    f"channel; channels present: {sorted(lookup)}"
+                )
+            value: Any = np.abs(np.asarray(lookup[inner], dtype=np.float64))
+        elif "(" in base or ")" in base:
+            raise DataFormatError(
+                f"{role}: cannot parse {part!r} (the one function is abs(<channel>))"
+            )
+        elif _NUMBER.match(base):
+            value = float(base)
         elif base in lookup:
             value = np.asarray(lookup[base], dtype=np.float64)
         else:
@@ -250,6 +266,7 @@ def candidate_pool(
     squares: bool = True,
     products: bool = True,
     cubes: bool = False,
+    absolutes: bool | Sequence[str] = False,
     splines: Mapping[str, Sequence[float]] | None = None,
 ) -> dict[str, FloatArray]:
     """Candidate regressors for `stepwise_regression` built from a few variables.
@@ -263,6 +280,11 @@ def candidate_pool(
         allowed — put scaled rates in the mapping or data first).
     squares, products, cubes : bool
         Add ``v^2`` for each variable, ``v*w`` for each pair, ``v^3``.
+    absolutes : bool or sequence of str
+        Add ``abs(v)`` for each variable (True) or for those named, and its
+        product ``abs(v)*w`` with each other variable: the nonsmooth candidates
+        of an effect even in `v` with a corner at zero (sideslip drag, V-shaped
+        in β), which no polynomial in `v` follows. Each must be a channel name.
     splines : mapping of str to sequence of float, optional
         Knots of first-degree splines per variable, ``{"alpha": [0.1, 0.2]}``.
 
@@ -270,8 +292,8 @@ def candidate_pool(
     -------
     dict of str to ndarray
         Name to column, in the order: linear terms, squares, products, cubes,
-        splines. Names are expressions `equation_error` also understands
-        (except the splines).
+        absolute values (each followed by its products), splines. Names are
+        expressions `equation_error` also understands (except the splines).
     """
     if isinstance(variables, str):
         variables = [variables]
@@ -300,8 +322,39 @@ def candidate_pool(
                 out[f"{a}*{b}"] = cols[a] * cols[b]
     if cubes:
         out.update({f"{v}^3": cols[v] ** 3 for v in variables})
+    for v in _absolute_variables(absolutes, variables):
+        out[f"abs({v})"] = np.abs(cols[v])
+        for w in variables:
+            if w != v:
+                out[f"abs({v})*{w}"] = out[f"abs({v})"] * cols[w]
     for v, knots in dict(splines or {}).items():
         if v not in cols:
             cols[v] = _evaluate(lookup, v, n, "spline variable")
         out.update(spline_terms(cols[v], knots, name=v))
     return out
+
+
+def _absolute_variables(absolutes: bool | Sequence[str], variables: Sequence[str]) -> list[str]:
+    """The variables `candidate_pool` takes the absolute value of."""
+    if absolutes is True:
+        chosen = list(variables)
+    elif absolutes is False or absolutes is None:
+        return []
+    elif isinstance(absolutes, str):
+        chosen = [absolutes]
+    elif isinstance(absolutes, Sequence) and all(isinstance(a, str) for a in absolutes):
+        chosen = list(absolutes)
+    else:
+        raise DataFormatError(
+            f"absolutes: expected True, False or a list of variables, got {absolutes!r}"
+        )
+    unknown = [a for a in chosen if a not in variables]
+    if unknown:
+        raise DataFormatError(f"absolutes: {unknown} are not among the variables {list(variables)}")
+    odd = [a for a in chosen if not a.isidentifier()]
+    if odd:
+        raise DataFormatError(
+            f"absolutes: {odd} are expressions; abs(...) takes a channel name (put the "
+            "expression in the mapping or data first)"
+        )
+    return chosen

@@ -8,7 +8,11 @@ of flight data, arrays, or simple expressions of channels:
 * a channel name: ``"alpha"``;
 * products, quotients and integer or real powers of channels and numbers,
   without parentheses: ``"alpha*q"``, ``"alpha^2"`` (or ``"alpha**2"``),
-  ``"q/V"``, ``"0.5*q*de"``.
+  ``"q/V"``, ``"0.5*q*de"``;
+* the absolute value of a channel, as a factor like any other:
+  ``"abs(beta)"``, ``"abs(beta)*alpha"`` (a coefficient even in the sideslip
+  with a corner at zero, such as a fuselage's drag ``k |β|``, which no
+  polynomial in β follows; Klein & Morelli ch. 5).
 
 A column of ones (named ``"const"``) is added by default. Modelling residuals
 of equation error are rarely white, and the classical ``s² (X'X)^-1``

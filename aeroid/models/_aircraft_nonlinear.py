@@ -160,9 +160,12 @@ def longitudinal(
     from the lateral model), and each of
     CD, CL, Cm a linear-in-parameters expansion whose terms are chosen with
     `terms`: regressors ``alpha``, ``V`` (``V/V0 - 1``), ``q`` (``q c̄ / 2V``),
-    each surface, their products (``"alpha*delta_e"``) and the constant
-    ``"0"``; the parameters are named ``CL_alpha``, ``Cm_q``, ``CD_0``,
-    ``CL_alpha_delta_e``.
+    each surface, their products (``"alpha*delta_e"``), absolute values
+    (``"abs(beta)"``, ``"abs(beta)*alpha"``: for a coefficient even in a
+    regressor with a corner at zero, such as a fuselage's sideslip drag
+    ``k |β|``, which no polynomial follows; Klein & Morelli ch. 5) and the
+    constant ``"0"``; the parameters are named ``CL_alpha``, ``Cm_q``,
+    ``CD_0``, ``CL_alpha_delta_e``, ``CD_abs_beta``.
 
     The regressor ``alpha_dot`` (``α̇ c̄ / 2V``, alone, never in a product)
     adds the unsteady terms ``CL_alpha_dot``, ``Cm_alpha_dot``,
@@ -391,8 +394,9 @@ def lateral(
     (`AircraftConstants.engine_momentum`; when nonzero the pitch rate ``q`` must be
     among the `surfaces`, measured or fed by `decoupled`), and CY, Cl, Cn linear-in-parameters expansions in
     ``beta``, ``p`` (``p b / 2V0``), ``r`` (``r b / 2V0``), the surfaces,
-    their products and the constant ``"0"``; parameters named ``Cl_p``,
-    ``Cn_beta``, ``Cn_delta_r``, ``CY_0``.
+    their products, absolute values (``"abs(beta)"``, as for `longitudinal`)
+    and the constant ``"0"``; parameters named ``Cl_p``, ``Cn_beta``,
+    ``Cn_delta_r``, ``CY_0``, ``Cn_abs_beta``.
 
     Outputs (any of): ``beta`` (at the β vane: ``β + (r xβ - p zβ)/V0``),
     ``p``, ``r``, ``phi``, ``psi``, ``p_dot``, ``r_dot``, ``ay``

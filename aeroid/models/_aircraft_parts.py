@@ -236,10 +236,33 @@ class AircraftConstants:
 # -- aerodynamic coefficient expansions ------------------------------------------------
 
 # A coefficient is a tuple of terms, each (parameter name, regressor factors); the
-# constant term has no factors.
+# constant term has no factors. A factor is a regressor's name or its absolute value,
+# written ``abs(<regressor>)``.
 _Expansion = tuple[tuple[str, tuple[str, ...]], ...]
 
 _CONSTANT_TERMS = ("0", "1", "const")
+
+# A factor in |x| (Klein & Morelli ch. 5: the nonsmooth regressors of a global model).
+# An aerodynamic effect that is even in an angle and grows from zero at a corner (the
+# V-shaped sideslip drag of a fuselage, a table like CD(β) = k |β|) has no smooth
+# polynomial that follows it through zero: β² is flat there and steep outside, and a
+# fit trades one against the other. |β| follows it at every β with one parameter, and
+# its product with another regressor (``abs(beta)*alpha``) lets the V's slope change.
+_ABS_OPEN, _ABS_CLOSE = "abs(", ")"
+
+
+def _factor_regressor(factor: str) -> str:
+    """The regressor a factor reads: ``"abs(beta)"`` -> ``"beta"``, ``"alpha"`` -> ``"alpha"``."""
+    if factor.startswith(_ABS_OPEN) and factor.endswith(_ABS_CLOSE):
+        return factor[len(_ABS_OPEN) : -len(_ABS_CLOSE)]
+    return factor
+
+
+def _factor_name(factor: str) -> str:
+    """A factor as it appears in a parameter's name: ``"abs(beta)"`` -> ``"abs_beta"``."""
+    inner = _factor_regressor(factor)
+    return f"abs_{inner}" if inner != factor else factor
+
 
 _REGRESSOR_TEXT = {
     "alpha": "α",
@@ -253,14 +276,48 @@ _REGRESSOR_TEXT = {
 
 
 def _expand(expansion: _Expansion, regressors: Mapping[str, Any], p: Mapping[str, Any]) -> Any:
-    """Sum of parameter × product of regressors; plain arithmetic so any array namespace works."""
+    """Sum of parameter × product of regressors; plain arithmetic so any array namespace works.
+
+    ``abs(x)`` is ``x sign(x)``: the same value, and a derivative that automatic
+    differentiation takes as ``sign(x)``, zero at zero (as a central difference
+    does), where ``abs``'s own rule would say one there."""
     total: Any = 0.0
     for name, factors in expansion:
         term = p[name]
         for f in factors:
-            term = term * regressors[f]
+            if f in regressors:
+                term = term * regressors[f]
+            else:
+                x = regressors[_factor_regressor(f)]
+                term = term * (x * np.sign(x))
         total = total + term
     return total
+
+
+def _parse_term(
+    item: str, coefficient: str, regressors: Sequence[str], model: str
+) -> tuple[str, ...]:
+    """The factors of one product term (``"alpha*delta_e"``, ``"abs(beta)*alpha"``)."""
+    factors = tuple(item.replace(" ", "").split("*"))
+    hint = (
+        f"its regressors are {list(regressors)}, the constant '0', products as "
+        "'alpha*delta_e' and absolute values as 'abs(beta)'"
+    )
+    for f in factors:
+        inner = _factor_regressor(f)
+        if inner in regressors:
+            continue
+        if inner != f or "(" in f or ")" in f:
+            where = repr(item) if f == item.replace(" ", "") else f"{item!r}: {f!r}"
+            raise ModelDefinitionError(
+                f"terms[{coefficient!r}]: {where} is not the absolute value of a "
+                f"regressor of the {model} model; {hint}"
+            )
+        raise ModelDefinitionError(
+            f"terms[{coefficient!r}]: {item!r} uses {[f]}, which the {model} model does not "
+            f"have; {hint}"
+        )
+    return factors
 
 
 def _parse_expansions(
@@ -297,15 +354,9 @@ def _parse_expansions(
             if text in _CONSTANT_TERMS:
                 factors: tuple[str, ...] = ()
             else:
-                factors = tuple(text.split("*"))
-                bad = [f for f in factors if f not in regressors]
-                if bad:
-                    raise ModelDefinitionError(
-                        f"terms[{coefficient!r}]: {item!r} uses {bad}, which the {model} model "
-                        f"does not have; its regressors are {list(regressors)} and the "
-                        f"constant '0' (products as 'alpha*delta_e')"
-                    )
-            name = f"{coefficient}_{'_'.join(factors) if factors else '0'}"
+                factors = _parse_term(item, coefficient, regressors, model)
+            joined = "_".join(_factor_name(f) for f in factors)
+            name = f"{coefficient}_{joined if factors else '0'}"
             if any(name == n for n, _ in expansion):
                 raise ModelDefinitionError(f"terms[{coefficient!r}]: term {item!r} given twice")
             expansion.append((name, factors))
@@ -313,12 +364,18 @@ def _parse_expansions(
     return out
 
 
+def _factor_text(factor: str) -> str:
+    inner = _factor_regressor(factor)
+    text = _REGRESSOR_TEXT.get(inner, inner)
+    return text if inner == factor else f"|{text}|"
+
+
 def _expansion_text(coefficient: str, expansion: _Expansion) -> str:
     if not expansion:
         return f"{coefficient} = 0"
     parts = []
     for name, factors in expansion:
-        reg = " ".join(_REGRESSOR_TEXT.get(f, f) for f in factors)
+        reg = " ".join(_factor_text(f) for f in factors)
         parts.append(f"{name} {reg}".rstrip())
     return f"{coefficient} = " + " + ".join(parts)
 
@@ -361,9 +418,8 @@ def _expansion_units(
     for coefficient, expansion in expansions.items():
         lhs = _units.ONE if equations is None else equations[coefficient]
         for name, factors in expansion:
-            out[name] = _units.ratio(
-                lhs, [regs.get(f, _units.RADIAN) for f in factors], keep_radians=not linear
-            )
+            units = [regs.get(_factor_regressor(f), _units.RADIAN) for f in factors]
+            out[name] = _units.ratio(lhs, units, keep_radians=not linear)
     return out
 
 
@@ -409,6 +465,12 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
             raise ModelDefinitionError(f"surfaces: {s!r} is not a valid control name")
         if s in reserved:
             raise ModelDefinitionError(f"surfaces: {s!r} is already a regressor name")
+        if s == "abs" or s.startswith("abs_"):
+            # a term's name writes abs(x) as abs_x: such a surface would read the same
+            raise ModelDefinitionError(
+                f"surfaces: {s!r} would read as an absolute value in parameter names "
+                "(abs(beta) names CD_abs_beta); choose another name"
+            )
     if len(set(names)) != len(names):
         raise ModelDefinitionError(f"surfaces: duplicate names in {list(names)}")
     return names
@@ -595,13 +657,19 @@ def _aircraft_model(
 
 
 def _alpha_dot_alone(expansions: Mapping[str, _Expansion]) -> None:
-    """The α̇ regressor enters linearly (so the α equation stays solvable): never in a product."""
+    """The α̇ regressor enters linearly (so the α equation stays solvable): never in a
+    product or an absolute value."""
     for coefficient, expansion in expansions.items():
         for name, factors in expansion:
             if "alpha_dot" in factors and len(factors) > 1:
                 raise ModelDefinitionError(
                     f"terms[{coefficient!r}]: {name!r} multiplies alpha_dot by another "
                     "regressor; alpha_dot may only enter alone"
+                )
+            if any(f != "alpha_dot" and _factor_regressor(f) == "alpha_dot" for f in factors):
+                raise ModelDefinitionError(
+                    f"terms[{coefficient!r}]: {name!r} takes the absolute value of alpha_dot; "
+                    "alpha_dot may only enter alone, linearly"
                 )
 
 

@@ -263,8 +263,9 @@ def six_dof(
     (``CX = -CD cos α + CL sin α``, ``CZ = -CD sin α - CL cos α``); with
     ``"body"`` they are CX, CY, CZ. Every coefficient is a linear-in-parameters
     expansion in ``alpha``, ``beta``, ``V`` (``V/V0 - 1``), ``p``, ``q``,
-    ``r`` (``p b/2V``, ``q c̄/2V``, ``r b/2V``), the surfaces, their products
-    and the constant ``"0"``.
+    ``r`` (``p b/2V``, ``q c̄/2V``, ``r b/2V``), the surfaces, their products,
+    absolute values (``"abs(beta)"``, as for `longitudinal`) and the constant
+    ``"0"``.
 
     Outputs (any of): the states, ``V``, ``alpha`` and ``beta`` at their
     vanes (from the local airflow ``(u, v, w) + ω × r``), ``p_dot``,

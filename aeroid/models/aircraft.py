@@ -14,7 +14,8 @@ rigid-body kinematic corrections of their data-compatibility chapters:
 
 The aerodynamic coefficients are linear-in-parameters expansions whose terms
 the user chooses (parameters ``CL_alpha``, ``Cm_q``, ``Cn_delta_r``,
-``CD_0``). The constants of an aircraft (mass, inertias, reference geometry,
+``CD_0``): regressors, their products and absolute values (``"abs(beta)"``,
+``CD_abs_beta``, the nonsmooth candidate regressors of Klein & Morelli ch. 5). The constants of an aircraft (mass, inertias, reference geometry,
 air density, sensor positions, thrust line) are one validated record,
 `AircraftConstants`. Every model is an `aeroid.Model` (an `AircraftModel`,
 whose ``summary()`` prints its equations); its functions broadcast over

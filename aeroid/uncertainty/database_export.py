@@ -10,7 +10,9 @@ delta_e, delta_a, delta_r (rates nondimensional, ``p b/2V``, ``q c/2V``), or
 ``V`` the speed regressor ``V/V0 − 1`` (``Cm_V``), or
 ``0`` (``CL_0``) for the coefficient at the flight condition itself, or a
 product of regressors as an aircraft model names it (``CD_beta_beta``, drag with
-``β²``; ``CL_alpha_delta_e``), flown as the product of their properties. When the
+``β²``; ``CL_alpha_delta_e``), flown as the product of their properties, any of them
+an absolute value (``CD_abs_beta``, drag with ``|β|``, the model's ``abs(beta)``;
+``CD_abs_beta_alpha``), flown through JSBSim's ``<abs>``. When the
 static ``<C>_0`` is tabulated over a condition key that is also a regressor
 (``CL_0`` over alpha), ``<C>_<key>`` is its slope and is not exported again.
 
@@ -108,33 +110,58 @@ AXES: Mapping[str, tuple[str, str | None]] = {
 }
 
 
+# how a term's name marks a factor's absolute value (the aircraft models' abs(beta))
+_ABS = "abs_"
+
+
 def _factors(regressor: str) -> tuple[str, ...] | None:
     """``"beta_beta"`` -> ``("beta", "beta")``, ``"alpha_delta_e"`` -> ``("alpha",
-    "delta_e")``: the regressors a product term's name joins with ``_`` (None if it
-    is not one). The longest name first, so ``delta_e`` is not read as ``delta``."""
+    "delta_e")``, ``"abs_beta_alpha"`` -> ``("abs_beta", "alpha")``: the regressors a
+    product term's name joins with ``_``, ``abs_`` before one in absolute value (None
+    if it is not one). The longest name first, so ``delta_e`` is not read as ``delta``."""
     names = sorted((n for n in REGRESSOR_PROPERTIES if n != "0"), key=len, reverse=True)
     out: list[str] = []
     rest = regressor
     while True:
+        absolute = rest.startswith(_ABS)
+        if absolute:
+            rest = rest[len(_ABS) :]
         name = next((n for n in names if rest == n or rest.startswith(n + "_")), None)
         if name is None:
             return None
-        out.append(name)
+        out.append(_ABS + name if absolute else name)
         if rest == name:
             return tuple(out)
         rest = rest[len(name) + 1 :]
 
 
+def _inner(factor: str) -> str:
+    """The regressor a factor reads: ``"abs_beta"`` -> ``"beta"``."""
+    return factor.removeprefix(_ABS)
+
+
+def _factor_xml(factor: str) -> tuple[str, ...]:
+    """The JSBSim properties (or XML) whose product is `factor`; an absolute value is
+    one ``<abs>`` element around their product."""
+    props = REGRESSOR_PROPERTIES[_inner(factor)]
+    if factor == _inner(factor):
+        return props
+    body = "".join(p if p.startswith("<") else f"<property>{p}</property>" for p in props)
+    return (f"<abs>{body if len(props) == 1 else f'<product>{body}</product>'}</abs>",)
+
+
 def split_term(term: str) -> tuple[str, str]:
     """``"Cm_delta_e"`` -> ``("Cm", "delta_e")``; a bare ``"CL"`` is ``("CL", "0")``;
-    a product ``"CD_beta_beta"`` -> ``("CD", "beta_beta")``."""
+    a product ``"CD_beta_beta"`` -> ``("CD", "beta_beta")``; an absolute value
+    ``"CD_abs_beta"`` -> ``("CD", "abs_beta")``."""
     base, _, regressor = term.partition("_")
     regressor = regressor or "0"
     if base not in AXES or (regressor != "0" and _factors(regressor) is None):
         raise DataFormatError(
             f"term {term!r} is not <C>_<regressor> with C in {', '.join(AXES)} and regressor "
             f"in {', '.join(REGRESSOR_PROPERTIES)} or a product of them joined by '_' "
-            "(CD_beta_beta): JSBSim export cannot place it"
+            "(CD_beta_beta), abs_ before one in absolute value (CD_abs_beta): JSBSim "
+            "export cannot place it"
         )
     return base, regressor
 
@@ -143,7 +170,7 @@ def _regressor_properties(regressor: str) -> tuple[str, ...]:
     """The JSBSim properties (or XML) whose product is `regressor` (`split_term`'s)."""
     if regressor == "0":
         return ()
-    return tuple(p for f in _factors(regressor) or () for p in REGRESSOR_PROPERTIES[f])
+    return tuple(p for f in _factors(regressor) or () for p in _factor_xml(f))
 
 
 def _table_keys(db: AeroDatabase, term: str) -> list[str]:
@@ -277,7 +304,9 @@ def jsbsim_aerodynamics(db: AeroDatabase, *, n: int = 21) -> str:
             continue  # the slope of the static table, already in it
         placed[AXES[base][0]].append((term, regressor))
     out = ["<aerodynamics>", "  <!-- written by AeroID from an aerodynamic database -->"]
-    if any("V" in (_factors(r) or ()) for entries in placed.values() for _, r in entries):
+    if any(
+        "V" in map(_inner, _factors(r) or ()) for entries in placed.values() for _, r in entries
+    ):
         # defined first: the speed terms' regressor reads it
         out.append(f'  <function name="{TRIM_SPEED}">')
         out.append("    <description>the trim speed the speed terms refer to</description>")
