@@ -474,6 +474,12 @@ def test_an_absolute_term_flies_through_jsbsims_abs(tmp_path: Path) -> None:
         for i, a in enumerate(np.linspace(0.0, 0.15, 8))
     ]
     db = aerodynamic_database(flights)
+    # the tidy table names the term as the model does
+    table = db.table(n=3)
+    rows = [i for i, t in enumerate(table["term"]) if t == "CD_abs_beta"]
+    assert len(rows) == 3
+    v = db.predict("CD_abs_beta", {"alpha": table["alpha"][rows[1]]})[0][0]
+    assert table["value"][rows[1]] == pytest.approx(v)
     section = db.to_jsbsim(n=11)
     assert section.count("<abs><property>aero/beta-rad</property></abs>") == 2
     f = db.as_function()
