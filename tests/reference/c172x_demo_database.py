@@ -182,7 +182,7 @@ def _replay(db: object, the_plan: object, held: set[str]) -> None:
             cells.append(f"{axis} alpha {r2('alpha', hybrid):.3f} V {r2('V', hybrid):.3f}")
         print("    own but the database's " + "; ".join(cells))
         # the two misses the database once traded against each other: the c172x's sideslip
-        # drag (which the database holds in CD_beta_beta and Cm_beta_beta) and its alpha-dot
+        # drag (which the database holds in CD_abs_beta and Cm_abs_beta) and its alpha-dot
         # (which the database lumps into Cm_q, with Cm_V the part through the speed)
         plain = _without(_own_section(), "aero/coefficient/CDbeta")
         cells = [_cells(record, fly_c172x(cond, seed=seed, aerodynamics=plain, noise=False))]
