@@ -291,6 +291,8 @@ def test_a_long_transient_takes_the_next_gain_buffer(monkeypatch):
         1000,
         1000,
     ]
+    # a record of at most four buffers takes one shape, whatever its transient
+    assert {_filter_steady._capacity(k, 512) for k in (2, 128, 129, 300, 511)} == {512}
 
 
 def test_a_nonlinear_model_is_checked_for_linearity_once():
@@ -321,3 +323,27 @@ def test_forward_substitution_is_the_triangular_solve():
         for k in range(40):
             expect = scipy.linalg.solve_triangular(L[i, k], b[i, k], lower=True)
             np.testing.assert_allclose(z[i, k], expect, rtol=1e-10, atol=1e-12)
+
+
+def test_newton_schulz_inverses_reach_the_inverse_to_rounding():
+    """`_inverse` refined from a nearby inverse (the Riccati recursion's last step) agrees
+    with LAPACK's inverse to rounding (the residual's square each step, three steps at most
+    from a residual of 1e-2); from a start too far off it is LAPACK's inverse itself."""
+    from aeroid.estimation._filter_steady import _inverse
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(6, 5, 5))
+    S = A @ np.swapaxes(A, 1, 2) + 0.5 * np.eye(5)
+    exact = np.linalg.inv(S)
+    eye = np.eye(5)
+    for rel in (1e-3, 1e-6, 1e-10):
+        # the last step's S, each entry off by `rel` of S's scale: its inverse starts
+        near = S + rel * np.abs(S).max() * rng.uniform(-1.0, 1.0, S.shape)
+        near = 0.5 * (near + np.swapaxes(near, 1, 2))
+        got = _inverse(S, np.linalg.inv(near), eye)
+        scale = np.abs(exact).max(axis=(1, 2), keepdims=True)
+        cond = np.linalg.cond(S).max()
+        assert np.max(np.abs(got - exact) / scale) < 50 * cond * np.finfo(float).eps
+    far = _inverse(S, np.linalg.inv(2.0 * S), eye)  # residual 1/2: inverted afresh
+    np.testing.assert_array_equal(far, exact)
+    np.testing.assert_array_equal(_inverse(S, None, eye), exact)

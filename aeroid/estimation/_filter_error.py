@@ -280,6 +280,10 @@ def _steps(z: FloatArray, layout: _Layout) -> FloatArray:
     return h
 
 
+# samples of the information's trace term summed at a time
+_TRACE_BLOCK = 64
+
+
 def _rows(a: FloatArray, bad: NDArray[np.intp], new: FloatArray) -> FloatArray:
     """`a` with its members ``1 + bad`` replaced by `new`'s rows (a copy)."""
     out = np.array(a)
@@ -324,18 +328,25 @@ def _derivatives(
         k0 = K if settled is None or K - settled < 8 else settled
         dnu = (nu[1:] - nu[0]) / h[:, None, None]  # (n, K, m)
         Sinv = np.linalg.inv(S[0, :k0])  # (k0, m, m)
-        dS = np.subtract(S[1:, :k0], S[0, :k0])  # in place: record-long
-        dS /= h[:, None, None, None]
-        W = np.einsum("kab,ikb->ika", Sinv, dnu[:, :k0])
-        fisher += np.einsum("ika,jka->ij", dnu[:, :k0], W)
-        SdS = Sinv[None] @ dS  # (n, k0, m, m)
-        # sum over k, a, b of SdS[i, k, a, b] SdS[j, k, b, a]: one matrix product
-        SdS_T = np.ascontiguousarray(np.swapaxes(SdS, 2, 3))
-        fisher += 0.5 * (SdS.reshape(n, -1) @ SdS_T.reshape(n, -1).T)
+        # sample-major: the products by S^-1 one batched product, the sums over samples
+        # and outputs one matrix product
+        dT = np.ascontiguousarray(np.swapaxes(dnu[:, :k0], 0, 1))  # (k0, n, m)
+        WT = dT @ np.swapaxes(Sinv, 1, 2)  # row i of sample k: S_k^-1 dnu_ik
+        fisher += np.tensordot(dT, WT, axes=([0, 2], [0, 2]))
+        # the trace term, sum over k, a, b of SdS[i, k, a, b] SdS[j, k, b, a] with
+        # SdS = S^-1 dS, a block of samples at a time (the blocks stay in the cache where
+        # the record's would not); the differences' steps divide the sum once
+        trace = np.zeros((n, n))
+        for a in range(0, k0, _TRACE_BLOCK):
+            b = min(a + _TRACE_BLOCK, k0)
+            SdS = Sinv[None, a:b] @ np.subtract(S[1:, a:b], S[0, a:b])  # (n, b - a, m, m)
+            SdS_T = np.ascontiguousarray(np.swapaxes(SdS, 2, 3))
+            trace += SdS.reshape(n, -1) @ SdS_T.reshape(n, -1).T
+        fisher += 0.5 * (trace / np.outer(h, h))
         if k0 < K:
             Sinv1 = np.linalg.inv(S[0, -1])
-            W1 = np.einsum("ab,ikb->ika", Sinv1, dnu[:, k0:])
-            fisher += np.einsum("ika,jka->ij", dnu[:, k0:], W1)
+            W1 = dnu[:, k0:] @ Sinv1.T
+            fisher += np.tensordot(dnu[:, k0:], W1, axes=([1, 2], [1, 2]))
             SdS1 = Sinv1[None] @ ((S[1:, -1] - S[0, -1]) / h[:, None, None])
             fisher += 0.5 * (K - k0) * np.einsum("iab,jba->ij", SdS1, SdS1)
     if not np.all(np.isfinite(fisher)):

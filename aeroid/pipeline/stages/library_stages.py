@@ -500,7 +500,9 @@ for _stage in (
         # 8: the filter error holds a process noise the likelihood no longer feels out
         #    of its steps (a fit whose noise vanishes takes fewer, other steps)
         # 9: coloured-residual degrees of freedom with the low band's exact covariance
-        "9",
+        # 10: the filter error's Riccati inverses refined by Newton-Schulz steps and its
+        #     information summed by matrix products (rounding)
+        "10",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
