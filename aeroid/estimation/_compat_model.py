@@ -193,8 +193,9 @@ def _model(nominal: tuple[tuple[str, float], ...]) -> Any:
     model (and whatever the simulation machinery learnt about it).
     """
     from ..models.model import Model
+    from ._compat_jacobian import _kinematics_jacobian, _sensors_jacobian
 
-    return Model(
+    model = Model(
         states=list(STATES),
         controls=[*INPUT_CHANNELS, *_MEASURED],
         parameters=dict(nominal),
@@ -203,6 +204,11 @@ def _model(nominal: tuple[tuple[str, float], ...]) -> Any:
         measurement=_sensors,
         name="flight_path_reconstruction",
     )
+    # Newton's method over the record linearises with these instead of differences
+    model._dynamics_batch.jacobian = _kinematics_jacobian
+    assert model._measurement_batch is not None
+    model._measurement_batch.jacobian = _sensors_jacobian
+    return model
 
 
 def _zero_sensor_errors(values: Mapping[str, float]) -> dict[str, float]:
