@@ -24,11 +24,21 @@ MASKS = {
 NAMES = (
     *(f"{e}_{c}" for e in ("b", "k") for c in cm.INPUT_CHANNELS),
     *(f"{e}_{o}" for e in ("b", "k") for o in cm.OUTPUT_CHANNELS),
+    "w_n",
+    "w_e",
+    "w_d",
     "g",
 )
+POINTS = {
+    "no wind": (MASKS["none"], (0.0, 0.0, 0.0)),
+    "measured states": (MASKS["u, theta, h measured"], (0.0, 0.0, 0.0)),
+    "wind": (MASKS["none"], (6.0, -4.0, 1.5)),
+}
 
 
-def _point(masks: tuple[float, ...], seed: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+def _point(
+    masks: tuple[float, ...], wind: tuple[float, ...] = (0.0, 0.0, 0.0), seed: int = 1
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """States, controls and parameters at 40 scattered points of a manoeuvring flight."""
     rng = np.random.default_rng(seed)
     K = 40
@@ -44,22 +54,23 @@ def _point(masks: tuple[float, ...], seed: int = 1) -> tuple[np.ndarray, np.ndar
     u = np.vstack([0.2 * rng.standard_normal((3, K)), rng.standard_normal((3, K))])
     u = np.vstack([u, x + 0.1 * rng.standard_normal(x.shape)])
     p = {n: 0.0 for n in cm.SENSOR_PARAMETERS}
-    for n in NAMES[:-1]:
+    for n in NAMES[:-4]:
         p[n] = 0.05 * rng.standard_normal()
+    p.update(zip(cm._WIND, wind, strict=True))
     p["g"] = 9.80665
     p.update({f"m_{s}": m for s, m in zip(cm.STATES, masks, strict=True)})
     p.update({f"y0_{o}": 0.1 * rng.standard_normal() for o in cm.OUTPUT_CHANNELS})
     return x, u, p
 
 
-@pytest.mark.parametrize("masks", list(MASKS.values()), ids=list(MASKS))
+@pytest.mark.parametrize("point", list(POINTS.values()), ids=list(POINTS))
 @pytest.mark.parametrize(
     ("fun", "jacobian"),
     [(cm._kinematics, cj._kinematics_jacobian), (cm._sensors, cj._sensors_jacobian)],
     ids=["kinematics", "sensors"],
 )
-def test_closed_form_matches_central_differences(masks, fun, jacobian) -> None:
-    x, u, p = _point(masks)
+def test_closed_form_matches_central_differences(point, fun, jacobian) -> None:
+    x, u, p = _point(*point)
     t = np.zeros(x.shape[1])
     got = jacobian(t, x, u, p, NAMES)
     assert got is not None
@@ -92,11 +103,10 @@ def test_closed_form_matches_central_differences(masks, fun, jacobian) -> None:
         np.testing.assert_allclose(fp[:, :, c], central("p", name, 1e-5), rtol=1e-7, atol=1e-7)
 
 
-def test_sensors_leave_wind_and_time_shifts_to_differences() -> None:
+def test_sensors_leave_time_shifts_to_differences() -> None:
     x, u, p = _point(MASKS["none"])
     t = np.zeros(x.shape[1])
     assert cj._sensors_jacobian(t, x, u, p, ("b_V",)) is not None
-    assert cj._sensors_jacobian(t, x, u, {**p, "w_n": 1.0}, ("b_V",)) is None
     assert cj._sensors_jacobian(t, x, u, {**p, "tau_alpha": 0.01}, ("b_V",)) is None
     assert cj._sensors_jacobian(t, x, u, p, ("tau_alpha",)) is None
     assert cj._kinematics_jacobian(t, x, u, p, ("m_u",)) is None
@@ -199,21 +209,32 @@ def test_sensitivities_equal_the_differences_path(monkeypatch) -> None:
     assert np.all(np.abs(exact[1] - diff[1]) <= 1e-5 * scale_j + 1e-12)
 
 
+WIND_ESTIMATE = ["b_p", "b_q", "b_r", "b_V", "b_alpha", "b_beta", "w_n", "w_e", "w_d"]
 CASES = {
-    "sensor errors": ({**BIASES, "k_V": 0.02, "k_alpha": 0.08}, {}),
+    # (injected errors, estimated, flight options, analysis options)
+    "sensor errors": ({**BIASES, "k_V": 0.02, "k_alpha": 0.08}, None, {}, {}),
     # the sensors' closed form leaves time shifts to differences: the kinematics' stays
-    "time shift": ({**BIASES, "tau_alpha": 0.05}, {}),
+    "time shift": ({**BIASES, "tau_alpha": 0.05}, None, {}, {}),
     "measured states": (
         {"b_q": 0.002, "b_ax": 0.15, "b_az": 0.2, "b_V": 1.0, "b_alpha": 0.02, "k_alpha": 0.08},
+        None,
+        {},
         {"outputs": ["V", "alpha", "theta"], "measured_states": ["v", "phi", "psi"]},
+    ),
+    "wind": (
+        {"b_p": 0.003, "b_V": 1.0, "b_alpha": 0.02},
+        WIND_ESTIMATE,
+        {"wind": (6.0, -4.0, 0.5), "gps": True},
+        {},
     ),
 }
 
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_fit_equals_the_differences_path(case, numpy_fits, monkeypatch) -> None:
-    errors, options = CASES[case]
-    data = simulated_flight(20.0, 25.0, errors=errors, seed=5)
+    errors, estimate, flight, options = CASES[case]
+    estimate = estimate or list(errors)
+    data = simulated_flight(20.0, 25.0, errors=errors, seed=5, **flight)
     calls: list[int] = []
     exact_form = cj._kinematics_jacobian
     got = {}
@@ -230,7 +251,7 @@ def test_fit_equals_the_differences_path(case, numpy_fits, monkeypatch) -> None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 got[way] = check_compatibility(
-                    data, estimate=list(errors), error_bars="white", **options
+                    data, estimate=estimate, error_bars="white", **options
                 )
     cm._model.cache_clear()
     assert calls  # the second fit took the closed forms
@@ -238,6 +259,6 @@ def test_fit_equals_the_differences_path(case, numpy_fits, monkeypatch) -> None:
     assert exact.n_passes == diff.n_passes
     # both converge on the same optimum: the Jacobians differ by ~1e-9 relative, the
     # iterations stop at a relative step of 1e-6, far inside the error bars
-    for n in errors:
+    for n in estimate:
         assert abs(exact.parameters[n] - diff.parameters[n]) <= 1e-3 * exact.stderr[n]
         assert exact.stderr[n] == pytest.approx(diff.stderr[n], rel=1e-4)

@@ -8,9 +8,9 @@ written out once per point instead. The values themselves come from those two
 functions (the same bits); the derivatives are exact where the differences carried
 a truncation and rounding error of about a millionth of a step.
 
-The sensors are covered without wind and time shifts (every ``w_*`` and ``tau_*``
-zero and none estimated): a time shift reads the kinematics' derivatives, whose
-state derivatives are of second order. Elsewhere `None` sends the caller back to
+The sensors are covered without time shifts (every ``tau_*`` zero and none
+estimated): a time shift reads the kinematics' derivatives, whose state
+derivatives are of second order. Elsewhere `None` sends the caller back to
 central differences.
 """
 
@@ -120,13 +120,14 @@ def _sensors_jacobian(
     names: tuple[str, ...],
 ) -> Jacobians | None:
     """`_sensors` at points (t (K,), x (7, K), u (13, K)) and its Jacobians in the
-    states (K, 9, 7), `names` (K, 9, n_p) and the controls (K, 9, 13), where no wind
-    and no time shift is at work (else None)."""
-    if any(float(p[w]) != 0.0 for w in _WIND) or any(
-        float(p[f"tau_{o}"]) != 0.0 for o in OUTPUT_CHANNELS
-    ):
+    states (K, 9, 7), `names` (K, 9, n_p) and the controls (K, 9, 13), where no time
+    shift is at work (else None)."""
+    if any(float(p[f"tau_{o}"]) != 0.0 for o in OUTPUT_CHANNELS):
         return None
-    if any(n not in _INPUT_ERRORS and n not in _OUTPUT_ERRORS and n != "g" for n in names):
+    if any(
+        n not in _INPUT_ERRORS and n not in _OUTPUT_ERRORS and n not in _WIND and n != "g"
+        for n in names
+    ):
         return None
     y = np.asarray(_sensors(t, x, u, p), dtype=np.float64)
     K = x.shape[1]
@@ -134,28 +135,50 @@ def _sensors_jacobian(
     uu, vv, ww, phi, theta, psi, h = _effective(x, u, masks)
     sphi, cphi, sth, cth = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
     spsi, cpsi = np.sin(psi), np.cos(psi)
-    plane = uu * uu + ww * ww
-    V2 = plane + vv * vv
+    # the rows of the body-to-earth rotation: north, east, down in body axes
+    north = (cth * cpsi, sphi * sth * cpsi - cphi * spsi, cphi * sth * cpsi + sphi * spsi)
+    east = (cth * spsi, sphi * sth * spsi + cphi * cpsi, cphi * sth * spsi - sphi * cpsi)
+    down = (-sth, sphi * cth, cphi * cth)
+    w_n, w_e, w_d = (float(p[w]) for w in _WIND)
+    # the air velocity: the ground velocity less the wind in body axes
+    ua, va, wa = (
+        g - (n * w_n + e * w_e + d * w_d)
+        for g, n, e, d in zip((uu, vv, ww), north, east, down, strict=True)
+    )
+    plane = ua * ua + wa * wa
+    V2 = plane + va * va
     V = np.sqrt(V2)
     root = np.sqrt(plane)
-    n_x, n_y, n_z = cth * cpsi, sphi * sth * cpsi - cphi * spsi, cphi * sth * cpsi + sphi * spsi
-    e_x, e_y, e_z = cth * spsi, sphi * sth * spsi + cphi * cpsi, cphi * sth * spsi - sphi * cpsi
-    vn = n_x * uu + n_y * vv + n_z * ww
-    ve = e_x * uu + e_y * vv + e_z * ww
-    true = [V, np.arctan2(ww, uu), np.arcsin(vv / V), phi, theta, psi, h, vn, ve]
+    vn = north[0] * uu + north[1] * vv + north[2] * ww
+    ve = east[0] * uu + east[1] * vv + east[2] * ww
+    true = [V, np.arctan2(wa, ua), np.arcsin(va / V), phi, theta, psi, h, vn, ve]
+    # V, alpha, beta in the air velocity
+    Ga = np.zeros((K, 3, 3))
+    Ga[:, 0, 0], Ga[:, 0, 1], Ga[:, 0, 2] = ua / V, va / V, wa / V
+    Ga[:, 1, 0], Ga[:, 1, 2] = -wa / plane, ua / plane
+    across = va / (V2 * root)
+    Ga[:, 2, 0], Ga[:, 2, 1], Ga[:, 2, 2] = -across * ua, root / V2, -across * wa
     # the error-free outputs in the effective states
     G = np.zeros((K, len(OUTPUT_CHANNELS), _N_X))
-    G[:, 0, 0], G[:, 0, 1], G[:, 0, 2] = uu / V, vv / V, ww / V
-    G[:, 1, 0], G[:, 1, 2] = -ww / plane, uu / plane
-    across = vv / (V2 * root)
-    G[:, 2, 0], G[:, 2, 1], G[:, 2, 2] = -across * uu, root / V2, -across * ww
+    G[:, :3, :3] = Ga
+    if w_n or w_e or w_d:
+        # the wind in body axes turns with the attitude: d/d(phi, theta, psi)
+        turn = np.zeros((K, 3, 3))
+        turn[:, 1, 0] = north[2] * w_n + east[2] * w_e + down[2] * w_d
+        turn[:, 2, 0] = -(north[1] * w_n + east[1] * w_e + down[1] * w_d)
+        turn[:, 0, 1] = -sth * (cpsi * w_n + spsi * w_e) - cth * w_d
+        level = cth * (cpsi * w_n + spsi * w_e) - sth * w_d
+        turn[:, 1, 1], turn[:, 2, 1] = sphi * level, cphi * level
+        for i in range(3):
+            turn[:, i, 2] = -east[i] * w_n + north[i] * w_e
+        G[:, :3, 3:6] = -np.matmul(Ga, turn)
     G[:, 3, 3] = G[:, 4, 4] = G[:, 5, 5] = G[:, 6, 6] = 1.0
-    G[:, 7, 0], G[:, 7, 1], G[:, 7, 2] = n_x, n_y, n_z
-    G[:, 7, 3] = n_z * vv - n_y * ww
+    G[:, 7, 0], G[:, 7, 1], G[:, 7, 2] = north
+    G[:, 7, 3] = north[2] * vv - north[1] * ww
     G[:, 7, 4] = cpsi * (-sth * uu + cth * (sphi * vv + cphi * ww))
     G[:, 7, 5] = -ve
-    G[:, 8, 0], G[:, 8, 1], G[:, 8, 2] = e_x, e_y, e_z
-    G[:, 8, 3] = e_z * vv - e_y * ww
+    G[:, 8, 0], G[:, 8, 1], G[:, 8, 2] = east
+    G[:, 8, 3] = east[2] * vv - east[1] * ww
     G[:, 8, 4] = spsi * (-sth * uu + cth * (sphi * vv + cphi * ww))
     G[:, 8, 5] = vn
     gain = np.array([1.0 + float(p[f"k_{o}"]) for o in OUTPUT_CHANNELS])
@@ -170,4 +193,7 @@ def _sensors_jacobian(
             o = OUTPUT_CHANNELS.index(channel)
             # (1 + k)(y - y0) + y0 + b
             gp[:, o, c] = 1.0 if kind == "b" else true[o] - float(p[f"y0_{channel}"])
+        elif name in _WIND:
+            axis = (north, east, down)[_WIND.index(name)]
+            gp[:, :3, c] = -np.einsum("kij,jk->ki", Ga, np.array(axis)) * gain[None, :3]
     return y, gx, gp, gu
