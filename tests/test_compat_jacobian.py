@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from _compat_flight import BIASES, simulated_flight
 
-from aeroid.estimation import _compat_jacobian as cj
 from aeroid.estimation import _compat_model as cm
 from aeroid.estimation.compatibility import check_compatibility
 from aeroid.models import _rk4_grid, shooting
@@ -66,7 +65,7 @@ def _point(
 @pytest.mark.parametrize("point", list(POINTS.values()), ids=list(POINTS))
 @pytest.mark.parametrize(
     ("fun", "jacobian"),
-    [(cm._kinematics, cj._kinematics_jacobian), (cm._sensors, cj._sensors_jacobian)],
+    [(cm._kinematics, cm._kinematics_jacobian), (cm._sensors, cm._sensors_jacobian)],
     ids=["kinematics", "sensors"],
 )
 def test_closed_form_matches_central_differences(point, fun, jacobian) -> None:
@@ -106,12 +105,12 @@ def test_closed_form_matches_central_differences(point, fun, jacobian) -> None:
 def test_sensors_leave_time_shifts_to_differences() -> None:
     x, u, p = _point(MASKS["none"])
     t = np.zeros(x.shape[1])
-    assert cj._sensors_jacobian(t, x, u, p, ("b_V",)) is not None
-    assert cj._sensors_jacobian(t, x, u, {**p, "tau_alpha": 0.01}, ("b_V",)) is None
-    assert cj._sensors_jacobian(t, x, u, p, ("tau_alpha",)) is None
-    assert cj._kinematics_jacobian(t, x, u, p, ("m_u",)) is None
+    assert cm._sensors_jacobian(t, x, u, p, ("b_V",)) is not None
+    assert cm._sensors_jacobian(t, x, u, {**p, "tau_alpha": 0.01}, ("b_V",)) is None
+    assert cm._sensors_jacobian(t, x, u, p, ("tau_alpha",)) is None
+    assert cm._kinematics_jacobian(t, x, u, p, ("m_u",)) is None
     # the kinematics read no output error and no wind: zero columns
-    got = cj._kinematics_jacobian(t, x, u, p, ("tau_alpha", "w_n", "b_V"))
+    got = cm._kinematics_jacobian(t, x, u, p, ("tau_alpha", "w_n", "b_V"))
     assert got is not None and not np.any(got[2])
 
 
@@ -157,7 +156,7 @@ def test_rk4_step_jacobians_match_the_differences() -> None:
     X = np.repeat(x0[:, None], grid.n, axis=1) + 0.1 * np.sin(np.arange(grid.n))[None, :]
     names = ("b_p", "b_q", "b_r", "b_ax", "b_ay", "b_az", "k_q")
     active = [0, 1, 2, 3, 4, 5]
-    got = _rk4_grid._tangent_steps(cj._kinematics_jacobian, grid, ks, X, p, names, active)
+    got = _rk4_grid._tangent_steps(cm._kinematics_jacobian, grid, ks, X, p, names, active)
     assert got is not None
     nxt, T = got
     # the same RK4 steps as the batched dynamics take
@@ -195,8 +194,8 @@ def test_sensitivities_equal_the_differences_path(monkeypatch) -> None:
         shooting._RECENT.clear()
         with monkeypatch.context() as mp:
             if way == "differences":
-                mp.setattr(cj, "_kinematics_jacobian", lambda *a: None)
-                mp.setattr(cj, "_sensors_jacobian", lambda *a: None)
+                mp.setattr(cm, "_kinematics_jacobian", lambda *a: None)
+                mp.setattr(cm, "_sensors_jacobian", lambda *a: None)
             model = cm._model(nominal)
             got[way] = shooting.output_sensitivities(model, t, u, x0, p, names, free, 2, steps)
     cm._model.cache_clear()
@@ -236,7 +235,7 @@ def test_fit_equals_the_differences_path(case, numpy_fits, monkeypatch) -> None:
     estimate = estimate or list(errors)
     data = simulated_flight(20.0, 25.0, errors=errors, seed=5, **flight)
     calls: list[int] = []
-    exact_form = cj._kinematics_jacobian
+    exact_form = cm._kinematics_jacobian
     got = {}
     for way in ("differences", "exact"):
         # a model of its own: each fit is its first, in numpy (Newton over the record)
@@ -244,10 +243,10 @@ def test_fit_equals_the_differences_path(case, numpy_fits, monkeypatch) -> None:
         shooting._RECENT.clear()
         with monkeypatch.context() as mp:
             if way == "differences":
-                mp.setattr(cj, "_kinematics_jacobian", lambda *a: None)
-                mp.setattr(cj, "_sensors_jacobian", lambda *a: None)
+                mp.setattr(cm, "_kinematics_jacobian", lambda *a: None)
+                mp.setattr(cm, "_sensors_jacobian", lambda *a: None)
             else:
-                mp.setattr(cj, "_kinematics_jacobian", lambda *a: calls.append(1) or exact_form(*a))
+                mp.setattr(cm, "_kinematics_jacobian", lambda *a: calls.append(1) or exact_form(*a))
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 got[way] = check_compatibility(
