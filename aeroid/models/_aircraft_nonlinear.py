@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._aircraft_jacobian import lateral_jacobian
 from ._aircraft_parts import (
     AircraftConstants,
     AircraftModel,
@@ -461,7 +462,7 @@ def lateral(
             "  " + _accel_text("body axes", accel_units),
         ]
     )
-    return _aircraft_model(
+    model = _aircraft_model(
         "lateral",
         _lateral_function,
         args,
@@ -478,3 +479,8 @@ def lateral(
         equations=equations,
         parameter_units=_expansion_units(expansions, None, linear=False),
     )
+    # Newton's method over the record linearises with these instead of differences
+    model._dynamics_batch.jacobian = lateral_jacobian(model.dynamics, *args, "dynamics")
+    assert model._measurement_batch is not None and model.measurement is not None
+    model._measurement_batch.jacobian = lateral_jacobian(model.measurement, *args, "measurement")
+    return model

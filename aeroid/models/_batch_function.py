@@ -17,6 +17,14 @@ from ..errors import AeroidError, ModelDefinitionError, SimulationError
 
 FloatArray = NDArray[np.float64]
 UserFunction = Callable[[Any, Any, Any, Mapping[str, Any]], Any]
+# A function's values and Jacobians in closed form at points with a time each:
+# (t (N,), x (n_x, N), u (n_u, N), p name -> float, names) -> (values (n_out, N),
+# d/dx (N, n_out, n_x), d/d names (N, n_out, len(names)), d/du (N, n_out, n_u)), or None
+# where it does not cover the point (central differences are taken instead).
+ClosedForm = Callable[
+    [FloatArray, FloatArray, FloatArray, Mapping[str, float], tuple[str, ...]],
+    tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None,
+]
 # Points per call of a broadcasting function evaluated at many points with a time each
 # (`BatchFunction.at_times`), for calls of more than `_CHUNK_ABOVE` points: small enough
 # that the temporaries of a model stay in cache, large enough (and the calls so large)
@@ -63,6 +71,10 @@ class BatchFunction:
         self._times_checked: set[tuple[float, ...]] = set()
         # time grids on which `lti_form` has checked every member at every sample
         self.lti_grids: dict[tuple[int, int], None] = {}
+        # the function's Jacobians in closed form, where its author supplies them: the
+        # linearised RK4 of Newton's method over the record (`shooting`) then takes
+        # them instead of central differences over extra columns
+        self.jacobian: ClosedForm | None = None
 
     def _where(self) -> str:
         return f"the {self.role} of model {self.model_name!r}"

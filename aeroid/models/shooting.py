@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._rk4_grid import _KEEP_BYTES, _Grid, _grid, _same_record, _steps
+from ._rk4_grid import _KEEP_BYTES, _Grid, _grid, _same_record, _steps, _tangent_steps
 from .integration import BatchFunction
 
 FloatArray = NDArray[np.float64]
@@ -85,6 +85,13 @@ def _linearised(
     n_p = len(names)
     active = [] if hu is None else np.flatnonzero(hu).tolist()
     n_c = len(active)
+    if f.jacobian is not None:
+        exact = _tangent_steps(
+            f.jacobian, grid, ks, np.ascontiguousarray(G.T), p, tuple(names), active
+        )
+        if exact is not None:
+            nxt, T = exact
+            return nxt.T, T[:, :, :n_x], T[:, :, n_x : n_x + n_p], T[:, :, n_x + n_p :]
     xs = np.flatnonzero(hx)  # the states the dynamics read
     n_s = xs.size
     cols = 1 + 2 * n_s + 2 * n_p + 4 * n_c
@@ -510,8 +517,13 @@ def _controls_at_last(
     active = np.flatnonzero(hu)
     xs = G[:: grid.m]
     g = model._measurement_batch
+    exact = None
+    if g is not None and g.jacobian is not None:
+        exact = g.jacobian(time, np.ascontiguousarray(xs.T), controls.T, p, ())
     if g is None:
         gu = np.zeros((time.size, y.shape[1], active.size))
+    elif exact is not None:
+        gu = exact[3][:, :, active]
     else:
         n_t = time.size
         cols = 1 + 2 * active.size
@@ -658,6 +670,13 @@ def _measurement(
         gx[:, np.arange(len(idx)), idx] = 1.0
         zero = np.zeros((n_t, len(idx), n_p + n_c))
         return xs[:, idx].copy(), gx, zero[:, :, :n_p], zero[:, :, n_p:]
+    if g.jacobian is not None:
+        with np.errstate(all="ignore"):
+            exact = g.jacobian(time, np.ascontiguousarray(xs.T), controls.T, p, tuple(names))
+        if exact is not None:
+            if not np.all(np.isfinite(exact[0])):
+                return None
+            return np.ascontiguousarray(exact[0].T), exact[1], exact[2], exact[3][:, :, active]
     cols = 1 + 2 * n_x + 2 * n_p + 2 * n_c
     X = np.repeat(xs.T[:, :, None], cols, axis=2)
     for i in range(n_x):
