@@ -14,9 +14,9 @@ from aeroid.models import aircraft, shooting
 from aeroid.models import compiled as _compiled
 
 TERMS = {
-    "CY": ["0", "beta", "r", "delta_r", "beta*delta_a"],
+    "CY": ["0", "beta", "r", "delta_r", "beta*delta_a", "abs(beta)"],
     "Cl": ["0", "beta", "p", "r", "delta_a", "delta_r", "beta*beta"],
-    "Cn": ["0", "beta", "p", "r", "delta_a", "delta_r", "p*q"],
+    "Cn": ["0", "beta", "p", "r", "delta_a", "delta_r", "p*q", "abs(beta)*delta_r"],
 }
 
 

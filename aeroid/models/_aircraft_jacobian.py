@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._aircraft_parts import AircraftConstants, _Expansion, _gyro_input
+from ._aircraft_parts import AircraftConstants, _Expansion, _factor_regressor, _gyro_input
 from ._batch_function import ClosedForm
 
 FloatArray = NDArray[np.float64]
@@ -37,12 +37,17 @@ def _coefficient(
     `where` gives each regressor's column and its slope in that column."""
     D = np.zeros((K, width))
     for name, factors in expansion:
-        values = [reg[f] for f in factors]
+        inner = [_factor_regressor(f) for f in factors]
+        # |x| is x sign(x) in the model: its slope is sign(x), zero at zero
+        signs = [np.sign(reg[r]) if r != f else None for f, r in zip(factors, inner, strict=True)]
+        values = [reg[r] if s is None else reg[r] * s for r, s in zip(inner, signs, strict=True)]
         if name in columns:
             D[:, columns[name]] += math.prod(values, start=np.ones(K))
-        for i, f in enumerate(factors):
-            col, slope = where[f]
+        for i, (r, s) in enumerate(zip(inner, signs, strict=True)):
+            col, slope = where[r]
             others = math.prod(values[:i] + values[i + 1 :], start=np.ones(K))
+            if s is not None:
+                others = others * s
             D[:, col] += (float(p[name]) * slope) * others
     return D
 
