@@ -182,8 +182,11 @@ def _start_worker(parent: int, forked: bool) -> None:
     threading.Thread(target=watch, name="aeroid-parent-watch", daemon=True).start()
 
 
-# What nearly every task imports on first use, beyond its stage's library module.
-_SHARED_IMPORTS = ("scipy.linalg", "scipy.optimize", "scipy.stats", "scipy.signal")
+# What nearly every task imports on first use, beyond its stage's library module. Not
+# scipy.stats nor scipy.signal (half a second of this process's CPU before the workers
+# could start): the library computes what it needs of them itself, and the rare task
+# that imports one (a Savitzky-Golay smoothing) imports it where it runs.
+_SHARED_IMPORTS = ("scipy.linalg", "scipy.optimize")
 
 
 def share_imports(libraries: Iterable[str | None], *, models: bool = False) -> None:
