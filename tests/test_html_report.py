@@ -687,6 +687,46 @@ def test_ticks_are_placed_once_a_draw_and_the_figure_is_left_as_it_was(monkeypat
     assert len(calls) > n_axes  # matplotlib's own draw: the y axes' ticks twice
 
 
+def test_tick_marks_drawn_together_are_the_pixels_of_each_drawn_alone(monkeypatch):
+    """`figure_png` draws an axis's tick marks in one call of the renderer: the same bytes
+    as matplotlib's tick-by-tick draw, inward and outward marks, minor ticks and grid
+    lines included, and a tick whose mark differs (a colour of its own) keeps its own."""
+    from matplotlib.lines import Line2D
+
+    from aeroid.reports import html
+
+    calls = []
+    draw = Line2D.draw
+
+    def counted(self, renderer):
+        calls.append(1)
+        return draw(self, renderer)
+
+    monkeypatch.setattr(Line2D, "draw", counted)
+
+    def variants() -> list[Any]:
+        plain = _panels()
+        styled = _panels()
+        styled.axes[0].tick_params(direction="inout", length=6, width=1.5)
+        styled.axes[0].minorticks_on()
+        styled.axes[1].grid(True, alpha=0.5)
+        styled.axes[1].tick_params(axis="y", right=True, direction="in")
+        odd = _panels()
+        odd.canvas.draw()  # the ticks made, to colour one of them
+        odd.axes[1].yaxis.get_major_ticks()[1].tick1line.set_markeredgecolor("r")
+        return [plain, styled, odd]
+
+    together = []
+    for fig in variants():
+        calls.clear()
+        together.append((figure_png(fig, dpi=60), len(calls)))
+    monkeypatch.setattr(html, "_plain_axis", lambda axis: False)
+    for fig, (png, n_calls) in zip(variants(), together, strict=True):
+        calls.clear()
+        assert figure_png(fig, dpi=60) == png
+        assert n_calls < len(calls)  # fewer lines drawn for the same pixels
+
+
 def test_an_axis_method_set_by_its_owner_is_kept():
     """An axis whose draw its owner replaced keeps that draw after `figure_png`."""
     fig = _panels()

@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -170,7 +171,12 @@ def test_worker_start_method(monkeypatch):
     expected = "fork" if sys.platform.startswith("linux") else "spawn"
     assert _start_method() == expected
     monkeypatch.setitem(sys.modules, "jax", object())
-    assert _start_method() == "spawn"  # JAX must not be forked
+    assert _start_method() == "spawn"  # a JAX that does not say it has not started
+    bridge = types.SimpleNamespace(_backends={})
+    monkeypatch.setitem(sys.modules, "jax._src.xla_bridge", bridge)
+    assert _start_method() == expected  # imported, no backend yet: no threads to fork
+    bridge._backends["cpu"] = object()
+    assert _start_method() == "spawn"  # JAX's threads must not be forked
     monkeypatch.setenv("AEROID_START_METHOD", "forkserver")
     assert _start_method() == "forkserver"
 

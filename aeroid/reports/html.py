@@ -110,14 +110,18 @@ _TICK_METHODS = ("_update_ticks", "_get_ticklabel_bboxes")
 
 
 def _keep_ticks(axis: Any) -> None:
-    """Give `axis` (for one figure draw) a draw in which its ticks are computed once."""
+    """Give `axis` (for one figure draw) a draw in which its ticks are computed once
+    and their marks drawn together (`_draw_axis`)."""
     draw, ticks, boxes = axis.draw, axis._update_ticks, axis._get_ticklabel_bboxes
     kept: dict[str, Any] = {}
+    together = _plain_axis(axis)
 
     def drawing(renderer: Any, *args: Any, **kwargs: Any) -> Any:
         kept.clear()
         kept["on"] = True
         try:
+            if together and not args and not kwargs:
+                return _draw_axis(axis, renderer)
             return draw(renderer, *args, **kwargs)
         finally:
             kept.clear()
@@ -139,6 +143,134 @@ def _keep_ticks(axis: Any) -> None:
     axis.draw = drawing
     axis._update_ticks = update_ticks
     axis._get_ticklabel_bboxes = ticklabel_bboxes
+
+
+# what `_draw_axis` calls on an axis, beyond the tick methods `_keep_ticks` replaces
+_AXIS_METHODS = ("_update_label_position", "_update_offset_text_position")
+
+
+def _plain_axis(axis: Any) -> bool:
+    """Whether `axis` draws as matplotlib's own `Axis.draw` (the one `_draw_axis` follows):
+    not a subclass with a draw of its own, neither rasterised nor filtered."""
+    from matplotlib.axis import Axis
+
+    return (
+        type(axis).draw is Axis.draw
+        and all(hasattr(axis, name) for name in _AXIS_METHODS)
+        and not axis.get_rasterized()
+        and axis.get_agg_filter() is None
+    )
+
+
+def _draw_axis(axis: Any, renderer: Any) -> None:
+    """Matplotlib's `Axis.draw`, but the ticks drawn part by part (`_draw_ticks`)."""
+    if not axis.get_visible():
+        return
+    renderer.open_group("matplotlib.axis", gid=axis.get_gid())
+    drawn = axis._update_ticks()
+    tlb1, tlb2 = axis._get_ticklabel_bboxes(drawn, renderer)
+    _draw_ticks(drawn, renderer)
+    axis._update_label_position(renderer)
+    axis.label.draw(renderer)
+    axis._update_offset_text_position(tlb1, tlb2)
+    axis.offsetText.set_text(axis.major.formatter.get_offset())
+    axis.offsetText.draw(renderer)
+    renderer.close_group("matplotlib.axis")
+    axis.stale = False
+
+
+_TICK_PARTS = ("gridline", "tick1line", "tick2line", "label1", "label2")
+
+
+def _draw_ticks(ticks: list[Any], renderer: Any) -> None:
+    """Draw `ticks` as their own draws would, one part of every tick after the other: the
+    tick marks of an axis (a marker each, all alike) in one call of the renderer.
+
+    Each tick mark through its own line's draw costs as much as drawing its label;
+    drawn together they are the same pixels (the renderer places a marker at each
+    point, each on its own). Parts of different ticks do not overlap (the marks and
+    labels of an axis lie apart from each other), so the order of the parts does not
+    change the picture. Ticks matplotlib would not draw alike are drawn one by one.
+    """
+    from matplotlib.axis import Tick
+
+    shown = [t for t in ticks if t.get_visible()]
+    alike = all(
+        type(t).draw is Tick.draw
+        and not t.get_rasterized()
+        and t.get_agg_filter() is None
+        and not t.get_path_effects()
+        for t in shown
+    )
+    if not alike:
+        for t in ticks:
+            t.draw(renderer)
+        return
+    for part in _TICK_PARTS:
+        artists = [getattr(t, part) for t in shown]
+        artists = [a for a in artists if a.get_visible()]
+        if part.startswith("tick") and len(artists) > 1 and _marks_alike(artists):
+            _draw_marks(artists, renderer)
+        else:
+            for artist in artists:
+                artist.draw(renderer)
+    for t in ticks:
+        t.stale = False
+
+
+def _marks_alike(lines: list[Any]) -> bool:
+    """Whether `lines` are markers only (no line between points), drawn alike: same marker,
+    size, colours, width, transform and clipping, plain (no effects, every point marked)."""
+
+    def style(line: Any) -> tuple[Any, ...]:
+        return (
+            type(line).draw,
+            line.get_linestyle(),
+            line.get_marker(),
+            line.get_markersize(),
+            line.get_markeredgewidth(),
+            str(line.get_markeredgecolor()),
+            str(line.get_markerfacecolor()),
+            str(line.get_markerfacecoloralt()),
+            line.get_fillstyle(),
+            line.get_alpha(),
+            line.get_antialiased(),
+            line.get_drawstyle(),
+            line.get_markevery(),
+            # the same objects, not equal ones (a transform's equality may be costly)
+            id(line.get_transform()),
+            line.get_clip_on(),
+            id(line.get_clip_box()),
+            id(line.get_clip_path()),
+            line.get_snap(),
+            line.get_sketch_params(),
+            line.get_url(),
+            line.get_gid(),
+            line.get_rasterized(),
+            line.get_agg_filter(),
+            bool(line.get_path_effects()),
+        )
+
+    first = style(lines[0])
+    return first[1] in ("None", "none", " ", "") and all(style(ln) == first for ln in lines)
+
+
+def _draw_marks(lines: list[Any], renderer: Any) -> None:
+    """Draw the markers of `lines` (alike, `_marks_alike`) as one line through all their
+    points draws them: the first line, given every point for the draw."""
+    import numpy as np
+
+    first = lines[0]
+    x0, y0 = first.get_xdata(orig=True), first.get_ydata(orig=True)
+    xs = np.concatenate([np.atleast_1d(ln.get_xdata(orig=True)) for ln in lines])
+    ys = np.concatenate([np.atleast_1d(ln.get_ydata(orig=True)) for ln in lines])
+    first.set_data(xs, ys)
+    try:
+        first.draw(renderer)
+    finally:
+        first.set_data(x0, y0)
+    for line in lines:
+        line.stale = False
 
 
 # Agg renderers kept for the next figure of the same size and dpi, in each thread: a

@@ -13,7 +13,7 @@ tasks, with the longest single task.
 
 Options: ``--repeats N`` (default 1; the median is reported), ``--workers N``
 (default: the run's own, one per core), ``--keep DIR`` (the store and report stay
-there to look at).
+there to look at), ``--cold-only`` (the cold runs alone).
 """
 
 from __future__ import annotations
@@ -71,19 +71,22 @@ def _run(config: Path, workers: int | None, jax_cache: Path) -> tuple[float, flo
     return wall, cpu, done.stdout
 
 
-def _stage_times(config: Path) -> dict[str, tuple[int, float, float]]:
-    """Per stage: (tasks, compute s summed, longest task s), from the stored provenance."""
+def _stage_times(config: Path) -> dict[str, tuple[int, float, float, float]]:
+    """Per stage: (tasks, compute s summed, longest task s, CPU s summed), from the stored
+    provenance (the CPU of the worker processes, every thread, while the stage ran)."""
     from aeroid.cli import _open_store
     from aeroid.pipeline.plans.planning import plan
 
     the_plan = plan(config)
     store = _open_store(str(config), None)
     out: dict[str, list[float]] = defaultdict(list)
+    cpu: dict[str, float] = defaultdict(float)
     for task in the_plan.tasks:
         meta = store.metadata(task.key, task.stage)
         seconds = meta.get("provenance", {}).get("seconds", {})
         out[task.stage].append(float(seconds.get("compute", 0.0)))
-    return {k: (len(v), sum(v), max(v)) for k, v in out.items()}
+        cpu[task.stage] += float(seconds.get("cpu", float("nan")))
+    return {k: (len(v), sum(v), max(v), cpu[k]) for k, v in out.items()}
 
 
 def main() -> None:
@@ -91,12 +94,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--keep", type=Path, default=None)
+    ap.add_argument("--cold-only", action="store_true", help="skip the warm and cold* runs")
     args = ap.parse_args()
     n_flights = 0
     cold: list[tuple[float, float]] = []
     kept: list[tuple[float, float]] = []
     warm: list[tuple[float, float]] = []
-    stages: dict[str, Any] = {}
+    stages: list[dict[str, Any]] = []
     for i in range(args.repeats):
         folder = Path(tempfile.mkdtemp(prefix="aeroid-bench-demo-"))
         try:
@@ -114,7 +118,12 @@ def main() -> None:
                 f"disk: {len(kept_programs)} ({', '.join(kept_programs)})",
                 flush=True,
             )
-            stages = _stage_times(config)
+            stages.append(_stage_times(config))
+            if args.cold_only:
+                if args.keep is not None and i == args.repeats - 1:
+                    shutil.rmtree(args.keep, ignore_errors=True)
+                    shutil.copytree(folder, args.keep)
+                continue
             wall, cpu, out = _run(config, args.workers, jax_cache)
             warm.append((wall, cpu))
             if not re.search(r"(?<!\d)0 computed", out):
@@ -130,6 +139,8 @@ def main() -> None:
             shutil.rmtree(folder, ignore_errors=True)
     print(f"demo campaign, {n_flights} flights, {os.cpu_count()} cores, {args.repeats} run(s)")
     for label, runs in (("cold", cold), ("cold*", kept), ("warm", warm)):
+        if not runs:
+            continue
         wall = statistics.median(w for w, _ in runs)
         cpu = statistics.median(c for _, c in runs)
         print(
@@ -138,13 +149,23 @@ def main() -> None:
             + (f"; target <= {TARGET} s a flight" if label == "cold" else "")
         )
     print("  (cold: empty store and compilation cache; cold*: empty store, compiled programs kept)")
-    print("  compute time by stage (last cold run): tasks, sum, longest task")
-    for stage, (n, total, longest) in sorted(stages.items(), key=lambda kv: -kv[1][1]):
-        print(f"    {stage:18s} {n:3d} {total:7.2f} s {longest:6.2f} s")
+    print("  compute time by stage (cold runs' medians): tasks, sum, longest task, CPU sum")
+    median = {
+        name: tuple(statistics.median(run[name][k] for run in stages) for k in range(4))
+        for name in stages[-1]
+    }
+    for stage, (n, total, longest, cpu) in sorted(median.items(), key=lambda kv: -kv[1][3]):
+        print(f"    {stage:18s} {n:3.0f} {total:7.2f} s {longest:6.2f} s {cpu:7.2f} s CPU")
+    outside = statistics.median(
+        c - sum(v[3] for v in run.values()) for (_, c), run in zip(cold, stages, strict=True)
+    )
+    print(f"    outside the stages (start-up, imports, store, scheduler): {outside:7.2f} s CPU")
     per = {
         "cold_s_per_flight": statistics.median(w for w, _ in cold) / n_flights,
-        "cold_kept_programs_s_per_flight": statistics.median(w for w, _ in kept) / n_flights,
+        "cold_cpu_s_per_flight": statistics.median(c for _, c in cold) / n_flights,
     }
+    if kept:
+        per["cold_kept_programs_s_per_flight"] = statistics.median(w for w, _ in kept) / n_flights
     print(json.dumps(per))
 
 

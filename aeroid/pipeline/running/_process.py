@@ -12,6 +12,10 @@ Each piece is here for the reason given with it:
   fork, so that their pages are shared rather than copied into every
   worker (a 1,000-flight campaign: the process tree's peak PSS 357 -> 272 MB
   on two workers);
+- JAX is imported before the workers fork when the run fits models (every
+  worker that fits one compiles it, and each imported JAX on its own, about a
+  second of CPU); imported and unused, it has no threads, and the workers start
+  it themselves;
 - a worker keeps the memory it frees in its heap (glibc's `mallopt`): a
   filter-error pass allocates and frees record-long arrays of tens of MB,
   which glibc would otherwise map afresh from the kernel each time, every
@@ -60,15 +64,26 @@ def start_method() -> str:
 
     ``fork`` on Linux: a worker then starts with everything this process has
     imported, instead of importing numpy, scipy and aeroid afresh, which
-    would dominate a small campaign's run. ``spawn`` elsewhere, when JAX is
-    loaded (it must not be forked), or as set by ``AEROID_START_METHOD``.
+    would dominate a small campaign's run. ``spawn`` elsewhere, when JAX has
+    started its runtime here (its threads must not be forked; JAX imported and
+    not yet used has none), or as set by ``AEROID_START_METHOD``.
     """
     chosen = os.environ.get("AEROID_START_METHOD")
     if chosen:
         return chosen
-    if sys.platform.startswith("linux") and "jax" not in sys.modules:
+    if sys.platform.startswith("linux") and not _jax_started():
         return "fork"
     return "spawn"
+
+
+def _jax_started() -> bool:
+    """Whether JAX has started a backend in this process (its thread pools); a JAX that
+    does not say so counts as started."""
+    if "jax" not in sys.modules:
+        return False
+    bridge = sys.modules.get("jax._src.xla_bridge")
+    backends = getattr(bridge, "_backends", None)
+    return not isinstance(backends, dict) or bool(backends)
 
 
 @contextlib.contextmanager
@@ -167,19 +182,35 @@ def _start_worker(parent: int, forked: bool) -> None:
     threading.Thread(target=watch, name="aeroid-parent-watch", daemon=True).start()
 
 
-# What nearly every task imports on first use, beyond its stage's library module.
-_SHARED_IMPORTS = ("scipy.linalg", "scipy.optimize", "scipy.stats", "scipy.signal")
+# What nearly every task imports on first use, beyond its stage's library module. Not
+# scipy.stats nor scipy.signal (half a second of this process's CPU before the workers
+# could start): the library computes what it needs of them itself, and the rare task
+# that imports one (a Savitzky-Golay smoothing) imports it where it runs.
+_SHARED_IMPORTS = ("scipy.linalg", "scipy.optimize")
 
 
-def share_imports(libraries: Iterable[str | None]) -> None:
+def share_imports(libraries: Iterable[str | None], *, models: bool = False) -> None:
     """Import the stages' library modules (``module:function`` names) and the shared
-    scientific modules in this process before it forks its workers."""
+    scientific modules in this process before it forks its workers; with `models`
+    (some task simulates a model), JAX too.
+
+    Every worker that fits a model compiles it with JAX, and each imported JAX on its
+    own (a second of CPU each). Imported here, before the fork, JAX is shared; it
+    starts no threads until it is first used, which happens in the workers only
+    (`start_method` forks as long as JAX has not started here).
+    """
     import importlib
 
     modules = [name.partition(":")[0] for name in libraries if name]
+    if models and not _jax_started():
+        modules += _JAX_IMPORTS
     for module in dict.fromkeys([*modules, *_SHARED_IMPORTS]):
         with contextlib.suppress(ImportError):
             importlib.import_module(module)
+
+
+# What a worker that compiles a model imports (`aeroid.models.jax_compiled.require_jax`)
+_JAX_IMPORTS = ["jax", "jax.numpy"]
 
 
 @contextlib.contextmanager

@@ -102,6 +102,8 @@ class PartResult:
     error: str | None = None
     warnings: tuple[str, ...] = ()
     compute_seconds: float = 0.0
+    # the worker process's CPU (every thread: JAX compiles on threads of its own)
+    compute_cpu_seconds: float = 0.0
 
 
 def _versions() -> dict[str, str]:
@@ -239,11 +241,11 @@ def execute_part(
     record_cache(scope)
     try:
         stage, ctx = _context(task, store_root, _statuses(upstream_status), read_root)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             value = stage.run_part(ctx, index)
-        seconds = time.perf_counter() - t1
+        seconds, cpu = time.perf_counter() - t1, time.process_time() - c1
         _process.settle_imports()
         return PartResult(
             task.key,
@@ -252,6 +254,7 @@ def execute_part(
             value=value,
             warnings=_warning_texts(caught),
             compute_seconds=seconds,
+            compute_cpu_seconds=cpu,
         )
     except Exception as exc:
         return PartResult(task.key, index, "failed", error=error_text(exc))
@@ -313,21 +316,26 @@ def _compute(
         bad = [p for p in parts if p.status != "ok"]
         if bad:
             raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         with warnings.catch_warnings(record=True) as caught:
             # the library's warnings (an unconverged chain, poor coherence) belong to the
             # task: kept with its status and provenance instead of on a worker's stderr
             warnings.simplefilter("always")
             work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
         part_seconds = sum(p.compute_seconds for p in parts)
+        part_cpu = sum(p.compute_cpu_seconds for p in parts)
         found = [*(w for p in parts for w in p.warnings), *_warning_texts(caught)]
         out["warnings"] = tuple(dict.fromkeys(found))
         out["compute_seconds"] = t2 - t1 + part_seconds
         provenance = {
             "task": task.to_json(),
             "versions": _versions(),
-            "seconds": {"compute": t2 - t1 + part_seconds, "parts": len(parts)},
+            "seconds": {
+                "compute": t2 - t1 + part_seconds,
+                "cpu": c2 - c1 + part_cpu,
+                "parts": len(parts),
+            },
             "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "host": platform.node(),
             "warnings": list(out["warnings"]),

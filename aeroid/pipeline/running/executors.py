@@ -155,12 +155,15 @@ class LocalProcesses:
         if fork and n > 1:
             stages = {t.stage for t in tasks} & set(STAGES)
             _process.share_imports(
-                name
-                for s in stages
-                for name in (
-                    STAGES[s].library or getattr(STAGES[s].options, "library", None),
-                    *STAGES[s].imports,
-                )
+                (
+                    name
+                    for s in stages
+                    for name in (
+                        STAGES[s].library or getattr(STAGES[s].options, "library", None),
+                        *STAGES[s].imports,
+                    )
+                ),
+                models=any(STAGES[s].uses_model for s in stages),
             )
         done: dict[str, Any] = {}  # node name -> its result
         running: set[str] = set()
