@@ -186,7 +186,9 @@ def identify(
     simulate_options : mapping, optional
         Integrator options (``method``, ``substeps``, ``rtol``, ``atol``,
         ``control_interpolation`` as in `aeroid.Model.simulate`: with the
-        cubic, the sensitivities are central differences of the simulation).
+        cubic, the compiled sensitivities as with straight lines, and central
+        differences of the simulation where a first fit would solve Newton's
+        method over the record, which holds straight lines).
         With ``gradient="jax"`` (a fixed-step RK4 rollout) only ``substeps``
         applies (RK4 steps per sample interval; default chosen from the
         dynamics' stiffness); the others are refused.
