@@ -290,6 +290,7 @@ class _Problem:
                     p,
                     lay.names,
                     substeps=self.options.get("substeps"),
+                    control_interpolation=self.interpolation,
                 )
                 y = np.asarray(y)[:, self.out_idx]
                 jac_p = np.asarray(jac_p)[:, self.out_idx, :]
