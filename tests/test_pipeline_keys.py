@@ -281,3 +281,26 @@ def test_a_declared_integration_path_is_part_of_the_model_fingerprint():
     exact = model_fingerprint(Model(["x"], [], {"k": 1.0}, decay, linear=True))
     assert integrated["linear"] is False and exact["linear"] is True
     assert len({json.dumps(fp, sort_keys=True) for fp in (plain, integrated, exact)}) == 3
+
+
+def test_validate_and_infer_take_simulate_options_added_later():
+    # the fit's controls between samples (`control_interpolation`) for the stages that
+    # simulate it again: unset, the keys stored before stay; unknown keys are refused
+    from pydantic import ValidationError
+
+    from aeroid.pipeline.stages.library_stages import InferOptions, ValidateOptions
+
+    cubic = {"control_interpolation": {"delta_a": "cubic"}}
+    assert "simulate_options" not in ValidateOptions().key_document()
+    assert ValidateOptions(simulate_options=cubic).key_document() == {
+        **ValidateOptions().key_document(),
+        "simulate_options": cubic,
+    }
+    priors = {"M_q": {"normal": [-2.0, 2.0]}}
+    assert "simulate_options" not in InferOptions(priors=priors).key_document()
+    got = InferOptions(priors=priors, simulate_options=cubic).library_kwargs(exclude=())
+    assert got["simulate_options"] == cubic
+    with pytest.raises(ValidationError, match=r"unknown keys \['spline'\]"):
+        ValidateOptions(simulate_options={"spline": True})
+    with pytest.raises(ValidationError, match=r"unknown keys \['spline'\]"):
+        InferOptions(priors=priors, simulate_options={"spline": True})

@@ -2,7 +2,7 @@
 
 The same algorithm as the numpy pass in `aeroid.estimation.filtering._general` step for
 step: the state moved over each interval by the RK4 of `_compiled._interval`
-(same substeps, one-sided ends, controls linear between samples), the
+(same substeps, one-sided ends, controls straight or cubic between samples), the
 covariance by the Van Loan discretisation of the central-difference Jacobian
 of the dynamics at the filtered state (same step rule), the measurement
 linearised by central differences at the prediction, and the Joseph-form
@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..models import compiled as _compiled
+from ..models.integration import Interpolation, control_excess
 from ..models.model import Model
 
 FloatArray = NDArray[np.float64]
@@ -75,15 +76,17 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
         Phi = Ev[n:, n:].T
         return Phi, sym(Phi @ Ev[:n, n:])
 
-    def one(time: Any, U: Any, Y: Any, x0: Any, P0: Any, pvec: Any, Qc: Any, R: Any, m: Any) -> Any:
+    def one(
+        time: Any, U: Any, E: Any, Y: Any, x0: Any, P0: Any, pvec: Any, Qc: Any, R: Any, m: Any
+    ) -> Any:
         yh0, H0 = meas_lin(time[0], x0, P0, U[0], pvec)
         nu0 = Y[0] - yh0
         S0 = H0 @ P0 @ H0.T + R
 
         def body(carry: Any, inp: Any) -> Any:
             x, P = carry
-            t0, t1, u0, u1, y = inp
-            xpk = step(x, t0, t1, u0, u1, pvec, m)
+            t0, t1, u0, u1, e, y = inp
+            xpk = step(x, t0, t1, u0, u1, e, pvec, m)
             Phi, Qd = dyn_lin(t0, x, P, u0, pvec, Qc, t1 - t0)
             Ppk = sym(Phi @ P @ Phi.T + Qd)
             Ck = P @ Phi.T
@@ -98,7 +101,8 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
             Pn = sym(IKH @ Ppk @ IKH.T + K @ R @ K.T)
             return (xn, Pn), (xn, Pn, xpk, Ppk, Ck, v, Sk)
 
-        _, outs = jax.lax.scan(body, (x0, P0), (time[:-1], time[1:], U[:-1], U[1:], Y[1:]))
+        inputs = (time[:-1], time[1:], U[:-1], U[1:], E, Y[1:])
+        _, outs = jax.lax.scan(body, (x0, P0), inputs)
         xf, Pf, xp, Pp, C, nu, S = outs
 
         def cat(first: Any, rest: Any) -> Any:
@@ -114,7 +118,7 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
             cat(S0, S),
         )
 
-    return jax.jit(jax.vmap(one, in_axes=(None, None, None, 0, 0, 0, 0, 0, None)))
+    return jax.jit(jax.vmap(one, in_axes=(None, None, None, None, 0, 0, 0, 0, 0, None)))
 
 
 def ekf_pass(
@@ -129,8 +133,10 @@ def ekf_pass(
     x0: FloatArray,
     P0: FloatArray,
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> Arrays | None:
-    """(xf, Pf, xp, Pp, C, nu, S) for a batch of B filters, or None (use numpy).
+    """(xf, Pf, xp, Pp, C, nu, S) for a batch of B filters, or None (use numpy); the
+    controls between samples as `interpolation` says.
 
     None when the model's functions do not compile, or when any value is not
     finite (the numpy pass then jitters, or names the failure).
@@ -155,7 +161,8 @@ def ekf_pass(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            outs = fn(time, U, Y, x0, P0, pmat, Qc, R, np.int32(substeps))
+            E = control_excess(time, U, interpolation)
+            outs = fn(time, U, E, Y, x0, P0, pmat, Qc, R, np.int32(substeps))
         except Exception:  # a model JAX traced pointwise but not in this pass: numpy
             return None
         arrays = tuple(np.asarray(a, dtype=np.float64) for a in outs)

@@ -280,22 +280,26 @@ def _build(model: Any, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
     def meas(t: Any, x: Any, u: Any, pvec: Any) -> Any:
         return x[sel] if h is None else h(t, x, u, pvec)[oi]
 
-    def one(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, y: Any, pvec: Any, K: Any, m: Any) -> Any:
-        xpk = step(x, t0, t1, u0, u1, pvec, m)
+    def one(
+        x: Any, t0: Any, t1: Any, u0: Any, u1: Any, e: Any, y: Any, pvec: Any, K: Any, m: Any
+    ) -> Any:
+        xpk = step(x, t0, t1, u0, u1, e, pvec, m)
         v = y - meas(t1, xpk, u1, pvec)
         return xpk, xpk + K @ v, v
 
-    every = jax.vmap(one, in_axes=(0, None, None, None, None, None, 0, 0, None))
+    every = jax.vmap(one, in_axes=(0, None, None, None, None, None, None, 0, 0, None))
 
-    def run(time: Any, U: Any, Y: Any, X0: Any, P: Any, G: Any, last: Any, m: Any) -> Any:
-        # G: time-major gains of samples 1.., the one at `last` the steady one
+    def run(time: Any, U: Any, E: Any, Y: Any, X0: Any, P: Any, G: Any, last: Any, m: Any) -> Any:
+        # G: time-major gains of samples 1.., the one at `last` the steady one; E: the
+        # controls' excess over straight lines per interval (zero for them)
         def body(X: Any, inp: Any) -> Any:
-            t0, t1, u0, u1, y, j = inp
-            xpk, xn, v = every(X, t0, t1, u0, u1, y, P, G[jnp.minimum(j, last)], m)
+            t0, t1, u0, u1, e, y, j = inp
+            xpk, xn, v = every(X, t0, t1, u0, u1, e, y, P, G[jnp.minimum(j, last)], m)
             return xn, (xpk, xn, v)
 
         steps = jnp.arange(time.shape[0] - 1)
-        _, outs = jax.lax.scan(body, X0, (time[:-1], time[1:], U[:-1], U[1:], Y[1:], steps))
+        inputs = (time[:-1], time[1:], U[:-1], U[1:], E, Y[1:], steps)
+        _, outs = jax.lax.scan(body, X0, inputs)
         return outs
 
     return jax.jit(run)
@@ -336,6 +340,7 @@ def _compiled_predictor(
             outs = fn(
                 prob.time,
                 prob.U,
+                _integrate.control_excess(prob.time, prob.U, prob.interpolation),
                 prob.Y,
                 np.ascontiguousarray(x0[rows]),
                 pmat[rows],
@@ -370,10 +375,10 @@ def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) ->
     if m is None:
         f = prob.model._dynamics_batch
         m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
-    if not _compiles(prob, m) or prob.interpolation != "linear":
+    if not _compiles(prob, m):
         return None
     traj = _compiled.compiled_rollout(
-        prob.model, prob.time, prob.x0[:, None], prob.U[None], params, int(m)
+        prob.model, prob.time, prob.x0[:, None], prob.U[None], params, int(m), prob.interpolation
     )
     return None if traj is None else np.asarray(traj.states[0], dtype=np.float64)
 
@@ -429,7 +434,7 @@ def steady_pass(
             xf[:, 0], xp[:, 0] = x, x
         fast = None
         # compiled when a fit's passes would spend what a compilation costs
-        if prob.interpolation == "linear" and (prop._cp is not None or _compiles(prob, prop.m)):
+        if prop._cp is not None or _compiles(prob, prop.m):
             fast = _compiled_predictor(prob, params, x0, G, steady_from, prop.m)
         if fast is not None:
             nu[:, 1:] = np.swapaxes(fast[2], 0, 1)

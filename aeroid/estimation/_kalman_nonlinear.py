@@ -127,7 +127,7 @@ class _Propagator:
         # the same RK4 over one interval, compiled, when the dynamics translate to JAX
         self._cp = None
         self._pmat: FloatArray | None = None
-        if lin is None and prob.interpolation == "linear":  # compiled: straight lines only
+        if lin is None:  # compiled: straight or cubic controls
             from ..models import compiled as _compiled
 
             # a point propagation and a difference Jacobian per interval, each RK4
@@ -140,6 +140,7 @@ class _Propagator:
                     prob.x0,
                     {k: float(v[0]) for k, v in params.items()},
                     self.m,
+                    prob.interpolation,
                 )
             if self._cp is not None:
                 self._pmat = _compiled._pmatrix(m, params, B)
@@ -316,7 +317,18 @@ def _general(
         from ._ekf_compiled import ekf_pass
 
         arrays = ekf_pass(
-            prob.model, prob.time, prob.U, prob.Y, prob.out_idx, params, Qc, R, x0, P0, prop.m
+            prob.model,
+            prob.time,
+            prob.U,
+            prob.Y,
+            prob.out_idx,
+            params,
+            Qc,
+            R,
+            x0,
+            P0,
+            prop.m,
+            prob.interpolation,
         )
         if arrays is not None:
             ok_all = np.ones(B, dtype=bool)

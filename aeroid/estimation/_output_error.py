@@ -184,10 +184,6 @@ class _Problem:
             "simulate_options['control_interpolation']",
             getattr(model, "controls", None),
         )
-        if self.interpolation != "linear":
-            # the compiled and Newton sensitivities hold straight-line controls: the
-            # central differences of `simulate_batch` see the cubic
-            self._compiled_route: Any = False
 
     def unpack(self, theta: FloatArray, i: int) -> tuple[FloatArray, FloatArray]:
         m = self.mans[i]
@@ -238,8 +234,10 @@ class _Problem:
                 )
                 if sens is None:
                     # a first fit that compiling would not pay for runs in numpy, with
-                    # the sensitivities of Newton's method over the record (`_shooting`)
-                    route = "numpy" if _compiled.declined(self.model) else False
+                    # the sensitivities of Newton's method over the record (`_shooting`,
+                    # straight lines only: the cubic's are central differences)
+                    numpy = _compiled.declined(self.model) and self.interpolation == "linear"
+                    route = "numpy" if numpy else False
                     self._compiled_route = route
             if steps is not None and route == "numpy":
                 from ..models import compiled as _compiled
@@ -292,6 +290,7 @@ class _Problem:
                     p,
                     lay.names,
                     substeps=self.options.get("substeps"),
+                    control_interpolation=self.interpolation,
                 )
                 y = np.asarray(y)[:, self.out_idx]
                 jac_p = np.asarray(jac_p)[:, self.out_idx, :]

@@ -495,7 +495,8 @@ def filter_states(
         How the controls run between samples while the state is propagated
         (as in `aeroid.Model.simulate`): with ``"cubic"`` even a linear model
         is propagated by RK4 (the exact discretisation holds straight lines),
-        in numpy; a mapping of control names to either names the cubic ones.
+        compiled where straight lines would be; a mapping of control names to
+        either names the cubic ones.
 
     Returns
     -------

@@ -186,10 +186,12 @@ def identify(
     simulate_options : mapping, optional
         Integrator options (``method``, ``substeps``, ``rtol``, ``atol``,
         ``control_interpolation`` as in `aeroid.Model.simulate`: with the
-        cubic, the sensitivities are central differences of the simulation).
+        cubic, the compiled sensitivities as with straight lines, and central
+        differences of the simulation where a first fit would solve Newton's
+        method over the record, which holds straight lines).
         With ``gradient="jax"`` (a fixed-step RK4 rollout) only ``substeps``
-        applies (RK4 steps per sample interval; default chosen from the
-        dynamics' stiffness); the others are refused.
+        (RK4 steps per sample interval; default chosen from the dynamics'
+        stiffness) and ``control_interpolation`` apply; the others are refused.
     process_noise, measurement_noise, filter_options, estimate_process_noise
         Filter-error settings: continuous process-noise PSD per state,
         measurement-noise variances per output, filter options (among them
@@ -400,12 +402,14 @@ def identify(
             f"simulate_options: unknown keys {unknown_opts}; valid keys are {list(SIMULATE_OPTION_KEYS)}"
         )
     if gradient == "jax":
-        # The JAX path is one fixed-step RK4 rollout: only its substep count applies.
-        refused = sorted(set(opts) - {"substeps"})
+        # The JAX path is one fixed-step RK4 rollout: its substep count and the controls
+        # between samples apply.
+        refused = sorted(set(opts) - {"substeps", "control_interpolation"})
         if refused:
             raise IdentificationError(
                 f"simulate_options {refused} do not apply to gradient='jax', whose simulation "
-                "is a fixed-step RK4 rollout; only 'substeps' does (or use gradient='fd')"
+                "is a fixed-step RK4 rollout; only 'substeps' and 'control_interpolation' do "
+                "(or use gradient='fd')"
             )
         if opts.get("substeps") is None:
             opts.pop("substeps", None)

@@ -122,6 +122,22 @@ def _cubic_excess(
     return a, b
 
 
+def control_excess(
+    time: FloatArray, u: FloatArray, interpolation: Interpolation = "linear"
+) -> FloatArray:
+    """`hermite`'s a and b of every interval side by side, ``(..., n_t - 1, 2, n_u)``
+    for controls ``(..., n_t, n_u)``: what the compiled RK4 programs take beside the
+    controls, one program for either interpolation. Zero for straight lines (and in the
+    columns a per-column `interpolation` keeps straight), where ``hermite`` adds
+    nothing to the straight line: the same values, bit for bit."""
+    u = np.asarray(u, dtype=np.float64)
+    n_t = u.shape[-2]
+    if interpolation == "linear" or n_t < 2:
+        return np.zeros((*u.shape[:-2], max(n_t - 1, 0), 2, u.shape[-1]))
+    a, b = _cubic_excess(time, u, interpolation)
+    return np.ascontiguousarray(np.stack([a, b], axis=-2))
+
+
 def control_nodes(
     u: FloatArray,
     substeps: int,

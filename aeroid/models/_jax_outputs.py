@@ -27,7 +27,8 @@ _RULE_ONLY = -2
 
 
 def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) -> Any:
-    """``(time, u, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`):
+    """``(time, u, e, X, P, m) -> (outputs[:, :, index], ok)`` of a batch (`rk4_outputs`;
+    `e` the controls' excess over straight lines, `_integrate.control_excess`):
     `static` substeps written in, 0 for `m`'s. `_RULED`: the one-substep program, which
     also returns the count the stiffness rule picks, ``(outputs, ok, m)`` (its caller
     runs the `m` program where that is not one); `_RULE_ONLY`: ``m`` alone."""
@@ -39,15 +40,15 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
     f = jax.jit(entry[("fn", "dynamics")])
     if static == _RULE_ONLY:
         rule = _substeps_rule(f, jax, jnp)
-        return jax.jit(lambda time, u, X, P, m: rule(time, u, X, P))
+        return jax.jit(lambda time, u, e, X, P, m: rule(time, u, X, P))
     h = entry.get(("fn", "measurement"))
     h = None if h is None else jax.jit(h)
     pick = np.asarray(index, dtype=np.int64)
     states_out = None if h is not None else [model.states.index(o) for o in model.output_names]
 
     def batch_of(roll: Callable[..., Any]) -> Callable[..., Any]:
-        def member(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> tuple[Any, Any]:
-            xs = roll(time, u, x0, pvec, m)
+        def member(time: Any, u: Any, e: Any, x0: Any, pvec: Any, m: Any) -> tuple[Any, Any]:
+            xs = roll(time, u, e, x0, pvec, m)
             if h is None:
                 ys = xs[:, states_out]
             else:
@@ -55,7 +56,7 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
             ok = jnp.all(jnp.isfinite(xs)) & jnp.all(jnp.isfinite(ys))
             return ys[:, pick], ok
 
-        return jax.vmap(member, in_axes=(None, None, 0, 0, None))
+        return jax.vmap(member, in_axes=(None, None, None, 0, 0, None))
 
     if static > 0:
         return jax.jit(batch_of(_rollout(f, jax, jnp, static)))
@@ -66,7 +67,7 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
     single = batch_of(_rollout(f, jax, jnp, 1))
     rule = _substeps_rule(f, jax, jnp)
 
-    def ruled(time: Any, u: Any, X: Any, P: Any, m: Any) -> Any:
-        return (*single(time, u, X, P, m), rule(time, u, X, P))
+    def ruled(time: Any, u: Any, e: Any, X: Any, P: Any, m: Any) -> Any:
+        return (*single(time, u, e, X, P, m), rule(time, u, X, P))
 
     return jax.jit(ruled)

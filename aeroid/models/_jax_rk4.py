@@ -3,7 +3,10 @@ its tangent-linear sensitivities and the first-order effect of control noise.
 
 Each builder takes the traced single-point model function(s) and the `jax` module and
 returns a function of arrays that `aeroid.models.compiled` vmaps and jit-compiles; the steps
-reproduce `aeroid.models.integration.rk4` substep for substep.
+reproduce `aeroid.models.integration.rk4` substep for substep. Beside the controls each
+program takes their excess over the straight line per interval (``e``, ``(n_t - 1, 2,
+n_u)``: `aeroid.models.integration.control_excess`), zero for straight lines: one program
+for straight and cubic controls, at any substep count.
 """
 
 from __future__ import annotations
@@ -21,10 +24,17 @@ else:  # below aeroid.models.model (it calls this module): its base class stands
     from ._model_base import ContinuousModel as Model
 
 
-def _substep(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
-    """Substep `j` of `m` of one grid interval of RK4, as `_integrate.rk4` computes it."""
+def _node(u0: Any, du: Any, e: Any, s: Any) -> Any:
+    """The controls at fraction `s` of an interval: the straight line plus the cubic's
+    excess (`_integrate.hermite`, the same operations), which adds zero where `e` is."""
+    return u0 + s * du + s * (1.0 - s) * ((1.0 - s) * e[0] - s * e[1])
 
-    def sub(j: Any, x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
+
+def _substep(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
+    """Substep `j` of `m` of one grid interval of RK4, as `_integrate.rk4` computes it;
+    `e` (2, n_u): the interval's `hermite` excess a and b."""
+
+    def sub(j: Any, x: Any, t0: Any, t1: Any, u0: Any, u1: Any, e: Any, pvec: Any, m: Any) -> Any:
         mf = m.astype(x.dtype)
         h = (t1 - t0) / mf
         hh = 0.5 * h
@@ -36,9 +46,9 @@ def _substep(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
         t_first = jax.numpy.where(j == 0, t0 + inside, ta)
         t_last = jax.numpy.where(j == m - 1, t1 - inside, ta + h)
         # (2j)/(2m) etc.: the same correctly rounded fractions as numpy's node grid
-        ua = u0 + ((2.0 * jf) / (2.0 * mf)) * du
-        um = u0 + ((2.0 * jf + 1.0) / (2.0 * mf)) * du
-        ub = u0 + ((2.0 * jf + 2.0) / (2.0 * mf)) * du
+        ua = _node(u0, du, e, (2.0 * jf) / (2.0 * mf))
+        um = _node(u0, du, e, (2.0 * jf + 1.0) / (2.0 * mf))
+        ub = _node(u0, du, e, (2.0 * jf + 2.0) / (2.0 * mf))
         k1 = f(t_first, x, ua, pvec)
         k2 = f(ta + hh, x + hh * k1, um, pvec)
         k3 = f(ta + hh, x + hh * k2, um, pvec)
@@ -56,9 +66,9 @@ def _interval(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
     """
     sub = _substep(f, jax)
 
-    def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
+    def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, e: Any, pvec: Any, m: Any) -> Any:
         def body(j: Any, x: Any) -> Any:
-            return sub(j, x, t0, t1, u0, u1, pvec, m)
+            return sub(j, x, t0, t1, u0, u1, e, pvec, m)
 
         return jax.lax.fori_loop(0, m, body, x)
 
@@ -68,7 +78,7 @@ def _interval(f: Callable[..., Any], jax: Any) -> Callable[..., Any]:
 def _interval_jacobian(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..., Any]:
     """``(x, t0, t1, z, place, m) -> (phi, gz)``: the Jacobians of one grid interval's
     RK4 step by its start state and by `z`, where ``place(z)`` gives the
-    ``(pvec, u0, u1)`` the step uses.
+    ``(pvec, u0, u1, e)`` the step uses.
 
     Substep by substep, each differentiated on its own and the Jacobians chained
     in the loop: differentiating through the loop would trace the model many
@@ -82,8 +92,8 @@ def _interval_jacobian(f: Callable[..., Any], jax: Any, jnp: Any) -> Callable[..
     ) -> tuple[Any, Any]:
         def substep(j: Any, xj: Any) -> tuple[Any, Any, Any]:
             def one(xj: Any, z: Any) -> tuple[Any, Any]:
-                pvec, u0, u1 = place(z)
-                xn = sub(j, xj, t0, t1, u0, u1, pvec, m)
+                pvec, u0, u1, e = place(z)
+                xn = sub(j, xj, t0, t1, u0, u1, e, pvec, m)
                 return xn, xn
 
             (jx, jz), xn = jax.jacfwd(one, argnums=(0, 1), has_aux=True)(xj, z)
@@ -108,9 +118,9 @@ def _fixed_interval(f: Callable[..., Any], jax: Any, jnp: Any, substeps: int) ->
     sub = _substep(f, jax)
     m = jnp.int32(substeps)
 
-    def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, _m: Any) -> Any:
+    def step(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, e: Any, pvec: Any, _m: Any) -> Any:
         for j in range(substeps):
-            x = sub(jnp.int32(j), x, t0, t1, u0, u1, pvec, m)
+            x = sub(jnp.int32(j), x, t0, t1, u0, u1, e, pvec, m)
         return x
 
     return step
@@ -119,19 +129,20 @@ def _fixed_interval(f: Callable[..., Any], jax: Any, jnp: Any, substeps: int) ->
 def _rollout(
     f: Callable[..., Any], jax: Any, jnp: Any, substeps: int | None = None
 ) -> Callable[..., Any]:
-    """``(time, u (n_t, n_u), x0 (n_x,), pvec, m) -> states (n_t, n_x)``; with `substeps`,
-    that count written into the program (`_fixed_interval`) in place of `m`."""
+    """``(time, u (n_t, n_u), e (n_t - 1, 2, n_u), x0 (n_x,), pvec, m) -> states (n_t,
+    n_x)``; with `substeps`, that count written into the program (`_fixed_interval`) in
+    place of `m`."""
     step = _interval(f, jax) if substeps is None else _fixed_interval(f, jax, jnp, substeps)
 
-    def roll(time: Any, u: Any, x0: Any, pvec: Any, m: Any) -> Any:
+    def roll(time: Any, u: Any, e: Any, x0: Any, pvec: Any, m: Any) -> Any:
         def body(x: Any, inp: Any) -> tuple[Any, Any]:
-            t0, t1, u0, u1 = inp
-            x = step(x, t0, t1, u0, u1, pvec, m)
+            t0, t1, u0, u1, ek = inp
+            x = step(x, t0, t1, u0, u1, ek, pvec, m)
             return x, x
 
         # two intervals per loop iteration: the loop's own overhead is a large share of
         # each small step (measured in tests/benchmarks/bench_compatibility.py)
-        inputs = (time[:-1], time[1:], u[:-1], u[1:])
+        inputs = (time[:-1], time[1:], u[:-1], u[1:], e)
         _, xs = jax.lax.scan(body, x0, inputs, unroll=2)
         return jnp.concatenate([x0[None, :], xs], axis=0)
 
@@ -141,7 +152,7 @@ def _rollout(
 def _tangent_linear(
     f: Callable[..., Any], h: Callable[..., Any] | None, model: Model, jax: Any, jnp: Any
 ) -> Callable[..., Any]:
-    """``(theta, pbase, pidx, dpos, xbase, xidx, time, u, m) -> (y, J, states, phi, hx)``.
+    """``(theta, pbase, pidx, dpos, xbase, xidx, time, u, e, m) -> (y, J, states, phi, hx)``.
 
     Outputs and their Jacobian with respect to ``theta`` (the parameters at
     `pidx`, then the initial states at `xidx`; ``dpos`` marks the parameters
@@ -169,6 +180,7 @@ def _tangent_linear(
         xidx: Any,
         time: Any,
         u: Any,
+        e: Any,
         m: Any,
     ) -> tuple[Any, Any, Any, Any, Any]:
         n_p = pidx.shape[0]
@@ -177,16 +189,16 @@ def _tangent_linear(
         th = theta[:n_p]
         x0 = xbase.at[xidx].set(theta[n_p:])
         pvec = pbase.at[pidx].set(th)
-        xs = roll(time, u, x0, pvec, m)
+        xs = roll(time, u, e, x0, pvec, m)
         pd = pidx[dpos]
 
-        def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
-            def place(thd: Any) -> tuple[Any, Any, Any]:
-                return pvec.at[pd].set(thd), u0, u1
+        def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, ek: Any) -> Any:
+            def place(thd: Any) -> tuple[Any, Any, Any, Any]:
+                return pvec.at[pd].set(thd), u0, u1, ek
 
             return interval_jacobian(x, t0, t1, th[dpos], place, m)
 
-        phi, gp = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
+        phi, gp = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:], e)
         forcing = jnp.concatenate([gp, jnp.zeros((phi.shape[0], n_x, xidx.shape[0]))], axis=2)
         s0 = jnp.concatenate([jnp.zeros((n_x, n_d)), jnp.eye(n_x)[:, xidx]], axis=1)
 
@@ -225,7 +237,7 @@ def _tangent_linear(
 def _input_noise_scatter(
     f: Callable[..., Any], h: Callable[..., Any] | None, jax: Any, jnp: Any
 ) -> Callable[..., Any]:
-    """``(states, phi, hx, time, u, pvec, m, c, sigma) -> Q``: the covariance of
+    """``(states, phi, hx, time, u, e, pvec, m, c, sigma) -> Q``: the covariance of
     ``sum_k c[k]' dy[k]`` when the controls carry white noise of standard
     deviations `sigma` (n_u,) at every sample, dy being the outputs' first-order
     response; ``c`` (n_t, n_y, cols) weights each sample's outputs (a fit's
@@ -233,22 +245,33 @@ def _input_noise_scatter(
 
     By the adjoint of the tangent-linear recursion of `_tangent_linear`: one
     backward pass ``lam[k] = hx[k]' c[k] + phi[k]' lam[k+1]`` gives every
-    sample's control its effect on the weighted sum, exactly, with no draws.
+    sample's control its effect on the weighted sum, exactly, with no draws. A
+    control sample moves its two intervals only: the straight lines' rule (`e` held,
+    zero for them; the cubic's excess also moves with the samples beside them).
     """
     interval_jacobian = _interval_jacobian(f, jax, jnp)
 
     def scatter(
-        xs: Any, phi: Any, hx: Any, time: Any, u: Any, pvec: Any, m: Any, c: Any, sigma: Any
+        xs: Any,
+        phi: Any,
+        hx: Any,
+        time: Any,
+        u: Any,
+        e: Any,
+        pvec: Any,
+        m: Any,
+        c: Any,
+        sigma: Any,
     ) -> Any:
         n_u = u.shape[1]
 
-        def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any) -> Any:
-            def place(z: Any) -> tuple[Any, Any, Any]:
-                return pvec, z[:n_u], z[n_u:]
+        def local(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, ek: Any) -> Any:
+            def place(z: Any) -> tuple[Any, Any, Any, Any]:
+                return pvec, z[:n_u], z[n_u:], ek
 
             return interval_jacobian(x, t0, t1, jnp.concatenate([u0, u1]), place, m)[1]
 
-        b = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:])
+        b = jax.vmap(local)(xs[:-1], time[:-1], time[1:], u[:-1], u[1:], e)
         # products of small matrices per sample, as broadcast sums (one fused loop each)
         g = jnp.sum(hx[:, :, :, None] * c[:, :, None, :], axis=1)  # (n_t, n_x, cols)
 

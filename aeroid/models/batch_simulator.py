@@ -202,14 +202,23 @@ class BatchSimulator:
             return None  # a single member before any batch (a sampler's start): as before
         self._widest = max(self._widest, batch)
         X0, U, p = self._arrays(parameters, batch)
-        if _integrate.linear_path(model, self.time, X0, U, p, self.method) is not None:
+        how = self.interpolation
+        if _integrate.linear_path(model, self.time, X0, U, p, self.method, how) is not None:
             self._plain = True  # the exact solution, which the plain call takes from now on
             return None
         from .compiled import _pmatrix, padded_rows, rk4_outputs
 
         try:
             got = rk4_outputs(
-                model, self.time, X0.T, self.u[0], p, self.substeps, index, pad=self._widest
+                model,
+                self.time,
+                X0.T,
+                self.u[0],
+                p,
+                self.substeps,
+                index,
+                pad=self._widest,
+                interpolation=how,
             )
         except Exception as exc:  # a program JAX cannot build or run here: the plain path
             _log.debug("compiled outputs of model %r unavailable: %s", model.name, exc)
@@ -272,7 +281,15 @@ class _Lane:
         from .compiled import rk4_output_rows
 
         y, ok = rk4_output_rows(
-            sim.model, sim.time, sim.u[0], self.X, P, sim.substeps, self.index, batch
+            sim.model,
+            sim.time,
+            sim.u[0],
+            self.X,
+            P,
+            sim.substeps,
+            self.index,
+            batch,
+            sim.interpolation,
         )
         y[~ok] = np.nan
         return y

@@ -17,8 +17,8 @@ fit compiles (`output_sensitivities`, `_sensitivities_pay`).
 What is compiled:
 
 * a batched (vmapped) fixed-step RK4 rollout that reproduces
-  `aeroid.models.integration.rk4` step for step (same substeps, same controls linear
-  between samples and evaluated at the RK4 nodes), used by `_integrate.integrate`
+  `aeroid.models.integration.rk4` step for step (same substeps, same controls between
+  samples, straight or cubic, evaluated at the RK4 nodes), used by `_integrate.integrate`
   through `rk4_hook` once a model has spent more numpy RK4 work than a
   compilation costs;
 * a sampler's batch from the parameters to the outputs in one call, the substeps decided
@@ -31,6 +31,10 @@ What is compiled:
   (`input_noise_scatter`), used by the data-compatibility error bars;
 * one sample interval of the RK4 propagation of a batch of points and its
   state Jacobian (`interval_propagator`), for the nonlinear filters.
+
+Every program takes the controls' excess over straight lines per interval beside them
+(`aeroid.models.integration.control_excess`, zero for straight lines): the cubic
+controls of ``control_interpolation`` run in the same programs, compiled once for both.
 
 JAX is imported on first use, never by ``import aeroid``, with 64-bit floats
 switched on. Compiled functions are cached per model (weakly held); the
@@ -51,8 +55,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _threads
-from ._jax_outputs import _RULE_ONLY, _RULED, _outputs_program
-from ._jax_rk4 import _input_noise_scatter, _interval, _interval_jacobian, _rollout, _tangent_linear
+from ._jax_outputs import _RULE_ONLY, _RULED
+from ._jax_programs import _compiled
+from ._jax_rk4 import _interval as _interval
 from ._jax_rk4 import _substep as _substep
 from ._jax_translation import _CACHE as _CACHE
 from ._jax_translation import _NUMBER as _NUMBER
@@ -64,22 +69,22 @@ from ._jax_translation import _agrees as _agrees
 from ._jax_translation import (
     _dynamic_parameters,
     _entry,
-    _import_jax,
-    _shared,
     _structure,
-    _traced_once,
     _verified,
 )
 from ._jax_translation import _frozen as _frozen
+from ._jax_translation import _import_jax as _import_jax
 from ._jax_translation import _lift as _lift
 from ._jax_translation import _reference as _reference
+from ._jax_translation import _shared as _shared
 from ._jax_translation import _shared_cache as _shared_cache
 from ._jax_translation import _single as _single
 from ._jax_translation import _Slot as _Slot
 from ._jax_translation import _swap as _swap
 from ._jax_translation import _Template as _Template
+from ._jax_translation import _traced_once as _traced_once
 from ._jax_translation import _translate as _translate
-from .integration import RawTrajectory, _first_failure
+from .integration import Interpolation, RawTrajectory, _first_failure, control_excess
 
 if TYPE_CHECKING:
     from .model import Model
@@ -148,46 +153,6 @@ def available(
 # -- the RK4 rollout ------------------------------------------------------------------------
 
 
-def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
-    entry = _entry(model)
-    cache = _shared(model)
-    key = (kind, extra)
-    fn = cache.get(key)
-    if fn is not None:
-        return fn
-    mods = _import_jax()
-    assert mods is not None
-    jax, jnp = mods
-    f = _traced_once(entry[("fn", "dynamics")], jax)
-    h = entry.get(("fn", "measurement"))
-    h = None if h is None else _traced_once(h, jax)
-    roll = _rollout(f, jax, jnp)
-    if kind == "states":
-        shared_u = bool(extra)
-        fn = jax.jit(jax.vmap(roll, in_axes=(None, None if shared_u else 0, 0, 0, None)))
-    elif kind == "sensitivities":
-        fn = jax.jit(_tangent_linear(f, h, model, jax, jnp))
-    elif kind == "outputs":
-        fn = _outputs_program(model, jax, jnp, *extra)
-    elif kind == "input_noise":
-        fn = jax.jit(_input_noise_scatter(f, h, jax, jnp))
-    elif kind == "interval":
-        step = _interval(f, jax)
-        jacobian = _interval_jacobian(f, jax, jnp)
-
-        def state_jacobian(x: Any, t0: Any, t1: Any, u0: Any, u1: Any, pvec: Any, m: Any) -> Any:
-            return jacobian(x, t0, t1, jnp.zeros(0), lambda _: (pvec, u0, u1), m)[0]
-
-        axes = (0, None, None, None, None, 0, None)
-        pts = jax.vmap(step, in_axes=axes)
-        lin = jax.vmap(state_jacobian, in_axes=axes)
-        fn = (jax.jit(pts), jax.jit(lin))
-    else:  # pragma: no cover - internal
-        raise ValueError(kind)
-    cache[key] = fn
-    return fn
-
-
 def _pmatrix(model: Model, p: Mapping[str, Any], batch: int) -> FloatArray:
     """Rows of the model parameters (model order), then the model's lifted constants."""
     consts = _structure(model)["consts"]
@@ -207,8 +172,10 @@ def rk4_states(
     u: FloatArray,
     p: Mapping[str, FloatArray],
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> RawTrajectory | None:
-    """The compiled RK4 of a batch: x0 (n_x, B), u (B, n_t, n_u), p name -> (B,).
+    """The compiled RK4 of a batch: x0 (n_x, B), u (B, n_t, n_u), p name -> (B,), the
+    controls between samples as `interpolation` says.
 
     None when the model's dynamics do not compile (the numpy RK4 then runs).
     """
@@ -219,7 +186,7 @@ def rk4_states(
     if _verified(model, "dynamics", time, x0[:, 0], u[0], P[0]) is None:
         return None
     if batch == 1:
-        known = _last_states(model, time, x0[:, 0], u[0], P[0], substeps)
+        known = _last_states(model, time, x0[:, 0], u[0], P[0], substeps, interpolation)
         if known is not None:
             # the trajectory a fit's last sensitivity pass already rolled out (the
             # result's simulation at the estimate): the same RK4 steps
@@ -231,10 +198,11 @@ def rk4_states(
     # would otherwise cost a compilation of its own.
     rows = padded_rows(batch)
     uu = np.ascontiguousarray(u[0] if shared else u[rows])
+    E = control_excess(time, uu, interpolation)
     X = np.ascontiguousarray(x0.T[rows])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        states = np.asarray(fn(time, uu, X, P[rows], np.int32(substeps)), dtype=np.float64)
+        states = np.asarray(fn(time, uu, E, X, P[rows], np.int32(substeps)), dtype=np.float64)
     states = states[:batch]
     ok, fail_time = _first_failure(states, time)
     return RawTrajectory(states, ok, fail_time)
@@ -247,11 +215,12 @@ def compiled_rollout(
     u: FloatArray,
     p: Mapping[str, FloatArray],
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> RawTrajectory | None:
     """`rk4_states`, asked for by a caller that has decided by its problem's size that
     the compiled rollout pays; the model's later simulations then take it too, as
     they do once `rk4_hook` has compiled it. None where the model does not compile."""
-    traj = rk4_states(model, time, x0, u, p, substeps)
+    traj = rk4_states(model, time, x0, u, p, substeps, interpolation)
     if traj is not None:
         _entry(model)["compiled_once"] = True
     return traj
@@ -281,7 +250,7 @@ def _ruled_outputs(model: Model, index: tuple[int, ...], args: tuple[Any, ...]) 
             return y, ok
         entry[stiff] = True
     looped = _compiled(model, "outputs", (0, index))
-    y, ok = looped(*args[:4], np.int32(m))
+    y, ok = looped(*args[:5], np.int32(m))
     return y, ok
 
 
@@ -303,6 +272,7 @@ def rk4_outputs(
     index: Sequence[int],
     *,
     pad: int = 0,
+    interpolation: Interpolation = "linear",
 ) -> tuple[FloatArray, NDArray[np.bool_]] | None:
     """The outputs at `index` (B, n_t, k) of a compiled RK4 batch and whether each member
     stayed finite (every state and output at every sample): x0 (n_x, B), u (n_t, n_u)
@@ -321,7 +291,7 @@ def rk4_outputs(
         return None
     rows = padded_rows(batch, pad)
     X = np.ascontiguousarray(x0.T[rows])
-    return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch)
+    return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch, interpolation)
 
 
 def rk4_output_rows(
@@ -333,20 +303,22 @@ def rk4_output_rows(
     substeps: int | None,
     index: Sequence[int],
     batch: int,
+    interpolation: Interpolation = "linear",
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """`rk4_outputs` of rows already padded: initial states X (padded, n_x) and parameter
     rows P (padded, n_p + constants, `_pmatrix`'s columns), the first `batch` of them
     returned; for a caller that has checked the model compiles (`available`) and keeps
     the rows that stay the same from call to call."""
     key = tuple(int(i) for i in index)
+    E = control_excess(time, u, interpolation)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if substeps is None:  # by the stiffness rule, in the program
-            y, ok = _ruled_outputs(model, key, (time, u, X, P, np.int32(0)))
+            y, ok = _ruled_outputs(model, key, (time, u, E, X, P, np.int32(0)))
         else:
             m = int(substeps)
             static = m if m <= _STATIC_SUBSTEPS else 0
-            y, ok = _compiled(model, "outputs", (static, key))(time, u, X, P, np.int32(m))
+            y, ok = _compiled(model, "outputs", (static, key))(time, u, E, X, P, np.int32(m))
         y = np.array(y, dtype=np.float64)[:batch]
     _entry(model)["compiled_once"] = True  # its later simulations take the compiled RK4 too
     return y, np.asarray(ok, dtype=bool)[:batch]
@@ -377,6 +349,7 @@ def rk4_hook(
     u: FloatArray,
     p: Mapping[str, FloatArray],
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> RawTrajectory | None:
     """`_integrate.integrate`'s RK4 branch: the compiled RK4 once it pays, else None.
 
@@ -392,7 +365,8 @@ def rk4_hook(
         # a probe only asks which path the integrator takes: no compilation for its
         # two-sample record
         return None  # decided: numpy only
-    if x0.shape[1] == 1 and not entry.get("compiled_once"):
+    if x0.shape[1] == 1 and not entry.get("compiled_once") and interpolation == "linear":
+        # (Newton over the record holds straight lines)
         from .shooting import last_states
 
         known = last_states(model, time, x0, u, p, substeps)
@@ -406,13 +380,13 @@ def rk4_hook(
         # at its estimate, its sensors' errors perhaps zeroed): no numpy stepping for it
         # while the rollouts themselves are not yet worth compiling
         pvec = _pmatrix(model, p, 1)[0]
-        known = _last_states(model, time, x0[:, 0], u[0], pvec, substeps)
+        known = _last_states(model, time, x0[:, 0], u[0], pvec, substeps, interpolation)
         if known is not None:
             ok, fail_time = _first_failure(known[None], time)
             return RawTrajectory(known[None], ok, fail_time)
     if not worth_compiling(model, 4 * int(substeps) * (time.size - 1)):
         return None
-    traj = rk4_states(model, time, x0, u, p, substeps)
+    traj = rk4_states(model, time, x0, u, p, substeps, interpolation)
     if traj is not None:
         entry["compiled_once"] = True
     return traj
@@ -439,7 +413,8 @@ def output_sensitivities(
     The columns are the model parameters `names`, then the initial states
     `x0_free`; `params` holds every model parameter. The Jacobian is the
     exact derivative (by the chain rule, see `_tangent_linear`) of the same
-    RK4 rollout that `simulate_batch` runs, with the same substeps. None when
+    RK4 rollout that `simulate_batch` runs, with the same substeps and controls
+    between samples (``options['control_interpolation']``). None when
     it does not apply: JAX missing, functions that do not compile, or an
     integration other than RK4 (the exact path of linear time-invariant
     models, solve_ivp). With `probe`, one
@@ -477,6 +452,11 @@ def output_sensitivities(
         if entry.pop("last_substeps", None) is None:
             return None
     m = rk4_substeps(model, time, controls, x0, params, options)
+    from .integration import check_control_interpolation
+
+    how = check_control_interpolation(
+        options.get("control_interpolation", "linear"), controls=model.controls
+    )
     if numpy_first and not _sensitivities_pay(model, m, time.size):
         entry = _entry(model)
         entry["declined"] = True
@@ -485,12 +465,12 @@ def output_sensitivities(
             # a model fitted again is likely fitted once more: compiled in the background
             # once this fit has returned (a one-off fit never starts a compiler), and the
             # next fit switches to the compiled program if it is ready by then
-            job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), m)
+            job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), m, how)
             _queue(model, "sensitivities", *job)
         return None
     if not available(model, time, x0, controls, pvec):
         return None
-    got = _sensitivities(model, time, controls, x0, pvec, names, x0_free, m)
+    got = _sensitivities(model, time, controls, x0, pvec, names, x0_free, m, how)
     _entry(model)["sensitivities_compiled"] = True
     return got[0], got[1]
 
@@ -577,6 +557,7 @@ def _compile_in_background(
     names: tuple[str, ...],
     x0_free: tuple[int, ...],
     substeps: int,
+    interpolation: Interpolation = "linear",
     extra: tuple[FloatArray, ...] = (),
 ) -> None:
     """The background job: `program` traced, compiled (by XLA, or read from the disk
@@ -590,7 +571,9 @@ def _compile_in_background(
         if not available(model, time, x0, controls, pvec):
             entry[key] = "failed"
             return
-        args = _sensitivity_args(model, time, controls, x0, pvec, names, x0_free, substeps)
+        args = _sensitivity_args(
+            model, time, controls, x0, pvec, names, x0_free, substeps, interpolation
+        )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             got = _compiled(model, "sensitivities")(*args)
@@ -600,7 +583,7 @@ def _compile_in_background(
                 weighted = np.zeros((*J.shape[:2], -(-J.shape[2] // 8) * 8))
                 weighted[:, :, : J.shape[2]] = J * inverse_variances[None, :, None]
                 fn = _compiled(model, "input_noise")
-                got = (fn(*got[2:5], time, args[7], pvec, args[8], weighted, sigma),)
+                got = (fn(*got[2:5], time, *args[7:9], pvec, args[9], weighted, sigma),)
             np.asarray(got[0])  # waits for the run
     except Exception:
         _log.debug("aeroid: compiling %s of model %r failed", program, model.name, exc_info=True)
@@ -645,8 +628,8 @@ def input_noise_scatter(
             if BACKGROUND and state is None and (queued or entry.get("sensitivities_compiled")):
                 # compiled in the background too (after the sensitivities, where queued)
                 extra = (np.asarray(inverse_variances, dtype=np.float64), np.asarray(sigma))
-                job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), substeps, extra)
-                _queue(model, "input_noise", *job)
+                job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), substeps)
+                _queue(model, "input_noise", *job, "linear", extra)
             return got
     if not available(model, time, x0, controls, pvec):
         return None
@@ -661,7 +644,8 @@ def input_noise_scatter(
     s = np.asarray(sigma, dtype=np.float64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        scatter = fn(xs, phi, hx, time, u, pvec, np.int32(substeps), weighted, s)
+        e = control_excess(time, u)  # straight lines: the scatter's rule (`_jax_rk4`)
+        scatter = fn(xs, phi, hx, time, u, e, pvec, np.int32(substeps), weighted, s)
     return y, J, np.asarray(scatter, dtype=np.float64)[:cols, :cols]
 
 
@@ -674,10 +658,13 @@ def _sensitivities(
     names: Sequence[str],
     x0_free: Sequence[int],
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> tuple[FloatArray, ...]:
-    args = _sensitivity_args(model, time, controls, x0, pvec, names, x0_free, substeps)
+    args = _sensitivity_args(
+        model, time, controls, x0, pvec, names, x0_free, substeps, interpolation
+    )
     u = args[7]
-    key = (pvec.tobytes(), x0.tobytes(), tuple(names), tuple(x0_free), int(substeps))
+    key = (pvec.tobytes(), x0.tobytes(), tuple(names), tuple(x0_free), int(substeps), interpolation)
     last = _LAST_SENSITIVITIES
     if (
         last
@@ -708,6 +695,7 @@ def _sensitivity_args(
     names: Sequence[str],
     x0_free: Sequence[int],
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> tuple[Any, ...]:
     """The arguments of the compiled sensitivities program (`_jax_rk4._tangent_linear`)."""
     pidx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
@@ -716,14 +704,21 @@ def _sensitivity_args(
     u = np.asarray(controls, dtype=np.float64)
     dynamic = _dynamic_parameters(model, time, x0, u)
     dpos = np.flatnonzero(np.isin(pidx, dynamic)).astype(np.int64)
-    return theta, pvec, pidx, dpos, x0, xidx, time, u, np.int32(substeps)
+    e = control_excess(time, u, interpolation)
+    return theta, pvec, pidx, dpos, x0, xidx, time, u, e, np.int32(substeps)
 
 
 def _last_states(
-    model: Model, time: FloatArray, x0: FloatArray, u: FloatArray, pvec: FloatArray, substeps: int
+    model: Model,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    pvec: FloatArray,
+    substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> FloatArray | None:
     """The states (n_t, n_x) of the last sensitivity pass when it was at this point:
-    the same initial state, controls and substeps, and the same values of the
+    the same initial state, controls, interpolation and substeps, and the same values of the
     parameters the dynamics read (a sensor's offset or scale factor may differ)."""
     last = _LAST_SENSITIVITIES
     if not last or last[0]() is not model:
@@ -741,6 +736,7 @@ def _last_states(
         or not np.array_equal(before[read], pvec[read])
         or key[1] != np.ascontiguousarray(x0, dtype=np.float64).tobytes()
         or key[4] != int(substeps)
+        or key[5] != interpolation
         or not _same(last[2], time)
         or not _same(last[3], np.asarray(u, dtype=np.float64))
     ):
@@ -763,13 +759,14 @@ def interval_propagator(
     x_ref: FloatArray,
     params: Mapping[str, float],
     substeps: int,
+    interpolation: Interpolation = "linear",
 ) -> Callable[..., Any] | None:
     """Compiled RK4 propagation over one sample interval, for the nonlinear filters.
 
     Returns ``propagate(k, X, P, jacobian=False)`` moving points ``X`` (M, n_x)
     with parameter rows ``P`` (M, n_p) (model parameter order) from sample k
     to k+1 of `time` with `controls` (n_t, n_u), exactly as
-    `_integrate.rk4` would with `substeps`; with ``jacobian=True`` it returns
+    `_integrate.rk4` would with `substeps` and `interpolation`; with ``jacobian=True`` it returns
     ``(X_next, Phi)`` with ``Phi`` (M, n_x, n_x) the exact state-transition
     Jacobian of the step. None when the dynamics do not compile.
     """
@@ -782,9 +779,10 @@ def interval_propagator(
     m = np.int32(substeps)
     t = np.asarray(time, dtype=np.float64)
     u = np.asarray(controls, dtype=np.float64)
+    e = control_excess(t, u, interpolation)
 
     def propagate(k: int, X: FloatArray, P: FloatArray, jacobian: bool = False) -> Any:
-        args = (X, t[k], t[k + 1], u[k], u[k + 1], P, m)
+        args = (X, t[k], t[k + 1], u[k], u[k + 1], e[k], P, m)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             nxt = np.asarray(pts(*args), dtype=np.float64)

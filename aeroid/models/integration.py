@@ -52,6 +52,7 @@ from ._controls import CONTROL_INTERPOLATIONS as CONTROL_INTERPOLATIONS
 from ._controls import Interpolation as Interpolation
 from ._controls import _cubic_excess as _cubic_excess
 from ._controls import check_control_interpolation as check_control_interpolation
+from ._controls import control_excess as control_excess
 from ._controls import control_nodes as control_nodes
 from ._controls import control_slopes as control_slopes
 from ._controls import controls_at as controls_at
@@ -720,15 +721,15 @@ def integrate(
     """Integrate a batch: x0 (B, n_x), u (B, n_t, n_u), p name -> (B,).
 
     `compiled_rk4` (``_compiled.rk4_hook``, passed by the model, which sits above
-    both) runs the same RK4 compiled where that pays, returning None where not; it
-    compiles straight-line controls only, so cubic ones (`control_slopes`) run in
-    numpy.
+    both) runs the same RK4 compiled where that pays, returning None where not, the
+    controls straight or cubic (its program takes `control_excess` beside them).
     """
     if method not in METHODS:
         raise SimulationError(f"method {method!r} is unknown; choose one of {list(METHODS)}")
     if substeps is not None and (int(substeps) != substeps or substeps < 1):
         raise SimulationError(f"substeps must be a positive integer, got {substeps!r}")
-    cubic = check_control_interpolation(control_interpolation) != "linear"
+    how = check_control_interpolation(control_interpolation)
+    cubic = how != "linear"
     if cubic and method in ("euler", "rk4_hold"):
         raise SimulationError(
             f"method={method!r} holds the controls at each interval's first sample; "
@@ -742,8 +743,8 @@ def integrate(
         return traj
     if method in ("auto", "rk4"):
         m = substeps if substeps is not None else auto_substeps(f, time, X0, u, p)
-        if compiled_rk4 is not None and not cubic:
-            compiled = compiled_rk4(model, time, X0, u, p, int(m))
+        if compiled_rk4 is not None:
+            compiled = compiled_rk4(model, time, X0, u, p, int(m), how)
             if compiled is not None:
                 return compiled
         return rk4(f, time, X0, u, p, int(m), control_interpolation)

@@ -1,8 +1,10 @@
 """JAX machinery: a jit-compiled, differentiable fixed-step RK4 rollout of a `Model`.
 
 The rollout follows the numpy RK4 of `aeroid.models.integration` step for step
-(``substeps`` classical RK4 steps per grid interval, controls linear between
-samples, evaluated at the RK4 nodes), but is traced once by JAX so that it can
+(``substeps`` classical RK4 steps per grid interval, controls straight or cubic
+between samples, ``control_interpolation``, evaluated at the RK4 nodes: the program
+takes their excess over straight lines, `control_excess`, zero for straight lines),
+but is traced once by JAX so that it can
 be jit-compiled, vmapped over parameter vectors and differentiated with
 respect to the parameters in forward mode.
 
@@ -30,7 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import AdapterError
-from .integration import substeps_for
+from ._jax_rk4 import _node
+from .integration import Interpolation, check_control_interpolation, control_excess, substeps_for
 
 if TYPE_CHECKING:
     from .model import Model
@@ -257,7 +260,8 @@ def _check_model(model: Any) -> Model:
 
 
 def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
-    """Pure function ``(time, controls, x0, pvec) -> (states, outputs)`` for JAX to trace.
+    """Pure function ``(time, controls, excess, x0, pvec) -> (states, outputs)`` for JAX
+    to trace (``excess``: `control_excess` of the controls, (n_t - 1, 2, n_u)).
 
     Closes over the user's functions only (never the model itself), so the
     weak cache keyed by the model can let it go.
@@ -275,23 +279,23 @@ def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
     )
     m = int(substeps)
 
-    def rollout(time: Any, controls: Any, x0: Any, pvec: Any) -> tuple[Any, Any]:
+    def rollout(time: Any, controls: Any, excess: Any, x0: Any, pvec: Any) -> tuple[Any, Any]:
         p = {n: pvec[i] for i, n in enumerate(names)}
 
         def rhs(t: Any, x: Any, u: Any) -> Any:
             return jnp.reshape(jnp.asarray(f(t, x, u, p), dtype=jnp.float64), (n_x,))
 
         def interval(x: Any, inp: Any) -> tuple[Any, Any]:
-            t0, t1, u0, u1 = inp
+            t0, t1, u0, u1, e = inp
             step = (t1 - t0) / m
             half = 0.5 * step
             du = u1 - u0
 
             def sub(j: Any, x: Any) -> Any:
                 ta = t0 + j * step
-                ua = u0 + (2 * j) / (2 * m) * du
-                um = u0 + (2 * j + 1) / (2 * m) * du
-                ub = u0 + (2 * j + 2) / (2 * m) * du
+                ua = _node(u0, du, e, (2 * j) / (2 * m))
+                um = _node(u0, du, e, (2 * j + 1) / (2 * m))
+                ub = _node(u0, du, e, (2 * j + 2) / (2 * m))
                 k1 = rhs(ta, x, ua)
                 k2 = rhs(ta + half, x + half * k1, um)
                 k3 = rhs(ta + half, x + half * k2, um)
@@ -305,7 +309,8 @@ def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
                 x = jax.lax.fori_loop(0, m, sub, x)
             return x, x
 
-        _, xs = jax.lax.scan(interval, x0, (time[:-1], time[1:], controls[:-1], controls[1:]))
+        inputs = (time[:-1], time[1:], controls[:-1], controls[1:], excess)
+        _, xs = jax.lax.scan(interval, x0, inputs)
         states = jnp.concatenate([x0[None, :], xs], axis=0)
         if h is None:
             outputs = states[:, out_idx]
@@ -373,21 +378,22 @@ def _compiled(model: Model, kind: str, substeps: int) -> Callable[..., Any]:
         fn = jax.jit(roll)
     elif kind == "jacobian":
 
-        def outs(theta: Any, base: Any, idx: Any, time: Any, u: Any, x0: Any) -> Any:
-            y = roll(time, u, x0, base.at[idx].set(theta))[1]
+        def outs(theta: Any, base: Any, idx: Any, time: Any, u: Any, e: Any, x0: Any) -> Any:
+            y = roll(time, u, e, x0, base.at[idx].set(theta))[1]
             return y, y
 
         jac = jax.jacfwd(outs, argnums=0, has_aux=True)
 
-        def both(theta: Any, base: Any, idx: Any, time: Any, u: Any, x0: Any) -> Any:
-            J, y = jac(theta, base, idx, time, u, x0)
+        def both(theta: Any, base: Any, idx: Any, time: Any, u: Any, e: Any, x0: Any) -> Any:
+            J, y = jac(theta, base, idx, time, u, e, x0)
             return y, J
 
         fn = jax.jit(both)
     elif kind == "batch":
         fn = jax.jit(
             jax.vmap(
-                lambda time, u, x0, pv: roll(time, u, x0, pv)[1], in_axes=(None, None, None, 0)
+                lambda time, u, e, x0, pv: roll(time, u, e, x0, pv)[1],
+                in_axes=(None, None, None, None, 0),
             )
         )
     else:  # pragma: no cover - internal
@@ -400,10 +406,14 @@ def _compiled(model: Model, kind: str, substeps: int) -> Callable[..., Any]:
 
 
 def _grid(
-    model: Model, time: Any, controls: Any, x0: Any
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+    model: Model, time: Any, controls: Any, x0: Any, interpolation: Any = "linear"
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Time, controls, initial state and the controls' `control_excess`."""
     from .._checks import check_time
 
+    how = check_control_interpolation(
+        interpolation, AdapterError, "control_interpolation", model.controls
+    )
     t = check_time(time)
     u = model.control_array(t, controls)
     if u.shape[0] != 1:
@@ -412,7 +422,8 @@ def _grid(
             f"({t.size}, {model.n_controls}), got shape {u.shape}"
         )
     x = model.initial_state(x0, 1)[0]
-    return t, np.ascontiguousarray(u[0]), x
+    uu = np.ascontiguousarray(u[0])
+    return t, uu, x, control_excess(t, uu, how)
 
 
 def _pvec(model: Model, params: Mapping[str, float]) -> FloatArray:
@@ -494,14 +505,16 @@ def rollout(
     params: Mapping[str, float],
     *,
     substeps: int | None = None,
+    control_interpolation: Interpolation | Mapping[str, str] = "linear",
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Run the compiled rollout; returns ``(time, controls, states, outputs)`` as numpy arrays."""
+    """Run the compiled rollout; returns ``(time, controls, states, outputs)`` as numpy arrays
+    (the controls between samples as `control_interpolation` says, as in `Model.simulate`)."""
     model = _check_model(model)
     require_jax()
-    t, u, x = _grid(model, time, controls, x0)
+    t, u, x, e = _grid(model, time, controls, x0, control_interpolation)
     pv = _pvec(model, params)
     m = _substeps(model, substeps, t, u, x, pv)
-    states, outputs = _run(model, _compiled(model, "rollout", m), t, u, x, pv)
+    states, outputs = _run(model, _compiled(model, "rollout", m), t, u, e, x, pv)
     return t, u, np.asarray(states, dtype=np.float64), np.asarray(outputs, dtype=np.float64)
 
 
@@ -514,6 +527,7 @@ def outputs_and_jacobian(
     names: Any,
     *,
     substeps: int | None = None,
+    control_interpolation: Interpolation | Mapping[str, str] = "linear",
 ) -> tuple[FloatArray, FloatArray]:
     """Outputs (n_t, n_y) and their exact Jacobian (n_t, n_y, len(names)) w.r.t. `names`.
 
@@ -529,11 +543,11 @@ def outputs_and_jacobian(
             f"parameters {missing} are not parameters of model {model.name!r}; "
             f"its parameters are {list(model.parameter_names)}"
         )
-    t, u, x = _grid(model, time, controls, x0)
+    t, u, x, e = _grid(model, time, controls, x0, control_interpolation)
     pv = _pvec(model, params)
     m = _substeps(model, substeps, t, u, x, pv)
     idx = np.array([model.parameter_names.index(n) for n in names], dtype=np.int64)
-    y, J = _run(model, _compiled(model, "jacobian", m), pv[idx], pv, idx, t, u, x)
+    y, J = _run(model, _compiled(model, "jacobian", m), pv[idx], pv, idx, t, u, e, x)
     return np.asarray(y, dtype=np.float64), np.asarray(J, dtype=np.float64)
 
 
@@ -545,6 +559,7 @@ def batch_outputs(
     params_batch: Any,
     *,
     substeps: int | None = None,
+    control_interpolation: Interpolation | Mapping[str, str] = "linear",
 ) -> FloatArray:
     """Outputs (B, n_t, n_y) of a batch of parameter vectors, vmapped in one compiled call.
 
@@ -554,7 +569,7 @@ def batch_outputs(
     """
     model = _check_model(model)
     require_jax()
-    t, u, x = _grid(model, time, controls, x0)
+    t, u, x, e = _grid(model, time, controls, x0, control_interpolation)
     names = model.parameter_names
     if isinstance(params_batch, Mapping):
         unknown = sorted(set(params_batch) - set(names))
@@ -586,5 +601,5 @@ def batch_outputs(
             )
     P = np.ascontiguousarray(P)
     m = _substeps(model, substeps, t, u, x, P[0])
-    ys = _run(model, _compiled(model, "batch", m), t, u, x, P)
+    ys = _run(model, _compiled(model, "batch", m), t, u, e, x, P)
     return np.asarray(ys, dtype=np.float64)

@@ -593,7 +593,7 @@ class Model(ContinuousModel):
             mapping of control names to either (the others straight). Steps
             and surfaces at their stops overshoot with it, so it is not the
             default. ``"exact"`` and ``"euler"`` refuse it; RK4 with it runs
-            in numpy (never compiled).
+            compiled where the straight lines would, in the same programs.
 
         Returns
         -------

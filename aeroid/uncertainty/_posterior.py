@@ -37,7 +37,7 @@ _BALL_STDERR = 0.5
 _BALL_PRIOR = 0.01
 _BALL_NOISE = 0.05
 _SIM_OPTIONS = SIMULATE_OPTION_KEYS
-_JAX_OPTIONS = ("substeps",)
+_JAX_OPTIONS = ("substeps", "control_interpolation")
 _BACKENDS = ("numpy", "jax")
 
 
@@ -175,7 +175,16 @@ class _Posterior:
                 opts.setdefault("method", "auto")
                 # here, naming the option: in the likelihood a bad one is a rejected member
                 check_simulate_options(opts, model, InferenceError)
-            elif opts.get("substeps") is not None:
+            else:
+                from ..models.integration import check_control_interpolation
+
+                check_control_interpolation(
+                    opts.get("control_interpolation", "linear"),
+                    InferenceError,
+                    "simulate_options['control_interpolation']",
+                    model.controls,
+                )
+            if backend == "jax" and opts.get("substeps") is not None:
                 check_integrator(
                     "rk4",
                     opts["substeps"],
@@ -262,6 +271,7 @@ class _Posterior:
             self.x0,
             padded,
             substeps=self.options.get("substeps"),
+            control_interpolation=self.options.get("control_interpolation", "linear"),
         )
         return np.asarray(y)[:batch][:, :, self.out_index]
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 import dataclasses
 import inspect
 from collections.abc import Mapping
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import AliasChoices, Field, field_validator, model_validator
+from pydantic import AfterValidator, AliasChoices, Field, field_validator, model_validator
 
 from ...errors import AeroidError, PipelineError
 from ..plans.config import Options
@@ -46,10 +46,21 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
     return options.library_kwargs(exclude=exclude)
 
 
+def _simulate_keys(value: Any) -> Any:
+    """`simulate_options` whose keys are the library's: checked before any flight loads."""
+    from ...models.model import SIMULATE_OPTION_KEYS
+
+    unknown = sorted(set(value or {}) - set(SIMULATE_OPTION_KEYS))
+    if unknown:
+        raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTION_KEYS)}")
+    return value
+
+
 # -- identify / filter / validate ----------------------------------------------------
 
 
 _NAMES: Any = (list[str] | None, Field(None))  # names to estimate (not starting values)
+_SIMULATE: Any = (Annotated[dict[str, Any] | None, AfterValidator(_simulate_keys)], Field(None))
 _BY_NAME: Any = (dict[str, float] | None, Field(None))
 
 
@@ -87,13 +98,7 @@ class IdentifyOptions(
     @field_validator("simulate_options", mode="after")
     @classmethod
     def _check_simulate_options(cls, value: Any) -> Any:
-        # the keys are the library's: checked here, before any flight loads
-        from ...models.model import SIMULATE_OPTION_KEYS
-
-        unknown = sorted(set(value or {}) - set(SIMULATE_OPTION_KEYS))
-        if unknown:
-            raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTION_KEYS)}")
-        return value
+        return _simulate_keys(value)
 
     @field_validator("bounds", mode="after")
     @classmethod
@@ -145,12 +150,17 @@ class ValidateOptions(
         "confidence",
         "whiteness_lags",
         "holdout",
+        "simulate_options",
+        simulate_options=_SIMULATE,
         confidence=Field(None, gt=0, lt=1),
         whiteness_lags=Field(None, ge=1),
         holdout=(HoldoutSpec | None, Field(None)),
     )
 ):
-    """`aeroid.validate` keywords."""
+    """`aeroid.validate` keywords (``simulate_options``: as the fit's, its controls')."""
+
+    # unset, it leaves the keys of results stored before it existed unchanged
+    added_later: ClassVar[frozenset[str]] = frozenset({"simulate_options"})
 
 
 def _run_validate(ctx: StageContext) -> Any:
@@ -254,7 +264,7 @@ class InferOptions(
     library_fields(  # type: ignore[misc]  # a generated base
         "aeroid.uncertainty.inference:infer",
         *("noise", "n_walkers", "n_steps", "n_ensembles", "burn_in", "thin", "stretch"),
-        *("move", "outputs", "backend"),
+        *("move", "outputs", "backend", "simulate_options"),
         n_walkers=Field(None, ge=2, le=100_000),
         n_steps=Field(None, ge=1, le=10_000_000),
         n_ensembles=Field(None, ge=1, le=1_000),
@@ -262,6 +272,7 @@ class InferOptions(
         thin=Field(None, ge=1),
         stretch=Field(None, gt=1),
         move=(Literal["stretch", "de", "demcz"] | None, Field(None)),
+        simulate_options=_SIMULATE,
     )
 ):
     """`aeroid.infer` keywords: ``parameters``, the prior of each parameter by name (once
@@ -271,7 +282,7 @@ class InferOptions(
     parameters: dict[str, PriorSpec] = Field(validation_alias=AliasChoices("parameters", "priors"))
     initial: bool = True
 
-    added_later: ClassVar[frozenset[str]] = frozenset({"move"})
+    added_later: ClassVar[frozenset[str]] = frozenset({"move", "simulate_options"})
     # `initial` here says whether to start at the fit (the library takes the fit itself)
     engine_only: ClassVar[frozenset[str]] = frozenset({"initial"})
     # old name -> name: accepted in configs (with a warning) and in stored tasks
