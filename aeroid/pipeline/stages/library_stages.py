@@ -76,6 +76,7 @@ class IdentifyOptions(
         weights=_BY_NAME,
         process_noise=_BY_NAME,
         measurement_noise=_BY_NAME,
+        simulate_options=_SIMULATE,
         max_iterations=Field(None, ge=1),
         tolerance=Field(None, gt=0),
         # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
@@ -94,11 +95,6 @@ class IdentifyOptions(
         {"bounds", "filter_options", "estimate_process_noise", "time_delays", "start", "holdout"}
     )
     engine_only: ClassVar[frozenset[str]] = frozenset({"holdout"})
-
-    @field_validator("simulate_options", mode="after")
-    @classmethod
-    def _check_simulate_options(cls, value: Any) -> Any:
-        return _simulate_keys(value)
 
     @field_validator("bounds", mode="after")
     @classmethod
