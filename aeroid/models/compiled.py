@@ -291,7 +291,8 @@ def rk4_outputs(
         return None
     rows = padded_rows(batch, pad)
     X = np.ascontiguousarray(x0.T[rows])
-    return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch, interpolation)
+    E = control_excess(time, u, interpolation)
+    return rk4_output_rows(model, time, u, X, P[rows], substeps, index, batch, E)
 
 
 def rk4_output_rows(
@@ -303,14 +304,13 @@ def rk4_output_rows(
     substeps: int | None,
     index: Sequence[int],
     batch: int,
-    interpolation: Interpolation = "linear",
+    E: FloatArray,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """`rk4_outputs` of rows already padded: initial states X (padded, n_x) and parameter
     rows P (padded, n_p + constants, `_pmatrix`'s columns), the first `batch` of them
-    returned; for a caller that has checked the model compiles (`available`) and keeps
-    the rows that stay the same from call to call."""
+    returned, E the controls' `control_excess`; for a caller that has checked the model
+    compiles (`available`) and keeps what stays the same from call to call."""
     key = tuple(int(i) for i in index)
-    E = control_excess(time, u, interpolation)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if substeps is None:  # by the stiffness rule, in the program
