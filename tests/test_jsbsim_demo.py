@@ -306,6 +306,18 @@ def test_every_channel_of_a_sample_is_its_mean_over_the_sample_interval():
     assert not np.allclose(record["delta_a"], every_step["delta_a"][::3], atol=1e-3)
 
 
+@pytest.mark.parametrize("rate", [150.0, 400.0])
+def test_the_ailerons_move_at_their_files_rate_limit_at_any_step(rate):
+    # the actuators take their step when the aircraft loads: the c172x's ailerons are
+    # limited to 1.57 rad/s, and the doublet's edges (every step recorded) move them at
+    # that rate whatever the flight's step (with the step set after loading they moved
+    # 1.57/120 rad a step: 1.96 rad/s at 150 Hz, 5.2 at 400)
+    d = fly_c172x(
+        FlightCondition(60.0, 1000.0), noise=False, turbulence=0.0, duration=18.0, sample_rate=rate
+    )
+    assert np.max(np.abs(np.diff(d["delta_a"]))) * rate == pytest.approx(1.57, rel=1e-6)
+
+
 def test_a_samples_surface_acts_from_its_own_instant_on():
     # every step recorded, calm air: at the 3-2-1-1's first edge the pitch rate's step
     # into the sample where the elevator first moves is still the old one (the states of

@@ -168,7 +168,7 @@ def _executive(
     """A fresh ``FGFDMExec`` with the c172x trimmed in wings-level flight at `condition`."""
     # The step is set before the aircraft loads: the flight controls' components fix
     # theirs then, and with JSBSim's default 1/120 s a 150 Hz flight moved the ailerons
-    # at 1.96 rad/s for the file's 1.57 and lagged the elevator at 75 /s for its 60 /s.
+    # at 1.96 rad/s for the file's 1.57 and lagged the elevator at 77 /s for its 60 /s.
     fdm = _aircraft(aerodynamics, direct=direct).executive(dt)
     fdm.set_dt(dt)
     # JSBSim integrates the body rates and the attitude by forward Euler unless told
@@ -179,7 +179,7 @@ def _executive(
     # record), the same flight at 300, 600 and 1200 Hz +0.30, +0.23, +0.22 % and
     # +0.00, -0.07, -0.09 % (second order in the step), and with Adams-Bashforth 3
     # (code 4) for the body rates at 150 Hz +0.24 % and -0.05 %, the converged values.
-    # Third order, stable for h |lambda| < 0.54, beyond the rotational modes' ~0.1.
+    # Third order, stable for h |lambda| < 0.54; the rotational modes sit near 0.1.
     fdm["simulation/integrator/rate/rotational"] = 4
     fdm["simulation/integrator/position/rotational"] = 4
     fdm["ic/h-sl-ft"] = condition.altitude / _FT
