@@ -291,7 +291,7 @@ class JsbsimModel:
             tree.write(dest / f"{self.aircraft}.xml", encoding="utf-8", xml_declaration=True)
         return dest_root
 
-    def executive(self) -> Any:
+    def executive(self, dt: float | None = None) -> Any:
         """A fresh ``jsbsim.FGFDMExec`` with this aircraft loaded, silent and without outputs.
 
         For direct work with JSBSim's properties (trimming, static
@@ -299,15 +299,20 @@ class JsbsimModel:
         aircraft comes from the sanitised copy, logging is disabled and the
         output directory is private. No initial conditions are applied.
         JSBSim's console messages stay silenced (its debug level is global
-        and is left at 0).
+        and is left at 0). With `dt` (s), the executive steps at `dt` from the
+        start: the flight controls' components (an actuator's rate limit, a lag
+        filter) take their step when the aircraft loads, and keep JSBSim's
+        default 1/120 s if the step is set only afterwards.
         """
         jsb = _jsbsim()
         _quiet(jsb)
-        return self._exec(jsb)
+        return self._exec(jsb, dt)
 
-    def _exec(self, jsb: Any) -> Any:
+    def _exec(self, jsb: Any, dt: float | None = None) -> Any:
         fdm = jsb.FGFDMExec(str(self.root), None)
         fdm.set_debug_level(0)
+        if dt is not None:
+            fdm.set_dt(dt)
         fdm.set_output_path(self._workdir)
         fdm.disable_output()
         ok = fdm.load_model_with_paths(

@@ -166,16 +166,22 @@ def _executive(
     direct: bool = False,
 ) -> Any:
     """A fresh ``FGFDMExec`` with the c172x trimmed in wings-level flight at `condition`."""
-    fdm = _aircraft(aerodynamics, direct=direct).executive()
+    # The step is set before the aircraft loads: the flight controls' components fix
+    # theirs then, and with JSBSim's default 1/120 s a 150 Hz flight moved the ailerons
+    # at 1.96 rad/s for the file's 1.57 and lagged the elevator at 77 /s for its 60 /s.
+    fdm = _aircraft(aerodynamics, direct=direct).executive(dt)
     fdm.set_dt(dt)
     # JSBSim integrates the body rates and the attitude by forward Euler unless told
-    # otherwise: half a step behind the continuous-time motion, which a fit then reads
-    # as an input delay and a bias in the damping. The demo's truth simulator should
-    # integrate accurately, for every aircraft alike: Adams-Bashforth 2 (code 3), second
-    # order and the scheme JSBSim already uses for the translational rates, stable for
-    # h |lambda| < 1, far beyond the rotational modes' h |lambda| ~ 0.1 at 150 Hz.
-    fdm["simulation/integrator/rate/rotational"] = 3
-    fdm["simulation/integrator/position/rotational"] = 3
+    # otherwise: half a step behind the continuous-time motion, which a fit reads as an
+    # input delay and a bias in the damping. Adams-Bashforth 2 was not enough either: at
+    # the 150 Hz step, a calm 60 m/s flight read Cl_p and Cl_delta_a 0.4 % high together
+    # (Cl_p +0.59 %, Cl_delta_a +0.30 % against the table about the cg, from a 150 Hz
+    # record), the same flight at 300, 600 and 1200 Hz +0.30, +0.23, +0.22 % and
+    # +0.00, -0.07, -0.09 % (second order in the step), and with Adams-Bashforth 3
+    # (code 4) for the body rates at 150 Hz +0.24 % and -0.05 %, the converged values.
+    # Third order, stable for h |lambda| < 0.54; the rotational modes sit near 0.1.
+    fdm["simulation/integrator/rate/rotational"] = 4
+    fdm["simulation/integrator/position/rotational"] = 4
     fdm["ic/h-sl-ft"] = condition.altitude / _FT
     fdm["ic/vt-fps"] = condition.airspeed / _FT
     fdm["ic/gamma-deg"] = 0.0
@@ -264,6 +270,25 @@ def _gusts(t: FloatArray, airspeed: float, sigma: float, seed: int) -> FloatArra
     return out
 
 
+def _samples(steps: FloatArray, every: int) -> FloatArray:
+    """Every channel's mean over each sample interval, the steps ``(k - every, k]`` for
+    the sample at step ``k`` (the first sample, the trim, as it is).
+
+    A flight-test data system samples through the same anti-aliasing filter on every
+    channel, so that no channel leads another; the interval's mean is that filter. A
+    point sample of each ``every``-th step would hold the surfaces' doublet edges, which
+    the actuators move in a few steps, only at the samples either side, where a model
+    that runs the controls between samples (straight or cubic) puts the edge up to half
+    an interval late: the 60 m/s flight flown at 1200 Hz read Cl_p and Cl_delta_a
+    +0.72 % and +0.26 % from a 50 Hz point record, +0.24 % and -0.04 % from its means,
+    +0.18 % and -0.11 % from a 400 Hz record.
+    """
+    out = np.empty((1 + (steps.shape[0] - 1) // every, steps.shape[1]))
+    out[0] = steps[0]
+    out[1:] = steps[1:].reshape(-1, every, steps.shape[1]).mean(axis=1)
+    return out
+
+
 def fly_c172x(
     condition: FlightCondition,
     *,
@@ -312,15 +337,16 @@ def fly_c172x(
 
     Notes
     -----
-    Every channel of a sample is JSBSim's at the same step: the states, the
-    forces and the surface positions its flight controls set in that step,
-    which give the accelerations at that instant; a 50 Hz record is the same
-    flight's every-step record at every third step. The body rates and the
-    attitude are integrated by Adams-Bashforth 2 (JSBSim's default, forward
-    Euler, lags a continuous-time model by half a step, which a fit reads as an
-    input delay, 3.7 ms at the 150 Hz step, and a bias in the damping); JSBSim's alpha-dot
-    terms still use the previous step's accelerations: a property of the
-    simulator's time step, not of the record.
+    A sample holds every channel's mean over the JSBSim steps of its sample
+    interval (the same anti-aliasing filter on every channel, as a flight-test
+    data system samples); each step pairs the states with the forces and the
+    surface positions its flight controls set in that step. The body rates
+    and the attitude are integrated by Adams-Bashforth 3 (JSBSim's default,
+    forward Euler, lags a continuous-time model by half a step, which a fit
+    reads as an input delay and a bias in the damping; Adams-Bashforth 2 at
+    the 150 Hz step read roll damping and aileron power 0.4 % high together);
+    JSBSim's alpha-dot terms still use the previous step's accelerations: a
+    property of the simulator's time step, not of the record.
     """
     if duration < 18.0:
         raise AdapterError(f"duration {duration!r} s: the c172x test inputs need at least 18 s")
@@ -344,10 +370,9 @@ def fly_c172x(
     theta_trim = trim["theta"]
     # The trim's own stick and pedal positions: the inputs and the pilot act about them.
     held = {prop: float(fdm[prop]) for prop in commands}
-    rows = np.empty((n, len(C172X_CHANNELS)))
+    steps = np.empty((fine.size, len(C172X_CHANNELS)))
     for k in range(fine.size):
-        if k % every == 0:
-            rows[k // every] = _record(fdm)
+        steps[k] = _record(fdm)
         fdm["fcs/rudder-cmd-norm"] = held["fcs/rudder-cmd-norm"] + float(
             commands["fcs/rudder-cmd-norm"][k]
         )
@@ -376,6 +401,7 @@ def fly_c172x(
         )
         if k + 1 < fine.size and not fdm.run():
             raise SimulationError(f"jsbsim c172x stopped at t = {fine[k]:.3f} s")
+    rows = _samples(steps, every)
     if not np.all(np.isfinite(rows)):
         raise SimulationError("jsbsim c172x: the flight diverged (non-finite values)")
     if noise:

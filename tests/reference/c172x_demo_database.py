@@ -51,7 +51,7 @@ against the response).
 With ``--scheme V H`` it flies one calm flight at 150 Hz, fits it with the demo's model
 and takes that fit as the model's own truth: the model driven by JSBSim's surfaces,
 integrated by RK4 (the surfaces linear between JSBSim's samples) and by JSBSim's own
-scheme (Adams-Bashforth 2 at its step), each fitted at 150 Hz and at 50 Hz, beside
+scheme (Adams-Bashforth 3 at its step), each fitted at 150 Hz and at 50 Hz, beside
 JSBSim's record against what JSBSim flies (a couple of minutes): what the record's
 samples and the simulator's step alone make of the estimates.
 
@@ -388,7 +388,6 @@ def _budget(airspeed: float, altitude: float) -> int:
     against JSBSim's own rates; per equation the miss and the candidate terms that
     explain most of it."""
     from aeroid.adapters import jsbsim_flights as jf
-    from aeroid.io.data import FlightData
 
     steps: list[list[float]] = []
     record = jf._record
@@ -407,10 +406,8 @@ def _budget(airspeed: float, altitude: float) -> int:
         )
     finally:
         jf._record = record
-    # the demo's 50 Hz record is every third step of the same flight
-    coarse = FlightData(
-        fine.time[::3], {n: fine[n][::3] for n in fine.names}, fine.units, fine.metadata
-    )
+    # the demo's 50 Hz record is the same flight's means over every three steps
+    coarse = _means(fine, 3)
     model, _, found, truth = _clean_fit(airspeed, altitude, coarse)
     p = {
         k: float(truth.get(k, v)) if not k.startswith(("CL", "CD")) else v for k, v in found.items()
@@ -450,28 +447,32 @@ def _budget(airspeed: float, altitude: float) -> int:
     return 0
 
 
-def _every(data: object, k: int) -> object:
-    """Every `k`-th sample of a record."""
+def _means(data: object, k: int) -> object:
+    """A record at every `k`-th sample, each channel's mean over the `k` samples ending
+    there (the first as it is): the record `fly_c172x` writes at a `k` times lower rate."""
+    from aeroid.adapters.jsbsim_flights import _samples
     from aeroid.io.data import FlightData
 
-    return FlightData(
-        data.time[::k], {n: data[n][::k] for n in data.names}, data.units, data.metadata
-    )
+    rows = _samples(np.column_stack([data[n] for n in data.names]), k)
+    channels = {n: rows[:, i] for i, n in enumerate(data.names)}
+    return FlightData(data.time[::k], channels, data.units, data.metadata)
 
 
 def _adams_bashforth(model: object, data: object, parameters: dict) -> object:
     """The model's own equations integrated as JSBSim integrates the c172x's rates: Adams-
-    Bashforth 2 at the record's step, each step's derivative at that step's state and
-    surfaces (JSBSim's recorded rates satisfy this to rounding), the states as outputs."""
+    Bashforth 3 at the record's step (Euler, then Adams-Bashforth 2, on the first two),
+    each step's derivative at that step's state and surfaces, the states as outputs."""
     u = np.vstack([data[c] for c in model.controls])
     h = float(data.time[1] - data.time[0])
     x = np.empty((len(model.states), data.time.size))
     x[:, 0] = [data[s][0] for s in model.states]
-    before = None
+    history: list[np.ndarray] = []
+    weights = ((1.0,), (1.5, -0.5), (23 / 12, -16 / 12, 5 / 12))
     for k in range(data.time.size - 1):
         f = np.asarray(model.dynamics(0.0, x[:, k : k + 1], u[:, k : k + 1], parameters))[:, 0]
-        x[:, k + 1] = x[:, k] + h * (f if before is None else 1.5 * f - 0.5 * before)
-        before = f
+        history = [f, *history[:2]]
+        step = sum(w * g for w, g in zip(weights[len(history) - 1], history, strict=True))
+        x[:, k + 1] = x[:, k] + h * step
     return data.with_channels({s: x[i] for i, s in enumerate(model.states)})
 
 
@@ -482,7 +483,7 @@ def _scheme(airspeed: float, altitude: float) -> int:
     """Where the clean fits' shared scale comes from: the demo's model with the clean fit's
     values as its own truth, its states made from JSBSim's surfaces (150 Hz) by a
     continuous-time integrator (RK4, surfaces linear between JSBSim's samples) and by
-    JSBSim's own scheme (AB2 at JSBSim's step), each fitted at 150 Hz and at 50 Hz, beside
+    JSBSim's own scheme (AB3 at JSBSim's step), each fitted at 150 Hz and at 50 Hz, beside
     JSBSim's record itself against what JSBSim flies."""
     import yaml
 
@@ -494,7 +495,7 @@ def _scheme(airspeed: float, altitude: float) -> int:
     fine = fly_c172x(
         FlightCondition(airspeed, altitude), noise=False, turbulence=0.0, sample_rate=150.0
     )
-    model, _, found, truth = _clean_fit(airspeed, altitude, _every(fine, 3))
+    model, _, found, truth = _clean_fit(airspeed, altitude, _means(fine, 3))
 
     def cells(data: object, reference: dict) -> str:
         est = identify(model, data, list(model.parameter_names), **options).parameters
@@ -503,19 +504,19 @@ def _scheme(airspeed: float, altitude: float) -> int:
     x0 = {s: float(fine[s][0]) for s in model.states}
     sim = model.simulate_data(fine, x0=x0, parameters=found)
     rk4 = fine.with_channels({n: sim.outputs[:, i] for i, n in enumerate(sim.output_names)})
-    ab2 = _adams_bashforth(model, fine, found)
+    ab3 = _adams_bashforth(model, fine, found)
     print(
         f"calm flight at {airspeed:g} m/s, {altitude:g} m: estimate/truth - 1 at a 150 Hz and "
-        "a 50 Hz record (every third sample)"
+        "a 50 Hz record (means over every three samples)"
     )
     print(f"  JSBSim against what it flies, 150 Hz: {cells(fine, truth)}")
     print(
         "  JSBSim against what it flies,  50 Hz: "
         + ", ".join(f"{t} {100 * (found[t] / truth[t] - 1):+.2f}%" for t in SCHEME_TERMS)
     )
-    for label, data in (("the model by RK4", rk4), ("the model by AB2", ab2)):
+    for label, data in (("the model by RK4", rk4), ("the model by AB3", ab3)):
         print(f"  {label}, 150 Hz: {cells(data, found)}")
-        print(f"  {label},  50 Hz: {cells(_every(data, 3), found)}")
+        print(f"  {label},  50 Hz: {cells(_means(data, 3), found)}")
     return 0
 
 
@@ -538,7 +539,7 @@ def main() -> int:
         nargs=2,
         type=float,
         metavar=("V", "H"),
-        help="one calm flight: the demo model's own equations by RK4 and by JSBSim's AB2",
+        help="one calm flight: the demo model's own equations by RK4 and by JSBSim's AB3",
     )
     args = parser.parse_args()
     if args.scheme:
