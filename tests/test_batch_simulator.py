@@ -270,7 +270,5 @@ def test_a_sampler_batch_refills_the_rows_of_the_last(monkeypatch: Any, how: str
         got += [sim.outputs(b, [1, 3]) for b in others]
         assert len(calls) == 4
         for b, y in zip(batches + others, got, strict=True):
-            fresh = BatchSimulator(
-                _pendulum(), T, u, X0, repeated=10**6, control_interpolation=how
-            )
+            fresh = BatchSimulator(_pendulum(), T, u, X0, repeated=10**6, control_interpolation=how)
             np.testing.assert_array_equal(y, fresh.outputs(b, [1, 3]))
