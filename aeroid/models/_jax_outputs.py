@@ -24,6 +24,10 @@ else:  # below aeroid.models.model (it calls this module): its base class stands
 # the one-substep rollout returning the rule's count with its outputs, and the rule alone
 _RULED = -1
 _RULE_ONLY = -2
+# One interval per loop iteration: each iteration steps a batch of members, so the loop's
+# own overhead is a small share of it, and unrolled intervals only lengthen the compilation
+# that a cold sampler pays (tests/benchmarks/bench_infer_stage.py, its first call's CPU)
+_UNROLL = 1
 
 
 def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) -> Any:
@@ -59,12 +63,12 @@ def _outputs_program(model: Model, jax: Any, jnp: Any, static: int, index: Any) 
         return jax.vmap(member, in_axes=(None, None, None, 0, 0, None))
 
     if static > 0:
-        return jax.jit(batch_of(_rollout(f, jax, jnp, static)))
+        return jax.jit(batch_of(_rollout(f, jax, jnp, static, unroll=_UNROLL)))
     if static == 0:
-        return jax.jit(batch_of(_rollout(f, jax, jnp)))
+        return jax.jit(batch_of(_rollout(f, jax, jnp, unroll=_UNROLL)))
     # Only the one-substep rollout in the program, not both behind a condition: the
     # stiffness rule rarely asks for more, and the looped rollout doubled the compilation
-    single = batch_of(_rollout(f, jax, jnp, 1))
+    single = batch_of(_rollout(f, jax, jnp, 1, unroll=_UNROLL))
     rule = _substeps_rule(f, jax, jnp)
 
     def ruled(time: Any, u: Any, e: Any, X: Any, P: Any, m: Any) -> Any:

@@ -127,11 +127,11 @@ def _fixed_interval(f: Callable[..., Any], jax: Any, jnp: Any, substeps: int) ->
 
 
 def _rollout(
-    f: Callable[..., Any], jax: Any, jnp: Any, substeps: int | None = None
+    f: Callable[..., Any], jax: Any, jnp: Any, substeps: int | None = None, unroll: int = 2
 ) -> Callable[..., Any]:
     """``(time, u (n_t, n_u), e (n_t - 1, 2, n_u), x0 (n_x,), pvec, m) -> states (n_t,
     n_x)``; with `substeps`, that count written into the program (`_fixed_interval`) in
-    place of `m`."""
+    place of `m`; `unroll` intervals per loop iteration."""
     step = _interval(f, jax) if substeps is None else _fixed_interval(f, jax, jnp, substeps)
 
     def roll(time: Any, u: Any, e: Any, x0: Any, pvec: Any, m: Any) -> Any:
@@ -140,10 +140,10 @@ def _rollout(
             x = step(x, t0, t1, u0, u1, ek, pvec, m)
             return x, x
 
-        # two intervals per loop iteration: the loop's own overhead is a large share of
-        # each small step (measured in tests/benchmarks/bench_compatibility.py)
+        # by default two intervals per loop iteration: the loop's own overhead is a large
+        # share of each small step (measured in tests/benchmarks/bench_compatibility.py)
         inputs = (time[:-1], time[1:], u[:-1], u[1:], e)
-        _, xs = jax.lax.scan(body, x0, inputs, unroll=2)
+        _, xs = jax.lax.scan(body, x0, inputs, unroll=unroll)
         return jnp.concatenate([x0[None, :], xs], axis=0)
 
     return roll

@@ -233,9 +233,10 @@ class BatchSimulator:
         if got is None:
             self._plain = True
             return None
-        # the integrator's exact path is ruled out for good (or not taken): the next
-        # batches of these names fill in their columns of the same rows
-        if not (self.method in ("auto", "exact") and model._maybe_lti):
+        # the integrator's exact path is ruled out for good (or not taken; never with
+        # controls other than straight lines): the next batches of these names fill in
+        # their columns of the same rows
+        if not (self.method in ("auto", "exact") and model._maybe_lti and how == "linear"):
             rows = padded_rows(batch, self._widest)
             names = model.parameter_names
             columns = tuple(names.index(k) for k in parameters)
