@@ -24,7 +24,10 @@ innovations are white by construction, so no colour correction applies).
 
 On request the process-noise intensities (and, when no measurement noise is
 given, the measurement-noise variances) are estimated together with the
-parameters, log-parameterised so they stay positive.
+parameters, log-parameterised so they stay positive. An intensity starts at what the state equations
+at the starting parameters leave unexplained in the measured states, less the
+measurement noise's share: at the start the filter explains the record, and
+the intensities fall as the parameters take up the model's error.
 
 Pure time delays of controls (``time_delays=``) are unknowns of the same
 iteration, as in output error (Jategaonkar ch. 4, Klein & Morelli ch. 6): the
@@ -51,6 +54,7 @@ from ..io.data import FlightData
 from ..models.model import Model, resolve_parameters
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
+from ._identification_start import process_noise_start
 from ._output_error import delay_parameter, shifted_controls
 from .filtering import (
     _default_P0,
@@ -124,6 +128,33 @@ def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
         )
     opts.update(filter_options)
     return opts
+
+
+def _start_states(
+    m: Model,
+    prob: _Problem,
+    data: FlightData,
+    x0: Any,
+    start: Mapping[str, float],
+    Qc: FloatArray,
+    opts: Mapping[str, Any],
+    steady: bool,
+) -> FloatArray:
+    """The model's states over the first record at the start, simulated."""
+    states = None
+    if steady:
+        # the compiled rollout, where the fit's passes compile its predictor
+        states = start_states(prob, start, Qc)
+    if states is None:
+        sim = m.simulate_data(
+            data,
+            x0=x0,
+            parameters=start,
+            method="auto",
+            control_interpolation=opts["control_interpolation"],
+        )
+        states = sim.states
+    return np.asarray(states, dtype=np.float64)
 
 
 def _noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
@@ -423,7 +454,12 @@ def identify_filter_error(
     process_noise : mapping or array_like, optional
         Continuous power spectral density per state (state² per second);
         zero where not given. With `estimate_process_noise` it is the
-        starting value.
+        starting value; an estimated state's intensity not given starts at
+        what the state equations at the starting values leave unexplained in
+        its measured channel, the measurement noise's share removed
+        (`aeroid.estimation._identification_start.process_noise_start`), or,
+        for a state not measured, at a hundredth of its simulated variance
+        per sample interval.
     measurement_noise : mapping or array_like, optional
         Measurement-noise variances per output. When omitted they are
         estimated from the innovations (maximum likelihood).
@@ -570,32 +606,30 @@ def identify_filter_error(
     R0 = np.diag(r_start) if estimate_R else R
     z0 = [start[n] for n in names] + [float(v) for v in delay_starts.values()]
     if q_states:
+        # what the state equations at the start leave unexplained in the measured states
+        noise = {o: float(R0[j, j]) for j, o in enumerate(out_names)}
+        wanted = [i for i in q_states if not Qc[i, i] > 0]
+        found = process_noise_start(m, datas, start, noise, wanted) if wanted else {}
+        svar = None
+        if any(i not in found for i in wanted):
+            steady = gain_choice(opts["gain"], opts["method"], filter_options) == "steady"
+            sim = _start_states(m, probs[0], datas[0], x0_list[0], start, Qc, opts, steady)
+            svar = np.var(sim, axis=0)
         dt = float(np.median(np.diff(probs[0].time)))
-        states = None
-        if gain_choice(opts["gain"], opts["method"], filter_options) == "steady":
-            # the compiled rollout, where the fit's passes compile its predictor
-            states = start_states(probs[0], start, Qc)
-        if states is None:
-            sim = m.simulate_data(
-                datas[0],
-                x0=x0_list[0],
-                parameters=start,
-                method="auto",
-                control_interpolation=opts["control_interpolation"],
-            )
-            states = sim.states
-        svar = np.var(states, axis=0)
         for i in q_states:
             if Qc[i, i] > 0:
                 z0.append(math.log(Qc[i, i]))
-                continue
-            s = m.states[i]
-            var = (
-                R0[out_names.index(s), out_names.index(s)]
-                if m._measurement_batch is None and s in out_names
-                else max(float(svar[i]), 1e-12)
-            )
-            z0.append(math.log(1e-2 * var / dt))
+            elif i in found:
+                z0.append(math.log(found[i]))
+            else:
+                assert svar is not None
+                s = m.states[i]
+                var = (
+                    R0[out_names.index(s), out_names.index(s)]
+                    if m._measurement_batch is None and s in out_names
+                    else max(float(svar[i]), 1e-12)
+                )
+                z0.append(math.log(1e-2 * var / dt))
     z0.extend(math.log(r_start[j]) for j in r_outputs)
     z = np.array(z0, dtype=np.float64)
     n_p = len(names)
@@ -662,9 +696,14 @@ def identify_filter_error(
 
     labels = layout.labels(m, out_names)
     # Noise intensities at a bound, or that the data cannot determine, are
-    # held fixed for the covariance: they are nuisance parameters.
+    # held fixed for the covariance: they are nuisance parameters. A vanished one held
+    # out of the steps (`_flat_noises_held`) is held here too: its correlation with the
+    # parameters does not fade with it (the information's cross terms fall with the
+    # intensity, its own with the square), so where it stopped would move the error bars
     free = np.ones(z.size, dtype=bool)
     free[n_e:] = (z[n_e:] > lo[n_e:] + 1e-6) & (z[n_e:] < hi[n_e:] - 1e-6)
+    flat_floor = 2.0 * _COST_SHARE * tolerance * max(1.0, abs(float(f)))
+    free[n_e:] &= np.diag(fisher)[n_e:] >= flat_floor
     # Parameters at a bound are held there: error bars conditional on the bound.
     held = np.zeros(z.size, dtype=bool)
     held[:n_p] = (z[:n_p] <= lo[:n_p]) | (z[:n_p] >= hi[:n_p])
