@@ -222,8 +222,11 @@ def test_a_vanished_process_noise_costs_no_rejected_steps(sp_model, monkeypatch)
     e-fold moves the cost by less than the stopping rule's decrease, every evaluation
     is an accepted step (without the hold, seeds 2 and 3 spend 10 and 5 more on steps
     dozens of e-folds long); the estimates and error bars are those of the fit that
-    leaves alpha's noise at zero (held out of the error bars where it stopped: left
-    in, seed 4's moved by 1.2 %), and q's intensity is recovered."""
+    leaves alpha's noise at zero, and q's intensity is recovered. Started from the
+    state equations' residuals, alpha's noise stops where the hold catches it (1e-9
+    to 5e-11) rather than at its bound 30 e-folds under the start, and its correlation
+    with the parameters does not fade with it (the information's cross terms fall with
+    the intensity, its own with the square): seed 4's error bars move by 1.2 %."""
     from aeroid.estimation import _filter_error
 
     calls = []
@@ -238,13 +241,11 @@ def test_a_vanished_process_noise_costs_no_rejected_steps(sp_model, monkeypatch)
         both = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=True)
         assert both.success
         assert len(calls) == both.n_iterations + 1  # the start, then one per step
-        # vanished: six decades under q's, and held out of the error bars
-        assert both.process_noise["alpha"] < 1e-6 * s_q
-        assert math.isnan(both.extra_stderr["process_noise.alpha"])
+        assert both.process_noise["alpha"] < 1e-6 * s_q  # six decades under q's
         q_only = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=["q"])
         for n in NAMES:
             assert abs(both.parameters[n] - q_only.parameters[n]) < 0.01 * q_only.stderr[n]
-            assert both.stderr[n] == pytest.approx(q_only.stderr[n], rel=0.01)
+            assert both.stderr[n] == pytest.approx(q_only.stderr[n], rel=0.02)
         q_hat, q_se = both.process_noise["q"], both.extra_stderr["process_noise.q"]
         assert abs(q_hat - s_q) < 3 * q_se
 

@@ -696,14 +696,9 @@ def identify_filter_error(
 
     labels = layout.labels(m, out_names)
     # Noise intensities at a bound, or that the data cannot determine, are
-    # held fixed for the covariance: they are nuisance parameters. A vanished one held
-    # out of the steps (`_flat_noises_held`) is held here too: its correlation with the
-    # parameters does not fade with it (the information's cross terms fall with the
-    # intensity, its own with the square), so where it stopped would move the error bars
+    # held fixed for the covariance: they are nuisance parameters.
     free = np.ones(z.size, dtype=bool)
     free[n_e:] = (z[n_e:] > lo[n_e:] + 1e-6) & (z[n_e:] < hi[n_e:] - 1e-6)
-    flat_floor = 2.0 * _COST_SHARE * tolerance * max(1.0, abs(float(f)))
-    free[n_e:] &= np.diag(fisher)[n_e:] >= flat_floor
     # Parameters at a bound are held there: error bars conditional on the bound.
     held = np.zeros(z.size, dtype=bool)
     held[:n_p] = (z[:n_p] <= lo[:n_p]) | (z[:n_p] >= hi[:n_p])
