@@ -673,6 +673,12 @@ def identify_filter_error(
     typical = np.ones_like(z)
     typical[:n_p] = 1e-8
     typical[n_p:n_e] = layout.dt
+    # A log-intensity's information goes with the square of its share of the innovations'
+    # variance, which a decade can move a hundredfold: a rejected step that moves one
+    # by more (a vanishing noise's Gauss-Newton step asks for several) is tried again
+    # with it held to a decade before the damping, which shortens every step, grows
+    cap = np.full(z.size, np.inf)
+    cap[n_e:] = math.log(10.0)
     fit = minimise(
         evaluate,
         z,
@@ -683,6 +689,7 @@ def identify_filter_error(
         lower=lo,
         upper=hi,
         damping=1e-3,
+        max_step=cap,
     )
     z, f = fit.theta, fit.point.cost
     quad, per, fisher = fit.point.payload

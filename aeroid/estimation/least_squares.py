@@ -212,6 +212,7 @@ def damped_step(
     theta: FloatArray,
     lower: FloatArray,
     upper: FloatArray,
+    max_step: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The Levenberg-Marquardt step from `theta`, inside the box: (the change, the
     trial point), the trial exactly on a bound it reaches.
@@ -220,19 +221,37 @@ def damped_step(
     the damping is relative to each unknown's own curvature) and solved by least
     squares, which gives a rank-deficient matrix its minimum-norm step. Unknowns
     at a bound whose step points out are held (`held_at_bounds`) and the rest of
-    the step is clipped into the box.
+    the step is clipped into the box. With `max_step`, an unknown whose change
+    would exceed it takes that much, and the others' step is solved again given it.
     """
     dn = np.sqrt(np.clip(np.diag(point.curvature), 1e-300, None))
     a = point.curvature / np.outer(dn, dn)
     b = point.gradient / dn
 
+    def plain(sub: FloatArray, rhs: FloatArray) -> FloatArray:
+        try:
+            sol = np.linalg.lstsq(sub + damping * np.eye(rhs.size), rhs, rcond=1e-12)[0]
+        except np.linalg.LinAlgError:
+            return np.zeros(rhs.size)
+        return np.asarray(sol, dtype=np.float64)
+
     def solve(idx: NDArray[np.intp]) -> FloatArray:
         sub = a if idx.size == theta.size else a[np.ix_(idx, idx)]
-        try:
-            sol = np.linalg.lstsq(sub + damping * np.eye(idx.size), -b[idx], rcond=1e-12)[0]
-        except np.linalg.LinAlgError:
-            return np.zeros(idx.size)
-        return np.asarray(sol / dn[idx], dtype=np.float64)
+        scaled = plain(sub, -b[idx])
+        if max_step is not None:
+            cap = max_step[idx] * dn[idx]  # in the scaled unknowns
+            fixed = np.zeros(idx.size, dtype=bool)
+            for _ in range(idx.size):
+                over = ~fixed & (np.abs(scaled) > cap)
+                if not np.any(over):
+                    break
+                fixed |= over
+                scaled[over] = np.sign(scaled[over]) * cap[over]
+                free = np.flatnonzero(~fixed)
+                if free.size:
+                    rhs = -b[idx][free] - sub[np.ix_(free, np.flatnonzero(fixed))] @ scaled[fixed]
+                    scaled[free] = plain(sub[np.ix_(free, free)], rhs)
+        return np.asarray(scaled / dn[idx], dtype=np.float64)
 
     if np.any(np.isfinite(lower)) or np.any(np.isfinite(upper)):
         delta = held_at_bounds(solve, theta <= lower, theta >= upper)
@@ -266,6 +285,7 @@ def minimise(
     lower: FloatArray | None = None,
     upper: FloatArray | None = None,
     damping: float = 0.0,
+    max_step: FloatArray | None = None,
 ) -> LeastSquaresFit:
     """Bounded Levenberg-Marquardt on an estimator's linearisation: the one
     nonlinear least-squares iteration of aeroid.
@@ -300,6 +320,11 @@ def minimise(
         makes decrease the cost ends the iteration: converged when the
         Gauss-Newton step from there passes the stopping rule, else flagged
         ``success=False``.
+    max_step : (n,) array, optional
+        For unknowns on which the quadratic model is trusted only so far (inf:
+        no limit): a rejected step that changes one by more is tried again at
+        the same damping with that change held to its limit and the others
+        solved given it (`damped_step`), before the damping grows.
 
     Returns
     -------
@@ -322,8 +347,9 @@ def minimise(
     while iteration < max_iterations:
         trial: Linearisation | None = None
         delta = trial_theta = theta
+        limit = None  # the first try at each damping takes the whole step
         while lam <= _MAX_DAMPING:
-            delta, trial_theta = damped_step(point, lam, theta, lo, hi)
+            delta, trial_theta = damped_step(point, lam, theta, lo, hi, limit)
             if lam == 0.0 and _negligible(point, delta, theta, typ, tolerance):
                 # the step would already pass the test: stop rather than evaluate it
                 return end(True, f"converged after {iteration} iterations")
@@ -334,6 +360,9 @@ def minimise(
                 if judged <= point.cost + _COST_ROUNDING * abs(point.cost):
                     trial = found
                     break
+            if limit is None and max_step is not None and np.any(np.abs(delta) > max_step):
+                limit = max_step
+                continue
             lam = max(lam * 10.0, _MIN_DAMPING)
         if trial is None:
             # at the minimum to rounding when the Gauss-Newton step from here would

@@ -510,7 +510,8 @@ for _stage in (
         # 10: the filter error's Riccati inverses refined by Newton-Schulz steps and its
         #     information summed by matrix products (rounding)
         # 11: the filter error starts an estimated process noise from the state equations'
-        #     residuals (fewer, other steps) and holds a vanished one out of the error bars
+        #     residuals, and retries a rejected step that moves a noise by over a decade
+        #     with that move held to a decade (fewer, other steps)
         "11",
         IdentifyOptions,
         "IdentificationResult",
