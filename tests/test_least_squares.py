@@ -267,3 +267,37 @@ def test_a_rejected_long_step_is_tried_again_at_its_limit_before_damping() -> No
     calls.clear()
     plain = minimise(counted, np.zeros(1), start, tolerance=1e-3, max_iterations=1)
     assert plain.damping > 0.0 and len(calls) > 2
+
+
+@pytest.mark.parametrize("factor", [0.55, 3.0])
+def test_extrapolation_ends_a_creep_or_a_zig_zag(factor: float) -> None:
+    # a quadratic cost whose curvature model is off by `factor` along one direction: the
+    # plain iteration's steps there shrink by 1 - 1/factor each (0.55: zig-zags, ratio
+    # -0.82; 3: creeps, ratio 0.67), linearly; Anderson's extrapolation of two steps
+    # lands on the minimum (closed form) and the fit stops after a few evaluations
+    rng = np.random.default_rng(4)
+    q, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    H = q @ np.diag([1.0, 2.0, 5.0, 10.0]) @ q.T
+    b = rng.standard_normal(4)
+    v = q[:, 0]
+    model = H + (factor - 1.0) * np.outer(v, v)  # v'Hv = 1, so v'(model)v = factor
+
+    def evaluate(th: np.ndarray, _base: Linearisation | None) -> Linearisation:
+        return Linearisation(float(0.5 * th @ H @ th - b @ th), H @ th - b, model)
+
+    th0 = np.zeros(4)
+    truth = np.linalg.solve(H, b)
+    runs = {}
+    for accelerate in (False, True):
+        runs[accelerate] = minimise(
+            evaluate,
+            th0,
+            evaluate(th0, None),
+            tolerance=1e-10,
+            max_iterations=200,
+            accelerate=accelerate,
+        )
+    plain, fast = runs[False], runs[True]
+    assert plain.success and fast.success
+    np.testing.assert_allclose(fast.theta, truth, rtol=1e-8, atol=1e-10)
+    assert fast.evaluations <= 4 < plain.evaluations

@@ -27,7 +27,11 @@ given, the measurement-noise variances) are estimated together with the
 parameters, log-parameterised so they stay positive. An intensity starts at what the state equations
 at the starting parameters leave unexplained in the measured states, less the
 measurement noise's share: at the start the filter explains the record, and
-the intensities fall as the parameters take up the model's error.
+the intensities fall as the parameters take up the model's error. A rejected
+step that moves a log-intensity by more than a decade is tried again with that
+move held to a decade before the damping grows; where a weakly determined noise
+level makes the iteration creep or zig-zag, two successive steps are
+extrapolated (`aeroid.estimation.least_squares.minimise`, ``accelerate``).
 
 Pure time delays of controls (``time_delays=``) are unknowns of the same
 iteration, as in output error (Jategaonkar ch. 4, Klein & Morelli ch. 6): the
@@ -679,6 +683,9 @@ def identify_filter_error(
     # with it held to a decade before the damping, which shortens every step, grows
     cap = np.full(z.size, np.inf)
     cap[n_e:] = math.log(10.0)
+    # a weakly determined noise level's Fisher information can be off by a factor from
+    # the likelihood's curvature: the iteration creeps or zig-zags along it and a
+    # parameter it correlates with (extrapolated: `minimise`'s ``accelerate``)
     fit = minimise(
         evaluate,
         z,
@@ -690,6 +697,7 @@ def identify_filter_error(
         upper=hi,
         damping=1e-3,
         max_step=cap,
+        accelerate=True,
     )
     z, f = fit.theta, fit.point.cost
     quad, per, fisher = fit.point.payload

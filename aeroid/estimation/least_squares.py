@@ -125,6 +125,9 @@ _MAX_DAMPING = 1e8
 # accepted step's damping is dropped (Gauss-Newton again).
 _MIN_DAMPING = 1e-4
 _UNDAMPED = 1e-6
+# Two successive Gauss-Newton steps whose cosine (in the curvature's metric) exceeds
+# this in magnitude run along one direction: the iteration creeps or zig-zags there.
+_PARALLEL = 0.9
 # The stopping rule's cost test is this fraction of the step test's tolerance.
 _COST_SHARE = 1e-3
 # Rounding of a cost: a trial within this fraction of the current cost is no worse.
@@ -286,6 +289,7 @@ def minimise(
     upper: FloatArray | None = None,
     damping: float = 0.0,
     max_step: FloatArray | None = None,
+    accelerate: bool = False,
 ) -> LeastSquaresFit:
     """Bounded Levenberg-Marquardt on an estimator's linearisation: the one
     nonlinear least-squares iteration of aeroid.
@@ -325,6 +329,12 @@ def minimise(
         no limit): a rejected step that changes one by more is tried again at
         the same damping with that change held to its limit and the others
         solved given it (`damped_step`), before the damping grows.
+    accelerate : bool
+        Where the undamped Gauss-Newton step runs along the last one (or against
+        it), try first the point the two steps extrapolate to (`_anderson`): a
+        curvature model off by a factor along one direction (the Fisher
+        information of a weakly determined noise level) makes the plain
+        iteration creep or zig-zag there, one step at a time.
 
     Returns
     -------
@@ -340,6 +350,7 @@ def minimise(
     evaluations = 0
     iteration = 0
     back: FloatArray | None = None  # the iterate before this one
+    memory: tuple[FloatArray, FloatArray] | None = None
 
     def end(success: bool, message: str) -> LeastSquaresFit:
         return LeastSquaresFit(theta, point, iteration, evaluations, success, message, lam)
@@ -348,6 +359,23 @@ def minimise(
         trial: Linearisation | None = None
         delta = trial_theta = theta
         limit = None  # the first try at each damping takes the whole step
+        if accelerate and lam == 0.0 and memory is not None:
+            extrapolated = _anderson(point, theta, memory, lo, hi, typ, tolerance)
+            if extrapolated is not None:
+                memory = (theta, extrapolated[1])
+                evaluations += 1
+                found = evaluate(extrapolated[0], point)
+                if found is not None and np.isfinite(found.cost):
+                    judged = found.cost if found.judged is None else found.judged
+                    if judged < point.cost:
+                        iteration += 1
+                        decrease = point.cost - judged
+                        rel = relative_step(extrapolated[0] - theta, theta, typ)
+                        back = theta
+                        theta, point = extrapolated[0], found
+                        if converged(rel, decrease, point.cost, tolerance):
+                            return end(True, f"converged after {iteration} iterations")
+                        continue
         while lam <= _MAX_DAMPING:
             delta, trial_theta = damped_step(point, lam, theta, lo, hi, limit)
             if lam == 0.0 and _negligible(point, delta, theta, typ, tolerance):
@@ -382,12 +410,49 @@ def minimise(
             # a weighting that moves with the iterate can settle into a two-step
             # cycle about its fixed point: the step over two iterations counts too
             rel = min(rel, relative_step(trial_theta - back, theta, typ))
+        # the last undamped, whole Gauss-Newton step and where it was taken from
+        memory = (theta, delta) if lam == 0.0 and limit is None else None
         back = theta
         theta, point = trial_theta, trial
         lam = lam / 10.0 if lam > _UNDAMPED else 0.0
         if converged(rel, decrease, point.cost, tolerance):
             return end(True, f"converged after {iteration} iterations")
     return end(False, f"iteration limit ({max_iterations}) reached before convergence")
+
+
+def _anderson(
+    point: Linearisation,
+    theta: FloatArray,
+    memory: tuple[FloatArray, FloatArray],
+    lower: FloatArray,
+    upper: FloatArray,
+    typ: FloatArray,
+    tolerance: float,
+) -> tuple[FloatArray, FloatArray] | None:
+    """Anderson's extrapolation of depth one (Walker & Ni 2011) of the Gauss-Newton
+    iteration: (the trial point, the Gauss-Newton step here), or None where the step
+    here is negligible or does not run along the last one.
+
+    Where the iteration converges linearly along one direction, each step the last
+    times a ratio r (0 < r < 1 creeping, -1 < r < 0 zig-zagging), the steps f and the
+    iterates x of the last two points give the limit exactly:
+    ``x + f - gamma (dx + df)`` with ``gamma = <df, f> / <df, df>``, in the metric of
+    the curvature (each unknown in its own standard errors).
+    """
+    step = damped_step(point, 0.0, theta, lower, upper)[0]
+    if _negligible(point, step, theta, typ, tolerance):
+        return None
+    x_last, f_last = memory
+    W = point.curvature
+    df = step - f_last
+    norms = float(step @ W @ step) * float(f_last @ W @ f_last)
+    along = float(step @ W @ f_last)
+    dff = float(df @ W @ df)
+    if not (norms > 0 and dff > 0) or abs(along) < _PARALLEL * np.sqrt(norms):
+        return None
+    gamma = float(df @ W @ step) / dff
+    trial = theta + step - gamma * ((theta - x_last) + df)
+    return np.asarray(np.clip(trial, lower, upper), dtype=np.float64), step
 
 
 def _negligible(

@@ -509,9 +509,8 @@ for _stage in (
         # 9: coloured-residual degrees of freedom with the low band's exact covariance
         # 10: the filter error's Riccati inverses refined by Newton-Schulz steps and its
         #     information summed by matrix products (rounding)
-        # 11: the filter error starts an estimated process noise from the state equations'
-        #     residuals, and retries a rejected step that moves a noise by over a decade
-        #     with that move held to a decade (fewer, other steps)
+        # 11: the filter error's process noise started from the state equations'
+        #     residuals, its steps extrapolated or a noise's held to a decade (other steps)
         "11",
         IdentifyOptions,
         "IdentificationResult",
