@@ -134,31 +134,26 @@ def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
     return opts
 
 
-def _start_states(
+def _simulated(
     m: Model,
-    prob: _Problem,
     data: FlightData,
     x0: Any,
     start: Mapping[str, float],
-    Qc: FloatArray,
     opts: Mapping[str, Any],
-    steady: bool,
+    compiled: FloatArray | None,
 ) -> FloatArray:
-    """The model's states over the first record at the start, simulated."""
-    states = None
-    if steady:
-        # the compiled rollout, where the fit's passes compile its predictor
-        states = start_states(prob, start, Qc)
-    if states is None:
-        sim = m.simulate_data(
-            data,
-            x0=x0,
-            parameters=start,
-            method="auto",
-            control_interpolation=opts["control_interpolation"],
-        )
-        states = sim.states
-    return np.asarray(states, dtype=np.float64)
+    """The model's states over the first record at the start: the compiled rollout's
+    where it ran, else simulated in numpy."""
+    if compiled is not None:
+        return compiled
+    sim = m.simulate_data(
+        data,
+        x0=x0,
+        parameters=start,
+        method="auto",
+        control_interpolation=opts["control_interpolation"],
+    )
+    return np.asarray(sim.states, dtype=np.float64)
 
 
 def _noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
@@ -614,10 +609,14 @@ def identify_filter_error(
         noise = {o: float(R0[j, j]) for j, o in enumerate(out_names)}
         wanted = [i for i in q_states if not Qc[i, i] > 0]
         found = process_noise_start(m, datas, start, noise, wanted) if wanted else {}
+        compiled = None
+        if gain_choice(opts["gain"], opts["method"], filter_options) == "steady":
+            # the compiled rollout, where the fit's passes compile its predictor: the
+            # model's later simulations (its validation) take the same program
+            compiled = start_states(probs[0], start, Qc)
         svar = None
         if any(i not in found for i in wanted):
-            steady = gain_choice(opts["gain"], opts["method"], filter_options) == "steady"
-            sim = _start_states(m, probs[0], datas[0], x0_list[0], start, Qc, opts, steady)
+            sim = _simulated(m, datas[0], x0_list[0], start, opts, compiled)
             svar = np.var(sim, axis=0)
         dt = float(np.median(np.diff(probs[0].time)))
         for i in q_states:
