@@ -299,17 +299,17 @@ def process_noise_start(
     estimate has the smallest relative standard error (about ``sqrt(2 L / n) D(L)`` over
     the slope's rise, n samples) is taken, records pooled by inverse variance. A state
     whose noise no window detects starts at the smallest intensity the record could
-    show (one standard error). States not measured as channels are left out of the
-    result, as are those of a model whose equations fail on the measured states.
+    show (one standard error). A record that does not measure every state, and a model
+    whose equations fail on the measured states, give no start (the result leaves the
+    states out).
     """
     names = list(model.states)
     controls = list(model.controls)
     sums: dict[int, list[float]] = {i: [0.0, 0.0] for i in states}  # sum w q, sum w
     floor: dict[int, float] = {}
     for d in datas:
-        usable = [i for i in states if names[i] in d]
-        if not usable or d.n_samples < 16 or not all(s in d for s in names):
-            continue
+        if d.n_samples < 16 or not all(s in d for s in names):
+            continue  # the state equations need every state measured
         x = d.array(names)
         u = d.array(controls) if controls else np.zeros((d.n_samples, 0))
         n_t, n_x = x.shape
@@ -339,7 +339,7 @@ def process_noise_start(
         e = np.diff(x, axis=0) - 0.5 * np.diff(t)[:, None] * (F[:, 1:n_t] + F[:, : n_t - 1]).T
         windows = [2**k for k in range(1, 32) if 2**k <= n_t // 8]
         d1, dl = _window_variances(e, windows)
-        for i in usable:
+        for i in states:
             best, best_rel, lowest = math.nan, math.inf, math.inf
             for L, dL in zip(windows, dl, strict=True):
                 rise = (L - 1) * dt
