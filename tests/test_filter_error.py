@@ -221,8 +221,12 @@ def test_a_vanished_process_noise_costs_no_rejected_steps(sp_model, monkeypatch)
     zero, where the likelihood is flat in its logarithm. Held out of the steps once an
     e-fold moves the cost by less than the stopping rule's decrease, every evaluation
     is an accepted step (without the hold, seeds 2 and 3 spend 10 and 5 more on steps
-    dozens of e-folds long); the estimates are those of the fit that leaves alpha's
-    noise at zero, and q's intensity is recovered."""
+    dozens of e-folds long); the estimates and error bars are those of the fit that
+    leaves alpha's noise at zero, and q's intensity is recovered. Started from the
+    state equations' residuals, alpha's noise stops where the hold catches it (1e-9
+    to 5e-11) rather than at its bound 30 e-folds under the start, and its correlation
+    with the parameters does not fade with it (the information's cross terms fall with
+    the intensity, its own with the square): seed 4's error bars move by 1.2 %."""
     from aeroid.estimation import _filter_error
 
     calls = []
@@ -237,11 +241,11 @@ def test_a_vanished_process_noise_costs_no_rejected_steps(sp_model, monkeypatch)
         both = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=True)
         assert both.success
         assert len(calls) == both.n_iterations + 1  # the start, then one per step
-        assert both.process_noise["alpha"] < 1e-9 * s_q
+        assert both.process_noise["alpha"] < 1e-6 * s_q  # six decades under q's
         q_only = _fe(sp_model, [data], measurement_noise=NOISE, estimate_process_noise=["q"])
         for n in NAMES:
             assert abs(both.parameters[n] - q_only.parameters[n]) < 0.01 * q_only.stderr[n]
-            assert both.stderr[n] == pytest.approx(q_only.stderr[n], rel=0.01)
+            assert both.stderr[n] == pytest.approx(q_only.stderr[n], rel=0.02)
         q_hat, q_se = both.process_noise["q"], both.extra_stderr["process_noise.q"]
         assert abs(q_hat - s_q) < 3 * q_se
 
@@ -292,3 +296,48 @@ def test_information_summed_in_blocks_is_the_whole_record_sum(sp_model, monkeypa
     assert small.extra_stderr["process_noise.q"] == pytest.approx(
         whole.extra_stderr["process_noise.q"], rel=1e-7
     )
+
+
+@pytest.mark.parametrize("duration", [10.0, 60.0])
+def test_process_noise_start_recovers_a_known_intensity(sp_model, duration):
+    """The start of an estimated intensity (what the state equations leave unexplained
+    in the measured states, the measurement noise's share removed) lies within the
+    factor its record allows: q's white turbulence of known intensity, at the true
+    parameters, within three of the window slope's relative standard errors,
+    ``2 sqrt(2 L / n) L / (L - 1)`` at the best window ``L = 2 R / (Qc dt)``; alpha,
+    free of turbulence, starts far below q (at what the record could just detect)."""
+    from aeroid.estimation._identification_start import process_noise_start
+
+    s_q, r_q, dt = 3e-3, NOISE["q"], 0.02
+    n = round(duration / dt) + 1
+    window = 2 * r_q / (s_q * dt)
+    rel = 2 * math.sqrt(2 * window / n) * window / (window - 1)
+    for seed in range(1, 6):
+        data = _turbulent_flight(seed, s_q, duration)
+        start = process_noise_start(sp_model, [data], dict(TRUTH), NOISE, [0, 1])
+        assert abs(math.log(start[1] / s_q)) < 3 * rel
+        assert start[0] < 0.05 * s_q
+    # records pooled: the intensity they share, at least as close as the worse alone
+    pair = [_turbulent_flight(seed, s_q, duration) for seed in (7, 8)]
+    alone = [process_noise_start(sp_model, [d], dict(TRUTH), NOISE, [1])[1] for d in pair]
+    both = process_noise_start(sp_model, pair, dict(TRUTH), NOISE, [1])[1]
+    assert min(alone) <= both <= max(alone)
+
+
+def test_process_noise_start_leaves_out_unmeasured_states(sp_model):
+    """A state with no channel of its own gets no start from the residuals (the fit then
+    starts it from the simulated states), and the fit still recovers q's intensity."""
+    from aeroid.estimation._identification_start import process_noise_start
+
+    data = _turbulent_flight(3, 3e-3)
+    only_q = FlightData(data.time, {k: data[k] for k in ("elevator", "q")})
+    assert process_noise_start(sp_model, [only_q], dict(TRUTH), NOISE, [0, 1]) == {}
+    res = _fe(
+        sp_model,
+        [only_q],
+        outputs=["q"],
+        measurement_noise={"q": NOISE["q"]},
+        estimate_process_noise=True,
+    )
+    assert res.success
+    assert abs(res.process_noise["q"] - 3e-3) < 3 * res.extra_stderr["process_noise.q"]

@@ -224,3 +224,80 @@ def test_no_decrease_short_of_the_minimum_is_flagged() -> None:
     )
     assert not fit.success and "no step decreases" in fit.message
     assert fit.theta[0] == 1.0
+
+
+def test_a_step_held_to_its_limit_solves_the_rest_given_it() -> None:
+    # least squares on x: the Gauss-Newton step moves theta_1 by 2, limited to 0.5; the
+    # others are then the least squares with theta_1 fixed at 0.5 (closed form)
+    x, z = _linear(3)
+    point = linearised(-z, x)
+    free = np.full(3, np.inf)
+    whole, _ = damped_step(point, 0.0, np.zeros(3), -free, free)
+    assert abs(whole[1]) > 1.0
+    limit = np.array([np.inf, 0.5, np.inf])
+    delta, trial = damped_step(point, 0.0, np.zeros(3), -free, free, limit)
+    assert delta[1] == np.sign(whole[1]) * 0.5
+    rest = np.linalg.lstsq(x[:, [0, 2]], z - delta[1] * x[:, 1], rcond=None)[0]
+    np.testing.assert_allclose(delta[[0, 2]], rest, rtol=1e-10)
+    np.testing.assert_array_equal(trial, delta)
+
+
+def test_a_rejected_long_step_is_tried_again_at_its_limit_before_damping() -> None:
+    # cost exp(t) - 2 t + t^2/2 (minimum near 0.44) with a curvature model a quarter of
+    # the truth: the Gauss-Newton step from 0 (to 2) overshoots to a higher cost; held
+    # to 0.5 it decreases the cost at the same damping, so no damping is added; without
+    # the limit the iteration damps the step instead
+    def evaluate(th: np.ndarray, _base: Linearisation | None) -> Linearisation:
+        t = float(th[0])
+        cost = np.exp(t) - 2.0 * t + 0.5 * t * t
+        grad = np.array([np.exp(t) - 2.0 + t])
+        return Linearisation(float(cost), grad, np.array([[0.25 * (np.exp(t) + 1.0)]]))
+
+    calls: list[float] = []
+
+    def counted(th: np.ndarray, base: Linearisation | None) -> Linearisation:
+        calls.append(float(th[0]))
+        return evaluate(th, base)
+
+    start = evaluate(np.zeros(1), None)
+    limit = np.full(1, 0.5)
+    fit = minimise(counted, np.zeros(1), start, tolerance=1e-3, max_iterations=1, max_step=limit)
+    assert calls == [pytest.approx(2.0), 0.5]  # the whole step, then held at 0.5
+    assert fit.iterations == 1 and fit.theta[0] == 0.5 and fit.damping == 0.0
+    calls.clear()
+    plain = minimise(counted, np.zeros(1), start, tolerance=1e-3, max_iterations=1)
+    assert plain.damping > 0.0 and len(calls) > 2
+
+
+@pytest.mark.parametrize("factor", [0.55, 3.0])
+def test_extrapolation_ends_a_creep_or_a_zig_zag(factor: float) -> None:
+    # a quadratic cost whose curvature model is off by `factor` along one direction: the
+    # plain iteration's steps there shrink by 1 - 1/factor each (0.55: zig-zags, ratio
+    # -0.82; 3: creeps, ratio 0.67), linearly; Anderson's extrapolation of two steps
+    # lands on the minimum (closed form) and the fit stops after a few evaluations
+    rng = np.random.default_rng(4)
+    q, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    H = q @ np.diag([1.0, 2.0, 5.0, 10.0]) @ q.T
+    b = rng.standard_normal(4)
+    v = q[:, 0]
+    model = H + (factor - 1.0) * np.outer(v, v)  # v'Hv = 1, so v'(model)v = factor
+
+    def evaluate(th: np.ndarray, _base: Linearisation | None) -> Linearisation:
+        return Linearisation(float(0.5 * th @ H @ th - b @ th), H @ th - b, model)
+
+    th0 = np.zeros(4)
+    truth = np.linalg.solve(H, b)
+    runs = {}
+    for accelerate in (False, True):
+        runs[accelerate] = minimise(
+            evaluate,
+            th0,
+            evaluate(th0, None),
+            tolerance=1e-10,
+            max_iterations=200,
+            accelerate=accelerate,
+        )
+    plain, fast = runs[False], runs[True]
+    assert plain.success and fast.success
+    np.testing.assert_allclose(fast.theta, truth, rtol=1e-8, atol=1e-10)
+    assert fast.evaluations <= 4 < plain.evaluations

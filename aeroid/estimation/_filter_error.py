@@ -24,7 +24,14 @@ innovations are white by construction, so no colour correction applies).
 
 On request the process-noise intensities (and, when no measurement noise is
 given, the measurement-noise variances) are estimated together with the
-parameters, log-parameterised so they stay positive.
+parameters, log-parameterised so they stay positive. An intensity starts at what the state equations
+at the starting parameters leave unexplained in the measured states, less the
+measurement noise's share: at the start the filter explains the record, and
+the intensities fall as the parameters take up the model's error. A rejected
+step that moves a log-intensity by more than a decade is tried again with that
+move held to a decade before the damping grows; where a weakly determined noise
+level makes the iteration creep or zig-zag, two successive steps are
+extrapolated (`aeroid.estimation.least_squares.minimise`, ``accelerate``).
 
 Pure time delays of controls (``time_delays=``) are unknowns of the same
 iteration, as in output error (Jategaonkar ch. 4, Klein & Morelli ch. 6): the
@@ -51,6 +58,7 @@ from ..io.data import FlightData
 from ..models.model import Model, resolve_parameters
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
+from ._identification_start import process_noise_start
 from ._output_error import delay_parameter, shifted_controls
 from .filtering import (
     _default_P0,
@@ -124,6 +132,28 @@ def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
         )
     opts.update(filter_options)
     return opts
+
+
+def _simulated(
+    m: Model,
+    data: FlightData,
+    x0: Any,
+    start: Mapping[str, float],
+    opts: Mapping[str, Any],
+    compiled: FloatArray | None,
+) -> FloatArray:
+    """The model's states over the first record at the start: the compiled rollout's
+    where it ran, else simulated in numpy."""
+    if compiled is not None:
+        return compiled
+    sim = m.simulate_data(
+        data,
+        x0=x0,
+        parameters=start,
+        method="auto",
+        control_interpolation=opts["control_interpolation"],
+    )
+    return np.asarray(sim.states, dtype=np.float64)
 
 
 def _noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
@@ -423,7 +453,12 @@ def identify_filter_error(
     process_noise : mapping or array_like, optional
         Continuous power spectral density per state (state² per second);
         zero where not given. With `estimate_process_noise` it is the
-        starting value.
+        starting value; an estimated state's intensity not given starts at
+        what the state equations at the starting values leave unexplained in
+        its measured channel, the measurement noise's share removed
+        (`aeroid.estimation._identification_start.process_noise_start`), or,
+        for a state not measured, at a hundredth of its simulated variance
+        per sample interval.
     measurement_noise : mapping or array_like, optional
         Measurement-noise variances per output. When omitted they are
         estimated from the innovations (maximum likelihood).
@@ -570,32 +605,34 @@ def identify_filter_error(
     R0 = np.diag(r_start) if estimate_R else R
     z0 = [start[n] for n in names] + [float(v) for v in delay_starts.values()]
     if q_states:
-        dt = float(np.median(np.diff(probs[0].time)))
-        states = None
+        # what the state equations at the start leave unexplained in the measured states
+        noise = {o: float(R0[j, j]) for j, o in enumerate(out_names)}
+        wanted = [i for i in q_states if not Qc[i, i] > 0]
+        found = process_noise_start(m, datas, start, noise, wanted) if wanted else {}
+        compiled = None
         if gain_choice(opts["gain"], opts["method"], filter_options) == "steady":
-            # the compiled rollout, where the fit's passes compile its predictor
-            states = start_states(probs[0], start, Qc)
-        if states is None:
-            sim = m.simulate_data(
-                datas[0],
-                x0=x0_list[0],
-                parameters=start,
-                method="auto",
-                control_interpolation=opts["control_interpolation"],
-            )
-            states = sim.states
-        svar = np.var(states, axis=0)
+            # the compiled rollout, where the fit's passes compile its predictor: the
+            # model's later simulations (its validation) take the same program
+            compiled = start_states(probs[0], start, Qc)
+        svar = None
+        if any(i not in found for i in wanted):
+            sim = _simulated(m, datas[0], x0_list[0], start, opts, compiled)
+            svar = np.var(sim, axis=0)
+        dt = float(np.median(np.diff(probs[0].time)))
         for i in q_states:
             if Qc[i, i] > 0:
                 z0.append(math.log(Qc[i, i]))
-                continue
-            s = m.states[i]
-            var = (
-                R0[out_names.index(s), out_names.index(s)]
-                if m._measurement_batch is None and s in out_names
-                else max(float(svar[i]), 1e-12)
-            )
-            z0.append(math.log(1e-2 * var / dt))
+            elif i in found:
+                z0.append(math.log(found[i]))
+            else:
+                assert svar is not None
+                s = m.states[i]
+                var = (
+                    R0[out_names.index(s), out_names.index(s)]
+                    if m._measurement_batch is None and s in out_names
+                    else max(float(svar[i]), 1e-12)
+                )
+                z0.append(math.log(1e-2 * var / dt))
     z0.extend(math.log(r_start[j]) for j in r_outputs)
     z = np.array(z0, dtype=np.float64)
     n_p = len(names)
@@ -639,6 +676,15 @@ def identify_filter_error(
     typical = np.ones_like(z)
     typical[:n_p] = 1e-8
     typical[n_p:n_e] = layout.dt
+    # A log-intensity's information goes with the square of its share of the innovations'
+    # variance, which a decade can move a hundredfold: a rejected step that moves one
+    # by more (a vanishing noise's Gauss-Newton step asks for several) is tried again
+    # with it held to a decade before the damping, which shortens every step, grows
+    cap = np.full(z.size, np.inf)
+    cap[n_e:] = math.log(10.0)
+    # a weakly determined noise level's Fisher information can be off by a factor from
+    # the likelihood's curvature: the iteration creeps or zig-zags along it and a
+    # parameter it correlates with (extrapolated: `minimise`'s ``accelerate``)
     fit = minimise(
         evaluate,
         z,
@@ -649,6 +695,8 @@ def identify_filter_error(
         lower=lo,
         upper=hi,
         damping=1e-3,
+        max_step=cap,
+        accelerate=True,
     )
     z, f = fit.theta, fit.point.cost
     quad, per, fisher = fit.point.payload

@@ -4,6 +4,7 @@ guesses, the initial states of each manoeuvre, and the equation-error start.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -268,3 +269,96 @@ def _x0_per_manoeuvre(x0: Any, n_man: int, states: list[str]) -> list[Any]:
         f"x0: got {len(entries)} numbers; expected {len(states)} values for states {states} "
         f"(read as one initial state for every manoeuvre){per}"
     )
+
+
+def _window_variances(
+    e: FloatArray, n_windows: Sequence[int]
+) -> tuple[FloatArray, list[FloatArray]]:
+    """Mean square of the one-sample residuals `e` (n, n_x) and of their sums over
+    every run of L consecutive samples, for each L of `n_windows`."""
+    c = np.vstack([np.zeros((1, e.shape[1])), np.cumsum(e, axis=0)])
+    return np.mean(e * e, axis=0), [np.mean((c[L:] - c[:-L]) ** 2, axis=0) for L in n_windows]
+
+
+def process_noise_start(
+    model: Any,
+    datas: Sequence[FlightData],
+    parameters: Mapping[str, float],
+    measurement_noise: Mapping[str, float],
+    states: Sequence[int],
+) -> dict[int, float]:
+    """Process-noise intensities (state² per second) to start a filter-error fit from:
+    what the state equations at `parameters` leave unexplained in the measured states,
+    less the measurement noise's share (see `aeroid.estimation._filter_error`).
+
+    Over a window of L samples the trapezoidal residual of the state equations on the
+    measured states sums to ``integral(w) + v(t + L dt) - v(t)`` plus the measurement
+    noise that the state equations pass on: its mean square ``D(L)`` grows as
+    ``2 R + L dt (Qc + dt J² R)``, with J the state equations' Jacobian. The slope between
+    one sample and L samples gives Qc, free of the measurement noise R; the window whose
+    estimate has the smallest relative standard error (about ``sqrt(2 L / n) D(L)`` over
+    the slope's rise, n samples) is taken, records pooled by inverse variance. A state
+    whose noise no window detects starts at the smallest intensity the record could
+    show (one standard error). A record that does not measure every state, and a model
+    whose equations fail on the measured states, give no start (the result leaves the
+    states out).
+    """
+    names = list(model.states)
+    controls = list(model.controls)
+    sums: dict[int, list[float]] = {i: [0.0, 0.0] for i in states}  # sum w q, sum w
+    floor: dict[int, float] = {}
+    for d in datas:
+        if d.n_samples < 16 or not all(s in d for s in names):
+            continue  # the state equations need every state measured
+        x = d.array(names)
+        u = d.array(controls) if controls else np.zeros((d.n_samples, 0))
+        n_t, n_x = x.shape
+        t = np.asarray(d.time, dtype=np.float64)
+        dt = float(np.median(np.diff(t)))
+        # the measured record and, after it, one step in each state at the mean
+        mean_x, mean_u = np.mean(x, axis=0), np.mean(u, axis=0)
+        h = 1e-6 * np.maximum(np.abs(mean_x), 1e-3)
+        X = np.hstack([x.T, np.repeat(mean_x[:, None], n_x + 1, axis=1)])
+        X[np.arange(n_x), n_t + 1 + np.arange(n_x)] += h
+        U = np.hstack([u.T, np.repeat(mean_u[:, None], n_x + 1, axis=1)])
+        T = np.concatenate([t, np.full(n_x + 1, t[0])])
+        P = {k: np.full(T.size, float(v)) for k, v in parameters.items()}
+        try:
+            with np.errstate(all="ignore"):
+                F = np.asarray(model._dynamics_batch.at_times(T, X, U, P), dtype=np.float64)
+        except Exception:
+            return {}  # the fit's own checks name the failure
+        F = F.reshape(n_x, T.size)
+        if not np.all(np.isfinite(F)):
+            continue
+        J = (F[:, n_t + 1 :] - F[:, n_t : n_t + 1]) / h[None, :]
+        # a state measured outside the outputs: white noise dominates its first differences
+        half = 0.5 * np.var(np.diff(x, axis=0), axis=0)
+        var = np.array([measurement_noise.get(s, half[j]) for j, s in enumerate(names)])
+        share = dt * (J * J) @ var
+        e = np.diff(x, axis=0) - 0.5 * np.diff(t)[:, None] * (F[:, 1:n_t] + F[:, : n_t - 1]).T
+        windows = [2**k for k in range(1, 32) if 2**k <= n_t // 8]
+        d1, dl = _window_variances(e, windows)
+        for i in states:
+            best, best_rel, lowest = math.nan, math.inf, math.inf
+            for L, dL in zip(windows, dl, strict=True):
+                rise = (L - 1) * dt
+                spread = math.sqrt(2.0 * L / n_t) * float(dL[i]) / rise  # the slope's se
+                q = (float(dL[i]) - float(d1[i])) / rise - float(share[i])
+                lowest = min(lowest, spread)
+                if q > 0 and spread / q < best_rel:
+                    best, best_rel = q, spread / q
+            if math.isfinite(best):
+                w = 1.0 / (best * best_rel) ** 2
+                sums[i][0] += w * best
+                sums[i][1] += w
+            elif math.isfinite(lowest) and lowest > 0:
+                floor[i] = min(floor.get(i, math.inf), lowest)
+    out: dict[int, float] = {}
+    for i in states:
+        total, weight = sums[i]
+        if weight > 0:
+            out[i] = total / weight
+        elif i in floor:
+            out[i] = floor[i]
+    return out

@@ -196,7 +196,9 @@ def identify(
         Filter-error settings: continuous process-noise PSD per state,
         measurement-noise variances per output, filter options (among them
         ``control_interpolation``, as in `filter_states`), and whether to
-        estimate the process-noise intensities.
+        estimate the process-noise intensities (each started, where
+        `process_noise` gives none, from what the state equations at the
+        starting values leave unexplained in the state's measured channel).
     bounds : mapping of str to (float or None, float or None), optional
         Lower and upper bounds on estimated parameters, ``None`` (or
         ``-inf``/``inf``) for an open side, e.g. ``{"M_q": (None, 0.0)}``.

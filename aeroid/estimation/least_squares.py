@@ -125,6 +125,9 @@ _MAX_DAMPING = 1e8
 # accepted step's damping is dropped (Gauss-Newton again).
 _MIN_DAMPING = 1e-4
 _UNDAMPED = 1e-6
+# Two successive Gauss-Newton steps whose cosine (in the curvature's metric) exceeds
+# this in magnitude run along one direction: the iteration creeps or zig-zags there.
+_PARALLEL = 0.9
 # The stopping rule's cost test is this fraction of the step test's tolerance.
 _COST_SHARE = 1e-3
 # Rounding of a cost: a trial within this fraction of the current cost is no worse.
@@ -212,6 +215,7 @@ def damped_step(
     theta: FloatArray,
     lower: FloatArray,
     upper: FloatArray,
+    max_step: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The Levenberg-Marquardt step from `theta`, inside the box: (the change, the
     trial point), the trial exactly on a bound it reaches.
@@ -220,19 +224,37 @@ def damped_step(
     the damping is relative to each unknown's own curvature) and solved by least
     squares, which gives a rank-deficient matrix its minimum-norm step. Unknowns
     at a bound whose step points out are held (`held_at_bounds`) and the rest of
-    the step is clipped into the box.
+    the step is clipped into the box. With `max_step`, an unknown whose change
+    would exceed it takes that much, and the others' step is solved again given it.
     """
     dn = np.sqrt(np.clip(np.diag(point.curvature), 1e-300, None))
     a = point.curvature / np.outer(dn, dn)
     b = point.gradient / dn
 
+    def plain(sub: FloatArray, rhs: FloatArray) -> FloatArray:
+        try:
+            sol = np.linalg.lstsq(sub + damping * np.eye(rhs.size), rhs, rcond=1e-12)[0]
+        except np.linalg.LinAlgError:
+            return np.zeros(rhs.size)
+        return np.asarray(sol, dtype=np.float64)
+
     def solve(idx: NDArray[np.intp]) -> FloatArray:
         sub = a if idx.size == theta.size else a[np.ix_(idx, idx)]
-        try:
-            sol = np.linalg.lstsq(sub + damping * np.eye(idx.size), -b[idx], rcond=1e-12)[0]
-        except np.linalg.LinAlgError:
-            return np.zeros(idx.size)
-        return np.asarray(sol / dn[idx], dtype=np.float64)
+        scaled = plain(sub, -b[idx])
+        if max_step is not None:
+            cap = max_step[idx] * dn[idx]  # in the scaled unknowns
+            fixed = np.zeros(idx.size, dtype=bool)
+            for _ in range(idx.size):
+                over = ~fixed & (np.abs(scaled) > cap)
+                if not np.any(over):
+                    break
+                fixed |= over
+                scaled[over] = np.sign(scaled[over]) * cap[over]
+                free = np.flatnonzero(~fixed)
+                if free.size:
+                    rhs = -b[idx][free] - sub[np.ix_(free, np.flatnonzero(fixed))] @ scaled[fixed]
+                    scaled[free] = plain(sub[np.ix_(free, free)], rhs)
+        return np.asarray(scaled / dn[idx], dtype=np.float64)
 
     if np.any(np.isfinite(lower)) or np.any(np.isfinite(upper)):
         delta = held_at_bounds(solve, theta <= lower, theta >= upper)
@@ -266,6 +288,8 @@ def minimise(
     lower: FloatArray | None = None,
     upper: FloatArray | None = None,
     damping: float = 0.0,
+    max_step: FloatArray | None = None,
+    accelerate: bool = False,
 ) -> LeastSquaresFit:
     """Bounded Levenberg-Marquardt on an estimator's linearisation: the one
     nonlinear least-squares iteration of aeroid.
@@ -300,6 +324,17 @@ def minimise(
         makes decrease the cost ends the iteration: converged when the
         Gauss-Newton step from there passes the stopping rule, else flagged
         ``success=False``.
+    max_step : (n,) array, optional
+        For unknowns on which the quadratic model is trusted only so far (inf:
+        no limit): a rejected step that changes one by more is tried again at
+        the same damping with that change held to its limit and the others
+        solved given it (`damped_step`), before the damping grows.
+    accelerate : bool
+        Where the undamped Gauss-Newton step runs along the last one (or against
+        it), try first the point the two steps extrapolate to (`_anderson`): a
+        curvature model off by a factor along one direction (the Fisher
+        information of a weakly determined noise level) makes the plain
+        iteration creep or zig-zag there, one step at a time.
 
     Returns
     -------
@@ -315,6 +350,7 @@ def minimise(
     evaluations = 0
     iteration = 0
     back: FloatArray | None = None  # the iterate before this one
+    memory: tuple[FloatArray, FloatArray] | None = None
 
     def end(success: bool, message: str) -> LeastSquaresFit:
         return LeastSquaresFit(theta, point, iteration, evaluations, success, message, lam)
@@ -322,8 +358,26 @@ def minimise(
     while iteration < max_iterations:
         trial: Linearisation | None = None
         delta = trial_theta = theta
+        limit = None  # the first try at each damping takes the whole step
+        if accelerate and lam == 0.0 and memory is not None:
+            extrapolated = _anderson(point, theta, memory, lo, hi, typ, tolerance)
+            if extrapolated is not None:
+                memory = (theta, extrapolated[1])
+                evaluations += 1
+                found = evaluate(extrapolated[0], point)
+                if found is not None and np.isfinite(found.cost):
+                    judged = found.cost if found.judged is None else found.judged
+                    if judged < point.cost:
+                        iteration += 1
+                        decrease = point.cost - judged
+                        rel = relative_step(extrapolated[0] - theta, theta, typ)
+                        back = theta
+                        theta, point = extrapolated[0], found
+                        if converged(rel, decrease, point.cost, tolerance):
+                            return end(True, f"converged after {iteration} iterations")
+                        continue
         while lam <= _MAX_DAMPING:
-            delta, trial_theta = damped_step(point, lam, theta, lo, hi)
+            delta, trial_theta = damped_step(point, lam, theta, lo, hi, limit)
             if lam == 0.0 and _negligible(point, delta, theta, typ, tolerance):
                 # the step would already pass the test: stop rather than evaluate it
                 return end(True, f"converged after {iteration} iterations")
@@ -334,6 +388,9 @@ def minimise(
                 if judged <= point.cost + _COST_ROUNDING * abs(point.cost):
                     trial = found
                     break
+            if limit is None and max_step is not None and np.any(np.abs(delta) > max_step):
+                limit = max_step
+                continue
             lam = max(lam * 10.0, _MIN_DAMPING)
         if trial is None:
             # at the minimum to rounding when the Gauss-Newton step from here would
@@ -353,12 +410,49 @@ def minimise(
             # a weighting that moves with the iterate can settle into a two-step
             # cycle about its fixed point: the step over two iterations counts too
             rel = min(rel, relative_step(trial_theta - back, theta, typ))
+        # the last undamped, whole Gauss-Newton step and where it was taken from
+        memory = (theta, delta) if lam == 0.0 and limit is None else None
         back = theta
         theta, point = trial_theta, trial
         lam = lam / 10.0 if lam > _UNDAMPED else 0.0
         if converged(rel, decrease, point.cost, tolerance):
             return end(True, f"converged after {iteration} iterations")
     return end(False, f"iteration limit ({max_iterations}) reached before convergence")
+
+
+def _anderson(
+    point: Linearisation,
+    theta: FloatArray,
+    memory: tuple[FloatArray, FloatArray],
+    lower: FloatArray,
+    upper: FloatArray,
+    typ: FloatArray,
+    tolerance: float,
+) -> tuple[FloatArray, FloatArray] | None:
+    """Anderson's extrapolation of depth one (Walker & Ni 2011) of the Gauss-Newton
+    iteration: (the trial point, the Gauss-Newton step here), or None where the step
+    here is negligible or does not run along the last one.
+
+    Where the iteration converges linearly along one direction, each step the last
+    times a ratio r (0 < r < 1 creeping, -1 < r < 0 zig-zagging), the steps f and the
+    iterates x of the last two points give the limit exactly:
+    ``x + f - gamma (dx + df)`` with ``gamma = <df, f> / <df, df>``, in the metric of
+    the curvature (each unknown in its own standard errors).
+    """
+    step = damped_step(point, 0.0, theta, lower, upper)[0]
+    if _negligible(point, step, theta, typ, tolerance):
+        return None
+    x_last, f_last = memory
+    W = point.curvature
+    df = step - f_last
+    norms = float(step @ W @ step) * float(f_last @ W @ f_last)
+    along = float(step @ W @ f_last)
+    dff = float(df @ W @ df)
+    if not (norms > 0 and dff > 0) or abs(along) < _PARALLEL * np.sqrt(norms):
+        return None
+    gamma = float(df @ W @ step) / dff
+    trial = theta + step - gamma * ((theta - x_last) + df)
+    return np.asarray(np.clip(trial, lower, upper), dtype=np.float64), step
 
 
 def _negligible(

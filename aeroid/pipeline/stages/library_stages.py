@@ -509,7 +509,9 @@ for _stage in (
         # 9: coloured-residual degrees of freedom with the low band's exact covariance
         # 10: the filter error's Riccati inverses refined by Newton-Schulz steps and its
         #     information summed by matrix products (rounding)
-        "10",
+        # 11: the filter error's process noise started from the state equations'
+        #     residuals, its steps extrapolated or a noise's held to a decade (other steps)
+        "11",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
