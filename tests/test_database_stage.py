@@ -166,3 +166,31 @@ def test_an_unchanged_rerun_writes_no_database_file_and_a_missing_one_again(
     named = _config(tmp_path, 4, "keys: [airspeed], replay: c172x")
     run(named, workers=0)
     assert "names no simulator" not in (folder / "database.md").read_text()
+
+
+def test_the_worker_that_fits_the_database_draws_its_plots(tmp_path: Path, monkeypatch) -> None:
+    # the plots come back with the database task's status: the run's own process, which
+    # writes them after the last task, draws none of them (on the run's critical path)
+    from aeroid.pipeline.stages import database_stage
+
+    def drawn_here(*args: object, **kwargs: object) -> list[bytes]:
+        raise AssertionError("the run's own process drew the database's plots")
+
+    monkeypatch.setattr(database_stage, "forked_map", drawn_here)
+    cfg = _config(tmp_path, 4)
+    s = run(cfg, workers=0)
+    task = next(t for t in s.plan.tasks if t.stage == "database")
+    status = s.statuses[task.key]
+    assert status.files is not None and set(status.files) == {"M_alpha.png", "M_q.png"}
+    folder = s.database_dir
+    assert folder is not None
+    for name, png in status.files.items():
+        assert (folder / name).read_bytes() == png
+    # a stored database (files gone): this process draws them, the same bytes
+    monkeypatch.undo()
+    for name in status.files:
+        (folder / name).unlink()
+    again = run(cfg, workers=0)
+    assert again.statuses[task.key].files is None
+    for name, png in status.files.items():
+        assert (folder / name).read_bytes() == png

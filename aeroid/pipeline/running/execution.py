@@ -50,7 +50,8 @@ class TaskStatus:
     committed to the store (a report over failed flights is not; `failures`
     names them). The campaign report's task also carries its text and table
     (`markdown`, `columns`, `rows`) and figures, so the run writes the report
-    files without reading the entry back. `briefs` are what campaign tasks
+    files without reading the entry back; a task whose stage makes files beside
+    the report (`Stage.files`) carries them in `files`. `briefs` are what campaign tasks
     take of this task's result (`Stage.brief`).
 
     Read as a mapping too (``status["error"]``, ``status.get("error")``), as
@@ -73,6 +74,7 @@ class TaskStatus:
     columns: tuple[str, ...] = ()
     rows: tuple[tuple[str, ...], ...] = ()
     figures: Mapping[str, bytes] | None = None
+    files: Mapping[str, bytes] | None = None
 
     def replace(self, **changes: Any) -> TaskStatus:
         return dataclasses.replace(self, **changes)
@@ -356,6 +358,25 @@ def _compute(
         out["columns"] = tuple(getattr(record, "columns", ()))
         if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
             out["figures"] = record.figure_bytes()
+    if record is not None and task.flight is None:
+        files = _files(task, record)
+        if files is not None:
+            out["files"] = files
+
+
+def _files(task: Task, record: Any) -> dict[str, bytes] | None:
+    """The files `task`'s stage makes beside the report from its `record` (`Stage.files`),
+    or None: none declared, or they failed (the run's process makes them again and
+    reports the problem)."""
+    make = getattr(stage_of(task), "files", None)
+    if make is None:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # shown, if at all, when the run makes them
+            return dict(make(record))
+    except Exception:
+        return None
 
 
 def execute_chain(

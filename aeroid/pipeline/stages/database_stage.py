@@ -170,8 +170,9 @@ register_stage(
         uses_model=False,
         per_flight=False,
         brief=_brief,
-        # its plots are drawn by the run's own process, in forked children
+        # its plots are drawn by the worker that fits it (`_band_plots`)
         imports=FIGURE_IMPORTS,
+        files=lambda db: _band_plots(db),
     )
 )
 
@@ -220,6 +221,17 @@ def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -
     if listed:
         parts += ["### Files", "", *listed, ""]
     return "\n".join(parts)
+
+
+def _plot_name(term: str) -> str:
+    return f"{term}.png"
+
+
+def _band_plots(db: AeroDatabase) -> dict[str, bytes]:
+    """Every coefficient's band plot (`_band_plot`) by file name: drawn by the worker that
+    fitted the database, beside the report's last figures, instead of by the run's
+    own process once every task is done (`Stage.files`)."""
+    return {_plot_name(term): _band_plot(db, term) for term in db.terms}
 
 
 def _band_plot(db: AeroDatabase, term: str) -> bytes:
@@ -348,10 +360,14 @@ def write_database_files(
             files["tidy table (Parquet)"] = "database.parquet"
         except ImportError:
             pass  # pyarrow is optional
-        # drawn in parallel: the run's worker processes are gone and the cores idle
-        drawn = forked_map(functools.partial(_band_plot, db), db.terms)
-        for term, png_bytes in zip(db.terms, drawn, strict=True):
-            png = folder / f"{term}.png"
+        given: dict[str, bytes] = dict(getattr(status, "files", None) or {})
+        plots = [given.get(_plot_name(term), b"") for term in db.terms]
+        if not all(plots):
+            # a stored database (or plots that failed on the worker): drawn here, in
+            # parallel, the run's worker processes being gone and the cores idle
+            plots = forked_map(functools.partial(_band_plot, db), db.terms)
+        for term, png_bytes in zip(db.terms, plots, strict=True):
+            png = folder / _plot_name(term)
             png.write_bytes(png_bytes)
             files[term] = png.name
         held = list(task.options.get("held_out") or [])
