@@ -170,9 +170,9 @@ register_stage(
         uses_model=False,
         per_flight=False,
         brief=_brief,
-        # its plots are drawn by the worker that fits it (`_band_plots`)
+        # its plots are drawn by the worker that fits it (`_made_files`)
         imports=FIGURE_IMPORTS,
-        files=lambda db: _band_plots(db),
+        files=lambda db: _made_files(db),
     )
 )
 
@@ -227,11 +227,20 @@ def _plot_name(term: str) -> str:
     return f"{term}.png"
 
 
-def _band_plots(db: AeroDatabase) -> dict[str, bytes]:
-    """Every coefficient's band plot (`_band_plot`) by file name: drawn by the worker that
-    fitted the database, beside the report's last figures, instead of by the run's
-    own process once every task is done (`Stage.files`)."""
-    return {_plot_name(term): _band_plot(db, term) for term in db.terms}
+_TABLE = "database.parquet"
+
+
+def _made_files(db: AeroDatabase) -> dict[str, bytes]:
+    """Every coefficient's band plot (`_band_plot`) and the Parquet table (where pyarrow
+    is installed) by file name: made by the worker that fitted the database, beside the
+    report's last figures, instead of by the run's own process once every task is
+    done (`Stage.files`)."""
+    import tempfile
+
+    out = {_plot_name(term): _band_plot(db, term) for term in db.terms}
+    with contextlib.suppress(ImportError), tempfile.TemporaryDirectory() as tmp:
+        out[_TABLE] = db.to_parquet(Path(tmp) / _TABLE).read_bytes()
+    return out
 
 
 def _band_plot(db: AeroDatabase, term: str) -> bytes:
@@ -355,12 +364,15 @@ def write_database_files(
         except DataFormatError as exc:
             # dimensional derivatives (M_q) or a table of three keys: no JSBSim section
             notes.append(f"No JSBSim section: {exc}")
+        given: dict[str, bytes] = dict(getattr(status, "files", None) or {})
         try:
-            db.to_parquet(folder / "database.parquet")
-            files["tidy table (Parquet)"] = "database.parquet"
+            if _TABLE in given:
+                (folder / _TABLE).write_bytes(given[_TABLE])
+            else:
+                db.to_parquet(folder / _TABLE)
+            files["tidy table (Parquet)"] = _TABLE
         except ImportError:
             pass  # pyarrow is optional
-        given: dict[str, bytes] = dict(getattr(status, "files", None) or {})
         plots = [given.get(_plot_name(term), b"") for term in db.terms]
         if not all(plots):
             # a stored database (or plots that failed on the worker): drawn here, in
