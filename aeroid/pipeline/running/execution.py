@@ -311,6 +311,7 @@ def _compute(
     the result's briefs) while the claim holds, then writes the entry and releases."""
     failures: dict[str, str] = {}
     work: list[Work] = []
+    made: dict[str, bytes] = {}  # `Stage.files`
 
     def make(store: ResultStore) -> Made:
         gathered = _gather(task, store_root, upstream, read_root, store)
@@ -324,6 +325,8 @@ def _compute(
             # task: kept with its status and provenance instead of on a worker's stderr
             warnings.simplefilter("always")
             work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
+        if task.flight is None:  # its files beside the report, counted with its time
+            made.update(_files(task, work[0].record) or {})
         t2, c2 = time.perf_counter(), time.process_time()
         part_seconds = sum(p.compute_seconds for p in parts)
         part_cpu = sum(p.compute_cpu_seconds for p in parts)
@@ -358,10 +361,8 @@ def _compute(
         out["columns"] = tuple(getattr(record, "columns", ()))
         if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
             out["figures"] = record.figure_bytes()
-    if record is not None and task.flight is None:
-        files = _files(task, record)
-        if files is not None:
-            out["files"] = files
+    if made:
+        out["files"] = made
 
 
 def _files(task: Task, record: Any) -> dict[str, bytes] | None:
