@@ -311,7 +311,6 @@ def _compute(
     the result's briefs) while the claim holds, then writes the entry and releases."""
     failures: dict[str, str] = {}
     work: list[Work] = []
-    made: dict[str, bytes] = {}  # `Stage.files`
 
     def make(store: ResultStore) -> Made:
         gathered = _gather(task, store_root, upstream, read_root, store)
@@ -325,8 +324,6 @@ def _compute(
             # task: kept with its status and provenance instead of on a worker's stderr
             warnings.simplefilter("always")
             work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
-        if task.flight is None:  # its files beside the report, counted with its time
-            made.update(_files(task, work[0].record) or {})
         t2, c2 = time.perf_counter(), time.process_time()
         part_seconds = sum(p.compute_seconds for p in parts)
         part_cpu = sum(p.compute_cpu_seconds for p in parts)
@@ -361,23 +358,8 @@ def _compute(
         out["columns"] = tuple(getattr(record, "columns", ()))
         if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
             out["figures"] = record.figure_bytes()
-    if made:
-        out["files"] = made
-
-
-def _files(task: Task, record: Any) -> dict[str, bytes] | None:
-    """The files `task`'s stage makes beside the report from its `record` (`Stage.files`),
-    or None: none declared, or they failed (the run's process makes them again and
-    reports the problem)."""
-    make = getattr(stage_of(task), "files", None)
-    if make is None:
-        return None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # shown, if at all, when the run makes them
-            return dict(make(record))
-    except Exception:
-        return None
+    if work and work[0].files:
+        out["files"] = dict(work[0].files)
 
 
 def execute_chain(
