@@ -10,7 +10,9 @@ After the run, `write_database_files` writes the database beside the campaign
 report, in ``<report stem>_database/``: ``aerodynamics.xml`` (a JSBSim
 ``<aerodynamics>`` section), ``database.parquet`` (the tidy table),
 ``database.md`` (the report section: the fit, the held-out check and the
-files) and one band plot per coefficient.
+files) and one band plot per coefficient. The worker that fits the database makes
+the plots and the table (`Stage.files`) and hands them over with its status; the
+run's own process makes them only for a database it found stored.
 """
 
 from __future__ import annotations
