@@ -166,3 +166,50 @@ def test_an_unchanged_rerun_writes_no_database_file_and_a_missing_one_again(
     named = _config(tmp_path, 4, "keys: [airspeed], replay: c172x")
     run(named, workers=0)
     assert "names no simulator" not in (folder / "database.md").read_text()
+
+
+def test_the_worker_that_fits_the_database_draws_its_plots(tmp_path: Path, monkeypatch) -> None:
+    # the plots and the table come back with the database task's status: the run's own
+    # process, which writes them after the last task, makes none of them (on the run's
+    # critical path)
+    from aeroid.pipeline.stages import database_stage
+
+    TABLE = "database.parquet"
+
+    def drawn_here(*args: object, **kwargs: object) -> list[bytes]:
+        raise AssertionError("the run's own process drew the database's plots")
+
+    monkeypatch.setattr(database_stage, "forked_map", drawn_here)
+    monkeypatch.setattr(AeroDatabase, "to_parquet", _written_here(AeroDatabase.to_parquet))
+    cfg = _config(tmp_path, 4)
+    s = run(cfg, workers=0)
+    task = next(t for t in s.plan.tasks if t.stage == "database")
+    status = s.statuses[task.key]
+    assert status.files is not None
+    assert {"M_alpha.png", "M_q.png"} <= set(status.files) <= {*{"M_alpha.png", "M_q.png"}, TABLE}
+    folder = s.database_dir
+    assert folder is not None
+    for name, png in status.files.items():
+        assert (folder / name).read_bytes() == png
+    # a stored database (files gone): this process makes them, the same bytes
+    monkeypatch.undo()
+    for name in status.files:
+        (folder / name).unlink()
+    again = run(cfg, workers=0)
+    assert again.statuses[task.key].files is None
+    for name, png in status.files.items():
+        assert (folder / name).read_bytes() == png
+
+
+def _written_here(to_parquet):
+    """`AeroDatabase.to_parquet` that fails when the run's own process (no worker: the
+    test's, where the run's pytest process is the main one) calls it after the tasks."""
+    import inspect
+
+    def guarded(self, path, **kwargs):
+        callers = {f.function for f in inspect.stack()}
+        if "write_database_files" in callers:
+            raise AssertionError("the run's own process wrote the Parquet table")
+        return to_parquet(self, path, **kwargs)
+
+    return guarded

@@ -688,3 +688,14 @@ def test_a_script_that_exits_right_after_a_run_leaves_stderr_clean(tmp_path):
         )
         res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
         assert res.returncode == 0 and res.stderr == "", res.stderr
+
+
+def test_a_campaign_task_run_whole_is_handed_out_before_other_ready_nodes():
+    ready = executors_mod._WholeFirst(["b", "database", "a"], {"database"})
+    ready.append("part1")
+    # popped from the end, as Dask pops, the database before every other node
+    assert [ready.pop() for _ in range(2)] == ["database", "part1"]
+    ready.append("database")
+    ready.append("part2")
+    assert [ready.pop() for _ in range(4)] == ["database", "part2", "a", "b"]
+    assert not ready

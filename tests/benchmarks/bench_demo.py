@@ -13,7 +13,10 @@ tasks, with the longest single task.
 
 Options: ``--repeats N`` (default 1; the median is reported), ``--workers N``
 (default: the run's own, one per core), ``--keep DIR`` (the store and report stay
-there to look at), ``--cold-only`` (the cold runs alone).
+there to look at), ``--cold-only`` (the cold runs alone), ``--tail`` (each cold run's
+end: what ran after the last flight's identify, on which worker, when, with its CPU;
+what the run waits on once its flights are done. Timed in the worker processes the
+run forks, on Linux).
 """
 
 from __future__ import annotations
@@ -49,11 +52,47 @@ def _config(folder: Path) -> Path:
     return path
 
 
-def _run(config: Path, workers: int | None, jax_cache: Path) -> tuple[float, float, str]:
-    """One `aeroid run` in a fresh process, JAX's compiled programs kept in `jax_cache`:
-    (wall s, CPU s of it and its workers, stdout)."""
+# `aeroid run` with each task, part and the report's files timed into the file
+# $AEROID_BENCH_TAIL (a JSON line each: process, what, start, end, CPU), for `--tail`
+_TIMED = """
+import json, os, resource, sys, time
+from aeroid.pipeline.running import execution, runner
+
+def cpu():
+    me, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+def timed(fn, what):
+    def call(*args, **kwargs):
+        t0, c0 = time.time(), cpu()
+        out = fn(*args, **kwargs)
+        line = dict(pid=os.getpid(), what=what(args), t0=t0, t1=time.time(), cpu=cpu() - c0)
+        with open(os.environ["AEROID_BENCH_TAIL"], "a") as f:
+            f.write(json.dumps(line) + "\\n")
+        return out
+    # pickled by name into the forked workers, which find this one under it
+    call.__module__, call.__qualname__ = fn.__module__, fn.__qualname__
+    return call
+
+execution.execute_task = timed(execution.execute_task, lambda a: f"{a[0].step} {a[0].flight}")
+execution.execute_part = timed(execution.execute_part, lambda a: f"{a[0].step} part {a[2]}")
+runner.write_run_outputs = timed(runner.write_run_outputs, lambda a: "the report's files")
+from aeroid.cli import main
+main()
+"""
+
+
+def _run(
+    config: Path, workers: int | None, jax_cache: Path, tail: Path | None = None
+) -> tuple[float, float, str]:
+    """One `aeroid run` in a fresh process, JAX's compiled programs kept in `jax_cache`
+    (its tasks timed into `tail`, where given): (wall s, CPU s of it and its workers,
+    stdout)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), AEROID_JAX_CACHE=str(jax_cache))
     cmd = [sys.executable, "-m", "aeroid.cli", "run", str(config)]
+    if tail is not None:
+        env["AEROID_BENCH_TAIL"] = str(tail)
+        cmd[1:3] = ["-c", _TIMED]
     if workers is not None:
         cmd += ["--workers", str(workers)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -69,6 +108,26 @@ def _run(config: Path, workers: int | None, jax_cache: Path) -> tuple[float, flo
         raise SystemExit(f"aeroid run failed ({done.returncode}):\n{done.stderr[-3000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return wall, cpu, done.stdout
+
+
+def _print_tail(tail: Path) -> None:
+    """What ran after the last flight's identify (`--tail`): per line the process (w0 the
+    run's own), start and end in s after that identify, and CPU s."""
+    rows = [json.loads(line) for line in tail.read_text().splitlines()]
+    last = max((r["t1"] for r in rows if r["what"].startswith("identify ")), default=None)
+    if last is None:
+        return
+    end = max(r["t1"] for r in rows)
+    own = {r["pid"] for r in rows if r["what"] == "the report's files"}
+    workers = dict.fromkeys(r["pid"] for r in rows if r["pid"] not in own)
+    procs = {**{pid: i + 1 for i, pid in enumerate(workers)}, **dict.fromkeys(own, 0)}
+    print(f"  after the last identify: {end - last:.2f} s to the end of the run")
+    for r in sorted(rows, key=lambda r: r["t0"]):
+        if r["t1"] > last:
+            print(
+                f"    w{procs[r['pid']]} {r['t0'] - last:+6.2f} {r['t1'] - last:+6.2f} s "
+                f"CPU {r['cpu']:5.2f} s  {r['what']}"
+            )
 
 
 def _stage_times(config: Path) -> dict[str, tuple[int, float, float, float]]:
@@ -95,6 +154,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--keep", type=Path, default=None)
     ap.add_argument("--cold-only", action="store_true", help="skip the warm and cold* runs")
+    ap.add_argument("--tail", action="store_true", help="show what each cold run ends with")
     args = ap.parse_args()
     n_flights = 0
     cold: list[tuple[float, float]] = []
@@ -109,7 +169,8 @@ def main() -> None:
                 1 for ln in config.read_text().splitlines() if ln.strip().startswith("- path:")
             )
             jax_cache = folder / "jax"  # empty: nothing compiled by an earlier run
-            wall, cpu, _ = _run(config, args.workers, jax_cache)
+            tail = folder / "tail.jsonl" if args.tail else None
+            wall, cpu, _ = _run(config, args.workers, jax_cache, tail)
             cold.append((wall, cpu))
             # the programs the run compiled and kept (those over a fifth of a second)
             kept_programs = sorted(p.name.split("-")[0] for p in jax_cache.glob("*-cache"))
@@ -119,6 +180,8 @@ def main() -> None:
                 flush=True,
             )
             stages.append(_stage_times(config))
+            if tail is not None:
+                _print_tail(tail)
             if args.cold_only:
                 if args.keep is not None and i == args.repeats - 1:
                     shutil.rmtree(args.keep, ignore_errors=True)

@@ -50,7 +50,8 @@ class TaskStatus:
     committed to the store (a report over failed flights is not; `failures`
     names them). The campaign report's task also carries its text and table
     (`markdown`, `columns`, `rows`) and figures, so the run writes the report
-    files without reading the entry back. `briefs` are what campaign tasks
+    files without reading the entry back; a task whose stage makes files beside
+    the report (`Stage.files`) carries them in `files`. `briefs` are what campaign tasks
     take of this task's result (`Stage.brief`).
 
     Read as a mapping too (``status["error"]``, ``status.get("error")``), as
@@ -73,6 +74,7 @@ class TaskStatus:
     columns: tuple[str, ...] = ()
     rows: tuple[tuple[str, ...], ...] = ()
     figures: Mapping[str, bytes] | None = None
+    files: Mapping[str, bytes] | None = None
 
     def replace(self, **changes: Any) -> TaskStatus:
         return dataclasses.replace(self, **changes)
@@ -356,6 +358,8 @@ def _compute(
         out["columns"] = tuple(getattr(record, "columns", ()))
         if hasattr(record, "figure_bytes"):  # spares reading them back for the HTML
             out["figures"] = record.figure_bytes()
+    if work and work[0].files:
+        out["files"] = dict(work[0].files)
 
 
 def execute_chain(

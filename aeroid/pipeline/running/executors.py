@@ -12,7 +12,7 @@ from __future__ import annotations
 import socket
 import uuid
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, SupportsIndex
 
 from ...errors import PipelineError
 from ..plans.planning import Task
@@ -189,18 +189,30 @@ class LocalProcesses:
         # a flight's chain with more steps (an infer or a design on that flight) is the
         # long one: started first, it does not run alone at the end of the run
         steps = {name: len(node.chain or ()) for name, node in graph.items()}
+        # a campaign task that runs whole (the database, with its plots) is the longest
+        # piece of work left once the last flight is done: started before the report's
+        # parts ready then, it runs beside them, not after them
+        whole = {
+            name
+            for name, node in graph.items()
+            if node.chain and node.chain[0].flight is None and not node.parts
+        }
 
         def start(dsk: Any, state: dict[str, Any]) -> None:
             # Dask orders nodes that wait on nothing by string hashes, which change with
             # every process: the first flight ran anywhere in the run, and when it ran last
             # the report's detailed figures of it (a third of a small campaign's work) ran
             # alone at the end. Instead, the node more nodes wait on first, then the longer
-            # chain, then the plan's order (the list is popped from its end).
+            # chain, then the plan's order (the list is popped from its end). Nodes made ready
+            # later are popped newest first (a report part as soon as its flight is done),
+            # a campaign task run whole (`whole`) before any other.
             ready, dependents = state.get("ready"), state.get("dependents", {})
             if isinstance(ready, list):
                 ready.sort(
                     key=lambda k: (len(dependents.get(k, ())), steps.get(k, 0), -rank.get(k, 0))
                 )
+                if whole:
+                    state["ready"] = _WholeFirst(ready, whole)
 
         def attempt(names: list[str], n_workers: int) -> None:
             dsk: dict[str, Any] = {}
@@ -257,6 +269,31 @@ class LocalProcesses:
             # temporaries of dead processes, which `gc` removes
             ResultStore(store_root).gc()
         return list(results.values())
+
+
+class _WholeFirst(list[str]):
+    """Dask's list of ready nodes (popped from its end), from which a node in `whole` is
+    popped before any other."""
+
+    def __init__(self, ready: list[str], whole: set[str]) -> None:
+        super().__init__(ready)
+        self._whole = whole
+        self._held = sum(name in whole for name in ready)  # how many of them it holds
+
+    def append(self, name: str) -> None:
+        self._held += name in self._whole
+        super().append(name)
+
+    def pop(self, index: SupportsIndex = -1) -> str:
+        if self._held and index == -1:
+            at = max((i for i, name in enumerate(self) if name in self._whole), default=None)
+            if at is not None:
+                self._held -= 1
+                return super().pop(at)
+            self._held = 0  # (added to by a method other than `append`)
+        name = super().pop(index)
+        self._held = max(0, self._held - (name in self._whole))
+        return name
 
 
 def _node_tasks(node: Node) -> list[Task]:

@@ -1,5 +1,6 @@
 """Work a run does in its own process, spread over forked processes: the files it writes
-after its tasks (the database's plots), when its workers are gone and the cores idle."""
+after its tasks (the database's plots, where the database was stored before the run and
+no worker drew them), when its workers are gone and the cores idle."""
 
 from __future__ import annotations
 

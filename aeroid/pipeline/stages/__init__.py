@@ -187,6 +187,13 @@ class Stage:
         Modules its tasks import as they run beyond `library` (the figures' plotting
         modules): a run imports them once before it forks its worker processes,
         which then share them instead of each importing them.
+    files : callable, optional
+        ``files(record) -> {name: bytes}``: files the run writes beside its report from
+        a campaign-level result (the database's plots). The worker that computed the
+        result makes them while the record is in memory and hands them over with its
+        status (they are not stored), so the run's own process, which writes them after
+        the last task, does not draw them then; a run that finds the result stored
+        makes them itself.
     """
 
     name: str
@@ -205,6 +212,7 @@ class Stage:
     brief: Callable[[str, Any], Any] | None = None
     stored_as: str | None = None
     imports: tuple[str, ...] = ()
+    files: Callable[[Any], Mapping[str, bytes]] | None = None
 
     @property
     def key_name(self) -> str:

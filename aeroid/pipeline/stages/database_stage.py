@@ -10,7 +10,9 @@ After the run, `write_database_files` writes the database beside the campaign
 report, in ``<report stem>_database/``: ``aerodynamics.xml`` (a JSBSim
 ``<aerodynamics>`` section), ``database.parquet`` (the tidy table),
 ``database.md`` (the report section: the fit, the held-out check and the
-files) and one band plot per coefficient.
+files) and one band plot per coefficient. The worker that fits the database makes
+the plots and the table (`Stage.files`) and hands them over with its status; the
+run's own process makes them only for a database it found stored.
 """
 
 from __future__ import annotations
@@ -170,8 +172,9 @@ register_stage(
         uses_model=False,
         per_flight=False,
         brief=_brief,
-        # its plots are drawn by the run's own process, in forked children
+        # its plots are drawn by the worker that fits it (`_made_files`)
         imports=FIGURE_IMPORTS,
+        files=lambda db: _made_files(db),
     )
 )
 
@@ -220,6 +223,26 @@ def database_section(db: AeroDatabase, files: Mapping[str, str] | None = None) -
     if listed:
         parts += ["### Files", "", *listed, ""]
     return "\n".join(parts)
+
+
+def _plot_name(term: str) -> str:
+    return f"{term}.png"
+
+
+_TABLE = "database.parquet"
+
+
+def _made_files(db: AeroDatabase) -> dict[str, bytes]:
+    """Every coefficient's band plot (`_band_plot`) and the Parquet table (where pyarrow
+    is installed) by file name: made by the worker that fitted the database, beside the
+    report's last figures, instead of by the run's own process once every task is
+    done (`Stage.files`)."""
+    import tempfile
+
+    out = {_plot_name(term): _band_plot(db, term) for term in db.terms}
+    with contextlib.suppress(ImportError), tempfile.TemporaryDirectory() as tmp:
+        out[_TABLE] = db.to_parquet(Path(tmp) / _TABLE).read_bytes()
+    return out
 
 
 def _band_plot(db: AeroDatabase, term: str) -> bytes:
@@ -343,15 +366,22 @@ def write_database_files(
         except DataFormatError as exc:
             # dimensional derivatives (M_q) or a table of three keys: no JSBSim section
             notes.append(f"No JSBSim section: {exc}")
+        given: dict[str, bytes] = dict(getattr(status, "files", None) or {})
         try:
-            db.to_parquet(folder / "database.parquet")
-            files["tidy table (Parquet)"] = "database.parquet"
+            if _TABLE in given:
+                (folder / _TABLE).write_bytes(given[_TABLE])
+            else:
+                db.to_parquet(folder / _TABLE)
+            files["tidy table (Parquet)"] = _TABLE
         except ImportError:
             pass  # pyarrow is optional
-        # drawn in parallel: the run's worker processes are gone and the cores idle
-        drawn = forked_map(functools.partial(_band_plot, db), db.terms)
-        for term, png_bytes in zip(db.terms, drawn, strict=True):
-            png = folder / f"{term}.png"
+        plots = [given.get(_plot_name(term), b"") for term in db.terms]
+        if not all(plots):
+            # a stored database (or plots that failed on the worker): drawn here, in
+            # parallel, the run's worker processes being gone and the cores idle
+            plots = forked_map(functools.partial(_band_plot, db), db.terms)
+        for term, png_bytes in zip(db.terms, plots, strict=True):
+            png = folder / _plot_name(term)
             png.write_bytes(png_bytes)
             files[term] = png.name
         held = list(task.options.get("held_out") or [])

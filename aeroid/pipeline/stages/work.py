@@ -1,5 +1,6 @@
 """A task's work in its stage, in one call: its options read, its context built, the
-stage run (or its parts combined), and the briefs campaign tasks take of the result.
+stage run (or its parts combined), the briefs campaign tasks take of the result, and
+the files the stage makes beside the report from it (`Stage.files`).
 
 The run seam gathers what a task reads (its inputs from the store, its model, its
 seed) and hands it here; `perform` returns the record and its briefs, which the run
@@ -9,8 +10,9 @@ gives to the store seam to keep.
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from ...errors import PipelineError
@@ -24,10 +26,13 @@ __all__ = ["Work", "options_of", "perform", "stage_of"]
 
 @dataclass(frozen=True)
 class Work:
-    """A stage's result for one task, and the briefs made of it (``"consumer/role"``)."""
+    """A stage's result for one task, the briefs made of it (``"consumer/role"``) and the
+    files made of it beside the report (`Stage.files`; none where they failed: the run
+    then makes them itself and reports the problem)."""
 
     record: Any
     briefs: Mapping[str, Any]
+    files: Mapping[str, bytes] = field(default_factory=dict)
 
 
 def stage_of(task: Task) -> Stage:
@@ -81,4 +86,9 @@ def perform(task: Task, gathered: Mapping[str, Any], parts: Sequence[Any] | None
             value = None if make is None else make(role, record)
             if value is not None:
                 briefs[f"{consumer}/{role}"] = value
-    return Work(record, briefs)
+    files: dict[str, bytes] = {}
+    if stage.files is not None:
+        with contextlib.suppress(Exception), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # shown, if at all, where the run makes them
+            files = dict(stage.files(record))
+    return Work(record, briefs, files)
