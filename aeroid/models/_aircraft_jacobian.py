@@ -24,6 +24,7 @@ from ._aircraft_parts import (
     _Expansion,
     _factor_regressor,
     _gyro_input,
+    _LateralSpeed,
 )
 from ._batch_function import ClosedForm
 
@@ -72,16 +73,14 @@ def lateral_jacobian(
     role: str,
 ) -> ClosedForm:
     """The closed form of `equations` (`_lateral_function` with the same arguments)."""
-    m, S, b = c.mass, c.S, c.b
-    half_rho_S = 0.5 * c.density() * S
-    qbar_S0 = 0.5 * c.density() * V0 * V0 * S
+    m, b = c.mass, c.b
+    speed = _LateralSpeed.of(c, V0, surfaces)
+    airspeed, half_rho_S = speed.column, speed.half_rho_S
+    col_V = (5 if with_heading else 4) + airspeed
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz
-    half_b_V0 = 0.5 * b / V0
     sin_a0, cos_a0 = math.sin(alpha0), math.cos(alpha0)
     g_cos_t0 = c.g * math.cos(theta0)
-    airspeed = surfaces.index("V") if "V" in surfaces else -1
-    col_V = (5 if with_heading else 4) + airspeed
     tan_t0, sec_t0 = math.tan(theta0), 1.0 / math.cos(theta0)
     xa, ya, za = c.accel_position
     xb, _, zb = c.beta_vane_position
@@ -105,12 +104,7 @@ def lateral_jacobian(
         width = n_x + n_u + len(names)
         columns = {n: n_x + n_u + j for j, n in enumerate(names)}
         beta, p_, r, phi = x[0], x[1], x[2], x[3]
-        V: Any = V0
-        qbar_S: Any = qbar_S0
-        half_b_V: Any = half_b_V0
-        if airspeed >= 0:
-            V = u[airspeed]
-            qbar_S, half_b_V = half_rho_S * V * V, 0.5 * b / V
+        V, qbar_S, half_b_V = speed.at(u)
         reg = {"beta": beta, "p": p_ * half_b_V, "r": r * half_b_V}
         reg.update({s: u[i] for i, s in enumerate(surfaces)})
         where: dict[str, list[tuple[int, Any]]] = {

@@ -26,6 +26,7 @@ from ._aircraft_parts import (
     _expansion_text,
     _expansion_units,
     _gyro_input,
+    _LateralSpeed,
     _outputs,
     _parameter_values,
     _parse_expansions,
@@ -295,11 +296,6 @@ _LAT_DEFAULT_TERMS: Mapping[str, Sequence[str]] = {
 }
 
 
-def _airspeed_input(surfaces: tuple[str, ...]) -> int:
-    """The index among `surfaces` of the flown airspeed ``V`` (-1: the model flies at V0)."""
-    return surfaces.index("V") if "V" in surfaces else -1
-
-
 def _lateral_function(
     c: AircraftConstants,
     V0: float,
@@ -312,16 +308,13 @@ def _lateral_function(
     accel_scale: float,
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
-    m, S, b, g = c.mass, c.S, c.b, c.g
-    half_rho_S = 0.5 * c.density() * S
-    qbar_S0 = 0.5 * c.density() * V0 * V0 * S
+    m, b, g = c.mass, c.b, c.g
+    speed = _LateralSpeed.of(c, V0, surfaces)
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz
-    half_b_V0 = 0.5 * b / V0
     sin_a0, cos_a0 = math.sin(alpha0), math.cos(alpha0)
     g_cos_t0 = g * math.cos(theta0)
     g_V0 = g_cos_t0 / V0
-    airspeed = _airspeed_input(surfaces)
     tan_t0, sec_t0 = math.tan(theta0), 1.0 / math.cos(theta0)
     xa, ya, za = c.accel_position
     xb, _, zb = c.beta_vane_position
@@ -336,15 +329,13 @@ def _lateral_function(
         # body-axis rates, q = 0.
         beta, p_, r, phi = x[0], x[1], x[2], x[3]
         # the flown airspeed where the model takes it as an input, else the trim's
-        V, qbar_S, half_b_V, g_V = V0, qbar_S0, half_b_V0, g_V0
-        if airspeed >= 0:
-            V = u[airspeed]
-            qbar_S, half_b_V, g_V = half_rho_S * V * V, 0.5 * b / V, g_cos_t0 / V
+        V, qbar_S, half_b_V = speed.at(u)
         reg = {"beta": beta, "p": p_ * half_b_V, "r": r * half_b_V}
         for i in range(n_surf):
             reg[surfaces[i]] = u[i]
-        if airspeed >= 0:
-            reg["V"] = V / V0 - 1.0
+        g_V = g_V0
+        if speed.column >= 0:
+            reg["V"], g_V = V / V0 - 1.0, g_cos_t0 / V
         CY = _expand(cy, reg, p) + 0.0 * beta
         Cl = _expand(cl, reg, p)
         Cn = _expand(cn, reg, p)
@@ -468,7 +459,7 @@ def lateral(
     scale = _accel_scale(accel_units, c.g)
     states = ["beta", "p", "r", "phi"] + (["psi"] if with_heading else [])
     args = (c, V0, alpha0, theta0, expansions, surf, bool(with_heading), outs, scale)
-    flown = _airspeed_input(surf) >= 0
+    flown = "V" in surf
     equations = "\n".join(
         [
             "Klein & Morelli ch. 3, small perturbations about (V0, α0, θ0), body-axis rates,"
