@@ -205,3 +205,90 @@ def test_the_drag_of_sideslip_is_recovered_through_the_fed_beta(monkeypatch):
         assert abs(res.parameters[k] - truth[k]) < 3 * res.stderr[k], (k, res.parameters[k])
     for k, v in drag.items():
         assert res.stderr[k] < 0.1 * v, (k, res.stderr[k])
+
+
+def _flown(alpha0: float = 0.0, terms=LAT_TERMS) -> aeroid.Model:
+    # the lateral part given the airspeed flown: V among its inputs
+    return lateral(
+        CONSTANTS,
+        V0=V0,
+        alpha0=alpha0,
+        theta0=alpha0,
+        terms=terms,
+        parameters={**LAT, **ROLL_BY_LIFT},
+        surfaces=("delta_a", "delta_r", "alpha", "V"),
+        outputs=("beta", "p", "r", "phi", "ay"),
+    )
+
+
+def test_a_lateral_model_given_the_airspeed_flies_it():
+    # closed forms: at V0 it is the trim speed's model; at 2 V0 a moment of a surface
+    # grows with q̄ (x4), the damping q̄ b/2V (x2), the side force over m V (x2), the
+    # gravity's g/V (x1/2)
+    at_trim = lateral(
+        CONSTANTS,
+        V0=V0,
+        terms=LAT_TERMS,
+        parameters={**LAT, **ROLL_BY_LIFT},
+        surfaces=("delta_a", "delta_r", "alpha"),
+        outputs=("beta", "p", "r", "phi", "ay"),
+    )
+    flown = _flown()
+    assert "V" in flown.equations and "V" in flown.controls
+    rng = np.random.default_rng(3)
+    x, u = rng.normal(size=(4, 7)) * 0.1, rng.normal(size=(3, 7)) * 0.1
+    p = dict(flown.parameters)
+    u_V0 = np.vstack([u, np.full(7, V0)])
+    for f, g in ((flown.dynamics, at_trim.dynamics), (flown.measurement, at_trim.measurement)):
+        np.testing.assert_allclose(f(0.0, x, u_V0, p), g(0.0, x, u, p), rtol=1e-13, atol=1e-15)
+
+    def rates(**on: float) -> tuple[np.ndarray, np.ndarray]:
+        values = dict.fromkeys(p, 0.0) | on
+        state = np.array([0.02, 0.1, 0.0, 0.05 if "phi" in on else 0.0])
+        ctrl = np.array([0.03, 0.0, 0.0, V0])
+        one = flown.dynamics(0.0, state, ctrl, values)
+        two = flown.dynamics(0.0, state, ctrl * np.array([1, 1, 1, 2.0]), values)
+        return one, two
+
+    one, two = rates(Cl_delta_a=0.1)
+    assert two[1] == pytest.approx(4.0 * one[1], rel=1e-12)
+    one, two = rates(Cl_p=-0.5)
+    assert two[1] == pytest.approx(2.0 * one[1], rel=1e-12)
+    one, two = rates(CY_beta=-0.6)
+    assert two[0] == pytest.approx(2.0 * one[0], rel=1e-12)
+    one, two = rates(phi=1.0)  # no coefficient: the beta equation's gravity alone
+    assert two[0] == pytest.approx(0.5 * one[0], rel=1e-12) and one[0] != 0.0
+
+
+def test_decoupled_feeds_the_longitudinal_airspeed_and_trims():
+    lon, _ = _parts()
+    lat = _flown()
+    both = decoupled(lon, lat)
+    assert "V" not in both.controls and "input V" in both.equations
+    n = len(lon.states)
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(len(both.states), 4)) * 0.1
+    x[lon.states.index("V")] = V0 + rng.normal(size=4)
+    u = rng.normal(size=(len(both.controls), 4)) * 0.1
+    p = dict(both.parameters)
+    lat_u = np.stack([u[2], u[3], x[lon.states.index("alpha")], x[lon.states.index("V")]])
+    np.testing.assert_array_equal(
+        both.dynamics(0.0, x, u, p)[n:], lat.dynamics(0.0, x[n:], lat_u, p)
+    )
+    # alone, it trims at its V0 unless told the airspeed
+    tr = trim(lat)
+    assert tr.controls["V"] == V0
+    assert all(abs(tr.derivatives[s]) < 1e-9 for s in ("beta", "p", "r"))
+    with pytest.raises(aeroid.ModelDefinitionError, match="V0"):
+        trim(lat, V=V0 + 1.0)
+
+
+def test_the_airspeed_fed_model_translates_to_jax():
+    pytest.importorskip("jax")
+    lon, _ = _parts(0.05)
+    both = decoupled(lon, _flown(0.05))
+    t = np.linspace(0.0, 2.0, 101)
+    u = np.column_stack([np.full(t.size, 0.01 * k) for k in range(len(both.controls))])
+    x0 = np.array([V0, 0.05, 0.05, 0.0, 0.01, 0.0, 0.0, 0.0])
+    p = {k: 0.01 for k in both.parameters}
+    assert _compiled.interval_propagator(both, t, u, x0, p, 1) is not None

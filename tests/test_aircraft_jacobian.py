@@ -20,7 +20,7 @@ TERMS = {
 }
 
 
-def _model(heading: bool) -> aircraft.AircraftModel:
+def _model(heading: bool, flown: bool = False) -> aircraft.AircraftModel:
     c = aircraft.AircraftConstants(
         mass=1200.0,
         Ixx=1500.0,
@@ -41,22 +41,25 @@ def _model(heading: bool) -> aircraft.AircraftModel:
         V0=50.0,
         alpha0=0.05,
         theta0=0.08,
-        terms=TERMS,
+        terms={**TERMS, "Cn": [*TERMS["Cn"], "r*V", "V"]} if flown else TERMS,
         outputs=outputs,
-        surfaces=("delta_a", "delta_r", "q"),
+        surfaces=("delta_a", "delta_r", "q", "V") if flown else ("delta_a", "delta_r", "q"),
         with_heading=heading,
         accel_units="g",
     )
 
 
-@pytest.mark.parametrize("heading", [False, True])
-def test_lateral_closed_form_matches_central_differences(heading: bool) -> None:
-    model = _model(heading)
+@pytest.mark.parametrize(("heading", "flown"), [(False, False), (True, False), (False, True)])
+def test_lateral_closed_form_matches_central_differences(heading: bool, flown: bool) -> None:
+    # flown: the model takes the flown airspeed V as an input (q̄, b/2V, β̇, the vane)
+    model = _model(heading, flown)
     rng = np.random.default_rng(0)
     p = {k: float(0.3 * rng.standard_normal()) for k in model.parameters}
     n_x, K = len(model.states), 30
     x = 0.2 * rng.standard_normal((n_x, K))
-    u = 0.1 * rng.standard_normal((3, K))
+    u = 0.1 * rng.standard_normal((len(model.controls), K))
+    if flown:
+        u[3] = 50.0 + 5.0 * rng.standard_normal(K)
     t = np.zeros(K)
     names = tuple(model.parameters)
     for batch in (model._dynamics_batch, model._measurement_batch):

@@ -411,6 +411,28 @@ def test_the_c172x_rolls_with_its_lift_through_its_off_centre_centre_of_gravity(
     assert eff["Cl_alpha"] == pytest.approx(offset * eff["CL_alpha"], rel=0.03)
 
 
+def test_the_c172x_yaws_with_alpha_through_its_axial_force_at_the_off_centre_cg():
+    # the same arm on the aerodynamic axial force X = q S (CL sin(alpha) - CD cos(alpha)):
+    # its slope in alpha (the lift tilting forward) times the offset in spans is most of
+    # the yaw JSBSim flies with alpha (the demo's Cn_alpha), the more the slower the trim;
+    # the rest is the propeller's (its thrust acts off the shaft with the disc's incidence)
+    from aeroid.adapters import jsbsim_flights
+
+    found = {}
+    for speed in (30.0, 60.0):
+        cond = FlightCondition(speed, 1000.0)
+        eff = effective_derivatives(cond)
+        fdm = jsbsim_flights._executive(cond)
+        c = jsbsim_flights._coefficients(fdm)
+        a = float(fdm["aero/alpha-rad"])
+        offset = float(fdm["inertia/cg-y-in"]) / 12.0 / float(fdm["metrics/bw-ft"])
+        slope = (eff["CL_alpha"] + c["CD"]) * np.sin(a) + (c["CL"] - eff["CD_alpha"]) * np.cos(a)
+        found[speed] = (eff["Cn_alpha"], offset * slope)
+    assert found[30.0][1] == pytest.approx(found[30.0][0], rel=0.15)
+    assert found[60.0][1] == pytest.approx(found[60.0][0], abs=0.0015)
+    assert found[30.0][0] > 5.0 * found[60.0][0] > 0.0
+
+
 _SPARE_YAW = {
     "CY": ["0", "beta"],
     "Cl": ["0", "beta", "p", "r", "delta_a", "delta_r"],

@@ -430,7 +430,8 @@ def decoupled(
     equations (Jategaonkar ch. 3, Klein & Morelli ch. 3, there measured and
     fed as an input), here the model's own: an aircraft whose lift rolls it
     (a centre of gravity off its plane of symmetry, asymmetric stores) gives
-    ``Cl_alpha``, and the parts are coupled through that state.
+    ``Cl_alpha``, and the parts are coupled through that state. A lateral model
+    with ``"V"`` among its surfaces flies the longitudinal airspeed so fed.
 
     Parameters
     ----------

@@ -26,6 +26,7 @@ from ._aircraft_parts import (
     _expansion_text,
     _expansion_units,
     _gyro_input,
+    _LateralSpeed,
     _outputs,
     _parameter_values,
     _parse_expansions,
@@ -307,13 +308,13 @@ def _lateral_function(
     accel_scale: float,
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
-    m, S, b, g = c.mass, c.S, c.b, c.g
-    qbar_S = 0.5 * c.density() * V0 * V0 * S
+    m, b, g = c.mass, c.b, c.g
+    speed = _LateralSpeed.of(c, V0, surfaces)
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz
-    half_b_V0 = 0.5 * b / V0
     sin_a0, cos_a0 = math.sin(alpha0), math.cos(alpha0)
-    g_V0 = g * math.cos(theta0) / V0
+    g_cos_t0 = g * math.cos(theta0)
+    g_V0 = g_cos_t0 / V0
     tan_t0, sec_t0 = math.tan(theta0), 1.0 / math.cos(theta0)
     xa, ya, za = c.accel_position
     xb, _, zb = c.beta_vane_position
@@ -327,9 +328,14 @@ def _lateral_function(
         # Klein & Morelli ch. 3 small-perturbation lateral equations about (V0, α0, θ0),
         # body-axis rates, q = 0.
         beta, p_, r, phi = x[0], x[1], x[2], x[3]
-        reg = {"beta": beta, "p": p_ * half_b_V0, "r": r * half_b_V0}
+        # the flown airspeed where the model takes it as an input, else the trim's
+        V, qbar_S, half_b_V = speed.at(u)
+        reg = {"beta": beta, "p": p_ * half_b_V, "r": r * half_b_V}
         for i in range(n_surf):
             reg[surfaces[i]] = u[i]
+        g_V = g_V0
+        if speed.column >= 0:
+            reg["V"], g_V = V / V0 - 1.0, g_cos_t0 / V
         CY = _expand(cy, reg, p) + 0.0 * beta
         Cl = _expand(cl, reg, p)
         Cn = _expand(cn, reg, p)
@@ -341,7 +347,7 @@ def _lateral_function(
         r_dot = (Ixz * rolling + Ixx * yawing) / gamma_i
         cos_phi = np.cos(phi)
         if dynamics:
-            beta_dot = qbar_S * CY / (m * V0) + p_ * sin_a0 - r * cos_a0 + g_V0 * np.sin(phi)
+            beta_dot = qbar_S * CY / (m * V) + p_ * sin_a0 - r * cos_a0 + g_V * np.sin(phi)
             rates = [beta_dot, p_dot, r_dot, p_ + tan_t0 * r * cos_phi]
             if with_heading:
                 rates.append(r * cos_phi * sec_t0)
@@ -349,7 +355,7 @@ def _lateral_function(
         # accelerometer: F_y/m + (ω̇ × r + ω × (ω × r))_y with q = 0
         ay = qbar_S * CY / m + r_dot * xa - (p_ * p_ + r * r) * ya - p_dot * za
         values = {
-            "beta": beta + (r * xb - p_ * zb) / V0,
+            "beta": beta + (r * xb - p_ * zb) / V,
             "p": p_,
             "r": r,
             "phi": phi,
@@ -399,6 +405,14 @@ def lateral(
     and the constant ``"0"``; parameters named ``Cl_p``, ``Cn_beta``,
     ``Cn_delta_r``, ``CY_0``, ``Cn_abs_beta``.
 
+    With ``"V"`` among the `surfaces` the model flies the airspeed it is given
+    (measured, or the longitudinal part's state fed by `decoupled`) in place of
+    V0 everywhere above: ``q̄ = ρ V² / 2``, ``p b / 2V``, ``r b / 2V``, the
+    ``1/V`` of the β̇ equation and of the vane's offset (Klein & Morelli ch. 6
+    and Jategaonkar ch. 3 take the measured airspeed); a term ``"V"`` is then
+    ``V/V0 - 1``, as for `longitudinal`. Without it the equations are the
+    small-perturbation form about V0.
+
     Outputs (any of): ``beta`` (at the β vane: ``β + (r xβ - p zβ)/V0``),
     ``p``, ``r``, ``phi``, ``psi``, ``p_dot``, ``r_dot``, ``ay``
     (``q̄ S CY / m + ṙ xa - (p² + r²) ya - ṗ za``).
@@ -445,10 +459,16 @@ def lateral(
     scale = _accel_scale(accel_units, c.g)
     states = ["beta", "p", "r", "phi"] + (["psi"] if with_heading else [])
     args = (c, V0, alpha0, theta0, expansions, surf, bool(with_heading), outs, scale)
+    flown = "V" in surf
     equations = "\n".join(
         [
             "Klein & Morelli ch. 3, small perturbations about (V0, α0, θ0), body-axis rates,"
             " q̄ = ρ V0²/2:",
+            *(
+                ["  with V, the input (the airspeed flown), for V0 in q̄, b/2V0 and 1/V0"]
+                if flown
+                else []
+            ),
             "  β̇ = q̄ S CY/(m V0) + p sin α0 - r cos α0 + (g/V0) cos θ0 sin φ",
             "  Ixx ṗ - Ixz ṙ = q̄ S b Cl",
             "  Izz ṙ - Ixz ṗ = q̄ S b Cn"

@@ -476,6 +476,32 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
     return names
 
 
+@dataclass(frozen=True)
+class _LateralSpeed:
+    """The airspeed a lateral model flies, with q̄ S and b/2V there: its input ``V``
+    (index `column` among its surfaces) or, without one, the trim's V0 (as numbers)."""
+
+    V0: float
+    column: int
+    half_rho_S: float
+    b: float
+    qbar_S0: float
+    half_b_V0: float
+
+    @classmethod
+    def of(cls, c: AircraftConstants, V0: float, surfaces: tuple[str, ...]) -> _LateralSpeed:
+        column = surfaces.index("V") if "V" in surfaces else -1
+        rho = c.density()
+        return cls(V0, column, 0.5 * rho * c.S, c.b, 0.5 * rho * V0 * V0 * c.S, 0.5 * c.b / V0)
+
+    def at(self, u: Any) -> tuple[Any, Any, Any]:
+        """V, q̄ S and b/2V at the inputs `u` (rows: the surfaces)."""
+        if self.column < 0:
+            return self.V0, self.qbar_S0, self.half_b_V0
+        V = u[self.column]
+        return V, self.half_rho_S * V * V, 0.5 * self.b / V
+
+
 def _gyro_input(c: AircraftConstants, surfaces: tuple[str, ...], rate: str, part: str) -> int:
     """The index among `surfaces` of the other axis's `rate` that the engine's gyroscopic
     moment needs (-1 without an engine momentum)."""

@@ -165,6 +165,8 @@ def trim(
             )
         fixed[k] = _finite(f"controls[{k!r}]", v)
     speed = float(model.reference.get("V0", 0.0)) if V is None else _finite("V", V)
+    if model.kind == "lateral" and "V" in fixed and "V" not in (controls or {}):
+        fixed["V"] = speed  # a lateral model fed the flown airspeed trims at its V0
     if model.kind in ("lateral", "lateral_linear") and V is not None:
         if not math.isclose(speed, model.reference["V0"], rel_tol=1e-12):
             raise ModelDefinitionError(

@@ -55,8 +55,13 @@ scheme (Adams-Bashforth 3 at its step), each fitted at 150 Hz and at 50 Hz, besi
 JSBSim's record against what JSBSim flies (a couple of minutes): what the record's
 samples and the simulator's step alone make of the estimates.
 
+With ``--yaw V H`` it flies one calm flight at 150 Hz and fits JSBSim's own yawing
+moment about the cg with the demo model's Cn regressors, at the trim speed and at the
+airspeed flown, with Cn_alpha, with the axial force's yaw at the cg's lateral offset
+taken out, with the propeller's yaw other than h q added (a few seconds).
+
     python3 tests/reference/c172x_demo_database.py [--store DIR] [--budget V H]
-        [--clean [--rate HZ] [--lead MS]] [--scheme V H]
+        [--clean [--rate HZ] [--lead MS]] [--scheme V H] [--yaw V H]
 """
 
 from __future__ import annotations
@@ -447,6 +452,82 @@ def _budget(airspeed: float, altitude: float) -> int:
     return 0
 
 
+# JSBSim's yawing moment and what it is made of, logged at every step by `_yaw`
+_YAW = (
+    "moments/n-aero-lbsft",
+    "moments/n-prop-lbsft",
+    "forces/fbx-aero-lbs",
+    "aero/qbar-psf",
+    "velocities/vt-fps",
+    "aero/beta-rad",
+    "aero/alpha-rad",
+    "velocities/p-rad_sec",
+    "velocities/q-rad_sec",
+    "velocities/r-rad_sec",
+    "fcs/effective-aileron-pos",
+    "fcs/rudder-pos-rad",
+    "metrics/Sw-sqft",
+    "metrics/bw-ft",
+    "metrics/aero-rp-y-in",
+    "inertia/cg-y-in",
+)
+
+
+def _yaw(airspeed: float, altitude: float) -> int:
+    """One calm, noise-free 150 Hz flight: least squares of JSBSim's own yawing moment
+    about the cg on the demo model's Cn regressors (beta, p b/2V, r b/2V, the aileron and
+    rudder, times q S b), each piece of what the model leaves out shown with the others
+    removed: the trim speed's q S and b/2V in place of the flown airspeed, the axial
+    force's yaw at the cg's lateral offset (Cn_alpha, and that force taken out exactly),
+    the propeller's yaw other than its gyroscopic h q."""
+    from aeroid.adapters import jsbsim_flights as jf
+
+    steps: list[list[float]] = []
+    record = jf._record
+
+    def logged(fdm: object) -> list[float]:
+        steps.append([float(fdm[prop]) for prop in _YAW])  # type: ignore[index]
+        return record(fdm)
+
+    jf._record = logged
+    try:
+        jf.fly_c172x(
+            jf.FlightCondition(airspeed, altitude), noise=False, turbulence=0.0, sample_rate=150.0
+        )
+    finally:
+        jf._record = record
+    d = dict(zip((k.split("/")[1] for k in _YAW), np.asarray(steps).T, strict=True))
+    aero, prop, fx = d["n-aero-lbsft"], d["n-prop-lbsft"], d["fbx-aero-lbs"]
+    p, q, r, vt = d["p-rad_sec"], d["q-rad_sec"], d["r-rad_sec"], d["vt-fps"]
+    S, b = d["Sw-sqft"][0], d["bw-ft"][0]
+    rho = 2.0 * d["qbar-psf"] / vt**2
+    # the axial force acts on the plane of symmetry, the cg lies off it (ft)
+    arm = (d["aero-rp-y-in"][0] - d["cg-y-in"][0]) / 12.0
+    gyro = np.linalg.lstsq(np.column_stack([np.ones_like(q), q]), prop, rcond=None)[0][1]
+
+    def fit(y: object, speed: object, extra: tuple = ()) -> tuple[float, float]:
+        qsb = 0.5 * rho * speed**2 * S * b
+        half_b = b / (2.0 * speed)
+        cols = [1.0 + 0 * p, d["beta-rad"], p * half_b, r * half_b, d["effective-aileron-pos"]]
+        cols += [d["rudder-pos-rad"], *extra]
+        coef = np.linalg.lstsq(np.column_stack(cols) * qsb[:, None], y, rcond=None)[0]
+        return float(coef[1]), float(coef[3])
+
+    trim = vt[0] + 0 * vt
+    rows = {
+        "aerodynamic, the trim speed": fit(aero, trim),
+        "aerodynamic, the airspeed flown": fit(aero, vt),
+        "  + Cn_alpha": fit(aero, vt, (d["alpha-rad"],)),
+        "  the axial force's yaw taken out": fit(aero + arm * fx, vt),
+        "  + the propeller's other than h q": fit(aero + prop - gyro * q, vt),
+    }
+    print(f"yawing moment about the cg at {airspeed:g} m/s, {altitude:g} m (calm, 150 Hz):")
+    print(f"  propeller h q: {gyro * 1.3558:.4g} kg m^2/s (least squares)")
+    for name, (cn_beta, cn_r) in rows.items():
+        print(f"  {name:36s} Cn_beta {cn_beta:.5f}  Cn_r {cn_r:.5f}")
+    return 0
+
+
 def _means(data: object, k: int) -> object:
     """A record at every `k`-th sample, each channel's mean over the `k` samples ending
     there (the first as it is): the record `fly_c172x` writes at a `k` times lower rate."""
@@ -541,7 +622,12 @@ def main() -> int:
         metavar=("V", "H"),
         help="one calm flight: the demo model's own equations by RK4 and by JSBSim's AB3",
     )
+    parser.add_argument(
+        "--yaw", nargs=2, type=float, metavar=("V", "H"), help="one calm flight's yawing moment"
+    )
     args = parser.parse_args()
+    if args.yaw:
+        return _yaw(*args.yaw)
     if args.scheme:
         return _scheme(*args.scheme)
     if args.clean:
