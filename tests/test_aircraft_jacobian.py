@@ -4,6 +4,7 @@ central-difference path."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -135,3 +136,28 @@ def test_lateral_fit_equals_the_differences_path(monkeypatch) -> None:
     for n in values:
         assert abs(exact.parameters[n] - diff.parameters[n]) <= 1e-3 * exact.standard_errors[n]
         assert exact.standard_errors[n] == pytest.approx(diff.standard_errors[n], rel=1e-4)
+
+
+@pytest.mark.parametrize("flown", [False, True])
+def test_lateral_models_at_two_trims_share_one_compiled_structure(flown: bool) -> None:
+    # the trim's numbers (V0, the density's q̄ S, b/2V0) are lifted out of the JAX
+    # program: two flight conditions of one structure compile once, flown airspeed or not
+    from aeroid.models import _jax_translation
+
+    a = _model(False, flown)
+    b = aircraft.lateral(
+        dataclasses.replace(a.constants, rho=0.9),
+        V0=35.0,
+        alpha0=0.09,
+        theta0=0.1,
+        terms={**TERMS, "Cn": [*TERMS["Cn"], "r*V", "V"]} if flown else TERMS,
+        outputs=["beta", "p", "r", "phi", "p_dot", "r_dot", "ay"],
+        surfaces=("delta_a", "delta_r", "q", "V") if flown else ("delta_a", "delta_r", "q"),
+        accel_units="g",
+    )
+    ka = _jax_translation._structure(a)["key"]
+    kb = _jax_translation._structure(b)["key"]
+    assert ka is not None and ka == kb
+    consts_a = _jax_translation._structure(a)["consts"]
+    consts_b = _jax_translation._structure(b)["consts"]
+    assert not np.array_equal(consts_a, consts_b)  # the trims differ in the lifted numbers

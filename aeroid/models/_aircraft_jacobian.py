@@ -24,7 +24,8 @@ from ._aircraft_parts import (
     _Expansion,
     _factor_regressor,
     _gyro_input,
-    _LateralSpeed,
+    _lateral_speed,
+    _speed_at,
 )
 from ._batch_function import ClosedForm
 
@@ -74,8 +75,7 @@ def lateral_jacobian(
 ) -> ClosedForm:
     """The closed form of `equations` (`_lateral_function` with the same arguments)."""
     m, b = c.mass, c.b
-    speed = _LateralSpeed.of(c, V0, surfaces)
-    airspeed, half_rho_S = speed.column, speed.half_rho_S
+    airspeed, _, half_rho_S, _, qbar_S0, half_b_V0 = _lateral_speed(c, V0, surfaces)
     col_V = (5 if with_heading else 4) + airspeed
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz
@@ -104,7 +104,7 @@ def lateral_jacobian(
         width = n_x + n_u + len(names)
         columns = {n: n_x + n_u + j for j, n in enumerate(names)}
         beta, p_, r, phi = x[0], x[1], x[2], x[3]
-        V, qbar_S, half_b_V = speed.at(u)
+        V, qbar_S, half_b_V = _speed_at(u, airspeed, V0, half_rho_S, b, qbar_S0, half_b_V0)
         reg = {"beta": beta, "p": p_ * half_b_V, "r": r * half_b_V}
         reg.update({s: u[i] for i, s in enumerate(surfaces)})
         where: dict[str, list[tuple[int, Any]]] = {

@@ -26,10 +26,11 @@ from ._aircraft_parts import (
     _expansion_text,
     _expansion_units,
     _gyro_input,
-    _LateralSpeed,
+    _lateral_speed,
     _outputs,
     _parameter_values,
     _parse_expansions,
+    _speed_at,
     _surfaces,
 )
 
@@ -309,7 +310,7 @@ def _lateral_function(
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
     m, b, g = c.mass, c.b, c.g
-    speed = _LateralSpeed.of(c, V0, surfaces)
+    airspeed, _, half_rho_S, _, qbar_S0, half_b_V0 = _lateral_speed(c, V0, surfaces)
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz
     sin_a0, cos_a0 = math.sin(alpha0), math.cos(alpha0)
@@ -329,12 +330,12 @@ def _lateral_function(
         # body-axis rates, q = 0.
         beta, p_, r, phi = x[0], x[1], x[2], x[3]
         # the flown airspeed where the model takes it as an input, else the trim's
-        V, qbar_S, half_b_V = speed.at(u)
+        V, qbar_S, half_b_V = _speed_at(u, airspeed, V0, half_rho_S, b, qbar_S0, half_b_V0)
         reg = {"beta": beta, "p": p_ * half_b_V, "r": r * half_b_V}
         for i in range(n_surf):
             reg[surfaces[i]] = u[i]
         g_V = g_V0
-        if speed.column >= 0:
+        if airspeed >= 0:
             reg["V"], g_V = V / V0 - 1.0, g_cos_t0 / V
         CY = _expand(cy, reg, p) + 0.0 * beta
         Cl = _expand(cl, reg, p)

@@ -476,30 +476,30 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
     return names
 
 
-@dataclass(frozen=True)
-class _LateralSpeed:
-    """The airspeed a lateral model flies, with q̄ S and b/2V there: its input ``V``
-    (index `column` among its surfaces) or, without one, the trim's V0 (as numbers)."""
+def _lateral_speed(
+    c: AircraftConstants, V0: float, surfaces: tuple[str, ...]
+) -> tuple[int, float, float, float, float, float]:
+    """The numbers a lateral model flies its airspeed with: (the index of its input ``V``
+    among the surfaces, -1 flying the trim's V0; V0; rho S / 2; b; q̄ S and b/2V at V0).
 
-    V0: float
-    column: int
-    half_rho_S: float
-    b: float
-    qbar_S0: float
-    half_b_V0: float
+    Plain numbers, each its own closure cell in the model function: the JAX translation
+    lifts a closure's numbers out of the compiled program, so that one compilation
+    serves every flight condition (an object holding them is baked in).
+    """
+    rho = c.density()
+    column = surfaces.index("V") if "V" in surfaces else -1
+    return (column, V0, 0.5 * rho * c.S, c.b, 0.5 * rho * V0 * V0 * c.S, 0.5 * c.b / V0)
 
-    @classmethod
-    def of(cls, c: AircraftConstants, V0: float, surfaces: tuple[str, ...]) -> _LateralSpeed:
-        column = surfaces.index("V") if "V" in surfaces else -1
-        rho = c.density()
-        return cls(V0, column, 0.5 * rho * c.S, c.b, 0.5 * rho * V0 * V0 * c.S, 0.5 * c.b / V0)
 
-    def at(self, u: Any) -> tuple[Any, Any, Any]:
-        """V, q̄ S and b/2V at the inputs `u` (rows: the surfaces)."""
-        if self.column < 0:
-            return self.V0, self.qbar_S0, self.half_b_V0
-        V = u[self.column]
-        return V, self.half_rho_S * V * V, 0.5 * self.b / V
+def _speed_at(
+    u: Any, column: int, V0: float, half_rho_S: float, b: float, qbar_S0: float, half_b_V0: float
+) -> tuple[Any, Any, Any]:
+    """V, q̄ S and b/2V at the inputs `u` (rows: the surfaces), from `_lateral_speed`'s
+    numbers."""
+    if column < 0:
+        return V0, qbar_S0, half_b_V0
+    V = u[column]
+    return V, half_rho_S * V * V, 0.5 * b / V
 
 
 def _gyro_input(c: AircraftConstants, surfaces: tuple[str, ...], rate: str, part: str) -> int:
