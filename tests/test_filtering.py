@@ -599,6 +599,50 @@ def test_compiled_propagation_equals_numpy(monkeypatch, method):
     assert a.log_likelihood == pytest.approx(b.log_likelihood, rel=1e-10)
 
 
+def test_compiled_ekf_of_one_filter_equals_a_batch_member():
+    # one filter (the filter stage's) compiles without the batch axis: the same steps as
+    # each member of a batch, and the numpy pass to rounding
+    from aeroid.estimation._ekf_compiled import ekf_pass
+    from aeroid.models import compiled as _compiled
+
+    model = _pendulum()
+    data, _ = _pendulum_data()
+    t = data.time
+    U = data["tau"][:, None]
+    Y = data["s"][:, None]
+    if not _compiled.available(model, t, np.array([0.7, 0.0]), U, np.array([4.0, 0.3])):
+        pytest.skip("JAX is not available")
+    params = {"w2": np.array([4.0, 3.0]), "c": np.array([0.3, 0.3])}
+    Qc = np.zeros((2, 2, 2))
+    Qc[:, 1, 1] = 1e-4
+    R = np.full((2, 1, 1), 0.02**2)
+    x0 = np.array([[0.7, 0.0], [0.75, 0.1]])
+    P0 = np.repeat(np.diag([0.05, 0.05])[None], 2, axis=0)
+    both = ekf_pass(model, t, U, Y, (0,), params, Qc, R, x0, P0, 1)
+    assert both is not None
+    for b in range(2):
+        sl = slice(b, b + 1)
+        one = ekf_pass(
+            model,
+            t,
+            U,
+            Y,
+            (0,),
+            {k: v[sl] for k, v in params.items()},
+            Qc[sl],
+            R[sl],
+            x0[sl],
+            P0[sl],
+            1,
+        )
+        assert one is not None
+        for a, c in zip(one, both, strict=True):
+            assert a.shape == c[sl].shape
+            assert np.all(np.abs(a - c[sl]) <= 1e-12 * (np.max(np.abs(c[sl])) + 1e-300))
+    # the two members differ (a test of something)
+    assert np.max(np.abs(both[0][0] - both[0][1])) > 1e-3
+
+
 def test_a_one_off_nonlinear_pass_does_not_wait_for_a_compiler(monkeypatch):
     # Compilation pays only once a model has spent about a compilation's worth of
     # numpy passes; a single filter pass stays on numpy.

@@ -74,3 +74,37 @@ def test_expm_non_finite_member_is_nan_alone():
     np.testing.assert_allclose(E[2], np.diag([math.exp(-2.0), math.e]), rtol=1e-14)
     with pytest.raises(ValueError, match="square"):
         expm(np.zeros((2, 3)))
+
+
+@pytest.mark.parametrize("scale", [1e-6, 0.1, 3.0, 40.0])
+def test_compiled_filters_expm_follows_the_numpy_one(scale):
+    # the compiled EKF's exponential takes the numpy one's steps (Padé 13, the same
+    # scaling): equal to rounding on small and large norms and non-normal matrices
+    jax = pytest.importorskip("jax")
+    jax.config.update("jax_enable_x64", True)
+    from aeroid.estimation._ekf_compiled import _expm
+
+    fn = jax.jit(_expm(jax, jax.numpy))
+    rng = np.random.default_rng(11)
+    A = rng.standard_normal((4, 4)) * scale / 2.0
+    A[0, 3] += 50.0 * scale  # non-normal: the powers' norms, not ||A||, set the scaling
+    E = np.asarray(fn(A))
+    assert _rel(E, expm(A)) < 1e-12
+    if scale <= 3.0:
+        assert _rel(E, scipy.linalg.expm(A)) < 1e-12
+
+
+def test_compiled_filters_expm_equals_the_closed_form():
+    jax = pytest.importorskip("jax")
+    jax.config.update("jax_enable_x64", True)
+    from aeroid.estimation._ekf_compiled import _expm
+
+    fn = jax.jit(_expm(jax, jax.numpy))
+    # upper triangular, eigenvalues a and c: a norm that needs 6 squarings
+    a, b, c = -3.0, 200.0, -0.5
+    exact = np.array([[math.exp(a), b * (math.exp(a) - math.exp(c)) / (a - c)], [0.0, math.exp(c)]])
+    assert _rel(np.asarray(fn(np.array([[a, b], [0.0, c]]))), exact) < 1e-13
+    # a rotation
+    w = 0.7
+    R = np.asarray(fn(np.array([[0.0, -w], [w, 0.0]])))
+    assert _rel(R, np.array([[math.cos(w), -math.sin(w)], [math.sin(w), math.cos(w)]])) < 1e-15

@@ -10,6 +10,13 @@ update through the Cholesky factor of the innovation covariance. So the two
 agree to rounding; what the compiled pass cannot do (diagonal jitter of an
 indefinite innovation covariance, naming a failing state) it leaves to the
 numpy pass: any non-finite value makes it return None.
+
+The matrix exponential is `aeroid._linalg.expm`'s (the degree-13 Padé approximant, scaled
+from the norms of the matrix's powers only when its 1-norm asks for it), not
+`jax.scipy.linalg.expm`: that one picks among five approximants and squares up to 16
+times behind conditions, which a batched program turns into computing every branch at
+every sample, and which the compiler compiles every time. A single filter (the filter
+stage's) compiles without the batch axis: its conditions then stay conditions.
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._linalg import _B13, _THETA13
 from ..models import compiled as _compiled
 from ..models.integration import Interpolation, control_excess
 from ..models.model import Model
@@ -30,7 +38,57 @@ FloatArray = NDArray[np.float64]
 Arrays = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
-def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
+def _expm(jax: Any, jnp: Any) -> Any:
+    """`aeroid._linalg.expm` of one matrix as a JAX function, the same steps."""
+    b = _B13
+
+    def norm1(X: Any) -> Any:
+        return jnp.max(jnp.sum(jnp.abs(X), axis=0))
+
+    def squarings(X: Any) -> Any:
+        # only for a matrix whose 1-norm exceeds the approximant's range: the powers'
+        # norms bound the error more tightly for a non-normal (stiff) matrix
+        A2 = X @ X
+        A4 = A2 @ A2
+        A6 = A4 @ A2
+        n1 = norm1(X)
+        d6 = norm1(A6) ** (1.0 / 6.0)
+        d8 = norm1(A4 @ A4) ** (1.0 / 8.0)
+        d10 = norm1(A4 @ A6) ** (1.0 / 10.0)
+        eta = jnp.fmin(jnp.fmin(jnp.fmax(d6, d8), jnp.fmax(d8, d10)), n1)
+        eta = jnp.maximum(eta, n1 * 2.0**-53)
+        s = jnp.where(eta > _THETA13, jnp.ceil(jnp.log2(jnp.maximum(eta, 1e-300) / _THETA13)), 0.0)
+        return jnp.clip(s, 0.0, 1074.0)
+
+    def expm(X: Any) -> Any:
+        s = jax.lax.cond(norm1(X) <= _THETA13, lambda X: jnp.zeros((), X.dtype), squarings, X)
+        si = s.astype(jnp.int32)
+        X = X * jnp.ldexp(jnp.ones((), X.dtype), -si)
+        eye = jnp.eye(X.shape[0], dtype=X.dtype)
+        A2 = X @ X
+        A4 = A2 @ A2
+        A6 = A4 @ A2
+        U = X @ (
+            A6 @ (b[13] * A6 + b[11] * A4 + b[9] * A2)
+            + b[7] * A6
+            + b[5] * A4
+            + b[3] * A2
+            + b[1] * eye
+        )
+        V = (
+            A6 @ (b[12] * A6 + b[10] * A4 + b[8] * A2)
+            + b[6] * A6
+            + b[4] * A4
+            + b[2] * A2
+            + b[0] * eye
+        )
+        E = jnp.linalg.solve(V - U, V + U)
+        return jax.lax.fori_loop(0, si, lambda _, E: E @ E, E)
+
+    return expm
+
+
+def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any, batched: bool) -> Any:
     entry = _compiled._entry(model)
     f = _compiled._traced_once(entry[("fn", "dynamics")], jax)
     h = entry.get(("fn", "measurement")) if model.measurement is not None else None
@@ -43,7 +101,7 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
         sel = np.array([model.states.index(model.output_names[i]) for i in out_idx])
         Hsel[np.arange(len(out_idx)), sel] = 1.0
     step = _compiled._interval(f, jax)
-    expm = jax.scipy.linalg.expm
+    expm = _expm(jax, jnp)
     tri = jax.scipy.linalg.solve_triangular
     eye = np.eye(n)
 
@@ -118,7 +176,16 @@ def _build(model: Model, out_idx: tuple[int, ...], jax: Any, jnp: Any) -> Any:
             cat(S0, S),
         )
 
-    return jax.jit(jax.vmap(one, in_axes=(None, None, None, None, 0, 0, 0, 0, 0, None)))
+    if batched:
+        return jax.jit(jax.vmap(one, in_axes=(None, None, None, None, 0, 0, 0, 0, 0, None)))
+
+    def single(
+        time: Any, U: Any, E: Any, Y: Any, x0: Any, P0: Any, pvec: Any, Qc: Any, R: Any, m: Any
+    ) -> Any:
+        outs = one(time, U, E, Y, x0[0], P0[0], pvec[0], Qc[0], R[0], m)
+        return tuple(a[None] for a in outs)
+
+    return jax.jit(single)
 
 
 def ekf_pass(
@@ -153,10 +220,13 @@ def ekf_pass(
         return None
     jax, jnp = mods
     cache = _compiled._shared(model)
-    key = ("ekf_pass", tuple(out_idx))
+    # a batch of filters (a fit's) or one (the filter stage's): a compilation each,
+    # as any new batch size is
+    batched = B > 1
+    key = ("ekf_pass", tuple(out_idx), batched)
     fn = cache.get(key)
     if fn is None:
-        fn = _build(model, tuple(out_idx), jax, jnp)
+        fn = _build(model, tuple(out_idx), jax, jnp, batched)
         cache[key] = fn
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

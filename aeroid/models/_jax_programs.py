@@ -30,8 +30,11 @@ def _compiled(model: Model, kind: str, extra: Any = None) -> Any:
     f = _traced_once(entry[("fn", "dynamics")], jax)
     h = entry.get(("fn", "measurement"))
     h = None if h is None else _traced_once(h, jax)
-    roll = _rollout(f, jax, jnp)
     if kind == "states":
+        # one interval a loop iteration, as the sampler's: two compiled a fifth longer and
+        # ran no faster, for a batch of one or of many (the demo's rollouts in
+        # tests/benchmarks/bench_compilations.py; the same steps, bit for bit)
+        roll = _rollout(f, jax, jnp, unroll=1)
         shared_u = bool(extra)
         each = None if shared_u else 0
         fn = jax.jit(jax.vmap(roll, in_axes=(None, each, each, 0, 0, None)))

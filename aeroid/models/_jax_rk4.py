@@ -140,8 +140,8 @@ def _rollout(
             x = step(x, t0, t1, u0, u1, ek, pvec, m)
             return x, x
 
-        # by default two intervals per loop iteration: the loop's own overhead is a large
-        # share of each small step (measured in tests/benchmarks/bench_compatibility.py)
+        # by default two intervals per loop iteration (the sensitivities' rollout); the
+        # sampler's and the batch rollout take one: unrolled, they compile longer
         inputs = (time[:-1], time[1:], u[:-1], u[1:], e)
         _, xs = jax.lax.scan(body, x0, inputs, unroll=unroll)
         return jnp.concatenate([x0[None, :], xs], axis=0)
