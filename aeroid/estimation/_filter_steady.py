@@ -178,7 +178,8 @@ def _inverse(S: FloatArray, X: FloatArray | None, eye: FloatArray) -> FloatArray
     """
     if X is not None:
         E = eye - S @ X
-        err = float(np.max(np.sum(np.abs(E), axis=2)))
+        # the array's own reductions: the same sums without numpy's wrapper per call
+        err = float(np.abs(E).sum(axis=2).max())
         if err <= _NEWTON_FROM:
             while True:
                 X = X + X @ E
@@ -212,7 +213,9 @@ def _gains(
     # slice of it without a copy
     G = np.empty((n_t, rows, n, n_y))
     G[0] = 0.0
-    Ht = np.swapaxes(H, 1, 2)
+    # transposes as arrays of their own: a product by a transposed view on its right takes
+    # numpy's slower loop (the same sums, hence the same numbers)
+    Ht = np.ascontiguousarray(np.swapaxes(H, 1, 2))
     PhiT = np.swapaxes(ref.Phi, 2, 3)
     P = P0
     S[:, 0] = H @ P0 @ Ht + R
@@ -221,7 +224,7 @@ def _gains(
     eye = np.eye(n_y)
     X: FloatArray | None = None  # the last step's inverse of S
     single = ref.Phi.shape[1] == 1
-    Phi, PhiT_, Qd = ref.Phi[:, 0], PhiT[:, 0], ref.Qd[:, 0]
+    Phi, PhiT_, Qd = ref.Phi[:, 0], np.ascontiguousarray(PhiT[:, 0]), ref.Qd[:, 0]
     done = n_t - 1
     # a step in as few array operations as it takes: at the demo's sizes each costs
     # about what its arithmetic does, and the recursion runs hundreds of steps a pass
