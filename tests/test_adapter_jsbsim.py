@@ -263,3 +263,19 @@ def test_load_jsbsim_output_repeated_and_backward_time(tmp_path):
         load_jsbsim_output(notime)
     with pytest.raises(aeroid.DataFormatError, match="no such file"):
         load_jsbsim_output(tmp_path / "missing.csv")
+
+
+@pytest.mark.parametrize("rate", [120.0, 400.0])
+def test_the_flight_controls_keep_their_rate_limit_at_any_sample_rate(rate):
+    # the c172x's aileron actuator is rate-limited to 1.57 rad/s; a step command moves it
+    # at that rate whatever step JSBSim takes (set before the aircraft loads: set after,
+    # the actuator kept 1/120 s and moved 5.2 rad/s on a 400 Hz grid)
+    m = JsbsimModel(
+        "c172x",
+        controls={"aileron": "fcs/aileron-cmd-norm"},
+        outputs={"left": "fcs/left-aileron-pos-rad"},
+        initial_conditions=IC,
+    )
+    t = np.arange(int(rate) // 2) / rate
+    y = m.simulate(t, np.where(t >= 0.1, 1.0, 0.0)[:, None]).output("left")
+    assert np.max(np.abs(np.diff(y))) * rate == pytest.approx(1.57, rel=1e-6)

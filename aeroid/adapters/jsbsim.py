@@ -388,7 +388,9 @@ class JsbsimModel:
         jsb = _jsbsim()
         old = _quiet(jsb)
         try:
-            return self._run(jsb, self._exec(jsb), t, u, p, ic)
+            # the step is set as the aircraft loads: its flight controls' rate limits and
+            # lags take theirs then, and keep JSBSim's default 1/120 s if set only later
+            return self._run(jsb, self._exec(jsb, self._step(t)[0]), t, u, p, ic)
         finally:
             _restore(jsb, old)
 
