@@ -390,7 +390,8 @@ class JsbsimModel:
         try:
             # the step is set as the aircraft loads: its flight controls' rate limits and
             # lags take theirs then, and keep JSBSim's default 1/120 s if set only later
-            return self._run(jsb, self._exec(jsb, self._step(t)[0]), t, u, p, ic)
+            stepping = self._step(t)
+            return self._run(jsb, self._exec(jsb, stepping[0]), t, u, p, ic, stepping)
         finally:
             _restore(jsb, old)
 
@@ -402,9 +403,10 @@ class JsbsimModel:
         u: FloatArray,
         p: Mapping[str, float],
         ic: Mapping[str, float],
+        stepping: tuple[float, int, Any],
     ) -> FloatArray:
-        dt, n_steps, sample_steps = self._step(t)
-        fdm.set_dt(dt)
+        # `fdm` steps at `stepping`'s dt already (set as it loaded)
+        dt, n_steps, sample_steps = stepping
         pm = fdm.get_property_manager()
 
         def node(prop: str) -> Any:

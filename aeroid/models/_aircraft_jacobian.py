@@ -75,7 +75,7 @@ def lateral_jacobian(
 ) -> ClosedForm:
     """The closed form of `equations` (`_lateral_function` with the same arguments)."""
     m, b = c.mass, c.b
-    airspeed, _, half_rho_S, _, qbar_S0, half_b_V0 = _lateral_speed(c, V0, surfaces)
+    airspeed, half_rho_S, qbar_S0, half_b_V0 = _lateral_speed(c, V0, surfaces)
     col_V = (5 if with_heading else 4) + airspeed
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz

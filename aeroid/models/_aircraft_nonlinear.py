@@ -310,7 +310,7 @@ def _lateral_function(
     role: str,
 ) -> Callable[[Any, Any, Any, Any], Any]:
     m, b, g = c.mass, c.b, c.g
-    airspeed, _, half_rho_S, _, qbar_S0, half_b_V0 = _lateral_speed(c, V0, surfaces)
+    airspeed, half_rho_S, qbar_S0, half_b_V0 = _lateral_speed(c, V0, surfaces)
     gamma_i = c.Ixx * c.Izz - c.Ixz**2
     Ixx, Izz, Ixz = c.Ixx, c.Izz, c.Ixz
     sin_a0, cos_a0 = math.sin(alpha0), math.cos(alpha0)

@@ -478,9 +478,9 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
 
 def _lateral_speed(
     c: AircraftConstants, V0: float, surfaces: tuple[str, ...]
-) -> tuple[int, float, float, float, float, float]:
+) -> tuple[int, float, float, float]:
     """The numbers a lateral model flies its airspeed with: (the index of its input ``V``
-    among the surfaces, -1 flying the trim's V0; V0; rho S / 2; b; q̄ S and b/2V at V0).
+    among the surfaces, -1 flying the trim's V0; rho S / 2; q̄ S and b/2V at V0).
 
     Plain numbers, each its own closure cell in the model function: the JAX translation
     lifts a closure's numbers out of the compiled program, so that one compilation
@@ -488,7 +488,7 @@ def _lateral_speed(
     """
     rho = c.density()
     column = surfaces.index("V") if "V" in surfaces else -1
-    return (column, V0, 0.5 * rho * c.S, c.b, 0.5 * rho * V0 * V0 * c.S, 0.5 * c.b / V0)
+    return column, 0.5 * rho * c.S, 0.5 * rho * V0 * V0 * c.S, 0.5 * c.b / V0
 
 
 def _speed_at(
