@@ -81,3 +81,54 @@ def test_a_combination_is_listed_once(scale: float) -> None:
     assert len(combos) == len(set(combos))
     assert combos == [("a", "b", "c")]
     assert null.tolist() == [True, True, True, False]
+
+
+def _lag_model(offset: bool) -> aeroid.Model:
+    params = {"a": 1.0, "b": 1.0} | ({"c": 0.0} if offset else {})
+
+    def measurement(t: float, x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
+        return np.array([x[0] + (p["c"] if offset else 0.0)])
+
+    return aeroid.Model(
+        states=["x"],
+        controls=["u"],
+        parameters=params,
+        dynamics=lambda t, x, u, p: np.array([-p["a"] * x[0] + p["b"] * u[0]]),
+        outputs=["y"],
+        measurement=measurement,
+        name="lag_with_offset" if offset else "lag",
+    )
+
+
+def _drifting_record() -> aeroid.FlightData:
+    rng = np.random.default_rng(3)
+    t = np.arange(1500) * 0.02
+    u = np.sign(np.sin(2 * np.pi * 0.3 * t))
+    truth = _lag_model(False).simulate(t, {"u": u}, [0.0], {"a": 2.0, "b": 3.0})
+    y = truth.outputs[:, 0] + 0.3 + np.cumsum(rng.normal(0.0, 0.01, t.size))
+    return aeroid.FlightData(time=t, channels={"u": u, "y": y})
+
+
+def test_a_model_parameter_that_is_an_output_bias_counts_as_one() -> None:
+    data = _drifting_record()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        aeroid.identify(_lag_model(True), data, {"a": 1.0, "b": 1.0, "c": 0.0})
+    drift = [w.message for w in caught if isinstance(w.message, aeroid.ResidualDriftWarning)]
+    assert not drift, drift
+    # the same record fitted without the offset is told that no bias is estimated
+    with pytest.warns(aeroid.ResidualDriftWarning, match=r"no output bias is estimated on \['y'\]"):
+        aeroid.identify(_lag_model(False), data, {"a": 1.0, "b": 1.0})
+
+
+def test_only_a_constant_sensitivity_on_one_output_is_an_offset() -> None:
+    from aeroid.estimation._noise_model import _offset_outputs
+
+    n = 200
+    g = np.zeros((n, 2, 4))
+    g[:, 0, 0] = 1.0  # an offset on output 0
+    g[:, 1, 1] = 1.0 + 0.01 * np.sin(np.arange(n))  # nearly constant: a gain, not an offset
+    g[:, 0, 2] = g[:, 1, 2] = 2.0  # constant on two outputs: not one output's bias
+    g[:, 1, 3] = np.linspace(0.0, 1.0, n)  # a ramp
+    assert _offset_outputs([g[:100], g[100:]]) == {0}
+    assert _offset_outputs(None) == set()

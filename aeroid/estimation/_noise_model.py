@@ -625,6 +625,27 @@ def _state_biased_outputs(mans: Sequence[Any], states: list[str], outputs: list[
     return found
 
 
+def _offset_outputs(jacobians: Sequence[FloatArray] | None) -> set[int]:
+    """Outputs on which one of the model's own parameters is an output bias: its
+    sensitivity (`jacobians`, per record (n_t, n_y, p)) is the same at every sample
+    on that output and nothing on any other, as a ``b_az`` added to ``az`` is."""
+    found: set[int] = set()
+    if not jacobians:
+        return found
+    g = np.concatenate([np.asarray(j, dtype=np.float64) for j in jacobians])
+    size = np.max(np.abs(g), axis=0)  # (n_y, p)
+    for j in range(g.shape[2]):
+        live = np.flatnonzero(size[:, j] > 1e-9 * np.max(size[:, j], initial=0.0))
+        if live.size != 1:
+            continue
+        k = int(live[0])
+        column = g[:, k, j]
+        # relative to its size: a finite-difference sensitivity carries rounding
+        if np.ptp(column) <= 1e-6 * size[k, j]:
+            found.add(k)
+    return found
+
+
 def _warn_unabsorbed_drift(
     phi: FloatArray,
     mans: Sequence[Any],
@@ -633,6 +654,7 @@ def _warn_unabsorbed_drift(
     cov_white: FloatArray,
     names: list[str],
     states: list[str] | None = None,
+    jacobians: Sequence[FloatArray] | None = None,
 ) -> None:
     """Warn when an output's residual drifts like a random walk over the record: the
     coloured error bars then widen, most on the parameter named. An output bias
@@ -640,11 +662,12 @@ def _warn_unabsorbed_drift(
     (``estimate_bias={name: 'state'}``) absorbs a ramp but not a wandering offset; a
     wandering one (turbulence, unmodelled slow dynamics) is process noise, which
     filter error models. Outputs with an output bias are not named: their drift is
-    what that bias is for."""
+    what that bias is for. A parameter of the model that is an output bias (its
+    sensitivity, in `jacobians`, a constant on that output alone) counts as one."""
     n_t = sum(m.time.size for m in mans)
     with np.errstate(divide="ignore"):
         tau = np.where(phi > 0, -1.0 / np.log(np.clip(phi, 1e-300, None)), 0.0)
-    biased = {k for m in mans for k in m.bias_free}
+    biased = {k for m in mans for k in m.bias_free} | _offset_outputs(jacobians)
     via_state = _state_biased_outputs(mans, states or [], outputs)
     drifting = [outputs[k] for k in range(phi.size) if tau[k] > n_t and k not in biased]
     if not drifting:

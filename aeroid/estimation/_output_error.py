@@ -621,7 +621,14 @@ def fit_output_error(
         # travel with the result, whose intervals take the t quantile
         nu = nu_kept
         _warn_unabsorbed_drift(
-            phi, mans, outputs, cov_col, cov_white, [names_all[j] for j in keep], states
+            phi,
+            mans,
+            outputs,
+            cov_col,
+            cov_white,
+            [names_all[j] for j in keep],
+            states,
+            jacobians,
         )
         cov = cov_col
         dc = np.diag(cov_col)
