@@ -567,8 +567,11 @@ def margins(
     return {n: float(q[i] * stderr[n]) for i, n in enumerate(names)}
 
 
-def frequency_sandwich(jac: FloatArray, res: FloatArray, m_inv: FloatArray) -> FloatArray:
-    """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies.
+def frequency_sandwich(
+    jac: FloatArray, res: FloatArray, m_inv: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
+    and each parameter's degrees of freedom.
 
     Frequency-domain estimators fit Fourier transforms on the ``k/T`` grid, where
     the transforms at distinct frequencies are nearly independent however
@@ -586,6 +589,26 @@ def frequency_sandwich(jac: FloatArray, res: FloatArray, m_inv: FloatArray) -> F
         Per frequency, the real-stacked weighted residuals.
     m_inv : (p, p) array
         The (pseudo-)inverse of ``M = sum J'J``.
+
+    Returns
+    -------
+    cov, nu : the covariance (p, p) and per-parameter Satterthwaite degrees of
+    freedom (p,) of its diagonal.
+
+    Notes
+    -----
+    Parameter j's variance is a sum over frequencies, ``sum_m t_mj^2`` with
+    ``t_mj = e_j' M^-1 J_m' u_m`` one real Gaussian per frequency (its rows are
+    the real and imaginary parts of one transform), so each term is ``v_mj
+    chi2_1`` and ``nu_j = (sum_m v_mj)^2 / sum_m v_mj^2``: as many degrees of
+    freedom as frequencies where the information is spread evenly, one where a
+    single frequency carries it. Both sums are estimated without bias from the
+    terms themselves: ``sum v^2`` as ``sum t^4 / 3`` (a chi2_1 variable's fourth
+    moment is three times its squared variance) and ``(sum v)^2`` as ``(sum
+    t^2)^2 - 2 sum v^2``, so ``nu_j = 3 (sum t^2)^2 / sum t^4 - 2`` (one for a
+    single frequency). A few frequencies near a lightly damped mode, which
+    carry most of a parameter's information and the noise there, then give
+    the few degrees of freedom they are worth and the wider t interval.
     """
     lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
     lev = 0.5 * (lev + lev.transpose(0, 2, 1))
@@ -594,4 +617,10 @@ def frequency_sandwich(jac: FloatArray, res: FloatArray, m_inv: FloatArray) -> F
     scale = np.where(w > 1e-9, 1.0 / np.sqrt(np.maximum(w, 1e-300)), 1.0)
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
     score = np.einsum("mrn,mr->mn", jac, u)
-    return np.asarray(m_inv @ (score.T @ score) @ m_inv, dtype=np.float64)
+    cov = np.asarray(m_inv @ (score.T @ score) @ m_inv, dtype=np.float64)
+    terms = (score @ m_inv) ** 2  # (M, p): t_mj^2
+    total = terms.sum(axis=0)
+    fourth = np.sum(terms**2, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nu = np.where(fourth > 0, 3.0 * total**2 / fourth - 2.0, np.inf)
+    return cov, np.asarray(np.maximum(nu, 1.0), dtype=np.float64)

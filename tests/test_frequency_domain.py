@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import scipy.signal
 
 import aeroid
 from aeroid import ChannelError, FlightData, IdentificationError, Model
@@ -317,6 +318,36 @@ def test_error_bar_coverage(error_bars: str) -> None:
         assert 0.95 - tol < c <= min(1.0, 0.95 + tol), (k, c)
     # averaged over the five parameters the tolerance shrinks (correlated, so only by √2)
     assert abs(np.mean(list(cover.values())) - 0.95) < tol / np.sqrt(2)
+
+
+def _ar1_noise(rng: np.random.Generator, n: int, phi: float) -> np.ndarray:
+    """Unit-variance AR(1) noise with a stationary start."""
+    w = rng.standard_normal(n)
+    w[0] /= np.sqrt(1.0 - phi**2)
+    return np.asarray(scipy.signal.lfilter([1.0], [1.0, -phi], w) * np.sqrt(1.0 - phi**2))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("phi", [0.9, 0.99])
+def test_coloured_noise_coverage_with_the_sandwichs_degrees_of_freedom(phi: float) -> None:
+    # AR(1) noise on both outputs (phi 0.99 at 50 Hz: a 2 s correlation time in a 20 s
+    # record); each interval is the result's own (t with the sandwich's degrees of
+    # freedom). 200 seeds: a calibrated 95 % rate has a binomial sd of 1.5 %, so each
+    # parameter must reach 0.95 less 4 sd (0.888) and their mean the issue's 0.90
+    model, clean = _short(), _short_record(0.02).to_flight_data()
+    hits = dict.fromkeys(SHORT, 0)
+    seeds = 200
+    for seed in range(seeds):
+        rng = np.random.default_rng(5000 + seed)
+        ch = {n: np.asarray(clean[n], dtype=float) for n in clean.names}
+        for n, sigma in (("alpha", 0.002), ("q", 0.005)):
+            ch[n] = ch[n] + sigma * _ar1_noise(rng, clean.time.size, phi)
+        res = identify_frequency_domain(model, aeroid.FlightData(clean.time, ch), SHORT)
+        half = res.margin(0.95)
+        for k, v in SHORT.items():
+            hits[k] += abs(res.parameters[k] - v) <= half[k]
+    cover = np.array([hits[k] / seeds for k in SHORT])
+    assert np.all(cover >= 0.888) and cover.mean() >= 0.90, dict(zip(SHORT, cover, strict=True))
 
 
 # -- results work with the rest of the chain ------------------------------------------------------

@@ -579,7 +579,31 @@ def test_frequency_sandwich_is_the_leverage_corrected_score_sum() -> None:
     lev = np.einsum("mp,pq,mq->m", jac[:, 0], inv, jac[:, 0])
     score = jac[:, 0] * (res[:, 0] / np.sqrt(1.0 - lev))[:, None]
     want = inv @ score.T @ score @ inv
-    np.testing.assert_allclose(_colour.frequency_sandwich(jac, res, inv), want, rtol=1e-10)
+    cov, nu = _colour.frequency_sandwich(jac, res, inv)
+    np.testing.assert_allclose(cov, want, rtol=1e-10)
+    # each frequency's term is chi2_1: nu = 3 (sum t^2)^2 / sum t^4 - 2
+    t2 = (score @ inv) ** 2
+    np.testing.assert_allclose(nu, 3.0 * t2.sum(0) ** 2 / (t2**2).sum(0) - 2.0, rtol=1e-10)
+
+
+def test_frequency_sandwich_degrees_of_freedom_count_the_frequencies_that_inform() -> None:
+    # information spread evenly over m frequencies gives about m degrees of freedom
+    # (the plug-in's spread over seeds is its own); one frequency alone gives one
+    from aeroid import _colour
+
+    m = 400
+    jac = np.ones((m, 1, 1))
+    inv = np.array([[1.0 / m]])
+    nus = [
+        _colour.frequency_sandwich(jac, rng.standard_normal((m, 1)), inv)[1][0]
+        for rng in map(np.random.default_rng, range(50))
+    ]
+    assert 0.85 * m < np.median(nus) < 1.15 * m
+    lone = np.zeros((m, 1, 1))
+    lone[7] = 1.0
+    res = np.random.default_rng(1).standard_normal((m, 1))
+    _, nu = _colour.frequency_sandwich(lone, res, np.array([[1.0]]))
+    assert nu[0] == 1.0
 
 
 def test_absolute_values_of_channels_as_regressors() -> None:

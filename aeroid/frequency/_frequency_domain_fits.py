@@ -29,8 +29,9 @@ ComplexArray = NDArray[np.complex128]
 
 def _covariances(
     jac: FloatArray, res: FloatArray, labels: list[str], white_scale: float
-) -> tuple[FloatArray, FloatArray, list[tuple[str, ...]], Any]:
-    """White and frequency-sandwich covariances of a weighted real least squares.
+) -> tuple[FloatArray, FloatArray, list[tuple[str, ...]], Any, FloatArray]:
+    """White and frequency-sandwich covariances of a weighted real least squares, and
+    the sandwich's degrees of freedom per unknown.
 
     `jac` (M, r, n) and `res` (M, r): per frequency, the real-stacked weighted
     sensitivities and residuals. The white covariance is `white_scale` times
@@ -47,7 +48,7 @@ def _covariances(
     # the one coloured-residual correction, in its per-frequency form: the few
     # frequencies near a mode carry most of the information, and the fit pulls
     # their residuals towards zero (their leverage)
-    colored = frequency_sandwich(jac, res, np.asarray(inv, dtype=np.float64))
+    colored, nu = frequency_sandwich(jac, res, np.asarray(inv, dtype=np.float64))
     for cov in (white, colored):
         for j in np.flatnonzero(null):
             cov[j, :] = np.nan
@@ -58,6 +59,7 @@ def _covariances(
         np.asarray(colored, dtype=np.float64),
         combos,
         null,
+        np.asarray(nu, dtype=np.float64),
     )
 
 
@@ -121,6 +123,8 @@ class _Fit:
     iterations: int
     success: bool
     message: str
+    dof: FloatArray | None = None  # per unknown, of the frequency sandwich's variances
+    white_dof: float = np.inf  # of the white variances: real rows less unknowns
 
 
 def _boundary(sp: _Spectra, states: list[str]) -> tuple[ComplexArray, list[str]]:
@@ -185,7 +189,7 @@ def _equation_error(
     jac = _stack(cols * weight[None, :, None])
     res = _stack(v * weight[None, :])
     # each weighted real row has unit variance (its variance already counts the unknowns)
-    white, colored, combos, _ = _covariances(jac, res, labels, 1.0)
+    white, colored, combos, _, nu = _covariances(jac, res, labels, 1.0)
     theta[:n_p] += p0
     return _Fit(
         theta,
@@ -199,6 +203,8 @@ def _equation_error(
         1,
         True,
         "closed-form least squares",
+        nu,
+        float(max(res.size - theta.size, 1)),
     )
 
 
@@ -383,7 +389,7 @@ def _output_error(
     # is short by the unknowns the fit absorbed
     n_rows = res.size
     scale = 0.5 if noise is not None else 0.5 * n_rows / max(n_rows - theta.size, 1)
-    white, colored, combos, _ = _covariances(jac, res, labels, scale)
+    white, colored, combos, _, nu = _covariances(jac, res, labels, scale)
     S = np.linalg.inv(Li.conj().T @ Li)
     return _Fit(
         theta,
@@ -397,4 +403,7 @@ def _output_error(
         it,
         success,
         message,
+        nu,
+        # a known noise level spends no rows; an estimated one spends the unknowns'
+        np.inf if noise is not None else float(max(n_rows - theta.size, 1)),
     )

@@ -589,6 +589,10 @@ def _result(
     n_p = len(names)
     cov_all = fit.colored if error_bars == "colored" else fit.white
     sd_all = np.sqrt(np.clip(np.diag(cov_all), 0.0, None))
+    if error_bars == "colored" and fit.dof is not None:
+        dof_all = np.asarray(fit.dof, dtype=np.float64)
+    else:
+        dof_all = np.full(len(fit.labels), fit.white_dof)
     if fit.combos:
         text = "; ".join(" + ".join(c) for c in fit.combos)
         warnings.warn(
@@ -627,4 +631,7 @@ def _result(
         frequencies=omega,
         spectral_residuals=fit.residuals,
         residual_names=tuple(fit_names),
+        degrees_of_freedom={
+            lab: float(d) for lab, d in zip(fit.labels, dof_all, strict=True) if lab in names
+        },
     )

@@ -396,8 +396,9 @@ for _stage in (
     Stage(
         "frequency_domain_identify",  # once "frequency_identify"
         # 2: fdoe's noise weighting by default, record ends kept only when significant;
-        # 3: the one least-squares solver and its relative stopping rule
-        "3",
+        # 3: the one least-squares solver and its relative stopping rule;
+        # 4: the sandwich's degrees of freedom (t intervals)
+        "4",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
