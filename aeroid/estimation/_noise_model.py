@@ -667,11 +667,14 @@ def _warn_unabsorbed_drift(
     n_t = sum(m.time.size for m in mans)
     with np.errstate(divide="ignore"):
         tau = np.where(phi > 0, -1.0 / np.log(np.clip(phi, 1e-300, None)), 0.0)
-    biased = {k for m in mans for k in m.bias_free} | _offset_outputs(jacobians)
-    via_state = _state_biased_outputs(mans, states or [], outputs)
+    biased = {k for m in mans for k in m.bias_free}
     drifting = [outputs[k] for k in range(phi.size) if tau[k] > n_t and k not in biased]
+    if drifting:  # a model's own bias parameters are looked for only then
+        offsets = _offset_outputs(jacobians)
+        drifting = [o for o in drifting if outputs.index(o) not in offsets]
     if not drifting:
         return
+    via_state = _state_biased_outputs(mans, states or [], outputs)
     white = np.diag(cov_white)
     ok = np.flatnonzero(white > 0)
     if ok.size == 0:

@@ -123,8 +123,8 @@ class _Fit:
     iterations: int
     success: bool
     message: str
-    dof: FloatArray | None = None  # per unknown, of the frequency sandwich's variances
-    white_dof: float = np.inf  # of the white variances: real rows less unknowns
+    dof: FloatArray  # per unknown, of the frequency sandwich's variances
+    white_dof: float  # of the white variances: real rows less unknowns (inf: noise known)
 
 
 def _boundary(sp: _Spectra, states: list[str]) -> tuple[ComplexArray, list[str]]:

@@ -589,10 +589,7 @@ def _result(
     n_p = len(names)
     cov_all = fit.colored if error_bars == "colored" else fit.white
     sd_all = np.sqrt(np.clip(np.diag(cov_all), 0.0, None))
-    if error_bars == "colored" and fit.dof is not None:
-        dof_all = np.asarray(fit.dof, dtype=np.float64)
-    else:
-        dof_all = np.full(len(fit.labels), fit.white_dof)
+    dof_all = fit.dof if error_bars == "colored" else np.full(len(fit.labels), fit.white_dof)
     if fit.combos:
         text = "; ".join(" + ".join(c) for c in fit.combos)
         warnings.warn(
