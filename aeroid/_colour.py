@@ -568,7 +568,10 @@ def margins(
 
 
 def frequency_sandwich(
-    jac: FloatArray, res: FloatArray, m_inv: FloatArray
+    jac: FloatArray,
+    res: FloatArray,
+    m_inv: FloatArray,
+    overlap: NDArray[np.complex128] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
     and each parameter's degrees of freedom.
@@ -589,6 +592,10 @@ def frequency_sandwich(
         Per frequency, the real-stacked weighted residuals.
     m_inv : (p, p) array
         The (pseudo-)inverse of ``M = sum J'J``.
+    overlap : (M, M) complex array, optional
+        The correlation of the transforms of white noise at each pair of the
+        frequencies, ``kappa_jk = E[V_j V_k^*] / E|V|^2`` (zero off the diagonal on
+        the ``k/T`` grid; None there).
 
     Returns
     -------
@@ -609,6 +616,20 @@ def frequency_sandwich(
     single frequency). A few frequencies near a lightly damped mode, which
     carry most of a parameter's information and the noise there, then give
     the few degrees of freedom they are worth and the wider t interval.
+
+    Off the ``k/T`` grid (frequencies closer than ``2 pi/T``, as SIDPAC's
+    ``fdoe`` examples choose them) neighbouring transforms share the noise:
+    for noise whose spectrum is flat across a few bins, ``E[v_j v_k^H] =
+    kappa_jk F``, with ``kappa`` the finite record's kernel, so the score
+    terms of frequencies j and k covary by ``1/2 Re W_j^H kappa_jk F_jk
+    W_k`` (``W`` the complex weighted sensitivities) and ``B`` gains those
+    pairs, with ``F_jk`` the mean of the two frequencies' leverage-corrected
+    residual outer products. The degrees of freedom count them too: with
+    ``rho_jk = |kappa_jk|`` the terms ``t_j^2`` covary, ``sum v`` is as
+    before and ``sum_jk v_j v_k rho_jk^2`` takes the place of ``sum v^2``,
+    each pair estimated by ``t_j^2 t_k^2 / (1 + 2 rho_jk^2)`` (Gaussian
+    fourth moments), so ``nu = (sum t^2)^2 / D - 2``: fewer degrees of
+    freedom than frequencies, about as many as the record holds bins.
     """
     lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
     lev = 0.5 * (lev + lev.transpose(0, 2, 1))
@@ -617,10 +638,33 @@ def frequency_sandwich(
     scale = np.where(w > 1e-9, 1.0 / np.sqrt(np.maximum(w, 1e-300)), 1.0)
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
     score = np.einsum("mrn,mr->mn", jac, u)
-    cov = np.asarray(m_inv @ (score.T @ score) @ m_inv, dtype=np.float64)
+    meat = score.T @ score
     terms = (score @ m_inv) ** 2  # (M, p): t_mj^2
     total = terms.sum(axis=0)
-    fourth = np.sum(terms**2, axis=0)
+    fourth = np.sum(terms**2, axis=0) / 3.0
+    if overlap is not None:
+        meat = meat + _overlap_meat(jac, u, overlap)
+        rho2 = np.abs(overlap) ** 2
+        np.fill_diagonal(rho2, 0.0)
+        fourth = fourth + np.einsum("jp,jk,kp->p", terms, rho2 / (1.0 + 2.0 * rho2), terms)
+    cov = np.asarray(m_inv @ meat @ m_inv, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        nu = np.where(fourth > 0, 3.0 * total**2 / fourth - 2.0, np.inf)
+        nu = np.where(fourth > 0, total**2 / fourth - 2.0, np.inf)
     return cov, np.asarray(np.maximum(nu, 1.0), dtype=np.float64)
+
+
+def _overlap_meat(jac: FloatArray, u: FloatArray, overlap: NDArray[np.complex128]) -> FloatArray:
+    """``sum_{j != k} 1/2 Re W_j^H kappa_jk F_jk W_k`` with ``F_jk = (u_j u_j^H + u_k
+    u_k^H)/2``, from the real-stacked sensitivities and (corrected) residuals."""
+    r = jac.shape[1] // 2
+    W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
+    e = u[:, :r] + 1j * u[:, r:]  # (M, r)
+    kappa = overlap.copy()
+    np.fill_diagonal(kappa, 0.0)
+    a = np.einsum("jrp,jr->jp", W.conj(), e)  # W_j^H u_j
+    b = np.einsum("jr,krq->jkq", e.conj(), W)  # u_j^H W_k
+    # sum_jk kappa_jk (W_j^H u_j u_j^H W_k + W_j^H u_k u_k^H W_k) / 2, then 1/2 Re
+    first = np.einsum("jk,jp,jkq->pq", kappa, a, b)
+    second = np.einsum("jk,kjp,kq->pq", kappa, b.conj(), a.conj())
+    out = 0.25 * (first + second).real
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64)

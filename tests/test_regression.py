@@ -606,6 +606,43 @@ def test_frequency_sandwich_degrees_of_freedom_count_the_frequencies_that_inform
     assert nu[0] == 1.0
 
 
+def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance() -> None:
+    # off the k/T grid the transforms share the noise: the meat gains, for each pair
+    # j != k, 1/2 Re W_j^H kappa_jk F_jk W_k with F_jk the mean of the two residual
+    # outer products; a kappa that vanishes off the diagonal changes nothing
+    from aeroid import _colour
+
+    rng = np.random.default_rng(8)
+    m, r, p = 12, 2, 3
+    W = rng.standard_normal((m, r, p)) + 1j * rng.standard_normal((m, r, p))
+    e = rng.standard_normal((m, r)) + 1j * rng.standard_normal((m, r))
+    jac = np.concatenate([W.real, W.imag], axis=1)
+    res = np.concatenate([e.real, e.imag], axis=1)
+    inv = np.linalg.inv(np.einsum("mrp,mrq->pq", jac, jac))
+    omega = np.linspace(1.0, 3.0, m)
+    half = 0.5 * (omega[:, None] - omega[None, :]) * 4.0
+    kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
+    plain, nu0 = _colour.frequency_sandwich(jac, res, inv)
+    cov, nu = _colour.frequency_sandwich(jac, res, inv, kappa)
+    # the leverage-corrected residuals, as the sandwich forms them
+    lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
+    w, v = np.linalg.eigh(np.eye(2 * r)[None] - 0.5 * (lev + lev.transpose(0, 2, 1)))
+    u = np.einsum("mrs,ms,mts,mt->mr", v, 1.0 / np.sqrt(w), v, res)
+    uc = u[:, :r] + 1j * u[:, r:]
+    extra = np.zeros((p, p))
+    for j in range(m):
+        for k in range(m):
+            if j != k:
+                f = 0.5 * (np.outer(uc[j], uc[j].conj()) + np.outer(uc[k], uc[k].conj()))
+                extra += 0.5 * (W[j].conj().T @ (kappa[j, k] * f) @ W[k]).real
+    extra = 0.5 * (extra + extra.T)
+    np.testing.assert_allclose(cov, plain + inv @ extra @ inv, rtol=1e-10, atol=1e-14)
+    # shared noise leaves fewer degrees of freedom than frequencies
+    assert np.all(nu < nu0)
+    grid = np.eye(m, dtype=complex)
+    np.testing.assert_allclose(_colour.frequency_sandwich(jac, res, inv, grid)[0], plain)
+
+
 def test_absolute_values_of_channels_as_regressors() -> None:
     # a V-shaped response (sideslip drag, 0.17 |beta|): stepwise selection over a pool
     # with squares and absolute values takes |beta|, not beta^2, and equation error

@@ -57,6 +57,9 @@ divided by one minus its leverage (the jackknife form) — residuals at
 distinct frequencies of the ``k/T`` grid are nearly independent even when
 they are coloured in time, so this corrects the bound for coloured
 residuals (the frequency-domain counterpart of the time-domain correction).
+Frequencies off that grid (closer than ``2π/T``) share their noise through
+the record's kernel; the sandwich then adds each pair's covariance
+(`aeroid._colour.frequency_sandwich`).
 """
 
 from __future__ import annotations
@@ -526,6 +529,7 @@ def identify_frequency_domain(
         end,
         _transform(data.array(fit_names), dt, omega, cubic=True),
         dt * duration,
+        _overlap(omega, duration),
     )
     ss = StateSpace(
         model,
@@ -551,6 +555,16 @@ def identify_frequency_domain(
         fit = _ends_tested(fit, error_bars, len(names), len(delayed), run)
     names = names + [f"delay.{c}" for c in tau0]
     return _result(model, data, names, fit, method, error_bars, fit_names, omega, states)
+
+
+def _overlap(omega: FloatArray, duration: float) -> ComplexArray | None:
+    """The correlation of white noise's transforms over [0, T] at each pair of
+    frequencies, ``e^{-i dw T/2} sinc(dw T/2)``; None on the ``k/T`` grid, where
+    it vanishes off the diagonal."""
+    half = 0.5 * (omega[:, None] - omega[None, :]) * duration
+    kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
+    off = np.abs(kappa - np.eye(omega.size))
+    return None if float(off.max(initial=0.0)) < 1e-6 else np.asarray(kappa, dtype=np.complex128)
 
 
 def _ends_tested(fit: _Fit, error_bars: str, n_p: int, n_d: int, run: Any) -> _Fit:

@@ -397,8 +397,9 @@ for _stage in (
         "frequency_domain_identify",  # once "frequency_identify"
         # 2: fdoe's noise weighting by default, record ends kept only when significant;
         # 3: the one least-squares solver and its relative stopping rule;
-        # 4: the sandwich's degrees of freedom (t intervals)
-        "4",
+        # 4: the sandwich's degrees of freedom (t intervals);
+        # 5: the noise that frequencies off the k/T grid share
+        "5",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
