@@ -45,6 +45,8 @@ _PREWHITEN = True
 # Fixed-point steps that move the AR(1) coefficients until the model's expected
 # residual lag-one correlation is the one seen (the fit removed the slowest noise).
 _AR_STEPS = 3
+# Elements of one block of the frequency-pair kernel's products (memory, not speed).
+_KERNEL_BLOCK = 2_000_000
 # At most this many (bin, output) pairs of the low band get the exact covariance.
 _BAND_SIZE = 128
 # ... and only where the window reaches no further than this many bins from w = 0.
@@ -571,7 +573,7 @@ def frequency_sandwich(
     jac: FloatArray,
     res: FloatArray,
     m_inv: FloatArray,
-    overlap: NDArray[np.complex128] | None = None,
+    grid: tuple[FloatArray, float] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
     and each parameter's degrees of freedom.
@@ -592,10 +594,11 @@ def frequency_sandwich(
         Per frequency, the real-stacked weighted residuals.
     m_inv : (p, p) array
         The (pseudo-)inverse of ``M = sum J'J``.
-    overlap : (M, M) complex array, optional
-        The correlation of the transforms of white noise at each pair of the
-        frequencies, ``kappa_jk = E[V_j V_k^*] / E|V|^2`` (zero off the diagonal on
-        the ``k/T`` grid; None there).
+    grid : (omega (M,), T), optional
+        The frequencies (rad/s) and the record's length when they are not on
+        its ``k/T`` grid: the transforms of white noise then correlate as
+        ``kappa_jk = E[V_j V_k^*] / E|V|^2 = e^{-i dw T/2} sinc(dw T/2)``,
+        ``dw = omega_j - omega_k`` (zero for distinct frequencies on the grid).
 
     Returns
     -------
@@ -642,29 +645,54 @@ def frequency_sandwich(
     terms = (score @ m_inv) ** 2  # (M, p): t_mj^2
     total = terms.sum(axis=0)
     fourth = np.sum(terms**2, axis=0) / 3.0
-    if overlap is not None:
-        meat = meat + _overlap_meat(jac, u, overlap)
-        rho2 = np.abs(overlap) ** 2
-        np.fill_diagonal(rho2, 0.0)
-        fourth = fourth + np.einsum("jp,jk,kp->p", terms, rho2 / (1.0 + 2.0 * rho2), terms)
+    if grid is not None:
+        shared, pairs = _overlap_terms(jac, u, terms, np.asarray(grid[0], float), grid[1])
+        meat = meat + shared
+        fourth = fourth + pairs
     cov = np.asarray(m_inv @ meat @ m_inv, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(fourth > 0, total**2 / fourth - 2.0, np.inf)
     return cov, np.asarray(np.maximum(nu, 1.0), dtype=np.float64)
 
 
-def _overlap_meat(jac: FloatArray, u: FloatArray, overlap: NDArray[np.complex128]) -> FloatArray:
-    """``sum_{j != k} 1/2 Re W_j^H kappa_jk F_jk W_k`` with ``F_jk = (u_j u_j^H + u_k
-    u_k^H)/2``, from the real-stacked sensitivities and (corrected) residuals."""
+def _kernel(omega: FloatArray, rows: slice, span: float) -> NDArray[np.complex128]:
+    """Rows `rows` of the white-noise transforms' correlation ``kappa``, its diagonal
+    (a frequency with itself) set to zero."""
+    half = 0.5 * (omega[rows, None] - omega[None, :]) * span
+    kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
+    idx = np.arange(omega.size)[rows]
+    kappa[np.arange(idx.size), idx] = 0.0
+    return np.asarray(kappa, dtype=np.complex128)
+
+
+def _overlap_terms(
+    jac: FloatArray, u: FloatArray, terms: FloatArray, omega: FloatArray, span: float
+) -> tuple[FloatArray, FloatArray]:
+    """The meat's pairs ``sum_{j != k} 1/2 Re W_j^H kappa_jk F_jk W_k`` with ``F_jk =
+    (u_j u_j^H + u_k u_k^H)/2``, and the pairs' share ``sum_{j != k} t_j^2 t_k^2
+    rho^2 / (1 + 2 rho^2)`` of the degrees of freedom's denominator; ``kappa`` is
+    formed a block of rows at a time, so memory stays linear in the frequencies."""
+    m = omega.size
     r = jac.shape[1] // 2
     W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
     e = u[:, :r] + 1j * u[:, r:]  # (M, r)
-    kappa = overlap.copy()
-    np.fill_diagonal(kappa, 0.0)
     a = np.einsum("jrp,jr->jp", W.conj(), e)  # W_j^H u_j
-    b = np.einsum("jr,krq->jkq", e.conj(), W)  # u_j^H W_k
-    # sum_jk kappa_jk (W_j^H u_j u_j^H W_k + W_j^H u_k u_k^H W_k) / 2, then 1/2 Re
-    first = np.einsum("jk,jp,jkq->pq", kappa, a, b)
-    second = np.einsum("jk,kjp,kq->pq", kappa, b.conj(), a.conj())
+    p = W.shape[2]
+    first = np.zeros((p, p), dtype=np.complex128)
+    second = np.zeros((p, p), dtype=np.complex128)
+    pairs = np.zeros(p)
+    step = max(1, _KERNEL_BLOCK // max(m * max(r * p, 1), 1))
+    for lo in range(0, m, step):
+        rows = slice(lo, min(lo + step, m))
+        kappa = _kernel(omega, rows, span)  # (rows, M)
+        # sum_k kappa_jk W_k for the block's j, and sum_j kappa_jk^* W_j's share
+        mixed = np.einsum("jk,krq->jrq", kappa, W)
+        b = np.einsum("jr,jrq->jq", e[rows].conj(), mixed)  # u_j^H sum_k kappa_jk W_k
+        first += a[rows].T @ b
+        back = np.einsum("jk,jrq->krq", kappa.conj(), W[rows])  # sum_j kappa_jk^* W_j
+        d = np.einsum("krp,kr->kp", back.conj(), e)  # (sum_j kappa_jk W_j^H) u_k
+        second += d.T @ a.conj()
+        rho2 = np.abs(kappa) ** 2
+        pairs += np.einsum("jp,jk,kp->p", terms[rows], rho2 / (1.0 + 2.0 * rho2), terms)
     out = 0.25 * (first + second).real
-    return np.asarray(0.5 * (out + out.T), dtype=np.float64)
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64), pairs

@@ -606,12 +606,16 @@ def test_frequency_sandwich_degrees_of_freedom_count_the_frequencies_that_inform
     assert nu[0] == 1.0
 
 
-def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance() -> None:
+@pytest.mark.parametrize("block", [2_000_000, 50])
+def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance(
+    block: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # off the k/T grid the transforms share the noise: the meat gains, for each pair
     # j != k, 1/2 Re W_j^H kappa_jk F_jk W_k with F_jk the mean of the two residual
     # outer products; a kappa that vanishes off the diagonal changes nothing
     from aeroid import _colour
 
+    monkeypatch.setattr(_colour, "_KERNEL_BLOCK", block)  # one block, or one row each
     rng = np.random.default_rng(8)
     m, r, p = 12, 2, 3
     W = rng.standard_normal((m, r, p)) + 1j * rng.standard_normal((m, r, p))
@@ -623,7 +627,7 @@ def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance() -> None:
     half = 0.5 * (omega[:, None] - omega[None, :]) * 4.0
     kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
     plain, nu0 = _colour.frequency_sandwich(jac, res, inv)
-    cov, nu = _colour.frequency_sandwich(jac, res, inv, kappa)
+    cov, nu = _colour.frequency_sandwich(jac, res, inv, (omega, 4.0))
     # the leverage-corrected residuals, as the sandwich forms them
     lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
     w, v = np.linalg.eigh(np.eye(2 * r)[None] - 0.5 * (lev + lev.transpose(0, 2, 1)))
@@ -639,8 +643,11 @@ def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance() -> None:
     np.testing.assert_allclose(cov, plain + inv @ extra @ inv, rtol=1e-10, atol=1e-14)
     # shared noise leaves fewer degrees of freedom than frequencies
     assert np.all(nu < nu0)
-    grid = np.eye(m, dtype=complex)
-    np.testing.assert_allclose(_colour.frequency_sandwich(jac, res, inv, grid)[0], plain)
+    # on the k/T grid the pairs vanish
+    on_grid = 2 * np.pi / 4.0 * np.arange(3.0, 3.0 + m)
+    np.testing.assert_allclose(
+        _colour.frequency_sandwich(jac, res, inv, (on_grid, 4.0))[0], plain, atol=1e-12
+    )
 
 
 def test_absolute_values_of_channels_as_regressors() -> None:

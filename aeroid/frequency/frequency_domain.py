@@ -529,7 +529,7 @@ def identify_frequency_domain(
         end,
         _transform(data.array(fit_names), dt, omega, cubic=True),
         dt * duration,
-        _overlap(omega, duration),
+        _off_grid(omega, duration),
     )
     ss = StateSpace(
         model,
@@ -557,14 +557,14 @@ def identify_frequency_domain(
     return _result(model, data, names, fit, method, error_bars, fit_names, omega, states)
 
 
-def _overlap(omega: FloatArray, duration: float) -> ComplexArray | None:
-    """The correlation of white noise's transforms over [0, T] at each pair of
-    frequencies, ``e^{-i dw T/2} sinc(dw T/2)``; None on the ``k/T`` grid, where
-    it vanishes off the diagonal."""
-    half = 0.5 * (omega[:, None] - omega[None, :]) * duration
-    kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
-    off = np.abs(kappa - np.eye(omega.size))
-    return None if float(off.max(initial=0.0)) < 1e-6 else np.asarray(kappa, dtype=np.complex128)
+def _off_grid(omega: FloatArray, duration: float) -> tuple[FloatArray, float] | None:
+    """``(omega, T)`` when the frequencies are not distinct points of the record's
+    ``k/T`` grid (their transforms then share the noise), else None."""
+    bins = (omega - omega[0]) * duration / (2 * np.pi)
+    whole = np.round(bins)
+    if np.max(np.abs(bins - whole), initial=0.0) < 1e-6 and np.unique(whole).size == whole.size:
+        return None
+    return np.asarray(omega, dtype=np.float64), float(duration)
 
 
 def _ends_tested(fit: _Fit, error_bars: str, n_p: int, n_d: int, run: Any) -> _Fit:
