@@ -214,8 +214,12 @@ def _transform(signals: FloatArray, dt: float, omega: FloatArray, *, cubic: bool
 # -- argument checks -------------------------------------------------------------------------
 
 
-def _frequency_grid(frequencies: Any, dt: float, duration: float, *, depth: int = 1) -> FloatArray:
-    """The frequencies checked; `depth`: calls between the public entry point and here."""
+def _frequency_grid(
+    frequencies: Any, dt: float, duration: float, *, depth: int = 1, shared: bool = False
+) -> FloatArray:
+    """The frequencies checked; `depth`: calls between the public entry point and here;
+    `shared`: the caller's error bars count the noise that close frequencies share
+    (no warning about a spacing finer than ``2π/T`` then)."""
     nyquist = np.pi / dt
     if frequencies is None:
         # The k/T grid of the record: transformed white noise is then uncorrelated
@@ -246,9 +250,9 @@ def _frequency_grid(frequencies: Any, dt: float, duration: float, *, depth: int 
             raise IdentificationError("frequencies: a frequency is listed twice")
         gaps = np.diff(np.sort(omega))
         resolution = 2 * np.pi / duration
-        if gaps.size and float(gaps.min()) < resolution * (1 - 1e-6):
-            # transforms closer than 1/T share their noise: the error bars, which count
-            # every frequency as independent, come out too small
+        if not shared and gaps.size and float(gaps.min()) < resolution * (1 - 1e-6):
+            # transforms closer than 1/T share their noise: error bars that count
+            # every frequency as independent come out too small
             warnings.warn(
                 f"frequencies: spacing {float(gaps.min()):.4g} rad/s is finer than the "
                 f"record's resolution 2π/T = {resolution:.4g} rad/s; neighbouring transforms "
@@ -443,7 +447,8 @@ def identify_frequency_domain(
         )
     dt = float(np.mean(np.diff(data.time)))
     duration = dt * (data.n_samples - 1)
-    omega = _frequency_grid(frequencies, dt, duration)
+    # the frequency sandwich counts the noise close frequencies share; the white bound not
+    omega = _frequency_grid(frequencies, dt, duration, shared=error_bars == "colored")
     data.require(model.controls, role="control")
     states = list(model.states)
     if method == "equation_error":
