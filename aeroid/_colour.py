@@ -628,11 +628,12 @@ def frequency_sandwich(
     W_k`` (``W`` the complex weighted sensitivities) and ``B`` gains those
     pairs, with ``F_jk`` the mean of the two frequencies' leverage-corrected
     residual outer products. The degrees of freedom count them too: with
-    ``rho_jk = |kappa_jk|`` the terms ``t_j^2`` covary, ``sum v`` is as
-    before and ``sum_jk v_j v_k rho_jk^2`` takes the place of ``sum v^2``,
-    each pair estimated by ``t_j^2 t_k^2 / (1 + 2 rho_jk^2)`` (Gaussian
-    fourth moments), so ``nu = (sum t^2)^2 / D - 2``: fewer degrees of
-    freedom than frequencies, about as many as the record holds bins.
+    ``rho_jk = |kappa_jk|`` (about the correlation of ``t_j`` and ``t_k``)
+    ``D = sum_jk v_j v_k rho_jk^2`` takes the place of ``sum v^2``, each pair
+    estimated by ``t_j^2 t_k^2 rho_jk^2 / (1 + 2 rho_jk^2)`` (Gaussian fourth
+    moments), and ``E[(sum t^2)^2] = (sum v)^2 + 2 D``, so ``nu = (sum
+    t^2)^2 / D - 2`` as before: fewer degrees of freedom than frequencies,
+    about as many as the record holds bins however finely it is sampled.
     """
     lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
     lev = 0.5 * (lev + lev.transpose(0, 2, 1))
