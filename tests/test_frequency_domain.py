@@ -333,20 +333,30 @@ def test_coloured_noise_coverage_with_the_sandwichs_degrees_of_freedom(phi: floa
     # record); each interval is the result's own (t with the sandwich's degrees of
     # freedom). 200 seeds: a calibrated 95 % rate has a binomial sd of 1.5 %, so each
     # parameter must reach 0.95 less 4 sd (0.888) and their mean the issue's 0.90
+    cover = _ar1_coverage(phi, 200)
+    assert np.all(cover >= 0.888) and cover.mean() >= 0.90, dict(zip(SHORT, cover, strict=True))
+
+
+def _ar1_coverage(phi: float, seeds: int, spacing: float | None = None) -> np.ndarray:
+    """Each short-period parameter's coverage by the result's own 95 % interval over
+    `seeds` records with AR(1) noise; frequencies `spacing` of 2 pi/T apart if given."""
     model, clean = _short(), _short_record(0.02).to_flight_data()
+    duration = float(clean.time[-1] - clean.time[0])
+    options = {}
+    if spacing is not None:
+        options["frequencies"] = 2 * np.pi / duration * np.arange(2.0, 40.0, spacing)
     hits = dict.fromkeys(SHORT, 0)
-    seeds = 200
     for seed in range(seeds):
         rng = np.random.default_rng(5000 + seed)
         ch = {n: np.asarray(clean[n], dtype=float) for n in clean.names}
         for n, sigma in (("alpha", 0.002), ("q", 0.005)):
             ch[n] = ch[n] + sigma * _ar1_noise(rng, clean.time.size, phi)
-        res = identify_frequency_domain(model, aeroid.FlightData(clean.time, ch), SHORT)
+        data = aeroid.FlightData(clean.time, ch)
+        res = identify_frequency_domain(model, data, SHORT, **options)
         half = res.margin(0.95)
         for k, v in SHORT.items():
             hits[k] += abs(res.parameters[k] - v) <= half[k]
-    cover = np.array([hits[k] / seeds for k in SHORT])
-    assert np.all(cover >= 0.888) and cover.mean() >= 0.90, dict(zip(SHORT, cover, strict=True))
+    return np.array([hits[k] / seeds for k in SHORT])
 
 
 @pytest.mark.slow
@@ -357,25 +367,7 @@ def test_coverage_on_frequencies_closer_than_the_record_resolves(phi: float) -> 
     # frequency as independent covered 0.73-0.79 here (white noise). 300 seeds: a
     # calibrated 95 % rate has a binomial sd of 1.3 %, so each parameter must reach
     # 0.95 less 3 sd (0.91) and the mean the issue's 0.93 (0.90 with AR(1) noise)
-    model, clean = _short(), _short_record(0.02).to_flight_data()
-    duration = float(clean.time[-1] - clean.time[0])
-    omega = 2 * np.pi / duration * np.arange(2.0, 40.0, 0.4)
-    hits = dict.fromkeys(SHORT, 0)
-    seeds = 300
-    for seed in range(seeds):
-        rng = np.random.default_rng(5000 + seed)
-        ch = {n: np.asarray(clean[n], dtype=float) for n in clean.names}
-        for n, sigma in (("alpha", 0.002), ("q", 0.005)):
-            ch[n] = ch[n] + sigma * _ar1_noise(rng, clean.time.size, phi)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the library warns of the close spacing
-            res = identify_frequency_domain(
-                model, aeroid.FlightData(clean.time, ch), SHORT, frequencies=omega
-            )
-        half = res.margin(0.95)
-        for k, v in SHORT.items():
-            hits[k] += abs(res.parameters[k] - v) <= half[k]
-    cover = np.array([hits[k] / seeds for k in SHORT])
+    cover = _ar1_coverage(phi, 300, spacing=0.4)
     mean_low = 0.93 if phi == 0.0 else 0.90
     ok = np.all(cover >= 0.91) and mean_low <= cover.mean() <= 0.97
     assert ok, dict(zip(SHORT, cover, strict=True))
