@@ -30,19 +30,23 @@ thread of the library's, one job at a time, started when the outermost public
 call in the calling thread returns (the call itself never waits for it). A
 failing job is logged at debug level and otherwise ignored. At interpreter
 exit the jobs still queued are dropped and the running one is finished
-(`_stop`); `wait_background` waits for the queue to empty.
+(`_stop`); `wait_background` waits for the queue to empty. A job never touches
+the process-wide warnings filters (`quiet_warnings`): they belong to the
+caller's thread, which runs on meanwhile.
 """
 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import functools
 import logging
 import os
 import queue
 import sys
 import threading
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import Any, ParamSpec, TypeVar
 
@@ -176,6 +180,104 @@ def _work() -> None:
             _log.debug("aeroid: a background job failed", exc_info=True)
         finally:
             _jobs.task_done()
+
+
+# -- warnings in threads ------------------------------------------------------------------
+#
+# The warnings filters and handler are one state for the whole process, which
+# ``catch_warnings`` saves on entry and restores on exit. Two threads inside it
+# at once undo each other: the one that leaves first restores what the other
+# replaced, and the process can end with every later warning appended to a list
+# nobody reads. So outside the main thread the library records or silences a
+# thread's warnings through one shared handler, installed while any thread
+# needs it (counted) and routing each warning by the thread that raised it.
+
+_route = threading.local()  # .stack: the open blocks, a list (record) or None (silence)
+_route_lock = threading.Lock()
+_route_users = 0
+_route_saved: tuple[list[Any], Any] | None = None
+
+
+def _routed(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: Any = None,
+    line: str | None = None,
+) -> None:
+    stack = getattr(_route, "stack", None)
+    if stack:
+        if stack[-1] is not None:
+            stack[-1].append(
+                warnings.WarningMessage(message, category, filename, lineno, file, line)
+            )
+        return
+    saved = _route_saved
+    handler = saved[1] if saved is not None else warnings._showwarning_orig  # type: ignore[attr-defined]
+    handler(message, category, filename, lineno, file, line)
+
+
+@contextlib.contextmanager
+def _routed_block(sink: list[warnings.WarningMessage] | None) -> Iterator[None]:
+    global _route_users, _route_saved
+    with _route_lock:
+        if _route_users == 0:
+            _route_saved = (list(warnings.filters), warnings.showwarning)
+            warnings.simplefilter("always")
+            warnings.showwarning = _routed
+        _route_users += 1
+    stack = getattr(_route, "stack", None)
+    if stack is None:
+        stack = _route.stack = []
+    stack.append(sink)
+    try:
+        yield
+    finally:
+        stack.pop()
+        with _route_lock:
+            _route_users -= 1
+            if _route_users == 0 and _route_saved is not None:
+                warnings.filters[:] = _route_saved[0]  # type: ignore[index]
+                warnings.showwarning = _route_saved[1]
+                warnings._filters_mutated()  # type: ignore[attr-defined]
+                _route_saved = None
+
+
+@contextlib.contextmanager
+def quiet_warnings() -> Iterator[None]:
+    """Warnings silenced in the block, as ``catch_warnings`` with ``"ignore"`` does
+    in the main thread; in another thread through the shared handler, and in the
+    library's background thread not at all (a job must not touch the caller's
+    warnings state while the caller runs on). Floating-point warnings are
+    silenced per thread by ``np.errstate`` wherever they matter."""
+    current = threading.current_thread()
+    if current is _worker:
+        yield
+    elif current is threading.main_thread():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    else:
+        with _routed_block(None):
+            yield
+
+
+@contextlib.contextmanager
+def record_warnings() -> Iterator[list[warnings.WarningMessage]]:
+    """Every warning this thread raises in the block, recorded (as
+    ``catch_warnings(record=True)`` with ``"always"`` in the main thread; in
+    another thread through the shared handler, so that tasks running side by
+    side in threads each keep their own and leave the process's state as it
+    was)."""
+    if threading.current_thread() is threading.main_thread():
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            yield seen
+    else:
+        sink: list[warnings.WarningMessage] = []
+        with _routed_block(sink):
+            yield sink
 
 
 def wait_background(timeout: float | None = None) -> bool:

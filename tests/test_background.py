@@ -48,6 +48,74 @@ def test_a_failing_job_is_logged_at_debug_level_and_the_next_still_runs(
     assert any(r.levelno == logging.DEBUG and r.exc_info for r in caplog.records)
 
 
+def test_a_background_job_leaves_the_callers_warnings_alone() -> None:
+    # the warnings filters are one state for the process: a job that saved and
+    # restored them (catch_warnings) around its work would undo, on leaving, the
+    # recording the caller's thread set up meanwhile, and its warning would be lost
+    import warnings
+
+    from aeroid._threads import quiet_warnings
+
+    inside, leave = threading.Event(), threading.Event()
+
+    def job() -> None:
+        with quiet_warnings():
+            inside.set()
+            leave.wait(5.0)
+
+    after_call(job)
+    assert inside.wait(5.0)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        leave.set()
+        assert wait_background(5.0)
+        warnings.warn("the caller's own", UserWarning, stacklevel=1)
+    assert [str(w.message) for w in seen] == ["the caller's own"]
+    # in the caller's thread the block is quiet
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        with quiet_warnings():
+            warnings.warn("hushed", UserWarning, stacklevel=1)
+    assert seen == []
+
+
+def test_threads_record_their_own_warnings_and_leave_the_process_as_it_was() -> None:
+    # two tasks in threads, the first to enter the last to leave: with catch_warnings
+    # the second's exit would restore the first's recording for good, and every later
+    # warning of the process would go to a list nobody reads
+    import warnings
+
+    from aeroid._threads import quiet_warnings, record_warnings
+
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+    got: dict[str, list[str]] = {}
+
+    def task(name: str, enter: threading.Event, wait: threading.Event) -> None:
+        with record_warnings() as seen:
+            enter.set()
+            assert wait.wait(5.0)
+            warnings.warn(f"from {name}", UserWarning, stacklevel=1)
+            with quiet_warnings():
+                warnings.warn("hushed", UserWarning, stacklevel=1)
+        if name == "a":
+            a_out.set()
+        got[name] = [str(w.message) for w in seen]
+
+    before = (warnings.showwarning, list(warnings.filters))
+    a = threading.Thread(target=task, args=("a", a_in, b_in))
+    b = threading.Thread(target=lambda: a_in.wait(5.0) and task("b", b_in, a_out))
+    a.start()
+    b.start()
+    a.join(10.0)
+    b.join(10.0)
+    assert got == {"a": ["from a"], "b": ["from b"]}
+    assert (warnings.showwarning, list(warnings.filters)) == before
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        warnings.warn("the caller's own", UserWarning, stacklevel=1)
+    assert [str(w.message) for w in seen] == ["the caller's own"]
+
+
 def test_wait_background_times_out_while_a_job_runs() -> None:
     release = threading.Event()
     after_call(release.wait)

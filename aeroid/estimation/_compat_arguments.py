@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._threads import quiet_warnings
 from ..errors import ChannelError, DataFormatError, IdentificationError, ResidualDriftWarning
 from ..io.data import FlightData, plain
 from ._compat_model import (
@@ -259,8 +260,7 @@ def _first_values(t: FloatArray, measured: Mapping[str, FloatArray]) -> dict[str
         if uniform:
             # smooth(y, method="local")[0] (Savitzky-Golay of degree 3, its end value
             # from the cubic through the first window) without importing scipy.signal
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
+            with quiet_warnings():
                 w = local_window(y, float(np.mean(steps)), 0, 3, o)
                 coef = np.polyfit(np.arange(w, dtype=np.float64), y[:w], 3)
             first = float(coef[-1])

@@ -21,7 +21,6 @@ stage's) compiles without the batch axis: its conditions then stay conditions.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._linalg import _B13, _THETA13
+from .._threads import quiet_warnings
 from ..models import compiled as _compiled
 from ..models.integration import Interpolation, control_excess
 from ..models.model import Model
@@ -228,8 +228,7 @@ def ekf_pass(
     if fn is None:
         fn = _build(model, tuple(out_idx), jax, jnp, batched)
         cache[key] = fn
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with quiet_warnings():
         try:
             E = control_excess(time, U, interpolation)
             outs = fn(time, U, E, Y, x0, P0, pmat, Qc, R, np.int32(substeps))

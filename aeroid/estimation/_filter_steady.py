@@ -37,13 +37,13 @@ intensities, as the book's relaxation does through its F/K update steps.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .._threads import quiet_warnings
 from ..errors import IdentificationError
 from ..models import compiled as _compiled
 from ..models import integration as _integrate
@@ -337,8 +337,7 @@ def _compiled_predictor(
         fn = cache[key] = _build(model, tuple(prob.out_idx), jax, jnp)
     padded = G.shape[1]
     rows = np.minimum(np.arange(padded), B - 1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with quiet_warnings():
         try:
             outs = fn(
                 prob.time,

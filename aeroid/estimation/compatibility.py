@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -66,7 +65,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
-from .._threads import small_blas
+from .._threads import record_warnings, small_blas
 from ..errors import ChannelError, DataFormatError, IdentificationError
 from ..io.data import FlightData, plain, whole_number
 from ._compat_arguments import _ANGLE_LIMITS as _ANGLE_LIMITS
@@ -626,8 +625,7 @@ def check_compatibility(
             channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
         record = FlightData(t, channels_now)
         guess = {n: current[n] - applied.get(n, 0.0) for n in names}
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
+        with record_warnings() as caught:
             fit = identify(
                 model,
                 record,

@@ -10,13 +10,14 @@ and each translation is compared with the numpy function once per model
 from __future__ import annotations
 
 import types
-import warnings
 import weakref
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from .._threads import quiet_warnings
 
 if TYPE_CHECKING:
     from .model import Model
@@ -326,8 +327,7 @@ def _reference(
 ) -> FloatArray | None:
     """The numpy function point by point (its meaning, whatever it does with arrays)."""
     out = np.empty((t.size, n_out))
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")
+    with quiet_warnings(), np.errstate(all="ignore"):
         for i in range(t.size):
             p = {n: float(P[i, j]) for j, n in enumerate(names)}
             try:
@@ -430,8 +430,7 @@ def _agrees(
 ) -> bool:
     """Whether the compiled single-point function agrees with the numpy reference."""
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with quiet_warnings():
             got = np.asarray(check(t, X, U, P), dtype=np.float64)
     except Exception:  # a function JAX cannot trace keeps the numpy path
         return False

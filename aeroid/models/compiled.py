@@ -46,7 +46,6 @@ a power of two so that few shapes occur.
 from __future__ import annotations
 
 import logging
-import warnings
 import weakref
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -55,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _threads
+from .._threads import quiet_warnings
 from ._jax_outputs import _RULE_ONLY, _RULED
 from ._jax_programs import _compiled
 from ._jax_rk4 import _interval as _interval
@@ -200,8 +200,7 @@ def rk4_states(
     uu = np.ascontiguousarray(u[0] if shared else u[rows])
     E = control_excess(time, uu, interpolation)
     X = np.ascontiguousarray(x0.T[rows])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with quiet_warnings():
         states = np.asarray(fn(time, uu, E, X, P[rows], np.int32(substeps)), dtype=np.float64)
     states = states[:batch]
     ok, fail_time = _first_failure(states, time)
@@ -311,8 +310,7 @@ def rk4_output_rows(
     returned, E the controls' `control_excess`; for a caller that has checked the model
     compiles (`available`) and keeps what stays the same from call to call."""
     key = tuple(int(i) for i in index)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with quiet_warnings():
         if substeps is None:  # by the stiffness rule, in the program
             y, ok = _ruled_outputs(model, key, (time, u, E, X, P, np.int32(0)))
         else:
@@ -574,8 +572,7 @@ def _compile_in_background(
         args = _sensitivity_args(
             model, time, controls, x0, pvec, names, x0_free, substeps, interpolation
         )
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with quiet_warnings():
             got = _compiled(model, "sensitivities")(*args)
             if program == "input_noise":
                 inverse_variances, sigma = extra
@@ -642,8 +639,7 @@ def input_noise_scatter(
     fn = _compiled(model, "input_noise")
     u = np.asarray(controls, dtype=np.float64)
     s = np.asarray(sigma, dtype=np.float64)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with quiet_warnings():
         e = control_excess(time, u)  # straight lines: the scatter's rule (`_jax_rk4`)
         scatter = fn(xs, phi, hx, time, u, e, pvec, np.int32(substeps), weighted, s)
     return y, J, np.asarray(scatter, dtype=np.float64)[:cols, :cols]
@@ -675,8 +671,7 @@ def _sensitivities(
     ):
         return last[4]  # the same point again (an error-bar pass after a fit)
     fn = _compiled(model, "sensitivities")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with quiet_warnings():
         got = fn(*args)
     out = tuple(np.asarray(a, dtype=np.float64) for a in got)
     for a in out:  # shared with the next caller at the same point: nobody writes to them
@@ -783,8 +778,7 @@ def interval_propagator(
 
     def propagate(k: int, X: FloatArray, P: FloatArray, jacobian: bool = False) -> Any:
         args = (X, t[k], t[k + 1], u[k], u[k + 1], e[k], P, m)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with quiet_warnings():
             nxt = np.asarray(pts(*args), dtype=np.float64)
             if not jacobian:
                 return nxt

@@ -5,7 +5,6 @@ from __future__ import annotations
 import inspect
 import keyword
 import sys
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
@@ -15,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._checks import check_time as check_time  # re-exported (adapters import it here)
 from .._records import ReadOnlyDict
-from .._threads import small_blas
+from .._threads import quiet_warnings, small_blas
 from ..errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 from ..io.data import FlightData, measured_start, plain
 from . import integration as _integrate
@@ -316,8 +315,7 @@ class Model(ContinuousModel):
             if fun is None:
                 continue
             try:
-                with warnings.catch_warnings(), np.errstate(all="ignore"):
-                    warnings.simplefilter("ignore")
+                with quiet_warnings(), np.errstate(all="ignore"):
                     val = np.asarray(fun(0.0, x, u, p), dtype=np.float64)
             except KeyError as exc:
                 raise ModelDefinitionError(

@@ -8,13 +8,13 @@ starting ball of the walkers.
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .._threads import quiet_warnings
 from ..errors import InferenceError, SimulationError
 from ..io.data import FlightData, as_float, measured_start
 from ..models.model import (
@@ -232,8 +232,7 @@ class _Posterior:
     # -- simulation of a batch ------------------------------------------------------------
     def simulate(self, params: Mapping[str, FloatArray], batch: int) -> FloatArray:
         """Outputs (batch, n_t, n_y) of the likelihood's outputs; failed members are NaN."""
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore")
+        with quiet_warnings(), np.errstate(all="ignore"):
             if not self.batched:
                 return self._loop(params, batch)
             if self.backend == "jax":
@@ -332,8 +331,7 @@ class _Posterior:
         if self._simulator is not None and size > 1:
             # a batch of the sampler's size: the program it runs, compiled once for both
             many = {n: np.repeat(v, size) for n, v in values.items()}
-            with warnings.catch_warnings(), np.errstate(all="ignore"):
-                warnings.simplefilter("ignore")
+            with quiet_warnings(), np.errstate(all="ignore"):
                 if np.all(np.isfinite(self._simulator.outputs(many, self.out_index)[0])):
                     return
         res = self.model.simulate_batch(

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ...errors import AeroidError, ConfigError, PipelineError
+from ...support import record_warnings
 from .._options import stage_flights
 from ..definition import Pipeline, Step, resolve_pipeline
 from ..keys import (
@@ -382,8 +383,7 @@ def stored_plan(
     gives None, and planning reports the problem. Old option names warn as planning does."""
     from . import plan_cache
 
-    with warnings.catch_warnings(record=True) as seen:
-        warnings.simplefilter("always")
+    with record_warnings() as seen:
         try:
             setup = _setup(config, pipeline=None, allow_imports=allow_imports, check_flights=False)
             files = setup.config.expand_files()

@@ -21,6 +21,7 @@ from typing import Any, overload
 import numpy as np
 
 from ...errors import AeroidError, PipelineError
+from ...support import record_warnings
 from ..definition import load_pipeline
 from ..plans.planning import Task, resolve_model
 from ..stages import STAGES, StageContext
@@ -244,8 +245,7 @@ def execute_part(
     try:
         stage, ctx = _context(task, store_root, _statuses(upstream_status), read_root)
         t1, c1 = time.perf_counter(), time.process_time()
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
+        with record_warnings() as caught:
             value = stage.run_part(ctx, index)
         seconds, cpu = time.perf_counter() - t1, time.process_time() - c1
         _process.settle_imports()
@@ -319,10 +319,9 @@ def _compute(
         if bad:
             raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
         t1, c1 = time.perf_counter(), time.process_time()
-        with warnings.catch_warnings(record=True) as caught:
+        with record_warnings() as caught:
             # the library's warnings (an unconverged chain, poor coherence) belong to the
             # task: kept with its status and provenance instead of on a worker's stderr
-            warnings.simplefilter("always")
             work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
         t2, c2 = time.perf_counter(), time.process_time()
         part_seconds = sum(p.compute_seconds for p in parts)

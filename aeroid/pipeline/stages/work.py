@@ -10,12 +10,12 @@ gives to the store seam to keep.
 from __future__ import annotations
 
 import contextlib
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from ...errors import PipelineError
+from ...support import quiet_warnings
 from . import STAGES, Stage, StageContext
 
 if TYPE_CHECKING:
@@ -88,7 +88,7 @@ def perform(task: Task, gathered: Mapping[str, Any], parts: Sequence[Any] | None
                 briefs[f"{consumer}/{role}"] = value
     files: dict[str, bytes] = {}
     if stage.files is not None:
-        with contextlib.suppress(Exception), warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # shown, if at all, where the run makes them
+        # warnings shown, if at all, where the run makes them
+        with contextlib.suppress(Exception), quiet_warnings():
             files = dict(stage.files(record))
     return Work(record, briefs, files)
