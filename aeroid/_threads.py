@@ -188,9 +188,10 @@ def _work() -> None:
 # ``catch_warnings`` saves on entry and restores on exit. Two threads inside it
 # at once undo each other: the one that leaves first restores what the other
 # replaced, and the process can end with every later warning appended to a list
-# nobody reads. So outside the main thread the library records or silences a
-# thread's warnings through one shared handler, installed while any thread
-# needs it (counted) and routing each warning by the thread that raised it.
+# nobody reads. So the library records or silences a thread's warnings through
+# one shared handler, installed while any thread needs it (counted, under a
+# lock) and routing each warning by the thread that raised it; a thread with no
+# block open meanwhile has its warnings shown by the handler that was there.
 
 _route = threading.local()  # .stack: the open blocks, a list (record) or None (silence)
 _route_lock = threading.Lock()
@@ -246,38 +247,27 @@ def _routed_block(sink: list[warnings.WarningMessage] | None) -> Iterator[None]:
 
 @contextlib.contextmanager
 def quiet_warnings() -> Iterator[None]:
-    """Warnings silenced in the block, as ``catch_warnings`` with ``"ignore"`` does
-    in the main thread; in another thread through the shared handler, and in the
-    library's background thread not at all (a job must not touch the caller's
-    warnings state while the caller runs on). Floating-point warnings are
+    """Warnings this thread raises in the block are dropped (what ``catch_warnings``
+    with ``"ignore"`` does, through the shared handler); in the library's
+    background thread the block runs as it is, since a job must not touch the
+    caller's warnings state while the caller runs on. Floating-point warnings are
     silenced per thread by ``np.errstate`` wherever they matter."""
-    current = threading.current_thread()
-    if current is _worker:
+    if threading.current_thread() is _worker:
         yield
-    elif current is threading.main_thread():
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            yield
-    else:
-        with _routed_block(None):
-            yield
+        return
+    with _routed_block(None):
+        yield
 
 
 @contextlib.contextmanager
 def record_warnings() -> Iterator[list[warnings.WarningMessage]]:
-    """Every warning this thread raises in the block, recorded (as
-    ``catch_warnings(record=True)`` with ``"always"`` in the main thread; in
-    another thread through the shared handler, so that tasks running side by
-    side in threads each keep their own and leave the process's state as it
-    was)."""
-    if threading.current_thread() is threading.main_thread():
-        with warnings.catch_warnings(record=True) as seen:
-            warnings.simplefilter("always")
-            yield seen
-    else:
-        sink: list[warnings.WarningMessage] = []
-        with _routed_block(sink):
-            yield sink
+    """Every warning this thread raises in the block, recorded (what
+    ``catch_warnings(record=True)`` with ``"always"`` does, through the shared
+    handler), so that tasks running side by side in threads each keep their own
+    and leave the process's warnings state as it was."""
+    sink: list[warnings.WarningMessage] = []
+    with _routed_block(sink):
+        yield sink
 
 
 def wait_background(timeout: float | None = None) -> bool:
