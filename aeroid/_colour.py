@@ -672,28 +672,27 @@ def _overlap_terms(
     """The meat's pairs ``sum_{j != k} 1/2 Re W_j^H kappa_jk F_jk W_k`` with ``F_jk =
     (u_j u_j^H + u_k u_k^H)/2``, and the pairs' share ``sum_{j != k} t_j^2 t_k^2
     rho^2 / (1 + 2 rho^2)`` of the degrees of freedom's denominator; ``kappa`` is
-    formed a block of rows at a time, so memory stays linear in the frequencies."""
+    formed a block of rows at a time, so memory stays linear in the frequencies.
+
+    ``kappa`` is Hermitian, so the ``u_k u_k^H`` half of the sum is the conjugate
+    transpose of the ``u_j u_j^H`` half, ``A = sum_jk kappa_jk (W_j^H u_j)(u_j^H
+    W_k)``: the pairs are ``Re(A + A^H) / 4``."""
     m = omega.size
     r = jac.shape[1] // 2
     W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
     e = u[:, :r] + 1j * u[:, r:]  # (M, r)
     a = np.einsum("jrp,jr->jp", W.conj(), e)  # W_j^H u_j
     p = W.shape[2]
-    first = np.zeros((p, p), dtype=np.complex128)
-    second = np.zeros((p, p), dtype=np.complex128)
+    half = np.zeros((p, p), dtype=np.complex128)
     pairs = np.zeros(p)
     step = max(1, _KERNEL_BLOCK // max(m * max(r * p, 1), 1))
     for lo in range(0, m, step):
         rows = slice(lo, min(lo + step, m))
         kappa = _kernel(omega, rows, span)  # (rows, M)
-        # sum_k kappa_jk W_k for the block's j, and sum_j kappa_jk^* W_j's share
-        mixed = np.einsum("jk,krq->jrq", kappa, W)
+        mixed = np.einsum("jk,krq->jrq", kappa, W)  # sum_k kappa_jk W_k
         b = np.einsum("jr,jrq->jq", e[rows].conj(), mixed)  # u_j^H sum_k kappa_jk W_k
-        first += a[rows].T @ b
-        back = np.einsum("jk,jrq->krq", kappa.conj(), W[rows])  # sum_j kappa_jk^* W_j
-        d = np.einsum("krp,kr->kp", back.conj(), e)  # (sum_j kappa_jk W_j^H) u_k
-        second += d.T @ a.conj()
+        half += a[rows].T @ b
         rho2 = np.abs(kappa) ** 2
         pairs += np.einsum("jp,jk,kp->p", terms[rows], rho2 / (1.0 + 2.0 * rho2), terms)
-    out = 0.25 * (first + second).real
-    return np.asarray(0.5 * (out + out.T), dtype=np.float64), pairs
+    out = 0.25 * (half + half.conj().T).real
+    return np.asarray(out, dtype=np.float64), pairs
