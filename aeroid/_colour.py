@@ -656,6 +656,18 @@ def frequency_sandwich(
     return cov, np.asarray(np.maximum(nu, 1.0), dtype=np.float64)
 
 
+def off_grid(omega: FloatArray, span: float) -> tuple[FloatArray, float] | None:
+    """``(omega, span)`` when the frequencies (rad/s) are not distinct points of the
+    ``k/span`` grid of a record `span` seconds long (their transforms then share
+    the noise: `frequency_sandwich`'s `grid`), else None."""
+    omega = np.asarray(omega, dtype=np.float64)
+    bins = (omega - omega[0]) * span / (2 * np.pi)
+    whole = np.round(bins)
+    if np.max(np.abs(bins - whole), initial=0.0) < 1e-6 and np.unique(whole).size == whole.size:
+        return None
+    return omega, float(span)
+
+
 def _kernel(omega: FloatArray, rows: slice, span: float) -> NDArray[np.complex128]:
     """Rows `rows` of the white-noise transforms' correlation ``kappa``, its diagonal
     (a frequency with itself) set to zero."""

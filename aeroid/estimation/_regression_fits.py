@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._colour import colored_covariance
+from .._colour import colored_covariance, frequency_sandwich, off_grid
 from .._czt import fourier
 from ..errors import ChannelError, DataFormatError, IdentificationError
 from ..io.data import FlightData, delay_starts, real_array
@@ -240,6 +240,7 @@ def _frequency_fit(
     frequencies: ArrayLike | None,
     *,
     has_const: bool,
+    error_bars: str = "colored",
 ) -> RegressionResult:
     step = _step_of(time, dt)
     if step is None:
@@ -289,7 +290,21 @@ def _frequency_fit(
     sse = float(np.sum(v.real**2 + v.imag**2))
     szz = float(np.sum(zt.real**2 + zt.imag**2))
     s2 = sse / (2 * m - p)
-    cov = s2 * xtx_inv
+    cov_white = s2 * xtx_inv
+    nu = np.full(p, float(2 * m - p))
+    if error_bars == "colored":
+        # each frequency's own residual spectrum (the one correction's frequency form);
+        # frequencies closer than the record resolves share their noise
+        cov, nu = frequency_sandwich(
+            np.stack([xt.real, xt.imag], axis=1),
+            np.column_stack([v.real, v.imag]),
+            xtx_inv,
+            off_grid(2 * np.pi * freq, z.shape[0] * step),
+        )
+        bad = ~(np.diag(cov) > 0)
+        cov[bad, :], cov[:, bad], nu[bad] = cov_white[bad, :], cov_white[:, bad], 2 * m - p
+    else:
+        cov = cov_white.copy()
     r2, f_stat = _r2_f(sse, szz, 2 * m, p, p)
     pse = sse / m + (szz / m) * p / m
     return _result(
@@ -297,7 +312,7 @@ def _frequency_fit(
         cov,
         names,
         s2,
-        covariance_white=cov,
+        covariance_white=cov_white,
         response_name=zname,
         r_squared=r2,
         f_statistic=f_stat,
@@ -308,6 +323,7 @@ def _frequency_fit(
         time=time if time is not None else np.arange(z.shape[0], dtype=np.float64) * step,
         frequencies=freq,
         domain="frequency",
-        error_bars="white",
+        error_bars=error_bars,
         n_samples=m,
+        degrees_of_freedom={k: float(nu[j]) for j, k in enumerate(names)},
     )

@@ -50,10 +50,18 @@ so high-frequency noise outside it drops out. A constant offset does not
 vanish from the transform of a finite record at ``f > 0`` (``∫_0^T e^{−jωt}dt``
 is zero only at multiples of ``1/T``), so the constant term stays in the
 model unless the data are perturbations about trim (it is left out by itself
-where it has no content: at multiples of ``1/(NΔt)``). Transformed residuals
-at distinct frequencies are nearly independent, and the error bars use the
-classical formula with the residual variance ``Σ|Ṽ|²/(2M − p)`` per real
-component.
+where it has no content: at multiples of ``1/(NΔt)``). The white error bars
+use the classical formula with the residual variance ``Σ|Ṽ|²/(2M − p)`` per
+real component. The default ones are the sandwich of the frequency-domain
+estimators (`aeroid._colour.frequency_sandwich`): each frequency's residual
+is its own noise spectrum, corrected for its leverage, which holds however
+the residuals are coloured in time, because transforms at distinct
+frequencies of the ``k/(NΔt)`` grid are nearly independent. Frequencies
+closer than ``1/(NΔt)`` (SIDPAC's examples space them 0.04 Hz apart on
+records shorter than 25 s) share their noise, and the sandwich adds each
+pair's covariance through the record's kernel; there the classical formula
+counts each shared noise as many times as it is sampled and the white bars
+come out too small.
 """
 
 from __future__ import annotations
@@ -151,7 +159,8 @@ def equation_error(
         each residual modelled as AR(1) plus white noise fitted by restricted
         maximum likelihood, with the noise model's own uncertainty widening
         the bars (``"reml"``; an order of magnitude more work than the
-        window). The frequency domain always uses the classical formula.
+        window). In the frequency domain ``"colored"`` is the frequency
+        sandwich (module notes) and ``"reml"`` is refused.
     domain : {"time", "frequency"}
         Ordinary least squares on the samples, or Fourier transform
         regression at `frequencies`.
@@ -231,7 +240,14 @@ def equation_error(
         step = _step_of(time, dt)  # a dt given must be positive and agree with the data
         t = time if time is not None else np.arange(z.shape[0], dtype=np.float64) * (step or 1.0)
         return _fit(z, x, names, zname, t, has_const=use_const, error_bars=error_bars)
-    return _frequency_fit(z, x, names, zname, time, dt, frequencies, has_const=use_const)
+    if error_bars == "reml":
+        raise DataFormatError(
+            "error_bars: 'reml' models the residuals in time; in the frequency domain "
+            "choose 'colored' or 'white'"
+        )
+    return _frequency_fit(
+        z, x, names, zname, time, dt, frequencies, has_const=use_const, error_bars=error_bars
+    )
 
 
 # -- stepwise regression ---------------------------------------------------------------------

@@ -74,6 +74,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._colour import off_grid
 from .._czt import fourier
 from .._records import frozen_array
 from .._records import frozen_complex as _frozen_complex
@@ -534,7 +535,7 @@ def identify_frequency_domain(
         end,
         _transform(data.array(fit_names), dt, omega, cubic=True),
         dt * duration,
-        _off_grid(omega, duration),
+        off_grid(omega, duration),
     )
     ss = StateSpace(
         model,
@@ -560,16 +561,6 @@ def identify_frequency_domain(
         fit = _ends_tested(fit, error_bars, len(names), len(delayed), run)
     names = names + [f"delay.{c}" for c in tau0]
     return _result(model, data, names, fit, method, error_bars, fit_names, omega, states)
-
-
-def _off_grid(omega: FloatArray, duration: float) -> tuple[FloatArray, float] | None:
-    """``(omega, T)`` when the frequencies are not distinct points of the record's
-    ``k/T`` grid (their transforms then share the noise), else None."""
-    bins = (omega - omega[0]) * duration / (2 * np.pi)
-    whole = np.round(bins)
-    if np.max(np.abs(bins - whole), initial=0.0) < 1e-6 and np.unique(whole).size == whole.size:
-        return None
-    return np.asarray(omega, dtype=np.float64), float(duration)
 
 
 def _ends_tested(fit: _Fit, error_bars: str, n_p: int, n_d: int, run: Any) -> _Fit:
