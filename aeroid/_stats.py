@@ -1,4 +1,4 @@
-"""Two distribution functions in closed form, so that no call imports `scipy.stats`.
+"""Distribution functions in closed form, so that no call imports `scipy.stats`.
 
 `scipy.stats` costs about a second to import and `scipy.special` a tenth of
 one; the Ljung–Box p-value and the normal quantiles the library needs have
@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Sequence
 from statistics import NormalDist
+
+import numpy as np
+from numpy.typing import NDArray
 
 _STANDARD_NORMAL = NormalDist()
 
@@ -44,3 +48,25 @@ def chi2_sf(q: float, dof: int) -> float:
 def norm_ppf(p: float) -> float:
     """Quantile of the standard normal distribution at probability `p` in (0, 1)."""
     return _STANDARD_NORMAL.inv_cdf(p)
+
+
+def wald_p_value(b: NDArray[np.float64], covariances: Sequence[NDArray[np.float64]]) -> float:
+    """P-value of the Wald test that the estimates `b` are jointly zero.
+
+    The first of `covariances` that is positive definite is used: a sandwich
+    estimate need not be (its pair terms off the ``k/T`` grid can leave it
+    indefinite, and a negative quadratic form would read as no evidence at
+    all), so a caller lists it before the model-based one. Zero when none
+    is: no test can then say the estimates may be dropped.
+    """
+    b = np.asarray(b, dtype=np.float64)
+    for cov in covariances:
+        c = np.asarray(cov, dtype=np.float64)
+        try:
+            lower = np.linalg.cholesky(0.5 * (c + c.T))
+        except np.linalg.LinAlgError:
+            continue
+        z = np.linalg.solve(lower, b)
+        q = float(z @ z)
+        return chi2_sf(q, b.size) if math.isfinite(q) else 0.0
+    return 0.0

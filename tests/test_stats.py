@@ -45,3 +45,18 @@ def test_importing_the_numerics_does_not_import_scipy_stats():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_wald_p_value_uses_the_first_positive_definite_covariance() -> None:
+    from aeroid._stats import wald_p_value
+
+    b = np.array([1.0, -2.0, 0.5])
+    cov = np.diag([0.5, 2.0, 0.25])
+    q = float(np.sum(b**2 / np.diag(cov)))  # 2 + 2 + 1
+    assert wald_p_value(b, [cov]) == pytest.approx(chi2_sf(q, 3), rel=1e-12)
+    assert wald_p_value(b, [cov]) == pytest.approx(scipy.stats.chi2.sf(5.0, 3), rel=1e-12)
+    # an indefinite sandwich (its quadratic form could come out negative and read as
+    # "no evidence") gives way to the next covariance; none positive definite: p = 0
+    indefinite = np.diag([0.5, -2.0, 0.25])
+    assert wald_p_value(b, [indefinite, cov]) == wald_p_value(b, [cov])
+    assert wald_p_value(b, [indefinite]) == 0.0

@@ -112,10 +112,11 @@ def _fourier_residual(
     data: FlightData, input: str | None, output: str | None
 ) -> Callable[[TransferFunctionFit], float]:
     """The objective of a Fourier-transform fit, Σ |Y − T U|², at the fit's frequencies."""
-    from ._rational_fit import _detrended
+    from ._rational_fit import _detrended, _end_basis, _without_ends
     from .frequency_domain import _transform
 
     dt = float(np.mean(np.diff(data.time)))
+    span = dt * (data.n_samples - 1)
     u = _detrended(data.time, np.asarray(data[str(input)], dtype=np.float64))
     y = _detrended(data.time, np.asarray(data[str(output)], dtype=np.float64))
 
@@ -124,6 +125,13 @@ def _fourier_residual(
         big_u = _transform(u[:, None], dt, w, cubic=False)[:, 0]
         big_y = _transform(y[:, None], dt, w, cubic=True)[:, 0]
         r = big_y - fit.evaluate(w) * big_u
+        if fit.ends_estimated:
+            # the ends are linear given the transfer function: what they leave
+            order = max(len(fit.numerator), len(fit.denominator)) - 1
+            basis = _end_basis(w, span, order)
+            if basis is not None:
+                den = np.polyval(np.asarray(fit.denominator, dtype=np.float64), 1j * w)
+                r = _without_ends(r, basis / den[:, None])
         return float(np.sum(np.abs(r) ** 2))
 
     return cost

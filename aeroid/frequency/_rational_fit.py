@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._colour import frequency_sandwich, off_grid
+from .._stats import wald_p_value
 from .._threads import CALLER_STACKLEVEL
 from ..errors import ChannelError, IdentificationError
 from ..estimation.least_squares import fit_residuals
@@ -180,6 +182,38 @@ def _excited_band(data: FlightData, input: str) -> tuple[float, float]:
     return float(omega[hit[0]]), float(omega[hit[-1]])
 
 
+def _end_basis(w: FloatArray, span: float, order: int) -> ComplexArray | None:
+    """Columns whose combination, over ``D(jω)``, is what a record's ends add to
+    ``D(jω) Y = N(jω) e^{-jωτ} U`` on ``[0, T]``; None where a frequency is zero.
+
+    The transform of a derivative over the record, ``F[x'] = jω X + x(T) e^{-jωT}
+    - x(0)``, leaves polynomials in ``jω`` of degree below ``order`` (the larger
+    polynomial order) weighted by the states at both ends; the straight lines the
+    fit removes from input and output leave ``c0 + c1 t`` in the equation. On the
+    ``k/T`` grid ``e^{-jωT} = 1``: the two polynomials merge and only the slope's
+    ``-T/(jω)`` is left of the lines. Columns are scaled to unit mean square."""
+    if not np.all(w > 0):
+        return None
+    s = 1j * np.asarray(w, dtype=np.float64)
+    powers = s[:, None] ** np.arange(order)[None, :]
+    if off_grid(w, span) is None:
+        cols = [powers, (1.0 / s)[:, None]]
+    else:
+        end = np.exp(-s * span)
+        ramp = (1.0 - end) / s
+        cols = [powers, -powers * end[:, None], ramp[:, None], ((ramp - span * end) / s)[:, None]]
+    basis = np.concatenate(cols, axis=1)
+    return np.asarray(basis / np.sqrt(np.mean(np.abs(basis) ** 2, axis=0)), dtype=np.complex128)
+
+
+def _without_ends(v: ComplexArray, columns: ComplexArray) -> ComplexArray:
+    """`v` less its least-squares fit by `columns` with real coefficients."""
+    a = np.concatenate([columns.real, columns.imag])
+    b = np.concatenate([v.real, v.imag])
+    c = np.linalg.lstsq(a, b, rcond=None)[0]
+    return np.asarray(v - columns @ c, dtype=np.complex128)
+
+
 def _fit_fourier(
     data: FlightData,
     input: str | None,
@@ -191,10 +225,13 @@ def _fit_fourier(
     frequencies: ArrayLike | None,
     start: Mapping[str, float] | None,
     fixed: Mapping[str, float] | None,
+    error_bars: str = "colored",
+    boundary: str = "auto",
 ) -> TransferFunctionFit:
-    """Output error on the record's Fourier transforms: min Σ |Y − T U|², real parameters."""
+    """Output error on the record's Fourier transforms, ``min Σ |Y − T U − E/D|²`` with
+    real parameters and ``E`` the record's ends (`_end_basis`), as `boundary` asks."""
 
-    from .frequency_domain import _frequency_grid, _transform
+    from .frequency_domain import _BOUNDARY_LEVEL, _frequency_grid, _transform
 
     if input is None or output is None:
         raise ChannelError("response_or_data: flight data need input= and output= channel names")
@@ -213,7 +250,7 @@ def _fit_fourier(
         w = np.asarray(2 * np.pi * k / T, dtype=np.float64)
         w = w[w < np.pi / dt]
     else:
-        w = _frequency_grid(frequencies, dt, T, depth=2)
+        w = _frequency_grid(frequencies, dt, T, depth=2, shared=error_bars == "colored")
         if frequency_range is not None:
             lo, hi = _band(frequency_range)
             w = w[(w >= lo) & (w <= hi)]
@@ -233,37 +270,100 @@ def _fit_fourier(
     U = _transform(_detrended(data.time, u)[:, None], dt, w, cubic=False)[:, 0]
     Y = _transform(_detrended(data.time, y)[:, None], dt, w, cubic=True)[:, 0]
     st, held, free = _free_structure(m, n, delay, w, fixed, "in the band", f"{input} -> {output}")
-    p = int(free.sum())
     ok = np.abs(U) > 0
     h = np.where(ok, Y / np.where(ok, U, 1.0), 0.0)
+    n_t = len(st.names)
+    a_cols = slice(m + 1, m + 1 + n)
 
-    def model(theta: FloatArray) -> tuple[ComplexArray, ComplexArray]:
-        logt, g = st.log_response(theta)
-        t = np.exp(logt)
-        return t * U, (t * U)[:, None] * g
+    def model(full: FloatArray, basis: ComplexArray | None) -> tuple[ComplexArray, ComplexArray]:
+        logt, g = st.log_response(full[:n_t])
+        tu = np.exp(logt) * U
+        d_theta = tu[:, None] * g
+        if basis is None:
+            return tu, d_theta
+        den = st.sn + st.sa @ full[a_cols]
+        ends = (basis @ full[n_t:]) / den
+        d_theta[:, a_cols] -= (ends / den)[:, None] * st.sa
+        return tu + ends, np.concatenate([d_theta, basis / den[:, None]], axis=1)
 
-    def residual(theta: FloatArray) -> FloatArray:
-        v = Y - model(theta)[0]
-        return np.concatenate([v.real, v.imag])
+    def fitted(basis: ComplexArray | None, theta: FloatArray) -> tuple[FloatArray, Any, Any]:
+        """The fit with or without ends from `theta`, its residual and Jacobian."""
 
-    def jacobian(theta: FloatArray) -> FloatArray:
-        d = -model(theta)[1]
-        return np.concatenate([d.real, d.imag])
+        def residual(full: FloatArray) -> FloatArray:
+            v = Y - model(full, basis)[0]
+            return np.concatenate([v.real, v.imag])
+
+        def jacobian(full: FloatArray) -> FloatArray:
+            d = -model(full, basis)[1]
+            return np.concatenate([d.real, d.imag])
+
+        full, mask = theta, free
+        if basis is not None:
+            # the ends' start: linear least squares given the start's transfer function
+            den = st.sn + st.sa @ theta[a_cols]
+            cols = basis / den[:, None]
+            v = Y - model(theta, None)[0]
+            c = np.linalg.lstsq(
+                np.concatenate([cols.real, cols.imag]),
+                np.concatenate([v.real, v.imag]),
+                rcond=None,
+            )[0]
+            full = np.concatenate([theta, c])
+            mask = np.concatenate([free, np.ones(c.size, dtype=bool)])
+        return fit_free(residual, jacobian, full, mask), residual, jacobian
+
+    def statistics(
+        full: FloatArray, residual: Any, jacobian: Any
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float]:
+        mask = np.concatenate([free, np.ones(full.size - n_t, dtype=bool)])
+        r, inv, info = _fitted_information(residual, jacobian, full, mask, f"{input} -> {output}")
+        # complex circular residuals: each real and imaginary part is one observation of
+        # variance σ²/2, estimated from the 2M real residuals less the unknowns
+        s2 = float(r @ r) / (r.size - int(mask.sum()))
+        cov = white = s2 * inv
+        nu = np.full(full.size, float(r.size - int(mask.sum())))
+        if error_bars == "colored" and np.all(np.isfinite(inv)):
+            # the one correction in its frequency form: each frequency's own residual
+            # spectrum, and the noise that frequencies off the k/T grid share
+            jac = jacobian(full)
+            k = w.size
+            cov, nu = frequency_sandwich(
+                np.stack([jac[:k], jac[k:]], axis=1),
+                np.column_stack([r[:k], r[k:]]),
+                inv,
+                off_grid(w, T),
+            )
+        return r, info, cov, white, nu, s2
 
     # the start: the rational fit of Y/U weighted by |U| (its equation-error form)
-    theta = _start(st, h, w, np.abs(U) ** 2, residual, start)
+    def tf_only(theta: FloatArray) -> FloatArray:
+        v = Y - model(theta, None)[0]
+        return np.concatenate([v.real, v.imag])
+
+    theta = _start(st, h, w, np.abs(U) ** 2, tf_only, start)
     for k_, v_ in held.items():
         theta[st.names.index(k_)] = v_
-
-    theta = fit_free(residual, jacobian, theta, free)
-    r, inv, info = _fitted_information(residual, jacobian, theta, free, f"{input} -> {output}")
-    # complex circular residuals: each real and imaginary part is one observation of
-    # variance σ²/2, estimated from the 2M real residuals less the unknowns
-    s2 = float(r @ r) / (r.size - p)
-    cov = s2 * inv
+    basis = None if boundary == "ignore" else _end_basis(w, T, max(m, n))
+    if basis is not None and 2 * w.size <= int(free.sum()) + basis.shape[1]:
+        if boundary == "estimate":
+            raise IdentificationError(
+                f"boundary='estimate': {w.size} frequencies cannot fit {int(free.sum())} "
+                f"parameters and {basis.shape[1]} record-end terms"
+            )
+        basis = None
+    full, residual, jacobian = fitted(basis, theta)
+    r, info, cov, white, nu, s2 = statistics(full, residual, jacobian)
+    if basis is not None and boundary == "auto":
+        ends = slice(n_t, None)
+        p_value = wald_p_value(full[ends], [cov[ends, ends], white[ends, ends]])
+        if p_value >= _BOUNDARY_LEVEL:  # not different from zero: the fit without them
+            basis = None
+            full, residual, jacobian = fitted(None, full[:n_t])
+            r, info, cov, white, nu, s2 = statistics(full, residual, jacobian)
+    theta, cov, nu = full[:n_t], cov[:n_t, :n_t], nu[:n_t]
     with np.errstate(invalid="ignore", divide="ignore"):
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        insens = np.sqrt(s2) / np.sqrt(np.diag(info))
+        insens = np.sqrt(s2) / np.sqrt(np.diag(info)[:n_t])
     return _fit_record(
         st,
         theta,
@@ -279,6 +379,8 @@ def _fit_fourier(
         np.full(w.size, np.nan),
         input,
         output,
+        dict(zip(st.names, nu.tolist(), strict=True)),
+        basis is not None,
     )
 
 

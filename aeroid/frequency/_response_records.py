@@ -16,7 +16,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._records import (
     IntervalMixin,
-    ReadOnlyDict,
     fmt,
     frozen_array,
     frozen_mapping,
@@ -482,6 +481,14 @@ class TransferFunctionFit(IntervalMixin):
     frequency, response, coherence, random_error : ndarray
         The fitted points (rad/s; complex response).
     input_name, output_name : str
+    degrees_of_freedom : mapping of str to float
+        Per parameter, the degrees of freedom `interval` takes Student's t
+        with: those of the frequency sandwich for a record's Fourier fit
+        (``error_bars="colored"``), else the residual's, two real components
+        per fitted frequency less the parameters.
+    ends_estimated : bool
+        A record's Fourier fit: whether the terms of the record's ends were
+        estimated with the transfer function (``boundary``).
     """
 
     parameters: Mapping[str, float]
@@ -500,10 +507,17 @@ class TransferFunctionFit(IntervalMixin):
     random_error: FloatArray
     input_name: str = ""
     output_name: str = ""
+    degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
+    ends_estimated: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "parameters", frozen_mapping(self.parameters))
         object.__setattr__(self, "standard_errors", frozen_mapping(self.standard_errors))
+        if not self.degrees_of_freedom:
+            # the residual's: two real components per fitted frequency less the parameters
+            nu = float(max(2 * np.size(self.frequency) - len(self.parameters), 1))
+            object.__setattr__(self, "degrees_of_freedom", {n: nu for n in self.parameters})
+        object.__setattr__(self, "degrees_of_freedom", frozen_mapping(self.degrees_of_freedom))
         object.__setattr__(self, "insensitivities", frozen_mapping(self.insensitivities))
         for name in (
             "covariance",
@@ -520,14 +534,6 @@ class TransferFunctionFit(IntervalMixin):
     def stderr(self) -> Mapping[str, float]:
         """The `standard_errors` (the name every estimator's result shares)."""
         return self.standard_errors
-
-    @property
-    def degrees_of_freedom(self) -> Mapping[str, float]:
-        """Per parameter, the residual degrees of freedom of the fit: two real
-        components per fitted frequency less the parameters (`interval` takes
-        Student's t with them)."""
-        nu = float(max(2 * np.size(self.frequency) - len(self.parameters), 1))
-        return ReadOnlyDict({n: nu for n in self.parameters})
 
     def transfer_function(self, s: ArrayLike) -> ComplexArray:
         """T(s) at complex `s`."""

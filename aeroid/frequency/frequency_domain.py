@@ -78,6 +78,7 @@ from .._colour import off_grid
 from .._czt import fourier
 from .._records import frozen_array
 from .._records import frozen_complex as _frozen_complex
+from .._stats import wald_p_value
 from .._threads import CALLER_STACKLEVEL, small_blas
 from .._value_checks import check_choice
 from ..errors import IdentifiabilityWarning, IdentificationError
@@ -565,18 +566,13 @@ def identify_frequency_domain(
 
 def _ends_tested(fit: _Fit, error_bars: str, n_p: int, n_d: int, run: Any) -> _Fit:
     """`fit` if its record-end unknowns differ from zero jointly (Wald), else the fit without them."""
-    import scipy.stats
-
     n_pd = n_p + n_d
     b = fit.theta[n_pd:]
     if b.size == 0:
         return fit
-    cov = (fit.colored if error_bars == "colored" else fit.white)[n_pd:, n_pd:]
-    try:
-        wald = float(b @ np.linalg.solve(cov, b))
-    except np.linalg.LinAlgError:
-        wald = np.inf
-    p_value = float(scipy.stats.chi2.sf(wald, b.size)) if np.isfinite(wald) else 0.0
+    ends = slice(n_pd, None)
+    covs = [fit.colored[ends, ends]] if error_bars == "colored" else []
+    p_value = wald_p_value(b, [*covs, fit.white[ends, ends]])
     if p_value < _BOUNDARY_LEVEL:
         note = f"record ends estimated (Wald p = {p_value:.2g})"
         return dataclasses.replace(fit, message=f"{fit.message}; {note}")

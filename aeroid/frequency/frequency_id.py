@@ -121,6 +121,8 @@ _DEG = 180.0 / np.pi
 # CIFER's phase weight: 1 dB of magnitude error costs as much as 7.57 deg of phase.
 _W_PHASE = 0.01745
 _WEIGHTINGS = ("cifer", "random_error")
+_ERROR_BARS = ("colored", "white")
+_BOUNDARIES = ("auto", "estimate", "ignore")
 # Reweighting passes of the random-error fit (weights from the previous pass's model).
 _PASSES = 3
 
@@ -408,6 +410,8 @@ def fit_transfer_function(
     fixed: Mapping[str, float] | None = None,
     fourier: bool = False,
     frequencies: ArrayLike | None = None,
+    error_bars: str = "colored",
+    boundary: str = "auto",
 ) -> TransferFunctionFit:
     """Fit ``(b_m s^m + … + b_0) / (s^n + a_{n−1} s^{n−1} + … + a_0) · e^{−τ s}`` to a frequency response.
 
@@ -441,11 +445,31 @@ def fit_transfer_function(
         Flight data only: fit the model to the record's finite Fourier
         transforms directly, minimising ``Σ_ω |Y(ω) − T(jω) U(ω)|²`` (output
         error in the frequency domain, as SIDPAC's ``tfest``/``fdoe``), with
-        the error bars of complex circular residuals (each complex residual
-        two real observations); `weighting` and `min_coherence` do not apply.
+        the error bars of `error_bars`; `weighting` and `min_coherence` do
+        not apply.
     frequencies : array_like, optional
         ``fourier=True``: the frequencies in rad/s (default: the ``k/T`` grid
         of the record over the band the input excited).
+    error_bars : {"colored", "white"}
+        ``fourier=True``: the frequency sandwich of every frequency-domain
+        estimator (default; each frequency's residual is its own noise
+        spectrum, so coloured noise, turbulence or unmodelled dynamics that
+        vary with frequency are counted where they are, and frequencies
+        closer than ``2π/T`` share theirs), or the classical bars of white
+        complex circular residuals (each complex residual two real
+        observations of half its variance). A fit to a frequency response
+        takes its bars from `weighting`.
+    boundary : {"auto", "estimate", "ignore"}
+        ``fourier=True``: the record's ends. A record that does not start and
+        end at rest adds to ``D(jω) Y = N(jω) U`` what its states at both
+        ends leave in the transforms of their derivatives (polynomials in
+        ``jω``) and what the removed trend lines leave; unmodelled, they bias
+        the fit and inflate its residuals at low frequencies.
+        ``"estimate"`` fits them (linear terms over ``D(jω)``, not reported),
+        ``"auto"`` (default) keeps them when they differ from zero jointly
+        (Wald test at 5 %, as `identify_frequency_domain` does) and
+        ``"ignore"`` leaves them out, as SIDPAC's ``tfest`` and ``fdoe`` do.
+        `TransferFunctionFit.ends_estimated` says which.
 
     When flight data are given without `frequency_range` (or `frequencies`),
     the band is the one the input excited: from the lowest to the highest
@@ -475,6 +499,20 @@ def fit_transfer_function(
         )
     if frequencies is not None and not fourier:
         raise IdentificationError("frequencies applies to fourier=True only")
+    if error_bars not in _ERROR_BARS:
+        raise IdentificationError(
+            f"error_bars: expected one of {list(_ERROR_BARS)}, got {plain(error_bars)}"
+        )
+    if error_bars != "colored" and not fourier:
+        raise IdentificationError(
+            "error_bars applies to fourier=True only; a response fit's bars follow weighting"
+        )
+    if boundary not in _BOUNDARIES:
+        raise IdentificationError(
+            f"boundary: expected one of {list(_BOUNDARIES)}, got {plain(boundary)}"
+        )
+    if boundary != "auto" and not fourier:
+        raise IdentificationError("boundary applies to fourier=True only")
     if (
         isinstance(response_or_data, FlightData)
         and frequency_range is None
@@ -496,6 +534,8 @@ def fit_transfer_function(
             frequencies,
             start,
             fixed,
+            error_bars,
+            boundary,
         )
     ch = _resolve_response(response_or_data, input, output)
     m, n = _orders(numerator_order, denominator_order)

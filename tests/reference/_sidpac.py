@@ -233,6 +233,60 @@ def monte_carlo(
     return {k: float(np.std(v, ddof=1)) for k, v in draws.items() if len(v) >= 2}
 
 
+def transfer_monte_carlo(
+    refit: Callable[[np.ndarray, np.ndarray], Mapping[str, float]],
+    fit: Any,
+    time: Any,
+    u: Any,
+    y: Any,
+    n: int,
+    *,
+    seed: int = 0,
+) -> dict[str, float]:
+    """`monte_carlo` for a transfer function fitted to a record's transforms.
+
+    The fitted ``T(s) e^{-tau s}`` (`fit`: a ``TransferFunctionFit``) is
+    driven by the input with its straight-line trend removed, as the fit
+    removes it, through a zero-padded FFT (the linear convolution from rest,
+    improper numerators included); the residual is the detrended output less
+    that response. Where the fit estimated the record's ends, the response
+    starts from the initial state that fits the record best (least squares
+    over the transfer function's free responses). ``refit(u, z)`` fits the
+    detrended input and a surrogate output ``z`` and returns the estimates by
+    name.
+    """
+    t = np.asarray(time, dtype=float) - float(time[0])
+    dt = float(t[1] - t[0])
+
+    def detrend(x: Any) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        return np.asarray(x - np.polyval(np.polyfit(t, x, 1), t), dtype=float)
+
+    ud, yd = detrend(u), detrend(y)
+    size = 4 * ud.size
+    s = 2j * np.pi * np.fft.rfftfreq(size, dt)
+    num = np.asarray(fit.numerator, dtype=float)
+    den = np.asarray(fit.denominator, dtype=float)
+    gain = np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * float(fit.delay))
+    yhat = np.fft.irfft(gain * np.fft.rfft(ud, size), size)[: ud.size]
+    if fit.ends_estimated:
+        # a fit that estimated the record's ends: its time response starts from the
+        # initial state that best explains the record, not from rest (else the
+        # surrogates would turn the record's initial transient into noise)
+        import scipy.signal
+
+        proper = np.polydiv(num, den)[1] if num.size >= den.size else num
+        a, _, c, _ = scipy.signal.tf2ss(proper, den)
+        free = np.column_stack(
+            [
+                scipy.signal.lsim((a, np.zeros((a.shape[0], 1)), c, [[0.0]]), None, t, X0=x0)[1]
+                for x0 in np.eye(a.shape[0])
+            ]
+        )
+        yhat = yhat + free @ np.linalg.lstsq(free, yd - yhat, rcond=None)[0]
+    return monte_carlo(lambda z: refit(ud, z), yhat, yd - yhat, n, seed=seed)
+
+
 class ColourRecorder:
     """``with ColourRecorder() as rec: ...`` records every call of the library's
     coloured-residual kernel (``aeroid._colour.colored_covariance``) made inside,

@@ -398,8 +398,9 @@ for _stage in (
         # 2: fdoe's noise weighting by default, record ends kept only when significant;
         # 3: the one least-squares solver and its relative stopping rule;
         # 4: the sandwich's degrees of freedom (t intervals);
-        # 5: the noise that frequencies off the k/T grid share
-        "5",
+        # 5: the noise that frequencies off the k/T grid share;
+        # 6: the ends' Wald test on a positive definite covariance
+        "6",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
