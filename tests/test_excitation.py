@@ -20,8 +20,9 @@ def test_a_constant_non_zero_control_is_no_excitation(sp_model, sp_noisy):
     held = _with(sp_noisy, elevator=np.full(sp_noisy.n_samples, 0.02))
     with pytest.raises(IdentificationError, match=r"no excitation: .*'elevator' = 0\.02"):
         identify(sp_model, held, NAMES)
-    # the same control moving in one manoeuvre of two is excitation
-    fit = identify(sp_model, [held, sp_noisy], NAMES)
+    # the same control moving in one manoeuvre of two is excitation (the held record's
+    # outputs do not follow its control, so its initial states are held, not fitted)
+    fit = identify(sp_model, [held, sp_noisy], NAMES, estimate_x0=False)
     assert fit.success
 
 

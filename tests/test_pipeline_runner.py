@@ -456,6 +456,8 @@ def test_stages_after_a_fit_with_measured_initial_state_are_unchanged(tmp_path):
         n=1,
         extra="  frequency: {frequency_range: [0.2, 3.0]}\n",
     )
+    fields = "parameters: [Z_alpha, M_alpha, M_q, M_delta]"
+    cfg.write_text(cfg.read_text().replace(fields, fields + ", estimate_x0: false"))
     p = plan(cfg)
     assert run(cfg, workers=0).failed == 0
     store = open_store(tmp_path / "store")

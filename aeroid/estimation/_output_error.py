@@ -114,6 +114,17 @@ def shifted_controls(
     return out
 
 
+def _overflow(outputs: Any, mean_sq: FloatArray, measured: FloatArray, cost: Any) -> None:
+    """Raise the error of a fit whose squared residuals overflow, naming the outputs."""
+    overflow = [o for o, v in zip(outputs, mean_sq, strict=True) if not np.isfinite(v)]
+    peak = float(np.max(np.abs(measured)))
+    raise IdentificationError(
+        f"the fit cost is not finite at the initial parameters (cost {cost}): the "
+        f"squared residuals of outputs {overflow or list(outputs)} overflow (measured values "
+        f"up to {peak:.3g}); check the data's units and scale"
+    )
+
+
 def _simulate_members(
     model: Any,
     man: _Manoeuvre,
@@ -503,12 +514,18 @@ def fit_output_error(
     theta = np.clip(theta, lower, upper)  # identify checked the start; this is a no-op there
     fixed = {k: float(v) for k, v in model.parameters.items() if k not in names}
     problem = _Problem(model, mans, layout, out_idx, fixed, simulate_options, gradient)
+    all_meas = np.concatenate([m.measured for m in mans], axis=0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        meas_sq = np.mean(all_meas**2, axis=0)
+    if not np.all(np.isfinite(meas_sq)):
+        # the scales of the steps (and any residual) would overflow: refuse before the
+        # first simulation, naming the outputs
+        _overflow(outputs, meas_sq, all_meas, "inf")
     typ = _typical_scales(layout, theta, mans, state_out)
     if n_d:
         # a delay's natural scale is the sample interval
         typ[n_p : n_p + n_d] = min(float(np.min(np.diff(m.time))) for m in mans)
-    all_meas = np.concatenate([m.measured for m in mans], axis=0)
-    floor = 1e-14 * np.maximum(np.mean(all_meas**2, axis=0), 1e-300)
+    floor = 1e-14 * np.maximum(meas_sq, 1e-300)
     delay_names = [delay_parameter(c) for c in delay_controls]
     names_all = list(names) + delay_names
     for i, m in enumerate(mans):
@@ -544,13 +561,7 @@ def fit_output_error(
         # Squares of values near 1e155 and beyond overflow float64: no step can be judged.
         with np.errstate(over="ignore", invalid="ignore"):
             mean_sq = np.mean(np.concatenate(residuals, axis=0) ** 2, axis=0)
-        overflow = [o for o, v in zip(outputs, mean_sq, strict=True) if not np.isfinite(v)]
-        peak = float(np.max(np.abs(all_meas)))
-        raise IdentificationError(
-            f"the fit cost is not finite at the initial parameters (cost {cost}): the "
-            f"squared residuals of outputs {overflow or outputs} overflow (measured values up "
-            f"to {peak:.3g}); check the data's units and scale"
-        )
+        _overflow(outputs, mean_sq, all_meas, cost)
 
     def linearise(res: list[FloatArray], jacs: list[FloatArray], cost_here: float) -> Linearisation:
         # the noise variances re-estimated from these residuals weight the step

@@ -511,7 +511,7 @@ for _stage in (
         #     information summed by matrix products (rounding)
         # 11: the filter error's process noise started from the state equations'
         #     residuals, its steps extrapolated or a noise's held to a decade (other steps)
-        "11",
+        "12",  # 12: output error estimates the measured initial states by default
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
