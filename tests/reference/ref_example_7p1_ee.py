@@ -80,32 +80,21 @@ def _coefficient(
     p, sw = sidpac
     rows = []
     for i, n in enumerate(names):
-        rows.append(
-            S.row(
-                CASE,
-                f"{label}{n}",
-                sidpac=p[i],
-                sidpac_se_white=sw[i],
-                sidpac_se_corrected=None,
-                ours=res.parameters[n],
-                ours_se=res.stderr[n],
-                mc_se=mcs.get(n),
-                seconds=tm.seconds,
+        for suffix, fit in (("", res), ("_white", white)):
+            rows.append(
+                S.row(
+                    CASE,
+                    f"{label}{n}{suffix}",
+                    sidpac=p[i],
+                    sidpac_se_white=sw[i],
+                    sidpac_se_corrected=None,
+                    ours=fit.parameters[n],
+                    ours_se=fit.stderr[n],
+                    mc_se=mcs.get(n),
+                    seconds=tm.seconds if fit is res else None,
+                    variant=fit is white,
+                )
             )
-        )
-        rows.append(
-            S.row(
-                CASE,
-                f"{label}{n}_white",
-                sidpac=p[i],
-                sidpac_se_white=sw[i],
-                sidpac_se_corrected=None,
-                ours=white.parameters[n],
-                ours_se=white.stderr[n],
-                mc_se=mcs.get(n),
-                variant=True,
-            )
-        )
     return rows
 
 
