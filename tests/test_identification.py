@@ -518,3 +518,26 @@ def test_identify_outputs_as_one_name():
     a = aeroid.identify(model, data, ["M_q", "M_delta"], outputs="q")
     b = aeroid.identify(model, data, ["M_q", "M_delta"], outputs=["q"])
     assert a.parameters == b.parameters
+
+
+def test_default_initial_state_estimates_the_fitted_states_only():
+    # x is fitted (its first sample is data like the rest); w is measured but neither
+    # fitted nor seen in x: it starts from its first sample, with no warning about it
+    def dyn(t, x, u, p):
+        return np.array([p["a"] * x[0] + p["b"] * u[0], 0.3 * x[0] - 0.5 * x[1]])
+
+    model = Model(["x", "w"], ["u"], {"a": -1.0, "b": 2.0}, dyn, outputs=["x"], name="lag")
+    t = np.arange(0.0, 20.0, 0.02)
+    u = np.sin(1.3 * t) + np.sign(np.sin(0.4 * t))
+    sim = model.simulate(t, {"u": u}, x0=[0.0, 0.0])
+    rng = np.random.default_rng(0)
+    noisy = sim.states + 0.01 * rng.standard_normal(sim.states.shape)
+    noisy[0, 0] = 0.03  # a first sample 3 noise SDs off the true start, 0
+    data = FlightData(t, {"u": u, "x": noisy[:, 0], "w": noisy[:, 1]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fit = identify(model, data, {"a": -0.8, "b": 1.5})
+    assert fit.initial_states[0]["w"] == data["w"][0]
+    assert abs(fit.initial_states[0]["x"]) < 0.01  # the record, not its first sample
+    held = identify(model, data, {"a": -0.8, "b": 1.5}, estimate_x0=False)
+    assert held.initial_states[0] == {"x": data["x"][0], "w": data["w"][0]}

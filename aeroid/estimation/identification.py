@@ -160,10 +160,10 @@ def identify(
         measured states at the first sample and zero for unmeasured ones.
     estimate_x0 : bool, sequence of str or None
         Estimate the initial value of these states (all when True), per
-        manoeuvre. None (default): output error estimates the measured states'
-        initial values when `x0` is not given (with a `Model` and ``gradient``
-        ``"auto"`` or ``"fd"``; else, and for filter error, they are held at
-        the first samples). Held at a noisy first sample, a slowly decaying
+        manoeuvre. None (default): output error estimates the initial values
+        of the states it fits as outputs when `x0` is not given (with a
+        `Model` and ``gradient`` ``"auto"`` or ``"fd"``; other states, and
+        filter error, start from the first samples). Held at a noisy first sample, a slowly decaying
         mode's wrong transient costs more than the data can pay back, and the
         fit moves the damping and the control power to shorten it: on a
         lateral model sampled at 50 Hz that bias reached 1.4 standard errors
@@ -440,8 +440,11 @@ def identify(
         # here, not deep in the first simulation, and naming the option
         check_simulate_options(opts, model, IdentificationError)
     if estimate_x0 is None:
+        # the states fitted as outputs: their first samples are data like the rest and
+        # pin their initial values (a state only measured, or seen through others,
+        # starts from its first sample as before)
         auto = x0 is None and not is_simulator and gradient != "jax"
-        sel_x0 = [s for s in states if auto and all(s in d for d in datas)]
+        sel_x0 = [s for s in states if auto and s in fit_outputs]
     else:
         sel_x0 = _select(estimate_x0, states, "estimate_x0")
     if sel_x0 and (is_simulator or gradient == "jax"):
