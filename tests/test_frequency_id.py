@@ -767,3 +767,10 @@ def test_fourier_fit_options_are_checked() -> None:
     for kw in ({"error_bars": "white"}, {"boundary": "estimate"}):
         with pytest.raises(IdentificationError, match="fourier=True only"):
             fit_transfer_function(response, numerator_order=1, denominator_order=2, **kw)
+
+
+def test_fourier_fit_summary_says_what_was_fitted() -> None:
+    text = _second_order_fit(_second_order_record(0, 0.05)).summary()
+    assert "output error on the record's Fourier transforms" in text
+    assert "The record's ends estimated with it." in text
+    assert "CIFER cost" not in text and "Reduced χ²" not in text

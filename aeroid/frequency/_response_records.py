@@ -600,12 +600,19 @@ class TransferFunctionFit(IntervalMixin):
                 f"{self.denominator.size - 1}, delay {'fitted' if 'tau' in self.parameters else 'none'}; "
                 f"{self.frequency.size} frequencies {fmt(float(self.frequency[0]), 3)}–"
                 f"{fmt(float(self.frequency[-1]), 3)} rad/s; weighting {self.weighting!r}; "
-                f"CIFER cost J = {fmt(self.cost, 4)} (Tischler: J ≤ 100 acceptable, ≤ 50 good)."
+                + (
+                    # raw Y/U ratios of one record: no CIFER cost to judge them by
+                    "output error on the record's Fourier transforms."
+                    if self.weighting == "fourier"
+                    else f"CIFER cost J = {fmt(self.cost, 4)} (Tischler: J ≤ 100 acceptable, "
+                    "≤ 50 good)."
+                )
                 + (
                     f" Reduced χ² {fmt(self.reduced_chi_square, 3)}."
-                    if np.isfinite(self.reduced_chi_square)
+                    if np.isfinite(self.reduced_chi_square) and self.weighting != "fourier"
                     else ""
-                ),
+                )
+                + (" The record's ends estimated with it." if self.ends_estimated else ""),
             ]
         )
 
