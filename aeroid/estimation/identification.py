@@ -157,20 +157,22 @@ def identify(
         manoeuvres (``x0=[p0, r0]`` for two manoeuvres of a two-state model
         is one state); only for a one-state model does a flat list of one
         number per manoeuvre give each manoeuvre its own. Default: the
-        measured states at the first sample and zero for unmeasured ones.
+        measured states at the first sample and zero for unmeasured ones
+        (the start of those `estimate_x0` estimates).
     estimate_x0 : bool, sequence of str or None
         Estimate the initial value of these states (all when True), per
         manoeuvre. None (default): output error estimates the initial values
         of the states it fits as outputs when `x0` is not given (with a
-        `Model` and ``gradient`` ``"auto"`` or ``"fd"``; other states, and
-        filter error, start from the first samples). Held at a noisy first sample, a slowly decaying
-        mode's wrong transient costs more than the data can pay back, and the
-        fit moves the damping and the control power to shorten it: on a
-        lateral model sampled at 50 Hz that bias reached 1.4 standard errors
-        and coverage of 95 % intervals fell to 0.53. The first sample is data
-        like any other, so estimating the state from all of them is the
-        maximum-likelihood choice (Jategaonkar, ch. 4); False holds them as
-        SIDPAC's demos do (there at smoothed values given as `x0`).
+        `Model` and ``gradient`` ``"auto"`` or ``"fd"``); other states, and
+        filter error, start from the first samples. Held at a noisy first
+        sample, a slowly decaying mode's wrong transient costs more than the
+        data can pay back, and the fit moves the damping and the control
+        power to shorten it: on a lateral model sampled at 50 Hz that bias
+        reached 1.4 standard errors and coverage of 95 % intervals fell to
+        0.53. The first sample is data like any other, so estimating the
+        state from all of them is the maximum-likelihood choice (Jategaonkar,
+        ch. 4); False holds them, as SIDPAC's demos do (at smoothed values
+        given as `x0`).
     estimate_bias : bool, sequence of str or mapping of str to str
         Estimate constant biases, per manoeuvre. True or a list of names:
         measurement biases on those outputs (all fitted outputs when True).
