@@ -166,6 +166,11 @@ def test_chains_group_each_flights_consecutive_steps(tmp_path):
 
 
 def test_worker_start_method(monkeypatch):
+    from aeroid._threads import wait_background
+
+    # a compilation an earlier test queued imports JAX in the background: let it finish
+    # first, or it may put `jax` back into sys.modules under the checks below
+    assert wait_background(timeout=120)
     monkeypatch.delenv("AEROID_START_METHOD", raising=False)
     monkeypatch.delitem(sys.modules, "jax", raising=False)
     expected = "fork" if sys.platform.startswith("linux") else "spawn"
