@@ -191,7 +191,9 @@ def _end_basis(w: FloatArray, span: float, order: int) -> ComplexArray | None:
     polynomial order) weighted by the states at both ends; the straight lines the
     fit removes from input and output leave ``c0 + c1 t`` in the equation. On the
     ``k/T`` grid ``e^{-jωT} = 1``: the two polynomials merge and only the slope's
-    ``-T/(jω)`` is left of the lines. Columns are scaled to unit mean square."""
+    ``-T/(jω)`` is left of the lines. A delay's input from before the record
+    (its first τ seconds) is not among them. Columns are scaled to unit mean
+    square."""
     if not np.all(w > 0):
         return None
     s = 1j * np.asarray(w, dtype=np.float64)
