@@ -508,8 +508,10 @@ def equivalent_system(
     ----------
     response : CompositeResponse, ResponseChannel, FlightData, fit or (num, den[, delay])
         The measured response, a record (fitted directly on its finite Fourier
-        transforms over the band's ``k/T`` frequencies, as SIDPAC's Example 7.3;
-        `input` and `output` name the channels), or a high-order system's
+        transforms over the band's ``k/T`` frequencies, as SIDPAC's Example 7.3,
+        with the record's ends and the frequency sandwich's error bars of
+        `fit_transfer_function` with ``fourier=True``; `input` and `output`
+        name the channels), or a high-order system's
         transfer function (evaluated at 100 log-spaced frequencies over the band).
     kind : {"short_period", "roll", "dutch_roll"}
         The standard form (see the module notes).
