@@ -26,6 +26,17 @@ FloatArray = NDArray[np.float64]
 _DELAY = "tau_"
 
 
+def _classical_where_not_positive(
+    cov: FloatArray, cov_white: FloatArray, nu: FloatArray, dof: int
+) -> None:
+    """Where an estimated spectrum left a variance non-positive, keep the classical bars
+    and degrees of freedom (in place)."""
+    bad = ~(np.diag(cov) > 0)
+    cov[bad, :] = cov_white[bad, :]
+    cov[:, bad] = cov_white[:, bad]
+    nu[bad] = float(dof)
+
+
 def _fit(
     z: FloatArray,
     x: FloatArray,
@@ -83,12 +94,8 @@ def _fit(
         cov, nu = _reml_covariance(x, v, xtx_inv)
     else:
         cov = cov_white.copy()
-    bad = ~(np.diag(cov) > 0)
-    if error_bars != "white" and np.any(bad):
-        # a lag-window estimate can go non-positive: keep the classical bars there
-        cov[bad, :] = cov_white[bad, :]
-        cov[:, bad] = cov_white[:, bad]
-        nu[bad] = float(n - p)
+    if error_bars != "white":
+        _classical_where_not_positive(cov, cov_white, nu, n - p)
     r2, f_stat = _r2_f(sse, sst, n, p, p - 1 if has_const else p)
     pse = sse / n + (s_dev / n) * p / n
     return _result(
@@ -301,8 +308,7 @@ def _frequency_fit(
             xtx_inv,
             off_grid(2 * np.pi * freq, z.shape[0] * step),
         )
-        bad = ~(np.diag(cov) > 0)
-        cov[bad, :], cov[:, bad], nu[bad] = cov_white[bad, :], cov_white[:, bad], 2 * m - p
+        _classical_where_not_positive(cov, cov_white, nu, 2 * m - p)
     else:
         cov = cov_white.copy()
     r2, f_stat = _r2_f(sse, szz, 2 * m, p, p)

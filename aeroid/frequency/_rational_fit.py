@@ -208,12 +208,16 @@ def _end_basis(w: FloatArray, span: float, order: int) -> ComplexArray | None:
     return np.asarray(basis / np.sqrt(np.mean(np.abs(basis) ** 2, axis=0)), dtype=np.complex128)
 
 
-def _without_ends(v: ComplexArray, columns: ComplexArray) -> ComplexArray:
-    """`v` less its least-squares fit by `columns` with real coefficients."""
+def _end_coefficients(v: ComplexArray, columns: ComplexArray) -> FloatArray:
+    """The real coefficients of the least-squares fit of `v` by `columns`."""
     a = np.concatenate([columns.real, columns.imag])
     b = np.concatenate([v.real, v.imag])
-    c = np.linalg.lstsq(a, b, rcond=None)[0]
-    return np.asarray(v - columns @ c, dtype=np.complex128)
+    return np.asarray(np.linalg.lstsq(a, b, rcond=None)[0], dtype=np.float64)
+
+
+def _without_ends(v: ComplexArray, columns: ComplexArray) -> ComplexArray:
+    """`v` less its least-squares fit by `columns` with real coefficients."""
+    return np.asarray(v - columns @ _end_coefficients(v, columns), dtype=np.complex128)
 
 
 def _fit_fourier(
@@ -303,13 +307,7 @@ def _fit_fourier(
         if basis is not None:
             # the ends' start: linear least squares given the start's transfer function
             den = st.sn + st.sa @ theta[a_cols]
-            cols = basis / den[:, None]
-            v = Y - model(theta, None)[0]
-            c = np.linalg.lstsq(
-                np.concatenate([cols.real, cols.imag]),
-                np.concatenate([v.real, v.imag]),
-                rcond=None,
-            )[0]
+            c = _end_coefficients(Y - model(theta, None)[0], basis / den[:, None])
             full = np.concatenate([theta, c])
             mask = np.concatenate([free, np.ones(c.size, dtype=bool)])
         return fit_free(residual, jacobian, full, mask), residual, jacobian
