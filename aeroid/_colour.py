@@ -15,8 +15,8 @@ and recolouring by its inverse are products. `colored_covariance` is the one
 implementation for estimators that fit time histories (equation error,
 stepwise regression, output error, data compatibility); see its docstring
 for the estimator and its degrees of freedom. `frequency_sandwich` is the same
-``B`` for estimators that fit Fourier transforms on the ``k/T`` grid, where
-each frequency is its own window.
+``B`` for estimators that fit Fourier transforms at chosen frequencies, where
+the window spans a frequency and its neighbours.
 """
 
 from __future__ import annotations
@@ -39,6 +39,10 @@ _RHO_LIMIT = 0.999
 # (and so the t widening) already carry (the fixed-b argument of Kiefer and
 # Vogelsang, 2005).
 _NARROW = 2.0
+# A frequency-domain estimator's noise spectrum at each chosen frequency is the
+# house window's mean over this many neighbouring chosen frequencies either side
+# (`frequency_sandwich`).
+_NEIGHBOURS = 1
 # Prewhitening (Andrews & Monahan, 1992) by one AR(1) per output; False gives the
 # kernel without it (private: for comparisons only).
 _PREWHITEN = True
@@ -573,32 +577,36 @@ def frequency_sandwich(
     jac: FloatArray,
     res: FloatArray,
     m_inv: FloatArray,
-    grid: tuple[FloatArray, float] | None = None,
+    omega: FloatArray,
+    span: float,
 ) -> tuple[FloatArray, FloatArray]:
     """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
     and each parameter's degrees of freedom.
 
-    Frequency-domain estimators fit Fourier transforms on the ``k/T`` grid, where
-    the transforms at distinct frequencies are nearly independent however
-    coloured the residuals are in time, so ``B`` needs no smoothing across
-    frequencies: each frequency's noise spectrum is its own residual's outer
-    product, corrected for what the fit removed exactly as `colored_covariance`
-    does, ``E[u u'] = F (1 - L)`` with ``L`` that frequency's leverage (here a
-    matrix over its real-stacked rows), so ``u`` is scaled by ``(1 - L)^-1/2``.
+    Frequency-domain estimators fit Fourier transforms at chosen frequencies,
+    where the transforms at distinct frequencies of the ``k/T`` grid are nearly
+    independent however coloured the residuals are in time. ``B`` needs the
+    noise's cross-spectrum at each chosen frequency, estimated from the
+    residuals there, corrected for what the fit removed exactly as
+    `colored_covariance` does (``E[u u'] = F (1 - L)`` with ``L`` that
+    frequency's leverage, a matrix over its real-stacked rows, so ``u`` is
+    scaled by ``(1 - L)^-1/2``), and smoothed over the neighbouring chosen
+    frequencies with the house window (`_window`, half-width `_NEIGHBOURS`).
 
     Parameters
     ----------
-    jac : (M, r, p) array
-        Per frequency, the real-stacked weighted sensitivities.
-    res : (M, r) array
-        Per frequency, the real-stacked weighted residuals.
+    jac : (M, 2r, p) array
+        Per frequency, the weighted sensitivities of r complex equations, stacked
+        as their real parts, then their imaginary parts.
+    res : (M, 2r) array
+        Per frequency, the weighted residuals, stacked the same way.
     m_inv : (p, p) array
         The (pseudo-)inverse of ``M = sum J'J``.
-    grid : (omega (M,), T), optional
-        The frequencies (rad/s) and the record's length when they are not on
-        its ``k/T`` grid: the transforms of white noise then correlate as
-        ``kappa_jk = E[V_j V_k^*] / E|V|^2 = e^{-i dw T/2} sinc(dw T/2)``,
-        ``dw = omega_j - omega_k`` (zero for distinct frequencies on the grid).
+    omega : (M,) array
+        The frequencies, rad/s, in any order.
+    span : float
+        The record's length ``T``, s: frequencies closer than ``2 pi/T`` share
+        their noise (`off_grid`).
 
     Returns
     -------
@@ -607,53 +615,118 @@ def frequency_sandwich(
 
     Notes
     -----
-    Parameter j's variance is a sum over frequencies, ``sum_m t_mj^2`` with
-    ``t_mj = e_j' M^-1 J_m' u_m`` one real Gaussian per frequency (its rows are
-    the real and imaginary parts of one transform), so each term is ``v_mj
-    chi2_1`` and ``nu_j = (sum_m v_mj)^2 / sum_m v_mj^2``: as many degrees of
-    freedom as frequencies where the information is spread evenly, one where a
-    single frequency carries it. Both sums are estimated without bias from the
-    terms themselves: ``sum v^2`` as ``sum t^4 / 3`` (a chi2_1 variable's fourth
-    moment is three times its squared variance) and ``(sum v)^2`` as ``(sum
-    t^2)^2 - 2 sum v^2``, so ``nu_j = 3 (sum t^2)^2 / sum t^4 - 2`` (one for a
-    single frequency). A few frequencies near a lightly damped mode, which
-    carry most of a parameter's information and the noise there, then give
-    the few degrees of freedom they are worth and the wider t interval.
+    *The spectrum.* A transform away from zero frequency is circular complex
+    Gaussian: its real and imaginary parts each carry half of the
+    cross-spectrum ``S = E[e e^H]``, so ``B = sum_m 1/2 Re W_m^H S_m W_m`` with
+    ``W`` the complex sensitivities (a real transform, at zero frequency,
+    carries all of it and counts once). One frequency's residual outer product
+    ``e e^H`` is an unbiased estimate of ``S`` with two degrees of freedom; a
+    parameter whose information sits at the few frequencies of a lightly damped
+    mode would rest on those few. The noise spectrum is smoother than the
+    response the frequencies were chosen to resolve, so each frequency's ``S``
+    is the window's mean over it and one neighbour either side in frequency
+    order (weights 0.3, 0.4, 0.3; renormalised at the ends of the band). Over a
+    flat stretch that is unbiased, and it triples the information behind each
+    estimate; at a sharp peak of the noise it borrows from the flanks, with the
+    weight the window gives them.
 
-    Off the ``k/T`` grid (frequencies closer than ``2 pi/T``, as SIDPAC's
-    ``fdoe`` examples choose them) neighbouring transforms share the noise:
-    for noise whose spectrum is flat across a few bins, ``E[v_j v_k^H] =
-    kappa_jk F``, with ``kappa`` the finite record's kernel, so the score
-    terms of frequencies j and k covary by ``1/2 Re W_j^H kappa_jk F_jk
-    W_k`` (``W`` the complex weighted sensitivities) and ``B`` gains those
-    pairs, with ``F_jk`` the mean of the two frequencies' leverage-corrected
-    residual outer products. The degrees of freedom count them too: with
-    ``rho_jk = |kappa_jk|`` (about the correlation of ``t_j`` and ``t_k``)
-    ``D = sum_jk v_j v_k rho_jk^2`` takes the place of ``sum v^2``, each pair
-    estimated by ``t_j^2 t_k^2 rho_jk^2 / (1 + 2 rho_jk^2)`` (Gaussian fourth
-    moments), and ``E[(sum t^2)^2] = (sum v)^2 + 2 D``, so ``nu = (sum
-    t^2)^2 / D - 2`` as before: fewer degrees of freedom than frequencies,
-    about as many as the record holds bins however finely it is sampled.
+    *Off the grid* (frequencies closer than ``2 pi/T``, as SIDPAC's ``fdoe``
+    examples choose them) neighbouring transforms share the noise: for noise
+    whose spectrum is flat across a few bins ``E[e_j e_k^H] = kappa_jk S``,
+    ``kappa_jk = e^{-i dw T/2} sinc(dw T/2)`` the finite record's kernel
+    (``dw = omega_j - omega_k``; zero for distinct frequencies on the grid), so
+    ``B`` gains the pairs ``1/2 Re W_j^H kappa_jk S_jk W_k`` with ``S_jk`` the
+    mean of the two frequencies' estimates.
+
+    *Degrees of freedom.* Parameter j's variance estimate is a sum of Hermitian
+    forms of the residuals, ``sum_k e_k^H A_k e_k`` with ``A_k = sum_m s_mk f_m
+    c_m c_m^H`` (``c_m = W_m M^-1 e_j``, ``s`` the smoothing weights, ``f_m =
+    1/2`` for a complex transform); a circular Gaussian form has mean ``tr(A
+    S)`` and variance ``tr(A S A S)`` (twice that for a real one), and forms at
+    frequencies off the grid covary by ``|kappa_jk|^2 tr(A_j S A_k S)``.
+    Satterthwaite's ``nu_j = 2 mean^2 / Var`` is estimated with the smoothed
+    ``S``, less the spread of the estimates themselves: ``E[S^ A S^] = S A S
+    (1 + sum_k s_mk^2)`` for one output (``E|e|^4 = 2 S^2``; more outputs make
+    it an upper bound, so fewer degrees of freedom) and ``E[mean^2] = mean^2 +
+    Var``, hence ``nu = 2 mean^2 / Var - 2``. That is two per frequency, less
+    two, where the information is spread evenly on the grid; ``2 / sum s^2 =
+    5.9`` where one frequency carries it over a flat spectrum (two from that
+    frequency alone); about twice as many as the record holds bins however
+    finely frequencies are packed into it.
     """
+    omega = np.asarray(omega, dtype=np.float64)
+    n_f, rows, _ = jac.shape
+    r = rows // 2
+    order = np.argsort(omega, kind="stable")
+    jac, res, omega = jac[order], res[order], omega[order]
     lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
     lev = 0.5 * (lev + lev.transpose(0, 2, 1))
-    w, v = np.linalg.eigh(np.eye(lev.shape[1])[None] - lev)
+    w, v = np.linalg.eigh(np.eye(rows)[None] - lev)
     # a frequency that alone fixes an unknown (1 - L ~ 0) keeps its plain residual
     scale = np.where(w > 1e-9, 1.0 / np.sqrt(np.maximum(w, 1e-300)), 1.0)
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
-    score = np.einsum("mrn,mr->mn", jac, u)
-    meat = score.T @ score
-    terms = (score @ m_inv) ** 2  # (M, p): t_mj^2
-    total = terms.sum(axis=0)
-    fourth = np.sum(terms**2, axis=0) / 3.0
+    W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
+    e = u[:, :r] + 1j * u[:, r:]  # (M, r)
+    # the transform at zero frequency is real: all its noise is in its real rows
+    real = omega == 0.0
+    f = np.where(real, 1.0, 0.5)
+    weights = _neighbour_weights(n_f)
+    S = _neighbour_mean(np.einsum("mr,ms->mrs", e, e.conj()), weights)  # (M, r, r)
+    meat = np.einsum("m,mrp,mrs,msq->pq", f, W.conj(), S, W).real
+    c = np.einsum("mrp,pq->mrq", W, m_inv)  # c_m per parameter
+    fcc = f[:, None, None, None] * np.einsum("mrq,msq->mrsq", c, c.conj())
+    A = _neighbour_adjoint(fcc, weights)  # (M, r, r, p)
+    AS = np.einsum("mrsq,mst->mrtq", A, S)
+    mean = np.einsum("mrrq->q", AS).real
+    # the smoothed estimate's own spread inflates tr(ASAS) by 1 + sum s^2 (exactly for
+    # one output, in excess for more: fewer degrees of freedom, the cautious side)
+    inflation = (1.0 + np.sum(weights**2, axis=1)) / np.where(real, 2.0, 1.0)
+    var = np.einsum("mrsq,msrq->mq", AS, AS).real / inflation[:, None]
+    var = var.sum(axis=0)
+    grid = off_grid(omega, span)
     if grid is not None:
-        shared, pairs = _overlap_terms(jac, u, terms, np.asarray(grid[0], float), grid[1])
+        shared, pairs = _overlap_terms(W, S, AS, omega, span)
         meat = meat + shared
-        fourth = fourth + pairs
+        var = var + pairs
+    meat = 0.5 * (meat + meat.T)
     cov = np.asarray(m_inv @ meat @ m_inv, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        nu = np.where(fourth > 0, total**2 / fourth - 2.0, np.inf)
+        nu = np.where(var > 0, 2.0 * mean**2 / var - 2.0, np.inf)
     return cov, np.asarray(np.maximum(nu, 1.0), dtype=np.float64)
+
+
+def _neighbour_weights(n: int) -> FloatArray:
+    """(n, 2h + 1): frequency m's weights on its neighbours m - h .. m + h (the house
+    window, half-width `_NEIGHBOURS`), zero beyond the band and renormalised to one."""
+    h = min(_NEIGHBOURS, max(n - 1, 0))
+    base = _window(h)
+    idx = np.arange(n)[:, None] + np.arange(-h, h + 1)[None, :]
+    wts = np.where((idx >= 0) & (idx < n), base[None, :], 0.0)
+    return np.asarray(wts / wts.sum(axis=1, keepdims=True), dtype=np.float64)
+
+
+def _neighbour_mean(x: NDArray[np.complex128], weights: FloatArray) -> NDArray[np.complex128]:
+    """``y_m = sum_d s_m,d x_{m+d}`` along axis 0 (`_neighbour_weights`)."""
+    h = (weights.shape[1] - 1) // 2
+    n = x.shape[0]
+    out = np.zeros_like(x)
+    shape = (-1,) + (1,) * (x.ndim - 1)
+    for j, d in enumerate(range(-h, h + 1)):
+        lo, hi = max(0, -d), min(n, n - d)
+        out[lo:hi] += weights[lo:hi, j].reshape(shape) * x[lo + d : hi + d]
+    return out
+
+
+def _neighbour_adjoint(x: NDArray[np.complex128], weights: FloatArray) -> NDArray[np.complex128]:
+    """The transpose of `_neighbour_mean`: ``y_k = sum_m s_m,k-m x_m``."""
+    h = (weights.shape[1] - 1) // 2
+    n = x.shape[0]
+    out = np.zeros_like(x)
+    shape = (-1,) + (1,) * (x.ndim - 1)
+    for j, d in enumerate(range(-h, h + 1)):
+        lo, hi = max(0, -d), min(n, n - d)
+        out[lo + d : hi + d] += weights[lo:hi, j].reshape(shape) * x[lo:hi]
+    return out
 
 
 def off_grid(omega: FloatArray, span: float) -> tuple[FloatArray, float] | None:
@@ -679,32 +752,32 @@ def _kernel(omega: FloatArray, rows: slice, span: float) -> NDArray[np.complex12
 
 
 def _overlap_terms(
-    jac: FloatArray, u: FloatArray, terms: FloatArray, omega: FloatArray, span: float
+    W: NDArray[np.complex128],
+    S: NDArray[np.complex128],
+    AS: NDArray[np.complex128],
+    omega: FloatArray,
+    span: float,
 ) -> tuple[FloatArray, FloatArray]:
-    """The meat's pairs ``sum_{j != k} 1/2 Re W_j^H kappa_jk F_jk W_k`` with ``F_jk =
-    (u_j u_j^H + u_k u_k^H)/2``, and the pairs' share ``sum_{j != k} t_j^2 t_k^2
-    rho^2 / (1 + 2 rho^2)`` of the degrees of freedom's denominator; ``kappa`` is
-    formed a block of rows at a time, so memory stays linear in the frequencies.
+    """The meat's pairs ``sum_{j != k} 1/2 Re W_j^H kappa_jk S_jk W_k`` with ``S_jk =
+    (S_j + S_k)/2``, and the pairs' share ``sum_{j != k} |kappa_jk|^2 tr(A_j S_j A_k
+    S_k)`` of each variance estimate's variance (`AS` holds ``A_k S_k`` per
+    parameter); ``kappa`` is formed a block of rows at a time, so memory stays
+    linear in the frequencies.
 
-    ``kappa`` is Hermitian, so the ``u_k u_k^H`` half of the sum is the conjugate
-    transpose of the ``u_j u_j^H`` half, ``A = sum_jk kappa_jk (W_j^H u_j)(u_j^H
-    W_k)``: the pairs are ``Re(A + A^H) / 4``."""
-    m = omega.size
-    r = jac.shape[1] // 2
-    W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
-    e = u[:, :r] + 1j * u[:, r:]  # (M, r)
-    a = np.einsum("jrp,jr->jp", W.conj(), e)  # W_j^H u_j
-    p = W.shape[2]
+    ``kappa`` is Hermitian, so the ``S_k`` half of the sum is the conjugate
+    transpose of the ``S_j`` half, ``H = sum_jk kappa_jk W_j^H S_j W_k``: the
+    pairs are ``Re(H + H^H) / 4``."""
+    m, r, p = W.shape
+    left = np.einsum("jrp,jrs->jps", W.conj(), S)  # W_j^H S_j
     half = np.zeros((p, p), dtype=np.complex128)
     pairs = np.zeros(p)
-    step = max(1, _KERNEL_BLOCK // max(m * max(r * p, 1), 1))
+    step = max(1, _KERNEL_BLOCK // max(m * max(r * r * p, 1), 1))
     for lo in range(0, m, step):
         rows = slice(lo, min(lo + step, m))
         kappa = _kernel(omega, rows, span)  # (rows, M)
         mixed = np.einsum("jk,krq->jrq", kappa, W)  # sum_k kappa_jk W_k
-        b = np.einsum("jr,jrq->jq", e[rows].conj(), mixed)  # u_j^H sum_k kappa_jk W_k
-        half += a[rows].T @ b
-        rho2 = np.abs(kappa) ** 2
-        pairs += np.einsum("jp,jk,kp->p", terms[rows], rho2 / (1.0 + 2.0 * rho2), terms)
+        half += np.einsum("jps,jsq->pq", left[rows], mixed)
+        spread = np.einsum("jk,kbaq->jabq", np.abs(kappa) ** 2, AS)
+        pairs += np.einsum("jabq,jabq->q", AS[rows], spread).real
     out = 0.25 * (half + half.conj().T).real
     return np.asarray(out, dtype=np.float64), pairs

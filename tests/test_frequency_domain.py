@@ -355,6 +355,25 @@ def test_error_bar_coverage(error_bars: str) -> None:
     assert abs(np.mean(list(cover.values())) - 0.95) < tol / np.sqrt(2)
 
 
+@pytest.mark.slow
+def test_sandwich_standard_errors_borrow_from_neighbouring_frequencies() -> None:
+    # Each frequency's noise spectrum is smoothed over its neighbours: over 150 records
+    # the standard errors' coefficient of variation is 0.09-0.14 (SE of each about
+    # 0.01); from each frequency's residual alone it was 0.15-0.22. Coverage holds.
+    model = _short()
+    sim = _short_record(0.02)
+    se, hits = [], []
+    for seed in range(150):
+        data = sim.to_flight_data(noise={"alpha": 0.002, "q": 0.005}, seed=1000 + seed)
+        res = identify_frequency_domain(model, data, SHORT)
+        half = res.margin(0.95)
+        se.append([res.stderr[k] for k in SHORT])
+        hits.append([abs(res.parameters[k] - v) <= half[k] for k, v in SHORT.items()])
+    cv = np.std(se, axis=0) / np.mean(se, axis=0)
+    assert np.max(cv) < 0.17, dict(zip(SHORT, cv, strict=True))
+    assert abs(np.mean(hits) - 0.95) < 0.025, np.mean(hits, axis=0)
+
+
 def _ar1_noise(rng: np.random.Generator, n: int, phi: float) -> np.ndarray:
     """Unit-variance AR(1) noise with a stationary start."""
     w = rng.standard_normal(n)

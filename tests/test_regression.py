@@ -611,44 +611,116 @@ def test_public_entry_points_limit_blas_threads():
         assert hasattr(fn, "__wrapped__"), fn.__name__
 
 
-def test_frequency_sandwich_is_the_leverage_corrected_score_sum() -> None:
-    # one real row per frequency: u_m / sqrt(1 - L_m), then M^-1 (sum g g') M^-1; with
-    # the rows of one frequency uncorrelated it is the same row by row
+def _complex_problem(
+    rng: np.random.Generator, m: int, r: int, p: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Random complex sensitivities W (m, r, p) and residuals e (m, r), and their real
+    stacking (real parts, then imaginary parts) as the estimators pass them."""
+    W = rng.standard_normal((m, r, p)) + 1j * rng.standard_normal((m, r, p))
+    e = rng.standard_normal((m, r)) + 1j * rng.standard_normal((m, r))
+    jac = np.concatenate([W.real, W.imag], axis=1)
+    res = np.concatenate([e.real, e.imag], axis=1)
+    return W, e, jac, res
+
+
+def _corrected(jac: np.ndarray, res: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Each frequency's residual scaled by (1 - L)^-1/2, back to complex."""
+    lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
+    w, v = np.linalg.eigh(np.eye(jac.shape[1])[None] - 0.5 * (lev + lev.transpose(0, 2, 1)))
+    u = np.einsum("mrs,ms,mts,mt->mr", v, 1.0 / np.sqrt(w), v, res)
+    r = jac.shape[1] // 2
+    return np.asarray(u[:, :r] + 1j * u[:, r:])
+
+
+def _neighbour_matrix(m: int) -> np.ndarray:
+    """(m, m): frequency k's weights 0.3, 0.4, 0.3 on k - 1, k, k + 1, renormalised at
+    the ends of the band."""
+    wts = np.zeros((m, m))
+    for k in range(m):
+        idx = [j for j in (k - 1, k, k + 1) if 0 <= j < m]
+        raw = np.array([0.4 if j == k else 0.3 for j in idx])
+        wts[k, idx] = raw / raw.sum()
+    return wts
+
+
+def _smoothed(e: np.ndarray) -> np.ndarray:
+    """Each frequency's cross-spectrum: the neighbours' mean of the outer products."""
+    return np.asarray(np.einsum("kj,jr,js->krs", _neighbour_matrix(e.shape[0]), e, e.conj()))
+
+
+def test_frequency_sandwich_is_the_smoothed_leverage_corrected_spectrum() -> None:
+    # each frequency's cross-spectrum S_m from its leverage-corrected residuals and its
+    # neighbours', half in each of its real and imaginary rows: B = sum 1/2 Re W^H S W
     from aeroid import _colour
 
     rng = np.random.default_rng(3)
-    m, p = 60, 3
-    jac = rng.standard_normal((m, 1, p))
-    res = rng.standard_normal((m, 1))
+    m, r, p = 40, 2, 3
+    W, _, jac, res = _complex_problem(rng, m, r, p)
     inv = np.linalg.inv(np.einsum("mrp,mrq->pq", jac, jac))
-    lev = np.einsum("mp,pq,mq->m", jac[:, 0], inv, jac[:, 0])
-    score = jac[:, 0] * (res[:, 0] / np.sqrt(1.0 - lev))[:, None]
-    want = inv @ score.T @ score @ inv
-    cov, nu = _colour.frequency_sandwich(jac, res, inv)
-    np.testing.assert_allclose(cov, want, rtol=1e-10)
-    # each frequency's term is chi2_1: nu = 3 (sum t^2)^2 / sum t^4 - 2
-    t2 = (score @ inv) ** 2
-    np.testing.assert_allclose(nu, 3.0 * t2.sum(0) ** 2 / (t2**2).sum(0) - 2.0, rtol=1e-10)
+    omega = 2 * np.pi / 10.0 * np.arange(3.0, 3.0 + m)  # the k/T grid of 10 s
+    S = _smoothed(_corrected(jac, res, inv))
+    meat = sum(0.5 * (W[k].conj().T @ S[k] @ W[k]).real for k in range(m))
+    cov, nu = _colour.frequency_sandwich(jac, res, inv, omega, 10.0)
+    np.testing.assert_allclose(cov, inv @ meat @ inv, rtol=1e-10)
+    # the frequencies' order is their own, not the caller's
+    perm = rng.permutation(m)
+    again = _colour.frequency_sandwich(jac[perm], res[perm], inv, omega[perm], 10.0)
+    np.testing.assert_allclose(again[0], cov, rtol=1e-10)
+    np.testing.assert_allclose(again[1], nu, rtol=1e-10)
+    # Satterthwaite: variance j is sum_k e_k^H A_k e_k, A_k = sum_m s_mk c_m c_m^H / 2
+    # (c_m = W_m M^-1 e_j); a circular form's mean is tr(A S), its variance tr(ASAS),
+    # both estimated with the smoothed S
+    wts = _neighbour_matrix(m)
+    c = np.einsum("mrp,pq->mrq", W, inv)
+    for j in range(p):
+        A = [sum(wts[mm, k] * 0.5 * np.outer(c[mm, :, j], c[mm, :, j].conj()) for mm in range(m))
+             for k in range(m)]  # fmt: skip
+        mean = sum(np.trace(A[k] @ S[k]).real for k in range(m))
+        # less its estimate's own spread, 1 + sum s^2 (from E|e|^4 = 2 S^2), and the
+        # spread of the mean's square (E[x^2] = mean^2 + var)
+        q = np.sum(wts**2, axis=1)
+        var = sum(np.trace(A[k] @ S[k] @ A[k] @ S[k]).real / (1 + q[k]) for k in range(m))
+        np.testing.assert_allclose(nu[j], 2 * mean**2 / var - 2, rtol=1e-10)
 
 
 def test_frequency_sandwich_degrees_of_freedom_count_the_frequencies_that_inform() -> None:
-    # information spread evenly over m frequencies gives about m degrees of freedom
-    # (the plug-in's spread over seeds is its own); one frequency alone gives one
+    # information spread evenly over m frequencies gives two degrees of freedom each
+    # (real and imaginary parts); one frequency alone gives what it and its
+    # neighbours hold, 2 / (0.3^2 + 0.4^2 + 0.3^2) over a flat spectrum
     from aeroid import _colour
 
-    m = 400
-    jac = np.ones((m, 1, 1))
+    m = 200
+    omega = 2 * np.pi / 50.0 * np.arange(1.0, 1.0 + m)
+    jac = np.concatenate([np.ones((m, 1, 1)), np.zeros((m, 1, 1))], axis=1)
     inv = np.array([[1.0 / m]])
-    nus = [
-        _colour.frequency_sandwich(jac, rng.standard_normal((m, 1)), inv)[1][0]
-        for rng in map(np.random.default_rng, range(50))
-    ]
-    assert 0.85 * m < np.median(nus) < 1.15 * m
-    lone = np.zeros((m, 1, 1))
-    lone[7] = 1.0
-    res = np.random.default_rng(1).standard_normal((m, 1))
-    _, nu = _colour.frequency_sandwich(lone, res, np.array([[1.0]]))
-    assert nu[0] == 1.0
+    nus = []
+    for seed in range(50):
+        res = np.random.default_rng(seed).standard_normal((m, 2))
+        nus.append(_colour.frequency_sandwich(jac, res, inv, omega, 50.0)[1][0])
+    assert 0.9 * 2 * m < np.median(nus) < 1.1 * 2 * m
+    lone = np.zeros((m, 2, 1))
+    lone[7] = 1.0  # sensitivity 1 + i
+    flat = np.column_stack([np.ones(m), np.zeros(m)])
+    _, nu = _colour.frequency_sandwich(lone, flat, np.array([[0.5]]), omega, 50.0)
+    assert nu[0] == pytest.approx(2.0 / 0.34)
+
+
+def test_frequency_sandwich_counts_a_real_transform_once() -> None:
+    # at zero frequency the transform is real: its one row carries all of the noise
+    from aeroid import _colour
+
+    rng = np.random.default_rng(4)
+    m, p = 6, 2
+    _, _, jac, res = _complex_problem(rng, m, 1, p)
+    jac[0, 1], res[0, 1] = 0.0, 0.0
+    omega = 2 * np.pi / 10.0 * np.arange(m)
+    inv = np.linalg.inv(np.einsum("mrp,mrq->pq", jac, jac))
+    S = _smoothed(_corrected(jac, res, inv))
+    W = jac[:, 0] + 1j * jac[:, 1]
+    f = np.array([1.0] + [0.5] * (m - 1))
+    meat = sum(f[k] * S[k, 0, 0].real * np.outer(W[k].conj(), W[k]).real for k in range(m))
+    cov, _ = _colour.frequency_sandwich(jac, res, inv, omega, 10.0)
+    np.testing.assert_allclose(cov, inv @ meat @ inv, rtol=1e-10)
 
 
 @pytest.mark.parametrize("block", [2_000_000, 50])
@@ -656,43 +728,30 @@ def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance(
     block: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # off the k/T grid the transforms share the noise: the meat gains, for each pair
-    # j != k, 1/2 Re W_j^H kappa_jk F_jk W_k with F_jk the mean of the two residual
-    # outer products; a kappa that vanishes off the diagonal changes nothing
+    # j != k, 1/2 Re W_j^H kappa_jk S_jk W_k with S_jk the mean of the two smoothed
+    # cross-spectra
     from aeroid import _colour
 
     monkeypatch.setattr(_colour, "_KERNEL_BLOCK", block)  # one block, or one row each
     rng = np.random.default_rng(8)
     m, r, p = 12, 2, 3
-    W = rng.standard_normal((m, r, p)) + 1j * rng.standard_normal((m, r, p))
-    e = rng.standard_normal((m, r)) + 1j * rng.standard_normal((m, r))
-    jac = np.concatenate([W.real, W.imag], axis=1)
-    res = np.concatenate([e.real, e.imag], axis=1)
+    W, _, jac, res = _complex_problem(rng, m, r, p)
     inv = np.linalg.inv(np.einsum("mrp,mrq->pq", jac, jac))
     omega = np.linspace(1.0, 3.0, m)
     half = 0.5 * (omega[:, None] - omega[None, :]) * 4.0
     kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
-    plain, nu0 = _colour.frequency_sandwich(jac, res, inv)
-    cov, nu = _colour.frequency_sandwich(jac, res, inv, (omega, 4.0))
-    # the leverage-corrected residuals, as the sandwich forms them
-    lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
-    w, v = np.linalg.eigh(np.eye(2 * r)[None] - 0.5 * (lev + lev.transpose(0, 2, 1)))
-    u = np.einsum("mrs,ms,mts,mt->mr", v, 1.0 / np.sqrt(w), v, res)
-    uc = u[:, :r] + 1j * u[:, r:]
-    extra = np.zeros((p, p))
+    S = _smoothed(_corrected(jac, res, inv))
+    meat = np.zeros((p, p))
     for j in range(m):
         for k in range(m):
-            if j != k:
-                f = 0.5 * (np.outer(uc[j], uc[j].conj()) + np.outer(uc[k], uc[k].conj()))
-                extra += 0.5 * (W[j].conj().T @ (kappa[j, k] * f) @ W[k]).real
-    extra = 0.5 * (extra + extra.T)
-    np.testing.assert_allclose(cov, plain + inv @ extra @ inv, rtol=1e-10, atol=1e-14)
-    # shared noise leaves fewer degrees of freedom than frequencies
-    assert np.all(nu < nu0)
-    # on the k/T grid the pairs vanish
-    on_grid = 2 * np.pi / 4.0 * np.arange(3.0, 3.0 + m)
-    np.testing.assert_allclose(
-        _colour.frequency_sandwich(jac, res, inv, (on_grid, 4.0))[0], plain, atol=1e-12
-    )
+            s_jk = S[j] if j == k else 0.5 * (S[j] + S[k])
+            meat += 0.5 * (W[j].conj().T @ (kappa[j, k] * s_jk) @ W[k]).real
+    meat = 0.5 * (meat + meat.T)
+    cov, nu = _colour.frequency_sandwich(jac, res, inv, omega, 4.0)
+    np.testing.assert_allclose(cov, inv @ meat @ inv, rtol=1e-10, atol=1e-14)
+    # shared noise leaves fewer degrees of freedom than the same frequencies on a grid
+    spread = 2 * np.pi / 4.0 * np.arange(3.0, 3.0 + m)
+    assert np.all(nu < _colour.frequency_sandwich(jac, res, inv, spread, 4.0)[1])
 
 
 def test_absolute_values_of_channels_as_regressors() -> None:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._colour import colored_covariance, frequency_sandwich, off_grid
+from .._colour import colored_covariance, frequency_sandwich
 from .._czt import fourier
 from ..errors import ChannelError, DataFormatError, IdentificationError
 from ..io.data import FlightData, delay_starts, real_array
@@ -300,13 +300,14 @@ def _frequency_fit(
     cov_white = s2 * xtx_inv
     nu = np.full(p, float(2 * m - p))
     if error_bars == "colored":
-        # each frequency's own residual spectrum (the one correction's frequency form);
-        # frequencies closer than the record resolves share their noise
+        # each frequency's residual spectrum with its neighbours' (the one correction's
+        # frequency form); frequencies closer than the record resolves share their noise
         cov, nu = frequency_sandwich(
             np.stack([xt.real, xt.imag], axis=1),
             np.column_stack([v.real, v.imag]),
             xtx_inv,
-            off_grid(2 * np.pi * freq, z.shape[0] * step),
+            2 * np.pi * freq,
+            z.shape[0] * step,
         )
         _classical_where_not_positive(cov, cov_white, nu, 2 * m - p)
     else:

@@ -53,10 +53,11 @@ model unless the data are perturbations about trim (it is left out by itself
 where it has no content: at multiples of ``1/(NΔt)``). The white error bars
 use the classical formula with the residual variance ``Σ|Ṽ|²/(2M − p)`` per
 real component. The default ones are the sandwich of the frequency-domain
-estimators (`aeroid._colour.frequency_sandwich`): each frequency's residual
-is its own noise spectrum, corrected for its leverage, which holds however
-the residuals are coloured in time, because transforms at distinct
-frequencies of the ``k/(NΔt)`` grid are nearly independent. Frequencies
+estimators (`aeroid._colour.frequency_sandwich`): the noise spectrum at each
+frequency is estimated from the leverage-corrected residuals there and at
+its neighbours, which holds however the residuals are coloured in time,
+because transforms at distinct frequencies of the ``k/(NΔt)`` grid are
+nearly independent. Frequencies
 closer than ``1/(NΔt)`` (SIDPAC's examples space them 0.04 Hz apart on
 records shorter than 25 s) share their noise, and the sandwich adds each
 pair's covariance through the record's kernel; there the classical formula

@@ -32,7 +32,8 @@ def _covariances(
     res: FloatArray,
     labels: list[str],
     white_scale: float,
-    grid: tuple[FloatArray, float] | None = None,
+    omega: FloatArray,
+    duration: float,
 ) -> tuple[FloatArray, FloatArray, list[tuple[str, ...]], Any, FloatArray]:
     """White and frequency-sandwich covariances of a weighted real least squares, and
     the sandwich's degrees of freedom per unknown.
@@ -52,7 +53,7 @@ def _covariances(
     # the one coloured-residual correction, in its per-frequency form: the few
     # frequencies near a mode carry most of the information, and the fit pulls
     # their residuals towards zero (their leverage)
-    colored, nu = frequency_sandwich(jac, res, np.asarray(inv, dtype=np.float64), grid)
+    colored, nu = frequency_sandwich(jac, res, np.asarray(inv, dtype=np.float64), omega, duration)
     for cov in (white, colored):
         for j in np.flatnonzero(null):
             cov[j, :] = np.nan
@@ -112,7 +113,7 @@ class _Spectra:
     end: ComplexArray  # (M,) e^{-jωT}
     Z: ComplexArray  # (M, n_z): measured outputs (output error) or states (equation error)
     span: float  # Δt T: noise power of a unit-variance white sequence's transform
-    off_grid: tuple[FloatArray, float] | None = None  # (omega, T) where not on the k/T grid
+    duration: float  # T, s: frequencies closer than 2π/T share their noise
 
 
 @dataclass
@@ -194,7 +195,7 @@ def _equation_error(
     jac = _stack(cols * weight[None, :, None])
     res = _stack(v * weight[None, :])
     # each weighted real row has unit variance (its variance already counts the unknowns)
-    white, colored, combos, _, nu = _covariances(jac, res, labels, 1.0, sp.off_grid)
+    white, colored, combos, _, nu = _covariances(jac, res, labels, 1.0, sp.omega, sp.duration)
     theta[:n_p] += p0
     return _Fit(
         theta,
@@ -394,7 +395,7 @@ def _output_error(
     # is short by the unknowns the fit absorbed
     n_rows = res.size
     scale = 0.5 if noise is not None else 0.5 * n_rows / max(n_rows - theta.size, 1)
-    white, colored, combos, _, nu = _covariances(jac, res, labels, scale, sp.off_grid)
+    white, colored, combos, _, nu = _covariances(jac, res, labels, scale, sp.omega, sp.duration)
     S = np.linalg.inv(Li.conj().T @ Li)
     return _Fit(
         theta,

@@ -323,15 +323,17 @@ def _fit_fourier(
         cov = white = s2 * inv
         nu = np.full(full.size, float(r.size - int(mask.sum())))
         if error_bars == "colored" and np.all(np.isfinite(inv)):
-            # the one correction in its frequency form: each frequency's own residual
-            # spectrum, and the noise that frequencies off the k/T grid share
+            # the one correction in its frequency form: each frequency's residual
+            # spectrum with its neighbours', and the noise that frequencies off the k/T
+            # grid share
             jac = jacobian(full)
             k = w.size
             cov, nu = frequency_sandwich(
                 np.stack([jac[:k], jac[k:]], axis=1),
                 np.column_stack([r[:k], r[k:]]),
                 inv,
-                off_grid(w, T),
+                w,
+                T,
             )
         return r, info, cov, white, nu, s2
 

@@ -52,8 +52,9 @@ residuals; each complex residual is two real observations of variance
 standard errors are √2 larger for the same fit, which our coverage tests
 refute on white noise), or (default ``"colored"``) the sandwich that lets the residual
 spectrum vary with frequency and between outputs, ``M⁻¹ (Σ_ω g_ω g_ωᵀ) M⁻¹``
-with ``g_ω`` the score of frequency ``ω``, each frequency's residuals
-divided by one minus its leverage (the jackknife form) — residuals at
+with ``g_ω`` the score of frequency ``ω``, each frequency's noise spectrum
+estimated from its residuals divided by one minus its leverage (the
+jackknife form) and its neighbours' (smoothed) — residuals at
 distinct frequencies of the ``k/T`` grid are nearly independent even when
 they are coloured in time, so this corrects the bound for coloured
 residuals (the frequency-domain counterpart of the time-domain correction).
@@ -74,7 +75,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._colour import off_grid
 from .._czt import fourier
 from .._records import frozen_array
 from .._records import frozen_complex as _frozen_complex
@@ -536,7 +536,7 @@ def identify_frequency_domain(
         end,
         _transform(data.array(fit_names), dt, omega, cubic=True),
         dt * duration,
-        off_grid(omega, duration),
+        duration,
     )
     ss = StateSpace(
         model,

@@ -399,8 +399,9 @@ for _stage in (
         # 3: the one least-squares solver and its relative stopping rule;
         # 4: the sandwich's degrees of freedom (t intervals);
         # 5: the noise that frequencies off the k/T grid share;
-        # 6: the ends' Wald test on a positive definite covariance
-        "6",
+        # 6: the ends' Wald test on a positive definite covariance;
+        # 7: the sandwich's noise spectrum smoothed over neighbouring frequencies
+        "7",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
