@@ -671,11 +671,11 @@ def frequency_sandwich(
     real = omega == 0.0
     f = np.where(real, 1.0, 0.5)
     weights = _neighbour_weights(n_f)
-    S = _neighbour_mean(np.einsum("mr,ms->mrs", e, e.conj()), weights)  # (M, r, r)
+    S = _neighbour_sum(np.einsum("mr,ms->mrs", e, e.conj()), weights)  # (M, r, r)
     meat = np.einsum("m,mrp,mrs,msq->pq", f, W.conj(), S, W).real
     c = np.einsum("mrp,pq->mrq", W, m_inv)  # c_m per parameter
     fcc = f[:, None, None, None] * np.einsum("mrq,msq->mrsq", c, c.conj())
-    A = _neighbour_adjoint(fcc, weights)  # (M, r, r, p)
+    A = _neighbour_sum(fcc, weights, adjoint=True)  # (M, r, r, p)
     AS = np.einsum("mrsq,mst->mrtq", A, S)
     mean = np.einsum("mrrq->q", AS).real
     # the smoothed estimate's own spread inflates tr(ASAS) by 1 + sum s^2 (exactly for
@@ -705,27 +705,22 @@ def _neighbour_weights(n: int) -> FloatArray:
     return np.asarray(wts / wts.sum(axis=1, keepdims=True), dtype=np.float64)
 
 
-def _neighbour_mean(x: NDArray[np.complex128], weights: FloatArray) -> NDArray[np.complex128]:
-    """``y_m = sum_d s_m,d x_{m+d}`` along axis 0 (`_neighbour_weights`)."""
+def _neighbour_sum(
+    x: NDArray[np.complex128], weights: FloatArray, *, adjoint: bool = False
+) -> NDArray[np.complex128]:
+    """``y_m = sum_d s_m,d x_{m+d}`` along axis 0 (`_neighbour_weights`), or with
+    `adjoint` its transpose, ``y_k = sum_m s_m,k-m x_m``."""
     h = (weights.shape[1] - 1) // 2
     n = x.shape[0]
     out = np.zeros_like(x)
     shape = (-1,) + (1,) * (x.ndim - 1)
     for j, d in enumerate(range(-h, h + 1)):
         lo, hi = max(0, -d), min(n, n - d)
-        out[lo:hi] += weights[lo:hi, j].reshape(shape) * x[lo + d : hi + d]
-    return out
-
-
-def _neighbour_adjoint(x: NDArray[np.complex128], weights: FloatArray) -> NDArray[np.complex128]:
-    """The transpose of `_neighbour_mean`: ``y_k = sum_m s_m,k-m x_m``."""
-    h = (weights.shape[1] - 1) // 2
-    n = x.shape[0]
-    out = np.zeros_like(x)
-    shape = (-1,) + (1,) * (x.ndim - 1)
-    for j, d in enumerate(range(-h, h + 1)):
-        lo, hi = max(0, -d), min(n, n - d)
-        out[lo + d : hi + d] += weights[lo:hi, j].reshape(shape) * x[lo:hi]
+        w = weights[lo:hi, j].reshape(shape)
+        if adjoint:
+            out[lo + d : hi + d] += w * x[lo:hi]
+        else:
+            out[lo:hi] += w * x[lo + d : hi + d]
     return out
 
 
