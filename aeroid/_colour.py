@@ -579,6 +579,8 @@ def frequency_sandwich(
     m_inv: FloatArray,
     omega: FloatArray,
     span: float,
+    *,
+    nyquist: float = np.inf,
 ) -> tuple[FloatArray, FloatArray]:
     """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
     and each parameter's degrees of freedom.
@@ -607,6 +609,9 @@ def frequency_sandwich(
     span : float
         The record's length ``T``, s: frequencies closer than ``2 pi/T`` share
         their noise (`off_grid`).
+    nyquist : float, optional
+        The record's Nyquist frequency ``pi/dt``, rad/s, where a caller may fit
+        it: the transform there is real, as at zero frequency.
 
     Returns
     -------
@@ -615,10 +620,10 @@ def frequency_sandwich(
 
     Notes
     -----
-    *The spectrum.* A transform away from zero frequency is circular complex
-    Gaussian: its real and imaginary parts each carry half of the
-    cross-spectrum ``S = E[e e^H]``, so ``B = sum_m 1/2 Re W_m^H S_m W_m`` with
-    ``W`` the complex sensitivities (a real transform, at zero frequency,
+    *The spectrum.* A transform away from zero and Nyquist frequency is
+    circular complex Gaussian: its real and imaginary parts each carry half of
+    the cross-spectrum ``S = E[e e^H]``, so ``B = sum_m 1/2 Re W_m^H S_m W_m``
+    with ``W`` the complex sensitivities (a real transform, at either end,
     carries all of it and counts once). One frequency's residual outer product
     ``e e^H`` is an unbiased estimate of ``S`` with two degrees of freedom; a
     parameter whose information sits at the few frequencies of a lightly damped
@@ -667,8 +672,9 @@ def frequency_sandwich(
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
     W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
     e = u[:, :r] + 1j * u[:, r:]  # (M, r)
-    # the transform at zero frequency is real: all its noise is in its real rows
-    real = omega == 0.0
+    # the transforms at zero and Nyquist frequency are real: all their noise is in
+    # their real rows
+    real = (omega == 0.0) | (omega >= nyquist * (1.0 - 1e-12))
     f = np.where(real, 1.0, 0.5)
     weights = _neighbour_weights(n_f)
     S = _neighbour_sum(np.einsum("mr,ms->mrs", e, e.conj()), weights)  # (M, r, r)

@@ -706,20 +706,22 @@ def test_frequency_sandwich_degrees_of_freedom_count_the_frequencies_that_inform
 
 
 def test_frequency_sandwich_counts_a_real_transform_once() -> None:
-    # at zero frequency the transform is real: its one row carries all of the noise
+    # at zero and Nyquist frequency the transform is real: its one row carries all of
+    # the noise
     from aeroid import _colour
 
     rng = np.random.default_rng(4)
     m, p = 6, 2
     _, _, jac, res = _complex_problem(rng, m, 1, p)
-    jac[0, 1], res[0, 1] = 0.0, 0.0
+    jac[[0, -1], 1], res[[0, -1], 1] = 0.0, 0.0
     omega = 2 * np.pi / 10.0 * np.arange(m)
     inv = np.linalg.inv(np.einsum("mrp,mrq->pq", jac, jac))
     S = _smoothed(_corrected(jac, res, inv))
     W = jac[:, 0] + 1j * jac[:, 1]
-    f = np.array([1.0] + [0.5] * (m - 1))
+    f = np.array([1.0] + [0.5] * (m - 2) + [1.0])
     meat = sum(f[k] * S[k, 0, 0].real * np.outer(W[k].conj(), W[k]).real for k in range(m))
-    cov, _ = _colour.frequency_sandwich(jac, res, inv, omega, 10.0)
+    nyquist = float(omega[-1])
+    cov, _ = _colour.frequency_sandwich(jac, res, inv, omega, 10.0, nyquist=nyquist)
     np.testing.assert_allclose(cov, inv @ meat @ inv, rtol=1e-10)
 
 

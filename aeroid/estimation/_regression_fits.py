@@ -308,6 +308,7 @@ def _frequency_fit(
             xtx_inv,
             2 * np.pi * freq,
             z.shape[0] * step,
+            nyquist=np.pi / step,
         )
         _classical_where_not_positive(cov, cov_white, nu, 2 * m - p)
     else:
