@@ -677,17 +677,20 @@ def frequency_sandwich(
     real = (omega == 0.0) | (omega >= nyquist * (1.0 - 1e-12))
     f = np.where(real, 1.0, 0.5)
     weights = _neighbour_weights(n_f)
-    S = _neighbour_sum(np.einsum("mr,ms->mrs", e, e.conj()), weights)  # (M, r, r)
-    meat = np.einsum("m,mrp,mrs,msq->pq", f, W.conj(), S, W).real
-    c = np.einsum("mrp,pq->mrq", W, m_inv)  # c_m per parameter
-    fcc = f[:, None, None, None] * np.einsum("mrq,msq->mrsq", c, c.conj())
-    A = _neighbour_sum(fcc, weights, adjoint=True)  # (M, r, r, p)
-    AS = np.einsum("mrsq,mst->mrtq", A, S)
-    mean = np.einsum("mrrq->q", AS).real
+    S = _neighbour_sum(e[:, :, None] * e.conj()[:, None, :], weights)  # (M, r, r)
+    SW = S @ W  # (M, r, p)
+    meat = (
+        (f[:, None, None] * W.conj()).reshape(-1, W.shape[2]).T @ SW.reshape(-1, W.shape[2])
+    ).real
+    cT = np.einsum("mrp,pq->mqr", W, m_inv)  # c_m = W_m M^-1 e_q, (M, p, r)
+    fcc = f[:, None, None, None] * cT[..., :, None] * cT.conj()[..., None, :]  # (M, p, r, r)
+    A = _neighbour_sum(fcc, weights, adjoint=True)
+    AS = A @ S[:, None]  # A_k S_k per parameter, (M, p, r, r)
+    mean = np.einsum("mqrr->q", AS).real
     # the smoothed estimate's own spread inflates tr(ASAS) by 1 + sum s^2 (exactly for
     # one output, in excess for more: fewer degrees of freedom, the cautious side)
     inflation = (1.0 + np.sum(weights**2, axis=1)) / np.where(real, 2.0, 1.0)
-    var = np.einsum("mrsq,msrq->mq", AS, AS).real / inflation[:, None]
+    var = (AS * AS.swapaxes(-1, -2)).sum(axis=(-1, -2)).real / inflation[:, None]
     var = var.sum(axis=0)
     grid = off_grid(omega, span)
     if grid is not None:
@@ -769,16 +772,21 @@ def _overlap_terms(
     transpose of the ``S_j`` half, ``H = sum_jk kappa_jk W_j^H S_j W_k``: the
     pairs are ``Re(H + H^H) / 4``."""
     m, r, p = W.shape
-    left = np.einsum("jrp,jrs->jps", W.conj(), S)  # W_j^H S_j
+    left = (W.conj().transpose(0, 2, 1) @ S).transpose(1, 0, 2)  # W_j^H S_j, (p, M, r)
+    flat_w = W.reshape(m, r * p)
+    flipped = AS.swapaxes(-1, -2).reshape(m, -1)  # A_k S_k transposed, flattened
     half = np.zeros((p, p), dtype=np.complex128)
     pairs = np.zeros(p)
-    step = max(1, _KERNEL_BLOCK // max(m * max(r * r * p, 1), 1))
+    step = max(1, _KERNEL_BLOCK // max(m + r * r * p, 1))
     for lo in range(0, m, step):
         rows = slice(lo, min(lo + step, m))
         kappa = _kernel(omega, rows, span)  # (rows, M)
-        mixed = np.einsum("jk,krq->jrq", kappa, W)  # sum_k kappa_jk W_k
-        half += np.einsum("jps,jsq->pq", left[rows], mixed)
-        spread = np.einsum("jk,kbaq->jabq", np.abs(kappa) ** 2, AS)
-        pairs += np.einsum("jabq,jabq->q", AS[rows], spread).real
+        n_rows = kappa.shape[0]
+        mixed = (kappa @ flat_w).reshape(n_rows * r, p)  # sum_k kappa_jk W_k
+        half += left[:, rows].reshape(p, n_rows * r) @ mixed
+        spread = (np.abs(kappa) ** 2) @ flipped  # sum_k |kappa_jk|^2 (A_k S_k)'
+        pairs += (
+            (AS[rows].reshape(n_rows, -1) * spread).reshape(n_rows, p, -1).sum(axis=(0, 2)).real
+        )
     out = 0.25 * (half + half.conj().T).real
     return np.asarray(out, dtype=np.float64), pairs
