@@ -204,12 +204,15 @@ def monte_carlo(
     n: int,
     *,
     seed: int = 0,
+    draw: Callable[[np.random.Generator], np.ndarray] | None = None,
 ) -> dict[str, float]:
     """Standard error of each parameter over `n` refits of surrogate records.
 
     ``refit(z)`` fits the measured outputs ``z = fitted + surrogate`` (the
     shape of `fitted`) and returns the estimates by name; refits that raise
-    are skipped (their count is printed). Empty when ``n < 2``.
+    are skipped (their count is printed). Empty when ``n < 2``. `draw`, when
+    given, makes each record's noise instead (a known noise process; then
+    `residuals` is not used).
     """
     if n < 2:
         return {}
@@ -218,7 +221,7 @@ def monte_carlo(
     draws: dict[str, list[float]] = {}
     failed = 0
     for _ in range(n):
-        z = y + phase_surrogate(residuals, rng)
+        z = y + (phase_surrogate(residuals, rng) if draw is None else draw(rng))
         try:
             est = refit(z)
         except Exception as exc:  # a failed refit is counted, not fatal

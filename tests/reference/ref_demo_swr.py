@@ -81,13 +81,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
 def _known_truth(refit: Any, d: dict[str, Any], mc: int, seed: int) -> dict[str, float]:
     """Standard errors over refits of the demo's own noise process: ``y_true`` plus
     fresh white noise of buzz's level (``nselev`` times the RMS of ``y_true``)."""
-    if mc < 2:
-        return {}
     y = S.col(d["y_true"])
     sigma = float(np.ravel(d["nselev"])[0]) * float(np.sqrt(np.mean(y**2)))
-    rng = np.random.default_rng(seed + 1)
-    draws = [refit(y + sigma * rng.standard_normal(y.size)) for _ in range(mc)]
-    return {n: float(np.std([e[n] for e in draws], ddof=1)) for n in draws[0]}
+
+    def white(rng: np.random.Generator) -> np.ndarray:
+        return sigma * rng.standard_normal(y.size)
+
+    return S.monte_carlo(refit, y, None, mc, seed=seed + 1, draw=white)
 
 
 def _known_note(reg: Any, known: dict[str, float]) -> str:
