@@ -33,15 +33,12 @@ FloatArray = NDArray[np.float64]
 # spectral window is Epanechnikov's, half-width 6 pi / (5 S) rad/sample for lag scale S.
 _QS_CONSTANT = 1.3221
 _RHO_LIMIT = 0.999
-# The window is this many times narrower than Andrews' MSE-optimal one: for
-# interval coverage the bias of a wide window near a sharp zero-frequency peak
-# matters more than its variance, which the Satterthwaite degrees of freedom
-# (and so the t widening) already carry (the fixed-b argument of Kiefer and
-# Vogelsang, 2005).
+# The window is this many times narrower than Andrews' MSE-optimal one: for coverage
+# a wide window's bias at a sharp peak at w = 0 matters more than its variance, which
+# the t widening carries (the fixed-b argument of Kiefer and Vogelsang, 2005).
 _NARROW = 2.0
-# A frequency-domain estimator's noise spectrum at each chosen frequency is the
-# house window's mean over this many neighbouring chosen frequencies either side
-# (`frequency_sandwich`).
+# `frequency_sandwich`'s noise spectrum at a chosen frequency: the house window's
+# mean over this many neighbouring chosen frequencies either side.
 _NEIGHBOURS = 1
 # Prewhitening (Andrews & Monahan, 1992) by one AR(1) per output; False gives the
 # kernel without it (private: for comparisons only).
@@ -353,6 +350,7 @@ def colored_covariance(
     m_inv: FloatArray,
     *,
     known: list[NDArray[np.complex128]] | None = None,
+    estimated_weights: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """Coloured-residual covariance ``M^-1 B M^-1`` and each parameter's degrees of freedom.
 
@@ -365,17 +363,17 @@ def colored_covariance(
     m_inv : (p, p) array
         The (pseudo-)inverse of ``M`` the estimate used.
     known : list of (n_t + 1, n_y, n_y) complex arrays, optional
-        Per record, the expected cross-periodogram (over ``2 n_t`` points, divided
-        by ``n_t``) of a part of the residuals whose share of the covariance the
-        caller adds itself, such as integrated input noise propagated exactly
-        (`aeroid.check_compatibility`). It is whitened with the residuals and taken
-        off their smoothed periodogram before the division by ``K*k`` (the
-        expectation already carries the fit's projection), so that part is not
-        counted twice. The
-        difference is unbiased but noisy where the known part dominates, and so
-        is the covariance returned, which may then be indefinite: the caller
-        adds the known part's covariance and makes the sum positive
-        semi-definite (clipping this part alone would bias it up).
+        Per record, the expected cross-periodogram (over ``2 n_t`` points, over
+        ``n_t``) of a part of the residuals whose covariance the caller adds
+        itself, such as integrated input noise (`aeroid.check_compatibility`).
+        It is whitened and taken off the smoothed periodogram before the
+        division by ``K*k`` (it carries the fit's projection), so it is not
+        counted twice. The difference is unbiased but noisy where the known
+        part dominates, and may be indefinite: the caller makes the sum
+        positive semi-definite (clipping this part alone would bias it up).
+    estimated_weights : bool
+        Each output's weight was estimated from these residuals (output error's
+        maximum likelihood): the covariance carries the scatter that adds.
 
     Returns
     -------
@@ -444,9 +442,9 @@ def colored_covariance(
     widened the window 2-40x on SIDPAC's flights (their whitened residuals are
     far from white: AR(1) plus sensor noise is over-whitened) and the 95 %
     coverage of biases under AR(1) phi = 0.99 noise fell to 0.55-0.83, so the
-    window stays as local as the colour of the residuals themselves asks. Sensitivities and residuals
-    are transformed over 2n points, so the circular products are the record's
-    linear sums.
+    window stays as local as the colour of the residuals themselves asks.
+    Sensitivities and residuals are transformed over 2n points, so the
+    circular products are the record's linear sums.
 
     The spectrum is estimated from a finite band, so ``B^_jj`` is itself
     random: a weighted sum of the whitened periodogram's bins, smoothed by the
@@ -468,6 +466,10 @@ def colored_covariance(
     model's level to the data's. Narrow windows (strong colour) give few
     degrees of freedom and a wide t interval; white residuals with a whole-band
     window give the classical N - p. Standard errors do not depend on it.
+
+    *Estimated weights* (`estimated_weights`): feasible GLS widens this fixed-
+    weight covariance where one output's noise is slow; `aeroid._weighting`
+    measures by how much, and each variance is multiplied by that ratio.
     """
     p = m_inv.shape[0]
     cov = np.zeros((p, p))
@@ -486,6 +488,7 @@ def colored_covariance(
         for _ in range(_AR_STEPS):
             a = np.clip(a + seen - _expected_lag_one(model.keeps, residuals, a), -cap, cap)
             model = _model_keeps(sensitivities, residuals, m_inv, a)
+    spectra: list[NDArray[np.complex128]] = []
     for i, (g, u) in enumerate(zip(sensitivities, residuals, strict=True)):
         n = u.shape[0]
         size = 2 * n
@@ -508,8 +511,8 @@ def colored_covariance(
         # recolour: the whitened estimate through the inverse filter on both sides
         denom = (norm * filt)[:, :, None] * (norm * filt).conj()[:, None, :]
         smoothed = np.asarray(_smooth(pgram, half), dtype=np.complex128)
-        total = smoothed / denom
-        spec = total
+        spec = total = smoothed / denom
+        spectra.append(total)
         if known is not None:
             # unbiased bin by bin; negative where noise outweighs the remainder, so
             # only the summed covariance is made positive semi-definite (below)
@@ -544,6 +547,11 @@ def colored_covariance(
     var = np.abs(np.diag(cov))
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(var_terms > 0, 2.0 * var**2 / var_terms, np.inf)
+    if estimated_weights and n_y > 1:  # (one output's weight only scales its estimate)
+        from ._weighting import weighting_spread
+
+        root = np.sqrt(weighting_spread(sensitivities, spectra, m_inv))
+        cov = cov * root[:, None] * root[None, :]  # correlations as at fixed weights
     return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)
 
 

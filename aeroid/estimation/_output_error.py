@@ -627,6 +627,7 @@ def fit_output_error(
             [jac / root[None, :, None] for jac in jacobians],
             [v / root[None, :] for v in residuals],
             m_inv,
+            estimated_weights=fixed_r is None,
         )
         # the spectrum behind the bars is itself estimated: its degrees of freedom
         # travel with the result, whose intervals take the t quantile
