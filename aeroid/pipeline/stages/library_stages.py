@@ -497,21 +497,21 @@ def _run_report(ctx: StageContext) -> FlightReport:
 for _stage in (
     Stage(
         "identify",
-        # 3: results carry the model's parameter units
-        # 4: standard errors without the t widening, their degrees of freedom carried
+        # 3: results carry the model's parameter units; 4: standard errors without the
+        # t widening, their degrees of freedom carried
         # 5: the one least-squares solver; filter error on a nonlinear model with a
         #    steady-state gain by default
         # 6: the filter error's likelihood and information summed in another order
         #    (rounding: a fit stopped by its tolerance may stop an iteration apart)
-        # 7: the filter error's derivatives by forward differences
-        # 8: the filter error holds a process noise the likelihood no longer feels out
+        # 7: the filter error's derivatives by forward differences; 8: it holds a process noise the likelihood no longer feels out
         #    of its steps (a fit whose noise vanishes takes fewer, other steps)
         # 9: coloured-residual degrees of freedom with the low band's exact covariance
         # 10: the filter error's Riccati inverses refined by Newton-Schulz steps and its
         #     information summed by matrix products (rounding)
         # 11: the filter error's process noise started from the state equations'
         #     residuals, its steps extrapolated or a noise's held to a decade (other steps)
-        "12",  # 12: output error estimates the measured initial states by default
+        # 12: output error estimates the measured initial states by default
+        "13",  # 13: output error's coloured bars carry its estimated weights' scatter
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
