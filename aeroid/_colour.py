@@ -21,7 +21,6 @@ the window spans a frequency and its neighbours.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -380,7 +379,7 @@ def colored_covariance(
     cov, nu : the covariance (p, p) and per-parameter Satterthwaite degrees of
     freedom (p,) of its diagonal: a standard error is ``sqrt(cov_jj)``, and its
     95 % interval takes Student's t quantile with ``nu_j`` degrees of freedom
-    (`t_quantile`), not 1.96.
+    (`aeroid._stats.t_quantile`), not 1.96.
 
     Notes
     -----
@@ -555,32 +554,6 @@ def colored_covariance(
     return np.asarray(cov, dtype=np.float64), np.asarray(nu, dtype=np.float64)
 
 
-def t_quantile(nu: FloatArray, level: float = 0.95) -> FloatArray:
-    """The two-sided `level` quantile of Student's t with `nu` degrees of freedom
-    (floored at one; the normal's where `nu` is infinite)."""
-    from scipy.special import ndtri, stdtrit
-
-    q = 0.5 + 0.5 * float(level)
-    nu = np.asarray(nu, dtype=np.float64)
-    finite = np.isfinite(nu)
-    t = stdtrit(np.maximum(np.where(finite, nu, 1.0), 1.0), q)
-    return np.asarray(np.where(finite, t, ndtri(q)), dtype=np.float64)
-
-
-def margins(
-    stderr: Mapping[str, float], dof: Mapping[str, float], level: float
-) -> dict[str, float]:
-    """Half-widths of two-sided `level` intervals: each standard error times the t
-    quantile of its degrees of freedom (the normal's where none is given)."""
-    if not 0.0 < level < 1.0:
-        from .errors import IdentificationError
-
-        raise IdentificationError(f"level must lie strictly between 0 and 1, got {level!r}")
-    names = list(stderr)
-    q = t_quantile(np.array([dof.get(n, np.inf) for n in names], dtype=float), level)
-    return {n: float(q[i] * stderr[n]) for i, n in enumerate(names)}
-
-
 def frequency_sandwich(
     jac: FloatArray,
     res: FloatArray,
@@ -589,6 +562,7 @@ def frequency_sandwich(
     span: float,
     *,
     nyquist: float = np.inf,
+    estimated_weights: tuple[str, NDArray[np.complex128]] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
     and each parameter's degrees of freedom.
@@ -620,6 +594,11 @@ def frequency_sandwich(
     nyquist : float, optional
         The record's Nyquist frequency ``pi/dt``, rad/s, where a caller may fit
         it: the transform there is real, as at zero frequency.
+    estimated_weights : (str, (r, r) complex array), optional
+        The weighting was estimated from these residuals, as the inverse of this
+        form of their covariance (``"hermitian"``, ``"sidpac"``, ``"real"``) before
+        the whitening whose inverse is the array: the covariance carries the
+        scatter that adds (`aeroid._weighting`).
 
     Returns
     -------
@@ -707,6 +686,15 @@ def frequency_sandwich(
         var = var + pairs
     meat = 0.5 * (meat + meat.T)
     cov = np.asarray(m_inv @ meat @ m_inv, dtype=np.float64)
+    if estimated_weights is not None and r > 1:
+        from ._weighting import frequency_weighting_spread
+
+        kappa = None if grid is None else _kernel(omega, slice(None), span) + np.eye(n_f)
+        form, unwhiten = estimated_weights
+        spread = frequency_weighting_spread(
+            W, S, m_inv, real, form, unwhiten=unwhiten, kernel=kappa
+        )
+        cov = cov * np.sqrt(spread)[:, None] * np.sqrt(spread)[None, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(var > 0, 2.0 * mean**2 / var - 2.0, np.inf)
     return cov, np.asarray(np.maximum(nu, 1.0), dtype=np.float64)

@@ -112,7 +112,7 @@ class IntervalMixin:
     def margin(self, level: float = 0.95) -> Mapping[str, float]:
         """Half-width of each estimate's two-sided `level` interval: its standard
         error times the t quantile of its degrees of freedom."""
-        from ._colour import margins
+        from ._stats import margins
 
         dof = dict(getattr(self, "degrees_of_freedom", None) or {})
         return ReadOnlyDict(margins(dict(self._margin_stderr()), dof, level))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import operator
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from statistics import NormalDist
 
 import numpy as np
@@ -70,3 +70,29 @@ def wald_p_value(b: NDArray[np.float64], covariances: Sequence[NDArray[np.float6
         q = float(z @ z)
         return chi2_sf(q, b.size) if math.isfinite(q) else 0.0
     return 0.0
+
+
+def t_quantile(nu: NDArray[np.float64], level: float = 0.95) -> NDArray[np.float64]:
+    """The two-sided `level` quantile of Student's t with `nu` degrees of freedom
+    (floored at one; the normal's where `nu` is infinite)."""
+    from scipy.special import ndtri, stdtrit
+
+    q = 0.5 + 0.5 * float(level)
+    nu = np.asarray(nu, dtype=np.float64)
+    finite = np.isfinite(nu)
+    t = stdtrit(np.maximum(np.where(finite, nu, 1.0), 1.0), q)
+    return np.asarray(np.where(finite, t, ndtri(q)), dtype=np.float64)
+
+
+def margins(
+    stderr: Mapping[str, float], dof: Mapping[str, float], level: float
+) -> dict[str, float]:
+    """Half-widths of two-sided `level` intervals: each standard error times the t
+    quantile of its degrees of freedom (the normal's where none is given)."""
+    if not 0.0 < level < 1.0:
+        from .errors import IdentificationError
+
+        raise IdentificationError(f"level must lie strictly between 0 and 1, got {level!r}")
+    names = list(stderr)
+    q = t_quantile(np.array([dof.get(n, np.inf) for n in names], dtype=float), level)
+    return {n: float(q[i] * stderr[n]) for i, n in enumerate(names)}

@@ -1,20 +1,37 @@
-"""The scatter that estimating each output's weight from its residuals adds.
+"""The scatter that estimating the output weighting from the residuals adds.
 
-`colored_covariance` gives an estimate's covariance ``M^-1 B M^-1`` at fixed
-weights. Output error weights each output by the mean square of its own
-residuals (maximum likelihood), which is feasible GLS: the weights move with
-the noise. To first order that adds nothing (Kackar & Harville, 1984: with
-white noise the residuals, hence the weights, are independent of the
+`colored_covariance` and `frequency_sandwich` give an estimate's covariance
+``M^-1 B M^-1`` at fixed weights. Output error weights the outputs by the
+inverse of their residuals' own covariance (maximum likelihood; in the time
+domain each output by its mean square, in the frequency domain by the full
+cross-covariance of the transforms), which is feasible GLS: the weights move
+with the noise. To first order that adds nothing (Kackar & Harville, 1984:
+with white noise the residuals, hence the weights, are independent of the
 estimate), but coloured noise ties them together: a record whose slow noise
 lies along a slow sensitivity loses it to the fit, that output's residual
 mean square falls, its weight rises, and the estimate leans on the very
 output that misled it. Where an output's noise has few degrees of freedom
 this is not small: on SIDPAC's oe_lat flight it multiplies a side-force
 derivative's spread by 1.6, as refits of the flight's own residuals also
-show. `weighting_spread` measures it on the linearised estimator (Gaussian
-records with the estimated spectrum, refitted with the weights re-estimated
-to their fixed point and with the weights held); the caller multiplies each
-variance by the ratio of the two spreads.
+show.
+
+Both front ends (`weighting_spread` for time histories,
+`frequency_weighting_spread` for chosen frequencies) measure it the same way,
+on the estimator linearised at the estimate, in the weighted units the
+caller's ``M`` has (the weighting there is the identity). With ``G_k`` (n_y,
+p) the complex sensitivities at sample or frequency k and ``e_k`` the noise,
+
+    theta(W) = (Re sum_ab W_ab T_ab)^-1 Re sum_ab W_ab c_ab,
+    T_ab = sum_k conj(G_ka) G_kb',  c_ab = sum_k conj(G_ka) e_kb,
+
+and the weighting at its fixed point ``W = form(S^(theta))^-1``, with ``S^ =
+(1/K) sum_k r_k r_k^H`` of the residuals ``r_k = e_k - G_k theta``, expanded
+in ``E_ab = sum_k e_ka conj(e_kb)``, ``c`` and ``T``: only these few sums of
+each draw enter, however long the record. Gaussian noise with the estimated
+spectrum is drawn `_DRAWS` times with a fixed seed (the same data give the
+same bars); the estimates at the identity and at the fixed point see the same
+draws, so the ratio of their spreads is far steadier than either spread, and
+the caller multiplies each variance by it.
 """
 
 from __future__ import annotations
@@ -23,14 +40,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
 
-# Gaussian records in `_weighting_spread`: the ratio of two spreads over the
-# same draws, steady to a few per cent (its seed is fixed: the bars are data's).
+# Gaussian records per spread: the ratio of two spreads over the same draws,
+# steady to a few per cent.
 _DRAWS = 400
 _DRAW_BATCH = 50
+# Above this many frequencies off the k/T grid their draws are taken as
+# independent (the kernel's square root is cubic in their number).
+_KERNEL_ROOT_LIMIT = 1500
+# What the fitted weighting is of the residual covariance S^ (its inverse weights).
+FORMS = ("diagonal", "hermitian", "sidpac", "real")
 
 
-def _spectral_roots(spec: NDArray[np.complex128]) -> NDArray[np.complex128]:
+def _spectral_roots(spec: ComplexArray) -> ComplexArray:
     """A square root ``L L^H = F`` of each bin's cross-spectrum (positive semi-definite)."""
     scale = np.maximum(np.einsum("kaa->k", spec).real, 1e-300)
     eye = np.eye(spec.shape[1])
@@ -41,70 +64,143 @@ def _spectral_roots(spec: NDArray[np.complex128]) -> NDArray[np.complex128]:
         return vec * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
 
 
+def _basis(m_inv: FloatArray) -> FloatArray:
+    """The estimable subspace: every weighting with positive weights has the same one."""
+    lam, vec = np.linalg.eigh(m_inv)
+    if not lam.size or lam.max() <= 0:
+        return np.asarray(vec[:, :0], dtype=np.float64)
+    return np.asarray(vec[:, lam > lam.max() * 1e-13], dtype=np.float64)
+
+
 def weighting_spread(
     sensitivities: list[FloatArray],
-    spectra: list[NDArray[np.complex128]],
+    spectra: list[ComplexArray],
     m_inv: FloatArray,
     *,
     draws: int = _DRAWS,
     seed: int = 0,
 ) -> FloatArray:
-    """Each parameter's variance with the weights re-estimated over its variance at fixed weights.
+    """Time histories, each output weighted by its own residual mean square: each
+    parameter's variance with the weights re-estimated over its variance at fixed
+    weights.
 
-    The estimator is linearised at the estimate, in the weighted units the
-    caller's ``M`` has (every weight one): ``theta(w) = (sum_a w_a A_a)^-1
-    sum_a w_a G_a' e_a`` with ``A_a = G_a' G_a`` per output, and the weights
-    at their fixed point ``w_a = N / |e_a - G_a theta(w)|^2``, the maximum-
-    likelihood noise variances. `draws` records of noise with the estimated
-    cross-spectrum (`spectra`, one per record, on the ``2 n`` bins of
-    `colored_covariance`) are drawn with a fixed seed, so the same data give
-    the same bars; both estimators see the same draws, so their ratio is far
-    steadier than either variance. Each draw is the first ``n`` samples of a
+    `sensitivities` (n, n_y, p) and `spectra` ((n + 1, n_y, n_y), on the ``2 n``
+    bins of `colored_covariance`) per record; the weights are pooled over the
+    records, as output error's are. Each draw is the first ``n`` samples of a
     ``2n``-point circular record, as the spectrum's bins are, so its
-    autocovariance is the spectrum's at every lag of the record (``n``
-    points alone would wrap the slowest noise around); only ``G_a' e_a`` and
-    ``|e_a|^2`` of it enter. Parameters outside the span of ``M`` (held or
-    unidentifiable) get a ratio of one.
+    autocovariance is the spectrum's at every lag of the record (``n`` points
+    alone would wrap the slowest noise around). Parameters outside the span of
+    ``M`` (held or unidentifiable) get a ratio of one.
     """
+    p = m_inv.shape[0]
     n_y = sensitivities[0].shape[1]
-    if not all(np.all(np.isfinite(spec)) for spec in spectra):
-        return np.ones(m_inv.shape[0])  # no spectrum to draw from: the bars at fixed weights
-    # the estimable subspace: every weighting with positive weights has the same one
-    lam, vec = np.linalg.eigh(m_inv)
-    basis = vec[:, lam > lam.max() * 1e-13] if lam.max() > 0 else vec[:, :0]
+    basis = _basis(m_inv)
     r = basis.shape[1]
-    if r == 0:
-        return np.ones(m_inv.shape[0])
-    info = np.zeros((n_y, r, r))
-    cross = np.zeros((n_y, draws, r))
-    squares = np.zeros((draws, n_y))
+    if r == 0 or not all(np.all(np.isfinite(spec)) for spec in spectra):
+        return np.ones(p)  # nothing to draw from: the bars at fixed weights
+    info = np.zeros((n_y, n_y, r, r), dtype=np.complex128)
+    cross = np.zeros((draws, n_y, n_y, r), dtype=np.complex128)
+    squares = np.zeros((draws, n_y, n_y), dtype=np.complex128)
+    diag = np.arange(n_y)
     count = 0
     rng = np.random.default_rng(seed)
     for g, spec in zip(sensitivities, spectra, strict=True):
         n = g.shape[0]
-        size = 2 * n  # the first n samples of a 2n-point circular record: not periodic
+        size = 2 * n
         count += n
         gb = np.ascontiguousarray(np.moveaxis(g @ basis, 1, 0))  # (n_y, n, r)
-        info += np.matmul(np.swapaxes(gb, 1, 2), gb)
+        info[diag, diag] += np.matmul(np.swapaxes(gb, 1, 2), gb)
         root = np.sqrt(size) * _spectral_roots(spec)
         n_bins = spec.shape[0]
         for start in range(0, draws, _DRAW_BATCH):
             b = min(_DRAW_BATCH, draws - start)
-            z = rng.standard_normal((b, n_bins, n_y, 2)).view(np.complex128)[..., 0]
-            z *= np.sqrt(0.5)
+            z = _complex_normal(rng, (b, n_bins, n_y))
             z[:, 0] = rng.standard_normal((b, n_y))
             z[:, -1] = rng.standard_normal((b, n_y))
             x = np.matmul(root, z[..., None])[..., 0]  # (b, bins, n_y)
             e = np.fft.irfft(x, size, axis=1)[:, :n, :]
             e_t = np.ascontiguousarray(np.moveaxis(e, 2, 0))  # (n_y, b, n)
-            cross[:, start : start + b] += np.matmul(e_t, gb)
-            squares[start : start + b] += np.einsum("abt,abt->ba", e_t, e_t)
-    if not np.all(squares > 0):
-        return np.ones(m_inv.shape[0])  # an output without noise: nothing to weigh
+            cross[start : start + b, diag, diag] += np.moveaxis(np.matmul(e_t, gb), 0, 1)
+            squares[start : start + b, diag, diag] += np.einsum("abt,abt->ba", e_t, e_t)
+    return _ratio(basis, info, cross, squares, count, "diagonal", p)
+
+
+def frequency_weighting_spread(
+    sensitivities: ComplexArray,
+    spectrum: ComplexArray,
+    m_inv: FloatArray,
+    real: NDArray[np.bool_],
+    form: str,
+    *,
+    unwhiten: ComplexArray | None = None,
+    kernel: ComplexArray | None = None,
+    draws: int = _DRAWS,
+    seed: int = 0,
+) -> FloatArray:
+    """Chosen frequencies, the outputs weighted by the inverse of `form` of their
+    transforms' residual covariance: each parameter's variance with the weighting
+    re-estimated over its variance at the fitted one.
+
+    `sensitivities` (M, n_y, p) complex and `spectrum` (M, n_y, n_y) per frequency
+    (``E[e e^H]``), in the weighted units; `real` marks the frequencies whose
+    transform is real (zero and Nyquist). `unwhiten` (n_y, n_y) is ``L`` of the
+    weighted residuals ``u = L^-1 v``: `form` applies to the covariance of ``v``
+    (``"sidpac"`` and ``"real"`` do not commute with a complex ``L``), and the
+    weighting of ``u`` is ``L^H form(L S^_u L^H)^-1 L``. `kernel` (M, M), when the frequencies
+    are off the ``k/T`` grid, is the white-noise transforms' correlation
+    ``kappa`` (`aeroid._colour`): draw j is then ``L_j sum_k (kappa^1/2)_jk
+    z_k``, so neighbouring transforms share their noise as the sandwich has
+    them do. Parameters outside the span of ``M`` get a ratio of one.
+    """
+    p = m_inv.shape[0]
+    m, n_y, _ = sensitivities.shape
+    basis = _basis(m_inv)
+    r = basis.shape[1]
+    if r == 0 or not np.all(np.isfinite(spectrum)):
+        return np.ones(p)
+    g = sensitivities @ basis  # (M, n_y, r)
+    info = np.einsum("kap,kbq->abpq", g.conj(), g)
+    root = _spectral_roots(spectrum)
+    mix = None
+    if kernel is not None and m <= _KERNEL_ROOT_LIMIT:
+        lam, vec = np.linalg.eigh(kernel)
+        mix = (vec * np.sqrt(np.clip(lam, 0.0, None))) @ vec.conj().T
+    rng = np.random.default_rng(seed)
+    z = _complex_normal(rng, (draws, m, n_y))
+    if mix is not None:
+        z = np.einsum("jk,dka->dja", mix, z)
+    e = np.matmul(root, z[..., None])[..., 0]  # (draws, M, n_y)
+    # a real transform carries all of its spectrum in its real part
+    e[:, real] = np.sqrt(2.0) * e[:, real].real
+    cross = np.einsum("kap,dkb->dabp", g.conj(), e)
+    squares = np.einsum("dka,dkb->dab", e, e.conj())
+    return _ratio(basis, info, cross, squares, m, form, p, unwhiten)
+
+
+def _complex_normal(rng: np.random.Generator, shape: tuple[int, ...]) -> ComplexArray:
+    """Circular complex Gaussian draws with ``E|z|^2 = 1``."""
+    z = rng.standard_normal((*shape, 2)).view(np.complex128)[..., 0]
+    return np.asarray(z * np.sqrt(0.5), dtype=np.complex128)
+
+
+def _ratio(
+    basis: FloatArray,
+    info: ComplexArray,
+    cross: ComplexArray,
+    squares: ComplexArray,
+    count: int,
+    form: str,
+    p: int,
+    unwhiten: ComplexArray | None = None,
+) -> FloatArray:
+    """Per parameter, the spread at the weighting's fixed point over that at the identity."""
+    r = basis.shape[1]
+    if not np.all(np.abs(np.einsum("daa->da", squares)) > 0):
+        return np.ones(p)  # an output without noise: nothing to weigh
     try:
-        fixed, theta = _estimates(info, cross, squares, count)
+        fixed, theta = _estimates(info, cross, squares, count, form, unwhiten)
     except np.linalg.LinAlgError:  # a weighting that loses the span: keep the fixed bars
-        return np.ones(m_inv.shape[0])
+        return np.ones(p)
     v_fixed = np.einsum("jk,kl,jl->j", basis, np.cov(fixed.T).reshape(r, r), basis)
     v_free = np.einsum("jk,kl,jl->j", basis, np.cov(theta.T).reshape(r, r), basis)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -113,21 +209,44 @@ def weighting_spread(
 
 
 def _estimates(
-    info: FloatArray, cross: FloatArray, squares: FloatArray, count: int
+    info: ComplexArray,
+    cross: ComplexArray,
+    squares: ComplexArray,
+    count: int,
+    form: str,
+    unwhiten: ComplexArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """Per draw, the estimate at fixed (unit) weights and at its weights' fixed point."""
-    fixed = np.linalg.solve(np.einsum("apq->pq", info), np.einsum("adp->pd", cross)).T
+    """Per draw, the estimate at the identity weighting and at its fixed point."""
+    n_y = info.shape[0]
+    eye = np.eye(n_y)
+    fixed = np.linalg.solve(np.einsum("aapq->pq", info).real, np.einsum("daap->pd", cross).real).T
     theta = fixed
-    w = np.ones(squares.shape)
+    weights = np.broadcast_to(eye, (theta.shape[0], n_y, n_y))
+    r = info.shape[2]
+    flat_info = info.reshape(n_y * n_y, r * r)
+    conj_rows = info.conj().reshape(n_y * n_y * r, r)
     for _ in range(50):
-        fit = np.einsum("adp,dp->da", cross, theta)
-        ss = squares - 2.0 * fit + np.einsum("dp,apq,dq->da", theta, info, theta)
-        w_new = count / np.maximum(ss, 1e-300 * squares)
-        mw = np.einsum("da,apq->dpq", w_new, info)
-        rhs = np.einsum("da,adp->dp", w_new, cross)
+        # S^_ab = (E_ab - theta' conj(c_ab) - theta' c_ba + theta' conj(T_ab) theta) / K
+        lin = (cross * theta[:, None, None, :]).sum(axis=-1)
+        tq = (conj_rows @ theta.T).reshape(n_y, n_y, r, -1)  # conj(T_ab) theta per draw
+        quad = np.einsum("abpd,dp->dab", tq, theta)
+        s_hat = (squares - lin.conj() - lin.swapaxes(1, 2) + quad) / count
+        if form == "diagonal":
+            new = eye / np.einsum("daa->da", s_hat).real[:, :, None]
+        else:
+            big = s_hat if unwhiten is None else unwhiten @ s_hat @ unwhiten.conj().T
+            if form == "sidpac":
+                big = big.conj()
+            elif form == "real":
+                big = big.real.astype(np.complex128)
+            new = np.linalg.inv(big)
+            if unwhiten is not None:
+                new = unwhiten.conj().T @ new @ unwhiten
+        mw = (new.reshape(-1, n_y * n_y) @ flat_info).real.reshape(-1, r, r)
+        rhs = (new[..., None] * cross).sum(axis=(1, 2)).real
         theta = np.linalg.solve(mw, rhs[..., None])[..., 0]
-        done = np.max(np.abs(w_new / w - 1.0)) < 1e-9
-        w = w_new
+        done = np.max(np.abs(new - weights)) < 1e-9 * np.max(np.abs(new))
+        weights = new
         if done:
             break
-    return fixed, theta
+    return np.asarray(fixed, dtype=np.float64), np.asarray(theta, dtype=np.float64)

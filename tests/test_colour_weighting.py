@@ -128,3 +128,99 @@ def test_one_output_and_directions_outside_the_fit_are_left_alone() -> None:
     m_full = np.linalg.pinv(np.einsum("tap,taq->pq", held, held), hermitian=True)
     ratio = _weighting.weighting_spread([held], [_spectrum(PHI)], m_full, draws=200)
     assert ratio[-1] == 1.0 and np.all(np.isfinite(ratio)), ratio
+
+
+def _frequency_problem(m: int = 40, n_y: int = 3, p: int = 4) -> tuple[np.ndarray, ...]:
+    """Complex sensitivities, a spectrum peaked on output 0, a complex whitening."""
+    rng = np.random.default_rng(7)
+    w = np.linspace(0.5, 6.0, m)
+    g = np.zeros((m, n_y, p), dtype=complex)
+    for j in range(p):
+        pole = 1.0 + j
+        g[:, :, j] = (rng.standard_normal(n_y) + 1j * rng.standard_normal(n_y)) / (
+            1j * w[:, None] + pole
+        )
+    spec = np.zeros((m, n_y, n_y), dtype=complex)
+    spec[:, 0, 0] = 1.0 + 20.0 / (1.0 + ((w - 2.0) / 0.3) ** 2)  # a narrow noise peak
+    spec[:, 1, 1] = 1.0
+    spec[:, 2, 2] = 1.0
+    spec[:, 1, 2] = 0.5j  # one output a quarter turn behind another
+    spec[:, 2, 1] = -0.5j
+    # in the weighted units the fit's own weighting is the identity: mean S = I
+    c_inv = np.linalg.inv(np.linalg.cholesky(spec.mean(axis=0)))
+    spec = c_inv @ spec @ c_inv.conj().T
+    unwhiten = np.eye(n_y) + 0.3 * (
+        rng.standard_normal((n_y, n_y)) + 1j * rng.standard_normal((n_y, n_y))
+    )
+    return g, spec, unwhiten
+
+
+def _direct(g, spec, unwhiten, form, draws, seed=0) -> np.ndarray:
+    """The fixed-point iteration written out on the residuals of each draw."""
+    m, n_y, _ = g.shape
+    rng = np.random.default_rng(seed)
+    z = _weighting._complex_normal(rng, (draws, m, n_y))
+    e = np.einsum("kab,dkb->dka", _weighting._spectral_roots(spec), z)
+    fixed, free = [], []
+    info = np.einsum("kap,kaq->pq", g.conj(), g).real
+    for d in range(draws):
+        theta = np.linalg.solve(info, np.einsum("kap,ka->p", g.conj(), e[d]).real)
+        fixed.append(theta)
+        for _ in range(200):
+            r = e[d] - g @ theta
+            s_u = r.T @ r.conj() / m
+            s_v = unwhiten @ s_u @ unwhiten.conj().T
+            if form == "sidpac":
+                s_v = s_v.conj()
+            elif form == "real":
+                s_v = s_v.real
+            w = unwhiten.conj().T @ np.linalg.inv(s_v) @ unwhiten
+            a = np.einsum("kap,ab,kbq->pq", g.conj(), w, g).real
+            b = np.einsum("kap,ab,kb->p", g.conj(), w, e[d]).real
+            new = np.linalg.solve(a, b)
+            if np.max(np.abs(new - theta)) < 1e-13 * np.max(np.abs(new)):
+                theta = new
+                break
+            theta = new
+        free.append(theta)
+    return np.var(np.array(free), axis=0, ddof=1) / np.var(np.array(fixed), axis=0, ddof=1)
+
+
+def test_the_frequency_spread_is_the_fixed_point_of_each_form() -> None:
+    # Same draws, so the sums the spread expands must give the direct iteration's
+    # estimates to rounding; the forms differ (the complex cross-spectrum and the
+    # complex whitening tell them apart).
+    g, spec, unwhiten = _frequency_problem()
+    m_inv = np.linalg.inv(np.einsum("kap,kaq->pq", g.conj(), g).real)
+    real = np.zeros(g.shape[0], dtype=bool)
+    seen = []
+    for form in ("hermitian", "sidpac", "real"):
+        got = _weighting.frequency_weighting_spread(
+            g, spec, m_inv, real, form, unwhiten=unwhiten, draws=300
+        )
+        np.testing.assert_allclose(got, _direct(g, spec, unwhiten, form, 300), rtol=1e-6)
+        seen.append(got)
+    assert np.max(np.abs(seen[0] - seen[1])) > 1e-3
+
+
+def test_few_frequencies_with_a_noise_peak_widen_the_bars() -> None:
+    # Twelve frequencies: the weighting rests on few degrees of freedom, and the
+    # peaked output's weight moves with the noise that the fit takes up.
+    g, spec, _ = _frequency_problem(m=12)
+    m_inv = np.linalg.inv(np.einsum("kap,kaq->pq", g.conj(), g).real)
+    real = np.zeros(12, dtype=bool)
+    got = _weighting.frequency_weighting_spread(g, spec, m_inv, real, "hermitian", draws=2000)
+    assert np.all(got > 1.05), got
+
+
+def test_the_hermitian_weighting_does_not_see_the_whitening() -> None:
+    # S^-1 of the outputs is L^-H S_u^-1 L^-1 whatever L is: the likelihood's
+    # weighting is invariant, so the spread is the same with or without L.
+    g, spec, unwhiten = _frequency_problem()
+    m_inv = np.linalg.inv(np.einsum("kap,kaq->pq", g.conj(), g).real)
+    real = np.zeros(g.shape[0], dtype=bool)
+    with_l = _weighting.frequency_weighting_spread(
+        g, spec, m_inv, real, "hermitian", unwhiten=unwhiten, draws=200
+    )
+    without = _weighting.frequency_weighting_spread(g, spec, m_inv, real, "hermitian", draws=200)
+    np.testing.assert_allclose(with_l, without, rtol=1e-8)

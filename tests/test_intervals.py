@@ -36,7 +36,7 @@ def test_white_regression_interval_is_the_classical_t_interval() -> None:
 
 
 def test_coloured_bars_are_the_sandwich_and_the_interval_carries_the_t() -> None:
-    from aeroid import _colour
+    from aeroid import _stats
 
     res = _regression(0.95)
     # the standard error is the square root of the covariance's diagonal, nothing more
@@ -45,7 +45,7 @@ def test_coloured_bars_are_the_sandwich_and_the_interval_carries_the_t() -> None
     )
     nu = np.array([res.degrees_of_freedom[n] for n in res.parameter_names])
     assert np.all(nu < res.n_samples - 3)  # slow residuals: far fewer degrees of freedom
-    q = _colour.t_quantile(nu, 0.95)
+    q = _stats.t_quantile(nu, 0.95)
     np.testing.assert_allclose(q, scipy.stats.t.ppf(0.975, nu), rtol=1e-10)
     half = res.margin()
     np.testing.assert_allclose(

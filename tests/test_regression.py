@@ -167,7 +167,7 @@ def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(
     # (Parseval over the 2n-point transform), so the sandwich is s^2 (X'X)^-1 exactly
     # for s^2 = the leverage-corrected periodogram mean (the kernel without its AR(1)
     # prewhitening, which tests/test_colour_prewhitening.py checks)
-    from aeroid import _colour
+    from aeroid import _colour, _stats
 
     rng = np.random.default_rng(9)
     x = np.column_stack([np.ones(n), _design(rng, n)])
@@ -194,7 +194,7 @@ def test_colored_covariance_with_a_flat_spectrum_is_the_classical_one(
         assert np.all(np.abs(rel) <= 3.0 * np.sqrt(2.0 / d)), (rel, d)
         # white residuals keep enough degrees of freedom that the t widening is below
         # 5 % (the constant's rests on the bins of the window at w = 0, exactly counted)
-        assert np.all(_colour.t_quantile(d) < 1.05 * 1.959964)
+        assert np.all(_stats.t_quantile(d) < 1.05 * 1.959964)
     # prewhitening white residuals changes the bars by little
     np.testing.assert_allclose(np.diag(cov_pw), np.diag(cov), rtol=0.1)
 

@@ -34,6 +34,7 @@ def _covariances(
     white_scale: float,
     omega: FloatArray,
     duration: float,
+    estimated_weights: tuple[str, ComplexArray] | None = None,
 ) -> tuple[FloatArray, FloatArray, list[tuple[str, ...]], Any, FloatArray]:
     """White and frequency-sandwich covariances of a weighted real least squares, and
     the sandwich's degrees of freedom per unknown.
@@ -42,7 +43,9 @@ def _covariances(
     sensitivities and residuals. The white covariance is `white_scale` times
     the inverse information (the variance of one weighted real row); the
     sandwich takes the scale from the residuals themselves, with the
-    ``N/(N − n)`` factor of the unknowns they absorbed.
+    ``N/(N − n)`` factor of the unknowns they absorbed, and the scatter of a
+    weighting estimated from them (`estimated_weights`: its form and the
+    inverse of the whitening).
     """
     m, r, n = jac.shape
     J = jac.reshape(m * r, n)
@@ -53,7 +56,14 @@ def _covariances(
     # the one coloured-residual correction, in its per-frequency form: the few
     # frequencies near a mode carry most of the information, and the fit pulls
     # their residuals towards zero (their leverage)
-    colored, nu = frequency_sandwich(jac, res, np.asarray(inv, dtype=np.float64), omega, duration)
+    colored, nu = frequency_sandwich(
+        jac,
+        res,
+        np.asarray(inv, dtype=np.float64),
+        omega,
+        duration,
+        estimated_weights=estimated_weights,
+    )
     for cov in (white, colored):
         for j in np.flatnonzero(null):
             cov[j, :] = np.nan
@@ -395,7 +405,10 @@ def _output_error(
     # is short by the unknowns the fit absorbed
     n_rows = res.size
     scale = 0.5 if noise is not None else 0.5 * n_rows / max(n_rows - theta.size, 1)
-    white, colored, combos, _, nu = _covariances(jac, res, labels, scale, sp.omega, sp.duration)
+    estimated = None if noise is not None else (cross, np.asarray(np.linalg.inv(Li), complex))
+    white, colored, combos, _, nu = _covariances(
+        jac, res, labels, scale, sp.omega, sp.duration, estimated
+    )
     S = np.linalg.inv(Li.conj().T @ Li)
     return _Fit(
         theta,

@@ -242,7 +242,7 @@ def truth_study(
 ) -> None:
     """Print the known-truth study described in the module notes (`n` records)."""
     import aeroid
-    from aeroid._colour import t_quantile
+    from aeroid._stats import t_quantile
 
     flight, opts = _setup(u, z, t, names, x0, outputs, measured_states)
     fit = aeroid.check_compatibility(flight(u, z), **opts)

@@ -237,7 +237,7 @@ def _noise_model(resid: np.ndarray, walk: int) -> Callable[[np.random.Generator]
 
 def truth(fit: Fit, seeds: int, weights: str, mc_seeds: int, refits: int) -> None:
     """Seeded known-truth records: ours and (for `mc_seeds`) the Monte Carlo over the truth."""
-    from aeroid._colour import t_quantile
+    from aeroid._stats import t_quantile
 
     draw = _noise_model(fit.residuals, fit.outputs.index("phi"))
     fitted = fit.z - fit.residuals

@@ -400,8 +400,9 @@ for _stage in (
         # 4: the sandwich's degrees of freedom (t intervals);
         # 5: the noise that frequencies off the k/T grid share;
         # 6: the ends' Wald test on a positive definite covariance;
-        # 7: the sandwich's noise spectrum smoothed over neighbouring frequencies
-        "7",
+        # 7: the sandwich's noise spectrum smoothed over neighbouring frequencies;
+        # 8: the bars carry the scatter of the estimated noise weighting
+        "8",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
