@@ -297,7 +297,10 @@ def _measurement_noise_covariance(
     c = _allowed_scale(np.sum(left**2, axis=1), np.sum(u**2, axis=0))
     lf = np.fft.rfft(left, 2 * n, axis=1)
     known = c * np.einsum("dka,dkb->kab", lf, lf.conj()) / (n * n_draws)
-    cov, nu = colored_covariance([jac.reshape(n, n_y, -1)], [u], m_inv, known=[known])
+    # the output weights were estimated from these residuals (the fit's noise covariance)
+    cov, nu = colored_covariance(
+        [jac.reshape(n, n_y, -1)], [u], m_inv, known=[known], estimated_weights=True
+    )
     return c, np.asarray(cov[:n_p, :n_p]), np.asarray(nu[:n_p])
 
 

@@ -366,7 +366,8 @@ for _stage in (
         # 2: standard errors without the t widening, their degrees of freedom carried;
         # 3: integrated input noise counted once in the error bars
         # 4: coloured-residual degrees of freedom with the low band's exact covariance
-        "4",
+        # 5: the bars carry the scatter of the estimated output weights
+        "5",
         CompatibilityOptions,
         "CompatibilityResult",
         _run_compatibility,
