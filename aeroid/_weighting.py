@@ -65,7 +65,10 @@ def _spectral_roots(spec: ComplexArray) -> ComplexArray:
 
 
 def _basis(m_inv: FloatArray) -> FloatArray:
-    """The estimable subspace: every weighting with positive weights has the same one."""
+    """The estimable subspace: every weighting with positive weights has the same one
+    (none where the inverse failed)."""
+    if not np.all(np.isfinite(m_inv)):
+        return np.zeros((m_inv.shape[0], 0))
     lam, vec = np.linalg.eigh(m_inv)
     if not lam.size or lam.max() <= 0:
         return np.asarray(vec[:, :0], dtype=np.float64)

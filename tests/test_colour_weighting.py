@@ -224,3 +224,13 @@ def test_the_hermitian_weighting_does_not_see_the_whitening() -> None:
     )
     without = _weighting.frequency_weighting_spread(g, spec, m_inv, real, "hermitian", draws=200)
     np.testing.assert_allclose(with_l, without, rtol=1e-8)
+
+
+def test_a_failed_inverse_or_spectrum_leaves_the_bars_alone() -> None:
+    g = _design()
+    nan = np.full((g.shape[2],) * 2, np.nan)
+    assert np.all(_weighting.weighting_spread([g], [_spectrum(PHI)], nan, draws=10) == 1.0)
+    m_inv = np.linalg.inv(np.einsum("tap,taq->pq", g, g))
+    bad = _spectrum(PHI)
+    bad[3, 0, 0] = np.nan
+    assert np.all(_weighting.weighting_spread([g], [bad], m_inv, draws=10) == 1.0)
