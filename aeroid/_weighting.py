@@ -46,6 +46,9 @@ ComplexArray = NDArray[np.complex128]
 # steady to a few per cent.
 _DRAWS = 400
 _DRAW_BATCH = 50
+# The weighting's fixed point is iterated until no weight moves by more than this
+# relative step (a ratio of spreads needs no more).
+_TOL = 1e-6
 # Above this many frequencies off the k/T grid their draws are taken as
 # independent (the kernel's square root is cubic in their number).
 _KERNEL_ROOT_LIMIT = 1500
@@ -228,7 +231,7 @@ def _estimates(
     r = info.shape[2]
     flat_info = info.reshape(n_y * n_y, r * r)
     conj_rows = info.conj().reshape(n_y * n_y * r, r)
-    for _ in range(50):
+    for _step in range(50):
         # S^_ab = (E_ab - theta' conj(c_ab) - theta' c_ba + theta' conj(T_ab) theta) / K
         lin = (cross * theta[:, None, None, :]).sum(axis=-1)
         tq = (conj_rows @ theta.T).reshape(n_y, n_y, r, -1)  # conj(T_ab) theta per draw
@@ -248,7 +251,7 @@ def _estimates(
         mw = (new.reshape(-1, n_y * n_y) @ flat_info).real.reshape(-1, r, r)
         rhs = (new[..., None] * cross).sum(axis=(1, 2)).real
         theta = np.linalg.solve(mw, rhs[..., None])[..., 0]
-        done = np.max(np.abs(new - weights)) < 1e-9 * np.max(np.abs(new))
+        done = np.max(np.abs(new - weights)) < _TOL * np.max(np.abs(new))
         weights = new
         if done:
             break
