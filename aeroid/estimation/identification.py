@@ -189,8 +189,10 @@ def identify(
         dropped). Default: the noise covariance is estimated from the
         residuals at every iteration (maximum likelihood).
     error_bars : {"colored", "white"}
-        Standard errors corrected for coloured residuals from their
-        autocorrelation (default), or the classical Cramér–Rao values.
+        Standard errors corrected for coloured residuals from their spectrum
+        (default), or the classical Cramér–Rao values. Output error with the
+        noise covariance estimated (no `weights`) also carries the scatter that
+        estimating it adds to the estimates (`aeroid._weighting`).
     max_iterations : int
         Gauss–Newton iteration limit (a positive integer); hitting it returns
         a result flagged ``success=False`` with a warning.

@@ -358,7 +358,9 @@ def identify_frequency_domain(
         says which was kept.
     error_bars : {"colored", "white"}
         The frequency sandwich that lets the residual spectrum vary with
-        frequency (default), or the classical Cramér–Rao bound.
+        frequency (default), or the classical Cramér–Rao bound. Output error
+        with the noise covariance estimated (no `noise`) also carries the
+        scatter that estimating it adds to the estimates (`aeroid._weighting`).
     noise : mapping of str to float, optional
         Output error: standard deviations of white measurement noise per
         fitted output; the noise covariance of the transforms is then fixed
