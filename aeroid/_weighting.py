@@ -36,16 +36,23 @@ the caller multiplies each variance by it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
+# b draws' sums: c_ab (b, n_y, n_y, r) and E_ab (b, n_y, n_y)
+Draw = Callable[[np.random.Generator, int], tuple[ComplexArray, ComplexArray]]
 
-# Gaussian records per spread: the ratio of two spreads over the same draws,
-# steady to a few per cent.
+# Gaussian records per spread, drawn in batches: at least `_MIN_DRAWS`, then more
+# until every ratio's relative standard error is below `_RATIO_ERROR` (the ratio of
+# two spreads over the same draws is far steadier than either), at most `_DRAWS`.
 _DRAWS = 400
+_MIN_DRAWS = 100
 _DRAW_BATCH = 50
+_RATIO_ERROR = 0.02
 # The weighting's fixed point is iterated until no weight moves by more than this
 # relative step (a ratio of spreads needs no more).
 _TOL = 1e-6
@@ -85,6 +92,7 @@ def weighting_spread(
     *,
     draws: int = _DRAWS,
     seed: int = 0,
+    tol: float = _RATIO_ERROR,
 ) -> FloatArray:
     """Time histories, each output weighted by its own residual mean square: each
     parameter's variance with the weights re-estimated over its variance at fixed
@@ -105,30 +113,30 @@ def weighting_spread(
     if r == 0 or not all(np.all(np.isfinite(spec)) for spec in spectra):
         return np.ones(p)  # nothing to draw from: the bars at fixed weights
     info = np.zeros((n_y, n_y, r, r), dtype=np.complex128)
-    cross = np.zeros((draws, n_y, n_y, r), dtype=np.complex128)
-    squares = np.zeros((draws, n_y, n_y), dtype=np.complex128)
     diag = np.arange(n_y)
-    count = 0
-    rng = np.random.default_rng(seed)
+    records = []
     for g, spec in zip(sensitivities, spectra, strict=True):
-        n = g.shape[0]
-        size = 2 * n
-        count += n
         gb = np.ascontiguousarray(np.moveaxis(g @ basis, 1, 0))  # (n_y, n, r)
         info[diag, diag] += np.matmul(np.swapaxes(gb, 1, 2), gb)
-        root = np.sqrt(size) * _spectral_roots(spec)
-        n_bins = spec.shape[0]
-        for start in range(0, draws, _DRAW_BATCH):
-            b = min(_DRAW_BATCH, draws - start)
+        records.append((gb, np.sqrt(2 * g.shape[0]) * _spectral_roots(spec)))
+
+    def draw(rng: np.random.Generator, b: int) -> tuple[ComplexArray, ComplexArray]:
+        cross = np.zeros((b, n_y, n_y, r), dtype=np.complex128)
+        squares = np.zeros((b, n_y, n_y), dtype=np.complex128)
+        for gb, root in records:
+            n, n_bins = gb.shape[1], root.shape[0]
             z = _complex_normal(rng, (b, n_bins, n_y))
             z[:, 0] = rng.standard_normal((b, n_y))
             z[:, -1] = rng.standard_normal((b, n_y))
             x = np.matmul(root, z[..., None])[..., 0]  # (b, bins, n_y)
-            e = np.fft.irfft(x, size, axis=1)[:, :n, :]
+            e = np.fft.irfft(x, 2 * n, axis=1)[:, :n, :]
             e_t = np.ascontiguousarray(np.moveaxis(e, 2, 0))  # (n_y, b, n)
-            cross[start : start + b, diag, diag] += np.moveaxis(np.matmul(e_t, gb), 0, 1)
-            squares[start : start + b, diag, diag] += np.einsum("abt,abt->ba", e_t, e_t)
-    return _ratio(basis, info, cross, squares, count, "diagonal", p)
+            cross[:, diag, diag] += np.moveaxis(np.matmul(e_t, gb), 0, 1)
+            squares[:, diag, diag] += np.einsum("abt,abt->ba", e_t, e_t)
+        return cross, squares
+
+    count = sum(g.shape[0] for g in sensitivities)
+    return _spread(basis, info, count, "diagonal", p, draw, draws=draws, seed=seed, tol=tol)
 
 
 def frequency_weighting_spread(
@@ -142,6 +150,7 @@ def frequency_weighting_spread(
     kernel: ComplexArray | None = None,
     draws: int = _DRAWS,
     seed: int = 0,
+    tol: float = _RATIO_ERROR,
 ) -> FloatArray:
     """Chosen frequencies, the outputs weighted by the inverse of `form` of their
     transforms' residual covariance: each parameter's variance with the weighting
@@ -171,16 +180,20 @@ def frequency_weighting_spread(
     if kernel is not None and m <= _KERNEL_ROOT_LIMIT:
         lam, vec = np.linalg.eigh(kernel)
         mix = (vec * np.sqrt(np.clip(lam, 0.0, None))) @ vec.conj().T
-    rng = np.random.default_rng(seed)
-    z = _complex_normal(rng, (draws, m, n_y))
-    if mix is not None:
-        z = np.einsum("jk,dka->dja", mix, z)
-    e = np.matmul(root, z[..., None])[..., 0]  # (draws, M, n_y)
-    # a real transform carries all of its spectrum in its real part
-    e[:, real] = np.sqrt(2.0) * e[:, real].real
-    cross = np.einsum("kap,dkb->dabp", g.conj(), e)
-    squares = np.einsum("dka,dkb->dab", e, e.conj())
-    return _ratio(basis, info, cross, squares, m, form, p, unwhiten)
+
+    def draw(rng: np.random.Generator, b: int) -> tuple[ComplexArray, ComplexArray]:
+        z = _complex_normal(rng, (b, m, n_y))
+        if mix is not None:
+            z = np.einsum("jk,dka->dja", mix, z)
+        e = np.matmul(root, z[..., None])[..., 0]  # (b, M, n_y)
+        # a real transform carries all of its spectrum in its real part
+        e[:, real] = np.sqrt(2.0) * e[:, real].real
+        cross = np.einsum("kap,dkb->dabp", g.conj(), e)
+        return cross, np.einsum("dka,dkb->dab", e, e.conj())
+
+    return _spread(
+        basis, info, m, form, p, draw, unwhiten=unwhiten, draws=draws, seed=seed, tol=tol
+    )
 
 
 def _complex_normal(rng: np.random.Generator, shape: tuple[int, ...]) -> ComplexArray:
@@ -189,29 +202,59 @@ def _complex_normal(rng: np.random.Generator, shape: tuple[int, ...]) -> Complex
     return np.asarray(z * np.sqrt(0.5), dtype=np.complex128)
 
 
-def _ratio(
+def _spread(
     basis: FloatArray,
     info: ComplexArray,
-    cross: ComplexArray,
-    squares: ComplexArray,
     count: int,
     form: str,
     p: int,
+    draw: Draw,
+    *,
     unwhiten: ComplexArray | None = None,
+    draws: int = _DRAWS,
+    seed: int = 0,
+    tol: float = _RATIO_ERROR,
 ) -> FloatArray:
-    """Per parameter, the spread at the weighting's fixed point over that at the identity."""
-    r = basis.shape[1]
-    if not np.all(np.abs(np.einsum("daa->da", squares)) > 0):
-        return np.ones(p)  # an output without noise: nothing to weigh
-    try:
-        fixed, theta = _estimates(info, cross, squares, count, form, unwhiten)
-    except np.linalg.LinAlgError:  # a weighting that loses the span: keep the fixed bars
-        return np.ones(p)
-    v_fixed = np.einsum("jk,kl,jl->j", basis, np.cov(fixed.T).reshape(r, r), basis)
-    v_free = np.einsum("jk,kl,jl->j", basis, np.cov(theta.T).reshape(r, r), basis)
+    """Per parameter, the spread at the weighting's fixed point over that at the
+    identity, over batches of `draw` until its relative standard error is below
+    `tol` (after `_MIN_DRAWS`) or `draws` are spent."""
+    rng = np.random.default_rng(seed)
+    fixed: list[FloatArray] = []
+    free: list[FloatArray] = []
+    ratio = np.ones(p)
+    done = 0
+    while done < draws:
+        b = min(_DRAW_BATCH, draws - done)
+        cross, squares = draw(rng, b)
+        if not np.all(np.abs(np.einsum("daa->da", squares)) > 0):
+            return np.ones(p)  # an output without noise: nothing to weigh
+        try:
+            held, refit = _estimates(info, cross, squares, count, form, unwhiten)
+        except np.linalg.LinAlgError:  # a weighting that loses the span: keep the fixed bars
+            return np.ones(p)
+        fixed.append(held @ basis.T)
+        free.append(refit @ basis.T)
+        done += b
+        if done >= min(_MIN_DRAWS, draws):
+            ratio, error = _ratio(np.concatenate(fixed), np.concatenate(free))
+            if np.all(error <= tol * ratio):
+                break
+    return ratio
+
+
+def _ratio(fixed: FloatArray, free: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each column's variance ratio, free over fixed, and its standard error (the
+    delta method for a ratio of two means of squares over the same draws); one
+    where a column does not vary."""
+    a = (free - free.mean(axis=0)) ** 2
+    b = (fixed - fixed.mean(axis=0)) ** 2
+    mean_b = b.mean(axis=0)
+    live = mean_b > 1e-300 * np.maximum(a.mean(axis=0), 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = v_free / v_fixed
-    return np.asarray(np.where((v_fixed > 0) & np.isfinite(ratio), ratio, 1.0), dtype=np.float64)
+        ratio = np.where(live, a.mean(axis=0) / mean_b, 1.0)
+        error = np.where(live, np.std(a - ratio * b, axis=0) / (np.sqrt(a.shape[0]) * mean_b), 0.0)
+    ok = np.isfinite(ratio)
+    return np.where(ok, ratio, 1.0), np.where(ok, error, 0.0)
 
 
 def _estimates(

@@ -14,6 +14,7 @@ falls when the fit takes up noise along a slow sensitivity.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.signal import butter, lfilter
 
 from aeroid import _colour, _weighting
@@ -79,7 +80,7 @@ def _brute_force(g: np.ndarray, phi0: float, draws: int) -> np.ndarray:
 def test_the_spread_matches_a_brute_force_monte_carlo() -> None:
     g = _design()
     m_inv = np.linalg.inv(np.einsum("tap,taq->pq", g, g))
-    ratio = _weighting.weighting_spread([g], [_spectrum(PHI)], m_inv, draws=4000)
+    ratio = _weighting.weighting_spread([g], [_spectrum(PHI)], m_inv, draws=4000, tol=0.0)
     brute = _brute_force(g, PHI, 4000)
     # The slow derivatives' spread more than doubles: the effect is there to be seen.
     assert np.all(brute[:2] > 2.0), brute
@@ -196,7 +197,7 @@ def test_the_frequency_spread_is_the_fixed_point_of_each_form() -> None:
     seen = []
     for form in ("hermitian", "sidpac", "real"):
         got = _weighting.frequency_weighting_spread(
-            g, spec, m_inv, real, form, unwhiten=unwhiten, draws=300
+            g, spec, m_inv, real, form, unwhiten=unwhiten, draws=300, tol=0.0
         )
         np.testing.assert_allclose(got, _direct(g, spec, unwhiten, form, 300), rtol=1e-6)
         seen.append(got)
@@ -234,3 +235,47 @@ def test_a_failed_inverse_or_spectrum_leaves_the_bars_alone() -> None:
     bad = _spectrum(PHI)
     bad[3, 0, 0] = np.nan
     assert np.all(_weighting.weighting_spread([g], [bad], m_inv, draws=10) == 1.0)
+
+
+def test_the_draws_stop_once_every_ratio_is_known_to_two_per_cent() -> None:
+    g = _design()
+    m_inv = np.linalg.inv(np.einsum("tap,taq->pq", g, g))
+    # white noise: the ratios are near one and tight after the first hundred draws
+    white = _weighting.weighting_spread([g], [_spectrum(0.0)], m_inv)
+    first = _weighting.weighting_spread(
+        [g], [_spectrum(0.0)], m_inv, draws=_weighting._MIN_DRAWS, tol=0.0
+    )
+    np.testing.assert_array_equal(white, first)
+    # slow noise: the slow derivatives' ratios need every draw
+    slow = _weighting.weighting_spread([g], [_spectrum(PHI)], m_inv)
+    full = _weighting.weighting_spread([g], [_spectrum(PHI)], m_inv, tol=0.0)
+    np.testing.assert_array_equal(slow, full)
+
+
+def test_the_ratios_standard_error_is_their_scatter_over_seeds(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The stopping rule rests on the delta method's standard error of a ratio of
+    # two mean squares over the same draws; over 20 seeds (400 draws each) it
+    # matches the ratios' own scatter (whose relative error over 20 seeds is 16 %).
+    g = _design()
+    m_inv = np.linalg.inv(np.einsum("tap,taq->pq", g, g))
+    spec = _spectrum(PHI)
+    original = _weighting._ratio
+    errors: list[np.ndarray] = []
+
+    def keep(fixed: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        out = original(fixed, free)
+        errors.append(out[1])
+        return out
+
+    monkeypatch.setattr(_weighting, "_ratio", keep)
+    ratios, final = [], []
+    for seed in range(20):
+        ratios.append(
+            _weighting.weighting_spread([g], [spec], m_inv, draws=400, tol=0.0, seed=seed)
+        )
+        final.append(errors[-1])  # over all 400 draws (earlier batches are checked too)
+    scatter = np.std(ratios, axis=0, ddof=1)
+    ratio = np.mean(final, axis=0) / scatter
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
