@@ -16,7 +16,9 @@ implementation for estimators that fit time histories (equation error,
 stepwise regression, output error, data compatibility); see its docstring
 for the estimator and its degrees of freedom. `frequency_sandwich` is the same
 ``B`` for estimators that fit Fourier transforms at chosen frequencies, where
-the window spans a frequency and its neighbours.
+the window spans a frequency and its neighbours. Both hold the weighting fixed;
+where it was estimated from the same residuals, both add the scatter that
+brings (`estimated_weights`, measured by `aeroid._weighting`).
 """
 
 from __future__ import annotations
