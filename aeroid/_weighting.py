@@ -112,6 +112,8 @@ def weighting_spread(
     r = basis.shape[1]
     if r == 0 or not all(np.all(np.isfinite(spec)) for spec in spectra):
         return np.ones(p)  # nothing to draw from: the bars at fixed weights
+    if _apart(sum(np.einsum("tap,tap->ap", g, g) for g in sensitivities)):
+        return np.ones(p)
     info = np.zeros((n_y, n_y, r, r), dtype=np.complex128)
     diag = np.arange(n_y)
     records = []
@@ -173,6 +175,8 @@ def frequency_weighting_spread(
     r = basis.shape[1]
     if r == 0 or not np.all(np.isfinite(spectrum)):
         return np.ones(p)
+    if _apart(np.einsum("kap,kap->ap", sensitivities.conj(), sensitivities).real):
+        return np.ones(p)
     g = sensitivities @ basis  # (M, n_y, r)
     info = np.einsum("kap,kbq->abpq", g.conj(), g)
     root = _spectral_roots(spectrum)
@@ -194,6 +198,15 @@ def frequency_weighting_spread(
     return _spread(
         basis, info, m, form, p, draw, unwhiten=unwhiten, draws=draws, seed=seed, tol=tol
     )
+
+
+def _apart(seen: FloatArray) -> bool:
+    """Whether no parameter is seen by two outputs (`seen` (n_y, p): each output's
+    sum of squared sensitivities): then each output's parameters are fitted by it
+    alone, its weight only scales their information, and re-estimating the
+    weights changes no estimate."""
+    live = seen > 1e-12 * np.max(seen, initial=0.0)
+    return bool(np.all(np.sum(live, axis=0) <= 1))
 
 
 def _complex_normal(rng: np.random.Generator, shape: tuple[int, ...]) -> ComplexArray:

@@ -279,3 +279,16 @@ def test_the_ratios_standard_error_is_their_scatter_over_seeds(
     scatter = np.std(ratios, axis=0, ddof=1)
     ratio = np.mean(final, axis=0) / scatter
     assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+
+
+def test_outputs_that_share_no_parameter_leave_the_bars_alone() -> None:
+    # Each output's parameters are fitted by it alone: its weight scales their
+    # information and moves no estimate, however slow its noise.
+    g = _design()
+    apart = g.copy()
+    apart[:, 1, :3] = 0.0  # the derivatives on output 0 only, output 1 keeps its bias
+    m_inv = np.linalg.inv(np.einsum("tap,taq->pq", apart, apart))
+    ratio = _weighting.weighting_spread([apart], [_spectrum(PHI)], m_inv)
+    np.testing.assert_array_equal(ratio, np.ones(apart.shape[2]))
+    # the brute force agrees: the re-estimated weights change nothing
+    np.testing.assert_allclose(_brute_force(apart, PHI, 200), 1.0, atol=1e-8)
