@@ -167,8 +167,10 @@ def frequency_weighting_spread(
     are off the ``k/T`` grid, is the white-noise transforms' correlation
     ``kappa`` (`aeroid._colour`): draw j is then ``L_j sum_k (kappa^1/2)_jk
     z_k``, so neighbouring transforms share their noise as the sandwich has
-    them do. Parameters outside the span of ``M`` get a ratio of one.
+    them do (up to `_KERNEL_ROOT_LIMIT` frequencies; beyond, independent). Parameters outside the span of ``M`` get a ratio of one.
     """
+    if form not in FORMS:
+        raise ValueError(f"form: expected one of {FORMS}, got {form!r}")
     p = m_inv.shape[0]
     m, n_y, _ = sensitivities.shape
     basis = _basis(m_inv)

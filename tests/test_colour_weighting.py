@@ -292,3 +292,10 @@ def test_outputs_that_share_no_parameter_leave_the_bars_alone() -> None:
     np.testing.assert_array_equal(ratio, np.ones(apart.shape[2]))
     # the brute force agrees: the re-estimated weights change nothing
     np.testing.assert_allclose(_brute_force(apart, PHI, 200), 1.0, atol=1e-8)
+
+
+def test_an_unknown_form_is_refused() -> None:
+    g, spec, _ = _frequency_problem(m=12)
+    m_inv = np.linalg.inv(np.einsum("kap,kaq->pq", g.conj(), g).real)
+    with pytest.raises(ValueError, match="form"):
+        _weighting.frequency_weighting_spread(g, spec, m_inv, np.zeros(12, bool), "diag")
