@@ -548,7 +548,7 @@ def colored_covariance(
     var = np.abs(np.diag(cov))
     with np.errstate(divide="ignore", invalid="ignore"):
         nu = np.where(var_terms > 0, 2.0 * var**2 / var_terms, np.inf)
-    if estimated_weights and n_y > 1:  # (one output's weight only scales its estimate)
+    if estimated_weights:
         from ._weighting import weighting_spread
 
         root = np.sqrt(weighting_spread(sensitivities, spectra, m_inv))
@@ -688,10 +688,12 @@ def frequency_sandwich(
         var = var + pairs
     meat = 0.5 * (meat + meat.T)
     cov = np.asarray(m_inv @ meat @ m_inv, dtype=np.float64)
-    if estimated_weights is not None and r > 1:
-        from ._weighting import frequency_weighting_spread
+    if estimated_weights is not None:
+        from ._weighting import KERNEL_ROOT_LIMIT, frequency_weighting_spread
 
-        kappa = None if grid is None else _kernel(omega, slice(None), span) + np.eye(n_f)
+        # the whole kernel (M x M) only where its square root is affordable
+        near = grid is not None and n_f <= KERNEL_ROOT_LIMIT
+        kappa = _kernel(omega, slice(None), span) + np.eye(n_f) if near else None
         form, unwhiten = estimated_weights
         spread = frequency_weighting_spread(
             W, S, m_inv, real, form, unwhiten=unwhiten, kernel=kappa

@@ -56,9 +56,9 @@ _RATIO_ERROR = 0.02
 # The weighting's fixed point is iterated until no weight moves by more than this
 # relative step (a ratio of spreads needs no more).
 _TOL = 1e-6
-# Above this many frequencies off the k/T grid their draws are taken as
-# independent (the kernel's square root is cubic in their number).
-_KERNEL_ROOT_LIMIT = 1500
+# Callers pass the kernel of at most this many frequencies off the k/T grid (its
+# square root is cubic in their number); beyond, the draws take them as independent.
+KERNEL_ROOT_LIMIT = 1500
 # What the fitted weighting is of the residual covariance S^ (its inverse weights).
 FORMS = ("diagonal", "hermitian", "sidpac", "real")
 
@@ -163,11 +163,13 @@ def frequency_weighting_spread(
     transform is real (zero and Nyquist). `unwhiten` (n_y, n_y) is ``L`` of the
     weighted residuals ``u = L^-1 v``: `form` applies to the covariance of ``v``
     (``"sidpac"`` and ``"real"`` do not commute with a complex ``L``), and the
-    weighting of ``u`` is ``L^H form(L S^_u L^H)^-1 L``. `kernel` (M, M), when the frequencies
-    are off the ``k/T`` grid, is the white-noise transforms' correlation
+    weighting of ``u`` is ``L^H form(L S^_u L^H)^-1 L``. `kernel` (M, M), when
+    the frequencies are off the ``k/T`` grid, is the white-noise transforms'
+    correlation
     ``kappa`` (`aeroid._colour`): draw j is then ``L_j sum_k (kappa^1/2)_jk
     z_k``, so neighbouring transforms share their noise as the sandwich has
-    them do (up to `_KERNEL_ROOT_LIMIT` frequencies; beyond, independent). Parameters outside the span of ``M`` get a ratio of one.
+    them do (without it, independent: see `KERNEL_ROOT_LIMIT`). Parameters
+    outside the span of ``M`` get a ratio of one.
     """
     if form not in FORMS:
         raise ValueError(f"form: expected one of {FORMS}, got {form!r}")
@@ -183,7 +185,7 @@ def frequency_weighting_spread(
     info = np.einsum("kap,kbq->abpq", g.conj(), g)
     root = _spectral_roots(spectrum)
     mix = None
-    if kernel is not None and m <= _KERNEL_ROOT_LIMIT:
+    if kernel is not None:
         lam, vec = np.linalg.eigh(kernel)
         mix = (vec * np.sqrt(np.clip(lam, 0.0, None))) @ vec.conj().T
 
