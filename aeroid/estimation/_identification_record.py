@@ -241,6 +241,13 @@ class IdentificationResult(IntervalMixin):
                 else:
                     row.append("—")
             rows.append(tuple(row))
+        if not rows:  # the model held whole: the table shows what was fitted instead
+            for kind, per_record in (("x0", self.initial_states), ("bias", self.biases)):
+                for i, values in enumerate(per_record):
+                    for n, est in values.items():
+                        key = f"{kind}[{i}].{n}"
+                        if key in self.extra_stderr:
+                            rows.append((key, fmt(est), fmt(self.extra_stderr[key]), "—"))
         header: tuple[str, ...] = ("parameter", "estimate", "std. error", "rel. error")
         if self.bounds:
             header = (*header, "bounds")

@@ -27,7 +27,11 @@ def _as_list(data: Any) -> list[FlightData]:
     )
 
 
-def names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str, float]]:
+def names_and_initial(
+    model: Any, parameters: Any, *, allow_empty: bool = False
+) -> tuple[list[str], dict[str, float]]:
+    """The names to estimate and their initial guesses; none only with `allow_empty`
+    (a caller that estimates initial states, biases or delays besides checks it)."""
     nominal = dict(model.parameters)
     if isinstance(parameters, str):
         parameters = [parameters]
@@ -49,7 +53,7 @@ def names_and_initial(model: Any, parameters: Any) -> tuple[list[str], dict[str,
                 "parameters: expected a list of names to estimate or a dict name -> initial guess"
             ) from None
         initial = {}
-    if not names:
+    if not names and not allow_empty:
         raise IdentificationError("parameters: name at least one parameter to estimate")
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:

@@ -136,7 +136,10 @@ def identify(
         of name to initial guess. Every model parameter not named here is held
         fixed at its nominal value (``model.parameters``) and reported in
         ``result.fixed``; to fix a parameter at another value, build the model
-        with that nominal value.
+        with that nominal value. Output error may name none when it estimates
+        initial states, biases or time delays: only those are fitted, the model
+        held whole (how `validate` starts a prediction with
+        ``holdout_start="estimated"``).
     method : {"output_error", "filter_error"}
         Maximum-likelihood output error, or filter error (fits on whitened
         Kalman-filter innovations; needs `process_noise`).
@@ -299,7 +302,14 @@ def identify(
     if tol is None or not (tol > 0 and np.isfinite(tol)):
         raise IdentificationError(f"tolerance must be positive and finite, got {plain(tolerance)}")
     datas = _as_list(data)
-    names, initial = names_and_initial(model, parameters)
+    names, initial = names_and_initial(model, parameters, allow_empty=True)
+    if not names and not (
+        method == "output_error" and (estimate_x0 or estimate_bias or time_delays)
+    ):
+        raise IdentificationError(
+            "parameters: name at least one parameter to estimate (output error may name "
+            "none when it estimates initial states, biases or time delays)"
+        )
     if start not in _STARTS:
         raise IdentificationError(f"start {start!r} is unknown; choose one of {list(_STARTS)}")
     delays = _time_delays(time_delays, model)
@@ -458,6 +468,10 @@ def identify(
         raise IdentificationError(
             f"estimate_bias: biases on the state equations {state_bias} need a Model (a "
             "dynamics callable), and gradient='auto' or 'fd'"
+        )
+    if not (names or delays or sel_x0 or sel_bias or state_bias):
+        raise IdentificationError(
+            "parameters: none named, and estimate_x0 and estimate_bias select nothing"
         )
     w_arr = None if weights is None else _weight_variances(weights, fit_outputs)
     _check_data_count(

@@ -2,13 +2,17 @@
 
 Klein & Morelli (ch. 12) and Tischler (ch. 15) check an identified model by
 simulating it, parameters fixed, with the inputs of data it was not fitted
-to, starting from that data's own measured state, and comparing with what
-was measured there. `validate` does this for a held-out window of its record
-or for a second record.
+to, and comparing with what was measured there. `validate` does this for a
+held-out window of its record or for a second record, starting from that
+data's measured state, or (Tischler's time-domain verification) from an
+initial state and one reference shift per output fitted to the held-out data
+with everything the model holds fixed: another manoeuvre flies from another
+trim, and its first sample is as noisy as the rest.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -26,6 +30,8 @@ from ..io.data import FlightData, measured_start, plain
 
 FloatArray = NDArray[np.float64]
 
+# How a prediction starts (see `validate`'s ``holdout_start``).
+STARTS = ("measured", "estimated")
 # Fewer held-out samples than this say nothing about a model's dynamics.
 MIN_HOLDOUT_SAMPLES = 10
 # total RMS over noise RMS at which the response's variance equals the noise's
@@ -100,6 +106,9 @@ class PredictionResult:
     units: Mapping[str, str] = field(default_factory=dict)
     in_fit: bool = False
     response_to_noise: Mapping[str, float] = field(default_factory=dict)
+    start: str = "measured"
+    initial_state: Mapping[str, float] = field(default_factory=dict)
+    shifts: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def excited(self) -> bool:
@@ -116,6 +125,8 @@ class PredictionResult:
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
         object.__setattr__(self, "output_names", tuple(self.output_names))
         object.__setattr__(self, "units", MappingProxyType(dict(self.units)))
+        for name in ("initial_state", "shifts"):
+            object.__setattr__(self, name, MappingProxyType(dict(getattr(self, name))))
 
     def plot(self, **kwargs: Any) -> Any:
         """Measured vs predicted outputs on the held-out data. Returns a matplotlib Figure."""
@@ -145,9 +156,14 @@ class PredictionResult:
                 " **Not excited: no output's measured response stands out of its noise; "
                 "the metrics measure noise.**"
             )
+        start = (
+            "initial state and output shifts fitted to it"
+            if self.start == "estimated"
+            else "start from its measured state"
+        )
         return (
             f"Prediction of held-out data ({self.source}, {self.time.size} samples), "
-            f"parameters fixed, start from its measured state.{caveat}\n\n"
+            f"parameters fixed, {start}.{caveat}\n\n"
             + markdown_table(("output", "prediction RMSE", "Theil U", "R^2", "fit %"), rows)
         )
 
@@ -243,18 +259,24 @@ def predict(
     units: Mapping[str, str],
     *,
     in_fit: bool = False,
+    start: str = "measured",
 ) -> PredictionResult:
     """Simulate `model` with parameters `p` on the (delayed) controls `flown` of
-    `record` from its measured initial state, and score it against `record`."""
+    `record` from its measured initial state (or, `start` ``"estimated"``, from
+    the initial state and output shifts fitted to it), and score it against `record`."""
     record.require(list(outputs), role="output")
     names = list(model.outputs)
     # the measured state at the first held-out sample, less the sensor biases the
     # fit estimated where they apply (a measured state carries its sensor's bias)
     x0 = {k: v - biases.get(k, 0.0) for k, v in measured_start(record, model.states).items()}
+    y = record.array(list(outputs))
+    if start == "estimated":
+        x0, shifts = _fitted_start(model, flown, p, outputs, x0, opts)
+    else:
+        shifts = {o: float(biases.get(o, 0.0)) for o in outputs}
     sim = model.simulate_data(flown, x0=x0 or None, parameters=p, **opts)
     idx = [names.index(o) for o in outputs]
-    y_hat = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in outputs])
-    y = record.array(list(outputs))
+    y_hat = np.asarray(sim.outputs)[:, idx] + np.array([shifts[o] for o in outputs])
     metrics = {o: prediction_metrics(y[:, j], y_hat[:, j]) for j, o in enumerate(outputs)}
     ratios = {o: _response_to_noise(y[:, j]) for j, o in enumerate(outputs)}
     if ratios and all(v < _EXCITED for v in ratios.values()):
@@ -277,4 +299,46 @@ def predict(
         units={k: v for k, v in units.items() if k in outputs},
         in_fit=in_fit,
         response_to_noise=ratios,
+        start=start,
+        initial_state=x0,
+        shifts={o: v for o, v in shifts.items() if v != 0.0},
     )
+
+
+def _fitted_start(
+    model: Any,
+    flown: FlightData,
+    p: Mapping[str, float],
+    outputs: Sequence[str],
+    guess: Mapping[str, float],
+    opts: Mapping[str, Any],
+) -> tuple[dict[str, float], dict[str, float]]:
+    """The initial state and per-output reference shifts that fit `flown` best with
+    every parameter of `model` held at `p`: output error over those alone."""
+    from ..estimation.identification import identify
+
+    held_fields = (
+        {f.name for f in dataclasses.fields(model)} if dataclasses.is_dataclass(model) else ()
+    )
+    if "parameters" not in held_fields or not hasattr(model, "dynamics"):
+        raise IdentificationError(
+            'holdout_start="estimated" needs a Model (its initial state is fitted); '
+            f"got {type(model).__name__}"
+        )
+    held = dataclasses.replace(model, parameters={**dict(model.parameters), **dict(p)})
+    with warnings.catch_warnings():
+        # a state that integrates (a bank angle) starts where its sensor's shift
+        # would put it: the prediction is the same for any split of the two
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        fit = identify(
+            held,
+            flown,
+            [],
+            outputs=list(outputs),
+            x0=dict(guess) or None,
+            estimate_x0=True,
+            estimate_bias=list(outputs),
+            error_bars="white",
+            simulate_options=dict(opts),
+        )
+    return dict(fit.initial_states[0]), {o: float(fit.biases[0][o]) for o in outputs}

@@ -23,7 +23,7 @@ from ..models.model import (
     require_model,
     resolve_parameters,
 )
-from .prediction import PredictionMetrics, PredictionResult, holdout_record, predict
+from .prediction import STARTS, PredictionMetrics, PredictionResult, holdout_record, predict
 
 __all__ = [
     "OutputMetrics",
@@ -223,6 +223,7 @@ def validate(
     whiteness_lags: int | None = None,
     simulate_options: Mapping[str, Any] | None = None,
     holdout: Mapping[str, float] | FlightData | None = None,
+    holdout_start: str = "measured",
 ) -> ValidationResult:
     """Compare the model's simulation with measured outputs.
 
@@ -261,6 +262,18 @@ def validate(
         outputs and taken off that measured state), and
         ``result.prediction`` holds per-output RMSE, Theil U, R^2 and fit %.
         At least 10 held-out samples are needed.
+    holdout_start : {"measured", "estimated"}
+        Where the prediction of `holdout` starts. ``"measured"``: as above.
+        ``"estimated"``: Tischler's time-domain verification (ch. 15) and
+        Klein & Morelli's prediction check: every model parameter held at the
+        fit's values, the initial state and one constant shift per checked
+        output are fitted to the held-out data by output error, so that
+        neither another manoeuvre's trim nor the noise on its first sample
+        counts against the model (`Model` only). The values used are in
+        ``result.prediction.initial_state`` and ``.shifts``; where the data
+        cannot tell a state's start from its sensor's shift (a bank angle that
+        only integrates), only their sum is determined, and so is the
+        prediction.
 
     Returns
     -------
@@ -290,6 +303,10 @@ def validate(
     if n < 3:  # the Ljung–Box test needs one lag of N - 2: its p-value would be NaN
         raise IdentificationError(f"data: validation needs at least 3 samples, got {n}")
     opts = check_simulate_options(simulate_options, model, IdentificationError)
+    if holdout_start not in STARTS:
+        raise IdentificationError(
+            f"holdout_start {plain(holdout_start)} is unknown; choose one of {list(STARTS)}"
+        )
     if whiteness_lags is None:
         whiteness_lags = 20
     else:
@@ -375,6 +392,7 @@ def validate(
             units,
             in_fit=window
             and fingerprint(data) in tuple(getattr(parameters, "data_fingerprints", ()) or ()),
+            start=holdout_start,
         )
     return ValidationResult(
         metrics=metrics,

@@ -146,17 +146,19 @@ class ValidateOptions(
         "confidence",
         "whiteness_lags",
         "holdout",
+        "holdout_start",
         "simulate_options",
         simulate_options=_SIMULATE,
         confidence=Field(None, gt=0, lt=1),
         whiteness_lags=Field(None, ge=1),
         holdout=(HoldoutSpec | None, Field(None)),
+        holdout_start=(Literal["measured", "estimated"] | None, Field(None)),
     )
 ):
     """`aeroid.validate` keywords (``simulate_options``: as the fit's, its controls')."""
 
     # unset, it leaves the keys of results stored before it existed unchanged
-    added_later: ClassVar[frozenset[str]] = frozenset({"simulate_options"})
+    added_later: ClassVar[frozenset[str]] = frozenset({"simulate_options", "holdout_start"})
 
 
 def _run_validate(ctx: StageContext) -> Any:
