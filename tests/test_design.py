@@ -295,6 +295,17 @@ def test_simulator_model_design_loops():
             "no design variables",
         ),
         ({"maneuver": "doublet"}, IdentificationError, "ManeuverFamily"),
+        # 25 samples a second: a 13 Hz line would alias to 12 Hz
+        (
+            {"maneuver": Multisine("elevator", frequencies=(0.5, 13.0), amplitude=(0.0, 0.05))},
+            IdentificationError,
+            r"reach 13 Hz, at or above the Nyquist frequency 12.5 Hz",
+        ),
+        (
+            {"maneuver": Chirp("elevator", f0=0.1, f1=(2.0, 12.5), amplitude=0.05)},
+            IdentificationError,
+            "Nyquist",
+        ),
     ],
 )
 def test_bad_arguments_raise(kwargs, error, match):

@@ -763,3 +763,20 @@ def test_model_phase_is_one_continuous_branch_under_a_noisy_measured_phase():
     exact = np.degrees(np.unwrap(np.angle(model)))
     np.testing.assert_allclose(ch.model_phase, exact, atol=1e-9)
     np.testing.assert_allclose(ch.model_phase[coherent], (ch.phase - ch.phase_error)[coherent])
+
+
+@pytest.mark.parametrize("origin", [1e3, 1e5])
+def test_the_time_origin_changes_nothing(multisine_record, origin):
+    # stamps from boot or GPS time round each sample, and the mean rate with them; the
+    # band's edge and each window's two-period limit sit on bins of 3000 samples
+    record = multisine_record.window(0.0, 59.98)
+    base = frequency_response(catalog.short_period(), record, TRUTH)
+    later = FlightData(record.time + origin, dict(record.channels), {})
+    moved = frequency_response(catalog.short_period(), later, TRUTH)
+    for out in ("alpha", "q"):
+        a, b = base.channel("elevator", out), moved.channel("elevator", out)
+        assert a.frequency.size == b.frequency.size
+        np.testing.assert_allclose(b.frequency, a.frequency, rtol=1e-9)
+        coherent = a.coherence > 0.5  # elsewhere noise over noise amplifies the rounding
+        np.testing.assert_allclose(b.response[coherent], a.response[coherent], rtol=1e-6)
+        assert b.mismatch == pytest.approx(a.mismatch, rel=1e-6)

@@ -194,6 +194,15 @@ def test_composite_refuses_bad_windows_frequencies_and_names(clean_sweep):
         composite_response(data, "u", "y", frequencies="abc")
     with pytest.raises(IdentificationError, match="frequencies: 1 rad/s is given more than once"):
         composite_response(data, "u", "y", frequencies=[1.0, 1.0, 2.0])
+    # text and bools are not numbers, though float() would read them as such
+    for bad in ({"windows": (True,)}, {"windows": ("10",)}, {"windows": [[5.0, 10.0]]}):
+        with pytest.raises(IdentificationError, match="windows: expected one or more lengths"):
+            composite_response(data, "u", "y", **bad)
+    for bad_overlap in ("0.5", True):
+        with pytest.raises(IdentificationError, match="overlap: expected a number"):
+            composite_response(data, "u", "y", overlap=bad_overlap)
+    with pytest.raises(IdentificationError, match=r"frequency_range: expected \(low, high\)"):
+        composite_response(data, "u", "y", frequency_range=("1", "10"))
 
 
 @pytest.mark.parametrize("level", [0.0, 1.5])

@@ -252,7 +252,9 @@ def _choose_windows(
         independent = max(1, round(band_hz / e.cell))
         e.threshold = max(thr, _chance_coherence(e.n_averages, n_u, independent))
         err = _random_error(e.coherence, e.n_averages, n_u)
-        two = np.broadcast_to((f >= e.lowest)[:, None, None] & (e.n_averages > n_u), shape)
+        # on a bin (the rate's rounding in time stamps must not move it off)
+        two_periods = f >= e.lowest * (1.0 - 1e-9)
+        two = np.broadcast_to(two_periods[:, None, None] & (e.n_averages > n_u), shape)
         excited = two & (e.excitation >= _EXCITED_FRACTION)[:, :, None]
         coherent = excited & (e.coherence >= e.threshold)
         if e.h_sim is None:

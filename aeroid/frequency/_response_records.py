@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import as_float
 from .._records import (
     IntervalMixin,
     fmt,
@@ -437,11 +438,13 @@ def _bode(channels: Sequence[ResponseChannel], fits: Sequence[Any]) -> Any:
 
 def _band(frequency_range: Any) -> tuple[float, float]:
     try:
-        lo, hi = (float(v) for v in frequency_range)
+        lo, hi = (as_float(v) for v in frequency_range)
     except (TypeError, ValueError):
+        lo = hi = None
+    if lo is None or hi is None:  # text and bools are no frequencies
         raise IdentificationError(
             f"frequency_range: expected (low, high) in rad/s, got {frequency_range!r}"
-        ) from None
+        )
     if not 0.0 <= lo < hi:
         raise IdentificationError(
             f"frequency_range: expected 0 <= low < high, got {frequency_range!r}"

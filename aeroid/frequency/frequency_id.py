@@ -65,6 +65,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import as_float
 from .._threads import small_blas
 from ..errors import ChannelError, DataFormatError, IdentificationError
 from ..io.data import FlightData, check_flag, plain
@@ -210,13 +211,8 @@ def composite_response(
         raise ChannelError(f"channels {sorted(set(ins) & set(outs))} are both inputs and outputs")
     data.require(ins, role="input")
     data.require(outs, role="output")
-    try:
-        ov = float(overlap)
-    except (TypeError, ValueError):
-        raise IdentificationError(
-            f"overlap: expected a number in [0, 0.95], got {overlap!r}"
-        ) from None
-    if not 0.0 <= ov <= 0.95:
+    ov = as_float(overlap)
+    if ov is None or not 0.0 <= ov <= 0.95:
         raise IdentificationError(f"overlap: expected a number in [0, 0.95], got {overlap!r}")
     fs = data.sample_rate
     dt = 1.0 / fs
@@ -224,15 +220,13 @@ def composite_response(
     if windows is None:
         wins = [data.duration / d for d in (2.0, 4.0, 8.0)]
     else:
-        try:
-            arr = np.atleast_1d(np.asarray(windows, dtype=np.float64))
-        except (TypeError, ValueError):
-            arr = np.zeros((0, 0))  # refused below
-        if arr.ndim != 1 or arr.size == 0:
+        listed = np.atleast_1d(np.asarray(windows, dtype=object))
+        lengths = [as_float(w) for w in listed.ravel()]
+        if listed.ndim != 1 or not lengths or None in lengths:  # text and bools too
             raise IdentificationError(
                 f"windows: expected one or more lengths in seconds, got {windows!r}"
             )
-        wins = [float(w) for w in arr]
+        wins = [float(w) for w in lengths if w is not None]
     segs = []
     for w in wins:
         if not np.isfinite(w):

@@ -437,7 +437,9 @@ def frequency_response(
     smoothing = _RECORD_SMOOTHING if nperseg is None else ()
     grid = n if smoothing else longest
     f = np.arange(1, grid // 2 + 1) * fs / grid
-    keep = (f >= band[0]) & (f <= band[1])
+    # a band's edge on a bin keeps it however the time stamps' rounding moved the rate
+    edge = 1e-9 * fs / grid
+    keep = (f >= band[0] - edge) & (f <= band[1] + edge)
     if not keep.any():  # every channel would be empty
         raise IdentificationError(
             f"frequency_range: {frequency_range!r} Hz holds none of the analysis frequencies "

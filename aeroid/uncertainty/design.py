@@ -575,6 +575,12 @@ def design_experiment(
             f"controls: {list(controls)}"
         )
     trim_vector = _trim_vector(trim, controls, model.name)
+    top = getattr(maneuver, "highest_frequency", lambda: None)()
+    if top is not None and top >= fs / 2:  # it would alias onto a lower line
+        raise IdentificationError(
+            f"maneuver {maneuver!r}: its frequencies reach {top:g} Hz, at or above the "
+            f"Nyquist frequency {fs / 2:g} Hz of sample_rate {fs:g} Hz"
+        )
     bounds = np.array(maneuver.bounds, dtype=np.float64).reshape(-1, 2)
     var_names = tuple(maneuver.variable_names)
     if bounds.shape[0] == 0:

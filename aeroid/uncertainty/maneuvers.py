@@ -69,7 +69,10 @@ class ManeuverFamily(Protocol):
 
     A family may also define ``canonical(variables, time)`` returning the
     variables that reproduce the same signal in their most direct form (the
-    built-in `Multisine` returns its amplitudes after peak limiting).
+    built-in `Multisine` returns its amplitudes after peak limiting), and
+    ``highest_frequency()`` returning the highest frequency (Hz) any design
+    puts in the signal, or None: `design_experiment` refuses a family that
+    reaches the Nyquist frequency, where its lines would alias.
     """
 
     @property
@@ -150,6 +153,10 @@ class _Family:
         out = {k: lo for k, (lo, _) in self._specs.items()}
         out.update(zip(self._free, v.tolist(), strict=True))
         return out
+
+    def highest_frequency(self) -> float | None:
+        """The highest frequency (Hz) any design can put in the signal, if it has one."""
+        return None
 
     def __repr__(self) -> str:
         parts = ", ".join(
@@ -285,6 +292,9 @@ class Multisine(_Family):
             raise ModelDefinitionError(f"Multisine peak: expected a positive number, got {peak!r}")
         super().__init__(control, {f"amplitude_{f:g}Hz": amp for f in self.frequencies})
 
+    def highest_frequency(self) -> float:
+        return max(self.frequencies)
+
     def _raw(self, a: FloatArray, t: FloatArray) -> FloatArray:
         f = np.asarray(self.frequencies)
         ph = schroeder_phases(a**2)
@@ -365,6 +375,9 @@ class Chirp(_Family):
                 "amplitude": _range(amplitude, "Chirp amplitude"),
             },
         )
+
+    def highest_frequency(self) -> float:
+        return max(self._specs["f0"][1], self._specs["f1"][1])
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         s = self._settings(variables)
