@@ -417,3 +417,38 @@ def test_a_file_declaring_more_than_the_limit_is_refused_before_reading(
     monkeypatch.setattr(table_files, "_MAX_DECLARED_BYTES", 8 * n - 1)
     with pytest.raises(DataFormatError, match=r"declares .* over the 0 MiB"):
         load_flight_test(path)
+
+
+def test_hostile_csv_encodings_name_the_file_and_row(tmp_path, capfd):
+    from aeroid import load_flight_test
+
+    mac = tmp_path / "mac.csv"
+    mac.write_bytes(b"time,a\r0,1\r0.1,2\r0.2,3\r")
+    with pytest.raises(DataFormatError, match=r"mac\.csv: lines end in a carriage return alone"):
+        load_flight_test(mac)
+    for body in (b"0.1,2,\xff\n", b"0.1,\xff\n"):  # a ragged row, a bad cell
+        bad = tmp_path / "latin.csv"
+        bad.write_bytes(b"time,a\n0,1\n" + body + b"0.2,3\n")
+        with pytest.raises(DataFormatError, match=r"latin\.csv: row 3: byte \d+ .*not UTF-8"):
+            load_flight_test(bad)
+    # pyarrow prints, rather than raises, an error met in its row callback
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_wrong_types_in_the_loader_and_the_record_are_named(tmp_path):
+    from aeroid import load_flight_test
+
+    d = FlightData([0.0, 0.1, 0.2], {"a": [1.0, 2.0, 3.0]})
+    path = d.to_csv(tmp_path / "ok.csv")
+    for units in (["rad"], "rad", 3):
+        with pytest.raises(DataFormatError, match="units: expected a mapping"):
+            load_flight_test(path, units=units)
+    with pytest.raises(DataFormatError, match="window: t0 must be a number, got 'a'"):
+        d.window("a", 1.0)  # type: ignore[arg-type]
+    with pytest.raises(DataFormatError, match="window: t1 must be a number"):
+        d.window(0.0, float("nan"))
+    with pytest.raises(DataFormatError, match="channel 'a': not numeric"):
+        FlightData([0.0, 1.0], {"a": [0, 10**400]})
+    # the loader strips the spaces round a header cell, so such a name cannot round-trip
+    with pytest.raises(DataFormatError, match="channel name ' a' cannot be a CSV column"):
+        FlightData([0.0, 0.1], {" a": [1.0, 2.0]}).to_csv(tmp_path / "spaced.csv")

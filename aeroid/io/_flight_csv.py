@@ -115,7 +115,16 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
                 text = text.removeprefix("\ufeff")
             if not text.strip() or text.lstrip().startswith("#"):
                 continue
-            header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]))]
+            line = text.rstrip("\r\n")
+            if "\r" in line:  # readline splits at \n only: the whole file is one line
+                raise DataFormatError(
+                    f"{path}: lines end in a carriage return alone (classic Mac OS); "
+                    "save the file with \\n or \\r\\n line endings"
+                )
+            try:
+                header = [h.strip() for h in next(csv.reader([line]))]
+            except csv.Error as exc:
+                raise DataFormatError(f"{path}: line {line_no}: not a CSV header ({exc})") from None
             return header, offset, line_no
     raise DataFormatError(f"{path}: empty file")
 
@@ -141,6 +150,33 @@ def _csv_cell_error(
         )
 
 
+def _row_text(row: Any) -> str:
+    """The text of a row pyarrow could not parse (`_require_utf8` has checked it decodes)."""
+    return str(row.text)
+
+
+def _require_utf8(path: Path, offset: int) -> None:
+    """Refuse a file whose data is not UTF-8 before a parser's row callback meets it:
+    pyarrow decodes a bad row's text for the callback and prints, not raises, its error.
+    Only on the error path, so reading the file once more costs nothing on good files."""
+    import codecs
+
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    row, at = 2, offset
+    with open(path, "rb") as f:
+        f.seek(offset)
+        while block := f.read(1 << 20):
+            try:
+                decoder.decode(block)
+            except UnicodeDecodeError as exc:
+                row += block[: exc.start].count(b"\n")
+                raise DataFormatError(
+                    f"{path}: row {row}: byte {at + exc.start} of the file is not UTF-8 text"
+                ) from None
+            row += block.count(b"\n")
+            at += len(block)
+
+
 def _locate_csv_error(
     path: Path,
     header: list[str],
@@ -156,7 +192,7 @@ def _locate_csv_error(
     bad_rows: list[Any] = []
 
     def keep(row: Any) -> str:
-        if not row.text.lstrip().startswith("#"):
+        if not _row_text(row).lstrip().startswith("#"):
             bad_rows.append(row)
         return "skip"
 
@@ -318,7 +354,7 @@ def _read_csv(
     comments: list[int] = []
 
     def skip_comment(row: Any) -> str:
-        if not row.text.lstrip().startswith("#"):
+        if not _row_text(row).lstrip().startswith("#"):
             return "error"
         comments.append(1)
         return "skip"
@@ -331,6 +367,7 @@ def _read_csv(
             # on the error path); anything else is located and reported. A cell that
             # is not a number is no comment line (those have the wrong cell count).
             table = None
+            _require_utf8(path, offset)
             if "conversion error" not in str(exc):
                 with contextlib.suppress(pa.ArrowInvalid):
                     table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))

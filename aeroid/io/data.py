@@ -67,7 +67,7 @@ def numeric(values: Any, what: str, failure: str) -> FloatArray:
         real_array(arr, what)  # raises, with the remedy
     try:
         return readonly(arr)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # an int beyond float64 too
         raise DataFormatError(f"{what}: {failure} ({exc})") from None
 
 
@@ -241,6 +241,10 @@ class FlightData:
 
     def window(self, t0: float, t1: float) -> FlightData:
         """Return the samples with ``t0 <= time <= t1`` as new flight data."""
+        for label, value in (("t0", t0), ("t1", t1)):
+            bound = as_float(value)
+            if bound is None or np.isnan(bound):
+                raise DataFormatError(f"window: {label} must be a number, got {plain(value)}")
         if not t1 > t0:
             raise DataFormatError(f"window: need t1 > t0, got t0={plain(t0)}, t1={plain(t1)}")
         mask = (self.time >= t0) & (self.time <= t1)
@@ -283,12 +287,14 @@ class FlightData:
         Raises
         ------
         DataFormatError
-            If a channel is named ``time`` or holds a comma or line break in its
-            name, or the file cannot be written.
+            If a channel is named ``time`` or holds a comma, quote or line break
+            in its name, or begins or ends with a space (the loader strips those
+            from a header), or the file cannot be written.
         """
         target = Path(path)
         for name in self.channels:
-            if name == "time" or any(c in name for c in ',"\n\r'):
+            # the loader strips the spaces round a header cell ("time, alpha, q")
+            if name == "time" or any(c in name for c in ',"\n\r') or name != name.strip():
                 raise DataFormatError(
                     f"to_csv: channel name {name!r} cannot be a CSV column of its own"
                 )
@@ -491,6 +497,10 @@ def load_flight_test(
                 f"{p}: column {col!r} has {columns[col].size} samples, time has {time.size}"
             )
         chans[name] = columns[col]
+    if units is not None and not isinstance(units, Mapping):
+        raise DataFormatError(
+            f"units: expected a mapping of channel name to unit, got {type(units).__name__}"
+        )
     try:
         return FlightData(
             time, chans, dict(units or {}), {"source": p.name, "format": suffix.lstrip(".")}
