@@ -149,6 +149,8 @@ def test_an_unknown_start_and_a_stepped_simulator_are_refused():
     model = catalog.short_period(catalog.SHORT_PERIOD_TRUTH)
     with pytest.raises(IdentificationError, match="holdout_start 'first' is unknown"):
         validate(model, data, None, holdout={"fraction": 0.3}, holdout_start="first")
+    with pytest.raises(IdentificationError, match="needs a holdout"):
+        validate(model, data, None, holdout_start="estimated")
 
     class Stepped:  # a stepped simulator: no dynamics callable to hold and refit
         def __init__(self, wrapped: Model) -> None:

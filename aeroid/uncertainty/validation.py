@@ -307,6 +307,8 @@ def validate(
         raise IdentificationError(
             f"holdout_start {plain(holdout_start)} is unknown; choose one of {list(STARTS)}"
         )
+    if holdout is None and holdout_start != "measured":
+        raise IdentificationError(f"holdout_start={holdout_start!r} needs a holdout to predict")
     if whiteness_lags is None:
         whiteness_lags = 20
     else:
