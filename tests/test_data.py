@@ -452,3 +452,12 @@ def test_wrong_types_in_the_loader_and_the_record_are_named(tmp_path):
     # the loader strips the spaces round a header cell, so such a name cannot round-trip
     with pytest.raises(DataFormatError, match="channel name ' a' cannot be a CSV column"):
         FlightData([0.0, 0.1], {" a": [1.0, 2.0]}).to_csv(tmp_path / "spaced.csv")
+
+
+def test_channel_names_of_the_wrong_type_are_named():
+    d = FlightData([0.0, 1.0, 2.0], {"alpha": [1.0, 2.0, 3.0], "q": [0.0, 1.0, 2.0]})
+    with pytest.raises(ChannelError, match="expected a list of names, got 123"):
+        d.array(123)  # type: ignore[arg-type]
+    with pytest.raises(ChannelError, match=r"channel name \['alpha'\]: expected a string"):
+        d[["alpha"]]  # type: ignore[index]
+    assert d.array(iter(["alpha", "q"])).shape == (3, 2)  # an iterator is read once

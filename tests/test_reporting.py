@@ -182,3 +182,14 @@ def test_report_tables_of_estimates_residuals_and_innovations_carry_units():
     assert unit_of(text["State estimation"], "innovation", "q") == data.units["q"]
     # the states' standard deviations too (filtered here; smoothed ones alike)
     assert unit_of(text["State estimation"], "max std", "alpha") == data.units["alpha"]
+
+
+def test_a_wrong_argument_is_named_before_any_is_read():
+    from aeroid.errors import AeroidError
+
+    with pytest.raises(AeroidError, match="the validation argument is not a result"):
+        report(42)
+    with pytest.raises(AeroidError, match="the inference argument is not a result"):
+        report(inference="posterior")
+    with pytest.raises(OutputError, match="path must be a file path, got int"):
+        report(None, path=5)  # type: ignore[arg-type]

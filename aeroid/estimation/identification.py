@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._threads import small_blas
-from ..errors import IdentificationError
+from ..errors import AeroidError, IdentificationError
 from ..io.data import (
     FlightData,
     as_float,
@@ -505,9 +505,64 @@ def identify(
         bounds=box,
         delays=delays,
     )
+    finer = _path_substeps(fit_model, datas, fitted, opts)
+    if finer is not None:
+        # the integrator's step came from the modes at the start, and the fitted
+        # paths stiffen beyond it: fit again, from here, with the step they need
+        fitted = fit_output_error(
+            fit_model,
+            datas,
+            names,
+            {n: fitted.parameters[n] for n in names},
+            outputs=fit_outputs,
+            x0=[dict(x) for x in fitted.initial_states] if fitted.initial_states else x0_dicts,
+            estimate_x0=sel_x0 + bias_states,
+            estimate_bias=sel_bias,
+            weights=w_arr,
+            error_bars=error_bars,
+            max_iterations=max_iterations,
+            tolerance=tol,
+            simulate_options={**opts, "substeps": finer},
+            gradient=gradient,
+            bounds=box,
+            delays={c: fitted.time_delays.get(c, v) for c, v in delays.items()},
+        )
     if state_bias:
         fitted = _state_biases_out(fitted, bias_states, state_bias)
     return _finish(fitted, datas, model)
+
+
+def _path_substeps(
+    model: Any, datas: list[FlightData], fitted: IdentificationResult, opts: Mapping[str, Any]
+) -> int | None:
+    """The RK4 substeps the fitted paths ask for where that is more than the rule at
+    their start gave the fit (`integration.trajectory_substeps`), else None."""
+    from ..models import integration as _integrate
+    from ..models.model import Model, delayed_controls
+
+    automatic = opts.get("substeps") is None and opts.get("method", "auto") in ("auto", "rk4")
+    if not (automatic and isinstance(model, Model) and fitted.success):
+        return None
+    if model.linear is True or len(fitted.initial_states) != len(datas):
+        return None  # exact on the grid: no step to choose
+    values = {n: v for n, v in fitted.parameters.items() if n in model.parameters}
+    member = {k: np.array([float(values.get(k, v))]) for k, v in model.parameters.items()}
+    f = model._dynamics_batch
+    need = 0
+    for d, start in zip(datas, fitted.initial_states, strict=True):
+        try:
+            sim = model.simulate_data(
+                delayed_controls(fitted, d), x0=dict(start), parameters=values, **opts
+            )
+        except AeroidError:
+            return None  # the fit's own simulation reported what there is to say
+        u = np.asarray(sim.controls, dtype=np.float64)
+        x0 = np.asarray(sim.states[0], dtype=np.float64)[:, None]
+        first = _integrate.auto_substeps(f, sim.time, x0, u[None], member)
+        path = _integrate.trajectory_substeps(f, sim.time, np.asarray(sim.states), u, member)
+        if path > first:
+            need = max(need, path)
+    return need or None
 
 
 def _time_delays(option: Any, model: Any) -> dict[str, float]:

@@ -49,6 +49,16 @@ FloatArray = NDArray[np.float64]
 readonly = frozen_array
 
 
+def _listed(names: Any, role: str) -> list[Any]:
+    """`names` as a list (one name, not its letters), or a `ChannelError`."""
+    if isinstance(names, str):
+        return [names]
+    try:
+        return list(names)
+    except TypeError:
+        raise ChannelError(f"{role} names: expected a list of names, got {plain(names)}") from None
+
+
 def numeric(values: Any, what: str, failure: str) -> FloatArray:
     """`values` as a read-only float64 copy, or a `DataFormatError` naming `what`.
 
@@ -221,7 +231,9 @@ class FlightData:
 
     def require(self, names: Iterable[str], *, role: str = "channel") -> None:
         """Raise `ChannelError` naming the first of `names` that is missing."""
-        for name in names:
+        for name in _listed(names, role):
+            if not isinstance(name, str):
+                raise ChannelError(f"{role} name {plain(name)}: expected a string")
             if name not in self.channels:
                 raise ChannelError(
                     f"{role} {name!r} not found in flight data; "
@@ -230,8 +242,7 @@ class FlightData:
 
     def array(self, names: str | Sequence[str]) -> FloatArray:
         """Stack channels into an array of shape (n_samples, len(names))."""
-        if isinstance(names, str):
-            names = [names]
+        names = _listed(names, "channel")
         self.require(names)
         if not names:
             return np.zeros((self.n_samples, 0))

@@ -36,7 +36,6 @@ vectors (and, optionally, of control histories) is integrated in one pass.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -57,6 +56,13 @@ from ._controls import control_nodes as control_nodes
 from ._controls import control_slopes as control_slopes
 from ._controls import controls_at as controls_at
 from ._controls import hermite as hermite
+from ._substeps import _MAX_AUTO_SUBSTEPS as _MAX_AUTO_SUBSTEPS
+from ._substeps import SUBSTEP_ERROR as SUBSTEP_ERROR
+from ._substeps import auto_substeps as auto_substeps
+from ._substeps import jacobian_eigenvalues as jacobian_eigenvalues
+from ._substeps import substep_demand as substep_demand
+from ._substeps import substeps_for as substeps_for
+from ._substeps import trajectory_substeps as trajectory_substeps
 
 if TYPE_CHECKING:
     from .model import Model
@@ -67,10 +73,9 @@ ComplexArray = NDArray[np.complex128]
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 _BY_INTERVAL = ("RK45", "RK23", "DOP853")  # restarted at every sample (module notes)
 METHODS = ("auto", "exact", "rk4", "rk4_hold", "euler", *SOLVE_IVP_METHODS)
-_MAX_AUTO_SUBSTEPS = 256
-# Accumulated RK4 error of each mode of df/dx, relative to its amplitude, that the
-# automatic substeps allow (`substeps_for`): far below any sensor's noise.
-SUBSTEP_ERROR = 1e-5
+# The automatic substeps' path is rerun at most this many times with the count its
+# samples ask for (`trajectory_substeps`).
+_PREVIEW_PASSES = 2
 # RK4 evaluates the stages at a sample interval's ends this fraction of the interval
 # inside it: one-sided limits, so a forcing that switches at a sample time (a burnout
 # at t = 2 s, even with 2 s stored a few ulp off) acts on the correct side of it.
@@ -103,69 +108,6 @@ def _first_failure(states: FloatArray, time: FloatArray) -> tuple[NDArray[np.boo
     for b in np.flatnonzero(~ok):
         fail_time[b] = time[int(np.argmin(finite[b]))]
     return ok, fail_time
-
-
-def jacobian_eigenvalues(
-    f: BatchFunction, t: float, x0: FloatArray, u0: FloatArray, p: Mapping[str, FloatArray]
-) -> ComplexArray:
-    """Eigenvalues of df/dx at the batch's initial points (central differences), all members
-    together; members whose Jacobian is not finite are left out."""
-    n, batch = x0.shape
-    if n == 0:
-        return np.zeros(0, dtype=np.complex128)
-    scale = np.maximum(np.abs(x0), 1.0) * 1e-6  # (n, B)
-    # columns: for each member b, n "+" then n "-" perturbations
-    eye = np.eye(n)
-    plus = x0.T[:, :, None] + eye[None] * scale.T[:, :, None]  # (B, n, n): [b, state, col]
-    minus = x0.T[:, :, None] - eye[None] * scale.T[:, :, None]
-    pts = np.concatenate([plus, minus], axis=2).transpose(1, 0, 2).reshape(n, batch * 2 * n)
-    pp = {k: np.repeat(v, 2 * n) for k, v in p.items()}
-    uu = np.repeat(u0, 2 * n, axis=1)
-    with np.errstate(all="ignore"):
-        vals = f(t, pts, uu, pp).reshape(n, batch, 2 * n)
-    jac = (vals[:, :, :n] - vals[:, :, n:]) / (2 * scale.T[None, :, :])  # (n_out, B, n_in)
-    jac = jac.transpose(1, 0, 2)
-    finite = np.all(np.isfinite(jac), axis=(1, 2))
-    if not np.any(finite):
-        return np.zeros(0, dtype=np.complex128)
-    return np.asarray(np.linalg.eigvals(jac[finite]).ravel(), dtype=np.complex128)
-
-
-def substeps_for(eigenvalues: ComplexArray, h: float, duration: float) -> int:
-    """RK4 substeps per sample interval `h` for modes with these eigenvalues.
-
-    One RK4 step of ``h |λ| = z`` errs by about ``z^5 / 120`` of the mode's
-    amplitude, and the errors add up while the mode lasts: about
-    ``1 / (ζ z)`` steps for a mode of damping ratio ζ, at most the record
-    (``|λ| T / z`` steps). Each mode gets the largest substep whose
-    accumulated error stays below `SUBSTEP_ERROR` of its amplitude,
-    ``z <= (120 E max(ζ, 1 / (|λ| T)))^(1/4)``: about 0.19 for a real decaying
-    mode, about 0.06 for an undamped oscillation a hundred radians long.
-    """
-    lam = np.asarray(eigenvalues, dtype=np.complex128)
-    size = np.abs(lam)
-    lam, size = lam[size > 0], size[size > 0]
-    if lam.size == 0 or not h > 0:
-        return 1
-    m = math.ceil(float(np.max(substep_demand(lam.real, size, h, duration, np))))
-    return int(min(max(1, m), _MAX_AUTO_SUBSTEPS))
-
-
-def substep_demand(real: Any, size: Any, h: Any, duration: Any, xp: Any) -> Any:
-    """Each mode's ``h |λ| / z_max`` (`substeps_for`), from its eigenvalue's real part and
-    modulus (non-zero), in the array module `xp` (numpy, or jax.numpy in a program)."""
-    zeta = xp.clip(-real / size, 0.0, 1.0)
-    lasting = xp.maximum(zeta, 1.0 / (size * xp.maximum(duration, h)))
-    z_max = (120.0 * SUBSTEP_ERROR * lasting) ** 0.25
-    return h * size / z_max
-
-
-def auto_substeps(
-    f: BatchFunction, time: FloatArray, x0: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
-) -> int:
-    lam = jacobian_eigenvalues(f, float(time[0]), x0, u[:, 0, :].T, p)
-    h = float(np.max(np.diff(time)))
-    return substeps_for(lam, h, float(time[-1] - time[0]))
 
 
 def euler(
@@ -266,7 +208,7 @@ def solve_ivp_batch(
             w = min(max(w, 0.0), 1.0)
             uk = hermite(u[:, k, :], u[:, k + 1, :], excess[0][:, k, :], excess[1][:, k, :], w)
             uu = np.ascontiguousarray(uk.T)
-        return f(t, z.reshape(n_x, batch), uu, p).reshape(-1)
+        return _finite_rates(f(t, z.reshape(n_x, batch), uu, p).reshape(-1))
 
     with np.errstate(all="ignore"):
         try:
@@ -317,9 +259,20 @@ def _interval_rhs(
             uu = u0 + du * ((tc - t0) / (t1 - t0))
         else:
             uu = hermite(u0, u1, excess[0], excess[1], (tc - t0) / (t1 - t0))
-        return np.asarray(f(tc, y.reshape(n_x, -1), uu, p)).reshape(-1)
+        return _finite_rates(np.asarray(f(tc, y.reshape(n_x, -1), uu, p)).reshape(-1))
 
     return rhs
+
+
+class _NotFinite(ArithmeticError):
+    """A right-hand side that is not finite: an adaptive solver would shrink its step
+    after it forever (SciPy's error norm is NaN, and NaN never meets its limit)."""
+
+
+def _finite_rates(rates: FloatArray) -> FloatArray:
+    if not np.all(np.isfinite(rates)):
+        raise _NotFinite
+    return rates
 
 
 def _runge_kutta_by_interval(
@@ -743,11 +696,26 @@ def integrate(
         return traj
     if method in ("auto", "rk4"):
         m = substeps if substeps is not None else auto_substeps(f, time, X0, u, p)
-        if compiled_rk4 is not None:
-            compiled = compiled_rk4(model, time, X0, u, p, int(m), how)
-            if compiled is not None:
-                return compiled
-        return rk4(f, time, X0, u, p, int(m), control_interpolation)
+
+        def run(m: int) -> RawTrajectory:
+            if compiled_rk4 is not None:
+                compiled = compiled_rk4(model, time, X0, u, p, int(m), how)
+                if compiled is not None:
+                    return compiled
+            return rk4(f, time, X0, u, p, int(m), control_interpolation)
+
+        traj = run(m)
+        if substeps is None:
+            # the rule read the modes at the start; where the first member's path
+            # stiffens (or a too coarse step blew it up), its own modes decide
+            member = {k: np.asarray(v)[:1] for k, v in p.items()}
+            for _ in range(_PREVIEW_PASSES):
+                need = trajectory_substeps(f, time, traj.states[0], u[0], member)
+                if need <= m:
+                    break
+                m = need
+                traj = run(m)
+        return traj
     if method == "rk4_hold":
         return rk4(f, time, X0, u, p, int(substeps or 1), hold=True)
     if method == "euler":

@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from ..errors import AeroidError
+from ..errors import AeroidError, OutputError
 
 __all__ = ["report", "report_figures", "report_sections"]
 
@@ -186,15 +186,27 @@ def report_sections(
 ) -> list[tuple[str, str]]:
     """The report as a list of (heading, Markdown body) sections, in report order."""
     sections: list[tuple[str, str]] = []
+    given = {
+        "identification": identification,
+        "validation": validation,
+        "filtering": filtering,
+        "sensitivity": sensitivity,
+        "frequency": frequency,
+        "inference": inference,
+        "propagation": propagation,
+        "experiment": experiment,
+    }
+    for slot, result in given.items():  # before any slot's notes read its attributes
+        if result is not None and not callable(getattr(result, "summary", None)):
+            raise AeroidError(
+                f"report: the {slot} argument is not a result (it has no summary()): "
+                f"{type(result).__name__}"
+            )
     units = _report_units(validation, identification, filtering, sensitivity, inference)
 
     def add(heading: str, result: Any, notes: list[str] | None = None, extra: str = "") -> None:
         if result is None:
             return
-        if not hasattr(result, "summary"):
-            raise AeroidError(
-                f"report: {heading.lower()} result has no summary(): {type(result).__name__}"
-            )
         body = _with_units(_without_heading(result.summary()), units)
         if notes:
             body += "\n\n" + "\n".join(f"- {n}" for n in notes)
@@ -300,6 +312,8 @@ def report(
     str
         The Markdown text.
     """
+    if path is not None and not isinstance(path, (str, os.PathLike)):
+        raise OutputError(f"report: path must be a file path, got {type(path).__name__}")
     sections = report_sections(
         validation,
         identification,

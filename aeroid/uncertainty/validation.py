@@ -6,7 +6,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -223,7 +223,7 @@ def validate(
     whiteness_lags: int | None = None,
     simulate_options: Mapping[str, Any] | None = None,
     holdout: Mapping[str, float] | FlightData | None = None,
-    holdout_start: str = "measured",
+    holdout_start: Literal["measured", "estimated"] = "measured",
 ) -> ValidationResult:
     """Compare the model's simulation with measured outputs.
 

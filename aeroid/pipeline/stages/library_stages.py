@@ -15,11 +15,11 @@ import inspect
 from collections.abc import Mapping
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import AfterValidator, AliasChoices, Field, field_validator, model_validator
+from pydantic import AfterValidator, AliasChoices, Field, field_validator
 
-from ...errors import AeroidError, PipelineError
 from ..plans.config import Options
 from . import FlightReport, Stage, StageContext, register_stage
+from .config_specs import ManeuverSpec, PriorSpec
 from .load_stage import HoldoutSpec, LoadOptions, flight_data, outside_holdout, record_start
 from .metrics import METRICS, damping_ratio, metric, natural_frequency, static_margin
 from .signature_options import library_fields
@@ -152,7 +152,6 @@ class ValidateOptions(
         confidence=Field(None, gt=0, lt=1),
         whiteness_lags=Field(None, ge=1),
         holdout=(HoldoutSpec | None, Field(None)),
-        holdout_start=(Literal["measured", "estimated"] | None, Field(None)),
     )
 ):
     """`aeroid.validate` keywords (``simulate_options``: as the fit's, its controls')."""
@@ -229,33 +228,6 @@ def _combine_propagate(ctx: StageContext, parts: list[Any]) -> Any:
 
 
 # -- infer ------------------------------------------------------------------------------
-
-
-class PriorSpec(Options):
-    """One prior: exactly one of normal [mu, sigma], uniform [lo, hi], log_uniform [lo, hi],
-    half_normal sigma."""
-
-    normal: tuple[float, float] | None = None
-    uniform: tuple[float, float] | None = None
-    log_uniform: tuple[float, float] | None = None
-    half_normal: float | None = None
-
-    def build(self, name: str) -> Any:
-        from ...uncertainty.priors import HalfNormal, LogUniform, Normal, Uniform
-
-        given = self.model_dump(exclude_none=True)
-        if len(given) != 1:
-            raise PipelineError(
-                f"prior of {name!r}: give exactly one of normal, uniform, log_uniform, half_normal"
-            )
-        kind, args = next(iter(given.items()))
-        cls: Any = {
-            "normal": Normal,
-            "uniform": Uniform,
-            "log_uniform": LogUniform,
-            "half_normal": HalfNormal,
-        }[kind]
-        return cls(*args) if isinstance(args, (tuple, list)) else cls(args)
 
 
 class InferOptions(
@@ -344,31 +316,6 @@ def _combine_infer(ctx: StageContext, parts: list[Any]) -> Any:
 
 
 # -- design -------------------------------------------------------------------------------
-
-
-class ManeuverSpec(Options):
-    """A built-in manoeuvre family: ``type`` and its constructor arguments."""
-
-    type: Literal["multisine", "doublet", "chirp"]
-    control: str
-    options: dict[str, Any] = Field(default_factory=dict)
-
-    @model_validator(mode="after")
-    def _builds(self) -> ManeuverSpec:
-        # a missing or unknown constructor argument is a config error, found before any run
-        try:
-            self.build()
-        except (TypeError, AeroidError) as exc:
-            raise ValueError(f"options do not make a {self.type}: {exc}") from None
-        return self
-
-    def build(self) -> Any:
-        from ...uncertainty.maneuvers import Chirp, Doublet, Multisine
-
-        families: dict[str, Any] = {"multisine": Multisine, "doublet": Doublet, "chirp": Chirp}
-        cls = families[self.type]
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in self.options.items()}
-        return cls(self.control, **kw)
 
 
 class DesignOptions(
@@ -513,7 +460,8 @@ for _stage in (
         # 11: the filter error's process noise started from the state equations'
         #     residuals, its steps extrapolated or a noise's held to a decade (other steps)
         # 12: output error estimates the measured initial states by default
-        "13",  # 13: output error's coloured bars carry its estimated weights' scatter
+        # 13: output error's coloured bars carry its estimated weights' scatter
+        "14",  # 14: RK4 substeps read along the path too (a model stiffening away)
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
@@ -525,8 +473,10 @@ for _stage in (
     Stage(
         "validate",
         # 2: units the model declares where the record gives none;
-        # 3: the prediction of held-out data (`holdout`) in the result
-        "3",
+        # 3: the prediction of held-out data (`holdout`) in the result; 4: RK4 substeps
+        # read along the simulated path too (as every stage that simulates: a model
+        # that stiffens away from its start)
+        "4",
         ValidateOptions,
         "ValidationResult",
         _run_validate,
@@ -546,8 +496,8 @@ for _stage in (
     Stage(
         "infer",
         # 3: parameters not inferred held at the fit; 4: the sampler's simulations compiled
-        # from the first (log-densities equal to rounding, the same draws)
-        "4",
+        # from the first (log-densities equal to rounding, the same draws); 5: RK4 substeps
+        "5",
         InferOptions,
         "InferenceResult",
         _run_infer,
@@ -558,7 +508,7 @@ for _stage in (
     ),
     Stage(
         "design",
-        "2",  # 2: the flight's record as an input (at_record_start), trim controls
+        "3",  # 2: the flight's record as an input (at_record_start), trim controls; 3: RK4
         DesignOptions,
         "ExperimentDesign",
         _run_design,
@@ -569,8 +519,8 @@ for _stage in (
         # 3: only frequencies whose coherence beats chance and that the input excites;
         # 4: the model's exact response by default where it is linear time-invariant;
         # 5: else the transfer function of the model linearised at the record's start;
-        # 6: one response record (rad/s, complex responses; dB and degrees derived)
-        "6",
+        # 6: one response record (rad/s, complex responses; dB and degrees derived); 7: RK4
+        "7",
         FrequencyOptions,
         "FrequencyResponseResult",
         _run_frequency,
@@ -578,7 +528,7 @@ for _stage in (
     ),
     Stage(
         "sensitivities",
-        "2",
+        "3",  # 3: RK4 substeps read along the path too
         SensitivityOptions,
         "SensitivityResult",
         _run_sensitivities,

@@ -1,0 +1,69 @@
+"""The automatic RK4 step follows the path, not only its start; no solver spins on NaN."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeroid import FlightData, Model, SimulationError, identify, sensitivities, validate
+from aeroid.models import integration
+
+TRUTH = {"c": 10.0, "b": 10.0}
+
+
+def _cubic(values: dict[str, float]) -> Model:
+    # -c x^3: no mode at all at rest, a stiff one (-3 c x^2, about -90 /s) once x grows
+    return Model(
+        states=["x"],
+        controls=["u"],
+        parameters=values,
+        dynamics=lambda t, x, u, p: np.array([-p["c"] * x[0] ** 3 + p["b"] * u[0]]),
+    )
+
+
+def _record(rate: float) -> FlightData:
+    t = np.arange(0.0, 4.0, 1.0 / rate)
+    u = np.where((t > 0.5) & (t < 2.5), 5.0, 0.0)
+    exact = _cubic(TRUTH).simulate(t, {"u": u}, x0=[0.0], method="DOP853", rtol=1e-11, atol=1e-13)
+    return FlightData(t, {"x": exact.state("x"), "u": u})
+
+
+@pytest.mark.parametrize("rate", [10.0, 20.0, 50.0])
+def test_a_path_that_stiffens_is_simulated_and_fitted_to_the_truth(rate):
+    data = _record(rate)
+    # the rule at the start (x = 0) alone asks for one substep, which at 20 Hz
+    # oscillates and at 10 Hz diverges
+    f = _cubic(TRUTH)._dynamics_batch
+    p = {k: np.array([v]) for k, v in TRUTH.items()}
+    u = data.array(["u"])[None]
+    assert integration.auto_substeps(f, data.time, np.zeros((1, 1)), u, p) == 1
+    states = data.array(["x"])
+    assert integration.trajectory_substeps(f, data.time, states, u[0], p) > 1
+    checked = validate(_cubic(TRUTH), data, TRUTH)
+    assert checked.metrics["x"].rmse < 1e-6
+    fit = identify(_cubic({"c": 8.0, "b": 8.0}), data, ["c", "b"])
+    assert fit.success
+    for name, value in TRUTH.items():
+        assert fit.parameters[name] == pytest.approx(value, rel=1e-5)
+    sens = sensitivities(_cubic(TRUTH), data, ["c", "b"], noise={"x": 0.01})
+    step = 1e-4 * TRUTH["c"]
+    sides = [
+        _cubic({**TRUTH, "c": TRUTH["c"] + d}).simulate(
+            data.time, {"u": data["u"]}, x0=[0.0], method="DOP853", rtol=1e-11, atol=1e-13
+        )
+        for d in (step, -step)
+    ]
+    central = (sides[0].state("x") - sides[1].state("x")) / (2 * step)
+    np.testing.assert_allclose(sens.sensitivity("x", "c"), central, rtol=1e-3, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["RK45", "DOP853", "Radau", "BDF", "LSODA", "auto"])
+@pytest.mark.parametrize("late", [False, True])
+def test_dynamics_that_turn_nan_fail_at_once_naming_the_state(method, late):
+    def f(t, x, u, p):
+        bad = np.any(np.asarray(t) > 0.5) if late else True
+        return np.array([-p["k"] * x[0] + (np.nan if bad else 0.0)])
+
+    model = Model(states=["x"], controls=[], parameters={"k": 1.0}, dynamics=f)
+    with pytest.raises(SimulationError, match="state 'x' is not finite"):
+        model.simulate(np.linspace(0.0, 1.0, 11), x0=[1.0], method=method)
