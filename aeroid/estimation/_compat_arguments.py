@@ -166,8 +166,8 @@ def _rewarn(caught: list[warnings.WarningMessage], names: list[str]) -> None:
         warnings.warn(
             ResidualDriftWarning(
                 f"check_compatibility: the residuals of {list(drift.outputs)} drift like a "
-                "random walk over the record; their unknown offsets widen the error bars up "
-                f"to {drift.widening:.0f}x the white ones"
+                "random walk over the record; with their unknown offsets the error bars are "
+                f"up to {drift.widening:.2g}x the white ones"
                 + (f" (estimate={offsets} absorbs them)" if offsets else ""),
                 drift.outputs,
                 drift.widening,

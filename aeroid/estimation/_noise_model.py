@@ -700,8 +700,8 @@ def _warn_unabsorbed_drift(
     warnings.warn(
         ResidualDriftWarning(
             f"identify: the residuals of {drifting} drift like a random walk over the "
-            f"record; {'; '.join(told)}. The coloured error bars widen up to "
-            f"{widening:.0f}x the white ones (on {names[worst]}). A wandering offset "
+            f"record; {'; '.join(told)}. The coloured error bars are up to "
+            f"{widening:.2g}x the white ones (on {names[worst]}). A wandering offset "
             "(turbulence, unmodelled slow dynamics) is process noise: method='filter_error'",
             tuple(drifting),
             widening,
