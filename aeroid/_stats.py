@@ -89,10 +89,14 @@ def margins(
 ) -> dict[str, float]:
     """Half-widths of two-sided `level` intervals: each standard error times the t
     quantile of its degrees of freedom (the normal's where none is given)."""
-    if not 0.0 < level < 1.0:
+    from ._checks import as_float
+
+    value = as_float(level)  # a parameter's name is no level
+    if value is None or not 0.0 < value < 1.0:
         from .errors import IdentificationError
 
         raise IdentificationError(f"level must lie strictly between 0 and 1, got {level!r}")
+    level = value
     names = list(stderr)
     q = t_quantile(np.array([dof.get(n, np.inf) for n in names], dtype=float), level)
     return {n: float(q[i] * stderr[n]) for i, n in enumerate(names)}

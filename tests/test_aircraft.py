@@ -998,3 +998,27 @@ def test_a_longitudinal_model_needs_no_lateral_constants():
         {"aircraft": "longitudinal", "V0": 50, "constants": {**cfg, "cbar": 1.0, "rho": 1}}
     )
     assert ok.kind == "longitudinal"
+
+
+def test_the_linear_models_print_their_own_regressors():
+    # perturbations in m/s, rad and rad/s times dimensional derivatives: no V/V0 - 1, no
+    # nondimensional rates (those are the nonlinear models' regressors)
+    from aeroid.models.aircraft import lateral_linear, longitudinal_linear
+
+    longitudinal = longitudinal_linear(V0=50.0).summary()
+    assert "ΣX = X_V V + X_alpha α" in longitudinal and "M_q q +" in longitudinal
+    lateral = lateral_linear(V0=50.0).summary()
+    assert "L_p p + L_r r" in lateral
+    for text in (longitudinal, lateral):
+        assert "V/V0" not in text and "/(2V)" not in text
+
+
+def test_linearize_names_a_point_that_does_not_fit_as_documented():
+    from aeroid.errors import ModelDefinitionError
+    from aeroid.models.aircraft import linearize, longitudinal_linear
+
+    model = longitudinal_linear(V0=50.0)
+    with pytest.raises(ModelDefinitionError, match="x0: expected 4 values"):
+        linearize(model, [1.0, 2.0])
+    with pytest.raises(ModelDefinitionError, match="unknown states \\['bogus'\\]"):
+        linearize(model, {"bogus": 0.0})

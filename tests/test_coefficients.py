@@ -148,3 +148,9 @@ def test_bad_input() -> None:
         coefficients_from_data(full, AC, thrust=chans["T"] + 1j)
     # one name is one coefficient, not its letters
     assert "CL" in coefficients_from_data(full, AC, outputs="CL", thrust="T")
+
+
+def test_an_unknown_method_is_refused_though_no_rate_is_differentiated() -> None:
+    chans, _ = _truth()  # the record carries p_dot, q_dot and r_dot already
+    with pytest.raises(DataFormatError, match="method: expected 'fourier' or 'local'"):
+        coefficients_from_data(FlightData(T, chans), AC, thrust="T", method="bogus")

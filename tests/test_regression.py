@@ -790,3 +790,14 @@ def test_absolute_values_of_channels_as_regressors() -> None:
         "beta",
         "abs(beta)",
     ]
+
+
+def test_a_dangling_power_and_a_name_for_a_level_are_refused() -> None:
+    rng = np.random.default_rng(0)
+    data = FlightData(np.arange(50) * 0.1, {"z": rng.normal(size=50), "a": rng.normal(size=50)})
+    for expr in ("a**", "a^"):
+        with pytest.raises(DataFormatError, match="cannot parse 'a\\^'"):
+            equation_error(data, "z", [expr])
+    fit = equation_error(data, "z", ["a"])
+    with pytest.raises(IdentificationError, match="level must lie strictly between 0 and 1"):
+        fit.interval("a")  # type: ignore[arg-type]

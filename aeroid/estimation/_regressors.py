@@ -46,8 +46,8 @@ def _evaluate(lookup: Mapping[str, Any], expr: str, n: int, role: str) -> FloatA
         if k % 2 == 1:
             op = part
             continue
-        base, _, power = part.partition("^")
-        if not base:
+        base, caret, power = part.partition("^")
+        if not base or (caret and not power):  # "a^" is a power with nothing to raise to
             raise DataFormatError(f"{role}: cannot parse {part!r}")
         absolute = _ABS.match(base)
         if absolute:

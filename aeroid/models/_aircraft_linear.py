@@ -169,7 +169,7 @@ def longitudinal_linear(
             "  α̇ = q + ΣZ - (g sin γ0/V0)(θ - α)",
             "  θ̇ = q",
             "  q̇ = ΣM",
-            *(f"  Σ{_expansion_text(k, e)}" for k, e in expansions.items()),
+            *(f"  Σ{_expansion_text(k, e, linear=True)}" for k, e in expansions.items()),
             "  az = V0 ΣZ" + (" / g (in g)" if accel_units == "g" else ""),
             f"  V0 = {V0:.6g} m/s, γ0 = {gamma0:.6g} rad, g = {g:.6g} m/s^2",
         ]
@@ -339,7 +339,7 @@ def lateral_linear(
             "  ṙ = ΣN",
             "  φ̇ = p + tan θ0 r",
             *(["  ψ̇ = r / cos θ0"] if with_heading else []),
-            *(f"  Σ{_expansion_text(k, e)}" for k, e in expansions.items()),
+            *(f"  Σ{_expansion_text(k, e, linear=True)}" for k, e in expansions.items()),
             "  ay = V0 ΣY" + (" / g (in g)" if accel_units == "g" else ""),
             f"  V0 = {V0:.6g} m/s, α0 = {alpha0:.6g} rad, θ0 = {theta0:.6g} rad, g = {g:.6g} m/s^2",
         ]

@@ -273,6 +273,7 @@ _REGRESSOR_TEXT = {
     "r": "r b/(2V)",
     "alpha_dot": "α̇ c̄/(2V)",
 }
+_LINEAR_REGRESSOR_TEXT = {"alpha": "α", "beta": "β"}
 
 
 def _expand(expansion: _Expansion, regressors: Mapping[str, Any], p: Mapping[str, Any]) -> Any:
@@ -364,18 +365,19 @@ def _parse_expansions(
     return out
 
 
-def _factor_text(factor: str) -> str:
+def _factor_text(factor: str, *, linear: bool = False) -> str:
     inner = _factor_regressor(factor)
-    text = _REGRESSOR_TEXT.get(inner, inner)
+    # the linear models' regressors are the perturbation states themselves
+    text = _LINEAR_REGRESSOR_TEXT.get(inner, inner) if linear else _REGRESSOR_TEXT.get(inner, inner)
     return text if inner == factor else f"|{text}|"
 
 
-def _expansion_text(coefficient: str, expansion: _Expansion) -> str:
+def _expansion_text(coefficient: str, expansion: _Expansion, *, linear: bool = False) -> str:
     if not expansion:
         return f"{coefficient} = 0"
     parts = []
     for name, factors in expansion:
-        reg = " ".join(_factor_text(f) for f in factors)
+        reg = " ".join(_factor_text(f, linear=linear) for f in factors)
         parts.append(f"{name} {reg}".rstrip())
     return f"{coefficient} = " + " + ".join(parts)
 

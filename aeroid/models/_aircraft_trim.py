@@ -440,7 +440,10 @@ def linearize(
         u0 = x0.controls if u0 is None else u0
         x0 = x0.states
     p = resolve_parameters(model, parameters)
-    x = model.initial_state(x0)[0]
+    try:
+        x = model.initial_state(x0)[0]
+    except SimulationError as exc:  # the point does not fit the model: as documented
+        raise ModelDefinitionError(str(exc)) from None
     if u0 is None:
         u = np.zeros(model.n_controls)
     elif isinstance(u0, Mapping):

@@ -158,6 +158,8 @@ def coefficients_from_data(
             if c not in _NEEDS:
                 raise DataFormatError(f"outputs: unknown coefficient {c!r}; choose from {_OUTPUTS}")
             data.require([names[r] for r in _NEEDS[c]], role=f"channel for {c}")
+    if method not in ("fourier", "local"):  # refused even where no rate is differentiated
+        raise DataFormatError(f"method: expected 'fourier' or 'local', got {method!r}")
     data.require([names["V"]], role="airspeed channel")
     speed = np.asarray(data.channels[names["V"]], dtype=np.float64)
     if np.any(speed <= 0):

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._checks import as_float
 from .._records import fmt, frozen_array, frozen_mapping, markdown_table
 from ..errors import InferenceError
 from .sampler import ChainState
@@ -157,8 +158,10 @@ class InferenceResult:
     def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
         """Each parameter's central `level` credible interval from the posterior
         samples, ``name -> (lower, upper)``."""
-        if not 0.0 < level < 1.0:
+        value = as_float(level)  # a parameter's name is no level
+        if value is None or not 0.0 < value < 1.0:
             raise InferenceError(f"level must lie strictly between 0 and 1, got {level!r}")
+        level = value
         samples = np.asarray(self.samples, dtype=np.float64).reshape(-1, len(self.parameter_names))
         lo, hi = np.quantile(samples, [0.5 - level / 2, 0.5 + level / 2], axis=0)
         return MappingProxyType(
