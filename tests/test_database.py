@@ -658,3 +658,82 @@ def test_jsbsim_flies_the_speed_term_about_the_trim_speed(tmp_path: Path) -> Non
     assert fdm["aero/coefficient/aeroid-Cm_V"] / (qs * c) == pytest.approx(
         at["Cm_V"] * ratio, rel=1e-4
     )
+
+
+def _line_flights() -> list[FlightCoefficients]:
+    return [
+        FlightCoefficients.from_stderr(
+            f"f{i}", {"alpha": a}, {"CL_0": 0.3 + 4.8 * a}, {"CL_0": 0.01}
+        )
+        for i, a in enumerate(np.linspace(0.0, 0.2, 6))
+    ]
+
+
+@pytest.mark.parametrize(
+    ("make", "error", "says"),
+    [
+        (lambda: aerodynamic_database(5), DataFormatError, "expected a sequence"),
+        (lambda: aerodynamic_database([1, 2]), DataFormatError, r"flights\[0\]"),
+        (
+            lambda: aerodynamic_database(_line_flights(), confidence="0.9"),
+            IdentificationError,
+            "confidence",
+        ),
+        (
+            lambda: aerodynamic_database(_line_flights(), max_degree=2.5),
+            IdentificationError,
+            "max_degree",
+        ),
+        (lambda: aerodynamic_database(_line_flights(), f_in=-1), IdentificationError, "f_in"),
+        (
+            lambda: FlightCoefficients.from_stderr("x", {"alpha": "a"}, {"CL_0": 1.0}, {}),
+            DataFormatError,
+            "flight 'x': condition 'alpha'",
+        ),
+        (
+            lambda: FlightCoefficients.from_stderr(
+                "x", {"alpha": 0.1}, {"CL_0": 1.0}, {"CL_0": -0.01}
+            ),
+            DataFormatError,
+            "negative standard error of CL_0",
+        ),
+        (
+            lambda: FlightCoefficients.from_stderr("x", {"alpha": 0.1}, {"CL_0": 1.0}, {"Cm": 0.1}),
+            DataFormatError,
+            "given for Cm, which it does not estimate",
+        ),
+        (
+            lambda: FlightCoefficients("x", {"alpha": 0.1}, {"CL_0": np.inf}, np.eye(1)),
+            DataFormatError,
+            "infinite",
+        ),
+        (
+            lambda: FlightCoefficients(
+                "x", {"alpha": 0.1}, {"a": 1.0, "b": 2.0}, np.array([[1e-4, 1.0], [1.0, 0.25]])
+            ),
+            DataFormatError,
+            "not positive semi-definite",
+        ),
+        (
+            lambda: FlightCoefficients(
+                "x", {"alpha": 0.1}, {"a": 1.0, "b": 2.0}, np.array([[1e-4, 4e-3], [0.0, 0.25]])
+            ),
+            DataFormatError,
+            "not symmetric",
+        ),
+    ],
+)
+def test_bad_flights_and_options_are_named(make, error, says):
+    with pytest.raises(error, match=says):
+        make()
+
+
+def test_a_condition_that_is_no_number_and_a_one_point_grid_are_refused():
+    db = aerodynamic_database(_line_flights())
+    for value, says in (("a", "alpha must be numbers"), (np.nan, "alpha is not finite")):
+        with pytest.raises(DataFormatError, match=says):
+            db.predict("CL_0", {"alpha": value})
+    with pytest.raises(DataFormatError, match="n"):
+        db.grid("alpha", n=0)
+    with pytest.raises(DataFormatError, match="n"):
+        db.to_jsbsim(n=1)

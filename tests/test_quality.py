@@ -324,3 +324,14 @@ def test_a_wandering_clock_fits_no_period_of_a_whole_log(sigma):
     t.sort()
     c = check_data_quality(_log(x=(t, np.sin(t))))["x"]
     assert "jitter" in c.flags and c.off_period > 0.12
+
+
+def test_quality_options_of_the_wrong_kind_are_named():
+    t = np.arange(200) * 0.01
+    data = aeroid.FlightData(t, {"x": np.sin(t)})
+    with pytest.raises(aeroid.ChannelError, match="channels: expected channel names, got 5"):
+        aeroid.check_data_quality(data, channels=5)
+    with pytest.raises(aeroid.DataFormatError, match=r"dropout_factor: expected a number in \(1"):
+        aeroid.check_data_quality(data, dropout_factor=1.0)  # "> 1": a regular step is no gap
+    with pytest.raises(aeroid.DataFormatError, match="jitter_limit"):
+        aeroid.check_data_quality(data, jitter_limit="0.1")

@@ -262,3 +262,10 @@ def test_summary_and_plot():
     bare = segment(data, windows=[(1, 2)]).plot()
     assert len(bare.axes) == 1
     assert aeroid.segment is segment and aeroid.SegmentationResult is SegmentationResult
+
+
+def test_a_given_window_reaching_past_the_record_is_clipped_to_it():
+    t = np.arange(500) * 0.02
+    data = aeroid.FlightData(t, {"u": np.zeros_like(t)})
+    (window,) = aeroid.segment(data, windows=[(-5.0, 2.0)]).windows
+    assert (window.t0, window.t1, window.reason) == (0.0, 2.0, "given")

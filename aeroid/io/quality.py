@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from ..errors import ChannelError, DataFormatError
 from ._logtypes import FlightLog
-from .data import FlightData, plain
+from .data import FlightData, as_float, plain
 
 __all__ = ["ChannelQuality", "DataQualityReport", "check_data_quality"]
 
@@ -276,14 +276,17 @@ def _whole_log_lines(report: DataQualityReport) -> list[str]:
     return [*lines, ""]
 
 
-def _option(value: Any, what: str, *, low: float, high: float = math.inf) -> float:
-    try:
-        out = float(value)
-        ok = not isinstance(value, bool) and low <= out <= high and not math.isnan(out)
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise DataFormatError(f"{what}: expected a number in [{low}, {high}], got {plain(value)}")
+def _option(
+    value: Any, what: str, *, low: float, high: float = math.inf, above: bool = False
+) -> float:
+    """A number in [low, high] (above `low` where `above`); text and bools are none."""
+    out = as_float(value)
+    ok = out is not None and (low < out if above else low <= out) and out <= high
+    if not ok or out is None:
+        opening = "(" if above else "["
+        raise DataFormatError(
+            f"{what}: expected a number in {opening}{low}, {high}], got {plain(value)}"
+        )
     return out
 
 
@@ -612,7 +615,10 @@ def check_data_quality(
     if not series:
         raise DataFormatError("data: no channels to check")
     if channels is not None:
-        names = [channels] if isinstance(channels, str) else list(channels)
+        try:
+            names = [channels] if isinstance(channels, str) else list(channels)
+        except TypeError:
+            raise ChannelError(f"channels: expected channel names, got {plain(channels)}") from None
         for name in names:
             if name not in series:
                 raise ChannelError(
@@ -621,7 +627,7 @@ def check_data_quality(
         series = {n: series[n] for n in names}
     limits = {
         "jitter_limit": _option(jitter_limit, "jitter_limit", low=0.0),
-        "dropout_factor": _option(dropout_factor, "dropout_factor", low=1.0),
+        "dropout_factor": _option(dropout_factor, "dropout_factor", low=1.0, above=True),
         "saturation_run": _option(saturation_run, "saturation_run", low=2.0),
         "alias_band": _option(alias_band, "alias_band", low=0.0, high=1.0),
         "alias_limit": _option(alias_limit, "alias_limit", low=0.0, high=1.0),

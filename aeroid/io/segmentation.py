@@ -245,6 +245,8 @@ def _given_windows(windows: Any, extent: tuple[float, float]) -> tuple[ManeuverW
                 f"window [{w.t0:.6g}, {w.t1:.6g}] s lies outside the record "
                 f"[{extent[0]:.6g}, {extent[1]:.6g}] s"
             )
+        if w.t0 < extent[0] or w.t1 > extent[1]:  # clipped to the record, as all windows are
+            w = ManeuverWindow(max(w.t0, extent[0]), min(w.t1, extent[1]), w.reason)
         out.append(w)
     return tuple(sorted(out, key=lambda w: (w.t0, w.t1)))
 

@@ -127,6 +127,15 @@ from numpy.typing import ArrayLike, NDArray
 from .._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import norm_ppf
 from ..errors import DataFormatError, IdentificationError
+from ._database_checks import (
+    check_identifiable,
+    condition_rows,
+    database_options,
+    diagonal,
+    flight_values,
+    grid_points,
+    t_quantile,
+)
 from ._database_fit import (
     TermFit,
     candidate_exponents,
@@ -193,9 +202,12 @@ class FlightCoefficients:
                 raise DataFormatError(f"flight {self.name!r}: trim speed {v0} is not positive")
             object.__setattr__(self, "trim_speed", v0)
         object.__setattr__(self, "name", str(self.name))
-        object.__setattr__(self, "condition", frozen_mapping(self.condition))
-        object.__setattr__(self, "estimates", frozen_mapping(self.estimates))
-        object.__setattr__(self, "covariance", frozen_array(self.covariance))
+        condition, estimates, cov = flight_values(
+            self.name, self.condition, self.estimates, self.covariance
+        )
+        object.__setattr__(self, "condition", frozen_mapping(condition))
+        object.__setattr__(self, "estimates", frozen_mapping(estimates))
+        object.__setattr__(self, "covariance", frozen_array(cov))
 
     @classmethod
     def from_stderr(
@@ -208,9 +220,7 @@ class FlightCoefficients:
         trim_speed: float | None = None,
     ) -> FlightCoefficients:
         """Estimates with independent standard errors (a diagonal covariance)."""
-        names = list(estimates)
-        var = [float(stderr[n]) ** 2 if n in stderr else math.nan for n in names]
-        return cls(name, condition, estimates, np.diag(var), trim_speed)
+        return cls(name, condition, estimates, diagonal(name, estimates, stderr), trim_speed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -344,22 +354,7 @@ class AeroDatabase:
     def _scaled_condition(
         self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike
     ) -> FloatArray:
-        if isinstance(condition, Mapping):
-            missing = [k for k in self.keys if k not in condition]
-            if missing:
-                raise DataFormatError(
-                    f"condition for {term!r} lacks key(s) {', '.join(missing)} "
-                    f"(the database uses {', '.join(self.keys)})"
-                )
-            cols = [np.atleast_1d(np.asarray(condition[k], dtype=np.float64)) for k in self.keys]
-            x = np.stack(np.broadcast_arrays(*cols), axis=-1)
-        else:
-            x = np.atleast_2d(np.asarray(condition, dtype=np.float64))
-            if x.shape[-1] != len(self.keys):
-                raise DataFormatError(
-                    f"condition for {term!r} has {x.shape[-1]} columns, the database "
-                    f"uses {len(self.keys)} keys ({', '.join(self.keys)})"
-                )
+        x = condition_rows(term, self.keys, condition)
         return scaled(x, self.keys, self.centres, self.half_ranges)
 
     @property
@@ -430,7 +425,7 @@ class AeroDatabase:
     def quantile(self, term: str, confidence: float | None = None) -> float:
         """The two-sided quantile of `term`'s bands: Student's t on its `dof`."""
         level = self.confidence if confidence is None else float(confidence)
-        return _t_quantile(self.dof.get(term, 0.0), 0.5 + 0.5 * level)
+        return t_quantile(self.dof.get(term, 0.0), 0.5 + 0.5 * level)
 
     def as_function(self) -> Callable[..., dict[str, FloatArray]]:
         """A plain callable ``f(**condition) -> {term: value}`` for a simulation.
@@ -451,7 +446,7 @@ class AeroDatabase:
         if key not in self.keys:
             raise DataFormatError(f"the database has no condition key {key!r}")
         c, h = self.centres[key], self.half_ranges[key]
-        return np.linspace(c - h, c + h, int(n))
+        return np.linspace(c - h, c + h, grid_points(n))
 
     def table(self, *, n: int = 11) -> dict[str, list[Any]]:
         """A tidy table: one row per term and grid point, with the band (`n` points per key);
@@ -627,11 +622,7 @@ def aerodynamic_database(
         No flight excites a term, or the conditions cannot identify a forced
         structure (both named).
     """
-    if not 0.0 < confidence < 1.0:
-        raise IdentificationError(f"confidence must lie in (0, 1), got {confidence}")
-    if max_degree < 0:
-        raise IdentificationError(f"max_degree must be >= 0, got {max_degree}")
-    flights = list(flights)
+    flights, confidence, max_degree, f_in = database_options(flights, confidence, max_degree, f_in)
     names = [f.name for f in flights]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -677,7 +668,7 @@ def aerodynamic_database(
         uj = u[has]
         if t in forced:
             es = [parse_label(lab, keys, t) for lab in forced[t]]
-            _check_identifiable(t, es, uj, [fit[i].name for i in np.flatnonzero(has)], keys)
+            check_identifiable(t, es, uj, [fit[i].name for i in np.flatnonzero(has)], keys)
             fits[t] = fit_term(uj, z[has, j], var, forced=es)
         else:
             varying = [bool(np.ptp(uj[:, i]) > 1e-9) for i in range(len(keys))]
@@ -767,34 +758,3 @@ def _joint_covariance(
         sl = slice(offs[jt], offs[jt + 1])
         out[sl, sl] = fits[t].covariance
     return 0.5 * (out + out.T)
-
-
-def _t_quantile(dof: float, p: float) -> float:
-    """Student's t quantile (the normal's where no degree of freedom is left)."""
-    if dof < 1.0:
-        return norm_ppf(p)
-    from scipy.special import stdtrit
-
-    return float(stdtrit(dof, p))
-
-
-def _check_identifiable(
-    term: str, es: Sequence[Exponents], u: FloatArray, flights: Sequence[str], keys: Sequence[str]
-) -> None:
-    a = design(u, es)
-    if a.shape[0] < a.shape[1]:
-        raise IdentificationError(
-            f"{term!r}: the forced structure has {a.shape[1]} functions but only "
-            f"{a.shape[0]} flight(s) excite it ({', '.join(flights)})"
-        )
-    sv = np.linalg.svd(a, compute_uv=False)
-    if sv[-1] <= 1e-9 * max(sv[0], 1.0):
-        flat = [k for i, k in enumerate(keys) if np.ptp(u[:, i]) <= 1e-9 and any(e[i] for e in es)]
-        why = (
-            f"condition {', '.join(flat)} does not vary over"
-            if flat
-            else "the conditions do not separate"
-        )
-        raise IdentificationError(
-            f"{term!r} is unidentifiable: {why} the flights that excite it ({', '.join(flights)})"
-        )

@@ -1,0 +1,183 @@
+"""Checks of the aerodynamic database's inputs, each naming the flight, key or option
+at fault, and the small statistics its fit and bands share."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._checks import as_float
+from .._stats import norm_ppf
+from .._value_checks import whole_number
+from ..errors import DataFormatError, IdentificationError
+from ._database_fit import Exponents, design
+
+FloatArray = NDArray[np.float64]
+
+
+def _number(value: Any, what: str) -> float:
+    x = as_float(value)
+    if x is None:
+        raise DataFormatError(f"{what}: expected a number, got {value!r}")
+    return x
+
+
+def flight_values(
+    name: str, condition: Any, estimates: Any, covariance: Any
+) -> tuple[dict[str, float], dict[str, float], FloatArray]:
+    """One flight's condition, estimates and covariance as numbers, or a `DataFormatError`:
+    a condition or an estimate that is text, an infinite estimate (NaN marks a term the
+    flight did not excite), a covariance that is not square over the estimates,
+    symmetric, with non-negative variances and positive semi-definite."""
+    for label, value in (("condition", condition), ("estimates", estimates)):
+        if not isinstance(value, Mapping):
+            raise DataFormatError(f"flight {name!r}: {label} must be a mapping, got {value!r}")
+    cond = {str(k): _number(v, f"flight {name!r}: condition {k!r}") for k, v in condition.items()}
+    est = {str(k): _number(v, f"flight {name!r}: estimate {k!r}") for k, v in estimates.items()}
+    infinite = [k for k, v in est.items() if math.isinf(v)]
+    if infinite:
+        raise DataFormatError(
+            f"flight {name!r}: estimate(s) {', '.join(infinite)} are infinite "
+            "(NaN marks a term the flight did not excite)"
+        )
+    try:
+        cov = np.array(covariance, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataFormatError(f"flight {name!r}: covariance is not numeric") from None
+    n = len(est)
+    if cov.shape != (n, n):
+        raise DataFormatError(
+            f"flight {name!r}: covariance is {cov.shape}, its {n} estimates need ({n}, {n})"
+        )
+    excited = np.array([math.isfinite(v) for v in est.values()], dtype=bool)
+    block = cov[np.ix_(excited, excited)]
+    if not np.all(np.isfinite(block)):
+        return cond, est, cov  # a NaN variance marks a term as not excited, as before
+    variances = np.diag(block)
+    if np.any(variances < 0.0):
+        bad = [k for k, e, v in zip(est, excited, np.diag(cov), strict=True) if e and v < 0.0]
+        raise DataFormatError(f"flight {name!r}: negative variance of {', '.join(bad)}")
+    scale = float(np.max(variances)) if variances.size else 0.0
+    if not np.allclose(block, block.T, rtol=1e-9, atol=1e-12 * scale):
+        raise DataFormatError(f"flight {name!r}: covariance is not symmetric")
+    if block.size and np.min(np.linalg.eigvalsh(0.5 * (block + block.T))) < -1e-9 * scale:
+        raise DataFormatError(f"flight {name!r}: covariance is not positive semi-definite")
+    return cond, est, cov
+
+
+def diagonal(name: str, estimates: Mapping[str, Any], stderr: Mapping[str, Any]) -> FloatArray:
+    """The diagonal covariance of independent standard errors (NaN where none is given)."""
+    if not isinstance(stderr, Mapping):
+        raise DataFormatError(f"flight {name!r}: stderr must be a mapping, got {stderr!r}")
+    unknown = sorted(str(k) for k in set(stderr) - set(estimates))
+    if unknown:
+        raise DataFormatError(
+            f"flight {name!r}: standard errors given for {', '.join(unknown)}, which it "
+            f"does not estimate (it estimates {', '.join(map(str, estimates)) or 'nothing'})"
+        )
+    se = {k: _number(v, f"flight {name!r}: stderr of {k!r}") for k, v in stderr.items()}
+    negative = [k for k, v in se.items() if v < 0.0]
+    if negative:
+        raise DataFormatError(f"flight {name!r}: negative standard error of {', '.join(negative)}")
+    return np.diag([se[k] ** 2 if k in se else math.nan for k in estimates])
+
+
+def database_options(
+    flights: Any, confidence: Any, max_degree: Any, f_in: Any
+) -> tuple[list[Any], float, int, float]:
+    """`aerodynamic_database`'s flights and options, checked."""
+    from .database import FlightCoefficients
+
+    if isinstance(flights, (str, bytes)) or not isinstance(flights, Sequence):
+        raise DataFormatError(
+            f"flights: expected a sequence of FlightCoefficients, got {type(flights).__name__}"
+        )
+    wrong = [i for i, f in enumerate(flights) if not isinstance(f, FlightCoefficients)]
+    if wrong:
+        raise DataFormatError(
+            f"flights[{wrong[0]}]: expected FlightCoefficients, got "
+            f"{type(flights[wrong[0]]).__name__}"
+        )
+    level = as_float(confidence)
+    if level is None or not 0.0 < level < 1.0:
+        raise IdentificationError(f"confidence must lie in (0, 1), got {confidence!r}")
+    degree = whole_number(max_degree, "max_degree", IdentificationError, least=0)
+    entry = as_float(f_in)
+    if entry is None or not (math.isfinite(entry) and entry >= 0.0):
+        raise IdentificationError(f"f_in must be a non-negative number, got {f_in!r}")
+    return list(flights), level, degree, entry
+
+
+def condition_rows(
+    term: str, keys: Sequence[str], condition: Mapping[str, ArrayLike] | ArrayLike
+) -> FloatArray:
+    """A condition (keys to arrays, or rows in the order of `keys`) as finite rows."""
+    if isinstance(condition, Mapping):
+        missing = [k for k in keys if k not in condition]
+        if missing:
+            raise DataFormatError(
+                f"condition for {term!r} lacks key(s) {', '.join(missing)} "
+                f"(the database uses {', '.join(keys)})"
+            )
+        cols = [_finite_values(term, k, condition[k]) for k in keys]
+        x = np.stack(np.broadcast_arrays(*cols), axis=-1)
+    else:
+        x = np.atleast_2d(_finite_values(term, "rows", condition))
+    if x.shape[-1] != len(keys):
+        raise DataFormatError(
+            f"condition for {term!r} has {x.shape[-1]} columns, the database "
+            f"uses {len(keys)} keys ({', '.join(keys)})"
+        )
+    return x
+
+
+def _finite_values(term: str, key: str, values: Any) -> FloatArray:
+    try:
+        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise DataFormatError(
+            f"condition for {term!r}: {key} must be numbers, got {values!r}"
+        ) from None
+    if not np.all(np.isfinite(arr)):
+        raise DataFormatError(f"condition for {term!r}: {key} is not finite")
+    return arr
+
+
+def grid_points(n: Any) -> int:
+    """A grid's point count: two at least (a table of one breakpoint interpolates nothing)."""
+    return whole_number(n, "n", DataFormatError, least=2)
+
+
+def t_quantile(dof: float, p: float) -> float:
+    """Student's t quantile (the normal's where no degree of freedom is left)."""
+    if dof < 1.0:
+        return norm_ppf(p)
+    from scipy.special import stdtrit
+
+    return float(stdtrit(dof, p))
+
+
+def check_identifiable(
+    term: str, es: Sequence[Exponents], u: FloatArray, flights: Sequence[str], keys: Sequence[str]
+) -> None:
+    a = design(u, es)
+    if a.shape[0] < a.shape[1]:
+        raise IdentificationError(
+            f"{term!r}: the forced structure has {a.shape[1]} functions but only "
+            f"{a.shape[0]} flight(s) excite it ({', '.join(flights)})"
+        )
+    sv = np.linalg.svd(a, compute_uv=False)
+    if sv[-1] <= 1e-9 * max(sv[0], 1.0):
+        flat = [k for i, k in enumerate(keys) if np.ptp(u[:, i]) <= 1e-9 and any(e[i] for e in es)]
+        why = (
+            f"condition {', '.join(flat)} does not vary over"
+            if flat
+            else "the conditions do not separate"
+        )
+        raise IdentificationError(
+            f"{term!r} is unidentifiable: {why} the flights that excite it ({', '.join(flights)})"
+        )
