@@ -487,45 +487,37 @@ def identify(
     require_excitation(datas, model.controls)
     require_model_units(model, datas, [*fit_outputs, *model.controls])
     fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
-    fitted = fit_output_error(
-        fit_model,
-        datas,
-        names,
-        initial,
-        outputs=fit_outputs,
-        x0=x0_dicts,
-        estimate_x0=sel_x0 + bias_states,
-        estimate_bias=sel_bias,
-        weights=w_arr,
-        error_bars=error_bars,
-        max_iterations=max_iterations,
-        tolerance=tol,
-        simulate_options=opts,
-        gradient=gradient,
-        bounds=box,
-        delays=delays,
-    )
-    finer = _path_substeps(fit_model, datas, fitted, opts)
-    if finer is not None:
-        # the integrator's step came from the modes at the start, and the fitted
-        # paths stiffen beyond it: fit again, from here, with the step they need
-        fitted = fit_output_error(
+
+    def fit(start: Mapping[str, float], x0s: Any, sim: Mapping[str, Any], taus: Any) -> Any:
+        return fit_output_error(
             fit_model,
             datas,
             names,
-            {n: fitted.parameters[n] for n in names},
+            start,
             outputs=fit_outputs,
-            x0=[dict(x) for x in fitted.initial_states] if fitted.initial_states else x0_dicts,
+            x0=x0s,
             estimate_x0=sel_x0 + bias_states,
             estimate_bias=sel_bias,
             weights=w_arr,
             error_bars=error_bars,
             max_iterations=max_iterations,
             tolerance=tol,
-            simulate_options={**opts, "substeps": finer},
+            simulate_options=sim,
             gradient=gradient,
             bounds=box,
-            delays={c: fitted.time_delays.get(c, v) for c, v in delays.items()},
+            delays=taus,
+        )
+
+    fitted = fit(initial, x0_dicts, opts, delays)
+    finer = _path_substeps(fit_model, datas, fitted, opts)
+    if finer is not None:
+        # the integrator's step came from the modes at the start, and the fitted
+        # paths stiffen beyond it: fit again, from here, with the step they need
+        fitted = fit(
+            {n: fitted.parameters[n] for n in names},
+            [dict(x) for x in fitted.initial_states] if fitted.initial_states else x0_dicts,
+            {**opts, "substeps": finer},
+            {c: fitted.time_delays.get(c, v) for c, v in delays.items()},
         )
     if state_bias:
         fitted = _state_biases_out(fitted, bias_states, state_bias)
