@@ -67,3 +67,21 @@ def test_dynamics_that_turn_nan_fail_at_once_naming_the_state(method, late):
     model = Model(states=["x"], controls=[], parameters={"k": 1.0}, dynamics=f)
     with pytest.raises(SimulationError, match="state 'x' is not finite"):
         model.simulate(np.linspace(0.0, 1.0, 11), x0=[1.0], method=method)
+
+
+def test_the_kalman_filter_steps_as_finely_as_the_path_asks():
+    from aeroid import filter_states
+
+    data = _record(20.0)
+    noisy = data.with_channels(
+        {"x": data["x"] + np.random.default_rng(0).normal(0.0, 0.01, data.n_samples)}
+    )
+    model = _cubic(TRUTH)
+    run = dict(process_noise={"x": 1e-6}, measurement_noise={"x": 1e-4})
+    filtered = filter_states(model, noisy, None, **run)
+    # one substep (the rule at rest) diverged: innovations 10^4 times their variance
+    assert 0.7 < float(np.var(filtered.innovation("x"))) / 1e-4 < 1.3
+    assert np.sqrt(np.mean((filtered.smoothed_state("x") - data["x"]) ** 2)) < 0.01
+    fit = identify(_cubic({"c": 8.0, "b": 8.0}), noisy, ["c", "b"], method="filter_error", **run)
+    for name, value in TRUTH.items():
+        assert fit.parameters[name] == pytest.approx(value, rel=0.03)

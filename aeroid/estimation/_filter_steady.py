@@ -376,7 +376,7 @@ def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) ->
     m = prob.substeps
     if m is None:
         f = prob.model._dynamics_batch
-        m = _integrate.auto_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
+        m = _integrate.path_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
     if not _compiles(prob, m):
         return None
     traj = _compiled.compiled_rollout(

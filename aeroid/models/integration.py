@@ -110,6 +110,24 @@ def _first_failure(states: FloatArray, time: FloatArray) -> tuple[NDArray[np.boo
     return ok, fail_time
 
 
+def path_substeps(
+    f: BatchFunction, time: FloatArray, x0: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
+) -> int:
+    """`auto_substeps` of the first member (x0 (n_x, B), u (B, n_t, n_u)) checked along
+    its own open-loop path, as `integrate` checks its simulations: for a Kalman
+    filter's predictions, which step from state to state and have no path of their
+    own until they run."""
+    member = {k: np.asarray(v)[:1] for k, v in p.items()}
+    m = auto_substeps(f, time, x0[:, :1], u[:1], member)
+    for _ in range(_PREVIEW_PASSES):
+        traj = rk4(f, time, x0[:, :1], u[:1], member, m)
+        need = trajectory_substeps(f, time, traj.states[0], u[0], member)
+        if need <= m:
+            break
+        m = need
+    return m
+
+
 def euler(
     f: BatchFunction,
     time: FloatArray,
