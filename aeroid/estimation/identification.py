@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -488,36 +489,32 @@ def identify(
     require_model_units(model, datas, [*fit_outputs, *model.controls])
     fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
 
-    def fit(start: Mapping[str, float], x0s: Any, sim: Mapping[str, Any], taus: Any) -> Any:
-        return fit_output_error(
-            fit_model,
-            datas,
-            names,
-            start,
-            outputs=fit_outputs,
-            x0=x0s,
-            estimate_x0=sel_x0 + bias_states,
-            estimate_bias=sel_bias,
-            weights=w_arr,
-            error_bars=error_bars,
-            max_iterations=max_iterations,
-            tolerance=tol,
-            simulate_options=sim,
-            gradient=gradient,
-            bounds=box,
-            delays=taus,
-        )
-
-    fitted = fit(initial, x0_dicts, opts, delays)
+    # a partial, not a closure: the fit's warnings count their frames up to the caller
+    fit = partial(
+        fit_output_error,
+        fit_model,
+        datas,
+        names,
+        outputs=fit_outputs,
+        estimate_x0=sel_x0 + bias_states,
+        estimate_bias=sel_bias,
+        weights=w_arr,
+        error_bars=error_bars,
+        max_iterations=max_iterations,
+        tolerance=tol,
+        gradient=gradient,
+        bounds=box,
+    )
+    fitted = fit(initial, x0=x0_dicts, simulate_options=opts, delays=delays)
     finer = _path_substeps(fit_model, datas, fitted, opts)
     if finer is not None:
         # the integrator's step came from the modes at the start, and the fitted
         # paths stiffen beyond it: fit again, from here, with the step they need
         fitted = fit(
             {n: fitted.parameters[n] for n in names},
-            [dict(x) for x in fitted.initial_states] if fitted.initial_states else x0_dicts,
-            {**opts, "substeps": finer},
-            {c: fitted.time_delays.get(c, v) for c, v in delays.items()},
+            x0=[dict(x) for x in fitted.initial_states] if fitted.initial_states else x0_dicts,
+            simulate_options={**opts, "substeps": finer},
+            delays={c: fitted.time_delays.get(c, v) for c, v in delays.items()},
         )
     if state_bias:
         fitted = _state_biases_out(fitted, bias_states, state_bias)
@@ -533,7 +530,8 @@ def _path_substeps(
     from ..models.model import Model, delayed_controls
 
     automatic = opts.get("substeps") is None and opts.get("method", "auto") in ("auto", "rk4")
-    if not (automatic and isinstance(model, Model) and fitted.success):
+    # a failed fit too: a step too coarse for the path makes the cost too rough to descend
+    if not (automatic and isinstance(model, Model)):
         return None
     if model.linear is True or len(fitted.initial_states) != len(datas):
         return None  # exact on the grid: no step to choose

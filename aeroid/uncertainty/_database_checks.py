@@ -87,16 +87,14 @@ def diagonal(name: str, estimates: Mapping[str, Any], stderr: Mapping[str, Any])
 
 
 def database_options(
-    flights: Any, confidence: Any, max_degree: Any, f_in: Any
+    flights: Any, kind: type, confidence: Any, max_degree: Any, f_in: Any
 ) -> tuple[list[Any], float, int, float]:
-    """`aerodynamic_database`'s flights and options, checked."""
-    from .database import FlightCoefficients
-
+    """`aerodynamic_database`'s flights (each a `kind`) and options, checked."""
     if isinstance(flights, (str, bytes)) or not isinstance(flights, Sequence):
         raise DataFormatError(
             f"flights: expected a sequence of FlightCoefficients, got {type(flights).__name__}"
         )
-    wrong = [i for i, f in enumerate(flights) if not isinstance(f, FlightCoefficients)]
+    wrong = [i for i, f in enumerate(flights) if not isinstance(f, kind)]
     if wrong:
         raise DataFormatError(
             f"flights[{wrong[0]}]: expected FlightCoefficients, got "

@@ -193,6 +193,10 @@ class _Posterior:
                     error=InferenceError,
                     prefix="simulate_options",
                 )
+            if opts.get("substeps") is None and opts.get("method", "auto") in ("auto", "rk4"):
+                found = _path_substeps(model, self.time, self.controls, self.x0)
+                if found is not None:  # the sampler's programs read the modes at the start
+                    opts["substeps"] = found
         else:
             self.x0 = x0
         self.options = opts
@@ -497,3 +501,19 @@ def _default_noise_prior(y: FloatArray) -> Prior:
     if not (s > 0.0 and math.isfinite(s)):
         s = 1.0
     return LogUniform(NOISE_LO * s, NOISE_HI * s)
+
+
+def _path_substeps(model: Any, time: FloatArray, controls: FloatArray, x0: Any) -> int | None:
+    """The RK4 substeps the model's path at its nominal parameters asks for, where that is
+    more than the rule at its start gives (`integration.path_substeps`), else None."""
+    from ..models import integration as _integrate
+
+    if getattr(model, "linear", None) is True or not hasattr(model, "_dynamics_batch"):
+        return None
+    member = {k: np.array([float(v)]) for k, v in model.parameters.items()}
+    x = np.asarray(x0, dtype=np.float64).reshape(-1, 1)
+    u = np.asarray(controls, dtype=np.float64)[None]
+    with np.errstate(all="ignore"):
+        first = _integrate.auto_substeps(model._dynamics_batch, time, x, u, member)
+        path = _integrate.path_substeps(model._dynamics_batch, time, x, u, member)
+    return path if path > first else None

@@ -622,7 +622,9 @@ def aerodynamic_database(
         No flight excites a term, or the conditions cannot identify a forced
         structure (both named).
     """
-    flights, confidence, max_degree, f_in = database_options(flights, confidence, max_degree, f_in)
+    flights, confidence, max_degree, f_in = database_options(
+        flights, FlightCoefficients, confidence, max_degree, f_in
+    )
     names = [f.name for f in flights]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
