@@ -125,5 +125,10 @@ class IntervalMixin:
     def interval(self, level: float = 0.95) -> Mapping[str, tuple[float, float]]:
         """Each estimate's two-sided `level` interval, ``name -> (lower, upper)``."""
         half = self.margin(level)
-        values: Mapping[str, float] = self.parameters  # type: ignore[attr-defined]
+        values = self._interval_values()
         return ReadOnlyDict({n: (v - half[n], v + half[n]) for n, v in values.items() if n in half})
+
+    def _interval_values(self) -> Mapping[str, float]:
+        """The estimates `interval` centres on, by the names `margin` uses."""
+        values: Mapping[str, float] = self.parameters  # type: ignore[attr-defined]
+        return values

@@ -243,7 +243,7 @@ def test_simulator_model_is_fitted_by_looping():
             "measurement_noise",
         ),
         ({"process_noise": {"q": 1.0}}, IdentificationError, "filter_error' only"),
-        ({"weights": {"q": -1.0}}, IdentificationError, "positive"),
+        ({"weights": {"alpha": 1.0, "q": -1.0}}, IdentificationError, "positive"),
         ({"estimate_x0": ["theta"]}, IdentificationError, "'theta' is not one of"),
     ],
 )
@@ -413,7 +413,7 @@ def test_a_non_finite_end_of_fit_is_flagged(sp_model, sp_noisy):
     ("kwargs", "fragment"),
     [
         ({"weights": "x"}, r"weights: expected a mapping .* got 'x'"),
-        ({"weights": {"alpha": "x"}}, r"weights\['alpha'\]: expected a number, got 'x'"),
+        ({"weights": {"alpha": "x", "q": 1.0}}, r"weights\['alpha'\]: expected a number, got 'x'"),
         ({"weights": [[1.0, 2.0], [2.0, 1.0]]}, r"positive definite; .* eigenvalue is -1"),
         ({"weights": [[1.0, 2.0], [0.0, 1.0]]}, r"symmetric, but \[0, 1\] = 2\.0"),
         ({"weights": [[1.0, 0.1], [0.1, 1.0]]}, "correlated measurement noise"),
@@ -541,3 +541,23 @@ def test_default_initial_state_estimates_the_fitted_states_only():
     assert abs(fit.initial_states[0]["x"]) < 0.01  # the record, not its first sample
     held = identify(model, data, {"a": -0.8, "b": 1.5}, estimate_x0=False)
     assert held.initial_states[0] == {"x": data["x"][0], "w": data["w"][0]}
+
+
+def test_partial_weights_and_a_delay_start_off_the_record_are_refused():
+    model = catalog.short_period(catalog.SHORT_PERIOD_GUESS)
+    data = catalog.short_period_flight(seed=58)  # 10 s
+    with pytest.raises(IdentificationError, match=r"no weight for fitted output\(s\) \['q'\]"):
+        identify(model, data, NAMES, weights={"alpha": 1 / 0.005**2})
+    # held at one end of the record throughout, the control moved M_delta to 1e135
+    with pytest.raises(IdentificationError, match="a start of 20 s shifts the control off"):
+        identify(model, data, NAMES, time_delays={"elevator": 20.0})
+
+
+def test_interval_covers_the_initial_states_and_biases_margin_covers():
+    model = catalog.short_period(catalog.SHORT_PERIOD_GUESS)
+    fit = identify(model, catalog.short_period_flight(seed=58), NAMES, estimate_bias=True)
+    interval, margin = fit.interval(), fit.margin()
+    assert set(interval) == set(margin) and "bias[0].q" in interval and "x0[0].q" in interval
+    lo, hi = interval["bias[0].q"]
+    assert (lo + hi) / 2 == pytest.approx(fit.biases[0]["q"])
+    assert (hi - lo) / 2 == pytest.approx(margin["bias[0].q"])

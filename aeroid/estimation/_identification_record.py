@@ -205,6 +205,16 @@ class IdentificationResult(IntervalMixin):
         # `margin` covers the initial states and biases of `extra_stderr` too
         return {**self.extra_stderr, **self.stderr}
 
+    def _interval_values(self) -> Mapping[str, float]:
+        # ... and so does `interval`, centred on their estimates
+        extra = {
+            f"{kind}[{i}].{n}": float(v)
+            for kind, per_record in (("x0", self.initial_states), ("bias", self.biases))
+            for i, values in enumerate(per_record)
+            for n, v in values.items()
+        }
+        return {**extra, **self.parameters}
+
     @property
     def stderr_white(self) -> Mapping[str, float]:
         """Classical (white-residual) standard errors."""

@@ -55,10 +55,16 @@ def _weight_variances(weights: Any, outputs: list[str]) -> FloatArray:
             raise IdentificationError(
                 f"weights: unknown outputs {unknown}; fitted outputs: {outputs}"
             )
+        missing = [o for o in outputs if o not in weights]
+        if missing:  # a weight of one would be as arbitrary as the unit it is read in
+            raise IdentificationError(
+                f"weights: no weight for fitted output(s) {missing}; give every fitted "
+                "output's, or leave weights out to estimate them"
+            )
         w = np.empty(n)
         for k, o in enumerate(outputs):
             try:
-                w[k] = float(weights.get(o, 1.0))
+                w[k] = float(weights[o])
             except (TypeError, ValueError):
                 raise IdentificationError(
                     f"weights[{o!r}]: expected a number, got {plain(weights[o])}"
@@ -188,8 +194,8 @@ def identify(
         ``"state.<name>"`` and in `extra_stderr` as ``"bias[i].state.<name>"``.
         `validate` and the other functions replay the model without them.
     weights : mapping of str to float or ndarray, optional
-        Fixed output weights (inverse noise variances, positive) or a diagonal,
-        positive definite noise covariance (correlated noise is refused, not
+        Fixed output weights (inverse noise variances, positive, one for every
+        fitted output) or a diagonal, positive definite noise covariance (correlated noise is refused, not
         dropped). Default: the noise covariance is estimated from the
         residuals at every iteration (maximum likelihood).
     error_bars : {"colored", "white"}
@@ -314,6 +320,13 @@ def identify(
     if start not in _STARTS:
         raise IdentificationError(f"start {start!r} is unknown; choose one of {list(_STARTS)}")
     delays = _time_delays(time_delays, model)
+    shortest = min(float(d.time[-1] - d.time[0]) for d in datas)
+    for c, tau in delays.items():
+        if abs(tau) >= shortest:  # the control would be held at one end throughout
+            raise IdentificationError(
+                f"time_delays[{c!r}]: a start of {tau:g} s shifts the control off the "
+                f"{shortest:g} s record"
+            )
     is_simulator = not hasattr(model, "simulate_batch") and isinstance(model, SimulatorModel)
     model_outputs = list(model.outputs)
     if outputs is None:
