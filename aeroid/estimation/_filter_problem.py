@@ -7,7 +7,7 @@ filter-error method.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,27 @@ class _Problem:
     ukf: tuple[float, float, float]
     # how the controls run between samples (`aeroid.models.integration.control_slopes`)
     interpolation: Interpolation = "linear"
+    # the RK4 substeps the record's states ask for, found once per problem
+    # (`path_substeps`; a memo, not part of the problem)
+    memo: dict[str, int] = field(default_factory=dict, compare=False, repr=False)
+
+    def path_substeps(self, params: Mapping[str, FloatArray]) -> int:
+        """The RK4 substeps a prediction takes: what the modes at the start ask for at
+        `params`, and at least what they asked for, at the first parameters seen, along
+        the record, its measured states there and `x0` for the others (a filter follows
+        the measurements; a nonlinear model can stiffen far from its start)."""
+        from ..models import integration as _integrate
+
+        f = self.model._dynamics_batch
+        first = {k: np.asarray(v)[:1] for k, v in params.items()}
+        if "path" not in self.memo:
+            states = np.repeat(self.x0[None, :], self.time.size, axis=0)
+            for j, name in enumerate(self.output_names):
+                if name in self.model.states:
+                    states[:, self.model.states.index(name)] = self.Y[:, j]
+            self.memo["path"] = _integrate.trajectory_substeps(f, self.time, states, self.U, first)
+        start = _integrate.auto_substeps(f, self.time, self.x0[:, None], self.U[None], first)
+        return max(self.memo["path"], start)
 
 
 def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:

@@ -375,8 +375,7 @@ def start_states(prob: _Problem, values: Mapping[str, float], Qc: FloatArray) ->
         return None  # linear dynamics: the fit's filter and the simulation are exact
     m = prob.substeps
     if m is None:
-        f = prob.model._dynamics_batch
-        m = _integrate.path_substeps(f, prob.time, prob.x0[:, None], prob.U[None], params)
+        m = prob.path_substeps(params)
     if not _compiles(prob, m):
         return None
     traj = _compiled.compiled_rollout(

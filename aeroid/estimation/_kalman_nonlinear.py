@@ -117,9 +117,7 @@ class _Propagator:
             if prob.substeps is not None:
                 self.m = prob.substeps
             else:
-                p0 = {k: v[:1] for k, v in params.items()}
-                X0 = prob.x0[:, None]
-                self.m = _integrate.path_substeps(self.f, prob.time, X0, prob.U[None], p0)
+                self.m = prob.path_substeps(params)
             self.nodes = _integrate.control_nodes(
                 prob.U[None], self.m, prob.time, prob.interpolation
             )[..., 0]  # (n_t-1, 2m+1, n_u)

@@ -469,7 +469,7 @@ for _stage in (
     # 2 (filter, infer, frequency, sensitivities): start from the fit's initial state;
     # identify 2: results name the records they were fitted to
     # filter 3: the compiled EKF's matrix exponential is the numpy pass's Padé 13 (rounding);
-    # 4: its RK4 substeps read along the model's open-loop path too
+    # 4: its RK4 substeps read along the record's measured states too
     Stage("filter", "4", FilterOptions, "FilterResult", _run_filter),
     Stage(
         "validate",
