@@ -114,9 +114,8 @@ def path_substeps(
     f: BatchFunction, time: FloatArray, x0: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
 ) -> int:
     """`auto_substeps` of the first member (x0 (n_x, B), u (B, n_t, n_u)) checked along
-    its own open-loop path, as `integrate` checks its simulations: for a Kalman
-    filter's predictions, which step from state to state and have no path of their
-    own until they run."""
+    its own path, as `integrate` checks its simulations: for a caller that fixes the
+    count before it runs programs that read the rule at the start only (`infer`)."""
     member = {k: np.asarray(v)[:1] for k, v in p.items()}
     m = auto_substeps(f, time, x0[:, :1], u[:1], member)
     for _ in range(_PREVIEW_PASSES):
