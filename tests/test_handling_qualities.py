@@ -282,3 +282,23 @@ def test_record_path_errors_name_the_option():
     fit = equivalent_system(data, input="u", output="y")
     assert np.isnan(fit.mismatch) and "no mismatch J" in fit.summary()
     assert "T_theta2" in fit.summary()
+
+
+def test_equivalent_system_names_bad_frequencies_and_a_record_without_channels():
+    from aeroid import ChannelError, FlightData, IdentificationError, equivalent_system
+
+    fit = equivalent_system(([1.0, 1.0], [1.0, 2.8, 4.0], 0.05))
+    for bad in ("a", [np.nan, 1.0], [-1.0, 1.0]):
+        with pytest.raises(IdentificationError, match="omega: expected"):
+            fit.mismatch_envelopes(bad)
+        with pytest.raises(IdentificationError, match="frequency: expected"):
+            fit.evaluate(bad)
+    with pytest.raises(IdentificationError, match=r"frequency_range: expected .*finite"):
+        equivalent_system(([1.0, 1.0], [1.0, 2.8, 4.0], 0.05), frequency_range=(0.1, np.inf))
+    t = np.arange(2000) / 100.0
+    u = np.sin(0.5 * t * t)
+    record = FlightData(t, {"de": u, "q": np.convolve(u, np.ones(5) / 5, mode="same")})
+    with pytest.raises(ChannelError, match="input: a record needs the input channel named"):
+        equivalent_system(record, output="q")
+    with pytest.raises(IdentificationError, match="above the record's Nyquist"):
+        equivalent_system(record, input="de", output="q", frequency_range=(0.1, 1000.0))

@@ -7,6 +7,7 @@ Their public home is `aeroid.frequency.frequency_id`, which re-exports them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -436,6 +437,22 @@ def _bode(channels: Sequence[ResponseChannel], fits: Sequence[Any]) -> Any:
     return fig
 
 
+def angular_frequencies(values: Any, name: str) -> FloatArray:
+    """`values` as finite, non-negative frequencies in rad/s, or an `IdentificationError`
+    naming `name`."""
+    try:
+        w = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise IdentificationError(
+            f"{name}: expected frequencies in rad/s, got {values!r}"
+        ) from None
+    if not np.all(np.isfinite(w)) or np.any(w < 0.0):
+        raise IdentificationError(
+            f"{name}: expected finite, non-negative frequencies in rad/s, got {values!r}"
+        )
+    return w
+
+
 def _band(frequency_range: Any) -> tuple[float, float]:
     try:
         lo, hi = (as_float(v) for v in frequency_range)
@@ -445,9 +462,9 @@ def _band(frequency_range: Any) -> tuple[float, float]:
         raise IdentificationError(
             f"frequency_range: expected (low, high) in rad/s, got {frequency_range!r}"
         )
-    if not 0.0 <= lo < hi:
+    if not 0.0 <= lo < hi < math.inf:
         raise IdentificationError(
-            f"frequency_range: expected 0 <= low < high, got {frequency_range!r}"
+            f"frequency_range: expected 0 <= low < high, both finite, got {frequency_range!r}"
         )
     return lo, hi
 
@@ -544,7 +561,7 @@ class TransferFunctionFit(IntervalMixin):
 
     def evaluate(self, frequency: ArrayLike) -> ComplexArray:
         """T(jω) at frequencies ω in rad/s."""
-        return self.transfer_function(1j * np.asarray(frequency, dtype=np.float64))
+        return self.transfer_function(1j * angular_frequencies(frequency, "frequency"))
 
     @property
     def poles(self) -> ComplexArray:

@@ -32,6 +32,7 @@ routines mark their values unchecked, and every caption and summary says so.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
-from ..errors import IdentificationError
+from ..errors import ChannelError, IdentificationError
 from ..io.data import FlightData, check_flag, plain
 from ._criteria import (
     BANDWIDTH_LEVEL_1,
@@ -68,6 +69,7 @@ from ._loes_fit import _mismatch as _mismatch
 from ._loes_fit import _physical as _physical
 from ._response_function import _DENSE as _DENSE
 from ._response_function import _as_function, _integrate, _Response
+from ._response_records import angular_frequencies
 from .frequency_id import (
     CompositeResponse,
     ResponseChannel,
@@ -460,7 +462,7 @@ class EquivalentSystemFit(IntervalMixin):
         `aeroid.frequency._criteria.MUAD_ENVELOPES` (digitised, unverified by their source).
         """
         fit_w = np.asarray(self.fit.frequency, dtype=np.float64)
-        w = fit_w if omega is None else np.asarray(omega, dtype=np.float64)
+        w = fit_w if omega is None else angular_frequencies(omega, "omega")
         measured = np.asarray(self.fit.response, dtype=np.complex128)
         loes = np.asarray(self.fit.evaluate(fit_w), dtype=np.complex128)
         with np.errstate(all="ignore"):
@@ -574,6 +576,15 @@ def equivalent_system(
         raise IdentificationError("frequencies applies to a record (FlightData) only")
     if isinstance(response, FlightData):
         data = response
+        for role, channel in (("input", input), ("output", output)):
+            if channel is None:  # a record has many channels: which ones is not guessed
+                raise ChannelError(f"{role}: a record needs the {role} channel named")
+        nyquist = math.pi * data.sample_rate
+        if hi > nyquist * (1.0 + 1e-9):
+            raise IdentificationError(
+                f"frequency_range: its top {hi:g} rad/s lies above the record's Nyquist "
+                f"frequency {nyquist:.6g} rad/s"
+            )
 
         def fitter(s: Mapping[str, float] | None) -> TransferFunctionFit:
             return fit_transfer_function(
