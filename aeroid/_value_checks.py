@@ -67,6 +67,17 @@ def real_array(values: Any, what: str) -> FloatArray:
     return np.asarray(arr, dtype=np.float64)
 
 
+def finite_array(values: Any, what: str, error: type[Exception] = DataFormatError) -> FloatArray:
+    """`values` as a 1-D-at-least float64 array of finite numbers, or `error` naming `what`."""
+    try:
+        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise error(f"{what}: expected numbers, got {values!r}") from None
+    if not np.all(np.isfinite(arr)):
+        raise error(f"{what}: expected finite numbers, got {values!r}")
+    return arr
+
+
 def delay_starts(
     option: Any,
     known: Sequence[str],

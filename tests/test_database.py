@@ -730,7 +730,7 @@ def test_bad_flights_and_options_are_named(make, error, says):
 
 def test_a_condition_that_is_no_number_and_a_one_point_grid_are_refused():
     db = aerodynamic_database(_line_flights())
-    for value, says in (("a", "alpha must be numbers"), (np.nan, "alpha is not finite")):
+    for value, says in (("a", "alpha: expected numbers"), (np.nan, "alpha: expected finite")):
         with pytest.raises(DataFormatError, match=says):
             db.predict("CL_0", {"alpha": value})
     with pytest.raises(DataFormatError, match="n"):

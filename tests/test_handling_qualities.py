@@ -289,9 +289,9 @@ def test_equivalent_system_names_bad_frequencies_and_a_record_without_channels()
 
     fit = equivalent_system(([1.0, 1.0], [1.0, 2.8, 4.0], 0.05))
     for bad in ("a", [np.nan, 1.0], [-1.0, 1.0]):
-        with pytest.raises(IdentificationError, match="omega: expected"):
+        with pytest.raises(IdentificationError, match="omega"):
             fit.mismatch_envelopes(bad)
-        with pytest.raises(IdentificationError, match="frequency: expected"):
+        with pytest.raises(IdentificationError, match="frequency"):
             fit.evaluate(bad)
     with pytest.raises(IdentificationError, match=r"frequency_range: expected .*finite"):
         equivalent_system(([1.0, 1.0], [1.0, 2.8, 4.0], 0.05), frequency_range=(0.1, np.inf))

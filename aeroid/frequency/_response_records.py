@@ -24,6 +24,7 @@ from .._records import (
     markdown_table,
 )
 from .._records import frozen_complex as _frozen_complex
+from .._value_checks import finite_array
 from ..errors import ChannelError, DataFormatError, IdentificationError
 from ..io.data import numeric, plain
 from ._transfer import transfer_at
@@ -440,16 +441,9 @@ def _bode(channels: Sequence[ResponseChannel], fits: Sequence[Any]) -> Any:
 def angular_frequencies(values: Any, name: str) -> FloatArray:
     """`values` as finite, non-negative frequencies in rad/s, or an `IdentificationError`
     naming `name`."""
-    try:
-        w = np.atleast_1d(np.asarray(values, dtype=np.float64))
-    except (TypeError, ValueError):
-        raise IdentificationError(
-            f"{name}: expected frequencies in rad/s, got {values!r}"
-        ) from None
-    if not np.all(np.isfinite(w)) or np.any(w < 0.0):
-        raise IdentificationError(
-            f"{name}: expected finite, non-negative frequencies in rad/s, got {values!r}"
-        )
+    w = finite_array(values, f"{name} (rad/s)", IdentificationError)
+    if np.any(w < 0.0):
+        raise IdentificationError(f"{name}: expected non-negative frequencies in rad/s")
     return w
 
 

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._checks import as_float
 from .._stats import norm_ppf
-from .._value_checks import whole_number
+from .._value_checks import finite_array, whole_number
 from ..errors import DataFormatError, IdentificationError
 from ._database_fit import Exponents, design
 
@@ -134,15 +134,7 @@ def condition_rows(
 
 
 def _finite_values(term: str, key: str, values: Any) -> FloatArray:
-    try:
-        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
-    except (TypeError, ValueError):
-        raise DataFormatError(
-            f"condition for {term!r}: {key} must be numbers, got {values!r}"
-        ) from None
-    if not np.all(np.isfinite(arr)):
-        raise DataFormatError(f"condition for {term!r}: {key} is not finite")
-    return arr
+    return finite_array(values, f"condition for {term!r}: {key}")
 
 
 def grid_points(n: Any) -> int:
