@@ -110,21 +110,40 @@ def _first_failure(states: FloatArray, time: FloatArray) -> tuple[NDArray[np.boo
     return ok, fail_time
 
 
-def path_substeps(
-    f: BatchFunction, time: FloatArray, x0: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
-) -> int:
-    """`auto_substeps` of the first member (x0 (n_x, B), u (B, n_t, n_u)) checked along
-    its own path, as `integrate` checks its simulations: for a caller that fixes the
-    count before it runs programs that read the rule at the start only (`infer`)."""
+def _along_path(
+    run: Callable[[int], RawTrajectory],
+    m: int,
+    f: BatchFunction,
+    time: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+) -> tuple[RawTrajectory, int]:
+    """`run(m)`, rerun with the substeps the first member's path asks for where the
+    rule at its start gave fewer (a nonlinear model stiffens where its states have
+    grown; a step too coarse blows the path up): the last trajectory and its count."""
+    traj = run(m)
     member = {k: np.asarray(v)[:1] for k, v in p.items()}
-    m = auto_substeps(f, time, x0[:, :1], u[:1], member)
     for _ in range(_PREVIEW_PASSES):
-        traj = rk4(f, time, x0[:, :1], u[:1], member, m)
         need = trajectory_substeps(f, time, traj.states[0], u[0], member)
         if need <= m:
             break
         m = need
-    return m
+        traj = run(m)
+    return traj, m
+
+
+def path_substeps(
+    f: BatchFunction, time: FloatArray, x0: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
+) -> int | None:
+    """The substeps the first member's path (x0 (n_x, B), u (B, n_t, n_u)) asks for where
+    that is more than the rule at its start gives, else None: for a caller that fixes
+    the count before it runs programs that read the rule at the start only (`infer`)."""
+    member = {k: np.asarray(v)[:1] for k, v in p.items()}
+    first = auto_substeps(f, time, x0[:, :1], u[:1], member)
+    _, m = _along_path(
+        lambda k: rk4(f, time, x0[:, :1], u[:1], member, k), first, f, time, u, member
+    )
+    return m if m > first else None
 
 
 def euler(
@@ -721,18 +740,9 @@ def integrate(
                     return compiled
             return rk4(f, time, X0, u, p, int(m), control_interpolation)
 
-        traj = run(m)
-        if substeps is None:
-            # the rule read the modes at the start; where the first member's path
-            # stiffens (or a too coarse step blew it up), its own modes decide
-            member = {k: np.asarray(v)[:1] for k, v in p.items()}
-            for _ in range(_PREVIEW_PASSES):
-                need = trajectory_substeps(f, time, traj.states[0], u[0], member)
-                if need <= m:
-                    break
-                m = need
-                traj = run(m)
-        return traj
+        if substeps is not None:
+            return run(m)
+        return _along_path(run, m, f, time, u, p)[0]
     if method == "rk4_hold":
         return rk4(f, time, X0, u, p, int(substeps or 1), hold=True)
     if method == "euler":

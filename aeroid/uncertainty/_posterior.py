@@ -514,6 +514,4 @@ def _path_substeps(model: Any, time: FloatArray, controls: FloatArray, x0: Any) 
     x = np.asarray(x0, dtype=np.float64).reshape(-1, 1)
     u = np.asarray(controls, dtype=np.float64)[None]
     with np.errstate(all="ignore"):
-        first = _integrate.auto_substeps(model._dynamics_batch, time, x, u, member)
-        path = _integrate.path_substeps(model._dynamics_batch, time, x, u, member)
-    return path if path > first else None
+        return _integrate.path_substeps(model._dynamics_batch, time, x, u, member)
