@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -11,6 +13,15 @@ from ..errors import SimulationError
 from .model import SimulationResult, resolve_parameters
 
 __all__ = ["simulate_rk4"]
+
+
+@dataclass(frozen=True, eq=False)
+class _TracedSimulationResult(SimulationResult):
+    """A rollout a caller's JAX transformation runs through: its arrays stay JAX arrays
+    (immutable already), which numpy could not hold."""
+
+    def __post_init__(self) -> None:
+        pass
 
 
 def simulate_rk4(
@@ -30,6 +41,13 @@ def simulate_rk4(
     ``infer(..., backend="jax")``, exposed here for parity checks against
     `Model.simulate`. The first call for a model and grid length compiles;
     later calls reuse the compiled code.
+
+    The rollout is differentiable: under a caller's JAX transformation
+    (`jax.grad`, `jax.jacfwd`, `jax.vmap`, `jax.jit`) of parameter values, of
+    `x0` or of the controls, the result holds JAX arrays the derivative runs
+    through (``jax.jacfwd(lambda k: simulate_rk4(m, t, None, [1.0], {"k": k})
+    .state("x"))(0.5)``); the time grid stays concrete, the controls are straight
+    between samples, and the non-finite check is left to the caller.
 
     Parameters
     ----------
@@ -62,6 +80,16 @@ def simulate_rk4(
     from . import jax_compiled as _jax
 
     m = _jax._check_model(model)
+    traced_values = isinstance(parameters, Mapping) and _jax.traced(parameters)
+    if traced_values or _jax.traced(x0, controls):
+        values = parameters if isinstance(parameters, Mapping) else {}
+        if parameters is not None and not isinstance(parameters, Mapping):
+            values = resolve_parameters(m, parameters, error=SimulationError)
+        t, u, xs, ys = _jax.traced_rollout(
+            m, time, controls, x0, dict(values), substeps=substeps, error=SimulationError
+        )
+        names = (tuple(m.states), m.output_names, tuple(m.controls))
+        return _TracedSimulationResult(t, xs, ys, u, *names)
     p = resolve_parameters(m, parameters, error=SimulationError)
     t, u, states, outputs = _jax.rollout(m, time, controls, x0, p, substeps=substeps)
     finite = np.all(np.isfinite(states), axis=1) & np.all(np.isfinite(outputs), axis=1)

@@ -40,7 +40,14 @@ if TYPE_CHECKING:
 else:  # below aeroid.models.model (it calls this module): its base class stands in
     from ._model_base import ContinuousModel as Model
 
-__all__ = ["batch_outputs", "outputs_and_jacobian", "require_jax", "rollout"]
+__all__ = [
+    "batch_outputs",
+    "outputs_and_jacobian",
+    "require_jax",
+    "rollout",
+    "traced",
+    "traced_rollout",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -472,6 +479,10 @@ def _substeps(
 ) -> int:
     if substeps is None:
         return _auto_substeps(model, t, u, x0, pv)
+    return _substep_count(substeps)
+
+
+def _substep_count(substeps: Any) -> int:
     if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
         raise AdapterError(f"substeps must be a positive integer, got {substeps!r}")
     return int(substeps)
@@ -516,6 +527,111 @@ def rollout(
     m = _substeps(model, substeps, t, u, x, pv)
     states, outputs = _run(model, _compiled(model, "rollout", m), t, u, e, x, pv)
     return t, u, np.asarray(states, dtype=np.float64), np.asarray(outputs, dtype=np.float64)
+
+
+def traced(*values: Any) -> bool:
+    """Whether a caller's JAX transformation (grad, jacfwd, vmap, jit) runs through these
+    arguments: one of them, an entry of a mapping or an item of a list, is a tracer."""
+    import sys
+
+    core = getattr(sys.modules.get("jax"), "core", None)
+    tracer = getattr(core, "Tracer", None)
+    if tracer is None:  # JAX never imported: nothing can be traced
+        return False
+    for v in values:
+        items = v.values() if isinstance(v, Mapping) else v if isinstance(v, list | tuple) else (v,)
+        if any(isinstance(item, tracer) for item in items):
+            return True
+    return False
+
+
+def traced_rollout(
+    model: Any,
+    time: Any,
+    controls: Any,
+    x0: Any,
+    params: Mapping[str, Any],
+    *,
+    substeps: int | None,
+    error: type[Exception] = AdapterError,
+) -> tuple[FloatArray, Any, Any, Any]:
+    """The rollout under a caller's JAX transformation: the parameters, the initial state
+    and the controls may be tracers, and the states and outputs come back as JAX arrays
+    (``(time, controls, states, outputs)``) so that the caller's derivative runs through
+    them. The time grid stays concrete; the controls are straight between samples."""
+    from .._checks import check_time
+
+    model = _check_model(model)
+    _, jnp = require_jax()
+    if substeps is None:
+        raise AdapterError(
+            "substeps: give a count when transforming through the rollout with JAX "
+            "(the automatic rule reads the state's values, which a transformation hides)"
+        )
+    m = _substep_count(substeps)
+    t = check_time(time)
+    if traced(controls):
+        u = _traced_controls(model, controls, t.size, jnp)
+        e = jnp.zeros((max(t.size - 1, 0), 2, model.n_controls))
+    else:
+        _, u, _, e = _grid(model, t, controls, None)
+    x = _traced_state(model, x0, jnp, error)
+    unknown = sorted(set(params) - set(model.parameters))
+    if unknown:
+        raise error(
+            f"parameters {unknown} are not parameters of model {model.name!r}; "
+            f"its parameters are {list(model.parameter_names)}"
+        )
+    values = [params.get(n, v) for n, v in model.parameters.items()]
+    for name, v in zip(model.parameter_names, values, strict=True):
+        if jnp.ndim(v) != 0:
+            raise error(f"parameter {name!r}: expected a scalar, got shape {jnp.shape(v)}")
+    pv = jnp.stack([jnp.asarray(v, dtype=jnp.float64) for v in values])
+    states, outputs = _run(model, _compiled(model, "rollout", m), t, u, e, x, pv)
+    return t, u, states, outputs
+
+
+def _traced_controls(model: Model, controls: Any, n_t: int, jnp: Any) -> Any:
+    """The control history (n_t, n_controls) from an array or a mapping holding tracers."""
+    from ..errors import ChannelError
+
+    if isinstance(controls, Mapping):
+        missing = [c for c in model.controls if c not in controls]
+        if missing:
+            raise ChannelError(
+                f"controls: missing {missing}; the model's controls are {list(model.controls)}"
+            )
+        cols = [
+            jnp.broadcast_to(jnp.asarray(controls[c], jnp.float64), (n_t,)) for c in model.controls
+        ]
+        return jnp.stack(cols, axis=1)
+    u = jnp.asarray(controls, dtype=jnp.float64)
+    if u.ndim == 1 and model.n_controls == 1:
+        u = u[:, None]
+    if u.shape != (n_t, model.n_controls):
+        raise ChannelError(
+            f"controls: expected shape ({n_t}, {model.n_controls}) for the controls "
+            f"{list(model.controls)}, got {u.shape}"
+        )
+    return u
+
+
+def _traced_state(model: Model, x0: Any, jnp: Any, error: type[Exception]) -> Any:
+    """The initial state (n_states,) from None, an array or a mapping, tracers kept."""
+    n_x = model.n_states
+    if x0 is None:
+        return jnp.zeros(n_x)
+    if isinstance(x0, Mapping):
+        unknown = sorted(set(x0) - set(model.states))
+        if unknown:
+            raise error(f"x0: unknown states {unknown}; states: {list(model.states)}")
+        return jnp.stack([jnp.asarray(x0.get(s, 0.0), jnp.float64) for s in model.states])
+    x = jnp.ravel(
+        jnp.asarray(jnp.stack(x0) if isinstance(x0, list | tuple) else x0, dtype=jnp.float64)
+    )
+    if x.shape != (n_x,):
+        raise error(f"x0: expected {n_x} values (states {list(model.states)}), got shape {x.shape}")
+    return x
 
 
 def outputs_and_jacobian(
