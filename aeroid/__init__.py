@@ -33,6 +33,10 @@ if TYPE_CHECKING:  # the lazy table below, as type checkers must see it
     from .estimation.filtering import filter_states as filter_states
     from .estimation.identification import IdentificationResult as IdentificationResult
     from .estimation.identification import identify as identify
+    from .estimation.recursive_estimation import RecursiveResult as RecursiveResult
+    from .estimation.recursive_estimation import (
+        recursive_least_squares as recursive_least_squares,
+    )
     from .estimation.regression import RegressionResult as RegressionResult
     from .estimation.regression import StepwiseResult as StepwiseResult
     from .estimation.regression import StepwiseStep as StepwiseStep
@@ -212,6 +216,8 @@ _LAZY = {
     "combine_batches": ".uncertainty.propagation",
     "propagate": ".uncertainty.propagation",
     "propagate_batch": ".uncertainty.propagation",
+    "RecursiveResult": ".estimation.recursive_estimation",
+    "recursive_least_squares": ".estimation.recursive_estimation",
     "RegressionResult": ".estimation.regression",
     "StepwiseResult": ".estimation.regression",
     "StepwiseStep": ".estimation.regression",

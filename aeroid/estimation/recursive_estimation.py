@@ -1,0 +1,362 @@
+"""Recursive least squares: equation error updated sample by sample, as a real-time
+estimator runs it (Klein & Morelli, ch. 8).
+
+After sample k the estimate minimises the exponentially weighted cost
+
+    J_k(theta) = sum_{i<=k} lambda^(k-i) (z_i - x_i' theta)^2
+                 + lambda^k (theta - theta_0)' P_0^-1 (theta - theta_0),
+
+with `lambda` the forgetting factor: one (the default) remembers the whole record,
+so that with a diffuse start the last estimate is the batch least-squares one;
+below one, old samples fade with a memory of about ``1 / (1 - lambda)`` samples
+and the estimate tracks parameters that change. Each update is the classical
+one: the gain ``g = P x / (lambda + x'P x)``, the estimate moved by g times the
+prediction error ``eps = z - x' theta``, ``P`` updated as ``(P - g x'P) / lambda``.
+The cost's minimum obeys ``J_k = lambda J_(k-1) + eps^2 lambda / (lambda + x'P x)``
+exactly, so the running fit-error variance ``J_k / (n_k - p)`` (``n_k`` the
+weighted sample count) is the batch one at every sample, not the sum of a
+posteriori residuals, which under-reads it while the estimate still moves.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._checks import as_float, plain
+from .._colour import colored_covariance
+from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
+from .._value_checks import check_flag, check_symmetric
+from ..errors import ChannelError, DataFormatError, IdentificationError
+from ..io.data import FlightData
+from ._regression_fits import _classical_where_not_positive
+from ._regressors import _check_names, _resolve
+
+__all__ = ["RecursiveResult", "recursive_least_squares"]
+
+FloatArray = NDArray[np.float64]
+
+_CONST = "const"
+_ERROR_BARS = ("colored", "white")
+# SIDPAC's and Klein & Morelli's start: a covariance this large times the identity,
+# diffuse against the information of regressors of order one.
+_DIFFUSE = 1.0e6
+
+
+@dataclass(frozen=True, eq=False)
+class RecursiveResult(IntervalMixin):
+    """Recursive least-squares estimates: the last sample's, and their history.
+
+    Attributes
+    ----------
+    parameters, stderr : mapping of str to float
+        The estimates after the last sample and their standard errors
+        (coloured-residual corrected unless ``error_bars == "white"``).
+    covariance : ndarray, shape (p, p)
+        Their covariance in the order of `parameter_names`.
+    parameter_names : tuple of str
+    response_name : str
+    time : ndarray, shape (n,)
+    history : ndarray, shape (n, p)
+        The estimate after each sample.
+    stderr_history : ndarray, shape (n, p)
+        Each estimate's classical standard error from the samples up to it
+        (the running fit-error variance times ``diag P``); NaN until the
+        weighted sample count exceeds the number of parameters.
+    gain_history : ndarray, shape (n, p)
+        The update gain ``g`` at each sample.
+    fit_error_history : ndarray, shape (n,)
+        The running fit-error standard deviation ``sqrt(J_k / (n_k - p))``.
+    prediction_errors : ndarray, shape (n,)
+        ``z_k - x_k' theta_(k-1)``: each sample's error predicted from the
+        estimate before it (the real-time residual).
+    forgetting : float
+    error_bars : {"colored", "white"}
+    degrees_of_freedom : mapping of str to float
+        Per estimate, the degrees of freedom of its final standard error.
+    """
+
+    parameters: Mapping[str, float]
+    stderr: Mapping[str, float]
+    covariance: FloatArray
+    parameter_names: tuple[str, ...]
+    response_name: str
+    time: FloatArray
+    history: FloatArray
+    stderr_history: FloatArray
+    gain_history: FloatArray
+    fit_error_history: FloatArray
+    prediction_errors: FloatArray
+    forgetting: float
+    error_bars: str
+    degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("parameters", "stderr", "degrees_of_freedom"):
+            object.__setattr__(self, name, frozen_mapping(getattr(self, name)))
+        for name in (
+            "covariance",
+            "time",
+            "history",
+            "stderr_history",
+            "gain_history",
+            "fit_error_history",
+            "prediction_errors",
+        ):
+            object.__setattr__(self, name, frozen_array(getattr(self, name)))
+
+    def parameter(self, name: str) -> FloatArray:
+        """The history of one estimate, shape (n,)."""
+        if name not in self.parameter_names:
+            raise ChannelError(
+                f"parameter {name!r} not estimated; parameters: {list(self.parameter_names)}"
+            )
+        return self.history[:, self.parameter_names.index(name)]
+
+    def summary(self) -> str:
+        """A Markdown table of the final estimates, with the memory and fit error."""
+        rows = []
+        for name in self.parameter_names:
+            est, se = self.parameters[name], self.stderr[name]
+            rows.append([name, fmt(est), fmt(se), fmt(abs(est) / se if se > 0 else np.inf, 3)])
+        memory = (
+            "the whole record"
+            if self.forgetting == 1.0
+            else f"about {fmt(1.0 / (1.0 - self.forgetting), 3)} samples"
+        )
+        head = (
+            f"Recursive least squares for {self.response_name}: {self.time.size} samples, "
+            f"{len(self.parameter_names)} parameters, forgetting factor "
+            f"{fmt(self.forgetting, 6)} (memory {memory}), {self.error_bars} error bars\n\n"
+        )
+        tail = f"\n\nfinal fit error s = {fmt(float(self.fit_error_history[-1]))}"
+        table = markdown_table(["parameter", "estimate", "std error", "|t|"], rows)
+        return head + table + tail
+
+    def plot(self) -> Any:
+        """Each estimate's history with its running 95 % band. Returns a Figure."""
+        from ..reports.plotting import figure
+
+        names = list(self.parameter_names)
+        fig, axes = figure(len(names), height=1.8)
+        for j, name in enumerate(names):
+            ax = axes[j, 0]
+            est, se = self.history[:, j], self.stderr_history[:, j]
+            ax.plot(self.time, est, lw=0.9)
+            ax.fill_between(self.time, est - 1.96 * se, est + 1.96 * se, alpha=0.25, lw=0)
+            ax.set_ylabel(name)
+        axes[-1, 0].set_xlabel("time (s)")
+        return fig
+
+
+def recursive_least_squares(
+    data: FlightData | Mapping[str, ArrayLike] | ArrayLike,
+    response: str | ArrayLike,
+    regressors: Sequence[str] | Mapping[str, Any] | None = None,
+    *,
+    intercept: bool = True,
+    forgetting: float = 1.0,
+    initial: Mapping[str, float] | None = None,
+    initial_covariance: float | ArrayLike | None = None,
+    error_bars: str | None = None,
+) -> RecursiveResult:
+    """Equation-error estimates updated sample by sample (recursive least squares).
+
+    The real-time form of `equation_error` (Klein & Morelli, ch. 8): after
+    each sample the estimate minimises the exponentially weighted squared
+    error of the samples so far plus the start's weight (module notes), so
+    its history shows when each parameter became identifiable and, with a
+    forgetting factor below one, follows parameters that change.
+
+    Parameters
+    ----------
+    data, response, regressors
+        As `equation_error`: flight data (or a mapping, or the regressor
+        matrix itself), the modelled quantity and the regressors, by channel
+        name or expression.
+    intercept : bool
+        Add a constant term ``const``.
+    forgetting : float
+        The forgetting factor ``lambda`` in (0, 1]; below one the estimator
+        remembers about ``1 / (1 - lambda)`` samples (0.95-1 in practice).
+    initial : mapping of str to float, optional
+        The start ``theta_0`` by parameter name (others start at zero).
+    initial_covariance : float or array_like (p, p), optional
+        ``P_0``: a variance for every parameter, or the matrix in the order of
+        the result's `parameter_names`; default ``1e6`` times the identity
+        (SIDPAC's), diffuse for regressors of order one. Choose it large
+        against the inverse of the information a few samples carry, or the
+        start biases the estimates.
+    error_bars : {"colored", "white"}, optional
+        The final standard errors: coloured-residual corrected as
+        `equation_error` corrects its own (the default with ``forgetting ==
+        1``, where the final estimate is that estimator's), or classical
+        (``s^2 P``, the default below one). The history is always classical:
+        it is what the samples so far can tell.
+
+    Returns
+    -------
+    RecursiveResult
+
+    Raises
+    ------
+    DataFormatError
+        Malformed data, expression or option.
+    ChannelError
+        A named channel is missing.
+    IdentificationError
+        No more samples than parameters.
+    """
+    lam = _number(forgetting, "forgetting")
+    if not 0.0 < lam <= 1.0:
+        raise DataFormatError(f"forgetting: expected a factor in (0, 1], got {forgetting!r}")
+    bars = error_bars if error_bars is not None else ("colored" if lam == 1.0 else "white")
+    if bars not in _ERROR_BARS:
+        raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
+    if bars == "colored" and lam < 1.0:
+        raise DataFormatError(
+            "error_bars: 'colored' corrects the whole record's estimate (forgetting = 1); "
+            "with a forgetting factor below one the final bars are 'white'"
+        )
+    check_flag(intercept, "intercept", DataFormatError)
+    z, x, names, zname, time = _resolve(data, response, regressors, "recursive least squares")
+    if intercept:
+        names = [_CONST, *names]
+        x = np.column_stack([np.ones(x.shape[0]), x])
+    _check_names(names)
+    n, p = x.shape
+    if p == 0:
+        raise DataFormatError("regressors: none given and no constant term")
+    if n <= p:
+        raise IdentificationError(f"recursive least squares: {n} samples cannot fit {p} parameters")
+    theta0 = _start(initial, names)
+    p0 = _start_covariance(initial_covariance, names)
+    t = time if time is not None else np.arange(n, dtype=np.float64)
+    hist, se_hist, gains, s_hist, eps, cov_p = _recursion(z, x, theta0, p0, lam)
+    theta = hist[-1]
+    s2 = float(s_hist[-1]) ** 2
+    cov_white = s2 * cov_p
+    nu = np.full(p, _weighted_count(n, lam) - p)
+    if bars == "colored":
+        v = z - x @ theta
+        cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], cov_p)
+        _classical_where_not_positive(cov, cov_white, nu, n - p)
+    else:
+        cov = cov_white
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return RecursiveResult(
+        parameters={k: float(theta[j]) for j, k in enumerate(names)},
+        stderr={k: float(se[j]) for j, k in enumerate(names)},
+        covariance=cov,
+        parameter_names=tuple(names),
+        response_name=zname,
+        time=t,
+        history=hist,
+        stderr_history=se_hist,
+        gain_history=gains,
+        fit_error_history=s_hist,
+        prediction_errors=eps,
+        forgetting=lam,
+        error_bars=bars,
+        degrees_of_freedom={k: float(nu[j]) for j, k in enumerate(names)},
+    )
+
+
+def _weighted_count(k: int, lam: float) -> float:
+    """``sum_{i<k} lambda^i``: the weight the cost gives k samples."""
+    return float(k) if lam == 1.0 else float((1.0 - lam**k) / (1.0 - lam))
+
+
+def _recursion(
+    z: FloatArray, x: FloatArray, theta0: FloatArray, p0: FloatArray, lam: float
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The update over every sample: estimate, classical standard error, gain and
+    fit-error histories, the prediction errors, and the last ``P``."""
+    n, p = x.shape
+    hist = np.empty((n, p))
+    se_hist = np.full((n, p), np.nan)
+    gains = np.empty((n, p))
+    s_hist = np.full(n, np.nan)
+    eps_all = np.empty(n)
+    theta = theta0.copy()
+    cov = p0.copy()
+    cost = 0.0
+    count = 0.0
+    for k in range(n):
+        xk = x[k]
+        px = cov @ xk
+        den = lam + float(xk @ px)
+        gain = px / den
+        eps = float(z[k] - xk @ theta)
+        theta = theta + gain * eps
+        cov = (cov - np.outer(gain, px)) / lam
+        cov = 0.5 * (cov + cov.T)  # rounding would make it drift off symmetric
+        cost = lam * cost + eps * eps * lam / den
+        count = lam * count + 1.0
+        hist[k] = theta
+        gains[k] = gain
+        eps_all[k] = eps
+        if count > p:
+            s2 = cost / (count - p)
+            s_hist[k] = np.sqrt(s2)
+            se_hist[k] = np.sqrt(np.clip(s2 * np.diag(cov), 0.0, None))
+    if not (np.all(np.isfinite(hist[-1])) and np.all(np.isfinite(cov))):
+        raise IdentificationError(
+            "recursive least squares: the update overflowed; rescale the response or "
+            "the regressors, or give a smaller initial_covariance"
+        )
+    return hist, se_hist, gains, s_hist, eps_all, cov
+
+
+def _number(value: Any, what: str) -> float:
+    v = as_float(value)
+    if v is None or not np.isfinite(v):
+        raise DataFormatError(f"{what}: expected a finite number, got {plain(value)}")
+    return v
+
+
+def _start(initial: Mapping[str, float] | None, names: list[str]) -> FloatArray:
+    theta0 = np.zeros(len(names))
+    if initial is None:
+        return theta0
+    if not isinstance(initial, Mapping):
+        raise DataFormatError(
+            f"initial: expected a dict of parameter name -> value, got {type(initial).__name__}"
+        )
+    for name, value in initial.items():
+        if name not in names:
+            raise DataFormatError(
+                f"initial: {name!r} is not a parameter of this regression; parameters: {names}"
+            )
+        theta0[names.index(name)] = _number(value, f"initial[{name!r}]")
+    return theta0
+
+
+def _start_covariance(value: float | ArrayLike | None, names: list[str]) -> FloatArray:
+    p = len(names)
+    if value is None:
+        return _DIFFUSE * np.eye(p)
+    if np.ndim(value) == 0:
+        v = _number(value, "initial_covariance")
+        if not v > 0.0:
+            raise DataFormatError(f"initial_covariance: expected a positive variance, got {v!r}")
+        return v * np.eye(p)
+    try:
+        mat = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataFormatError("initial_covariance: not numeric") from None
+    if mat.shape != (p, p):
+        raise DataFormatError(
+            f"initial_covariance: expected a number or a ({p}, {p}) matrix in the order "
+            f"{names}, got shape {mat.shape}"
+        )
+    if not np.all(np.isfinite(mat)):
+        raise DataFormatError("initial_covariance: contains NaN or infinite values")
+    check_symmetric(mat, names, "initial_covariance", DataFormatError)
+    if np.linalg.eigvalsh(mat).min() <= 0.0:
+        raise DataFormatError("initial_covariance: not positive definite")
+    return mat

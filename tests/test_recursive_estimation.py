@@ -1,0 +1,166 @@
+"""Recursive least squares against the batch solutions it must equal at every sample."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import aeroid
+
+
+def _record(n: int = 400, seed: int = 0, noise: float = 0.05) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.02
+    a = np.sin(1.3 * t) + 0.3 * rng.normal(size=n)
+    b = np.cos(0.7 * t) * np.exp(-0.1 * t) + 0.2 * rng.normal(size=n)
+    c = np.sign(np.sin(2.1 * t))
+    z = 0.4 - 1.2 * a + 2.5 * b + 0.8 * c + noise * rng.normal(size=n)
+    return {"a": a, "b": b, "c": c, "z": z}
+
+
+def _weighted_solution(x, z, lam, theta0, p0):
+    """The minimiser of the exponentially weighted cost with the start's term, and the cost."""
+    n = x.shape[0]
+    w = lam ** np.arange(n - 1, -1, -1.0)
+    prior = lam**n * np.linalg.inv(p0)
+    m = (x * w[:, None]).T @ x + prior
+    theta = np.linalg.solve(m, (x * w[:, None]).T @ z + prior @ theta0)
+    r = z - x @ theta
+    cost = float(w @ r**2 + (theta - theta0) @ prior @ (theta - theta0))
+    return theta, cost
+
+
+def test_diffuse_start_without_forgetting_is_the_batch_estimator():
+    d = _record()
+    names = ["a", "b", "c"]
+    rls = aeroid.recursive_least_squares(d, "z", names, initial_covariance=1e10)
+    batch = aeroid.equation_error(d, "z", names)
+    white = aeroid.equation_error(d, "z", names, error_bars="white")
+    assert rls.parameter_names == ("const", "a", "b", "c")
+    assert rls.error_bars == "colored" and rls.forgetting == 1.0
+    for k in rls.parameter_names:
+        assert rls.parameters[k] == pytest.approx(batch.parameters[k], rel=1e-6, abs=1e-9)
+        assert rls.stderr[k] == pytest.approx(batch.stderr[k], rel=1e-5)
+        j = rls.parameter_names.index(k)
+        assert rls.stderr_history[-1, j] == pytest.approx(white.stderr[k], rel=1e-5)
+    # each sample's estimate is the batch least squares of the samples so far
+    x = np.column_stack([np.ones(d["z"].size), d["a"], d["b"], d["c"]])
+    for k in (10, 57, 200):
+        exact = np.linalg.lstsq(x[: k + 1], d["z"][: k + 1], rcond=None)[0]
+        np.testing.assert_allclose(rls.history[k], exact, rtol=1e-6, atol=1e-8)
+    # and its running fit error is the batch one of those samples
+    k = 120
+    exact = np.linalg.lstsq(x[: k + 1], d["z"][: k + 1], rcond=None)[0]
+    res = d["z"][: k + 1] - x[: k + 1] @ exact
+    s = np.sqrt(res @ res / (k + 1 - 4))
+    assert rls.fit_error_history[k] == pytest.approx(s, rel=1e-6)
+    assert np.all(np.isnan(rls.stderr_history[:4]))  # no more samples than parameters
+
+
+@pytest.mark.parametrize("lam", [0.999, 0.97, 0.9])
+def test_forgetting_minimises_the_exponentially_weighted_cost(lam):
+    d = _record(n=300, seed=1)
+    x = np.column_stack([d["a"], d["b"], d["c"]])
+    theta0 = np.array([-1.0, 2.0, 0.5])
+    p0 = np.diag([10.0, 4.0, 1.0])
+    rls = aeroid.recursive_least_squares(
+        x, d["z"] - 0.4, ["a", "b", "c"], intercept=False, forgetting=lam,
+        initial=dict(zip(["a", "b", "c"], theta0, strict=True)), initial_covariance=p0,
+    )  # fmt: skip
+    assert rls.error_bars == "white"
+    for k in (40, 150, 299):
+        theta, cost = _weighted_solution(x[: k + 1], d["z"][: k + 1] - 0.4, lam, theta0, p0)
+        np.testing.assert_allclose(rls.history[k], theta, rtol=1e-9, atol=1e-11)
+        count = (1 - lam ** (k + 1)) / (1 - lam)
+        assert rls.fit_error_history[k] ** 2 * (count - 3) == pytest.approx(cost, rel=1e-9)
+    # the final covariance is the classical s^2 P, P the weighted information's inverse
+    n = x.shape[0]
+    w = lam ** np.arange(n - 1, -1, -1.0)
+    p_n = np.linalg.inv((x * w[:, None]).T @ x + lam**n * np.linalg.inv(p0))
+    np.testing.assert_allclose(rls.covariance, rls.fit_error_history[-1] ** 2 * p_n, rtol=1e-8)
+
+
+def test_forgetting_tracks_a_derivative_that_changes_and_memory_does_not():
+    n = 1000
+    d = _record(n=n, seed=2, noise=0.02)
+    step = np.where(np.arange(n) < n // 2, 2.5, 1.5)  # b's coefficient drops at mid-record
+    z = (
+        0.4
+        - 1.2 * d["a"]
+        + step * d["b"]
+        + 0.8 * d["c"]
+        + 0.02 * np.random.default_rng(3).normal(size=n)
+    )
+    data = dict(d, z=z)
+    fading = aeroid.recursive_least_squares(data, "z", ["a", "b", "c"], forgetting=0.98)
+    whole = aeroid.recursive_least_squares(data, "z", ["a", "b", "c"])
+    assert fading.parameters["b"] == pytest.approx(1.5, abs=0.05)
+    assert fading.parameter("b")[n // 2 - 1] == pytest.approx(2.5, abs=0.05)
+    assert whole.parameters["b"] > 2.0  # remembering both halves, the first weighing more
+    assert "memory about 50 samples" in fading.summary()
+
+
+def test_prediction_errors_and_gains_follow_the_update():
+    d = _record(n=80, seed=4)
+    rls = aeroid.recursive_least_squares(d, "z", ["a", "b"], initial_covariance=100.0)
+    x = np.column_stack([np.ones(80), d["a"], d["b"]])
+    before = np.vstack([np.zeros(3), rls.history[:-1]])
+    np.testing.assert_allclose(rls.prediction_errors, d["z"] - np.sum(x * before, axis=1))
+    np.testing.assert_allclose(
+        rls.history - before, rls.gain_history * rls.prediction_errors[:, None], atol=1e-12
+    )
+
+
+def test_result_is_a_frozen_record():
+    t = np.arange(200) * 0.05
+    d = _record(n=200)
+    fd = aeroid.FlightData(t, d)
+    rls = aeroid.recursive_least_squares(fd, "z", ["a", "b", "c"])
+    np.testing.assert_array_equal(rls.time, t)
+    for name in ("history", "stderr_history", "gain_history", "covariance", "time"):
+        assert not getattr(rls, name).flags.writeable
+    with pytest.raises(TypeError):
+        rls.parameters["a"] = 0.0  # type: ignore[index]
+    with pytest.raises(aeroid.ChannelError, match="'d'"):
+        rls.parameter("d")
+    lo, hi = rls.interval()["a"]
+    assert lo < rls.parameters["a"] < hi
+    assert "Recursive least squares for z" in rls.summary()
+    assert "| b " in rls.summary()
+
+
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
+        ({"forgetting": 0.0}, "forgetting"),
+        ({"forgetting": 1.5}, "forgetting"),
+        ({"forgetting": "0.9"}, "forgetting"),
+        ({"forgetting": float("nan")}, "forgetting"),
+        ({"forgetting": 0.95, "error_bars": "colored"}, "error_bars"),
+        ({"error_bars": "bogus"}, "error_bars"),
+        ({"intercept": "yes"}, "intercept"),
+        ({"initial": {"q": 1.0}}, "'q'"),
+        ({"initial": [1.0]}, "initial"),
+        ({"initial": {"a": "x"}}, r"initial\['a'\]"),
+        ({"initial_covariance": -1.0}, "initial_covariance"),
+        ({"initial_covariance": np.eye(3)}, "initial_covariance"),
+        ({"initial_covariance": np.array([[1.0, 0.5], [0.0, 1.0]])}, "symmetric"),
+        ({"initial_covariance": np.array([[1.0, 2.0], [2.0, 1.0]])}, "positive definite"),
+        ({"initial_covariance": np.array([[1.0, np.nan], [np.nan, 1.0]])}, "NaN"),
+    ],
+)
+def test_bad_options_are_named(options, match):
+    d = _record(n=50)
+    with pytest.raises(aeroid.DataFormatError, match=match):
+        aeroid.recursive_least_squares(d, "z", ["a"], **options)  # const and a: 2 x 2
+
+
+def test_bad_data_is_named():
+    d = _record(n=50)
+    with pytest.raises(aeroid.ChannelError, match="'q'"):
+        aeroid.recursive_least_squares(aeroid.FlightData(np.arange(50.0), d), "z", ["q"])
+    bad = dict(d, z=np.where(np.arange(50) == 7, np.nan, d["z"]))
+    with pytest.raises(aeroid.DataFormatError, match="sample 7"):
+        aeroid.recursive_least_squares(bad, "z", ["a"])
+    with pytest.raises(aeroid.IdentificationError, match="3 samples"):
+        aeroid.recursive_least_squares({k: v[:3] for k, v in d.items()}, "z", ["a", "b"])
