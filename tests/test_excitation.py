@@ -54,3 +54,27 @@ def test_a_record_without_motion_is_refused_before_the_fit(flight):
     )
     with pytest.raises(IdentificationError, match="no excitation: every rate and acceleration"):
         check_compatibility(still, max_passes=1, n_draws=2)
+
+
+def test_a_step_from_rest_at_the_first_sample_is_excitation():
+    """A control constant from the first sample is a step when the states start away from
+    its equilibrium: the transient carries the derivatives (the first-order step response
+    behind the sensitivities' closed form), with the start given or estimated."""
+    import aeroid
+
+    def roll(t, x, u, p):
+        return np.array([p["L_p"] * x[0] + p["L_da"] * u[0]])
+
+    model = aeroid.Model(["p"], ["aileron"], {"L_p": -1.0, "L_da": 5.0}, roll)
+    t = np.arange(201) / 50.0
+    exact = 12.0 / 2.5 * (1.0 - np.exp(-2.5 * t))  # L_p = -2.5, L_da = 12
+    noise = 0.05 * np.random.default_rng(0).standard_normal(t.size)
+    record = FlightData(t, {"p": exact + noise, "aileron": np.ones_like(t)})
+    for options in ({"x0": [0.0]}, {}):
+        fit = identify(model, record, ["L_p", "L_da"], **options)
+        for name, truth in (("L_p", -2.5), ("L_da", 12.0)):
+            assert abs(fit.parameters[name] - truth) < 4.0 * fit.stderr[name]
+    clean = identify(model, FlightData(t, {"p": exact, "aileron": np.ones_like(t)}), ["L_p", "L_da"],
+                     x0=[0.0])  # fmt: skip
+    assert clean.parameters["L_p"] == pytest.approx(-2.5, rel=1e-4)
+    assert clean.parameters["L_da"] == pytest.approx(12.0, rel=1e-4)

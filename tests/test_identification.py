@@ -404,9 +404,9 @@ def test_a_non_finite_end_of_fit_is_flagged(sp_model, sp_noisy):
     fit = identify(sp_model, sp_noisy, NAMES)
     broken = replace(fit, parameters={**fit.parameters, "M_q": float("nan")})
     with pytest.warns(UserWarning, match="non-finite"):
-        out = _finish(broken, [sp_noisy], None)
+        out = _finish(broken, [sp_noisy], None, {})
     assert not out.success and "non-finite" in out.message
-    assert _finish(fit, [sp_noisy], None).success
+    assert _finish(fit, [sp_noisy], None, {}).success
 
 
 @pytest.mark.parametrize(

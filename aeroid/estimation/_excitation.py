@@ -40,32 +40,45 @@ def _constant(values: Any) -> float | None:
     return float(v[0]) if float(np.ptp(v)) <= 1e-12 * scale else None
 
 
-def require_excitation(datas: Sequence[Any], controls: Iterable[str]) -> None:
-    """Refuse a fit whose every control holds one non-zero value in every manoeuvre.
+def held_controls(datas: Sequence[Any], controls: Iterable[str]) -> dict[str, float]:
+    """The controls that hold one non-zero value in every manoeuvre, by name, when every
+    control does (else empty).
 
-    A control held at zero leaves the free response from the initial states
-    (weak, but information); a constant non-zero one is a trim offset the
-    fit cannot tell from the derivatives it multiplies.
+    A control held at zero leaves the free response from the initial states; a
+    constant non-zero one is a step at the record's start: from a known start
+    (a step from rest) the transient carries the derivatives, but from trim the
+    states never move and the input cannot be told from a trim bias.
+    `refuse_unexcited` decides which, from the fit.
+    """
+    names = list(controls)
+    held: dict[str, float] = {}
+    for name in names:
+        values = [_constant(d[name]) for d in datas]
+        if any(v is None or v == 0.0 for v in values):
+            return {}
+        held[name] = float(values[0])  # type: ignore[arg-type]
+    return held
+
+
+def refuse_unexcited(held: Mapping[str, float], ratios: Mapping[str, float]) -> None:
+    """Refuse a fit whose every control is constant (`held`) and whose fitted response
+    stands out of its residual noise on no output (`response_to_noise` below one, or
+    none: the fit ended non-finite).
 
     Raises
     ------
     IdentificationError
         Naming the controls and their constant values.
     """
-    names = list(controls)
-    if not names:
-        return  # a model without controls is fitted to its free response
-    held: dict[str, float] = {}
-    for name in names:
-        values = [_constant(d[name]) for d in datas]
-        if any(v is None or v == 0.0 for v in values):
-            return
-        held[name] = float(values[0])  # type: ignore[arg-type]
+    if not held or (ratios and any(v >= 1.0 for v in ratios.values())):
+        return
     listing = ", ".join(f"{n!r} = {v:.6g}" for n, v in held.items())
     raise IdentificationError(
-        f"no excitation: every control is constant in every manoeuvre ({listing}); a "
-        "constant input cannot be told from a trim bias, so the derivatives it multiplies "
-        "are not identifiable. Fit a record with an input (doublet, 3-2-1-1, multisine)"
+        f"no excitation: every control is constant in every manoeuvre ({listing}) and no "
+        "output's fitted response stands out of its residual noise; a constant input cannot "
+        "be told from a trim bias, so the derivatives it multiplies are not identifiable. "
+        "Fit a record with an input (doublet, 3-2-1-1, multisine), or a step from a known "
+        "start"
     )
 
 

@@ -290,7 +290,7 @@ def identify(
         check_simulate_options,
         require_model,
     )
-    from ._excitation import require_excitation, require_model_units
+    from ._excitation import held_controls, require_model_units
 
     require_model(model, IdentificationError)
     if method not in _METHODS:
@@ -394,7 +394,7 @@ def identify(
                 "measurement-noise variances": len(fit_outputs) if measurement_noise is None else 0,
             },
         )
-        require_excitation(datas, model.controls)
+        held = held_controls(datas, model.controls)
         require_model_units(model, datas, [*fit_outputs, *model.controls])
         from ._filter_error import identify_filter_error
 
@@ -414,7 +414,7 @@ def identify(
             bounds=box,
             time_delays=delays,
         )
-        return _finish(fitted, datas, model)
+        return _finish(fitted, datas, model, held)
     if (
         process_noise is not None
         or measurement_noise is not None
@@ -498,7 +498,7 @@ def identify(
             "biases": (len(sel_bias) + len(state_bias)) * len(datas),
         },
     )
-    require_excitation(datas, model.controls)
+    held = held_controls(datas, model.controls)
     require_model_units(model, datas, [*fit_outputs, *model.controls])
     fit_model, bias_states = _with_state_biases(model, state_bias) if state_bias else (model, [])
 
@@ -531,7 +531,7 @@ def identify(
         )
     if state_bias:
         fitted = _state_biases_out(fitted, bias_states, state_bias)
-    return _finish(fitted, datas, model)
+    return _finish(fitted, datas, model, held)
 
 
 def _path_substeps(
@@ -678,10 +678,11 @@ def _check_data_count(
 
 
 def _finish(
-    fitted: IdentificationResult, datas: list[FlightData], model: Any
+    fitted: IdentificationResult, datas: list[FlightData], model: Any, held: dict[str, float]
 ) -> IdentificationResult:
     """Stamp the records' fingerprints and the parameters' units; a fit that ended
-    non-finite has not succeeded."""
+    non-finite has not succeeded; constant controls (`held`) must have moved the
+    outputs."""
     estimates = [fitted.cost, *fitted.parameters.values()]
     for group in (*fitted.initial_states, *fitted.biases):
         estimates.extend(group.values())
@@ -697,9 +698,10 @@ def _finish(
             stacklevel=4,  # _finish, identify, its BLAS wrapper, the caller
         )
         fitted = replace(fitted, success=False, message=message)
-    from ._excitation import response_to_noise, warn_unexcited
+    from ._excitation import refuse_unexcited, response_to_noise, warn_unexcited
 
     ratios = {} if bad else response_to_noise(fitted.output_names, fitted.residuals, datas)
+    refuse_unexcited(held, ratios)
     warn_unexcited(ratios)
     declared = dict(getattr(model, "parameter_units", None) or {})
     units = {
