@@ -22,6 +22,7 @@ from .errors import InferenceError as InferenceError
 from .errors import ModelDefinitionError as ModelDefinitionError
 from .errors import OutputError as OutputError
 from .errors import PipelineError as PipelineError
+from .errors import PropagationError as PropagationError
 from .errors import ResidualDriftWarning as ResidualDriftWarning
 from .errors import SimulationError as SimulationError
 from .errors import StoreError as StoreError

@@ -47,6 +47,16 @@ def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 
     return n
 
 
+def check_seed(seed: Any, error: type[Exception], what: str = "seed") -> int | None:
+    """`seed` as a non-negative integer or None, else `error` naming `what`: numpy's own
+    refusal of ``"x"``, ``-3`` or ``1.5`` is a bare ``TypeError`` or ``ValueError``."""
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise error(f"{what}: expected a non-negative integer or None, got {plain(seed)}")
+    return int(seed)
+
+
 def real_array(values: Any, what: str) -> FloatArray:
     """`values` as a float64 array (not copied when it is one), or a `DataFormatError`
     naming `what`: not numeric, or complex (a cast would drop the imaginary part)."""

@@ -15,6 +15,7 @@ __all__ = [
     "ModelDefinitionError",
     "OutputError",
     "PipelineError",
+    "PropagationError",
     "SimulationError",
     "StoreError",
 ]
@@ -57,6 +58,10 @@ class InferenceError(AeroidError, RuntimeError):
 
 class AdapterError(AeroidError, RuntimeError):
     """An external simulator adapter is unavailable or misconfigured."""
+
+
+class PropagationError(AeroidError, ValueError):
+    """Monte Carlo propagation cannot run (no usable draws, bad arguments)."""
 
 
 class OutputError(AeroidError, OSError):

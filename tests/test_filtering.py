@@ -390,13 +390,13 @@ def test_errors(sp_noisy):
         filter_states(model, sp_noisy, method="pf", **kw)
     with pytest.raises(FilterError, match=r"measurement_noise.*q"):
         filter_states(model, sp_noisy, process_noise=None, measurement_noise={"alpha": 1e-4})
-    with pytest.raises(FilterError, match="positive"):
+    with pytest.raises(FilterError, match=r"positive .*'q' is 0\.0"):
         filter_states(
             model, sp_noisy, process_noise=None, measurement_noise={"alpha": 1e-4, "q": 0.0}
         )
     with pytest.raises(FilterError, match=r"process_noise.*unknown"):
         filter_states(model, sp_noisy, process_noise={"beta": 1.0}, measurement_noise=NOISE)
-    with pytest.raises(FilterError, match="non-negative"):
+    with pytest.raises(FilterError, match=r"non-negative .*'q' is -1\.0"):
         filter_states(model, sp_noisy, process_noise={"q": -1.0}, measurement_noise=NOISE)
     with pytest.raises(FilterError, match="2 values"):
         filter_states(model, sp_noisy, process_noise=[1.0, 2.0, 3.0], measurement_noise=NOISE)

@@ -134,14 +134,21 @@ def noise_matrix(
     scale = float(np.max(np.abs(eig))) if n else 0.0
     if n and eig.min() < -1e-12 * max(scale, 1e-300):
         if np.any(np.diag(mat) < 0):
-            got = f"got {np.diag(mat).tolist()}"
+            i = int(np.argmin(np.diag(mat)))
+            got = f"{names[i]!r} is {plain(mat[i, i])} (order {list(names)})"
         else:
             got = f"its smallest eigenvalue is {float(eig.min()):.6g} (order {list(names)})"
         raise error(f"{what}: must be non-negative (positive semi-definite); {got}")
     if positive and n and eig.min() <= 0:
+        diag = np.diag(mat)
+        where = (
+            f"{names[int(np.argmin(diag))]!r} is {plain(diag.min())}"
+            if np.any(diag <= 0)
+            else f"the matrix is singular, its smallest eigenvalue {float(eig.min()):.6g}"
+        )
         raise error(
             f"{what}: every variance must be positive (a measurement needs some noise); "
-            f"got {np.diag(mat).tolist()}"
+            f"{where} (order {list(names)})"
         )
     return mat
 

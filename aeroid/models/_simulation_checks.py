@@ -22,6 +22,21 @@ MAX_SUBSTEPS = 10_000
 _MAX_NODE_VALUES = 2**27
 
 
+def check_substeps(substeps: Any, what: str, error: type[AeroidError]) -> int:
+    """`substeps` as a whole number in 1..`MAX_SUBSTEPS`, else `error` naming `what`."""
+    ok = not isinstance(substeps, (bool, np.bool_, str, bytes))
+    try:
+        ok = ok and int(substeps) == substeps and 1 <= substeps <= MAX_SUBSTEPS
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise error(
+            f"{what} must be a positive integer of at most {MAX_SUBSTEPS} "
+            f"(RK4 steps per sample interval), got {plain(substeps)}"
+        )
+    return int(substeps)
+
+
 def check_integrator(
     method: Any,
     substeps: Any,
@@ -48,16 +63,7 @@ def check_integrator(
             f"{list(_integrate.METHODS)}"
         )
     if substeps is not None:
-        ok = not isinstance(substeps, (bool, np.bool_, str, bytes))
-        try:
-            ok = ok and int(substeps) == substeps and 1 <= substeps <= MAX_SUBSTEPS
-        except (TypeError, ValueError, OverflowError):
-            ok = False
-        if not ok:
-            raise error(
-                f"{name('substeps')} must be a positive integer of at most {MAX_SUBSTEPS} "
-                f"(RK4 steps per sample interval), got {plain(substeps)}"
-            )
+        check_substeps(substeps, name("substeps"), error)
     for key, value, least in (("rtol", rtol, "positive"), ("atol", atol, "non-negative")):
         v = as_float(value)
         if v is None or not (np.isfinite(v) and (v > 0 if least == "positive" else v >= 0)):

@@ -10,7 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .._checks import as_float, plain
 from .._records import fmt, markdown_table
+from .._value_checks import check_seed
 from ..errors import ChannelError, SimulationError
 from ..io.data import FlightData, readonly
 
@@ -101,18 +103,30 @@ class SimulationResult:
                 channels[n] = self.states[:, j]
         for j, n in enumerate(self.output_names):
             channels[n] = self.outputs[:, j]
+        if noise is not None and not isinstance(noise, Mapping):
+            raise SimulationError(
+                f"to_flight_data: noise: expected a dict of output -> standard deviation, got "
+                f"{type(noise).__name__}"
+            )
         if noise:
-            if seed is None:
-                raise SimulationError("to_flight_data: noise needs a seed for reproducibility")
-            rng = np.random.default_rng(seed)
-            for n in self.output_names:  # fixed order keeps the stream reproducible
-                if n in noise:
-                    channels[n] = channels[n] + float(noise[n]) * rng.standard_normal(
-                        self.time.size
-                    )
             unknown = sorted(set(noise) - set(self.output_names))
             if unknown:
                 raise ChannelError(f"noise given for unknown outputs {unknown}")
+            sigma = {}
+            for n, v in noise.items():
+                x = as_float(v)
+                if x is None or not (np.isfinite(x) and x >= 0.0):
+                    raise SimulationError(
+                        f"to_flight_data: noise[{n!r}]: expected a standard deviation >= 0, "
+                        f"got {plain(v)}"
+                    )
+                sigma[n] = x
+            if check_seed(seed, SimulationError, "to_flight_data: seed") is None:
+                raise SimulationError("to_flight_data: noise needs a seed for reproducibility")
+            rng = np.random.default_rng(seed)
+            for n in self.output_names:  # fixed order keeps the stream reproducible
+                if n in sigma:
+                    channels[n] = channels[n] + sigma[n] * rng.standard_normal(self.time.size)
         return FlightData(self.time, channels, dict(units or {}))
 
 

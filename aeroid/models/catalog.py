@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._value_checks import check_seed
+from ..errors import SimulationError
 from ..io.data import FlightData
 from .model import Model
 
@@ -142,8 +144,8 @@ def short_period_flight(
     sig = {"alpha": 0.005, "q": 0.01} if noise is None else dict(noise)
     channels = {"elevator": u, "alpha": sim.output("alpha").copy(), "q": sim.output("q").copy()}
     if sig:
-        if seed is None:
-            raise ValueError("short_period_flight: noisy data needs a seed")
+        if check_seed(seed, SimulationError, "short_period_flight: seed") is None:
+            raise SimulationError("short_period_flight: noisy data needs a seed")
         rng = np.random.default_rng(seed)
         for name in ("alpha", "q"):
             if name not in sig:

@@ -483,9 +483,9 @@ def _substeps(
 
 
 def _substep_count(substeps: Any) -> int:
-    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
-        raise AdapterError(f"substeps must be a positive integer, got {substeps!r}")
-    return int(substeps)
+    from ._simulation_checks import check_substeps
+
+    return check_substeps(substeps, "substeps", AdapterError)
 
 
 def _trace_error(model: Model, exc: Exception) -> AdapterError:

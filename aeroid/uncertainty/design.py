@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from .._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
+from .._value_checks import check_seed
 from ..errors import (
     AeroidError,
     ChannelError,
@@ -551,10 +552,7 @@ def design_experiment(
         )
     rel = _relative_step(relative_step)
     check_flag(progress, "progress", IdentificationError)
-    if seed is not None and (
-        isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
-    ):
-        raise IdentificationError(f"seed: expected a non-negative integer or None, got {seed!r}")
+    check_seed(seed, IdentificationError)
     time = np.arange(n_t) / fs
     all_outputs = _output_names(model)
     if noise is None:

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._records import fmt, frozen_array, markdown_table
+from .._value_checks import check_seed
 from ..errors import ModelDefinitionError
 from ..io.data import FlightData
 
@@ -626,7 +627,7 @@ def orthogonal_multisine(
             f"band {band!r} holds {k_all.size} harmonics of 1/{period:g} s; need at least "
             f"one per control ({m}) — widen the band or lengthen the duration"
         )
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed, ModelDefinitionError))
     t = np.arange(n + 1) / fs
     signals = np.empty((n + 1, m))
     harmonics, phases, line_amps, rpfs, rpf0 = [], [], [], [], []

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from .._records import fmt, frozen_array, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
-from ..errors import AeroidError
+from ..errors import PropagationError
 from ..io.data import check_flag, plain, whole_number
 
 __all__ = [
@@ -38,10 +38,6 @@ FAILURE_WARNING_FRACTION = 0.01
 BLOCK_SIZE = 256
 # Most float64 values the draws or the metric's values of one batch may hold (1 GiB).
 _MAX_VALUES = 2**27
-
-
-class PropagationError(AeroidError, ValueError):
-    """Propagation cannot run (no usable draws, bad arguments)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -501,7 +501,14 @@ def _progress(total: int) -> Any:
 
 def _as_chains(x: ArrayLike, name: str, min_steps: int) -> tuple[FloatArray, bool]:
     """Shape (n_steps, n_chains, n_dim); the flag says whether the input had a dim axis."""
-    a = np.asarray(x, dtype=np.float64)
+    if np.iscomplexobj(x):  # a cast would drop the imaginary part
+        raise InferenceError(f"{name}: complex samples are not supported")
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InferenceError(
+            f"{name}: expected an array of numbers, got {type(x).__name__}"
+        ) from None
     if a.ndim == 1:
         a = a[:, None, None]
         vector = False
