@@ -193,3 +193,19 @@ def test_a_wrong_argument_is_named_before_any_is_read():
         report(inference="posterior")
     with pytest.raises(OutputError, match="path must be a file path, got int"):
         report(None, path=5)  # type: ignore[arg-type]
+
+
+def test_a_result_in_another_slot_is_named(sp_noisy):
+    """A fit passed first (where the validation goes) raised AttributeError from deep in
+    the notes; passed third it rendered as an "Uncertainty propagation" section."""
+    from aeroid.errors import AeroidError
+
+    model = catalog.short_period()
+    fit = identify(model, sp_noisy, list(catalog.SHORT_PERIOD_TRUTH))
+    with pytest.raises(AeroidError, match=r"validation argument \(IdentificationResult\)"):
+        report(fit)
+    with pytest.raises(AeroidError, match="propagation argument"):
+        report(None, None, fit)
+    with pytest.raises(AeroidError, match="experiment argument"):
+        report(experiment=fit)
+    assert "## Identification" in report(None, fit)

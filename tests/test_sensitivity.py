@@ -106,6 +106,20 @@ def test_values_from_a_result_and_parameter_subset(sp_noisy, sp_truth):
     assert a.values["M_q"] == sp_truth["M_q"]
 
 
+def test_a_posterior_plugs_in_like_a_fit(sp_noisy, sp_truth):
+    """The spec: a posterior "plugs into validate, sensitivities, and propagate exactly
+    like a least-squares fit"; its sigma_<output> noise estimates are not parameters."""
+    model = catalog.short_period(sp_truth)
+    post = aeroid.infer(
+        model, sp_noisy, {"M_q": aeroid.Normal(-2.0, 2.0)}, n_steps=200, seed=0, progress=False
+    )
+    assert "sigma_alpha" in post.parameters
+    by_result = sensitivities(model, sp_noisy, post, noise=NOISE)
+    by_values = sensitivities(model, sp_noisy, ["M_q"], values=post, noise=NOISE)
+    assert by_result.parameter_names == ("M_q",)
+    np.testing.assert_array_equal(by_result.fisher_information, by_values.fisher_information)
+
+
 def test_crb_matches_monte_carlo_spread_of_least_squares():
     # Self-contained pin: the bound equals the spread of output-error estimates over
     # seeded noise. 40 fits give the sample std to ~11 % (1/sqrt(2*39)); rel 0.3 is ~2.7σ.

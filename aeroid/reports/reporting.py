@@ -173,6 +173,20 @@ def _without_heading(body: str) -> str:
     return body
 
 
+# What each slot reads of its result beyond summary(): a result in the wrong slot (an
+# identification passed first, where the validation goes) is named, not an AttributeError.
+_SLOT_ATTRIBUTES: dict[str, tuple[str, ...]] = {
+    "identification": ("parameters", "stderr"),
+    "validation": ("metrics",),
+    "filtering": ("log_likelihood",),
+    "sensitivity": ("fisher_information",),
+    "frequency": ("channels",),
+    "inference": ("samples", "r_hat"),
+    "propagation": ("mean", "std", "samples"),
+    "experiment": ("recommendation",),
+}
+
+
 def report_sections(
     validation: Any = None,
     identification: Any = None,
@@ -197,10 +211,19 @@ def report_sections(
         "experiment": experiment,
     }
     for slot, result in given.items():  # before any slot's notes read its attributes
-        if result is not None and not callable(getattr(result, "summary", None)):
+        if result is None:
+            continue
+        if not callable(getattr(result, "summary", None)):
             raise AeroidError(
                 f"report: the {slot} argument is not a result (it has no summary()): "
                 f"{type(result).__name__}"
+            )
+        missing = [a for a in _SLOT_ATTRIBUTES[slot] if not hasattr(result, a)]
+        if missing:
+            raise AeroidError(
+                f"report: the {slot} argument ({type(result).__name__}) has no "
+                f"{missing[0]!r}: not a {slot} result (report takes validation, "
+                "identification and propagation by position, the others by keyword)"
             )
     units = _report_units(validation, identification, filtering, sensitivity, inference)
 

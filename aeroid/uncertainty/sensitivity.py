@@ -513,6 +513,10 @@ def sensitivities(
             parameters, "parameters", parameters
         )
         parameters = [str(n) for n in given]
+        if not isinstance(values, Mapping):
+            # a result's other estimates (a posterior's sigma_<output>, a fit's delays)
+            # are not the model's parameters
+            parameters = [n for n in parameters if n in model.parameters] or parameters
     names = _parameter_list(model, parameters)
     vals = resolve_parameters(model, values, error=IdentificationError)
     if x0 is None:
