@@ -492,6 +492,66 @@ def test_a_longitudinal_record_without_phi(monkeypatch):
     assert abs(res.parameters["b_az"]) < 4.0 * res.stderr["b_az"]
 
 
+def test_a_longitudinal_record_leaves_the_unseen_side_velocity_alone(monkeypatch):
+    """Without beta (or the ground speed) the airspeed holds v only squared: asked for its
+    start by default, the fit stalled at its start values ("no step decreases the
+    cost"), 41 of 50 noisy records too."""
+    import _compat_flight as flight
+
+    monkeypatch.setitem(flight._SIGNALS, "phi", (0.0, 0.0, []))
+    monkeypatch.setitem(flight._SIGNALS, "beta", (0.0, 0.0, []))
+    monkeypatch.setitem(flight._SIGNALS, "psi", (0.3, 0.0, []))
+    truth = {"b_q": -0.002, "b_ax": 0.15, "b_az": -0.05}
+    data = simulated_flight(DURATION, RATE, errors=truth, noise={})
+    lon = aeroid.FlightData(
+        data.time, {c: data[c] for c in ("p", "q", "r", "ax", "ay", "az", "V", "alpha", "theta")}
+    )
+    res = check_compatibility(lon, estimate=list(truth))
+    assert res.success and res.identifiable
+    assert set(res.initial_state_stderr) == {"u", "w", "theta"}
+    for name, value in truth.items():
+        assert res.parameters[name] == pytest.approx(value, rel=5e-3)
+
+
+def test_what_cannot_be_separated_keeps_infinite_bars_with_input_noise():
+    """Level flight at a constant angle of attack, no ground speed: an airspeed offset
+    and the initial forward speed are one direction. The warning said their bars are
+    infinite, but the coloured bars with the input-noise share gave b_V +-0.07."""
+    from scipy.signal import lfilter
+
+    g = 9.80665
+    t = np.arange(0.0, 15.0, 0.02)
+    a0, th = 0.06, 0.05
+    speed = 50.0 + 2.0 * np.sin(0.3 * t) + np.sin(0.9 * t + 1.0)
+    accel = 0.6 * np.cos(0.3 * t) + 0.9 * np.cos(0.9 * t + 1.0)
+    rng = np.random.default_rng(0)
+    drift = lfilter([1.0], [1.0, -0.97], 0.05 * rng.standard_normal(t.size))
+
+    def noise(s: float) -> np.ndarray:
+        return s * rng.standard_normal(t.size)
+
+    data = aeroid.FlightData(
+        t,
+        {
+            "p": noise(1e-4),
+            "q": noise(1e-4),
+            "r": noise(1e-4),
+            "ay": noise(0.01),
+            "ax": accel * np.cos(a0) + g * np.sin(th) + noise(0.01),
+            "az": accel * np.sin(a0) - g * np.cos(th) + noise(0.01),
+            "V": speed + drift,
+            "alpha": a0 + noise(0.002),
+            "theta": th + noise(0.002),
+        },
+    )
+    with pytest.warns(aeroid.IdentifiabilityWarning, match="b_V"):
+        res = check_compatibility(data, estimate=["b_V", "b_q", "b_ax", "b_az"])
+    assert res.error_bars == "colored" and not res.identifiable
+    assert any("b_V" in combo for combo in res.unidentifiable)
+    assert res.stderr["b_V"] == np.inf
+    assert np.isfinite(res.stderr["b_q"]) and np.isfinite(res.stderr["b_az"])
+
+
 def test_scale_about_initial_is_a_reparametrisation():
     # (1 + k)(y - y0) + y0 + b == (1 + k) y + (b - k y0): same k, offset moved by k y0
     data = simulated_flight(DURATION, RATE, errors={"k_alpha": 0.08, "b_alpha": 0.01}, seed=24)

@@ -388,6 +388,14 @@ def _plot(result: CompatibilityResult) -> Any:
 # -- the analysis ------------------------------------------------------------------------
 
 
+def _moves(x: FloatArray) -> bool:
+    """Whether a channel moves beyond its sample-to-sample noise: its spread about the
+    mean more than three times the white-noise level its first differences give."""
+    spread = float(np.std(x))
+    noise = float(np.std(np.diff(x))) / math.sqrt(2.0) if x.size > 2 else 0.0
+    return spread > 3.0 * noise and spread > 0.0
+
+
 @small_blas
 def check_compatibility(
     data: FlightData,
@@ -473,7 +481,10 @@ def check_compatibility(
         lateral analysis can take ``u, w, theta`` from the data, a
         longitudinal one ``v, phi, psi``.
     estimate_x0 : bool or sequence of str
-        True: estimate every initial state the outputs see; False: hold them
+        True: estimate every initial state the outputs see (``v`` with ``beta``
+        or the ground speed, or where ``p`` or ``r`` move beyond their noise;
+        ``phi`` with ``phi``, ``psi`` with ``psi`` or the ground speed, ``h``
+        with ``h``); False: hold them
         all at the measured values (the start of each channel, smoothed);
         or the names of the states to estimate, the others held.
     scale_about : {"zero", "initial"}
@@ -593,13 +604,19 @@ def check_compatibility(
     start = _start_state(_first_values(t, measured), values, x0)
     stand_in = _states_from(measured, values)
     held = np.column_stack([stand_in[s] if s in held_in else np.zeros(t.size) for s in STATES])
-    # the heading is seen by its own channel or through the ground speed
+    # the heading is seen by its own channel or through the ground speed; the side
+    # velocity by the sideslip, the ground speed, or through p v and r v in the other
+    # velocities' rates where the record rolls or yaws (the airspeed holds it only
+    # squared: a wings-level record without beta cannot tell its start, and a fit asked
+    # for it stalls on that direction)
+    lateral = _moves(inputs["p"]) or _moves(inputs["r"])
     seen = {
+        "v": bool({"beta", "vn", "ve"} & set(outputs)) or lateral,
         "phi": "phi" in outputs,
         "psi": bool({"psi", "vn", "ve"} & set(outputs)),
         "h": "h" in outputs,
     }
-    free_x0 = ["u", "v", "w"] + [s for s in ("phi", "theta", "psi", "h") if seen.get(s, True)]
+    free_x0 = [s for s in ("u", "v", "w", "phi", "theta", "psi", "h") if seen.get(s, True)]
     free_x0 = [s for s in _free_states(estimate_x0, free_x0) if s not in held_in]
     masks = tuple((f"m_{s}", 1.0 if s in held_in else 0.0) for s in STATES)
     pivots = {o: 0.0 for o in OUTPUT_CHANNELS}
@@ -748,12 +765,17 @@ def _result(
     for c in INPUT_CHANNELS:
         corrected[present[c]] = (inputs[c] - values[f"b_{c}"]) / (1.0 + values[f"k_{c}"])
     dof = {n: float(fit.degrees_of_freedom.get(n, np.inf)) for n in (*names, *fit.extra_stderr)}
+    # what the fit could not separate keeps its infinite bars whatever is added to them
+    null = ~np.isfinite(np.diag(np.asarray(fit.covariance)))
     if base is None:
         cov = np.asarray(fit.covariance) + extra
     else:
         # the measurement-noise part is unbiased but noisy, possibly indefinite:
         # only the sum need be a covariance
-        w, v = np.linalg.eigh(0.5 * (base[0] + extra + (base[0] + extra).T))
+        total = base[0] + extra
+        total[null, :] = 0.0
+        total[:, null] = 0.0
+        w, v = np.linalg.eigh(0.5 * (total + total.T))
         cov = (v * np.maximum(w, 0.0)) @ v.T
         # Satterthwaite: only the measurement-noise part is estimated from a finite band
         # (none where the measurement noise adds nothing: the rest is not estimated)
@@ -761,6 +783,9 @@ def _result(
         with np.errstate(divide="ignore", invalid="ignore"):
             nu = np.where(part > 0, base[1] * (np.diag(cov) / part) ** 2, np.inf)
         dof.update({n: float(nu[j]) for j, n in enumerate(names)})
+    cov[null, :] = np.nan
+    cov[:, null] = np.nan
+    cov[null, null] = np.inf
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     se[~np.isfinite(np.diag(cov))] = np.inf
     stderr = {n: float(se[j]) for j, n in enumerate(names)}

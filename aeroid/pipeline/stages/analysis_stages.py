@@ -367,7 +367,9 @@ for _stage in (
         # 3: integrated input noise counted once in the error bars
         # 4: coloured-residual degrees of freedom with the low band's exact covariance
         # 5: the bars carry the scatter of the estimated output weights
-        "5",
+        # 6: a wings-level record's side velocity start is not estimated; what cannot
+        # be separated keeps infinite bars with the input-noise share
+        "6",
         CompatibilityOptions,
         "CompatibilityResult",
         _run_compatibility,
