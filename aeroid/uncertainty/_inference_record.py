@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
@@ -87,6 +87,13 @@ class InferenceResult:
         Why the run is or is not considered converged.
     backend : str
     model_name : str
+    residual_correlation : mapping of str to float
+        Per output, the lag-one correlation of the residuals at the best draw
+        (`infer` only; empty from `combine_ensembles`). The likelihood counts
+        the samples as independent: residuals correlated well beyond chance
+        make the posterior too narrow, and `infer` warns.
+    residual_samples : int
+        The samples that correlation was computed over.
     """
 
     samples: FloatArray
@@ -118,6 +125,8 @@ class InferenceResult:
     backend: str = "numpy"
     model_name: str = ""
     move: str = "stretch"
+    residual_correlation: Mapping[str, float] = field(default_factory=dict)
+    residual_samples: int = 0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -136,6 +145,7 @@ class InferenceResult:
             "fixed",
             "noise",
             "priors",
+            "residual_correlation",
         ):
             set_(self, name, frozen_mapping(getattr(self, name)))
         set_(
@@ -149,6 +159,7 @@ class InferenceResult:
         set_(self, "acceptance_fraction", float(self.acceptance_fraction))
         set_(self, "stretch", float(self.stretch))
         set_(self, "converged", bool(self.converged))
+        set_(self, "residual_samples", int(self.residual_samples))
 
     @property
     def standard_errors(self) -> Mapping[str, float]:
@@ -251,11 +262,40 @@ class InferenceResult:
             notes.append(
                 "Fixed: " + ", ".join(f"{k} = {fmt(v)}" for k, v in self.fixed.items()) + "."
             )
+        coloured = coloured_outputs(self.residual_correlation, self.residual_samples)
+        if coloured:
+            notes.append(
+                "**Coloured residuals** at the best draw (lag-one correlation "
+                + ", ".join(f"{k} {v:.2f}" for k, v in coloured.items())
+                + "): the likelihood counts the samples as independent, so this posterior "
+                f"is too narrow, by up to about {widening(coloured):.1f}x."
+            )
         if self.converged:
             notes.append(f"Converged: {self.message}")
         else:
             notes.append(f"**Not converged:** {self.message}")
         return table + "\n\n" + "\n".join(notes)
+
+
+# A lag-one residual correlation is reported as colour where it widens a slow
+# parameter's bar by more than this (AR(1): sqrt((1 + rho) / (1 - rho))) ...
+_WIDENING = 1.25
+# ... and lies beyond chance: this many standard errors (1 / sqrt(n)) of white noise's.
+_CHANCE = 4.0
+
+
+def coloured_outputs(correlation: Mapping[str, float], n: int) -> dict[str, float]:
+    """The outputs whose residuals' lag-one correlation widens a slow parameter's bar by
+    more than `_WIDENING` and lies beyond chance for `n` samples."""
+    rho = (_WIDENING**2 - 1.0) / (_WIDENING**2 + 1.0)
+    limit = max(rho, _CHANCE / math.sqrt(max(n, 1)))
+    return {k: float(v) for k, v in correlation.items() if math.isfinite(v) and v > limit}
+
+
+def widening(coloured: Mapping[str, float]) -> float:
+    """AR(1)'s factor on a slow parameter's standard error at the largest correlation."""
+    rho = min(max(coloured.values()), 0.9999)
+    return math.sqrt((1.0 + rho) / (1.0 - rho))
 
 
 def _max_finite(values: Mapping[str, float]) -> str:

@@ -348,6 +348,11 @@ class _Posterior:
                 f"{start}: {res.failure[0]}"
             )
 
+    def residuals(self, values: Mapping[str, float]) -> FloatArray:
+        """Residuals (n_t, n_y) at one parameter set (NaN where the simulation fails)."""
+        params = {n: np.array([values[n]]) for n, _ in self.model_cols}
+        return np.asarray(self.simulate(params, 1)[0] - self.y)
+
     def residual_rms(self, values: Mapping[str, float]) -> FloatArray:
         """RMS residual per output at one parameter set (NaN where the simulation fails)."""
         params = {n: np.array([values[n]]) for n, _ in self.model_cols}

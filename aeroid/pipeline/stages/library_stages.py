@@ -497,8 +497,9 @@ for _stage in (
     Stage(
         "infer",
         # 3: parameters not inferred held at the fit; 4: the sampler's simulations compiled
-        # from the first (log-densities equal to rounding, the same draws); 5: RK4 substeps
-        "5",
+        # from the first (log-densities equal to rounding, the same draws); 5: RK4 substeps;
+        # 6: the residuals' colour at the best draw recorded
+        "6",
         InferOptions,
         "InferenceResult",
         _run_infer,
