@@ -147,6 +147,11 @@ def test_same_seed_same_design():
     b = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], seed=7, **kw)
     np.testing.assert_array_equal(a.controls, b.controls)
     assert dict(a.design) == dict(b.design)
+    # no seed: one is drawn and recorded, and it repeats the design
+    c = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], seed=None, **kw)
+    assert isinstance(c.seed, int)
+    d = design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], seed=c.seed, **kw)
+    np.testing.assert_array_equal(c.controls, d.controls)
 
 
 def test_each_generation_is_one_batched_simulation(monkeypatch):

@@ -125,6 +125,8 @@ class ExperimentDesign:
     success : bool
     message : str
     seed : int or None
+        The optimiser's seed (`design_experiment` draws and records one when
+        none is given).
     model_name : str
     """
 
@@ -481,6 +483,8 @@ def design_experiment(
         (a perturbation model).
     seed : int, optional
         Seed of the optimiser; the same seed gives a bit-identical design.
+        None draws one from the operating system's entropy and records it on
+        the result (``design.seed``), so that the design can be repeated.
         None draws fresh entropy.
     optimizer_options : mapping, optional
         Differential-evolution settings: ``maxiter`` (default 30),
@@ -552,7 +556,9 @@ def design_experiment(
         )
     rel = _relative_step(relative_step)
     check_flag(progress, "progress", IdentificationError)
-    check_seed(seed, IdentificationError)
+    if check_seed(seed, IdentificationError) is None:
+        # fresh entropy, recorded on the result so that the design can be repeated
+        seed = int(np.random.SeedSequence().generate_state(1)[0])
     time = np.arange(n_t) / fs
     all_outputs = _output_names(model)
     if noise is None:
