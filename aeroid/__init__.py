@@ -34,6 +34,12 @@ if TYPE_CHECKING:  # the lazy table below, as type checkers must see it
     from .estimation.filtering import filter_states as filter_states
     from .estimation.identification import IdentificationResult as IdentificationResult
     from .estimation.identification import identify as identify
+    from .estimation.orthogonal_functions import (
+        OrthogonalFunctionResult as OrthogonalFunctionResult,
+    )
+    from .estimation.orthogonal_functions import (
+        orthogonal_function_model as orthogonal_function_model,
+    )
     from .estimation.recursive_estimation import RecursiveResult as RecursiveResult
     from .estimation.recursive_estimation import (
         recursive_least_squares as recursive_least_squares,
@@ -217,6 +223,8 @@ _LAZY = {
     "combine_batches": ".uncertainty.propagation",
     "propagate": ".uncertainty.propagation",
     "propagate_batch": ".uncertainty.propagation",
+    "OrthogonalFunctionResult": ".estimation.orthogonal_functions",
+    "orthogonal_function_model": ".estimation.orthogonal_functions",
     "RecursiveResult": ".estimation.recursive_estimation",
     "recursive_least_squares": ".estimation.recursive_estimation",
     "RegressionResult": ".estimation.regression",
