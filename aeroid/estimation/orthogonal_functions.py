@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._checks import as_float, plain
 from .._colour import colored_covariance
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
+from .._value_checks import whole_number
 from ..errors import DataFormatError, IdentificationError
 from ..io.data import FlightData
 from ._regressors import _resolve
@@ -217,7 +218,7 @@ def orthogonal_function_model(
     if k == 0:
         raise DataFormatError("variables: name at least one")
     powers_max = _max_powers(max_power, names)
-    order = _whole(max_order, "max_order", 1)
+    order = whole_number(max_order, "max_order", DataFormatError, least=1)
     bars = (
         error_bars
         if error_bars is not None
@@ -240,7 +241,7 @@ def orthogonal_function_model(
     if n_functions is None:
         keep = int(np.argmin(pse_hist)) + 1
     else:
-        keep = _whole(n_functions, "n_functions", 1)
+        keep = whole_number(n_functions, "n_functions", DataFormatError, least=1)
         if keep > rank.size:
             raise DataFormatError(
                 f"n_functions: {keep} asked, {rank.size} orthogonal functions generated"
@@ -396,27 +397,26 @@ def _noise_bound(value: float | str, z: FloatArray, xs: FloatArray) -> float:
     return 25.0 * v
 
 
-def _whole(value: Any, what: str, least: int) -> int:
-    v = as_float(value)
-    if v is None or not np.isfinite(v) or v != int(v) or v < least:
-        raise DataFormatError(f"{what}: expected a whole number >= {least}, got {plain(value)}")
-    return int(v)
-
-
 def _max_powers(value: Any, names: list[str]) -> list[int]:
     if isinstance(value, Mapping):
         unknown = sorted(set(value) - set(names))
         if unknown:
             raise DataFormatError(f"max_power: {unknown} are not among the variables {names}")
-        out = [_whole(value.get(n, 0), f"max_power[{n!r}]", 0) for n in names]
+        out = [
+            whole_number(value.get(n, 0), f"max_power[{n!r}]", DataFormatError, least=0)
+            for n in names
+        ]
     elif isinstance(value, Sequence) and not isinstance(value, str):
         if len(value) != len(names):
             raise DataFormatError(
                 f"max_power: expected one per variable ({len(names)}), got {len(value)}"
             )
-        out = [_whole(v, f"max_power[{i}]", 0) for i, v in enumerate(value)]
+        out = [
+            whole_number(v, f"max_power[{i}]", DataFormatError, least=0)
+            for i, v in enumerate(value)
+        ]
     else:
-        out = [_whole(value, "max_power", 0)] * len(names)
+        out = [whole_number(value, "max_power", DataFormatError, least=0)] * len(names)
     for n, p in zip(names, out, strict=True):
         if p > 8:
             raise DataFormatError(f"max_power[{n!r}]: at most 8, got {p}")
