@@ -164,3 +164,24 @@ def test_bad_data_is_named():
         aeroid.recursive_least_squares(bad, "z", ["a"])
     with pytest.raises(aeroid.IdentificationError, match="3 samples"):
         aeroid.recursive_least_squares({k: v[:3] for k, v in d.items()}, "z", ["a", "b"])
+
+
+def test_what_the_regressors_cannot_separate_keeps_the_starts_bars():
+    """Collinear or constant regressors: the batch fit refuses them; the recursion runs
+    on its start, and the coloured sandwich (which sees no data along that direction)
+    read a = 0.667 +- 0.005 for a truth of 1. The start's covariance is what bounds it."""
+    d = _record(n=200, seed=5)
+    tied = dict(d, tied=2.0 * d["a"] - d["b"])
+    with pytest.warns(aeroid.IdentifiabilityWarning, match="'tied'"):
+        res = aeroid.recursive_least_squares(tied, "z", ["a", "b", "tied"])
+    assert res.error_bars == "white"
+    lo, hi = res.interval()["a"]
+    assert lo < -1.2 < hi and hi - lo > 10.0
+    with pytest.warns(aeroid.IdentifiabilityWarning, match="'flat'"):
+        flat = aeroid.recursive_least_squares(dict(d, flat=np.full(200, 3.0)), "z", ["a", "flat"])
+    assert flat.stderr["const"] > 100.0
+
+
+def test_a_memory_shorter_than_the_parameters_is_refused():
+    with pytest.raises(aeroid.DataFormatError, match="remembers about 2 samples"):
+        aeroid.recursive_least_squares(_record(n=50), "z", ["a", "b"], forgetting=0.5)

@@ -571,6 +571,8 @@ def test_stepwise_bad_input() -> None:
     for options, match in [
         ({"f_in": "a"}, "f_in, f_out: need numbers"),
         ({"f_in": None}, "f_in, f_out: need numbers"),
+        ({"f_in": "4"}, "f_in, f_out: need numbers"),  # text is not read as a number
+        ({"f_out": "1"}, "f_in, f_out: need numbers"),
         ({"max_steps": 0}, "max_steps must be a positive integer, got 0"),
         ({"max_steps": 1.7}, "max_steps must be a positive integer, got 1.7"),
         ({"max_steps": "a"}, "max_steps"),
@@ -595,6 +597,7 @@ def test_candidate_pool_and_splines_bad_input() -> None:
         (lambda: spline_terms(alpha * 1e3, [0.1], degree=1000), "overflows"),
         (lambda: candidate_pool(data, 5), "variables: expected channel names"),
         (lambda: candidate_pool(data, [1, 2]), "variables: expected channel names"),
+        (lambda: candidate_pool(data, ["alpha", "alpha"]), "'alpha' is listed twice"),
         (lambda: candidate_pool({}, ["alpha"]), "no channels"),
         (lambda: candidate_pool({**data, "q": data["q"][:-5]}, ["alpha", "q"]), r"data\['q'\]"),
         (lambda: candidate_pool({**data, "q": "hello"}, ["alpha", "q"]), r"data\['q'\]"),
@@ -801,3 +804,21 @@ def test_a_dangling_power_and_a_name_for_a_level_are_refused() -> None:
     fit = equation_error(data, "z", ["a"])
     with pytest.raises(IdentificationError, match="level must lie strictly between 0 and 1"):
         fit.interval("a")  # type: ignore[arg-type]
+
+
+def test_sample_counts_and_frequencies_are_checked_before_anything_else() -> None:
+    """Found by an independent suite: no samples ended stepwise regression in a
+    ZeroDivisionError, one sample was blamed on a "constant" regressor, a repeated
+    frequency counted as new equations (an exact fit with 4e-16 error bars), and
+    frequencies given to a time-domain fit were dropped in silence."""
+    rng = np.random.default_rng(0)
+    d = {"a": rng.standard_normal(100), "q": rng.standard_normal(100)}
+    d["z"] = 1.0 + d["a"] - 2.0 * d["q"]
+    with pytest.raises(IdentificationError, match="0 samples"):
+        stepwise_regression({"a": np.zeros(0), "z": np.zeros(0)}, "z", ["a"])
+    with pytest.raises(IdentificationError, match="1 samples cannot fit 3 parameters"):
+        equation_error({k: v[:1] for k, v in d.items()}, "z", ["a", "q"])
+    with pytest.raises(DataFormatError, match="repeated"):
+        equation_error(d, "z", ["a", "q"], domain="frequency", frequencies=[0.3] * 3, dt=0.1)
+    with pytest.raises(DataFormatError, match="frequencies: used with domain='frequency'"):
+        equation_error(d, "z", ["a", "q"], frequencies=[0.1, 0.2], dt=0.1)

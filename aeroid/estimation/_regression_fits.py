@@ -268,6 +268,10 @@ def _frequency_fit(
         raise DataFormatError(
             f"frequencies: expected a 1-D array of frequencies in [0, {nyquist:.6g}] Hz"
         )
+    if np.unique(freq).size != freq.size:
+        raise DataFormatError(
+            "frequencies: a frequency is repeated (each one is a pair of equations once)"
+        )
     m, p = freq.shape[0], x.shape[1]
     if 2 * m <= p:
         raise IdentificationError(

@@ -303,6 +303,9 @@ def candidate_pool(
         )
     if not variables:
         raise DataFormatError("variables: give at least one variable")
+    for v in variables:
+        if list(variables).count(v) > 1:
+            raise DataFormatError(f"variables: {v!r} is listed twice")
     if isinstance(data, FlightData):
         lookup: Mapping[str, Any] = data.channels
         n = data.n_samples

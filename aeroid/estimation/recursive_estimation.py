@@ -20,6 +20,7 @@ posteriori residuals, which under-reads it while the estimate still moves.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,10 +32,16 @@ from .._checks import as_float, plain
 from .._colour import colored_covariance
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from .._value_checks import check_flag, check_symmetric
-from ..errors import ChannelError, DataFormatError, IdentificationError
+from ..errors import (
+    ChannelError,
+    DataFormatError,
+    IdentifiabilityWarning,
+    IdentificationError,
+)
 from ..io.data import FlightData
 from ._regression_fits import _classical_where_not_positive
 from ._regressors import _check_names, _resolve
+from .least_squares import _ls_solve
 
 __all__ = ["RecursiveResult", "recursive_least_squares"]
 
@@ -233,6 +240,11 @@ def recursive_least_squares(
         raise DataFormatError("regressors: none given and no constant term")
     if n <= p:
         raise IdentificationError(f"recursive least squares: {n} samples cannot fit {p} parameters")
+    if lam < 1.0 and 1.0 / (1.0 - lam) <= p:
+        raise DataFormatError(
+            f"forgetting: {lam!r} remembers about {1.0 / (1.0 - lam):.3g} samples, no more "
+            f"than the {p} parameters: no estimate could be told from the noise"
+        )
     theta0 = _start(initial, names)
     p0 = _start_covariance(initial_covariance, names)
     t = time if time is not None else np.arange(n, dtype=np.float64)
@@ -241,6 +253,8 @@ def recursive_least_squares(
     s2 = float(s_hist[-1]) ** 2
     cov_white = s2 * cov_p
     nu = np.full(p, _weighted_count(n, lam) - p)
+    if bars == "colored" and not _separable(x, names):
+        bars = "white"  # what the data cannot see rests on the start: its covariance says so
     if bars == "colored":
         v = z - x @ theta
         cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], cov_p)
@@ -264,6 +278,23 @@ def recursive_least_squares(
         error_bars=bars,
         degrees_of_freedom={k: float(nu[j]) for j, k in enumerate(names)},
     )
+
+
+def _separable(x: FloatArray, names: list[str]) -> bool:
+    """Whether the regressors alone determine every parameter (the batch fit would run);
+    warns naming them where they do not (a constant, zero or collinear regressor), whose
+    estimates then rest on the start."""
+    try:
+        _ls_solve(x, np.zeros(x.shape[0]), names)
+    except IdentificationError as exc:
+        warnings.warn(
+            f"recursive_least_squares: {exc}; the estimates along it rest on the start, so "
+            "the final error bars are the classical ones from the start's covariance",
+            IdentifiabilityWarning,
+            stacklevel=3,  # here, recursive_least_squares, the caller
+        )
+        return False
+    return True
 
 
 def _weighted_count(k: int, lam: float) -> float:

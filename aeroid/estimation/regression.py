@@ -77,7 +77,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._records import IntervalMixin, fmt, markdown_table
 from .._threads import small_blas
 from ..errors import DataFormatError, IdentificationError
-from ..io.data import FlightData, check_flag, whole_number
+from ..io.data import FlightData, as_float, check_flag, whole_number
 from ._regression_fits import _DELAY as _DELAY
 from ._regression_fits import _delay_starts as _delay_starts
 from ._regression_fits import _delayed_fit as _delayed_fit
@@ -205,6 +205,13 @@ def equation_error(
     z, x, names, zname, time = _resolve(data, response, regressors, "equation error")
     check_flag(intercept, "intercept", DataFormatError)
     use_const = bool(intercept)
+    n_terms = x.shape[1] + int(use_const)
+    if domain == "time" and x.shape[0] <= n_terms:
+        raise IdentificationError(
+            f"equation error: {x.shape[0]} samples cannot fit {n_terms} parameters"
+        )
+    if domain == "time" and frequencies is not None:
+        raise DataFormatError("frequencies: used with domain='frequency' only")
     if use_const and x.shape[0]:
         # a column of ones built by hand, as SIDPAC's regressor matrices carry (a zero
         # column is left to the solver, which refuses it as such)
@@ -446,11 +453,12 @@ def stepwise_regression(
     IdentificationError
         Too few samples for the pool.
     """
-    try:
-        f_in, f_out = float(f_in), float(f_out)
-        ordered = bool(np.isfinite(f_in) and np.isfinite(f_out) and 0 <= f_out <= f_in)
-    except (TypeError, ValueError):
-        ordered = False
+    f_in_v, f_out_v = as_float(f_in), as_float(f_out)  # text is no F value
+    ordered = (
+        f_in_v is not None
+        and f_out_v is not None
+        and bool(np.isfinite(f_in_v) and np.isfinite(f_out_v) and 0 <= f_out_v <= f_in_v)
+    )
     if not ordered:
         raise DataFormatError(
             f"f_in, f_out: need numbers 0 <= f_out <= f_in, got {f_in!r}, {f_out!r}"
@@ -474,6 +482,11 @@ def stepwise_regression(
     n, c = x.shape
     if c == 0:
         raise DataFormatError("candidates: the pool is empty")
+    if n <= int(intercept) + len(forced_list):
+        raise IdentificationError(
+            f"stepwise regression: {n} samples cannot fit the constant and forced terms"
+        )
+    f_in, f_out = float(f_in_v), float(f_out_v)  # type: ignore[arg-type]
     limit = 4 * c if max_steps is None else whole_number(max_steps, "max_steps", DataFormatError)
     # Work on centred columns when there is a constant: the constant then drops out of
     # the cross-products, and the partial F statistics are those of the full model.
