@@ -377,7 +377,13 @@ def test_to_csv_round_trips_exactly_and_refuses_unwritable_names(tmp_path):
     np.testing.assert_array_equal(back.time, data.time)
     for name in data.names:
         np.testing.assert_array_equal(back[name], data[name])
+    assert dict(back.units) == dict(data.units) and data.units  # the units too
+    renamed = load_flight_test(path, channels={"alpha": "aoa"}, units={"aoa": "deg"})
+    assert dict(renamed.units) == {"aoa": "deg"}  # given units win, under the new name
     assert not list(tmp_path.glob("*.part"))
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# units: alpha=rad\ntime,alpha\n0,1\n1,2\n")
+    assert dict(load_flight_test(bad).units) == {}  # another tool's comment: no units
     odd = FlightData(np.arange(3.0), {"a,b": np.zeros(3)})
     with pytest.raises(DataFormatError, match=r"'a,b'"):
         odd.to_csv(tmp_path / "g.csv")
@@ -461,3 +467,20 @@ def test_channel_names_of_the_wrong_type_are_named():
     with pytest.raises(ChannelError, match=r"channel name \['alpha'\]: expected a string"):
         d[["alpha"]]  # type: ignore[index]
     assert d.array(iter(["alpha", "q"])).shape == (3, 2)  # an iterator is read once
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_a_file_name_that_is_not_utf8_is_read(tmp_path, suffix):
+    """pyarrow cannot encode such a name (a bare UnicodeEncodeError for CSV; "not a
+    readable Parquet file" for a valid one)."""
+    import os
+
+    name = os.fsdecode(os.path.join(os.fsencode(tmp_path), b"vol_\xff\xfe" + suffix.encode()))
+    if suffix == ".csv":
+        with open(name, "w") as fh:
+            fh.write("time,a\n0,1\n0.1,2\n0.2,4\n")
+    else:
+        with open(name, "wb") as fh:
+            pq.write_table(pa.table({"time": [0.0, 0.1, 0.2], "a": [1.0, 2.0, 4.0]}), fh)
+    data = load_flight_test(name)
+    np.testing.assert_array_equal(data["a"], [1.0, 2.0, 4.0])

@@ -187,6 +187,28 @@ def test_windows_from_the_mode_by_event_or_by_channel():
     assert len(flights) == 2 and flights[0].metadata["reason"] == "mode == 'SYSID'"
 
 
+def test_a_loaders_mode_event_matches_by_name_or_number():
+    """The log readers write "SYSTEMID (mode 25)" (ArduPilot) and "MANUAL (nav_state 0)"
+    (PX4): `mode=25`, `"25"` or `"SYSTEMID"` found nothing."""
+    t = np.arange(0, 10, 0.01)
+    events = (
+        LogEvent(0.0, "mode", "STABILIZE (mode 0)"),
+        LogEvent(2.0, "mode", "SYSTEMID (mode 25)"),
+        LogEvent(5.0, "mode", "STABILIZE (mode 0)"),
+        LogEvent(7.0, "mode", "MANUAL (nav_state 0)"),
+    )
+    log = FlightLog({"rc.pitch": LogChannel("rc.pitch", t, np.sin(t), "-")}, events, {})
+    for wanted in (25, "25", "SYSTEMID", "SYSTEMID (mode 25)"):
+        assert [(w.t0, w.t1) for w in segment(log, mode=wanted, margin=0)] == [(2.0, 5.0)]
+    manual = segment(log, mode="MANUAL", margin=0)
+    assert [(w.t0, w.t1) for w in manual] == [(7.0, 9.99)]
+    # a number matches the number in brackets only, not another mode's text
+    assert [(w.t0, w.t1) for w in segment(log, mode=0, margin=0)] == [
+        (0.0, 2.0),
+        (5.0, 9.99),
+    ]
+
+
 def test_windows_between_event_markers():
     log = _sysid_log()
     result = segment(log, events=("sweep start", "sweep end"), margin=(1.0, 2.0))

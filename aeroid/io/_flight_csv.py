@@ -18,6 +18,23 @@ from ..errors import ChannelError, DataFormatError
 FloatArray = NDArray[np.float64]
 
 
+@contextlib.contextmanager
+def arrow_file(path: Path | str) -> Any:
+    """The file open for pyarrow: its own native file where the name is valid text, else
+    Python's (a name with bytes that are not UTF-8, which pyarrow cannot encode)."""
+    import pyarrow as pa
+
+    name = str(path)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        with open(path, "rb") as raw, pa.PythonFile(raw, mode="r") as f:
+            yield f
+        return
+    with pa.OSFile(name) as f:
+        yield f
+
+
 def _seconds(values: NDArray[Any]) -> FloatArray:
     """Datetimes as float seconds since the first sample, durations as float seconds.
 
@@ -129,6 +146,32 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
     raise DataFormatError(f"{path}: empty file")
 
 
+def _csv_units(path: Path, marker: str) -> dict[str, str]:
+    """The units a comment line before the header declares (`FlightData.to_csv` writes
+    ``# units: {"alpha": "rad"}``); empty when there is none, or when the comment is not
+    that JSON object (another tool's note). Only the lines before the header are read."""
+    import json
+
+    with open(path, "rb") as f:
+        while raw := f.readline(_MAX_HEADER + 1):
+            text = raw.decode("utf-8", errors="replace").removeprefix("\ufeff").strip()
+            if not text:
+                continue
+            if not text.startswith("#"):
+                return {}  # the header: no units declared before it
+            if text.startswith(marker):
+                # a comment another tool wrote ("# units: deg, deg/s") is no declaration
+                try:
+                    found = json.loads(text[len(marker) :])
+                except ValueError:
+                    return {}
+                ok = isinstance(found, dict) and all(
+                    isinstance(k, str) and isinstance(v, str) for k, v in found.items()
+                )
+                return found if ok else {}
+    return {}
+
+
 _NUMBER = r"^\s*[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan))\s*$"
 
 
@@ -197,7 +240,7 @@ def _locate_csv_error(
         return "skip"
 
     def read(**convert: Any) -> Any:
-        with pa.OSFile(str(path)) as f:
+        with arrow_file(path) as f:
             f.seek(offset)
             return pacsv.read_csv(
                 f,
@@ -249,7 +292,7 @@ def _first_bad_cell(
     import pyarrow.compute as pc
     import pyarrow.csv as pacsv
 
-    with pa.OSFile(str(path)) as f:
+    with arrow_file(path) as f:
         f.seek(offset)
         reader = pacsv.open_csv(
             f,
@@ -334,7 +377,7 @@ def _read_csv(
     names = header if wanted is None else [h for h in header if h in wanted] or header[:1]
 
     def read(parse: Any = None) -> Any:
-        with pa.OSFile(str(path)) as f:
+        with arrow_file(path) as f:
             f.seek(offset)
             # The system allocator hands freed column buffers back to the OS at once,
             # which keeps the peak near one copy of the data.

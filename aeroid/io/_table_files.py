@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import DataFormatError
-from ._flight_csv import _seconds
+from ._flight_csv import _seconds, arrow_file
 
 FloatArray = NDArray[np.float64]
 
@@ -35,8 +35,15 @@ def _read_parquet(
         ) from None
     import pyarrow as pa
 
+    with arrow_file(path) as source:
+        return _read_parquet_file(path, source, wanted, pq, pa)
+
+
+def _read_parquet_file(
+    path: Path, source: Any, wanted: Collection[str] | None, pq: Any, pa: Any
+) -> tuple[list[str], dict[str, FloatArray]]:
     try:
-        file = pq.ParquetFile(path)
+        file = pq.ParquetFile(source)
         meta = file.metadata
         header = [meta.schema.column(j).path for j in range(meta.num_columns)]
         types = {f.name: f.type for f in file.schema_arrow}
@@ -72,7 +79,7 @@ def _read_parquet(
             "file may expand to; split the record"
         )
     try:
-        table = pq.read_table(path, columns=[header[j] for j in picked] if wanted else None)
+        table = file.read(columns=[header[j] for j in picked] if wanted else None)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
     columns: dict[str, FloatArray] = {}

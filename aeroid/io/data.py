@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,7 @@ from ._flight_csv import (
     _TIME_CANDIDATES,
     _adopt,
     _columns_text,
+    _csv_units,
     _Owned,
     _pick_time_column,
     _read_csv,
@@ -39,6 +41,9 @@ from ._flight_csv import _csv_header as _csv_header
 from ._flight_csv import _locate_csv_error as _locate_csv_error
 from ._flight_csv import _reader_error as _reader_error
 from ._table_files import _read_mat, _read_parquet
+
+# FlightData.to_csv's comment line that carries the units, read back by load_flight_test
+_UNITS_COMMENT = "# units:"
 
 __all__ = ["FlightData", "load_flight_test"]
 
@@ -281,7 +286,8 @@ class FlightData:
         return FlightData(self.time, merged, new_units, self.metadata)
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write the record as a CSV file that `load_flight_test` reads back exactly.
+        """Write the record as a CSV file that `load_flight_test` reads back exactly,
+        units included (a ``# units: {...}`` comment line before the header).
 
         Parameters
         ----------
@@ -310,7 +316,10 @@ class FlightData:
                     f"to_csv: channel name {name!r} cannot be a CSV column of its own"
                 )
         columns = [self.time, *self.channels.values()]
-        lines = [",".join(["time", *self.channels])]
+        units = {k: v for k, v in self.units.items() if k in self.channels and v}
+        # the units on a comment line before the header, which the loader reads back
+        lines = [f"{_UNITS_COMMENT} {json.dumps(units)}"] if units else []
+        lines += [",".join(["time", *self.channels])]
         lines += [",".join(repr(float(c[i])) for c in columns) for i in range(self.n_samples)]
         tmp = target.with_name(target.name + ".part")
         try:
@@ -470,8 +479,10 @@ def load_flight_test(
     suffix = p.suffix.lower()
     columns: Mapping[str, NDArray[Any]]
     wanted = _wanted_columns(channels, time_column)
+    declared: dict[str, str] = {}
     if suffix in (".csv", ".txt", ".dat"):
         header, columns = _read_csv(p, wanted)
+        declared = _csv_units(p, _UNITS_COMMENT)
     elif suffix in (".parquet", ".pq"):
         header, columns = _read_parquet(p, wanted)
     elif suffix == ".mat":
@@ -512,10 +523,11 @@ def load_flight_test(
         raise DataFormatError(
             f"units: expected a mapping of channel name to unit, got {type(units).__name__}"
         )
+    # units the file declares (to_csv's comment line), by column, under the channels' names
+    merged = {name: declared[col] for col, name in mapping.items() if col in declared}
+    merged.update(units or {})
     try:
-        return FlightData(
-            time, chans, dict(units or {}), {"source": p.name, "format": suffix.lstrip(".")}
-        )
+        return FlightData(time, chans, merged, {"source": p.name, "format": suffix.lstrip(".")})
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
 

@@ -10,6 +10,7 @@ own noise floor.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -252,13 +253,27 @@ def _given_windows(windows: Any, extent: tuple[float, float]) -> tuple[ManeuverW
 
 
 def _same(value: Any, target: Any) -> bool:
-    """Event or channel value equal to the wanted mode, as text or as a number."""
-    if str(value) == str(target):
-        return True
-    try:
-        return float(value) == float(target)
-    except (TypeError, ValueError):
-        return False
+    """Event or channel value equal to the wanted mode, as text or as a number. A log's
+    mode event reads ``"SYSTEMID (mode 25)"`` or ``"MANUAL (nav_state 0)"``: the whole
+    text, the name before the brackets or the number in them match."""
+    text = str(value)
+    forms = [text]
+    found = _MODE_EVENT.fullmatch(text)
+    if found:
+        forms += [found.group(1), found.group(2)]
+    for form in forms:
+        if form == str(target):
+            return True
+        try:
+            if float(form) == float(target):
+                return True
+        except (TypeError, ValueError):
+            continue
+    return False
+
+
+# the loaders' mode events: "<name> (mode <number>)", "<name> (nav_state <number>)"
+_MODE_EVENT = re.compile(r"(.+?) \((?:mode|nav_state) (-?\d+)\)")
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -566,7 +581,8 @@ def segment(
         Input channels whose excitation marks manoeuvres; with the other
         ways, the channels to show in the plot.
     windows : sequence of (t0, t1) or (t0, t1, reason), optional
-        Given windows in seconds, used as they are (no merging or margins).
+        Given windows in seconds, used as they are (no merging or margins)
+        but clipped to the record; one wholly outside it is refused.
     events : (start, end), optional
         Windows from each event matching `start` to the next matching `end`
         (or to the end of the record). A marker is an event value (``"sysid
