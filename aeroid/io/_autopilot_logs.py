@@ -56,6 +56,8 @@ _PX4_UNITS: tuple[tuple[str, str], ...] = (
     (r"[a-z0-9_]+\.voltage[a-z0-9_]*_v(\[\d+\])?", "V"),
     (r"[a-z0-9_]+\.current[a-z0-9_]*_a(\[\d+\])?", "A"),
     (r"[a-z0-9_]+\.[a-z0-9_]*_(meter|m)(\[\d+\])?", "m"),
+    # PX4's message definitions: every timestamp field counts microseconds
+    (r"[a-z0-9_]+\.timestamp(_[a-z0-9_]+)?", "us"),
 )
 
 
