@@ -180,6 +180,46 @@ def test_longitudinal_trim_zeroes_the_derivatives_and_balances_forces():
     assert qS * c.cbar * Cm - 0.2 * T == pytest.approx(0, abs=1e-7)
 
 
+def test_trim_and_linearize_name_bad_solver_options():
+    """Found by an independent suite: a fractional max_iterations raised a bare TypeError,
+    a negative tolerance blamed the model ("no trim"), a thrust the trim solves for was
+    dropped in silence, and linearize(step="x") raised numpy's UFuncTypeError."""
+    from aeroid.models.aircraft import decoupled, lateral
+
+    m = long_model()
+    for options, match in (
+        ({"max_iterations": 1.5}, "max_iterations"),
+        ({"max_iterations": 0}, "max_iterations"),
+        ({"tolerance": -1.0}, "tolerance"),
+        ({"tolerance": float("nan")}, "tolerance"),
+        ({"controls": {"thrust": 1e5}}, r"solves for \['thrust'\]"),
+    ):
+        with pytest.raises(ModelDefinitionError, match=match):
+            trim(m, 60.0, **options)
+    tr = trim(m, 60.0)
+    for bad in ("x", 0.0, float("nan"), 2.0):
+        with pytest.raises(ModelDefinitionError, match="step"):
+            linearize(m, tr, step=bad)
+    both = decoupled(m, lateral(CONSTANTS, V0=60.0))
+    with pytest.raises(ModelDefinitionError, match="'decoupled' aircraft model is not trimmed"):
+        trim(both)
+
+
+def test_channel_units_follow_the_constants_unit_system():
+    """With g = 32.174 the models compute in feet and seconds; the labels (which validate
+    and the plots print) said m/s², m/s and N."""
+    from aeroid.models.aircraft import lateral_linear, longitudinal_linear
+
+    us = longitudinal_linear(V0=176.0, g=32.174, outputs=["V", "az"])
+    assert us.channel_units["az"] == "ft/s²" and us.channel_units["V"] == "ft/s"
+    assert lateral_linear(V0=176.0, g=32.174, outputs=["ay"]).channel_units["ay"] == "ft/s²"
+    si = longitudinal_linear(V0=50.0, outputs=["V", "az"])
+    assert si.channel_units["az"] == "m/s²" and si.channel_units["V"] == "m/s"
+    assert long_model(constants(g=32.174)).channel_units["V"] == "ft/s"
+    in_g = longitudinal_linear(V0=176.0, g=32.174, outputs=["az"], accel_units="g")
+    assert in_g.channel_units["az"] == "g"
+
+
 def test_glide_trim_without_thrust_is_the_lift_to_drag_angle():
     m = longitudinal(CONSTANTS, V0=V0, parameters=LONG, thrust=False)
     tr = trim(m)

@@ -654,9 +654,21 @@ _CHANNEL_UNITS = {
 }
 
 
-def _channel_units(names: Sequence[str], accel_units: str) -> dict[str, str]:
-    accel = "g" if accel_units == "g" else "m/s²"
-    return {n: accel if n in ("ax", "ay", "az") else _CHANNEL_UNITS.get(n, "rad") for n in names}
+# the same channels in US customary units, told by g (32.174 ft/s^2)
+_US_UNITS = {"m/s": "ft/s", "m/s²": "ft/s²", "m": "ft", "N": "lbf"}
+_US_GRAVITY = (30.0, 34.0)
+
+
+def _channel_units(names: Sequence[str], accel_units: str, g: float) -> dict[str, str]:
+    """Each channel's unit label; the models compute in the units of their constants, so
+    a g of about 32.2 (ft/s²) labels feet, pounds and seconds."""
+    us = _US_GRAVITY[0] < g < _US_GRAVITY[1]
+    accel = "g" if accel_units == "g" else ("ft/s²" if us else "m/s²")
+    out = {}
+    for n in names:
+        unit = accel if n in ("ax", "ay", "az") else _CHANNEL_UNITS.get(n, "rad")
+        out[n] = _US_UNITS.get(unit, unit) if us else unit
+    return out
 
 
 def _aircraft_model(
@@ -666,6 +678,7 @@ def _aircraft_model(
     *,
     version: str | None,
     accel_units: str = "m/s2",
+    gravity: float = _ISA_G0,
     **fields: Any,
 ) -> AircraftModel:
     """The model whose dynamics and measurement are ``function(*args, role)``.
@@ -674,12 +687,14 @@ def _aircraft_model(
     into the version, as the function source is the same for every such model.
     """
     names = [*fields["states"], *fields["controls"], *fields["outputs"]]
+    constants = fields.get("constants")
+    g = constants.g if constants is not None else gravity
     return AircraftModel(
         dynamics=function(*args, "dynamics"),
         measurement=function(*args, "measurement"),
         version=_content_version(version, kind, *args),
         kind=kind,
-        channel_units=_channel_units(names, accel_units),
+        channel_units=_channel_units(names, accel_units, g),
         **fields,
     )
 

@@ -10,8 +10,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._checks import as_float, plain
 from .._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
+from .._value_checks import whole_number
 from ..errors import ModelDefinitionError, SimulationError
 from ._aircraft_parts import AircraftModel, _finite
 from .model import Model, resolve_parameters
@@ -151,10 +153,19 @@ def trim(
     SimulationError
         The solver cannot reach the tolerance (no trim at this condition).
     """
-    if not isinstance(model, AircraftModel) or model.kind not in _TRIM_SETUP:
+    if not isinstance(model, AircraftModel):
         raise ModelDefinitionError(
             f"trim: expected a model built by aeroid.models.aircraft, got {type(model).__name__}"
         )
+    if model.kind not in _TRIM_SETUP:
+        raise ModelDefinitionError(
+            f"trim: a {model.kind!r} aircraft model is not trimmed here; trim the models it is "
+            f"built from (trim takes {sorted(_TRIM_SETUP)})"
+        )
+    tol = _finite("tolerance", tolerance)
+    if not tol > 0:
+        raise ModelDefinitionError(f"tolerance: expected a positive number, got {tolerance!r}")
+    max_iterations = whole_number(max_iterations, "max_iterations", ModelDefinitionError)
     p = resolve_parameters(model, parameters)
     fixed = dict.fromkeys(model.controls, 0.0)
     for k, v in (controls or {}).items():
@@ -179,6 +190,13 @@ def trim(
         raise ModelDefinitionError(f"V: must be positive, got {speed!r}")
     gamma = _finite("gamma", gamma)
     unknowns, trimmed, build = _TRIM_SETUP[model.kind](model, speed, gamma, fixed)
+    solved = [name for name, _ in unknowns]
+    clash = [k for k in (controls or {}) if k in solved]
+    if clash:
+        raise ModelDefinitionError(
+            f"controls: the trim solves for {clash} (its unknowns are {solved}); give only "
+            "the controls it does not set"
+        )
     idx = [model.states.index(s) for s in trimmed]
     z = np.array([start for _, start in unknowns], dtype=np.float64)
 
@@ -189,7 +207,7 @@ def trim(
     scale = np.ones(len(idx))
     r = residual(z[:, None])[:, 0]
     for _ in range(max_iterations):
-        if np.all(np.isfinite(r)) and np.max(np.abs(r)) <= tolerance:
+        if np.all(np.isfinite(r)) and np.max(np.abs(r)) <= tol:
             break
         h = 1e-7 * np.maximum(1.0, np.abs(z))
         J = _central_slopes(residual(_central_points(z, h)), h)
@@ -206,7 +224,7 @@ def trim(
         else:
             break
         z, r = trial, r_trial
-    if not (np.all(np.isfinite(r)) and np.max(np.abs(r)) <= tolerance):
+    if not (np.all(np.isfinite(r)) and np.max(np.abs(r)) <= tol):
         worst = trimmed[int(np.nanargmax(np.abs(r)))] if np.any(np.isfinite(r)) else trimmed[0]
         raise SimulationError(
             f"trim of {model.name!r} at V = {speed:.6g} m/s failed: the derivative of "
@@ -457,9 +475,14 @@ def linearize(
             raise ModelDefinitionError(
                 f"u0: expected {model.n_controls} controls {list(model.controls)}, got {u.size}"
             )
+    rel = as_float(step)
+    if rel is None or not (np.isfinite(rel) and 0.0 < rel < 1.0):
+        raise ModelDefinitionError(
+            f"step: expected a relative difference step in (0, 1), got {plain(step)}"
+        )
     n, m = x.size, u.size
     z = np.concatenate([x, u])
-    h = step * np.maximum(1.0, np.abs(z))
+    h = rel * np.maximum(1.0, np.abs(z))
     Z = _central_points(z, h)
     X, U = Z[:n], Z[n:]
     J = _central_slopes(_evaluate(model._dynamics_batch, X, U, p), h)
