@@ -561,3 +561,24 @@ def test_interval_covers_the_initial_states_and_biases_margin_covers():
     lo, hi = interval["bias[0].q"]
     assert (lo + hi) / 2 == pytest.approx(fit.biases[0]["q"])
     assert (hi - lo) / 2 == pytest.approx(margin["bias[0].q"])
+
+
+def test_a_start_that_fails_names_the_states_no_record_measures():
+    """An unmeasured state starts at zero: a six-degree model fitted to V, alpha and beta
+    without u, v, w divides by V = 0; the message pointed at the parameters only."""
+
+    def f(t, x, u, p):
+        return np.array([-0.1 * x[0], p["a"] * x[1] + u[0]])
+
+    def h(t, x, u, p):
+        return np.array([x[1] / x[0]])
+
+    model = aeroid.Model(["V", "x"], ["u"], {"a": -1.0}, f, outputs=["y"], measurement=h)
+    t = np.linspace(0.0, 2.0, 41)
+    data = FlightData(t, {"u": np.sin(t), "y": np.sin(t) / 30.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(aeroid.AeroidError, match=r"states \['V', 'x'\] are in no record"):
+            identify(model, data, ["a"])
+    fit = identify(model, data, ["a"], x0={"V": 30.0, "x": 0.0}, estimate_x0=False)
+    assert np.isfinite(fit.parameters["a"])

@@ -542,16 +542,27 @@ def fit_output_error(
 
     residuals, first_jac, ok = problem.evaluate(theta, steps_for(theta))
     if not ok or first_jac is None:
+        # states no record measures start at zero unless x0 says otherwise: a likely cause
+        unseen = [
+            s
+            for j, s in enumerate(states)
+            if all(s not in m.data.channels and m.x0[j] == 0.0 for m in mans)
+        ]
+        hint = (
+            f"; the states {unseen} are in no record and start at zero (give x0 for them)"
+            if unseen
+            else ""
+        )
         if problem.errors and hasattr(model, "simulate_batch"):
             raise _StartFailure(
                 f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
                 f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}: "
-                f"{problem.errors[0]}; check the initial guesses and the model"
+                f"{problem.errors[0]}{hint}; check the initial guesses and the model"
             )
         raised = f" (its simulate raised {problem.errors[0]})" if problem.errors else ""
         raise IdentificationError(
             f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
-            f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}{raised}; "
+            f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}{raised}{hint}; "
             "check the initial guesses and the model"
         )
     jacobians: list[FloatArray] = first_jac
