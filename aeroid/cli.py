@@ -12,6 +12,8 @@ from typing import Any
 
 import click
 
+from ._version import __version__
+
 __all__ = ["main"]
 
 
@@ -131,7 +133,7 @@ def _narrow_table(header: list[str], rows: list[list[str]]) -> tuple[str, int]:
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="aeroid", prog_name="aeroid")
+@click.version_option(version=__version__, prog_name="aeroid")
 def main() -> None:
     """AeroID campaign pipeline: content-keyed stages in a Zarr store, run by Dask."""
 

@@ -232,6 +232,12 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
         ),
         # required keywords of the library function are required options
         ("stages:\n  filter: {}\n", r"stages.filter.process_noise: required key is missing"),
+        # what every flight's task would refuse at run time
+        ("stages:\n  identify: {method: nonsense}\n", r"stages.identify.method: Input should"),
+        (
+            "stages:\n  identify: {parameters: [M_q, M_q]}\n",
+            r"stages.identify.parameters: .*\['M_q'\] listed more than once",
+        ),
         # a manoeuvre its options cannot make
         (
             "stages:\n  design: {maneuver: {type: doublet, control: elevator, options: {}}}\n",
@@ -648,3 +654,39 @@ def test_a_quoted_flight_count_is_refused_and_numbers_stay_numbers(tmp_path):
                 "stages:\n  propagate: {n_samples: many}\n",
             )
         )
+
+
+def test_an_empty_parameter_list_is_the_librarys_not_every_parameter():
+    """`parameters: []` fitted every parameter (an empty list read as "not given"): the
+    library fits none (biases only) or refuses."""
+    from aeroid.models import catalog
+    from aeroid.pipeline.stages import StageContext
+    from aeroid.pipeline.stages.library_stages import IdentifyOptions, _run_identify
+
+    data = catalog.short_period_flight(seed=1)
+    model = catalog.short_period()
+    ctx = StageContext(
+        IdentifyOptions(parameters=[], estimate_bias=True), {"data": data}, model=model
+    )
+    fit = _run_identify(ctx)
+    assert dict(fit.parameters) == {} and fit.biases
+    every = _run_identify(StageContext(IdentifyOptions(), {"data": data}, model=model))
+    assert set(every.parameters) == set(model.parameter_names)
+
+
+def test_an_unknown_model_is_named_with_its_config_file(tmp_path):
+    cfg = _write(tmp_path, "model: no_such_model\nflights: [{simulated: {n_flights: 1}}]\n")
+    with pytest.raises(ConfigError, match=r"camp.yaml: model 'no_such_model': expected a built-in"):
+        plan(cfg)
+
+
+def test_a_model_module_that_fails_on_import_is_a_config_error(tmp_path):
+    (tmp_path / "broken_model.py").write_text(
+        "from aeroid.models import catalog\nmodel = catalg.short_period()\n"
+    )
+    cfg = _write(
+        tmp_path,
+        "model: broken_model:model\nallow_imports: true\nflights: [{simulated: {n_flights: 1}}]\n",
+    )
+    with pytest.raises(ConfigError, match=r"cannot import 'broken_model' \(NameError"):
+        plan(cfg)

@@ -173,6 +173,8 @@ def test_worker_start_method(monkeypatch):
     assert wait_background(timeout=120)
     monkeypatch.delenv("AEROID_START_METHOD", raising=False)
     monkeypatch.delitem(sys.modules, "jax", raising=False)
+    # an earlier test in this worker may have started JAX's backends: hide them too
+    monkeypatch.delitem(sys.modules, "jax._src.xla_bridge", raising=False)
     expected = "fork" if sys.platform.startswith("linux") else "spawn"
     assert _start_method() == expected
     monkeypatch.setitem(sys.modules, "jax", object())

@@ -83,8 +83,10 @@ def resolve(
             obj: Any = load_file(path, user_module_name(module))
         else:
             obj = importlib.import_module(module)
-    except ImportError as exc:
-        raise error(f"{what} {spec!r}: cannot import {module!r} ({exc})") from None
+    except Exception as exc:  # a module runs its code on import: any error is the module's
+        raise error(
+            f"{what} {spec!r}: cannot import {module!r} ({type(exc).__name__}: {exc})"
+        ) from None
     for part in attr.split("."):
         try:
             obj = getattr(obj, part)

@@ -215,14 +215,19 @@ def _setup(
         config = load_config(config)
     allowed = allow_imports or config.allow_imports
     pipe_ref: dict[str, Any] | None
-    if pipeline is None:
-        pipeline, pipe_ref = resolve_pipeline(
-            config.pipeline, config.base_dir, allow_imports=allowed
-        )
-    else:
-        pipe_ref = None
-    _check_model_import(config, allowed)
-    model = resolve_model(config.model, config.base_dir)
+    try:  # the file named in front of what the config's model or pipeline got wrong
+        if pipeline is None:
+            pipeline, pipe_ref = resolve_pipeline(
+                config.pipeline, config.base_dir, allow_imports=allowed
+            )
+        else:
+            pipe_ref = None
+        _check_model_import(config, allowed)
+        model = resolve_model(config.model, config.base_dir)
+    except ConfigError as exc:
+        if str(exc).startswith(config.source):
+            raise
+        raise ConfigError(f"{config.source}: {exc}") from None
     if check_flights:
         # every mistake the config shows (names, files, channels), listed in one error
         _check_flight_models(config, model, pipeline, allowed)

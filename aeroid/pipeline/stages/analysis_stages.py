@@ -172,7 +172,9 @@ class FrequencyIdentifyOptions(
 def _run_frequency_identify(ctx: StageContext) -> Any:
     from ...frequency.frequency_domain import identify_frequency_domain
 
-    names = ctx.options.parameters or list(ctx.model.parameter_names)
+    # None: every parameter; an empty list is the library's (biases or states only)
+    given = ctx.options.parameters
+    names = list(ctx.model.parameter_names) if given is None else list(given)
     kw = _kwargs(ctx.options, "parameters")
     return identify_frequency_domain(ctx.model, flight_data(ctx), names, **kw)
 
@@ -404,8 +406,9 @@ for _stage in (
         # 5: the noise that frequencies off the k/T grid share;
         # 6: the ends' Wald test on a positive definite covariance;
         # 7: the sandwich's noise spectrum smoothed over neighbouring frequencies;
-        # 8: the bars carry the scatter of the estimated noise weighting
-        "8",
+        # 8: the bars carry the scatter of the estimated noise weighting;
+        # 9: `parameters: []` is the library's empty list, not every parameter
+        "9",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,

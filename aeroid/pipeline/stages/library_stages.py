@@ -59,7 +59,18 @@ def _simulate_keys(value: Any) -> Any:
 # -- identify / filter / validate ----------------------------------------------------
 
 
-_NAMES: Any = (list[str] | None, Field(None))  # names to estimate (not starting values)
+def _distinct(value: Any) -> Any:
+    """Names listed once each: a repeat is a typo the library would refuse per flight."""
+    repeated = sorted({n for n in value or () if list(value).count(n) > 1})
+    if repeated:
+        raise ValueError(f"{repeated} listed more than once")
+    return value
+
+
+_NAMES: Any = (  # names to estimate (not starting values)
+    Annotated[list[str] | None, AfterValidator(_distinct)],
+    Field(None),
+)
 _SIMULATE: Any = (Annotated[dict[str, Any] | None, AfterValidator(_simulate_keys)], Field(None))
 _BY_NAME: Any = (dict[str, float] | None, Field(None))
 
@@ -72,6 +83,7 @@ class IdentifyOptions(
         *("measurement_noise", "simulate_options", "bounds", "filter_options"),
         *("estimate_process_noise", "time_delays", "start"),
         parameters=_NAMES,
+        method=(Literal["output_error", "filter_error"] | None, Field(None)),
         x0=_BY_NAME,
         weights=_BY_NAME,
         process_noise=_BY_NAME,
@@ -110,7 +122,9 @@ class IdentifyOptions(
 def _run_identify(ctx: StageContext) -> Any:
     from ...estimation.identification import identify
 
-    names = ctx.options.parameters or list(ctx.model.parameter_names)
+    # None: every parameter; an empty list is the library's (biases or states only)
+    given = ctx.options.parameters
+    names = list(ctx.model.parameter_names) if given is None else list(given)
     data = flight_data(ctx)
     if ctx.options.holdout is not None:
         data = outside_holdout(data, ctx.options.holdout)
@@ -342,7 +356,9 @@ class DesignOptions(
 def _run_design(ctx: StageContext) -> Any:
     from ...uncertainty.design import design_experiment
 
-    names = ctx.options.parameters or list(ctx.model.parameter_names)
+    # None: every parameter; an empty list is the library's (biases or states only)
+    given = ctx.options.parameters
+    names = list(ctx.model.parameter_names) if given is None else list(given)
     kw = _kwargs(ctx.options, "maneuver", "parameters", "at_record_start")
     if "values" in ctx.inputs:
         kw["values"] = ctx.inputs["values"]
@@ -461,7 +477,8 @@ for _stage in (
         #     residuals, its steps extrapolated or a noise's held to a decade (other steps)
         # 12: output error estimates the measured initial states by default
         # 13: output error's coloured bars carry its estimated weights' scatter
-        "14",  # 14: RK4 substeps read along the path too (a model stiffening away)
+        # 14: RK4 substeps read along the path too (a model stiffening away)
+        "15",  # 15: `parameters: []` is the library's empty list, not every parameter
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
