@@ -209,3 +209,53 @@ def test_a_result_in_another_slot_is_named(sp_noisy):
     with pytest.raises(AeroidError, match="experiment argument"):
         report(experiment=fit)
     assert "## Identification" in report(None, fit)
+
+
+def test_vector_propagation_reports_and_plots(sp_noisy):
+    model = catalog.short_period()
+    fit = identify(model, sp_noisy, list(catalog.SHORT_PERIOD_TRUTH))
+    several = propagate(
+        fit, lambda p: {"wn": p["M_q"], "d": 2.0 * p["M_alpha"]}, n_samples=200, seed=0
+    )
+    text = report(propagation=several)
+    assert "| wn " in text and "| d " in text
+    fig = several.plot()
+    assert len(fig.axes) == 2
+
+
+def test_a_failed_bundle_leaves_no_figures_behind(tmp_path, sp_noisy):
+    model = catalog.short_period()
+    fit = identify(model, sp_noisy, list(catalog.SHORT_PERIOD_TRUTH))
+    (tmp_path / "d").mkdir()
+    with pytest.raises(OutputError, match="is a directory"):
+        report(None, fit, path=tmp_path / "d")
+    (tmp_path / "r.html").mkdir()
+    with pytest.raises(OutputError, match=r"r\.html: it is a directory"):
+        report(None, fit, path=tmp_path / "r.md")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d", "r.html"]
+
+
+def test_parameters_the_data_cannot_separate_have_no_correlation_printed():
+    """A gain a*b: a and b are one direction. The matrix printed +0.00 for the pair."""
+    import warnings
+
+    import numpy as np
+
+    import aeroid
+
+    def f(t, x, u, p):
+        return np.array([p["L_p"] * x[0] + p["a"] * p["b"] * u[0]])
+
+    model = aeroid.Model(["p"], ["da"], {"L_p": -1.0, "a": 2.0, "b": 3.0}, f)
+    t = np.arange(0.0, 5.0, 0.02)
+    u = np.where((t > 1) & (t < 2), 1.0, 0.0)
+    truth = {"L_p": -2.0, "a": 2.0, "b": 5.0}
+    data = model.simulate(t, u, [0.0], truth).to_flight_data(noise={"p": 0.01}, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = identify(model, data, ["L_p", "a", "b"])
+    assert not fit.identifiable
+    assert np.isnan(fit.correlation[1, 2]) and fit.correlation[1, 1] == 1.0
+    text = report(identification=fit)
+    row = next(line for line in text.splitlines() if line.startswith("| b "))
+    assert "—" in row and "+0.00" not in row

@@ -196,7 +196,11 @@ class IdentificationResult(IntervalMixin):
         d = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
         with np.errstate(divide="ignore", invalid="ignore"):
             c = self.covariance / np.outer(d, d)
-        c[~np.isfinite(c)] = 0.0
+        c[~np.isfinite(c)] = 0.0  # a parameter held at a bound varies with none
+        # one the data cannot separate: its correlations are unknown, not zero
+        unknown = ~np.isfinite(d)
+        c[unknown, :] = np.nan
+        c[:, unknown] = np.nan
         np.fill_diagonal(c, 1.0)
         c.setflags(write=False)
         return c

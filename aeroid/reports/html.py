@@ -598,7 +598,13 @@ def write_report_bundle(
     Figures are referenced at the end of the Markdown under "Figures" unless the
     text already references them. Returns (markdown path, html path).
     """
+    from ..errors import OutputError
+
     md_path = Path(path)
+    html_path = md_path.with_suffix(".html")
+    for target in (md_path, html_path):  # before a figure is written: no partial bundle
+        if target.is_dir():
+            raise OutputError(f"cannot write {target}: it is a directory")
     pngs = {f"{md_path.stem}_figures/{name}.png": figure_png(fig) for name, fig in figures.items()}
     text = markdown.rstrip() + "\n"
     missing = [k for k in pngs if k not in text]
@@ -607,6 +613,5 @@ def write_report_bundle(
     for rel, data in pngs.items():
         _atomic_write(md_path.parent / rel, data)
     _atomic_write(md_path, text.encode("utf-8"))
-    html_path = md_path.with_suffix(".html")
     _atomic_write(html_path, markdown_to_html(text, pngs).encode("utf-8"))
     return md_path, html_path

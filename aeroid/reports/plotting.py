@@ -570,6 +570,22 @@ def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
     return fig
 
 
+def plot_vector_propagation(prop: Any) -> Figure:
+    """One histogram per component of a propagated metric, with its percentiles."""
+    names = list(prop.names)
+    fig, axes = figure(len(names), height=2.4)
+    for i, name in enumerate(names):
+        ax = axes[i, 0]
+        part = prop[name]
+        _hist(ax, part.samples, 50)
+        for p, v in part.percentile_table["metric"].items():
+            ax.axvline(v, color="k", ls="--", lw=0.8)
+            ax.text(v, ax.get_ylim()[1] * 0.95, f"P{p:g}", fontsize=7, ha="center")
+        ax.set_xlabel(name)
+        ax.set_ylabel("draws")
+    return fig
+
+
 def plot_campaign_trend(
     records: Sequence[Mapping[str, Any]],
     *,

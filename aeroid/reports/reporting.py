@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ def _identification_notes(result: Any) -> list[str]:
                 (abs(float(corr[i][j])), names[i], names[j])
                 for i in range(len(names))
                 for j in range(i)
+                if math.isfinite(float(corr[i][j]))  # unknown where not identifiable
             ),
             default=None,
         )
@@ -71,9 +73,13 @@ def _correlation_table(result: Any) -> str:
     if corr is None or len(names) < 2:
         return ""
     c = np.asarray(corr, dtype=float)
+
+    def cell(v: float) -> str:  # unknown where the data cannot separate the parameter
+        return f"{v:+.2f}" if np.isfinite(v) else "—"
+
     if len(names) <= _FULL_MATRIX:
         rows = [
-            [n, *(f"{c[i, j]:+.2f}" if j <= i else "" for j in range(len(names)))]
+            [n, *(cell(c[i, j]) if j <= i else "" for j in range(len(names)))]
             for i, n in enumerate(names)
         ]
         return "Parameter correlation matrix:\n\n" + markdown_table(["", *names], rows)
@@ -81,7 +87,7 @@ def _correlation_table(result: Any) -> str:
         ((abs(c[i, j]), names[i], names[j], c[i, j]) for i in range(len(names)) for j in range(i)),
         key=lambda p: -p[0] if np.isfinite(p[0]) else 0.0,
     )[:_STRONGEST]
-    rows = [[a, b, f"{r:+.2f}"] for _, a, b, r in pairs]
+    rows = [[a, b, cell(r)] for _, a, b, r in pairs]
     return (
         f"Parameter correlations, the {len(rows)} strongest of {len(names)} parameters:\n\n"
         + markdown_table(["parameter", "parameter", "correlation"], rows)
@@ -182,7 +188,7 @@ _SLOT_ATTRIBUTES: dict[str, tuple[str, ...]] = {
     "sensitivity": ("fisher_information",),
     "frequency": ("channels",),
     "inference": ("samples", "r_hat"),
-    "propagation": ("mean", "std", "samples"),
+    "propagation": ("n_samples", "n_failed"),  # one metric or several (components)
     "experiment": ("recommendation",),
 }
 

@@ -159,6 +159,12 @@ class VectorPropagationResult:
             {name: r.percentile_table["metric"] for name, r in self.components.items()}
         )
 
+    def plot(self) -> Any:
+        """Histograms of the components. Returns a matplotlib Figure."""
+        from ..reports.plotting import plot_vector_propagation
+
+        return plot_vector_propagation(self)
+
     def summary(self) -> str:
         """Markdown table: one row per component."""
         table = self.percentile_table
