@@ -820,3 +820,51 @@ def test_fourier_fit_summary_says_what_was_fitted() -> None:
     assert "output error on the record's Fourier transforms" in text
     assert "The record's ends estimated with it." in text
     assert "CIFER cost" not in text and "Reduced χ²" not in text
+
+
+def test_a_response_without_coherence_is_fitted_and_named_options_are_checked():
+    """An independent suite: a ResponseChannel given without coherence (NaN: unknown)
+    lost every frequency to the coherence filter ("0 frequencies with γ² >= 0.6"), the
+    Fourier fit's frequency_range went unchecked (bare ValueError), True was an order,
+    and a bad `fixed` value was blamed on `start`."""
+    import aeroid
+
+    w = np.geomspace(0.1, 10.0, 100)
+    s = 1j * w
+    rc = aeroid.ResponseChannel("da", "p", w, 10.0 * np.exp(-0.08 * s) / (s + 2.0))
+    loes = aeroid.equivalent_system(rc, kind="roll")
+    assert loes.parameters["1/T_R"] == pytest.approx(2.0, rel=1e-6)
+    assert loes.parameters["tau"] == pytest.approx(0.08, rel=1e-6)
+    fit = aeroid.fit_transfer_function(rc, numerator_order=0, denominator_order=1)
+    assert fit.parameters["a0"] == pytest.approx(2.0, rel=1e-6)
+    t = np.arange(0.0, 20.0, 0.01)
+    u = np.sin(2 * np.pi * np.cumsum(0.05 + 2.95 * t / 20.0) * 0.01)
+    model = aeroid.Model(
+        ["p"], ["da"], {"a": 2.0}, lambda t, x, u, p: np.array([-p["a"] * x[0] + 10 * u[0]])
+    )
+    data = model.simulate(t, u, [0.0]).to_flight_data()
+    kw = {
+        "numerator_order": 0,
+        "denominator_order": 1,
+        "input": "da",
+        "output": "p",
+        "fourier": True,
+    }
+    for band in ((np.nan, 5.0), (1.0, np.inf), ("a", 1.0)):
+        with pytest.raises(IdentificationError, match="frequency_range"):
+            aeroid.fit_transfer_function(data, **kw, frequency_range=band)
+    with pytest.raises(IdentificationError, match="numerator_order"):
+        aeroid.fit_transfer_function(data, **{**kw, "numerator_order": True})
+    with pytest.raises(IdentificationError, match=r"fixed\['tau'\]"):
+        aeroid.fit_transfer_function(data, **kw, delay=True, fixed={"tau": "x"})
+
+
+def test_a_singular_covariance_gives_infinite_bars_and_a_warning():
+    import aeroid
+    from aeroid.frequency._rational_fit import undetermined_bars
+
+    cov = np.diag([4.0, -5e29, np.nan, 0.0])
+    free = np.array([True, True, True, False])
+    with pytest.warns(aeroid.IdentifiabilityWarning, match=r"\['a1', 'a2'\]"):
+        se = undetermined_bars(cov, free, ["a0", "a1", "a2", "tau"], "da -> p", 1)
+    assert se[0] == 2.0 and np.isinf(se[1]) and np.isinf(se[2]) and se[3] == 0.0

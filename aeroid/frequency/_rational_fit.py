@@ -6,7 +6,7 @@ Fourier transforms (`aeroid.frequency.frequency_id.fit_transfer_function`'s part
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._colour import frequency_sandwich, off_grid
 from .._stats import wald_p_value
 from .._threads import CALLER_STACKLEVEL
-from ..errors import ChannelError, IdentificationError
+from ..errors import ChannelError, IdentifiabilityWarning, IdentificationError
 from ..estimation.least_squares import fit_residuals
 from ..io.data import FlightData, as_float, check_flag, plain
 from ._response_records import TransferFunctionFit, _band
@@ -146,7 +146,9 @@ def _orders(numerator_order: Any, denominator_order: Any) -> tuple[int, int]:
     try:
         m, n = int(numerator_order), int(denominator_order)
         ok = m == numerator_order and n == denominator_order and m >= 0 and n >= 1
-    except (TypeError, ValueError):
+        ok = ok and not isinstance(numerator_order, bool | np.bool_)  # True is no order
+        ok = ok and not isinstance(denominator_order, bool | np.bool_)
+    except (TypeError, ValueError, OverflowError):
         ok = False
     if not ok:
         raise IdentificationError(
@@ -364,7 +366,7 @@ def _fit_fourier(
             r, info, cov, white, nu, s2 = statistics(full, residual, jacobian)
     theta, cov, nu = full[:n_t], cov[:n_t, :n_t], nu[:n_t]
     with np.errstate(invalid="ignore", divide="ignore"):
-        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        se = undetermined_bars(cov, free, st.names, f"{input} -> {output}", 2)
         insens = np.sqrt(s2) / np.sqrt(np.diag(info)[:n_t])
     return _fit_record(
         st,
@@ -384,6 +386,28 @@ def _fit_fourier(
         dict(zip(st.names, nu.tolist(), strict=True)),
         basis is not None,
     )
+
+
+def undetermined_bars(
+    cov: FloatArray, free: NDArray[np.bool_], names: Sequence[str], pair: str, depth: int
+) -> FloatArray:
+    """Standard errors from `cov`; a free parameter whose variance is not a positive
+    number (rounding in a covariance the data leave singular: more poles and zeros
+    than they hold) gets an infinite one, and a warning names them."""
+    var = np.diag(cov)
+    bad = free & ~(np.isfinite(var) & (var > 0))
+    se = np.sqrt(np.clip(np.where(np.isfinite(var), var, 0.0), 0.0, None))
+    if np.any(bad):
+        se[bad] = np.inf
+        lost = [n for n, b in zip(names, bad.tolist(), strict=True) if b]
+        warnings.warn(
+            f"fit_transfer_function ({pair}): the data cannot determine {lost} (their "
+            "covariance is singular: an order higher than the response holds?); their "
+            "standard errors are reported as infinite",
+            IdentifiabilityWarning,
+            stacklevel=CALLER_STACKLEVEL + depth,  # `depth` helpers below the public call
+        )
+    return se
 
 
 def fit_free(
@@ -499,12 +523,12 @@ def _held(st: _Structure, fixed: Any) -> dict[str, float]:
     unknown = sorted(set(fixed) - set(st.names))
     if unknown:
         raise IdentificationError(f"fixed: unknown parameters {unknown}; parameters: {st.names}")
-    return {str(k): _start_value(str(k), v) for k, v in fixed.items()}
+    return {str(k): _start_value(str(k), v, "fixed") for k, v in fixed.items()}
 
 
-def _start_value(name: str, value: Any) -> float:
-    """A start value as a finite float, else an error naming the parameter."""
+def _start_value(name: str, value: Any, what: str = "start") -> float:
+    """A start (or fixed) value as a finite float, else an error naming the parameter."""
     out = as_float(value)
     if out is None or not np.isfinite(out):
-        raise IdentificationError(f"start[{name!r}]: expected a finite number, got {plain(value)}")
+        raise IdentificationError(f"{what}[{name!r}]: expected a finite number, got {plain(value)}")
     return out

@@ -85,7 +85,13 @@ from ._rational_fit import _coherence_weight as _coherence_weight
 from ._rational_fit import _detrended as _detrended
 from ._rational_fit import _excited_band as _excited_band
 from ._rational_fit import _fit_fourier as _fit_fourier
-from ._rational_fit import _fit_record, _fitted_information, _free_structure, fit_free
+from ._rational_fit import (
+    _fit_record,
+    _fitted_information,
+    _free_structure,
+    fit_free,
+    undetermined_bars,
+)
 from ._rational_fit import _held as _held
 from ._rational_fit import _levy_sk as _levy_sk
 from ._rational_fit import _orders as _orders
@@ -517,6 +523,8 @@ def fit_transfer_function(
         frequency_range = _excited_band(response_or_data, input)
     if fourier:
         assert isinstance(response_or_data, FlightData)
+        if frequency_range is not None:
+            frequency_range = _band(frequency_range)  # named, as the spectral path does
         return _fit_fourier(
             response_or_data,
             input,
@@ -547,7 +555,7 @@ def fit_transfer_function(
         )
     omega = ch.frequency
     keep = np.isfinite(ch.response) & (np.abs(ch.response) > 0)
-    keep &= ch.coherence >= min_coh
+    keep &= ~(ch.coherence < min_coh)  # an unknown (NaN) coherence is not a low one
     if frequency_range is not None:
         lo, hi = _band(frequency_range)
         keep &= (omega >= lo) & (omega <= hi)
@@ -555,7 +563,8 @@ def fit_transfer_function(
         keep &= np.isfinite(ch.random_error)
     w = omega[keep]
     h = ch.response[keep]
-    coh = ch.coherence[keep]
+    # an unknown coherence (a response given without one) weighs as a perfect one
+    coh = np.where(np.isnan(ch.coherence[keep]), 1.0, ch.coherence[keep])
     err = ch.random_error[keep]
     st, held, free = _free_structure(
         m,
@@ -611,7 +620,8 @@ def fit_transfer_function(
         chi2 = float("nan")
         cov = inv
     with np.errstate(invalid="ignore", divide="ignore"):
-        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        pair = f"{ch.input_name} -> {ch.output_name}"
+        se = undetermined_bars(cov, free, st.names, pair, 1)
         insens = 1.0 / np.sqrt(np.diag(info))
     # the reported cost is CIFER's whatever was minimised
     logt, _ = st.log_response(theta)
