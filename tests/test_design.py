@@ -426,3 +426,28 @@ def test_bad_arguments_name_the_culprit(kwargs, culprit):
     options.update(kwargs)  # `optimizer_options` in kwargs replaces FAST
     with pytest.raises(IdentificationError, match=culprit):
         design_experiment(catalog.short_period(), spec_multisine(), ["M_q"], **options)
+
+
+def test_a_user_family_that_raises_is_named():
+    """Its own exception escaped from inside the optimiser as a bare RuntimeError."""
+    from aeroid import ModelDefinitionError
+
+    class Broken:
+        controls = ("elevator",)
+        variable_names = ("a",)
+        bounds = ((0.0, 0.05),)
+
+        def initial(self):
+            return np.array([0.02])
+
+        def signal(self, variables, time):
+            raise RuntimeError("actuator table missing")
+
+        def describe(self, variables, time):
+            return "broken"
+
+    with pytest.raises(ModelDefinitionError, match=r"Broken: signal\(\) raised RuntimeError"):
+        design_experiment(
+            catalog.short_period(), Broken(), ["M_q"], values=TRUTH, noise=NOISE,
+            duration=4.0, sample_rate=25.0, seed=0, optimizer_options=FAST,
+        )  # fmt: skip

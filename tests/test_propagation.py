@@ -97,6 +97,9 @@ def test_bad_arguments():
         propagate(_result(), lambda p: 1.0, n_samples=0)
     with pytest.raises(PropagationError, match="percentiles"):
         propagate(_result(), lambda p: 1.0, percentiles=(120,), seed=0)
+    for bad in ((True,), ("50",), 5):  # True read as 1, text as a number, a bare number
+        with pytest.raises(PropagationError, match="percentiles must be a list of numbers"):
+            propagate(_result(), lambda p: 1.0, percentiles=bad, seed=0)
     with pytest.raises(PropagationError, match="identification result"):
         propagate(object(), lambda p: 1.0, seed=0)
 

@@ -38,11 +38,9 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
     for block in blocks:
         exec(compile(block, str(README), "exec"), namespace)
     # the README makes the flight file it loads: the truth case, as a CSV
-    assert (
-        (tmp_path / "flight_042.csv")
-        .read_text(encoding="utf-8")
-        .startswith("time,elevator,alpha,q\n")
-    )
+    # (its units on a comment line, then the header)
+    lines = (tmp_path / "flight_042.csv").read_text(encoding="utf-8").splitlines()
+    assert lines[0].startswith("# units: ") and lines[1] == "time,elevator,alpha,q"
     result = namespace["result"]
     truth = catalog.SHORT_PERIOD_TRUTH
     for name, value in truth.items():

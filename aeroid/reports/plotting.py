@@ -560,13 +560,7 @@ def plot_propagation(prop: Any, *, label: str = "metric") -> Figure:
     """Histogram of the propagated metric with its percentiles (`label`: the quantity and
     its unit, e.g. ``"natural frequency [rad/s]"``)."""
     fig, axes = figure(1, height=3.0)
-    ax = axes[0, 0]
-    _hist(ax, prop.samples, 50)
-    for p, v in prop.percentile_table["metric"].items():
-        ax.axvline(v, color="k", ls="--", lw=0.8)
-        ax.text(v, ax.get_ylim()[1] * 0.95, f"P{p:g}", fontsize=7, ha="center")
-    ax.set_xlabel(label)
-    ax.set_ylabel("draws")
+    _percentile_histogram(axes[0, 0], prop, label)
     return fig
 
 
@@ -575,15 +569,18 @@ def plot_vector_propagation(prop: Any) -> Figure:
     names = list(prop.names)
     fig, axes = figure(len(names), height=2.4)
     for i, name in enumerate(names):
-        ax = axes[i, 0]
-        part = prop[name]
-        _hist(ax, part.samples, 50)
-        for p, v in part.percentile_table["metric"].items():
-            ax.axvline(v, color="k", ls="--", lw=0.8)
-            ax.text(v, ax.get_ylim()[1] * 0.95, f"P{p:g}", fontsize=7, ha="center")
-        ax.set_xlabel(name)
-        ax.set_ylabel("draws")
+        _percentile_histogram(axes[i, 0], prop[name], name)
     return fig
+
+
+def _percentile_histogram(ax: Any, prop: Any, label: str) -> None:
+    """One propagated metric's draws with its percentiles marked."""
+    _hist(ax, prop.samples, 50)
+    for p, v in prop.percentile_table["metric"].items():
+        ax.axvline(v, color="k", ls="--", lw=0.8)
+        ax.text(v, ax.get_ylim()[1] * 0.95, f"P{p:g}", fontsize=7, ha="center")
+    ax.set_xlabel(label)
+    ax.set_ylabel("draws")
 
 
 def plot_campaign_trend(

@@ -35,6 +35,7 @@ from ..errors import (
     ChannelError,
     IdentifiabilityWarning,
     IdentificationError,
+    ModelDefinitionError,
     SimulationError,
 )
 from ..io.data import FlightData, as_float, check_flag
@@ -276,7 +277,15 @@ class _Evaluator:
         n_t = self.time.size
         out = np.broadcast_to(self.trim, (variables.shape[0], n_t, self.n_u)).copy()
         for s, v in enumerate(variables):
-            sig = np.asarray(self.maneuver.signal(v, self.time), dtype=np.float64)
+            try:
+                sig = np.asarray(self.maneuver.signal(v, self.time), dtype=np.float64)
+            except AeroidError:
+                raise
+            except Exception as exc:  # the family is the user's code: name it
+                raise ModelDefinitionError(
+                    f"maneuver {type(self.maneuver).__name__}: signal() raised "
+                    f"{type(exc).__name__}: {exc} (for the design {v.tolist()})"
+                ) from exc
             if sig.ndim == 1 and len(self.cols) == 1:
                 sig = sig[:, None]
             if sig.shape != (n_t, len(self.cols)):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,7 @@ from ..models.model import fitted_start
 from ._inference_record import PERCENTILES as PERCENTILES
 from ._inference_record import InferenceResult as InferenceResult
 from ._inference_record import _max_finite as _max_finite
+from ._inference_record import coloured_outputs, widening
 from ._posterior import _BACKENDS as _BACKENDS
 from ._posterior import _BALL_NOISE as _BALL_NOISE
 from ._posterior import _BALL_PRIOR as _BALL_PRIOR
@@ -125,13 +126,17 @@ class EnsembleRun:
     priors: Mapping[str, str]
     backend: str
     model_name: str
+    # the residuals' lag-one correlation at this ensemble's best draw, and their count
+    residual_correlation: Mapping[str, float] = field(default_factory=dict)
+    residual_samples: int = 0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "ensemble", int(self.ensemble))
+        for name in ("ensemble", "residual_samples"):
+            set_(self, name, int(getattr(self, name)))
         for name in ("parameter_names", "noise_parameters", "output_names"):
             set_(self, name, tuple(str(n) for n in getattr(self, name)))
-        for name in ("fixed", "noise", "priors"):
+        for name in ("fixed", "noise", "priors", "residual_correlation"):
             set_(self, name, frozen_mapping(getattr(self, name)))
 
 
@@ -238,6 +243,9 @@ def _run(
         thin=thin,
         progress=progress,
     )
+    flat = run.chain.reshape(-1, len(post.names))
+    best = flat[int(np.argmax(run.log_prob.reshape(-1)))]
+    rho, n_res = _residual_colour(post, {**post.fixed, **dict(zip(post.names, best, strict=True))})
     return EnsembleRun(
         ensemble,
         post.names,
@@ -249,6 +257,8 @@ def _run(
         {n: repr(p) for n, p in zip(post.names, post.priors, strict=True)},
         post.backend,
         post.model_name,
+        rho,
+        n_res,
     )
 
 
@@ -546,38 +556,20 @@ def infer(
         )
         for e in range(n_ensembles)
     ]
-    result = _combine(runs, stacklevel=4)  # _combine, infer, its BLAS wrapper, the caller
-    return _with_residual_colour(post, result)
+    return _combine(runs, stacklevel=4)  # _combine, infer, its BLAS wrapper, the caller
 
 
-def _with_residual_colour(post: _Posterior, result: InferenceResult) -> InferenceResult:
-    """The result with its residuals' lag-one correlation at the best draw, and a warning
-    where it is beyond chance and widens a slow parameter's bar noticeably: the likelihood
-    counts the samples as independent, which coloured noise (turbulence, unmodelled
-    dynamics) is not."""
-    from ._inference_record import coloured_outputs, widening
-
-    best = {**result.fixed, **result.map_parameters}
-    res = post.residuals(best)
+def _residual_colour(post: _Posterior, values: Mapping[str, float]) -> tuple[dict[str, float], int]:
+    """Each output's lag-one residual correlation at `values`, and the samples it is over:
+    the likelihood counts the samples as independent, which coloured noise (turbulence,
+    unmodelled dynamics) is not."""
+    res = post.residuals(values)
     rho: dict[str, float] = {}
     for j, name in enumerate(post.output_names):
         v = res[:, j] - np.mean(res[:, j])
         c0 = float(v @ v)
         rho[name] = float(v[:-1] @ v[1:]) / c0 if c0 > 0 and np.all(np.isfinite(v)) else math.nan
-    n = int(res.shape[0])
-    coloured = coloured_outputs(rho, n)
-    if coloured:
-        listing = ", ".join(f"{k!r} {v:.2f}" for k, v in coloured.items())
-        warnings.warn(
-            f"infer: the residuals at the best draw are coloured (lag-one correlation "
-            f"{listing}); the likelihood counts the samples as independent, so the posterior "
-            f"is too narrow, by up to about {widening(coloured):.1f}x for slow parameters. "
-            "identify's error bars correct for coloured residuals; turbulence is process "
-            "noise (identify(method='filter_error'))",
-            UserWarning,
-            stacklevel=4,  # here, infer, its BLAS wrapper, the caller
-        )
-    return replace(result, residual_correlation=rho, residual_samples=n)
+    return rho, int(res.shape[0])
 
 
 def combine_ensembles(runs: Sequence[EnsembleRun], *, warn: bool = True) -> InferenceResult:
@@ -682,6 +674,20 @@ def _combine(runs: Sequence[EnsembleRun], *, stacklevel: int, warn: bool = True)
         return {n: float(v) for n, v in zip(names, np.ravel(values), strict=True)}
 
     accept = float(np.mean([r.sampler.acceptance_fraction.mean() for r in runs]))
+    # the residuals at the best draw: the ensemble that holds it measured them
+    holder = runs[int(np.argmax([np.max(r.sampler.log_prob) for r in runs]))]
+    coloured = coloured_outputs(holder.residual_correlation, holder.residual_samples)
+    if coloured and warn:
+        listing = ", ".join(f"{k!r} {v:.2f}" for k, v in coloured.items())
+        warnings.warn(
+            f"infer: the residuals at the best draw are coloured (lag-one correlation "
+            f"{listing}); the likelihood counts the samples as independent, so the posterior "
+            f"is too narrow, by up to about {widening(coloured):.1f}x for slow parameters. "
+            "identify's error bars correct for coloured residuals; turbulence is process "
+            "noise (identify(method='filter_error'))",
+            UserWarning,
+            stacklevel=stacklevel,
+        )
     return InferenceResult(
         samples=samples,
         parameter_names=names,
@@ -712,4 +718,6 @@ def _combine(runs: Sequence[EnsembleRun], *, stacklevel: int, warn: bool = True)
         message=message,
         backend=first.backend,
         model_name=first.model_name,
+        residual_correlation=holder.residual_correlation,
+        residual_samples=holder.residual_samples,
     )

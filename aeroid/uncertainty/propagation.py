@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from .._records import fmt, frozen_array, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
 from ..errors import PropagationError
-from ..io.data import check_flag, plain, whole_number
+from ..io.data import as_float, check_flag, plain, whole_number
 
 __all__ = [
     "BLOCK_SIZE",
@@ -438,11 +438,15 @@ def _percentiles(percentiles: Sequence[float]) -> list[float]:
             f"percentiles must be a list of numbers in [0, 100], got the string {percentiles!r}"
         )
     try:
-        pcts = [float(p) for p in percentiles]
-    except (TypeError, ValueError):
+        values: list[Any] = list(percentiles)
+    except TypeError:
+        values = [None]
+    read = [as_float(p) for p in values]  # text and True are no percentile
+    pcts = [p for p in read if p is not None]
+    if len(pcts) != len(read):
         raise PropagationError(
             f"percentiles must be a list of numbers in [0, 100], got {plain(percentiles)}"
-        ) from None
+        )
     if not pcts:  # a result without any percentile would be silently incomplete
         raise PropagationError("percentiles must name at least one percentile in [0, 100]")
     if any(not 0.0 <= p <= 100.0 for p in pcts):
