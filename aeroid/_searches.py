@@ -202,6 +202,10 @@ def dct2(x: FloatArray) -> FloatArray:
     return out
 
 
+# Above this half-width `mirror_smooth` convolves by FFT (equal to rounding).
+_DIRECT_HALF = 256
+
+
 def mirror_smooth(x: NDArray[np.generic], weights: FloatArray) -> NDArray[np.generic]:
     """``sum_d w[d] x[i + d]`` along axis 0 for symmetric `weights` (2 h + 1,) with
     h < len(x), the samples beyond either end reflected about the edge sample."""
@@ -211,6 +215,20 @@ def mirror_smooth(x: NDArray[np.generic], weights: FloatArray) -> NDArray[np.gen
         raise ValueError("mirror_smooth: the window is wider than the series")
     pad = [(half, half)] + [(0, 0)] * (x.ndim - 1)
     xp = np.pad(x, pad, mode="reflect")
+    if half > _DIRECT_HALF:
+        # a wide window (a long record's spectrum): one FFT convolution, not a pass per
+        # offset, whose cost grows with the record times the window
+        size = xp.shape[0] + weights.size - 1
+        shape = (-1,) + (1,) * (x.ndim - 1)
+        full: NDArray[np.generic]
+        if np.iscomplexobj(xp):
+            spec = np.fft.fft(xp, size, axis=0) * np.fft.fft(weights, size).reshape(shape)
+            full = np.fft.ifft(spec, size, axis=0)
+        else:
+            half_spec = np.fft.rfft(xp, size, axis=0) * np.fft.rfft(weights, size).reshape(shape)
+            full = np.fft.irfft(half_spec, size, axis=0)
+        # the symmetric window's convolution is the moving sum; keep the valid part
+        return np.asarray(full[2 * half : 2 * half + n])
     out = weights[half] * x
     for d in range(1, half + 1):
         # the weights are symmetric: the samples d either side share one product

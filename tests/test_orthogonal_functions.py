@@ -140,3 +140,39 @@ def test_bad_data_is_named():
         res.predict({"alpha": a})
     assert not res.covariance.flags.writeable
     assert "Orthogonal function model of z" in res.summary()
+
+
+def test_pruning_is_an_option_and_the_fit_error_is_the_returned_polynomials():
+    """Morelli's 0.1 % rule dropped terms unannounced: all functions kept was then not
+    least squares on the monomials, and the fit error was the unpruned model's."""
+    rng = np.random.default_rng(102)
+    v = rng.standard_normal((300, 2))
+    z = 1.0 + v.sum(axis=1) + 0.3 * v[:, 0] ** 2 + 0.1 * rng.standard_normal(300)
+    data = {"u": v[:, 0], "v": v[:, 1], "z": z}
+    opts = {"max_power": 3, "max_order": 4, "n_functions": 13, "error_bars": "white"}
+    pruned = aeroid.orthogonal_function_model(data, "z", ["u", "v"], **opts)
+    resid = pruned.residuals
+    assert pruned.fit_error**2 * (300 - 13) == pytest.approx(float(resid @ resid), rel=1e-12)
+    whole = aeroid.orthogonal_function_model(data, "z", ["u", "v"], prune=0.0, **opts)
+    assert len(whole.parameter_names) == 13 > len(pruned.parameter_names)
+    x = _monomials(v[:, 0], v[:, 1], [tuple(p) for p in whole.powers.tolist()])
+    coef, *_ = np.linalg.lstsq(x, z, rcond=None)
+    np.testing.assert_allclose(
+        [whole.parameters[n] for n in whole.parameter_names], coef, rtol=1e-8, atol=1e-10
+    )
+
+
+def test_repeated_or_response_variables_and_bad_predictions_are_named():
+    a, m = _grid()
+    data = {"alpha": a, "mach": m, "z": a + m}
+    with pytest.raises(aeroid.DataFormatError, match="'alpha' is listed twice"):
+        aeroid.orthogonal_function_model(data, "z", ["alpha", "alpha"])
+    with pytest.raises(aeroid.DataFormatError, match="'z' is the response"):
+        aeroid.orthogonal_function_model(data, "z", ["alpha", "z"])
+    with pytest.raises(aeroid.DataFormatError, match="prune"):
+        aeroid.orthogonal_function_model(data, "z", ["alpha", "mach"], prune=1.5)
+    res = aeroid.orthogonal_function_model(data, "z", ["alpha", "mach"])
+    with pytest.raises(aeroid.DataFormatError, match="do not match in shape"):
+        res.predict({"alpha": np.array([0.1, 0.2]), "mach": np.array([0.5, 0.6, 0.7])})
+    with pytest.raises(aeroid.DataFormatError, match="'alpha'"):
+        res.predict({"alpha": np.array(["a"]), "mach": np.array([0.5])})

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._checks import as_float, plain
 from .._colour import colored_covariance
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
-from .._value_checks import whole_number
+from .._value_checks import real_array, whole_number
 from ..errors import DataFormatError, IdentificationError
 from ..io.data import FlightData
 from ._regressors import _resolve
@@ -115,8 +115,12 @@ class OrthogonalFunctionResult(IntervalMixin):
         missing = [v for v in self.variable_names if v not in values]
         if missing:
             raise DataFormatError(f"predict: no values for {missing}")
-        cols = [np.asarray(values[v], dtype=np.float64) for v in self.variable_names]
-        x = np.column_stack(np.broadcast_arrays(*cols))
+        cols = [real_array(values[v], f"predict: {v!r}") for v in self.variable_names]
+        try:
+            x = np.column_stack([c.ravel() for c in np.broadcast_arrays(*cols)])
+        except ValueError:
+            shapes = {v: np.shape(c) for v, c in zip(self.variable_names, cols, strict=True)}
+            raise DataFormatError(f"predict: the values do not match in shape: {shapes}") from None
         coef = np.array([self.parameters[n] for n in self.parameter_names])
         return np.asarray(_monomials(x, self.powers) @ coef)
 
@@ -164,6 +168,7 @@ def orthogonal_function_model(
     max_order: int = 6,
     noise_variance: float | str = "spread",
     n_functions: int | None = None,
+    prune: float = _NEGLIGIBLE,
     error_bars: str | None = None,
 ) -> OrthogonalFunctionResult:
     """Identify a polynomial model in several variables with orthogonal functions.
@@ -196,6 +201,13 @@ def orthogonal_function_model(
         variance about its mean: uniform errors as large as the data).
     n_functions : int, optional
         Keep this many ranked functions instead of the PSE's choice.
+    prune : float
+        Drop a polynomial term whose rms contribution over the data is below
+        this fraction of the response's rms (Morelli's rule: the kept
+        functions, written back, put tiny shares on many monomials); 0 keeps
+        every term, and with every function kept the model is then ordinary
+        least squares on the monomials. The residuals and the fit error are
+        those of the polynomial returned.
     error_bars : {"white", "colored"}, optional
         Classical, or corrected for coloured residuals as `equation_error`
         corrects its own (the default for `FlightData`, a time series; a
@@ -205,10 +217,18 @@ def orthogonal_function_model(
     -------
     OrthogonalFunctionResult
 
+    Notes
+    -----
+    Generation stops at the order whose functions fit the data to a
+    millionth of its rms (nothing is left to model). The error bars are
+    those of the chosen structure: a function the PSE left out that carries
+    part of the truth biases the terms it shares monomials with, and no bar
+    covers that (the price of choosing the structure from the same data).
+
     Raises
     ------
     DataFormatError
-        Malformed data or options; a missing variable.
+        Malformed data or options; a missing, repeated or response variable.
     IdentificationError
         Fewer samples than candidate functions need, or a variable that is
         constant.
@@ -217,6 +237,14 @@ def orthogonal_function_model(
     n, k = x.shape
     if k == 0:
         raise DataFormatError("variables: name at least one")
+    for name in names:
+        if names.count(name) > 1:
+            raise DataFormatError(f"variables: {name!r} is listed twice")
+    if zname in names:
+        raise DataFormatError(f"variables: {zname!r} is the response")
+    cut = as_float(prune)
+    if cut is None or not (np.isfinite(cut) and 0.0 <= cut < 1.0):
+        raise DataFormatError(f"prune: expected a fraction in [0, 1), got {plain(prune)}")
     powers_max = _max_powers(max_power, names)
     order = whole_number(max_order, "max_order", DataFormatError, least=1)
     bars = (
@@ -270,11 +298,12 @@ def orthogonal_function_model(
     used = np.flatnonzero(np.any(back != 0.0, axis=1))
     terms = _monomials(x, mono[used]) * coef_all[used]
     z_rms = float(np.sqrt(np.mean(z**2)))
-    big = np.sqrt(np.mean(terms**2, axis=0)) > _NEGLIGIBLE * z_rms
+    big = np.sqrt(np.mean(terms**2, axis=0)) > cut * z_rms if cut > 0 else np.ones(used.size, bool)
     used = used[big]
     coef, cov, powers = coef_all[used], cov_all[np.ix_(used, used)], mono[used]
     fitted = _monomials(x, powers) @ coef
     resid = z - fitted
+    s2 = float(resid @ resid) / (n - keep)  # of the polynomial returned, pruned or not
     term_names = [_term_name(p, names) for p in powers]
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     zc = z - z.mean()

@@ -207,7 +207,7 @@ def main() -> None:
     for n in (5_000, 20_000):
         time_correction(n, 7, 20)
         time_correction(n, 7, 20, as_in_identify=True)
-    for n, n_y, n_par in ((2_000, 2, 16), (20_000, 4, 18)):
+    for n, n_y, n_par in ((2_000, 2, 16), (20_000, 4, 18), (100_000, 1, 3)):
         for phi in (0.0, 0.99):
             time_kernel(n, n_y, n_par, phi)
     if args.large:
