@@ -697,6 +697,13 @@ def _line_flights() -> list[FlightCoefficients]:
             DataFormatError,
             "negative standard error of CL_0",
         ),
+        (  # an estimate given without uncertainty was dropped in silence
+            lambda: FlightCoefficients.from_stderr(
+                "x", {"alpha": 0.1}, {"CL_0": 1.0}, {"CL_0": 0.0}
+            ),
+            DataFormatError,
+            "standard error 0 of CL_0",
+        ),
         (
             lambda: FlightCoefficients.from_stderr("x", {"alpha": 0.1}, {"CL_0": 1.0}, {"Cm": 0.1}),
             DataFormatError,

@@ -83,6 +83,13 @@ def diagonal(name: str, estimates: Mapping[str, Any], stderr: Mapping[str, Any])
     negative = [k for k, v in se.items() if v < 0.0]
     if negative:
         raise DataFormatError(f"flight {name!r}: negative standard error of {', '.join(negative)}")
+    exact = [k for k, v in se.items() if v == 0.0 and math.isfinite(_number(estimates[k], k))]
+    if exact:
+        raise DataFormatError(
+            f"flight {name!r}: standard error 0 of {', '.join(exact)}: an estimate without "
+            "uncertainty would outweigh every other flight; give its standard error (NaN "
+            "for a term the flight did not excite)"
+        )
     return np.diag([se[k] ** 2 if k in se else math.nan for k in estimates])
 
 
