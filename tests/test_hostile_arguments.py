@@ -90,3 +90,30 @@ def test_propagation_error_is_public():
     fit = aeroid.identify(catalog.short_period(), data, list(catalog.SHORT_PERIOD_TRUTH))
     with pytest.raises(aeroid.PropagationError, match="n_samples"):
         aeroid.propagate(fit, lambda p: p["M_q"], n_samples=0, seed=0)
+
+
+def test_an_output_listed_twice_is_refused_everywhere():
+    """Filtering or fitting one channel twice counts it as two independent measurements
+    (filter error's sigma2 read 0.47 where one copy gives 0.89)."""
+    import warnings
+
+    data = catalog.short_period_flight(seed=0)
+    model = catalog.short_period()
+    q = {"alpha": 1e-6, "q": 1e-6}
+    calls = [
+        lambda: aeroid.identify(model, data, ["M_q"], outputs=["q", "q"]),
+        lambda: aeroid.identify(
+            model, data, ["M_q"], method="filter_error", outputs=["q", "q"], process_noise=q
+        ),
+        lambda: aeroid.validate(model, data, None, outputs=["q", "q"]),
+        lambda: aeroid.filter_states(
+            model, data, process_noise=q, measurement_noise={"q": 1e-4}, outputs=["q", "q"]
+        ),
+        lambda: aeroid.sensitivities(model, data, outputs=["q", "q"], noise={"q": 0.01}),
+        lambda: aeroid.frequency_response(model, data, None, outputs=["q", "q"]),
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for call in calls:
+            with pytest.raises(aeroid.AeroidError, match=r"twice|more than once"):
+                call()

@@ -225,6 +225,9 @@ def build_problem(
             raise error(
                 f"outputs: {bad or 'none'} not among the model's outputs {list(m.output_names)}"
             )
+        twice = sorted({o for o in out_names if out_names.count(o) > 1})
+        if twice:  # one measurement filtered as two independent ones
+            raise error(f"outputs: {twice} listed more than once")
     data.require(m.controls, role="control")
     data.require(out_names, role="output")
     R = noise_matrix(

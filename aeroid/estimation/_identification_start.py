@@ -84,6 +84,8 @@ def _select(option: Any, available: Sequence[str], what: str, *, strict: bool = 
     for c in chosen:
         if c not in available and strict:
             raise IdentificationError(f"{what}: {c!r} is not one of {list(available)}")
+        if chosen.count(c) > 1:  # one output twice would count its data twice
+            raise IdentificationError(f"{what}: {c!r} is listed twice")
     return [c for c in chosen if c in available]
 
 

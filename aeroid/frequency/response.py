@@ -382,6 +382,9 @@ def frequency_response(
                 f"outputs: {bad or outs} are not outputs of model {model.name!r}; "
                 f"outputs: {list(model_outputs)}"
             )
+        twice = sorted({o for o in outs if outs.count(o) > 1})
+        if twice:
+            raise ChannelError(f"outputs: {twice} listed more than once")
     data.require(controls, role="control")
     data.require(outs, role="output")
     n = data.n_samples

@@ -537,6 +537,9 @@ def sensitivities(
                 f"outputs: {unknown} are not outputs of model {model.name!r}; "
                 f"outputs: {list(all_outputs)}"
             )
+        twice = sorted({o for o in outs if outs.count(o) > 1})
+        if twice:  # one output twice would count its information twice
+            raise IdentificationError(f"outputs: {twice} listed more than once")
     elif noise is not None:
         outs = [o for o in all_outputs if o in noise]
         if not outs:

@@ -328,6 +328,8 @@ def validate(
     for o in chosen:
         if o not in names:
             raise IdentificationError(f"outputs: {o!r} is not an output of model {model.name!r}")
+        if chosen.count(o) > 1:
+            raise IdentificationError(f"outputs: {o!r} is listed twice")
     if outputs is not None and not chosen:  # an empty result would pass for a check
         raise IdentificationError("outputs: name at least one output to check")
     if not chosen:
