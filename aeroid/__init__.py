@@ -118,6 +118,7 @@ if TYPE_CHECKING:  # the lazy table below, as type checkers must see it
     from .uncertainty.maneuvers import Multisine as Multisine
     from .uncertainty.maneuvers import OrthogonalMultisine as OrthogonalMultisine
     from .uncertainty.maneuvers import orthogonal_multisine as orthogonal_multisine
+    from .uncertainty.prediction import PredictionResult as PredictionResult
     from .uncertainty.priors import HalfNormal as HalfNormal
     from .uncertainty.priors import LogUniform as LogUniform
     from .uncertainty.priors import Normal as Normal
@@ -251,6 +252,7 @@ _LAZY = {
     "optimal_cutoff": ".io.smoothing",
     "smooth": ".io.smoothing",
     "OutputMetrics": ".uncertainty.validation",
+    "PredictionResult": ".uncertainty.prediction",
     "ValidationResult": ".uncertainty.validation",
     "validate": ".uncertainty.validation",
 }

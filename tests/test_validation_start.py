@@ -175,3 +175,10 @@ def test_the_validate_stage_takes_the_start():
     assert opts.library_kwargs() == {"holdout": {"fraction": 0.25}, "holdout_start": "estimated"}
     with pytest.raises(ValidationError, match="holdout_start"):
         ValidateOptions(holdout_start="first")
+
+
+def test_the_prediction_record_is_public():
+    import aeroid
+    from aeroid.uncertainty.prediction import PredictionResult
+
+    assert aeroid.PredictionResult is PredictionResult
