@@ -18,6 +18,15 @@ from numpy.typing import NDArray
 _STANDARD_NORMAL = NormalDist()
 
 
+def spread_over_noise(y: NDArray[np.float64]) -> float:
+    """RMS of `y` about its mean over its noise RMS, the noise estimated from first
+    differences: white noise of variance s^2 gives differences of variance 2 s^2, a
+    response slow against the sample rate next to none."""
+    noise = float(np.std(np.diff(y))) / math.sqrt(2.0)
+    spread = float(np.std(y))
+    return spread / noise if noise > 0 else (math.inf if spread > 0 else 0.0)
+
+
 def chi2_sf(q: float, dof: int) -> float:
     """Upper tail P(X > q) of the chi-square distribution with integer `dof` (NaN below 1).
 

@@ -47,6 +47,16 @@ def whole_number(value: Any, name: str, error: type[Exception], *, least: int = 
     return n
 
 
+def check_distinct(names: Sequence[Any], what: str, error: type[Exception]) -> None:
+    """Refuse a name listed twice, naming it: one output, variable or channel twice would
+    be counted as two independent ones."""
+    seen: set[Any] = set()
+    for name in names:
+        if name in seen:
+            raise error(f"{what}: {name!r} is listed twice")
+        seen.add(name)
+
+
 def check_seed(seed: Any, error: type[Exception], what: str = "seed") -> int | None:
     """`seed` as a non-negative integer or None, else `error` naming `what`: numpy's own
     refusal of ``"x"``, ``-3`` or ``1.5`` is a bare ``TypeError`` or ``ValueError``."""

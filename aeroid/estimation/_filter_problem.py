@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._value_checks import check_distinct
 from ..errors import AeroidError, FilterError
 from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
 from ..models.integration import Interpolation, check_control_interpolation
@@ -225,9 +226,7 @@ def build_problem(
             raise error(
                 f"outputs: {bad or 'none'} not among the model's outputs {list(m.output_names)}"
             )
-        twice = sorted({o for o in out_names if out_names.count(o) > 1})
-        if twice:  # one measurement filtered as two independent ones
-            raise error(f"outputs: {twice} listed more than once")
+        check_distinct(out_names, "outputs", error)
     data.require(m.controls, role="control")
     data.require(out_names, role="output")
     R = noise_matrix(

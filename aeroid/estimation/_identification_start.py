@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._value_checks import check_distinct
 from ..errors import IdentificationError
 from ..io.data import FlightData, as_float, plain
 
@@ -84,8 +85,7 @@ def _select(option: Any, available: Sequence[str], what: str, *, strict: bool = 
     for c in chosen:
         if c not in available and strict:
             raise IdentificationError(f"{what}: {c!r} is not one of {list(available)}")
-        if chosen.count(c) > 1:  # one output twice would count its data twice
-            raise IdentificationError(f"{what}: {c!r} is listed twice")
+    check_distinct(chosen, what, IdentificationError)
     return [c for c in chosen if c in available]
 
 

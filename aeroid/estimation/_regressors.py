@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._value_checks import check_distinct
 from ..errors import ChannelError, DataFormatError
 from ..io.data import FlightData, as_float, positive_number, real_array
 
@@ -303,9 +304,7 @@ def candidate_pool(
         )
     if not variables:
         raise DataFormatError("variables: give at least one variable")
-    for v in variables:
-        if list(variables).count(v) > 1:
-            raise DataFormatError(f"variables: {v!r} is listed twice")
+    check_distinct(variables, "variables", DataFormatError)
     if isinstance(data, FlightData):
         lookup: Mapping[str, Any] = data.channels
         n = data.n_samples

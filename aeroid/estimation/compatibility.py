@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._stats import spread_over_noise
 from .._threads import record_warnings, small_blas
 from ..errors import DataFormatError, IdentificationError
 from ..io.data import FlightData, plain, whole_number
@@ -118,9 +119,7 @@ _MAX_PASSES = 6
 def _moves(x: FloatArray) -> bool:
     """Whether a channel moves beyond its sample-to-sample noise: its spread about the
     mean more than three times the white-noise level its first differences give."""
-    spread = float(np.std(x))
-    noise = float(np.std(np.diff(x))) / math.sqrt(2.0) if x.size > 2 else 0.0
-    return spread > 3.0 * noise and spread > 0.0
+    return spread_over_noise(x) > 3.0
 
 
 @small_blas

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._checks import as_float, plain
 from .._colour import colored_covariance
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
-from .._value_checks import real_array, whole_number
+from .._value_checks import check_distinct, real_array, whole_number
 from ..errors import DataFormatError, IdentificationError
 from ..io.data import FlightData
 from ._regressors import _resolve
@@ -237,9 +237,7 @@ def orthogonal_function_model(
     n, k = x.shape
     if k == 0:
         raise DataFormatError("variables: name at least one")
-    for name in names:
-        if names.count(name) > 1:
-            raise DataFormatError(f"variables: {name!r} is listed twice")
+    check_distinct(names, "variables", DataFormatError)
     if zname in names:
         raise DataFormatError(f"variables: {zname!r} is the response")
     cut = as_float(prune)

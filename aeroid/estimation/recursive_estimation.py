@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._checks import as_float, plain
 from .._colour import colored_covariance
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from .._value_checks import check_flag, check_symmetric
@@ -39,6 +38,7 @@ from ..errors import (
     IdentificationError,
 )
 from ..io.data import FlightData
+from ..models.model import real_number
 from ._regression_fits import _classical_where_not_positive
 from ._regressors import _check_names, _resolve
 from .least_squares import _ls_solve
@@ -218,7 +218,7 @@ def recursive_least_squares(
     IdentificationError
         No more samples than parameters.
     """
-    lam = _number(forgetting, "forgetting")
+    lam = real_number(forgetting, "forgetting", DataFormatError, finite=True)
     if not 0.0 < lam <= 1.0:
         raise DataFormatError(f"forgetting: expected a factor in (0, 1], got {forgetting!r}")
     bars = error_bars if error_bars is not None else ("colored" if lam == 1.0 else "white")
@@ -343,13 +343,6 @@ def _recursion(
     return hist, se_hist, gains, s_hist, eps_all, cov
 
 
-def _number(value: Any, what: str) -> float:
-    v = as_float(value)
-    if v is None or not np.isfinite(v):
-        raise DataFormatError(f"{what}: expected a finite number, got {plain(value)}")
-    return v
-
-
 def _start(initial: Mapping[str, float] | None, names: list[str]) -> FloatArray:
     theta0 = np.zeros(len(names))
     if initial is None:
@@ -363,7 +356,9 @@ def _start(initial: Mapping[str, float] | None, names: list[str]) -> FloatArray:
             raise DataFormatError(
                 f"initial: {name!r} is not a parameter of this regression; parameters: {names}"
             )
-        theta0[names.index(name)] = _number(value, f"initial[{name!r}]")
+        theta0[names.index(name)] = real_number(
+            value, f"initial[{name!r}]", DataFormatError, finite=True
+        )
     return theta0
 
 
@@ -372,7 +367,7 @@ def _start_covariance(value: float | ArrayLike | None, names: list[str]) -> Floa
     if value is None:
         return _DIFFUSE * np.eye(p)
     if np.ndim(value) == 0:
-        v = _number(value, "initial_covariance")
+        v = real_number(value, "initial_covariance", DataFormatError, finite=True)
         if not v > 0.0:
             raise DataFormatError(f"initial_covariance: expected a positive variance, got {v!r}")
         return v * np.eye(p)

@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 
 from .._records import fmt, markdown_table
 from .._threads import small_blas
+from .._value_checks import check_distinct
 from ..errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from ..io.data import FlightData, as_float, whole_number
 from ..models.model import (
@@ -382,9 +383,7 @@ def frequency_response(
                 f"outputs: {bad or outs} are not outputs of model {model.name!r}; "
                 f"outputs: {list(model_outputs)}"
             )
-        twice = sorted({o for o in outs if outs.count(o) > 1})
-        if twice:
-            raise ChannelError(f"outputs: {twice} listed more than once")
+        check_distinct(outs, "outputs", ChannelError)
     data.require(controls, role="control")
     data.require(outs, role="output")
     n = data.n_samples

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._colour import _lag_one
 from .._records import frozen_mapping
 from .._threads import small_blas
 from ..errors import InferenceError
@@ -564,12 +565,8 @@ def _residual_colour(post: _Posterior, values: Mapping[str, float]) -> tuple[dic
     the likelihood counts the samples as independent, which coloured noise (turbulence,
     unmodelled dynamics) is not."""
     res = post.residuals(values)
-    rho: dict[str, float] = {}
-    for j, name in enumerate(post.output_names):
-        v = res[:, j] - np.mean(res[:, j])
-        c0 = float(v @ v)
-        rho[name] = float(v[:-1] @ v[1:]) / c0 if c0 > 0 and np.all(np.isfinite(v)) else math.nan
-    return rho, int(res.shape[0])
+    rho = _lag_one([res - res.mean(axis=0)])
+    return dict(zip(post.output_names, rho.tolist(), strict=True)), int(res.shape[0])
 
 
 def combine_ensembles(runs: Sequence[EnsembleRun], *, warn: bool = True) -> InferenceResult:

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._records import fmt, frozen_array, markdown_table
+from .._stats import spread_over_noise
 from .._threads import CALLER_STACKLEVEL
 from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData, measured_start, plain
@@ -36,15 +37,6 @@ STARTS = ("measured", "estimated")
 MIN_HOLDOUT_SAMPLES = 10
 # total RMS over noise RMS at which the response's variance equals the noise's
 _EXCITED = math.sqrt(2.0)
-
-
-def _response_to_noise(y: FloatArray) -> float:
-    """RMS of `y` about its mean over its noise RMS, the noise estimated from first
-    differences: white noise of variance s^2 gives differences of variance 2 s^2,
-    a response slow against the sample rate next to none."""
-    noise = float(np.std(np.diff(y))) / math.sqrt(2.0)
-    spread = float(np.std(y))
-    return spread / noise if noise > 0 else (math.inf if spread > 0 else 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -278,7 +270,7 @@ def predict(
     idx = [names.index(o) for o in outputs]
     y_hat = np.asarray(sim.outputs)[:, idx] + np.array([shifts[o] for o in outputs])
     metrics = {o: prediction_metrics(y[:, j], y_hat[:, j]) for j, o in enumerate(outputs)}
-    ratios = {o: _response_to_noise(y[:, j]) for j, o in enumerate(outputs)}
+    ratios = {o: spread_over_noise(y[:, j]) for j, o in enumerate(outputs)}
     if ratios and all(v < _EXCITED for v in ratios.values()):
         listing = ", ".join(f"{n!r} {v:.2g}" for n, v in ratios.items())
         warnings.warn(

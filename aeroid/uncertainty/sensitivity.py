@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from .._records import fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
+from .._value_checks import check_distinct
 from ..errors import (
     ChannelError,
     IdentifiabilityWarning,
@@ -537,9 +538,7 @@ def sensitivities(
                 f"outputs: {unknown} are not outputs of model {model.name!r}; "
                 f"outputs: {list(all_outputs)}"
             )
-        twice = sorted({o for o in outs if outs.count(o) > 1})
-        if twice:  # one output twice would count its information twice
-            raise IdentificationError(f"outputs: {twice} listed more than once")
+        check_distinct(outs, "outputs", IdentificationError)
     elif noise is not None:
         outs = [o for o in all_outputs if o in noise]
         if not outs:

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from .._records import fmt, frozen_array, markdown_table
 from .._stats import chi2_sf, norm_ppf
 from .._threads import CALLER_STACKLEVEL, small_blas
+from .._value_checks import check_distinct
 from ..errors import IdentificationError
 from ..io.data import FlightData, fingerprint, plain, whole_number
 from ..models.model import (
@@ -328,8 +329,7 @@ def validate(
     for o in chosen:
         if o not in names:
             raise IdentificationError(f"outputs: {o!r} is not an output of model {model.name!r}")
-        if chosen.count(o) > 1:
-            raise IdentificationError(f"outputs: {o!r} is listed twice")
+    check_distinct(chosen, "outputs", IdentificationError)
     if outputs is not None and not chosen:  # an empty result would pass for a check
         raise IdentificationError("outputs: name at least one output to check")
     if not chosen:

@@ -691,23 +691,36 @@ def regression_rows(
         ).parameters
 
     mcs = monte_carlo(refit, fitted, resid, mc, seed=seed)
-    rows = []
-    for name, (p, sw, sc) in sidpac.items():
-        rows.append(
-            row(
-                case,
-                f"{label}{name}",
-                sidpac=p,
-                sidpac_se_white=sw,
-                sidpac_se_corrected=sc,
-                ours=res.parameters[name],
-                ours_se=res.stderr[name],
-                mc_se=mcs.get(name),
-                seconds=t.seconds,
-                note=note,
-            )
+    return fit_rows(case, sidpac, res, mcs, t.seconds, label=label, note=note)
+
+
+def fit_rows(
+    case: str,
+    sidpac: Mapping[str, tuple[float | None, float | None, float | None]],
+    res: Any,
+    mcs: Mapping[str, float],
+    seconds: float,
+    *,
+    label: str = "",
+    note: str | None = None,
+) -> list[dict[str, Any]]:
+    """One row per parameter of a fit `res` (``.parameters``, ``.stderr``) next to
+    SIDPAC's (estimate, white se, corrected se) by our name, with the Monte Carlo's se."""
+    return [
+        row(
+            case,
+            f"{label}{name}",
+            sidpac=p,
+            sidpac_se_white=sw,
+            sidpac_se_corrected=sc,
+            ours=res.parameters[name],
+            ours_se=res.stderr[name],
+            mc_se=mcs.get(name),
+            seconds=seconds,
+            note=note,
         )
-    return rows
+        for name, (p, sw, sc) in sidpac.items()
+    ]
 
 
 def output_residuals(result: Any, outputs: Sequence[str], k: int = 0) -> np.ndarray:

@@ -59,23 +59,8 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         f"in ours (the weighted cost, exact), so our white bars are "
         f"{white.stderr['beta'] / sw[0]:.3f} of SIDPAC's; ours (default) are coloured"
     )
-    rows = []
-    for i, name in enumerate(_X):
-        rows.append(
-            S.row(
-                CASE,
-                f"Cn_{name}",
-                sidpac=p[i],
-                sidpac_se_white=sw[i],
-                sidpac_se_corrected=None,
-                ours=res.parameters[name],
-                ours_se=res.stderr[name],
-                mc_se=mcs.get(name),
-                seconds=t.seconds,
-                note=note,
-            )
-        )
-    return rows
+    sidpac = {name: (p[i], sw[i], None) for i, name in enumerate(_X)}
+    return S.fit_rows(CASE, sidpac, res, mcs, t.seconds, label="Cn_", note=note)
 
 
 if __name__ == "__main__":
