@@ -247,6 +247,31 @@ def test_first_fit_runs_in_numpy_and_a_later_one_compiles() -> None:
         assert first.stderr[k] == pytest.approx(second.stderr[k], rel=1e-3), k
 
 
+def test_dynamics_written_in_jax_compile_for_the_first_fit() -> None:
+    # a jax.numpy function (here with a jax.lax.cond, which JAX compiles afresh on every
+    # eager call) is never stepped through numpy's loops: the first fit compiles, and
+    # lands on the truth of the noise-free record
+    import jax
+    import jax.numpy as jnp
+
+    def pendulum(t: Any, x: Any, u: Any, p: Any) -> Any:
+        damping = jax.lax.cond(x[1] > 0, lambda: p["c"], lambda: 1.5 * p["c"])
+        return jnp.array([x[1], -p["a"] * jnp.sin(x[0]) - damping * x[1] + p["b"] * u[0]])
+
+    model = aeroid.Model(
+        ["theta", "omega"], ["tau"], {"a": 9.0, "c": 0.5, "b": 2.0}, pendulum, name="lax"
+    )
+    t = np.arange(41) * 0.05
+    u = np.where(t < 1.0, 1.0, -1.0)
+    sim = model.simulate(t, {"tau": u}, [0.1, 0.0], {"a": 9.5}, method="rk4", substeps=3)
+    data = aeroid.FlightData(t, {"theta": sim.states[:, 0], "omega": sim.states[:, 1], "tau": u})
+    fit = aeroid.identify(
+        model, data, ["a"], estimate_x0=False, simulate_options={"method": "rk4", "substeps": 3}
+    )
+    assert _compiled._CACHE[model].get("sensitivities_compiled")
+    assert fit.parameters["a"] == pytest.approx(9.5, rel=1e-8)
+
+
 def test_non_finite_dynamics_still_name_the_time(monkeypatch: Any) -> None:
     def blows_up(t: Any, x: Any, u: Any, p: Any) -> Any:
         return np.array([np.where(t > 2.0, np.nan, -p["k"] * x[0])])

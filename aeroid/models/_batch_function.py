@@ -75,6 +75,10 @@ class BatchFunction:
         # linearised RK4 of Newton's method over the record (`shooting`) then takes
         # them instead of central differences over extra columns
         self.jacobian: ClosedForm | None = None
+        # True once a call on numpy values returned a JAX array: a function written in
+        # jax.numpy, which numpy's loops would run op by op through JAX's dispatcher
+        # (each `jax.lax.cond` a compilation of its own), so compiling it always pays
+        self.jax_written = False
 
     def _where(self) -> str:
         return f"the {self.role} of model {self.model_name!r}"
@@ -82,6 +86,8 @@ class BatchFunction:
     def _single(self, t: float, x: FloatArray, u: FloatArray, p: Mapping[str, float]) -> FloatArray:
         try:
             raw = self.fun(t, x, u, p)
+            if not self.jax_written and type(raw).__module__.startswith(("jax", "jaxlib")):
+                self.jax_written = True
             out = np.asarray(raw, dtype=np.float64)
         except AeroidError:
             raise

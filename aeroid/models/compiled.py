@@ -330,7 +330,7 @@ def worth_compiling(model: Model, calls: int) -> bool:
     never wait for a compiler; once compiled it always is.
     """
     entry = _entry(model)
-    if entry.get("compiled_once"):
+    if entry.get("compiled_once") or model._dynamics_batch.jax_written:
         return True
     # the numpy rollouts of fits that `output_sensitivities` kept in numpy do not count
     allowance = COMPILE_AFTER_CALLS + entry.get("sensitivity_numpy_calls", 0)
@@ -505,7 +505,7 @@ def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
     model's sensitivities now (see `output_sensitivities`); counts the numpy work
     spent when not."""
     entry = _entry(model)
-    if entry.get("sensitivities_compiled"):
+    if entry.get("sensitivities_compiled") or model._dynamics_batch.jax_written:
         return True
     # batched dynamics calls of the fit's rollouts: 4 per substep
     work = _FIT_EVALUATIONS * 4 * int(substeps) * max(n_t - 1, 1)
