@@ -324,6 +324,12 @@ def test_report_paths_that_would_overwrite_inputs_or_each_other_are_refused(tmp_
     cfg.write_text(text.replace("report: out/report.md", "report: c.yaml"))
     with pytest.raises(ConfigError, match=r"c.yaml is an input of the campaign"):
         run(cfg, workers=0)
+    # refused before the store or the report's folder is made
+    assert not (tmp_path / "store").exists() and not (tmp_path / "out").exists()
+    (tmp_path / "blocker").write_text("a file where the report's folder would go\n")
+    cfg.write_text(text.replace("report: out/report.md", "report: blocker/sub/report.md"))
+    with pytest.raises(ConfigError, match=r"cannot make .*blocker is a file"):
+        run(cfg, workers=0)
     cfg.write_text(text.replace("report: out/report.md\n", "name: ../elsewhere\n"))
     with pytest.raises(ConfigError, match=r"name: .*names the report file.*'\.\./elsewhere'"):
         run(cfg, workers=0)

@@ -517,11 +517,20 @@ def test_one_file_with_two_windows_is_two_flights(tmp_path):
         "model: short_period\nflights:\n"
         "  - {path: f1.csv, window: [0.0, 1.0]}\n"
         "  - {path: f1.csv, window: [1.0, 1.9]}\n"
-        "  - {path: f1.csv, window: [1.0, 1.9]}\n"  # the same flight again: kept once
     )
     cfg = load_config(_write(tmp_path, text))
     files = cfg.expand_files()
     assert [spec.window for _, _, spec in files] == [(0.0, 1.0), (1.0, 1.9)]
+    # the same flight listed again is refused, naming both entries; globs that
+    # overlap keep a file once
+    again = load_config(_write(tmp_path, text + "  - {path: f1.csv, window: [1.0, 1.9]}\n"))
+    with pytest.raises(ConfigError, match=r"flights\[2\].*flights\[1\]"):
+        again.expand_files()
+    _csv_flight(tmp_path / "f2.csv")
+    globs = load_config(
+        _write(tmp_path, "model: short_period\nflights:\n  - 'f*.csv'\n  - 'f?.csv'\n")
+    )
+    assert [p.name for _, p, _ in globs.expand_files()] == ["f1.csv", "f2.csv"]
 
 
 def test_the_px4_roll_config_plans_and_its_load_options_load_through_the_channel_map():

@@ -130,6 +130,11 @@ def _read_ulog(path: Path) -> FlightLog:
             topic = f"{d.name}_{d.multi_id}"
             if topic in topics:  # a real topic already has that name
                 topic = f"{d.name}#{d.multi_id}"
+        if "timestamp" not in d.data:
+            raise DataFormatError(
+                f"{path}: ULog topic {topic!r} has no 'timestamp' field (fields "
+                f"{sorted(d.data)[:8]}); a damaged format definition?"
+            )
         stamps = np.asarray(d.data["timestamp"])
         time = stamps.astype(np.float64) / 1e6
         for field, raw in d.data.items():

@@ -349,6 +349,31 @@ def _first_bad_cell_wide(
     return None
 
 
+def _read_with_timestamps(
+    read: Any, types: dict[str, Any], path: Path, header: list[str], offset: int
+) -> Any:
+    """`read()`, with each column whose first cell is an ISO 8601 date and time read as
+    timestamps (``types`` updated; they become seconds from the first sample)."""
+    import pyarrow as pa
+
+    for _ in range(len(types)):
+        try:
+            return read()
+        except pa.ArrowInvalid as exc:
+            if "conversion error" not in str(exc):
+                raise
+            names = [n for n, kind in types.items() if kind == pa.float64()]
+            found = _first_bad_cell(path, header, offset, names, lambda row: "skip")
+            if found is None or found[0] != 2 or not _ISO_TIME.fullmatch(found[2]):
+                raise
+            types[found[1]] = pa.timestamp("ns")
+    return read()
+
+
+# an ISO 8601 date and time (a timestamp column of a CSV)
+_ISO_TIME = re.compile(r"\d{4}-\d\d-\d\d[T ]\d\d:\d\d(:\d\d(\.\d{1,9})?)?(Z|[+-]\d\d:?\d\d)?")
+
+
 def _read_csv(
     path: Path, wanted: Collection[str] | None = None
 ) -> tuple[list[str], dict[str, FloatArray]]:
@@ -375,6 +400,7 @@ def _read_csv(
         raise DataFormatError(f"{path}: fewer than 2 data rows")
     # (at least one column: pyarrow reads every column for an empty selection)
     names = header if wanted is None else [h for h in header if h in wanted] or header[:1]
+    types = dict.fromkeys(names, pa.float64())
 
     def read(parse: Any = None) -> Any:
         with arrow_file(path) as f:
@@ -386,7 +412,7 @@ def _read_csv(
                 read_options=pacsv.ReadOptions(column_names=header, use_threads=True),
                 parse_options=parse or pacsv.ParseOptions(),
                 convert_options=pacsv.ConvertOptions(
-                    column_types=dict.fromkeys(names, pa.float64()),
+                    column_types=types,
                     include_columns=names,
                     null_values=[""],
                     strings_can_be_null=False,
@@ -404,7 +430,7 @@ def _read_csv(
 
     try:
         try:
-            table = read()
+            table = _read_with_timestamps(read, types, path, header, offset)
         except pa.ArrowInvalid as exc:
             # Comment lines among the data: read again without them (rare, so only
             # on the error path); anything else is located and reported. A cell that
@@ -415,7 +441,8 @@ def _read_csv(
                 with contextlib.suppress(pa.ArrowInvalid):
                     table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
             if table is None or not comments:
-                raise _csv_cell_error(path, header, offset, exc, names) from None
+                numeric = [n for n in names if types[n] == pa.float64()]
+                raise _csv_cell_error(path, header, offset, exc, numeric) from None
     except (OSError, pa.ArrowException) as exc:
         raise DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})") from None
     n = table.num_rows
@@ -429,6 +456,9 @@ def _read_csv(
         if chunked.null_count:
             first = int(np.flatnonzero(np.asarray(chunked.is_null()))[0])
             raise DataFormatError(f"{path}: row {first + 2}, column {name!r}: blank cell")
+        if types[name] != pa.float64():
+            columns[name] = _seconds(chunked.to_numpy())
+            continue
         out = _Owned((n,), dtype=np.float64)  # owns its memory, so adopting it freezes it
         at = 0
         for chunk in chunked.chunks:

@@ -30,8 +30,10 @@ class LogChannel:
     name : str
         ``topic.field`` as the log names it (``IMU.GyrY``).
     time : array_like
-        Seconds, non-decreasing (duplicated stamps are kept: the quality
-        checks report them).
+        Seconds, as the log recorded them: repeated stamps, and the stamps of a
+        damaged log that step back, are kept (the quality checks report them, and
+        `resample` refuses a channel whose time steps back). Non-finite stamps
+        are refused.
     values : array_like
         One value per stamp.
     unit : str, optional
@@ -50,6 +52,12 @@ class LogChannel:
             raise DataFormatError(
                 f"log channel {self.name!r}: time and values must be 1-D of one length "
                 f"(got {time.shape} and {values.shape})"
+            )
+        bad = np.flatnonzero(~np.isfinite(time))
+        if bad.size:
+            raise DataFormatError(
+                f"log channel {self.name!r}: time stamp {time[bad[0]]} at index {bad[0]} is "
+                "not finite"
             )
         object.__setattr__(self, "time", time)
         object.__setattr__(self, "values", values)

@@ -414,6 +414,11 @@ def _resample_one(
     b = min(int(np.searchsorted(src.time, hi, side="left")) + 1 + pad, src.time.size)
     time, values = src.time[a:b], src.values[a:b]
     # Deviations from one sample, so that a constant channel stays exactly constant.
+    # values near the float range are filtered scaled by a power of two (exact): the
+    # filter's sums of many of them would overflow
+    peak = float(np.max(np.abs(values))) if values.size else 0.0
+    scale = math.ldexp(1.0, math.frexp(peak)[1] - 1) if peak > 2.0**600 else 1.0
+    values = values / scale
     base = float(values[0])
     values = values - base
     info["uniformized"] = False
@@ -427,7 +432,7 @@ def _resample_one(
             time = uniform
             info["uniformized"] = True
         values = _fir_zero_phase(values, taps)
-    return _interpolate(time, values, grid, kind) + base, info
+    return (_interpolate(time, values, grid, kind) + base) * scale, info
 
 
 def _given_gap(max_gap: Any) -> Any:

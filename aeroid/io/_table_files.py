@@ -3,6 +3,7 @@ for, with their declared sizes bounded before any byte is decoded."""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
@@ -59,6 +60,9 @@ def _read_parquet_file(
         )
     except Exception as exc:  # pyarrow raises many types for corrupt files
         raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
+    dupes = sorted(h for h, n in Counter(header).items() if n > 1)
+    if dupes:
+        raise DataFormatError(f"{path}: duplicate column names {dupes[:10]}")
     # text, binary and nested columns are no channels, and their stored size (dictionary-
     # encoded, compressed) does not bound what they decode to: refused before reading
     for name in (header[j] for j in picked):

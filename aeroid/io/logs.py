@@ -412,7 +412,14 @@ def _hdf5_time(path: Path, ds: Any, matlab: bool) -> FloatArray:
             f"{path}: time dataset {ds.name!r} has unit {unit!r}; expected one of "
             f"{sorted(k for k in _TIME_SCALE if k)}"
         )
-    return arr.ravel().astype(np.float64) * scale
+    time = arr.ravel().astype(np.float64) * scale
+    bad = np.flatnonzero(~np.isfinite(time))
+    if bad.size:
+        raise DataFormatError(
+            f"{path}: time dataset {ds.name!r}: stamp {arr.ravel()[bad[0]]} at index "
+            f"{bad[0]} is not finite"
+        )
+    return time
 
 
 def _hdf5_channels(
@@ -430,6 +437,8 @@ def _hdf5_channels(
         return f"not numeric ({ds.dtype})"
     if ds.ndim > 2:
         return f"{ds.ndim}-D"
+    if ds.ndim == 0:
+        return "a single value (no time history)"
     group = _time_group(key, times)
     if group is None:
         return "no time dataset in its group or above"

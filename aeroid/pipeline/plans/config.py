@@ -184,12 +184,14 @@ class CampaignConfig(Options):
     def expand_files(self) -> list[tuple[int, Path, FileFlights]]:
         """Every flight file named by a path or glob: (entry index, path, loader options).
 
-        Files are sorted within an entry; a file named twice with the same loader
-        options is kept once (with other options, such as another window, it is
-        another flight).
+        Files are sorted within an entry; a file that globs match more than once with
+        the same loader options is kept once (with other options, such as another
+        window, it is another flight). A file named by its path in two entries with
+        the same options is a `ConfigError`: one flight listed twice.
         """
         out: list[tuple[int, Path, FileFlights]] = []
         seen: set[tuple[Path, str]] = set()
+        named: dict[tuple[Path, str], int] = {}
         for i, item in enumerate(self.flights):
             if isinstance(item, SimulatedSource):
                 continue
@@ -204,6 +206,13 @@ class CampaignConfig(Options):
             else:
                 matches = [Path(pattern)]
             options = json.dumps(spec.model_dump(mode="json", exclude={"path"}), sort_keys=True)
+            if not glob.has_magic(pattern):
+                first = named.setdefault((matches[0], options), i)
+                if first != i:
+                    raise ConfigError(
+                        f"{self.source}: flights[{i}]: {spec.path!r} is listed already in "
+                        f"flights[{first}] with the same options (one flight listed twice)"
+                    )
             for m in matches:
                 if (m, options) not in seen:
                     seen.add((m, options))

@@ -99,9 +99,10 @@ def plan_run(
     if updates:
         config = config.model_copy(update=updates)
     stream = plan_stream(config, pipeline=pipeline, allow_imports=allow_imports)
-    result_store = ResultStore(config.store_location)
     if stream.has_campaign_tasks:
+        # before the store is opened: a refused config leaves no new folder behind
         check_report_path(config, stream.input_files())
+    result_store = ResultStore(config.store_location)
     t = time.perf_counter()
     # a listing per stage and the index of entries checked whole, read once: an entry
     # the index holds with the same signature is trusted unopened (`verified`)
@@ -170,9 +171,12 @@ def check_report_path(config: CampaignConfig, inputs: list[Path]) -> None:
                 f"{where}: {target} exists and was not written by aeroid; "
                 "move it away or name another report file"
             )
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"{where}: cannot make {path.parent} ({exc.strerror or exc})") from None
-    if not os.access(path.parent, os.W_OK):
-        raise ConfigError(f"{where}: {path.parent} is not writable")
+    # the folder is made when the report is written: here only whether it can be (a
+    # refused config leaves nothing behind)
+    folder = path.parent
+    while not folder.exists() and folder.parent != folder:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise ConfigError(f"{where}: cannot make {path.parent} ({folder} is a file)")
+    if not os.access(folder, os.W_OK):
+        raise ConfigError(f"{where}: {folder} is not writable")
