@@ -11,6 +11,7 @@ import pytest
 import aeroid
 from aeroid.errors import DataFormatError
 
+
 def _px4_log() -> Path:
     found = sorted(Path(__file__).resolve().parent.glob("data/**/*.ulg"))
     if not found:
@@ -74,8 +75,7 @@ def test_resampling_is_linear_up_to_the_largest_floats(scale: float) -> None:
 def test_csv_time_as_iso_8601_stamps_becomes_seconds_from_the_first(tmp_path: Path) -> None:
     path = tmp_path / "stamps.csv"
     path.write_text(
-        "time,x\n2024-01-01T00:00:59.900,1\n2024-01-01T00:01:00.000,2\n"
-        "2024-01-01T00:01:00.250,3\n"
+        "time,x\n2024-01-01T00:00:59.900,1\n2024-01-01T00:01:00.000,2\n2024-01-01T00:01:00.250,3\n"
     )
     data = aeroid.load_flight_test(path)
     np.testing.assert_allclose(np.asarray(data.time), [0.0, 0.1, 0.35], atol=1e-12)
