@@ -436,8 +436,9 @@ def load_flight_test(
     A Parquet timestamp or date column becomes seconds since its first
     sample; a duration or time-of-day column becomes seconds. A CSV file is
     parsed by pyarrow; comment (``#``) and blank lines before the header are
-    skipped, and a bad cell is reported by row (the header is row 1) and
-    column.
+    skipped, a column whose first cell is an ISO 8601 date and time
+    (``2024-05-01T10:00:00.25``) becomes seconds since its first sample, and
+    a bad cell is reported by row (the header is row 1) and column.
 
     A whole log (`sample_rate` without `channels`) is a first look at
     everything, not a fit: a PX4 log holds fields never set (NaN), topics
