@@ -14,11 +14,11 @@ import pytest
 from _aircraft_data import LATERAL_LINEAR as LATERAL
 from _aircraft_data import LATERAL_STATES as STATES
 
-from aeroid import FlightData, IdentificationError, equation_error, identify
+from aeroid import FlightData, IdentificationError, SimulationError, equation_error, identify
 from aeroid.errors import ChannelError, DataFormatError
-from aeroid.estimation._output_error import shifted_controls
 from aeroid.models import catalog
 from aeroid.models.aircraft import lateral_linear
+from aeroid.models.integration import shifted_controls
 
 NAMES = ["Z_alpha", "M_alpha", "M_q", "M_delta"]
 DELAY = 0.07
@@ -223,3 +223,31 @@ def test_a_fits_delay_reaches_validate_filter_sensitivities_and_frequency_respon
         bare_h = aeroid.frequency_response(model, clean, dict(LATERAL), **kw)
     ratio = h.model_response / bare_h.channel("delta_a", "p").model_response
     np.testing.assert_allclose(ratio, np.exp(-1j * h.frequency * DELAY), atol=1e-9)
+
+
+def test_a_delayed_fit_and_its_draws_simulate_with_the_delay():
+    # Model.simulate given the fit (or a mapping with tau_<control>, as propagate's
+    # draws are) delays the control as identify did; a delay of three whole samples
+    # is exactly the samples shifted
+    model = catalog.short_period()
+    data = _short_period(DELAY, 3)
+    fit = identify(model, data, NAMES, time_delays=["elevator"])
+    t, u = data.time, data["elevator"]
+    late = shifted_controls(t, u[:, None], [0], [fit.time_delays["elevator"]])[:, 0]
+    x0 = [0.0, 0.0]
+    by_fit = model.simulate(t, {"elevator": u}, x0, fit, method="rk4", substeps=2)
+    own = {k: fit.parameters[k] for k in NAMES}
+    by_hand = model.simulate(t, {"elevator": late}, x0, own, method="rk4", substeps=2)
+    np.testing.assert_array_equal(by_fit.states, by_hand.states)
+    np.testing.assert_array_equal(by_fit.controls[:, 0], u)  # the record's own control
+    draw = {**{k: fit.parameters[k] for k in NAMES}, "tau_elevator": 3 * 0.02}
+    shifted = np.concatenate([np.full(3, u[0]), u[:-3]])
+    a = model.simulate(t, {"elevator": u}, x0, draw, method="rk4", substeps=2)
+    b = model.simulate(
+        t, {"elevator": shifted}, x0, {k: draw[k] for k in NAMES}, method="rk4", substeps=2
+    )
+    np.testing.assert_allclose(a.states, b.states, rtol=0, atol=1e-15)
+    with pytest.raises(SimulationError, match=r"'tau_elevator' \(the delay of control"):
+        model.simulate(t, {"elevator": u}, x0, {"tau_elevator": "x"})
+    with pytest.raises(SimulationError, match=r"'tau_aileron' is not a parameter"):
+        model.simulate(t, {"elevator": u}, x0, {"tau_aileron": 0.1})

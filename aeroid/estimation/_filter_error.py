@@ -36,7 +36,7 @@ extrapolated (`aeroid.estimation.least_squares.minimise`, ``accelerate``).
 Pure time delays of controls (``time_delays=``) are unknowns of the same
 iteration, as in output error (Jategaonkar ch. 4, Klein & Morelli ch. 6): the
 filter runs on ``u(t - tau)``, interpolated between the samples
-(`aeroid.estimation._output_error.shifted_controls`), so a delay may be a
+(`aeroid.models.integration.shifted_controls`), so a delay may be a
 fraction of a sample, and the innovations' differences in tau give its row of
 the information matrix and its error bar. The members of a batch that share
 the delays share one pass; a delay's perturbed member runs its own.
@@ -55,11 +55,12 @@ from numpy.typing import NDArray
 
 from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData
+from ..models.integration import shifted_controls
 from ..models.model import Model, resolve_parameters
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
 from ._identification_start import process_noise_start
-from ._output_error import delay_parameter, shifted_controls
+from ._output_error import delay_parameter
 from .filtering import (
     _default_P0,
     _Problem,

@@ -132,7 +132,7 @@ def _equation_error_start(
     `identify`, ``start="equation_error"``)."""
     from ..errors import ChannelError
     from ..io.smoothing import differentiate
-    from ._output_error import shifted_controls
+    from ..models.integration import shifted_controls
 
     if not hasattr(model, "dynamics") or not hasattr(model, "_dynamics_batch"):
         raise IdentificationError(

@@ -13,7 +13,7 @@ finite-difference columns.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,7 +26,11 @@ from ..errors import (
     SimulationError,
 )
 from ..io.data import FlightData
-from ..models.integration import Interpolation, check_control_interpolation, controls_at
+from ..models.integration import (
+    Interpolation,
+    check_control_interpolation,
+    shifted_controls,
+)
 from ._excitation import refuse_runaway as _refuse_runaway
 from ._identification_record import IdentificationResult
 from ._noise_model import _bandwidth, _colored_covariance, _warn_unabsorbed_drift
@@ -88,30 +92,6 @@ def _typical_scales(
         for j, k in zip(range(sb.start, sb.stop), m.bias_free, strict=True):
             typ[j] = stds[k]
     return typ
-
-
-def shifted_controls(
-    time: FloatArray,
-    controls: FloatArray,
-    columns: Sequence[int],
-    delays: Sequence[float] | FloatArray,
-    interpolation: Interpolation = "linear",
-) -> FloatArray:
-    """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds:
-    ``u(t - tau)`` interpolated between the samples as the simulation is told
-    (piecewise-linearly by default, or the cubic of
-    `aeroid.models.integration.control_slopes`) and held at the first and last
-    samples outside them."""
-    out = np.array(controls, dtype=np.float64, copy=True)
-    for j, tau in zip(columns, np.asarray(delays, dtype=np.float64).tolist(), strict=True):
-        if tau == 0.0:
-            continue
-        how = interpolation[j] if isinstance(interpolation, tuple) else interpolation
-        if how == "linear":
-            out[:, j] = np.interp(time - tau, time, controls[:, j])
-        else:
-            out[:, j] = controls_at(time, controls[:, j : j + 1], time - tau, how)[:, 0]
-    return out
 
 
 def _overflow(outputs: Any, mean_sq: FloatArray, measured: FloatArray, cost: Any) -> None:

@@ -179,3 +179,27 @@ def controls_at(
     a, b = _cubic_excess(time, u, interpolation)
     out: FloatArray = hermite(u[k], u[k + 1], a[k], b[k], s)
     return out
+
+
+def shifted_controls(
+    time: FloatArray,
+    controls: FloatArray,
+    columns: Sequence[int],
+    delays: Sequence[float] | FloatArray,
+    interpolation: Interpolation = "linear",
+) -> FloatArray:
+    """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds:
+    ``u(t - tau)`` interpolated between the samples as the simulation is told
+    (piecewise-linearly by default, or the cubic of
+    `aeroid.models.integration.control_slopes`) and held at the first and last
+    samples outside them."""
+    out = np.array(controls, dtype=np.float64, copy=True)
+    for j, tau in zip(columns, np.asarray(delays, dtype=np.float64).tolist(), strict=True):
+        if tau == 0.0:
+            continue
+        how = interpolation[j] if isinstance(interpolation, tuple) else interpolation
+        if how == "linear":
+            out[:, j] = np.interp(time - tau, time, controls[:, j])
+        else:
+            out[:, j] = controls_at(time, controls[:, j : j + 1], time - tau, how)[:, 0]
+    return out

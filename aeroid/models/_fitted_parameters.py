@@ -34,6 +34,7 @@ def resolve_parameters(
     parameters: Any,
     *,
     error: type[AeroidError] = ModelDefinitionError,
+    delays: bool = False,
 ) -> dict[str, float]:
     """Merge a parameter dict (or any result with ``.parameters``) onto the model's nominal values.
 
@@ -43,6 +44,8 @@ def resolve_parameters(
     parameters.
     """
     nominal = dict(model.parameters)
+    # ``tau_<control>`` entries a caller that applies them takes (`control_delays`)
+    taken = {f"tau_{c}" for c in getattr(model, "controls", ())} - set(nominal) if delays else set()
     if parameters is None:
         return {k: float(v) for k, v in nominal.items()}
     from_result = not isinstance(parameters, Mapping) and hasattr(parameters, "parameters")
@@ -55,7 +58,7 @@ def resolve_parameters(
     out = {k: float(v) for k, v in nominal.items()}
     for name, value in values.items():
         if name not in nominal:
-            if from_result:
+            if from_result or name in taken:
                 continue
             raise error(
                 f"parameter {name!r} is not a parameter of model {model.name!r}; "
@@ -115,3 +118,34 @@ def delayed_controls(result: Any, data: FlightData) -> FlightData:
         if c in data and float(tau) != 0.0
     }
     return data.with_channels(shifted) if shifted else data
+
+
+def control_delays(
+    model: Any, parameters: Any, *, error: type[AeroidError] = ModelDefinitionError
+) -> dict[str, float]:
+    """The pure control delays (control -> seconds) a parameter set carries.
+
+    A fit that estimated delays holds them in ``result.time_delays`` and among
+    its parameters as ``tau_<control>``; a mapping carries them the same way
+    (a draw of `propagate`, a posterior sample). Names that are parameters of
+    the model itself stay parameters.
+    """
+    if parameters is None:
+        return {}
+    controls = tuple(getattr(model, "controls", ()))
+    if not isinstance(parameters, Mapping):
+        held = dict(getattr(parameters, "time_delays", None) or {})
+        return {c: float(held[c]) for c in controls if c in held}
+    out: dict[str, float] = {}
+    for c in controls:
+        name = f"tau_{c}"
+        if name not in parameters or name in model.parameters:
+            continue
+        v = as_float(parameters[name])
+        if v is None or not np.isfinite(v):
+            raise error(
+                f"parameter {name!r} (the delay of control {c!r}): expected a finite "
+                f"number of seconds, got {plain(parameters[name])}"
+            )
+        out[c] = v
+    return out

@@ -56,6 +56,7 @@ from ._controls import control_nodes as control_nodes
 from ._controls import control_slopes as control_slopes
 from ._controls import controls_at as controls_at
 from ._controls import hermite as hermite
+from ._controls import shifted_controls as shifted_controls
 from ._substeps import _MAX_AUTO_SUBSTEPS as _MAX_AUTO_SUBSTEPS
 from ._substeps import SUBSTEP_ERROR as SUBSTEP_ERROR
 from ._substeps import auto_substeps as auto_substeps

@@ -18,7 +18,7 @@ from .._threads import quiet_warnings, small_blas
 from ..errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 from ..io.data import FlightData, measured_start, plain
 from . import integration as _integrate
-from ._fitted_parameters import _names, resolve_parameters
+from ._fitted_parameters import _names, control_delays, resolve_parameters
 from ._fitted_parameters import delayed_controls as delayed_controls
 from ._fitted_parameters import fitted_start as fitted_start
 from ._model_base import ContinuousModel
@@ -570,7 +570,11 @@ class Model(ContinuousModel):
             Initial state; default zero.
         parameters : mapping or result, optional
             Parameter values (merged onto the nominal ones) or a result with
-            ``.parameters``.
+            ``.parameters``. The pure delays a fit with ``time_delays``
+            estimated (its ``tau_<control>`` entries, in a mapping such as a
+            `propagate` draw or in the result) delay their controls:
+            ``u(t - tau)``, interpolated as `control_interpolation` says and
+            held at the first sample, as `identify` simulated them.
         method : str
             A `scipy.integrate.solve_ivp` method (default ``"RK45"``; the
             explicit pairs restart at every sample, where the controls kink,
@@ -606,7 +610,22 @@ class Model(ContinuousModel):
             text, an unknown method, substeps not a positive integer (at most
             `MAX_SUBSTEPS`), rtol not positive or atol negative.
         """
-        p = resolve_parameters(self, parameters, error=SimulationError)
+        p = resolve_parameters(self, parameters, error=SimulationError, delays=True)
+        given = controls
+        delays = control_delays(self, parameters, error=SimulationError)
+        if delays:
+            # the vehicle a delayed fit describes: its controls act as u(t - tau)
+            grid = check_time(time)
+            how = _integrate.check_control_interpolation(
+                control_interpolation, controls=self.controls
+            )
+            controls = _integrate.shifted_controls(
+                grid,
+                self.control_array(grid, controls)[0],
+                [self.controls.index(c) for c in delays],
+                list(delays.values()),
+                how,
+            )
         res = self.simulate_batch(
             time,
             controls,
@@ -620,7 +639,7 @@ class Model(ContinuousModel):
         )
         if not res.ok[0]:
             raise SimulationError(f"simulation of model {self.name!r} failed: {res.failure[0]}")
-        u = self.control_array(res.time, controls)[0]
+        u = self.control_array(res.time, given)[0]
         return SimulationResult(
             res.time,
             res.states[0],
