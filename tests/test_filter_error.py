@@ -341,3 +341,60 @@ def test_process_noise_start_leaves_out_unmeasured_states(sp_model):
     )
     assert res.success
     assert abs(res.process_noise["q"] - 3e-3) < 3 * res.extra_stderr["process_noise.q"]
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.01])
+def test_without_process_noise_it_lands_on_output_errors_minimum(scale: float) -> None:
+    # No process noise and a known start: the Kalman gain is zero, the innovations are
+    # the output-error residuals and both likelihoods are one (Jategaonkar ch. 5). The
+    # minimum must not move with the sensors' precision (a forward-differenced cost
+    # gradient moved it by half a difference step: 7 standard errors at scale 0.01).
+    from aeroid.models.aircraft import lateral_linear
+
+    truth = {
+        "Y_beta": -0.15,
+        "Y_delta_r": 0.03,
+        "L_beta": -8.0,
+        "L_p": -3.0,
+        "L_r": 1.0,
+        "L_delta_a": 15.0,
+        "L_delta_r": 1.5,
+        "N_beta": 3.0,
+        "N_p": -0.1,
+        "N_r": -0.6,
+        "N_delta_a": -0.5,
+        "N_delta_r": -2.5,
+    }
+    outputs = ["beta", "p", "r", "phi"]
+    model = lateral_linear(V0=50.0, outputs=outputs)
+    t = np.arange(0.0, 20.0 + 0.01, 0.02)
+    da = catalog.multisine(t, [0.1, 0.25, 0.45, 0.7, 1.0, 1.4, 1.9], 0.02)
+    dr = np.roll(catalog.multisine(t, [0.15, 0.35, 0.55, 0.85, 1.2, 1.65], 0.02), 37)
+    sim = model.simulate(t, {"delta_a": da, "delta_r": dr}, parameters=truth)
+    rng = np.random.default_rng(22)
+    sd = {"beta": 5e-4 * scale, "p": 2e-3 * scale, "r": 1e-3 * scale, "phi": 1e-3 * scale}
+    channels = {o: sim.output(o) + sd[o] * rng.standard_normal(t.size) for o in outputs}
+    data = FlightData(t, {**channels, "delta_a": da, "delta_r": dr})
+    R = {o: s**2 for o, s in sd.items()}
+    start = {k: 0.8 * v for k, v in truth.items()}
+    none = dict.fromkeys(model.states, 0.0)
+    fe = aeroid.identify(
+        model,
+        data,
+        start,
+        method="filter_error",
+        process_noise=none,
+        measurement_noise=R,
+        filter_options={"P0": none},
+        tolerance=1e-10,
+    )
+    oe = aeroid.identify(
+        model,
+        data,
+        start,
+        estimate_x0=False,
+        tolerance=1e-10,
+        weights={o: 1.0 / v for o, v in R.items()},
+    )
+    for k in truth:
+        assert abs(fe.parameters[k] - oe.parameters[k]) < 1e-3 * oe.stderr_white[k], k
