@@ -291,6 +291,10 @@ def test_convergence_rule_on_known_chains() -> None:
     assert not res.converged
     with pytest.raises(InferenceError, match="repeat"):
         combine_ensembles([run(iid), run(iid)])
+    with pytest.raises(InferenceError, match=r"runs: .*got int among them"):
+        combine_ensembles([run(iid), 3])
+    with pytest.raises(InferenceError, match="runs: expected a sequence of EnsembleRun, got int"):
+        combine_ensembles(3)
     with pytest.raises(InferenceError, match="differ"):
         combine_ensembles([run(iid), run(iid[:, :4], 1)])
     # ensembles sampled with different moves are not one problem's ensembles

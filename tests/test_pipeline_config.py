@@ -230,6 +230,14 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
             "stages:\n  infer: {priors: {M_q: {normal: [.nan, 1.0]}}}\n",
             r"camp.yaml: stages.infer.priors.M_q.normal\[0\]: Input should be a finite number",
         ),
+        (
+            "stages:\n  infer: {priors: {M_q: {normal: [-2.0, -1.0]}}}\n",
+            r"camp.yaml: stages.infer.priors.M_q: .*Normal: sigma must be > 0, got -1.0",
+        ),
+        (
+            "stages:\n  infer: {priors: {M_q: {uniform: [2.0, 1.0]}}}\n",
+            r"stages.infer.priors.M_q: .*Uniform: lo must be < hi",
+        ),
         # required keywords of the library function are required options
         ("stages:\n  filter: {}\n", r"stages.filter.process_noise: required key is missing"),
         # what every flight's task would refuse at run time

@@ -337,3 +337,11 @@ def test_bad_ensembles_and_log_prob() -> None:
         autocorrelation_time(np.zeros((2, 2, 2, 2)))
     with pytest.raises(InferenceError, match="NaN"):
         split_r_hat(np.full((10, 2), np.nan))
+
+
+@pytest.mark.parametrize("c", ["x", -1.0, 0.0, math.nan, None])
+def test_window_constant_is_named(c: object) -> None:
+    chains = np.random.default_rng(0).standard_normal((200, 2))
+    for diagnostic in (autocorrelation_time, effective_sample_size):
+        with pytest.raises(InferenceError, match="c: expected a positive window constant"):
+            diagnostic(chains, c=c)

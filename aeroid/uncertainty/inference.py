@@ -588,9 +588,16 @@ def combine_ensembles(runs: Sequence[EnsembleRun], *, warn: bool = True) -> Infe
 
 
 def _combine(runs: Sequence[EnsembleRun], *, stacklevel: int, warn: bool = True) -> InferenceResult:
+    if isinstance(runs, (str, bytes)) or not hasattr(runs, "__iter__"):
+        raise InferenceError(f"runs: expected a sequence of EnsembleRun, got {type(runs).__name__}")
+    runs = list(runs)
+    strays = [type(r).__name__ for r in runs if not isinstance(r, EnsembleRun)]
+    if not runs or strays:
+        raise InferenceError(
+            "runs: expected a non-empty sequence of EnsembleRun"
+            + (f", got {strays[0]} among them" if strays else "")
+        )
     runs = sorted(runs, key=lambda r: r.ensemble)
-    if not runs or not all(isinstance(r, EnsembleRun) for r in runs):
-        raise InferenceError("runs: expected a non-empty sequence of EnsembleRun")
     first = runs[0]
     index = [r.ensemble for r in runs]
     if len(set(index)) != len(index):

@@ -53,6 +53,32 @@ def _ordered(cls: str, lo: Any, hi: Any) -> tuple[float, float]:
     return a, b
 
 
+def _values(prior: Any, x: ArrayLike) -> FloatArray:
+    """`x` as float64, or an `InvalidPriorError` naming the prior."""
+    try:
+        out = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidPriorError(
+            f"{type(prior).__name__}.log_pdf: x must be numbers, got {x!r:.60}"
+        ) from None
+    return out
+
+
+def _size(prior: Any, size: Any) -> Any:
+    """`size` as numpy's generators take it, or an `InvalidPriorError` naming it."""
+    if size is None:
+        return None
+    dims = (size,) if not isinstance(size, tuple) else size
+    if not all(
+        isinstance(d, (int, np.integer)) and not isinstance(d, bool) and d >= 0 for d in dims
+    ):
+        raise InvalidPriorError(
+            f"{type(prior).__name__}.sample: size must be a count or a tuple of counts "
+            f"(>= 0), got {size!r}"
+        )
+    return size
+
+
 def _out(values: FloatArray, x: ArrayLike) -> Any:
     """A float for scalar input, an array otherwise."""
     return float(values) if np.ndim(x) == 0 else values
@@ -118,11 +144,11 @@ class Normal(Prior):
         object.__setattr__(self, "sigma", _positive("Normal", "sigma", self.sigma))
 
     def log_pdf(self, x: ArrayLike) -> Any:
-        z = (np.asarray(x, dtype=np.float64) - self.mu) / self.sigma
+        z = (_values(self, x) - self.mu) / self.sigma
         return _out(-0.5 * z * z - math.log(self.sigma) - _LOG_SQRT_2PI, x)
 
     def sample(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None) -> Any:
-        return rng.normal(self.mu, self.sigma, size)
+        return rng.normal(self.mu, self.sigma, _size(self, size))
 
     @property
     def support(self) -> tuple[float, float]:
@@ -156,12 +182,12 @@ class Uniform(Prior):
         object.__setattr__(self, "hi", hi)
 
     def log_pdf(self, x: ArrayLike) -> Any:
-        xa = np.asarray(x, dtype=np.float64)
+        xa = _values(self, x)
         out = np.where(self._mask(xa), -math.log(self.hi - self.lo), -np.inf)
         return _out(out, x)
 
     def sample(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None) -> Any:
-        return rng.uniform(self.lo, self.hi, size)
+        return rng.uniform(self.lo, self.hi, _size(self, size))
 
     @property
     def support(self) -> tuple[float, float]:
@@ -197,14 +223,14 @@ class LogUniform(Prior):
         object.__setattr__(self, "hi", hi)
 
     def log_pdf(self, x: ArrayLike) -> Any:
-        xa = np.asarray(x, dtype=np.float64)
+        xa = _values(self, x)
         inside = self._mask(xa)
         with np.errstate(divide="ignore", invalid="ignore"):
             val = -np.log(np.where(inside, xa, 1.0)) - math.log(math.log(self.hi / self.lo))
         return _out(np.where(inside, val, -np.inf), x)
 
     def sample(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None) -> Any:
-        return np.exp(rng.uniform(math.log(self.lo), math.log(self.hi), size))
+        return np.exp(rng.uniform(math.log(self.lo), math.log(self.hi), _size(self, size)))
 
     @property
     def support(self) -> tuple[float, float]:
@@ -238,13 +264,13 @@ class HalfNormal(Prior):
         object.__setattr__(self, "sigma", _positive("HalfNormal", "sigma", self.sigma))
 
     def log_pdf(self, x: ArrayLike) -> Any:
-        xa = np.asarray(x, dtype=np.float64)
+        xa = _values(self, x)
         z = xa / self.sigma
         val = -0.5 * z * z - math.log(self.sigma) - _LOG_SQRT_2PI + math.log(2.0)
         return _out(np.where(self._mask(xa), val, -np.inf), x)
 
     def sample(self, rng: np.random.Generator, size: int | tuple[int, ...] | None = None) -> Any:
-        return np.abs(rng.normal(0.0, self.sigma, size))
+        return np.abs(rng.normal(0.0, self.sigma, _size(self, size)))
 
     @property
     def support(self) -> tuple[float, float]:

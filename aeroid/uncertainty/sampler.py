@@ -594,8 +594,10 @@ def autocorrelation_time(samples: ArrayLike, *, c: float = 5.0) -> Any:
         ``tau`` in steps (``inf`` for a constant chain).
     """
     a, vector = _as_chains(samples, "autocorrelation_time", 2)
-    if not (c > 0 and math.isfinite(c)):
+    value = as_float(c)
+    if value is None or not (value > 0 and math.isfinite(value)):
         raise InferenceError(f"c: expected a positive window constant, got {c!r}")
+    c = value
     acov = _autocovariance(a)
     out = np.empty(a.shape[2])
     for d in range(a.shape[2]):

@@ -22,6 +22,15 @@ class PriorSpec(Options):
     log_uniform: tuple[float, float] | None = None
     half_normal: float | None = None
 
+    @model_validator(mode="after")
+    def _builds(self) -> PriorSpec:
+        # a sigma of -1 or lo above hi is a config error, found before any run
+        try:
+            self.build("this parameter")
+        except AeroidError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
     def build(self, name: str) -> Any:
         from ...uncertainty.priors import HalfNormal, LogUniform, Normal, Uniform
 
