@@ -112,3 +112,34 @@ def test_a_noisy_fit_and_the_posterior_step_as_finely_as_the_path_asks():
     )
     for name, value in TRUTH.items():
         assert abs(post.parameters[name] - value) < 4 * post.stderr[name]
+
+
+def test_a_refit_on_a_finer_step_keeps_only_its_own_warnings():
+    # near-discontinuous friction: the first fit, on the start's coarse step, stops
+    # without converging and warns so; the refit on the step the fitted path asks for
+    # converges, and the result's flag and warnings must agree
+    import warnings
+
+    def friction(t, x, u, p):
+        slip = np.tanh(x[1] / 0.002)
+        return np.array([x[1], -p["k"] * x[0] - p["c"] * x[1] - p["Fc"] * slip + u[0]])
+
+    model = Model(["x", "v"], ["F"], {"k": 4.0, "c": 0.2, "Fc": 0.2}, friction, name="slip")
+    t = np.arange(0.0, 10.0, 0.02)
+    pulses = ((0.5, 2.0, 1.0), (2.0, 3.0, -1.0), (3.0, 3.5, 1.0), (3.5, 4.0, -1.0))
+    force = np.zeros_like(t)
+    for a, b, sign in pulses:
+        force = np.where((t >= a) & (t < b), 2.0 * sign, force)
+    truth = {"k": 5.0, "c": 0.3, "Fc": 0.4}
+    sim = model.simulate(t, {"F": force}, [0.0, 0.0], truth, rtol=1e-10, atol=1e-12)
+    rng = np.random.default_rng(1)
+    channels = {"x": sim.states[:, 0] + 0.005 * rng.standard_normal(t.size)}
+    channels["v"] = sim.states[:, 1] + 0.01 * rng.standard_normal(t.size)
+    data = FlightData(t, {**channels, "F": force})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit = identify(model, data, list(truth))
+    assert fit.success, fit.message
+    assert not [w for w in caught if "success=False" in str(w.message)]
+    for k, v in truth.items():
+        assert abs(fit.parameters[k] - v) < 4.0 * fit.stderr[k], k

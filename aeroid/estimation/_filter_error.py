@@ -57,6 +57,7 @@ from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData
 from ..models.integration import shifted_controls
 from ..models.model import Model, resolve_parameters
+from ._filter_problem import noise_start
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
 from ._identification_start import process_noise_start
@@ -155,15 +156,6 @@ def _simulated(
         control_interpolation=opts["control_interpolation"],
     )
     return np.asarray(sim.states, dtype=np.float64)
-
-
-def _noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
-    """Measurement variances to start from when none are given: half the variance of
-    first differences (white noise dominates sample-to-sample changes)."""
-    dy = np.diff(prob.Y, axis=0)
-    v = 0.5 * np.var(dy, axis=0)
-    scale = np.maximum(np.var(prob.Y, axis=0), 1e-300)
-    return np.maximum(v, 1e-12 * scale) if R is None else np.diag(R)
 
 
 class _Objective:
@@ -622,7 +614,7 @@ def identify_filter_error(
     )
 
     # starting values of the log-parameters
-    r_start = np.mean([_noise_start(p, None if estimate_R else R) for p in probs], axis=0)
+    r_start = np.mean([noise_start(p, None if estimate_R else R) for p in probs], axis=0)
     R0 = np.diag(r_start) if estimate_R else R
     z0 = [start[n] for n in names] + [float(v) for v in delay_starts.values()]
     if q_states:

@@ -273,3 +273,12 @@ def build_problem(
         interpolation,
     )
     return prob, R
+
+
+def noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
+    """Measurement variances to start from when none are given: half the variance of
+    first differences (white noise dominates sample-to-sample changes)."""
+    dy = np.diff(prob.Y, axis=0)
+    v = 0.5 * np.var(dy, axis=0)
+    scale = np.maximum(np.var(prob.Y, axis=0), 1e-300)
+    return np.maximum(v, 1e-12 * scale) if R is None else np.diag(R)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._threads import small_blas
+from .._threads import record_warnings, small_blas
 from ..errors import AeroidError, IdentificationError
 from ..io.data import (
     FlightData,
@@ -518,11 +518,16 @@ def identify(
         gradient=gradient,
         bounds=box,
     )
-    fitted = fit(initial, x0=x0_dicts, simulate_options=opts, delays=delays)
-    finer = _path_substeps(fit_model, datas, fitted, opts)
-    if finer is not None:
+    with record_warnings() as first_warnings:
+        fitted = fit(initial, x0=x0_dicts, simulate_options=opts, delays=delays)
+        finer = _path_substeps(fit_model, datas, fitted, opts)
+    if finer is None:
+        for w in first_warnings:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    else:
         # the integrator's step came from the modes at the start, and the fitted
-        # paths stiffen beyond it: fit again, from here, with the step they need
+        # paths stiffen beyond it: fit again, from here, with the step they need (the
+        # first fit's warnings are about a fit that is not the result: dropped)
         fitted = fit(
             {n: fitted.parameters[n] for n in names},
             x0=[dict(x) for x in fitted.initial_states] if fitted.initial_states else x0_dicts,
