@@ -440,3 +440,15 @@ def test_simulate_valid_call_unchanged_by_checks():
     a = m.simulate(_T, _U, method="rk4", substeps=np.int64(3))
     b = m.simulate(_T, {"torque": _U}, method="rk4", substeps=3)
     assert np.array_equal(a.states, b.states)
+
+
+@pytest.mark.parametrize("method", ["RK45", "rk4", "auto"])
+def test_complex_dynamics_are_refused_not_cast(method: str) -> None:
+    # numpy's cast would drop the imaginary part with only a ComplexWarning
+    def spring(t, x, u, p):
+        return np.array([x[1], -p["k"] * x[0] + 1j * x[1] + u[0]])
+
+    model = Model(["pos", "vel"], ["f"], {"k": 2.0}, spring, name="cplx")
+    t = np.linspace(0.0, 1.0, 11)
+    with pytest.raises(ModelDefinitionError, match=r"dynamics of model 'cplx' returned complex"):
+        model.simulate(t, {"f": np.zeros(11)}, [0.2, 0.0], method=method)

@@ -83,12 +83,24 @@ class BatchFunction:
     def _where(self) -> str:
         return f"the {self.role} of model {self.model_name!r}"
 
+    def _real(self, raw: Any, t: Any) -> FloatArray:
+        """The function's values as float64; complex values are refused (a cast would
+        drop their imaginary part in silence)."""
+        out = np.asarray(raw)
+        if out.dtype.kind == "c":
+            at = float(np.ravel(t)[0])
+            raise ModelDefinitionError(
+                f"{self._where()} returned complex values at t = {at:.6g} s; a model's "
+                "states and outputs are real"
+            )
+        return np.asarray(out, dtype=np.float64)
+
     def _single(self, t: float, x: FloatArray, u: FloatArray, p: Mapping[str, float]) -> FloatArray:
         try:
             raw = self.fun(t, x, u, p)
             if not self.jax_written and type(raw).__module__.startswith(("jax", "jaxlib")):
                 self.jax_written = True
-            out = np.asarray(raw, dtype=np.float64)
+            out = self._real(raw, t)
         except AeroidError:
             raise
         except Exception as exc:
@@ -121,7 +133,7 @@ class BatchFunction:
         reference = self._loop(t, x, u, p)
         try:
             with np.errstate(all="ignore"):
-                trial = np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+                trial = self._real(self.fun(t, x, u, p), t)
             ok = trial.shape == (self.n_out, batch) and np.allclose(
                 trial, reference, rtol=1e-10, atol=1e-300, equal_nan=True
             )
@@ -136,7 +148,7 @@ class BatchFunction:
             self.detect(float(np.ravel(t)[0]), x, u, p)
         if self.broadcasts:
             try:
-                out = np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+                out = self._real(self.fun(t, x, u, p), t)
                 if out.shape == (self.n_out, x.shape[1]):
                     return out
             except Exception:  # evaluated point by point below, which names the culprit
@@ -155,14 +167,11 @@ class BatchFunction:
         on a hundred thousand). Points are independent: the values are the same."""
         n = t.size
         if n <= _CHUNK_ABOVE:
-            return np.asarray(self.fun(t, x, u, p), dtype=np.float64)
+            return self._real(self.fun(t, x, u, p), t)
         parts = []
         for lo in range(0, n, _CHUNK):
             s = slice(lo, min(n, lo + _CHUNK))
-            part = np.asarray(
-                self.fun(t[s], x[:, s], u[:, s], {a: v[s] for a, v in p.items()}),
-                dtype=np.float64,
-            )
+            part = self._real(self.fun(t[s], x[:, s], u[:, s], {a: v[s] for a, v in p.items()}), t)
             if part.shape != (self.n_out, s.stop - s.start):
                 return part  # the caller reports the shape
             parts.append(part)
