@@ -532,3 +532,8 @@ def test_a_program_traces_the_model_once_however_often_it_calls_it():
     assert 1 <= len(traced) <= 2
     ref = model.simulate_batch(t, u[0], np.array([[0.1, 0.0]]), p, method="rk4", substeps=2)
     np.testing.assert_allclose(traj.states, ref.states, rtol=0, atol=1e-13)
+
+
+def test_initial_states_with_the_jax_gradient_are_refused_naming_the_way_out(sp_clean):
+    with pytest.raises(aeroid.IdentificationError, match=r"estimate_x0 \['alpha'\]: .*'auto'"):
+        aeroid.identify(_sp_model(), sp_clean, ["M_q"], gradient="jax", estimate_x0=["alpha"])

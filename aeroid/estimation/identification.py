@@ -476,7 +476,11 @@ def identify(
     else:
         sel_x0 = _select(estimate_x0, states, "estimate_x0")
     if sel_x0 and (is_simulator or gradient == "jax"):
-        raise IdentificationError("estimate_x0 needs a Model and gradient='fd'")
+        raise IdentificationError(
+            f"estimate_x0 {sel_x0}: initial states are estimated for an aeroid.Model with "
+            "gradient='auto' or 'fd'"
+            + (" (gradient='jax' differentiates the parameters only)" if not is_simulator else "")
+        )
     sel_bias, state_bias = _bias_choice(estimate_bias, fit_outputs, states)
     if state_bias and (is_simulator or not hasattr(model, "dynamics") or gradient == "jax"):
         raise IdentificationError(
