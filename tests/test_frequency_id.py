@@ -664,6 +664,23 @@ def test_direct_fourier_fit_recovers_the_truth_with_calibrated_errors():
         )
 
 
+def test_fourier_fit_refuses_a_band_above_nyquist():
+    # as equivalent_system and identify_frequency_domain do: a band is not cut in silence
+    data = _first_order_record(0, 0.0)
+    nyquist = np.pi / float(np.median(np.diff(data.time)))
+    with pytest.raises(IdentificationError, match=r"frequency_range: its top 400 rad/s .*Nyquist"):
+        fit_transfer_function(
+            data,
+            input="u",
+            output="y",
+            numerator_order=0,
+            denominator_order=1,
+            fourier=True,
+            frequency_range=(1.0, 400.0),
+        )
+    assert nyquist < 400.0
+
+
 def test_fourier_fit_keeps_two_periods_of_the_record():
     # the whole record is the window: the default grid starts at k = 2 (4π/T), and
     # explicit frequencies below it are kept with a warning

@@ -247,6 +247,11 @@ def _fit_fourier(
     data.require([output], role="output")
     m, n = _orders(numerator_order, denominator_order)
     dt, T = _record_grid(data)
+    if frequency_range is not None and frequency_range[1] > np.pi / dt * (1.0 + 1e-9):
+        raise IdentificationError(
+            f"frequency_range: its top {frequency_range[1]:g} rad/s lies above the record's "
+            f"Nyquist frequency {np.pi / dt:.6g} rad/s"
+        )
     if frequencies is None:
         lo, hi = frequency_range if frequency_range is not None else _excited_band(data, input)
         # two periods in the record, the rule every window obeys (the whole record is
