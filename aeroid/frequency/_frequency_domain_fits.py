@@ -165,7 +165,8 @@ def _equation_error(
     if not ss.affine(p0):
         raise IdentificationError(
             "method='equation_error' needs state equations whose matrices A, B (and constant "
-            "c) are affine in the estimated parameters; use method='output_error'"
+            f"c) are affine in the estimated parameters; not linear in parameters "
+            f"{ss.not_affine_in(p0)}; use method='output_error'"
         )
     F0, _, dF, _ = ss.with_slopes(p0)
     Xa = np.concatenate([sp.Z, sp.U], axis=1)  # (M, n_x + n_u + 1)

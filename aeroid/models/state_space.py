@@ -148,6 +148,25 @@ class StateSpace:
             self._basis = (p0.copy(), F0, H0, dF, dH) if ok else False
         return self._basis is not False
 
+    def not_affine_in(self, p0: FloatArray) -> list[str]:
+        """The parameters the matrices are not affine in, each moved alone about `p0`
+        (for a message: `affine` answers for all of them at once)."""
+        F0, H0, dF, dH = self._central(p0)
+        out = []
+        for j, name in enumerate(self.names):
+            probe = p0.copy()
+            probe[j] += 0.37 * max(1.0, abs(float(p0[j])))
+            Fp, Hp = self.matrices(probe)
+            for got, at, slope in ((Fp, F0, dF), (Hp, H0, dH)):
+                if got is None or at is None or slope is None:
+                    continue
+                want = at + (probe[j] - p0[j]) * slope[j]
+                tol = 1e-7 * (np.abs(at) + np.abs(got[0]) + np.max(np.abs(at)) + 1e-300)
+                if not np.all(np.abs(got[0] - want) <= tol):
+                    out.append(name)
+                    break
+        return out
+
     def with_slopes(
         self, p: FloatArray
     ) -> tuple[FloatArray, FloatArray | None, FloatArray, FloatArray | None]:
