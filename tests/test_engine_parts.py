@@ -450,3 +450,19 @@ def test_a_forking_run_imports_its_stages_libraries_before_the_workers_fork(tmp_
             ]
         )
     )
+
+
+def test_a_model_module_edited_in_one_process_is_resolved_again(tmp_path):
+    # its source is in the task keys: the model that runs must be the edited one,
+    # or a fit of the old model would be stored under the new model's keys
+    from aeroid.pipeline.vehicle import resolve_model
+
+    (tmp_path / "vehicle.py").write_text(MODEL_CODE)
+    first = resolve_model("vehicle:build", str(tmp_path))
+    assert resolve_model("vehicle:build", str(tmp_path)) is first  # unchanged: once
+    edited = MODEL_CODE.replace(
+        "short_period()", "short_period({**catalog.SHORT_PERIOD_TRUTH, 'M_q': -7.25})"
+    )
+    (tmp_path / "vehicle.py").write_text(edited)
+    again = resolve_model("vehicle:build", str(tmp_path))
+    assert again is not first and again.parameters["M_q"] == -7.25

@@ -28,7 +28,14 @@ def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) ->
     an `aeroid.models.aircraft` model (see `model_from_config`). Resolved once per process."""
     if isinstance(spec, Mapping):
         return _model_from_mapping(canonical_json(dict(spec)).decode())
-    return _named_model(spec, base_dir)
+    # a user's module file edited since: resolved again (its source is in the task keys,
+    # so the model that runs must be the one the keys describe)
+    path = _code.module_file(spec.partition(":")[0], base_dir) if ":" in spec else None
+    try:
+        stamp = None if path is None else (path.stat().st_mtime_ns, path.stat().st_size)
+    except OSError:
+        stamp = None  # `_code.resolve` names the file
+    return _named_model(spec, base_dir, stamp)
 
 
 @functools.lru_cache(maxsize=32)
@@ -43,7 +50,7 @@ def _model_from_mapping(text: str) -> Any:
 
 
 @functools.lru_cache(maxsize=32)
-def _named_model(spec: str, base_dir: str | None) -> Any:
+def _named_model(spec: str, base_dir: str | None, stamp: tuple[int, int] | None) -> Any:
     from ..models.model import Model, SimulatorModel
 
     if ":" in spec:
