@@ -466,3 +466,37 @@ def test_a_model_module_edited_in_one_process_is_resolved_again(tmp_path):
     (tmp_path / "vehicle.py").write_text(edited)
     again = resolve_model("vehicle:build", str(tmp_path))
     assert again is not first and again.parameters["M_q"] == -7.25
+
+
+def test_a_renamed_flight_file_reuses_its_results_under_its_new_name(tmp_path):
+    # the data are keyed by their bytes, so the fits are reused; what shows the flight's
+    # name and file (its report) is made again and equals a fresh campaign's
+    from aeroid.models import catalog
+
+    def campaign(folder: Path, names: list[str]) -> Path:
+        folder.mkdir(exist_ok=True)
+        for seed, name in enumerate(names):
+            if not (folder / name).exists():
+                catalog.short_period_flight(seed=seed, duration=4.0).to_csv(folder / name)
+        cfg = folder / "c.yaml"
+        cfg.write_text(
+            "model: short_period\nseed: 5\nstore: store\nreport: out/report.md\n"
+            f"flights: {names}\n"
+            "stages:\n  identify: {parameters: [M_q, M_delta]}\n  validate: {}\n"
+            "  report: {}\n  campaign_report: {figures: false}\n"
+        )
+        return cfg
+
+    cfg = campaign(tmp_path / "a", ["f1.csv", "f2.csv"])
+    first = run(cfg, workers=0)
+    (tmp_path / "a" / "f2.csv").rename(tmp_path / "a" / "sortie_b.csv")
+    again = run(campaign(tmp_path / "a", ["f1.csv", "sortie_b.csv"]), workers=0)
+    assert again.failed == 0 and again.count("computed") < first.count("computed")
+    text = again.report_path.read_text()
+    assert "f2" not in text and "Flight sortie_b" in text and "sortie_b.csv" in text
+    fresh = tmp_path / "b"
+    fresh.mkdir()
+    for name in ("f1.csv", "sortie_b.csv"):
+        (fresh / name).write_bytes((tmp_path / "a" / name).read_bytes())
+    alone = run(campaign(fresh, ["f1.csv", "sortie_b.csv"]), workers=0)
+    assert alone.report_path.read_text() == text

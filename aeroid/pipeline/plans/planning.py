@@ -461,6 +461,8 @@ def _tasks(
             for role, up in step.inputs.items():
                 if up in keys:
                     upstream[role] = keys[up]
+            if stage.names_flight:  # its record shows the flight's name and file
+                upstream["flight"] = f"{name}:{Path(source.get('path', '')).name}"
             seed = None
             if stage.seeded:
                 assert flight_id is not None
@@ -502,7 +504,7 @@ def _tasks(
                 canonical=canonical,
                 model_ref=flight_model_ref if stage.uses_model else None,
                 seed=seed,
-                source=source if step.stage_name == "load" else None,
+                source=source if step.stage_name == "load" or stage.names_flight else None,
                 pipeline_ref=pipe_ref,
                 briefs=briefs.get(step.name, ()),
             )

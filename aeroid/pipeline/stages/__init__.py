@@ -187,6 +187,10 @@ class Stage:
         Modules its tasks import as they run beyond `library` (the figures' plotting
         modules): a run imports them once before it forks its worker processes,
         which then share them instead of each importing them.
+    names_flight : bool
+        The record shows the flight's name and file (a report): both enter the key, so
+        a renamed flight file is shown under its new name, and the task gets the
+        flight's source as ``ctx.source``.
     files : callable, optional
         ``files(record) -> {name: bytes}``: files the run writes beside its report from
         a campaign-level result (the database's plots). The worker that computed the
@@ -213,6 +217,7 @@ class Stage:
     stored_as: str | None = None
     imports: tuple[str, ...] = ()
     files: Callable[[Any], Mapping[str, bytes]] | None = None
+    names_flight: bool = False
 
     @property
     def key_name(self) -> str:

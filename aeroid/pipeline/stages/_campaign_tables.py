@@ -228,4 +228,5 @@ def condition_text(meta: Mapping[str, Any]) -> str:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             text = f"{c.name.replace('_', ' ')} {float(value) * c.scale:.4g}"
             parts.append(f"{text} {c.shown}".rstrip())
-    return ", ".join(parts) or str(meta.get("source", "—"))
+    # (no condition given: the flight's file is in the run's record of what was flown)
+    return ", ".join(parts) or "—"

@@ -5,7 +5,8 @@ identification and handling qualities (one library function per stage, as in
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from pydantic import Field, model_validator
@@ -336,15 +337,20 @@ REPORT_SECTIONS: dict[str, str] = {
 }
 
 
-def quality_section(inputs: Mapping[str, Any]) -> str:
-    """The data-quality checks of the loaded data (role ``data``), when it has them."""
+def quality_section(inputs: Mapping[str, Any], source: Mapping[str, Any] | None = None) -> str:
+    """The data-quality checks of the loaded data (role ``data``), when it has them,
+    naming the flight's file as it is now (`source`: a renamed file's data are reused)."""
     quality = getattr(inputs.get("data"), "metadata", {}).get("quality")
     if quality is None:
         return ""
+    if quality.source:
+        # the file's name, as the task's key holds it (not where the campaign folder is)
+        name = Path(str((source or {}).get("path") or quality.source)).name
+        quality = replace(quality, source=name)
     if quality.ok:  # a clean record's table says nothing its one line does not
-        source = f" of {quality.source}" if quality.source else ""
+        of = f" of {quality.source}" if quality.source else ""
         text = (
-            f"Data quality{source}: no flags on {len(quality.channels)} channels (time "
+            f"Data quality{of}: no flags on {len(quality.channels)} channels (time "
             "stamps, jitter, dropouts, saturation and aliasing checked)."
         )
     else:

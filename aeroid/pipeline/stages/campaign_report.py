@@ -435,8 +435,9 @@ register_stage(
         # palette figures drawn straight from the canvas; 13: "not determined" against
         # the other flights, the model-structure note, filter error's one-step fits;
         # 14: a flight's figures drawn by a part of their own up to sixteen flights,
-        # stored in flight order; 15: text drawn a string at a time (other bytes)
-        "15",
+        # stored in flight order; 15: text drawn a string at a time (other bytes);
+        # 16: no file name for a flight without a condition (a renamed file's is old)
+        "16",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

@@ -449,7 +449,7 @@ def _run_report(ctx: StageContext) -> FlightReport:
     from .analysis_stages import quality_section, report_sections
 
     text = str(text)
-    quality = quality_section(ctx.inputs)
+    quality = quality_section(ctx.inputs, ctx.source)
     if quality:
         # what arrived comes first: after the title, before the results drawn from it
         head, sep, rest = text.partition("\n\n")
@@ -559,11 +559,13 @@ for _stage in (
         # 5: equivalent systems and bandwidths state their handling-qualities Level;
         # 6: parameter correlations and residual autocorrelation against its band;
         # 7: the filtered or smoothed states' standard deviations with their units
-        "7",
+        # 8: the flight's name and file as they are now (a renamed file's data reused)
+        "8",
         ReportOptions,
         "FlightReport",
         _run_report,
         uses_model=False,
+        names_flight=True,
         # the residuals' autocorrelation is the plotting module's
         imports=("aeroid.reports.plotting",),
     ),
