@@ -267,7 +267,7 @@ def check_walkers(n_walkers: int, n_dim: int) -> int:
     need = max(4, 2 * n_dim)
     if n < need or n % 2:
         raise InferenceError(
-            f"n_walkers: the stretch move needs an even number of walkers, at least "
+            f"n_walkers: the ensemble moves (split in two halves) need an even number of walkers, at least "
             f"max(4, 2 * n_dim) = {need} for {n_dim} parameters; got {n_walkers!r}"
         )
     return n
