@@ -345,3 +345,15 @@ def test_window_constant_is_named(c: object) -> None:
     for diagnostic in (autocorrelation_time, effective_sample_size):
         with pytest.raises(InferenceError, match="c: expected a positive window constant"):
             diagnostic(chains, c=c)
+
+
+def test_a_log_prob_that_raises_or_returns_text_is_named() -> None:
+    start = np.random.default_rng(0).standard_normal((8, 2))
+
+    def boom(theta: np.ndarray) -> np.ndarray:
+        raise ValueError("boom")
+
+    with pytest.raises(InferenceError, match=r"log_prob raised ValueError on a batch of 4 .*boom"):
+        ensemble_sampler(boom, start, 10, seed=1)
+    with pytest.raises(InferenceError, match=r"log_prob raised ValueError"):
+        ensemble_sampler(lambda theta: ["x"] * len(theta), start, 10, seed=1)

@@ -72,7 +72,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._records import frozen_array
-from ..errors import InferenceError
+from ..errors import AeroidError, InferenceError
 from ..io.data import as_float
 
 __all__ = [
@@ -233,8 +233,15 @@ class SamplerRun:
 
 def _score(log_prob: LogProb, theta: FloatArray) -> FloatArray:
     """Call the user's log-probability on a batch; NaN and +-inf become -inf."""
-    raw = log_prob(theta)
-    out = np.asarray(raw, dtype=np.float64)
+    try:
+        raw = log_prob(theta)
+        out = np.asarray(raw, dtype=np.float64)
+    except AeroidError:
+        raise
+    except Exception as exc:  # the user's function: named, with what it was given
+        raise InferenceError(
+            f"log_prob raised {type(exc).__name__} on a batch of {theta.shape[0]} points: {exc}"
+        ) from exc
     if out.shape != (theta.shape[0],):
         if out.size == theta.shape[0]:
             out = out.reshape(theta.shape[0])
