@@ -61,6 +61,7 @@ def test_recovers_known_polynomial_truth() -> None:
         db.parameters["CL"][0] = 1.0  # read-only
 
 
+@pytest.mark.filterwarnings("ignore:.*outside the flown envelope")
 def test_band_coverage_over_seeds() -> None:
     # one point per term per seed: 150 x 3 Bernoulli trials, sd of the rate about 0.010
     inside = total = 0
@@ -117,6 +118,7 @@ def test_forced_structure_and_exports() -> None:
     )
 
 
+@pytest.mark.filterwarnings("ignore:.*outside the flown envelope")
 def test_constant_model_is_the_random_effects_mean_in_closed_form() -> None:
     # one term, constant model: the REML between-flight variance solves its fixed point
     # τ² = Σ w²((z − μ)² − v) / Σ w² + 1 / Σ w, w = 1 / (v + τ²); the estimate is the
@@ -744,3 +746,20 @@ def test_a_condition_that_is_no_number_and_a_one_point_grid_are_refused():
         db.grid("alpha", n=0)
     with pytest.raises(DataFormatError, match="n"):
         db.to_jsbsim(n=1)
+
+
+def test_a_prediction_outside_the_flown_envelope_warns_naming_the_key() -> None:
+    import warnings
+
+    db = aerodynamic_database(_flights(1, n=60))
+    lo, hi = db.envelope["alpha"]
+    assert lo == pytest.approx(min(f.condition["alpha"] for f in _flights(1, n=60)))
+    assert db.envelope["altitude"] == (500.0, 1500.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        db.predict("CL", {"alpha": np.linspace(lo, hi, 5), "altitude": 1000.0})
+        db.table(n=5)  # its grid spans the envelope
+    with pytest.warns(UserWarning, match=r"CL: altitude = 3000 lies outside .*\[500, 1500\]"):
+        db.predict("CL", {"alpha": 0.1, "altitude": 3000.0})
+    with pytest.warns(UserWarning, match=r"Cn_r: alpha = 0.3 lies outside the flown envelope"):
+        db.band("Cn_r", {"alpha": 0.3, "altitude": 1000.0})

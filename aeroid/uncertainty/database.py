@@ -116,6 +116,7 @@ flight scatters by ``τ`` too), inside when within the band's quantile.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -397,8 +398,40 @@ class AeroDatabase:
         Returns
         -------
         value, stderr : ndarray, shape (n,)
+
+        Warns
+        -----
+        UserWarning
+            At a condition outside the flown `envelope`, naming the key: the
+            polynomials extrapolate there, and their band says nothing of it.
         """
+        return self._predict(term, condition, warn=True)
+
+    @property
+    def envelope(self) -> dict[str, tuple[float, float]]:
+        """Each condition key's range over the fitted flights (where `predict` interpolates)."""
+        return {
+            k: (float(np.min(self.conditions[:, j])), float(np.max(self.conditions[:, j])))
+            for j, k in enumerate(self.keys)
+        }
+
+    def _predict(
+        self, term: str, condition: Mapping[str, ArrayLike] | ArrayLike, *, warn: bool
+    ) -> tuple[FloatArray, FloatArray]:
         phi = self._basis(term, condition)
+        if warn and self.conditions.size:
+            x = condition_rows(term, self.keys, condition)
+            for j, (k, (lo, hi)) in enumerate(self.envelope.items()):
+                slack = 1e-9 * max(hi - lo, abs(hi), abs(lo), 1e-300)
+                away = x[:, j][(x[:, j] < lo - slack) | (x[:, j] > hi + slack)]
+                if away.size:
+                    warnings.warn(
+                        f"{term}: {k} = {away[0]:.6g} lies outside the flown envelope "
+                        f"[{lo:.6g}, {hi:.6g}]; the database extrapolates there",
+                        UserWarning,
+                        stacklevel=3,  # here, predict or band, their caller
+                    )
+                    break
         j0 = self._offsets[term]
         theta = self.parameters[term]
         block = self.covariance[j0 : j0 + theta.size, j0 : j0 + theta.size]
@@ -418,7 +451,7 @@ class AeroDatabase:
         level = self.confidence if confidence is None else float(confidence)
         if not 0.0 < level < 1.0:
             raise IdentificationError(f"confidence must lie in (0, 1), got {level}")
-        value, se = self.predict(term, condition)
+        value, se = self._predict(term, condition, warn=True)
         z = self.quantile(term, level)
         return value, value - z * se, value + z * se
 
@@ -456,8 +489,10 @@ class AeroDatabase:
         rows: dict[str, list[Any]] = {"term": [], **{k: [] for k in self.keys}}
         rows.update(value=[], stderr=[], lower=[], upper=[])
         for term in self.terms:
-            value, lo, hi = self.band(term, flat)
-            se = self.predict(term, flat)[1]
+            # (a key no flight varied spans its value ± 1: the grid's only extrapolation)
+            value, se = self._predict(term, flat, warn=False)
+            z = self.quantile(term)
+            lo, hi = value - z * se, value + z * se
             rows["term"].extend([term] * value.size)
             for k in self.keys:
                 rows[k].extend(flat[k].tolist())
@@ -715,7 +750,7 @@ def aerodynamic_database(
         for j, t in enumerate(terms):
             if not np.isfinite(hz[i, j]):
                 continue
-            pred, se = db.predict(t, hx[i : i + 1])
+            pred, se = db._predict(t, hx[i : i + 1], warn=False)  # (outside: its z tells)
             s_est = math.sqrt(hcovs[i][j, j])
             spread = math.sqrt(s_est**2 + db.tau2[t] + se[0] ** 2)
             zval = (hz[i, j] - pred[0]) / spread
