@@ -66,6 +66,34 @@ def test_bandwidth_from_tabulated_response_matches_analytic():
     assert res.phase_delay == pytest.approx(tau / 2, rel=1e-3)
 
 
+@pytest.mark.parametrize(
+    ("num", "den", "kind"),
+    [
+        ([2.0], [1.0, 0.0], "attitude"),  # K/s: an attitude per rate command
+        ([-8.0, -6.4], [1.0, 3.6, 9.0, 0.0], "attitude"),  # pitch attitude per elevator
+        ([3.0], [0.5, 1.0], "rate"),  # a rate response, integrated
+        ([4.0], [1.0, 1.2, 4.0], "attitude"),  # an attitude command
+    ],
+)
+def test_a_negative_gain_is_read_with_its_sign_reversed(num, den, kind):
+    # M_delta < 0 makes theta/delta_e start at +90 deg: the definitions take the response
+    # with a positive low-frequency gain, so -H has exactly the bandwidths of H
+    tau = 0.08
+    plus = bandwidth(([abs(c) for c in num], den, tau), kind=kind)
+    minus = bandwidth(([-abs(c) for c in num], den, tau), kind=kind)
+    assert not plus.sign_reversed and minus.sign_reversed
+    for name in ("bandwidth", "bandwidth_gain", "bandwidth_phase", "omega_180", "phase_delay"):
+        assert getattr(minus, name) == pytest.approx(getattr(plus, name), rel=1e-12, nan_ok=True)
+    assert "sign reversed" in minus.summary() and "sign reversed" not in plus.summary()
+    w = np.geomspace(0.3, 40.0, 300)  # a measured response, its first points noisy
+    rng = np.random.default_rng(3)
+    h = -np.polyval([abs(c) for c in num], 1j * w) / np.polyval(den, 1j * w)
+    h = h * np.exp(-1j * w * tau)
+    h = h * (1 + 0.05 * (rng.standard_normal(w.size) + 1j * rng.standard_normal(w.size)))
+    measured = bandwidth(ResponseChannel("d", "y", w, h, coherence=np.ones(w.size)), kind=kind)
+    assert measured.sign_reversed
+
+
 def test_margins_of_third_order_loop():
     """L = K/(s(s+1)(s+2)): ω_180 = √2 and |L(jω_180)| = K/6."""
     k = 3.0

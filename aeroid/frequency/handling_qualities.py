@@ -121,6 +121,10 @@ class BandwidthResult:
     phase_delay : float
         τ_p in seconds (NaN when ω_180 or 2ω_180 lies outside the response).
     kind : str
+    sign_reversed : bool
+        The response had a negative low-frequency gain (a pitch attitude per
+        trailing-edge-down elevator) and was read with its sign reversed, as the
+        definitions take it.
     """
 
     bandwidth: float
@@ -129,6 +133,7 @@ class BandwidthResult:
     omega_180: float
     phase_delay: float
     kind: str = "attitude"
+    sign_reversed: bool = False
 
     def summary(self) -> str:
         """Markdown table of the metrics."""
@@ -145,7 +150,12 @@ class BandwidthResult:
                 "",
                 markdown_table(("metric", "value"), rows),
                 "",
-                f"Response kind: {self.kind} (ADS-33E / MIL-STD-1797A definitions).",
+                f"Response kind: {self.kind} (ADS-33E / MIL-STD-1797A definitions)"
+                + (
+                    "; read with its sign reversed (a negative gain)."
+                    if self.sign_reversed
+                    else "."
+                ),
                 "",
                 self._level_line(),
             ]
@@ -246,6 +256,7 @@ def bandwidth(
     resp = _Response(response_or_tf, input, output)
     if kind == "rate":
         resp = resp.scaled(_integrate)
+    resp, reversed_sign = _positive_sense(resp)
     w_phase = resp.phase_crossing(-135.0)
     if not np.isfinite(w_phase):
         raise IdentificationError(
@@ -261,7 +272,30 @@ def bandwidth(
     else:
         w_gain = tau_p = float("nan")
     bw = float(np.nanmin([w_gain, w_phase])) if np.isfinite(w_gain) else w_phase
-    return BandwidthResult(bw, float(w_gain), float(w_phase), float(w180), float(tau_p), kind)
+    return BandwidthResult(
+        bw, float(w_gain), float(w_phase), float(w180), float(tau_p), kind, reversed_sign
+    )
+
+
+def _positive_sense(resp: _Response) -> tuple[_Response, bool]:
+    """The response with the sign that gives it a positive low-frequency gain, and whether
+    that reversed it: a pitch attitude per trailing-edge-down elevator (M_delta < 0)
+    starts at +90° where the definitions expect the −90° of K/s. The integrators at
+    the lowest frequencies (the gain's slope over the first decade, in −20 dB/decade)
+    give the phase expected there; a phase half a turn from it is a reversed sign.
+    """
+    w = resp.omega
+    first = w <= w[0] * 10.0
+    if int(first.sum()) < 3:
+        first = np.arange(w.size) < 3
+    gain = 20.0 * np.log10(np.maximum(np.abs(resp.values[first]), 1e-300))
+    slope = float(np.polyfit(np.log10(w[first]), gain, 1)[0])
+    integrators = int(np.clip(np.round(-slope / 20.0), 0, 2))
+    # (the median over that decade: a measured response's first point may be noise)
+    off = (float(np.median(resp.phase()[first])) + 90.0 * integrators + 180.0) % 360.0 - 180.0
+    if abs(off) <= 90.0:
+        return resp, False
+    return resp.scaled(lambda omega: -np.ones(omega.shape, dtype=np.complex128)), True
 
 
 # -- margins --------------------------------------------------------------------------------

@@ -422,7 +422,8 @@ for _stage in (
     ),
     Stage(
         "handling_qualities",
-        "1",
+        # 2: a negative-gain response's bandwidth read with its sign reversed
+        "2",
         HandlingQualitiesOptions,
         "HandlingQualities",
         _run_handling_qualities,
