@@ -181,6 +181,15 @@ def test_errors(sp_model, sp_noisy):
         _fe(sp_model, [sp_noisy], filter_options={"method": "pf"})
     with pytest.raises(IdentificationError, match="measurement_noise"):
         _fe(sp_model, [sp_noisy], measurement_noise={"alpha": 1e-4})
+    # a start the model cannot simulate: the cause, not only "the filter fails"
+    with pytest.raises(IdentificationError, match=r"fails at .*: .*state 'alpha' is not finite"):
+        aeroid.identify(
+            sp_model,
+            sp_noisy,
+            {"M_alpha": 1e6, "M_q": 1e6},
+            method="filter_error",
+            process_noise={"alpha": 1e-4, "q": 1e-4},
+        )
 
 
 def test_derivatives_step_back_where_the_forward_member_fails() -> None:

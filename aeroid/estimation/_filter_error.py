@@ -57,7 +57,7 @@ from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData
 from ..models.integration import shifted_controls
 from ..models.model import Model, resolve_parameters
-from ._filter_problem import noise_start
+from ._filter_problem import noise_start, start_failure_cause
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
 from ._identification_start import process_noise_start
@@ -676,7 +676,8 @@ def identify_filter_error(
     if not np.isfinite(f):
         raise IdentificationError(
             "filter-error identification: the filter fails at the initial parameters "
-            f"{ {n: start[n] for n in names} }; check the initial values and noise levels"
+            f"{ {n: start[n] for n in names} }{start_failure_cause(m, datas, start)}; "
+            "check the initial values and noise levels"
         )
 
     def evaluate(zt: FloatArray, _base: Linearisation | None) -> Linearisation | None:

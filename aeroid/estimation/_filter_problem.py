@@ -282,3 +282,17 @@ def noise_start(prob: _Problem, R: FloatArray | None) -> FloatArray:
     v = 0.5 * np.var(dy, axis=0)
     scale = np.maximum(np.var(prob.Y, axis=0), 1e-300)
     return np.maximum(v, 1e-12 * scale) if R is None else np.diag(R)
+
+
+def start_failure_cause(model: Any, datas: Sequence[FlightData], start: Mapping[str, float]) -> str:
+    """Why a filter may fail at `start`, for its message: the model's simulation of a
+    record from its measured start where that diverges, else the noise levels."""
+    values = {k: v for k, v in start.items() if k in getattr(model, "parameters", {})}
+    for d in datas:
+        try:
+            model.simulate_data(d, parameters=values)
+        except AeroidError as exc:
+            return f": {exc}"
+        except Exception:  # a simulator of the user's own: no further diagnosis
+            break
+    return " (the model simulates; the noise levels may leave no positive covariance)"
