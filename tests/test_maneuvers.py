@@ -62,12 +62,24 @@ def test_schroeder_phases_equal_power_closed_form():
     np.testing.assert_allclose(schroeder_phases(np.ones(8)), -np.pi * k * (k - 1) / 8, atol=1e-12)
 
 
-def test_multisine_matches_catalog_when_below_the_peak_limit():
-    f = (0.2, 0.5, 1.0, 1.5)
-    m = Multisine("elevator", frequencies=f, amplitude=(0.0, 0.05), peak=1.0)
-    np.testing.assert_allclose(
-        m.signal([0.01] * 4, T)[:, 0], catalog.multisine(T, list(f), 0.01), atol=1e-12
-    )
+def test_multisine_is_schroeders_cosine_sum_started_at_a_zero_crossing():
+    # ten harmonics of a 20 s period at equal power: Schroeder's phases are for a sum of
+    # cosines (his 1970 paper; SIDPAC's mkmsswp), and a shift in time to the first zero
+    # crossing keeps the crest and starts the input from trim
+    t = np.arange(1000) / 50.0
+    f = np.arange(2, 12) / 20.0
+    m = Multisine("elevator", frequencies=tuple(f), amplitude=(0.0, 0.05), peak=1.0)
+    u = m.signal([0.01] * 10, t)[:, 0]
+    assert abs(u[0]) < 1e-6 * np.max(np.abs(u))
+    lines = np.abs(np.fft.rfft(u))[np.arange(2, 12)]
+    np.testing.assert_allclose(lines, 0.01 * t.size / 2, rtol=1e-9)  # amplitude 0.01 each
+
+    def crest(x: np.ndarray) -> float:
+        return float(np.max(np.abs(x)) / np.sqrt(2.0 * np.mean(x**2)))
+
+    arg = 2 * np.pi * f[None, :] * t[:, None] + schroeder_phases(np.ones(10))[None, :]
+    assert crest(u) == pytest.approx(crest(np.cos(arg).sum(axis=1)), rel=2e-3)
+    assert crest(u) < crest(np.sin(arg).sum(axis=1)) - 0.02
 
 
 def test_multisine_never_exceeds_its_peak_limit():

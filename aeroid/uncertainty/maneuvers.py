@@ -245,7 +245,7 @@ def schroeder_phases(powers: ArrayLike) -> FloatArray:
 
 
 class Multisine(_Family):
-    """Sum of sines at fixed frequencies with per-line amplitudes and Schroeder phases.
+    """Sum of cosines at fixed frequencies with per-line amplitudes and Schroeder phases.
 
     The design variables are the line amplitudes; the phases follow from
     their relative powers (Schroeder 1970). The upper amplitude bound is also
@@ -297,10 +297,27 @@ class Multisine(_Family):
         return max(self.frequencies)
 
     def _raw(self, a: FloatArray, t: FloatArray) -> FloatArray:
-        f = np.asarray(self.frequencies)
+        w = 2.0 * np.pi * np.asarray(self.frequencies)
         ph = schroeder_phases(a**2)
-        arg = 2.0 * np.pi * f[None, :] * (t - t[0])[:, None] + ph[None, :]
-        return np.sin(arg) @ a
+        # Schroeder's phases are for a sum of cosines; moved along in time (which keeps
+        # the crest) to the sum's first zero crossing, so the input starts from trim
+        # without a jump, as SIDPAC's mkmsswp does
+        probe = np.linspace(0.0, 2.0 * np.pi / float(np.min(w)), 4097)
+        level = np.cos(w[None, :] * probe[:, None] + ph[None, :]) @ a
+        cross = np.flatnonzero(np.sign(level[1:]) != np.sign(level[:-1]))
+        lead = 0.0
+        if level[0] != 0.0 and cross.size:
+            i = int(cross[0])
+            lead = float(
+                probe[i] - level[i] * (probe[i + 1] - probe[i]) / (level[i + 1] - level[i])
+            )
+            for _ in range(3):  # Newton on the sum itself: the crossing to rounding
+                value = float(np.cos(w * lead + ph) @ a)
+                slope = float(-(w * np.sin(w * lead + ph)) @ a)
+                if slope != 0.0:
+                    lead -= value / slope
+        arg = w[None, :] * ((t - t[0])[:, None] + lead) + ph[None, :]
+        return np.cos(arg) @ a
 
     def _amplitudes(self, variables: ArrayLike) -> FloatArray:
         s = self._settings(variables)

@@ -527,7 +527,9 @@ for _stage in (
     ),
     Stage(
         "design",
-        "3",  # 2: the flight's record as an input (at_record_start), trim controls; 3: RK4
+        # 2: the flight's record as an input (at_record_start), trim controls; 3: RK4;
+        # 4: a multisine is Schroeder's cosine sum, started at a zero crossing
+        "4",
         DesignOptions,
         "ExperimentDesign",
         _run_design,
