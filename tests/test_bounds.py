@@ -558,3 +558,19 @@ def test_bounds_in_a_pipeline_config_are_validated_keyed_and_passed_through(tmp_
     assert fit.parameters["M_q"] == -1.52
     assert dict(fit.active_bounds) == {"M_q": "lower"}
     assert dict(fit.bounds) == {"M_q": (-1.52, math.inf)}
+
+
+def test_every_estimate_on_its_bound_gives_zero_bars_not_an_error():
+    # the coloured bars' noise model then has no free column at all
+    def roll(t, x, u, p):
+        return np.array([p["L_p"] * x[0] + p["L_delta"] * u[0]])
+
+    model = Model(["p"], ["a"], {"L_p": -2.0, "L_delta": 5.0}, roll, name="roll")
+    t = np.arange(0.0, 10.0, 0.02)
+    a = np.sin(t)
+    sim = model.simulate(t, {"a": a}, [0.0], {"L_delta": 8.0})
+    noisy = sim.states[:, 0] + 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    data = FlightData(t, {"p": noisy, "a": a})
+    fit = identify(model, data, ["L_delta"], x0={"p": 0.0}, bounds={"L_delta": (None, 6.0)})
+    assert fit.parameters["L_delta"] == 6.0 and fit.active_bounds == {"L_delta": "upper"}
+    assert fit.stderr["L_delta"] == 0.0 and "at upper" in fit.summary()

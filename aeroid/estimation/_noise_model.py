@@ -294,7 +294,8 @@ def _noise_model(
         spread.append((np.zeros((2, 2)), np.ones(2), np.zeros((4, 3))))
         gram = sum(jac[:, k, :].T @ jac[:, k, :] for jac in jacobians)
         evals, evecs = np.linalg.eigh(gram)
-        keep = evals > 1e-10 * max(float(evals[-1]), 0.0)
+        # (no columns where every estimate sits on a bound: rank 0)
+        keep = evals > 1e-10 * max(float(evals[-1]) if evals.size else 0.0, 0.0)
         # an orthonormal basis of span(X_k): the same REML, well conditioned
         basis = evecs[:, keep] / np.sqrt(evals[keep])
         rank = basis.shape[1]
