@@ -202,3 +202,17 @@ def test_orthogonal_multisine_bad_arguments(kwargs):
     args = {"duration": 20.0, "sample_rate": 50.0, "band": (0.1, 2.0), **kwargs}
     with pytest.raises(ModelDefinitionError):
         orthogonal_multisine(["elevator", "aileron"], **args)
+
+
+@pytest.mark.parametrize(
+    "family",
+    [
+        Doublet("elevator", amplitude=(0.0, 0.1), width=(0.5, 2.0)),
+        Multisine("elevator", frequencies=(0.2, 0.5), amplitude=(0.0, 0.1)),
+    ],
+)
+def test_design_variables_that_are_no_finite_numbers_are_named(family):
+    n = len(family.variable_names)
+    for bad in ([np.nan] * n, ["x"] * n):
+        with pytest.raises(ModelDefinitionError, match=r"design variables .* finite numbers"):
+            family.signal(bad, T)

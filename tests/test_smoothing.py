@@ -124,8 +124,12 @@ def test_bad_input() -> None:
         differentiate(x)
     with pytest.raises(DataFormatError, match="method"):
         differentiate(x, dt=DT, method="spline")
-    with pytest.raises(DataFormatError, match="order"):
+    with pytest.raises(
+        DataFormatError, match=r"order: expected 1 or 2 \(derivative order\), got 3"
+    ):
         differentiate(x, dt=DT, order=3)
+    with pytest.raises(DataFormatError, match=r"order: expected 0, 1 or 2 .*got 5"):
+        optimal_cutoff(x, dt=DT, order=5)
     with pytest.raises(DataFormatError, match="window"):
         differentiate(x, dt=DT, method="local", window=4)
     with pytest.raises(DataFormatError, match="non-finite"):

@@ -106,7 +106,7 @@ def _check_options(method: str, order: int, polyorder: int) -> None:
     if method not in _METHODS:
         raise DataFormatError(f"method: expected one of {_METHODS}, got {method!r}")
     if order not in (0, 1, 2):
-        raise DataFormatError(f"order: expected 1 or 2 (derivative order), got {order!r}")
+        raise DataFormatError(f"order: expected 0, 1 or 2 (derivative order), got {order!r}")
     if isinstance(polyorder, bool) or not isinstance(polyorder, (int, np.integer)):
         raise DataFormatError(f"polyorder: expected an integer, got {polyorder!r}")
     if polyorder < max(order, 1):
@@ -512,8 +512,11 @@ def differentiate(
     ChannelError
         A named channel is not in the data.
     """
-    if order == 0:
-        raise DataFormatError("order: expected 1 or 2 (derivative order), got 0; use smooth()")
+    if order not in (1, 2) or isinstance(order, bool):
+        raise DataFormatError(
+            f"order: expected 1 or 2 (derivative order), got {order!r}"
+            + ("; use smooth()" if order == 0 else "")
+        )
     _check_options(method, order, polyorder)
     if suffix is not None and (not isinstance(suffix, str) or not suffix):
         raise DataFormatError(f"suffix: expected a non-empty string, got {suffix!r}")

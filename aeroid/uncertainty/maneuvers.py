@@ -145,11 +145,19 @@ class _Family:
         return np.array([0.5 * (lo + hi) for lo, hi in self.bounds])
 
     def _settings(self, variables: ArrayLike) -> dict[str, float]:
-        v = np.atleast_1d(np.asarray(variables, dtype=np.float64))
+        try:
+            v = np.atleast_1d(np.asarray(variables, dtype=np.float64))
+        except (TypeError, ValueError):
+            v = np.full(len(self._free), np.nan)
         if v.shape != (len(self._free),):
             raise ModelDefinitionError(
                 f"{type(self).__name__}: expected {len(self._free)} design variables "
                 f"{list(self._free)}, got shape {v.shape}"
+            )
+        if not np.all(np.isfinite(v)):
+            raise ModelDefinitionError(
+                f"{type(self).__name__}: design variables {list(self._free)} must be finite "
+                f"numbers, got {variables!r:.80}"
             )
         out = {k: lo for k, (lo, _) in self._specs.items()}
         out.update(zip(self._free, v.tolist(), strict=True))
