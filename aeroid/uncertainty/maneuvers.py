@@ -598,7 +598,9 @@ def orthogonal_multisine(
     band : (float, float)
         Frequency band in Hz (inclusive) from which the harmonics are drawn.
     amplitudes : float or sequence of float
-        Peak amplitude per control (the signal's largest absolute value).
+        Peak amplitude per control: the largest absolute value of the continuous
+        signal (found on a grid eight times finer than the samples), so the samples
+        themselves come within a fraction of a percent of it and never exceed it.
     seed : int, optional
         Seed of the random restarts of the phase optimisation.
     n_iterations : int
