@@ -52,6 +52,9 @@ Draw = Callable[[np.random.Generator, int], tuple[ComplexArray, ComplexArray]]
 _DRAWS = 400
 _MIN_DRAWS = 100
 _DRAW_BATCH = 50
+# Most elements of one batch's (draws, 2n, n_y) arrays: records longer than this holds
+# at `_DRAW_BATCH` draws are drawn in smaller batches (the same statistics, less memory)
+_DRAW_ELEMENTS = 1 << 24
 _RATIO_ERROR = 0.02
 # The weighting's fixed point is iterated until no weight moves by more than this
 # relative step (a ratio of spreads needs no more).
@@ -138,7 +141,12 @@ def weighting_spread(
         return cross, squares
 
     count = sum(g.shape[0] for g in sensitivities)
-    return _spread(basis, info, count, "diagonal", p, draw, draws=draws, seed=seed, tol=tol)
+    # a long record's draws in smaller batches: a batch's arrays are (draws, 2n, n_y)
+    longest = max(2 * g.shape[0] * n_y for g in sensitivities)
+    batch = int(np.clip(_DRAW_ELEMENTS // longest, 1, _DRAW_BATCH))
+    return _spread(
+        basis, info, count, "diagonal", p, draw, draws=draws, seed=seed, tol=tol, batch=batch
+    )
 
 
 def frequency_weighting_spread(
@@ -231,17 +239,18 @@ def _spread(
     draws: int = _DRAWS,
     seed: int = 0,
     tol: float = _RATIO_ERROR,
+    batch: int = _DRAW_BATCH,
 ) -> FloatArray:
     """Per parameter, the spread at the weighting's fixed point over that at the
-    identity, over batches of `draw` until its relative standard error is below
-    `tol` (after `_MIN_DRAWS`) or `draws` are spent."""
+    identity, over batches of `draw` (`batch` draws each) until its relative standard
+    error is below `tol` (after `_MIN_DRAWS`) or `draws` are spent."""
     rng = np.random.default_rng(seed)
     fixed: list[FloatArray] = []
     free: list[FloatArray] = []
     ratio = np.ones(p)
     done = 0
     while done < draws:
-        b = min(_DRAW_BATCH, draws - done)
+        b = min(batch, draws - done)
         cross, squares = draw(rng, b)
         if not np.all(np.abs(np.einsum("daa->da", squares)) > 0):
             return np.ones(p)  # an output without noise: nothing to weigh

@@ -168,3 +168,19 @@ def test_white_residuals_give_the_classical_n_minus_p(n: int) -> None:
     inv = np.linalg.inv(x.T @ x)
     _, nu = _colour.colored_covariance([x[:, None, :]], [u[:, None]], inv)
     np.testing.assert_allclose(nu, n - 3, rtol=0.01)
+
+
+@pytest.mark.parametrize("a", [0.0, 0.6, 0.97, -0.4])
+def test_ar1_bilinear_forms_are_the_dense_double_sums(a: float) -> None:
+    # d_l' S d_m^* and d_l' S d_m in closed form against the matrices themselves,
+    # on and off the diagonal (z = 1 on it: the arithmetico-geometric branch)
+    n, bins = 37, 9
+    w = 2.0 * np.pi * np.arange(bins) / (2 * n)
+    S = 1.7 * toeplitz(a ** np.arange(n))
+    d = np.exp(-1j * np.outer(w, np.arange(n)))  # rows d_l
+    np.testing.assert_allclose(
+        _colour._ar1_bilinear(w, n, a, 1.7, conjugate=False), d @ S @ d.conj().T, atol=1e-11
+    )
+    np.testing.assert_allclose(
+        _colour._ar1_bilinear(w, n, a, 1.7, conjugate=True), d @ S @ d.T, atol=1e-11
+    )
