@@ -31,8 +31,9 @@ white noise fitted by restricted maximum likelihood, which accounts for the
 regressors the fit absorbed without any window, the sandwich is exact for that
 model, and the noise model's own uncertainty widens the interval through a
 Satterthwaite t-quantile. It covers as well or better (95–97 % on the tests'
-records, white or AR(1) with φ = 0.9) at an order of magnitude more work,
-so the spectral estimate stays the default of this fast first step.
+records, white or AR(1) with φ = 0.9) at about the same cost, but only for
+residuals its AR(1)-plus-white model describes; the window assumes no shape
+of the residual spectrum, so it stays the default, as SIDPAC's correction is.
 
 Fit statistics follow Klein & Morelli: ``R² = 1 − SSE/SST`` (SST about the
 mean when there is a constant term), the F statistic of the regression
@@ -159,8 +160,8 @@ def equation_error(
         notes), classical, or corrected as output error corrects its own:
         each residual modelled as AR(1) plus white noise fitted by restricted
         maximum likelihood, with the noise model's own uncertainty widening
-        the bars (``"reml"``; an order of magnitude more work than the
-        window). In the frequency domain ``"colored"`` is the frequency
+        the bars (``"reml"``; about the window's cost, but exact only for
+        that noise model). In the frequency domain ``"colored"`` is the frequency
         sandwich (module notes) and ``"reml"`` is refused.
     domain : {"time", "frequency"}
         Ordinary least squares on the samples, or Fourier transform
