@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import time
+import tracemalloc
 from collections.abc import Mapping
 from typing import Any
 
@@ -186,9 +187,14 @@ def time_kernel(n: int, n_y: int, n_par: int, phi: float) -> None:
     colored_covariance([g], [v], m_inv)
     first = time.perf_counter() - t0
     warm = median_time(lambda: colored_covariance([g], [v], m_inv), repeats=5)
+    tracemalloc.start()
+    colored_covariance([g], [v], m_inv)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
     print(
         f"colored_covariance, N = {n}, {n_y} outputs, {n_par} parameters, phi = {phi}: "
-        f"first {first:.3f} s, warm {warm:.3f} s (median of 5)"
+        f"first {first:.3f} s, warm {warm:.3f} s (median of 5), "
+        f"peak {peak / 2**20:.0f} MiB allocated ({peak / n / 1024:.2f} kB a sample)"
     )
 
 
@@ -199,7 +205,15 @@ def main() -> None:
     parser.add_argument(
         "--large", action="store_true", help="also time N = 100000, 10 outputs, 30 parameters"
     )
+    parser.add_argument(
+        "--kernel-only", action="store_true", help="only the kernel's time and memory"
+    )
     args = parser.parse_args()
+    if args.kernel_only:
+        for n in (20_000, 100_000, 200_000):
+            for phi in (0.0, 0.9):
+                time_kernel(n, 1, 2, phi)
+        return
     run(args.seeds, args.duration)
     time_correction(2_000, 2, 16)
     time_correction(20_000, 4, 18)
