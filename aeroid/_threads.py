@@ -245,6 +245,24 @@ def _routed_block(sink: list[warnings.WarningMessage] | None) -> Iterator[None]:
                 _route_saved = None
 
 
+def in_background() -> bool:
+    """Whether this code runs in the library's background thread."""
+    return threading.current_thread() is _worker
+
+
+def user_stacklevel() -> int:
+    """The stacklevel, for a warning issued by the caller of this function, of the
+    first frame outside the aeroid package: for warnings raised deep inside, on a path
+    every public function may reach."""
+    root = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame = sys._getframe(1)
+    level = 1
+    while frame.f_back is not None and frame.f_code.co_filename.startswith(root):
+        frame = frame.f_back
+        level += 1
+    return level
+
+
 @contextlib.contextmanager
 def quiet_warnings() -> Iterator[None]:
     """Warnings this thread raises in the block are dropped (what ``catch_warnings``

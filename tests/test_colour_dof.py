@@ -13,6 +13,7 @@ import pytest
 from scipy.linalg import toeplitz
 
 from aeroid import _colour
+from aeroid._ar1_forms import ar1_bilinear
 
 
 def _problem(n: int, a: np.ndarray, level: np.ndarray, seed: int = 0) -> dict[str, np.ndarray]:
@@ -179,8 +180,6 @@ def test_ar1_bilinear_forms_are_the_dense_double_sums(a: float) -> None:
     S = 1.7 * toeplitz(a ** np.arange(n))
     d = np.exp(-1j * np.outer(w, np.arange(n)))  # rows d_l
     np.testing.assert_allclose(
-        _colour._ar1_bilinear(w, n, a, 1.7, conjugate=False), d @ S @ d.conj().T, atol=1e-11
+        ar1_bilinear(w, n, a, 1.7, conjugate=False), d @ S @ d.conj().T, atol=1e-11
     )
-    np.testing.assert_allclose(
-        _colour._ar1_bilinear(w, n, a, 1.7, conjugate=True), d @ S @ d.T, atol=1e-11
-    )
+    np.testing.assert_allclose(ar1_bilinear(w, n, a, 1.7, conjugate=True), d @ S @ d.T, atol=1e-11)

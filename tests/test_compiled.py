@@ -272,6 +272,34 @@ def test_dynamics_written_in_jax_compile_for_the_first_fit() -> None:
     assert fit.parameters["a"] == pytest.approx(9.5, rel=1e-8)
 
 
+def test_dynamics_in_jax_that_do_not_trace_are_named_once() -> None:
+    # a Python `if` on a state: JAX cannot trace it, and numpy's loops run it through
+    # JAX's dispatcher a point at a time; the user is told so, once, at their own line
+    import warnings
+
+    import jax.numpy as jnp
+
+    def friction(t: Any, x: Any, u: Any, p: Any) -> Any:
+        slip = p["mu"] if x[1] > 0 else -p["mu"]
+        return jnp.stack([x[1], -p["k"] * jnp.sin(x[0]) - slip + u[0]])
+
+    model = aeroid.Model(["th", "w"], ["u"], {"k": 9.0, "mu": 0.3}, friction, name="slip")
+    t = np.arange(30) * 0.05
+    u = {"u": np.sin(t)}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(3):
+            model.simulate(t, u, [0.1, 0.0], method="rk4", substeps=1)
+    said = [w for w in caught if "cannot trace it" in str(w.message)]
+    assert len(said) == 1 and "model 'slip'" in str(said[0].message)
+    assert said[0].filename == __file__
+    traced = aeroid.Model(["x"], ["u"], {"k": 0.7}, lambda t, x, u, p: -p["k"] * x, name="ok")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for _ in range(3):
+            traced.simulate(t, u, [1.0], method="rk4", substeps=1)
+
+
 def test_non_finite_dynamics_still_name_the_time(monkeypatch: Any) -> None:
     def blows_up(t: Any, x: Any, u: Any, p: Any) -> Any:
         return np.array([np.where(t > 2.0, np.nan, -p["k"] * x[0])])

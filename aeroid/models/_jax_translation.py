@@ -10,6 +10,7 @@ and each translation is compared with the numpy function once per model
 from __future__ import annotations
 
 import types
+import warnings
 import weakref
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._threads import quiet_warnings
+from .._threads import in_background, quiet_warnings, user_stacklevel
 
 if TYPE_CHECKING:
     from .model import Model
@@ -361,6 +362,23 @@ def _verified(
     if key in entry:
         return entry[key]
     entry[key] = None
+    got = _first_verification(model, role, time, x_ref, u, pvec)
+    if got is None:
+        _untraceable_jax(model, role)
+    return got
+
+
+def _first_verification(
+    model: Model,
+    role: str,
+    time: FloatArray,
+    x_ref: FloatArray,
+    u: FloatArray,
+    pvec: FloatArray,
+) -> Callable[..., Any] | None:
+    """`_verified`'s work, done once per model and role."""
+    entry = _entry(model)
+    key = ("fn", role)
     mods = _import_jax()
     if mods is None:
         return None
@@ -418,6 +436,23 @@ def _verified(
             entry[key] = g
             return g
     return None
+
+
+def _untraceable_jax(model: Model, role: str) -> None:
+    """Say so when a function written in jax.numpy does not trace: numpy's loops then
+    run it point by point through JAX's dispatcher, each call many times the cost of
+    the same function written with numpy (or traced, with ``jnp.where``)."""
+    batch = model._dynamics_batch if role == "dynamics" else model._measurement_batch
+    if batch is None or not batch.jax_written or in_background():
+        return
+    warnings.warn(
+        f"the {role} function of model {model.name!r} is written with jax.numpy, but JAX "
+        "cannot trace it (a Python `if` or float() on a state?): it runs on numpy values "
+        "one point at a time through JAX's dispatcher, many times slower than the same "
+        "function in numpy, or traceable with jnp.where",
+        UserWarning,
+        stacklevel=user_stacklevel(),
+    )
 
 
 def _agrees(
