@@ -272,6 +272,32 @@ def test_dynamics_written_in_jax_compile_for_the_first_fit() -> None:
     assert fit.parameters["a"] == pytest.approx(9.5, rel=1e-8)
 
 
+def test_numpy_paths_call_a_jax_function_through_its_compilation() -> None:
+    # called point by point (a function that does not broadcast), a jax.numpy function
+    # is traced once per shape, not dispatched op by op (each jax.lax.cond a compilation)
+    import jax
+    import jax.numpy as jnp
+
+    traces = [0]
+
+    def damped(t: Any, x: Any, u: Any, p: Any) -> Any:
+        traces[0] += 1  # runs when JAX traces the function, or on every eager call
+        c = jax.lax.cond(x[1] > 0, lambda: p["c"], lambda: 1.5 * p["c"])
+        return jnp.array([x[1], -p["a"] * jnp.sin(x[0]) - c * x[1] + u[0]])
+
+    model = aeroid.Model(["th", "w"], ["u"], {"a": 9.0, "c": 0.5}, damped, name="cond")
+    f = model._dynamics_batch
+    p = {"a": np.array([9.0, 9.5]), "c": np.array([0.5, 0.4])}
+    x = np.array([[0.1, 0.2], [0.3, -0.1]])
+    first = f(0.0, x, np.zeros((1, 2)), p)
+    traced = traces[0]
+    for k in range(20):
+        again = f(0.01 * k, x, np.zeros((1, 2)), p)
+    np.testing.assert_allclose(again[:, 0], [0.3, -9.0 * np.sin(0.1) - 0.5 * 0.3], rtol=1e-12)
+    np.testing.assert_allclose(again[:, 1], [-0.1, -9.5 * np.sin(0.2) + 1.5 * 0.4 * 0.1])
+    assert first.shape == (2, 2) and traces[0] == traced  # no call traced it again
+
+
 def test_dynamics_in_jax_that_do_not_trace_are_named_once() -> None:
     # a Python `if` on a state: JAX cannot trace it, and numpy's loops run it through
     # JAX's dispatcher a point at a time; the user is told so, once, at their own line

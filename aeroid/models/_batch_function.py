@@ -79,9 +79,31 @@ class BatchFunction:
         # jax.numpy, which numpy's loops would run op by op through JAX's dispatcher
         # (each `jax.lax.cond` a compilation of its own), so compiling it always pays
         self.jax_written = False
+        # such a function jit-compiled by JAX (per shape of its arguments): numpy's paths
+        # call it without the dispatcher's cost per operation; False where it does not
+        # trace (a Python `if` on a state), which then runs as written
+        self._jitted: Any = None
 
     def _where(self) -> str:
         return f"the {self.role} of model {self.model_name!r}"
+
+    def _evaluate(self, t: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
+        """The user's function, through its JAX compilation where it is written in JAX."""
+        if self.jax_written and self._jitted is not False:
+            try:
+                if self._jitted is None:
+                    import jax
+
+                    self._jitted = jax.jit(self.fun)
+                with np.errstate(all="ignore"):
+                    return self._jitted(t, x, u, dict(p))
+            except Exception:
+                # as written: where that fails too the arguments were at fault (a batch
+                # the function does not broadcast over), else it does not trace
+                out = self.fun(t, x, u, p)
+                self._jitted = False
+                return out
+        return self.fun(t, x, u, p)
 
     def _real(self, raw: Any, t: Any) -> FloatArray:
         """The function's values as float64; complex values are refused (a cast would
@@ -97,7 +119,7 @@ class BatchFunction:
 
     def _single(self, t: float, x: FloatArray, u: FloatArray, p: Mapping[str, float]) -> FloatArray:
         try:
-            raw = self.fun(t, x, u, p)
+            raw = self._evaluate(t, x, u, p)
             if not self.jax_written and type(raw).__module__.startswith(("jax", "jaxlib")):
                 self.jax_written = True
             out = self._real(raw, t)
@@ -133,7 +155,7 @@ class BatchFunction:
         reference = self._loop(t, x, u, p)
         try:
             with np.errstate(all="ignore"):
-                trial = self._real(self.fun(t, x, u, p), t)
+                trial = self._real(self._evaluate(t, x, u, p), t)
             ok = trial.shape == (self.n_out, batch) and np.allclose(
                 trial, reference, rtol=1e-10, atol=1e-300, equal_nan=True
             )
@@ -148,7 +170,7 @@ class BatchFunction:
             self.detect(float(np.ravel(t)[0]), x, u, p)
         if self.broadcasts:
             try:
-                out = self._real(self.fun(t, x, u, p), t)
+                out = self._real(self._evaluate(t, x, u, p), t)
                 if out.shape == (self.n_out, x.shape[1]):
                     return out
             except Exception:  # evaluated point by point below, which names the culprit
@@ -167,11 +189,13 @@ class BatchFunction:
         on a hundred thousand). Points are independent: the values are the same."""
         n = t.size
         if n <= _CHUNK_ABOVE:
-            return self._real(self.fun(t, x, u, p), t)
+            return self._real(self._evaluate(t, x, u, p), t)
         parts = []
         for lo in range(0, n, _CHUNK):
             s = slice(lo, min(n, lo + _CHUNK))
-            part = self._real(self.fun(t[s], x[:, s], u[:, s], {a: v[s] for a, v in p.items()}), t)
+            part = self._real(
+                self._evaluate(t[s], x[:, s], u[:, s], {a: v[s] for a, v in p.items()}), t
+            )
             if part.shape != (self.n_out, s.stop - s.start):
                 return part  # the caller reports the shape
             parts.append(part)
