@@ -67,15 +67,15 @@ def check_seed(seed: Any, error: type[Exception], what: str = "seed") -> int | N
     return int(seed)
 
 
-def real_array(values: Any, what: str) -> FloatArray:
-    """`values` as a float64 array (not copied when it is one), or a `DataFormatError`
-    naming `what`: not numeric, or complex (a cast would drop the imaginary part)."""
+def real_array(values: Any, what: str, error: type[Exception] = DataFormatError) -> FloatArray:
+    """`values` as a float64 array (not copied when it is one), or `error` naming
+    `what`: not numeric, or complex (a cast would drop the imaginary part)."""
     try:
         arr = np.asarray(values)
     except (TypeError, ValueError) as exc:
-        raise DataFormatError(f"{what}: not numeric ({exc})") from None
+        raise error(f"{what}: not numeric ({exc})") from None
     if arr.dtype.kind == "c":
-        raise DataFormatError(
+        raise error(
             f"{what}: complex values are not supported; pass the real part or the "
             "magnitude explicitly (np.real, np.abs)"
         )
@@ -83,7 +83,7 @@ def real_array(values: Any, what: str) -> FloatArray:
         try:
             arr = arr.astype(np.float64)
         except (TypeError, ValueError) as exc:
-            raise DataFormatError(f"{what}: not numeric ({exc})") from None
+            raise error(f"{what}: not numeric ({exc})") from None
     return np.asarray(arr, dtype=np.float64)
 
 

@@ -110,7 +110,7 @@ def test_prior_methods_name_bad_arguments() -> None:
     rng = np.random.default_rng(0)
     for prior in (Normal(0.0, 1.0), Uniform(0.0, 1.0), LogUniform(0.1, 1.0), HalfNormal(1.0)):
         name = type(prior).__name__
-        with pytest.raises(AeroidError, match=rf"{name}.log_pdf: x must be numbers, got 'x'"):
+        with pytest.raises(AeroidError, match=rf"{name}.log_pdf: x: not numeric"):
             prior.log_pdf("x")
         for size in (-1, 1.5, (2, -3), True):
             with pytest.raises(AeroidError, match=rf"{name}.sample: size must be a count"):

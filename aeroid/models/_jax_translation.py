@@ -362,21 +362,18 @@ def _verified(
     if key in entry:
         return entry[key]
     entry[key] = None
-    got = _first_verification(model, role, time, x_ref, u, pvec)
+    got = _first_verification(model, role, (time, x_ref, u, pvec))
     if got is None:
         _untraceable_jax(model, role)
     return got
 
 
 def _first_verification(
-    model: Model,
-    role: str,
-    time: FloatArray,
-    x_ref: FloatArray,
-    u: FloatArray,
-    pvec: FloatArray,
+    model: Model, role: str, where: tuple[FloatArray, FloatArray, FloatArray, FloatArray]
 ) -> Callable[..., Any] | None:
-    """`_verified`'s work, done once per model and role."""
+    """`_verified`'s work, done once per model and role, at `where`: its time, x_ref,
+    u and pvec."""
+    time, x_ref, u, pvec = where
     entry = _entry(model)
     key = ("fn", role)
     mods = _import_jax()

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._value_checks import real_array
 from ..errors import InferenceError
 from ..io.data import as_float
 
@@ -55,13 +56,7 @@ def _ordered(cls: str, lo: Any, hi: Any) -> tuple[float, float]:
 
 def _values(prior: Any, x: ArrayLike) -> FloatArray:
     """`x` as float64, or an `InvalidPriorError` naming the prior."""
-    try:
-        out = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidPriorError(
-            f"{type(prior).__name__}.log_pdf: x must be numbers, got {x!r:.60}"
-        ) from None
-    return out
+    return real_array(x, f"{type(prior).__name__}.log_pdf: x", InvalidPriorError)
 
 
 def _size(prior: Any, size: Any) -> Any:
