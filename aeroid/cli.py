@@ -304,7 +304,7 @@ def status(
     config: str, store: str | None, as_json: bool, allow_imports: bool, list_all: bool
 ) -> None:
     """Which tasks of CONFIG are stored and which are missing (computes nothing)."""
-    from .errors import AeroidError
+    from .errors import AeroidError, ConfigError
     from .pipeline.plans.config import load_config
     from .pipeline.plans.planning import store_argument
     from .pipeline.storage.store import ResultStore, is_store
@@ -312,6 +312,8 @@ def status(
     try:
         cfg = load_config(config, store=store_argument(store) if store else None)
         location = cfg.store_location
+        if not cfg.store_is_url and cfg.store_path.exists() and not cfg.store_path.is_dir():
+            raise ConfigError(f"{cfg.source}: store {cfg.store}: is a file, not a folder")
         st = ResultStore(location, create=False) if is_store(location) else None
         tasks = _status_tasks(cfg, st, allow_imports)
     except AeroidError as exc:

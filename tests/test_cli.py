@@ -295,6 +295,15 @@ def test_show_status_rerun_and_gc(tmp_path):
     assert code == 2 and "--config" in err
 
 
+def test_status_refuses_a_store_that_is_a_file(tmp_path):
+    # as `run` and `status --store` do: not read as an empty store
+    cfg = make_campaign(tmp_path, n=1)
+    (tmp_path / "flat").write_text("not a store\n")
+    cfg.write_text(cfg.read_text().replace("store: store", "store: flat"))
+    code, out, err = invoke("status", str(cfg))
+    assert code != 0 and "flat: is a file, not a folder" in err and not out
+
+
 def test_status_of_a_large_campaign_is_a_summary_per_step(tmp_path, monkeypatch):
     from aeroid import cli
 
