@@ -513,6 +513,28 @@ def test_a_longitudinal_record_leaves_the_unseen_side_velocity_alone(monkeypatch
         assert res.parameters[name] == pytest.approx(value, rel=5e-3)
 
 
+def test_a_longitudinal_record_by_default_fits_the_longitudinal_errors(monkeypatch):
+    """The lateral gyros and accelerometer reach no fitted output of a wings-level record
+    without phi, beta, psi or a ground speed but through second-order terms: estimated by
+    default, they left the fit stalled at its start (or, listed in another order, at a
+    wrong answer flagged converged). They are left out by default and refused when asked."""
+    import _compat_flight as flight
+
+    monkeypatch.setitem(flight._SIGNALS, "phi", (0.0, 0.0, []))
+    monkeypatch.setitem(flight._SIGNALS, "beta", (0.0, 0.0, []))
+    monkeypatch.setitem(flight._SIGNALS, "psi", (0.3, 0.0, []))
+    truth = {"b_q": -0.002, "b_ax": 0.15, "b_az": -0.05, "b_V": 1.5, "b_alpha": 0.02}
+    data = simulated_flight(DURATION, RATE, errors=truth, noise={})
+    channels = ("p", "q", "r", "ax", "ay", "az", "V", "alpha", "theta")
+    lon = aeroid.FlightData(data.time, {c: data[c] for c in channels})
+    res = check_compatibility(lon)
+    assert res.success and set(res.parameters) == {*truth, "k_alpha"}
+    for name, value in truth.items():
+        assert res.parameters[name] == pytest.approx(value, rel=5e-3, abs=1e-6), name
+    with pytest.raises(IdentificationError, match=r"estimate: \['b_p'\]: a wings-level record"):
+        check_compatibility(lon, estimate=["b_q", "b_ax", "b_p"])
+
+
 def test_what_cannot_be_separated_keeps_infinite_bars_with_input_noise():
     """Level flight at a constant angle of attack, no ground speed: an airspeed offset
     and the initial forward speed are one direction. The warning said their bars are

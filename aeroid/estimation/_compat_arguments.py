@@ -87,6 +87,12 @@ def _channel_map(data: FlightData, channels: Mapping[str, str | None] | None) ->
     return present
 
 
+# outputs that see the lateral motion (roll, sideslip, heading, ground track)
+LATERAL_OUTPUTS = frozenset({"beta", "phi", "psi", "vn", "ve"})
+# the errors of the lateral inputs, which only those outputs see on a wings-level record
+LATERAL_INPUT_ERRORS = ("b_p", "b_r", "b_ay", "k_p", "k_r", "k_ay")
+
+
 def _parameter_values(
     estimate: Sequence[str] | Mapping[str, float] | None,
     fixed: Mapping[str, float] | None,
@@ -96,6 +102,10 @@ def _parameter_values(
     values = {n: 0.0 for n in SENSOR_PARAMETERS}
     if estimate is None:
         names = [n for n in DEFAULT_ESTIMATE if n.partition("_")[2] in present]
+        if not LATERAL_OUTPUTS & set(present):
+            # a longitudinal analysis (SIDPAC's dca_lon): no fitted output sees the
+            # lateral gyros or accelerometer but through second-order terms
+            names = [n for n in names if n not in LATERAL_INPUT_ERRORS]
     elif isinstance(estimate, str):
         names = [estimate]
     elif isinstance(estimate, Mapping):

@@ -68,6 +68,7 @@ from ..errors import DataFormatError, IdentificationError
 from ..io.data import FlightData, plain, whole_number
 from ._compat_arguments import _ANGLE_LIMITS as _ANGLE_LIMITS
 from ._compat_arguments import _STAND_IN_SOURCES as _STAND_IN_SOURCES
+from ._compat_arguments import LATERAL_INPUT_ERRORS, LATERAL_OUTPUTS
 from ._compat_arguments import _channel_map as _channel_map
 from ._compat_arguments import _first_values as _first_values
 from ._compat_arguments import _fitted_outputs as _fitted_outputs
@@ -336,6 +337,13 @@ def check_compatibility(
     # squared: a wings-level record without beta cannot tell its start, and a fit asked
     # for it stalls on that direction)
     lateral = _moves(inputs["p"]) or _moves(inputs["r"])
+    blind = [n for n in names if n in LATERAL_INPUT_ERRORS]
+    if blind and not lateral and not LATERAL_OUTPUTS & set(outputs):
+        raise IdentificationError(
+            f"estimate: {blind}: a wings-level record without phi, beta, psi or a ground "
+            "speed sees the lateral gyros and accelerometer only through second-order "
+            "terms, too weakly to fit; leave them out (a longitudinal analysis)"
+        )
     seen = {
         "v": bool({"beta", "vn", "ve"} & set(outputs)) or lateral,
         "phi": "phi" in outputs,

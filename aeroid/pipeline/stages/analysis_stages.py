@@ -377,7 +377,8 @@ for _stage in (
         # 5: the bars carry the scatter of the estimated output weights
         # 6: a wings-level record's side velocity start is not estimated; what cannot
         # be separated keeps infinite bars with the input-noise share
-        "6",
+        # 7: a longitudinal record's default leaves the lateral input errors out
+        "7",
         CompatibilityOptions,
         "CompatibilityResult",
         _run_compatibility,
