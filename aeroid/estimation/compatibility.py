@@ -262,9 +262,8 @@ def check_compatibility(
     Raises
     ------
     ChannelError
-        A required channel (the six inputs, ``V``, ``alpha``, ``phi``,
-        ``theta``) is missing, or a parameter to estimate belongs to an
-        absent channel.
+        A required channel (the six inputs, ``V``, ``alpha``, ``theta``) is
+        missing, or a parameter to estimate belongs to an absent channel.
     DataFormatError
         A channel holds non-finite values, an angle exceeds its range in
         radians, or the airspeed is not positive.
