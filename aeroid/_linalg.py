@@ -100,3 +100,19 @@ def expm(A: FloatArray) -> FloatArray:
     if not np.all(finite):
         E[~finite] = np.nan
     return np.asarray(E, dtype=np.float64).reshape(shape)
+
+
+def information_inverse(info: FloatArray, rcond: float = 1e-13) -> FloatArray:
+    """The pseudo-inverse of an information matrix scaled to a unit diagonal first.
+
+    Parameters of very different sizes (a gain of 1e-6 beside a pole of 1) make the
+    unscaled matrix's condition number their ratio squared: a relative cut of the
+    singular values at `rcond` would then drop a well determined direction and report
+    its variance as (nearly) zero. Scaled, the cut sees only the correlations.
+    Unknowns with no information (zero diagonal) keep a zero row and column.
+    """
+    d = np.sqrt(np.clip(np.diag(info), 0.0, None))
+    scale = np.where(d > 0.0, d, 1.0)
+    unit = info / np.outer(scale, scale)
+    inv = np.linalg.pinv(unit, rcond=rcond, hermitian=True) / np.outer(scale, scale)
+    return np.asarray(inv, dtype=np.float64)

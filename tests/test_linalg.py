@@ -108,3 +108,46 @@ def test_compiled_filters_expm_equals_the_closed_form():
     w = 0.7
     R = np.asarray(fn(np.array([[0.0, -w], [w, 0.0]])))
     assert _rel(R, np.array([[math.cos(w), -math.sin(w)], [math.sin(w), math.cos(w)]])) < 1e-15
+
+
+def test_information_inverse_sees_correlations_not_units() -> None:
+    # a 2x2 information of parameters 1e-8 apart in size: the unscaled pseudo-inverse
+    # cuts the small direction (condition 1e16 > 1/rcond); scaled it is the exact inverse
+    from aeroid._linalg import information_inverse
+
+    corr = np.array([[1.0, 0.3], [0.3, 1.0]])
+    scale = np.array([1.0, 1e8])
+    info = corr * np.outer(scale, scale)
+    exact = np.linalg.inv(corr) / np.outer(scale, scale)
+    np.testing.assert_allclose(information_inverse(info), exact, rtol=1e-12)
+    assert np.linalg.pinv(info, rcond=1e-13, hermitian=True)[0, 0] < 0.5 * exact[0, 0]
+    # an unknown with no information keeps a zero row and column
+    blind = np.zeros((3, 3))
+    blind[:2, :2] = info
+    np.testing.assert_allclose(information_inverse(blind)[:2, :2], exact, rtol=1e-12)
+    assert not np.any(information_inverse(blind)[2])
+
+
+def test_identify_bars_follow_a_change_of_the_inputs_units() -> None:
+    # the input written in units 1e8 times larger: the same fit, the gain's
+    # estimate and bar 1e-8 of theirs, the pole's unchanged (its bar was 3e-17)
+    import aeroid
+
+    model = aeroid.Model(
+        ["x"],
+        ["u"],
+        {"a": -1.0, "b": 1.0},
+        lambda t, x, u, p: np.array([p["a"] * x[0] + p["b"] * u[0]]),
+    )
+    t = np.arange(0.0, 10.0, 0.02)
+    u = np.sin(1.3 * t) + np.sign(np.sin(0.4 * t))
+    sim = model.simulate(t, {"u": u}, [0.0], {"a": -2.0, "b": 3.0}, method="exact")
+    y = sim.states[:, 0] + 0.01 * np.random.default_rng(4).standard_normal(t.size)
+    fits = []
+    for k in (1.0, 1e8):
+        data = aeroid.FlightData(t, {"x": y, "u": u * k})
+        fits.append(aeroid.identify(model, data, {"a": -1.0, "b": 1.0 / k}, x0={"x": 0.0}))
+    one, big = fits
+    assert big.parameters["a"] == pytest.approx(one.parameters["a"], rel=1e-6)
+    assert big.stderr["a"] == pytest.approx(one.stderr["a"], rel=1e-6)
+    assert big.stderr["b"] * 1e8 == pytest.approx(one.stderr["b"], rel=1e-6)

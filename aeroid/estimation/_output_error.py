@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._linalg import information_inverse
 from ..errors import (
     IdentifiabilityWarning,
     IdentificationError,
@@ -594,9 +595,7 @@ def fit_output_error(
     combos, null = _combinations(info, [names_all[j] for j in keep])
     identifiable = not combos
     try:
-        m_inv: FloatArray = np.asarray(
-            np.linalg.pinv(info, rcond=1e-13, hermitian=True), dtype=np.float64
-        )
+        m_inv: FloatArray = information_inverse(info)
     except np.linalg.LinAlgError:
         m_inv = np.full_like(info, np.nan)
     cov_white: FloatArray = m_inv.copy()

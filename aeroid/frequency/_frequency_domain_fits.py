@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._colour import frequency_sandwich
+from .._linalg import information_inverse
 from .._threads import CALLER_STACKLEVEL
 from ..errors import IdentificationError
 from ..estimation.identifiability import unidentifiable
@@ -51,7 +52,7 @@ def _covariances(
     J = jac.reshape(m * r, n)
     info = J.T @ J
     combos, null = unidentifiable(info, labels)
-    inv = np.linalg.pinv(info, rcond=1e-13, hermitian=True)
+    inv = information_inverse(info)
     white = white_scale * inv
     # the one coloured-residual correction, in its per-frequency form: the few
     # frequencies near a mode carry most of the information, and the fit pulls

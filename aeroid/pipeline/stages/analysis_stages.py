@@ -415,7 +415,8 @@ for _stage in (
         # 7: the sandwich's noise spectrum smoothed over neighbouring frequencies;
         # 8: the bars carry the scatter of the estimated noise weighting;
         # 9: `parameters: []` is the library's empty list, not every parameter
-        "9",
+        # 10: the information inverted on a unit diagonal (rounding)
+        "10",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,

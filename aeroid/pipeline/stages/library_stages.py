@@ -478,7 +478,10 @@ for _stage in (
         # 12: output error estimates the measured initial states by default
         # 13: output error's coloured bars carry its estimated weights' scatter
         # 14: RK4 substeps read along the path too (a model stiffening away)
-        "15",  # 15: `parameters: []` is the library's empty list, not every parameter
+        # 15: `parameters: []` is the library's empty list, not every parameter
+        # 16: filter error's gradient by the chain rule; the information inverted on a
+        #     unit diagonal (bars of parameters of very different sizes; rounding)
+        "16",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
