@@ -151,3 +151,21 @@ def test_identify_bars_follow_a_change_of_the_inputs_units() -> None:
     assert big.parameters["a"] == pytest.approx(one.parameters["a"], rel=1e-6)
     assert big.stderr["a"] == pytest.approx(one.stderr["a"], rel=1e-6)
     assert big.stderr["b"] * 1e8 == pytest.approx(one.stderr["b"], rel=1e-6)
+
+
+def test_outputs_whose_squares_underflow_are_refused_not_fitted_at_the_start() -> None:
+    # values near 1e-300 stalled LAPACK (or stopped "converged" at the start)
+    import aeroid
+
+    model = aeroid.Model(
+        ["x"],
+        ["u"],
+        {"a": -1.0, "b": 1.0},
+        lambda t, x, u, p: np.array([p["a"] * x[0] + p["b"] * u[0]]),
+    )
+    t = np.arange(0.0, 5.0, 0.02)
+    u = np.sin(1.3 * t)
+    sim = model.simulate(t, {"u": u}, [0.0], {"a": -2.0, "b": 3e-300}, method="exact")
+    data = aeroid.FlightData(t, {"x": sim.states[:, 0], "u": u})
+    with pytest.raises(aeroid.IdentificationError, match=r"outputs \['x'\]: values below 1e-140"):
+        aeroid.identify(model, data, {"a": -1.0, "b": 1e-300}, x0={"x": 0.0})

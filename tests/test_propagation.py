@@ -355,3 +355,16 @@ def test_percentiles_take_the_shape_every_result_shares():
         expect = np.percentile(vec[name].samples, [2.5, 50.0, 97.5])
         np.testing.assert_array_equal(list(vec.percentile_table[name].values()), expect)
     assert "| P2.5" in vec.summary() and "| P2.5" in res.summary()
+
+
+def test_a_metric_near_the_float_range_keeps_a_finite_spread():
+    # squares of deviations near 1e297 overflow; the standard deviation itself does not
+    from aeroid import identify
+    from aeroid.models import catalog
+
+    data = catalog.short_period_flight(seed=3)
+    fit = identify(catalog.short_period(), data, ["M_q", "M_delta"])
+    small = propagate(fit, lambda p: p["M_q"], n_samples=400, seed=2)
+    huge = propagate(fit, lambda p: 1e300 * p["M_q"], n_samples=400, seed=2)
+    assert huge.std == pytest.approx(1e300 * small.std, rel=1e-12)
+    assert huge.mean == pytest.approx(1e300 * small.mean, rel=1e-12)

@@ -95,6 +95,10 @@ def _typical_scales(
     return typ
 
 
+# outputs smaller than this cannot be weighted: their variances underflow
+_TINY = 1e-140
+
+
 def _overflow(outputs: Any, mean_sq: FloatArray, measured: FloatArray, cost: Any) -> None:
     """Raise the error of a fit whose squared residuals overflow, naming the outputs."""
     overflow = [o for o, v in zip(outputs, mean_sq, strict=True) if not np.isfinite(v)]
@@ -502,6 +506,15 @@ def fit_output_error(
         # the scales of the steps (and any residual) would overflow: refuse before the
         # first simulation, naming the outputs
         _overflow(outputs, meas_sq, all_meas, "inf")
+    with np.errstate(under="ignore"):
+        peaks = np.max(np.abs(all_meas), axis=0)
+    tiny = [o for o, top in zip(outputs, peaks, strict=True) if 0.0 < top < _TINY]
+    if tiny:
+        # their noise variances (squares of squares' means) underflow to zero
+        raise IdentificationError(
+            f"outputs {tiny}: values below {_TINY:g} in size, whose squares underflow "
+            "float64; measure them in a smaller unit"
+        )
     typ = _typical_scales(layout, theta, mans, state_out)
     if n_d:
         # a delay's natural scale is the sample interval

@@ -232,6 +232,9 @@ def damped_step(
     b = point.gradient / dn
 
     def plain(sub: FloatArray, rhs: FloatArray) -> FloatArray:
+        if not (np.all(np.isfinite(sub)) and np.all(np.isfinite(rhs))):
+            # (values near the float range's ends: LAPACK refuses them, and may hang)
+            return np.zeros(rhs.size)
         try:
             sol = np.linalg.lstsq(sub + damping * np.eye(rhs.size), rhs, rcond=1e-12)[0]
         except np.linalg.LinAlgError:

@@ -481,9 +481,13 @@ def _statistics(
 ) -> PropagationResult:
     ok = np.isfinite(values)
     good = values[ok]
+    # spread measured on values scaled to order one: squares of a metric near 1e300
+    # overflow where its standard deviation does not
+    top = float(np.max(np.abs(good))) if good.size else 0.0
+    unit = top if 1e150 < top < np.inf else 1.0
     return PropagationResult(
-        mean=float(good.mean()),
-        std=float(good.std(ddof=1)) if good.size > 1 else 0.0,
+        mean=float(np.mean(good / unit) * unit),
+        std=float((good / unit).std(ddof=1) * unit) if good.size > 1 else 0.0,
         percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
         samples=good,
         n_samples=n_samples,
