@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -128,17 +129,24 @@ def test_information_inverse_sees_correlations_not_units() -> None:
     assert not np.any(information_inverse(blind)[2])
 
 
-def test_identify_bars_follow_a_change_of_the_inputs_units() -> None:
-    # the input written in units 1e8 times larger: the same fit, the gain's
-    # estimate and bar 1e-8 of theirs, the pole's unchanged (its bar was 3e-17)
+def _first_order() -> Any:
+    """x' = a x + b u, every state measured."""
     import aeroid
 
-    model = aeroid.Model(
+    return aeroid.Model(
         ["x"],
         ["u"],
         {"a": -1.0, "b": 1.0},
         lambda t, x, u, p: np.array([p["a"] * x[0] + p["b"] * u[0]]),
     )
+
+
+def test_identify_bars_follow_a_change_of_the_inputs_units() -> None:
+    # the input written in units 1e8 times larger: the same fit, the gain's
+    # estimate and bar 1e-8 of theirs, the pole's unchanged (its bar was 3e-17)
+    import aeroid
+
+    model = _first_order()
     t = np.arange(0.0, 10.0, 0.02)
     u = np.sin(1.3 * t) + np.sign(np.sin(0.4 * t))
     sim = model.simulate(t, {"u": u}, [0.0], {"a": -2.0, "b": 3.0}, method="exact")
@@ -157,12 +165,7 @@ def test_outputs_whose_squares_underflow_are_refused_not_fitted_at_the_start() -
     # values near 1e-300 stalled LAPACK (or stopped "converged" at the start)
     import aeroid
 
-    model = aeroid.Model(
-        ["x"],
-        ["u"],
-        {"a": -1.0, "b": 1.0},
-        lambda t, x, u, p: np.array([p["a"] * x[0] + p["b"] * u[0]]),
-    )
+    model = _first_order()
     t = np.arange(0.0, 5.0, 0.02)
     u = np.sin(1.3 * t)
     sim = model.simulate(t, {"u": u}, [0.0], {"a": -2.0, "b": 3e-300}, method="exact")
