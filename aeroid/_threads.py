@@ -288,6 +288,13 @@ def record_warnings() -> Iterator[list[warnings.WarningMessage]]:
         yield sink
 
 
+def replay_warnings(recorded: list[warnings.WarningMessage]) -> None:
+    """Issue warnings `record_warnings` held back, each at the place it named, through
+    the caller's filters."""
+    for w in recorded:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
 def wait_background(timeout: float | None = None) -> bool:
     """Wait until the background jobs queued so far have run; False on `timeout` (s)."""
     jobs = _jobs

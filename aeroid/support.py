@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 from ._aliases import legacy_name
 from ._conditions import CONDITION_KEYS, CONDITION_NAMES
 from ._records import ReadOnlyDict, fmt, markdown_table
-from ._threads import quiet_warnings, record_warnings
+from ._threads import quiet_warnings, record_warnings, replay_warnings
 from ._units import parameter_units
 from .reports import html as _html
 from .reports.html import figure_png, markdown_to_html
@@ -40,6 +40,7 @@ __all__ = [
     "quiet_warnings",
     "record_warnings",
     "replace_aerodynamics",
+    "replay_warnings",
 ]
 
 

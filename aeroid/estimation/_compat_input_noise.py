@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._linalg import information_inverse
 from ..errors import IdentificationError
 from ..io.data import plain
 from ..models import compiled as _compiled
@@ -290,7 +291,7 @@ def _measurement_noise_covariance(
         return None
     n, n_y = t.size, len(out_idx)
     jac = jw.T  # (n n_y, p + free states)
-    m_inv = np.asarray(np.linalg.pinv(jac.T @ jac, rcond=1e-12, hermitian=True), dtype=np.float64)
+    m_inv = information_inverse(jac.T @ jac, rcond=1e-12)
     flat = dy.reshape(n_draws, -1).T
     left = (flat - jac @ (m_inv @ (jac.T @ flat))).T.reshape(n_draws, n, n_y)
     u = np.asarray(fit.residuals[0], dtype=np.float64) * weight[None, :]

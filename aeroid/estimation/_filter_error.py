@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._linalg import information_inverse
 from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData
 from ..models.integration import shifted_controls
@@ -749,9 +750,7 @@ def identify_filter_error(
             IdentifiabilityWarning,
             stacklevel=4,  # identify_filter_error, identify, its BLAS wrapper, the caller
         )
-        cov_sub = np.linalg.pinv(sub, hermitian=True)
-    else:
-        cov_sub = np.linalg.inv(sub)
+    cov_sub = information_inverse(sub, rcond=1e-15) if combos else np.linalg.inv(sub)
     cov_full = np.full((z.size, z.size), np.nan)
     cov_full[np.ix_(idx, idx)] = 0.5 * (cov_sub + cov_sub.T)
     cov_full[held, :] = 0.0

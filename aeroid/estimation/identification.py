@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._threads import record_warnings, small_blas
+from .._threads import record_warnings, replay_warnings, small_blas
 from ..errors import AeroidError, IdentificationError
 from ..io.data import (
     FlightData,
@@ -526,8 +526,7 @@ def identify(
         fitted = fit(initial, x0=x0_dicts, simulate_options=opts, delays=delays)
         finer = _path_substeps(fit_model, datas, fitted, opts)
     if finer is None:
-        for w in first_warnings:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        replay_warnings(first_warnings)
     else:
         # the integrator's step came from the modes at the start, and the fitted
         # paths stiffen beyond it: fit again, from here, with the step they need (the

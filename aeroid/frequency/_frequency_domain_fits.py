@@ -381,7 +381,7 @@ def _output_error(
     # weighted squares' own Gauss-Newton matrix
     J0 = _stack(first.payload[2] @ dY).reshape(-1, theta.size)
     with np.errstate(divide="ignore", invalid="ignore"):
-        typical = np.sqrt(0.5 * np.abs(np.diag(np.linalg.pinv(J0.T @ J0, hermitian=True))))
+        typical = np.sqrt(0.5 * np.abs(np.diag(information_inverse(J0.T @ J0, rcond=1e-15))))
     typical[~(typical > 0)] = 1.0
     fit = minimise(
         evaluate,

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import AeroidError, ModelDefinitionError
 from ..io.data import FlightData, as_float, fingerprint, plain
+from ._controls import shifted_controls
 
 
 def _names(value: Sequence[str] | str, what: str) -> tuple[str, ...]:
@@ -110,14 +111,17 @@ def delayed_controls(result: Any, data: FlightData) -> FlightData:
     delay belongs to the vehicle, so it applies on any record. Other values
     of `result` (a mapping, None) leave `data` as it is.
     """
-    delays = dict(getattr(result, "time_delays", None) or {})
-    t = data.time
-    shifted = {
-        c: np.interp(t - float(tau), t, data.channels[c])
-        for c, tau in delays.items()
+    delays = {
+        c: float(tau)
+        for c, tau in dict(getattr(result, "time_delays", None) or {}).items()
         if c in data and float(tau) != 0.0
     }
-    return data.with_channels(shifted) if shifted else data
+    if not delays:
+        return data
+    names = list(delays)
+    u = np.column_stack([data.channels[c] for c in names])
+    moved = shifted_controls(data.time, u, range(len(names)), list(delays.values()))
+    return data.with_channels({c: moved[:, j] for j, c in enumerate(names)})
 
 
 def control_delays(

@@ -137,35 +137,35 @@ class StateSpace:
             F0, H0, dF, dH = self._central(p0)
             rng = np.random.default_rng(0)
             probe = p0 + np.maximum(1.0, np.abs(p0)) * rng.uniform(-0.5, 0.5, p0.size)
-            Fp, Hp = self.matrices(probe)
-            ok = True
-            for got, at, slope in ((Fp, F0, dF), (Hp, H0, dH)):
-                if got is None or at is None or slope is None:
-                    continue
-                want = at + np.einsum("l,lij->ij", probe - p0, slope)
-                tol = 1e-7 * (np.abs(at) + np.abs(got[0]) + np.max(np.abs(at)) + 1e-300)
-                ok = ok and bool(np.all(np.abs(got[0] - want) <= tol))
+            ok = self._on_the_plane(probe, p0, (F0, H0, dF, dH))
             self._basis = (p0.copy(), F0, H0, dF, dH) if ok else False
         return self._basis is not False
 
     def not_affine_in(self, p0: FloatArray) -> list[str]:
         """The parameters the matrices are not affine in, each moved alone about `p0`
         (for a message: `affine` answers for all of them at once)."""
-        F0, H0, dF, dH = self._central(p0)
+        at = self._central(p0)
         out = []
         for j, name in enumerate(self.names):
             probe = p0.copy()
             probe[j] += 0.37 * max(1.0, abs(float(p0[j])))
-            Fp, Hp = self.matrices(probe)
-            for got, at, slope in ((Fp, F0, dF), (Hp, H0, dH)):
-                if got is None or at is None or slope is None:
-                    continue
-                want = at + (probe[j] - p0[j]) * slope[j]
-                tol = 1e-7 * (np.abs(at) + np.abs(got[0]) + np.max(np.abs(at)) + 1e-300)
-                if not np.all(np.abs(got[0] - want) <= tol):
-                    out.append(name)
-                    break
+            if not self._on_the_plane(probe, p0, at):
+                out.append(name)
         return out
+
+    def _on_the_plane(self, probe: FloatArray, p0: FloatArray, at: tuple[Any, ...]) -> bool:
+        """Whether the matrices at `probe` are those at `p0` moved along their slopes
+        (`at`: the matrices at `p0` and their slopes, as `_central` gives them)."""
+        F0, H0, dF, dH = at
+        Fp, Hp = self.matrices(probe)
+        for got, base, slope in ((Fp, F0, dF), (Hp, H0, dH)):
+            if got is None or base is None or slope is None:
+                continue
+            want = base + np.einsum("l,lij->ij", probe - p0, slope)
+            tol = 1e-7 * (np.abs(base) + np.abs(got[0]) + np.max(np.abs(base)) + 1e-300)
+            if not np.all(np.abs(got[0] - want) <= tol):
+                return False
+        return True
 
     def with_slopes(
         self, p: FloatArray

@@ -485,9 +485,10 @@ def _statistics(
     # overflow where its standard deviation does not
     top = float(np.max(np.abs(good))) if good.size else 0.0
     unit = top if 1e150 < top < np.inf else 1.0
+    scaled = good / unit if unit != 1.0 else good
     return PropagationResult(
-        mean=float(np.mean(good / unit) * unit),
-        std=float((good / unit).std(ddof=1) * unit) if good.size > 1 else 0.0,
+        mean=float(scaled.mean() * unit),
+        std=float(scaled.std(ddof=1) * unit) if good.size > 1 else 0.0,
         percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
         samples=good,
         n_samples=n_samples,

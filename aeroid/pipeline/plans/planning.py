@@ -12,14 +12,13 @@ from __future__ import annotations
 import contextlib
 import gc
 import json
-import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ...errors import AeroidError, ConfigError, PipelineError
-from ...support import record_warnings
+from ...support import record_warnings, replay_warnings
 from .._options import stage_flights
 from ..definition import Pipeline, Step, resolve_pipeline
 from ..keys import (
@@ -396,8 +395,7 @@ def stored_plan(
             return None
     found = plan_cache.load(store, plan_cache.inputs_digest(setup, files))
     if found is not None:
-        for w in seen:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        replay_warnings(seen)
     return found
 
 
