@@ -248,13 +248,42 @@ def _frequency_fit(
     *,
     has_const: bool,
     error_bars: str = "colored",
+    derivative: bool = False,
 ) -> RegressionResult:
+    step = _frequency_step(time, dt)
+    freq = _frequency_grid(frequencies, step, x.shape[1])
+    # the derivative's identity holds between integrals, which trapezoids follow to
+    # O(dt^2); plain sums keep z = X theta exact sample by sample otherwise
+    zt = fourier(z, step, freq, end_correction=derivative)
+    xt = fourier(x, step, freq, end_correction=derivative)
+    if derivative:
+        zt = derivative_transform(zt, z[0], z[-1], freq, (z.shape[0] - 1) * step)
+    return _frequency_solution(
+        zt,
+        xt,
+        np.sqrt(np.einsum("ij,ij->j", x, x)),  # no n x p temporary
+        names,
+        zname,
+        time if time is not None else np.arange(z.shape[0], dtype=np.float64) * step,
+        step,
+        freq,
+        has_const=has_const,
+        error_bars=error_bars,
+    )
+
+
+def _frequency_step(time: FloatArray | None, dt: float | None) -> float:
     step = _step_of(time, dt)
     if step is None:
         raise DataFormatError(
             "frequency domain: needs uniformly sampled data (flight data with a uniform "
             "time grid, or dt= for arrays)"
         )
+    return step
+
+
+def _frequency_grid(frequencies: ArrayLike | None, step: float, p: int) -> FloatArray:
+    """The chosen frequencies, Hz, checked against the sampling and the parameter count."""
     if frequencies is None:
         raise DataFormatError("frequencies: required for domain='frequency' (Hz)")
     freq = np.atleast_1d(real_array(frequencies, "frequencies"))
@@ -272,19 +301,55 @@ def _frequency_fit(
         raise DataFormatError(
             "frequencies: a frequency is repeated (each one is a pair of equations once)"
         )
-    m, p = freq.shape[0], x.shape[1]
-    if 2 * m <= p:
+    if 2 * freq.shape[0] <= p:
         raise IdentificationError(
-            f"frequency domain: {m} frequencies cannot fit {p} real parameters"
+            f"frequency domain: {freq.shape[0]} frequencies cannot fit {p} real parameters"
         )
-    zt, xt = fourier(z, step, freq), fourier(x, step, freq)
+    return freq
+
+
+def derivative_transform(
+    transform: NDArray[np.complex128],
+    first: float,
+    last: float,
+    freq: FloatArray,
+    span: float,
+) -> NDArray[np.complex128]:
+    """The finite Fourier transform of a signal's time derivative from the signal's own:
+    by parts, ``∫_0^T ż e^{-jωt} dt = jω Z̃ + z(T) e^{-jωT} - z(0)``, so no numerical
+    derivative enters and a record that does not end where it began is exact."""
+    omega = 2.0 * np.pi * freq
+    return 1j * omega * transform + last * np.exp(-1j * omega * span) - first
+
+
+def derivative_name(name: str) -> str:
+    """``"dq/dt"`` for a channel, ``"d(alpha*q)/dt"`` for an expression."""
+    return f"d{name}/dt" if name.isidentifier() else f"d({name})/dt"
+
+
+def _frequency_solution(
+    zt: NDArray[np.complex128],
+    xt: NDArray[np.complex128],
+    column_norms: FloatArray,
+    names: list[str],
+    zname: str,
+    time: FloatArray,
+    step: float,
+    freq: FloatArray,
+    *,
+    has_const: bool,
+    error_bars: str,
+) -> RegressionResult:
+    """Fourier transform regression on given transforms: the one solution of the
+    batch estimator and of every update of the recursive one."""
+    m, p = freq.shape[0], xt.shape[1]
     # A column with (next to) no content at these frequencies cannot be estimated; the
     # constant has none at multiples of 1/(N dt), and is then left out silently.
     content = np.sqrt(np.sum(xt.real**2 + xt.imag**2, axis=0))
-    scale = step * np.sqrt(m) * np.sqrt(np.einsum("ij,ij->j", x, x))  # no n x p temporary
+    scale = step * np.sqrt(m) * column_norms
     empty = ~(content > 1e-9 * scale)
     if has_const and empty[0]:
-        names, x, xt, empty = names[1:], x[:, 1:], xt[:, 1:], empty[1:]
+        names, xt, empty = names[1:], xt[:, 1:], empty[1:]
         p -= 1
     for j in np.flatnonzero(empty).tolist():
         raise IdentificationError(
@@ -311,7 +376,7 @@ def _frequency_fit(
             np.column_stack([v.real, v.imag]),
             xtx_inv,
             2 * np.pi * freq,
-            z.shape[0] * step,
+            time.shape[0] * step,
             nyquist=np.pi / step,
         )
         _classical_where_not_positive(cov, cov_white, nu, 2 * m - p)
@@ -332,7 +397,7 @@ def _frequency_fit(
         response=zt,
         fitted=fitted,
         residuals=v,
-        time=time if time is not None else np.arange(z.shape[0], dtype=np.float64) * step,
+        time=time,
         frequencies=freq,
         domain="frequency",
         error_bars=error_bars,

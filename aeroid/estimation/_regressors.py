@@ -198,6 +198,19 @@ def _check_names(names: Sequence[str]) -> None:
         seen.add(name)
 
 
+def _with_constant(
+    x: FloatArray, names: list[str], intercept: bool
+) -> tuple[FloatArray, list[str]]:
+    """The regressor columns with the constant term first if asked, names checked."""
+    if intercept:
+        names = [_CONST, *names]
+        x = np.column_stack([np.ones(x.shape[0]), x])
+    _check_names(names)
+    if x.shape[1] == 0:
+        raise DataFormatError("regressors: none given and no constant term")
+    return x, names
+
+
 def _step_of(time: FloatArray | None, dt: float | None) -> float | None:
     if time is not None:
         steps = np.diff(time)

@@ -16,6 +16,12 @@ The cost's minimum obeys ``J_k = lambda J_(k-1) + eps^2 lambda / (lambda + x'P x
 exactly, so the running fit-error variance ``J_k / (n_k - p)`` (``n_k`` the
 weighted sample count) is the batch one at every sample, not the sum of a
 posteriori residuals, which under-reads it while the estimate still moves.
+
+With ``domain="frequency"`` it is Morelli's real-time estimator in the
+frequency domain (Klein & Morelli sec. 8.2, `_recursive_frequency`): running
+Fourier transforms, and at chosen times the Fourier transform regression of
+the record so far. Only the chosen band enters, so the estimates need no
+filtering of the measurements and are not biased by noise outside it.
 """
 
 from __future__ import annotations
@@ -39,8 +45,14 @@ from ..errors import (
 )
 from ..io.data import FlightData
 from ..models.model import real_number
-from ._regression_fits import _classical_where_not_positive
-from ._regressors import _check_names, _resolve
+from ._recursive_frequency import frequency_recursion, update_indices
+from ._regression_fits import (
+    _classical_where_not_positive,
+    _frequency_grid,
+    _frequency_step,
+    derivative_name,
+)
+from ._regressors import _resolve, _with_constant
 from .least_squares import _ls_solve
 
 __all__ = ["RecursiveResult", "recursive_least_squares"]
@@ -48,6 +60,7 @@ __all__ = ["RecursiveResult", "recursive_least_squares"]
 FloatArray = NDArray[np.float64]
 
 _CONST = "const"
+_DOMAINS = ("time", "frequency")
 _ERROR_BARS = ("colored", "white")
 # SIDPAC's and Klein & Morelli's start: a covariance this large times the identity,
 # diffuse against the information of regressors of order one.
@@ -75,16 +88,32 @@ class RecursiveResult(IntervalMixin):
         (the running fit-error variance times ``diag P``); NaN until the
         weighted sample count exceeds the number of parameters.
     gain_history : ndarray, shape (n, p)
-        The update gain ``g`` at each sample.
+        The update gain ``g`` at each sample (NaN in the frequency domain, where
+        each update is a solution, not a gain).
     fit_error_history : ndarray, shape (n,)
         The running fit-error standard deviation ``sqrt(J_k / (n_k - p))``.
     prediction_errors : ndarray, shape (n,)
         ``z_k - x_k' theta_(k-1)``: each sample's error predicted from the
-        estimate before it (the real-time residual).
+        estimate before it (the real-time residual). In the frequency domain,
+        the same for the deviations from the first sample with the latest
+        update's estimate (NaN before the first update, and throughout when
+        the response's derivative is modelled).
     forgetting : float
     error_bars : {"colored", "white"}
     degrees_of_freedom : mapping of str to float
         Per estimate, the degrees of freedom of its final standard error.
+    domain : {"time", "frequency"}
+    frequencies : ndarray
+        The frequencies fitted, Hz (frequency domain; empty in time).
+    dof_history : ndarray, shape (n, p)
+        The degrees of freedom of each `stderr_history` entry, for its t
+        quantile: the weighted sample count less ``p`` in time; in frequency
+        each update's (few while the record is short, when frequencies closer
+        than it resolves share their noise).
+    update_times : ndarray
+        When the estimate was updated (frequency domain: every sample's
+        history holds the latest update, NaN before the first; in time, every
+        sample, so empty).
     """
 
     parameters: Mapping[str, float]
@@ -101,6 +130,10 @@ class RecursiveResult(IntervalMixin):
     forgetting: float
     error_bars: str
     degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
+    domain: str = "time"
+    frequencies: FloatArray = field(default_factory=lambda: np.zeros(0))
+    update_times: FloatArray = field(default_factory=lambda: np.zeros(0))
+    dof_history: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def __post_init__(self) -> None:
         for name in ("parameters", "stderr", "degrees_of_freedom"):
@@ -113,6 +146,9 @@ class RecursiveResult(IntervalMixin):
             "gain_history",
             "fit_error_history",
             "prediction_errors",
+            "frequencies",
+            "update_times",
+            "dof_history",
         ):
             object.__setattr__(self, name, frozen_array(getattr(self, name)))
 
@@ -135,17 +171,27 @@ class RecursiveResult(IntervalMixin):
             if self.forgetting == 1.0
             else f"about {fmt(1.0 / (1.0 - self.forgetting), 3)} samples"
         )
+        if self.domain == "frequency":
+            f = self.frequencies
+            how = (
+                f"in the frequency domain ({f.size} frequencies, {fmt(float(f.min()), 3)}-"
+                f"{fmt(float(f.max()), 3)} Hz), {self.update_times.size} updates"
+            )
+        else:
+            how = f"forgetting factor {fmt(self.forgetting, 6)} (memory {memory})"
         head = (
             f"Recursive least squares for {self.response_name}: {self.time.size} samples, "
-            f"{len(self.parameter_names)} parameters, forgetting factor "
-            f"{fmt(self.forgetting, 6)} (memory {memory}), {self.error_bars} error bars\n\n"
+            f"{len(self.parameter_names)} parameters, {how}, {self.error_bars} error bars\n\n"
         )
         tail = f"\n\nfinal fit error s = {fmt(float(self.fit_error_history[-1]))}"
         table = markdown_table(["parameter", "estimate", "std error", "|t|"], rows)
         return head + table + tail
 
     def plot(self) -> Any:
-        """Each estimate's history with its running 95 % band. Returns a Figure."""
+        """Each estimate's history with its running 95 % band (Student's t at its
+        degrees of freedom). Returns a Figure."""
+        from scipy import stats
+
         from ..reports.plotting import figure
 
         names = list(self.parameter_names)
@@ -153,8 +199,11 @@ class RecursiveResult(IntervalMixin):
         for j, name in enumerate(names):
             ax = axes[j, 0]
             est, se = self.history[:, j], self.stderr_history[:, j]
+            dof = self.dof_history[:, j] if self.dof_history.size else np.full(est.shape, np.inf)
+            with np.errstate(invalid="ignore"):
+                half = stats.t.ppf(0.975, np.where(dof > 0, dof, np.nan)) * se
             ax.plot(self.time, est, lw=0.9)
-            ax.fill_between(self.time, est - 1.96 * se, est + 1.96 * se, alpha=0.25, lw=0)
+            ax.fill_between(self.time, est - half, est + half, alpha=0.25, lw=0)
             ax.set_ylabel(name)
         axes[-1, 0].set_xlabel("time (s)")
         return fig
@@ -170,6 +219,12 @@ def recursive_least_squares(
     initial: Mapping[str, float] | None = None,
     initial_covariance: float | ArrayLike | None = None,
     error_bars: str | None = None,
+    domain: str = "time",
+    frequencies: ArrayLike | None = None,
+    dt: float | None = None,
+    update_interval: float = 1.0,
+    first_update: float = 2.0,
+    derivative: bool = False,
 ) -> RecursiveResult:
     """Equation-error estimates updated sample by sample (recursive least squares).
 
@@ -202,8 +257,35 @@ def recursive_least_squares(
         The final standard errors: coloured-residual corrected as
         `equation_error` corrects its own (the default with ``forgetting ==
         1``, where the final estimate is that estimator's), or classical
-        (``s^2 P``, the default below one). The history is always classical:
-        it is what the samples so far can tell.
+        (``s^2 P``, the default below one). In time the history is always
+        classical: it is what the samples so far can tell. In the frequency
+        domain every update's bars are the chosen kind, each the batch
+        estimator's on the record so far: early on, frequencies closer than
+        the short record resolves share their noise, which the classical bars
+        would count as independent.
+    domain : {"time", "frequency"}
+        Update sample by sample in time, or Morelli's real-time estimator in
+        the frequency domain (Klein & Morelli sec. 8.2; SIDPAC's ``rtpid``):
+        the Fourier transforms of the response and regressors, as deviations
+        from their first sample, are carried forward sample by sample, and at
+        each update the estimate is `equation_error`'s with
+        ``domain="frequency"`` on the record so far (the constant, when there
+        is one, fits what is left of the offsets). There is no start and no
+        forgetting: `initial`, `initial_covariance` and `forgetting` are time
+        domain options.
+    frequencies : array_like, optional
+        Frequencies in Hz for ``domain="frequency"`` (required there): the band
+        of the motion, such as SIDPAC's 0.1-1.5 Hz in steps of 0.04 Hz.
+    dt : float, optional
+        Sample interval in s for array input in the frequency domain.
+    update_interval, first_update : float
+        Frequency domain: update every `update_interval` seconds from
+        `first_update` seconds after the first sample, and after the last
+        sample (SIDPAC's 1 s and 2 s). Updates before the record determines
+        every parameter (a control not yet moved) leave the history NaN.
+    derivative : bool
+        Frequency domain: model the response's time derivative (state
+        equations), as `equation_error` does with ``derivative=True``.
 
     Returns
     -------
@@ -218,6 +300,33 @@ def recursive_least_squares(
     IdentificationError
         No more samples than parameters.
     """
+    if domain not in _DOMAINS:
+        raise DataFormatError(f"domain: expected one of {_DOMAINS}, got {domain!r}")
+    check_flag(derivative, "derivative", DataFormatError)
+    if domain == "frequency":
+        return _in_frequency(
+            data,
+            response,
+            regressors,
+            intercept=intercept,
+            forgetting=forgetting,
+            initial=initial,
+            initial_covariance=initial_covariance,
+            error_bars=error_bars,
+            frequencies=frequencies,
+            dt=dt,
+            update_interval=update_interval,
+            first_update=first_update,
+            derivative=bool(derivative),
+        )
+    for option, value in (("frequencies", frequencies), ("dt", dt)):
+        if value is not None:
+            raise DataFormatError(f"{option}: used with domain='frequency' only")
+    if derivative:
+        raise DataFormatError(
+            "derivative: modelled in the frequency domain only (domain='frequency'); in "
+            "time, differentiate the response (aeroid.differentiate)"
+        )
     lam = real_number(forgetting, "forgetting", DataFormatError, finite=True)
     if not 0.0 < lam <= 1.0:
         raise DataFormatError(f"forgetting: expected a factor in (0, 1], got {forgetting!r}")
@@ -229,15 +338,8 @@ def recursive_least_squares(
             "error_bars: 'colored' corrects the whole record's estimate (forgetting = 1); "
             "with a forgetting factor below one the final bars are 'white'"
         )
-    check_flag(intercept, "intercept", DataFormatError)
-    z, x, names, zname, time = _resolve(data, response, regressors, "recursive least squares")
-    if intercept:
-        names = [_CONST, *names]
-        x = np.column_stack([np.ones(x.shape[0]), x])
-    _check_names(names)
+    z, x, names, zname, time = _columns(data, response, regressors, intercept)
     n, p = x.shape
-    if p == 0:
-        raise DataFormatError("regressors: none given and no constant term")
     if n <= p:
         raise IdentificationError(f"recursive least squares: {n} samples cannot fit {p} parameters")
     if lam < 1.0 and 1.0 / (1.0 - lam) <= p:
@@ -248,7 +350,7 @@ def recursive_least_squares(
     theta0 = _start(initial, names)
     p0 = _start_covariance(initial_covariance, names)
     t = time if time is not None else np.arange(n, dtype=np.float64)
-    hist, se_hist, gains, s_hist, eps, cov_p = _recursion(z, x, theta0, p0, lam)
+    hist, se_hist, gains, s_hist, eps, cov_p, dof_hist = _recursion(z, x, theta0, p0, lam)
     theta = hist[-1]
     s2 = float(s_hist[-1]) ** 2
     cov_white = s2 * cov_p
@@ -277,7 +379,97 @@ def recursive_least_squares(
         forgetting=lam,
         error_bars=bars,
         degrees_of_freedom={k: float(nu[j]) for j, k in enumerate(names)},
+        dof_history=dof_hist,
     )
+
+
+def _in_frequency(
+    data: FlightData | Mapping[str, ArrayLike] | ArrayLike,
+    response: str | ArrayLike,
+    regressors: Sequence[str] | Mapping[str, Any] | None,
+    *,
+    intercept: bool,
+    forgetting: float,
+    initial: Mapping[str, float] | None,
+    initial_covariance: float | ArrayLike | None,
+    error_bars: str | None,
+    frequencies: ArrayLike | None,
+    dt: float | None,
+    update_interval: float,
+    first_update: float,
+    derivative: bool,
+) -> RecursiveResult:
+    """`recursive_least_squares` with ``domain="frequency"``."""
+    lam = real_number(forgetting, "forgetting", DataFormatError, finite=True)
+    if lam != 1.0:
+        raise DataFormatError(
+            "forgetting: the frequency-domain estimator remembers the whole record "
+            f"(forgetting = 1); got {forgetting!r}"
+        )
+    for option, value in (("initial", initial), ("initial_covariance", initial_covariance)):
+        if value is not None:
+            raise DataFormatError(
+                f"{option}: the frequency-domain estimator solves each update from the "
+                "record so far, with no start (a time-domain option)"
+            )
+    bars = "colored" if error_bars is None else error_bars
+    if bars not in _ERROR_BARS:
+        raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
+    z, x, names, zname, time = _columns(data, response, regressors, intercept)
+    if x.shape[0] < 2:
+        raise IdentificationError("recursive least squares: fewer than two samples")
+    step = _frequency_step(time, dt)
+    freq = _frequency_grid(frequencies, step, x.shape[1])
+    t = time if time is not None else np.arange(x.shape[0], dtype=np.float64) * step
+    interval = real_number(update_interval, "update_interval", DataFormatError, finite=True)
+    first = real_number(first_update, "first_update", DataFormatError, finite=True)
+    run = frequency_recursion(
+        z,
+        x,
+        names,
+        derivative_name(zname) if derivative else zname,
+        t,
+        step,
+        freq,
+        has_const=bool(intercept),
+        derivative=derivative,
+        updates=update_indices(x.shape[0], step, first, interval),
+        error_bars=bars,
+    )
+    fit = run.final
+    return RecursiveResult(
+        parameters=fit.parameters,
+        stderr=fit.stderr,
+        covariance=fit.covariance,
+        parameter_names=fit.parameter_names,
+        response_name=fit.response_name,
+        time=t,
+        history=run.history,
+        stderr_history=run.stderr_history,
+        gain_history=np.full(run.history.shape, np.nan),
+        fit_error_history=run.fit_error_history,
+        prediction_errors=run.prediction_errors,
+        forgetting=1.0,
+        error_bars=bars,
+        degrees_of_freedom=fit.degrees_of_freedom,
+        domain="frequency",
+        frequencies=freq,
+        update_times=run.update_times,
+        dof_history=run.dof_history,
+    )
+
+
+def _columns(
+    data: FlightData | Mapping[str, ArrayLike] | ArrayLike,
+    response: str | ArrayLike,
+    regressors: Sequence[str] | Mapping[str, Any] | None,
+    intercept: bool,
+) -> tuple[FloatArray, FloatArray, list[str], str, FloatArray | None]:
+    """The response and the regressor columns, with the constant first if asked."""
+    check_flag(intercept, "intercept", DataFormatError)
+    z, x, names, zname, time = _resolve(data, response, regressors, "recursive least squares")
+    x, names = _with_constant(x, names, intercept)
+    return z, x, names, zname, time
 
 
 def _separable(x: FloatArray, names: list[str]) -> bool:
@@ -304,14 +496,16 @@ def _weighted_count(k: int, lam: float) -> float:
 
 def _recursion(
     z: FloatArray, x: FloatArray, theta0: FloatArray, p0: FloatArray, lam: float
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """The update over every sample: estimate, classical standard error, gain and
-    fit-error histories, the prediction errors, and the last ``P``."""
+    fit-error histories, the prediction errors, the last ``P`` and the standard
+    errors' degrees of freedom."""
     n, p = x.shape
     hist = np.empty((n, p))
     se_hist = np.full((n, p), np.nan)
     gains = np.empty((n, p))
     s_hist = np.full(n, np.nan)
+    dof_hist = np.full((n, p), np.nan)
     eps_all = np.empty(n)
     theta = theta0.copy()
     cov = p0.copy()
@@ -335,12 +529,13 @@ def _recursion(
             s2 = cost / (count - p)
             s_hist[k] = np.sqrt(s2)
             se_hist[k] = np.sqrt(np.clip(s2 * np.diag(cov), 0.0, None))
+            dof_hist[k] = count - p
     if not (np.all(np.isfinite(hist[-1])) and np.all(np.isfinite(cov))):
         raise IdentificationError(
             "recursive least squares: the update overflowed; rescale the response or "
             "the regressors, or give a smaller initial_covariance"
         )
-    return hist, se_hist, gains, s_hist, eps_all, cov
+    return hist, se_hist, gains, s_hist, eps_all, cov, dof_hist
 
 
 def _start(initial: Mapping[str, float] | None, names: list[str]) -> FloatArray:

@@ -84,6 +84,7 @@ from ._regression_fits import _delay_starts as _delay_starts
 from ._regression_fits import _delayed_fit as _delayed_fit
 from ._regression_fits import _fit as _fit
 from ._regression_fits import _frequency_fit as _frequency_fit
+from ._regression_fits import derivative_name
 from ._regression_record import RegressionResult as RegressionResult
 from ._regression_record import _r2_f as _r2_f
 from ._regression_record import _result as _result
@@ -95,6 +96,7 @@ from ._regressors import _evaluate as _evaluate
 from ._regressors import _mapping_columns as _mapping_columns
 from ._regressors import _resolve as _resolve
 from ._regressors import _step_of as _step_of
+from ._regressors import _with_constant
 from ._regressors import candidate_pool as candidate_pool
 from ._regressors import spline_terms as spline_terms
 from .least_squares import _COLLINEAR as _COLLINEAR
@@ -137,6 +139,7 @@ def equation_error(
     frequencies: ArrayLike | None = None,
     dt: float | None = None,
     time_delays: str | Sequence[str] | Mapping[str, float] | None = None,
+    derivative: bool = False,
 ) -> RegressionResult:
     """Equation-error (ordinary least-squares) estimation of a linear model.
 
@@ -183,6 +186,13 @@ def equation_error(
         from the Gauss–Newton curvature of the fit. The delays are reported
         as ``"tau_<channel>"`` in `parameters` and `stderr`, and in
         ``time_delays``. Time domain only.
+    derivative : bool
+        Model the response's time derivative instead of the response, with
+        ``domain="frequency"`` (the state equations ``ẋ = A x + B u`` as
+        ``jω X̃ = A X̃ + B Ũ``, Klein & Morelli ch. 7): its transform is
+        ``jω Z̃ + z(T) e^{-jωT} - z(0)``, exact by parts, so no numerical
+        derivative enters and the record need not end where it began. The
+        result's `response_name` is ``"d<response>/dt"``.
 
     Returns
     -------
@@ -213,6 +223,12 @@ def equation_error(
         )
     if domain == "time" and frequencies is not None:
         raise DataFormatError("frequencies: used with domain='frequency' only")
+    check_flag(derivative, "derivative", DataFormatError)
+    if derivative and domain != "frequency":
+        raise DataFormatError(
+            "derivative: the response's derivative is modelled in the frequency domain "
+            "only (domain='frequency'); in time, differentiate it (aeroid.differentiate)"
+        )
     if use_const and x.shape[0]:
         # a column of ones built by hand, as SIDPAC's regressor matrices carry (a zero
         # column is left to the solver, which refuses it as such)
@@ -223,12 +239,7 @@ def equation_error(
                 f"{_CONST!r} that intercept=True adds; drop it, or pass intercept=False "
                 "to fit your own constant column"
             )
-    if use_const:
-        names = [_CONST, *names]
-        x = np.column_stack([np.ones(x.shape[0]), x])
-    _check_names(names)
-    if x.shape[1] == 0:
-        raise DataFormatError("regressors: none given and no constant term")
+    x, names = _with_constant(x, names, use_const)
     if time_delays is not None and time_delays is not False:
         if domain != "time":
             raise DataFormatError("time_delays: estimated in the time domain only")
@@ -255,7 +266,16 @@ def equation_error(
             "choose 'colored' or 'white'"
         )
     return _frequency_fit(
-        z, x, names, zname, time, dt, frequencies, has_const=use_const, error_bars=error_bars
+        z,
+        x,
+        names,
+        derivative_name(zname) if derivative else zname,
+        time,
+        dt,
+        frequencies,
+        has_const=use_const,
+        error_bars=error_bars,
+        derivative=bool(derivative),
     )
 
 

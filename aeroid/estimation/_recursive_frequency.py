@@ -1,0 +1,195 @@
+"""Recursive least squares in the frequency domain (Klein & Morelli, sec. 8.2).
+
+Morelli's real-time estimator: the finite Fourier transforms of the response
+and the regressors are carried forward sample by sample,
+
+    X̃_k(ω) = X̃_(k-1)(ω) + Δt x_k e^{-jω t_k},
+
+an update of fixed cost whatever the record's length, and at chosen times
+the equation-error solution on the transforms so far is the batch Fourier
+transform regression of the record up to then (`equation_error` with
+``domain="frequency"``, whose one solution every update calls). The signals
+enter as deviations from their first sample: a trim offset has a transform at
+every frequency of a finite record (``∫_0^T e^{-jωt} dt`` vanishes only at
+multiples of ``1/T``, which move as the record grows), and would otherwise
+pollute the band being fitted.
+
+Here the transforms are accumulated between update times by the house's
+`fourier` and shifted to the block's start, equal to the sample-by-sample
+recursion to rounding and the same numbers a real-time loop would hold at
+each update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._czt import fourier
+from ..errors import DataFormatError, IdentificationError
+from ._regression_fits import _frequency_solution, derivative_transform
+from ._regression_record import RegressionResult
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+
+@dataclass(frozen=True)
+class FrequencyHistory:
+    """What the recursion produced: per-sample histories (the latest update's values,
+    NaN before the first), the update times, and the last update's full result."""
+
+    history: FloatArray
+    stderr_history: FloatArray
+    dof_history: FloatArray
+    fit_error_history: FloatArray
+    prediction_errors: FloatArray
+    update_times: FloatArray
+    final: RegressionResult
+
+
+def update_indices(n: int, step: float, first: float, interval: float) -> NDArray[np.intp]:
+    """Samples after which the estimate is updated: from `first` seconds in, every
+    `interval` seconds, and always after the last sample."""
+    if not (np.isfinite(interval) and interval > 0.0):
+        raise DataFormatError(
+            f"update_interval: expected a positive number of seconds, got {interval!r}"
+        )
+    if not (np.isfinite(first) and first >= 0.0):
+        raise DataFormatError(f"first_update: expected a number of seconds >= 0, got {first!r}")
+    span = (n - 1) * step
+    count = int(np.floor((span - first) / interval + 1e-9)) + 1 if first <= span else 0
+    times = first + interval * np.arange(max(count, 0))
+    idx = np.unique(np.round(times / step).astype(np.intp))
+    idx = idx[(idx >= 0) & (idx < n - 1)]
+    return np.append(idx, n - 1)
+
+
+def frequency_recursion(
+    z: FloatArray,
+    x: FloatArray,
+    names: list[str],
+    zname: str,
+    time: FloatArray,
+    step: float,
+    freq: FloatArray,
+    *,
+    has_const: bool,
+    derivative: bool,
+    updates: NDArray[np.intp],
+    error_bars: str,
+) -> FrequencyHistory:
+    """Run the recursion over the record and solve at every update."""
+    n, p = x.shape
+    lead = 1 if has_const else 0
+    xd = x.copy()
+    xd[:, lead:] -= x[0, lead:]  # deviations from the first sample; the constant stays one
+    zd = z - z[0]
+    omega = 2.0 * np.pi * freq
+    xt = np.zeros((freq.size, p), dtype=np.complex128)
+    zt = np.zeros(freq.size, dtype=np.complex128)
+    squares = np.zeros(p)
+    hist = np.full((n, p), np.nan)
+    se_hist = np.full((n, p), np.nan)
+    dof_hist = np.full((n, p), np.nan)
+    s_hist = np.full(n, np.nan)
+    eps = np.full(n, np.nan)
+    update_times: list[float] = []
+    theta = np.full(p, np.nan)
+    final: RegressionResult | None = None
+    begin = 0
+    for end in updates.tolist():
+        rows = slice(begin, end + 1)
+        shift = np.exp(-1j * omega * (time[begin] - time[0]))[:, None]
+        xt += shift * fourier(xd[rows], step, freq)
+        zt += shift[:, 0] * fourier(zd[rows], step, freq)
+        squares += np.einsum("ij,ij->j", xd[rows], xd[rows])
+        if not derivative:
+            eps[rows] = zd[rows] - xd[rows] @ theta  # predicted from the estimate before
+        begin = end + 1
+        result = _solve(
+            zt,
+            xt,
+            zd,
+            xd,
+            end,
+            squares,
+            names,
+            zname,
+            time,
+            step,
+            freq,
+            has_const=has_const,
+            derivative=derivative,
+            error_bars=error_bars,
+        )
+        if result is None:
+            continue
+        final = result
+        theta = np.array([result.parameters.get(k, 0.0) for k in names])
+        later = slice(end, n)
+        for j, k in enumerate(names):
+            if k in result.parameters:
+                hist[later, j] = result.parameters[k]
+                se_hist[later, j] = result.stderr[k]
+                dof_hist[later, j] = result.degrees_of_freedom[k]
+            else:  # the constant, left out where it has no content: nothing known
+                hist[later, j] = se_hist[later, j] = dof_hist[later, j] = np.nan
+        s_hist[later] = result.fit_error
+        update_times.append(float(time[end]))
+    if final is None:  # the last update raises instead; kept for the type checker
+        raise IdentificationError("recursive least squares: no update determined the model")
+    if len(final.parameter_names) < p:
+        # the constant has no content at these frequencies over the whole record (each a
+        # multiple of 1/T): left out, as the batch estimator leaves it out
+        hist, se_hist, dof_hist = hist[:, 1:], se_hist[:, 1:], dof_hist[:, 1:]
+    return FrequencyHistory(hist, se_hist, dof_hist, s_hist, eps, np.asarray(update_times), final)
+
+
+def _solve(
+    zt: ComplexArray,
+    xt: ComplexArray,
+    zd: FloatArray,
+    xd: FloatArray,
+    end: int,
+    squares: FloatArray,
+    names: list[str],
+    zname: str,
+    time: FloatArray,
+    step: float,
+    freq: FloatArray,
+    *,
+    has_const: bool,
+    derivative: bool,
+    error_bars: str,
+) -> RegressionResult | None:
+    """One update's solution from the transforms so far, or None while the record does
+    not yet determine every parameter (a regressor that has not moved, too short a
+    record for the frequencies); at the last sample that is an error for the caller."""
+    z_now, x_now = zt, xt
+    if derivative:
+        # trapezoids, as the batch estimator takes them for the derivative
+        span = end * step
+        back = np.exp(-2j * np.pi * freq * span)
+        z_now = zt - 0.5 * step * (zd[0] + back * zd[end])
+        x_now = xt - 0.5 * step * (xd[0][None, :] + back[:, None] * xd[end][None, :])
+        z_now = derivative_transform(z_now, zd[0], zd[end], freq, span)
+    try:
+        return _frequency_solution(
+            z_now,
+            x_now,
+            np.sqrt(squares),
+            names,
+            zname,
+            time[: end + 1],
+            step,
+            freq,
+            has_const=has_const,
+            error_bars=error_bars,
+        )
+    except (IdentificationError, DataFormatError):
+        if end == zd.shape[0] - 1:
+            raise
+        return None
