@@ -116,8 +116,8 @@ if TYPE_CHECKING:  # the lazy table below, as type checkers must see it
     from .uncertainty.maneuvers import Doublet as Doublet
     from .uncertainty.maneuvers import ManeuverFamily as ManeuverFamily
     from .uncertainty.maneuvers import Multisine as Multisine
-    from .uncertainty.maneuvers import OrthogonalMultisine as OrthogonalMultisine
-    from .uncertainty.maneuvers import orthogonal_multisine as orthogonal_multisine
+    from .uncertainty.orthogonal_multisines import OrthogonalMultisine as OrthogonalMultisine
+    from .uncertainty.orthogonal_multisines import orthogonal_multisine as orthogonal_multisine
     from .uncertainty.prediction import PredictionResult as PredictionResult
     from .uncertainty.priors import HalfNormal as HalfNormal
     from .uncertainty.priors import LogUniform as LogUniform
@@ -207,8 +207,8 @@ _LAZY = {
     "Doublet": ".uncertainty.maneuvers",
     "ManeuverFamily": ".uncertainty.maneuvers",
     "Multisine": ".uncertainty.maneuvers",
-    "OrthogonalMultisine": ".uncertainty.maneuvers",
-    "orthogonal_multisine": ".uncertainty.maneuvers",
+    "OrthogonalMultisine": ".uncertainty.orthogonal_multisines",
+    "orthogonal_multisine": ".uncertainty.orthogonal_multisines",
     "BatchSimulation": ".models.model",
     "Model": ".models.model",
     "SimulationResult": ".models.model",
