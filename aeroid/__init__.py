@@ -116,6 +116,7 @@ if TYPE_CHECKING:  # the lazy table below, as type checkers must see it
     from .uncertainty.maneuvers import Doublet as Doublet
     from .uncertainty.maneuvers import ManeuverFamily as ManeuverFamily
     from .uncertainty.maneuvers import Multisine as Multisine
+    from .uncertainty.maneuvers import Multistep as Multistep
     from .uncertainty.orthogonal_multisines import OrthogonalMultisine as OrthogonalMultisine
     from .uncertainty.orthogonal_multisines import orthogonal_multisine as orthogonal_multisine
     from .uncertainty.prediction import PredictionResult as PredictionResult
@@ -207,6 +208,7 @@ _LAZY = {
     "Doublet": ".uncertainty.maneuvers",
     "ManeuverFamily": ".uncertainty.maneuvers",
     "Multisine": ".uncertainty.maneuvers",
+    "Multistep": ".uncertainty.maneuvers",
     "OrthogonalMultisine": ".uncertainty.orthogonal_multisines",
     "orthogonal_multisine": ".uncertainty.orthogonal_multisines",
     "BatchSimulation": ".models.model",

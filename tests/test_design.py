@@ -11,7 +11,7 @@ import aeroid
 from aeroid import ChannelError, FlightData, IdentificationError, Model
 from aeroid.models import catalog
 from aeroid.uncertainty.design import ExperimentDesign, design_experiment
-from aeroid.uncertainty.maneuvers import Chirp, Doublet, Multisine
+from aeroid.uncertainty.maneuvers import Chirp, Doublet, Multisine, Multistep
 
 TRUTH = dict(catalog.SHORT_PERIOD_TRUTH)
 NOISE = {"alpha": 0.005, "q": 0.01}
@@ -256,6 +256,41 @@ def test_a_optimal_and_chirp():
     assert d.design["amplitude"] == pytest.approx(0.05, rel=1e-2)
 
 
+def test_a_seeded_3211_design_stays_in_its_ranges():
+    family = Multistep("elevator", amplitude=(0.01, 0.05), width=(0.3, 1.0), start=1.0)
+    args = dict(values=TRUTH, noise=NOISE, duration=8.0, sample_rate=25.0, optimizer_options=FAST)
+    d = design_experiment(catalog.short_period(), family, ["M_q", "M_delta"], seed=0, **args)
+    assert isinstance(d, ExperimentDesign)
+    assert set(d.design) == {"amplitude", "width"}
+    assert 0.3 <= d.design["width"] <= 1.0
+    assert d.criterion_value <= d.initial_criterion_value
+    # linear dynamics: information grows with amplitude², so the optimum uses the limit
+    assert d.design["amplitude"] == pytest.approx(0.05, rel=1e-2)
+    assert np.max(np.abs(d.controls)) <= 0.05 * (1 + 1e-12)
+    np.testing.assert_array_equal(
+        d.controls, family.signal([d.design[n] for n in family.variable_names], d.time)
+    )
+    assert d.recommendation.startswith("designed 3-2-1-1 multistep on 'elevator': amplitude ")
+    again = design_experiment(catalog.short_period(), family, ["M_q", "M_delta"], seed=0, **args)
+    assert again.design == d.design
+
+
+def test_an_exponential_sweep_design():
+    d = design_experiment(
+        catalog.short_period(),
+        Chirp("elevator", f0=0.1, f1=(1.0, 3.0), amplitude=(0.0, 0.05), sweep="exponential"),
+        ["M_q", "M_delta"],
+        values=TRUTH,
+        noise=NOISE,
+        duration=6.0,
+        sample_rate=25.0,
+        seed=0,
+        optimizer_options=FAST,
+    )
+    assert 1.0 <= d.design["f1"] <= 3.0 and d.criterion_value <= d.initial_criterion_value
+    assert "Hz exponential sweep" in d.recommendation
+
+
 def test_simulator_model_design_loops():
     class Box:
         def __init__(self):
@@ -310,6 +345,12 @@ def test_simulator_model_design_loops():
             {"maneuver": Chirp("elevator", f0=0.1, f1=(2.0, 12.5), amplitude=0.05)},
             IdentificationError,
             "Nyquist",
+        ),
+        # a 3-2-1-1 whose one-step pulses may be 0.06 s: their first null, 16.7 Hz, aliases
+        (
+            {"maneuver": Multistep("elevator", amplitude=0.05, width=(0.06, 1.0))},
+            IdentificationError,
+            r"reach 16.6667 Hz, at or above the Nyquist",
         ),
     ],
 )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from aeroid.uncertainty.maneuvers import (
     Doublet,
     ManeuverFamily,
     Multisine,
+    Multistep,
     orthogonal_multisine,
     relative_peak_factor,
     schroeder_phases,
@@ -25,6 +28,8 @@ def test_builtins_satisfy_the_protocol():
         Doublet("elevator", amplitude=(0.0, 0.05)),
         Multisine("elevator", frequencies=(0.2, 0.5), amplitude=(0.0, 0.05)),
         Chirp("elevator", f0=0.1, f1=(1.0, 3.0), amplitude=(0.0, 0.05)),
+        Chirp("elevator", f0=0.1, f1=(1.0, 3.0), amplitude=(0.0, 0.05), sweep="exponential"),
+        Multistep("elevator", amplitude=(0.0, 0.05)),
     ]
     for fam in fams:
         assert isinstance(fam, ManeuverFamily)
@@ -100,6 +105,147 @@ def test_chirp_sweeps_its_band():
     assert abs(crossings - 21) <= 1
 
 
+def test_multistep_of_one_one_is_the_doublet():
+    # pattern (1, 1) is a doublet: the same samples for edges on and between samples
+    m = Multistep(
+        "elevator", amplitude=(0.0, 0.1), width=(0.3, 2.0), start=(0.0, 3.0), pattern=(1, 1)
+    )
+    d = Doublet("elevator", amplitude=(0.0, 0.1), width=(0.3, 2.0), start=(0.0, 3.0))
+    assert (m.variable_names, m.bounds) == (d.variable_names, d.bounds)
+    for x in ([0.05, 1.0, 1.0], [0.05, 0.713, 1.0], [0.031, 1.237, 0.4567], [0.1, 0.3, 2.99]):
+        np.testing.assert_allclose(m.signal(x, T), d.signal(x, T), rtol=0, atol=1e-15)
+    assert np.any(m.signal([0.031, 1.237, 0.4567], T) != 0.0)
+
+
+def test_3211_on_the_grid_is_the_textbook_sequence():
+    # +A for 3 base steps, -A for 2, +A for 1, -A for 1, from the start sample
+    m = Multistep("elevator", amplitude=(0.0, 0.1), width=0.5, start=1.0)
+    u = m.signal([0.04], T)[:, 0]
+    want = np.zeros(T.size)
+    for lo, hi, sign in ((1.0, 2.5, 1), (2.5, 3.5, -1), (3.5, 4.0, 1), (4.0, 4.5, -1)):
+        want[(T >= lo - 1e-9) & (T < hi - 1e-9)] = sign * 0.04
+    np.testing.assert_allclose(u, want, rtol=0, atol=1e-15)
+    assert m.describe([0.04], T) == (
+        "3-2-1-1 multistep on 'elevator': amplitude 0.04, 0.5 s base step from t = 1 s"
+    )
+
+
+def _pulse_spectrum(f, amplitude, edges):
+    """Fourier transform of alternating rectangular pulses between `edges` (closed form)."""
+    out = np.zeros(f.size, dtype=complex)
+    for j, (a, b) in enumerate(itertools.pairwise(edges)):
+        pulse = (np.exp(-2j * np.pi * f * a) - np.exp(-2j * np.pi * f * b)) / (2j * np.pi * f)
+        out += (-1) ** j * amplitude * pulse
+    return out
+
+
+@pytest.mark.parametrize(("width", "start"), [(0.5, 1.0), (0.4837, 1.0123)])
+def test_3211_energy_spectrum_is_that_of_its_pulses(width, start):
+    # each sample holds a level over its interval [t_k, t_k + dt): the transform of that
+    # held signal is sum u_k exp(-iωt_k) (1 - exp(-iω dt)) / iω. With the edges on the
+    # grid it is the pulses' transform itself; between samples the held level moves a
+    # pulse edge's area within one interval, which changes the transform by at most
+    # 2A ω dt² per interior edge (A ω dt² at the two ends)
+    dt = 1e-3
+    t = np.arange(round(8.0 / dt) + 1) * dt
+    amp = 0.05
+    m = Multistep("elevator", amplitude=amp, width=(0.1, 1.0), start=start)
+    u = m.signal([width], t)[:, 0]
+    f = np.linspace(0.01, 3.0, 150)
+    w = 2 * np.pi * f
+    held = (np.exp(-1j * np.outer(w, t)) @ u) * (1 - np.exp(-1j * w * dt)) / (1j * w)
+    edges = start + width * np.array([0.0, 3, 5, 6, 7])
+    exact = _pulse_spectrum(f, amp, edges)
+    on_grid = width == 0.5
+    bound = np.full(f.size, 1e-11 * amp) if on_grid else (2 * 3 + 2) * amp * w * dt**2
+    assert np.all(np.abs(held - exact) <= bound)
+    # so the energy spectra differ by at most (2 |U| + bound) bound
+    energy = np.abs(exact) ** 2
+    assert np.all(np.abs(np.abs(held) ** 2 - energy) <= (2 * np.abs(exact) + bound) * bound)
+    # the net area, +3 -2 +1 -1 steps, is one base step's: A w, on the grid or not
+    assert np.sum(u) * dt == pytest.approx(amp * width, rel=1e-12)
+    low = _pulse_spectrum(np.array([1e-6]), amp, edges)[0]  # the spectrum's low end
+    assert abs(low) == pytest.approx(amp * width, rel=1e-6)
+
+
+def test_multistep_band_is_its_shortest_pulse_first_null():
+    assert Multistep("e", amplitude=0.1, width=(0.5, 2.0)).highest_frequency() == 2.0
+    assert Multistep("e", amplitude=0.1, width=0.25, pattern=(3, 2)).highest_frequency() == 2.0
+    # that null: the shortest pulse alone has no energy at 1/w
+    f = np.array([1.0 / 0.5])
+    assert abs(_pulse_spectrum(f, 1.0, np.array([0.0, 0.5]))[0]) < 1e-15
+
+
+def _sweep_frequency(u: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Instantaneous frequency of ``u = sin(phase)`` by differencing its phase.
+
+    The phase is c π + θ with c the zero crossings so far and θ = arcsin|u| while
+    |u| rises (π - arcsin|u| while it falls); kept where |u| < 0.5 (far from the
+    peaks, where the branch is plain) and three neighbours share c.
+    """
+    c = np.concatenate([[0], np.cumsum(np.signbit(u[2:]) != np.signbit(u[1:-1]))])
+    c = np.concatenate([c, [c[-1]]])
+    a = np.abs(u)
+    rising = np.zeros(u.size, dtype=bool)
+    rising[1:-1] = a[2:] > a[:-2]
+    phase = c * np.pi + np.where(rising, np.arcsin(np.minimum(a, 1.0)), np.pi - np.arcsin(a))
+    n = np.arange(2, u.size - 1)
+    ok = (
+        (c[n - 1] == c[n])
+        & (c[n + 1] == c[n])
+        & (a[n - 1] < 0.5)
+        & (a[n] < 0.5)
+        & (a[n + 1] < 0.5)
+        & (rising[n - 1] == rising[n])
+        & (rising[n + 1] == rising[n])
+    )
+    n = n[ok]
+    return n, (phase[n + 1] - phase[n - 1]) / (2 * h) / (2 * np.pi)
+
+
+@pytest.mark.parametrize("sweep", ["linear", "exponential"])
+def test_sweep_instantaneous_frequency_follows_its_formula(sweep):
+    # unit amplitude on a 0.1 ms grid: the central difference of the phase is exact to
+    # h² f''/6f ≈ 3e-10 here, so 1e-6 relative is the formula or a wrong sweep
+    h, span, f0, f1 = 1e-4, 10.0, 0.2, 2.0
+    t = np.arange(round(span / h) + 1) * h
+    u = Chirp("elevator", f0=f0, f1=f1, amplitude=1.0, sweep=sweep).signal(np.array([]), t)[:, 0]
+    n, measured = _sweep_frequency(u, h)
+    assert n.size > 0.3 * t.size and t[n].max() > 0.99 * span  # the whole sweep is seen
+    x = t[n] / span
+    if sweep == "linear":
+        want = f0 + (f1 - f0) * x
+    else:
+        # Tischler & Remple: f0 + (f1 - f0) C2 (exp(C1 t/T) - 1), C1 = 4, C2 so K(T) = 1
+        want = f0 + (f1 - f0) * (np.exp(4.0 * x) - 1.0) / (np.exp(4.0) - 1.0)
+        tischler = f0 + (f1 - f0) * 0.0187 * (np.exp(4.0 * x) - 1.0)  # tabled C2, K(T) = 1.0023
+        assert np.max(np.abs(measured / tischler - 1.0)) > 1e-3
+    np.testing.assert_allclose(measured, want, rtol=1e-6)
+
+
+def test_sweeps_are_their_closed_forms():
+    t = np.arange(1001) / 100.0
+    span, f0, f1, amp = 10.0, 0.3, 2.5, 0.07
+    lin = Chirp("elevator", f0=f0, f1=f1, amplitude=amp)
+    u = lin.signal(np.array([]), t)[:, 0]
+    np.testing.assert_allclose(
+        u, amp * np.sin(2 * np.pi * (f0 * t + (f1 - f0) * t**2 / (2 * span))), rtol=0, atol=1e-14
+    )
+    # the default is the linear sweep, bit for bit
+    same = Chirp("elevator", f0=f0, f1=f1, amplitude=amp, sweep="linear")
+    np.testing.assert_array_equal(same.signal(np.array([]), t)[:, 0], u)
+    # the exponential sweep's phase: 2π (f0 t + (f1 - f0) C2 (T/C1 (e^{C1 t/T} - 1) - t))
+    c1, c2 = 4.0, 1.0 / (np.exp(4.0) - 1.0)
+    phase = 2 * np.pi * (f0 * t + (f1 - f0) * c2 * (span / c1 * (np.exp(c1 * t / span) - 1) - t))
+    exp = Chirp("elevator", f0=f0, f1=f1, amplitude=amp, sweep="exponential")
+    np.testing.assert_allclose(
+        exp.signal(np.array([]), t)[:, 0], amp * np.sin(phase), rtol=0, atol=1e-12
+    )
+    assert "0.3-2.5 Hz exponential sweep" in exp.describe(np.array([]), t)
+    assert "0.3-2.5 Hz sweep" in lin.describe(np.array([]), t)
+    assert repr(exp).endswith("sweep='exponential')") and "sweep" not in repr(lin)
+
+
 @pytest.mark.parametrize(
     "make",
     [
@@ -111,11 +257,24 @@ def test_chirp_sweeps_its_band():
         lambda: Multisine("elevator", frequencies=(-1.0,), amplitude=(0, 1)),
         lambda: Chirp("elevator", f0=0.0, f1=1.0, amplitude=1.0),
         lambda: Chirp("elevator", f0=0.1, f1=1.0, amplitude="big"),
+        lambda: Multistep("elevator", amplitude=(0.0, 0.05), width=(0.0, 1.0)),
     ],
 )
 def test_bad_family_definitions_raise(make):
     with pytest.raises(ModelDefinitionError):
         make()
+
+
+@pytest.mark.parametrize("pattern", [(), (3, 0), (3, -1), (1.5, 1), (3.0, 2), "3211", (True, 1), 3])
+def test_a_bad_multistep_pattern_is_named(pattern):
+    with pytest.raises(ModelDefinitionError, match="Multistep pattern"):
+        Multistep("elevator", amplitude=0.05, pattern=pattern)
+
+
+@pytest.mark.parametrize("sweep", ["log", "Linear", None, 1])
+def test_an_unknown_sweep_is_named(sweep):
+    with pytest.raises(ModelDefinitionError, match="Chirp sweep"):
+        Chirp("elevator", f0=0.1, f1=1.0, amplitude=0.05, sweep=sweep)
 
 
 def test_wrong_number_of_variables_raises():

@@ -256,12 +256,56 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
             "options: {bogus: 1}}}\n",
             r"stages.design.maneuver: options do not make a multisine: .*bogus",
         ),
+        (
+            "stages:\n  design: {maneuver: {type: multistep, control: elevator, "
+            "options: {amplitude: 0.05, widht: 1.0}}}\n",
+            r"stages.design.maneuver: options do not make a multistep: .*widht",
+        ),
+        (
+            "stages:\n  design: {maneuver: {type: multistep, control: elevator, "
+            "options: {amplitude: 0.05, pattern: [3, 0, 1]}}}\n",
+            r"options do not make a multistep: Multistep pattern: .*positive integers",
+        ),
+        (
+            "stages:\n  design: {maneuver: {type: chirp, control: elevator, "
+            "options: {f0: 0.1, f1: 2.0, amplitude: 0.05, sweep: log}}}\n",
+            r"options do not make a chirp: Chirp sweep: expected 'linear' or 'exponential'",
+        ),
+        (
+            "stages:\n  design: {maneuver: {type: staircase, control: elevator}}\n",
+            r"stages.design.maneuver.type: Input should be .*'multistep'",
+        ),
     ],
 )
 def test_stage_options_that_cannot_run_are_refused_when_planning(tmp_path, text, expected):
     cfg = _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: 2}}]\n" + text)
     with pytest.raises(ConfigError, match=expected):
         plan(cfg)
+
+
+def test_a_config_designs_a_3211_or_an_exponential_sweep(tmp_path):
+    from aeroid.pipeline.stages.config_specs import ManeuverSpec
+    from aeroid.uncertainty.maneuvers import Chirp, Multistep
+
+    stage = (
+        "stages:\n  design:\n    maneuver: {type: multistep, control: elevator, "
+        "options: {amplitude: [0.0, 0.05], width: [0.3, 1.0], pattern: [3, 2, 1, 1]}}\n"
+    )
+    cfg = _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: 1}}]\n" + stage)
+    (task,) = [t for t in plan(cfg).tasks if t.step == "design"]
+    assert task.document["stage_version"] == "4"  # the existing families are unchanged
+    spec = load_config(cfg).stages["design"]["maneuver"]
+    family = ManeuverSpec.model_validate(spec).build()
+    assert isinstance(family, Multistep) and family.pattern == (3, 2, 1, 1)
+    assert family.variable_names == ("amplitude", "width")
+    sweep = ManeuverSpec.model_validate(
+        {
+            "type": "chirp",
+            "control": "elevator",
+            "options": {"f0": 0.1, "f1": [1.0, 3.0], "amplitude": 0.05, "sweep": "exponential"},
+        }
+    ).build()
+    assert isinstance(sweep, Chirp) and sweep.sweep == "exponential"
 
 
 @pytest.mark.parametrize(

@@ -17,6 +17,7 @@ The orthogonal multisines of several controls flown together live in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any, Protocol, runtime_checkable
 
@@ -37,6 +38,7 @@ __all__ = [
     "Doublet",
     "ManeuverFamily",
     "Multisine",
+    "Multistep",
     "OrthogonalMultisine",
     "orthogonal_multisine",
     "relative_peak_factor",
@@ -236,6 +238,104 @@ class Doublet(_Family):
         )
 
 
+def _pattern(pattern: Any) -> tuple[int, ...]:
+    """A multistep's pulse widths in base steps: a non-empty sequence of positive integers."""
+    listed = isinstance(pattern, Sequence) and not isinstance(pattern, str | bytes)
+    items = (
+        list(pattern) if listed or (isinstance(pattern, np.ndarray) and pattern.ndim == 1) else []
+    )
+    if not items or not all(
+        isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n > 0 for n in items
+    ):
+        raise ModelDefinitionError(
+            f"Multistep pattern: expected a non-empty sequence of positive integers "
+            f"(base steps per pulse, e.g. (3, 2, 1, 1)), got {pattern!r}"
+        )
+    return tuple(int(n) for n in items)
+
+
+class Multistep(_Family):
+    """Alternating square pulses: the 3-2-1-1 and other multistep inputs.
+
+    Pulse j lasts ``pattern[j] * width`` seconds and has the sign ``(-1)**j``:
+    the default 3-2-1-1 flies ``+amplitude`` for three base steps from `start`,
+    ``-amplitude`` for two, then one of each (Koehler's 3-2-1-1; Jategaonkar
+    2015 sec. 2.5; Klein & Morelli 2006 sec. 9.3; SIDPAC's ``mksqw``). A
+    doublet is ``pattern=(1, 1)``. As in `Doublet`, each sample holds each
+    pulse's share of the interval up to the next sample, so edges between
+    samples change the signal smoothly with `width` and `start`. (SIDPAC's
+    ``mksqw`` puts each pulse one sample later, on ``(start, end]``.)
+
+    The band it excites: a pulse of width w has the spectrum
+    ``w sinc(f w)``, whose first null is at ``1 / w``. `highest_frequency` is
+    that null for the shortest pulse at the smallest width allowed,
+    ``1 / (min(pattern) * width_low)``; the pulses' energy above it is in
+    side lobes. `design_experiment` refuses a multistep whose null reaches the
+    Nyquist frequency (a shortest pulse of two samples or less).
+
+    Parameters
+    ----------
+    control : str
+    amplitude : float or (float, float)
+        Peak amplitude (or its design range; the upper bound is the limit).
+    width : float or (float, float)
+        The base step in seconds (or its design range); the 3-2-1-1 lasts
+        seven of them.
+    start : float or (float, float)
+        Start time in seconds after the first sample.
+    pattern : sequence of int
+        Pulse widths in base steps, signs alternating from ``+``; fixed, not a
+        design variable.
+    """
+
+    _kind = "multistep"
+
+    def __init__(
+        self,
+        control: str,
+        *,
+        amplitude: float | Range,
+        width: float | Range = (0.5, 2.0),
+        start: float | Range = 1.0,
+        pattern: Sequence[int] = (3, 2, 1, 1),
+    ) -> None:
+        self.pattern = _pattern(pattern)
+        # pulse edges in base steps from the start: 0, 3, 5, 6, 7 for the 3-2-1-1
+        self._edges = np.concatenate([[0.0], np.cumsum(self.pattern, dtype=np.float64)])
+        super().__init__(
+            control,
+            {
+                "amplitude": _range(amplitude, "Multistep amplitude"),
+                "width": _range(width, "Multistep width", positive=True),
+                "start": _range(start, "Multistep start"),
+            },
+        )
+
+    def highest_frequency(self) -> float:
+        return 1.0 / (min(self.pattern) * self._specs["width"][0])
+
+    def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
+        s = self._settings(variables)
+        t = np.asarray(time, dtype=np.float64)
+        edges = (float(t[0]) + s["start"]) + s["width"] * self._edges
+        level = np.zeros(t.size)
+        for j in range(len(self.pattern)):
+            share = _cell_fraction(t, float(edges[j]), float(edges[j + 1]))
+            level = level - share if j % 2 else level + share
+        return (s["amplitude"] * level)[:, None]
+
+    def describe(self, variables: ArrayLike, time: ArrayLike) -> str:
+        s = self._settings(variables)
+        name = "-".join(str(n) for n in self.pattern)
+        return (
+            f"{name} multistep on {self._control!r}: amplitude {fmt(s['amplitude'], 3)}, "
+            f"{fmt(s['width'], 3)} s base step from t = {fmt(s['start'], 3)} s"
+        )
+
+    def __repr__(self) -> str:
+        return f"{super().__repr__()[:-1]}, pattern={self.pattern})"
+
+
 class Multisine(_Family):
     """Sum of cosines at fixed frequencies with per-line amplitudes and Schroeder phases.
 
@@ -355,8 +455,31 @@ class Multisine(_Family):
         )
 
 
+# Tischler & Remple (2012) ch. 5, the recommended exponential sweep: the frequency
+# rises as exp(C1 t / T) - 1 with C1 = 4 (SIDPAC's mkfswp type 0 has the same)
+_SWEEP_RATE = 4.0
+_SWEEPS = ("linear", "exponential")
+
+
 class Chirp(_Family):
-    """Linear frequency sweep ``A sin(2π (f0 τ + (f1 - f0) τ² / 2T))`` over the record.
+    """Frequency sweep from `f0` to `f1` over the record, linear or exponential.
+
+    ``sweep="linear"``: ``A sin(2π (f0 τ + (f1 - f0) τ² / 2T))``, the
+    frequency rising evenly, where τ is the time from the first sample and T
+    the record's length.
+
+    ``sweep="exponential"``: Tischler & Remple's (2012, ch. 5) recommended
+    sweep, which spends longer at the low frequencies: the frequency is
+    ``f0 + (f1 - f0) K(τ)`` with ``K = C2 (exp(C1 τ / T) - 1)``, ``C1 = 4``,
+    and the phase is its integral in closed form,
+    ``2π (f0 τ + (f1 - f0) C2 (T / C1 (exp(C1 τ / T) - 1) - τ))``. Tischler's
+    tabled ``C2 = 0.0187`` is ``1 / (e⁴ - 1) = 0.018657`` to three figures: with it
+    K reaches 1.0023 at T and the sweep would end 0.23 % of the band above
+    `f1`. Here ``C2 = 1 / (e⁴ - 1)`` exactly, so the sweep ends at `f1`, as
+    the linear one does, and never exceeds the band it is given. SIDPAC's
+    ``mkfswp`` (type 0) uses the same formula with the rounded C2 and also
+    sets the signal to zero after its last zero crossing; this one, like the
+    linear sweep, runs to the end of the record.
 
     Parameters
     ----------
@@ -365,6 +488,8 @@ class Chirp(_Family):
         Start and end frequencies in Hz (or their design ranges).
     amplitude : float or (float, float)
         Peak amplitude (or its design range).
+    sweep : {"linear", "exponential"}
+        How the frequency moves from `f0` to `f1`.
     """
 
     _kind = "chirp"
@@ -376,7 +501,13 @@ class Chirp(_Family):
         f0: float | Range,
         f1: float | Range,
         amplitude: float | Range,
+        sweep: str = "linear",
     ) -> None:
+        if not isinstance(sweep, str) or sweep not in _SWEEPS:
+            raise ModelDefinitionError(
+                f"Chirp sweep: expected 'linear' or 'exponential', got {sweep!r}"
+            )
+        self.sweep = sweep
         super().__init__(
             control,
             {
@@ -394,12 +525,24 @@ class Chirp(_Family):
         t = np.asarray(time, dtype=np.float64)
         tau = t - t[0]
         span = max(float(tau[-1]), 1e-300)
-        phase = 2.0 * np.pi * (s["f0"] * tau + 0.5 * (s["f1"] - s["f0"]) * tau**2 / span)
+        if self.sweep == "linear":
+            phase = 2.0 * np.pi * (s["f0"] * tau + 0.5 * (s["f1"] - s["f0"]) * tau**2 / span)
+        else:
+            # ∫ (exp(C1 τ/T) - 1) dτ = T/C1 (exp(x) - 1 - x), x = C1 τ/T: expm1 keeps the
+            # small-x end accurate
+            x = _SWEEP_RATE * tau / span
+            rise = (span / _SWEEP_RATE) * (np.expm1(x) - x) / math.expm1(_SWEEP_RATE)
+            phase = 2.0 * np.pi * (s["f0"] * tau + (s["f1"] - s["f0"]) * rise)
         return (s["amplitude"] * np.sin(phase))[:, None]
 
     def describe(self, variables: ArrayLike, time: ArrayLike) -> str:
         s = self._settings(variables)
+        kind = "sweep" if self.sweep == "linear" else "exponential sweep"
         return (
-            f"chirp on {self._control!r}: {fmt(s['f0'], 3)}-{fmt(s['f1'], 3)} Hz sweep, "
+            f"chirp on {self._control!r}: {fmt(s['f0'], 3)}-{fmt(s['f1'], 3)} Hz {kind}, "
             f"amplitude {fmt(s['amplitude'], 3)}"
         )
+
+    def __repr__(self) -> str:
+        text = super().__repr__()
+        return text if self.sweep == "linear" else f"{text[:-1]}, sweep={self.sweep!r})"

@@ -52,7 +52,7 @@ class PriorSpec(Options):
 class ManeuverSpec(Options):
     """A built-in manoeuvre family: ``type`` and its constructor arguments."""
 
-    type: Literal["multisine", "doublet", "chirp"]
+    type: Literal["multisine", "doublet", "multistep", "chirp"]
     control: str
     options: dict[str, Any] = Field(default_factory=dict)
 
@@ -66,9 +66,14 @@ class ManeuverSpec(Options):
         return self
 
     def build(self) -> Any:
-        from ...uncertainty.maneuvers import Chirp, Doublet, Multisine
+        from ...uncertainty.maneuvers import Chirp, Doublet, Multisine, Multistep
 
-        families: dict[str, Any] = {"multisine": Multisine, "doublet": Doublet, "chirp": Chirp}
+        families: dict[str, Any] = {
+            "multisine": Multisine,
+            "doublet": Doublet,
+            "multistep": Multistep,
+            "chirp": Chirp,
+        }
         cls = families[self.type]
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in self.options.items()}
         return cls(self.control, **kw)
