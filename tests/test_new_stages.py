@@ -60,6 +60,7 @@ def test_new_stages_run_store_and_read_back_what_the_library_computes(tmp_path):
     assert rec["regress"].regression.parameters == pytest.approx(
         regress.regression.parameters, rel=1e-12
     )
+    assert rec["regress"].regression.press == pytest.approx(regress.regression.press, rel=1e-12)
     response = aeroid.composite_response(
         data, ["elevator"], ["q", "alpha"], frequency_range=(1.0, 30.0), windows=[10.0, 5.0]
     )
@@ -133,6 +134,8 @@ def test_equation_error_regress_and_its_stepwise_only_options(tmp_path):
     direct = aeroid.equation_error(rec["load"], "q", ["alpha", "elevator"])
     assert isinstance(rec["regress"], aeroid.RegressionResult)
     assert rec["regress"].parameters == pytest.approx(direct.parameters, rel=1e-12)
+    assert np.isfinite(direct.press)  # the stored record keeps its PRESS
+    assert rec["regress"].press == pytest.approx(direct.press, rel=1e-12)
 
 
 def test_handling_qualities_needs_something_to_compute():

@@ -17,7 +17,7 @@ from .._colour import colored_covariance, frequency_sandwich
 from .._czt import fourier
 from ..errors import ChannelError, DataFormatError, IdentificationError
 from ..io.data import FlightData, delay_starts, real_array
-from ._regression_record import RegressionResult, _r2_f, _result
+from ._regression_record import RegressionResult, _press, _r2_f, _result
 from ._regressors import _resolve, _step_of
 from .least_squares import _ls_solve, _qr_solve, _reml_covariance
 
@@ -98,6 +98,8 @@ def _fit(
         _classical_where_not_positive(cov, cov_white, nu, n - p)
     r2, f_stat = _r2_f(sse, sst, n, p, p - 1 if has_const else p)
     pse = sse / n + (s_dev / n) * p / n
+    # with delays, x is the Gauss-Newton Jacobian: leaving a sample out refits them too
+    press = _press(x, v)
     return _result(
         theta,
         cov,
@@ -108,6 +110,7 @@ def _fit(
         r_squared=r2,
         f_statistic=f_stat,
         pse=pse,
+        press=press,
         response=z,
         fitted=fitted,
         residuals=v,
@@ -384,6 +387,7 @@ def _frequency_solution(
         cov = cov_white.copy()
     r2, f_stat = _r2_f(sse, szz, 2 * m, p, p)
     pse = sse / m + (szz / m) * p / m
+    press = _press(xs, v, m)
     return _result(
         theta,
         cov,
@@ -394,6 +398,7 @@ def _frequency_solution(
         r_squared=r2,
         f_statistic=f_stat,
         pse=pse,
+        press=press,
         response=zt,
         fitted=fitted,
         residuals=v,

@@ -33,6 +33,11 @@ class RegressionResult(IntervalMixin):
     r_squared, f_statistic, pse : float
         Coefficient of determination, F statistic of the regression and
         predicted squared error (module notes).
+    press : float
+        Predicted residual sum of squares: the sum of squared errors of
+        predicting each sample from a fit that left it out (module notes);
+        infinite where one sample alone fixes a parameter, NaN on records
+        built before it existed.
     fit_error : float
         Residual standard deviation ``s = sqrt(SSE / (N − p))`` (per real
         component in the frequency domain).
@@ -77,6 +82,7 @@ class RegressionResult(IntervalMixin):
     n_samples: int = 0
     time_delays: Mapping[str, float] = field(default_factory=dict)
     degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
+    press: float = float("nan")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "time_delays", frozen_mapping(self.time_delays))
@@ -110,7 +116,7 @@ class RegressionResult(IntervalMixin):
         )
         stats = (
             f"\n\nR² = {fmt(self.r_squared)}, F = {fmt(self.f_statistic)}, "
-            f"PSE = {fmt(self.pse)}, s = {fmt(self.fit_error)}"
+            f"PSE = {fmt(self.pse)}, PRESS = {fmt(self.press)}, s = {fmt(self.fit_error)}"
         )
         return head + markdown_table(["parameter", "estimate", "std error", "|t|"], rows) + stats
 
@@ -159,6 +165,35 @@ def _result(
         fit_error=float(np.sqrt(s2)),
         **fields,
     )
+
+
+def _press(x: FloatArray, v: NDArray[Any], m: int = 0) -> float:
+    """Predicted residual sum of squares of residuals `v` of least squares on `x`.
+
+    Leaving sample i out changes its residual to ``v_i / (1 - h_ii)``, with ``h_ii`` the
+    squared norm of row i of Q in ``X = QR`` (the hat matrix's diagonal, never formed).
+    With ``m > 0``, `x` is the stacked real system of `m` complex rows (real parts, then
+    imaginary ones): a frequency leaves with both its rows, and its residual pair becomes
+    ``(I - H_k)^-1 (Re v_k, Im v_k)`` with ``H_k`` the hat matrix's 2 x 2 block there.
+    """
+    q = np.linalg.qr(x)[0]
+    if m == 0:
+        one_minus_h = 1.0 - np.einsum("ij,ij->i", q, q)
+        # where 1 - h vanishes, that sample alone fixes a parameter: no prediction of it
+        if not np.all(one_minus_h > 1e-12):
+            return float("inf")
+        return float(np.sum((v / one_minus_h) ** 2))
+    qr_, qi = q[:m], q[m:]
+    a = 1.0 - np.einsum("ij,ij->i", qr_, qr_)
+    b = -np.einsum("ij,ij->i", qr_, qi)
+    d = 1.0 - np.einsum("ij,ij->i", qi, qi)
+    det = a * d - b * b
+    if not np.all(det > 1e-12):
+        return float("inf")
+    # (I - H_k)^-1 of the symmetric block [[a, b], [b, d]], in closed form
+    er = (d * v.real - b * v.imag) / det
+    ei = (a * v.imag - b * v.real) / det
+    return float(np.sum(er**2 + ei**2))
 
 
 def _r2_f(sse: float, sst: float, n: int, p: int, k: int) -> tuple[float, float]:

@@ -40,6 +40,15 @@ mean when there is a constant term), the F statistic of the regression
 ``F = [(SST − SSE)/k] / [SSE/(N − p)]`` with ``k`` the regressors other
 than the constant, and the predicted squared error
 ``PSE = SSE/N + σ²_max p/N``, ``σ²_max = Σ (z − z̄)²/N``.
+The predicted residual sum of squares (PRESS, Klein & Morelli sec. 5.4;
+SIDPAC's ``press``) adds the squared error of predicting each sample from
+the fit without it, ``Σ [v_i/(1 − h_ii)]²``, with ``h_ii`` the diagonal of
+the hat matrix ``X(X'X)^-1X'`` read off the rows of Q in ``X = QR``; with
+estimated time delays, X is the Gauss–Newton Jacobian ``[X, ∂(Xθ)/∂τ]``, so
+the delays are refitted too, to first order. In the frequency domain a
+frequency leaves with both parts of its equation (SIDPAC's definition on
+complex data): its residual pair becomes ``(I − H_k)^-1 (Re v_k, Im v_k)``
+with ``H_k`` the 2 × 2 block of the stacked real system's hat matrix.
 
 With ``domain="frequency"`` the regression runs on the finite Fourier
 transforms of the response and regressors at chosen frequencies

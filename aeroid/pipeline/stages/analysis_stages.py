@@ -387,7 +387,8 @@ for _stage in (
     ),
     # regress 2: standard errors without the t widening, their degrees of freedom carried;
     # 3: coloured-residual degrees of freedom with the low band's exact covariance
-    Stage("regress", "3", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
+    # 4: the predicted residual sum of squares (PRESS) stored with the fit
+    Stage("regress", "4", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
     Stage(
         "composite_response",  # once "frequency_id"
         "1",
