@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._ar1_forms import ar1_bilinear
+from ._record_kernel import kept_off_grid, off_grid, overlap_terms, record_kernel
 
 FloatArray = NDArray[np.float64]
 
@@ -49,8 +50,6 @@ _PREWHITEN = True
 # Fixed-point steps that move the AR(1) coefficients until the model's expected
 # residual lag-one correlation is the one seen (the fit removed the slowest noise).
 _AR_STEPS = 3
-# Elements of one block of the frequency-pair kernel's products (memory, not speed).
-_KERNEL_BLOCK = 2_000_000
 # At most this many (bin, output) pairs of the low band get the exact covariance.
 _BAND_SIZE = 128
 # ... and only where the window reaches no further than this many bins from w = 0.
@@ -615,7 +614,11 @@ def frequency_sandwich(
     ``kappa_jk = e^{-i dw T/2} sinc(dw T/2)`` the finite record's kernel
     (``dw = omega_j - omega_k``; zero for distinct frequencies on the grid), so
     ``B`` gains the pairs ``1/2 Re W_j^H kappa_jk S_jk W_k`` with ``S_jk`` the
-    mean of the two frequencies' estimates.
+    mean of the two frequencies' estimates. There the fit also takes more of
+    each residual than its own leverage says (fewer independent pieces of noise
+    than rows), so the residuals are scaled by the diagonal blocks of ``(I - H)
+    K (I - H)`` instead of ``I - L`` (`aeroid._record_kernel.kept_off_grid`),
+    which they are on the grid.
 
     *Degrees of freedom.* Parameter j's variance estimate is a sum of Hermitian
     forms of the residuals, ``sum_k e_k^H A_k e_k`` with ``A_k = sum_m s_mk f_m
@@ -638,9 +641,13 @@ def frequency_sandwich(
     r = rows // 2
     order = np.argsort(omega, kind="stable")
     jac, res, omega = jac[order], res[order], omega[order]
-    lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
-    lev = 0.5 * (lev + lev.transpose(0, 2, 1))
-    w, v = np.linalg.eigh(np.eye(rows)[None] - lev)
+    grid = off_grid(omega, span)
+    if grid is None:
+        lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
+        kept = np.eye(rows)[None] - 0.5 * (lev + lev.transpose(0, 2, 1))
+    else:
+        kept = kept_off_grid(jac, m_inv, omega, span)
+    w, v = np.linalg.eigh(kept)
     # a frequency that alone fixes an unknown (1 - L ~ 0) keeps its plain residual
     scale = np.where(w > 1e-9, 1.0 / np.sqrt(np.maximum(w, 1e-300)), 1.0)
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
@@ -666,9 +673,8 @@ def frequency_sandwich(
     inflation = (1.0 + np.sum(weights**2, axis=1)) / np.where(real, 2.0, 1.0)
     var = (AS * AS.swapaxes(-1, -2)).sum(axis=(-1, -2)).real / inflation[:, None]
     var = var.sum(axis=0)
-    grid = off_grid(omega, span)
     if grid is not None:
-        shared, pairs = _overlap_terms(W, S, AS, omega, span)
+        shared, pairs = overlap_terms(W, S, AS, omega, span)
         meat = meat + shared
         var = var + pairs
     meat = 0.5 * (meat + meat.T)
@@ -678,7 +684,7 @@ def frequency_sandwich(
 
         # the whole kernel (M x M) only where its square root is affordable
         near = grid is not None and n_f <= KERNEL_ROOT_LIMIT
-        kappa = _kernel(omega, slice(None), span) + np.eye(n_f) if near else None
+        kappa = record_kernel(omega, slice(None), span) + np.eye(n_f) if near else None
         form, unwhiten = estimated_weights
         spread = frequency_weighting_spread(
             W, S, m_inv, real, form, unwhiten=unwhiten, kernel=kappa
@@ -716,62 +722,3 @@ def _neighbour_sum(
         else:
             out[lo:hi] += w * x[lo + d : hi + d]
     return out
-
-
-def off_grid(omega: FloatArray, span: float) -> tuple[FloatArray, float] | None:
-    """``(omega, span)`` when the frequencies (rad/s) are not distinct points of the
-    ``k/span`` grid of a record `span` seconds long (their transforms then share
-    the noise: `frequency_sandwich`'s `grid`), else None."""
-    omega = np.asarray(omega, dtype=np.float64)
-    bins = (omega - omega[0]) * span / (2 * np.pi)
-    whole = np.round(bins)
-    if np.max(np.abs(bins - whole), initial=0.0) < 1e-6 and np.unique(whole).size == whole.size:
-        return None
-    return omega, float(span)
-
-
-def _kernel(omega: FloatArray, rows: slice, span: float) -> NDArray[np.complex128]:
-    """Rows `rows` of the white-noise transforms' correlation ``kappa``, its diagonal
-    (a frequency with itself) set to zero."""
-    half = 0.5 * (omega[rows, None] - omega[None, :]) * span
-    kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
-    idx = np.arange(omega.size)[rows]
-    kappa[np.arange(idx.size), idx] = 0.0
-    return np.asarray(kappa, dtype=np.complex128)
-
-
-def _overlap_terms(
-    W: NDArray[np.complex128],
-    S: NDArray[np.complex128],
-    AS: NDArray[np.complex128],
-    omega: FloatArray,
-    span: float,
-) -> tuple[FloatArray, FloatArray]:
-    """The meat's pairs ``sum_{j != k} 1/2 Re W_j^H kappa_jk S_jk W_k`` with ``S_jk =
-    (S_j + S_k)/2``, and the pairs' share ``sum_{j != k} |kappa_jk|^2 tr(A_j S_j A_k
-    S_k)`` of each variance estimate's variance (`AS` holds ``A_k S_k`` per
-    parameter); ``kappa`` is formed a block of rows at a time, so memory stays
-    linear in the frequencies.
-
-    ``kappa`` is Hermitian, so the ``S_k`` half of the sum is the conjugate
-    transpose of the ``S_j`` half, ``H = sum_jk kappa_jk W_j^H S_j W_k``: the
-    pairs are ``Re(H + H^H) / 4``."""
-    m, r, p = W.shape
-    left = (W.conj().transpose(0, 2, 1) @ S).transpose(1, 0, 2)  # W_j^H S_j, (p, M, r)
-    flat_w = W.reshape(m, r * p)
-    flipped = AS.swapaxes(-1, -2).reshape(m, -1)  # A_k S_k transposed, flattened
-    half = np.zeros((p, p), dtype=np.complex128)
-    pairs = np.zeros(p)
-    step = max(1, _KERNEL_BLOCK // max(m + r * r * p, 1))
-    for lo in range(0, m, step):
-        rows = slice(lo, min(lo + step, m))
-        kappa = _kernel(omega, rows, span)  # (rows, M)
-        n_rows = kappa.shape[0]
-        mixed = (kappa @ flat_w).reshape(n_rows * r, p)  # sum_k kappa_jk W_k
-        half += left[:, rows].reshape(p, n_rows * r) @ mixed
-        spread = (np.abs(kappa) ** 2) @ flipped  # sum_k |kappa_jk|^2 (A_k S_k)'
-        pairs += (
-            (AS[rows].reshape(n_rows, -1) * spread).reshape(n_rows, p, -1).sum(axis=(0, 2)).real
-        )
-    out = 0.25 * (half + half.conj().T).real
-    return np.asarray(out, dtype=np.float64), pairs

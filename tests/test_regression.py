@@ -626,12 +626,35 @@ def _complex_problem(
     return W, e, jac, res
 
 
-def _corrected(jac: np.ndarray, res: np.ndarray, inv: np.ndarray) -> np.ndarray:
-    """Each frequency's residual scaled by (1 - L)^-1/2, back to complex."""
-    lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
-    w, v = np.linalg.eigh(np.eye(jac.shape[1])[None] - 0.5 * (lev + lev.transpose(0, 2, 1)))
+def _corrected(
+    jac: np.ndarray, res: np.ndarray, inv: np.ndarray, kappa: np.ndarray | None = None
+) -> np.ndarray:
+    """Each frequency's residual scaled by (1 - L)^-1/2, back to complex; with the
+    transforms' correlation `kappa` (M, M), by the inverse root of the diagonal block of
+    (I - H) K (I - H), formed densely (K: kappa as a complex product on each
+    frequency's real and imaginary rows)."""
+    m, rows, _ = jac.shape
+    r = rows // 2
+    if kappa is None:
+        lev = np.einsum("mrn,nk,msk->mrs", jac, inv, jac)
+        kept = np.eye(rows)[None] - 0.5 * (lev + lev.transpose(0, 2, 1))
+    else:
+        eye = np.eye(r)
+        big = np.zeros((m * rows, m * rows))
+        for j in range(m):
+            for k in range(m):
+                c = kappa[j, k]
+                big[j * rows : (j + 1) * rows, k * rows : (k + 1) * rows] = np.block(
+                    [[c.real * eye, -c.imag * eye], [c.imag * eye, c.real * eye]]
+                )
+        flat = jac.reshape(m * rows, -1)
+        rest = np.eye(m * rows) - flat @ inv @ flat.T
+        full = rest @ big @ rest
+        kept = np.array(
+            [full[k * rows : (k + 1) * rows, k * rows : (k + 1) * rows] for k in range(m)]
+        )
+    w, v = np.linalg.eigh(kept)
     u = np.einsum("mrs,ms,mts,mt->mr", v, 1.0 / np.sqrt(w), v, res)
-    r = jac.shape[1] // 2
     return np.asarray(u[:, :r] + 1j * u[:, r:])
 
 
@@ -734,10 +757,10 @@ def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance(
 ) -> None:
     # off the k/T grid the transforms share the noise: the meat gains, for each pair
     # j != k, 1/2 Re W_j^H kappa_jk S_jk W_k with S_jk the mean of the two smoothed
-    # cross-spectra
-    from aeroid import _colour
+    # cross-spectra, and the fit's share of each residual is that of the shared noise
+    from aeroid import _colour, _record_kernel
 
-    monkeypatch.setattr(_colour, "_KERNEL_BLOCK", block)  # one block, or one row each
+    monkeypatch.setattr(_record_kernel, "_KERNEL_BLOCK", block)  # one block, or one row each
     rng = np.random.default_rng(8)
     m, r, p = 12, 2, 3
     W, _, jac, res = _complex_problem(rng, m, r, p)
@@ -745,7 +768,7 @@ def test_frequency_sandwich_off_the_grid_adds_each_pairs_covariance(
     omega = np.linspace(1.0, 3.0, m)
     half = 0.5 * (omega[:, None] - omega[None, :]) * 4.0
     kappa = np.exp(-1j * half) * np.sinc(half / np.pi)
-    S = _smoothed(_corrected(jac, res, inv))
+    S = _smoothed(_corrected(jac, res, inv, kappa))
     meat = np.zeros((p, p))
     for j in range(m):
         for k in range(m):

@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._colour import frequency_sandwich, off_grid
+from .._colour import frequency_sandwich
+from .._record_kernel import off_grid
 from .._stats import wald_p_value
 from .._threads import CALLER_STACKLEVEL
 from ..errors import ChannelError, IdentifiabilityWarning, IdentificationError

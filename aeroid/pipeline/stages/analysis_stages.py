@@ -387,7 +387,8 @@ for _stage in (
     ),
     # regress 2: standard errors without the t widening, their degrees of freedom carried;
     # 3: coloured-residual degrees of freedom with the low band's exact covariance
-    # 4: the predicted residual sum of squares (PRESS) stored with the fit
+    # 4: the predicted residual sum of squares (PRESS) stored with the fit; in the
+    # frequency domain off the k/T grid, the fit's share of the shared noise counted
     Stage("regress", "4", RegressOptions, "RegressionResult", _run_regress, uses_model=False),
     Stage(
         "composite_response",  # once "frequency_id"
@@ -400,7 +401,8 @@ for _stage in (
     ),
     Stage(
         "transfer_function",
-        "1",
+        # 2: off the k/T grid, the fit's share of the shared noise counted in the bars
+        "2",
         TransferFunctionOptions,
         "TransferFunctionFit",
         _run_transfer_function,
@@ -417,7 +419,8 @@ for _stage in (
         # 8: the bars carry the scatter of the estimated noise weighting;
         # 9: `parameters: []` is the library's empty list, not every parameter
         # 10: the information inverted on a unit diagonal (rounding)
-        "10",
+        # 11: off the k/T grid, the fit's share of the shared noise counted in the bars
+        "11",
         FrequencyIdentifyOptions,
         "FrequencyDomainResult",
         _run_frequency_identify,
