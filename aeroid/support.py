@@ -19,6 +19,7 @@ from ._units import parameter_units
 from .reports import html as _html
 from .reports.html import figure_png, markdown_to_html
 from .uncertainty.database_export import replace_aerodynamics
+from .uncertainty.design_options import optimizer_settings
 from .uncertainty.prediction import holdout_record
 
 if TYPE_CHECKING:
@@ -36,6 +37,7 @@ __all__ = [
     "legacy_name",
     "markdown_table",
     "markdown_to_html",
+    "optimizer_settings",
     "parameter_units",
     "quiet_warnings",
     "record_warnings",

@@ -179,6 +179,8 @@ def test_bad_flight_file_is_reported_and_others_succeed(tmp_path):
     assert set(failed) == {("load", "f01"), ("stats", "f01")}
     assert "f01.csv" in failed[("load", "f01")] and "oops" in failed[("load", "f01")]
     assert "upstream load failed" in failed[("stats", "f01")]
+    # the step that could not run carries the first failure's own reason
+    assert "oops" in failed[("stats", "f01")]
     assert doc["computed"] == 7  # three flights x 2 + the report
     text = Path(doc["report"]).read_text()
     assert "1 failed" in text and "f01" in text

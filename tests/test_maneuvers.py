@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+import aeroid
 from aeroid import ModelDefinitionError
 from aeroid.models import catalog
 from aeroid.uncertainty.maneuvers import (
@@ -375,3 +376,19 @@ def test_design_variables_that_are_no_finite_numbers_are_named(family):
     for bad in ([np.nan] * n, ["x"] * n):
         with pytest.raises(ModelDefinitionError, match=r"design variables .* finite numbers"):
             family.signal(bad, T)
+
+
+@pytest.mark.parametrize(
+    "family",
+    [
+        aeroid.Doublet("u", amplitude=0.1, width=0.5, start=0.0),
+        aeroid.Multistep("u", amplitude=0.1, width=0.5, start=0.0),
+        aeroid.Multisine("u", frequencies=[0.5, 1.0], amplitude=0.1),
+        aeroid.Chirp("u", f0=0.1, f1=1.0, amplitude=0.1),
+    ],
+    ids=lambda f: type(f).__name__,
+)
+@pytest.mark.parametrize("time", [[], [0.0], [0.0, 0.0], [0.0, float("nan")], [1.0, 0.5]])
+def test_a_signal_on_a_grid_that_is_not_one_is_refused(family, time):
+    with pytest.raises(aeroid.DataFormatError, match=f"{type(family).__name__} time"):
+        family.signal([], np.array(time))

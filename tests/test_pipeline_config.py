@@ -272,6 +272,16 @@ def test_the_sweep_gives_coherent_frequency_checks_and_closer_estimates():
             r"options do not make a chirp: Chirp sweep: expected 'linear' or 'exponential'",
         ),
         (
+            "stages:\n  design: {maneuver: {type: multistep, control: elevator, "
+            "options: {amplitude: 0.05, width: 0.5}}}\n",
+            r"stages.design.maneuver: a multistep with every option fixed has nothing to design",
+        ),
+        (
+            "stages:\n  design: {optimizer_options: {maxiter: 3, wobble: 2}, maneuver: "
+            "{type: doublet, control: elevator, options: {amplitude: [0.0, 0.05]}}}\n",
+            r"stages.design.optimizer_options: unknown keys \['wobble'\]",
+        ),
+        (
             "stages:\n  design: {maneuver: {type: staircase, control: elevator}}\n",
             r"stages.design.maneuver.type: Input should be .*'multistep'",
         ),

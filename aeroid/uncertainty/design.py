@@ -40,6 +40,7 @@ from ..errors import (
 )
 from ..io.data import FlightData, as_float, check_flag
 from ..models.model import Model, SimulatorModel, require_model, resolve_parameters
+from .design_options import optimizer_settings
 from .maneuvers import ManeuverFamily
 from .sensitivity import (
     _analyse_fisher,
@@ -66,17 +67,6 @@ _CRITERIA = ("D", "A")
 # optimiser's population may hold (2 GiB of float64).
 _MAX_SAMPLES = 10**7
 _MAX_BATCH_VALUES = 2**28
-_OPTIMIZER_DEFAULTS: dict[str, Any] = {
-    "maxiter": 30,
-    "popsize": 10,
-    "tol": 1e-6,
-    "atol": 0.0,
-    "mutation": (0.5, 1.0),
-    "recombination": 0.7,
-    "strategy": "best1bin",
-    "init": "latinhypercube",
-    "polish": True,
-}
 # A criterion value for candidates whose information matrix is singular or whose
 # simulation failed: finite, so the optimiser's population statistics stay finite.
 _PENALTY = 1e30
@@ -360,40 +350,6 @@ class _Evaluator:
         return self.criterion_of(f, ok)
 
 
-def _check_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
-    merged = dict(_OPTIMIZER_DEFAULTS)
-    if options is None:
-        return merged
-    if not isinstance(options, Mapping):
-        raise IdentificationError(
-            f"optimizer_options: expected a dict, got {type(options).__name__}"
-        )
-    unknown = sorted(set(options) - set(_OPTIMIZER_DEFAULTS))
-    if unknown:
-        raise IdentificationError(
-            f"optimizer_options: unknown keys {unknown}; valid keys are "
-            f"{sorted(_OPTIMIZER_DEFAULTS)}"
-        )
-    merged.update(options)
-    check_flag(merged["polish"], "optimizer_options['polish']", IdentificationError)
-    for key in ("tol", "atol", "recombination"):
-        v = merged[key]
-        if isinstance(v, (bool, np.bool_, str, bytes)):  # float() would read "0.01" as 0.01
-            raise IdentificationError(f"optimizer_options[{key!r}]: expected a number, got {v!r}")
-    for key in ("maxiter", "popsize"):
-        v = merged[key]
-        if (
-            isinstance(v, bool)
-            or not isinstance(v, (int, np.integer))
-            or v < (0 if key == "maxiter" else 1)
-        ):
-            raise IdentificationError(
-                f"optimizer_options[{key!r}]: expected a {'non-negative' if key == 'maxiter' else 'positive'} "
-                f"integer, got {v!r}"
-            )
-    return merged
-
-
 def _batch_width(opts: Mapping[str, Any], n_variables: int) -> int:
     """Candidates in every batch the design simulates: the largest batch it asks for,
     differential evolution's population (scipy's size: ``popsize`` per variable, at
@@ -546,7 +502,7 @@ def design_experiment(
         )
     vals = resolve_parameters(model, values, error=IdentificationError)
     options = _check_simulate_options(simulate_options, model)
-    opts = _check_options(optimizer_options)
+    opts = optimizer_settings(optimizer_options)
     dur, fs = as_float(duration), as_float(sample_rate)
     if dur is None or fs is None:
         raise IdentificationError(

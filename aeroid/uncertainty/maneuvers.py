@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._records import fmt
-from ..errors import ModelDefinitionError
+from ..errors import DataFormatError, ModelDefinitionError
 from .orthogonal_multisines import (
     OrthogonalMultisine,
     orthogonal_multisine,
@@ -165,6 +165,19 @@ class _Family:
         out.update(zip(self._free, v.tolist(), strict=True))
         return out
 
+    def _grid(self, time: ArrayLike) -> FloatArray:
+        """The signal's time grid: at least two finite, strictly increasing samples."""
+        try:
+            t = np.asarray(time, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise DataFormatError(f"{type(self).__name__} time: not numeric") from None
+        if t.ndim != 1 or t.size < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+            raise DataFormatError(
+                f"{type(self).__name__} time: expected at least two finite, strictly "
+                f"increasing samples (s), got {t.size} of shape {t.shape}"
+            )
+        return t
+
     def highest_frequency(self) -> float | None:
         """The highest frequency (Hz) any design can put in the signal, if it has one."""
         return None
@@ -223,7 +236,7 @@ class Doublet(_Family):
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         s = self._settings(variables)
-        t = np.asarray(time, dtype=np.float64)
+        t = self._grid(time)
         t0 = float(t[0]) + s["start"]
         w = s["width"]
         up = _cell_fraction(t, t0, t0 + w)
@@ -316,7 +329,7 @@ class Multistep(_Family):
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         s = self._settings(variables)
-        t = np.asarray(time, dtype=np.float64)
+        t = self._grid(time)
         edges = (float(t[0]) + s["start"]) + s["width"] * self._edges
         level = np.zeros(t.size)
         for j in range(len(self.pattern)):
@@ -420,13 +433,13 @@ class Multisine(_Family):
         return min(1.0, self.peak / top) if top > 0 else 1.0
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
-        t = np.asarray(time, dtype=np.float64)
+        t = self._grid(time)
         raw = self._raw(self._amplitudes(variables), t)
         return (raw * self._scale(raw))[:, None]
 
     def canonical(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         """The line amplitudes actually flown (after peak limiting)."""
-        t = np.asarray(time, dtype=np.float64)
+        t = self._grid(time)
         a = self._amplitudes(variables)
         scale = self._scale(self._raw(a, t))
         s = self._settings(variables)
@@ -434,7 +447,7 @@ class Multisine(_Family):
         return np.array([scaled[k] for k in self._free])
 
     def describe(self, variables: ArrayLike, time: ArrayLike) -> str:
-        t = np.asarray(time, dtype=np.float64)
+        t = self._grid(time)
         a = self._amplitudes(variables)
         u = self.signal(variables, t)[:, 0]
         power = a**2
@@ -522,7 +535,7 @@ class Chirp(_Family):
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         s = self._settings(variables)
-        t = np.asarray(time, dtype=np.float64)
+        t = self._grid(time)
         tau = t - t[0]
         span = max(float(tau[-1]), 1e-300)
         if self.sweep == "linear":

@@ -172,7 +172,7 @@ def _gather(
             inputs[role] = _LazyRecords(reader, up_stage, keys)
         else:
             if ref in failed:
-                raise PipelineError(f"upstream {failed[ref].step} failed")
+                raise PipelineError(_upstream_failure(failed[ref]))
             inputs[role] = reader.load(ref, up_stage)
     model = None
     if task.model_ref is not None:
@@ -398,3 +398,12 @@ def error_text(exc: BaseException) -> str:
 
 def _failure_text(status: TaskStatus) -> str:
     return f"{status.step}: {status.error or 'failed'}"
+
+
+def _upstream_failure(status: TaskStatus) -> str:
+    """Why a task cannot run: the failed step it needs and that step's own reason (the
+    first failure's, carried down a chain of steps that could not run after it)."""
+    error = status.error or "failed"
+    if error.startswith("upstream "):
+        return error
+    return f"upstream {status.step} failed: {error}"

@@ -15,8 +15,9 @@ import inspect
 from collections.abc import Mapping
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import AfterValidator, AliasChoices, Field, field_validator
+from pydantic import AfterValidator, AliasChoices, Field, field_validator, model_validator
 
+from ...errors import AeroidError
 from ..plans.config import Options
 from . import FlightReport, Stage, StageContext, register_stage
 from .config_specs import ManeuverSpec, PriorSpec
@@ -351,6 +352,22 @@ class DesignOptions(
     at_record_start: bool = False
 
     engine_only: ClassVar[frozenset[str]] = frozenset({"at_record_start"})
+
+    @model_validator(mode="after")
+    def _designable(self) -> DesignOptions:
+        # what design_experiment would refuse at run time, found before any run
+        from ...support import optimizer_settings
+
+        try:
+            optimizer_settings(self.optimizer_options)
+        except AeroidError as exc:
+            raise ValueError(str(exc)) from None
+        if not self.maneuver.build().variable_names:
+            raise ValueError(
+                f"maneuver: a {self.maneuver.type} with every option fixed has nothing to "
+                "design; give a (low, high) range for at least one of its options"
+            )
+        return self
 
 
 def _run_design(ctx: StageContext) -> Any:
