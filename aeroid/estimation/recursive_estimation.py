@@ -270,7 +270,10 @@ def recursive_least_squares(
         from their first sample, are carried forward sample by sample, and at
         each update the estimate is `equation_error`'s with
         ``domain="frequency"`` on the record so far (the constant, when there
-        is one, fits what is left of the offsets). There is no start and no
+        is one, fits what is left of the offsets; where every frequency sits
+        on the whole record's ``1/T`` grid, on which a constant has no
+        transform, it is left out of the result, history included, as
+        `equation_error` leaves it out). There is no start and no
         forgetting: `initial`, `initial_covariance` and `forgetting` are time
         domain options.
     frequencies : array_like, optional
