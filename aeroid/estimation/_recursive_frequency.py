@@ -109,24 +109,24 @@ def frequency_recursion(
         if not derivative:
             eps[rows] = zd[rows] - xd[rows] @ theta  # predicted from the estimate before
         begin = end + 1
-        result = _solve(
-            zt,
-            xt,
-            zd,
-            xd,
-            end,
-            squares,
-            names,
-            zname,
-            time,
-            step,
-            freq,
-            has_const=has_const,
-            derivative=derivative,
-            error_bars=error_bars,
-        )
-        if result is None:
-            continue
+        z_now, x_now = _as_taken(zt, xt, zd, xd, end, step, freq, derivative=derivative)
+        try:
+            result = _frequency_solution(
+                z_now,
+                x_now,
+                np.sqrt(squares),
+                names,
+                zname,
+                time[: end + 1],
+                step,
+                freq,
+                has_const=has_const,
+                error_bars=error_bars,
+            )
+        except (IdentificationError, DataFormatError):
+            if end == n - 1:
+                raise
+            continue  # the record so far does not yet determine every parameter
         final = result
         theta = np.array([result.parameters.get(k, 0.0) for k in names])
         later = slice(end, n)
@@ -148,48 +148,24 @@ def frequency_recursion(
     return FrequencyHistory(hist, se_hist, dof_hist, s_hist, eps, np.asarray(update_times), final)
 
 
-def _solve(
+def _as_taken(
     zt: ComplexArray,
     xt: ComplexArray,
     zd: FloatArray,
     xd: FloatArray,
     end: int,
-    squares: FloatArray,
-    names: list[str],
-    zname: str,
-    time: FloatArray,
     step: float,
     freq: FloatArray,
     *,
-    has_const: bool,
     derivative: bool,
-    error_bars: str,
-) -> RegressionResult | None:
-    """One update's solution from the transforms so far, or None while the record does
-    not yet determine every parameter (a regressor that has not moved, too short a
-    record for the frequencies); at the last sample that is an error for the caller."""
-    z_now, x_now = zt, xt
-    if derivative:
-        # trapezoids, as the batch estimator takes them for the derivative
-        span = end * step
-        back = np.exp(-2j * np.pi * freq * span)
-        z_now = zt - 0.5 * step * (zd[0] + back * zd[end])
-        x_now = xt - 0.5 * step * (xd[0][None, :] + back[:, None] * xd[end][None, :])
-        z_now = derivative_transform(z_now, zd[0], zd[end], freq, span)
-    try:
-        return _frequency_solution(
-            z_now,
-            x_now,
-            np.sqrt(squares),
-            names,
-            zname,
-            time[: end + 1],
-            step,
-            freq,
-            has_const=has_const,
-            error_bars=error_bars,
-        )
-    except (IdentificationError, DataFormatError):
-        if end == zd.shape[0] - 1:
-            raise
-        return None
+) -> tuple[ComplexArray, ComplexArray]:
+    """The running transforms as the batch estimator takes them at sample `end`: as
+    they are, or for the derivative trapezoids (half the end samples off) and the
+    derivative's transform by parts."""
+    if not derivative:
+        return zt, xt
+    span = end * step
+    back = np.exp(-2j * np.pi * freq * span)
+    z_now = zt - 0.5 * step * (zd[0] + back * zd[end])
+    x_now = xt - 0.5 * step * (xd[0][None, :] + back[:, None] * xd[end][None, :])
+    return derivative_transform(z_now, zd[0], zd[end], freq, span), x_now

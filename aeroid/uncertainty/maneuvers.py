@@ -197,6 +197,22 @@ def _cell_fraction(time: FloatArray, a: float, b: float) -> FloatArray:
     return np.clip(np.minimum(b, hi) - np.maximum(a, lo), 0.0, None) / (hi - lo)
 
 
+def _pulse_train(t: FloatArray, s: dict[str, float], steps: FloatArray) -> FloatArray:
+    """Square pulses of alternating sign from ``+``, between the edges ``start + width *
+    steps`` after the first sample, each sample holding each pulse's share of its
+    interval (a doublet, a multistep)."""
+    edges = (float(t[0]) + s["start"]) + s["width"] * steps
+    level = np.zeros(t.size)
+    for j in range(steps.size - 1):
+        share = _cell_fraction(t, float(edges[j]), float(edges[j + 1]))
+        level = level - share if j % 2 else level + share
+    return (s["amplitude"] * level)[:, None]
+
+
+# a doublet's edges in lobe widths from its start
+_DOUBLET_EDGES = np.array([0.0, 1.0, 2.0])
+
+
 class Doublet(_Family):
     """A doublet: ``+amplitude`` for `width` seconds from `start`, then ``-amplitude``.
 
@@ -235,13 +251,7 @@ class Doublet(_Family):
         )
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
-        s = self._settings(variables)
-        t = self._grid(time)
-        t0 = float(t[0]) + s["start"]
-        w = s["width"]
-        up = _cell_fraction(t, t0, t0 + w)
-        down = _cell_fraction(t, t0 + w, t0 + 2 * w)
-        return (s["amplitude"] * (up - down))[:, None]
+        return _pulse_train(self._grid(time), self._settings(variables), _DOUBLET_EDGES)
 
     def describe(self, variables: ArrayLike, time: ArrayLike) -> str:
         s = self._settings(variables)
@@ -328,14 +338,7 @@ class Multistep(_Family):
         return 1.0 / (min(self.pattern) * self._specs["width"][0])
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
-        s = self._settings(variables)
-        t = self._grid(time)
-        edges = (float(t[0]) + s["start"]) + s["width"] * self._edges
-        level = np.zeros(t.size)
-        for j in range(len(self.pattern)):
-            share = _cell_fraction(t, float(edges[j]), float(edges[j + 1]))
-            level = level - share if j % 2 else level + share
-        return (s["amplitude"] * level)[:, None]
+        return _pulse_train(self._grid(time), self._settings(variables), self._edges)
 
     def describe(self, variables: ArrayLike, time: ArrayLike) -> str:
         s = self._settings(variables)

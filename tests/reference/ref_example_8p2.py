@@ -77,29 +77,26 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     times, est, se = rtpid_numpy(x, z, t, 2 * np.pi * BAND)
     channels = {k: x[:, j] for j, k in enumerate(_X)}
     channels["Cn"] = z
-    with S.Timer() as timer:
-        res = aeroid.recursive_least_squares(
-            aeroid.FlightData(time=t, channels=channels),
+
+    def fit(time: np.ndarray, ch: dict[str, np.ndarray], **options: Any) -> Any:
+        return aeroid.recursive_least_squares(
+            aeroid.FlightData(time=time, channels=ch),
             "Cn",
             list(_X),
             domain="frequency",
             frequencies=BAND,
             intercept=False,
+            **options,
         )
+
+    with S.Timer() as timer:
+        res = fit(t, channels)
     # the record rtpid reads: every other sample from the second, as deviations from the
     # first, which is put before them (its deviation adds nothing to the sums)
     dt = t[1] - t[0]
-    half = aeroid.FlightData(
-        time=np.concatenate([[t[1] - 2 * dt], t[1::2]]),
-        channels={k: np.concatenate([[v[0]], v[1::2]]) for k, v in channels.items()},
-    )
-    same = aeroid.recursive_least_squares(
-        half,
-        "Cn",
-        list(_X),
-        domain="frequency",
-        frequencies=BAND,
-        intercept=False,
+    same = fit(
+        np.concatenate([[t[1] - 2 * dt], t[1::2]]),
+        {k: np.concatenate([[v[0]], v[1::2]]) for k, v in channels.items()},
         error_bars="white",
         first_update=float(times[0] - (t[1] - 2 * dt)),
     )
@@ -111,16 +108,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     def refit(zz: np.ndarray) -> dict[str, float]:
         ch = dict(channels)
         ch["Cn"] = zz + z[0]
-        fit = aeroid.recursive_least_squares(
-            aeroid.FlightData(time=t, channels=ch),
-            "Cn",
-            list(_X),
-            domain="frequency",
-            frequencies=BAND,
-            intercept=False,
-            error_bars="white",
-        )
-        return dict(fit.parameters)
+        return dict(fit(t, ch, error_bars="white").parameters)
 
     mcs = S.monte_carlo(refit, fitted, (z - z[0]) - fitted, mc, seed=seed)
     white = same.stderr_history[rows_at][-1] / se[-1]
