@@ -116,6 +116,8 @@ def test_multistep_of_one_one_is_the_doublet():
     for x in ([0.05, 1.0, 1.0], [0.05, 0.713, 1.0], [0.031, 1.237, 0.4567], [0.1, 0.3, 2.99]):
         np.testing.assert_allclose(m.signal(x, T), d.signal(x, T), rtol=0, atol=1e-15)
     assert np.any(m.signal([0.031, 1.237, 0.4567], T) != 0.0)
+    # and the same band: a lobe's first spectral null at the smallest width
+    assert m.highest_frequency() == d.highest_frequency() == pytest.approx(1.0 / 0.3)
 
 
 def test_3211_on_the_grid_is_the_textbook_sequence():

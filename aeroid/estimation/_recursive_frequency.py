@@ -52,19 +52,18 @@ class FrequencyHistory:
 
 def update_indices(n: int, step: float, first: float, interval: float) -> NDArray[np.intp]:
     """Samples after which the estimate is updated: from `first` seconds in, every
-    `interval` seconds, and always after the last sample."""
-    if not (np.isfinite(interval) and interval > 0.0):
+    `interval` seconds (on the sample grid), and always after the last sample."""
+    if not (np.isfinite(interval) and interval >= step * (1.0 - 1e-9)):
         raise DataFormatError(
-            f"update_interval: expected a positive number of seconds, got {interval!r}"
+            f"update_interval: expected at least the sample interval {step:.6g} s, got {interval!r}"
         )
     if not (np.isfinite(first) and first >= 0.0):
         raise DataFormatError(f"first_update: expected a number of seconds >= 0, got {first!r}")
-    span = (n - 1) * step
-    count = int(np.floor((span - first) / interval + 1e-9)) + 1 if first <= span else 0
-    times = first + interval * np.arange(max(count, 0))
-    idx = np.unique(np.round(times / step).astype(np.intp))
-    idx = idx[(idx >= 0) & (idx < n - 1)]
-    return np.append(idx, n - 1)
+    last = n - 1
+    start = round(first / step)
+    count = int(np.floor((last * step - first) / interval + 1e-9)) + 1 if start < last else 0
+    idx = np.unique(np.round((first + interval * np.arange(count)) / step).astype(np.intp))
+    return np.append(idx[idx < last], last)
 
 
 def frequency_recursion(

@@ -99,7 +99,7 @@ def _fit(
     r2, f_stat = _r2_f(sse, sst, n, p, p - 1 if has_const else p)
     pse = sse / n + (s_dev / n) * p / n
     # with delays, x is the Gauss-Newton Jacobian: leaving a sample out refits them too
-    press = _press(x, v)
+    press = _press(x, v, xtx_inv)
     return _result(
         theta,
         cov,
@@ -387,7 +387,7 @@ def _frequency_solution(
         cov = cov_white.copy()
     r2, f_stat = _r2_f(sse, szz, 2 * m, p, p)
     pse = sse / m + (szz / m) * p / m
-    press = _press(xs, v, m)
+    press = _press(xs, v, xtx_inv, m)
     return _result(
         theta,
         cov,

@@ -167,26 +167,26 @@ def _result(
     )
 
 
-def _press(x: FloatArray, v: NDArray[Any], m: int = 0) -> float:
+def _press(x: FloatArray, v: NDArray[Any], xtx_inv: FloatArray, m: int = 0) -> float:
     """Predicted residual sum of squares of residuals `v` of least squares on `x`.
 
-    Leaving sample i out changes its residual to ``v_i / (1 - h_ii)``, with ``h_ii`` the
-    squared norm of row i of Q in ``X = QR`` (the hat matrix's diagonal, never formed).
-    With ``m > 0``, `x` is the stacked real system of `m` complex rows (real parts, then
-    imaginary ones): a frequency leaves with both its rows, and its residual pair becomes
-    ``(I - H_k)^-1 (Re v_k, Im v_k)`` with ``H_k`` the hat matrix's 2 x 2 block there.
+    Leaving sample i out changes its residual to ``v_i / (1 - h_ii)``, with ``h_ii =
+    x_i (X'X)^-1 x_i'`` the hat matrix's diagonal (never formed; from the inverse the
+    fit already has, so PRESS costs one pass over the rows). With ``m > 0``, `x` is the
+    stacked real system of `m` complex rows (real parts, then imaginary ones): a
+    frequency leaves with both its rows, and its residual pair becomes ``(I - H_k)^-1
+    (Re v_k, Im v_k)`` with ``H_k`` the hat matrix's 2 x 2 block there.
     """
-    q = np.linalg.qr(x)[0]
+    xi = x @ xtx_inv
     if m == 0:
-        one_minus_h = 1.0 - np.einsum("ij,ij->i", q, q)
+        one_minus_h = 1.0 - np.einsum("ij,ij->i", xi, x)
         # where 1 - h vanishes, that sample alone fixes a parameter: no prediction of it
         if not np.all(one_minus_h > 1e-12):
             return float("inf")
         return float(np.sum((v / one_minus_h) ** 2))
-    qr_, qi = q[:m], q[m:]
-    a = 1.0 - np.einsum("ij,ij->i", qr_, qr_)
-    b = -np.einsum("ij,ij->i", qr_, qi)
-    d = 1.0 - np.einsum("ij,ij->i", qi, qi)
+    a = 1.0 - np.einsum("ij,ij->i", xi[:m], x[:m])
+    b = -np.einsum("ij,ij->i", xi[:m], x[m:])
+    d = 1.0 - np.einsum("ij,ij->i", xi[m:], x[m:])
     det = a * d - b * b
     if not np.all(det > 1e-12):
         return float("inf")

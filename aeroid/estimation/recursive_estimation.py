@@ -61,6 +61,9 @@ FloatArray = NDArray[np.float64]
 
 _CONST = "const"
 _DOMAINS = ("time", "frequency")
+# SIDPAC's rtpid: an update every second from two seconds in
+_UPDATE_INTERVAL = 1.0
+_FIRST_UPDATE = 2.0
 _ERROR_BARS = ("colored", "white")
 # SIDPAC's and Klein & Morelli's start: a covariance this large times the identity,
 # diffuse against the information of regressors of order one.
@@ -222,8 +225,8 @@ def recursive_least_squares(
     domain: str = "time",
     frequencies: ArrayLike | None = None,
     dt: float | None = None,
-    update_interval: float = 1.0,
-    first_update: float = 2.0,
+    update_interval: float | None = None,
+    first_update: float | None = None,
     derivative: bool = False,
 ) -> RecursiveResult:
     """Equation-error estimates updated sample by sample (recursive least squares).
@@ -281,14 +284,18 @@ def recursive_least_squares(
         of the motion, such as SIDPAC's 0.1-1.5 Hz in steps of 0.04 Hz.
     dt : float, optional
         Sample interval in s for array input in the frequency domain.
-    update_interval, first_update : float
-        Frequency domain: update every `update_interval` seconds from
-        `first_update` seconds after the first sample, and after the last
-        sample (SIDPAC's 1 s and 2 s). Updates before the record determines
-        every parameter (a control not yet moved) leave the history NaN.
+    update_interval, first_update : float, optional
+        Frequency domain: update every `update_interval` seconds (at least a
+        sample interval; default 1 s) from `first_update` seconds after the
+        first sample (default 2 s), and after the last sample (SIDPAC's
+        ``rtpid`` times). Updates before the record determines every
+        parameter (a control not yet moved) leave the history NaN.
     derivative : bool
         Frequency domain: model the response's time derivative (state
-        equations), as `equation_error` does with ``derivative=True``.
+        equations), as `equation_error` does with ``derivative=True``. The
+        deviations from the first sample then obey the state equation plus
+        its first derivative ``ẋ(0)``, which the constant term takes: with
+        ``intercept=False`` the record must start at trim.
 
     Returns
     -------
@@ -322,7 +329,12 @@ def recursive_least_squares(
             first_update=first_update,
             derivative=bool(derivative),
         )
-    for option, value in (("frequencies", frequencies), ("dt", dt)):
+    for option, value in (
+        ("frequencies", frequencies),
+        ("dt", dt),
+        ("update_interval", update_interval),
+        ("first_update", first_update),
+    ):
         if value is not None:
             raise DataFormatError(f"{option}: used with domain='frequency' only")
     if derivative:
@@ -398,8 +410,8 @@ def _in_frequency(
     error_bars: str | None,
     frequencies: ArrayLike | None,
     dt: float | None,
-    update_interval: float,
-    first_update: float,
+    update_interval: float | None,
+    first_update: float | None,
     derivative: bool,
 ) -> RecursiveResult:
     """`recursive_least_squares` with ``domain="frequency"``."""
@@ -424,8 +436,18 @@ def _in_frequency(
     step = _frequency_step(time, dt)
     freq = _frequency_grid(frequencies, step, x.shape[1])
     t = time if time is not None else np.arange(x.shape[0], dtype=np.float64) * step
-    interval = real_number(update_interval, "update_interval", DataFormatError, finite=True)
-    first = real_number(first_update, "first_update", DataFormatError, finite=True)
+    interval = real_number(
+        _UPDATE_INTERVAL if update_interval is None else update_interval,
+        "update_interval",
+        DataFormatError,
+        finite=True,
+    )
+    first = real_number(
+        _FIRST_UPDATE if first_update is None else first_update,
+        "first_update",
+        DataFormatError,
+        finite=True,
+    )
     run = frequency_recursion(
         z,
         x,

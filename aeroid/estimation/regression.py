@@ -43,7 +43,7 @@ than the constant, and the predicted squared error
 The predicted residual sum of squares (PRESS, Klein & Morelli sec. 5.4;
 SIDPAC's ``press``) adds the squared error of predicting each sample from
 the fit without it, ``Σ [v_i/(1 − h_ii)]²``, with ``h_ii`` the diagonal of
-the hat matrix ``X(X'X)^-1X'`` read off the rows of Q in ``X = QR``; with
+the hat matrix ``X(X'X)^-1X'``, row by row with the fit's own inverse; with
 estimated time delays, X is the Gauss–Newton Jacobian ``[X, ∂(Xθ)/∂τ]``, so
 the delays are refitted too, to first order. In the frequency domain a
 frequency leaves with both parts of its equation (SIDPAC's definition on

@@ -219,6 +219,8 @@ class Doublet(_Family):
     Each sample holds the lobe's share of the interval up to the next
     sample, so edges on the grid give the plain sampled doublet and edges
     between samples change the signal smoothly with `width` and `start`.
+    It is ``Multistep(pattern=(1, 1))``, its band too: `highest_frequency`
+    is a lobe's first spectral null at the smallest width, ``1 / width``.
 
     Parameters
     ----------
@@ -249,6 +251,10 @@ class Doublet(_Family):
                 "start": _range(start, "Doublet start"),
             },
         )
+
+    def highest_frequency(self) -> float:
+        # a lobe's first spectral null, as for `Multistep`'s shortest pulse
+        return 1.0 / self._specs["width"][0]
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         return _pulse_train(self._grid(time), self._settings(variables), _DOUBLET_EDGES)
