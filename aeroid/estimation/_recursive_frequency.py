@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from .._czt import fourier
 from ..errors import DataFormatError, IdentificationError
-from ._regression_fits import _frequency_solution, derivative_transform
+from ._regression_fits import derivative_transform, fourier_regression
 from ._regression_record import RegressionResult
 
 FloatArray = NDArray[np.float64]
@@ -110,7 +110,7 @@ def frequency_recursion(
         begin = end + 1
         z_now, x_now = _as_taken(zt, xt, zd, xd, end, step, freq, derivative=derivative)
         try:
-            result = _frequency_solution(
+            result = fourier_regression(
                 z_now,
                 x_now,
                 np.sqrt(squares),

@@ -261,7 +261,7 @@ def _frequency_fit(
     xt = fourier(x, step, freq, end_correction=derivative)
     if derivative:
         zt = derivative_transform(zt, z[0], z[-1], freq, (z.shape[0] - 1) * step)
-    return _frequency_solution(
+    return fourier_regression(
         zt,
         xt,
         np.sqrt(np.einsum("ij,ij->j", x, x)),  # no n x p temporary
@@ -330,7 +330,7 @@ def derivative_name(name: str) -> str:
     return f"d{name}/dt" if name.isidentifier() else f"d({name})/dt"
 
 
-def _frequency_solution(
+def fourier_regression(
     zt: NDArray[np.complex128],
     xt: NDArray[np.complex128],
     column_norms: FloatArray,
@@ -342,9 +342,12 @@ def _frequency_solution(
     *,
     has_const: bool,
     error_bars: str,
+    span: float | None = None,
 ) -> RegressionResult:
-    """Fourier transform regression on given transforms: the one solution of the
-    batch estimator and of every update of the recursive one."""
+    """Fourier transform regression on given transforms (`freq` in Hz; `span` the
+    record's length, default its samples times `step`): the one solution of the batch
+    estimator, of every update of the recursive one and of a transfer function's
+    equation error."""
     m, p = freq.shape[0], xt.shape[1]
     # A column with (next to) no content at these frequencies cannot be estimated; the
     # constant has none at multiples of 1/(N dt), and is then left out silently.
@@ -379,7 +382,7 @@ def _frequency_solution(
             np.column_stack([v.real, v.imag]),
             xtx_inv,
             2 * np.pi * freq,
-            time.shape[0] * step,
+            time.shape[0] * step if span is None else span,
             nyquist=np.pi / step,
         )
         _classical_where_not_positive(cov, cov_white, nu, 2 * m - p)

@@ -94,6 +94,7 @@ from ._regression_fits import _delayed_fit as _delayed_fit
 from ._regression_fits import _fit as _fit
 from ._regression_fits import _frequency_fit as _frequency_fit
 from ._regression_fits import derivative_name
+from ._regression_fits import fourier_regression as fourier_regression
 from ._regression_record import RegressionResult as RegressionResult
 from ._regression_record import _r2_f as _r2_f
 from ._regression_record import _result as _result

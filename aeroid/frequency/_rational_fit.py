@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -223,7 +223,22 @@ def _without_ends(v: ComplexArray, columns: ComplexArray) -> ComplexArray:
     return np.asarray(v - columns @ _end_coefficients(v, columns), dtype=np.complex128)
 
 
-def _fit_fourier(
+class RecordTransforms(NamedTuple):
+    """A record's transforms at the fitted frequencies, and the fit's structure."""
+
+    w: FloatArray  # rad/s
+    U: ComplexArray
+    Y: ComplexArray
+    span: float  # the record's length T, s
+    st: _Structure
+    held: dict[str, float]
+    free: NDArray[np.bool_]
+    h: ComplexArray  # Y / U where U is not zero
+    m: int
+    n: int
+
+
+def record_transforms(
     data: FlightData,
     input: str | None,
     output: str | None,
@@ -232,15 +247,12 @@ def _fit_fourier(
     delay: Any,
     frequency_range: tuple[float, float] | None,
     frequencies: ArrayLike | None,
-    start: Mapping[str, float] | None,
     fixed: Mapping[str, float] | None,
-    error_bars: str = "colored",
-    boundary: str = "auto",
-) -> TransferFunctionFit:
-    """Output error on the record's Fourier transforms, ``min Σ |Y − T U − E/D|²`` with
-    real parameters and ``E`` the record's ends (`_end_basis`), as `boundary` asks."""
-
-    from .frequency_domain import _BOUNDARY_LEVEL, _frequency_grid, _transform
+    error_bars: str,
+) -> RecordTransforms:
+    """The input's and output's transforms (trends removed) at the frequencies a
+    Fourier fit of the record uses, checked, with the transfer function's structure."""
+    from .frequency_domain import _frequency_grid, _transform
 
     if input is None or output is None:
         raise ChannelError("response_or_data: flight data need input= and output= channel names")
@@ -286,6 +298,40 @@ def _fit_fourier(
     st, held, free = _free_structure(m, n, delay, w, fixed, "in the band", f"{input} -> {output}")
     ok = np.abs(U) > 0
     h = np.where(ok, Y / np.where(ok, U, 1.0), 0.0)
+    return RecordTransforms(w, U, Y, T, st, held, free, h, m, n)
+
+
+def _fit_fourier(
+    data: FlightData,
+    input: str | None,
+    output: str | None,
+    numerator_order: Any,
+    denominator_order: Any,
+    delay: Any,
+    frequency_range: tuple[float, float] | None,
+    frequencies: ArrayLike | None,
+    start: Mapping[str, float] | None,
+    fixed: Mapping[str, float] | None,
+    error_bars: str = "colored",
+    boundary: str = "auto",
+) -> TransferFunctionFit:
+    """Output error on the record's Fourier transforms, ``min Σ |Y − T U − E/D|²`` with
+    real parameters and ``E`` the record's ends (`_end_basis`), as `boundary` asks."""
+
+    from .frequency_domain import _BOUNDARY_LEVEL
+
+    w, U, Y, T, st, held, free, h, m, n = record_transforms(
+        data,
+        input,
+        output,
+        numerator_order,
+        denominator_order,
+        delay,
+        frequency_range,
+        frequencies,
+        fixed,
+        error_bars,
+    )
     n_t = len(st.names)
     a_cols = slice(m + 1, m + 1 + n)
 

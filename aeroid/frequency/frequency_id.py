@@ -79,6 +79,7 @@ from ._cross_spectra import _independent_averages as _independent_averages
 from ._cross_spectra import _random_error as _random_error
 from ._cross_spectra import _refuse_dependent_inputs as _refuse_dependent_inputs
 from ._cross_spectra import _window_spectra as _window_spectra
+from ._levy_fit import fit_levy
 from ._rational_fit import _EXCITED as _EXCITED
 from ._rational_fit import _MIN_PERIODS as _MIN_PERIODS
 from ._rational_fit import _coherence_weight as _coherence_weight
@@ -130,6 +131,7 @@ _W_PHASE = 0.01745
 _WEIGHTINGS = ("cifer", "random_error")
 _ERROR_BARS = ("colored", "white")
 _BOUNDARIES = ("auto", "estimate", "ignore")
+_METHODS = ("output_error", "equation_error")
 # Reweighting passes of the random-error fit (weights from the previous pass's model).
 _PASSES = 3
 
@@ -412,6 +414,7 @@ def fit_transfer_function(
     frequencies: ArrayLike | None = None,
     error_bars: str = "colored",
     boundary: str = "auto",
+    method: str = "output_error",
 ) -> TransferFunctionFit:
     """Fit ``(b_m s^m + … + b_0) / (s^n + a_{n−1} s^{n−1} + … + a_0) · e^{−τ s}`` to a frequency response.
 
@@ -444,9 +447,9 @@ def fit_transfer_function(
     fourier : bool
         Flight data only: fit the model to the record's finite Fourier
         transforms directly, minimising ``Σ_ω |Y(ω) − T(jω) U(ω)|²`` (output
-        error in the frequency domain, as SIDPAC's ``tfest``/``fdoe``), with
-        the error bars of `error_bars`; `weighting` and `min_coherence` do
-        not apply.
+        error in the frequency domain, as SIDPAC's ``fdoe``), or by equation
+        error (`method`), with the error bars of `error_bars`; `weighting`
+        and `min_coherence` do not apply.
     frequencies : array_like, optional
         ``fourier=True``: the frequencies in rad/s (default: the ``k/T`` grid
         of the record over the band the input excited).
@@ -478,6 +481,15 @@ def fit_transfer_function(
     periods in the record, the rule every window of `composite_response`
     obeys); explicit `frequencies` below it are kept with a warning.
 
+    method : {"output_error", "equation_error"}
+        ``fourier=True``: output error (default), or Levy's equation error,
+        ``(jω)^n Y = Σ b_k (jω)^k U − Σ a_k (jω)^k Y`` solved by least squares
+        as `equation_error` solves in the frequency domain (Klein & Morelli
+        sec. 7.3; SIDPAC's ``tfest``, the same regression: its ``fint``
+        interpolates the input cubically and keeps the trends, so its
+        transforms differ a little). Linear, so no start and no iteration,
+        but the output's noise in the regressors biases it where output
+        error is not biased; it fits no delay (``delay=False``).
     Returns
     -------
     TransferFunctionFit
@@ -521,11 +533,16 @@ def fit_transfer_function(
     ):
         response_or_data.require([input], role="input")
         frequency_range = _excited_band(response_or_data, input)
+    if method not in _METHODS:
+        raise IdentificationError(f"method: expected one of {list(_METHODS)}, got {plain(method)}")
+    if method != "output_error" and not fourier:
+        raise IdentificationError("method applies to fourier=True only")
     if fourier:
         assert isinstance(response_or_data, FlightData)
         if frequency_range is not None:
             frequency_range = _band(frequency_range)  # named, as the spectral path does
-        return _fit_fourier(
+        fit = fit_levy if method == "equation_error" else _fit_fourier
+        return fit(
             response_or_data,
             input,
             output,

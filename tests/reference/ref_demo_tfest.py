@@ -11,7 +11,8 @@ regression recomputed here in a few lines, following ``tfest.m``/``tfregr.m``/
 residual as one observation.
 
 Ours: ``aeroid.fit_transfer_function(..., fourier=True)`` (output error on
-the transforms) with library defaults: the band the aileron excited, on the
+the transforms; a variant row gives ``method="equation_error"``, tfest's own
+method, on its frequencies) with library defaults: the band the aileron excited, on the
 record's k/T grid, the record's ends estimated where they matter, and the
 frequency sandwich's error bars), set against a Monte Carlo of the fitted
 time response plus phase-randomised copies of the residual
@@ -92,7 +93,28 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     mcs = S.transfer_monte_carlo(refit, fit, t, u, z, mc, seed=seed)
     ours = {"Lda": fit.parameters["b0"], "Lp": -fit.parameters["a0"]}
     ours_se = {"Lda": fit.standard_errors["b0"], "Lp": fit.standard_errors["a0"]}
+    # SIDPAC's own method on its frequencies: equation error (our transforms remove
+    # the trends and interpolate the input linearly, SIDPAC's fint cubically)
+    levy = aeroid.fit_transfer_function(
+        data, input="delta_a", output="p", numerator_order=0, denominator_order=1,
+        delay=False, fourier=True, method="equation_error",
+        frequencies=2 * np.pi * np.arange(0.1, 1.5 + 1e-9, 0.05),
+    )  # fmt: skip
     rows = []
+    for i, n in enumerate(NAMES):
+        key, sign = ("b0", 1.0) if n == "Lda" else ("a0", -1.0)
+        rows.append(
+            S.row(
+                case=CASE,
+                parameter="ee:" + n,
+                sidpac=float(ref[i]),
+                sidpac_se_white=float(ref_se[i]),
+                sidpac_se_corrected=None,
+                ours=sign * levy.parameters[key],
+                ours_se=levy.standard_errors[key],
+                variant=True,
+            )
+        )
     for i, n in enumerate(NAMES):
         rows.append(
             S.row(

@@ -75,9 +75,12 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     with S.Timer() as tm:
         fit = aeroid.fit_transfer_function(data, **kw)
     ends = aeroid.fit_transfer_function(data, **kw, boundary="ignore")
+    # tfest's own method, equation error (our default ends: the trend lines our
+    # transforms remove are not zep's end-point lines, and the terms take the difference)
+    levy = aeroid.fit_transfer_function(data, **kw, method="equation_error")
     print(f"  our fit estimated the record's ends: {fit.ends_estimated}")
     rows = []
-    for label, r in (("", fit), ("ends:", ends)):
+    for label, r in (("", fit), ("ends:", ends), ("ee:", levy)):
         for i, n in enumerate(NAMES):
             rows.append(
                 S.row(
