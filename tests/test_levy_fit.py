@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import aeroid
-from aeroid.frequency._rational_fit import record_transforms
+from aeroid.frequency._rational_fit import FourierRequest, record_transforms
 
 DT = 0.02
 
@@ -50,7 +50,10 @@ def test_it_is_levys_regression_on_the_records_transforms():
     each complex residual two real observations."""
     data = _mass_spring(noise=0.01)
     fit = _fit(data, boundary="ignore", error_bars="white")
-    rec = record_transforms(data, "u", "y", 0, 2, False, None, fit.frequency, None, "white")
+    ask = FourierRequest(
+        data, "u", "y", 0, 2, False, None, fit.frequency, None, None, "white", "ignore"
+    )
+    rec = record_transforms(ask)
     s = 1j * rec.w
     # each frequency's equation over (jw)^(n-1), SIDPAC's tfregr weighting
     x = np.stack([rec.U, -rec.Y, -s * rec.Y], axis=1) / s[:, None]  # b0, a0, a1

@@ -21,58 +21,39 @@ finds them.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from .._stats import wald_p_value
 from ..errors import IdentificationError
 from ..estimation.regression import fourier_regression
-from ..io.data import FlightData
-from ._rational_fit import _end_basis, _fit_record, record_transforms, undetermined_bars
+from ._rational_fit import (
+    FourierRequest,
+    _end_basis,
+    _fit_record,
+    record_transforms,
+    undetermined_bars,
+)
 from ._response_records import TransferFunctionFit
 
 _END = "end_"
 
 
-def fit_levy(
-    data: FlightData,
-    input: str | None,
-    output: str | None,
-    numerator_order: Any,
-    denominator_order: Any,
-    delay: Any,
-    frequency_range: tuple[float, float] | None,
-    frequencies: ArrayLike | None,
-    start: Mapping[str, float] | None,
-    fixed: Mapping[str, float] | None,
-    error_bars: str,
-    boundary: str,
-) -> TransferFunctionFit:
+def fit_levy(req: FourierRequest) -> TransferFunctionFit:
     """`fit_transfer_function(..., fourier=True, method="equation_error")`."""
     from .frequency_domain import _BOUNDARY_LEVEL
 
-    if delay is not False:
+    if req.delay is not False:
         raise IdentificationError(
             "delay: equation error is linear in the coefficients and fits no time delay; "
             "pass delay=False (or method='output_error')"
         )
-    if start is not None:
+    if req.start is not None:
         raise IdentificationError("start: equation error is linear and needs no start values")
-    rec = record_transforms(
-        data,
-        input,
-        output,
-        numerator_order,
-        denominator_order,
-        False,
-        frequency_range,
-        frequencies,
-        fixed,
-        error_bars,
-    )
+    rec = record_transforms(req)
+    data, input, output = req.data, req.input, req.output
+    error_bars, boundary = req.error_bars, req.boundary
     st, w, m, n = rec.st, rec.w, rec.m, rec.n
     # each frequency's equation over (jω)^(n-1), as SIDPAC's tfregr weights them: the
     # response is then jω Y whatever the order, and the high frequencies do not

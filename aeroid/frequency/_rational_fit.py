@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -223,6 +224,24 @@ def _without_ends(v: ComplexArray, columns: ComplexArray) -> ComplexArray:
     return np.asarray(v - columns @ _end_coefficients(v, columns), dtype=np.complex128)
 
 
+@dataclass(frozen=True)
+class FourierRequest:
+    """What `fit_transfer_function` asks of a fit to a record's Fourier transforms."""
+
+    data: FlightData
+    input: str | None
+    output: str | None
+    numerator_order: Any
+    denominator_order: Any
+    delay: Any
+    frequency_range: tuple[float, float] | None
+    frequencies: ArrayLike | None
+    start: Mapping[str, float] | None
+    fixed: Mapping[str, float] | None
+    error_bars: str
+    boundary: str
+
+
 class RecordTransforms(NamedTuple):
     """A record's transforms at the fitted frequencies, and the fit's structure."""
 
@@ -238,34 +257,26 @@ class RecordTransforms(NamedTuple):
     n: int
 
 
-def record_transforms(
-    data: FlightData,
-    input: str | None,
-    output: str | None,
-    numerator_order: Any,
-    denominator_order: Any,
-    delay: Any,
-    frequency_range: tuple[float, float] | None,
-    frequencies: ArrayLike | None,
-    fixed: Mapping[str, float] | None,
-    error_bars: str,
-) -> RecordTransforms:
+def record_transforms(req: FourierRequest) -> RecordTransforms:
     """The input's and output's transforms (trends removed) at the frequencies a
     Fourier fit of the record uses, checked, with the transfer function's structure."""
+    data, input, output = req.data, req.input, req.output
+    frequency_range, error_bars = req.frequency_range, req.error_bars
+
     from .frequency_domain import _frequency_grid, _transform
 
     if input is None or output is None:
         raise ChannelError("response_or_data: flight data need input= and output= channel names")
     data.require([input], role="input")
     data.require([output], role="output")
-    m, n = _orders(numerator_order, denominator_order)
+    m, n = _orders(req.numerator_order, req.denominator_order)
     dt, T = _record_grid(data)
     if frequency_range is not None and frequency_range[1] > np.pi / dt * (1.0 + 1e-9):
         raise IdentificationError(
             f"frequency_range: its top {frequency_range[1]:g} rad/s lies above the record's "
             f"Nyquist frequency {np.pi / dt:.6g} rad/s"
         )
-    if frequencies is None:
+    if req.frequencies is None:
         lo, hi = frequency_range if frequency_range is not None else _excited_band(data, input)
         # two periods in the record, the rule every window obeys (the whole record is
         # the window here): below it the detrend and the record's ends decide Y/U
@@ -276,7 +287,7 @@ def record_transforms(
         w = np.asarray(2 * np.pi * k / T, dtype=np.float64)
         w = w[w < np.pi / dt]
     else:
-        w = _frequency_grid(frequencies, dt, T, depth=2, shared=error_bars == "colored")
+        w = _frequency_grid(req.frequencies, dt, T, depth=3, shared=error_bars == "colored")
         if frequency_range is not None:
             lo, hi = _band(frequency_range)
             w = w[(w >= lo) & (w <= hi)]
@@ -287,7 +298,7 @@ def record_transforms(
                 "rad/s, two periods of the record; their transforms are decided by the "
                 "detrend and the record's ends",
                 UserWarning,
-                stacklevel=CALLER_STACKLEVEL + 1,
+                stacklevel=CALLER_STACKLEVEL + 2,  # record_transforms, the fit, the public call
             )
     u = np.asarray(data[input], dtype=np.float64)
     y = np.asarray(data[output], dtype=np.float64)
@@ -295,43 +306,22 @@ def record_transforms(
     # has no transform anyway
     U = _transform(_detrended(data.time, u)[:, None], dt, w, cubic=False)[:, 0]
     Y = _transform(_detrended(data.time, y)[:, None], dt, w, cubic=True)[:, 0]
-    st, held, free = _free_structure(m, n, delay, w, fixed, "in the band", f"{input} -> {output}")
+    st, held, free = _free_structure(
+        m, n, req.delay, w, req.fixed, "in the band", f"{input} -> {output}"
+    )
     ok = np.abs(U) > 0
     h = np.where(ok, Y / np.where(ok, U, 1.0), 0.0)
     return RecordTransforms(w, U, Y, T, st, held, free, h, m, n)
 
 
-def _fit_fourier(
-    data: FlightData,
-    input: str | None,
-    output: str | None,
-    numerator_order: Any,
-    denominator_order: Any,
-    delay: Any,
-    frequency_range: tuple[float, float] | None,
-    frequencies: ArrayLike | None,
-    start: Mapping[str, float] | None,
-    fixed: Mapping[str, float] | None,
-    error_bars: str = "colored",
-    boundary: str = "auto",
-) -> TransferFunctionFit:
+def _fit_fourier(req: FourierRequest) -> TransferFunctionFit:
     """Output error on the record's Fourier transforms, ``min Σ |Y − T U − E/D|²`` with
     real parameters and ``E`` the record's ends (`_end_basis`), as `boundary` asks."""
 
     from .frequency_domain import _BOUNDARY_LEVEL
 
-    w, U, Y, T, st, held, free, h, m, n = record_transforms(
-        data,
-        input,
-        output,
-        numerator_order,
-        denominator_order,
-        delay,
-        frequency_range,
-        frequencies,
-        fixed,
-        error_bars,
-    )
+    w, U, Y, T, st, held, free, h, m, n = record_transforms(req)
+    input, output, error_bars, boundary = req.input, req.output, req.error_bars, req.boundary
     n_t = len(st.names)
     a_cols = slice(m + 1, m + 1 + n)
 
@@ -396,7 +386,7 @@ def _fit_fourier(
         v = Y - model(theta, None)[0]
         return np.concatenate([v.real, v.imag])
 
-    theta = _start(st, h, w, np.abs(U) ** 2, tf_only, start)
+    theta = _start(st, h, w, np.abs(U) ** 2, tf_only, req.start)
     for k_, v_ in held.items():
         theta[st.names.index(k_)] = v_
     basis = None if boundary == "ignore" else _end_basis(w, T, max(m, n))

@@ -82,17 +82,18 @@ from ._cross_spectra import _window_spectra as _window_spectra
 from ._levy_fit import fit_levy
 from ._rational_fit import _EXCITED as _EXCITED
 from ._rational_fit import _MIN_PERIODS as _MIN_PERIODS
-from ._rational_fit import _coherence_weight as _coherence_weight
-from ._rational_fit import _detrended as _detrended
-from ._rational_fit import _excited_band as _excited_band
-from ._rational_fit import _fit_fourier as _fit_fourier
 from ._rational_fit import (
+    FourierRequest,
     _fit_record,
     _fitted_information,
     _free_structure,
     fit_free,
     undetermined_bars,
 )
+from ._rational_fit import _coherence_weight as _coherence_weight
+from ._rational_fit import _detrended as _detrended
+from ._rational_fit import _excited_band as _excited_band
+from ._rational_fit import _fit_fourier as _fit_fourier
 from ._rational_fit import _held as _held
 from ._rational_fit import _levy_sk as _levy_sk
 from ._rational_fit import _orders as _orders
@@ -543,18 +544,20 @@ def fit_transfer_function(
             frequency_range = _band(frequency_range)  # named, as the spectral path does
         fit = fit_levy if method == "equation_error" else _fit_fourier
         return fit(
-            response_or_data,
-            input,
-            output,
-            numerator_order,
-            denominator_order,
-            delay,
-            frequency_range,
-            frequencies,
-            start,
-            fixed,
-            error_bars,
-            boundary,
+            FourierRequest(
+                response_or_data,
+                input,
+                output,
+                numerator_order,
+                denominator_order,
+                delay,
+                frequency_range,
+                frequencies,
+                start,
+                fixed,
+                error_bars,
+                boundary,
+            )
         )
     ch = _resolve_response(response_or_data, input, output)
     m, n = _orders(numerator_order, denominator_order)
