@@ -29,11 +29,11 @@ from .._stats import wald_p_value
 from ..errors import IdentificationError
 from ..estimation.regression import fourier_regression
 from ._rational_fit import (
+    FourierFit,
     FourierRequest,
     _end_basis,
-    _fit_record,
+    fourier_record,
     record_transforms,
-    undetermined_bars,
 )
 from ._response_records import TransferFunctionFit
 
@@ -125,26 +125,9 @@ def fit_levy(req: FourierRequest) -> TransferFunctionFit:
     stacked = np.concatenate([x.real, x.imag])
     info = np.zeros((p_all, p_all))
     info[np.ix_(where, where)] = stacked.T @ stacked
-    s2 = fit.fit_error**2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        se = undetermined_bars(cov, rec.free, st.names, pair, 2)
-        insens = np.sqrt(s2) / np.sqrt(np.diag(info))
     r = fit.residuals
-    return _fit_record(
-        st,
-        theta,
-        se,
-        insens,
-        cov,
-        0.5 * float(np.sum(r.real**2 + r.imag**2)) / s2,
-        "equation_error",
-        1.0,
-        w,
-        rec.h,
-        np.ones(w.size),
-        np.full(w.size, np.nan),
-        input,
-        output,
-        dict(zip(st.names, nu.tolist(), strict=True)),
-        basis is not None,
+    sse = float(np.sum(r.real**2 + r.imag**2))
+    found = FourierFit(theta, cov, info, nu, fit.fit_error**2, sse)
+    return fourier_record(
+        req, st, rec.free, found, w, rec.h, "equation_error", ends=basis is not None
     )

@@ -406,27 +406,54 @@ def _fit_fourier(req: FourierRequest) -> TransferFunctionFit:
             basis = None
             full, residual, jacobian = fitted(None, full[:n_t])
             r, info, cov, white, nu, s2 = statistics(full, residual, jacobian)
-    theta, cov, nu = full[:n_t], cov[:n_t, :n_t], nu[:n_t]
+    fit = FourierFit(full[:n_t], cov[:n_t, :n_t], info[:n_t, :n_t], nu[:n_t], s2, float(r @ r))
+    return fourier_record(req, st, free, fit, w, h, "fourier", ends=basis is not None)
+
+
+class FourierFit(NamedTuple):
+    """A Fourier fit's estimates in the structure's order, their covariance, the
+    information, degrees of freedom, residual variance and residual sum of squares."""
+
+    theta: FloatArray
+    cov: FloatArray
+    info: FloatArray
+    nu: FloatArray
+    s2: float
+    sse: float
+
+
+def fourier_record(
+    req: FourierRequest,
+    st: _Structure,
+    free: NDArray[np.bool_],
+    fit: FourierFit,
+    w: FloatArray,
+    h: ComplexArray,
+    label: str,
+    *,
+    ends: bool,
+) -> TransferFunctionFit:
+    """The record of a fit to a record's Fourier transforms (output or equation error)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        se = undetermined_bars(cov, free, st.names, f"{input} -> {output}", 2)
-        insens = np.sqrt(s2) / np.sqrt(np.diag(info)[:n_t])
+        se = undetermined_bars(fit.cov, free, st.names, f"{req.input} -> {req.output}", 3)
+        insens = np.sqrt(fit.s2) / np.sqrt(np.diag(fit.info))
     return _fit_record(
         st,
-        theta,
+        fit.theta,
         se,
         insens,
-        cov,
-        0.5 * float(r @ r) / s2,
-        "fourier",
+        fit.cov,
+        0.5 * fit.sse / fit.s2,
+        label,
         1.0,
         w,
         h,
         np.ones(w.size),
         np.full(w.size, np.nan),
-        input,
-        output,
-        dict(zip(st.names, nu.tolist(), strict=True)),
-        basis is not None,
+        req.input,
+        req.output,
+        dict(zip(st.names, fit.nu.tolist(), strict=True)),
+        ends,
     )
 
 

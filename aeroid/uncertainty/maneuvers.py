@@ -209,6 +209,15 @@ def _pulse_train(t: FloatArray, s: dict[str, float], steps: FloatArray) -> Float
     return (s["amplitude"] * level)[:, None]
 
 
+def _pulse_specs(kind: str, amplitude: Any, width: Any, start: Any) -> dict[str, Range]:
+    """A pulse train's settings (fixed, or design ranges), checked and named for `kind`."""
+    return {
+        "amplitude": _range(amplitude, f"{kind} amplitude"),
+        "width": _range(width, f"{kind} width", positive=True),
+        "start": _range(start, f"{kind} start"),
+    }
+
+
 # a doublet's edges in lobe widths from its start
 _DOUBLET_EDGES = np.array([0.0, 1.0, 2.0])
 
@@ -243,14 +252,7 @@ class Doublet(_Family):
         width: float | Range = (0.5, 2.0),
         start: float | Range = 1.0,
     ) -> None:
-        super().__init__(
-            control,
-            {
-                "amplitude": _range(amplitude, "Doublet amplitude"),
-                "width": _range(width, "Doublet width", positive=True),
-                "start": _range(start, "Doublet start"),
-            },
-        )
+        super().__init__(control, _pulse_specs("Doublet", amplitude, width, start))
 
     def highest_frequency(self) -> float:
         # a lobe's first spectral null, as for `Multistep`'s shortest pulse
@@ -331,14 +333,7 @@ class Multistep(_Family):
         self.pattern = _pattern(pattern)
         # pulse edges in base steps from the start: 0, 3, 5, 6, 7 for the 3-2-1-1
         self._edges = np.concatenate([[0.0], np.cumsum(self.pattern, dtype=np.float64)])
-        super().__init__(
-            control,
-            {
-                "amplitude": _range(amplitude, "Multistep amplitude"),
-                "width": _range(width, "Multistep width", positive=True),
-                "start": _range(start, "Multistep start"),
-            },
-        )
+        super().__init__(control, _pulse_specs("Multistep", amplitude, width, start))
 
     def highest_frequency(self) -> float:
         return 1.0 / (min(self.pattern) * self._specs["width"][0])
