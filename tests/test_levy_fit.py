@@ -118,3 +118,11 @@ def test_method_needs_the_records_transforms():
         aeroid.fit_transfer_function(
             resp, numerator_order=0, denominator_order=2, method="equation_error"
         )
+
+
+def test_left_unset_the_delay_follows_the_method():
+    data = _mass_spring(noise=0.01)
+    ee = aeroid.fit_transfer_function(data, **OPTIONS, fourier=True, method="equation_error")
+    assert "tau" not in ee.parameters and ee.delay == 0.0
+    oe = aeroid.fit_transfer_function(data, **OPTIONS, fourier=True)
+    assert "tau" in oe.parameters  # output error fits it unless told not to

@@ -403,7 +403,7 @@ def fit_transfer_function(
     *,
     numerator_order: int,
     denominator_order: int,
-    delay: bool = True,
+    delay: bool | None = None,
     frequency_range: tuple[float, float] | None = None,
     input: str | None = None,
     output: str | None = None,
@@ -427,8 +427,9 @@ def fit_transfer_function(
     numerator_order, denominator_order : int
         m ≥ 0 and n ≥ 1, in any order (m > n, an improper transfer function,
         fits a band-limited response such as SIDPAC's Example 7.2).
-    delay : bool
-        Fit the equivalent time delay τ.
+    delay : bool, optional
+        Fit the equivalent time delay τ (default: yes, except by equation
+        error, which cannot).
     frequency_range : (float, float), optional
         Band in rad/s (default: every frequency of the response).
     input, output : str, optional
@@ -474,14 +475,6 @@ def fit_transfer_function(
         (Wald test at 5 %, as `identify_frequency_domain` does) and
         ``"ignore"`` leaves them out, as SIDPAC's ``tfest`` and ``fdoe`` do.
         `TransferFunctionFit.ends_estimated` says which.
-
-    When flight data are given without `frequency_range` (or `frequencies`),
-    the band is the one the input excited: from the lowest to the highest
-    frequency of the ``k/T`` grid where the input's power is at least 1 % of
-    its peak. A record's Fourier fit never goes below ``4π/T`` rad/s (two
-    periods in the record, the rule every window of `composite_response`
-    obeys); explicit `frequencies` below it are kept with a warning.
-
     method : {"output_error", "equation_error"}
         ``fourier=True``: output error (default), or Levy's equation error,
         ``(jω)^n Y = Σ b_k (jω)^k U − Σ a_k (jω)^k Y`` solved by least squares
@@ -490,7 +483,15 @@ def fit_transfer_function(
         interpolates the input cubically and keeps the trends, so its
         transforms differ a little). Linear, so no start and no iteration,
         but the output's noise in the regressors biases it where output
-        error is not biased; it fits no delay (``delay=False``).
+        error is not biased; it fits no delay (``delay`` left unset or False).
+
+    When flight data are given without `frequency_range` (or `frequencies`),
+    the band is the one the input excited: from the lowest to the highest
+    frequency of the ``k/T`` grid where the input's power is at least 1 % of
+    its peak. A record's Fourier fit never goes below ``4π/T`` rad/s (two
+    periods in the record, the rule every window of `composite_response`
+    obeys); explicit `frequencies` below it are kept with a warning.
+
     Returns
     -------
     TransferFunctionFit
@@ -536,6 +537,8 @@ def fit_transfer_function(
         frequency_range = _excited_band(response_or_data, input)
     if method not in _METHODS:
         raise IdentificationError(f"method: expected one of {list(_METHODS)}, got {plain(method)}")
+    if delay is None:
+        delay = method != "equation_error"
     if method != "output_error" and not fourier:
         raise IdentificationError("method applies to fourier=True only")
     if fourier:
