@@ -201,6 +201,17 @@ def fourier(
         out = _block_sum(x, freq, step)
     out = np.asarray(out, dtype=np.complex128) * step
     if end_correction and n >= 2:
-        last = np.exp(-2j * np.pi * freq * (n - 1) * step)[:, None]
-        out -= 0.5 * step * (x[0][None, :] + last * x[-1][None, :])
+        out -= trapezoid_ends(x[0], x[-1], freq, (n - 1) * step, step)
     return out[:, 0] if one else out
+
+
+def trapezoid_ends(
+    first: ArrayLike, last: ArrayLike, frequencies_hz: NDArray[np.float64], span: float, dt: float
+) -> ComplexArray:
+    """What the trapezoid rule takes off a plain sum's transform: half of the first
+    and last samples (`span` seconds apart), shape (m,) or (m, k) as the samples."""
+    back = np.exp(-2j * np.pi * frequencies_hz * span)
+    a, b = np.asarray(first), np.asarray(last)
+    if a.ndim:
+        return np.asarray(0.5 * dt * (a[None, :] + back[:, None] * b[None, :]), dtype=np.complex128)
+    return np.asarray(0.5 * dt * (a + back * b), dtype=np.complex128)

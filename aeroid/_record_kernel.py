@@ -65,8 +65,9 @@ def kept_off_grid(jac: FloatArray, m_inv: FloatArray, omega: FloatArray, span: f
     kw = W + mixed.reshape(m, r, p)  # (K J)_m as complex rows, the self term included
     kj = np.concatenate([kw.real, kw.imag], axis=1)  # (M, 2r, p)
     gram = np.einsum("mrp,mrq->pq", jac, kj)  # J' K J
-    hk = np.einsum("mrp,pq,msq->mrs", jac, m_inv, kj)  # (H K)_mm
-    hkh = np.einsum("mrp,pq,qs,mts->mrt", jac, m_inv, gram @ m_inv, jac)
+    a = jac @ m_inv  # J_m M^-1, so (H K)_mm = A_m (K J)_m' and (H K H)_mm = A_m J'KJ A_m'
+    hk = np.einsum("mrq,msq->mrs", a, kj)
+    hkh = np.einsum("mrq,mtq->mrt", a @ gram, a)
     kept = np.eye(rows)[None] - hk - hk.transpose(0, 2, 1) + hkh
     return np.asarray(0.5 * (kept + kept.transpose(0, 2, 1)), dtype=np.float64)
 

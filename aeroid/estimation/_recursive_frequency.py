@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .._czt import fourier
+from .._czt import fourier, trapezoid_ends
 from ..errors import DataFormatError, IdentificationError
 from ._regression_fits import derivative_transform, fourier_regression
 from ._regression_record import RegressionResult
@@ -164,7 +164,6 @@ def _as_taken(
     if not derivative:
         return zt, xt
     span = end * step
-    back = np.exp(-2j * np.pi * freq * span)
-    z_now = zt - 0.5 * step * (zd[0] + back * zd[end])
-    x_now = xt - 0.5 * step * (xd[0][None, :] + back[:, None] * xd[end][None, :])
+    z_now = zt - trapezoid_ends(zd[0], zd[end], freq, span, step)
+    x_now = xt - trapezoid_ends(xd[0], xd[end], freq, span, step)
     return derivative_transform(z_now, zd[0], zd[end], freq, span), x_now
