@@ -29,6 +29,9 @@ from typing import Any
 import numpy as np
 
 ENV = "AEROID_SIDPAC_DIR"
+# Jategaonkar's FVSysID flight data (the book's flt_data folder), for the ref_fvsysid_* cases
+FVSYSID_ENV = "AEROID_FVSYSID_DIR"
+SOURCES = {"sidpac": ENV, "fvsysid": FVSYSID_ENV}
 KEYS = (
     "case",
     "parameter",
@@ -54,18 +57,19 @@ class SkipCase(Exception):
     """Raised when a case cannot run here (data folder unset or a file missing)."""
 
 
-def data_folder() -> pathlib.Path | None:
-    """The SIDPAC folder named by ``AEROID_SIDPAC_DIR``, or None when unset."""
-    value = os.environ.get(ENV, "").strip()
+def data_folder(source: str = "sidpac") -> pathlib.Path | None:
+    """The data folder of `source` (``SOURCES``: its environment variable), or None when unset."""
+    value = os.environ.get(SOURCES[source], "").strip()
     return pathlib.Path(value) if value else None
 
 
-def need(folder: pathlib.Path, *relative: str) -> list[pathlib.Path]:
+def need(folder: pathlib.Path, *relative: str, source: str = "sidpac") -> list[pathlib.Path]:
     """Paths of the files a case reads; SkipCase naming the first one missing."""
+    what = {"sidpac": "the SIDPAC V2.0 folder", "fvsysid": "FVSysID's flt_data folder"}[source]
     paths = [folder / r for r in relative]
     for p in paths:
         if not p.is_file():
-            raise SkipCase(f"{p} not found (is {ENV} the SIDPAC V2.0 folder?)")
+            raise SkipCase(f"{p} not found (is {SOURCES[source]} {what}?)")
     return paths
 
 
@@ -634,13 +638,17 @@ def arguments(argv: Sequence[str] | None = None, *, description: str = "") -> ar
 
 
 def main(
-    case: str, run: Callable[..., list[dict[str, Any]]], argv: Sequence[str] | None = None
+    case: str,
+    run: Callable[..., list[dict[str, Any]]],
+    argv: Sequence[str] | None = None,
+    *,
+    source: str = "sidpac",
 ) -> int:
     """What a case script's ``__main__`` does: run it and print its table."""
-    args = arguments(argv, description=f"SIDPAC reference case {case}")
-    folder = data_folder()
+    args = arguments(argv, description=f"{source} reference case {case}")
+    folder = data_folder(source)
     if folder is None:
-        print(f"skipped {case}: set {ENV} to the SIDPAC V2.0 folder to run the reference suite")
+        print(f"skipped {case}: set {SOURCES[source]} to run the reference suite")
         return 0
     try:
         rows = run(folder, mc=args.mc, seed=args.seed)

@@ -4,6 +4,10 @@ Usage::
 
     AEROID_SIDPAC_DIR=/path/to/SIDPAC_V2.0 python tests/reference/run_all.py [--mc N] [--only CASE]
 
+The ``ref_fvsysid_*`` cases (``SOURCE = "fvsysid"``) compare with Jategaonkar's
+FVSysID on the book's flight data, read from ``AEROID_FVSYSID_DIR`` (the
+``flt_data`` folder); the columns headed SIDPAC then hold FVSysID's figures.
+
 Prints each case's table, then one summary line per case: the largest
 ``|ours - SIDPAC| / sigma_SIDPAC``, the range of our standard errors over
 SIDPAC's (corrected where saved), over the Monte Carlo's, SIDPAC's over the
@@ -63,9 +67,12 @@ def main(argv: list[str] | None = None) -> int:
         help="also run check_mc.py's known-truth study over SEEDS seeds (0 skips)",
     )
     args = ap.parse_args(argv)
-    folder = S.data_folder()
-    if folder is None:
-        print(f"skipped: set {S.ENV} to the SIDPAC V2.0 folder to run the reference suite")
+    folders = {source: S.data_folder(source) for source in S.SOURCES}
+    if all(f is None for f in folders.values()):
+        print(
+            f"skipped: set {S.ENV} to the SIDPAC V2.0 folder (and {S.FVSYSID_ENV} to "
+            "FVSysID's flt_data folder) to run the reference suite"
+        )
         return 0
     results: list[tuple[str, dict[str, Any] | str]] = []
     t_all = time.perf_counter()
@@ -78,6 +85,12 @@ def main(argv: list[str] | None = None) -> int:
     for mod in mods:
         case = getattr(mod, "CASE", mod.__name__)
         if args.only and case not in args.only:
+            continue
+        source = getattr(mod, "SOURCE", "sidpac")
+        folder = folders[source]
+        if folder is None:
+            print(f"\nskipped {case}: {S.SOURCES[source]} is unset")
+            results.append((case, f"skipped: {S.SOURCES[source]} is unset"))
             continue
         t0 = time.perf_counter()
         try:
