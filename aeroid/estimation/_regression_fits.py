@@ -47,10 +47,13 @@ def _fit(
     has_const: bool,
     error_bars: str,
     delays: tuple[list[str], FloatArray, FloatArray] | None = None,
+    records: tuple[int, ...] = (),
 ) -> RegressionResult:
     """Least squares of `z` on `x`; `delays` (names, estimates, columns d(X theta)/d tau
     per delay) adds estimated time delays, whose covariance comes with the
-    coefficients' from the Gauss–Newton curvature ``J'J``, ``J = [X, columns]``."""
+    coefficients' from the Gauss–Newton curvature ``J'J``, ``J = [X, columns]``.
+    `records` (samples per record, several) splits the rows into records whose
+    residual spectra the coloured bars estimate apart: no lag spans two records."""
     n, p = x.shape
     n_d = 0 if delays is None else len(delays[0])
     if n <= p + n_d:
@@ -89,7 +92,12 @@ def _fit(
     cov_white = s2 * xtx_inv
     nu = np.full(p, float(n - p))  # the classical t interval's degrees of freedom
     if error_bars == "colored":
-        cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], xtx_inv)
+        cuts = np.cumsum(records[:-1]).tolist() if records else []
+        cov, nu = colored_covariance(
+            [xs[:, None, :] for xs in np.split(x, cuts)],
+            [vs[:, None] for vs in np.split(v, cuts)],
+            xtx_inv,
+        )
     elif error_bars == "reml":
         cov, nu = _reml_covariance(x, v, xtx_inv)
     else:
@@ -122,6 +130,7 @@ def _fit(
         time_delays={}
         if delays is None
         else {k[len(_DELAY) :]: float(t) for k, t in zip(delays[0], delays[1], strict=True)},
+        record_lengths=records,
     )
 
 

@@ -60,6 +60,10 @@ class RegressionResult(IntervalMixin):
         Per estimate, the degrees of freedom of its standard error (``N - p``
         for white bars; the Satterthwaite count of the residual spectrum for
         coloured ones): `interval` and `margin` take Student's t with it.
+    record_lengths : tuple of int
+        Samples per record of a fit to several records (manoeuvres), in their
+        order: `response`, `fitted`, `residuals` and `time` are the records
+        one after another. Empty for a fit to one record.
     """
 
     parameters: Mapping[str, float]
@@ -83,8 +87,10 @@ class RegressionResult(IntervalMixin):
     time_delays: Mapping[str, float] = field(default_factory=dict)
     degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
     press: float = float("nan")
+    record_lengths: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "record_lengths", tuple(int(k) for k in self.record_lengths))
         object.__setattr__(self, "time_delays", frozen_mapping(self.time_delays))
         object.__setattr__(self, "degrees_of_freedom", frozen_mapping(self.degrees_of_freedom))
         object.__setattr__(self, "parameters", frozen_mapping(self.parameters))

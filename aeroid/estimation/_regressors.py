@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._value_checks import check_distinct
-from ..errors import ChannelError, DataFormatError
+from ..errors import AeroidError, ChannelError, DataFormatError
 from ..io.data import FlightData, as_float, positive_number, real_array
 
 FloatArray = NDArray[np.float64]
@@ -188,6 +188,50 @@ def _resolve(
     cols = [_column(lookup, v, n, f"regressor {k!r}") for k, v in items]
     mat = np.column_stack(cols) if cols else np.zeros((n, 0))
     return z, mat, [k for k, _ in items], zname, time
+
+
+def _several_records(data: Any) -> list[FlightData] | None:
+    """`data` as a list of records when it is a sequence of FlightData (None otherwise:
+    a nested list of numbers is a regressor matrix, not records)."""
+    if isinstance(data, (FlightData, Mapping, str, bytes, np.ndarray)):
+        return None
+    if not isinstance(data, Sequence) or not data:
+        return None
+    kinds = [isinstance(d, FlightData) for d in data]
+    if not any(kinds):
+        return None
+    if not all(kinds):
+        j = kinds.index(False)
+        raise DataFormatError(
+            f"data: several records must all be FlightData; item {j} is {type(data[j]).__name__}"
+        )
+    return list(data)
+
+
+def _resolve_records(
+    records: Sequence[FlightData], response: Any, regressors: Any, what: str
+) -> tuple[FloatArray, FloatArray, list[str], str, FloatArray, tuple[int, ...]]:
+    """`_resolve` on each record, stacked: response, regressors, names, response name,
+    the records' times one after another, and each record's length."""
+    if not isinstance(response, str):
+        raise DataFormatError(
+            "response: with several records give a channel name or expression, not samples"
+        )
+    if isinstance(regressors, Mapping) and any(not isinstance(v, str) for v in regressors.values()):
+        raise DataFormatError(
+            "regressors: with several records give names or expressions, not samples"
+        )
+    parts = []
+    for k, record in enumerate(records):
+        try:
+            parts.append(_resolve(record, response, regressors, what))
+        except AeroidError as exc:
+            raise type(exc)(f"record {k}: {exc}") from None
+    z = np.concatenate([part[0] for part in parts])
+    x = np.concatenate([part[1] for part in parts])
+    time = np.concatenate([np.asarray(part[4], dtype=np.float64) for part in parts])
+    lengths = tuple(part[0].shape[0] for part in parts)
+    return z, x, parts[0][2], parts[0][3], time, lengths
 
 
 def _check_names(names: Sequence[str]) -> None:

@@ -105,8 +105,8 @@ from ._regressors import _column as _column
 from ._regressors import _evaluate as _evaluate
 from ._regressors import _mapping_columns as _mapping_columns
 from ._regressors import _resolve as _resolve
+from ._regressors import _resolve_records, _several_records, _with_constant
 from ._regressors import _step_of as _step_of
-from ._regressors import _with_constant
 from ._regressors import candidate_pool as candidate_pool
 from ._regressors import spline_terms as spline_terms
 from .least_squares import _COLLINEAR as _COLLINEAR
@@ -155,10 +155,15 @@ def equation_error(
 
     Parameters
     ----------
-    data : FlightData, mapping of str to array_like, or array_like (n, p)
+    data : FlightData, sequence of FlightData, mapping of str to array_like, or array_like (n, p)
         Where response and regressors come from; or the regressor matrix
         itself (then `response` is the samples and `regressors` the optional
-        column names, default ``x1 .. xp``).
+        column names, default ``x1 .. xp``). Several records (manoeuvres,
+        time domain) are fitted together, one set of parameters for all, as
+        Klein & Morelli and Jategaonkar join them; the coloured bars estimate
+        each record's residual spectrum apart, so no correlation is counted
+        across the joins (module notes). Name the response and regressors
+        then; `time_delays` and ``"reml"`` bars take one record.
     response : str or array_like
         The modelled quantity ``z``: a channel name or expression, or samples.
     regressors : sequence of str, or mapping of str to str or array_like
@@ -223,7 +228,25 @@ def equation_error(
         raise DataFormatError(f"domain: expected one of {_DOMAINS}, got {domain!r}")
     if error_bars not in _ERROR_BARS:
         raise DataFormatError(f"error_bars: expected one of {_ERROR_BARS}, got {error_bars!r}")
-    z, x, names, zname, time = _resolve(data, response, regressors, "equation error")
+    records = _several_records(data)
+    lengths: tuple[int, ...] = ()
+    time: FloatArray | None
+    one = records[0] if records else data
+    if records is not None and len(records) > 1:
+        if domain != "time":
+            raise DataFormatError("data: several records are fitted in the time domain only")
+        if time_delays is not None and time_delays is not False:
+            raise DataFormatError("time_delays: estimated on one record; give one FlightData")
+        if error_bars == "reml":
+            raise DataFormatError(
+                "error_bars: 'reml' models one record's residuals; choose 'colored' (each "
+                "record's spectrum apart) or 'white'"
+            )
+        z, x, names, zname, time, lengths = _resolve_records(
+            records, response, regressors, "equation error"
+        )
+    else:
+        z, x, names, zname, time = _resolve(one, response, regressors, "equation error")
     check_flag(intercept, "intercept", DataFormatError)
     use_const = bool(intercept)
     n_terms = x.shape[1] + int(use_const)
@@ -254,7 +277,7 @@ def equation_error(
         if domain != "time":
             raise DataFormatError("time_delays: estimated in the time domain only")
         return _delayed_fit(
-            data,
+            one,
             z,
             response,
             regressors,
@@ -267,9 +290,14 @@ def equation_error(
             error_bars=error_bars,
         )
     if domain == "time":
-        step = _step_of(time, dt)  # a dt given must be positive and agree with the data
+        for record in records if lengths and records else ():
+            _step_of(np.asarray(record.time), dt)  # a dt given must agree with every record
+        # a dt given must be positive and agree with the data
+        step = None if lengths else _step_of(time, dt)
         t = time if time is not None else np.arange(z.shape[0], dtype=np.float64) * (step or 1.0)
-        return _fit(z, x, names, zname, t, has_const=use_const, error_bars=error_bars)
+        return _fit(
+            z, x, names, zname, t, has_const=use_const, error_bars=error_bars, records=lengths
+        )
     if error_bars == "reml":
         raise DataFormatError(
             "error_bars: 'reml' models the residuals in time; in the frequency domain "
