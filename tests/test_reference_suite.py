@@ -253,3 +253,51 @@ def test_the_monte_carlo_under_reads_a_constant_under_slow_ar1_noise() -> None:
     print(ratio)
     assert ratio[0] < 0.75, ratio
     assert np.all(np.abs(ratio[1:] - 1.0) < 0.2), ratio
+
+
+def test_fvsysid_oem_of_a_static_linear_output_is_least_squares() -> None:
+    # no states: output error is least squares; the Cramer-Rao covariance is
+    # s^2 (X'X)^-1 with s^2 the mean squared residual (FVSysID's R divides by N)
+    import _fvsysid as F
+
+    rng = np.random.default_rng(5)
+    n = 300
+    u = rng.normal(size=(n, 1))
+    z = 1.5 * u - 0.4 + 0.05 * rng.normal(size=(n, 1))
+
+    def none(x: np.ndarray, uu: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.zeros((0, p.shape[1]))
+
+    def obs(x: np.ndarray, uu: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return (p[0] * uu[0] + p[1])[None, :]
+
+    fit = F.ml_oem(none, obs, np.zeros(0), u, z, 0.1, [1.0, 0.0])
+    x = np.column_stack([u[:, 0], np.ones(n)])
+    beta = np.linalg.lstsq(x, z[:, 0], rcond=None)[0]
+    s2 = np.mean((z[:, 0] - x @ beta) ** 2)
+    np.testing.assert_allclose(fit.p, beta, rtol=1e-6)
+    np.testing.assert_allclose(fit.crb, s2 * np.linalg.inv(x.T @ x), rtol=1e-4)
+    assert fit.cost[-1] <= fit.cost[0]
+
+
+def test_fvsysid_oem_recovers_a_first_order_system() -> None:
+    # x' = a x + b u, y = x: a seeded record, truth within 4 Cramer-Rao sigmas
+    import _fvsysid as F
+
+    rng = np.random.default_rng(8)
+    n, dt = 400, 0.05
+    u = np.sign(np.sin(np.arange(n) * dt * 1.3))[:, None]
+
+    def f(x: np.ndarray, uu: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return p[0] * x + p[1] * uu[0]
+
+    def g(x: np.ndarray, uu: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return x
+
+    truth = np.array([[-2.0], [3.0]])
+    y = F.simulate(f, g, np.zeros(1), u, dt, truth)[:, :, 0]
+    z = y + 0.02 * rng.normal(size=y.shape)
+    fit = F.ml_oem(f, g, np.zeros(1), u, z, dt, [-1.0, 1.0], tolerance=1e-10)
+    assert np.all(np.abs(fit.p - truth[:, 0]) < 4.0 * fit.se)
+    held = F.ml_oem(f, g, np.zeros(1), u, z, dt, [-2.0, 1.0], free=[False, True])
+    assert held.p[0] == -2.0 and held.se[0] == 0.0 and held.se[1] > 0.0
