@@ -19,7 +19,10 @@ model's own state, here driven but neither observed nor fed back, like phi),
 output bias on each; zero initial state held. Our ``ay`` is ``V0 sum Y``,
 so FVSysID's ``Y*`` are ours times V0 (the mean airspeed), and our p_dot
 and r_dot carry the constant, so FVSysID's BY1, BY2 are our output bias
-plus ``L_0``, ``N_0`` (no standard error). Default and ``white:`` error bars.
+plus ``L_0``, ``N_0`` (no standard error: the result keeps no covariance
+between parameters and biases). Default and ``white:`` error bars; ``user:``
+rows fit the case word for word as a user ``aeroid.Model`` (beta an input,
+every bias a parameter), default bars.
 """
 
 from __future__ import annotations
@@ -73,6 +76,24 @@ def obs_eq(x: Any, u: Any, p: Any) -> Any:
     return np.stack([pd + p[17], rd + p[18], ay + p[19], x[0] + p[20], x[1] + p[21]])
 
 
+def user_model() -> Any:
+    """mDefCase01 as a user ``aeroid.Model``: states p, r; beta an input; FVSysID's names."""
+    import aeroid
+
+    def vector(p: Any) -> list[Any]:
+        return [p[n] for n in NAMES]
+
+    return aeroid.Model(
+        states=["p", "r"],
+        controls=list(SURFACES),
+        parameters=dict(zip(NAMES, P0, strict=True)),
+        dynamics=lambda t, x, u, p: state_eq(x, u, vector(p)),
+        outputs=list(OUTPUTS),
+        measurement=lambda t, x, u, p: obs_eq(x, u, vector(p)),
+        name="attas_lat_tc01",
+    )
+
+
 def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str, Any]]:
     import aeroid
     from aeroid.models import aircraft
@@ -109,9 +130,15 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         res = aeroid.identify(model, flight(z), start, **opts)
     white = aeroid.identify(model, flight(z), start, error_bars="white", **opts)
     mcs = S.identify_monte_carlo(model, flight, z, res, OUTPUTS, mc, seed=seed, **opts)
+    # the case word for word as a user Model: every bias a parameter, BY1, BY2 with bars
+    user = aeroid.identify(
+        user_model(), flight(z), dict(zip(NAMES, P0, strict=True)), x0=[0.0, 0.0]
+    )
 
     def ours(fit: Any, n: str) -> tuple[float, float | None, float | None]:
         """Our estimate, se and Monte Carlo se of FVSysID's parameter n."""
+        if fit is user:
+            return fit.parameters[n], fit.stderr[n], None
         if n in OURS:
             k, c = OURS[n], scale[n]
             m = mcs.get(k)
@@ -127,7 +154,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         "ours lateral_linear (beta as surface beta_m; Y* x V0; BY1, BY2 = bias + L_0, N_0)"
     )
     rows = []
-    for label, fit, variant in (("", res, False), ("white:", white, True)):
+    for label, fit, variant in (("", res, False), ("white:", white, True), ("user:", user, True)):
         for i, n in enumerate(NAMES):
             est, err, mce = ours(fit, n)
             rows.append(
