@@ -61,7 +61,7 @@ DT = 0.04
 def _derivatives(x: Any, u: Any, p: Any) -> tuple[Any, Any, Any]:
     """p_dot, r_dot and ay without biases; u holds aileron, rudder, beta."""
     v = [x[0], x[1], u[0], u[1], u[2]]
-    return tuple(sum(p[5 * k + j] * v[j] for j in range(5)) for k in range(3))  # type: ignore[return-value]
+    return tuple(sum(p[5 * k + j] * v[j] for j in range(5)) for k in range(3))
 
 
 def state_eq(x: Any, u: Any, p: Any) -> Any:
@@ -118,7 +118,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     def flight(zz: np.ndarray) -> Any:
         ch = {o: zz[:, j] for j, o in enumerate(OUTPUTS)}
         ch.update({s: u[:, j] for j, s in enumerate(SURFACES)})
-        return aeroid.FlightData(time=np.arange(len(zz)) * DT, channels=ch)
+        return aeroid.FlightData(
+            time=np.asarray(np.arange(len(zz)) * DT, dtype=np.float64), channels=ch
+        )
 
     start = {OURS[n]: P0[i] / scale[n] for i, n in enumerate(NAMES) if n in OURS}
     opts: dict[str, Any] = {

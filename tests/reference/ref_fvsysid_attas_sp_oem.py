@@ -87,7 +87,11 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             zz = z[k : k + len(u)]
             k += len(u)
             ch = {"alpha": zz[:, 0], "q": zz[:, 1], "delta_e": u[:, 0]}
-            out.append(aeroid.FlightData(time=np.arange(len(u)) * DT, channels=ch))
+            out.append(
+                aeroid.FlightData(
+                    time=np.asarray(np.arange(len(u)) * DT, dtype=np.float64), channels=ch
+                )
+            )
         return out
 
     def state(z0: np.ndarray) -> dict[str, float]:

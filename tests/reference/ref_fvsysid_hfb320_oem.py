@@ -116,7 +116,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     (path,) = S.need(folder, FILE, source="fvsysid")
     d = F.read_flight(path)
     z, u = d[:, 4:11], d[:, [1, 3]]
-    t = np.arange(len(z)) * DT
+    t = np.asarray(np.arange(len(z)) * DT, dtype=np.float64)
     fv = F.ml_oem(state_eq, obs_eq, np.array(X0), u, z, DT, np.array(P0))
 
     def flight(zz: np.ndarray) -> Any:
