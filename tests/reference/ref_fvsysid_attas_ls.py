@@ -11,8 +11,9 @@ gives ``s^2 (X'X)^-1``. FVSysID saved no result: its method runs here in numpy
 standard deviation (no corrected bar). The multivariate scripts regress every
 coefficient on one regressor set (``mvLon``, ``mvLat``, ``mv6`` rows).
 
-Ours: ``aeroid.equation_error`` on the same regressors and responses, with its
-default (coloured) bars and with ``error_bars="white"`` (variant rows). Further
+Ours: ``aeroid.equation_error`` on the same regressors and responses, the three
+manoeuvres given as a list of records (one parameter set; each record's residual
+spectrum estimated apart), with its default (coloured) bars and with ``error_bars="white"`` (variant rows). Further
 variant rows run the whole preprocessing as a user would with AeroID: ``ud.``
 the book's coefficients with the angular accelerations from
 ``aeroid.differentiate`` (default Fourier smoother, per manoeuvre) in place of
@@ -63,6 +64,7 @@ def fit_rows(
     ch: Mapping[str, np.ndarray],
     response: str,
     regressors: Sequence[str],
+    bounds: np.ndarray,
     *,
     book: tuple[np.ndarray, np.ndarray] | None = None,
     mc: int,
@@ -73,8 +75,9 @@ def fit_rows(
 ) -> list[dict[str, Any]]:
     """FVSysID's LS (`book`: estimate and LS_Stat std, const first; computed from `ch`
     when None) next to ``aeroid.equation_error`` with default bars (rows marked
-    `variant` when asked) and white bars (variant rows), with a Monte Carlo of the
-    refits on surrogates of our residuals (of the joined record, as the fit sees it)."""
+    `variant` when asked) and white bars (variant rows), the manoeuvres as a list of
+    records, with a Monte Carlo of the refits on surrogates of each manoeuvre's
+    residuals."""
     import aeroid
 
     reg = {k: ch[k] for k in regressors}
@@ -83,15 +86,34 @@ def fit_rows(
         x = np.column_stack([np.ones(z.size), *reg.values()])
         book = F.ls_stat(x, z)
     ref = dict(zip(("const", *regressors), zip(*book, strict=True), strict=True))
+    segs = F.segments(bounds)
+
+    def records(zz: np.ndarray) -> list[Any]:
+        # one record per manoeuvre, as a user joins them: one parameter set, each
+        # record's residual spectrum apart
+        return [
+            aeroid.FlightData(
+                time=np.arange(s.stop - s.start) * F.DT,
+                channels={**{k: v[s] for k, v in reg.items()}, "z": zz[s]},
+            )
+            for s in segs
+        ]
+
     with S.Timer() as tm:
-        res = aeroid.equation_error(reg, z, dict(reg))
-    white_res = aeroid.equation_error(reg, z, dict(reg), error_bars="white")
+        res = aeroid.equation_error(records(z), "z", list(regressors))
+    white_res = aeroid.equation_error(records(z), "z", list(regressors), error_bars="white")
     fitted = np.asarray(res.fitted)
+    resid = z - fitted
 
     def refit(zz: np.ndarray) -> Mapping[str, float]:
-        return aeroid.equation_error(reg, zz, dict(reg), error_bars="white").parameters
+        return aeroid.equation_error(
+            records(zz), "z", list(regressors), error_bars="white"
+        ).parameters
 
-    mcs = S.monte_carlo(refit, fitted, z - fitted, mc, seed=seed)
+    def draw(rng: np.random.Generator) -> np.ndarray:
+        return np.concatenate([S.phase_surrogate(resid[s], rng) for s in segs])
+
+    mcs = S.monte_carlo(refit, fitted, resid, mc, seed=seed, draw=draw)
     rows = []
     for name, (p, w) in ref.items():
         for r, var in ((res, variant), (white_res, True)):
@@ -220,14 +242,14 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     rows: list[dict[str, Any]] = []
     k = 0
     for resp, regs in MODELS.items():
-        rows += fit_rows("", ch, resp, regs, mc=mc, seed=seed + k)
+        rows += fit_rows("", ch, resp, regs, bounds, mc=mc, seed=seed + k)
         k += 1
     for label, (responses, regs) in MULTIVARIATE.items():
         x = np.column_stack([np.ones(len(ch["CD"])), *(ch[r] for r in regs)])
         par = np.linalg.lstsq(x, np.column_stack([ch[c] for c in responses]), rcond=None)[0]
         for j, resp in enumerate(responses):
             book = (par[:, j], F.ls_std(x, ch[resp], par[:, j]))
-            rows += fit_rows(f"{label}.", ch, resp, regs, book=book, mc=mc, seed=seed + k)
+            rows += fit_rows(f"{label}.", ch, resp, regs, bounds, book=book, mc=mc, seed=seed + k)
             k += 1
     # the user's preprocessing, against the book's estimates and bars
     diffed = F.preprocess(
@@ -245,6 +267,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
                 alt,
                 resp,
                 regs,
+                bounds,
                 book=F.ls_stat(x, ch[resp]),
                 mc=0,
                 seed=seed,
