@@ -7,12 +7,14 @@ other one point at a time.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .._threads import in_background, user_stacklevel
 from ..errors import AeroidError, ModelDefinitionError, SimulationError
 
 FloatArray = NDArray[np.float64]
@@ -153,15 +155,27 @@ class BatchFunction:
         if batch < 2:
             return
         reference = self._loop(t, x, u, p)
+        why = "returned other values on arrays than point by point"
         try:
             with np.errstate(all="ignore"):
                 trial = self._real(self._evaluate(t, x, u, p), t)
             ok = trial.shape == (self.n_out, batch) and np.allclose(
                 trial, reference, rtol=1e-10, atol=1e-300, equal_nan=True
             )
-        except Exception:  # any failure means "does not broadcast"
+        except Exception as exc:  # any failure means "does not broadcast"
             ok = False
+            why = f"raised {type(exc).__name__} on arrays ({exc})"
         self.broadcasts = bool(ok)
+        if not ok and not self.jax_written and not in_background():
+            # correct either way, but a loop in Python over every point and every
+            # evaluation: say so once, with the usual cause
+            warnings.warn(
+                f"{self._where()} {why}, so it is evaluated one point at a time, many "
+                "times slower: write it for arrays of points (np.where, not a Python "
+                "`if` on a state or input; np.sin, not math.sin)",
+                UserWarning,
+                stacklevel=user_stacklevel(),
+            )
 
     def __call__(
         self, t: Any, x: FloatArray, u: FloatArray, p: Mapping[str, FloatArray]
