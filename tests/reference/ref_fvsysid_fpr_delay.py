@@ -19,7 +19,8 @@ Ours: ``identify(time_delays=...)`` delays controls only, and
 these delays) takes one record without lever arms; so a user
 ``aeroid.Model`` carries the delays to first order, ``y - tau y'`` with
 ``y'`` from the kinematics, fitted by ``aeroid.identify`` to the three
-records with every initial state estimated.
+records with every initial state estimated. Rows ``fo`` (variants): FVSysID's
+method with the delays to first order as ours, against our white fit.
 """
 
 from __future__ import annotations
@@ -124,6 +125,8 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     segs = C.segments(folder)
     x0 = C.initial_states(segs)
     fv = port(segs, x0, lambda x, c, p: C.sensors(x, c, _air(p)), interpolated)
+    # the same method with the delays to first order, as ours carries them
+    fo = port(segs, x0, first_order, None)
     crb = dict(zip(fv.names, fv.crb, strict=True))
     start = dict.fromkeys(NAMES, 0.0)
     m = model(start)
@@ -176,6 +179,19 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             S.row(CASE, f"white:{n}", **common, ours=ours_w[n], ours_se=se_w[n],
                   mc_se=mcs.get(n), variant=True)
         )  # fmt: skip
+    rows += [
+        S.row(
+            CASE,
+            f"fo:{n}",
+            sidpac=fo.p[i],
+            sidpac_se_white=fo.crb[i],
+            sidpac_se_corrected=None,
+            ours=ours_w[n],
+            ours_se=se_w[n],
+            variant=True,
+        )
+        for i, n in enumerate(NAMES)
+    ]
     return rows
 
 
