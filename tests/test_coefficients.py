@@ -154,3 +154,60 @@ def test_an_unknown_method_is_refused_though_no_rate_is_differentiated() -> None
     chans, _ = _truth()  # the record carries p_dot, q_dot and r_dot already
     with pytest.raises(DataFormatError, match="method: expected 'fourier' or 'local'"):
         coefficients_from_data(FlightData(T, chans), AC, thrust="T", method="bogus")
+
+
+def test_moments_about_the_point_where_the_force_acts_vanish() -> None:
+    # an aerodynamic force acting at r (no moment about r) turns the body through
+    # M_cg = r x F alone; referred to r, every moment coefficient is zero
+    rng = np.random.default_rng(4)
+    n = 50
+    force = np.column_stack(
+        [rng.normal(-800, 50, n), rng.normal(0, 300, n), rng.normal(-9e3, 400, n)]
+    )
+    r = np.array([1.3, -0.4, 0.6])
+    moment = np.cross(r, force)
+    inertia = np.array([[AC.Ixx, 0, -AC.Ixz], [0, AC.Iyy, 0], [-AC.Ixz, 0, AC.Izz]])
+    omd = np.linalg.solve(inertia, moment.T).T  # at rest: I w_dot = M
+    zero = np.zeros(n)
+    chans = {"V": np.full(n, 60.0), "alpha": np.full(n, 0.05), "p": zero, "q": zero, "r": zero}
+    chans.update(p_dot=omd[:, 0], q_dot=omd[:, 1], r_dot=omd[:, 2])
+    chans.update(ax=force[:, 0] / AC.mass, ay=force[:, 1] / AC.mass, az=force[:, 2] / AC.mass)
+    data = FlightData(np.arange(n) * DT, chans)
+    about_r = coefficients_from_data(data, AC, moment_reference=r)
+    about_cg = coefficients_from_data(data, AC)
+    qs = 0.5 * AC.rho * 60.0**2 * AC.S
+    for name, k, ref in (("Cl", 0, AC.b), ("Cm", 1, AC.cbar), ("Cn", 2, AC.b)):
+        np.testing.assert_allclose(about_r[name], 0.0, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(about_cg[name], moment[:, k] / (qs * ref), rtol=1e-12)
+    # the forces themselves do not move; zero is the centre of gravity, bit for bit
+    np.testing.assert_array_equal(about_r["CZ"], about_cg["CZ"])
+    same = coefficients_from_data(data, AC, moment_reference=(0.0, 0.0, 0.0))
+    np.testing.assert_array_equal(same["Cm"], about_cg["Cm"])
+
+
+def test_a_density_channel_sets_the_dynamic_pressure() -> None:
+    chans, truth = _truth()
+    rho = 1.1 * (1.0 + 0.05 * np.sin(np.linspace(0.0, 3.0, T.size)))
+    data = FlightData(T, {**chans, "rho": rho})
+    out = coefficients_from_data(data, AC, thrust="T", density="rho")
+    np.testing.assert_allclose(out["qbar"], 0.5 * rho * chans["V"] ** 2, rtol=1e-14)
+    for name, value in truth.items():  # the truth was made with 1.1
+        np.testing.assert_allclose(out[name], value * 1.1 / rho, rtol=1e-12, err_msg=name)
+    const = coefficients_from_data(FlightData(T, chans), AC, thrust="T", density=1.1)
+    np.testing.assert_allclose(const["Cm"], truth["Cm"], rtol=1e-12)
+
+
+def test_density_and_reference_point_refusals() -> None:
+    chans, _ = _truth()
+    data = FlightData(T, chans)
+    with pytest.raises(DataFormatError, match="density"):
+        coefficients_from_data(data, AC, thrust="T", density=-1.0)
+    with pytest.raises(ChannelError, match="rho"):
+        coefficients_from_data(data, AC, thrust="T", density="rho")
+    with pytest.raises(DataFormatError, match="moment_reference"):
+        coefficients_from_data(data, AC, thrust="T", moment_reference=(1.0, 2.0))
+    with pytest.raises(DataFormatError, match="moment_reference"):
+        coefficients_from_data(data, AC, thrust="T", moment_reference=(1.0, np.nan, 0.0))
+    moments_only = FlightData(T, {k: chans[k] for k in ("V", "p", "q", "r")})
+    with pytest.raises(ChannelError, match="moment_reference"):
+        coefficients_from_data(moments_only, AC, outputs=["Cm"], moment_reference=(1.0, 0, 0))

@@ -15,7 +15,12 @@ accelerometers measure, gravity excluded)::
 
 where T is the thrust, along a line tilted up by σ from the body x axis and
 passing d below the centre of gravity (`AircraftConstants.thrust_angle` and
-`thrust_offset`, the convention of `aeroid.models.aircraft`'s models). Accelerometers away from the
+`thrust_offset`, the convention of `aeroid.models.aircraft`'s models). The
+moments may be referred to another point than the centre of gravity, such as
+the fixed moment reference point of a wind-tunnel database, at ``r`` from it:
+``M_r = M_cg − r × F`` with ``F`` the aerodynamic force, so for instance
+``Cm_r = Cm − (z CX − x CZ)/c̄`` (Jategaonkar's ATTAS regressions refer
+their moments so). Accelerometers away from the
 centre of gravity also sense ``ω̇ × r + ω × (ω × r)``, which is removed using
 `AircraftConstants.accel_position`. Angular accelerations are taken from the
 data when present (``p_dot``, ``q_dot``, ``r_dot``) and otherwise computed
@@ -72,6 +77,21 @@ def _series(data: FlightData, value: Any, what: str) -> FloatArray:
     return np.array(arr)
 
 
+def _reference_point(value: Any) -> tuple[float, float, float] | None:
+    """The moment reference point as three finite floats, None for the centre of gravity."""
+    if value is None:
+        return None
+    arr = real_array(value, "moment_reference")
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise DataFormatError(
+            f"moment_reference: expected 3 finite numbers (x, y, z in m from the centre "
+            f"of gravity), got {value!r}"
+        )
+    if not np.any(arr != 0):
+        return None
+    return float(arr[0]), float(arr[1]), float(arr[2])
+
+
 @small_blas
 def coefficients_from_data(
     data: FlightData,
@@ -82,6 +102,8 @@ def coefficients_from_data(
     thrust: float | str | Any = 0.0,
     accel_in_g: bool = False,
     method: str = "fourier",
+    density: float | str | Any = None,
+    moment_reference: Sequence[float] | None = None,
 ) -> FlightData:
     """Force and moment coefficients from measured accelerations and rates.
 
@@ -111,6 +133,16 @@ def coefficients_from_data(
     method : {"fourier", "local"}
         Smoother for angular accelerations not in the data (see
         `aeroid.io.smoothing.differentiate`).
+    density : float, str or array_like, optional
+        Air density in kg/m³ for the dynamic pressure: a constant, a channel
+        name (a measured or computed density, which varies over a climb or a
+        stall manoeuvre) or samples. Default: the constants' (`rho`, or the
+        standard atmosphere at their `altitude`).
+    moment_reference : sequence of 3 float, optional
+        The point, in m in body axes from the centre of gravity (x forward,
+        y right, z down), about which ``Cl``, ``Cm`` and ``Cn`` are taken.
+        Default the centre of gravity. The transfer needs the force
+        coefficients, so the specific-force channels too.
 
     Returns
     -------
@@ -164,16 +196,26 @@ def coefficients_from_data(
     speed = np.asarray(data.channels[names["V"]], dtype=np.float64)
     if np.any(speed <= 0):
         raise DataFormatError(f"channel {names['V']!r}: airspeed must be positive")
-    qbar = 0.5 * constants.density() * speed**2
+    rho = constants.density() if density is None else _series(data, density, "density")
+    if np.any(np.asarray(rho) <= 0):
+        raise DataFormatError("density: air density must be positive")
+    reference = _reference_point(moment_reference)
+    moments_wanted = any(c in wanted for c in ("Cl", "Cm", "Cn"))
+    if reference is not None and moments_wanted:
+        data.require(
+            [names[r] for r in ("ax", "ay", "az")],
+            role="specific-force channel (moment_reference needs the aerodynamic force)",
+        )
+    qbar = 0.5 * rho * speed**2
     qs = qbar * constants.S
     added: dict[str, FloatArray] = {"qbar": qbar}
     units: dict[str, str] = {"qbar": "Pa"}
 
-    need_forces = any(c in wanted for c in ("CX", "CY", "CZ", "CL", "CD"))
-    lever = np.asarray(constants.accel_position, dtype=np.float64)
-    need_rates = any(c in wanted for c in ("Cl", "Cm", "Cn")) or (
-        need_forces and bool(np.any(lever != 0))
+    need_forces = any(c in wanted for c in ("CX", "CY", "CZ", "CL", "CD")) or (
+        reference is not None and moments_wanted
     )
+    lever = np.asarray(constants.accel_position, dtype=np.float64)
+    need_rates = moments_wanted or (need_forces and bool(np.any(lever != 0)))
     omega = omega_dot = None
     if need_rates:
         data.require([names[r] for r in ("p", "q", "r")], role="body rate channel")
@@ -196,6 +238,7 @@ def coefficients_from_data(
 
     m = constants.mass
     thrust_samples: FloatArray | None = None
+    forces: dict[str, FloatArray] = {}
     if need_forces:
         scale = constants.g if accel_in_g else 1.0
         acc = np.zeros((data.n_samples, 3))
@@ -213,6 +256,7 @@ def coefficients_from_data(
         force[:, 2] += thrust_samples * np.sin(constants.thrust_angle)
         coef = force / qs[:, None]
         block = dict(zip(("CX", "CY", "CZ"), coef.T, strict=True))
+        forces = block.copy()
         if "CL" in wanted or "CD" in wanted:
             alpha = np.asarray(data.channels[names["alpha"]])
             ca, sa = np.cos(alpha), np.sin(alpha)
@@ -236,6 +280,13 @@ def coefficients_from_data(
             / (qs * ac.cbar),
             "Cn": (ac.Izz * rd - ac.Ixz * (pd - q * r) + (ac.Iyy - ac.Ixx) * p * q) / (qs * ac.b),
         }
+        if reference is not None:
+            # M_r = M_cg - r x F, each component over its reference length
+            x, y, z = reference
+            fx, fy, fz = forces["CX"], forces["CY"], forces["CZ"]
+            moments["Cl"] = moments["Cl"] - (y * fz - z * fy) / ac.b
+            moments["Cm"] = moments["Cm"] - (z * fx - x * fz) / ac.cbar
+            moments["Cn"] = moments["Cn"] - (x * fy - y * fx) / ac.b
         for name, value in moments.items():
             if name in wanted:
                 added[name] = value
