@@ -1062,3 +1062,10 @@ def test_linearize_names_a_point_that_does_not_fit_as_documented():
         linearize(model, [1.0, 2.0])
     with pytest.raises(ModelDefinitionError, match="unknown states \\['bogus'\\]"):
         linearize(model, {"bogus": 0.0})
+
+
+def test_a_surface_named_as_a_state_says_how_to_use_it_as_an_input() -> None:
+    from aeroid.models import aircraft
+
+    with pytest.raises(ModelDefinitionError, match=r"'beta'.*name it otherwise.*'beta_m'"):
+        aircraft.lateral_linear(V0=60.0, surfaces=("delta_a", "delta_r", "beta"))

@@ -466,7 +466,11 @@ def _surfaces(surfaces: Sequence[str], reserved: Sequence[str]) -> tuple[str, ..
         if not isinstance(s, str) or not s.isidentifier() or "_" == s[:1]:
             raise ModelDefinitionError(f"surfaces: {s!r} is not a valid control name")
         if s in reserved:
-            raise ModelDefinitionError(f"surfaces: {s!r} is already a regressor name")
+            raise ModelDefinitionError(
+                f"surfaces: {s!r} is already a regressor name (a state or rate of the "
+                f"model); to drive the model with a measured {s!r}, as a control, name it "
+                f"otherwise (e.g. {s + '_m'!r}) and map the channel to that name"
+            )
         if s == "abs" or s.startswith("abs_"):
             # a term's name writes abs(x) as abs_x: such a surface would read the same
             raise ModelDefinitionError(
