@@ -759,11 +759,10 @@ def identify_filter_error(
     se = np.sqrt(np.clip(np.diag(cov_full), 0.0, None))
     params_hat = {n: float(z[j]) for j, n in enumerate(labels[:n_e])}
     _, Qc_hat, R_hat = obj.inputs(z[None])
-    extra: dict[str, float] = {}
-    for j, lab in enumerate(labels[n_e:], start=n_e):
-        extra[lab] = float(math.exp(z[j]) * se[j])  # delta method from the log scale
-    n_obs = sum((p.time.size - 1) * n_y for p in probs)
-    sigma2 = float(quad[0] / n_obs)
+    # the noise levels' errors off the log scale (delta method), their covariance too
+    scale = np.concatenate([np.ones(n_e), np.exp(z[n_e:])])
+    extra = {lab: float(scale[j] * se[j]) for j, lab in enumerate(labels[n_e:], start=n_e)}
+    sigma2 = float(quad[0] / sum((p.time.size - 1) * n_y for p in probs))
     fixed = {k: float(v) for k, v in start.items() if k not in names}
     return IdentificationResult(
         parameters=params_hat,
@@ -787,6 +786,8 @@ def identify_filter_error(
         ),
         biases=(),
         extra_stderr=extra,
+        full_covariance=cov_full * np.outer(scale, scale),
+        full_names=tuple(labels),
         residuals=tuple(nu for nu, _ in per),
         sigma2=sigma2,
         process_noise={s: float(Qc_hat[0, i, i]) for i, s in enumerate(m.states)},

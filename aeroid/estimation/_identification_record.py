@@ -73,6 +73,15 @@ class IdentificationResult(IntervalMixin):
     extra_stderr : mapping of str to float
         Standard errors of estimated initial states and biases, keyed
         ``"x0[i].state"``, ``"bias[i].output"`` and ``"bias[i].state.<name>"``.
+    full_covariance : ndarray, shape (n, n)
+        The covariance of every estimate together, in `full_names` order: the
+        parameters (as `covariance`), then the initial states, biases and noise
+        levels of `extra_stderr`. A sum such as a moment constant plus an
+        output bias that stands for it has standard error
+        ``sqrt(w' C w)``. Empty on records made before it existed.
+    full_names : tuple of str
+        The names of `full_covariance`'s rows: `parameter_names`, then the
+        keys of `extra_stderr`.
     degrees_of_freedom : mapping of str to float
         Per estimate (parameters and the `extra_stderr` names), the degrees of
         freedom of its standard error: observations less estimates for white
@@ -137,6 +146,8 @@ class IdentificationResult(IntervalMixin):
     initial_states: tuple[Mapping[str, float], ...] = ()
     biases: tuple[Mapping[str, float], ...] = ()
     extra_stderr: Mapping[str, float] = field(default_factory=dict)
+    full_covariance: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    full_names: tuple[str, ...] = ()
     degrees_of_freedom: Mapping[str, float] = field(default_factory=dict)
     residuals: tuple[FloatArray, ...] = ()
     sigma2: float | None = None
@@ -176,6 +187,8 @@ class IdentificationResult(IntervalMixin):
         set_(self, "response_to_noise", frozen_mapping(self.response_to_noise))
         set_(self, "process_noise", frozen_mapping(self.process_noise))
         set_(self, "covariance", frozen_array(self.covariance))
+        set_(self, "full_covariance", frozen_array(self.full_covariance))
+        set_(self, "full_names", tuple(self.full_names))
         set_(self, "covariance_white", frozen_array(self.covariance_white))
         set_(self, "noise_covariance", frozen_array(self.noise_covariance))
         set_(self, "parameter_names", tuple(self.parameter_names))

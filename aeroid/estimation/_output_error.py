@@ -714,6 +714,8 @@ def fit_output_error(
         initial_states=tuple(x0_out),
         biases=tuple(bias_out),
         extra_stderr=extra,
+        full_covariance=cov,
+        full_names=tuple(names_all),
         degrees_of_freedom={n: float(nu[j]) for j, n in enumerate(names_all)},
         residuals=tuple(residuals),
         model_name=str(getattr(model, "name", "")),

@@ -133,4 +133,5 @@ def _state_biases_out(
         initial_states=tuple(initial),
         biases=tuple(biases),
         extra_stderr={**kept, **moved},
+        full_names=tuple(rename.get(k, k) for k in fitted.full_names),
     )

@@ -631,6 +631,8 @@ def _result(
         noise_covariance=fit.noise,
         initial_states=x0,
         extra_stderr=extra,
+        full_covariance=cov_all,
+        full_names=tuple(fit.labels),
         model_name=model.name,
         data_fingerprints=(fingerprint(data),),
         frequencies=omega,
