@@ -19,8 +19,13 @@ term ``1/2 tr(S^-1 dS_i S^-1 dS_j)`` dropped from the parameters' rows of the
 Fisher information (monkeypatched into the library's private `_derivatives`;
 a diagnosis, not an option): the port's information has no such term.
 
+``--case dhc2`` runs the same study on the lateral case's linear model (its
+data's derivatives, biases and F of our choosing, white measurement noise on
+every output): there our derivatives' bars are calibrated and tighter than
+the port's (the full likelihood is more efficient), the biases' not.
+
 ``AEROID_FVSYSID_DIR=... python tests/reference/study_fvsysid_fem.py [--seeds 8]
-[--no-trace]``.
+[--no-trace] [--case hfb320|dhc2]``.
 """
 
 from __future__ import annotations
@@ -39,13 +44,35 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
 import _fvsysid_fem as P
 import _sidpac as S
+import ref_fvsysid_dhc2_fem as D
 import ref_fvsysid_hfb320_fem as H
 
 F_TRUE = (0.36, 0.0024, 0.00045, 0.0017)  # about FVSysID's F on the flight
 NOISE_SD = np.sqrt([3e-3, 1e-6, 1.3e-7, 1e-7, 3.5e-5, 1.3e-4, 7e-3])  # about ours
+# the lateral case: the data's derivatives, biases and F of our choosing, some noise
+LAT_BIASES = (0.05, -0.05, 0.02, -0.03, 0.04, 0.01, -0.01)
+LAT_F = (0.2, 0.2)
+LAT_SD = np.array([0.05, 0.02, 0.05, 0.005, 0.005])
 
 
-def record(case: P.FemCase, p: np.ndarray, rng: np.random.Generator, fine: int = 20):
+def setting(d: np.ndarray, which: str) -> dict[str, Any]:
+    """Module, port case at the truth, truth, noise sd, x0 and control channels."""
+    if which == "hfb320":
+        truth = np.r_[H.SAVED, F_TRUE]
+        controls = {"delta_e": d[:, 1], "thrust": d[:, 3]}
+        x0 = dict(zip(H.STATES, H.X0, strict=True))
+        return {"mod": H, "case": H.port_case(d), "truth": truth, "sd": NOISE_SD, "x0": x0,
+                "controls": controls}  # fmt: skip
+    lat = D.data_truth(d)
+    truth = np.r_[[lat[n] for n in D.NAMES[:15]], LAT_BIASES, LAT_F]
+    controls = {"delta_a": d[:, 16], "delta_r": d[:, 17], "v": d[:, 18]}
+    return {"mod": D, "case": D.port_case(d), "truth": truth, "sd": LAT_SD,
+            "x0": dict.fromkeys(D.STATES, 0.0), "controls": controls}  # fmt: skip
+
+
+def record(
+    case: P.FemCase, p: np.ndarray, sd: np.ndarray, rng: np.random.Generator, fine: int = 20
+) -> np.ndarray:
     """Outputs of the model with continuous process noise and white measurement noise."""
     n = case.z.shape[0]
     x = case.x0.astype(float)[None]
@@ -53,7 +80,7 @@ def record(case: P.FemCase, p: np.ndarray, rng: np.random.Generator, fine: int =
     h = case.dt / fine
     f = np.asarray(p[-case.nx :])
     for k in range(n):
-        z[k] = case.h(x, case.u[k][None], p[None])[0] + NOISE_SD * rng.standard_normal(z.shape[1])
+        z[k] = case.h(x, case.u[k][None], p[None])[0] + sd * rng.standard_normal(z.shape[1])
         if k + 1 < n:
             du = (case.u[k + 1] - case.u[k]) / fine
             for j in range(fine):
@@ -117,51 +144,54 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--no-trace", action="store_true")
+    ap.add_argument("--case", choices=("hfb320", "dhc2"), default="hfb320")
     args = ap.parse_args(argv)
     folder = S.data_folder("fvsysid")
     if folder is None:
         print(f"skipped: set {S.FVSYSID_ENV}")
         return 0
-    d = P.load_asc(S.need(folder, H.FILE, source="fvsysid")[0])
-    case = H.port_case(d)
-    truth = np.r_[H.SAVED, F_TRUE]
-    case = dataclasses.replace(case, p0=truth)
-    model = H.user_model()
-    t = np.arange(d.shape[0]) * H.DT
-    start = dict(zip(H.NAMES, H.SAVED, strict=True))
-    q0 = {s: f * f for s, f in zip(H.STATES, F_TRUE, strict=True)}
+    st = setting(P.load_asc(S.need(folder, (H if args.case == "hfb320" else D).FILE,
+                                    source="fvsysid")[0]), args.case)  # fmt: skip
+    mod, truth = st["mod"], st["truth"]
+    names = list(mod.NAMES)
+    npar = len(names)
+    case = dataclasses.replace(st["case"], p0=truth)
+    model = mod.user_model()
+    t = np.arange(case.z.shape[0]) * mod.DT
+    start = dict(zip(names, truth[:npar], strict=True))
+    q0 = {s: f * f for s, f in zip(mod.STATES, truth[npar:], strict=True)}
     devs: dict[str, list[np.ndarray]] = {"steady": [], "time_varying": [], "fvsysid": []}
     ratios: dict[str, list[np.ndarray]] = {"steady": [], "time_varying": []}
     unconverged = dict.fromkeys(ratios, 0)
     for seed in range(args.seeds):
-        z = record(case, truth, np.random.default_rng(seed))
+        z = record(case, truth, st["sd"], np.random.default_rng(seed))
         book = P.ml_fem(dataclasses.replace(case, z=z))
-        devs["fvsysid"].append((book.p[:11] - truth[:11]) / book.se[:11])
-        ch = {o: z[:, j] for j, o in enumerate(H.OUTPUTS)}
-        ch["delta_e"], ch["thrust"] = d[:, 1], d[:, 3]
+        devs["fvsysid"].append((book.p[:npar] - truth[:npar]) / book.se[:npar])
+        ch = {o: z[:, j] for j, o in enumerate(mod.OUTPUTS)}
+        ch.update(st["controls"])
         data = aeroid.FlightData(time=t, channels=ch)
         for gain in ratios:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 r = aeroid.identify(
-                    model, data, start, method="filter_error",
-                    x0=dict(zip(H.STATES, H.X0, strict=True)), estimate_process_noise=True,
-                    process_noise=q0, filter_options={"gain": gain},
+                    model, data, start, method="filter_error", x0=st["x0"],
+                    estimate_process_noise=True, process_noise=q0,
+                    filter_options={"gain": gain},
                 )  # fmt: skip
             unconverged[gain] += not r.success
             if args.no_trace:  # the same fit's bars, the parameters' trace term dropped
                 r = rebar(model, data, r)
-            est = np.array([r.parameters[n] for n in H.NAMES])
-            se = np.array([r.stderr[n] for n in H.NAMES])
-            devs[gain].append((est - truth[:11]) / se)
-            ratios[gain].append(se / book.se[:11])
-    print(f"{'':24}" + "".join(f"{n:>8}" for n in H.NAMES))
+            est = np.array([r.parameters[n] for n in names])
+            se = np.array([r.stderr[n] for n in names])
+            devs[gain].append((est - truth[:npar]) / se)
+            ratios[gain].append(se / book.se[:npar])
+    print(f"{'':24}" + "".join(f"{n:>7}" for n in names))
     for who, v in devs.items():
         rms = np.sqrt(np.mean(np.square(v), axis=0))
-        print(f"rms d/se {who:15}" + "".join(f"{x:8.2f}" for x in rms))
+        print(f"rms d/se {who:15}" + "".join(f"{x:7.2f}" for x in rms))
     for who, v in ratios.items():
         med = np.median(v, axis=0)
-        print(f"se/fvsysid {who:13}" + "".join(f"{x:8.2f}" for x in med))
+        print(f"se/fvsysid {who:13}" + "".join(f"{x:7.2f}" for x in med))
     print(f"not converged of {args.seeds}: {unconverged}")
     return 0
 
