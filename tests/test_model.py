@@ -243,7 +243,8 @@ def test_divergence_names_the_time():
     ("kwargs", "fragment"),
     [
         ({"states": ["a", "a"]}, "duplicate"),
-        ({"states": []}, "at least one state"),
+        ({"states": []}, "has no states.*give h"),
+        ({"dynamics": None}, "dynamics=None only for a model without states"),
         ({"parameters": {"not valid": 1.0}}, "valid identifier"),
         ({"parameters": {"k": float("nan")}}, "not finite"),
         ({"parameters": {}}, "asked for parameter 'k'"),

@@ -17,7 +17,7 @@ from .._value_checks import check_distinct
 from ..errors import AeroidError, FilterError
 from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
 from ..models.integration import Interpolation, check_control_interpolation
-from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number
+from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number, require_states
 
 FloatArray = NDArray[np.float64]
 
@@ -66,6 +66,13 @@ class _Problem:
 
 def _require_model(model: Any, error: type[AeroidError], what: str) -> Model:
     if isinstance(model, Model):
+        require_states(
+            model,
+            error,
+            what,
+            "a Kalman filter has nothing to estimate; fit it by output error "
+            "(identify(method='output_error')), compare it with validate",
+        )
         return model
     kind = type(model).__name__
     if not isinstance(model, SimulatorModel):

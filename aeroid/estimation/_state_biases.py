@@ -40,6 +40,11 @@ def _bias_choice(option: Any, outputs: list[str], states: list[str]) -> tuple[li
                 if name not in on_outputs:
                     on_outputs.append(name)
             elif k == "state":
+                if not states:
+                    raise IdentificationError(
+                        f"estimate_bias[{name!r}]: a 'state' bias enters a state equation, "
+                        "and the model has no states; estimate an 'output' bias instead"
+                    )
                 if name not in states:
                     raise IdentificationError(
                         f"estimate_bias: {name!r} is not a state of the model; states: {states}"

@@ -288,7 +288,9 @@ def identify(
         SIMULATE_OPTION_KEYS,
         SimulatorModel,
         check_simulate_options,
+        given_values,
         require_model,
+        require_states,
     )
     from ._excitation import held_controls, require_model_units
 
@@ -343,6 +345,14 @@ def identify(
         d.require(model.controls, role="control")
         d.require(fit_outputs, role="output")
     states = list(getattr(model, "states", ()))
+    if given_values(x0):
+        require_states(
+            model, IdentificationError, "x0", "there is no initial state to give; leave x0 unset"
+        )
+    if estimate_x0:
+        require_states(
+            model, IdentificationError, "estimate_x0", "there is no initial state to estimate"
+        )
     box = _check_bounds(bounds, model, names, initial)
     x0_list = _x0_per_manoeuvre(x0, len(datas), states)
     x0_dicts: list[dict[str, float]] = []
@@ -368,6 +378,12 @@ def identify(
                 "filter error needs a continuous dynamics callable; a stepped simulator "
                 "works with method='output_error'"
             )
+        require_states(
+            model,
+            IdentificationError,
+            "method='filter_error'",
+            "there is no state for its Kalman filter to correct; use method='output_error'",
+        )
         if gradient == "jax":
             raise IdentificationError("gradient='jax' is available for output error only")
         if estimate_x0 or estimate_bias:

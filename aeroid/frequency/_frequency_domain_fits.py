@@ -281,8 +281,8 @@ def _output_error(
         n_a, n_y = Xa.shape[1], H.shape[0]
         CG = H[:, :n_x] @ G  # (M, n_y, n_x)
         # ∂Y/∂p_l = C G (∂F_l Xa) + ∂H_l Xa, as plain matrix products
-        dFXa = (Xa @ dF.reshape(n_p * n_x, n_a).T).reshape(-1, n_p, n_x).transpose(0, 2, 1)
-        dHXa = (Xa @ dH.reshape(n_p * n_y, n_a).T).reshape(-1, n_p, n_y).transpose(0, 2, 1)
+        dFXa = (Xa @ dF.reshape(n_p * n_x, n_a).T).reshape(len(Xa), n_p, n_x).transpose(0, 2, 1)
+        dHXa = (Xa @ dH.reshape(n_p * n_y, n_a).T).reshape(len(Xa), n_p, n_y).transpose(0, 2, 1)
         dY = CG @ dFXa + dHXa
         if n_d:
             # ∂U_j/∂τ_j = −jω U_j: through the state equations and the feedthrough

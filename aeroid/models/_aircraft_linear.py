@@ -486,7 +486,9 @@ def decoupled(
         states=[*longitudinal.states, *lateral.states],
         controls=controls,
         parameters={**longitudinal.parameters, **lateral.parameters},
-        dynamics=_decoupled_function((longitudinal.dynamics, lateral.dynamics), n, index),
+        dynamics=_decoupled_function(
+            (longitudinal._dynamics_batch.fun, lateral._dynamics_batch.fun), n, index
+        ),
         measurement=_decoupled_function(measurement_parts, n, index),  # type: ignore[arg-type]
         outputs=[*longitudinal.output_names, *lateral.output_names],
         name=name,

@@ -501,7 +501,7 @@ def lateral(
         parameter_units=_expansion_units(expansions, None, linear=False),
     )
     # Newton's method over the record linearises with these instead of differences
-    model._dynamics_batch.jacobian = lateral_jacobian(model.dynamics, *args, "dynamics")
+    model._dynamics_batch.jacobian = lateral_jacobian(model._dynamics_batch.fun, *args, "dynamics")
     assert model._measurement_batch is not None and model.measurement is not None
     model._measurement_batch.jacobian = lateral_jacobian(model.measurement, *args, "measurement")
     return model

@@ -202,7 +202,7 @@ def trim(
 
     def residual(Z: FloatArray) -> FloatArray:
         X, U = build(Z)
-        return _evaluate(model.dynamics, X, U, p)[idx]
+        return _evaluate(model._dynamics_batch.fun, X, U, p)[idx]
 
     scale = np.ones(len(idx))
     r = residual(z[:, None])[:, 0]
@@ -232,7 +232,7 @@ def trim(
             f"controls {sorted(k for k, _ in unknowns)})"
         )
     X, U = build(z[:, None])
-    xdot = _evaluate(model.dynamics, X, U, p)[:, 0]
+    xdot = _evaluate(model._dynamics_batch.fun, X, U, p)[:, 0]
     y = (
         X[[model.states.index(o) for o in model.output_names], 0]
         if model.measurement is None

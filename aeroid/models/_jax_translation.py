@@ -224,7 +224,7 @@ def _structure(model: Model) -> dict[str, Any]:
         return lifted
     consts: list[float] = []
     try:
-        dyn = _lift(model.dynamics, consts)
+        dyn = _lift(model._dynamics_batch.fun, consts)
         meas = None if model.measurement is None else _lift(model.measurement, consts)
         key: Any = (
             dyn[0],
@@ -380,7 +380,7 @@ def _first_verification(
     if mods is None:
         return None
     jax, jnp = mods
-    fun = model.dynamics if role == "dynamics" else model.measurement
+    fun = model._dynamics_batch.fun if role == "dynamics" else model.measurement
     if fun is None:
         return None
     n_out = model.n_states if role == "dynamics" else model.n_outputs

@@ -193,6 +193,9 @@ class BatchSimulator:
         model = self.model
         if self._plain or not self._compile_now() or self.u.shape[0] != 1 or self._x0_batch != 1:
             return None
+        if not model.n_states:
+            self._plain = True  # outputs algebraic in the controls: one numpy call, no RK4
+            return None
         size = np.size(next(iter(parameters.values()))) if parameters else 1
         key = (tuple(parameters), tuple(int(i) for i in index), size)
         lane = self._lanes.get(key)

@@ -428,7 +428,9 @@ def output_sensitivities(
     one-off fit then never waits for JAX's import and compiler; a model fitted again
     compiles.
     """
-    if not ENABLED or not isinstance(model, Model):
+    if not ENABLED or not isinstance(model, Model) or not model.n_states:
+        # (without states the outputs are the measurement at each sample: the caller's
+        # central differences of it, batched over the columns, cost less than compiling)
         return None
     if options.get("method", "auto") not in ("auto", "rk4"):
         return None

@@ -726,6 +726,11 @@ def integrate(
             f"control_interpolation={control_interpolation!r} needs 'rk4', 'auto' or a "
             f"solve_ivp method (model {model.name!r})"
         )
+    if model.n_states == 0:
+        # outputs algebraic in the controls: nothing to integrate, nothing can diverge
+        batch = x0.shape[0]
+        empty = np.zeros((batch, time.size, 0))
+        return RawTrajectory(empty, np.ones(batch, dtype=bool), np.full(batch, np.nan))
     f = model._dynamics_batch
     X0 = np.ascontiguousarray(x0.T)
     traj = linear_path(model, time, x0, u, p, method, control_interpolation)

@@ -276,7 +276,7 @@ def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
     _, jnp = require_jax()
     import jax
 
-    f = model.dynamics
+    f = model._dynamics_batch.fun  # a stand-in returning nothing for a model without states
     h = model.measurement
     names = model.parameter_names
     n_x = model.n_states
@@ -455,7 +455,7 @@ def _auto_substeps(
     if key in entry:
         return int(entry[key])
     jax, jnp = require_jax()
-    f = model.dynamics
+    f = model._dynamics_batch.fun  # a stand-in returning nothing for a model without states
     names = model.parameter_names
     n_x = model.n_states
 

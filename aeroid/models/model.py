@@ -126,6 +126,11 @@ def _jax_64_bit() -> None:
         config.update("jax_enable_x64", True)
 
 
+def _no_dynamics(t: Any, x: Any, u: Any, p: Mapping[str, Any]) -> FloatArray:
+    """The derivatives of a model without states: none, for each point of a batch."""
+    return np.zeros((0, *np.shape(x)[1:]))
+
+
 @dataclass(frozen=True, eq=False)
 class Model(ContinuousModel):
     """A continuous-time vehicle model ``x' = f(t, x, u, p)``, ``y = h(t, x, u, p)``.
@@ -133,19 +138,27 @@ class Model(ContinuousModel):
     Parameters
     ----------
     states : sequence of str
-        State names, in the order of the state vector.
+        State names, in the order of the state vector. Empty for a model
+        whose outputs are algebraic functions of the measured controls and
+        the parameters (aerodynamic coefficients from measured alpha, rates
+        and surfaces): it then needs a `measurement`, no `dynamics`, and
+        refuses what only states give meaning to (an initial state ``x0``
+        with values, Kalman filtering, state-equation biases).
     controls : sequence of str
         Control (input) names, in the order of the control vector.
     parameters : mapping of str to float
         Named physical parameters with their nominal values.
-    dynamics : callable
+    dynamics : callable, optional
         ``dynamics(t, x, u, p) -> x_dot`` with ``p`` a dict of parameters.
         Written with numpy broadcasting it is evaluated on whole batches of
         parameter vectors at once (``x`` of shape (n_states, batch)).
+        Required when there are states; None for a model without them.
     outputs : sequence of str, optional
         Output names; default: the states.
     measurement : callable, optional
         ``measurement(t, x, u, p) -> y``; default: the states named in `outputs`.
+        Without states ``x`` is empty and a simulation is this function
+        evaluated at every sample (nothing is integrated).
     name : str
         A label used in messages, reports and fingerprints.
     version : str, optional
@@ -167,8 +180,9 @@ class Model(ContinuousModel):
     ------
     ModelDefinitionError
         Bad names, dynamics/measurement that fail or return the wrong shape
-        when probed at the nominal parameters, or ``linear=True`` for a model
-        that is not linear time-invariant.
+        when probed at the nominal parameters, no dynamics for a model with
+        states, no measurement for one without, or ``linear=True`` for a
+        model that is not linear time-invariant.
 
     Notes
     -----
@@ -180,7 +194,7 @@ class Model(ContinuousModel):
     states: Sequence[str]
     controls: Sequence[str]
     parameters: Mapping[str, float]
-    dynamics: Dynamics
+    dynamics: Dynamics | None = None
     outputs: Sequence[str] | None = None
     measurement: Dynamics | None = None
     name: str = "model"
@@ -196,8 +210,6 @@ class Model(ContinuousModel):
         _jax_64_bit()
         states = _names(self.states, "states")
         controls = _names(self.controls, "controls")
-        if not states:
-            raise ModelDefinitionError("states: a model needs at least one state")
         if not isinstance(self.parameters, Mapping):
             raise ModelDefinitionError("parameters: expected a dict of name -> nominal value")
         params: dict[str, float] = {}
@@ -217,10 +229,20 @@ class Model(ContinuousModel):
                 raise ModelDefinitionError(
                     f"parameter {k!r}: nominal value {plain(v)} is not finite"
                 )
-        if not callable(self.dynamics):
+        if self.dynamics is None and states:
+            raise ModelDefinitionError(
+                f"dynamics: model {self.name!r} has states {list(states)}; give their "
+                "derivatives f(t, x, u, p) (dynamics=None only for a model without states)"
+            )
+        if self.dynamics is not None and not callable(self.dynamics):
             raise ModelDefinitionError("dynamics: expected a callable f(t, x, u, p)")
         if self.measurement is not None and not callable(self.measurement):
             raise ModelDefinitionError("measurement: expected a callable h(t, x, u, p)")
+        if not states and self.measurement is None:
+            raise ModelDefinitionError(
+                f"measurement: model {self.name!r} has no states, so its outputs come from "
+                "the controls and parameters alone; give h(t, x, u, p) (x is empty)"
+            )
         outputs = states if self.outputs is None else _names(self.outputs, "outputs")
         if not outputs:
             raise ModelDefinitionError("outputs: a model needs at least one output")
@@ -252,7 +274,11 @@ class Model(ContinuousModel):
             self,
             "_dynamics_batch",
             _integrate.BatchFunction(
-                self.dynamics, len(states), names, role="dynamics", model_name=self.name
+                _no_dynamics if self.dynamics is None else self.dynamics,
+                len(states),
+                names,
+                role="dynamics",
+                model_name=self.name,
             ),
         )
         object.__setattr__(
@@ -422,6 +448,10 @@ class Model(ContinuousModel):
 
     def initial_state(self, x0: Any, batch: int = 1) -> FloatArray:
         """Normalise an initial state to shape (batch, n_states)."""
+        if given_values(x0):
+            require_states(
+                self, SimulationError, "x0", "there is no initial state to give; leave x0 unset"
+            )
         if x0 is None:
             return np.zeros((batch, self.n_states))
         if isinstance(x0, Mapping):
@@ -684,3 +714,25 @@ def require_model(model: Any, error: type[AeroidError]) -> None:
         raise error(
             f"model: expected an aeroid.Model or a SimulatorModel, got {type(model).__name__}"
         )
+
+
+def require_states(model: Any, error: type[AeroidError], option: str, reason: str) -> None:
+    """Raise `error` naming `option` when `model` is a `Model` without states (`reason`
+    says what the option would need them for)."""
+    if isinstance(model, Model) and not model.states:
+        raise error(
+            f"{option}: model {model.name!r} has no states (its outputs follow from the "
+            f"controls and parameters alone), so {reason}"
+        )
+
+
+def given_values(x0: Any) -> bool:
+    """Whether an initial-state option carries any value (None, empty mappings and empty
+    arrays, alone or one per record, carry none)."""
+    if x0 is None:
+        return False
+    if isinstance(x0, Mapping):
+        return len(x0) > 0
+    if isinstance(x0, (list, tuple)):
+        return any(given_values(e) for e in x0)
+    return bool(np.size(x0) > 0)

@@ -162,7 +162,9 @@ class StateSpace:
             if got is None or base is None or slope is None:
                 continue
             want = base + np.einsum("l,lij->ij", probe - p0, slope)
-            tol = 1e-7 * (np.abs(base) + np.abs(got[0]) + np.max(np.abs(base)) + 1e-300)
+            tol = 1e-7 * (
+                np.abs(base) + np.abs(got[0]) + np.max(np.abs(base), initial=0.0) + 1e-300
+            )
             if not np.all(np.abs(got[0] - want) <= tol):
                 return False
         return True
