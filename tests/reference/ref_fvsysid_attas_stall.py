@@ -23,8 +23,10 @@ FVSysID saved no estimates for this case: the SIDPAC columns hold our numpy port
 ``ml_oem2.m`` (``_fvsysid_stall.ml_oem``) on the same coefficients, its estimate and
 its Cramer-Rao standard deviation. Ours: an ``aeroid.Model`` written as a user would,
 fitted by ``aeroid.identify`` on the two records with the same start (FVSysID's CD0,
-CL0, Cm0 named CD_0, CL_0, Cm_0 here, so the suite counts them as constants). AeroID
-refuses a model without states, so ours carries one state that never moves (``x' = 0``).
+CL0, Cm0 named CD_0, CL_0, Cm_0 here, so the suite counts them as constants). Ours has
+no states either (``states=[]``, no dynamics): its simulation is the measurement
+function at every sample (it carried one idle state, ``x' = 0``, until AeroID took
+models without states; the figures did not move).
 The variant rows ``(bounded)`` are no book case: the same fit with Tau2 <= 22 (active)
 and A1 >= 25, FVSysID's bounded-variable Gauss-Newton (its line search left out) against
 ``identify(bounds=...)``; ml_oem2.m itself under Octave gives that port's estimates
@@ -181,22 +183,18 @@ def fvsysid(
 
 
 def user_model() -> Any:
-    """The stall model as an AeroID user writes it: one idle state (``Model`` refuses
-    ``states=[]``), not an output, so identify leaves it at zero; the MATLAB ``if`` on
-    alpha-dot as ``np.where`` (a Python ``if`` fits too, point by point, 90 times slower)."""
+    """The stall model as an AeroID user writes it: no states (FVSysID's ``Nx = 0``), the
+    outputs from the measured inputs alone; the MATLAB ``if`` on alpha-dot as
+    ``np.where`` (a Python ``if`` fits too, point by point, 90 times slower)."""
     import aeroid
-
-    def dynamics(t: Any, x: Any, u: Any, p: Any) -> Any:
-        return 0.0 * x
 
     def measurement(t: Any, x: Any, u: Any, p: Any) -> Any:
         return np.array(stall(u, p))
 
     return aeroid.Model(
-        states=["idle"],
+        states=[],
         controls=list(CONTROLS),
         parameters=dict(zip(NAMES, START, strict=True)),
-        dynamics=dynamics,
         outputs=list(OUTPUTS),
         measurement=measurement,
         name="attas_stall",
