@@ -124,6 +124,40 @@ def truth(
     }
 
 
+def _off_centre(
+    t: np.ndarray,
+    wind: tuple[float, float, float],
+    accel: tuple[float, float, float],
+    alpha_vane: tuple[float, float, float],
+    beta_vane: tuple[float, float, float],
+    sideslip: str,
+) -> dict[str, np.ndarray]:
+    """The true channels as sensors off the c.g. read them: the specific force at
+    `accel` adds w' x r + w x (w x r), a vane at r sees the air velocity plus w x r;
+    also p_dot, q_dot, r_dot (central differences of a 1e-4 s step: errors ~1e-9)."""
+    now = truth(t, wind)
+    step = 1e-4
+    ahead, behind = truth(t + step, wind), truth(t - step, wind)
+    w = np.column_stack([now[c] for c in ("p", "q", "r")])
+    wdot = np.column_stack([(ahead[c] - behind[c]) / (2 * step) for c in ("p", "q", "r")])
+    r_acc = np.asarray(accel, dtype=float)
+    extra = np.cross(wdot, r_acc) + np.cross(w, np.cross(w, r_acc))
+    out = dict(now)
+    for j, c in enumerate(("ax", "ay", "az")):
+        out[c] = now[c] + extra[:, j]
+    V, a, b = now["V"], now["alpha"], now["beta"]
+    air = np.column_stack([V * np.cos(a) * np.cos(b), V * np.sin(b), V * np.sin(a) * np.cos(b)])
+    at_alpha = air + np.cross(w, np.asarray(alpha_vane, dtype=float))
+    at_beta = air + np.cross(w, np.asarray(beta_vane, dtype=float))
+    out["alpha"] = np.arctan2(at_alpha[:, 2], at_alpha[:, 0])
+    if sideslip == "atan":
+        out["beta"] = np.arctan2(at_beta[:, 1], at_beta[:, 0])
+    else:
+        out["beta"] = np.arcsin(at_beta[:, 1] / np.linalg.norm(at_beta, axis=1))
+    out["p_dot"], out["q_dot"], out["r_dot"] = wdot.T
+    return out
+
+
 def simulated_flight(
     duration: float = 30.0,
     rate: float = 50.0,
@@ -134,9 +168,24 @@ def simulated_flight(
     h0: float = 1500.0,
     wind: tuple[float, float, float] = (0.0, 0.0, 0.0),
     gps: bool = False,
+    accel_position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    alpha_vane_position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    beta_vane_position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    sideslip: str = "asin",
+    rate_derivatives: bool = False,
 ) -> FlightData:
     """Sensor records of the flight with the given `errors` and white `noise` (std per channel);
-    `gps` adds the ground speed north and east."""
+    `gps` adds the ground speed north and east; the sensors sit at the given positions
+    (m, body axes from the c.g.), the sideslip vane reads `sideslip` (``asin(v / V)``
+    or ``atan(v / u)``); `rate_derivatives` adds exact ``p_dot, q_dot, r_dot``."""
+    geometry = (accel_position, alpha_vane_position, beta_vane_position)
+    plain = sideslip == "asin" and not rate_derivatives and not np.any(np.asarray(geometry))
+
+    def sensed(at: np.ndarray) -> dict[str, np.ndarray]:
+        if plain:
+            return truth(at, wind)
+        return _off_centre(at, wind, *geometry, sideslip)
+
     errors = dict(errors or {})
     noise = NOISE if noise is None else noise
     t = np.arange(round(duration * rate) + 1) / rate
@@ -150,15 +199,17 @@ def simulated_flight(
         dense_output=True,
     ).sol
     rng = np.random.default_rng(seed)
-    now = truth(t, wind)
+    now = sensed(t)
     channels: dict[str, np.ndarray] = {}
     for c in INPUTS:
         channels[c] = (1 + errors.get(f"k_{c}", 0.0)) * now[c] + errors.get(f"b_{c}", 0.0)
     outputs = (*OUTPUTS, "vn", "ve") if gps else OUTPUTS
     for o in outputs:
         tt = t - errors.get(f"tau_{o}", 0.0)
-        value = height(tt)[0] if o == "h" else truth(tt, wind)[o]
+        value = height(tt)[0] if o == "h" else sensed(tt)[o]
         channels[o] = (1 + errors.get(f"k_{o}", 0.0)) * value + errors.get(f"b_{o}", 0.0)
     for c in (*INPUTS, *outputs):  # fixed order: a reproducible stream
         channels[c] = channels[c] + noise.get(c, 0.0) * rng.standard_normal(t.size)
+    if rate_derivatives:  # after the noise draws: the same stream either way
+        channels.update({c: now[c] for c in ("p_dot", "q_dot", "r_dot")})
     return FlightData(t, channels)

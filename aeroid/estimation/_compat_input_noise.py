@@ -182,10 +182,25 @@ def _difference_response(
     return jw, y[1 + cols :] - y[:1]
 
 
+def _joint(n_p: int, n_x: int, n_rec: int, r: int, local: FloatArray, rows: bool) -> FloatArray:
+    """A record's matrix over (parameters, its own initial states) placed in the joint
+    space (parameters, every record's initial states): columns, or rows and columns."""
+    if n_rec == 1:
+        return local
+    n = n_p + n_rec * n_x
+    idx = np.concatenate([np.arange(n_p), n_p + r * n_x + np.arange(n_x)])
+    if rows:
+        out = np.zeros((n, n))
+        out[np.ix_(idx, idx)] = local
+    else:
+        out = np.zeros((local.shape[0], n))
+        out[:, idx] = local
+    return out
+
+
 def _input_noise_covariance(
     model: Any,
-    t: FloatArray,
-    controls: FloatArray,
+    pieces: list[tuple[FloatArray, FloatArray]],
     fit: Any,
     names: list[str],
     free_x0: list[str],
@@ -196,44 +211,52 @@ def _input_noise_covariance(
     seed: int,
     substeps: int,
 ) -> FloatArray:
-    """Covariance of the estimates that white input noise causes (see `check_compatibility`)."""
+    """Covariance of the estimates that white input noise causes (see `check_compatibility`);
+    `pieces` holds each record's time and controls (independent noise in each)."""
     n_p = len(names)
     # the measured stand-ins for states are not integrated: no share of theirs here
     scale = np.array([sigma[c] for c in INPUT_CHANNELS] + [0.0] * len(_MEASURED))
     if not np.any(scale > 0):
         return np.zeros((n_p, n_p))
     theta = np.array([fit.parameters[n] for n in names])
-    x0 = np.array([fit.initial_states[0][s] for s in STATES])
     x_idx = [STATES.index(s) for s in free_x0]
     variance = np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None)
-    # Compiled: exact to first order, by the adjoint of the linearised kinematics.
     params = dict(model.parameters)
     params.update(zip(names, theta.tolist(), strict=True))
     inverse = np.zeros(len(OUTPUT_CHANNELS))
     inverse[out_idx] = 1.0 / variance
-    got = _compiled.input_noise_scatter(
-        model, t, controls, x0, params, names, x_idx, substeps, inverse, scale
-    )
-    if got is not None:
-        _, sens, scatter = got
-        if not (np.all(np.isfinite(sens)) and np.all(np.isfinite(scatter))):
-            return np.zeros((n_p, n_p))
-        jac = sens[:, out_idx, :] / np.sqrt(variance)[None, :, None]
-        flat = jac.reshape(-1, jac.shape[2])
-        info = flat.T @ flat
-    else:
-        # Without the compiled path: the scatter of `n_draws` simulated draws.
-        weight = 1.0 / np.sqrt(variance)
-        rng = np.random.default_rng(seed)
-        noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
-        jw, dy = _difference_response(
-            model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
+    rng: Any = None
+    info: Any = 0.0
+    scatter: Any = 0.0
+    n_rec = len(pieces)
+    for r, (t, controls) in enumerate(pieces):
+        x0 = np.array([fit.initial_states[r][s] for s in STATES])
+        # Compiled: exact to first order, by the adjoint of the linearised kinematics.
+        got = _compiled.input_noise_scatter(
+            model, t, controls, x0, params, names, x_idx, substeps, inverse, scale
         )
-        if dy is None:
-            return np.zeros((n_p, n_p))
-        info = jw @ jw.T
-        gradients = jw @ dy.reshape(n_draws, -1).T
-        scatter = gradients @ gradients.T / n_draws
+        if got is not None:
+            _, sens, part = got
+            if not (np.all(np.isfinite(sens)) and np.all(np.isfinite(part))):
+                return np.zeros((n_p, n_p))
+            jac = sens[:, out_idx, :] / np.sqrt(variance)[None, :, None]
+            flat = jac.reshape(-1, jac.shape[2])
+            local = flat.T @ flat
+        else:
+            # Without the compiled path: the scatter of `n_draws` simulated draws.
+            weight = 1.0 / np.sqrt(variance)
+            rng = np.random.default_rng(seed) if rng is None else rng
+            noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
+            jw, dy = _difference_response(
+                model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
+            )
+            if dy is None:
+                return np.zeros((n_p, n_p))
+            local = jw @ jw.T
+            gradients = jw @ dy.reshape(n_draws, -1).T
+            part = gradients @ gradients.T / n_draws
+        info = info + _joint(n_p, len(x_idx), n_rec, r, local, True)
+        scatter = scatter + _joint(n_p, len(x_idx), n_rec, r, part, True)
     # the estimate shifts (J' W J)^-1 J' W dy: their covariance
     half = np.linalg.lstsq(info, scatter, rcond=1e-12)[0]
     cov = np.linalg.lstsq(info, half.T, rcond=1e-12)[0]
@@ -242,8 +265,7 @@ def _input_noise_covariance(
 
 def _measurement_noise_covariance(
     model: Any,
-    t: FloatArray,
-    controls: FloatArray,
+    pieces: list[tuple[FloatArray, FloatArray]],
     fit: Any,
     names: list[str],
     free_x0: list[str],
@@ -269,7 +291,7 @@ def _measurement_noise_covariance(
     level is scaled down by one common factor (`_allowed_scale`). Returns that
     factor ``c`` (on variances), the measurement-noise covariance of the
     parameters and its degrees of freedom; None where no input noise is set
-    or a draw fails.
+    or a draw fails. `pieces` holds each record's time and controls.
     """
     from .._colour import colored_covariance
 
@@ -278,29 +300,53 @@ def _measurement_noise_covariance(
     if not np.any(scale > 0) or not fit.residuals:
         return None
     theta = np.array([fit.parameters[n] for n in names])
-    x0 = np.array([fit.initial_states[0][s] for s in STATES])
     x_idx = [STATES.index(s) for s in free_x0]
     variance = np.clip(np.diag(np.asarray(fit.noise_covariance)), 1e-300, None)
     weight = 1.0 / np.sqrt(variance)
     rng = np.random.default_rng(seed)
-    noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
-    jw, dy = _difference_response(
-        model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
-    )
-    if dy is None:
-        return None
-    n, n_y = t.size, len(out_idx)
-    jac = jw.T  # (n n_y, p + free states)
-    m_inv = information_inverse(jac.T @ jac, rcond=1e-12)
-    flat = dy.reshape(n_draws, -1).T
-    left = (flat - jac @ (m_inv @ (jac.T @ flat))).T.reshape(n_draws, n, n_y)
-    u = np.asarray(fit.residuals[0], dtype=np.float64) * weight[None, :]
-    c = _allowed_scale(np.sum(left**2, axis=1), np.sum(u**2, axis=0))
-    lf = np.fft.rfft(left, 2 * n, axis=1)
-    known = c * np.einsum("dka,dkb->kab", lf, lf.conj()) / (n * n_draws)
+    n_y, n_rec = len(out_idx), len(pieces)
+    jacs: list[FloatArray] = []
+    flats: list[FloatArray] = []
+    for r, (t, controls) in enumerate(pieces):
+        x0 = np.array([fit.initial_states[r][s] for s in STATES])
+        noise = rng.standard_normal((n_draws, *controls.shape)) * scale[None, None, :]
+        jw, dy = _difference_response(
+            model, t, controls, noise, theta, x0, names, x_idx, out_idx, weight, substeps
+        )
+        if dy is None:
+            return None
+        # (n n_y, p + free states)
+        jacs.append(_joint(n_p, len(x_idx), n_rec, r, jw.T, False))
+        flats.append(dy.reshape(n_draws, -1).T)
+    info = jacs[0].T @ jacs[0]
+    for jac in jacs[1:]:
+        info = info + jac.T @ jac
+    m_inv = information_inverse(info, rcond=1e-12)
+    pull = jacs[0].T @ flats[0]
+    for jac, flat in zip(jacs[1:], flats[1:], strict=True):
+        pull = pull + jac.T @ flat
+    step = m_inv @ pull
+    drawn: Any = 0.0
+    seen: Any = 0.0
+    known: list[Any] = []
+    residuals: list[FloatArray] = []
+    for r, (jac, flat) in enumerate(zip(jacs, flats, strict=True)):
+        n = pieces[r][0].size
+        left = (flat - jac @ step).T.reshape(n_draws, n, n_y)
+        u = np.asarray(fit.residuals[r], dtype=np.float64) * weight[None, :]
+        drawn = drawn + np.sum(left**2, axis=1)
+        seen = seen + np.sum(u**2, axis=0)
+        lf = np.fft.rfft(left, 2 * n, axis=1)
+        known.append(np.einsum("dka,dkb->kab", lf, lf.conj()))
+        residuals.append(u)
+    c = _allowed_scale(drawn, seen)
     # the output weights were estimated from these residuals (the fit's noise covariance)
     cov, nu = colored_covariance(
-        [jac.reshape(n, n_y, -1)], [u], m_inv, known=[known], estimated_weights=True
+        [jac.reshape(pieces[r][0].size, n_y, -1) for r, jac in enumerate(jacs)],
+        residuals,
+        m_inv,
+        known=[c * k / (pieces[r][0].size * n_draws) for r, k in enumerate(known)],
+        estimated_weights=True,
     )
     return c, np.asarray(cov[:n_p, :n_p]), np.asarray(nu[:n_p])
 

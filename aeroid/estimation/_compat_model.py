@@ -68,13 +68,31 @@ def _is_zero(v: Any) -> bool:
     return isinstance(v, _NUMBER) and float(v) == 0.0
 
 
+# Nominal parameters of sensors off the centre of gravity (body axes, m), present only
+# where a position is given, so that a record measured at the c.g. runs the same model.
+ACCEL_POSITION = ("acc_x", "acc_y", "acc_z")
+ALPHA_POSITION = ("alpha_x", "alpha_y", "alpha_z")
+BETA_POSITION = ("beta_x", "beta_y", "beta_z")
+_SIDESLIP_ATAN = "sideslip_atan"  # present: the beta vane reads atan(v / u)
+
+
 def _rates(c: Any, p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
-    """Rates and specific forces with the gyro and accelerometer errors removed."""
+    """Rates and specific forces (at the c.g.) with the gyro and accelerometer errors removed."""
     out = []
     for j, ch in enumerate(INPUT_CHANNELS):
         b, k = _one(p[f"b_{ch}"]), _one(p[f"k_{ch}"])
         out.append((c[j] - b) / (1.0 + k))
-    return out[0], out[1], out[2], out[3], out[4], out[5]
+    P, Q, R, AX, AY, AZ = out
+    if ACCEL_POSITION[0] in p:
+        # the accelerometers at r read the c.g.'s specific force plus w' x r (taken off
+        # the record beforehand: it needs no gyro error) plus w x (w x r), removed here
+        rx, ry, rz = (_one(p[k]) for k in ACCEL_POSITION)
+        along = P * rx + Q * ry + R * rz
+        spin = P * P + Q * Q + R * R
+        AX = AX - (P * along - rx * spin)
+        AY = AY - (Q * along - ry * spin)
+        AZ = AZ - (R * along - rz * spin)
+    return P, Q, R, AX, AY, AZ
 
 
 def _effective(x: Any, c: Any, p: Any) -> list[Any]:
@@ -154,9 +172,24 @@ def _sensors(t: Any, x: Any, c: Any, p: Any) -> Any:
     V = np.sqrt(plane + va * va)
     dV = (ua * dua + va * dva + wa * dwa) / V
     alpha = np.arctan2(wa, ua)
+    if ALPHA_POSITION[0] in p:
+        # a vane at r sees the air velocity plus w x r (Klein & Morelli, ch. 10)
+        rx, ry, rz = (_one(p[k]) for k in ALPHA_POSITION)
+        alpha = np.arctan2(wa + P * ry - Q * rx, ua + Q * rz - R * ry)
     dalpha = (ua * dwa - wa * dua) / plane
-    beta = np.arcsin(va / V)
-    dbeta = (dva * V - va * dV) / (V * np.sqrt(plane))
+    ub, vb, wb = ua, va, wa
+    if BETA_POSITION[0] in p:
+        rx, ry, rz = (_one(p[k]) for k in BETA_POSITION)
+        ub, vb, wb = ua + Q * rz - R * ry, va + R * rx - P * rz, wa + P * ry - Q * rx
+    if _SIDESLIP_ATAN in p:
+        # a flank-angle vane: the angle of the air velocity in the body x-y plane
+        beta = np.arctan2(vb, ub)
+        dbeta = (ua * dva - va * dua) / (ua * ua + va * va)
+    else:
+        beta = (
+            np.arcsin(va / V) if vb is va else np.arcsin(vb / np.sqrt(ub * ub + vb * vb + wb * wb))
+        )
+        dbeta = (dva * V - va * dV) / (V * np.sqrt(plane))
     # ground velocity north and east: the body-to-earth rotation of (u, v, w); its rate
     # is the same rotation of the specific force (gravity acts along "down" only)
     n_x = cth * cpsi
@@ -271,6 +304,15 @@ def _kinematics_jacobian(
     Dr[:, 3, 0], Dr[:, 3, 1], Dr[:, 3, 2] = 1.0, tth * sphi, tth * cphi
     Dr[:, 4, 1], Dr[:, 4, 2] = cphi, -sphi
     Dr[:, 5, 1], Dr[:, 5, 2] = sphi / cth, cphi / cth
+    if ACCEL_POSITION[0] in p:
+        # the c.g.'s specific force is the reading less w x (w x r) = w (w.r) - r |w|^2
+        lever = [float(p[k]) for k in ACCEL_POSITION]
+        w = (P, Q, R)
+        along = P * lever[0] + Q * lever[1] + R * lever[2]
+        for i in range(3):
+            for j in range(3):
+                d = w[i] * lever[j] - 2.0 * lever[i] * w[j]
+                Dr[:, i, j] -= d + along if i == j else d
     Dx = _masked(Dx, masks, True)
     Dr = _masked(Dr, masks, True)
     fx = _masked(Dx, masks, False)
@@ -302,6 +344,8 @@ def _sensors_jacobian(
     shift is at work (else None)."""
     if any(float(p[f"tau_{o}"]) != 0.0 for o in OUTPUT_CHANNELS):
         return None
+    if ALPHA_POSITION[0] in p or BETA_POSITION[0] in p or _SIDESLIP_ATAN in p:
+        return None  # vanes off the c.g. or a flank angle: central differences
     if any(
         n not in _INPUT_ERRORS and n not in _OUTPUT_ERRORS and n not in _WIND and n != "g"
         for n in names

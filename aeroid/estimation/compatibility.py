@@ -57,14 +57,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .._stats import spread_over_noise
 from .._threads import record_warnings, small_blas
-from ..errors import DataFormatError, IdentificationError
+from ..errors import IdentificationError
 from ..io.data import FlightData, plain, whole_number
 from ._compat_arguments import _ANGLE_LIMITS as _ANGLE_LIMITS
 from ._compat_arguments import _STAND_IN_SOURCES as _STAND_IN_SOURCES
@@ -101,6 +101,7 @@ from ._compat_model import _model as _model
 from ._compat_model import _rates as _rates
 from ._compat_model import _sensors as _sensors
 from ._compat_model import _zero_sensor_errors as _zero_sensor_errors
+from ._compat_sensors import _off_centre, _pooled_noise, _records, _same_channels, _sensor_nominal
 from ._compatibility_record import CompatibilityResult as CompatibilityResult
 
 __all__ = [
@@ -123,7 +124,7 @@ def _moves(x: FloatArray) -> bool:
     return spread_over_noise(x) > 3.0
 
 
-@small_blas
+@overload
 def check_compatibility(
     data: FlightData,
     *,
@@ -144,14 +145,76 @@ def check_compatibility(
     estimate_x0: bool | Sequence[str] = True,
     scale_about: str = "zero",
     integration: str = "rk4",
-) -> CompatibilityResult:
+    accel_position: Sequence[float] = (0.0, 0.0, 0.0),
+    alpha_vane_position: Sequence[float] = (0.0, 0.0, 0.0),
+    beta_vane_position: Sequence[float] = (0.0, 0.0, 0.0),
+    sideslip: str = "asin",
+) -> CompatibilityResult: ...
+
+
+@overload
+def check_compatibility(
+    data: Sequence[FlightData],
+    *,
+    channels: Mapping[str, str | None] | None = None,
+    estimate: Sequence[str] | Mapping[str, float] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | None = None,
+    gravity: float = 9.80665,
+    error_bars: str = "colored",
+    max_iterations: int = 50,
+    tolerance: float = 1e-6,
+    max_passes: int = 4,
+    input_noise: Mapping[str, float] | None = None,
+    n_draws: int = 40,
+    seed: int = 0,
+    outputs: Sequence[str] | None = None,
+    measured_states: Sequence[str] = (),
+    estimate_x0: bool | Sequence[str] = True,
+    scale_about: str = "zero",
+    integration: str = "rk4",
+    accel_position: Sequence[float] = (0.0, 0.0, 0.0),
+    alpha_vane_position: Sequence[float] = (0.0, 0.0, 0.0),
+    beta_vane_position: Sequence[float] = (0.0, 0.0, 0.0),
+    sideslip: str = "asin",
+) -> tuple[CompatibilityResult, ...]: ...
+
+
+@small_blas
+def check_compatibility(
+    data: FlightData | Sequence[FlightData],
+    *,
+    channels: Mapping[str, str | None] | None = None,
+    estimate: Sequence[str] | Mapping[str, float] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | None = None,
+    gravity: float = 9.80665,
+    error_bars: str = "colored",
+    max_iterations: int = 50,
+    tolerance: float = 1e-6,
+    max_passes: int = 4,
+    input_noise: Mapping[str, float] | None = None,
+    n_draws: int = 40,
+    seed: int = 0,
+    outputs: Sequence[str] | None = None,
+    measured_states: Sequence[str] = (),
+    estimate_x0: bool | Sequence[str] = True,
+    scale_about: str = "zero",
+    integration: str = "rk4",
+    accel_position: Sequence[float] = (0.0, 0.0, 0.0),
+    alpha_vane_position: Sequence[float] = (0.0, 0.0, 0.0),
+    beta_vane_position: Sequence[float] = (0.0, 0.0, 0.0),
+    sideslip: str = "asin",
+) -> CompatibilityResult | tuple[CompatibilityResult, ...]:
     """Reconstruct the flight path from the inertial sensors and estimate the sensor errors.
 
     Parameters
     ----------
-    data : FlightData
-        One record with body-axis rates ``p, q, r`` (rad/s), specific forces
-        ``ax, ay, az`` (m/s^2, at the centre of gravity), airspeed ``V``
+    data : FlightData or sequence of FlightData
+        One record, or several with the same channels fitted together (shared
+        sensor errors, each record its own initial state), with body-axis
+        rates ``p, q, r`` (rad/s), specific forces
+        ``ax, ay, az`` (m/s^2, at `accel_position`), airspeed ``V``
         (m/s), angles ``alpha, beta, phi, theta, psi`` (rad), altitude ``h``
         (m) and ground speed north and east ``vn, ve`` (m/s). ``beta``,
         ``psi``, ``h``, ``vn`` and ``ve`` are optional: whichever the record
@@ -229,6 +292,25 @@ def check_compatibility(
         by half a sample, and the biases absorb what that lag leaves (on an
         error-free simulated record at 25 Hz, a pitch-gyro bias of 2.4e-3
         rad/s): the last two serve to reproduce legacy results only.
+    accel_position : sequence of 3 floats
+        Where the accelerometers sit, m in body axes from the centre of
+        gravity (as `AircraftConstants.accel_position`). They read the
+        c.g.'s specific force plus ``w' x r + w x (w x r)``; the first term
+        is taken off the record with the angular accelerations ``p_dot,
+        q_dot, r_dot`` where the record has them, else the rates
+        differentiated (as `coefficients_from_data` does); the second is the
+        model's, with the corrected rates. Zero: at the c.g.
+    alpha_vane_position, beta_vane_position : sequence of 3 floats
+        Where the angle-of-attack and sideslip vanes sit (a nose boom), m in
+        body axes from the c.g. A vane sees the air velocity plus the
+        rotation's ``w x r``: ``alpha_v = atan((w + p y - q x) / (u + q z -
+        r y))``, and ``beta_v`` from ``v + r x - p z`` (Klein & Morelli,
+        ch. 10). The airspeed is the c.g.'s. Zero: at the c.g.
+    sideslip : {"asin", "atan"}
+        What the sideslip channel reads: ``asin(v / V)`` (the sideslip angle)
+        or ``atan(v / u)``, the angle of the air velocity in the body x-y
+        plane, which a vane hinged on the body z axis aligns with (a flank
+        angle, as Jategaonkar's FVSysID models the ATTAS boom).
 
     Notes
     -----
@@ -255,9 +337,17 @@ def check_compatibility(
     what their spectrum holds beyond the expected integrated input noise (the
     measurement noise), so the wander is counted once.
 
+    Several records share one covariance of the sensor errors; the
+    input-noise share and the coloured correction take each record's noise
+    as independent (the input noise levels are pooled over the records).
+    ``scale_about="initial"`` takes one record.
+
     Returns
     -------
-    CompatibilityResult
+    CompatibilityResult or tuple of CompatibilityResult
+        One per record, for a sequence: each with the shared sensor errors
+        and covariance and its own initial state, reconstruction and
+        corrected data.
 
     Raises
     ------
@@ -265,10 +355,12 @@ def check_compatibility(
         A required channel (the six inputs, ``V``, ``alpha``, ``theta``) is
         missing, or a parameter to estimate belongs to an absent channel.
     DataFormatError
-        A channel holds non-finite values, an angle exceeds its range in
+        `data` is not a FlightData or a sequence of them, the records' channels
+        differ, a channel holds non-finite values, an angle exceeds its range in
         radians, or the airspeed is not positive.
     IdentificationError
-        Unknown parameter names, bad values or options.
+        Unknown parameter names, bad values or options (a sensor position
+        not three finite numbers).
 
     Warns
     -----
@@ -277,25 +369,35 @@ def check_compatibility(
         instance a horizontal wind without ground-speed channels, or the
         air-data offsets from a wind on a straight leg).
     """
+    from ._excitation import check_kinematic_channels, refuse_stuck_outputs
     from .identification import identify
 
-    if not isinstance(data, FlightData):
-        raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
-    present = _channel_map(data, channels)
-    from ._excitation import check_kinematic_channels, refuse_stuck_outputs
-
-    check_kinematic_channels(data, present)
+    records = _records(data)
+    presents = [_channel_map(d, channels) for d in records]
+    _same_channels(presents)
+    present = presents[0]
+    for d, here in zip(records, presents, strict=True):
+        check_kinematic_channels(d, here)
     fitted = _fitted_outputs(outputs, present)
-    refuse_stuck_outputs(data, present, fitted)
+    for d, here in zip(records, presents, strict=True):
+        refuse_stuck_outputs(d, here, fitted)
     names, values = _parameter_values(
         estimate,
         fixed,
         {**{o: present[o] for o in fitted}, **{c: present[c] for c in INPUT_CHANNELS}},
     )
     held_in = _measured_state_names(measured_states, present)
+    lever, geometry = _sensor_nominal(
+        accel_position, alpha_vane_position, beta_vane_position, sideslip
+    )
     if scale_about not in ("zero", "initial"):
         raise IdentificationError(
             f"scale_about: expected 'zero' or 'initial', got {plain(scale_about)}"
+        )
+    if scale_about == "initial" and len(records) > 1:
+        raise IdentificationError(
+            "scale_about: 'initial' pivots each scale factor on one record's start; "
+            "with several records use 'zero'"
         )
     if integration not in ("rk4", "rk4_hold", "euler"):
         raise IdentificationError(
@@ -312,30 +414,46 @@ def check_compatibility(
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise IdentificationError(f"seed: expected an integer, got {plain(seed)}")
     max_passes = min(max_passes, _MAX_PASSES)
-    t = data.time
     outputs = list(fitted)
-    measured = {
-        o: np.array(data.channels[present[o]], dtype=np.float64)
-        for o in OUTPUT_CHANNELS
-        if o in present
-    }
-    if "psi" in measured:
-        measured["psi"] = np.unwrap(measured["psi"])
-    inputs = {c: np.asarray(data.channels[present[c]], dtype=np.float64) for c in INPUT_CHANNELS}
-    substeps = _substeps(t, np.stack([inputs[c] for c in ("p", "q", "r")]))
+    times = [d.time for d in records]
+    measures: list[dict[str, FloatArray]] = []
+    feeds: list[dict[str, FloatArray]] = []
+    for d in records:
+        measured = {
+            o: np.array(d.channels[present[o]], dtype=np.float64)
+            for o in OUTPUT_CHANNELS
+            if o in present
+        }
+        if "psi" in measured:
+            measured["psi"] = np.unwrap(measured["psi"])
+        measures.append(measured)
+        inputs = {c: np.asarray(d.channels[present[c]], dtype=np.float64) for c in INPUT_CHANNELS}
+        _off_centre(d, present, inputs, lever)
+        feeds.append(inputs)
+    substeps = max(
+        _substeps(t, np.stack([inputs[c] for c in ("p", "q", "r")]))
+        for t, inputs in zip(times, feeds, strict=True)
+    )
     how: dict[str, Any] = (
         {"method": "rk4", "substeps": substeps} if integration == "rk4" else {"method": integration}
     )
-    sigma_in = _input_noise(inputs, input_noise)
-    start = _start_state(_first_values(t, measured), values, x0)
-    stand_in = _states_from(measured, values)
-    held = np.column_stack([stand_in[s] if s in held_in else np.zeros(t.size) for s in STATES])
+    levels = [_input_noise(inputs, input_noise) for inputs in feeds]
+    sigma_in = levels[0] if len(levels) == 1 else _pooled_noise(levels, [t.size for t in times])
+    starts = [
+        _start_state(_first_values(t, m), values, x0) for t, m in zip(times, measures, strict=True)
+    ]
+    helds = []
+    for t, measured in zip(times, measures, strict=True):
+        stand_in = _states_from(measured, values)
+        helds.append(
+            np.column_stack([stand_in[s] if s in held_in else np.zeros(t.size) for s in STATES])
+        )
     # the heading is seen by its own channel or through the ground speed; the side
     # velocity by the sideslip, the ground speed, or through p v and r v in the other
     # velocities' rates where the record rolls or yaws (the airspeed holds it only
     # squared: a wings-level record without beta cannot tell its start, and a fit asked
     # for it stalls on that direction)
-    lateral = _moves(inputs["p"]) or _moves(inputs["r"])
+    lateral = any(_moves(inputs["p"]) or _moves(inputs["r"]) for inputs in feeds)
     blind = [n for n in names if n in LATERAL_INPUT_ERRORS]
     if blind and not lateral and not LATERAL_OUTPUTS & set(outputs):
         raise IdentificationError(
@@ -354,34 +472,36 @@ def check_compatibility(
     masks = tuple((f"m_{s}", 1.0 if s in held_in else 0.0) for s in STATES)
     pivots = {o: 0.0 for o in OUTPUT_CHANNELS}
     if scale_about == "initial":
-        x_start = np.array([start[s] for s in STATES])
-        c_start = np.concatenate([[inputs[c][0] for c in INPUT_CHANNELS], held[0]])
-        p_start = {**_zero_sensor_errors(values), "g": g, **dict(masks)}
+        x_start = np.array([starts[0][s] for s in STATES])
+        c_start = np.concatenate([[feeds[0][c][0] for c in INPUT_CHANNELS], helds[0][0]])
+        p_start = {**_zero_sensor_errors(values), "g": g, **dict(masks), **dict(geometry)}
         p_start.update({f"y0_{o}": 0.0 for o in OUTPUT_CHANNELS})
-        y_start = _sensors(t[0], x_start, c_start, p_start)
+        y_start = _sensors(times[0][0], x_start, c_start, p_start)
         pivots = {o: float(y_start[j]) for j, o in enumerate(OUTPUT_CHANNELS)}
     shifted_names = [n for n in names if n.startswith("tau_")]
     applied = {n: 0.0 for n in shifted_names}
     current = dict(values)
     passes = 0
     fit: Any = None
-    nominal = (("g", g), *masks, *((f"y0_{o}", v) for o, v in pivots.items()))
+    nominal = (("g", g), *masks, *((f"y0_{o}", v) for o, v in pivots.items()), *geometry)
     model = _model((*nominal, *sorted(values.items())))
     while True:
         passes += 1
-        channels_now = {c: inputs[c] for c in INPUT_CHANNELS}
-        channels_now.update({m: held[:, j] for j, m in enumerate(_MEASURED)})
-        for o in outputs:
-            channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
-        record = FlightData(t, channels_now)
+        now = []
+        for t, inputs, held, measured in zip(times, feeds, helds, measures, strict=True):
+            channels_now = {c: inputs[c] for c in INPUT_CHANNELS}
+            channels_now.update({m: held[:, j] for j, m in enumerate(_MEASURED)})
+            for o in outputs:
+                channels_now[o] = _shift(t, measured[o], applied.get(f"tau_{o}", 0.0))
+            now.append(FlightData(t, channels_now))
         guess = {n: current[n] - applied.get(n, 0.0) for n in names}
         with record_warnings() as caught:
             fit = identify(
                 model,
-                record,
+                now[0] if len(now) == 1 else now,
                 guess,
                 outputs=outputs,
-                x0=start,
+                x0=starts[0] if len(now) == 1 else starts,
                 estimate_x0=free_x0,
                 error_bars=error_bars,
                 max_iterations=max_iterations,
@@ -390,25 +510,28 @@ def check_compatibility(
             )
         _rewarn(caught, names)
         current.update({n: fit.parameters[n] + applied.get(n, 0.0) for n in names})
-        start = dict(fit.initial_states[0])
+        starts = [dict(s) for s in fit.initial_states]
         if not shifted_names or passes >= max_passes or not fit.success:
             break
         # Another pass only while the remaining shift is worth a re-interpolation: the
         # first-order term neglects (omega tau)^2 / 2, and below a twentieth of a sample
         # that is under a twelfth of the first-order term even at the Nyquist frequency.
         step = max(abs(fit.parameters[n]) for n in shifted_names)
-        if step < 0.05 * float(np.min(np.diff(t))):
+        if step < 0.05 * min(float(np.min(np.diff(t))) for t in times):
             break
         applied = {n: current[n] for n in shifted_names}
-    controls = np.column_stack([*(inputs[c] for c in INPUT_CHANNELS), held])
+    pieces = [
+        (t, np.column_stack([*(inputs[c] for c in INPUT_CHANNELS), held]))
+        for t, inputs, held in zip(times, feeds, helds, strict=True)
+    ]
+    out_idx = [OUTPUT_CHANNELS.index(o) for o in outputs]
     extra = _input_noise_covariance(
         model,
-        t,
-        controls,
+        pieces,
         fit,
         names,
         free_x0,
-        [OUTPUT_CHANNELS.index(o) for o in outputs],
+        out_idx,
         sigma_in,
         n_draws=n_draws,
         seed=int(seed),
@@ -418,12 +541,11 @@ def check_compatibility(
     if fit.error_bars == "colored":
         split = _measurement_noise_covariance(
             model,
-            t,
-            controls,
+            pieces,
             fit,
             names,
             free_x0,
-            [OUTPUT_CHANNELS.index(o) for o in outputs],
+            out_idx,
             sigma_in,
             n_draws=n_draws,
             seed=int(seed),
@@ -434,26 +556,32 @@ def check_compatibility(
             extra = allowed * extra
             sigma_in = {c: v * math.sqrt(allowed) for c, v in sigma_in.items()}
             base = (cov_noise, nu_noise)
-    return _result(
-        model,
-        data,
-        present,
-        outputs,
-        measured,
-        inputs,
-        controls,
-        names,
-        current,
-        fit,
-        extra,
-        sigma_in,
-        passes,
-        g,
-        how,
-        tuple(s for s in STATES if s in held_in),
-        {o: pivots[o] for o in outputs},
-        base,
+    results = tuple(
+        _result(
+            model,
+            d,
+            present,
+            outputs,
+            measures[r],
+            {c: np.asarray(d.channels[present[c]], dtype=np.float64) for c in INPUT_CHANNELS},
+            pieces[r][1],
+            names,
+            current,
+            fit,
+            extra,
+            sigma_in,
+            passes,
+            g,
+            how,
+            tuple(s for s in STATES if s in held_in),
+            {o: pivots[o] for o in outputs},
+            base,
+            record=r,
+            several=len(records) > 1,
+        )
+        for r, d in enumerate(records)
     )
+    return results[0] if isinstance(data, FlightData) else results
 
 
 def _result(
@@ -475,9 +603,12 @@ def _result(
     held: tuple[str, ...],
     pivots: Mapping[str, float],
     base: tuple[FloatArray, FloatArray] | None = None,
+    *,
+    record: int = 0,
+    several: bool = False,
 ) -> CompatibilityResult:
     t = data.time
-    x0 = dict(fit.initial_states[0])
+    x0 = dict(fit.initial_states[record])
     # the fitted model itself (and whatever was compiled for it), free of output errors
     sim = model.simulate(t, controls, x0, _zero_sensor_errors(values), **how)
     true_out = np.asarray(sim.outputs)
@@ -522,7 +653,13 @@ def _result(
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     se[~np.isfinite(np.diag(cov))] = np.inf
     stderr = {n: float(se[j]) for j, n in enumerate(names)}
-    x0_se = {s: float(v) for k, v in fit.extra_stderr.items() for s in [k.partition(".")[2]]}
+    if several:  # this record's initial states among every record's
+        mine = f"x0[{record}]."
+        x0_se = {
+            k[len(mine) :]: float(v) for k, v in fit.extra_stderr.items() if k.startswith(mine)
+        }
+    else:
+        x0_se = {s: float(v) for k, v in fit.extra_stderr.items() for s in [k.partition(".")[2]]}
     return CompatibilityResult(
         corrected=data.with_channels(corrected),
         parameters={n: float(values[n]) for n in names},
