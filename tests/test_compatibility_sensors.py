@@ -241,3 +241,14 @@ def test_bad_records_are_named(small):
     with pytest.raises(IdentificationError, match="scale_about"):
         check_compatibility([small, small], scale_about="initial")
     assert isinstance(small, FlightData)
+
+
+def test_initial_states_held_per_record(small):
+    other = simulated_flight(6.0, 25.0, seed=9, h0=1900.0)
+    starts = [{"h": 1500.5, "u": 45.0}, {"h": 1900.5, "u": 45.0}]
+    results = check_compatibility([small, other], estimate_x0=False, x0=starts)
+    for r, given in zip(results, starts, strict=True):
+        assert r.initial_states["h"] == given["h"]
+        assert r.initial_states["u"] == given["u"]
+    with pytest.raises(IdentificationError, match=r"x0: expected one mapping per record \(2\)"):
+        check_compatibility([small, other], x0=starts[:1])

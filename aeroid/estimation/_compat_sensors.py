@@ -135,3 +135,16 @@ def _pooled_noise(levels: Sequence[Mapping[str, float]], sizes: Sequence[int]) -
         c: math.sqrt(sum(n * lv[c] ** 2 for lv, n in zip(levels, sizes, strict=True)) / total)
         for c in levels[0]
     }
+
+
+def _per_record_x0(x0: Any, n: int) -> list[Any]:
+    """The start-value mapping of each record: one for all, or one per record."""
+    if x0 is None or isinstance(x0, Mapping) or n == 1:
+        return [x0] * n
+    if isinstance(x0, (str, bytes)) or not isinstance(x0, Sequence):
+        raise IdentificationError(
+            f"x0: expected a mapping state -> value or one per record, got {plain(x0)}"
+        )
+    if len(x0) != n:
+        raise IdentificationError(f"x0: expected one mapping per record ({n}), got {len(x0)}")
+    return list(x0)

@@ -101,7 +101,14 @@ from ._compat_model import _model as _model
 from ._compat_model import _rates as _rates
 from ._compat_model import _sensors as _sensors
 from ._compat_model import _zero_sensor_errors as _zero_sensor_errors
-from ._compat_sensors import _off_centre, _pooled_noise, _records, _same_channels, _sensor_nominal
+from ._compat_sensors import (
+    _off_centre,
+    _per_record_x0,
+    _pooled_noise,
+    _records,
+    _same_channels,
+    _sensor_nominal,
+)
 from ._compatibility_record import CompatibilityResult as CompatibilityResult
 
 __all__ = [
@@ -131,7 +138,7 @@ def check_compatibility(
     channels: Mapping[str, str | None] | None = None,
     estimate: Sequence[str] | Mapping[str, float] | None = None,
     fixed: Mapping[str, float] | None = None,
-    x0: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
     gravity: float = 9.80665,
     error_bars: str = "colored",
     max_iterations: int = 50,
@@ -159,7 +166,7 @@ def check_compatibility(
     channels: Mapping[str, str | None] | None = None,
     estimate: Sequence[str] | Mapping[str, float] | None = None,
     fixed: Mapping[str, float] | None = None,
-    x0: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
     gravity: float = 9.80665,
     error_bars: str = "colored",
     max_iterations: int = 50,
@@ -187,7 +194,7 @@ def check_compatibility(
     channels: Mapping[str, str | None] | None = None,
     estimate: Sequence[str] | Mapping[str, float] | None = None,
     fixed: Mapping[str, float] | None = None,
-    x0: Mapping[str, float] | None = None,
+    x0: Mapping[str, float] | Sequence[Mapping[str, float]] | None = None,
     gravity: float = 9.80665,
     error_bars: str = "colored",
     max_iterations: int = 50,
@@ -233,9 +240,10 @@ def check_compatibility(
     fixed : mapping of str to float, optional
         Known values of parameters not estimated (a calibrated scale factor,
         a known wind); every other parameter is zero.
-    x0 : mapping of str to float, optional
-        Start values of the initial state (``u, v, w, phi, theta, psi, h``);
-        default from the first sample of the measured channels.
+    x0 : mapping of str to float, or a sequence of them, optional
+        Start values of the initial state (``u, v, w, phi, theta, psi, h``),
+        for every record or one mapping per record; default from the first
+        sample of the measured channels.
     gravity : float
         Acceleration of gravity in m/s^2.
     error_bars : {"colored", "white"}
@@ -440,7 +448,8 @@ def check_compatibility(
     levels = [_input_noise(inputs, input_noise) for inputs in feeds]
     sigma_in = levels[0] if len(levels) == 1 else _pooled_noise(levels, [t.size for t in times])
     starts = [
-        _start_state(_first_values(t, m), values, x0) for t, m in zip(times, measures, strict=True)
+        _start_state(_first_values(t, m), values, given)
+        for t, m, given in zip(times, measures, _per_record_x0(x0, len(records)), strict=True)
     ]
     helds = []
     for t, measured in zip(times, measures, strict=True):

@@ -16,15 +16,16 @@ method runs here in numpy (`_fvsysid_fpr.ml_oem`, ``ml_oem2`` with
 ``ruku4``); the SIDPAC columns hold its estimates and Cramer-Rao standard
 deviations (``par_accuracy``; no corrected bar).
 
-Ours: ``aeroid.check_compatibility`` takes one `FlightData`, not several
-segments, has no accelerometer or air-data-boom lever arms, and reads beta
-as ``asin(v / V)``: it cannot express this set-up. The same equations are
-therefore written as a user ``aeroid.Model`` and fitted by
+Ours: the same equations written as a user ``aeroid.Model`` and fitted by
 ``aeroid.identify`` to the three records (shared biases, per-record initial
 states held), as a user would; rows ``white`` use ``error_bars="white"``.
-Rows ``cc<k>`` (variants): ``check_compatibility`` on segment k alone (the
-six biases, the case's x0 held, g = 9.80, default bars) next to FVSysID's
-method on that segment; they differ by the lever arms it lacks.
+Rows ``cc<k>`` (variants): ``aeroid.check_compatibility`` on segment k alone
+(the six biases, the case's x0 held, g = 9.80, default bars) with the case's
+lever arms (``accel_position``, ``alpha_vane_position``,
+``beta_vane_position``), ``sideslip="atan"`` and FVSysID's ``pdot, qdot,
+rdot`` as the record's ``p_dot, q_dot, r_dot``, next to FVSysID's method on
+that segment; rows ``cc123`` the three segments together (shared biases, each
+its own x0 held) next to the case's fit.
 """
 
 from __future__ import annotations
@@ -213,25 +214,41 @@ def segment_monte_carlo(
     )
 
 
+def _cc_record(t: np.ndarray, z: np.ndarray, u: np.ndarray) -> Any:
+    """One segment as `check_compatibility` reads it, FVSysID's p, q, r derivatives
+    as ``p_dot, q_dot, r_dot``."""
+    import aeroid
+
+    ch = {o: z[:, j] for j, o in enumerate(OUTPUTS)}
+    ch.update({c: u[:, j] for j, c in enumerate(CONTROLS[:6])})
+    ch.update({f"{c}_dot": u[:, 6 + j] for j, c in enumerate(("p", "q", "r"))})
+    return aeroid.FlightData(time=t, channels=ch)
+
+
+# the case's sensor geometry in check_compatibility's options
+CC_OPTIONS = {
+    "accel_position": ACC,
+    "alpha_vane_position": BOOM,
+    "beta_vane_position": BOOM,
+    "sideslip": "atan",
+}
+
+
 def compatibility_rows(segs: list[Any], x0: np.ndarray) -> list[dict[str, Any]]:
-    """``check_compatibility`` on each segment alone (variant rows) next to FVSysID's
-    method on that segment: the API's own kinematics, no lever arms, beta as asin."""
+    """``check_compatibility`` with the case's lever arms and flank-angle beta on each
+    segment alone (variant rows ``cc<k>``) next to FVSysID's method on that segment,
+    and on the three segments together (``cc123``) next to the case's fit."""
     import aeroid
 
     rows = []
     p0 = np.array([0.0] * 6 + [1.0, 0.0, 1.0, 0.0])
     free = np.array([True] * 6 + [False] * 4)
+    common = {"estimate": list(BIASES), "estimate_x0": False, "gravity": G, **CC_OPTIONS}
     for k, (t, z, u) in enumerate(segs):
         fv = F.ml_oem(PORT_STATE, PORT_OBS, x0[k : k + 1], [u], [z], DT, p0, free=free, names=NAMES)
-        ch = {o: z[:, j] for j, o in enumerate(OUTPUTS)}
-        ch.update({c: u[:, j] for j, c in enumerate(CONTROLS[:6])})
         with S.Timer() as tm:
             cc = aeroid.check_compatibility(
-                aeroid.FlightData(time=t, channels=ch),
-                estimate=list(BIASES),
-                x0=dict(zip(STATES, x0[k], strict=True)),
-                estimate_x0=False,
-                gravity=G,
+                _cc_record(t, z, u), x0=dict(zip(STATES, x0[k], strict=True)), **common
             )
         rows += [
             S.row(
@@ -247,6 +264,37 @@ def compatibility_rows(segs: list[Any], x0: np.ndarray) -> list[dict[str, Any]]:
             )
             for i, n in enumerate(BIASES)
         ]
+    fv = F.ml_oem(
+        PORT_STATE,
+        PORT_OBS,
+        x0,
+        [u for _, _, u in segs],
+        [z for _, z, _ in segs],
+        DT,
+        p0,
+        free=free,
+        names=NAMES,
+    )
+    with S.Timer() as tm:
+        together = aeroid.check_compatibility(
+            [_cc_record(*seg) for seg in segs],
+            x0=[dict(zip(STATES, x, strict=True)) for x in x0],
+            **common,
+        )[0]
+    rows += [
+        S.row(
+            CASE,
+            f"cc123:{n}",
+            sidpac=fv.p[i],
+            sidpac_se_white=fv.crb[i],
+            sidpac_se_corrected=None,
+            ours=together.parameters[n],
+            ours_se=together.stderr[n],
+            seconds=tm.seconds,
+            variant=True,
+        )
+        for i, n in enumerate(BIASES)
+    ]
     return rows
 
 
@@ -288,8 +336,8 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     note = (
         "FVSysID saved no result for case 22: ml_oem2 (ruku4, diagonal R, det(R), "
         f"GN) runs in numpy here ({fv.iterations} iterations); ours: identify on a user Model "
-        "of the same equations, three records (check_compatibility takes one record, "
-        "no lever arms, beta as asin(v/V))"
+        "of the same equations, three records (check_compatibility with the case's lever "
+        "arms and flank-angle beta: rows cc)"
     )
     rows = []
     for i, n in enumerate(BIASES):

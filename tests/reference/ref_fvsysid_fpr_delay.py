@@ -15,12 +15,15 @@ estimates and Cramer-Rao standard deviations. Scale factors are shown as
 ``k = f - 1``.
 
 Ours: ``identify(time_delays=...)`` delays controls only, and
-``check_compatibility`` (whose ``tau_alpha``, ``tau_beta``, ``tau_psi`` are
-these delays) takes one record without lever arms; so a user
+``check_compatibility``'s ``tau_alpha``, ``tau_beta``, ``tau_psi`` are these
+delays (rows ``cc123``); the main rows use a user
 ``aeroid.Model`` carries the delays to first order, ``y - tau y'`` with
 ``y'`` from the kinematics, fitted by ``aeroid.identify`` to the three
 records with every initial state estimated. Rows ``fo`` (variants): FVSysID's
-method with the delays to first order as ours, against our white fit.
+method with the delays to first order as ours, against our white fit. Rows
+``cc123`` (variants): ``check_compatibility`` on the three records together
+(shared sensor errors and delays, each record's initial state estimated) with
+the case's lever arms and flank-angle beta (`ref_fvsysid_fpr.CC_OPTIONS`).
 """
 
 from __future__ import annotations
@@ -166,7 +169,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         "FVSysID saved no result for case 33: ml_oem2 with timeDelay's interpolation runs "
         f"in numpy here ({fv.iterations} iterations); ours: identify on a user Model, "
         "delays to first order in the measurement (identify delays controls only; "
-        "check_compatibility takes one record, no lever arms)"
+        "check_compatibility on the three records: rows cc123)"
     )
     rows = []
     for n in (*NAMES, *x0_names):
@@ -191,6 +194,37 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             variant=True,
         )
         for i, n in enumerate(NAMES)
+    ]
+    # check_compatibility on the three records together: the case's lever arms,
+    # flank-angle beta and delays (shifted until the remaining shift is under a
+    # twentieth of a sample, not interpolated linearly), every initial state estimated
+    with S.Timer() as tm_cc:
+        cc = aeroid.check_compatibility(
+            [C._cc_record(*seg) for seg in segs],
+            estimate=list(NAMES),
+            x0=[dict(zip(C.STATES, x, strict=True)) for x in x0],
+            gravity=C.G,
+            **C.CC_OPTIONS,
+        )
+    cc_est = dict(cc[0].parameters)
+    cc_se = dict(cc[0].stderr)
+    for k, r in enumerate(cc):
+        cc_est.update({f"x0[{k}].{s}": v for s, v in r.initial_states.items()})
+        cc_se.update({f"x0[{k}].{s}": v for s, v in r.initial_state_stderr.items()})
+    rows += [
+        S.row(
+            CASE,
+            f"cc123:{n}",
+            sidpac=theirs[n],
+            sidpac_se_white=crb[n],
+            sidpac_se_corrected=None,
+            ours=cc_est[n],
+            ours_se=cc_se[n],
+            seconds=tm_cc.seconds,
+            variant=True,
+        )
+        for n in (*NAMES, *x0_names)
+        if n in cc_est
     ]
     return rows
 
