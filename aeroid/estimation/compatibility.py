@@ -313,7 +313,9 @@ def check_compatibility(
         body axes from the c.g. A vane sees the air velocity plus the
         rotation's ``w x r``: ``alpha_v = atan((w + p y - q x) / (u + q z -
         r y))``, and ``beta_v`` from ``v + r x - p z`` (Klein & Morelli,
-        ch. 10). The airspeed is the c.g.'s. Zero: at the c.g.
+        ch. 10). The airspeed is the c.g.'s; a time shift's first-order term
+        takes the rate of the c.g.'s angle (the re-shifted passes leave it
+        a remainder under a twentieth of a sample). Zero: at the c.g.
     sideslip : {"asin", "atan"}
         What the sideslip channel reads: ``asin(v / V)`` (the sideslip angle)
         or ``atan(v / u)``, the angle of the air velocity in the body x-y
