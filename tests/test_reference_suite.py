@@ -301,3 +301,50 @@ def test_fvsysid_oem_recovers_a_first_order_system() -> None:
     assert np.all(np.abs(fit.p - truth[:, 0]) < 4.0 * fit.se)
     held = F.ml_oem(f, g, np.zeros(1), u, z, dt, [-2.0, 1.0], free=[False, True])
     assert held.p[0] == -2.0 and held.se[0] == 0.0 and held.se[1] > 0.0
+
+
+def test_fvsysid_oem_segment_biases_are_least_squares_with_dummies() -> None:
+    # two segments, a shared slope and a bias per segment (bx): least squares on
+    # [u, segment 1 dummy, segment 2 dummy]; the Cramer-Rao covariance s^2 (X'X)^-1
+    import _fvsysid as F
+
+    rng = np.random.default_rng(11)
+    n = 200
+    us = [rng.normal(size=(n, 1)) for _ in range(2)]
+    zs = [
+        1.5 * u + c + 0.05 * rng.normal(size=(n, 1)) for u, c in zip(us, (-0.4, 0.7), strict=True)
+    ]
+
+    def obs(x: None, uu: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return (uu[:, 0:1] * p[0] + p[1])[:, None, :]
+
+    fit = F.ml_oem(None, obs, None, us, zs, 0.1, [1.0], bx=[[0.0], [0.0]], free_bx=[[True]] * 2)
+    x = np.zeros((2 * n, 3))
+    x[:, 0] = np.concatenate(us)[:, 0]
+    x[:n, 1] = x[n:, 2] = 1.0
+    z = np.concatenate(zs)[:, 0]
+    beta = np.linalg.lstsq(x, z, rcond=None)[0]
+    s2 = np.mean((z - x @ beta) ** 2)
+    np.testing.assert_allclose([fit.p[0], *fit.bx[:, 0]], beta, rtol=1e-6)
+    np.testing.assert_allclose(fit.crb, s2 * np.linalg.inv(x.T @ x), rtol=1e-4)
+    assert fit.names == ("p1", "bx[0].0", "bx[1].0")
+
+
+def test_fvsysid_oem_bounded_slope_sits_on_its_bound() -> None:
+    # z = 1.5 u - 0.4 with the slope bounded above at 1.2: the slope ends on the
+    # bound (zero deviation) and the intercept is the mean of z - 1.2 u
+    import _fvsysid as F
+
+    rng = np.random.default_rng(12)
+    n = 300
+    u = rng.normal(size=(n, 1)) + 0.5
+    z = 1.5 * u - 0.4 + 0.05 * rng.normal(size=(n, 1))
+
+    def obs(x: None, uu: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return (uu[:, 0:1] * p[0] + p[1])[:, None, :]
+
+    box = (np.array([-np.inf, -np.inf]), np.array([1.2, np.inf]))
+    fit = F.ml_oem(None, obs, None, u, z, 0.1, [1.0, 0.0], bounds=box)
+    assert fit.p[0] == 1.2 and fit.active[0] == 1 and fit.se[0] == 0.0
+    np.testing.assert_allclose(fit.p[1], np.mean(z[:, 0] - 1.2 * u[:, 0]), rtol=1e-6)
+    assert fit.se[1] > 0.0

@@ -20,7 +20,7 @@ The flow-separation point is an algebraic function of the inputs, not a state
 (``tau1`` of the book's dynamic model does not enter this case).
 
 FVSysID saved no estimates for this case: the SIDPAC columns hold our numpy port of
-``ml_oem2.m`` (``_fvsysid_stall.ml_oem``) on the same coefficients, its estimate and
+``ml_oem2.m`` (``_fvsysid.ml_oem``) on the same coefficients, its estimate and
 its Cramer-Rao standard deviation. Ours: an ``aeroid.Model`` written as a user would,
 fitted by ``aeroid.identify`` on the two records with the same start (FVSysID's CD0,
 CL0, Cm0 named CD_0, CL_0, Cm_0 here, so the suite counts them as constants). Ours has
@@ -45,7 +45,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
-import _fvsysid_stall as F
+import _fvsysid as F
 import _sidpac as S
 
 CASE = "fvsysid_attas_stall"
@@ -170,7 +170,8 @@ def fvsysid(
     """ml_oem2 on the two records, all 14 parameters free (unbounded unless `bounds`)."""
 
     def obs(x: Any, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return np.column_stack(stall(u.T, dict(zip(NAMES, p, strict=True))))
+        # all samples (rows of u) by all parameter columns of p at once
+        return np.stack(stall(u.T[:, :, None], dict(zip(NAMES, p, strict=True))), axis=1)
 
     box = None
     if bounds:
@@ -213,7 +214,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     import aeroid
 
     paths = S.need(folder, *FILES, source="fvsysid")
-    recs = [coefficients(np.loadtxt(p)) for p in paths]
+    recs = [coefficients(F.read_flight(p)) for p in paths]
     zs, us = [r[0] for r in recs], [r[1] for r in recs]
     ref = fvsysid(us, zs)
     model = user_model()

@@ -12,7 +12,7 @@ theta, psi, h; g = 9.80. Estimated: the six biases of ax, ay, az, p, q, r,
 shared by the segments; the initial states held at the case's values (u,
 v, w given, attitudes and height the first samples); alpha and beta
 scale factors and offsets fixed at 1 and 0. FVSysID saved no result: its
-method runs here in numpy (`_fvsysid_fpr.ml_oem`, ``ml_oem2`` with
+method runs here in numpy (`_fvsysid.ml_oem`, ``ml_oem2`` with
 ``ruku4``); the SIDPAC columns hold its estimates and Cramer-Rao standard
 deviations (``par_accuracy``; no corrected bar).
 
@@ -38,7 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
-import _fvsysid_fpr as F
+import _fvsysid as F
 import _sidpac as S
 
 CASE = "fvsysid_fpr"
@@ -97,7 +97,7 @@ def segments(folder: pathlib.Path) -> list[tuple[np.ndarray, np.ndarray, np.ndar
     """(time, Z, U) of each segment in FVSysID's units (SI, rad) and channel order."""
     out = []
     for path in S.need(folder, *FILES, source=SOURCE):
-        d = S.loadmat(path)[path.stem]
+        d = F.read_flight(path)
         z = np.column_stack(
             [d[:, 14], d[:, 12] * D2R, d[:, 13] * D2R, d[:, 9] * D2R, d[:, 10] * D2R,
              d[:, 11] * D2R, d[:, 15] * FT2M]
@@ -162,10 +162,9 @@ def sensors(x: Any, c: Any, p: dict[str, Any]) -> list[Any]:
 NAMES = (*BIASES, *AIR)
 
 
-def _port_eq(fn: Any) -> F.Equation:
-    def eq(x: np.ndarray, u: np.ndarray, p: np.ndarray, bx: np.ndarray) -> np.ndarray:
-        pd = {n: p[:, i] for i, n in enumerate(NAMES)}
-        return np.stack(fn(x.T, u, pd), axis=1)
+def _port_eq(fn: Any) -> F.Fn:
+    def eq(x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.stack(fn(x, u, dict(zip(NAMES, p, strict=True))))
 
     return eq
 
@@ -255,7 +254,7 @@ def compatibility_rows(segs: list[Any], x0: np.ndarray) -> list[dict[str, Any]]:
                 CASE,
                 f"cc{k + 1}:{n}",
                 sidpac=fv.p[i],
-                sidpac_se_white=fv.crb[i],
+                sidpac_se_white=fv.se[i],
                 sidpac_se_corrected=None,
                 ours=cc.parameters[n],
                 ours_se=cc.stderr[n],
@@ -286,7 +285,7 @@ def compatibility_rows(segs: list[Any], x0: np.ndarray) -> list[dict[str, Any]]:
             CASE,
             f"cc123:{n}",
             sidpac=fv.p[i],
-            sidpac_se_white=fv.crb[i],
+            sidpac_se_white=fv.se[i],
             sidpac_se_corrected=None,
             ours=together.parameters[n],
             ours_se=together.stderr[n],
@@ -316,7 +315,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         free=free,
         names=NAMES,
     )
-    crb = dict(zip(fv.names, fv.crb, strict=True))
+    crb = fv.stderr
     start = dict(zip(NAMES, p0, strict=True))
     m = model(start)
     guess = dict.fromkeys(BIASES, 0.0)

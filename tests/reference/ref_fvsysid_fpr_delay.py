@@ -10,7 +10,7 @@ sample, ``y(k) - (tau / dt) (y(k) - y(k-1))`` (its sample offset comes from
 ``isinteger`` of a double, always false, so a delay beyond one sample is
 extrapolated from those two), and the first sample of each segment is not
 delayed. FVSysID saved no result: its method runs here in numpy
-(`_fvsysid_fpr.ml_oem` with that delay); the SIDPAC columns hold its
+(`_fvsysid.ml_oem` with that delay); the SIDPAC columns hold its
 estimates and Cramer-Rao standard deviations. Scale factors are shown as
 ``k = f - 1``.
 
@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
-import _fvsysid_fpr as F
+import _fvsysid as F
 import _sidpac as S
 import ref_fvsysid_fpr as C
 
@@ -58,11 +58,11 @@ def _air(p: dict[str, Any]) -> dict[str, Any]:
 
 
 def interpolated(y: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``timeDelay.m`` on one segment's outputs (K, n, Ny) for K parameter rows."""
+    """``timeDelay.m`` on one segment's outputs (n, Ny, K) for K parameter columns."""
     out = y.copy()
     for name, j in DELAYED.items():
-        a = p[:, NAMES.index(name)][:, None] / C.DT
-        out[:, 1:, j] = (1.0 - a) * y[:, 1:, j] + a * y[:, :-1, j]
+        a = p[NAMES.index(name)][None, :] / C.DT
+        out[1:, j] = (1.0 - a) * y[1:, j] + a * y[:-1, j]
     return out
 
 
@@ -84,10 +84,9 @@ def first_order(x: Any, c: Any, p: dict[str, Any]) -> list[Any]:
     return y
 
 
-def _eq(fn: Any) -> F.Equation:
-    def eq(x: np.ndarray, u: np.ndarray, p: np.ndarray, bx: np.ndarray) -> np.ndarray:
-        pd = {n: p[:, i] for i, n in enumerate(NAMES)}
-        return np.stack(fn(x.T, u, pd), axis=1)
+def _eq(fn: Any) -> F.Fn:
+    def eq(x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.stack(fn(x, u, dict(zip(NAMES, p, strict=True))))
 
     return eq
 
@@ -130,7 +129,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     fv = port(segs, x0, lambda x, c, p: C.sensors(x, c, _air(p)), interpolated)
     # the same method with the delays to first order, as ours carries them
     fo = port(segs, x0, first_order, None)
-    crb = dict(zip(fv.names, fv.crb, strict=True))
+    crb = fv.stderr
     start = dict.fromkeys(NAMES, 0.0)
     m = model(start)
     opts: dict[str, Any] = {
@@ -187,7 +186,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
             CASE,
             f"fo:{n}",
             sidpac=fo.p[i],
-            sidpac_se_white=fo.crb[i],
+            sidpac_se_white=fo.se[i],
             sidpac_se_corrected=None,
             ours=ours_w[n],
             ours_se=se_w[n],
