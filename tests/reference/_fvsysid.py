@@ -40,6 +40,11 @@ algorithm, not translated line by line; the one port behind every
   computed, taken when a step is accepted (at the iterate before the final
   one, as ``ml_oem2`` reports it), its rows of parameters on a bound zeroed.
 
+The helpers beside it serve the case scripts: FVSysID's smoothing and numerical
+derivative of a measured channel (`smooth`, `differentiate`), a table row
+(`row`), a case's equations as a user model (`user_model`) and the Monte Carlo
+over several segments (`segment_monte_carlo`).
+
 Model functions take ``(x, u, p)`` with ``x`` (nx, K) and ``p`` (np + nbx, K)
 columns, one per perturbed copy (the segment's biases `bx` below the system
 parameters), and ``u`` (nu,), and return (nx, K) or (ny, K), so one call
@@ -72,6 +77,115 @@ def read_flight(path: pathlib.Path) -> np.ndarray:
         keys = [k for k in d if not k.startswith("__")]
         return np.asarray(d[path.stem if path.stem in d else keys[0]], dtype=float)
     return np.loadtxt(str(path), dtype=float)
+
+
+def smooth(x: np.ndarray) -> np.ndarray:
+    """``smoothMulTS`` on one segment: 15-point weights inside, 5-point near the
+    ends, the three end samples raw."""
+    n = x.size
+    y = x.copy()
+    w15 = np.array([-3, -6, -5, 3, 21, 46, 67, 74, 67, 46, 21, 3, -5, -6, -3]) / 320.0
+    w5 = np.array([7, 24, 34, 24, 7]) / 96.0
+    inner = np.convolve(x, w15, mode="same")
+    near = np.convolve(x, w5, mode="same")
+    j = np.arange(n)
+    y[(j > 2) & (j < n - 3)] = near[(j > 2) & (j < n - 3)]
+    y[(j > 7) & (j < n - 8)] = inner[(j > 7) & (j < n - 8)]
+    return y
+
+
+def differentiate(x: np.ndarray, dt: float) -> np.ndarray:
+    """``ndiff_Filter08`` on one segment: 17-point derivative inside, 5-point near
+    the ends, the two end samples copied from their neighbour."""
+    n = x.size
+    c8 = np.array(
+        [0.88888888887637, -0.31111111109862, 0.11313131312500, -0.03535353535135,
+         0.00870240870185, -0.00155400155390, 0.00017760017759, -0.00000971250971]
+    )  # fmt: skip
+    y = np.zeros(n)
+    for j in range(2, n - 2):
+        if j <= 8 or j >= n - 9:
+            y[j] = (-(x[j + 2] - x[j - 2]) / 12.0 + 2.0 * (x[j + 1] - x[j - 1]) / 3.0) / dt
+        else:
+            k = np.arange(1, 9)
+            y[j] = float(c8 @ (x[j + k] - x[j - k])) / dt
+    y[:2], y[-2:] = y[2], y[-3]
+    return y
+
+
+def row(
+    case: str,
+    name: str,
+    theirs: float,
+    theirs_se: float | None,
+    ours: float | None,
+    ours_se: float | None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """One table row with FVSysID's figure (the port's or a saved one) in the SIDPAC
+    columns; FVSysID gives no corrected bars."""
+    import _sidpac as S
+
+    return S.row(
+        case,
+        name,
+        sidpac=theirs,
+        sidpac_se_white=theirs_se,
+        sidpac_se_corrected=None,
+        ours=ours,
+        ours_se=ours_se,
+        **extra,
+    )
+
+
+def user_model(
+    state_eq: Fn,
+    obs_eq: Fn,
+    names: Sequence[str],
+    p0: Sequence[float],
+    *,
+    states: Sequence[str],
+    controls: Sequence[str],
+    outputs: Sequence[str],
+    name: str,
+) -> Any:
+    """A case's ``(x, u, p)`` equations as a user ``aeroid.Model``, p in the order
+    of `names` (the parameters' names and starting values)."""
+    import aeroid
+
+    def vector(p: Any) -> list[Any]:
+        return [p[n] for n in names]
+
+    return aeroid.Model(
+        states=list(states),
+        controls=list(controls),
+        parameters=dict(zip(names, p0, strict=True)),
+        dynamics=lambda t, x, u, p: state_eq(x, u, vector(p)),
+        outputs=list(outputs),
+        measurement=lambda t, x, u, p: obs_eq(x, u, vector(p)),
+        name=name,
+    )
+
+
+def segment_monte_carlo(
+    refit: Callable[[list[np.ndarray]], dict[str, float]],
+    fitted: list[np.ndarray],
+    resid: list[np.ndarray],
+    n: int,
+    seed: int,
+) -> dict[str, float]:
+    """`_sidpac.monte_carlo` over several segments, each segment's surrogate drawn
+    from its own residuals; `refit` gets the records as a list of segments."""
+    import _sidpac as S
+
+    cuts = np.cumsum([r.shape[0] for r in resid])[:-1]
+
+    def draw(rng: np.random.Generator) -> np.ndarray:
+        return np.concatenate([S.phase_surrogate(r, rng) for r in resid])
+
+    return S.monte_carlo(
+        lambda z: refit(np.split(z, cuts)), np.concatenate(fitted), None, n, seed=seed, draw=draw
+    )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -78,18 +78,14 @@ def obs_eq(x: Any, u: Any, p: Any) -> Any:
 
 def user_model() -> Any:
     """mDefCase01 as a user ``aeroid.Model``: states p, r; beta an input; FVSysID's names."""
-    import aeroid
-
-    def vector(p: Any) -> list[Any]:
-        return [p[n] for n in NAMES]
-
-    return aeroid.Model(
-        states=["p", "r"],
-        controls=list(SURFACES),
-        parameters=dict(zip(NAMES, P0, strict=True)),
-        dynamics=lambda t, x, u, p: state_eq(x, u, vector(p)),
-        outputs=list(OUTPUTS),
-        measurement=lambda t, x, u, p: obs_eq(x, u, vector(p)),
+    return F.user_model(
+        state_eq,
+        obs_eq,
+        NAMES,
+        P0,
+        states=("p", "r"),
+        controls=SURFACES,
+        outputs=OUTPUTS,
         name="attas_lat_tc01",
     )
 
@@ -160,14 +156,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         for i, n in enumerate(NAMES):
             est, err, mce = ours(fit, n)
             rows.append(
-                S.row(
+                F.row(
                     CASE,
                     f"{label}{n}",
-                    sidpac=fv.p[i],
-                    sidpac_se_white=fv.se[i],
-                    sidpac_se_corrected=None,
-                    ours=est,
-                    ours_se=err,
+                    fv.p[i],
+                    fv.se[i],
+                    est,
+                    err,
                     mc_se=mce,
                     seconds=tm.seconds,
                     note=note,

@@ -126,14 +126,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     )
     for label, fit, ref, variant in sets:
         rows += [
-            S.row(
+            F.row(
                 CASE,
                 f"{label}{n}",
-                sidpac=ref[i],
-                sidpac_se_white=fv.se[i],
-                sidpac_se_corrected=None,
-                ours=fit.parameters[n],
-                ours_se=fit.stderr[n],
+                ref[i],
+                fv.se[i],
+                fit.parameters[n],
+                fit.stderr[n],
                 mc_se=None if label == "own_x0:" else mcs.get(n),
                 seconds=tm.seconds,
                 note=note,

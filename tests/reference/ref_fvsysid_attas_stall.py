@@ -89,48 +89,16 @@ X_AS, Y_AS, Z_AS = -1.010, 0.886, 0.103  # accelerometer from the CG
 Z_EN = -0.652  # engines below the CG
 
 
-def smooth(x: np.ndarray) -> np.ndarray:
-    """smoothMulTS's low-pass: 15-point weights inside, 5-point near the ends, raw at them."""
-    n = x.size
-    y = x.copy()
-    w15 = np.array([-3, -6, -5, 3, 21, 46, 67, 74, 67, 46, 21, 3, -5, -6, -3]) / 320.0
-    w5 = np.array([7, 24, 34, 24, 7]) / 96.0
-    inner = np.convolve(x, w15, mode="same")
-    near = np.convolve(x, w5, mode="same")
-    j = np.arange(n)
-    y[(j > 2) & (j < n - 3)] = near[(j > 2) & (j < n - 3)]
-    y[(j > 7) & (j < n - 8)] = inner[(j > 7) & (j < n - 8)]
-    return y
-
-
-def differentiate(x: np.ndarray, dt: float) -> np.ndarray:
-    """ndiff_Filter08's derivative: 17-point inside, 5-point near the ends, ends copied."""
-    n = x.size
-    c8 = np.array(
-        [0.88888888887637, -0.31111111109862, 0.11313131312500, -0.03535353535135,
-         0.00870240870185, -0.00155400155390, 0.00017760017759, -0.00000971250971]
-    )  # fmt: skip
-    y = np.zeros(n)
-    for j in range(2, n - 2):
-        if j <= 8 or j >= n - 9:
-            y[j] = (-(x[j + 2] - x[j - 2]) / 12.0 + 2.0 * (x[j + 1] - x[j - 1]) / 3.0) / dt
-        else:
-            k = np.arange(1, 9)
-            y[j] = float(c8 @ (x[j + k] - x[j - k])) / dt
-    y[:2], y[-2:] = y[2], y[-3]
-    return y
-
-
 def coefficients(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One record's CD, CL, Cm (umr_reg_attas, case 27: no bias corrections) and the
     model's inputs de, q, alpha (smoothed), V (smoothed), alpha-dot, Mach."""
     ax, az = d[:, 1], d[:, 3]
     p, q, r = d[:, 6] * DTR, d[:, 7] * DTR, d[:, 8] * DTR
-    al, vt = smooth(d[:, 12] * DTR), smooth(d[:, 14])
+    al, vt = F.smooth(d[:, 12] * DTR), F.smooth(d[:, 14])
     rho, thrust = d[:, 33], d[:, 36] + d[:, 37]
     qbar = 0.5 * rho * vt * vt
-    aldot = differentiate(al, DT)
-    pdot, qdot, rdot = (differentiate(smooth(s), DT) for s in (p, q, r))
+    aldot = F.differentiate(al, DT)
+    pdot, qdot, rdot = (F.differentiate(F.smooth(s), DT) for s in (p, q, r))
     ax_cg = ax + X_AS * (q * q + r * r) - Y_AS * (p * q - rdot) - Z_AS * (p * r + qdot)
     az_cg = az - X_AS * (p * r - qdot) - Y_AS * (q * r + pdot) + Z_AS * (p * p + q * q)
     cx = (MASS * ax_cg - thrust) / (qbar * SREF)
@@ -246,14 +214,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     for label, o, r in (("", ref, res), (" (white)", ref, white), (" (bounded)", ref_b, bounded)):
         for i, n in enumerate(NAMES):
             rows.append(
-                S.row(
+                F.row(
                     CASE,
                     f"{n}{label}",
-                    sidpac=o.p[i],
-                    sidpac_se_white=o.se[i] if o.se[i] > 0 else None,
-                    sidpac_se_corrected=None,
-                    ours=r.parameters[n],
-                    ours_se=r.stderr[n],
+                    o.p[i],
+                    o.se[i] if o.se[i] > 0 else None,
+                    r.parameters[n],
+                    r.stderr[n],
                     mc_se=None if label else mcs.get(n),
                     seconds=tm.seconds,
                     note=bnote if label == " (bounded)" else note,
@@ -269,24 +236,16 @@ def _monte_carlo(
     """Refits of both records' fitted outputs plus phase surrogates of their residuals."""
     import aeroid
 
-    if n < 2:
-        return {}
     order = [list(res.output_names).index(o) for o in OUTPUTS]
     resid = [np.asarray(res.residuals[k], dtype=float)[:, order] for k in range(len(zs))]
-    fitted = np.vstack([z - v for z, v in zip(zs, resid, strict=True)])
-    split = zs[0].shape[0]
+    fitted = [z - v for z, v in zip(zs, resid, strict=True)]
     start = dict(res.parameters)
-    rng = np.random.default_rng(seed)
-    surrogates = iter([[S.phase_surrogate(v, rng) for v in resid] for _ in range(n)])
 
-    def draw(_: np.random.Generator) -> np.ndarray:
-        return np.vstack(next(surrogates))
-
-    def refit(z: np.ndarray) -> dict[str, float]:
-        data = [flight(z[:split], us[0]), flight(z[split:], us[1])]
+    def refit(z: list[np.ndarray]) -> dict[str, float]:
+        data = [flight(zk, uk) for zk, uk in zip(z, us, strict=True)]
         return dict(aeroid.identify(model, data, start, error_bars="white").parameters)
 
-    return S.monte_carlo(refit, fitted, None, n, seed=seed, draw=draw)
+    return F.segment_monte_carlo(refit, fitted, resid, n, seed)
 
 
 if __name__ == "__main__":

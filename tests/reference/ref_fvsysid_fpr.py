@@ -61,38 +61,6 @@ UVW0 = ((129.4, -0.9, 5.05), (129.4, -0.9, 5.15), (128.7, -0.9, 4.75))
 # ------------------------------------------------------------------ FVSysID's data handling
 
 
-def smooth(x: np.ndarray) -> np.ndarray:
-    """``smoothMulTS`` on one segment: 15-point smoothing, 5-point near the ends."""
-    y = x.copy()
-    n = x.size
-    w15 = np.array([-3, -6, -5, 3, 21, 46, 67, 74, 67, 46, 21, 3, -5, -6, -3]) / 320.0
-    w5 = np.array([7, 24, 34, 24, 7]) / 96.0
-    for k in range(3, n - 3):
-        if k <= 7 or k >= n - 8:
-            y[k] = w5 @ x[k - 2 : k + 3]
-        else:
-            y[k] = w15 @ x[k - 7 : k + 8]
-    return y
-
-
-def differentiate(x: np.ndarray, dt: float) -> np.ndarray:
-    """``ndiff_Filter08`` on one segment: 17-point derivative, 5-point near the ends."""
-    n = x.size
-    c17 = np.array(
-        [-0.00000971250971, 0.00017760017759, -0.00155400155390, 0.00870240870185,
-         -0.03535353535135, 0.11313131312500, -0.31111111109862, 0.88888888887637]
-    )  # fmt: skip
-    d = np.zeros(n)
-    for k in range(2, n - 2):
-        if k <= 8 or k >= n - 9:
-            d[k] = (-(x[k + 2] - x[k - 2]) / 12.0 + 2.0 * (x[k + 1] - x[k - 1]) / 3.0) / dt
-        else:
-            d[k] = sum(c17[7 - j] * (x[k + j + 1] - x[k - j - 1]) for j in range(8)) / dt
-    d[:2] = d[2]
-    d[-2:] = d[-3]
-    return d
-
-
 def segments(folder: pathlib.Path) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(time, Z, U) of each segment in FVSysID's units (SI, rad) and channel order."""
     out = []
@@ -103,7 +71,7 @@ def segments(folder: pathlib.Path) -> list[tuple[np.ndarray, np.ndarray, np.ndar
              d[:, 11] * D2R, d[:, 15] * FT2M]
         )  # fmt: skip
         rates = [d[:, j] for j in (6, 7, 8)]
-        dots = [differentiate(smooth(x), DT) * D2R for x in rates]
+        dots = [F.differentiate(F.smooth(x), DT) * D2R for x in rates]
         u = np.column_stack([d[:, 1], d[:, 2], d[:, 3], *(x * D2R for x in rates), *dots])
         out.append((np.arange(d.shape[0]) * DT, z, u))
     return out
@@ -170,6 +138,15 @@ def _port_eq(fn: Any) -> F.Fn:
 
 
 PORT_STATE, PORT_OBS = _port_eq(kinematics), _port_eq(sensors)
+# the case's start: biases zero and free, the air-data factors one, offsets zero, held
+PORT_P0 = np.array([0.0] * 6 + [1.0, 0.0, 1.0, 0.0])
+PORT_FREE = np.array([True] * 6 + [False] * 4)
+
+
+def port(segs: list[Any], x0: np.ndarray) -> F.OemResult:
+    """FVSysID's fit of case 22 on `segs` from their initial states `x0` (held)."""
+    us, zs = [u for _, _, u in segs], [z for _, z, _ in segs]
+    return F.ml_oem(PORT_STATE, PORT_OBS, x0, us, zs, DT, PORT_P0, free=PORT_FREE, names=NAMES)
 
 
 def model(start: dict[str, float]) -> Any:
@@ -199,20 +176,6 @@ def flights(segs: list[Any], zs: list[np.ndarray] | None = None) -> list[Any]:
     return out
 
 
-def segment_monte_carlo(
-    refit: Any, fitted: list[np.ndarray], resid: list[np.ndarray], n: int, seed: int
-) -> dict[str, float]:
-    """`_sidpac.monte_carlo` with each segment's surrogate drawn from its own residuals."""
-    cuts = np.cumsum([r.shape[0] for r in resid])[:-1]
-
-    def draw(rng: np.random.Generator) -> np.ndarray:
-        return np.concatenate([S.phase_surrogate(r, rng) for r in resid])
-
-    return S.monte_carlo(
-        lambda z: refit(np.split(z, cuts)), np.concatenate(fitted), None, n, seed=seed, draw=draw
-    )
-
-
 def _cc_record(t: np.ndarray, z: np.ndarray, u: np.ndarray) -> Any:
     """One segment as `check_compatibility` reads it, FVSysID's p, q, r derivatives
     as ``p_dot, q_dot, r_dot``."""
@@ -240,40 +203,27 @@ def compatibility_rows(segs: list[Any], x0: np.ndarray) -> list[dict[str, Any]]:
     import aeroid
 
     rows = []
-    p0 = np.array([0.0] * 6 + [1.0, 0.0, 1.0, 0.0])
-    free = np.array([True] * 6 + [False] * 4)
     common = {"estimate": list(BIASES), "estimate_x0": False, "gravity": G, **CC_OPTIONS}
     for k, (t, z, u) in enumerate(segs):
-        fv = F.ml_oem(PORT_STATE, PORT_OBS, x0[k : k + 1], [u], [z], DT, p0, free=free, names=NAMES)
+        fv = port(segs[k : k + 1], x0[k : k + 1])
         with S.Timer() as tm:
             cc = aeroid.check_compatibility(
                 _cc_record(t, z, u), x0=dict(zip(STATES, x0[k], strict=True)), **common
             )
         rows += [
-            S.row(
+            F.row(
                 CASE,
                 f"cc{k + 1}:{n}",
-                sidpac=fv.p[i],
-                sidpac_se_white=fv.se[i],
-                sidpac_se_corrected=None,
-                ours=cc.parameters[n],
-                ours_se=cc.stderr[n],
+                fv.p[i],
+                fv.se[i],
+                cc.parameters[n],
+                cc.stderr[n],
                 seconds=tm.seconds,
                 variant=True,
             )
             for i, n in enumerate(BIASES)
         ]
-    fv = F.ml_oem(
-        PORT_STATE,
-        PORT_OBS,
-        x0,
-        [u for _, _, u in segs],
-        [z for _, z, _ in segs],
-        DT,
-        p0,
-        free=free,
-        names=NAMES,
-    )
+    fv = port(segs, x0)
     with S.Timer() as tm:
         together = aeroid.check_compatibility(
             [_cc_record(*seg) for seg in segs],
@@ -281,14 +231,13 @@ def compatibility_rows(segs: list[Any], x0: np.ndarray) -> list[dict[str, Any]]:
             **common,
         )[0]
     rows += [
-        S.row(
+        F.row(
             CASE,
             f"cc123:{n}",
-            sidpac=fv.p[i],
-            sidpac_se_white=fv.se[i],
-            sidpac_se_corrected=None,
-            ours=together.parameters[n],
-            ours_se=together.stderr[n],
+            fv.p[i],
+            fv.se[i],
+            together.parameters[n],
+            together.stderr[n],
             seconds=tm.seconds,
             variant=True,
         )
@@ -302,21 +251,9 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
 
     segs = segments(folder)
     x0 = initial_states(segs)
-    p0 = np.array([0.0] * 6 + [1.0, 0.0, 1.0, 0.0])
-    free = np.array([True] * 6 + [False] * 4)
-    fv = F.ml_oem(
-        PORT_STATE,
-        PORT_OBS,
-        x0,
-        [u for _, _, u in segs],
-        [z for _, z, _ in segs],
-        DT,
-        p0,
-        free=free,
-        names=NAMES,
-    )
+    fv = port(segs, x0)
     crb = fv.stderr
-    start = dict(zip(NAMES, p0, strict=True))
+    start = dict(zip(NAMES, PORT_P0, strict=True))
     m = model(start)
     guess = dict.fromkeys(BIASES, 0.0)
     opts: dict[str, Any] = {"x0": [list(x) for x in x0], "estimate_x0": False}
@@ -331,7 +268,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         r = aeroid.identify(m, flights(segs, zs), dict(res.parameters), error_bars="white", **opts)
         return dict(r.parameters)
 
-    mcs = segment_monte_carlo(refit, fitted, resid, mc, seed)
+    mcs = F.segment_monte_carlo(refit, fitted, resid, mc, seed)
     note = (
         "FVSysID saved no result for case 22: ml_oem2 (ruku4, diagonal R, det(R), "
         f"GN) runs in numpy here ({fv.iterations} iterations); ours: identify on a user Model "
@@ -340,26 +277,26 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     )
     rows = []
     for i, n in enumerate(BIASES):
-        common = {"sidpac": fv.p[i], "sidpac_se_white": crb[n], "sidpac_se_corrected": None}
+        theirs = (fv.p[i], crb[n])
         rows.append(
-            S.row(
+            F.row(
                 CASE,
                 n,
-                **common,
-                ours=res.parameters[n],
-                ours_se=res.stderr[n],
+                *theirs,
+                res.parameters[n],
+                res.stderr[n],
                 mc_se=mcs.get(n),
                 seconds=tm.seconds,
                 note=note,
             )
         )
         rows.append(
-            S.row(
+            F.row(
                 CASE,
                 f"white:{n}",
-                **common,
-                ours=white.parameters[n],
-                ours_se=white.stderr[n],
+                *theirs,
+                white.parameters[n],
+                white.stderr[n],
                 mc_se=mcs.get(n),
                 variant=True,
             )

@@ -156,7 +156,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         r = aeroid.identify(m, C.flights(segs, zs), dict(res.parameters), error_bars="white", **o)
         return estimates(r)
 
-    mcs = C.segment_monte_carlo(refit, fitted, resid, mc, seed)
+    mcs = F.segment_monte_carlo(refit, fitted, resid, mc, seed)
     ours, ours_w = estimates(res), estimates(white)
     se = {**res.stderr, **res.extra_stderr}
     se_w = {**white.stderr, **white.extra_stderr}
@@ -172,26 +172,15 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     )
     rows = []
     for n in (*NAMES, *x0_names):
-        common = {"sidpac": theirs[n], "sidpac_se_white": crb[n], "sidpac_se_corrected": None}
+        fig = (theirs[n], crb[n])
         rows.append(
-            S.row(CASE, n, **common, ours=ours[n], ours_se=se[n], mc_se=mcs.get(n),
-                  seconds=tm.seconds, note=note)
-        )  # fmt: skip
-        rows.append(
-            S.row(CASE, f"white:{n}", **common, ours=ours_w[n], ours_se=se_w[n],
-                  mc_se=mcs.get(n), variant=True)
-        )  # fmt: skip
-    rows += [
-        S.row(
-            CASE,
-            f"fo:{n}",
-            sidpac=fo.p[i],
-            sidpac_se_white=fo.se[i],
-            sidpac_se_corrected=None,
-            ours=ours_w[n],
-            ours_se=se_w[n],
-            variant=True,
+            F.row(CASE, n, *fig, ours[n], se[n], mc_se=mcs.get(n), seconds=tm.seconds, note=note)
         )
+        rows.append(
+            F.row(CASE, f"white:{n}", *fig, ours_w[n], se_w[n], mc_se=mcs.get(n), variant=True)
+        )
+    rows += [
+        F.row(CASE, f"fo:{n}", fo.p[i], fo.se[i], ours_w[n], se_w[n], variant=True)
         for i, n in enumerate(NAMES)
     ]
     # check_compatibility on the three records together: the case's lever arms,
@@ -211,14 +200,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
         cc_est.update({f"x0[{k}].{s}": v for s, v in r.initial_states.items()})
         cc_se.update({f"x0[{k}].{s}": v for s, v in r.initial_state_stderr.items()})
     rows += [
-        S.row(
+        F.row(
             CASE,
             f"cc123:{n}",
-            sidpac=theirs[n],
-            sidpac_se_white=crb[n],
-            sidpac_se_corrected=None,
-            ours=cc_est[n],
-            ours_se=cc_se[n],
+            theirs[n],
+            crb[n],
+            cc_est[n],
+            cc_se[n],
             seconds=tm_cc.seconds,
             variant=True,
         )

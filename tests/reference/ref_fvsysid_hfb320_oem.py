@@ -94,18 +94,14 @@ def obs_eq(x: Any, u: Any, c: Any) -> Any:
 
 def model() -> Any:
     """The case as a user writes it for aeroid."""
-    import aeroid
-
-    def coefficients(p: Any) -> list[Any]:
-        return [p[n] for n in NAMES]
-
-    return aeroid.Model(
-        states=list(STATES),
-        controls=["delta_e", "thrust"],
-        parameters=dict(zip(NAMES, P0, strict=True)),
-        dynamics=lambda t, x, u, p: state_eq(x, u, coefficients(p)),
-        outputs=list(OUTPUTS),
-        measurement=lambda t, x, u, p: obs_eq(x, u, coefficients(p)),
+    return F.user_model(
+        state_eq,
+        obs_eq,
+        NAMES,
+        P0,
+        states=STATES,
+        controls=("delta_e", "thrust"),
+        outputs=OUTPUTS,
         name="hfb320_lon",
     )
 
@@ -138,14 +134,13 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     rows = []
     for label, fit, variant in (("", res, False), ("white:", white, True)):
         rows += [
-            S.row(
+            F.row(
                 CASE,
                 f"{label}{n}",
-                sidpac=fv.p[i],
-                sidpac_se_white=fv.se[i],
-                sidpac_se_corrected=None,
-                ours=fit.parameters[n],
-                ours_se=fit.stderr[n],
+                fv.p[i],
+                fv.se[i],
+                fit.parameters[n],
+                fit.stderr[n],
                 mc_se=mcs.get(n),
                 seconds=tm.seconds,
                 note=note,
