@@ -25,7 +25,7 @@ algorithm, not translated line by line; the one port behind every
 - the noise covariance ``R`` is the diagonal of the residuals' mean square
   over all segments, re-estimated at every evaluation; the cost is ``det R``;
 - response gradients are forward differences, each free quantity moved by
-  ``step |value|`` (``step`` where it is zero), the perturbed trajectories
+  ``step`` times its value (``step`` where it is zero), the perturbed trajectories
   integrated whole from the perturbed initial states (what ``gradrespH``'s
   stored states amount to);
 - Gauss-Newton: ``F = sum H' R^-1 H``, ``G = -sum H' R^-1 (z - y)``, step
@@ -82,15 +82,15 @@ def read_flight(path: pathlib.Path) -> np.ndarray:
 def smooth(x: np.ndarray) -> np.ndarray:
     """``smoothMulTS`` on one segment: 15-point weights inside, 5-point near the
     ends, the three end samples raw."""
-    n = x.size
     y = x.copy()
+    n = x.size
     w15 = np.array([-3, -6, -5, 3, 21, 46, 67, 74, 67, 46, 21, 3, -5, -6, -3]) / 320.0
     w5 = np.array([7, 24, 34, 24, 7]) / 96.0
-    inner = np.convolve(x, w15, mode="same")
-    near = np.convolve(x, w5, mode="same")
-    j = np.arange(n)
-    y[(j > 2) & (j < n - 3)] = near[(j > 2) & (j < n - 3)]
-    y[(j > 7) & (j < n - 8)] = inner[(j > 7) & (j < n - 8)]
+    for k in range(3, n - 3):
+        if k <= 7 or k >= n - 8:
+            y[k] = w5 @ x[k - 2 : k + 3]
+        else:
+            y[k] = w15 @ x[k - 7 : k + 8]
     return y
 
 
@@ -98,19 +98,19 @@ def differentiate(x: np.ndarray, dt: float) -> np.ndarray:
     """``ndiff_Filter08`` on one segment: 17-point derivative inside, 5-point near
     the ends, the two end samples copied from their neighbour."""
     n = x.size
-    c8 = np.array(
-        [0.88888888887637, -0.31111111109862, 0.11313131312500, -0.03535353535135,
-         0.00870240870185, -0.00155400155390, 0.00017760017759, -0.00000971250971]
+    c17 = np.array(
+        [-0.00000971250971, 0.00017760017759, -0.00155400155390, 0.00870240870185,
+         -0.03535353535135, 0.11313131312500, -0.31111111109862, 0.88888888887637]
     )  # fmt: skip
-    y = np.zeros(n)
-    for j in range(2, n - 2):
-        if j <= 8 or j >= n - 9:
-            y[j] = (-(x[j + 2] - x[j - 2]) / 12.0 + 2.0 * (x[j + 1] - x[j - 1]) / 3.0) / dt
+    d = np.zeros(n)
+    for k in range(2, n - 2):
+        if k <= 8 or k >= n - 9:
+            d[k] = (-(x[k + 2] - x[k - 2]) / 12.0 + 2.0 * (x[k + 1] - x[k - 1]) / 3.0) / dt
         else:
-            k = np.arange(1, 9)
-            y[j] = float(c8 @ (x[j + k] - x[j - k])) / dt
-    y[:2], y[-2:] = y[2], y[-3]
-    return y
+            d[k] = sum(c17[7 - j] * (x[k + j + 1] - x[k - j - 1]) for j in range(8)) / dt
+    d[:2] = d[2]
+    d[-2:] = d[-3]
+    return d
 
 
 def row(
@@ -272,16 +272,17 @@ def _as_segments(a: Any) -> list[np.ndarray]:
 
 
 def _per_segment(a: Any, nz: int) -> np.ndarray:
-    """`x0` or `bx` as one row per segment (a vector serves a single segment)."""
+    """`x0` or `bx` as one row per segment (one vector serves every segment)."""
     if a is None:
         return np.zeros((nz, 0))
     if isinstance(a, list | tuple):
-        return np.array([np.ravel(s) for s in a], dtype=float).reshape(nz, -1)
-    return np.array(a, dtype=float).reshape(nz, -1)
+        a = [np.ravel(s) for s in a]
+    v = np.array(a, dtype=float)
+    return np.tile(v, (nz, 1)) if v.ndim == 1 else v.reshape(nz, -1)
 
 
 def _steps(v: np.ndarray, step: float) -> np.ndarray:
-    """Forward-difference perturbations: ``step |v|``, `step` where v is zero."""
+    """Forward-difference perturbations: ``step * v``, `step` where v is zero."""
     h = step * v
     h[h == 0] = step
     return h
@@ -354,10 +355,11 @@ def ml_oem(
             simulate(state_eq, obs_eq, xs[k], us[k], dt, columns(k, p[:, None]), post)[:, :, 0]
             for k in range(nz)
         ]
-        r = np.diag(np.mean((zall - np.concatenate(ys)) ** 2, axis=0))
+        ss = sum(((zk - yk) ** 2).sum(axis=0) for zk, yk in zip(zs, ys, strict=True))
+        r = np.diag(ss / zall.shape[0])
         return float(np.linalg.det(r)), r, ys
 
-    def sensitivities(ys: list[np.ndarray]) -> np.ndarray:
+    def sensitivities(ys: list[np.ndarray]) -> list[np.ndarray]:
         """Forward-difference response gradients (n, ny, nfree), every segment; a
         segment's initial states and biases move only its own outputs."""
         h = np.concatenate([_steps(p[idx], step), _steps(xs[fx], step), _steps(bs[fb], step)])
@@ -375,7 +377,7 @@ def ml_oem(
                     cols[p.size + j, c] += h[c]
             y = simulate(state_eq, obs_eq, xk, us[k], dt, cols, post)
             out.append((y - ys[k][:, :, None]) / h)
-        return np.concatenate(out)
+        return out
 
     costs: list[float] = []
     prev = 0.0
@@ -406,10 +408,13 @@ def ml_oem(
             continue
         if it == max_iterations:
             break
-        sens = sensitivities(ys)
-        w = 1.0 / np.diag(r)
-        info = np.einsum("iap,a,iaq->pq", sens, w, sens)
-        grad = -np.einsum("iap,a,ia->p", sens, w, zall - np.concatenate(ys))
+        ri = np.diag(1.0 / np.diag(r))
+        info = np.zeros((nfree, nfree))
+        grad = np.zeros(nfree)
+        for sk, yk, zk in zip(sensitivities(ys), ys, zs, strict=True):
+            hk = np.ascontiguousarray(sk.transpose(2, 0, 1))  # (nfree, n, ny)
+            info += np.einsum("pia,ab,qib->pq", hk, ri, hk)
+            grad -= np.einsum("pia,ab,ib->p", hk, ri, zk - yk)
         delta = np.zeros(nfree)
         keep = np.ones(nfree, bool)
         if bounded:
