@@ -408,6 +408,8 @@ def ml_oem(
             continue
         if it == max_iterations:
             break
+        # summed segment by segment in this order: case 22's fit stops where the
+        # rounding of this sum alone moves its biases by up to 0.03 sigma
         ri = np.diag(1.0 / np.diag(r))
         info = np.zeros((nfree, nfree))
         grad = np.zeros(nfree)
