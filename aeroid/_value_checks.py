@@ -1,4 +1,5 @@
-"""Argument checks shared by the estimators: switches, choices, counts, real arrays, delays, symmetry."""
+"""Argument checks shared by the estimators: switches, choices, counts, real arrays, body
+positions, delays, symmetry."""
 
 from __future__ import annotations
 
@@ -85,6 +86,21 @@ def real_array(values: Any, what: str, error: type[Exception] = DataFormatError)
         except (TypeError, ValueError) as exc:
             raise error(f"{what}: not numeric ({exc})") from None
     return np.asarray(arr, dtype=np.float64)
+
+
+def body_position(value: Any, what: str, error: type[Exception]) -> tuple[float, float, float]:
+    """A point in body axes (x, y, z in m from the centre of gravity) as three finite
+    floats, or `error` naming `what` (a sensor's position, a moment reference point)."""
+    expected = f"{what}: expected three body-axis coordinates (x, y, z) in m"
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise error(f"{expected}, got {plain(value)}") from None
+    if arr.shape != (3,):
+        raise error(f"{expected}, got {plain(value)}")
+    if not np.all(np.isfinite(arr)):
+        raise error(f"{what}: position {arr.tolist()} is not finite")
+    return float(arr[0]), float(arr[1]), float(arr[2])
 
 
 def finite_array(values: Any, what: str, error: type[Exception] = DataFormatError) -> FloatArray:

@@ -217,7 +217,7 @@ def small():
 @pytest.mark.parametrize(
     ("kwargs", "error", "match"),
     [
-        ({"accel_position": (1.0, 2.0)}, IdentificationError, "accel_position.*shape"),
+        ({"accel_position": (1.0, 2.0)}, IdentificationError, r"accel_position.*\(x, y, z\)"),
         ({"alpha_vane_position": (1.0, np.nan, 0.0)}, IdentificationError, "alpha_vane_position"),
         ({"beta_vane_position": "nose"}, IdentificationError, "beta_vane_position"),
         ({"sideslip": "atan2"}, IdentificationError, "sideslip"),

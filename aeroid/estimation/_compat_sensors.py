@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._value_checks import body_position
 from ..errors import DataFormatError, IdentificationError
 from ..io.data import FlightData, plain
 from ._compat_model import _SIDESLIP_ATAN, ACCEL_POSITION, ALPHA_POSITION, BETA_POSITION
@@ -25,20 +26,7 @@ _RATE_DERIVATIVES = ("p_dot", "q_dot", "r_dot")
 
 
 def _position(name: str, value: Any) -> tuple[float, float, float]:
-    """A sensor position: three finite numbers (m, body axes from the c.g.)."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise IdentificationError(
-            f"{name}: expected three numbers (x, y, z in m), got {plain(value)}"
-        ) from None
-    if arr.shape != (3,):
-        raise IdentificationError(
-            f"{name}: expected three numbers (x, y, z in m), got shape {arr.shape}"
-        )
-    if not np.all(np.isfinite(arr)):
-        raise IdentificationError(f"{name}: position {arr.tolist()} is not finite")
-    return float(arr[0]), float(arr[1]), float(arr[2])
+    return body_position(value, name, IdentificationError)
 
 
 def _sensor_nominal(

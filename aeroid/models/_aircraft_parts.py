@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from .. import _units
 from .._records import ReadOnlyDict
+from .._value_checks import body_position
 from ..errors import ModelDefinitionError
 from .model import Model
 
@@ -79,18 +80,7 @@ def _finite(name: str, value: Any) -> float:
 
 
 def _position(name: str, value: Any) -> tuple[float, float, float]:
-    try:
-        items = tuple(value)
-    except TypeError:
-        raise ModelDefinitionError(
-            f"{name}: expected three body-axis coordinates (x, y, z) in m, got {value!r}"
-        ) from None
-    if len(items) != 3:
-        raise ModelDefinitionError(
-            f"{name}: expected three body-axis coordinates (x, y, z) in m, got {len(items)}"
-        )
-    x, y, z = (_finite(f"{name}[{i}]", c) for i, c in enumerate(items))
-    return (x, y, z)
+    return body_position(value, name, ModelDefinitionError)
 
 
 _LATERAL_ONLY = ("Ixx", "Izz", "b")

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._threads import small_blas
+from .._value_checks import body_position
 from ..errors import ChannelError, DataFormatError
 from ..io.data import FlightData, real_array
 from ..io.smoothing import differentiate
@@ -81,15 +82,8 @@ def _reference_point(value: Any) -> tuple[float, float, float] | None:
     """The moment reference point as three finite floats, None for the centre of gravity."""
     if value is None:
         return None
-    arr = real_array(value, "moment_reference")
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise DataFormatError(
-            f"moment_reference: expected 3 finite numbers (x, y, z in m from the centre "
-            f"of gravity), got {value!r}"
-        )
-    if not np.any(arr != 0):
-        return None
-    return float(arr[0]), float(arr[1]), float(arr[2])
+    point = body_position(value, "moment_reference", DataFormatError)
+    return point if any(point) else None
 
 
 @small_blas
