@@ -58,7 +58,14 @@ from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData
 from ..models.integration import shifted_controls
 from ..models.model import Model, resolve_parameters
-from ._filter_problem import noise_start, start_failure_cause
+from ._filter_problem import (
+    FILTER_OPTIONS,
+    filter_options_of,
+    given_states,
+    noise_start,
+    simulated_states,
+    start_failure_cause,
+)
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
 from ._identification_start import process_noise_start
@@ -81,11 +88,6 @@ FloatArray = NDArray[np.float64]
 
 # one batch's filter inputs: parameters, Qc, R, x0 and P0, each per member
 _Batch = tuple[Mapping[str, FloatArray], FloatArray, FloatArray, FloatArray, FloatArray]
-
-FILTER_OPTIONS = (
-    *("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain"),
-    "control_interpolation",
-)
 
 
 @dataclass
@@ -118,47 +120,6 @@ class _Layout:
         )
 
 
-def _options(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
-    opts: dict[str, Any] = {"method": "ekf", "ukf_alpha": 1e-3, "ukf_beta": 2.0, "ukf_kappa": 0.0}
-    opts.update({"P0": None, "substeps": None, "gain": None, "control_interpolation": "linear"})
-    if filter_options is None:
-        return opts
-    if not isinstance(filter_options, Mapping):
-        raise IdentificationError(
-            f"filter_options: expected a dict with keys among {list(FILTER_OPTIONS)}, "
-            f"got {type(filter_options).__name__}"
-        )
-    unknown = sorted(set(filter_options) - set(FILTER_OPTIONS))
-    if unknown:
-        raise IdentificationError(
-            f"filter_options: unknown options {unknown}; valid options are {list(FILTER_OPTIONS)}"
-        )
-    opts.update(filter_options)
-    return opts
-
-
-def _simulated(
-    m: Model,
-    data: FlightData,
-    x0: Any,
-    start: Mapping[str, float],
-    opts: Mapping[str, Any],
-    compiled: FloatArray | None,
-) -> FloatArray:
-    """The model's states over the first record at the start: the compiled rollout's
-    where it ran, else simulated in numpy."""
-    if compiled is not None:
-        return compiled
-    sim = m.simulate_data(
-        data,
-        x0=x0,
-        parameters=start,
-        method="auto",
-        control_interpolation=opts["control_interpolation"],
-    )
-    return np.asarray(sim.states, dtype=np.float64)
-
-
 class _Objective:
     """Negative log-likelihood of the innovations for batches of z vectors."""
 
@@ -172,6 +133,7 @@ class _Objective:
         R: FloatArray,
         P0_given: bool,
         method: str,
+        known: Sequence[NDArray[np.bool_]] = (),
     ) -> None:
         self.model = model
         self.probs = probs
@@ -180,6 +142,8 @@ class _Objective:
         self.Qc = Qc
         self.R = R
         self.P0_given = P0_given
+        # per record, the states whose start the caller gave: held, so known exactly
+        self.known = list(known) or [np.zeros(model.n_states, dtype=bool) for _ in probs]
         self.method = method
         self.gain = "time_varying"
 
@@ -251,12 +215,22 @@ class _Objective:
         cost = np.zeros(B)
         quad_all = np.zeros(B)
         per: list[tuple[FloatArray, FloatArray, int | None]] = []
-        for prob in self.probs:
+        for prob, known in zip(self.probs, self.known, strict=True):
             x0 = np.repeat(prob.x0[None], B, axis=0)
             if self.P0_given:
                 P0 = np.repeat(prob.P0[None], B, axis=0)
             else:
+                # the start is held, so the prior is its error: none where the caller gave
+                # it, a measurement's where it was read from a channel (`_default_P0`). A
+                # prior wider than the start's error (a unit variance on a radian of angle
+                # of attack) makes the first innovations' covariance, and the likelihood's
+                # curvature in every parameter that moves it, the prior's and not the
+                # record's: error bars several times too narrow on parameters the prior
+                # turns, too wide on biases only the transient separates, and noise
+                # variances driven to their floor.
                 P0 = np.stack([_default_P0(self.model, prob.output_names, R[b]) for b in range(B)])
+                P0[:, known, :] = 0.0
+                P0[:, :, known] = 0.0
             batch = (params, Qc, R, x0, P0)
             if lay.delayed:
                 D = Z[:, len(lay.names) : lay.n_e]
@@ -488,7 +462,10 @@ def identify_filter_error(
         Estimate the process-noise intensities of all states (True) or of the
         named states, together with the parameters.
     x0 : sequence of mapping or None, optional
-        Initial state per manoeuvre (default: the first measured values).
+        Initial state per manoeuvre (default: the first measured values),
+        held. Without ``filter_options["P0"]`` the filter's initial covariance
+        is that start's error: none for a state given here, the channel's
+        noise for one read from a channel of its name, else unit variance.
     max_iterations : int
     tolerance : float
         The stopping rule of aeroid's one least-squares iteration
@@ -530,7 +507,7 @@ def identify_filter_error(
         )
     if len(set(names)) != len(names):
         raise IdentificationError(f"parameters: duplicate names in {list(names)}")
-    opts = _options(filter_options)
+    opts = filter_options_of(filter_options)
     if x0 is None:
         x0_list: list[Any] = [None] * len(datas)
     else:
@@ -630,7 +607,7 @@ def identify_filter_error(
             compiled = start_states(probs[0], start, Qc)
         svar = None
         if any(i not in found for i in wanted):
-            sim = _simulated(m, datas[0], x0_list[0], start, opts, compiled)
+            sim = simulated_states(m, datas[0], x0_list[0], start, opts, compiled)
             svar = np.var(sim, axis=0)
         dt = float(np.median(np.diff(probs[0].time)))
         for i in q_states:
@@ -651,7 +628,8 @@ def identify_filter_error(
     z = np.array(z0, dtype=np.float64)
     n_p = len(names)
     n_e = layout.n_e
-    obj = _Objective(m, probs, start, layout, Qc, R0, opts["P0"] is not None, opts["method"])
+    known = [given_states(m, x) for x in x0_list]
+    obj = _Objective(m, probs, start, layout, Qc, R0, opts["P0"] is not None, opts["method"], known)
     obj.gain = gain_choice(opts["gain"], opts["method"], filter_options)
     # Noise intensities may shrink towards zero (no turbulence in the data):
     # bound them 30 e-folds below and above their starting values.

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._value_checks import check_distinct
-from ..errors import AeroidError, FilterError
+from ..errors import AeroidError, FilterError, IdentificationError
 from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
 from ..models.integration import Interpolation, check_control_interpolation
 from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number, require_states
@@ -22,6 +22,11 @@ from ..models.model import MAX_SUBSTEPS, Model, SimulatorModel, real_number, req
 FloatArray = NDArray[np.float64]
 
 METHODS = ("ekf", "ukf")
+
+FILTER_OPTIONS = (
+    *("method", "ukf_alpha", "ukf_beta", "ukf_kappa", "P0", "substeps", "gain"),
+    "control_interpolation",
+)
 
 
 @dataclass(frozen=True)
@@ -188,12 +193,15 @@ def _x0_vector(model: Model, data: FlightData, x0: Any, error: type[AeroidError]
 
 
 def _default_P0(model: Model, out_names: Sequence[str], R: FloatArray) -> FloatArray:
-    # A directly measured state starts with the uncertainty of one measurement;
-    # the others with unit variance (override with P0 when units make that poor).
+    # A state measured under its own name starts with the uncertainty of one measurement
+    # (its start is read from that channel), whether or not the model has a measurement
+    # function: a unit variance there (a radian of angle of attack) makes the first
+    # innovations' covariance, and the likelihood's curvature in every parameter that
+    # moves it, the prior's rather than the record's. The others start with unit variance
+    # (override with P0 when units make that poor).
     diag = np.ones(model.n_states)
-    direct = model._measurement_batch is None
     for i, s in enumerate(model.states):
-        if direct and s in out_names:
+        if s in out_names:
             j = list(out_names).index(s)
             diag[i] = R[j, j]
     return np.diag(diag)
@@ -303,3 +311,54 @@ def start_failure_cause(model: Any, datas: Sequence[FlightData], start: Mapping[
         except Exception:  # a simulator of the user's own: no further diagnosis
             break
     return " (the model simulates; the noise levels may leave no positive covariance)"
+
+
+def filter_options_of(filter_options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The filter-error method's `filter_options` over its defaults, checked."""
+    opts: dict[str, Any] = {"method": "ekf", "ukf_alpha": 1e-3, "ukf_beta": 2.0, "ukf_kappa": 0.0}
+    opts.update({"P0": None, "substeps": None, "gain": None, "control_interpolation": "linear"})
+    if filter_options is None:
+        return opts
+    if not isinstance(filter_options, Mapping):
+        raise IdentificationError(
+            f"filter_options: expected a dict with keys among {list(FILTER_OPTIONS)}, "
+            f"got {type(filter_options).__name__}"
+        )
+    unknown = sorted(set(filter_options) - set(FILTER_OPTIONS))
+    if unknown:
+        raise IdentificationError(
+            f"filter_options: unknown options {unknown}; valid options are {list(FILTER_OPTIONS)}"
+        )
+    opts.update(filter_options)
+    return opts
+
+
+def simulated_states(
+    m: Model,
+    data: FlightData,
+    x0: Any,
+    start: Mapping[str, float],
+    opts: Mapping[str, Any],
+    compiled: FloatArray | None,
+) -> FloatArray:
+    """The model's states over the first record at the start: the compiled rollout's
+    where it ran, else simulated in numpy."""
+    if compiled is not None:
+        return compiled
+    sim = m.simulate_data(
+        data,
+        x0=x0,
+        parameters=start,
+        method="auto",
+        control_interpolation=opts["control_interpolation"],
+    )
+    return np.asarray(sim.states, dtype=np.float64)
+
+
+def given_states(model: Model, x0: Any) -> NDArray[np.bool_]:
+    """Which states' start the caller gave (a mapping's names, or all of a vector)."""
+    if x0 is None:
+        return np.zeros(model.n_states, dtype=bool)
+    if isinstance(x0, Mapping):
+        return np.array([s in x0 for s in model.states])
+    return np.ones(model.n_states, dtype=bool)

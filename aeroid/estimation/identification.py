@@ -116,7 +116,7 @@ def identify(
     estimate_x0: bool | Sequence[str] | None = None,
     estimate_bias: bool | Sequence[str] | Mapping[str, Any] = False,
     weights: Mapping[str, float] | Any = None,
-    error_bars: str = "colored",
+    error_bars: str | None = None,
     max_iterations: int = 50,
     tolerance: float = 1e-8,
     simulate_options: Mapping[str, Any] | None = None,
@@ -198,9 +198,11 @@ def identify(
         fitted output) or a diagonal, positive definite noise covariance (correlated noise is refused, not
         dropped). Default: the noise covariance is estimated from the
         residuals at every iteration (maximum likelihood).
-    error_bars : {"colored", "white"}
+    error_bars : {"colored", "white"}, optional
         Standard errors corrected for coloured residuals from their spectrum
-        (default), or the classical Cramér–Rao values. Output error with the
+        (output error's default), or the classical Cramér–Rao values. Filter
+        error's innovations are white by construction: its bars are its Fisher
+        information's, and an explicit "colored" there warns that it changes nothing. Output error with the
         noise covariance estimated (no `weights`) also carries the scatter that
         estimating it adds to the estimates (`aeroid._weighting`).
     max_iterations : int
@@ -301,6 +303,15 @@ def identify(
         raise IdentificationError(
             f"gradient {gradient!r} is unknown; choose one of {list(_GRADIENTS)}"
         )
+    if method == "filter_error" and error_bars == "colored":
+        warnings.warn(
+            "error_bars='colored' does not apply to filter error: its innovations are white "
+            "by construction, and its bars are its Fisher information's (error_bars='white')",
+            UserWarning,
+            stacklevel=3,  # identify, its BLAS wrapper, the caller
+        )
+    if error_bars is None:
+        error_bars = "colored"
     if error_bars not in _ERROR_BARS:
         raise IdentificationError(
             f"error_bars {error_bars!r} is unknown; choose one of {list(_ERROR_BARS)}"
@@ -424,7 +435,11 @@ def identify(
             measurement_noise=measurement_noise,
             filter_options=filter_options,
             estimate_process_noise=estimate_process_noise,
-            x0=x0_dicts if x0 is not None else None,
+            # a manoeuvre without a given start reads it from its record (the filter's
+            # prior then that channel's noise, not a known start's none)
+            x0=None
+            if x0 is None
+            else [None if xi is None else xd for xi, xd in zip(x0_list, x0_dicts, strict=True)],
             max_iterations=max_iterations,
             tolerance=tol,
             bounds=box,
