@@ -32,6 +32,7 @@ Also the flight-data reader for the book's ``.asc`` files (``load -ascii``).
 
 from __future__ import annotations
 
+import math
 import pathlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -541,7 +542,8 @@ def compare(
                         sidpac_se_corrected=None,
                         ours=vals[i],
                         ours_se=ses[i],
-                        delta_sigma=(vals[i] - truth[n]) / ses[i],
+                        # a bar of 0: the fit found the parameter unidentifiable
+                        delta_sigma=(vals[i] - truth[n]) / ses[i] if ses[i] > 0 else math.inf,
                         variant=True,
                     )
                 )

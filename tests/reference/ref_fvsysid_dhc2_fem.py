@@ -29,7 +29,10 @@ With no measurement noise in the record our maximum likelihood drives every
 measurement variance to its floor and recovers the output equations'
 coefficients to the file's rounding, with standard errors to match (1e-7);
 the book's method, its innovation covariance standing in for the
-measurement noise, cannot. The Monte Carlo (the port's fitted predictor
+measurement noise, cannot. With the filter started at the given start
+exactly (no prior: it is held), the information on this noise-free record
+is singular to working precision along combinations of Lp, Np, BX2 and the
+noise levels, which the fit reports inseparable (those bars read 0). The Monte Carlo (the port's fitted predictor
 driven by its own innovations on every output) makes records with
 measurement noise the flight does not have: its spread is no judge of our
 bars here.
