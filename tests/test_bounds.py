@@ -361,14 +361,15 @@ def test_state_bias_options_are_checked(sp_noisy):
         identify(model, sp_noisy, NAMES, estimate_bias={"theta": "state"})
     with pytest.raises(IdentificationError, match=r"need a Model .*not|gradient='auto' or 'fd'"):
         identify(model, sp_noisy, NAMES, estimate_bias={"q": "state"}, gradient="jax")
-    with pytest.raises(IdentificationError, match=r"apply to method='output_error' only"):
+    # filter error estimates biases (tests/test_filter_error_bias.py), not initial states
+    with pytest.raises(IdentificationError, match=r"estimate_x0 applies to method='output_error'"):
         identify(
             model,
             sp_noisy,
             NAMES,
             method="filter_error",
             process_noise={"q": 1e-6},
-            estimate_bias={"q": "state"},
+            estimate_x0=True,
         )
 
 

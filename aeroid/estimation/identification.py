@@ -33,7 +33,13 @@ from ._identification_start import (
     names_and_initial,
 )
 from ._identification_start import _is_state_entry as _is_state_entry
-from ._state_biases import _bias_choice, _state_biases_out, _with_state_biases
+from ._state_biases import (
+    _bias_choice,
+    _bias_parameters_out,
+    _state_biases_out,
+    _with_bias_parameters,
+    _with_state_biases,
+)
 
 __all__ = ["IdentificationResult", "identify"]
 
@@ -192,6 +198,8 @@ def identify(
         use for unmodelled trims. State biases need a `Model` (not
         ``gradient="jax"``); they are reported in ``result.biases[i]`` under
         ``"state.<name>"`` and in `extra_stderr` as ``"bias[i].state.<name>"``.
+        Filter error estimates both kinds the same way, as unknowns of its
+        iteration with bars from its information matrix (Jategaonkar, ch. 5).
         `validate` and the other functions replay the model without them.
     weights : mapping of str to float or ndarray, optional
         Fixed output weights (inverse noise variances, positive, one for every
@@ -324,7 +332,8 @@ def identify(
     datas = _as_list(data)
     names, initial = names_and_initial(model, parameters, allow_empty=True)
     if not names and not (
-        method == "output_error" and (estimate_x0 or estimate_bias or time_delays)
+        (method == "output_error" and (estimate_x0 or estimate_bias or time_delays))
+        or (method == "filter_error" and estimate_bias)
     ):
         raise IdentificationError(
             "parameters: name at least one parameter to estimate (output error may name "
@@ -397,11 +406,14 @@ def identify(
         )
         if gradient == "jax":
             raise IdentificationError("gradient='jax' is available for output error only")
-        if estimate_x0 or estimate_bias:
+        if estimate_x0:
             raise IdentificationError(
-                "estimate_x0 and estimate_bias apply to method='output_error' only; the "
-                "filter-error method corrects the states through its Kalman filter"
+                "estimate_x0 applies to method='output_error' only; the filter-error "
+                "method corrects the states through its Kalman filter"
             )
+        sel_bias, state_bias = _bias_choice(estimate_bias, fit_outputs, states)
+        if not (names or sel_bias or state_bias):
+            raise IdentificationError("parameters: none named, and estimate_bias selects nothing")
         if process_noise is None and not estimate_process_noise:
             raise IdentificationError(
                 "filter error needs process_noise (continuous PSD per state) or "
@@ -419,16 +431,24 @@ def identify(
                 "time delays": len(delays),
                 "process-noise intensities": len(noise_states),
                 "measurement-noise variances": len(fit_outputs) if measurement_noise is None else 0,
+                "biases": (len(sel_bias) + len(state_bias)) * len(datas),
             },
         )
         held = held_controls(datas, model.controls)
         require_model_units(model, datas, [*fit_outputs, *model.controls])
         from ._filter_error import identify_filter_error
 
+        # the biases are parameters of a wrapped model (one per manoeuvre each), fitted
+        # and given bars by the filter error's own iteration and information matrix
+        fe_model, fe_datas, biased, bias_names = (
+            _with_bias_parameters(model, datas, sel_bias, state_bias)
+            if sel_bias or state_bias
+            else (model, datas, [], [])
+        )
         fitted = identify_filter_error(
-            model,
-            datas,
-            names,
+            fe_model,
+            fe_datas,
+            [*names, *bias_names],
             initial,
             outputs=fit_outputs,
             process_noise=process_noise,
@@ -445,6 +465,8 @@ def identify(
             bounds=box,
             time_delays=delays,
         )
+        if bias_names:
+            fitted = _bias_parameters_out(fitted, bias_names, biased)
         return _finish(fitted, datas, model, held)
     if (
         process_noise is not None

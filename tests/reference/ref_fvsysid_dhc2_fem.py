@@ -16,7 +16,7 @@ noise on any output): their coefficients are the simulation's derivatives
 15 derivatives in its own standard errors.
 
 Ours: the same equations as a user ``aeroid.Model`` (the biases are model
-parameters: ``estimate_bias`` is refused by filter error), by
+parameters, as FVSysID writes them; ``estimate_bias`` now does this too), by
 ``aeroid.identify(method="filter_error", estimate_process_noise=True)`` from
 the case's start, process noise at F0^2, measurement noise estimated, ``x0``
 held; ``F_p``, ``F_r`` rows compare sqrt of our intensity. ``white:`` rows
