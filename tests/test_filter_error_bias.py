@@ -122,6 +122,26 @@ def test_output_and_state_biases_recovered_within_their_bars(fitted):
     np.testing.assert_array_equal(r.full_covariance[:4, :4], r.covariance)
 
 
+def test_bias_bars_cover_at_the_rate_their_sampling_allows():
+    # 30 seeded flights: each bias's standardised error has unit variance if its bar is
+    # right, so the pooled mean square of the 60 is chi2_60 / 60 (99.9 % band of its root
+    # 0.71-1.31), each bias's own chi2_30 / 30 (0.60-1.44), a mean within 3.3 / sqrt(30)
+    z = []
+    for seed in range(100, 130):
+        r = _fit(catalog.short_period(), _flight(seed, by=0.02, bx=0.3), NAMES)
+        z.append(
+            [
+                (r.biases[0]["alpha"] - 0.02) / r.extra_stderr["bias[0].alpha"],
+                (r.biases[0]["state.q"] - 0.3) / r.extra_stderr["bias[0].state.q"],
+            ]
+        )
+    z = np.array(z)
+    assert 0.71 < math.sqrt(np.mean(z**2)) < 1.31
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((rms > 0.60) & (rms < 1.44))
+    assert np.all(np.abs(z.mean(axis=0)) < 3.3 / math.sqrt(30))
+
+
 def test_same_estimates_as_the_biases_written_as_parameters(flight, fitted):
     start = {**catalog.SHORT_PERIOD_GUESS, "by_alpha": 0.0, "bx_q": 0.0}
     hand = _fit(_by_hand(start), flight, [*NAMES, "by_alpha", "bx_q"], estimate_bias=False)
