@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from _fvsysid import rk4_step  # one RK4 over a sample for every FVSysID port
 
 # f(x (B, nx), u (B, nu), p (B, np)) -> (B, nx); h likewise -> (B, ny)
 BatchFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -47,16 +48,6 @@ BatchFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 def load_asc(path: pathlib.Path) -> np.ndarray:
     """A headerless FVSysID ``.asc`` file (MATLAB's ``load -ascii``) as a 2-D array."""
     return np.atleast_2d(np.loadtxt(str(path), dtype=float))
-
-
-def rk4_step(f: BatchFn, x: np.ndarray, u1: np.ndarray, u2: np.ndarray, p: np.ndarray, dt: float):
-    """One Runge-Kutta step of a batch, the input at the ends and its mean in between."""
-    um = 0.5 * (u1 + u2)
-    k1 = f(x, u1, p)
-    k2 = f(x + 0.5 * dt * k1, um, p)
-    k3 = f(x + 0.5 * dt * k2, um, p)
-    k4 = f(x + dt * k3, u2, p)
-    return x + dt * (k1 + 2.0 * (k2 + k3) + k4) / 6.0
 
 
 def _jacobian(fn: BatchFn, x: np.ndarray, u: np.ndarray, p: np.ndarray, step: float = 1e-4):
