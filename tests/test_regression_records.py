@@ -85,3 +85,15 @@ def test_several_records_refusals_name_the_option() -> None:
         aeroid.equation_error(
             [records[0], aeroid.FlightData(records[1].time, {"x": records[1]["x"]})], "z", ["x"]
         )
+
+
+def test_estimators_of_one_record_say_so_for_a_list_of_records() -> None:
+    rng = np.random.default_rng(5)
+    records = [_record(rng, 80), _record(rng, 90)]
+    for fit in (
+        lambda: aeroid.stepwise_regression(records, "z", ["x"]),
+        lambda: aeroid.recursive_least_squares(records, "z", ["x"]),
+        lambda: aeroid.orthogonal_function_model(records, "z", ["x"]),
+    ):
+        with pytest.raises(DataFormatError, match=r"takes one record.*equation_error"):
+            fit()

@@ -127,6 +127,11 @@ def _resolve(
 ) -> tuple[FloatArray, FloatArray, list[str], str, FloatArray | None]:
     """Response, regressor matrix, regressor names, response name and time axis."""
     time: FloatArray | None = None
+    if _several_records(data) is not None:
+        raise DataFormatError(
+            f"data: {what} takes one record (a FlightData, a mapping or a matrix); "
+            "several records are fitted together by equation_error"
+        )
     if isinstance(data, FlightData):
         lookup: Mapping[str, Any] = data.channels
         n = data.n_samples
