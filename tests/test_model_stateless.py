@@ -255,3 +255,27 @@ def test_what_needs_states_is_refused_by_name():
         aeroid.identify(m, data, START, method="filter_error", process_noise={})
     with pytest.raises(FilterError, match=r"no states.*nothing to estimate"):
         aeroid.filter_states(m, data, process_noise={}, measurement_noise={"CL": NOISE**2})
+
+
+def test_an_estimated_holdout_start_fits_only_the_shifts_without_states() -> None:
+    # nothing to start: the held-out prediction fits one shift per output, and the
+    # model's own parameters are held
+    rng = np.random.default_rng(11)
+    n = 400
+    t = np.arange(n) * 0.05
+    a = np.sin(0.9 * t) + 0.2 * rng.standard_normal(n)
+    y = 1.0 + 2.0 * a + 0.01 * rng.standard_normal(n)
+    y[300:] += 0.05  # the held-out quarter sits 0.05 higher (another trim)
+    data = aeroid.FlightData(t, {"alpha": a, "CL": y})
+    model = aeroid.Model(
+        states=[],
+        controls=["alpha"],
+        parameters={"C0": 1.0, "Ca": 1.0},
+        outputs=["CL"],
+        measurement=lambda t, x, u, p: np.stack([p["C0"] + p["Ca"] * u[0]]),
+    )
+    fit = aeroid.identify(model, data, ["C0", "Ca"])
+    v = aeroid.validate(model, data, fit, holdout={"fraction": 0.25}, holdout_start="estimated")
+    assert dict(v.prediction.initial_state) == {}
+    shift = 0.05 - (fit.parameters["C0"] - 1.0) - (fit.parameters["Ca"] - 2.0) * a[300:].mean()
+    assert v.prediction.shifts["CL"] == pytest.approx(shift, abs=3e-3)

@@ -97,3 +97,8 @@ def test_estimators_of_one_record_say_so_for_a_list_of_records() -> None:
     ):
         with pytest.raises(DataFormatError, match=r"takes one record.*equation_error"):
             fit()
+
+
+def test_an_empty_list_is_named_as_empty() -> None:
+    with pytest.raises(DataFormatError, match="data: empty"):
+        aeroid.equation_error([], "z", ["x"])

@@ -200,8 +200,12 @@ def _several_records(data: Any) -> list[FlightData] | None:
     a nested list of numbers is a regressor matrix, not records)."""
     if isinstance(data, (FlightData, Mapping, str, bytes, np.ndarray)):
         return None
-    if not isinstance(data, Sequence) or not data:
+    if not isinstance(data, Sequence):
         return None
+    if not data:
+        raise DataFormatError(
+            "data: empty; give a FlightData, a list of them, a mapping or a regressor matrix"
+        )
     kinds = [isinstance(d, FlightData) for d in data]
     if not any(kinds):
         return None

@@ -328,7 +328,8 @@ def _fitted_start(
             [],
             outputs=list(outputs),
             x0=dict(guess) or None,
-            estimate_x0=True,
+            # a model without states has only the shifts to fit
+            estimate_x0=bool(model.states),
             estimate_bias=list(outputs),
             error_bars="white",
             simulate_options=dict(opts),
