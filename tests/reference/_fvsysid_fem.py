@@ -33,21 +33,15 @@ Also the flight-data reader for the book's ``.asc`` files (``load -ascii``).
 from __future__ import annotations
 
 import math
-import pathlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from _fvsysid import rk4_step  # one RK4 over a sample for every FVSysID port
+from _fvsysid import ml_oem, rk4_step  # one RK4 and one output error for every port
 
 # f(x (B, nx), u (B, nu), p (B, np)) -> (B, nx); h likewise -> (B, ny)
 BatchFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-
-
-def load_asc(path: pathlib.Path) -> np.ndarray:
-    """A headerless FVSysID ``.asc`` file (MATLAB's ``load -ascii``) as a 2-D array."""
-    return np.atleast_2d(np.loadtxt(str(path), dtype=float))
 
 
 def _jacobian(fn: BatchFn, x: np.ndarray, u: np.ndarray, p: np.ndarray, step: float = 1e-4):
@@ -323,59 +317,22 @@ def innovation_record(case: FemCase, p: np.ndarray, K: np.ndarray, nu: np.ndarra
 
 
 def output_error(
-    case: FemCase,
-    p0: np.ndarray,
-    free: np.ndarray,
-    *,
-    par_step: float = 1e-6,
-    tol: float = 1e-4,
-    max_iterations: int = 50,
+    case: FemCase, p0: np.ndarray, free: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """Output error with the same predictor (K = 0, ruku4), as FVSysID's ml_oem2 does
-    it: Gauss-Newton on forward differences (relative step `par_step`, all perturbed
-    members in one batch) with R the diagonal of the residuals' mean square, step
-    halving on a rising det R, stop when det R changes by less than `tol` relative.
+    """The case's output error (K = 0) by the suite's one port of FVSysID's ml_oem2
+    (`_fvsysid.ml_oem`), its columns of parameters as this module's batch rows.
     Returns the free parameters' estimates, the outputs, the Cramer-Rao covariance,
     R and the iterations."""
-    fem = _Fem(case)
-    idx = np.flatnonzero(free)
-    p = p0.astype(float).copy()
 
-    def sim(P: np.ndarray) -> np.ndarray:
-        return fem.predict(P, np.zeros((P.shape[0], case.nx, case.z.shape[1])))
+    def rows(fn: BatchFn) -> Any:
+        def columns(x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+            k = p.shape[1]
+            return fn(x.T, np.repeat(np.asarray(u)[None], k, 0), p.T).T
 
-    def cost(q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        y = sim(q[None])[0]
-        R = np.diag(np.mean((case.z - y) ** 2, axis=0))
-        return float(np.linalg.det(R)), R, y
+        return columns
 
-    det, R, y = cost(p)
-    info = np.eye(idx.size)
-    it = 0
-    while it < max_iterations:
-        it += 1
-        w = 1.0 / np.diag(R)
-        dp = par_step * p[idx]
-        dp[dp == 0] = par_step
-        Pp = np.repeat(p[None], idx.size, 0)
-        Pp[np.arange(idx.size), idx] += dp
-        sens = (sim(Pp) - y[None]) / dp[:, None, None]
-        info = np.einsum("pka,a,qka->pq", sens, w, sens)
-        grad = np.einsum("pka,a,ka->p", sens, w, case.z - y)
-        step = np.linalg.solve(info, grad)
-        for _ in range(10):
-            trial = p.copy()
-            trial[idx] += step
-            new, Rn, yn = cost(trial)
-            if new <= det:
-                break
-            step *= 0.5
-        p, y, R = trial, yn, Rn
-        done = abs(new - det) / new < tol
-        det = new
-        if done:
-            break
-    return p[idx], y, np.linalg.inv(info), R, it
+    res = ml_oem(rows(case.f), rows(case.h), case.x0, case.u, case.z, case.dt, p0, free=free)
+    return res.p[res.free], res.y, res.crb, res.R, res.iterations
 
 
 # ---------------------------------------------------------------- the cases' common body

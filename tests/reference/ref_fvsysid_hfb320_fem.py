@@ -50,6 +50,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
 import _fvsysid_fem as P
 import _sidpac as S
+from _fvsysid import read_flight
 
 CASE = "fvsysid_hfb320_fem"
 SOURCE = "fvsysid"
@@ -144,7 +145,7 @@ def run(folder: pathlib.Path, *, mc: int = 100, seed: int = 0) -> list[dict[str,
     import aeroid
 
     (path,) = S.need(folder, FILE, source="fvsysid")
-    d = P.load_asc(path)
+    d = read_flight(path)
     t = np.arange(d.shape[0]) * DT
 
     def flight(z: np.ndarray) -> Any:

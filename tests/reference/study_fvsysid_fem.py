@@ -55,6 +55,7 @@ import _fvsysid_fem as P
 import _sidpac as S
 import ref_fvsysid_dhc2_fem as D
 import ref_fvsysid_hfb320_fem as H
+from _fvsysid import read_flight
 
 F_TRUE = (0.36, 0.0024, 0.00045, 0.0017)  # about FVSysID's F on the flight
 NOISE_SD = np.sqrt([3e-3, 1e-6, 1.3e-7, 1e-7, 3.5e-5, 1.3e-4, 7e-3])  # about ours
@@ -159,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     if folder is None:
         print(f"skipped: set {S.FVSYSID_ENV}")
         return 0
-    st = setting(P.load_asc(S.need(folder, (H if args.case == "hfb320" else D).FILE,
+    st = setting(read_flight(S.need(folder, (H if args.case == "hfb320" else D).FILE,
                                     source="fvsysid")[0]), args.case)  # fmt: skip
     mod, truth = st["mod"], st["truth"]
     names = list(mod.NAMES)
