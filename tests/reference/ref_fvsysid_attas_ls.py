@@ -18,9 +18,9 @@ variant rows run the whole preprocessing as a user would with AeroID: ``ud.``
 the book's coefficients with the angular accelerations from
 ``aeroid.differentiate`` (default Fourier smoother, per manoeuvre) in place of
 the book's filters; ``uc.`` ``aeroid.smooth`` for alpha, beta, V and
-``aeroid.coefficients_from_data`` (one density per manoeuvre: the constants
-take no density channel), with the transfer to the moment reference point and
-the asymmetric thrust's yaw added by hand (the API has neither). The total
+``aeroid.coefficients_from_data`` (the density channel, the moments about the
+moment reference point), with the asymmetric thrust's yaw added by hand (the API
+has no differential thrust). The total
 least squares scripts (attas*_TLS.m) have no AeroID equivalent.
 """
 
@@ -149,9 +149,9 @@ def _per_segment(fn: Any, bounds: np.ndarray) -> F.Segmentwise:
 
 def user_channels(data: np.ndarray, bounds: np.ndarray) -> dict[str, np.ndarray]:
     """The coefficients as a user computes them with AeroID: ``aeroid.smooth`` of the
-    CG flow variables and ``aeroid.coefficients_from_data`` per manoeuvre (density:
-    the manoeuvre's mean), the book's moment reference point and asymmetric thrust
-    added by hand; the regressors as the book normalises them."""
+    CG flow variables and ``aeroid.coefficients_from_data`` per manoeuvre (the
+    density channel, the moments about the book's moment reference point), the
+    asymmetric thrust's yaw added by hand; the regressors as the book normalises them."""
     import aeroid
 
     raw = F.preprocess(data, bounds)  # the flow at the CG and bias-corrected signals
@@ -171,23 +171,21 @@ def user_channels(data: np.ndarray, bounds: np.ndarray) -> dict[str, np.ndarray]
             S=F.SREF,
             b=F.BREF,  # the book's lateral reference length is the half span
             cbar=F.CREF,
-            rho=float(np.mean(raw["rho"][seg])),
+            rho=float(np.mean(raw["rho"][seg])),  # nominal; the density channel rules
             accel_position=F.ACCEL,
             thrust_offset=F.ENGINE[2],
         )
-        c = aeroid.coefficients_from_data(fd, const, thrust="thrust").channels
-        xr, yr, zr = F.AC
+        c = aeroid.coefficients_from_data(
+            fd, const, thrust="thrust", density=raw["rho"][seg], moment_reference=F.AC
+        ).channels
         qsb = np.asarray(c["qbar"]) * F.SREF * F.BREF
         seg_out = {
             "CD": c["CD"],
             "CL": c["CL"],
-            "Cm": c["Cm"] - c["CX"] * zr / F.CREF + c["CZ"] * xr / F.CREF,
+            "Cm": c["Cm"],
             "CY": c["CY"],
-            "Cl": c["Cl"] - c["CZ"] * yr / F.BREF + c["CY"] * zr / F.BREF,
-            "Cn": c["Cn"]
-            - raw["thrust_diff"][seg] * F.ENGINE[1] / qsb
-            - c["CY"] * xr / F.BREF
-            + c["CX"] * yr / F.BREF,
+            "Cl": c["Cl"],
+            "Cn": c["Cn"] - raw["thrust_diff"][seg] * F.ENGINE[1] / qsb,
             "alpha": c["alpha"],
             "beta": c["beta"],
             "p_hat": raw["p_hat"][seg] * raw["V"][seg] / c["V"],
