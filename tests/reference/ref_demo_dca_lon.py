@@ -89,6 +89,7 @@ def sidpac_outputs(
     *,
     saved_theta_rate: bool = False,
     gravity: float = 32.174,
+    scheme: str = "rk4_hold",
 ) -> np.ndarray:
     """SIDPAC's ``dcmp`` as its saved results were computed, in plain numpy.
 
@@ -99,6 +100,9 @@ def sidpac_outputs(
     sample in all four stages; returns the `outputs` columns.
     ``saved_theta_rate``: the pitch-attitude rate as the saved results had it,
     ``cos(phi) (q - r sin(phi))``, instead of ``q cos(phi) - r sin(phi)``.
+    ``scheme="adamb3"``: V2.0's ``dcmp`` integration instead (third-order
+    Adams-Bashforth on the samples, two midpoint steps with the inputs and
+    measured states averaged over the interval to start it).
     """
     V, beta, alpha = z[:, 0], z[:, 1], z[:, 2]
     stand_in = np.column_stack(
@@ -115,10 +119,10 @@ def sidpac_outputs(
     bias = np.array([values.get(f"b_{c}", 0.0) for c in INPUTS])
     rates = u - bias
 
-    def slope(x: np.ndarray, k: int) -> np.ndarray:
+    def slope_at(x: np.ndarray, uk: np.ndarray, sk: np.ndarray) -> np.ndarray:
         x = x.copy()
-        x[held] = stand_in[k, held]
-        ax, ay, az, p, q, r = rates[k]
+        x[held] = sk[held]
+        ax, ay, az, p, q, r = uk
         uu, vv, ww, phi, theta, _ = x
         turn = (q * np.sin(phi) + r * np.cos(phi)) / np.cos(theta)
         pitch = q * np.cos(phi) - r * np.sin(phi)
@@ -133,14 +137,31 @@ def sidpac_outputs(
             ]
         )
 
+    def slope(x: np.ndarray, k: int) -> np.ndarray:
+        return slope_at(x, rates[k], stand_in[k])
+
     x = np.empty((u.shape[0], 6))
     x[0] = x0
-    for k in range(u.shape[0] - 1):
-        k1 = slope(x[k], k)
-        k2 = slope(x[k] + 0.5 * dt * k1, k)
-        k3 = slope(x[k] + 0.5 * dt * k2, k)
-        k4 = slope(x[k] + dt * k3, k)
-        x[k + 1] = x[k] + dt / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+    if scheme == "adamb3":
+        past: list[np.ndarray] = []
+        for k in range(u.shape[0] - 1):
+            f = slope(x[k], k)
+            past = [f, *(past or [f, f])][:3]
+            if k < 2:
+                mid = x[k] + 0.5 * dt * f
+                um, sm = 0.5 * (rates[k] + rates[k + 1]), 0.5 * (stand_in[k] + stand_in[k + 1])
+                x[k + 1] = x[k] + dt * slope_at(mid, um, sm)
+            else:
+                x[k + 1] = x[k] + dt * (23.0 * past[0] - 16.0 * past[1] + 5.0 * past[2]) / 12.0
+    elif scheme == "rk4_hold":
+        for k in range(u.shape[0] - 1):
+            k1 = slope(x[k], k)
+            k2 = slope(x[k] + 0.5 * dt * k1, k)
+            k3 = slope(x[k] + 0.5 * dt * k2, k)
+            k4 = slope(x[k] + dt * k3, k)
+            x[k + 1] = x[k] + dt / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+    else:
+        raise ValueError(f"scheme: expected 'rk4_hold' or 'adamb3', got {scheme!r}")
     x[:, held] = stand_in[:, held]
     speed = np.sqrt(np.sum(x[:, :3] ** 2, axis=1))
     true = {
