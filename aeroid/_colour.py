@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._ar1_forms import ar1_bilinear
+from ._linalg import information_basis
 from ._record_kernel import kept_off_grid, off_grid, overlap_terms, record_kernel
 
 FloatArray = NDArray[np.float64]
@@ -336,6 +337,7 @@ def colored_covariance(
     *,
     known: list[NDArray[np.complex128]] | None = None,
     estimated_weights: bool = False,
+    rcond: float | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Coloured-residual covariance ``M^-1 B M^-1`` and each parameter's degrees of freedom.
 
@@ -359,6 +361,12 @@ def colored_covariance(
     estimated_weights : bool
         Each output's weight was estimated from these residuals (output error's
         maximum likelihood): the covariance carries the scatter that adds.
+    rcond : float, optional
+        `m_inv` is the pseudo-inverse of ``M`` that `aeroid._linalg.information_inverse`
+        takes with this cut (0 for the exact inverse): the sandwich is then formed
+        over an orthonormal basis of the sensitivities (`information_basis`), so
+        near-collinear sensitivities keep their digits. None: `m_inv` holds more
+        than ``M`` (a prior, forgetting) and is used as given.
 
     Returns
     -------
@@ -464,7 +472,13 @@ def colored_covariance(
     scale = _lag_scale(residuals)
     if known is not None and len(known) != len(residuals):
         raise ValueError("known: one expected periodogram per record")
-    model = _model_keeps(sensitivities, residuals, m_inv, a)
+    # the projection is taken over `span` with inner matrix `inner`; `to_params` maps a
+    # transform over `span` to the parameters (G M^+ = span to_params)
+    span, inner, to_params = sensitivities, m_inv, m_inv
+    if rcond is not None and p and np.all(np.isfinite(m_inv)):
+        span, to_params = information_basis(sensitivities, rcond)
+        inner = np.eye(to_params.shape[0])
+    model = _model_keeps(span, residuals, inner, a)
     if np.any(a != 0.0):
         # the fit took the noise's slowest part, so the residuals' lag-one correlation
         # under-reads the noise's: move a until the model's residuals have the one seen
@@ -472,15 +486,15 @@ def colored_covariance(
         cap = _cap(residuals)
         for _ in range(_AR_STEPS):
             a = np.clip(a + seen - _expected_lag_one(model.keeps, residuals, a), -cap, cap)
-            model = _model_keeps(sensitivities, residuals, m_inv, a)
+            model = _model_keeps(span, residuals, inner, a)
     spectra: list[NDArray[np.complex128]] = []
-    for i, (g, u) in enumerate(zip(sensitivities, residuals, strict=True)):
+    for i, (g, u) in enumerate(zip(span, residuals, strict=True)):
         n = u.shape[0]
         size = 2 * n
         n_bins = size // 2 + 1
-        gf, filt, twice = _bins(g, a, size)  # (n_bins, n_y, p), the filter, bin weights
+        gf, filt, twice = _bins(g, a, size)  # (n_bins, n_y, r), the filter, bin weights
         uf = np.fft.rfft(u, size, axis=0)  # (n_bins, n_y)
-        vf = np.matmul(gf, m_inv)  # sensitivities carried through M^-1
+        vf = np.matmul(gf, to_params)  # sensitivities carried through M^-1
         keep = model.keeps[i]
         wf = uf * filt
         pgram = np.einsum("ka,kb->kab", wf, wf.conj()) / n
@@ -523,7 +537,7 @@ def colored_covariance(
             z = z * np.sqrt(twice[:rows])[:, None, None]
             level = smoothed[:rows] / (norm[:rows, :, None] * norm[:rows, None, :])
             gam, rel = _band_moments(
-                gf[:bins], model.sgf[i][:bins], n, a, model.level, m_inv, model.cov
+                gf[:bins], model.sgf[i][:bins], n, a, model.level, inner, model.cov
             )
             weights = _window_columns(n_bins, half, rows, bins)
             root_keep = np.sqrt(keep[:bins])
@@ -549,6 +563,7 @@ def frequency_sandwich(
     *,
     nyquist: float = np.inf,
     estimated_weights: tuple[str, NDArray[np.complex128]] | None = None,
+    rcond: float | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The same ``M^-1 B M^-1`` for an estimator that works on chosen frequencies,
     and each parameter's degrees of freedom.
@@ -585,6 +600,9 @@ def frequency_sandwich(
         form of their covariance (``"hermitian"``, ``"sidpac"``, ``"real"``) before
         the whitening whose inverse is the array: the covariance carries the
         scatter that adds (`aeroid._weighting`).
+    rcond : float, optional
+        As `colored_covariance`'s: `m_inv` is the information's pseudo-inverse
+        with this cut, and the sandwich is formed over an orthonormal basis.
 
     Returns
     -------
@@ -642,16 +660,21 @@ def frequency_sandwich(
     order = np.argsort(omega, kind="stable")
     jac, res, omega = jac[order], res[order], omega[order]
     grid = off_grid(omega, span)
+    # the projection over `basis` with inner matrix `inner`; jac M^+ = basis to_params
+    basis, inner, to_params = jac, m_inv, m_inv
+    if rcond is not None and m_inv.size and np.all(np.isfinite(m_inv)):
+        (basis,), to_params = information_basis([jac], rcond)
+        inner = np.eye(to_params.shape[0])
     if grid is None:
-        lev = np.einsum("mrn,nk,msk->mrs", jac, m_inv, jac)
+        lev = np.einsum("mrn,nk,msk->mrs", basis, inner, basis)
         kept = np.eye(rows)[None] - 0.5 * (lev + lev.transpose(0, 2, 1))
     else:
-        kept = kept_off_grid(jac, m_inv, omega, span)
+        kept = kept_off_grid(basis, inner, omega, span)
     w, v = np.linalg.eigh(kept)
     # a frequency that alone fixes an unknown (1 - L ~ 0) keeps its plain residual
     scale = np.where(w > 1e-9, 1.0 / np.sqrt(np.maximum(w, 1e-300)), 1.0)
     u = np.einsum("mrs,ms,mts,mt->mr", v, scale, v, res)
-    W = jac[:, :r] + 1j * jac[:, r:]  # (M, r, p)
+    W = basis[:, :r] + 1j * basis[:, r:]  # (M, r, k)
     e = u[:, :r] + 1j * u[:, r:]  # (M, r)
     # the transforms at zero and Nyquist frequency are real: all their noise is in
     # their real rows
@@ -663,7 +686,7 @@ def frequency_sandwich(
     meat = (
         (f[:, None, None] * W.conj()).reshape(-1, W.shape[2]).T @ SW.reshape(-1, W.shape[2])
     ).real
-    cT = np.einsum("mrp,pq->mqr", W, m_inv)  # c_m = W_m M^-1 e_q, (M, p, r)
+    cT = np.einsum("mrp,pq->mqr", W, to_params)  # c_m = W_m M^-1 e_q, (M, p, r)
     fcc = f[:, None, None, None] * cT[..., :, None] * cT.conj()[..., None, :]  # (M, p, r, r)
     A = _neighbour_sum(fcc, weights, adjoint=True)
     AS = A @ S[:, None]  # A_k S_k per parameter, (M, p, r, r)
@@ -678,7 +701,7 @@ def frequency_sandwich(
         meat = meat + shared
         var = var + pairs
     meat = 0.5 * (meat + meat.T)
-    cov = np.asarray(m_inv @ meat @ m_inv, dtype=np.float64)
+    cov = np.asarray(to_params.T @ meat @ to_params, dtype=np.float64)
     if estimated_weights is not None:
         from ._weighting import KERNEL_ROOT_LIMIT, frequency_weighting_spread
 
@@ -687,7 +710,7 @@ def frequency_sandwich(
         kappa = record_kernel(omega, slice(None), span) + np.eye(n_f) if near else None
         form, unwhiten = estimated_weights
         spread = frequency_weighting_spread(
-            W, S, m_inv, real, form, unwhiten=unwhiten, kernel=kappa
+            jac[:, :r] + 1j * jac[:, r:], S, m_inv, real, form, unwhiten=unwhiten, kernel=kappa
         )
         cov = cov * np.sqrt(spread)[:, None] * np.sqrt(spread)[None, :]
     with np.errstate(divide="ignore", invalid="ignore"):

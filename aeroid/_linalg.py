@@ -113,6 +113,45 @@ def information_inverse(info: FloatArray, rcond: float = 1e-13) -> FloatArray:
     """
     d = np.sqrt(np.clip(np.diag(info), 0.0, None))
     scale = np.where(d > 0.0, d, 1.0)
-    unit = info / np.outer(scale, scale)
+    with np.errstate(invalid="ignore"):  # an overflowed information: NaN, said by the caller
+        unit = info / np.outer(scale, scale)
+    if not np.all(np.isfinite(unit)):
+        return np.full_like(unit, np.nan)
     inv = np.linalg.pinv(unit, rcond=rcond, hermitian=True) / np.outer(scale, scale)
     return np.asarray(inv, dtype=np.float64)
+
+
+def information_basis(
+    sensitivities: list[FloatArray], rcond: float
+) -> tuple[list[FloatArray], FloatArray]:
+    """An orthonormal basis of the sensitivities' span and the map from it to the
+    parameters: ``G M^+ = U T`` per record, with ``M = sum G'G`` and ``M^+`` the
+    pseudo-inverse `information_inverse` takes with cut `rcond`.
+
+    Sandwich estimators need the fit's projection ``H = G M^+ G'``; formed from
+    ``M^+``, near-collinear sensitivities make its entries huge and their sums
+    cancel, losing ``eps cond(M)`` of every leverage (all of it at a condition
+    number of 1e16). From the singular vectors of the column-scaled stacked
+    sensitivities ``H = U U'`` exactly, and ``T = S^-1 V' D^-1`` carries the
+    parameters' own directions, so a sandwich over ``U`` holds every digit
+    the conditioning leaves. Returns each record's ``U`` (n_t, n_y, r) and
+    ``T`` (r, p).
+    """
+    p = sensitivities[0].shape[2]
+    stacked = np.concatenate([g.reshape(-1, p) for g in sensitivities])
+    d = np.sqrt(np.einsum("ij,ij->j", stacked, stacked))
+    d = np.where(d > 0.0, d, 1.0)
+    q, r = np.linalg.qr(stacked / d)
+    ur, s, vt = np.linalg.svd(r)
+    keep = s**2 > rcond * s[0] ** 2 if s.size and s[0] > 0 else np.zeros(s.size, bool)
+    keep &= s > 0.0
+    u = q @ ur[:, keep]
+    to_params = vt[keep] / s[keep, None] / d[None, :]
+    cuts = np.cumsum([g.shape[0] for g in sensitivities])[:-1]
+    out = [
+        np.asarray(part.reshape(g.shape[0], g.shape[1], -1), dtype=np.float64)
+        for part, g in zip(
+            np.split(u, cuts * sensitivities[0].shape[1]), sensitivities, strict=True
+        )
+    ]
+    return out, np.asarray(to_params, dtype=np.float64)

@@ -89,11 +89,12 @@ def overlap_terms(
     transpose of the ``S_j`` half, ``H = sum_jk kappa_jk W_j^H S_j W_k``: the
     pairs are ``Re(H + H^H) / 4``."""
     m, r, p = W.shape
+    n_par = AS.shape[1]  # W may span the parameters through another basis
     left = (W.conj().transpose(0, 2, 1) @ S).transpose(1, 0, 2)  # W_j^H S_j, (p, M, r)
     flat_w = W.reshape(m, r * p)
     flipped = AS.swapaxes(-1, -2).reshape(m, -1)  # A_k S_k transposed, flattened
     half = np.zeros((p, p), dtype=np.complex128)
-    pairs = np.zeros(p)
+    pairs = np.zeros(n_par)
     step = max(1, _KERNEL_BLOCK // max(m + r * r * p, 1))
     for lo in range(0, m, step):
         rows = slice(lo, min(lo + step, m))
@@ -103,7 +104,7 @@ def overlap_terms(
         half += left[:, rows].reshape(p, n_rows * r) @ mixed
         spread = (np.abs(kappa) ** 2) @ flipped  # sum_k |kappa_jk|^2 (A_k S_k)'
         pairs += (
-            (AS[rows].reshape(n_rows, -1) * spread).reshape(n_rows, p, -1).sum(axis=(0, 2)).real
+            (AS[rows].reshape(n_rows, -1) * spread).reshape(n_rows, n_par, -1).sum(axis=(0, 2)).real
         )
     out = 0.25 * (half + half.conj().T).real
     return np.asarray(out, dtype=np.float64), pairs

@@ -20,6 +20,9 @@ from ..io.data import plain
 from ..models import compiled as _compiled
 from ._compat_model import _MEASURED, INPUT_CHANNELS, OUTPUT_CHANNELS, STATES
 
+# the pseudo-inverse cut of the input-noise draws' information (`information_inverse`)
+_RCOND = 1e-12
+
 FloatArray = NDArray[np.float64]
 
 
@@ -321,7 +324,7 @@ def _measurement_noise_covariance(
     info = jacs[0].T @ jacs[0]
     for jac in jacs[1:]:
         info = info + jac.T @ jac
-    m_inv = information_inverse(info, rcond=1e-12)
+    m_inv = information_inverse(info, rcond=_RCOND)
     pull = jacs[0].T @ flats[0]
     for jac, flat in zip(jacs[1:], flats[1:], strict=True):
         pull = pull + jac.T @ flat
@@ -347,6 +350,7 @@ def _measurement_noise_covariance(
         m_inv,
         known=[c * k / (pieces[r][0].size * n_draws) for r, k in enumerate(known)],
         estimated_weights=True,
+        rcond=_RCOND,
     )
     return c, np.asarray(cov[:n_p, :n_p]), np.asarray(nu[:n_p])
 

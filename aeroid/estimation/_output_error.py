@@ -43,6 +43,8 @@ FloatArray = NDArray[np.float64]
 # Residuals count as coloured when a lag-one correlation is significant (3/sqrt(N)),
 # which makes the estimated correlation time exceed 1.
 _WHITE_TAU = 1.0
+# the information's pseudo-inverse cut, on its unit-diagonal form (`information_inverse`)
+_INFO_RCOND = 1e-13
 
 
 @dataclass
@@ -404,7 +406,8 @@ def _information(jacobians: list[FloatArray], r: FloatArray) -> FloatArray:
     for jac in jacobians:
         w = jac / np.sqrt(r)[None, :, None]
         flat = w.reshape(-1, w.shape[2])
-        m += flat.T @ flat
+        with np.errstate(over="ignore", invalid="ignore"):  # overflowed: said below
+            m += flat.T @ flat
     return m
 
 
@@ -608,7 +611,7 @@ def fit_output_error(
     combos, null = _combinations(info, [names_all[j] for j in keep])
     identifiable = not combos
     try:
-        m_inv: FloatArray = information_inverse(info)
+        m_inv: FloatArray = information_inverse(info, rcond=_INFO_RCOND)
     except np.linalg.LinAlgError:
         m_inv = np.full_like(info, np.nan)
     cov_white: FloatArray = m_inv.copy()
@@ -621,6 +624,8 @@ def fit_output_error(
     # classical degrees of freedom: observations less estimates
     n_obs = sum(int(v.size) for v in residuals)
     nu: FloatArray = np.full(keep.size, float(max(n_obs - keep.size, 1)))
+    if shown == "colored" and not (np.all(np.isfinite(m_inv)) and np.all(np.isfinite(info))):
+        shown = "white"  # no usable information (sensitivities overflowed): nothing to colour
     if shown == "colored":
         from .._colour import colored_covariance
 
@@ -631,6 +636,7 @@ def fit_output_error(
             [v / root[None, :] for v in residuals],
             m_inv,
             estimated_weights=fixed_r is None,
+            rcond=_INFO_RCOND,
         )
         # the spectrum behind the bars is itself estimated: its degrees of freedom
         # travel with the result, whose intervals take the t quantile

@@ -97,6 +97,7 @@ def _fit(
             [xs[:, None, :] for xs in np.split(x, cuts)],
             [vs[:, None] for vs in np.split(v, cuts)],
             xtx_inv,
+            rcond=0.0,  # the exact inverse: a collinear column was refused
         )
     elif error_bars == "reml":
         cov, nu = _reml_covariance(x, v, xtx_inv)
@@ -107,7 +108,7 @@ def _fit(
     r2, f_stat = _r2_f(sse, sst, n, p, p - 1 if has_const else p)
     pse = sse / n + (s_dev / n) * p / n
     # with delays, x is the Gauss-Newton Jacobian: leaving a sample out refits them too
-    press = _press(x, v, xtx_inv)
+    press = _press(x, v)
     return _result(
         theta,
         cov,
@@ -393,13 +394,14 @@ def fourier_regression(
             2 * np.pi * freq,
             time.shape[0] * step if span is None else span,
             nyquist=np.pi / step,
+            rcond=0.0,  # the exact inverse: a collinear column was refused
         )
         _classical_where_not_positive(cov, cov_white, nu, 2 * m - p)
     else:
         cov = cov_white.copy()
     r2, f_stat = _r2_f(sse, szz, 2 * m, p, p)
     pse = sse / m + (szz / m) * p / m
-    press = _press(xs, v, xtx_inv, m)
+    press = _press(xs, v, m)
     return _result(
         theta,
         cov,

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._linalg import information_basis
 from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 
 FloatArray = NDArray[np.float64]
@@ -173,17 +174,19 @@ def _result(
     )
 
 
-def _press(x: FloatArray, v: NDArray[Any], xtx_inv: FloatArray, m: int = 0) -> float:
+def _press(x: FloatArray, v: NDArray[Any], m: int = 0) -> float:
     """Predicted residual sum of squares of residuals `v` of least squares on `x`.
 
-    Leaving sample i out changes its residual to ``v_i / (1 - h_ii)``, with ``h_ii =
-    x_i (X'X)^-1 x_i'`` the hat matrix's diagonal (never formed; from the inverse the
-    fit already has, so PRESS costs one pass over the rows). With ``m > 0``, `x` is the
-    stacked real system of `m` complex rows (real parts, then imaginary ones): a
-    frequency leaves with both its rows, and its residual pair becomes ``(I - H_k)^-1
-    (Re v_k, Im v_k)`` with ``H_k`` the hat matrix's 2 x 2 block there.
+    Leaving sample i out changes its residual to ``v_i / (1 - h_ii)``, with ``h_ii``
+    the hat matrix's diagonal, never formed: ``H = U U'`` over an orthonormal basis
+    of the columns (from ``(X'X)^-1`` near-collinear columns would cancel its digits
+    away). With ``m > 0``, `x` is the stacked real system of `m` complex rows (real
+    parts, then imaginary ones): a frequency leaves with both its rows, and its
+    residual pair becomes ``(I - H_k)^-1 (Re v_k, Im v_k)`` with ``H_k`` the hat
+    matrix's 2 x 2 block there.
     """
-    xi = x @ xtx_inv
+    (u,), _ = information_basis([x[:, None, :]], 0.0)
+    x = xi = u[:, 0, :]
     if m == 0:
         one_minus_h = 1.0 - np.einsum("ij,ij->i", xi, x)
         # where 1 - h vanishes, that sample alone fixes a parameter: no prediction of it

@@ -286,7 +286,7 @@ def orthogonal_function_model(
         back[: f + 1, i] = coef
     if bars == "colored":
         cov_a, nu = colored_covariance(
-            [psi[:, kept][:, None, :]], [v[:, None]], np.diag(1 / norms[kept])
+            [psi[:, kept][:, None, :]], [v[:, None]], np.diag(1 / norms[kept]), rcond=0.0
         )
     else:
         cov_a, nu = np.diag(s2 / norms[kept]), np.full(keep, float(n - keep))

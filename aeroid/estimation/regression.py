@@ -77,6 +77,7 @@ come out too small.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -85,8 +86,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._records import IntervalMixin, fmt, markdown_table
-from .._threads import small_blas
-from ..errors import DataFormatError, IdentificationError
+from .._threads import CALLER_STACKLEVEL, small_blas
+from ..errors import DataFormatError, IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData, as_float, check_flag, whole_number
 from ._regression_fits import _DELAY as _DELAY
 from ._regression_fits import _delay_starts as _delay_starts
@@ -640,6 +641,7 @@ def stepwise_regression(
             changed = True
         if not changed:
             break
+    _warn_unweighed(gram, szz, model, [j for j in range(c) if j not in model and usable[j]], names)
     selected = [names[j] for j in model if names[j] not in forced_list]
     keep = [names.index(f) for f in forced_list] + [j for j in model if names[j] not in forced_list]
     fnames = [names[j] for j in keep]
@@ -661,3 +663,28 @@ def stepwise_regression(
         f_out=f_out,
         orthogonalized=bool(orthogonalize),
     )
+
+
+def _warn_unweighed(
+    gram: NDArray[np.float64], szz: float, model: list[int], free: list[int], names: list[str]
+) -> None:
+    """Warn naming the candidates the steps never weighed: with the model's terms each
+    leaves less than `_WELL_POSED` of its (unit) norm unexplained, a variance inflation
+    above 1e8, where its partial F is rounding."""
+    if not model or not free:
+        return
+    _, _, ginv = _gram_stats(gram, szz, model)
+    if ginv is None:
+        return
+    block = gram[np.ix_(model, free)]
+    left = gram[np.ix_(free, free)].diagonal() - np.sum(block * (ginv @ block), axis=0)
+    unseen = [names[j] for j, v in zip(free, left, strict=True) if not v > _WELL_POSED]
+    if unseen:
+        warnings.warn(
+            f"stepwise regression: {unseen} never weighed: each is, to 1 part in 1e8 of its "
+            f"norm, a combination of the model's terms {[names[j] for j in model]} (variance "
+            "inflation above 1e8), where its partial F is rounding; where it carries a real "
+            "effect, enter the small difference itself (x2 - x1, rescaled) as a candidate",
+            IdentifiabilityWarning,
+            stacklevel=CALLER_STACKLEVEL + 1,
+        )

@@ -23,7 +23,8 @@ from ..models.state_space import StateSpace
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
-
+# the information's pseudo-inverse cut, on its unit-diagonal form (`information_inverse`)
+_RCOND = 1e-13
 
 # -- shared statistics ---------------------------------------------------------------------
 
@@ -52,7 +53,7 @@ def _covariances(
     J = jac.reshape(m * r, n)
     info = J.T @ J
     combos, null = unidentifiable(info, labels)
-    inv = information_inverse(info)
+    inv = information_inverse(info, rcond=_RCOND)
     white = white_scale * inv
     # the one coloured-residual correction, in its per-frequency form: the few
     # frequencies near a mode carry most of the information, and the fit pulls
@@ -64,6 +65,7 @@ def _covariances(
         omega,
         duration,
         estimated_weights=estimated_weights,
+        rcond=_RCOND,
     )
     for cov in (white, colored):
         for j in np.flatnonzero(null):
