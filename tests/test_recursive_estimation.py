@@ -182,6 +182,35 @@ def test_what_the_regressors_cannot_separate_keeps_the_starts_bars():
     assert flat.stderr["const"] > 100.0
 
 
+def test_nearly_collinear_regressors_keep_the_starts_share():
+    """x2 = x1 + 1e-8 w: the batch fit still runs, but the data tell x1 from x2 by
+    nothing the start does not outweigh, so the estimates rest on it (1.49 and 1.49
+    for a truth of 1 and 2). The coloured sandwich alone read +-0.045 (11 sigma off);
+    the start's share s^2 P P0^-1 P brings back the classical bars there, and leaves a
+    well-separated pair's coloured bars as they were."""
+    rng = np.random.default_rng(0)
+    n = 1000
+    t = np.arange(n) * 0.02
+    x1 = np.sin(1.3 * t) + 0.5 * np.sin(3.1 * t + 0.4)
+    w = np.sin(0.7 * t + 1.0) + 0.3 * rng.standard_normal(n)
+    e = np.zeros(n)
+    g = rng.standard_normal(n)
+    for k in range(1, n):
+        e[k] = 0.9 * e[k - 1] + g[k]
+    for eps, leans in ((1e-8, True), (1.0, False)):
+        d = {"x1": x1, "x2": x1 + eps * w, "z": x1 + 2.0 * (x1 + eps * w) + 0.05 * e}
+        res = aeroid.recursive_least_squares(d, "z", ["x1", "x2"], intercept=False)
+        white = aeroid.recursive_least_squares(
+            d, "z", ["x1", "x2"], intercept=False, error_bars="white"
+        )
+        for k, truth in (("x1", 1.0), ("x2", 2.0)):
+            assert abs(res.parameters[k] - truth) < 3.0 * res.stderr[k]
+            if leans:
+                assert res.stderr[k] == pytest.approx(white.stderr[k], rel=1e-3)
+            else:
+                assert res.stderr[k] > 2.0 * white.stderr[k]  # AR(1) 0.9: coloured
+
+
 def test_a_memory_shorter_than_the_parameters_is_refused():
     with pytest.raises(aeroid.DataFormatError, match="remembers about 2 samples"):
         aeroid.recursive_least_squares(_record(n=50), "z", ["a", "b"], forgetting=0.5)

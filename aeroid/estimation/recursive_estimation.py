@@ -375,6 +375,12 @@ def recursive_least_squares(
     if bars == "colored":
         v = z - x @ theta
         cov, nu = colored_covariance([x[:, None, :]], [v[:, None]], cov_p)
+        # the estimate leans on the start where the data are nearly silent (a direction
+        # of collinear regressors): that share, s^2 P P0^-1 P, is the classical bars'
+        start = s2 * cov_p @ np.linalg.solve(p0, cov_p)
+        leans = np.diag(start) > np.diag(cov)
+        cov = cov + start
+        nu[leans] = float(n - p)
         _classical_where_not_positive(cov, cov_white, nu, n - p)
     else:
         cov = cov_white
