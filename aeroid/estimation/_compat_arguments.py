@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._threads import quiet_warnings
 from ..errors import ChannelError, DataFormatError, IdentificationError, ResidualDriftWarning
 from ..io.data import FlightData, plain
 from ._compat_model import (
@@ -29,6 +28,8 @@ from ._compat_model import (
 )
 
 FloatArray = NDArray[np.float64]
+# Hz: the low-pass a held initial state is taken through (`_held_start`)
+START_CUTOFF = 2.0
 
 # Largest plausible magnitude of each angle in radians: beyond it the data are in degrees.
 _ANGLE_LIMITS = {"alpha": math.pi / 2, "beta": math.pi / 2, "phi": math.pi, "theta": math.pi / 2}
@@ -259,23 +260,41 @@ def _free_states(choice: bool | Sequence[str], seen: list[str]) -> list[str]:
 
 
 def _first_values(t: FloatArray, measured: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
-    """Each channel's start, smoothed (a held initial state should not carry one sample's noise)."""
-    from ..io.smoothing import local_window
-
-    out: dict[str, FloatArray] = {}
+    """Each channel's start, low-passed (a held initial state should carry neither one
+    sample's noise nor a jitter the kinematics cannot follow): `_held_start`."""
     steps = np.diff(t)
     uniform = t.size >= 16 and float(np.ptp(steps)) <= 1e-6 * float(np.mean(steps))
+    out: dict[str, FloatArray] = {}
     for o, y in measured.items():
-        first = float(y[0])
-        if uniform:
-            # smooth(y, method="local")[0] (Savitzky-Golay of degree 3, its end value
-            # from the cubic through the first window) without importing scipy.signal
-            with quiet_warnings():
-                w = local_window(y, float(np.mean(steps)), 0, 3, o)
-                coef = np.polyfit(np.arange(w, dtype=np.float64), y[:w], 3)
-            first = float(coef[-1])
+        first = _held_start(y, float(np.mean(steps))) if uniform else float(y[0])
         out[o] = np.array([first])
     return out
+
+
+def _held_start(y: FloatArray, dt: float, cutoff: float = START_CUTOFF) -> float:
+    """The value at the first sample of `y` low-passed at `cutoff` Hz, without leaning
+    on that sample (a record's ends are often its noisiest).
+
+    The second to fourth samples are each low-passed by a Hann-windowed sinc over
+    the samples after them (up to half the record), counted twice as though the
+    record were reflected about that sample, and a least-squares line through the
+    three is taken back to the first. That is how SIDPAC's ``dcmp`` holds its start
+    (``xsmep``, at 2 Hz: a manned aircraft's rigid-body band), so a start held as
+    SIDPAC holds it carries neither one sample's noise nor a vane's jitter. Like
+    any one-sided mean it lags a record that starts moving (by 2.5 samples at
+    50 Hz; a 0.5 Hz swing is held to 16 % of its amplitude): such a record wants
+    its start estimated.
+    """
+    n_lags = max(min(y.size // 2, y.size - 4), 1)
+    lags = np.arange(1, n_lags + 1, dtype=np.float64)
+    band = 2.0 * cutoff * dt
+    h = band * np.sinc(band * lags) * 0.5 * (1.0 + np.cos(np.pi * lags / (n_lags + 1)))
+    norm = band + 2.0 * float(h.sum())
+    near = np.array(
+        [(band * y[j] + 2.0 * float(h @ y[j + 1 : j + 1 + n_lags])) / norm for j in (1, 2, 3)]
+    )
+    _, intercept = np.polyfit(np.array([1.0, 2.0, 3.0]), near, 1)
+    return float(intercept)
 
 
 def _states_from(

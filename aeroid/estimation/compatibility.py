@@ -283,7 +283,10 @@ def check_compatibility(
         or the ground speed, or where ``p`` or ``r`` move beyond their noise;
         ``phi`` with ``phi``, ``psi`` with ``psi`` or the ground speed, ``h``
         with ``h``); False: hold them
-        all at the measured values (the start of each channel, smoothed);
+        all at the measured values (each channel's start low-passed at 2 Hz
+        without leaning on its first sample, as SIDPAC's ``dcmp`` holds it:
+        it lags a record that starts moving by a few samples, and a jitter at
+        the start still moves it, so estimate where the start is not steady);
         or the names of the states to estimate, the others held.
     scale_about : {"zero", "initial"}
         What an output's scale factor multiplies: the value itself,

@@ -41,13 +41,19 @@ Variants that take the set-up apart:
 - ``:hold``: SIDPAC's ``x0`` and ``integration="rk4_hold"``, beside the same
   numpy ``oe`` on the RK4-with-held-inputs transcription that reproduces the
   dca demos' saved results: within 0.002 sigma, white bars equal.
-- The main rows differ from SIDPAC by up to 66 sigma (lon ``b_az``) through
-  the held start alone: ours is the end value of a cubic Savitzky-Golay fit
-  with a data-chosen window (9 samples here), which keeps the 0.5-1 deg of
-  alpha and beta content the kinematics do not follow and puts the start at
-  alpha 21.02 deg, beta 0.57 deg; ``xsmep`` gives 20.03 / 1.15, and freeing
-  the start fits 20.11 / 1.03. Ours doubles the alpha residual rms and the
-  biases absorb the rest.
+- The main rows: our held start is SIDPAC's in kind (a 2 Hz low-pass of the
+  first samples that leans on none of the first, `_held_start`): alpha 20.05
+  deg and beta 1.14 deg against ``xsmep``'s 20.03 / 1.15 (freeing the start
+  fits 20.02 / 1.14), every estimate within 1.3 sigma of SIDPAC's method but
+  the rate biases (2.6-2.8, ``adamb3`` as above). Before 0.25.0 the start
+  was the end value of a cubic Savitzky-Golay fit with a data-chosen window
+  (9 samples here), which kept the 0.5-1 deg of alpha and beta jitter the
+  kinematics do not follow (alpha 21.02, beta 0.57) and moved the biases
+  by up to 66 sigma (lon ``b_az``).
+- The Monte Carlo re-smooths our held start from each record, so it sees
+  the start's own noise, which a held start's bars (ours and SIDPAC's) take
+  as known: there our default bars read 0.30-0.34 of it on ``b_ax`` and
+  ``b_az``.
 """
 
 from __future__ import annotations
