@@ -77,6 +77,13 @@ def _spectral_roots(spec: ComplexArray) -> ComplexArray:
         return vec * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
 
 
+def _canonical(power: FloatArray, energy: FloatArray) -> NDArray[np.intp]:
+    """An order of the outputs fixed by their own data (residual power, then sensitivity
+    energy), not by their place: the draws follow it, so listing the outputs in
+    another order draws the same noise for each and gives the same bars."""
+    return np.lexsort((energy, power))
+
+
 def _basis(m_inv: FloatArray) -> FloatArray:
     """The estimable subspace: every weighting with positive weights has the same one
     (none where the inverse failed)."""
@@ -114,7 +121,15 @@ def weighting_spread(
     basis = _basis(m_inv)
     r = basis.shape[1]
     if r == 0 or not all(np.all(np.isfinite(spec)) for spec in spectra):
-        return np.ones(p)  # nothing to draw from: the bars at fixed weights
+        return np.ones(p)
+    order = _canonical(
+        sum(np.einsum("kaa->a", spec).real for spec in spectra),
+        sum(np.einsum("tap,tap->a", g, g) for g in sensitivities),
+    )
+    sensitivities = [g[:, order] for g in sensitivities]
+    spectra = [
+        spec[:, order][:, :, order] for spec in spectra
+    ]  # nothing to draw from: the bars at fixed weights
     if _apart(sum(np.einsum("tap,tap->ap", g, g) for g in sensitivities)):
         return np.ones(p)
     info = np.zeros((n_y, n_y, r, r), dtype=np.complex128)
@@ -189,6 +204,13 @@ def frequency_weighting_spread(
         return np.ones(p)
     if _apart(np.einsum("kap,kap->ap", sensitivities.conj(), sensitivities).real):
         return np.ones(p)
+    order = _canonical(
+        np.einsum("kaa->a", spectrum).real,
+        np.einsum("kap,kap->a", sensitivities.conj(), sensitivities).real,
+    )
+    sensitivities, spectrum = sensitivities[:, order], spectrum[:, order][:, :, order]
+    if unwhiten is not None:
+        unwhiten = unwhiten[np.ix_(order, order)]
     g = sensitivities @ basis  # (M, n_y, r)
     info = np.einsum("kap,kbq->abpq", g.conj(), g)
     root = _spectral_roots(spectrum)

@@ -125,12 +125,12 @@ def test_stepwise_names_the_candidates_it_never_weighed() -> None:
     silence; one 1e-3 apart is weighed and enters."""
     import warnings
 
-    xa, xb, z = _pair(1e-4, seed=2)
+    xa, _, z = _pair(1e-4, seed=2)
     data = {"x1": xa[:, 1], "x2": xa[:, 2], "z": z}
     with pytest.warns(aeroid.IdentifiabilityWarning, match=r"\['x[12]'\] never weighed"):
         res = aeroid.stepwise_regression(data, "z", ["x1", "x2"])
     assert len(res.selected) == 1
-    xa, xb, z = _pair(1e-2, seed=2)
+    xa, _, z = _pair(1e-2, seed=2)
     with warnings.catch_warnings():
         warnings.simplefilter("error", aeroid.IdentifiabilityWarning)
         res = aeroid.stepwise_regression(

@@ -218,3 +218,31 @@ def test_the_bias_wrapper_compiles_where_the_model_does(outputs):
     np.testing.assert_array_equal(u[:, 1:], np.tile([0.0, 1.0], (u.shape[0], 1)))
     p = np.array(list(wrapped.parameters.values())) + 0.1
     assert compiled.available(wrapped, datas[1].time, np.array([0.01, 0.02]), u, p)
+
+
+def test_an_offset_on_a_directly_measured_state_moves_only_its_bias():
+    """The filter starts a state read from its own channel where the measurement, with
+    the bias, reads that channel: an offset of 0.03 rad added to alpha moves its bias
+    by 0.03 and leaves the parameters and the start where they were. (The start read
+    the raw channel: a 30-sigma error in the first innovations that moved Z_alpha by
+    5 standard errors and M_alpha by 6.)"""
+    p0 = {"Z_alpha": -0.8, "M_alpha": -4.0, "M_q": -1.5, "M_delta": -6.0}
+    model = catalog.short_period(p0)
+    d = catalog.short_period_flight(seed=16, colored=0.9, duration=20.0)
+    moved = FlightData(time=d.time, channels={**d.channels, "alpha": d.channels["alpha"] + 0.03})
+    kw = dict(
+        method="filter_error",
+        estimate_bias=["alpha"],
+        process_noise={"alpha": 1e-4, "q": 1e-3},
+        estimate_process_noise=True,
+        tolerance=1e-10,
+    )
+    a = identify(model, d, list(p0), **kw)
+    b = identify(model, moved, list(p0), **kw)
+    assert b.biases[0]["alpha"] - a.biases[0]["alpha"] == pytest.approx(0.03, abs=1e-6)
+    for k in p0:
+        assert b.parameters[k] == pytest.approx(a.parameters[k], abs=1e-3 * a.stderr[k])
+    assert b.initial_states[0]["alpha"] == pytest.approx(a.initial_states[0]["alpha"], abs=1e-6)
+    # the start is the channel's first value less the bias
+    first = float(d.channels["alpha"][0])
+    assert a.initial_states[0]["alpha"] == pytest.approx(first - a.biases[0]["alpha"], abs=1e-12)

@@ -65,6 +65,7 @@ from ._filter_problem import (
     noise_start,
     simulated_states,
     start_failure_cause,
+    unbiased_start,
 )
 from ._filter_steady import gain_choice, start_states, steady_pass
 from ._identification_record import IdentificationResult
@@ -216,7 +217,7 @@ class _Objective:
         quad_all = np.zeros(B)
         per: list[tuple[FloatArray, FloatArray, int | None]] = []
         for prob, known in zip(self.probs, self.known, strict=True):
-            x0 = np.repeat(prob.x0[None], B, axis=0)
+            x0 = unbiased_start(prob, np.repeat(prob.x0[None], B, axis=0), params, known)
             if self.P0_given:
                 P0 = np.repeat(prob.P0[None], B, axis=0)
             else:
@@ -736,7 +737,7 @@ def identify_filter_error(
     cov = cov_full[:n_e, :n_e]
     se = np.sqrt(np.clip(np.diag(cov_full), 0.0, None))
     params_hat = {n: float(z[j]) for j, n in enumerate(labels[:n_e])}
-    _, Qc_hat, R_hat = obj.inputs(z[None])
+    p_hat, Qc_hat, R_hat = obj.inputs(z[None])
     # the noise levels' errors off the log scale (delta method), their covariance too
     scale = np.concatenate([np.ones(n_e), np.exp(z[n_e:])])
     extra = {lab: float(scale[j] * se[j]) for j, lab in enumerate(labels[n_e:], start=n_e)}
@@ -760,7 +761,8 @@ def identify_filter_error(
         output_names=out_names,
         noise_covariance=R_hat[0],
         initial_states=tuple(
-            {s: float(v) for s, v in zip(m.states, p.x0, strict=True)} for p in probs
+            dict(zip(m.states, unbiased_start(p, p.x0[None], p_hat, k)[0].tolist(), strict=True))
+            for p, k in zip(probs, obj.known, strict=True)
         ),
         biases=(),
         extra_stderr=extra,

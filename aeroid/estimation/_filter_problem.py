@@ -207,6 +207,28 @@ def _default_P0(model: Model, out_names: Sequence[str], R: FloatArray) -> FloatA
     return np.diag(diag)
 
 
+def unbiased_start(
+    prob: _Problem, x0: FloatArray, params: Mapping[str, FloatArray], known: NDArray[np.bool_]
+) -> FloatArray:
+    """Per member, the start of each state read from its own channel (not `known`) moved
+    so that the measurement at the start reads that channel's first value: ``x0 - (h(x0)
+    - x0)`` on those states, exact for an output bias (a bias on alpha moves the start
+    the filter holds, not the parameters). `x0` is (members, n_x), `params` per member."""
+    model = prob.model
+    own = [
+        (j, model.states.index(name))
+        for j, name in enumerate(prob.output_names)
+        if name in model.states and not known[model.states.index(name)]
+    ]
+    if not own or model._measurement_batch is None:
+        return x0
+    y = model._outputs(prob.time[:1], x0[:, None, :], prob.U[:1], params)[:, 0, :]
+    out = x0.copy()
+    for j, i in own:
+        out[:, i] = x0[:, i] - (y[:, prob.out_idx[j]] - x0[:, i])
+    return out
+
+
 def build_problem(
     model: Any,
     data: Any,
