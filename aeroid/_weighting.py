@@ -77,11 +77,12 @@ def _spectral_roots(spec: ComplexArray) -> ComplexArray:
         return vec * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
 
 
-def _canonical(power: FloatArray, energy: FloatArray) -> NDArray[np.intp]:
-    """An order of the outputs fixed by their own data (residual power, then sensitivity
-    energy), not by their place: the draws follow it, so listing the outputs in
-    another order draws the same noise for each and gives the same bars."""
-    return np.lexsort((energy, power))
+def _canonical(leverage: FloatArray) -> NDArray[np.intp]:
+    """An order of the outputs fixed by their own data, not by their place: each
+    output's share of the fit's leverage, which neither their place, their units nor
+    the parameters' change. The draws follow it, so the same noise goes to the same
+    output however the outputs and parameters are written, and so do the bars."""
+    return np.argsort(np.round(leverage, 9), kind="stable")
 
 
 def _basis(m_inv: FloatArray) -> FloatArray:
@@ -122,10 +123,7 @@ def weighting_spread(
     r = basis.shape[1]
     if r == 0 or not all(np.all(np.isfinite(spec)) for spec in spectra):
         return np.ones(p)
-    order = _canonical(
-        sum(np.einsum("kaa->a", spec).real for spec in spectra),
-        sum(np.einsum("tap,tap->a", g, g) for g in sensitivities),
-    )
+    order = _canonical(sum(np.einsum("tap,pq,taq->a", g, m_inv, g) for g in sensitivities))
     sensitivities = [g[:, order] for g in sensitivities]
     spectra = [
         spec[:, order][:, :, order] for spec in spectra
@@ -204,10 +202,7 @@ def frequency_weighting_spread(
         return np.ones(p)
     if _apart(np.einsum("kap,kap->ap", sensitivities.conj(), sensitivities).real):
         return np.ones(p)
-    order = _canonical(
-        np.einsum("kaa->a", spectrum).real,
-        np.einsum("kap,kap->a", sensitivities.conj(), sensitivities).real,
-    )
+    order = _canonical(np.einsum("kap,pq,kaq->a", sensitivities.conj(), m_inv, sensitivities).real)
     sensitivities, spectrum = sensitivities[:, order], spectrum[:, order][:, :, order]
     if unwhiten is not None:
         unwhiten = unwhiten[np.ix_(order, order)]

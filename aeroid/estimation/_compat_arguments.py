@@ -70,6 +70,7 @@ def _channel_map(data: FlightData, channels: Mapping[str, str | None] | None) ->
                 f"{sorted(data.names)}; map it with channels={{{key!r}: 'name'}}"
             )
     for key, name in present.items():
+        _refuse_unit(key, name, data.units.get(name))
         values = data.channels[name]
         if not np.all(np.isfinite(values)):
             bad = int(np.flatnonzero(~np.isfinite(values))[0])
@@ -86,6 +87,23 @@ def _channel_map(data: FlightData, channels: Mapping[str, str | None] | None) ->
             f"channel {present['V']!r} (V): airspeed must be positive, minimum {float(np.min(v)):.4g}"
         )
     return present
+
+
+def _refuse_unit(key: str, name: str, unit: str | None) -> None:
+    """A channel whose declared unit is a scaled one the kinematics would read as their
+    own (deg/s read as rad/s moved the biases by two orders of magnitude in silence)."""
+    from ..io.channel_map import UNIT_CONVERSIONS
+
+    if unit is None or unit not in UNIT_CONVERSIONS:
+        return
+    factor, si = UNIT_CONVERSIONS[unit]
+    angular = key in _ANGLE_LIMITS or key in ("p", "q", "r")
+    if (angular and factor != 1.0) or (key in ("ax", "ay", "az") and unit == "g"):
+        takes = "rad and rad/s" if angular else "m/s^2 (or the units of gravity=)"
+        raise DataFormatError(
+            f"channel {name!r} ({key}): declared in {unit!r}; check_compatibility takes "
+            f"{takes}: convert it (x {factor:.6g} to {si})"
+        )
 
 
 # outputs that see the lateral motion (roll, sideslip, heading, ground track)

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._value_checks import check_distinct
 from ..errors import AeroidError, ChannelError, DataFormatError
-from ..io.data import FlightData, as_float, positive_number, real_array
+from ..io.data import FlightData, as_float, positive_number, real_array, uniform_step
 
 FloatArray = NDArray[np.float64]
 
@@ -266,10 +266,10 @@ def _with_constant(
 
 def _step_of(time: FloatArray | None, dt: float | None) -> float | None:
     if time is not None:
-        steps = np.diff(time)
-        if np.ptp(steps) > 1e-6 * float(np.mean(steps)):
+        found = uniform_step(np.asarray(time, dtype=np.float64))
+        if found is None or not found > 0.0:
             return None
-        step = float(np.mean(steps))
+        step = found
         if dt is not None and not np.isclose(
             positive_number(dt, "dt", " of seconds"), step, rtol=1e-6
         ):

@@ -309,15 +309,17 @@ def _output_error(
                 S = S.real.astype(np.complex128)
             elif cross == "sidpac":
                 S = S.conj()  # fdoe's E[v̄ vᵀ]: the transpose of the covariance
-        # the Hermitian inverse square root, not a triangular factor: the whitened outputs
-        # then follow the outputs' order, and so do the weighting spread's draws
-        lam, vec = np.linalg.eigh(0.5 * (S + S.conj().T))
-        if not lam[0] > 1e-15 * max(float(lam[-1]), 0.0):
+        # C^-1/2 D^-1 with S = D C D (C the correlations), not a triangular factor: the
+        # whitened outputs then follow the outputs' order and ignore their units, and so
+        # do the weighting spread's draws
+        d = np.sqrt(np.clip(np.diag(S).real, 0.0, None))
+        lam, vec = np.linalg.eigh(0.5 * (S + S.conj().T) / np.outer(np.where(d > 0, d, 1.0), d))
+        if not (np.all(d > 0) and lam[0] > 1e-15 * max(float(lam[-1]), 0.0)):
             raise IdentificationError(
                 "output error: the residual covariance is singular (an output the model fits "
                 "exactly, or two identical outputs); drop that output or give noise="
             )
-        return np.asarray((vec / np.sqrt(lam)) @ vec.conj().T, dtype=np.complex128)
+        return np.asarray((vec / np.sqrt(lam)) @ vec.conj().T / d[None, :], dtype=np.complex128)
 
     def cost_of(v: ComplexArray, Li: ComplexArray) -> float:
         e = v @ Li.T

@@ -108,6 +108,15 @@ def _grid_jitter(time: FloatArray) -> float:
     return float(np.max(np.abs(time - grid))) / step
 
 
+def uniform_step(time: FloatArray) -> float | None:
+    """The sample interval of stamps on a uniform grid (within `FlightData.is_uniform`'s
+    1 % of a step, so a clock at 1.7e9 s, whose last digit is 2.4e-7 s, still is one),
+    else None."""
+    if time.size < 2 or _grid_jitter(time) > _JITTER_FRACTION:
+        return None
+    return (float(time[-1]) - float(time[0])) / (time.size - 1)
+
+
 @dataclass(frozen=True, eq=False)
 class FlightData:
     """An immutable, name-indexed set of time series sampled on one time axis.
@@ -367,6 +376,22 @@ def fingerprint(data: FlightData) -> str:
 # -- loading ----------------------------------------------------------------------
 
 
+def _in_seconds(time: NDArray[Any], unit: str | None, path: Path, column: str) -> NDArray[Any]:
+    """The time column in seconds: a unit the file declares for it (ms, us) is applied,
+    one that is no time is refused (it was dropped in silence)."""
+    if unit is None or unit == "s":
+        return time
+    from .channel_map import UNIT_CONVERSIONS
+
+    factor, si = UNIT_CONVERSIONS.get(unit, (1.0, ""))
+    if si != "s":
+        raise DataFormatError(
+            f"{path}: the time column {column!r} is declared in {unit!r}, not a unit of time "
+            "(s, ms, us)"
+        )
+    return np.asarray(time, dtype=np.float64) * factor
+
+
 def load_flight_test(
     path: str | Path,
     *,
@@ -512,7 +537,7 @@ def load_flight_test(
                 f"{p}: column {col!r} holds complex values, which are not supported; "
                 "store the real part or the magnitude"
             )
-    time = columns[tname]
+    time = _in_seconds(columns[tname], declared.get(tname), p, tname)
     chans: dict[str, Any] = {}
     for col, name in mapping.items():
         if columns[col].shape != time.shape:

@@ -194,12 +194,15 @@ def shifted_controls(
     `aeroid.models.integration.control_slopes`) and held at the first and last
     samples outside them."""
     out = np.array(controls, dtype=np.float64, copy=True)
+    # from the record's start: on a clock at 1.7e9 s a time's last digit is 2.4e-7 s, and
+    # t - tau would round a shift of a few microseconds (a delay's derivative) away
+    since = np.asarray(time, dtype=np.float64) - float(time[0]) if len(time) else time
     for j, tau in zip(columns, np.asarray(delays, dtype=np.float64).tolist(), strict=True):
         if tau == 0.0:
             continue
         how = interpolation[j] if isinstance(interpolation, tuple) else interpolation
         if how == "linear":
-            out[:, j] = np.interp(time - tau, time, controls[:, j])
+            out[:, j] = np.interp(since - tau, since, controls[:, j])
         else:
-            out[:, j] = controls_at(time, controls[:, j : j + 1], time - tau, how)[:, 0]
+            out[:, j] = controls_at(since, controls[:, j : j + 1], since - tau, how)[:, 0]
     return out
