@@ -296,3 +296,27 @@ def test_the_input_noise_program_compiles_in_the_background_too() -> None:
     d = np.sqrt(np.diag(again[2]))
     np.testing.assert_allclose(first[0], again[0], rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(first[2] / np.outer(d, d), again[2] / np.outer(d, d), atol=1e-6)
+
+
+@pytest.mark.slow
+def test_no_background_job_is_the_first_to_import_jax() -> None:
+    """The second fit of a model queues its compilation; JAX is imported then, in the
+    caller's thread: imported in the background, a half-made `jax` sat in sys.modules
+    and the caller's next SciPy call (`smooth(method="local")`, `savgol_filter`'s array
+    checks) failed on ``jax.Array`` every time."""
+    pytest.importorskip("jax")
+    out = _exit_of(
+        f"""
+        import sys, warnings
+        warnings.simplefilter("ignore")
+        sys.path.insert(0, {str(__import__("pathlib").Path(__file__).parent)!r})
+        import aeroid
+        from _compat_flight import simulated_flight
+        d = simulated_flight(8.0, 50.0, errors={{}}, seed=2)
+        aeroid.check_compatibility(d)
+        aeroid.check_compatibility(d)
+        aeroid.smooth(d, ["alpha"], method="local", window=11)
+        print("OK")
+        """
+    )
+    assert out.returncode == 0 and "OK" in out.stdout, out.stderr[-800:]

@@ -85,6 +85,7 @@ from ._jax_translation import _Template as _Template
 from ._jax_translation import _traced_once as _traced_once
 from ._jax_translation import _translate as _translate
 from .integration import Interpolation, RawTrajectory, _first_failure, control_excess
+from .jax_compiled import preload_jax
 
 if TYPE_CHECKING:
     from .model import Model
@@ -544,6 +545,7 @@ def _queue(model: Model, program: str, *job: Any) -> None:
     if ("background", program) in entry:
         return
     entry[("background", program)] = "queued"
+    preload_jax()  # here, not in the background thread (see there)
     _threads.after_call(lambda: _compile_in_background(model, program, *job))
 
 

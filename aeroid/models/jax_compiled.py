@@ -23,6 +23,7 @@ import contextlib
 import hashlib
 import os
 import platform
+import sys
 import weakref
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -62,6 +63,16 @@ _CACHE_BYTES = 1 << 30
 # the shortest compilation worth a file in the persistent cache
 _CACHE_MIN_SECONDS = 0.2
 _CONFIGURED = False
+
+
+def preload_jax() -> None:
+    """Import JAX in this thread if it is installed and not yet imported. A background
+    job must not be the first to import it: while a thread imports it, a half-made
+    `jax` sits in ``sys.modules``, and SciPy's array checks in the caller's next call
+    (`savgol_filter`) read ``jax.Array`` from it and fail."""
+    if "jax" not in sys.modules:
+        with contextlib.suppress(AdapterError):
+            require_jax()
 
 
 def require_jax() -> tuple[Any, Any]:
