@@ -71,6 +71,10 @@ class _State(threading.local):
 _local = _State()
 _lock = threading.Lock()
 _active = 0  # threads inside a public call, all threads together
+# `alone`: a background job that must not run beside any caller's public call
+_alone = threading.Condition()
+_callers = 0  # threads other than the background one inside a public call
+_held = False  # a background job holds the process alone
 _saved: list[tuple[Any, int]] = []  # (library controller, caller's thread count)
 _controllers: list[Any] | None = None  # BLAS controllers of the last scan
 _scanned_at = -1  # len(sys.modules) at the last scan
@@ -106,11 +110,16 @@ def _restore() -> None:
 
 
 def _enter() -> None:
-    global _active
+    global _active, _callers
     depth = _local.depth
     _local.depth = depth + 1
     if depth:
         return
+    if threading.current_thread() is not _worker:
+        with _alone:
+            while _held:
+                _alone.wait()
+            _callers += 1
     with _lock:
         if _active == 0:
             try:
@@ -121,7 +130,7 @@ def _enter() -> None:
 
 
 def _exit() -> None:
-    global _active
+    global _active, _callers
     depth = _local.depth - 1
     _local.depth = depth
     if depth:
@@ -130,6 +139,10 @@ def _exit() -> None:
         _active -= 1
         if _active == 0:
             _restore()
+    if threading.current_thread() is not _worker:
+        with _alone:
+            _callers -= 1
+            _alone.notify_all()
     if _local.deferred:
         jobs, _local.deferred = _local.deferred, []
         for job in jobs:
@@ -295,6 +308,24 @@ def replay_warnings(recorded: list[warnings.WarningMessage]) -> None:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
+@contextlib.contextmanager
+def alone() -> Iterator[None]:
+    """For a background job: wait until no caller is inside a public call, and hold
+    new ones off until the block ends (what importing a module other threads' code
+    inspects needs: half-imported, it sits in ``sys.modules``)."""
+    global _held
+    with _alone:
+        while _callers:
+            _alone.wait()
+        _held = True
+    try:
+        yield
+    finally:
+        with _alone:
+            _held = False
+            _alone.notify_all()
+
+
 def wait_background(timeout: float | None = None) -> bool:
     """Wait until the background jobs queued so far have run; False on `timeout` (s)."""
     jobs = _jobs
@@ -331,8 +362,9 @@ def _after_fork_in_child() -> None:
     # gone (their one-thread limits stay, harmless in a child, and are not
     # restored, which would start OpenBLAS's threads), and the forking thread
     # closes its own open calls as usual.
-    global _lock, _active, _worker, _jobs
+    global _lock, _active, _worker, _jobs, _alone, _callers, _held
     _lock = threading.Lock()
+    _alone, _callers, _held = threading.Condition(), 1 if _local.depth else 0, False
     # the parent's background thread is not in the child, nor are its jobs
     _worker, _jobs = None, queue.Queue()
     if _local.depth:

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+import time
 from typing import Any
 
 import pytest
@@ -300,10 +301,10 @@ def test_the_input_noise_program_compiles_in_the_background_too() -> None:
 
 @pytest.mark.slow
 def test_no_background_job_is_the_first_to_import_jax() -> None:
-    """The second fit of a model queues its compilation; JAX is imported then, in the
-    caller's thread: imported in the background, a half-made `jax` sat in sys.modules
-    and the caller's next SciPy call (`smooth(method="local")`, `savgol_filter`'s array
-    checks) failed on ``jax.Array`` every time."""
+    """The second fit of a model queues its compilation, whose job imports JAX alone
+    (`_threads.alone`: no public call runs meanwhile). Imported beside the caller's
+    next call, a half-made `jax` sat in sys.modules and that call's SciPy array checks
+    (`smooth(method="local")`, `savgol_filter`) failed on ``jax.Array`` every time."""
     pytest.importorskip("jax")
     out = _exit_of(
         f"""
@@ -320,3 +321,26 @@ def test_no_background_job_is_the_first_to_import_jax() -> None:
         """
     )
     assert out.returncode == 0 and "OK" in out.stdout, out.stderr[-800:]
+
+
+def test_alone_waits_for_the_callers_and_holds_new_ones_off() -> None:
+    order: list[str] = []
+    inside = threading.Event()
+
+    def job() -> None:
+        with _threads.alone():
+            order.append("alone")
+            inside.set()
+            time.sleep(0.2)
+            order.append("alone done")
+
+    with small_blas:
+        worker = threading.Thread(target=job)
+        worker.start()
+        time.sleep(0.2)
+        assert order == []  # a caller's public call is open: the job waits
+    assert inside.wait(5.0)
+    with small_blas:  # held off until the job's block ends
+        order.append("next call")
+    worker.join()
+    assert order == ["alone", "alone done", "next call"]

@@ -545,7 +545,6 @@ def _queue(model: Model, program: str, *job: Any) -> None:
     if ("background", program) in entry:
         return
     entry[("background", program)] = "queued"
-    preload_jax()  # here, not in the background thread (see there)
     _threads.after_call(lambda: _compile_in_background(model, program, *job))
 
 
@@ -569,6 +568,7 @@ def _compile_in_background(
     entry = _entry(model)
     key = ("background", program)
     entry[key] = "compiling"
+    preload_jax()
     try:
         if not available(model, time, x0, controls, pvec):
             entry[key] = "failed"

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib.util
 import os
 import platform
 import sys
@@ -32,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import _threads
 from ..errors import AdapterError
 from ._jax_rk4 import _node
 from .integration import Interpolation, check_control_interpolation, control_excess, substeps_for
@@ -66,13 +68,14 @@ _CONFIGURED = False
 
 
 def preload_jax() -> None:
-    """Import JAX in this thread if it is installed and not yet imported. A background
-    job must not be the first to import it: while a thread imports it, a half-made
-    `jax` sits in ``sys.modules``, and SciPy's array checks in the caller's next call
-    (`savgol_filter`) read ``jax.Array`` from it and fail."""
-    if "jax" not in sys.modules:
-        with contextlib.suppress(AdapterError):
-            require_jax()
+    """Import JAX, if installed and not yet imported, alone (`aeroid._threads.alone`):
+    while a thread imports it a half-made `jax` sits in ``sys.modules``, and SciPy's
+    array checks in another thread's call (`savgol_filter`) read ``jax.Array`` from it
+    and fail."""
+    if "jax" in sys.modules or importlib.util.find_spec("jax") is None:
+        return
+    with _threads.alone(), contextlib.suppress(AdapterError):
+        require_jax()
 
 
 def require_jax() -> tuple[Any, Any]:
