@@ -69,12 +69,10 @@ class _State(threading.local):
 
 
 _local = _State()
-_lock = threading.Lock()
+_lock = threading.Condition()  # guards the counts below; `alone` waits on it
 _active = 0  # threads inside a public call, all threads together
-# `alone`: a background job that must not run beside any caller's public call
-_alone = threading.Condition()
-_callers = 0  # threads other than the background one inside a public call
-_held = False  # a background job holds the process alone
+_callers = 0  # of those, the threads other than the background one
+_held = False  # a background job holds the process alone (`alone`)
 _saved: list[tuple[Any, int]] = []  # (library controller, caller's thread count)
 _controllers: list[Any] | None = None  # BLAS controllers of the last scan
 _scanned_at = -1  # len(sys.modules) at the last scan
@@ -115,12 +113,11 @@ def _enter() -> None:
     _local.depth = depth + 1
     if depth:
         return
-    if threading.current_thread() is not _worker:
-        with _alone:
-            while _held:
-                _alone.wait()
-            _callers += 1
     with _lock:
+        if threading.current_thread() is not _worker:
+            while _held:
+                _lock.wait()
+            _callers += 1
         if _active == 0:
             try:
                 _limit()
@@ -139,10 +136,10 @@ def _exit() -> None:
         _active -= 1
         if _active == 0:
             _restore()
-    if threading.current_thread() is not _worker:
-        with _alone:
+        if threading.current_thread() is not _worker:
             _callers -= 1
-            _alone.notify_all()
+            if _callers == 0:
+                _lock.notify_all()
     if _local.deferred:
         jobs, _local.deferred = _local.deferred, []
         for job in jobs:
@@ -314,16 +311,16 @@ def alone() -> Iterator[None]:
     new ones off until the block ends (what importing a module other threads' code
     inspects needs: half-imported, it sits in ``sys.modules``)."""
     global _held
-    with _alone:
+    with _lock:
         while _callers:
-            _alone.wait()
+            _lock.wait()
         _held = True
     try:
         yield
     finally:
-        with _alone:
+        with _lock:
             _held = False
-            _alone.notify_all()
+            _lock.notify_all()
 
 
 def wait_background(timeout: float | None = None) -> bool:
@@ -362,9 +359,9 @@ def _after_fork_in_child() -> None:
     # gone (their one-thread limits stay, harmless in a child, and are not
     # restored, which would start OpenBLAS's threads), and the forking thread
     # closes its own open calls as usual.
-    global _lock, _active, _worker, _jobs, _alone, _callers, _held
-    _lock = threading.Lock()
-    _alone, _callers, _held = threading.Condition(), 1 if _local.depth else 0, False
+    global _lock, _active, _worker, _jobs, _callers, _held
+    _lock = threading.Condition()
+    _callers, _held = (1 if _local.depth else 0), False
     # the parent's background thread is not in the child, nor are its jobs
     _worker, _jobs = None, queue.Queue()
     if _local.depth:
