@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from .errors import DataFormatError, SimulationError
 
-__all__ = ["as_float", "check_time", "plain", "positive_number"]
+__all__ = ["as_float", "check_time", "constant_value", "plain", "positive_number"]
 
 
 def plain(value: Any) -> str:
@@ -30,6 +30,17 @@ def as_float(value: Any) -> float | None:
         return float(value)
     except (TypeError, ValueError, OverflowError):
         return None
+
+
+def constant_value(values: Any) -> float | None:
+    """The value of a channel that never changes (its finite samples equal to 1e-12 of
+    their size, or of 1), else None; None too for a channel with no finite sample."""
+    v = np.asarray(values, dtype=np.float64).ravel()
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    scale = max(1.0, float(np.max(np.abs(v))))
+    return float(v[0]) if float(np.ptp(v)) <= 1e-12 * scale else None
 
 
 def positive_number(value: Any, name: str, unit: str = "") -> float:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._checks import constant_value
 from ..errors import ChannelError, IdentifiabilityWarning, IdentificationError
 
 FloatArray = NDArray[np.float64]
@@ -28,16 +29,6 @@ _AIRSPEED_RANGE = (0.5, 4000.0)
 _RUNAWAY = 100.0
 # body rates, rad/s: 20 rad/s (1150 deg/s) is beyond any airframe
 _RATE_LIMIT = 20.0
-
-
-def _constant(values: Any) -> float | None:
-    """The value of a channel that never changes, else None."""
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return None
-    scale = max(1.0, float(np.max(np.abs(v))))
-    return float(v[0]) if float(np.ptp(v)) <= 1e-12 * scale else None
 
 
 def held_controls(datas: Sequence[Any], controls: Iterable[str]) -> dict[str, float]:
@@ -53,7 +44,7 @@ def held_controls(datas: Sequence[Any], controls: Iterable[str]) -> dict[str, fl
     names = list(controls)
     held: dict[str, float] = {}
     for name in names:
-        values = [_constant(d[name]) for d in datas]
+        values = [constant_value(d[name]) for d in datas]
         if any(v is None or v == 0.0 for v in values):
             return {}
         held[name] = float(values[0])  # type: ignore[arg-type]
@@ -143,7 +134,7 @@ def check_kinematic_channels(data: Any, present: Mapping[str, str]) -> None:
         Every rate and acceleration channel constant: nothing to reconstruct.
     """
     inertial = [q for q in ("p", "q", "r", "ax", "ay", "az") if q in present]
-    if inertial and all(_constant(data[present[q]]) is not None for q in inertial):
+    if inertial and all(constant_value(data[present[q]]) is not None for q in inertial):
         raise IdentificationError(
             "no excitation: every rate and acceleration channel ("
             + ", ".join(repr(present[q]) for q in inertial)
@@ -243,13 +234,13 @@ def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable
         Naming the channel, its value and the channels that move.
     """
     inertial = [q for q in ("p", "q", "r", "ax", "ay", "az") if q in present]
-    moving = [q for q in inertial if _constant(data[present[q]]) is None]
+    moving = [q for q in inertial if constant_value(data[present[q]]) is None]
     if not moving:
         return  # no motion: check_kinematic_channels says so
     for quantity in inertial:
         # a rate or acceleration frozen at a non-zero reading while the others move: the
         # reconstruction would integrate it as motion (a zero one is a symmetric flight's)
-        value = _constant(data[present[quantity]])
+        value = constant_value(data[present[quantity]])
         if value is not None and value != 0.0:
             others = [q for q in moving if q != quantity]
             raise ChannelError(
@@ -258,7 +249,7 @@ def refuse_stuck_outputs(data: Any, present: Mapping[str, str], fitted: Iterable
                 f"move{'s' * (len(others) == 1)}: a stuck or held sensor. Fix the channel"
             )
     for quantity in fitted:
-        value = _constant(data[present[quantity]])
+        value = constant_value(data[present[quantity]])
         if value is None:
             continue
         drivers = (

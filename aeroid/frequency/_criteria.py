@@ -28,6 +28,8 @@ SHORT_PERIOD_ZETA = ((0.35, 1.30), (0.25, 2.00), (0.15, 10.0))  # open intervals
 SHORT_PERIOD_OMEGA = (1.0, 0.6, 0.0)  # rad/s, at least
 SHORT_PERIOD_OMEGA_T_THETA2 = (1.85, 1.0, 0.0)  # at least
 SHORT_PERIOD_TAU = (0.10, 0.20, 0.25)  # s, at most
+# a fitted delay closer to zero than this (s) is zero to rounding, not negative
+DELAY_ROUNDING = 1e-9
 SHORT_PERIOD_SOURCE = (
     "MIL-STD-1797A short-period limits as stated in SIDPAC's milstd.m (E. A. Morelli, "
     "NASA Langley, 1998)"
@@ -199,7 +201,7 @@ def short_period_level(
     notes = []
     if t2 < 0:
         notes.append("a right-half-plane numerator zero (T_theta2 < 0)")
-    if d < 0:
+    if d < -DELAY_ROUNDING:
         notes.append("a negative time delay")
     return HandlingQualitiesLevel(
         max(levels.values()),

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import constant_value
 from .._colour import frequency_sandwich
 from .._record_kernel import off_grid
 from .._stats import wald_p_value
@@ -171,6 +172,22 @@ def _record_grid(data: FlightData) -> tuple[float, float]:
     return dt, dt * (data.n_samples - 1)
 
 
+def refuse_constant(data: FlightData, inputs: Sequence[str], outputs: Sequence[str]) -> None:
+    """Refuse a record in which an input or an output never changes: a constant input
+    excites nothing, and a stuck or dead sensor responds to nothing (once the means
+    are removed its rounding residue would pass for a response)."""
+    for role, names in (("input", inputs), ("output", outputs)):
+        for name in names:
+            value = constant_value(data[name])
+            if value is not None:
+                what = "carries no excitation" if role == "input" else "carries no response"
+                raise IdentificationError(
+                    f"{role} {name!r} is constant ({plain(value)}) and {what}; a frequency "
+                    f"response needs {'an input' if role == 'input' else 'an output'} that "
+                    "varies (a stuck or dead channel: leave it out)"
+                )
+
+
 def _excited_band(data: FlightData, input: str) -> tuple[float, float]:
     """The band (rad/s) over which the input's power is at least 1 % of its peak."""
     from .frequency_domain import _transform
@@ -269,6 +286,7 @@ def record_transforms(req: FourierRequest) -> RecordTransforms:
         raise ChannelError("response_or_data: flight data need input= and output= channel names")
     data.require([input], role="input")
     data.require([output], role="output")
+    refuse_constant(data, [input], [output])
     m, n = _orders(req.numerator_order, req.denominator_order)
     dt, T = _record_grid(data)
     if frequency_range is not None and frequency_range[1] > np.pi / dt * (1.0 + 1e-9):

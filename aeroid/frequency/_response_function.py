@@ -38,6 +38,11 @@ class _Response:
             self.values = self.analytic(_DENSE)
         if self.omega.size < 2:
             raise IdentificationError("response_or_tf: need at least two frequencies")
+        if not np.any(np.abs(self.values) > 0):
+            raise IdentificationError(
+                "response_or_tf: the response is zero at every frequency, so it has no "
+                "phase or gain to cross"
+            )
 
     def scaled(self, factor: Callable[[FloatArray], ComplexArray]) -> _Response:
         out = object.__new__(_Response)

@@ -75,6 +75,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import constant_value
 from .._czt import fourier
 from .._records import frozen_array
 from .._records import frozen_complex as _frozen_complex
@@ -454,6 +455,13 @@ def identify_frequency_domain(
     # the frequency sandwich counts the noise close frequencies share; the white bound not
     omega = _frequency_grid(frequencies, dt, duration, shared=error_bars == "colored")
     data.require(model.controls, role="control")
+    held = {c: constant_value(data[c]) for c in model.controls}
+    if model.controls and all(v is not None for v in held.values()):
+        listing = ", ".join(f"{c} {plain(v)}" for c, v in held.items())
+        raise IdentificationError(
+            f"no excitation: every control is constant ({listing}); a frequency-domain fit "
+            "needs a control that varies over the record"
+        )
     states = list(model.states)
     if method == "equation_error":
         if outputs is not None or noise is not None:

@@ -88,6 +88,7 @@ from ._rational_fit import (
     _fitted_information,
     _free_structure,
     fit_free,
+    refuse_constant,
     undetermined_bars,
 )
 from ._rational_fit import _coherence_weight as _coherence_weight
@@ -303,14 +304,7 @@ def composite_response(
         )
         warnings.warn(f"composite_response: {notes[-1]}", UserWarning, stacklevel=3)
         omega = omega[~low]
-    for name in ins:
-        samples = data.channels[name]
-        # after the segments' means are removed a constant input is zero: nothing to divide by
-        if np.ptp(samples) <= 1e-12 * float(np.max(np.abs(samples))):
-            raise IdentificationError(
-                f"input {name!r} is constant ({plain(samples[0])}) and carries no excitation; "
-                "a frequency response needs an input that varies"
-            )
+    refuse_constant(data, ins, outs)
     n_u, n_y = len(ins), len(outs)
     signals = np.column_stack([data.array(ins), data.array(outs)])
     spectra, n_avg, weights, n_stationary = [], [], [], []

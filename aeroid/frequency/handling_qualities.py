@@ -48,6 +48,7 @@ from ._criteria import (
     BANDWIDTH_LEVEL_1,
     BANDWIDTH_LEVEL_2,
     BANDWIDTH_SOURCE,
+    DELAY_ROUNDING,
     HandlingQualitiesLevel,
     bandwidth_level,
     muad_envelopes,
@@ -445,7 +446,7 @@ class EquivalentSystemFit(IntervalMixin):
         out = []
         if self.kind == "short_period" and p["1/T_theta2"] < 0:
             out.append("right-half-plane zero (1/T_theta2 < 0): not a physical pitch response")
-        if p.get("tau", 0.0) < 0:
+        if p.get("tau", 0.0) < -DELAY_ROUNDING:
             out.append("negative time delay")
         if self.mismatch > _MISMATCH_GUIDELINE:
             out.append(f"mismatch J above {_MISMATCH_GUIDELINE:.0f}")

@@ -261,7 +261,15 @@ def orthogonal_multisine(
         raise ModelDefinitionError(f"band: expected (low, high) in Hz, got {band!r}") from None
     if not (0 <= lo < hi):
         raise ModelDefinitionError(f"band: expected 0 <= low < high, got {band!r}")
-    amps = np.broadcast_to(np.asarray(amplitudes, dtype=np.float64), (len(names),)).copy()
+    if hi > fs / 2.0 * (1.0 + 1e-12):
+        raise ModelDefinitionError(
+            f"band: its top {hi:g} Hz lies above the Nyquist frequency {fs / 2.0:g} Hz of "
+            f"sample_rate {fs:g} Hz; lower the band or raise the sample rate"
+        )
+    try:
+        amps = np.broadcast_to(np.asarray(amplitudes, dtype=np.float64), (len(names),)).copy()
+    except (TypeError, ValueError):
+        amps = np.array([np.nan])
     if not np.all(np.isfinite(amps)) or np.any(amps <= 0):
         raise ModelDefinitionError(
             f"amplitudes: expected positive numbers (one or one per control), got {amplitudes!r}"
