@@ -53,7 +53,11 @@ Levenberg-Marquardt then minimises one of two costs:
   is ``s² (JᵀJ)⁻¹`` with ``s²`` the residual mean square; these standard
   errors are the calibrated ones (pinned by a coverage test over seeds) as
   long as the fitted frequencies are about independent (spaced at least two
-  resolution cells of the window apart).
+  resolution cells of the shortest window apart) and every window resolves
+  the response: they carry the random error, not a short window's
+  resolution bias near a lightly damped mode (Bendat & Piersol: about
+  ``(B_e / B_r)² / 3`` at the peak, ``B_e = 1.5 / T`` Hz for a Hann window,
+  ``B_r = 2 ζ f_n``).
 """
 
 from __future__ import annotations
