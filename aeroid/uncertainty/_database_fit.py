@@ -113,6 +113,20 @@ def parents(e: Exponents) -> list[Exponents]:
     return out
 
 
+def _with_ancestors(e: Exponents, chosen: Sequence[Exponents]) -> list[Exponents]:
+    """`e` with every ancestor hierarchy asks for that `chosen` lacks, lowest degree first
+    (the constant is always in)."""
+    out: set[Exponents] = set()
+    todo = [e]
+    while todo:
+        f = todo.pop()
+        if f in out or f in chosen or not any(f):
+            continue
+        out.add(f)
+        todo.extend(parents(f))
+    return sorted(out, key=lambda f: (sum(f), f))
+
+
 def _gls(a: FloatArray, z: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Weighted least squares by QR: the parameters, the gain ``(X'WX)⁻¹X'W`` and
     ``(X'WX)⁻¹``."""
@@ -217,6 +231,16 @@ def fit_model(u: FloatArray, z: FloatArray, v: FloatArray, es: Sequence[Exponent
     return ModelFit(tuple(es), theta, gain, cov * scale, tau2, scale, chi2, aicc)
 
 
+def _tail(chi2: float, c2: float, q: int, dof: int) -> float:
+    """The upper tail probability of the partial F of `q` functions that take the
+    whitened residual sum of squares from `chi2` to `c2`, `dof` left (the weights are a
+    floor on the scatter); with ``c2 = 0`` and ``q = 1``, that of ``F = chi2``."""
+    from scipy.special import fdtrc
+
+    s2 = max(c2 / dof, 1.0) if c2 > 0 else 1.0
+    return float(fdtrc(q, dof, max(chi2 - c2, 0.0) / q / s2))
+
+
 def forward_path(
     u: FloatArray, z: FloatArray, v: FloatArray, candidates: list[Exponents], f_in: float
 ) -> tuple[list[list[Exponents]], int]:
@@ -247,25 +271,53 @@ def forward_path(
     s2_max = max(1.0, chi2_of(full) / (n - len(full))) if n > len(full) else 1.0
     pse = chi2 / n + s2_max / n
     path, selected, stopped = [list(chosen)], 0, False
-    # past the selected model, two more functions: the F test rejected the first, and
-    # the Akaike weights of richer models are then below a part in a thousand
+    # a step adds a candidate with the factors hierarchy asks for, so a product whose
+    # factors explain nothing alone (an effect of Mach that reverses with alpha) can
+    # still enter. The candidate itself must earn the step: ranked and tested by its
+    # own partial F given the others (one degree of freedom, `f_in`'s level), and the
+    # factors it brings with it must pass with it (the step's F on all it adds)
+    offered = set(candidates)
+    # past the selected model, two more steps: the F test rejected the first, and the
+    # Akaike weights of richer models are then below a part in a thousand
     while n - len(chosen) > 3 and len(path) - selected <= _BEYOND:
-        best: tuple[float, Exponents] | None = None
+        steps: list[tuple[tuple[float, int, float], float, list[Exponents]]] = []
+        tried: set[tuple[Exponents, ...]] = set()
         for e in candidates:
-            if e in chosen or any(p not in chosen for p in parents(e) if any(p)):
+            if e in chosen:
                 continue
-            c2 = chi2_of([*chosen, e])
-            if best is None or c2 < best[0]:
-                best = (c2, e)
-        if best is None or not math.isfinite(best[0]):
+            move = _with_ancestors(e, chosen)
+            if tuple(move) in tried or not offered.issuperset(move):
+                continue
+            tried.add(tuple(move))
+            p = len(chosen) + len(move)
+            if n - p < 2:
+                continue
+            c2 = chi2_of([*chosen, *move])
+            factors = [f for f in move if f != e]
+            before = chi2_of([*chosen, *factors]) if factors else chi2
+            if not (math.isfinite(c2) and math.isfinite(before)):
+                continue
+            # ties (tails below the smallest float) go to the smaller step
+            key = (_tail(before, c2, 1, n - p), len(move), c2)
+            steps.append((key, _tail(chi2, c2, len(move), n - p), move))
+        if not steps:
             break
-        c2, e = best
-        p = len(chosen) + 1
-        s2 = max(c2 / (n - p), 1.0)  # the weights are a floor on the scatter
+        # the steps hierarchy alone used to bar are extra chances for noise to enter:
+        # Bonferroni over them keeps what they add to the false entries below the level
+        several = max(1, sum(1 for _, _, m in steps if len(m) > 1))
+        good = []
+        for step in steps:
+            (own, size, _), whole, _ = step
+            level = _tail(f_in, 0.0, 1, n - len(chosen) - size)
+            if max(own, whole) <= (level if size == 1 else level / several):
+                good.append(step)
+        best = min(good or steps, key=lambda step: step[0])
+        (_, _, c2), _, move = best
+        p = len(chosen) + len(move)
         new_pse = c2 / n + s2_max * p / n
-        if not stopped and ((chi2 - c2) / s2 < f_in or new_pse >= pse):
+        if not stopped and (not good or new_pse >= pse):
             stopped = True
-        chosen.append(e)
+        chosen.extend(move)
         path.append(list(chosen))
         if not stopped:
             selected, pse = len(path) - 1, new_pse

@@ -80,10 +80,13 @@ Klein & Morelli ch. 5: a candidate enters when its partial F exceeds `f_in`
 error ``PSE = χ²/N + σ²_max p/N`` decreases. Klein & Morelli's ``σ²_max``
 bounds the noise variance from above; for whitened estimates that variance is
 1 when the weights hold, so ``σ²_max`` is the larger of 1 and the residual
-variance of the richest candidate model. Candidates respect hierarchy
-(``P_2(u)`` needs ``P_1(u)``, a product needs both factors); a key that does not
-vary over the flights offering a coefficient offers it no candidate, nor does a
-function the flights' conditions cannot tell from those before it.
+variance of the richest candidate model. Models respect hierarchy (``P_2(u)``
+needs ``P_1(u)``, a product both factors): a candidate enters with the factors
+it lacks, on its own partial F and theirs together (Bonferroni over such steps),
+so an effect of Mach that reverses with alpha enters where Mach alone explains
+nothing. A key that does not vary over the flights offering a coefficient
+offers it no candidate, nor does a function the flights' conditions cannot tell
+from those before it.
 
 A band drawn from the selected structure alone is conditional on a choice
 made from the same data, and narrower than its error (a curvature the F test
