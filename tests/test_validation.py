@@ -220,3 +220,48 @@ def test_validate_refuses_two_sample_record():
 def test_validate_outputs_as_one_name():
     model, data = catalog.short_period(), catalog.short_period_flight(seed=0)
     assert validate(model, data, outputs="q").output_names == ("q",)
+
+
+def _ar1_noise(rng: np.random.Generator, n: int, phi: float) -> np.ndarray:
+    w = rng.standard_normal(n)
+    e = np.empty(n)
+    e[0] = w[0]
+    for k in range(1, n):
+        e[k] = phi * e[k - 1] + np.sqrt(1.0 - phi**2) * w[k]
+    return e
+
+
+def _input_correlated_count(phi: float, gain: float, seeds: int) -> int:
+    # the exact model y = a u flown with a 2 s doublet at 50 Hz; the residual is
+    # gain * (input 5 samples earlier) + 0.05 * AR(1) noise independent of the input
+    def h(t, x, u, p):
+        return np.array([p["a"] * u[0]])
+
+    from aeroid import Model
+
+    m = Model(states=[], controls=["u"], parameters={"a": 1.0}, outputs=["y"], measurement=h)
+    t = np.arange(1000) * 0.02
+    u = catalog.doublet(t, start=2.0, width=2.0, amplitude=1.0)
+    lagged = np.concatenate([np.zeros(5), u[:-5]])
+    hits = 0
+    for s in range(seeds):
+        e = gain * lagged + 0.05 * _ar1_noise(np.random.default_rng(s), t.size, phi)
+        v = validate(m, FlightData(t, {"u": u, "y": u + e}), {"a": 1.0})
+        hits += v.metrics["y"].input_correlated
+    return hits
+
+
+def test_input_correlation_false_alarm_rate_with_coloured_residuals():
+    # Residuals independent of the input: the bound is a 5 % test, so over 200 seeds the
+    # count is at most Binomial(200, 0.05): mean 10, sd 3.1; allow 3 sd above. Before
+    # the residuals were prewhitened, AR(1) 0.9 residuals against a doublet were flagged
+    # in 151 of 200 seeds (Bartlett: the cross-correlation's variance is then ~19/N).
+    limit = 200 * 0.05 + 3 * np.sqrt(200 * 0.05 * 0.95)
+    assert _input_correlated_count(0.9, 0.0, 200) <= limit
+    assert _input_correlated_count(0.0, 0.0, 200) <= limit
+
+
+def test_input_correlation_still_flags_a_true_relation_in_coloured_residuals():
+    # residual = 0.3 * lagged input + AR(1) 0.9 noise, or white noise: flagged every time
+    assert _input_correlated_count(0.9, 0.3, 20) == 20
+    assert _input_correlated_count(0.0, 0.3, 20) == 20
