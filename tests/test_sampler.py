@@ -329,10 +329,11 @@ def test_bad_ensembles_and_log_prob() -> None:
         ensemble_sampler(gauss, np.zeros((7, 2)), 10)
     with pytest.raises(InferenceError, match="shape"):
         ensemble_sampler(gauss, np.zeros(8), 10)
+    spread = np.random.default_rng(0).standard_normal((8, 2))
     with pytest.raises(InferenceError, match="finite log-probability"):
-        ensemble_sampler(lambda t: np.full(t.shape[0], -np.inf), np.ones((8, 2)), 10)
+        ensemble_sampler(lambda t: np.full(t.shape[0], -np.inf), spread, 10)
     with pytest.raises(InferenceError, match="log_prob returned shape"):
-        ensemble_sampler(lambda t: np.zeros((t.shape[0], 2)), np.ones((8, 2)), 10)
+        ensemble_sampler(lambda t: np.zeros((t.shape[0], 2)), spread, 10)
     with pytest.raises(InferenceError, match="shape"):
         autocorrelation_time(np.zeros((2, 2, 2, 2)))
     with pytest.raises(InferenceError, match="NaN"):
@@ -357,3 +358,43 @@ def test_a_log_prob_that_raises_or_returns_text_is_named() -> None:
         ensemble_sampler(boom, start, 10, seed=1)
     with pytest.raises(InferenceError, match=r"log_prob raised ValueError"):
         ensemble_sampler(lambda theta: ["x"] * len(theta), start, 10, seed=1)
+
+
+@pytest.mark.parametrize("move", ["stretch", "de", "demcz"])
+def test_a_start_without_spread_in_a_direction_is_refused(move: str) -> None:
+    # the moves only move along differences of walkers: a coordinate where every walker
+    # starts alike would keep sd 0 for ever (it did, at acceptance 0.56-0.74)
+    start = np.random.default_rng(0).standard_normal((8, 2))
+    start[:, 1] = 0.5
+    with pytest.raises(InferenceError, match=r"no spread in coordinate\(s\) \[1\]"):
+        ensemble_sampler(gauss, start, 50, seed=0, move=move)
+    with pytest.raises(InferenceError, match=r"no spread in coordinate\(s\) \[0, 1\]"):
+        ensemble_sampler(gauss, np.ones((8, 2)), 50, seed=0, move=move)
+    # walkers on a line through the plane span one direction only
+    line = np.random.default_rng(1).standard_normal((8, 1)) * np.array([[1.0, -2.0]])
+    with pytest.raises(InferenceError, match=r"coordinates \[0, 1\] .* linearly dependent"):
+        ensemble_sampler(gauss, line + MU, 50, seed=0, move=move)
+    stored = ChainState(start, gauss(start), 0, 1, ())
+    with pytest.raises(InferenceError, match="no spread"):
+        ensemble_sampler(gauss, stored, 50, move=move)
+
+
+@pytest.mark.parametrize("move", ["stretch", "de", "demcz"])
+def test_continuing_a_state_with_another_log_prob_rescores_it(move: str) -> None:
+    # the same density normalised differently: the stored values belong to the old
+    # function, and kept, no proposal was ever accepted (acceptance 0 over 200 steps)
+    start = MU + 0.1 * np.random.default_rng(9).standard_normal((16, 2))
+    first = ensemble_sampler(gauss, start, 100, seed=1, move=move)
+
+    def shifted(theta: np.ndarray) -> np.ndarray:
+        return gauss(theta) - 1000.0
+
+    second = ensemble_sampler(shifted, first.state, 200, move=move)
+    np.testing.assert_allclose(
+        second.log_prob, shifted(second.chain.reshape(-1, 2)).reshape(200, 16)
+    )
+    assert second.acceptance_fraction.mean() > 0.2
+    # the walkers' moves compare differences of log-probabilities: a constant shift
+    # leaves the trajectories as they were
+    same = ensemble_sampler(gauss, first.state, 200, move=move)
+    np.testing.assert_allclose(second.chain, same.chain, rtol=0, atol=1e-9)

@@ -59,11 +59,11 @@ from .sampler import (
     ChainState,
     SamplerRun,
     _identity,
+    _sample,
     _stream,
     autocorrelation_time,
     check_walkers,
     effective_sample_size,
-    ensemble_sampler,
     seed_sequence,
     split_r_hat,
 )
@@ -233,7 +233,8 @@ def _run(
             )
         start = ChainState(x, lp, 0, entropy, key)
         seed = None
-    run = ensemble_sampler(
+    # the start's log-probabilities were just scored (or checked, continuing) on `post`
+    run = _sample(
         post,
         start,
         n_steps,
@@ -243,6 +244,7 @@ def _run(
         burn_in=burn_in,
         thin=thin,
         progress=progress,
+        rescore=False,
     )
     flat = run.chain.reshape(-1, len(post.names))
     best = flat[int(np.argmax(run.log_prob.reshape(-1)))]

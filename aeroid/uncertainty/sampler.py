@@ -39,6 +39,11 @@ moves, all unchanged by any linear reparameterisation:
   (tests/test_sampler.py). It needs a burn-in that reaches the target's
   bulk: the points of its second half stay in the archive.
 
+The moves only move along differences of walkers, so the start must span every
+direction: a coordinate in which every walker starts at the same value would never
+move, and such a start is refused (ter Braak's DE-MC adds a small random term
+instead; the walkers' spread here is the proposal's only scale).
+
 Randomness and resuming
 -----------------------
 The random numbers of sampler step ``k`` (0-based, counted from the start of
@@ -48,7 +53,9 @@ STEP_TAG, k)))``, where ``entropy`` and ``key`` identify the chain. The final
 seed identity and the ``"demcz"`` archive as plain arrays and integers.
 Sampling on from a stored state therefore reproduces, bit for bit, the walker trajectories of one
 uninterrupted run with the same seed, provided the log-probability function
-returns the same values (same model, data and options). The *kept* samples of
+returns the same values (same model, data and options): a stored state's walkers
+are rescored on resuming, and their stored values are kept where the function gives
+them again, else replaced by the new ones. The *kept* samples of
 the two pieces concatenate to those of the long run when the first piece's
 ``n_steps - burn_in`` is a multiple of ``thin`` and the second uses
 ``burn_in=0``.
@@ -302,8 +309,14 @@ def ensemble_sampler(
         values reject the point.
     start : array_like, shape (n_walkers, n_dim), or ChainState
         Initial walker positions (scored with `log_prob` first), or the
-        state a previous run ended in. With a state and ``seed=None`` the
-        run continues that chain's random stream exactly.
+        state a previous run ended in. The walkers must span every
+        direction (no coordinate without spread, no walkers on a line or
+        plane): the moves only move along differences of walkers. A state's
+        walkers are rescored with `log_prob` (one call per half-ensemble):
+        where `log_prob` gives their stored log-probabilities (to a relative
+        1e-8) those are kept and, with ``seed=None``, the run continues that
+        chain exactly; another function (more data, a corrected likelihood)
+        continues from the same positions under the new one.
     n_steps : int
         Number of ensemble steps (each moves every walker once).
     seed : int or SeedSequence, optional
@@ -330,8 +343,39 @@ def ensemble_sampler(
     Raises
     ------
     InferenceError
-        Invalid arguments, or no walker with a finite log-probability at the start.
+        Invalid arguments, walkers that do not span every direction (the
+        message names the coordinates without spread), or no walker with a
+        finite log-probability at the start.
     """
+    return _sample(
+        log_prob,
+        start,
+        n_steps,
+        seed=seed,
+        stretch=stretch,
+        burn_in=burn_in,
+        thin=thin,
+        progress=progress,
+        move=move,
+        rescore=True,
+    )
+
+
+def _sample(
+    log_prob: LogProb,
+    start: ArrayLike | ChainState,
+    n_steps: int,
+    *,
+    seed: int | np.random.SeedSequence | None,
+    stretch: float,
+    burn_in: int,
+    thin: int,
+    progress: bool,
+    move: str,
+    rescore: bool,
+) -> SamplerRun:
+    """`ensemble_sampler`; ``rescore=False`` takes a state's log-probabilities as they
+    are, for a caller that has just computed or checked them with this `log_prob`."""
     n_steps = _check_int("n_steps", n_steps, 1)
     burn_in = _check_int("burn_in", burn_in, 0)
     thin = _check_int("thin", thin, 1)
@@ -345,11 +389,11 @@ def ensemble_sampler(
     if move not in MOVES:
         raise InferenceError(f"move: expected one of {list(MOVES)}, got {move!r}")
 
-    lp: FloatArray | None = None
+    stored: FloatArray | None = None
     archive: FloatArray | None = None
     if isinstance(start, ChainState):
         x = np.array(start.positions, dtype=np.float64)
-        lp = np.array(start.log_prob, dtype=np.float64)
+        stored = np.array(start.log_prob, dtype=np.float64)
         if start.archive is not None and start.archive.shape[0] >= 2:
             archive = np.array(start.archive, dtype=np.float64)
         if seed is None:
@@ -369,12 +413,20 @@ def ensemble_sampler(
         step0 = 0
     n_walkers, n_dim = x.shape
     check_walkers(n_walkers, n_dim)
+    _check_spread(x)
     half = n_walkers // 2
-    if lp is None:
+    if stored is not None and not rescore:
+        lp = stored
+    else:
+        # scored in the batches the moves score (halves, or all walkers for "demcz")
         if move == "demcz":
             lp = _score(log_prob, x)
         else:
             lp = np.concatenate([_score(log_prob, x[:half]), _score(log_prob, x[half:])])
+        if stored is not None and _same_scores(lp, stored):
+            # the function still gives the stored values: keep them bit for bit, so that
+            # the continuation equals one uninterrupted run; else the rescored values hold
+            lp = stored
     if not np.any(np.isfinite(lp)):
         raise InferenceError(
             "no walker starts at a point with finite log-probability (every start point "
@@ -436,6 +488,42 @@ def ensemble_sampler(
     kept_archive = grow.rows() if move == "demcz" else None
     state = ChainState(x, lp, step0 + n_steps, entropy, key, kept_archive)
     return SamplerRun(chain, chain_lp, accepted, n_steps, burn_in, thin, a, state, move)
+
+
+def _same_scores(fresh: FloatArray, stored: FloatArray) -> bool:
+    """Whether rescored log-probabilities are the stored ones (to rounding; a batch of
+    another composition may round differently)."""
+    both_out = np.isneginf(fresh) & np.isneginf(stored)
+    return bool(np.all(np.isclose(fresh, stored, rtol=1e-8, atol=1e-8) | both_out))
+
+
+# Walkers whose spread, each coordinate scaled to unit spread, has a singular value below
+# this fraction of the largest lie on a subspace (to rounding).
+_FLAT_SPREAD = 1e-10
+
+
+def _check_spread(x: FloatArray) -> None:
+    """Refuse walkers that do not span every direction: the stretch and
+    differential-evolution moves only move along differences of walkers, so a
+    direction without spread would never be explored (emcee refuses such starts)."""
+    dev = x - x.mean(axis=0)
+    scale = np.sqrt(np.mean(dev**2, axis=0))
+    flat = np.flatnonzero(~(scale > 0.0))
+    if flat.size:
+        raise InferenceError(
+            f"start: the walkers have no spread in coordinate(s) {flat.tolist()} (0-based); "
+            "the ensemble moves only move along differences of walkers and would never "
+            "explore them: start from a ball of distinct points"
+        )
+    _, sv, vt = np.linalg.svd(dev / scale, full_matrices=False)
+    if sv[-1] < _FLAT_SPREAD * sv[0]:
+        null = np.abs(vt[-1])
+        tied = np.flatnonzero(null > 0.1 * null.max()).tolist()
+        raise InferenceError(
+            f"start: the walkers lie on a subspace: coordinates {tied} (0-based) are "
+            "linearly dependent across the walkers, and the ensemble moves would never "
+            "leave that subspace: start from a ball of points in general position"
+        )
 
 
 class _Archive:
