@@ -304,6 +304,20 @@ def test_convergence_rule_on_known_chains() -> None:
         combine_ensembles([run(iid), de])
 
 
+def test_continued_chain_refuses_another_move() -> None:
+    model, data, priors = ramp_model(), ramp_data(1), {"k": Normal(0.5, 0.4)}
+    kw: dict[str, Any] = {"noise": {"y": SIGMA}, "n_walkers": 8}
+    first = quiet_infer(model, data, priors, n_steps=30, seed=5, **kw)
+    assert first.move == "de"
+    with pytest.raises(InferenceError, match="move: the stored chain was sampled with move 'de'"):
+        quiet_infer(model, data, priors, n_steps=10, initial=first, move="stretch", **kw)
+    # naming the stored move is the same as leaving it out
+    same = quiet_infer(model, data, priors, n_steps=10, initial=first, move="de", **kw)
+    left = quiet_infer(model, data, priors, n_steps=10, initial=first, **kw)
+    assert same.move == "de"
+    np.testing.assert_array_equal(same.samples, left.samples)
+
+
 def test_initial_from_identification_result() -> None:
     from aeroid.estimation.identification import IdentificationResult
 

@@ -184,8 +184,13 @@ def _run(
     n_steps = _check_count("n_steps", n_steps, 1)
     thin = _check_count("thin", thin, 1)
     resume = isinstance(initial, InferenceResult)
-    if move is None:
+    if resume and move is not None and move != initial.move:
         # a continued chain keeps its move, so that it equals one longer run
+        raise InferenceError(
+            f"move: the stored chain was sampled with move {initial.move!r}, got {move!r}; "
+            "a continued chain keeps its move (leave move out to continue it)"
+        )
+    if move is None:
         move = initial.move if resume else _DEFAULT_MOVE
     if burn_in is None:
         burn_in = 0 if resume else n_steps // 4
@@ -485,7 +490,8 @@ def infer(
         autocorrelation time is several times shorter than the stretch
         move's (`aeroid.uncertainty.sampler`), so 2000 steps converge where
         the stretch move needs several times more. A continued chain
-        (``initial=`` an `InferenceResult`) keeps the move it was sampled with.
+        (``initial=`` an `InferenceResult`) keeps the move it was sampled with:
+        leave `move` out (or give that move) to continue it.
 
     Returns
     -------
@@ -496,6 +502,7 @@ def infer(
     InferenceError
         Bad priors, names, noise or options (among them text or a bool where
         a number or a bool is expected, invalid `simulate_options`); a chain
+        continued with another move, walker count or parameters; a chain
         or a walker batch too large to hold in memory; no walker with a finite
         posterior density at the start; ``backend="jax"`` with a simulator.
     ChannelError
