@@ -304,6 +304,38 @@ def test_convergence_rule_on_known_chains() -> None:
         combine_ensembles([run(iid), de])
 
 
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ({"noise": {"y": 1.0}}, "noise"),
+        ({"noise_parameters": ("a",)}, "noise"),
+        ({"priors": {"a": "Normal(5, 0.01)"}}, "priors"),
+        ({"fixed": {"b": 2.0}}, "fixed parameters"),
+        ({"backend": "jax"}, "backend"),
+        ({"model_name": "other"}, "model"),
+    ],
+)
+def test_combine_ensembles_refuses_ensembles_of_other_options(
+    change: dict[str, Any], named: str
+) -> None:
+    # the same chains, recorded as sampled with another noise, prior, ...: pooling them
+    # would give a posterior of no one problem
+    from aeroid import ChainState, EnsembleRun, SamplerRun
+
+    chain = np.random.default_rng(2).standard_normal((50, 8, 1))
+    state = ChainState(chain[-1], np.zeros(8), 50, 1, ())
+    sampler = SamplerRun(chain, np.zeros((50, 8)), np.full(8, 25), 50, 0, 1, 2.0, state)
+    kept = EnsembleRun(
+        0, ("a",), sampler, {"b": 1.0}, (), ("y",), {"y": 0.1}, {"a": "N"}, "numpy", "m"
+    )
+    other = dataclasses.replace(kept, ensemble=1, **change)
+    with pytest.raises(InferenceError, match=f"ensemble 1 differs from ensemble 0 in {named}"):
+        combine_ensembles([kept, other])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        assert combine_ensembles([kept, dataclasses.replace(kept, ensemble=1)]).n_ensembles == 2
+
+
 def test_continued_chain_refuses_another_move() -> None:
     model, data, priors = ramp_model(), ramp_data(1), {"k": Normal(0.5, 0.4)}
     kw: dict[str, Any] = {"noise": {"y": SIGMA}, "n_walkers": 8}

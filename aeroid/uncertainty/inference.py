@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -578,6 +578,21 @@ def _residual_colour(post: _Posterior, values: Mapping[str, float]) -> tuple[dic
     return dict(zip(post.output_names, rho.tolist(), strict=True)), int(res.shape[0])
 
 
+# What two ensembles of one problem share; `_combine` names every entry that differs.
+_PROBLEM_KEYS: dict[str, Callable[[EnsembleRun], Any]] = {
+    "parameters": lambda r: r.parameter_names,
+    "walkers": lambda r: r.sampler.chain.shape,
+    "steps": lambda r: (r.sampler.n_steps, r.sampler.burn_in, r.sampler.thin),
+    "move": lambda r: (r.sampler.move, r.sampler.stretch),
+    "outputs": lambda r: r.output_names,
+    "noise": lambda r: (r.noise_parameters, dict(r.noise)),
+    "priors": lambda r: dict(r.priors),
+    "fixed parameters": lambda r: dict(r.fixed),
+    "backend": lambda r: r.backend,
+    "model": lambda r: r.model_name,
+}
+
+
 def combine_ensembles(runs: Sequence[EnsembleRun], *, warn: bool = True) -> InferenceResult:
     """Pool ensembles of one problem into an `InferenceResult`.
 
@@ -612,17 +627,11 @@ def _combine(runs: Sequence[EnsembleRun], *, stacklevel: int, warn: bool = True)
     if len(set(index)) != len(index):
         raise InferenceError(f"runs: ensemble indices repeat: {index}")
     for r in runs[1:]:
-        if (
-            r.parameter_names != first.parameter_names
-            or r.sampler.chain.shape != first.sampler.chain.shape
-            or (r.sampler.n_steps, r.sampler.burn_in, r.sampler.thin)
-            != (first.sampler.n_steps, first.sampler.burn_in, first.sampler.thin)
-            or r.output_names != first.output_names
-            or r.sampler.move != first.sampler.move
-        ):
+        differ = [what for what, key in _PROBLEM_KEYS.items() if key(r) != key(first)]
+        if differ:
             raise InferenceError(
-                "runs: ensembles differ in parameters, walkers, steps, move or outputs; "
-                "only ensembles of one problem can be combined"
+                f"runs: ensemble {r.ensemble} differs from ensemble {first.ensemble} in "
+                f"{', '.join(differ)}; only ensembles of one problem and options can be combined"
             )
     names = first.parameter_names
     n_dim = len(names)
