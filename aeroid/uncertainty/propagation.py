@@ -251,7 +251,10 @@ class PropagationBatch:
         ``"covariance"`` or ``"posterior"``, as in `PropagationResult`.
     names : tuple of str
         Component names of a metric with several values; empty for a scalar
-        metric (or when no draw of the batch succeeded).
+        metric (or when no draw of the stream up to the batch's end returned
+        a value). A mapping's keys in the order of the first draw that
+        returned one; a mapping with the same keys in another order is the
+        same metric.
     first_error : str
         What the metric raised or returned at the batch's first failed draw.
     """
@@ -310,6 +313,8 @@ class _Shape:
             got = tuple(out)
             if not got or not all(isinstance(k, str) for k in got):
                 raise ValueError(f"a mapping needs string keys, got {list(out)!r}")
+            if self.names is not None and set(got) == set(self.names):
+                got = self.names  # keyed by name: the same keys in another order, one metric
             value = np.array([float(out[k]) for k in got])
         else:
             if np.iscomplexobj(out):  # a cast would drop the imaginary part
@@ -337,6 +342,22 @@ def _complete(values: FloatArray) -> NDArray[np.bool_]:
     return ok if ok.ndim == 1 else np.all(ok, axis=1)
 
 
+def _learn_shape(shape: _Shape, result: Any, func: Any, stop: int, seed: int) -> None:
+    """Teach `shape` the metric's shape as `propagate` learns it, from the first draw of
+    the whole stream (before `stop`) where the metric returns a value it can read, so
+    that every batch, wherever it starts, counts the same draws as of another shape."""
+    names, _, _, fixed = _source(result)
+    for lo in range(0, stop, BLOCK_SIZE):
+        for row in draw_parameters(result, min(BLOCK_SIZE, stop - lo), seed, lo).tolist():
+            p = dict(fixed)
+            p.update(zip(names, row, strict=True))
+            try:
+                shape.convert(func(p))
+            except Exception:  # a failed draw teaches nothing, as in the batch itself
+                continue
+            return
+
+
 def propagate_batch(
     result: Any,
     func: Callable[[dict[str, float]], Any],
@@ -356,7 +377,11 @@ def propagate_batch(
         ``func(parameters: dict) -> float``, or a sequence or mapping of
         floats (see `propagate`).
     start : int
-        Index of the batch's first draw in the stream of `seed`.
+        Index of the batch's first draw in the stream of `seed`. The metric's
+        shape (a number, or which components) is that of the first draw of
+        the whole stream where it returns a value, as in `propagate`: a
+        batch that starts later first evaluates the metric at draws 0, 1, ...
+        until one returns (usually one extra evaluation).
     n_samples : int
         Draws in the batch (0 allowed).
     seed : int
@@ -390,6 +415,8 @@ def propagate_batch(
     n = draws.shape[0]
     values = np.full(n, np.nan)
     shape = _Shape(func)
+    if n and start:
+        _learn_shape(shape, result, func, start, seed)
     first_error = ""
     from .._progress import progress_bar
 
@@ -501,6 +528,17 @@ def _statistics(
 def _combine(
     batches: Sequence[PropagationBatch], pcts: list[float], stacklevel: int
 ) -> PropagationResult | VectorPropagationResult:
+    if isinstance(batches, (PropagationBatch, str, bytes)) or not hasattr(batches, "__iter__"):
+        raise PropagationError(
+            f"batches: expected a sequence of PropagationBatch, got {type(batches).__name__}"
+        )
+    batches = list(batches)
+    for i, b in enumerate(batches):
+        if not isinstance(b, PropagationBatch):
+            raise PropagationError(
+                f"batches[{i}]: expected a PropagationBatch (from propagate_batch), "
+                f"got {type(b).__name__}"
+            )
     if not batches:
         raise PropagationError("combine_batches needs at least one batch")
     first = batches[0]
@@ -580,6 +618,13 @@ def combine_batches(
     percentiles : sequence of float
         Percentiles to report (``"P2.5"`` etc.).
 
+    Raises
+    ------
+    PropagationError
+        Something other than `PropagationBatch` objects given, batches of
+        different propagations or metrics, gaps or overlaps, or a metric that
+        failed for every draw.
+
     Warns
     -----
     UserWarning
@@ -634,7 +679,10 @@ def propagate(
         ``func(parameters: dict) -> float``; gets fixed and drawn parameters.
         A metric with several values returns a sequence (or 1-D array) of
         floats, whose components are named ``"<func name>[i]"``, or a mapping
-        of names to floats.
+        of names to floats (keyed by name: the same keys in another order
+        are the same components, in the order of the first draw). The first
+        draw that returns a value fixes the shape; draws of another shape
+        count as failed.
     n_samples : int
         Number of draws.
     percentiles : sequence of float
