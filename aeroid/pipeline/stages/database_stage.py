@@ -164,8 +164,9 @@ register_stage(
         # 2: each coefficient weighted by its own variances (aeroid.uncertainty.database notes);
         # 3: each static <C>_0 at the flight's own alpha and beta (_at_condition);
         # 4: random-effects meta-regression, model-averaged Knapp-Hartung bands;
-        # 5: speed terms with their trim-speed reference over the keys
-        "5",
+        # 5: speed terms with their trim-speed reference over the keys; 6: a product
+        # enters with the factors it lacks
+        "6",
         DatabaseOptions,
         "AeroDatabase",
         _run_database,

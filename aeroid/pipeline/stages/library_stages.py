@@ -513,8 +513,9 @@ for _stage in (
         # 2: units the model declares where the record gives none;
         # 3: the prediction of held-out data (`holdout`) in the result; 4: RK4 substeps
         # read along the simulated path too (as every stage that simulates: a model
-        # that stiffens away from its start)
-        "4",
+        # that stiffens away from its start); 5: residuals and inputs prewhitened before
+        # their cross-correlation
+        "5",
         ValidateOptions,
         "ValidationResult",
         _run_validate,
