@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._records import fmt, frozen_array, markdown_table
-from .._stats import chi2_sf, norm_ppf
+from .._stats import chi2_sf, norm_ppf, t_quantile
 from .._threads import CALLER_STACKLEVEL, small_blas
 from .._value_checks import check_distinct
 from ..errors import IdentificationError
@@ -70,7 +70,7 @@ class OutputMetrics:
         Mean residual.
     bias_ci : tuple of float
         Confidence interval of the bias, widened for residual autocorrelation
-        through an effective sample size.
+        through an effective sample size (Student's t on its degrees of freedom).
     fit : float
         Normalised fit in percent, ``100 (1 - |e| / |y - mean(y)|)``.
     ljung_box_q, ljung_box_p : float
@@ -203,6 +203,19 @@ def _effective_samples(e: FloatArray) -> float:
     r1 = float(np.clip(_autocorrelation(e, 1)[1], -0.99, 0.99))
     tau = max((1.0 + r1) / (1.0 - r1), 1.0)
     return max(n / tau, 2.0)
+
+
+def _mean_halfwidth(e: FloatArray, n_eff: float, level: float) -> float:
+    """Half-width of the `level` interval on the mean of the autocorrelated `e` with
+    `n_eff` effective samples: the variance from the sum of squares about the mean,
+    whose expectation is ``s^2 (n - n / n_eff)`` (the mean took ``1 / n_eff`` of it, not
+    ``1 / n``), over ``n_eff``, and Student's t on ``n_eff - 1`` degrees of freedom
+    (Zwiers & von Storch 1995): a strongly coloured record holds few samples' worth."""
+    n = e.size
+    ss = float(np.sum((e - e.mean()) ** 2))
+    var = ss / max(n - n / n_eff, 1.0)
+    q = float(t_quantile(np.array([max(n_eff - 1.0, 1.0)]), level)[0])
+    return q * float(np.sqrt(var / n_eff))
 
 
 # Box & Jenkins prewhiten before testing residual-input cross-correlations: the sample
@@ -405,14 +418,13 @@ def validate(
     # The maximum over 2L+1 lags is tested, so the 5 % level is split across them
     # (Bonferroni); a per-lag 1.96/sqrt(N) would flag a correct model most of the time.
     z_cross = norm_ppf(1 - 0.025 / (2 * lags + 1))
-    z = norm_ppf(0.5 + level / 2)
     metrics: dict[str, OutputMetrics] = {}
     for j, o in enumerate(chosen):
         e = resid[:, j]
         y = y_meas[:, j]
         bias = float(e.mean())
         n_eff = _effective_samples(e)
-        half = z * float(e.std(ddof=1)) / np.sqrt(n_eff)
+        half = _mean_halfwidth(e, n_eff, level)
         spread = float(np.linalg.norm(y - y.mean()))
         fit = 100.0 * (1.0 - float(np.linalg.norm(e)) / spread) if spread > 0 else float("nan")
         q, pval = ljung_box(e, lags)

@@ -514,7 +514,7 @@ for _stage in (
         # 3: the prediction of held-out data (`holdout`) in the result; 4: RK4 substeps
         # read along the simulated path too (as every stage that simulates: a model
         # that stiffens away from its start); 5: residuals and inputs prewhitened before
-        # their cross-correlation
+        # their cross-correlation, the bias interval on Student's t
         "5",
         ValidateOptions,
         "ValidationResult",
