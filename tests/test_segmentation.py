@@ -82,6 +82,27 @@ def test_a_noise_free_input_on_a_drifting_trim():
         np.testing.assert_allclose(_edges(result), [(19.0, 22.98)], atol=1e-9)
 
 
+def test_a_noise_free_input_busy_with_manoeuvres_and_a_flickering_one():
+    # three doublets fill a fifth of a noise-free record: the floor was the whole
+    # record's RMS (the doublets' own), so none cleared five floors; a quantised input
+    # that flickers by a step on 40 % of its samples met the same fallback
+    t = np.arange(0, 30, 0.02)
+    u = np.zeros_like(t)
+    for start in (1.0, 11.0, 21.0):
+        u += 0.05 * ((t >= start) & (t < start + 1)) - 0.05 * ((t >= start + 1) & (t < start + 2))
+    result = segment(FlightData(t, {"u": u}), inputs=["u"], margin=0.0)
+    np.testing.assert_allclose(
+        _edges(result), [(1.0, 2.98), (11.0, 12.98), (21.0, 22.98)], atol=1e-9
+    )
+    t = np.arange(0, 60, 0.02)
+    u = np.zeros_like(t)
+    for start in (10.0, 35.0):
+        u += 0.05 * ((t >= start) & (t < start + 1)) - 0.05 * ((t >= start + 1) & (t < start + 2))
+    flicker = 0.001 * np.random.default_rng(1).choice([-1, 0, 0, 0, 1], size=t.size)
+    result = segment(FlightData(t, {"u": u + flicker}), inputs=["u"], margin=0.0)
+    np.testing.assert_allclose(_edges(result), [(10.0, 11.98), (35.0, 36.98)], atol=1e-9)
+
+
 def _pulses(t: np.ndarray, spans, amplitude: float = 1.0) -> np.ndarray:
     x = np.zeros_like(t)
     for a, b in spans:

@@ -428,9 +428,15 @@ def _running_trim(
 def _floor(d: FloatArray, quiet: NDArray[np.bool_]) -> float:
     """Noise standard deviation of the quiet samples (MAD, else RMS, else a tiny scale)."""
     q = d[quiet] if quiet.any() else d
-    sigma = _MAD_SCALE * float(np.median(np.abs(q - np.median(q))))
+    dev = np.abs(q - np.median(q))
+    sigma = _MAD_SCALE * float(np.median(dev))
     if sigma == 0:
-        sigma = float(np.sqrt(np.mean((q - np.mean(q)) ** 2)))
+        # Over half the samples sit exactly at trim: a commanded or simulated input, or a
+        # quantised one that flickers by a step. The flicker is among the smaller quarter
+        # of the deviations; the manoeuvres, which the quiet set may still hold (nothing
+        # was flagged yet), are not unless they fill a quarter of the record.
+        small = dev[dev <= np.quantile(dev, 0.75)]
+        sigma = float(np.sqrt(np.mean(small**2)))
     if sigma == 0:
         # A noise-free input: any real departure from trim counts.
         sigma = 1e-9 * max(float(np.max(np.abs(d))), 1e-300)
