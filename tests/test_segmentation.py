@@ -103,6 +103,19 @@ def test_a_noise_free_input_busy_with_manoeuvres_and_a_flickering_one():
     np.testing.assert_allclose(_edges(result), [(10.0, 11.98), (35.0, 36.98)], atol=1e-9)
 
 
+def test_a_one_second_doublet_is_not_shorter_than_one_second():
+    # 50 samples at 50 Hz last 1 s; first to last sample is 0.98 s, which the default
+    # min_duration of 1 s dropped without a word
+    t = np.arange(0, 40, 0.02)
+    u = 0.05 * ((t >= 20) & (t < 20.5)) - 0.05 * ((t >= 20.5) & (t < 21.0))
+    u = u + 1e-3 * np.random.default_rng(0).standard_normal(t.size)
+    result = segment(FlightData(t, {"u": u}), inputs=["u"], margin=0.0)
+    np.testing.assert_allclose(_edges(result), [(20.0, 20.98)], atol=1e-9)
+    # a run one sample shorter than the minimum still is
+    short = segment(FlightData(t, {"u": u}), inputs=["u"], margin=0.0, min_duration=1.02)
+    assert short.windows == ()
+
+
 def _pulses(t: np.ndarray, spans, amplitude: float = 1.0) -> np.ndarray:
     x = np.zeros_like(t)
     for a, b in spans:

@@ -522,8 +522,10 @@ def _shape(
     margin: tuple[float, float],
     extent: tuple[float, float],
     reason: Any,
+    step: float = 0.0,
 ) -> tuple[ManeuverWindow, ...]:
-    """Merge close intervals, drop short ones, add margins, clip to the record."""
+    """Merge close intervals, drop short ones, add margins, clip to the record. An
+    interval from its first to its last sample of `step` spans one step more."""
     merged: list[list[Any]] = []
     for a, b, labels in sorted(intervals, key=lambda iv: (iv[0], iv[1])):
         if merged and a - merged[-1][1] < merge_gap:
@@ -533,7 +535,7 @@ def _shape(
             merged.append([a, b, labels])
     out = []
     for a, b, labels in merged:
-        if b - a < min_duration:
+        if b - a + step < min_duration * (1.0 - 1e-9):
             continue
         t0, t1 = max(a - margin[0], extent[0]), min(b + margin[1], extent[1])
         if t1 > t0:
@@ -686,7 +688,9 @@ def segment(
             out.append(InputTrace(name, src.time, src.values, src.unit))
         return tuple(out)
 
-    def shaped(intervals: list[_Interval], reason: Any) -> tuple[ManeuverWindow, ...]:
+    def shaped(
+        intervals: list[_Interval], reason: Any, step: float = 0.0
+    ) -> tuple[ManeuverWindow, ...]:
         return _shape(
             intervals,
             merge_gap=gap,
@@ -694,6 +698,7 @@ def segment(
             margin=before_after,
             extent=extent,
             reason=reason,
+            step=step,
         )
 
     if way == "time":
@@ -734,7 +739,10 @@ def segment(
         )
         intervals.extend(found_here)
         traces.append(trace)
-    found = shaped(intervals, lambda labels: "excitation in " + ", ".join(sorted(labels)))
+    # an excited run of N samples lasts N steps: a 1 s doublet of 50 samples at 50 Hz
+    # is not shorter than a 1 s min_duration
+    step = min(float(np.median(np.diff(tr.time))) for tr in traces) if traces else 0.0
+    found = shaped(intervals, lambda labels: "excitation in " + ", ".join(sorted(labels)), step)
     return SegmentationResult(found, way, tuple(traces), extent, settings)
 
 
