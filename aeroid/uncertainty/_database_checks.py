@@ -4,6 +4,7 @@ at fault, and the small statistics its fit and bands share."""
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -117,6 +118,55 @@ def database_options(
     return list(flights), level, degree, entry
 
 
+def _few(names: Sequence[str], most: int = 8) -> str:
+    """Names joined with commas, the first `most` of them and a count of the rest."""
+    shown = ", ".join(names[:most])
+    return shown + (f", ... {len(names) - most} more" if len(names) > most else "")
+
+
+def key_list(keys: Sequence[str]) -> str:
+    """A database's condition keys for a message or a summary."""
+    return ", ".join(keys) or "none (each term a constant)"
+
+
+def keys_and_terms(
+    fit: Sequence[Any], keys: Sequence[str] | None, terms: Sequence[str] | None
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """`aerodynamic_database`'s keys and terms over the fitted flights (defaults: the
+    keys every flight gives, every name a flight estimates).
+
+    A key some flights lack leaves the default keys with a warning naming them (the
+    database is then constant in it, which a misspelt key on one flight would do
+    silently); no term to fit is an `IdentificationError`.
+    """
+    if keys is None:
+        given = list(dict.fromkeys(k for f in fit for k in f.condition))
+        keys = [k for k in given if all(k in f.condition for f in fit)]
+        for k in given:
+            if k not in keys:
+                lacking = [f.name for f in fit if k not in f.condition]
+                warnings.warn(
+                    f"condition key {k!r} is left out of the database: flight(s) "
+                    f"{_few(lacking)} lack it (the default keys are those every flight "
+                    f"gives); give it to every flight, or name the keys with keys=",
+                    UserWarning,
+                    stacklevel=3,
+                )
+    if terms is None:
+        terms = list(dict.fromkeys(t for f in fit for t in f.estimates))
+        if not terms:
+            raise IdentificationError(
+                "no flight estimates a coefficient (C<L,D,Y,l,m,n>_..., every flight's "
+                "estimates are empty): there is nothing to fit; give the flights' "
+                "coefficient estimates, and name the ones to fit with terms="
+            )
+    elif isinstance(terms, str) or not terms:
+        raise IdentificationError(
+            f"terms must name at least one coefficient (a sequence of names), got {terms!r}"
+        )
+    return tuple(keys), tuple(str(t) for t in terms)
+
+
 def condition_rows(
     term: str, keys: Sequence[str], condition: Mapping[str, ArrayLike] | ArrayLike
 ) -> FloatArray:
@@ -129,7 +179,8 @@ def condition_rows(
                 f"(the database uses {', '.join(keys)})"
             )
         cols = [_finite_values(term, k, condition[k]) for k in keys]
-        x = np.stack(np.broadcast_arrays(*cols), axis=-1)
+        # a database without keys is a constant per term: one row of no columns
+        x = np.stack(np.broadcast_arrays(*cols), axis=-1) if cols else np.empty((1, 0))
     else:
         x = np.atleast_2d(_finite_values(term, "rows", condition))
     if x.shape[-1] != len(keys):

@@ -138,6 +138,8 @@ from ._database_checks import (
     diagonal,
     flight_values,
     grid_points,
+    key_list,
+    keys_and_terms,
     t_quantile,
 )
 from ._database_fit import (
@@ -552,7 +554,7 @@ class AeroDatabase:
             )
         head = (
             f"Aerodynamic database: {len(self.terms)} coefficients over {len(self.flights)} flights, "
-            f"condition keys {', '.join(self.keys)}\n\n"
+            f"condition keys {key_list(self.keys)}\n\n"
         )
         out = head + markdown_table(["term", "structure", "χ²", "dof", "scale", "τ"], rows)
         if self.held_out:
@@ -565,7 +567,7 @@ class AeroDatabase:
         if ref is not None:
             out += (
                 f"\n\nSpeed terms ({', '.join(self.speed_terms)}) fly as C_V (V/V0 − 1), V0 the "
-                f"trim speed over {', '.join(self.keys)}: (V̄/V0)² with V̄ {fmt(ref.scale)} m/s "
+                f"trim speed over {key_list(self.keys)}: (V̄/V0)² with V̄ {fmt(ref.scale)} m/s "
                 f"= {' + '.join(ref.structure)}, {fmt(ref.rms)} m/s rms about the flights' "
                 "trim speeds"
             )
@@ -634,7 +636,7 @@ def aerodynamic_database(
         Coefficients to model (default: every name any flight estimates).
     keys : sequence of str, optional
         Condition keys of the model (default: those every flight gives, in the
-        first flight's order).
+        first flight's order); none makes each term a constant.
     max_degree : int
         Highest total degree of the candidate Legendre products.
     f_in : float
@@ -657,8 +659,14 @@ def aerodynamic_database(
         A flight lacks a condition key, its covariance does not match, or it
         estimates a speed term (``Cm_V``) but gives no trim speed.
     IdentificationError
-        No flight excites a term, or the conditions cannot identify a forced
-        structure (both named).
+        No term to fit, no flight excites a term, or the conditions cannot
+        identify a forced structure (named).
+
+    Warns
+    -----
+    UserWarning
+        A condition key some flights lack, left out of the default `keys` (named,
+        with those flights).
     """
     flights, confidence, max_degree, f_in = database_options(
         flights, FlightCoefficients, confidence, max_degree, f_in
@@ -676,15 +684,7 @@ def aerodynamic_database(
     for f in fit:
         if not f.condition:
             raise DataFormatError(f"flight {f.name!r} has no condition")
-    if keys is None:
-        keys = [k for k in fit[0].condition if all(k in f.condition for f in fit)]
-    keys = tuple(keys)
-    if terms is None:
-        seen: dict[str, None] = {}
-        for f in fit:
-            seen.update(dict.fromkeys(f.estimates))
-        terms = list(seen)
-    terms = tuple(terms)
+    keys, terms = keys_and_terms(fit, keys, terms)
     x, z, covs = _flight_data(fit, terms, keys)
     lo, hi = x.min(axis=0), x.max(axis=0)
     centres = {k: float(0.5 * (lo[i] + hi[i])) for i, k in enumerate(keys)}

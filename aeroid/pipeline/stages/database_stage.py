@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import Field
 
-from ...errors import AeroidError, DataFormatError, PipelineError
+from ...errors import AeroidError, ConfigError, DataFormatError, PipelineError
 from ...support import CONDITION_NAMES
 from ..running.parallel import forked_map
 from . import FIGURE_IMPORTS, Stage, StageContext, register_stage
@@ -94,6 +94,7 @@ def _run_database(ctx: StageContext) -> Any:
 
     opts = ctx.options
     flights = []
+    seen: dict[str, None] = {}  # every identified parameter, for the message
     for i, name in enumerate(ctx.flights):
         ident = ctx.brief("identification", i)
         if ident is None or name in ctx.failures:
@@ -102,6 +103,7 @@ def _run_database(ctx: StageContext) -> Any:
         wanted = opts.keys or [k for k in CONDITION_KEYS if k in cond]
         condition = {k: cond[k] for k in wanted if k in cond}
         names = ident["names"]
+        seen.update(dict.fromkeys(names))
         keep = [j for j, n in enumerate(names) if opts.terms is None and _COEFFICIENT.match(n)]
         if opts.terms is not None:
             keep = [j for j, n in enumerate(names) if n in opts.terms]
@@ -117,7 +119,12 @@ def _run_database(ctx: StageContext) -> Any:
         flights.append(FlightCoefficients(name, condition, est, sub, v0))
     if not flights:
         raise PipelineError("database: no flight was identified; there is nothing to fit")
+    if opts.terms is None and not any(f.estimates for f in flights):
+        raise ConfigError(_no_coefficient(list(seen)))
     keys = opts.keys
+    if keys is not None and not keys:
+        # (the library's keyless database is a constant per term; the band plots need a key)
+        raise ConfigError("database: stages.database.keys is empty; name a condition key")
     if keys is None:
         present = {k for f in flights for k in f.condition}
         keys = [k for k in CONDITION_KEYS if k in present]
@@ -128,6 +135,17 @@ def _run_database(ctx: StageContext) -> Any:
             )
     kw = opts.library_kwargs(exclude=("keys", "held_out", "replay"))
     return aerodynamic_database(flights, keys=keys, held_out=tuple(opts.held_out or ()), **kw)
+
+
+def _no_coefficient(names: list[str]) -> str:
+    """Why the default terms select nothing: the flights' parameters, none named as a
+    coefficient (a model of dimensional derivatives, short_period's ``M_alpha``)."""
+    listed = ", ".join(names[:12]) + (f", ... {len(names) - 12} more" if len(names) > 12 else "")
+    return (
+        "database: no identified parameter is a coefficient named C<L,D,Y,l,m,n>_... "
+        f"(the flights identify {listed or 'no parameter'}); name the terms to "
+        "tabulate in stages.database.terms"
+    )
 
 
 def _at_condition(
