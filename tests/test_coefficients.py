@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeroid import ChannelError, DataFormatError, FlightData
+from aeroid import ChannelError, DataFormatError, FlightData, ModelDefinitionError
 from aeroid.models.aircraft import AircraftConstants
 from aeroid.models.coefficients import coefficients_from_data
 
@@ -211,3 +211,36 @@ def test_density_and_reference_point_refusals() -> None:
     moments_only = FlightData(T, {k: chans[k] for k in ("V", "p", "q", "r")})
     with pytest.raises(ChannelError, match="moment_reference"):
         coefficients_from_data(moments_only, AC, outputs=["Cm"], moment_reference=(1.0, 0, 0))
+
+
+def test_a_longitudinal_record_gives_cm_without_the_lateral_constants() -> None:
+    # constants without Ixx, Izz and b (a longitudinal model's) and a record without p
+    # and r: Cm = (Iyy q' - T d) / (qbar S cbar), the pitch equation with p = r = 0
+    lon = AircraftConstants(
+        mass=AC.mass, Iyy=AC.Iyy, S=AC.S, cbar=AC.cbar, rho=AC.rho, thrust_offset=0.1
+    )
+    chans, truth = _truth()
+    record = {k: chans[k] for k in ("V", "alpha", "q", "q_dot", "ax", "az", "T")}
+    out = coefficients_from_data(FlightData(T, record), lon, thrust="T")
+    assert {"CL", "CD", "Cm"} <= set(out.names) and not {"Cl", "Cn"} & set(out.names)
+    qbar = 0.5 * AC.rho * chans["V"] ** 2
+    expected = (AC.Iyy * chans["q_dot"] - 0.1 * chans["T"]) / (qbar * AC.S * AC.cbar)
+    np.testing.assert_allclose(out["Cm"], expected, rtol=1e-12)
+    np.testing.assert_allclose(out["CL"], truth["CL"], rtol=1e-9, atol=1e-12)
+    # full constants read the same record the same way (its coupling terms are zero)
+    full = coefficients_from_data(FlightData(T, record), AC, outputs=["Cm"])
+    np.testing.assert_allclose(full["Cm"], AC.Iyy * chans["q_dot"] / (qbar * AC.S * AC.cbar))
+
+
+def test_moments_with_roll_and_yaw_rates_name_the_constants_they_lack() -> None:
+    lon = AircraftConstants(mass=AC.mass, Iyy=AC.Iyy, S=AC.S, cbar=AC.cbar, rho=AC.rho)
+    chans, truth = _truth()
+    data = FlightData(T, chans)
+    with pytest.raises(ModelDefinitionError, match=r"Ixx, Izz not given, and Cm needs them"):
+        coefficients_from_data(data, lon, outputs=["CL", "Cm"], thrust="T")
+    with pytest.raises(ModelDefinitionError, match=r"Ixx, Izz, b not given, and Cl, Cn need"):
+        coefficients_from_data(data, lon, outputs=["Cl", "Cn"])
+    # by default every coefficient the channels and the constants allow: the forces
+    out = coefficients_from_data(data, lon, thrust="T")
+    assert not {"Cl", "Cm", "Cn"} & set(out.names)
+    np.testing.assert_allclose(out["CD"], truth["CD"], rtol=1e-9, atol=1e-12)

@@ -25,6 +25,13 @@ centre of gravity also sense ``ω̇ × r + ω × (ω × r)``, which is removed u
 `AircraftConstants.accel_position`. Angular accelerations are taken from the
 data when present (``p_dot``, ``q_dot``, ``r_dot``) and otherwise computed
 with `aeroid.io.smoothing.differentiate`.
+
+A record with neither ``p`` nor ``r`` is longitudinal (wings level): its roll
+and yaw rates and their derivatives are taken as zero, so ``Cm = (Iyy q̇ − T
+d) / (q̄ S c̄)`` needs only ``q`` and constants without ``Ixx``, ``Izz`` or ``b``
+(a longitudinal `AircraftConstants`). With ``p`` and ``r`` the inertial coupling
+of ``Cm`` needs ``Ixx`` and ``Izz``, and ``Cl`` and ``Cn`` need them and ``b``:
+asked for without them, the constants lacking are named.
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ from numpy.typing import NDArray
 
 from .._threads import small_blas
 from .._value_checks import body_position
-from ..errors import ChannelError, DataFormatError
+from ..errors import ChannelError, DataFormatError, ModelDefinitionError
 from ..io.data import FlightData, real_array
 from ..io.smoothing import differentiate
 from .aircraft import AircraftConstants
@@ -56,7 +63,7 @@ _NEEDS: dict[str, tuple[str, ...]] = {
     "CL": ("ax", "az", "alpha"),
     "CD": ("ax", "az", "alpha"),
     "Cl": ("p", "q", "r"),
-    "Cm": ("p", "q", "r"),
+    "Cm": ("q",),  # and p, r unless the record is longitudinal (module notes)
     "Cn": ("p", "q", "r"),
 }
 
@@ -76,6 +83,15 @@ def _series(data: FlightData, value: Any, what: str) -> FloatArray:
     if not np.all(np.isfinite(arr)):
         raise DataFormatError(f"{what}: non-finite value")
     return np.array(arr)
+
+
+def _lacking(constants: AircraftConstants, wanted: Sequence[str], lateral: bool) -> str:
+    """What the constants lack for `wanted` (module notes), or ''."""
+    need = {"Ixx", "Izz", "b"} if {"Cl", "Cn"} & set(wanted) else set()
+    if "Cm" in wanted and lateral:
+        need |= {"Ixx", "Izz"}
+    missing = [n for n in ("Ixx", "Izz", "b") if n in need and np.isnan(getattr(constants, n))]
+    return ", ".join(missing)
 
 
 def _reference_point(value: Any) -> tuple[float, float, float] | None:
@@ -148,6 +164,9 @@ def coefficients_from_data(
     ------
     ChannelError
         A channel an asked-for coefficient needs is missing.
+    ModelDefinitionError
+        An asked-for coefficient needs constants the record lacks (``Ixx``, ``Izz``,
+        ``b``; module notes), named.
     DataFormatError
         Bad option, non-positive airspeed, or an unknown output name.
     """
@@ -167,8 +186,11 @@ def coefficients_from_data(
         if role not in _ROLES:
             raise DataFormatError(f"channels: unknown role {role!r}; roles are {list(_ROLES)}")
         names[role] = str(name)
+    # a record without the roll and yaw rates is longitudinal: p = r = 0 (module notes)
+    lateral = names["p"] in data or names["r"] in data
     if outputs is None:
         wanted = [c for c in _OUTPUTS if all(names[r] in data for r in _NEEDS[c])]
+        wanted = [c for c in wanted if not _lacking(constants, [c], lateral)]
         if not wanted:
             raise ChannelError(
                 "no coefficient can be computed: need ax/ay/az or p, q, r in the data "
@@ -184,6 +206,14 @@ def coefficients_from_data(
             if c not in _NEEDS:
                 raise DataFormatError(f"outputs: unknown coefficient {c!r}; choose from {_OUTPUTS}")
             data.require([names[r] for r in _NEEDS[c]], role=f"channel for {c}")
+        lacking = _lacking(constants, wanted, lateral)
+        if lacking:
+            which = [c for c in wanted if _lacking(constants, [c], lateral)]
+            raise ModelDefinitionError(
+                f"constants: {lacking} not given, and {', '.join(which)} "
+                f"{'needs' if len(which) == 1 else 'need'} them with the roll and yaw rates "
+                "p and r (a longitudinal record, without p and r, gives Cm from Iyy alone)"
+            )
     if method not in ("fourier", "local"):  # refused even where no rate is differentiated
         raise DataFormatError(f"method: expected 'fourier' or 'local', got {method!r}")
     data.require([names["V"]], role="airspeed channel")
@@ -212,18 +242,24 @@ def coefficients_from_data(
     need_rates = moments_wanted or (need_forces and bool(np.any(lever != 0)))
     omega = omega_dot = None
     if need_rates:
-        data.require([names[r] for r in ("p", "q", "r")], role="body rate channel")
-        omega = np.column_stack([data.channels[names[r]] for r in ("p", "q", "r")])
-        derived = [names[r] for r in ("p", "q", "r") if names[r + "_dot"] not in data]
+        rates = ("p", "q", "r") if lateral else ("q",)
+        data.require([names[r] for r in rates], role="body rate channel")
+        derived = [names[r] for r in rates if names[r + "_dot"] not in data]
         if derived:
             deriv = differentiate(data, derived, method=method, suffix="_dot")
-            for r in ("p", "q", "r"):
+            for r in rates:
                 if names[r + "_dot"] not in data:
                     added[names[r + "_dot"]] = np.asarray(deriv.channels[names[r] + "_dot"])
                     units[names[r + "_dot"]] = "rad/s^2"
+        zero = np.zeros(data.n_samples)
+        omega = np.column_stack(
+            [data.channels[names[r]] if r in rates else zero for r in ("p", "q", "r")]
+        )
         omega_dot = np.column_stack(
             [
-                added[names[r + "_dot"]]
+                zero
+                if r not in rates
+                else added[names[r + "_dot"]]
                 if names[r + "_dot"] in added
                 else data.channels[names[r + "_dot"]]
                 for r in ("p", "q", "r")
@@ -268,10 +304,12 @@ def coefficients_from_data(
             if thrust_samples is None:
                 thrust_samples = _series(data, thrust, "thrust")
             pitching = thrust_samples * ac.thrust_offset
+        # the inertial coupling of pitch, absent from a longitudinal record (whose
+        # constants may lack Ixx and Izz: NaN times a zero rate is no zero)
+        coupling = (ac.Ixx - ac.Izz) * p * r + ac.Ixz * (p**2 - r**2) if lateral else 0.0
         moments = {
             "Cl": (ac.Ixx * pd - ac.Ixz * (rd + p * q) + (ac.Izz - ac.Iyy) * q * r) / (qs * ac.b),
-            "Cm": (ac.Iyy * qd + (ac.Ixx - ac.Izz) * p * r + ac.Ixz * (p**2 - r**2) - pitching)
-            / (qs * ac.cbar),
+            "Cm": (ac.Iyy * qd + coupling - pitching) / (qs * ac.cbar),
             "Cn": (ac.Izz * rd - ac.Ixz * (pd - q * r) + (ac.Iyy - ac.Ixx) * p * q) / (qs * ac.b),
         }
         if reference is not None:
