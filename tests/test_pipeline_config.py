@@ -566,6 +566,12 @@ def test_log_options_left_unset_change_no_flight_options_or_keys(tmp_path):
             r"flights\[0\]\.channels\.p\.chanel: unknown key",
         ),
         ("{path: a.ulg, segments: {inputs: [u], thresold: 3}}", r"segments\.thresold: unknown key"),
+        # a flight condition's keys are the one list of aeroid._conditions
+        (
+            "{path: a.csv, condition: {airsped: 50}}",
+            r"flights\[0\]\.condition\.airsped: .*'airspeed'.*did you mean 'airspeed'\?",
+        ),
+        ("{path: a.csv, condition: {Mach: 0.3}}", r"condition\.Mach: .*did you mean 'mach'\?"),
     ],
 )
 def test_log_options_are_validated_with_their_key_path(tmp_path, flight, expected):

@@ -14,6 +14,7 @@ from pydantic import (
     model_validator,
 )
 
+from ...support import CONDITION_NAMES
 from .._options import Options
 
 
@@ -94,6 +95,11 @@ ChannelValue = Annotated[
 ]
 
 
+# a flight condition's keys: the one list of `aeroid._conditions` (a typo is refused
+# with the config, not found after every flight was fitted)
+_ConditionName = Literal[CONDITION_NAMES]  # type: ignore[valid-type]
+
+
 class FileFlights(Options):
     """Flight files: a path or glob (CSV, Parquet, .mat, flight logs) plus loader options.
 
@@ -138,7 +144,7 @@ class FileFlights(Options):
     # engine-only, never loader options: changes deep-merged into the campaign's model
     # mapping (this flight's own trim), and the flight condition for campaign trends
     model: dict[str, Any] | None = None
-    condition: dict[str, float] | None = None
+    condition: dict[_ConditionName, float] | None = None
 
     @field_validator("window", mode="after")
     @classmethod
