@@ -235,8 +235,9 @@ def test_csv_comments_bom_spaces_quotes_and_crlf(tmp_path):
     path = tmp_path / "export.csv"
     body = '# exported by the FTI\n\n# units: s, deg\n"time", Alpha (deg) ,q\r\n0, 1.5,"2"\r\n0.1,1.6 ,2.1\r\n'
     path.write_bytes(b"\xef\xbb\xbf" + body.encode())
-    d = load_flight_test(path)
-    assert d.names == ("Alpha (deg)", "q")
+    with pytest.warns(UserWarning, match=r"line 3: units comment not read \(not JSON"):
+        d = load_flight_test(path)  # the FTI's "# units: s, deg" declares no unit
+    assert d.names == ("Alpha (deg)", "q") and dict(d.units) == {}
     np.testing.assert_array_equal(d.time, [0.0, 0.1])
     np.testing.assert_array_equal(d["Alpha (deg)"], [1.5, 1.6])
     np.testing.assert_array_equal(d["q"], [2.0, 2.1])
@@ -382,8 +383,20 @@ def test_to_csv_round_trips_exactly_and_refuses_unwritable_names(tmp_path):
     assert dict(renamed.units) == {"aoa": "deg"}  # given units win, under the new name
     assert not list(tmp_path.glob("*.part"))
     bad = tmp_path / "bad.csv"
-    bad.write_text("# units: alpha=rad\ntime,alpha\n0,1\n1,2\n")
-    assert dict(load_flight_test(bad).units) == {}  # another tool's comment: no units
+    # another tool's comment, or one cut short or hand edited: no units, and a warning
+    # naming the file and the line (the units would vanish without a word)
+    for line, why in [
+        ("# units: alpha=rad", "not JSON"),
+        ('# note\n# units: {"alpha": "deg"', "not JSON"),
+        ("# units: [1, 2]", "not a JSON object"),
+        ('# units: {"alpha": 5}', "the unit of 'alpha' is not a string"),
+    ]:
+        bad.write_text(line + "\ntime,alpha\n0,1\n1,2\n")
+        at = line.count("\n") + 1
+        with pytest.warns(
+            UserWarning, match=rf"bad.csv: line {at}: units comment not read \({why}"
+        ):
+            assert dict(load_flight_test(bad).units) == {}
     odd = FlightData(np.arange(3.0), {"a,b": np.zeros(3)})
     with pytest.raises(DataFormatError, match=r"'a,b'"):
         odd.to_csv(tmp_path / "g.csv")

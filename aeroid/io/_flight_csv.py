@@ -148,27 +148,44 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
 
 def _csv_units(path: Path, marker: str) -> dict[str, str]:
     """The units a comment line before the header declares (`FlightData.to_csv` writes
-    ``# units: {"alpha": "rad"}``); empty when there is none, or when the comment is not
-    that JSON object (another tool's note). Only the lines before the header are read."""
+    ``# units: {"alpha": "rad"}``); empty when there is none. Only the lines before the
+    header are read.
+
+    A ``# units:`` line that is not that JSON object of names to unit strings (hand
+    edited, cut short, or another tool's note, ``# units: deg, deg/s``) declares
+    nothing, with a warning naming the file and the line: the units would otherwise
+    vanish without a word (deg read as rad).
+    """
     import json
+    import warnings
 
     with open(path, "rb") as f:
+        line_no = 0
         while raw := f.readline(_MAX_HEADER + 1):
+            line_no += 1
             text = raw.decode("utf-8", errors="replace").removeprefix("\ufeff").strip()
             if not text:
                 continue
             if not text.startswith("#"):
                 return {}  # the header: no units declared before it
             if text.startswith(marker):
-                # a comment another tool wrote ("# units: deg, deg/s") is no declaration
                 try:
                     found = json.loads(text[len(marker) :])
-                except ValueError:
-                    return {}
-                ok = isinstance(found, dict) and all(
-                    isinstance(k, str) and isinstance(v, str) for k, v in found.items()
+                    why = "" if isinstance(found, dict) else "not a JSON object"
+                except json.JSONDecodeError as exc:
+                    found, why = None, f"not JSON: {exc.msg.lower()}"
+                if isinstance(found, dict):
+                    odd = [k for k, v in found.items() if not isinstance(v, str)]
+                    why = f"the unit of {odd[0]!r} is not a string" if odd else ""
+                if not why:
+                    return dict(found)
+                warnings.warn(
+                    f"{path}: line {line_no}: units comment not read ({why}); no unit is "
+                    f'declared (FlightData.to_csv writes {marker} {{"alpha": "rad"}})',
+                    UserWarning,
+                    stacklevel=3,  # here, load_flight_test, its caller
                 )
-                return found if ok else {}
+                return {}
     return {}
 
 
