@@ -269,6 +269,21 @@ def test_a_whole_log_finds_each_planted_defect_and_notes_the_rest():
     assert "jitter" in chosen["imu.p"].flags and "saturation" in chosen["servo.armed"].flags
     assert "jitter" in chosen["ekf.x"].flags
     assert chosen["mission.id"].flags == ("too_few_samples",)
+    # ... and count the NaN of a chosen channel as the whole log does, flagged there too
+    for name, count in (("imu.q", 1), ("imu.temperature", log["imu.temperature"].time.size)):
+        assert chosen[name].non_finite == report[name].non_finite == count
+        assert chosen[name].flags[0] == "non_finite"
+    assert report["imu.temperature"].flags == ()  # never set: a whole log's note
+
+
+def test_a_chosen_log_channel_half_nan_is_counted_and_not_ok():
+    t = np.arange(0, 20, 0.01)
+    x = np.where(t > 10, np.nan, np.sin(2 * np.pi * 0.5 * t))
+    log = _log(**{"imu.q": (t, x), "imu.p": (t, np.sin(t))})
+    chosen = check_data_quality(log, channels=["imu.q"])
+    assert chosen["imu.q"].non_finite == 999 and "non_finite" in chosen["imu.q"].flags
+    assert not chosen.ok
+    assert check_data_quality(log, channels=["imu.p"]).ok
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -290,7 +305,11 @@ def test_the_shipped_px4_log_before_and_after():
     pytest.importorskip("pyulog")
     log = aeroid.read_log(Path(__file__).parent / "data" / "px4" / "sample_log_small.ulg")
     before = check_data_quality(log, channels=list(log.channels))  # the per-channel rules
-    assert len(before.channels) == 1162 and len(before.flagged) == 977
+    assert len(before.channels) == 1162 and len(before.flagged) == 1003
+    # 26 of them for their NaN alone (37 channels hold NaN: PX4's unset fields)
+    nan_only = [n for n, c in before.channels.items() if c.flags == ("non_finite",)]
+    assert len(nan_only) == 26
+    assert sum(c.non_finite > 0 for c in before.channels.values()) == 37
     after = check_data_quality(log)
     assert len(after.flagged) < 100  # 76: clipping, timing of 3 topics, frozen, a hole
     notes = after.notes

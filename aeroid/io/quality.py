@@ -36,7 +36,8 @@ FLAGS = {
     "(and more of them than held runs elsewhere)",
     "constant": "the channel never changes",
     "aliasing": "share of the spectrum in the top alias_band of the band above alias_limit",
-    "non_finite": "NaN or infinite values in a channel that holds finite ones too (whole log)",
+    "non_finite": "NaN or infinite values (in a whole log, in a channel that holds finite "
+    "ones too)",
     "frozen": "a run of identical values inside a signal that otherwise changes, longer "
     "than its own repeats make likely (whole log)",
 }
@@ -350,9 +351,12 @@ def _check_channel(
     alias_limit: float,
 ) -> ChannelQuality:
     n = int(time.size)
+    # a log's channel may hold NaN (PX4 logs an unset field so), a record's cannot
+    non_finite = n - int(np.count_nonzero(np.isfinite(values)))
     if n < 2:
+        few = ("non_finite", "too_few_samples") if non_finite else ("too_few_samples",)
         return ChannelQuality(
-            name, n, 0.0, 0.0, 0, 0, 0, 0.0, 0.0, float("nan"), ("too_few_samples",)
+            name, n, 0.0, 0.0, 0, 0, 0, 0.0, 0.0, float("nan"), few, non_finite=non_finite
         )
     steps = np.diff(time)
     forward = steps[steps > 0]
@@ -379,6 +383,8 @@ def _check_channel(
     if dropouts:
         flags.append("dropouts")
     finite = values[np.isfinite(values)]
+    if non_finite:
+        flags.insert(0, "non_finite")
     saturation = 0.0
     alias = float("nan")
     if finite.size and float(np.ptp(finite)) == 0.0:
@@ -408,6 +414,7 @@ def _check_channel(
         saturation,
         alias,
         tuple(flags),
+        non_finite=non_finite,
     )
 
 
@@ -477,10 +484,11 @@ def _as_whole_log(
     saturation_run: int,
 ) -> ChannelQuality:
     """The flags of one channel of a whole log, judged as a log (see `check_data_quality`)."""
-    flags = [f for f in c.flags if f not in ("too_few_samples", "constant", "jitter")]
+    judged_here = ("too_few_samples", "constant", "jitter", "non_finite")
+    flags = [f for f in c.flags if f not in judged_here]
     notes: list[str] = []
     finite = np.isfinite(values)
-    non_finite = int(values.size - np.count_nonzero(finite))
+    non_finite = c.non_finite
     if c.n_samples == 1:
         notes.append("one_sample")
     elif "too_few_samples" in c.flags:
@@ -602,7 +610,9 @@ def check_data_quality(
     ``summary()`` then ranks the flags, most serious first (`RANKING`: lost or stuck
     values, holes, clipping, broken stamps, then jitter and aliasing), by topic, and
     lists the notes apart. A record (`FlightData`) and chosen channels of a log keep
-    the per-channel rules above unchanged.
+    the per-channel rules above unchanged; a chosen channel's NaN or infinite samples
+    are counted (`ChannelQuality.non_finite`) and flagged ``non_finite`` there too, a
+    channel without any finite value as well.
     """
     if isinstance(data, FlightData):
         series = {n: (data.time, v) for n, v in data.channels.items()}
