@@ -331,3 +331,53 @@ def test_quality_of_a_table_flags_a_dropout_by_its_column(tmp_path):
     assert set(q.channels) == {"q", "elevator"}
     assert q["q"].dropouts == 1 and q["q"].longest_gap == pytest.approx(0.51)
     assert "dropouts" in q["q"].flags
+
+
+def _renamed_table(tmp_path: Path) -> Path:
+    path = tmp_path / "renamed.csv"
+    rows = [f"{0.02 * i:.2f},{0.01 * i},{0.1 + 0.01 * i},{0.5 * i}" for i in range(5)]
+    path.write_text("time,de,aoa,qq\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def test_a_plain_map_reads_one_way_round_in_every_reader(tmp_path):
+    """{model_name: channel} (ChannelMap's reading) and {column: name} (the table's) give
+    the same record in load_flight_test, load_mapped, apply_channel_map and the campaign's
+    loader options: the side naming the file's columns is the channel side."""
+    path = _renamed_table(tmp_path)
+    forward = {"elevator": "de", "alpha": "aoa", "q": "qq"}
+    backward = {v: k for k, v in forward.items()}
+    raw = aeroid.load_flight_test(path)
+    for m in (forward, backward):
+        for data in (
+            aeroid.load_flight_test(path, channels=m),
+            load_mapped(path, m),
+            load_mapped(path, m, window=[0.0, 0.08]),  # the ChannelMap path
+            apply_channel_map(raw, m),
+        ):
+            assert set(data.names) == {"elevator", "alpha", "q"}
+            np.testing.assert_array_equal(data["alpha"], raw["aoa"])
+            np.testing.assert_array_equal(data["q"], raw["qq"])
+    # a name paired with itself reads the same either way
+    same = aeroid.load_flight_test(path, channels={"de": "de", "aoa": "alpha"})
+    assert set(same.names) == {"de", "alpha"}
+
+
+def test_a_plain_map_that_reads_both_ways_is_refused(tmp_path):
+    path = _renamed_table(tmp_path)
+    raw = aeroid.load_flight_test(path)
+    # a cycle of the file's own columns: either reading would be applied silently
+    cycle = {"de": "aoa", "aoa": "qq", "qq": "de"}
+    for call in (
+        lambda: aeroid.load_flight_test(path, channels=cycle),
+        lambda: load_mapped(path, cycle),
+        lambda: load_mapped(path, cycle, window=[0.0, 0.08]),
+        lambda: apply_channel_map(raw, cycle),
+    ):
+        with pytest.raises(
+            DataFormatError, match=r"of the file on both sides, so it reads both ways"
+        ):
+            call()
+    # a map with no side all columns names what is missing
+    with pytest.raises(ChannelError, match="'dee' not found"):
+        aeroid.load_flight_test(path, channels={"elevator": "dee", "alpha": "aoa"})

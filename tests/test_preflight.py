@@ -261,6 +261,18 @@ def test_a_channel_missing_from_a_matlab_file(tmp_path):
     preflight(cfg)
 
 
+def test_a_plain_map_in_a_config_reads_the_way_round_the_file_decides(tmp_path):
+    # {model_name: column}, as ChannelMap and the README's channel maps read it, and
+    # {column: model_name}, as load_flight_test reads a table's: both plan, and load
+    _csv(tmp_path / "r.csv", "time,de,aoa,qq")
+    for m in ("{elevator: de, alpha: aoa, q: qq}", "{de: elevator, aoa: alpha, qq: q}"):
+        cfg = _config(tmp_path, f"flights: [{{path: r.csv, channels: {m}}}]\n")
+        preflight(cfg)
+    # a cycle of the file's own columns reads both ways: refused before anything runs
+    cfg = _config(tmp_path, "flights: [{path: r.csv, channels: {de: aoa, aoa: qq, qq: de}}]\n")
+    _refused(cfg, r"r.csv: channels: the map \{de: aoa, aoa: qq, qq: de\} names .* both sides")
+
+
 def test_a_channel_missing_from_a_flight_log(tmp_path):
     h5py = pytest.importorskip("h5py")
     t = np.arange(50) / 50.0

@@ -21,6 +21,7 @@ import numpy as np
 
 from .._units import UNIT_CONVERSIONS
 from ..errors import ChannelError, DataFormatError
+from ._channel_pairs import orient_pairs, plain_pairs
 from ._logtypes import FlightLog
 from .data import FlightData, load_flight_test, plain
 from .resampling import close_names
@@ -184,7 +185,11 @@ class ChannelMap:
     Build one with `ChannelMap.from_config` from what a campaign config
     holds: ``{model_name: channel}`` or ``{model_name: {channel: ..., unit:
     "deg/s", scale: ..., offset: ..., sign: -1}}``, or a list of names kept
-    as they are.
+    as they are. (`from_config` has no file to look at, so it reads a plain map
+    ``{model_name: channel}``; the readers of a file, `load_flight_test`,
+    `load_mapped`, `apply_channel_map` and a campaign's flights, also take it
+    written ``{channel: model_name}``, the side naming the file's channels being
+    the channel side, and refuse a map that reads both ways.)
     """
 
     entries: tuple[ChannelSpec, ...]
@@ -237,43 +242,16 @@ class ChannelMap:
         return {e.name: e.to_json() for e in self.entries}
 
 
-def _plain_pairs(mapping: Any) -> dict[str, str] | None:
-    """A mapping of strings only (the direction of which the file decides), else None."""
-    if isinstance(mapping, Mapping) and all(
-        isinstance(k, str) and isinstance(v, str) for k, v in mapping.items()
-    ):
-        return dict(mapping)
-    return None
-
-
-def orient(mapping: Any, available: Sequence[str], *, table: bool) -> Any:
-    """A plain ``{str: str}`` mapping turned ``{model_name: channel}``.
-
-    As `aeroid.load_flight_test` reads it: for a table ``{column: name}`` when
-    the keys are columns; for a log whichever side names the log's channels
-    (``{name: channel}`` first). Other forms are returned as they are.
+def orient(mapping: Any, available: Sequence[str], *, where: str = "channels") -> Any:
+    """A plain ``{str: str}`` mapping turned ``{model_name: channel}``, read the way
+    round `available` (the file's channels) decides (`aeroid.io._channel_pairs`: one
+    rule for every reader; a map that reads both ways is refused). Other forms are
+    returned as they are, and missing channels are left for the caller to name.
     """
-    pairs = _plain_pairs(mapping)
+    pairs = plain_pairs(mapping)
     if pairs is None:
         return mapping
-    have = set(available)
-    keys_in = all(k in have for k in pairs)
-    values_in = all(v in have for v in pairs.values())
-    if table:
-        flipped = keys_in
-    else:
-        flipped = keys_in and not values_in
-    if not flipped:
-        return pairs
-    out: dict[str, str] = {}
-    for channel, name in pairs.items():
-        if name in out:
-            raise DataFormatError(
-                f"channels: {[out[name], channel]} are both renamed to {name!r}; give each "
-                "its own model name"
-            )
-        out[name] = channel
-    return out
+    return orient_pairs(pairs, set(available), where)[0]
 
 
 def _missing(name: str, available: Sequence[str], where: str) -> ChannelError:
@@ -295,7 +273,10 @@ def apply_channel_map(data: FlightData, mapping: Any) -> FlightData:
         gives them without a mapping).
     mapping : ChannelMap, mapping or sequence
         See `ChannelMap.from_config`: ``{model_name: channel}``,
-        ``{model_name: {channel, unit, scale, offset, sign}}`` or a list.
+        ``{model_name: {channel, unit, scale, offset, sign}}`` or a list. A
+        mapping of plain strings may also be written ``{channel: model_name}``:
+        the side naming the record's channels is the channel side, and one that
+        names them on both sides (a swap, a cycle) is refused.
 
     Returns
     -------
@@ -312,7 +293,9 @@ def apply_channel_map(data: FlightData, mapping: Any) -> FlightData:
     DataFormatError
         An unknown unit (listing the known ones), a bad scale, offset or sign.
     """
-    cmap = ChannelMap.from_config(orient(mapping, data.names, table=False))
+    cmap = ChannelMap.from_config(
+        orient(mapping, data.names, where=str(data.metadata.get("source", "flight data")))
+    )
     where = str(data.metadata.get("source", "flight data"))
     channels: dict[str, Any] = {}
     units: dict[str, str] = {}
@@ -494,9 +477,11 @@ def load_mapped(
     path : str or Path
         A flight log or a table, as `aeroid.load_flight_test` reads.
     channels : ChannelMap, mapping, sequence or None
-        See `apply_channel_map`. A mapping of plain strings is read as
-        `load_flight_test` reads its `channels` (for a table ``{column:
-        name}``); None keeps every channel.
+        See `apply_channel_map`. A mapping of plain strings reads
+        ``{model_name: channel}`` or ``{channel: model_name}``, the side whose
+        names are all the file's channels being the channel side (as
+        `load_flight_test` reads it; one naming the file's channels on both
+        sides is refused); None keeps every channel.
     sample_rate : float, optional
         Logs: the uniform rate (Hz) the channels are resampled to.
     max_gap : float, optional
@@ -548,7 +533,7 @@ def load_mapped(
         and not allow_external_data
         and (
             channels is None
-            or _plain_pairs(channels) is not None
+            or plain_pairs(channels) is not None
             or (isinstance(channels, Sequence) and all(isinstance(m, str) for m in channels))
         )
     ):
@@ -571,7 +556,7 @@ def load_mapped(
     fmt = sniff_format(p) if p.is_file() else None
     if fmt is None:
         data = load_flight_test(p, time_column=time_column)
-        cmap = _map_for(channels, data.names, table=True)
+        cmap = _map_for(channels, data.names, where=p.name)
         for source in cmap.sources:
             if source not in data.channels:
                 raise _missing(source, list(data.names), p.name)
@@ -585,7 +570,7 @@ def load_mapped(
         log = read_log(
             p, format=fmt, time_column=time_column, allow_external_data=allow_external_data
         )
-        cmap = _map_for(channels, list(log.channels), table=False)
+        cmap = _map_for(channels, list(log.channels), where=p.name)
         for source in cmap.sources:
             if source not in log.channels:
                 raise _missing(source, list(log.channels), p.name)
@@ -606,10 +591,10 @@ def load_mapped(
     return FlightData(out.time, dict(out.channels), {**dict(out.units), **dict(units or {})}, meta)
 
 
-def _map_for(mapping: Any, available: Sequence[str], *, table: bool) -> ChannelMap:
+def _map_for(mapping: Any, available: Sequence[str], *, where: str) -> ChannelMap:
     if mapping is None:
         return ChannelMap.from_config(list(available))
-    return ChannelMap.from_config(orient(mapping, available, table=table))
+    return ChannelMap.from_config(orient(mapping, available, where=where))
 
 
 def _log_record(
@@ -708,7 +693,7 @@ def flight_windows(
         )
     table = isinstance(record, FlightData)
     available = list(record.names) if table else list(record.channels)
-    cmap = None if channels is None else _map_for(channels, available, table=table)
+    cmap = None if channels is None else _map_for(channels, available, where=where)
     by_name = {} if cmap is None else {e.name: e.channel for e in cmap.entries}
     kwargs = {k: v for k, v in spec.items() if v is not None}
     if "inputs" in kwargs:

@@ -23,6 +23,7 @@ from .._value_checks import check_symmetric as check_symmetric
 from .._value_checks import delay_starts as delay_starts
 from .._value_checks import whole_number as whole_number
 from ..errors import ChannelError, DataFormatError
+from ._channel_pairs import orient_pairs
 from ._flight_csv import _NAME_LIKE as _NAME_LIKE
 from ._flight_csv import _NUMBER as _NUMBER
 from ._flight_csv import _NUMBER_LIKE as _NUMBER_LIKE
@@ -418,12 +419,13 @@ def load_flight_test(
         ``Time`` ... that is present. For HDF5 and MATLAB v7.3, the name of
         the time dataset.
     channels : sequence of str or mapping of str to str, optional
-        Columns (log channels) to keep. A mapping renames them:
-        ``{column: channel_name}`` for a table; for a log either
-        ``{channel_name: log_channel}`` or ``{log_channel: channel_name}``
-        (whichever side names the log's channels). Two columns renamed to the
-        same channel name are an error. Default: every column but time
-        (every channel of the log).
+        Columns (log channels) to keep. A mapping renames them, written
+        ``{column: channel_name}`` or ``{channel_name: column}`` (a log's
+        channels likewise): the side whose names are all the file's columns is
+        the column side. One naming the file's columns on both sides (a swap, a
+        cycle, a column renamed onto another column's name) reads both ways and
+        is an error, and so are two columns renamed to one channel name. Default:
+        every column but time (every channel of the log).
     units : mapping of str to str, optional
         Unit label per (renamed) channel; for a log, over the units it states.
     sample_rate : float, optional
@@ -516,20 +518,21 @@ def load_flight_test(
             f"{p}: unknown file type {suffix!r} (expected .csv, .parquet or .mat)"
         )
     tname = _pick_time_column(header, time_column, p)
+    # {channel name: column}; a mapping reads either way round, the file deciding
+    pick: dict[str, str]
     if channels is None:
-        mapping = {h: h for h in header if h != tname}
+        pick = {h: h for h in header if h != tname}
     elif isinstance(channels, Mapping):
-        mapping = {str(k): str(v) for k, v in channels.items()}
-        _refuse_renamed_alike(mapping, p, sources="columns", each="each column")
+        pick, _ = orient_pairs(channels, header, str(p), "columns")
     else:
         names = [channels] if isinstance(channels, str) else channels
-        mapping = {str(c): str(c) for c in names}
-    for col in mapping:
+        pick = {str(c): str(c) for c in names}
+    for col in pick.values():
         if col not in columns:
             raise ChannelError(f"{p}: column {col!r} not found; {_columns_text(header)}")
     if tname not in columns:  # a header name no reader turned into a column
         raise ChannelError(f"{p}: time column {tname!r} is not a numeric vector")
-    for col in (tname, *mapping):
+    for col in (tname, *pick.values()):
         if columns[col].dtype.kind == "c":
             raise DataFormatError(
                 f"{p}: column {col!r} holds complex values, which are not supported; "
@@ -537,7 +540,7 @@ def load_flight_test(
             )
     time = _in_seconds(columns[tname], declared.get(tname), p, tname)
     chans: dict[str, Any] = {}
-    for col, name in mapping.items():
+    for name, col in pick.items():
         if columns[col].shape != time.shape:
             raise DataFormatError(
                 f"{p}: column {col!r} has {columns[col].size} samples, time has {time.size}"
@@ -548,29 +551,12 @@ def load_flight_test(
             f"units: expected a mapping of channel name to unit, got {type(units).__name__}"
         )
     # units the file declares (to_csv's comment line), by column, under the channels' names
-    merged = {name: declared[col] for col, name in mapping.items() if col in declared}
+    merged = {name: declared[col] for name, col in pick.items() if col in declared}
     merged.update(units or {})
     try:
         return FlightData(time, chans, merged, {"source": p.name, "format": suffix.lstrip(".")})
     except DataFormatError as exc:
         raise DataFormatError(f"{p}: {exc}") from None
-
-
-def _refuse_renamed_alike(
-    mapping: Mapping[str, str], path: Path, *, sources: str, each: str
-) -> None:
-    """Refuse a ``{source: name}`` mapping that gives two sources one name: keeping
-    one would silently drop the other (`sources`, `each` word the message)."""
-    by_name: dict[str, list[str]] = {}
-    for col, name in mapping.items():
-        by_name.setdefault(name, []).append(col)
-    clash = {name: cols for name, cols in by_name.items() if len(cols) > 1}
-    if clash:
-        name, cols = next(iter(clash.items()))
-        raise DataFormatError(
-            f"{path}: channels: {sources} {cols} are all renamed to {name!r}; "
-            f"give {each} its own channel name"
-        )
 
 
 def _wanted_columns(
@@ -604,15 +590,9 @@ def _log_mapping(
         names = [str(c) for c in channels]
         find_channels(log, names, path)
         return {c: c for c in names}
-    pairs = {str(k): str(v) for k, v in channels.items()}
-    keys_in = all(k in log.channels for k in pairs)
-    values_in = all(v in log.channels for v in pairs.values())
-    if values_in or not keys_in:
-        find_channels(log, pairs.values(), path)
-        return pairs
-    # {log_channel: name}, as for tables: refuse two log channels given one name
-    _refuse_renamed_alike(pairs, path, sources="log channels", each="each")
-    return {name: col for col, name in pairs.items()}
+    pairs, missing = orient_pairs(channels, log.channels, str(path), "log channels")
+    find_channels(log, missing, path)  # names each, with close names
+    return pairs
 
 
 def _refuse_contradicting_units(

@@ -224,29 +224,17 @@ def _file_channel_faults(
                 f"set time_column ({len(columns)} columns)"
             )
     time = spec.time_column or next((c for c in _TIME_CANDIDATES if c in columns), None)
+    what = "column" if header.has_time else "log channel"
     if spec.channels is None:
         have = [c for c in columns if c != time]
-    elif _mapped(spec.channels) is not None:
-        pairs = _mapped(spec.channels) or {}
+    else:
+        pairs = _picked(path, columns, spec.channels, faults)
         for col in dict.fromkeys(pairs.values()):
             if col not in columns:
-                what = "column" if header.has_time else "log channel"
                 faults.append(
                     f"{path.name}: channels: {what} {col!r} not found" + _column_hint(col, columns)
                 )
         have = list(pairs)
-    elif not header.has_time:
-        plain_names: Any = spec.channels  # names only: `_mapped` found no entry
-        have = _log_channels(path, columns, plain_names, faults)
-    else:
-        chosen = spec.channels
-        wanted = [str(c) for c in chosen]
-        for col in wanted:
-            if col not in columns:
-                faults.append(
-                    f"{path.name}: channels: column {col!r} not found" + _column_hint(col, columns)
-                )
-        have = [str(v) for v in chosen.values()] if isinstance(chosen, Mapping) else wanted
     if needs is not None:
         faults += [f"{path.name}: {f}" for f in _missing(needs, have)]
     return faults
@@ -314,15 +302,14 @@ def _window_faults(path: Path, header: _Header, spec: FileFlights) -> list[tuple
     log cannot give (a mode or event it lacks, an input it does not carry)."""
     if header.log is None or (spec.window is None and spec.segments is None):
         return []
-    from ...io.channel_map import flight_windows, orient, resolve_window
+    from ...io.channel_map import flight_windows, resolve_window
 
     log = header.log
     names = list(log.channels)
     if spec.channels is None:
         sources = names
     else:
-        chosen = _mapped(spec.channels) or orient(spec.channels, names, table=False)
-        sources = list(chosen.values()) if isinstance(chosen, Mapping) else list(chosen)
+        sources = list(_picked(path, names, spec.channels, []).values())
     sources = [s for s in sources if s in log.channels]
     out: list[tuple[str, str]] = []
     if spec.window is not None:
@@ -351,26 +338,22 @@ def _window_faults(path: Path, header: _Header, spec: FileFlights) -> list[tuple
     return out
 
 
-def _log_channels(
-    path: Path, names: list[str], chosen: list[str] | dict[str, str], faults: list[str]
-) -> list[str]:
-    """The channels a log's flight will carry, picked as `load_flight_test` picks them: a
-    mapping may name the log's channels on either side (``{name: log_channel}`` first)."""
-    if isinstance(chosen, Mapping):
-        pairs = {str(k): str(v) for k, v in chosen.items()}
-        keys_in = all(k in names for k in pairs)
-        values_in = all(v in names for v in pairs.values())
-        if keys_in and not values_in:  # {log_channel: name}, as for a table
-            return list(pairs.values())
-        wanted, have = list(pairs.values()), list(pairs)
-    else:
-        wanted = have = [str(c) for c in chosen]
-    for name in wanted:
-        if name not in names:
-            faults.append(
-                f"{path.name}: channels: log channel {name!r} not found" + _column_hint(name, names)
-            )
-    return have
+def _picked(path: Path, columns: list[str], chosen: Any, faults: list[str]) -> dict[str, str]:
+    """``{name: channel}`` as the loader picks them: a list keeps its names, a map with a
+    full entry reads ``{name: channel}``, a map of plain names the way round the file's
+    channels decide (`aeroid.io.channel_map.orient`; one that reads both ways is a fault)."""
+    from ...io.channel_map import orient
+
+    if not isinstance(chosen, Mapping):
+        return {str(c): str(c) for c in chosen}
+    pairs = _mapped(chosen)
+    if pairs is not None:
+        return pairs
+    try:
+        return dict(orient(chosen, columns, where=path.name))
+    except AeroidError as exc:
+        faults.append(str(exc))
+        return {}
 
 
 # -- headers --------------------------------------------------------------------------------

@@ -116,7 +116,8 @@ class FileFlights(Options):
 
     path: str
     time_column: str | None = None
-    # a list of channels, {model_name: channel} (for a table {column: name}), or
+    # a list of channels, {model_name: channel} (or {channel: model_name}: the side
+    # naming the file's channels decides; one naming them on both is refused), or
     # {model_name: {channel: ..., unit: deg/s, scale: ..., offset: ..., sign: -1}}
     channels: (
         Annotated[
