@@ -26,6 +26,8 @@ def test_flights_without_a_coefficient_are_refused_naming_terms() -> None:
     one = [FlightCoefficients.from_stderr("f", {"mach": 0.3}, {"CL_0": 0.3}, {"CL_0": 0.01})]
     with pytest.raises(IdentificationError, match="terms must name at least one"):
         aerodynamic_database(one, terms=[])
+    # one name is one term and one key, not their letters
+    assert aerodynamic_database(one, terms="CL_0", keys="mach").terms == ("CL_0",)
 
 
 def _mach_flights() -> list[FlightCoefficients]:

@@ -139,6 +139,9 @@ def keys_and_terms(
     database is then constant in it, which a misspelt key on one flight would do
     silently); no term to fit is an `IdentificationError`.
     """
+    # one name is one key or term, not its letters
+    keys = [keys] if isinstance(keys, str) else keys
+    terms = [terms] if isinstance(terms, str) else terms
     if keys is None:
         given = list(dict.fromkeys(k for f in fit for k in f.condition))
         keys = [k for k in given if all(k in f.condition for f in fit)]
@@ -160,10 +163,8 @@ def keys_and_terms(
                 "estimates are empty): there is nothing to fit; give the flights' "
                 "coefficient estimates, and name the ones to fit with terms="
             )
-    elif isinstance(terms, str) or not terms:
-        raise IdentificationError(
-            f"terms must name at least one coefficient (a sequence of names), got {terms!r}"
-        )
+    elif not terms:
+        raise IdentificationError(f"terms must name at least one coefficient, got {terms!r}")
     return tuple(keys), tuple(str(t) for t in terms)
 
 
