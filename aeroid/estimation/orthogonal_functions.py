@@ -51,6 +51,8 @@ _NEGLIGIBLE = 1e-3
 # A function less than this fraction of its unorthogonalised norm is no new direction.
 _DEPENDENT = 1e-9
 _NOISE_BOUNDS = ("spread", "linear")
+# Re-generations of the functions in the order of their effect before the order holds.
+_REORDERINGS = 5
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,7 +192,8 @@ def orthogonal_function_model(
         The explanatory variables (channel names or expressions).
     max_power : int, sequence of int or mapping of str to int
         The highest power of each variable in a term (one for all, one per
-        variable in order, or by name); at most 8.
+        variable in order, or by name: then every variable, 0 to leave one
+        out); at most 8.
     max_order : int
         The highest total order of a term.
     noise_variance : float or {"spread", "linear"}
@@ -256,22 +259,20 @@ def orthogonal_function_model(
     for j in np.flatnonzero(np.ptp(x, axis=0) == 0).tolist():
         raise IdentificationError(f"variable {names[j]!r} is constant: it explains nothing")
     xs = x / scale  # powers of variables of order one keep the monomials well scaled
-    mono, psi, norms = _generate(xs, z, powers_max, min(order, int(sum(powers_max))))
-    a = (psi.T @ z) / norms
+    generated = _generate(xs, z, powers_max, min(order, int(sum(powers_max))))
     bound = _noise_bound(noise_variance, z, xs)
-    rank = np.argsort(-(norms * a**2), kind="stable")
-    sse = float(z @ z) - np.cumsum((norms * a**2)[rank])
-    sse = np.maximum(sse, 0.0)
-    steps = np.arange(1, rank.size + 1)
-    pse_hist = sse / n + 2.0 * bound * steps / n
-    if n_functions is None:
-        keep = int(np.argmin(pse_hist)) + 1
-    else:
-        keep = whole_number(n_functions, "n_functions", DataFormatError, least=1)
-        if keep > rank.size:
-            raise DataFormatError(
-                f"n_functions: {keep} asked, {rank.size} orthogonal functions generated"
-            )
+    wanted = (
+        None
+        if n_functions is None
+        else whole_number(n_functions, "n_functions", DataFormatError, least=1)
+    )
+    # the functions as generated (SIDPAC's offit), and again in the order of their effect
+    # (Morelli; SIDPAC's mof): the one whose model the PSE prefers (`_by_effect`)
+    choices = [_ranked(*generated, z, bound, wanted)]
+    effect = _by_effect(xs, z, *generated)
+    if effect[0].shape != generated[0].shape or not np.array_equal(effect[0], generated[0]):
+        choices.append(_ranked(*effect, z, bound, wanted))
+    mono, psi, norms, a, rank, pse_hist, keep = min(choices, key=lambda c: _final_pse(c, z, bound))
     if n <= keep:
         raise IdentificationError(f"orthogonal functions: {n} samples cannot fit {keep} functions")
     kept = rank[:keep]
@@ -379,6 +380,93 @@ def _generate(
     return np.array(mono, dtype=np.int64), psi, np.einsum("ij,ij->j", psi, psi)
 
 
+def _orthogonal(
+    xs: FloatArray, mono: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+    """Gram-Schmidt of the monomials in the order given, leaving out those the data
+    cannot tell from the ones before them."""
+    raw = _monomials(xs, mono)
+    keep: list[int] = []
+    funcs: list[FloatArray] = []
+    for i in range(mono.shape[0]):
+        new = raw[:, i].copy()
+        size = float(np.sqrt(new @ new))
+        for _ in range(2):  # twice: one pass of Gram-Schmidt loses orthogonality
+            if funcs:
+                basis = np.column_stack(funcs)
+                new = new - basis @ ((basis.T @ new) / np.einsum("ij,ij->j", basis, basis))
+        if float(np.sqrt(new @ new)) > _DEPENDENT * size:
+            keep.append(i)
+            funcs.append(new)
+    psi = np.column_stack(funcs)
+    return mono[keep], psi, np.einsum("ij,ij->j", psi, psi)
+
+
+def _by_effect(
+    xs: FloatArray,
+    z: FloatArray,
+    mono: NDArray[np.int64],
+    psi: FloatArray,
+    norms: FloatArray,
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+    """The functions generated again with their monomials in the order of their effect
+    (Morelli; SIDPAC's ``mof`` re-generates once), the constant first: a function is
+    then orthogonal only to the ones that fit more, so one the PSE leaves out does not
+    take with it a share of a kept one. Generated in the order the variables happen to
+    be listed, a weak ``b^2`` before a strong ``a^2`` left the kept ``a^2`` function
+    carrying a ``b^2`` part that only the dropped one cancelled, and the model then
+    depended on the order of `variables` (the true five terms 0 times in 100 with
+    the variables swapped). Repeated until the order holds. Either order can give
+    the better model (on SIDPAC's offit demo the generated one does), so both are
+    ranked and the PSE of the polynomial each keeps picks (`_final_pse`)."""
+    for _ in range(_REORDERINGS):
+        effect = norms * ((psi.T @ z) / norms) ** 2
+        order = np.concatenate([[0], 1 + np.argsort(-effect[1:], kind="stable")])
+        if np.array_equal(order, np.arange(order.size)):
+            break
+        mono, psi, norms = _orthogonal(xs, mono[order])
+    return mono, psi, norms
+
+
+def _ranked(
+    mono: NDArray[np.int64],
+    psi: FloatArray,
+    norms: FloatArray,
+    z: FloatArray,
+    bound: float,
+    wanted: int | None,
+) -> tuple[
+    NDArray[np.int64], FloatArray, FloatArray, FloatArray, NDArray[np.intp], FloatArray, int
+]:
+    """The functions ranked by the fit error each takes away, the PSE with the first
+    1, 2, ... of them, and how many are kept (the PSE's minimum, or `wanted`)."""
+    n = z.size
+    a = (psi.T @ z) / norms
+    rank = np.argsort(-(norms * a**2), kind="stable")
+    sse = np.maximum(float(z @ z) - np.cumsum((norms * a**2)[rank]), 0.0)
+    pse_hist = sse / n + 2.0 * bound * np.arange(1, rank.size + 1) / n
+    if wanted is None:
+        keep = int(np.argmin(pse_hist)) + 1
+    elif wanted > rank.size:
+        raise DataFormatError(
+            f"n_functions: {wanted} asked, {rank.size} orthogonal functions generated"
+        )
+    else:
+        keep = wanted
+    return mono, psi, norms, a, rank, pse_hist, keep
+
+
+def _final_pse(choice: tuple[Any, ...], z: FloatArray, bound: float) -> float:
+    """The PSE of the ordinary polynomial a ranking keeps, its penalty counting the
+    polynomial's terms (a kept function is written with every monomial generated up to
+    it: SIDPAC's ``npf``), so that of two orders fitting alike the one needing fewer
+    terms wins."""
+    _, _, norms, a, rank, _, keep = choice
+    kept = rank[:keep]
+    sse = max(float(z @ z) - float(np.sum((norms * a**2)[kept])), 0.0)
+    return sse / z.size + 2.0 * bound * (int(np.max(kept)) + 1) / z.size
+
+
 def _fit_rms(psi: FloatArray, z: FloatArray) -> float:
     coef, *_ = np.linalg.lstsq(psi, z, rcond=None)
     r = z - psi @ coef
@@ -429,10 +517,14 @@ def _max_powers(value: Any, names: list[str]) -> list[int]:
         unknown = sorted(set(value) - set(names))
         if unknown:
             raise DataFormatError(f"max_power: {unknown} are not among the variables {names}")
-        out = [
-            whole_number(value.get(n, 0), f"max_power[{n!r}]", DataFormatError, least=0)
-            for n in names
-        ]
+        missing = [n for n in names if n not in value]
+        if missing:
+            # silently 0 would leave a listed variable out of every term
+            raise DataFormatError(
+                f"max_power: no power given for {missing}; name every variable of "
+                f"{names} (0 leaves one out)"
+            )
+        out = [whole_number(value[n], f"max_power[{n!r}]", DataFormatError, least=0) for n in names]
     elif isinstance(value, Sequence) and not isinstance(value, str):
         if len(value) != len(names):
             raise DataFormatError(
