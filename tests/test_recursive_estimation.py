@@ -71,13 +71,66 @@ def test_forgetting_minimises_the_exponentially_weighted_cost(lam):
     for k in (40, 150, 299):
         theta, cost = _weighted_solution(x[: k + 1], d["z"][: k + 1] - 0.4, lam, theta0, p0)
         np.testing.assert_allclose(rls.history[k], theta, rtol=1e-9, atol=1e-11)
-        count = (1 - lam ** (k + 1)) / (1 - lam)
-        assert rls.fit_error_history[k] ** 2 * (count - 3) == pytest.approx(cost, rel=1e-9)
-    # the final covariance is the classical s^2 P, P the weighted information's inverse
-    n = x.shape[0]
-    w = lam ** np.arange(n - 1, -1, -1.0)
-    p_n = np.linalg.inv((x * w[:, None]).T @ x + lam**n * np.linalg.inv(p0))
-    np.testing.assert_allclose(rls.covariance, rls.fit_error_history[-1] ** 2 * p_n, rtol=1e-8)
+        # the noise variance is unbiased for the weighting: the cost over
+        # sum w - tr(P Q), Q the information with the weights squared
+        w = lam ** np.arange(k, -1, -1.0)
+        xk = x[: k + 1]
+        p_k = np.linalg.inv((xk * w[:, None]).T @ xk + lam ** (k + 1) * np.linalg.inv(p0))
+        q_k = (xk * w[:, None] ** 2).T @ xk
+        s2 = cost / (w.sum() - np.trace(p_k @ q_k))
+        assert rls.fit_error_history[k] ** 2 == pytest.approx(s2, rel=1e-9)
+        sandwich = s2 * p_k @ q_k @ p_k
+        np.testing.assert_allclose(rls.stderr_history[k], np.sqrt(np.diag(sandwich)), rtol=1e-8)
+        assert rls.dof_history[k, 0] == pytest.approx(w.sum() ** 2 / (w @ w) - 3, rel=1e-12)
+    # the final covariance is the weighted estimate's sandwich s^2 P Q P
+    np.testing.assert_allclose(rls.covariance, sandwich, rtol=1e-8)
+
+
+def _coverage(lam: float, seeds: int, n: int, at: int) -> tuple[np.ndarray, np.ndarray]:
+    """How often the final and the running 95 % intervals hold the truth."""
+    from scipy import stats
+
+    truth = np.array([0.5, 2.0, -1.5])
+    final = np.zeros(3)
+    running = np.zeros(3)
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        x1, x2 = rng.standard_normal((2, n))
+        z = truth[0] + truth[1] * x1 + truth[2] * x2 + 0.1 * rng.standard_normal(n)
+        rls = aeroid.recursive_least_squares(
+            {"z": z, "x1": x1, "x2": x2}, "z", ["x1", "x2"], forgetting=lam
+        )
+        bounds = rls.interval(0.95)
+        final += [lo <= v <= hi for (lo, hi), v in zip(bounds.values(), truth, strict=True)]
+        half = stats.t.ppf(0.975, rls.dof_history[at]) * rls.stderr_history[at]
+        running += np.abs(rls.history[at] - truth) <= half
+    return final / seeds, running / seeds
+
+
+def test_forgetting_intervals_cover_at_the_nominal_rate():
+    # with lambda = 0.98 the classical s^2 P bars were sqrt(1 + lambda) too wide
+    # (coverage 0.995); the sandwich s^2 P Q P covers at 95 %
+    seeds = 240
+    band = 3.0 * np.sqrt(0.95 * 0.05 / seeds)
+    final, running = _coverage(0.98, seeds, n=400, at=250)
+    assert np.all(np.abs(final - 0.95) < band), final
+    assert np.all(np.abs(running - 0.95) < band), running
+
+
+def test_without_forgetting_the_bars_are_the_classical_ones():
+    d = _record(n=200, seed=5)
+    x = np.column_stack([np.ones(200), d["a"], d["b"], d["c"]])
+    rls = aeroid.recursive_least_squares(d, "z", ["a", "b", "c"], error_bars="white")
+    k = 150
+    info = x[: k + 1].T @ x[: k + 1] + np.eye(4) / 1e6
+    theta = np.linalg.solve(info, x[: k + 1].T @ d["z"][: k + 1])
+    r = d["z"][: k + 1] - x[: k + 1] @ theta
+    s2 = (r @ r + theta @ theta / 1e6) / (k + 1 - 4)
+    se = np.sqrt(s2 * np.diag(np.linalg.inv(info)))
+    np.testing.assert_allclose(rls.stderr_history[k], se, rtol=1e-9)
+    assert rls.dof_history[k, 0] == k + 1 - 4
+    np.testing.assert_allclose(rls.covariance, rls.fit_error_history[-1] ** 2 * np.linalg.inv(
+        x.T @ x + np.eye(4) / 1e6), rtol=1e-8)  # fmt: skip
 
 
 def test_forgetting_tracks_a_derivative_that_changes_and_memory_does_not():

@@ -16,6 +16,12 @@ The cost's minimum obeys ``J_k = lambda J_(k-1) + eps^2 lambda / (lambda + x'P x
 exactly, so the running fit-error variance ``J_k / (n_k - p)`` (``n_k`` the
 weighted sample count) is the batch one at every sample, not the sum of a
 posteriori residuals, which under-reads it while the estimate still moves.
+Below one the weights are not inverse noise variances, so the estimate's
+covariance is the sandwich ``s^2 P Q P`` with ``Q = sum lambda^(2(k-i)) x_i x_i'``
+(about ``s^2 P / (1 + lambda)`` for steady regressors, not ``s^2 P``), the noise
+variance ``s^2 = J_k / (n_k - tr(P Q))`` (unbiased for white noise) and its
+degrees of freedom ``(sum w)^2 / sum w^2 - p``; at one all three are the
+classical ones.
 
 With ``domain="frequency"`` it is Morelli's real-time estimator in the
 frequency domain (Klein & Morelli sec. 8.2, `_recursive_frequency`): running
@@ -87,14 +93,16 @@ class RecursiveResult(IntervalMixin):
     history : ndarray, shape (n, p)
         The estimate after each sample.
     stderr_history : ndarray, shape (n, p)
-        Each estimate's classical standard error from the samples up to it
-        (the running fit-error variance times ``diag P``); NaN until the
-        weighted sample count exceeds the number of parameters.
+        Each estimate's white-noise standard error from the samples up to it
+        (the running fit-error variance times ``diag P``, or ``diag P Q P``
+        with forgetting, module notes); NaN until the weighted sample count
+        exceeds the number of parameters.
     gain_history : ndarray, shape (n, p)
         The update gain ``g`` at each sample (NaN in the frequency domain, where
         each update is a solution, not a gain).
     fit_error_history : ndarray, shape (n,)
-        The running fit-error standard deviation ``sqrt(J_k / (n_k - p))``.
+        The running fit-error standard deviation ``sqrt(J_k / (n_k - p))``
+        (``sqrt(J_k / (n_k - tr(P Q)))`` with forgetting).
     prediction_errors : ndarray, shape (n,)
         ``z_k - x_k' theta_(k-1)``: each sample's error predicted from the
         estimate before it (the real-time residual). In the frequency domain,
@@ -259,9 +267,10 @@ def recursive_least_squares(
     error_bars : {"colored", "white"}, optional
         The final standard errors: coloured-residual corrected as
         `equation_error` corrects its own (the default with ``forgetting ==
-        1``, where the final estimate is that estimator's), or classical
-        (``s^2 P``, the default below one). In time the history is always
-        classical: it is what the samples so far can tell. In the frequency
+        1``, where the final estimate is that estimator's), or white-noise
+        bars (``s^2 P``, and below one, where they are the default, the
+        weighted estimate's ``s^2 P Q P``, module notes). In time the history
+        is always white: it is what the samples so far can tell. In the frequency
         domain every update's bars are the chosen kind, each the batch
         estimator's on the record so far: early on, frequencies closer than
         the short record resolves share their noise, which the classical bars
@@ -369,7 +378,7 @@ def recursive_least_squares(
     theta = hist[-1]
     s2 = float(s_hist[-1]) ** 2
     cov_white = s2 * cov_p
-    nu = np.full(p, _weighted_count(n, lam) - p)
+    nu = dof_hist[-1].copy()
     if bars == "colored" and not _separable(x, names):
         bars = "white"  # what the data cannot see rests on the start: its covariance says so
     if bars == "colored":
@@ -520,17 +529,13 @@ def _separable(x: FloatArray, names: list[str]) -> bool:
     return True
 
 
-def _weighted_count(k: int, lam: float) -> float:
-    """``sum_{i<k} lambda^i``: the weight the cost gives k samples."""
-    return float(k) if lam == 1.0 else float((1.0 - lam**k) / (1.0 - lam))
-
-
 def _recursion(
     z: FloatArray, x: FloatArray, theta0: FloatArray, p0: FloatArray, lam: float
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The update over every sample: estimate, classical standard error, gain and
-    fit-error histories, the prediction errors, the last ``P`` and the standard
-    errors' degrees of freedom."""
+    """The update over every sample: estimate, standard error, gain and fit-error
+    histories, the prediction errors, the last estimates' covariance per unit noise
+    variance (``P``, or ``P Q P`` with forgetting) and the standard errors' degrees
+    of freedom."""
     n, p = x.shape
     hist = np.empty((n, p))
     se_hist = np.full((n, p), np.nan)
@@ -542,6 +547,8 @@ def _recursion(
     cov = p0.copy()
     cost = 0.0
     count = 0.0
+    count2 = 0.0  # sum of the squared weights
+    info2 = np.zeros((p, p))  # Q: the information with the weights squared
     for k in range(n):
         xk = x[k]
         px = cov @ xk
@@ -556,17 +563,50 @@ def _recursion(
         hist[k] = theta
         gains[k] = gain
         eps_all[k] = eps
+        if lam < 1.0:
+            count2 = lam * lam * count2 + 1.0
+            info2 = lam * lam * info2 + np.outer(xk, xk)
         if count > p:
-            s2 = cost / (count - p)
+            s2, var, dof = _bar_terms(cost, count, count2, cov, info2, p, lam)
             s_hist[k] = np.sqrt(s2)
-            se_hist[k] = np.sqrt(np.clip(s2 * np.diag(cov), 0.0, None))
-            dof_hist[k] = count - p
+            se_hist[k] = np.sqrt(np.clip(var, 0.0, None))
+            dof_hist[k] = dof
     if not (np.all(np.isfinite(hist[-1])) and np.all(np.isfinite(cov))):
         raise IdentificationError(
             "recursive least squares: the update overflowed; rescale the response or "
             "the regressors, or give a smaller initial_covariance"
         )
-    return hist, se_hist, gains, s_hist, eps_all, cov, dof_hist
+    # the estimates' covariance per unit noise variance (module notes, `_bar_terms`)
+    unit = cov if lam == 1.0 else cov @ info2 @ cov
+    return hist, se_hist, gains, s_hist, eps_all, unit, dof_hist
+
+
+def _bar_terms(
+    cost: float,
+    count: float,
+    count2: float,
+    cov: FloatArray,
+    info2: FloatArray,
+    p: int,
+    lam: float,
+) -> tuple[float, FloatArray, float]:
+    """The noise variance, the estimates' variances and their degrees of freedom
+    after a sample, from the cost, the weight sums ``sum w`` and ``sum w^2``, ``P``
+    and ``Q = sum w^2 x x'``."""
+    if lam == 1.0:
+        s2 = cost / (count - p)
+        return s2, s2 * np.diag(cov), count - p
+    # The weights lambda^(k-i) are not inverse variances (the noise is white), so the
+    # estimate P X'W z has covariance sigma^2 P Q P, not sigma^2 P. The weighted
+    # residual sum of squares has mean sigma^2 (sum w - tr(P Q)) (tr(W (I - H)), H the
+    # weighted hat matrix), which gives the unbiased s^2; that sum mixes about
+    # (sum w)^2 / sum w^2 independent squares (Satterthwaite), whose count less the p
+    # parameters is the t quantile's degrees of freedom. Both reduce to n - p at
+    # lambda = 1, where Q = P^-1 up to the start.
+    cov_info2 = cov @ info2
+    s2 = cost / (count - float(np.trace(cov_info2)))
+    var = s2 * np.sum(cov_info2 * cov, axis=1)  # diag(P Q P), P symmetric
+    return s2, var, count * count / count2 - p
 
 
 def _start(initial: Mapping[str, float] | None, names: list[str]) -> FloatArray:
