@@ -152,6 +152,7 @@ def test_bad_input() -> None:
         (lambda x, fd: smooth(fd, dt="a"), "dt: expected a positive number"),
         (lambda x, fd: smooth(x, dt=DT, cutoff="a"), "cutoff: expected a positive number"),
         (lambda x, fd: smooth(x, dt=DT, method="local", window="a"), "window"),
+        (lambda x, fd: smooth(x, dt=DT, method="local", window=21, cutoff=2.0), "cutoff: .*one"),
         (lambda x, fd: smooth(x[:20], dt=DT, method="local", polyorder=30), "polyorder: .* 20"),
         (lambda x, fd: smooth(fd, 5), "channels: expected channel names"),
         (lambda x, fd: differentiate(fd, "q", suffix=5), "suffix: expected a non-empty string"),
@@ -206,3 +207,51 @@ def test_band_limited_data_without_noise_floor_are_named() -> None:
                 smooth(y, dt=DT)
         smooth(clean, dt=DT, cutoff=2.0)  # a given cut-off needs no floor
         smooth(noisy, dt=DT)
+
+
+def _savgol_window(out: np.ndarray, x: np.ndarray, deriv: int = 0) -> int:
+    """The window of the Savitzky–Golay filter (cubic) the local output equals."""
+    from scipy.signal import savgol_filter
+
+    for w in range(5, 601, 2):
+        ref = savgol_filter(x, w, 3, deriv=deriv, delta=DT, mode="interp")
+        if np.max(np.abs(out - ref)) < 1e-9 * max(1.0, float(np.max(np.abs(ref)))):
+            return w
+    raise AssertionError("no Savitzky-Golay window reproduces the output")
+
+
+def _minus3db(window: int) -> float:
+    from scipy.signal import freqz, savgol_coeffs
+
+    f, h = freqz(savgol_coeffs(window, 3), worN=40000, fs=1.0 / DT)
+    return float(f[np.argmax(np.abs(h) < 2**-0.5)])
+
+
+@pytest.mark.parametrize("sigma", [0.002, 0.02, 0.2])
+def test_local_window_minus3db_is_nearest_the_cutoff(sigma: float) -> None:
+    # the half-width from Schafer's approximation put the -3 dB point at
+    # 0.67-0.78 of the Fourier cut-off (window 45 for 1.525 Hz, whose is 35)
+    n = 1001
+    t = np.arange(n) * DT
+    x = np.sin(2 * np.pi * 0.7 * t + 0.3) + 0.5 * np.sin(2 * np.pi * 1.3 * t)
+    x = x + sigma * np.random.default_rng(0).standard_normal(n)
+    fc = optimal_cutoff(x, dt=DT)
+    w = _savgol_window(np.asarray(smooth(x, dt=DT, method="local")), x)
+    # no other window's -3 dB frequency lies nearer the cut-off
+    assert abs(_minus3db(w) - fc) <= min(abs(_minus3db(w - 2) - fc), abs(_minus3db(w + 2) - fc))
+    assert abs(_minus3db(w) / fc - 1.0) < 0.1
+    # the derivative uses the same window
+    d = np.asarray(differentiate(x, dt=DT, method="local"))
+    assert _savgol_window(d, x, deriv=1) == w
+
+
+def test_local_window_follows_a_given_cutoff() -> None:
+    n = 801
+    t = np.arange(n) * DT
+    x = np.sin(2 * np.pi * 0.5 * t) + 0.05 * np.random.default_rng(1).standard_normal(n)
+    windows = []
+    for fc in (0.8, 2.0, 5.0):
+        w = _savgol_window(np.asarray(smooth(x, dt=DT, method="local", cutoff=fc)), x)
+        assert abs(_minus3db(w) / fc - 1.0) < 0.1, (fc, w)
+        windows.append(w)
+    assert windows[0] > windows[1] > windows[2]

@@ -24,7 +24,9 @@ record amplifies its noise by the frequency. Two smoothers are offered:
     sliding window, differentiated analytically; at the ends the polynomial
     of the first and last windows is used, so polynomials up to `polyorder`
     are reproduced exactly everywhere. By default the window's half-width is
-    chosen so that the filter's −3 dB frequency matches the Fourier cut-off.
+    chosen so that the filter's −3 dB frequency (computed from its
+    coefficients' frequency response) is the nearest to the Fourier cut-off,
+    or to `cutoff` when that is given.
 
 Both need uniformly sampled data and treat every column independently.
 
@@ -64,6 +66,7 @@ _METHODS = ("fourier", "local")
 _CHI2_1_MEDIAN = 0.454936423119572
 # The χ²₁ density at that median: it sets the scatter of a sample median.
 _CHI2_1_DENSITY_AT_MEDIAN = 0.4711
+_HALF_POWER = 2.0**-0.5  # the -3 dB amplitude
 
 
 class NoiseFloorWarning(UserWarning):
@@ -213,17 +216,74 @@ def _fourier(
     return out
 
 
-def local_window(col: FloatArray, dt: float, order: int, polyorder: int, label: str = "x") -> int:
+def _local_window(
+    col: FloatArray,
+    dt: float,
+    order: int,
+    polyorder: int,
+    label: str = "x",
+    cutoff: float | None = None,
+) -> int:
+    """The odd window whose Savitzky–Golay -3 dB frequency is nearest `cutoff` (Hz),
+    by default the Fourier method's data-chosen cut-off."""
     n = col.shape[0]
-    coef, _, _ = _sine_series(col)
-    keep = _cutoff_index(coef, order, label)
-    nyquist_fraction = max(keep, 1) / max(coef.shape[0], 1)
-    # Savitzky–Golay -3 dB point (Schafer 2011): f/f_nyq ≈ (p + 1) / (3.2 h - 4.6)
-    half = int(np.ceil(((polyorder + 1) / nyquist_fraction + 4.6) / 3.2))
-    window = 2 * half + 1
-    smallest = polyorder + 2 + (polyorder % 2)
-    largest = n if n % 2 else n - 1
-    return int(min(max(window, smallest), largest))
+    if cutoff is None:
+        coef, _, _ = _sine_series(col)
+        # sine term m has frequency m / (2 T) Hz
+        cutoff = max(_cutoff_index(coef, order, label), 1) / (2.0 * (n - 1) * dt)
+    target = cutoff * dt  # cycles per sample
+    smallest = (polyorder + 2 + (polyorder % 2)) // 2
+    largest = (n if n % 2 else n - 1) // 2
+    # the -3 dB frequency falls as the window grows: bisect for the first
+    # half-width at or below the target, then take the nearer of it and the one before
+    lo, hi = smallest, largest
+    if _savgol_minus3db(hi, polyorder) > target:
+        return 2 * hi + 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if _savgol_minus3db(mid, polyorder) <= target:
+            hi = mid
+        else:
+            lo = mid + 1
+    half = lo
+    if half > smallest and abs(_savgol_minus3db(half - 1, polyorder) - target) < abs(
+        _savgol_minus3db(half, polyorder) - target
+    ):
+        half -= 1
+    return 2 * half + 1
+
+
+def _savgol_minus3db(half: int, polyorder: int) -> float:
+    """The frequency, in cycles per sample, where the Savitzky–Golay smoother of
+    half-width `half` first falls to 1/sqrt(2) in amplitude."""
+    import scipy.signal
+
+    taps = scipy.signal.savgol_coeffs(2 * half + 1, polyorder)
+    lags = np.arange(-half, half + 1, dtype=np.float64)
+
+    def gain(f: FloatArray) -> FloatArray:
+        # symmetric taps: the response is real
+        return np.abs(np.cos(2.0 * np.pi * np.outer(f, lags)) @ taps)
+
+    # Schafer's approximation (p + 1) / (3.2 h - 4.6) x Nyquist brackets the point
+    guess = 0.5 * (polyorder + 1) / max(3.2 * half - 4.6, 1.0)
+    top = min(0.5, 3.0 * guess)
+    grid = np.linspace(0.0, top, 257)
+    below = gain(grid) < _HALF_POWER
+    if not below.any():
+        grid = np.linspace(0.0, 0.5, 4097)
+        below = gain(grid) < _HALF_POWER
+        if not below.any():
+            return 0.5
+    i = int(np.argmax(below))
+    a, b = float(grid[i - 1]), float(grid[i])
+    for _ in range(40):
+        m = 0.5 * (a + b)
+        if gain(np.array([m]))[0] < _HALF_POWER:
+            b = m
+        else:
+            a = m
+    return 0.5 * (a + b)
 
 
 def _local(
@@ -233,6 +293,7 @@ def _local(
     window: int | None,
     polyorder: int,
     label: str = "x",
+    cutoff: float | None = None,
 ) -> FloatArray:
     n = col.shape[0]
     if polyorder >= n:
@@ -241,7 +302,7 @@ def _local(
             f"{polyorder} samples; the record has {n}"
         )
     if window is None:
-        w = local_window(col, dt, order, polyorder, label)
+        w = _local_window(col, dt, order, polyorder, label, cutoff)
     else:
         w = whole_number(window, "window", DataFormatError)
     if w % 2 == 0 or w <= polyorder or w > n:
@@ -271,6 +332,11 @@ def _apply(
     cols, one = _as_columns(x, what)
     if cutoff is not None:
         cutoff = positive_number(cutoff, "cutoff", " (a frequency in Hz)")
+        if method == "local" and window is not None:
+            raise DataFormatError(
+                "cutoff: the local method's window is set by window= or chosen from "
+                "cutoff=; give one of them"
+            )
     out = np.empty_like(cols)
     for j in range(cols.shape[1]):
         if names is not None:
@@ -280,7 +346,7 @@ def _apply(
         if method == "fourier":
             out[:, j] = _fourier(cols[:, j], dt, order, cutoff, label)
         else:
-            out[:, j] = _local(cols[:, j], dt, order, window, polyorder, label)
+            out[:, j] = _local(cols[:, j], dt, order, window, polyorder, label, cutoff)
     return out[:, 0] if one else out
 
 
@@ -412,10 +478,11 @@ def smooth(
         Global Fourier smoother with the data-chosen cut-off, or local
         polynomial (Savitzky–Golay) fit.
     cutoff : float, optional
-        Fourier method: a cut-off in Hz instead of the data-chosen one.
+        A cut-off in Hz instead of the data-chosen one: the Fourier method's,
+        or the local method's window's -3 dB frequency (not with `window`).
     window : int, optional
-        Local method: odd window length in samples (default: matched to the
-        Fourier cut-off).
+        Local method: odd window length in samples (default: the one whose
+        -3 dB frequency is nearest the cut-off).
     polyorder : int
         Local method: degree of the local polynomial.
 
