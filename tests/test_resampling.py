@@ -348,3 +348,25 @@ def test_a_clock_that_jumps_back_is_refused_not_interleaved():
     t1 = np.r_[np.arange(0, 5, 0.01), [1.005]]
     out = resample({"x": (t1, np.sin(t1))}, ["x"], rate=50)
     assert out.metadata["resampling"]["channels"]["x"]["reordered_stamps"] == 1
+
+
+@pytest.mark.parametrize("source_rate", [60.0, 75.0, 51.0])
+@pytest.mark.parametrize("freq", [10.0, 15.0, 19.0])
+def test_near_rate_decimation_keeps_the_flat_band(source_rate: float, freq: float) -> None:
+    # a four-point cubic on the filtered samples drooped at a few samples per
+    # cycle: 60 -> 50 Hz kept 0.924 of a 15 Hz tone and 0.849 of a 19 Hz one
+    t = np.arange(0.0, 30.0, 1.0 / source_rate)
+    out = resample({"x": (t, np.sin(2 * np.pi * freq * t + 0.3))}, ["x"], rate=50, t0=0.0071)
+    inner = _interior(out, "x")
+    tt = out.time[inner]
+    basis = np.column_stack([np.sin(2 * np.pi * freq * tt), np.cos(2 * np.pi * freq * tt)])
+    (s, c), *_ = np.linalg.lstsq(basis, out["x"][inner], rcond=None)
+    assert abs(np.hypot(s, c) - 1.0) < 1e-3
+    assert abs(np.arctan2(c, s) - 0.3) < 1e-3  # no delay
+    assert out.metadata["resampling"]["channels"]["x"]["interpolation"].startswith("band-limited")
+
+
+def test_band_limited_evaluation_keeps_a_line_exactly_at_any_offset() -> None:
+    t = np.arange(0.0, 20.0, 1.0 / 60.0)
+    out = resample({"x": (t, 0.3 - 2.0 * t)}, ["x"], rate=50, t0=0.013)
+    np.testing.assert_allclose(out["x"], 0.3 - 2.0 * out.time, atol=1e-11)

@@ -16,6 +16,7 @@ which a constant or a straight line passes unchanged.
 from __future__ import annotations
 
 import difflib
+import functools
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -51,6 +52,8 @@ MAX_SAMPLES = 100_000_000
 # Extra raw samples kept around the needed range for a cubic: a spline's end
 # conditions fade by about 0.27 per sample.
 _SPLINE_PAD = 24
+# The band-limited evaluation after the filter: flat to 1e-6, images 120 dB down.
+_EVAL_DB = 120.0
 
 
 # Out-of-order stamps are sorted unless the clock steps back by more than this many sample
@@ -336,6 +339,78 @@ def _lagrange4(time: FloatArray, values: FloatArray, at: FloatArray) -> FloatArr
     return out
 
 
+def _band_limited_design(source_rate: float, rate: float) -> tuple[int, float, float]:
+    """Half-length (source samples), cut-off (cycles per sample, times two) and β of
+    the Kaiser-windowed sinc that evaluates filtered samples between their stamps.
+
+    After the anti-aliasing filter the samples hold nothing above the new Nyquist
+    frequency ``rate / 2``, so their first image starts at ``source_rate - rate / 2``;
+    a kernel flat (1e-6) to `PASSBAND_FRACTION` of the new Nyquist frequency and
+    `_EVAL_DB` down from that image on reconstructs the band between the stamps.
+    """
+    f_pass = PASSBAND_FRACTION * rate / 2.0
+    f_stop = source_rate - rate / 2.0
+    numtaps, beta = _kaiser_order(_EVAL_DB, (f_stop - f_pass) / (source_rate / 2.0))
+    return max(2, -(-numtaps // 2)), (f_pass + f_stop) / source_rate, beta
+
+
+# Fractional positions at which the band-limited weights are tabulated: linear
+# interpolation between them errs by about (pi / 4096)^2 / 8, under 1e-6.
+_EVAL_NODES = 4096
+
+
+@functools.lru_cache(maxsize=16)
+def _band_limited_table(source_rate: float, rate: float) -> tuple[FloatArray, FloatArray]:
+    """The `_band_limited_design` weights of the taps ``-half ... half`` around the
+    nearest stamp, for fractional positions ``f`` from -1/2 to 1/2 in `_EVAL_NODES`
+    steps, and their differences from one position to the next.
+
+    Each row is corrected to sum to one with no first moment (a local linear fit's
+    weights), so that a constant and a line are kept exactly, as the filter keeps
+    them; for a band-limited signal the correction is of the kernel's ripple. Rows
+    interpolated linearly in ``f`` keep both properties.
+    """
+    half, band, beta = _band_limited_design(source_rate, rate)
+    lags = np.arange(-half, half + 1)
+    f = np.linspace(-0.5, 0.5, _EVAL_NODES + 1)
+    dist = f[:, None] - lags  # t - t_k in samples, within half + 1/2
+    ratio = np.clip(dist / (half + 0.5), -1.0, 1.0)
+    weight = np.sinc(band * dist) * np.i0(beta * np.sqrt(1.0 - ratio**2))
+    s0 = weight.sum(axis=1)
+    s1 = (weight * dist).sum(axis=1)
+    s2 = (weight * dist**2).sum(axis=1)
+    weight *= (s2[:, None] - s1[:, None] * dist) / (s0 * s2 - s1 * s1)[:, None]
+    step = np.diff(weight, axis=0)
+    weight.setflags(write=False)
+    step.setflags(write=False)
+    return weight, step
+
+
+def _band_limited(
+    time: FloatArray, values: FloatArray, at: FloatArray, source_rate: float, rate: float
+) -> FloatArray:
+    """``sum_k x_k h(t - t_k)`` at `at` for samples `values` on the (uniform) stamps
+    `time`, ``h`` the `_band_limited_design` kernel (`_band_limited_table`); beyond
+    the ends the samples are odd reflections, as the filter pads."""
+    weight, step = _band_limited_table(source_rate, rate)
+    half = (weight.shape[1] - 1) // 2
+    padded = np.pad(values, half + 1, mode="reflect", reflect_type="odd")
+    out = np.empty(at.shape)
+    block = max(1, (1 << 18) // weight.shape[1])  # bound the (points x taps) temporaries
+    for a in range(0, at.size, block):
+        t = at[a : a + block]
+        # the position between the stamps themselves: no drift from a nominal step
+        base = np.clip(np.searchsorted(time, t, side="right") - 1, 0, time.size - 2)
+        frac = (t - time[base]) / (time[base + 1] - time[base])
+        near = base + (frac >= 0.5)
+        node = (frac - (frac >= 0.5) + 0.5) * _EVAL_NODES
+        row = np.clip(node.astype(np.int64), 0, _EVAL_NODES - 1)
+        w = weight[row] + (node - row)[:, None] * step[row]
+        taps = padded[near[:, None] + np.arange(1, 2 * half + 2)]
+        out[a : a + block] = np.einsum("ij,ij->i", w, taps)
+    return out
+
+
 def _interpolate(time: FloatArray, values: FloatArray, at: FloatArray, kind: str) -> FloatArray:
     if time.size < 4 or kind == "linear":
         return np.interp(at, time, values)
@@ -349,7 +424,7 @@ def _interpolate(time: FloatArray, values: FloatArray, at: FloatArray, kind: str
 _DESCRIPTION = {
     "linear": "linear",
     "cubic": "cubic spline (not-a-knot)",
-    "cubic4": "four-point cubic (Lagrange) on the filtered samples",
+    "band": "band-limited: Kaiser-windowed sinc through the filtered samples",
 }
 
 
@@ -374,19 +449,21 @@ def _resample_one(
     lo, hi = float(grid[0]), float(grid[-1])
     if decimate:
         taps, design = design_anti_alias(source_rate, rate)
-        # After the filter the signal is band-limited well below the source's
-        # Nyquist frequency: there a local cubic is accurate to about 1e-5 at
-        # 8x oversampling, linear interpolation only to (pi f / fs)^2 / 2. A
-        # local cubic rather than a spline: the dense series is long, and only
-        # the grid points are needed.
+        # After the filter the signal is band-limited below the new Nyquist
+        # frequency. A local cubic droops where the source has few samples per
+        # cycle (7.6 % at 15 Hz from 60 Hz); a windowed sinc, short where the
+        # source is fast, reconstructs the band between the stamps at any ratio.
         if method in ("auto", "cubic"):
-            kind = "cubic4"
+            kind = "band"
+            # how far the evaluation reaches into filtered samples the ends' padding touched
+            reach = _band_limited_design(source_rate, rate)[0] / source_rate
+            design["evaluation_reach_s"] = float(reach)
         lo -= design["edge_s"]
         hi += design["edge_s"]
     info: dict[str, Any] = {
         "source_rate_hz": float(source_rate),
         "samples": int(src.time.size),
-        "method": "hold" if method == "hold" else ("cubic" if kind == "cubic4" else kind),
+        "method": "hold" if method == "hold" else ("cubic" if kind == "band" else kind),
         "interpolation": "last value held" if method == "hold" else _DESCRIPTION[kind],
         "anti_alias": design,
         "duplicate_stamps": src.duplicates,
@@ -409,7 +486,9 @@ def _resample_one(
         info["uniformized"] = False
         return src.values[np.clip(idx, 0, None)], info
     # Only the stamps that reach the grid (through the filter, for decimation).
-    pad = _SPLINE_PAD if kind.startswith("cubic") else 1
+    pad = _SPLINE_PAD if kind == "cubic" else 1
+    if kind == "band":  # the filtered samples the sinc reaches, clear of the filter's ends
+        pad = max(_SPLINE_PAD, _band_limited_design(source_rate, rate)[0] + 1)
     a = max(int(np.searchsorted(src.time, lo, side="right")) - 1 - pad, 0)
     b = min(int(np.searchsorted(src.time, hi, side="left")) + 1 + pad, src.time.size)
     time, values = src.time[a:b], src.values[a:b]
@@ -428,10 +507,14 @@ def _resample_one(
         if float(np.max(np.abs(steps - step))) > _UNIFORM_RTOL * step:
             n = int(np.floor((time[-1] - time[0]) / step + 1e-9)) + 1
             uniform = time[0] + np.arange(n) * step
-            values = _interpolate(time, values, uniform, kind)
+            # at the source rate, before the filter: many samples per cycle of the band
+            values = _interpolate(time, values, uniform, "cubic4" if kind == "band" else kind)
             time = uniform
             info["uniformized"] = True
         values = _fir_zero_phase(values, taps)
+        if kind == "band":
+            out = _band_limited(time, values, grid, source_rate, rate)
+            return (out + base) * scale, info
     return (_interpolate(time, values, grid, kind) + base) * scale, info
 
 

@@ -66,7 +66,9 @@ def resample(
 
     A channel logged faster than `rate` is low-pass filtered first (a
     zero-phase Kaiser-window FIR, flat to 0.8 x the new Nyquist frequency and
-    80 dB down at it), then evaluated on the grid; a slower channel is
+    80 dB down at it), then evaluated on the grid band-limited (a
+    Kaiser-windowed sinc through the filtered samples, so the band stays flat
+    even from a source rate close to `rate`); a slower channel is
     interpolated. Nothing is extrapolated, and a hole in the stamps longer
     than `max_gap` is reported rather than bridged.
 
@@ -94,9 +96,12 @@ def resample(
         How samples are placed on the grid, for every channel or per model
         name (unnamed ones take ``"auto"``). ``"linear"`` and ``"cubic"``
         interpolate (after the anti-aliasing filter when decimating);
-        ``"auto"`` is linear, and cubic after the filter, where the filtered
-        signal is smooth; ``"hold"`` keeps the last value without filtering,
-        for flight modes, switches and counters.
+        ``"auto"`` is linear, and after the filter ``"auto"`` and ``"cubic"``
+        evaluate the filtered samples band-limited (a Kaiser-windowed sinc,
+        flat to 1e-6 over the filter's pass band, no delay; recorded as
+        ``"cubic"`` with its ``"interpolation"`` described);
+        ``"hold"`` keeps the last value without filtering, for flight modes,
+        switches and counters.
 
     Returns
     -------
@@ -125,8 +130,9 @@ def resample(
     The filter needs half its length of samples on each side of a grid
     point (``metadata["resampling"]["channels"][name]["anti_alias"]["edge_s"]``);
     where the channel ends sooner, odd reflection stands in for them, so the
-    first and last `edge_s` seconds of a channel that bounds the grid are less
-    accurate. Duplicated stamps are averaged and out-of-order stamps sorted.
+    first and last `edge_s` seconds of a channel that bounds the grid (and
+    the band-limited evaluation's ``evaluation_reach_s`` beyond them, where it
+    is used) are less accurate. Duplicated stamps are averaged and out-of-order stamps sorted.
     """
     parts = log_parts(log)
     grid = regrid(*parts, channels, rate=rate, t0=t0, t1=t1, max_gap=max_gap, method=method)
