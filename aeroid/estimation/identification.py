@@ -208,7 +208,9 @@ def identify(
         residuals at every iteration (maximum likelihood).
     error_bars : {"colored", "white"}, optional
         Standard errors corrected for coloured residuals from their spectrum
-        (output error's default), or the classical Cramér–Rao values. Filter
+        (output error's default; where the residuals show no colour, a
+        lag-one correlation below 3/sqrt(N), that is the classical bound and
+        the summary says so), or the classical Cramér–Rao values. Filter
         error's innovations are white by construction: its bars are its Fisher
         information's, and an explicit "colored" there warns that it changes nothing. Output error with the
         noise covariance estimated (no `weights`) also carries the scatter that
