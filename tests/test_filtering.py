@@ -692,6 +692,8 @@ _NOISE = {
         ({"process_noise": {"alpha": True}}, r"process_noise\['alpha'\]"),
         ({"measurement_noise": {"alpha": "1", "q": 1.0}}, r"measurement_noise\['alpha'\]"),
         ({"process_noise": np.array([1j, 1.0])}, "process_noise: complex"),
+        ({"outputs": []}, r"outputs: name at least one of the model's outputs"),
+        ({"outputs": ["beta"]}, r"outputs: \['beta'\] not among"),
     ],
 )
 def test_filter_states_refuses_bad_arguments(kwargs, culprit):

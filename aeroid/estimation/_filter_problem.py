@@ -259,10 +259,10 @@ def build_problem(
     else:
         out_names = tuple([outputs] if isinstance(outputs, str) else outputs)
         bad = [o for o in out_names if o not in m.output_names]
-        if bad or not out_names:
-            raise error(
-                f"outputs: {bad or 'none'} not among the model's outputs {list(m.output_names)}"
-            )
+        if not out_names:
+            raise error(f"outputs: name at least one of the model's outputs {list(m.output_names)}")
+        if bad:
+            raise error(f"outputs: {bad} not among the model's outputs {list(m.output_names)}")
         check_distinct(out_names, "outputs", error)
     data.require(m.controls, role="control")
     data.require(out_names, role="output")
