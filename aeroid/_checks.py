@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from .errors import DataFormatError, SimulationError
 
-__all__ = ["as_float", "check_time", "constant_value", "plain", "positive_number"]
+__all__ = ["as_float", "check_time", "constant_value", "plain", "positive_number", "time_label"]
 
 
 def plain(value: Any) -> str:
@@ -18,6 +18,12 @@ def plain(value: Any) -> str:
     if isinstance(value, np.generic):
         value = value.item()
     return repr(value)
+
+
+def time_label(t: float) -> str:
+    """A time stamp for a message: to the millisecond, however large the clock (``:g``
+    printed every instant of an epoch-stamped flight as 1.7e+09)."""
+    return str(np.format_float_positional(float(t), precision=3, trim="-"))
 
 
 def as_float(value: Any) -> float | None:

@@ -98,7 +98,8 @@ def response_to_noise(
             noise.append(res - np.mean(res))
         signal = float(np.sqrt(np.mean(np.concatenate(moves) ** 2)))
         scatter = float(np.sqrt(np.mean(np.concatenate(noise) ** 2)))
-        ratios[name] = signal / scatter if scatter > 0 else float("inf")
+        # a flat output (all zero, say) shows no response however small its residuals
+        ratios[name] = signal / scatter if scatter > 0 else (float("inf") if signal > 0 else 0.0)
     return ratios
 
 

@@ -228,8 +228,11 @@ def damped_step(
     would exceed it takes that much, and the others' step is solved again given it.
     """
     dn = np.sqrt(np.clip(np.diag(point.curvature), 1e-300, None))
-    a = point.curvature / np.outer(dn, dn)
-    b = point.gradient / dn
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        # a record that moves no output leaves no curvature at all: `plain` below meets
+        # what is not finite
+        a = point.curvature / np.outer(dn, dn)
+        b = point.gradient / dn
 
     def plain(sub: FloatArray, rhs: FloatArray) -> FloatArray:
         if not (np.all(np.isfinite(sub)) and np.all(np.isfinite(rhs))):

@@ -95,6 +95,8 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 _MODEL_RESPONSES = ("simulated", "exact", "auto")
+# Welch spectra need two segments of at least 8 samples
+_MIN_SAMPLES = 16
 
 
 # One response record for every frequency tool: rad/s, complex response, dB and
@@ -337,6 +339,11 @@ def frequency_response(
     require_model(model, IdentificationError)
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
+    if data.n_samples < _MIN_SAMPLES:
+        raise DataFormatError(
+            f"data: {data.n_samples} samples are too few for a frequency response (Welch "
+            f"spectra need at least {_MIN_SAMPLES}: two segments of 8)"
+        )
     if not data.is_uniform:
         steps = np.diff(data.time)
         raise DataFormatError(

@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .._checks import plain, positive_number
+from .._checks import plain, positive_number, time_label
 from .._threads import small_blas
 from ..errors import ChannelError, DataFormatError
 from ._logtypes import FlightLog, LogChannel
@@ -144,7 +144,8 @@ def clean_source(name: str, raw: Any) -> Source:
     if bad.size:
         i = int(bad[0])
         raise DataFormatError(
-            f"channel {name!r}: {plain(values[i])} value at t = {time[i]:.6g} s (sample {i})"
+            f"channel {name!r}: {plain(values[i])} value at t = {time_label(time[i])} s "
+            f"(sample {i})"
         )
     steps = np.diff(time)
     reordered = int(np.count_nonzero(steps < 0))
@@ -474,7 +475,9 @@ def _resample_one(
     if starts.size and math.isfinite(max_gap):
         raise DataFormatError(
             f"channel {src.name!r}: gap of {lengths[0]:.6g} s in the stamps starting at "
-            f"t = {starts[0]:.6g} s (longer than max_gap = {max_gap:.6g} s"
+            f"t = {time_label(starts[0])} s (after sample "
+            f"{int(np.searchsorted(src.time, starts[0], side='right')) - 1}; longer than "
+            f"max_gap = {max_gap:.6g} s"
             f"{'' if starts.size == 1 else f'; {starts.size} such gaps'}); resample around "
             "it with t0/t1, or pass max_gap=float('inf') to interpolate across it"
         )

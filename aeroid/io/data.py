@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._checks import as_float as as_float  # re-exported: the other modules import it here
-from .._checks import plain
+from .._checks import plain, time_label
 from .._checks import positive_number as positive_number
 from .._records import frozen_array
 from .._value_checks import _first_bad, real_array
@@ -118,6 +118,34 @@ def uniform_step(time: FloatArray) -> float | None:
     return (float(time[-1]) - float(time[0])) / (time.size - 1)
 
 
+def _refuse_coarse_stamps(given: Any, time: NDArray[np.float64]) -> None:
+    """Refuse time stamps stored in a float too short for their clock: float32 near an
+    epoch of 1.7e9 s holds one value per 128 s, and near 1e5 s rounds a 50 Hz grid to
+    steps of 1/128 s (a jitter of 20 % nobody asked for)."""
+    dtype = getattr(given, "dtype", None)
+    if dtype is None or dtype.kind != "f" or dtype.itemsize >= 8 or time.size < 2:
+        return
+    spacing = float(np.spacing(np.asarray(np.max(np.abs(time)), dtype=dtype)))
+    step = float(np.median(np.diff(time))) if time.size > 1 else 0.0
+    if not step > 10.0 * spacing:  # rounding a tenth of a step or more
+        raise DataFormatError(
+            f"time: {dtype} stamps near t = {time_label(float(np.max(np.abs(time))))} s are "
+            f"only {spacing:.3g} s apart, against a sample interval of {step:.3g} s; give "
+            "the times in float64 (or relative to the record's start)"
+        )
+
+
+def _dropout(values: NDArray[np.float64], time: NDArray[np.float64]) -> str:
+    """Where a channel's first non-finite samples are: index, time and run length."""
+    bad = ~np.isfinite(values)
+    i = _first_bad(values)
+    run = int(np.argmin(bad[i:])) if not bad[i:].all() else int(bad[i:].size)
+    total = int(bad.sum())
+    where = f"non-finite value at index {i} (t = {time_label(time[i])} s"
+    where += f", a run of {run} samples" if run > 1 else ""
+    return where + (f"; {total} in all)" if total > run else ")")
+
+
 @dataclass(frozen=True, eq=False)
 class FlightData:
     """An immutable, name-indexed set of time series sampled on one time axis.
@@ -156,6 +184,7 @@ class FlightData:
             )
         if not np.all(np.isfinite(time)):
             raise DataFormatError(f"time: non-finite value at index {_first_bad(time)}")
+        _refuse_coarse_stamps(self.time, time)
         steps = np.diff(time)
         if np.any(steps <= 0):
             bad = int(np.flatnonzero(steps <= 0)[0]) + 1
@@ -175,9 +204,7 @@ class FlightData:
                     f"channel {name!r}: length {arr.shape} does not match time {time.shape}"
                 )
             if not np.all(np.isfinite(arr)):
-                raise DataFormatError(
-                    f"channel {name!r}: non-finite value at index {_first_bad(arr)}"
-                )
+                raise DataFormatError(f"channel {name!r}: {_dropout(arr, time)}")
             chans[name] = arr
         # None reads as "none given", as for the other optional arguments.
         for label, value in (("units", self.units), ("metadata", self.metadata)):

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._checks import time_label
 from .._records import fmt, frozen_array, markdown_table
 from .._stats import spread_over_noise
 from .._threads import CALLER_STACKLEVEL
@@ -338,6 +339,5 @@ def _fitted_start(
 
 
 def _stamp(t: float) -> str:
-    """A time for a message: to the millisecond, however large the clock (``:g`` printed
-    a window at 1e6 s as [1.00002e+06, 1.00002e+06])."""
-    return str(np.format_float_positional(t, precision=3, trim="-"))
+    """A time for a message (a window at 1e6 s printed [1.00002e+06, 1.00002e+06])."""
+    return time_label(t)
