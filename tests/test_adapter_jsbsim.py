@@ -279,3 +279,11 @@ def test_the_flight_controls_keep_their_rate_limit_at_any_sample_rate(rate):
     t = np.arange(int(rate) // 2) / rate
     y = m.simulate(t, np.where(t >= 0.1, 1.0, 0.0)[:, None]).output("left")
     assert np.max(np.abs(np.diff(y))) * rate == pytest.approx(1.57, rel=1e-6)
+
+
+def test_controls_that_are_not_numbers_are_named(model, grid):
+    t, _ = grid
+    with pytest.raises(aeroid.errors.SimulationError, match="control 'elevator': expected numbers"):
+        model.simulate(t, {"elevator": ["up"] * t.size})
+    with pytest.raises(aeroid.errors.SimulationError, match="controls: complex"):
+        model.simulate(t, np.full(t.size, 1j))

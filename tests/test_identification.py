@@ -224,6 +224,11 @@ def test_simulator_model_is_fitted_by_looping():
             method="filter_error",
             process_noise={"q": 1e-4},
         )
+    # it exposes no states: asking for its initial states to be estimated was ignored
+    with pytest.raises(IdentificationError, match="estimate_x0: a SimulatorModel starts"):
+        identify(sim, catalog.short_period_flight(noise={}), ["M_alpha"], estimate_x0=True)
+    r2 = identify(sim, catalog.short_period_flight(noise={}), ["M_alpha"], estimate_x0=[])
+    assert r2.initial_states == ({},)
 
 
 @pytest.mark.parametrize(

@@ -59,6 +59,16 @@ def time_grid(time: Any) -> FloatArray:
     return check_time(time)
 
 
+def _numbers(values: Any, what: str) -> FloatArray:
+    """`values` as floats, or a `SimulationError` naming `what` (text, complex numbers)."""
+    if np.iscomplexobj(values):
+        raise SimulationError(f"{what}: complex values are not supported")
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SimulationError(f"{what}: expected numbers, got {type(values).__name__}") from None
+
+
 def control_matrix(time: FloatArray, controls: Any, names: Sequence[str]) -> FloatArray:
     """Controls as an (n_t, n_u) array from None, a mapping, FlightData or an array."""
     n_t, n_u = time.size, len(names)
@@ -79,7 +89,7 @@ def control_matrix(time: FloatArray, controls: Any, names: Sequence[str]) -> Flo
             )
         cols = []
         for c in names:
-            col = np.asarray(controls[c], dtype=np.float64)
+            col = _numbers(controls[c], f"control {c!r}")
             if col.shape != (n_t,):
                 raise SimulationError(
                     f"control {c!r}: expected {n_t} samples, got shape {col.shape}"
@@ -87,7 +97,7 @@ def control_matrix(time: FloatArray, controls: Any, names: Sequence[str]) -> Flo
             cols.append(col)
         arr = np.stack(cols, axis=1) if cols else np.zeros((n_t, 0))
     else:
-        arr = np.asarray(controls, dtype=np.float64)
+        arr = _numbers(controls, "controls")
         if arr.ndim == 1 and n_u == 1:
             arr = arr[:, None]
         if arr.shape != (n_t, n_u):

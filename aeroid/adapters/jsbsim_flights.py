@@ -352,6 +352,10 @@ def fly_c172x(
         raise AdapterError(f"duration {duration!r} s: the c172x test inputs need at least 18 s")
     if not 10.0 <= float(sample_rate) <= 400.0:
         raise AdapterError(f"sample_rate {sample_rate!r} Hz: expected 10-400 Hz")
+    if not (math.isfinite(float(turbulence)) and float(turbulence) >= 0.0):
+        raise AdapterError(
+            f"turbulence {turbulence!r} m/s: expected a gust standard deviation >= 0 (0: calm air)"
+        )
     # JSBSim steps at a whole multiple of the recording rate, at least its usual 120 Hz.
     every = math.ceil(120.0 / float(sample_rate) - 1e-9)
     step = 1.0 / (every * float(sample_rate))

@@ -530,6 +530,11 @@ def identify(
         sel_x0 = [s for s in states if auto and s in fit_outputs]
     else:
         sel_x0 = _select(estimate_x0, states, "estimate_x0")
+    if is_simulator and estimate_x0 is True:  # (state names it would refuse as unknown)
+        raise IdentificationError(
+            "estimate_x0: a SimulatorModel starts where its simulator does (it exposes no "
+            "states); initial states are estimated for an aeroid.Model"
+        )
     if sel_x0 and (is_simulator or gradient == "jax"):
         raise IdentificationError(
             f"estimate_x0 {sel_x0}: initial states are estimated for an aeroid.Model with "
