@@ -503,5 +503,5 @@ def test_the_side_force_and_aileron_yaw_terms_take_out_the_yaw_bias():
 
 
 def test_a_negative_gust_level_is_refused_not_flown_as_calm_air():
-    with pytest.raises(AdapterError, match="turbulence -1.0 m/s"):
+    with pytest.raises(AdapterError, match=r"turbulence -1\.0 m/s"):
         fly_c172x(FlightCondition(50.0, 1000.0), turbulence=-1.0, duration=18.0)
