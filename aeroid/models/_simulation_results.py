@@ -4,16 +4,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .._checks import as_float, plain
+from .._checks import as_float, plain, time_label
 from .._records import fmt, markdown_table
 from .._value_checks import check_seed
-from ..errors import ChannelError, SimulationError
+from ..errors import AeroidError, ChannelError, SimulationError
 from ..io.data import FlightData, readonly
 
 FloatArray = NDArray[np.float64]
@@ -44,6 +45,24 @@ class SimulationResult:
     def __post_init__(self) -> None:
         for name in ("time", "states", "outputs", "controls"):
             object.__setattr__(self, name, readonly(getattr(self, name)))
+        if self.time.ndim != 1:
+            raise SimulationError(
+                f"SimulationResult: time must be 1-D, got shape {self.time.shape}"
+            )
+        # a simulator's rows or columns that do not match its grid and names would
+        # surface later as a bare broadcasting error far from the simulator
+        for name, names in (
+            ("states", self.state_names),
+            ("outputs", self.output_names),
+            ("controls", self.control_names),
+        ):
+            shape = getattr(self, name).shape
+            want = (self.time.size, len(names))
+            if shape != want:
+                raise SimulationError(
+                    f"SimulationResult: {name} has shape {shape}; {self.time.size} times "
+                    f"and {len(names)} {name[:-1]} names {list(names)} need {want}"
+                )
 
     def state(self, name: str) -> FloatArray:
         """History of one state."""
@@ -147,3 +166,58 @@ class BatchSimulation:
     ok: NDArray[np.bool_]
     fail_time: FloatArray
     failure: tuple[str, ...] = ()
+
+
+def _model_name(model: Any) -> str:
+    return str(getattr(model, "name", type(model).__name__))
+
+
+def simulator_problem(model: Any, result: Any, n_times: int, *, finite: bool = True) -> str | None:
+    """What is wrong with what a simulator's ``simulate`` returned for `n_times` times,
+    in words (None if nothing): not a result, outputs of the wrong shape, or (with
+    `finite`) the first output and time that are not finite."""
+    outputs = getattr(result, "outputs", None)
+    if outputs is None:
+        return f"its simulate returned {type(result).__name__}, not a SimulationResult"
+    names = list(getattr(model, "outputs", ()))
+    try:
+        y = np.asarray(outputs, dtype=np.float64)
+    except (TypeError, ValueError):
+        return "its simulate returned outputs that are not numbers"
+    if y.shape != (n_times, len(names)):
+        return (
+            f"its simulate returned outputs of shape {y.shape}; {n_times} times and the "
+            f"{len(names)} outputs {names} need ({n_times}, {len(names)})"
+        )
+    bad = ~np.isfinite(y)
+    if finite and bad.any():
+        row = int(np.argmax(bad.any(axis=1)))
+        col = int(np.argmax(bad[row]))
+        time = getattr(result, "time", None)
+        when = (
+            f"t = {time_label(np.asarray(time)[row])} s"
+            if time is not None and np.size(time) == n_times
+            else f"sample {row}"
+        )
+        return f"output {names[col]!r} is not finite from {when} (value {y[row, col]})"
+    return None
+
+
+def simulator_outputs(
+    model: Any, run: Callable[[], Any], n_times: int, *, finite: bool = True
+) -> FloatArray:
+    """The outputs (`n_times`, n_outputs) of ``run()``, a call of `model`'s simulate; a
+    `SimulationError` naming the model and what went wrong if it raised something other
+    than an AeroID error, or returned something `simulator_problem` refuses."""
+    try:
+        result = run()
+    except AeroidError:
+        raise
+    except Exception as exc:  # a simulator's own failure, named at the boundary
+        raise SimulationError(
+            f"model {_model_name(model)!r}: its simulate raised {type(exc).__name__}: {exc}"
+        ) from exc
+    problem = simulator_problem(model, result, n_times, finite=finite)
+    if problem is not None:
+        raise SimulationError(f"model {_model_name(model)!r}: {problem}")
+    return np.asarray(result.outputs, dtype=np.float64)

@@ -25,6 +25,8 @@ from ._model_base import ContinuousModel
 from ._simulation_checks import MAX_SUBSTEPS as MAX_SUBSTEPS
 from ._simulation_checks import _real, check_integrator, real_number
 from ._simulation_results import BatchSimulation, SimulationResult
+from ._simulation_results import simulator_outputs as simulator_outputs
+from ._simulation_results import simulator_problem as simulator_problem
 from .batch_simulator import BatchSimulator
 
 __all__ = [
