@@ -32,6 +32,7 @@ from ..models.integration import (
     check_control_interpolation,
     shifted_controls,
 )
+from ..models.model import simulator_problem
 from ._excitation import refuse_runaway as _refuse_runaway
 from ._identification_record import IdentificationResult
 from ._noise_model import _bandwidth, _colored_covariance, _warn_unabsorbed_drift
@@ -143,12 +144,14 @@ def _simulate_members(
             res = model.simulate(man.time, ctrl, None, p, **options)
         except Exception as exc:  # a failed member is a rejected point, not a crash
             if errors is not None:
-                errors.append(f"{type(exc).__name__}: {exc}")
+                errors.append(f"its simulate raised {type(exc).__name__}: {exc}")
             continue
-        y = np.asarray(res.outputs)[:, out_idx]
-        if np.all(np.isfinite(y)):
-            outs[b] = y
+        problem = simulator_problem(model, res, man.time.size)
+        if problem is None:
+            outs[b] = np.asarray(res.outputs, dtype=np.float64)[:, out_idx]
             ok[b] = True
+        elif errors is not None:
+            errors.append(problem)
     return outs, ok
 
 
@@ -556,10 +559,15 @@ def fit_output_error(
                 f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}: "
                 f"{problem.errors[0]}{hint}; check the initial guesses and the model"
             )
-        raised = f" (its simulate raised {problem.errors[0]})" if problem.errors else ""
+        if problem.errors:  # what the stepped simulator did, named (model, output, time)
+            raise _StartFailure(
+                f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
+                f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))} "
+                f"({problem.errors[0]}){hint}; check the initial guesses and the model"
+            )
         raise IdentificationError(
             f"the model {getattr(model, 'name', '')!r} cannot be simulated at the initial "
-            f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}{raised}{hint}; "
+            f"parameters {dict(zip(names, theta[:n_p].tolist(), strict=True))}{hint}; "
             "check the initial guesses and the model"
         )
     jacobians: list[FloatArray] = first_jac

@@ -16,6 +16,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ from ..models.model import (
     fitted_start,
     require_model,
     resolve_parameters,
+    simulator_outputs,
 )
 
 __all__ = ["SensitivityResult", "sensitivities"]
@@ -142,15 +144,13 @@ def _simulate_members(
         cdict = {n: u[:, j] for j, n in enumerate(names)}
         pb = {k: float(np.broadcast_to(v, (batch,))[b]) for k, v in params.items()}
         try:
-            res = model.simulate(time, cdict, x0, pb, **options)
+            run = partial(model.simulate, time, cdict, x0, pb, **options)
+            out[b] = simulator_outputs(model, run, time.size)
         except SimulationError as exc:
             if errors is not None:
                 errors.append(str(exc))
             continue
-        y = np.asarray(res.outputs, dtype=np.float64)
-        if y.shape == out.shape[1:] and np.all(np.isfinite(y)):
-            out[b] = y
-            ok[b] = True
+        ok[b] = True
     return out, ok
 
 

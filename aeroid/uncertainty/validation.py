@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -23,6 +24,7 @@ from ..models.model import (
     fitted_start,
     require_model,
     resolve_parameters,
+    simulator_outputs,
 )
 from .prediction import STARTS, PredictionMetrics, PredictionResult, holdout_record, predict
 
@@ -409,9 +411,11 @@ def validate(
     flown = delayed_controls(parameters, data)
     if hasattr(model, "simulate_batch"):
         opts.setdefault("method", "auto")  # the integrator identify uses by default
-    sim = model.simulate_data(flown, x0=x0, parameters=p, **opts)
+    # a stepped simulator's failure (a raise, a wrong shape, NaN) named as a Model's is
+    run = partial(model.simulate_data, flown, x0=x0, parameters=p, **opts)
+    y_sim = simulator_outputs(model, run, n)
     idx = [names.index(o) for o in chosen]
-    y_model = np.asarray(sim.outputs)[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
+    y_model = y_sim[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
     y_meas = data.array(chosen)
     resid = y_meas - y_model
     lags = int(min(whiteness_lags, n - 2))
