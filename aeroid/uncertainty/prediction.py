@@ -17,6 +17,7 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from types import MappingProxyType
 from typing import Any
 
@@ -29,6 +30,7 @@ from .._stats import spread_over_noise
 from .._threads import CALLER_STACKLEVEL
 from ..errors import IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData, measured_start, plain
+from ..models.model import simulator_outputs
 
 FloatArray = NDArray[np.float64]
 
@@ -261,15 +263,18 @@ def predict(
     names = list(model.outputs)
     # the measured state at the first held-out sample, less the sensor biases the
     # fit estimated where they apply (a measured state carries its sensor's bias)
-    x0 = {k: v - biases.get(k, 0.0) for k, v in measured_start(record, model.states).items()}
+    # (a SimulatorModel has no states: it starts where its own simulate_data does)
+    states = getattr(model, "states", ())
+    x0 = {k: v - biases.get(k, 0.0) for k, v in measured_start(record, states).items()}
     y = record.array(list(outputs))
     if start == "estimated":
         x0, shifts = _fitted_start(model, flown, p, outputs, x0, opts)
     else:
         shifts = {o: float(biases.get(o, 0.0)) for o in outputs}
-    sim = model.simulate_data(flown, x0=x0 or None, parameters=p, **opts)
+    run = partial(model.simulate_data, flown, x0=x0 or None, parameters=p, **opts)
+    y_sim = simulator_outputs(model, run, flown.n_samples)
     idx = [names.index(o) for o in outputs]
-    y_hat = np.asarray(sim.outputs)[:, idx] + np.array([shifts[o] for o in outputs])
+    y_hat = y_sim[:, idx] + np.array([shifts[o] for o in outputs])
     metrics = {o: prediction_metrics(y[:, j], y_hat[:, j]) for j, o in enumerate(outputs)}
     ratios = {o: spread_over_noise(y[:, j]) for j, o in enumerate(outputs)}
     if ratios and all(v < _EXCITED for v in ratios.values()):
