@@ -355,12 +355,8 @@ def _generate(
             if key in seen or powers[j] > max_powers[j]:
                 continue
             seen.add(key)
-            new = xs[:, j] * funcs[parent]
-            raw = float(np.sqrt(new @ new))
-            for _ in range(2):  # twice: one pass of Gram-Schmidt loses orthogonality
-                basis = np.column_stack(funcs)
-                new = new - basis @ ((basis.T @ new) / np.einsum("ij,ij->j", basis, basis))
-            if float(np.sqrt(new @ new)) <= _DEPENDENT * raw:
+            new = _new_direction(xs[:, j] * funcs[parent], funcs)
+            if new is None:
                 # the data cannot tell this monomial from those before it (too few
                 # distinct values of a variable, or variables tied to each other): it
                 # adds no direction to fit, nor a parent for the next order
@@ -380,6 +376,19 @@ def _generate(
     return np.array(mono, dtype=np.int64), psi, np.einsum("ij,ij->j", psi, psi)
 
 
+def _new_direction(column: FloatArray, funcs: list[FloatArray]) -> FloatArray | None:
+    """`column` made orthogonal to `funcs` (Gram-Schmidt), or None when less than
+    `_DEPENDENT` of it is left: the data cannot tell it from them."""
+    new = column
+    size = float(np.sqrt(new @ new))
+    if funcs:
+        basis = np.column_stack(funcs)
+        norms = np.einsum("ij,ij->j", basis, basis)
+        for _ in range(2):  # twice: one pass of Gram-Schmidt loses orthogonality
+            new = new - basis @ ((basis.T @ new) / norms)
+    return new if float(np.sqrt(new @ new)) > _DEPENDENT * size else None
+
+
 def _orthogonal(
     xs: FloatArray, mono: NDArray[np.int64]
 ) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
@@ -389,13 +398,8 @@ def _orthogonal(
     keep: list[int] = []
     funcs: list[FloatArray] = []
     for i in range(mono.shape[0]):
-        new = raw[:, i].copy()
-        size = float(np.sqrt(new @ new))
-        for _ in range(2):  # twice: one pass of Gram-Schmidt loses orthogonality
-            if funcs:
-                basis = np.column_stack(funcs)
-                new = new - basis @ ((basis.T @ new) / np.einsum("ij,ij->j", basis, basis))
-        if float(np.sqrt(new @ new)) > _DEPENDENT * size:
+        new = _new_direction(raw[:, i], funcs)
+        if new is not None:
             keep.append(i)
             funcs.append(new)
     psi = np.column_stack(funcs)

@@ -126,7 +126,7 @@ def _refuse_coarse_stamps(given: Any, time: NDArray[np.float64]) -> None:
     if dtype is None or dtype.kind != "f" or dtype.itemsize >= 8 or time.size < 2:
         return
     spacing = float(np.spacing(np.asarray(np.max(np.abs(time)), dtype=dtype)))
-    step = float(np.median(np.diff(time))) if time.size > 1 else 0.0
+    step = float(np.median(np.diff(time)))
     if not step > 10.0 * spacing:  # rounding a tenth of a step or more
         raise DataFormatError(
             f"time: {dtype} stamps near t = {time_label(float(np.max(np.abs(time))))} s are "

@@ -219,16 +219,20 @@ def holdout_record(data: FlightData, holdout: Any) -> tuple[FlightData, str, boo
                 raise IdentificationError(f"holdout: need t1 > t0, got t0={t0:g}, t1={t1:g}")
             if t0 < start or t1 > end:
                 raise IdentificationError(
-                    f"holdout: window [{_stamp(t0)}, {_stamp(t1)}] s lies outside the record "
-                    f"[{_stamp(start)}, {_stamp(end)}] s"
+                    f"holdout: window [{time_label(t0)}, {time_label(t1)}] s lies outside the record "
+                    f"[{time_label(start)}, {time_label(end)}] s"
                 )
         mask = (data.time >= t0) & (data.time <= t1)
         if int(mask.sum()) < MIN_HOLDOUT_SAMPLES:
             raise IdentificationError(
-                f"holdout: window [{_stamp(t0)}, {_stamp(t1)}] s holds {int(mask.sum())} samples; "
+                f"holdout: window [{time_label(t0)}, {time_label(t1)}] s holds {int(mask.sum())} samples; "
                 f"a prediction needs at least {MIN_HOLDOUT_SAMPLES}"
             )
-        record, source, window = data.window(t0, t1), f"window [{_stamp(t0)}, {_stamp(t1)}] s", True
+        record, source, window = (
+            data.window(t0, t1),
+            f"window [{time_label(t0)}, {time_label(t1)}] s",
+            True,
+        )
     else:
         raise IdentificationError(
             "holdout: expected a mapping with t0 and t1 (or fraction), or FlightData, "
@@ -341,8 +345,3 @@ def _fitted_start(
             simulate_options=dict(opts),
         )
     return dict(fit.initial_states[0]), {o: float(fit.biases[0][o]) for o in outputs}
-
-
-def _stamp(t: float) -> str:
-    """A time for a message (a window at 1e6 s printed [1.00002e+06, 1.00002e+06])."""
-    return time_label(t)
