@@ -780,3 +780,24 @@ def test_the_time_origin_changes_nothing(multisine_record, origin):
         coherent = a.coherence > 0.5  # elsewhere noise over noise amplifies the rounding
         np.testing.assert_allclose(b.response[coherent], a.response[coherent], rtol=1e-6)
         assert b.mismatch == pytest.approx(a.mismatch, rel=1e-6)
+
+
+@pytest.mark.parametrize("spacing", ["even", "uneven"])
+def test_spectra_taken_in_blocks_equal_those_taken_at_once(monkeypatch, spacing):
+    # a long record's analysis grid is transformed a group of segments and a block of
+    # frequencies at a time; the spectral matrix must not depend on the blocks
+    from aeroid.frequency import _cross_spectra as cs
+
+    rng = np.random.default_rng(3)
+    signals = rng.standard_normal((4000, 3))
+    if spacing == "even":
+        omega = 2 * np.pi * np.arange(1, 2501) * 0.01  # three blocks of frequencies
+    else:
+        omega = np.geomspace(0.5, 150.0, 300)
+    g, x, nd = cs._window_spectra(signals, 0.02, 500, 250, omega, first_transforms=True)
+    monkeypatch.setattr(cs, "_TRANSFORM_BUDGET", 48 * 3 * 600)
+    g_b, x_b, nd_b = cs._window_spectra(signals, 0.02, 500, 250, omega, first_transforms=True)
+    assert nd_b == nd
+    np.testing.assert_allclose(g_b, g, rtol=1e-12, atol=1e-12 * np.abs(g).max())
+    np.testing.assert_allclose(x_b, x, rtol=1e-12, atol=1e-12 * np.abs(x).max())
+    assert cs._window_spectra(signals, 0.02, 500, 250, omega)[1] is None

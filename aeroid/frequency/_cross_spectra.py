@@ -23,6 +23,8 @@ _MIN_RANDOM_ERROR = 1e-9
 # of the tests), so no point claims less, and none outweighs a fit's others by more
 # than (εr / 0.01)².
 _RANDOM_ERROR_FLOOR = 0.01
+# Bytes of segment transforms (or direct-sum kernel) held at once by `_window_spectra`.
+_TRANSFORM_BUDGET = 1 << 27
 # Smallest eigenvalue of the inputs' coherence matrix taken as singular.
 _DEPENDENT = 1e-10
 
@@ -42,36 +44,69 @@ def _independent_averages(n: int, seg: int, step: int, window: FloatArray) -> fl
 
 
 def _window_spectra(
-    signals: FloatArray, dt: float, seg: int, step: int, omega: FloatArray
-) -> tuple[ComplexArray, ComplexArray, float]:
+    signals: FloatArray,
+    dt: float,
+    seg: int,
+    step: int,
+    omega: FloatArray,
+    *,
+    first_transforms: bool = False,
+) -> tuple[ComplexArray, ComplexArray | None, float]:
     """Spectral matrix G[m, a, b] = E[conj(X_a) X_b] (one-sided density) of one window length,
-    the segments' transforms X (m, k, c) and the stationary count of independent averages."""
+    the first signal's segment transforms X (m, k) where asked for (else None) and the
+    stationary count of independent averages."""
     n, c = signals.shape
     k = (n - seg) // step + 1
     win = hann(seg)
-    x = np.empty((omega.size, k, c), dtype=np.complex128)
+    g = np.zeros((omega.size, c, c), dtype=np.complex128)
+    x0 = np.empty((omega.size, k), dtype=np.complex128) if first_transforms else None
+    scale = 2.0 / (dt * float(np.dot(win, win)) * k)
+    m = omega.size
     if _evenly_spaced(omega / (2.0 * np.pi)):
-        # chirp-z on every windowed, mean-removed segment
-        starts = np.arange(k) * step
-        segs = signals[starts[:, None] + np.arange(seg)[None, :]]  # (k, seg, c)
-        segs = (segs - segs.mean(axis=1, keepdims=True)) * win[None, :, None]
-        cols = np.ascontiguousarray(np.transpose(segs, (1, 0, 2)).reshape(seg, k * c))
-        x[:] = fourier(cols, dt, omega / (2.0 * np.pi)).reshape(omega.size, k, c)
-    else:
-        # direct sum with the window folded into the kernel: the overlapping segments
-        # are views of the record, and a segment's mean leaves as mean × W(ω)
-        kern = _kernel(omega / (2.0 * np.pi), seg, dt) * win[None, :]
+        # chirp-z on the windowed, mean-removed segments, a group of segments (and, for a
+        # long window, a block of frequencies) at a time: a transform holds about three
+        # arrays of (segment + frequencies) x signals, so a long record's many analysis
+        # frequencies never hold every segment's transform at once
+        per_segment = 48 * c * (seg + m)
+        group = int(min(k, max(1, _TRANSFORM_BUDGET // per_segment)))
+        block = (
+            m
+            if per_segment <= _TRANSFORM_BUDGET
+            else max(1024, _TRANSFORM_BUDGET // (48 * c) - seg)
+        )
+        for first in range(0, k, group):
+            starts = np.arange(first, min(k, first + group)) * step
+            segs = signals[starts[:, None] + np.arange(seg)[None, :]]  # (kg, seg, c)
+            segs = (segs - segs.mean(axis=1, keepdims=True)) * win[None, :, None]
+            cols = np.ascontiguousarray(np.transpose(segs, (1, 0, 2)).reshape(seg, -1))
+            for lo in range(0, m, block):
+                part = omega[lo : lo + block]
+                x = fourier(cols, dt, part / (2.0 * np.pi)).reshape(part.size, starts.size, c)
+                g[lo : lo + block] += scale * np.einsum("mka,mkb->mab", np.conj(x), x)
+                if x0 is not None:
+                    x0[lo : lo + block, first : first + starts.size] = x[:, :, 0]
+        return g, x0, _independent_averages(n, seg, step, win)
+    # direct sum with the window folded into the kernel: the overlapping segments are
+    # views of the record, and a segment's mean leaves as mean × W(ω)
+    views = [np.lib.stride_tricks.sliding_window_view(signals[:, j], seg)[::step] for j in range(c)]
+    blocks = [np.ascontiguousarray(v.T) for v in views]  # (seg, k) each
+    means = [b.mean(axis=0) for b in blocks]
+    block = max(1, min(m, _TRANSFORM_BUDGET // (48 * (seg + k * c))))
+    for lo in range(0, m, block):
+        part = omega[lo : lo + block]
+        kern = _kernel(part / (2.0 * np.pi), seg, dt) * win[None, :]
         kr, ki = np.ascontiguousarray(kern.real), np.ascontiguousarray(kern.imag)
         w_sum = kern.sum(axis=1)
+        x = np.empty((part.size, k, c), dtype=np.complex128)
         for j in range(c):
-            view = np.lib.stride_tricks.sliding_window_view(signals[:, j], seg)[::step]
-            block = np.ascontiguousarray(view.T)  # (seg, k)
-            means = block.mean(axis=0)
-            x[:, :, j] = (kr @ block + 1j * (ki @ block)) - w_sum[:, None] * means[None, :]
+            x[:, :, j] = (kr @ blocks[j] + 1j * (ki @ blocks[j])) - w_sum[:, None] * means[j][
+                None, :
+            ]
         x *= dt
-    scale = 2.0 / (dt * float(np.dot(win, win)) * k)
-    g = scale * np.einsum("mka,mkb->mab", np.conj(x), x)
-    return g, x, _independent_averages(n, seg, step, win)
+        g[lo : lo + block] = scale * np.einsum("mka,mkb->mab", np.conj(x), x)
+        if x0 is not None:
+            x0[lo : lo + block] = x[:, :, 0]
+    return g, x0, _independent_averages(n, seg, step, win)
 
 
 def _effective_averages(

@@ -314,11 +314,13 @@ def composite_response(
     spectra, n_avg, weights, n_stationary = [], [], [], []
     for seg in segs:
         step = max(1, round(seg * (1.0 - ov)))
-        g, x, nd_stationary = _window_spectra(signals, dt, seg, step, omega)
+        g, x, nd_stationary = _window_spectra(
+            signals, dt, seg, step, omega, first_transforms=n_u == 1
+        )
         nd = (
-            _effective_averages(x[:, :, 0], omega, seg, step, dt)
-            if n_u == 1
-            else np.full(omega.size, nd_stationary)
+            np.full(omega.size, nd_stationary)
+            if x is None
+            else _effective_averages(x, omega, seg, step, dt)
         )
         _, coh, _ = _condition(g, n_u)
         # CIFER's window weights: the windows' own random errors (a convex combination, so
