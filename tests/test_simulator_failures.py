@@ -119,6 +119,7 @@ PATHS = {
     "identify": lambda m, d: aeroid.identify(m, d, ["K", "tau"]),
     "sensitivities": lambda m, d: aeroid.sensitivities(m, d, ["K", "tau"]),
     "validate": lambda m, d: aeroid.validate(m, d, {"K": 1.9}),
+    "frequency_response": lambda m, d: aeroid.frequency_response(m, d),
 }
 
 
@@ -130,7 +131,7 @@ def _raise(path: str, model: Any) -> str:
     return str(err.value)
 
 
-@pytest.mark.parametrize("path", ["identify", "sensitivities", "validate"])
+@pytest.mark.parametrize("path", list(PATHS))
 def test_non_finite_outputs_of_a_stepped_simulator_are_named_with_their_time(path):
     message = _raise(path, NanFrom6())
     assert "'stepped_lag'" in message
@@ -150,7 +151,24 @@ def test_non_finite_prediction_of_a_stepped_simulator_is_named():
         aeroid.validate(NanLate(), data.window(0.0, 5.0), {}, holdout=data)
 
 
-@pytest.mark.parametrize("path", ["identify", "sensitivities", "validate"])
+FAULTS = [
+    (Raises(), "its simulate raised RuntimeError: solver blew up"),
+    (ReturnsNone(), "its simulate returned NoneType, not a SimulationResult"),
+    (OneShort(), r"outputs of shape (500, 1); 501 times and the 1 outputs ['y'] need"),
+    (NanFrom6(), "output 'y' is not finite from t = 6 s"),
+]
+
+
+@pytest.mark.parametrize(("model", "what"), FAULTS)
+def test_infer_names_what_a_failing_stepped_simulator_did(model, what):
+    # every walker's simulation fails alike: the refusal carries the simulator's fault
+    priors = {"K": aeroid.Normal(K, 0.5), "tau": aeroid.Normal(TAU, 0.1)}
+    with pytest.raises(aeroid.InferenceError) as err:
+        aeroid.infer(model, _record(10.0), priors, n_walkers=8, n_steps=20, seed=0)
+    assert "'stepped_lag'" in str(err.value) and what in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("path", list(PATHS))
 @pytest.mark.parametrize(
     ("model", "what"),
     [

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from ..errors import SimulationError
 from ..io.data import FlightData, measured_start
 from ..models import integration as _integrate
-from ..models.model import Model, SimulatorModel
+from ..models.model import Model, SimulatorModel, simulator_outputs
 from ._transfer import state_space_response
 
 FloatArray = NDArray[np.float64]
@@ -152,5 +152,6 @@ def _simulated_outputs(
                 f"{sim.failure[0]}"
             )
         return np.asarray(sim.outputs[0])
-    res = model.simulate_data(data, x0=x0, parameters=values)
-    return np.asarray(res.outputs, dtype=np.float64)
+    return simulator_outputs(
+        model, lambda: model.simulate_data(data, x0=x0, parameters=values), data.n_samples
+    )

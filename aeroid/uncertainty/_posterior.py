@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,7 @@ from ..models.model import (
     check_integrator,
     check_simulate_options,
     require_model,
+    simulator_outputs,
 )
 from .priors import LogUniform, Prior
 
@@ -278,13 +280,16 @@ class _Posterior:
         )
         return np.asarray(y)[:batch][:, :, self.out_index]
 
+    def _run(self, values: Mapping[str, float]) -> Any:
+        return self.model.simulate_data(self.data, x0=self.x0, parameters=values, **self.options)
+
     def _loop(self, params: Mapping[str, FloatArray], batch: int) -> FloatArray:
         out = np.full((batch, self.n_t, len(self.output_names)), np.nan)
         for b in range(batch):
             p = {k: float(v[b]) for k, v in params.items()}
             try:
-                res = self.model.simulate_data(self.data, x0=self.x0, parameters=p, **self.options)
-                out[b] = np.column_stack([res.output(o) for o in self.output_names])
+                y = simulator_outputs(self.model, partial(self._run, p), self.n_t)
+                out[b] = y[:, [list(self.model.outputs).index(o) for o in self.output_names]]
             except Exception as exc:  # a failing member is a rejected proposal
                 self.last_error = exc
         return out
