@@ -14,10 +14,11 @@ import math
 from dataclasses import dataclass
 
 __all__ = ["CONDITION_KEYS", "CONDITION_NAMES", "ConditionKey", "condition_key"]
+from ._records import FrozenState
 
 
 @dataclass(frozen=True)
-class ConditionKey:
+class ConditionKey(FrozenState):
     """A flight-condition key.
 
     Attributes

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+from types import MappingProxyType
 from typing import Any, NoReturn
 
 import numpy as np
@@ -104,7 +105,60 @@ ESTIMATE_PROTOCOL = (
 )
 
 
-class IntervalMixin:
+class _Packed:
+    """A read-only array, mapping proxy or read-only dict in a form pickle carries."""
+
+    def __init__(self, kind: str, value: Any) -> None:
+        self.kind = kind
+        self.value = value
+
+
+def _pack(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value if value.flags.writeable else _Packed("array", value)
+    if isinstance(value, MappingProxyType):
+        return _Packed("proxy", {k: _pack(v) for k, v in value.items()})
+    if isinstance(value, ReadOnlyDict):
+        return _Packed("dict", {k: _pack(v) for k, v in value.items()})
+    if type(value) is dict:
+        return {k: _pack(v) for k, v in value.items()}
+    if type(value) in (tuple, list):
+        return type(value)(_pack(v) for v in value)
+    return value
+
+
+def _unpack(value: Any) -> Any:
+    if isinstance(value, _Packed):
+        if value.kind == "array":
+            value.value.setflags(write=False)
+            return value.value
+        items = {k: _unpack(v) for k, v in value.value.items()}
+        return MappingProxyType(items) if value.kind == "proxy" else ReadOnlyDict(items)
+    if type(value) is dict:
+        return {k: _unpack(v) for k, v in value.items()}
+    if type(value) in (tuple, list):
+        return type(value)(_unpack(v) for v in value)
+    return value
+
+
+class FrozenState:
+    """Pickling and copying of a frozen record: what was read-only comes back read-only.
+
+    A mapping proxy cannot be pickled, and an unpickled or deep-copied array is
+    writable; the record's state carries both in a form that can, and restores them.
+    """
+
+    __slots__ = ()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: _pack(v) for k, v in vars(self).items()}
+
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        for k, v in state.items():
+            object.__setattr__(self, k, _unpack(v))
+
+
+class IntervalMixin(FrozenState):
     """`margin` and `interval` for a result with `parameters`, `stderr` and (where the
     estimator knows them) `degrees_of_freedom`: Student's t with each estimate's
     degrees of freedom, the normal quantile where none is given."""

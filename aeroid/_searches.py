@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ._records import FrozenState
+
 FloatArray = NDArray[np.float64]
 
 _GOLDEN = 0.5 * (3.0 - math.sqrt(5.0))
@@ -39,7 +41,7 @@ _SQRT_EPS = math.sqrt(2.2e-16)  # as FMIN: about the square root of the rounding
 
 
 @dataclass(frozen=True)
-class SearchResult:
+class SearchResult(FrozenState):
     """Where a search stopped: the point, its value and the evaluations spent."""
 
     x: FloatArray

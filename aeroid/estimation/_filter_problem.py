@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import FrozenState
 from .._value_checks import check_distinct
 from ..errors import AeroidError, FilterError, IdentificationError
 from ..io.data import FlightData, check_symmetric, measured_start, plain, real_array, whole_number
@@ -30,7 +31,7 @@ FILTER_OPTIONS = (
 
 
 @dataclass(frozen=True)
-class _Problem:
+class _Problem(FrozenState):
     """One record's filtering problem, normalised (internal)."""
 
     model: Model

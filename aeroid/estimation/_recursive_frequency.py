@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._czt import fourier, trapezoid_ends
+from .._records import FrozenState
 from ..errors import DataFormatError, IdentificationError
 from ._regression_fits import derivative_transform, fourier_regression
 from ._regression_record import RegressionResult
@@ -37,7 +38,7 @@ ComplexArray = NDArray[np.complex128]
 
 
 @dataclass(frozen=True)
-class FrequencyHistory:
+class FrequencyHistory(FrozenState):
     """What the recursion produced: per-sample histories (the latest update's values,
     NaN before the first), the update times, and the last update's full result."""
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import chi2_sf
 from .._threads import small_blas
 from ..errors import ChannelError, FilterError
@@ -74,7 +74,7 @@ IntArray = NDArray[np.int64]
 
 
 @dataclass(frozen=True, eq=False)
-class FilterResult:
+class FilterResult(FrozenState):
     """Kalman-filter (and smoother) estimates on a flight record's time grid.
 
     Attributes

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import FrozenState
 from ..errors import DataFormatError, IdentificationError
 
 FloatArray = NDArray[np.float64]
@@ -137,7 +138,7 @@ _NO_GRADIENT_TEST = 4.0 * float(np.finfo(np.float64).eps)
 
 
 @dataclass(frozen=True)
-class Linearisation:
+class Linearisation(FrozenState):
     """An estimator's cost near one point: what its callback hands the solver.
 
     ``cost`` is the objective; ``gradient`` its derivative; ``curvature`` the
@@ -164,7 +165,7 @@ def linearised(residual: FloatArray, jacobian: FloatArray, payload: Any = None) 
 
 
 @dataclass(frozen=True)
-class LeastSquaresFit:
+class LeastSquaresFit(FrozenState):
     """The one result of `minimise`.
 
     ``theta`` the estimate, ``point`` the linearisation there, ``iterations``

@@ -85,7 +85,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import IntervalMixin, fmt, markdown_table
+from .._records import FrozenState, IntervalMixin, fmt, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
 from ..errors import DataFormatError, IdentifiabilityWarning, IdentificationError
 from ..io.data import FlightData, as_float, check_flag, whole_number
@@ -322,7 +322,7 @@ def equation_error(
 
 
 @dataclass(frozen=True)
-class StepwiseStep:
+class StepwiseStep(FrozenState):
     """One step of stepwise regression.
 
     Attributes

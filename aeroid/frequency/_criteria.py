@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import ReadOnlyDict, fmt, frozen_mapping, markdown_table
+from .._records import FrozenState, ReadOnlyDict, fmt, frozen_mapping, markdown_table
 from ..errors import IdentificationError
 from ..io.data import as_float
 from ._transfer import transfer_response
@@ -84,7 +84,7 @@ MUAD_SOURCE = (
 
 
 @dataclass(frozen=True, eq=False)
-class HandlingQualitiesLevel:
+class HandlingQualitiesLevel(FrozenState):
     """A Level (1 best, 3 worst) from a published criterion, criterion by criterion.
 
     Attributes

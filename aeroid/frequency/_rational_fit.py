@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._checks import constant_value
 from .._colour import frequency_sandwich
 from .._record_kernel import off_grid
+from .._records import FrozenState
 from .._stats import wald_p_value
 from .._threads import CALLER_STACKLEVEL
 from ..errors import ChannelError, IdentifiabilityWarning, IdentificationError
@@ -242,7 +243,7 @@ def _without_ends(v: ComplexArray, columns: ComplexArray) -> ComplexArray:
 
 
 @dataclass(frozen=True)
-class FourierRequest:
+class FourierRequest(FrozenState):
     """What `fit_transfer_function` asks of a fit to a record's Fourier transforms."""
 
     data: FlightData

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._checks import as_float
 from .._records import (
+    FrozenState,
     IntervalMixin,
     fmt,
     frozen_array,
@@ -41,7 +42,7 @@ _INSENSITIVITY_LIMIT = 10.0
 
 
 @dataclass(frozen=True, eq=False)
-class ResponseChannel:
+class ResponseChannel(FrozenState):
     """Frequency response of one input-output pair: the one response record of AeroID.
 
     Every frequency tool returns it (`frequency_response`'s channels, also
@@ -301,7 +302,7 @@ def _unwrapped_phase(h: ComplexArray) -> FloatArray:
 
 
 @dataclass(frozen=True, eq=False)
-class CompositeResponse:
+class CompositeResponse(FrozenState):
     """Composite (multi-window) frequency responses of every input-output pair.
 
     Attributes

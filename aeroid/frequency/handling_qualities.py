@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, IntervalMixin, fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
 from ..errors import ChannelError, IdentificationError
 from ..io.data import FlightData, check_flag, plain
@@ -107,7 +107,7 @@ _MISMATCH_GUIDELINE = 100.0
 
 
 @dataclass(frozen=True, eq=False)
-class BandwidthResult:
+class BandwidthResult(FrozenState):
     """Bandwidth and phase delay of an attitude response (ADS-33E, MIL-STD-1797A).
 
     Attributes
@@ -303,7 +303,7 @@ def _positive_sense(resp: _Response) -> tuple[_Response, bool]:
 
 
 @dataclass(frozen=True, eq=False)
-class Margins:
+class Margins(FrozenState):
     """Gain and phase margins of a loop transfer function.
 
     Attributes

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import fmt, markdown_table
+from .._records import FrozenState, fmt, markdown_table
 from .._threads import small_blas
 from .._value_checks import check_distinct
 from ..errors import ChannelError, DataFormatError, IdentificationError, SimulationError
@@ -105,7 +105,7 @@ ChannelFrequencyResponse = ResponseChannel
 
 
 @dataclass(frozen=True, eq=False)
-class FrequencyResponseResult:
+class FrequencyResponseResult(FrozenState):
     """Frequency responses of every analysed input-output pair.
 
     Attributes

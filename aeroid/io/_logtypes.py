@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._records import FrozenState
 from ..errors import DataFormatError
 
 FloatArray = NDArray[np.float64]
@@ -22,7 +23,7 @@ def _frozen(values: ArrayLike) -> FloatArray:
 
 
 @dataclass(frozen=True)
-class LogChannel:
+class LogChannel(FrozenState):
     """One signal of a log, on its own time stamps.
 
     Parameters
@@ -72,7 +73,7 @@ class LogChannel:
 
 
 @dataclass(frozen=True)
-class LogEvent:
+class LogEvent(FrozenState):
     """A discrete event of a log: a mode change, a message, a marker."""
 
     time: float
@@ -81,7 +82,7 @@ class LogEvent:
 
 
 @dataclass(frozen=True)
-class FlightLog:
+class FlightLog(FrozenState):
     """A whole log: channels at their own rates, events, and where it came from.
 
     Parameters

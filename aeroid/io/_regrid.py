@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._checks import plain, positive_number, time_label
+from .._records import FrozenState
 from .._threads import small_blas
 from ..errors import ChannelError, DataFormatError
 from ._logtypes import FlightLog, LogChannel
@@ -76,7 +77,7 @@ def missing_channel(name: str, available: Sequence[str], *, role: str = "channel
 
 
 @dataclass(frozen=True)
-class Source:
+class Source(FrozenState):
     """One raw channel after cleaning: strictly increasing stamps, finite values."""
 
     name: str

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .._records import FrozenState
 from .._units import UNIT_CONVERSIONS
 from ..errors import ChannelError, DataFormatError
 from ._channel_pairs import orient_pairs, plain_pairs
@@ -82,7 +83,7 @@ def _number(value: Any, what: str) -> float:
 
 
 @dataclass(frozen=True)
-class ChannelSpec:
+class ChannelSpec(FrozenState):
     """How one model channel is made: ``sign * scale * factor * raw + offset``.
 
     Attributes
@@ -179,7 +180,7 @@ def _entry(name: str, value: Any) -> ChannelSpec:
 
 
 @dataclass(frozen=True)
-class ChannelMap:
+class ChannelMap(FrozenState):
     """Model channels made from a file's channels (see `ChannelSpec`), in order.
 
     Build one with `ChannelMap.from_config` from what a campaign config

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._checks import as_float as as_float  # re-exported: the other modules import it here
 from .._checks import plain, time_label
 from .._checks import positive_number as positive_number
-from .._records import frozen_array
+from .._records import FrozenState, frozen_array
 from .._value_checks import _first_bad, real_array
 from .._value_checks import check_flag as check_flag
 from .._value_checks import check_symmetric as check_symmetric
@@ -147,7 +147,7 @@ def _dropout(values: NDArray[np.float64], time: NDArray[np.float64]) -> str:
 
 
 @dataclass(frozen=True, eq=False)
-class FlightData:
+class FlightData(FrozenState):
     """An immutable, name-indexed set of time series sampled on one time axis.
 
     Parameters

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import FrozenState
 from ..errors import DataFormatError
 from ._autopilot_logs import _NOT_CHANNELS as _NOT_CHANNELS
 from ._autopilot_logs import _PX4_NAV_STATES as _PX4_NAV_STATES
@@ -537,7 +538,7 @@ def read_selected(
 
 
 @dataclass(frozen=True)
-class ChannelListing:
+class ChannelListing(FrozenState):
     """What a log holds: each channel's name, rate, unit and sample count.
 
     Attributes

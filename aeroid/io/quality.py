@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import FrozenState
 from ..errors import ChannelError, DataFormatError
 from ._logtypes import FlightLog
 from .data import FlightData, as_float, plain
@@ -70,7 +71,7 @@ _DIVISORS = 4
 
 
 @dataclass(frozen=True)
-class ChannelQuality:
+class ChannelQuality(FrozenState):
     """The checks of one channel.
 
     Attributes
@@ -138,7 +139,7 @@ class ChannelQuality:
 
 
 @dataclass(frozen=True)
-class DataQualityReport:
+class DataQualityReport(FrozenState):
     """The data-quality checks of every channel of a record or log.
 
     Attributes

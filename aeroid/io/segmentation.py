@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import ReadOnlyDict, fmt, frozen_array, markdown_table
+from .._records import FrozenState, ReadOnlyDict, fmt, frozen_array, markdown_table
 from .._threads import small_blas
 from ..errors import DataFormatError
 from ._logtypes import FlightLog
@@ -37,7 +37,7 @@ _Interval = tuple[float, float, frozenset[str]]
 
 
 @dataclass(frozen=True)
-class ManeuverWindow:
+class ManeuverWindow(FrozenState):
     """One window of a record: ``t0 <= time <= t1`` seconds, and why it was chosen."""
 
     t0: float
@@ -66,7 +66,7 @@ class ManeuverWindow:
 
 
 @dataclass(frozen=True, eq=False)
-class InputTrace:
+class InputTrace(FrozenState):
     """An input channel as segmentation saw it (uniform stamps), for plots and checks.
 
     `trim`, `energy` and `floor` are set only for automatic segmentation:
@@ -91,7 +91,7 @@ class InputTrace:
 
 
 @dataclass(frozen=True, eq=False)
-class SegmentationResult:
+class SegmentationResult(FrozenState):
     """The windows `segment` found, how, and the inputs it looked at.
 
     Attributes

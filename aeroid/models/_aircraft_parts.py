@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _units
-from .._records import ReadOnlyDict
+from .._records import FrozenState, ReadOnlyDict
 from .._value_checks import body_position
 from ..errors import ModelDefinitionError
 from .model import Model
@@ -87,7 +87,7 @@ _LATERAL_ONLY = ("Ixx", "Izz", "b")
 
 
 @dataclass(frozen=True)
-class AircraftConstants:
+class AircraftConstants(FrozenState):
     """The known constants of an aircraft model, validated.
 
     Parameters

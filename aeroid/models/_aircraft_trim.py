@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._checks import as_float, plain
-from .._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
 from .._value_checks import whole_number
 from ..errors import ModelDefinitionError, SimulationError
@@ -24,7 +24,7 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)
-class TrimResult:
+class TrimResult(FrozenState):
     """A trimmed flight condition of an aircraft model.
 
     Attributes
@@ -345,7 +345,7 @@ _TRIM_SETUP: dict[str, Callable[..., _TrimSetup]] = {
 
 
 @dataclass(frozen=True, eq=False)
-class Linearization:
+class Linearization(FrozenState):
     """A model linearised about a point: ``ẋ = A x + B u``, ``y = C x + D u`` (perturbations).
 
     Attributes

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._checks import as_float, plain, time_label
-from .._records import fmt, markdown_table
+from .._records import FrozenState, fmt, markdown_table
 from .._value_checks import check_seed
 from ..errors import AeroidError, ChannelError, SimulationError
 from ..io.data import FlightData, readonly
@@ -21,7 +21,7 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)
-class SimulationResult:
+class SimulationResult(FrozenState):
     """A simulated trajectory on the requested time grid.
 
     Attributes
@@ -150,7 +150,7 @@ class SimulationResult:
 
 
 @dataclass(frozen=True, eq=False)
-class BatchSimulation:
+class BatchSimulation(FrozenState):
     """Trajectories of a batch of parameter vectors.
 
     ``states`` (batch, n_t, n_states), ``outputs`` (batch, n_t, n_outputs),

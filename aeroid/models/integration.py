@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import FrozenState
 from ..errors import AeroidError, SimulationError
 from ._batch_function import BatchFunction
 from ._batch_function import UserFunction as UserFunction
@@ -91,7 +92,7 @@ def import_solvers() -> None:
 
 
 @dataclass(frozen=True)
-class RawTrajectory:
+class RawTrajectory(FrozenState):
     """Integrator output: states (batch, n_t, n_x), success mask, failure times."""
 
     states: FloatArray
@@ -359,7 +360,7 @@ def _runge_kutta_by_interval(
 
 
 @dataclass(frozen=True)
-class _Layout:
+class _Layout(FrozenState):
     """The points `lti_form` evaluates, for one time grid, batch size and check kind.
 
     Columns: the unit perturbations at ``time[0]`` (probe-major, member-minor),

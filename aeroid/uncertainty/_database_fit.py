@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import FrozenState
 from ..errors import IdentificationError
 
 FloatArray = NDArray[np.float64]
@@ -200,7 +201,7 @@ def _independent(u: FloatArray, es: Sequence[Exponents]) -> list[Exponents]:
 
 
 @dataclass(frozen=True)
-class ModelFit:
+class ModelFit(FrozenState):
     """One structure fitted with its between-flight variance."""
 
     exponents: tuple[Exponents, ...]
@@ -326,7 +327,7 @@ def forward_path(
 
 
 @dataclass(frozen=True)
-class TermFit:
+class TermFit(FrozenState):
     """A coefficient's database entry: the model average over its basis."""
 
     exponents: tuple[Exponents, ...]  # the basis of the average (the richest model kept)

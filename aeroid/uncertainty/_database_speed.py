@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import frozen_array
+from .._records import FrozenState, frozen_array
 from ..errors import DataFormatError, IdentificationError
 from ._database_fit import candidate_exponents, design, fit_term, label
 
@@ -65,7 +65,7 @@ def is_speed_term(term: str) -> bool:
 
 
 @dataclass(frozen=True, eq=False)
-class TrimSpeedModel:
+class TrimSpeedModel(FrozenState):
     """The trim speed ``V0`` over the condition keys, the reference of the speed terms.
 
     ``(scale / V0)²`` is a Legendre model over the database's scaled keys (module

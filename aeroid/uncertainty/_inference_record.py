@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._checks import as_float
-from .._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from ..errors import InferenceError
 from .sampler import ChainState
 
@@ -30,7 +30,7 @@ _MOVE_NAMES = {
 
 
 @dataclass(frozen=True, eq=False)
-class InferenceResult:
+class InferenceResult(FrozenState):
     """Posterior samples of `infer`, their summaries and convergence diagnostics.
 
     Attributes

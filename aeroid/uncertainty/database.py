@@ -128,7 +128,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, ReadOnlyDict, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import norm_ppf
 from ..errors import DataFormatError, IdentificationError
 from ._database_checks import (
@@ -167,7 +167,7 @@ Exponents = tuple[int, ...]
 
 
 @dataclass(frozen=True, eq=False)
-class FlightCoefficients:
+class FlightCoefficients(FrozenState):
     """One flight's coefficient estimates at its flight condition.
 
     Attributes
@@ -230,7 +230,7 @@ class FlightCoefficients:
 
 
 @dataclass(frozen=True, eq=False)
-class HeldOutCheck:
+class HeldOutCheck(FrozenState):
     """A held-out flight's estimate against the database's prediction.
 
     Attributes
@@ -264,7 +264,7 @@ class HeldOutCheck:
 
 
 @dataclass(frozen=True, eq=False)
-class AeroDatabase:
+class AeroDatabase(FrozenState):
     """Coefficients as functions of the flight condition, with covariance.
 
     Attributes

@@ -27,7 +27,7 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import NDArray
 
-from .._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
 from .._value_checks import check_seed
 from ..errors import (
@@ -73,7 +73,7 @@ _PENALTY = 1e30
 
 
 @dataclass(frozen=True, eq=False)
-class ExperimentDesign:
+class ExperimentDesign(FrozenState):
     """An optimised manoeuvre with its predicted parameter precision.
 
     Attributes

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._colour import _lag_one
-from .._records import frozen_mapping
+from .._records import FrozenState, frozen_mapping
 from .._threads import small_blas
 from ..errors import InferenceError
 from ..io.data import FlightData, check_flag
@@ -91,7 +91,7 @@ _MAX_VALUES = 2**28
 
 
 @dataclass(frozen=True, eq=False)
-class EnsembleRun:
+class EnsembleRun(FrozenState):
     """One ensemble's samples and final state, with what is needed to pool ensembles.
 
     Attributes

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import fmt, frozen_array, markdown_table
+from .._records import FrozenState, fmt, frozen_array, markdown_table
 from .._value_checks import check_seed
 from ..errors import ModelDefinitionError
 from ..io.data import FlightData
@@ -101,7 +101,7 @@ def _optimise_phases(
 
 
 @dataclass(frozen=True, eq=False)
-class OrthogonalMultisine:
+class OrthogonalMultisine(FrozenState):
     """Orthogonal phase-optimised multisine inputs for several controls.
 
     Attributes

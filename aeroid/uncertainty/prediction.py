@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._checks import time_label
-from .._records import fmt, frozen_array, markdown_table
+from .._records import FrozenState, fmt, frozen_array, markdown_table
 from .._stats import spread_over_noise
 from .._threads import CALLER_STACKLEVEL
 from ..errors import IdentifiabilityWarning, IdentificationError
@@ -43,7 +43,7 @@ _EXCITED = math.sqrt(2.0)
 
 
 @dataclass(frozen=True, eq=False)
-class PredictionMetrics:
+class PredictionMetrics(FrozenState):
     """Fit of one output predicted on held-out data.
 
     Attributes
@@ -67,7 +67,7 @@ class PredictionMetrics:
 
 
 @dataclass(frozen=True, eq=False)
-class PredictionResult:
+class PredictionResult(FrozenState):
     """The identified model's prediction of held-out data.
 
     Attributes

@@ -11,7 +11,7 @@ from typing import Any, overload
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import fmt, frozen_array, markdown_table
+from .._records import FrozenState, fmt, frozen_array, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
 from ..errors import PropagationError
 from ..io.data import as_float, check_flag, plain, whole_number
@@ -41,7 +41,7 @@ _MAX_VALUES = 2**27
 
 
 @dataclass(frozen=True, eq=False)
-class PropagationResult:
+class PropagationResult(FrozenState):
     """Distribution of a metric under parameter uncertainty.
 
     Attributes
@@ -99,7 +99,7 @@ class PropagationResult:
 
 
 @dataclass(frozen=True, eq=False)
-class VectorPropagationResult:
+class VectorPropagationResult(FrozenState):
     """Distribution of a metric with several values: one `PropagationResult` per component.
 
     A metric returning a sequence or 1-D array gives components named
@@ -232,7 +232,7 @@ def draw_parameters(result: Any, n_samples: int, seed: int | None, start: int = 
 
 
 @dataclass(frozen=True, eq=False)
-class PropagationBatch:
+class PropagationBatch(FrozenState):
     """The metric at draws ``start .. start + len(values)`` of one seed's stream.
 
     Batches of one seed computed anywhere (other processes, other machines)

@@ -78,7 +78,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import frozen_array
+from .._records import FrozenState, frozen_array
 from ..errors import AeroidError, InferenceError
 from ..io.data import as_float
 
@@ -135,7 +135,7 @@ def _stream(entropy: int, key: tuple[int, ...], *tail: int) -> np.random.Generat
 
 
 @dataclass(frozen=True, eq=False)
-class ChainState:
+class ChainState(FrozenState):
     """Where an ensemble stands: enough to continue sampling exactly.
 
     Attributes
@@ -191,7 +191,7 @@ class ChainState:
 
 
 @dataclass(frozen=True, eq=False)
-class SamplerRun:
+class SamplerRun(FrozenState):
     """Output of `ensemble_sampler`.
 
     Attributes

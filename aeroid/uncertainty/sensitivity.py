@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import fmt, frozen_array, frozen_mapping, markdown_table
+from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
 from .._value_checks import check_distinct
 from ..errors import (
@@ -271,7 +271,7 @@ def _combo_text(combos: Sequence[Sequence[str]]) -> str:
 
 
 @dataclass(frozen=True, eq=False)
-class SensitivityResult:
+class SensitivityResult(FrozenState):
     """Output sensitivities along a trajectory and the information they carry.
 
     Attributes

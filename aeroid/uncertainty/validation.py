@@ -12,7 +12,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import fmt, frozen_array, markdown_table
+from .._records import FrozenState, fmt, frozen_array, markdown_table
 from .._stats import chi2_sf, norm_ppf, t_quantile
 from .._threads import CALLER_STACKLEVEL, small_blas
 from .._value_checks import check_distinct
@@ -61,7 +61,7 @@ def ljung_box(x: FloatArray, lags: int) -> tuple[float, float]:
 
 
 @dataclass(frozen=True, eq=False)
-class OutputMetrics:
+class OutputMetrics(FrozenState):
     """Residual statistics of one output.
 
     Attributes
@@ -117,7 +117,7 @@ class OutputMetrics:
 
 
 @dataclass(frozen=True, eq=False)
-class ValidationResult:
+class ValidationResult(FrozenState):
     """Per-output residual statistics of a model against one flight record.
 
     Attributes
