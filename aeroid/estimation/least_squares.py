@@ -133,6 +133,9 @@ _PARALLEL = 0.9
 _COST_SHARE = 1e-3
 # Rounding of a cost: a trial within this fraction of the current cost is no worse.
 _COST_ROUNDING = 1e-12
+# An unknown whose curvature is below this share of the largest one is unseen by the data:
+# its sensitivity is rounding (eps squared of the others' scale) or exactly zero.
+_UNSEEN = float(np.finfo(np.float64).eps) ** 2
 # SciPy's Levenberg-Marquardt refuses a gradient tolerance below machine precision.
 _NO_GRADIENT_TEST = 4.0 * float(np.finfo(np.float64).eps)
 
@@ -245,7 +248,23 @@ def damped_step(
             return np.zeros(rhs.size)
         return np.asarray(sol, dtype=np.float64)
 
+    # an unknown the data do not see (no curvature, so no gradient either) takes no step:
+    # the minimum-norm solution's rounding there, over its zero scale, would send it to
+    # 1e135 and the simulations with it to overflow
+    diag = np.diag(point.curvature)
+    with np.errstate(invalid="ignore"):
+        seen = diag > _UNSEEN * np.max(np.where(np.isfinite(diag), diag, 0.0), initial=0.0)
+
     def solve(idx: NDArray[np.intp]) -> FloatArray:
+        sel = seen[idx]
+        if np.all(sel):
+            return solve_seen(idx)
+        out = np.zeros(idx.size)
+        if np.any(sel):
+            out[sel] = solve_seen(idx[sel])
+        return out
+
+    def solve_seen(idx: NDArray[np.intp]) -> FloatArray:
         sub = a if idx.size == theta.size else a[np.ix_(idx, idx)]
         scaled = plain(sub, -b[idx])
         if max_step is not None:
