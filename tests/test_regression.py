@@ -9,6 +9,7 @@ import pytest
 import scipy.linalg
 import scipy.signal
 
+import aeroid
 from aeroid import ChannelError, DataFormatError, FlightData, IdentificationError
 from aeroid.estimation.regression import (
     RegressionResult,
@@ -845,3 +846,27 @@ def test_sample_counts_and_frequencies_are_checked_before_anything_else() -> Non
         equation_error(d, "z", ["a", "q"], domain="frequency", frequencies=[0.3] * 3, dt=0.1)
     with pytest.raises(DataFormatError, match="frequencies: used with domain='frequency'"):
         equation_error(d, "z", ["a", "q"], frequencies=[0.1, 0.2], dt=0.1)
+
+
+def test_a_dataframe_is_read_by_its_column_names():
+    # a table's columns carry names: asked for in another order they must not be
+    # relabelled by position (before: x1 and x2 swapped, success reported)
+    pd = pytest.importorskip("pandas")
+    rng = np.random.default_rng(0)
+    x1, x2 = rng.normal(size=200), rng.normal(size=200)
+    z = 1.0 + 2.0 * x1 - 5.0 * x2 + 0.1 * rng.normal(size=200)
+    frame = pd.DataFrame({"x1": x1, "x2": x2, "z": z})
+    truth = aeroid.equation_error({"x1": x1, "x2": x2, "z": z}, "z", ["x2", "x1"])
+    for fit in (
+        aeroid.equation_error(frame, "z", ["x2", "x1"]),
+        aeroid.equation_error(frame, z, ["x2", "x1"]),
+        aeroid.equation_error(frame, "z"),
+        aeroid.stepwise_regression(frame, "z", ["x2", "x1"]),
+    ):
+        assert fit.parameters["x1"] == pytest.approx(truth.parameters["x1"], rel=1e-12)
+        assert fit.parameters["x2"] == pytest.approx(truth.parameters["x2"], rel=1e-12)
+    rls = aeroid.recursive_least_squares(frame, "z", ["x2", "x1"])
+    assert rls.parameters["x1"] == pytest.approx(2.0, abs=0.05)
+    assert rls.parameters["x2"] == pytest.approx(-5.0, abs=0.05)
+    with pytest.raises(aeroid.DataFormatError, match="columns"):
+        aeroid.equation_error(pd.DataFrame([[1.0, 2.0]] * 5, columns=["a", "a"]), "a")

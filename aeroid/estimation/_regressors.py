@@ -127,6 +127,12 @@ def _resolve(
 ) -> tuple[FloatArray, FloatArray, list[str], str, FloatArray | None]:
     """Response, regressor matrix, regressor names, response name and time axis."""
     time: FloatArray | None = None
+    frame = _frame_columns(data)
+    if frame is not None:
+        # a table's columns are named: read by name, never by position
+        data = frame
+        if regressors is None:
+            regressors = [c for c in frame if c != response]
     if _several_records(data) is not None:
         raise DataFormatError(
             f"data: {what} takes one record (a FlightData, a mapping or a matrix); "
@@ -193,6 +199,18 @@ def _resolve(
     cols = [_column(lookup, v, n, f"regressor {k!r}") for k, v in items]
     mat = np.column_stack(cols) if cols else np.zeros((n, 0))
     return z, mat, [k for k, _ in items], zname, time
+
+
+def _frame_columns(data: Any) -> dict[str, FloatArray] | None:
+    """The columns of a table with named columns (a pandas DataFrame) by name, or None."""
+    if isinstance(data, (FlightData, Mapping, np.ndarray)):
+        return None
+    columns = getattr(data, "columns", None)
+    if columns is None or not hasattr(data, "to_numpy"):
+        return None
+    names = [str(c) for c in columns]
+    check_distinct(names, "data's columns", DataFormatError)
+    return {name: data[c].to_numpy() for name, c in zip(names, columns, strict=True)}
 
 
 def _several_records(data: Any) -> list[FlightData] | None:
@@ -371,6 +389,7 @@ def candidate_pool(
     if not variables:
         raise DataFormatError("variables: give at least one variable")
     check_distinct(variables, "variables", DataFormatError)
+    data = _frame_columns(data) or data
     if isinstance(data, FlightData):
         lookup: Mapping[str, Any] = data.channels
         n = data.n_samples

@@ -157,9 +157,11 @@ def equation_error(
     Parameters
     ----------
     data : FlightData, sequence of FlightData, mapping of str to array_like, or array_like (n, p)
-        Where response and regressors come from; or the regressor matrix
-        itself (then `response` is the samples and `regressors` the optional
-        column names, default ``x1 .. xp``). Several records (manoeuvres,
+        Where response and regressors come from (a table with named
+        columns, a pandas DataFrame, reads as the mapping of its columns:
+        by name, and without `regressors` every column but the response); or
+        the regressor matrix itself (then `response` is the samples and
+        `regressors` the optional column names, default ``x1 .. xp``). Several records (manoeuvres,
         time domain) are fitted together, one set of parameters for all, as
         Klein & Morelli and Jategaonkar join them; the coloured bars estimate
         each record's residual spectrum apart, so no correlation is counted
