@@ -69,6 +69,8 @@ def test_isa_density_matches_the_standard_table():
         ({"cbar": "wide"}, "cbar"),
         ({"Ixz": 1500.0}, "Ixz"),  # Ixx Izz < Ixz²: not positive definite
         ({"Izz": 7000.0}, "triangle"),  # Izz > Ixx + Iyy: no rigid body
+        ({"Ixz": 1500.0, "b": float("nan")}, "Ixz"),  # checked without the span too
+        ({"Izz": 7000.0, "b": float("nan")}, "triangle"),
         ({"rho": None}, "rho"),
         ({"rho": -1.0}, "rho"),
         ({"rho": None, "altitude": 30000.0}, "altitude"),

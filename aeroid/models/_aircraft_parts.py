@@ -187,8 +187,8 @@ class AircraftConstants(FrozenState):
                 isa_density(self.altitude)  # range check, naming the altitude
         for name in ("accel_position", "alpha_vane_position", "beta_vane_position"):
             object.__setattr__(self, name, _position(name, getattr(self, name)))
-        if not self.lateral_complete:
-            return
+        if math.isnan(self.Ixx) or math.isnan(self.Izz):
+            return  # the tensor is checked whenever its moments are given, span or not
         if not self.Ixx * self.Izz - self.Ixz**2 > 0:
             raise ModelDefinitionError(
                 f"Ixz: inertia tensor is not positive definite (Ixx Izz - Ixz^2 = "
