@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import IdentificationError
+from ..errors import AeroidError, IdentificationError
 from ..io.data import plain
 from ._response_records import CompositeResponse, ResponseChannel, _unwrapped_phase
 from ._transfer import transfer_response
@@ -60,7 +60,11 @@ class _Response:
         below = np.flatnonzero((level[:-1] > target) & (level[1:] <= target))
         if below.size == 0:
             return float("nan")
-        i = int(below[0])
+        return self._refined(level, int(below[0]), target)
+
+    def _refined(self, level: FloatArray, i: int, target: float) -> float:
+        """ω where `level` meets `target` between grid points i and i + 1: interpolated in
+        log ω, then refined on the continuous curve of an analytic response."""
         w0, w1 = float(self.omega[i]), float(self.omega[i + 1])
         y0, y1 = float(level[i]) - target, float(level[i + 1]) - target
         guess = float(np.exp(np.log(w0) + (np.log(w1) - np.log(w0)) * y0 / (y0 - y1)))
@@ -85,6 +89,29 @@ class _Response:
             return float(scipy.optimize.brentq(f, w0, w1, xtol=1e-14, rtol=1e-12))
         except ValueError:
             return guess
+
+    def phase_crossings(self, target: float) -> FloatArray:
+        """Every ω where the phase crosses `target` + k·360° (any k), rising or falling,
+        ascending; a grid point on the line counts once."""
+        self._kind = "phase"
+        ph = self.phase()
+        turn = np.floor((ph - target) / 360.0)  # which band of 360° each point lies in
+        found: list[float] = []
+        for i in np.flatnonzero(np.diff(turn) != 0):
+            lo, hi = sorted((int(turn[i]), int(turn[i + 1])))
+            # a coarse grid may step over several lines at once
+            found += [self._refined(ph, int(i), target + 360.0 * k) for k in range(lo + 1, hi + 1)]
+        return np.unique(np.asarray(found, dtype=np.float64))
+
+    def at_zero(self) -> complex:
+        """L(0) of an analytic response (NaN for a measured one or a pole at ω = 0)."""
+        if self.analytic is None:
+            return complex("nan")
+        try:
+            with np.errstate(all="ignore"):
+                return complex(self.analytic(np.zeros(1))[0])
+        except (AeroidError, ValueError, ZeroDivisionError):
+            return complex("nan")  # a fit that cannot be read at ω = 0 has no DC crossover
 
     _kind = "phase"
 

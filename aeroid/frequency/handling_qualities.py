@@ -309,15 +309,22 @@ class Margins(FrozenState):
     Attributes
     ----------
     gain_margin : float
-        dB, ``−20 log10 |L(jω_180)|`` (inf when the phase never reaches −180°).
+        dB, ``−20 log10 |L(jω_180)|`` at the phase crossover nearest 0 dB (the
+        smallest gain change, up or down, that puts L on −1; negative: a gain
+        reduction); inf when the phase never reaches −180° (mod 360°).
     phase_crossover : float
-        ω_180 in rad/s.
+        ω_180 in rad/s of that crossover (0 where L(0) is real and negative).
     phase_margin : float
         Degrees, ``180 + ∠L(jω_c)`` (inf when |L| never falls through 1).
     gain_crossover : float
         ω_c in rad/s.
     delay_margin : float
         Extra delay the loop tolerates, ``PM / ω_c`` in seconds.
+    phase_crossovers : tuple of float
+        Every ω (rad/s, ascending) where the phase crosses −180° (mod 360°),
+        rising or falling, ω = 0 included where L(0) is real and negative.
+    gain_margins : tuple of float
+        The gain margin in dB at each of `phase_crossovers`.
     """
 
     gain_margin: float
@@ -325,6 +332,17 @@ class Margins(FrozenState):
     phase_margin: float
     gain_crossover: float
     delay_margin: float
+    phase_crossovers: tuple[float, ...] = ()
+    gain_margins: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "phase_crossovers", tuple(map(float, self.phase_crossovers)))
+        object.__setattr__(self, "gain_margins", tuple(map(float, self.gain_margins)))
+        if len(self.gain_margins) != len(self.phase_crossovers):
+            raise IdentificationError(
+                "gain_margins: expected one per phase crossover, got "
+                f"{len(self.gain_margins)} for {len(self.phase_crossovers)}"
+            )
 
     def summary(self) -> str:
         """Markdown table of the margins."""
@@ -335,7 +353,17 @@ class Margins(FrozenState):
             ("gain crossover ω_c [rad/s]", fmt(self.gain_crossover)),
             ("delay margin [s]", fmt(self.delay_margin)),
         ]
-        return "\n".join(["## Stability margins", "", markdown_table(("margin", "value"), rows)])
+        lines = ["## Stability margins", "", markdown_table(("margin", "value"), rows)]
+        if len(self.phase_crossovers) > 1:
+            pairs = zip(self.phase_crossovers, self.gain_margins, strict=True)
+            each = [(fmt(w), fmt(g)) for w, g in pairs]
+            lines += [
+                "",
+                "Every phase crossover (the gain margin is the one nearest 0 dB):",
+                "",
+                markdown_table(("ω_180 [rad/s]", "gain margin [dB]"), each),
+            ]
+        return "\n".join(lines)
 
 
 @small_blas
@@ -354,17 +382,41 @@ def stability_margins(
     Returns
     -------
     Margins
+
+    Notes
+    -----
+    A phase crossover is any ω where the phase crosses −180° (mod 360°), falling
+    or rising (a conditionally stable loop has both), and ω = 0 when L(0) is real
+    and negative (an open-loop unstable loop such as ``2/(s − 1)``; read only from
+    a transfer function or a fit, a measured response has no ω = 0 point). With
+    several, the gain margin is the one nearest 0 dB, as python-control and
+    MATLAB report it: for a stable closed loop, the smallest gain change either
+    way that destabilises it.
     """
     resp = _Response(loop_response_or_tf, input, output)
-    w180 = resp.phase_crossing(-180.0)
-    gm = -20.0 * np.log10(abs(resp.at(w180))) if np.isfinite(w180) else float("inf")
+    crossovers = [float(w) for w in resp.phase_crossings(-180.0)]
+    with np.errstate(divide="ignore"):
+        margins = [float(-20.0 * np.log10(abs(resp.at(w)))) for w in crossovers]
+        dc = resp.at_zero()
+        # L(0) real and negative: the Nyquist plot starts on the negative real axis
+        if np.isfinite(dc) and dc.real < 0.0 and abs(dc.imag) <= 1e-12 * abs(dc):
+            crossovers.insert(0, 0.0)
+            margins.insert(0, float(-20.0 * np.log10(abs(dc))))
+    known = [i for i, g in enumerate(margins) if np.isfinite(g)]
+    if known:
+        pick = min(known, key=lambda i: abs(margins[i]))
+        w180, gm = crossovers[pick], margins[pick]
+    else:
+        w180, gm = float("nan"), float("inf")
     wc = resp.gain_crossing(0.0)
     if np.isfinite(wc):
         pm = 180.0 + resp.phase_at(wc)
         dm = np.radians(pm) / wc
     else:
         pm = dm = float("inf")
-    return Margins(float(gm), float(w180), float(pm), float(wc), float(dm))
+    return Margins(
+        float(gm), float(w180), float(pm), float(wc), float(dm), tuple(crossovers), tuple(margins)
+    )
 
 
 # -- equivalent systems -----------------------------------------------------------------------
