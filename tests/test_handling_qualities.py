@@ -330,3 +330,55 @@ def test_equivalent_system_names_bad_frequencies_and_a_record_without_channels()
         equivalent_system(record, output="q")
     with pytest.raises(IdentificationError, match="above the record's Nyquist"):
         equivalent_system(record, input="de", output="q", frequency_range=(0.1, 1000.0))
+
+
+# -- unstable equivalent systems ---------------------------------------------------------------
+
+
+def test_unstable_short_period_is_flagged_and_level_3():
+    """q/δ = -9 (s + 1.2) e^{-0.02 s} / ((s + 3)(s - 0.5)), M_alpha > 0: a0 = -1.5 < 0, real
+    roots -3 and +0.5, so no ω or ζ; Level 3 with ζ and ω beyond its limits, τ Level 1."""
+    fit = equivalent_system(([-9.0, -10.8], np.polymul([1.0, 3.0], [1.0, -0.5]), 0.02))
+    p = fit.parameters
+    assert (p["K"], p["1/T_theta2"]) == pytest.approx((-9.0, 1.2), rel=1e-6)
+    assert p["tau"] == pytest.approx(0.02, abs=1e-8)
+    assert np.isnan(p["omega"]) and np.isnan(p["zeta"])
+    assert len(fit.flags) == 1 and "s = 0.5 >= 0" in fit.flags[0]
+    level = fit.level
+    assert level is not None and level.level == 3
+    assert level.beyond_level_3 == ("zeta", "omega")
+    assert level.criteria["tau"] == 1
+    assert "s = 0.5" in level.notes[0]
+    text = fit.summary()
+    assert "Level 3, beyond the Level 3 limits on zeta, omega" in text
+    assert "Warning: real denominator roots" in text
+
+
+def test_degenerate_short_period_fit_summarises():
+    """1/(s + 1) in the short-period form: the fit cancels a pole at s > 0 with a
+    right-half-plane zero; both are flagged and the summary still reads."""
+    fit = equivalent_system(([1.0], [1.0, 1.0]))
+    assert len(fit.flags) == 2
+    assert "real denominator roots" in fit.flags[0] and "right-half-plane" in fit.flags[1]
+    assert fit.level is not None and fit.level.level == 3
+    assert "Level 3" in fit.summary()
+
+
+@pytest.mark.parametrize(
+    ("kind", "tf", "pole"),
+    [
+        ("short_period", ([4.0, 2.0], [1.0, -0.4, 4.0], 0.05), "0.2+1.99j"),
+        ("roll", ([5.0], [1.0, -1.0], 0.05), "1+0j"),
+    ],
+)
+def test_unstable_complex_or_roll_pole_is_flagged(kind, tf, pole):
+    """s^2 - 0.4 s + 4: ζ = -0.1, poles 0.2 ± 1.99j; 5/(s - 1): 1/T_R = -1."""
+    fit = equivalent_system(tf, kind=kind)
+    assert any(f"unstable pole (s = {pole}" in f for f in fit.flags)
+    if kind == "short_period":
+        assert fit.parameters["zeta"] == pytest.approx(-0.1, rel=1e-6)
+        assert fit.level is not None and fit.level.level == 3
+        assert fit.level.beyond_level_3 == ("zeta",)
+    else:
+        assert fit.parameters["1/T_R"] == pytest.approx(-1.0, rel=1e-6)
+        assert fit.level is None

@@ -195,21 +195,53 @@ def short_period_level(
     )
     if not wt >= SHORT_PERIOD_OMEGA_T_THETA2[2]:
         beyond.append("omega*T_theta2")
-    levels["tau"] = next((i + 1 for i in range(2) if d <= SHORT_PERIOD_TAU[i]), 3)
+    levels["tau"] = _tau_level(d)
     if not d <= SHORT_PERIOD_TAU[2]:
         beyond.append("tau")
-    notes = []
-    if t2 < 0:
-        notes.append("a right-half-plane numerator zero (T_theta2 < 0)")
-    if d < -DELAY_ROUNDING:
-        notes.append("a negative time delay")
     return HandlingQualitiesLevel(
         max(levels.values()),
         levels,
         {"zeta": z, "omega": w, "omega*T_theta2": wt, "tau": d},
         tuple(beyond),
         SHORT_PERIOD_SOURCE,
-        tuple(notes),
+        _short_period_notes(t2, d),
+    )
+
+
+def _tau_level(tau: float) -> int:
+    return next((i + 1 for i in range(2) if tau <= SHORT_PERIOD_TAU[i]), 3)
+
+
+def _short_period_notes(t_theta2: float, tau: float) -> tuple[str, ...]:
+    notes = []
+    if t_theta2 < 0:
+        notes.append("a right-half-plane numerator zero (T_theta2 < 0)")
+    if tau < -DELAY_ROUNDING:
+        notes.append("a negative time delay")
+    return tuple(notes)
+
+
+def _unstable_short_period_level(
+    t_theta2: float, tau: float, root: float
+) -> HandlingQualitiesLevel:
+    """Level 3 for a short period whose denominator has a real root `root` >= 0.
+
+    Such a mode has no ω or ζ: it is worse than any damping the Level 3 limit
+    (ζ > 0.15) admits, so ζ and ω are graded Level 3 and named beyond its limits, as
+    `short_period_level` grades a ζ below 0.15; ω T_θ2 is Level 3 for want of ω.
+    """
+    t2 = _number(t_theta2, "t_theta2")
+    d = _number(tau, "tau")
+    levels = {"zeta": 3, "omega": 3, "omega*T_theta2": 3, "tau": _tau_level(d)}
+    beyond = ["zeta", "omega"] + ([] if d <= SHORT_PERIOD_TAU[2] else ["tau"])
+    note = f"an unstable short period: a real denominator root at s = {root:.4g}, no ω or ζ"
+    return HandlingQualitiesLevel(
+        3,
+        levels,
+        {"zeta": math.nan, "omega": math.nan, "omega*T_theta2": math.nan, "tau": d},
+        tuple(beyond),
+        SHORT_PERIOD_SOURCE,
+        (note, *_short_period_notes(t2, d)),
     )
 
 

@@ -50,6 +50,7 @@ from ._criteria import (
     BANDWIDTH_SOURCE,
     DELAY_ROUNDING,
     HandlingQualitiesLevel,
+    _unstable_short_period_level,
     bandwidth_level,
     muad_envelopes,
     short_period_level,
@@ -482,20 +483,43 @@ class EquivalentSystemFit(IntervalMixin):
     @property
     def level(self) -> HandlingQualitiesLevel | None:
         """MIL-STD-1797A Level of a short-period fit (`aeroid.short_period_level`, as
-        SIDPAC's ``milstd``); None for the other kinds, which it does not cover."""
+        SIDPAC's ``milstd``); None for the other kinds, which it does not cover.
+
+        An unstable short period with real roots (no ω or ζ) is Level 3, with ζ and ω
+        named beyond the Level 3 limits and the root in its notes."""
         if self.kind != "short_period":
             return None
         p = self.parameters
         inv = p["1/T_theta2"]
         t_theta2 = 1.0 / inv if inv != 0 else float("inf")
+        root = self._real_root()
+        if root is not None:
+            return _unstable_short_period_level(t_theta2, p["tau"], root)
         return short_period_level(p["omega"], p["zeta"], t_theta2, p["tau"])
+
+    def _real_root(self) -> float | None:
+        """The largest denominator root of a second-order form with a0 <= 0 (real roots,
+        one at s >= 0: no ω or ζ); None otherwise."""
+        if self.kind == "roll" or self.fit.parameters["a0"] > 0:
+            return None
+        return float(np.max(np.real(self.fit.poles)))
 
     @property
     def flags(self) -> tuple[str, ...]:
-        """What makes the fit suspect: a right-half-plane zero, a negative delay, a
-        mismatch beyond the guideline."""
+        """What makes the fit suspect: an unstable pole, a right-half-plane zero, a
+        negative delay, a mismatch beyond the guideline."""
         p = self.parameters
         out = []
+        root = self._real_root()
+        unstable = [complex(z) for z in self.fit.poles if z.real > 0]
+        if root is not None:
+            out.append(
+                f"real denominator roots, one at s = {root:.4g} >= 0 (a0 <= 0): "
+                "an unstable mode with no zeta or omega"
+            )
+        elif unstable:
+            where = ", ".join(f"{z:.4g}" for z in unstable)
+            out.append(f"unstable pole (s = {where}): an open-loop unstable mode")
         if self.kind == "short_period" and p["1/T_theta2"] < 0:
             out.append("right-half-plane zero (1/T_theta2 < 0): not a physical pitch response")
         if p.get("tau", 0.0) < -DELAY_ROUNDING:
