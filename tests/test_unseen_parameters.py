@@ -52,3 +52,28 @@ def test_an_unseen_parameter_is_held_and_the_others_fitted_as_without_it(extra, 
         # before: stuck 4-10 standard errors away (and `unused` at 1.8e135)
         assert fit.parameters[n] == pytest.approx(reference.parameters[n], rel=1e-6)
         assert fit.standard_errors[n] == pytest.approx(reference.standard_errors[n], rel=1e-3)
+
+
+@pytest.mark.parametrize("how", ["filter_error", "two_records"])
+def test_an_unseen_parameter_is_held_in_filter_error_and_joint_fits(how):
+    # before: filter error stopped at the start (success reported), two records at 0
+    # iterations
+    data = catalog.short_period_flight(seed=42)
+    other = catalog.short_period_flight(seed=3)
+
+    def flapless(d):
+        return aeroid.FlightData(
+            d.time, {**d.channels, "flap": np.zeros(d.n_samples)}, units=dict(d.units)
+        )
+
+    records = flapless(data) if how == "filter_error" else [flapless(data), flapless(other)]
+    options = (
+        {"method": "filter_error", "process_noise": {"q": 0.01}} if how == "filter_error" else {}
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reference = aeroid.identify(_short_period("none"), records, NAMES, **options)
+        fit = aeroid.identify(_short_period("flap"), records, [*NAMES, "M_flap"], **options)
+    assert fit.success and fit.parameters["M_flap"] == -1.0
+    for n in NAMES:
+        assert fit.parameters[n] == pytest.approx(reference.parameters[n], rel=1e-5)
