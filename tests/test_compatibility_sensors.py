@@ -247,7 +247,7 @@ def test_bad_records_are_named(small):
 def test_initial_states_held_per_record(small):
     other = simulated_flight(6.0, 25.0, seed=9, h0=1900.0)
     starts = [{"h": 1500.5, "u": 45.0}, {"h": 1900.5, "u": 45.0}]
-    results = check_compatibility([small, other], estimate_x0=False, x0=starts)
+    results = check_compatibility([small, other], estimate=["b_q"], estimate_x0=False, x0=starts)
     for r, given in zip(results, starts, strict=True):
         assert r.initial_states["h"] == given["h"]
         assert r.initial_states["u"] == given["u"]

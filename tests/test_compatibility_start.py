@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from _compat_flight import NOISE, simulated_flight, truth
 
-from aeroid import check_compatibility
+from aeroid import IdentificationError, check_compatibility
 from aeroid.estimation._compat_arguments import START_CUTOFF, _held_start
 
 DT = 0.02
@@ -86,3 +86,30 @@ def test_check_compatibility_holds_that_start() -> None:
     sd = float(np.sqrt(c @ c))
     for o in ("V", "alpha", "theta", "phi"):
         assert abs(start[o] - _held_start(clean[o], DT)) < 4.0 * sd * NOISE[o], o
+
+
+def test_a_held_start_does_not_absorb_the_errors_it_is_made_of() -> None:
+    """A start held at the measured values carries the air-data offsets: estimated with it
+    (scale_about='zero'), an airspeed offset of 1.5 m/s came back -0.04 +- 0.01. They are
+    refused, by default or by name, naming the ways out, and kept where the start is
+    estimated, given, or the offset is the error at the start (scale_about='initial')."""
+    errors = {"b_V": 1.5, "b_q": -0.002}
+    data = simulated_flight(20.0, 50.0, errors=errors, seed=4)
+    with pytest.raises(IdentificationError, match=r"\['b_V', 'b_alpha', .*\(the default set\)"):
+        check_compatibility(data, estimate_x0=False)
+    with pytest.raises(
+        IdentificationError, match=r"estimate: \['b_V'\]: the start of \['u', 'v', 'w'\]"
+    ):
+        check_compatibility(data, estimate=["b_V", "b_q"], estimate_x0=False)
+    held_theta = ["u", "v", "w", "phi", "psi", "h"]
+    with pytest.raises(IdentificationError, match=r"\['b_theta'\]: the start of \['theta'\]"):
+        check_compatibility(data, estimate=["b_theta", "b_q"], estimate_x0=held_theta)
+    tr = truth(data.time[:1])
+    a, b, v = tr["alpha"][0], tr["beta"][0], tr["V"][0]
+    start = {"u": v * np.cos(a) * np.cos(b), "v": v * np.sin(b), "w": v * np.sin(a) * np.cos(b)}
+    given = check_compatibility(data, estimate=["b_V", "b_q"], estimate_x0=False, x0=start)
+    assert "b_V" in given.parameters  # a start given is not the measured one
+    initial = check_compatibility(
+        data, estimate=["b_V", "b_q"], estimate_x0=False, scale_about="initial"
+    )
+    assert "b_V" in initial.parameters

@@ -26,6 +26,7 @@ from ._compat_model import (
     SENSOR_PARAMETERS,
     STATES,
 )
+from ._compat_sensors import _per_record_x0
 
 FloatArray = NDArray[np.float64]
 # Hz: the low-pass a held initial state is taken through (`_held_start`)
@@ -368,3 +369,52 @@ def _start_state(
             if not math.isfinite(state[s]):
                 raise IdentificationError(f"x0[{s!r}]: value {state[s]!r} is not finite")
     return state
+
+
+# The states whose start a held fit reconstructs from each sensor's first samples (less
+# its known errors): an error estimated on such a sensor while that start is held at the
+# measured value shifts start and output alike, and the fit cannot see it.
+_START_STATES = {
+    # v starts from V sin(beta): without a sideslip channel, from the wind alone
+    **{f"{kind}_V": ("u", "w", "v") for kind in "bk"},
+    **{f"{kind}_alpha": ("u", "w") for kind in "bk"},
+    **{f"{kind}_beta": ("u", "v", "w") for kind in "bk"},
+    **{f"{kind}_{o}": (o,) for kind in "bk" for o in ("phi", "theta", "psi", "h")},
+    **{w: ("u", "v", "w") for w in ("w_n", "w_e", "w_d")},
+}
+
+
+def _start_errors(
+    names: list[str],
+    default: bool,
+    free_x0: Sequence[str],
+    held_in: set[str],
+    x0: Any,
+    n_records: int,
+    sideslip: bool,
+) -> list[str]:
+    """`names`, refused where it holds sensor errors a start held at the measured values
+    would absorb (with ``scale_about="zero"``)."""
+    given = [set(g or {}) for g in _per_record_x0(x0, n_records)]
+    held = {
+        s
+        for s in STATES
+        if s not in free_x0 and s not in held_in and any(s not in g for g in given)
+    }
+
+    def starts(name: str) -> set[str]:
+        # without a sideslip channel v starts from the wind alone
+        moved = set(_START_STATES.get(name, ()))
+        return moved - {"v"} if not sideslip and not name.startswith("w_") else moved
+
+    absorbed = [n for n in names if held & starts(n)]
+    if not absorbed:
+        return names
+    shown = sorted(held & {s for n in absorbed for s in starts(n)})
+    raise IdentificationError(
+        f"estimate: {absorbed}{' (the default set)' if default else ''}: the start of "
+        f"{shown} is held at the measured values, which carry these errors, so the fit "
+        "cannot see them; estimate those initial states (estimate_x0), give x0, use "
+        "scale_about='initial' (an offset is then the error at the start, SIDPAC's form) "
+        "or leave them out of estimate"
+    )

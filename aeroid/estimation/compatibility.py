@@ -68,7 +68,7 @@ from ..errors import IdentificationError
 from ..io.data import FlightData, plain, whole_number
 from ._compat_arguments import _ANGLE_LIMITS as _ANGLE_LIMITS
 from ._compat_arguments import _STAND_IN_SOURCES as _STAND_IN_SOURCES
-from ._compat_arguments import LATERAL_INPUT_ERRORS, LATERAL_OUTPUTS
+from ._compat_arguments import LATERAL_INPUT_ERRORS, LATERAL_OUTPUTS, _start_errors
 from ._compat_arguments import _channel_map as _channel_map
 from ._compat_arguments import _first_values as _first_values
 from ._compat_arguments import _fitted_outputs as _fitted_outputs
@@ -287,7 +287,12 @@ def check_compatibility(
         without leaning on its first sample, as SIDPAC's ``dcmp`` holds it:
         it lags a record that starts moving by a few samples, and a jitter at
         the start still moves it, so estimate where the start is not steady);
-        or the names of the states to estimate, the others held.
+        or the names of the states to estimate, the others held. A start
+        held at the measured values carries those channels' errors: with
+        ``scale_about="zero"`` the errors it is made of (the air-data offsets,
+        scales and wind for ``u``, ``v``, ``w``; ``b_phi``, ``k_phi`` for
+        ``phi``, and so on) are refused, the default set's included, unless
+        those states are estimated or given in `x0`.
     scale_about : {"zero", "initial"}
         What an output's scale factor multiplies: the value itself,
         ``(1 + k) y + b``, or its change from the start value,
@@ -483,6 +488,10 @@ def check_compatibility(
     }
     free_x0 = [s for s in ("u", "v", "w", "phi", "theta", "psi", "h") if seen.get(s, True)]
     free_x0 = [s for s in _free_states(estimate_x0, free_x0) if s not in held_in]
+    if scale_about == "zero":
+        names = _start_errors(
+            names, estimate is None, free_x0, held_in, x0, len(records), "beta" in present
+        )
     masks = tuple((f"m_{s}", 1.0 if s in held_in else 0.0) for s in STATES)
     pivots = {o: 0.0 for o in OUTPUT_CHANNELS}
     if scale_about == "initial":
