@@ -9,6 +9,7 @@ print them (``1/s``, ``m/s²``, ``1/(m s)``).
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping, Sequence
 
 Unit = Mapping[str, int]
@@ -82,42 +83,156 @@ def ratio(numerator: Unit, factors: Iterable[Unit], *, keep_radians: bool) -> st
     return unit_text({k: out[k] for k in sorted(out, key=lambda k: order.get(k, 4)) if out[k]})
 
 
-# Stability and control derivatives of the built-in aircraft and short-period models,
-# by the equation (force or moment) and the variable they multiply. Moment derivatives
-# (M, L, N) are angular accelerations: 1/s^2 per rad of an angle or control, 1/s per
-# rad/s of a rate; force derivatives (Z, Y, X) in the alpha/beta equations are 1/s per
-# rad and dimensionless per rad/s. Coefficients C* are dimensionless.
-_ANGLES = ("alpha", "beta", "delta", "de", "da", "dr", "elevator", "aileron", "rudder")
-_RATES = ("q", "p", "r", "alphadot", "alpha_dot")
+# Guessed units of stability and control derivatives a model does not declare, by the
+# naming of Klein & Morelli and of the library's own models: the head names the
+# equation (the state whose derivative it is), the tail the regressor. A guess is made
+# only where the record's units make it right: derived from the two channels' units
+# where the record has both, else the radian-based table below where the equation's
+# channel is in radians and no channel of the record is in degrees.
+_EQUATIONS: dict[str, tuple[str, ...]] = {
+    "M": ("q",),
+    "L": ("p",),
+    "N": ("r",),
+    "Z": ("alpha",),
+    "Y": ("beta",),
+}
+_EQUATIONS["X"] = ("V", "u")  # an airspeed equation: m/s² per rad (no table guess)
+_ANGLES = frozenset(
+    {"alpha", "beta", "delta", "delta_e", "delta_a", "delta_r", "de", "da", "dr"}
+    | {"elevator", "aileron", "rudder"}
+)
+_RATES = frozenset(("q", "p", "r", "alphadot", "alpha_dot"))
+_ANGLE_SYMBOLS = frozenset(("rad", "deg", "cdeg"))
+# the equation's channel in radians: (head's table unit per angle, per rate)
+_TABLE = {
+    "M": ("1/s²", "1/s"),
+    "L": ("1/s²", "1/s"),
+    "N": ("1/s²", "1/s"),
+    "Z": ("1/s", "-"),
+    "Y": ("1/s", "-"),
+}
+_SUPERSCRIPTS = str.maketrans("²³⁴", "234")
+_FACTOR = re.compile(r"([A-Za-z]+)\^?(-?\d*)$")
+_SPELLED = {"degree": "deg", "degrees": "deg", "radian": "rad", "radians": "rad"}
+# the unit symbols read; a unit with another (``percent``) is not read
+_SYMBOLS = frozenset(("m", "s", "N", "kg", "rad", "deg", "cdeg", "g", "ft", "kt", "ms", "us"))
 
 
 def parameter_units(
-    names: Sequence[str], declared: Mapping[str, str] | None = None
+    names: Sequence[str],
+    declared: Mapping[str, str] | None = None,
+    channel_units: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
     """Units of the model parameters in `names`: those `declared` (a model's or a
-    result's `parameter_units`), else guessed where the name follows the short-period
-    derivative naming."""
-    out = named_units(names)
+    result's `parameter_units`), else guessed from the derivative naming where the
+    record's `channel_units` make the guess right (see `guessed_units`)."""
+    out = guessed_units(names, channel_units)
     out.update({n: u for n, u in (declared or {}).items() if n in names})
     return out
 
 
-def named_units(names: Sequence[str]) -> dict[str, str]:
+def guessed_units(
+    names: Sequence[str], channel_units: Mapping[str, str] | None = None
+) -> dict[str, str]:
+    """Units guessed from the parameters' names and the record's `channel_units`.
+
+    ``tau_*`` is in s and a coefficient's constant ``C*_0`` is dimensionless whatever
+    the record. A derivative ``M_alpha`` (head M, L, N, Z, Y or X: the equation of q,
+    p, r, alpha, beta or V/u) is the unit of its equation's rate over its regressor's
+    unit where the record gives both channels' units (``(deg/s²)/rad`` is printed
+    ``deg/(s² rad)``; a radian left alone is dropped, as Klein and Morelli print
+    dimensional derivatives); a regressor that is no channel (``M_delta`` on an
+    ``elevator``) gets the radian-based table value only where the equation's
+    channel is in radians and no channel is in degrees. A coefficient derivative
+    ``CL_alpha`` is per its angle's unit (``1/rad``), ``Cm_q`` (a non-dimensional
+    rate) dimensionless where the rate is in rad/s. Other names get none.
+    """
+    units = {
+        k: parsed for k, v in (channel_units or {}).items() if (parsed := _parse(v)) is not None
+    }
+    # a channel whose unit this does not read may be in degrees
+    unread = {k for k, v in (channel_units or {}).items() if v and k not in units}
+    in_degrees = bool(unread) or any(
+        s in _ANGLE_SYMBOLS and s != "rad" for u in units.values() for s in u
+    )
     out: dict[str, str] = {}
     for name in names:
         head, _, var = name.partition("_")
         if name.startswith("tau_"):
             out[name] = "s"
-        elif head.startswith("C") and len(head) > 1:
-            out[name] = "-"
-        elif head in ("M", "L", "N") and var:
-            if var in _RATES:
-                out[name] = "1/s"
-            elif var.startswith(_ANGLES):
-                out[name] = "1/s²"
-        elif head in ("Z", "Y", "X") and var:
-            if var in _RATES:
-                out[name] = "-"
-            elif var.startswith(_ANGLES):
-                out[name] = "1/s"
+        elif head.startswith("C") and len(head) > 1 and var:
+            guess = _coefficient_unit(var, units, in_degrees)
+            if guess is not None:
+                out[name] = guess
+        elif head in _EQUATIONS and var:
+            guess = _derivative_unit(head, var, units, in_degrees)
+            if guess is not None:
+                out[name] = guess
     return out
+
+
+def _parse(text: str) -> dict[str, int] | None:
+    """``"deg/s"`` -> ``{"deg": 1, "s": -1}``; ``"-"`` and ``"1"`` are dimensionless;
+    None for a unit this does not read (``%``)."""
+    text = text.strip().translate(_SUPERSCRIPTS)
+    if text in ("-", "1", ""):
+        return {} if text else None
+    top, _, bottom = text.partition("/")
+    out: dict[str, int] = {}
+    for part, sign in ((top, 1), (bottom.strip("()"), -1)):
+        for factor in part.replace("*", " ").replace("·", " ").split():
+            if factor == "1" and sign == 1:
+                continue
+            m = _FACTOR.match(factor)
+            if m is None or "/" in bottom:
+                return None
+            symbol = _SPELLED.get(m.group(1), m.group(1))
+            if symbol not in _SYMBOLS:
+                return None
+            out[symbol] = out.get(symbol, 0) + sign * int(m.group(2) or 1)
+    return {k: e for k, e in out.items() if e}
+
+
+def _over(numerator: Mapping[str, int], denominator: Mapping[str, int]) -> str:
+    out = dict(numerator)
+    for k, e in denominator.items():
+        out[k] = out.get(k, 0) - e
+    out = {k: e for k, e in out.items() if e}
+    if not any(k in _ANGLE_SYMBOLS and k != "rad" for k in out):
+        out.pop("rad", None)  # the radian is a ratio; one beside degrees is a scale
+    order = {"m": 0, "N": 1, "s": 2, "rad": 3}
+    return unit_text({k: out[k] for k in sorted(out, key=lambda k: order.get(k, 4))})
+
+
+def _derivative_unit(
+    head: str, var: str, units: Mapping[str, Mapping[str, int]], in_degrees: bool
+) -> str | None:
+    equation = next((c for c in _EQUATIONS[head] if c in units), None)
+    if equation is None:
+        return None
+    rate = dict(units[equation])
+    rate["s"] = rate.get("s", 0) - 1
+    if var in units:
+        return _over(rate, units[var])
+    radians = {k: e for k, e in units[equation].items() if k in _ANGLE_SYMBOLS} == {"rad": 1}
+    if head not in _TABLE or in_degrees or not radians:
+        return None
+    per_angle, per_rate = _TABLE[head]
+    return per_angle if var in _ANGLES else per_rate if var in _RATES else None
+
+
+def _coefficient_unit(
+    var: str, units: Mapping[str, Mapping[str, int]], in_degrees: bool
+) -> str | None:
+    if var == "0":
+        return "-"
+    unit = units.get(var)
+    if unit is not None:
+        angle = {k: e for k, e in unit.items() if k in _ANGLE_SYMBOLS}
+        if angle and unit == angle:  # an angle: per rad or per deg
+            return _over({}, unit) if angle != {"rad": 1} else "1/rad"
+        # a rate enters as the non-dimensional q c / (2 V) only when in rad/s
+        return "-" if unit == {"rad": 1, "s": -1} else None
+    if in_degrees or not units:
+        return None
+    return "1/rad" if var in _ANGLES else "-" if var in _RATES else None

@@ -15,7 +15,7 @@ from ._aliases import legacy_name
 from ._conditions import CONDITION_KEYS, CONDITION_NAMES
 from ._records import ReadOnlyDict, fmt, markdown_table
 from ._threads import quiet_warnings, record_warnings, replay_warnings
-from ._units import parameter_units
+from ._units import guessed_units, parameter_units
 from .reports import html as _html
 from .reports.html import figure_png, markdown_to_html
 from .uncertainty.database_export import replace_aerodynamics
@@ -33,6 +33,7 @@ __all__ = [
     "figure",
     "figure_png",
     "fmt",
+    "guessed_units",
     "holdout_record",
     "legacy_name",
     "markdown_table",

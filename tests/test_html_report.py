@@ -71,8 +71,10 @@ window.addEventListener("load", () => {
 
 
 def test_parameter_units_of_the_derivative_names():
+    radians = {"alpha": "rad", "beta": "rad", "q": "rad/s", "p": "rad/s", "r": "rad/s"}
     units = parameter_units(
-        ["M_alpha", "M_q", "M_delta", "Z_alpha", "Z_q", "L_p", "N_r", "Y_beta", "CL_alpha"]
+        ["M_alpha", "M_q", "M_delta", "Z_alpha", "Z_q", "L_p", "N_r", "Y_beta", "CL_alpha"],
+        channel_units=radians,
     )
     assert units == {
         "M_alpha": "1/s²",
@@ -83,7 +85,7 @@ def test_parameter_units_of_the_derivative_names():
         "L_p": "1/s",
         "N_r": "1/s",
         "Y_beta": "1/s",
-        "CL_alpha": "-",
+        "CL_alpha": "1/rad",  # as the aircraft models declare it
     }
     assert parameter_units(["tau_elevator", "gain"]) == {"tau_elevator": "s"}
 
@@ -358,11 +360,12 @@ def test_campaign_comes_first_then_a_folded_section_per_flight(campaign):
     assert f"<pre><code>{escape(config.rstrip(chr(10)))}</code></pre>" in flown
     # the estimates transposed, each with its unit, labelled 1 sigma
     assert "± 1 standard error (1σ" in html
+    # the catalog's short period declares none: guessed from the names, and marked so
     for name, unit in (
-        ("Z_alpha", "1/s"),
-        ("M_alpha", "1/s²"),
-        ("M_q", "1/s"),
-        ("M_delta", "1/s²"),
+        ("Z_alpha", "1/s (guessed)"),
+        ("M_alpha", "1/s² (guessed)"),
+        ("M_q", "1/s (guessed)"),
+        ("M_delta", "1/s² (guessed)"),
     ):
         assert f"<td>{name}</td><td>{unit}</td>" in html
 

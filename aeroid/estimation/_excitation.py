@@ -299,3 +299,17 @@ def refuse_runaway(
             "wrong-signed start: start nearer the truth (start='equation_error') or fit an "
             "unstable airframe with method='filter_error'"
         )
+
+
+def record_units(model: Any, datas: Sequence[Any], channels: Iterable[str]) -> dict[str, str]:
+    """Units of `channels`: the records' own (a channel the records give different
+    units is left out), else those the model declares."""
+    declared = dict(getattr(model, "channel_units", None) or {})
+    out: dict[str, str] = {}
+    for name in channels:
+        stated = {dict(getattr(d, "units", None) or {}).get(name) or "" for d in datas}
+        unit = stated.pop() if len(stated) == 1 else ""
+        unit = unit or (declared.get(name, "") if stated <= {""} else "")
+        if unit:
+            out[name] = unit
+    return out

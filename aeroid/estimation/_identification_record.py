@@ -125,6 +125,10 @@ class IdentificationResult(IntervalMixin):
         Per output, the RMS of the fitted response (about its mean) over the
         RMS of the residual: below one on every output, the record holds no
         manoeuvre and `identify` warns that it is not excited.
+    units : mapping of str to str
+        Units of the fitted outputs and the controls: the records' own, else those
+        the model declares (as `ValidationResult.units`); the report guesses the
+        units of parameters the model declares none for from them.
     """
 
     parameters: Mapping[str, float]
@@ -159,6 +163,7 @@ class IdentificationResult(IntervalMixin):
     time_delays: Mapping[str, float] = field(default_factory=dict)
     parameter_units: Mapping[str, str] = field(default_factory=dict)
     response_to_noise: Mapping[str, float] = field(default_factory=dict)
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -168,6 +173,7 @@ class IdentificationResult(IntervalMixin):
             "parameter_units",
             ReadOnlyDict({str(k): str(v) for k, v in self.parameter_units.items()}),
         )
+        set_(self, "units", ReadOnlyDict({str(k): str(v) for k, v in self.units.items()}))
         set_(self, "data_fingerprints", tuple(str(f) for f in self.data_fingerprints))
         set_(
             self,

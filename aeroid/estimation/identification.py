@@ -766,7 +766,7 @@ def _finish(
             stacklevel=4,  # _finish, identify, its BLAS wrapper, the caller
         )
         fitted = replace(fitted, success=False, message=message)
-    from ._excitation import refuse_unexcited, response_to_noise, warn_unexcited
+    from ._excitation import record_units, refuse_unexcited, response_to_noise, warn_unexcited
 
     ratios = {} if bad else response_to_noise(fitted.output_names, fitted.residuals, datas)
     refuse_unexcited(held, ratios)
@@ -782,4 +782,5 @@ def _finish(
         data_fingerprints=tuple(fingerprint(d) for d in datas),
         parameter_units=units,
         response_to_noise=ratios,
+        units=record_units(model, datas, [*fitted.output_names, *getattr(model, "controls", ())]),
     )

@@ -12,7 +12,7 @@ from ..errors import AeroidError, OutputError
 __all__ = ["report", "report_figures", "report_sections"]
 
 
-def _identification_notes(result: Any) -> list[str]:
+def _identification_notes(result: Any, guessed: set[str]) -> list[str]:
     notes = []
     if not getattr(result, "success", True):
         notes.append("The fit did not converge; treat the estimates as provisional.")
@@ -39,6 +39,8 @@ def _identification_notes(result: Any) -> list[str]:
             notes.append(
                 f"{worst[1]} and {worst[2]} are strongly correlated (|r| = {worst[0]:.2f})."
             )
+    if guessed & set(names):
+        notes.append(_GUESSED_NOTE)
     return notes
 
 
@@ -156,19 +158,33 @@ def _with_units(body: str, units: dict[str, str]) -> str:
     return "\n".join(out)
 
 
-def _report_units(*results: Any) -> dict[str, str]:
-    """Units of the channels and parameters the results know of."""
-    from .._units import parameter_units
+def _report_units(*results: Any) -> tuple[dict[str, str], set[str]]:
+    """Units of the channels and parameters the results know of, and the parameters
+    whose unit is guessed (from the name and the channels' units: none declared)."""
+    from .._units import guessed_units
 
     units: dict[str, str] = {}
     for r in results:
         units.update({k: v for k, v in (getattr(r, "units", None) or {}).items() if v})
+    channels = dict(units)
+    guessed: set[str] = set()
     for r in results:
         names = list(getattr(r, "parameter_names", ()) or ())
         if names:
-            declared = getattr(r, "parameter_units", None)
-            units.update(parameter_units(names, declared))
-    return units
+            declared = {
+                n: u for n, u in (getattr(r, "parameter_units", None) or {}).items() if n in names
+            }
+            guesses = {n: u for n, u in guessed_units(names, channels).items() if n not in declared}
+            units.update({**guesses, **declared})
+            guessed = (guessed | set(guesses)) - set(declared)
+    return units, guessed
+
+
+_GUESSED = " (guessed)"
+_GUESSED_NOTE = (
+    "A unit marked (guessed) is read from the parameter's name (M_alpha: the q equation's "
+    "derivative in alpha) and the record's channel units; the model declares none."
+)
 
 
 def _without_heading(body: str) -> str:
@@ -231,7 +247,8 @@ def report_sections(
                 f"{missing[0]!r}: not a {slot} result (report takes validation, "
                 "identification and propagation by position, the others by keyword)"
             )
-    units = _report_units(validation, identification, filtering, sensitivity, inference)
+    units, guessed = _report_units(validation, identification, filtering, sensitivity, inference)
+    units.update({n: units[n] + _GUESSED for n in guessed})
 
     def add(heading: str, result: Any, notes: list[str] | None = None, extra: str = "") -> None:
         if result is None:
@@ -246,7 +263,7 @@ def report_sections(
     add(
         "Identification",
         identification,
-        _identification_notes(identification) if identification else None,
+        _identification_notes(identification, guessed) if identification else None,
         _correlation_table(identification) if identification else "",
     )
     add(

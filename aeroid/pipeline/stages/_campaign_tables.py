@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import html
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from ...support import markdown_table
+from ...support import guessed_units, markdown_table
 from .flight_status import POOR_FIT_R2
 
 __all__ = [
+    "campaign_units",
     "coloured_innovations",
     "estimate_tables",
     "fit_whiteness",
@@ -60,15 +61,23 @@ def fit_whiteness(
 
 def identification_brief(record: Any) -> dict[str, Any]:
     """What the campaign's tables and status flags read of one flight's fit."""
+    names = list(getattr(record, "parameter_names", ()))
+    declared = dict(getattr(record, "parameter_units", {}) or {})
     return {
-        "names": list(getattr(record, "parameter_names", ())),
+        "names": names,
         "parameters": dict(record.parameters),
         "stderr": dict(record.stderr),
         "success": bool(getattr(record, "success", True)),
         "active_bounds": dict(getattr(record, "active_bounds", {}) or {}),
         "unidentifiable": [list(c) for c in getattr(record, "unidentifiable", ())],
         "identifiable": bool(getattr(record, "identifiable", True)),
-        "units": dict(getattr(record, "parameter_units", {}) or {}),
+        "units": declared,
+        # from the names and the flight's channel units, where the model declares none
+        "guessed_units": {
+            n: u
+            for n, u in guessed_units(names, getattr(record, "units", None)).items()
+            if n not in declared
+        },
         "response_to_noise": dict(getattr(record, "response_to_noise", {}) or {}),
         "method": str(getattr(record, "method", "")),
         "residual_ms": residual_mean_squares(record),
@@ -112,6 +121,22 @@ def residual_mean_squares(identification: Any) -> dict[str, float]:
 # flights side by side in one estimates table: more are split into further tables, so
 # that each fits a printed page
 _FLIGHTS_PER_TABLE = 6
+
+
+def campaign_units(
+    briefs: Sequence[Mapping[str, Any] | None],
+) -> tuple[dict[str, str], set[str]]:
+    """The parameters' units over the flights' identification briefs: those declared,
+    else a guess every flight that guesses it agrees on; and the names guessed."""
+    units: dict[str, str] = {}
+    for b in briefs:
+        units.update((b or {}).get("units", {}))
+    votes: dict[str, set[str]] = {}
+    for b in briefs:
+        for n, u in (b or {}).get("guessed_units", {}).items():
+            votes.setdefault(n, set()).add(u)
+    guessed = {n: v.pop() for n, v in votes.items() if len(v) == 1 and n not in units}
+    return {**units, **guessed}, set(guessed)
 
 
 def estimate_tables(

@@ -23,6 +23,7 @@ from ..plans.config import Options
 from ..plans.run_plan import HTML_MARKER, MD_MARKER, html_report_path
 from . import FIGURE_IMPORTS, CampaignReport, Stage, StageContext, register_stage
 from ._campaign_tables import (
+    campaign_units,
     condition_text,
     estimate_tables,
     fit_whiteness,
@@ -152,7 +153,7 @@ def _flight_units(records: Mapping[str, Any]) -> dict[str, str]:
         for n in getattr(records.get(role), "parameter_names", ())
     ]
     declared = getattr(records.get("identification"), "parameter_units", None)
-    units.update(parameter_units(names, declared))
+    units.update(parameter_units(names, declared, units))
     # an output's noise standard deviation (inference's sigma_<output>) has its unit
     units.update({n: units[n[6:]] for n in names if n.startswith("sigma_") and n[6:] in units})
     return units
@@ -212,15 +213,9 @@ def _flight_figures(ctx: StageContext, flight: int) -> list[tuple[str, bytes]]:
     return out
 
 
-def _declared(ctx: StageContext, flight: int) -> Mapping[str, str]:
-    """The parameter units one flight's identification declares (none when it failed)."""
-    brief = ctx.brief("identification", flight)
-    return {} if brief is None else brief.get("units", {})
-
-
 def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     from ...reports.plotting import plot_campaign_trend
-    from ...support import figure_png, parameter_units
+    from ...support import figure_png
 
     records = []
     for i, f in enumerate(ctx.flights):
@@ -240,8 +235,8 @@ def _trend_figure(ctx: StageContext, index: int) -> tuple[str, bytes] | None:
     names = names[index * half : (index + 1) * half]
     if not names:
         return None
-    declared = {k: v for i in range(len(ctx.flights)) for k, v in _declared(ctx, i).items()}
-    fig = plot_campaign_trend(records, parameters=names, units=parameter_units(names, declared))
+    units, _ = campaign_units([ctx.brief("identification", i) for i in range(len(ctx.flights))])
+    fig = plot_campaign_trend(records, parameters=names, units=units)
     png = figure_png(fig, colors=64)
     return f"campaign_trend_{index}.png", png
 
@@ -310,7 +305,7 @@ def _anchor(flight: str) -> str:
 def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     import html
 
-    from ...support import markdown_table, parameter_units
+    from ...support import markdown_table
 
     flights = ctx.flights
     ident = [ctx.brief("identification", i) for i in range(len(flights))]
@@ -319,8 +314,7 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
         for n in r["names"] if r is not None else ():
             if n not in names:
                 names.append(n)
-    declared = {k: v for r in ident if r is not None for k, v in r.get("units", {}).items()}
-    punits = parameter_units(names, declared)
+    punits, guessed = campaign_units(ident)
     columns = (
         "flight",
         "condition",
@@ -380,7 +374,14 @@ def _run_campaign_report(ctx: StageContext) -> CampaignReport:
     parts += [markdown_table([columns[j] for j in glance], [[r[j] for j in glance] for r in rows])]
     parts += ["", *legend(ident)]
     if names:
-        parts += estimate_tables(names, punits, flights, [r[2 : 2 + n_est] for r in rows])
+        marked = {n: u + (" (guessed)" if n in guessed else "") for n, u in punits.items()}
+        parts += estimate_tables(names, marked, flights, [r[2 : 2 + n_est] for r in rows])
+        if guessed & set(names):
+            parts += [
+                "A unit marked (guessed) is read from the parameter's name and the flights' "
+                "channel units; the model declares none.",
+                "",
+            ]
     parts += hq_table(
         list(flights),
         [r[1] for r in rows],
