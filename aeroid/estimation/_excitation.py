@@ -301,6 +301,38 @@ def refuse_runaway(
         )
 
 
+def warn_missing_outputs(model: Any, datas: Sequence[Any], fitted: Sequence[str]) -> None:
+    """Warn, when `identify` chose the outputs itself, that some model outputs are in
+    no record: a misnamed column (``Q`` for ``q``) would otherwise drop that output
+    silently, and the fit of the rest looks like a convergence failure.
+
+    An aircraft model's measurement outputs (``q_dot``, ``ax``, ``ay``, ...) are
+    optional extras many records lack; only its states are named. Passing
+    ``outputs=`` says which are meant and silences this.
+    """
+    from ..models.aircraft import AircraftModel
+
+    missing = [o for o in model.outputs if o not in fitted]
+    if isinstance(model, AircraftModel):
+        missing = [o for o in missing if o in model.states]
+    if not missing or not fitted:
+        return
+    channels = sorted({c for d in datas for c in d.names})
+    shown = ", ".join(channels[:12]) + (
+        f", ... ({len(channels)} in all)" if len(channels) > 12 else ""
+    )
+    alike = {o: c for o in missing for c in channels if c.casefold() == o.casefold()}
+    hints = "".join(f"; the record has {c!r}, not {o!r}" for o, c in alike.items())
+    listing = ", ".join(repr(o) for o in missing)
+    warnings.warn(
+        f"identify: model output{'s' if len(missing) > 1 else ''} {listing} not in the "
+        f"record (channels: {shown}){hints}; fitting {', '.join(fitted)} only (pass "
+        "outputs= to choose the outputs)",
+        UserWarning,
+        stacklevel=4,  # here, identify, its BLAS wrapper, the caller
+    )
+
+
 def record_units(model: Any, datas: Sequence[Any], channels: Iterable[str]) -> dict[str, str]:
     """Units of `channels`: the records' own (a channel the records give different
     units is left out), else those the model declares."""

@@ -298,6 +298,8 @@ class IdentificationResult(IntervalMixin):
             else "classical (white residuals)"
         )
         notes.append(f"Standard errors: {kind}; method: {self.method.replace('_', ' ')}.")
+        if self.output_names:
+            notes.append(f"Outputs fitted: {', '.join(self.output_names)}.")
         if self.time_delays:
             which = ", ".join(f"tau_{c} of {c}" for c in self.time_delays)
             notes.append(f"Time delays (s), the controls entering as u(t - tau): {which}.")

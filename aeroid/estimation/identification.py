@@ -304,7 +304,7 @@ def identify(
         require_model,
         require_states,
     )
-    from ._excitation import held_controls, require_model_units
+    from ._excitation import held_controls, require_model_units, warn_missing_outputs
 
     require_model(model, IdentificationError)
     if method not in _METHODS:
@@ -357,6 +357,7 @@ def identify(
         fit_outputs = [o for o in model_outputs if all(o in d for d in datas)]
         if not fit_outputs:
             datas[0].require(model_outputs[:1], role="output")
+        warn_missing_outputs(model, datas, fit_outputs)
     else:
         # one name, not its letters
         chosen = [outputs] if isinstance(outputs, str) else list(outputs)
