@@ -203,3 +203,27 @@ def test_the_campaign_keeps_a_guess_only_where_the_flights_agree():
     # a flight in degrees that reads another unit: none is printed
     degrees = {"units": {}, "guessed_units": {"M_q": "rad/(s deg)"}}
     assert campaign_units([brief, degrees]) == ({}, set())
+
+
+def test_a_unit_the_fit_declares_holds_for_the_inference_too():
+    """The demo's flight with an inference of Cm_q, Cm_delta_e: the inference declares
+    no units, and its name guess (the old table's '-') replaced the fit's 1/rad."""
+    from types import SimpleNamespace
+
+    from aeroid.reports.reporting import _report_units
+
+    fit = SimpleNamespace(
+        parameter_names=("Cm_q", "Cm_delta_e"),
+        parameter_units={"Cm_q": "-", "Cm_delta_e": "1/rad"},
+        units={"q": "rad/s", "delta_e": "rad"},
+    )
+    posterior = SimpleNamespace(parameter_names=("Cm_delta_e", "M_q"), parameter_units={})
+    units, guessed = _report_units(None, fit, None, None, posterior)
+    assert units == {
+        "q": "rad/s",
+        "delta_e": "rad",
+        "Cm_q": "-",
+        "Cm_delta_e": "1/rad",
+        "M_q": "1/s",
+    }
+    assert guessed == {"M_q"}

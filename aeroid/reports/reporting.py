@@ -167,17 +167,17 @@ def _report_units(*results: Any) -> tuple[dict[str, str], set[str]]:
     for r in results:
         units.update({k: v for k, v in (getattr(r, "units", None) or {}).items() if v})
     channels = dict(units)
-    guessed: set[str] = set()
+    # a unit one result declares (the fit's) holds for the others (an inference's)
+    declared: dict[str, str] = {}
+    names: list[str] = []
     for r in results:
-        names = list(getattr(r, "parameter_names", ()) or ())
-        if names:
-            declared = {
-                n: u for n, u in (getattr(r, "parameter_units", None) or {}).items() if n in names
-            }
-            guesses = {n: u for n, u in guessed_units(names, channels).items() if n not in declared}
-            units.update({**guesses, **declared})
-            guessed = (guessed | set(guesses)) - set(declared)
-    return units, guessed
+        own = list(getattr(r, "parameter_names", ()) or ())
+        names += [n for n in own if n not in names]
+        stated = getattr(r, "parameter_units", None) or {}
+        declared.update({n: u for n, u in stated.items() if n in own})
+    guesses = {n: u for n, u in guessed_units(names, channels).items() if n not in declared}
+    units.update({**guesses, **declared})
+    return units, set(guesses)
 
 
 _GUESSED = " (guessed)"
