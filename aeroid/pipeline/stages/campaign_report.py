@@ -438,7 +438,8 @@ register_stage(
         # 14: a flight's figures drawn by a part of their own up to sixteen flights,
         # stored in flight order; 15: text drawn a string at a time (other bytes);
         # 16: no file name for a flight without a condition (a renamed file's is old)
-        "16",
+        # 17: units guessed only from the flights' channel units, marked so
+        "17",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

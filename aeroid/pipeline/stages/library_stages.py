@@ -498,7 +498,8 @@ for _stage in (
         # 15: `parameters: []` is the library's empty list, not every parameter
         # 16: filter error's gradient by the chain rule; the information inverted on a
         #     unit diagonal (bars of parameters of very different sizes; rounding)
-        "16",
+        # 17: results carry the fitted channels' units (the report's unit guesses)
+        "17",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
@@ -583,7 +584,9 @@ for _stage in (
         # 6: parameter correlations and residual autocorrelation against its band;
         # 7: the filtered or smoothed states' standard deviations with their units
         # 8: the flight's name and file as they are now (a renamed file's data reused)
-        "8",
+        # 9: units guessed only where the record's units make them right, marked so;
+        #    the fitted outputs named
+        "9",
         ReportOptions,
         "FlightReport",
         _run_report,
