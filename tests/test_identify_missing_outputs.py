@@ -81,3 +81,16 @@ def test_an_aircraft_models_measurement_outputs_are_optional():
     data = aeroid.FlightData(time=t, channels=states)
     with pytest.warns(UserWarning, match=r"model output 'theta' not in the record"):
         warn_missing_outputs(model, [data], ["V", "alpha", "q"])
+
+
+def test_an_output_one_record_of_several_lacks_is_named(tmp_path):
+    misnamed = _renamed(tmp_path, "time,elevator,alpha,Q")
+    with pytest.warns(UserWarning, match=r"model output 'q' not in every record") as caught:
+        aeroid.identify(
+            catalog.short_period(),
+            [catalog.short_period_flight(seed=1), misnamed],
+            NAMES,
+            max_iterations=5,
+        )
+    # pointed at the caller's line, not into the library
+    assert any(w.filename == __file__ for w in caught if "not in every" in str(w.message))

@@ -325,8 +325,9 @@ def warn_missing_outputs(model: Any, datas: Sequence[Any], fitted: Sequence[str]
     hints = "".join(f"; the record has {c!r}, not {o!r}" for o, c in alike.items())
     listing = ", ".join(repr(o) for o in missing)
     warnings.warn(
-        f"identify: model output{'s' if len(missing) > 1 else ''} {listing} not in the "
-        f"record (channels: {shown}){hints}; fitting {', '.join(fitted)} only (pass "
+        f"identify: model output{'s' if len(missing) > 1 else ''} {listing} not in "
+        f"{'the record' if len(datas) == 1 else 'every record'} (channels: {shown}){hints}; "
+        f"fitting {', '.join(fitted)} only (pass "
         "outputs= to choose the outputs)",
         UserWarning,
         stacklevel=4,  # here, identify, its BLAS wrapper, the caller
