@@ -8,6 +8,9 @@ and a file is found only where the config's name for it says.
 
 from __future__ import annotations
 
+import ast
+import functools
+import hashlib
 import importlib
 import importlib.util
 import sys
@@ -80,6 +83,7 @@ def resolve(
     path = module_file(module, base_dir)
     try:
         if path is not None:
+            _forget_edited(module, base_dir)
             obj: Any = load_file(path, user_module_name(module))
         else:
             obj = importlib.import_module(module)
@@ -93,3 +97,150 @@ def resolve(
         except AttributeError:
             raise error(f"{what} {spec!r}: {module!r} has no attribute {attr!r}") from None
     return obj
+
+
+# the installed aeroid package: its code is keyed by the stages' versions, never by file
+_AEROID = Path(__file__).resolve().parents[1]
+
+
+def _is_users(path: Path) -> bool:
+    """Whether `path` is a user's file (not aeroid's own, not an installed package's)."""
+    if path.is_relative_to(_AEROID):
+        return False
+    return not {"site-packages", "dist-packages"} & set(path.parts)
+
+
+def _text_digest(data: bytes) -> str:
+    # line endings normalised: a checkout on Windows keys as one on Linux
+    return hashlib.sha256(data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")).hexdigest()
+
+
+def _imported(tree: ast.AST, name: str, is_package: bool) -> list[str]:
+    """The modules the import statements of module `name` name, each with its parents
+    (importing ``a.b`` runs ``a`` too) and, for ``from a import b``, ``a.b`` (``b`` may
+    be a submodule); relative imports made absolute."""
+    out: list[str] = []
+    package = name if is_package else name.rpartition(".")[0]
+    for node in ast.walk(tree):  # every import, also those inside functions
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".") if package else []
+                if node.level - 1 > len(parts) or not parts:
+                    continue  # above the top: the import fails when it runs
+                parts = parts[: len(parts) - (node.level - 1)]
+                base = ".".join([*parts, base] if base else parts)
+            if not base:
+                continue
+            targets = [base, *(f"{base}.{alias.name}" for alias in node.names)]
+        else:
+            continue
+        for target in targets:
+            pieces = target.split(".")
+            out += [".".join(pieces[: i + 1]) for i in range(len(pieces))]
+    return out
+
+
+def user_code(module: str, base_dir: str | Path | None) -> dict[str, str]:
+    """The user's code that module `module` runs: its file in `base_dir` and, found from
+    the import statements (read, never run), every module it imports whose file is in
+    `base_dir` too, transitively; {dotted name: SHA-256 of the text}. Empty when
+    `module` has no file there. Names and contents, never paths or times, so a
+    campaign folder copied to another machine keys alike."""
+    out: dict[str, str] = {}
+    todo = [module]
+    while todo:
+        name = todo.pop()
+        if name in out:
+            continue
+        path = module_file(name, base_dir)
+        if path is None or not _is_users(path):
+            continue
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+        out[name] = digest = _text_digest(data)
+        todo += _imports_of(digest, data, name, path.name == "__init__.py")
+    return dict(sorted(out.items()))
+
+
+@functools.lru_cache(maxsize=256)
+def _imports_of(digest: str, data: bytes, name: str, is_package: bool) -> tuple[str, ...]:
+    # parsed once per text (`digest` makes the cache's key short to compare)
+    try:
+        tree = ast.parse(data)
+    except (SyntaxError, ValueError):
+        return ()  # importing it fails, and says so; its text is keyed all the same
+    return tuple(_imported(tree, name, is_package))
+
+
+# (module, base_dir) -> the `user_code` it had when last resolved in this process
+_RESOLVED: dict[tuple[str, str], dict[str, str]] = {}
+
+
+def _forget_edited(module: str, base_dir: str | Path | None) -> None:
+    """Drop from `sys.modules` the user's modules `module` imports from `base_dir` once
+    any of them changed since it was last resolved here: a session that edits a helper
+    module then runs as edited, as its keys say (`import helper` would reuse the old)."""
+    if not base_dir:
+        return
+    code = user_code(module, base_dir)
+    seen = _RESOLVED.get((module, str(base_dir)))
+    _RESOLVED[(module, str(base_dir))] = code
+    if seen is None or seen == code:
+        return
+    sys.modules.pop(user_module_name(module), None)
+    for name in code:
+        loaded = getattr(sys.modules.get(name), "__file__", None)
+        if loaded and Path(loaded).resolve() == module_file(name, base_dir):
+            del sys.modules[name]
+
+
+def function_module(function: Any, base_dir: str | Path | None) -> str | None:
+    """The dotted name, relative to `base_dir`, of the user's file that defines
+    `function` (a stage's code in a pipeline file); None for code elsewhere."""
+    code = getattr(getattr(function, "__func__", function), "__code__", None)
+    if code is None or not base_dir:
+        return None
+    path = Path(code.co_filename)
+    base = Path(base_dir).resolve()
+    try:
+        path = path.resolve()
+        relative = path.relative_to(base)
+    except (OSError, ValueError):
+        return None
+    if path.suffix != ".py" or not _is_users(path):
+        return None
+    parts = list(relative.with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    name = ".".join(parts)
+    return name if parts and module_file(name, base) == path else None
+
+
+# a stage's functions: the code its tasks run
+_STAGE_FUNCTIONS = ("run", "parts", "run_part", "combine", "part_flights", "brief", "files")
+
+
+def step_code(stage: Any, options: Any, base_dir: str) -> dict[str, Any]:
+    """The user's code a step's tasks run, as its keys hold it: for each option the
+    stage declares as code (``code_fields``: a metric) naming ``module:attribute`` of
+    a file in the config's folder, ``options.<name>``; for a stage whose functions
+    are defined in a file there (a pipeline file's own stage), ``stage``. Each is
+    that file and the user's modules it imports from the folder (`user_code`)."""
+    out: dict[str, Any] = {}
+    for name in sorted(getattr(type(options), "code_fields", ())):
+        value = getattr(options, name, None)
+        if isinstance(value, str) and ":" in value:
+            if found := user_code(value.partition(":")[0], base_dir):
+                out[f"options.{name}"] = found
+    modules = {function_module(getattr(stage, f), base_dir) for f in _STAGE_FUNCTIONS}
+    stage_code: dict[str, str] = {}
+    for module in sorted(m for m in modules if m is not None):
+        stage_code |= user_code(module, base_dir)
+    if stage_code:
+        out["stage"] = dict(sorted(stage_code.items()))
+    return out

@@ -2,7 +2,8 @@
 
 A task's key is the SHA-256 of a canonical JSON document describing
 everything that determines its result (stage, stage version, options,
-upstream keys, model fingerprint, seed specification). Canonical means:
+upstream keys, model fingerprint, seed specification, the user's code it runs).
+Canonical means:
 keys sorted, no whitespace, tuples as lists, non-finite floats spelled out,
 so the same inputs give the same bytes on every machine and Python version.
 """
@@ -202,6 +203,7 @@ def keyed_text(
     model: Mapping[str, Any] | None,
     seed: Any,
     memo: dict[int, tuple[Any, bytes]] | None = None,
+    code: Mapping[str, Any] | None = None,
 ) -> tuple[str, bytes]:
     """The key of a task and the canonical text of the document it hashes.
 
@@ -215,8 +217,13 @@ def keyed_text(
     the forked workers of a large campaign grow markedly (see
     ``tests/benchmarks/bench_campaign_1000.py``), and only a task that runs
     needs its document.
+
+    `code`: the user's code the task runs besides its model's (a metric's module, a
+    stage defined in the config's folder), as ``{what: {module: digest}}``; left out
+    of the document when None or empty, so a task running none keeps its key.
     """
-    fields = {
+    fields: dict[str, Any] = {"code": code} if code else {}
+    fields |= {
         "model": model,
         "options": options,
         "record_type": record_type,
@@ -226,11 +233,11 @@ def keyed_text(
         "upstream": upstream,
     }
     pieces = []
-    for name, value in fields.items():  # already in sorted order
+    for name, value in fields.items():  # already in sorted order ("code" first)
         # what every flight of a step shares (a flight's own options come made)
         shared = (
             memo is not None
-            and name in ("model", "options")
+            and name in ("code", "model", "options")
             and value is not None
             and type(value) is not Canonical
         )

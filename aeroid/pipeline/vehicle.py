@@ -15,9 +15,9 @@ from typing import Any
 
 from ..errors import AeroidError, ConfigError
 from . import _code
-from .keys import canonical_json
+from .keys import canonical_json, model_fingerprint
 
-__all__ = ["BUILTIN_MODELS", "resolve_model"]
+__all__ = ["BUILTIN_MODELS", "keyed_fingerprint", "resolve_model"]
 
 BUILTIN_MODELS = ("short_period", "first_order")
 
@@ -28,14 +28,31 @@ def resolve_model(spec: str | Mapping[str, Any], base_dir: str | None = None) ->
     an `aeroid.models.aircraft` model (see `model_from_config`). Resolved once per process."""
     if isinstance(spec, Mapping):
         return _model_from_mapping(canonical_json(dict(spec)).decode())
-    # a user's module file edited since: resolved again (its source is in the task keys,
-    # so the model that runs must be the one the keys describe)
-    path = _code.module_file(spec.partition(":")[0], base_dir) if ":" in spec else None
-    try:
-        stamp = None if path is None else (path.stat().st_mtime_ns, path.stat().st_size)
-    except OSError:
-        stamp = None  # `_code.resolve` names the file
+    # a user's module file, or one of the user's modules it imports, edited since:
+    # resolved again (their text is in the task keys, so the model that runs must be
+    # the one the keys describe)
+    stamp = None
+    if ":" in spec:
+        try:
+            stamp = tuple(_code.user_code(spec.partition(":")[0], base_dir).items()) or None
+        except ConfigError:
+            stamp = None  # `_code.resolve` names the file
     return _named_model(spec, base_dir, stamp)
+
+
+def keyed_fingerprint(
+    model: Any, spec: str | Mapping[str, Any], base_dir: str | None
+) -> dict[str, Any]:
+    """`model_fingerprint` of `model`, resolved from `spec`, as task keys hold it: for a
+    ``module:attribute`` model whose module is a file in `base_dir`, with ``code``, the
+    digests of that file and of the user's modules in `base_dir` it imports
+    (`_code.user_code`), so an edited helper or constant recomputes its fits."""
+    fp = model_fingerprint(model)
+    if isinstance(spec, str) and ":" in spec:
+        code = _code.user_code(spec.partition(":")[0], base_dir)
+        if code:
+            fp["code"] = code
+    return fp
 
 
 @functools.lru_cache(maxsize=32)
@@ -50,7 +67,7 @@ def _model_from_mapping(text: str) -> Any:
 
 
 @functools.lru_cache(maxsize=32)
-def _named_model(spec: str, base_dir: str | None, stamp: tuple[int, int] | None) -> Any:
+def _named_model(spec: str, base_dir: str | None, stamp: tuple[tuple[str, str], ...] | None) -> Any:
     from ..models.model import Model, SimulatorModel
 
     if ":" in spec:

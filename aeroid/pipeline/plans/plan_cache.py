@@ -8,8 +8,9 @@ keys depend on (`inputs_digest`):
 - the config as planned (less what only says where and how to run: store,
   workers, scheduler, report, the opt-ins) and the folder it was read from;
 - the pipeline's steps, each stage's stored name, version and record type,
-  each step's options as keyed, and the model's fingerprint, as resolved now
-  (a user's stage whose version or option defaults changed has new keys);
+  each step's options as keyed, the user's code it runs (its text), and the
+  model's fingerprint, as resolved now (a user's stage whose version or option
+  defaults changed has new keys);
 - the source of the installed ``aeroid`` package (its ``.py`` files), which
   writes the keys, flight specs and segment searches;
 - each flight file's path, size, modification and change times (ns) and inode,
@@ -103,6 +104,7 @@ def inputs_digest(setup: _Setup, files: list[tuple[int, Path, FileFlights]]) -> 
                 "per_flight": s in pipeline.flight_steps,
                 "inputs": dict(s.inputs),
                 "options": setup.documents[s.name][0],
+                "code": setup.code.get(s.name),
             }
         )
     head = {

@@ -19,17 +19,13 @@ from typing import TYPE_CHECKING, Any
 
 from ...errors import AeroidError, ConfigError, PipelineError
 from ...support import record_warnings, replay_warnings
+from .. import _code
 from .._options import stage_flights
 from ..definition import Pipeline, Step, resolve_pipeline
-from ..keys import (
-    Canonical,
-    canonical_json,
-    keyed_text,
-    model_fingerprint,
-    stable_int,
-)
+from ..keys import Canonical, canonical_json, keyed_text, stable_int
 from ..stages import STAGES
 from ..storage.store import parse
+from ..vehicle import keyed_fingerprint
 from ._flights import _flight_model, _flight_sources, _iter_flight_sources  # noqa: F401 (tests)
 from .config import CampaignConfig, FileFlights, load_config, validate_options
 from .plan_checks import (
@@ -199,6 +195,8 @@ class _Setup:
     documents: dict[str, tuple[dict[str, Any], dict[str, Any]]]  # (as keyed, as run)
     run_options: dict[str, dict[str, Any]]
     briefs: dict[str, tuple[tuple[str, str], ...]]
+    # step -> the user's code its tasks run besides the model's (`_code.step_code`)
+    code: dict[str, dict[str, Any]]
 
 
 def _setup(
@@ -269,7 +267,7 @@ def _setup(
         steps=steps,
         enabled=enabled,
         selected=selected,
-        fingerprint=model_fingerprint(model),
+        fingerprint=keyed_fingerprint(model, config.model, config.base_dir),
         model_ref={"spec": config.model, "base_dir": config.base_dir},
         step_stage=step_stage,
         documents=documents,
@@ -280,6 +278,10 @@ def _setup(
             if step_stage[name] != "load"
         },
         briefs=_briefs_wanted(pipeline, enabled),
+        code={
+            s.name: _code.step_code(STAGES[s.stage_name], options[s.name], config.base_dir)
+            for s in steps
+        },
     )
 
 
@@ -425,7 +427,7 @@ def _tasks(
             if text not in own_models:
                 own = resolve_model(flight.model, config.base_dir)
                 own_models[text] = (
-                    model_fingerprint(own),
+                    keyed_fingerprint(own, flight.model, config.base_dir),
                     {"spec": flight.model, "base_dir": config.base_dir},
                 )
             flight_fingerprint, flight_model_ref = own_models[text]
@@ -475,6 +477,7 @@ def _tasks(
                 seed=seed,
                 # a file's load options are its own: no use memoising them
                 memo=None if step.stage_name == "load" and source["kind"] == "file" else memo,
+                code=setup.code.get(step.name),
             )
             if step.stage_name == "load":
                 flight_id = stable_int(key)
@@ -526,6 +529,7 @@ def _tasks(
             upstream=upstream,
             model=fingerprint if stage.uses_model else None,
             seed=None,
+            code=setup.code.get(step.name),
         )
         yield Task(
             key=key,

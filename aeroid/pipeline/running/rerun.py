@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 
 from ...errors import AeroidError, PipelineError
-from ..keys import canonical_json, model_fingerprint
+from ..keys import canonical_json
 from ..plans.planning import Task, resolve_model
 from ..storage.store import Entry, ResultStore
+from ..vehicle import keyed_fingerprint
 from . import execution
 from .executors import Executor, InProcess
 
@@ -127,7 +128,11 @@ def _recorded_task(store: ResultStore, entry: Entry) -> tuple[Task, list[str]]:
     lines = [f"recomputing {task.step} {task.flight or '(campaign)'} {entry.key[:12]}"]
     if task.model_ref is not None:
         model = resolve_model(task.model_ref["spec"], task.model_ref.get("base_dir"))
-        current = json.loads(canonical_json(model_fingerprint(model)))
+        current = json.loads(
+            canonical_json(
+                keyed_fingerprint(model, task.model_ref["spec"], task.model_ref.get("base_dir"))
+            )
+        )
         if current != meta["task"].get("model"):
             lines.append("note: the model's fingerprint differs from the recorded one")
     return task, lines
