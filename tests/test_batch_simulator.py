@@ -272,3 +272,32 @@ def test_a_sampler_batch_refills_the_rows_of_the_last(monkeypatch: Any, how: str
         for b, y in zip(batches + others, got, strict=True):
             fresh = BatchSimulator(_pendulum(), T, u, X0, repeated=10**6, control_interpolation=how)
             np.testing.assert_array_equal(y, fresh.outputs(b, [1, 3]))
+
+
+@pytest.mark.parametrize("method", ["RK45", "Radau", "LSODA"])
+def test_a_diverging_member_leaves_the_others_of_a_solve_ivp_batch(method):
+    # x' = k x^2 from 1 blows up at t = 1/k: the member with k = 0.3 is finite to 2 s,
+    # and must be the same in the batch as alone (before: both marked failed)
+    def f(t, x, u, p):
+        return np.stack([p["k"] * x[0] ** 2])
+
+    m = aeroid.Model(states=["a"], controls=[], parameters={"k": 1.0}, dynamics=f, name="blow")
+    t = np.arange(0.0, 2.0, 0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        batch = m.simulate_batch(t, None, [1.0], {"k": np.array([0.3, 1.0])}, method=method)
+    assert list(batch.ok) == [True, False]
+    np.testing.assert_allclose(batch.states[0, :, 0], 1.0 / (1.0 - 0.3 * t), rtol=1e-5)
+    assert 0.95 <= batch.fail_time[1] <= 1.05
+
+
+@pytest.mark.parametrize("method", ["BDF", "LSODA"])
+def test_an_implicit_solver_names_where_it_failed_not_the_start(method):
+    def f(t, x, u, p):
+        return np.stack([x[0]])  # overflows float64 at t = 709.8 s
+
+    m = aeroid.Model(states=["a"], controls=[], parameters={}, dynamics=f, name="grow")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(aeroid.SimulationError, match=r"t = 7(09|10) s"):
+            m.simulate(np.arange(0.0, 720.0, 1.0), x0=[1.0], method=method)

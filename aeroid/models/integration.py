@@ -225,7 +225,36 @@ def solve_ivp_batch(
     atol: float,
     interpolation: Interpolation = "linear",
 ) -> RawTrajectory:
-    """The whole batch as one stacked ODE through `scipy.integrate.solve_ivp`."""
+    """The whole batch as one stacked ODE through `scipy.integrate.solve_ivp`; where a
+    member fails, each member again on its own (one member's divergence stops the stacked
+    solve for all, and the healthy ones must not be reported failed)."""
+    traj = _solve_ivp_stacked(f, time, x0, u, p, method, rtol, atol, interpolation)
+    batch = x0.shape[1]
+    if batch == 1 or bool(np.all(traj.ok)):
+        return traj
+    states, ok, fail_time = traj.states.copy(), traj.ok.copy(), traj.fail_time.copy()
+    for b in range(batch):
+        member = {
+            k: (v[b : b + 1] if np.ndim(v) and np.shape(v)[0] == batch else v) for k, v in p.items()
+        }
+        one = _solve_ivp_stacked(
+            f, time, x0[:, b : b + 1], u[b : b + 1], member, method, rtol, atol, interpolation
+        )
+        states[b], ok[b], fail_time[b] = one.states[0], one.ok[0], one.fail_time[0]
+    return RawTrajectory(states, ok, fail_time)
+
+
+def _solve_ivp_stacked(
+    f: BatchFunction,
+    time: FloatArray,
+    x0: FloatArray,
+    u: FloatArray,
+    p: Mapping[str, FloatArray],
+    method: str,
+    rtol: float,
+    atol: float,
+    interpolation: Interpolation = "linear",
+) -> RawTrajectory:
     import scipy.integrate  # on first use: half a second that a rerun or `aeroid status` skips
 
     excess = None if interpolation == "linear" else _cubic_excess(time, u, interpolation)
@@ -236,8 +265,13 @@ def solve_ivp_batch(
     n_x, batch = x0.shape
     n_u = u.shape[2]
     max_step = float(np.min(np.diff(time)))
+    # the furthest time the solver evaluated finite states at: where an implicit method
+    # that raises on a non-finite Jacobian stopped (it returns no partial solution)
+    reached = [float(time[0])]
 
     def rhs(t: float, z: FloatArray) -> FloatArray:
+        if t > reached[0] and np.all(np.isfinite(z)):
+            reached[0] = t
         k = int(np.clip(np.searchsorted(time, t, side="right") - 1, 0, time.size - 2))
         w = (t - time[k]) / (time[k + 1] - time[k])
         if excess is None:
@@ -265,13 +299,19 @@ def solve_ivp_batch(
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             sol = None
     states = np.full((batch, time.size, n_x), np.nan)
+    returned = 0
     if sol is not None and sol.y.size:
         got = sol.y.reshape(n_x, batch, -1)
-        states[:, : got.shape[2], :] = np.transpose(got, (1, 2, 0))
+        returned = got.shape[2]
+        states[:, :returned, :] = np.transpose(got, (1, 2, 0))
     ok, fail_time = _first_failure(states, time)
-    if sol is not None and not sol.success:
+    if sol is None or not sol.success:
         ok[:] = False
-        fail_time[np.isnan(fail_time)] = float(sol.t[-1]) if sol.t.size else float(time[0])
+        # past the samples returned (an implicit method that raised returns none) the
+        # failure is where the solver last saw finite states
+        last = time[min(int(np.searchsorted(time, reached[0], side="right")), time.size - 1)]
+        end = time[returned] if returned < time.size else np.inf
+        fail_time[np.isnan(fail_time) | (fail_time >= end)] = max(last, time[max(returned - 1, 0)])
     return RawTrajectory(states, ok, fail_time)
 
 

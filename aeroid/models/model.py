@@ -499,6 +499,14 @@ class Model(ContinuousModel):
         bad_y = ~np.isfinite(outputs)
         kx = int(np.argmax(bad_x.any(axis=1))) if bad_x.any() else time.size
         ky = int(np.argmax(bad_y.any(axis=1))) if bad_y.any() else time.size
+        first = min(kx, ky)
+        if first < time.size and np.isfinite(solver_time) and time[first] < solver_time:
+            # a solver that raised (an implicit method's non-finite Jacobian) returns no
+            # states at all: it got as far as its own time, not the grid's first NaN
+            return solver_time, (
+                f"the solver failed at t = {solver_time:.6g} s (the states stopped being "
+                "finite; it returned none before)"
+            )
         if kx < time.size and kx <= ky:
             j = int(np.argmax(bad_x[kx]))
             return float(time[kx]), (
