@@ -65,7 +65,12 @@ def test_dynamics_that_turn_nan_fail_at_once_naming_the_state(method, late):
         return np.array([-p["k"] * x[0] + (np.nan if bad else 0.0)])
 
     model = Model(states=["x"], controls=[], parameters={"k": 1.0}, dynamics=f)
-    with pytest.raises(SimulationError, match="state 'x' is not finite"):
+    # named with the time the solver got to (an implicit method returns no states)
+    when = r"0\.[567]" if late else r"0(\.1)?"
+    with pytest.raises(
+        SimulationError,
+        match=rf"(state 'x' is|states \['x'\] are) not finite (at|from) t = {when} s",
+    ):
         model.simulate(np.linspace(0.0, 1.0, 11), x0=[1.0], method=method)
 
 

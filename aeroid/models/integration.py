@@ -309,7 +309,7 @@ def _solve_ivp_stacked(
         ok[:] = False
         # past the samples returned (an implicit method that raised returns none) the
         # failure is where the solver last saw finite states
-        last = time[min(int(np.searchsorted(time, reached[0], side="right")), time.size - 1)]
+        last = time[min(int(np.searchsorted(time, reached[0])), time.size - 1)]
         end = time[returned] if returned < time.size else np.inf
         fail_time[np.isnan(fail_time) | (fail_time >= end)] = max(last, time[max(returned - 1, 0)])
     return RawTrajectory(states, ok, fail_time)

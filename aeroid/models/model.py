@@ -504,8 +504,8 @@ class Model(ContinuousModel):
             # a solver that raised (an implicit method's non-finite Jacobian) returns no
             # states at all: it got as far as its own time, not the grid's first NaN
             return solver_time, (
-                f"the solver failed at t = {solver_time:.6g} s (the states stopped being "
-                "finite; it returned none before)"
+                f"states {list(self.states)} are not finite from t = {solver_time:.6g} s "
+                "(the solver stopped there and returned none of them)"
             )
         if kx < time.size and kx <= ky:
             j = int(np.argmax(bad_x[kx]))
