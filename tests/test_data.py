@@ -300,12 +300,12 @@ def test_csv_comment_lines_among_the_data_are_skipped(tmp_path):
     path.write_text("time,a\n0,1\n# gear up\n0.1,2\n\n0.2,3\n# end of run\n")
     d = load_flight_test(path)
     np.testing.assert_array_equal(d["a"], [1.0, 2.0, 3.0])
-    # rows are counted without the comment lines, as before
+    # the row named is the file line an editor shows, comment lines counted
     path.write_text("time,a\n0,1\n# gear up\n0.1,x\n0.2,3\n")
-    with pytest.raises(DataFormatError, match=r"row 3, column 'a': non-numeric \('x'\)"):
+    with pytest.raises(DataFormatError, match=r"row 4, column 'a': non-numeric \('x'\)"):
         load_flight_test(path)
     path.write_text("time,a\n0,1\n# gear up\n0.1,2,9\n0.2,3\n")
-    with pytest.raises(DataFormatError, match=r"notes\.csv: row \d has 3 cells, header has 2"):
+    with pytest.raises(DataFormatError, match=r"notes\.csv: row 4 has 3 cells, header has 2"):
         load_flight_test(path)
     path.write_text("time,a\n")
     with pytest.raises(DataFormatError, match=r"notes\.csv: fewer than 2 data rows"):

@@ -146,10 +146,13 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
     raise DataFormatError(f"{path}: empty file")
 
 
-def _csv_units(path: Path, marker: str) -> dict[str, str]:
+def _csv_units(path: Path, marker: str, columns: Collection[str]) -> dict[str, str]:
     """The units a comment line before the header declares (`FlightData.to_csv` writes
     ``# units: {"alpha": "rad"}``); empty when there is none. Only the lines before the
     header are read.
+
+    An entry for a name not among the file's `columns` (a typo, ``qq`` for ``q``) is
+    dropped with a warning naming it: the column it meant would lose its unit silently.
 
     A ``# units:`` line that is not that JSON object of names to unit strings (hand
     edited, cut short, or another tool's note, ``# units: deg, deg/s``) declares
@@ -178,6 +181,7 @@ def _csv_units(path: Path, marker: str) -> dict[str, str]:
                     odd = [k for k, v in found.items() if not isinstance(v, str)]
                     why = f"the unit of {odd[0]!r} is not a string" if odd else ""
                 if not why:
+                    _warn_unknown_units(path, line_no, found, columns)
                     return dict(found)
                 warnings.warn(
                     f"{path}: line {line_no}: units comment not read ({why}); no unit is "
@@ -189,13 +193,61 @@ def _csv_units(path: Path, marker: str) -> dict[str, str]:
     return {}
 
 
+def _warn_unknown_units(
+    path: Path, line_no: int, units: dict[str, str], columns: Collection[str]
+) -> None:
+    import warnings
+
+    unknown = [k for k in units if k not in columns]
+    if not unknown:
+        return
+    # names from the file are quoted only where they read as names (errors reach logs)
+    shown = (
+        str(unknown)
+        if all(_NAME_LIKE.fullmatch(k) and "=" not in k for k in unknown)
+        else f"{len(unknown)} names"
+    )
+    warnings.warn(
+        f"{path}: line {line_no}: the units comment declares {shown}, no such column; "
+        f"those units are dropped ({_columns_text(list(columns))})",
+        UserWarning,
+        stacklevel=4,  # here, _csv_units, load_flight_test, its caller
+    )
+
+
 _NUMBER = r"^\s*[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan))\s*$"
+
+
+def _file_line(path: Path, offset: int, header_line: int, nth: int, width: int | None) -> int:
+    """The line number an editor shows for the `nth` (1-based) row after the header.
+
+    Blank lines are no rows (pyarrow skips them); with the header's `width`, nor
+    are comment lines whose cell count differs from it (the loader skips those).
+    Only on the error path: it reads the file up to that row once more.
+    """
+    line, seen = header_line, 0
+    with open(path, "rb") as f:
+        f.seek(offset)
+        for raw in f:
+            line += 1
+            text = raw.rstrip(b"\r\n")
+            if not text:
+                continue
+            if width is not None and text.lstrip().startswith(b"#"):
+                cells = next(csv.reader([text.decode("utf-8", errors="replace")]), [])
+                if len(cells) != width:
+                    continue
+            seen += 1
+            if seen == nth:
+                return line
+    return line
 
 
 def _csv_cell_error(
     path: Path,
     header: list[str],
     offset: int,
+    header_line: int,
     exc: Exception,
     columns: Sequence[str] | None = None,
 ) -> DataFormatError:
@@ -203,7 +255,7 @@ def _csv_cell_error(
     import pyarrow as pa
 
     try:
-        return _locate_csv_error(path, header, offset, exc, columns)
+        return _locate_csv_error(path, header, offset, header_line, exc, columns)
     except (OSError, pa.ArrowException) as again:
         return DataFormatError(
             f"{path}: not a readable CSV file ({_reader_error(exc)}; {_reader_error(again)})"
@@ -215,14 +267,14 @@ def _row_text(row: Any) -> str:
     return str(row.text)
 
 
-def _require_utf8(path: Path, offset: int) -> None:
+def _require_utf8(path: Path, offset: int, header_line: int) -> None:
     """Refuse a file whose data is not UTF-8 before a parser's row callback meets it:
     pyarrow decodes a bad row's text for the callback and prints, not raises, its error.
     Only on the error path, so reading the file once more costs nothing on good files."""
     import codecs
 
     decoder = codecs.getincrementaldecoder("utf-8")()
-    row, at = 2, offset
+    row, at = header_line + 1, offset
     with open(path, "rb") as f:
         f.seek(offset)
         while block := f.read(1 << 20):
@@ -241,6 +293,7 @@ def _locate_csv_error(
     path: Path,
     header: list[str],
     offset: int,
+    header_line: int,
     exc: Exception,
     columns: Sequence[str] | None = None,
 ) -> DataFormatError:
@@ -273,18 +326,20 @@ def _locate_csv_error(
     )
     if bad_rows:
         row = bad_rows[0]
+        # pyarrow numbers the lines after the header, blank lines not counted
+        line = _file_line(path, offset, header_line, row.number, None)
         return DataFormatError(
-            f"{path}: row {row.number + 1} has {row.actual_columns} cells, "
-            f"header has {row.expected_columns}"
+            f"{path}: row {line} has {row.actual_columns} cells, header has {row.expected_columns}"
         )
     # Otherwise a cell is not a number: one streaming pass finds the earliest (a column
     # at a time would read a 200,000-column file 200,000 times).
     names = list(columns) if columns is not None else header
-    found = (
-        _first_bad_cell_wide(path, header, offset, names)
-        if len(names) > _WIDE
-        else _first_bad_cell(path, header, offset, names, keep)
-    )
+    if len(names) > _WIDE:
+        found = _first_bad_cell_wide(path, header, offset, header_line, names)
+    else:
+        found = _first_bad_cell(path, header, offset, names, keep)
+        if found is not None:
+            found = (_file_line(path, offset, header_line, found[0] + 1, len(header)), *found[1:])
     if found is not None:
         row, name, cell = found
         if not cell:
@@ -304,7 +359,8 @@ _WIDE = 1000
 def _first_bad_cell(
     path: Path, header: list[str], offset: int, names: list[str], keep: Any
 ) -> tuple[int, str, str] | None:
-    """(row, column, cell) of the earliest non-numeric cell among `names`, by pyarrow."""
+    """(data row from 0, column, cell) of the earliest non-numeric cell among `names`, by
+    pyarrow."""
     import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.csv as pacsv
@@ -335,15 +391,16 @@ def _first_bad_cell(
             if bad.size:
                 k = int(bad[np.lexsort((bad // rows, bad % rows))[0]])  # earliest row first
                 name = batch.schema.names[k // rows]
-                return first_row + k % rows + 2, name, str(cells[k].as_py()).strip()
+                return first_row + k % rows, name, str(cells[k].as_py()).strip()
             first_row += rows
     return None
 
 
 def _first_bad_cell_wide(
-    path: Path, header: list[str], offset: int, names: list[str]
+    path: Path, header: list[str], offset: int, header_line: int, names: list[str]
 ) -> tuple[int, str, str] | None:
-    """`_first_bad_cell` for a wide file: Python's csv reader, row by row."""
+    """`_first_bad_cell` for a wide file: Python's csv reader, row by row; the row is
+    the file line."""
     import io
 
     number = re.compile(_NUMBER)
@@ -352,17 +409,16 @@ def _first_bad_cell_wide(
     with open(path, "rb") as raw:
         raw.seek(offset)
         text = io.TextIOWrapper(raw, encoding="utf-8", newline="")
-        row = 1
-        for cells in csv.reader(text):
+        reader = csv.reader(text)
+        for cells in reader:
             if not cells or (len(cells) == 1 and not cells[0].strip()):
                 continue  # blank lines, which pyarrow skips
             if cells[0].lstrip().startswith("#"):
                 continue
-            row += 1
             for j, name in picked:
                 cell = cells[j].strip() if j < len(cells) else ""
                 if not number.match(cell):
-                    return row, name, cell
+                    return header_line + reader.line_num, name, cell
     return None
 
 
@@ -381,7 +437,7 @@ def _read_with_timestamps(
                 raise
             names = [n for n, kind in types.items() if kind == pa.float64()]
             found = _first_bad_cell(path, header, offset, names, lambda row: "skip")
-            if found is None or found[0] != 2 or not _ISO_TIME.fullmatch(found[2]):
+            if found is None or found[0] != 0 or not _ISO_TIME.fullmatch(found[2]):
                 raise
             types[found[1]] = pa.timestamp("ns")
     return read()
@@ -397,12 +453,13 @@ def _read_csv(
     """Parse with pyarrow (multi-threaded, straight to float64); locate bad cells only on failure.
 
     Only the columns named in `wanted` are converted (all when None); the header
-    comes back whole. Row numbers in messages count the header as row 1.
+    comes back whole. Row numbers in messages are the file's line numbers, as an
+    editor shows them (comment lines before the header counted).
     """
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    header, offset, _ = _csv_header(path)
+    header, offset, header_line = _csv_header(path)
     if any(not h for h in header):
         raise DataFormatError(f"{path}: empty column name at column {header.index('') + 1}")
     dupes = sorted(h for h, n in Counter(header).items() if n > 1)  # linear in columns
@@ -453,13 +510,13 @@ def _read_csv(
             # on the error path); anything else is located and reported. A cell that
             # is not a number is no comment line (those have the wrong cell count).
             table = None
-            _require_utf8(path, offset)
+            _require_utf8(path, offset, header_line)
             if "conversion error" not in str(exc):
                 with contextlib.suppress(pa.ArrowInvalid):
                     table = read(pacsv.ParseOptions(invalid_row_handler=skip_comment))
             if table is None or not comments:
                 numeric = [n for n in names if types[n] == pa.float64()]
-                raise _csv_cell_error(path, header, offset, exc, numeric) from None
+                raise _csv_cell_error(path, header, offset, header_line, exc, numeric) from None
     except (OSError, pa.ArrowException) as exc:
         raise DataFormatError(f"{path}: not a readable CSV file ({_reader_error(exc)})") from None
     n = table.num_rows
@@ -472,7 +529,8 @@ def _read_csv(
         chunked = pending.pop(name)
         if chunked.null_count:
             first = int(np.flatnonzero(np.asarray(chunked.is_null()))[0])
-            raise DataFormatError(f"{path}: row {first + 2}, column {name!r}: blank cell")
+            row = _file_line(path, offset, header_line, first + 1, len(header))
+            raise DataFormatError(f"{path}: row {row}, column {name!r}: blank cell")
         if types[name] != pa.float64():
             columns[name] = _seconds(chunked.to_numpy())
             continue
@@ -486,9 +544,9 @@ def _read_csv(
         bad = ~np.isfinite(out)
         if bad.any():
             first = int(np.flatnonzero(bad)[0])
+            row = _file_line(path, offset, header_line, first + 1, len(header))
             raise DataFormatError(
-                f"{path}: row {first + 2}, column {name!r}: non-finite value "
-                f"{str(float(out[first]))!r}"
+                f"{path}: row {row}, column {name!r}: non-finite value {str(float(out[first]))!r}"
             )
         columns[name] = out
     return header, columns

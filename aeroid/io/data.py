@@ -490,7 +490,8 @@ def load_flight_test(
     parsed by pyarrow; comment (``#``) and blank lines before the header are
     skipped, a column whose first cell is an ISO 8601 date and time
     (``2024-05-01T10:00:00.25``) becomes seconds since its first sample, and
-    a bad cell is reported by row (the header is row 1) and column.
+    a bad cell is reported by row (the file's line number, as an editor shows
+    it) and column. A ``# units:`` comment naming a column the file lacks warns.
 
     A whole log (`sample_rate` without `channels`) is a first look at
     everything, not a fit: a PX4 log holds fields never set (NaN), topics
@@ -535,7 +536,7 @@ def load_flight_test(
     declared: dict[str, str] = {}
     if suffix in (".csv", ".txt", ".dat"):
         header, columns = _read_csv(p, wanted)
-        declared = _csv_units(p, _UNITS_COMMENT)
+        declared = _csv_units(p, _UNITS_COMMENT, header)
     elif suffix in (".parquet", ".pq"):
         header, columns = _read_parquet(p, wanted)
     elif suffix == ".mat":
