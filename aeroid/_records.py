@@ -65,10 +65,23 @@ def frozen_mapping(values: Mapping[str, Any] | Iterable[tuple[str, Any]]) -> Map
 
 
 def fmt(value: float, digits: int = 4) -> str:
-    """Compact significant-digit formatting used in every summary table."""
-    if value is None or not np.isfinite(value):
-        return "—" if value is None else str(value)
+    """Compact significant-digit formatting used in every summary table.
+
+    None and NaN (an undefined metric: no ω_180, no coherent band) print "—", not a
+    number; an infinite value (an unbounded standard error) prints as ``inf``.
+    """
+    if value is None or np.isnan(value):
+        return "—"
+    if not np.isfinite(value):
+        return str(float(value))
     return f"{value:.{digits}g}"
+
+
+def fmt_fixed(value: float, decimals: int) -> str:
+    """`value` with `decimals` places for a summary table; "—" where undefined (NaN)."""
+    if value is None or np.isnan(value):
+        return "—"
+    return f"{value:.{decimals}f}"
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:

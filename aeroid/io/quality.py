@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import FrozenState
+from .._records import FrozenState, fmt
 from ..errors import ChannelError, DataFormatError
 from ._logtypes import FlightLog
 from .data import FlightData, as_float, plain
@@ -236,7 +236,7 @@ class DataQualityReport(FrozenState):
             lines.append(
                 f"| {c.name} | {c.n_samples} | {c.rate:.4g} | {c.jitter:.3g} | {c.duplicates} "
                 f"| {c.non_increasing} | {c.dropouts} | {c.longest_gap:.4g} | {c.saturation:.3g} "
-                f"| {c.alias_fraction:.3g} | {', '.join(c.flags)} |"
+                f"| {fmt(c.alias_fraction, 3)} | {', '.join(c.flags)} |"
             )
         raised = sorted({f for c in self.channels.values() for f in c.flags})
         if raised:

@@ -47,7 +47,8 @@ def _identification_notes(result: Any, guessed: set[str]) -> list[str]:
 def _validation_notes(validation: Any) -> list[str]:
     notes = []
     for name, m in validation.metrics.items():
-        line = f"{name}: fit {m.fit:.1f} %"
+        fit = f"{m.fit:.1f} %" if math.isfinite(m.fit) else "undefined (the output is constant)"
+        line = f"{name}: fit {fit}"
         if not m.white:
             line += "; residuals are not white (unmodelled dynamics or coloured noise)"
         if m.input_correlated:

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._checks import time_label
-from .._records import FrozenState, fmt, frozen_array, markdown_table
+from .._records import FrozenState, fmt, fmt_fixed, frozen_array, markdown_table
 from .._stats import spread_over_noise
 from .._threads import CALLER_STACKLEVEL
 from ..errors import IdentifiabilityWarning, IdentificationError
@@ -135,9 +135,9 @@ class PredictionResult(FrozenState):
             (
                 n,
                 fmt(m.rmse),
-                f"{m.theil_u:.3f}",
-                f"{m.r_squared:.3f}",
-                f"{m.fit:.1f}",
+                fmt_fixed(m.theil_u, 3),
+                fmt_fixed(m.r_squared, 3),
+                fmt_fixed(m.fit, 1),
             )
             for n, m in self.metrics.items()
         ]

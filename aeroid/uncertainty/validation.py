@@ -12,7 +12,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .._records import FrozenState, fmt, frozen_array, markdown_table
+from .._records import FrozenState, fmt, fmt_fixed, frozen_array, markdown_table
 from .._stats import chi2_sf, norm_ppf, t_quantile
 from .._threads import CALLER_STACKLEVEL, small_blas
 from .._value_checks import check_distinct
@@ -185,8 +185,8 @@ class ValidationResult(FrozenState):
                     n,
                     fmt(m.rmse),
                     f"{fmt(m.bias)} [{fmt(m.bias_ci[0])}, {fmt(m.bias_ci[1])}]",
-                    f"{m.fit:.1f}",
-                    f"{'yes' if m.white else 'no'} (p={m.ljung_box_p:.3g})",
+                    fmt_fixed(m.fit, 1),
+                    f"{'yes' if m.white else 'no'} (p={fmt(m.ljung_box_p, 3)})",
                     f"{fmt(corr, 3)}{' (!)' if m.input_correlated else ''}",
                 )
             )
