@@ -346,7 +346,8 @@ class CompositeResponse(FrozenState):
         return _pick_channel(self, input, output, "composite response")
 
     def summary(self) -> str:
-        """Markdown section: per pair, the band where γ² ≥ 0.6 and its mean random error."""
+        """Markdown section: per pair, the band where γ² ≥ 0.6, its mean coherence and its
+        mean random error."""
         rows = []
         for c in self.channels:
             ok = c.coherence >= 0.6
@@ -362,12 +363,19 @@ class CompositeResponse(FrozenState):
                     c.output_name,
                     int(ok.sum()),
                     band,
-                    fmt(float(np.mean(c.coherence)), 3),
+                    fmt(float(np.mean(c.coherence[ok])), 3) if ok.any() else "—",
                     err,
                 )
             )
         table = markdown_table(
-            ("input", "output", "γ² ≥ 0.6", "band [rad/s]", "mean γ²", "mean εr [%] (γ² ≥ 0.6)"),
+            (
+                "input",
+                "output",
+                "γ² ≥ 0.6",
+                "band [rad/s]",
+                "mean γ² (γ² ≥ 0.6)",
+                "mean εr [%] (γ² ≥ 0.6)",
+            ),
             rows,
         )
         wins = ", ".join(fmt(w, 3) for w in self.windows)

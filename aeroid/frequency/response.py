@@ -181,7 +181,8 @@ class FrequencyResponseResult(FrozenState):
         return plot_frequency_response(self, **kwargs)
 
     def summary(self) -> str:
-        """Markdown section: per-channel coherent band and coherence-weighted mismatch."""
+        """Markdown section: per-channel coherent band, the mean coherence over its coherent
+        frequencies, and the coherence-weighted mismatch."""
         rows = []
         for c in self.channels:
             band = (
@@ -190,7 +191,10 @@ class FrequencyResponseResult(FrozenState):
                 if c.n_coherent
                 else "—"
             )
-            mean_coh = float(np.mean(c.coherence)) if c.coherence.size else float("nan")
+            # over the frequencies judged, as the band beside it: the whole grid runs far
+            # past the excitation and would read a good sweep as a poor one
+            coherent = c.coherence[c.coherent]
+            mean_coh = float(np.mean(coherent)) if coherent.size else float("nan")
             mis = f"{100 * c.mismatch:.3g}%" if np.isfinite(c.mismatch) else "—"
             why = "; ".join(f"{int(v)} {k}" for k, v in c.dropped.items()) or "—"
             rows.append(
@@ -202,7 +206,7 @@ class FrequencyResponseResult(FrozenState):
                 "output",
                 "coherent freqs",
                 "coherent band",
-                "mean γ²",
+                "mean γ² (coherent freqs)",
                 "mismatch",
                 "not counted",
             ),
