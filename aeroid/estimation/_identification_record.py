@@ -258,8 +258,33 @@ class IdentificationResult(IntervalMixin):
 
         return plot_identification(self, **kwargs)
 
+    def _nuisance_rows(self, with_biases: bool) -> list[tuple[str, str, str]]:
+        """(name, estimate, std. error) of the estimated output and state biases and of
+        the filter-error noise levels, named as in `extra_stderr`. Initial states are
+        left out: every output-error fit estimates them, as a start, not a result."""
+        rows = []
+        if with_biases:
+            for i, values in enumerate(self.biases):
+                for n, est in values.items():
+                    se = self.extra_stderr.get(f"bias[{i}].{n}", float("nan"))
+                    rows.append((f"bias[{i}].{n}", fmt(est), fmt(se)))
+        # a noise level given (not estimated) has no standard error: it is no estimate
+        for n, est in self.process_noise.items():
+            if f"process_noise.{n}" in self.extra_stderr:
+                rows.append(
+                    (f"process_noise.{n}", fmt(est), fmt(self.extra_stderr[f"process_noise.{n}"]))
+                )
+        for j, n in enumerate(self.output_names):
+            key = f"measurement_noise.{n}"
+            if key in self.extra_stderr and j < self.noise_covariance.shape[0]:
+                rows.append(
+                    (key, fmt(float(self.noise_covariance[j, j])), fmt(self.extra_stderr[key]))
+                )
+        return rows
+
     def summary(self) -> str:
-        """Markdown table of estimates, standard errors and relative errors."""
+        """Markdown table of estimates, standard errors and relative errors, then one of
+        the estimated biases and noise levels (where the fit estimated any)."""
         rows = []
         for n in self.parameter_names:
             est = self.parameters[n]
@@ -285,6 +310,13 @@ class IdentificationResult(IntervalMixin):
         if self.bounds:
             header = (*header, "bounds")
         table = markdown_table(header, rows)
+        # the held-whole table above already lists the biases
+        extra = self._nuisance_rows(with_biases=bool(self.parameter_names))
+        if extra:
+            table += "\n\n" + markdown_table(
+                ("bias or noise level", "estimate", "std. error"), extra
+            )
+            table += "\n\n" + _nuisance_legend([r[0] for r in extra])
         notes = []
         if self.active_bounds:
             held = ", ".join(f"{n} ({side})" for n, side in self.active_bounds.items())
@@ -311,3 +343,32 @@ class IdentificationResult(IntervalMixin):
             combos = "; ".join(" + ".join(c) for c in self.unidentifiable) or "see covariance"
             notes.append(f"**Not identifiable:** the data cannot separate {combos}.")
         return table + "\n\n" + "\n".join(notes)
+
+
+# what each kind of row of the biases-and-noise table is, and its unit
+_NUISANCE_KINDS = (
+    ("bias[", ".state.", "bias[i].state.x: a constant added to dx/dt on record i, x's unit/s"),
+    ("bias[", "", "bias[i].y: the bias of output y on record i, in y's unit"),
+    (
+        "process_noise.",
+        "",
+        "process_noise.x: the process-noise intensity of state x, (x's unit)²/s",
+    ),
+    (
+        "measurement_noise.",
+        "",
+        "measurement_noise.y: the measurement-noise variance of y, (y's unit)²",
+    ),
+)
+
+
+def _nuisance_legend(names: list[str]) -> str:
+    """One line that says what the rows present are and in which unit."""
+    said: list[str] = []
+    for name in names:
+        text = next(
+            t for head, inner, t in _NUISANCE_KINDS if name.startswith(head) and inner in name
+        )
+        if text not in said:
+            said.append(text)
+    return "; ".join(said) + "."

@@ -181,6 +181,31 @@ def _report_units(*results: Any) -> tuple[dict[str, str], set[str]]:
     return units, set(guesses)
 
 
+def _squared(unit: str) -> str:
+    return f"{unit}²" if unit.isalpha() else f"({unit})²"
+
+
+def _nuisance_units(result: Any, units: dict[str, str]) -> dict[str, str]:
+    """Units of a fit's estimated biases and noise levels (its summary's second table),
+    from the units of the channels they belong to."""
+    out: dict[str, str] = {}
+    for name in getattr(result, "extra_stderr", None) or {}:
+        kind, _, channel = name.partition(".")
+        state = channel.removeprefix("state.")
+        unit = units.get(state)
+        if not unit or unit == "-":
+            continue
+        if kind.startswith("bias[") and state == channel:
+            out[name] = unit
+        elif kind.startswith("bias["):  # a constant added to the state's derivative
+            out[name] = f"{unit}²" if unit.endswith("/s") else f"{unit}/s"
+        elif kind == "process_noise":
+            out[name] = f"{_squared(unit)}/s"
+        elif kind == "measurement_noise":
+            out[name] = _squared(unit)
+    return out
+
+
 _GUESSED = " (guessed)"
 _GUESSED_NOTE = (
     "A unit marked (guessed) is read from the parameter's name (M_alpha: the q equation's "
@@ -250,6 +275,7 @@ def report_sections(
             )
     units, guessed = _report_units(validation, identification, filtering, sensitivity, inference)
     units.update({n: units[n] + _GUESSED for n in guessed})
+    units.update(_nuisance_units(identification, units))
 
     def add(heading: str, result: Any, notes: list[str] | None = None, extra: str = "") -> None:
         if result is None:
