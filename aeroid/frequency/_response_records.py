@@ -266,6 +266,43 @@ class ResponseChannel(FrozenState):
         """Bode plot (dB, deg against rad/s) with a coherence panel. Returns a matplotlib Figure."""
         return _bode([self], [])
 
+    def summary(self) -> str:
+        """Markdown: the frequencies, those that count (`coherent`) with their mean
+        coherence and random error, those of γ² ≥ 0.6, and the mismatch to the model."""
+        w, ok = self.frequency, self.coherent
+        with np.errstate(invalid="ignore"):
+            cifer = self.coherence >= 0.6  # NaN (unknown) is not
+
+        def span(mask: NDArray[np.bool_]) -> str:
+            if not mask.any():
+                return "0"
+            return (
+                f"{int(mask.sum())}: {fmt(float(w[mask].min()), 3)}–{fmt(float(w[mask].max()), 3)}"
+            )
+
+        def over_counted(values: FloatArray, scale: float = 1.0) -> str:
+            known = values[ok & np.isfinite(values)]  # NaN where not known
+            return fmt(scale * float(np.mean(known)), 3) if known.size else "—"
+
+        mismatch = f"{100 * self.mismatch:.3g}%" if np.isfinite(self.mismatch) else "—"
+        rows = [
+            ("frequencies [rad/s]", span(np.ones(w.shape, dtype=bool))),
+            ("counted (`coherent`) [rad/s]", span(ok)),
+            ("mean γ² (counted)", over_counted(self.coherence)),
+            ("mean εr [%] (counted)", over_counted(self.random_error, 100.0)),
+            ("γ² ≥ 0.6 [rad/s]", span(cifer) if np.isfinite(self.coherence).any() else "—"),
+            ("mismatch to the model (counted)", mismatch),
+        ]
+        why = "; ".join(f"{int(v)} {k}" for k, v in self.dropped.items())
+        return "\n".join(
+            [
+                f"## Frequency response {self.input_name} → {self.output_name}",
+                "",
+                markdown_table(("metric", "value"), rows),
+                *(["", f"Not counted: {why}."] if why else []),
+            ]
+        )
+
 
 def _frequency_axis(values: Any, what: str) -> FloatArray:
     """`values` as a read-only 1-D array of finite, positive, strictly increasing rad/s."""

@@ -58,7 +58,9 @@ from .sampler import (
     INIT_TAG,
     ChainState,
     SamplerRun,
+    _chain_table,
     _identity,
+    _run_line,
     _sample,
     _stream,
     autocorrelation_time,
@@ -139,6 +141,22 @@ class EnsembleRun(FrozenState):
             set_(self, name, tuple(str(n) for n in getattr(self, name)))
         for name in ("fixed", "noise", "priors", "residual_correlation"):
             set_(self, name, frozen_mapping(getattr(self, name)))
+
+    def summary(self) -> str:
+        """Markdown: this ensemble's draws per parameter (mean, standard deviation, 95 %
+        interval, split R-hat, ESS) and how it ran."""
+        table = _chain_table(self.sampler.chain, list(self.parameter_names))
+        return (
+            f"{table}\n\nEnsemble {self.ensemble} of model `{self.model_name}`. "
+            f"{_run_line(self.sampler)} One ensemble of several: `aeroid.combine_ensembles` "
+            "pools them into the posterior and judges its convergence."
+        )
+
+    def plot(self, **kwargs: Any) -> Any:
+        """Walker traces, one panel a parameter. Returns a matplotlib Figure."""
+        from ..reports.chain_plots import plot_chain
+
+        return plot_chain(self.sampler.chain, self.parameter_names, **kwargs)
 
 
 # -- running ----------------------------------------------------------------------------------

@@ -78,7 +78,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._records import FrozenState, frozen_array
+from .._records import FrozenState, fmt, frozen_array, markdown_table
 from ..errors import AeroidError, InferenceError
 from ..io.data import as_float
 
@@ -236,6 +236,54 @@ class SamplerRun(FrozenState):
         out = self.accepted / max(self.n_steps, 1)
         out.setflags(write=False)
         return out
+
+    def summary(self) -> str:
+        """Markdown: per dimension the draws' mean, standard deviation, 95 % interval,
+        split R-hat and effective sample size, then the run's settings."""
+        names = [f"x[{j}]" for j in range(self.chain.shape[2])]
+        return _chain_table(self.chain, names) + "\n\n" + _run_line(self)
+
+    def plot(self, **kwargs: Any) -> Any:
+        """Walker traces, one panel a dimension. Returns a matplotlib Figure."""
+        from ..reports.chain_plots import plot_chain
+
+        return plot_chain(self.chain, [f"x[{j}]" for j in range(self.chain.shape[2])], **kwargs)
+
+
+def _chain_table(chain: FloatArray, names: list[str]) -> str:
+    """A sampler chain's per-parameter statistics as a Markdown table."""
+    draws = chain.reshape(-1, chain.shape[2])
+    lo, med, hi = np.percentile(draws, (2.5, 50.0, 97.5), axis=0)
+    # the diagnostics need a few steps (R-hat four, ESS two); a shorter chain has none
+    undefined = np.full(len(names), np.nan)
+    r_hat = np.atleast_1d(split_r_hat(chain)) if chain.shape[0] >= 4 else undefined
+    ess = np.atleast_1d(effective_sample_size(chain)) if chain.shape[0] >= 2 else undefined
+    rows = [
+        (
+            n,
+            fmt(float(draws[:, j].mean())),
+            fmt(float(draws[:, j].std(ddof=1)) if draws.shape[0] > 1 else float("nan")),
+            fmt(float(lo[j])),
+            fmt(float(med[j])),
+            fmt(float(hi[j])),
+            f"{r_hat[j]:.3f}" if math.isfinite(r_hat[j]) else "—",
+            f"{ess[j]:.0f}" if math.isfinite(ess[j]) else "—",
+        )
+        for j, n in enumerate(names)
+    ]
+    return markdown_table(
+        ("parameter", "mean", "std. dev.", "P2.5", "P50", "P97.5", "R-hat", "ESS"), rows
+    )
+
+
+def _run_line(run: SamplerRun) -> str:
+    """What a run kept and how it moved, in one sentence."""
+    n_kept, walkers = run.chain.shape[:2]
+    return (
+        f"{n_kept * walkers} draws: {walkers} walkers × {n_kept} kept steps ({run.n_steps} "
+        f"steps, {run.burn_in} burn-in, thin {run.thin}; {run.move} move); acceptance "
+        f"fraction {float(np.mean(run.acceptance_fraction)):.2f}."
+    )
 
 
 def _score(log_prob: LogProb, theta: FloatArray) -> FloatArray:
