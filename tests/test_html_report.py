@@ -744,3 +744,21 @@ def test_an_axis_method_set_by_its_owner_is_kept():
     axis.draw = mine
     figure_png(fig, dpi=40)
     assert axis.__dict__["draw"] is mine and len(drawn) == 1
+
+
+def test_raw_html_of_another_form_is_text_and_the_conversion_ends():
+    # a section id the pass-through pattern did not take looped forever (a flight named
+    # 'vol_é' hung `aeroid run` after storing every result)
+    from aeroid.reports.html import markdown_to_html
+
+    out = markdown_to_html('<details id="é" open>\n</details>\ntext\n')
+    assert "&lt;details id=" in out and "<p>text</p>" in out
+
+
+def test_flight_anchors_are_ascii_and_distinct():
+    from aeroid.pipeline.stages.campaign_report import _anchor
+
+    names = ["vol_é", "vol_è", "vol_e", "run 1", "run_1"]
+    anchors = [_anchor(n) for n in names]
+    assert all(a.isascii() for a in anchors)
+    assert len(set(anchors)) == len(names)

@@ -544,7 +544,10 @@ def markdown_to_html(markdown: str, images: Mapping[str, bytes] | None = None) -
                 i += 1
             out.append("<ul>" + "".join(items) + "</ul>")
         else:
-            para = []
+            # the first line always: one that looks like a block but is none of them (raw
+            # HTML of another form) is text, and the loop must move on
+            para = [stripped]
+            i += 1
             while i < len(lines) and lines[i].strip() and not _BLOCK_START.match(lines[i].strip()):
                 para.append(lines[i].strip())
                 i += 1

@@ -299,7 +299,11 @@ def _run_campaign(ctx: StageContext) -> CampaignReport:
 
 
 def _anchor(flight: str) -> str:
-    return "flight-" + "".join(c if c.isalnum() or c in "-_." else "_" for c in flight)
+    # ASCII only, as the HTML converter's section and link patterns read them; another
+    # character by its code point, so that two names never share an anchor
+    return "flight-" + "".join(
+        c if (c.isascii() and c.isalnum()) or c in "-_." else f"_{ord(c):x}_" for c in flight
+    )
 
 
 def _run_campaign_report(ctx: StageContext) -> CampaignReport:
@@ -439,7 +443,8 @@ register_stage(
         # stored in flight order; 15: text drawn a string at a time (other bytes);
         # 16: no file name for a flight without a condition (a renamed file's is old)
         # 17: units guessed only from the flights' channel units, marked so
-        "17",
+        # 18: ASCII anchors; undefined values as a dash; biases and noise tabled
+        "18",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,
