@@ -10,12 +10,14 @@ accelerometers measure, gravity excluded)::
     CX = (m a_x − T cos σ) / (q̄ S)   CY = m a_y / (q̄ S)   CZ = (m a_z + T sin σ) / (q̄ S)
     CL = −CZ cos α + CX sin α     CD = −CX cos α − CZ sin α
     Cl = [Ixx ṗ − Ixz (ṙ + p q) + (Izz − Iyy) q r] / (q̄ S b)
-    Cm = [Iyy q̇ + (Ixx − Izz) p r + Ixz (p² − r²) − T d] / (q̄ S c̄)
-    Cn = [Izz ṙ − Ixz (ṗ − q r) + (Iyy − Ixx) p q] / (q̄ S b)
+    Cm = [Iyy q̇ + (Ixx − Izz) p r + Ixz (p² − r²) − T d + h r] / (q̄ S c̄)
+    Cn = [Izz ṙ − Ixz (ṗ − q r) + (Iyy − Ixx) p q − h q] / (q̄ S b)
 
 where T is the thrust, along a line tilted up by σ from the body x axis and
 passing d below the centre of gravity (`AircraftConstants.thrust_angle` and
-`thrust_offset`, the convention of `aeroid.models.aircraft`'s models). The
+`thrust_offset`, the convention of `aeroid.models.aircraft`'s models), and h
+the engine's angular momentum (`AircraftConstants.engine_momentum`), whose
+gyroscopic moment is no aerodynamic one. The
 moments may be referred to another point than the centre of gravity, such as
 the fixed moment reference point of a wind-tunnel database, at ``r`` from it:
 ``M_r = M_cg − r × F`` with ``F`` the aerodynamic force, so for instance
@@ -307,10 +309,12 @@ def coefficients_from_data(
         # the inertial coupling of pitch, absent from a longitudinal record (whose
         # constants may lack Ixx and Izz: NaN times a zero rate is no zero)
         coupling = (ac.Ixx - ac.Izz) * p * r + ac.Ixz * (p**2 - r**2) if lateral else 0.0
+        h = ac.engine_momentum  # the engine's gyroscopic moment, -omega x h
         moments = {
             "Cl": (ac.Ixx * pd - ac.Ixz * (rd + p * q) + (ac.Izz - ac.Iyy) * q * r) / (qs * ac.b),
-            "Cm": (ac.Iyy * qd + coupling - pitching) / (qs * ac.cbar),
-            "Cn": (ac.Izz * rd - ac.Ixz * (pd - q * r) + (ac.Iyy - ac.Ixx) * p * q) / (qs * ac.b),
+            "Cm": (ac.Iyy * qd + coupling - pitching + h * r) / (qs * ac.cbar),
+            "Cn": (ac.Izz * rd - ac.Ixz * (pd - q * r) + (ac.Iyy - ac.Ixx) * p * q - h * q)
+            / (qs * ac.b),
         }
         if reference is not None:
             # M_r = M_cg - r x F, each component over its reference length
