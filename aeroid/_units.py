@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 Unit = Mapping[str, int]
 
@@ -236,3 +237,52 @@ def _coefficient_unit(
     if in_degrees or not units:
         return None
     return "1/rad" if var in _ANGLES else "-" if var in _RATES else None
+
+
+def _unit_key(unit: str) -> str:
+    # the aircraft models print m/s²; the channel map spells it m/s2
+    return unit.strip().replace("²", "2").replace("^2", "2").replace(" ", "")
+
+
+def require_model_units(
+    model: Any,
+    datas: Sequence[Any],
+    channels: Iterable[str],
+    error: type[Exception] | None = None,
+) -> None:
+    """Refuse a record whose stated unit for a channel contradicts the model's.
+
+    A record that says ``alpha`` is in deg fitted by a model in rad would be
+    fitted as if a degree were a radian: derivatives off by 57.3 with tight
+    error bars. Units either side leaves unstated, or that AeroID does not
+    know, are not judged.
+
+    Raises
+    ------
+    IdentificationError (or `error`)
+        Naming the channel, both units and the factor between them.
+    """
+    from .errors import IdentificationError
+
+    declared = dict(getattr(model, "channel_units", None) or {})
+    for name in channels:
+        want = declared.get(name)
+        if not want:
+            continue
+        ours = UNIT_CONVERSIONS.get(_unit_key(want))
+        for i, data in enumerate(datas):
+            stated = dict(getattr(data, "units", None) or {}).get(name)
+            theirs = UNIT_CONVERSIONS.get(_unit_key(stated)) if stated else None
+            if ours is None or theirs is None or theirs == ours:
+                continue
+            where = str(getattr(data, "metadata", {}).get("source", f"record {i}"))
+            apart = (
+                f"1 {stated} = {theirs[0] / ours[0]:.6g} {want}"
+                if theirs[1] == ours[1]
+                else "not even the same quantity"
+            )
+            raise (error or IdentificationError)(
+                f"{where}: channel {name!r} is stated in {stated!r} but the model expects "
+                f"{want!r} ({apart}); convert the channel (aeroid.apply_channel_map with a "
+                "unit) or correct its unit label"
+            )

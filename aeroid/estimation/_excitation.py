@@ -164,50 +164,6 @@ def check_kinematic_channels(data: Any, present: Mapping[str, str]) -> None:
             )
 
 
-def _unit_key(unit: str) -> str:
-    # the aircraft models print m/s²; the channel map spells it m/s2
-    return unit.strip().replace("²", "2").replace("^2", "2").replace(" ", "")
-
-
-def require_model_units(model: Any, datas: Sequence[Any], channels: Iterable[str]) -> None:
-    """Refuse a record whose stated unit for a channel contradicts the model's.
-
-    A record that says ``alpha`` is in deg fitted by a model in rad would be
-    fitted as if a degree were a radian: derivatives off by 57.3 with tight
-    error bars. Units either side leaves unstated, or that AeroID does not
-    know, are not judged.
-
-    Raises
-    ------
-    IdentificationError
-        Naming the channel, both units and the factor between them.
-    """
-    from .._units import UNIT_CONVERSIONS
-
-    declared = dict(getattr(model, "channel_units", None) or {})
-    for name in channels:
-        want = declared.get(name)
-        if not want:
-            continue
-        ours = UNIT_CONVERSIONS.get(_unit_key(want))
-        for i, data in enumerate(datas):
-            stated = dict(getattr(data, "units", None) or {}).get(name)
-            theirs = UNIT_CONVERSIONS.get(_unit_key(stated)) if stated else None
-            if ours is None or theirs is None or theirs == ours:
-                continue
-            where = str(getattr(data, "metadata", {}).get("source", f"record {i}"))
-            apart = (
-                f"1 {stated} = {theirs[0] / ours[0]:.6g} {want}"
-                if theirs[1] == ours[1]
-                else "not even the same quantity"
-            )
-            raise IdentificationError(
-                f"{where}: channel {name!r} is stated in {stated!r} but the model expects "
-                f"{want!r} ({apart}); convert the channel (aeroid.apply_channel_map with a "
-                "unit) or correct its unit label"
-            )
-
-
 # The rates and accelerations that move each air-data or attitude quantity: one held at
 # exactly zero while any of its own moves is a dead or missing channel (a zero beta, phi
 # or psi beside zero p, r and ay is a symmetric flight's, and is left alone).

@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from .._stats import chi2_sf
 from .._threads import small_blas
+from .._units import require_model_units
 from ..errors import ChannelError, FilterError
 from ..io.data import FlightData, check_flag
 from ..models.model import delayed_controls, fitted_start, resolve_parameters
@@ -530,6 +531,12 @@ def filter_states(
     if not isinstance(data, FlightData):  # before the fit's start and delays read it
         raise FilterError(f"data: expected a FlightData record, got {type(data).__name__}")
     check_flag(smooth, "smooth", FilterError)
+    require_model_units(
+        model,
+        [data],
+        [*getattr(model, "controls", ()), *getattr(model, "output_names", ())],
+        FilterError,
+    )
     if x0 is None:
         x0 = fitted_start(parameters, data)[0]
     data = delayed_controls(parameters, data)  # a fit's estimated time delays

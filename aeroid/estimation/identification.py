@@ -295,6 +295,7 @@ def identify(
         When the iteration limit is reached, or the fit ends with a non-finite
         cost or estimates; the result is flagged ``success=False``.
     """
+    from .._units import require_model_units
     from ..models.model import (
         MAX_SUBSTEPS,
         SIMULATE_OPTION_KEYS,
@@ -304,7 +305,7 @@ def identify(
         require_model,
         require_states,
     )
-    from ._excitation import held_controls, require_model_units, warn_missing_outputs
+    from ._excitation import held_controls, warn_missing_outputs
 
     require_model(model, IdentificationError)
     if method not in _METHODS:

@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 
 from .._records import FrozenState, fmt, markdown_table
 from .._threads import small_blas
+from .._units import require_model_units
 from .._value_checks import check_distinct
 from ..errors import ChannelError, DataFormatError, IdentificationError, SimulationError
 from ..io.data import FlightData, as_float, whole_number
@@ -343,6 +344,9 @@ def frequency_response(
     require_model(model, IdentificationError)
     if not isinstance(data, FlightData):
         raise DataFormatError(f"data: expected FlightData, got {type(data).__name__}")
+    require_model_units(
+        model, [data], [*model.controls, *getattr(model, "output_names", ())], IdentificationError
+    )
     if data.n_samples < _MIN_SAMPLES:
         raise DataFormatError(
             f"data: {data.n_samples} samples are too few for a frequency response (Welch "

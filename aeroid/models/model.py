@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._checks import check_time as check_time  # re-exported (adapters import it here)
 from .._records import ReadOnlyDict
 from .._threads import quiet_warnings, small_blas
+from .._units import require_model_units
 from ..errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 from ..io.data import FlightData, measured_start, plain
 from . import integration as _integrate
@@ -713,6 +714,8 @@ class Model(ContinuousModel):
         if not isinstance(data, FlightData):
             raise SimulationError(f"data: expected a FlightData, got {type(data).__name__}")
         data.require(self.controls, role="control")
+        # a control stated in deg for a model in rad would be flown 57.3 times too hard
+        require_model_units(self, [data], [*self.controls, *self.states], ChannelError)
         if x0 is None:
             x0 = measured_start(data, self.states)
         return self.simulate(data.time, data, x0, parameters, **options)

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from .._records import FrozenState, fmt, frozen_array, frozen_mapping, markdown_table
 from .._threads import small_blas
+from .._units import require_model_units
 from .._value_checks import check_distinct
 from ..errors import (
     ChannelError,
@@ -502,6 +503,9 @@ def sensitivities(
     require_model(model, IdentificationError)
     if not isinstance(data, FlightData):
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
+    require_model_units(
+        model, [data], [*model.controls, *getattr(model, "output_names", ())], IdentificationError
+    )
     if isinstance(parameters, Mapping) or hasattr(parameters, "parameters"):
         # parameter values given where names go (as validate takes them): analyse those
         # parameters at those values

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from .._records import FrozenState, fmt, fmt_fixed, frozen_array, markdown_table
 from .._stats import chi2_sf, norm_ppf, t_quantile
 from .._threads import CALLER_STACKLEVEL, small_blas
+from .._units import require_model_units
 from .._value_checks import check_distinct
 from ..errors import IdentificationError
 from ..io.data import FlightData, fingerprint, plain, whole_number
@@ -362,6 +363,9 @@ def validate(
     require_model(model, IdentificationError)
     if not isinstance(data, FlightData):
         raise IdentificationError(f"data: expected FlightData, got {type(data).__name__}")
+    require_model_units(
+        model, [data], [*model.controls, *getattr(model, "output_names", ())], IdentificationError
+    )
     try:
         # float() would read "0.9" as 0.9
         level = float("nan") if isinstance(confidence, (str, bytes)) else float(confidence)
