@@ -78,3 +78,24 @@ def check_time(time: Any) -> NDArray[np.float64]:
         bad = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise SimulationError(f"time: not strictly increasing at index {bad}")
     return t
+
+
+def named_columns(value: Any) -> dict[str, Any] | None:
+    """The columns of a table that names them (a pandas DataFrame) by name, or the
+    entries of a labelled vector (a pandas Series) by label; None for anything else.
+    A table's names must be read, never its column order."""
+    if isinstance(value, (dict, np.ndarray, list, tuple)) or not hasattr(value, "to_numpy"):
+        return None
+    columns = getattr(value, "columns", None)
+    if columns is not None:
+        names = [str(c) for c in columns]
+        if len(set(names)) != len(names):
+            raise DataFormatError(f"a table's columns are named more than once: {names}")
+        return {name: value[c].to_numpy() for name, c in zip(names, columns, strict=True)}
+    index = getattr(value, "index", None)
+    if index is not None and getattr(value, "ndim", 0) == 1:
+        labels = [str(i) for i in index]
+        if len(set(labels)) != len(labels) or labels == [str(i) for i in range(len(labels))]:
+            return None  # a plain positional vector
+        return dict(zip(labels, value.to_numpy().tolist(), strict=True))
+    return None

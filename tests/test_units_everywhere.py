@@ -48,3 +48,30 @@ def test_a_control_in_degrees_is_refused_by_every_path(path):
         warnings.simplefilter("ignore")
         with pytest.raises(aeroid.AeroidError, match=r"'delta_a' is stated in 'deg' but the model"):
             PATHS[path](model, deg)
+
+
+def test_a_table_of_controls_and_a_labelled_start_are_read_by_name():
+    # a DataFrame's columns and a Series' labels in another order than the model's
+    # were read by position: aileron and rudder swapped without a word
+    pd = pytest.importorskip("pandas")
+    model = ac.lateral_linear(V0=50.0, parameters={"L_p": -8.4, "L_delta_a": -29.0})
+    t = np.arange(0.0, 3.0, 0.02)
+    da, dr = 0.02 * np.sin(2.0 * t), -0.03 * np.cos(1.3 * t)
+    start = {"beta": 0.01, "p": 0.05, "r": -0.02, "phi": 0.1}
+    want = model.simulate(t, {"delta_a": da, "delta_r": dr}, start).outputs
+    frame = pd.DataFrame({"delta_r": dr, "delta_a": da})
+    series = pd.Series({"phi": 0.1, "r": -0.02, "p": 0.05, "beta": 0.01})
+    np.testing.assert_array_equal(model.simulate(t, frame, series).outputs, want)
+
+
+def test_a_record_on_another_clock_is_no_control_history():
+    model = ac.lateral_linear(V0=50.0)
+    t = np.arange(0.0, 3.0, 0.02)
+    record = aeroid.FlightData(
+        t + 100.0, {"delta_a": np.zeros(t.size), "delta_r": np.zeros(t.size)}
+    )
+    with pytest.raises(aeroid.SimulationError, match="its own time grid"):
+        model.simulate(t, record)
+    with pytest.raises(aeroid.SimulationError, match="its own time grid"):
+        model.simulate(t[:50], record)
+    model.simulate(t + 100.0, record)  # its own grid is fine

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import named_columns
 from .._value_checks import check_distinct
 from ..errors import AeroidError, ChannelError, DataFormatError
 from ..io.data import FlightData, as_float, positive_number, real_array, uniform_step
@@ -201,16 +202,15 @@ def _resolve(
     return z, mat, [k for k, _ in items], zname, time
 
 
-def _frame_columns(data: Any) -> dict[str, FloatArray] | None:
+def _frame_columns(data: Any) -> dict[str, Any] | None:
     """The columns of a table with named columns (a pandas DataFrame) by name, or None."""
-    if isinstance(data, (FlightData, Mapping, np.ndarray)):
+    if isinstance(data, FlightData):
         return None
-    columns = getattr(data, "columns", None)
-    if columns is None or not hasattr(data, "to_numpy"):
-        return None
-    names = [str(c) for c in columns]
-    check_distinct(names, "data's columns", DataFormatError)
-    return {name: data[c].to_numpy() for name, c in zip(names, columns, strict=True)}
+    try:
+        columns = named_columns(data)
+    except DataFormatError as exc:
+        raise DataFormatError(f"data: {exc}") from None
+    return columns if columns is not None and hasattr(data, "columns") else None
 
 
 def _several_records(data: Any) -> list[FlightData] | None:

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._checks import check_time as check_time  # re-exported (adapters import it here)
+from .._checks import named_columns
 from .._records import ReadOnlyDict
 from .._threads import quiet_warnings, small_blas
 from .._units import require_model_units
@@ -418,7 +419,19 @@ class Model(ContinuousModel):
             return np.zeros((1, n_t, 0))
         if isinstance(controls, FlightData):
             controls.require(self.controls, role="control")
+            if controls.time.shape != time.shape or not np.allclose(
+                controls.time, time, rtol=0.0, atol=1e-9 * max(1.0, float(np.max(np.abs(time))))
+            ):
+                # its samples belong to its own clock: read on another grid they would
+                # be another flight's controls
+                raise SimulationError(
+                    f"controls: a FlightData on its own time grid ({controls.n_samples} "
+                    f"samples, {controls.time[0]:.6g} to {controls.time[-1]:.6g} s) is not "
+                    f"the simulation's ({n_t}, {time[0]:.6g} to {time[-1]:.6g} s); use "
+                    "simulate_data, or resample the record to the grid"
+                )
             return controls.array(list(self.controls))[None, :, :].astype(np.float64)
+        controls = named_columns(controls) or controls
         if isinstance(controls, Mapping):
             missing = [c for c in self.controls if c not in controls]
             if missing:
@@ -457,6 +470,7 @@ class Model(ContinuousModel):
             )
         if x0 is None:
             return np.zeros((batch, self.n_states))
+        x0 = named_columns(x0) or x0
         if isinstance(x0, Mapping):
             unknown = sorted(set(x0) - set(self.states))
             if unknown:
