@@ -132,3 +132,19 @@ def test_only_a_constant_sensitivity_on_one_output_is_an_offset() -> None:
     g[:, 1, 3] = np.linspace(0.0, 1.0, n)  # a ramp
     assert _offset_outputs([g[:100], g[100:]]) == {0}
     assert _offset_outputs(None) == set()
+
+
+def test_a_fit_to_rounding_tells_no_drift() -> None:
+    # noise-free records fitted to 1e-13 had their integrator's residual correlation
+    # told as a random-walk drift ('up to 3.4e-05x the white ones')
+    from aeroid.models import catalog
+
+    model = catalog.first_order(2.0, 0.5)
+    t = np.arange(0.0, 8.0, 0.02)
+    u = np.where((t > 1.0) & (t < 2.0), 1.0, 0.0) - np.where((t > 2.0) & (t < 3.0), 1.0, 0.0)
+    y = model.simulate(t, {"u": u}, {"y": 0.0}, method="exact").output("y")
+    data = aeroid.FlightData(t, {"u": u, "y": y + 0.05})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", aeroid.ResidualDriftWarning)
+        fit = aeroid.identify(model, data, ["K", "tau"], estimate_bias={"y": "state"})
+    assert max(float(np.max(np.abs(r))) for r in fit.residuals) < 1e-6

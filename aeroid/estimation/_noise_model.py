@@ -656,6 +656,7 @@ def _warn_unabsorbed_drift(
     names: list[str],
     states: list[str] | None = None,
     jacobians: Sequence[FloatArray] | None = None,
+    exact: set[int] | None = None,
 ) -> None:
     """Warn when an output's residual drifts like a random walk over the record: the
     coloured error bars then widen, most on the parameter named. An output bias
@@ -669,7 +670,8 @@ def _warn_unabsorbed_drift(
     with np.errstate(divide="ignore"):
         tau = np.where(phi > 0, -1.0 / np.log(np.clip(phi, 1e-300, None)), 0.0)
     biased = {k for m in mans for k in m.bias_free}
-    drifting = [outputs[k] for k in range(phi.size) if tau[k] > n_t and k not in biased]
+    skip = biased | (exact or set())
+    drifting = [outputs[k] for k in range(phi.size) if tau[k] > n_t and k not in skip]
     if drifting:  # a model's own bias parameters are looked for only then
         offsets = _offset_outputs(jacobians)
         drifting = [o for o in drifting if outputs.index(o) not in offsets]
