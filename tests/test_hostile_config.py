@@ -77,3 +77,19 @@ def test_a_store_under_an_unknown_users_home_is_refused_by_the_cli(command: str)
     assert done.returncode == 2
     assert "no home folder for 'nosuchuser_aeroid'" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_an_existing_file_with_glob_characters_is_the_flight_named(tmp_path):
+    # 'run[1].csv' was read as a pattern: it matched run1.csv (another flight, fitted in
+    # its place) or, alone, "matches no file"
+    for name in ("run[1].csv", "run1.csv"):
+        (tmp_path / name).write_text("time,q\n0,1\n0.1,2\n")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: short_period\nflights: ['run[1].csv']\n")
+    files = [path.name for _, path, _ in load_config(cfg).expand_files()]
+    assert files == ["run[1].csv"]
+    (tmp_path / "run1.csv").unlink()
+    assert [p.name for _, p, _ in load_config(cfg).expand_files()] == ["run[1].csv"]
+    cfg.write_text("model: short_period\nflights: ['run[0-9].csv']\n")  # still a pattern
+    with pytest.raises(ConfigError, match="matches no file"):
+        load_config(cfg).expand_files()

@@ -128,7 +128,7 @@ def _check_files(
             problems.add(f"flights[{i}].{key}", unit_fault)
         raw = Path(spec.path).expanduser()
         pattern = str(raw if raw.is_absolute() else (base_dir / raw))
-        if glob.has_magic(pattern):
+        if glob.has_magic(pattern) and not Path(pattern).is_file():
             paths = glob_files(pattern)
             if not paths:
                 problems.add(where, f"the pattern {spec.path!r} matches no file")

@@ -197,7 +197,9 @@ class CampaignConfig(Options):
                 continue
             spec = FileFlights(path=item) if isinstance(item, str) else item
             pattern = str(self.resolve(spec.path))
-            if glob.has_magic(pattern):
+            # a file that exists is the flight named, whatever its name holds ('run[1].csv')
+            pattern_glob = glob.has_magic(pattern) and not Path(pattern).is_file()
+            if pattern_glob:
                 matches = glob_files(pattern)
                 if not matches:
                     raise ConfigError(
@@ -206,7 +208,7 @@ class CampaignConfig(Options):
             else:
                 matches = [Path(pattern)]
             options = json.dumps(spec.model_dump(mode="json", exclude={"path"}), sort_keys=True)
-            if not glob.has_magic(pattern):
+            if not pattern_glob:
                 first = named.setdefault((matches[0], options), i)
                 if first != i:
                     raise ConfigError(
