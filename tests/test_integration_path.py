@@ -148,3 +148,15 @@ def test_a_refit_on_a_finer_step_keeps_only_its_own_warnings():
     assert not [w for w in caught if "success=False" in str(w.message)]
     for k, v in truth.items():
         assert abs(fit.parameters[k] - v) < 4.0 * fit.stderr[k], k
+
+
+def test_exact_on_a_jittered_grid_blames_the_grid_not_the_model():
+    def f(t, x, u, p):
+        return np.stack([-p["a"] * x[0] + u[0]])
+
+    model = Model(states=["x"], controls=["u"], parameters={"a": 1.0}, dynamics=f, linear=True)
+    t = np.arange(101) * 0.02 + np.random.default_rng(0).uniform(-1e-4, 1e-4, 101)
+    t[0] = 0.0
+    with pytest.raises(SimulationError, match="takes at most 64 of them; this time grid has 100"):
+        model.simulate(t, np.sin(t)[:, None], method="exact")
+    model.simulate(t, np.sin(t)[:, None], method="auto")  # RK4 takes it

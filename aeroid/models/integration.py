@@ -73,6 +73,8 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 SOLVE_IVP_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
+# The distinct sample intervals the exact path discretises (a matrix exponential each).
+_EXACT_STEP_SIZES = 64
 _BY_INTERVAL = ("RK45", "RK23", "DOP853")  # restarted at every sample (module notes)
 METHODS = ("auto", "exact", "rk4", "rk4_hold", "euler", *SOLVE_IVP_METHODS)
 # The automatic substeps' path is rerun at most this many times with the count its
@@ -645,7 +647,7 @@ def exact_lti(
     n_u = Bm.shape[2]
     dts = np.diff(time)
     uniq, inverse = np.unique(np.round(dts / dts[0], 9), return_inverse=True)
-    if uniq.size > 64:
+    if uniq.size > _EXACT_STEP_SIZES:
         return None
     M = hold_augmented(A, Bm, c)
     phis = []
@@ -720,6 +722,15 @@ def linear_path(
             traj = exact_lti(time, x0.T, u, *mats)
             if traj is not None:
                 return traj
+            if method == "exact":
+                # the model is linear: the grid is what the exact path cannot take
+                raise SimulationError(
+                    f"method='exact' discretises each distinct sample interval once and "
+                    f"takes at most {_EXACT_STEP_SIZES} of them; this time grid has "
+                    f"{np.unique(np.round(np.diff(time) / (time[1] - time[0]), 9)).size} "
+                    f"(jittered stamps?): resample it, or use method='auto' (model "
+                    f"{model.name!r})"
+                )
         elif not_lti and method == "auto":
             # Shown not to be LTI: remember, so later calls skip the check.
             object.__setattr__(model, "_maybe_lti", False)
