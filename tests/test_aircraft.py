@@ -70,6 +70,8 @@ def test_isa_density_matches_the_standard_table():
         ({"Ixz": 1500.0}, "Ixz"),  # Ixx Izz < Ixz²: not positive definite
         ({"Izz": 7000.0}, "triangle"),  # Izz > Ixx + Iyy: no rigid body
         ({"Ixz": 1500.0, "b": float("nan")}, "Ixz"),  # checked without the span too
+        ({"mass": True}, "mass"),  # float() read a flag as 1 kg
+        ({"Iyy": "3000"}, "Iyy"),  # and text as a number
         ({"Izz": 7000.0, "b": float("nan")}, "triangle"),
         ({"rho": None}, "rho"),
         ({"rho": -1.0}, "rho"),
@@ -936,9 +938,10 @@ def test_channel_units_label_a_record_that_gives_none():
     plain = aeroid.FlightData(t, {**{s: sim.state(s) for s in lin.states}, "delta_e": de})
     v = aeroid.validate(lin, plain, dict(lin.parameters))
     assert v.units["q"] == "rad/s" and v.units["V"] == "m/s" and v.units["delta_e"] == "rad"
-    # a unit the record states wins
+    # a unit the record states that contradicts the model's is refused, as identify does
     given = aeroid.FlightData(plain.time, dict(plain.channels), units={"q": "deg/s"})
-    assert aeroid.validate(lin, given, dict(lin.parameters)).units["q"] == "deg/s"
+    with pytest.raises(aeroid.IdentificationError, match="'q' is stated in 'deg/s'"):
+        aeroid.validate(lin, given, dict(lin.parameters))
 
 
 # -- textbook set-ups: accelerations of the linear models, US units, rate reference -------------

@@ -70,6 +70,9 @@ def isa_density(altitude: float) -> float:
 
 
 def _finite(name: str, value: Any) -> float:
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        # float() reads True as 1 and "3000" as 3000: a flag or text is no quantity
+        raise ModelDefinitionError(f"{name}: expected a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
