@@ -297,8 +297,11 @@ def check_compatibility(
         What an output's scale factor multiplies: the value itself,
         ``(1 + k) y + b``, or its change from the start value,
         ``(1 + k) (y - y0) + y0 + b`` with ``y0`` the output reconstructed
-        from the start state (SIDPAC's form; the offset ``b`` then is the
-        error at the start of the record).
+        from the start state the fit begins from, fixed there (SIDPAC's form;
+        the offset ``b`` then is the error at the start of the record). That
+        start is the held one, or `x0` where given; with the start estimated,
+        it is the first guess (the smoothed measured start, less the known
+        errors), not the estimate, which SIDPAC's ``dcmp`` would follow.
     integration : {"rk4", "rk4_hold", "euler"}
         Runge-Kutta with substeps and the inputs interpolated linearly between
         samples (accurate); one Runge-Kutta step per sample with the inputs
