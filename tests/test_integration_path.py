@@ -157,6 +157,8 @@ def test_exact_on_a_jittered_grid_blames_the_grid_not_the_model():
     model = Model(states=["x"], controls=["u"], parameters={"a": 1.0}, dynamics=f, linear=True)
     t = np.arange(101) * 0.02 + np.random.default_rng(0).uniform(-1e-4, 1e-4, 101)
     t[0] = 0.0
-    with pytest.raises(SimulationError, match="takes at most 64 of them; this time grid has 100"):
+    with pytest.raises(
+        SimulationError, match="takes at most 64 distinct sample intervals; this time grid has 100"
+    ):
         model.simulate(t, np.sin(t)[:, None], method="exact")
     model.simulate(t, np.sin(t)[:, None], method="auto")  # RK4 takes it

@@ -227,36 +227,7 @@ def solve_ivp_batch(
     atol: float,
     interpolation: Interpolation = "linear",
 ) -> RawTrajectory:
-    """The whole batch as one stacked ODE through `scipy.integrate.solve_ivp`; where a
-    member fails, each member again on its own (one member's divergence stops the stacked
-    solve for all, and the healthy ones must not be reported failed)."""
-    traj = _solve_ivp_stacked(f, time, x0, u, p, method, rtol, atol, interpolation)
-    batch = x0.shape[1]
-    if batch == 1 or bool(np.all(traj.ok)):
-        return traj
-    states, ok, fail_time = traj.states.copy(), traj.ok.copy(), traj.fail_time.copy()
-    for b in range(batch):
-        member = {
-            k: (v[b : b + 1] if np.ndim(v) and np.shape(v)[0] == batch else v) for k, v in p.items()
-        }
-        one = _solve_ivp_stacked(
-            f, time, x0[:, b : b + 1], u[b : b + 1], member, method, rtol, atol, interpolation
-        )
-        states[b], ok[b], fail_time[b] = one.states[0], one.ok[0], one.fail_time[0]
-    return RawTrajectory(states, ok, fail_time)
-
-
-def _solve_ivp_stacked(
-    f: BatchFunction,
-    time: FloatArray,
-    x0: FloatArray,
-    u: FloatArray,
-    p: Mapping[str, FloatArray],
-    method: str,
-    rtol: float,
-    atol: float,
-    interpolation: Interpolation = "linear",
-) -> RawTrajectory:
+    """The whole batch as one stacked ODE through `scipy.integrate.solve_ivp`."""
     import scipy.integrate  # on first use: half a second that a rerun or `aeroid status` skips
 
     excess = None if interpolation == "linear" else _cubic_excess(time, u, interpolation)
@@ -722,14 +693,12 @@ def linear_path(
             traj = exact_lti(time, x0.T, u, *mats)
             if traj is not None:
                 return traj
-            if method == "exact":
-                # the model is linear: the grid is what the exact path cannot take
+            if method == "exact":  # the model is linear: the grid is what it cannot take
+                steps = np.unique(np.round(np.diff(time) / (time[1] - time[0]), 9)).size
                 raise SimulationError(
-                    f"method='exact' discretises each distinct sample interval once and "
-                    f"takes at most {_EXACT_STEP_SIZES} of them; this time grid has "
-                    f"{np.unique(np.round(np.diff(time) / (time[1] - time[0]), 9)).size} "
-                    f"(jittered stamps?): resample it, or use method='auto' (model "
-                    f"{model.name!r})"
+                    f"method='exact' takes at most {_EXACT_STEP_SIZES} distinct sample "
+                    f"intervals; this time grid has {steps} (jittered stamps?): resample it, "
+                    f"or use method='auto' (model {model.name!r})"
                 )
         elif not_lti and method == "auto":
             # Shown not to be LTI: remember, so later calls skip the check.
@@ -805,4 +774,17 @@ def integrate(
         return rk4(f, time, X0, u, p, int(substeps or 1), hold=True)
     if method == "euler":
         return euler(f, time, X0, u, p)
-    return solve_ivp_batch(f, time, X0, u, p, method, rtol, atol, control_interpolation)
+    how_ivp = (method, rtol, atol, control_interpolation)
+    traj = solve_ivp_batch(f, time, X0, u, p, *how_ivp)
+    if traj.ok.all() or traj.ok.size == 1:
+        return traj
+    # one member's divergence stops the stacked solve for all: each member again alone
+    for b in range(traj.ok.size):
+        one = solve_ivp_batch(f, time, X0[:, b : b + 1], u[b : b + 1], _member(p, b), *how_ivp)
+        traj.states[b], traj.ok[b], traj.fail_time[b] = one.states[0], one.ok[0], one.fail_time[0]
+    return traj
+
+
+def _member(p: Mapping[str, FloatArray], b: int) -> dict[str, FloatArray]:
+    """Member `b`'s parameters of a batch's (one value for all stays one)."""
+    return {k: v[b : b + 1] if np.ndim(v) and np.shape(v)[0] > 1 else v for k, v in p.items()}
