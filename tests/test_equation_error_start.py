@@ -57,12 +57,16 @@ def test_sign_flipped_start_short_period():
 def test_zero_start_multi_output_lateral():
     model, data = _lateral_flight(7)
     zeros = dict.fromkeys(LATERAL, 0.0)
-    stuck = _quiet_identify(model, data, zeros, x0=np.zeros(4))
-    assert any(abs(stuck.parameters[n] - v) > 0.5 * abs(v) for n, v in LATERAL.items())
+    # from all zeros some derivatives multiply states that have not moved: unseen at the
+    # start, they once took the rounding of a minimum-norm step over their zero scale and
+    # left the fit stuck far off; held until the others move them, the plain fit arrives
+    # too, and the equation-error start as well
+    plain = _quiet_identify(model, data, zeros, x0=np.zeros(4))
     r = identify(model, data, zeros, x0=np.zeros(4), start="equation_error")
-    assert r.success
-    z = [abs(r.parameters[n] - v) / r.stderr[n] for n, v in LATERAL.items()]
-    assert max(z) < 3.5  # 12 parameters: a max |z| beyond 3.5 has probability ~0.5 %
+    for fit in (plain, r):
+        assert fit.success
+        z = [abs(fit.parameters[n] - v) / fit.stderr[n] for n, v in LATERAL.items()]
+        assert max(z) < 3.5  # 12 parameters: a max |z| beyond 3.5 has probability ~0.5 %
 
 
 def test_start_values_on_noise_free_data_are_the_truth():

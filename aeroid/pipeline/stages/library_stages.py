@@ -586,8 +586,7 @@ for _stage in (
         # 8: the flight's name and file as they are now (a renamed file's data reused)
         # 9: units guessed only where the record's units make them right, marked so;
         #    the fitted outputs named
-        # 10: undefined values as a dash, coherent-frequency mean coherence, estimated
-        #     biases and noise tabled
+        # 10: undefined values as a dash; coherent mean coherence; biases and noise tabled
         "10",
         ReportOptions,
         "FlightReport",
