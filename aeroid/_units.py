@@ -195,14 +195,12 @@ def _parse(text: str) -> dict[str, int] | None:
 
 
 def _over(numerator: Mapping[str, int], denominator: Mapping[str, int]) -> str:
-    out = dict(numerator)
-    for k, e in denominator.items():
-        out[k] = out.get(k, 0) - e
-    out = {k: e for k, e in out.items() if e}
-    if not any(k in _ANGLE_SYMBOLS and k != "rad" for k in out):
-        out.pop("rad", None)  # the radian is a ratio; one beside degrees is a scale
-    order = {"m": 0, "N": 1, "s": 2, "rad": 3}
-    return unit_text({k: out[k] for k in sorted(out, key=lambda k: order.get(k, 4))})
+    # the radian is a ratio and is dropped; one beside degrees is a scale and is kept
+    degrees = any(
+        k in _ANGLE_SYMBOLS and k != "rad" and numerator.get(k, 0) != denominator.get(k, 0)
+        for k in {*numerator, *denominator}
+    )
+    return ratio(numerator, [denominator], keep_radians=degrees)
 
 
 def _derivative_unit(
