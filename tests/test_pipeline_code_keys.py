@@ -10,6 +10,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from aeroid.pipeline import open_store, plan, run
@@ -241,6 +242,39 @@ def test_a_metrics_body_edited_recomputes_its_monte_carlo(tmp_path):
     # the same seeded draws through twice the function: exactly twice the mean
     assert new == pytest.approx(sorted(2 * v for v in before.values()), rel=1e-12)
     assert json.loads(_cli(cfg, "--workers", "0", "--json").stdout)["computed"] == 0
+
+
+
+@pytest.mark.parametrize("n_batches", [None, 2])
+def test_a_metric_beside_the_config_runs_where_its_check_found_it(tmp_path, n_batches):
+    # the finding: the check found mymetric.py beside the config, then every propagate
+    # failed to import it (the worker looked among the installed modules only)
+    from aeroid.pipeline.running.rerun import rerun
+
+    name = f"mymetric_kc5_{n_batches}"
+    cfg = _campaign(tmp_path, metric=f"{name}:wn")
+    if n_batches:
+        cfg.write_text(cfg.read_text().replace("n_samples: 50", "n_samples: 50, n_batches: 2"))
+    (tmp_path / f"{name}.py").write_text(METRIC.format(factor="2.0"))
+    assert str(tmp_path) not in sys.path
+    summary = run(cfg, workers=0)
+    assert summary.failed == 0
+    plain = _campaign(tmp_path / "plain")
+    if n_batches:
+        plain.write_text(plain.read_text().replace("n_samples: 50", "n_samples: 50, n_batches: 2"))
+    assert run(plain, workers=0).failed == 0
+    store, other = open_store(tmp_path / "store"), open_store(tmp_path / "plain" / "store")
+
+    def samples(s):
+        return sorted(tuple(s.load(e.key).samples) for e in s.entries("propagate"))
+
+    # the same seeded draws through twice the built-in natural frequency
+    got, want = samples(store), samples(other)
+    assert len(got) == 2
+    for g, w in zip(got, want, strict=True):
+        assert np.asarray(g) == pytest.approx(2.0 * np.asarray(w), rel=1e-12)
+    for entry in store.entries("propagate"):  # a rerun from the stored task finds the file
+        assert rerun(store, entry.key)[0]
 
 
 STAGE_PIPELINE = textwrap.dedent(

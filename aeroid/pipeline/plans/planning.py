@@ -38,6 +38,7 @@ from .plan_checks import (
     _warn_old_names,
     resolve_model,
 )
+from .task import Task
 
 if TYPE_CHECKING:
     from ..storage.store import ResultStore
@@ -54,75 +55,6 @@ __all__ = [
     "store_argument",
     "stored_plan",
 ]
-
-
-@dataclass(frozen=True)
-class Task:
-    """One node of the task graph (plain data, so it travels to workers)."""
-
-    key: str
-    step: str
-    stage: str
-    flight: str | None
-    options: dict[str, Any]
-    upstream: dict[str, Any]  # role -> key (per flight) or list of keys (campaign)
-    upstream_stages: dict[str, str]  # role -> stage name of the upstream step
-    canonical: bytes  # the canonical text of the document the key hashes
-    model_ref: dict[str, Any] | None = None
-    seed: dict[str, Any] | None = None
-    source: dict[str, Any] | None = None
-    pipeline_ref: dict[str, Any] | None = None
-    flights: tuple[str, ...] = ()
-    # (campaign stage, role) of each brief of this task's result a campaign task takes
-    # (`Stage.brief`); not part of the key or of the stored task
-    briefs: tuple[tuple[str, str], ...] = ()
-
-    @property
-    def document(self) -> dict[str, Any]:
-        """The document the key hashes, in plain JSON types (parsed on each access)."""
-        document: dict[str, Any] = json.loads(self.canonical)
-        return document
-
-    @property
-    def upstream_keys(self) -> list[str]:
-        out: list[str] = []
-        for v in self.upstream.values():
-            out += [k for k in v if k is not None] if isinstance(v, list) else [v]
-        return out
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "key": self.key,
-            "step": self.step,
-            "stage": self.stage,
-            "flight": self.flight,
-            "options": self.options,
-            "upstream": self.upstream,
-            "upstream_stages": self.upstream_stages,
-            "model_ref": self.model_ref,
-            "seed": self.seed,
-            "source": self.source,
-            "pipeline_ref": self.pipeline_ref,
-            "flights": list(self.flights),
-        }
-
-    @classmethod
-    def from_json(cls, doc: Mapping[str, Any], document: Mapping[str, Any]) -> Task:
-        return cls(
-            key=doc["key"],
-            step=doc["step"],
-            stage=doc["stage"],
-            flight=doc["flight"],
-            options=dict(doc["options"]),
-            upstream=dict(doc["upstream"]),
-            upstream_stages=dict(doc["upstream_stages"]),
-            canonical=canonical_json(document),
-            model_ref=doc.get("model_ref"),
-            seed=doc.get("seed"),
-            source=doc.get("source"),
-            pipeline_ref=doc.get("pipeline_ref"),
-            flights=tuple(doc.get("flights", ())),
-        )
 
 
 @dataclass
@@ -508,6 +440,7 @@ def _tasks(
                 source=source if step.stage_name == "load" or stage.names_flight else None,
                 pipeline_ref=pipe_ref,
                 briefs=briefs.get(step.name, ()),
+                code_dir=_code_dir(setup, step.name, config),
             )
         for up, kept in step_keys.items():
             kept.append(keys.get(up))
@@ -545,7 +478,14 @@ def _tasks(
             model_ref=model_ref if stage.uses_model else None,
             pipeline_ref=pipe_ref,
             flights=tuple(flights),
+            code_dir=_code_dir(setup, step.name, config),
         )
+
+
+def _code_dir(setup: _Setup, step: str, config: CampaignConfig) -> str | None:
+    """The config's folder where `step`'s options name code in it (`_code.step_code`)."""
+    named = any(k.startswith("options.") for k in setup.code.get(step, {}))
+    return str(config.base_dir) if named and config.base_dir else None
 
 
 def _simulated_load(

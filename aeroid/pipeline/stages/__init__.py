@@ -107,6 +107,8 @@ class StageContext:
     # role -> {flight index: brief} handed over by the flights' tasks (see `Stage.brief`)
     briefs: Mapping[str, Mapping[int, Any]] = field(default_factory=dict)
     summarize: Callable[[str, Any], Any] | None = None
+    # the config's folder, where the options name code in it (`Task.code_dir`)
+    code_dir: str | None = None
 
     def brief(self, role: str, index: int) -> Any:
         """The brief of flight `index`'s `role` input (see `Stage.brief`): the one its task
@@ -280,6 +282,7 @@ def register_stage(stage: Stage) -> Stage:
     return stage
 
 
-def resolve_callable(spec: str, *, what: str) -> Any:
-    """Import ``package.module:attribute`` (dotted attributes allowed)."""
-    return resolve(spec, None, what=what, error=PipelineError)
+def resolve_callable(spec: str, *, what: str, base_dir: str | None = None) -> Any:
+    """Import ``package.module:attribute`` (dotted attributes allowed): the module's file
+    in `base_dir` (the config's folder) when there is one, else the installed module."""
+    return resolve(spec, base_dir, what=what, error=PipelineError)

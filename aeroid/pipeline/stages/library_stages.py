@@ -210,8 +210,8 @@ class PropagateOptions(
 def _run_propagate(ctx: StageContext) -> Any:
     from ...uncertainty.propagation import propagate
 
-    kw = _kwargs(ctx.options, "metric", "n_batches")
-    return propagate(ctx.inputs["result"], metric(ctx.options.metric), seed=ctx.seed_int(0), **kw)
+    fn, kw = metric(ctx.options.metric, ctx.code_dir), _kwargs(ctx.options, "metric", "n_batches")
+    return propagate(ctx.inputs["result"], fn, seed=ctx.seed_int(0), **kw)
 
 
 def _n_draws(options: Any) -> int:
@@ -231,7 +231,7 @@ def _run_propagate_part(ctx: StageContext, index: int) -> Any:
 
     n, k = _n_draws(ctx.options), _propagate_parts(ctx.options, frozenset(ctx.inputs))
     start, stop = index * n // k, (index + 1) * n // k
-    fn = metric(ctx.options.metric)
+    fn = metric(ctx.options.metric, ctx.code_dir)
     result = ctx.inputs["result"]
     return propagate_batch(result, fn, start=start, n_samples=stop - start, seed=ctx.seed_int(0))
 

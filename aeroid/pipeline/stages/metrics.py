@@ -35,14 +35,17 @@ METRICS: dict[str, Callable[[Mapping[str, float]], float]] = {
 }
 
 
-def metric(name: str) -> Callable[[Mapping[str, float]], float]:
+def metric(name: str, base_dir: str | None = None) -> Callable[[Mapping[str, float]], float]:
+    """The metric `name` names: a built-in one, else ``module:function`` imported from
+    the config's folder `base_dir` where the module's file is there (as the config
+    check finds it), else from the installed modules."""
     if name in METRICS:
         return METRICS[name]
     if ":" not in name:
         raise PipelineError(
             f"propagate metric {name!r}: expected one of {sorted(METRICS)} or 'package.module:function'"
         )
-    fn = resolve_callable(name, what="propagate metric")
+    fn = resolve_callable(name, what="propagate metric", base_dir=base_dir)
     if not callable(fn):
         raise PipelineError(f"propagate metric {name!r} is not callable")
     return fn

@@ -59,6 +59,7 @@ def context_of(task: Task, stage: Stage, gathered: Mapping[str, Any]) -> StageCo
         source=task.source,
         flights=task.flights,
         summarize=stage.brief,
+        code_dir=task.code_dir,
         **gathered,
     )
 
