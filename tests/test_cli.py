@@ -539,3 +539,19 @@ def test_console_script_on_the_embedded_cluster(tmp_path, monkeypatch):
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_pool)
     code, out, _ = invoke("run", str(cfg), "--json")
     assert code == 0 and json.loads(out)["cached"] == 7
+
+
+def test_python_m_aeroid_is_the_command(tmp_path):
+    # for an environment whose scripts folder is not on the PATH
+    import aeroid
+
+    root = str(Path(aeroid.__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=root)
+    run = [sys.executable, "-m", "aeroid"]
+    out = subprocess.run([*run, "--version"], capture_output=True, text=True, env=env, timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == f"aeroid, version {aeroid.__version__}"
+    missing = str(tmp_path / "none.yaml")
+    out = subprocess.run(
+        [*run, "run", missing], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert out.returncode == 2 and "none.yaml" in out.stderr and "Traceback" not in out.stderr

@@ -244,7 +244,6 @@ def test_a_metrics_body_edited_recomputes_its_monte_carlo(tmp_path):
     assert json.loads(_cli(cfg, "--workers", "0", "--json").stdout)["computed"] == 0
 
 
-
 @pytest.mark.parametrize("n_batches", [None, 2])
 def test_a_metric_beside_the_config_runs_where_its_check_found_it(tmp_path, n_batches):
     # the finding: the check found mymetric.py beside the config, then every propagate
