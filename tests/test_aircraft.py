@@ -270,6 +270,29 @@ def test_linear_models_trim_at_zero_and_impossible_trims_fail_clearly():
         trim(lateral(CONSTANTS, V0=V0), 40.0)
 
 
+def test_a_root_of_the_trim_equations_outside_the_envelope_is_no_trim():
+    """Found by an independent suite: at 5 m/s a Navion-like model (linear lift, CL = 46
+    needed) "trimmed" at alpha = 680 deg with the elevator at -503 deg, success; with no
+    lift but the elevator's, at thrust -8699 N. The equations are periodic in the angles
+    and linear in the surfaces, so such roots exist where no flight condition does."""
+    c = aeroid.AircraftConstants(mass=1247.4, Iyy=4067.5, S=17.09, cbar=1.737, rho=1.225)
+    navion = {"CD_0": 0.05, "CD_alpha": 0.33, "CL_0": 0.41, "CL_alpha": 4.44}
+    navion |= {"CL_delta_e": 0.355, "Cm_alpha": -0.683, "Cm_q": -14.3, "Cm_delta_e": -0.923}
+    m = longitudinal(c, V0=53.6, parameters=navion)
+    # the lift at 20 m/s: alpha below stall on this model's line, a trim
+    tr = trim(m, V=20.0)
+    qS = 0.5 * 1.225 * 20.0**2 * 17.09
+    lift = qS * (0.41 + 4.44 * tr.states["alpha"] + 0.355 * tr.controls["delta_e"])
+    assert abs(tr.states["alpha"]) < 0.5 * math.pi
+    assert lift + tr.controls["thrust"] * math.sin(tr.states["alpha"]) == pytest.approx(
+        1247.4 * 9.80665, rel=1e-8
+    )
+    with pytest.raises(SimulationError, match=r"alpha = 680\.5 deg.*no flight condition"):
+        trim(m, V=5.0)
+    with pytest.warns(UserWarning, match="needs thrust -8699 "):
+        trim(m, parameters={"CL_0": 0.0, "CL_alpha": 0.0})
+
+
 # -- modes of the linearised models ------------------------------------------------------------
 
 

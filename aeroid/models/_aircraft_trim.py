@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -151,7 +152,13 @@ def trim(
     ModelDefinitionError
         `model` is not an aircraft model of this module, or has too few controls.
     SimulationError
-        The solver cannot reach the tolerance (no trim at this condition).
+        The solver cannot reach the tolerance, or reaches it only with an angle
+        (α, β, γ) or a surface at 90° or beyond (no trim at this condition).
+
+    Warns
+    -----
+    UserWarning
+        A nonlinear model's trim needs negative thrust.
     """
     if not isinstance(model, AircraftModel):
         raise ModelDefinitionError(
@@ -231,6 +238,7 @@ def trim(
             f"{worst!r} stays at {np.nanmax(np.abs(r)):.3g} (no trim with these parameters and "
             f"controls {sorted(k for k, _ in unknowns)})"
         )
+    _check_envelope(model, speed, dict(zip(solved, z.tolist(), strict=True)))
     X, U = build(z[:, None])
     xdot = _evaluate(model._dynamics_batch.fun, X, U, p)[:, 0]
     y = (
@@ -246,6 +254,29 @@ def trim(
         trimmed=tuple(trimmed),
         unknowns={name: float(v) for (name, _), v in zip(unknowns, z, strict=True)},
     )
+
+
+def _check_envelope(model: AircraftModel, speed: float, solved: Mapping[str, float]) -> None:
+    """Refuse a root of the trim equations that is no flight condition: an angle or a
+    surface at a right angle or beyond (the equations are periodic in the angles and
+    linear in the surfaces, so such roots exist where no trim does); warn of a trim
+    that needs the engine to pull backwards."""
+    for name, value in solved.items():
+        if name != "thrust" and abs(value) >= 0.5 * math.pi:
+            raise SimulationError(
+                f"trim of {model.name!r} at V = {speed:.6g} m/s: the equations are met with "
+                f"{name} = {math.degrees(value):.1f} deg, which is no flight condition (at "
+                "or beyond 90 deg); this model has no trim within the envelope there (too "
+                "slow for its lift, or parameters without one)"
+            )
+    thrust = solved.get("thrust")
+    if thrust is not None and thrust < 0 and model.kind in ("longitudinal", "six_dof"):
+        warnings.warn(
+            f"trim of {model.name!r} at V = {speed:.6g} m/s needs thrust {thrust:.4g} (a "
+            "drag the engine cannot give): fly a steeper descent (gamma) or another speed",
+            UserWarning,
+            stacklevel=4,  # the caller of trim (through its thread-limiting wrapper)
+        )
 
 
 _TrimBuild = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
