@@ -80,7 +80,7 @@ def ratio(numerator: Unit, factors: Iterable[Unit], *, keep_radians: bool) -> st
     if not keep_radians:
         out.pop("rad", None)
     # a stable order: length, force, time, angle
-    order = {"m": 0, "N": 1, "s": 2, "rad": 3}
+    order = {"m": 0, "ft": 0, "N": 1, "lbf": 1, "s": 2, "rad": 3}
     return unit_text({k: out[k] for k in sorted(out, key=lambda k: order.get(k, 4)) if out[k]})
 
 
@@ -230,11 +230,11 @@ def _coefficient_unit(
         angle = {k: e for k, e in unit.items() if k in _ANGLE_SYMBOLS}
         if angle and unit == angle:  # an angle: per rad or per deg
             return _over({}, unit) if angle != {"rad": 1} else "1/rad"
-        # a rate enters as the non-dimensional q c / (2 V) only when in rad/s
-        return "-" if unit == {"rad": 1, "s": -1} else None
+        # a rate enters as the non-dimensional q c / (2 V), an angle, only when in rad/s
+        return "1/rad" if unit == {"rad": 1, "s": -1} else None
     if in_degrees or not units:
         return None
-    return "1/rad" if var in _ANGLES else "-" if var in _RATES else None
+    return "1/rad" if var in _ANGLES or var in _RATES else None
 
 
 def _unit_key(unit: str) -> str:

@@ -670,7 +670,8 @@ def test_alpha_dot_terms_solve_the_implicit_alpha_equation():
     # without the alpha-dot terms the model is the lumped one, value for value
     zero = {**P, "CL_alpha_dot": 0.0, "Cm_alpha_dot": 0.0}
     np.testing.assert_allclose(m.dynamics(0.0, X, U, zero), long_model().dynamics(0.0, X, U, LONG))
-    assert "Cm_alpha_dot α̇ c̄/(2V)" in m.summary() and m.parameter_units["Cm_alpha_dot"] == "-"
+    assert "Cm_alpha_dot α̇ c̄/(2V)" in m.summary()
+    assert m.parameter_units["Cm_alpha_dot"] == "1/rad"
 
 
 def test_alpha_dot_only_enters_alone_and_only_where_it_exists():
@@ -907,20 +908,26 @@ def test_parameter_units_follow_from_the_equations_and_regressors():
     lat = lateral_linear(V0=V0)
     assert lat.parameter_units["Y_beta"] == "1/s" and lat.parameter_units["L_p"] == "1/s"
     assert lat.parameter_units["N_delta_r"] == "1/s²"
-    # non-dimensional coefficients: per radian for angles, plain for the scaled rates
+    # non-dimensional coefficients: per radian for angles and for the scaled rates
+    # (q c/(2V) is an angle: Klein & Morelli and Jategaonkar quote Cm_q per rad)
     cl = longitudinal(
         CONSTANTS,
         V0=V0,
         parameters=LONG,
         terms={"CL": ["0", "alpha", "q", "delta_e", "alpha*alpha"]},
     )
-    assert cl.parameter_units["CL_0"] == "-" and cl.parameter_units["CL_q"] == "-"
+    assert cl.parameter_units["CL_0"] == "-" and cl.parameter_units["CL_q"] == "1/rad"
     assert cl.parameter_units["CL_alpha"] == "1/rad"
     assert cl.parameter_units["CL_alpha_alpha"] == "1/rad²"
     assert cl.parameter_units["Cm_delta_e"] == "1/rad"
     assert set(cl.parameter_units) == set(cl.parameters)
     both = aeroid.models.aircraft.decoupled(lon, lat)
     assert dict(both.parameter_units) == {**u, **lat.parameter_units}
+    # constants in feet and pounds (g in ft/s²): the parameters' units too, as the
+    # channels' (found by an independent suite: X_alpha labelled m/s² beside V in ft/s)
+    us = longitudinal_linear(V0=176.0, g=32.174, terms={"X": ["alpha"], "M": ["V", "q"]})
+    assert (us.parameter_units["X_alpha"], us.parameter_units["M_V"]) == ("ft/s²", "1/(ft s)")
+    assert us.channel_units["V"] == "ft/s" and "g = 32.174 ft/s²" in us.summary()
 
 
 def test_an_identification_result_carries_the_models_units():

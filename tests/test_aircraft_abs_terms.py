@@ -50,7 +50,7 @@ def test_names_units_and_equations_of_absolute_terms() -> None:
     assert "CD_abs_beta |β| + CD_abs_beta_alpha |β| α" in m.equations
     # a rate's absolute value is as dimensionless as the rate
     lat = lateral(CONSTANTS, V0=V0, alpha0=0.05, theta0=0.05, terms={"Cn": ("0", "abs(p)")})
-    assert lat.parameter_units["Cn_abs_p"] == "-"
+    assert lat.parameter_units["Cn_abs_p"] == "1/rad"
     assert "Cn_abs_p |p b/(2V0)|" in lat.equations
     six = six_dof(CONSTANTS, V0=V0, terms={"CY": ("0", "beta", "abs(beta)")})
     assert "CY_abs_beta" in six.parameters

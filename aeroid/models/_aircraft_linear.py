@@ -29,11 +29,18 @@ from ._aircraft_parts import (
     _parse_expansions,
     _positive_g,
     _surfaces,
+    _us_system,
 )
 
 FloatArray = NDArray[np.float64]
 
 # -- linear small-perturbation models with dimensional derivatives -------------------------------
+
+
+def _speed(g: float) -> str:
+    """The speed unit of constants with this g (the equations' text states it)."""
+    return "ft/s" if _us_system(g) else "m/s"
+
 
 _LONG_LINEAR_TERMS: Mapping[str, Sequence[str]] = {
     "X": ("V", "alpha", "delta_e"),
@@ -171,7 +178,7 @@ def longitudinal_linear(
             "  q̇ = ΣM",
             *(f"  Σ{_expansion_text(k, e, linear=True)}" for k, e in expansions.items()),
             "  az = V0 ΣZ" + (" / g (in g)" if accel_units == "g" else ""),
-            f"  V0 = {V0:.6g} m/s, γ0 = {gamma0:.6g} rad, g = {g:.6g} m/s^2",
+            f"  V0 = {V0:.6g} {_speed(g)}, γ0 = {gamma0:.6g} rad, g = {g:.6g} {_speed(g)}²",
         ]
     )
     return _aircraft_model(
@@ -197,6 +204,7 @@ def longitudinal_linear(
                 "M": _units.PER_SECOND_SQUARED,
             },
             linear=True,
+            g=g,
         ),
     )
 
@@ -342,7 +350,8 @@ def lateral_linear(
             *(["  ψ̇ = r / cos θ0"] if with_heading else []),
             *(f"  Σ{_expansion_text(k, e, linear=True)}" for k, e in expansions.items()),
             "  ay = V0 ΣY" + (" / g (in g)" if accel_units == "g" else ""),
-            f"  V0 = {V0:.6g} m/s, α0 = {alpha0:.6g} rad, θ0 = {theta0:.6g} rad, g = {g:.6g} m/s^2",
+            f"  V0 = {V0:.6g} {_speed(g)}, α0 = {alpha0:.6g} rad, θ0 = {theta0:.6g} rad, "
+            f"g = {g:.6g} {_speed(g)}²",
         ]
     )
     return _aircraft_model(
@@ -368,6 +377,7 @@ def lateral_linear(
                 "N": _units.PER_SECOND_SQUARED,
             },
             linear=True,
+            g=g,
         ),
     )
 

@@ -282,7 +282,7 @@ def longitudinal(
         reference={"V0": V0},
         surfaces=surf,
         equations=equations,
-        parameter_units=_expansion_units(expansions, None, linear=False),
+        parameter_units=_expansion_units(expansions, None, linear=False, g=c.g),
     )
 
 
@@ -498,7 +498,7 @@ def lateral(
         reference={"V0": V0, "alpha0": alpha0, "theta0": theta0},
         surfaces=surf,
         equations=equations,
-        parameter_units=_expansion_units(expansions, None, linear=False),
+        parameter_units=_expansion_units(expansions, None, linear=False, g=c.g),
     )
     # Newton's method over the record linearises with these instead of differences
     model._dynamics_batch.jacobian = lateral_jacobian(model._dynamics_batch.fun, *args, "dynamics")

@@ -381,10 +381,11 @@ _COEFFICIENT_REGRESSOR_UNITS: Mapping[str, _units.Unit] = {
     "alpha": _units.RADIAN,
     "beta": _units.RADIAN,
     "V": _units.ONE,
-    "p": _units.ONE,
-    "q": _units.ONE,
-    "r": _units.ONE,
-    "alpha_dot": _units.ONE,
+    # the nondimensional rates (p b/2V, q c/2V, alpha_dot c/2V) are angles: Cm_q per rad
+    "p": _units.RADIAN,
+    "q": _units.RADIAN,
+    "r": _units.RADIAN,
+    "alpha_dot": _units.RADIAN,
     "thrust": _units.NEWTON,
 }
 _RATE: _units.Unit = {"rad": 1, "s": -1}
@@ -405,16 +406,23 @@ def _expansion_units(
     equations: Mapping[str, _units.Unit] | None,
     *,
     linear: bool,
+    g: float,
 ) -> dict[str, str]:
     """Each term's parameter unit: its equation's unit (dimensionless coefficients when
-    `equations` is None) over its regressors' (a surface deflection in rad)."""
+    `equations` is None) over its regressors' (a surface deflection in rad), in feet
+    and pounds where the constants' g is in ft/s² (`_us_system`)."""
     regs = _LINEAR_REGRESSOR_UNITS if linear else _COEFFICIENT_REGRESSOR_UNITS
+    names = _US_SYMBOLS if _us_system(g) else {}
+
+    def system(unit: _units.Unit) -> _units.Unit:
+        return {names.get(k, k): e for k, e in unit.items()}
+
     out = {}
     for coefficient, expansion in expansions.items():
         lhs = _units.ONE if equations is None else equations[coefficient]
         for name, factors in expansion:
-            units = [regs.get(_factor_regressor(f), _units.RADIAN) for f in factors]
-            out[name] = _units.ratio(lhs, units, keep_radians=not linear)
+            units = [system(regs.get(_factor_regressor(f), _units.RADIAN)) for f in factors]
+            out[name] = _units.ratio(system(lhs), units, keep_radians=not linear)
     return out
 
 
@@ -653,13 +661,19 @@ _CHANNEL_UNITS = {
 
 # the same channels in US customary units, told by g (32.174 ft/s^2)
 _US_UNITS = {"m/s": "ft/s", "m/s²": "ft/s²", "m": "ft", "N": "lbf"}
+_US_SYMBOLS = {"m": "ft", "N": "lbf"}
 _US_GRAVITY = (30.0, 34.0)
+
+
+def _us_system(g: float) -> bool:
+    """Whether constants with this g compute in feet, pounds and seconds."""
+    return _US_GRAVITY[0] < g < _US_GRAVITY[1]
 
 
 def _channel_units(names: Sequence[str], accel_units: str, g: float) -> dict[str, str]:
     """Each channel's unit label; the models compute in the units of their constants, so
     a g of about 32.2 (ft/s²) labels feet, pounds and seconds."""
-    us = _US_GRAVITY[0] < g < _US_GRAVITY[1]
+    us = _us_system(g)
     accel = "g" if accel_units == "g" else ("ft/s²" if us else "m/s²")
     out = {}
     for n in names:

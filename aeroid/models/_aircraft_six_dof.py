@@ -382,5 +382,5 @@ def six_dof(
         reference={"V0": V0},
         surfaces=surf,
         equations=equations,
-        parameter_units=_expansion_units(expansions, None, linear=False),
+        parameter_units=_expansion_units(expansions, None, linear=False, g=c.g),
     )

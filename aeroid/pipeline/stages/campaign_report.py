@@ -444,7 +444,8 @@ register_stage(
         # 16: no file name for a flight without a condition (a renamed file's is old)
         # 17: units guessed only from the flights' channel units, marked so
         # 18: ASCII anchors; undefined values as a dash; biases and noise tabled
-        "18",
+        # 19: nondimensional rates' derivatives per rad; feet where the model is
+        "19",
         CampaignReportOptions,
         "CampaignReport",
         _run_campaign,

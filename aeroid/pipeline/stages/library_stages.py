@@ -498,8 +498,8 @@ for _stage in (
         # 15: `parameters: []` is the library's empty list, not every parameter
         # 16: filter error's gradient by the chain rule; the information inverted on a
         #     unit diagonal (bars of parameters of very different sizes; rounding)
-        # 17: results carry the fitted channels' units (the report's unit guesses)
-        "17",
+        # 17: results carry the fitted channels' units; 18: q c/2V per rad, US units
+        "18",
         IdentifyOptions,
         "IdentificationResult",
         _run_identify,
@@ -587,7 +587,7 @@ for _stage in (
         # 9: units guessed only where the record's units make them right, marked so;
         #    the fitted outputs named
         # 10: undefined values as a dash; coherent mean coherence; biases and noise tabled
-        "10",
+        "11",  # 11: nondimensional rates' derivatives per rad; feet where the model is
         ReportOptions,
         "FlightReport",
         _run_report,
