@@ -145,8 +145,9 @@ def guessed_units(
     dimensional derivatives); a regressor that is no channel (``M_delta`` on an
     ``elevator``) gets the radian-based table value only where the equation's
     channel is in radians and no channel is in degrees. A coefficient derivative
-    ``CL_alpha`` is per its angle's unit (``1/rad``), ``Cm_q`` (a non-dimensional
-    rate) dimensionless where the rate is in rad/s. Other names get none.
+    ``CL_alpha`` is per its angle's unit (``1/rad``), ``Cm_q`` per rad too where
+    the rate is in rad/s (the non-dimensional rate q c/(2V) is an angle). Other
+    names get none.
     """
     units = {
         k: parsed for k, v in (channel_units or {}).items() if (parsed := _parse(v)) is not None

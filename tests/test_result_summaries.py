@@ -151,3 +151,43 @@ def test_the_results_the_readme_lists_with_plot_have_both(cls):
 def test_the_results_the_readme_lists_without_plot_have_a_summary(cls):
     kind = getattr(aeroid, cls)
     assert callable(getattr(kind, "summary", None)) and not hasattr(kind, "plot")
+
+
+def test_an_identifications_summary_gives_the_units_the_report_gives():
+    # declared by the model (an aircraft model: X_alpha in ft/s² with g in ft/s²),
+    # guessed (and marked) from the record's channel units, none where neither knows
+    from aeroid.models.aircraft import longitudinal_linear
+
+    model = longitudinal_linear(
+        V0=176.0, g=32.174, terms={"X": ["alpha"], "Z": ["alpha"], "M": ["alpha", "q"]}
+    )
+    t = np.arange(0.0, 10.0, 0.05)
+    truth = {"X_alpha": 10.0, "Z_alpha": -1.0, "M_alpha": -4.0, "M_q": -1.5}
+    # no control term: the motion from a start off trim
+    sim = model.simulate(t, np.zeros((t.size, 1)), np.array([1.0, 0.05, 0.05, 0.0]), truth)
+    data = aeroid.FlightData(
+        t, {"delta_e": np.zeros(t.size), **dict(zip(model.output_names, sim.outputs.T))}
+    )
+    cells = _cells(aeroid.identify(model, data, truth).summary())
+    assert cells["X_alpha"][0] == "ft/s²" and cells["M_q"][0] == "1/s"
+
+    def dynamics(t, x, u, p):
+        return np.array(
+            [p["Z_alpha"] * x[0] + x[1], p["M_alpha"] * x[0] + p["M_q"] * x[1] + p["k"] * u[0]]
+        )
+
+    plain = aeroid.Model(
+        states=["alpha", "q"],
+        controls=["elevator"],
+        parameters={"M_alpha": -4.0, "M_q": -1.5, "Z_alpha": -1.0, "k": -8.0},
+        dynamics=dynamics,
+    )
+    u = np.where((t > 1) & (t < 2), 0.02, 0.0)
+    rec = plain.simulate(t, u[:, None], np.zeros(2))
+    channels = {"elevator": u, "alpha": rec.outputs[:, 0], "q": rec.outputs[:, 1]}
+    units = {"alpha": "rad", "q": "rad/s", "elevator": "rad"}
+    fit = aeroid.identify(plain, aeroid.FlightData(t, channels, units), list(plain.parameters))
+    cells = _cells(fit.summary())
+    assert cells["M_alpha"][0] == "1/s² (guessed)" and cells["k"][0] == "—"
+    bare = aeroid.identify(plain, aeroid.FlightData(t, channels), list(plain.parameters))
+    assert "| unit" not in bare.summary()

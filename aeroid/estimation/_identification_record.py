@@ -18,6 +18,7 @@ from .._records import (
     frozen_mapping,
     markdown_table,
 )
+from .._units import guessed_units
 
 __all__ = ["STATE_BIAS_PREFIX", "IdentificationResult"]
 
@@ -282,16 +283,27 @@ class IdentificationResult(IntervalMixin):
                 )
         return rows
 
+    def _units_shown(self) -> dict[str, str]:
+        """The parameters' units: declared, else guessed (and marked so) where the
+        record's channel units make the guess right (`guessed_units`)."""
+        names = self.parameter_names
+        out = {n: f"{u} (guessed)" for n, u in guessed_units(names, self.units).items()}
+        out.update({n: u for n, u in self.parameter_units.items() if n in names})
+        return out
+
     def summary(self) -> str:
-        """Markdown table of estimates, standard errors and relative errors, then one of
-        the estimated biases and noise levels (where the fit estimated any)."""
+        """Markdown table of estimates, standard errors and relative errors (and units:
+        the model's, else guessed from the names and the record's channel units, as the
+        report gives them), then one of the estimated biases and noise levels (where
+        the fit estimated any)."""
+        units = self._units_shown()
         rows = []
         for n in self.parameter_names:
             est = self.parameters[n]
             se = self.stderr[n]
             at = self.active_bounds.get(n)
             rel = f"{100 * se / abs(est):.1f}%" if est != 0 and np.isfinite(se) and not at else "—"
-            row = [n, fmt(est), fmt(se), rel]
+            row = [n, *([units.get(n, "—")] if units else []), fmt(est), fmt(se), rel]
             if self.bounds:
                 if n in self.bounds:
                     lo, hi = self.bounds[n]
@@ -307,6 +319,8 @@ class IdentificationResult(IntervalMixin):
                         if key in self.extra_stderr:
                             rows.append((key, fmt(est), fmt(self.extra_stderr[key]), "—"))
         header: tuple[str, ...] = ("parameter", "estimate", "std. error", "rel. error")
+        if units and self.parameter_names:
+            header = ("parameter", "unit", *header[1:])
         if self.bounds:
             header = (*header, "bounds")
         table = markdown_table(header, rows)
