@@ -166,7 +166,8 @@ def test_an_identifications_summary_gives_the_units_the_report_gives():
     # no control term: the motion from a start off trim
     sim = model.simulate(t, np.zeros((t.size, 1)), np.array([1.0, 0.05, 0.05, 0.0]), truth)
     data = aeroid.FlightData(
-        t, {"delta_e": np.zeros(t.size), **dict(zip(model.output_names, sim.outputs.T))}
+        t,
+        {"delta_e": np.zeros(t.size), **dict(zip(model.output_names, sim.outputs.T, strict=True))},
     )
     cells = _cells(aeroid.identify(model, data, truth).summary())
     assert cells["X_alpha"][0] == "ft/s²" and cells["M_q"][0] == "1/s"
