@@ -276,6 +276,51 @@ def test_a_metric_beside_the_config_runs_where_its_check_found_it(tmp_path, n_ba
         assert rerun(store, entry.key)[0]
 
 
+def test_a_model_file_imports_its_folders_modules_under_the_command(tmp_path):
+    # the finding: `from helper import GAIN` beside the config worked only from a cwd
+    # Python had put on sys.path; a package's relative import never did
+    (tmp_path / "helper_kc6.py").write_text("SCALE = 0.5\n")
+    (tmp_path / "mymodel.py").write_text(
+        MODEL.format(scale="1.0", helper="SCALE * u", imports="")
+        .replace("SCALE = 1.0\n", "")
+        .replace(
+            "import aeroid\n", "import aeroid\nimport colorsys\nfrom helper_kc6 import SCALE\n"
+        )
+    )
+    # a file beside the config named as an installed module shadows nothing
+    (tmp_path / "colorsys.py").write_text("raise RuntimeError('shadowed the stdlib')\n")
+    package = tmp_path / "mypkg_kc6"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "helper.py").write_text("SCALE = 0.5\n")
+    (package / "mymodel.py").write_text(
+        (tmp_path / "mymodel.py")
+        .read_text()
+        .replace("from helper_kc6 import SCALE", "from .helper import SCALE")
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    fits = []
+    for name, spec in (("a", "mymodel:model"), ("b", "mypkg_kc6.mymodel:model")):
+        cfg = _campaign(tmp_path / name, model=spec)
+        cfg = cfg.rename(tmp_path / f"{name}.yaml")
+        cfg.write_text(cfg.read_text().replace("store: store", f"store: store_{name}"))
+        out = subprocess.run(
+            [sys.executable, "-c", "from aeroid.cli import main; main()", "run", str(cfg)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
+            cwd="/",
+        )
+        assert out.returncode == 0, out.stderr
+        store = open_store(tmp_path / f"store_{name}")
+        fits.append(
+            sorted(store.load(e.key).parameters["M_delta"] for e in store.entries("identify"))
+        )
+    # the same fits either way: the helper's gain of 0.5, M_delta twice the truth's
+    assert fits[0] == pytest.approx(fits[1], rel=1e-12)
+
+
 STAGE_PIPELINE = textwrap.dedent(
     """
     from dataclasses import dataclass

@@ -3,7 +3,9 @@
 A config is code: its pipeline (``pipelines/<name>.py`` beside it) runs when
 the campaign is planned. Nothing else is imported by surprise: no folder is
 put on `sys.path` (where a ``dask.py`` beside a config would replace Dask),
-and a file is found only where the config's name for it says.
+and a file is found only where the config's name for it says; the modules
+such a file imports from its folder are found there after every installed
+one (`_UserFolders`).
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ import ast
 import functools
 import hashlib
 import importlib
+import importlib.abc
+import importlib.machinery
 import importlib.util
 import sys
 from pathlib import Path
@@ -34,12 +38,49 @@ def module_file(module: str, base_dir: str | Path | None) -> Path | None:
     return None
 
 
-def load_file(path: Path, name: str) -> ModuleType:
+class _UserFolders(importlib.abc.MetaPathFinder):
+    """Finds a top-level module in a folder the user's files were loaded from, after
+    every other finder: ``from helper import GAIN`` in a model file beside a config
+    (or ``from .helper import GAIN`` in a package there) imports as it would were the
+    folder on `sys.path`, while no installed module is shadowed by a file there."""
+
+    def __init__(self) -> None:
+        self.folders: list[str] = []
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if path is not None or "." in fullname:
+            return None  # a submodule is found through its package's __path__
+        for folder in self.folders:
+            spec = importlib.machinery.PathFinder.find_spec(fullname, [folder])
+            if spec is not None:
+                return spec
+        return None
+
+
+_USER_FOLDERS = _UserFolders()
+
+
+def _open_folder(path: Path, module: str) -> str:
+    """Make the folder that holds user module `module` (file `path`) a place its
+    imports are found (`_UserFolders`); returns the module's package ("" for none)."""
+    parts = module.split(".")
+    package = module if path.name == "__init__.py" else ".".join(parts[:-1])
+    root = str(path.parents[len(parts) - (path.name != "__init__.py")])
+    if root not in _USER_FOLDERS.folders:
+        _USER_FOLDERS.folders.append(root)
+    if _USER_FOLDERS not in sys.meta_path:
+        sys.meta_path.append(_USER_FOLDERS)
+    return package
+
+
+def load_file(path: Path, name: str, module: str | None = None) -> ModuleType:
     """Run the Python file `path` as module `name` (once per process, and again when
     the file changes).
 
     The module is entered in `sys.modules`, so that results of its types
-    travel between processes by reference like any other module's.
+    travel between processes by reference like any other module's. Given its
+    dotted name in the user's folder (`module`), its imports of the folder's other
+    modules, absolute or relative, find them there (`_UserFolders`).
     """
     try:
         stat = path.stat()
@@ -52,15 +93,17 @@ def load_file(path: Path, name: str) -> ModuleType:
     spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:
         raise ConfigError(f"{path}: not a Python file")
-    module = importlib.util.module_from_spec(spec)
-    module.__aeroid_stamp__ = stamp  # type: ignore[attr-defined]
-    sys.modules[name] = module
+    loaded = importlib.util.module_from_spec(spec)
+    loaded.__aeroid_stamp__ = stamp  # type: ignore[attr-defined]
+    if module is not None and _is_users(path):
+        loaded.__package__ = _open_folder(path, module)
+    sys.modules[name] = loaded
     try:
-        spec.loader.exec_module(module)
+        spec.loader.exec_module(loaded)
     except BaseException:
         sys.modules.pop(name, None)
         raise
-    return module
+    return loaded
 
 
 def user_module_name(module: str) -> str:
@@ -84,7 +127,7 @@ def resolve(
     try:
         if path is not None:
             _forget_edited(module, base_dir)
-            obj: Any = load_file(path, user_module_name(module))
+            obj: Any = load_file(path, user_module_name(module), module)
         else:
             obj = importlib.import_module(module)
     except Exception as exc:  # a module runs its code on import: any error is the module's

@@ -159,7 +159,7 @@ def load_pipeline(ref: Mapping[str, Any], *, spec: str | None = None) -> Pipelin
         file = module_file(ref["module"], ref["path"])
     try:
         if file is not None:
-            mod = load_file(Path(file), user_module_name(ref["module"]))
+            mod = load_file(Path(file), user_module_name(ref["module"]), ref["module"])
         else:
             mod = importlib.import_module(ref["module"])
     except (ImportError, OSError) as exc:
