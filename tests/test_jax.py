@@ -537,3 +537,50 @@ def test_a_program_traces_the_model_once_however_often_it_calls_it():
 def test_initial_states_with_the_jax_gradient_are_refused_naming_the_way_out(sp_clean):
     with pytest.raises(aeroid.IdentificationError, match=r"estimate_x0 \['alpha'\]: .*'auto'"):
         aeroid.identify(_sp_model(), sp_clean, ["M_q"], gradient="jax", estimate_x0=["alpha"])
+
+
+def test_the_librarys_aircraft_models_take_every_jax_path():
+    # found by an independent suite: simulate_rk4, gradient="jax" and backend="jax"
+    # refused aeroid.models.aircraft's own models ("write them with jax.numpy")
+    import warnings
+
+    from aeroid.models import aircraft
+
+    c = aircraft.AircraftConstants(
+        mass=1200.0, Ixx=1400.0, Iyy=1800.0, Izz=2600.0, S=16.2, b=10.9, cbar=1.49, rho=1.1
+    )
+    truth = {"Cl_p": -0.47, "Cn_r": -0.1, "Cn_beta": 0.07, "Cl_delta_a": -0.17}
+    m = aircraft.lateral(c, V0=45.0, parameters={**truth, "Cn_delta_r": -0.05, "CY_beta": -0.5})
+    t = np.arange(0.0, 5.0, 0.02)
+    u = np.zeros((t.size, 2))
+    u[(t > 0.5) & (t < 1.5), 0] = 0.05
+    u[(t > 2.0) & (t < 3.0), 1] = 0.05
+    for substeps in (1, 3):
+        got = simulate_rk4(m, t, u, np.zeros(4), substeps=substeps)
+        want = m.simulate(t, u, np.zeros(4), method="rk4", substeps=substeps)
+        np.testing.assert_allclose(np.asarray(got.outputs), want.outputs, rtol=0, atol=1e-13)
+    rng = np.random.default_rng(0)
+    y = m.simulate(t, u, np.zeros(4), method="rk4").outputs
+    channels = {
+        n: y[:, i] + 1e-4 * rng.standard_normal(t.size) for i, n in enumerate(m.output_names)
+    }
+    data = aeroid.FlightData(t, {"delta_a": u[:, 0], "delta_r": u[:, 1], **channels})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        exact = aeroid.identify(m, data, list(truth), gradient="jax", estimate_x0=False)
+        plain = aeroid.identify(m, data, list(truth), estimate_x0=False)
+    for k in truth:
+        assert exact.parameters[k] == pytest.approx(plain.parameters[k], rel=1e-9)
+        assert exact.stderr[k] == pytest.approx(plain.stderr[k], rel=1e-6)
+    lon = aircraft.longitudinal(
+        c,
+        V0=45.0,
+        parameters={"CL_0": 0.4, "CL_alpha": 5.0, "CD_0": 0.03, "Cm_0": 0.02, "Cm_alpha": -0.8}
+        | {"Cm_q": -12.0, "Cm_delta_e": -1.0},
+    )
+    tr = aircraft.trim(lon)
+    ul = np.tile(tr.u0, (t.size, 1))
+    ul[(t > 0.5) & (t < 1.5), 0] += 0.02
+    got = simulate_rk4(lon, t, ul, tr.x0, substeps=2)
+    want = lon.simulate(t, ul, tr.x0, method="rk4", substeps=2)
+    np.testing.assert_allclose(np.asarray(got.outputs), want.outputs, rtol=1e-12, atol=1e-10)

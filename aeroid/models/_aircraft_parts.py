@@ -613,6 +613,14 @@ class AircraftModel(Model):
         object.__setattr__(self, "channel_units", chans)
         object.__setattr__(self, "surfaces", tuple(self.surfaces))
 
+    def _traced_as_jax(self, fun: Any) -> Any:
+        # the JAX paths trace this copy bound to jax.numpy (the functions use only
+        # module-level ``np`` calls; the compiled path checks the same against numpy)
+        from ._jax_translation import _translate
+        from .jax_compiled import require_jax
+
+        return _translate(fun, require_jax()[1])
+
     def summary(self) -> str:
         """The model's equations, constants, parameters and outputs as text."""
         lines = [f"{self.name}: {self.kind} aircraft model", ""]

@@ -20,9 +20,10 @@ air density, sensor positions, thrust line) are one validated record,
 `AircraftConstants`. Every model is an `aeroid.Model` (an `AircraftModel`,
 whose ``summary()`` prints its equations); its functions broadcast over
 batches and use only module-level ``np`` calls, which the compiled path
-(`identify`'s default ``gradient="auto"``) translates to `jax.numpy`;
-`simulate_rk4`, ``gradient="jax"`` and ``backend="jax"`` trace a model's
-functions as written and refuse these with an `AdapterError`. `trim` finds a steady flight condition, `linearize` the
+(`identify`'s default ``gradient="auto"``) translates to `jax.numpy`, and so
+do `simulate_rk4`, ``gradient="jax"`` and ``backend="jax"`` for these models
+(a user's model they trace as written). `trim` finds a steady flight
+condition, `linearize` the
 Jacobians about it, and `model_from_config` builds a model from a campaign
 config's mapping.
 

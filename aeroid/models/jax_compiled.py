@@ -280,6 +280,14 @@ def _check_model(model: Any) -> Model:
 # -- the traced rollout ---------------------------------------------------------------
 
 
+def _traceable(model: Model, fun: Any) -> Any:
+    """`fun` (a model's dynamics or measurement) as JAX traces it: as written, or the
+    model's own translation where it gives one (the aircraft models of
+    `aeroid.models.aircraft`, written with numpy)."""
+    translate = getattr(model, "_traced_as_jax", None)
+    return fun if fun is None or translate is None else translate(fun)
+
+
 def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
     """Pure function ``(time, controls, excess, x0, pvec) -> (states, outputs)`` for JAX
     to trace (``excess``: `control_excess` of the controls, (n_t - 1, 2, n_u)).
@@ -290,8 +298,9 @@ def _rollout_fn(model: Model, substeps: int) -> Callable[..., Any]:
     _, jnp = require_jax()
     import jax
 
-    f = model._dynamics_batch.fun  # a stand-in returning nothing for a model without states
-    h = model.measurement
+    # a stand-in returning nothing for a model without states
+    f = _traceable(model, model._dynamics_batch.fun)
+    h = _traceable(model, model.measurement)
     names = model.parameter_names
     n_x = model.n_states
     n_y = model.n_outputs
@@ -469,7 +478,8 @@ def _auto_substeps(
     if key in entry:
         return int(entry[key])
     jax, jnp = require_jax()
-    f = model._dynamics_batch.fun  # a stand-in returning nothing for a model without states
+    # a stand-in returning nothing for a model without states
+    f = _traceable(model, model._dynamics_batch.fun)
     names = model.parameter_names
     n_x = model.n_states
 
