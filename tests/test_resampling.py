@@ -370,3 +370,23 @@ def test_band_limited_evaluation_keeps_a_line_exactly_at_any_offset() -> None:
     t = np.arange(0.0, 20.0, 1.0 / 60.0)
     out = resample({"x": (t, 0.3 - 2.0 * t)}, ["x"], rate=50, t0=0.013)
     np.testing.assert_allclose(out["x"], 0.3 - 2.0 * out.time, atol=1e-11)
+
+
+@pytest.mark.parametrize("source", [49.6, 50.0, 50.25, 50.5, 50.9])
+def test_a_source_at_about_the_grids_rate_keeps_its_band(source):
+    # found by an independent suite: from 50.25-50.5 Hz to 50 Hz the channel was
+    # interpolated straight across (19 Hz kept 0.61 of its amplitude); stamps offset
+    # from the grid's by 10 ms, a 10 Hz tone lost 0.18
+    t = np.arange(0.0, 20.0, 1.0 / source) + 0.01
+    for f in (5.0, 10.0, 19.0):
+        out = resample({"x": (t, np.sin(2 * np.pi * f * t + 0.4))}, ["x"], rate=50.0, t0=1.0)
+        inner = _interior(out, "x")
+        g = out.time[inner]
+        A = np.c_[np.sin(2 * np.pi * f * g + 0.4), np.cos(2 * np.pi * f * g + 0.4)]
+        gain, quad = np.linalg.lstsq(A, out["x"][inner], rcond=None)[0]
+        assert gain == pytest.approx(1.0, abs=1e-4) and abs(quad) < 1e-4
+    # stamps that are the grid's points: copied
+    same = np.arange(0.0, 10.0, 0.02)
+    out = resample({"x": (same, np.sin(same))}, ["x"], rate=50.0)
+    assert out.metadata["resampling"]["channels"]["x"]["method"] == "linear"
+    np.testing.assert_allclose(out["x"], np.sin(same[: out.time.size]), atol=1e-12)

@@ -64,12 +64,12 @@ def resample(
 ) -> FlightData:
     """Put channels of a multi-rate log on one uniform time grid.
 
-    A channel logged faster than `rate` is low-pass filtered first (a
-    zero-phase Kaiser-window FIR, flat to 0.8 x the new Nyquist frequency and
-    80 dB down at it), then evaluated on the grid band-limited (a
-    Kaiser-windowed sinc through the filtered samples, so the band stays flat
-    even from a source rate close to `rate`); a slower channel is
-    interpolated. Nothing is extrapolated, and a hole in the stamps longer
+    A channel logged faster than `rate`, or as fast to 1 % slower, is low-pass
+    filtered first (a zero-phase Kaiser-window FIR, flat to 0.8 x the new
+    Nyquist frequency and 80 dB down at it), then evaluated on the grid
+    band-limited (a Kaiser-windowed sinc through the filtered samples, so the
+    band stays flat even from a source rate close to `rate`); one whose stamps
+    are the grid's points is copied, and a slower channel is interpolated. Nothing is extrapolated, and a hole in the stamps longer
     than `max_gap` is reported rather than bridged.
 
     Parameters

@@ -173,7 +173,8 @@ register_stage(
     Stage(
         "load",
         # 2: the data-quality report of the channels as read, in metadata["quality"]
-        "2",
+        # 3: a log's channel at about the grid's rate filtered and evaluated band-limited
+        "3",
         LoadOptions,
         "FlightData",
         _run_load,
