@@ -94,3 +94,25 @@ def test_an_output_one_record_of_several_lacks_is_named(tmp_path):
         )
     # pointed at the caller's line, not into the library
     assert any(w.filename == __file__ for w in caught if "not in every" in str(w.message))
+
+
+def test_a_hole_in_the_stamps_is_named():
+    # found by an independent suite: 30 samples dropped inside the doublet (rows with
+    # NaN removed), identify flew across on straight-line controls, M_alpha 36 bars
+    # off, success and no word
+    model = catalog.short_period()
+    flight = catalog.short_period_flight(seed=42)
+    keep = np.ones(flight.n_samples, bool)
+    keep[100:130] = False
+    holed = aeroid.FlightData(flight.time[keep], {k: flight[k][keep] for k in flight.names})
+    with pytest.warns(
+        UserWarning,
+        match=r"1 hole in its time stamps, the longest 0\.62 s at t = 1\.98 s \(31 median",
+    ) as got:
+        aeroid.identify(model, holed, ["M_alpha", "M_delta"])
+    assert got[0].filename == __file__
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an even grid, and a jittered one: no hole
+        aeroid.identify(model, flight, ["M_alpha", "M_delta"])
+        jitter = flight.time + np.random.default_rng(0).uniform(-0.004, 0.004, flight.n_samples)
+        aeroid.identify(model, aeroid.FlightData(jitter, dict(flight.channels)), ["M_alpha"])

@@ -305,7 +305,7 @@ def identify(
         require_model,
         require_states,
     )
-    from ._excitation import held_controls, warn_missing_outputs
+    from ._excitation import held_controls, warn_holes, warn_missing_outputs
 
     require_model(model, IdentificationError)
     if method not in _METHODS:
@@ -368,6 +368,7 @@ def identify(
     for d in datas:
         d.require(model.controls, role="control")
         d.require(fit_outputs, role="output")
+    warn_holes(datas, "identify")
     states = list(getattr(model, "states", ()))
     if given_values(x0):
         require_states(
