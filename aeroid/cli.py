@@ -452,9 +452,17 @@ def rerun(
     if problem := workers_problem(workers):
         _fail(f"--workers: {problem}")
     st = _open_store(config, store)
+    current = None
+    if config is not None:  # the files and code where the config now finds them
+        from .pipeline.running.rerun import current_tasks
+
+        try:
+            current = current_tasks(config)
+        except AeroidError as exc:
+            _fail(str(exc))
     if key is not None:
         try:
-            identical, lines = rerun_entry(st, key)
+            identical, lines = rerun_entry(st, key, current=current)
         except AeroidError as exc:
             _fail(str(exc), 1)
             return
@@ -476,7 +484,11 @@ def rerun(
 
     try:
         results = rerun_all(
-            st, stage=stage, executor=executor_for(scheduler, workers), on_done=done
+            st,
+            stage=stage,
+            executor=executor_for(scheduler, workers),
+            on_done=done,
+            current=current,
         )
     except AeroidError as exc:
         _fail(str(exc), 1)

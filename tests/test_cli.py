@@ -555,3 +555,31 @@ def test_python_m_aeroid_is_the_command(tmp_path):
         [*run, "run", missing], capture_output=True, text=True, env=env, timeout=60
     )
     assert out.returncode == 2 and "none.yaml" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_moved_campaign_reruns_from_its_own_files(tmp_path):
+    # found by an independent suite: rerun read the flight files at the paths of the
+    # first run, so a moved campaign failed every rerun, and a copy whose flight was
+    # edited was "bit-identical" against the original folder's file
+    import shutil
+
+    (tmp_path / "orig").mkdir()
+    cfg = make_campaign(tmp_path / "orig", n=2)
+    code, doc = run_json(cfg)
+    assert code == 0
+    load = next(t["key"] for t in doc["tasks"] if t["stage"] == "load")
+    shutil.move(str(tmp_path / "orig"), str(tmp_path / "moved"))
+    moved = tmp_path / "moved" / "campaign.yaml"
+    sys.modules.pop("user_pipeline", None)
+    try:
+        code, out, _ = invoke("rerun", "--all", "--config", str(moved), "--workers", "0")
+        assert code == 0 and f"{doc['computed']} of {doc['computed']} entries bit-identical" in out
+        shutil.copytree(tmp_path / "moved", tmp_path / "copy")
+        edited = sorted((tmp_path / "copy" / "flights").glob("*.csv"))[0]
+        edited.write_text(edited.read_text().replace("\n0.0,", "\n0.0,1", 1))
+        code, out, err = invoke("rerun", load, "--config", str(tmp_path / "copy" / "campaign.yaml"))
+    finally:
+        sys.modules.pop("user_pipeline", None)
+    # the entry is no task of the edited copy's config: it is recomputed from what it
+    # recorded, the first run's folder, gone, and says so (never the copy's edited file)
+    assert code == 1 and "/orig/" in err and "cannot read it" in err

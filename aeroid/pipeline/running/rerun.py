@@ -12,7 +12,7 @@ import json
 import shutil
 import tempfile
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,15 +40,22 @@ class RerunResult:
     failed: bool = False  # not recomputed: nothing to compare
 
 
-def rerun(store: ResultStore, key: str) -> tuple[bool, list[str]]:
+def rerun(
+    store: ResultStore, key: str, *, current: Mapping[str, Task] | None = None
+) -> tuple[bool, list[str]]:
     """Recompute a stored result from its recorded inputs into a scratch store and compare.
 
     Returns (bit-identical, lines to show); raises `PipelineError` when the
     result cannot be recomputed. Upstream results are read from `store`
-    (digests checked); the scratch store is removed afterwards.
+    (digests checked); the scratch store is removed afterwards. `current`, the
+    tasks of the campaign's config as it is now by key (`current_tasks`), gives
+    the files and code where they are now: a campaign folder moved or copied
+    since the run recomputes from its own files (keys hash contents, not paths);
+    an entry not among them is recomputed from the files its task recorded, and
+    says so.
     """
     entry = store.find(key)
-    task, lines = _recorded_task(store, entry)
+    task, lines = _recorded_task(store, entry, current)
     with _Scratch() as scratch:
         status = execution.execute_task(task, scratch.root, read_root=str(store.root))
         identical, more = _compare(store, entry, task, status, scratch.root)
@@ -61,19 +68,21 @@ def rerun_all(
     stage: str | None = None,
     executor: Executor | None = None,
     on_done: Callable[[RerunResult], None] | None = None,
+    current: Mapping[str, Task] | None = None,
 ) -> list[RerunResult]:
     """Recompute every entry of `store` (or of one `stage`) on `executor` and compare.
 
     The recomputations are independent (each reads its inputs from `store`),
     so they run in parallel on the executor a campaign run uses; split tasks
-    (Monte Carlo batches, the report's figures) split as they did.
+    (Monte Carlo batches, the report's figures) split as they did. `current`
+    as in `rerun`.
     """
     entries = sorted(store.entries(stage), key=lambda e: (e.stage, e.key))
     results: dict[str, RerunResult] = {}
     tasks: dict[str, tuple[Entry, Task, list[str]]] = {}
     for entry in entries:
         try:
-            task, lines = _recorded_task(store, entry)
+            task, lines = _recorded_task(store, entry, current)
         except AeroidError as exc:
             results[entry.key] = RerunResult(entry, False, ("", str(exc)), failed=True)
             if on_done is not None:
@@ -116,7 +125,16 @@ class _Scratch:
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def _recorded_task(store: ResultStore, entry: Entry) -> tuple[Task, list[str]]:
+def current_tasks(config: Any) -> dict[str, Task]:
+    """The tasks of `config` (a campaign config or its path) as it is now, by key."""
+    from ..plans.planning import plan
+
+    return {t.key: t for t in plan(config).tasks}
+
+
+def _recorded_task(
+    store: ResultStore, entry: Entry, current: Mapping[str, Task] | None = None
+) -> tuple[Task, list[str]]:
     problem = store.verify(entry.key, entry.stage)
     if problem is not None:
         raise PipelineError(problem)
@@ -126,6 +144,16 @@ def _recorded_task(store: ResultStore, entry: Entry) -> tuple[Task, list[str]]:
         raise PipelineError(f"entry {entry.key[:12]} records no task to recompute")
     task = Task.from_json(recorded, meta["task"])
     lines = [f"recomputing {task.step} {task.flight or '(campaign)'} {entry.key[:12]}"]
+    if current is not None:
+        if entry.key in current:  # the same inputs, by content: read where they are now
+            task = current[entry.key]
+        else:
+            where = (task.source or {}).get("path")
+            lines.append(
+                "note: not a task of the config as it is now (its inputs changed since, or it "
+                "is another campaign's); recomputed from the inputs it recorded"
+                + (f" ({where})" if where else "")
+            )
     if task.model_ref is not None:
         model = resolve_model(task.model_ref["spec"], task.model_ref.get("base_dir"))
         current = json.loads(
