@@ -182,6 +182,34 @@ def test_margins_refuse_bad_coefficients(tf, culprit):
         bandwidth(tf)
 
 
+@pytest.mark.parametrize("delay", [np.nan, np.inf, -np.inf, "0.1", True])
+@pytest.mark.parametrize(
+    ("fn", "arg"),
+    [
+        (bandwidth, "response_or_tf"),
+        (stability_margins, "loop_response_or_tf"),
+        (equivalent_system, "response"),
+    ],
+)
+def test_a_bad_delay_or_zero_denominator_is_named(fn, arg, delay):
+    # each function names its own argument and the delay's value, not a generic "got tuple"
+    with pytest.raises(IdentificationError, match=rf"^{arg}: the delay .*, got {delay!r}$"):
+        fn(([1.0], [1.0, 2.0, 0.0], delay))
+    with pytest.raises(IdentificationError, match=rf"^{arg}: the denominator is zero"):
+        fn(([1.0], [0.0, 0.0]))
+
+
+def test_bandwidth_says_when_the_sweep_starts_past_minus_135_deg():
+    # 4 e^(-0.05 s) / (s (s + 2)) measured from 2 rad/s: -140.7 deg at the first point,
+    # its -135 deg crossing lies below the band
+    w = np.geomspace(2.0, 100.0, 200)
+    h = 4.0 / ((1j * w) * (1j * w + 2.0)) * np.exp(-0.05j * w)
+    with pytest.raises(IdentificationError, match=r"-140\.7 deg.*does not go low enough"):
+        bandwidth(ResponseChannel("de", "theta", w, h))
+    with pytest.raises(IdentificationError, match="never reaches -135"):
+        bandwidth(ResponseChannel("de", "theta", w, 4.0 / (1j * w + 2.0)))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "culprit"),
     [

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import AeroidError, IdentificationError
-from ..io.data import plain
+from ..io.data import as_float, plain
 from ._response_records import CompositeResponse, ResponseChannel, _unwrapped_phase
 from ._transfer import transfer_response
 from .frequency_id import _resolve_response
@@ -26,21 +26,27 @@ _DENSE = np.geomspace(1e-3, 1e3, 6001)
 class _Response:
     """Frequency response as a function of ω: analytic (refinable) or tabulated."""
 
-    def __init__(self, response_or_tf: Any, input: str | None, output: str | None) -> None:
+    def __init__(
+        self,
+        response_or_tf: Any,
+        input: str | None,
+        output: str | None,
+        name: str = "response_or_tf",
+    ) -> None:
         self.analytic: Callable[[FloatArray], ComplexArray] | None = None
         if isinstance(response_or_tf, (CompositeResponse, ResponseChannel)):
-            ch = _resolve_response(response_or_tf, input, output, "response_or_tf")
+            ch = _resolve_response(response_or_tf, input, output, name)
             self.omega = ch.frequency
             self.values = ch.response
         else:
-            self.analytic = _as_function(response_or_tf)
+            self.analytic = _as_function(response_or_tf, name)
             self.omega = _DENSE
             self.values = self.analytic(_DENSE)
         if self.omega.size < 2:
-            raise IdentificationError("response_or_tf: need at least two frequencies")
+            raise IdentificationError(f"{name}: need at least two frequencies")
         if not np.any(np.abs(self.values) > 0):
             raise IdentificationError(
-                "response_or_tf: the response is zero at every frequency, so it has no "
+                f"{name}: the response is zero at every frequency, so it has no "
                 "phase or gain to cross"
             )
 
@@ -152,35 +158,46 @@ def _integrate(w: FloatArray) -> ComplexArray:
     return np.asarray(1.0 / (1j * np.asarray(w, dtype=np.float64)), dtype=np.complex128)
 
 
-def _as_function(tf: Any) -> Callable[[FloatArray], ComplexArray]:
+def _as_function(tf: Any, name: str = "response_or_tf") -> Callable[[FloatArray], ComplexArray]:
     if hasattr(tf, "evaluate") and callable(tf.evaluate):
         return lambda w: np.asarray(tf.evaluate(w), dtype=np.complex128)
     if isinstance(tf, tuple) and len(tf) in (2, 3):
         try:
             num = np.atleast_1d(np.asarray(tf[0], dtype=np.float64))
             den = np.atleast_1d(np.asarray(tf[1], dtype=np.float64))
-            if len(tf) == 3 and isinstance(tf[2], (bool, np.bool_, str, bytes)):
-                raise TypeError  # float() would read "0.05" as 0.05 and True as 1 s
-            tau = float(tf[2]) if len(tf) == 3 else 0.0
         except (TypeError, ValueError):
-            num = den = np.zeros(0)
-            tau = 0.0
+            num = den = np.zeros((0, 0))  # reported as not 1-D below
         # NaN coefficients would surface as a phase that never crosses, or NaN margins
         for what, arr, given in (("numerator", num, tf[0]), ("denominator", den, tf[1])):
-            if arr.ndim != 1 or not np.all(np.isfinite(arr)):
+            if arr.ndim != 1 or not arr.size or not np.all(np.isfinite(arr)):
                 raise IdentificationError(
-                    f"response_or_tf: the {what} must be a 1-D sequence of finite "
+                    f"{name}: the {what} must be a 1-D sequence of finite "
                     f"coefficients (highest power first), got {plain(given)}"
                 )
-        if num.size and den.size and np.any(den != 0) and np.isfinite(tau):
+        if not np.any(den != 0):
+            raise IdentificationError(
+                f"{name}: the denominator is zero (all coefficients), got {plain(tf[1])}"
+            )
+        tau = _delay(tf[2], name) if len(tf) == 3 else 0.0
 
-            def h(w: FloatArray) -> ComplexArray:
-                with np.errstate(all="ignore"):
-                    return transfer_response(num, den, w, delay=tau)
+        def h(w: FloatArray) -> ComplexArray:
+            with np.errstate(all="ignore"):
+                return transfer_response(num, den, w, delay=tau)
 
-            return h
+        return h
     raise IdentificationError(
-        "response_or_tf: expected a CompositeResponse, ResponseChannel, a fit with "
+        f"{name}: expected a CompositeResponse, ResponseChannel, a fit with "
         "evaluate(ω), or (numerator, denominator[, delay]) coefficient arrays (highest power "
         f"first), got {type(tf).__name__}"
     )
+
+
+def _delay(value: Any, name: str) -> float:
+    """The delay of a ``(num, den, delay)`` tuple in seconds: a finite number."""
+    tau = as_float(value)  # text and bools are no delay (float() would read True as 1 s)
+    if tau is None or not np.isfinite(tau):
+        raise IdentificationError(
+            f"{name}: the delay (third entry) must be a finite number of seconds, "
+            f"got {plain(value)}"
+        )
+    return tau

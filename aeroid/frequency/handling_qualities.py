@@ -251,7 +251,8 @@ def bandwidth(
     Raises
     ------
     IdentificationError
-        Unknown kind or response type, or a response whose phase never reaches −135°.
+        Unknown kind or response type, or a response whose phase never reaches −135°
+        (or is past it from the first frequency: the sweep starts too high).
     """
     if kind not in ("attitude", "rate"):
         raise IdentificationError(f"kind: expected 'attitude' or 'rate', got {kind!r}")
@@ -261,9 +262,16 @@ def bandwidth(
     resp, reversed_sign = _positive_sense(resp)
     w_phase = resp.phase_crossing(-135.0)
     if not np.isfinite(w_phase):
+        band = f"({resp.omega[0]:.3g}-{resp.omega[-1]:.3g} rad/s)"
+        first = float(resp.phase()[0])
+        if first <= -135.0:  # the crossing lies below the band, not beyond it
+            raise IdentificationError(
+                f"bandwidth: the phase is already {first:.1f} deg, past -135 deg, at the "
+                f"response's first frequency {band}: the sweep does not go low enough "
+                "in frequency to find the phase bandwidth"
+            )
         raise IdentificationError(
-            "bandwidth: the phase never reaches -135 deg over the response's frequencies "
-            f"({resp.omega[0]:.3g}-{resp.omega[-1]:.3g} rad/s)"
+            f"bandwidth: the phase never reaches -135 deg over the response's frequencies {band}"
         )
     w180 = resp.phase_crossing(-180.0)
     if np.isfinite(w180):
@@ -394,7 +402,7 @@ def stability_margins(
     MATLAB report it: for a stable closed loop, the smallest gain change either
     way that destabilises it.
     """
-    resp = _Response(loop_response_or_tf, input, output)
+    resp = _Response(loop_response_or_tf, input, output, "loop_response_or_tf")
     crossovers = [float(w) for w in resp.phase_crossings(-180.0)]
     with np.errstate(divide="ignore"):
         margins = [float(-20.0 * np.log10(abs(resp.at(w)))) for w in crossovers]
@@ -598,7 +606,7 @@ def _items(value: Any) -> list[Any]:
 
 
 def _exact_channel(tf: Any, band: tuple[float, float]) -> ResponseChannel:
-    h = _as_function(tf)
+    h = _as_function(tf, "response")
     w = np.geomspace(band[0], band[1], 100)
     return ResponseChannel("input", "output", w, h(w), coherence=np.ones(w.size))
 
