@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import itertools
 import math
 from types import MappingProxyType
@@ -100,7 +102,7 @@ def test_bad_arguments():
     for bad in ((True,), ("50",), 5):  # True read as 1, text as a number, a bare number
         with pytest.raises(PropagationError, match="percentiles must be a list of numbers"):
             propagate(_result(), lambda p: 1.0, percentiles=bad, seed=0)
-    with pytest.raises(PropagationError, match="identification result"):
+    with pytest.raises(PropagationError, match="takes an IdentificationResult"):
         propagate(object(), lambda p: 1.0, seed=0)
 
 
@@ -437,3 +439,80 @@ def test_combine_batches_names_what_is_not_a_batch():
         combine_batches(batch)
     with pytest.raises(PropagationError, match="expected a sequence of PropagationBatch"):
         combine_batches(7)
+
+
+def _wn(p):
+    return math.sqrt(abs(p["a"] * p["b"]))
+
+
+def test_combining_refuses_batches_of_another_result_or_metric():
+    # a stale batch from another fit, or of another metric, pooled silently before
+    r, other = _result(), _result(mean=(1.5, 2.0))
+    head = propagate_batch(r, _wn, start=0, n_samples=300, seed=1)
+    with pytest.raises(PropagationError, match=r"different results .*digest [0-9a-f]{16} "):
+        combine_batches([head, propagate_batch(other, _wn, start=300, n_samples=300, seed=1)])
+    # a result that differs only in its degrees of freedom draws other values too
+    nu = dataclasses.replace(r, degrees_of_freedom={"a": 5.0})
+    with pytest.raises(PropagationError, match="different results"):
+        combine_batches([head, propagate_batch(nu, _wn, start=300, n_samples=300, seed=1)])
+    lam = propagate_batch(r, lambda p: p["b"], start=300, n_samples=300, seed=1)
+    with pytest.raises(PropagationError, match=r"different metrics .*test_propagation\._wn#"):
+        combine_batches([head, lam])
+
+    def scaled(k):
+        return lambda p: k * p["a"]  # one lambda, told apart by what it closes over
+
+    one = propagate_batch(r, scaled(1.0), start=0, n_samples=5, seed=1)
+    with pytest.raises(PropagationError, match="different metrics"):
+        combine_batches([one, propagate_batch(r, scaled(2.0), start=5, n_samples=5, seed=1)])
+    # the same code and result in another call (another process, the pipeline) pools
+    again = propagate_batch(_result(), scaled(1.0), start=5, n_samples=5, seed=1)
+    pooled = combine_batches([one, again])
+    assert np.array_equal(pooled.samples, propagate(r, scaled(1.0), n_samples=10, seed=1).samples)
+    half = functools.partial(lambda p, k: k * p["a"], k=0.5)
+    with pytest.raises(PropagationError, match="different metrics"):
+        combine_batches(
+            [
+                propagate_batch(r, half, start=0, n_samples=5, seed=1),
+                propagate_batch(r, functools.partial(half.func, k=3), start=5, n_samples=5, seed=1),
+            ]
+        )
+
+
+def test_percentile_table_is_keyed_by_the_levels_asked_for():
+    res = propagate(
+        _result(), lambda p: p["a"], n_samples=300, seed=0, percentiles=[100 / 3, 200 / 3]
+    )
+    table = res.percentile_table["metric"]
+    assert list(table) == [100 / 3, 200 / 3]
+    assert table[100 / 3] == np.percentile(res.samples, 100 / 3)
+    # levels that share a rounded label stay apart, in the table and in the labels
+    close = propagate(
+        _result(), lambda p: p["a"], n_samples=300, seed=0, percentiles=[33.3333331, 33.3333332]
+    )
+    assert list(close.percentile_table["metric"]) == [33.3333331, 33.3333332]
+    assert list(close.percentiles) == ["P33.3333331", "P33.3333332"]
+    assert list(res.percentiles) == ["P33.3333", "P66.6667"]
+
+
+def test_a_covariance_that_is_no_covariance_is_refused():
+    def edited(cov):
+        return dataclasses.replace(_result(), covariance=np.asarray(cov))
+
+    negative = edited(((0.01, 0.005), (0.005, -0.01)))
+    with pytest.raises(PropagationError, match="gives b a negative variance"):
+        propagate(negative, lambda p: p["a"], n_samples=10, seed=0)
+    two = edited(((0.01, 0.02), (0.02, 0.01)))  # correlation 2
+    with pytest.raises(PropagationError, match=r"not positive semi-definite .*eigenvalue -1\b"):
+        propagate(two, lambda p: p["a"], n_samples=10, seed=0)
+    with pytest.raises(PropagationError, match=r"covariance is \(3, 3\)"):
+        propagate(edited(np.eye(3)), lambda p: p["a"], n_samples=10, seed=0)
+    # a rounding-level negative eigenvalue (a correlation of 1 stored as 1 + 1e-15) draws
+    edge = _result(cov=((0.04, 0.06 * (1 + 1e-15)), (0.06 * (1 + 1e-15), 0.09)))
+    res = propagate(edge, lambda p: 3 * p["a"] - 2 * p["b"], n_samples=50, seed=0)
+    assert res.std < 1e-6
+
+
+def test_one_draw_has_no_standard_deviation():
+    assert math.isnan(propagate(_result(), lambda p: p["a"], n_samples=1, seed=0).std)
+    assert propagate(_result(), lambda p: p["a"], n_samples=2, seed=0).std > 0

@@ -15,6 +15,7 @@ from .._records import FrozenState, fmt, frozen_array, markdown_table
 from .._threads import CALLER_STACKLEVEL, small_blas
 from ..errors import PropagationError
 from ..io.data import as_float, check_flag, plain, whole_number
+from ._propagation_draws import BLOCK_SIZE, Source, draws, metric_identity, source
 
 __all__ = [
     "BLOCK_SIZE",
@@ -32,10 +33,6 @@ FloatArray = NDArray[np.float64]
 #: More failed draws than this fraction of all draws are reported by a warning.
 FAILURE_WARNING_FRACTION = 0.01
 
-#: Draws are generated in blocks of this size, block b from
-#: ``SeedSequence(seed, spawn_key=(b,))``, so the samples do not depend on how
-#: a caller (such as the pipeline) splits the work into batches.
-BLOCK_SIZE = 256
 # Most float64 values the draws or the metric's values of one batch may hold (1 GiB).
 _MAX_VALUES = 2**27
 
@@ -46,7 +43,9 @@ class PropagationResult(FrozenState):
 
     Attributes
     ----------
-    mean, std : float
+    mean : float
+    std : float
+        Sample standard deviation (ddof = 1); NaN when fewer than two draws succeeded.
     percentiles : mapping of str to float
         Keys like ``"P2.5"`` (deprecated shape, kept for one release: read
         `percentile_table`, the shape every result shares).
@@ -58,7 +57,10 @@ class PropagationResult(FrozenState):
         Draws where the metric raised or returned a non-finite value.
     seed : int or None
     source : str
-        ``"covariance"`` (Gaussian draws) or ``"posterior"`` (resampled rows).
+        ``"covariance"`` (draws from the covariance, see `propagate`) or
+        ``"posterior"`` (resampled rows).
+    percentile_levels : tuple of float
+        The levels asked for, in the order of `percentiles`.
     """
 
     mean: float
@@ -69,16 +71,23 @@ class PropagationResult(FrozenState):
     n_failed: int
     seed: int | None
     source: str
+    percentile_levels: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "percentiles", MappingProxyType(dict(self.percentiles)))
         object.__setattr__(self, "samples", frozen_array(self.samples))
+        object.__setattr__(self, "percentile_levels", tuple(map(float, self.percentile_levels)))
 
     @property
     def percentile_table(self) -> Mapping[str, Mapping[float, float]]:
         """The percentiles as every result gives them: name -> level (percent) -> value;
-        the one name here is ``"metric"`` (``{"metric": {2.5: ..., 50.0: ..., 97.5: ...}}``)."""
-        levels = {float(k[1:]): float(v) for k, v in self.percentiles.items()}
+        the one name here is ``"metric"`` (``{"metric": {2.5: ..., 50.0: ..., 97.5: ...}}``),
+        keyed by the levels asked for (``100 / 3``, not a rounded label)."""
+        values = [float(v) for v in self.percentiles.values()]
+        if len(self.percentile_levels) == len(values):
+            levels = dict(zip(self.percentile_levels, values, strict=True))
+        else:  # a record from before the levels were kept: read its labels
+            levels = {float(k[1:]): float(v) for k, v in self.percentiles.items()}
         return MappingProxyType({"metric": MappingProxyType(levels)})
 
     def plot(self, **kwargs: Any) -> Any:
@@ -182,53 +191,13 @@ class VectorPropagationResult(FrozenState):
         return text + "\n\n" + note + "."
 
 
-def _source(result: Any) -> tuple[list[str], FloatArray, FloatArray | None, dict[str, float]]:
-    names = list(getattr(result, "parameter_names", ()))
-    fixed = {k: float(v) for k, v in dict(getattr(result, "fixed", {}) or {}).items()}
-    samples = getattr(result, "samples", None)
-    if samples is not None and np.ndim(samples) == 2:
-        arr = np.asarray(samples, dtype=np.float64)
-        if arr.shape[1] != len(names):
-            raise PropagationError("posterior samples do not match parameter_names")
-        return names, arr, None, fixed
-    if not names or not hasattr(result, "covariance"):
-        raise PropagationError(
-            "propagate needs an identification result (parameters + covariance) or a "
-            f"posterior (samples), got {type(result).__name__}"
-        )
-    mean = np.array([float(result.parameters[n]) for n in names])
-    cov = np.asarray(result.covariance, dtype=np.float64)
-    if not np.all(np.isfinite(cov)):
-        raise PropagationError(
-            "the covariance holds non-finite entries (unidentifiable parameters); "
-            "fix or drop those parameters before propagating"
-        )
-    return names, mean, cov, fixed
-
-
 def draw_parameters(result: Any, n_samples: int, seed: int | None, start: int = 0) -> FloatArray:
     """Parameter draws ``start .. start + n_samples`` of the stream for `seed`.
 
     Block-wise generation makes any split of the index range reproduce the
-    same rows as one call.
+    same rows as one call. The rows are those `propagate` evaluates its metric at.
     """
-    names, first, cov, _ = _source(result)
-    stop = start + n_samples
-    out = np.empty((n_samples, len(names)))
-    if cov is not None:
-        # Factor once; eigh tolerates positive semidefinite covariances.
-        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
-        root = v * np.sqrt(np.clip(w, 0, None))
-    for block in range(start // BLOCK_SIZE, (stop - 1) // BLOCK_SIZE + 1):
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(block,)))
-        lo = block * BLOCK_SIZE
-        if cov is None:
-            rows = first[rng.integers(0, first.shape[0], BLOCK_SIZE)]
-        else:
-            rows = first + rng.standard_normal((BLOCK_SIZE, len(names))) @ root.T
-        a, b = max(start, lo), min(stop, lo + BLOCK_SIZE)
-        out[a - start : b - start] = rows[a - lo : b - lo]
-    return out
+    return draws(source(result), n_samples, seed, start)
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,6 +226,13 @@ class PropagationBatch(FrozenState):
         same metric.
     first_error : str
         What the metric raised or returned at the batch's first failed draw.
+    origin : str
+        A digest of what the draws come from (parameters, covariance and
+        degrees of freedom, or the posterior's rows): batches of different
+        results do not combine.
+    metric : str
+        The metric's ``module.qualname#digest`` (its name and a hash of its
+        code): batches of different metrics do not combine.
     """
 
     start: int
@@ -265,6 +241,8 @@ class PropagationBatch(FrozenState):
     source: str
     names: tuple[str, ...] = ()
     first_error: str = ""
+    origin: str = ""
+    metric: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", int(self.start))
@@ -342,15 +320,14 @@ def _complete(values: FloatArray) -> NDArray[np.bool_]:
     return ok if ok.ndim == 1 else np.all(ok, axis=1)
 
 
-def _learn_shape(shape: _Shape, result: Any, func: Any, stop: int, seed: int) -> None:
+def _learn_shape(shape: _Shape, src: Source, func: Any, stop: int, seed: int) -> None:
     """Teach `shape` the metric's shape as `propagate` learns it, from the first draw of
     the whole stream (before `stop`) where the metric returns a value it can read, so
     that every batch, wherever it starts, counts the same draws as of another shape."""
-    names, _, _, fixed = _source(result)
     for lo in range(0, stop, BLOCK_SIZE):
-        for row in draw_parameters(result, min(BLOCK_SIZE, stop - lo), seed, lo).tolist():
-            p = dict(fixed)
-            p.update(zip(names, row, strict=True))
+        for row in draws(src, min(BLOCK_SIZE, stop - lo), seed, lo).tolist():
+            p = dict(src.fixed)
+            p.update(zip(src.names, row, strict=True))
             try:
                 shape.convert(func(p))
             except Exception:  # a failed draw teaches nothing, as in the batch itself
@@ -371,7 +348,7 @@ def propagate_batch(
 
     Parameters
     ----------
-    result : IdentificationResult or InferenceResult
+    result : IdentificationResult, InferenceResult or fit
         As in `propagate`.
     func : callable
         ``func(parameters: dict) -> float``, or a sequence or mapping of
@@ -405,23 +382,24 @@ def propagate_batch(
         raise PropagationError("func must be callable: func(parameters: dict) -> float")
     check_flag(progress, "progress", PropagationError)
     seed = _check_seed(seed)
-    names, _, cov, fixed = _source(result)
+    src = source(result)
+    names, fixed = src.names, src.fixed
     if n_samples * max(len(names), 1) > _MAX_VALUES:  # all draws are made up front
         raise PropagationError(
             f"n_samples={n_samples}: {n_samples} draws of {len(names)} parameters would not "
             f"fit in memory (at most {_MAX_VALUES} values); split them with propagate_batch"
         )
-    draws = draw_parameters(result, n_samples, seed, start)
-    n = draws.shape[0]
+    rows = draws(src, n_samples, seed, start)
+    n = rows.shape[0]
     values = np.full(n, np.nan)
     shape = _Shape(func)
     if n and start:
-        _learn_shape(shape, result, func, start, seed)
+        _learn_shape(shape, src, func, start, seed)
     first_error = ""
     from .._progress import progress_bar
 
     bar = progress_bar(n, desc="propagate", enabled=progress, unit="draw")
-    for i, row in enumerate(draws.tolist()):
+    for i, row in enumerate(rows.tolist()):
         if bar is not None:
             bar.update(1)
         p = dict(fixed)
@@ -452,9 +430,11 @@ def propagate_batch(
         start=start,
         values=values,
         seed=seed,
-        source="covariance" if cov is not None else "posterior",
+        source="covariance" if src.cov is not None else "posterior",
         names=shape.names or (),
         first_error=first_error,
+        origin=src.digest,
+        metric=metric_identity(func),
     )
 
 
@@ -480,6 +460,16 @@ def _percentiles(percentiles: Sequence[float]) -> list[float]:
         shown = ", ".join(f"{p:g}" for p in pcts)
         raise PropagationError(f"percentiles must lie in [0, 100], got [{shown}]")
     return pcts
+
+
+def _labels(pcts: list[float]) -> list[tuple[str, float]]:
+    """``"P2.5"``-style labels of the distinct levels; in full where ``:g`` would merge two."""
+    levels = list(dict.fromkeys(pcts))
+    short = [f"P{p:g}" for p in levels]
+    return [
+        (label if short.count(label) == 1 else f"P{p!r}", p)
+        for label, p in zip(short, levels, strict=True)
+    ]
 
 
 def _shape_of(batches: Sequence[PropagationBatch]) -> tuple[str, ...]:
@@ -515,8 +505,9 @@ def _statistics(
     scaled = good / unit if unit != 1.0 else good
     return PropagationResult(
         mean=float(scaled.mean() * unit),
-        std=float(scaled.std(ddof=1) * unit) if good.size > 1 else 0.0,
-        percentiles={f"P{p:g}": float(np.percentile(good, p)) for p in pcts},
+        std=float(scaled.std(ddof=1) * unit) if good.size > 1 else float("nan"),
+        percentiles={label: float(np.percentile(good, p)) for label, p in _labels(pcts)},
+        percentile_levels=tuple(dict.fromkeys(pcts)),
         samples=good,
         n_samples=n_samples,
         n_failed=int((~ok).sum()),
@@ -547,6 +538,16 @@ def _combine(
             raise PropagationError(
                 "batches of different propagations cannot be combined "
                 f"(seed {first.seed} from the {first.source}, seed {b.seed} from the {b.source})"
+            )
+        if b.origin != first.origin:
+            raise PropagationError(
+                "batches of different results cannot be combined (draws from the result "
+                f"with digest {first.origin or '?'} and from {b.origin or '?'})"
+            )
+        if b.metric != first.metric:
+            raise PropagationError(
+                "batches of different metrics cannot be combined "
+                f"({first.metric or '?'} and {b.metric or '?'})"
             )
     # an empty batch covers no draws, wherever it starts
     ordered = sorted((b for b in batches if b.values.shape[0]), key=lambda b: b.start)
@@ -622,8 +623,9 @@ def combine_batches(
     ------
     PropagationError
         Something other than `PropagationBatch` objects given, batches of
-        different propagations or metrics, gaps or overlaps, or a metric that
-        failed for every draw.
+        different propagations (another seed, or another result: the batches'
+        `origin` differ) or metrics (their `metric` differ), gaps or
+        overlaps, or a metric that failed for every draw.
 
     Warns
     -----
@@ -671,10 +673,15 @@ def propagate(
 
     Parameters
     ----------
-    result : IdentificationResult or InferenceResult
-        Gaussian draws from an identification result's covariance, or rows
-        resampled (with replacement) from a posterior's samples, so skew,
-        bounds and correlations of the posterior are kept.
+    result : IdentificationResult, InferenceResult, TransferFunctionFit or EquivalentSystemFit
+        Draws from a result's parameters and covariance (any estimator's
+        result with ``parameter_names``; a fit's `standard_errors` name the
+        covariance's rows, and an `EquivalentSystemFit` draws its own
+        parameters, ``K, 1/T_theta2, zeta, omega, tau``: compute ``T_theta2``
+        from ``1/T_theta2``), or rows resampled (with replacement) from a
+        posterior's samples, so skew, bounds and correlations of the
+        posterior are kept. Refused: a covariance with non-finite entries,
+        a negative variance, or one that is not positive semi-definite.
     func : callable
         ``func(parameters: dict) -> float``; gets fixed and drawn parameters.
         A metric with several values returns a sequence (or 1-D array) of
@@ -718,6 +725,26 @@ def propagate(
     --------
     propagate_batch, combine_batches : the same draws split into batches that
         run anywhere (the pipeline's ``propagate: {n_batches: k}``).
+
+    Notes
+    -----
+    The draws from a covariance make the statement the result's own
+    `interval` makes. That interval takes Student's t with each parameter's
+    `degrees_of_freedom` (few for coloured residuals, whose error bars rest
+    on a short residual spectrum), so plain Gaussian draws would give a
+    band z/t narrower (0.8 of it at 6 degrees of freedom) and cover the
+    truth less often than the interval does. A multivariate t has one
+    degrees-of-freedom count for all parameters, which they do not share.
+    So the draws are a Gaussian copula with t marginals: correlated normal
+    draws ``z`` (correlations of the covariance), each parameter
+    ``mean + se * t_nu^-1(Phi(z))`` with its own ``nu`` (floored at one, as
+    `interval` floors it). The identity metric ``p -> p[name]`` then has
+    exactly `interval`'s band in distribution, and every draw keeps the
+    ranks (rank correlations) of the Gaussian draws. A parameter without
+    degrees of freedom (infinite: the normal quantile) is drawn as before,
+    bit for bit. A function of several parameters has no one t statement
+    (its parameters' counts differ); its band is the copula's, wider than
+    the normal draws' where those parameters have few degrees of freedom.
     """
     n = whole_number(n_samples, "n_samples", PropagationError)
     pcts = _percentiles(percentiles)

@@ -523,7 +523,7 @@ for _stage in (
     ),
     Stage(
         "propagate",
-        "1",
+        "2",  # 2: draws keep each parameter's t degrees of freedom, as its interval()
         PropagateOptions,
         "PropagationResult",
         _run_propagate,
