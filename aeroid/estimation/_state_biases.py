@@ -66,52 +66,9 @@ def _with_state_biases(model: Any, biased: list[str]) -> tuple[Any, list[str]]:
     manoeuvre by the initial-state machinery (each manoeuvre's simulations
     carry only its own bias columns).
     """
-    import dataclasses
+    from ..models.model import with_state_biases
 
-    from ..models.model import Model
-
-    states = list(model.states)
-    n = len(states)
-    taken = set(states) | set(model.controls) | set(model.output_names)
-    extra: list[str] = []
-    for s in biased:
-        name = _STATE_BIAS_PREFIX + s
-        while name in taken:
-            name = "_" + name
-        taken.add(name)
-        extra.append(name)
-    f = model.dynamics
-    h = model.measurement
-
-    # Functional form (no in-place update) so that a compiled path can trace it.
-    select = np.zeros((n, len(biased)))
-    select[[states.index(s) for s in biased], np.arange(len(biased))] = 1.0
-
-    def dynamics(t: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
-        xd = np.reshape(np.asarray(f(t, x[:n], u, p), dtype=np.float64), (n, *np.shape(x)[1:]))
-        b = x[n:]
-        return np.concatenate([xd + select @ b, np.zeros_like(b)], axis=0)
-
-    def measurement(t: Any, x: Any, u: Any, p: Mapping[str, Any]) -> Any:
-        assert h is not None
-        return h(t, x[:n], u, p)
-
-    kwargs: dict[str, Any] = {}
-    init_fields = {fl.name for fl in dataclasses.fields(Model) if fl.init}
-    for key in ("version", "linear"):  # carried over where this version has them
-        if key in init_fields and hasattr(model, key):
-            kwargs[key] = getattr(model, key)
-    wrapped = Model(
-        states=[*states, *extra],
-        controls=list(model.controls),
-        parameters=dict(model.parameters),
-        dynamics=dynamics,
-        outputs=list(model.output_names),
-        measurement=None if h is None else measurement,
-        name=model.name,
-        **kwargs,
-    )
-    return wrapped, extra
+    return with_state_biases(model, biased, _STATE_BIAS_PREFIX)
 
 
 def _state_biases_out(

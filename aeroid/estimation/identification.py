@@ -200,7 +200,10 @@ def identify(
         ``"state.<name>"`` and in `extra_stderr` as ``"bias[i].state.<name>"``.
         Filter error estimates both kinds the same way, as unknowns of its
         iteration with bars from its information matrix (Jategaonkar, ch. 5).
-        `validate` and the other functions replay the model without them.
+        Given the result and a record it was fitted to, `validate` and
+        `sensitivities` replay the model with both kinds (and from the fit's
+        initial state); `filter_states`, `frequency_response` and `infer`
+        start from that state without them.
     weights : mapping of str to float or ndarray, optional
         Fixed output weights (inverse noise variances, positive, one for every
         fitted output) or a diagonal, positive definite noise covariance (correlated noise is refused, not

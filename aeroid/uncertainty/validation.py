@@ -22,6 +22,7 @@ from ..io.data import FlightData, fingerprint, plain, whole_number
 from ..models.model import (
     check_simulate_options,
     delayed_controls,
+    fitted_replay,
     fitted_start,
     require_model,
     resolve_parameters,
@@ -306,7 +307,8 @@ def validate(
     parameters : mapping or result, optional
         Parameter values, or an identification/inference result. When `data`
         is a record the identification result was fitted to, the initial
-        state and output biases the fit used for it are applied as well. A
+        state and the biases the fit estimated for it (on outputs and on state
+        equations) are applied as well. A
         fit's estimated time delays (``result.time_delays``) apply on any
         record: the model is simulated on the delayed controls.
     outputs : sequence of str, optional
@@ -408,18 +410,18 @@ def validate(
     if not chosen:
         data.require(names[:1], role="output")
     data.require(chosen, role="output")
-    fitted_x0, biases = fitted_start(parameters, data)
-    if x0 is None:
-        x0 = fitted_x0
+    # on a record the fit was fitted to: its start, output biases and state biases
+    replay = fitted_replay(model, parameters, data, x0)
+    biases = fitted_start(parameters, data)[1]
     # the controls as the fitted model takes them (a fit's estimated time delays)
     flown = delayed_controls(parameters, data)
     if hasattr(model, "simulate_batch"):
         opts.setdefault("method", "auto")  # the integrator identify uses by default
     # a stepped simulator's failure (a raise, a wrong shape, NaN) named as a Model's is
-    run = partial(model.simulate_data, flown, x0=x0, parameters=p, **opts)
-    y_sim = simulator_outputs(model, run, n)
+    run = partial(replay.model.simulate_data, flown, x0=replay.x0, parameters=p, **opts)
+    y_sim = simulator_outputs(replay.model, run, n)
     idx = [names.index(o) for o in chosen]
-    y_model = y_sim[:, idx] + np.array([biases.get(o, 0.0) for o in chosen])
+    y_model = y_sim[:, idx] + np.array([replay.output_biases.get(o, 0.0) for o in chosen])
     y_meas = data.array(chosen)
     resid = y_meas - y_model
     lags = int(min(whiteness_lags, n - 2))
