@@ -35,11 +35,13 @@ from ..errors import (
 from ..estimation.identifiability import NO_EFFECT, RCOND, unidentifiable
 from ..io.data import FlightData, measured_start
 from ..models.model import (
+    FittedReplay,
     Model,
     SimulatorModel,
     check_simulate_options,
     delayed_controls,
-    fitted_start,
+    fitted_manoeuvre,
+    fitted_replay,
     require_model,
     resolve_parameters,
     simulator_outputs,
@@ -286,8 +288,10 @@ class SensitivityResult(FrozenState):
     noise : mapping of str to float
         Measurement-noise standard deviation per output used for the Fisher matrix.
     noise_source : str
-        ``"given"``, ``"residuals"`` (estimated from measured minus simulated
-        outputs) or ``"unit"`` (no noise known: bounds are per unit noise).
+        ``"given"``, ``"fit"`` (the noise an identification result weighed
+        its outputs by), ``"residuals"`` (estimated from measured minus
+        simulated outputs) or ``"unit"`` (no noise known: bounds are per unit
+        noise); for a mix, the outputs per source, as ``"fit (x); unit (v)"``.
     sensitivities : ndarray, shape (n_t, n_y, n_p)
         ``dy/dθ`` histories.
     outputs : ndarray, shape (n_t, n_y)
@@ -311,6 +315,13 @@ class SensitivityResult(FrozenState):
     method : str
         How the sensitivities were computed.
     model_name : str
+    nuisance : tuple of str
+        The estimates besides the parameters that a fit of this record made
+        and whose information the bounds leave out, as the fit's own error
+        bars do: its initial states (``"x0.<state>"``), state-equation biases
+        (``"bias.state.<state>"``) and output biases (``"bias.<output>"``).
+        `fisher_information` is then what the parameters keep of it (the
+        Schur complement), `norms` the sensitivities' own.
     """
 
     time: FloatArray
@@ -331,6 +342,7 @@ class SensitivityResult(FrozenState):
     relative_step: float
     method: str
     model_name: str = ""
+    nuisance: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -348,6 +360,7 @@ class SensitivityResult(FrozenState):
         set_(self, "parameter_names", tuple(self.parameter_names))
         set_(self, "output_names", tuple(self.output_names))
         set_(self, "unidentifiable", tuple(tuple(c) for c in self.unidentifiable))
+        set_(self, "nuisance", tuple(str(n) for n in self.nuisance))
 
     def sensitivity(self, output: str, parameter: str) -> FloatArray:
         """History of ``d output / d parameter`` on `time`."""
@@ -395,6 +408,7 @@ class SensitivityResult(FrozenState):
         )
         src = {
             "given": "given",
+            "fit": "the fit's",
             "residuals": "estimated from the residuals",
             "unit": "unknown — bounds are per unit noise",
         }.get(self.noise_source, self.noise_source)
@@ -465,15 +479,22 @@ def sensitivities(
         and an identification result's estimated time delays delay its
         controls, as in `validate`.
     noise : mapping of str to float, optional
-        Measurement-noise standard deviation per output. Default: estimated
-        from measured minus simulated outputs, or unit noise (with a warning)
-        when the data carry no usable measurement.
+        Measurement-noise standard deviation per output. Default, per output:
+        the noise an identification result given as `values` weighed it by,
+        else estimated from measured minus simulated outputs, else (not
+        measured) unit noise, with a warning that names those outputs.
     outputs : sequence of str, optional
-        Outputs to use (default: those named in `noise`, else all model outputs).
+        Outputs to use. Default: those named in `noise`, else those an
+        identification result fitted, else those the record measures (all
+        model outputs for a record that measures none).
     x0 : array_like or mapping, optional
         Initial state; default: the state an identification result given as
         `values` used for this record, else the measured states at the first
-        sample.
+        sample. On a record the result was fitted to, the model is replayed
+        as fitted: with the output and state-equation biases it estimated
+        for it, and (unless `x0` is given) with the information its estimated
+        initial states and biases take taken out (``nuisance``), so that the
+        bounds are the fit's white error bars.
     relative_step : float
         Central-difference step relative to ``max(|θ|, 1)``.
     simulate_options : mapping, optional
@@ -524,12 +545,15 @@ def sensitivities(
             parameters = [n for n in parameters if n in model.parameters] or parameters
     names = _parameter_list(model, parameters)
     vals = resolve_parameters(model, values, error=IdentificationError)
-    if x0 is None:
-        x0 = fitted_start(values, data)[0]
+    # the nuisance estimates of a fit of this record, replayed from its own start
+    nuisance = _fit_nuisance(values, data, model) if x0 is None else ([], [], [])
+    # on a record the fit was fitted to: its start, output biases and state biases
+    replay = fitted_replay(model, values, data, x0)
+    x0 = replay.x0
+    fit_sigma = _fit_noise(values, all_outputs := _output_names(model))
     data = delayed_controls(values, data)  # a fit's estimated time delays
     rel = _relative_step(relative_step)
     options = _check_simulate_options(simulate_options, model)
-    all_outputs = _output_names(model)
     if outputs is not None:
         outs = [outputs] if isinstance(outputs, str) else list(outputs)
         if not outs:  # an empty analysis would pass for one
@@ -550,8 +574,10 @@ def sensitivities(
                 f"noise: names no model output; outputs are {list(all_outputs)}, "
                 f"noise given for {sorted(noise)}"
             )
-    else:
-        outs = list(all_outputs)
+    elif fit_sigma:  # the outputs the fit weighed
+        outs = [o for o in all_outputs if o in fit_sigma]
+    else:  # those the record measures (all, for a record that measures none: unit noise)
+        outs = [o for o in all_outputs if o in data] or list(all_outputs)
     if noise is not None:
         _check_noise_names(noise, all_outputs, model.name)
     controls = _control_names(model)
@@ -563,7 +589,7 @@ def sensitivities(
     steps = _fd_steps(theta, rel)
     errors: list[str] = []
     y0, sens, ok = _fd_sensitivities(
-        model, data.time, u, x0, vals, names, steps, options, nominal=True, errors=errors
+        replay.model, data.time, u, x0, vals, names, steps, options, nominal=True, errors=errors
     )
     if not ok[0]:
         why = f": {errors[0]}" if errors else ""
@@ -573,14 +599,20 @@ def sensitivities(
         )
     assert y0 is not None  # requested above
     idx = [all_outputs.index(o) for o in outs]
-    y_nom = y0[0][:, idx]
+    y_nom = y0[0][:, idx] + np.array([replay.output_biases.get(o, 0.0) for o in outs])
     s = sens[0][:, :, idx]  # (n_p, n_t, n_y)
     if noise is not None:
         sigma = _noise_vector(noise, outs)
         source = "given"
     else:
-        sigma, source = _estimate_noise(data, outs, y_nom)
+        sigma, source = _estimate_noise(data, outs, y_nom, fit_sigma)
+    s_n, nuisance_names = _nuisance_sensitivities(
+        replay, nuisance, data.time, u, vals, rel, options, idx, model.name
+    )
     fisher = _fisher(s, sigma)
+    norms = np.sqrt(np.clip(np.diag(fisher), 0, None))
+    if nuisance_names:
+        fisher = _schur(np.concatenate([s, s_n]), sigma, len(names))
     cov, combos, eig = _analyse_fisher(fisher, names)
     crb = _crb(cov)
     if combos:
@@ -608,39 +640,137 @@ def sensitivities(
         fisher_information=fisher,
         covariance=cov,
         cramer_rao_bound=dict(zip(names, crb.tolist(), strict=True)),
-        norms=dict(zip(names, np.sqrt(np.clip(np.diag(fisher), 0, None)).tolist(), strict=True)),
+        norms=dict(zip(names, norms.tolist(), strict=True)),
         identifiable=not combos,
         unidentifiable=combos,
         eigenvalues=eig,
         relative_step=rel,
         method=method,
         model_name=str(model.name),
+        nuisance=tuple(nuisance_names),
     )
 
 
 def _estimate_noise(
-    data: FlightData, outputs: Sequence[str], simulated: FloatArray
+    data: FlightData,
+    outputs: Sequence[str],
+    simulated: FloatArray,
+    fitted: Mapping[str, float],
 ) -> tuple[FloatArray, str]:
-    """Residual RMS per output, or unit noise (warned) when it cannot be estimated."""
+    """Per output: the fit's noise, else the residual RMS, else unit noise (warned).
+
+    Returns the standard deviations and their source: ``"fit"``,
+    ``"residuals"`` or ``"unit"``, or for a mix the outputs per source
+    (``"fit (x); unit (v)"``).
+    """
     sigma = np.ones(len(outputs))
-    missing = []
+    kinds: dict[str, list[str]] = {}
     for i, o in enumerate(outputs):
-        if o not in data:
-            missing.append(o)
-            continue
-        r = data.channels[o] - simulated[:, i]
-        s = float(np.sqrt(np.mean(r**2)))
-        if not (s > 1e-12 * max(float(np.max(np.abs(data.channels[o]))), 1e-300)):
-            missing.append(o)
-            continue
-        sigma[i] = s
-    if missing:
+        kind = "unit"
+        if o in fitted:
+            sigma[i], kind = fitted[o], "fit"
+        elif o in data:
+            r = data.channels[o] - simulated[:, i]
+            s = float(np.sqrt(np.mean(r**2)))
+            if s > 1e-12 * max(float(np.max(np.abs(data.channels[o]))), 1e-300):
+                sigma[i], kind = s, "residuals"
+        kinds.setdefault(kind, []).append(o)
+    if "unit" in kinds:
+        missing = kinds["unit"]
         warnings.warn(
             f"sensitivities: cannot estimate the noise of outputs {missing} from the data "
-            "(not measured, or residuals are zero); using unit noise for all outputs — "
-            "pass noise={output: sigma} for meaningful Cramér–Rao bounds",
+            "(not measured, or residuals are zero); using unit noise for "
+            + (f"{missing} only" if len(kinds) > 1 else "all outputs")
+            + " — pass noise={output: sigma} for meaningful Cramér–Rao bounds",
             UserWarning,
             stacklevel=4,  # here, sensitivities, its BLAS wrapper, the caller
         )
-        return np.ones(len(outputs)), "unit"
-    return sigma, "residuals"
+    if len(kinds) == 1:
+        return sigma, next(iter(kinds))
+    return sigma, "; ".join(f"{k} ({', '.join(v)})" for k, v in kinds.items())
+
+
+def _fit_noise(result: Any, outputs: Sequence[str]) -> dict[str, float]:
+    """The noise standard deviations an identification result weighed its outputs by."""
+    names = tuple(getattr(result, "output_names", ()) or ())
+    cov = np.asarray(getattr(result, "noise_covariance", np.zeros((0, 0))), dtype=np.float64)
+    if isinstance(result, Mapping) or cov.shape != (len(names), len(names)):
+        return {}
+    var = np.diag(cov)
+    return {
+        o: float(np.sqrt(v))
+        for o, v in zip(names, var.tolist(), strict=True)
+        if o in outputs and np.isfinite(v) and v > 0
+    }
+
+
+def _fit_nuisance(
+    result: Any, data: FlightData, model: Any
+) -> tuple[list[str], list[str], list[str]]:
+    """The initial states, state biases and output biases a fit estimated for `data`
+    (empty unless `result` is an identification result fitted to it)."""
+    i = fitted_manoeuvre(result, data)
+    est = getattr(result, "extra_stderr", None)
+    if i is None or not isinstance(est, Mapping) or not isinstance(model, Model):
+        return [], [], []
+    states = [s for s in model.states if f"x0[{i}].{s}" in est]
+    on_states = [s for s in model.states if f"bias[{i}].state.{s}" in est]
+    on_outputs = [o for o in model.output_names if f"bias[{i}].{o}" in est]
+    return states, on_states, on_outputs
+
+
+def _nuisance_sensitivities(
+    replay: FittedReplay,
+    nuisance: tuple[list[str], list[str], list[str]],
+    time: FloatArray,
+    controls: FloatArray,
+    values: Mapping[str, float],
+    rel: float,
+    options: Mapping[str, Any],
+    idx: Sequence[int],
+    model_name: str,
+) -> tuple[FloatArray, list[str]]:
+    """Sensitivities (n_n, n_t, n_y) of the outputs `idx` to a fit's estimated initial
+    states, state biases (central differences of the start) and output biases (ones)."""
+    states, on_states, on_outputs = nuisance
+    model = replay.model
+    # a bias on an output not analysed takes nothing from the bounds
+    on_outputs = [o for o in on_outputs if model.output_names.index(o) in idx]
+    names = [f"x0.{s}" for s in states] + [f"bias.state.{s}" for s in on_states]
+    rows = [model.states.index(s) for s in states]
+    rows += [model.states.index(replay.bias_states[s]) for s in on_states]
+    out = np.zeros((len(rows) + len(on_outputs), time.size, len(idx)))
+    if rows:
+        start = np.array([float(replay.x0[s]) for s in model.states])
+        steps = _fd_steps(start[rows], rel)
+        x0 = np.repeat(start[None], 2 * len(rows), axis=0)
+        for j, (r, h) in enumerate(zip(rows, steps.tolist(), strict=True)):
+            x0[2 * j, r] += h
+            x0[2 * j + 1, r] -= h
+        params = {k: np.full(2 * len(rows), float(v)) for k, v in values.items()}
+        errors: list[str] = []
+        y, ok = _simulate_members(model, time, controls, x0, params, options, errors)
+        if not np.all(ok):
+            why = f": {errors[0]}" if errors else ""
+            raise SimulationError(
+                f"sensitivities: model {model_name!r} failed to simulate within a relative "
+                f"{rel:g} step of the fit's initial state{why}"
+            )
+        y = y[:, :, list(idx)]
+        out[: len(rows)] = (y[0::2] - y[1::2]) / (2.0 * steps[:, None, None])
+    for j, o in enumerate(on_outputs):
+        out[len(rows) + j, :, list(idx).index(model.output_names.index(o))] = 1.0
+    return out, names + [f"bias.{o}" for o in on_outputs]
+
+
+def _schur(sens: FloatArray, sigma: FloatArray, n_p: int) -> FloatArray:
+    """The Fisher information of the first `n_p` parameters left after the others
+    (nuisance estimates) are estimated too: ``F_pp - F_pn F_nn^+ F_np``, whose inverse
+    is the parameters' block of the whole Fisher matrix's inverse."""
+    full = _fisher(sens, sigma)
+    f_pp, f_pn, f_nn = full[:n_p, :n_p], full[:n_p, n_p:], full[n_p:, n_p:]
+    d = np.sqrt(np.clip(np.diag(f_nn), 1e-300, None))
+    # on a unit diagonal, so that estimates of very different sizes keep their digits
+    inv = np.linalg.pinv(f_nn / np.outer(d, d), rcond=RCOND, hermitian=True) / np.outer(d, d)
+    out = f_pp - f_pn @ inv @ f_pn.T
+    return np.asarray(0.5 * (out + out.T))

@@ -516,7 +516,7 @@ for _stage in (
         # read along the simulated path too (as every stage that simulates: a model
         # that stiffens away from its start); 5: residuals and inputs prewhitened before
         # their cross-correlation, the bias interval on Student's t
-        "5",
+        "6",  # 6: a fit's state-equation biases replayed on its record
         ValidateOptions,
         "ValidationResult",
         _run_validate,
@@ -571,7 +571,7 @@ for _stage in (
     ),
     Stage(
         "sensitivities",
-        "3",  # 3: RK4 substeps read along the path too
+        "4",  # 3: RK4 substeps along the path; 4: at a fit, replayed as fitted, its bars
         SensitivityOptions,
         "SensitivityResult",
         _run_sensitivities,
