@@ -66,7 +66,7 @@ def _with_state_biases(model: Any, biased: list[str]) -> tuple[Any, list[str]]:
     manoeuvre by the initial-state machinery (each manoeuvre's simulations
     carry only its own bias columns).
     """
-    from ..models.model import with_state_biases
+    from ..models.replay import with_state_biases
 
     return with_state_biases(model, biased, _STATE_BIAS_PREFIX)
 

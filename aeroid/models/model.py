@@ -20,13 +20,10 @@ from .._units import require_model_units
 from ..errors import AeroidError, ChannelError, ModelDefinitionError, SimulationError
 from ..io.data import FlightData, measured_start, plain
 from . import integration as _integrate
-from ._fitted_parameters import FittedReplay as FittedReplay
 from ._fitted_parameters import _names, control_delays, resolve_parameters
 from ._fitted_parameters import delayed_controls as delayed_controls
 from ._fitted_parameters import fitted_manoeuvre as fitted_manoeuvre
-from ._fitted_parameters import fitted_replay as fitted_replay
 from ._fitted_parameters import fitted_start as fitted_start
-from ._fitted_parameters import with_state_biases as with_state_biases
 from ._model_base import ContinuousModel
 from ._simulation_checks import MAX_SUBSTEPS as MAX_SUBSTEPS
 from ._simulation_checks import _real, check_integrator, real_number

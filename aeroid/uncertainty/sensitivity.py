@@ -35,17 +35,16 @@ from ..errors import (
 from ..estimation.identifiability import NO_EFFECT, RCOND, unidentifiable
 from ..io.data import FlightData, measured_start
 from ..models.model import (
-    FittedReplay,
     Model,
     SimulatorModel,
     check_simulate_options,
     delayed_controls,
     fitted_manoeuvre,
-    fitted_replay,
     require_model,
     resolve_parameters,
     simulator_outputs,
 )
+from ..models.replay import FittedReplay, fitted_replay
 
 __all__ = ["SensitivityResult", "sensitivities"]
 

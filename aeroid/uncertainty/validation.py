@@ -22,12 +22,12 @@ from ..io.data import FlightData, fingerprint, plain, whole_number
 from ..models.model import (
     check_simulate_options,
     delayed_controls,
-    fitted_replay,
     fitted_start,
     require_model,
     resolve_parameters,
     simulator_outputs,
 )
+from ..models.replay import fitted_replay
 from .prediction import STARTS, PredictionMetrics, PredictionResult, holdout_record, predict
 
 __all__ = [
