@@ -484,7 +484,8 @@ def load_mapped(
         `load_flight_test` reads it; one naming the file's channels on both
         sides is refused); None keeps every channel.
     sample_rate : float, optional
-        Logs: the uniform rate (Hz) the channels are resampled to.
+        Logs: the uniform rate (Hz) the channels are resampled to (a table,
+        already on one time axis, refuses it).
     max_gap : float, optional
         Logs: the longest gap in a channel's stamps to interpolate across (s).
     window : [t0, t1] or mapping, optional
@@ -496,7 +497,9 @@ def load_mapped(
     time_column : str, optional
         As for `load_flight_test`.
     units : mapping of str to str, optional
-        Unit labels per model name, over those the map gives.
+        Unit labels per model name, over those the map gives; they label the
+        loaded values, so one that contradicts the unit a channel has after
+        the map (``deg`` on a channel the map converted to ``rad``) is refused.
     quality : bool or mapping of str to float, optional
         Check the channels read as they arrive (a log's on their own stamps,
         before resampling; inside the window) with `aeroid.check_data_quality`,
@@ -518,7 +521,8 @@ def load_mapped(
     ChannelError
         A mapped channel the file lacks (naming close names).
     DataFormatError
-        An unknown unit (listing the known ones), an inverted window, a
+        An unknown unit (listing the known ones), a `units` label that
+        contradicts a channel's unit after the map, an inverted window, a
         window outside the mapped channels' span, a mode or event that
         matches nothing, or anything `load_flight_test` refuses.
     """
@@ -556,7 +560,10 @@ def load_mapped(
         _window_pair(window)  # an inverted window is refused before the file is read
     fmt = sniff_format(p) if p.is_file() else None
     if fmt is None:
-        data = load_flight_test(p, time_column=time_column)
+        # a table refuses sample_rate and max_gap (it is on one time axis already)
+        data = load_flight_test(
+            p, time_column=time_column, sample_rate=sample_rate, max_gap=max_gap
+        )
         cmap = _map_for(channels, data.names, where=p.name)
         for source in cmap.sources:
             if source not in data.channels:
@@ -589,7 +596,31 @@ def load_mapped(
         meta["window"] = record
     if report is not None:
         meta["quality"] = report
+    _refuse_relabel(p.name, out.units, units, cmap)
     return FlightData(out.time, dict(out.channels), {**dict(out.units), **dict(units or {})}, meta)
+
+
+def _refuse_relabel(
+    where: str, made: Mapping[str, str], units: Mapping[str, str] | None, cmap: ChannelMap
+) -> None:
+    """A `units` label that contradicts the unit a model channel is in after the map
+    (rad after a deg conversion) would mislabel the values: refuse it by name."""
+    specs = {e.name: e for e in cmap.entries}
+    for name, given in dict(units or {}).items():
+        now = made.get(name)
+        ours, theirs = UNIT_CONVERSIONS.get(str(given)), UNIT_CONVERSIONS.get(str(now))
+        if now is None or ours is None or theirs is None or ours == theirs:
+            continue
+        spec = specs.get(name)
+        how = (
+            f"the map converts it from {spec.unit!r} to {now!r}"
+            if spec is not None and spec.unit is not None
+            else f"the file states {now!r}"
+        )
+        raise DataFormatError(
+            f"{where}: units[{name!r}] = {given!r} contradicts the unit {now!r} of the "
+            f"loaded values ({how}); units= labels the output: drop it or give {now!r}"
+        )
 
 
 def _map_for(mapping: Any, available: Sequence[str], *, where: str) -> ChannelMap:
