@@ -587,6 +587,29 @@ def load_flight_test(
         raise DataFormatError(f"{p}: {exc}") from None
 
 
+def stated_units(path: str | Path) -> dict[str, str]:
+    """The units a table file states for its columns, as `load_flight_test` reads them.
+
+    Parameters
+    ----------
+    path : str or Path
+        A CSV file (its ``# units:`` comment line); other tables state none.
+
+    Returns
+    -------
+    dict of str to str
+        Unit per column; empty when the file states none (or the line is unreadable).
+    """
+    import warnings
+
+    p = Path(path)
+    if p.suffix.lower() not in (".csv", ".txt", ".dat"):
+        return {}
+    with warnings.catch_warnings():  # the load warns about the units line itself
+        warnings.simplefilter("ignore")
+        return _csv_units(p, _UNITS_COMMENT, _csv_header(p)[0])
+
+
 def _wanted_columns(
     channels: Sequence[str] | Mapping[str, str] | None, time_column: str | None
 ) -> frozenset[str] | None:

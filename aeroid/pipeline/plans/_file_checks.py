@@ -44,6 +44,7 @@ class _Needs:
     controls: tuple[str, ...]
     outputs: tuple[str, ...]  # each of these
     any_output: tuple[str, ...]  # at least one of these (the fit uses those present)
+    known: tuple[str, ...] = ()  # every name of the model's (states, controls, outputs)
 
 
 def _channel_needs(
@@ -64,6 +65,7 @@ def _channel_needs(
         controls=controls,
         outputs=tuple(dict.fromkeys(outputs)),
         any_output=model.output if (reads or unknown_pipeline) else (),
+        known=(*(model.state or ()), *model.control, *model.output),
     )
 
 
@@ -170,8 +172,17 @@ def _check_files(
                 continue
             if header is None:
                 continue  # a format whose channels cannot be listed without loading it
+            for key in ("sample_rate", "max_gap"):
+                if header.has_time and getattr(spec, key) is not None:
+                    problems.add(
+                        f"flights[{i}].{key}",
+                        f"{path.name}: {key} applies to flight logs; this is a table already "
+                        "on one time axis",
+                    )
             for fault in _file_channel_faults(path, header, spec, needs):
                 problems.add(where, fault)
+            for key, unit_fault in _stated_unit_faults(path, header, spec):
+                problems.add(f"flights[{i}].{key}", unit_fault)
             for key, window_fault in _window_faults(path, header, spec):
                 problems.add(f"flights[{i}].{key}", window_fault)
 
@@ -235,9 +246,32 @@ def _file_channel_faults(
                     f"{path.name}: channels: {what} {col!r} not found" + _column_hint(col, columns)
                 )
         have = list(pairs)
+        if needs is not None:
+            faults += _renamed_away(path, spec.channels, pairs, needs, what)
     if needs is not None:
         faults += [f"{path.name}: {f}" for f in _missing(needs, have)]
     return faults
+
+
+def _renamed_away(
+    path: Path, chosen: Any, pairs: Mapping[str, str], needs: _Needs, what: str
+) -> list[str]:
+    """A plain map read ``{channel: name}`` that renames a channel carrying a model name to
+    a name the model lacks: the name is a channel on neither side, so it is far likelier a
+    mistyped channel (``{alpha: aoa_deg}``) than a renaming that drops the model's alpha."""
+    from ...io.channel_map import plain_pairs
+
+    given = plain_pairs(chosen)
+    if given is None or all(given.get(n) == c for n, c in pairs.items()):
+        return []  # read as written, {name: channel}
+    return [
+        f"{path.name}: channels: {name!r} is neither a {what} of the file nor a name of "
+        f"model {needs.model!r}, so the map reads {{{what}: name}} and renames the "
+        f"{what} {channel!r} (the model's {channel!r}) to it; fix the name if it is a "
+        f"mistyped {what}, or write the entry {{{name}: {{channel: {channel}}}}}"
+        for name, channel in pairs.items()
+        if name != channel and channel in needs.known and name not in needs.known
+    ]
 
 
 _NAME_LIKE = re.compile(r"[A-Za-z_][\w.\[\]()/ -]{0,63}")
@@ -294,6 +328,29 @@ def _unit_faults(spec: FileFlights) -> list[tuple[str, str]]:
                         f"(known units: {', '.join(known)})",
                     )
                 )
+    return out
+
+
+def _stated_unit_faults(path: Path, header: _Header, spec: FileFlights) -> list[tuple[str, str]]:
+    """(key path, fault) for a map unit that contradicts the unit the file states for its
+    channel (`aeroid.apply_channel_map` refuses it at load: deg applied to rad values)."""
+    from ...io.channel_map import UNIT_CONVERSIONS
+
+    if not isinstance(spec.channels, Mapping) or not header.units:
+        return []
+    out = []
+    for name, entry in spec.channels.items():
+        if not isinstance(entry, ChannelEntry) or entry.unit is None:
+            continue
+        stated = header.units.get(entry.channel, "")
+        if stated in UNIT_CONVERSIONS and stated != entry.unit:
+            out.append(
+                (
+                    f"channels.{name}.unit",
+                    f"{path.name}: unit {entry.unit!r} contradicts the unit {stated!r} the "
+                    f"file states for {entry.channel!r}; drop the unit or fix it",
+                )
+            )
     return out
 
 
@@ -364,6 +421,7 @@ class _Header:
     columns: list[str]
     has_time: bool = True  # the columns include the time column (a table, not a log)
     log: Any = None  # the log read (a FlightLog), for the checks of windows
+    units: Mapping[str, str] | None = None  # the units the file states, by channel
 
 
 def _header(
@@ -382,7 +440,9 @@ def _header(
         return log
     suffix = path.suffix.lower()
     if suffix in _CSV_SUFFIXES:
-        return _Header(_csv_header(path))
+        from ...io.data import stated_units
+
+        return _Header(_csv_header(path), units=stated_units(path))
     if suffix in _PARQUET_SUFFIXES:
         try:
             import pyarrow.parquet as pq
@@ -417,7 +477,8 @@ def _log_listing(
     log = read_selected(path, fmt, time_column, allow_external, None)
     names = listing(log).names
     # a log's time axis is the reader's business, not one of the channels
-    return _Header([str(n) for n in names], has_time=False, log=log)
+    units = {str(c.name): str(c.unit) for c in log.channels.values() if c.unit}
+    return _Header([str(n) for n in names], has_time=False, log=log, units=units)
 
 
 def _csv_header(path: Path) -> list[str]:
