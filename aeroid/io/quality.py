@@ -279,15 +279,27 @@ def _whole_log_lines(report: DataQualityReport) -> list[str]:
 
 
 def _option(
-    value: Any, what: str, *, low: float, high: float = math.inf, above: bool = False
+    value: Any,
+    what: str,
+    *,
+    low: float,
+    high: float = math.inf,
+    above: bool = False,
+    below: bool = False,
 ) -> float:
-    """A number in [low, high] (above `low` where `above`); text and bools are none."""
+    """A number in [low, high] (above `low` where `above`, below `high` where `below`);
+    text and bools are none."""
     out = as_float(value)
-    ok = out is not None and (low < out if above else low <= out) and out <= high
+    ok = (
+        out is not None
+        and (low < out if above else low <= out)
+        and (out < high if below or high == math.inf else out <= high)
+    )
     if not ok or out is None:
         opening = "(" if above else "["
+        closing = ")" if below or high == math.inf else "]"
         raise DataFormatError(
-            f"{what}: expected a number in {opening}{low}, {high}], got {plain(value)}"
+            f"{what}: expected a number in {opening}{low:g}, {high:g}{closing}, got {plain(value)}"
         )
     return out
 
@@ -640,13 +652,11 @@ def check_data_quality(
         "jitter_limit": _option(jitter_limit, "jitter_limit", low=0.0),
         "dropout_factor": _option(dropout_factor, "dropout_factor", low=1.0, above=True),
         "saturation_run": _option(saturation_run, "saturation_run", low=2.0),
-        "alias_band": _option(alias_band, "alias_band", low=0.0, high=1.0),
+        "alias_band": _option(alias_band, "alias_band", low=0.0, high=1.0, above=True, below=True),
         "alias_limit": _option(alias_limit, "alias_limit", low=0.0, high=1.0),
     }
     if limits["saturation_run"] != int(limits["saturation_run"]):
         raise DataFormatError(f"saturation_run: expected an integer, got {plain(saturation_run)}")
-    if not 0.0 < limits["alias_band"] < 1.0:
-        raise DataFormatError(f"alias_band: expected a fraction in (0, 1), got {plain(alias_band)}")
     whole = isinstance(data, FlightLog) and channels is None
     rules = {
         "jitter_limit": limits["jitter_limit"],

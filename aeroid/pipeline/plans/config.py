@@ -348,7 +348,10 @@ def format_validation_error(
     # pydantic adds union tags and member types to locations; users never wrote them
     skip = {"glob", "file", "simulated", "str", "int", "float", "dict[str,str]", "list[str]"}
     models = _model_names()
-    for err in exc.errors():
+    errors = exc.errors()
+    for err in errors:
+        if _scalar_member_noise(err, errors):
+            continue
         loc = [
             p
             for i, p in enumerate(err["loc"])
@@ -382,6 +385,24 @@ def format_validation_error(
         if line not in lines:
             lines.append(line)
     return "\n".join(lines)
+
+
+_SCALAR_TAGS = frozenset({"bool", "str", "int", "float", "none"})
+
+
+def _scalar_member_noise(err: Mapping[str, Any], errors: Sequence[Mapping[str, Any]]) -> bool:
+    """Whether `err` is a scalar member of a union refusing a mapping (``quality.bool``:
+    not a boolean) while the union's mapping member reports what is wrong inside it."""
+    loc = tuple(err["loc"])
+    if not loc or loc[-1] not in _SCALAR_TAGS or not isinstance(err.get("input"), Mapping):
+        return False
+    parent = loc[:-1]
+    return any(
+        tuple(o["loc"])[: len(parent)] == parent
+        and len(o["loc"]) > len(parent)
+        and o["loc"][len(parent)] not in _SCALAR_TAGS
+        for o in errors
+    )
 
 
 def _brief(value: Any, limit: int = 120) -> str:

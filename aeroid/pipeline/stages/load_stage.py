@@ -90,7 +90,7 @@ class QualityLimits(Options):
     """Limits of `aeroid.check_data_quality` (its keywords)."""
 
     jitter_limit: float = Field(0.1, ge=0)
-    dropout_factor: float = Field(3.0, ge=1)
+    dropout_factor: float = Field(3.0, gt=1)
     saturation_run: int = Field(5, ge=2)
     alias_band: float = Field(0.1, gt=0, lt=1)
     alias_limit: float = Field(0.2, ge=0, le=1)
