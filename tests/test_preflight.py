@@ -488,8 +488,8 @@ def test_channel_map_mistakes_of_a_log_flight_are_listed_together(tmp_path):
     ), text
     assert any(
         re.search(
-            r"flights\[0\]\.window: .*\[10, 25\] s is not inside the span \[20.3271, "
-            r"26.8257\] s",
+            r"flights\[0\]\.window: .*\[10, 25\] s is not inside the span \[20.3267, "
+            r"26.8253\] s",
             line,
         )
         for line in lines

@@ -10,6 +10,7 @@ import contextlib
 import io
 import math
 import re
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -124,6 +125,7 @@ def _read_ulog(path: Path) -> FlightLog:
     topics = {d.name for d in ulog.data_list}
     channels: dict[str, LogChannel] = {}
     events: list[LogEvent] = []
+    stamps_used: dict[str, str] = {}
     for d in ulog.data_list:
         topic = d.name
         if d.multi_id:
@@ -135,8 +137,9 @@ def _read_ulog(path: Path) -> FlightLog:
                 f"{path}: ULog topic {topic!r} has no 'timestamp' field (fields "
                 f"{sorted(d.data)[:8]}); a damaged format definition?"
             )
-        stamps = np.asarray(d.data["timestamp"])
-        time = stamps.astype(np.float64) / 1e6
+        stamp = _ulog_stamp(d.data)
+        stamps_used[topic] = stamp
+        time = np.asarray(d.data[stamp]).astype(np.float64) / 1e6
         for field, raw in d.data.items():
             if field == "timestamp" or np.asarray(raw).dtype.kind not in "fiub":
                 continue
@@ -156,8 +159,43 @@ def _read_ulog(path: Path) -> FlightLog:
     for drop in ulog.dropouts:
         events.append(LogEvent(drop.timestamp / 1e6, "dropout", f"{drop.duration} ms lost"))
     info = {k: v for k, v in ulog.msg_info_dict.items() if isinstance(v, (str, int, float))}
-    metadata: dict[str, Any] = {"source": path.name, "format": "ulog", "info": info}
+    metadata: dict[str, Any] = {
+        "source": path.name,
+        "format": "ulog",
+        "info": info,
+        "stamps": stamps_used,
+    }
+    if ulog.file_corruption:
+        # pyulog skipped damaged bytes: samples are missing that no dropout message names
+        warnings.warn(
+            f"{path}: pyulog found the file corrupt and skipped damaged data; samples are "
+            "missing (aeroid.check_data_quality shows where)",
+            UserWarning,
+            stacklevel=5,  # here, a lambda, read_selected, read_log, its caller
+        )
+        start = float(ulog.start_timestamp) / 1e6
+        events.insert(0, LogEvent(start, "corruption", "file corrupt: damaged data skipped"))
+        metadata["file_corruption"] = True
     return _finished_log(channels, events, metadata, said.getvalue())
+
+
+def _ulog_stamp(data: Mapping[str, Any]) -> str:
+    """The field a topic's samples are stamped with: PX4's ``timestamp_sample`` (when the
+    sensor sampled, the time its estimator and controllers use) where the topic has it,
+    set on every message and rising; else ``timestamp`` (when the message was published,
+    up to a whole sensor period later: 20 ms for the barometer). A topic published twice
+    per sample (PX4's actuator_controls_1) keeps its publication stamps."""
+    sample = data.get("timestamp_sample")
+    if sample is not None:
+        sample = np.asarray(sample)
+        if (
+            sample.size
+            and sample.dtype.kind in "iu"
+            and bool(np.all(sample > 0))
+            and bool(np.all(np.diff(sample.astype(np.int64)) > 0))
+        ):
+            return "timestamp_sample"
+    return "timestamp"
 
 
 # -- ArduPilot DataFlash --------------------------------------------------------------

@@ -640,7 +640,11 @@ def _log_record(
     """The log's `sources` on one grid (resampled inside the window), under their own names."""
     from .resampling import resample
 
-    meta = {"source": p.name, "format": str(log.metadata.get("format", ""))}
+    meta: dict[str, Any] = {"source": p.name, "format": str(log.metadata.get("format", ""))}
+    stamps = log.metadata.get("stamps")
+    if stamps:  # which of a ULog topic's stamps each channel's time is (read_log's notes)
+        topics = {n: n.split(".", 1)[0] for n in sources}
+        meta["stamps"] = {n: stamps[t] for n, t in topics.items() if t in stamps}
     if sample_rate is None:
         if max_gap is not None:
             raise DataFormatError(f"{p}: max_gap applies only with sample_rate")

@@ -6,6 +6,12 @@ the events the log records. The readers rest on the field's own libraries,
 installed with ``pip install "aeroid[logs]"``: pyulog (ULog), pymavlink
 (DataFlash) and h5py (HDF5, MATLAB v7.3).
 
+A ULog topic is stamped with PX4's ``timestamp_sample`` (when its sensor
+sampled: the time PX4's estimator and controllers use) where it has that field,
+set and rising; else with ``timestamp`` (when the message was published, up to a
+sensor period later: 20 ms for the barometer's air data). The log's
+``metadata["stamps"]`` names the field each topic's stamps come from.
+
 Channel names
 -------------
 * ULog: ``topic.field`` (``vehicle_angular_velocity.xyz[1]``). A topic logged
@@ -499,7 +505,9 @@ def read_log(
         Channels (see the module notes for their names) with times in
         seconds, the log's units where it states them (PX4 units where PX4's
         message definitions fix them), and events: flight-mode changes,
-        text messages, dropouts.
+        text messages, dropouts, and a ULog pyulog found corrupt (an event
+        ``corruption``, ``metadata["file_corruption"]`` and a warning: samples
+        are missing that no dropout names).
 
     Raises
     ------

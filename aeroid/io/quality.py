@@ -598,8 +598,9 @@ def check_data_quality(
       field as NaN and "no limit" as inf) and one logged once (a topic published on
       an event) get ``notes`` (``constant``, ``never_set``, ``one_sample``), not flags.
     * Stamp jitter is judged against what the logger does. A ULog stamp is the
-      publisher's own sample time, and PX4's estimator and controllers run on the
-      IMU's samples, so a topic's stamps lie on whole multiples of one period. That
+      sensor's sample time where the topic logs one (`aeroid.read_log` uses
+      ``timestamp_sample`` where it can), and PX4's estimator and controllers run
+      on the IMU's samples, so a topic's stamps lie on whole multiples of one period. That
       period may be a fraction of the median step (the estimator, at 100 Hz on a
       200 Hz IMU, steps two or three IMU periods), and the logger, which writes a
       topic when its loop finds a new sample, leaves a step of two periods where a

@@ -174,7 +174,9 @@ register_stage(
         "load",
         # 2: the data-quality report of the channels as read, in metadata["quality"]
         # 3: a log's channel at about the grid's rate filtered and evaluated band-limited
-        "3",
+        # 4: PX4 topics on their sample stamps (metadata["stamps"]); a units label that
+        #    contradicts the loaded unit and sample_rate on a table refused
+        "4",
         LoadOptions,
         "FlightData",
         _run_load,
