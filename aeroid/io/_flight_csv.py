@@ -148,8 +148,8 @@ def _csv_header(path: Path) -> tuple[list[str], int, int]:
 
 def _csv_units(path: Path, marker: str, columns: Collection[str]) -> dict[str, str]:
     """The units a comment line before the header declares (`FlightData.to_csv` writes
-    ``# units: {"alpha": "rad"}``); empty when there is none. Only the lines before the
-    header are read.
+    ``# units: {"alpha": "rad"}``); empty when there is none. The lines before the
+    header are read, and the comment lines right after it.
 
     An entry for a name not among the file's `columns` (a typo, ``qq`` for ``q``) is
     dropped with a warning naming it: the column it meant would lose its unit silently.
@@ -157,11 +157,13 @@ def _csv_units(path: Path, marker: str, columns: Collection[str]) -> dict[str, s
     A ``# units:`` line that is not that JSON object of names to unit strings (hand
     edited, cut short, or another tool's note, ``# units: deg, deg/s``) declares
     nothing, with a warning naming the file and the line: the units would otherwise
-    vanish without a word (deg read as rad).
+    vanish without a word (deg read as rad). So does a units line that is not read: a
+    second one, one after the header, or one written otherwise (``#units:``, ``# Units:``).
     """
     import json
-    import warnings
 
+    declared: dict[str, str] | None = None
+    header_seen = False
     with open(path, "rb") as f:
         line_no = 0
         while raw := f.readline(_MAX_HEADER + 1):
@@ -170,27 +172,53 @@ def _csv_units(path: Path, marker: str, columns: Collection[str]) -> dict[str, s
             if not text:
                 continue
             if not text.startswith("#"):
-                return {}  # the header: no units declared before it
-            if text.startswith(marker):
-                try:
-                    found = json.loads(text[len(marker) :])
-                    why = "" if isinstance(found, dict) else "not a JSON object"
-                except json.JSONDecodeError as exc:
-                    found, why = None, f"not JSON: {exc.msg.lower()}"
-                if isinstance(found, dict):
-                    odd = [k for k, v in found.items() if not isinstance(v, str)]
-                    why = f"the unit of {odd[0]!r} is not a string" if odd else ""
-                if not why:
-                    _warn_unknown_units(path, line_no, found, columns)
-                    return dict(found)
-                warnings.warn(
-                    f"{path}: line {line_no}: units comment not read ({why}); no unit is "
-                    f'declared (FlightData.to_csv writes {marker} {{"alpha": "rad"}})',
-                    UserWarning,
-                    stacklevel=3,  # here, load_flight_test, its caller
+                if header_seen:
+                    break  # the data: comment lines among it are not looked at
+                header_seen = True
+                continue
+            if not _UNITS_LIKE.match(text):
+                continue
+            if header_seen or declared is not None or not text.startswith(marker):
+                why = (
+                    "it is after the header"
+                    if header_seen
+                    else "a second units line"
+                    if declared is not None
+                    else f"written {text.split(':', 1)[0] + ':'!r}, not {marker!r}"
                 )
-                return {}
-    return {}
+                _units_not_read(path, line_no, why, marker)
+                continue
+            try:
+                found = json.loads(text[len(marker) :])
+                why = "" if isinstance(found, dict) else "not a JSON object"
+            except json.JSONDecodeError as exc:
+                found, why = None, f"not JSON: {exc.msg.lower()}"
+            if isinstance(found, dict):
+                odd = [k for k, v in found.items() if not isinstance(v, str)]
+                why = f"the unit of {odd[0]!r} is not a string" if odd else ""
+            if why:
+                _units_not_read(path, line_no, why, marker)
+                declared = {}
+            else:
+                _warn_unknown_units(path, line_no, found, columns)
+                declared = dict(found)
+    return declared or {}
+
+
+# a comment line meant to declare units, however it is written
+_UNITS_LIKE = re.compile(r"#\s*units\s*:", re.IGNORECASE)
+
+
+def _units_not_read(path: Path, line_no: int, why: str, marker: str) -> None:
+    import warnings
+
+    warnings.warn(
+        f"{path}: line {line_no}: units comment not read ({why}); no unit is declared by "
+        f'it (FlightData.to_csv writes one line before the header: {marker} {{"alpha": '
+        '"rad"})',
+        UserWarning,
+        stacklevel=4,  # here, _csv_units, load_flight_test, its caller
+    )
 
 
 def _warn_unknown_units(
@@ -357,10 +385,15 @@ _WIDE = 1000
 
 
 def _first_bad_cell(
-    path: Path, header: list[str], offset: int, names: list[str], keep: Any
+    path: Path,
+    header: list[str],
+    offset: int,
+    names: list[str],
+    keep: Any,
+    pattern: str = _NUMBER,
 ) -> tuple[int, str, str] | None:
-    """(data row from 0, column, cell) of the earliest non-numeric cell among `names`, by
-    pyarrow."""
+    """(data row from 0, column, cell) of the earliest cell among `names` that `pattern`
+    (a number) does not match, by pyarrow."""
     import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.csv as pacsv
@@ -386,7 +419,7 @@ def _first_bad_cell(
             # every column of the batch in one regex call: cell k is row k % rows of
             # column k // rows
             cells = pa.concat_arrays(list(batch.columns))
-            numeric = pc.match_substring_regex(cells, _NUMBER)
+            numeric = pc.match_substring_regex(cells, pattern)
             bad = np.flatnonzero(~np.asarray(numeric.to_numpy(zero_copy_only=False), dtype=bool))
             if bad.size:
                 k = int(bad[np.lexsort((bad // rows, bad % rows))[0]])  # earliest row first
@@ -423,10 +456,13 @@ def _first_bad_cell_wide(
 
 
 def _read_with_timestamps(
-    read: Any, types: dict[str, Any], path: Path, header: list[str], offset: int
+    read: Any, types: dict[str, Any], path: Path, header: list[str], offset: int, line: int
 ) -> Any:
     """`read()`, with each column whose first cell is an ISO 8601 date and time read as
-    timestamps (``types`` updated; they become seconds from the first sample)."""
+    timestamps (``types`` updated; they become seconds from the first sample, in UTC
+    where the first cell gives a zone, ``Z`` or ``+02:00``). A later cell of such a
+    column that is no date and time (or drops or adds the zone) is reported by its
+    file line (`line`: the header's) and the column's name."""
     import pyarrow as pa
 
     for _ in range(len(types)):
@@ -438,13 +474,50 @@ def _read_with_timestamps(
             names = [n for n, kind in types.items() if kind == pa.float64()]
             found = _first_bad_cell(path, header, offset, names, lambda row: "skip")
             if found is None or found[0] != 0 or not _ISO_TIME.fullmatch(found[2]):
+                _raise_bad_time(types, path, header, offset, line)
                 raise
-            types[found[1]] = pa.timestamp("ns")
+            zoned = _ISO_TIME.fullmatch(found[2]).group("zone")  # type: ignore[union-attr]
+            types[found[1]] = pa.timestamp("ns", tz="UTC") if zoned else pa.timestamp("ns")
     return read()
 
 
-# an ISO 8601 date and time (a timestamp column of a CSV)
-_ISO_TIME = re.compile(r"\d{4}-\d\d-\d\d[T ]\d\d:\d\d(:\d\d(\.\d{1,9})?)?(Z|[+-]\d\d:?\d\d)?")
+def _raise_bad_time(
+    types: dict[str, Any], path: Path, header: list[str], offset: int, line: int
+) -> None:
+    """Raise the earliest cell of a timestamp column that is not read as one."""
+    import pyarrow as pa
+
+    for zoned in (False, True):
+        stamped = [
+            n
+            for n, kind in types.items()
+            if isinstance(kind, pa.TimestampType) and (kind.tz is not None) == zoned
+        ]
+        if not stamped:
+            continue
+        pattern = rf"^\s*{_ISO_BODY}{_ISO_ZONE if zoned else ''}\s*$"
+        found = _first_bad_cell(path, header, offset, stamped, lambda row: "skip", pattern)
+        if found is not None:
+            row = _file_line(path, offset, line, found[0] + 1, len(header))
+            cell = found[2]
+            shown = (
+                repr(cell)
+                if len(cell) <= 32 and _ISO_CHARS.fullmatch(cell)
+                else (f"{len(cell)} characters of text")
+            )
+            zone = "with" if zoned else "without"
+            raise DataFormatError(
+                f"{path}: row {row}, column {found[1]!r}: not an ISO 8601 date and time "
+                f"{zone} a zone, as the column's first cell ({shown})"
+            )
+
+
+# an ISO 8601 date and time (a timestamp column of a CSV), with an optional zone
+_ISO_BODY = r"\d{4}-\d\d-\d\d[T ]\d\d:\d\d(:\d\d(\.\d{1,9})?)?"
+_ISO_ZONE = r"(Z|[+-]\d\d:?\d\d)"
+_ISO_TIME = re.compile(rf"{_ISO_BODY}(?P<zone>{_ISO_ZONE})?")
+# a cell shown in a message only where it reads as a date, time or number
+_ISO_CHARS = re.compile(r"[\d.:+\-TZ ]*")
 
 
 def _read_csv(
@@ -504,7 +577,7 @@ def _read_csv(
 
     try:
         try:
-            table = _read_with_timestamps(read, types, path, header, offset)
+            table = _read_with_timestamps(read, types, path, header, offset, header_line)
         except pa.ArrowInvalid as exc:
             # Comment lines among the data: read again without them (rare, so only
             # on the error path); anything else is located and reported. A cell that

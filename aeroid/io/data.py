@@ -489,9 +489,10 @@ def load_flight_test(
     sample; a duration or time-of-day column becomes seconds. A CSV file is
     parsed by pyarrow; comment (``#``) and blank lines before the header are
     skipped, a column whose first cell is an ISO 8601 date and time
-    (``2024-05-01T10:00:00.25``) becomes seconds since its first sample, and
-    a bad cell is reported by row (the file's line number, as an editor shows
-    it) and column. A ``# units:`` comment naming a column the file lacks warns.
+    (``2024-05-01T10:00:00.25``, or with a zone, ``...Z`` or ``...+02:00``,
+    read in UTC) becomes seconds since its first sample, and a bad cell
+    (one of such a column too) is reported by row (the file's line number,
+    as an editor shows it) and column. A ``# units:`` comment naming a column the file lacks warns.
 
     A whole log (`sample_rate` without `channels`) is a first look at
     everything, not a fit: a PX4 log holds fields never set (NaN), topics
