@@ -8,8 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeroid.io.channel_map import load_mapped
+from aeroid import FlightLog, LogChannel
+from aeroid.errors import DataFormatError
+from aeroid.io.channel_map import flight_windows, load_mapped
 from aeroid.io.logs import read_log
+from aeroid.io.resampling import resample
 
 PX4 = Path(__file__).resolve().parent / "data" / "px4" / "sample_log_small.ulg"
 
@@ -59,3 +62,26 @@ def test_a_corrupt_ulog_warns_and_records_an_event(tmp_path: Path) -> None:
         good = read_log(PX4)
     assert not [e for e in good.events if e.kind == "corruption"]
     assert "file_corruption" not in good.metadata
+
+
+def test_a_mode_window_is_clipped_to_the_mapped_channels() -> None:
+    pytest.importorskip("pyulog")
+    roll = {"y": "vehicle_angular_velocity.xyz[0]", "u": "actuator_controls_0.control[0]"}
+    # MANUAL is on from 20.2207 s, before the gyro's first sample (20.326716 s)
+    d = load_mapped(PX4, roll, sample_rate=100.0, window={"mode": "MANUAL"}, max_gap=np.inf)
+    window = d.metadata["window"]
+    assert (window["t0"], window["t1"]) == (20.326716, 26.825311)
+    assert window["found"] == [20.220673, 1194.367328]  # its open end: the last stamp
+    assert [(window["t0"], window["t1"])] == flight_windows(PX4, {"mode": "MANUAL"}, channels=roll)
+    # a window in seconds is still refused outside the span
+    with pytest.raises(DataFormatError, match="not inside the span"):
+        load_mapped(PX4, roll, sample_rate=100.0, window=[20.2, 22.0])
+
+
+def test_the_log_channel_doc_says_what_resample_does_with_backward_stamps() -> None:
+    t = np.array([0.0, 0.2, 0.1, 0.3, 0.4, 0.5])
+    log = FlightLog({"x": LogChannel("x", t, np.arange(6.0))})
+    d = resample(log, ["x"], rate=10)
+    assert d.metadata["resampling"]["channels"]["x"]["reordered_stamps"] == 1
+    doc = " ".join((LogChannel.__doc__ or "").split())
+    assert "`resample` sorts a channel whose time steps back" in doc

@@ -33,8 +33,8 @@ class LogChannel(FrozenState):
     time : array_like
         Seconds, as the log recorded them: repeated stamps, and the stamps of a
         damaged log that step back, are kept (the quality checks report them, and
-        `resample` refuses a channel whose time steps back). Non-finite stamps
-        are refused.
+        `resample` sorts a channel whose time steps back, counting the stamps it
+        moved). Non-finite stamps are refused.
     values : array_like
         One value per stamp.
     unit : str, optional

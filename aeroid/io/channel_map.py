@@ -408,6 +408,25 @@ def _spans(log: Any, names: Sequence[str]) -> tuple[float, float]:
     return lo, hi
 
 
+def _fit_window(
+    t0: float, t1: float, record: dict[str, Any], lo: float, hi: float, where: str
+) -> tuple[float, float]:
+    """A found window (mode, events) clipped to the channels' span [lo, hi], as
+    `flight_windows` clips it; a window in seconds must lie inside it."""
+    if record.get("way") == "time":
+        _check_inside(t0, t1, lo, hi, where)
+        return t0, t1
+    a, b = max(t0, lo), min(t1, hi)
+    if not b > a:
+        raise DataFormatError(
+            f"{where}: window [{t0:.6g}, {t1:.6g}] s does not overlap the span "
+            f"[{lo:.6g}, {hi:.6g}] s that the mapped channels cover"
+        )
+    if (a, b) != (t0, t1):
+        record.update(t0=a, t1=b, found=[t0, t1])
+    return a, b
+
+
 def _check_inside(t0: float, t1: float, lo: float, hi: float, where: str) -> None:
     if t0 < lo or t1 > hi:
         raise DataFormatError(
@@ -491,7 +510,9 @@ def load_mapped(
     window : [t0, t1] or mapping, optional
         The part of the flight to keep: seconds in the log's time, or
         ``{mode: ...}`` / ``{events: [start, end]}`` resolved with
-        `aeroid.segment` (``index`` picks one of several). A log resampled
+        `aeroid.segment` (``index`` picks one of several) and clipped to the
+        span the mapped channels cover (as `flight_windows` clips them; the
+        window found is kept as ``metadata["window"]["found"]``). A log resampled
         with `sample_rate` is resampled inside the window only, so gaps
         outside it do not matter.
     time_column : str, optional
@@ -523,7 +544,8 @@ def load_mapped(
     DataFormatError
         An unknown unit (listing the known ones), a `units` label that
         contradicts a channel's unit after the map, an inverted window, a
-        window outside the mapped channels' span, a mode or event that
+        window in seconds outside the mapped channels' span (a mode or events
+        window that misses it), a mode or event that
         matches nothing, or anything `load_flight_test` refuses.
     """
     from .logs import read_log, sniff_format
@@ -571,7 +593,7 @@ def load_mapped(
         record: dict[str, Any] | None = None
         if window is not None:
             t0, t1, record = resolve_window(data, window)
-            _check_inside(t0, t1, float(data.time[0]), float(data.time[-1]), p.name)
+            t0, t1 = _fit_window(t0, t1, record, float(data.time[0]), float(data.time[-1]), p.name)
             data = data.window(t0, t1)
         report = None if limits is None else _quality(data, cmap.sources, None, limits)
     else:
@@ -586,7 +608,7 @@ def load_mapped(
         record = None
         if window is not None:
             t0, t1, record = resolve_window(log, window)
-            _check_inside(t0, t1, *_spans(log, cmap.sources), p.name)
+            t0, t1 = _fit_window(t0, t1, record, *_spans(log, cmap.sources), p.name)
             bounds = (t0, t1)
         report = None if limits is None else _quality(log, cmap.sources, bounds, limits)
         data = _log_record(p, log, cmap.sources, sample_rate, max_gap, bounds)

@@ -371,12 +371,14 @@ def _window_faults(path: Path, header: _Header, spec: FileFlights) -> list[tuple
     out: list[tuple[str, str]] = []
     if spec.window is not None:
         try:
-            t0, t1, _ = resolve_window(log, spec.window)
+            t0, t1, how = resolve_window(log, spec.window)
         except AeroidError as exc:
             return [("window", f"{path.name}: {exc}")]
         if sources:
             lo = max(float(log.channels[s].time[0]) for s in sources)
             hi = min(float(log.channels[s].time[-1]) for s in sources)
+            if how["way"] != "time" and min(t1, hi) > max(t0, lo):
+                t0, t1 = max(t0, lo), min(t1, hi)  # a mode or events window is clipped
             if t0 < lo or t1 > hi:
                 out.append(
                     (
