@@ -56,7 +56,11 @@ def test_a_naive_cell_in_a_zoned_column_is_named(tmp_path: Path) -> None:
     ("head", "line", "why"),
     [
         ('# units: {"alpha": "deg"}\n# units: {"q": "deg/s"}\ntime,alpha,q\n', 2, "a second"),
-        ('# units: {"alpha": "deg"}\ntime,alpha,q\n# units: {"q": "deg/s"}\n', 3, "it is after the"),
+        (
+            '# units: {"alpha": "deg"}\ntime,alpha,q\n# units: {"q": "deg/s"}\n',
+            3,
+            "it is after the",
+        ),
         ('#units: {"q": "deg/s"}\ntime,alpha,q\n', 1, "written '#units:'"),
         ('# Units: {"q": "deg/s"}\ntime,alpha,q\n', 1, "written '# Units:'"),
     ],
