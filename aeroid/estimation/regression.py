@@ -371,6 +371,8 @@ class StepwiseResult(IntervalMixin):
         terms) on the original, not orthogonalised, regressors.
     f_in, f_out : float
     orthogonalized : bool
+    chosen_step : int
+        The step whose model is the final one: the least PSE of the sequence.
     """
 
     selected: tuple[str, ...]
@@ -381,6 +383,7 @@ class StepwiseResult(IntervalMixin):
     f_in: float
     f_out: float
     orthogonalized: bool
+    chosen_step: int = -1
 
     @property
     def standard_errors(self) -> Mapping[str, float]:
@@ -411,7 +414,7 @@ class StepwiseResult(IntervalMixin):
         """A Markdown table of the steps followed by the final fit."""
         rows = [
             [
-                s.step,
+                f"**{s.step}**" if s.step == self.chosen_step else s.step,
                 s.action,
                 s.term or "—",
                 "—" if not np.isfinite(s.f_value) else fmt(s.f_value),
@@ -426,7 +429,8 @@ class StepwiseResult(IntervalMixin):
             f"{len(self.candidates)} candidates (F_in = {fmt(self.f_in)}, "
             f"F_out = {fmt(self.f_out)}"
             f"{', orthogonalised' if self.orthogonalized else ''}): "
-            f"selected {', '.join(self.selected) or 'nothing'}\n\n"
+            f"selected {', '.join(self.selected) or 'nothing'}"
+            f"{f' (step {self.chosen_step}: the least PSE)' if self.chosen_step >= 0 else ''}\n\n"
         )
         table = markdown_table(["step", "action", "term", "F", "R²", "PSE", "terms"], rows)
         return head + table + "\n\n" + self.regression.summary()
@@ -470,10 +474,15 @@ def stepwise_regression(
 
     Klein & Morelli's procedure (ch. 5): starting from the constant and the
     `forced` terms, each step enters the candidate with the largest partial F
-    statistic ``F = ΔSSE / s²`` if it exceeds `f_in` and lowers the predicted
-    squared error, then removes, one at a time, model terms whose partial F
-    has fallen below `f_out`. It stops when no term enters or leaves (or a
-    model would repeat). The final model is fitted by `equation_error`.
+    statistic ``F = ΔSSE / s²`` if it exceeds `f_in`, then removes, one at a
+    time, model terms whose partial F has fallen below `f_out`. It stops when
+    no term enters or leaves (or a model would repeat). The final model is the
+    one of that sequence with the least predicted squared error
+    ``PSE = SSE/N + σ²_max p/N`` (σ²_max the response's variance about its
+    mean, as SIDPAC's ``swr``), fitted by `equation_error`. The PSE judges the
+    whole sequence, not each entry: one strong term may raise it by a hair
+    (its F below 1/(1 - R²)) while the next lowers it well below, and gating
+    each entry on it would stop short of the better model.
 
     Parameters
     ----------
@@ -579,6 +588,7 @@ def stepwise_regression(
     model = [names.index(f) for f in forced_list]
     sse, r2, pse = stats(model)
     steps = [StepwiseStep(0, "start", "", float("nan"), r2, pse, len(model) + base)]
+    visited = [list(model)]  # the model after each step
     seen = {frozenset(model)}
     while len(steps) - 1 < limit:
         changed = False
@@ -601,18 +611,18 @@ def stepwise_regression(
             k = int(np.argmax(drop))
             if drop[k] > 0:
                 best, best_sse = free[k], max(sse - float(drop[k]), 0.0)
-                new_pse = best_sse / n + s_dev / n * p_new / n
                 f_val = (
                     (sse - best_sse) / (best_sse / (n - p_new)) if best_sse > 0 else float("inf")
                 )
                 key = frozenset([*model, best])
-                if f_val > f_in and new_pse < pse and key not in seen:
+                if f_val > f_in and key not in seen:
                     model.append(best)
                     seen.add(key)
                     sse, r2, pse = stats(model)
                     steps.append(
                         StepwiseStep(len(steps), "enter", names[best], f_val, r2, pse, p_new)
                     )
+                    visited.append(list(model))
                     changed = True
         # backward: remove the weakest term while its F-to-remove is below f_out
         while len(steps) - 1 < limit:
@@ -640,9 +650,13 @@ def stepwise_regression(
                     len(steps), "remove", names[worst], f_rem[worst], r2, pse, len(model) + base
                 )
             )
+            visited.append(list(model))
             changed = True
         if not changed:
             break
+    # the least PSE of the sequence (the earliest of equals: the fewest terms)
+    chosen = min(range(len(steps)), key=lambda i: (steps[i].pse, i))
+    model = visited[chosen]
     _warn_unweighed(gram, szz, model, [j for j in range(c) if j not in model and usable[j]], names)
     selected = [names[j] for j in model if names[j] not in forced_list]
     keep = [names.index(f) for f in forced_list] + [j for j in model if names[j] not in forced_list]
@@ -664,6 +678,7 @@ def stepwise_regression(
         f_in=f_in,
         f_out=f_out,
         orthogonalized=bool(orthogonalize),
+        chosen_step=chosen,
     )
 
 
