@@ -407,7 +407,10 @@ class Multisine(_Family):
 
     def _raw(self, a: FloatArray, t: FloatArray) -> FloatArray:
         w = 2.0 * np.pi * np.asarray(self.frequencies)
-        ph = schroeder_phases(a**2)
+        # Schroeder's rule runs over the lines in frequency order, whatever the list order
+        order = np.argsort(w)
+        ph = np.empty(a.size)
+        ph[order] = schroeder_phases(a[order] ** 2)
         # Schroeder's phases are for a sum of cosines; moved along in time (which keeps
         # the crest) to the sum's first zero crossing, so the input starts from trim
         # without a jump, as SIDPAC's mkmsswp does
