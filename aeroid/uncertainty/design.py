@@ -38,6 +38,7 @@ from ..errors import (
     ModelDefinitionError,
     SimulationError,
 )
+from ..estimation.identifiability import NO_EFFECT, RCOND
 from ..io.data import FlightData, as_float, check_flag
 from ..models.model import Model, SimulatorModel, require_model, resolve_parameters
 from .design_options import optimizer_settings
@@ -198,6 +199,11 @@ class ExperimentDesign(FrozenState):
             rows,
         )
         duration = float(self.time[-1] - self.time[0])
+        criterion = (
+            f"Criterion {fmt(self.initial_criterion_value)} → {fmt(self.criterion_value)}"
+            if np.isfinite(self.criterion_value)
+            else "Criterion infinite (the design cannot identify every parameter)"
+        )
         return "\n".join(
             [
                 "## Experiment design",
@@ -209,8 +215,7 @@ class ExperimentDesign(FrozenState):
                 "",
                 par_table,
                 "",
-                f"Criterion {fmt(self.initial_criterion_value)} → {fmt(self.criterion_value)} "
-                f"after {self.n_generations} generations ({self.n_candidates} candidates, "
+                f"{criterion} after {self.n_generations} generations ({self.n_candidates} candidates, "
                 f"{self.n_simulations} simulated trajectories). {self.message}",
                 "",
                 f"**Recommendation:** {self.recommendation}",
@@ -325,24 +330,30 @@ class _Evaluator:
         return _fisher(sens[:n, ..., self.out_idx], self.sigma), ok[:n]
 
     def criterion_of(self, fisher: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
-        """Criterion per candidate (lower is better); `_PENALTY` when singular or failed."""
+        """Criterion per candidate (lower is better); `_PENALTY` when failed or when the
+        information cannot identify the parameters, by the test `_analyse_fisher` applies
+        (a null direction of the unit-diagonal matrix): a rank-deficient matrix inverted
+        through rounding noise would rank candidates on that noise."""
         fs = fisher * np.outer(self.scale, self.scale)  # information about θ / scale
         out = np.full(fs.shape[0], _PENALTY)
         with np.errstate(all="ignore"):
-            if self.criterion == "D":
-                sign, logdet = np.linalg.slogdet(fs)
-                good = ok & (sign > 0) & np.isfinite(logdet)
-                out[good] = -logdet[good]
-            else:
-                for s in np.flatnonzero(ok):
-                    try:
-                        c = np.linalg.cholesky(fs[s])
-                    except np.linalg.LinAlgError:
-                        continue
-                    ci = np.linalg.inv(c)
-                    val = float(np.sum(ci**2))  # trace of fs^-1
-                    if np.isfinite(val):
-                        out[s] = val
+            d = np.sqrt(np.clip(np.diagonal(fs, axis1=1, axis2=2), 0.0, None))
+            live = np.all(d > 1e-300 + NO_EFFECT * d.max(axis=1, keepdims=True), axis=1)
+            good = ok & live & np.all(np.isfinite(fs), axis=(1, 2))
+            if not np.any(good):
+                return out
+            dg = d[good]
+            fn = fs[good] / (dg[:, :, None] * dg[:, None, :])
+            w, v = np.linalg.eigh(0.5 * (fn + np.swapaxes(fn, 1, 2)))
+            full = w[:, 0] >= RCOND * np.maximum(w[:, -1], 1e-300)
+            if self.criterion == "D":  # -log det fs = -(log det fn + 2 Σ log d)
+                val = -(np.sum(np.log(np.abs(w)), axis=1) + 2.0 * np.sum(np.log(dg), axis=1))
+            else:  # trace of fs^-1 = Σ_i (fn^-1)_ii / d_i²
+                inv_diag = np.einsum("sik,sk->si", v**2, 1.0 / w)
+                val = np.sum(inv_diag / dg**2, axis=1)
+            keep = full & np.isfinite(val)
+            idx = np.flatnonzero(good)[keep]
+            out[idx] = val[keep]
         return out
 
     def __call__(self, variables: FloatArray) -> FloatArray:
@@ -635,7 +646,9 @@ def design_experiment(
             bar.close()
     x_best = np.clip(np.asarray(res.x, dtype=np.float64), bounds[:, 0], bounds[:, 1])
     f_best = float(res.fun)
-    if opts["polish"] and f_best < _PENALTY:
+    if f_best >= _PENALTY:  # no candidate identifies: none beats the reference design
+        x_best = x_init
+    elif opts["polish"]:
         x_best, f_best = _polish(evaluate, x_best, f_best, bounds)
     canon = getattr(maneuver, "canonical", None)
     if callable(canon):
