@@ -114,6 +114,9 @@ class ExperimentDesign(FrozenState):
         Work done: optimiser generations, candidate designs evaluated,
         trajectories integrated for them (the copies that pad a batch to the
         population's size are not counted).
+    n_failed : int
+        Candidates whose simulation failed (non-finite, or the model raised):
+        they cannot be flown and were dropped from the search, with a warning.
     success : bool
     message : str
     seed : int or None
@@ -147,6 +150,7 @@ class ExperimentDesign(FrozenState):
     message: str
     seed: int | None = None
     model_name: str = ""
+    n_failed: int = 0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -199,6 +203,12 @@ class ExperimentDesign(FrozenState):
             rows,
         )
         duration = float(self.time[-1] - self.time[0])
+        failed = (
+            f" {self.n_failed} of the {self.n_candidates} candidates failed to simulate "
+            "and were dropped."
+            if self.n_failed
+            else ""
+        )
         criterion = (
             f"Criterion {fmt(self.initial_criterion_value)} → {fmt(self.criterion_value)}"
             if np.isfinite(self.criterion_value)
@@ -216,7 +226,7 @@ class ExperimentDesign(FrozenState):
                 par_table,
                 "",
                 f"{criterion} after {self.n_generations} generations ({self.n_candidates} candidates, "
-                f"{self.n_simulations} simulated trajectories). {self.message}",
+                f"{self.n_simulations} simulated trajectories).{failed} {self.message}",
                 "",
                 f"**Recommendation:** {self.recommendation}",
             ]
@@ -266,6 +276,8 @@ class _Evaluator:
         self.n_candidates = 0
         self.n_simulations = 0
         self.errors: list[str] = []  # what failed in a simulation, for the messages
+        self.n_failed = 0  # candidates whose simulation failed (dropped)
+        self.n_y = len(_output_names(model))
 
     def controls(self, variables: FloatArray) -> FloatArray:
         """(S, n_t, n_u) control histories of candidate designs (S, n_v)."""
@@ -313,21 +325,34 @@ class _Evaluator:
                 with contextlib.suppress(IdentificationError):  # a family's bad corner
                     extra = self.controls(filler[None, :])
             u = np.concatenate([u, np.repeat(extra, self.width - n, axis=0)])
-        _, sens, ok = _fd_sensitivities(
-            self.model,
-            self.time,
-            u,
-            self.x0,
-            self.values,
-            self.names,
-            self.steps,
-            self.options,
-            nominal=False,
-            errors=self.errors,
-        )
+        try:
+            sens, ok = self._sensitivities(u)
+        except SimulationError:
+            # dynamics that raise stop the whole batch: fly each candidate on its own,
+            # so that only those that fail are dropped, as a non-finite one is
+            parts = [self._one(u[s : s + 1]) for s in range(n)]
+            sens = np.concatenate([p[0] for p in parts])
+            ok = np.concatenate([p[1] for p in parts])
         self.n_candidates += n
         self.n_simulations += n * 2 * len(self.names)
+        self.n_failed += int(np.count_nonzero(~ok[:n]))
         return _fisher(sens[:n, ..., self.out_idx], self.sigma), ok[:n]
+
+    def _sensitivities(self, u: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+        _, sens, ok = _fd_sensitivities(
+            self.model, self.time, u, self.x0, self.values, self.names, self.steps,
+            self.options, nominal=False, errors=self.errors,
+        )  # fmt: skip
+        return sens, ok
+
+    def _one(self, u: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """One candidate's sensitivities and flag; a raised `SimulationError` fails it."""
+        try:
+            return self._sensitivities(u)
+        except SimulationError as exc:
+            self.errors.append(str(exc))
+            shape = (1, len(self.names), self.time.size, self.n_y)
+            return np.full(shape, np.nan), np.zeros(1, dtype=bool)
 
     def criterion_of(self, fisher: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
         """Criterion per candidate (lower is better); `_PENALTY` when failed or when the
@@ -491,6 +516,13 @@ def design_experiment(
 
     Warns
     -----
+    UserWarning
+        When some candidate designs fail to simulate (a non-finite state or
+        output, dynamics or a simulator that raise): they cannot be flown and
+        are dropped from the search, whatever the failure; the warning counts
+        them and names the first failure, the result's ``n_failed`` counts them,
+        and the optimum may sit on that edge of what simulates rather than on
+        the physics.
     IdentifiabilityWarning
         When even the best design cannot identify every parameter: the
         message names the parameter combinations the manoeuvre cannot
@@ -683,6 +715,15 @@ def design_experiment(
             IdentifiabilityWarning,
             stacklevel=CALLER_STACKLEVEL,
         )
+    if evaluate.n_failed:
+        warnings.warn(
+            f"design_experiment: {evaluate.n_failed} of {evaluate.n_candidates} candidate "
+            f"designs failed to simulate and were dropped (first: {evaluate.errors[0]}); "
+            "the design found may sit on the edge of what the model can fly rather than on "
+            "the physics",
+            UserWarning,
+            stacklevel=CALLER_STACKLEVEL,
+        )
     return ExperimentDesign(
         design=dict(zip(var_names, x_best.tolist(), strict=True)),
         initial_design=dict(zip(var_names, np.asarray(x_init_c).tolist(), strict=True)),
@@ -709,6 +750,7 @@ def design_experiment(
         message=message,
         seed=seed,
         model_name=str(model.name),
+        n_failed=evaluate.n_failed,
     )
 
 
