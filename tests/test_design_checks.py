@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
+import aeroid
 from aeroid import IdentifiabilityWarning, Model
 from aeroid.uncertainty.design import design_experiment
 from aeroid.uncertainty.maneuvers import Doublet
@@ -81,3 +82,52 @@ def test_a_design_without_failures_warns_nothing():
             optimizer_options={"maxiter": 2},
         )  # fmt: skip
     assert d.n_failed == 0 and "failed" not in d.summary()
+
+
+class _Sine:
+    """A user's family: one amplitude of a 0.5 Hz sine on the aileron."""
+
+    controls = ("da",)
+    variable_names = ("a",)
+    bounds = ((0.01, 0.1),)
+
+    def initial(self):
+        return np.array([0.05])
+
+    def signal(self, v, t):
+        return (v[0] * np.sin(2 * np.pi * 0.5 * np.asarray(t)))[:, None]
+
+    def describe(self, v, t):
+        return "sine"
+
+
+def _broken(**methods) -> _Sine:
+    family = _Sine()
+    for name, value in methods.items():
+        setattr(family, name, value)
+    return family
+
+
+@pytest.mark.parametrize(
+    ("family", "culprit"),
+    [
+        # a bare numpy ValueError about concatenation
+        (_broken(canonical=lambda v, t: np.array([v[0], 1.0])), r"_Sine\.canonical\(\)"),
+        # these two were blamed on optimizer_options, which nobody gave
+        (_broken(initial=lambda: np.array([0.05, 0.1])), r"_Sine\.initial\(\): expected 1"),
+        (_broken(bounds=((0.01, np.inf),)), r"_Sine\.bounds: expected finite"),
+        (_broken(bounds=((0.01, 0.1), (0.0, 1.0))), r"_Sine\.bounds: 2 bounds for 1"),
+        # these two were accepted
+        (_broken(initial=lambda: np.array([0.5])), r"_Sine\.initial\(\): .* outside its bounds"),
+        (_broken(controls=("da", "da")), r"_Sine\.controls: 'da' is listed twice"),
+    ],
+    ids=["canonical", "initial_length", "inf_bound", "bounds_length", "initial_out", "dup"],
+)
+def test_a_user_family_that_breaks_the_protocol_is_named(family, culprit):
+    roll = _table_roll(False)
+    with pytest.raises(aeroid.IdentificationError, match=culprit) as info:
+        design_experiment(
+            roll, family, ["L_p", "L_da"], noise={"p": 0.01}, duration=4.0, sample_rate=10.0,
+            seed=0, optimizer_options={"maxiter": 1, "popsize": 3},
+        )  # fmt: skip
+    assert "optimizer_options" not in str(info.value)

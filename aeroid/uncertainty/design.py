@@ -17,7 +17,6 @@ candidates, so a compiled simulation compiles one program for the whole design.
 from __future__ import annotations
 
 import contextlib
-import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -41,6 +40,7 @@ from ..errors import (
 from ..estimation.identifiability import NO_EFFECT, RCOND
 from ..io.data import FlightData, as_float, check_flag
 from ..models.model import Model, SimulatorModel, require_model, resolve_parameters
+from ._design_family import family_bounds, family_controls, family_vector, trim_vector
 from .design_options import optimizer_settings
 from .maneuvers import ManeuverFamily
 from .sensitivity import (
@@ -508,7 +508,10 @@ def design_experiment(
     ------
     IdentificationError
         Bad parameters, criterion, noise, grid or optimiser options, or a
-        family with no design variables.
+        family with no design variables or one that breaks the `ManeuverFamily`
+        protocol (a control listed twice, bounds that are not finite
+        ``(low, high)`` pairs, an `initial` or `canonical` design of the wrong
+        length, an `initial` outside the bounds), naming the method at fault.
     ChannelError
         The family drives a control the model does not have.
     SimulationError
@@ -580,31 +583,20 @@ def design_experiment(
         sigma = _noise_vector(noise, outs)
     out_idx = [all_outputs.index(o) for o in outs]
     controls = _control_names(model)
-    missing = [c for c in maneuver.controls if c not in controls]
+    missing = [c for c in family_controls(maneuver) if c not in controls]
     if missing:
         raise ChannelError(
             f"maneuver drives {missing}, which are not controls of model {model.name!r}; "
             f"controls: {list(controls)}"
         )
-    trim_vector = _trim_vector(trim, controls, model.name)
+    trims = trim_vector(trim, controls, model.name)
     top = getattr(maneuver, "highest_frequency", lambda: None)()
     if top is not None and top >= fs / 2:  # it would alias onto a lower line
         raise IdentificationError(
             f"maneuver {maneuver!r}: its frequencies reach {top:g} Hz, at or above the "
             f"Nyquist frequency {fs / 2:g} Hz of sample_rate {fs:g} Hz"
         )
-    bounds = np.array(maneuver.bounds, dtype=np.float64).reshape(-1, 2)
-    var_names = tuple(maneuver.variable_names)
-    if bounds.shape[0] == 0:
-        raise IdentificationError(
-            f"maneuver {maneuver!r} has no design variables: give a (low, high) range for at "
-            "least one of its settings"
-        )
-    if len(var_names) != bounds.shape[0] or np.any(bounds[:, 1] <= bounds[:, 0]):
-        raise IdentificationError(
-            f"maneuver: {len(var_names)} variable names for {bounds.shape[0]} bounds, or a "
-            f"bound with low >= high: {bounds.tolist()}"
-        )
+    bounds, var_names = family_bounds(maneuver)
     batch_width = _batch_width(opts, len(var_names)) if isinstance(model, Model) else 0
     # differential evolution scores its whole population in one batched simulation
     members = max(int(opts["popsize"]) * len(var_names), batch_width) * (2 * len(names) + 1)
@@ -617,11 +609,11 @@ def design_experiment(
         )
     if isinstance(model, Model) and x0 is not None:
         x0 = model.initial_state(x0, 1)[0]
-    x_init = np.clip(np.asarray(maneuver.initial(), dtype=np.float64), bounds[:, 0], bounds[:, 1])
+    x_init = family_vector(maneuver, "initial", maneuver.initial, bounds, inside=True)
 
     evaluate = _Evaluator(
         model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel,
-        trim_vector, batch_width,
+        trims, batch_width,
     )  # fmt: skip
     # padded with another design (a corner of the bounds): a batch of one control history
     # repeated is simulated as a shared history, by a compiled program of its own
@@ -684,8 +676,12 @@ def design_experiment(
         x_best, f_best = _polish(evaluate, x_best, f_best, bounds)
     canon = getattr(maneuver, "canonical", None)
     if callable(canon):
-        x_best = np.asarray(canon(x_best, time), dtype=np.float64)
-        x_init_c = np.asarray(canon(x_init, time), dtype=np.float64)
+        x_best = family_vector(
+            maneuver, "canonical", lambda: canon(x_best, time), bounds, inside=False
+        )
+        x_init_c = family_vector(
+            maneuver, "canonical", lambda: canon(x_init, time), bounds, inside=False
+        )
     else:
         x_init_c = x_init
     fis, ok = evaluate.fisher(np.vstack([x_best, x_init]))
@@ -774,29 +770,3 @@ def _recommendation(
     return (
         f"{text}; predicted stderr improves {ratios[best]:.2g}x over the initial design for {best}"
     )
-
-
-def _trim_vector(
-    trim: Mapping[str, float] | None, controls: Sequence[str], model_name: str
-) -> FloatArray | None:
-    """The trim controls in the model's control order (None: all zero), checked."""
-    if trim is None:
-        return None
-    if not isinstance(trim, Mapping):
-        raise IdentificationError(
-            f"trim: expected a dict of control -> value, got {type(trim).__name__}"
-        )
-    unknown = sorted(set(trim) - set(controls))
-    if unknown:
-        raise ChannelError(
-            f"trim: {unknown} are not controls of model {model_name!r}; controls: {list(controls)}"
-        )
-    out = np.zeros(len(controls))
-    for name, value in trim.items():
-        v = float(value)
-        if not math.isfinite(v):
-            raise IdentificationError(
-                f"trim: the value of {name!r} is {value!r}; expected a finite number"
-            )
-        out[controls.index(name)] = v
-    return out

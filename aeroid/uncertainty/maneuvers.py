@@ -59,12 +59,12 @@ class ManeuverFamily(Protocol):
     variable_names : tuple of str
         Names of the design variables.
     bounds : tuple of (float, float)
-        ``(low, high)`` per design variable.
+        Finite ``(low, high)`` per design variable, low < high.
 
     Methods
     -------
     initial() -> ndarray, shape (n_variables,)
-        The reference design the optimised one is compared with.
+        The reference design the optimised one is compared with (within the bounds).
     signal(variables, time) -> ndarray, shape (n_t, n_controls)
         Control history for one vector of design variables.
     describe(variables, time) -> str
