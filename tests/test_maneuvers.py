@@ -113,6 +113,26 @@ def test_multisine_never_exceeds_its_peak_limit():
     assert "peak amplitude 0.05" in m.describe([0.05] * 4, T)
 
 
+def test_multisine_peak_limit_keeps_every_line_within_its_bounds():
+    # the peak limit scaled all lines alike: a line at its lower bound 0.005 was flown at
+    # about half of it; now only the excess over the lower bounds shrinks
+    t = np.arange(1000) / 50.0  # 20 s: the lines are harmonics of 0.05 Hz
+    f = (0.2, 0.5, 0.8, 1.1, 1.4)
+    m = Multisine("elevator", frequencies=f, amplitude=(0.005, 0.04), peak=0.06)
+    a = [0.04, 0.04, 0.005, 0.005, 0.04]
+    u = m.signal(a, t)[:, 0]
+    assert np.max(np.abs(u)) <= 0.06 * (1 + 1e-12)
+    assert np.max(np.abs(u)) == pytest.approx(0.06, rel=1e-6)  # the limit is reached
+    lines = 2 * np.abs(np.fft.rfft(u))[np.round(np.array(f) * 20).astype(int)] / t.size
+    np.testing.assert_allclose(lines, m.canonical(a, t), rtol=1e-9)
+    assert np.all(lines >= 0.005 * (1 - 1e-9)) and np.all(lines <= 0.04)
+    np.testing.assert_allclose(lines[2:4], 0.005, rtol=1e-9)  # the floor lines stay put
+    # lower bounds whose lines alone exceed the limit cannot be flown: refused by name
+    tight = Multisine("elevator", frequencies=f, amplitude=(0.02, 0.04))
+    with pytest.raises(ModelDefinitionError, match=r"lower bound .* above the peak limit"):
+        tight.signal([0.04] * 5, t)
+
+
 def test_chirp_sweeps_its_band():
     c = Chirp("elevator", f0=0.2, f1=2.0, amplitude=0.1)
     u = c.signal(np.array([]), T)[:, 0]

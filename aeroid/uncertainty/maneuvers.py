@@ -357,10 +357,15 @@ class Multisine(_Family):
     """Sum of cosines at fixed frequencies with per-line amplitudes and Schroeder phases.
 
     The design variables are the line amplitudes; the phases follow from
-    their relative powers (Schroeder 1970). The upper amplitude bound is also
-    the signal's peak limit: a combination whose sum would exceed it is
-    scaled down as a whole, so the optimiser's freedom is the distribution
-    of energy over the lines.
+    their relative powers (Schroeder 1970), taken over the lines in frequency
+    order whatever the order they are listed in. The upper amplitude bound is
+    also the signal's peak limit (unless `peak` is given): a combination whose
+    sum would exceed it is shrunk towards the lower amplitude bounds until it
+    does not (scaled down as a whole where they are zero), so every line
+    flown stays within its bounds and the optimiser's freedom is the
+    distribution of energy over the lines. Lower bounds whose lines alone
+    exceed the peak limit cannot be flown and are refused
+    (`ModelDefinitionError`) when a signal needs the limit.
 
     Parameters
     ----------
@@ -435,23 +440,47 @@ class Multisine(_Family):
         s = self._settings(variables)
         return np.array([s[k] for k in self._specs])
 
-    def _scale(self, raw: FloatArray) -> float:
-        top = float(np.max(np.abs(raw))) if raw.size else 0.0
-        return min(1.0, self.peak / top) if top > 0 else 1.0
+    def _flown(self, a: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The line amplitudes flown and their signal: `a` itself within the peak limit,
+        else the excess over the lower bounds shrunk until it is (all of `a` scaled down
+        where the lower bounds are zero), so no line leaves its bounds."""
+        raw = self._raw(a, t)
+        top = float(np.max(np.abs(raw)))
+        if top <= self.peak:
+            return a, raw
+        low = np.array([lo for lo, _ in self._specs.values()])
+        if not np.any(low > 0):  # the sum scales with the amplitudes, phases unchanged
+            scale = self.peak / top
+            return a * scale, raw * scale
+        floor = self._raw(low, t)
+        if float(np.max(np.abs(floor))) > self.peak:
+            raise ModelDefinitionError(
+                f"Multisine amplitude: every line at its lower bound {fmt(low.min(), 3)} "
+                f"already peaks at {fmt(float(np.max(np.abs(floor))), 3)}, above the peak "
+                f"limit {fmt(self.peak, 3)}; lower the amplitudes' lower bound or raise peak"
+            )
+        # the phases follow the relative powers, so the peak is no longer linear in the
+        # shrink: bisect it, keeping the end that stays within the limit
+        good, bad, best = 0.0, 1.0, (low, floor)
+        for _ in range(40):
+            mid = 0.5 * (good + bad)
+            trial = low + mid * (a - low)
+            u = self._raw(trial, t)
+            if float(np.max(np.abs(u))) <= self.peak:
+                good, best = mid, (trial, u)
+            else:
+                bad = mid
+        return best
 
     def signal(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         t = self._grid(time)
-        raw = self._raw(self._amplitudes(variables), t)
-        return (raw * self._scale(raw))[:, None]
+        return self._flown(self._amplitudes(variables), t)[1][:, None]
 
     def canonical(self, variables: ArrayLike, time: ArrayLike) -> FloatArray:
         """The line amplitudes actually flown (after peak limiting)."""
         t = self._grid(time)
-        a = self._amplitudes(variables)
-        scale = self._scale(self._raw(a, t))
-        s = self._settings(variables)
-        scaled = {k: s[k] * scale for k in self._specs}
-        return np.array([scaled[k] for k in self._free])
+        flown = dict(zip(self._specs, self._flown(self._amplitudes(variables), t)[0], strict=True))
+        return np.array([flown[k] for k in self._free])
 
     def describe(self, variables: ArrayLike, time: ArrayLike) -> str:
         t = self._grid(time)
