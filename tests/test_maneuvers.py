@@ -443,3 +443,55 @@ def test_design_variables_that_are_no_finite_numbers_are_named(family):
 def test_a_signal_on_a_grid_that_is_not_one_is_refused(family, time):
     with pytest.raises(aeroid.DataFormatError, match=f"{type(family).__name__} time"):
         family.signal([], np.array(time))
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: Doublet("e", amplitude=("0", "1")),
+        lambda: Doublet("e", amplitude=(False, True)),
+        lambda: Chirp("e", f0=("0.1", "0.5"), f1=1.0, amplitude=1.0),
+        lambda: Multisine("e", frequencies="12", amplitude=(0, 1)),
+        lambda: Multisine("e", frequencies=["0.5", "1.0"], amplitude=(0, 1)),
+        lambda: Multisine("e", frequencies=[True, 2.0], amplitude=(0, 1)),
+        lambda: Multisine("e", frequencies=[1.0], amplitude=(0, 1), peak="2"),
+        lambda: Multisine("e", frequencies=[1.0], amplitude=(0, 1), peak=True),
+        lambda: orthogonal_multisine(["a"], duration="10", sample_rate=50.0, band=(0.1, 2)),
+        lambda: orthogonal_multisine(["a"], duration=10.0, sample_rate=50.0, band=("0.1", "2")),
+        lambda: orthogonal_multisine(
+            ["a"], duration=10.0, sample_rate=50.0, band=(0.1, 2), amplitudes=True
+        ),
+    ],
+    ids=[
+        "doublet_text",
+        "doublet_bool",
+        "chirp_text",
+        "ms_text",
+        "ms_texts",
+        "ms_bool",
+        "ms_peak_text",
+        "ms_peak_bool",
+        "om_duration",
+        "om_band",
+        "om_amplitude",
+    ],
+)
+def test_text_and_bools_are_no_numbers(make):
+    # each was read as a number: ("0", "1") as (0, 1), [True, 2.0] as a 1 Hz line, ...
+    with pytest.raises(ModelDefinitionError, match="expected"):
+        make()
+
+
+def test_numbers_in_arrays_still_read():
+    assert Doublet("e", amplitude=np.array([0.01, 0.1])).bounds[0] == (0.01, 0.1)
+    m = Multisine("e", frequencies=np.array([0.5, 1.0]), amplitude=(0, 1), peak=np.float64(2))
+    assert m.frequencies == (0.5, 1.0) and m.peak == 2.0
+
+
+def test_orthogonal_multisine_without_a_seed_records_the_one_it_drew():
+    kw = {"duration": 10.0, "sample_rate": 50.0, "band": (0.1, 2.0)}
+    a = orthogonal_multisine(["e", "a"], seed=None, **kw)
+    b = orthogonal_multisine(["e", "a"], seed=None, **kw)
+    assert isinstance(a.seed, int) and a.seed != b.seed
+    again = orthogonal_multisine(["e", "a"], seed=a.seed, **kw)
+    np.testing.assert_array_equal(again.signals, a.signals)

@@ -24,10 +24,12 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import as_float
 from .._records import fmt
 from ..errors import DataFormatError, ModelDefinitionError
 from .orthogonal_multisines import (
     OrthogonalMultisine,
+    _numbers,
     orthogonal_multisine,
     relative_peak_factor,
     schroeder_phases,
@@ -99,12 +101,14 @@ def _range(value: Any, what: str, *, positive: bool = False) -> Range:
     if isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool):
         lo = hi = float(value)
     else:
-        try:
-            lo, hi = (float(v) for v in value)
-        except (TypeError, ValueError):
+        # text and bools are no numbers, though float() reads "1" and True as 1.0
+        listed = isinstance(value, (tuple, list, np.ndarray)) and np.ndim(value) == 1
+        ends = [as_float(v) for v in value] if listed else []
+        if len(ends) != 2 or ends[0] is None or ends[1] is None:
             raise ModelDefinitionError(
                 f"{what}: expected a number or a (low, high) range, got {value!r}"
-            ) from None
+            )
+        lo, hi = ends[0], ends[1]
     if not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
         raise ModelDefinitionError(f"{what}: expected finite low <= high, got {value!r}")
     if positive and lo <= 0:
@@ -388,12 +392,7 @@ class Multisine(_Family):
         amplitude: float | Range,
         peak: float | None = None,
     ) -> None:
-        try:
-            freqs = np.asarray(frequencies, dtype=np.float64).ravel()
-        except (TypeError, ValueError):
-            raise ModelDefinitionError(
-                f"Multisine frequencies: expected a sequence of numbers, got {frequencies!r}"
-            ) from None
+        freqs = _numbers(frequencies, "Multisine frequencies")
         if freqs.size == 0 or not np.all(np.isfinite(freqs)) or np.any(freqs <= 0):
             raise ModelDefinitionError(
                 f"Multisine frequencies: expected positive finite values, got {frequencies!r}"
@@ -402,9 +401,10 @@ class Multisine(_Family):
             raise ModelDefinitionError(f"Multisine frequencies: duplicates in {frequencies!r}")
         amp = _range(amplitude, "Multisine amplitude")
         self.frequencies = tuple(float(f) for f in freqs)
-        self.peak = float(amp[1] if peak is None else peak)
-        if not (np.isfinite(self.peak) and self.peak > 0):
+        limit = amp[1] if peak is None else as_float(peak)
+        if limit is None or not (np.isfinite(limit) and limit > 0):
             raise ModelDefinitionError(f"Multisine peak: expected a positive number, got {peak!r}")
+        self.peak = limit
         super().__init__(control, {f"amplitude_{f:g}Hz": amp for f in self.frequencies})
 
     def highest_frequency(self) -> float:

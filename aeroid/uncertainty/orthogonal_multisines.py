@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._checks import as_float, plain
 from .._records import FrozenState, fmt, frozen_array, markdown_table
-from .._value_checks import check_seed
+from .._value_checks import check_seed, whole_number
 from ..errors import ModelDefinitionError
 from ..io.data import FlightData
 
@@ -46,6 +47,22 @@ def schroeder_phases(powers: ArrayLike) -> FloatArray:
     phases = np.zeros(p.size)
     phases[1:] = -2.0 * np.pi * (k[1:] * cum[:-1] - cum_l[:-1])
     return phases
+
+
+def _numbers(values: Any, what: str) -> FloatArray:
+    """`values` (a number or a flat sequence of them) as floats, else a
+    `ModelDefinitionError` naming `what`: text and bools are no numbers, though
+    ``float("2")`` and ``float(True)`` would read them as such."""
+    if isinstance(values, np.ndarray):
+        items = values.ravel().tolist() if values.dtype.kind in "iuf" else [None]
+    elif isinstance(values, (str, bytes)) or not isinstance(values, Sequence):
+        items = [values]
+    else:
+        items = list(values)
+    out = [as_float(v) for v in items]
+    if any(v is None for v in out):
+        raise ModelDefinitionError(f"{what}: expected numbers, got {plain(values):.200}")
+    return np.array(out, dtype=np.float64)
 
 
 def relative_peak_factor(signal: ArrayLike) -> float:
@@ -143,6 +160,8 @@ class OrthogonalMultisine(FrozenState):
     zero_phase_peak_factors : ndarray, shape (n_controls,)
         The same with all phases zero, for comparison.
     seed : int or None
+        The seed of the phase optimisation (drawn and recorded when none was
+        given): the same seed gives the same signals.
     """
 
     time: FloatArray
@@ -251,7 +270,9 @@ def orthogonal_multisine(
         band reaching 0.43 of the sample rate). The summary lists the samples'
         peak.
     seed : int, optional
-        Seed of the random restarts of the phase optimisation.
+        Seed of the random restarts of the phase optimisation. None draws one
+        from the operating system's entropy and records it on the result
+        (``.seed``), so that the signal can be repeated.
     n_iterations : int
         Clipping iterations per restart.
 
@@ -269,21 +290,25 @@ def orthogonal_multisine(
         raise ModelDefinitionError(f"controls: expected control names, got {controls!r}")
     if len(set(names)) != len(names):
         raise ModelDefinitionError(f"controls: duplicate names in {names}")
-    dur = float(duration)
-    fs = float(sample_rate)
-    if not (np.isfinite(dur) and dur > 0 and np.isfinite(fs) and fs > 0):
+    dur, fs = as_float(duration), as_float(sample_rate)
+    if (
+        dur is None
+        or fs is None
+        or not (np.isfinite(dur) and dur > 0 and np.isfinite(fs) and fs > 0)
+    ):
         raise ModelDefinitionError(
-            f"duration and sample_rate must be positive, got {duration!r}, {sample_rate!r}"
+            f"duration and sample_rate: expected positive numbers, got {duration!r}, "
+            f"{sample_rate!r}"
         )
     n = round(dur * fs)
     if n < 8 or abs(n - dur * fs) > 1e-6 * n:
         raise ModelDefinitionError(
             f"duration * sample_rate must be an integer number of samples (>= 8), got {dur * fs:g}"
         )
-    try:
-        lo, hi = (float(v) for v in band)
-    except (TypeError, ValueError):
-        raise ModelDefinitionError(f"band: expected (low, high) in Hz, got {band!r}") from None
+    edges = _numbers(band, "band")
+    if edges.size != 2 or np.ndim(band) != 1:
+        raise ModelDefinitionError(f"band: expected (low, high) in Hz, got {band!r}")
+    lo, hi = float(edges[0]), float(edges[1])
     if not (0 <= lo < hi):
         raise ModelDefinitionError(f"band: expected 0 <= low < high, got {band!r}")
     if hi > fs / 2.0 * (1.0 + 1e-12):
@@ -291,16 +316,16 @@ def orthogonal_multisine(
             f"band: its top {hi:g} Hz lies above the Nyquist frequency {fs / 2.0:g} Hz of "
             f"sample_rate {fs:g} Hz; lower the band or raise the sample rate"
         )
-    try:
-        amps = np.broadcast_to(np.asarray(amplitudes, dtype=np.float64), (len(names),)).copy()
-    except (TypeError, ValueError):
+    amps = _numbers(amplitudes, "amplitudes")
+    if amps.size == 1:
+        amps = np.full(len(names), amps[0])
+    elif amps.size != len(names) or np.ndim(amplitudes) != 1:
         amps = np.array([np.nan])
     if not np.all(np.isfinite(amps)) or np.any(amps <= 0):
         raise ModelDefinitionError(
             f"amplitudes: expected positive numbers (one or one per control), got {amplitudes!r}"
         )
-    if int(n_iterations) < 1:
-        raise ModelDefinitionError(f"n_iterations: expected >= 1, got {n_iterations!r}")
+    iterations = whole_number(n_iterations, "n_iterations", ModelDefinitionError)
     period = n / fs
     f_base = 1.0 / period
     k_all = np.arange(max(1, math.ceil(lo / f_base - 1e-9)), math.floor(hi / f_base + 1e-9) + 1)
@@ -311,13 +336,16 @@ def orthogonal_multisine(
             f"band {band!r} holds {k_all.size} harmonics of 1/{period:g} s; need at least "
             f"one per control ({m}) — widen the band or lengthen the duration"
         )
-    rng = np.random.default_rng(check_seed(seed, ModelDefinitionError))
+    if check_seed(seed, ModelDefinitionError) is None:
+        # fresh entropy, recorded on the result so that the signal can be repeated
+        seed = int(np.random.SeedSequence().generate_state(1)[0])
+    rng = np.random.default_rng(seed)
     t = np.arange(n + 1) / fs
     signals = np.empty((n + 1, m))
     harmonics, phases, line_amps, rpfs, rpf0 = [], [], [], [], []
     for j in range(m):
         k = k_all[j::m].astype(np.int64)
-        ph = _optimise_phases(k, n, rng, int(n_iterations))
+        ph = _optimise_phases(k, n, rng, iterations)
         kf = k.astype(np.float64)
 
         def u_of(tt: Any, ph: FloatArray = ph, kf: FloatArray = kf) -> Any:
