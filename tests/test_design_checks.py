@@ -131,3 +131,32 @@ def test_a_user_family_that_breaks_the_protocol_is_named(family, culprit):
             seed=0, optimizer_options={"maxiter": 1, "popsize": 3},
         )  # fmt: skip
     assert "optimizer_options" not in str(info.value)
+
+
+def test_a_design_at_a_fit_flies_its_estimated_time_delay():
+    # the design ignored the fit's delay (tau_da = 0.3 s) that sensitivities applies:
+    # its bounds were those of the undelayed manoeuvre (L_da 0.0736 against 0.0762)
+    roll = _table_roll(False)
+    t = np.arange(0, 10.0001, 0.02)
+    da = np.where((t >= 1) & (t < 2), 0.05, 0.0) - np.where((t >= 2) & (t < 3), 0.05, 0.0)
+    p = roll.simulate(t, {"da": np.interp(t - 0.3, t, da, left=0.0)}).outputs[:, 0]
+    noisy = p + 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    data = aeroid.FlightData(t, {"da": da, "p": noisy})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = aeroid.identify(roll, data, ["L_p", "L_da"], time_delays=["da"])
+    assert fit.time_delays["da"] == pytest.approx(0.3, abs=0.05)
+    family = aeroid.Chirp("da", f0=(0.05, 0.5), f1=(1.0, 4.0), amplitude=(0.01, 0.05))
+    kw = {"noise": {"p": 0.01}, "duration": 4.0, "sample_rate": 25.0, "seed": 0}
+    kw["optimizer_options"] = {"maxiter": 1, "popsize": 3, "polish": False}
+    d = design_experiment(roll, family, ["L_p", "L_da"], values=fit, **kw)
+    flown = aeroid.sensitivities(roll, d.to_flight_data(), fit, noise={"p": 0.01}, x0=[0.0])
+    plain = aeroid.sensitivities(roll, d.to_flight_data(), {k: fit.parameters[k] for k in ("L_p", "L_da")},
+                                 noise={"p": 0.01}, x0=[0.0])  # fmt: skip
+    for name in ("L_p", "L_da"):
+        assert d.predicted_stderr[name] == pytest.approx(flown.cramer_rao_bound[name], rel=1e-6)
+        assert abs(plain.cramer_rao_bound[name] / flown.cramer_rao_bound[name] - 1) > 1e-3
+    # the controls recorded are the commands: undelayed
+    np.testing.assert_array_equal(
+        d.controls[:, 0], family.signal(list(d.design.values()), d.time)[:, 0]
+    )

@@ -39,7 +39,14 @@ from ..errors import (
 )
 from ..estimation.identifiability import NO_EFFECT, RCOND
 from ..io.data import FlightData, as_float, check_flag
-from ..models.model import Model, SimulatorModel, require_model, resolve_parameters
+from ..models.integration import shifted_controls
+from ..models.model import (
+    Model,
+    SimulatorModel,
+    control_delays,
+    require_model,
+    resolve_parameters,
+)
 from ._design_family import family_bounds, family_controls, family_vector, trim_vector
 from .design_options import optimizer_settings
 from .maneuvers import ManeuverFamily
@@ -251,6 +258,7 @@ class _Evaluator:
         relative_step: float,
         trim: FloatArray | None = None,
         width: int = 0,
+        delays: Mapping[str, float] | None = None,
     ) -> None:
         self.model = model
         self.maneuver = maneuver
@@ -269,6 +277,8 @@ class _Evaluator:
         self.cols = [all_controls.index(c) for c in maneuver.controls]
         self.n_u = len(all_controls)
         self.trim = np.zeros(self.n_u) if trim is None else trim
+        # a fit's estimated time delays: the vehicle it describes acts on u(t - tau)
+        self.delays = [(all_controls.index(c), tau) for c, tau in (delays or {}).items()]
         # Every batch is padded to this many candidates (0: none): each batch shape
         # compiles a program of its own, and the population, the polish's gradient
         # stencil and the final comparison would otherwise give three or four.
@@ -319,6 +329,9 @@ class _Evaluator:
         """
         n = variables.shape[0]
         u = self.controls(variables)
+        if self.delays:
+            cols, taus = [c for c, _ in self.delays], [tau for _, tau in self.delays]
+            u = np.stack([shifted_controls(self.time, us, cols, taus) for us in u])
         if n < self.width:
             extra = u[-1:]
             if filler is not None:
@@ -466,7 +479,9 @@ def design_experiment(
         Parameters are scaled by ``|θ|`` (1 at zero) so units do not matter.
     values : mapping or result, optional
         Parameter values to design at (default: nominal), or a result with
-        ``.parameters``.
+        ``.parameters``; an identification result's estimated time delays
+        delay its controls, as in `sensitivities` (the designed, recorded
+        controls are the commands, undelayed).
     noise : mapping of str to float, optional
         Measurement-noise standard deviation per output used in the design
         (its outputs are the measured ones); default: every output with unit
@@ -613,7 +628,7 @@ def design_experiment(
 
     evaluate = _Evaluator(
         model, maneuver, time, x0, vals, names, sigma, out_idx, criterion, options, rel,
-        trims, batch_width,
+        trims, batch_width, control_delays(model, values, error=IdentificationError),
     )  # fmt: skip
     # padded with another design (a corner of the bounds): a batch of one control history
     # repeated is simulated as a shared history, by a compiled program of its own
