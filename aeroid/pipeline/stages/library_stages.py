@@ -551,7 +551,7 @@ for _stage in (
         "design",
         # 2: the flight's record as an input (at_record_start), trim controls; 3: RK4;
         # 4: a multisine is Schroeder's cosine sum, started at a zero crossing
-        "4",
+        "5",  # 5: phases in frequency order, lines in bounds, a fit's delays, failures
         DesignOptions,
         "ExperimentDesign",
         _run_design,
