@@ -99,6 +99,22 @@ def test_iteration_limit_flags_instead_of_raising(sp_model, sp_noisy):
     assert "Not converged" in r.summary()
 
 
+@pytest.mark.parametrize("method", ["output_error", "filter_error"])
+def test_converging_on_the_last_allowed_iteration_is_success(sp_model, sp_noisy, method):
+    # the free fit converges after n iterations; a limit of n reaches the same point
+    # (same cost to the bit) and is converged too, a limit of n - 1 is flagged
+    kw = {} if method == "output_error" else {"process_noise": {"alpha": 0.0, "q": 1e-4}}
+    free = identify(sp_model, sp_noisy, NAMES, method=method, **kw)
+    n = free.n_iterations
+    assert free.success and n > 1
+    capped = identify(sp_model, sp_noisy, NAMES, method=method, max_iterations=n, **kw)
+    assert capped.success and capped.message == free.message == f"converged after {n} iterations"
+    assert capped.cost == free.cost and capped.parameters == free.parameters
+    with pytest.warns(UserWarning, match="iteration limit"):
+        short = identify(sp_model, sp_noisy, NAMES, method=method, max_iterations=n - 1, **kw)
+    assert not short.success
+
+
 def test_unidentifiable_sum_warns_and_flags(sp_noisy):
     def dyn(t, x, u, p):
         alpha, q = x[0], x[1]

@@ -74,6 +74,35 @@ def test_iteration_limit_is_flagged() -> None:
     assert not fit.success and fit.iterations == 2 and "iteration limit (2)" in fit.message
 
 
+def test_convergence_on_the_last_allowed_step_is_convergence() -> None:
+    # linear least squares: the one Gauss-Newton step lands on the solution, so a
+    # limit of one step stops where the free run stops, converged (not flagged)
+    x, z = _linear()
+    evaluate = _plain(x, z)
+    th0 = np.zeros(3)
+    fit = minimise(evaluate, th0, evaluate(th0, None), tolerance=1e-10, max_iterations=1)
+    assert fit.success and fit.message == "converged after 1 iterations"
+    assert fit.iterations == 1 and fit.evaluations == 1
+    np.testing.assert_allclose(fit.theta, np.linalg.lstsq(x, z, rcond=None)[0], rtol=1e-12)
+    # Rosenbrock: the free run's count as the limit gives its answer and its verdict;
+    # one step fewer is flagged
+    free = fit_residuals(_rosenbrock, _rosenbrock_jacobian, np.array([-1.2, 1.0]), tolerance=1e-10)
+    n = free.iterations
+    capped = fit_residuals(
+        _rosenbrock, _rosenbrock_jacobian, np.array([-1.2, 1.0]), tolerance=1e-10, max_iterations=n
+    )
+    assert free.success and capped.success and capped.message == free.message
+    np.testing.assert_array_equal(capped.theta, free.theta)
+    short = fit_residuals(
+        _rosenbrock,
+        _rosenbrock_jacobian,
+        np.array([-1.2, 1.0]),
+        tolerance=1e-10,
+        max_iterations=n - 1,
+    )
+    assert not short.success and f"iteration limit ({n - 1})" in short.message
+
+
 def test_an_active_bound_holds_and_the_rest_is_the_constrained_solution() -> None:
     x, z = _linear(1)
     evaluate = _plain(x, z)

@@ -220,7 +220,8 @@ def identify(
         estimating it adds to the estimates (`aeroid._weighting`).
     max_iterations : int
         Gauss–Newton iteration limit (a positive integer); hitting it returns
-        a result flagged ``success=False`` with a warning.
+        a result flagged ``success=False`` with a warning, unless the last
+        allowed iteration converged (a higher limit would stop there too).
     tolerance : float
         Convergence threshold on the relative parameter step.
     simulate_options : mapping, optional

@@ -338,7 +338,9 @@ def minimise(
         the last two iterations counts too: such a weighting can settle into a
         two-step cycle about its fixed point.
     max_iterations : int
-        The most accepted steps; reaching it returns ``success=False``.
+        The most accepted steps; reaching it returns ``success=False`` unless a
+        run with a higher limit would stop there too (undamped, its Gauss-Newton
+        step passes the stopping rule): converged on the last allowed step.
     typical : (n,) array, optional
         Each unknown's typical size, the floor of the relative step (default 1).
     lower, upper : (n,) arrays, optional
@@ -443,6 +445,11 @@ def minimise(
         lam = lam / 10.0 if lam > _UNDAMPED else 0.0
         if converged(rel, decrease, point.cost, tolerance):
             return end(True, f"converged after {iteration} iterations")
+    # the last allowed step may have reached the minimum: the test a run with a higher
+    # limit makes before its next step (undamped there), so the verdicts agree
+    step = damped_step(point, 0.0, theta, lo, hi)[0]
+    if lam == 0.0 and _negligible(point, step, theta, typ, tolerance):
+        return end(True, f"converged after {iteration} iterations")
     return end(False, f"iteration limit ({max_iterations}) reached before convergence")
 
 
