@@ -35,8 +35,8 @@ extrapolated (`aeroid.estimation.least_squares.minimise`, ``accelerate``).
 
 Pure time delays of controls (``time_delays=``) are unknowns of the same
 iteration, as in output error (Jategaonkar ch. 4, Klein & Morelli ch. 6): the
-filter runs on ``u(t - tau)``, interpolated between the samples
-(`aeroid.models.integration.shifted_controls`), so a delay may be a
+filter runs on ``u(t_k - tau)`` at the sample times, interpolated on the
+data grid (`aeroid.models.integration.shifted_controls`), so a delay may be a
 fraction of a sample, and the innovations' differences in tau give its row of
 the information matrix and its error bar. The members of a batch that share
 the delays share one pass; a delay's perturbed member runs its own.
@@ -481,8 +481,8 @@ def identify_filter_error(
         standard error 0 and the others' covariance conditional on the bound.
     time_delays : mapping of str to float, optional
         Control name -> start value (s) of its pure time delay, estimated with
-        the parameters: the filter takes ``u(t - tau)``, interpolated between
-        the samples. Reported as parameter ``"tau_<control>"`` and in
+        the parameters: the filter takes ``u(t_k - tau)`` at the sample times,
+        joined between them (see `aeroid.identify`). Reported as parameter ``"tau_<control>"`` and in
         ``result.time_delays``.
 
     Returns

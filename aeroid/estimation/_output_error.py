@@ -445,8 +445,8 @@ def fit_output_error(
     """Run the estimation; arguments are already validated by `identify`.
 
     `delays` (control name -> start value in s) adds one pure time delay per
-    named control to the unknowns: the control is simulated as ``u(t - tau)``
-    (`shifted_controls`), so every simulation path, the LTI and compiled ones
+    named control to the unknowns: the control is simulated as its samples
+    delayed, ``u(t_k - tau)`` on the data grid (`shifted_controls`), so every simulation path, the LTI and compiled ones
     included, stays valid, and its sensitivity is a central difference in
     tau. The delays are reported as parameters ``tau_<control>``.
 

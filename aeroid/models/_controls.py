@@ -188,11 +188,16 @@ def shifted_controls(
     delays: Sequence[float] | FloatArray,
     interpolation: Interpolation = "linear",
 ) -> FloatArray:
-    """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds:
-    ``u(t - tau)`` interpolated between the samples as the simulation is told
-    (piecewise-linearly by default, or the cubic of
-    `aeroid.models.integration.control_slopes`) and held at the first and last
-    samples outside them."""
+    """The controls with column ``columns[i]`` delayed by ``delays[i]`` seconds, on
+    the record's own time grid: ``u(t_k - tau)`` at each sample time ``t_k``,
+    interpolated between the samples as the simulation is told (piecewise-linearly
+    by default, or the cubic of `aeroid.models.integration.control_slopes`) and
+    held at the first and last samples outside them.
+
+    The simulation then joins these delayed samples between sample times like any
+    control: a whole-sample delay is exactly ``u(t - tau)``, a fractional one a
+    linear-interpolation fractional-delay filter (the delayed control's corners at
+    ``t_j + tau`` are cut by the chord between sample times)."""
     out = np.array(controls, dtype=np.float64, copy=True)
     # from the record's start: on a clock at 1.7e9 s a time's last digit is 2.4e-7 s, and
     # t - tau would round a shift of a few microseconds (a delay's derivative) away

@@ -112,7 +112,8 @@ def delayed_controls(result: Any, data: FlightData) -> FlightData:
     A result whose fit estimated pure time delays (``result.time_delays``,
     control -> seconds) describes a vehicle whose controls act as
     ``u(t - tau)``: its model is simulated on the controls delayed the same
-    way, interpolated piecewise-linearly as `identify` does, and held at the
+    way, ``u(t_k - tau)`` at the sample times joined piecewise-linearly as
+    `identify` does (see its ``time_delays``), and held at the
     first sample before it. Unlike the initial state and the output biases, a
     delay belongs to the vehicle, so it applies on any record. Other values
     of `result` (a mapping, None) leave `data` as it is.

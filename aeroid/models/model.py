@@ -629,8 +629,10 @@ class Model(ContinuousModel):
             ``.parameters``. The pure delays a fit with ``time_delays``
             estimated (its ``tau_<control>`` entries, in a mapping such as a
             `propagate` draw or in the result) delay their controls:
-            ``u(t - tau)``, interpolated as `control_interpolation` says and
-            held at the first sample, as `identify` simulated them.
+            ``u(t - tau)`` at the sample times, joined between them as
+            `control_interpolation` says and held at the first sample, as
+            `identify` simulated them (a fractional delay's corners fall on
+            the sample times: see `identify`'s ``time_delays``).
         method : str
             A `scipy.integrate.solve_ivp` method (default ``"RK45"``; the
             explicit pairs restart at every sample, where the controls kink,
