@@ -31,9 +31,14 @@ white noise fitted by restricted maximum likelihood, which accounts for the
 regressors the fit absorbed without any window, the sandwich is exact for that
 model, and the noise model's own uncertainty widens the interval through a
 Satterthwaite t-quantile. It covers as well or better (95–97 % on the tests'
-records, white or AR(1) with φ = 0.9) at about the same cost, but only for
-residuals its AR(1)-plus-white model describes; the window assumes no shape
-of the residual spectrum, so it stays the default, as SIDPAC's correction is.
+records, white or AR(1) with φ = 0.9) at about the same cost, but it is exact
+only for residuals its AR(1)-plus-white model describes. Real flight residuals
+are seldom of that colour (a short-memory part plus slow content): the AR(1)
+fit over-reads their low-frequency power, where the regressors' information
+lies, and the ``"reml"`` bars can be several times too wide (2-6x against
+AR(p) sandwiches and SIDPAC's ``colores`` on four real equations, the constant
+widest). The window assumes no shape of the residual spectrum, so it stays the
+default and the recommended bar, as SIDPAC's correction is.
 
 Fit statistics follow Klein & Morelli: ``R² = 1 − SSE/SST`` (SST about the
 mean when there is a constant term), the F statistic of the regression
@@ -181,8 +186,10 @@ def equation_error(
         notes), classical, or corrected as output error corrects its own:
         each residual modelled as AR(1) plus white noise fitted by restricted
         maximum likelihood, with the noise model's own uncertainty widening
-        the bars (``"reml"``; about the window's cost, but exact only for
-        that noise model). In the frequency domain ``"colored"`` is the frequency
+        the bars (``"reml"``; exact only for AR(1)-plus-white residuals: on
+        real residuals of another colour it can be several times too wide,
+        2-6x on real flight equations, so the default is the recommended
+        bar). In the frequency domain ``"colored"`` is the frequency
         sandwich (module notes) and ``"reml"`` is refused.
     domain : {"time", "frequency"}
         Ordinary least squares on the samples, or Fourier transform
