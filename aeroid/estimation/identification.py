@@ -255,18 +255,16 @@ def identify(
     time_delays : str, sequence of str or mapping of str to float, optional
         Controls whose pure time delay to estimate (output error and filter
         error), or a dict of control name to start value in s (default start
-        0). The
-        control is delayed on the data grid: its values ``u(t_k - tau)`` at
-        the sample times, read off the record's piecewise-linear control, are
-        joined between samples as any control is (straight lines unless
-        ``control_interpolation`` says otherwise), so a delay may be a
-        fraction of a sample. A whole-sample delay is exactly ``u(t - tau)``;
-        a fractional one is a linear-interpolation fractional-delay filter:
-        exact at the sample times, it follows the chord between them and cuts
-        the corners the delayed control has at ``t_j + tau`` (a slight
-        low-pass). On noise-free records made with the exact ``u(t - tau)``
-        such a delay comes back within about 1 % of the sample interval,
-        below its standard error at ordinary noise levels. Each delay is reported as parameter ``"tau_<control>"`` in
+        0). The control is delayed on the data grid: its values
+        ``u(t_k - tau)`` at the sample times, read off the record's
+        piecewise-linear control, are joined between samples as any control
+        is (straight lines unless ``control_interpolation`` says otherwise),
+        so a delay may be a fraction of a sample. A whole-sample delay is
+        exactly ``u(t - tau)``; a fractional one is a linear-interpolation
+        fractional-delay filter, exact at the sample times, cutting the
+        corners the delayed control has at ``t_j + tau`` (a slight low-pass):
+        on noise-free records made with the exact ``u(t - tau)`` it comes
+        back within about 1 % of the sample interval. Each delay is reported as parameter ``"tau_<control>"`` in
         `parameters`, `stderr`, `covariance` and `summary`, and in
         ``result.time_delays``; it is shared by every manoeuvre.
     start : {"given", "equation_error"}
