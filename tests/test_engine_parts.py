@@ -132,6 +132,18 @@ def test_identify_options_take_what_the_library_takes():
     assert "filter_options" not in opts.model_validate({}).key_document()
 
 
+def test_identify_choices_are_the_librarys():
+    # the config check refuses a value identify would refuse: the two lists agree
+    from typing import get_args
+
+    from aeroid.estimation import identification
+
+    fields = STAGES["identify"].options.model_fields
+    for option, library in (("gradient", "_GRADIENTS"), ("error_bars", "_ERROR_BARS")):
+        allowed = {a for m in get_args(fields[option].annotation) for a in get_args(m)}
+        assert allowed == set(getattr(identification, library)), option
+
+
 def test_infer_takes_parameters_and_priors_as_its_old_name_with_the_same_key(tmp_path):
     old = _config(tmp_path, "  infer: {priors: {M_q: {normal: [-2.0, 2.0]}}, n_steps: 5}\n")
     with pytest.warns(FutureWarning, match=r"stages.infer.priors is the old name of parameters"):

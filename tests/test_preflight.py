@@ -408,6 +408,58 @@ def test_an_external_simulator_is_checked_by_the_names_it_has(tmp_path):
     ]
 
 
+# -- option values the library would refuse, found before any flight runs ---------------------
+
+
+@pytest.mark.parametrize(
+    ("stages", "expected"),
+    [
+        (
+            "identify: {simulate_options: {method: rk5}}",
+            r"stages.identify.simulate_options\['method'\]: unknown method 'rk5'",
+        ),
+        (
+            "identify: {simulate_options: {substeps: -2}}",
+            r"stages.identify.simulate_options\['substeps'\]",
+        ),
+        (
+            "identify: {simulate_options: {atol: -1}}",
+            r"stages.identify.simulate_options\['atol'\]: expected a finite non-negative",
+        ),
+        (
+            "identify: {simulate_options: {control_interpolation: cubc}}",
+            r"stages.identify.simulate_options\['control_interpolation'\]: 'cubc' is unknown",
+        ),
+        (
+            "identify: {simulate_options: {control_interpolation: {elevatr: cubic}}}",
+            r"stages.identify.simulate_options\['control_interpolation'\]: \['elevatr'\] are "
+            r"not controls",
+        ),
+        (
+            "validate: {simulate_options: {rtol: abc}}",
+            r"stages.validate.simulate_options\['rtol'\]: expected a finite positive number, "
+            r"got 'abc'",
+        ),
+        (
+            "infer: {priors: {M_q: {normal: [-1.0, 1.0]}}, simulate_options: {rtol: 0}}",
+            r"stages.infer.simulate_options\['rtol'\]: expected a finite positive number",
+        ),
+        ("identify: {gradient: jaxx}", r"stages.identify.gradient: .*'jax'"),
+        ("identify: {error_bars: sandwhich}", r"stages.identify.error_bars: .*'white'"),
+    ],
+)
+def test_an_option_value_the_library_refuses_is_named_before_any_run(tmp_path, stages, expected):
+    _refused(_config(tmp_path, SIM + f"stages:\n  {stages}\n"), expected)
+
+
+def test_good_simulate_options_pass_the_check(tmp_path):
+    stages = (
+        "identify: {simulate_options: {method: RK45, rtol: 1.0e-8, atol: 0, "
+        "control_interpolation: {elevator: cubic}}, gradient: fd, error_bars: white}"
+    )
+    preflight(_config(tmp_path, SIM + f"stages:\n  {stages}\n"))
+
+
 # -- end to end: the command refuses before any task ---------------------------------------------
 
 
@@ -419,6 +471,7 @@ def test_an_external_simulator_is_checked_by_the_names_it_has(tmp_path):
         ("[/dev/zero]", "{}", r"/dev/zero is a device, not a flight file"),
         ("[pipe.csv]", "{}", r"pipe.csv is a FIFO \(named pipe\)"),
         ("[b.csv]", "{}", r"needs the control 'elevator', which the flight lacks"),
+        ("[a.csv]", "identify: {simulate_options: {method: rk5}}", r"\['method'\]: unknown"),
     ],
 )
 @pytest.mark.parametrize("command", ["run", "status"])

@@ -204,6 +204,8 @@ def _check(
             _check_code_fields(step, opts, base_dir, allowed, problems)
         if stage == "infer":
             _check_infer_size(step, opts, problems)
+        if model is not None:
+            _check_simulate_options(step, opts, model, problems)
     _check_generators(config, allowed, problems)
     needs = None if names is None else _channel_needs(options, names, pipeline is None)
     _check_simulated_channels(config, needs, problems)
@@ -268,6 +270,21 @@ def _check_infer_size(step: str, opts: Any, problems: _Problems) -> None:
             f"{total:.3g} simulations a flight, over the {_MAX_EVALUATIONS:.0e} a run can "
             "finish (days at a millisecond each); use fewer steps or walkers",
         )
+
+
+def _check_simulate_options(step: str, opts: Any, model: Any, problems: _Problems) -> None:
+    """A step's ``simulate_options`` values, by the library's own check: a bad method,
+    tolerance, substep count or control interpolation would fail every flight."""
+    from ...models.model import check_simulate_options
+
+    given = getattr(opts, "simulate_options", None)
+    if given is None:
+        return
+    try:
+        check_simulate_options(given, model, ConfigError, name=f"stages.{step}.simulate_options")
+    except ConfigError as exc:
+        where, _, fault = str(exc).partition(": ")
+        problems.add(where, fault)
 
 
 def _without_flights(values: Any) -> dict[str, Any] | None:

@@ -15,6 +15,7 @@ from ...errors import PipelineError
 from ..plans.config import Options
 from ..storage.codec import register_record
 from . import Stage, StageContext, register_stage
+from .config_specs import _ERROR_BARS
 from .load_stage import flight_data
 from .signature_options import library_fields
 
@@ -30,7 +31,6 @@ __all__ = [
 
 
 # types narrower than the library's: the values it names, a list of numbers (not an array)
-_ERROR_BARS: Any = (Literal["colored", "white"] | None, Field(None))
 _FREQUENCIES: Any = (list[float] | None, Field(None))
 
 

@@ -3,14 +3,32 @@ objects: a prior (`PriorSpec`), a built-in manoeuvre family (`ManeuverSpec`)."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import AfterValidator, Field, model_validator
 
 from ...errors import AeroidError, PipelineError
 from ..plans.config import Options
 
 __all__ = ["ManeuverSpec", "PriorSpec"]
+
+
+def _simulate_keys(value: Any) -> Any:
+    """`simulate_options` whose keys are the library's: checked before any flight loads
+    (their values need the model: `check_campaign` checks them)."""
+    from ...models.model import SIMULATE_OPTION_KEYS
+
+    unknown = sorted(set(value or {}) - set(SIMULATE_OPTION_KEYS))
+    if unknown:
+        raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTION_KEYS)}")
+    return value
+
+
+# types narrower than the library's `str`: the values it takes (tests/test_engine_parts.py
+# pins them to the library's lists), so that a typo is refused before any flight runs
+_SIMULATE: Any = (Annotated[dict[str, Any] | None, AfterValidator(_simulate_keys)], Field(None))
+_ERROR_BARS: Any = (Literal["colored", "white"] | None, Field(None))
+_GRADIENT: Any = (Literal["auto", "fd", "jax"] | None, Field(None))
 
 
 class PriorSpec(Options):

@@ -20,7 +20,7 @@ from pydantic import AfterValidator, AliasChoices, Field, field_validator, model
 from ...errors import AeroidError
 from ..plans.config import Options
 from . import FlightReport, Stage, StageContext, register_stage
-from .config_specs import ManeuverSpec, PriorSpec
+from .config_specs import _ERROR_BARS, _GRADIENT, _SIMULATE, ManeuverSpec, PriorSpec
 from .load_stage import HoldoutSpec, LoadOptions, flight_data, outside_holdout, record_start
 from .metrics import METRICS, damping_ratio, metric, natural_frequency, static_margin
 from .signature_options import library_fields
@@ -47,16 +47,6 @@ def _kwargs(options: Options, *exclude: str) -> dict[str, Any]:
     return options.library_kwargs(exclude=exclude)
 
 
-def _simulate_keys(value: Any) -> Any:
-    """`simulate_options` whose keys are the library's: checked before any flight loads."""
-    from ...models.model import SIMULATE_OPTION_KEYS
-
-    unknown = sorted(set(value or {}) - set(SIMULATE_OPTION_KEYS))
-    if unknown:
-        raise ValueError(f"unknown keys {unknown}; valid keys are {list(SIMULATE_OPTION_KEYS)}")
-    return value
-
-
 # -- identify / filter / validate ----------------------------------------------------
 
 
@@ -72,7 +62,6 @@ _NAMES: Any = (  # names to estimate (not starting values)
     Annotated[list[str] | None, AfterValidator(_distinct)],
     Field(None),
 )
-_SIMULATE: Any = (Annotated[dict[str, Any] | None, AfterValidator(_simulate_keys)], Field(None))
 _BY_NAME: Any = (dict[str, float] | None, Field(None))
 
 
@@ -90,6 +79,8 @@ class IdentifyOptions(
         process_noise=_BY_NAME,
         measurement_noise=_BY_NAME,
         simulate_options=_SIMULATE,
+        gradient=_GRADIENT,
+        error_bars=_ERROR_BARS,
         max_iterations=Field(None, ge=1),
         tolerance=Field(None, gt=0),
         # parameter -> [lower, upper], null for an open side (YAML: {M_q: [null, 0.0]})
