@@ -184,12 +184,18 @@ def test_bad_flight_file_is_reported_and_others_succeed(tmp_path):
     assert doc["computed"] == 7  # three flights x 2 + the report
     text = Path(doc["report"]).read_text()
     assert "1 failed" in text and "f01" in text
-    # failures are never cached: the report over a failed flight is not stored either
+    # failures are never stored; the report over them is (the file fails again, by its
+    # key), so an unchanged rerun recomputes nothing but the failed flight's retries
     code, st_out, _ = invoke("status", str(cfg), "--json")
     st = json.loads(st_out)
-    assert st["missing"] == 3 and st["stored"] == 6
-    code, out, _ = invoke("run", str(cfg), "--workers", "0")
-    assert code == 1 and "FAILED load f01" in out
+    assert st["missing"] == 2 and st["stored"] == 7
+    code, out, _ = invoke("run", str(cfg), "--workers", "0", "--json")
+    again = json.loads(out)
+    assert code == 1 and again["computed"] == 0 and again["cached"] == 7
+    assert "1 failed" in Path(again["report"]).read_text()
+    # and `aeroid rerun` recomputes it from the failures its provenance records
+    code, out, _ = invoke("rerun", "--all", "--config", str(cfg), "--workers", "0")
+    assert code == 0 and "7 of 7 entries bit-identical" in out, out
 
 
 def test_bad_config_names_file_and_key_path(tmp_path):

@@ -47,9 +47,11 @@ class TaskStatus:
 
     `status` is ``"computed"``, ``"cached"`` (stored before the run),
     ``"by_another_run"`` (computed meanwhile by another run sharing the
-    store, which this one waited for) or ``"failed"`` (with `error`). `cached` says whether a computed result was
-    committed to the store (a report over failed flights is not; `failures`
-    names them). The campaign report's task also carries its text and table
+    store, which this one waited for) or ``"failed"`` (with `error`; `repeatable`
+    where the stage refused its keyed inputs, so that the same inputs fail
+    again). `cached` says whether a computed result was committed to the store
+    (a report over failed flights is only where every failure is repeatable;
+    `failures` names them). The campaign report's task also carries its text and table
     (`markdown`, `columns`, `rows`) and figures, so the run writes the report
     files without reading the entry back; a task whose stage makes files beside
     the report (`Stage.files`) carries them in `files`. `briefs` are what campaign tasks
@@ -68,6 +70,7 @@ class TaskStatus:
     traceback: str | None = None
     warnings: tuple[str, ...] = ()
     failures: Mapping[str, str] = field(default_factory=dict)
+    repeatable: bool = False
     briefs: Mapping[str, Any] = field(default_factory=dict)
     compute_seconds: float = 0.0
     seconds: float = 0.0
@@ -172,7 +175,7 @@ def _gather(
             inputs[role] = _LazyRecords(reader, up_stage, keys)
         else:
             if ref in failed:
-                raise PipelineError(_upstream_failure(failed[ref]))
+                raise _UpstreamFailed(_upstream_failure(failed[ref]), failed[ref].repeatable)
             inputs[role] = reader.load(ref, up_stage)
     model = None
     if task.model_ref is not None:
@@ -288,7 +291,11 @@ def execute_task(
     try:
         _compute(task, store_root, upstream, parts, read_root, out, scope)
     except Exception as exc:
-        out.update(status="failed", error=error_text(exc))
+        # refused by the stage itself (bad data, bad options), or by the upstream
+        # step it needs, which was: the keyed inputs fail again, not a crash or the store
+        in_stage = out.pop("in_stage", False) and isinstance(exc, AeroidError)
+        repeatable = bool(getattr(exc, "repeatable", in_stage))
+        out.update(status="failed", error=error_text(exc), repeatable=repeatable)
         if not isinstance(exc, AeroidError):
             out["traceback"] = traceback.format_exc(limit=6)
     out["seconds"] = time.perf_counter() - t0
@@ -319,17 +326,19 @@ def _compute(
         if bad:
             raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
         t1, c1 = time.perf_counter(), time.process_time()
+        out["in_stage"] = True
         with record_warnings() as caught:
             # the library's warnings (an unconverged chain, poor coherence) belong to the
             # task: kept with its status and provenance instead of on a worker's stderr
             work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
+        del out["in_stage"]
         t2, c2 = time.perf_counter(), time.process_time()
         part_seconds = sum(p.compute_seconds for p in parts)
         part_cpu = sum(p.compute_cpu_seconds for p in parts)
         found = [*(w for p in parts for w in p.warnings), *_warning_texts(caught)]
         out["warnings"] = tuple(dict.fromkeys(found))
         out["compute_seconds"] = t2 - t1 + part_seconds
-        provenance = {
+        provenance: dict[str, Any] = {
             "task": task.to_json(),
             "versions": _versions(),
             "seconds": {
@@ -341,8 +350,13 @@ def _compute(
             "host": platform.node(),
             "warnings": list(out["warnings"]),
         }
-        # a report over failed flights is written out but never cached
-        return Made(work[0].record, provenance, keep=not failures)
+        # a report over failed flights is stored only where each failure is the keyed
+        # inputs' own (an unchanged rerun fails them again): a crash is retried
+        taken = [s for s in upstream if s.status == "failed" and s.key in task.upstream_keys]
+        if failures:  # what `aeroid rerun` gives the report again in their place
+            provenance["failed"] = [[s.key, s.step, s.flight, s.error] for s in taken]
+        repeatable = all(s.repeatable for s in taken)
+        return Made(work[0].record, provenance, keep=not failures or repeatable)
 
     done = put(store_root, task.stage, task.key, make, task=task.document, scope=scope)
     out.update(status=done.status, cached=done.stored)
@@ -394,6 +408,14 @@ def _warning_texts(caught: list[warnings.WarningMessage]) -> tuple[str, ...]:
 def error_text(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text if isinstance(exc, AeroidError) else f"{type(exc).__name__}: {text}"
+
+
+class _UpstreamFailed(PipelineError):
+    """A task's upstream step failed: repeatable where that failure was."""
+
+    def __init__(self, message: str, repeatable: bool) -> None:
+        super().__init__(message)
+        self.repeatable = repeatable
 
 
 def _failure_text(status: TaskStatus) -> str:

@@ -57,7 +57,8 @@ def rerun(
     entry = store.find(key)
     task, lines = _recorded_task(store, entry, current)
     with _Scratch() as scratch:
-        status = execution.execute_task(task, scratch.root, read_root=str(store.root))
+        failed = _recorded_failures(store, entry)
+        status = execution.execute_task(task, scratch.root, *failed, read_root=str(store.root))
         identical, more = _compare(store, entry, task, status, scratch.root)
     return identical, lines + more
 
@@ -109,6 +110,7 @@ def rerun_all(
                 scope=uuid.uuid4().hex,
                 on_done=finished,
                 read_root=str(store.root),
+                given=[s for e, _, _ in tasks.values() for s in _recorded_failures(store, e)],
             )
     return [results[e.key] for e in entries if e.key in results]
 
@@ -164,6 +166,16 @@ def _recorded_task(
         if current != meta["task"].get("model"):
             lines.append("note: the model's fingerprint differs from the recorded one")
     return task, lines
+
+
+def _recorded_failures(store: ResultStore, entry: Entry) -> list[execution.TaskStatus]:
+    """The upstream failures a report over failed flights was made with (its provenance
+    records them: they are stored nowhere else), given to its recomputation again."""
+    recorded = store.metadata(entry.key, entry.stage).get("provenance", {}).get("failed", [])
+    return [
+        execution.TaskStatus(key, step, flight, "failed", error=error, repeatable=True)
+        for key, step, flight, error in recorded
+    ]
 
 
 def _in_order(tasks: Iterable[Task]) -> list[Task]:
