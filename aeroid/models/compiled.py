@@ -9,45 +9,33 @@ to 1e-12 relative); a function that cannot be traced (a Python ``if`` on a
 state, ``float(x[0])``, SciPy calls) or that disagrees keeps the numpy path,
 and that decision is remembered per model.
 
-A model's first fit in a process compiles nothing: `_shooting` solves its RK4
-rollouts and their sensitivities (and the data-compatibility input-noise
-scatter) in numpy by Newton's method over the whole record; the model's next
-fit compiles (`output_sensitivities`, `_sensitivities_pay`).
+A model's first fit in a process compiles nothing (`_shooting`: Newton's method
+over the record in numpy); its next fit compiles (`_sensitivities_pay`).
 
-What is compiled:
+What is compiled: the batched (vmapped) fixed-step RK4 rollout, step for step
+`aeroid.models.integration.rk4`'s (`rk4_hook`, once a model has spent more numpy RK4
+work than a compilation costs); a sampler's batch from parameters to outputs, its
+substeps decided in the program (`rk4_outputs`); outputs with their exact
+sensitivities to chosen parameters and initial states (`output_sensitivities`) and
+the first-order effect of white control noise on a fit's gradient
+(`input_noise_scatter`); one sample interval of the RK4 propagation of a batch of
+points with its state Jacobian (`interval_propagator`, the nonlinear filters).
+The path a call takes depends on the model object's history (`fixed_path`).
 
-* a batched (vmapped) fixed-step RK4 rollout that reproduces
-  `aeroid.models.integration.rk4` step for step (same substeps, same controls between
-  samples, straight or cubic, evaluated at the RK4 nodes), used by `_integrate.integrate`
-  through `rk4_hook` once a model has spent more numpy RK4 work than a
-  compilation costs;
-* a sampler's batch from the parameters to the outputs in one call, the substeps decided
-  in the program (`rk4_outputs`, for `aeroid.models.batch_simulator.BatchSimulator`):
-  the one-substep rollout, which returns the count the stiffness rule picks, and a
-  looped rollout compiled only for a batch whose count is larger;
-* outputs and their exact sensitivities with respect to chosen parameters and
-  initial states (`output_sensitivities`), used by output error, and the
-  first-order effect of white control noise on a fit's gradient
-  (`input_noise_scatter`), used by the data-compatibility error bars;
-* one sample interval of the RK4 propagation of a batch of points and its
-  state Jacobian (`interval_propagator`), for the nonlinear filters.
-
-Every program takes the controls' excess over straight lines per interval beside them
-(`aeroid.models.integration.control_excess`, zero for straight lines): the cubic
-controls of ``control_interpolation`` run in the same programs, compiled once for both.
-
-JAX is imported on first use, never by ``import aeroid``, with 64-bit floats
-switched on. Compiled functions are cached per model (weakly held); the
-substep count is a run-time argument (one compilation serves every count the
-stiffness rule picks) and `jax.jit` caches the shapes, with batches padded to
-a power of two so that few shapes occur.
+Every program takes the controls' excess over straight lines per interval (zero for
+straight lines: cubic controls run in the same programs). JAX is imported on first
+use, never by ``import aeroid``, with 64-bit floats on. Compiled functions are cached
+per model (weakly held); the substep count is a run-time argument and `jax.jit`
+caches the shapes, batches padded to a power of two so that few shapes occur.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import threading
 import weakref
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -95,6 +83,7 @@ else:  # below aeroid.models.model (it calls this module): its base class stands
 __all__ = [
     "available",
     "compiled_rollout",
+    "fixed_path",
     "input_noise_scatter",
     "interval_propagator",
     "output_sensitivities",
@@ -112,6 +101,7 @@ ENABLED = True
 # A model whose first fit ran in numpy compiles in the library's background thread
 # after it (`aeroid._threads.after_call`); off, its next fit compiles in the foreground.
 BACKGROUND = True
+_FIXED, _FIXED_LOCK = [0], threading.Lock()  # calls under `fixed_path`
 # Numpy RK4 work (dynamics calls, each on a whole batch) a model may spend before the
 # integrator hook compiles it: a compilation costs about as much as this many calls.
 COMPILE_AFTER_CALLS = 20_000
@@ -130,6 +120,25 @@ _FIT_EVALUATIONS = 8
 # error-bar computations that follow it. Kept only while small.
 _LAST_SENSITIVITIES: list[Any] = []
 _KEEP_BYTES = 64 * 2**20
+
+
+def _background() -> bool:
+    return BACKGROUND and not _FIXED[0]
+
+
+@contextlib.contextmanager
+def fixed_path() -> Iterator[None]:
+    """Within: a model's later fits compile in the foreground instead of racing a
+    background compilation, so the path (numpy or compiled) depends on the calls made
+    with the model object only. The pipeline runs each task so, on a fresh copy of its
+    model: a result's bits never depend on the worker's history (workers, a rerun)."""
+    with _FIXED_LOCK:
+        _FIXED[0] += 1
+    try:
+        yield
+    finally:
+        with _FIXED_LOCK:
+            _FIXED[0] -= 1
 
 
 def available(
@@ -462,7 +471,7 @@ def output_sensitivities(
         entry = _entry(model)
         entry["declined"] = True
         entry["numpy_fits"] = fits = entry.get("numpy_fits", 0) + 1
-        if BACKGROUND and fits > 1:
+        if _background() and fits > 1:
             # a model fitted again is likely fitted once more: compiled in the background
             # once this fit has returned (a one-off fit never starts a compiler), and the
             # next fit switches to the compiled program if it is ready by then
@@ -516,7 +525,7 @@ def _sensitivities_pay(model: Model, substeps: int, n_t: int) -> bool:
     state = entry.get(("background", "sensitivities"))
     if state == "ready":
         return True
-    if BACKGROUND and spent > 0:
+    if _background() and spent > 0:
         # fitted in numpy before: this fit too, while the background thread compiles
         # (`output_sensitivities` queues it; for good where that failed), its rollouts
         # not counted towards compiling them (`worth_compiling`)
@@ -616,7 +625,7 @@ def input_noise_scatter(
     pvec = _pmatrix(model, params, 1)[0]
     x0 = np.asarray(x0, dtype=np.float64)
     state = entry.get(("background", "input_noise"))
-    if not entry.get("sensitivities_compiled") or (BACKGROUND and state != "ready"):
+    if not entry.get("sensitivities_compiled") or (_background() and state != "ready"):
         # a model whose fit ran in numpy, or whose program for this is not compiled yet:
         # the same adjoint in numpy, no compilation in the foreground
         from . import shooting as _shooting
@@ -626,7 +635,7 @@ def input_noise_scatter(
         )
         if got is not None:
             queued = entry.get(("background", "sensitivities")) is not None
-            if BACKGROUND and state is None and (queued or entry.get("sensitivities_compiled")):
+            if _background() and state is None and (queued or entry.get("sensitivities_compiled")):
                 # compiled in the background too (after the sensitivities, where queued)
                 extra = (np.asarray(inverse_variances, dtype=np.float64), np.asarray(sigma))
                 job = (time, controls, x0, pvec, tuple(names), tuple(x0_free), substeps)

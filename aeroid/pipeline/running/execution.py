@@ -8,6 +8,7 @@ functions every executor (`executors`) runs, wherever it runs them.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import platform
 import sys
@@ -21,6 +22,7 @@ from typing import Any, overload
 import numpy as np
 
 from ...errors import AeroidError, PipelineError
+from ...models.compiled import fixed_path
 from ...support import record_warnings
 from ..definition import load_pipeline
 from ..plans.planning import Task, resolve_model
@@ -179,7 +181,9 @@ def _gather(
             inputs[role] = reader.load(ref, up_stage)
     model = None
     if task.model_ref is not None:
-        model = resolve_model(task.model_ref["spec"], task.model_ref.get("base_dir"))
+        # a copy of its own: what earlier tasks of this process did with the model (its
+        # compiled programs, its last rollout) never changes this task's path or bits
+        model = copy.copy(resolve_model(task.model_ref["spec"], task.model_ref.get("base_dir")))
     seed = None
     if task.seed is not None:
         seed = np.random.SeedSequence(task.seed["seed"], spawn_key=tuple(task.seed["spawn_key"]))
@@ -248,7 +252,7 @@ def execute_part(
     try:
         stage, ctx = _context(task, store_root, _statuses(upstream_status), read_root)
         t1, c1 = time.perf_counter(), time.process_time()
-        with record_warnings() as caught:
+        with record_warnings() as caught, fixed_path():
             value = stage.run_part(ctx, index)
         seconds, cpu = time.perf_counter() - t1, time.process_time() - c1
         _process.settle_imports()
@@ -327,7 +331,7 @@ def _compute(
             raise PipelineError(f"part {bad[0].part} failed: {bad[0].error}")
         t1, c1 = time.perf_counter(), time.process_time()
         out["in_stage"] = True
-        with record_warnings() as caught:
+        with record_warnings() as caught, fixed_path():
             # the library's warnings (an unconverged chain, poor coherence) belong to the
             # task: kept with its status and provenance instead of on a worker's stderr
             work.append(perform(task, gathered, [p.value for p in parts] if parts else None))
