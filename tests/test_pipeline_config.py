@@ -303,7 +303,7 @@ def test_a_config_designs_a_3211_or_an_exponential_sweep(tmp_path):
     )
     cfg = _write(tmp_path, "model: short_period\nflights: [{simulated: {n_flights: 1}}]\n" + stage)
     (task,) = [t for t in plan(cfg).tasks if t.step == "design"]
-    assert task.document["stage_version"] == "4"  # the existing families are unchanged
+    assert task.document["stage_version"] == "5"  # 5: the Multisine phases in frequency order
     spec = load_config(cfg).stages["design"]["maneuver"]
     family = ManeuverSpec.model_validate(spec).build()
     assert isinstance(family, Multistep) and family.pattern == (3, 2, 1, 1)
