@@ -290,25 +290,23 @@ def warn_missing_outputs(model: Any, datas: Sequence[Any], fitted: Sequence[str]
     )
 
 
-# a step between stamps this many times the record's median step is a hole (as
-# `aeroid.resample` refuses one by default)
-_HOLE_STEPS = 5.0
-
-
 def warn_holes(datas: Sequence[Any], what: str) -> None:
     """Warn of a hole in a record's stamps (rows dropped, a logger's pause): the model
     flies across it on controls interpolated straight between its ends, unseen by
     the data, and a manoeuvre inside it is lost or bent (a doublet that reversed
-    in a hole biased M_alpha by 36 standard errors, success reported)."""
+    in a hole biased M_alpha by 36 standard errors, success reported). A hole is a
+    step longer than the one `aeroid.resample` refuses by default (`GAP_STEPS`)."""
+    from ..io.resampling import GAP_STEPS
+
     for i, d in enumerate(datas):
         steps = np.diff(np.asarray(d.time, dtype=np.float64))
         if steps.size < 2:
             continue
         median = float(np.median(steps))
         k = int(np.argmax(steps))
-        if not steps[k] > _HOLE_STEPS * median:
+        if not steps[k] > GAP_STEPS * median:
             continue
-        holes = int(np.count_nonzero(steps > _HOLE_STEPS * median))
+        holes = int(np.count_nonzero(steps > GAP_STEPS * median))
         which = "the record" if len(datas) == 1 else f"record {i}"
         warnings.warn(
             f"{what}: {which} has {holes} hole{'s' if holes > 1 else ''} in its time stamps, "

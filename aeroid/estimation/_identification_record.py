@@ -18,7 +18,7 @@ from .._records import (
     frozen_mapping,
     markdown_table,
 )
-from .._units import guessed_units
+from .._units import parameter_units
 
 __all__ = ["STATE_BIAS_PREFIX", "IdentificationResult"]
 
@@ -286,10 +286,9 @@ class IdentificationResult(IntervalMixin):
     def _units_shown(self) -> dict[str, str]:
         """The parameters' units: declared, else guessed (and marked so) where the
         record's channel units make the guess right (`guessed_units`)."""
-        names = self.parameter_names
-        out = {n: f"{u} (guessed)" for n, u in guessed_units(names, self.units).items()}
-        out.update({n: u for n, u in self.parameter_units.items() if n in names})
-        return out
+        declared = self.parameter_units
+        units = parameter_units(self.parameter_names, declared, self.units)
+        return {n: u if n in declared else f"{u} (guessed)" for n, u in units.items()}
 
     def summary(self) -> str:
         """Markdown table of estimates, standard errors and relative errors (and units:
