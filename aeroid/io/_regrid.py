@@ -454,8 +454,9 @@ def _resample_one(
     # a source at about the grid's rate is filtered and evaluated band-limited too:
     # interpolated straight across, a 19 Hz tone from 50.5 to 50 Hz kept 61 %; a
     # source whose stamps are the grid's points is copied
-    copied = source_rate <= _SAME_RATE * rate and _on_grid(src, grid)
-    decimate = method != "hold" and source_rate > rate / _SAME_RATE and not copied
+    decimate = method != "hold" and source_rate > rate / _SAME_RATE
+    if decimate and source_rate <= _SAME_RATE * rate:
+        decimate = not _on_grid(src, grid)
     kind = "linear" if method in ("auto", "linear") else method
     taps: FloatArray | None = None
     design: dict[str, Any] | None = None
